@@ -1,0 +1,32 @@
+//! Sans-I/O codec for the Siemens USS protocol, as described in `shared/USS.md`.
+//!
+//! Everything here works on caller-owned buffers and caller-supplied timestamps: no I/O, no clock,
+//! no allocation. The crate is `no_std`; the master's real-time thread and the drive simulator
+//! both build on it.
+//!
+//! - [`adr`]: slave addresses and the ADR byte (USS.md section 3).
+//! - [`telegram`]: encoding and validating whole telegrams, BCC, PKW/PZD layouts (section 3).
+//! - [`framer`]: the incremental receive framer with start-pause and residual-time rules (section 4).
+//! - [`pkw`]: parameter tasks and replies, PNU paging, error numbers, reply matching (section 6).
+//! - [`pzd`]: STW1/ZSW1 flag types, the PROFIdrive states, setpoint scaling (section 7).
+//! - [`timing`]: character time, start pause, residual time, worst case and wire floor (section 4).
+#![cfg_attr(not(test), no_std)]
+
+pub mod adr;
+pub mod framer;
+pub mod pkw;
+pub mod pzd;
+pub mod telegram;
+pub mod timing;
+
+pub use adr::{Address, AddressError, Adr};
+pub use framer::{FrameError, Framer, FramerConfig, LineError};
+pub use pkw::{
+    ParamError, ParamReply, ParamTask, PkwError, Pnu, PnuError, ReplyKind, Storage, Subindex, Value,
+};
+pub use pzd::{DriveState, Setpoint, Stw1, Zsw1};
+pub use telegram::{
+    DecodeError, EncodeError, Layout, LayoutError, PkwMode, PzdCount, Telegram, Words, bcc, encode,
+    encode_raw,
+};
+pub use timing::{Baud, BaudError, MAX_RESPONSE_DELAY, Timing};
