@@ -1,0 +1,140 @@
+//! A simulated bus: any set of drives at addresses 0..=31, each with its own fault plan. The bus
+//! decides who answers a telegram (USS.md sections 1 and 3): only the addressed drive, never for
+//! a broadcast, never a telegram received with errors; a mirror telegram comes back unchanged.
+
+use crate::drive::{Drive, DriveConfig};
+use crate::fault::{FaultPlan, Reply};
+use core::time::Duration;
+use rand::rngs::SmallRng;
+use rand::{Rng, SeedableRng};
+use thiserror::Error;
+use uss_protocol::telegram::MAX_TELEGRAM_BYTES;
+use uss_protocol::{Address, FrameError, Telegram};
+
+/// A drive on the bus and what happens to its replies.
+#[derive(Debug, Clone)]
+pub struct Slot {
+    pub drive: Drive,
+    pub faults: FaultPlan,
+}
+
+/// A bus that cannot be built as asked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Error)]
+pub enum BusError {
+    #[error("two drives have address {0}: every drive on a bus needs its own")]
+    DuplicateAddress(Address),
+}
+
+/// The simulated bus. Deterministic for a given seed.
+#[derive(Debug)]
+pub struct SimBus {
+    slots: [Option<Box<Slot>>; 32],
+    rng: SmallRng,
+    /// Telegrams addressed to no drive on the bus.
+    pub unanswered: u64,
+}
+
+impl SimBus {
+    pub fn new(seed: u64) -> Self {
+        Self {
+            slots: Default::default(),
+            rng: SmallRng::seed_from_u64(seed),
+            unanswered: 0,
+        }
+    }
+
+    /// Adds a drive; addresses must be unique.
+    pub fn add(&mut self, config: DriveConfig) -> Result<(), BusError> {
+        let slot = &mut self.slots[config.address.get() as usize];
+        if slot.is_some() {
+            return Err(BusError::DuplicateAddress(config.address));
+        }
+        *slot = Some(Box::new(Slot {
+            drive: Drive::new(config),
+            faults: FaultPlan::new(),
+        }));
+        Ok(())
+    }
+
+    pub fn slot(&self, address: Address) -> Option<&Slot> {
+        self.slots[address.get() as usize].as_deref()
+    }
+
+    pub fn slot_mut(&mut self, address: Address) -> Option<&mut Slot> {
+        self.slots[address.get() as usize].as_deref_mut()
+    }
+
+    pub fn drive(&self, address: Address) -> Option<&Drive> {
+        self.slot(address).map(|s| &s.drive)
+    }
+
+    pub fn drive_mut(&mut self, address: Address) -> Option<&mut Drive> {
+        self.slot_mut(address).map(|s| &mut s.drive)
+    }
+
+    pub fn faults_mut(&mut self, address: Address) -> Option<&mut FaultPlan> {
+        self.slot_mut(address).map(|s| &mut s.faults)
+    }
+
+    /// Every drive on the bus, by ascending address.
+    pub fn drives(&self) -> impl Iterator<Item = &Drive> {
+        self.slots.iter().flatten().map(|s| &s.drive)
+    }
+
+    /// Moves every drive's model to `now`.
+    pub fn advance(&mut self, now: Duration) {
+        for slot in self.slots.iter_mut().flatten() {
+            slot.drive.advance(now);
+        }
+    }
+
+    /// A receive error on the line: every plugged-in drive hears it and counts it.
+    pub fn on_error(&mut self, error: &FrameError, now: Duration) {
+        for slot in self.slots.iter_mut().flatten() {
+            if !slot.faults.is_unplugged(now) {
+                slot.drive.count_error(error);
+            }
+        }
+    }
+
+    /// A valid telegram whose BCC arrived at `now`. Returns the reply to send, if any.
+    pub fn on_telegram(&mut self, telegram: &Telegram<'_>, now: Duration) -> Option<Reply> {
+        let adr = telegram.adr();
+        if adr.broadcast {
+            for slot in self.slots.iter_mut().flatten() {
+                if !slot.faults.is_unplugged(now) {
+                    slot.drive.receive_broadcast(telegram, now);
+                }
+            }
+            return None;
+        }
+        let Some(slot) = self.slots[adr.address.get() as usize].as_deref_mut() else {
+            self.unanswered += 1;
+            return None;
+        };
+        if slot.faults.is_unplugged(now) {
+            return None;
+        }
+        let config = slot.drive.config();
+        let jitter = config.response_jitter.as_nanos() as u64;
+        let delay = config.response_delay
+            + Duration::from_nanos(if jitter > 0 {
+                self.rng.random_range(0..=jitter)
+            } else {
+                0
+            });
+        if adr.special {
+            // These drives define no special telegrams: rejected, no reply.
+            slot.drive.count_rejected();
+            return None;
+        }
+        let reply = if adr.is_mirror() {
+            Reply::new(telegram.as_bytes(), delay)
+        } else {
+            let mut buf = [0u8; MAX_TELEGRAM_BYTES];
+            let len = slot.drive.receive(telegram, now, &mut buf)?;
+            Reply::new(&buf[..len], delay)
+        };
+        slot.faults.apply(reply, &mut self.rng)
+    }
+}

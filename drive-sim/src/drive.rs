@@ -1,0 +1,632 @@
+//! One simulated drive: the PROFIdrive state machine driven by STW1, a ramp-function generator,
+//! the PKW handshake, telegram monitoring (P2014) and the USS diagnostics r2024..r2031
+//! (USS.md sections 5, 6 and 7).
+//!
+//! The drive is sans-I/O like the codec: the bus hands it validated telegrams and the time, it
+//! answers into a caller buffer. Nothing here allocates after construction, so the simulator can
+//! run inside the master's real-time thread in tests.
+
+use crate::params::{
+    COM_LINK, DriveContext, P0700, P1000, P1080, P1082, P1120, P1121, P1135, P2000, P2011, P2012,
+    P2013, P2014, ParamTable, R0021, R0052, R0054, R0947, R2024,
+};
+use core::time::Duration;
+use uss_protocol::pkw::{ParamError, ParamReply, ParamTask, PkwError, Pnu, ReplyKind};
+use uss_protocol::telegram::{Layout, MAX_PKW_WORDS, MAX_PZD_WORDS, Telegram, encode};
+use uss_protocol::{Address, Adr, FrameError, LineError, Setpoint, Stw1, Zsw1};
+
+/// P0700 / P1000 value selecting USS on the COM link.
+const SOURCE_USS: u32 = 5;
+/// Fault code of "USS (COM link) setpoint fault", the telegram-off trip (USS.md section 5).
+pub const FAULT_TELEGRAM_OFF: u16 = 72;
+/// Setpoint and actual value within this many Hz set ZSW1 bit 8.
+const AT_SETPOINT_TOLERANCE_HZ: f32 = 0.5;
+
+/// How a simulated drive is set up.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveConfig {
+    pub address: Address,
+    /// PKW mode (P2013) and PZD words (P2012); the master must use the same.
+    pub layout: Layout,
+    /// The slave's response delay (end of the request's BCC to the reply's STX), before jitter.
+    pub response_delay: Duration,
+    /// Up to this much is added to each response delay, uniformly.
+    pub response_jitter: Duration,
+    /// Telegrams a RAM + EEPROM change stays busy (reply ID 0) before its reply.
+    pub eeprom_busy_telegrams: u32,
+    /// Telegrams every other task stays busy before its reply (0 = answer at once).
+    pub task_busy_telegrams: u32,
+    /// The error a dword task over a 3-word PKW gets: 5 on MICROMASTER, 103 on MASTERDRIVES
+    /// (USS.md section 6; sources disagree, so it is configurable).
+    pub dword_over_three_words: ParamError,
+    /// Initial P2014 (ms, 0 = off) for the COM link.
+    pub telegram_off_time_ms: u16,
+}
+
+impl DriveConfig {
+    /// A drive with a typical MICROMASTER response: 1 ms response delay, 3 busy telegrams for
+    /// EEPROM writes, no telegram monitoring.
+    pub fn new(address: Address, layout: Layout) -> Self {
+        Self {
+            address,
+            layout,
+            response_delay: Duration::from_millis(1),
+            response_jitter: Duration::ZERO,
+            eeprom_busy_telegrams: 3,
+            task_busy_telegrams: 0,
+            dword_over_three_words: ParamError::WrongDataType,
+            telegram_off_time_ms: 0,
+        }
+    }
+}
+
+/// The drive's state in the PROFIdrive state machine (USS.md section 7).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum State {
+    /// S1: switching-on inhibited.
+    SwitchingOnInhibited,
+    /// S2: ready to switch on.
+    ReadyToSwitchOn,
+    /// S3: ready for operation.
+    ReadyForOperation,
+    /// S4: operation enabled.
+    OperationEnabled,
+    /// S5: ramping down after OFF1 or OFF3.
+    SwitchingOff(Stop),
+    /// A fault is active; left by a rising edge of STW1 bit 7 once its cause is gone.
+    Fault,
+}
+
+/// How a drive in S5 is stopping.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Stop {
+    /// OFF1: ramp down with P1121, then S2.
+    Off1,
+    /// OFF3: quick stop with P1135, then S1.
+    Off3,
+}
+
+impl State {
+    /// Whether the motor is energised (S4 or S5): some parameters cannot be changed then.
+    pub const fn is_running(self) -> bool {
+        matches!(self, Self::OperationEnabled | Self::SwitchingOff(_))
+    }
+}
+
+/// Receive statistics kept like r2024..r2031 (USS.md section 7).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Counters {
+    pub good: u16,
+    pub rejected: u16,
+    pub frame: u16,
+    pub overrun: u16,
+    pub parity: u16,
+    pub start: u16,
+    pub bcc: u16,
+    pub length: u16,
+}
+
+impl Counters {
+    fn as_array(self) -> [u16; 8] {
+        [
+            self.good,
+            self.rejected,
+            self.frame,
+            self.overrun,
+            self.parity,
+            self.start,
+            self.bcc,
+            self.length,
+        ]
+    }
+}
+
+/// The PKW channel: one task at a time, answered idempotently while the master repeats it.
+#[derive(Debug, Clone, Copy, Default)]
+struct PkwChannel {
+    request: [u16; MAX_PKW_WORDS],
+    request_len: usize,
+    reply: [u16; MAX_PKW_WORDS],
+    reply_len: usize,
+    busy_reply: [u16; MAX_PKW_WORDS],
+    busy_left: u32,
+}
+
+/// One simulated drive.
+#[derive(Debug, Clone)]
+pub struct Drive {
+    config: DriveConfig,
+    params: ParamTable,
+    state: State,
+    frequency_hz: f32,
+    stw1: Stw1,
+    setpoint: Setpoint,
+    fault: Option<u16>,
+    pkw: PkwChannel,
+    last_valid: Option<Duration>,
+    last_tick: Option<Duration>,
+    counters: Counters,
+}
+
+impl Drive {
+    /// A drive just powered up, in S1. The configured address, layout and telegram-off time are
+    /// stored as if commissioned (RAM and EEPROM).
+    pub fn new(config: DriveConfig) -> Self {
+        let mut params = ParamTable::new();
+        let layout = config.layout;
+        let commissioned = [
+            (P2011, u32::from(config.address.get())),
+            (P2012, layout.pzd.get() as u32),
+            (P2013, u32::from(layout.pkw.p2013())),
+            (P2014, u32::from(config.telegram_off_time_ms)),
+        ];
+        for (pnu, value) in commissioned {
+            params.set_commissioned(pnu, COM_LINK, value);
+        }
+        let mut drive = Self {
+            config,
+            params,
+            state: State::SwitchingOnInhibited,
+            frequency_hz: 0.0,
+            stw1: Stw1::empty(),
+            setpoint: Setpoint::from_raw(0),
+            fault: None,
+            pkw: PkwChannel::default(),
+            last_valid: None,
+            last_tick: None,
+            counters: Counters::default(),
+        };
+        drive.publish();
+        drive
+    }
+
+    pub const fn config(&self) -> &DriveConfig {
+        &self.config
+    }
+
+    pub const fn address(&self) -> Address {
+        self.config.address
+    }
+
+    pub const fn state(&self) -> State {
+        self.state
+    }
+
+    /// The output frequency in Hz; negative when running left.
+    pub const fn frequency_hz(&self) -> f32 {
+        self.frequency_hz
+    }
+
+    /// The active fault code, if any.
+    pub const fn fault(&self) -> Option<u16> {
+        self.fault
+    }
+
+    pub const fn counters(&self) -> Counters {
+        self.counters
+    }
+
+    /// The last control word the drive accepted.
+    pub const fn stw1(&self) -> Stw1 {
+        self.stw1
+    }
+
+    pub const fn params(&self) -> &ParamTable {
+        &self.params
+    }
+
+    /// The parameter table, for setting a scenario up (as an operator would at the panel).
+    pub fn params_mut(&mut self) -> &mut ParamTable {
+        &mut self.params
+    }
+
+    /// Trips the drive with a fault code (as an overcurrent or the telegram monitor would).
+    pub fn trip(&mut self, code: u16) {
+        self.state = State::Fault;
+        self.frequency_hz = 0.0;
+        if self.fault.is_none() {
+            // r0947: the newest fault first, older ones shift down.
+            for i in (1..8).rev() {
+                let older = self.params.get(R0947, i - 1).unwrap_or(0);
+                self.params.set_internal(R0947, i, older);
+            }
+            self.params.set_internal(R0947, 0, u32::from(code));
+        }
+        self.fault = Some(code);
+        self.publish();
+    }
+
+    /// A simulated power cycle: RAM parameters come back from EEPROM, the drive starts in S1
+    /// with its receive statistics cleared.
+    pub fn power_cycle(&mut self) {
+        self.params.power_cycle();
+        self.state = State::SwitchingOnInhibited;
+        self.frequency_hz = 0.0;
+        self.stw1 = Stw1::empty();
+        self.setpoint = Setpoint::from_raw(0);
+        self.fault = None;
+        self.pkw = PkwChannel::default();
+        self.last_valid = None;
+        self.counters = Counters::default();
+        self.publish();
+    }
+
+    /// Counts a receive error the drive's UART saw on the bus (every drive hears every byte).
+    pub fn count_error(&mut self, error: &FrameError) {
+        let c = &mut self.counters;
+        match error {
+            FrameError::MissingStx(_) | FrameError::StartPauseNotObserved => {
+                c.start = c.start.wrapping_add(1);
+            }
+            FrameError::BadLge(_) | FrameError::ResidualTimeExceeded { .. } => {
+                c.length = c.length.wrapping_add(1);
+            }
+            FrameError::Bcc { .. } => c.bcc = c.bcc.wrapping_add(1),
+            FrameError::Line(LineError::Parity) => c.parity = c.parity.wrapping_add(1),
+            FrameError::Line(LineError::Framing) => c.frame = c.frame.wrapping_add(1),
+            FrameError::Line(LineError::Overrun) => c.overrun = c.overrun.wrapping_add(1),
+        }
+        c.rejected = c.rejected.wrapping_add(1);
+        self.publish_counters();
+    }
+
+    /// Counts a telegram the drive received intact but refused (special telegram, wrong length).
+    pub fn count_rejected(&mut self) {
+        self.counters.rejected = self.counters.rejected.wrapping_add(1);
+        self.publish_counters();
+    }
+
+    /// Handles a valid telegram addressed to this drive and writes the reply into `out`. Returns
+    /// the reply length, or `None` when the drive must stay silent (wrong length for its layout;
+    /// counted as rejected). PZD is processed before PKW (USS.md section 7).
+    pub fn receive(
+        &mut self,
+        telegram: &Telegram<'_>,
+        now: Duration,
+        out: &mut [u8],
+    ) -> Option<usize> {
+        self.advance(now);
+        let Ok(words) = telegram.words(self.config.layout) else {
+            self.counters.length = self.counters.length.wrapping_add(1);
+            self.count_rejected();
+            return None;
+        };
+        self.counters.good = self.counters.good.wrapping_add(1);
+        if self.apply_pzd(words.pzd()) {
+            self.last_valid = Some(now);
+        }
+        let mut pkw = [0u16; MAX_PKW_WORDS];
+        let pkw_len = if words.pkw().is_empty() {
+            0
+        } else {
+            self.handle_pkw(words.pkw(), &mut pkw)
+        };
+        self.advance(now);
+        let mut pzd = [0u16; MAX_PZD_WORDS];
+        let pzd_len = self.config.layout.pzd.get();
+        if pzd_len >= 1 {
+            pzd[0] = self.zsw1().bits();
+        }
+        if pzd_len >= 2 {
+            pzd[1] = self.actual_value().word();
+        }
+        let adr = Adr::to(self.config.address);
+        // The reply words always fit: at most 4 PKW and 16 PZD words.
+        encode(out, adr, &pkw[..pkw_len], &pzd[..pzd_len]).ok()
+    }
+
+    /// Processes a broadcast: PZD and PKW are applied, nothing is sent.
+    pub fn receive_broadcast(&mut self, telegram: &Telegram<'_>, now: Duration) {
+        let mut scratch = [0u8; uss_protocol::telegram::MAX_TELEGRAM_BYTES];
+        self.receive(telegram, now, &mut scratch);
+    }
+
+    /// Applies STW1 and the setpoint. Returns whether the telegram counts for telegram monitoring:
+    /// one with STW1 bit 10 = 0 is ignored and counts as missing (USS.md section 5).
+    fn apply_pzd(&mut self, pzd: &[u16]) -> bool {
+        let Some(&stw_word) = pzd.first() else {
+            return true;
+        };
+        let stw = Stw1::from_bits_retain(stw_word);
+        if !stw.contains(Stw1::CONTROL_BY_PLC) {
+            return false;
+        }
+        if self.param_u32(P0700) == SOURCE_USS {
+            let rising_ack = stw.contains(Stw1::FAULT_ACK) && !self.stw1.contains(Stw1::FAULT_ACK);
+            if rising_ack && self.state == State::Fault {
+                self.fault = None;
+                self.state = State::SwitchingOnInhibited;
+            }
+            self.stw1 = stw;
+            self.step_state_machine();
+        }
+        if self.param_u32(P1000) == SOURCE_USS {
+            if let Some(&hsw) = pzd.get(1) {
+                self.setpoint = Setpoint::from_word(hsw);
+            }
+        }
+        self.publish();
+        true
+    }
+
+    /// Follows STW1 through S1..S5 until the state is stable (0x047F in S2 goes on to S4).
+    fn step_state_machine(&mut self) {
+        let s = self.stw1;
+        let on = s.contains(Stw1::ON);
+        let off2 = !s.contains(Stw1::NO_OFF2);
+        let off3 = !s.contains(Stw1::NO_OFF3);
+        for _ in 0..4 {
+            let next = match self.state {
+                State::Fault => State::Fault,
+                _ if off2 => State::SwitchingOnInhibited,
+                State::SwitchingOnInhibited if !on && !off3 => State::ReadyToSwitchOn,
+                State::SwitchingOnInhibited => State::SwitchingOnInhibited,
+                State::ReadyToSwitchOn | State::ReadyForOperation if off3 => {
+                    State::SwitchingOnInhibited
+                }
+                State::ReadyToSwitchOn if on => State::ReadyForOperation,
+                State::ReadyToSwitchOn => State::ReadyToSwitchOn,
+                State::ReadyForOperation if !on => State::ReadyToSwitchOn,
+                State::ReadyForOperation if s.contains(Stw1::ENABLE_OPERATION) => {
+                    State::OperationEnabled
+                }
+                State::ReadyForOperation => State::ReadyForOperation,
+                State::OperationEnabled | State::SwitchingOff(_) if off3 => {
+                    State::SwitchingOff(Stop::Off3)
+                }
+                State::OperationEnabled if !on => State::SwitchingOff(Stop::Off1),
+                State::OperationEnabled | State::SwitchingOff(Stop::Off1)
+                    if !s.contains(Stw1::ENABLE_OPERATION) =>
+                {
+                    // Pulses off: the motor coasts.
+                    State::ReadyForOperation
+                }
+                State::SwitchingOff(Stop::Off1) if on => State::OperationEnabled,
+                other => other,
+            };
+            if next == self.state {
+                break;
+            }
+            self.state = next;
+        }
+        if !self.state.is_running() {
+            self.frequency_hz = 0.0;
+        }
+    }
+
+    fn handle_pkw(&mut self, request: &[u16], out: &mut [u16; MAX_PKW_WORDS]) -> usize {
+        let same =
+            self.pkw.request_len == request.len() && self.pkw.request[..request.len()] == *request;
+        if !same {
+            self.start_task(request);
+        }
+        let layout = self.config.layout;
+        if self.pkw.busy_left > 0 {
+            self.pkw.busy_left -= 1;
+            out.copy_from_slice(&self.pkw.busy_reply);
+            return if layout.pkw == uss_protocol::PkwMode::Variable {
+                3
+            } else {
+                layout.pkw.request_words()
+            };
+        }
+        out.copy_from_slice(&self.pkw.reply);
+        self.pkw.reply_len
+    }
+
+    /// Executes a new task once; repeats of it get the stored reply (USS.md section 6).
+    fn start_task(&mut self, request: &[u16]) {
+        self.pkw.request[..request.len()].copy_from_slice(request);
+        self.pkw.request_len = request.len();
+        let raw_pnu = Pnu::from_parts(request[0] & 0x07FF, (request[1] >> 8) as u8)
+            .unwrap_or(Pnu::from_u16(0));
+        let subindex = (request[1] & 0xFF) as u8;
+        let (task, kind) = match ParamTask::decode(request) {
+            Ok(task) => {
+                let ctx = DriveContext {
+                    running: self.state.is_running(),
+                };
+                (
+                    Some(task),
+                    self.params.execute(&task, self.config.layout.pkw, ctx),
+                )
+            }
+            Err(e) => (None, ReplyKind::Error(self.decode_error(e))),
+        };
+        let reply = match task {
+            Some(ParamTask::None) => ParamReply::NOT_YET,
+            _ => ParamReply {
+                pnu: task.and_then(|t| t.pnu()).unwrap_or(raw_pnu),
+                subindex: task.map_or(subindex, |t| t.subindex()),
+                kind,
+            },
+        };
+        let mode = self.config.layout.pkw;
+        let mut words = [0u16; MAX_PKW_WORDS];
+        self.pkw.reply_len = reply.encode(mode, &mut words).unwrap_or_else(|_| {
+            let narrow = ParamReply {
+                kind: ReplyKind::Error(ParamError::ChannelTooNarrow),
+                ..reply
+            };
+            narrow.encode(mode, &mut words).unwrap_or(0)
+        });
+        self.pkw.reply = words;
+        let busy = ParamReply {
+            kind: ReplyKind::NotYet,
+            ..reply
+        };
+        let mut busy_words = [0u16; MAX_PKW_WORDS];
+        // A "not yet" reply is a word reply: it fits every mode with a channel.
+        let _ = busy.encode(mode, &mut busy_words);
+        self.pkw.busy_reply = busy_words;
+        self.pkw.busy_left = match task {
+            Some(ParamTask::None) | None => 0,
+            Some(t) if t.is_write() && is_eeprom(&t) => self.config.eeprom_busy_telegrams,
+            Some(_) => self.config.task_busy_telegrams,
+        };
+    }
+
+    fn decode_error(&self, e: PkwError) -> ParamError {
+        match e {
+            PkwError::DwordOverThreeWords => self.config.dword_over_three_words,
+            PkwError::Subindex(_) => ParamError::FaultySubindex,
+            PkwError::PnuPart(_) => ParamError::IllegalPnu,
+            PkwError::UnsupportedTask(_) | PkwError::NoChannel | PkwError::Words(_) => {
+                ParamError::TaskNotImplemented
+            }
+        }
+    }
+
+    /// Moves the model to `now`: telegram monitoring and the ramp-function generator.
+    pub fn advance(&mut self, now: Duration) {
+        let dt = self
+            .last_tick
+            .map_or(Duration::ZERO, |t| now.saturating_sub(t));
+        self.last_tick = Some(self.last_tick.map_or(now, |t| t.max(now)));
+        let off_time = self.params.get(P2014, COM_LINK).unwrap_or(0);
+        if let Some(last) = self.last_valid {
+            let limit = Duration::from_millis(u64::from(off_time));
+            if off_time > 0 && now.saturating_sub(last) > limit && self.state != State::Fault {
+                self.trip(FAULT_TELEGRAM_OFF);
+                // Monitoring re-arms with the next valid telegram.
+                self.last_valid = None;
+            }
+        }
+        self.ramp(dt.as_secs_f32());
+        self.publish();
+    }
+
+    fn ramp(&mut self, dt: f32) {
+        let max = self.param_f32(P1082).max(0.0);
+        if self.state == State::OperationEnabled && !self.stw1.contains(Stw1::RFG_ENABLE) {
+            // STW1 bit 4 = 0 sets the ramp-function generator's output to zero at once.
+            self.frequency_hz = 0.0;
+        }
+        let target = self.target_hz(max);
+        let ramp_time = match self.state {
+            State::SwitchingOff(Stop::Off3) => self.param_f32(P1135),
+            _ if target.abs() > self.frequency_hz.abs() => self.param_f32(P1120),
+            _ => self.param_f32(P1121),
+        };
+        let step = if ramp_time > 0.0 && max > 0.0 {
+            max / ramp_time * dt
+        } else {
+            f32::INFINITY
+        };
+        let delta = target - self.frequency_hz;
+        self.frequency_hz = if delta.abs() <= step {
+            target
+        } else {
+            self.frequency_hz + step.copysign(delta)
+        };
+        if let State::SwitchingOff(stop) = self.state {
+            if self.frequency_hz == 0.0 {
+                self.state = match stop {
+                    Stop::Off1 => State::ReadyToSwitchOn,
+                    Stop::Off3 => State::SwitchingOnInhibited,
+                };
+            }
+        }
+    }
+
+    /// Where the ramp is heading: the scaled setpoint in S4, zero otherwise.
+    fn target_hz(&self, max: f32) -> f32 {
+        let s = self.stw1;
+        if self.state != State::OperationEnabled || !s.contains(Stw1::RFG_ENABLE) {
+            return 0.0;
+        }
+        if !s.contains(Stw1::RFG_START) {
+            // RFG frozen.
+            return self.frequency_hz;
+        }
+        if !s.contains(Stw1::SETPOINT_ENABLE) {
+            return 0.0;
+        }
+        let mut hz = self.setpoint.hz(self.param_f32(P2000));
+        if s.contains(Stw1::REVERSE) {
+            hz = -hz;
+        }
+        let min = self.param_f32(P1080).clamp(0.0, max);
+        let magnitude = hz.abs().clamp(min, max);
+        magnitude.copysign(hz)
+    }
+
+    /// ZSW1 as the drive reports it (USS.md section 7).
+    pub fn zsw1(&self) -> Zsw1 {
+        let mut z = Zsw1::CONTROL_REQUESTED
+            | Zsw1::NO_CURRENT_LIMIT
+            | Zsw1::NO_HOLDING_BRAKE
+            | Zsw1::NO_MOTOR_OVERLOAD
+            | Zsw1::NO_INVERTER_OVERLOAD;
+        z |= match self.state {
+            State::SwitchingOnInhibited => Zsw1::SWITCHING_ON_INHIBITED,
+            State::ReadyToSwitchOn => Zsw1::READY_TO_SWITCH_ON,
+            State::ReadyForOperation => Zsw1::READY_TO_SWITCH_ON | Zsw1::READY_TO_RUN,
+            State::OperationEnabled | State::SwitchingOff(_) => {
+                Zsw1::READY_TO_SWITCH_ON | Zsw1::READY_TO_RUN | Zsw1::OPERATION_ENABLED
+            }
+            State::Fault => Zsw1::FAULT,
+        };
+        if self.stw1.contains(Stw1::NO_OFF2) {
+            z |= Zsw1::NO_OFF2;
+        }
+        if self.stw1.contains(Stw1::NO_OFF3) {
+            z |= Zsw1::NO_OFF3;
+        }
+        let max = self.param_f32(P1082);
+        if (self.frequency_hz - self.target_hz(max)).abs() <= AT_SETPOINT_TOLERANCE_HZ {
+            z |= Zsw1::AT_SETPOINT;
+        }
+        if max > 0.0 && self.frequency_hz.abs() >= max {
+            z |= Zsw1::MAX_FREQUENCY_REACHED;
+        }
+        if self.frequency_hz > 0.0 {
+            z |= Zsw1::RUNNING_RIGHT;
+        }
+        z
+    }
+
+    /// The main actual value HIW: the output frequency scaled by P2000.
+    pub fn actual_value(&self) -> Setpoint {
+        Setpoint::from_hz(self.frequency_hz, self.param_f32(P2000))
+    }
+
+    fn param_f32(&self, pnu: u16) -> f32 {
+        self.params.get_f32(pnu, 0).unwrap_or(0.0)
+    }
+
+    fn param_u32(&self, pnu: u16) -> u32 {
+        self.params.get(pnu, 0).unwrap_or(0)
+    }
+
+    /// Mirrors the model into its read-only parameters r0021, r0052, r0054.
+    fn publish(&mut self) {
+        let z = self.zsw1();
+        self.params
+            .set_internal(R0021, 0, self.frequency_hz.to_bits());
+        self.params.set_internal(R0052, 0, u32::from(z.bits()));
+        self.params
+            .set_internal(R0054, 0, u32::from(self.stw1.bits()));
+        self.publish_counters();
+    }
+
+    fn publish_counters(&mut self) {
+        for (i, value) in self.counters.as_array().into_iter().enumerate() {
+            self.params
+                .set_internal(R2024 + i as u16, COM_LINK, u32::from(value));
+        }
+    }
+}
+
+fn is_eeprom(task: &ParamTask) -> bool {
+    matches!(
+        task,
+        ParamTask::Write {
+            storage: uss_protocol::Storage::RamAndEeprom,
+            ..
+        } | ParamTask::WriteArray {
+            storage: uss_protocol::Storage::RamAndEeprom,
+            ..
+        }
+    )
+}

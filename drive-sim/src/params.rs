@@ -1,0 +1,1660 @@
+//! The parameter table of the simulated drive: a MICROMASTER 4 (MM420/MM440) look-alike on the
+//! parameter channel (USS.md section 6).
+//!
+//! [`DEFINITIONS`] lists the parameters with their MM4 numbers, names, types, limits and change
+//! rules; [`ParamTable`] holds a RAM and an EEPROM value for every element of every parameter and
+//! executes PKW tasks against them. Storage is sized at compile time, so the table never touches
+//! the heap: [`ParamTable::execute`], [`ParamTable::get`], [`ParamTable::get_f32`] and
+//! [`ParamTable::set_internal`] are safe to call from a real-time thread.
+//!
+//! A change task is checked in this order, and the first failing check answers:
+//!
+//! 1. existence: an unknown PNU is error 0;
+//! 2. addressing: an array task on a plain parameter is error 4, an index beyond the array error 3
+//!    (AK 2/3/13/14 on an array change element 0, as AK 1 reads it);
+//! 3. read-only (`r` parameters): error 1;
+//! 4. change rights: P0927 bit 3 (USS on COM link) clear gives reply 8, "no PKW change rights";
+//! 5. access level: a parameter above the level in P0003 is error 204;
+//! 6. data type: a word for a dword type or the other way round is error 5;
+//! 7. channel width: a dword over a 3-word channel is error 102;
+//! 8. operating state: a "not while running" parameter while running, or a commissioning
+//!    parameter outside its P0010 setting, is error 17;
+//! 9. value: a NaN float is error 104, a value outside min..max error 2, a value not in the
+//!    parameter's list of settings error 104.
+//!
+//! Read tasks (AK 1, 4, 6, 9) run steps 1, 2 and 7 only: reading needs no change rights and no
+//! access level. Every refused task leaves the table as it was.
+
+use uss_protocol::{ParamError, ParamTask, PkwMode, Pnu, ReplyKind, Storage, Subindex, Value};
+
+/// Data type of a parameter; descriptive element 1 carries its PROFIdrive code (USS.md section 6).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DataType {
+    U16,
+    I16,
+    U32,
+    I32,
+    Float,
+}
+
+impl DataType {
+    /// The PROFIdrive data type code (descriptive element 1).
+    pub const fn code(self) -> u16 {
+        match self {
+            Self::U16 => 6,
+            Self::I16 => 3,
+            Self::U32 => 7,
+            Self::I32 => 4,
+            Self::Float => 8,
+        }
+    }
+
+    /// Whether values of this type travel as a double word (AK 3/8/11/13, replies 2/5).
+    pub const fn is_dword(self) -> bool {
+        !matches!(self, Self::U16 | Self::I16)
+    }
+
+    /// The bits a raw value of this type occupies; word types are stored zero-extended.
+    const fn mask(self) -> u32 {
+        if self.is_dword() { u32::MAX } else { 0xFFFF }
+    }
+
+    /// A raw value as the number it stands for (exact for every type).
+    fn number(self, raw: u32) -> f64 {
+        match self {
+            Self::U16 => f64::from(raw as u16),
+            Self::I16 => f64::from(raw as u16 as i16),
+            Self::U32 => f64::from(raw),
+            Self::I32 => f64::from(raw as i32),
+            Self::Float => f64::from(f32::from_bits(raw)),
+        }
+    }
+
+    /// A limit as this type sees it: floats compare in single precision, integers exactly.
+    fn limit(self, limit: f64) -> f64 {
+        match self {
+            Self::Float => f64::from(limit as f32),
+            _ => limit,
+        }
+    }
+
+    /// A number encoded as a raw value of this type (saturating for integers).
+    fn raw(self, number: f64) -> u32 {
+        match self {
+            Self::U16 => u32::from(number as u16),
+            Self::I16 => u32::from(number as i16 as u16),
+            Self::U32 => number as u32,
+            Self::I32 => number as i32 as u32,
+            Self::Float => (number as f32).to_bits(),
+        }
+    }
+}
+
+/// When a parameter may be changed (MM4 parameter lists: "C" commissioning, "U" run, "T" ready).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Change {
+    /// An `r` parameter: actual values, status and diagnostics; error 1 on a change task.
+    ReadOnly,
+    /// "CUT": in every state.
+    Always,
+    /// "CT": not while the motor runs (error 17).
+    NotRunning,
+    /// "C": only in quick commissioning, P0010 = 1 (P0970: P0010 = 30); error 17 otherwise.
+    Commissioning,
+}
+
+/// One parameter of the MM4 parameter list.
+#[derive(Debug, Clone, Copy)]
+pub struct ParamDef {
+    pub pnu: u16,
+    pub name: &'static str,
+    pub ty: DataType,
+    /// 0 = a plain parameter; n > 0 = an array of n elements.
+    pub elements: u8,
+    pub min: f64,
+    pub max: f64,
+    /// If non-empty, only these raw values are allowed (error 104 otherwise).
+    pub allowed: &'static [u32],
+    /// Raw default (floats as their IEEE-754 bits), same for every element.
+    pub default: u32,
+    pub change: Change,
+    /// User access level needed to change it (P0003: 1 standard, 2 extended, 3 expert, 4 service).
+    /// For read-only parameters: the level at which the MM4 lists them.
+    pub level: u8,
+}
+
+impl ParamDef {
+    pub const fn is_array(&self) -> bool {
+        self.elements > 0
+    }
+
+    pub const fn is_read_only(&self) -> bool {
+        matches!(self.change, Change::ReadOnly)
+    }
+
+    /// Values stored for this parameter: 1 for a plain parameter.
+    const fn slots(&self) -> usize {
+        if self.elements == 0 {
+            1
+        } else {
+            self.elements as usize
+        }
+    }
+
+    /// Whether a raw value may be stored (USS.md section 6: errors 104 and 2).
+    fn check_value(&self, raw: u32) -> Result<(), ParamError> {
+        let number = self.ty.number(raw);
+        if number.is_nan() {
+            return Err(ParamError::IllegalValue);
+        }
+        if number < self.ty.limit(self.min) || number > self.ty.limit(self.max) {
+            return Err(ParamError::LimitExceeded);
+        }
+        if !self.allowed.is_empty() && !self.allowed.contains(&raw) {
+            return Err(ParamError::IllegalValue);
+        }
+        Ok(())
+    }
+
+    const fn new(pnu: u16, name: &'static str, ty: DataType, change: Change, level: u8) -> Self {
+        Self {
+            pnu,
+            name,
+            ty,
+            elements: 0,
+            min: 0.0,
+            max: 0.0,
+            allowed: &[],
+            default: 0,
+            change,
+            level,
+        }
+    }
+
+    const fn limits(mut self, min: f64, max: f64) -> Self {
+        self.min = min;
+        self.max = max;
+        self
+    }
+
+    const fn settings(mut self, allowed: &'static [u32]) -> Self {
+        self.allowed = allowed;
+        self
+    }
+
+    const fn default_raw(mut self, raw: u32) -> Self {
+        self.default = raw;
+        self
+    }
+
+    const fn default_f32(mut self, value: f32) -> Self {
+        self.default = value.to_bits();
+        self
+    }
+
+    const fn array(mut self, elements: u8) -> Self {
+        self.elements = elements;
+        self
+    }
+}
+
+pub const R0018: u16 = 18;
+pub const R0021: u16 = 21;
+pub const R0052: u16 = 52;
+pub const R0054: u16 = 54;
+pub const P0003: u16 = 3;
+pub const P0010: u16 = 10;
+pub const P0310: u16 = 310;
+pub const P0700: u16 = 700;
+pub const P0719: u16 = 719;
+pub const P0927: u16 = 927;
+pub const R0947: u16 = 947;
+pub const P0970: u16 = 970;
+pub const P1000: u16 = 1000;
+pub const P1058: u16 = 1058;
+pub const P1080: u16 = 1080;
+pub const P1082: u16 = 1082;
+pub const P1120: u16 = 1120;
+pub const P1121: u16 = 1121;
+pub const P1135: u16 = 1135;
+pub const P2000: u16 = 2000;
+pub const P2010: u16 = 2010;
+pub const P2011: u16 = 2011;
+pub const P2012: u16 = 2012;
+pub const P2013: u16 = 2013;
+pub const P2014: u16 = 2014;
+pub const R2024: u16 = 2024;
+pub const R2025: u16 = 2025;
+pub const R2026: u16 = 2026;
+pub const R2027: u16 = 2027;
+pub const R2028: u16 = 2028;
+pub const R2029: u16 = 2029;
+pub const R2030: u16 = 2030;
+pub const R2031: u16 = 2031;
+
+/// P0927 bit 3: parameters may be changed over USS on the COM link.
+pub const P0927_USS_COM: u32 = 1 << 3;
+
+/// Array index of the COM link in the USS settings P2010..P2014 and diagnostics r2024..r2031
+/// (index 0 is the BOP link).
+pub const COM_LINK: u8 = 1;
+
+/// Frequencies, Hz.
+const FREQ_MAX: f64 = 650.0;
+/// Ramp times, seconds.
+const TIME_MAX: f64 = 650.0;
+const U16_MAX: f64 = 65535.0;
+
+/// The MM4 parameter list this drive keeps. P0310 is the one "C" parameter besides P0970: it
+/// shows the quick-commissioning rule (P0010 = 1) that P0970's factory-setting rule
+/// (P0010 = 30) replaces.
+const DEFS: &[ParamDef] = {
+    use Change::{Always, Commissioning, NotRunning, ReadOnly};
+    use DataType::{Float, U16};
+    &[
+        ParamDef::new(P0003, "P0003 User access level", U16, Always, 1)
+            .limits(0.0, 4.0)
+            .default_raw(1),
+        ParamDef::new(P0010, "P0010 Commissioning parameter", U16, NotRunning, 1)
+            .limits(0.0, 30.0)
+            .settings(&[0, 1, 30]),
+        ParamDef::new(R0018, "r0018 Firmware version", Float, ReadOnly, 1)
+            .limits(0.0, 99.99)
+            .default_f32(2.09),
+        ParamDef::new(R0021, "r0021 CO: Act. frequency", Float, ReadOnly, 2)
+            .limits(-FREQ_MAX, FREQ_MAX),
+        ParamDef::new(R0052, "r0052 CO/BO: Act. status word 1", U16, ReadOnly, 2)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(R0054, "r0054 CO/BO: Act. control word 1", U16, ReadOnly, 3)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(
+            P0310,
+            "P0310 Rated motor frequency",
+            Float,
+            Commissioning,
+            1,
+        )
+        .limits(12.0, FREQ_MAX)
+        .default_f32(50.0),
+        ParamDef::new(
+            P0700,
+            "P0700 Selection of command source",
+            U16,
+            NotRunning,
+            1,
+        )
+        .limits(0.0, 6.0)
+        .settings(&[0, 1, 2, 4, 5, 6])
+        .default_raw(5),
+        ParamDef::new(
+            P0719,
+            "P0719 Selection of cmd. & freq. setp.",
+            U16,
+            NotRunning,
+            3,
+        )
+        .limits(0.0, 66.0),
+        ParamDef::new(P0927, "P0927 Parameter changeable via", U16, Always, 2)
+            .limits(0.0, 15.0)
+            .default_raw(15),
+        ParamDef::new(R0947, "r0947 CO: Last fault code", U16, ReadOnly, 2)
+            .limits(0.0, U16_MAX)
+            .array(8),
+        ParamDef::new(P0970, "P0970 Factory reset", U16, Commissioning, 1).limits(0.0, 1.0),
+        ParamDef::new(
+            P1000,
+            "P1000 Selection of frequency setpoint",
+            U16,
+            NotRunning,
+            1,
+        )
+        .limits(0.0, 77.0)
+        .settings(&[
+            0, 1, 2, 3, 5, 7, 10, 11, 12, 13, 15, 17, 20, 21, 22, 23, 25, 27, 30, 31, 32, 33, 35,
+            37, 50, 51, 52, 53, 55, 57, 70, 71, 72, 73, 75, 77,
+        ])
+        .default_raw(5),
+        ParamDef::new(P1058, "P1058 JOG frequency right", Float, Always, 2)
+            .limits(0.0, FREQ_MAX)
+            .default_f32(5.0),
+        ParamDef::new(P1080, "P1080 Min. frequency", Float, Always, 1).limits(0.0, FREQ_MAX),
+        ParamDef::new(P1082, "P1082 Max. frequency", Float, NotRunning, 1)
+            .limits(0.0, FREQ_MAX)
+            .default_f32(50.0),
+        ParamDef::new(P1120, "P1120 Ramp-up time", Float, Always, 1)
+            .limits(0.0, TIME_MAX)
+            .default_f32(10.0),
+        ParamDef::new(P1121, "P1121 Ramp-down time", Float, Always, 1)
+            .limits(0.0, TIME_MAX)
+            .default_f32(10.0),
+        ParamDef::new(P1135, "P1135 OFF3 ramp-down time", Float, Always, 2)
+            .limits(0.0, TIME_MAX)
+            .default_f32(5.0),
+        ParamDef::new(P2000, "P2000 Reference frequency", Float, NotRunning, 2)
+            .limits(1.0, FREQ_MAX)
+            .default_f32(50.0),
+        ParamDef::new(P2010, "P2010 USS baud rate", U16, Always, 2)
+            .array(2)
+            .limits(3.0, 12.0)
+            .settings(&[3, 4, 5, 6, 7, 8, 9, 12])
+            .default_raw(6),
+        ParamDef::new(P2011, "P2011 USS address", U16, Always, 2)
+            .array(2)
+            .limits(0.0, 31.0),
+        // MM4 allows 8 words; the simulator also plays S110-class drives with up to 16.
+        ParamDef::new(P2012, "P2012 USS PZD length", U16, Always, 3)
+            .array(2)
+            .limits(0.0, 16.0)
+            .default_raw(2),
+        ParamDef::new(P2013, "P2013 USS PKW length", U16, Always, 3)
+            .array(2)
+            .limits(0.0, 127.0)
+            .settings(&[0, 3, 4, 127])
+            .default_raw(127),
+        ParamDef::new(P2014, "P2014 USS telegram off time", U16, Always, 3)
+            .array(2)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(R2024, "r2024 USS error-free telegrams", U16, ReadOnly, 3)
+            .array(2)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(R2025, "r2025 USS rejected telegrams", U16, ReadOnly, 3)
+            .array(2)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(R2026, "r2026 USS character frame error", U16, ReadOnly, 3)
+            .array(2)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(R2027, "r2027 USS overrun error", U16, ReadOnly, 3)
+            .array(2)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(R2028, "r2028 USS parity error", U16, ReadOnly, 3)
+            .array(2)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(R2029, "r2029 USS start not identified", U16, ReadOnly, 3)
+            .array(2)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(R2030, "r2030 USS BCC error", U16, ReadOnly, 3)
+            .array(2)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(R2031, "r2031 USS length error", U16, ReadOnly, 3)
+            .array(2)
+            .limits(0.0, U16_MAX),
+    ]
+};
+
+/// The definitions, sorted by PNU.
+pub static DEFINITIONS: &[ParamDef] = DEFS;
+
+const COUNT: usize = DEFS.len();
+
+/// Where each parameter's first element sits in the value arrays.
+const OFFSETS: [usize; COUNT] = {
+    let mut out = [0; COUNT];
+    let mut i = 1;
+    while i < COUNT {
+        out[i] = out[i - 1] + DEFS[i - 1].slots();
+        i += 1;
+    }
+    out
+};
+
+/// Values stored in all: one per plain parameter, one per array element.
+const SLOTS: usize = OFFSETS[COUNT - 1] + DEFS[COUNT - 1].slots();
+
+const DEFAULTS: [u32; SLOTS] = {
+    let mut out = [0; SLOTS];
+    let mut i = 0;
+    while i < COUNT {
+        let mut k = 0;
+        while k < DEFS[i].slots() {
+            out[OFFSETS[i] + k] = DEFS[i].default;
+            k += 1;
+        }
+        i += 1;
+    }
+    out
+};
+
+/// The slot of a plain parameter the table itself consults. A PNU missing from [`DEFS`] is a
+/// compile-time error (the panic happens during constant evaluation), never a run-time one.
+const fn slot_of(pnu: u16) -> usize {
+    let mut i = 0;
+    while i < COUNT {
+        if DEFS[i].pnu == pnu {
+            return OFFSETS[i];
+        }
+        i += 1;
+    }
+    panic!("a parameter the table consults is missing from DEFS")
+}
+
+const AT_P0003: usize = slot_of(P0003);
+const AT_P0010: usize = slot_of(P0010);
+const AT_P0927: usize = slot_of(P0927);
+const AT_P0970: usize = slot_of(P0970);
+
+/// P0010 settings: quick commissioning, factory setting.
+const P0010_QUICK_COMMISSIONING: u32 = 1;
+const P0010_FACTORY_SETTING: u32 = 30;
+
+/// What the drive model tells the table about its state when a task is executed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct DriveContext {
+    pub running: bool,
+}
+
+/// RAM and EEPROM values of every parameter element, sized at compile time.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ParamTable {
+    ram: [u32; SLOTS],
+    /// Only [`ParamTable::execute`] (with [`Storage::RamAndEeprom`]) and
+    /// [`ParamTable::set_commissioned`] write it, and both leave read-only parameters alone, so
+    /// read-only parameters always hold their defaults here.
+    eeprom: [u32; SLOTS],
+}
+
+impl Default for ParamTable {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+fn refuse(error: ParamError) -> ReplyKind {
+    ReplyKind::Error(error)
+}
+
+/// The index of a parameter in [`DEFS`].
+fn find(pnu: u16) -> Option<usize> {
+    DEFS.binary_search_by_key(&pnu, |d| d.pnu).ok()
+}
+
+/// The definition and value slot a task addresses. `index` is `None` for the plain tasks (AK 1,
+/// 2/3, 13/14), which address element 0, and the IND subindex for array tasks (USS.md section 6).
+fn locate(pnu: Pnu, index: Option<Subindex>) -> Result<(&'static ParamDef, usize), ReplyKind> {
+    let n = find(pnu.get()).ok_or(refuse(ParamError::IllegalPnu))?;
+    let def = &DEFS[n];
+    let Some(index) = index else {
+        return Ok((def, OFFSETS[n]));
+    };
+    if !def.is_array() {
+        return Err(refuse(ParamError::NotAnArray));
+    }
+    if index.get() >= def.elements {
+        return Err(refuse(ParamError::FaultySubindex));
+    }
+    Ok((def, OFFSETS[n] + usize::from(index.get())))
+}
+
+/// A dword value needs PWE1 and PWE2: a 3-word channel is too narrow (USS.md section 6).
+fn dword_fits(pkw: PkwMode) -> Result<(), ReplyKind> {
+    match pkw {
+        PkwMode::Three | PkwMode::None => Err(refuse(ParamError::ChannelTooNarrow)),
+        PkwMode::Four | PkwMode::Variable => Ok(()),
+    }
+}
+
+/// The reply carrying a value of the parameter's type: `word` for U16/I16, `dword` otherwise.
+fn value_reply(
+    def: &ParamDef,
+    raw: u32,
+    pkw: PkwMode,
+    word: fn(u16) -> ReplyKind,
+    dword: fn(u32) -> ReplyKind,
+) -> Result<ReplyKind, ReplyKind> {
+    if def.ty.is_dword() {
+        dword_fits(pkw)?;
+        Ok(dword(raw))
+    } else {
+        Ok(word(raw as u16))
+    }
+}
+
+/// Descriptive elements (AK 4, USS.md section 6): 1 data type, 2 elements, 4 read-only,
+/// 7 lower and 8 upper limit. The limits are dwords in the parameter's own encoding (float bits,
+/// or the integer zero-extended from its width), so over a 3-word channel they are error 102 even
+/// for a word parameter.
+fn describe(def: &ParamDef, element: Subindex, pkw: PkwMode) -> Result<ReplyKind, ReplyKind> {
+    let value = match element.get() {
+        1 => Value::Word(def.ty.code()),
+        2 => Value::Word(u16::from(def.elements)),
+        4 => Value::Word(u16::from(def.is_read_only())),
+        7 => Value::Dword(def.ty.raw(def.min)),
+        8 => Value::Dword(def.ty.raw(def.max)),
+        _ => return Err(refuse(ParamError::FaultySubindex)),
+    };
+    if value.is_dword() {
+        dword_fits(pkw)?;
+    }
+    Ok(ReplyKind::Description(value))
+}
+
+impl ParamTable {
+    /// Factory defaults in RAM and EEPROM.
+    pub fn new() -> Self {
+        Self {
+            ram: DEFAULTS,
+            eeprom: DEFAULTS,
+        }
+    }
+
+    /// Executes one task and returns the reply kind the drive sends (USS.md section 6). Writes
+    /// change RAM, and with [`Storage::RamAndEeprom`] also EEPROM. A refused task changes
+    /// nothing; the checks run in the order the module documentation gives. A slave without a
+    /// parameter channel ([`PkwMode::None`]) has no room for any reply: every task is error 102.
+    /// Never panics, whatever the task.
+    pub fn execute(&mut self, task: &ParamTask, pkw: PkwMode, ctx: DriveContext) -> ReplyKind {
+        match self.run(task, pkw, ctx) {
+            Ok(reply) | Err(reply) => reply,
+        }
+    }
+
+    fn run(
+        &mut self,
+        task: &ParamTask,
+        pkw: PkwMode,
+        ctx: DriveContext,
+    ) -> Result<ReplyKind, ReplyKind> {
+        if pkw == PkwMode::None && *task != ParamTask::None {
+            return Err(refuse(ParamError::ChannelTooNarrow));
+        }
+        match *task {
+            ParamTask::None => Ok(ReplyKind::NotYet),
+            ParamTask::Read { pnu } => {
+                let (def, at) = locate(pnu, None)?;
+                value_reply(def, self.ram[at], pkw, ReplyKind::Word, ReplyKind::Dword)
+            }
+            ParamTask::ReadArray { pnu, index } => {
+                let (def, at) = locate(pnu, Some(index))?;
+                let raw = self.ram[at];
+                value_reply(def, raw, pkw, ReplyKind::ArrayWord, ReplyKind::ArrayDword)
+            }
+            ParamTask::ReadArrayLen { pnu } => {
+                let (def, _) = locate(pnu, None)?;
+                if def.is_array() {
+                    Ok(ReplyKind::ElementCount(u16::from(def.elements)))
+                } else {
+                    Err(refuse(ParamError::NotAnArray))
+                }
+            }
+            ParamTask::ReadDescription { pnu, element } => {
+                let (def, _) = locate(pnu, None)?;
+                describe(def, element, pkw)
+            }
+            ParamTask::Write {
+                pnu,
+                value,
+                storage,
+            } => {
+                let (def, at) = locate(pnu, None)?;
+                let raw = self.write(def, at, value, storage, pkw, ctx)?;
+                value_reply(def, raw, pkw, ReplyKind::Word, ReplyKind::Dword)
+            }
+            ParamTask::WriteArray {
+                pnu,
+                index,
+                value,
+                storage,
+            } => {
+                let (def, at) = locate(pnu, Some(index))?;
+                let raw = self.write(def, at, value, storage, pkw, ctx)?;
+                value_reply(def, raw, pkw, ReplyKind::ArrayWord, ReplyKind::ArrayDword)
+            }
+        }
+    }
+
+    /// Checks and stores a change (steps 3-9 of the module documentation); returns the value
+    /// now stored, which the positive reply echoes.
+    fn write(
+        &mut self,
+        def: &ParamDef,
+        at: usize,
+        value: Value,
+        storage: Storage,
+        pkw: PkwMode,
+        ctx: DriveContext,
+    ) -> Result<u32, ReplyKind> {
+        if def.is_read_only() {
+            return Err(refuse(ParamError::ValueNotChangeable));
+        }
+        if self.ram[AT_P0927] & P0927_USS_COM == 0 {
+            return Err(ReplyKind::NoChangeRights);
+        }
+        if u32::from(def.level) > self.ram[AT_P0003] {
+            return Err(refuse(ParamError::AccessLevelTooLow));
+        }
+        if value.is_dword() != def.ty.is_dword() {
+            return Err(refuse(ParamError::WrongDataType));
+        }
+        if value.is_dword() {
+            dword_fits(pkw)?;
+        }
+        self.check_state(def, at, ctx)?;
+        let raw = value.as_u32();
+        def.check_value(raw).map_err(refuse)?;
+        self.ram[at] = raw;
+        if storage == Storage::RamAndEeprom {
+            self.eeprom[at] = raw;
+        }
+        if at == AT_P0970 && raw == 1 {
+            self.factory_reset(storage);
+        }
+        Ok(self.ram[at])
+    }
+
+    /// Whether the drive's state allows the change (error 17, USS.md section 6).
+    fn check_state(&self, def: &ParamDef, at: usize, ctx: DriveContext) -> Result<(), ReplyKind> {
+        let allowed = match def.change {
+            Change::ReadOnly => false,
+            Change::Always => true,
+            Change::NotRunning => !ctx.running,
+            Change::Commissioning => {
+                let needed = if at == AT_P0970 {
+                    P0010_FACTORY_SETTING
+                } else {
+                    P0010_QUICK_COMMISSIONING
+                };
+                self.ram[AT_P0010] == needed
+            }
+        };
+        if allowed {
+            Ok(())
+        } else {
+            Err(refuse(ParamError::NotInThisState))
+        }
+    }
+
+    /// P0970 = 1: every changeable parameter back to its default, in RAM and, when the task
+    /// stored to EEPROM, in EEPROM. That includes P0970 and P0010 themselves (both default 0).
+    /// Read-only parameters are actual values and diagnostics, not settings: they are kept.
+    fn factory_reset(&mut self, storage: Storage) {
+        for (n, def) in DEFS.iter().enumerate() {
+            if def.is_read_only() {
+                continue;
+            }
+            let range = OFFSETS[n]..OFFSETS[n] + def.slots();
+            self.ram[range.clone()].copy_from_slice(&DEFAULTS[range.clone()]);
+            if storage == Storage::RamAndEeprom {
+                self.eeprom[range.clone()].copy_from_slice(&DEFAULTS[range]);
+            }
+        }
+    }
+
+    /// The definition and slot of an element, for the accessors below.
+    fn slot(pnu: u16, index: u8) -> Option<(&'static ParamDef, usize)> {
+        let n = find(pnu)?;
+        let def = &DEFS[n];
+        (usize::from(index) < def.slots()).then(|| (def, OFFSETS[n] + usize::from(index)))
+    }
+
+    /// Raw value of an element as stored in RAM (None for an unknown PNU or index out of range).
+    /// Index 0 is the value of a plain parameter.
+    pub fn get(&self, pnu: u16, index: u8) -> Option<u32> {
+        Self::slot(pnu, index).map(|(_, at)| self.ram[at])
+    }
+
+    /// An element's RAM value as a number: integer types converted, floats from their bits.
+    pub fn get_f32(&self, pnu: u16, index: u8) -> Option<f32> {
+        Self::slot(pnu, index).map(|(def, at)| def.ty.number(self.ram[at]) as f32)
+    }
+
+    /// Sets a value from inside the drive (actual values, status words, diagnostics, fault
+    /// buffer), bypassing every check; ignored for an unknown PNU/index. Writes RAM only. A word
+    /// type keeps the low 16 bits, so `-5i16 as u32` and `0xFFFB` store the same.
+    pub fn set_internal(&mut self, pnu: u16, index: u8, raw: u32) {
+        if let Some((def, at)) = Self::slot(pnu, index) {
+            self.ram[at] = raw & def.ty.mask();
+        }
+    }
+
+    /// Sets a changeable parameter in RAM and EEPROM, bypassing every check: how a simulated
+    /// drive leaves the factory commissioned (address, baud rate, PZD length) so that the setting
+    /// survives [`ParamTable::power_cycle`]. Ignored for read-only parameters and for an unknown
+    /// PNU/index; word types keep the low 16 bits.
+    pub fn set_commissioned(&mut self, pnu: u16, index: u8, raw: u32) {
+        match Self::slot(pnu, index) {
+            Some((def, at)) if !def.is_read_only() => {
+                self.ram[at] = raw & def.ty.mask();
+                self.eeprom[at] = self.ram[at];
+            }
+            _ => {}
+        }
+    }
+
+    /// A simulated power cycle: RAM takes the EEPROM values again; read-only (r) parameters go
+    /// back to their defaults (EEPROM holds exactly those for them).
+    pub fn power_cycle(&mut self) {
+        self.ram = self.eeprom;
+    }
+
+    /// Whether a parameter is defined.
+    pub fn definition(&self, pnu: u16) -> Option<&'static ParamDef> {
+        find(pnu).map(|n| &DEFINITIONS[n])
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp)] // the values asserted are exactly representable
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use uss_protocol::ParamReply;
+
+    const STOPPED: DriveContext = DriveContext { running: false };
+    const RUNNING: DriveContext = DriveContext { running: true };
+
+    fn pnu(n: u16) -> Pnu {
+        Pnu::from_u16(n)
+    }
+
+    fn sub(i: u8) -> Subindex {
+        Subindex::new(i).unwrap()
+    }
+
+    fn err(e: ParamError) -> ReplyKind {
+        ReplyKind::Error(e)
+    }
+
+    fn run(t: &mut ParamTable, task: ParamTask) -> ReplyKind {
+        t.execute(&task, PkwMode::Four, STOPPED)
+    }
+
+    fn read(t: &mut ParamTable, n: u16) -> ReplyKind {
+        run(t, ParamTask::Read { pnu: pnu(n) })
+    }
+
+    fn read_at(t: &mut ParamTable, n: u16, i: u8) -> ReplyKind {
+        run(
+            t,
+            ParamTask::ReadArray {
+                pnu: pnu(n),
+                index: sub(i),
+            },
+        )
+    }
+
+    fn describe_task(n: u16, element: u8) -> ParamTask {
+        ParamTask::ReadDescription {
+            pnu: pnu(n),
+            element: sub(element),
+        }
+    }
+
+    fn write_task(n: u16, value: Value, storage: Storage) -> ParamTask {
+        ParamTask::Write {
+            pnu: pnu(n),
+            value,
+            storage,
+        }
+    }
+
+    fn write_at_task(n: u16, i: u8, value: Value, storage: Storage) -> ParamTask {
+        ParamTask::WriteArray {
+            pnu: pnu(n),
+            index: sub(i),
+            value,
+            storage,
+        }
+    }
+
+    fn write(t: &mut ParamTable, n: u16, value: Value) -> ReplyKind {
+        run(t, write_task(n, value, Storage::Ram))
+    }
+
+    fn write_eeprom(t: &mut ParamTable, n: u16, value: Value) -> ReplyKind {
+        run(t, write_task(n, value, Storage::RamAndEeprom))
+    }
+
+    fn write_at(t: &mut ParamTable, n: u16, i: u8, value: Value) -> ReplyKind {
+        run(t, write_at_task(n, i, value, Storage::Ram))
+    }
+
+    fn write_at_eeprom(t: &mut ParamTable, n: u16, i: u8, value: Value) -> ReplyKind {
+        run(t, write_at_task(n, i, value, Storage::RamAndEeprom))
+    }
+
+    fn array_len(t: &mut ParamTable, n: u16) -> ReplyKind {
+        run(t, ParamTask::ReadArrayLen { pnu: pnu(n) })
+    }
+
+    fn write_f32(t: &mut ParamTable, n: u16, value: f32) -> ReplyKind {
+        write(t, n, Value::from_f32(value))
+    }
+
+    /// A table with P0003 = 3 (expert), so every parameter of the list is within reach.
+    fn expert() -> ParamTable {
+        let mut t = ParamTable::new();
+        assert_eq!(write(&mut t, P0003, Value::Word(3)), ReplyKind::Word(3));
+        t
+    }
+
+    // --- The table itself ---
+
+    #[test]
+    fn definitions_are_sorted_unique_and_their_defaults_are_valid() {
+        for pair in DEFINITIONS.windows(2) {
+            assert!(
+                pair[0].pnu < pair[1].pnu,
+                "{} before {}",
+                pair[0].name,
+                pair[1].name
+            );
+        }
+        for def in DEFINITIONS {
+            let number = &def.name[1..5];
+            assert_eq!(number.parse::<u16>().unwrap(), def.pnu, "{}", def.name);
+            let prefix = if def.is_read_only() { 'r' } else { 'P' };
+            assert!(def.name.starts_with(prefix), "{}", def.name);
+            assert!(def.min <= def.max, "{}", def.name);
+            assert!((1..=4).contains(&def.level), "{}", def.name);
+            assert_eq!(def.check_value(def.default), Ok(()), "{}", def.name);
+            for &raw in def.allowed {
+                assert_eq!(def.check_value(raw), Ok(()), "{} setting {raw}", def.name);
+            }
+        }
+    }
+
+    #[test]
+    fn new_table_holds_factory_defaults() {
+        let t = ParamTable::new();
+        assert_eq!(t.get(P0003, 0), Some(1));
+        assert_eq!(t.get(P0010, 0), Some(0));
+        assert_eq!(t.get(P0700, 0), Some(5));
+        assert_eq!(t.get(P0927, 0), Some(15));
+        assert_eq!(t.get(P1000, 0), Some(5));
+        assert_eq!(t.get(P1082, 0), Some(0x4248_0000));
+        assert_eq!(t.get(P2010, 0), Some(6));
+        assert_eq!(t.get(P2010, 1), Some(6));
+        assert_eq!(t.get(P2012, 1), Some(2));
+        assert_eq!(t.get(P2013, 1), Some(127));
+        assert_eq!(t.get(R0018, 0), Some(2.09f32.to_bits()));
+        assert_eq!(t.get(R0947, 7), Some(0));
+        assert_eq!(ParamTable::default(), t);
+    }
+
+    #[test]
+    fn definition_finds_defined_parameters_only() {
+        let t = ParamTable::new();
+        let def = t.definition(P1082).unwrap();
+        assert_eq!(def.name, "P1082 Max. frequency");
+        assert_eq!(def.ty, DataType::Float);
+        assert_eq!(def.change, Change::NotRunning);
+        assert_eq!(t.definition(R2031).unwrap().elements, 2);
+        assert!(t.definition(1).is_none());
+        assert!(t.definition(u16::MAX).is_none());
+    }
+
+    // --- Reads ---
+
+    #[test]
+    fn no_task_is_answered_with_no_task() {
+        let mut t = ParamTable::new();
+        for mode in [
+            PkwMode::None,
+            PkwMode::Three,
+            PkwMode::Four,
+            PkwMode::Variable,
+        ] {
+            assert_eq!(
+                t.execute(&ParamTask::None, mode, STOPPED),
+                ReplyKind::NotYet
+            );
+        }
+    }
+
+    #[test]
+    fn read_p1082_is_dword_50_hz() {
+        let mut t = ParamTable::new();
+        assert_eq!(read(&mut t, P1082), ReplyKind::Dword(0x4248_0000));
+        let task = ParamTask::Read { pnu: pnu(P1082) };
+        assert_eq!(
+            t.execute(&task, PkwMode::Variable, RUNNING),
+            ReplyKind::Dword(0x4248_0000)
+        );
+    }
+
+    #[test]
+    fn read_word_parameter_is_word_reply_in_every_channel_width() {
+        let mut t = ParamTable::new();
+        let task = ParamTask::Read { pnu: pnu(P0700) };
+        for mode in [PkwMode::Three, PkwMode::Four, PkwMode::Variable] {
+            assert_eq!(t.execute(&task, mode, STOPPED), ReplyKind::Word(5));
+        }
+        assert_eq!(read(&mut t, P2000), ReplyKind::Dword(0x4248_0000));
+        assert_eq!(read(&mut t, P1120), ReplyKind::Dword(0x4120_0000));
+        assert_eq!(read(&mut t, R0018), ReplyKind::Dword(0x4005_C28F));
+    }
+
+    #[test]
+    fn dword_read_over_three_word_channel_is_error_102() {
+        let mut t = ParamTable::new();
+        let task = ParamTask::Read { pnu: pnu(P1082) };
+        assert_eq!(
+            t.execute(&task, PkwMode::Three, STOPPED),
+            err(ParamError::ChannelTooNarrow)
+        );
+    }
+
+    #[test]
+    fn every_task_without_a_parameter_channel_is_error_102() {
+        let mut t = ParamTable::new();
+        let before = t.clone();
+        for task in [
+            ParamTask::Read { pnu: pnu(P0700) },
+            ParamTask::ReadArrayLen { pnu: pnu(P2010) },
+            write_task(P1120, Value::from_f32(2.0), Storage::Ram),
+        ] {
+            assert_eq!(
+                t.execute(&task, PkwMode::None, STOPPED),
+                err(ParamError::ChannelTooNarrow),
+                "{task:?}"
+            );
+        }
+        assert_eq!(t, before);
+    }
+
+    #[test]
+    fn unknown_pnu_is_error_0() {
+        let mut t = ParamTable::new();
+        for task in [
+            ParamTask::Read { pnu: pnu(1) },
+            ParamTask::Read { pnu: pnu(65535) },
+            ParamTask::ReadArray {
+                pnu: pnu(2015),
+                index: sub(0),
+            },
+            ParamTask::ReadArrayLen { pnu: pnu(948) },
+            describe_task(1081, 1),
+            write_task(1083, Value::Word(1), Storage::Ram),
+            write_at_task(2032, 0, Value::Word(1), Storage::RamAndEeprom),
+        ] {
+            assert_eq!(run(&mut t, task), err(ParamError::IllegalPnu), "{task:?}");
+        }
+    }
+
+    #[test]
+    fn plain_read_of_an_array_reads_element_0() {
+        let mut t = ParamTable::new();
+        t.set_internal(R0947, 0, 0x0046);
+        t.set_internal(R0947, 1, 0x0011);
+        assert_eq!(read(&mut t, R0947), ReplyKind::Word(0x0046));
+    }
+
+    #[test]
+    fn array_elements_read_write_and_count() {
+        let mut t = expert();
+        assert_eq!(array_len(&mut t, R0947), ReplyKind::ElementCount(8));
+        assert_eq!(array_len(&mut t, P2011), ReplyKind::ElementCount(2));
+        assert_eq!(
+            write_at(&mut t, P2011, COM_LINK, Value::Word(17)),
+            ReplyKind::ArrayWord(17)
+        );
+        assert_eq!(read_at(&mut t, P2011, 1), ReplyKind::ArrayWord(17));
+        assert_eq!(read_at(&mut t, P2011, 0), ReplyKind::ArrayWord(0));
+        assert_eq!(t.get(P2011, 1), Some(17));
+        t.set_internal(R0947, 7, 0x0055);
+        assert_eq!(read_at(&mut t, R0947, 7), ReplyKind::ArrayWord(0x0055));
+    }
+
+    #[test]
+    fn array_index_beyond_the_elements_is_error_3() {
+        let mut t = expert();
+        assert_eq!(read_at(&mut t, R0947, 8), err(ParamError::FaultySubindex));
+        assert_eq!(read_at(&mut t, P2010, 254), err(ParamError::FaultySubindex));
+        assert_eq!(
+            write_at(&mut t, P2011, 2, Value::Word(3)),
+            err(ParamError::FaultySubindex)
+        );
+        assert_eq!(t, expert());
+    }
+
+    #[test]
+    fn array_task_on_a_plain_parameter_is_error_4() {
+        let mut t = ParamTable::new();
+        assert_eq!(read_at(&mut t, P0700, 0), err(ParamError::NotAnArray));
+        assert_eq!(array_len(&mut t, P1082), err(ParamError::NotAnArray));
+        assert_eq!(
+            write_at(&mut t, P0700, 0, Value::Word(2)),
+            err(ParamError::NotAnArray)
+        );
+        assert_eq!(t.get(P0700, 0), Some(5));
+    }
+
+    // --- Descriptive elements ---
+
+    #[test]
+    fn descriptive_elements_give_type_elements_access_and_limits() {
+        let mut t = ParamTable::new();
+        let d = |t: &mut ParamTable, n, e| run(t, describe_task(n, e));
+        let word = |w| ReplyKind::Description(Value::Word(w));
+        let dword = |d| ReplyKind::Description(Value::Dword(d));
+        assert_eq!(d(&mut t, P1082, 1), word(8));
+        assert_eq!(d(&mut t, P1082, 2), word(0));
+        assert_eq!(d(&mut t, P1082, 4), word(0));
+        assert_eq!(d(&mut t, P1082, 7), dword(0x0000_0000));
+        assert_eq!(d(&mut t, P1082, 8), dword(0x4422_8000)); // 650.0
+        assert_eq!(d(&mut t, P2000, 7), dword(0x3F80_0000)); // 1.0
+        assert_eq!(d(&mut t, P2010, 1), word(6));
+        assert_eq!(d(&mut t, P2010, 2), word(2));
+        assert_eq!(d(&mut t, P2010, 7), dword(3));
+        assert_eq!(d(&mut t, P2010, 8), dword(12));
+        assert_eq!(d(&mut t, R0947, 2), word(8));
+        assert_eq!(d(&mut t, R0947, 4), word(1));
+        assert_eq!(d(&mut t, R0021, 7), dword(0xC422_8000)); // -650.0
+    }
+
+    #[test]
+    fn descriptive_element_not_kept_is_error_3() {
+        let mut t = ParamTable::new();
+        for element in [0, 3, 5, 6, 9, 254] {
+            assert_eq!(
+                run(&mut t, describe_task(P1082, element)),
+                err(ParamError::FaultySubindex),
+                "element {element}"
+            );
+        }
+    }
+
+    #[test]
+    fn limit_descriptions_over_three_word_channel_are_error_102() {
+        let mut t = ParamTable::new();
+        let three =
+            |t: &mut ParamTable, e| t.execute(&describe_task(P0700, e), PkwMode::Three, STOPPED);
+        assert_eq!(three(&mut t, 1), ReplyKind::Description(Value::Word(6)));
+        assert_eq!(three(&mut t, 7), err(ParamError::ChannelTooNarrow));
+        assert_eq!(three(&mut t, 8), err(ParamError::ChannelTooNarrow));
+    }
+
+    #[test]
+    fn integer_limits_are_encoded_in_the_parameters_type() {
+        assert_eq!(DataType::U16.raw(65535.0), 0xFFFF);
+        assert_eq!(DataType::I16.raw(-1.0), 0xFFFF);
+        assert_eq!(DataType::I32.raw(-2.0), 0xFFFF_FFFE);
+        assert_eq!(DataType::U32.raw(4_000_000_000.0), 4_000_000_000);
+        assert_eq!(DataType::Float.raw(50.0), 0x4248_0000);
+        assert_eq!(
+            [
+                DataType::U16,
+                DataType::I16,
+                DataType::U32,
+                DataType::I32,
+                DataType::Float
+            ]
+            .map(DataType::code),
+            [6, 3, 7, 4, 8]
+        );
+    }
+
+    // --- Writes ---
+
+    #[test]
+    fn write_echoes_the_stored_value() {
+        let mut t = ParamTable::new();
+        assert_eq!(write_f32(&mut t, P1120, 2.5), ReplyKind::Dword(0x4020_0000));
+        assert_eq!(t.get(P1120, 0), Some(0x4020_0000));
+        assert_eq!(write(&mut t, P0700, Value::Word(2)), ReplyKind::Word(2));
+        assert_eq!(read(&mut t, P0700), ReplyKind::Word(2));
+        let task = write_task(P1082, Value::from_f32(60.0), Storage::Ram);
+        assert_eq!(
+            t.execute(&task, PkwMode::Variable, STOPPED),
+            ReplyKind::Dword(0x4270_0000)
+        );
+    }
+
+    #[test]
+    fn plain_write_to_an_array_changes_element_0() {
+        let mut t = expert();
+        assert_eq!(write(&mut t, P2012, Value::Word(4)), ReplyKind::Word(4));
+        assert_eq!(t.get(P2012, 0), Some(4));
+        assert_eq!(t.get(P2012, 1), Some(2));
+    }
+
+    #[test]
+    fn write_to_read_only_parameter_is_error_1() {
+        let mut t = expert();
+        assert_eq!(
+            write_f32(&mut t, R0021, 10.0),
+            err(ParamError::ValueNotChangeable)
+        );
+        assert_eq!(
+            write_at_eeprom(&mut t, R2024, 1, Value::Word(0)),
+            err(ParamError::ValueNotChangeable)
+        );
+        assert_eq!(t, expert());
+    }
+
+    #[test]
+    fn value_outside_the_limits_is_error_2() {
+        let mut t = expert();
+        assert_eq!(
+            write_f32(&mut t, P1082, 650.5),
+            err(ParamError::LimitExceeded)
+        );
+        assert_eq!(
+            write_f32(&mut t, P1082, -0.5),
+            err(ParamError::LimitExceeded)
+        );
+        assert_eq!(
+            write_f32(&mut t, P2000, 0.5),
+            err(ParamError::LimitExceeded)
+        );
+        assert_eq!(
+            write_f32(&mut t, P1120, f32::INFINITY),
+            err(ParamError::LimitExceeded)
+        );
+        assert_eq!(
+            write(&mut t, P0003, Value::Word(5)),
+            err(ParamError::LimitExceeded)
+        );
+        assert_eq!(
+            write_at(&mut t, P2011, 1, Value::Word(32)),
+            err(ParamError::LimitExceeded)
+        );
+        // Below the lowest setting counts as a limit, a gap between settings as illegal.
+        assert_eq!(
+            write_at(&mut t, P2010, 1, Value::Word(2)),
+            err(ParamError::LimitExceeded)
+        );
+        assert_eq!(t, expert());
+        assert_eq!(
+            write_f32(&mut t, P1082, 650.0),
+            ReplyKind::Dword(0x4422_8000)
+        );
+        assert_eq!(write_f32(&mut t, P2000, 1.0), ReplyKind::Dword(0x3F80_0000));
+    }
+
+    #[test]
+    fn signed_and_float_limits_compare_as_their_type() {
+        let signed =
+            ParamDef::new(1, "P0001 test", DataType::I16, Change::Always, 1).limits(-100.0, 100.0);
+        assert_eq!(signed.check_value(u32::from(-100i16 as u16)), Ok(()));
+        assert_eq!(
+            signed.check_value(u32::from(-101i16 as u16)),
+            Err(ParamError::LimitExceeded)
+        );
+        assert_eq!(
+            signed.check_value(0xFFFF_FF9C),
+            Ok(()),
+            "only the low word counts"
+        );
+        let wide =
+            ParamDef::new(1, "P0001 test", DataType::I32, Change::Always, 1).limits(-70_000.0, 0.0);
+        assert_eq!(wide.check_value(-70_000i32 as u32), Ok(()));
+        assert_eq!(wide.check_value(1), Err(ParamError::LimitExceeded));
+        let float =
+            ParamDef::new(1, "P0001 test", DataType::Float, Change::Always, 1).limits(0.0, 2.09);
+        assert_eq!(float.check_value(2.09f32.to_bits()), Ok(()));
+    }
+
+    #[test]
+    fn word_for_a_float_or_dword_for_a_word_is_error_5() {
+        let mut t = expert();
+        assert_eq!(
+            write(&mut t, P1120, Value::Word(10)),
+            err(ParamError::WrongDataType)
+        );
+        assert_eq!(
+            write(&mut t, P0700, Value::Dword(2)),
+            err(ParamError::WrongDataType)
+        );
+        assert_eq!(
+            write_at(&mut t, P2011, 0, Value::Dword(3)),
+            err(ParamError::WrongDataType)
+        );
+        assert_eq!(t, expert());
+    }
+
+    #[test]
+    fn dword_write_over_three_word_channel_is_error_102() {
+        let mut t = ParamTable::new();
+        let task = write_task(P1120, Value::from_f32(3.0), Storage::Ram);
+        assert_eq!(
+            t.execute(&task, PkwMode::Three, STOPPED),
+            err(ParamError::ChannelTooNarrow)
+        );
+        assert_eq!(t, ParamTable::new());
+        let word = write_task(P0700, Value::Word(2), Storage::Ram);
+        assert_eq!(
+            t.execute(&word, PkwMode::Three, STOPPED),
+            ReplyKind::Word(2)
+        );
+    }
+
+    #[test]
+    fn not_running_parameter_written_while_running_is_error_17() {
+        let mut t = ParamTable::new();
+        let task = write_task(P1082, Value::from_f32(60.0), Storage::Ram);
+        assert_eq!(
+            t.execute(&task, PkwMode::Four, RUNNING),
+            err(ParamError::NotInThisState)
+        );
+        let p0010 = write_task(P0010, Value::Word(1), Storage::Ram);
+        assert_eq!(
+            t.execute(&p0010, PkwMode::Four, RUNNING),
+            err(ParamError::NotInThisState)
+        );
+        assert_eq!(t, ParamTable::new());
+        let ramp = write_task(P1120, Value::from_f32(3.0), Storage::Ram);
+        assert_eq!(
+            t.execute(&ramp, PkwMode::Four, RUNNING),
+            ReplyKind::Dword(0x4040_0000),
+            "Always parameters change while running"
+        );
+    }
+
+    #[test]
+    fn commissioning_parameter_outside_quick_commissioning_is_error_17() {
+        let mut t = ParamTable::new();
+        assert_eq!(
+            write_f32(&mut t, P0310, 60.0),
+            err(ParamError::NotInThisState)
+        );
+        assert_eq!(write(&mut t, P0010, Value::Word(30)), ReplyKind::Word(30));
+        assert_eq!(
+            write_f32(&mut t, P0310, 60.0),
+            err(ParamError::NotInThisState)
+        );
+        assert_eq!(write(&mut t, P0010, Value::Word(1)), ReplyKind::Word(1));
+        assert_eq!(
+            write_f32(&mut t, P0310, 60.0),
+            ReplyKind::Dword(0x4270_0000)
+        );
+    }
+
+    #[test]
+    fn factory_reset_without_p0010_30_is_error_17() {
+        let mut t = ParamTable::new();
+        assert_eq!(
+            write(&mut t, P0970, Value::Word(1)),
+            err(ParamError::NotInThisState)
+        );
+        assert_eq!(write(&mut t, P0010, Value::Word(1)), ReplyKind::Word(1));
+        assert_eq!(
+            write(&mut t, P0970, Value::Word(1)),
+            err(ParamError::NotInThisState)
+        );
+    }
+
+    #[test]
+    fn nan_float_is_error_104() {
+        let mut t = ParamTable::new();
+        assert_eq!(
+            write(&mut t, P1120, Value::Dword(0x7FC0_0000)),
+            err(ParamError::IllegalValue)
+        );
+        assert_eq!(
+            write(&mut t, P1120, Value::Dword(0xFFFF_FFFF)),
+            err(ParamError::IllegalValue)
+        );
+        assert_eq!(t, ParamTable::new());
+    }
+
+    #[test]
+    fn value_not_among_the_settings_is_error_104() {
+        let mut t = expert();
+        assert_eq!(
+            write(&mut t, P0700, Value::Word(3)),
+            err(ParamError::IllegalValue)
+        );
+        assert_eq!(
+            write(&mut t, P0010, Value::Word(2)),
+            err(ParamError::IllegalValue)
+        );
+        assert_eq!(
+            write(&mut t, P1000, Value::Word(4)),
+            err(ParamError::IllegalValue)
+        );
+        assert_eq!(
+            write_at(&mut t, P2010, 1, Value::Word(10)),
+            err(ParamError::IllegalValue)
+        );
+        assert_eq!(
+            write_at(&mut t, P2013, 1, Value::Word(5)),
+            err(ParamError::IllegalValue)
+        );
+        assert_eq!(t, expert());
+        assert_eq!(
+            write_at(&mut t, P2010, 1, Value::Word(12)),
+            ReplyKind::ArrayWord(12)
+        );
+        assert_eq!(write(&mut t, P1000, Value::Word(77)), ReplyKind::Word(77));
+    }
+
+    #[test]
+    fn parameter_above_the_access_level_is_error_204() {
+        let mut t = ParamTable::new();
+        // P0003 = 1 (standard): P1058 needs 2, P2012 and P0719 need 3.
+        assert_eq!(
+            write_f32(&mut t, P1058, 6.0),
+            err(ParamError::AccessLevelTooLow)
+        );
+        assert_eq!(
+            write_at(&mut t, P2012, 1, Value::Word(4)),
+            err(ParamError::AccessLevelTooLow)
+        );
+        assert_eq!(write(&mut t, P0003, Value::Word(2)), ReplyKind::Word(2));
+        assert_eq!(write_f32(&mut t, P1058, 6.0), ReplyKind::Dword(0x40C0_0000));
+        assert_eq!(
+            write(&mut t, P0719, Value::Word(11)),
+            err(ParamError::AccessLevelTooLow)
+        );
+        assert_eq!(write(&mut t, P0003, Value::Word(3)), ReplyKind::Word(3));
+        assert_eq!(write(&mut t, P0719, Value::Word(11)), ReplyKind::Word(11));
+        // Reading needs no level.
+        assert_eq!(read_at(&mut t, P2014, 1), ReplyKind::ArrayWord(0));
+    }
+
+    #[test]
+    fn p0927_without_uss_bit_gives_no_change_rights() {
+        let mut t = expert();
+        assert_eq!(
+            write(&mut t, P0927, Value::Word(0b0111)),
+            ReplyKind::Word(7)
+        );
+        let before = t.clone();
+        assert_eq!(write_f32(&mut t, P1120, 3.0), ReplyKind::NoChangeRights);
+        assert_eq!(
+            write_at_eeprom(&mut t, P2011, 1, Value::Word(3)),
+            ReplyKind::NoChangeRights
+        );
+        assert_eq!(
+            write(&mut t, P0927, Value::Word(15)),
+            ReplyKind::NoChangeRights,
+            "the lock covers P0927 itself"
+        );
+        assert_eq!(t, before);
+        // Reads still work.
+        assert_eq!(read(&mut t, P1120), ReplyKind::Dword(0x4120_0000));
+        // The lock was written to RAM only: a power cycle lifts it.
+        t.power_cycle();
+        assert_eq!(write_f32(&mut t, P1120, 3.0), ReplyKind::Dword(0x4040_0000));
+    }
+
+    #[test]
+    fn checks_run_in_the_documented_order() {
+        let mut t = ParamTable::new();
+        t.set_internal(P0927, 0, 0); // no change rights
+        t.set_internal(P0003, 0, 0); // below every level
+        // An index beyond the array comes before read-only.
+        assert_eq!(
+            write_at(&mut t, R0947, 9, Value::Dword(1)),
+            err(ParamError::FaultySubindex)
+        );
+        // Read-only comes before change rights.
+        assert_eq!(
+            write(&mut t, R0052, Value::Dword(1)),
+            err(ParamError::ValueNotChangeable)
+        );
+        // Change rights come before the access level.
+        assert_eq!(
+            write(&mut t, P0719, Value::Dword(1)),
+            ReplyKind::NoChangeRights
+        );
+        t.set_internal(P0927, 0, 15);
+        // The access level comes before the data type.
+        assert_eq!(
+            write(&mut t, P0719, Value::Dword(1)),
+            err(ParamError::AccessLevelTooLow)
+        );
+        t.set_internal(P0003, 0, 3);
+        // The data type comes before the operating state.
+        let wrong_type = write_task(P1082, Value::Word(1), Storage::Ram);
+        assert_eq!(
+            t.execute(&wrong_type, PkwMode::Four, RUNNING),
+            err(ParamError::WrongDataType)
+        );
+        // The channel width comes before the operating state.
+        let nan = write_task(P1082, Value::Dword(0x7FC0_0000), Storage::Ram);
+        assert_eq!(
+            t.execute(&nan, PkwMode::Three, RUNNING),
+            err(ParamError::ChannelTooNarrow)
+        );
+        // The operating state comes before the value.
+        assert_eq!(
+            t.execute(&nan, PkwMode::Four, RUNNING),
+            err(ParamError::NotInThisState)
+        );
+        assert_eq!(
+            t.execute(&nan, PkwMode::Four, STOPPED),
+            err(ParamError::IllegalValue)
+        );
+    }
+
+    // --- RAM, EEPROM, power cycle, factory reset ---
+
+    #[test]
+    fn ram_write_is_lost_and_eeprom_write_kept_across_power_cycle() {
+        let mut t = ParamTable::new();
+        assert_eq!(write_f32(&mut t, P1120, 2.0), ReplyKind::Dword(0x4000_0000));
+        assert_eq!(
+            write_eeprom(&mut t, P1121, Value::from_f32(3.0)),
+            ReplyKind::Dword(0x4040_0000)
+        );
+        assert_eq!(
+            write_eeprom(&mut t, P0003, Value::Word(3)),
+            ReplyKind::Word(3)
+        );
+        assert_eq!(
+            write_at_eeprom(&mut t, P2011, 1, Value::Word(7)),
+            ReplyKind::ArrayWord(7)
+        );
+        assert_eq!(
+            write_at(&mut t, P2011, 0, Value::Word(9)),
+            ReplyKind::ArrayWord(9)
+        );
+        t.power_cycle();
+        assert_eq!(t.get(P1120, 0), Some(0x4120_0000), "RAM write lost");
+        assert_eq!(t.get(P1121, 0), Some(0x4040_0000), "EEPROM write kept");
+        assert_eq!(t.get(P0003, 0), Some(3));
+        assert_eq!(t.get(P2011, 1), Some(7));
+        assert_eq!(t.get(P2011, 0), Some(0));
+    }
+
+    #[test]
+    fn power_cycle_brings_read_only_values_back_to_defaults() {
+        let mut t = ParamTable::new();
+        t.set_internal(R0021, 0, 25.0f32.to_bits());
+        t.set_internal(R0947, 3, 0x0046);
+        t.set_internal(R2024, 1, 1234);
+        t.set_internal(R0018, 0, 0);
+        t.power_cycle();
+        assert_eq!(t, ParamTable::new());
+        assert_eq!(t.get(R0018, 0), Some(0x4005_C28F));
+    }
+
+    #[test]
+    fn factory_reset_via_p0010_30_and_p0970_1() {
+        let mut t = expert();
+        assert_eq!(
+            write_eeprom(&mut t, P1082, Value::from_f32(60.0)),
+            ReplyKind::Dword(0x4270_0000)
+        );
+        assert_eq!(
+            write_at_eeprom(&mut t, P2011, 1, Value::Word(12)),
+            ReplyKind::ArrayWord(12)
+        );
+        t.set_internal(R0947, 0, 0x0046);
+        assert_eq!(write(&mut t, P0010, Value::Word(30)), ReplyKind::Word(30));
+        // A RAM-only reset: the factory values now, the stored ones after a power cycle.
+        assert_eq!(write(&mut t, P0970, Value::Word(1)), ReplyKind::Word(0));
+        assert_eq!(t.get(P0970, 0), Some(0));
+        assert_eq!(t.get(P0010, 0), Some(0));
+        assert_eq!(t.get(P0003, 0), Some(1));
+        assert_eq!(t.get(P1082, 0), Some(0x4248_0000));
+        assert_eq!(t.get(P2011, 1), Some(0));
+        assert_eq!(
+            t.get(R0947, 0),
+            Some(0x0046),
+            "fault history is not a setting"
+        );
+        t.power_cycle();
+        assert_eq!(t.get(P1082, 0), Some(0x4270_0000));
+        assert_eq!(t.get(P2011, 1), Some(12));
+        // A reset stored to EEPROM as well survives the power cycle.
+        assert_eq!(write(&mut t, P0010, Value::Word(30)), ReplyKind::Word(30));
+        assert_eq!(
+            write_eeprom(&mut t, P0970, Value::Word(1)),
+            ReplyKind::Word(0)
+        );
+        t.power_cycle();
+        assert_eq!(t, ParamTable::new());
+    }
+
+    #[test]
+    fn p0970_0_is_accepted_and_resets_nothing() {
+        let mut t = ParamTable::new();
+        assert_eq!(write_f32(&mut t, P1120, 2.0), ReplyKind::Dword(0x4000_0000));
+        assert_eq!(write(&mut t, P0010, Value::Word(30)), ReplyKind::Word(30));
+        assert_eq!(write(&mut t, P0970, Value::Word(0)), ReplyKind::Word(0));
+        assert_eq!(t.get(P1120, 0), Some(0x4000_0000));
+        assert_eq!(t.get(P0010, 0), Some(30));
+    }
+
+    // --- Accessors for the drive model ---
+
+    #[test]
+    fn get_f32_decodes_by_type() {
+        let mut t = ParamTable::new();
+        assert_eq!(t.get_f32(P1082, 0), Some(50.0));
+        assert_eq!(t.get_f32(P0927, 0), Some(15.0));
+        assert_eq!(t.get_f32(P2013, 1), Some(127.0));
+        t.set_internal(R0021, 0, (-12.5f32).to_bits());
+        assert_eq!(t.get_f32(R0021, 0), Some(-12.5));
+        t.set_internal(R0052, 0, 0xFB34);
+        assert_eq!(t.get_f32(R0052, 0), Some(64_308.0));
+        assert_eq!(t.get_f32(P1082, 1), None);
+        assert_eq!(t.get_f32(4, 0), None);
+    }
+
+    #[test]
+    fn get_is_none_for_unknown_pnu_or_index() {
+        let t = ParamTable::new();
+        assert_eq!(t.get(4, 0), None);
+        assert_eq!(t.get(P0700, 1), None);
+        assert_eq!(t.get(P2010, 2), None);
+        assert_eq!(t.get(R0947, 8), None);
+        assert_eq!(t.get(R0947, 255), None);
+    }
+
+    #[test]
+    fn set_internal_bypasses_every_check_in_ram_only() {
+        let mut t = ParamTable::new();
+        t.set_internal(P0927, 0, 0);
+        t.set_internal(R0052, 0, 0xFB34);
+        t.set_internal(R2024, COM_LINK, 42);
+        t.set_internal(P1082, 0, 700.0f32.to_bits()); // beyond the limit: no check
+        t.set_internal(P0700, 0, 0x0001_0003); // word type keeps the low word
+        assert_eq!(read(&mut t, R0052), ReplyKind::Word(0xFB34));
+        assert_eq!(read_at(&mut t, R2024, 1), ReplyKind::ArrayWord(42));
+        assert_eq!(read(&mut t, P1082), ReplyKind::Dword(0x442F_0000));
+        assert_eq!(t.get(P0700, 0), Some(3));
+        assert_eq!(
+            write(&mut t, P0700, Value::Word(2)),
+            ReplyKind::NoChangeRights
+        );
+        // Ignored silently for what does not exist.
+        let before = t.clone();
+        t.set_internal(4, 0, 1);
+        t.set_internal(R0947, 8, 1);
+        assert_eq!(t, before);
+        t.power_cycle();
+        assert_eq!(t, ParamTable::new());
+    }
+
+    #[test]
+    fn set_commissioned_survives_power_cycle_but_not_for_read_only() {
+        let mut t = ParamTable::new();
+        t.set_commissioned(P2011, COM_LINK, 5);
+        t.set_commissioned(P2010, COM_LINK, 0x0001_0008);
+        t.set_commissioned(R2025, COM_LINK, 9);
+        t.set_commissioned(4, 0, 9);
+        assert_eq!(t.get(R2025, 1), Some(0));
+        t.power_cycle();
+        assert_eq!(t.get(P2011, 1), Some(5));
+        assert_eq!(t.get(P2010, 1), Some(8));
+        assert_eq!(t.get(R2025, 1), Some(0));
+    }
+
+    // --- Robustness ---
+
+    fn any_task() -> impl Strategy<Value = ParamTask> {
+        let pnus = prop_oneof![
+            4 => (0..DEFINITIONS.len()).prop_map(|n| DEFINITIONS[n].pnu),
+            1 => any::<u16>(),
+        ];
+        let index = prop_oneof![3 => 0u8..9, 1 => 0u8..=Subindex::MAX];
+        let value = prop_oneof![
+            (0u16..=40).prop_map(Value::Word),
+            any::<u16>().prop_map(Value::Word),
+            (-10.0f32..700.0).prop_map(Value::from_f32),
+            any::<u32>().prop_map(Value::Dword),
+        ];
+        let storage = prop_oneof![Just(Storage::Ram), Just(Storage::RamAndEeprom)];
+        (0u8..7, pnus, index, value, storage).prop_map(|(kind, n, i, value, storage)| {
+            let pnu = Pnu::from_u16(n);
+            let index = Subindex::new(i).unwrap();
+            match kind {
+                0 => ParamTask::None,
+                1 => ParamTask::Read { pnu },
+                2 => ParamTask::Write {
+                    pnu,
+                    value,
+                    storage,
+                },
+                3 => ParamTask::ReadDescription {
+                    pnu,
+                    element: index,
+                },
+                4 => ParamTask::ReadArray { pnu, index },
+                5 => ParamTask::WriteArray {
+                    pnu,
+                    index,
+                    value,
+                    storage,
+                },
+                _ => ParamTask::ReadArrayLen { pnu },
+            }
+        })
+    }
+
+    fn any_mode() -> impl Strategy<Value = PkwMode> {
+        prop_oneof![
+            Just(PkwMode::None),
+            Just(PkwMode::Three),
+            Just(PkwMode::Four),
+            Just(PkwMode::Variable),
+        ]
+    }
+
+    proptest! {
+        /// Whatever the tasks: no panic, a refused task changes nothing, every reply fits the
+        /// channel it goes out on, a change echoes what is stored, and every changeable
+        /// parameter holds a value its definition allows.
+        #[test]
+        fn any_task_sequence_keeps_the_table_consistent(
+            steps in proptest::collection::vec((any_task(), any_mode(), any::<bool>()), 1..40)
+        ) {
+            let mut t = ParamTable::new();
+            for (task, mode, running) in steps {
+                let before = t.clone();
+                let reply = t.execute(&task, mode, DriveContext { running });
+                if matches!(reply, ReplyKind::Error(_) | ReplyKind::NoChangeRights) {
+                    prop_assert_eq!(&t, &before);
+                }
+                let Some(p) = task.pnu() else { continue };
+                if mode != PkwMode::None {
+                    let out = ParamReply { pnu: p, subindex: task.subindex(), kind: reply };
+                    prop_assert!(out.encode(mode, &mut [0; 4]).is_ok(), "{:?} in {:?}", reply, mode);
+                }
+                if let (true, Some(echo)) = (task.is_write(), reply.value()) {
+                    let index = if matches!(task, ParamTask::WriteArray { .. }) { task.subindex() } else { 0 };
+                    prop_assert_eq!(t.get(p.get(), index), Some(echo.as_u32()));
+                }
+                for def in DEFINITIONS.iter().filter(|d| !d.is_read_only()) {
+                    for i in 0..def.slots() as u8 {
+                        let raw = t.get(def.pnu, i).unwrap();
+                        prop_assert_eq!(def.check_value(raw), Ok(()), "{} = {:#x}", def.name, raw);
+                    }
+                }
+            }
+        }
+    }
+}
