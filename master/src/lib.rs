@@ -1,2 +1,24 @@
-//! The USS bus master: configuration, transports, the real-time bus engine and the IPC bridge.
-//! The engine arrives with the bus-engine work (see `shared/ARCHITECTURE.md`).
+//! The USS bus master: configuration, transports, the real-time bus engine and its runtime.
+//!
+//! - [`engine`]: the circulating list on one line: timing rules, retries, offline handling,
+//!   PKW mailboxes, diagnostics; generic over [`transport::Transport`] and [`clock::Clock`].
+//! - [`transport`], [`serial`]: the virtual wire to the simulator and real serial devices.
+//! - [`clock`]: the monotonic clock with absolute sleeps, and a virtual clock for tests.
+//! - [`image`]: lock-free process images shared with clients.
+//! - [`jobs`]: parameter jobs, results and the per-drive mailbox.
+//! - [`rt`]: CPU pinning, `SCHED_FIFO`, stack prefault and memory locking, with honest reports.
+//! - [`stats`]: per-drive and per-bus diagnostics and histograms.
+
+pub mod clock;
+pub mod engine;
+pub mod image;
+pub mod jobs;
+pub mod rt;
+pub mod stats;
+pub mod transport;
+
+pub use clock::{Clock, MonotonicClock, VirtualClock};
+pub use engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event, RequestError};
+pub use jobs::{Job, JobResult, Outcome};
+pub use stats::{DriveCounters, DriveStatus, Failure, Stats};
+pub use transport::{Rx, SimTransport, Transport, TransportError};

@@ -1,0 +1,120 @@
+//! Time as the engine sees it. The engine reads the time and sleeps only through [`Clock`], so its
+//! timing rules (start pause, response timeout, residual time, retries, job timeouts) run on a
+//! [`VirtualClock`] in tests, deterministically, and on the [`MonotonicClock`] in `ussd`.
+
+use core::time::Duration;
+use nix::sys::time::TimeSpec;
+use nix::time::{ClockId, ClockNanosleepFlags, clock_gettime, clock_nanosleep};
+
+/// A monotonic clock with an origin; times are durations since that origin.
+pub trait Clock {
+    fn now(&self) -> Duration;
+    /// Returns at `t` or as soon after as the clock allows; at once when `t` has passed.
+    fn sleep_until(&mut self, t: Duration);
+}
+
+/// `CLOCK_MONOTONIC` with absolute sleeps (`clock_nanosleep` with `TIMER_ABSTIME`), so a late
+/// wake-up never accumulates into the next deadline.
+#[derive(Debug, Clone, Copy)]
+pub struct MonotonicClock {
+    origin: Duration,
+}
+
+fn monotonic() -> Duration {
+    // CLOCK_MONOTONIC cannot fail on Linux with a valid pointer; zero is a harmless fallback.
+    clock_gettime(ClockId::CLOCK_MONOTONIC).map_or(Duration::ZERO, Duration::from)
+}
+
+impl MonotonicClock {
+    /// A clock whose origin is now.
+    pub fn new() -> Self {
+        Self {
+            origin: monotonic(),
+        }
+    }
+
+    /// A clock sharing another's origin (threads of one bus agree on times).
+    pub const fn with_origin_of(other: &Self) -> Self {
+        Self {
+            origin: other.origin,
+        }
+    }
+}
+
+impl Default for MonotonicClock {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Clock for MonotonicClock {
+    fn now(&self) -> Duration {
+        monotonic().saturating_sub(self.origin)
+    }
+
+    fn sleep_until(&mut self, t: Duration) {
+        let target = TimeSpec::from(self.origin + t);
+        // EINTR: a signal arrived; sleep on to the same absolute time.
+        while let Err(nix::errno::Errno::EINTR) = clock_nanosleep(
+            ClockId::CLOCK_MONOTONIC,
+            ClockNanosleepFlags::TIMER_ABSTIME,
+            &target,
+        ) {}
+    }
+}
+
+/// A clock that only moves when the engine sleeps: tests of timing rules run instantly and
+/// deterministically.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct VirtualClock {
+    now: Duration,
+}
+
+impl VirtualClock {
+    pub const fn new() -> Self {
+        Self {
+            now: Duration::ZERO,
+        }
+    }
+
+    /// Moves the clock forward (as time passing outside the engine would).
+    pub fn advance(&mut self, by: Duration) {
+        self.now += by;
+    }
+}
+
+impl Clock for VirtualClock {
+    fn now(&self) -> Duration {
+        self.now
+    }
+
+    fn sleep_until(&mut self, t: Duration) {
+        self.now = self.now.max(t);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn virtual_clock_moves_only_forward_when_sleeping() {
+        let mut c = VirtualClock::new();
+        c.sleep_until(Duration::from_millis(5));
+        assert_eq!(c.now(), Duration::from_millis(5));
+        c.sleep_until(Duration::from_millis(1));
+        assert_eq!(c.now(), Duration::from_millis(5));
+        c.advance(Duration::from_millis(1));
+        assert_eq!(c.now(), Duration::from_millis(6));
+    }
+
+    #[test]
+    fn monotonic_clock_sleeps_to_an_absolute_time() {
+        let mut c = MonotonicClock::new();
+        let target = c.now() + Duration::from_millis(3);
+        c.sleep_until(target);
+        assert!(c.now() >= target);
+        let shared = MonotonicClock::with_origin_of(&c);
+        assert!(shared.now() >= target);
+    }
+}

@@ -1,0 +1,908 @@
+//! The bus engine: the circulating list on one line (USS.md sections 4 to 6).
+//!
+//! One [`Engine`] owns one [`Transport`] and runs in one thread. Each step polls the next drive of
+//! the circulating list: it waits out the start pause, flushes stale input, sends the drive's
+//! current PZD (and its pending PKW task, if any), and receives the reply under the response and
+//! residual-time rules. A failed attempt is retried up to the configured count; a drive whose
+//! polls keep failing goes offline, is probed at a lower rate, and comes back with its first good
+//! reply. After start-up nothing here allocates, blocks on a client or logs: clients reach the
+//! engine through lock-free process images and bounded channels ([`EngineHandle`]), and events go
+//! to a housekeeping thread over a bounded channel, dropped and counted when it lags.
+
+use crate::clock::Clock;
+use crate::image::DriveImages;
+use crate::jobs::{Job, JobResult, Mailbox, Outcome};
+use crate::stats::{Failure, Stats, record};
+use crate::transport::{Transport, TransportError};
+use core::time::Duration;
+use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use thiserror::Error;
+use uss_protocol::telegram::{MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, MAX_TELEGRAM_BYTES};
+use uss_protocol::{
+    Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, PkwError, ReplyKind, Stw1,
+    Timing, Words, encode,
+};
+
+/// One drive as the engine polls it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveSetup {
+    pub address: Address,
+    pub layout: Layout,
+    /// How many times the drive appears in the circulating list (USS.md section 5).
+    pub weight: u8,
+    /// STW1 sent when no controller is live (OFF1 by default); the setpoint goes to 0.
+    pub safe_stw1: Stw1,
+    /// A controller that has not written its output image for this long is stale.
+    pub watchdog: Duration,
+    pub params_writable: bool,
+}
+
+/// How the engine runs one bus.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EngineConfig {
+    pub timing: Timing,
+    /// Limit for the reply's STX after our BCC (20 ms by USS.md section 4, plus any margin).
+    pub response_timeout: Duration,
+    pub retries: u8,
+    /// Consecutive failed polls before a drive is marked offline.
+    pub offline_after: u32,
+    /// How often an offline drive is probed.
+    pub offline_probe: Duration,
+    /// Fixed time per pass through the circulating list, if any.
+    pub cycle_time: Option<Duration>,
+    /// A parameter job without a matching reply this long after it first went out times out.
+    pub param_timeout: Duration,
+    /// Discard the echo of our own bytes (2-wire adapters, USS.md section 9).
+    pub echo: bool,
+    /// Parameter jobs each drive can hold.
+    pub mailbox_depth: usize,
+    /// How often statistics are published to other threads.
+    pub publish_every: Duration,
+    pub drives: Vec<DriveSetup>,
+}
+
+/// Something the housekeeping thread should know (and log).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Event {
+    DriveOffline {
+        address: Address,
+        at: Duration,
+        failure: Failure,
+    },
+    DriveOnline {
+        address: Address,
+        at: Duration,
+    },
+    /// The drive's controller went stale: the drive now gets its safe command.
+    WatchdogTripped {
+        address: Address,
+        at: Duration,
+    },
+    /// The controller is refreshing again.
+    WatchdogCleared {
+        address: Address,
+        at: Duration,
+    },
+    CycleOverrun {
+        at: Duration,
+        took: Duration,
+    },
+}
+
+/// A request the handle refuses before it reaches the bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Error)]
+pub enum RequestError {
+    #[error("no drive {0} on this bus")]
+    UnknownDrive(Address),
+    #[error("parameter writes are disabled for drive {0} (params_writable = false)")]
+    WritesDisabled(Address),
+    #[error("drive {address}: {error}")]
+    Pkw { address: Address, error: PkwError },
+    #[error("drive {address} exchanges {allowed} PZD words, {given} given")]
+    PzdWords {
+        address: Address,
+        given: usize,
+        allowed: usize,
+    },
+    #[error("too many parameter jobs outstanding ({0}): wait for results first")]
+    Busy(usize),
+    #[error("the bus engine has stopped")]
+    Stopped,
+}
+
+/// State shared by the engine and its handles.
+#[derive(Debug)]
+struct Shared {
+    setups: Vec<DriveSetup>,
+    slot_of: [Option<u8>; 32],
+    images: Vec<DriveImages>,
+    output_numbers: Vec<AtomicU64>,
+    stats: Mutex<Stats>,
+    stop: AtomicBool,
+    outstanding: AtomicUsize,
+    capacity: usize,
+}
+
+impl Shared {
+    fn slot(&self, address: Address) -> Result<usize, RequestError> {
+        self.slot_of[address.get() as usize]
+            .map(usize::from)
+            .ok_or(RequestError::UnknownDrive(address))
+    }
+}
+
+/// The engine's side for everyone else: process images, parameter jobs, statistics, stop.
+#[derive(Debug, Clone)]
+pub struct EngineHandle {
+    shared: Arc<Shared>,
+    jobs: Sender<Job>,
+    results: Receiver<JobResult>,
+}
+
+impl EngineHandle {
+    /// Sets the PZD words the drive gets from now on (STW1, setpoint, ...). Writing refreshes
+    /// the drive's watchdog: a controller must write at least once per watchdog time.
+    pub fn set_output(&self, address: Address, words: &[u16]) -> Result<(), RequestError> {
+        let slot = self.shared.slot(address)?;
+        let allowed = self.shared.setups[slot].layout.pzd.get();
+        if words.len() != allowed {
+            return Err(RequestError::PzdWords {
+                address,
+                given: words.len(),
+                allowed,
+            });
+        }
+        let number = self.shared.output_numbers[slot].fetch_add(1, Ordering::Relaxed) + 1;
+        self.shared.images[slot].output.write(words, number, 0);
+        Ok(())
+    }
+
+    /// The drive's last reply PZD (number = count of good replies) and whether it is online.
+    pub fn input(
+        &self,
+        address: Address,
+    ) -> Result<(Option<crate::image::Words>, bool), RequestError> {
+        let slot = self.shared.slot(address)?;
+        let image = &self.shared.images[slot];
+        let words = image
+            .input
+            .is_written()
+            .then(|| image.input.read())
+            .flatten();
+        Ok((words, image.online.load(Ordering::Acquire)))
+    }
+
+    /// Queues a parameter job. Once accepted it ends in exactly one [`JobResult`].
+    pub fn submit(&self, job: Job) -> Result<(), RequestError> {
+        if self.shared.stop.load(Ordering::Acquire) {
+            return Err(RequestError::Stopped);
+        }
+        let slot = self.shared.slot(job.address)?;
+        let setup = &self.shared.setups[slot];
+        if job.task.is_write() && !setup.params_writable {
+            return Err(RequestError::WritesDisabled(job.address));
+        }
+        let mut words = [0u16; MAX_PKW_WORDS];
+        job.task
+            .encode(setup.layout.pkw, &mut words)
+            .map_err(|error| RequestError::Pkw {
+                address: job.address,
+                error,
+            })?;
+        let cap = self.shared.capacity;
+        self.shared
+            .outstanding
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                (n < cap).then_some(n + 1)
+            })
+            .map_err(|_| RequestError::Busy(cap))?;
+        self.jobs.try_send(job).map_err(|_| {
+            self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
+            RequestError::Stopped
+        })
+    }
+
+    /// The next finished job, waiting at most `timeout`.
+    pub fn recv_result(&self, timeout: Duration) -> Option<JobResult> {
+        let r = self.results.recv_timeout(timeout).ok()?;
+        self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
+        Some(r)
+    }
+
+    /// A copy of the latest published statistics.
+    pub fn stats(&self) -> Stats {
+        // A poisoned lock means a panic elsewhere; the data is plain counters and still usable.
+        self.shared
+            .stats
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    /// Asks the engine to stop after its current exchange.
+    pub fn stop(&self) {
+        self.shared.stop.store(true, Ordering::Release);
+    }
+
+    pub fn is_stopped(&self) -> bool {
+        self.shared.stop.load(Ordering::Acquire)
+    }
+
+    pub fn drives(&self) -> &[DriveSetup] {
+        &self.shared.setups
+    }
+}
+
+/// Per-drive state the engine keeps.
+#[derive(Debug)]
+struct DriveRt {
+    setup: DriveSetup,
+    mailbox: Mailbox,
+    next_probe: Duration,
+    last_output_number: u64,
+    output_changed_at: Duration,
+}
+
+/// How one attempt ended.
+enum Attempt {
+    Reply { words: Words, timing: ReplyTiming },
+    Failed(Failure),
+}
+
+/// The bus engine. See the module documentation.
+#[derive(Debug)]
+pub struct Engine<T: Transport, C: Clock> {
+    cfg: EngineConfig,
+    transport: T,
+    clock: C,
+    framer: Framer,
+    shared: Arc<Shared>,
+    drives: Vec<DriveRt>,
+    poll_list: Vec<u8>,
+    position: usize,
+    tx: [u8; MAX_TELEGRAM_BYTES],
+    line_free_at: Duration,
+    last_reply_done: Option<Duration>,
+    cycle_start: Duration,
+    last_publish: Duration,
+    jobs: Receiver<Job>,
+    results: Sender<JobResult>,
+    events: Sender<Event>,
+    stats: Stats,
+}
+
+/// Builds the circulating list: each drive `weight` times, spread over the cycle (USS.md
+/// section 5). Occurrence k of drive i of n sits at (k + i/n) / weight, so a drive polled twice per
+/// cycle is polled every half cycle and drives of equal weight keep their configured order.
+fn circulating_list(drives: &[DriveSetup]) -> Vec<u8> {
+    let n = drives.len().max(1) as f64;
+    let mut entries: Vec<(f64, usize)> = drives
+        .iter()
+        .enumerate()
+        .flat_map(|(i, d)| {
+            let w = f64::from(d.weight.max(1));
+            (0..d.weight.max(1)).map(move |k| ((f64::from(k) + i as f64 / n) / w, i))
+        })
+        .collect();
+    entries.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    entries.into_iter().map(|(_, i)| i as u8).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use uss_protocol::{PkwMode, PzdCount};
+
+    fn setup(address: u8, weight: u8) -> DriveSetup {
+        DriveSetup {
+            address: Address::new(address).unwrap(),
+            layout: Layout::new(PkwMode::Four, PzdCount::new(2).unwrap()),
+            weight,
+            safe_stw1: Stw1::READY,
+            watchdog: Duration::from_millis(100),
+            params_writable: true,
+        }
+    }
+
+    #[test]
+    fn circulating_list_spreads_weighted_drives() {
+        assert_eq!(
+            circulating_list(&[setup(1, 1), setup(2, 1), setup(3, 1)]),
+            vec![0, 1, 2]
+        );
+        assert_eq!(
+            circulating_list(&[setup(1, 2), setup(2, 1), setup(3, 1)]),
+            vec![0, 1, 0, 2]
+        );
+        assert_eq!(
+            circulating_list(&[setup(1, 1), setup(2, 3)]),
+            vec![0, 1, 1, 1]
+        );
+        let list = circulating_list(&[setup(1, 4), setup(2, 4), setup(3, 1)]);
+        assert_eq!(list.len(), 9);
+        assert_eq!(list.iter().filter(|&&i| usize::from(i) == 2).count(), 1);
+    }
+}
+
+impl<T: Transport, C: Clock> Engine<T, C> {
+    /// Builds the engine and everything it will use; returns it with its handle and the event
+    /// receiver for the housekeeping thread.
+    pub fn new(cfg: EngineConfig, transport: T, clock: C) -> (Self, EngineHandle, Receiver<Event>) {
+        let mut slot_of = [None; 32];
+        for (i, d) in cfg.drives.iter().enumerate() {
+            slot_of[d.address.get() as usize] = Some(i as u8);
+        }
+        let capacity = (cfg.mailbox_depth * cfg.drives.len()).max(1);
+        let stats = Stats::new(cfg.drives.iter().map(|d| d.address));
+        let shared = Arc::new(Shared {
+            setups: cfg.drives.clone(),
+            slot_of,
+            images: cfg.drives.iter().map(|_| DriveImages::default()).collect(),
+            output_numbers: cfg.drives.iter().map(|_| AtomicU64::new(0)).collect(),
+            stats: Mutex::new(stats.clone()),
+            stop: AtomicBool::new(false),
+            outstanding: AtomicUsize::new(0),
+            capacity,
+        });
+        for image in &shared.images {
+            image.online.store(true, Ordering::Release);
+        }
+        // Outstanding jobs never exceed `capacity`, so neither channel can be full when the
+        // engine sends: no result is ever lost.
+        let (jobs_tx, jobs_rx) = bounded(capacity);
+        let (results_tx, results_rx) = bounded(capacity);
+        let (events_tx, events_rx) = bounded(1024);
+        let drives = cfg
+            .drives
+            .iter()
+            .map(|&setup| DriveRt {
+                setup,
+                mailbox: Mailbox::new(cfg.mailbox_depth),
+                next_probe: Duration::ZERO,
+                last_output_number: 0,
+                output_changed_at: Duration::ZERO,
+            })
+            .collect();
+        let poll_list = circulating_list(&cfg.drives);
+        let now = clock.now();
+        let engine = Self {
+            framer: Framer::new(FramerConfig::strict(cfg.timing)),
+            transport,
+            clock,
+            shared: Arc::clone(&shared),
+            drives,
+            poll_list,
+            position: 0,
+            tx: [0; MAX_TELEGRAM_BYTES],
+            line_free_at: now,
+            last_reply_done: None,
+            cycle_start: now,
+            last_publish: now,
+            jobs: jobs_rx,
+            results: results_tx,
+            events: events_tx,
+            stats,
+            cfg,
+        };
+        let handle = EngineHandle {
+            shared,
+            jobs: jobs_tx,
+            results: results_rx,
+        };
+        (engine, handle, events_rx)
+    }
+
+    pub fn clock(&self) -> &C {
+        &self.clock
+    }
+
+    pub fn clock_mut(&mut self) -> &mut C {
+        &mut self.clock
+    }
+
+    pub fn transport(&self) -> &T {
+        &self.transport
+    }
+
+    pub fn transport_mut(&mut self) -> &mut T {
+        &mut self.transport
+    }
+
+    /// The engine's own statistics (the published copy lags by up to `publish_every`).
+    pub fn stats(&self) -> &Stats {
+        &self.stats
+    }
+
+    /// Polls until the handle asks to stop, then shuts down (see [`Engine::shutdown`]).
+    pub fn run(&mut self) -> Result<(), TransportError> {
+        while !self.shared.stop.load(Ordering::Acquire) {
+            if let Err(e) = self.poll_next() {
+                self.fail_all_jobs(Outcome::Shutdown);
+                return Err(e);
+            }
+        }
+        self.shutdown()
+    }
+
+    /// Polls the next drive in the circulating list (or waits for the next offline probe when
+    /// every drive is offline). Returns the address polled.
+    pub fn poll_next(&mut self) -> Result<Option<Address>, TransportError> {
+        self.take_jobs();
+        let polled = match self.next_slot() {
+            Some(slot) => {
+                self.poll_drive(slot)?;
+                Some(self.drives[slot].setup.address)
+            }
+            None => None,
+        };
+        self.publish_if_due();
+        Ok(polled)
+    }
+
+    /// Ends every pending job with [`Outcome::Shutdown`] and sends each drive its safe command
+    /// once (one attempt, no retries).
+    pub fn shutdown(&mut self) -> Result<(), TransportError> {
+        self.shared.stop.store(true, Ordering::Release);
+        self.fail_all_jobs(Outcome::Shutdown);
+        for slot in 0..self.drives.len() {
+            let setup = self.drives[slot].setup;
+            let mut output = [0u16; MAX_PZD_WORDS];
+            output[0] = setup.safe_stw1.bits();
+            let len = setup.layout.pzd.get();
+            self.attempt(slot, &output[..len], false)?;
+        }
+        self.publish();
+        Ok(())
+    }
+
+    fn fail_all_jobs(&mut self, outcome: Outcome) {
+        let now = self.clock.now();
+        self.take_jobs();
+        for slot in 0..self.drives.len() {
+            while let Some(r) = self.drives[slot].mailbox.finish(outcome, now) {
+                self.deliver(r);
+            }
+        }
+    }
+
+    /// Moves submitted jobs into their drives' mailboxes.
+    fn take_jobs(&mut self) {
+        while let Ok(job) = self.jobs.try_recv() {
+            self.stats.bus.jobs_accepted += 1;
+            let Some(slot) = self.shared.slot_of[job.address.get() as usize].map(usize::from)
+            else {
+                continue; // the handle checked the address; a stale job cannot name another
+            };
+            let outcome = if self.shared.stop.load(Ordering::Acquire) {
+                Some(Outcome::Shutdown)
+            } else if !self.stats.drives[slot].online {
+                Some(Outcome::DriveOffline)
+            } else {
+                self.drives[slot]
+                    .mailbox
+                    .push(job)
+                    .err()
+                    .map(|_| Outcome::MailboxFull)
+            };
+            if let Some(outcome) = outcome {
+                self.deliver(JobResult {
+                    job,
+                    outcome,
+                    telegrams: 0,
+                    on_wire: Duration::ZERO,
+                });
+            }
+        }
+    }
+
+    fn deliver(&mut self, result: JobResult) {
+        self.stats.bus.jobs_finished += 1;
+        if let Some(slot) = self.shared.slot_of[result.job.address.get() as usize] {
+            self.stats.drives[usize::from(slot)].counters.jobs_done += 1;
+        }
+        // Cannot be full: outstanding jobs are capped at the channel's capacity.
+        if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
+            self.results.try_send(result)
+        {
+            self.stats.bus.events_dropped += 1;
+        }
+    }
+
+    fn emit(&mut self, event: Event) {
+        if self.events.try_send(event).is_err() {
+            self.stats.bus.events_dropped += 1;
+        }
+    }
+
+    /// The next slot of the circulating list that is due, ending a cycle when the list wraps.
+    fn next_slot(&mut self) -> Option<usize> {
+        let now = self.clock.now();
+        for _ in 0..self.poll_list.len() {
+            if self.position == self.poll_list.len() {
+                self.position = 0;
+                self.end_cycle();
+            }
+            let slot = usize::from(self.poll_list[self.position]);
+            self.position += 1;
+            if self.stats.drives[slot].online || now >= self.drives[slot].next_probe {
+                return Some(slot);
+            }
+        }
+        // Every drive is offline and none is due: wait for the first probe.
+        let next = self
+            .drives
+            .iter()
+            .map(|d| d.next_probe)
+            .min()
+            .unwrap_or(now);
+        self.transport.idle(now);
+        self.clock.sleep_until(next);
+        None
+    }
+
+    fn end_cycle(&mut self) {
+        let now = self.clock.now();
+        let took = now.saturating_sub(self.cycle_start);
+        self.stats.bus.cycles += 1;
+        record(&mut self.stats.histograms.cycle, took);
+        match self.cfg.cycle_time {
+            Some(cycle) if took > cycle => {
+                self.stats.bus.cycle_overruns += 1;
+                self.emit(Event::CycleOverrun { at: now, took });
+                self.cycle_start = now;
+            }
+            Some(cycle) => {
+                self.transport.idle(now);
+                self.cycle_start += cycle;
+                self.clock.sleep_until(self.cycle_start);
+            }
+            None => self.cycle_start = now,
+        }
+    }
+
+    /// The PZD to send: the controller's words while it refreshes within its watchdog time,
+    /// otherwise the safe command with a zero setpoint (never a stale "run").
+    fn output(&mut self, slot: usize, now: Duration, out: &mut [u16; MAX_PZD_WORDS]) {
+        let d = &mut self.drives[slot];
+        let image = &self.shared.images[slot].output;
+        let written = image.is_written().then(|| image.read()).flatten();
+        let fresh = match written {
+            Some(w) => {
+                if w.number != d.last_output_number {
+                    d.last_output_number = w.number;
+                    d.output_changed_at = now;
+                }
+                let fresh = now.saturating_sub(d.output_changed_at) <= d.setup.watchdog;
+                if fresh {
+                    out[..w.len].copy_from_slice(w.as_slice());
+                }
+                fresh
+            }
+            None => false,
+        };
+        if !fresh {
+            *out = [0; MAX_PZD_WORDS];
+            out[0] = d.setup.safe_stw1.bits();
+        }
+        let address = d.setup.address;
+        let status = &mut self.stats.drives[slot];
+        let stale_controller = written.is_some() && !fresh;
+        if stale_controller && !status.watchdog_tripped {
+            status.watchdog_tripped = true;
+            status.counters.watchdog_trips += 1;
+            self.emit(Event::WatchdogTripped { address, at: now });
+        } else if fresh && status.watchdog_tripped {
+            status.watchdog_tripped = false;
+            self.emit(Event::WatchdogCleared { address, at: now });
+        }
+    }
+
+    fn poll_drive(&mut self, slot: usize) -> Result<(), TransportError> {
+        let now = self.clock.now();
+        if let Some(r) = self.drives[slot]
+            .mailbox
+            .expire(self.cfg.param_timeout, now)
+        {
+            self.deliver(r);
+        }
+        let mut output = [0u16; MAX_PZD_WORDS];
+        self.output(slot, now, &mut output);
+        let len = self.drives[slot].setup.layout.pzd.get();
+        let mut last = Failure::NoResponse;
+        for attempt in 0..=self.cfg.retries {
+            if attempt > 0 {
+                self.stats.drives[slot].counters.retries += 1;
+            }
+            let begin = self.line_free_at;
+            match self.attempt(slot, &output[..len], true)? {
+                Attempt::Reply { words, timing } => {
+                    self.on_reply(slot, &words, begin, timing);
+                    return Ok(());
+                }
+                Attempt::Failed(f) => {
+                    let c = &mut self.stats.drives[slot].counters;
+                    c.rejected += 1;
+                    c.count(f);
+                    self.stats.drives[slot].last_failure = Some(f);
+                    last = f;
+                }
+            }
+        }
+        self.on_failed_poll(slot, last);
+        Ok(())
+    }
+
+    fn on_reply(&mut self, slot: usize, words: &Words, begin: Duration, timing: ReplyTiming) {
+        let address = self.drives[slot].setup.address;
+        let status = &mut self.stats.drives[slot];
+        status.counters.good += 1;
+        self.stats.bus.good += 1;
+        if let Some(previous) = status.last_good {
+            record(
+                &mut self.stats.update_period[slot],
+                timing.done.saturating_sub(previous),
+            );
+        }
+        status.last_good = Some(timing.done);
+        status.no_reply = false;
+        status.consecutive_failed_polls = 0;
+        let pzd = words.pzd();
+        status.last_zsw1 = pzd.first().copied().unwrap_or(0);
+        status.last_hiw = pzd.get(1).copied().unwrap_or(0);
+        let came_back = !status.online;
+        if came_back {
+            status.online = true;
+            status.since = timing.done;
+        }
+        let good = status.counters.good;
+        let h = &mut self.stats.histograms;
+        record(
+            &mut h.response_delay,
+            timing.stx_at.saturating_sub(timing.request_end),
+        );
+        record(&mut h.exchange, timing.done.saturating_sub(begin));
+        let image = &self.shared.images[slot];
+        image.input.write(
+            pzd,
+            good,
+            u64::try_from(timing.done.as_nanos()).unwrap_or(u64::MAX),
+        );
+        if came_back {
+            image.online.store(true, Ordering::Release);
+            self.emit(Event::DriveOnline {
+                address,
+                at: timing.done,
+            });
+        }
+        self.last_reply_done = Some(timing.done);
+        if words.pkw().is_empty() || self.drives[slot].mailbox.is_empty() {
+            return;
+        }
+        if let Ok(reply) = ParamReply::decode(words.pkw()) {
+            if reply.kind == ReplyKind::NotYet {
+                self.stats.drives[slot].counters.pkw_busy += 1;
+            }
+            if let Some(result) = self.drives[slot].mailbox.on_reply(&reply, timing.done) {
+                self.deliver(result);
+            }
+        }
+    }
+
+    fn on_failed_poll(&mut self, slot: usize, failure: Failure) {
+        let now = self.clock.now();
+        let address = self.drives[slot].setup.address;
+        let status = &mut self.stats.drives[slot];
+        status.counters.failed_polls += 1;
+        status.no_reply = true;
+        status.consecutive_failed_polls += 1;
+        self.drives[slot].next_probe = now + self.cfg.offline_probe;
+        if status.online && status.consecutive_failed_polls >= self.cfg.offline_after {
+            status.online = false;
+            status.since = now;
+            self.shared.images[slot]
+                .online
+                .store(false, Ordering::Release);
+            self.emit(Event::DriveOffline {
+                address,
+                at: now,
+                failure,
+            });
+            while let Some(r) = self.drives[slot].mailbox.finish(Outcome::DriveOffline, now) {
+                self.deliver(r);
+            }
+        }
+    }
+
+    /// One telegram to the drive in `slot` and its reply. `with_task` puts the pending PKW task
+    /// in (not for the shutdown telegrams).
+    fn attempt(
+        &mut self,
+        slot: usize,
+        pzd: &[u16],
+        with_task: bool,
+    ) -> Result<Attempt, TransportError> {
+        let setup = self.drives[slot].setup;
+        let mut pkw = [0u16; MAX_PKW_WORDS];
+        let task = if with_task {
+            self.drives[slot].mailbox.current().copied()
+        } else {
+            None
+        };
+        // Tasks were checked against the PKW mode when submitted, so encoding succeeds; a task
+        // that somehow does not fit goes out as "no task".
+        let pkw_len = task
+            .and_then(|t| t.encode(setup.layout.pkw, &mut pkw).ok())
+            .unwrap_or_else(|| {
+                pkw = [0; MAX_PKW_WORDS];
+                setup.layout.pkw.request_words()
+            });
+        let Ok(n) = encode(&mut self.tx, Adr::to(setup.address), &pkw[..pkw_len], pzd) else {
+            return Ok(Attempt::Failed(Failure::Length));
+        };
+        // The start pause, then a clean input buffer, then our telegram (USS.md section 4).
+        self.clock
+            .sleep_until(self.line_free_at + self.cfg.timing.start_pause());
+        let send_at = self.clock.now();
+        if let Some(done) = self.last_reply_done.take() {
+            record(
+                &mut self.stats.histograms.turnaround,
+                send_at.saturating_sub(done),
+            );
+        }
+        self.transport.flush_input(send_at)?;
+        self.framer.reset();
+        let request_end = self.transport.send(&self.tx[..n], send_at)?;
+        if task.is_some() {
+            self.drives[slot].mailbox.sent(send_at);
+        }
+        self.stats.drives[slot].counters.requests += 1;
+        self.stats.bus.exchanges += 1;
+        self.framer.line_busy_until(request_end);
+        self.line_free_at = request_end;
+        if self.cfg.echo {
+            if let Some(f) = self.discard_echo(n, request_end)? {
+                return Ok(Attempt::Failed(f));
+            }
+        }
+        self.receive_reply(setup, request_end)
+    }
+
+    /// Receives until a valid reply from the right drive, or a failure.
+    fn receive_reply(
+        &mut self,
+        setup: DriveSetup,
+        request_end: Duration,
+    ) -> Result<Attempt, TransportError> {
+        let stx_deadline = request_end + self.cfg.response_timeout;
+        let mut stx_at = None;
+        let mut garbage = None;
+        loop {
+            let deadline = self.framer.deadline().unwrap_or(stx_deadline);
+            let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {
+                if self.framer.is_receiving() {
+                    // recv returns at the deadline: the telegram did not complete in time.
+                    self.framer.reset();
+                    self.drain()?;
+                    return Ok(Attempt::Failed(Failure::Residual));
+                }
+                return Ok(Attempt::Failed(garbage.unwrap_or(Failure::NoResponse)));
+            };
+            self.line_free_at = self.line_free_at.max(rx.at);
+            let was_receiving = self.framer.is_receiving();
+            let event = match rx.error {
+                Some(e) => Some(Err(self.framer.push_line_error(e, rx.at))),
+                None => self
+                    .framer
+                    .push(rx.byte, rx.at)
+                    .map(|r| r.map(|telegram| (telegram.adr(), telegram.words(setup.layout)))),
+            };
+            if !was_receiving && self.framer.is_receiving() {
+                stx_at = Some(rx.at);
+            }
+            let (adr, words) = match event {
+                None => continue,
+                Some(Ok(parts)) => parts,
+                Some(Err(e @ (FrameError::MissingStx(_) | FrameError::StartPauseNotObserved))) => {
+                    // Garbage before the reply: the reply may still follow after a pause.
+                    garbage.get_or_insert(Failure::from_frame(&e));
+                    continue;
+                }
+                Some(Err(e)) => {
+                    self.drain()?;
+                    return Ok(Attempt::Failed(Failure::from_frame(&e)));
+                }
+            };
+            let failure = if adr == Adr::to(setup.address) {
+                match words {
+                    Ok(words) => {
+                        if let Some(g) = garbage {
+                            let slot = self.slot(setup.address);
+                            self.stats.drives[slot].counters.count(g);
+                        }
+                        let timing = ReplyTiming {
+                            request_end,
+                            stx_at: stx_at.unwrap_or(rx.at),
+                            done: rx.at,
+                        };
+                        return Ok(Attempt::Reply { words, timing });
+                    }
+                    Err(_) => Failure::Length,
+                }
+            } else {
+                Failure::WrongAddress
+            };
+            self.drain()?;
+            return Ok(Attempt::Failed(failure));
+        }
+    }
+
+    fn slot(&self, address: Address) -> usize {
+        self.shared.slot_of[address.get() as usize].map_or(0, usize::from)
+    }
+
+    /// Reads our own request back from a 2-wire adapter and checks it byte for byte.
+    fn discard_echo(
+        &mut self,
+        n: usize,
+        request_end: Duration,
+    ) -> Result<Option<Failure>, TransportError> {
+        let deadline = request_end + self.cfg.response_timeout;
+        for i in 0..n {
+            let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {
+                return Ok(Some(Failure::Echo));
+            };
+            self.line_free_at = self.line_free_at.max(rx.at);
+            if rx.byte != self.tx[i] || rx.error.is_some() {
+                self.drain()?;
+                return Ok(Some(Failure::Echo));
+            }
+        }
+        self.framer.line_busy_until(self.line_free_at);
+        Ok(None)
+    }
+
+    /// After a broken reply, waits until the line has been quiet for a start pause, so the rest
+    /// of it is not taken for the next reply. Bounded by the longest telegram's residual time.
+    fn drain(&mut self) -> Result<(), TransportError> {
+        let pause = self.cfg.timing.start_pause();
+        let limit = self.clock.now() + self.cfg.timing.max_residual(MAX_NET_BYTES);
+        loop {
+            let quiet = (self.line_free_at + pause).min(limit);
+            match self.transport.recv(quiet, &mut self.clock)? {
+                Some(rx) if self.clock.now() < limit => {
+                    self.line_free_at = self.line_free_at.max(rx.at);
+                }
+                _ => break,
+            }
+        }
+        self.framer.reset();
+        Ok(())
+    }
+
+    fn publish_if_due(&mut self) {
+        let now = self.clock.now();
+        if now.saturating_sub(self.last_publish) >= self.cfg.publish_every {
+            self.publish();
+        }
+    }
+
+    /// Copies the statistics to the shared snapshot unless a reader holds it right now.
+    fn publish(&mut self) {
+        let now = self.clock.now();
+        self.stats.at = now;
+        if let Ok(mut shared) = self.shared.stats.try_lock() {
+            shared.copy_from(&self.stats);
+            self.last_publish = now;
+        }
+    }
+}
+
+/// When the parts of a good reply happened.
+#[derive(Debug, Clone, Copy)]
+struct ReplyTiming {
+    request_end: Duration,
+    stx_at: Duration,
+    done: Duration,
+}

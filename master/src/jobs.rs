@@ -1,0 +1,263 @@
+//! Parameter jobs: what a client asks, the one result each accepted job ends in, and the per-drive
+//! mailbox that puts one PKW task at a time on the wire (USS.md section 6, handshake).
+
+use core::time::Duration;
+use std::collections::VecDeque;
+use uss_protocol::{Address, ParamError, ParamReply, ParamTask, ReplyKind, Value};
+
+/// A parameter request for one drive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Job {
+    /// Chosen by the submitter; returned in the result.
+    pub id: u64,
+    pub address: Address,
+    pub task: ParamTask,
+}
+
+/// How a job ended. Every accepted job ends in exactly one of these.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outcome {
+    /// The value read or, for a change, the value the drive now holds.
+    Value(Value),
+    /// The number of array elements (task 9).
+    ElementCount(u16),
+    /// A descriptive element (task 4).
+    Description(Value),
+    /// Reply 7: the drive refused the task with this error number.
+    DriveError(ParamError),
+    /// Reply 8: no PKW change rights.
+    NoChangeRights,
+    /// No matching reply within the job timeout (the drive kept answering "not yet" or with other
+    /// tasks' replies).
+    Timeout,
+    /// The drive went offline, or was offline, before the job completed.
+    DriveOffline,
+    /// The drive's mailbox was full when the job reached the bus thread.
+    MailboxFull,
+    /// The engine stopped before the job completed.
+    Shutdown,
+}
+
+impl Outcome {
+    /// The outcome a matching reply gives.
+    pub fn from_reply(reply: &ParamReply) -> Self {
+        match reply.kind {
+            ReplyKind::Error(e) => Self::DriveError(e),
+            ReplyKind::NoChangeRights => Self::NoChangeRights,
+            ReplyKind::ElementCount(n) => Self::ElementCount(n),
+            ReplyKind::Description(v) => Self::Description(v),
+            // `answers` admits only value replies besides the ones above.
+            other => other.value().map_or(
+                Self::DriveError(ParamError::Other(u16::from(other.id()))),
+                Self::Value,
+            ),
+        }
+    }
+
+    pub const fn is_success(&self) -> bool {
+        matches!(
+            self,
+            Self::Value(_) | Self::ElementCount(_) | Self::Description(_)
+        )
+    }
+}
+
+/// A finished job.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct JobResult {
+    pub job: Job,
+    pub outcome: Outcome,
+    /// Telegrams that carried the task (1 when answered at once; more with busy replies or retries).
+    pub telegrams: u32,
+    /// From the first telegram carrying the task to the result (zero if it never reached the wire).
+    pub on_wire: Duration,
+}
+
+/// A job in progress.
+#[derive(Debug, Clone, Copy)]
+struct Active {
+    job: Job,
+    first_sent: Option<Duration>,
+    telegrams: u32,
+}
+
+/// One drive's FIFO of jobs: one task on the wire at a time, repeated in every telegram until
+/// its matching reply arrives (USS.md section 6). Fixed capacity, allocated once.
+#[derive(Debug)]
+pub struct Mailbox {
+    queue: VecDeque<Active>,
+    capacity: usize,
+}
+
+impl Mailbox {
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            queue: VecDeque::with_capacity(capacity),
+            capacity,
+        }
+    }
+
+    /// Queues a job; gives it back when the mailbox is full.
+    pub fn push(&mut self, job: Job) -> Result<(), Job> {
+        if self.queue.len() >= self.capacity {
+            return Err(job);
+        }
+        self.queue.push_back(Active {
+            job,
+            first_sent: None,
+            telegrams: 0,
+        });
+        Ok(())
+    }
+
+    pub fn len(&self) -> usize {
+        self.queue.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.queue.is_empty()
+    }
+
+    /// The task to put into the next telegram, if any.
+    pub fn current(&self) -> Option<&ParamTask> {
+        self.queue.front().map(|a| &a.job.task)
+    }
+
+    /// Records that the current task went out at `now`.
+    pub fn sent(&mut self, now: Duration) {
+        if let Some(a) = self.queue.front_mut() {
+            a.first_sent.get_or_insert(now);
+            a.telegrams += 1;
+        }
+    }
+
+    /// Checks a reply against the current task. Returns the finished job when the reply
+    /// matches; a busy reply (AK 0) or another task's reply leaves the job in place.
+    pub fn on_reply(&mut self, reply: &ParamReply, now: Duration) -> Option<JobResult> {
+        let active = self.queue.front()?;
+        if !reply.answers(&active.job.task) {
+            return None;
+        }
+        self.finish(Outcome::from_reply(reply), now)
+    }
+
+    /// Ends the current job with a timeout when it has been on the wire longer than `limit`.
+    pub fn expire(&mut self, limit: Duration, now: Duration) -> Option<JobResult> {
+        let first = self.queue.front()?.first_sent?;
+        if now.saturating_sub(first) > limit {
+            self.finish(Outcome::Timeout, now)
+        } else {
+            None
+        }
+    }
+
+    /// Ends the current job with `outcome`.
+    pub fn finish(&mut self, outcome: Outcome, now: Duration) -> Option<JobResult> {
+        let a = self.queue.pop_front()?;
+        Some(JobResult {
+            job: a.job,
+            outcome,
+            telegrams: a.telegrams,
+            on_wire: a
+                .first_sent
+                .map_or(Duration::ZERO, |t| now.saturating_sub(t)),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use uss_protocol::{Pnu, Storage};
+
+    fn job(id: u64, pnu: u16) -> Job {
+        Job {
+            id,
+            address: Address::new(1).unwrap(),
+            task: ParamTask::Read {
+                pnu: Pnu::from_u16(pnu),
+            },
+        }
+    }
+
+    fn reply(id: u8, pnu: u16, value: u16) -> ParamReply {
+        let mut words = [0u16; 4];
+        words[0] = (u16::from(id) << 12) | pnu;
+        words[3] = value;
+        ParamReply::decode(&words).unwrap()
+    }
+
+    #[test]
+    fn one_task_at_a_time_in_fifo_order() {
+        let mut m = Mailbox::new(4);
+        m.push(job(1, 700)).unwrap();
+        m.push(job(2, 1000)).unwrap();
+        assert_eq!(m.current(), Some(&job(1, 700).task));
+        m.sent(Duration::from_millis(1));
+        assert!(
+            m.on_reply(&reply(1, 1000, 5), Duration::from_millis(2))
+                .is_none(),
+            "not its reply"
+        );
+        assert!(
+            m.on_reply(&reply(0, 700, 0), Duration::from_millis(3))
+                .is_none(),
+            "busy"
+        );
+        m.sent(Duration::from_millis(3));
+        let r = m
+            .on_reply(&reply(1, 700, 5), Duration::from_millis(4))
+            .unwrap();
+        assert_eq!(r.job.id, 1);
+        assert_eq!(r.outcome, Outcome::Value(Value::Word(5)));
+        assert_eq!(r.telegrams, 2);
+        assert_eq!(r.on_wire, Duration::from_millis(3));
+        assert_eq!(m.current(), Some(&job(2, 1000).task));
+    }
+
+    #[test]
+    fn full_mailbox_gives_the_job_back() {
+        let mut m = Mailbox::new(1);
+        m.push(job(1, 700)).unwrap();
+        assert_eq!(m.push(job(2, 700)), Err(job(2, 700)));
+    }
+
+    #[test]
+    fn job_expires_only_after_reaching_the_wire() {
+        let mut m = Mailbox::new(2);
+        m.push(job(1, 700)).unwrap();
+        assert!(
+            m.expire(Duration::from_millis(10), Duration::from_secs(5))
+                .is_none()
+        );
+        m.sent(Duration::from_secs(5));
+        assert!(
+            m.expire(Duration::from_millis(10), Duration::from_millis(5010))
+                .is_none()
+        );
+        let r = m
+            .expire(Duration::from_millis(10), Duration::from_millis(5011))
+            .unwrap();
+        assert_eq!(r.outcome, Outcome::Timeout);
+    }
+
+    #[test]
+    fn drive_errors_and_rights_become_outcomes() {
+        let write = Job {
+            id: 9,
+            address: Address::new(1).unwrap(),
+            task: ParamTask::Write {
+                pnu: Pnu::from_u16(1082),
+                value: Value::Word(1),
+                storage: Storage::Ram,
+            },
+        };
+        let mut m = Mailbox::new(2);
+        m.push(write).unwrap();
+        let r = m.on_reply(&reply(7, 1082, 5), Duration::ZERO).unwrap();
+        assert_eq!(r.outcome, Outcome::DriveError(ParamError::WrongDataType));
+        m.push(write).unwrap();
+        let r = m.on_reply(&reply(8, 1082, 0), Duration::ZERO).unwrap();
+        assert_eq!(r.outcome, Outcome::NoChangeRights);
+    }
+}

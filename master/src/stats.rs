@@ -1,0 +1,267 @@
+//! Diagnostics per drive and per bus, mirroring what the drives keep themselves (r2024..r2031,
+//! USS.md section 7), plus timing histograms. Everything is allocated when the engine starts;
+//! counting and recording never allocate.
+
+use core::time::Duration;
+use hdrhistogram::Histogram;
+use uss_protocol::{Address, FrameError, LineError};
+
+/// Why one attempt at an exchange failed (USS.md section 4, receive errors).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Failure {
+    /// No STX within the response timeout ("slave x does not respond").
+    NoResponse,
+    /// Garbage before the start of the reply.
+    MissingStx,
+    /// An STX without the start pause.
+    StartPause,
+    BadLge,
+    Bcc,
+    /// The reply did not finish within 1.5 x (n+3) character times.
+    Residual,
+    /// The reply's length does not fit the drive's PKW/PZD layout.
+    Length,
+    /// Another slave answered.
+    WrongAddress,
+    /// The UART flagged a character.
+    Line(LineError),
+    /// A 2-wire adapter's echo of our request did not match what we sent.
+    Echo,
+}
+
+impl Failure {
+    pub const fn from_frame(e: &FrameError) -> Self {
+        match e {
+            FrameError::MissingStx(_) => Self::MissingStx,
+            FrameError::StartPauseNotObserved => Self::StartPause,
+            FrameError::BadLge(_) => Self::BadLge,
+            FrameError::Bcc { .. } => Self::Bcc,
+            FrameError::ResidualTimeExceeded { .. } => Self::Residual,
+            FrameError::Line(l) => Self::Line(*l),
+        }
+    }
+
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::NoResponse => "no response",
+            Self::MissingStx => "missing STX",
+            Self::StartPause => "start pause not observed",
+            Self::BadLge => "bad LGE",
+            Self::Bcc => "BCC error",
+            Self::Residual => "residual time exceeded",
+            Self::Length => "wrong length",
+            Self::WrongAddress => "wrong slave answered",
+            Self::Line(LineError::Parity) => "parity error",
+            Self::Line(LineError::Framing) => "framing error",
+            Self::Line(LineError::Overrun) => "overrun",
+            Self::Echo => "echo mismatch",
+        }
+    }
+}
+
+/// Receive statistics of one drive.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DriveCounters {
+    /// Telegrams sent to the drive (retries included).
+    pub requests: u64,
+    /// Valid replies.
+    pub good: u64,
+    /// Replies or silences that failed (every failed attempt).
+    pub rejected: u64,
+    pub timeouts: u64,
+    /// Attempts repeated after a failure.
+    pub retries: u64,
+    /// Polls that failed all their retries.
+    pub failed_polls: u64,
+    pub missing_stx: u64,
+    pub start_pause: u64,
+    pub bad_lge: u64,
+    pub bcc: u64,
+    pub residual: u64,
+    pub length: u64,
+    pub wrong_address: u64,
+    pub parity: u64,
+    pub framing: u64,
+    pub overrun: u64,
+    pub echo: u64,
+    /// Replies "not yet" (AK 0) while a parameter task was pending.
+    pub pkw_busy: u64,
+    pub jobs_done: u64,
+    /// Times the drive got its safe command because its controller stopped refreshing.
+    pub watchdog_trips: u64,
+}
+
+impl DriveCounters {
+    /// Counts `f` under its own counter (`rejected` counts failed attempts separately).
+    pub fn count(&mut self, f: Failure) {
+        let c = match f {
+            Failure::NoResponse => &mut self.timeouts,
+            Failure::MissingStx => &mut self.missing_stx,
+            Failure::StartPause => &mut self.start_pause,
+            Failure::BadLge => &mut self.bad_lge,
+            Failure::Bcc => &mut self.bcc,
+            Failure::Residual => &mut self.residual,
+            Failure::Length => &mut self.length,
+            Failure::WrongAddress => &mut self.wrong_address,
+            Failure::Line(LineError::Parity) => &mut self.parity,
+            Failure::Line(LineError::Framing) => &mut self.framing,
+            Failure::Line(LineError::Overrun) => &mut self.overrun,
+            Failure::Echo => &mut self.echo,
+        };
+        *c += 1;
+    }
+}
+
+/// The state of one drive as the master sees it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DriveStatus {
+    pub address: Address,
+    pub online: bool,
+    /// When `online` last changed (bus clock).
+    pub since: Duration,
+    /// "Slave x does not respond": set when a poll fails all retries, cleared by the next good
+    /// reply (USS.md section 4).
+    pub no_reply: bool,
+    pub last_failure: Option<Failure>,
+    pub consecutive_failed_polls: u32,
+    pub last_zsw1: u16,
+    pub last_hiw: u16,
+    pub last_good: Option<Duration>,
+    /// The drive is getting its safe command because its controller is stale.
+    pub watchdog_tripped: bool,
+    pub counters: DriveCounters,
+}
+
+impl DriveStatus {
+    pub fn new(address: Address) -> Self {
+        Self {
+            address,
+            // Drives start online: the first poll decides.
+            online: true,
+            since: Duration::ZERO,
+            no_reply: false,
+            last_failure: None,
+            consecutive_failed_polls: 0,
+            last_zsw1: 0,
+            last_hiw: 0,
+            last_good: None,
+            watchdog_tripped: false,
+            counters: DriveCounters::default(),
+        }
+    }
+}
+
+/// Bus-wide counters.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct BusCounters {
+    /// Exchanges attempted (retries included).
+    pub exchanges: u64,
+    pub good: u64,
+    /// Completed passes through the circulating list.
+    pub cycles: u64,
+    /// Cycles that took longer than the configured fixed cycle time.
+    pub cycle_overruns: u64,
+    /// Events the housekeeping thread could not take in time.
+    pub events_dropped: u64,
+    pub jobs_accepted: u64,
+    pub jobs_finished: u64,
+}
+
+/// Timing histograms in nanoseconds.
+#[derive(Debug, Clone)]
+pub struct BusHistograms {
+    /// Request end to reply STX (the slave's response delay, as seen by the master).
+    pub response_delay: Histogram<u64>,
+    /// Line free after the previous exchange to this reply complete: comparable to the wire floor.
+    pub exchange: Histogram<u64>,
+    /// Reply complete to the next request written: the master's own work.
+    pub turnaround: Histogram<u64>,
+    /// One pass through the circulating list.
+    pub cycle: Histogram<u64>,
+}
+
+/// Highest value recorded: 60 s; larger values saturate.
+const MAX_NS: u64 = 60_000_000_000;
+
+fn histogram(sigfig: u8) -> Histogram<u64> {
+    // Bounds and precision are constants within hdrhistogram's limits.
+    Histogram::new_with_bounds(1, MAX_NS, sigfig).expect("valid histogram bounds")
+}
+
+/// Records a duration, saturating at the histogram's bounds; never allocates.
+pub fn record(h: &mut Histogram<u64>, d: Duration) {
+    h.saturating_record(u64::try_from(d.as_nanos()).unwrap_or(MAX_NS).max(1));
+}
+
+impl BusHistograms {
+    pub fn new() -> Self {
+        Self {
+            response_delay: histogram(3),
+            exchange: histogram(3),
+            turnaround: histogram(3),
+            cycle: histogram(3),
+        }
+    }
+
+    /// Copies `other` into `self` without allocating (same bounds).
+    fn copy_from(&mut self, other: &Self) {
+        for (dst, src) in [
+            (&mut self.response_delay, &other.response_delay),
+            (&mut self.exchange, &other.exchange),
+            (&mut self.turnaround, &other.turnaround),
+            (&mut self.cycle, &other.cycle),
+        ] {
+            dst.reset();
+            // Same bounds and precision: adding never resizes.
+            let _ = dst.add(src);
+        }
+    }
+}
+
+impl Default for BusHistograms {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Everything the engine knows about its bus, as published to other threads.
+#[derive(Debug, Clone)]
+pub struct Stats {
+    /// Bus clock time of this snapshot.
+    pub at: Duration,
+    pub bus: BusCounters,
+    pub drives: Vec<DriveStatus>,
+    pub histograms: BusHistograms,
+    /// Per drive (same order as `drives`): time between two good replies.
+    pub update_period: Vec<Histogram<u64>>,
+}
+
+impl Stats {
+    pub fn new(addresses: impl IntoIterator<Item = Address>) -> Self {
+        let drives: Vec<DriveStatus> = addresses.into_iter().map(DriveStatus::new).collect();
+        let update_period = drives.iter().map(|_| histogram(2)).collect();
+        Self {
+            at: Duration::ZERO,
+            bus: BusCounters::default(),
+            drives,
+            histograms: BusHistograms::new(),
+            update_period,
+        }
+    }
+
+    /// Copies `other` into `self` without allocating (both made by [`Stats::new`] for the same drives).
+    pub fn copy_from(&mut self, other: &Self) {
+        self.at = other.at;
+        self.bus = other.bus;
+        self.drives.copy_from_slice(&other.drives);
+        self.histograms.copy_from(&other.histograms);
+        for (dst, src) in self.update_period.iter_mut().zip(&other.update_period) {
+            dst.reset();
+            let _ = dst.add(src);
+        }
+    }
+
+    pub fn drive(&self, address: Address) -> Option<&DriveStatus> {
+        self.drives.iter().find(|d| d.address == address)
+    }
+}

@@ -1,0 +1,110 @@
+//! The line under the engine. [`Transport`] is the seam between the bus engine and the bytes:
+//! [`SimTransport`] attaches to the simulator's in-process virtual wire, and
+//! [`crate::serial::SerialTransport`] to a serial device or pseudo-terminal.
+
+use crate::clock::Clock;
+use core::time::Duration;
+use thiserror::Error;
+use uss_drive_sim::VirtualWire;
+use uss_protocol::LineError;
+
+/// One character received from the line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Rx {
+    pub byte: u8,
+    /// When it arrived, on the engine's clock.
+    pub at: Duration,
+    /// A UART error flagged on this character (parity or framing), where the transport reports them.
+    pub error: Option<LineError>,
+}
+
+/// A transport that can no longer carry telegrams.
+#[derive(Debug, Error)]
+pub enum TransportError {
+    #[error("serial I/O failed: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("the serial device was closed or unplugged")]
+    Closed,
+}
+
+/// A half-duplex line to the drives.
+pub trait Transport {
+    /// Drops input that has already arrived, so nothing from an earlier exchange is matched to
+    /// the next request (USS.md section 4).
+    fn flush_input(&mut self, now: Duration) -> Result<(), TransportError>;
+
+    /// Starts sending `bytes` at `now` and returns when the last character will have left the
+    /// line (the response delay counts from then).
+    fn send(&mut self, bytes: &[u8], now: Duration) -> Result<Duration, TransportError>;
+
+    /// The next character, waiting on `clock` at most until `deadline`; `None` when the deadline
+    /// passes first.
+    fn recv(
+        &mut self,
+        deadline: Duration,
+        clock: &mut impl Clock,
+    ) -> Result<Option<Rx>, TransportError>;
+
+    /// Lets a simulated far side catch up to `now` (drive ramps and telegram monitoring); real
+    /// lines need nothing.
+    fn idle(&mut self, now: Duration) {
+        let _ = now;
+    }
+}
+
+/// The in-process virtual wire to simulated drives: bytes take their real wire time.
+#[derive(Debug)]
+pub struct SimTransport {
+    wire: VirtualWire,
+}
+
+impl SimTransport {
+    pub const fn new(wire: VirtualWire) -> Self {
+        Self { wire }
+    }
+
+    pub const fn wire(&self) -> &VirtualWire {
+        &self.wire
+    }
+
+    /// The wire and its drives, for fault injection and inspection in tests.
+    pub fn wire_mut(&mut self) -> &mut VirtualWire {
+        &mut self.wire
+    }
+}
+
+impl Transport for SimTransport {
+    fn flush_input(&mut self, now: Duration) -> Result<(), TransportError> {
+        self.wire.flush_input(now);
+        Ok(())
+    }
+
+    fn send(&mut self, bytes: &[u8], now: Duration) -> Result<Duration, TransportError> {
+        Ok(self.wire.transmit(bytes, now))
+    }
+
+    fn recv(
+        &mut self,
+        deadline: Duration,
+        clock: &mut impl Clock,
+    ) -> Result<Option<Rx>, TransportError> {
+        match self.wire.next_arrival() {
+            Some(at) if at <= deadline => {
+                clock.sleep_until(at);
+                Ok(self.wire.receive(at).map(|b| Rx {
+                    byte: b.byte,
+                    at: b.at,
+                    error: b.error,
+                }))
+            }
+            _ => {
+                clock.sleep_until(deadline);
+                Ok(None)
+            }
+        }
+    }
+
+    fn idle(&mut self, now: Duration) {
+        self.wire.advance(now);
+    }
+}

@@ -1,0 +1,653 @@
+//! The bus engine on a virtual clock against the simulator's virtual wire: every timing rule and
+//! failure path of USS.md sections 4 to 6, driven by the simulator's fault injector. Runs in
+//! milliseconds, deterministically.
+#![allow(clippy::unwrap_used)]
+
+use crossbeam_channel::Receiver;
+use std::time::Duration;
+use uss_drive_sim::{DriveConfig, Fault, SimBus, State, VirtualWire};
+use uss_master::{
+    DriveSetup, Engine, EngineConfig, EngineHandle, Event, Failure, Job, Outcome, RequestError,
+    SimTransport, VirtualClock,
+};
+use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
+use uss_protocol::{
+    Address, Baud, ParamError, ParamTask, PkwError, Pnu, Storage, Stw1, Timing, Value,
+};
+
+type TestEngine = Engine<SimTransport, VirtualClock>;
+
+const BAUD: u32 = 19200;
+
+fn addr(a: u8) -> Address {
+    Address::new(a).unwrap()
+}
+
+fn ms(n: u64) -> Duration {
+    Duration::from_millis(n)
+}
+
+fn timing() -> Timing {
+    Timing::new(Baud::new(BAUD).unwrap())
+}
+
+struct Bench {
+    engine: TestEngine,
+    handle: EngineHandle,
+    events: Receiver<Event>,
+}
+
+fn layout(pkw: PkwMode, pzd: usize) -> Layout {
+    Layout::new(pkw, PzdCount::new(pzd).unwrap())
+}
+
+fn bench_with(
+    drives: &[(u8, PkwMode)],
+    sim: impl Fn(&mut DriveConfig),
+    cfg: impl FnOnce(&mut EngineConfig),
+    echo: bool,
+) -> Bench {
+    let mut bus = SimBus::new(11);
+    let mut setups = Vec::new();
+    for &(a, pkw) in drives {
+        let mut dc = DriveConfig::new(addr(a), layout(pkw, 2));
+        sim(&mut dc);
+        bus.add(dc).unwrap();
+        setups.push(DriveSetup {
+            address: addr(a),
+            layout: layout(pkw, 2),
+            weight: 1,
+            safe_stw1: Stw1::READY,
+            watchdog: ms(100),
+            params_writable: true,
+        });
+    }
+    let mut config = EngineConfig {
+        timing: timing(),
+        response_timeout: ms(20),
+        retries: 2,
+        offline_after: 1,
+        offline_probe: ms(500),
+        cycle_time: None,
+        param_timeout: ms(2000),
+        echo,
+        mailbox_depth: 16,
+        publish_every: ms(100),
+        drives: setups,
+    };
+    cfg(&mut config);
+    let wire = VirtualWire::new(bus, timing()).with_echo(echo);
+    let (engine, handle, events) =
+        Engine::new(config, SimTransport::new(wire), VirtualClock::new());
+    Bench {
+        engine,
+        handle,
+        events,
+    }
+}
+
+fn read(id: u64, a: u8, pnu: u16) -> Job {
+    Job {
+        id,
+        address: addr(a),
+        task: ParamTask::Read {
+            pnu: Pnu::from_u16(pnu),
+        },
+    }
+}
+
+fn bench(drives: &[(u8, PkwMode)]) -> Bench {
+    bench_with(drives, |_| {}, |_| {}, false)
+}
+
+impl Bench {
+    fn now(&self) -> Duration {
+        uss_master::Clock::now(self.engine.clock())
+    }
+
+    /// Polls for `d` of bus time, refreshing `outputs` before every poll like a live controller.
+    fn run_for(&mut self, d: Duration, outputs: &[(u8, [u16; 2])]) {
+        let until = self.now() + d;
+        while self.now() < until {
+            for (a, words) in outputs {
+                self.handle.set_output(addr(*a), words).unwrap();
+            }
+            self.engine.poll_next().unwrap();
+        }
+    }
+
+    fn sim_drive(&self, a: u8) -> &uss_drive_sim::Drive {
+        self.engine.transport().wire().bus().drive(addr(a)).unwrap()
+    }
+
+    fn faults(&mut self, a: u8) -> &mut uss_drive_sim::FaultPlan {
+        self.engine
+            .transport_mut()
+            .wire_mut()
+            .bus_mut()
+            .faults_mut(addr(a))
+            .unwrap()
+    }
+
+    fn status(&self, a: u8) -> uss_master::DriveStatus {
+        *self.engine.stats().drive(addr(a)).unwrap()
+    }
+
+    fn events(&self) -> Vec<Event> {
+        self.events.try_iter().collect()
+    }
+
+    /// Polls until `count` results arrived (or 60 s of bus time pass).
+    fn results(&mut self, count: usize) -> Vec<uss_master::JobResult> {
+        let mut out = Vec::new();
+        let until = self.now() + Duration::from_secs(60);
+        while out.len() < count && self.now() < until {
+            self.engine.poll_next().unwrap();
+            while let Some(r) = self.handle.recv_result(Duration::ZERO) {
+                out.push(r);
+            }
+        }
+        out
+    }
+}
+
+#[test]
+fn polls_in_list_order_at_the_wire_floor() {
+    let mut b = bench(&[(1, PkwMode::Four), (2, PkwMode::Four), (3, PkwMode::Four)]);
+    let polled: Vec<u8> = (0..6)
+        .map(|_| b.engine.poll_next().unwrap().unwrap().get())
+        .collect();
+    assert_eq!(polled, vec![1, 2, 3, 1, 2, 3]);
+    for _ in 0..300 {
+        b.engine.poll_next().unwrap();
+    }
+    // Every exchange takes exactly start pause + request + 1 ms response delay + reply.
+    let floor = timing().wire_floor(12, 12, ms(1)).as_nanos() as u64;
+    let h = &b.engine.stats().histograms.exchange;
+    assert_eq!(h.len(), 306);
+    assert!(
+        h.equivalent(h.min(), floor) || h.min() >= floor * 999 / 1000,
+        "min {} floor {floor}",
+        h.min()
+    );
+    assert!(
+        h.max() <= floor * 1001 / 1000,
+        "max {} floor {floor}",
+        h.max()
+    );
+    for a in 1..=3 {
+        let c = b.sim_drive(a).counters();
+        assert_eq!(
+            (c.good, c.rejected, c.start),
+            (102, 0, 0),
+            "drive {a} saw every start pause"
+        );
+    }
+    let delay = &b.engine.stats().histograms.response_delay;
+    assert!(delay.max() < ms(2).as_nanos() as u64);
+}
+
+#[test]
+fn weighted_drive_appears_twice_per_cycle() {
+    let mut b = bench_with(
+        &[(1, PkwMode::Four), (2, PkwMode::Four), (3, PkwMode::Four)],
+        |_| {},
+        |c| c.drives[0].weight = 2,
+        false,
+    );
+    let polled: Vec<u8> = (0..8)
+        .map(|_| b.engine.poll_next().unwrap().unwrap().get())
+        .collect();
+    assert_eq!(polled, vec![1, 2, 1, 3, 1, 2, 1, 3]);
+}
+
+#[test]
+fn silent_drive_is_retried_then_offline_then_probed_and_back_online() {
+    let mut b = bench(&[(1, PkwMode::Four), (2, PkwMode::Four)]);
+    b.faults(2)
+        .unplug(Duration::ZERO, Some(Duration::from_secs(2)));
+    b.run_for(Duration::from_millis(1900), &[]);
+    let s = b.status(2);
+    assert!(!s.online && s.no_reply);
+    assert_eq!(s.last_failure, Some(Failure::NoResponse));
+    // First poll: 1 + 2 retries; then a probe every 500 ms: at about 0.56 s, 1.06 s, 1.57 s.
+    assert_eq!(s.counters.failed_polls, 4, "{:?}", s.counters);
+    assert_eq!(s.counters.requests, 12);
+    assert_eq!(s.counters.timeouts, 12);
+    assert_eq!(s.counters.retries, 8);
+    assert!(matches!(
+        b.events()[..],
+        [Event::DriveOffline {
+            failure: Failure::NoResponse,
+            ..
+        }]
+    ));
+    assert!(b.status(1).online, "the other drive is unaffected");
+    b.run_for(Duration::from_millis(700), &[]);
+    let s = b.status(2);
+    assert!(
+        s.online && !s.no_reply,
+        "the error clears with the next good reply"
+    );
+    assert!(s.counters.good > 0);
+    assert!(matches!(b.events()[..], [Event::DriveOnline { .. }]));
+    let (_, online) = b.handle.input(addr(2)).unwrap();
+    assert!(online);
+}
+
+#[test]
+fn late_reply_is_not_matched_to_the_next_request() {
+    let mut b = bench(&[(1, PkwMode::Four)]);
+    b.faults(1).script([Some(Fault::Late)]);
+    b.handle.submit(read(7, 1, 1082)).unwrap();
+    let results = b.results(1);
+    assert_eq!(
+        results[0].outcome,
+        Outcome::Value(Value::Dword(0x4248_0000))
+    );
+    let s = b.status(1);
+    assert!(s.counters.timeouts >= 1);
+    assert!(s.online);
+    let delay = &b.engine.stats().histograms.response_delay;
+    assert!(
+        delay.max() < ms(20).as_nanos() as u64,
+        "a reply after 20 ms was accepted: {}",
+        delay.max()
+    );
+    for _ in 0..20 {
+        b.engine.poll_next().unwrap();
+    }
+    assert!(b.engine.stats().histograms.response_delay.max() < ms(20).as_nanos() as u64);
+}
+
+fn one_fault(fault: Fault) -> uss_master::DriveStatus {
+    let mut b = bench(&[(1, PkwMode::Four)]);
+    b.faults(1).script([Some(fault)]);
+    for _ in 0..3 {
+        b.engine.poll_next().unwrap();
+    }
+    let s = b.status(1);
+    assert!(s.online && !s.no_reply, "{fault:?}: the retry succeeds");
+    assert_eq!(s.counters.retries, 1, "{fault:?}");
+    assert_eq!(s.counters.good, 3, "{fault:?}");
+    assert_eq!(s.counters.rejected, 1, "{fault:?}");
+    s
+}
+
+#[test]
+fn wrong_slave_answering_is_rejected_and_counted() {
+    assert_eq!(one_fault(Fault::WrongAddress).counters.wrong_address, 1);
+}
+
+#[test]
+fn bcc_error_is_counted_and_retried() {
+    assert_eq!(one_fault(Fault::CorruptBcc).counters.bcc, 1);
+}
+
+#[test]
+fn parity_error_from_the_line_is_counted() {
+    assert_eq!(one_fault(Fault::CorruptByte).counters.parity, 1);
+}
+
+#[test]
+fn truncated_reply_exceeds_the_residual_time() {
+    assert_eq!(one_fault(Fault::Truncate).counters.residual, 1);
+}
+
+#[test]
+fn dropped_reply_times_out() {
+    assert_eq!(one_fault(Fault::DropReply).counters.timeouts, 1);
+}
+
+#[test]
+fn noise_before_stx_loses_the_reply_and_is_counted_as_missing_stx() {
+    assert_eq!(one_fault(Fault::Noise).counters.missing_stx, 1);
+}
+
+#[test]
+fn echo_of_a_two_wire_adapter_is_discarded() {
+    let mut b = bench_with(&[(1, PkwMode::Four)], |_| {}, |_| {}, true);
+    for _ in 0..50 {
+        b.engine.poll_next().unwrap();
+    }
+    let s = b.status(1);
+    assert_eq!((s.counters.good, s.counters.rejected), (50, 0));
+}
+
+#[test]
+fn missing_echo_when_one_is_expected_fails_the_exchange() {
+    let wire_without_echo = |c: &mut EngineConfig| c.echo = true;
+    let mut b = bench_with(&[(1, PkwMode::Four)], |_| {}, wire_without_echo, false);
+    b.engine.poll_next().unwrap();
+    let s = b.status(1);
+    assert_eq!(s.counters.echo, 3);
+    assert!(!s.online);
+}
+
+#[test]
+fn eeprom_write_is_repeated_through_busy_replies_with_pzd_in_every_telegram() {
+    let mut b = bench_with(
+        &[(1, PkwMode::Four)],
+        |d| d.eeprom_busy_telegrams = 3,
+        |_| {},
+        false,
+    );
+    b.run_for(ms(50), &[(1, [0x047E, 0])]);
+    let task = ParamTask::Write {
+        pnu: Pnu::from_u16(1120),
+        value: Value::from_f32(3.0),
+        storage: Storage::RamAndEeprom,
+    };
+    b.handle
+        .submit(Job {
+            id: 1,
+            address: addr(1),
+            task,
+        })
+        .unwrap();
+    let mut results = Vec::new();
+    for _ in 0..10 {
+        b.handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
+        b.engine.poll_next().unwrap();
+        results.extend(b.handle.recv_result(Duration::ZERO));
+    }
+    assert_eq!(results.len(), 1);
+    assert_eq!(
+        results[0].outcome,
+        Outcome::Value(Value::Dword(0x4040_0000))
+    );
+    assert_eq!(results[0].telegrams, 4, "3 busy replies, then the answer");
+    assert_eq!(b.status(1).counters.pkw_busy, 3);
+    assert_eq!(
+        b.sim_drive(1).state(),
+        State::OperationEnabled,
+        "STW1 went out with the task"
+    );
+    assert_eq!(b.sim_drive(1).params().get_f32(1120, 0), Some(3.0));
+}
+
+#[test]
+fn job_that_never_gets_its_reply_times_out() {
+    let mut b = bench_with(
+        &[(1, PkwMode::Four)],
+        |d| d.task_busy_telegrams = 1_000_000,
+        |c| c.param_timeout = ms(300),
+        false,
+    );
+    b.handle.submit(read(5, 1, 700)).unwrap();
+    let r = b.results(1);
+    assert_eq!(r[0].outcome, Outcome::Timeout);
+    assert!(
+        r[0].on_wire > ms(300) && r[0].on_wire < ms(330),
+        "{:?}",
+        r[0].on_wire
+    );
+}
+
+#[test]
+fn drive_errors_reach_the_client_with_their_number() {
+    let mut b = bench(&[(1, PkwMode::Four)]);
+    b.handle.submit(read(1, 1, 1999)).unwrap();
+    let write_ro = ParamTask::Write {
+        pnu: Pnu::from_u16(21),
+        value: Value::from_f32(1.0),
+        storage: Storage::Ram,
+    };
+    b.handle
+        .submit(Job {
+            id: 2,
+            address: addr(1),
+            task: write_ro,
+        })
+        .unwrap();
+    let r = b.results(2);
+    assert_eq!(r[0].outcome, Outcome::DriveError(ParamError::IllegalPnu));
+    assert_eq!(
+        r[1].outcome,
+        Outcome::DriveError(ParamError::ValueNotChangeable)
+    );
+}
+
+#[test]
+fn jobs_for_an_offline_drive_end_with_drive_offline() {
+    let mut b = bench(&[(1, PkwMode::Four), (2, PkwMode::Four)]);
+    b.faults(2).unplug(Duration::ZERO, None);
+    b.handle.submit(read(1, 2, 700)).unwrap();
+    let r = b.results(1);
+    assert_eq!(r[0].outcome, Outcome::DriveOffline);
+    b.handle.submit(read(2, 2, 700)).unwrap();
+    let r = b.results(1);
+    assert_eq!(r[0].outcome, Outcome::DriveOffline);
+    assert_eq!(r[0].telegrams, 0);
+}
+
+#[test]
+fn every_job_ends_exactly_once_under_faults() {
+    let mut b = bench(&[
+        (1, PkwMode::Four),
+        (2, PkwMode::Variable),
+        (3, PkwMode::Three),
+    ]);
+    for a in 1..=3 {
+        for f in Fault::ALL {
+            b.faults(a).set_probability(f, 0.03);
+        }
+    }
+    let pnus = [700u16, 1082, 2000, 1999, 2010];
+    let mut expected = std::collections::HashMap::new();
+    let mut id = 0u64;
+    let mut results = Vec::new();
+    for round in 0..100 {
+        for a in 1..=3u8 {
+            let pnu = pnus[(round + a as usize) % pnus.len()];
+            let task = ParamTask::Read {
+                pnu: Pnu::from_u16(pnu),
+            };
+            match b.handle.submit(Job {
+                id,
+                address: addr(a),
+                task,
+            }) {
+                Ok(()) => {
+                    expected.insert(id, (a, pnu));
+                }
+                Err(e) => panic!("{e}"),
+            }
+            id += 1;
+        }
+        for _ in 0..6 {
+            b.engine.poll_next().unwrap();
+            while let Some(r) = b.handle.recv_result(Duration::ZERO) {
+                results.push(r);
+            }
+        }
+    }
+    results.extend(b.results(expected.len() - results.len()));
+    assert_eq!(results.len(), expected.len());
+    let mut seen = std::collections::HashSet::new();
+    for r in &results {
+        assert!(seen.insert(r.job.id), "job {} ended twice", r.job.id);
+        let (a, pnu) = expected[&r.job.id];
+        assert_eq!(r.job.address, addr(a));
+        let three_words = a == 3;
+        let ok = match (pnu, r.outcome) {
+            (_, Outcome::DriveOffline | Outcome::Timeout)
+            | (1999, Outcome::DriveError(ParamError::IllegalPnu)) => true,
+            (700, Outcome::Value(v)) => v == Value::Word(5),
+            (1082 | 2000, Outcome::Value(v)) => !three_words && v == Value::Dword(0x4248_0000),
+            (1082 | 2000, Outcome::DriveError(ParamError::ChannelTooNarrow)) => three_words,
+            (2010, Outcome::Value(v)) => v == Value::Word(6),
+            _ => false,
+        };
+        assert!(ok, "job {} to drive {a} P{pnu}: {:?}", r.job.id, r.outcome);
+    }
+}
+
+#[test]
+fn watchdog_sends_the_safe_command_when_the_controller_stops_refreshing() {
+    let mut b = bench(&[(1, PkwMode::Four)]);
+    b.run_for(ms(50), &[(1, [0x047E, 0])]);
+    b.run_for(ms(2000), &[(1, [0x047F, 0x4000])]);
+    assert_eq!(b.sim_drive(1).state(), State::OperationEnabled);
+    assert!(b.sim_drive(1).frequency_hz() > 5.0);
+    // The controller stops refreshing at `t0`. Until its watchdog time (100 ms) has passed the
+    // drive keeps getting "run"; within one poll period after that it gets OFF1.
+    let t0 = b.now();
+    let poll = timing().wire_floor(12, 12, ms(1));
+    let mut first_off = None;
+    while first_off.is_none() && b.now() < t0 + ms(500) {
+        b.engine.poll_next().unwrap();
+        if b.sim_drive(1).stw1() == Stw1::READY {
+            first_off = Some(b.now());
+        } else {
+            assert_eq!(b.sim_drive(1).stw1().bits(), 0x047F);
+        }
+    }
+    let off = first_off.unwrap();
+    assert!(off > t0 + ms(100), "OFF1 before the watchdog expired");
+    assert!(
+        off <= t0 + ms(100) + poll * 2,
+        "OFF1 {:?} after the deadline",
+        off.saturating_sub(t0 + ms(100))
+    );
+    assert!(matches!(b.sim_drive(1).state(), State::SwitchingOff(_)));
+    assert!(b.status(1).watchdog_tripped);
+    assert_eq!(b.status(1).counters.watchdog_trips, 1);
+    assert!(
+        b.events()
+            .iter()
+            .any(|e| matches!(e, Event::WatchdogTripped { .. }))
+    );
+    // The controller comes back: it is in charge again.
+    b.run_for(ms(50), &[(1, [0x047F, 0x4000])]);
+    assert!(!b.status(1).watchdog_tripped);
+    assert!(
+        b.events()
+            .iter()
+            .any(|e| matches!(e, Event::WatchdogCleared { .. }))
+    );
+}
+
+#[test]
+fn drive_without_a_controller_gets_the_safe_command_not_a_stale_run() {
+    let mut b = bench_with(
+        &[(1, PkwMode::Four)],
+        |_| {},
+        |c| c.drives[0].safe_stw1 = Stw1::COAST,
+        false,
+    );
+    b.run_for(ms(100), &[]);
+    assert_eq!(b.sim_drive(1).stw1(), Stw1::COAST);
+    assert!(
+        !b.status(1).watchdog_tripped,
+        "no controller ever: nothing tripped"
+    );
+}
+
+#[test]
+fn shutdown_ends_pending_jobs_and_sends_the_safe_command_once() {
+    let mut b = bench(&[(1, PkwMode::Four), (2, PkwMode::Four)]);
+    b.run_for(ms(50), &[(1, [0x047E, 0]), (2, [0x047E, 0])]);
+    b.run_for(ms(500), &[(1, [0x047F, 0x2000]), (2, [0x047F, 0x2000])]);
+    for id in 0..5 {
+        b.handle.submit(read(id, 1, 700)).unwrap();
+    }
+    let before = b.sim_drive(1).counters().good;
+    b.engine.shutdown().unwrap();
+    let results: Vec<_> = std::iter::from_fn(|| b.handle.recv_result(Duration::ZERO)).collect();
+    assert_eq!(results.len(), 5);
+    assert!(results.iter().all(|r| r.outcome == Outcome::Shutdown));
+    for a in [1, 2] {
+        assert_eq!(b.sim_drive(a).stw1(), Stw1::READY, "drive {a} got OFF1");
+    }
+    assert_eq!(
+        b.sim_drive(1).counters().good,
+        before + 1,
+        "exactly one telegram"
+    );
+    assert_eq!(b.handle.submit(read(9, 1, 700)), Err(RequestError::Stopped));
+}
+
+#[test]
+fn fixed_cycle_time_is_kept_and_overruns_are_reported() {
+    let mut b = bench_with(
+        &[(1, PkwMode::Four), (2, PkwMode::Four)],
+        |_| {},
+        |c| c.cycle_time = Some(ms(50)),
+        false,
+    );
+    b.run_for(Duration::from_secs(1), &[]);
+    let bus = b.engine.stats().bus;
+    assert!(
+        (19..=21).contains(&bus.cycles),
+        "{} cycles in 1 s",
+        bus.cycles
+    );
+    assert_eq!(bus.cycle_overruns, 0);
+    let mut b = bench_with(
+        &[(1, PkwMode::Four), (2, PkwMode::Four)],
+        |_| {},
+        |c| c.cycle_time = Some(ms(5)),
+        false,
+    );
+    b.run_for(ms(200), &[]);
+    assert!(b.engine.stats().bus.cycle_overruns > 0);
+    assert!(
+        b.events()
+            .iter()
+            .any(|e| matches!(e, Event::CycleOverrun { .. }))
+    );
+}
+
+#[test]
+fn bad_requests_are_refused_with_a_reason() {
+    let b = bench_with(
+        &[(1, PkwMode::Three), (2, PkwMode::None), (3, PkwMode::Four)],
+        |_| {},
+        |c| c.drives[2].params_writable = false,
+        false,
+    );
+    let write = |a: u8, value| Job {
+        id: 1,
+        address: addr(a),
+        task: ParamTask::Write {
+            pnu: Pnu::from_u16(1120),
+            value,
+            storage: Storage::Ram,
+        },
+    };
+    assert_eq!(
+        b.handle.submit(read(1, 9, 700)),
+        Err(RequestError::UnknownDrive(addr(9)))
+    );
+    assert_eq!(
+        b.handle.submit(write(1, Value::Dword(1))),
+        Err(RequestError::Pkw {
+            address: addr(1),
+            error: PkwError::DwordOverThreeWords
+        })
+    );
+    assert_eq!(
+        b.handle.submit(read(1, 2, 700)),
+        Err(RequestError::Pkw {
+            address: addr(2),
+            error: PkwError::NoChannel
+        })
+    );
+    assert_eq!(
+        b.handle.submit(write(3, Value::Word(1))),
+        Err(RequestError::WritesDisabled(addr(3)))
+    );
+    assert!(
+        b.handle.submit(read(1, 3, 700)).is_ok(),
+        "reads stay allowed"
+    );
+    assert_eq!(
+        b.handle.set_output(addr(1), &[1, 2, 3]),
+        Err(RequestError::PzdWords {
+            address: addr(1),
+            given: 3,
+            allowed: 2
+        })
+    );
+}
