@@ -1,0 +1,165 @@
+//! The real-time loop allocates nothing after start-up: thousands of exchanges with parameter
+//! jobs, busy replies, retries, injected faults, offline drives, watchdog trips and statistics
+//! publishing, under a counting global allocator (ARCHITECTURE.md, "Data flow").
+#![allow(clippy::unwrap_used)]
+
+use std::alloc::{GlobalAlloc, Layout as AllocLayout, System};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+use uss_drive_sim::{DriveConfig, Fault, SimBus, VirtualWire};
+use uss_master::{DriveSetup, Engine, EngineConfig, Job, SimTransport, VirtualClock};
+use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
+use uss_protocol::{Address, Baud, ParamTask, Pnu, Storage, Stw1, Timing, Value};
+
+struct Counting;
+
+static COUNTING: AtomicBool = AtomicBool::new(false);
+static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
+
+// SAFETY: forwards to the system allocator unchanged; only counts while COUNTING is set.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: AllocLayout) -> *mut u8 {
+        if COUNTING.load(Ordering::Relaxed) {
+            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        }
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: AllocLayout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: AllocLayout, new_size: usize) -> *mut u8 {
+        if COUNTING.load(Ordering::Relaxed) {
+            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        }
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn bus_loop_allocates_nothing_per_exchange() {
+    let timing = Timing::new(Baud::new(115_200).unwrap());
+    let mut bus = SimBus::new(3);
+    let mut setups = Vec::new();
+    for (a, pkw) in [
+        (1u8, PkwMode::Four),
+        (2, PkwMode::Variable),
+        (3, PkwMode::Three),
+        (4, PkwMode::Four),
+    ] {
+        let layout = Layout::new(pkw, PzdCount::new(4).unwrap());
+        let mut dc = DriveConfig::new(Address::new(a).unwrap(), layout);
+        dc.eeprom_busy_telegrams = 2;
+        dc.response_jitter = Duration::from_micros(200);
+        bus.add(dc).unwrap();
+        let plan = bus.faults_mut(Address::new(a).unwrap()).unwrap();
+        for f in Fault::ALL {
+            plan.set_probability(f, 0.02);
+        }
+        setups.push(DriveSetup {
+            address: Address::new(a).unwrap(),
+            layout,
+            weight: if a == 1 { 2 } else { 1 },
+            safe_stw1: Stw1::READY,
+            watchdog: Duration::from_millis(50),
+            params_writable: true,
+        });
+    }
+    // Drive 4 drops out for a while: offline, probes, back online.
+    bus.faults_mut(Address::new(4).unwrap())
+        .unwrap()
+        .unplug(Duration::from_secs(2), Some(Duration::from_secs(3)));
+    let config = EngineConfig {
+        timing,
+        response_timeout: Duration::from_millis(20),
+        retries: 2,
+        offline_after: 1,
+        offline_probe: Duration::from_millis(200),
+        cycle_time: None,
+        param_timeout: Duration::from_millis(500),
+        echo: true,
+        mailbox_depth: 8,
+        publish_every: Duration::from_millis(20),
+        drives: setups,
+    };
+    let wire = VirtualWire::new(bus, timing).with_echo(true);
+    let (mut engine, handle, events) =
+        Engine::new(config, SimTransport::new(wire), VirtualClock::new());
+    let tasks = [
+        ParamTask::Read {
+            pnu: Pnu::from_u16(700),
+        },
+        ParamTask::Write {
+            pnu: Pnu::from_u16(1120),
+            value: Value::Word(3),
+            storage: Storage::RamAndEeprom,
+        },
+        ParamTask::Read {
+            pnu: Pnu::from_u16(2000),
+        },
+        ParamTask::ReadArrayLen {
+            pnu: Pnu::from_u16(947),
+        },
+    ];
+    let mut results = 0u64;
+    let mut id = 0u64;
+    let mut step = |count: usize, results: &mut u64, id: &mut u64| {
+        for i in 0..count {
+            // A controller refreshing drives 1 and 2 only; 3 and 4 go stale and trip their watchdog.
+            if i % 3 == 0 {
+                handle
+                    .set_output(Address::new(1).unwrap(), &[0x047F, 0x2000, 0, 0])
+                    .unwrap();
+                handle
+                    .set_output(Address::new(2).unwrap(), &[0x047E, 0, 0, 0])
+                    .unwrap();
+            }
+            if i % 5 == 0 {
+                let a = Address::new(1 + (i / 5 % 4) as u8).unwrap();
+                let mut task = tasks[i / 20 % tasks.len()];
+                if a.get() == 3 {
+                    task = ParamTask::Read {
+                        pnu: Pnu::from_u16(700),
+                    };
+                }
+                if handle
+                    .submit(Job {
+                        id: *id,
+                        address: a,
+                        task,
+                    })
+                    .is_ok()
+                {
+                    *id += 1;
+                }
+            }
+            engine.poll_next().unwrap();
+            while handle.recv_result(Duration::ZERO).is_some() {
+                *results += 1;
+            }
+            while events.try_recv().is_ok() {}
+        }
+    };
+    step(500, &mut results, &mut id);
+    COUNTING.store(true, Ordering::Relaxed);
+    step(5000, &mut results, &mut id);
+    COUNTING.store(false, Ordering::Relaxed);
+    let allocations = ALLOCATIONS.load(Ordering::Relaxed);
+    let stats = engine.stats();
+    assert_eq!(allocations, 0, "allocations during 5000 polls");
+    // The run really covered the paths it claims to.
+    let total = |f: fn(&uss_master::DriveCounters) -> u64| {
+        stats.drives.iter().map(|d| f(&d.counters)).sum::<u64>()
+    };
+    assert!(stats.bus.exchanges > 5000);
+    assert!(total(|c| c.retries) > 50, "retries");
+    assert!(total(|c| c.pkw_busy) > 10, "busy replies");
+    assert!(total(|c| c.failed_polls) > 0, "offline");
+    assert!(total(|c| c.watchdog_trips) > 0, "watchdog");
+    assert!(results > 500, "{results} job results");
+}
