@@ -3,11 +3,14 @@
 //! publishing, under a counting global allocator (ARCHITECTURE.md, "Data flow").
 #![allow(clippy::unwrap_used)]
 
+use crossbeam_channel::Receiver;
 use std::alloc::{GlobalAlloc, Layout as AllocLayout, System};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, VirtualWire};
-use uss_master::{DriveSetup, Engine, EngineConfig, Job, SimTransport, VirtualClock};
+use uss_master::{
+    DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, SimTransport, VirtualClock,
+};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, ParamTask, Pnu, Storage, Stw1, Timing, Value};
 
@@ -41,8 +44,10 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
-#[test]
-fn bus_loop_allocates_nothing_per_exchange() {
+type TestEngine = Engine<SimTransport, VirtualClock>;
+
+/// Four drives with every PKW mode, echo, faults on every reply, and drive 4 unplugged for a while.
+fn faulty_bus() -> (TestEngine, EngineHandle, Receiver<Event>) {
     let timing = Timing::new(Baud::new(115_200).unwrap());
     let mut bus = SimBus::new(3);
     let mut setups = Vec::new();
@@ -88,8 +93,12 @@ fn bus_loop_allocates_nothing_per_exchange() {
         drives: setups,
     };
     let wire = VirtualWire::new(bus, timing).with_echo(true);
-    let (mut engine, handle, events) =
-        Engine::new(config, SimTransport::new(wire), VirtualClock::new());
+    Engine::new(config, SimTransport::new(wire), VirtualClock::new())
+}
+
+#[test]
+fn bus_loop_allocates_nothing_per_exchange() {
+    let (mut engine, handle, events) = faulty_bus();
     let tasks = [
         ParamTask::Read {
             pnu: Pnu::from_u16(700),
