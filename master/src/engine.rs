@@ -617,7 +617,8 @@ impl<T: Transport, C: Clock> Engine<T, C> {
             }
             let begin = self.line_free_at;
             match self.attempt(slot, &output[..len], true)? {
-                Attempt::Reply { words, timing } => {
+                Attempt::Reply { words, mut timing } => {
+                    timing.first_attempt = attempt == 0;
                     self.on_reply(slot, &words, begin, timing);
                     return Ok(());
                 }
@@ -657,12 +658,22 @@ impl<T: Transport, C: Clock> Engine<T, C> {
             status.since = timing.done;
         }
         let good = status.counters.good;
+        // The STX's arrival time is the end of its stop bit: its start was one tz earlier.
+        let tz = self.cfg.timing.char_time();
+        let response_delay = timing.stx_at.saturating_sub(tz + timing.request_end);
+        let exchange = timing.done.saturating_sub(begin);
         let h = &mut self.stats.histograms;
-        record(
-            &mut h.response_delay,
-            timing.stx_at.saturating_sub(timing.request_end),
-        );
-        record(&mut h.exchange, timing.done.saturating_sub(begin));
+        record(&mut h.response_delay, response_delay);
+        record(&mut h.exchange, exchange);
+        if timing.first_attempt {
+            let reply_len = 4 + 2 * (words.pkw().len() + words.pzd().len());
+            let chars = (timing.request_len + reply_len) as u64;
+            let floor =
+                self.cfg.timing.start_pause() + self.cfg.timing.chars(chars) + response_delay;
+            let bus = &mut self.stats.bus;
+            bus.exchange_ns += u64::try_from(exchange.as_nanos()).unwrap_or(u64::MAX);
+            bus.wire_floor_ns += u64::try_from(floor.as_nanos()).unwrap_or(u64::MAX);
+        }
         let image = &self.shared.images[slot];
         image.input.write(
             pzd,
@@ -766,13 +777,14 @@ impl<T: Transport, C: Clock> Engine<T, C> {
                 return Ok(Attempt::Failed(f));
             }
         }
-        self.receive_reply(setup, request_end)
+        self.receive_reply(setup, n, request_end)
     }
 
     /// Receives until a valid reply from the right drive, or a failure.
     fn receive_reply(
         &mut self,
         setup: DriveSetup,
+        request_len: usize,
         request_end: Duration,
     ) -> Result<Attempt, TransportError> {
         let stx_deadline = request_end + self.cfg.response_timeout;
@@ -822,9 +834,11 @@ impl<T: Transport, C: Clock> Engine<T, C> {
                             self.stats.drives[slot].counters.count(g);
                         }
                         let timing = ReplyTiming {
+                            request_len,
                             request_end,
                             stx_at: stx_at.unwrap_or(rx.at),
                             done: rx.at,
+                            first_attempt: true,
                         };
                         return Ok(Attempt::Reply { words, timing });
                     }
@@ -902,7 +916,9 @@ impl<T: Transport, C: Clock> Engine<T, C> {
 /// When the parts of a good reply happened.
 #[derive(Debug, Clone, Copy)]
 struct ReplyTiming {
+    request_len: usize,
     request_end: Duration,
     stx_at: Duration,
     done: Duration,
+    first_attempt: bool,
 }

@@ -3,6 +3,8 @@
 //! - [`engine`]: the circulating list on one line: timing rules, retries, offline handling,
 //!   PKW mailboxes, diagnostics; generic over [`transport::Transport`] and [`clock::Clock`].
 //! - [`transport`], [`serial`]: the virtual wire to the simulator and real serial devices.
+//! - [`config`]: the TOML configuration of `ussd`, validated with line and field in every error.
+//! - [`runtime`], [`summary`]: buses in their real-time threads, housekeeping and the live summary.
 //! - [`clock`]: the monotonic clock with absolute sleeps, and a virtual clock for tests.
 //! - [`image`]: lock-free process images shared with clients.
 //! - [`jobs`]: parameter jobs, results and the per-drive mailbox.
@@ -10,11 +12,15 @@
 //! - [`stats`]: per-drive and per-bus diagnostics and histograms.
 
 pub mod clock;
+pub mod config;
 pub mod engine;
 pub mod image;
 pub mod jobs;
 pub mod rt;
+pub mod runtime;
+pub mod serial;
 pub mod stats;
+pub mod summary;
 pub mod transport;
 
 pub use clock::{Clock, MonotonicClock, VirtualClock};

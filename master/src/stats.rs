@@ -165,12 +165,24 @@ pub struct BusCounters {
     pub events_dropped: u64,
     pub jobs_accepted: u64,
     pub jobs_finished: u64,
+    /// Sum over good first attempts of the time from line free to reply complete, in ns.
+    pub exchange_ns: u64,
+    /// Sum over the same exchanges of their wire-time floor (USS.md section 4): start pause,
+    /// request and reply characters, and the drive's actual response delay, in ns.
+    pub wire_floor_ns: u64,
+}
+
+impl BusCounters {
+    /// Wire-time floor over achieved exchange time (1.0 = the master adds nothing), if measured.
+    pub fn efficiency(&self) -> Option<f64> {
+        (self.exchange_ns > 0).then(|| self.wire_floor_ns as f64 / self.exchange_ns as f64)
+    }
 }
 
 /// Timing histograms in nanoseconds.
 #[derive(Debug, Clone)]
 pub struct BusHistograms {
-    /// Request end to reply STX (the slave's response delay, as seen by the master).
+    /// End of our request to the start of the reply's STX (the slave's response delay).
     pub response_delay: Histogram<u64>,
     /// Line free after the previous exchange to this reply complete: comparable to the wire floor.
     pub exchange: Histogram<u64>,

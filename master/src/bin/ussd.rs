@@ -1,0 +1,136 @@
+//! `ussd`: the USS bus master daemon. With no arguments it runs an embedded default (one
+//! simulated bus, four drives at 115200 baud), so it works on any machine without hardware.
+
+use clap::Parser;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+use uss_master::config::Config;
+use uss_master::runtime::{self, RunOptions};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "ussd",
+    version,
+    about = "Real-time USS bus master: polls USS drives on one or more RS485 buses"
+)]
+struct Cli {
+    /// Configuration file (TOML). Without it ussd runs its embedded default: one simulated bus.
+    #[arg(long, value_name = "FILE", conflicts_with = "check_config")]
+    config: Option<PathBuf>,
+    /// Validate a configuration file, print the effective configuration and exit.
+    #[arg(long, value_name = "FILE")]
+    check_config: Option<PathBuf>,
+    /// Exit with an error unless every bus thread gets its CPU, real-time priority and memory lock.
+    #[arg(long)]
+    require_rt: bool,
+    /// Seconds between live summaries.
+    #[arg(long, value_name = "SECONDS", default_value_t = 5.0)]
+    summary_every: f64,
+    /// Stop after this many seconds (default: until SIGINT/SIGTERM).
+    #[arg(long, value_name = "SECONDS")]
+    duration: Option<f64>,
+}
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: nix::libc::c_int) {
+    STOP.store(true, Ordering::Relaxed);
+}
+
+/// ussd owns its signals: SIGINT and SIGTERM stop it cleanly.
+fn install_signal_handlers() -> nix::Result<()> {
+    use nix::sys::signal::{SaFlags, SigAction, SigHandler, SigSet, Signal, sigaction};
+    let action = SigAction::new(
+        SigHandler::Handler(on_signal),
+        SaFlags::empty(),
+        SigSet::empty(),
+    );
+    for signal in [Signal::SIGINT, Signal::SIGTERM] {
+        // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+        unsafe { sigaction(signal, &action) }?;
+    }
+    Ok(())
+}
+
+fn seconds(name: &str, value: f64) -> Result<Duration, String> {
+    Duration::try_from_secs_f64(value)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .ok_or_else(|| format!("--{name} {value}: give a positive number of seconds"))
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    if let Some(path) = &cli.check_config {
+        return match Config::load(path) {
+            Ok(config) => {
+                print!("{}", config.to_toml());
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("ussd: {e}");
+                ExitCode::from(2)
+            }
+        };
+    }
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stdout)
+        .with_ansi(false)
+        .init();
+    match run(&cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err((code, message)) => {
+            tracing::error!("{message}");
+            eprintln!("ussd: {message}");
+            ExitCode::from(code)
+        }
+    }
+}
+
+fn run(cli: &Cli) -> Result<(), (u8, String)> {
+    let config = if let Some(path) = &cli.config {
+        Config::load(path).map_err(|e| (2, e.to_string()))?
+    } else {
+        tracing::info!("no --config given: running the embedded default (one simulated bus)");
+        Config::embedded_default()
+    };
+    let options = RunOptions {
+        require_rt: cli.require_rt,
+        summary_every: seconds("summary-every", cli.summary_every).map_err(|e| (2, e))?,
+    };
+    let duration = cli
+        .duration
+        .map(|d| seconds("duration", d))
+        .transpose()
+        .map_err(|e| (2, e))?;
+    install_signal_handlers().map_err(|e| (1, format!("cannot install signal handlers: {e}")))?;
+    let buses = runtime::start(&config.buses, options).map_err(|e| (1, e.to_string()))?;
+    for b in &buses {
+        tracing::info!(bus = %b.name, drives = b.handle.drives().len(), "polling");
+    }
+    let started = Instant::now();
+    while !STOP.load(Ordering::Relaxed) && duration.is_none_or(|d| started.elapsed() < d) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    tracing::info!(
+        "stopping: pending parameter jobs end with 'shutdown', each drive gets its safe command once"
+    );
+    let mut failed = Vec::new();
+    for b in buses {
+        let name = b.name.clone();
+        if let Err(e) = b.stop() {
+            failed.push(format!("bus {name}: {e}"));
+        }
+    }
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        Err((1, failed.join("; ")))
+    }
+}

@@ -1,0 +1,364 @@
+//! Running buses: for each configured bus an engine on its transport in its own real-time
+//! thread, and a housekeeping thread that owns logging and the live summary (ARCHITECTURE.md,
+//! "Data flow" and "Real-time setup").
+//!
+//! Start-up order matters: every engine (and so every buffer and channel) is built and every
+//! thread spawned first; only then do the bus threads pin, raise their priority, prefault and
+//! (where the limit allows) lock memory, so a memory lock cannot starve later thread creation.
+
+use crate::clock::MonotonicClock;
+use crate::config::{BusConfig, Device, Rs485Mode};
+use crate::engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event};
+use crate::rt::{RtReport, RtRequest, apply_to_current_thread};
+use crate::serial::{SerialError, SerialOptions, SerialTransport};
+use crate::stats::Stats;
+use crate::transport::{SimTransport, Transport, TransportError};
+use core::time::Duration;
+use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, bounded};
+use std::thread::JoinHandle;
+use thiserror::Error;
+use uss_drive_sim::{BusError, SimBus, VirtualWire};
+use uss_protocol::Timing;
+
+/// Parameter jobs each drive can hold.
+const MAILBOX_DEPTH: usize = 64;
+/// Stack prefaulted in each bus thread.
+const PREFAULT_STACK: usize = 256 * 1024;
+
+/// How buses are run.
+#[derive(Debug, Clone, Copy)]
+pub struct RunOptions {
+    /// Refuse to run without full real-time (pinning, `SCHED_FIFO`, memory lock where allowed).
+    pub require_rt: bool,
+    /// How often the summary is logged.
+    pub summary_every: Duration,
+}
+
+/// A bus that could not start.
+#[derive(Debug, Error)]
+pub enum StartError {
+    #[error("bus {bus}: {source}")]
+    Serial { bus: String, source: SerialError },
+    #[error("bus {bus}: simulated bus: {source}")]
+    Sim { bus: String, source: BusError },
+    #[error("bus {bus}: real-time set-up incomplete and --require-rt given: {summary}")]
+    RealTime { bus: String, summary: String },
+    #[error("bus {bus}: cannot start its threads: {source}")]
+    Spawn { bus: String, source: std::io::Error },
+}
+
+/// The engine settings for a configured bus.
+pub fn engine_config(bus: &BusConfig) -> EngineConfig {
+    EngineConfig {
+        timing: Timing::new(bus.baud),
+        response_timeout: bus.response_timeout + bus.timeout_margin,
+        retries: bus.retries,
+        offline_after: bus.offline_after,
+        offline_probe: bus.offline_probe,
+        cycle_time: bus.cycle_time,
+        param_timeout: bus.param_timeout,
+        echo: bus.echo,
+        mailbox_depth: MAILBOX_DEPTH,
+        publish_every: Duration::from_millis(100),
+        drives: bus
+            .drives
+            .iter()
+            .map(|d| DriveSetup {
+                address: d.address,
+                layout: d.layout,
+                weight: d.weight,
+                safe_stw1: d.safe_command.stw1(),
+                watchdog: d.watchdog,
+                params_writable: d.params_writable,
+            })
+            .collect(),
+    }
+}
+
+/// The simulated drives of a `device = "sim"` bus on the in-process virtual wire.
+pub fn sim_transport(bus: &BusConfig) -> Result<SimTransport, BusError> {
+    let mut sim = SimBus::new(bus.seed);
+    for d in &bus.drives {
+        if let Some(spec) = &d.sim {
+            sim.add(spec.config)?;
+            if let Some(plan) = sim.faults_mut(spec.config.address) {
+                *plan = spec.faults.clone();
+            }
+        }
+    }
+    let wire = VirtualWire::new(sim, Timing::new(bus.baud)).with_echo(bus.echo);
+    Ok(SimTransport::new(wire))
+}
+
+/// A running bus.
+#[derive(Debug)]
+pub struct RunningBus {
+    pub name: String,
+    pub handle: EngineHandle,
+    pub rt_report: RtReport,
+    engine_thread: JoinHandle<Result<(), TransportError>>,
+    housekeeping: JoinHandle<()>,
+}
+
+impl RunningBus {
+    /// Stops the engine (pending jobs end with "shutdown", each drive gets its safe command
+    /// once) and waits for both threads; the housekeeping thread logs the final summary.
+    pub fn stop(self) -> Result<(), TransportError> {
+        self.handle.stop();
+        let result = self.engine_thread.join().unwrap_or(Ok(()));
+        let _ = self.housekeeping.join();
+        result
+    }
+}
+
+/// A bus whose engine thread is spawned and waits for the go signal.
+struct Spawned {
+    bus: BusConfig,
+    handle: EngineHandle,
+    reports: Receiver<RtReport>,
+    thread: JoinHandle<Result<(), TransportError>>,
+    events: Receiver<Event>,
+}
+
+/// Builds one engine and spawns its thread. The thread waits on `go` before its real-time set-up
+/// and exits at once if `go` is dropped instead (another bus failed to start).
+fn spawn<T: Transport + Send + 'static>(
+    bus: &BusConfig,
+    transport: T,
+    options: RunOptions,
+    go: &Receiver<()>,
+) -> Result<Spawned, StartError> {
+    let (mut engine, handle, events) =
+        Engine::new(engine_config(bus), transport, MonotonicClock::new());
+    let request = RtRequest {
+        cpu: bus.cpu,
+        priority: bus.priority,
+        lock_memory: true,
+        prefault_stack_bytes: PREFAULT_STACK,
+    };
+    let (report_tx, reports) = bounded(1);
+    let go = go.clone();
+    let require_rt = options.require_rt;
+    let thread = std::thread::Builder::new()
+        .name(format!("uss-{}", bus.name))
+        .stack_size(PREFAULT_STACK * 4)
+        .spawn(move || {
+            if go.recv().is_err() {
+                return Ok(());
+            }
+            let report = apply_to_current_thread(&request);
+            let proceed = report.is_full_rt() || !require_rt;
+            let _ = report_tx.send(report);
+            if !proceed {
+                return Ok(());
+            }
+            // Wake-ups as precise as the kernel allows (the default slack is 50 us).
+            let _ = nix::sys::prctl::set_timerslack(1);
+            engine.run()
+        })
+        .map_err(|source| StartError::Spawn {
+            bus: bus.name.clone(),
+            source,
+        })?;
+    Ok(Spawned {
+        bus: bus.clone(),
+        handle,
+        reports,
+        thread,
+        events,
+    })
+}
+
+fn open_and_spawn(
+    bus: &BusConfig,
+    options: RunOptions,
+    go: &Receiver<()>,
+) -> Result<Spawned, StartError> {
+    match &bus.device {
+        Device::Sim => {
+            let t = sim_transport(bus).map_err(|source| StartError::Sim {
+                bus: bus.name.clone(),
+                source,
+            })?;
+            spawn(bus, t, options, go)
+        }
+        Device::Serial(path) => {
+            let serial = SerialOptions {
+                baud: bus.baud,
+                kernel_rs485: bus.rs485 == Rs485Mode::Kernel,
+                low_latency: true,
+            };
+            let (t, report) =
+                SerialTransport::open(path, &serial).map_err(|source| StartError::Serial {
+                    bus: bus.name.clone(),
+                    source,
+                })?;
+            tracing::info!(bus = %bus.name, device = %path.display(), "opened: {report}");
+            spawn(bus, t, options, go)
+        }
+    }
+}
+
+fn abandon(spawned: Vec<Spawned>, go: Sender<()>) {
+    drop(go);
+    for s in spawned {
+        s.handle.stop();
+        let _ = s.thread.join();
+    }
+}
+
+/// Starts every bus of the configuration.
+pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>, StartError> {
+    let (go_tx, go_rx) = bounded(buses.len());
+    let mut spawned = Vec::new();
+    for bus in buses {
+        match open_and_spawn(bus, options, &go_rx) {
+            Ok(s) => spawned.push(s),
+            Err(e) => {
+                abandon(spawned, go_tx);
+                return Err(e);
+            }
+        }
+    }
+    // Every buffer, port and thread exists: now the bus threads may lock memory.
+    for _ in buses {
+        let _ = go_tx.send(());
+    }
+    let mut running = Vec::new();
+    let mut failure = None;
+    for s in spawned {
+        let Ok(rt_report) = s.reports.recv() else {
+            failure.get_or_insert(StartError::RealTime {
+                bus: s.bus.name.clone(),
+                summary: "the bus thread ended before its real-time set-up".into(),
+            });
+            continue;
+        };
+        if rt_report.is_full_rt() {
+            tracing::info!(bus = %s.bus.name, mode = rt_report.mode(), "{}", rt_report.summary());
+        } else {
+            tracing::warn!(bus = %s.bus.name, mode = rt_report.mode(), "real-time set-up incomplete, running best effort: {}", rt_report.summary());
+            if options.require_rt {
+                failure.get_or_insert(StartError::RealTime {
+                    bus: s.bus.name.clone(),
+                    summary: rt_report.summary(),
+                });
+            }
+        }
+        let housekeeping = spawn_housekeeping(
+            &s.bus,
+            s.handle.clone(),
+            s.events,
+            rt_report.mode(),
+            options.summary_every,
+        )
+        .map_err(|source| StartError::Spawn {
+            bus: s.bus.name.clone(),
+            source,
+        })?;
+        running.push(RunningBus {
+            name: s.bus.name.clone(),
+            handle: s.handle,
+            rt_report,
+            engine_thread: s.thread,
+            housekeeping,
+        });
+    }
+    if let Some(e) = failure {
+        for b in running {
+            let _ = b.stop();
+        }
+        return Err(e);
+    }
+    Ok(running)
+}
+
+/// Logs events as they come and the summary every `every`; logs the final summary when the
+/// engine has stopped.
+fn spawn_housekeeping(
+    bus: &BusConfig,
+    handle: EngineHandle,
+    events: Receiver<Event>,
+    mode: &'static str,
+    every: Duration,
+) -> std::io::Result<JoinHandle<()>> {
+    let bus = bus.clone();
+    std::thread::Builder::new()
+        .name(format!("uss-{}-hk", bus.name))
+        .spawn(move || {
+            let mut previous: Option<Stats> = None;
+            let mut next = std::time::Instant::now() + every;
+            loop {
+                let wait = next.saturating_duration_since(std::time::Instant::now());
+                match events.recv_timeout(wait) {
+                    Ok(event) => log_event(&bus.name, &event),
+                    Err(RecvTimeoutError::Timeout) => {
+                        let stats = handle.stats();
+                        tracing::info!(
+                            "\n{}",
+                            crate::summary::render(&bus, mode, &stats, previous.as_ref())
+                                .trim_end()
+                        );
+                        previous = Some(stats);
+                        next += every;
+                    }
+                    Err(RecvTimeoutError::Disconnected) => break,
+                }
+            }
+            let stats = handle.stats();
+            tracing::info!(
+                "final\n{}",
+                crate::summary::render(&bus, mode, &stats, None).trim_end()
+            );
+        })
+}
+
+fn log_event(bus: &str, event: &Event) {
+    match *event {
+        Event::DriveOffline {
+            address,
+            at,
+            failure,
+        } => {
+            tracing::warn!(
+                bus,
+                drive = address.get(),
+                at_s = at.as_secs_f64(),
+                "drive {address} does not respond ({}): offline",
+                failure.name()
+            );
+        }
+        Event::DriveOnline { address, at } => {
+            tracing::info!(
+                bus,
+                drive = address.get(),
+                at_s = at.as_secs_f64(),
+                "drive {address} online"
+            );
+        }
+        Event::WatchdogTripped { address, at } => {
+            tracing::warn!(
+                bus,
+                drive = address.get(),
+                at_s = at.as_secs_f64(),
+                "drive {address}: controller stopped refreshing; sending its safe command"
+            );
+        }
+        Event::WatchdogCleared { address, at } => {
+            tracing::info!(
+                bus,
+                drive = address.get(),
+                at_s = at.as_secs_f64(),
+                "drive {address}: controller refreshing again"
+            );
+        }
+        Event::CycleOverrun { at, took } => {
+            tracing::warn!(
+                bus,
+                at_s = at.as_secs_f64(),
+                took_ms = took.as_secs_f64() * 1e3,
+                "cycle took longer than cycle_time"
+            );
+        }
+    }
+}

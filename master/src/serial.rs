@@ -1,0 +1,991 @@
+//! The serial line under the engine: a UART or USB adapter at 8E1, or a pseudo-terminal for
+//! end-to-end tests (USS.md sections 2, 4 and 9).
+//!
+//! [`SerialTransport::open`] lets the `serialport` crate open the device (exclusive, raw, 8E1, no
+//! flow control), then tunes the fd itself: parity and framing errors marked in the byte stream
+//! (`PARMRK`) so they reach the framer as [`LineError`]s, non-blocking I/O, and the optional
+//! kernel RS485 and low-latency modes. Receiving reads everything available into a fixed buffer,
+//! timestamps it once and hands it out byte by byte: nothing allocates after `open`, because
+//! `send` and `recv` run in the real-time thread.
+
+use crate::clock::Clock;
+use crate::transport::{Rx, Transport, TransportError};
+use core::fmt;
+use core::ops::RangeInclusive;
+use core::time::Duration;
+use nix::errno::Errno;
+use nix::fcntl::{FcntlArg, OFlag, fcntl};
+use nix::libc::{c_char, c_int, c_uint, c_ulong, c_ushort};
+use nix::poll::{PollFd, PollFlags, ppoll};
+use nix::sys::stat::{fstat, major};
+use nix::sys::termios::{
+    self, ControlFlags, FlushArg, InputFlags, SetArg, SpecialCharacterIndices,
+};
+use nix::sys::time::TimeSpec;
+use serialport::{DataBits, FlowControl, Parity, StopBits, TTYPort};
+use std::os::fd::{AsRawFd, BorrowedFd};
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+use uss_protocol::{Baud, LineError, Timing};
+
+/// Raw bytes one `read` takes: a whole 256-byte telegram fits even with every byte escaped.
+const READ_CHUNK: usize = 1024;
+
+/// The escape byte of the tty's `PARMRK` marking.
+const MARK: u8 = 0xFF;
+
+/// Device majors of pseudo-terminal slaves: UNIX98 (`/dev/pts/N`) and legacy BSD (`/dev/ttyp0`).
+const UNIX98_PTY_SLAVE_MAJORS: RangeInclusive<u64> = 136..=143;
+const BSD_PTY_SLAVE_MAJOR: u64 = 3;
+
+/// Characters the kernel queues for sending; a write that finds no room for as long as these take
+/// on the wire (plus a margin) means the line is stuck, not slow.
+const TX_QUEUE_CHARS: u64 = 4096;
+const STUCK_MARGIN: Duration = Duration::from_millis(100);
+
+/// The longest single `ppoll`: a far deadline (even `Duration::MAX`) becomes several waits
+/// instead of a timeout `ppoll` cannot represent.
+const MAX_WAIT: Duration = Duration::from_secs(3600);
+
+/// How to open the line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SerialOptions {
+    pub baud: Baud,
+    /// Let the kernel drive RTS as the RS485 direction line (`TIOCSRS485` with RTS on send), for
+    /// embedded UARTs; USB adapters switch by themselves (USS.md section 9).
+    pub kernel_rs485: bool,
+    /// Ask the driver for low latency (`ASYNC_LOW_LATENCY`); an FTDI adapter otherwise holds
+    /// received bytes up to 16 ms, most of the 20 ms reply budget (USS.md section 9).
+    pub low_latency: bool,
+}
+
+/// Whether even parity is really on the line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ParityState {
+    /// 8E1 set and read back from the driver.
+    Even,
+    /// A pseudo-terminal carries bytes only and keeps no parity (USS.md section 9): normal
+    /// there, and not checked by reading termios back.
+    NotOnPseudoTerminal,
+}
+
+/// The outcome of an optional driver setting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Setting {
+    NotRequested,
+    Set,
+    /// The driver does not offer it; the errno says how it refused.
+    Unsupported(Errno),
+}
+
+/// What [`SerialTransport::open`] obtained, for one structured log line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OpenReport {
+    pub pseudo_terminal: bool,
+    pub parity: ParityState,
+    /// Kernel RS485 mode. `Unsupported` only on a pseudo-terminal: a real port that refuses it
+    /// fails to open.
+    pub rs485: Setting,
+    pub low_latency: Setting,
+}
+
+impl fmt::Display for ParityState {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Even => "even",
+            Self::NotOnPseudoTerminal => "none-on-pty",
+        })
+    }
+}
+
+impl fmt::Display for Setting {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::NotRequested => f.write_str("not-requested"),
+            Self::Set => f.write_str("set"),
+            Self::Unsupported(errno) => write!(f, "unsupported({errno:?})"),
+        }
+    }
+}
+
+impl fmt::Display for OpenReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "pty={} parity={} rs485={} low_latency={}",
+            self.pseudo_terminal, self.parity, self.rs485, self.low_latency
+        )
+    }
+}
+
+/// Why the line could not be opened as USS needs it.
+#[derive(Debug, Error)]
+pub enum SerialError {
+    #[error("cannot open {}: No such file or directory", .path.display())]
+    NotFound { path: PathBuf },
+    #[error(
+        "cannot open {}: permission denied (run as a member of the group owning the device, usually dialout)",
+        .path.display()
+    )]
+    PermissionDenied { path: PathBuf },
+    #[error("cannot open {}: device is busy (opened exclusively by another process)", .path.display())]
+    Busy { path: PathBuf },
+    #[error("cannot open {}: {source}", .path.display())]
+    Open {
+        path: PathBuf,
+        source: serialport::Error,
+    },
+    #[error("cannot set up {}: {step} failed ({errno})", .path.display())]
+    Setup {
+        path: PathBuf,
+        step: &'static str,
+        errno: Errno,
+    },
+    #[error(
+        "cannot open {}: the driver did not keep 8E1 (8 data bits, even parity, 1 stop bit); drives answer nothing else (USS.md section 2)",
+        .path.display()
+    )]
+    ParityRefused { path: PathBuf },
+    #[error(
+        "cannot open {}: kernel RS485 mode requested but the driver refused TIOCSRS485 ({errno:?}): use rs485 = \"auto\" for adapters that switch direction themselves",
+        .path.display()
+    )]
+    Rs485Refused { path: PathBuf, errno: Errno },
+    #[error(
+        "cannot open {}: kernel RS485 mode requested but the driver left it off after TIOCSRS485: use rs485 = \"auto\" for adapters that switch direction themselves",
+        .path.display()
+    )]
+    Rs485LeftOff { path: PathBuf },
+}
+
+impl SerialError {
+    fn from_open(path: &Path, source: serialport::Error) -> Self {
+        let path = path.to_owned();
+        match source.kind() {
+            serialport::ErrorKind::Io(std::io::ErrorKind::NotFound) => Self::NotFound { path },
+            serialport::ErrorKind::Io(std::io::ErrorKind::PermissionDenied) => {
+                Self::PermissionDenied { path }
+            }
+            // serialport reports EBUSY (TIOCEXCL held by another) and a held flock this way.
+            serialport::ErrorKind::NoDevice => Self::Busy { path },
+            _ => Self::Open { path, source },
+        }
+    }
+}
+
+/// `struct serial_rs485` of `linux/serial.h` (the libc crate lacks it).
+#[repr(C)]
+#[derive(Debug, Default)]
+struct SerialRs485 {
+    flags: u32,
+    delay_rts_before_send: u32,
+    delay_rts_after_send: u32,
+    padding: [u32; 5],
+}
+
+const SER_RS485_ENABLED: u32 = 1 << 0;
+const SER_RS485_RTS_ON_SEND: u32 = 1 << 1;
+
+/// `struct serial_struct` of `linux/serial.h` (the libc crate lacks it); its two pointer-sized
+/// fields are `usize` and `c_ulong`, the same layout.
+#[repr(C)]
+#[derive(Debug, Default)]
+struct SerialStruct {
+    kind: c_int,
+    line: c_int,
+    port: c_uint,
+    irq: c_int,
+    flags: c_int,
+    xmit_fifo_size: c_int,
+    custom_divisor: c_int,
+    baud_base: c_int,
+    close_delay: c_ushort,
+    io_type: c_char,
+    reserved_char: c_char,
+    hub6: c_int,
+    closing_wait: c_ushort,
+    closing_wait2: c_ushort,
+    iomem_base: usize,
+    iomem_reg_shift: c_ushort,
+    port_high: c_uint,
+    iomap_base: c_ulong,
+}
+
+const ASYNC_LOW_LATENCY: c_int = 1 << 13;
+
+#[cfg(target_pointer_width = "64")]
+const _: () = assert!(size_of::<SerialStruct>() == 72 && size_of::<SerialRs485>() == 32);
+
+/// The ioctls nix has no wrappers for; the macros turn -1 into the errno.
+mod ioctl {
+    use super::{SerialRs485, SerialStruct};
+    use nix::libc;
+
+    nix::ioctl_read_bad!(tiocgserial, libc::TIOCGSERIAL, SerialStruct);
+    nix::ioctl_write_ptr_bad!(tiocsserial, libc::TIOCSSERIAL, SerialStruct);
+    // The kernel writes back the configuration it applied.
+    nix::ioctl_readwrite_bad!(tiocsrs485, libc::TIOCSRS485, SerialRs485);
+    nix::ioctl_none_bad!(tiocnxcl, libc::TIOCNXCL);
+}
+
+/// Undoes the tty's `PARMRK` marking (termios(3)): `FF FF` is a literal 0xFF and `FF 00 X` is X
+/// received with a parity or framing error, `FF 00 00` being a break. The state lives across
+/// reads, because a marking may be split between two. Linux does not mark overruns in the stream
+/// (it only counts them), so they never appear here.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+enum Unmark {
+    #[default]
+    Plain,
+    /// After `FF`.
+    Escape,
+    /// After `FF 00`: the next byte arrived broken.
+    Flagged,
+}
+
+impl Unmark {
+    /// Feeds one raw byte; returns a received character once one is complete.
+    fn push(&mut self, raw: u8) -> Option<(u8, Option<LineError>)> {
+        let (next, out) = match (*self, raw) {
+            (Self::Plain, MARK) => (Self::Escape, None),
+            (Self::Plain, byte) | (Self::Escape, byte @ MARK) => (Self::Plain, Some((byte, None))),
+            (Self::Escape, 0) => (Self::Flagged, None),
+            // Not a marking the tty makes: the byte is flagged, so the framer drops the telegram
+            // rather than trusting it.
+            (Self::Escape, byte) => (Self::Plain, Some((byte, Some(LineError::Framing)))),
+            // A break arrives as a NUL with an error; the tty tells it from a NUL with bad
+            // parity no better, and a break is what a zero character with an error usually is.
+            (Self::Flagged, 0) => (Self::Plain, Some((0, Some(LineError::Framing)))),
+            (Self::Flagged, byte) => (Self::Plain, Some((byte, Some(LineError::Parity)))),
+        };
+        *self = next;
+        out
+    }
+}
+
+/// A serial device or pseudo-terminal, opened exclusively at 8E1 (USS.md section 2).
+pub struct SerialTransport {
+    /// Owns the fd; closing it on drop also releases serialport's exclusive flock.
+    port: TTYPort,
+    timing: Timing,
+    /// How long a write may wait for room in the kernel's queue before the line counts as stuck.
+    write_stall: Duration,
+    raw: [u8; READ_CHUNK],
+    len: usize,
+    pos: usize,
+    /// When the bytes in `raw` were read.
+    at: Duration,
+    unmark: Unmark,
+}
+
+impl fmt::Debug for SerialTransport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("SerialTransport")
+            .field("fd", &self.port.as_raw_fd())
+            .field("baud", &self.timing.baud())
+            .field("buffered", &(self.len - self.pos))
+            .field("unmark", &self.unmark)
+            .finish_non_exhaustive()
+    }
+}
+
+impl SerialTransport {
+    /// Opens the device exclusively (`TIOCEXCL` and flock) at 8E1 through the serialport crate,
+    /// raw, no flow control, with input already received flushed. On a real port 8E1 is read
+    /// back and a refused kernel RS485 mode is an error; a pseudo-terminal opens without parity,
+    /// RS485 or low latency and the report says so (USS.md section 9).
+    pub fn open(path: &Path, options: &SerialOptions) -> Result<(Self, OpenReport), SerialError> {
+        let mut port = serialport::new(path.to_string_lossy(), options.baud.get())
+            .data_bits(DataBits::Eight)
+            .parity(Parity::Even)
+            .stop_bits(StopBits::One)
+            .flow_control(FlowControl::None)
+            .open_native()
+            .map_err(|e| SerialError::from_open(path, e))?;
+        port.set_exclusive(true)
+            .map_err(|e| SerialError::from_open(path, e))?;
+        let timing = Timing::new(options.baud);
+        let transport = Self {
+            port,
+            timing,
+            write_stall: timing.chars(TX_QUEUE_CHARS) + STUCK_MARGIN,
+            raw: [0; READ_CHUNK],
+            len: 0,
+            pos: 0,
+            at: Duration::ZERO,
+            unmark: Unmark::Plain,
+        };
+        let report = transport.set_up(path, *options)?;
+        Ok((transport, report))
+    }
+
+    fn set_up(&self, path: &Path, options: SerialOptions) -> Result<OpenReport, SerialError> {
+        let fd = self.fd();
+        let failed = |step: &'static str| {
+            move |errno| SerialError::Setup {
+                path: path.to_owned(),
+                step,
+                errno,
+            }
+        };
+        let pseudo_terminal = is_pseudo_terminal(fd).map_err(failed("fstat"))?;
+        mark_line_errors(fd).map_err(failed("tcsetattr (INPCK, PARMRK)"))?;
+        let parity = if pseudo_terminal {
+            ParityState::NotOnPseudoTerminal
+        } else {
+            let applied = termios::tcgetattr(fd).map_err(failed("tcgetattr"))?;
+            if !is_8e1(applied.control_flags) {
+                return Err(SerialError::ParityRefused {
+                    path: path.to_owned(),
+                });
+            }
+            ParityState::Even
+        };
+        let flags = fcntl(fd, FcntlArg::F_GETFL).map_err(failed("fcntl(F_GETFL)"))?;
+        fcntl(
+            fd,
+            FcntlArg::F_SETFL(OFlag::from_bits_retain(flags) | OFlag::O_NONBLOCK),
+        )
+        .map_err(failed("fcntl(F_SETFL, O_NONBLOCK)"))?;
+        let rs485 = if options.kernel_rs485 {
+            match enable_rs485(fd) {
+                Ok(true) => Setting::Set,
+                Err(errno) if pseudo_terminal => Setting::Unsupported(errno),
+                Err(errno) => {
+                    return Err(SerialError::Rs485Refused {
+                        path: path.to_owned(),
+                        errno,
+                    });
+                }
+                Ok(false) => {
+                    return Err(SerialError::Rs485LeftOff {
+                        path: path.to_owned(),
+                    });
+                }
+            }
+        } else {
+            Setting::NotRequested
+        };
+        let low_latency = if options.low_latency {
+            set_low_latency(fd).map_or_else(Setting::Unsupported, |()| Setting::Set)
+        } else {
+            Setting::NotRequested
+        };
+        termios::tcflush(fd, FlushArg::TCIFLUSH).map_err(failed("tcflush"))?;
+        Ok(OpenReport {
+            pseudo_terminal,
+            parity,
+            rs485,
+            low_latency,
+        })
+    }
+
+    fn fd(&self) -> BorrowedFd<'_> {
+        port_fd(&self.port)
+    }
+
+    /// The next character already read, if any.
+    fn next_buffered(&mut self) -> Option<Rx> {
+        while self.pos < self.len {
+            let raw = self.raw[self.pos];
+            self.pos += 1;
+            if let Some((byte, error)) = self.unmark.push(raw) {
+                return Some(Rx {
+                    byte,
+                    at: self.at,
+                    error,
+                });
+            }
+        }
+        None
+    }
+
+    /// Reads what the kernel holds into the buffer, timestamped now; false when it held nothing.
+    fn fill(&mut self, clock: &impl Clock) -> Result<bool, TransportError> {
+        loop {
+            match nix::unistd::read(port_fd(&self.port), &mut self.raw) {
+                // A hung-up tty reads as end of file.
+                Ok(0) => return Err(TransportError::Closed),
+                Ok(n) => {
+                    self.len = n;
+                    self.pos = 0;
+                    self.at = clock.now();
+                    return Ok(true);
+                }
+                Err(Errno::EAGAIN) => return Ok(false),
+                Err(Errno::EINTR) => {}
+                Err(errno) => return Err(line_failure(errno)),
+            }
+        }
+    }
+
+    /// Waits until the fd is ready for `events` (or hung up) or `timeout` passes; false on
+    /// timeout. A signal counts as ready: the caller retries and computes a fresh timeout.
+    fn wait_for(&self, events: PollFlags, timeout: Duration) -> Result<bool, TransportError> {
+        let mut fds = [PollFd::new(self.fd(), events)];
+        match ppoll(&mut fds, Some(TimeSpec::from(timeout)), None) {
+            Ok(0) => Ok(false),
+            Ok(_) | Err(Errno::EINTR) => Ok(true),
+            Err(errno) => Err(line_failure(errno)),
+        }
+    }
+}
+
+impl Drop for SerialTransport {
+    fn drop(&mut self) {
+        // TIOCEXCL outlives our fd while another holds the tty open (a simulator keeps its pty
+        // slave open), so the next opener would get EBUSY; the flock goes with the fd. Nothing
+        // to do if this fails: the fd closes next.
+        // SAFETY: the fd is open (owned by `port`); TIOCNXCL takes no argument.
+        let _ = unsafe { ioctl::tiocnxcl(self.port.as_raw_fd()) };
+    }
+}
+
+impl Transport for SerialTransport {
+    /// `tcflush(TCIFLUSH)` plus what was read but not yet returned, and a half-read marking.
+    fn flush_input(&mut self, _now: Duration) -> Result<(), TransportError> {
+        termios::tcflush(self.fd(), FlushArg::TCIFLUSH).map_err(line_failure)?;
+        self.len = 0;
+        self.pos = 0;
+        self.unmark = Unmark::Plain;
+        Ok(())
+    }
+
+    /// Writes every byte and returns when the last character leaves the UART: `now` plus their
+    /// wire time (USS.md section 4). No `tcdrain`: it is slow on USB adapters.
+    fn send(&mut self, bytes: &[u8], now: Duration) -> Result<Duration, TransportError> {
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            match nix::unistd::write(self.fd(), rest) {
+                Ok(n) if n > 0 => rest = &rest[n..],
+                Ok(_) | Err(Errno::EAGAIN) => {
+                    if !self.wait_for(PollFlags::POLLOUT, self.write_stall)? {
+                        return Err(std::io::Error::from(std::io::ErrorKind::TimedOut).into());
+                    }
+                }
+                Err(Errno::EINTR) => {}
+                Err(errno) => return Err(line_failure(errno)),
+            }
+        }
+        Ok(now + self.timing.chars(bytes.len() as u64))
+    }
+
+    /// A byte already read is returned at once, even after the deadline; otherwise waits in
+    /// `ppoll` until input arrives or the deadline passes on `clock`. Bytes read together carry
+    /// the time of that read.
+    fn recv(
+        &mut self,
+        deadline: Duration,
+        clock: &mut impl Clock,
+    ) -> Result<Option<Rx>, TransportError> {
+        loop {
+            if let Some(rx) = self.next_buffered() {
+                return Ok(Some(rx));
+            }
+            if self.fill(clock)? {
+                continue;
+            }
+            let remaining = deadline.saturating_sub(clock.now());
+            if remaining.is_zero() {
+                return Ok(None);
+            }
+            let wait = remaining.min(MAX_WAIT);
+            if !self.wait_for(PollFlags::POLLIN, wait)? && wait == remaining {
+                // ppoll waited the whole timeout; a clock other than the wall clock (a virtual
+                // one) is moved to the deadline here.
+                clock.sleep_until(deadline);
+                return Ok(None);
+            }
+        }
+    }
+}
+
+fn port_fd(port: &TTYPort) -> BorrowedFd<'_> {
+    // SAFETY: `port` owns this fd and keeps it open for as long as it lives, which the returned
+    // borrow cannot outlive.
+    unsafe { BorrowedFd::borrow_raw(port.as_raw_fd()) }
+}
+
+/// An errno from reading or writing the line: the ones an unplugged device or a closed pty gives
+/// mean the line is gone.
+fn line_failure(errno: Errno) -> TransportError {
+    match errno {
+        Errno::EIO | Errno::ENXIO | Errno::ENODEV => TransportError::Closed,
+        other => TransportError::Io(other.into()),
+    }
+}
+
+fn is_pseudo_terminal(fd: BorrowedFd<'_>) -> nix::Result<bool> {
+    let major = major(fstat(fd)?.st_rdev);
+    Ok(UNIX98_PTY_SLAVE_MAJORS.contains(&major) || major == BSD_PTY_SLAVE_MAJOR)
+}
+
+/// Makes the tty mark parity and framing errors in the stream instead of dropping or passing the
+/// broken byte silently (USS.md section 4 counts them); a break becomes a marked NUL instead of
+/// a signal. `VMIN` 1 and `VTIME` 0 make an empty non-blocking read EAGAIN, never 0.
+fn mark_line_errors(fd: BorrowedFd<'_>) -> nix::Result<()> {
+    let mut t = termios::tcgetattr(fd)?;
+    t.input_flags |= InputFlags::INPCK | InputFlags::PARMRK;
+    t.input_flags &=
+        !(InputFlags::IGNPAR | InputFlags::ISTRIP | InputFlags::IGNBRK | InputFlags::BRKINT);
+    t.control_chars[SpecialCharacterIndices::VMIN as usize] = 1;
+    t.control_chars[SpecialCharacterIndices::VTIME as usize] = 0;
+    termios::tcsetattr(fd, SetArg::TCSANOW, &t)
+}
+
+/// 8 data bits, even parity, one stop bit (USS.md section 2).
+fn is_8e1(flags: ControlFlags) -> bool {
+    flags & ControlFlags::CSIZE == ControlFlags::CS8
+        && flags.contains(ControlFlags::PARENB)
+        && !flags.intersects(ControlFlags::PARODD | ControlFlags::CMSPAR | ControlFlags::CSTOPB)
+}
+
+/// RTS high while sending, low after, no extra delays; whether the driver kept RS485 on.
+fn enable_rs485(fd: BorrowedFd<'_>) -> Result<bool, Errno> {
+    let mut rs485 = SerialRs485 {
+        flags: SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND,
+        ..SerialRs485::default()
+    };
+    // SAFETY: the fd is open and `rs485` is a valid `struct serial_rs485` the kernel reads and
+    // writes back.
+    unsafe { ioctl::tiocsrs485(fd.as_raw_fd(), &raw mut rs485) }?;
+    Ok(rs485.flags & SER_RS485_ENABLED != 0)
+}
+
+fn set_low_latency(fd: BorrowedFd<'_>) -> Result<(), Errno> {
+    let mut serial = SerialStruct::default();
+    // SAFETY: the fd is open and `serial` is a valid `struct serial_struct` for the kernel to
+    // fill.
+    unsafe { ioctl::tiocgserial(fd.as_raw_fd(), &raw mut serial) }?;
+    if serial.flags & ASYNC_LOW_LATENCY == 0 {
+        serial.flags |= ASYNC_LOW_LATENCY;
+        // SAFETY: as above; the kernel only reads `serial`.
+        unsafe { ioctl::tiocsserial(fd.as_raw_fd(), &raw const serial) }?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::{MonotonicClock, VirtualClock};
+    use proptest::prelude::*;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::time::Instant;
+    use uss_drive_sim::serve::{Port, Pty, serve};
+    use uss_drive_sim::{DriveConfig, SimBus};
+    use uss_protocol::telegram::{Layout, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, encode};
+    use uss_protocol::{Address, Adr, DriveState, Framer, FramerConfig, Zsw1};
+
+    const MS: Duration = Duration::from_millis(1);
+
+    fn baud() -> Baud {
+        Baud::new(115_200).unwrap()
+    }
+
+    fn options(kernel_rs485: bool, low_latency: bool) -> SerialOptions {
+        SerialOptions {
+            baud: baud(),
+            kernel_rs485,
+            low_latency,
+        }
+    }
+
+    fn open_pty() -> (Pty, SerialTransport) {
+        let pty = Pty::open().unwrap();
+        let (serial, _) = SerialTransport::open(pty.path(), &options(false, false)).unwrap();
+        (pty, serial)
+    }
+
+    fn unmark_all(state: &mut Unmark, raw: &[u8], out: &mut Vec<(u8, Option<LineError>)>) {
+        out.extend(raw.iter().filter_map(|&b| state.push(b)));
+    }
+
+    fn unmark(raw: &[u8]) -> Vec<(u8, Option<LineError>)> {
+        let mut out = Vec::new();
+        unmark_all(&mut Unmark::Plain, raw, &mut out);
+        out
+    }
+
+    /// Receives until `count` characters came or 2 s passed.
+    fn recv_n(serial: &mut SerialTransport, clock: &mut MonotonicClock, count: usize) -> Vec<Rx> {
+        let deadline = clock.now() + Duration::from_secs(2);
+        let mut got = Vec::new();
+        while got.len() < count {
+            match serial.recv(deadline, clock).unwrap() {
+                Some(rx) => got.push(rx),
+                None => break,
+            }
+        }
+        got
+    }
+
+    #[test]
+    fn unmarking_passes_plain_bytes_and_decodes_each_marking() {
+        assert_eq!(
+            unmark(&[0x02, 0x00, 0x7F]),
+            [(2, None), (0, None), (0x7F, None)]
+        );
+        assert_eq!(unmark(&[0xFF, 0xFF]), [(0xFF, None)]);
+        assert_eq!(
+            unmark(&[0xFF, 0x00, 0x41]),
+            [(0x41, Some(LineError::Parity))]
+        );
+        assert_eq!(
+            unmark(&[0xFF, 0x00, 0xFF]),
+            [(0xFF, Some(LineError::Parity))]
+        );
+        assert_eq!(
+            unmark(&[0xFF, 0x00, 0x00]),
+            [(0x00, Some(LineError::Framing))]
+        );
+        assert_eq!(unmark(&[0xFF, 0x41]), [(0x41, Some(LineError::Framing))]);
+    }
+
+    #[test]
+    fn marking_split_between_reads_decodes_the_same_at_every_position() {
+        let raw = [
+            0x02, 0xFF, 0xFF, 0x10, 0xFF, 0x00, 0x41, 0xFF, 0x00, 0x00, 0xFF, 0x00, 0xFF, 0x03,
+        ];
+        let whole = unmark(&raw);
+        assert_eq!(
+            whole,
+            [
+                (0x02, None),
+                (0xFF, None),
+                (0x10, None),
+                (0x41, Some(LineError::Parity)),
+                (0x00, Some(LineError::Framing)),
+                (0xFF, Some(LineError::Parity)),
+                (0x03, None),
+            ]
+        );
+        for split in 0..=raw.len() {
+            let mut state = Unmark::Plain;
+            let mut out = Vec::new();
+            unmark_all(&mut state, &raw[..split], &mut out);
+            unmark_all(&mut state, &raw[split..], &mut out);
+            assert_eq!(out, whole, "split at {split}");
+            assert_eq!(state, Unmark::Plain);
+        }
+    }
+
+    /// A character as the UART delivers it: fine, with bad parity, or a break.
+    #[derive(Debug, Clone, Copy)]
+    enum Arrival {
+        Good(u8),
+        BadParity(u8),
+        Break,
+    }
+
+    /// Marks characters the way `n_tty` does with `PARMRK` and without `ISTRIP`.
+    fn mark(arrivals: &[Arrival]) -> Vec<u8> {
+        let mut raw = Vec::new();
+        for a in arrivals {
+            match *a {
+                Arrival::Good(MARK) => raw.extend([MARK, MARK]),
+                Arrival::Good(b) => raw.push(b),
+                Arrival::BadParity(b) => raw.extend([MARK, 0, b]),
+                Arrival::Break => raw.extend([MARK, 0, 0]),
+            }
+        }
+        raw
+    }
+
+    fn arrival() -> impl Strategy<Value = Arrival> {
+        prop_oneof![
+            8 => any::<u8>().prop_map(Arrival::Good),
+            2 => Just(Arrival::Good(MARK)),
+            1 => (1..=u8::MAX).prop_map(Arrival::BadParity),
+            1 => Just(Arrival::Break),
+        ]
+    }
+
+    proptest! {
+        #[test]
+        fn any_marked_stream_read_in_any_chunks_decodes_to_what_arrived(
+            arrivals in proptest::collection::vec(arrival(), 0..200),
+            cuts in proptest::collection::vec(any::<prop::sample::Index>(), 0..8),
+        ) {
+            let raw = mark(&arrivals);
+            let mut cuts: Vec<usize> = cuts.iter().map(|c| c.index(raw.len() + 1)).collect();
+            cuts.sort_unstable();
+            let mut state = Unmark::Plain;
+            let mut out = Vec::new();
+            let mut from = 0;
+            for cut in cuts.into_iter().chain([raw.len()]) {
+                unmark_all(&mut state, &raw[from..cut], &mut out);
+                from = cut;
+            }
+            let expected: Vec<_> = arrivals
+                .iter()
+                .map(|a| match *a {
+                    Arrival::Good(b) => (b, None),
+                    Arrival::BadParity(b) => (b, Some(LineError::Parity)),
+                    Arrival::Break => (0, Some(LineError::Framing)),
+                })
+                .collect();
+            prop_assert_eq!(out, expected);
+            prop_assert_eq!(state, Unmark::Plain);
+        }
+
+        #[test]
+        fn unmarking_never_yields_more_characters_than_bytes(raw in proptest::collection::vec(any::<u8>(), 0..300)) {
+            prop_assert!(unmark(&raw).len() <= raw.len());
+        }
+    }
+
+    #[test]
+    fn only_8e1_counts_as_even_parity() {
+        let e1 = ControlFlags::CS8 | ControlFlags::PARENB | ControlFlags::CREAD;
+        assert!(is_8e1(e1));
+        assert!(!is_8e1(ControlFlags::CS8 | ControlFlags::CREAD));
+        assert!(!is_8e1(e1 | ControlFlags::PARODD));
+        assert!(!is_8e1(e1 | ControlFlags::CMSPAR));
+        assert!(!is_8e1(e1 | ControlFlags::CSTOPB));
+        assert!(!is_8e1((e1 & !ControlFlags::CSIZE) | ControlFlags::CS7));
+    }
+
+    #[test]
+    fn missing_device_is_a_typed_error_naming_the_path() {
+        let err = SerialTransport::open(Path::new("/nonexistent/ttyUSS9"), &options(false, true))
+            .unwrap_err();
+        assert!(matches!(err, SerialError::NotFound { .. }), "{err:?}");
+        assert_eq!(
+            err.to_string(),
+            "cannot open /nonexistent/ttyUSS9: No such file or directory"
+        );
+    }
+
+    #[test]
+    fn second_open_of_an_open_device_is_refused_as_busy() {
+        let (pty, _serial) = open_pty();
+        let err = SerialTransport::open(pty.path(), &options(false, false)).unwrap_err();
+        assert!(matches!(err, SerialError::Busy { .. }), "{err:?}");
+        assert_eq!(
+            err.to_string(),
+            format!(
+                "cannot open {}: device is busy (opened exclusively by another process)",
+                pty.path().display()
+            )
+        );
+    }
+
+    #[test]
+    fn device_opens_again_after_the_transport_is_dropped() {
+        let (pty, serial) = open_pty();
+        drop(serial);
+        let (mut serial, _) = SerialTransport::open(pty.path(), &options(false, false)).unwrap();
+        assert_eq!(
+            serial.send(&[0x55], Duration::ZERO).unwrap(),
+            Timing::new(baud()).char_time()
+        );
+    }
+
+    #[test]
+    fn pseudo_terminal_opens_and_the_report_says_what_it_lacks() {
+        let pty = Pty::open().unwrap();
+        let (_serial, report) = SerialTransport::open(pty.path(), &options(true, true)).unwrap();
+        assert_eq!(
+            report,
+            OpenReport {
+                pseudo_terminal: true,
+                parity: ParityState::NotOnPseudoTerminal,
+                rs485: Setting::Unsupported(Errno::ENOTTY),
+                low_latency: Setting::Unsupported(Errno::ENOTTY),
+            }
+        );
+        assert_eq!(
+            report.to_string(),
+            "pty=true parity=none-on-pty rs485=unsupported(ENOTTY) low_latency=unsupported(ENOTTY)"
+        );
+        let pty = Pty::open().unwrap();
+        let (_serial, report) = SerialTransport::open(pty.path(), &options(false, false)).unwrap();
+        assert_eq!(
+            report.to_string(),
+            "pty=true parity=none-on-pty rs485=not-requested low_latency=not-requested"
+        );
+    }
+
+    #[test]
+    fn refused_rs485_error_says_what_to_do() {
+        let err = SerialError::Rs485Refused {
+            path: PathBuf::from("/dev/ttyS1"),
+            errno: Errno::ENOTTY,
+        };
+        assert_eq!(
+            err.to_string(),
+            "cannot open /dev/ttyS1: kernel RS485 mode requested but the driver refused \
+             TIOCSRS485 (ENOTTY): use rs485 = \"auto\" for adapters that switch direction themselves"
+        );
+    }
+
+    #[test]
+    fn sent_bytes_reach_the_far_side_and_end_after_their_wire_time() {
+        let (mut pty, mut serial) = open_pty();
+        let bytes = [0x02, 0x0E, 0x03, 0xFF, 0x00, 0x41];
+        let end = serial.send(&bytes, 5 * MS).unwrap();
+        assert_eq!(end, 5 * MS + Timing::new(baud()).chars(6));
+        assert_eq!(end, 5 * MS + Duration::from_nanos(572_917));
+        let mut buf = [0u8; 16];
+        let mut got = Vec::new();
+        while got.len() < bytes.len() {
+            let n = pty.read_some(&mut buf, 500 * MS).unwrap();
+            assert!(n > 0, "only {got:02X?} arrived");
+            got.extend_from_slice(&buf[..n]);
+        }
+        assert_eq!(got, bytes);
+    }
+
+    #[test]
+    fn received_bytes_come_in_order_stamped_with_their_arrival() {
+        let (mut pty, mut serial) = open_pty();
+        let mut clock = MonotonicClock::new();
+        let before = clock.now();
+        pty.write_all(&[0x02, 0x06, 0x05, 0x00]).unwrap();
+        let got = recv_n(&mut serial, &mut clock, 4);
+        let after = clock.now();
+        assert_eq!(
+            got.iter().map(|rx| (rx.byte, rx.error)).collect::<Vec<_>>(),
+            [(0x02, None), (0x06, None), (0x05, None), (0x00, None)]
+        );
+        for rx in &got {
+            assert!(before <= rx.at && rx.at <= after, "{rx:?}");
+        }
+        assert!(got.windows(2).all(|w| w[0].at <= w[1].at));
+    }
+
+    #[test]
+    fn byte_already_read_is_returned_even_after_the_deadline() {
+        let (mut pty, mut serial) = open_pty();
+        let mut clock = MonotonicClock::new();
+        pty.write_all(&[0x11, 0x22, 0x33]).unwrap();
+        assert_eq!(recv_n(&mut serial, &mut clock, 1)[0].byte, 0x11);
+        let past = Duration::ZERO;
+        assert_eq!(serial.recv(past, &mut clock).unwrap().unwrap().byte, 0x22);
+        assert_eq!(serial.recv(past, &mut clock).unwrap().unwrap().byte, 0x33);
+        assert_eq!(serial.recv(past, &mut clock).unwrap(), None);
+    }
+
+    #[test]
+    fn silence_returns_none_once_the_deadline_has_passed() {
+        let (_pty, mut serial) = open_pty();
+        let mut clock = MonotonicClock::new();
+        let deadline = clock.now() + 20 * MS;
+        assert_eq!(serial.recv(deadline, &mut clock).unwrap(), None);
+        assert!(clock.now() >= deadline);
+    }
+
+    #[test]
+    fn endless_deadline_waits_until_a_byte_arrives() {
+        let (mut pty, mut serial) = open_pty();
+        let mut clock = MonotonicClock::new();
+        let got = std::thread::scope(|s| {
+            s.spawn(|| {
+                std::thread::sleep(20 * MS);
+                pty.write_all(&[0x5A]).unwrap();
+            });
+            serial.recv(Duration::MAX, &mut clock).unwrap()
+        });
+        assert_eq!(got.map(|rx| rx.byte), Some(0x5A));
+    }
+
+    #[test]
+    fn silence_on_a_virtual_clock_ends_exactly_at_the_deadline() {
+        let (_pty, mut serial) = open_pty();
+        let mut clock = VirtualClock::new();
+        assert_eq!(serial.recv(3 * MS, &mut clock).unwrap(), None);
+        assert_eq!(clock.now(), 3 * MS);
+    }
+
+    #[test]
+    fn flush_input_drops_bytes_read_and_bytes_waiting_in_the_kernel() {
+        let (mut pty, mut serial) = open_pty();
+        let mut clock = MonotonicClock::new();
+        pty.write_all(&[1, 2, 3]).unwrap();
+        assert_eq!(recv_n(&mut serial, &mut clock, 1)[0].byte, 1);
+        pty.write_all(&[4, 5]).unwrap();
+        std::thread::sleep(20 * MS);
+        serial.flush_input(clock.now()).unwrap();
+        let deadline = clock.now() + 20 * MS;
+        assert_eq!(serial.recv(deadline, &mut clock).unwrap(), None);
+        pty.write_all(&[6]).unwrap();
+        assert_eq!(recv_n(&mut serial, &mut clock, 1)[0].byte, 6);
+    }
+
+    #[test]
+    fn literal_ff_arrives_as_one_ff() {
+        let (mut pty, mut serial) = open_pty();
+        let mut clock = MonotonicClock::new();
+        pty.write_all(&[0xFF, 0x00, 0xFF, 0xFF, 0x41]).unwrap();
+        let got = recv_n(&mut serial, &mut clock, 5);
+        assert_eq!(
+            got.iter().map(|rx| (rx.byte, rx.error)).collect::<Vec<_>>(),
+            [
+                (0xFF, None),
+                (0x00, None),
+                (0xFF, None),
+                (0xFF, None),
+                (0x41, None)
+            ]
+        );
+    }
+
+    #[test]
+    fn closed_far_side_reads_as_closed() {
+        let (pty, mut serial) = open_pty();
+        drop(pty);
+        let mut clock = MonotonicClock::new();
+        let deadline = clock.now() + Duration::from_secs(2);
+        assert!(matches!(
+            serial.recv(deadline, &mut clock),
+            Err(TransportError::Closed)
+        ));
+    }
+
+    #[test]
+    fn simulated_drive_answers_a_telegram_over_a_pty_with_the_exact_reply() {
+        let mut pty = Pty::open().unwrap();
+        let path = pty.path().to_owned();
+        let timing = Timing::new(baud());
+        let address = Address::new(3).unwrap();
+        let layout = Layout::new(PkwMode::Four, PzdCount::new(2).unwrap());
+        let mut bus = SimBus::new(1);
+        bus.add(DriveConfig::new(address, layout)).unwrap();
+        let stop = AtomicBool::new(false);
+        std::thread::scope(|s| {
+            let sim = s.spawn(|| serve(&mut pty, &mut bus, timing, Instant::now(), &stop));
+            let (mut serial, _) = SerialTransport::open(&path, &options(false, true)).unwrap();
+            let mut clock = MonotonicClock::new();
+            let mut framer = Framer::new(FramerConfig::strict(timing));
+            let mut request = [0u8; MAX_TELEGRAM_BYTES];
+            let n = encode(&mut request, Adr::to(address), &[0, 0, 0, 0], &[0x047E, 0]).unwrap();
+            serial.flush_input(clock.now()).unwrap();
+            serial.send(&request[..n], clock.now()).unwrap();
+            let deadline = clock.now() + Duration::from_secs(2);
+            let mut reply = None;
+            while reply.is_none() {
+                let Some(rx) = serial.recv(deadline, &mut clock).unwrap() else {
+                    break;
+                };
+                assert_eq!(rx.error, None);
+                reply = framer
+                    .push(rx.byte, rx.at)
+                    .map(|t| t.unwrap().as_bytes().to_vec());
+            }
+            stop.store(true, Ordering::Relaxed);
+            sim.join().unwrap().unwrap();
+
+            // STW1 0x047E takes the drive from S1 to S2: PKW zeros, ZSW1 0xBB31, HIW 0.
+            assert_eq!(
+                reply.unwrap(),
+                [
+                    0x02, 0x0E, 0x03, 0, 0, 0, 0, 0, 0, 0, 0, 0xBB, 0x31, 0, 0, 0x85
+                ]
+            );
+            assert_eq!(
+                DriveState::from_zsw1(Zsw1::from_bits_retain(0xBB31)),
+                DriveState::ReadyToSwitchOn
+            );
+        });
+    }
+}

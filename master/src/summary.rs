@@ -1,0 +1,79 @@
+//! The compact live summary `ussd` logs every few seconds: per bus the cycle time, exchanges per
+//! second, efficiency against the wire-time floor (USS.md section 4) and errors; per drive its
+//! state, online flag, last ZSW1 and actual value, and telegram counters.
+
+use crate::config::BusConfig;
+use crate::stats::{DriveCounters, Stats};
+use core::fmt::Write;
+use core::time::Duration;
+use uss_protocol::{DriveState, Setpoint, Zsw1};
+
+fn errors(c: &DriveCounters) -> u64 {
+    c.rejected
+}
+
+/// Renders the summary for `stats`, with rates over the interval since `previous`.
+pub fn render(bus: &BusConfig, rt_mode: &str, stats: &Stats, previous: Option<&Stats>) -> String {
+    let mut out = String::new();
+    let h = &stats.histograms;
+    let interval = previous.map_or(stats.at, |p| stats.at.saturating_sub(p.at));
+    let secs = interval.as_secs_f64().max(1e-9);
+    let exchanges = stats.bus.exchanges - previous.map_or(0, |p| p.bus.exchanges);
+    let mean_exchange = Duration::from_nanos(h.exchange.mean() as u64);
+    let efficiency = stats.bus.efficiency().unwrap_or(0.0);
+    let total_errors: u64 = stats.drives.iter().map(|d| errors(&d.counters)).sum();
+    let online = stats.drives.iter().filter(|d| d.online).count();
+    let _ = writeln!(
+        out,
+        "bus {}: {} baud, {rt_mode}; cycle {:.2} ms, {:.0} exchanges/s, efficiency {:.3} of wire floor \
+         (mean exchange {:.3} ms, response delay {:.3} ms), {online}/{} drives online, {total_errors} errors, {} jobs done",
+        bus.name,
+        bus.baud,
+        h.cycle.mean() / 1e6,
+        exchanges as f64 / secs,
+        efficiency,
+        mean_exchange.as_secs_f64() * 1e3,
+        h.response_delay.mean() / 1e6,
+        stats.drives.len(),
+        stats.bus.jobs_finished,
+    );
+    for (d, entry) in stats.drives.iter().zip(&bus.drives) {
+        let c = &d.counters;
+        let z = Zsw1::from_bits_retain(d.last_zsw1);
+        let hz = Setpoint::from_word(d.last_hiw).hz(entry.reference_hz);
+        let prev = previous
+            .and_then(|p| p.drive(d.address))
+            .map(|p| p.counters);
+        let per_min =
+            |now: u64, before: Option<u64>| (now - before.unwrap_or(0)) as f64 * 60.0 / secs;
+        let _ = writeln!(
+            out,
+            "  drive {:2}: {:7} {:9} ZSW1 0x{:04X} {:7.2} Hz | good {} ({:.0}/min) rejected {} ({:.0}/min): \
+             timeouts {} retries {} bcc {} length {} stx {} residual {} wrong-addr {} parity {} | last error {}{}",
+            d.address,
+            if d.online { "online" } else { "OFFLINE" },
+            DriveState::from_zsw1(z).short_name(),
+            d.last_zsw1,
+            hz,
+            c.good,
+            per_min(c.good, prev.map(|p| p.good)),
+            c.rejected,
+            per_min(c.rejected, prev.map(|p| p.rejected)),
+            c.timeouts,
+            c.retries,
+            c.bcc,
+            c.length + c.bad_lge,
+            c.missing_stx + c.start_pause,
+            c.residual,
+            c.wrong_address,
+            c.parity,
+            d.last_failure.map_or("-", crate::stats::Failure::name),
+            if d.watchdog_tripped {
+                " | WATCHDOG: safe command"
+            } else {
+                ""
+            },
+        );
+    }
+    out
+}

@@ -1,0 +1,117 @@
+//! After `open`, the serial transport allocates nothing per exchange (it runs in the real-time
+//! thread): 1000 exchanges with a simulated drive over a pseudo-terminal, counting allocations
+//! made by the master's thread only (the simulator runs in its own).
+#![allow(clippy::unwrap_used)]
+
+use std::alloc::{GlobalAlloc, Layout as AllocLayout, System};
+use std::cell::Cell;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+use uss_drive_sim::serve::{Pty, serve};
+use uss_drive_sim::{DriveConfig, SimBus};
+use uss_master::clock::{Clock, MonotonicClock};
+use uss_master::serial::{SerialOptions, SerialTransport};
+use uss_master::transport::Transport;
+use uss_protocol::telegram::{Layout, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, encode};
+use uss_protocol::{Address, Adr, Baud, Framer, FramerConfig, Timing};
+
+struct Counting;
+
+thread_local! {
+    // Const-initialised and without a destructor: touching it never allocates.
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+fn count() {
+    let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
+}
+
+fn allocations() -> u64 {
+    ALLOCATIONS.with(Cell::get)
+}
+
+// SAFETY: forwards to the system allocator unchanged; only counts.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: AllocLayout) -> *mut u8 {
+        count();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: AllocLayout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: AllocLayout, new_size: usize) -> *mut u8 {
+        count();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// The simulator enforces the start pause; a pty moves bytes instantly, so wait generously.
+const PAUSE: Duration = Duration::from_millis(1);
+
+#[test]
+fn a_thousand_exchanges_over_a_pty_allocate_nothing() {
+    let timing = Timing::new(Baud::new(115_200).unwrap());
+    let address = Address::new(1).unwrap();
+    let mut config = DriveConfig::new(
+        address,
+        Layout::new(PkwMode::Four, PzdCount::new(2).unwrap()),
+    );
+    config.response_delay = Duration::ZERO;
+    let mut bus = SimBus::new(1);
+    bus.add(config).unwrap();
+    let mut pty = Pty::open().unwrap();
+    let path = pty.path().to_owned();
+    let stop = AtomicBool::new(false);
+    std::thread::scope(|s| {
+        let sim = s.spawn(|| serve(&mut pty, &mut bus, timing, Instant::now(), &stop));
+        let options = SerialOptions {
+            baud: timing.baud(),
+            kernel_rs485: false,
+            low_latency: true,
+        };
+        let before_open = allocations();
+        let (mut serial, _) = SerialTransport::open(&path, &options).unwrap();
+        assert!(
+            allocations() > before_open,
+            "the counter sees this thread's allocations"
+        );
+        let mut clock = MonotonicClock::new();
+        let mut framer = Framer::new(FramerConfig::strict(timing));
+        let mut request = [0u8; MAX_TELEGRAM_BYTES];
+        let mut exchange = |i: u16| -> bool {
+            clock.sleep_until(clock.now() + PAUSE);
+            serial.flush_input(clock.now()).unwrap();
+            framer.reset();
+            let stw = if i % 2 == 0 { 0x047E } else { 0x047F };
+            let n = encode(&mut request, Adr::to(address), &[0, 0, 0, 0], &[stw, i]).unwrap();
+            serial.send(&request[..n], clock.now()).unwrap();
+            let deadline = clock.now() + Duration::from_millis(500);
+            while let Some(rx) = serial.recv(deadline, &mut clock).unwrap() {
+                assert_eq!(rx.error, None);
+                if let Some(telegram) = framer.push(rx.byte, rx.at) {
+                    let telegram = telegram.unwrap();
+                    assert_eq!(telegram.adr(), Adr::to(address));
+                    assert_eq!(telegram.lge(), 14);
+                    return true;
+                }
+            }
+            false
+        };
+        for i in 0..5 {
+            assert!(exchange(i), "warm-up exchange {i} got no reply");
+        }
+        let before = allocations();
+        let answered = (0..1000).filter(|&i| exchange(i)).count();
+        let allocated = allocations() - before;
+        stop.store(true, Ordering::Relaxed);
+        sim.join().unwrap().unwrap();
+        assert_eq!(answered, 1000);
+        assert_eq!(allocated, 0, "allocations during 1000 exchanges");
+    });
+}
