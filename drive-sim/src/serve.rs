@@ -182,11 +182,14 @@ fn send(
 ) -> io::Result<Duration> {
     let due = request_end + reply.delay;
     std::thread::sleep(due.saturating_sub(start.elapsed()));
+    // On a pty the master can read the reply the moment `write` starts copying it, so the line
+    // is free from then on; stamping after `write` returns would move the start pause later by
+    // however long this process was descheduled, and refuse a master that waited correctly.
+    let before = start.elapsed();
     port.write_all(reply.bytes())?;
-    let written = start.elapsed();
     Ok(if port.paces_bytes() {
-        written + timing.telegram(reply.bytes().len().saturating_sub(4))
+        start.elapsed() + timing.telegram(reply.bytes().len().saturating_sub(4))
     } else {
-        written
+        before
     })
 }

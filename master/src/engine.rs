@@ -451,7 +451,15 @@ impl<T: Transport, C: Clock> Engine<T, C> {
             let mut output = [0u16; MAX_PZD_WORDS];
             output[0] = setup.safe_stw1.bits();
             let len = setup.layout.pzd.get();
-            self.attempt(slot, &output[..len], false)?;
+            let begin = self.line_free_at;
+            match self.attempt(slot, &output[..len], false)? {
+                Attempt::Reply { words, timing } => self.on_reply(slot, &words, begin, timing),
+                Attempt::Failed(f) => {
+                    let c = &mut self.stats.drives[slot].counters;
+                    c.rejected += 1;
+                    c.count(f);
+                }
+            }
         }
         self.publish();
         Ok(())

@@ -48,13 +48,14 @@ pub fn render(bus: &BusConfig, rt_mode: &str, stats: &Stats, previous: Option<&S
             |now: u64, before: Option<u64>| (now - before.unwrap_or(0)) as f64 * 60.0 / secs;
         let _ = writeln!(
             out,
-            "  drive {:2}: {:7} {:9} ZSW1 0x{:04X} {:7.2} Hz | good {} ({:.0}/min) rejected {} ({:.0}/min): \
+            "  drive {:2}: {:7} {:9} ZSW1 0x{:04X} {:7.2} Hz | sent {} good {} ({:.0}/min) rejected {} ({:.0}/min): \
              timeouts {} retries {} bcc {} length {} stx {} residual {} wrong-addr {} parity {} | last error {}{}",
             d.address,
             if d.online { "online" } else { "OFFLINE" },
             DriveState::from_zsw1(z).short_name(),
             d.last_zsw1,
             hz,
+            c.requests,
             c.good,
             per_min(c.good, prev.map(|p| p.good)),
             c.rejected,

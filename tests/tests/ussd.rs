@@ -1,0 +1,180 @@
+//! `ussd` as a daemon: against `uss-sim --pty` in a separate process with faults and an unplugged
+//! drive, the embedded default, `--check-config` and `--require-rt`.
+#![allow(clippy::unwrap_used)]
+
+use std::process::Command;
+use uss_integration_tests::{SimProcess, binary};
+
+fn ussd() -> Command {
+    Command::new(binary("uss-master", "ussd"))
+}
+
+fn config_file(name: &str, text: &str) -> std::path::PathBuf {
+    let path = std::env::temp_dir().join(format!("ussd-test-{}-{name}.toml", std::process::id()));
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// The counters of `drive N:` in the last summary ussd printed.
+fn final_line(out: &str, address: u8) -> &str {
+    let tail = &out[out.rfind("final").expect("a final summary")..];
+    tail.lines()
+        .find(|l| l.contains(&format!("drive {address:2}:")))
+        .unwrap()
+}
+
+fn counter(line: &str, name: &str) -> u64 {
+    let at = line
+        .find(&format!("{name} "))
+        .unwrap_or_else(|| panic!("no {name} in {line}"))
+        + name.len()
+        + 1;
+    line[at..]
+        .split(|c: char| !c.is_ascii_digit())
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap()
+}
+
+#[test]
+fn ussd_polls_a_pty_bus_with_faults_and_its_summary_tells_the_truth() {
+    let sim = SimProcess::start(&[
+        "--baud",
+        "57600",
+        "--drive",
+        "1",
+        "--drive",
+        "2:drop=0.1,bcc=0.05",
+        "--drive",
+        "3:unplug=1000..2500",
+    ]);
+    let config = config_file(
+        "pty",
+        &format!(
+            "[[bus]]\nname = \"line1\"\ndevice = \"{}\"\nbaud = 57600\nretries = 2\noffline_probe_ms = 200\n\n\
+             [[bus.drive]]\naddress = 1\n\n[[bus.drive]]\naddress = 2\n\n[[bus.drive]]\naddress = 3\n",
+            sim.path
+        ),
+    );
+    let out = ussd()
+        .args([
+            "--config",
+            config.to_str().unwrap(),
+            "--summary-every",
+            "1",
+            "--duration",
+            "4",
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("drive 3 does not respond (no response): offline"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("drive 3 online"), "{stdout}");
+    assert!(stdout.contains("bus line1: 57600 baud"), "{stdout}");
+    let d1 = final_line(&stdout, 1);
+    let d2 = final_line(&stdout, 2);
+    let d3 = final_line(&stdout, 3);
+    // No controller: every drive got the safe command OFF1, which takes it from S1 to S2.
+    for line in [d1, d2, d3] {
+        assert!(line.contains("online  S2"), "{line}");
+    }
+    // Drive 1 has no injected faults; a reply can still miss its 20 ms when the machine is busy.
+    assert!(counter(d1, "rejected") * 100 <= counter(d1, "sent"), "{d1}");
+    assert!(
+        counter(d2, "timeouts") > 0 && counter(d2, "bcc") > 0,
+        "{d2}"
+    );
+    assert!(counter(d3, "timeouts") >= 3, "{d3}");
+    let sim_out = sim.stop();
+    let sim_d1 = sim_out.lines().find(|l| l.contains("drive  1:")).unwrap();
+    // Every telegram ussd sent to drive 1 arrived intact, and nothing else did.
+    assert!(
+        sim_d1.contains(&format!("good {} rejected 0", counter(d1, "sent"))),
+        "uss-sim: {sim_d1}\nussd: {d1}"
+    );
+    let _ = std::fs::remove_file(config);
+}
+
+#[test]
+fn ussd_without_arguments_runs_the_embedded_simulated_bus() {
+    let out = ussd()
+        .args(["--summary-every", "1", "--duration", "2.5"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(out.status.success(), "{stdout}");
+    assert!(stdout.contains("running the embedded default"), "{stdout}");
+    for a in 1..=4 {
+        let line = final_line(&stdout, a);
+        assert!(
+            line.contains("online  S2") && counter(line, "good") > 100,
+            "{line}"
+        );
+        assert_eq!(counter(line, "rejected"), 0, "{line}");
+    }
+    let efficiency: f64 = stdout
+        .rsplit("efficiency ")
+        .next()
+        .and_then(|s| s.split(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap();
+    assert!(efficiency > 0.5 && efficiency <= 1.001, "{efficiency}");
+}
+
+#[test]
+fn check_config_prints_the_effective_configuration_or_names_the_bad_line() {
+    let good = config_file(
+        "good",
+        "[[bus]]\nname = \"b\"\ndevice = \"sim\"\n\n[[bus.drive]]\naddress = 7\npzd = 4\n",
+    );
+    let out = ussd().arg("--check-config").arg(&good).output().unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("address = 7") && text.contains("pzd = 4") && text.contains("retries = 2"),
+        "{text}"
+    );
+    let bad = config_file(
+        "bad",
+        "[[bus]]\nname = \"b\"\ndevice = \"sim\"\n\n[[bus.drive]]\naddress = 7\npzd = 17\n",
+    );
+    let out = ussd().arg("--check-config").arg(&bad).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(":7:") && err.contains("pzd = 17"), "{err}");
+    let out = ussd().arg("--config").arg(&bad).output().unwrap();
+    assert_eq!(out.status.code(), Some(2), "nothing starts on a bad config");
+    for p in [good, bad] {
+        let _ = std::fs::remove_file(p);
+    }
+}
+
+#[test]
+fn require_rt_is_fatal_exactly_when_real_time_is_incomplete() {
+    let out = ussd()
+        .args(["--require-rt", "--duration", "0.5"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    let incomplete = stdout.contains("real-time set-up incomplete");
+    if incomplete {
+        assert_eq!(out.status.code(), Some(1), "{stdout}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("--require-rt") && err.contains("bus bus0"),
+            "{err}"
+        );
+    } else {
+        assert!(out.status.success(), "{stdout}");
+        assert!(stdout.contains("realtime"), "{stdout}");
+    }
+}
