@@ -87,7 +87,6 @@ impl VirtualWire {
                     error: None,
                 });
             }
-            self.bus.advance(t);
             match self.framer.push(b, t) {
                 Some(Ok(telegram)) => {
                     if let Some(reply) = self.bus.on_telegram(&telegram, t) {
@@ -111,6 +110,9 @@ impl VirtualWire {
         }
         // The drives hear the replies on the bus too: the start pause counts from their end.
         self.framer.line_busy_until(self.line_busy_until.max(t));
+        // Ramps and telegram monitoring move on once per request (the addressed drive has
+        // already caught up when it received it).
+        self.bus.advance(t);
         t
     }
 

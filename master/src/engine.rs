@@ -265,6 +265,8 @@ pub struct Engine<T: Transport, C: Clock> {
     tx: [u8; MAX_TELEGRAM_BYTES],
     line_free_at: Duration,
     last_reply_done: Option<Duration>,
+    /// When the engine saw the last good reply complete (on its clock, after waking).
+    last_reply_seen: Option<Duration>,
     cycle_start: Duration,
     last_publish: Duration,
     jobs: Receiver<Job>,
@@ -378,6 +380,7 @@ impl<T: Transport, C: Clock> Engine<T, C> {
             tx: [0; MAX_TELEGRAM_BYTES],
             line_free_at: now,
             last_reply_done: None,
+            last_reply_seen: None,
             cycle_start: now,
             last_publish: now,
             jobs: jobs_rx,
@@ -760,9 +763,13 @@ impl<T: Transport, C: Clock> Engine<T, C> {
         let Ok(n) = encode(&mut self.tx, Adr::to(setup.address), &pkw[..pkw_len], pzd) else {
             return Ok(Attempt::Failed(Failure::Length));
         };
+        if let Some(seen) = self.last_reply_seen.take() {
+            let ready = self.clock.now();
+            record(&mut self.stats.histograms.work, ready.saturating_sub(seen));
+        }
         // The start pause, then a clean input buffer, then our telegram (USS.md section 4).
         self.clock
-            .sleep_until(self.line_free_at + self.cfg.timing.start_pause());
+            .sleep_until_precise(self.line_free_at + self.cfg.timing.start_pause());
         let send_at = self.clock.now();
         if let Some(done) = self.last_reply_done.take() {
             record(
@@ -841,6 +848,7 @@ impl<T: Transport, C: Clock> Engine<T, C> {
                             let slot = self.slot(setup.address);
                             self.stats.drives[slot].counters.count(g);
                         }
+                        self.last_reply_seen = Some(self.clock.now());
                         let timing = ReplyTiming {
                             request_len,
                             request_end,

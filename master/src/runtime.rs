@@ -59,7 +59,7 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
         param_timeout: bus.param_timeout,
         echo: bus.echo,
         mailbox_depth: MAILBOX_DEPTH,
-        publish_every: Duration::from_millis(100),
+        publish_every: Duration::from_millis(250),
         drives: bus
             .drives
             .iter()
@@ -101,6 +101,11 @@ pub struct RunningBus {
 }
 
 impl RunningBus {
+    /// Whether the bus thread has ended without being asked to (its line failed).
+    pub fn has_failed(&self) -> bool {
+        self.engine_thread.is_finished() && !self.handle.is_stopped()
+    }
+
     /// Stops the engine (pending jobs end with "shutdown", each drive gets its safe command
     /// once) and waits for both threads; the housekeeping thread logs the final summary.
     pub fn stop(self) -> Result<(), TransportError> {

@@ -51,7 +51,11 @@ pub fn render(bus: &BusConfig, rt_mode: &str, stats: &Stats, previous: Option<&S
             "  drive {:2}: {:7} {:9} ZSW1 0x{:04X} {:7.2} Hz | sent {} good {} ({:.0}/min) rejected {} ({:.0}/min): \
              timeouts {} retries {} bcc {} length {} stx {} residual {} wrong-addr {} parity {} | last error {}{}",
             d.address,
-            if d.online { "online" } else { "OFFLINE" },
+            if d.online {
+                "online".to_owned()
+            } else {
+                format!("OFFLINE since {:.1} s", d.since.as_secs_f64())
+            },
             DriveState::from_zsw1(z).short_name(),
             d.last_zsw1,
             hz,

@@ -166,14 +166,16 @@ fn polls_in_list_order_at_the_wire_floor() {
     let h = &b.engine.stats().histograms.exchange;
     assert_eq!(h.len(), 306);
     assert!(
-        h.equivalent(h.min(), floor) || h.min() >= floor * 999 / 1000,
-        "min {} floor {floor}",
-        h.min()
-    );
-    assert!(
-        h.max() <= floor * 1001 / 1000,
-        "max {} floor {floor}",
+        h.equivalent(h.min(), floor) && h.equivalent(h.max(), floor),
+        "{}..{} vs {floor}",
+        h.min(),
         h.max()
+    );
+    let bus = b.engine.stats().bus;
+    let mean = bus.exchange_ns / bus.good;
+    assert!(
+        mean.abs_diff(floor) < 1_000,
+        "mean exchange {mean} ns, floor {floor} ns"
     );
     for a in 1..=3 {
         let c = b.sim_drive(a).counters();

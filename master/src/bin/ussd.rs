@@ -115,7 +115,15 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
         tracing::info!(bus = %b.name, drives = b.handle.drives().len(), "polling");
     }
     let started = Instant::now();
+    let mut line_failed = false;
     while !STOP.load(Ordering::Relaxed) && duration.is_none_or(|d| started.elapsed() < d) {
+        if let Some(b) = buses.iter().find(|b| b.has_failed()) {
+            // A dead line is not something to poll around: stop, and let the supervisor
+            // (systemd Restart=on-failure) bring ussd back when the device returns.
+            tracing::error!(bus = %b.name, "the bus thread ended: its line failed");
+            line_failed = true;
+            break;
+        }
         std::thread::sleep(Duration::from_millis(20));
     }
     tracing::info!(
@@ -127,6 +135,9 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
         if let Err(e) = b.stop() {
             failed.push(format!("bus {name}: {e}"));
         }
+    }
+    if line_failed && failed.is_empty() {
+        failed.push("a bus line failed".to_owned());
     }
     if failed.is_empty() {
         Ok(())

@@ -1,0 +1,259 @@
+//! Bus engine benchmarks (issue "the real-time bus engine"), printed as ratios measured in one
+//! run on this machine:
+//!
+//! 1. Exchange efficiency: on the real-time-paced virtual wire (bytes take 11 bits of wire time,
+//!    the drives answer after 1 ms), the wire-time floor of USS.md section 4 over the achieved
+//!    exchange time, at 19200, 115200 and 187500 baud with PKW 4 + PZD 2 and PKW 4 + PZD 8; and
+//!    for PKW 4 + PZD 8 at 19200 the speed-up over the S7-1200 library's 68.2 ms per exchange.
+//! 2. Master turnaround (reply complete -> next request written) against the start pause the
+//!    protocol demands anyway (117 us at 187500 baud).
+//! 3. Scale: 8 simulated buses x 31 drives in one process, CPU use and peak memory.
+//!
+//! The bus threads run `SCHED_FIFO` where the machine allows (root here); the mode is printed.
+
+use std::fmt::Write;
+use std::time::{Duration, Instant};
+use uss_benches::percentiles_us;
+use uss_drive_sim::{DriveConfig, SimBus, VirtualWire};
+use uss_master::config::Config;
+use uss_master::rt::{RtRequest, apply_to_current_thread};
+use uss_master::runtime::{self, RunOptions};
+use uss_master::{DriveSetup, Engine, EngineConfig, MonotonicClock, SimTransport, Stats};
+use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
+use uss_protocol::{Address, Baud, Stw1, Timing};
+
+/// The S7-1200 library's documented minimum call interval per exchange at 19200 baud (USS.md
+/// section 8).
+const S7_1200_AT_19200_MS: f64 = 68.2;
+
+/// Runs one engine for `exchanges` exchanges with four drives in real time; returns its stats
+/// and the real-time mode its thread got.
+fn run_engine(baud: u32, pzd: usize, exchanges: u64) -> (Stats, &'static str) {
+    let timing = Timing::new(Baud::new(baud).expect("benchmark baud"));
+    let layout = Layout::new(PkwMode::Four, PzdCount::new(pzd).expect("pzd"));
+    let mut bus = SimBus::new(1);
+    let mut drives = Vec::new();
+    for a in 1..=4 {
+        let address = Address::new(a).expect("address");
+        bus.add(DriveConfig::new(address, layout)).expect("unique");
+        drives.push(DriveSetup {
+            address,
+            layout,
+            weight: 1,
+            safe_stw1: Stw1::READY,
+            watchdog: Duration::from_millis(100),
+            params_writable: true,
+        });
+    }
+    let config = EngineConfig {
+        timing,
+        response_timeout: Duration::from_millis(20),
+        retries: 2,
+        offline_after: 1,
+        offline_probe: Duration::from_millis(500),
+        cycle_time: None,
+        param_timeout: Duration::from_secs(2),
+        echo: false,
+        mailbox_depth: 16,
+        publish_every: Duration::from_millis(100),
+        drives,
+    };
+    let transport = SimTransport::new(VirtualWire::new(bus, timing));
+    std::thread::spawn(move || {
+        let report = apply_to_current_thread(&RtRequest {
+            cpu: Some(1),
+            priority: 80,
+            lock_memory: false,
+            prefault_stack_bytes: 128 * 1024,
+        });
+        let _ = nix::sys::prctl::set_timerslack(1);
+        let (mut engine, _handle, _events) = Engine::new(config, transport, MonotonicClock::new());
+        while engine.stats().bus.exchanges < exchanges {
+            engine.poll_next().expect("virtual wire never fails");
+        }
+        let mode = if report.priority.is_some() {
+            "SCHED_FIFO"
+        } else {
+            "best-effort"
+        };
+        (engine.stats().clone(), mode)
+    })
+    .join()
+    .expect("bench thread")
+}
+
+fn efficiency() {
+    println!(
+        "== exchange efficiency on the real-time-paced virtual wire (4 drives, 1 ms response delay)"
+    );
+    println!("   baud    layout        mean exchange   wire floor   efficiency (floor / achieved)");
+    for pzd in [2, 8] {
+        for baud in [19200, 115_200, 187_500] {
+            let count = if baud == 19200 { 150 } else { 1500 };
+            let (stats, mode) = run_engine(baud, pzd, count);
+            let eff = stats.bus.efficiency().unwrap_or(0.0);
+            let mean_ns = stats.bus.exchange_ns as f64 / stats.bus.good.max(1) as f64;
+            let floor_ns = stats.bus.wire_floor_ns as f64 / stats.bus.good.max(1) as f64;
+            println!(
+                "  {baud:6}  PKW 4 + PZD {pzd}   {:9.3} ms   {:9.3} ms   {eff:.4}   [{mode}, {} exchanges]",
+                mean_ns / 1e6,
+                floor_ns / 1e6,
+                stats.bus.good
+            );
+            if baud == 19200 && pzd == 8 {
+                println!(
+                    "          speed-up over the S7-1200 library's {S7_1200_AT_19200_MS} ms per exchange at 19200: {:.2}x",
+                    S7_1200_AT_19200_MS / (mean_ns / 1e6)
+                );
+            }
+        }
+    }
+}
+
+fn turnaround() {
+    let baud = 187_500;
+    let (stats, mode) = run_engine(baud, 2, 5000);
+    let pause = Timing::new(Baud::new(baud).expect("baud")).start_pause();
+    let h = &stats.histograms.turnaround;
+    println!(
+        "== master turnaround at {baud} baud (reply complete -> next request written) [{mode}]"
+    );
+    println!("   {}", percentiles_us(h));
+    println!(
+        "   start pause {:.1} us; p50 / pause = {:.3}, p99 / pause = {:.3}, max / pause = {:.3} (1.000 = the master's work hides inside the pause)",
+        pause.as_secs_f64() * 1e6,
+        h.value_at_quantile(0.5) as f64 / pause.as_nanos() as f64,
+        h.value_at_quantile(0.99) as f64 / pause.as_nanos() as f64,
+        h.max() as f64 / pause.as_nanos() as f64
+    );
+    let work = &stats.histograms.work;
+    println!(
+        "   of which the master's own work (reply seen -> ready to send): {}",
+        percentiles_us(work)
+    );
+    println!(
+        "   work / pause: p50 {:.3}, p99 {:.3}, p99.9 {:.3} (below 1.000 the work hides inside the pause; the rest of the turnaround is wake-up latency)",
+        work.value_at_quantile(0.5) as f64 / pause.as_nanos() as f64,
+        work.value_at_quantile(0.99) as f64 / pause.as_nanos() as f64,
+        work.value_at_quantile(0.999) as f64 / pause.as_nanos() as f64
+    );
+    println!(
+        "   response delay seen by the master: {}",
+        percentiles_us(&stats.histograms.response_delay)
+    );
+}
+
+/// (user, system) CPU seconds of this process so far.
+fn cpu_seconds() -> (f64, f64) {
+    let usage = nix::sys::resource::getrusage(nix::sys::resource::UsageWho::RUSAGE_SELF)
+        .expect("getrusage");
+    let t = |tv: nix::sys::time::TimeVal| tv.tv_sec() as f64 + tv.tv_usec() as f64 / 1e6;
+    (t(usage.user_time()), t(usage.system_time()))
+}
+fn peak_rss_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1).and_then(|v| v.parse().ok()))
+        })
+        .unwrap_or(0)
+}
+
+fn scale() {
+    let mut toml = String::new();
+    for b in 0..8 {
+        let _ = write!(
+            toml,
+            "[[bus]]\nname = \"bus{b}\"\ndevice = \"sim\"\nbaud = 115200\n\n"
+        );
+        for a in 1..=31 {
+            let _ = write!(toml, "[[bus.drive]]\naddress = {a}\n\n");
+        }
+    }
+    let config = Config::parse(&toml, "scale.toml").expect("scale configuration");
+    let rss_before = peak_rss_kib();
+    let cpu_before = cpu_seconds();
+    let started = Instant::now();
+    let buses = runtime::start(
+        &config.buses,
+        RunOptions {
+            require_rt: false,
+            summary_every: Duration::from_secs(3600),
+        },
+    )
+    .expect("start 8 buses");
+    std::thread::sleep(Duration::from_secs(10));
+    let stats: Vec<Stats> = buses.iter().map(|b| b.handle.stats()).collect();
+    let report = &buses[0].rt_report;
+    let mode = format!(
+        "{}: SCHED_FIFO {}, memory {}",
+        report.mode(),
+        report
+            .priority
+            .map_or("not obtained".to_owned(), |p| format!("priority {p}")),
+        if report.memory_locked {
+            "locked"
+        } else {
+            "not locked"
+        }
+    );
+    let wall = started.elapsed().as_secs_f64();
+    let (user, system) = cpu_seconds();
+    let (user, system) = (user - cpu_before.0, system - cpu_before.1);
+    let cpu = user + system;
+    for b in buses {
+        b.stop().expect("clean stop");
+    }
+    let exchanges: u64 = stats.iter().map(|s| s.bus.exchanges).sum();
+    let errors: u64 = stats
+        .iter()
+        .flat_map(|s| s.drives.iter())
+        .map(|d| d.counters.rejected)
+        .sum();
+    let online = stats
+        .iter()
+        .flat_map(|s| s.drives.iter())
+        .filter(|d| d.online)
+        .count();
+    let eff: Vec<String> = stats
+        .iter()
+        .map(|s| format!("{:.3}", s.bus.efficiency().unwrap_or(0.0)))
+        .collect();
+    println!(
+        "== scale: 8 simulated buses x 31 drives at 115200 baud in one process, {wall:.1} s [{mode}]"
+    );
+    println!(
+        "   {exchanges} exchanges ({:.0}/s), {online}/248 drives online, {errors} errors; efficiency per bus {}",
+        exchanges as f64 / wall,
+        eff.join(" ")
+    );
+    println!(
+        "   CPU {cpu:.2} s (user {user:.2} s, system {system:.2} s) in {wall:.1} s = {:.1} % of one core ({:.1} % per bus, {:.1} us per exchange); peak RSS {:.1} MiB (was {:.1} MiB before the buses)",
+        cpu / wall * 100.0,
+        cpu / wall * 100.0 / 8.0,
+        cpu / exchanges.max(1) as f64 * 1e6,
+        peak_rss_kib() as f64 / 1024.0,
+        rss_before as f64 / 1024.0
+    );
+}
+
+fn main() {
+    // `cargo bench` passes harness flags such as `--bench`; a name among the arguments runs only
+    // that part: `cargo bench -p uss-benches -- scale`.
+    let only: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
+    let wanted = |name: &str| only.is_empty() || only.iter().any(|o| o == name);
+    if wanted("efficiency") {
+        efficiency();
+    }
+    if wanted("turnaround") {
+        turnaround();
+    }
+    if wanted("scale") {
+        scale();
+    }
+}
