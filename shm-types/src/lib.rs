@@ -1,3 +1,61 @@
-//! The shared-memory contract between `ussd` and client processes. Its types arrive with the
-//! iceoryx2 work (see `shared/ARCHITECTURE.md`, "Data flow"); the crate exists so the workspace has
-//! its final shape.
+//! The shared-memory contract between `ussd` and its client processes (Rust, C, C++, Python):
+//! the payloads they exchange over iceoryx2 0.10, their code tables, and where to find them.
+//!
+//! | service ([`names`])          | iceoryx2 pattern          | written by              | read by | payload |
+//! |------------------------------|---------------------------|-------------------------|---------|---------|
+//! | `uss/<bus>/drive/<addr>/out` | publish-subscribe         | exactly one controller  | ussd    | [`PzdOutput`] |
+//! | `uss/<bus>/drive/<addr>/in`  | blackboard, key 0         | ussd                    | anyone  | [`PzdInput`] |
+//! | `uss/<bus>/diag`             | blackboard, key = address | ussd                    | anyone  | [`DriveDiag`] |
+//! | `uss/<bus>/status`           | blackboard, key 0         | ussd                    | anyone  | [`BusStatus`] |
+//! | `uss/<bus>/cycle`            | event                     | ussd                    | anyone  | event ids in [`names`] |
+//! | `uss/<bus>/params`           | request-response          | clients ask, ussd answers | -     | [`ParamRequest`] / [`ParamResponse`] |
+//!
+//! ussd creates every service; clients open them. The `out` service admits one publisher, so
+//! "one controlling writer per drive" is a property of the service, not a convention: a second
+//! controller is refused with `PublisherCreateError::ExceedsMaxSupportedPublishers`, and a
+//! controller that died is replaced as soon as its dead node is cleaned up (which opening the
+//! service does). [`names`] says why `out` is not a blackboard.
+//!
+//! Rules every payload type follows, so C, C++ and Python can mirror it:
+//! - `#[repr(C)]`, fixed-width fields only (no `bool`, no `usize`), no implicit padding: spare
+//!   bytes are explicit `reserved` fields and are written as zero. [`layout::LAYOUTS`] pins every
+//!   size, alignment and offset.
+//! - The first field is `version`, written as [`LAYOUT_VERSION`]; readers check it.
+//! - An explicit iceoryx2 type name ending in `V<LAYOUT_VERSION>` (e.g. `UssPzdOutputV1`):
+//!   iceoryx2 compares type name, size and alignment when a port is opened, so a client built
+//!   against another layout fails at open time instead of reading garbage.
+//! - Enumerated `u8` fields stay plain `u8` in the payload (a foreign writer may put any byte
+//!   there); the code tables are `#[repr(u8)]` enums with `TryFrom<u8>`.
+//! - Time stamps (`*_ns`) are `CLOCK_MONOTONIC` nanoseconds unless a field says otherwise.
+
+mod codes;
+pub mod diag;
+pub mod layout;
+pub mod names;
+pub mod params;
+pub mod pzd;
+
+pub use codes::{ContractError, UnknownCode};
+pub use diag::{BusStatus, DriveDiag, LastFailure, RtMode};
+pub use names::{BlackboardKey, BusName, DriveAddress, NameError};
+pub use params::{
+    MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, Refusal,
+    RequestError, Storage, TaskCode,
+};
+pub use pzd::{EXTRA_PZD_WORDS, MAX_PZD_WORDS, PzdInput, PzdOutput};
+
+/// The layout version of every payload type in this crate. Bump it with any change to a type's
+/// fields, sizes or code tables, together with the type names' `V<n>` suffix.
+pub const LAYOUT_VERSION: u32 = 1;
+
+/// Checks a payload's `version` field.
+pub const fn check_version(found: u32) -> Result<(), ContractError> {
+    if found == LAYOUT_VERSION {
+        Ok(())
+    } else {
+        Err(ContractError::Version {
+            expected: LAYOUT_VERSION,
+            found,
+        })
+    }
+}

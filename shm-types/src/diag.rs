@@ -1,0 +1,270 @@
+//! Diagnostics: one [`DriveDiag`] per drive on `uss/<bus>/diag` (keyed by address) and one
+//! [`BusStatus`] on `uss/<bus>/status`, republished by ussd's housekeeping thread.
+
+use crate::LAYOUT_VERSION;
+use crate::codes::{UnknownCode, code_table};
+use iceoryx2::prelude::ZeroCopySend;
+
+/// `last_good_ns` of a drive that never replied.
+pub const NEVER: u64 = u64::MAX;
+
+code_table! {
+    /// Why the drive's last failed attempt failed (USS.md section 4, "Receive errors to detect
+    /// and count"); the `last_failure` byte of [`DriveDiag`].
+    pub enum LastFailure {
+        /// No attempt has failed yet.
+        None = 0 => "none",
+        /// No STX within the response delay: "slave x does not respond".
+        NoResponse = 1 => "no response",
+        /// Garbage before the start of the reply.
+        MissingStx = 2 => "missing STX",
+        /// An STX without the start pause of 2 character times.
+        StartPause = 3 => "start pause not observed",
+        BadLge = 4 => "bad LGE",
+        Bcc = 5 => "BCC error",
+        /// The reply took longer than 1.5 x (n+3) character times.
+        Residual = 6 => "residual time exceeded",
+        /// The reply's length does not fit the drive's PKW/PZD layout.
+        Length = 7 => "wrong length",
+        /// Another slave answered.
+        WrongAddress = 8 => "wrong slave answered",
+        Parity = 9 => "parity error",
+        Framing = 10 => "framing error",
+        Overrun = 11 => "overrun",
+        /// A 2-wire adapter's echo of the request did not match what was sent.
+        Echo = 12 => "echo mismatch",
+    }
+}
+
+code_table! {
+    /// The scheduling ussd's bus thread obtained; the `rt_mode` byte of [`BusStatus`].
+    pub enum RtMode {
+        /// `SCHED_FIFO` or memory locking failed (or was not asked for): the bus runs best effort.
+        BestEffort = 0 => "best effort",
+        /// `SCHED_FIFO` obtained.
+        Realtime = 1 => "realtime",
+    }
+}
+
+/// The master's view of one drive, mirroring what the drive keeps itself (r2024..r2031,
+/// USS.md section 7) plus timeouts and retries.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
+#[type_name("UssDriveDiagV1")]
+pub struct DriveDiag {
+    /// [`LAYOUT_VERSION`].
+    pub version: u32,
+    /// Polls in a row that failed all their retries.
+    pub consecutive_failed_polls: u32,
+    /// ZSW1 of the last good reply.
+    pub last_zsw1: u16,
+    /// HIW of the last good reply.
+    pub last_hiw: u16,
+    /// The drive address, 0..=31 (also the blackboard key).
+    pub address: u8,
+    /// 1 while the drive answers.
+    pub online: u8,
+    /// 1 after a poll failed all retries ("slave x does not respond"), until the next good
+    /// reply (USS.md section 4).
+    pub no_reply: u8,
+    /// 1 while the drive gets its safe command because its controller is stale or absent.
+    pub watchdog_tripped: u8,
+    /// A [`LastFailure`] code.
+    pub last_failure: u8,
+    pub reserved: [u8; 7],
+    /// When `online` last changed, `CLOCK_MONOTONIC` ns.
+    pub since_ns: u64,
+    /// When the last good reply arrived, `CLOCK_MONOTONIC` ns; [`NEVER`] before the first.
+    pub last_good_ns: u64,
+    /// Telegrams sent to the drive (retries included).
+    pub requests: u64,
+    /// Valid replies.
+    pub good: u64,
+    /// Failed attempts (every reply or silence that failed).
+    pub rejected: u64,
+    pub timeouts: u64,
+    /// Attempts repeated after a failure.
+    pub retries: u64,
+    /// Polls that failed all their retries.
+    pub failed_polls: u64,
+    pub missing_stx: u64,
+    pub start_pause: u64,
+    pub bad_lge: u64,
+    pub bcc: u64,
+    pub residual: u64,
+    pub length: u64,
+    pub wrong_address: u64,
+    pub parity: u64,
+    pub framing: u64,
+    pub overrun: u64,
+    pub echo: u64,
+    /// Replies "not yet" (AK 0) while a parameter task was pending (USS.md section 6).
+    pub pkw_busy: u64,
+    /// Parameter jobs finished.
+    pub jobs_done: u64,
+    /// Times the drive got its safe command because its controller stopped refreshing.
+    pub watchdog_trips: u64,
+}
+
+/// The state of the bus as a whole.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
+#[type_name("UssBusStatusV1")]
+pub struct BusStatus {
+    /// [`LAYOUT_VERSION`].
+    pub version: u32,
+    /// The CPU the bus thread is pinned to; -1 = not pinned.
+    pub rt_cpu: i32,
+    /// An [`RtMode`] code.
+    pub rt_mode: u8,
+    /// `SCHED_FIFO` priority of the bus thread; 0 = none.
+    pub rt_priority: u8,
+    /// Drives on the bus.
+    pub drive_count: u8,
+    /// 1 while the engine runs; 0 once it stopped.
+    pub running: u8,
+    /// Wire-time floor over achieved exchange time (USS.md section 4) x 1e6; 0 = not measured.
+    pub efficiency_ppm: u32,
+    /// Exchanges attempted (retries included).
+    pub exchanges: u64,
+    /// Good exchanges.
+    pub good: u64,
+    /// Completed passes through the circulating list (USS.md section 5).
+    pub cycles: u64,
+    /// Cycles that took longer than the configured fixed cycle time.
+    pub cycle_overruns: u64,
+    /// Events the housekeeping thread could not take in time.
+    pub events_dropped: u64,
+    /// Parameter results that found their channel full (stays 0; counted, not assumed).
+    pub results_lost: u64,
+    pub jobs_accepted: u64,
+    pub jobs_finished: u64,
+    /// Mean time from line free to reply complete over good first attempts, ns; 0 = none yet.
+    pub mean_exchange_ns: u64,
+    /// The engine's bus clock at this snapshot, ns since the engine started.
+    pub bus_clock_ns: u64,
+    /// `CLOCK_MONOTONIC` ns at the same instant as `bus_clock_ns`.
+    pub timestamp_ns: u64,
+}
+
+impl DriveDiag {
+    /// A drive nothing is known about yet.
+    pub const fn new(address: u8) -> Self {
+        Self {
+            version: LAYOUT_VERSION,
+            consecutive_failed_polls: 0,
+            last_zsw1: 0,
+            last_hiw: 0,
+            address,
+            online: 0,
+            no_reply: 0,
+            watchdog_tripped: 0,
+            last_failure: LastFailure::None.code(),
+            reserved: [0; 7],
+            since_ns: 0,
+            last_good_ns: NEVER,
+            requests: 0,
+            good: 0,
+            rejected: 0,
+            timeouts: 0,
+            retries: 0,
+            failed_polls: 0,
+            missing_stx: 0,
+            start_pause: 0,
+            bad_lge: 0,
+            bcc: 0,
+            residual: 0,
+            length: 0,
+            wrong_address: 0,
+            parity: 0,
+            framing: 0,
+            overrun: 0,
+            echo: 0,
+            pkw_busy: 0,
+            jobs_done: 0,
+            watchdog_trips: 0,
+        }
+    }
+
+    pub fn last_failure(&self) -> Result<LastFailure, UnknownCode> {
+        LastFailure::try_from(self.last_failure)
+    }
+}
+
+impl BusStatus {
+    /// A bus that has not started.
+    pub const EMPTY: Self = Self {
+        version: LAYOUT_VERSION,
+        rt_cpu: -1,
+        rt_mode: RtMode::BestEffort.code(),
+        rt_priority: 0,
+        drive_count: 0,
+        running: 0,
+        efficiency_ppm: 0,
+        exchanges: 0,
+        good: 0,
+        cycles: 0,
+        cycle_overruns: 0,
+        events_dropped: 0,
+        results_lost: 0,
+        jobs_accepted: 0,
+        jobs_finished: 0,
+        mean_exchange_ns: 0,
+        bus_clock_ns: 0,
+        timestamp_ns: 0,
+    };
+
+    pub fn rt_mode(&self) -> Result<RtMode, UnknownCode> {
+        RtMode::try_from(self.rt_mode)
+    }
+
+    /// Wire-time floor over achieved exchange time, if measured.
+    pub fn efficiency(&self) -> Option<f64> {
+        (self.efficiency_ppm > 0).then(|| f64::from(self.efficiency_ppm) / 1e6)
+    }
+}
+
+impl Default for BusStatus {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn failure_codes_round_trip_and_unknown_codes_are_refused() {
+        for f in LastFailure::ALL {
+            assert_eq!(LastFailure::try_from(f.code()), Ok(*f));
+        }
+        assert_eq!(LastFailure::ALL.len(), 13);
+        assert_eq!(
+            LastFailure::try_from(13),
+            Err(UnknownCode {
+                table: "LastFailure",
+                code: 13
+            })
+        );
+        assert_eq!(LastFailure::NoResponse.to_string(), "no response");
+    }
+
+    #[test]
+    fn a_new_drive_has_no_failure_and_never_replied() {
+        let d = DriveDiag::new(5);
+        assert_eq!(d.last_failure(), Ok(LastFailure::None));
+        assert_eq!((d.address, d.last_good_ns), (5, NEVER));
+    }
+
+    #[test]
+    fn status_reports_efficiency_only_when_measured() {
+        let mut s = BusStatus::EMPTY;
+        assert_eq!(s.efficiency(), None);
+        assert_eq!((s.rt_mode(), s.rt_cpu), (Ok(RtMode::BestEffort), -1));
+        s.efficiency_ppm = 850_000;
+        assert_eq!(s.efficiency(), Some(0.85));
+        s.rt_mode = 2;
+        assert!(s.rt_mode().is_err());
+    }
+}

@@ -1,0 +1,241 @@
+//! Where everything is: service names, blackboard keys, event ids and service attributes, all
+//! derived from the bus name. This module is the only place that spells them; other languages
+//! follow the table below.
+//!
+//! | service name                 | pattern          | keys / ids                                   |
+//! |------------------------------|------------------|----------------------------------------------|
+//! | `uss/<bus>/drive/<addr>/out` | publish-subscribe| `PzdOutput`; 1 publisher, subscriber buffer 1, history 1, safe overflow |
+//! | `uss/<bus>/drive/<addr>/in`  | blackboard       | [`BlackboardKey::IMAGE`] -> `PzdInput`        |
+//! | `uss/<bus>/diag`             | blackboard       | [`BlackboardKey::drive`] (address) -> `DriveDiag` |
+//! | `uss/<bus>/status`           | blackboard       | [`BlackboardKey::IMAGE`] -> `BusStatus`       |
+//! | `uss/<bus>/cycle`            | event            | [`exchange_completed`], [`CYCLE_COMPLETED`], [`STATUS_PUBLISHED`], [`USSD_GONE`] |
+//! | `uss/<bus>/params`           | request-response | `ParamRequest` -> `ParamResponse`             |
+//!
+//! `<bus>` is 1 to 32 characters of `A-Z a-z 0-9 _ -`; `<addr>` is the drive address in decimal
+//! without leading zeros (0..=31, USS.md section 1). Every service carries the attribute
+//! [`LAYOUT_VERSION_ATTRIBUTE`] = `LAYOUT_VERSION` in decimal.
+//!
+//! Why `out` is publish-subscribe and not a blackboard (measured with iceoryx2 0.10 in
+//! `tests/patterns.rs`): both enforce one writer with a clear error, but a blackboard entry
+//! whose writer was killed stays locked for every later writer until the service is recreated
+//! (eclipse-iceoryx/iceoryx2#2008), so a controller crash would lock the drive's output. A
+//! single publisher is cleaned up with its dead node and the next controller takes over. ussd's
+//! subscriber `receive` does not allocate; the controller's `send_copy` allocates once per
+//! sample (in the controller's process).
+
+use core::fmt;
+use iceoryx2::prelude::{NodeName, ServiceName, ZeroCopySend};
+use thiserror::Error;
+
+/// Longest bus name.
+pub const MAX_BUS_NAME_LEN: usize = 32;
+/// Highest USS slave address (USS.md section 1).
+pub const MAX_ADDRESS: u8 = 31;
+
+/// Service attribute every ussd service defines: the payload layout version, in decimal.
+pub const LAYOUT_VERSION_ATTRIBUTE: &str = "uss.layout_version";
+
+/// A name that cannot be used.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, Error)]
+pub enum NameError {
+    #[error("bus name {0:?} must be 1 to 32 characters of A-Z, a-z, 0-9, '_' or '-'")]
+    BusName(String),
+    #[error("drive address {0} is out of range 0..=31 (USS.md section 1)")]
+    Address(u8),
+}
+
+/// A validated bus name: 1 to 32 characters of `[A-Za-z0-9_-]`.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct BusName(String);
+
+impl BusName {
+    pub fn new(name: &str) -> Result<Self, NameError> {
+        let valid = (1..=MAX_BUS_NAME_LEN).contains(&name.len())
+            && name
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-');
+        if valid {
+            Ok(Self(name.to_owned()))
+        } else {
+            Err(NameError::BusName(name.to_owned()))
+        }
+    }
+
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+}
+
+impl fmt::Display for BusName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+/// A validated drive address, 0..=31 (USS.md section 1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct DriveAddress(u8);
+
+impl DriveAddress {
+    pub const fn new(address: u8) -> Result<Self, NameError> {
+        if address <= MAX_ADDRESS {
+            Ok(Self(address))
+        } else {
+            Err(NameError::Address(address))
+        }
+    }
+
+    pub const fn get(self) -> u8 {
+        self.0
+    }
+}
+
+impl fmt::Display for DriveAddress {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// The key type of every ussd blackboard. Keys are compared byte for byte; C, C++ and Python
+/// declare it as a struct with one `uint32_t value` and the type name `UssBlackboardKey`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, ZeroCopySend)]
+#[type_name("UssBlackboardKey")]
+pub struct BlackboardKey {
+    pub value: u32,
+}
+
+impl BlackboardKey {
+    /// The single entry of the `in` and `status` blackboards.
+    pub const IMAGE: Self = Self { value: 0 };
+
+    /// A drive's entry in the `diag` blackboard: its address.
+    pub const fn drive(address: DriveAddress) -> Self {
+        Self {
+            value: address.get() as u32,
+        }
+    }
+}
+
+/// Publishers of an `out` service: exactly one controller per drive. A second publisher is
+/// refused with `PublisherCreateError::ExceedsMaxSupportedPublishers`.
+pub const OUT_MAX_PUBLISHERS: usize = 1;
+/// Subscriber buffer and history of an `out` service: with safe overflow, ussd receives the
+/// latest sample only, and a restarted ussd gets the last one sent.
+pub const OUT_LATEST_ONLY: usize = 1;
+
+/// Highest event id on `uss/<bus>/cycle`; ussd creates the service with it.
+pub const EVENT_ID_MAX: usize = 63;
+/// A pass through the circulating list completed (USS.md section 5).
+pub const CYCLE_COMPLETED: usize = 32;
+/// `status` and `diag` were republished.
+pub const STATUS_PUBLISHED: usize = 33;
+/// ussd's notifier died without saying goodbye (the service's `notifier_dead_event`, emitted
+/// by whoever cleans up the dead ussd node). Clients then drop and reopen every ussd service:
+/// a restarted ussd cannot update a blackboard entry its dead predecessor held while the
+/// service lives on (iceoryx2 0.10, eclipse-iceoryx/iceoryx2#2008).
+pub const USSD_GONE: usize = 34;
+
+// Event ids never collide: drive addresses first, then the bus-wide events, all within the
+// service's range.
+const _: () = assert!(
+    (MAX_ADDRESS as usize) < CYCLE_COMPLETED
+        && CYCLE_COMPLETED < STATUS_PUBLISHED
+        && STATUS_PUBLISHED < USSD_GONE
+        && USSD_GONE <= EVENT_ID_MAX
+);
+
+/// An exchange with the drive completed and its `in` image was updated: the event id is the
+/// drive address (0..=31).
+pub const fn exchange_completed(address: DriveAddress) -> usize {
+    address.get() as usize
+}
+
+/// The controller's output image of one drive.
+pub fn drive_out(bus: &BusName, address: DriveAddress) -> ServiceName {
+    service(&format!("uss/{bus}/drive/{address}/out"))
+}
+
+/// The drive's input image, written by ussd after every good reply.
+pub fn drive_in(bus: &BusName, address: DriveAddress) -> ServiceName {
+    service(&format!("uss/{bus}/drive/{address}/in"))
+}
+
+/// Diagnostics of every drive of the bus, keyed by address.
+pub fn diag(bus: &BusName) -> ServiceName {
+    service(&format!("uss/{bus}/diag"))
+}
+
+/// The bus status.
+pub fn status(bus: &BusName) -> ServiceName {
+    service(&format!("uss/{bus}/status"))
+}
+
+/// Exchange and cycle events.
+pub fn cycle(bus: &BusName) -> ServiceName {
+    service(&format!("uss/{bus}/cycle"))
+}
+
+/// Parameter requests.
+pub fn params(bus: &BusName) -> ServiceName {
+    service(&format!("uss/{bus}/params"))
+}
+
+/// The name of ussd's node for a bus, as `Node::list` shows it.
+pub fn ussd_node(bus: &BusName) -> NodeName {
+    // At most 5 + 32 characters of [A-Za-z0-9_-]: within NodeName's 128-character limit.
+    NodeName::new(&format!("ussd-{bus}")).expect("bus names make valid node names")
+}
+
+fn service(name: &str) -> ServiceName {
+    // Built from a validated bus name (at most 32 of [A-Za-z0-9_-]) and an address of at most
+    // two digits: never empty, never "iox2://"-prefixed, far below the 255-character limit.
+    ServiceName::new(name).expect("bus names make valid service names")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bus(name: &str) -> BusName {
+        BusName::new(name).unwrap()
+    }
+
+    #[test]
+    fn service_names_follow_the_table() {
+        let b = bus("line-1_A");
+        let a = DriveAddress::new(7).unwrap();
+        assert_eq!(drive_out(&b, a).as_str(), "uss/line-1_A/drive/7/out");
+        assert_eq!(drive_in(&b, a).as_str(), "uss/line-1_A/drive/7/in");
+        assert_eq!(diag(&b).as_str(), "uss/line-1_A/diag");
+        assert_eq!(status(&b).as_str(), "uss/line-1_A/status");
+        assert_eq!(cycle(&b).as_str(), "uss/line-1_A/cycle");
+        assert_eq!(params(&b).as_str(), "uss/line-1_A/params");
+        assert_eq!(ussd_node(&b).as_str(), "ussd-line-1_A");
+    }
+
+    #[test]
+    fn bus_names_outside_the_charset_or_length_are_refused() {
+        for bad in ["", "a/b", "a b", "bus.1", "ü", &"x".repeat(33)] {
+            assert_eq!(
+                BusName::new(bad),
+                Err(NameError::BusName(bad.to_owned())),
+                "{bad:?}"
+            );
+        }
+        assert_eq!(bus(&"x".repeat(32)).as_str().len(), 32);
+    }
+
+    #[test]
+    fn addresses_above_31_are_refused() {
+        assert_eq!(DriveAddress::new(31).map(DriveAddress::get), Ok(31));
+        assert_eq!(DriveAddress::new(32), Err(NameError::Address(32)));
+    }
+
+    #[test]
+    fn diag_keys_are_the_addresses() {
+        let a = DriveAddress::new(12).unwrap();
+        assert_eq!(BlackboardKey::drive(a), BlackboardKey { value: 12 });
+        assert_eq!(BlackboardKey::IMAGE.value, 0);
+    }
+}

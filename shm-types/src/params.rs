@@ -1,0 +1,518 @@
+//! Parameter access over `uss/<bus>/params` (iceoryx2 request-response): a PROFIdrive-style
+//! multi-parameter request of up to 39 items for one drive, answered by exactly one response
+//! with one result per item. ussd runs each item as one PKW task (USS.md section 6): one task
+//! per drive on the wire at a time, FIFO, repeated until its matching reply.
+
+use crate::codes::{UnknownCode, code_table};
+use crate::names::DriveAddress;
+use crate::{LAYOUT_VERSION, check_version};
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Most items in one request (the PROFIdrive parameter-access limit for multi-parameter
+/// requests).
+pub const MAX_PARAM_ITEMS: usize = 39;
+/// Highest subindex (USS.md section 6: the IND low byte, 0..254).
+pub const MAX_SUBINDEX: u16 = 254;
+/// `error_item` of a response whose error concerns no single item.
+pub const NO_ITEM: u8 = u8::MAX;
+
+code_table! {
+    /// What one item asks; the `task` byte of [`ParamItem`]. The AK sent depends on `storage`
+    /// (USS.md section 6, task IDs). 0 is not a task, so a zeroed item is refused.
+    pub enum TaskCode {
+        /// AK 1: read a value (word or dword reply).
+        Read = 1 => "read",
+        /// AK 2 (RAM) / 14 (RAM + EEPROM): change a word; `value` <= 0xFFFF.
+        WriteWord = 2 => "write word",
+        /// AK 3 (RAM) / 13 (RAM + EEPROM): change a double word.
+        WriteDword = 3 => "write dword",
+        /// AK 6: read the array element `index`.
+        ReadArray = 4 => "read array element",
+        /// AK 7 (RAM) / 12 (RAM + EEPROM): change array word `index`; `value` <= 0xFFFF.
+        WriteArrayWord = 5 => "write array word",
+        /// AK 8 (RAM) / 11 (RAM + EEPROM): change array double word `index`.
+        WriteArrayDword = 6 => "write array dword",
+        /// AK 9: read the number of array elements.
+        ReadElementCount = 7 => "read element count",
+        /// AK 4: read descriptive element `index`.
+        ReadDescription = 8 => "read description",
+    }
+}
+
+code_table! {
+    /// Where a change is stored; the `storage` byte of [`ParamItem`] (USS.md section 6).
+    pub enum Storage {
+        /// RAM only: lost at the next power cycle.
+        Ram = 0 => "RAM",
+        /// RAM and EEPROM: survives a power cycle; the drive takes longer (busy replies).
+        RamAndEeprom = 1 => "RAM + EEPROM",
+    }
+}
+
+code_table! {
+    /// Why ussd refused a request or an item before it reached the bus; the `error` byte of
+    /// [`ParamResponse`] (whole request) and the `refusal` byte of [`ParamResult`] (one item).
+    pub enum RequestError {
+        Ok = 0 => "ok",
+        /// No drive with this address on this bus.
+        UnknownDrive = 1 => "unknown drive",
+        /// `count` is outside 1..=39.
+        BadCount = 2 => "bad item count",
+        /// The PNU cannot be addressed. Every u16 PNU fits the page scheme of USS.md section 6,
+        /// so ussd does not return this today; it is reserved for drive-family limits.
+        PnuOutOfRange = 3 => "PNU out of range",
+        /// The value does not fit the task: a word write with `value` > 0xFFFF, or a read with
+        /// a non-zero `value`.
+        ValueType = 4 => "value does not match the task",
+        /// Parameter writes are disabled for this drive (`params_writable = false`).
+        WritesDisabled = 5 => "writes disabled",
+        /// Too many parameter jobs outstanding; retry after results arrived.
+        Busy = 6 => "engine busy",
+        /// ussd is shutting down.
+        Shutdown = 7 => "shut down",
+        /// The request's `version` is not [`LAYOUT_VERSION`].
+        Version = 8 => "layout version mismatch",
+        /// `task` is not a [`TaskCode`].
+        BadTask = 9 => "unknown task code",
+        /// `storage` is not a [`Storage`] code.
+        BadStorage = 10 => "unknown storage code",
+        /// `index` is above 254 (USS.md section 6).
+        BadSubindex = 11 => "subindex out of range",
+        /// The drive has no parameter channel (PKW length 0, USS.md section 3).
+        NoParameterChannel = 12 => "no parameter channel",
+        /// A double word does not fit the drive's 3-word parameter channel (USS.md section 6).
+        DwordOverThreeWords = 13 => "dword over a 3-word channel",
+    }
+}
+
+code_table! {
+    /// How one item ended; the `outcome` byte of [`ParamResult`]. Every item of an accepted
+    /// request ends in exactly one of these.
+    pub enum Outcome {
+        /// Not run: the request was refused as a whole, or the slot is beyond `count`.
+        NotRun = 0 => "not run",
+        /// The value read or, for a change, the value the drive now holds.
+        Value = 1 => "value",
+        /// The number of array elements (task 9, reply 6).
+        ElementCount = 2 => "element count",
+        /// A descriptive element (task 4, reply 3).
+        Description = 3 => "description",
+        /// Reply 7: the drive refused the task; its error number is in `drive_error`.
+        DriveError = 4 => "drive error",
+        /// Reply 8: no PKW change rights.
+        NoChangeRights = 5 => "no change rights",
+        /// No matching reply within the parameter timeout.
+        Timeout = 6 => "timeout",
+        /// The drive was or went offline before the item completed.
+        DriveOffline = 7 => "drive offline",
+        /// The drive's mailbox was full.
+        MailboxFull = 8 => "mailbox full",
+        /// ussd stopped before the item completed.
+        Shutdown = 9 => "shut down",
+        /// ussd refused the item before the bus; the reason is in `refusal`.
+        Refused = 10 => "refused",
+    }
+}
+
+impl TaskCode {
+    pub const fn is_write(self) -> bool {
+        matches!(
+            self,
+            Self::WriteWord | Self::WriteDword | Self::WriteArrayWord | Self::WriteArrayDword
+        )
+    }
+
+    /// Whether the task writes a 16-bit value.
+    pub const fn writes_word(self) -> bool {
+        matches!(self, Self::WriteWord | Self::WriteArrayWord)
+    }
+}
+
+/// One parameter access.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
+#[type_name("UssParamItemV1")]
+pub struct ParamItem {
+    /// A [`TaskCode`].
+    pub task: u8,
+    /// A [`Storage`] code (used by writes; 0 for reads).
+    pub storage: u8,
+    /// Parameter number 0..=65535 (ussd applies the IND page scheme, USS.md section 6).
+    pub pnu: u16,
+    /// Subindex 0..=254: array index or descriptive element number; 0 otherwise.
+    pub index: u16,
+    pub reserved: u16,
+    /// The value to write (a float as its IEEE-754 bits); 0 for reads.
+    pub value: u32,
+}
+
+/// A request for up to 39 parameter accesses on one drive.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
+#[type_name("UssParamRequestV1")]
+pub struct ParamRequest {
+    /// [`LAYOUT_VERSION`].
+    pub version: u32,
+    /// Drive address, 0..=31.
+    pub address: u8,
+    /// Items in use, 1..=39.
+    pub count: u8,
+    pub reserved: u16,
+    pub items: [ParamItem; MAX_PARAM_ITEMS],
+}
+
+/// The result of one item.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
+#[type_name("UssParamResultV1")]
+pub struct ParamResult {
+    /// An [`Outcome`] code.
+    pub outcome: u8,
+    /// 1 when `value` is a double word (reply 2 or 5), 0 for a word.
+    pub value_is_dword: u8,
+    /// With [`Outcome::DriveError`]: the drive's error number with reply 7 (USS.md section 6,
+    /// e.g. 0 illegal PNU, 2 limit exceeded); 0 otherwise.
+    pub drive_error: u16,
+    /// The value (value, element count or description outcomes).
+    pub value: u32,
+    /// Telegrams that carried the task (more than 1 with busy replies or retries).
+    pub telegrams: u32,
+    /// With [`Outcome::Refused`]: a [`RequestError`] code; 0 otherwise.
+    pub refusal: u8,
+    pub reserved: [u8; 3],
+    /// From the first telegram carrying the task to its result, ns (0 if it never reached
+    /// the wire).
+    pub on_wire_ns: u64,
+}
+
+/// The one response to a [`ParamRequest`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
+#[type_name("UssParamResponseV1")]
+pub struct ParamResponse {
+    /// [`LAYOUT_VERSION`].
+    pub version: u32,
+    /// A [`RequestError`] code: 0 when the items ran (each has its own outcome); otherwise no
+    /// item ran.
+    pub error: u8,
+    /// The item the error is about, or [`NO_ITEM`].
+    pub error_item: u8,
+    /// The request's drive address.
+    pub address: u8,
+    /// Results in use: the request's count, 0 when refused as a whole.
+    pub count: u8,
+    pub results: [ParamResult; MAX_PARAM_ITEMS],
+}
+
+/// Why a whole request was refused, and which item it is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Refusal {
+    pub error: RequestError,
+    pub item: Option<u8>,
+}
+
+impl Refusal {
+    const fn request(error: RequestError) -> Self {
+        Self { error, item: None }
+    }
+
+    const fn item(error: RequestError, index: usize) -> Self {
+        Self {
+            error,
+            item: Some(index as u8),
+        }
+    }
+}
+
+impl ParamItem {
+    /// An unused slot (task 0, refused if counted).
+    pub const EMPTY: Self = Self {
+        task: 0,
+        storage: 0,
+        pnu: 0,
+        index: 0,
+        reserved: 0,
+        value: 0,
+    };
+
+    pub const fn new(task: TaskCode, pnu: u16, index: u16, value: u32, storage: Storage) -> Self {
+        Self {
+            task: task.code(),
+            storage: storage.code(),
+            pnu,
+            index,
+            reserved: 0,
+            value,
+        }
+    }
+
+    /// Reads parameter `pnu`.
+    pub const fn read(pnu: u16) -> Self {
+        Self::new(TaskCode::Read, pnu, 0, 0, Storage::Ram)
+    }
+
+    pub fn task(&self) -> Result<TaskCode, UnknownCode> {
+        TaskCode::try_from(self.task)
+    }
+
+    pub fn storage(&self) -> Result<Storage, UnknownCode> {
+        Storage::try_from(self.storage)
+    }
+
+    /// Checks the item on its own (task, storage, subindex, value width).
+    pub fn check(&self) -> Result<TaskCode, RequestError> {
+        let task = self.task().map_err(|_| RequestError::BadTask)?;
+        self.storage().map_err(|_| RequestError::BadStorage)?;
+        if self.index > MAX_SUBINDEX {
+            return Err(RequestError::BadSubindex);
+        }
+        let value_fits = if task.writes_word() {
+            u16::try_from(self.value).is_ok()
+        } else {
+            task.is_write() || self.value == 0
+        };
+        if value_fits {
+            Ok(task)
+        } else {
+            Err(RequestError::ValueType)
+        }
+    }
+}
+
+impl ParamRequest {
+    /// A request for `items` on drive `address`.
+    pub fn new(address: DriveAddress, items: &[ParamItem]) -> Result<Self, Refusal> {
+        if items.is_empty() || items.len() > MAX_PARAM_ITEMS {
+            return Err(Refusal::request(RequestError::BadCount));
+        }
+        let mut all = [ParamItem::EMPTY; MAX_PARAM_ITEMS];
+        all[..items.len()].copy_from_slice(items);
+        Ok(Self {
+            version: LAYOUT_VERSION,
+            address: address.get(),
+            count: items.len() as u8,
+            reserved: 0,
+            items: all,
+        })
+    }
+
+    /// Checks everything ussd can check without the bus configuration (version, address
+    /// range, count, every item) and returns the items in use.
+    pub fn validate(&self) -> Result<(DriveAddress, &[ParamItem]), Refusal> {
+        check_version(self.version).map_err(|_| Refusal::request(RequestError::Version))?;
+        let address = DriveAddress::new(self.address)
+            .map_err(|_| Refusal::request(RequestError::UnknownDrive))?;
+        let count = usize::from(self.count);
+        if !(1..=MAX_PARAM_ITEMS).contains(&count) {
+            return Err(Refusal::request(RequestError::BadCount));
+        }
+        let items = &self.items[..count];
+        for (i, item) in items.iter().enumerate() {
+            item.check().map_err(|e| Refusal::item(e, i))?;
+        }
+        Ok((address, items))
+    }
+}
+
+impl ParamResult {
+    /// A slot that did not run.
+    pub const NOT_RUN: Self = Self {
+        outcome: Outcome::NotRun.code(),
+        value_is_dword: 0,
+        drive_error: 0,
+        value: 0,
+        telegrams: 0,
+        refusal: 0,
+        reserved: [0; 3],
+        on_wire_ns: 0,
+    };
+
+    pub fn outcome(&self) -> Result<Outcome, UnknownCode> {
+        Outcome::try_from(self.outcome)
+    }
+
+    /// An item refused before the bus.
+    pub const fn refused(error: RequestError) -> Self {
+        Self {
+            outcome: Outcome::Refused.code(),
+            refusal: error.code(),
+            ..Self::NOT_RUN
+        }
+    }
+}
+
+impl ParamResponse {
+    /// A response with no results yet (`count` 0, error 0) for drive `address`.
+    pub const fn new(address: u8) -> Self {
+        Self {
+            version: LAYOUT_VERSION,
+            error: RequestError::Ok.code(),
+            error_item: NO_ITEM,
+            address,
+            count: 0,
+            results: [ParamResult::NOT_RUN; MAX_PARAM_ITEMS],
+        }
+    }
+
+    /// The response to a request refused as a whole.
+    pub const fn refused(address: u8, refusal: Refusal) -> Self {
+        let mut r = Self::new(address);
+        r.error = refusal.error.code();
+        r.error_item = match refusal.item {
+            Some(i) => i,
+            None => NO_ITEM,
+        };
+        r
+    }
+
+    pub fn error(&self) -> Result<RequestError, UnknownCode> {
+        RequestError::try_from(self.error)
+    }
+
+    /// The results in use (at most 39, whatever `count` says).
+    pub fn results(&self) -> &[ParamResult] {
+        &self.results[..usize::from(self.count).min(MAX_PARAM_ITEMS)]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn drive(a: u8) -> DriveAddress {
+        DriveAddress::new(a).unwrap()
+    }
+
+    #[test]
+    fn a_valid_request_yields_its_items() {
+        let items = [
+            ParamItem::read(1082),
+            ParamItem::new(TaskCode::WriteWord, 2000, 0, 0xFFFF, Storage::RamAndEeprom),
+            ParamItem::new(TaskCode::ReadArray, 2010, 254, 0, Storage::Ram),
+            ParamItem::new(TaskCode::WriteDword, 1082, 0, 0x4248_0000, Storage::Ram),
+        ];
+        let req = ParamRequest::new(drive(3), &items).unwrap();
+        let (address, got) = req.validate().unwrap();
+        assert_eq!((address.get(), got), (3, &items[..]));
+        assert_eq!(got[1].task(), Ok(TaskCode::WriteWord));
+        assert_eq!(got[1].storage(), Ok(Storage::RamAndEeprom));
+    }
+
+    #[test]
+    fn counts_outside_1_to_39_are_refused() {
+        assert_eq!(
+            ParamRequest::new(drive(1), &[]),
+            Err(Refusal::request(RequestError::BadCount))
+        );
+        assert_eq!(
+            ParamRequest::new(drive(1), &[ParamItem::read(1); 40]),
+            Err(Refusal::request(RequestError::BadCount))
+        );
+        let mut req = ParamRequest::new(drive(1), &[ParamItem::read(1); 39]).unwrap();
+        assert!(req.validate().is_ok());
+        req.count = 40;
+        assert_eq!(
+            req.validate(),
+            Err(Refusal::request(RequestError::BadCount))
+        );
+    }
+
+    #[test]
+    fn bad_items_are_refused_naming_the_item() {
+        let cases = [
+            (ParamItem::EMPTY, RequestError::BadTask),
+            (
+                ParamItem {
+                    task: 9,
+                    ..ParamItem::EMPTY
+                },
+                RequestError::BadTask,
+            ),
+            (
+                ParamItem {
+                    storage: 2,
+                    ..ParamItem::read(1)
+                },
+                RequestError::BadStorage,
+            ),
+            (
+                ParamItem::new(TaskCode::ReadArray, 1, 255, 0, Storage::Ram),
+                RequestError::BadSubindex,
+            ),
+            (
+                ParamItem::new(TaskCode::WriteArrayWord, 1, 0, 0x1_0000, Storage::Ram),
+                RequestError::ValueType,
+            ),
+            (
+                ParamItem {
+                    value: 1,
+                    ..ParamItem::read(1)
+                },
+                RequestError::ValueType,
+            ),
+        ];
+        for (bad, error) in cases {
+            let req = ParamRequest::new(drive(1), &[ParamItem::read(1), bad]).unwrap();
+            assert_eq!(
+                req.validate(),
+                Err(Refusal {
+                    error,
+                    item: Some(1)
+                }),
+                "{bad:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn foreign_version_and_address_are_refused() {
+        let mut req = ParamRequest::new(drive(1), &[ParamItem::read(1)]).unwrap();
+        req.address = 32;
+        assert_eq!(
+            req.validate(),
+            Err(Refusal::request(RequestError::UnknownDrive))
+        );
+        req.version = 0;
+        assert_eq!(req.validate(), Err(Refusal::request(RequestError::Version)));
+    }
+
+    #[test]
+    fn refused_response_has_no_results_and_names_the_item() {
+        let r = ParamResponse::refused(4, Refusal::item(RequestError::BadSubindex, 2));
+        assert_eq!(r.error(), Ok(RequestError::BadSubindex));
+        assert_eq!((r.error_item, r.address, r.results().len()), (2, 4, 0));
+        let r = ParamResponse::refused(4, Refusal::request(RequestError::Busy));
+        assert_eq!(r.error_item, NO_ITEM);
+    }
+
+    #[test]
+    fn results_are_clamped_to_39_and_refusals_carry_their_reason() {
+        let mut r = ParamResponse::new(1);
+        r.count = 200;
+        assert_eq!(r.results().len(), MAX_PARAM_ITEMS);
+        let x = ParamResult::refused(RequestError::WritesDisabled);
+        assert_eq!(x.outcome(), Ok(Outcome::Refused));
+        assert_eq!(
+            RequestError::try_from(x.refusal),
+            Ok(RequestError::WritesDisabled)
+        );
+    }
+
+    #[test]
+    fn code_tables_are_dense_from_their_first_code() {
+        let dense = |codes: &[u8]| codes.windows(2).all(|w| w[1] == w[0] + 1);
+        assert!(dense(
+            &TaskCode::ALL.iter().map(|c| c.code()).collect::<Vec<_>>()
+        ));
+        assert!(dense(
+            &Outcome::ALL.iter().map(|c| c.code()).collect::<Vec<_>>()
+        ));
+        assert!(dense(
+            &RequestError::ALL
+                .iter()
+                .map(|c| c.code())
+                .collect::<Vec<_>>()
+        ));
+        assert_eq!(TaskCode::try_from(0).map_err(|e| e.table), Err("TaskCode"));
+    }
+}
