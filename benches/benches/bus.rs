@@ -166,7 +166,8 @@ fn scale() {
     for b in 0..8 {
         let _ = write!(
             toml,
-            "[[bus]]\nname = \"bus{b}\"\ndevice = \"sim\"\nbaud = 115200\n\n"
+            "[[bus]]\nname = \"scale{}b{b}\"\ndevice = \"sim\"\nbaud = 115200\n\n",
+            std::process::id()
         );
         for a in 1..=31 {
             let _ = write!(toml, "[[bus.drive]]\naddress = {a}\n\n");

@@ -340,10 +340,10 @@ impl Drive {
             self.stw1 = stw;
             self.step_state_machine();
         }
-        if self.param_u32(P1000) == SOURCE_USS {
-            if let Some(&hsw) = pzd.get(1) {
-                self.setpoint = Setpoint::from_word(hsw);
-            }
+        if self.param_u32(P1000) == SOURCE_USS
+            && let Some(&hsw) = pzd.get(1)
+        {
+            self.setpoint = Setpoint::from_word(hsw);
         }
         self.publish();
         true
@@ -519,13 +519,13 @@ impl Drive {
         } else {
             self.frequency_hz + step.copysign(delta)
         };
-        if let State::SwitchingOff(stop) = self.state {
-            if self.frequency_hz == 0.0 {
-                self.state = match stop {
-                    Stop::Off1 => State::ReadyToSwitchOn,
-                    Stop::Off3 => State::SwitchingOnInhibited,
-                };
-            }
+        if let State::SwitchingOff(stop) = self.state
+            && self.frequency_hz == 0.0
+        {
+            self.state = match stop {
+                Stop::Off1 => State::ReadyToSwitchOn,
+                Stop::Off3 => State::SwitchingOnInhibited,
+            };
         }
     }
 

@@ -87,10 +87,10 @@ fn exchanges_with_pkw_tasks_and_faults_allocate_nothing() {
             *now = end + Duration::from_millis(30);
             while let Some(rx) = wire.receive(*now) {
                 // The echo of our own request frames too; count only the drives' replies.
-                if let Some(Ok(t)) = framer.push(rx.byte, rx.at) {
-                    if t.as_bytes() != &buf[..n] {
-                        *replies += 1;
-                    }
+                if let Some(Ok(t)) = framer.push(rx.byte, rx.at)
+                    && t.as_bytes() != &buf[..n]
+                {
+                    *replies += 1;
                 }
             }
             wire.advance(*now);

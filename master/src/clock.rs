@@ -44,6 +44,11 @@ impl MonotonicClock {
         }
     }
 
+    /// The origin on `CLOCK_MONOTONIC`: add it to a time of this clock for an absolute stamp.
+    pub const fn origin(&self) -> Duration {
+        self.origin
+    }
+
     /// A clock sharing another's origin (threads of one bus agree on times).
     pub const fn with_origin_of(other: &Self) -> Self {
         Self {

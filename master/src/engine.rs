@@ -12,7 +12,7 @@
 use crate::clock::Clock;
 use crate::image::DriveImages;
 use crate::jobs::{Job, JobResult, Mailbox, Outcome};
-use crate::stats::{Failure, Stats, record};
+use crate::stats::{DriveStatus, Failure, Stats, record};
 use crate::transport::{Transport, TransportError};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
@@ -89,6 +89,28 @@ pub enum Event {
         at: Duration,
         took: Duration,
     },
+}
+
+/// Where process images leave and enter the bus thread (iceoryx2 in `ussd`, nothing in tests
+/// that use [`EngineHandle`] alone). Called in the bus thread: implementations must not
+/// allocate, block or log.
+pub trait Bridge {
+    /// Before the drive in `slot` is polled: bring its output image up to date.
+    fn before_poll(&mut self, slot: usize, images: &DriveImages);
+    /// After every poll of the drive, good or failed: publish its input image and state.
+    fn after_poll(&mut self, slot: usize, images: &DriveImages, status: &DriveStatus);
+    /// After a pass through the circulating list.
+    fn cycle_completed(&mut self);
+}
+
+/// No bridge: process images stay in this process.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoBridge;
+
+impl Bridge for NoBridge {
+    fn before_poll(&mut self, _: usize, _: &DriveImages) {}
+    fn after_poll(&mut self, _: usize, _: &DriveImages, _: &DriveStatus) {}
+    fn cycle_completed(&mut self) {}
 }
 
 /// A request the handle refuses before it reaches the bus.
@@ -253,7 +275,7 @@ enum Attempt {
 
 /// The bus engine. See the module documentation.
 #[derive(Debug)]
-pub struct Engine<T: Transport, C: Clock> {
+pub struct Engine<T: Transport, C: Clock, B: Bridge = NoBridge> {
     cfg: EngineConfig,
     transport: T,
     clock: C,
@@ -273,6 +295,7 @@ pub struct Engine<T: Transport, C: Clock> {
     results: Sender<JobResult>,
     events: Sender<Event>,
     stats: Stats,
+    bridge: B,
 }
 
 /// Builds the circulating list: each drive `weight` times, spread over the cycle (USS.md
@@ -329,9 +352,23 @@ mod tests {
 }
 
 impl<T: Transport, C: Clock> Engine<T, C> {
-    /// Builds the engine and everything it will use; returns it with its handle and the event
-    /// receiver for the housekeeping thread.
+    /// Builds the engine with process images in this process only; returns it with its handle
+    /// and the event receiver for the housekeeping thread.
     pub fn new(cfg: EngineConfig, transport: T, clock: C) -> (Self, EngineHandle, Receiver<Event>) {
+        Engine::with_bridge(cfg, transport, clock, NoBridge)
+    }
+}
+
+impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
+    /// Builds the engine and everything it will use, with `bridge` carrying the process images
+    /// to other processes; returns it with its handle and the event receiver for the
+    /// housekeeping thread.
+    pub fn with_bridge(
+        cfg: EngineConfig,
+        transport: T,
+        clock: C,
+        bridge: B,
+    ) -> (Self, EngineHandle, Receiver<Event>) {
         let mut slot_of = [None; 32];
         for (i, d) in cfg.drives.iter().enumerate() {
             slot_of[d.address.get() as usize] = Some(i as u8);
@@ -388,6 +425,7 @@ impl<T: Transport, C: Clock> Engine<T, C> {
             events: events_tx,
             stats,
             cfg,
+            bridge,
         };
         let handle = EngineHandle {
             shared,
@@ -554,6 +592,7 @@ impl<T: Transport, C: Clock> Engine<T, C> {
     }
 
     fn end_cycle(&mut self) {
+        self.bridge.cycle_completed();
         let now = self.clock.now();
         let took = now.saturating_sub(self.cycle_start);
         self.stats.bus.cycles += 1;
@@ -618,6 +657,7 @@ impl<T: Transport, C: Clock> Engine<T, C> {
         {
             self.deliver(r);
         }
+        self.bridge.before_poll(slot, &self.shared.images[slot]);
         let mut output = [0u16; MAX_PZD_WORDS];
         self.output(slot, now, &mut output);
         let len = self.drives[slot].setup.layout.pzd.get();
@@ -631,6 +671,11 @@ impl<T: Transport, C: Clock> Engine<T, C> {
                 Attempt::Reply { words, mut timing } => {
                     timing.first_attempt = attempt == 0;
                     self.on_reply(slot, &words, begin, timing);
+                    self.bridge.after_poll(
+                        slot,
+                        &self.shared.images[slot],
+                        &self.stats.drives[slot],
+                    );
                     return Ok(());
                 }
                 Attempt::Failed(f) => {
@@ -643,6 +688,8 @@ impl<T: Transport, C: Clock> Engine<T, C> {
             }
         }
         self.on_failed_poll(slot, last);
+        self.bridge
+            .after_poll(slot, &self.shared.images[slot], &self.stats.drives[slot]);
         Ok(())
     }
 
@@ -787,10 +834,10 @@ impl<T: Transport, C: Clock> Engine<T, C> {
         self.stats.bus.exchanges += 1;
         self.framer.line_busy_until(request_end);
         self.line_free_at = request_end;
-        if self.cfg.echo {
-            if let Some(f) = self.discard_echo(n, request_end)? {
-                return Ok(Attempt::Failed(f));
-            }
+        if self.cfg.echo
+            && let Some(f) = self.discard_echo(n, request_end)?
+        {
+            return Ok(Attempt::Failed(f));
         }
         self.receive_reply(setup, n, request_end)
     }

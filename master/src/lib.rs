@@ -7,6 +7,7 @@
 //! - [`runtime`], [`summary`]: buses in their real-time threads, housekeeping and the live summary.
 //! - [`clock`]: the monotonic clock with absolute sleeps, and a virtual clock for tests.
 //! - [`image`]: lock-free process images shared with clients.
+//! - [`ipc`]: the iceoryx2 services of a bus: images, events, diagnostics, parameter requests.
 //! - [`jobs`]: parameter jobs, results and the per-drive mailbox.
 //! - [`rt`]: CPU pinning, `SCHED_FIFO`, stack prefault and memory locking, with honest reports.
 //! - [`stats`]: per-drive and per-bus diagnostics and histograms.
@@ -15,6 +16,7 @@ pub mod clock;
 pub mod config;
 pub mod engine;
 pub mod image;
+pub mod ipc;
 pub mod jobs;
 pub mod rt;
 pub mod runtime;
@@ -24,7 +26,9 @@ pub mod summary;
 pub mod transport;
 
 pub use clock::{Clock, MonotonicClock, VirtualClock};
-pub use engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event, RequestError};
+pub use engine::{
+    Bridge, DriveSetup, Engine, EngineConfig, EngineHandle, Event, NoBridge, RequestError,
+};
 pub use jobs::{Job, JobResult, Outcome};
 pub use stats::{DriveCounters, DriveStatus, Failure, Stats};
 pub use transport::{Rx, SimTransport, Transport, TransportError};

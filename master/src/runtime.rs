@@ -9,6 +9,7 @@
 use crate::clock::MonotonicClock;
 use crate::config::{BusConfig, Device, Rs485Mode};
 use crate::engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event};
+use crate::ipc::StatusPublisher;
 use crate::rt::{RtReport, RtRequest, apply_to_current_thread};
 use crate::serial::{SerialError, SerialOptions, SerialTransport};
 use crate::stats::Stats;
@@ -43,6 +44,8 @@ pub enum StartError {
     Sim { bus: String, source: BusError },
     #[error("bus {bus}: real-time set-up incomplete and --require-rt given: {summary}")]
     RealTime { bus: String, summary: String },
+    #[error(transparent)]
+    Ipc(#[from] crate::ipc::IpcError),
     #[error("bus {bus}: cannot start its threads: {source}")]
     Spawn { bus: String, source: std::io::Error },
 }
@@ -97,7 +100,10 @@ pub struct RunningBus {
     pub handle: EngineHandle,
     pub rt_report: RtReport,
     engine_thread: JoinHandle<Result<(), TransportError>>,
+    params_thread: JoinHandle<()>,
     housekeeping: JoinHandle<()>,
+    /// The bus's iceoryx2 node: dropped last, after every thread using its ports.
+    _node: crate::ipc::IpcNode,
 }
 
 impl RunningBus {
@@ -111,6 +117,7 @@ impl RunningBus {
     pub fn stop(self) -> Result<(), TransportError> {
         self.handle.stop();
         let result = self.engine_thread.join().unwrap_or(Ok(()));
+        let _ = self.params_thread.join();
         let _ = self.housekeeping.join();
         result
     }
@@ -122,7 +129,10 @@ struct Spawned {
     handle: EngineHandle,
     reports: Receiver<RtReport>,
     thread: JoinHandle<Result<(), TransportError>>,
+    params_thread: JoinHandle<()>,
     events: Receiver<Event>,
+    status: StatusPublisher,
+    node: crate::ipc::IpcNode,
 }
 
 /// Builds one engine and spawns its thread. The thread waits on `go` before its real-time set-up
@@ -133,8 +143,20 @@ fn spawn<T: Transport + Send + 'static>(
     options: RunOptions,
     go: &Receiver<()>,
 ) -> Result<Spawned, StartError> {
+    let clock = MonotonicClock::new();
+    let addresses: Vec<_> = bus.drives.iter().map(|d| d.address).collect();
+    let ipc = crate::ipc::create(&bus.name, &addresses, clock.origin())?;
     let (mut engine, handle, events) =
-        Engine::new(engine_config(bus), transport, MonotonicClock::new());
+        Engine::with_bridge(engine_config(bus), transport, clock, ipc.rt);
+    let params = ipc.params;
+    let params_handle = handle.clone();
+    let params_thread = std::thread::Builder::new()
+        .name(format!("uss-{}-params", bus.name))
+        .spawn(move || params.run(&params_handle))
+        .map_err(|source| StartError::Spawn {
+            bus: bus.name.clone(),
+            source,
+        })?;
     let request = RtRequest {
         cpu: bus.cpu,
         priority: bus.priority,
@@ -170,7 +192,10 @@ fn spawn<T: Transport + Send + 'static>(
         handle,
         reports,
         thread,
+        params_thread,
         events,
+        status: ipc.status,
+        node: ipc.node,
     })
 }
 
@@ -209,6 +234,7 @@ fn abandon(spawned: Vec<Spawned>, go: Sender<()>) {
     for s in spawned {
         s.handle.stop();
         let _ = s.thread.join();
+        let _ = s.params_thread.join();
     }
 }
 
@@ -237,6 +263,7 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
                 bus: s.bus.name.clone(),
                 summary: "the bus thread ended before its real-time set-up".into(),
             });
+            abandon(vec![s], bounded(0).0);
             continue;
         };
         if rt_report.is_full_rt() {
@@ -250,10 +277,13 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
                 });
             }
         }
+        let mut status = s.status;
+        status.set_rt(rt_report.is_full_rt(), rt_report.cpu, rt_report.priority);
         let housekeeping = spawn_housekeeping(
             &s.bus,
             s.handle.clone(),
             s.events,
+            status,
             rt_report.mode(),
             options.summary_every,
         )
@@ -266,7 +296,9 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             handle: s.handle,
             rt_report,
             engine_thread: s.thread,
+            params_thread: s.params_thread,
             housekeeping,
+            _node: s.node,
         });
     }
     if let Some(e) = failure {
@@ -280,10 +312,16 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
 
 /// Logs events as they come and the summary every `every`; logs the final summary when the
 /// engine has stopped.
+/// How often bus status and drive diagnostics are republished for clients.
+const STATUS_EVERY: Duration = Duration::from_millis(100);
+
+/// Logs events as they come, publishes status and diagnostics every [`STATUS_EVERY`], and logs
+/// the summary every `every`; logs the final summary when the engine has stopped.
 fn spawn_housekeeping(
     bus: &BusConfig,
     handle: EngineHandle,
     events: Receiver<Event>,
+    publisher: StatusPublisher,
     mode: &'static str,
     every: Duration,
 ) -> std::io::Result<JoinHandle<()>> {
@@ -292,25 +330,36 @@ fn spawn_housekeeping(
         .name(format!("uss-{}-hk", bus.name))
         .spawn(move || {
             let mut previous: Option<Stats> = None;
-            let mut next = std::time::Instant::now() + every;
+            let start = std::time::Instant::now();
+            let mut next_summary = start + every;
+            let mut next_status = start;
             loop {
+                let next = next_summary.min(next_status);
                 let wait = next.saturating_duration_since(std::time::Instant::now());
                 match events.recv_timeout(wait) {
                     Ok(event) => log_event(&bus.name, &event),
                     Err(RecvTimeoutError::Timeout) => {
-                        let stats = handle.stats();
-                        tracing::info!(
-                            "\n{}",
-                            crate::summary::render(&bus, mode, &stats, previous.as_ref())
-                                .trim_end()
-                        );
-                        previous = Some(stats);
-                        next += every;
+                        let now = std::time::Instant::now();
+                        if now >= next_status {
+                            publisher.publish(&handle.stats(), true);
+                            next_status += STATUS_EVERY;
+                        }
+                        if now >= next_summary {
+                            let stats = handle.stats();
+                            tracing::info!(
+                                "\n{}",
+                                crate::summary::render(&bus, mode, &stats, previous.as_ref())
+                                    .trim_end()
+                            );
+                            previous = Some(stats);
+                            next_summary += every;
+                        }
                     }
                     Err(RecvTimeoutError::Disconnected) => break,
                 }
             }
             let stats = handle.stats();
+            publisher.publish(&stats, false);
             tracing::info!(
                 "final\n{}",
                 crate::summary::render(&bus, mode, &stats, None).trim_end()

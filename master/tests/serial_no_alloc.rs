@@ -88,7 +88,7 @@ fn a_thousand_exchanges_over_a_pty_allocate_nothing() {
             clock.sleep_until(clock.now() + PAUSE);
             serial.flush_input(clock.now()).unwrap();
             framer.reset();
-            let stw = if i % 2 == 0 { 0x047E } else { 0x047F };
+            let stw = if i.is_multiple_of(2) { 0x047E } else { 0x047F };
             let n = encode(&mut request, Adr::to(address), &[0, 0, 0, 0], &[stw, i]).unwrap();
             serial.send(&request[..n], clock.now()).unwrap();
             let deadline = clock.now() + Duration::from_millis(500);

@@ -264,7 +264,7 @@ impl<'a> Telegram<'a> {
     /// carry 3 or 4 PKW words.
     pub fn words(&self, layout: Layout) -> Result<Words, LayoutError> {
         let net = self.net();
-        if net.len() % 2 != 0 {
+        if !net.len().is_multiple_of(2) {
             return Err(LayoutError::OddNetBytes(net.len()));
         }
         let total = net.len() / 2;

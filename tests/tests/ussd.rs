@@ -160,17 +160,30 @@ fn check_config_prints_the_effective_configuration_or_names_the_bad_line() {
 
 #[test]
 fn require_rt_is_fatal_exactly_when_real_time_is_incomplete() {
+    // Its own bus name: another test runs the embedded default's bus0 at the same time.
+    let bus = format!("rt{}", std::process::id());
+    let config = config_file(
+        "rt",
+        &format!("[[bus]]\nname = \"{bus}\"\ndevice = \"sim\"\n\n[[bus.drive]]\naddress = 1\n"),
+    );
     let out = ussd()
-        .args(["--require-rt", "--duration", "0.5"])
+        .args([
+            "--require-rt",
+            "--duration",
+            "0.5",
+            "--config",
+            config.to_str().unwrap(),
+        ])
         .output()
         .unwrap();
+    let _ = std::fs::remove_file(&config);
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     let incomplete = stdout.contains("real-time set-up incomplete");
     if incomplete {
         assert_eq!(out.status.code(), Some(1), "{stdout}");
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(
-            err.contains("--require-rt") && err.contains("bus bus0"),
+            err.contains("--require-rt") && err.contains(&format!("bus {bus}")),
             "{err}"
         );
     } else {

@@ -196,16 +196,16 @@ pub fn run(
             };
             st.zsw1 = Zsw1::from_bits_retain(words.pzd().first().copied().unwrap_or(0));
             st.hiw = Setpoint::from_word(words.pzd().get(1).copied().unwrap_or(0));
-            if let (Some(task), Ok(r)) = (st.tasks.front(), ParamReply::decode(words.pkw())) {
-                if r.answers(task) {
-                    println!(
-                        "{:6.2} s  drive {}: {}",
-                        start.elapsed().as_secs_f64(),
-                        st.address,
-                        describe(&r)
-                    );
-                    st.tasks.pop_front();
-                }
+            if let (Some(task), Ok(r)) = (st.tasks.front(), ParamReply::decode(words.pkw()))
+                && r.answers(task)
+            {
+                println!(
+                    "{:6.2} s  drive {}: {}",
+                    start.elapsed().as_secs_f64(),
+                    st.address,
+                    describe(&r)
+                );
+                st.tasks.pop_front();
             }
         }
         let t = start.elapsed();
