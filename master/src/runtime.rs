@@ -103,10 +103,16 @@ pub struct RunningBus {
     params_thread: JoinHandle<()>,
     housekeeping: JoinHandle<()>,
     /// The bus's iceoryx2 node: dropped last, after every thread using its ports.
-    _node: crate::ipc::IpcNode,
+    node: crate::ipc::IpcNode,
 }
 
 impl RunningBus {
+    /// Removes what dead client processes left behind (ports, nodes); returns how many nodes.
+    /// A dead controller's drive has already got its safe command through the watchdog.
+    pub fn cleanup_dead_nodes(&self) -> u64 {
+        self.node.try_cleanup_dead_nodes().cleanups
+    }
+
     /// Whether the bus thread has ended without being asked to (its line failed).
     pub fn has_failed(&self) -> bool {
         self.engine_thread.is_finished() && !self.handle.is_stopped()
@@ -298,7 +304,7 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             engine_thread: s.thread,
             params_thread: s.params_thread,
             housekeeping,
-            _node: s.node,
+            node: s.node,
         });
     }
     if let Some(e) = failure {

@@ -116,6 +116,7 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
     }
     let started = Instant::now();
     let mut line_failed = false;
+    let mut next_cleanup = Duration::from_secs(1);
     while !STOP.load(Ordering::Relaxed) && duration.is_none_or(|d| started.elapsed() < d) {
         if let Some(b) = buses.iter().find(|b| b.has_failed()) {
             // A dead line is not something to poll around: stop, and let the supervisor
@@ -123,6 +124,15 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
             tracing::error!(bus = %b.name, "the bus thread ended: its line failed");
             line_failed = true;
             break;
+        }
+        if started.elapsed() >= next_cleanup {
+            next_cleanup += Duration::from_secs(1);
+            for b in &buses {
+                let n = b.cleanup_dead_nodes();
+                if n > 0 {
+                    tracing::info!(bus = %b.name, nodes = n, "cleaned up after dead client processes");
+                }
+            }
         }
         std::thread::sleep(Duration::from_millis(20));
     }
