@@ -1,2 +1,148 @@
-//! The Rust client API of uss-rt. It arrives with the iceoryx2 work (see
-//! `shared/ARCHITECTURE.md`, "Data flow").
+//! The Rust client API of uss-rt: talk to the drives of a bus that `ussd` runs, from any local
+//! process, over iceoryx2 shared memory (the contract is `uss-shm-types`).
+//!
+//! ```no_run
+//! use std::time::Duration;
+//! use uss_client::{Bus, ControlOptions, DriveState, Value};
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let bus = Bus::open("bus0")?; // "ussd is not running on bus0: start it with ..." otherwise
+//! for address in bus.drives() {
+//!     let d = bus.diag(address)?;
+//!     println!("drive {address}: online {} good {}", d.online, d.good);
+//! }
+//!
+//! // Parameters: typed values, typed errors.
+//! let max_hz = bus.read_f32(1, 1082, None)?; // P1082 = 50.0
+//! bus.write(1, 1120, None, Value::from_f32(2.0), false)?; // ramp-up time 2 s, RAM only
+//!
+//! // Exclusive control: a second controller of drive 1 is refused.
+//! let drive = bus.control(1, ControlOptions::default())?;
+//! let _refresher = drive.spawn_refresher(Duration::from_millis(20)); // the watchdog
+//! drive.enable()?; // S1 -> S2
+//! drive.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(1))?;
+//! drive.run_hz(0.5 * max_hz, 50.0)?; // S2 -> S4
+//! drive.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(1))?;
+//! println!("{:.1} Hz", drive.inputs().actual_hz(50.0));
+//! drive.stop()?; // OFF1
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! - [`Bus`]: open a bus; [`Bus::status`], [`Bus::drives`], [`Bus::diag`].
+//! - [`DriveWatch`] ([`Bus::watch`]): a drive's latest input image (ZSW1, actual value), read
+//!   without blocking; [`CycleListener`] ([`Bus::cycle_listener`]) wakes on each exchange
+//!   and each completed cycle, to run in step with the bus.
+//! - [`Controller`] ([`Bus::control`]): the one writer of a drive's output image, with helpers
+//!   that follow the PROFIdrive state machine (USS.md section 7). ussd's watchdog stops the
+//!   drive when its controller stops refreshing: see [`Controller`].
+//! - Parameters ([`Bus::read`], [`Bus::write`], [`Bus::batch`], [`Bus::faults`]): typed
+//!   [`Value`]s and [`ParamError`]s (USS.md section 6).
+//!
+//! Errors say what happened and what to do ([`ClientError`], [`ParamError`]).
+//!
+//! iceoryx2 logs to stderr on its own (e.g. a warning that no iceoryx2 config file exists, so
+//! its defaults apply, as they do for ussd). Applications that explain errors themselves set
+//! `iceoryx2::prelude::set_log_level_from_env_or(LogLevel::Error)` first, as `ussctl` does.
+
+mod bus;
+mod control;
+mod error;
+mod open;
+pub mod params;
+mod watch;
+
+pub use bus::{Bus, DEFAULT_NODE_NAME};
+pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, Jog, Refresher};
+pub use error::{ClientError, ParamError};
+pub use params::{array_len_item, read_item, write_item};
+pub use uss_protocol::{DriveState, Setpoint, Stw1, Value, Zsw1};
+pub use uss_shm_types::{
+    BusStatus, DriveDiag, ParamItem, ParamRequest, ParamResponse, PzdInput, PzdOutput, RequestError,
+};
+pub use watch::{CycleEvent, CycleListener, DriveWatch};
+/// The protocol and contract crates this API speaks, so applications use the same versions.
+pub use {uss_protocol, uss_shm_types};
+
+/// The PROFIdrive state of an input image.
+pub fn state_of(input: &PzdInput) -> DriveState {
+    DriveState::from_zsw1(Zsw1::from_bits_retain(input.zsw1))
+}
+
+/// The short state name of a ZSW1: S1..S4, "fault", "not ready" (USS.md section 7).
+pub fn state_name(zsw1: u16) -> &'static str {
+    DriveState::from_zsw1(Zsw1::from_bits_retain(zsw1)).short_name()
+}
+
+/// What a ZSW1 says beyond the state, as short flags: set bits by name, and the active-low
+/// MICROMASTER alarms (bits 11, 12, 13, 15) when they are active (USS.md section 7).
+pub fn zsw1_flags(zsw1: u16) -> Vec<&'static str> {
+    let z = Zsw1::from_bits_retain(zsw1);
+    let set = [
+        (Zsw1::FAULT, "fault"),
+        (Zsw1::WARNING, "warning"),
+        (Zsw1::AT_SETPOINT, "at-setpoint"),
+        (Zsw1::CONTROL_REQUESTED, "control-requested"),
+        (Zsw1::MAX_FREQUENCY_REACHED, "max-frequency"),
+        (Zsw1::RUNNING_RIGHT, "running-right"),
+    ];
+    let clear = [
+        (Zsw1::NO_OFF2, "off2"),
+        (Zsw1::NO_OFF3, "off3"),
+        (Zsw1::NO_CURRENT_LIMIT, "current-limit"),
+        (Zsw1::NO_HOLDING_BRAKE, "holding-brake"),
+        (Zsw1::NO_MOTOR_OVERLOAD, "motor-overload"),
+        (Zsw1::NO_INVERTER_OVERLOAD, "inverter-overload"),
+    ];
+    let mut flags: Vec<_> = set
+        .iter()
+        .filter(|(bit, _)| z.contains(*bit))
+        .map(|&(_, name)| name)
+        .collect();
+    flags.extend(
+        clear
+            .iter()
+            .filter(|(bit, _)| !z.contains(*bit))
+            .map(|&(_, name)| name),
+    );
+    flags
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The MM420 start-up trace of USS.md section 7.
+    #[test]
+    fn states_and_flags_of_the_mm420_trace() {
+        assert_eq!(state_name(0xFB41), "S1");
+        assert_eq!(state_name(0xFB31), "S2");
+        assert_eq!(state_name(0xFB32), "S3");
+        assert_eq!(state_name(0xFB34), "S4");
+        assert_eq!(state_name(0xFB3C), "fault");
+        assert_eq!(
+            zsw1_flags(0xFB34),
+            ["at-setpoint", "control-requested", "running-right"]
+        );
+        assert_eq!(
+            zsw1_flags(0x6B37),
+            [
+                "at-setpoint",
+                "control-requested",
+                "running-right",
+                "holding-brake",
+                "inverter-overload"
+            ]
+        );
+        assert_eq!(zsw1_flags(0x0008)[0], "fault");
+    }
+
+    #[test]
+    fn handles_move_between_threads() {
+        fn send_sync<T: Send + Sync>() {}
+        send_sync::<Bus>();
+        send_sync::<DriveWatch>();
+        send_sync::<Controller>();
+        send_sync::<CycleListener>();
+    }
+}

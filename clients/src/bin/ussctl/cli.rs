@@ -1,0 +1,315 @@
+//! ussctl's command line: subcommands, and parsing of parameter references and values.
+
+use clap::{Parser, Subcommand, ValueEnum};
+use core::fmt;
+use uss_client::Value;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "ussctl",
+    version,
+    about = "Look at and operate the drives of a bus that ussd runs",
+    after_help = "Examples:\n  ussctl status\n  ussctl param read 1 1082\n  ussctl param write 1 1120 2.0\n  ussctl run 1 --hz 25 --for 10\n  ussctl --json status"
+)]
+pub struct Cli {
+    /// The bus, as named in ussd's configuration.
+    #[arg(long, global = true, default_value = "bus0")]
+    pub bus: String,
+    /// Machine-readable output: one JSON document (`watch`: one per line).
+    #[arg(long, global = true)]
+    pub json: bool,
+    /// Seconds to wait for ussd to answer a parameter request (default: 5 + 2.5 per item).
+    #[arg(long, global = true, value_name = "SECONDS")]
+    pub timeout: Option<f64>,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Table of drives: online, state, ZSW1, actual frequency, telegram counters, last error.
+    Status {
+        /// Reference frequency P2000 in Hz, to scale the actual value.
+        #[arg(long, default_value_t = 50.0, value_name = "HZ")]
+        ref_hz: f32,
+    },
+    /// Live input images, until Ctrl-C or --count rounds.
+    Watch {
+        /// Only these drives (default: all).
+        drives: Vec<u8>,
+        /// Milliseconds between rounds.
+        #[arg(long, default_value_t = 500, value_name = "MS")]
+        interval: u64,
+        /// Stop after this many rounds.
+        #[arg(long, value_name = "N")]
+        count: Option<u64>,
+        /// Reference frequency P2000 in Hz, to scale the actual value.
+        #[arg(long, default_value_t = 50.0, value_name = "HZ")]
+        ref_hz: f32,
+    },
+    /// Read or write a parameter.
+    #[command(subcommand)]
+    Param(ParamCommand),
+    /// Take control of a drive, run it at a frequency, stop it at the end (OFF1).
+    Run {
+        drive: u8,
+        /// Frequency in Hz; negative runs the other way.
+        #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
+        hz: f32,
+        /// Reference frequency P2000 in Hz.
+        #[arg(long, default_value_t = 50.0, value_name = "HZ")]
+        ref_hz: f32,
+        /// Run this many seconds, then stop (default: until Ctrl-C).
+        #[arg(long = "for", value_name = "SECONDS")]
+        duration: Option<f64>,
+    },
+    /// Stop a drive along its ramp (OFF1).
+    Stop { drive: u8 },
+    /// Acknowledge a drive's fault (rising edge of STW1 bit 7).
+    Ack { drive: u8 },
+    /// The drive's fault buffer (r0947), newest first.
+    Faults { drive: u8 },
+    /// Bus statistics and every drive's counters.
+    Stats,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum ParamCommand {
+    /// Read PNU or its array element PNU.INDEX, e.g. `1082`, `P2000`, `r0947.3`.
+    Read {
+        drive: u8,
+        #[arg(value_name = "PNU[.INDEX]")]
+        param: ParamRef,
+        /// How to show the value (default: as the drive replied).
+        #[arg(long = "type", value_enum)]
+        kind: Option<Kind>,
+    },
+    /// Write VALUE to PNU or its array element PNU.INDEX.
+    Write {
+        drive: u8,
+        #[arg(value_name = "PNU[.INDEX]")]
+        param: ParamRef,
+        /// A number: decimal, 0x hex, negative, or with a '.' for a float.
+        #[arg(allow_negative_numbers = true)]
+        value: String,
+        /// Store in EEPROM as well as RAM (survives a power cycle).
+        #[arg(long)]
+        eeprom: bool,
+        /// The parameter's type (default: float if VALUE has a '.', else word).
+        #[arg(long = "type", value_enum)]
+        kind: Option<Kind>,
+    },
+}
+
+/// A parameter's type on the wire (USS.md section 6).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Kind {
+    /// 16 bits.
+    Word,
+    /// 32 bits.
+    Dword,
+    /// IEEE-754 single precision in a double word.
+    Float,
+}
+
+/// `PNU[.INDEX]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ParamRef {
+    pub pnu: u16,
+    pub index: Option<u8>,
+}
+
+impl fmt::Display for ParamRef {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "P{}", self.pnu)?;
+        match self.index {
+            Some(i) => write!(f, ".{i}"),
+            None => Ok(()),
+        }
+    }
+}
+
+impl core::str::FromStr for ParamRef {
+    type Err = String;
+
+    /// `1082`, `P1082`, `r0947.3`: an optional P/r prefix (as parameter lists write them),
+    /// the number 0..=65535, optionally `.` and an index 0..=254.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || {
+            format!(
+                "{s:?}: write PNU or PNU.INDEX, e.g. 1082 or 947.3 (PNU 0..=65535, INDEX 0..=254)"
+            )
+        };
+        let body = s.strip_prefix(['P', 'p', 'r', 'R']).unwrap_or(s);
+        let (pnu, index) = match body.split_once('.') {
+            Some((p, i)) => (p, Some(i)),
+            None => (body, None),
+        };
+        let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+        if !digits(pnu) || index.is_some_and(|i| !digits(i)) {
+            return Err(bad());
+        }
+        let pnu = pnu.parse::<u16>().map_err(|_| bad())?;
+        let index = match index {
+            Some(i) => Some(i.parse::<u8>().ok().filter(|&i| i <= 254).ok_or_else(bad)?),
+            None => None,
+        };
+        Ok(Self { pnu, index })
+    }
+}
+
+/// The value to write and its type: `kind` given, or float when `text` has a '.', else word.
+pub fn parse_value(text: &str, kind: Option<Kind>) -> Result<(Value, Kind), String> {
+    let kind = kind.unwrap_or(if text.contains('.') {
+        Kind::Float
+    } else {
+        Kind::Word
+    });
+    let bad = |what: &str| format!("{text:?} is not {what}");
+    let value = match kind {
+        Kind::Float => text
+            .parse::<f32>()
+            .ok()
+            .filter(|f| f.is_finite())
+            .map(Value::from_f32)
+            .ok_or_else(|| bad("a finite float")),
+        Kind::Word => integer(text)
+            .and_then(|n| {
+                u16::try_from(n)
+                    .ok()
+                    .or_else(|| i16::try_from(n).ok().map(|n| n as u16))
+            })
+            .map(Value::Word)
+            .ok_or_else(|| {
+                bad("a word (-32768..=65535, or 0x0000..=0xFFFF); use --type dword or float for wider values")
+            }),
+        Kind::Dword => integer(text)
+            .and_then(|n| {
+                u32::try_from(n)
+                    .ok()
+                    .or_else(|| i32::try_from(n).ok().map(|n| n as u32))
+            })
+            .map(Value::Dword)
+            .ok_or_else(|| bad("a double word (-2147483648..=4294967295, or 0x hex)")),
+    }?;
+    Ok((value, kind))
+}
+
+/// Decimal (optionally negative) or `0x` hex.
+fn integer(text: &str) -> Option<i64> {
+    match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+        Some(hex) => i64::from_str_radix(hex, 16).ok(),
+        None => text.parse().ok(),
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp)] // the values compared are exactly representable
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    fn r(s: &str) -> Result<ParamRef, String> {
+        s.parse()
+    }
+
+    #[test]
+    fn param_refs_take_an_optional_prefix_and_index() {
+        assert_eq!(
+            r("1082"),
+            Ok(ParamRef {
+                pnu: 1082,
+                index: None
+            })
+        );
+        assert_eq!(
+            r("P2000"),
+            Ok(ParamRef {
+                pnu: 2000,
+                index: None
+            })
+        );
+        assert_eq!(
+            r("r0947.3"),
+            Ok(ParamRef {
+                pnu: 947,
+                index: Some(3)
+            })
+        );
+        assert_eq!(
+            r("65535.254"),
+            Ok(ParamRef {
+                pnu: 65535,
+                index: Some(254)
+            })
+        );
+        for bad in [
+            "", "P", "65536", "947.255", "947.", ".3", "1.2.3", "x12", "-1", "12a", "947.-1",
+        ] {
+            assert!(r(bad).is_err(), "{bad:?}");
+        }
+        assert_eq!(r("P947.3").unwrap().to_string(), "P947.3");
+    }
+
+    fn value(text: &str, kind: Option<Kind>) -> Result<Value, String> {
+        parse_value(text, kind).map(|(v, _)| v)
+    }
+
+    #[test]
+    fn values_are_float_with_a_dot_else_word() {
+        assert_eq!(parse_value("2.5", None).map(|(_, k)| k), Ok(Kind::Float));
+        assert_eq!(parse_value("2", None).map(|(_, k)| k), Ok(Kind::Word));
+        assert_eq!(value("2.0", None), Ok(Value::Dword(0x4000_0000)));
+        assert_eq!(value("50.", None), Ok(Value::Dword(0x4248_0000)));
+        assert_eq!(value("100", None), Ok(Value::Word(100)));
+        assert_eq!(value("0xFFFF", None), Ok(Value::Word(0xFFFF)));
+        assert_eq!(value("-1", None), Ok(Value::Word(0xFFFF)));
+        assert!(value("65536", None).is_err());
+        assert!(value("-32769", None).is_err());
+        assert_eq!(
+            value("50", Some(Kind::Float)),
+            Ok(Value::Dword(0x4248_0000))
+        );
+        assert_eq!(value("70000", Some(Kind::Dword)), Ok(Value::Dword(70_000)));
+        assert_eq!(value("-1", Some(Kind::Dword)), Ok(Value::Dword(u32::MAX)));
+        assert_eq!(
+            value("0x42480000", Some(Kind::Dword)),
+            Ok(Value::Dword(0x4248_0000))
+        );
+        assert!(value("1.5", Some(Kind::Word)).is_err());
+        assert!(value("nan", Some(Kind::Float)).is_err());
+        assert!(value("abc", None).is_err());
+    }
+
+    #[test]
+    fn command_line_parses_as_documented() {
+        Cli::command().debug_assert();
+        let cli = Cli::try_parse_from([
+            "ussctl", "--bus", "b1", "param", "write", "3", "1120.0", "-2.5", "--eeprom",
+        ])
+        .unwrap();
+        assert_eq!(cli.bus, "b1");
+        match cli.command {
+            Command::Param(ParamCommand::Write {
+                drive,
+                param,
+                value,
+                eeprom,
+                kind,
+            }) => {
+                assert_eq!((drive, param.pnu, param.index), (3, 1120, Some(0)));
+                assert_eq!((value.as_str(), eeprom, kind), ("-2.5", true, None));
+            }
+            other => panic!("{other:?}"),
+        }
+        let cli =
+            Cli::try_parse_from(["ussctl", "run", "5", "--hz", "-10", "--for", "2", "--json"])
+                .unwrap();
+        assert!(cli.json);
+        assert!(matches!(
+            cli.command,
+            Command::Run { drive: 5, hz, duration: Some(d), .. } if hz == -10.0 && d == 2.0
+        ));
+        assert!(Cli::try_parse_from(["ussctl", "param", "read", "1", "99999"]).is_err());
+    }
+}

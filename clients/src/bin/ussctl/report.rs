@@ -1,0 +1,635 @@
+//! What ussctl prints: one report type per answer, shown as a table or text for people and
+//! as JSON (`--json`) for machines. The JSON field names are part of ussctl's interface.
+
+use crate::cli::{Kind, ParamRef};
+use serde::Serialize;
+use std::fmt::Write as _;
+use uss_client::{BusStatus, DriveDiag, PzdInput, Setpoint, Value, state_name, zsw1_flags};
+use uss_shm_types::diag::{LastFailure, NEVER, RtMode};
+
+/// The bus as a whole.
+#[derive(Debug, Serialize)]
+pub struct BusReport {
+    pub bus: String,
+    pub running: bool,
+    pub rt_mode: &'static str,
+    /// -1: not pinned.
+    pub rt_cpu: i32,
+    pub rt_priority: u8,
+    pub drive_count: u8,
+    pub cycles: u64,
+    pub exchanges: u64,
+    pub good: u64,
+    pub cycle_overruns: u64,
+    pub events_dropped: u64,
+    pub results_lost: u64,
+    pub jobs_accepted: u64,
+    pub jobs_finished: u64,
+    pub mean_exchange_us: f64,
+    /// Wire-time floor over achieved exchange time; null until measured.
+    pub efficiency: Option<f64>,
+}
+
+impl BusReport {
+    pub fn new(bus: &str, s: &BusStatus) -> Self {
+        Self {
+            bus: bus.to_owned(),
+            running: s.running != 0,
+            rt_mode: RtMode::try_from(s.rt_mode).map_or("unknown", RtMode::name),
+            rt_cpu: s.rt_cpu,
+            rt_priority: s.rt_priority,
+            drive_count: s.drive_count,
+            cycles: s.cycles,
+            exchanges: s.exchanges,
+            good: s.good,
+            cycle_overruns: s.cycle_overruns,
+            events_dropped: s.events_dropped,
+            results_lost: s.results_lost,
+            jobs_accepted: s.jobs_accepted,
+            jobs_finished: s.jobs_finished,
+            mean_exchange_us: s.mean_exchange_ns as f64 / 1e3,
+            efficiency: s.efficiency(),
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let mut out = format!(
+            "bus {}: {}, {}{}, {} drives, {} cycles, {} exchanges ({} good), mean exchange {:.0} us",
+            self.bus,
+            if self.running { "running" } else { "stopped" },
+            self.rt_mode,
+            if self.rt_cpu >= 0 {
+                format!(" on CPU {} priority {}", self.rt_cpu, self.rt_priority)
+            } else {
+                String::new()
+            },
+            self.drive_count,
+            self.cycles,
+            self.exchanges,
+            self.good,
+            self.mean_exchange_us,
+        );
+        if let Some(e) = self.efficiency {
+            let _ = write!(out, ", efficiency {e:.2}");
+        }
+        out
+    }
+}
+
+/// One drive in `status`: state and the main counters.
+#[derive(Debug, Serialize)]
+pub struct DriveRow {
+    pub address: u8,
+    pub online: bool,
+    /// S1..S4, "fault", "not ready"; "offline" while the drive does not answer.
+    pub state: &'static str,
+    pub zsw1: u16,
+    pub zsw1_hex: String,
+    pub flags: Vec<&'static str>,
+    pub hiw: u16,
+    pub actual_hz: f32,
+    pub good: u64,
+    pub rejected: u64,
+    pub timeouts: u64,
+    pub watchdog_tripped: bool,
+    pub last_error: &'static str,
+}
+
+impl DriveRow {
+    pub fn new(d: &DriveDiag, reference_hz: f32) -> Self {
+        let online = d.online != 0;
+        Self {
+            address: d.address,
+            online,
+            state: if online {
+                state_name(d.last_zsw1)
+            } else {
+                "offline"
+            },
+            zsw1: d.last_zsw1,
+            zsw1_hex: format!("{:#06X}", d.last_zsw1),
+            flags: zsw1_flags(d.last_zsw1),
+            hiw: d.last_hiw,
+            actual_hz: Setpoint::from_word(d.last_hiw).hz(reference_hz),
+            good: d.good,
+            rejected: d.rejected,
+            timeouts: d.timeouts,
+            watchdog_tripped: d.watchdog_tripped != 0,
+            last_error: last_failure(d),
+        }
+    }
+}
+
+fn last_failure(d: &DriveDiag) -> &'static str {
+    LastFailure::try_from(d.last_failure).map_or("unknown", LastFailure::name)
+}
+
+/// `status`.
+#[derive(Debug, Serialize)]
+pub struct StatusReport {
+    pub bus: BusReport,
+    pub drives: Vec<DriveRow>,
+}
+
+impl StatusReport {
+    pub fn human(&self) -> String {
+        let mut out = self.bus.human();
+        out.push('\n');
+        let _ = writeln!(
+            out,
+            "{:>4}  {:<6}  {:<9}  {:<6}  {:>9}  {:>10}  {:>8}  {:>8}  {:<16}  flags",
+            "addr",
+            "online",
+            "state",
+            "ZSW1",
+            "actual Hz",
+            "good",
+            "rejected",
+            "timeouts",
+            "last error"
+        );
+        for d in &self.drives {
+            let state = if d.watchdog_tripped {
+                format!("{} (wd)", d.state)
+            } else {
+                d.state.to_owned()
+            };
+            let _ = writeln!(
+                out,
+                "{:>4}  {:<6}  {:<9}  {:<6}  {:>9.2}  {:>10}  {:>8}  {:>8}  {:<16}  {}",
+                d.address,
+                if d.online { "yes" } else { "no" },
+                state,
+                d.zsw1_hex,
+                d.actual_hz,
+                d.good,
+                d.rejected,
+                d.timeouts,
+                d.last_error,
+                d.flags.join(",")
+            );
+        }
+        if self.drives.iter().any(|d| d.watchdog_tripped) {
+            out.push_str(
+                "(wd): no live controller refreshes the drive, so it gets its safe command\n",
+            );
+        }
+        out
+    }
+}
+
+/// `stats`: the bus and every counter of every drive.
+#[derive(Debug, Serialize)]
+pub struct StatsReport {
+    pub bus: BusReport,
+    pub drives: Vec<DriveStats>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct DriveStats {
+    pub address: u8,
+    pub online: bool,
+    pub no_reply: bool,
+    pub watchdog_tripped: bool,
+    pub last_error: &'static str,
+    pub consecutive_failed_polls: u32,
+    /// ms since the last good reply, by the bus status's clock; null: never.
+    pub last_good_ms_ago: Option<f64>,
+    /// Every counter by name.
+    pub counters: serde_json::Map<String, serde_json::Value>,
+    /// The same, in the contract's order, for people.
+    #[serde(skip)]
+    ordered: [(&'static str, u64); 24],
+}
+
+/// Every counter of a drive, in the order of the contract (USS.md section 7's list plus
+/// timeouts, retries and parameter jobs).
+fn counters(d: &DriveDiag) -> [(&'static str, u64); 24] {
+    [
+        ("requests", d.requests),
+        ("good", d.good),
+        ("rejected", d.rejected),
+        ("timeouts", d.timeouts),
+        ("retries", d.retries),
+        ("failed_polls", d.failed_polls),
+        ("missing_stx", d.missing_stx),
+        ("start_pause", d.start_pause),
+        ("bad_lge", d.bad_lge),
+        ("bcc", d.bcc),
+        ("residual", d.residual),
+        ("length", d.length),
+        ("wrong_address", d.wrong_address),
+        ("parity", d.parity),
+        ("framing", d.framing),
+        ("overrun", d.overrun),
+        ("echo", d.echo),
+        ("pkw_busy", d.pkw_busy),
+        ("jobs_done", d.jobs_done),
+        ("watchdog_trips", d.watchdog_trips),
+        ("since_ns", d.since_ns),
+        ("last_good_ns", d.last_good_ns),
+        ("last_zsw1", u64::from(d.last_zsw1)),
+        ("last_hiw", u64::from(d.last_hiw)),
+    ]
+}
+
+impl DriveStats {
+    pub fn new(d: &DriveDiag, now_ns: u64) -> Self {
+        Self {
+            address: d.address,
+            online: d.online != 0,
+            no_reply: d.no_reply != 0,
+            watchdog_tripped: d.watchdog_tripped != 0,
+            last_error: last_failure(d),
+            consecutive_failed_polls: d.consecutive_failed_polls,
+            last_good_ms_ago: (d.last_good_ns != NEVER)
+                .then(|| now_ns.saturating_sub(d.last_good_ns) as f64 / 1e6),
+            counters: counters(d)
+                .iter()
+                .map(|&(k, v)| (k.to_owned(), v.into()))
+                .collect(),
+            ordered: counters(d),
+        }
+    }
+}
+
+impl StatsReport {
+    pub fn human(&self) -> String {
+        let b = &self.bus;
+        let mut out = b.human();
+        let _ = writeln!(
+            out,
+            "\n  cycle overruns {}, parameter jobs accepted {} finished {}, events dropped {}, results lost {}",
+            b.cycle_overruns, b.jobs_accepted, b.jobs_finished, b.events_dropped, b.results_lost
+        );
+        for d in &self.drives {
+            let _ = write!(
+                out,
+                "drive {}: {}, last error {}",
+                d.address,
+                if d.online { "online" } else { "offline" },
+                d.last_error
+            );
+            if let Some(ms) = d.last_good_ms_ago {
+                let _ = write!(out, ", last good reply {ms:.1} ms ago");
+            }
+            if d.watchdog_tripped {
+                out.push_str(", watchdog tripped (safe command)");
+            }
+            out.push('\n');
+            let line: Vec<String> = d
+                .ordered
+                .iter()
+                .filter(|(k, _)| !k.ends_with("_ns") && !k.starts_with("last_"))
+                .map(|(k, v)| format!("{k} {v}"))
+                .collect();
+            for chunk in line.chunks(8) {
+                let _ = writeln!(out, "  {}", chunk.join("  "));
+            }
+        }
+        out
+    }
+}
+
+/// One drive in one round of `watch`.
+#[derive(Debug, Serialize)]
+pub struct WatchLine {
+    /// Seconds since `watch` started.
+    pub t: f64,
+    pub drive: u8,
+    pub online: bool,
+    pub state: &'static str,
+    pub zsw1: u16,
+    pub hiw: u16,
+    pub actual_hz: f32,
+    /// Good replies so far.
+    pub sequence: u64,
+    /// The drive's update period (time between its last two good replies), ms.
+    pub period_ms: f64,
+    pub watchdog_tripped: bool,
+    /// PZD3.. as the drive sent them.
+    pub extra: Vec<u16>,
+}
+
+impl WatchLine {
+    pub fn new(t: f64, drive: u8, i: &PzdInput, reference_hz: f32) -> Self {
+        let online = i.online != 0;
+        let extra_words = usize::from(i.word_count)
+            .saturating_sub(2)
+            .min(i.extra.len());
+        Self {
+            t,
+            drive,
+            online,
+            state: if online {
+                state_name(i.zsw1)
+            } else {
+                "offline"
+            },
+            zsw1: i.zsw1,
+            hiw: i.hiw,
+            actual_hz: Setpoint::from_word(i.hiw).hz(reference_hz),
+            sequence: i.sequence,
+            period_ms: i.age_ns as f64 / 1e6,
+            watchdog_tripped: i.watchdog_tripped != 0,
+            extra: i.extra[..extra_words].to_vec(),
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let mut out = format!(
+            "{:8.3}s  drive {:>2}  {:<9}  ZSW1 {:#06X}  {:>8.2} Hz  replies {:>8}  period {:>6.2} ms",
+            self.t,
+            self.drive,
+            self.state,
+            self.zsw1,
+            self.actual_hz,
+            self.sequence,
+            self.period_ms
+        );
+        if !self.extra.is_empty() {
+            let words: Vec<_> = self.extra.iter().map(|w| format!("{w:#06X}")).collect();
+            let _ = write!(out, "  PZD3.. {}", words.join(" "));
+        }
+        if self.watchdog_tripped {
+            out.push_str("  [watchdog: safe command]");
+        }
+        out
+    }
+}
+
+/// A parameter value read or written.
+#[derive(Debug, Serialize)]
+pub struct ParamReport {
+    pub bus: String,
+    pub drive: u8,
+    pub pnu: u16,
+    pub index: Option<u8>,
+    /// "word" or "dword", as the drive replied.
+    #[serde(rename = "type")]
+    pub kind: &'static str,
+    pub raw: u32,
+    pub hex: String,
+    /// The value as the type asked for (`--type`), or the raw number; a float for float.
+    pub value: serde_json::Value,
+    /// Set for a write: whether it went to EEPROM too.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub eeprom: Option<bool>,
+}
+
+impl ParamReport {
+    pub fn new(bus: &str, drive: u8, param: ParamRef, v: Value, shown: Option<Kind>) -> Self {
+        let (kind, hex) = match v {
+            Value::Word(w) => ("word", format!("{w:#06X}")),
+            Value::Dword(d) => ("dword", format!("{d:#010X}")),
+        };
+        let value = match shown {
+            Some(Kind::Float) => f64::from(v.as_f32()).into(),
+            Some(Kind::Word) => (v.as_u32() as u16).into(),
+            Some(Kind::Dword) | None => v.as_u32().into(),
+        };
+        Self {
+            bus: bus.to_owned(),
+            drive,
+            pnu: param.pnu,
+            index: param.index,
+            kind,
+            raw: v.as_u32(),
+            hex,
+            value,
+            eeprom: None,
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let param = ParamRef {
+            pnu: self.pnu,
+            index: self.index,
+        };
+        let head = format!("drive {} {param}", self.drive);
+        let value = if self.value.is_f64() {
+            format!("{} ({} {})", self.value, self.kind, self.hex)
+        } else if self.kind == "dword" {
+            // Most MICROMASTER double words are floats: show both readings.
+            format!(
+                "{} ({} {}; as float {})",
+                self.raw,
+                self.kind,
+                self.hex,
+                f32::from_bits(self.raw)
+            )
+        } else {
+            format!("{} ({} {})", self.value, self.kind, self.hex)
+        };
+        match self.eeprom {
+            None => format!("{head} = {value}"),
+            Some(eeprom) => format!(
+                "{head} := {value}{}",
+                if eeprom { ", RAM and EEPROM" } else { ", RAM" }
+            ),
+        }
+    }
+}
+
+/// `faults`.
+#[derive(Debug, Serialize)]
+pub struct FaultsReport {
+    pub bus: String,
+    pub drive: u8,
+    /// r0947, newest first; 0 = empty slot.
+    pub faults: Vec<u16>,
+}
+
+impl FaultsReport {
+    pub fn human(&self) -> String {
+        if self.faults.iter().all(|&f| f == 0) {
+            return format!("drive {}: no faults recorded (r0947 empty)\n", self.drive);
+        }
+        let mut out = format!("drive {} fault buffer r0947, newest first:\n", self.drive);
+        for (i, f) in self.faults.iter().enumerate() {
+            if *f != 0 {
+                let _ = writeln!(out, "  {i}: F{f:04}");
+            }
+        }
+        out
+    }
+}
+
+/// The end of `run`, `stop` or `ack`: what the drive shows now.
+#[derive(Debug, Serialize)]
+pub struct DriveReport {
+    pub bus: String,
+    pub drive: u8,
+    /// What ussctl did: "run", "stop", "ack".
+    pub action: &'static str,
+    pub online: bool,
+    pub state: &'static str,
+    pub zsw1: u16,
+    pub actual_hz: f32,
+    /// `run`: the highest actual frequency seen.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub peak_hz: Option<f32>,
+}
+
+impl DriveReport {
+    pub fn new(bus: &str, action: &'static str, i: &PzdInput, drive: u8, ref_hz: f32) -> Self {
+        let online = i.online != 0;
+        Self {
+            bus: bus.to_owned(),
+            drive,
+            action,
+            online,
+            state: if online {
+                state_name(i.zsw1)
+            } else {
+                "offline"
+            },
+            zsw1: i.zsw1,
+            actual_hz: Setpoint::from_word(i.hiw).hz(ref_hz),
+            peak_hz: None,
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let what = match self.action {
+            "run" => "ran; OFF1 sent, it ramps down",
+            "stop" => "OFF1 sent, it ramps down",
+            _ => "fault acknowledge sent",
+        };
+        let mut out = format!(
+            "drive {}: {what}; now {} (ZSW1 {:#06X}), {:.2} Hz",
+            self.drive, self.state, self.zsw1, self.actual_hz
+        );
+        if let Some(p) = self.peak_hz {
+            let _ = write!(out, ", peak {p:.2} Hz");
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn diag() -> DriveDiag {
+        DriveDiag {
+            online: 1,
+            last_zsw1: 0xFB34,
+            last_hiw: 0x2000,
+            good: 10,
+            rejected: 1,
+            timeouts: 1,
+            last_failure: LastFailure::NoResponse.code(),
+            ..DriveDiag::new(3)
+        }
+    }
+
+    #[test]
+    fn status_json_has_one_object_per_drive_with_decoded_zsw1() {
+        let report = StatusReport {
+            bus: BusReport::new("b0", &BusStatus::EMPTY),
+            drives: vec![DriveRow::new(&diag(), 50.0)],
+        };
+        let v = serde_json::to_value(&report).unwrap();
+        assert_eq!(v["bus"]["bus"], "b0");
+        assert_eq!(v["bus"]["efficiency"], serde_json::Value::Null);
+        let d = &v["drives"][0];
+        assert_eq!(d["address"], 3);
+        assert_eq!(d["online"], true);
+        assert_eq!(d["state"], "S4");
+        assert_eq!(d["zsw1"], 0xFB34);
+        assert_eq!(d["zsw1_hex"], "0xFB34");
+        assert_eq!(
+            d["flags"],
+            serde_json::json!(["at-setpoint", "control-requested", "running-right"])
+        );
+        assert_eq!(d["actual_hz"], 25.0);
+        assert_eq!(
+            (d["good"].as_u64(), d["rejected"].as_u64()),
+            (Some(10), Some(1))
+        );
+        assert_eq!(d["last_error"], "no response");
+        let text = report.human();
+        assert!(
+            text.contains("   3  yes     S4         0xFB34      25.00"),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn offline_drives_show_offline_not_a_stale_state() {
+        let d = DriveRow::new(
+            &DriveDiag {
+                online: 0,
+                ..diag()
+            },
+            50.0,
+        );
+        assert_eq!((d.online, d.state), (false, "offline"));
+    }
+
+    #[test]
+    fn float_parameters_show_both_readings() {
+        let r = |v, shown| {
+            ParamReport::new(
+                "b0",
+                1,
+                ParamRef {
+                    pnu: 1082,
+                    index: None,
+                },
+                v,
+                shown,
+            )
+        };
+        let p = r(Value::Dword(0x4248_0000), None);
+        assert_eq!(
+            p.human(),
+            "drive 1 P1082 = 1112014848 (dword 0x42480000; as float 50)"
+        );
+        let v = serde_json::to_value(&p).unwrap();
+        assert_eq!(
+            v,
+            serde_json::json!({"bus": "b0", "drive": 1, "pnu": 1082, "index": null, "type": "dword",
+                               "raw": 1_112_014_848_u32, "hex": "0x42480000", "value": 1_112_014_848_u32})
+        );
+        let p = r(Value::Dword(0x4248_0000), Some(Kind::Float));
+        assert_eq!(p.human(), "drive 1 P1082 = 50.0 (dword 0x42480000)");
+        assert_eq!(serde_json::to_value(&p).unwrap()["value"], 50.0);
+        let mut p = r(Value::Word(7), None);
+        p.eeprom = Some(true);
+        assert_eq!(
+            p.human(),
+            "drive 1 P1082 := 7 (word 0x0007), RAM and EEPROM"
+        );
+    }
+
+    #[test]
+    fn faults_list_only_recorded_codes() {
+        let f = FaultsReport {
+            bus: "b".into(),
+            drive: 2,
+            faults: vec![70, 11, 0, 0, 0, 0, 0, 0],
+        };
+        assert_eq!(
+            f.human(),
+            "drive 2 fault buffer r0947, newest first:\n  0: F0070\n  1: F0011\n"
+        );
+        assert_eq!(
+            serde_json::to_value(&f).unwrap()["faults"],
+            serde_json::json!([70, 11, 0, 0, 0, 0, 0, 0])
+        );
+    }
+
+    #[test]
+    fn watch_lines_carry_the_extra_words_in_use() {
+        let mut i = PzdInput::from_words(&[0xFB31, 0, 5, 6], 9, 0, 2_000_000).unwrap();
+        i.online = 1;
+        let w = WatchLine::new(0.5, 4, &i, 50.0);
+        assert_eq!(
+            (w.state, w.extra.as_slice(), w.period_ms),
+            ("S2", &[5, 6][..], 2.0)
+        );
+        assert!(w.human().contains("PZD3.. 0x0005 0x0006"), "{}", w.human());
+    }
+}

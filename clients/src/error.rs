@@ -1,0 +1,288 @@
+//! What can go wrong, and what to do about it. Every message ends with the next step.
+
+use core::fmt;
+use core::time::Duration;
+use thiserror::Error;
+use uss_shm_types::{ContractError, NameError, RequestError};
+
+/// Opening a bus, reading drives, taking control.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+#[non_exhaustive]
+pub enum ClientError {
+    /// A bus name or drive address that cannot exist.
+    #[error(transparent)]
+    Name(#[from] NameError),
+    /// ussd's services for this bus do not exist.
+    #[error("ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`)")]
+    NotRunning { bus: String },
+    /// ussd runs the bus, but not this drive.
+    #[error("drive {address} is not on {bus} ({}): use one of those or add it to ussd's configuration", Known(.known))]
+    UnknownDrive {
+        bus: String,
+        address: u8,
+        /// The drives ussd polls on this bus.
+        known: Vec<u8>,
+    },
+    /// Another controller holds the drive (one controller per drive, enforced by the service).
+    #[error("drive {address} on {bus} is controlled by {}: only one controller per drive; stop that one first", Holder(*.pid, .node))]
+    Controlled {
+        bus: String,
+        address: u8,
+        /// The controlling process, if its node could be found.
+        pid: Option<i32>,
+        /// The controlling node's name, if known.
+        node: Option<String>,
+    },
+    /// ussd was built against another `uss-shm-types` layout.
+    #[error(
+        "ussd on {bus} speaks another layout version ({service}): rebuild this program against the uss-shm-types of the running ussd"
+    )]
+    Incompatible { bus: String, service: String },
+    /// A payload breaks the contract.
+    #[error(transparent)]
+    Contract(#[from] ContractError),
+    /// An iceoryx2 call failed for another reason.
+    #[error(
+        "{what} failed: {detail}: check that ussd and this program run as the same user or group (iceoryx2 keeps its state in /dev/shm and /tmp/iceoryx2)"
+    )]
+    Ipc { what: String, detail: String },
+    /// ussd died (its notifier's dead event on `cycle`). The services of this `Bus` are stale.
+    #[error("ussd on {bus} stopped: open the bus again once ussd runs")]
+    UssdGone { bus: String },
+    /// ussd stopped updating the drive's input image (it stopped, or the drive is gone).
+    #[error(
+        "ussd did not update the inputs of drive {address} on {bus} for {timeout:?}: check that ussd still runs (`ussctl status`)"
+    )]
+    Stale {
+        bus: String,
+        address: u8,
+        timeout: Duration,
+    },
+    /// A drive did not get where it was asked to in time.
+    #[error(
+        "drive {address} on {bus} {} after {timeout:?} (wanted: {wanted}): check `ussctl status` and `ussctl faults {address}`",
+        Still(*.online, *.zsw1)
+    )]
+    WaitTimeout {
+        bus: String,
+        address: u8,
+        timeout: Duration,
+        /// What was awaited, e.g. "S4".
+        wanted: String,
+        /// Whether the drive answered at the end.
+        online: bool,
+        /// ZSW1 at the end.
+        zsw1: u16,
+    },
+}
+
+impl ClientError {
+    pub(crate) fn ipc(what: impl Into<String>, detail: impl fmt::Debug) -> Self {
+        Self::Ipc {
+            what: what.into(),
+            detail: format!("{detail:?}"),
+        }
+    }
+}
+
+struct Known<'a>(&'a [u8]);
+
+impl fmt::Display for Known<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.0 {
+            [] => f.write_str("ussd polls no drives there"),
+            [one] => write!(f, "ussd polls drive {one} there"),
+            many => {
+                f.write_str("ussd polls drives ")?;
+                for (i, a) in many.iter().enumerate() {
+                    if i > 0 {
+                        f.write_str(", ")?;
+                    }
+                    write!(f, "{a}")?;
+                }
+                f.write_str(" there")
+            }
+        }
+    }
+}
+
+struct Holder<'a>(Option<i32>, &'a Option<String>);
+
+impl fmt::Display for Holder<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match (self.0, self.1) {
+            (Some(pid), Some(node)) => write!(f, "process {pid} (node {node:?})"),
+            (Some(pid), None) => write!(f, "process {pid}"),
+            (None, _) => f.write_str("another process"),
+        }
+    }
+}
+
+struct Still(bool, u16);
+
+impl fmt::Display for Still {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.0 {
+            let state = crate::state_name(self.1);
+            write!(f, "is still in {state} (ZSW1 {:#06X})", self.1)
+        } else {
+            f.write_str("is offline")
+        }
+    }
+}
+
+/// A parameter access that did not deliver a value.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+#[non_exhaustive]
+pub enum ParamError {
+    /// Reply 7: the drive refused the task with this error number (USS.md section 6).
+    #[error("the drive refused the task with {0}")]
+    Drive(uss_protocol::ParamError),
+    /// Reply 8: no PKW change rights.
+    #[error(
+        "the drive grants no parameter change rights (reply 8): allow parameter changes over USS on the drive (MICROMASTER: P0927)"
+    )]
+    NoChangeRights,
+    /// No matching reply within ussd's parameter timeout.
+    #[error(
+        "no matching reply within ussd's parameter timeout: check the drive's PKW length (P2013); raise param_timeout_ms for slow EEPROM writes"
+    )]
+    Timeout,
+    /// The drive was or went offline.
+    #[error("the drive is offline: check `ussctl status`, its wiring, address and baud rate")]
+    DriveOffline,
+    /// The drive's parameter queue in ussd was full.
+    #[error("ussd's parameter queue for the drive is full: retry once earlier requests finished")]
+    MailboxFull,
+    /// ussd stopped before the item finished.
+    #[error("ussd shut down before the task finished: retry once ussd runs again")]
+    Shutdown,
+    /// ussd refused the request (or this item) before the bus.
+    #[error("ussd refused the request{} before the bus: {error}{}", Item(*.item), refusal_hint(*.error))]
+    Refused {
+        error: RequestError,
+        /// The item (0-based) the refusal is about, if it is about one.
+        item: Option<u8>,
+    },
+    /// ussd did not answer within the client's timeout.
+    #[error(
+        "ussd did not answer within {0:?}: check that it runs (`ussctl status`) and read its log"
+    )]
+    NoAnswer(Duration),
+    /// ussd dropped the request without answering (it stopped or crashed).
+    #[error("ussd dropped the request without answering: check that it runs (`ussctl status`)")]
+    Dropped,
+    /// The bus could not be reached.
+    #[error(transparent)]
+    Client(#[from] ClientError),
+    /// ussd answered something the contract does not allow.
+    #[error(
+        "unexpected answer from ussd ({0}): check that ussd and this program are the same uss-rt version"
+    )]
+    Unexpected(String),
+}
+
+struct Item(Option<u8>);
+
+impl fmt::Display for Item {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.0 {
+            Some(i) => write!(f, " (item {})", u32::from(i) + 1),
+            None => Ok(()),
+        }
+    }
+}
+
+/// What to do about a refusal.
+fn refusal_hint(error: RequestError) -> &'static str {
+    match error {
+        RequestError::UnknownDrive => ": the address is not in ussd's configuration",
+        RequestError::BadCount => ": send 1 to 39 items",
+        RequestError::ValueType => ": a word value is at most 65535; reads carry no value",
+        RequestError::WritesDisabled => {
+            ": ussd's configuration sets params_writable = false for this drive"
+        }
+        RequestError::Busy => ": retry once earlier requests finished",
+        RequestError::Shutdown => ": retry once ussd runs again",
+        RequestError::Version => ": rebuild this program against the running ussd's uss-shm-types",
+        RequestError::BadSubindex => ": array indices are 0..=254",
+        RequestError::NoParameterChannel => ": the drive is configured with pkw = 0",
+        RequestError::DwordOverThreeWords => {
+            ": the drive has a 3-word parameter channel; write a word, or configure pkw = 4"
+        }
+        RequestError::Ok
+        | RequestError::PnuOutOfRange
+        | RequestError::BadTask
+        | RequestError::BadStorage => "",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn controlled_message_names_the_process() {
+        let e = ClientError::Controlled {
+            bus: "bus0".into(),
+            address: 5,
+            pid: Some(1234),
+            node: None,
+        };
+        assert!(
+            e.to_string()
+                .starts_with("drive 5 on bus0 is controlled by process 1234:"),
+            "{e}"
+        );
+        let e = ClientError::Controlled {
+            bus: "bus0".into(),
+            address: 5,
+            pid: Some(1234),
+            node: Some("ussctl".into()),
+        };
+        assert!(
+            e.to_string()
+                .starts_with("drive 5 on bus0 is controlled by process 1234 (node \"ussctl\")"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn not_running_says_how_to_start_ussd() {
+        let e = ClientError::NotRunning { bus: "bus0".into() };
+        assert_eq!(
+            e.to_string(),
+            "ussd is not running on bus0: start it with `ussd` (or `ussd --config FILE`)"
+        );
+    }
+
+    #[test]
+    fn unknown_drive_lists_the_known_ones() {
+        let e = ClientError::UnknownDrive {
+            bus: "b".into(),
+            address: 9,
+            known: vec![1, 2, 3],
+        };
+        assert_eq!(
+            e.to_string(),
+            "drive 9 is not on b (ussd polls drives 1, 2, 3 there): use one of those or add it to ussd's configuration"
+        );
+    }
+
+    #[test]
+    fn drive_errors_carry_number_and_name() {
+        let e = ParamError::Drive(uss_protocol::ParamError::from_number(2));
+        assert_eq!(
+            e.to_string(),
+            "the drive refused the task with error 2: limit exceeded"
+        );
+        let e = ParamError::Refused {
+            error: RequestError::WritesDisabled,
+            item: Some(0),
+        };
+        assert_eq!(
+            e.to_string(),
+            "ussd refused the request (item 1) before the bus: writes disabled: ussd's configuration sets params_writable = false for this drive"
+        );
+    }
+}

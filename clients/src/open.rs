@@ -1,0 +1,113 @@
+//! Opening ussd's services: the layout attribute every one carries, and what each open error
+//! means to a client.
+
+use crate::ClientError;
+use iceoryx2::prelude::{AttributeVerifier, ServiceName};
+use iceoryx2::service::builder::blackboard::BlackboardOpenError;
+use iceoryx2::service::builder::event::EventOpenError;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
+use iceoryx2::service::builder::request_response::RequestResponseOpenError;
+use uss_shm_types::LAYOUT_VERSION;
+use uss_shm_types::names::LAYOUT_VERSION_ATTRIBUTE;
+
+/// The client's side of iceoryx2 everywhere in this crate: thread-safe ports, so a `Bus`, a
+/// `DriveWatch` and a `Controller` can move between threads (a refresher thread publishes
+/// through the controller's publisher). The shared-memory format is the one of
+/// `ipc::Service`: ussd's `ipc_threadsafe` and plain `ipc` clients interoperate with it.
+pub(crate) type Ipc = iceoryx2::prelude::ipc_threadsafe::Service;
+
+/// Requires `uss.layout_version` = [`LAYOUT_VERSION`], so a ussd built against another layout
+/// is refused at open time with a clear message instead of read as garbage.
+pub(crate) fn layout_verifier() -> Result<AttributeVerifier, ClientError> {
+    let key = LAYOUT_VERSION_ATTRIBUTE
+        .try_into()
+        .map_err(|e| ClientError::ipc("the layout attribute key", e))?;
+    let value = LAYOUT_VERSION
+        .to_string()
+        .as_str()
+        .try_into()
+        .map_err(|e| ClientError::ipc("the layout attribute value", e))?;
+    AttributeVerifier::new()
+        .require(&key, &value)
+        .map_err(|e| ClientError::ipc("the layout attribute", e))
+}
+
+/// What an open error means to a client.
+pub(crate) enum Failure {
+    /// The service does not exist (or is being removed): ussd is not there.
+    Missing,
+    /// It exists with another layout, type or pattern.
+    Incompatible,
+    /// Anything else (permissions, limits, corruption).
+    Other,
+}
+
+pub(crate) trait OpenError: core::fmt::Debug {
+    fn failure(&self) -> Failure;
+}
+
+impl OpenError for BlackboardOpenError {
+    fn failure(&self) -> Failure {
+        match self {
+            Self::DoesNotExist | Self::IsMarkedForDestruction => Failure::Missing,
+            Self::IncompatibleAttributes
+            | Self::IncompatibleKeys
+            | Self::IncompatibleMessagingPattern => Failure::Incompatible,
+            _ => Failure::Other,
+        }
+    }
+}
+
+impl OpenError for PublishSubscribeOpenError {
+    fn failure(&self) -> Failure {
+        match self {
+            Self::DoesNotExist | Self::IsMarkedForDestruction => Failure::Missing,
+            Self::IncompatibleAttributes
+            | Self::IncompatibleTypes
+            | Self::IncompatibleMessagingPattern => Failure::Incompatible,
+            _ => Failure::Other,
+        }
+    }
+}
+
+impl OpenError for EventOpenError {
+    fn failure(&self) -> Failure {
+        match self {
+            Self::DoesNotExist | Self::IsMarkedForDestruction => Failure::Missing,
+            Self::IncompatibleAttributes | Self::IncompatibleMessagingPattern => {
+                Failure::Incompatible
+            }
+            _ => Failure::Other,
+        }
+    }
+}
+
+impl OpenError for RequestResponseOpenError {
+    fn failure(&self) -> Failure {
+        match self {
+            Self::DoesNotExist | Self::IsMarkedForDestruction => Failure::Missing,
+            Self::IncompatibleAttributes
+            | Self::IncompatibleRequestOrResponseType
+            | Self::IncompatibleMessagingPattern => Failure::Incompatible,
+            _ => Failure::Other,
+        }
+    }
+}
+
+/// Maps an open error of service `name` on `bus`; `missing` says what a missing service means
+/// (ussd not running, or a drive ussd does not poll).
+pub(crate) fn opened<T, E: OpenError>(
+    result: Result<T, E>,
+    bus: &str,
+    name: &ServiceName,
+    missing: impl FnOnce() -> ClientError,
+) -> Result<T, ClientError> {
+    result.map_err(|e| match e.failure() {
+        Failure::Missing => missing(),
+        Failure::Incompatible => ClientError::Incompatible {
+            bus: bus.to_owned(),
+            service: name.as_str().to_owned(),
+        },
+        Failure::Other => ClientError::ipc(format!("opening {}", name.as_str()), e),
+    })
+}

@@ -1,0 +1,405 @@
+//! Parameter access (USS.md section 6) through ussd's `params` request-response service: one
+//! request of up to 39 items for one drive, one response with one result per item. ussd runs
+//! the items one PKW task at a time; PNUs from 2000 up are paged by ussd.
+
+use crate::bus::ParamClient;
+use crate::open::{layout_verifier, opened};
+use crate::{Bus, ClientError, ParamError};
+use core::time::Duration;
+use std::time::Instant;
+use uss_protocol::Value;
+use uss_shm_types::names;
+use uss_shm_types::{
+    DriveAddress, MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult,
+    RequestError, Storage, TaskCode,
+};
+
+/// The fault buffer: r0947, 8 elements, newest fault first (MICROMASTER).
+pub const FAULT_BUFFER_PNU: u16 = 947;
+/// Elements of [`FAULT_BUFFER_PNU`].
+pub const FAULT_BUFFER_LEN: u8 = 8;
+
+/// A read of `pnu`, or of its array element `index` (AK 1 / AK 6).
+pub const fn read_item(pnu: u16, index: Option<u8>) -> ParamItem {
+    match index {
+        None => ParamItem::read(pnu),
+        Some(i) => ParamItem::new(TaskCode::ReadArray, pnu, i as u16, 0, Storage::Ram),
+    }
+}
+
+/// A change of `pnu` (or its element `index`) to `value`, a word or a double word (a float as
+/// its IEEE-754 bits: [`Value::from_f32`]); in RAM, or RAM and EEPROM with `eeprom`.
+pub const fn write_item(pnu: u16, index: Option<u8>, value: Value, eeprom: bool) -> ParamItem {
+    let storage = if eeprom {
+        Storage::RamAndEeprom
+    } else {
+        Storage::Ram
+    };
+    let (task, value) = match (index, value) {
+        (None, Value::Word(w)) => (TaskCode::WriteWord, w as u32),
+        (None, Value::Dword(d)) => (TaskCode::WriteDword, d),
+        (Some(_), Value::Word(w)) => (TaskCode::WriteArrayWord, w as u32),
+        (Some(_), Value::Dword(d)) => (TaskCode::WriteArrayDword, d),
+    };
+    let index = match index {
+        Some(i) => i as u16,
+        None => 0,
+    };
+    ParamItem::new(task, pnu, index, value, storage)
+}
+
+/// A read of the number of elements of array `pnu` (AK 9).
+pub const fn array_len_item(pnu: u16) -> ParamItem {
+    ParamItem::new(TaskCode::ReadElementCount, pnu, 0, 0, Storage::Ram)
+}
+
+/// What one item delivered: a value (read or changed: the value the drive now holds), an
+/// element count (as a word) or a descriptive element.
+pub fn item_result(result: &ParamResult) -> Result<Value, ParamError> {
+    let value = if result.value_is_dword != 0 {
+        Value::Dword(result.value)
+    } else {
+        Value::Word(result.value as u16)
+    };
+    match result.outcome() {
+        Ok(Outcome::Value | Outcome::Description) => Ok(value),
+        Ok(Outcome::ElementCount) => Ok(Value::Word(result.value as u16)),
+        Ok(Outcome::DriveError) => Err(ParamError::Drive(uss_protocol::ParamError::from_number(
+            result.drive_error,
+        ))),
+        Ok(Outcome::NoChangeRights) => Err(ParamError::NoChangeRights),
+        Ok(Outcome::Timeout) => Err(ParamError::Timeout),
+        Ok(Outcome::DriveOffline) => Err(ParamError::DriveOffline),
+        Ok(Outcome::MailboxFull) => Err(ParamError::MailboxFull),
+        Ok(Outcome::Shutdown) => Err(ParamError::Shutdown),
+        Ok(Outcome::Refused) => match RequestError::try_from(result.refusal) {
+            Ok(error) => Err(ParamError::Refused { error, item: None }),
+            Err(e) => Err(ParamError::Unexpected(e.to_string())),
+        },
+        Ok(Outcome::NotRun) => Err(ParamError::Unexpected("an item was not run".into())),
+        Err(e) => Err(ParamError::Unexpected(e.to_string())),
+    }
+}
+
+/// The results of a whole response to a request of `count` items for drive `address`.
+pub fn response_results(
+    response: &ParamResponse,
+    address: u8,
+    count: usize,
+) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
+    uss_shm_types::check_version(response.version).map_err(ClientError::from)?;
+    match response.error() {
+        Ok(RequestError::Ok) => {}
+        Ok(error) => {
+            let item = (response.error_item != uss_shm_types::params::NO_ITEM)
+                .then_some(response.error_item);
+            return Err(ParamError::Refused { error, item });
+        }
+        Err(e) => return Err(ParamError::Unexpected(e.to_string())),
+    }
+    if response.address != address || usize::from(response.count) != count {
+        return Err(ParamError::Unexpected(format!(
+            "a response for drive {} with {} results to a request for drive {address} with {count} items",
+            response.address, response.count
+        )));
+    }
+    Ok(response.results().iter().map(item_result).collect())
+}
+
+impl Bus {
+    /// Reads `pnu` (or its array element `index`) from drive `address`.
+    pub fn read(&self, address: u8, pnu: u16, index: Option<u8>) -> Result<Value, ParamError> {
+        self.one(address, read_item(pnu, index))
+    }
+
+    /// Reads a float parameter (a double word holding IEEE-754 bits; P1082 reads 50.0).
+    pub fn read_f32(&self, address: u8, pnu: u16, index: Option<u8>) -> Result<f32, ParamError> {
+        self.read(address, pnu, index).map(Value::as_f32)
+    }
+
+    /// Reads a parameter as an unsigned number (a word is widened).
+    pub fn read_u32(&self, address: u8, pnu: u16, index: Option<u8>) -> Result<u32, ParamError> {
+        self.read(address, pnu, index).map(Value::as_u32)
+    }
+
+    /// Reads a word parameter; a double word is [`ParamError::Unexpected`].
+    pub fn read_u16(&self, address: u8, pnu: u16, index: Option<u8>) -> Result<u16, ParamError> {
+        match self.read(address, pnu, index)? {
+            Value::Word(w) => Ok(w),
+            Value::Dword(d) => Err(ParamError::Unexpected(format!(
+                "P{pnu} is a double word ({d:#010X}), not a word"
+            ))),
+        }
+    }
+
+    /// Changes `pnu` (or its element `index`) to `value` in RAM, or RAM and EEPROM with
+    /// `eeprom`; returns the value the drive now holds. A float goes as
+    /// [`Value::from_f32`] (`Value::from_f32(2.0)` for P1120 = 2 s).
+    pub fn write(
+        &self,
+        address: u8,
+        pnu: u16,
+        index: Option<u8>,
+        value: Value,
+        eeprom: bool,
+    ) -> Result<Value, ParamError> {
+        self.one(address, write_item(pnu, index, value, eeprom))
+    }
+
+    /// Reads the number of elements of array `pnu`.
+    pub fn read_array_len(&self, address: u8, pnu: u16) -> Result<u16, ParamError> {
+        self.one(address, array_len_item(pnu))
+            .map(|v| v.as_u32() as u16)
+    }
+
+    /// The drive's fault buffer r0947 (8 fault codes, newest first, 0 = empty), read in one
+    /// request of 8 array reads.
+    pub fn faults(&self, address: u8) -> Result<Vec<u16>, ParamError> {
+        let items: Vec<_> = (0..FAULT_BUFFER_LEN)
+            .map(|i| read_item(FAULT_BUFFER_PNU, Some(i)))
+            .collect();
+        self.batch(address, &items)
+            .into_iter()
+            .map(|r| r.map(|v| v.as_u32() as u16))
+            .collect()
+    }
+
+    /// Runs up to 39 items on drive `address` in one request; one result per item, in order.
+    /// A failure of the request as a whole (ussd refused it, did not answer, is not running)
+    /// is reported for every item.
+    pub fn batch(&self, address: u8, items: &[ParamItem]) -> Vec<Result<Value, ParamError>> {
+        match self.request(address, items) {
+            Ok(results) => results,
+            Err(e) => vec![Err(e); items.len()],
+        }
+    }
+
+    fn one(&self, address: u8, item: ParamItem) -> Result<Value, ParamError> {
+        self.request(address, &[item])?
+            .pop()
+            .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
+    }
+
+    /// Sends one request and waits for its one response.
+    fn request(
+        &self,
+        address: u8,
+        items: &[ParamItem],
+    ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
+        let drive = DriveAddress::new(address).map_err(ClientError::from)?;
+        let request = ParamRequest::new(drive, items).map_err(|r| ParamError::Refused {
+            error: r.error,
+            item: r.item,
+        })?;
+        let response = self.send_request(&request)?;
+        response_results(&response, address, items.len())
+    }
+
+    /// Sends a request as it is (no checks on this side) and returns ussd's one response:
+    /// for tools that build requests themselves. [`response_results`] reads it. Fails when
+    /// ussd does not answer within the answer timeout ([`Bus::set_answer_timeout`]).
+    pub fn send_request(&self, request: &ParamRequest) -> Result<ParamResponse, ParamError> {
+        let client = self.param_client()?;
+        let pending = client
+            .send_copy(*request)
+            .map_err(|e| ClientError::ipc("sending the parameter request", e))?;
+        if pending.number_of_server_connections() == 0 {
+            return Err(ClientError::NotRunning {
+                bus: self.name().to_owned(),
+            }
+            .into());
+        }
+        let timeout = self.answer_timeout(usize::from(request.count).min(MAX_PARAM_ITEMS));
+        let deadline = Instant::now() + timeout;
+        let mut pause = Duration::from_micros(50);
+        loop {
+            // Looked at before `receive`, so an answer sent just before the server let go of
+            // the request is still received.
+            let connected = pending.is_connected();
+            if let Some(response) = pending
+                .receive()
+                .map_err(|e| ClientError::ipc("receiving the parameter response", e))?
+            {
+                return Ok(*response);
+            }
+            if !connected {
+                return Err(ParamError::Dropped);
+            }
+            if Instant::now() >= deadline {
+                return Err(ParamError::NoAnswer(timeout));
+            }
+            // A response has no file descriptor to wait on: poll, backing off to 2 ms.
+            std::thread::sleep(pause);
+            pause = (pause * 2).min(Duration::from_millis(2));
+        }
+    }
+
+    fn param_client(&self) -> Result<&ParamClient, ClientError> {
+        if let Some(client) = self.params_client().get() {
+            return Ok(client);
+        }
+        let name = names::params(self.bus_name());
+        let service = opened(
+            self.node()
+                .service_builder(&name)
+                .request_response::<ParamRequest, ParamResponse>()
+                .open_with_attributes(&layout_verifier()?),
+            self.name(),
+            &name,
+            || ClientError::NotRunning {
+                bus: self.name().to_owned(),
+            },
+        )?;
+        let client = service
+            .client_builder()
+            .create()
+            .map_err(|e| ClientError::ipc(format!("a client of {}", name.as_str()), e))?;
+        // Another thread may have won the race; its client serves as well as this one.
+        let _ = self.params_client().set(client);
+        self.params_client()
+            .get()
+            .ok_or_else(|| ClientError::ipc("the parameter client", "not kept"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn result(outcome: Outcome, value: u32, dword: bool) -> ParamResult {
+        ParamResult {
+            outcome: outcome.code(),
+            value,
+            value_is_dword: u8::from(dword),
+            ..ParamResult::NOT_RUN
+        }
+    }
+
+    #[test]
+    fn items_carry_the_task_for_their_value_width_and_storage() {
+        let w = write_item(1120, None, Value::from_f32(2.0), false);
+        assert_eq!(w.task(), Ok(TaskCode::WriteDword));
+        assert_eq!((w.value, w.storage()), (0x4000_0000, Ok(Storage::Ram)));
+        let w = write_item(2010, Some(3), Value::Word(7), true);
+        assert_eq!(w.task(), Ok(TaskCode::WriteArrayWord));
+        assert_eq!((w.index, w.value), (3, 7));
+        assert_eq!(w.storage(), Ok(Storage::RamAndEeprom));
+        assert_eq!(
+            write_item(1, Some(0), Value::Dword(1), false).task(),
+            Ok(TaskCode::WriteArrayDword)
+        );
+        assert_eq!(read_item(947, Some(7)).task(), Ok(TaskCode::ReadArray));
+        assert_eq!(read_item(947, Some(7)).index, 7);
+        assert_eq!(read_item(1082, None), ParamItem::read(1082));
+        assert_eq!(array_len_item(947).task(), Ok(TaskCode::ReadElementCount));
+        for item in [w, read_item(1, Some(254)), array_len_item(2)] {
+            assert!(item.check().is_ok(), "{item:?}");
+        }
+    }
+
+    #[test]
+    fn results_map_to_values_and_typed_errors() {
+        assert_eq!(
+            item_result(&result(Outcome::Value, 0x4248_0000, true)),
+            Ok(Value::Dword(0x4248_0000))
+        );
+        assert_eq!(
+            item_result(&result(Outcome::Value, 0x4248_0000, true)).map(Value::as_f32),
+            Ok(50.0)
+        );
+        assert_eq!(
+            item_result(&result(Outcome::Value, 6, false)),
+            Ok(Value::Word(6))
+        );
+        assert_eq!(
+            item_result(&result(Outcome::ElementCount, 8, false)),
+            Ok(Value::Word(8))
+        );
+        let drive_error = ParamResult {
+            drive_error: 2,
+            ..result(Outcome::DriveError, 0, false)
+        };
+        assert_eq!(
+            item_result(&drive_error),
+            Err(ParamError::Drive(uss_protocol::ParamError::LimitExceeded))
+        );
+        assert_eq!(
+            item_result(&result(Outcome::NoChangeRights, 0, false)),
+            Err(ParamError::NoChangeRights)
+        );
+        assert_eq!(
+            item_result(&result(Outcome::Timeout, 0, false)),
+            Err(ParamError::Timeout)
+        );
+        assert_eq!(
+            item_result(&result(Outcome::DriveOffline, 0, false)),
+            Err(ParamError::DriveOffline)
+        );
+        assert_eq!(
+            item_result(&result(Outcome::Shutdown, 0, false)),
+            Err(ParamError::Shutdown)
+        );
+        assert_eq!(
+            item_result(&ParamResult::refused(RequestError::WritesDisabled)),
+            Err(ParamError::Refused {
+                error: RequestError::WritesDisabled,
+                item: None
+            })
+        );
+        assert!(matches!(
+            item_result(&ParamResult {
+                outcome: 200,
+                ..ParamResult::NOT_RUN
+            }),
+            Err(ParamError::Unexpected(_))
+        ));
+    }
+
+    #[test]
+    fn refused_responses_name_the_error_and_item() {
+        let r = ParamResponse::refused(
+            9,
+            uss_shm_types::Refusal {
+                error: RequestError::UnknownDrive,
+                item: None,
+            },
+        );
+        assert_eq!(
+            response_results(&r, 9, 1),
+            Err(ParamError::Refused {
+                error: RequestError::UnknownDrive,
+                item: None
+            })
+        );
+        let r = ParamResponse::refused(
+            3,
+            uss_shm_types::Refusal {
+                error: RequestError::BadSubindex,
+                item: Some(2),
+            },
+        );
+        assert_eq!(
+            response_results(&r, 3, 4),
+            Err(ParamError::Refused {
+                error: RequestError::BadSubindex,
+                item: Some(2)
+            })
+        );
+    }
+
+    #[test]
+    fn responses_for_another_request_are_unexpected() {
+        let mut r = ParamResponse::new(3);
+        r.count = 1;
+        r.results[0] = result(Outcome::Value, 1, false);
+        assert_eq!(response_results(&r, 3, 1), Ok(vec![Ok(Value::Word(1))]));
+        assert!(matches!(
+            response_results(&r, 4, 1),
+            Err(ParamError::Unexpected(_))
+        ));
+        assert!(matches!(
+            response_results(&r, 3, 2),
+            Err(ParamError::Unexpected(_))
+        ));
+    }
+}

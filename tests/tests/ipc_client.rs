@@ -1,0 +1,611 @@
+//! The client API and `ussctl` against a real `ussd` in its own process, on a simulated bus.
+//!
+//! Every test starts its own ussd (`ussd --config FILE`, `device = "sim"`, drives 1, 2 and 3)
+//! on a bus named after this process and the test, so parallel test runs never share a
+//! service; the tests here take turns (two cores, one real-time bus thread each) and stop
+//! their ussd with SIGTERM, so it removes its services. ussctl runs as a separate process.
+#![allow(clippy::unwrap_used, clippy::float_cmp)]
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+use uss_client::uss_protocol::ParamError as DriveError;
+use uss_client::{
+    Bus, ClientError, ControlOptions, CycleEvent, DriveState, ParamError, ParamRequest,
+    RequestError, Value, read_item,
+};
+use uss_integration_tests::binary;
+
+/// One ussd at a time: each runs a paced bus thread, and the machine has two cores.
+fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// A ussd process on a bus of its own; stopped with SIGTERM when dropped.
+struct Ussd {
+    child: Child,
+    bus: String,
+    config: std::path::PathBuf,
+}
+
+impl Ussd {
+    /// Starts ussd with drives 1, 2, 3 and waits until every drive answered.
+    fn start() -> Ussd {
+        Self::start_with("")
+    }
+
+    /// Like [`Ussd::start`], with drive 3 simulated as `drive3_sim` says (uss-sim's keys).
+    fn start_with(drive3_sim: &str) -> Ussd {
+        static NEXT: AtomicU32 = AtomicU32::new(0);
+        let bus = format!(
+            "t{}n{}",
+            std::process::id(),
+            NEXT.fetch_add(1, Ordering::Relaxed)
+        );
+        let config = std::env::temp_dir().join(format!("ussd-ipc-client-{bus}.toml"));
+        std::fs::write(
+            &config,
+            format!(
+                "[[bus]]\nname = \"{bus}\"\ndevice = \"sim\"\n\n\
+                 [[bus.drive]]\naddress = 1\n\n[[bus.drive]]\naddress = 2\n\n[[bus.drive]]\naddress = 3\n\
+                 sim = \"{drive3_sim}\"\n"
+            ),
+        )
+        .unwrap();
+        let child = Command::new(binary("uss-master", "ussd"))
+            .arg("--config")
+            .arg(&config)
+            .args(["--summary-every", "3600"])
+            .stdout(Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut ussd = Ussd { child, bus, config };
+        let deadline = Instant::now() + Duration::from_secs(20);
+        let bus = loop {
+            match Bus::open(&ussd.bus) {
+                Ok(bus) => break bus,
+                Err(ClientError::NotRunning { .. }) if Instant::now() < deadline => {
+                    assert!(
+                        ussd.child.try_wait().unwrap().is_none(),
+                        "ussd ended before it created its services"
+                    );
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+                Err(e) => panic!("{e}"),
+            }
+        };
+        for a in [1, 2, 3] {
+            bus.watch(a)
+                .unwrap()
+                .wait_for(Duration::from_secs(10), "a reply", |i| {
+                    i.online != 0 && i.sequence > 0
+                })
+                .unwrap();
+        }
+        // Diagnostics lag the images (the engine hands its counters over every 250 ms, ussd
+        // republishes them every 100 ms): wait until they show the replies too.
+        while bus.drives().iter().any(|&a| bus.diag(a).unwrap().good == 0) {
+            assert!(Instant::now() < deadline, "no diagnostics published");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        ussd
+    }
+
+    fn bus(&self) -> Bus {
+        Bus::open(&self.bus).unwrap()
+    }
+
+    fn ussctl(&self, args: &[&str]) -> Output {
+        Command::new(binary("uss-client", "ussctl"))
+            .args(["--bus", &self.bus])
+            .args(args)
+            .output()
+            .unwrap()
+    }
+}
+
+impl Drop for Ussd {
+    fn drop(&mut self) {
+        let pid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).unwrap());
+        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while self.child.try_wait().ok().flatten().is_none() && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_file(&self.config);
+    }
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+#[test]
+fn client_reads_inputs_status_diagnostics_and_cycle_events() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+    assert_eq!(bus.drives(), [1, 2, 3]);
+
+    // No controller: every drive gets the safe command OFF1, which leads it S1 -> S2.
+    let watch = bus.watch(2).unwrap();
+    watch
+        .wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
+        .unwrap();
+    let first = watch.latest();
+    assert_eq!((first.online, first.word_count, first.hiw), (1, 2, 0));
+    assert_eq!(watch.actual_hz(50.0), 0.0);
+    let later = watch.wait_exchanges(3, Duration::from_secs(2)).unwrap();
+    assert!(later.timestamp_ns > first.timestamp_ns);
+    assert!(later.age_ns > 0, "the update period is published");
+
+    let events = bus.cycle_listener().unwrap();
+    assert!(
+        events
+            .wait_for(CycleEvent::Exchange(2), Duration::from_secs(2))
+            .unwrap()
+    );
+    assert!(
+        events
+            .wait_for(CycleEvent::CycleCompleted, Duration::from_secs(2))
+            .unwrap()
+    );
+    assert!(
+        events
+            .wait_for(CycleEvent::StatusPublished, Duration::from_secs(2))
+            .unwrap()
+    );
+
+    let status = bus.status();
+    assert_eq!((status.running, status.drive_count), (1, 3));
+    assert!(status.cycles > 0 && status.good > 0, "{status:?}");
+    let diag = bus.diag(2).unwrap();
+    assert_eq!((diag.address, diag.online), (2, 1));
+    assert!(diag.good > 0 && diag.requests >= diag.good, "{diag:?}");
+
+    let unknown = bus.watch(9).unwrap_err();
+    assert_eq!(
+        unknown.to_string(),
+        format!(
+            "drive 9 is not on {} (ussd polls drives 1, 2, 3 there): use one of those or add it to ussd's configuration",
+            ussd.bus
+        )
+    );
+    assert!(matches!(
+        bus.diag(9),
+        Err(ClientError::UnknownDrive { address: 9, .. })
+    ));
+}
+
+#[test]
+fn client_without_ussd_is_told_how_to_start_it() {
+    let bus = format!("absent{}", std::process::id());
+    assert_eq!(
+        Bus::open(&bus).unwrap_err().to_string(),
+        format!("ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`)")
+    );
+    let out = Command::new(binary("uss-client", "ussctl"))
+        .args(["--bus", &bus, "status"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(
+        text(&out.stderr),
+        format!(
+            "ussctl: ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`)\n"
+        )
+    );
+}
+
+#[test]
+fn parameters_read_and_write_with_typed_values_and_drive_errors() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+
+    // USS.md section 6: P1082 reads 0x4248_0000 = 50.0 Hz.
+    assert_eq!(bus.read(1, 1082, None), Ok(Value::Dword(0x4248_0000)));
+    assert_eq!(bus.read_f32(1, 1082, None), Ok(50.0));
+    assert_eq!(bus.read_f32(1, 2000, None), Ok(50.0), "P2000, paged");
+
+    // P1120 ramp-up time: written as a float, read back.
+    assert_eq!(
+        bus.write(1, 1120, None, Value::from_f32(2.5), false),
+        Ok(Value::Dword(2.5f32.to_bits()))
+    );
+    assert_eq!(bus.read_f32(1, 1120, None), Ok(2.5));
+    assert_eq!(
+        bus.write(1, 1120, None, Value::from_f32(3.0), true),
+        Ok(Value::from_f32(3.0)),
+        "RAM + EEPROM"
+    );
+    assert_eq!(bus.read_f32(1, 1120, None), Ok(3.0));
+
+    // Arrays: r0947, the fault buffer, has 8 word elements, all empty.
+    assert_eq!(bus.read_array_len(1, 947), Ok(8));
+    assert_eq!(bus.read(1, 947, Some(7)), Ok(Value::Word(0)));
+    assert_eq!(bus.faults(1), Ok(vec![0; 8]));
+
+    // Drive errors carry their number and name (USS.md section 6).
+    let err = bus.read(1, 1999, None).unwrap_err();
+    assert_eq!(err, ParamError::Drive(DriveError::IllegalPnu));
+    assert_eq!(
+        err.to_string(),
+        "the drive refused the task with error 0: illegal parameter number"
+    );
+    assert_eq!(
+        bus.read(1, 947, Some(8)),
+        Err(ParamError::Drive(DriveError::FaultySubindex))
+    );
+    assert_eq!(
+        bus.write(1, 947, Some(0), Value::Word(1), false),
+        Err(ParamError::Drive(DriveError::ValueNotChangeable))
+    );
+    assert_eq!(
+        bus.write(1, 1120, None, Value::Word(2), false),
+        Err(ParamError::Drive(DriveError::WrongDataType))
+    );
+    // P0927 (access level 2, so raise P0003 first) with bit 3 clear: no more changes over
+    // USS (reply 8).
+    assert_eq!(
+        bus.write(3, 927, None, Value::Word(15), false),
+        Err(ParamError::Drive(DriveError::AccessLevelTooLow))
+    );
+    assert_eq!(
+        bus.write(3, 3, None, Value::Word(3), false),
+        Ok(Value::Word(3))
+    );
+    assert_eq!(
+        bus.write(3, 927, None, Value::Word(0b0111), false),
+        Ok(Value::Word(0b0111))
+    );
+    assert_eq!(
+        bus.write(3, 1120, None, Value::from_f32(1.0), false),
+        Err(ParamError::NoChangeRights)
+    );
+}
+
+#[test]
+fn a_batch_of_39_reads_gets_39_results_in_order() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+    let pnus = [1082, 2000, 1120, 1121, 947];
+    let items: Vec<_> = (0..39)
+        .map(|i| match pnus[i % pnus.len()] {
+            947 => read_item(947, Some((i % 8) as u8)),
+            pnu => read_item(pnu, None),
+        })
+        .collect();
+    let results = bus.batch(2, &items);
+    assert_eq!(results.len(), 39);
+    for (i, r) in results.iter().enumerate() {
+        let expected = match pnus[i % pnus.len()] {
+            1082 | 2000 => Value::from_f32(50.0),
+            1120 | 1121 => Value::from_f32(10.0),
+            _ => Value::Word(0),
+        };
+        assert_eq!(r, &Ok(expected), "item {i}: {:?}", items[i]);
+    }
+    // Items that fail fail alone.
+    let mixed = bus.batch(
+        2,
+        &[
+            read_item(1082, None),
+            read_item(1999, None),
+            read_item(2000, None),
+        ],
+    );
+    assert_eq!(
+        mixed,
+        [
+            Ok(Value::from_f32(50.0)),
+            Err(ParamError::Drive(DriveError::IllegalPnu)),
+            Ok(Value::from_f32(50.0))
+        ]
+    );
+    // 40 items do not fit one request: refused on this side, for every item.
+    let too_many = bus.batch(2, &[read_item(1082, None); 40]);
+    assert_eq!(too_many.len(), 40);
+    assert!(too_many.iter().all(|r| *r
+        == Err(ParamError::Refused {
+            error: RequestError::BadCount,
+            item: None
+        })));
+}
+
+#[test]
+fn bad_requests_are_answered_with_errors() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+
+    // A drive ussd does not poll.
+    assert_eq!(
+        bus.read(9, 1082, None),
+        Err(ParamError::Refused {
+            error: RequestError::UnknownDrive,
+            item: None
+        })
+    );
+    let out = ussd.ussctl(&["param", "read", "9", "1082"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(
+        text(&out.stderr),
+        "ussctl: drive 9 P1082: ussd refused the request before the bus: unknown drive: the address is not in ussd's configuration\n"
+    );
+
+    // Malformed requests, sent as they are: each gets exactly one refusal.
+    let good = ParamRequest::new(
+        uss_client::uss_shm_types::DriveAddress::new(1).unwrap(),
+        &[read_item(1082, None), read_item(947, Some(1))],
+    )
+    .unwrap();
+    let mut bad_index = good;
+    bad_index.items[1].index = 300;
+    let mut bad_version = good;
+    bad_version.version = 0;
+    let mut no_items = good;
+    no_items.count = 0;
+    let mut bad_address = good;
+    bad_address.address = 40;
+    let mut bad_task = good;
+    bad_task.items[0].task = 0;
+    for (request, error, item) in [
+        (bad_index, RequestError::BadSubindex, 1),
+        (bad_version, RequestError::Version, u8::MAX),
+        (no_items, RequestError::BadCount, u8::MAX),
+        (bad_address, RequestError::UnknownDrive, u8::MAX),
+        (bad_task, RequestError::BadTask, 0),
+    ] {
+        let response = bus.send_request(&request).unwrap();
+        assert_eq!(
+            (response.error(), response.error_item, response.count),
+            (Ok(error), item, 0),
+            "{request:?}"
+        );
+    }
+    // The engine is unaffected.
+    assert_eq!(
+        uss_client::params::response_results(&bus.send_request(&good).unwrap(), 1, 2),
+        Ok(vec![Ok(Value::from_f32(50.0)), Ok(Value::Word(0))])
+    );
+}
+
+#[test]
+fn a_second_controller_is_refused_with_the_controlling_process_id() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+    let me = std::process::id();
+
+    // This process controls drive 2: a second handle here, and ussctl, are refused.
+    let first = bus.control(2, ControlOptions::default()).unwrap();
+    first.enable().unwrap();
+    let refused = bus.control(2, ControlOptions::default()).unwrap_err();
+    assert!(
+        matches!(refused, ClientError::Controlled { address: 2, pid: Some(pid), .. } if pid == me as i32),
+        "{refused:?}"
+    );
+    let prefix = format!("drive 2 on {} is controlled by process {me}", ussd.bus);
+    assert!(refused.to_string().starts_with(&prefix), "{refused}");
+    let out = ussd.ussctl(&["stop", "2"]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = text(&out.stderr);
+    assert!(err.starts_with(&format!("ussctl: {prefix}")), "{err}");
+    assert!(err.contains("only one controller per drive"), "{err}");
+    // Drive 2 is untouched by the refused attempts: still this controller's 0x047E.
+    assert_eq!(first.words(), [0x047E, 0]);
+    drop(first);
+
+    // `ussctl run` in another process holds drive 3.
+    let mut run = Command::new(binary("uss-client", "ussctl"))
+        .args(["--bus", &ussd.bus, "run", "3", "--hz", "5", "--for", "20"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = BufReader::new(run.stdout.take().unwrap());
+    let mut line = String::new();
+    stdout.read_line(&mut line).unwrap();
+    assert!(line.starts_with("drive 3: running towards 5 Hz"), "{line}");
+    let refused = bus.control(3, ControlOptions::default()).unwrap_err();
+    assert!(
+        refused.to_string().starts_with(&format!(
+            "drive 3 on {} is controlled by process {} (node \"ussctl\")",
+            ussd.bus,
+            run.id()
+        )),
+        "{refused}"
+    );
+    // Ctrl-C: ussctl stops the drive (OFF1) and lets go; then the drive can be taken.
+    let pid = nix::unistd::Pid::from_raw(i32::try_from(run.id()).unwrap());
+    nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGINT).unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stdout, &mut rest).unwrap();
+    assert!(run.wait().unwrap().success(), "{rest}");
+    assert!(rest.contains("drive 3: ran; OFF1 sent"), "{rest}");
+    bus.control(3, ControlOptions::default()).unwrap();
+}
+
+#[test]
+fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+    // A quick ramp: 50 Hz in 1 s.
+    bus.write(1, 1120, None, Value::from_f32(1.0), false)
+        .unwrap();
+
+    let c = bus.control(1, ControlOptions::default()).unwrap();
+    c.enable().unwrap();
+    c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
+        .unwrap();
+    c.run_hz(25.0, 50.0).unwrap();
+    assert_eq!(c.words(), [0x047F, 0x2000]);
+    c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(2))
+        .unwrap();
+
+    let refresher = c.spawn_refresher(Duration::from_millis(20));
+    let mut seen = vec![c.inputs().actual_hz(50.0)];
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while *seen.last().unwrap() < 24.9 && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+        seen.push(c.inputs().actual_hz(50.0));
+    }
+    assert!(*seen.last().unwrap() >= 24.9, "{seen:?}");
+    assert!(seen[0] < 20.0, "started low: {seen:?}");
+    assert!(seen.windows(2).all(|w| w[1] >= w[0]), "rises: {seen:?}");
+    assert_eq!(c.inputs().state(), DriveState::OperationEnabled);
+    assert_eq!(c.inputs().latest().watchdog_tripped, 0);
+    refresher.stop().unwrap();
+
+    // Without refreshes the watchdog gives the drive its safe command within its 100 ms.
+    let stale = c
+        .inputs()
+        .wait_for(Duration::from_secs(1), "watchdog", |i| {
+            i.watchdog_tripped != 0
+        })
+        .unwrap();
+    assert_eq!(stale.online, 1);
+
+    // A running drive refuses to change P1082 (error 17, not in this state).
+    assert_eq!(
+        bus.write(1, 1082, None, Value::from_f32(60.0), false),
+        Err(ParamError::Drive(DriveError::NotInThisState))
+    );
+    c.stop().unwrap();
+    c.inputs()
+        .wait_exchanges(2, Duration::from_secs(1))
+        .unwrap();
+    assert_eq!(c.words()[0], 0x047E);
+}
+
+#[test]
+fn ussctl_prints_status_as_json_and_reads_and_writes_parameters() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+
+    let out = ussd.ussctl(&["--json", "status"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json = text(&out.stdout);
+    assert_eq!(json.lines().count(), 1, "{json}");
+    assert!(
+        json.starts_with(&format!(
+            "{{\"bus\":{{\"bus\":\"{}\",\"running\":true,",
+            ussd.bus
+        )),
+        "{json}"
+    );
+    assert!(json.contains("\"drive_count\":3"), "{json}");
+    for a in 1..=3 {
+        assert!(
+            json.contains(&format!(
+                "{{\"address\":{a},\"online\":true,\"state\":\"S2\","
+            )),
+            "{json}"
+        );
+    }
+
+    let out = ussd.ussctl(&["status"]);
+    assert!(out.status.success());
+    let table = text(&out.stdout);
+    assert!(table.contains("addr  online  state"), "{table}");
+    assert!(table.contains("   2  yes     S2"), "{table}");
+
+    let out = ussd.ussctl(&["param", "read", "1", "1082", "--type", "float"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(
+        text(&out.stdout),
+        "drive 1 P1082 = 50.0 (dword 0x42480000)\n"
+    );
+    let out = ussd.ussctl(&["--json", "param", "read", "1", "r0947.2"]);
+    assert_eq!(
+        text(&out.stdout),
+        format!(
+            "{{\"bus\":\"{}\",\"drive\":1,\"pnu\":947,\"index\":2,\"type\":\"word\",\"raw\":0,\"hex\":\"0x0000\",\"value\":0}}\n",
+            ussd.bus
+        )
+    );
+    let out = ussd.ussctl(&["param", "write", "2", "1120", "3.5"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(
+        text(&out.stdout),
+        "drive 2 P1120 := 3.5 (dword 0x40600000), RAM\n"
+    );
+    assert_eq!(ussd.bus().read_f32(2, 1120, None), Ok(3.5));
+    let out = ussd.ussctl(&["param", "write", "2", "1120", "3"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        text(&out.stderr).contains("error 5: wrong data type"),
+        "{}",
+        text(&out.stderr)
+    );
+
+    let out = ussd.ussctl(&["faults", "3"]);
+    assert_eq!(
+        text(&out.stdout),
+        "drive 3: no faults recorded (r0947 empty)\n"
+    );
+    let out = ussd.ussctl(&["--json", "watch", "--count", "2", "--interval", "50", "1"]);
+    let lines = text(&out.stdout);
+    assert_eq!(lines.lines().count(), 2, "{lines}");
+    assert!(
+        lines
+            .lines()
+            .all(|l| l.contains("\"drive\":1,\"online\":true")),
+        "{lines}"
+    );
+}
+
+#[test]
+fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
+    let _serial = serial();
+    // Drive 3 watches its telegrams (P2014 = 100 ms) and is unplugged for half a second, so it
+    // trips with F0072 (USS telegram off) and answers again in fault.
+    let ussd = Ussd::start_with("p2014=100,unplug=2000..2500");
+    let bus = ussd.bus();
+    let faulted = bus
+        .watch(3)
+        .unwrap()
+        .wait_for(Duration::from_secs(10), "fault", |i| {
+            i.online != 0 && uss_client::state_of(i) == DriveState::Fault
+        })
+        .unwrap();
+    assert_eq!(faulted.zsw1 & 0x0008, 0x0008);
+    assert_eq!(bus.faults(3), Ok(vec![72, 0, 0, 0, 0, 0, 0, 0]));
+    let out = ussd.ussctl(&["faults", "3"]);
+    assert_eq!(
+        text(&out.stdout),
+        "drive 3 fault buffer r0947, newest first:\n  0: F0072\n"
+    );
+
+    // A faulted drive is not run: ussctl says what to do.
+    let out = ussd.ussctl(&["run", "3", "--hz", "5"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(
+        text(&out.stderr),
+        "ussctl: drive 3 is in fault (ZSW1 0xBB38): see `ussctl faults 3`, then acknowledge with `ussctl ack 3`\n"
+    );
+
+    let out = ussd.ussctl(&["ack", "3"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let said = text(&out.stdout);
+    assert!(
+        said.starts_with("drive 3: fault acknowledge sent; now S"),
+        "{said}"
+    );
+    assert_ne!(bus.watch(3).unwrap().state(), DriveState::Fault);
+    // The acknowledged drive runs again.
+    let c = bus.control(3, ControlOptions::default()).unwrap();
+    c.enable().unwrap();
+    c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
+        .unwrap();
+    c.run_percent(10.0).unwrap();
+    c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(2))
+        .unwrap();
+}
