@@ -1,0 +1,157 @@
+"""uss_rt against a real ussd on a simulated bus.
+
+The module starts one ``ussd --config FILE`` (``device = "sim"``, drives 1 and 2) on a bus named
+after this process, so parallel runs never share a service, and stops it with SIGTERM in its
+last test. ussd is built with cargo first (a no-op when it is up to date); set USSD to a binary
+to use that one instead.
+"""
+
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+import uss_rt
+
+ROOT = Path(__file__).resolve().parents[2]
+BUS = f"py{os.getpid()}"
+DRIVES = (1, 2)
+
+
+def ussd_binary() -> str:
+    if "USSD" in os.environ:
+        return os.environ["USSD"]
+    subprocess.run(
+        ["cargo", "build", "--quiet", "-p", "uss-master", "--bin", "ussd"], cwd=ROOT, check=True
+    )
+    target = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
+    return str(target / "debug" / "ussd")
+
+
+class Ussd:
+    """A ussd process running BUS."""
+
+    def __init__(self, tmp: Path):
+        self.config = tmp / "ussd.toml"
+        drives = "".join(f"\n[[bus.drive]]\naddress = {a}\n" for a in DRIVES)
+        self.config.write_text(f'[[bus]]\nname = "{BUS}"\ndevice = "sim"\n{drives}')
+        self.log = tmp / "ussd.log"
+        with self.log.open("w") as log:
+            self.process = subprocess.Popen(
+                [ussd_binary(), "--config", str(self.config), "--summary-every", "3600"],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+
+    def output(self) -> str:
+        return self.log.read_text()
+
+    def wait_for_services(self, timeout: float = 20.0):
+        """Returns once ussd created BUS's services."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                uss_rt.open_bus(BUS).close()
+                return
+            except uss_rt.NotRunning:
+                assert self.process.poll() is None, f"ussd ended early:\n{self.output()}"
+                assert time.monotonic() < deadline, f"none after {timeout} s:\n{self.output()}"
+                time.sleep(0.05)
+
+    def stop(self) -> int:
+        """SIGTERM, then the exit status (killed after 10 s)."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+        try:
+            return self.process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+            raise
+
+
+@pytest.fixture(scope="module")
+def ussd(tmp_path_factory):
+    daemon = Ussd(tmp_path_factory.mktemp("ussd"))
+    daemon.wait_for_services()
+    yield daemon
+    if daemon.process.poll() is None:
+        daemon.process.kill()
+        daemon.process.wait()
+
+
+@pytest.fixture
+def bus(ussd):
+    """A bus of its own per test, closed after it: the last test needs every port gone, so
+    ussd's services can go when ussd stops."""
+    with uss_rt.open_bus(BUS) as bus:
+        yield bus
+
+
+def wait_for_input(bus, address, accept, timeout=10.0):
+    """The first input image of ``address`` that ``accept`` takes."""
+    deadline = time.monotonic() + timeout
+    while True:
+        image = uss_rt.read_input(bus, address)
+        if accept(image):
+            return image
+        assert time.monotonic() < deadline, f"drive {address}: still {image}"
+        time.sleep(0.01)
+
+
+def test_bus_lists_the_polled_drives_and_runs(bus):
+    assert bus.drives() == list(DRIVES)
+    status = bus.status()
+    assert status.version == uss_rt.LAYOUT_VERSION
+    assert status.drive_count == len(DRIVES)
+    assert status.running == 1
+
+
+def test_input_image_is_online_in_s2_and_its_sequence_increases(bus):
+    first = wait_for_input(bus, 1, lambda i: i["online"] == 1 and i["sequence"] > 0)
+    later = wait_for_input(bus, 1, lambda i: i["sequence"] > first["sequence"])
+    for image in (first, later):
+        assert image["online"] == 1
+        assert image["timestamp_ns"] > 0
+        # No controller: ussd sends the safe command OFF1, which takes the drive from S1 to S2
+        # (ready to switch on, OFF2 and OFF3 inactive): ZSW1 bits 0, 4 and 5 of bits 0..6.
+        assert image["zsw1"] & 0x7F == 0x31, hex(image["zsw1"])
+        assert image["words"][:2] == [image["zsw1"], image["hiw"]]
+        assert len(image["words"]) == image["word_count"]
+    assert later["timestamp_ns"] > first["timestamp_ns"]
+
+
+def test_p1082_reads_as_the_float_50_hz(bus):
+    value = uss_rt.read_param(bus, 1, 1082)
+    assert value == 0x4248_0000
+    assert value.is_dword
+    assert value.as_float() == 50.0
+
+
+def test_unknown_pnu_raises_drive_error_0(bus):
+    with pytest.raises(uss_rt.DriveError) as e:
+        uss_rt.read_param(bus, 2, 1999)
+    assert e.value.number == 0
+    assert "illegal parameter number" in str(e.value)
+
+
+def test_drive_ussd_does_not_poll_raises_unknown_drive(bus):
+    with pytest.raises(uss_rt.UnknownDrive) as e:
+        uss_rt.read_input(bus, 9)
+    assert e.value.known == list(DRIVES)
+    with pytest.raises(uss_rt.UnknownDrive, match="drive 9 is not on"):
+        uss_rt.read_param(bus, 9, 1082)
+
+
+def test_bus_without_ussd_raises_not_running():
+    with pytest.raises(uss_rt.NotRunning, match=f"ussd is not running on {BUS}x"):
+        uss_rt.open_bus(f"{BUS}x")
+
+
+def test_sigterm_stops_ussd_and_removes_its_services(ussd):
+    assert ussd.stop() == 0, ussd.output()
+    with pytest.raises(uss_rt.NotRunning):
+        uss_rt.open_bus(BUS)

@@ -1,0 +1,823 @@
+"""Python client of uss-rt's ``ussd``: read a drive's input image and read parameters.
+
+ussd publishes everything over iceoryx2 0.10 shared memory (crate ``uss-shm-types`` is the
+contract; ``shm-types/include/uss_shm_types.h`` is the same contract for C and C++). This module
+mirrors the payload types with ctypes, field for field and with the same iceoryx2 type names, so
+iceoryx2 accepts the ports (it compares type name, size and alignment when a port is opened)::
+
+    import uss_rt
+    bus = uss_rt.open_bus("bus0")
+    image = uss_rt.read_input(bus, 1)          # {'zsw1': 0x..., 'hiw': ..., 'sequence': ...}
+    p1082 = uss_rt.read_param(bus, 1, 1082)    # ParamValue(0x42480000); .as_float() == 50.0
+
+Errors are exceptions derived from :class:`UssError`; each message says what to do next.
+"""
+
+import ctypes
+import enum
+import struct
+import time
+
+import iceoryx2 as iox2
+
+__all__ = [
+    "Bus",
+    "BusStatus",
+    "BlackboardKey",
+    "DriveDiag",
+    "DriveError",
+    "Incompatible",
+    "LastFailure",
+    "NoAnswer",
+    "NotRunning",
+    "Outcome",
+    "ParamFailed",
+    "ParamItem",
+    "ParamRequest",
+    "ParamResponse",
+    "ParamResult",
+    "ParamTimeout",
+    "ParamValue",
+    "PzdInput",
+    "PzdOutput",
+    "Refused",
+    "RequestError",
+    "RtMode",
+    "Storage",
+    "TaskCode",
+    "UnknownDrive",
+    "UssError",
+    "open_bus",
+    "read_input",
+    "read_param",
+]
+
+# -------------------------------------------------------------------------------------------
+# Limits and names (uss_shm_types: lib.rs, pzd.rs, params.rs, names.rs)
+# -------------------------------------------------------------------------------------------
+
+LAYOUT_VERSION = 1
+"""The layout version of every payload; its ``version`` field and the services' attribute."""
+LAYOUT_VERSION_ATTRIBUTE = "uss.layout_version"
+MAX_PZD_WORDS = 16
+EXTRA_PZD_WORDS = MAX_PZD_WORDS - 2
+MAX_PARAM_ITEMS = 39
+MAX_SUBINDEX = 254
+NO_ITEM = 0xFF
+"""``ParamResponse.error_item`` when the error concerns no single item."""
+MAX_ADDRESS = 31
+MAX_BUS_NAME_LEN = 32
+NEVER = 0xFFFF_FFFF_FFFF_FFFF
+"""``DriveDiag.last_good_ns`` of a drive that never replied."""
+
+DEFAULT_NODE_NAME = "uss-py-client"
+
+# iceoryx2 reports at info level that it runs without a config file; keep its log to errors
+# unless IOX2_LOG_LEVEL asks for more.
+iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
+
+
+def drive_out_service(bus: str, address: int) -> str:
+    """Publish-subscribe, :class:`PzdOutput`: the controller's output image (one publisher)."""
+    return f"uss/{bus}/drive/{address}/out"
+
+
+def drive_in_service(bus: str, address: int) -> str:
+    """Blackboard, key 0 -> :class:`PzdInput`: the drive's input image."""
+    return f"uss/{bus}/drive/{address}/in"
+
+
+def diag_service(bus: str) -> str:
+    """Blackboard, key = drive address -> :class:`DriveDiag`."""
+    return f"uss/{bus}/diag"
+
+
+def status_service(bus: str) -> str:
+    """Blackboard, key 0 -> :class:`BusStatus`."""
+    return f"uss/{bus}/status"
+
+
+def cycle_service(bus: str) -> str:
+    """Event: drive address (exchange completed), 32 cycle completed, 33 status published."""
+    return f"uss/{bus}/cycle"
+
+
+def params_service(bus: str) -> str:
+    """Request-response, :class:`ParamRequest` -> :class:`ParamResponse`."""
+    return f"uss/{bus}/params"
+
+
+# -------------------------------------------------------------------------------------------
+# Code tables: the u8 fields with a fixed meaning (payloads keep them as plain integers)
+# -------------------------------------------------------------------------------------------
+
+
+class LastFailure(enum.IntEnum):
+    """Why a drive's last failed attempt failed (``DriveDiag.last_failure``)."""
+
+    NONE = 0
+    NO_RESPONSE = 1
+    MISSING_STX = 2
+    START_PAUSE = 3
+    BAD_LGE = 4
+    BCC = 5
+    RESIDUAL = 6
+    LENGTH = 7
+    WRONG_ADDRESS = 8
+    PARITY = 9
+    FRAMING = 10
+    OVERRUN = 11
+    ECHO = 12
+
+
+class RtMode(enum.IntEnum):
+    """The scheduling ussd's bus thread obtained (``BusStatus.rt_mode``)."""
+
+    BEST_EFFORT = 0
+    REALTIME = 1
+
+
+class TaskCode(enum.IntEnum):
+    """What one parameter item asks (``ParamItem.task``)."""
+
+    READ = 1
+    WRITE_WORD = 2
+    WRITE_DWORD = 3
+    READ_ARRAY = 4
+    WRITE_ARRAY_WORD = 5
+    WRITE_ARRAY_DWORD = 6
+    READ_ELEMENT_COUNT = 7
+    READ_DESCRIPTION = 8
+
+
+class Storage(enum.IntEnum):
+    """Where a change is stored (``ParamItem.storage``)."""
+
+    RAM = 0
+    RAM_AND_EEPROM = 1
+
+
+class RequestError(enum.IntEnum):
+    """Why ussd refused a request or an item before the bus."""
+
+    OK = 0
+    UNKNOWN_DRIVE = 1
+    BAD_COUNT = 2
+    PNU_OUT_OF_RANGE = 3
+    VALUE_TYPE = 4
+    WRITES_DISABLED = 5
+    BUSY = 6
+    SHUTDOWN = 7
+    VERSION = 8
+    BAD_TASK = 9
+    BAD_STORAGE = 10
+    BAD_SUBINDEX = 11
+    NO_PARAMETER_CHANNEL = 12
+    DWORD_OVER_THREE_WORDS = 13
+
+
+class Outcome(enum.IntEnum):
+    """How one parameter item ended (``ParamResult.outcome``)."""
+
+    NOT_RUN = 0
+    VALUE = 1
+    ELEMENT_COUNT = 2
+    DESCRIPTION = 3
+    DRIVE_ERROR = 4
+    NO_CHANGE_RIGHTS = 5
+    TIMEOUT = 6
+    DRIVE_OFFLINE = 7
+    MAILBOX_FULL = 8
+    SHUTDOWN = 9
+    REFUSED = 10
+
+
+# The drive's error numbers with reply 7 (USS.md section 6).
+_DRIVE_ERRORS = {
+    0: "illegal parameter number",
+    1: "value cannot be changed",
+    2: "limit exceeded",
+    3: "faulty subindex",
+    4: "not an array",
+    5: "wrong data type",
+    6: "setting not allowed",
+    7: "descriptive element cannot be changed",
+    11: "no master control",
+    12: "keyword missing",
+    17: "not possible in this operating state",
+    101: "parameter deactivated",
+    102: "channel too narrow",
+    103: "double word over a 3-word parameter channel",
+    104: "illegal value",
+    106: "task not implemented",
+    200: "modified minimum exceeded",
+    201: "modified maximum exceeded",
+    204: "access level too low",
+}
+
+# -------------------------------------------------------------------------------------------
+# Payload types: _fields_ in memory order, exactly as uss_shm_types::layout::LAYOUTS
+# -------------------------------------------------------------------------------------------
+
+u8, u16, u32, u64, i32 = (
+    ctypes.c_uint8,
+    ctypes.c_uint16,
+    ctypes.c_uint32,
+    ctypes.c_uint64,
+    ctypes.c_int32,
+)
+
+
+class BlackboardKey(ctypes.Structure):
+    """The key of every ussd blackboard: 0 for ``in`` and ``status``, the address for ``diag``."""
+
+    _fields_ = [("value", u32)]
+
+    def __eq__(self, other):
+        return isinstance(other, BlackboardKey) and self.value == other.value
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssBlackboardKey"
+
+
+class PzdOutput(ctypes.Structure):
+    """The controller's output image of one drive (``uss/<bus>/drive/<addr>/out``)."""
+
+    _fields_ = [
+        ("version", u32),
+        ("controller_pid", u32),
+        ("sequence", u64),
+        ("timestamp_ns", u64),
+        ("stw1", u16),
+        ("setpoint", u16),
+        ("extra", u16 * EXTRA_PZD_WORDS),
+        ("word_count", u8),
+        ("reserved", u8 * 7),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssPzdOutputV1"
+
+
+class PzdInput(ctypes.Structure):
+    """The drive's input image (``uss/<bus>/drive/<addr>/in``), written after every reply."""
+
+    _fields_ = [
+        ("version", u32),
+        ("online", u8),
+        ("watchdog_tripped", u8),
+        ("word_count", u8),
+        ("reserved", u8),
+        ("sequence", u64),
+        ("timestamp_ns", u64),
+        ("age_ns", u64),
+        ("zsw1", u16),
+        ("hiw", u16),
+        ("extra", u16 * EXTRA_PZD_WORDS),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssPzdInputV1"
+
+
+class DriveDiag(ctypes.Structure):
+    """The master's view of one drive (``uss/<bus>/diag``, key = address)."""
+
+    _fields_ = [
+        ("version", u32),
+        ("consecutive_failed_polls", u32),
+        ("last_zsw1", u16),
+        ("last_hiw", u16),
+        ("address", u8),
+        ("online", u8),
+        ("no_reply", u8),
+        ("watchdog_tripped", u8),
+        ("last_failure", u8),
+        ("reserved", u8 * 7),
+    ] + [
+        (name, u64)
+        for name in (
+            "since_ns",
+            "last_good_ns",
+            "requests",
+            "good",
+            "rejected",
+            "timeouts",
+            "retries",
+            "failed_polls",
+            "missing_stx",
+            "start_pause",
+            "bad_lge",
+            "bcc",
+            "residual",
+            "length",
+            "wrong_address",
+            "parity",
+            "framing",
+            "overrun",
+            "echo",
+            "pkw_busy",
+            "jobs_done",
+            "watchdog_trips",
+        )
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssDriveDiagV1"
+
+
+class BusStatus(ctypes.Structure):
+    """The state of the bus as a whole (``uss/<bus>/status``)."""
+
+    _fields_ = [
+        ("version", u32),
+        ("rt_cpu", i32),
+        ("rt_mode", u8),
+        ("rt_priority", u8),
+        ("drive_count", u8),
+        ("running", u8),
+        ("efficiency_ppm", u32),
+    ] + [
+        (name, u64)
+        for name in (
+            "exchanges",
+            "good",
+            "cycles",
+            "cycle_overruns",
+            "events_dropped",
+            "results_lost",
+            "jobs_accepted",
+            "jobs_finished",
+            "mean_exchange_ns",
+            "bus_clock_ns",
+            "timestamp_ns",
+        )
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssBusStatusV1"
+
+
+class ParamItem(ctypes.Structure):
+    """One parameter access."""
+
+    _fields_ = [
+        ("task", u8),
+        ("storage", u8),
+        ("pnu", u16),
+        ("index", u16),
+        ("reserved", u16),
+        ("value", u32),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssParamItemV1"
+
+
+class ParamRequest(ctypes.Structure):
+    """A request for up to 39 parameter accesses on one drive."""
+
+    _fields_ = [
+        ("version", u32),
+        ("address", u8),
+        ("count", u8),
+        ("reserved", u16),
+        ("items", ParamItem * MAX_PARAM_ITEMS),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssParamRequestV1"
+
+
+class ParamResult(ctypes.Structure):
+    """The result of one item."""
+
+    _fields_ = [
+        ("outcome", u8),
+        ("value_is_dword", u8),
+        ("drive_error", u16),
+        ("value", u32),
+        ("telegrams", u32),
+        ("refusal", u8),
+        ("reserved", u8 * 3),
+        ("on_wire_ns", u64),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssParamResultV1"
+
+
+class ParamResponse(ctypes.Structure):
+    """The one response to a :class:`ParamRequest`."""
+
+    _fields_ = [
+        ("version", u32),
+        ("error", u8),
+        ("error_item", u8),
+        ("address", u8),
+        ("count", u8),
+        ("results", ParamResult * MAX_PARAM_ITEMS),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssParamResponseV1"
+
+
+PAYLOAD_TYPES = (
+    BlackboardKey,
+    PzdOutput,
+    PzdInput,
+    DriveDiag,
+    BusStatus,
+    ParamItem,
+    ParamRequest,
+    ParamResult,
+    ParamResponse,
+)
+
+# -------------------------------------------------------------------------------------------
+# Errors
+# -------------------------------------------------------------------------------------------
+
+
+class UssError(Exception):
+    """Anything this module reports; the message says what to do."""
+
+
+class NotRunning(UssError):
+    """ussd's services for the bus do not exist."""
+
+    def __init__(self, bus: str):
+        self.bus = bus
+        super().__init__(
+            f"ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`)"
+        )
+
+
+class UnknownDrive(UssError):
+    """ussd runs the bus, but does not poll this drive."""
+
+    def __init__(self, bus: str, address: int, known):
+        self.bus, self.address, self.known = bus, address, list(known)
+        polled = ", ".join(str(a) for a in self.known) or "no drives"
+        super().__init__(
+            f"drive {address} is not on {bus} (ussd polls {polled} there): use one of those "
+            "or add it to ussd's configuration"
+        )
+
+
+class Incompatible(UssError):
+    """ussd was built against another layout of the payload types."""
+
+    def __init__(self, bus: str, service: str, detail: str = ""):
+        self.bus, self.service = bus, service
+        more = f" ({detail})" if detail else ""
+        super().__init__(
+            f"ussd on {bus} speaks another layout version ({service}{more}): use the uss_rt "
+            "module of the running ussd's uss-rt version"
+        )
+
+
+class DriveError(UssError):
+    """The drive refused the task (reply 7) with USS error ``number``."""
+
+    def __init__(self, number: int):
+        self.number = number
+        meaning = _DRIVE_ERRORS.get(number, "unknown error number")
+        super().__init__(f"the drive refused the task with error {number}: {meaning}")
+
+
+class ParamTimeout(UssError, TimeoutError):
+    """The drive gave no matching reply within ussd's parameter timeout."""
+
+    def __init__(self):
+        super().__init__(
+            "no matching reply within ussd's parameter timeout: check the drive's PKW length "
+            "(P2013); raise param_timeout_ms for slow EEPROM writes"
+        )
+
+
+class NoAnswer(UssError, TimeoutError):
+    """ussd did not answer the request in time, or dropped it (it stopped)."""
+
+    def __init__(self, bus: str, detail: str):
+        self.bus = bus
+        super().__init__(f"ussd on {bus} {detail}: check that it runs (`ussctl status`)")
+
+
+class Refused(UssError):
+    """ussd refused the request (or one item) before the bus; ``error`` is a RequestError."""
+
+    _HINTS = {
+        RequestError.WRITES_DISABLED: "ussd's configuration sets params_writable = false for "
+        "this drive",
+        RequestError.BUSY: "too many parameter jobs outstanding: retry once results arrived",
+        RequestError.SHUTDOWN: "ussd is shutting down",
+        RequestError.VERSION: "ussd speaks another layout version: use the uss_rt module of "
+        "the running ussd's uss-rt version",
+        RequestError.NO_PARAMETER_CHANNEL: "the drive has no parameter channel (PKW length 0)",
+    }
+
+    def __init__(self, error: int, item=None):
+        self.error, self.item = _code(RequestError, error), item
+        which = f" (item {item + 1})" if item is not None else ""
+        hint = self._HINTS.get(self.error)
+        super().__init__(
+            f"ussd refused the request{which} before the bus: {_name(self.error)}"
+            + (f": {hint}" if hint else "")
+        )
+
+
+class ParamFailed(UssError):
+    """An item ended without a value for another reason; ``outcome`` is an Outcome."""
+
+    _HINTS = {
+        Outcome.NO_CHANGE_RIGHTS: "the drive grants no parameter change rights over USS (P0927)",
+        Outcome.DRIVE_OFFLINE: "the drive is offline: check `ussctl status`, its wiring, "
+        "address and baud rate",
+        Outcome.MAILBOX_FULL: "ussd's parameter queue for the drive is full: retry once "
+        "earlier requests finished",
+        Outcome.SHUTDOWN: "ussd shut down before the task finished: retry once ussd runs again",
+    }
+
+    def __init__(self, outcome: int):
+        self.outcome = _code(Outcome, outcome)
+        hint = self._HINTS.get(self.outcome, "unexpected answer from ussd: check that ussd "
+                               "and this module are the same uss-rt version")
+        super().__init__(f"parameter task ended with {_name(self.outcome)}: {hint}")
+
+
+def _code(table, value: int):
+    """The table's member for ``value``, or the bare number if the table has none."""
+    try:
+        return table(value)
+    except ValueError:
+        return value
+
+
+def _name(code) -> str:
+    return code.name.lower().replace("_", " ") if isinstance(code, enum.Enum) else str(code)
+
+
+# -------------------------------------------------------------------------------------------
+# The client
+# -------------------------------------------------------------------------------------------
+
+
+class ParamValue(int):
+    """A parameter value: the raw word or double word, with ``is_dword`` and :meth:`as_float`."""
+
+    def __new__(cls, raw: int, is_dword: bool):
+        value = super().__new__(cls, raw)
+        value.is_dword = bool(is_dword)
+        return value
+
+    def as_float(self) -> float:
+        """The double word as an IEEE-754 float (USS float parameters, e.g. P1082)."""
+        if not self.is_dword:
+            raise ValueError(f"word {int(self):#06x} is not a float: floats are double words")
+        return struct.unpack("<f", struct.pack("<I", int(self)))[0]
+
+    def __repr__(self):
+        width = 10 if self.is_dword else 6
+        return f"ParamValue({int(self):#0{width}x})"
+
+
+class Bus:
+    """An open bus: one iceoryx2 node and the ussd services it uses so far.
+
+    :meth:`close` (or a ``with`` block) lets go of every service at once; until then a ussd
+    that stopped cannot remove the services this bus still uses.
+    """
+
+    def __init__(self, name: str, node, status_service, diag_service):
+        self.name = name
+        self.node = node
+        self._status_service = status_service
+        # The reader stays referenced as long as its entry handle.
+        self._status_reader = status_service.reader_builder().create()
+        self._status = self._status_reader.entry(BlackboardKey(0), BusStatus)
+        self._diag_service = diag_service
+        self._inputs = {}
+        self._param_client = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *_):
+        self.close()
+
+    def close(self):
+        """Drops every port and service of this bus; the bus cannot be used afterwards."""
+        self._inputs.clear()
+        self._param_client = None
+        self._status = self._status_reader = self._status_service = self._diag_service = None
+
+    def status(self) -> BusStatus:
+        """The bus status as ussd last published it (about every 100 ms)."""
+        return self._status.get().decode_as(BusStatus)
+
+    def drives(self):
+        """The addresses ussd polls on this bus (the keys of its ``diag`` blackboard)."""
+        keys = self._diag_service.list_keys()
+        return sorted(k.decode_as(BlackboardKey).value for k in keys)
+
+    def _input_entry(self, address: int):
+        """The entry of drive ``address``'s input blackboard, opened on first use."""
+        if address not in self._inputs:
+            service = _open(
+                self.node,
+                self.name,
+                drive_in_service(self.name, address),
+                lambda b: b.blackboard_opener(BlackboardKey),
+                lambda: UnknownDrive(self.name, address, self.drives()),
+            )
+            reader = service.reader_builder().create()
+            self._inputs[address] = (service, reader, reader.entry(BlackboardKey(0), PzdInput))
+        return self._inputs[address][2]
+
+    def _params(self):
+        """The client of the ``params`` service, created on first use."""
+        if self._param_client is None:
+            service = _open(
+                self.node,
+                self.name,
+                params_service(self.name),
+                lambda b: b.request_response(ParamRequest, ParamResponse),
+                lambda: NotRunning(self.name),
+            )
+            self._param_client = (service, service.client_builder().create())
+        return self._param_client[1]
+
+
+def _open(node, bus: str, service: str, pattern, missing):
+    """Opens ussd's ``service`` as ``pattern(builder)`` requires, with the layout attribute
+    ``uss.layout_version`` = LAYOUT_VERSION; ``missing()`` is the error if it does not exist."""
+    builder = pattern(node.service_builder(iox2.ServiceName.new(service)))
+    verifier = iox2.AttributeVerifier.new().require(
+        iox2.AttributeKey.new(LAYOUT_VERSION_ATTRIBUTE),
+        iox2.AttributeValue.new(str(LAYOUT_VERSION)),
+    )
+    try:
+        return builder.open_with_attributes(verifier)
+    except Exception as e:  # the binding's *OpenError classes share no base but Exception
+        # They carry the Rust variant's name: BlackboardOpenError('DoesNotExist').
+        variant = str(e.args[0]) if e.args else ""
+        if variant in ("DoesNotExist", "IsMarkedForDestruction"):
+            raise missing() from e
+        if variant.startswith("Incompatible"):
+            raise Incompatible(bus, service, variant) from e
+        raise UssError(
+            f"opening {service} failed: {e!r}: check that ussd and this program run as the "
+            "same user or group (iceoryx2 keeps its state in /dev/shm and /tmp/iceoryx2)"
+        ) from e
+
+
+def _check_address(address: int):
+    if not 0 <= address <= MAX_ADDRESS:
+        raise ValueError(f"drive address {address} is out of range 0..=31 (USS.md section 1)")
+
+
+def open_bus(name: str, node_name: str = DEFAULT_NODE_NAME) -> Bus:
+    """Opens bus ``name`` (e.g. ``bus0``) of a running ussd; raises :class:`NotRunning`."""
+    charset = all(c.isascii() and (c.isalnum() or c in "_-") for c in name)
+    if not (1 <= len(name) <= MAX_BUS_NAME_LEN and charset):
+        raise ValueError(
+            f"bus name {name!r} must be 1 to 32 characters of A-Z, a-z, 0-9, '_' or '-'"
+        )
+    # Without signal handling iceoryx2 leaves SIGINT and SIGTERM to the Python program.
+    node = (
+        iox2.NodeBuilder.new()
+        .name(iox2.NodeName.new(node_name))
+        .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
+        .create(iox2.ServiceType.Ipc)
+    )
+
+    def blackboard(service):
+        return _open(
+            node,
+            name,
+            service,
+            lambda b: b.blackboard_opener(BlackboardKey),
+            lambda: NotRunning(name),
+        )
+
+    return Bus(name, node, blackboard(status_service(name)), blackboard(diag_service(name)))
+
+
+def read_input(bus: Bus, address: int) -> dict:
+    """The input image of drive ``address`` as ussd last wrote it, as a dict of its fields.
+
+    ``words`` holds the PZD words in use (ZSW1 first); ``extra`` and ``reserved`` are left
+    out. ``sequence`` counts good replies (0 = none yet); ``online`` is 1 while the drive
+    answers; time stamps are CLOCK_MONOTONIC ns.
+    """
+    _check_address(address)
+    image = bus._input_entry(address).get().decode_as(PzdInput)
+    if image.version != LAYOUT_VERSION:
+        service = drive_in_service(bus.name, address)
+        raise Incompatible(bus.name, service, f"version {image.version}")
+    count = min(image.word_count, MAX_PZD_WORDS)
+    words = ([image.zsw1, image.hiw] + list(image.extra))[:count]
+    return {
+        "address": address,
+        "online": image.online,
+        "watchdog_tripped": image.watchdog_tripped,
+        "sequence": image.sequence,
+        "timestamp_ns": image.timestamp_ns,
+        "age_ns": image.age_ns,
+        "zsw1": image.zsw1,
+        "hiw": image.hiw,
+        "word_count": image.word_count,
+        "words": words,
+    }
+
+
+def read_param(bus: Bus, address: int, pnu: int, index=None, timeout: float = 7.5) -> ParamValue:
+    """Reads parameter ``pnu`` (or its array element ``index``) of drive ``address``.
+
+    Returns a :class:`ParamValue`. Raises :class:`DriveError` (with the USS error number) when
+    the drive refuses, :class:`ParamTimeout` when the drive does not answer in ussd's parameter
+    timeout, :class:`NoAnswer` when ussd does not answer within ``timeout`` seconds,
+    :class:`Refused` when ussd refuses the request, :class:`ParamFailed` otherwise.
+    """
+    _check_address(address)
+    if not 0 <= pnu <= 0xFFFF:
+        raise ValueError(f"PNU {pnu} is out of range 0..=65535")
+    if index is not None and not 0 <= index <= MAX_SUBINDEX:
+        raise ValueError(f"subindex {index} is out of range 0..=254 (USS.md section 6)")
+    request = ParamRequest(version=LAYOUT_VERSION, address=address, count=1)
+    request.items[0] = ParamItem(
+        task=TaskCode.READ if index is None else TaskCode.READ_ARRAY,
+        storage=Storage.RAM,
+        pnu=pnu,
+        index=index or 0,
+    )
+    response = _send(bus, request, timeout)
+    if response.version != LAYOUT_VERSION:
+        raise Incompatible(bus.name, params_service(bus.name), f"version {response.version}")
+    if response.error != RequestError.OK:
+        item = None if response.error_item == NO_ITEM else response.error_item
+        raise _refused(bus, address, response.error, item)
+    if response.address != address or response.count != 1:
+        raise UssError(
+            f"ussd answered for drive {response.address} with {response.count} results a "
+            f"request for drive {address} with 1 item: check that ussd and this module are "
+            "the same uss-rt version"
+        )
+    result = response.results[0]
+    if result.outcome == Outcome.REFUSED:
+        raise _refused(bus, address, result.refusal, None)
+    return _value(result)
+
+
+def _refused(bus: Bus, address: int, error: int, item) -> UssError:
+    if error == RequestError.UNKNOWN_DRIVE:
+        return UnknownDrive(bus.name, address, bus.drives())
+    return Refused(error, item)
+
+
+def _send(bus: Bus, request: ParamRequest, timeout: float) -> ParamResponse:
+    """Sends ``request`` and waits for ussd's one response."""
+    pending = bus._params().send_copy(request)
+    if pending.number_of_server_connections == 0:
+        raise NotRunning(bus.name)
+    deadline = time.monotonic() + timeout
+    pause = 50e-6
+    while True:
+        # Looked at before `receive`, so an answer sent just before ussd let go of the request
+        # is still received.
+        connected = pending.is_connected
+        response = pending.receive()
+        if response is not None:
+            return ParamResponse.from_buffer_copy(response.payload().contents)
+        if not connected:
+            raise NoAnswer(bus.name, "dropped the request without answering")
+        if time.monotonic() >= deadline:
+            raise NoAnswer(bus.name, f"did not answer within {timeout} s")
+        # A response has no file descriptor to wait on: poll, backing off to 2 ms.
+        time.sleep(pause)
+        pause = min(pause * 2, 2e-3)
+
+
+def _value(result: ParamResult) -> ParamValue:
+    outcome = result.outcome
+    if outcome in (Outcome.VALUE, Outcome.DESCRIPTION):
+        dword = result.value_is_dword != 0
+        return ParamValue(result.value if dword else result.value & 0xFFFF, dword)
+    if outcome == Outcome.ELEMENT_COUNT:
+        return ParamValue(result.value & 0xFFFF, False)
+    if outcome == Outcome.DRIVE_ERROR:
+        raise DriveError(result.drive_error)
+    if outcome == Outcome.TIMEOUT:
+        raise ParamTimeout()
+    raise ParamFailed(outcome)

@@ -1,0 +1,525 @@
+//! The C/C++ side of the contract: `include/uss_shm_types.h` is exactly what cbindgen makes of
+//! this crate, and a C program (`c-test/layout_check.c`) compiled against it sees the sizes,
+//! alignments and field offsets of [`LAYOUTS`], the codes of every code table, the iceoryx2
+//! type names and the service names that the Rust side uses.
+//!
+//! After changing the contract, regenerate the header with
+//! `UPDATE_C_HEADER=1 cargo test -p uss-shm-types --test c_header -- checked_in_header`.
+#![allow(clippy::unwrap_used)]
+
+use core::fmt::Write as _;
+use iceoryx2::prelude::ZeroCopySend;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
+use uss_shm_types::names::{self, BlackboardKey};
+use uss_shm_types::{
+    BusName, BusStatus, DriveAddress, DriveDiag, LastFailure, Outcome, ParamItem, ParamRequest,
+    ParamResponse, ParamResult, PzdInput, PzdOutput, RequestError, RtMode, Storage, TaskCode,
+};
+
+const REGENERATE: &str =
+    "UPDATE_C_HEADER=1 cargo test -p uss-shm-types --test c_header -- checked_in_header";
+
+fn crate_dir() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn header_path() -> PathBuf {
+    crate_dir().join("include/uss_shm_types.h")
+}
+
+/// A scratch directory of this test binary.
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// `PzdOutput` -> `PZD_OUTPUT`, `DwordOverThreeWords` -> `DWORD_OVER_THREE_WORDS`.
+fn screaming(camel: &str) -> String {
+    let mut out = String::new();
+    for (i, c) in camel.chars().enumerate() {
+        if c.is_ascii_uppercase() && i > 0 {
+            out.push('_');
+        }
+        out.push(c.to_ascii_uppercase());
+    }
+    out
+}
+
+/// The C name of a contract type: `PzdOutput` -> `UssPzdOutput`.
+fn c_type(rust: &str) -> String {
+    format!("Uss{rust}")
+}
+
+// ---------------------------------------------------------------------------------------------
+// The header
+// ---------------------------------------------------------------------------------------------
+
+/// The `code_table!` invocations of one source file as plain `#[repr(u8)]` enums, doc comments
+/// and all, so cbindgen (which does not expand macros) sees them: each
+/// `Variant = 3 => "text",` line loses its `=> "text"`. Adds the enums' names to `names`.
+fn code_tables_of(source: &str, names: &mut Vec<String>) -> String {
+    let mut out = String::new();
+    let mut rest = source;
+    while let Some(at) = rest.find("code_table! {") {
+        let body = &rest[at + "code_table! {".len()..];
+        let mut depth = 1;
+        let end = body
+            .char_indices()
+            .find_map(|(i, c)| {
+                depth += match c {
+                    '{' => 1,
+                    '}' => -1,
+                    _ => 0,
+                };
+                (depth == 0).then_some(i)
+            })
+            .expect("a code_table! invocation closes its brace");
+        for line in body[..end].lines() {
+            let line = line.trim();
+            if let Some(name) = line.strip_prefix("pub enum ") {
+                names.push(name.trim_end_matches(" {").to_owned());
+                out.push_str("#[repr(u8)]\n");
+            }
+            if let Some(arrow) = line.find(" => \"") {
+                assert!(line.ends_with("\","), "one variant per line: {line}");
+                out.push_str(&line[..arrow]);
+                out.push_str(",\n");
+            } else {
+                out.push_str(line);
+                out.push('\n');
+            }
+        }
+        rest = &body[end..];
+    }
+    out
+}
+
+/// Text cbindgen cannot produce from the crate (it skips string constants): the iceoryx2 type
+/// names and the service name patterns, in the header's comment style.
+fn strings_section() -> String {
+    let mut s = String::from(
+        "\n/*\n * iceoryx2 type names. Every port on a ussd service must declare its payload (and \
+         blackboard key)\n * with these names: iceoryx2 compares type name, size and alignment \
+         when a port is opened.\n * C: pass them to iox2_service_builder_*_set_*_type_details; \
+         C++: the structs carry them\n * as IOX2_TYPE_NAME.\n */\n",
+    );
+    for t in LAYOUTS {
+        let _ = writeln!(
+            s,
+            "#define USS_{}_TYPE_NAME \"{}\"",
+            screaming(t.name),
+            t.type_name
+        );
+    }
+    s.push_str(
+        "\n/*\n * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; \
+         %u = drive address\n * 0..31 in decimal). Every service carries the attribute \
+         USS_LAYOUT_VERSION_ATTRIBUTE whose value\n * is USS_LAYOUT_VERSION in decimal.\n */\n",
+    );
+    let _ = writeln!(
+        s,
+        "#define USS_LAYOUT_VERSION_ATTRIBUTE \"{}\"",
+        names::LAYOUT_VERSION_ATTRIBUTE
+    );
+    for service in services() {
+        let _ = writeln!(
+            s,
+            "/** {} */\n#define USS_{} \"{}\"",
+            service.what,
+            service.c_name,
+            service.pattern()
+        );
+    }
+    s.pop(); // cbindgen ends the section's last line
+    s
+}
+
+/// One name of [`names`], for C.
+struct Service {
+    /// After `USS_`.
+    c_name: &'static str,
+    /// Whether the name has a drive address (`%u`) as well as the bus (`%s`).
+    per_drive: bool,
+    what: &'static str,
+    name: fn(&BusName, DriveAddress) -> String,
+}
+
+impl Service {
+    /// The name as a printf pattern, found by asking [`names`] for a stand-in bus and address.
+    fn pattern(&self) -> String {
+        const BUS: &str = "BUS";
+        const ADDRESS: u8 = 31;
+        let name = (self.name)(
+            &BusName::new(BUS).unwrap(),
+            DriveAddress::new(ADDRESS).unwrap(),
+        );
+        let p = name
+            .replace(&format!("/{ADDRESS}/"), "/%u/")
+            .replace(BUS, "%s");
+        assert_eq!(p.matches("%s").count(), 1, "{name}");
+        assert_eq!(p.contains("%u"), self.per_drive, "{name}");
+        p
+    }
+}
+
+/// Every name of [`names`].
+fn services() -> [Service; 7] {
+    let s = |c_name, per_drive, what, name| Service {
+        c_name,
+        per_drive,
+        what,
+        name,
+    };
+    [
+        s(
+            "SERVICE_DRIVE_OUT",
+            true,
+            "publish-subscribe, UssPzdOutput: the controller's output image (one publisher).",
+            |b, a| names::drive_out(b, a).as_str().into(),
+        ),
+        s(
+            "SERVICE_DRIVE_IN",
+            true,
+            "blackboard, key UssBlackboardKey_IMAGE (value 0) -> UssPzdInput.",
+            |b, a| names::drive_in(b, a).as_str().into(),
+        ),
+        s(
+            "SERVICE_DIAG",
+            false,
+            "blackboard, key = drive address -> UssDriveDiag.",
+            |b, _| names::diag(b).as_str().into(),
+        ),
+        s(
+            "SERVICE_STATUS",
+            false,
+            "blackboard, key UssBlackboardKey_IMAGE (value 0) -> UssBusStatus.",
+            |b, _| names::status(b).as_str().into(),
+        ),
+        s(
+            "SERVICE_CYCLE",
+            false,
+            "event: drive address (exchange completed), USS_CYCLE_COMPLETED, \
+             USS_STATUS_PUBLISHED, USS_USSD_GONE.",
+            |b, _| names::cycle(b).as_str().into(),
+        ),
+        s(
+            "SERVICE_PARAMS",
+            false,
+            "request-response, UssParamRequest -> UssParamResponse.",
+            |b, _| names::params(b).as_str().into(),
+        ),
+        s("USSD_NODE", false, "ussd's node name for a bus.", |b, _| {
+            names::ussd_node(b).as_str().into()
+        }),
+    ]
+}
+
+/// cbindgen's configuration for the payload types and `code_tables`.
+fn config(code_tables: &[String]) -> cbindgen::Config {
+    let mut c = cbindgen::Config {
+        language: cbindgen::Language::C,
+        cpp_compat: true,
+        include_guard: Some("USS_SHM_TYPES_H".into()),
+        no_includes: true,
+        sys_includes: vec!["stdint.h".into()],
+        documentation: true,
+        header: Some(format!(
+            "/*\n * uss_shm_types.h: the shared-memory contract between ussd and its clients \
+             (crate uss-shm-types),\n * for C and C++. Payload types, code tables, limits, \
+             iceoryx2 type names and service names.\n * Fields are fixed-width with no implicit \
+             padding; `version` is USS_LAYOUT_VERSION, readers check it.\n *\n * Generated by \
+             cbindgen from shm-types/src: do not edit. Regenerate with\n *   {REGENERATE}\n */"
+        )),
+        after_includes: Some(strings_section()),
+        ..cbindgen::Config::default()
+    };
+    c.enumeration.rename_variants = cbindgen::RenameRule::QualifiedScreamingSnakeCase;
+    // Constants become USS_*, types Uss* (renames override the prefix).
+    c.export.prefix = Some("USS_".into());
+    c.export.renaming_overrides_prefixing = true;
+    let types = LAYOUTS
+        .iter()
+        .map(|t| t.name)
+        .chain(code_tables.iter().map(String::as_str));
+    c.export.include = types.clone().map(String::from).collect();
+    c.export.rename = types.map(|t| (t.to_string(), c_type(t))).collect();
+    // C++ gets the iceoryx2 type name as the member its bindings look for.
+    c.export.body = LAYOUTS
+        .iter()
+        .map(|t| {
+            (
+                t.name.to_string(),
+                format!(
+                    "#ifdef __cplusplus\n  static constexpr const char *IOX2_TYPE_NAME = \
+                     \"{}\";\n#endif",
+                    t.type_name
+                ),
+            )
+        })
+        .collect::<HashMap<_, _>>();
+    c
+}
+
+/// The header as cbindgen generates it now.
+fn generate_header() -> String {
+    let src = crate_dir().join("src");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&src)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "rs"))
+        .collect();
+    files.sort();
+    let mut table_names = Vec::new();
+    let tables: String = files
+        .iter()
+        .map(|f| code_tables_of(&std::fs::read_to_string(f).unwrap(), &mut table_names))
+        .collect();
+    let tables_file = scratch("code-tables").join("code_tables.rs");
+    std::fs::write(&tables_file, tables).unwrap();
+
+    let mut builder = cbindgen::Builder::new()
+        .with_config(config(&table_names))
+        .with_src(&tables_file);
+    for f in &files {
+        builder = builder.with_src(f);
+    }
+    let mut out = Vec::new();
+    builder.generate().unwrap().write(&mut out);
+    String::from_utf8(out).unwrap()
+}
+
+#[test]
+fn checked_in_header_is_what_cbindgen_generates() {
+    let generated = generate_header();
+    let path = header_path();
+    if std::env::var_os("UPDATE_C_HEADER").is_some() {
+        std::fs::write(&path, &generated).unwrap();
+        return;
+    }
+    let checked_in = std::fs::read_to_string(&path).unwrap_or_default();
+    if checked_in != generated {
+        let line = checked_in
+            .lines()
+            .zip(generated.lines())
+            .position(|(a, b)| a != b)
+            .map_or_else(|| "at the end".into(), |i| format!("at line {}", i + 1));
+        panic!(
+            "{} differs from what cbindgen generates ({line}): regenerate it with\n  {REGENERATE}",
+            path.display()
+        );
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The C program
+// ---------------------------------------------------------------------------------------------
+
+/// `layout_expected.h` for `c-test/layout_check.c`: one check per line, every number and string
+/// taken from the Rust side.
+fn expected_checks(layouts: &[TypeLayout]) -> String {
+    let mut s = String::from("/* Generated by shm-types/tests/c_header.rs for one run. */\n");
+    for t in layouts {
+        let c = c_type(t.name);
+        let _ = writeln!(s, "EXPECT_TYPE({c}, {}, {})", t.size, t.align);
+        for f in t.fields {
+            let _ = writeln!(s, "EXPECT_FIELD({c}, {}, {}, {})", f.name, f.offset, f.size);
+        }
+        let _ = writeln!(
+            s,
+            "EXPECT_TYPE_NAME({c}, USS_{}_TYPE_NAME, \"{}\")",
+            screaming(t.name),
+            actual_type_name(t.name)
+        );
+    }
+    for (name, value) in numbers() {
+        let _ = writeln!(s, "EXPECT_NUMBER(USS_{name}, {value}ull)");
+    }
+    for (c_name, code) in codes() {
+        let _ = writeln!(s, "EXPECT_NUMBER({c_name}, {code}ull)");
+    }
+    let bus = BusName::new("line-1_A").unwrap();
+    let a = DriveAddress::new(7).unwrap();
+    for service in services() {
+        let (c_name, expected) = (service.c_name, (service.name)(&bus, a));
+        let call = if service.per_drive {
+            format!("EXPECT_DRIVE_NAME(USS_{c_name}, \"{bus}\", {a}u, \"{expected}\")")
+        } else {
+            format!("EXPECT_BUS_NAME(USS_{c_name}, \"{bus}\", \"{expected}\")")
+        };
+        let _ = writeln!(s, "{call}");
+    }
+    let _ = writeln!(
+        s,
+        "EXPECT_STRING(USS_LAYOUT_VERSION_ATTRIBUTE, \"{}\")",
+        names::LAYOUT_VERSION_ATTRIBUTE
+    );
+    s
+}
+
+/// The type name the `ZeroCopySend` derive gave a type (not the table's copy of it).
+fn actual_type_name(rust: &str) -> &'static str {
+    // SAFETY: `type_name` only returns the string the derive was given.
+    unsafe {
+        match rust {
+            "BlackboardKey" => BlackboardKey::type_name(),
+            "PzdOutput" => PzdOutput::type_name(),
+            "PzdInput" => PzdInput::type_name(),
+            "DriveDiag" => DriveDiag::type_name(),
+            "BusStatus" => BusStatus::type_name(),
+            "ParamItem" => ParamItem::type_name(),
+            "ParamRequest" => ParamRequest::type_name(),
+            "ParamResult" => ParamResult::type_name(),
+            "ParamResponse" => ParamResponse::type_name(),
+            other => panic!("{other} is in LAYOUTS but not here"),
+        }
+    }
+}
+
+/// The crate's public numeric constants, by Rust name.
+fn numbers() -> Vec<(&'static str, u64)> {
+    use uss_shm_types::{diag, params, pzd};
+    vec![
+        ("LAYOUT_VERSION", u64::from(uss_shm_types::LAYOUT_VERSION)),
+        ("MAX_PZD_WORDS", pzd::MAX_PZD_WORDS as u64),
+        ("EXTRA_PZD_WORDS", pzd::EXTRA_PZD_WORDS as u64),
+        ("MAX_PARAM_ITEMS", params::MAX_PARAM_ITEMS as u64),
+        ("MAX_SUBINDEX", u64::from(params::MAX_SUBINDEX)),
+        ("NO_ITEM", u64::from(params::NO_ITEM)),
+        ("NEVER", diag::NEVER),
+        ("MAX_BUS_NAME_LEN", names::MAX_BUS_NAME_LEN as u64),
+        ("MAX_ADDRESS", u64::from(names::MAX_ADDRESS)),
+        ("OUT_MAX_PUBLISHERS", names::OUT_MAX_PUBLISHERS as u64),
+        ("OUT_LATEST_ONLY", names::OUT_LATEST_ONLY as u64),
+        ("EVENT_ID_MAX", names::EVENT_ID_MAX as u64),
+        ("CYCLE_COMPLETED", names::CYCLE_COMPLETED as u64),
+        ("STATUS_PUBLISHED", names::STATUS_PUBLISHED as u64),
+        ("USSD_GONE", names::USSD_GONE as u64),
+    ]
+}
+
+/// Every code of every code table: C enumerator name, code.
+fn codes() -> Vec<(String, u8)> {
+    fn table<T: Copy + core::fmt::Debug + Into<u8>>(name: &str, all: &[T]) -> Vec<(String, u8)> {
+        all.iter()
+            .map(|&v| {
+                let variant = screaming(&format!("{v:?}"));
+                (format!("USS_{}_{variant}", screaming(name)), v.into())
+            })
+            .collect()
+    }
+    [
+        table("LastFailure", LastFailure::ALL),
+        table("RtMode", RtMode::ALL),
+        table("TaskCode", TaskCode::ALL),
+        table("Storage", Storage::ALL),
+        table("RequestError", RequestError::ALL),
+        table("Outcome", Outcome::ALL),
+    ]
+    .concat()
+}
+
+/// The C compiler: `$CC`, else `cc`; `None` if it does not run.
+fn c_compiler(var: &str, default: &str) -> Option<String> {
+    let cc = std::env::var(var).unwrap_or_else(|_| default.into());
+    let runs = Command::new(&cc)
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    runs.then_some(cc)
+}
+
+/// Compiles `c-test/layout_check.c` against the header and `checks` with `compiler` (extra
+/// `flags` select the language) and runs it: exit success and its output.
+fn compile_and_run(compiler: &str, flags: &[&str], checks: &str, dir: &Path) -> (bool, String) {
+    std::fs::write(dir.join("layout_expected.h"), checks).unwrap();
+    let exe = dir.join("layout_check");
+    let out = Command::new(compiler)
+        .args(flags)
+        .args(["-Wall", "-Wextra", "-Werror", "-pedantic", "-I"])
+        .arg(crate_dir().join("include"))
+        .arg("-I")
+        .arg(dir)
+        .arg(crate_dir().join("c-test/layout_check.c"))
+        .arg("-o")
+        .arg(&exe)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{compiler} {flags:?} failed to compile c-test/layout_check.c:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let run = Command::new(&exe).output().unwrap();
+    let text =
+        String::from_utf8_lossy(&run.stdout).into_owned() + &String::from_utf8_lossy(&run.stderr);
+    (run.status.success(), text)
+}
+
+#[test]
+fn c_and_cxx_see_the_layouts_codes_and_names_of_the_rust_contract() {
+    let Some(cc) = c_compiler("CC", "cc") else {
+        eprintln!("SKIPPED: no C compiler (set CC or install cc); the C layout check did not run");
+        return;
+    };
+    let checks = expected_checks(LAYOUTS);
+    let (ok, out) = compile_and_run(&cc, &["-std=c11"], &checks, &scratch("c-layout"));
+    assert!(ok, "the C view of the contract differs from Rust:\n{out}");
+    assert!(out.contains(" 0 failed"), "{out}");
+    // The header is for C++ too; C++ also checks the IOX2_TYPE_NAME members.
+    let Some(cxx) = c_compiler("CXX", "c++") else {
+        eprintln!("SKIPPED the C++ half: no C++ compiler (set CXX or install c++)");
+        return;
+    };
+    let (ok, out) = compile_and_run(
+        &cxx,
+        &["-x", "c++", "-std=c++17"],
+        &checks,
+        &scratch("cxx-layout"),
+    );
+    assert!(ok, "the C++ view of the contract differs from Rust:\n{out}");
+}
+
+#[test]
+fn c_check_fails_when_an_offset_differs() {
+    let Some(cc) = c_compiler("CC", "cc") else {
+        eprintln!("SKIPPED: no C compiler (set CC or install cc)");
+        return;
+    };
+    // Claim that ZSW1 sits two bytes later than it does.
+    let moved: Vec<TypeLayout> = LAYOUTS
+        .iter()
+        .map(|t| {
+            let fields: Vec<FieldLayout> = t
+                .fields
+                .iter()
+                .map(|f| match (t.name, f.name) {
+                    ("PzdInput", "zsw1") => FieldLayout {
+                        offset: f.offset + 2,
+                        ..*f
+                    },
+                    _ => *f,
+                })
+                .collect();
+            TypeLayout {
+                fields: fields.leak(),
+                ..*t
+            }
+        })
+        .collect();
+    let (ok, out) = compile_and_run(
+        &cc,
+        &["-std=c11"],
+        &expected_checks(&moved),
+        &scratch("c-layout-moved"),
+    );
+    assert!(!ok, "a moved offset went unnoticed:\n{out}");
+    assert!(
+        out.contains("UssPzdInput.zsw1: offset 32, expected 34"),
+        "{out}"
+    );
+    assert!(out.contains(" 1 failed"), "{out}");
+}
