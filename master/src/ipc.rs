@@ -498,6 +498,14 @@ impl StatusPublisher {
             .notifier
             .notify_with_custom_event_id(EventId::new(names::STATUS_PUBLISHED));
     }
+
+    /// Tells listeners ussd is leaving this bus (the same event a dead ussd's notifier leaves
+    /// behind), so clients drop their ports and the services can go.
+    pub fn goodbye(&self) {
+        let _ = self
+            .notifier
+            .notify_with_custom_event_id(EventId::new(names::USSD_GONE));
+    }
 }
 
 type Active = ActiveRequest<Svc, ParamRequest, (), ParamResponse, ()>;

@@ -366,6 +366,7 @@ fn spawn_housekeeping(
             }
             let stats = handle.stats();
             publisher.publish(&stats, false);
+            publisher.goodbye();
             tracing::info!(
                 "final\n{}",
                 crate::summary::render(&bus, mode, &stats, None).trim_end()
