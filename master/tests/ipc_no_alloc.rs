@@ -4,9 +4,11 @@
 //! allocations are counted.
 #![allow(clippy::unwrap_used)]
 
+mod common;
+
+use common::allocations;
+
 use iceoryx2::prelude::*;
-use std::alloc::{GlobalAlloc, Layout as AllocLayout, System};
-use std::cell::Cell;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -17,40 +19,6 @@ use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Stw1, Timing};
 use uss_shm_types::names;
 use uss_shm_types::{BlackboardKey, BusName, DriveAddress, PzdInput, PzdOutput};
-
-struct Counting;
-
-thread_local! {
-    static COUNTING: Cell<bool> = const { Cell::new(false) };
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-fn count() {
-    if COUNTING.try_with(Cell::get).unwrap_or(false) {
-        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
-    }
-}
-
-// SAFETY: forwards to the system allocator unchanged; only counts (per thread).
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: AllocLayout) -> *mut u8 {
-        count();
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: AllocLayout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: AllocLayout, new_size: usize) -> *mut u8 {
-        count();
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
 
 #[test]
 fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
@@ -128,13 +96,13 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
             for _ in 0..300 {
                 engine.poll_next().unwrap();
             }
-            COUNTING.with(|c| c.set(true));
+            let before = allocations();
             for _ in 0..3000 {
                 engine.poll_next().unwrap();
             }
-            COUNTING.with(|c| c.set(false));
+            let during = allocations() - before;
             running.store(false, Ordering::Release);
-            (ALLOCATIONS.with(Cell::get), engine.stats().clone())
+            (during, engine.stats().clone())
         })
     };
     let mut sequence = 0;

@@ -3,9 +3,11 @@
 //! publishing, under a counting global allocator (ARCHITECTURE.md, "Data flow").
 #![allow(clippy::unwrap_used)]
 
+mod common;
+
+use common::allocations;
+
 use crossbeam_channel::Receiver;
-use std::alloc::{GlobalAlloc, Layout as AllocLayout, System};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, VirtualWire};
 use uss_master::{
@@ -13,36 +15,6 @@ use uss_master::{
 };
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, ParamTask, Pnu, Storage, Stw1, Timing, Value};
-
-struct Counting;
-
-static COUNTING: AtomicBool = AtomicBool::new(false);
-static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
-
-// SAFETY: forwards to the system allocator unchanged; only counts while COUNTING is set.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: AllocLayout) -> *mut u8 {
-        if COUNTING.load(Ordering::Relaxed) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: AllocLayout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: AllocLayout, new_size: usize) -> *mut u8 {
-        if COUNTING.load(Ordering::Relaxed) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
 
 type TestEngine = Engine<SimTransport, VirtualClock>;
 
@@ -155,10 +127,9 @@ fn bus_loop_allocates_nothing_per_exchange() {
         }
     };
     step(500, &mut results, &mut id);
-    COUNTING.store(true, Ordering::Relaxed);
+    let before = allocations();
     step(5000, &mut results, &mut id);
-    COUNTING.store(false, Ordering::Relaxed);
-    let allocations = ALLOCATIONS.load(Ordering::Relaxed);
+    let allocations = allocations() - before;
     let stats = engine.stats();
     assert_eq!(allocations, 0, "allocations during 5000 polls");
     // The run really covered the paths it claims to.
