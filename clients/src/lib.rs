@@ -42,8 +42,8 @@
 //! Errors say what happened and what to do ([`ClientError`], [`ParamError`]).
 //!
 //! iceoryx2 logs to stderr on its own (e.g. a warning that no iceoryx2 config file exists, so
-//! its defaults apply, as they do for ussd). Applications that explain errors themselves set
-//! `iceoryx2::prelude::set_log_level_from_env_or(LogLevel::Error)` first, as `ussctl` does.
+//! its defaults apply, as they do for ussd). Applications that explain errors themselves call
+//! [`quiet_iceoryx2_logs`] first, as `ussctl` does.
 
 mod bus;
 mod control;
@@ -145,4 +145,11 @@ mod tests {
         send_sync::<Controller>();
         send_sync::<CycleListener>();
     }
+}
+
+/// Limits iceoryx2's own logging to errors (unless `IOX2_LOG_LEVEL` says otherwise), for
+/// applications that report errors themselves; without it iceoryx2 prints multi-kilobyte
+/// warnings, e.g. when a service still holds a dead process's ports.
+pub fn quiet_iceoryx2_logs() {
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
 }

@@ -67,7 +67,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     // iceoryx2 reports every refused open at warning level with a debug dump; ussctl explains
     // errors itself. IOX2_LOG_LEVEL still overrides.
-    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+    uss_client::quiet_iceoryx2_logs();
     match run(&cli) {
         Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,
         Err(Failure::Message(e)) => {
