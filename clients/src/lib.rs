@@ -108,6 +108,13 @@ pub fn zsw1_flags(zsw1: u16) -> Vec<&'static str> {
     flags
 }
 
+/// Limits iceoryx2's own logging to errors (unless `IOX2_LOG_LEVEL` says otherwise), for
+/// applications that report errors themselves; without it iceoryx2 prints multi-kilobyte
+/// warnings, e.g. when a service still holds a dead process's ports.
+pub fn quiet_iceoryx2_logs() {
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -145,11 +152,4 @@ mod tests {
         send_sync::<Controller>();
         send_sync::<CycleListener>();
     }
-}
-
-/// Limits iceoryx2's own logging to errors (unless `IOX2_LOG_LEVEL` says otherwise), for
-/// applications that report errors themselves; without it iceoryx2 prints multi-kilobyte
-/// warnings, e.g. when a service still holds a dead process's ports.
-pub fn quiet_iceoryx2_logs() {
-    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
 }
