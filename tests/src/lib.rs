@@ -5,6 +5,7 @@ use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, ChildStdout, Command, Stdio};
 use std::sync::OnceLock;
+use std::time::{Duration, Instant};
 
 /// Builds (if needed) and returns the path of a workspace binary. Integration tests only get
 /// their own package's binaries from cargo, so other packages' binaries are built here with the
@@ -38,6 +39,23 @@ pub fn binary(package: &str, name: &str) -> PathBuf {
         built.push(name.to_owned());
     }
     path
+}
+
+/// Stops a child the way an operator would (SIGTERM, so ussd shuts down cleanly and sends its
+/// safe commands), waits up to 5 s, then kills it; the child is reaped either way.
+pub fn terminate(child: &mut Child) {
+    if let Ok(pid) = i32::try_from(child.id()) {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(pid),
+            nix::sys::signal::Signal::SIGTERM,
+        );
+    }
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while child.try_wait().ok().flatten().is_none() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
 }
 
 /// `uss-sim --pty` in its own process; killed when dropped.

@@ -16,7 +16,7 @@ use uss_client::{
     Bus, ClientError, ControlOptions, CycleEvent, DriveState, ParamError, ParamRequest,
     RequestError, Value, read_item,
 };
-use uss_integration_tests::binary;
+use uss_integration_tests::{binary, terminate};
 
 /// One ussd at a time: each runs a paced bus thread, and the machine has two cores.
 fn serial() -> MutexGuard<'static, ()> {
@@ -109,14 +109,7 @@ impl Ussd {
 
 impl Drop for Ussd {
     fn drop(&mut self) {
-        let pid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).unwrap());
-        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
-        let deadline = Instant::now() + Duration::from_secs(5);
-        while self.child.try_wait().ok().flatten().is_none() && Instant::now() < deadline {
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        terminate(&mut self.child);
         let _ = std::fs::remove_file(&self.config);
     }
 }

@@ -6,7 +6,7 @@
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 use uss_client::{Bus, ClientError, ControlOptions, DriveState, Value};
-use uss_integration_tests::{SimProcess, binary};
+use uss_integration_tests::{SimProcess, binary, terminate};
 
 /// ussd on the simulator's pty; stopped with SIGTERM when dropped.
 struct Ussd {
@@ -16,14 +16,7 @@ struct Ussd {
 
 impl Drop for Ussd {
     fn drop(&mut self) {
-        let pid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).unwrap());
-        let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM);
-        let deadline = Instant::now() + Duration::from_secs(5);
-        while self.child.try_wait().ok().flatten().is_none() && Instant::now() < deadline {
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        terminate(&mut self.child);
         let _ = std::fs::remove_file(&self.config);
     }
 }
