@@ -13,7 +13,7 @@
 
 use std::fmt::Write;
 use std::time::{Duration, Instant};
-use uss_benches::percentiles_us;
+use uss_benches::{Parts, percentiles_us};
 use uss_drive_sim::{DriveConfig, SimBus, VirtualWire};
 use uss_master::config::Config;
 use uss_master::rt::{RtRequest, apply_to_current_thread};
@@ -241,13 +241,8 @@ fn scale() {
 }
 
 fn main() {
-    // `cargo bench` passes harness flags such as `--bench`; a name among the arguments runs only
-    // that part: `cargo bench -p uss-benches -- scale`.
-    let only: Vec<String> = std::env::args()
-        .skip(1)
-        .filter(|a| !a.starts_with("--"))
-        .collect();
-    let wanted = |name: &str| only.is_empty() || only.iter().any(|o| o == name);
+    let parts = Parts::from_args();
+    let wanted = |name: &str| parts.wanted(name);
     if wanted("efficiency") {
         efficiency();
     }

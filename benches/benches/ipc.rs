@@ -30,7 +30,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use uss_benches::percentiles_us;
+use uss_benches::{Parts, percentiles_us};
 use uss_client::{
     Bus, ControlOptions, CycleEvent, ParamRequest, PzdInput, Setpoint, Value, read_item,
 };
@@ -996,13 +996,8 @@ fn main() {
         client(&role);
         return;
     }
-    // `cargo bench` passes harness flags such as `--bench`; a name among the arguments runs only
-    // that part: `cargo bench -p uss-benches --bench ipc -- params`.
-    let only: Vec<String> = std::env::args()
-        .skip(1)
-        .filter(|a| !a.starts_with("--"))
-        .collect();
-    let wanted = |name: &str| only.is_empty() || only.iter().any(|o| o == name);
+    let parts = Parts::from_args();
+    let wanted = |name: &str| parts.wanted(name);
     if wanted("input") {
         input_path();
     }

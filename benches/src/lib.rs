@@ -16,3 +16,23 @@ pub fn percentiles_us(h: &Histogram<u64>) -> String {
         h.len()
     )
 }
+
+/// The parts of a benchmark to run: `cargo bench` passes harness flags such as `--bench`; any
+/// other argument names a part, and no name means every part (`cargo bench -p uss-benches -- scale`).
+#[derive(Debug)]
+pub struct Parts(Vec<String>);
+
+impl Parts {
+    pub fn from_args() -> Self {
+        Self(
+            std::env::args()
+                .skip(1)
+                .filter(|a| !a.starts_with("--"))
+                .collect(),
+        )
+    }
+
+    pub fn wanted(&self, name: &str) -> bool {
+        self.0.is_empty() || self.0.iter().any(|o| o == name)
+    }
+}

@@ -356,13 +356,7 @@ fn run_drive(
     let refresh_result = refresher.stop();
     // Stop whatever happened: OFF1, and make sure the drive received it before leaving it
     // to the watchdog (whose safe command is OFF1 by default too).
-    c.stop().map_err(|e| e.to_string())?;
-    let last = c
-        .wait_for(Duration::from_secs(1), "OFF1 sent", {
-            let start = c.inputs().latest().sequence;
-            move |i| i.sequence >= start + 2
-        })
-        .map_err(|e| e.to_string())?;
+    let last = stop_confirmed(&c)?;
     refresh_result.map_err(|e| e.to_string())?;
     if let Some(f) = failure {
         return Err(f.into());
@@ -372,15 +366,19 @@ fn run_drive(
     out.show(&report, DriveReport::human)
 }
 
+/// Sends OFF1 and waits until the drive has answered two more exchanges, so it has received it.
+fn stop_confirmed(c: &Controller) -> Result<PzdInput, Failure> {
+    c.stop().map_err(|e| e.to_string())?;
+    Ok(c.wait_for(Duration::from_secs(1), "OFF1 sent", {
+        let start = c.inputs().latest().sequence;
+        move |i| i.sequence >= start + 2
+    })
+    .map_err(|e| e.to_string())?)
+}
+
 fn stop_drive(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {
     let c = control(bus, drive)?;
-    c.stop().map_err(|e| e.to_string())?;
-    let last = c
-        .wait_for(Duration::from_secs(1), "OFF1 sent", {
-            let start = c.inputs().latest().sequence;
-            move |i| i.sequence >= start + 2
-        })
-        .map_err(|e| e.to_string())?;
+    let last = stop_confirmed(&c)?;
     out.show(
         &DriveReport::new(bus.name(), "stop", &last, drive, 50.0),
         DriveReport::human,
