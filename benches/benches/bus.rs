@@ -20,7 +20,7 @@ use uss_master::rt::{RtRequest, apply_to_current_thread};
 use uss_master::runtime::{self, RunOptions};
 use uss_master::{DriveSetup, Engine, EngineConfig, MonotonicClock, SimTransport, Stats};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
-use uss_protocol::{Address, Baud, Stw1, Timing};
+use uss_protocol::{Address, Baud, Timing};
 
 /// The S7-1200 library's documented minimum call interval per exchange at 19200 baud (USS.md
 /// section 8).
@@ -36,14 +36,7 @@ fn run_engine(baud: u32, pzd: usize, exchanges: u64) -> (Stats, &'static str) {
     for a in 1..=4 {
         let address = Address::new(a).expect("address");
         bus.add(DriveConfig::new(address, layout)).expect("unique");
-        drives.push(DriveSetup {
-            address,
-            layout,
-            weight: 1,
-            safe_stw1: Stw1::READY,
-            watchdog: Duration::from_millis(100),
-            params_writable: true,
-        });
+        drives.push(DriveSetup::new(address, layout));
     }
     let config = EngineConfig {
         timing,

@@ -44,7 +44,7 @@ use uss_master::{
 };
 use uss_protocol::{Layout, Telegram};
 use uss_shm_types::names::EVENT_ID_MAX;
-use uss_shm_types::{BlackboardKey, DriveAddress};
+use uss_shm_types::{BlackboardKey, DriveAddress, PzdOutput};
 
 /// What a client process does; unset in the benchmark itself.
 const ROLE_ENV: &str = "USS_BENCH_IPC_ROLE";
@@ -170,8 +170,8 @@ struct Stamping {
 }
 
 impl Bridge for Stamping {
-    fn before_poll(&mut self, slot: usize, images: &DriveImages) {
-        self.inner.before_poll(slot, images);
+    fn take_sample(&mut self, slot: usize, images: &DriveImages) -> Option<PzdOutput> {
+        self.inner.take_sample(slot, images)
     }
 
     fn after_poll(&mut self, slot: usize, images: &DriveImages, status: &DriveStatus) {
@@ -240,8 +240,8 @@ impl BusUnderTest {
         let config = Config::parse(toml, "ipc benchmark").expect("benchmark configuration");
         let bus = &config.buses[0];
         let clock = MonotonicClock::new();
-        let addresses: Vec<_> = bus.drives.iter().map(|d| d.address).collect();
-        let ipc = uss_master::ipc::create(&bus.name, &addresses, clock.origin())
+        let engine_config = runtime::engine_config(bus);
+        let ipc = uss_master::ipc::create(&bus.name, &engine_config.drives, clock.origin())
             .expect("the bus's services");
         let transport = Recording {
             inner: runtime::sim_transport(bus).expect("simulated drives"),
@@ -255,7 +255,7 @@ impl BusUnderTest {
             handed_over: Arc::clone(&handed_over),
         };
         let (mut engine, handle, _events) =
-            Engine::with_bridge(runtime::engine_config(bus), transport, clock, bridge);
+            Engine::with_bridge(engine_config, transport, clock, bridge);
         let params = serve_params.then(|| {
             let handle = handle.clone();
             let server = ipc.params;

@@ -21,6 +21,14 @@ pub(crate) type ParamClient = iceoryx2::port::client::Client<
     (),
 >;
 
+pub(crate) type CommandClient = iceoryx2::port::client::Client<
+    Ipc,
+    uss_shm_types::OperatorRequest,
+    (),
+    uss_shm_types::OperatorResponse,
+    (),
+>;
+
 /// One bus run by ussd. Opening it checks that ussd runs there; everything else (drive
 /// images, control, parameters, events) is opened on first use.
 ///
@@ -34,6 +42,7 @@ pub struct Bus {
     diag_service: Blackboard<Ipc, BlackboardKey>,
     diag: Reader<Ipc, BlackboardKey>,
     params: OnceLock<ParamClient>,
+    commands: OnceLock<CommandClient>,
     answer_timeout: Option<Duration>,
 }
 
@@ -109,6 +118,7 @@ impl Bus {
             diag_service,
             diag,
             params: OnceLock::new(),
+            commands: OnceLock::new(),
             answer_timeout: None,
         })
     }
@@ -140,6 +150,10 @@ impl Bus {
 
     pub(crate) fn params_client(&self) -> &OnceLock<ParamClient> {
         &self.params
+    }
+
+    pub(crate) fn command_client(&self) -> &OnceLock<CommandClient> {
+        &self.commands
     }
 
     /// The bus status, as ussd last published it (about every 100 ms).

@@ -1,5 +1,6 @@
 //! [`Controller`]: the one handle that writes a drive's output image (STW1, setpoint, further
-//! PZD words), with helpers that follow the PROFIdrive state machine (USS.md section 7).
+//! PZD words), with helpers that follow the PROFIdrive state machine (USS.md section 7), and
+//! the latch rules of ussd (`uss_shm_types::control`) surfaced as typed errors.
 
 use crate::open::{Ipc, layout_verifier, opened};
 use crate::{Bus, ClientError, DriveWatch};
@@ -8,23 +9,26 @@ use iceoryx2::node::NodeView;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::prelude::{CallbackProgression, Node, NodeState, PortFactory as _};
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSub;
-use std::sync::{Arc, Condvar, Mutex, PoisonError};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
 use std::time::Instant;
 use uss_protocol::{DriveState, Setpoint, Stw1};
 use uss_shm_types::names;
-use uss_shm_types::{DriveAddress, MAX_PZD_WORDS, PzdInput, PzdOutput};
+use uss_shm_types::{ControlState, DriveAddress, MAX_PZD_WORDS, PzdInput, PzdOutput};
 
 /// A refresh period that suits ussd's default watchdog of 100 ms (`watchdog_ms`).
 pub const DEFAULT_REFRESH: Duration = Duration::from_millis(20);
+/// How long a call waits for ussd to take an OFF1 before passing an ON ([`Controller::rearm`],
+/// or an ON right after [`Controller::enable`]), and for a release on drop.
+pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(1);
 
 /// How a [`Controller`] starts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[non_exhaustive]
 pub struct ControlOptions {
-    /// PZD words to send, STW1 and setpoint included (must equal the drive's PZD length,
-    /// P2012 / `pzd` in ussd's configuration). `None`: as many as the drive replies with, and
-    /// at least 2.
+    /// PZD words to send, STW1 and setpoint included. `None`: the drive's PZD length as ussd
+    /// is configured (P2012), which every sample must carry anyway; a different number is
+    /// refused here before it could be refused by ussd.
     pub words: Option<usize>,
 }
 
@@ -50,34 +54,135 @@ struct Image {
     sequence: u64,
 }
 
+/// Which latch of the drive this controller knows about: `(latches, latched_since_ns)` of the
+/// input image. A latch in the image other than this one is news (a trip, an override).
+type LatchId = (u32, u64);
+
+fn latch_id(i: &PzdInput) -> LatchId {
+    (i.latches, i.latched_since_ns)
+}
+
+/// The controller's own state, shared with a [`Refresher`] thread.
+#[derive(Debug)]
+struct State {
+    image: Image,
+    known_latch: LatchId,
+    /// An OFF1 went out while `known_latch` held: ussd re-arms the drive when it takes it.
+    off1_sent: bool,
+}
+
 /// Shared with a [`Refresher`] thread.
 struct Shared {
     publisher: Publisher<Ipc, PzdOutput, ()>,
-    image: Mutex<Image>,
+    state: Mutex<State>,
+    watch: DriveWatch,
     pid: u32,
+    bus: String,
+    address: u8,
+    /// The drive's PZD length: every sample carries exactly this many words.
+    pzd: usize,
 }
 
+const ON: u16 = uss_shm_types::pzd::STW1_ON;
+
 impl Shared {
-    fn image(&self) -> std::sync::MutexGuard<'_, Image> {
-        // The image is plain data, valid whatever a panicking holder left behind.
-        self.image.lock().unwrap_or_else(PoisonError::into_inner)
+    fn state(&self) -> MutexGuard<'_, State> {
+        // Plain data, valid whatever a panicking holder left behind.
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// Changes the image with `f` and publishes it with the next sequence number.
+    /// The error for a latch this controller has not acknowledged, if the image shows one.
+    fn news(&self, input: &PzdInput, state: &State) -> Option<ClientError> {
+        let latched = input.control == ControlState::Latched.code();
+        (latched && latch_id(input) != state.known_latch)
+            .then(|| ClientError::latched(&self.bus, self.address, input, true))
+    }
+
+    /// Changes the image with `f`, checks it, and publishes it with the next sequence number.
+    /// Fails without publishing when the drive latched since this controller last looked
+    /// ([`ClientError::Tripped`]), when the words would be refused by ussd
+    /// ([`ClientError::InvalidSample`]), and when an ON is asked of a latched drive that no OFF1
+    /// of this controller has re-armed ([`ClientError::NotArmed`]).
     fn publish(&self, f: impl FnOnce(&mut Image)) -> Result<(), ClientError> {
-        let mut image = self.image();
-        f(&mut image);
-        image.sequence = image.sequence.wrapping_add(1).max(1);
-        let out = PzdOutput::from_words(
+        let mut state = self.state();
+        let input = self.watch.latest();
+        if let Some(e) = self.news(&input, &state) {
+            return Err(e);
+        }
+        let mut next = state.image;
+        f(&mut next);
+        let sample = self.sample(&next)?;
+        let on = self.pzd > 0 && next.words[0] & ON != 0;
+        let latched = !input.is_live();
+        if on && latched {
+            if !state.off1_sent {
+                return Err(ClientError::latched(&self.bus, self.address, &input, false));
+            }
+            // The OFF1 is out: wait (without the lock, so a refresher keeps going) until ussd
+            // took it and the drive is live, then pass the ON.
+            drop(state);
+            let armed = self.watch.wait_for(HANDSHAKE_TIMEOUT, "re-armed", |i| {
+                i.is_live() || latch_id(i) != latch_id(&input)
+            })?;
+            state = self.state();
+            if let Some(e) = self.news(&armed, &state) {
+                return Err(e);
+            }
+            if !armed.is_live() {
+                return Err(ClientError::latched(&self.bus, self.address, &armed, false));
+            }
+        } else if latched && !on {
+            state.off1_sent = true;
+        }
+        self.send(&mut state, next, sample)
+    }
+
+    /// The sample `image` makes with the next sequence number, as ussd would check it.
+    fn sample(&self, image: &Image) -> Result<PzdOutput, ClientError> {
+        let sequence = image.sequence.wrapping_add(1).max(1);
+        let sample = PzdOutput::from_words(
             &image.words[..image.count],
-            image.sequence,
+            sequence,
             monotonic_ns(),
             self.pid,
         )?;
+        sample
+            .validate(self.pzd)
+            .map_err(|rejection| ClientError::InvalidSample {
+                bus: self.bus.clone(),
+                address: self.address,
+                rejection,
+            })?;
+        Ok(sample)
+    }
+
+    fn send(
+        &self,
+        state: &mut State,
+        mut image: Image,
+        sample: PzdOutput,
+    ) -> Result<(), ClientError> {
         self.publisher
-            .send_copy(out)
+            .send_copy(sample)
             .map_err(|e| ClientError::ipc("publishing the output image", e))?;
+        image.sequence = sample.sequence;
+        state.image = image;
         Ok(())
+    }
+
+    /// Publishes a release and waits (at most `timeout`) until ussd took it, so the publisher
+    /// can go: iceoryx2 drops samples not yet received with their publisher.
+    fn release(&self, timeout: Duration) -> Result<PzdInput, ClientError> {
+        let mut state = self.state();
+        let sequence = state.image.sequence.wrapping_add(1).max(1);
+        let sample = PzdOutput::release(sequence, monotonic_ns(), self.pid);
+        self.publisher
+            .send_copy(sample)
+            .map_err(|e| ClientError::ipc("publishing the release", e))?;
+        state.image.sequence = sequence;
+        drop(state);
+        self.watch
+            .wait_for(timeout, "release taken", |i| i.taken_sequence == sequence)
     }
 }
 
@@ -93,29 +198,41 @@ pub(crate) fn monotonic_ns() -> u64 {
 /// Exclusive control of one drive: the only writer of its output image. Obtained from
 /// [`Bus::control`]; a second controller for the same drive is refused while this one lives.
 ///
-/// **Watchdog.** ussd sends the drive its safe command (OFF1 unless configured otherwise)
-/// when the controller has not published a new sample within the drive's watchdog time
-/// (`watchdog_ms` in ussd's configuration, 100 ms by default), and when no controller exists.
-/// Every setter publishes; between changes call [`Controller::refresh`] at least once per
-/// watchdog time (every [`DEFAULT_REFRESH`] suits the default), or let
-/// [`Controller::spawn_refresher`] do it from a thread. Dropping the controller hands the drive
-/// to that safe command.
+/// **Latched until re-armed.** ussd passes this controller's words to the drive only while the
+/// drive is *live*. It starts *latched* (ussd's start), and latches again when this
+/// controller stops publishing within the drive's watchdog time (100 ms by default: it froze,
+/// hung or died), when a sample would be misread by the drive, when an operator stops the
+/// drive from another process (`ussctl stop/coast/quick-stop`), or when the bus line comes
+/// back. A latched drive gets its safe command (OFF1 unless configured otherwise) until this
+/// controller re-arms it the PROFIdrive way: OFF1, then ON.
 ///
-/// The helpers keep STW1 bit 10 ("control by PLC") set: without it the drive ignores the PZD.
-/// Every publish carries this process's id, a `CLOCK_MONOTONIC` time stamp and a new sequence
-/// number.
+/// - A new controller re-arms with its first OFF1: [`Controller::enable`] (or
+///   [`Controller::rearm`]), then [`Controller::run_hz`] and friends.
+/// - A latch after that is news: the next call fails with [`ClientError::Tripped`] (when and
+///   why), and so does every call until [`Controller::rearm`] acknowledges it. A frozen
+///   controller that resumes, or its refresher, never restarts the motor by itself.
+/// - An ON while latched, before an OFF1 of this controller re-armed the drive, fails with
+///   [`ClientError::NotArmed`].
+///
+/// **Watchdog.** Every setter publishes; between changes call [`Controller::refresh`] at least
+/// once per watchdog time (every [`DEFAULT_REFRESH`] suits the default), or let
+/// [`Controller::spawn_refresher`] do it from a thread. Dropping the controller (or
+/// [`Controller::release`]) hands the drive back cleanly: ussd sends the safe command and shows
+/// the drive "released", which is not a watchdog trip.
+///
+/// Every sample keeps STW1 bit 10 ("control by PLC") set, carries exactly the drive's PZD
+/// length, this process's id, a `CLOCK_MONOTONIC` time stamp and a new sequence number; a
+/// sample ussd would refuse is refused here first ([`ClientError::InvalidSample`]).
 pub struct Controller {
-    bus: String,
-    address: DriveAddress,
     shared: Arc<Shared>,
-    watch: DriveWatch,
+    released: bool,
 }
 
 impl core::fmt::Debug for Controller {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("Controller")
-            .field("bus", &self.bus)
-            .field("address", &self.address.get())
+            .field("bus", &self.shared.bus)
+            .field("address", &self.shared.address)
             .field("words", &self.words())
             .finish_non_exhaustive()
     }
@@ -127,6 +244,22 @@ impl Controller {
         address: DriveAddress,
         options: ControlOptions,
     ) -> Result<Self, ClientError> {
+        let diag = bus.diag(address.get())?;
+        let pzd = usize::from(diag.pzd_words);
+        if pzd == 0 {
+            return Err(ClientError::NoProcessData {
+                bus: bus.name().to_owned(),
+                address: address.get(),
+            });
+        }
+        if let Some(n) = options.words.filter(|&n| n != pzd) {
+            return Err(ClientError::PzdWords {
+                bus: bus.name().to_owned(),
+                address: address.get(),
+                given: n,
+                expected: pzd,
+            });
+        }
         let name = names::drive_out(bus.bus_name(), address);
         let service = opened(
             bus.node()
@@ -156,58 +289,69 @@ impl Controller {
             }
         };
         let watch = DriveWatch::open(bus, address)?;
-        let count = match options.words {
-            Some(n) if n > MAX_PZD_WORDS => {
-                return Err(uss_shm_types::ContractError::PzdWords(n).into());
-            }
-            Some(n) => n,
-            None => usize::from(watch.latest().word_count).clamp(2, MAX_PZD_WORDS),
-        };
         let mut words = [0; MAX_PZD_WORDS];
         words[0] = Stw1::READY.bits();
+        let known_latch = latch_id(&watch.latest());
         Ok(Self {
-            bus: bus.name().to_owned(),
-            address,
             shared: Arc::new(Shared {
                 publisher,
-                image: Mutex::new(Image {
-                    words,
-                    count,
-                    // A clock-based start: the first sample of a new controller never repeats
-                    // its predecessor's last sequence number (ussd counts a refresh only when
-                    // the sequence changes).
-                    sequence: monotonic_ns(),
+                state: Mutex::new(State {
+                    image: Image {
+                        words,
+                        count: pzd,
+                        // A clock-based start: the first sample of a new controller never
+                        // repeats its predecessor's last sequence number (ussd takes a sample
+                        // as new only when the sequence changes).
+                        sequence: monotonic_ns(),
+                    },
+                    known_latch,
+                    off1_sent: false,
                 }),
+                watch,
                 pid: std::process::id(),
+                bus: bus.name().to_owned(),
+                address: address.get(),
+                pzd,
             }),
-            watch,
+            released: false,
         })
     }
 
     /// The drive's address.
     pub fn address(&self) -> u8 {
-        self.address.get()
+        self.shared.address
     }
 
     /// The drive's inputs, read while controlling it.
     pub fn inputs(&self) -> &DriveWatch {
-        &self.watch
+        &self.shared.watch
     }
 
     /// The words this controller sends (STW1 first).
     pub fn words(&self) -> Vec<u16> {
-        let image = self.shared.image();
-        image.words[..image.count].to_vec()
+        let state = self.shared.state();
+        state.image.words[..state.image.count].to_vec()
     }
 
     /// The current STW1.
     pub fn stw1(&self) -> Stw1 {
-        Stw1::from_bits_retain(self.shared.image().words[0])
+        Stw1::from_bits_retain(self.shared.state().image.words[0])
     }
 
     /// The sequence number of the last publish.
     pub fn sequence(&self) -> u64 {
-        self.shared.image().sequence
+        self.shared.state().image.sequence
+    }
+
+    /// The latest input image, or [`ClientError::Tripped`] when the drive latched since this
+    /// controller last acknowledged a latch. For control loops that read more than they write.
+    pub fn check(&self) -> Result<PzdInput, ClientError> {
+        let state = self.shared.state();
+        let input = self.shared.watch.latest();
+        match self.shared.news(&input, &state) {
+            Some(e) => Err(e),
+            None => Ok(input),
+        }
     }
 
     /// Re-publishes the current words with a new sequence number: the watchdog refresh.
@@ -215,8 +359,43 @@ impl Controller {
         self.shared.publish(|_| {})
     }
 
+    /// Acknowledges the drive's latch (a trip, an override, ussd's start) and re-arms it the
+    /// PROFIdrive way: sends OFF1 (STW1 0x047E, setpoint 0) and waits until ussd has taken it
+    /// and the drive is live again. Then an ON ([`Controller::run_hz`], ...) reaches the drive.
+    /// The drive itself may need [`Controller::acknowledge_fault`] too.
+    pub fn rearm(&self) -> Result<PzdInput, ClientError> {
+        {
+            let mut state = self.shared.state();
+            let input = self.shared.watch.latest();
+            if !input.is_live() {
+                state.known_latch = latch_id(&input);
+                state.off1_sent = false;
+            }
+        }
+        self.shared.publish(|i| {
+            i.words[0] = Stw1::READY.bits();
+            if i.count > 1 {
+                i.words[1] = 0;
+            }
+        })?;
+        let live = self.wait_for(HANDSHAKE_TIMEOUT, "re-armed (live)", PzdInput::is_live);
+        match live {
+            Ok(input) => Ok(input),
+            Err(ClientError::WaitTimeout { .. } | ClientError::Stale { .. }) => {
+                Err(ClientError::latched(
+                    &self.shared.bus,
+                    self.shared.address,
+                    &self.inputs().latest(),
+                    false,
+                ))
+            }
+            Err(e) => Err(e),
+        }
+    }
+
     /// STW1 0x047E (OFF1, everything else enabled): S1 -> S2 (ready to switch on). Also
-    /// stops a running drive along its ramp, like [`Controller::stop`].
+    /// stops a running drive along its ramp, like [`Controller::stop`], and re-arms a latched
+    /// drive whose latch this controller knows (its first OFF1 after the latch).
     pub fn enable(&self) -> Result<(), ClientError> {
         self.command(Stw1::READY)
     }
@@ -285,7 +464,7 @@ impl Controller {
     pub fn acknowledge_fault(&self, timeout: Duration) -> Result<(), ClientError> {
         self.command(Stw1::ACK_FAULT)?;
         let waited = self.wait_for(timeout, "fault acknowledge sent", {
-            let start = self.watch.latest().sequence;
+            let start = self.inputs().latest().sequence;
             move |i| i.sequence >= start + 2
         });
         // Back to 0x047E whatever happened: the next acknowledge needs the falling edge.
@@ -293,8 +472,9 @@ impl Controller {
         waited.map(|_| ())
     }
 
-    /// Sends `words` as they are (STW1 first, at most 16), e.g. for drives with more PZD
-    /// words. Keep STW1 bit 10 set: with it clear the drive ignores the PZD.
+    /// Sends `words` as they are (STW1 first). They must be exactly the drive's PZD length and
+    /// keep STW1 bit 10 set, or [`ClientError::InvalidSample`]: ussd would refuse them and
+    /// latch the drive.
     pub fn set_words(&self, words: &[u16]) -> Result<(), ClientError> {
         if words.len() > MAX_PZD_WORDS {
             return Err(uss_shm_types::ContractError::PzdWords(words.len()).into());
@@ -307,7 +487,8 @@ impl Controller {
     }
 
     /// Waits until `done` holds for the drive's input image, refreshing every
-    /// [`DEFAULT_REFRESH`] meanwhile so the watchdog stays quiet.
+    /// [`DEFAULT_REFRESH`] meanwhile so the watchdog stays quiet. Fails with
+    /// [`ClientError::Tripped`] as soon as the drive latches.
     pub fn wait_for(
         &self,
         timeout: Duration,
@@ -315,15 +496,16 @@ impl Controller {
         mut done: impl FnMut(&PzdInput) -> bool,
     ) -> Result<PzdInput, ClientError> {
         let start = Instant::now();
-        let first = self.watch.latest().sequence;
+        let watch = &self.shared.watch;
+        let first = watch.latest().sequence;
         let mut refreshed = start;
         loop {
-            let latest = self.watch.latest();
+            let latest = self.check()?;
             if done(&latest) {
                 return Ok(latest);
             }
             if start.elapsed() >= timeout {
-                return Err(self.watch.timed_out(timeout, wanted, first, &latest));
+                return Err(watch.timed_out(timeout, wanted, first, &latest));
             }
             if refreshed.elapsed() >= DEFAULT_REFRESH {
                 self.refresh()?;
@@ -345,7 +527,9 @@ impl Controller {
     }
 
     /// Refreshes from a thread every `period` until the returned [`Refresher`] is dropped or
-    /// stopped. Setters keep working meanwhile.
+    /// stopped. Setters keep working meanwhile. While the drive is latched by news this
+    /// controller has not acknowledged, the refresher publishes nothing (the next call of the
+    /// owning thread reports the latch); after [`Controller::rearm`] it goes on.
     pub fn spawn_refresher(&self, period: Duration) -> Refresher {
         let shared = Arc::clone(&self.shared);
         let stop = Arc::new((Mutex::new(false), Condvar::new()));
@@ -359,8 +543,27 @@ impl Controller {
         }
     }
 
+    /// Hands the drive back cleanly: ussd sends its safe command, latched, and shows it
+    /// "released" (not a watchdog trip). Waits until ussd took the release (at most
+    /// [`HANDSHAKE_TIMEOUT`]) and returns the image that says so. Dropping a controller does
+    /// the same, ignoring errors.
+    pub fn release(mut self) -> Result<PzdInput, ClientError> {
+        self.released = true;
+        self.shared.release(HANDSHAKE_TIMEOUT)
+    }
+
     fn command(&self, stw1: Stw1) -> Result<(), ClientError> {
         self.shared.publish(|i| i.words[0] = stw1.bits())
+    }
+}
+
+impl Drop for Controller {
+    fn drop(&mut self) {
+        if !self.released {
+            // A drive that stays unreachable (ussd gone) ends the wait at the timeout; the
+            // watchdog then covers it, as it covers a crash.
+            let _ = self.shared.release(HANDSHAKE_TIMEOUT);
+        }
     }
 }
 
@@ -388,7 +591,12 @@ fn refresh_loop(shared: &Shared, stop: &StopFlag, period: Duration) -> Result<()
         if *stopped {
             return Ok(());
         }
-        shared.publish(|_| {})?;
+        match shared.publish(|_| {}) {
+            // The owner learns of a latch at its next call and decides; until then the
+            // refresher must not keep a tripped drive's controller looking alive.
+            Ok(()) | Err(ClientError::Tripped { .. } | ClientError::NotArmed { .. }) => {}
+            Err(e) => return Err(e),
+        }
     }
 }
 
@@ -482,6 +690,14 @@ mod tests {
         image.count = 4;
         set_word(&mut image, 1, 0x1000);
         assert_eq!(image.count, 4);
+    }
+
+    #[test]
+    fn a_latch_is_known_by_its_count_and_start() {
+        let mut i = PzdInput::EMPTY;
+        i.latches = 3;
+        i.latched_since_ns = 99;
+        assert_eq!(latch_id(&i), (3, 99));
     }
 
     #[test]

@@ -3,7 +3,62 @@
 use core::fmt;
 use core::time::Duration;
 use thiserror::Error;
-use uss_shm_types::{ContractError, NameError, RequestError};
+use uss_shm_types::{
+    CommandError, ContractError, LatchReason, NameError, PzdInput, Rejection, RequestError,
+    StopCommand,
+};
+
+/// Why and since when a drive is latched, as its input image says (see
+/// `uss_shm_types::control`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Latch {
+    pub reason: LatchReason,
+    /// What the drive gets meanwhile.
+    pub command: StopCommand,
+    /// With [`LatchReason::Rejected`]: why the sample was refused.
+    pub rejection: Rejection,
+    /// The operator behind an override, or the controller whose sample caused the latch.
+    pub by_pid: u32,
+    /// How long ago the latch began.
+    pub ago: Duration,
+}
+
+impl Latch {
+    /// The latch an input image shows.
+    pub fn of(input: &PzdInput) -> Self {
+        let now = crate::control::monotonic_ns();
+        Self {
+            reason: LatchReason::try_from(input.latch_reason).unwrap_or(LatchReason::None),
+            command: StopCommand::try_from(input.latch_command).unwrap_or(StopCommand::None),
+            rejection: Rejection::try_from(input.rejection).unwrap_or(Rejection::None),
+            by_pid: input.latched_by_pid,
+            ago: Duration::from_nanos(now.saturating_sub(input.latched_since_ns)),
+        }
+    }
+}
+
+impl fmt::Display for Latch {
+    /// The cause in words: "its controller stopped publishing within the watchdog time".
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let pid = self.by_pid;
+        match self.reason {
+            LatchReason::None => f.write_str("not latched"),
+            LatchReason::Startup => f.write_str("ussd started"),
+            LatchReason::Stale => {
+                f.write_str("its controller stopped publishing within the watchdog time")
+            }
+            LatchReason::Rejected => write!(f, "ussd refused a sample: {}", self.rejection),
+            LatchReason::Released => write!(f, "its controller (process {pid}) released it"),
+            LatchReason::Override => {
+                write!(f, "an operator sent {} from process {pid}", self.command)
+            }
+            LatchReason::LineRestored => f.write_str("the bus line came back after it was down"),
+            LatchReason::MonitoringOff => f.write_str(
+                "an ON was refused: the drive's telegram monitoring is required but off or not verified",
+            ),
+        }
+    }
+}
 
 /// Opening a bus, reading drives, taking control.
 #[derive(Debug, Clone, PartialEq, Eq, Error)]
@@ -58,6 +113,53 @@ pub enum ClientError {
         address: u8,
         timeout: Duration,
     },
+    /// The drive latched since this controller last looked: a trip (it stopped publishing in
+    /// time, ussd refused a sample), an operator's stop, the line coming back. Every call fails
+    /// so until [`crate::Controller::rearm`] acknowledges it.
+    #[error(
+        "drive {address} on {bus} latched {:.2} s ago: {latch}; it gets {} until its controller re-arms it (OFF1, then ON: Controller::rearm)",
+        latch.ago.as_secs_f64(), latch.command
+    )]
+    Tripped {
+        bus: String,
+        address: u8,
+        latch: Latch,
+    },
+    /// An ON for a latched drive that no OFF1 of this controller has re-armed.
+    #[error(
+        "drive {address} on {bus} is latched ({latch}, {:.2} s ago) and gets {}: send OFF1 first (Controller::enable or Controller::rearm), then ON",
+        latch.ago.as_secs_f64(), latch.command
+    )]
+    NotArmed {
+        bus: String,
+        address: u8,
+        latch: Latch,
+    },
+    /// Words ussd would refuse (and latch the drive for).
+    #[error(
+        "drive {address} on {bus}: ussd would refuse these words ({rejection}); nothing was sent"
+    )]
+    InvalidSample {
+        bus: String,
+        address: u8,
+        rejection: Rejection,
+    },
+    /// A controller asked for another word count than the drive's PZD length.
+    #[error(
+        "drive {address} on {bus} exchanges {expected} PZD words (pzd in ussd's configuration), not {given}"
+    )]
+    PzdWords {
+        bus: String,
+        address: u8,
+        given: usize,
+        expected: usize,
+    },
+    /// The drive has no PZD (pzd = 0): there is nothing to control.
+    #[error("drive {address} on {bus} has no process data (pzd = 0): there is nothing to control")]
+    NoProcessData { bus: String, address: u8 },
+    /// ussd refused an operator command.
+    #[error("ussd on {bus} refused the stop command: {error}{}", command_hint(*.error))]
+    CommandRefused { bus: String, error: CommandError },
     /// A drive did not get where it was asked to in time.
     #[error(
         "drive {address} on {bus} {} after {timeout:?} (wanted: {wanted}): check `ussctl status` and `ussctl faults {address}`",
@@ -76,7 +178,34 @@ pub enum ClientError {
     },
 }
 
+fn command_hint(error: CommandError) -> &'static str {
+    match error {
+        CommandError::UnknownDrive => ": the address is not in ussd's configuration",
+        CommandError::Shutdown => ": ussd is stopping; every drive gets its safe command",
+        CommandError::Version => ": rebuild this program against the running ussd's uss-shm-types",
+        CommandError::Ok | CommandError::BadCommand => "",
+    }
+}
+
 impl ClientError {
+    /// [`ClientError::Tripped`] (`news`) or [`ClientError::NotArmed`] for the latch `input` shows.
+    pub(crate) fn latched(bus: &str, address: u8, input: &PzdInput, news: bool) -> Self {
+        let (bus, latch) = (bus.to_owned(), Latch::of(input));
+        if news {
+            Self::Tripped {
+                bus,
+                address,
+                latch,
+            }
+        } else {
+            Self::NotArmed {
+                bus,
+                address,
+                latch,
+            }
+        }
+    }
+
     pub(crate) fn ipc(what: impl Into<String>, detail: impl fmt::Debug) -> Self {
         Self::Ipc {
             what: what.into(),
@@ -157,6 +286,11 @@ pub enum ParamError {
     /// ussd stopped before the item finished.
     #[error("ussd shut down before the task finished: retry once ussd runs again")]
     Shutdown,
+    /// A write to a drive another process controls, not marked deliberate (force).
+    #[error(
+        "drive {address} is controlled by process {pid}: a parameter write from another process is refused; stop that controller first, or force the write if it is deliberate (ussctl param write --force)"
+    )]
+    Controlled { address: u8, pid: u32 },
     /// ussd refused the request (or this item) before the bus.
     #[error("ussd refused the request{} before the bus: {error}{}", Item(*.item), refusal_hint(*.error))]
     Refused {
@@ -204,11 +338,16 @@ fn refusal_hint(error: RequestError) -> &'static str {
         }
         RequestError::Busy => ": retry once earlier requests finished",
         RequestError::Shutdown => ": retry once ussd runs again",
-        RequestError::Version => ": rebuild this program against the running ussd's uss-shm-types",
+        RequestError::Version | RequestError::BadFlags => {
+            ": rebuild this program against the running ussd's uss-shm-types"
+        }
         RequestError::BadSubindex => ": array indices are 0..=254",
         RequestError::NoParameterChannel => ": the drive is configured with pkw = 0",
         RequestError::DwordOverThreeWords => {
             ": the drive has a 3-word parameter channel; write a word, or configure pkw = 4"
+        }
+        RequestError::Controlled => {
+            ": another process controls the drive; force the write if it is deliberate"
         }
         RequestError::Ok
         | RequestError::PnuOutOfRange

@@ -19,12 +19,24 @@
 //! // Exclusive control: a second controller of drive 1 is refused.
 //! let drive = bus.control(1, ControlOptions::default())?;
 //! let _refresher = drive.spawn_refresher(Duration::from_millis(20)); // the watchdog
-//! drive.enable()?; // S1 -> S2
+//! drive.enable()?; // OFF1: arms the drive (ussd latched it at start), S1 -> S2
 //! drive.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(1))?;
 //! drive.run_hz(0.5 * max_hz, 50.0)?; // S2 -> S4
 //! drive.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(1))?;
 //! println!("{:.1} Hz", drive.inputs().actual_hz(50.0));
+//! match drive.set_setpoint(uss_client::Setpoint::from_percent(20.0)) {
+//!     // Frozen too long, an operator's stop, ...: the drive is latched until re-armed.
+//!     Err(uss_client::ClientError::Tripped { latch, .. }) => {
+//!         eprintln!("tripped: {latch}");
+//!         drive.rearm()?; // OFF1, acknowledged; an ON may follow
+//!     }
+//!     other => other?,
+//! }
 //! drive.stop()?; // OFF1
+//! drive.release()?; // hand it back: "released", not a watchdog trip
+//!
+//! // Anyone may stop a drive, whoever controls it (OFF1, OFF2 coast, OFF3 quick stop).
+//! bus.stop_drive(2, uss_client::StopCommand::Off2)?;
 //! # Ok(())
 //! # }
 //! ```
@@ -34,8 +46,11 @@
 //!   without blocking; [`CycleListener`] ([`Bus::cycle_listener`]) wakes on each exchange
 //!   and each completed cycle, to run in step with the bus.
 //! - [`Controller`] ([`Bus::control`]): the one writer of a drive's output image, with helpers
-//!   that follow the PROFIdrive state machine (USS.md section 7). ussd's watchdog stops the
-//!   drive when its controller stops refreshing: see [`Controller`].
+//!   that follow the PROFIdrive state machine (USS.md section 7). ussd latches the drive (safe
+//!   command until the controller re-arms with OFF1, then ON) when its controller stops
+//!   refreshing, sends a bad sample, or an operator stops it: see [`Controller`].
+//! - Operator stops ([`Bus::stop_drive`], [`Bus::stop_all`]): OFF1/OFF2/OFF3 from any process,
+//!   overriding the controller.
 //! - Parameters ([`Bus::read`], [`Bus::write`], [`Bus::batch`], [`Bus::faults`]): typed
 //!   [`Value`]s and [`ParamError`]s (USS.md section 6).
 //!
@@ -46,19 +61,22 @@
 //! [`quiet_iceoryx2_logs`] first, as `ussctl` does.
 
 mod bus;
+mod command;
 mod control;
 mod error;
 mod open;
 pub mod params;
+mod request;
 mod watch;
 
 pub use bus::{Bus, DEFAULT_NODE_NAME};
-pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, Jog, Refresher};
-pub use error::{ClientError, ParamError};
-pub use params::{array_len_item, read_item, write_item};
+pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, HANDSHAKE_TIMEOUT, Jog, Refresher};
+pub use error::{ClientError, Latch, ParamError};
+pub use params::{WriteOptions, array_len_item, read_item, write_item};
 pub use uss_protocol::{DriveState, Setpoint, Stw1, Value, Zsw1};
 pub use uss_shm_types::{
-    BusStatus, DriveDiag, ParamItem, ParamRequest, ParamResponse, PzdInput, PzdOutput, RequestError,
+    BusStatus, ControlState, DriveDiag, LatchReason, Monitoring, ParamItem, ParamRequest,
+    ParamResponse, PzdInput, PzdOutput, Rejection, RequestError, StopCommand,
 };
 pub use watch::{CycleEvent, CycleListener, DriveWatch};
 /// The protocol and contract crates this API speaks, so applications use the same versions.

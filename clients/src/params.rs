@@ -2,17 +2,23 @@
 //! request of up to 39 items for one drive, one response with one result per item. ussd runs
 //! the items one PKW task at a time; PNUs from 2000 up are paged by ussd.
 
-use crate::bus::ParamClient;
-use crate::open::{layout_verifier, opened};
+use crate::request::NoAnswer;
 use crate::{Bus, ClientError, ParamError};
-use core::time::Duration;
-use std::time::Instant;
 use uss_protocol::Value;
 use uss_shm_types::names;
 use uss_shm_types::{
     DriveAddress, MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult,
     RequestError, Storage, TaskCode,
 };
+
+/// How [`Bus::write_with`] writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct WriteOptions {
+    /// RAM and EEPROM (survives a power cycle) instead of RAM only.
+    pub eeprom: bool,
+    /// Write even while another process controls the drive.
+    pub force: bool,
+}
 
 /// The fault buffer: r0947, 8 elements, newest fault first (MICROMASTER).
 pub const FAULT_BUFFER_PNU: u16 = 947;
@@ -90,6 +96,12 @@ pub fn response_results(
     uss_shm_types::check_version(response.version).map_err(ClientError::from)?;
     match response.error() {
         Ok(RequestError::Ok) => {}
+        Ok(RequestError::Controlled) => {
+            return Err(ParamError::Controlled {
+                address,
+                pid: response.controller_pid,
+            });
+        }
         Ok(error) => {
             let item = (response.error_item != uss_shm_types::params::NO_ITEM)
                 .then_some(response.error_item);
@@ -134,7 +146,9 @@ impl Bus {
 
     /// Changes `pnu` (or its element `index`) to `value` in RAM, or RAM and EEPROM with
     /// `eeprom`; returns the value the drive now holds. A float goes as
-    /// [`Value::from_f32`] (`Value::from_f32(2.0)` for P1120 = 2 s).
+    /// [`Value::from_f32`] (`Value::from_f32(2.0)` for P1120 = 2 s). While another process
+    /// controls the drive the write is refused ([`ParamError::Controlled`]); see
+    /// [`Bus::write_with`] to force it.
     pub fn write(
         &self,
         address: u8,
@@ -143,7 +157,31 @@ impl Bus {
         value: Value,
         eeprom: bool,
     ) -> Result<Value, ParamError> {
-        self.one(address, write_item(pnu, index, value, eeprom))
+        let options = WriteOptions {
+            eeprom,
+            force: false,
+        };
+        self.write_with(address, pnu, index, value, options)
+    }
+
+    /// [`Bus::write`] with all its options: `force` writes even while another process controls
+    /// the drive (a deliberate act, e.g. during commissioning; ussd logs nothing extra, the
+    /// controller is not told).
+    pub fn write_with(
+        &self,
+        address: u8,
+        pnu: u16,
+        index: Option<u8>,
+        value: Value,
+        options: WriteOptions,
+    ) -> Result<Value, ParamError> {
+        self.request(
+            address,
+            &[write_item(pnu, index, value, options.eeprom)],
+            options.force,
+        )?
+        .pop()
+        .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
     }
 
     /// Reads the number of elements of array `pnu`.
@@ -168,14 +206,24 @@ impl Bus {
     /// A failure of the request as a whole (ussd refused it, did not answer, is not running)
     /// is reported for every item.
     pub fn batch(&self, address: u8, items: &[ParamItem]) -> Vec<Result<Value, ParamError>> {
-        match self.request(address, items) {
+        self.batch_with(address, items, false)
+    }
+
+    /// [`Bus::batch`], its writes forced with `force` (see [`Bus::write_with`]).
+    pub fn batch_with(
+        &self,
+        address: u8,
+        items: &[ParamItem],
+        force: bool,
+    ) -> Vec<Result<Value, ParamError>> {
+        match self.request(address, items, force) {
             Ok(results) => results,
             Err(e) => vec![Err(e); items.len()],
         }
     }
 
     fn one(&self, address: u8, item: ParamItem) -> Result<Value, ParamError> {
-        self.request(address, &[item])?
+        self.request(address, &[item], false)?
             .pop()
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
     }
@@ -185,12 +233,16 @@ impl Bus {
         &self,
         address: u8,
         items: &[ParamItem],
+        force: bool,
     ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
         let drive = DriveAddress::new(address).map_err(ClientError::from)?;
-        let request = ParamRequest::new(drive, items).map_err(|r| ParamError::Refused {
+        let mut request = ParamRequest::new(drive, items).map_err(|r| ParamError::Refused {
             error: r.error,
             item: r.item,
         })?;
+        if force {
+            request.flags |= uss_shm_types::REQUEST_FORCE;
+        }
         let response = self.send_request(&request)?;
         response_results(&response, address, items.len())
     }
@@ -199,66 +251,18 @@ impl Bus {
     /// for tools that build requests themselves. [`response_results`] reads it. Fails when
     /// ussd does not answer within the answer timeout ([`Bus::set_answer_timeout`]).
     pub fn send_request(&self, request: &ParamRequest) -> Result<ParamResponse, ParamError> {
-        let client = self.param_client()?;
-        let pending = client
-            .send_copy(*request)
-            .map_err(|e| ClientError::ipc("sending the parameter request", e))?;
-        if pending.number_of_server_connections() == 0 {
-            return Err(ClientError::NotRunning {
-                bus: self.name().to_owned(),
-            }
-            .into());
-        }
-        let timeout = self.answer_timeout(usize::from(request.count).min(MAX_PARAM_ITEMS));
-        let deadline = Instant::now() + timeout;
-        let mut pause = Duration::from_micros(50);
-        loop {
-            // Looked at before `receive`, so an answer sent just before the server let go of
-            // the request is still received.
-            let connected = pending.is_connected();
-            if let Some(response) = pending
-                .receive()
-                .map_err(|e| ClientError::ipc("receiving the parameter response", e))?
-            {
-                return Ok(*response);
-            }
-            if !connected {
-                return Err(ParamError::Dropped);
-            }
-            if Instant::now() >= deadline {
-                return Err(ParamError::NoAnswer(timeout));
-            }
-            // A response has no file descriptor to wait on: poll, backing off to 2 ms.
-            std::thread::sleep(pause);
-            pause = (pause * 2).min(Duration::from_millis(2));
-        }
-    }
-
-    fn param_client(&self) -> Result<&ParamClient, ClientError> {
-        if let Some(client) = self.params_client().get() {
-            return Ok(client);
-        }
         let name = names::params(self.bus_name());
-        let service = opened(
-            self.node()
-                .service_builder(&name)
-                .request_response::<ParamRequest, ParamResponse>()
-                .open_with_attributes(&layout_verifier()?),
-            self.name(),
-            &name,
-            || ClientError::NotRunning {
+        let client = crate::request::client(self, self.params_client(), &name)?;
+        let timeout = self.answer_timeout(usize::from(request.count).min(MAX_PARAM_ITEMS));
+        match crate::request::round_trip(client, *request, timeout)? {
+            Ok(response) => Ok(response),
+            Err(NoAnswer::NotRunning) => Err(ClientError::NotRunning {
                 bus: self.name().to_owned(),
-            },
-        )?;
-        let client = service
-            .client_builder()
-            .create()
-            .map_err(|e| ClientError::ipc(format!("a client of {}", name.as_str()), e))?;
-        // Another thread may have won the race; its client serves as well as this one.
-        let _ = self.params_client().set(client);
-        self.params_client()
-            .get()
-            .ok_or_else(|| ClientError::ipc("the parameter client", "not kept"))
+            }
+            .into()),
+            Err(NoAnswer::Dropped) => Err(ParamError::Dropped),
+            Err(NoAnswer::Timeout) => Err(ParamError::NoAnswer(timeout)),
+        }
     }
 }
 

@@ -34,7 +34,8 @@ use toml::Spanned;
 use toml::de::{DeTable, DeValue};
 use uss_drive_sim::spec::{DriveSpec, SpecError};
 use uss_drive_sim::{DriveConfig, FaultPlan};
-use uss_protocol::{Address, Baud, Layout, PkwMode, PzdCount, Stw1};
+use uss_protocol::{Address, Baud, Layout, ParamRef, PkwMode, PzdCount};
+use uss_shm_types::StopCommand;
 
 /// A whole configuration: one or more buses, each run by its own real-time thread.
 #[derive(Debug, Clone, PartialEq)]
@@ -129,6 +130,13 @@ pub struct DriveEntry {
     pub safe_command: SafeCommand,
     /// `false`: parameter writes are refused (read-only monitoring deployments).
     pub params_writable: bool,
+    /// The parameter holding the drive's own telegram-off time (USS.md section 5), read when
+    /// the drive comes online; `None` (`monitoring_param = ""`): not checked.
+    pub monitoring_param: Option<ParamRef>,
+    /// A telegram-off time above this is reported as too long.
+    pub monitoring_max: Duration,
+    /// Refuse ON unless the drive's telegram monitoring was read and is on within the limit.
+    pub require_monitoring: bool,
     /// The simulated drive (config + fault plan), only with `Device::Sim`; built from `sim` with
     /// this entry's address and layout.
     pub sim: Option<DriveSpec>,
@@ -151,6 +159,9 @@ impl PartialEq for DriveEntry {
             && self.watchdog == other.watchdog
             && self.safe_command == other.safe_command
             && self.params_writable == other.params_writable
+            && self.monitoring_param == other.monitoring_param
+            && self.monitoring_max == other.monitoring_max
+            && self.require_monitoring == other.require_monitoring
             && sim_config(self) == sim_config(other)
             && self.sim_keys == other.sim_keys
     }
@@ -214,13 +225,13 @@ impl SafeCommand {
         }
     }
 
-    /// The control word that carries out the command (USS.md section 7). Bit 10 stays set so the
-    /// drive does not ignore it.
-    pub fn stw1(self) -> Stw1 {
+    /// The stop command it is; its STW1 (USS.md section 7) keeps bit 10 set so the drive does
+    /// not ignore it.
+    pub const fn command(self) -> StopCommand {
         match self {
-            SafeCommand::Off1 => Stw1::READY,
-            SafeCommand::Off2 => Stw1::COAST,
-            SafeCommand::Off3 => Stw1::QUICK_STOP,
+            SafeCommand::Off1 => StopCommand::Off1,
+            SafeCommand::Off2 => StopCommand::Off2,
+            SafeCommand::Off3 => StopCommand::Off3,
         }
     }
 }
@@ -368,6 +379,17 @@ const WATCHDOG: MsKey = MsKey {
     what: "the controller watchdog is",
     note: "",
 };
+/// The longest telegram-off time that counts as "on" (USS.md section 5).
+const MONITORING_MAX: MsKey = MsKey {
+    key: "monitoring_max_ms",
+    min: 1.0,
+    max: 60_000.0,
+    default: 1000.0,
+    what: "the longest acceptable telegram-off time is",
+    note: "",
+};
+/// MICROMASTER 4 / G110 / CU240S: P2014, index 1 = the RS485 COM link (USS.md section 5).
+const MONITORING_PARAM_DEFAULT: &str = "P2014.1";
 
 /// The reference frequency P2000 is above 0 Hz and at most this (USS.md section 7).
 const REFERENCE_HZ_MAX: f32 = 650.0;
@@ -391,7 +413,7 @@ const BUS_KEYS: [&str; 16] = [
     "seed",
     "drive",
 ];
-const DRIVE_KEYS: [&str; 9] = [
+const DRIVE_KEYS: [&str; 12] = [
     "address",
     "pkw",
     "pzd",
@@ -400,8 +422,14 @@ const DRIVE_KEYS: [&str; 9] = [
     "watchdog_ms",
     "safe_command",
     "params_writable",
+    "monitoring_param",
+    "monitoring_max_ms",
+    "require_monitoring",
     "sim",
 ];
+
+/// The `sim` keys of the embedded default's drives.
+const EMBEDDED_SIM_KEYS: &str = "p2014=100";
 
 /// The device name of the built-in simulated bus.
 const SIM_DEVICE: &str = "sim";
@@ -471,8 +499,12 @@ impl Config {
                 } else {
                     DEFAULT_LAYOUT
                 };
+                // The simulated drives watch their telegrams as we recommend real ones to
+                // (P2014.1 = 100 ms, USS.md section 5): ussd reports the monitoring on.
+                let keys = EMBEDDED_SIM_KEYS;
                 DriveEntry {
-                    sim: Some(default_sim_drive(address, layout)),
+                    sim: sim_drive(address, layout, keys).ok(),
+                    sim_keys: keys.to_owned(),
                     ..DriveEntry::with_defaults(address, layout)
                 }
             })
@@ -525,6 +557,9 @@ impl DriveEntry {
             watchdog: millis(WATCHDOG.default),
             safe_command: SafeCommand::Off1,
             params_writable: true,
+            monitoring_param: MONITORING_PARAM_DEFAULT.parse().ok(),
+            monitoring_max: millis(MONITORING_MAX.default),
+            require_monitoring: false,
             sim: None,
             sim_keys: String::new(),
         }
@@ -671,6 +706,17 @@ fn write_bus(f: &mut fmt::Formatter<'_>, bus: &BusConfig) -> fmt::Result {
         writeln!(f, "watchdog_ms = {}", millis_text(drive.watchdog))?;
         writeln!(f, "safe_command = {}", quoted(drive.safe_command.name()))?;
         writeln!(f, "params_writable = {}", drive.params_writable)?;
+        let param = drive
+            .monitoring_param
+            .map(|p| p.to_string())
+            .unwrap_or_default();
+        writeln!(f, "monitoring_param = {}", quoted(&param))?;
+        writeln!(
+            f,
+            "monitoring_max_ms = {}",
+            millis_text(drive.monitoring_max)
+        )?;
+        writeln!(f, "require_monitoring = {}", drive.require_monitoring)?;
         if bus.device == Device::Sim {
             writeln!(f, "sim = {}", quoted(&drive.sim_keys))?;
         }
@@ -1218,7 +1264,13 @@ impl<'t> Checker<'t> {
             "use \"off1\" (ramp down), \"off2\" (coast) or \"off3\" (quick stop)",
         );
         let params_writable = self.boolean(&t, "params_writable", true);
+        let monitoring_param = self.monitoring_param(&t);
+        let monitoring_max = self.ms(&t, &MONITORING_MAX);
+        let require_monitoring = self.boolean(&t, "require_monitoring", false);
         let layout = pkw.and_then(|pkw| Ok(Layout::new(pkw, pzd?)));
+        if let (Ok(true), Ok(param), Ok(layout)) = (require_monitoring, monitoring_param, layout) {
+            self.monitoring_checkable(&t, param, layout)?;
+        }
         let (sim, sim_keys) = self.sim(&t, on_sim, address, layout)?;
         Ok(DriveEntry {
             address: address?,
@@ -1228,9 +1280,55 @@ impl<'t> Checker<'t> {
             watchdog: watchdog?,
             safe_command: safe_command?.unwrap_or(SafeCommand::Off1),
             params_writable: params_writable?,
+            monitoring_param: monitoring_param?,
+            monitoring_max: monitoring_max?,
+            require_monitoring: require_monitoring?,
             sim,
             sim_keys,
         })
+    }
+
+    /// `monitoring_param`: a parameter in the manuals' notation, or "" for no check.
+    fn monitoring_param(&mut self, t: &Table<'_, 't>) -> Checked<Option<ParamRef>> {
+        const KEY: &str = "monitoring_param";
+        let allowed = "name the drive's telegram-off time as the manual writes it, \
+                       e.g. \"P2014.1\" (MICROMASTER 4, COM link) or \"p2040\" (G120), or \"\" for no check";
+        let Some((written, span)) = self.string(t, KEY, allowed)? else {
+            return Ok(MONITORING_PARAM_DEFAULT.parse().ok());
+        };
+        if written.is_empty() {
+            return Ok(None);
+        }
+        match written.parse::<ParamRef>() {
+            Ok(p) => Ok(Some(p)),
+            Err(e) => {
+                let problem = format!("{KEY} = {written:?}: {e}; {allowed}");
+                self.fail_at(&t.scope, KEY, span, &problem)
+            }
+        }
+    }
+
+    /// `require_monitoring = true` needs a parameter to read and a channel to read it on.
+    fn monitoring_checkable(
+        &mut self,
+        t: &Table<'_, 't>,
+        param: Option<ParamRef>,
+        layout: Layout,
+    ) -> Checked<()> {
+        let span = t
+            .get("require_monitoring")
+            .map_or(t.span.clone(), Spanned::span);
+        if param.is_none() {
+            let problem = "require_monitoring = true needs monitoring_param (e.g. \"P2014.1\"): \
+                           ussd cannot verify a monitoring it does not read";
+            return self.fail_at(&t.scope, "require_monitoring", span, problem);
+        }
+        if layout.pkw == PkwMode::None {
+            let problem = "require_monitoring = true needs a parameter channel (pkw = 3, 4 or \
+                           127) to read the drive's telegram monitoring";
+            return self.fail_at(&t.scope, "require_monitoring", span, problem);
+        }
+        Ok(())
     }
 
     /// Every drive on a bus needs its own address (USS.md section 1).
@@ -1438,9 +1536,13 @@ safe_command = "off2"
                 .sim
                 .as_ref()
                 .expect("a simulated bus has simulated drives");
-            assert_eq!(sim.config, DriveConfig::new(d.address, d.layout));
+            let recommended = DriveConfig {
+                telegram_off_time_ms: 100,
+                ..DriveConfig::new(d.address, d.layout)
+            };
+            assert_eq!(sim.config, recommended, "P2014.1 = 100 ms");
             assert_eq!(sim.faults.probability(Fault::DropReply), 0.0);
-            assert_eq!(d.sim_keys, "");
+            assert_eq!(d.sim_keys, "p2014=100");
         }
     }
 
@@ -1604,6 +1706,9 @@ reference_hz = 50.0
 watchdog_ms = 100.0
 safe_command = "off1"
 params_writable = true
+monitoring_param = "P2014[1]"
+monitoring_max_ms = 1000.0
+require_monitoring = false
 sim = ""
 "#
         );
@@ -1635,9 +1740,9 @@ sim = ""
 
     #[test]
     fn safe_commands_send_the_stw1_of_uss_md_section_7() {
-        assert_eq!(SafeCommand::Off1.stw1().bits(), 0x047E);
-        assert_eq!(SafeCommand::Off2.stw1().bits(), 0x047C);
-        assert_eq!(SafeCommand::Off3.stw1().bits(), 0x047A);
+        assert_eq!(SafeCommand::Off1.command().stw1(), Some(0x047E));
+        assert_eq!(SafeCommand::Off2.command().stw1(), Some(0x047C));
+        assert_eq!(SafeCommand::Off3.command().stw1(), Some(0x047A));
     }
 
     #[test]
@@ -1687,13 +1792,66 @@ sim = ""
     }
 
     #[test]
+    fn telegram_monitoring_is_checked_as_configured() {
+        let d = |line: &str| parse(&drive_key(line)).buses[0].drives[0].clone();
+        let p2014 = d("");
+        assert_eq!(
+            p2014.monitoring_param.map(|p| p.to_string()),
+            Some("P2014[1]".into())
+        );
+        assert_eq!(
+            (p2014.monitoring_max, p2014.require_monitoring),
+            (ms(1000), false)
+        );
+        let g120 =
+            d("monitoring_param = \"p2040\"\nmonitoring_max_ms = 200\nrequire_monitoring = true");
+        assert_eq!(
+            g120.monitoring_param.map(|p| p.to_string()),
+            Some("p2040".into())
+        );
+        assert_eq!(
+            (g120.monitoring_max, g120.require_monitoring),
+            (ms(200), true)
+        );
+        assert_eq!(d("monitoring_param = \"\"").monitoring_param, None);
+    }
+
+    #[test]
+    fn a_monitoring_that_cannot_be_verified_cannot_be_required() {
+        assert_eq!(
+            refused(&drive_key("monitoring_param = \"P20x4\"")),
+            (
+                "bus.toml:7:20: bus \"bus0\" drive 3: monitoring_param = \"P20x4\": write a parameter \
+                 as P1082, p1082, r0021 or 1082, an element as P0947[3] or r0947.3; name the drive's \
+                 telegram-off time as the manual writes it, e.g. \"P2014.1\" (MICROMASTER 4, COM \
+                 link) or \"p2040\" (G120), or \"\" for no check"
+                    .to_owned(),
+                Some("bus[0].drive[0].monitoring_param".to_owned())
+            )
+        );
+        let (message, path) = refused(&drive_key(
+            "monitoring_param = \"\"\nrequire_monitoring = true",
+        ));
+        assert!(
+            message.starts_with("bus.toml:8:22: bus \"bus0\" drive 3: require_monitoring = true needs monitoring_param"),
+            "{message}"
+        );
+        assert_eq!(path.as_deref(), Some("bus[0].drive[0].require_monitoring"));
+        let (message, _) = refused(&drive_key("pkw = 0\nrequire_monitoring = true"));
+        assert!(
+            message.contains("require_monitoring = true needs a parameter channel"),
+            "{message}"
+        );
+    }
+
+    #[test]
     fn unknown_keys_are_named_with_their_table() {
         assert_eq!(
             refused(&drive_key("colour = \"red\"")),
             (
                 "bus.toml:7:1: bus \"bus0\" drive 3: unknown key `colour`: a [[bus.drive]] table \
                  takes address, pkw, pzd, weight, reference_hz, watchdog_ms, safe_command, \
-                 params_writable, sim"
+                 params_writable, monitoring_param, monitoring_max_ms, require_monitoring, sim"
                     .to_owned(),
                 Some("bus[0].drive[0].colour".to_owned())
             )

@@ -10,20 +10,26 @@
 //! to a housekeeping thread over a bounded channel, dropped and counted when it lags.
 
 use crate::clock::Clock;
+use crate::control::{Control, Gate, GateSetup, Latch, Operator, Poll, Transition};
 use crate::image::DriveImages;
 use crate::jobs::{Job, JobResult, Mailbox, Outcome};
+use crate::monitoring::MonitoringSetup;
 use crate::stats::{DriveStatus, Failure, Stats, record};
 use crate::transport::{Transport, TransportError};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use thiserror::Error;
 use uss_protocol::telegram::{MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, MAX_TELEGRAM_BYTES};
 use uss_protocol::{
-    Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, PkwError, ReplyKind, Stw1,
-    Timing, Words, encode,
+    Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, PkwError, PkwMode,
+    ReplyKind, Timing, Words, encode,
 };
+use uss_shm_types::{Monitoring, PzdOutput, Rejection, StopCommand};
+
+/// Job ids with this bit are ussd's own (the telegram-monitoring check); clients use the rest.
+pub const INTERNAL_JOB: u64 = 1 << 63;
 
 /// One drive as the engine polls it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -32,11 +38,29 @@ pub struct DriveSetup {
     pub layout: Layout,
     /// How many times the drive appears in the circulating list (USS.md section 5).
     pub weight: u8,
-    /// STW1 sent when no controller is live (OFF1 by default); the setpoint goes to 0.
-    pub safe_stw1: Stw1,
-    /// A controller that has not written its output image for this long is stale.
+    /// What a latched drive gets (OFF1 by default), with a zero setpoint.
+    pub safe: StopCommand,
+    /// A live controller that has published nothing new for this long is stale.
     pub watchdog: Duration,
     pub params_writable: bool,
+    /// The drive's own telegram monitoring, checked when it comes online.
+    pub monitoring: MonitoringSetup,
+}
+
+impl DriveSetup {
+    /// A drive with the defaults of ussd's configuration: weight 1, OFF1, 100 ms watchdog,
+    /// writable, MICROMASTER telegram monitoring (P2014.1, checked, not required).
+    pub fn new(address: Address, layout: Layout) -> Self {
+        Self {
+            address,
+            layout,
+            weight: 1,
+            safe: StopCommand::Off1,
+            watchdog: Duration::from_millis(100),
+            params_writable: true,
+            monitoring: MonitoringSetup::micromaster(),
+        }
+    }
 }
 
 /// How the engine runs one bus.
@@ -75,15 +99,25 @@ pub enum Event {
         address: Address,
         at: Duration,
     },
-    /// The drive's controller went stale: the drive now gets its safe command.
-    WatchdogTripped {
+    /// The drive latched (stale controller, refused sample, release, operator stop, ...), or
+    /// a latched drive got a new cause: it gets `latch.command` until its controller re-arms.
+    Latched {
         address: Address,
-        at: Duration,
+        latch: Latch,
+        rejection: Rejection,
     },
-    /// The controller is refreshing again.
-    WatchdogCleared {
+    /// The controller sent OFF1 after the latch: its words go to the drive again.
+    Rearmed {
         address: Address,
         at: Duration,
+        pid: u32,
+    },
+    /// What the drive's own telegram monitoring was found to be.
+    Monitoring {
+        address: Address,
+        at: Duration,
+        state: Monitoring,
+        ms: u32,
     },
     CycleOverrun {
         at: Duration,
@@ -91,24 +125,28 @@ pub enum Event {
     },
 }
 
-/// Where process images leave and enter the bus thread (iceoryx2 in `ussd`, nothing in tests
-/// that use [`EngineHandle`] alone). Called in the bus thread: implementations must not
-/// allocate, block or log.
+/// Where process images leave and enter the bus thread (iceoryx2 in `ussd`; in-process cells
+/// for [`EngineHandle::set_output`] otherwise). Called in the bus thread: implementations must
+/// not allocate, block or log.
 pub trait Bridge {
-    /// Before the drive in `slot` is polled: bring its output image up to date.
-    fn before_poll(&mut self, slot: usize, images: &DriveImages);
+    /// Before the drive in `slot` is polled: the controller's newest sample since the last
+    /// call, as it arrived. The engine's [`Gate`] validates and decides; the bridge only carries.
+    fn take_sample(&mut self, slot: usize, images: &DriveImages) -> Option<PzdOutput>;
     /// After every poll of the drive, good or failed: publish its input image and state.
     fn after_poll(&mut self, slot: usize, images: &DriveImages, status: &DriveStatus);
     /// After a pass through the circulating list.
     fn cycle_completed(&mut self);
 }
 
-/// No bridge: process images stay in this process.
+/// Process images in this process only: samples come from [`EngineHandle::set_output`] and
+/// friends, inputs are read with [`EngineHandle::input`].
 #[derive(Debug, Clone, Copy, Default)]
-pub struct NoBridge;
+pub struct LocalBridge;
 
-impl Bridge for NoBridge {
-    fn before_poll(&mut self, _: usize, _: &DriveImages) {}
+impl Bridge for LocalBridge {
+    fn take_sample(&mut self, _: usize, images: &DriveImages) -> Option<PzdOutput> {
+        images.output.take()
+    }
     fn after_poll(&mut self, _: usize, _: &DriveImages, _: &DriveStatus) {}
     fn cycle_completed(&mut self) {}
 }
@@ -132,7 +170,23 @@ pub enum RequestError {
     Busy(usize),
     #[error("the bus engine has stopped")]
     Stopped,
+    #[error("job id {0:#x} is reserved for ussd's own jobs")]
+    ReservedJobId(u64),
+    #[error("{0} is not a stop command: use OFF1, OFF2 or OFF3")]
+    NotAStop(StopCommand),
 }
+
+/// Operator stop commands for one drive, from any thread, taken by the bus thread without
+/// locks: a counter per command (so OFF2 and OFF1 arriving between two polls both count and
+/// the stronger wins) and the last requester's process id.
+#[derive(Debug, Default)]
+struct Overrides {
+    /// OFF1, OFF2, OFF3.
+    counts: [AtomicU32; 3],
+    pid: AtomicU32,
+}
+
+const STOPS: [StopCommand; 3] = [StopCommand::Off1, StopCommand::Off2, StopCommand::Off3];
 
 /// State shared by the engine and its handles.
 #[derive(Debug)]
@@ -141,6 +195,7 @@ struct Shared {
     slot_of: [Option<u8>; 32],
     images: Vec<DriveImages>,
     output_numbers: Vec<AtomicU64>,
+    overrides: Vec<Overrides>,
     stats: Mutex<Stats>,
     stop: AtomicBool,
     outstanding: AtomicUsize,
@@ -164,8 +219,10 @@ pub struct EngineHandle {
 }
 
 impl EngineHandle {
-    /// Sets the PZD words the drive gets from now on (STW1, setpoint, ...). Writing refreshes
-    /// the drive's watchdog: a controller must write at least once per watchdog time.
+    /// Publishes the PZD words the drive should get (STW1, setpoint, ...) as an in-process
+    /// controller (an engine built with [`Engine::new`]). Every call refreshes the watchdog: a
+    /// controller must publish at least once per watchdog time. Like every sample, it reaches
+    /// the drive only while the drive is live (see [`crate::control`]).
     pub fn set_output(&self, address: Address, words: &[u16]) -> Result<(), RequestError> {
         let slot = self.shared.slot(address)?;
         let allowed = self.shared.setups[slot].layout.pzd.get();
@@ -176,9 +233,68 @@ impl EngineHandle {
                 allowed,
             });
         }
-        let number = self.shared.output_numbers[slot].fetch_add(1, Ordering::Relaxed) + 1;
-        self.shared.images[slot].output.write(words, number, 0);
+        let number = self.next_number(slot);
+        let sample = PzdOutput::from_words(words, number, 0, std::process::id()).map_err(|_| {
+            RequestError::PzdWords {
+                address,
+                given: words.len(),
+                allowed,
+            }
+        })?;
+        self.shared.images[slot].output.put(sample);
         Ok(())
+    }
+
+    /// Publishes a sample exactly as given (any version, count or flags), as a foreign
+    /// controller could: the engine's checks decide what reaches the drive.
+    pub fn publish_sample(&self, address: Address, sample: PzdOutput) -> Result<(), RequestError> {
+        let slot = self.shared.slot(address)?;
+        self.shared.images[slot].output.put(sample);
+        Ok(())
+    }
+
+    /// Hands the drive back, as a controller that ends cleanly does: it gets its safe command,
+    /// latched, with the reason "released" (not a watchdog trip).
+    pub fn release(&self, address: Address) -> Result<(), RequestError> {
+        let slot = self.shared.slot(address)?;
+        let number = self.next_number(slot);
+        let sample = PzdOutput::release(number, 0, std::process::id());
+        self.shared.images[slot].output.put(sample);
+        Ok(())
+    }
+
+    fn next_number(&self, slot: usize) -> u64 {
+        self.shared.output_numbers[slot].fetch_add(1, Ordering::Relaxed) + 1
+    }
+
+    /// An operator's stop command (OFF1, OFF2, OFF3) for drive `address`, or every drive with
+    /// `None`, from process `pid`: it overrides the drive's controller from its next poll on
+    /// and latches. Returns the drives it reached (bit = address).
+    pub fn stop_drive(
+        &self,
+        address: Option<Address>,
+        command: StopCommand,
+        pid: u32,
+    ) -> Result<u32, RequestError> {
+        let which = STOPS
+            .iter()
+            .position(|&c| c == command)
+            .ok_or(RequestError::NotAStop(command))?;
+        let slots = match address {
+            Some(a) => {
+                let slot = self.shared.slot(a)?;
+                slot..slot + 1
+            }
+            None => 0..self.shared.setups.len(),
+        };
+        let mut reached = 0u32;
+        for slot in slots {
+            let o = &self.shared.overrides[slot];
+            o.pid.store(pid, Ordering::Relaxed);
+            o.counts[which].fetch_add(1, Ordering::Release);
+            reached |= 1 << self.shared.setups[slot].address.get();
+        }
+        Ok(reached)
     }
 
     /// The drive's last reply PZD (number = count of good replies) and whether it is online.
@@ -200,6 +316,9 @@ impl EngineHandle {
     pub fn submit(&self, job: Job) -> Result<(), RequestError> {
         if self.shared.stop.load(Ordering::Acquire) {
             return Err(RequestError::Stopped);
+        }
+        if job.id & INTERNAL_JOB != 0 {
+            return Err(RequestError::ReservedJobId(job.id));
         }
         let slot = self.shared.slot(job.address)?;
         let setup = &self.shared.setups[slot];
@@ -263,8 +382,12 @@ struct DriveRt {
     setup: DriveSetup,
     mailbox: Mailbox,
     next_probe: Duration,
-    last_output_number: u64,
-    output_changed_at: Duration,
+    /// Decides the words that go out (`crate::control`).
+    gate: Gate,
+    /// Operator commands already taken: OFF1, OFF2, OFF3.
+    overrides_seen: [u32; 3],
+    /// The telegram-monitoring parameter should be read (the drive came online).
+    monitoring_due: bool,
 }
 
 /// How one attempt ended.
@@ -275,7 +398,7 @@ enum Attempt {
 
 /// The bus engine. See the module documentation.
 #[derive(Debug)]
-pub struct Engine<T: Transport, C: Clock, B: Bridge = NoBridge> {
+pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     cfg: EngineConfig,
     transport: T,
     clock: C,
@@ -315,47 +438,11 @@ fn circulating_list(drives: &[DriveSetup]) -> Vec<u8> {
     entries.into_iter().map(|(_, i)| i as u8).collect()
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use uss_protocol::{PkwMode, PzdCount};
-
-    fn setup(address: u8, weight: u8) -> DriveSetup {
-        DriveSetup {
-            address: Address::new(address).unwrap(),
-            layout: Layout::new(PkwMode::Four, PzdCount::new(2).unwrap()),
-            weight,
-            safe_stw1: Stw1::READY,
-            watchdog: Duration::from_millis(100),
-            params_writable: true,
-        }
-    }
-
-    #[test]
-    fn circulating_list_spreads_weighted_drives() {
-        assert_eq!(
-            circulating_list(&[setup(1, 1), setup(2, 1), setup(3, 1)]),
-            vec![0, 1, 2]
-        );
-        assert_eq!(
-            circulating_list(&[setup(1, 2), setup(2, 1), setup(3, 1)]),
-            vec![0, 1, 0, 2]
-        );
-        assert_eq!(
-            circulating_list(&[setup(1, 1), setup(2, 3)]),
-            vec![0, 1, 1, 1]
-        );
-        let list = circulating_list(&[setup(1, 4), setup(2, 4), setup(3, 1)]);
-        assert_eq!(list.len(), 9);
-        assert_eq!(list.iter().filter(|&&i| usize::from(i) == 2).count(), 1);
-    }
-}
-
 impl<T: Transport, C: Clock> Engine<T, C> {
     /// Builds the engine with process images in this process only; returns it with its handle
     /// and the event receiver for the housekeeping thread.
     pub fn new(cfg: EngineConfig, transport: T, clock: C) -> (Self, EngineHandle, Receiver<Event>) {
-        Engine::with_bridge(cfg, transport, clock, NoBridge)
+        Engine::with_bridge(cfg, transport, clock, LocalBridge)
     }
 }
 
@@ -374,12 +461,35 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             slot_of[d.address.get() as usize] = Some(i as u8);
         }
         let capacity = (cfg.mailbox_depth * cfg.drives.len()).max(1);
-        let stats = Stats::new(cfg.drives.iter().map(|d| d.address));
+        let now = clock.now();
+        let gates: Vec<Gate> = cfg
+            .drives
+            .iter()
+            .map(|d| {
+                let setup = GateSetup {
+                    pzd: d.layout.pzd.get(),
+                    safe: d.safe,
+                    watchdog: d.watchdog,
+                };
+                Gate::new(setup, now)
+            })
+            .collect();
+        let mut stats = Stats::new(
+            cfg.drives
+                .iter()
+                .zip(&gates)
+                .map(|(d, g)| (d.address, g.control())),
+        );
+        for ((status, setup), gate) in stats.drives.iter_mut().zip(&cfg.drives).zip(&gates) {
+            status.counters.set_control(&gate.counters());
+            status.monitoring = initial_monitoring(setup);
+        }
         let shared = Arc::new(Shared {
             setups: cfg.drives.clone(),
             slot_of,
             images: cfg.drives.iter().map(|_| DriveImages::default()).collect(),
             output_numbers: cfg.drives.iter().map(|_| AtomicU64::new(0)).collect(),
+            overrides: cfg.drives.iter().map(|_| Overrides::default()).collect(),
             stats: Mutex::new(stats.clone()),
             stop: AtomicBool::new(false),
             outstanding: AtomicUsize::new(0),
@@ -396,16 +506,17 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let drives = cfg
             .drives
             .iter()
-            .map(|&setup| DriveRt {
+            .zip(gates)
+            .map(|(&setup, gate)| DriveRt {
                 setup,
                 mailbox: Mailbox::new(cfg.mailbox_depth),
                 next_probe: Duration::ZERO,
-                last_output_number: 0,
-                output_changed_at: Duration::ZERO,
+                gate,
+                overrides_seen: [0; 3],
+                monitoring_due: false,
             })
             .collect();
         let poll_list = circulating_list(&cfg.drives);
-        let now = clock.now();
         let engine = Self {
             framer: Framer::new(FramerConfig::strict(cfg.timing)),
             transport,
@@ -489,8 +600,13 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.fail_all_jobs(Outcome::Shutdown);
         for slot in 0..self.drives.len() {
             let setup = self.drives[slot].setup;
+            // The safe command, or the stronger command a latched drive already gets.
+            let command = match self.drives[slot].gate.control() {
+                Control::Latched(latch) => latch.command,
+                Control::Live => setup.safe,
+            };
             let mut output = [0u16; MAX_PZD_WORDS];
-            output[0] = setup.safe_stw1.bits();
+            output[0] = command.stw1().unwrap_or(0x047E);
             let len = setup.layout.pzd.get();
             let begin = self.line_free_at;
             match self.attempt(slot, &output[..len], false)? {
@@ -547,6 +663,18 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     }
 
     fn deliver(&mut self, result: JobResult) {
+        let slot = self.shared.slot_of[result.job.address.get() as usize].map(usize::from);
+        if let Some(slot) = slot
+            && self.drives[slot]
+                .setup
+                .monitoring
+                .concerns(&result.job.task)
+        {
+            self.on_monitoring_result(slot, &result);
+        }
+        if result.job.id & INTERNAL_JOB != 0 {
+            return; // ussd's own read: nobody waits for it
+        }
         self.stats.bus.jobs_finished += 1;
         if let Some(slot) = self.shared.slot_of[result.job.address.get() as usize] {
             self.stats.drives[usize::from(slot)].counters.jobs_done += 1;
@@ -556,6 +684,64 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             self.results.try_send(result)
         {
             self.stats.bus.events_dropped += 1;
+        }
+    }
+
+    /// A result that says what the drive's telegram monitoring is (ussd's own read, or a
+    /// client's read or write of that parameter).
+    fn on_monitoring_result(&mut self, slot: usize, result: &JobResult) {
+        let setup = self.drives[slot].setup.monitoring;
+        let (state, ms) = match result.outcome {
+            Outcome::Value(v) => setup.evaluate(v),
+            // A refused write leaves the parameter as it was.
+            _ if result.job.task.is_write() => return,
+            Outcome::DriveError(_) | Outcome::NoChangeRights | Outcome::Timeout => {
+                (Monitoring::Unreadable, 0)
+            }
+            Outcome::ElementCount(_) | Outcome::Description(_) => return,
+            // The drive is gone or ussd stops: read again when it is back.
+            Outcome::DriveOffline | Outcome::MailboxFull | Outcome::Shutdown => {
+                if result.job.id & INTERNAL_JOB != 0 {
+                    self.drives[slot].monitoring_due = true;
+                }
+                return;
+            }
+        };
+        let status = &mut self.stats.drives[slot];
+        let changed = (status.monitoring, status.monitoring_ms) != (state, ms);
+        status.monitoring = state;
+        status.monitoring_ms = ms;
+        if changed {
+            let address = self.drives[slot].setup.address;
+            let at = self.clock.now();
+            self.emit(Event::Monitoring {
+                address,
+                at,
+                state,
+                ms,
+            });
+        }
+    }
+
+    /// Queues ussd's own read of the drive's telegram monitoring when it is due and the
+    /// mailbox has room (otherwise at a later poll).
+    fn check_monitoring(&mut self, slot: usize) {
+        let d = &mut self.drives[slot];
+        if !d.monitoring_due {
+            return;
+        }
+        let task = d.setup.monitoring.task();
+        let Some(task) = task.filter(|_| d.setup.layout.pkw != PkwMode::None) else {
+            d.monitoring_due = false;
+            return;
+        };
+        let job = Job {
+            id: INTERNAL_JOB | u64::from(d.setup.address.get()),
+            address: d.setup.address,
+            task,
+        };
+        if d.mailbox.push(job).is_ok() {
+            d.monitoring_due = false;
         }
     }
 
@@ -612,41 +798,63 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
     }
 
-    /// The PZD to send: the controller's words while it refreshes within its watchdog time,
-    /// otherwise the safe command with a zero setpoint (never a stale "run").
+    /// The PZD to send now, as the drive's [`Gate`] decides from the controller's newest
+    /// sample, operator commands and the telegram-monitoring rule (`crate::control`).
     fn output(&mut self, slot: usize, now: Duration, out: &mut [u16; MAX_PZD_WORDS]) {
+        let sample = self.bridge.take_sample(slot, &self.shared.images[slot]);
+        let operator = self.take_override(slot);
         let d = &mut self.drives[slot];
-        let image = &self.shared.images[slot].output;
-        let written = image.is_written().then(|| image.read()).flatten();
-        let fresh = match written {
-            Some(w) => {
-                if w.number != d.last_output_number {
-                    d.last_output_number = w.number;
-                    d.output_changed_at = now;
-                }
-                let fresh = now.saturating_sub(d.output_changed_at) <= d.setup.watchdog;
-                if fresh {
-                    out[..w.len].copy_from_slice(w.as_slice());
-                }
-                fresh
-            }
-            None => false,
-        };
-        if !fresh {
-            *out = [0; MAX_PZD_WORDS];
-            out[0] = d.setup.safe_stw1.bits();
-        }
-        let address = d.setup.address;
         let status = &mut self.stats.drives[slot];
-        let stale_controller = written.is_some() && !fresh;
-        if stale_controller && !status.watchdog_tripped {
-            status.watchdog_tripped = true;
-            status.counters.watchdog_trips += 1;
-            self.emit(Event::WatchdogTripped { address, at: now });
-        } else if fresh && status.watchdog_tripped {
-            status.watchdog_tripped = false;
-            self.emit(Event::WatchdogCleared { address, at: now });
+        let on_allowed = d.setup.monitoring.allows_on(status.monitoring);
+        let change = d.gate.decide(
+            Poll {
+                now,
+                sample: sample.as_ref(),
+                operator,
+                on_allowed,
+            },
+            out,
+        );
+        status.control = d.gate.control();
+        status.rejection = d.gate.rejection();
+        status.controller_pid = d.gate.controller_pid();
+        status.taken_sequence = d.gate.taken_sequence();
+        status.counters.set_control(&d.gate.counters());
+        status.sent = [out[0], out[1]];
+        let address = d.setup.address;
+        match change {
+            Some(Transition::Latched { latch, rejection }) => self.emit(Event::Latched {
+                address,
+                latch,
+                rejection,
+            }),
+            Some(Transition::Rearmed { pid }) => self.emit(Event::Rearmed {
+                address,
+                at: now,
+                pid,
+            }),
+            None => {}
         }
+    }
+
+    /// The strongest operator command that arrived for the drive since its last poll.
+    fn take_override(&mut self, slot: usize) -> Option<Operator> {
+        let o = &self.shared.overrides[slot];
+        let seen = &mut self.drives[slot].overrides_seen;
+        let mut strongest: Option<StopCommand> = None;
+        for (i, command) in STOPS.into_iter().enumerate() {
+            let count = o.counts[i].load(Ordering::Acquire);
+            if count != seen[i] {
+                seen[i] = count;
+                if strongest.is_none_or(|s| command.strength() > s.strength()) {
+                    strongest = Some(command);
+                }
+            }
+        }
+        strongest.map(|command| Operator {
+            command,
+            pid: o.pid.load(Ordering::Relaxed),
+        })
     }
 
     fn poll_drive(&mut self, slot: usize) -> Result<(), TransportError> {
@@ -657,7 +865,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         {
             self.deliver(r);
         }
-        self.bridge.before_poll(slot, &self.shared.images[slot]);
+        self.check_monitoring(slot);
         let mut output = [0u16; MAX_PZD_WORDS];
         self.output(slot, now, &mut output);
         let len = self.drives[slot].setup.layout.pzd.get();
@@ -744,6 +952,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 address,
                 at: timing.done,
             });
+        }
+        if came_back || self.stats.drives[slot].counters.good == 1 {
+            // A drive that comes online may have been replaced or reset: read its monitoring.
+            self.drives[slot].monitoring_due = true;
         }
         self.last_reply_done = Some(timing.done);
         if words.pkw().is_empty() || self.drives[slot].mailbox.is_empty() {
@@ -976,6 +1188,17 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     }
 }
 
+/// What is known of a drive's telegram monitoring before it was read.
+fn initial_monitoring(setup: &DriveSetup) -> Monitoring {
+    if setup.monitoring.param.is_none() {
+        Monitoring::NotChecked
+    } else if setup.layout.pkw == PkwMode::None {
+        Monitoring::Unreadable
+    } else {
+        Monitoring::Unknown
+    }
+}
+
 /// When the parts of a good reply happened.
 #[derive(Debug, Clone, Copy)]
 struct ReplyTiming {
@@ -984,4 +1207,39 @@ struct ReplyTiming {
     stx_at: Duration,
     done: Duration,
     first_attempt: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use uss_protocol::PzdCount;
+
+    fn setup(address: u8, weight: u8) -> DriveSetup {
+        DriveSetup {
+            weight,
+            ..DriveSetup::new(
+                Address::new(address).unwrap(),
+                Layout::new(PkwMode::Four, PzdCount::new(2).unwrap()),
+            )
+        }
+    }
+
+    #[test]
+    fn circulating_list_spreads_weighted_drives() {
+        assert_eq!(
+            circulating_list(&[setup(1, 1), setup(2, 1), setup(3, 1)]),
+            vec![0, 1, 2]
+        );
+        assert_eq!(
+            circulating_list(&[setup(1, 2), setup(2, 1), setup(3, 1)]),
+            vec![0, 1, 0, 2]
+        );
+        assert_eq!(
+            circulating_list(&[setup(1, 1), setup(2, 3)]),
+            vec![0, 1, 1, 1]
+        );
+        let list = circulating_list(&[setup(1, 4), setup(2, 4), setup(3, 1)]);
+        assert_eq!(list.len(), 9);
+        assert_eq!(list.iter().filter(|&&i| usize::from(i) == 2).count(), 1);
+    }
 }

@@ -1,9 +1,12 @@
-//! Process images shared between the real-time thread and everyone else without locks: a
-//! sequence lock over atomic words. The writer never waits for a reader and a reader never
-//! blocks the writer; a reader that races a write simply reads again.
+//! Process images shared between the real-time thread and everyone else in this process
+//! without blocking it: the input image as a sequence lock over atomic words (the writer never
+//! waits for a reader, a reader that races a write reads again), and the in-process output
+//! sample, which the bus thread takes with `try_lock` and so never waits for either.
 
 use core::sync::atomic::{AtomicBool, AtomicU8, AtomicU16, AtomicU32, AtomicU64, Ordering, fence};
+use std::sync::{Mutex, PoisonError, TryLockError};
 use uss_protocol::telegram::MAX_PZD_WORDS;
+use uss_shm_types::PzdOutput;
 
 /// PZD words with a stamp, readable and writable from any thread.
 #[derive(Debug, Default)]
@@ -93,15 +96,37 @@ impl WordCell {
     }
 }
 
-/// The images of one drive: what the controller wants sent, and what the drive last replied.
+/// The images of one drive in this process: what the drive last replied, and the output sample
+/// of an in-process controller ([`crate::EngineHandle::set_output`]).
 #[derive(Debug, Default)]
 pub struct DriveImages {
-    /// PZD the master sends: STW1, setpoint, further words.
-    pub output: WordCell,
     /// PZD the drive replied: ZSW1, actual value, further words; number = exchange count.
     pub input: WordCell,
     /// Whether the drive answers (cleared when it goes offline).
     pub online: AtomicBool,
+    /// The newest sample of an in-process controller, until the bus thread takes it.
+    pub output: SampleCell,
+}
+
+/// One pending output sample: the latest written wins; the bus thread takes it at most once.
+#[derive(Debug, Default)]
+pub struct SampleCell(Mutex<Option<PzdOutput>>);
+
+impl SampleCell {
+    /// Leaves `sample` for the bus thread (replacing one it has not taken yet).
+    pub fn put(&self, sample: PzdOutput) {
+        *self.0.lock().unwrap_or_else(PoisonError::into_inner) = Some(sample);
+    }
+
+    /// The sample written since the last take, if any. Never waits: while a writer holds the
+    /// cell the sample is taken at the next poll.
+    pub fn take(&self) -> Option<PzdOutput> {
+        match self.0.try_lock() {
+            Ok(mut s) => s.take(),
+            Err(TryLockError::Poisoned(p)) => p.into_inner().take(),
+            Err(TryLockError::WouldBlock) => None,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -118,6 +143,18 @@ mod tests {
         assert_eq!(w.as_slice(), &[0x047F, 0x2000]);
         assert_eq!((w.number, w.stamp_ns), (7, 1234));
         assert!(c.is_written());
+    }
+
+    #[test]
+    fn a_sample_is_taken_once_and_the_latest_wins() {
+        let cell = SampleCell::default();
+        assert_eq!(cell.take(), None);
+        let a = PzdOutput::from_words(&[0x047E, 0], 1, 0, 1).unwrap();
+        let b = PzdOutput::from_words(&[0x047F, 0x2000], 2, 0, 1).unwrap();
+        cell.put(a);
+        cell.put(b);
+        assert_eq!(cell.take(), Some(b));
+        assert_eq!(cell.take(), None);
     }
 
     #[test]

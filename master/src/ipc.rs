@@ -6,25 +6,32 @@
 //!   after every poll (blackboard `update_with_copy`) and signals exchange and cycle events
 //!   (`notify`). None of these allocates (shm-types' pattern tests count it).
 //! - [`StatusPublisher`] runs in the housekeeping thread: bus status and per-drive diagnostics.
-//! - [`ParamServer`] runs in its own bridge thread: the request-response server, which allocates
-//!   per request and so stays out of the bus thread (ARCHITECTURE.md, "Data flow"). It turns
-//!   each multi-parameter request into one job per item, executed one PKW task at a time by the
-//!   drive's mailbox, and answers every accepted request exactly once.
+//! - [`ParamServer`] runs in its own bridge thread: the request-response servers, which
+//!   allocate per request and so stay out of the bus thread (ARCHITECTURE.md, "Data flow").
+//!   Parameters: each multi-parameter request becomes one job per item, executed one PKW task
+//!   at a time by the drive's mailbox, and every accepted request is answered exactly once;
+//!   writes to a drive another process controls are refused unless forced. Operator commands:
+//!   OFF1/OFF2/OFF3 for a drive or the whole bus from any process, handed to the bus thread
+//!   through atomics (`EngineHandle::stop_drive`).
 //!
 //! ussd's ports are created with `ipc_threadsafe` so they can be made before the threads start
 //! and moved into them; clients use plain `ipc` services, which interoperate.
 
-use crate::engine::{Bridge, EngineHandle, RequestError as EngineRefusal};
+use crate::control::Control;
+use crate::engine::{Bridge, DriveSetup, EngineHandle, RequestError as EngineRefusal};
 use crate::image::DriveImages;
 use crate::jobs::{Job, JobResult, Outcome as JobOutcome};
 use crate::stats::{DriveStatus, Failure, Stats};
 use core::time::Duration;
 use iceoryx2::active_request::ActiveRequest;
+use iceoryx2::node::NodeView;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::server::Server;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::writer::{EntryHandleMut, Writer};
 use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
+use iceoryx2::service::port_factory::request_response::PortFactory as RequestResponseFactory;
 use std::time::Instant;
 use thiserror::Error;
 use uss_protocol::{
@@ -32,9 +39,10 @@ use uss_protocol::{
 };
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{
-    BlackboardKey, BusName, BusStatus, DriveAddress, DriveDiag, LAYOUT_VERSION, LastFailure,
+    ALL_DRIVES, BlackboardKey, BusName, BusStatus, CommandError, ControlState, DriveAddress,
+    DriveDiag, LAYOUT_VERSION, LastFailure, LatchReason, OperatorRequest, OperatorResponse,
     Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, PzdInput, PzdOutput,
-    RequestError, RtMode, Storage, TaskCode,
+    RequestError, RtMode, StopCommand, Storage, TaskCode,
 };
 
 type Svc = ipc_threadsafe::Service;
@@ -83,14 +91,16 @@ impl core::fmt::Debug for BusIpc {
     }
 }
 
-/// Creates every service of bus `name` for the drives `addresses` (in the engine's slot order).
+/// Creates every service of bus `name` for `drives` (in the engine's slot order).
 /// `clock_origin` is the bus clock's origin on `CLOCK_MONOTONIC`, so time stamps published are
 /// `CLOCK_MONOTONIC` nanoseconds as the contract says.
 pub fn create(
     name: &str,
-    addresses: &[Address],
+    setups: &[DriveSetup],
     clock_origin: Duration,
 ) -> Result<BusIpc, IpcError> {
+    let addresses: Vec<Address> = setups.iter().map(|d| d.address).collect();
+    let addresses = addresses.as_slice();
     // Keep iceoryx2's own diagnostics (large debug dumps) to errors; ussd reports the rest.
     set_log_level(LogLevel::Error);
     let bus = BusName::new(name).map_err(|e| IpcError {
@@ -136,8 +146,11 @@ pub fn create(
     };
 
     let mut drives = Vec::with_capacity(addresses.len());
+    let mut outs = Vec::with_capacity(addresses.len());
     for &address in addresses {
-        drives.push(create_drive(&node, &bus, address, &attributes)?);
+        let (drive, out) = create_drive(&node, &bus, address, &attributes)?;
+        drives.push(drive);
+        outs.push((address, out));
     }
     let rt = RtBridge {
         drives,
@@ -145,14 +158,7 @@ pub fn create(
         origin_ns: as_ns(clock_origin),
     };
 
-    let status = create_status(
-        &node,
-        &bus,
-        addresses,
-        &attributes,
-        notifier()?,
-        clock_origin,
-    )?;
+    let status = create_status(&node, &bus, setups, &attributes, notifier()?, clock_origin)?;
     let params = node
         .service_builder(&names::params(&bus))
         .request_response::<ParamRequest, ParamResponse>()
@@ -166,8 +172,28 @@ pub fn create(
         .server_builder()
         .create()
         .map_err(|e| fail(&bus, "the parameter server")(text(e)))?;
+    let commands = node
+        .service_builder(&names::command(&bus))
+        .request_response::<OperatorRequest, OperatorResponse>()
+        .max_clients(MAX_CLIENTS)
+        .max_servers(1)
+        .max_active_requests_per_client(4)
+        .max_nodes(MAX_NODES)
+        .create_with_attributes(&attributes)
+        .map_err(|e| fail(&bus, "the command service")(text(e)))?;
+    let command_server = commands
+        .server_builder()
+        .create()
+        .map_err(|e| fail(&bus, "the command server")(text(e)))?;
     let params = ParamServer {
         server,
+        commands: command_server,
+        identities: Identities {
+            config: node.config().clone(),
+            params,
+            commands,
+            outs,
+        },
         pending: Vec::new(),
         next_id: 1,
     };
@@ -183,21 +209,26 @@ pub fn create(
 fn create_status(
     node: &IpcNode,
     bus: &BusName,
-    addresses: &[Address],
+    drives: &[DriveSetup],
     attributes: &AttributeSpecifier,
     notifier: Notifier<Svc>,
     clock_origin: Duration,
 ) -> Result<StatusPublisher, IpcError> {
+    let addresses: Vec<Address> = drives.iter().map(|d| d.address).collect();
     let mut diag_builder = node
         .service_builder(&names::diag(bus))
         .blackboard_creator::<BlackboardKey>()
         .max_readers(MAX_CLIENTS)
         .max_nodes(MAX_NODES);
-    for &address in addresses {
+    for d in drives {
         let a =
-            DriveAddress::new(address.get()).map_err(|e| fail(bus, "a drive")(e.to_string()))?;
-        diag_builder =
-            diag_builder.add::<DriveDiag>(BlackboardKey::drive(a), DriveDiag::new(address.get()));
+            DriveAddress::new(d.address.get()).map_err(|e| fail(bus, "a drive")(e.to_string()))?;
+        // What a client needs before the first publish: the drive's PZD length.
+        let initial = DriveDiag {
+            pzd_words: d.layout.pzd.get() as u8,
+            ..DriveDiag::new(d.address.get())
+        };
+        diag_builder = diag_builder.add::<DriveDiag>(BlackboardKey::drive(a), initial);
     }
     let diag = diag_builder
         .create_with_attributes(attributes)
@@ -207,7 +238,7 @@ fn create_status(
         .create()
         .map_err(|e| fail(bus, "the diag writer")(text(e)))?;
     let mut diag_entries = Vec::with_capacity(addresses.len());
-    for &address in addresses {
+    for &address in &addresses {
         let a =
             DriveAddress::new(address.get()).map_err(|e| fail(bus, "a drive")(e.to_string()))?;
         diag_entries.push(
@@ -233,6 +264,7 @@ fn create_status(
         .map_err(|e| fail(bus, "the status entry")(text(e)))?;
     Ok(StatusPublisher {
         bus: bus.clone(),
+        pzd_words: drives.iter().map(|d| d.layout.pzd.get() as u8).collect(),
         diag: diag_entries,
         status: status_entry,
         _writers: (diag_writer, status_writer),
@@ -244,13 +276,16 @@ fn create_status(
     })
 }
 
-/// The services of one drive: its output (ussd subscribes) and its input image (ussd writes).
+type OutService = PubSubFactory<Svc, PzdOutput, ()>;
+
+/// The services of one drive: its output (ussd subscribes; the factory stays with the
+/// parameter server, which asks it who controls the drive) and its input image (ussd writes).
 fn create_drive(
     node: &IpcNode,
     bus: &BusName,
     address: Address,
     attributes: &AttributeSpecifier,
-) -> Result<RtDrive, IpcError> {
+) -> Result<(RtDrive, OutService), IpcError> {
     let a = DriveAddress::new(address.get()).map_err(|e| fail(bus, "a drive")(e.to_string()))?;
     let out = node
         .service_builder(&names::drive_out(bus, a))
@@ -258,7 +293,7 @@ fn create_drive(
         .max_publishers(names::OUT_MAX_PUBLISHERS)
         .max_subscribers(2)
         .subscriber_max_buffer_size(names::OUT_LATEST_ONLY)
-        .history_size(names::OUT_LATEST_ONLY)
+        .history_size(names::OUT_HISTORY)
         .enable_safe_overflow(true)
         .max_nodes(MAX_NODES)
         .create_with_attributes(attributes)
@@ -283,14 +318,15 @@ fn create_drive(
     let entry = writer
         .entry::<PzdInput>(&BlackboardKey::IMAGE)
         .map_err(|e| fail(bus, format!("the input entry of drive {address}"))(text(e)))?;
-    Ok(RtDrive {
+    let drive = RtDrive {
         event: EventId::new(names::exchange_completed(a)),
         last: (0, 0),
         period: 0,
         subscriber,
         entry,
         _writer: writer,
-    })
+    };
+    Ok((drive, out))
 }
 
 fn as_ns(d: Duration) -> u64 {
@@ -324,23 +360,15 @@ impl core::fmt::Debug for RtBridge {
 }
 
 impl Bridge for RtBridge {
-    fn before_poll(&mut self, slot: usize, images: &DriveImages) {
-        let Some(d) = self.drives.get(slot) else {
-            return;
-        };
-        // Buffer 1 with safe overflow: at most the latest sample is waiting.
+    fn take_sample(&mut self, slot: usize, _: &DriveImages) -> Option<PzdOutput> {
+        let d = self.drives.get(slot)?;
+        // Buffer 1 with safe overflow: at most the latest sample is waiting. It goes to the
+        // engine as it arrived; the engine's gate checks it.
         let mut latest = None;
         while let Ok(Some(sample)) = d.subscriber.receive() {
             latest = Some(*sample);
         }
-        if let Some(out) = latest {
-            // A sample of another layout version is not a refresh: the watchdog sees it as stale.
-            if let Ok((words, n)) = out.words() {
-                images
-                    .output
-                    .write(&words[..n], out.sequence, out.timestamp_ns);
-            }
-        }
+        latest
     }
 
     fn after_poll(&mut self, slot: usize, images: &DriveImages, status: &DriveStatus) {
@@ -372,7 +400,16 @@ impl Bridge for RtBridge {
             None => PzdInput::EMPTY,
         };
         image.online = u8::from(status.online);
-        image.watchdog_tripped = u8::from(status.watchdog_tripped);
+        let c = ControlView::of(status, origin);
+        image.control = c.state.code();
+        image.latch_reason = c.reason.code();
+        image.latch_command = c.command.code();
+        image.latched_since_ns = c.since_ns;
+        image.latched_by_pid = c.by_pid;
+        image.latches = u32::try_from(status.counters.latches).unwrap_or(u32::MAX);
+        image.rejection = status.rejection.code();
+        image.taken_sequence = status.taken_sequence;
+        [image.sent_stw1, image.sent_setpoint] = status.sent;
         d.entry.update_with_copy(image);
         let _ = self.notifier.notify_with_custom_event_id(d.event);
     }
@@ -387,6 +424,8 @@ impl Bridge for RtBridge {
 /// The housekeeping thread's ports: bus status and drive diagnostics.
 pub struct StatusPublisher {
     bus: BusName,
+    /// Each drive's PZD length, in slot order.
+    pzd_words: Vec<u8>,
     diag: Vec<EntryHandleMut<Svc, BlackboardKey, DriveDiag>>,
     status: EntryHandleMut<Svc, BlackboardKey, BusStatus>,
     _writers: (Writer<Svc, BlackboardKey>, Writer<Svc, BlackboardKey>),
@@ -402,6 +441,37 @@ impl core::fmt::Debug for StatusPublisher {
         f.debug_struct("StatusPublisher")
             .field("bus", &self.bus.as_str())
             .finish_non_exhaustive()
+    }
+}
+
+/// A drive's control as the contract carries it.
+struct ControlView {
+    state: ControlState,
+    reason: LatchReason,
+    command: StopCommand,
+    /// `CLOCK_MONOTONIC` ns of the latch (kept after a re-arm: when the last latch began).
+    since_ns: u64,
+    by_pid: u32,
+}
+
+impl ControlView {
+    fn of(status: &DriveStatus, origin_ns: u64) -> Self {
+        match status.control {
+            Control::Live => Self {
+                state: ControlState::Live,
+                reason: LatchReason::None,
+                command: StopCommand::None,
+                since_ns: 0,
+                by_pid: 0,
+            },
+            Control::Latched(l) => Self {
+                state: ControlState::Latched,
+                reason: l.reason,
+                command: l.command,
+                since_ns: origin_ns.saturating_add(as_ns(l.since)),
+                by_pid: l.by_pid,
+            },
+        }
     }
 }
 
@@ -438,18 +508,27 @@ impl StatusPublisher {
     /// Publishes `stats` as the bus status and every drive's diagnostics.
     pub fn publish(&self, stats: &Stats, running: bool) {
         let ns = |d: Duration| self.origin_ns.saturating_add(as_ns(d));
-        for (entry, d) in self.diag.iter().zip(&stats.drives) {
+        for ((entry, d), &pzd_words) in self.diag.iter().zip(&stats.drives).zip(&self.pzd_words) {
             let c = &d.counters;
+            let control = ControlView::of(d, self.origin_ns);
             entry.update_with_copy(DriveDiag {
                 consecutive_failed_polls: d.consecutive_failed_polls,
                 last_zsw1: d.last_zsw1,
                 last_hiw: d.last_hiw,
                 online: u8::from(d.online),
                 no_reply: u8::from(d.no_reply),
-                watchdog_tripped: u8::from(d.watchdog_tripped),
+                control: control.state.code(),
                 last_failure: failure_code(d.last_failure).code(),
+                latch_reason: control.reason.code(),
+                latch_command: control.command.code(),
+                rejection: d.rejection.code(),
+                monitoring: d.monitoring.code(),
+                pzd_words,
+                monitoring_ms: d.monitoring_ms,
+                controller_pid: d.controller_pid,
                 since_ns: ns(d.since),
                 last_good_ns: d.last_good.map_or(uss_shm_types::diag::NEVER, ns),
+                latched_since_ns: control.since_ns,
                 requests: c.requests,
                 good: c.good,
                 rejected: c.rejected,
@@ -470,6 +549,10 @@ impl StatusPublisher {
                 pkw_busy: c.pkw_busy,
                 jobs_done: c.jobs_done,
                 watchdog_trips: c.watchdog_trips,
+                latches: c.latches,
+                rejected_outputs: c.rejected_outputs,
+                releases: c.releases,
+                overrides: c.overrides,
                 ..DriveDiag::new(d.address.get())
             });
         }
@@ -520,11 +603,79 @@ struct Pending {
     remaining: usize,
 }
 
-/// The parameter bridge's server. See the module documentation.
+/// The parameter bridge's servers. See the module documentation.
 pub struct ParamServer {
     server: Server<Svc, ParamRequest, (), ParamResponse, ()>,
+    commands: Server<Svc, OperatorRequest, (), OperatorResponse, ()>,
+    identities: Identities,
     pending: Vec<Pending>,
     next_id: u64,
+}
+
+/// Who is behind a request and who controls a drive, from iceoryx2's own records (the node
+/// of each port and the process of each node), not from what a client says of itself.
+struct Identities {
+    config: iceoryx2::config::Config,
+    params: RequestResponseFactory<Svc, ParamRequest, (), ParamResponse, ()>,
+    commands: RequestResponseFactory<Svc, OperatorRequest, (), OperatorResponse, ()>,
+    outs: Vec<(Address, OutService)>,
+}
+
+impl Identities {
+    /// The process of a live node.
+    fn pid(&self, node: &iceoryx2::identifiers::UniqueNodeId) -> Option<u32> {
+        let mut found = None;
+        let _ = Node::<Svc>::list(&self.config, |state| {
+            if let NodeState::Alive(view) = &state
+                && view.id() == node
+            {
+                found = view
+                    .details()
+                    .as_ref()
+                    .and_then(|d| u32::try_from(d.process_id().value()).ok());
+                return CallbackProgression::Stop;
+            }
+            CallbackProgression::Continue
+        });
+        found
+    }
+
+    /// The process that sent a parameter request.
+    fn param_client(&self, origin: iceoryx2::identifiers::UniqueClientId) -> Option<u32> {
+        let mut node = None;
+        self.params.dynamic_config().list_clients(|c| {
+            if c.client_id == origin {
+                node = Some(c.node_id);
+                return CallbackProgression::Stop;
+            }
+            CallbackProgression::Continue
+        });
+        node.and_then(|n| self.pid(&n))
+    }
+
+    /// The process that sent an operator command.
+    fn command_client(&self, origin: iceoryx2::identifiers::UniqueClientId) -> Option<u32> {
+        let mut node = None;
+        self.commands.dynamic_config().list_clients(|c| {
+            if c.client_id == origin {
+                node = Some(c.node_id);
+                return CallbackProgression::Stop;
+            }
+            CallbackProgression::Continue
+        });
+        node.and_then(|n| self.pid(&n))
+    }
+
+    /// The live process that holds the drive's `out` publisher (its controller), if any.
+    fn controller(&self, address: Address) -> Option<u32> {
+        let (_, out) = self.outs.iter().find(|(a, _)| *a == address)?;
+        let mut node = None;
+        out.dynamic_config().list_publishers(|p| {
+            node = Some(p.node_id);
+            CallbackProgression::Stop
+        });
+        node.and_then(|n| self.pid(&n))
+    }
 }
 
 impl core::fmt::Debug for ParamServer {
@@ -600,6 +751,7 @@ fn refusal_of(e: EngineRefusal) -> RequestError {
         EngineRefusal::Pkw { .. } | EngineRefusal::PzdWords { .. } => RequestError::ValueType,
         EngineRefusal::Busy(_) => RequestError::Busy,
         EngineRefusal::Stopped => RequestError::Shutdown,
+        EngineRefusal::ReservedJobId(_) | EngineRefusal::NotAStop(_) => RequestError::BadTask,
     }
 }
 
@@ -652,6 +804,7 @@ impl ParamServer {
 
     /// Takes new requests, then waits up to `wait` for job results and routes them.
     pub fn serve_once(&mut self, handle: &EngineHandle, wait: Duration) {
+        self.serve_commands(handle);
         while let Ok(Some(active)) = self.server.receive() {
             self.accept(active, handle);
         }
@@ -664,6 +817,10 @@ impl ParamServer {
 
     fn accept(&mut self, active: Active, handle: &EngineHandle) {
         let request = *active.payload();
+        if let Some(refusal) = self.refuse_controlled(&active, &request) {
+            let _ = active.send_copy(refusal);
+            return;
+        }
         let (address, items) = match request.validate() {
             Ok(ok) => ok,
             Err(refusal) => {
@@ -715,6 +872,62 @@ impl ParamServer {
             count: items.len() as u64,
             remaining,
         });
+    }
+
+    /// A write to a drive that another process controls is refused unless the request says it
+    /// is deliberate ([`uss_shm_types::REQUEST_FORCE`]); reads are never restricted, and the
+    /// controlling process may write through its own handles.
+    fn refuse_controlled(&self, active: &Active, request: &ParamRequest) -> Option<ParamResponse> {
+        let writes = request.items[..usize::from(request.count).min(request.items.len())]
+            .iter()
+            .any(|i| i.task().is_ok_and(TaskCode::is_write));
+        if !writes || request.is_forced() || request.validate().is_err() {
+            return None;
+        }
+        let address = Address::new(request.address).ok()?;
+        let controller = self.identities.controller(address)?;
+        let requester = self.identities.param_client(active.origin());
+        if requester == Some(controller) {
+            return None;
+        }
+        let mut response = ParamResponse::refused(
+            request.address,
+            uss_shm_types::Refusal {
+                error: RequestError::Controlled,
+                item: None,
+            },
+        );
+        response.controller_pid = controller;
+        Some(response)
+    }
+
+    /// Answers operator commands: each goes to the bus thread at once (it applies it at the
+    /// drive's next poll, latched) and is answered with the drives it reached.
+    fn serve_commands(&mut self, handle: &EngineHandle) {
+        while let Ok(Some(active)) = self.commands.receive() {
+            let request = *active.payload();
+            let response = match request.validate() {
+                Err(e) => OperatorResponse::refused(request.command, e),
+                Ok(_) if handle.is_stopped() => {
+                    OperatorResponse::refused(request.command, CommandError::Shutdown)
+                }
+                Ok(command) => {
+                    let pid = self.identities.command_client(active.origin()).unwrap_or(0);
+                    let target = match request.address {
+                        ALL_DRIVES => Ok(None),
+                        a => Address::new(a).map(Some),
+                    };
+                    match target.map(|t| handle.stop_drive(t, command, pid)) {
+                        Ok(Ok(drives)) => OperatorResponse::done(command, drives),
+                        Ok(Err(_)) | Err(_) => {
+                            OperatorResponse::refused(request.command, CommandError::UnknownDrive)
+                        }
+                    }
+                }
+            };
+            // A client that died meanwhile cannot be answered; the command stands.
+            let _ = active.send_copy(response);
+        }
     }
 
     fn route(&mut self, r: &JobResult) {

@@ -2,6 +2,9 @@
 //!
 //! - [`engine`]: the circulating list on one line: timing rules, retries, offline handling,
 //!   PKW mailboxes, diagnostics; generic over [`transport::Transport`] and [`clock::Clock`].
+//! - [`control`]: the one place that decides which PZD words go to a drive (live sample,
+//!   safe command, latched, operator override, rejected sample).
+//! - [`monitoring`]: the check of the drive's own telegram monitoring (P2014 / p2040).
 //! - [`transport`], [`serial`]: the virtual wire to the simulator and real serial devices.
 //! - [`config`]: the TOML configuration of `ussd`, validated with line and field in every error.
 //! - [`runtime`], [`summary`]: buses in their real-time threads, housekeeping and the live summary.
@@ -14,10 +17,12 @@
 
 pub mod clock;
 pub mod config;
+pub mod control;
 pub mod engine;
 pub mod image;
 pub mod ipc;
 pub mod jobs;
+pub mod monitoring;
 pub mod rt;
 pub mod runtime;
 pub mod serial;
@@ -27,8 +32,10 @@ pub mod transport;
 
 pub use clock::{Clock, MonotonicClock, VirtualClock};
 pub use engine::{
-    Bridge, DriveSetup, Engine, EngineConfig, EngineHandle, Event, NoBridge, RequestError,
+    Bridge, DriveSetup, Engine, EngineConfig, EngineHandle, Event, INTERNAL_JOB, LocalBridge,
+    RequestError,
 };
 pub use jobs::{Job, JobResult, Outcome};
+pub use monitoring::MonitoringSetup;
 pub use stats::{DriveCounters, DriveStatus, Failure, Stats};
 pub use transport::{Rx, SimTransport, Transport, TransportError};

@@ -8,8 +8,10 @@
 
 use crate::clock::MonotonicClock;
 use crate::config::{BusConfig, Device, Rs485Mode};
+use crate::control::Latch;
 use crate::engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event};
 use crate::ipc::StatusPublisher;
+use crate::monitoring::MonitoringSetup;
 use crate::rt::{RtReport, RtRequest, apply_to_current_thread};
 use crate::serial::{SerialError, SerialOptions, SerialTransport};
 use crate::stats::Stats;
@@ -19,7 +21,8 @@ use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, bounded};
 use std::thread::JoinHandle;
 use thiserror::Error;
 use uss_drive_sim::{BusError, SimBus, VirtualWire};
-use uss_protocol::Timing;
+use uss_protocol::{Address, Timing};
+use uss_shm_types::{LatchReason, Monitoring, Rejection};
 
 /// Parameter jobs each drive can hold.
 const MAILBOX_DEPTH: usize = 64;
@@ -70,9 +73,14 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
                 address: d.address,
                 layout: d.layout,
                 weight: d.weight,
-                safe_stw1: d.safe_command.stw1(),
+                safe: d.safe_command.command(),
                 watchdog: d.watchdog,
                 params_writable: d.params_writable,
+                monitoring: MonitoringSetup {
+                    param: d.monitoring_param.map(|p| (p.pnu, p.index)),
+                    max: d.monitoring_max,
+                    required: d.require_monitoring,
+                },
             })
             .collect(),
     }
@@ -150,10 +158,9 @@ fn spawn<T: Transport + Send + 'static>(
     go: &Receiver<()>,
 ) -> Result<Spawned, StartError> {
     let clock = MonotonicClock::new();
-    let addresses: Vec<_> = bus.drives.iter().map(|d| d.address).collect();
-    let ipc = crate::ipc::create(&bus.name, &addresses, clock.origin())?;
-    let (mut engine, handle, events) =
-        Engine::with_bridge(engine_config(bus), transport, clock, ipc.rt);
+    let config = engine_config(bus);
+    let ipc = crate::ipc::create(&bus.name, &config.drives, clock.origin())?;
+    let (mut engine, handle, events) = Engine::with_bridge(config, transport, clock, ipc.rt);
     let params = ipc.params;
     let params_handle = handle.clone();
     let params_thread = std::thread::Builder::new()
@@ -343,7 +350,7 @@ fn spawn_housekeeping(
                 let next = next_summary.min(next_status);
                 let wait = next.saturating_duration_since(std::time::Instant::now());
                 match events.recv_timeout(wait) {
-                    Ok(event) => log_event(&bus.name, &event),
+                    Ok(event) => log_event(&bus, &event),
                     Err(RecvTimeoutError::Timeout) => {
                         let now = std::time::Instant::now();
                         if now >= next_status {
@@ -374,7 +381,79 @@ fn spawn_housekeeping(
         })
 }
 
-fn log_event(bus: &str, event: &Event) {
+fn log_latch(bus: &BusConfig, address: Address, latch: &Latch, rejection: Rejection) {
+    let (drive, at_s, pid) = (address.get(), latch.since.as_secs_f64(), latch.by_pid);
+    let command = latch.command;
+    let bus = bus.name.as_str();
+    match latch.reason {
+        LatchReason::Released => tracing::info!(
+            bus,
+            drive,
+            at_s,
+            pid,
+            "drive {address}: released by its controller (process {pid}); sending {command}, latched"
+        ),
+        LatchReason::Override => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            pid,
+            "drive {address}: operator {command} from process {pid}; latched until its controller re-arms (OFF1, then ON)"
+        ),
+        LatchReason::Rejected => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            pid,
+            "drive {address}: refused a sample of process {pid} ({rejection}); sending {command}, latched until the controller re-arms (OFF1, then ON)"
+        ),
+        reason => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            pid,
+            "drive {address}: {reason}; sending {command}, latched until the controller re-arms (OFF1, then ON)"
+        ),
+    }
+}
+
+fn log_monitoring(bus: &BusConfig, address: Address, at: Duration, state: Monitoring, ms: u32) {
+    let param = bus
+        .drives
+        .iter()
+        .find(|d| d.address == address)
+        .and_then(|d| d.monitoring_param)
+        .map_or_else(|| "the monitoring parameter".to_owned(), |p| p.to_string());
+    let (drive, at_s, bus) = (address.get(), at.as_secs_f64(), bus.name.as_str());
+    match state {
+        Monitoring::On => tracing::info!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: telegram monitoring on ({param} = {ms} ms)"
+        ),
+        Monitoring::Off => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: telegram monitoring is OFF ({param} = 0): if ussd or its line dies, nothing stops this drive; set {param} to e.g. 100 ms (USS.md section 5)"
+        ),
+        Monitoring::TooLong => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: telegram monitoring {param} = {ms} ms is longer than monitoring_max_ms: after ussd or its line dies the drive runs on for that long"
+        ),
+        other => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: telegram monitoring {other} ({param}): check monitoring_param for this drive family (P2014.1 on MICROMASTER 4, p2040 on G120)"
+        ),
+    }
+}
+
+fn log_event(bus: &BusConfig, event: &Event) {
     match *event {
         Event::DriveOffline {
             address,
@@ -382,7 +461,7 @@ fn log_event(bus: &str, event: &Event) {
             failure,
         } => {
             tracing::warn!(
-                bus,
+                bus = bus.name,
                 drive = address.get(),
                 at_s = at.as_secs_f64(),
                 "drive {address} does not respond ({}): offline",
@@ -391,31 +470,35 @@ fn log_event(bus: &str, event: &Event) {
         }
         Event::DriveOnline { address, at } => {
             tracing::info!(
-                bus,
+                bus = bus.name,
                 drive = address.get(),
                 at_s = at.as_secs_f64(),
                 "drive {address} online"
             );
         }
-        Event::WatchdogTripped { address, at } => {
-            tracing::warn!(
-                bus,
-                drive = address.get(),
-                at_s = at.as_secs_f64(),
-                "drive {address}: controller stopped refreshing; sending its safe command"
-            );
-        }
-        Event::WatchdogCleared { address, at } => {
+        Event::Latched {
+            address,
+            latch,
+            rejection,
+        } => log_latch(bus, address, &latch, rejection),
+        Event::Rearmed { address, at, pid } => {
             tracing::info!(
-                bus,
+                bus = bus.name,
                 drive = address.get(),
                 at_s = at.as_secs_f64(),
-                "drive {address}: controller refreshing again"
+                pid,
+                "drive {address}: re-armed by process {pid} (OFF1 after the latch): its controller's words go out again"
             );
         }
+        Event::Monitoring {
+            address,
+            at,
+            state,
+            ms,
+        } => log_monitoring(bus, address, at, state, ms),
         Event::CycleOverrun { at, took } => {
             tracing::warn!(
-                bus,
+                bus = bus.name,
                 at_s = at.as_secs_f64(),
                 took_ms = took.as_secs_f64() * 1e3,
                 "cycle took longer than cycle_time"

@@ -2,9 +2,11 @@
 //! USS.md section 7), plus timing histograms. Everything is allocated when the engine starts;
 //! counting and recording never allocate.
 
+use crate::control::{Control, ControlCounters};
 use core::time::Duration;
 use hdrhistogram::Histogram;
 use uss_protocol::{Address, FrameError, LineError};
+use uss_shm_types::{Monitoring, Rejection};
 
 /// Why one attempt at an exchange failed (USS.md section 4, receive errors).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -87,8 +89,16 @@ pub struct DriveCounters {
     /// Replies "not yet" (AK 0) while a parameter task was pending.
     pub pkw_busy: u64,
     pub jobs_done: u64,
-    /// Times the drive got its safe command because its controller stopped refreshing.
+    /// Times a live controller stopped refreshing (a frozen, hung or dead controller).
     pub watchdog_trips: u64,
+    /// Latches of any reason, the start-up latch included.
+    pub latches: u64,
+    /// Controller samples refused before the wire.
+    pub rejected_outputs: u64,
+    /// Clean hand-backs by a controller.
+    pub releases: u64,
+    /// Operator stop commands applied.
+    pub overrides: u64,
 }
 
 impl DriveCounters {
@@ -110,6 +120,15 @@ impl DriveCounters {
         };
         *c += 1;
     }
+
+    /// Takes the control counters of the drive's gate.
+    pub fn set_control(&mut self, c: &ControlCounters) {
+        self.watchdog_trips = c.watchdog_trips;
+        self.latches = c.latches;
+        self.rejected_outputs = c.rejected_outputs;
+        self.releases = c.releases;
+        self.overrides = c.overrides;
+    }
 }
 
 /// The state of one drive as the master sees it.
@@ -127,13 +146,24 @@ pub struct DriveStatus {
     pub last_zsw1: u16,
     pub last_hiw: u16,
     pub last_good: Option<Duration>,
-    /// The drive is getting its safe command because its controller is stale.
-    pub watchdog_tripped: bool,
+    /// Live (the controller's words go out) or latched, and why (`crate::control`).
+    pub control: Control,
+    /// The last refused sample's rejection.
+    pub rejection: Rejection,
+    /// The process id in the controller's latest sample (0 before the first).
+    pub controller_pid: u32,
+    /// STW1 and setpoint of the last telegram sent to the drive.
+    pub sent: [u16; 2],
+    /// `sequence` of the controller's latest sample the engine took.
+    pub taken_sequence: u64,
+    /// The drive's own telegram monitoring as read from it, and its time in ms.
+    pub monitoring: Monitoring,
+    pub monitoring_ms: u32,
     pub counters: DriveCounters,
 }
 
 impl DriveStatus {
-    pub fn new(address: Address) -> Self {
+    pub fn new(address: Address, control: Control) -> Self {
         Self {
             address,
             // Drives start online: the first poll decides.
@@ -145,7 +175,13 @@ impl DriveStatus {
             last_zsw1: 0,
             last_hiw: 0,
             last_good: None,
-            watchdog_tripped: false,
+            control,
+            rejection: Rejection::None,
+            controller_pid: 0,
+            sent: [0; 2],
+            taken_sequence: 0,
+            monitoring: Monitoring::Unknown,
+            monitoring_ms: 0,
             counters: DriveCounters::default(),
         }
     }
@@ -260,8 +296,12 @@ pub struct Stats {
 }
 
 impl Stats {
-    pub fn new(addresses: impl IntoIterator<Item = Address>) -> Self {
-        let drives: Vec<DriveStatus> = addresses.into_iter().map(DriveStatus::new).collect();
+    /// Statistics of drives that start with `control` (each with its address).
+    pub fn new(drives: impl IntoIterator<Item = (Address, Control)>) -> Self {
+        let drives: Vec<DriveStatus> = drives
+            .into_iter()
+            .map(|(a, c)| DriveStatus::new(a, c))
+            .collect();
         let update_period = drives.iter().map(|_| histogram(2)).collect();
         Self {
             at: Duration::ZERO,

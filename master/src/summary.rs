@@ -3,7 +3,8 @@
 //! state, online flag, last ZSW1 and actual value, and telegram counters.
 
 use crate::config::BusConfig;
-use crate::stats::{DriveCounters, Stats};
+use crate::control::Control;
+use crate::stats::{DriveCounters, DriveStatus, Stats};
 use core::fmt::Write;
 use core::time::Duration;
 use uss_protocol::{DriveState, Setpoint, Zsw1};
@@ -73,12 +74,23 @@ pub fn render(bus: &BusConfig, rt_mode: &str, stats: &Stats, previous: Option<&S
             c.wrong_address,
             c.parity,
             d.last_failure.map_or("-", crate::stats::Failure::name),
-            if d.watchdog_tripped {
-                " | WATCHDOG: safe command"
-            } else {
-                ""
-            },
+            control_note(d),
         );
     }
     out
+}
+
+/// ` | live`, or what a latched drive gets and why; and a telegram monitoring that is not on.
+fn control_note(d: &DriveStatus) -> String {
+    let mut note = match d.control {
+        Control::Live => " | live".to_owned(),
+        Control::Latched(l) => format!(" | LATCHED ({}): {}", l.reason, l.command),
+    };
+    if !matches!(
+        d.monitoring,
+        uss_shm_types::Monitoring::On | uss_shm_types::Monitoring::Unknown
+    ) {
+        let _ = write!(note, " | telegram monitoring {}", d.monitoring);
+    }
+    note
 }

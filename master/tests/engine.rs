@@ -6,6 +6,7 @@
 use crossbeam_channel::Receiver;
 use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, State, VirtualWire};
+use uss_master::control::Control;
 use uss_master::{
     DriveSetup, Engine, EngineConfig, EngineHandle, Event, Failure, Job, Outcome, RequestError,
     SimTransport, VirtualClock,
@@ -14,6 +15,7 @@ use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{
     Address, Baud, ParamError, ParamTask, PkwError, Pnu, Storage, Stw1, Timing, Value,
 };
+use uss_shm_types::{LatchReason, Monitoring, PzdOutput, Rejection, StopCommand};
 
 type TestEngine = Engine<SimTransport, VirtualClock>;
 
@@ -53,14 +55,7 @@ fn bench_with(
         let mut dc = DriveConfig::new(addr(a), layout(pkw, 2));
         sim(&mut dc);
         bus.add(dc).unwrap();
-        setups.push(DriveSetup {
-            address: addr(a),
-            layout: layout(pkw, 2),
-            weight: 1,
-            safe_stw1: Stw1::READY,
-            watchdog: ms(100),
-            params_writable: true,
-        });
+        setups.push(DriveSetup::new(addr(a), layout(pkw, 2)));
     }
     let mut config = EngineConfig {
         timing: timing(),
@@ -135,6 +130,14 @@ impl Bench {
 
     fn events(&self) -> Vec<Event> {
         self.events.try_iter().collect()
+    }
+
+    /// The events, without the telegram-monitoring reports every drive coming online brings.
+    fn events_but_monitoring(&self) -> Vec<Event> {
+        self.events
+            .try_iter()
+            .filter(|e| !matches!(e, Event::Monitoring { .. }))
+            .collect()
     }
 
     /// Polls until `count` results arrived (or 60 s of bus time pass).
@@ -226,7 +229,7 @@ fn silent_drive_is_retried_then_offline_then_probed_and_back_online() {
     assert_eq!(s.counters.timeouts, 12);
     assert_eq!(s.counters.retries, 8);
     assert!(matches!(
-        b.events()[..],
+        b.events_but_monitoring()[..],
         [Event::DriveOffline {
             failure: Failure::NoResponse,
             ..
@@ -240,7 +243,10 @@ fn silent_drive_is_retried_then_offline_then_probed_and_back_online() {
         "the error clears with the next good reply"
     );
     assert!(s.counters.good > 0);
-    assert!(matches!(b.events()[..], [Event::DriveOnline { .. }]));
+    assert!(matches!(
+        b.events_but_monitoring()[..],
+        [Event::DriveOnline { .. }]
+    ));
     let (_, online) = b.handle.input(addr(2)).unwrap();
     assert!(online);
 }
@@ -494,7 +500,7 @@ fn every_job_ends_exactly_once_under_faults() {
 }
 
 #[test]
-fn watchdog_sends_the_safe_command_when_the_controller_stops_refreshing() {
+fn watchdog_latches_the_safe_command_when_the_controller_stops_refreshing() {
     let mut b = bench(&[(1, PkwMode::Four)]);
     b.run_for(ms(50), &[(1, [0x047E, 0])]);
     b.run_for(ms(2000), &[(1, [0x047F, 0x4000])]);
@@ -521,21 +527,27 @@ fn watchdog_sends_the_safe_command_when_the_controller_stops_refreshing() {
         off.saturating_sub(t0 + ms(100))
     );
     assert!(matches!(b.sim_drive(1).state(), State::SwitchingOff(_)));
-    assert!(b.status(1).watchdog_tripped);
+    assert_eq!(latch_reason(&b, 1), Some(LatchReason::Stale));
     assert_eq!(b.status(1).counters.watchdog_trips, 1);
+    assert!(b.events().iter().any(|e| matches!(
+        e,
+        Event::Latched { latch, .. } if latch.reason == LatchReason::Stale
+    )));
+    // The controller comes back with "run": the drive stays latched (no restart by itself).
+    b.run_for(ms(500), &[(1, [0x047F, 0x4000])]);
+    assert_eq!(latch_reason(&b, 1), Some(LatchReason::Stale));
+    assert_eq!(b.sim_drive(1).stw1(), Stw1::READY);
+    assert_eq!(b.status(1).counters.watchdog_trips, 1, "one trip");
+    // Re-armed the PROFIdrive way, OFF1 then ON: it runs again.
+    b.run_for(ms(50), &[(1, [0x047E, 0])]);
+    assert_eq!(b.status(1).control, Control::Live);
     assert!(
         b.events()
             .iter()
-            .any(|e| matches!(e, Event::WatchdogTripped { .. }))
+            .any(|e| matches!(e, Event::Rearmed { .. }))
     );
-    // The controller comes back: it is in charge again.
     b.run_for(ms(50), &[(1, [0x047F, 0x4000])]);
-    assert!(!b.status(1).watchdog_tripped);
-    assert!(
-        b.events()
-            .iter()
-            .any(|e| matches!(e, Event::WatchdogCleared { .. }))
-    );
+    assert_eq!(b.sim_drive(1).stw1().bits(), 0x047F);
 }
 
 #[test]
@@ -543,15 +555,230 @@ fn drive_without_a_controller_gets_the_safe_command_not_a_stale_run() {
     let mut b = bench_with(
         &[(1, PkwMode::Four)],
         |_| {},
-        |c| c.drives[0].safe_stw1 = Stw1::COAST,
+        |c| c.drives[0].safe = StopCommand::Off2,
         false,
     );
     b.run_for(ms(100), &[]);
     assert_eq!(b.sim_drive(1).stw1(), Stw1::COAST);
-    assert!(
-        !b.status(1).watchdog_tripped,
+    assert_eq!(latch_reason(&b, 1), Some(LatchReason::Startup));
+    assert_eq!(
+        b.status(1).counters.watchdog_trips,
+        0,
         "no controller ever: nothing tripped"
     );
+}
+
+/// The latch a drive shows, if any.
+fn latch_reason(b: &Bench, a: u8) -> Option<LatchReason> {
+    match b.status(a).control {
+        Control::Live => None,
+        Control::Latched(l) => Some(l.reason),
+    }
+}
+
+/// A running drive 1: armed with OFF1, then ON at 50 % for 300 ms.
+fn running() -> Bench {
+    let mut b = bench(&[(1, PkwMode::Four)]);
+    b.run_for(ms(50), &[(1, [0x047E, 0])]);
+    b.run_for(ms(300), &[(1, [0x047F, 0x2000])]);
+    assert_eq!(b.sim_drive(1).state(), State::OperationEnabled);
+    b.events();
+    b
+}
+
+#[test]
+fn every_kind_of_bad_sample_is_refused_within_one_poll_and_named() {
+    let valid = PzdOutput::from_words(&[0x047F, 0x2000], 1, 0, 7).unwrap();
+    let cases = [
+        (
+            "all-zero C struct",
+            PzdOutput {
+                version: 0,
+                word_count: 0,
+                stw1: 0,
+                setpoint: 0,
+                ..valid
+            },
+            Rejection::Version,
+        ),
+        (
+            "STW1 0x0000",
+            PzdOutput::from_words(&[0x0000, 0x2000], 1, 0, 7).unwrap(),
+            Rejection::NoPlcControl,
+        ),
+        (
+            "STW1 0x007F (bit 10 clear)",
+            PzdOutput::from_words(&[0x007F, 0x2000], 1, 0, 7).unwrap(),
+            Rejection::NoPlcControl,
+        ),
+        (
+            "one word where the drive has two",
+            PzdOutput::from_words(&[0x047F], 1, 0, 7).unwrap(),
+            Rejection::WordCount,
+        ),
+        (
+            "word count 0",
+            PzdOutput::from_words(&[], 1, 0, 7).unwrap(),
+            Rejection::WordCount,
+        ),
+        (
+            "unknown version",
+            PzdOutput {
+                version: 99,
+                ..valid
+            },
+            Rejection::Version,
+        ),
+    ];
+    for (name, mut bad, rejection) in cases {
+        let mut b = running();
+        bad.sequence = 1_000;
+        b.handle.publish_sample(addr(1), bad).unwrap();
+        b.engine.poll_next().unwrap();
+        assert_eq!(
+            b.sim_drive(1).stw1(),
+            Stw1::READY,
+            "{name}: the safe command at the next poll"
+        );
+        assert_eq!(latch_reason(&b, 1), Some(LatchReason::Rejected), "{name}");
+        assert_eq!(b.status(1).rejection, rejection, "{name}");
+        assert_eq!(b.status(1).counters.rejected_outputs, 1, "{name}");
+        assert_eq!(b.status(1).counters.watchdog_trips, 0, "{name}");
+        assert!(
+            b.events().iter().any(|e| matches!(
+                e,
+                Event::Latched { rejection: r, .. } if *r == rejection
+            )),
+            "{name}: an event names it"
+        );
+        // Still latched later, with a good controller going on with "run".
+        b.run_for(ms(200), &[(1, [0x047F, 0x2000])]);
+        assert_eq!(b.sim_drive(1).stw1(), Stw1::READY, "{name}: latched");
+    }
+}
+
+#[test]
+fn a_release_hands_the_drive_back_without_counting_a_trip() {
+    let mut b = running();
+    b.handle.release(addr(1)).unwrap();
+    b.engine.poll_next().unwrap();
+    assert_eq!(b.sim_drive(1).stw1(), Stw1::READY);
+    assert_eq!(latch_reason(&b, 1), Some(LatchReason::Released));
+    b.run_for(ms(500), &[]);
+    let c = b.status(1).counters;
+    assert_eq!((c.releases, c.watchdog_trips, c.latches), (1, 0, 2));
+}
+
+#[test]
+fn an_operator_stop_overrides_the_controller_at_the_next_poll_and_latches() {
+    for (command, stw1) in [
+        (StopCommand::Off1, Stw1::READY),
+        (StopCommand::Off2, Stw1::COAST),
+        (StopCommand::Off3, Stw1::QUICK_STOP),
+    ] {
+        let mut b = running();
+        let reached = b.handle.stop_drive(Some(addr(1)), command, 4242).unwrap();
+        assert_eq!(reached, 1 << 1);
+        // The controller keeps publishing "run": the operator wins, at the very next poll.
+        b.handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
+        b.engine.poll_next().unwrap();
+        assert_eq!(b.sim_drive(1).stw1(), stw1, "{command}");
+        b.run_for(ms(300), &[(1, [0x047F, 0x2000])]);
+        assert_eq!(b.sim_drive(1).stw1(), stw1, "{command}: latched");
+        let Control::Latched(latch) = b.status(1).control else {
+            panic!("{command}: not latched")
+        };
+        assert_eq!(
+            (latch.reason, latch.command, latch.by_pid),
+            (LatchReason::Override, command, 4242)
+        );
+        assert_eq!(b.status(1).counters.overrides, 1);
+    }
+    // OFF2 and OFF1 between two polls: the stronger one goes out.
+    let mut b = running();
+    b.handle.stop_drive(None, StopCommand::Off2, 1).unwrap();
+    b.handle.stop_drive(None, StopCommand::Off1, 1).unwrap();
+    b.engine.poll_next().unwrap();
+    assert_eq!(b.sim_drive(1).stw1(), Stw1::COAST);
+    assert_eq!(
+        b.handle.stop_drive(None, StopCommand::None, 1),
+        Err(RequestError::NotAStop(StopCommand::None))
+    );
+}
+
+#[test]
+fn the_drives_telegram_monitoring_is_read_when_it_comes_online() {
+    // P2014.1 = 0 on the simulated drive: monitoring off.
+    let mut b = bench(&[(1, PkwMode::Four)]);
+    b.run_for(ms(200), &[]);
+    assert_eq!(b.status(1).monitoring, Monitoring::Off);
+    assert!(b.events().iter().any(|e| matches!(
+        e,
+        Event::Monitoring {
+            state: Monitoring::Off,
+            ms: 0,
+            ..
+        }
+    )));
+    // Set to 100 ms through a client's writes (access level 3 first, as the drive wants):
+    // ussd sees it from the write's result.
+    let write = |id, pnu, index, value| Job {
+        id,
+        address: addr(1),
+        task: ParamTask::WriteArray {
+            pnu: Pnu::from_u16(pnu),
+            index: uss_protocol::Subindex::new(index).unwrap(),
+            value: Value::Word(value),
+            storage: Storage::Ram,
+        },
+    };
+    b.handle.submit(write(4, 2014, 1, 100)).unwrap();
+    let refused = b.results(1);
+    assert_eq!(
+        refused[0].outcome,
+        Outcome::DriveError(ParamError::AccessLevelTooLow)
+    );
+    assert_eq!(
+        b.status(1).monitoring,
+        Monitoring::Off,
+        "a refused write changes nothing"
+    );
+    let access_level = Job {
+        id: 5,
+        address: addr(1),
+        task: ParamTask::Write {
+            pnu: Pnu::from_u16(3),
+            value: Value::Word(3),
+            storage: Storage::Ram,
+        },
+    };
+    b.handle.submit(access_level).unwrap();
+    b.handle.submit(write(6, 2014, 1, 100)).unwrap();
+    let results = b.results(2);
+    assert_eq!(
+        results.len(),
+        2,
+        "exactly the client's results: {results:?}"
+    );
+    assert_eq!(b.status(1).monitoring, Monitoring::On);
+    assert_eq!(b.status(1).monitoring_ms, 100);
+}
+
+#[test]
+fn on_is_refused_while_required_monitoring_is_off() {
+    let mut b = bench_with(
+        &[(1, PkwMode::Four)],
+        |_| {},
+        |c| c.drives[0].monitoring.required = true,
+        false,
+    );
+    b.run_for(ms(200), &[(1, [0x047E, 0])]);
+    assert_eq!(b.status(1).monitoring, Monitoring::Off);
+    assert_eq!(b.status(1).control, Control::Live, "OFF1 arms");
+    b.run_for(ms(300), &[(1, [0x047F, 0x2000])]);
+    assert_eq!(latch_reason(&b, 1), Some(LatchReason::MonitoringOff));
+    assert_eq!(b.sim_drive(1).stw1(), Stw1::READY);
+    assert_ne!(b.sim_drive(1).state(), State::OperationEnabled);
 }
 
 #[test]

@@ -8,6 +8,8 @@ mod common;
 
 use common::allocations;
 
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::reader::EntryHandle;
 use iceoryx2::prelude::*;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -16,7 +18,7 @@ use uss_drive_sim::{DriveConfig, Fault, SimBus, VirtualWire};
 use uss_master::ipc as ussd_ipc;
 use uss_master::{DriveSetup, Engine, EngineConfig, SimTransport, VirtualClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
-use uss_protocol::{Address, Baud, Stw1, Timing};
+use uss_protocol::{Address, Baud, Timing};
 use uss_shm_types::names;
 use uss_shm_types::{BlackboardKey, BusName, DriveAddress, PzdInput, PzdOutput};
 
@@ -34,16 +36,11 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
             sim.faults_mut(address).unwrap().set_probability(f, 0.02);
         }
         setups.push(DriveSetup {
-            address,
-            layout,
-            weight: 1,
-            safe_stw1: Stw1::READY,
             watchdog: Duration::from_millis(50),
-            params_writable: true,
+            ..DriveSetup::new(address, layout)
         });
     }
-    let addresses: Vec<Address> = setups.iter().map(|d| d.address).collect();
-    let bus_ipc = ussd_ipc::create(&bus_name, &addresses, Duration::ZERO).unwrap();
+    let bus_ipc = ussd_ipc::create(&bus_name, &setups, Duration::ZERO).unwrap();
     let config = EngineConfig {
         timing,
         response_timeout: Duration::from_millis(20),
@@ -105,18 +102,19 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
             (during, engine.stats().clone())
         })
     };
-    let mut sequence = 0;
-    let mut seen = 0;
-    while running.load(Ordering::Acquire) {
-        sequence += 1;
-        let out =
-            PzdOutput::from_words(&[0x047F, 0x2000], sequence, 0, std::process::id()).unwrap();
-        publisher.send_copy(out).unwrap();
-        seen = seen.max(input.get().sequence);
-        std::thread::sleep(Duration::from_micros(200));
-    }
+    let (seen, live) = control_until(&running, &publisher, &input);
     let (allocations, stats) = bus_thread.join().unwrap();
     assert_eq!(allocations, 0, "the bus thread allocated during 3000 polls");
+    assert!(
+        live > 100,
+        "the drive ran on the controller's words ({live})"
+    );
+    let rejected: u64 = stats
+        .drives
+        .iter()
+        .map(|d| d.counters.rejected_outputs)
+        .sum();
+    assert!(rejected > 0, "refused samples were part of the run");
     assert!(
         seen > 100,
         "the reader saw the bus thread's input images ({seen})"
@@ -125,4 +123,37 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
     assert!(retries > 0, "faults and retries were part of the run");
     drop(bus_ipc.status);
     drop(bus_ipc.params);
+}
+
+/// A controller publishing on drive 1 while `running`, reading its input image. Its phase
+/// follows the bus's own progress (the image's exchange count), so every phase is seen however
+/// fast the bus thread runs: OFF1 arms the drive (ussd latched it at start), then ON; at the end
+/// of each round a sample with STW1 bit 10 clear is refused and latches the drive again, and
+/// the next round's OFF1 re-arms it. Returns the highest input sequence seen and how many
+/// images showed the drive live on the controller's ON.
+fn control_until(
+    running: &AtomicBool,
+    publisher: &Publisher<ipc::Service, PzdOutput, ()>,
+    input: &EntryHandle<ipc::Service, BlackboardKey, PzdInput>,
+) -> (u64, u64) {
+    let mut sequence = 0;
+    let mut seen = 0;
+    let mut live = 0;
+    while running.load(Ordering::Acquire) {
+        let image = *input.get();
+        if image.sequence != seen {
+            live += u64::from(image.is_live() && image.sent_stw1 == 0x047F);
+            seen = image.sequence;
+        }
+        let stw1 = match image.sequence % 200 {
+            0..=19 => 0x047E,
+            20..=189 => 0x047F,
+            _ => 0x007F,
+        };
+        sequence += 1;
+        let out = PzdOutput::from_words(&[stw1, 0x2000], sequence, 0, std::process::id()).unwrap();
+        publisher.send_copy(out).unwrap();
+        std::thread::sleep(Duration::from_micros(100));
+    }
+    (seen, live)
 }

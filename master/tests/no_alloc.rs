@@ -1,6 +1,7 @@
 //! The real-time loop allocates nothing after start-up: thousands of exchanges with parameter
-//! jobs, busy replies, retries, injected faults, offline drives, watchdog trips and statistics
-//! publishing, under a counting global allocator (ARCHITECTURE.md, "Data flow").
+//! jobs, busy replies, retries, injected faults, offline drives, watchdog trips, re-arms,
+//! rejected samples, releases, operator overrides and statistics publishing, under a counting
+//! global allocator (ARCHITECTURE.md, "Data flow").
 #![allow(clippy::unwrap_used)]
 
 mod common;
@@ -14,7 +15,8 @@ use uss_master::{
     DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, SimTransport, VirtualClock,
 };
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
-use uss_protocol::{Address, Baud, ParamTask, Pnu, Storage, Stw1, Timing, Value};
+use uss_protocol::{Address, Baud, ParamTask, Pnu, Storage, Timing, Value};
+use uss_shm_types::{PzdOutput, StopCommand};
 
 type TestEngine = Engine<SimTransport, VirtualClock>;
 
@@ -39,12 +41,9 @@ fn faulty_bus() -> (TestEngine, EngineHandle, Receiver<Event>) {
             plan.set_probability(f, 0.02);
         }
         setups.push(DriveSetup {
-            address: Address::new(a).unwrap(),
-            layout,
             weight: if a == 1 { 2 } else { 1 },
-            safe_stw1: Stw1::READY,
             watchdog: Duration::from_millis(50),
-            params_writable: true,
+            ..DriveSetup::new(Address::new(a).unwrap(), layout)
         });
     }
     // Drive 4 drops out for a while: offline, probes, back online.
@@ -66,6 +65,43 @@ fn faulty_bus() -> (TestEngine, EngineHandle, Receiver<Event>) {
     };
     let wire = VirtualWire::new(bus, timing).with_echo(true);
     Engine::new(config, SimTransport::new(wire), VirtualClock::new())
+}
+
+/// What the controllers and operators do at poll `i`: every path of the control gate.
+fn control(handle: &EngineHandle, i: usize) {
+    let a = |n| Address::new(n).unwrap();
+    let (off1, run) = ([0x047E, 0, 0, 0], [0x047F, 0x2000, 0, 0]);
+    if i.is_multiple_of(3) {
+        // Drive 1: OFF1 (re-arms after an override), then ON.
+        let words = if i % 1000 < 9 { off1 } else { run };
+        handle.set_output(a(1), &words).unwrap();
+        // Drive 2: refreshes for 300 polls, then goes quiet for 100 (a watchdog trip).
+        if i % 400 < 300 {
+            let words = if i % 400 < 9 { off1 } else { run };
+            handle.set_output(a(2), &words).unwrap();
+        }
+        // Drive 3: a valid controller, except for a sample with STW1 bit 10 clear now and then.
+        if i.is_multiple_of(50) {
+            let bad =
+                PzdOutput::from_words(&[0x007F, 0, 0, 0], 1_000_000 + i as u64, 0, 1).unwrap();
+            handle.publish_sample(a(3), bad).unwrap();
+        } else {
+            handle.set_output(a(3), &off1).unwrap();
+        }
+    }
+    // Operators coast drive 4 and quick-stop drive 1; drive 4's controller releases it.
+    if i.is_multiple_of(700) {
+        handle.stop_drive(Some(a(4)), StopCommand::Off2, 1).unwrap();
+    }
+    if i % 1000 == 500 {
+        handle.stop_drive(Some(a(1)), StopCommand::Off3, 1).unwrap();
+    }
+    if i % 900 == 100 {
+        handle.set_output(a(4), &off1).unwrap();
+    }
+    if i % 900 == 200 {
+        handle.release(a(4)).unwrap();
+    }
 }
 
 #[test]
@@ -91,15 +127,7 @@ fn bus_loop_allocates_nothing_per_exchange() {
     let mut id = 0u64;
     let mut step = |count: usize, results: &mut u64, id: &mut u64| {
         for i in 0..count {
-            // A controller refreshing drives 1 and 2 only; 3 and 4 go stale and trip their watchdog.
-            if i % 3 == 0 {
-                handle
-                    .set_output(Address::new(1).unwrap(), &[0x047F, 0x2000, 0, 0])
-                    .unwrap();
-                handle
-                    .set_output(Address::new(2).unwrap(), &[0x047E, 0, 0, 0])
-                    .unwrap();
-            }
+            control(&handle, i);
             if i % 5 == 0 {
                 let a = Address::new(1 + (i / 5 % 4) as u8).unwrap();
                 let mut task = tasks[i / 20 % tasks.len()];
@@ -141,5 +169,9 @@ fn bus_loop_allocates_nothing_per_exchange() {
     assert!(total(|c| c.pkw_busy) > 10, "busy replies");
     assert!(total(|c| c.failed_polls) > 0, "offline");
     assert!(total(|c| c.watchdog_trips) > 0, "watchdog");
+    assert!(total(|c| c.rejected_outputs) > 0, "rejected samples");
+    assert!(total(|c| c.overrides) > 0, "operator overrides");
+    assert!(total(|c| c.releases) > 0, "releases");
+    assert!(total(|c| c.latches) > 10, "latches and re-arms");
     assert!(results > 500, "{results} job results");
 }

@@ -7,6 +7,7 @@
 //! - [`adr`]: slave addresses and the ADR byte (USS.md section 3).
 //! - [`telegram`]: encoding and validating whole telegrams, BCC, PKW/PZD layouts (section 3).
 //! - [`framer`]: the incremental receive framer with start-pause and residual-time rules (section 4).
+//! - [`notation`]: parameters as the manuals write them (`P1082`, `r0947[3]`).
 //! - [`pkw`]: parameter tasks and replies, PNU paging, error numbers, reply matching (section 6).
 //! - [`pzd`]: STW1/ZSW1 flag types, the PROFIdrive states, setpoint scaling (section 7).
 //! - [`timing`]: character time, start pause, residual time, worst case and wire floor (section 4).
@@ -14,6 +15,7 @@
 
 pub mod adr;
 pub mod framer;
+pub mod notation;
 pub mod pkw;
 pub mod pzd;
 pub mod telegram;
@@ -21,6 +23,7 @@ pub mod timing;
 
 pub use adr::{Address, AddressError, Adr};
 pub use framer::{FrameError, Framer, FramerConfig, LineError};
+pub use notation::{NotationError, ParamRef, Prefix};
 pub use pkw::{
     ParamError, ParamReply, ParamTask, PkwError, Pnu, PnuError, ReplyKind, Storage, Subindex, Value,
 };

@@ -10,8 +10,8 @@ use proptest::sample::Index;
 use uss_protocol::telegram::{MAX_TELEGRAM_BYTES, STX};
 use uss_protocol::{
     Address, Adr, Baud, EncodeError, FrameError, Framer, FramerConfig, Layout, LineError,
-    ParamError, ParamReply, ParamTask, PkwError, PkwMode, Pnu, PzdCount, ReplyKind, Setpoint,
-    Storage, Subindex, Telegram, Timing, Value, encode, encode_raw,
+    ParamError, ParamRef, ParamReply, ParamTask, PkwError, PkwMode, Pnu, PzdCount, ReplyKind,
+    Setpoint, Storage, Subindex, Telegram, Timing, Value, encode, encode_raw,
 };
 
 // Telegrams (USS.md section 3).
@@ -833,5 +833,35 @@ proptest! {
         let lsb = reference_hz / 16384.0;
         let back = Setpoint::from_hz(hz, reference_hz).hz(reference_hz);
         prop_assert!((back - hz).abs() <= lsb, "{} Hz -> {} Hz", hz, back);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Parameter notation (USS.md section 6)
+// ---------------------------------------------------------------------------------------------
+
+proptest! {
+    #[test]
+    fn parameter_references_round_trip_through_the_manuals_notation(
+        pnu in any::<u16>(),
+        index in proptest::option::of(0u8..=254),
+        letter in prop_oneof![Just(""), Just("P"), Just("p"), Just("r")],
+        dot in any::<bool>(),
+    ) {
+        let text = match (index, dot) {
+            (Some(i), true) => format!("{letter}{pnu:04}.{i}"),
+            (Some(i), false) => format!("{letter}{pnu}[{i}]"),
+            (None, _) => format!("{letter}{pnu}"),
+        };
+        let parsed: ParamRef = text.parse().unwrap();
+        prop_assert_eq!(parsed.pnu.get(), pnu);
+        prop_assert_eq!(parsed.index.map(Subindex::get), index);
+        let again: ParamRef = parsed.to_string().parse().unwrap();
+        prop_assert_eq!((again.pnu, again.index), (parsed.pnu, parsed.index));
+    }
+
+    #[test]
+    fn any_text_parses_or_is_refused_without_panicking(text in "\\PC{0,12}") {
+        let _ = text.parse::<ParamRef>();
     }
 }

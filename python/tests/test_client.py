@@ -21,14 +21,21 @@ BUS = f"py{os.getpid()}"
 DRIVES = (1, 2)
 
 
-def ussd_binary() -> str:
-    if "USSD" in os.environ:
-        return os.environ["USSD"]
-    subprocess.run(
-        ["cargo", "build", "--quiet", "-p", "uss-master", "--bin", "ussd"], cwd=ROOT, check=True
-    )
+def binary(package: str, name: str, env: str) -> str:
+    """The workspace binary ``name`` (built with cargo first), or the one ``$env`` names."""
+    if env in os.environ:
+        return os.environ[env]
+    subprocess.run(["cargo", "build", "--quiet", "-p", package, "--bin", name], cwd=ROOT, check=True)
     target = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
-    return str(target / "debug" / "ussd")
+    return str(target / "debug" / name)
+
+
+def ussd_binary() -> str:
+    return binary("uss-master", "ussd", "USSD")
+
+
+def ussctl_binary() -> str:
+    return binary("uss-client", "ussctl", "USSCTL")
 
 
 class Ussd:
@@ -144,6 +151,54 @@ def test_drive_ussd_does_not_poll_raises_unknown_drive(bus):
     assert e.value.known == list(DRIVES)
     with pytest.raises(uss_rt.UnknownDrive, match="drive 9 is not on"):
         uss_rt.read_param(bus, 9, 1082)
+
+
+def test_a_drive_without_a_controller_is_latched_with_its_safe_command(bus):
+    image = wait_for_input(bus, 1, lambda i: i["sequence"] > 0)
+    assert image["control"] == uss_rt.ControlState.LATCHED
+    assert image["latch_reason"] == uss_rt.LatchReason.STARTUP
+    assert image["latch_command"] == uss_rt.StopCommand.OFF1
+    assert image["sent_stw1"] == 0x047E
+    diag = bus._diag_service.reader_builder().create().entry(
+        uss_rt.BlackboardKey(1), uss_rt.DriveDiag
+    ).get().decode_as(uss_rt.DriveDiag)
+    assert (diag.pzd_words, diag.latches) == (2, 1)
+
+
+def test_python_stops_a_drive_another_process_runs_and_the_stop_latches(bus):
+    run = subprocess.Popen(
+        [ussctl_binary(), "--bus", BUS, "run", "2", "--hz", "10", "--for", "30"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        wait_for_input(
+            bus, 2, lambda i: i["control"] == uss_rt.ControlState.LIVE and i["sent_stw1"] == 0x047F
+        )
+        uss_rt.stop_drive(bus, 2, uss_rt.StopCommand.OFF2)
+        image = uss_rt.wait_stopped(bus, 2, uss_rt.StopCommand.OFF2)
+        assert image["latch_reason"] == uss_rt.LatchReason.OVERRIDE
+        assert image["sent_stw1"] == 0x047C
+        assert image["latched_by_pid"] == os.getpid()
+        # The controller learns of it and ends with an error; the drive stays coasted.
+        _, err = run.communicate(timeout=10)
+        assert run.returncode == 1, err
+        assert "tripped" in err and "an operator sent OFF2" in err, err
+        assert uss_rt.read_input(bus, 2)["sent_stw1"] == 0x047C
+        # Every drive: OFF3 for drive 1 (it had OFF1), drive 2 keeps the stronger OFF2.
+        assert uss_rt.stop_all(bus, uss_rt.StopCommand.OFF3) == list(DRIVES)
+        assert uss_rt.wait_stopped(bus, 1, uss_rt.StopCommand.OFF3)["sent_stw1"] == 0x047A
+        assert uss_rt.read_input(bus, 2)["sent_stw1"] == 0x047C
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+
+
+def test_stopping_a_drive_ussd_does_not_poll_raises_unknown_drive(bus):
+    with pytest.raises(uss_rt.UnknownDrive, match="drive 9 is not on"):
+        uss_rt.stop_drive(bus, 9)
 
 
 def test_bus_without_ussd_raises_not_running():

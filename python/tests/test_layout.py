@@ -76,6 +76,12 @@ def test_code_tables_have_exactly_the_codes_of_the_header():
         uss_rt.Storage,
         uss_rt.RequestError,
         uss_rt.Outcome,
+        uss_rt.ControlState,
+        uss_rt.LatchReason,
+        uss_rt.Rejection,
+        uss_rt.StopCommand,
+        uss_rt.Monitoring,
+        uss_rt.CommandError,
     ):
         prefix = f"USS_{screaming(table.__name__)}_"
         body = re.search(r"enum Uss%s\b.*?\{(.*?)\};" % table.__name__, text, re.S).group(1)
@@ -101,6 +107,9 @@ def test_limits_match_the_header():
         "MAX_ADDRESS",
         "MAX_BUS_NAME_LEN",
         "NEVER",
+        "ALL_DRIVES",
+        "OUTPUT_RELEASE",
+        "REQUEST_FORCE",
     ):
         assert getattr(uss_rt, name) == value(name), name
 
@@ -118,8 +127,14 @@ def test_service_names_and_attribute_match_the_header():
         ("SERVICE_STATUS", uss_rt.status_service),
         ("SERVICE_CYCLE", uss_rt.cycle_service),
         ("SERVICE_PARAMS", uss_rt.params_service),
+        ("SERVICE_COMMAND", uss_rt.command_service),
     ):
         assert make("line-1_A") == strings[name] % "line-1_A", name
+
+
+def test_stop_commands_carry_bit_10_and_clear_on():
+    for command, stw1 in uss_rt.STOP_STW1.items():
+        assert stw1 & 0x0400 and not stw1 & 0x0001, command
 
 
 def test_iceoryx2_is_pinned_to_the_version_of_the_rust_workspace():

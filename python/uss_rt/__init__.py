@@ -1,4 +1,4 @@
-"""Python client of uss-rt's ``ussd``: read a drive's input image and read parameters.
+"""Python client of uss-rt's ``ussd``: read a drive's input image, read parameters, stop drives.
 
 ussd publishes everything over iceoryx2 0.10 shared memory (crate ``uss-shm-types`` is the
 contract; ``shm-types/include/uss_shm_types.h`` is the same contract for C and C++). This module
@@ -9,6 +9,7 @@ iceoryx2 accepts the ports (it compares type name, size and alignment when a por
     bus = uss_rt.open_bus("bus0")
     image = uss_rt.read_input(bus, 1)          # {'zsw1': 0x..., 'hiw': ..., 'sequence': ...}
     p1082 = uss_rt.read_param(bus, 1, 1082)    # ParamValue(0x42480000); .as_float() == 50.0
+    uss_rt.stop_drive(bus, 1, uss_rt.StopCommand.OFF2)   # coast drive 1, whoever controls it
 
 Errors are exceptions derived from :class:`UssError`; each message says what to do next.
 """
@@ -24,12 +25,19 @@ __all__ = [
     "Bus",
     "BusStatus",
     "BlackboardKey",
+    "CommandError",
+    "CommandRefused",
+    "ControlState",
     "DriveDiag",
     "DriveError",
     "Incompatible",
     "LastFailure",
+    "LatchReason",
+    "Monitoring",
     "NoAnswer",
     "NotRunning",
+    "OperatorRequest",
+    "OperatorResponse",
     "Outcome",
     "ParamFailed",
     "ParamItem",
@@ -41,8 +49,10 @@ __all__ = [
     "PzdInput",
     "PzdOutput",
     "Refused",
+    "Rejection",
     "RequestError",
     "RtMode",
+    "StopCommand",
     "Storage",
     "TaskCode",
     "UnknownDrive",
@@ -50,13 +60,16 @@ __all__ = [
     "open_bus",
     "read_input",
     "read_param",
+    "stop_all",
+    "stop_drive",
+    "wait_stopped",
 ]
 
 # -------------------------------------------------------------------------------------------
 # Limits and names (uss_shm_types: lib.rs, pzd.rs, params.rs, names.rs)
 # -------------------------------------------------------------------------------------------
 
-LAYOUT_VERSION = 1
+LAYOUT_VERSION = 2
 """The layout version of every payload; its ``version`` field and the services' attribute."""
 LAYOUT_VERSION_ATTRIBUTE = "uss.layout_version"
 MAX_PZD_WORDS = 16
@@ -69,6 +82,12 @@ MAX_ADDRESS = 31
 MAX_BUS_NAME_LEN = 32
 NEVER = 0xFFFF_FFFF_FFFF_FFFF
 """``DriveDiag.last_good_ns`` of a drive that never replied."""
+ALL_DRIVES = 0xFF
+"""``OperatorRequest.address`` for every drive of the bus."""
+OUTPUT_RELEASE = 0x01
+"""``PzdOutput.flags``: the controller hands the drive back."""
+REQUEST_FORCE = 0x01
+"""``ParamRequest.flags``: write although another process controls the drive."""
 
 DEFAULT_NODE_NAME = "uss-py-client"
 
@@ -105,6 +124,11 @@ def cycle_service(bus: str) -> str:
 def params_service(bus: str) -> str:
     """Request-response, :class:`ParamRequest` -> :class:`ParamResponse`."""
     return f"uss/{bus}/params"
+
+
+def command_service(bus: str) -> str:
+    """Request-response, :class:`OperatorRequest` -> :class:`OperatorResponse`: stop commands."""
+    return f"uss/{bus}/command"
 
 
 # -------------------------------------------------------------------------------------------
@@ -174,6 +198,8 @@ class RequestError(enum.IntEnum):
     BAD_SUBINDEX = 11
     NO_PARAMETER_CHANNEL = 12
     DWORD_OVER_THREE_WORDS = 13
+    CONTROLLED = 14
+    BAD_FLAGS = 15
 
 
 class Outcome(enum.IntEnum):
@@ -190,6 +216,70 @@ class Outcome(enum.IntEnum):
     MAILBOX_FULL = 8
     SHUTDOWN = 9
     REFUSED = 10
+
+
+class ControlState(enum.IntEnum):
+    """Whether a drive gets its controller's words (``control`` of images and diagnostics)."""
+
+    LIVE = 0
+    LATCHED = 1
+
+
+class LatchReason(enum.IntEnum):
+    """Why a drive is latched: it gets a stop command until its controller re-arms it."""
+
+    NONE = 0
+    STARTUP = 1
+    STALE = 2
+    REJECTED = 3
+    RELEASED = 4
+    OVERRIDE = 5
+    LINE_RESTORED = 6
+    MONITORING_OFF = 7
+
+
+class Rejection(enum.IntEnum):
+    """Why ussd refused a controller's sample."""
+
+    NONE = 0
+    VERSION = 1
+    WORD_COUNT = 2
+    NO_PLC_CONTROL = 3
+    FLAGS = 4
+
+
+class StopCommand(enum.IntEnum):
+    """A stop command: what a latched drive gets, what an operator asks for."""
+
+    NONE = 0
+    OFF1 = 1
+    OFF2 = 2
+    OFF3 = 3
+
+
+STOP_STW1 = {StopCommand.OFF1: 0x047E, StopCommand.OFF2: 0x047C, StopCommand.OFF3: 0x047A}
+"""The control word of each stop command (USS.md section 7); bit 10 set."""
+
+
+class Monitoring(enum.IntEnum):
+    """The drive's own telegram monitoring (P2014 / p2040) as ussd read it."""
+
+    UNKNOWN = 0
+    ON = 1
+    OFF = 2
+    TOO_LONG = 3
+    UNREADABLE = 4
+    NOT_CHECKED = 5
+
+
+class CommandError(enum.IntEnum):
+    """Why ussd refused an operator command (``OperatorResponse.error``)."""
+
+    OK = 0
+    UNKNOWN_DRIVE = 1
+    BAD_COMMAND = 2
+    VERSION = 3
+    SHUTDOWN = 4
 
 
 # The drive's error numbers with reply 7 (USS.md section 6).
@@ -253,34 +343,44 @@ class PzdOutput(ctypes.Structure):
         ("setpoint", u16),
         ("extra", u16 * EXTRA_PZD_WORDS),
         ("word_count", u8),
-        ("reserved", u8 * 7),
+        ("flags", u8),
+        ("reserved", u8 * 6),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "UssPzdOutputV1"
+        return "UssPzdOutputV2"
 
 
 class PzdInput(ctypes.Structure):
-    """The drive's input image (``uss/<bus>/drive/<addr>/in``), written after every reply."""
+    """The drive's input image (``uss/<bus>/drive/<addr>/in``), written after every poll."""
 
     _fields_ = [
         ("version", u32),
         ("online", u8),
-        ("watchdog_tripped", u8),
+        ("control", u8),
         ("word_count", u8),
-        ("reserved", u8),
+        ("latch_reason", u8),
         ("sequence", u64),
         ("timestamp_ns", u64),
         ("age_ns", u64),
         ("zsw1", u16),
         ("hiw", u16),
         ("extra", u16 * EXTRA_PZD_WORDS),
+        ("sent_stw1", u16),
+        ("sent_setpoint", u16),
+        ("latches", u32),
+        ("latched_since_ns", u64),
+        ("latched_by_pid", u32),
+        ("latch_command", u8),
+        ("rejection", u8),
+        ("reserved", u8 * 2),
+        ("taken_sequence", u64),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "UssPzdInputV1"
+        return "UssPzdInputV2"
 
 
 class DriveDiag(ctypes.Structure):
@@ -294,14 +394,22 @@ class DriveDiag(ctypes.Structure):
         ("address", u8),
         ("online", u8),
         ("no_reply", u8),
-        ("watchdog_tripped", u8),
+        ("control", u8),
         ("last_failure", u8),
-        ("reserved", u8 * 7),
+        ("latch_reason", u8),
+        ("latch_command", u8),
+        ("rejection", u8),
+        ("monitoring", u8),
+        ("pzd_words", u8),
+        ("reserved", u8 * 2),
+        ("monitoring_ms", u32),
+        ("controller_pid", u32),
     ] + [
         (name, u64)
         for name in (
             "since_ns",
             "last_good_ns",
+            "latched_since_ns",
             "requests",
             "good",
             "rejected",
@@ -322,12 +430,16 @@ class DriveDiag(ctypes.Structure):
             "pkw_busy",
             "jobs_done",
             "watchdog_trips",
+            "latches",
+            "rejected_outputs",
+            "releases",
+            "overrides",
         )
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveDiagV1"
+        return "UssDriveDiagV2"
 
 
 class BusStatus(ctypes.Structure):
@@ -360,7 +472,7 @@ class BusStatus(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssBusStatusV1"
+        return "UssBusStatusV2"
 
 
 class ParamItem(ctypes.Structure):
@@ -377,7 +489,7 @@ class ParamItem(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamItemV1"
+        return "UssParamItemV2"
 
 
 class ParamRequest(ctypes.Structure):
@@ -387,13 +499,14 @@ class ParamRequest(ctypes.Structure):
         ("version", u32),
         ("address", u8),
         ("count", u8),
-        ("reserved", u16),
+        ("flags", u8),
+        ("reserved", u8),
         ("items", ParamItem * MAX_PARAM_ITEMS),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamRequestV1"
+        return "UssParamRequestV2"
 
 
 class ParamResult(ctypes.Structure):
@@ -412,7 +525,7 @@ class ParamResult(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamResultV1"
+        return "UssParamResultV2"
 
 
 class ParamResponse(ctypes.Structure):
@@ -424,12 +537,45 @@ class ParamResponse(ctypes.Structure):
         ("error_item", u8),
         ("address", u8),
         ("count", u8),
+        ("controller_pid", u32),
+        ("reserved", u32),
         ("results", ParamResult * MAX_PARAM_ITEMS),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamResponseV1"
+        return "UssParamResponseV2"
+
+
+class OperatorRequest(ctypes.Structure):
+    """An operator's stop command for one drive or every drive (``uss/<bus>/command``)."""
+
+    _fields_ = [
+        ("version", u32),
+        ("address", u8),
+        ("command", u8),
+        ("reserved", u8 * 2),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssOperatorRequestV2"
+
+
+class OperatorResponse(ctypes.Structure):
+    """The one answer to an :class:`OperatorRequest`: the drives it reached (bit = address)."""
+
+    _fields_ = [
+        ("version", u32),
+        ("error", u8),
+        ("command", u8),
+        ("reserved", u8 * 2),
+        ("drives", u32),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssOperatorResponseV2"
 
 
 PAYLOAD_TYPES = (
@@ -442,6 +588,8 @@ PAYLOAD_TYPES = (
     ParamRequest,
     ParamResult,
     ParamResponse,
+    OperatorRequest,
+    OperatorResponse,
 )
 
 # -------------------------------------------------------------------------------------------
@@ -537,6 +685,14 @@ class Refused(UssError):
         )
 
 
+class CommandRefused(UssError):
+    """ussd refused an operator stop command; ``error`` is a :class:`CommandError`."""
+
+    def __init__(self, bus: str, error: int):
+        self.bus, self.error = bus, _code(CommandError, error)
+        super().__init__(f"ussd on {bus} refused the stop command: {_name(self.error)}")
+
+
 class ParamFailed(UssError):
     """An item ended without a value for another reason; ``outcome`` is an Outcome."""
 
@@ -609,6 +765,7 @@ class Bus:
         self._diag_service = diag_service
         self._inputs = {}
         self._param_client = None
+        self._command_client = None
 
     def __enter__(self):
         return self
@@ -620,6 +777,7 @@ class Bus:
         """Drops every port and service of this bus; the bus cannot be used afterwards."""
         self._inputs.clear()
         self._param_client = None
+        self._command_client = None
         self._status = self._status_reader = self._status_service = self._diag_service = None
 
     def status(self) -> BusStatus:
@@ -657,6 +815,19 @@ class Bus:
             )
             self._param_client = (service, service.client_builder().create())
         return self._param_client[1]
+
+    def _commands(self):
+        """The client of the ``command`` service, created on first use."""
+        if self._command_client is None:
+            service = _open(
+                self.node,
+                self.name,
+                command_service(self.name),
+                lambda b: b.request_response(OperatorRequest, OperatorResponse),
+                lambda: NotRunning(self.name),
+            )
+            self._command_client = (service, service.client_builder().create())
+        return self._command_client[1]
 
 
 def _open(node, bus: str, service: str, pattern, missing):
@@ -719,7 +890,9 @@ def read_input(bus: Bus, address: int) -> dict:
 
     ``words`` holds the PZD words in use (ZSW1 first); ``extra`` and ``reserved`` are left
     out. ``sequence`` counts good replies (0 = none yet); ``online`` is 1 while the drive
-    answers; time stamps are CLOCK_MONOTONIC ns.
+    answers; time stamps are CLOCK_MONOTONIC ns. ``control`` is a :class:`ControlState`; while
+    latched, ``latch_reason`` (:class:`LatchReason`) says why and ``latch_command``
+    (:class:`StopCommand`) what the drive gets; ``sent_stw1`` is the control word that went out.
     """
     _check_address(address)
     image = bus._input_entry(address).get().decode_as(PzdInput)
@@ -731,7 +904,16 @@ def read_input(bus: Bus, address: int) -> dict:
     return {
         "address": address,
         "online": image.online,
-        "watchdog_tripped": image.watchdog_tripped,
+        "control": _code(ControlState, image.control),
+        "latch_reason": _code(LatchReason, image.latch_reason),
+        "latch_command": _code(StopCommand, image.latch_command),
+        "latches": image.latches,
+        "latched_since_ns": image.latched_since_ns,
+        "latched_by_pid": image.latched_by_pid,
+        "rejection": _code(Rejection, image.rejection),
+        "sent_stw1": image.sent_stw1,
+        "sent_setpoint": image.sent_setpoint,
+        "taken_sequence": image.taken_sequence,
         "sequence": image.sequence,
         "timestamp_ns": image.timestamp_ns,
         "age_ns": image.age_ns,
@@ -786,9 +968,66 @@ def _refused(bus: Bus, address: int, error: int, item) -> UssError:
     return Refused(error, item)
 
 
+def stop_drive(bus: Bus, address: int, command=StopCommand.OFF1, timeout: float = 2.0):
+    """Stops drive ``address`` with ``command`` (OFF1 ramp, OFF2 coast, OFF3 quick stop),
+    whoever controls it: the drive gets it from its next poll on, latched until its controller
+    re-arms it (OFF1, then ON). Returns once ussd has taken the command; :func:`wait_stopped`
+    waits until it went out. Raises :class:`CommandRefused` (e.g. an unknown drive)."""
+    _check_address(address)
+    return _operator(bus, address, command, timeout)
+
+
+def stop_all(bus: Bus, command=StopCommand.OFF1, timeout: float = 2.0):
+    """Stops every drive of the bus with ``command``; returns their addresses."""
+    return _operator(bus, ALL_DRIVES, command, timeout)
+
+
+def wait_stopped(bus: Bus, address: int, command=StopCommand.OFF1, timeout: float = 3.0) -> dict:
+    """Waits until drive ``address``'s image shows an operator's stop at least as strong as
+    ``command`` and the control word that went out; returns that image (:func:`read_input`)."""
+    strength = {StopCommand.NONE: 0, StopCommand.OFF1: 1, StopCommand.OFF3: 2, StopCommand.OFF2: 3}
+    deadline = time.monotonic() + timeout
+    while True:
+        image = read_input(bus, address)
+        got = image["latch_command"]
+        if (
+            image["latch_reason"] == LatchReason.OVERRIDE
+            and strength.get(got, 0) >= strength[StopCommand(command)]
+            and STOP_STW1.get(got) == image["sent_stw1"]
+        ):
+            return image
+        if time.monotonic() >= deadline:
+            raise UssError(
+                f"drive {address} on {bus.name} does not show {StopCommand(command).name} "
+                f"after {timeout} s: check `ussctl status`"
+            )
+        time.sleep(1e-3)
+
+
+def _operator(bus: Bus, address: int, command, timeout: float):
+    command = StopCommand(command)
+    if command == StopCommand.NONE:
+        raise ValueError("a stop command is OFF1, OFF2 or OFF3")
+    request = OperatorRequest(version=LAYOUT_VERSION, address=address, command=command)
+    response = _round_trip(bus, bus._commands(), request, timeout)
+    response = OperatorResponse.from_buffer_copy(response)
+    if response.version != LAYOUT_VERSION:
+        raise Incompatible(bus.name, command_service(bus.name), f"version {response.version}")
+    if response.error != CommandError.OK:
+        if response.error == CommandError.UNKNOWN_DRIVE:
+            raise UnknownDrive(bus.name, address, bus.drives())
+        raise CommandRefused(bus.name, response.error)
+    return [a for a in range(MAX_ADDRESS + 1) if response.drives & (1 << a)]
+
+
 def _send(bus: Bus, request: ParamRequest, timeout: float) -> ParamResponse:
     """Sends ``request`` and waits for ussd's one response."""
-    pending = bus._params().send_copy(request)
+    return ParamResponse.from_buffer_copy(_round_trip(bus, bus._params(), request, timeout))
+
+
+def _round_trip(bus: Bus, client, request, timeout: float):
+    """Sends ``request`` through ``client`` and returns the bytes of ussd's one answer."""
+    pending = client.send_copy(request)
     if pending.number_of_server_connections == 0:
         raise NotRunning(bus.name)
     deadline = time.monotonic() + timeout
@@ -799,7 +1038,7 @@ def _send(bus: Bus, request: ParamRequest, timeout: float) -> ParamResponse:
         connected = pending.is_connected
         response = pending.receive()
         if response is not None:
-            return ParamResponse.from_buffer_copy(response.payload().contents)
+            return bytes(response.payload().contents)
         if not connected:
             raise NoAnswer(bus.name, "dropped the request without answering")
         if time.monotonic() >= deadline:

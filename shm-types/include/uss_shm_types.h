@@ -19,14 +19,16 @@
  * as IOX2_TYPE_NAME.
  */
 #define USS_BLACKBOARD_KEY_TYPE_NAME "UssBlackboardKey"
-#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV1"
-#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV1"
-#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV1"
-#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV1"
-#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV1"
-#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV1"
-#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV1"
-#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV1"
+#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV2"
+#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV2"
+#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV2"
+#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV2"
+#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV2"
+#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV2"
+#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV2"
+#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV2"
+#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV2"
+#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV2"
 
 /*
  * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; %u = drive address
@@ -46,8 +48,15 @@
 #define USS_SERVICE_CYCLE "uss/%s/cycle"
 /** request-response, UssParamRequest -> UssParamResponse. */
 #define USS_SERVICE_PARAMS "uss/%s/params"
+/** request-response, UssOperatorRequest -> UssOperatorResponse (operator stop commands). */
+#define USS_SERVICE_COMMAND "uss/%s/command"
 /** ussd's node name for a bus. */
 #define USS_USSD_NODE "ussd-%s"
+
+/**
+ * `address` of an [`OperatorRequest`] for every drive of the bus.
+ */
+#define USS_ALL_DRIVES UINT8_MAX
 
 /**
  * `last_good_ns` of a drive that never replied.
@@ -58,7 +67,7 @@
  * The layout version of every payload type in this crate. Bump it with any change to a type's
  * fields, sizes or code tables, together with the type names' `V<n>` suffix.
  */
-#define USS_LAYOUT_VERSION 1
+#define USS_LAYOUT_VERSION 2
 
 /**
  * Longest bus name.
@@ -77,10 +86,16 @@
 #define USS_OUT_MAX_PUBLISHERS 1
 
 /**
- * Subscriber buffer and history of an `out` service: with safe overflow, ussd receives the
- * latest sample only, and a restarted ussd gets the last one sent.
+ * Subscriber buffer of an `out` service: with safe overflow, ussd receives the latest sample
+ * only.
  */
 #define USS_OUT_LATEST_ONLY 1
+
+/**
+ * History of an `out` service: none. A restarted ussd acts only on samples published after it
+ * subscribed, never on one its predecessor had already seen (`crate::control`).
+ */
+#define USS_OUT_HISTORY 0
 
 /**
  * Highest event id on `uss/<bus>/cycle`; ussd creates the service with it.
@@ -122,6 +137,17 @@
 #define USS_NO_ITEM UINT8_MAX
 
 /**
+ * `flags` bit of a [`ParamRequest`]: write even though another process controls the drive
+ * (a deliberate act, e.g. `ussctl param write --force`).
+ */
+#define USS_REQUEST_FORCE 1
+
+/**
+ * Every `flags` bit this layout defines.
+ */
+#define USS_REQUEST_FLAGS USS_REQUEST_FORCE
+
+/**
  * Most PZD words a drive exchanges (USS.md section 3: 0..16, fixed per slave).
  */
 #define USS_MAX_PZD_WORDS 16
@@ -130,6 +156,249 @@
  * PZD words after the first two.
  */
 #define USS_EXTRA_PZD_WORDS (USS_MAX_PZD_WORDS - 2)
+
+/**
+ * `flags` bit of a [`PzdOutput`]: the controller hands the drive back (a clean exit, not a
+ * crash). The drive gets its safe command, latched, and the status says "released".
+ */
+#define USS_OUTPUT_RELEASE 1
+
+/**
+ * Every `flags` bit this layout defines.
+ */
+#define USS_OUTPUT_FLAGS USS_OUTPUT_RELEASE
+
+/**
+ * STW1 bit 10, "control by PLC": with it clear a drive ignores the PZD (USS.md section 7).
+ */
+#define USS_STW1_CONTROL_BY_PLC 1024
+
+/**
+ * STW1 bit 0, ON / OFF1.
+ */
+#define USS_STW1_ON 1
+
+/**
+ * Whether a drive gets its controller's words; the `control` byte of the input image and
+ * the diagnostics.
+ */
+enum UssControlState
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * The controller's samples go to the drive.
+   */
+  USS_CONTROL_STATE_LIVE = 0,
+  /**
+   * The drive gets a stop command until its controller re-arms it (OFF1, then ON).
+   */
+  USS_CONTROL_STATE_LATCHED = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssControlState UssControlState;
+#else
+typedef uint8_t UssControlState;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Why a drive is latched; the `latch_reason` byte.
+ */
+enum UssLatchReason
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * Not latched.
+   */
+  USS_LATCH_REASON_NONE = 0,
+  /**
+   * ussd started: no controller has armed the drive since.
+   */
+  USS_LATCH_REASON_STARTUP = 1,
+  /**
+   * The controller stopped publishing within the drive's watchdog time: it froze, hung
+   * or died.
+   */
+  USS_LATCH_REASON_STALE = 2,
+  /**
+   * ussd refused a sample the drive would misread; the `rejection` byte says why.
+   */
+  USS_LATCH_REASON_REJECTED = 3,
+  /**
+   * The controller handed the drive back cleanly (dropped, exited, Ctrl-C).
+   */
+  USS_LATCH_REASON_RELEASED = 4,
+  /**
+   * An operator stopped the drive from another process (`ussctl stop/coast/quick-stop`).
+   */
+  USS_LATCH_REASON_OVERRIDE = 5,
+  /**
+   * The bus line came back after it was down.
+   */
+  USS_LATCH_REASON_LINE_RESTORED = 6,
+  /**
+   * An ON was refused: the drive's own telegram monitoring is off, too long or not
+   * verified, and its configuration requires it (`require_monitoring`).
+   */
+  USS_LATCH_REASON_MONITORING_OFF = 7,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssLatchReason UssLatchReason;
+#else
+typedef uint8_t UssLatchReason;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Why ussd refused a controller's sample; the `rejection` byte.
+ */
+enum UssRejection
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  USS_REJECTION_NONE = 0,
+  /**
+   * `version` is not the layout version ussd speaks.
+   */
+  USS_REJECTION_VERSION = 1,
+  /**
+   * `word_count` differs from the drive's PZD length (P2012).
+   */
+  USS_REJECTION_WORD_COUNT = 2,
+  /**
+   * STW1 bit 10 ("control by PLC") is clear: the drive would ignore the PZD, the safe
+   * command included (USS.md section 7).
+   */
+  USS_REJECTION_NO_PLC_CONTROL = 3,
+  /**
+   * `flags` has bits this layout does not define.
+   */
+  USS_REJECTION_FLAGS = 4,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssRejection UssRejection;
+#else
+typedef uint8_t UssRejection;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * A stop command: what a latched drive gets, and what an operator asks for.
+ */
+enum UssStopCommand
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * No command (a live drive).
+   */
+  USS_STOP_COMMAND_NONE = 0,
+  /**
+   * OFF1: ramp down along the ramp-down time (STW1 0x047E).
+   */
+  USS_STOP_COMMAND_OFF1 = 1,
+  /**
+   * OFF2: coast, the motor is switched off at once (STW1 0x047C).
+   */
+  USS_STOP_COMMAND_OFF2 = 2,
+  /**
+   * OFF3: quick stop along the OFF3 ramp (STW1 0x047A).
+   */
+  USS_STOP_COMMAND_OFF3 = 3,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssStopCommand UssStopCommand;
+#else
+typedef uint8_t UssStopCommand;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * What ussd knows of the drive's own telegram monitoring (P2014 on MICROMASTER 4 / G110 /
+ * CU240S, p2040 on G120 / S110; USS.md section 5), the only protection when ussd or its
+ * line dies; the `monitoring` byte of the diagnostics.
+ */
+enum UssMonitoring
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * Not read yet (the drive has not been online since ussd started).
+   */
+  USS_MONITORING_UNKNOWN = 0,
+  /**
+   * On, within the configured limit.
+   */
+  USS_MONITORING_ON = 1,
+  /**
+   * 0: the drive keeps running on its last command when telegrams stop.
+   */
+  USS_MONITORING_OFF = 2,
+  /**
+   * On, but longer than the configured limit.
+   */
+  USS_MONITORING_TOO_LONG = 3,
+  /**
+   * The read failed (drive error, no parameter channel, timeout).
+   */
+  USS_MONITORING_UNREADABLE = 4,
+  /**
+   * The configuration turns the check off (`monitoring_param = ""`).
+   */
+  USS_MONITORING_NOT_CHECKED = 5,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssMonitoring UssMonitoring;
+#else
+typedef uint8_t UssMonitoring;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Why ussd refused an operator request; the `error` byte of [`OperatorResponse`].
+ */
+enum UssCommandError
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  USS_COMMAND_ERROR_OK = 0,
+  /**
+   * No drive with this address on this bus.
+   */
+  USS_COMMAND_ERROR_UNKNOWN_DRIVE = 1,
+  /**
+   * `command` is not OFF1, OFF2 or OFF3.
+   */
+  USS_COMMAND_ERROR_BAD_COMMAND = 2,
+  /**
+   * The request's `version` is not [`LAYOUT_VERSION`].
+   */
+  USS_COMMAND_ERROR_VERSION = 3,
+  /**
+   * ussd is shutting down (every drive gets its safe command anyway).
+   */
+  USS_COMMAND_ERROR_SHUTDOWN = 4,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssCommandError UssCommandError;
+#else
+typedef uint8_t UssCommandError;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
 
 /**
  * Why the drive's last failed attempt failed (USS.md section 4, "Receive errors to detect
@@ -350,6 +619,15 @@ enum UssRequestError
    * A double word does not fit the drive's 3-word parameter channel (USS.md section 6).
    */
   USS_REQUEST_ERROR_DWORD_OVER_THREE_WORDS = 13,
+  /**
+   * A write to a drive that another process controls, without [`REQUEST_FORCE`]; the
+   * response's `controller_pid` names that process.
+   */
+  USS_REQUEST_ERROR_CONTROLLED = 14,
+  /**
+   * `flags` has bits this layout does not define.
+   */
+  USS_REQUEST_ERROR_BAD_FLAGS = 15,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -441,9 +719,11 @@ typedef struct UssBlackboardKey {
  *
  * Exactly one controller publishes it (the service admits one publisher). ussd sends the
  * latest words in every telegram to the drive (USS.md section 7: the current STW1 goes in
- * every telegram). A controller must publish a new `sequence` within the drive's watchdog
- * time; when it stops, or no controller ever published, the drive gets its configured safe
- * command (OFF1 by default), never a stale "run".
+ * every telegram) while the drive is live. A controller must publish a new `sequence` within
+ * the drive's watchdog time; when it stops, the drive gets its configured safe command (OFF1
+ * by default), latched until the controller re-arms it with OFF1 then ON (see
+ * [`crate::control`]). ussd checks every sample with [`PzdOutput::validate`] before it reaches
+ * the wire: a sample the drive would misread is refused and latches the drive too.
  */
 typedef struct UssPzdOutput {
   /**
@@ -479,15 +759,19 @@ typedef struct UssPzdOutput {
    * PZD length (P2012).
    */
   uint8_t word_count;
-  uint8_t reserved[7];
+  /**
+   * [`OUTPUT_RELEASE`] or 0.
+   */
+  uint8_t flags;
+  uint8_t reserved[6];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV1";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV2";
 #endif
 } UssPzdOutput;
 
 /**
- * The drive's input image, on `uss/<bus>/drive/<addr>/in`, written by ussd after every good
- * reply.
+ * The drive's input image, on `uss/<bus>/drive/<addr>/in`, written by ussd after every poll
+ * of the drive, good or failed.
  */
 typedef struct UssPzdInput {
   /**
@@ -500,14 +784,17 @@ typedef struct UssPzdInput {
    */
   uint8_t online;
   /**
-   * 1 while the drive gets its safe command because its controller is stale or absent.
+   * A [`ControlState`] code: 0 live (the controller's words go out), 1 latched.
    */
-  uint8_t watchdog_tripped;
+  uint8_t control;
   /**
    * PZD words in use, counting ZSW1 and HIW (0..=16).
    */
   uint8_t word_count;
-  uint8_t reserved;
+  /**
+   * A [`LatchReason`] code: why the drive is latched (0 while live).
+   */
+  uint8_t latch_reason;
   /**
    * Good replies so far (the exchange count); 0 = no reply yet.
    */
@@ -532,8 +819,44 @@ typedef struct UssPzdInput {
    * PZD3..PZD16.
    */
   uint16_t extra[USS_EXTRA_PZD_WORDS];
+  /**
+   * STW1 of the telegram this poll sent (what the drive was told, whoever decided it).
+   */
+  uint16_t sent_stw1;
+  /**
+   * The setpoint HSW of that telegram.
+   */
+  uint16_t sent_setpoint;
+  /**
+   * Latches of this drive since ussd started (the start-up latch counts 1). A controller
+   * that sees it grow has been tripped, overridden or refused.
+   */
+  uint32_t latches;
+  /**
+   * When the current (or last) latch began, `CLOCK_MONOTONIC` ns.
+   */
+  uint64_t latched_since_ns;
+  /**
+   * The operator process behind an override latch, or the controller process whose sample
+   * was refused or who released the drive; 0 when unknown.
+   */
+  uint32_t latched_by_pid;
+  /**
+   * The [`StopCommand`] a latched drive gets (0 while live).
+   */
+  uint8_t latch_command;
+  /**
+   * The [`Rejection`] of the last refused sample (0 if none was refused).
+   */
+  uint8_t rejection;
+  uint8_t reserved[2];
+  /**
+   * `sequence` of the controller's latest sample ussd has taken for this drive (0 = none):
+   * a controller knows from it that ussd has seen a sample (a release, an OFF1).
+   */
+  uint64_t taken_sequence;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV1";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV2";
 #endif
 } UssPzdInput;
 
@@ -572,14 +895,43 @@ typedef struct UssDriveDiag {
    */
   uint8_t no_reply;
   /**
-   * 1 while the drive gets its safe command because its controller is stale or absent.
+   * A [`ControlState`] code: 0 live, 1 latched (see [`crate::control`]).
    */
-  uint8_t watchdog_tripped;
+  uint8_t control;
   /**
    * A [`LastFailure`] code.
    */
   uint8_t last_failure;
-  uint8_t reserved[7];
+  /**
+   * A [`LatchReason`] code (0 while live).
+   */
+  uint8_t latch_reason;
+  /**
+   * The [`StopCommand`] a latched drive gets (0 while live).
+   */
+  uint8_t latch_command;
+  /**
+   * The [`Rejection`] of the last refused sample (0 if none).
+   */
+  uint8_t rejection;
+  /**
+   * A [`Monitoring`] code: the drive's own telegram monitoring as ussd read it.
+   */
+  uint8_t monitoring;
+  /**
+   * PZD words the drive exchanges as configured (P2012): a controller's samples must carry
+   * exactly this many.
+   */
+  uint8_t pzd_words;
+  uint8_t reserved[2];
+  /**
+   * The telegram-off time read from the drive, ms (0 = off or not read).
+   */
+  uint32_t monitoring_ms;
+  /**
+   * The process id in the controller's latest sample; 0 if no controller published yet.
+   */
+  uint32_t controller_pid;
   /**
    * When `online` last changed, `CLOCK_MONOTONIC` ns.
    */
@@ -588,6 +940,10 @@ typedef struct UssDriveDiag {
    * When the last good reply arrived, `CLOCK_MONOTONIC` ns; [`NEVER`] before the first.
    */
   uint64_t last_good_ns;
+  /**
+   * When the current (or last) latch began, `CLOCK_MONOTONIC` ns.
+   */
+  uint64_t latched_since_ns;
   /**
    * Telegrams sent to the drive (retries included).
    */
@@ -629,11 +985,28 @@ typedef struct UssDriveDiag {
    */
   uint64_t jobs_done;
   /**
-   * Times the drive got its safe command because its controller stopped refreshing.
+   * Times the drive got its safe command because its live controller stopped refreshing
+   * (a frozen, hung or dead controller; not a clean release).
    */
   uint64_t watchdog_trips;
+  /**
+   * Latches since ussd started, whatever their reason (the start-up latch counts 1).
+   */
+  uint64_t latches;
+  /**
+   * Controller samples refused before the wire ([`Rejection`]).
+   */
+  uint64_t rejected_outputs;
+  /**
+   * Clean hand-backs by a controller.
+   */
+  uint64_t releases;
+  /**
+   * Operator stop commands applied to the drive.
+   */
+  uint64_t overrides;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV1";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV2";
 #endif
 } UssDriveDiag;
 
@@ -708,7 +1081,7 @@ typedef struct UssBusStatus {
    */
   uint64_t timestamp_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV1";
+  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV2";
 #endif
 } UssBusStatus;
 
@@ -738,7 +1111,7 @@ typedef struct UssParamItem {
    */
   uint32_t value;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV1";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV2";
 #endif
 } UssParamItem;
 /**
@@ -762,10 +1135,14 @@ typedef struct UssParamRequest {
    * Items in use, 1..=39.
    */
   uint8_t count;
-  uint16_t reserved;
+  /**
+   * [`REQUEST_FORCE`] or 0.
+   */
+  uint8_t flags;
+  uint8_t reserved;
   struct UssParamItem items[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV1";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV2";
 #endif
 } UssParamRequest;
 
@@ -805,7 +1182,7 @@ typedef struct UssParamResult {
    */
   uint64_t on_wire_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV1";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV2";
 #endif
 } UssParamResult;
 
@@ -834,10 +1211,63 @@ typedef struct UssParamResponse {
    * Results in use: the request's count, 0 when refused as a whole.
    */
   uint8_t count;
+  /**
+   * With [`RequestError::Controlled`]: the controlling process; 0 otherwise.
+   */
+  uint32_t controller_pid;
+  uint32_t reserved;
   struct UssParamResult results[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV1";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV2";
 #endif
 } UssParamResponse;
+
+/**
+ * An operator's stop command for one drive or every drive of a bus, from any process.
+ */
+typedef struct UssOperatorRequest {
+  /**
+   * [`LAYOUT_VERSION`].
+   */
+  uint32_t version;
+  /**
+   * Drive address 0..=31, or [`ALL_DRIVES`].
+   */
+  uint8_t address;
+  /**
+   * A [`StopCommand`] code other than `None`.
+   */
+  uint8_t command;
+  uint8_t reserved[2];
+#ifdef __cplusplus
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV2";
+#endif
+} UssOperatorRequest;
+
+/**
+ * The one answer to an [`OperatorRequest`].
+ */
+typedef struct UssOperatorResponse {
+  /**
+   * [`LAYOUT_VERSION`].
+   */
+  uint32_t version;
+  /**
+   * A [`CommandError`] code; 0 when the command was handed to the bus thread.
+   */
+  uint8_t error;
+  /**
+   * The request's [`StopCommand`] code.
+   */
+  uint8_t command;
+  uint8_t reserved[2];
+  /**
+   * Bit `a` set: drive `a` gets the command from its next poll on, latched.
+   */
+  uint32_t drives;
+#ifdef __cplusplus
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV2";
+#endif
+} UssOperatorResponse;
 
 #endif  /* USS_SHM_TYPES_H */

@@ -3,6 +3,7 @@
 
 use crate::LAYOUT_VERSION;
 use crate::codes::{UnknownCode, code_table};
+use crate::control::{ControlState, LatchReason, Monitoring, Rejection, StopCommand};
 use iceoryx2::prelude::ZeroCopySend;
 
 /// `last_good_ns` of a drive that never replied.
@@ -50,7 +51,7 @@ code_table! {
 /// USS.md section 7) plus timeouts and retries.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssDriveDiagV1")]
+#[type_name("UssDriveDiagV2")]
 pub struct DriveDiag {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -67,15 +68,32 @@ pub struct DriveDiag {
     /// 1 after a poll failed all retries ("slave x does not respond"), until the next good
     /// reply (USS.md section 4).
     pub no_reply: u8,
-    /// 1 while the drive gets its safe command because its controller is stale or absent.
-    pub watchdog_tripped: u8,
+    /// A [`ControlState`] code: 0 live, 1 latched (see [`crate::control`]).
+    pub control: u8,
     /// A [`LastFailure`] code.
     pub last_failure: u8,
-    pub reserved: [u8; 7],
+    /// A [`LatchReason`] code (0 while live).
+    pub latch_reason: u8,
+    /// The [`StopCommand`] a latched drive gets (0 while live).
+    pub latch_command: u8,
+    /// The [`Rejection`] of the last refused sample (0 if none).
+    pub rejection: u8,
+    /// A [`Monitoring`] code: the drive's own telegram monitoring as ussd read it.
+    pub monitoring: u8,
+    /// PZD words the drive exchanges as configured (P2012): a controller's samples must carry
+    /// exactly this many.
+    pub pzd_words: u8,
+    pub reserved: [u8; 2],
+    /// The telegram-off time read from the drive, ms (0 = off or not read).
+    pub monitoring_ms: u32,
+    /// The process id in the controller's latest sample; 0 if no controller published yet.
+    pub controller_pid: u32,
     /// When `online` last changed, `CLOCK_MONOTONIC` ns.
     pub since_ns: u64,
     /// When the last good reply arrived, `CLOCK_MONOTONIC` ns; [`NEVER`] before the first.
     pub last_good_ns: u64,
+    /// When the current (or last) latch began, `CLOCK_MONOTONIC` ns.
+    pub latched_since_ns: u64,
     /// Telegrams sent to the drive (retries included).
     pub requests: u64,
     /// Valid replies.
@@ -102,14 +120,23 @@ pub struct DriveDiag {
     pub pkw_busy: u64,
     /// Parameter jobs finished.
     pub jobs_done: u64,
-    /// Times the drive got its safe command because its controller stopped refreshing.
+    /// Times the drive got its safe command because its live controller stopped refreshing
+    /// (a frozen, hung or dead controller; not a clean release).
     pub watchdog_trips: u64,
+    /// Latches since ussd started, whatever their reason (the start-up latch counts 1).
+    pub latches: u64,
+    /// Controller samples refused before the wire ([`Rejection`]).
+    pub rejected_outputs: u64,
+    /// Clean hand-backs by a controller.
+    pub releases: u64,
+    /// Operator stop commands applied to the drive.
+    pub overrides: u64,
 }
 
 /// The state of the bus as a whole.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssBusStatusV1")]
+#[type_name("UssBusStatusV2")]
 pub struct BusStatus {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -158,11 +185,19 @@ impl DriveDiag {
             address,
             online: 0,
             no_reply: 0,
-            watchdog_tripped: 0,
+            control: ControlState::Latched.code(),
             last_failure: LastFailure::None.code(),
-            reserved: [0; 7],
+            latch_reason: LatchReason::Startup.code(),
+            latch_command: StopCommand::None.code(),
+            rejection: Rejection::None.code(),
+            monitoring: Monitoring::Unknown.code(),
+            pzd_words: 0,
+            reserved: [0; 2],
+            monitoring_ms: 0,
+            controller_pid: 0,
             since_ns: 0,
             last_good_ns: NEVER,
+            latched_since_ns: 0,
             requests: 0,
             good: 0,
             rejected: 0,
@@ -183,11 +218,36 @@ impl DriveDiag {
             pkw_busy: 0,
             jobs_done: 0,
             watchdog_trips: 0,
+            latches: 0,
+            rejected_outputs: 0,
+            releases: 0,
+            overrides: 0,
         }
     }
 
     pub fn last_failure(&self) -> Result<LastFailure, UnknownCode> {
         LastFailure::try_from(self.last_failure)
+    }
+
+    /// Whether the drive gets its controller's words (not latched).
+    pub fn is_live(&self) -> bool {
+        self.control == ControlState::Live.code()
+    }
+
+    pub fn latch_reason(&self) -> Result<LatchReason, UnknownCode> {
+        LatchReason::try_from(self.latch_reason)
+    }
+
+    pub fn latch_command(&self) -> Result<StopCommand, UnknownCode> {
+        StopCommand::try_from(self.latch_command)
+    }
+
+    pub fn rejection(&self) -> Result<Rejection, UnknownCode> {
+        Rejection::try_from(self.rejection)
+    }
+
+    pub fn monitoring(&self) -> Result<Monitoring, UnknownCode> {
+        Monitoring::try_from(self.monitoring)
     }
 }
 

@@ -9,12 +9,14 @@
 //! | `uss/<bus>/status`           | blackboard, key 0         | ussd                    | anyone  | [`BusStatus`] |
 //! | `uss/<bus>/cycle`            | event                     | ussd                    | anyone  | event ids in [`names`] |
 //! | `uss/<bus>/params`           | request-response          | clients ask, ussd answers | -     | [`ParamRequest`] / [`ParamResponse`] |
+//! | `uss/<bus>/command`          | request-response          | any process asks, ussd answers | - | [`OperatorRequest`] / [`OperatorResponse`] |
 //!
 //! ussd creates every service; clients open them. The `out` service admits one publisher, so
 //! "one controlling writer per drive" is a property of the service, not a convention: a second
 //! controller is refused with `PublisherCreateError::ExceedsMaxSupportedPublishers`, and a
 //! controller that died is replaced as soon as its dead node is cleaned up (which opening the
-//! service does). [`names`] says why `out` is not a blackboard.
+//! service does). Stopping a drive is open to every process: an operator's OFF1/OFF2/OFF3 on
+//! `command` overrides the controller and latches ([`control`]). [`names`] says why `out` is not a blackboard.
 //!
 //! Rules every payload type follows, so C, C++ and Python can mirror it:
 //! - `#[repr(C)]`, fixed-width fields only (no `bool`, no `usize`), no implicit padding: spare
@@ -29,6 +31,7 @@
 //! - Time stamps (`*_ns`) are `CLOCK_MONOTONIC` nanoseconds unless a field says otherwise.
 
 mod codes;
+pub mod control;
 pub mod diag;
 pub mod layout;
 pub mod names;
@@ -36,17 +39,21 @@ pub mod params;
 pub mod pzd;
 
 pub use codes::{ContractError, UnknownCode};
+pub use control::{
+    ALL_DRIVES, CommandError, ControlState, LatchReason, Monitoring, OperatorRequest,
+    OperatorResponse, Rejection, StopCommand,
+};
 pub use diag::{BusStatus, DriveDiag, LastFailure, RtMode};
 pub use names::{BlackboardKey, BusName, DriveAddress, NameError};
 pub use params::{
-    MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, Refusal,
-    RequestError, Storage, TaskCode,
+    MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, REQUEST_FORCE,
+    Refusal, RequestError, Storage, TaskCode,
 };
-pub use pzd::{EXTRA_PZD_WORDS, MAX_PZD_WORDS, PzdInput, PzdOutput};
+pub use pzd::{EXTRA_PZD_WORDS, MAX_PZD_WORDS, OUTPUT_RELEASE, OutputSample, PzdInput, PzdOutput};
 
 /// The layout version of every payload type in this crate. Bump it with any change to a type's
 /// fields, sizes or code tables, together with the type names' `V<n>` suffix.
-pub const LAYOUT_VERSION: u32 = 1;
+pub const LAYOUT_VERSION: u32 = 2;
 
 /// Checks a payload's `version` field.
 pub const fn check_version(found: u32) -> Result<(), ContractError> {

@@ -10,6 +10,7 @@
 //! | `uss/<bus>/status`           | blackboard       | [`BlackboardKey::IMAGE`] -> `BusStatus`       |
 //! | `uss/<bus>/cycle`            | event            | [`exchange_completed`], [`CYCLE_COMPLETED`], [`STATUS_PUBLISHED`], [`USSD_GONE`] |
 //! | `uss/<bus>/params`           | request-response | `ParamRequest` -> `ParamResponse`             |
+//! | `uss/<bus>/command`          | request-response | `OperatorRequest` -> `OperatorResponse`       |
 //!
 //! `<bus>` is 1 to 32 characters of `A-Z a-z 0-9 _ -`; `<addr>` is the drive address in decimal
 //! without leading zeros (0..=31, USS.md section 1). Every service carries the attribute
@@ -120,9 +121,12 @@ impl BlackboardKey {
 /// Publishers of an `out` service: exactly one controller per drive. A second publisher is
 /// refused with `PublisherCreateError::ExceedsMaxSupportedPublishers`.
 pub const OUT_MAX_PUBLISHERS: usize = 1;
-/// Subscriber buffer and history of an `out` service: with safe overflow, ussd receives the
-/// latest sample only, and a restarted ussd gets the last one sent.
+/// Subscriber buffer of an `out` service: with safe overflow, ussd receives the latest sample
+/// only.
 pub const OUT_LATEST_ONLY: usize = 1;
+/// History of an `out` service: none. A restarted ussd acts only on samples published after it
+/// subscribed, never on one its predecessor had already seen (`crate::control`).
+pub const OUT_HISTORY: usize = 0;
 
 /// Highest event id on `uss/<bus>/cycle`; ussd creates the service with it.
 pub const EVENT_ID_MAX: usize = 63;
@@ -181,6 +185,11 @@ pub fn params(bus: &BusName) -> ServiceName {
     service(&format!("uss/{bus}/params"))
 }
 
+/// Operator stop commands (OFF1, OFF2, OFF3 for one drive or all), open to every process.
+pub fn command(bus: &BusName) -> ServiceName {
+    service(&format!("uss/{bus}/command"))
+}
+
 /// The name of ussd's node for a bus, as `Node::list` shows it.
 pub fn ussd_node(bus: &BusName) -> NodeName {
     // At most 5 + 32 characters of [A-Za-z0-9_-]: within NodeName's 128-character limit.
@@ -211,6 +220,7 @@ mod tests {
         assert_eq!(status(&b).as_str(), "uss/line-1_A/status");
         assert_eq!(cycle(&b).as_str(), "uss/line-1_A/cycle");
         assert_eq!(params(&b).as_str(), "uss/line-1_A/params");
+        assert_eq!(command(&b).as_str(), "uss/line-1_A/command");
         assert_eq!(ussd_node(&b).as_str(), "ussd-line-1_A");
     }
 

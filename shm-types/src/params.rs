@@ -82,8 +82,19 @@ code_table! {
         NoParameterChannel = 12 => "no parameter channel",
         /// A double word does not fit the drive's 3-word parameter channel (USS.md section 6).
         DwordOverThreeWords = 13 => "dword over a 3-word channel",
+        /// A write to a drive that another process controls, without [`REQUEST_FORCE`]; the
+        /// response's `controller_pid` names that process.
+        Controlled = 14 => "drive controlled by another process",
+        /// `flags` has bits this layout does not define.
+        BadFlags = 15 => "unknown flags",
     }
 }
+
+/// `flags` bit of a [`ParamRequest`]: write even though another process controls the drive
+/// (a deliberate act, e.g. `ussctl param write --force`).
+pub const REQUEST_FORCE: u8 = 0x01;
+/// Every `flags` bit this layout defines.
+pub const REQUEST_FLAGS: u8 = REQUEST_FORCE;
 
 code_table! {
     /// How one item ended; the `outcome` byte of [`ParamResult`]. Every item of an accepted
@@ -131,7 +142,7 @@ impl TaskCode {
 /// One parameter access.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamItemV1")]
+#[type_name("UssParamItemV2")]
 pub struct ParamItem {
     /// A [`TaskCode`].
     pub task: u8,
@@ -149,7 +160,7 @@ pub struct ParamItem {
 /// A request for up to 39 parameter accesses on one drive.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamRequestV1")]
+#[type_name("UssParamRequestV2")]
 pub struct ParamRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -157,14 +168,16 @@ pub struct ParamRequest {
     pub address: u8,
     /// Items in use, 1..=39.
     pub count: u8,
-    pub reserved: u16,
+    /// [`REQUEST_FORCE`] or 0.
+    pub flags: u8,
+    pub reserved: u8,
     pub items: [ParamItem; MAX_PARAM_ITEMS],
 }
 
 /// The result of one item.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResultV1")]
+#[type_name("UssParamResultV2")]
 pub struct ParamResult {
     /// An [`Outcome`] code.
     pub outcome: u8,
@@ -188,7 +201,7 @@ pub struct ParamResult {
 /// The one response to a [`ParamRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResponseV1")]
+#[type_name("UssParamResponseV2")]
 pub struct ParamResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -201,6 +214,9 @@ pub struct ParamResponse {
     pub address: u8,
     /// Results in use: the request's count, 0 when refused as a whole.
     pub count: u8,
+    /// With [`RequestError::Controlled`]: the controlling process; 0 otherwise.
+    pub controller_pid: u32,
+    pub reserved: u32,
     pub results: [ParamResult; MAX_PARAM_ITEMS],
 }
 
@@ -291,15 +307,24 @@ impl ParamRequest {
             version: LAYOUT_VERSION,
             address: address.get(),
             count: items.len() as u8,
+            flags: 0,
             reserved: 0,
             items: all,
         })
+    }
+
+    /// Whether the request says its writes are deliberate ([`REQUEST_FORCE`]).
+    pub const fn is_forced(&self) -> bool {
+        self.flags & REQUEST_FORCE != 0
     }
 
     /// Checks everything ussd can check without the bus configuration (version, address
     /// range, count, every item) and returns the items in use.
     pub fn validate(&self) -> Result<(DriveAddress, &[ParamItem]), Refusal> {
         check_version(self.version).map_err(|_| Refusal::request(RequestError::Version))?;
+        if self.flags & !REQUEST_FLAGS != 0 {
+            return Err(Refusal::request(RequestError::BadFlags));
+        }
         let address = DriveAddress::new(self.address)
             .map_err(|_| Refusal::request(RequestError::UnknownDrive))?;
         let count = usize::from(self.count);
@@ -350,6 +375,8 @@ impl ParamResponse {
             error_item: NO_ITEM,
             address,
             count: 0,
+            controller_pid: 0,
+            reserved: 0,
             results: [ParamResult::NOT_RUN; MAX_PARAM_ITEMS],
         }
     }
@@ -472,6 +499,14 @@ mod tests {
             req.validate(),
             Err(Refusal::request(RequestError::UnknownDrive))
         );
+        req.address = 1;
+        req.flags = 0x02;
+        assert_eq!(
+            req.validate(),
+            Err(Refusal::request(RequestError::BadFlags))
+        );
+        req.flags = REQUEST_FORCE;
+        assert!(req.validate().is_ok() && req.is_forced());
         req.version = 0;
         assert_eq!(req.validate(), Err(Refusal::request(RequestError::Version)));
     }

@@ -2,6 +2,7 @@
 //! drive last replied. PZD word 1 is STW1 / ZSW1, word 2 the main setpoint HSW / actual value
 //! HIW, words 3.. follow in `extra`.
 
+use crate::control::{ControlState, LatchReason, Rejection, StopCommand};
 use crate::{ContractError, LAYOUT_VERSION, check_version};
 use iceoryx2::prelude::ZeroCopySend;
 
@@ -10,16 +11,28 @@ pub const MAX_PZD_WORDS: usize = 16;
 /// PZD words after the first two.
 pub const EXTRA_PZD_WORDS: usize = MAX_PZD_WORDS - 2;
 
+/// `flags` bit of a [`PzdOutput`]: the controller hands the drive back (a clean exit, not a
+/// crash). The drive gets its safe command, latched, and the status says "released".
+pub const OUTPUT_RELEASE: u8 = 0x01;
+/// Every `flags` bit this layout defines.
+pub const OUTPUT_FLAGS: u8 = OUTPUT_RELEASE;
+/// STW1 bit 10, "control by PLC": with it clear a drive ignores the PZD (USS.md section 7).
+pub const STW1_CONTROL_BY_PLC: u16 = 0x0400;
+/// STW1 bit 0, ON / OFF1.
+pub const STW1_ON: u16 = 0x0001;
+
 /// The controller's output image of one drive, published on `uss/<bus>/drive/<addr>/out`.
 ///
 /// Exactly one controller publishes it (the service admits one publisher). ussd sends the
 /// latest words in every telegram to the drive (USS.md section 7: the current STW1 goes in
-/// every telegram). A controller must publish a new `sequence` within the drive's watchdog
-/// time; when it stops, or no controller ever published, the drive gets its configured safe
-/// command (OFF1 by default), never a stale "run".
+/// every telegram) while the drive is live. A controller must publish a new `sequence` within
+/// the drive's watchdog time; when it stops, the drive gets its configured safe command (OFF1
+/// by default), latched until the controller re-arms it with OFF1 then ON (see
+/// [`crate::control`]). ussd checks every sample with [`PzdOutput::validate`] before it reaches
+/// the wire: a sample the drive would misread is refused and latches the drive too.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdOutputV1")]
+#[type_name("UssPzdOutputV2")]
 pub struct PzdOutput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -38,25 +51,40 @@ pub struct PzdOutput {
     /// PZD words in use, counting STW1 and setpoint (0..=16); must equal the drive's configured
     /// PZD length (P2012).
     pub word_count: u8,
-    pub reserved: [u8; 7],
+    /// [`OUTPUT_RELEASE`] or 0.
+    pub flags: u8,
+    pub reserved: [u8; 6],
 }
 
-/// The drive's input image, on `uss/<bus>/drive/<addr>/in`, written by ussd after every good
-/// reply.
+/// What a valid [`PzdOutput`] asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutputSample {
+    /// Send these words (the first `count` of 16).
+    Words {
+        words: [u16; MAX_PZD_WORDS],
+        count: usize,
+    },
+    /// The controller hands the drive back.
+    Release,
+}
+
+/// The drive's input image, on `uss/<bus>/drive/<addr>/in`, written by ussd after every poll
+/// of the drive, good or failed.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdInputV1")]
+#[type_name("UssPzdInputV2")]
 pub struct PzdInput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
     /// 1 while the drive answers, 0 after it went offline (USS.md section 4: "slave x does
     /// not respond").
     pub online: u8,
-    /// 1 while the drive gets its safe command because its controller is stale or absent.
-    pub watchdog_tripped: u8,
+    /// A [`ControlState`] code: 0 live (the controller's words go out), 1 latched.
+    pub control: u8,
     /// PZD words in use, counting ZSW1 and HIW (0..=16).
     pub word_count: u8,
-    pub reserved: u8,
+    /// A [`LatchReason`] code: why the drive is latched (0 while live).
+    pub latch_reason: u8,
     /// Good replies so far (the exchange count); 0 = no reply yet.
     pub sequence: u64,
     /// When the reply arrived, `CLOCK_MONOTONIC` ns.
@@ -69,6 +97,26 @@ pub struct PzdInput {
     pub hiw: u16,
     /// PZD3..PZD16.
     pub extra: [u16; EXTRA_PZD_WORDS],
+    /// STW1 of the telegram this poll sent (what the drive was told, whoever decided it).
+    pub sent_stw1: u16,
+    /// The setpoint HSW of that telegram.
+    pub sent_setpoint: u16,
+    /// Latches of this drive since ussd started (the start-up latch counts 1). A controller
+    /// that sees it grow has been tripped, overridden or refused.
+    pub latches: u32,
+    /// When the current (or last) latch began, `CLOCK_MONOTONIC` ns.
+    pub latched_since_ns: u64,
+    /// The operator process behind an override latch, or the controller process whose sample
+    /// was refused or who released the drive; 0 when unknown.
+    pub latched_by_pid: u32,
+    /// The [`StopCommand`] a latched drive gets (0 while live).
+    pub latch_command: u8,
+    /// The [`Rejection`] of the last refused sample (0 if none was refused).
+    pub rejection: u8,
+    pub reserved: [u8; 2],
+    /// `sequence` of the controller's latest sample ussd has taken for this drive (0 = none):
+    /// a controller knows from it that ussd has seen a sample (a release, an OFF1).
+    pub taken_sequence: u64,
 }
 
 /// Puts up to 16 PZD words into the named word fields.
@@ -102,7 +150,7 @@ fn join(
 }
 
 impl PzdOutput {
-    /// Nothing written yet: no words, sequence 0.
+    /// Nothing written yet: no words, sequence 0. Not a valid sample for a drive with PZD.
     pub const EMPTY: Self = Self {
         version: LAYOUT_VERSION,
         controller_pid: 0,
@@ -112,7 +160,8 @@ impl PzdOutput {
         setpoint: 0,
         extra: [0; EXTRA_PZD_WORDS],
         word_count: 0,
-        reserved: [0; 7],
+        flags: 0,
+        reserved: [0; 6],
     };
 
     /// An image carrying `words` (PZD1 = STW1 first, at most 16).
@@ -135,11 +184,48 @@ impl PzdOutput {
         })
     }
 
+    /// The image that hands the drive back ([`OUTPUT_RELEASE`], no words).
+    pub fn release(sequence: u64, timestamp_ns: u64, controller_pid: u32) -> Self {
+        Self {
+            controller_pid,
+            sequence,
+            timestamp_ns,
+            flags: OUTPUT_RELEASE,
+            ..Self::EMPTY
+        }
+    }
+
     /// All 16 word slots and how many are in use, after checking the version and count:
     /// `let (w, n) = out.words()?; &w[..n]`.
     pub fn words(&self) -> Result<([u16; MAX_PZD_WORDS], usize), ContractError> {
         check_version(self.version)?;
         join(self.stw1, self.setpoint, &self.extra, self.word_count)
+    }
+
+    /// Whether ussd would send this sample to a drive with `pzd_words` PZD words, and what it
+    /// asks for. The one check both sides use: ussd on every sample it receives, the client API
+    /// before it publishes. Refused: another layout version, undefined flags, a word count
+    /// other than the drive's, and (with PZD) STW1 without bit 10, which the drive would ignore
+    /// together with any stop command in it (USS.md section 7). A release needs no words.
+    pub fn validate(&self, pzd_words: usize) -> Result<OutputSample, Rejection> {
+        if self.version != LAYOUT_VERSION {
+            return Err(Rejection::Version);
+        }
+        if self.flags & !OUTPUT_FLAGS != 0 {
+            return Err(Rejection::Flags);
+        }
+        if self.flags & OUTPUT_RELEASE != 0 {
+            return Ok(OutputSample::Release);
+        }
+        if usize::from(self.word_count) != pzd_words {
+            return Err(Rejection::WordCount);
+        }
+        if pzd_words > 0 && self.stw1 & STW1_CONTROL_BY_PLC == 0 {
+            return Err(Rejection::NoPlcControl);
+        }
+        let (words, count) = join(self.stw1, self.setpoint, &self.extra, self.word_count)
+            .map_err(|_| Rejection::WordCount)?;
+        Ok(OutputSample::Words { words, count })
     }
 }
 
@@ -154,15 +240,24 @@ impl PzdInput {
     pub const EMPTY: Self = Self {
         version: LAYOUT_VERSION,
         online: 0,
-        watchdog_tripped: 0,
+        control: ControlState::Latched.code(),
         word_count: 0,
-        reserved: 0,
+        latch_reason: LatchReason::Startup.code(),
         sequence: 0,
         timestamp_ns: 0,
         age_ns: 0,
         zsw1: 0,
         hiw: 0,
         extra: [0; EXTRA_PZD_WORDS],
+        sent_stw1: 0,
+        sent_setpoint: 0,
+        latches: 0,
+        latched_since_ns: 0,
+        latched_by_pid: 0,
+        latch_command: StopCommand::None.code(),
+        rejection: Rejection::None.code(),
+        reserved: [0; 2],
+        taken_sequence: 0,
     };
 
     /// An image carrying the reply's `words` (PZD1 = ZSW1 first, at most 16); `online` set.
@@ -190,6 +285,27 @@ impl PzdInput {
     pub fn words(&self) -> Result<([u16; MAX_PZD_WORDS], usize), ContractError> {
         check_version(self.version)?;
         join(self.zsw1, self.hiw, &self.extra, self.word_count)
+    }
+
+    /// Whether the drive gets its controller's words (not latched).
+    pub fn is_live(&self) -> bool {
+        self.control == ControlState::Live.code()
+    }
+
+    pub fn control(&self) -> Result<ControlState, crate::UnknownCode> {
+        ControlState::try_from(self.control)
+    }
+
+    pub fn latch_reason(&self) -> Result<LatchReason, crate::UnknownCode> {
+        LatchReason::try_from(self.latch_reason)
+    }
+
+    pub fn latch_command(&self) -> Result<StopCommand, crate::UnknownCode> {
+        StopCommand::try_from(self.latch_command)
+    }
+
+    pub fn rejection(&self) -> Result<Rejection, crate::UnknownCode> {
+        Rejection::try_from(self.rejection)
     }
 }
 
@@ -235,18 +351,69 @@ mod tests {
         );
     }
 
+    fn sample(words: &[u16]) -> PzdOutput {
+        PzdOutput::from_words(words, 1, 0, 7).unwrap()
+    }
+
+    #[test]
+    fn a_sample_for_the_drive_passes_validation_with_its_words() {
+        let s = sample(&[0x047F, 0x2000]).validate(2).unwrap();
+        let OutputSample::Words { words, count } = s else {
+            panic!("{s:?}")
+        };
+        assert_eq!(&words[..count], &[0x047F, 0x2000]);
+        assert_eq!(
+            PzdOutput::release(9, 0, 7).validate(2),
+            Ok(OutputSample::Release)
+        );
+        assert!(sample(&[]).validate(0).is_ok(), "a drive without PZD");
+    }
+
+    #[test]
+    fn samples_the_drive_would_misread_are_rejected_with_their_reason() {
+        // An all-zero C struct: version 0.
+        let zeroed = PzdOutput {
+            version: 0,
+            ..PzdOutput::EMPTY
+        };
+        assert_eq!(zeroed.validate(2), Err(Rejection::Version));
+        assert_eq!(PzdOutput::EMPTY.validate(2), Err(Rejection::WordCount));
+        assert_eq!(sample(&[0x047F]).validate(2), Err(Rejection::WordCount));
+        assert_eq!(
+            sample(&[0x047F, 0, 0]).validate(2),
+            Err(Rejection::WordCount)
+        );
+        assert_eq!(
+            sample(&[0x0000, 0]).validate(2),
+            Err(Rejection::NoPlcControl)
+        );
+        assert_eq!(
+            sample(&[0x007F, 0x2000]).validate(2),
+            Err(Rejection::NoPlcControl)
+        );
+        let mut flagged = sample(&[0x047E, 0]);
+        flagged.flags = 0x80;
+        assert_eq!(flagged.validate(2), Err(Rejection::Flags));
+        let mut foreign = sample(&[0x047E, 0]);
+        foreign.version = LAYOUT_VERSION + 1;
+        assert_eq!(foreign.validate(2), Err(Rejection::Version));
+        let mut huge = sample(&[0x047E, 0]);
+        huge.word_count = 17;
+        assert_eq!(huge.validate(17), Err(Rejection::WordCount));
+    }
+
     #[test]
     fn foreign_images_with_a_bad_count_or_version_are_refused() {
         let mut out = PzdOutput::EMPTY;
         out.word_count = 17;
         assert_eq!(out.words(), Err(ContractError::PzdWords(17)));
         let mut inp = PzdInput::EMPTY;
-        inp.version = 2;
+        inp.version = 1;
         assert_eq!(
             inp.words(),
             Err(ContractError::Version {
-                expected: 1,
-                found: 2
+                expected: LAYOUT_VERSION,
+                found: 1
             })
         );
     }

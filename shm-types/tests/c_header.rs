@@ -15,8 +15,10 @@ use std::process::Command;
 use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
 use uss_shm_types::names::{self, BlackboardKey};
 use uss_shm_types::{
-    BusName, BusStatus, DriveAddress, DriveDiag, LastFailure, Outcome, ParamItem, ParamRequest,
-    ParamResponse, ParamResult, PzdInput, PzdOutput, RequestError, RtMode, Storage, TaskCode,
+    BusName, BusStatus, CommandError, ControlState, DriveAddress, DriveDiag, LastFailure,
+    LatchReason, Monitoring, OperatorRequest, OperatorResponse, Outcome, ParamItem, ParamRequest,
+    ParamResponse, ParamResult, PzdInput, PzdOutput, Rejection, RequestError, RtMode, StopCommand,
+    Storage, TaskCode,
 };
 
 const REGENERATE: &str =
@@ -167,7 +169,7 @@ impl Service {
 }
 
 /// Every name of [`names`].
-fn services() -> [Service; 7] {
+fn services() -> [Service; 8] {
     let s = |c_name, per_drive, what, name| Service {
         c_name,
         per_drive,
@@ -211,6 +213,12 @@ fn services() -> [Service; 7] {
             false,
             "request-response, UssParamRequest -> UssParamResponse.",
             |b, _| names::params(b).as_str().into(),
+        ),
+        s(
+            "SERVICE_COMMAND",
+            false,
+            "request-response, UssOperatorRequest -> UssOperatorResponse (operator stop commands).",
+            |b, _| names::command(b).as_str().into(),
         ),
         s("USSD_NODE", false, "ussd's node name for a bus.", |b, _| {
             names::ussd_node(b).as_str().into()
@@ -374,6 +382,8 @@ fn actual_type_name(rust: &str) -> &'static str {
             "ParamRequest" => ParamRequest::type_name(),
             "ParamResult" => ParamResult::type_name(),
             "ParamResponse" => ParamResponse::type_name(),
+            "OperatorRequest" => OperatorRequest::type_name(),
+            "OperatorResponse" => OperatorResponse::type_name(),
             other => panic!("{other} is in LAYOUTS but not here"),
         }
     }
@@ -381,7 +391,7 @@ fn actual_type_name(rust: &str) -> &'static str {
 
 /// The crate's public numeric constants, by Rust name.
 fn numbers() -> Vec<(&'static str, u64)> {
-    use uss_shm_types::{diag, params, pzd};
+    use uss_shm_types::{control, diag, params, pzd};
     vec![
         ("LAYOUT_VERSION", u64::from(uss_shm_types::LAYOUT_VERSION)),
         ("MAX_PZD_WORDS", pzd::MAX_PZD_WORDS as u64),
@@ -390,10 +400,18 @@ fn numbers() -> Vec<(&'static str, u64)> {
         ("MAX_SUBINDEX", u64::from(params::MAX_SUBINDEX)),
         ("NO_ITEM", u64::from(params::NO_ITEM)),
         ("NEVER", diag::NEVER),
+        ("OUTPUT_RELEASE", u64::from(pzd::OUTPUT_RELEASE)),
+        ("OUTPUT_FLAGS", u64::from(pzd::OUTPUT_FLAGS)),
+        ("STW1_CONTROL_BY_PLC", u64::from(pzd::STW1_CONTROL_BY_PLC)),
+        ("STW1_ON", u64::from(pzd::STW1_ON)),
+        ("REQUEST_FORCE", u64::from(params::REQUEST_FORCE)),
+        ("REQUEST_FLAGS", u64::from(params::REQUEST_FLAGS)),
+        ("ALL_DRIVES", u64::from(control::ALL_DRIVES)),
         ("MAX_BUS_NAME_LEN", names::MAX_BUS_NAME_LEN as u64),
         ("MAX_ADDRESS", u64::from(names::MAX_ADDRESS)),
         ("OUT_MAX_PUBLISHERS", names::OUT_MAX_PUBLISHERS as u64),
         ("OUT_LATEST_ONLY", names::OUT_LATEST_ONLY as u64),
+        ("OUT_HISTORY", names::OUT_HISTORY as u64),
         ("EVENT_ID_MAX", names::EVENT_ID_MAX as u64),
         ("CYCLE_COMPLETED", names::CYCLE_COMPLETED as u64),
         ("STATUS_PUBLISHED", names::STATUS_PUBLISHED as u64),
@@ -418,6 +436,12 @@ fn codes() -> Vec<(String, u8)> {
         table("Storage", Storage::ALL),
         table("RequestError", RequestError::ALL),
         table("Outcome", Outcome::ALL),
+        table("ControlState", ControlState::ALL),
+        table("LatchReason", LatchReason::ALL),
+        table("Rejection", Rejection::ALL),
+        table("StopCommand", StopCommand::ALL),
+        table("Monitoring", Monitoring::ALL),
+        table("CommandError", CommandError::ALL),
     ]
     .concat()
 }

@@ -5,8 +5,9 @@ use core::mem::{align_of, offset_of, size_of, size_of_val};
 use iceoryx2::prelude::ZeroCopySend;
 use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
 use uss_shm_types::{
-    BlackboardKey, BusStatus, DriveDiag, LAYOUT_VERSION, MAX_PARAM_ITEMS, ParamItem, ParamRequest,
-    ParamResponse, ParamResult, PzdInput, PzdOutput,
+    BlackboardKey, BusStatus, DriveDiag, LAYOUT_VERSION, MAX_PARAM_ITEMS, OperatorRequest,
+    OperatorResponse, ParamItem, ParamRequest, ParamResponse, ParamResult, PzdInput, PzdOutput,
+    StopCommand,
 };
 
 /// The layout the compiler gave a type, in the table's shape.
@@ -44,18 +45,21 @@ fn actual_layouts() -> Vec<Actual> {
         actual!(BlackboardKey = BlackboardKey::IMAGE, [value]),
         actual!(PzdOutput = PzdOutput::EMPTY, [
             version, controller_pid, sequence, timestamp_ns, stw1, setpoint, extra, word_count,
-            reserved,
+            flags, reserved,
         ]),
         actual!(PzdInput = PzdInput::EMPTY, [
-            version, online, watchdog_tripped, word_count, reserved, sequence, timestamp_ns,
-            age_ns, zsw1, hiw, extra,
+            version, online, control, word_count, latch_reason, sequence, timestamp_ns,
+            age_ns, zsw1, hiw, extra, sent_stw1, sent_setpoint, latches, latched_since_ns,
+            latched_by_pid, latch_command, rejection, reserved, taken_sequence,
         ]),
         actual!(DriveDiag = DriveDiag::new(0), [
             version, consecutive_failed_polls, last_zsw1, last_hiw, address, online, no_reply,
-            watchdog_tripped, last_failure, reserved, since_ns, last_good_ns, requests, good,
-            rejected, timeouts, retries, failed_polls, missing_stx, start_pause, bad_lge, bcc,
-            residual, length, wrong_address, parity, framing, overrun, echo, pkw_busy, jobs_done,
-            watchdog_trips,
+            control, last_failure, latch_reason, latch_command, rejection, monitoring, pzd_words,
+            reserved,
+            monitoring_ms, controller_pid, since_ns, last_good_ns, latched_since_ns, requests,
+            good, rejected, timeouts, retries, failed_polls, missing_stx, start_pause, bad_lge,
+            bcc, residual, length, wrong_address, parity, framing, overrun, echo, pkw_busy,
+            jobs_done, watchdog_trips, latches, rejected_outputs, releases, overrides,
         ]),
         actual!(BusStatus = BusStatus::EMPTY, [
             version, rt_cpu, rt_mode, rt_priority, drive_count, running, efficiency_ppm,
@@ -64,14 +68,20 @@ fn actual_layouts() -> Vec<Actual> {
         ]),
         actual!(ParamItem = ParamItem::EMPTY, [task, storage, pnu, index, reserved, value]),
         actual!(ParamRequest = ParamRequest {
-            version: LAYOUT_VERSION, address: 0, count: 0, reserved: 0,
+            version: LAYOUT_VERSION, address: 0, count: 0, flags: 0, reserved: 0,
             items: [ParamItem::EMPTY; MAX_PARAM_ITEMS],
-        }, [version, address, count, reserved, items]),
+        }, [version, address, count, flags, reserved, items]),
         actual!(ParamResult = ParamResult::NOT_RUN, [
             outcome, value_is_dword, drive_error, value, telegrams, refusal, reserved, on_wire_ns,
         ]),
         actual!(ParamResponse = ParamResponse::new(0), [
-            version, error, error_item, address, count, results,
+            version, error, error_item, address, count, controller_pid, reserved, results,
+        ]),
+        actual!(OperatorRequest = OperatorRequest::new(1, StopCommand::Off1), [
+            version, address, command, reserved,
+        ]),
+        actual!(OperatorResponse = OperatorResponse::done(StopCommand::Off1, 0), [
+            version, error, command, reserved, drives,
         ]),
     ]
 }
@@ -150,4 +160,8 @@ fn constructors_write_the_current_version() {
     assert_eq!(DriveDiag::new(1).version, LAYOUT_VERSION);
     assert_eq!(BusStatus::default().version, LAYOUT_VERSION);
     assert_eq!(ParamResponse::new(1).version, LAYOUT_VERSION);
+    assert_eq!(
+        OperatorRequest::new(1, StopCommand::Off2).version,
+        LAYOUT_VERSION
+    );
 }

@@ -202,7 +202,7 @@ fn create_out(
         .publish_subscribe::<PzdOutput>()
         .max_publishers(names::OUT_MAX_PUBLISHERS)
         .subscriber_max_buffer_size(names::OUT_LATEST_ONLY)
-        .history_size(names::OUT_LATEST_ONLY)
+        .history_size(names::OUT_HISTORY)
         .enable_safe_overflow(true)
         .create_with_attributes(&version_attribute())
         .unwrap()
@@ -329,6 +329,31 @@ fn out_service_refuses_a_second_controller_with_exceeds_max_supported_publishers
     let p2 = svc2.publisher_builder().create().unwrap();
     p2.send_copy(output(0x047E, 0, 1)).unwrap();
     assert_eq!(subscriber.receive().unwrap().map(|s| s.stw1), Some(0x047E));
+}
+
+/// A sample that ussd has not received yet goes with its publisher. So a controller that ends
+/// cleanly publishes its release and keeps the publisher until ussd reports the release taken
+/// (`PzdInput::taken_sequence`); otherwise a clean exit would look like a crash.
+#[test]
+fn a_sample_not_yet_received_is_lost_when_its_publisher_is_dropped() {
+    let bus = unique_bus();
+    let ussd = node("ussd");
+    let out = create_out(&ussd, &bus, drive(2));
+    let subscriber = out
+        .subscriber_builder()
+        .buffer_size(names::OUT_LATEST_ONLY)
+        .create()
+        .unwrap();
+    let controller = node("controller");
+    let publisher = open_out(&controller, &bus, drive(2))
+        .publisher_builder()
+        .create()
+        .unwrap();
+    publisher
+        .send_copy(PzdOutput::release(7, 0, std::process::id()))
+        .unwrap();
+    drop(publisher);
+    assert!(subscriber.receive().unwrap().is_none());
 }
 
 #[test]
@@ -479,8 +504,8 @@ fn clients_of_another_layout_are_refused_when_they_open() {
     /// What a client built against a future layout would declare: same size and alignment.
     #[repr(C)]
     #[derive(Debug, Clone, Copy, ZeroCopySend)]
-    #[type_name("UssPzdInputV2")]
-    struct FutureInput([u64; 8]);
+    #[type_name("UssPzdInputV99")]
+    struct FutureInput([u64; size_of::<PzdInput>() / 8]);
 
     let bus = unique_bus();
     let ussd = node("ussd");
@@ -499,11 +524,15 @@ fn clients_of_another_layout_are_refused_when_they_open() {
             )
             .unwrap()
     };
+    let future = (uss_shm_types::LAYOUT_VERSION + 1).to_string();
     assert_eq!(
-        opener().open_with_attributes(&require("2")).unwrap_err(),
+        opener()
+            .open_with_attributes(&require(&future))
+            .unwrap_err(),
         BlackboardOpenError::IncompatibleAttributes
     );
-    let svc = opener().open_with_attributes(&require("1")).unwrap();
+    let current = uss_shm_types::LAYOUT_VERSION.to_string();
+    let svc = opener().open_with_attributes(&require(&current)).unwrap();
     let reader = svc.reader_builder().create().unwrap();
     assert_eq!(
         refusal(reader.entry::<FutureInput>(&BlackboardKey::IMAGE)),

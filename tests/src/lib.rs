@@ -1,11 +1,18 @@
 //! What the multi-process tests in `tests/tests/` share: building and finding the workspace's
-//! binaries, and running `uss-sim --pty` as a separate process.
+//! binaries, running `uss-sim --pty`, `ussd` on a bus of its own with its log, and other
+//! processes (`ussctl`) with their output.
+// Test support: a failed set-up is a failed test, so `unwrap` says it best.
+#![allow(clippy::unwrap_used, clippy::missing_panics_doc)]
 
-use std::io::{BufRead, BufReader};
+use std::fmt::Write as _;
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::PathBuf;
-use std::process::{Child, ChildStdout, Command, Stdio};
+use std::process::{Child, ChildStdout, Command, ExitStatus, Stdio};
 use std::sync::OnceLock;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use uss_client::{Bus, ClientError};
 
 /// Builds (if needed) and returns the path of a workspace binary. Integration tests only get
 /// their own package's binaries from cargo, so other packages' binaries are built here with the
@@ -106,6 +113,233 @@ impl SimProcess {
 }
 
 impl Drop for SimProcess {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `CLOCK_MONOTONIC` in ns, the clock of every time stamp ussd publishes.
+pub fn monotonic_ns() -> u64 {
+    let t = nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC).unwrap();
+    t.tv_sec() as u64 * 1_000_000_000 + t.tv_nsec() as u64
+}
+
+/// A ussd process on a bus of its own, its output in a file; stopped with SIGTERM when dropped.
+#[derive(Debug)]
+pub struct Ussd {
+    pub child: Child,
+    pub bus: String,
+    config: PathBuf,
+    log: PathBuf,
+}
+
+impl Ussd {
+    /// Starts ussd on a simulated bus with the `[[bus]]` keys `bus_keys` and one
+    /// `[[bus.drive]]` per entry of `drives` (address, further keys), and waits until every
+    /// drive answered.
+    pub fn start(bus_keys: &str, drives: &[(u8, &str)]) -> Ussd {
+        Self::start_on("sim", bus_keys, drives)
+    }
+
+    /// Like [`Ussd::start`], on `device` (a serial device or pty path, or "sim").
+    pub fn start_on(device: &str, bus_keys: &str, drives: &[(u8, &str)]) -> Ussd {
+        static NEXT: AtomicU32 = AtomicU32::new(0);
+        let bus = format!(
+            "s{}n{}",
+            std::process::id(),
+            NEXT.fetch_add(1, Ordering::Relaxed)
+        );
+        let mut toml = format!("[[bus]]\nname = \"{bus}\"\ndevice = \"{device}\"\n{bus_keys}\n");
+        for (address, keys) in drives {
+            let _ = write!(toml, "\n[[bus.drive]]\naddress = {address}\n{keys}\n");
+        }
+        let dir = std::env::temp_dir();
+        let config = dir.join(format!("ussd-stress-{bus}.toml"));
+        let log = dir.join(format!("ussd-stress-{bus}.log"));
+        std::fs::write(&config, toml).unwrap();
+        let log_file = std::fs::File::create(&log).unwrap();
+        let child = Command::new(binary("uss-master", "ussd"))
+            .arg("--config")
+            .arg(&config)
+            .args(["--summary-every", "3600"])
+            .stdout(log_file.try_clone().unwrap())
+            .stderr(log_file)
+            .spawn()
+            .unwrap();
+        let mut ussd = Ussd {
+            child,
+            bus,
+            config,
+            log,
+        };
+        let bus = ussd.open_when_running();
+        for &(a, _) in drives {
+            bus.watch(a)
+                .unwrap()
+                .wait_for(Duration::from_secs(20), "a reply", |i| {
+                    i.online != 0 && i.sequence > 0
+                })
+                .unwrap();
+        }
+        ussd
+    }
+
+    pub fn open_when_running(&mut self) -> Bus {
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            match Bus::open(&self.bus) {
+                Ok(bus) => return bus,
+                Err(ClientError::NotRunning { .. }) if Instant::now() < deadline => {
+                    assert!(
+                        self.child.try_wait().unwrap().is_none(),
+                        "ussd ended before it created its services:\n{}",
+                        self.log()
+                    );
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+    }
+
+    pub fn bus(&self) -> Bus {
+        Bus::open(&self.bus).unwrap()
+    }
+
+    pub fn is_running(&mut self) -> bool {
+        self.child.try_wait().unwrap().is_none()
+    }
+
+    /// What ussd logged so far.
+    pub fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// The first line of ussd's log that contains `text`, waiting up to `timeout` for it.
+    pub fn log_line(&self, text: &str, timeout: Duration) -> Option<String> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let log = self.log();
+            if let Some(line) = log.lines().find(|l| l.contains(text)) {
+                return Some(line.to_owned());
+            }
+            if Instant::now() >= deadline {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// `ussctl --bus BUS ARGS...` in its own process.
+    pub fn ussctl(&self, args: &[&str]) -> ChildProc {
+        let mut command = Command::new(binary("uss-client", "ussctl"));
+        command.args(["--bus", &self.bus]).args(args);
+        ChildProc::spawn(format!("ussctl {}", args.join(" ")), command)
+    }
+}
+
+impl Drop for Ussd {
+    fn drop(&mut self) {
+        terminate(&mut self.child);
+        let _ = std::fs::remove_file(&self.config);
+        let _ = std::fs::remove_file(&self.log);
+    }
+}
+
+/// A process the test started: stdout read line by line, stderr collected by a thread;
+/// killed (SIGKILL) and reaped when dropped.
+#[derive(Debug)]
+pub struct ChildProc {
+    what: String,
+    pub child: Child,
+    out: BufReader<ChildStdout>,
+    err: Option<JoinHandle<String>>,
+}
+
+impl ChildProc {
+    pub fn spawn(what: String, mut command: Command) -> ChildProc {
+        let mut child = command
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let out = BufReader::new(child.stdout.take().unwrap());
+        let mut stderr = child.stderr.take().unwrap();
+        let err = std::thread::spawn(move || {
+            let mut s = String::new();
+            let _ = stderr.read_to_string(&mut s);
+            s
+        });
+        ChildProc {
+            what,
+            child,
+            out,
+            err: Some(err),
+        }
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// The rest of the next line that contains `tag`; fails with the child's stderr when the
+    /// child ends first.
+    pub fn says(&mut self, tag: &str) -> String {
+        let mut line = String::new();
+        loop {
+            line.clear();
+            if self.out.read_line(&mut line).unwrap() == 0 {
+                let status = self.child.wait().unwrap();
+                let stderr = self.stderr();
+                panic!(
+                    "{} ended ({status}) before saying {tag:?}; its stderr:\n{stderr}",
+                    self.what
+                );
+            }
+            if let Some((_, rest)) = line.split_once(tag) {
+                return rest.trim_end().to_owned();
+            }
+        }
+    }
+
+    /// Sends `line` to the child's stdin.
+    pub fn tell(&mut self, line: &str) {
+        writeln!(self.child.stdin.as_mut().unwrap(), "{line}").unwrap();
+    }
+
+    pub fn close_stdin(&mut self) {
+        drop(self.child.stdin.take());
+    }
+
+    /// SIGKILL: no destructor runs in the child. Returns `CLOCK_MONOTONIC` just before the
+    /// signal, and reaps the child.
+    pub fn kill(&mut self) -> u64 {
+        let at = monotonic_ns();
+        self.child.kill().unwrap();
+        self.child.wait().unwrap();
+        at
+    }
+
+    /// Waits for the end: exit status, the rest of stdout, stderr.
+    pub fn finish(&mut self) -> (ExitStatus, String, String) {
+        self.close_stdin();
+        let mut rest = String::new();
+        self.out.read_to_string(&mut rest).unwrap();
+        let status = self.child.wait().unwrap();
+        (status, rest, self.stderr())
+    }
+
+    pub fn stderr(&mut self) -> String {
+        self.err
+            .take()
+            .map(|t| t.join().unwrap_or_default())
+            .unwrap_or_default()
+    }
+}
+
+impl Drop for ChildProc {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();

@@ -18,12 +18,8 @@ fn addr(a: u8) -> Address {
 
 fn setup(a: u8, pkw: PkwMode, pzd: usize) -> DriveSetup {
     DriveSetup {
-        address: addr(a),
-        layout: Layout::new(pkw, PzdCount::new(pzd).unwrap()),
-        weight: 1,
-        safe_stw1: Stw1::READY,
         watchdog: Duration::from_millis(200),
-        params_writable: true,
+        ..DriveSetup::new(addr(a), Layout::new(pkw, PzdCount::new(pzd).unwrap()))
     }
 }
 

@@ -13,8 +13,8 @@ use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 use uss_client::uss_protocol::ParamError as DriveError;
 use uss_client::{
-    Bus, ClientError, ControlOptions, CycleEvent, DriveState, ParamError, ParamRequest,
-    RequestError, Value, read_item,
+    Bus, ClientError, ControlOptions, CycleEvent, DriveState, LatchReason, ParamError,
+    ParamRequest, RequestError, Value, read_item,
 };
 use uss_integration_tests::{binary, terminate};
 
@@ -387,7 +387,7 @@ fn a_second_controller_is_refused_with_the_controlling_process_id() {
     );
     let prefix = format!("drive 2 on {} is controlled by process {me}", ussd.bus);
     assert!(refused.to_string().starts_with(&prefix), "{refused}");
-    let out = ussd.ussctl(&["stop", "2"]);
+    let out = ussd.ussctl(&["ack", "2"]);
     assert_eq!(out.status.code(), Some(1));
     let err = text(&out.stderr);
     assert!(err.starts_with(&format!("ussctl: {prefix}")), "{err}");
@@ -454,27 +454,28 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
     assert!(seen[0] < 20.0, "started low: {seen:?}");
     assert!(seen.windows(2).all(|w| w[1] >= w[0]), "rises: {seen:?}");
     assert_eq!(c.inputs().state(), DriveState::OperationEnabled);
-    assert_eq!(c.inputs().latest().watchdog_tripped, 0);
+    assert!(c.inputs().latest().is_live());
     refresher.stop().unwrap();
 
-    // Without refreshes the watchdog gives the drive its safe command within its 100 ms.
+    // Without refreshes the drive latches within its 100 ms watchdog: it gets OFF1.
     let stale = c
         .inputs()
-        .wait_for(Duration::from_secs(1), "watchdog", |i| {
-            i.watchdog_tripped != 0
-        })
+        .wait_for(Duration::from_secs(1), "latched", |i| !i.is_live())
         .unwrap();
     assert_eq!(stale.online, 1);
+    assert_eq!(stale.latch_reason, LatchReason::Stale.code());
 
     // A running drive refuses to change P1082 (error 17, not in this state).
     assert_eq!(
         bus.write(1, 1082, None, Value::from_f32(60.0), false),
         Err(ParamError::Drive(DriveError::NotInThisState))
     );
-    c.stop().unwrap();
-    c.inputs()
-        .wait_exchanges(2, Duration::from_secs(1))
-        .unwrap();
+    // The controller learns of the trip at its next call, and every call fails so until it
+    // re-arms the drive.
+    assert!(matches!(c.stop(), Err(ClientError::Tripped { .. })), "told");
+    assert!(matches!(c.refresh(), Err(ClientError::Tripped { .. })));
+    let live = c.rearm().unwrap();
+    assert!(live.is_live());
     assert_eq!(c.words()[0], 0x047E);
 }
 
@@ -520,7 +521,7 @@ fn ussctl_prints_status_as_json_and_reads_and_writes_parameters() {
     assert_eq!(
         text(&out.stdout),
         format!(
-            "{{\"bus\":\"{}\",\"drive\":1,\"pnu\":947,\"index\":2,\"type\":\"word\",\"raw\":0,\"hex\":\"0x0000\",\"value\":0}}\n",
+            "{{\"bus\":\"{}\",\"drive\":1,\"param\":\"r0947[2]\",\"pnu\":947,\"index\":2,\"type\":\"word\",\"raw\":0,\"hex\":\"0x0000\",\"value\":0}}\n",
             ussd.bus
         )
     );

@@ -11,19 +11,16 @@
 //! with `--nocapture` to see them).
 #![allow(clippy::unwrap_used, clippy::float_cmp)]
 
-use std::fmt::Write as _;
-use std::io::{BufRead, BufReader, Read, Write};
 use std::path::PathBuf;
-use std::process::{Child, ChildStdout, Command, ExitStatus, Stdio};
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::process::Command;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use uss_client::{
-    Bus, ClientError, ControlOptions, CycleEvent, DriveState, DriveWatch, ParamError, PzdInput,
-    Setpoint, Value, Zsw1, read_item, state_of, write_item,
+    Bus, ClientError, ControlOptions, CycleEvent, DriveState, DriveWatch, LatchReason, ParamError,
+    PzdInput, Setpoint, Value, Zsw1, read_item, state_of, write_item,
 };
-use uss_integration_tests::{binary, terminate};
+use uss_integration_tests::{ChildProc, Ussd};
 
 const ROLE_ENV: &str = "USS_STRESS_ROLE";
 const BUS_ENV: &str = "USS_STRESS_BUS";
@@ -43,12 +40,6 @@ const NODES_DIR: &str = "/tmp/iceoryx2/nodes";
 fn serial() -> MutexGuard<'static, ()> {
     static LOCK: Mutex<()> = Mutex::new(());
     LOCK.lock().unwrap_or_else(PoisonError::into_inner)
-}
-
-/// `CLOCK_MONOTONIC` in ns, the clock of every time stamp ussd publishes.
-fn monotonic_ns() -> u64 {
-    let t = nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC).unwrap();
-    t.tv_sec() as u64 * 1_000_000_000 + t.tv_nsec() as u64
 }
 
 /// The iceoryx2 node directories of process `pid`, alive or dead.
@@ -85,235 +76,22 @@ fn hz(input: &PzdInput) -> f32 {
 }
 
 // ---------------------------------------------------------------------------------------------
-// ussd and the other processes.
+// The other processes.
 
-/// A ussd process on a bus of its own, its output in a file; stopped with SIGTERM when dropped.
-struct Ussd {
-    child: Child,
-    bus: String,
-    config: PathBuf,
-    log: PathBuf,
-}
-
-impl Ussd {
-    /// Starts ussd with the `[[bus]]` keys `bus_keys` and one `[[bus.drive]]` per entry of
-    /// `drives` (address, further keys), and waits until every drive answered.
-    fn start(bus_keys: &str, drives: &[(u8, &str)]) -> Ussd {
-        static NEXT: AtomicU32 = AtomicU32::new(0);
-        let bus = format!(
-            "s{}n{}",
-            std::process::id(),
-            NEXT.fetch_add(1, Ordering::Relaxed)
-        );
-        let mut toml = format!("[[bus]]\nname = \"{bus}\"\ndevice = \"sim\"\n{bus_keys}\n");
-        for (address, keys) in drives {
-            let _ = write!(toml, "\n[[bus.drive]]\naddress = {address}\n{keys}\n");
-        }
-        let dir = std::env::temp_dir();
-        let config = dir.join(format!("ussd-stress-{bus}.toml"));
-        let log = dir.join(format!("ussd-stress-{bus}.log"));
-        std::fs::write(&config, toml).unwrap();
-        let log_file = std::fs::File::create(&log).unwrap();
-        let child = Command::new(binary("uss-master", "ussd"))
-            .arg("--config")
-            .arg(&config)
-            .args(["--summary-every", "3600"])
-            .stdout(log_file.try_clone().unwrap())
-            .stderr(log_file)
-            .spawn()
-            .unwrap();
-        let mut ussd = Ussd {
-            child,
-            bus,
-            config,
-            log,
-        };
-        let bus = ussd.open_when_running();
-        for &(a, _) in drives {
-            bus.watch(a)
-                .unwrap()
-                .wait_for(Duration::from_secs(20), "a reply", |i| {
-                    i.online != 0 && i.sequence > 0
-                })
-                .unwrap();
-        }
-        ussd
-    }
-
-    fn open_when_running(&mut self) -> Bus {
-        let deadline = Instant::now() + Duration::from_secs(30);
-        loop {
-            match Bus::open(&self.bus) {
-                Ok(bus) => return bus,
-                Err(ClientError::NotRunning { .. }) if Instant::now() < deadline => {
-                    assert!(
-                        self.child.try_wait().unwrap().is_none(),
-                        "ussd ended before it created its services:\n{}",
-                        self.log()
-                    );
-                    std::thread::sleep(Duration::from_millis(50));
-                }
-                Err(e) => panic!("{e}"),
-            }
-        }
-    }
-
-    fn bus(&self) -> Bus {
-        Bus::open(&self.bus).unwrap()
-    }
-
-    fn is_running(&mut self) -> bool {
-        self.child.try_wait().unwrap().is_none()
-    }
-
-    /// What ussd logged so far.
-    fn log(&self) -> String {
-        std::fs::read_to_string(&self.log).unwrap_or_default()
-    }
-
-    /// The first line of ussd's log that contains `text`, waiting up to `timeout` for it.
-    fn log_line(&self, text: &str, timeout: Duration) -> Option<String> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            let log = self.log();
-            if let Some(line) = log.lines().find(|l| l.contains(text)) {
-                return Some(line.to_owned());
-            }
-            if Instant::now() >= deadline {
-                return None;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
-    /// `ussctl --bus BUS ARGS...` in its own process.
-    fn ussctl(&self, args: &[&str]) -> ChildProc {
-        let mut command = Command::new(binary("uss-client", "ussctl"));
-        command.args(["--bus", &self.bus]).args(args);
-        ChildProc::spawn(format!("ussctl {}", args.join(" ")), command)
-    }
-
-    /// This test binary in `role` (see [`child_process`]) with `args`.
-    fn child(&self, role: &str, args: &str) -> ChildProc {
-        let mut command = Command::new(std::env::current_exe().unwrap());
-        command
-            .args([
-                "child_process",
-                "--exact",
-                "--nocapture",
-                "--test-threads=1",
-            ])
-            .env(ROLE_ENV, role)
-            .env(BUS_ENV, &self.bus)
-            .env(ARGS_ENV, args);
-        ChildProc::spawn(format!("{role} {args}"), command)
-    }
-}
-
-impl Drop for Ussd {
-    fn drop(&mut self) {
-        terminate(&mut self.child);
-        let _ = std::fs::remove_file(&self.config);
-        let _ = std::fs::remove_file(&self.log);
-    }
-}
-
-/// A process the test started: stdout read line by line, stderr collected by a thread;
-/// killed (SIGKILL) and reaped when dropped.
-struct ChildProc {
-    what: String,
-    child: Child,
-    out: BufReader<ChildStdout>,
-    err: Option<JoinHandle<String>>,
-}
-
-impl ChildProc {
-    fn spawn(what: String, mut command: Command) -> ChildProc {
-        let mut child = command
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let out = BufReader::new(child.stdout.take().unwrap());
-        let mut stderr = child.stderr.take().unwrap();
-        let err = std::thread::spawn(move || {
-            let mut s = String::new();
-            let _ = stderr.read_to_string(&mut s);
-            s
-        });
-        ChildProc {
-            what,
-            child,
-            out,
-            err: Some(err),
-        }
-    }
-
-    fn pid(&self) -> u32 {
-        self.child.id()
-    }
-
-    /// The rest of the next line that contains `tag`; fails with the child's stderr when the
-    /// child ends first.
-    fn says(&mut self, tag: &str) -> String {
-        let mut line = String::new();
-        loop {
-            line.clear();
-            if self.out.read_line(&mut line).unwrap() == 0 {
-                let status = self.child.wait().unwrap();
-                let stderr = self.stderr();
-                panic!(
-                    "{} ended ({status}) before saying {tag:?}; its stderr:\n{stderr}",
-                    self.what
-                );
-            }
-            if let Some((_, rest)) = line.split_once(tag) {
-                return rest.trim_end().to_owned();
-            }
-        }
-    }
-
-    /// Sends `line` to the child's stdin.
-    fn tell(&mut self, line: &str) {
-        writeln!(self.child.stdin.as_mut().unwrap(), "{line}").unwrap();
-    }
-
-    fn close_stdin(&mut self) {
-        drop(self.child.stdin.take());
-    }
-
-    /// SIGKILL: no destructor runs in the child. Returns `CLOCK_MONOTONIC` just before the
-    /// signal, and reaps the child.
-    fn kill(&mut self) -> u64 {
-        let at = monotonic_ns();
-        self.child.kill().unwrap();
-        self.child.wait().unwrap();
-        at
-    }
-
-    /// Waits for the end: exit status, the rest of stdout, stderr.
-    fn finish(&mut self) -> (ExitStatus, String, String) {
-        self.close_stdin();
-        let mut rest = String::new();
-        self.out.read_to_string(&mut rest).unwrap();
-        let status = self.child.wait().unwrap();
-        (status, rest, self.stderr())
-    }
-
-    fn stderr(&mut self) -> String {
-        self.err
-            .take()
-            .map(|t| t.join().unwrap_or_default())
-            .unwrap_or_default()
-    }
-}
-
-impl Drop for ChildProc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// This test binary in `role` (see [`child_process`]) with `args`.
+fn child(ussd: &Ussd, role: &str, args: &str) -> ChildProc {
+    let mut command = Command::new(std::env::current_exe().unwrap());
+    command
+        .args([
+            "child_process",
+            "--exact",
+            "--nocapture",
+            "--test-threads=1",
+        ])
+        .env(ROLE_ENV, role)
+        .env(BUS_ENV, &ussd.bus)
+        .env(ARGS_ENV, args);
+    ChildProc::spawn(format!("{role} {args}"), command)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -330,7 +108,7 @@ fn poll_period(watch: &DriveWatch, over: Duration) -> Duration {
     )
 }
 
-/// Watches `watch` after the kill: returns the first image with `watchdog_tripped` set, and
+/// Watches `watch` after the kill: returns the first latched image, and
 /// how many updates came between it and the last image seen without (0: nothing was missed,
 /// it is the very first tripped image). Every image before it must still show S4.
 fn first_tripped(watch: &DriveWatch, last_before: PzdInput) -> (PzdInput, u64) {
@@ -338,7 +116,8 @@ fn first_tripped(watch: &DriveWatch, last_before: PzdInput) -> (PzdInput, u64) {
     let mut last = last_before;
     loop {
         let i = watch.latest();
-        if i.watchdog_tripped != 0 {
+        if !i.is_live() {
+            assert_eq!(i.latch_reason, LatchReason::Stale.code(), "{i:?}");
             return (i, i.sequence - last.sequence - 1);
         }
         assert_eq!(
@@ -363,7 +142,7 @@ fn ramp_down(watch: &DriveWatch, trip: PzdInput) -> PzdInput {
             Setpoint::from_word(i.hiw).raw() <= Setpoint::from_word(last.hiw).raw(),
             "the actual value rose after the trip: {last:?} -> {i:?}"
         );
-        assert_eq!(i.watchdog_tripped, 1, "{i:?}");
+        assert!(!i.is_live(), "{i:?}");
         if !Zsw1::from_bits_retain(i.zsw1).contains(Zsw1::OPERATION_ENABLED) {
             return i;
         }
@@ -388,7 +167,7 @@ fn take_over(bus: &Bus, drive: u8) -> (uss_client::Controller, Duration) {
 }
 
 /// The criterion: the delay from `CLOCK_MONOTONIC` just before the SIGKILL to the time stamp
-/// (reply arrival in ussd, same clock) of the first input image with `watchdog_tripped` set
+/// (reply arrival in ussd, same clock) of the first latched input image
 /// is at most the watchdog time W plus 3 poll periods P of the drive. The controller's last
 /// refresh may be published just before the kill and seen by ussd one poll later; the
 /// deadline W later falls up to one poll before the trip; the trip's image is stamped when
@@ -421,8 +200,8 @@ fn killed_controller_trips_the_watchdog_within_its_time_and_the_drive_can_be_tak
     let last_before = watch.latest();
     let killed_at = run.kill();
     assert_eq!(
-        (last_before.watchdog_tripped, state_of(&last_before)),
-        (0, DriveState::OperationEnabled)
+        (last_before.is_live(), state_of(&last_before)),
+        (true, DriveState::OperationEnabled)
     );
     assert!(hz(&last_before) > 0.0);
     let (trip, missed) = first_tripped(&watch, last_before);
@@ -451,14 +230,14 @@ fn killed_controller_trips_the_watchdog_within_its_time_and_the_drive_can_be_tak
     let deadline = Instant::now() + Duration::from_secs(5);
     let diag = loop {
         let d = bus.diag(1).unwrap();
-        if d.watchdog_tripped == 1 {
+        if d.latch_reason == LatchReason::Stale.code() {
             break d;
         }
         assert!(Instant::now() < deadline, "not in the diagnostics: {d:?}");
         std::thread::sleep(Duration::from_millis(20));
     };
     let logged = ussd.log_line(
-        "drive 1: controller stopped refreshing; sending its safe command",
+        "drive 1: controller stale; sending OFF1, latched until the controller re-arms",
         Duration::from_secs(2),
     );
     assert!(logged.is_some(), "not logged:\n{}", ussd.log());
@@ -477,7 +256,7 @@ fn killed_controller_trips_the_watchdog_within_its_time_and_the_drive_can_be_tak
     c.run_hz(10.0, REFERENCE_HZ).unwrap();
     let again = c
         .wait_for(Duration::from_secs(5), "S4 without the watchdog", |i| {
-            state_of(i) == DriveState::OperationEnabled && i.watchdog_tripped == 0
+            state_of(i) == DriveState::OperationEnabled && i.is_live()
         })
         .unwrap();
     assert_eq!(again.online, 1);
@@ -532,7 +311,7 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
 
     // The child sends 4 requests for drive 2 (its client's limit of active requests) and is
     // killed while the first is on the wire.
-    let mut child = ussd.child("slow-requester", "2");
+    let mut child = child(&ussd, "slow-requester", "2");
     child.says("READY");
     let pid = child.pid();
     assert!(!nodes_of(pid).is_empty(), "the child's node is not listed");
@@ -600,7 +379,7 @@ fn sixteen_monitor_processes_read_consistent_images_while_one_process_controls()
     ussd.bus()
         .write(1, 1120, None, Value::from_f32(1.0), false)
         .unwrap();
-    let mut monitors: Vec<_> = (0..16).map(|_| ussd.child("monitor", "1")).collect();
+    let mut monitors: Vec<_> = (0..16).map(|_| child(&ussd, "monitor", "1")).collect();
     for m in &mut monitors {
         m.says("READY");
     }
@@ -750,7 +529,7 @@ fn ten_thousand_requests_from_four_processes_with_faults_are_each_answered_once_
     let mut children: Vec<_> = (0..PROCESSES)
         .map(|p| {
             let args = format!("{},{},{per_process}", 2 * p + 1, 2 * p + 2);
-            ussd.child("requester", &args)
+            child(&ussd, "requester", &args)
         })
         .collect();
     for c in &mut children {

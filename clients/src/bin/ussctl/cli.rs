@@ -1,7 +1,6 @@
 //! ussctl's command line: subcommands, and parsing of parameter references and values.
 
-use clap::{Parser, Subcommand, ValueEnum};
-use core::fmt;
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use uss_client::Value;
 
 #[derive(Debug, Parser)]
@@ -63,8 +62,13 @@ pub enum Command {
         #[arg(long = "for", value_name = "SECONDS")]
         duration: Option<f64>,
     },
-    /// Stop a drive along its ramp (OFF1).
-    Stop { drive: u8 },
+    /// Stop a drive along its ramp (OFF1), whoever controls it; latched until its controller
+    /// re-arms it.
+    Stop(Target),
+    /// Coast a drive (OFF2: the motor is switched off at once), whoever controls it; latched.
+    Coast(Target),
+    /// Quick-stop a drive (OFF3: along the OFF3 ramp), whoever controls it; latched.
+    QuickStop(Target),
     /// Acknowledge a drive's fault (rising edge of STW1 bit 7).
     Ack { drive: u8 },
     /// The drive's fault buffer (r0947), newest first.
@@ -73,21 +77,32 @@ pub enum Command {
     Stats,
 }
 
+/// The drive a stop command is for, or every drive of the bus.
+#[derive(Debug, Clone, Copy, Args)]
+#[group(required = true, multiple = false)]
+pub struct Target {
+    /// The drive's address.
+    pub drive: Option<u8>,
+    /// Every drive of the bus.
+    #[arg(long)]
+    pub all: bool,
+}
+
 #[derive(Debug, Subcommand)]
 pub enum ParamCommand {
-    /// Read PNU or its array element PNU.INDEX, e.g. `1082`, `P2000`, `r0947.3`.
+    /// Read a parameter or an array element, e.g. `P1082`, `r0021`, `P0947[3]`, `r0947.3`.
     Read {
         drive: u8,
-        #[arg(value_name = "PNU[.INDEX]")]
+        #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
         /// How to show the value (default: as the drive replied).
         #[arg(long = "type", value_enum)]
         kind: Option<Kind>,
     },
-    /// Write VALUE to PNU or its array element PNU.INDEX.
+    /// Write VALUE to a parameter or an array element.
     Write {
         drive: u8,
-        #[arg(value_name = "PNU[.INDEX]")]
+        #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
         /// A number: decimal, 0x hex, negative, or with a '.' for a float.
         #[arg(allow_negative_numbers = true)]
@@ -98,6 +113,9 @@ pub enum ParamCommand {
         /// The parameter's type (default: float if VALUE has a '.', else word).
         #[arg(long = "type", value_enum)]
         kind: Option<Kind>,
+        /// Write even though another process controls the drive (a deliberate act).
+        #[arg(long)]
+        force: bool,
     },
 }
 
@@ -112,50 +130,12 @@ pub enum Kind {
     Float,
 }
 
-/// `PNU[.INDEX]`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ParamRef {
-    pub pnu: u16,
-    pub index: Option<u8>,
-}
+/// A parameter as the manuals write it (`P1082`, `r0021`, `1082`, `P0947[3]`, `r0947.3`).
+pub use uss_client::uss_protocol::ParamRef;
 
-impl fmt::Display for ParamRef {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "P{}", self.pnu)?;
-        match self.index {
-            Some(i) => write!(f, ".{i}"),
-            None => Ok(()),
-        }
-    }
-}
-
-impl core::str::FromStr for ParamRef {
-    type Err = String;
-
-    /// `1082`, `P1082`, `r0947.3`: an optional P/r prefix (as parameter lists write them),
-    /// the number 0..=65535, optionally `.` and an index 0..=254.
-    fn from_str(s: &str) -> Result<Self, String> {
-        let bad = || {
-            format!(
-                "{s:?}: write PNU or PNU.INDEX, e.g. 1082 or 947.3 (PNU 0..=65535, INDEX 0..=254)"
-            )
-        };
-        let body = s.strip_prefix(['P', 'p', 'r', 'R']).unwrap_or(s);
-        let (pnu, index) = match body.split_once('.') {
-            Some((p, i)) => (p, Some(i)),
-            None => (body, None),
-        };
-        let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
-        if !digits(pnu) || index.is_some_and(|i| !digits(i)) {
-            return Err(bad());
-        }
-        let pnu = pnu.parse::<u16>().map_err(|_| bad())?;
-        let index = match index {
-            Some(i) => Some(i.parse::<u8>().ok().filter(|&i| i <= 254).ok_or_else(bad)?),
-            None => None,
-        };
-        Ok(Self { pnu, index })
-    }
+/// Parses a parameter reference for clap, naming what was written.
+pub fn param_ref(s: &str) -> Result<ParamRef, String> {
+    s.parse().map_err(|e| format!("{s:?}: {e}"))
 }
 
 /// The value to write and its type: `kind` given, or float when `text` has a '.', else word.
@@ -208,47 +188,19 @@ fn integer(text: &str) -> Option<i64> {
 mod tests {
     use super::*;
     use clap::CommandFactory;
-
-    fn r(s: &str) -> Result<ParamRef, String> {
-        s.parse()
-    }
+    use uss_client::uss_protocol::Subindex;
 
     #[test]
-    fn param_refs_take_an_optional_prefix_and_index() {
-        assert_eq!(
-            r("1082"),
-            Ok(ParamRef {
-                pnu: 1082,
-                index: None
-            })
-        );
-        assert_eq!(
-            r("P2000"),
-            Ok(ParamRef {
-                pnu: 2000,
-                index: None
-            })
-        );
-        assert_eq!(
-            r("r0947.3"),
-            Ok(ParamRef {
-                pnu: 947,
-                index: Some(3)
-            })
-        );
-        assert_eq!(
-            r("65535.254"),
-            Ok(ParamRef {
-                pnu: 65535,
-                index: Some(254)
-            })
-        );
-        for bad in [
-            "", "P", "65536", "947.255", "947.", ".3", "1.2.3", "x12", "-1", "12a", "947.-1",
-        ] {
+    fn param_refs_take_the_manuals_notation() {
+        let r = |s: &str| param_ref(s).map(|p| (p.pnu.get(), p.index.map(Subindex::get)));
+        assert_eq!(r("1082"), Ok((1082, None)));
+        assert_eq!(r("P2000"), Ok((2000, None)));
+        assert_eq!(r("r0947.3"), Ok((947, Some(3))));
+        assert_eq!(r("P0947[3]"), Ok((947, Some(3))));
+        for bad in ["", "P", "65536", "947.255", "947.", "x12", "-1"] {
             assert!(r(bad).is_err(), "{bad:?}");
         }
-        assert_eq!(r("P947.3").unwrap().to_string(), "P947.3");
+        assert_eq!(param_ref("r947.3").unwrap().to_string(), "r0947[3]");
     }
 
     fn value(text: &str, kind: Option<Kind>) -> Result<Value, String> {
@@ -296,12 +248,33 @@ mod tests {
                 value,
                 eeprom,
                 kind,
+                force,
             }) => {
-                assert_eq!((drive, param.pnu, param.index), (3, 1120, Some(0)));
-                assert_eq!((value.as_str(), eeprom, kind), ("-2.5", true, None));
+                let index = param.index.map(Subindex::get);
+                assert_eq!((drive, param.pnu.get(), index), (3, 1120, Some(0)));
+                assert_eq!(
+                    (value.as_str(), eeprom, kind, force),
+                    ("-2.5", true, None, false)
+                );
             }
             other => panic!("{other:?}"),
         }
+        for (words, drive, all) in [
+            (&["ussctl", "coast", "4"][..], Some(4), false),
+            (&["ussctl", "quick-stop", "--all"][..], None, true),
+            (&["ussctl", "stop", "2"][..], Some(2), false),
+        ] {
+            let cli = Cli::try_parse_from(words).unwrap();
+            let (Command::Stop(t) | Command::Coast(t) | Command::QuickStop(t)) = cli.command else {
+                panic!("{words:?}")
+            };
+            assert_eq!((t.drive, t.all), (drive, all), "{words:?}");
+        }
+        assert!(
+            Cli::try_parse_from(["ussctl", "stop"]).is_err(),
+            "a drive or --all"
+        );
+        assert!(Cli::try_parse_from(["ussctl", "stop", "1", "--all"]).is_err());
         let cli =
             Cli::try_parse_from(["ussctl", "run", "5", "--hz", "-10", "--for", "2", "--json"])
                 .unwrap();

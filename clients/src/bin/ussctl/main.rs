@@ -7,18 +7,21 @@ mod cli;
 mod report;
 
 use clap::Parser;
-use cli::{Cli, Command, ParamCommand};
+use cli::{Cli, Command, ParamCommand, Target};
 use core::time::Duration;
 use report::{
     BusReport, DriveReport, DriveRow, DriveStats, FaultsReport, ParamReport, StatsReport,
-    StatusReport, WatchLine,
+    StatusReport, StopReport, WatchLine,
 };
 use serde::Serialize;
 use std::io::Write as _;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-use uss_client::{Bus, ClientError, ControlOptions, Controller, DriveState, PzdInput};
+use uss_client::uss_protocol::Subindex;
+use uss_client::{
+    Bus, ClientError, ControlOptions, Controller, DriveState, PzdInput, StopCommand, WriteOptions,
+};
 
 /// How long a state change of the drive may take before ussctl gives up.
 const STATE_TIMEOUT: Duration = Duration::from_secs(3);
@@ -97,7 +100,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         } => watch(&bus, &out, drives, *interval, *count, *ref_hz),
         Command::Param(ParamCommand::Read { drive, param, kind }) => {
             let v = bus
-                .read(*drive, param.pnu, param.index)
+                .read(*drive, param.pnu.get(), param.index.map(Subindex::get))
                 .map_err(|e| format!("drive {drive} {param}: {e}"))?;
             out.show(
                 &ParamReport::new(bus.name(), *drive, *param, v, *kind),
@@ -110,10 +113,16 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             value,
             eeprom,
             kind,
+            force,
         }) => {
             let (value, kind) = cli::parse_value(value, *kind)?;
+            let options = WriteOptions {
+                eeprom: *eeprom,
+                force: *force,
+            };
+            let index = param.index.map(Subindex::get);
             let now = bus
-                .write(*drive, param.pnu, param.index, value, *eeprom)
+                .write_with(*drive, param.pnu.get(), index, value, options)
                 .map_err(|e| format!("drive {drive} {param}: {e}"))?;
             // The value the drive now holds, read as the type it was written as.
             let mut report = ParamReport::new(bus.name(), *drive, *param, now, Some(kind));
@@ -126,7 +135,9 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             ref_hz,
             duration,
         } => run_drive(&bus, &out, *drive, *hz, *ref_hz, *duration),
-        Command::Stop { drive } => stop_drive(&bus, &out, *drive),
+        Command::Stop(target) => stop(&bus, &out, *target, StopCommand::Off1),
+        Command::Coast(target) => stop(&bus, &out, *target, StopCommand::Off2),
+        Command::QuickStop(target) => stop(&bus, &out, *target, StopCommand::Off3),
         Command::Ack { drive } => ack(&bus, &out, *drive),
         Command::Faults { drive } => {
             let faults = bus
@@ -330,7 +341,22 @@ fn run_drive(
     let mut peak = 0.0f32;
     let mut last_note = Instant::now();
     let failure = loop {
-        let i = c.inputs().latest();
+        let i = match c.check() {
+            Ok(i) => i,
+            Err(ClientError::Tripped { latch, .. }) => {
+                // Latched by ussd: the drive gets its stop command; leave it so.
+                drop(refresher);
+                return Err(format!(
+                    "drive {drive} on {} tripped after {:.2} s: {latch} ({:.2} s ago); it gets {}, latched: run `ussctl run {drive}` again to re-arm it (OFF1, then ON)",
+                    bus.name(),
+                    start.elapsed().as_secs_f64(),
+                    latch.ago.as_secs_f64(),
+                    latch.command
+                )
+                .into());
+            }
+            Err(e) => break Some(e.to_string()),
+        };
         let actual = c.inputs().actual_hz(ref_hz);
         if actual.abs() > peak.abs() {
             peak = actual;
@@ -376,13 +402,28 @@ fn stop_confirmed(c: &Controller) -> Result<PzdInput, Failure> {
     .map_err(|e| e.to_string())?)
 }
 
-fn stop_drive(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {
-    let c = control(bus, drive)?;
-    let last = stop_confirmed(&c)?;
-    out.show(
-        &DriveReport::new(bus.name(), "stop", &last, drive, 50.0),
-        DriveReport::human,
-    )
+/// How long an operator command may take to show in the drive's image: an offline drive is
+/// probed only every `offline_probe_ms`.
+const STOP_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// `stop`, `coast`, `quick-stop`: the operator's command through ussd, whoever controls the
+/// drive; waits until each drive's image shows it went out.
+fn stop(bus: &Bus, out: &Output, target: Target, command: StopCommand) -> Result<(), Failure> {
+    let drives = match target.drive {
+        Some(drive) => {
+            bus.stop_drive(drive, command).map_err(|e| e.to_string())?;
+            vec![drive]
+        }
+        None => bus.stop_all(command).map_err(|e| e.to_string())?,
+    };
+    let mut report = StopReport::new(bus.name(), command);
+    for drive in drives {
+        let last = bus
+            .wait_stopped(drive, command, STOP_TIMEOUT)
+            .map_err(|e| format!("drive {drive}: {command} sent, not yet confirmed: {e}"))?;
+        report.push(drive, &last);
+    }
+    out.show(&report, StopReport::human)
 }
 
 fn ack(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {

@@ -4,8 +4,79 @@
 use crate::cli::{Kind, ParamRef};
 use serde::Serialize;
 use std::fmt::Write as _;
-use uss_client::{BusStatus, DriveDiag, PzdInput, Setpoint, Value, state_name, zsw1_flags};
+use uss_client::uss_protocol::Subindex;
+use uss_client::{
+    BusStatus, DriveDiag, LatchReason, Monitoring, PzdInput, Setpoint, StopCommand, Value,
+    state_name, zsw1_flags,
+};
 use uss_shm_types::diag::{LastFailure, NEVER, RtMode};
+
+/// S1..S4, "fault", "not ready" from ZSW1; "offline" while the drive does not answer (its last
+/// ZSW1 is history then).
+fn shown_state(online: bool, zsw1: u16) -> &'static str {
+    if online { state_name(zsw1) } else { "offline" }
+}
+
+/// Whether a drive is live or latched, and why (`uss_shm_types::control`).
+#[derive(Debug, Clone, Serialize)]
+pub struct ControlReport {
+    /// "live" or "latched".
+    pub state: &'static str,
+    /// Why it is latched ("controller stale", "operator stop", ...); null while live.
+    pub reason: Option<&'static str>,
+    /// What a latched drive gets ("OFF1", "OFF2", "OFF3"); null while live.
+    pub command: Option<&'static str>,
+    /// The operator or controller process behind the latch; null if none.
+    pub by_pid: Option<u32>,
+    /// The refused sample's fault, with reason "sample rejected".
+    pub rejection: Option<&'static str>,
+}
+
+impl ControlReport {
+    fn new(control: u8, reason: u8, command: u8, by_pid: u32, rejection: u8) -> Self {
+        let latched = control != uss_client::ControlState::Live.code();
+        let name = |r: Result<&'static str, _>| r.ok();
+        Self {
+            state: if latched { "latched" } else { "live" },
+            reason: latched
+                .then(|| name(LatchReason::try_from(reason).map(LatchReason::name)))
+                .flatten(),
+            command: latched
+                .then(|| name(StopCommand::try_from(command).map(StopCommand::name)))
+                .flatten(),
+            by_pid: (latched && by_pid != 0).then_some(by_pid),
+            rejection: (latched && reason == LatchReason::Rejected.code())
+                .then(|| {
+                    name(
+                        uss_client::Rejection::try_from(rejection).map(uss_client::Rejection::name),
+                    )
+                })
+                .flatten(),
+        }
+    }
+
+    fn of_diag(d: &DriveDiag) -> Self {
+        Self::new(d.control, d.latch_reason, d.latch_command, 0, d.rejection)
+    }
+
+    fn of_input(i: &PzdInput) -> Self {
+        Self::new(
+            i.control,
+            i.latch_reason,
+            i.latch_command,
+            i.latched_by_pid,
+            i.rejection,
+        )
+    }
+
+    /// `live`, or `latched: controller stale, OFF1`.
+    pub fn human(&self) -> String {
+        match (self.reason, self.command) {
+            (Some(reason), Some(command)) => format!("latched: {reason}, {command}"),
+            _ => self.state.to_owned(),
+        }
+    }
+}
 
 /// The bus as a whole.
 #[derive(Debug, Serialize)]
@@ -91,7 +162,13 @@ pub struct DriveRow {
     pub good: u64,
     pub rejected: u64,
     pub timeouts: u64,
-    pub watchdog_tripped: bool,
+    pub control: ControlReport,
+    /// The drive's own telegram monitoring as ussd read it: "on", "off", ...
+    pub monitoring: &'static str,
+    /// Its telegram-off time in ms (0: off or not read).
+    pub monitoring_ms: u32,
+    /// The process in the controller's latest sample; null before any.
+    pub controller_pid: Option<u32>,
     pub last_error: &'static str,
 }
 
@@ -101,11 +178,7 @@ impl DriveRow {
         Self {
             address: d.address,
             online,
-            state: if online {
-                state_name(d.last_zsw1)
-            } else {
-                "offline"
-            },
+            state: shown_state(online, d.last_zsw1),
             zsw1: d.last_zsw1,
             zsw1_hex: format!("{:#06X}", d.last_zsw1),
             flags: zsw1_flags(d.last_zsw1),
@@ -114,8 +187,30 @@ impl DriveRow {
             good: d.good,
             rejected: d.rejected,
             timeouts: d.timeouts,
-            watchdog_tripped: d.watchdog_tripped != 0,
+            control: ControlReport::of_diag(d),
+            monitoring: d.monitoring().map_or("unknown", Monitoring::name),
+            monitoring_ms: d.monitoring_ms,
+            controller_pid: (d.controller_pid != 0).then_some(d.controller_pid),
             last_error: last_failure(d),
+        }
+    }
+
+    /// Whether the drive's own telegram monitoring deserves a warning.
+    fn monitoring_warning(&self) -> Option<String> {
+        match self.monitoring {
+            "on" | "not read yet" | "not checked" => None,
+            "off" => Some(format!(
+                "drive {}: telegram monitoring is OFF: if ussd or its line dies, nothing stops this drive; set its telegram-off time (MICROMASTER 4: P2014.1, G120: p2040), e.g. 100 ms",
+                self.address
+            )),
+            "longer than the limit" => Some(format!(
+                "drive {}: telegram monitoring is {} ms, longer than monitoring_max_ms: after ussd or its line dies it runs on for that long",
+                self.address, self.monitoring_ms
+            )),
+            other => Some(format!(
+                "drive {}: telegram monitoring {other}: check monitoring_param in ussd's configuration",
+                self.address
+            )),
         }
     }
 }
@@ -137,7 +232,7 @@ impl StatusReport {
         out.push('\n');
         let _ = writeln!(
             out,
-            "{:>4}  {:<6}  {:<9}  {:<6}  {:>9}  {:>10}  {:>8}  {:>8}  {:<16}  flags",
+            "{:>4}  {:<6}  {:<9}  {:<6}  {:>9}  {:>10}  {:>8}  {:>8}  {:<16}  {:<32}  flags",
             "addr",
             "online",
             "state",
@@ -146,32 +241,32 @@ impl StatusReport {
             "good",
             "rejected",
             "timeouts",
-            "last error"
+            "last error",
+            "control"
         );
         for d in &self.drives {
-            let state = if d.watchdog_tripped {
-                format!("{} (wd)", d.state)
-            } else {
-                d.state.to_owned()
-            };
             let _ = writeln!(
                 out,
-                "{:>4}  {:<6}  {:<9}  {:<6}  {:>9.2}  {:>10}  {:>8}  {:>8}  {:<16}  {}",
+                "{:>4}  {:<6}  {:<9}  {:<6}  {:>9.2}  {:>10}  {:>8}  {:>8}  {:<16}  {:<32}  {}",
                 d.address,
                 if d.online { "yes" } else { "no" },
-                state,
+                d.state,
                 d.zsw1_hex,
                 d.actual_hz,
                 d.good,
                 d.rejected,
                 d.timeouts,
                 d.last_error,
+                d.control.human(),
                 d.flags.join(",")
             );
         }
-        if self.drives.iter().any(|d| d.watchdog_tripped) {
+        for warning in self.drives.iter().filter_map(DriveRow::monitoring_warning) {
+            let _ = writeln!(out, "warning: {warning}");
+        }
+        if self.drives.iter().any(|d| d.control.state == "latched") {
             out.push_str(
-                "(wd): no live controller refreshes the drive, so it gets its safe command\n",
+                "latched: the drive gets the stop command shown until its controller re-arms it (OFF1, then ON)\n",
             );
         }
         out
@@ -190,7 +285,7 @@ pub struct DriveStats {
     pub address: u8,
     pub online: bool,
     pub no_reply: bool,
-    pub watchdog_tripped: bool,
+    pub control: ControlReport,
     pub last_error: &'static str,
     pub consecutive_failed_polls: u32,
     /// ms since the last good reply, by the bus status's clock; null: never.
@@ -199,12 +294,12 @@ pub struct DriveStats {
     pub counters: serde_json::Map<String, serde_json::Value>,
     /// The same, in the contract's order, for people.
     #[serde(skip)]
-    ordered: [(&'static str, u64); 24],
+    ordered: [(&'static str, u64); 28],
 }
 
 /// Every counter of a drive, in the order of the contract (USS.md section 7's list plus
 /// timeouts, retries and parameter jobs).
-fn counters(d: &DriveDiag) -> [(&'static str, u64); 24] {
+fn counters(d: &DriveDiag) -> [(&'static str, u64); 28] {
     [
         ("requests", d.requests),
         ("good", d.good),
@@ -226,6 +321,10 @@ fn counters(d: &DriveDiag) -> [(&'static str, u64); 24] {
         ("pkw_busy", d.pkw_busy),
         ("jobs_done", d.jobs_done),
         ("watchdog_trips", d.watchdog_trips),
+        ("latches", d.latches),
+        ("rejected_outputs", d.rejected_outputs),
+        ("releases", d.releases),
+        ("overrides", d.overrides),
         ("since_ns", d.since_ns),
         ("last_good_ns", d.last_good_ns),
         ("last_zsw1", u64::from(d.last_zsw1)),
@@ -239,7 +338,7 @@ impl DriveStats {
             address: d.address,
             online: d.online != 0,
             no_reply: d.no_reply != 0,
-            watchdog_tripped: d.watchdog_tripped != 0,
+            control: ControlReport::of_diag(d),
             last_error: last_failure(d),
             consecutive_failed_polls: d.consecutive_failed_polls,
             last_good_ms_ago: (d.last_good_ns != NEVER)
@@ -273,9 +372,7 @@ impl StatsReport {
             if let Some(ms) = d.last_good_ms_ago {
                 let _ = write!(out, ", last good reply {ms:.1} ms ago");
             }
-            if d.watchdog_tripped {
-                out.push_str(", watchdog tripped (safe command)");
-            }
+            let _ = write!(out, ", {}", d.control.human());
             out.push('\n');
             let line: Vec<String> = d
                 .ordered
@@ -306,7 +403,9 @@ pub struct WatchLine {
     pub sequence: u64,
     /// The drive's update period (time between its last two good replies), ms.
     pub period_ms: f64,
-    pub watchdog_tripped: bool,
+    pub control: ControlReport,
+    /// STW1 of the telegram that brought this reply.
+    pub sent_stw1: u16,
     /// PZD3.. as the drive sent them.
     pub extra: Vec<u16>,
 }
@@ -321,17 +420,14 @@ impl WatchLine {
             t,
             drive,
             online,
-            state: if online {
-                state_name(i.zsw1)
-            } else {
-                "offline"
-            },
+            state: shown_state(online, i.zsw1),
             zsw1: i.zsw1,
             hiw: i.hiw,
             actual_hz: Setpoint::from_word(i.hiw).hz(reference_hz),
             sequence: i.sequence,
             period_ms: i.age_ns as f64 / 1e6,
-            watchdog_tripped: i.watchdog_tripped != 0,
+            control: ControlReport::of_input(i),
+            sent_stw1: i.sent_stw1,
             extra: i.extra[..extra_words].to_vec(),
         }
     }
@@ -351,8 +447,8 @@ impl WatchLine {
             let words: Vec<_> = self.extra.iter().map(|w| format!("{w:#06X}")).collect();
             let _ = write!(out, "  PZD3.. {}", words.join(" "));
         }
-        if self.watchdog_tripped {
-            out.push_str("  [watchdog: safe command]");
+        if self.control.state != "live" {
+            let _ = write!(out, "  [{}]", self.control.human());
         }
         out
     }
@@ -363,6 +459,8 @@ impl WatchLine {
 pub struct ParamReport {
     pub bus: String,
     pub drive: u8,
+    /// As the manuals write it: `P1082`, `r0947[3]`.
+    pub param: String,
     pub pnu: u16,
     pub index: Option<u8>,
     /// "word" or "dword", as the drive replied.
@@ -391,8 +489,9 @@ impl ParamReport {
         Self {
             bus: bus.to_owned(),
             drive,
-            pnu: param.pnu,
-            index: param.index,
+            param: param.to_string(),
+            pnu: param.pnu.get(),
+            index: param.index.map(Subindex::get),
             kind,
             raw: v.as_u32(),
             hex,
@@ -402,11 +501,7 @@ impl ParamReport {
     }
 
     pub fn human(&self) -> String {
-        let param = ParamRef {
-            pnu: self.pnu,
-            index: self.index,
-        };
-        let head = format!("drive {} {param}", self.drive);
+        let head = format!("drive {} {}", self.drive, self.param);
         let value = if self.value.is_f64() {
             format!("{} ({} {})", self.value, self.kind, self.hex)
         } else if self.kind == "dword" {
@@ -455,7 +550,72 @@ impl FaultsReport {
     }
 }
 
-/// The end of `run`, `stop` or `ack`: what the drive shows now.
+/// `stop`, `coast`, `quick-stop`: the drives that got the command and what they show now.
+#[derive(Debug, Serialize)]
+pub struct StopReport {
+    pub bus: String,
+    /// "OFF1", "OFF2" or "OFF3".
+    pub command: &'static str,
+    pub drives: Vec<StoppedDrive>,
+}
+
+/// One drive after an operator's stop command.
+#[derive(Debug, Serialize)]
+pub struct StoppedDrive {
+    pub drive: u8,
+    pub online: bool,
+    pub state: &'static str,
+    pub zsw1: u16,
+    /// STW1 of the telegram the image came with: the command that went out.
+    pub sent_stw1: u16,
+    pub control: ControlReport,
+}
+
+impl StopReport {
+    pub fn new(bus: &str, command: StopCommand) -> Self {
+        Self {
+            bus: bus.to_owned(),
+            command: command.name(),
+            drives: Vec::new(),
+        }
+    }
+
+    pub fn push(&mut self, drive: u8, i: &PzdInput) {
+        let online = i.online != 0;
+        self.drives.push(StoppedDrive {
+            drive,
+            online,
+            state: shown_state(online, i.zsw1),
+            zsw1: i.zsw1,
+            sent_stw1: i.sent_stw1,
+            control: ControlReport::of_input(i),
+        });
+    }
+
+    pub fn human(&self) -> String {
+        let what = match self.command {
+            "OFF2" => "it coasts",
+            "OFF3" => "it stops quickly",
+            _ => "it ramps down",
+        };
+        let mut out = String::new();
+        for d in &self.drives {
+            let _ = writeln!(
+                out,
+                "drive {}: {} sent (STW1 {:#06X}), {what}; now {} (ZSW1 {:#06X}); {} until its controller re-arms it (OFF1, then ON)",
+                d.drive,
+                d.control.command.unwrap_or(self.command),
+                d.sent_stw1,
+                d.state,
+                d.zsw1,
+                d.control.state,
+            );
+        }
+        out
+    }
+}
+
+/// The end of `run` or `ack`: what the drive shows now.
 #[derive(Debug, Serialize)]
 pub struct DriveReport {
     pub bus: String,
@@ -479,11 +639,7 @@ impl DriveReport {
             drive,
             action,
             online,
-            state: if online {
-                state_name(i.zsw1)
-            } else {
-                "offline"
-            },
+            state: shown_state(online, i.zsw1),
             zsw1: i.zsw1,
             actual_hz: Setpoint::from_word(i.hiw).hz(ref_hz),
             peak_hz: None,
@@ -493,7 +649,6 @@ impl DriveReport {
     pub fn human(&self) -> String {
         let what = match self.action {
             "run" => "ran; OFF1 sent, it ramps down",
-            "stop" => "OFF1 sent, it ramps down",
             _ => "fault acknowledge sent",
         };
         let mut out = format!(
@@ -520,6 +675,7 @@ mod tests {
             rejected: 1,
             timeouts: 1,
             last_failure: LastFailure::NoResponse.code(),
+            latch_command: StopCommand::Off1.code(),
             ..DriveDiag::new(3)
         }
     }
@@ -549,11 +705,37 @@ mod tests {
             (Some(10), Some(1))
         );
         assert_eq!(d["last_error"], "no response");
+        assert_eq!(d["control"]["state"], "latched");
+        assert_eq!(d["control"]["reason"], "ussd started");
+        assert_eq!(d["monitoring"], "not read yet");
         let text = report.human();
         assert!(
             text.contains("   3  yes     S4         0xFB34      25.00"),
             "{text}"
         );
+        assert!(text.contains("latched: ussd started, OFF1"), "{text}");
+    }
+
+    #[test]
+    fn a_drive_without_telegram_monitoring_is_warned_about() {
+        let off = DriveRow::new(
+            &DriveDiag {
+                monitoring: Monitoring::Off.code(),
+                control: uss_client::ControlState::Live.code(),
+                ..diag()
+            },
+            50.0,
+        );
+        let report = StatusReport {
+            bus: BusReport::new("b0", &BusStatus::EMPTY),
+            drives: vec![off],
+        };
+        let text = report.human();
+        assert!(
+            text.contains("warning: drive 3: telegram monitoring is OFF: if ussd or its line dies, nothing stops this drive"),
+            "{text}"
+        );
+        assert!(text.contains("  live  "), "{text}");
     }
 
     #[test]
@@ -570,18 +752,7 @@ mod tests {
 
     #[test]
     fn float_parameters_show_both_readings() {
-        let r = |v, shown| {
-            ParamReport::new(
-                "b0",
-                1,
-                ParamRef {
-                    pnu: 1082,
-                    index: None,
-                },
-                v,
-                shown,
-            )
-        };
+        let r = |v, shown| ParamReport::new("b0", 1, "P1082".parse().unwrap(), v, shown);
         let p = r(Value::Dword(0x4248_0000), None);
         assert_eq!(
             p.human(),
@@ -590,8 +761,9 @@ mod tests {
         let v = serde_json::to_value(&p).unwrap();
         assert_eq!(
             v,
-            serde_json::json!({"bus": "b0", "drive": 1, "pnu": 1082, "index": null, "type": "dword",
-                               "raw": 1_112_014_848_u32, "hex": "0x42480000", "value": 1_112_014_848_u32})
+            serde_json::json!({"bus": "b0", "drive": 1, "param": "P1082", "pnu": 1082, "index": null,
+                               "type": "dword", "raw": 1_112_014_848_u32, "hex": "0x42480000",
+                               "value": 1_112_014_848_u32})
         );
         let p = r(Value::Dword(0x4248_0000), Some(Kind::Float));
         assert_eq!(p.human(), "drive 1 P1082 = 50.0 (dword 0x42480000)");

@@ -1,0 +1,602 @@
+//! Which PZD words go to a drive now: the one place that decides (ARCHITECTURE.md, "Failure
+//! model"). Every poll of a drive asks its [`Gate`]; nothing else in ussd chooses words.
+//!
+//! A drive is **live** (its controller's words go out) or **latched** (it gets a stop command:
+//! its configured safe command, or an operator's OFF1/OFF2/OFF3, whichever is stronger). It
+//! starts latched when ussd starts, and latches again when
+//! - its live controller stops publishing within the watchdog time (frozen, hung or dead),
+//! - a sample arrives that the drive would misread (wrong layout version or flags, a word
+//!   count other than the drive's PZD length, STW1 bit 10 clear: [`PzdOutput::validate`]),
+//! - the controller releases the drive cleanly,
+//! - an operator stops it from any process,
+//! - an ON arrives while the drive's own telegram monitoring is required but not verified.
+//!
+//! The latch holds until the controller re-arms the drive the PROFIdrive way: a valid sample
+//! with STW1 bit 0 = 0 (OFF1) that arrives at a later poll than the latch. That sample goes out
+//! and the drive is live again, so the controller's next ON reaches the drive. A frozen
+//! controller that resumes with ON, or a process that reconnects, never restarts a motor by
+//! itself. The latch lives here, in ussd; a client cannot clear it any other way.
+//!
+//! [`Gate::decide`] is a pure function of the gate's state and one poll's inputs (the newest
+//! sample, an operator command, whether ON is allowed, the time): no I/O, no allocation, so
+//! the bus thread calls it every poll and the tests drive it as a table.
+
+use core::time::Duration;
+use uss_protocol::telegram::MAX_PZD_WORDS;
+use uss_shm_types::{LatchReason, OutputSample, PzdOutput, Rejection, StopCommand};
+
+/// An operator's stop command as the bus thread takes it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Operator {
+    pub command: StopCommand,
+    /// The requesting process (0 if unknown).
+    pub pid: u32,
+}
+
+/// Why, since when and with what a drive is latched.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Latch {
+    pub reason: LatchReason,
+    /// What the drive gets: never [`StopCommand::None`].
+    pub command: StopCommand,
+    /// Bus clock time the latch began (or last changed its reason).
+    pub since: Duration,
+    /// The operator behind an override, or the controller whose sample caused the latch.
+    pub by_pid: u32,
+}
+
+/// The drive's control as published.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Control {
+    Live,
+    Latched(Latch),
+}
+
+/// A change at one poll, for the housekeeping thread's log.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Transition {
+    /// The drive latched, or a latched drive got a new cause (or a stronger command).
+    Latched { latch: Latch, rejection: Rejection },
+    /// OFF1 seen after the latch: the controller's words go out again.
+    Rearmed { pid: u32 },
+}
+
+/// Counters of one drive's control, mirrored into its diagnostics.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ControlCounters {
+    /// Latches since start (the start-up latch counts 1).
+    pub latches: u64,
+    /// A live controller went stale (not a release).
+    pub watchdog_trips: u64,
+    /// Samples refused before the wire.
+    pub rejected_outputs: u64,
+    pub releases: u64,
+    pub overrides: u64,
+}
+
+/// What a gate needs to know of its drive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GateSetup {
+    /// PZD words the drive exchanges (P2012).
+    pub pzd: usize,
+    /// The configured safe command.
+    pub safe: StopCommand,
+    /// A live controller that publishes nothing new for longer than this is stale.
+    pub watchdog: Duration,
+}
+
+/// One poll's inputs.
+#[derive(Debug, Clone, Copy)]
+pub struct Poll<'a> {
+    pub now: Duration,
+    /// The controller's newest sample since the previous poll, if any.
+    pub sample: Option<&'a PzdOutput>,
+    /// An operator's stop command that arrived since the previous poll.
+    pub operator: Option<Operator>,
+    /// Whether an ON may reach the drive (false: its telegram monitoring is required and not
+    /// verified).
+    pub on_allowed: bool,
+}
+
+/// The control of one drive. See the module documentation.
+#[derive(Debug, Clone)]
+pub struct Gate {
+    setup: GateSetup,
+    control: Control,
+    /// The live controller's latest valid words.
+    words: [u16; MAX_PZD_WORDS],
+    /// Sequence of the last sample taken: a repeat is not a refresh.
+    last_sequence: Option<u64>,
+    /// When a sample with a new sequence last arrived.
+    refreshed_at: Duration,
+    controller_pid: u32,
+    rejection: Rejection,
+    counters: ControlCounters,
+}
+
+const STW1_ON: u16 = uss_shm_types::pzd::STW1_ON;
+
+impl Gate {
+    /// A gate latched by ussd's start: the drive gets its safe command until a controller arms it.
+    pub fn new(setup: GateSetup, now: Duration) -> Self {
+        Self {
+            setup,
+            control: Control::Latched(Latch {
+                reason: LatchReason::Startup,
+                command: setup.safe,
+                since: now,
+                by_pid: 0,
+            }),
+            words: [0; MAX_PZD_WORDS],
+            last_sequence: None,
+            refreshed_at: now,
+            controller_pid: 0,
+            rejection: Rejection::None,
+            counters: ControlCounters {
+                latches: 1,
+                ..ControlCounters::default()
+            },
+        }
+    }
+
+    pub fn control(&self) -> Control {
+        self.control
+    }
+
+    pub fn counters(&self) -> ControlCounters {
+        self.counters
+    }
+
+    /// The rejection of the last refused sample.
+    pub fn rejection(&self) -> Rejection {
+        self.rejection
+    }
+
+    /// The process id in the latest sample (0 before the first).
+    pub fn controller_pid(&self) -> u32 {
+        self.controller_pid
+    }
+
+    /// `sequence` of the latest sample taken (0 before the first).
+    pub fn taken_sequence(&self) -> u64 {
+        self.last_sequence.unwrap_or(0)
+    }
+
+    /// Latches the drive from outside a poll (the bus line came back): the same rules as a
+    /// latch at a poll.
+    pub fn latch(&mut self, reason: LatchReason, now: Duration) -> Transition {
+        self.latch_with(reason, self.setup.safe, now, 0, Rejection::None)
+    }
+
+    /// Decides the words for this poll into `out` (the first `pzd` words are sent) and returns
+    /// what changed, if anything.
+    pub fn decide(&mut self, poll: Poll<'_>, out: &mut [u16; MAX_PZD_WORDS]) -> Option<Transition> {
+        let mut changed = None;
+        // An operator's command comes first and is final for this poll: a sample that arrived
+        // with it cannot re-arm the drive (it may have been published before the command).
+        let mut latched_now = false;
+        if let Some(op) = poll.operator.filter(|op| op.command != StopCommand::None) {
+            self.counters.overrides += 1;
+            changed = Some(self.latch_with(
+                LatchReason::Override,
+                op.command,
+                poll.now,
+                op.pid,
+                Rejection::None,
+            ));
+            latched_now = true;
+        }
+        let sample = poll
+            .sample
+            .filter(|s| self.last_sequence != Some(s.sequence));
+        if let Some(sample) = sample {
+            self.last_sequence = Some(sample.sequence);
+            self.refreshed_at = poll.now;
+            self.controller_pid = sample.controller_pid;
+            if let Some(t) = self.take(sample, poll, latched_now) {
+                changed = Some(t);
+            }
+        } else if self.control == Control::Live
+            && poll.now.saturating_sub(self.refreshed_at) > self.setup.watchdog
+        {
+            self.counters.watchdog_trips += 1;
+            changed = Some(self.latch_with(
+                LatchReason::Stale,
+                self.setup.safe,
+                poll.now,
+                self.controller_pid,
+                Rejection::None,
+            ));
+        }
+        *out = [0; MAX_PZD_WORDS];
+        match self.control {
+            Control::Live => out.copy_from_slice(&self.words),
+            Control::Latched(latch) => {
+                // `Latch::command` is never `None`; the safe command is the fallback anyway.
+                out[0] = latch
+                    .command
+                    .stw1()
+                    .or(self.setup.safe.stw1())
+                    .unwrap_or(0x047E);
+            }
+        }
+        changed
+    }
+
+    /// Takes a new sample.
+    fn take(
+        &mut self,
+        sample: &PzdOutput,
+        poll: Poll<'_>,
+        latched_now: bool,
+    ) -> Option<Transition> {
+        let pid = sample.controller_pid;
+        match sample.validate(self.setup.pzd) {
+            Err(rejection) => {
+                self.counters.rejected_outputs += 1;
+                let repeated = self.rejection == rejection
+                    && matches!(self.control, Control::Latched(l) if l.reason == LatchReason::Rejected);
+                self.rejection = rejection;
+                (!repeated).then(|| {
+                    self.latch_with(
+                        LatchReason::Rejected,
+                        self.setup.safe,
+                        poll.now,
+                        pid,
+                        rejection,
+                    )
+                })
+            }
+            Ok(OutputSample::Release) => {
+                self.counters.releases += 1;
+                match self.control {
+                    Control::Live => Some(self.latch_with(
+                        LatchReason::Released,
+                        self.setup.safe,
+                        poll.now,
+                        pid,
+                        Rejection::None,
+                    )),
+                    // Already latched: the cause of that latch stays the news.
+                    Control::Latched(_) => None,
+                }
+            }
+            Ok(OutputSample::Words { words, .. }) => {
+                let on = self.setup.pzd > 0 && words[0] & STW1_ON != 0;
+                match self.control {
+                    Control::Live if on && !poll.on_allowed => Some(self.latch_with(
+                        LatchReason::MonitoringOff,
+                        self.setup.safe,
+                        poll.now,
+                        pid,
+                        Rejection::None,
+                    )),
+                    Control::Live => {
+                        self.words = words;
+                        None
+                    }
+                    Control::Latched(_) if !on && !latched_now => {
+                        self.words = words;
+                        self.control = Control::Live;
+                        Some(Transition::Rearmed { pid })
+                    }
+                    Control::Latched(_) => None,
+                }
+            }
+        }
+    }
+
+    fn latch_with(
+        &mut self,
+        reason: LatchReason,
+        command: StopCommand,
+        now: Duration,
+        by_pid: u32,
+        rejection: Rejection,
+    ) -> Transition {
+        let command = match self.control {
+            Control::Latched(l) if l.command.strength() > command.strength() => l.command,
+            _ => command,
+        };
+        let latch = Latch {
+            reason,
+            command,
+            since: now,
+            by_pid,
+        };
+        self.counters.latches += 1;
+        self.control = Control::Latched(latch);
+        Transition::Latched { latch, rejection }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const READY: u16 = 0x047E;
+    const RUN: u16 = 0x047F;
+    const COAST: u16 = 0x047C;
+    const QUICK: u16 = 0x047A;
+
+    fn ms(n: u64) -> Duration {
+        Duration::from_millis(n)
+    }
+
+    fn setup() -> GateSetup {
+        GateSetup {
+            pzd: 2,
+            safe: StopCommand::Off1,
+            watchdog: ms(100),
+        }
+    }
+
+    fn sample(seq: u64, words: &[u16]) -> PzdOutput {
+        PzdOutput::from_words(words, seq, 0, 42).unwrap()
+    }
+
+    /// What goes out and what changed, for one poll.
+    struct Step {
+        words: [u16; 2],
+        change: Option<Transition>,
+    }
+
+    /// Plays polls on a gate: `(time ms, sample, operator, on_allowed)`.
+    struct Play {
+        gate: Gate,
+        seq: u64,
+    }
+
+    impl Play {
+        fn new() -> Self {
+            Self {
+                gate: Gate::new(setup(), ms(0)),
+                seq: 0,
+            }
+        }
+
+        /// A gate that is live and running: armed with OFF1, then ON with a setpoint.
+        fn running() -> Self {
+            let mut p = Self::new();
+            p.send(1, &[READY, 0]);
+            p.send(2, &[RUN, 0x2000]);
+            assert_eq!(p.gate.control(), Control::Live);
+            p
+        }
+
+        fn poll(&mut self, t: u64, sample: Option<PzdOutput>, op: Option<StopCommand>) -> Step {
+            self.poll_with(t, sample, op, true)
+        }
+
+        fn poll_with(
+            &mut self,
+            t: u64,
+            sample: Option<PzdOutput>,
+            op: Option<StopCommand>,
+            on_allowed: bool,
+        ) -> Step {
+            let mut out = [0u16; MAX_PZD_WORDS];
+            let change = self.gate.decide(
+                Poll {
+                    now: ms(t),
+                    sample: sample.as_ref(),
+                    operator: op.map(|command| Operator { command, pid: 7 }),
+                    on_allowed,
+                },
+                &mut out,
+            );
+            Step {
+                words: [out[0], out[1]],
+                change,
+            }
+        }
+
+        /// A fresh sample with the next sequence number.
+        fn send(&mut self, t: u64, words: &[u16]) -> Step {
+            self.seq += 1;
+            let s = sample(self.seq, words);
+            self.poll(t, Some(s), None)
+        }
+
+        fn reason(&self) -> Option<LatchReason> {
+            match self.gate.control() {
+                Control::Live => None,
+                Control::Latched(l) => Some(l.reason),
+            }
+        }
+    }
+
+    fn latched(change: Option<Transition>) -> (LatchReason, StopCommand, Rejection) {
+        match change {
+            Some(Transition::Latched { latch, rejection }) => {
+                (latch.reason, latch.command, rejection)
+            }
+            other => panic!("expected a latch, got {other:?}"),
+        }
+    }
+
+    /// After a stale trip at 200 ms.
+    fn tripped() -> Play {
+        let mut p = Play::running();
+        p.poll(200, None, None);
+        p
+    }
+
+    /// Overridden with OFF2 at 10 ms.
+    fn coasted() -> Play {
+        let mut p = Play::running();
+        p.poll(10, None, Some(StopCommand::Off2));
+        p
+    }
+
+    /// `sample` published with the next sequence number and taken at `t`.
+    fn with(
+        p: &mut Play,
+        t: u64,
+        words: &[u16],
+        op: Option<StopCommand>,
+        on_allowed: bool,
+    ) -> Step {
+        p.seq += 1;
+        let s = sample(p.seq, words);
+        p.poll_with(t, Some(s), op, on_allowed)
+    }
+
+    fn release(p: &mut Play) -> Step {
+        p.seq += 1;
+        let s = PzdOutput::release(p.seq, 0, 42);
+        p.poll(10, Some(s), None)
+    }
+
+    fn foreign(p: &mut Play, t: u64, patch: fn(&mut PzdOutput)) -> Step {
+        p.seq += 1;
+        let mut s = sample(p.seq, &[RUN, 0x2000]);
+        patch(&mut s);
+        p.poll(t, Some(s), None)
+    }
+
+    /// The decision table: state x event -> words on the wire, and the latch that follows.
+    #[rustfmt::skip]
+    #[test]
+    fn decision_table() {
+        use LatchReason::{Override, Rejected, Released, Stale, Startup};
+        type Case = (&'static str, fn() -> Play, fn(&mut Play) -> Step, [u16; 2], Option<LatchReason>);
+        let cases: &[Case] = &[
+            // Latched at start-up.
+            ("start, no controller: safe command", Play::new, |p| p.poll(1, None, None), [READY, 0], Some(Startup)),
+            ("start, ON without OFF1 first: refused", Play::new, |p| p.send(1, &[RUN, 0x2000]), [READY, 0], Some(Startup)),
+            ("start, OFF1 arms: its words go out", Play::new, |p| p.send(1, &[READY, 0x1000]), [READY, 0x1000], None),
+            ("start, OFF2 from the controller also arms", Play::new, |p| p.send(1, &[COAST, 0]), [COAST, 0], None),
+            ("start, bit 10 clear: rejected", Play::new, |p| p.send(1, &[0x007E, 0]), [READY, 0], Some(Rejected)),
+            ("start, operator coast: OFF2", Play::new, |p| p.poll(1, None, Some(StopCommand::Off2)), [COAST, 0], Some(Override)),
+            // Live and running.
+            ("live, fresh ON: its words", Play::running, |p| p.send(50, &[RUN, 0x3000]), [RUN, 0x3000], None),
+            ("live, nothing new within the watchdog: last words", Play::running, |p| p.poll(102, None, None), [RUN, 0x2000], None),
+            ("live, nothing new beyond the watchdog: stale", Play::running, |p| p.poll(103, None, None), [READY, 0], Some(Stale)),
+            ("live, a repeated sequence is no refresh", Play::running, |p| { let s = sample(p.seq, &[RUN, 0x2000]); p.poll(103, Some(s), None) }, [READY, 0], Some(Stale)),
+            ("live, all-zero struct: rejected", Play::running, |p| foreign(p, 10, |s| *s = PzdOutput { version: 0, word_count: 0, stw1: 0, setpoint: 0, ..*s }), [READY, 0], Some(Rejected)),
+            ("live, STW1 0x0000: rejected", Play::running, |p| p.send(10, &[0x0000, 0]), [READY, 0], Some(Rejected)),
+            ("live, STW1 0x007F: rejected", Play::running, |p| p.send(10, &[0x007F, 0x2000]), [READY, 0], Some(Rejected)),
+            ("live, one word for two: rejected", Play::running, |p| p.send(10, &[RUN]), [READY, 0], Some(Rejected)),
+            ("live, unknown flags: rejected", Play::running, |p| foreign(p, 10, |s| s.flags = 0x40), [READY, 0], Some(Rejected)),
+            ("live, release: safe command", Play::running, release, [READY, 0], Some(Released)),
+            ("live, operator OFF1", Play::running, |p| p.poll(10, None, Some(StopCommand::Off1)), [READY, 0], Some(Override)),
+            ("live, operator OFF3", Play::running, |p| p.poll(10, None, Some(StopCommand::Off3)), [QUICK, 0], Some(Override)),
+            ("live, operator OFF3 beats a fresh ON", Play::running, |p| with(p, 10, &[RUN, 0x3000], Some(StopCommand::Off3), true), [QUICK, 0], Some(Override)),
+            ("live, ON with required monitoring off", Play::running, |p| with(p, 10, &[RUN, 0x2000], None, false), [READY, 0], Some(LatchReason::MonitoringOff)),
+            ("live, OFF1 with monitoring off still goes out", Play::running, |p| with(p, 10, &[READY, 0], None, false), [READY, 0], None),
+            // Latched after a trip or an override.
+            ("stale, the frozen controller resumes with ON: latched", tripped, |p| p.send(300, &[RUN, 0x2000]), [READY, 0], Some(Stale)),
+            ("stale, OFF1 re-arms", tripped, |p| p.send(300, &[READY, 0]), [READY, 0], None),
+            ("stale, garbage does not re-arm", tripped, |p| foreign(p, 210, |s| { s.version = 9; s.stw1 = READY; }), [READY, 0], Some(Rejected)),
+            ("stale, a release keeps the trip's reason", tripped, release, [READY, 0], Some(Stale)),
+            ("coasted, operator OFF1: OFF2 stays", coasted, |p| p.poll(20, None, Some(StopCommand::Off1)), [COAST, 0], Some(Override)),
+            ("coasted, ON: latched", coasted, |p| p.send(20, &[RUN, 0x2000]), [COAST, 0], Some(Override)),
+            ("coasted, OFF1 at a later poll re-arms", coasted, |p| p.send(20, &[READY, 0]), [READY, 0], None),
+            ("running, OFF1 with an override at the same poll: no re-arm", Play::running, |p| with(p, 10, &[READY, 0], Some(StopCommand::Off2), true), [COAST, 0], Some(Override)),
+        ];
+        for (name, start, event, words, reason) in cases {
+            let mut p = start();
+            let step = event(&mut p);
+            assert_eq!(step.words, *words, "{name}: words on the wire");
+            assert_eq!(p.reason(), *reason, "{name}: latch reason");
+        }
+    }
+
+    #[test]
+    fn a_frozen_controller_trips_once_and_runs_again_only_after_off1_then_on() {
+        let mut p = Play::running();
+        let (reason, command, _) = latched(p.poll(103, None, None).change);
+        assert_eq!((reason, command), (LatchReason::Stale, StopCommand::Off1));
+        assert_eq!(
+            p.poll(150, None, None).change,
+            None,
+            "one trip, not one per poll"
+        );
+        assert_eq!(p.gate.counters().watchdog_trips, 1);
+        // SIGCONT: the refresher publishes ON again, for seconds.
+        for t in (200..2000).step_by(20) {
+            assert_eq!(p.send(t, &[RUN, 0x2000]).words, [READY, 0], "t = {t} ms");
+        }
+        // The deliberate re-arm: OFF1, then ON.
+        let step = p.send(2000, &[READY, 0]);
+        assert_eq!(step.change, Some(Transition::Rearmed { pid: 42 }));
+        assert_eq!(p.send(2020, &[RUN, 0x2000]).words, [RUN, 0x2000]);
+        let c = p.gate.counters();
+        assert_eq!((c.latches, c.watchdog_trips, c.releases), (2, 1, 0));
+    }
+
+    #[test]
+    fn release_is_counted_as_a_release_not_a_trip() {
+        let mut p = Play::running();
+        p.seq += 1;
+        let step = p.poll(10, Some(PzdOutput::release(p.seq, 0, 42)), None);
+        assert_eq!(latched(step.change).0, LatchReason::Released);
+        // Nothing more arrives: a released drive does not go "stale".
+        assert_eq!(p.poll(500, None, None).change, None);
+        let c = p.gate.counters();
+        assert_eq!((c.releases, c.watchdog_trips, c.latches), (1, 0, 2));
+    }
+
+    #[test]
+    fn each_kind_of_rejection_is_counted_and_named() {
+        let mut p = Play::running();
+        let (reason, _, rejection) = latched(p.send(10, &[0x007F, 0x2000]).change);
+        assert_eq!(
+            (reason, rejection),
+            (LatchReason::Rejected, Rejection::NoPlcControl)
+        );
+        // The same garbage again is counted, not a new latch.
+        assert_eq!(p.send(20, &[0x007F, 0x2000]).change, None);
+        let (_, _, rejection) = latched(p.send(30, &[RUN]).change);
+        assert_eq!(rejection, Rejection::WordCount);
+        assert_eq!(p.gate.counters().rejected_outputs, 3);
+        assert_eq!(p.gate.rejection(), Rejection::WordCount);
+    }
+
+    #[test]
+    fn operator_commands_only_grow_stronger_until_re_armed() {
+        let mut p = Play::running();
+        let (_, command, _) = latched(p.poll(10, None, Some(StopCommand::Off3)).change);
+        assert_eq!(command, StopCommand::Off3);
+        let (_, command, _) = latched(p.poll(20, None, Some(StopCommand::Off1)).change);
+        assert_eq!(command, StopCommand::Off3, "OFF1 does not weaken OFF3");
+        let (_, command, _) = latched(p.poll(30, None, Some(StopCommand::Off2)).change);
+        assert_eq!(command, StopCommand::Off2);
+        assert_eq!(p.gate.counters().overrides, 3);
+        // Re-armed, the next latch starts from the safe command again.
+        p.send(40, &[READY, 0]);
+        let (_, command, _) = latched(p.poll(200, None, None).change);
+        assert_eq!(command, StopCommand::Off1);
+    }
+
+    #[test]
+    fn a_configured_coast_is_the_latched_command() {
+        let mut gate = Gate::new(
+            GateSetup {
+                safe: StopCommand::Off2,
+                ..setup()
+            },
+            ms(0),
+        );
+        let mut out = [0; MAX_PZD_WORDS];
+        gate.decide(
+            Poll {
+                now: ms(1),
+                sample: None,
+                operator: None,
+                on_allowed: true,
+            },
+            &mut out,
+        );
+        assert_eq!(out[..2], [COAST, 0]);
+    }
+
+    #[test]
+    fn a_restored_line_latches_a_live_drive() {
+        let mut p = Play::running();
+        let t = p.gate.latch(LatchReason::LineRestored, ms(50));
+        assert_eq!(latched(Some(t)).0, LatchReason::LineRestored);
+        assert_eq!(p.send(60, &[RUN, 0x2000]).words, [READY, 0]);
+    }
+}

@@ -1,0 +1,170 @@
+//! The drive's own telegram monitoring (USS.md section 5): P2014 on MICROMASTER 4 / G110 /
+//! CU240S (index 1 = the RS485 COM link), p2040 on G120 / S110. When ussd or its line dies,
+//! nothing else stops a running motor: the drive trips (F0070..F0072) only if this time is set.
+//! ussd reads it whenever a drive comes online, and again whenever a parameter access through
+//! it reads or writes that parameter, and says what it found ([`Monitoring`]).
+
+use core::time::Duration;
+use uss_protocol::{ParamTask, Pnu, Subindex, Value};
+use uss_shm_types::Monitoring;
+
+/// Which parameter holds a drive's telegram-off time, and what ussd expects of it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MonitoringSetup {
+    /// The parameter (and array index); `None`: not checked.
+    pub param: Option<(Pnu, Option<Subindex>)>,
+    /// Times above this are reported as too long.
+    pub max: Duration,
+    /// Refuse ON unless the monitoring was read and is on within `max`.
+    pub required: bool,
+}
+
+impl MonitoringSetup {
+    /// MICROMASTER 4 / G110 / CU240S: P2014 index 1 (COM link), at most 1 s, not required.
+    pub fn micromaster() -> Self {
+        Self {
+            // 2014 is a valid PNU and 1 a valid subindex.
+            param: Some((Pnu::from_u16(2014), Subindex::new(1).ok())),
+            max: Duration::from_secs(1),
+            required: false,
+        }
+    }
+
+    /// The read task for the parameter, if it is checked.
+    pub fn task(&self) -> Option<ParamTask> {
+        self.param.map(|(pnu, index)| match index {
+            Some(index) => ParamTask::ReadArray { pnu, index },
+            None => ParamTask::Read { pnu },
+        })
+    }
+
+    /// Whether `task` reads or writes the monitoring parameter (so its result says what the
+    /// drive now holds).
+    pub fn concerns(&self, task: &ParamTask) -> bool {
+        let Some((pnu, index)) = self.param else {
+            return false;
+        };
+        match (*task, index) {
+            (ParamTask::Read { pnu: p } | ParamTask::Write { pnu: p, .. }, None) => p == pnu,
+            (
+                ParamTask::ReadArray { pnu: p, index: i }
+                | ParamTask::WriteArray {
+                    pnu: p, index: i, ..
+                },
+                Some(index),
+            ) => p == pnu && i == index,
+            _ => false,
+        }
+    }
+
+    /// What a value of the parameter means: a word is milliseconds (P2014); a double word is
+    /// an IEEE-754 float in milliseconds (p2040).
+    pub fn evaluate(&self, value: Value) -> (Monitoring, u32) {
+        let ms = match value {
+            Value::Word(w) => f64::from(w),
+            Value::Dword(d) => f64::from(f32::from_bits(d)),
+        };
+        if !ms.is_finite() || ms < 0.0 {
+            return (Monitoring::Unreadable, 0);
+        }
+        let ms = ms.round().min(f64::from(u32::MAX)) as u32;
+        let state = if ms == 0 {
+            Monitoring::Off
+        } else if u128::from(ms) > self.max.as_millis() {
+            Monitoring::TooLong
+        } else {
+            Monitoring::On
+        };
+        (state, ms)
+    }
+
+    /// Whether an ON may reach a drive whose monitoring is `state`.
+    pub fn allows_on(&self, state: Monitoring) -> bool {
+        !self.required || state == Monitoring::On
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use uss_protocol::Storage;
+
+    fn mm() -> MonitoringSetup {
+        MonitoringSetup::micromaster()
+    }
+
+    #[test]
+    fn p2014_words_are_milliseconds_against_the_limit() {
+        assert_eq!(mm().evaluate(Value::Word(0)), (Monitoring::Off, 0));
+        assert_eq!(mm().evaluate(Value::Word(100)), (Monitoring::On, 100));
+        assert_eq!(mm().evaluate(Value::Word(1000)), (Monitoring::On, 1000));
+        assert_eq!(
+            mm().evaluate(Value::Word(1001)),
+            (Monitoring::TooLong, 1001)
+        );
+    }
+
+    #[test]
+    fn p2040_floats_are_milliseconds_too() {
+        let f = |x: f32| Value::Dword(x.to_bits());
+        assert_eq!(mm().evaluate(f(100.0)), (Monitoring::On, 100));
+        assert_eq!(mm().evaluate(f(0.0)), (Monitoring::Off, 0));
+        assert_eq!(mm().evaluate(f(f32::NAN)), (Monitoring::Unreadable, 0));
+        assert_eq!(mm().evaluate(f(-5.0)), (Monitoring::Unreadable, 0));
+    }
+
+    #[test]
+    fn the_check_reads_index_1_of_p2014_and_recognises_writes_to_it() {
+        let setup = mm();
+        let pnu = Pnu::from_u16(2014);
+        let one = Subindex::new(1).unwrap();
+        assert_eq!(setup.task(), Some(ParamTask::ReadArray { pnu, index: one }));
+        let write = ParamTask::WriteArray {
+            pnu,
+            index: one,
+            value: Value::Word(0),
+            storage: Storage::Ram,
+        };
+        assert!(setup.concerns(&write));
+        let other_index = ParamTask::ReadArray {
+            pnu,
+            index: Subindex::new(0).unwrap(),
+        };
+        assert!(!setup.concerns(&other_index));
+        assert!(!setup.concerns(&ParamTask::Read { pnu }));
+        let g120 = MonitoringSetup {
+            param: Some((Pnu::from_u16(2040), None)),
+            ..setup
+        };
+        assert!(g120.concerns(&ParamTask::Read {
+            pnu: Pnu::from_u16(2040)
+        }));
+        assert_eq!(
+            MonitoringSetup {
+                param: None,
+                ..setup
+            }
+            .task(),
+            None
+        );
+    }
+
+    #[test]
+    fn only_verified_monitoring_allows_on_when_required() {
+        let required = MonitoringSetup {
+            required: true,
+            ..mm()
+        };
+        assert!(required.allows_on(Monitoring::On));
+        for s in [
+            Monitoring::Unknown,
+            Monitoring::Off,
+            Monitoring::TooLong,
+            Monitoring::Unreadable,
+            Monitoring::NotChecked,
+        ] {
+            assert!(!required.allows_on(s), "{s}");
+            assert!(mm().allows_on(s), "{s}: not required");
+        }
+    }
+}

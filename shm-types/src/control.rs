@@ -1,0 +1,269 @@
+//! Who commands a drive, and the operator's stop commands.
+//!
+//! A drive's output is either **live** (its controller's samples go to the drive) or
+//! **latched** (it gets a stop command, the configured safe command or an operator's, until its
+//! controller re-arms it the PROFIdrive way: a sample with STW1 bit 0 = 0, OFF1, seen after the
+//! latch, before an ON is passed again). The input image and the diagnostics say which, since
+//! when, why, and what is sent. ussd keeps the latch; a client cannot clear it any other way.
+//!
+//! Operator stop commands arrive on `uss/<bus>/command` ([`OperatorRequest`] ->
+//! [`OperatorResponse`], request-response): OFF1, OFF2 or OFF3 for one drive or every drive
+//! of the bus, accepted from any process and overriding the drive's controller.
+
+use crate::codes::{UnknownCode, code_table};
+use crate::{LAYOUT_VERSION, check_version};
+use iceoryx2::prelude::ZeroCopySend;
+
+/// `address` of an [`OperatorRequest`] for every drive of the bus.
+pub const ALL_DRIVES: u8 = u8::MAX;
+
+code_table! {
+    /// Whether a drive gets its controller's words; the `control` byte of the input image and
+    /// the diagnostics.
+    pub enum ControlState {
+        /// The controller's samples go to the drive.
+        Live = 0 => "live",
+        /// The drive gets a stop command until its controller re-arms it (OFF1, then ON).
+        Latched = 1 => "latched",
+    }
+}
+
+code_table! {
+    /// Why a drive is latched; the `latch_reason` byte.
+    pub enum LatchReason {
+        /// Not latched.
+        None = 0 => "none",
+        /// ussd started: no controller has armed the drive since.
+        Startup = 1 => "ussd started",
+        /// The controller stopped publishing within the drive's watchdog time: it froze, hung
+        /// or died.
+        Stale = 2 => "controller stale",
+        /// ussd refused a sample the drive would misread; the `rejection` byte says why.
+        Rejected = 3 => "sample rejected",
+        /// The controller handed the drive back cleanly (dropped, exited, Ctrl-C).
+        Released = 4 => "released",
+        /// An operator stopped the drive from another process (`ussctl stop/coast/quick-stop`).
+        Override = 5 => "operator stop",
+        /// The bus line came back after it was down.
+        LineRestored = 6 => "line restored",
+        /// An ON was refused: the drive's own telegram monitoring is off, too long or not
+        /// verified, and its configuration requires it (`require_monitoring`).
+        MonitoringOff = 7 => "telegram monitoring off",
+    }
+}
+
+code_table! {
+    /// Why ussd refused a controller's sample; the `rejection` byte.
+    pub enum Rejection {
+        None = 0 => "none",
+        /// `version` is not the layout version ussd speaks.
+        Version = 1 => "unknown layout version",
+        /// `word_count` differs from the drive's PZD length (P2012).
+        WordCount = 2 => "word count differs from the drive's PZD length",
+        /// STW1 bit 10 ("control by PLC") is clear: the drive would ignore the PZD, the safe
+        /// command included (USS.md section 7).
+        NoPlcControl = 3 => "STW1 bit 10 (control by PLC) is clear",
+        /// `flags` has bits this layout does not define.
+        Flags = 4 => "unknown flags",
+    }
+}
+
+code_table! {
+    /// A stop command: what a latched drive gets, and what an operator asks for.
+    pub enum StopCommand {
+        /// No command (a live drive).
+        None = 0 => "none",
+        /// OFF1: ramp down along the ramp-down time (STW1 0x047E).
+        Off1 = 1 => "OFF1",
+        /// OFF2: coast, the motor is switched off at once (STW1 0x047C).
+        Off2 = 2 => "OFF2",
+        /// OFF3: quick stop along the OFF3 ramp (STW1 0x047A).
+        Off3 = 3 => "OFF3",
+    }
+}
+
+code_table! {
+    /// What ussd knows of the drive's own telegram monitoring (P2014 on MICROMASTER 4 / G110 /
+    /// CU240S, p2040 on G120 / S110; USS.md section 5), the only protection when ussd or its
+    /// line dies; the `monitoring` byte of the diagnostics.
+    pub enum Monitoring {
+        /// Not read yet (the drive has not been online since ussd started).
+        Unknown = 0 => "not read yet",
+        /// On, within the configured limit.
+        On = 1 => "on",
+        /// 0: the drive keeps running on its last command when telegrams stop.
+        Off = 2 => "off",
+        /// On, but longer than the configured limit.
+        TooLong = 3 => "longer than the limit",
+        /// The read failed (drive error, no parameter channel, timeout).
+        Unreadable = 4 => "cannot be read",
+        /// The configuration turns the check off (`monitoring_param = ""`).
+        NotChecked = 5 => "not checked",
+    }
+}
+
+code_table! {
+    /// Why ussd refused an operator request; the `error` byte of [`OperatorResponse`].
+    pub enum CommandError {
+        Ok = 0 => "ok",
+        /// No drive with this address on this bus.
+        UnknownDrive = 1 => "unknown drive",
+        /// `command` is not OFF1, OFF2 or OFF3.
+        BadCommand = 2 => "not a stop command",
+        /// The request's `version` is not [`LAYOUT_VERSION`].
+        Version = 3 => "layout version mismatch",
+        /// ussd is shutting down (every drive gets its safe command anyway).
+        Shutdown = 4 => "shut down",
+    }
+}
+
+impl StopCommand {
+    /// The operator's commands, weakest first: a latched drive keeps the strongest it was given
+    /// (OFF2 switches the pulses off at once, OFF3 brakes hard, OFF1 ramps).
+    pub const fn strength(self) -> u8 {
+        match self {
+            Self::None => 0,
+            Self::Off1 => 1,
+            Self::Off3 => 2,
+            Self::Off2 => 3,
+        }
+    }
+
+    /// The control word that carries the command out (USS.md section 7); bit 10 is set, so
+    /// the drive does not ignore it. `None` for [`StopCommand::None`].
+    pub const fn stw1(self) -> Option<u16> {
+        match self {
+            Self::None => None,
+            Self::Off1 => Some(0x047E),
+            Self::Off2 => Some(0x047C),
+            Self::Off3 => Some(0x047A),
+        }
+    }
+}
+
+/// An operator's stop command for one drive or every drive of a bus, from any process.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
+#[type_name("UssOperatorRequestV2")]
+pub struct OperatorRequest {
+    /// [`LAYOUT_VERSION`].
+    pub version: u32,
+    /// Drive address 0..=31, or [`ALL_DRIVES`].
+    pub address: u8,
+    /// A [`StopCommand`] code other than `None`.
+    pub command: u8,
+    pub reserved: [u8; 2],
+}
+
+/// The one answer to an [`OperatorRequest`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
+#[type_name("UssOperatorResponseV2")]
+pub struct OperatorResponse {
+    /// [`LAYOUT_VERSION`].
+    pub version: u32,
+    /// A [`CommandError`] code; 0 when the command was handed to the bus thread.
+    pub error: u8,
+    /// The request's [`StopCommand`] code.
+    pub command: u8,
+    pub reserved: [u8; 2],
+    /// Bit `a` set: drive `a` gets the command from its next poll on, latched.
+    pub drives: u32,
+}
+
+impl OperatorRequest {
+    /// A request for `command` on drive `address` (or [`ALL_DRIVES`]).
+    pub const fn new(address: u8, command: StopCommand) -> Self {
+        Self {
+            version: LAYOUT_VERSION,
+            address,
+            command: command.code(),
+            reserved: [0; 2],
+        }
+    }
+
+    /// Checks version and command; returns the command.
+    pub fn validate(&self) -> Result<StopCommand, CommandError> {
+        check_version(self.version).map_err(|_| CommandError::Version)?;
+        match StopCommand::try_from(self.command) {
+            Ok(StopCommand::None) | Err(_) => Err(CommandError::BadCommand),
+            Ok(command) => Ok(command),
+        }
+    }
+}
+
+impl OperatorResponse {
+    /// The answer for the drives in `drives` (bit = address).
+    pub const fn done(command: StopCommand, drives: u32) -> Self {
+        Self {
+            version: LAYOUT_VERSION,
+            error: CommandError::Ok.code(),
+            command: command.code(),
+            reserved: [0; 2],
+            drives,
+        }
+    }
+
+    /// A refusal: no drive got the command.
+    pub const fn refused(command: u8, error: CommandError) -> Self {
+        Self {
+            version: LAYOUT_VERSION,
+            error: error.code(),
+            command,
+            reserved: [0; 2],
+            drives: 0,
+        }
+    }
+
+    pub fn error(&self) -> Result<CommandError, UnknownCode> {
+        CommandError::try_from(self.error)
+    }
+
+    /// The addresses that got the command, ascending.
+    pub fn addresses(&self) -> impl Iterator<Item = u8> + '_ {
+        (0..32u8).filter(|a| self.drives & (1 << a) != 0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stop_commands_carry_plc_control_and_grow_stronger_from_off1_to_off2() {
+        for c in [StopCommand::Off1, StopCommand::Off2, StopCommand::Off3] {
+            let stw1 = c.stw1().unwrap();
+            assert_ne!(stw1 & 0x0400, 0, "{c}: bit 10");
+            assert_eq!(stw1 & 0x0001, 0, "{c}: bit 0 (ON) clear");
+        }
+        assert_eq!(StopCommand::None.stw1(), None);
+        assert!(StopCommand::Off2.strength() > StopCommand::Off3.strength());
+        assert!(StopCommand::Off3.strength() > StopCommand::Off1.strength());
+    }
+
+    #[test]
+    fn operator_requests_name_a_stop_command() {
+        assert_eq!(
+            OperatorRequest::new(3, StopCommand::Off2).validate(),
+            Ok(StopCommand::Off2)
+        );
+        assert_eq!(
+            OperatorRequest::new(3, StopCommand::None).validate(),
+            Err(CommandError::BadCommand)
+        );
+        let mut r = OperatorRequest::new(ALL_DRIVES, StopCommand::Off1);
+        r.command = 9;
+        assert_eq!(r.validate(), Err(CommandError::BadCommand));
+        r.version = 1;
+        assert_eq!(r.validate(), Err(CommandError::Version));
+    }
+
+    #[test]
+    fn operator_response_lists_the_drives_it_reached() {
+        let r = OperatorResponse::done(StopCommand::Off3, (1 << 1) | (1 << 31));
+        assert_eq!(r.addresses().collect::<Vec<_>>(), [1, 31]);
+        assert_eq!(r.error(), Ok(CommandError::Ok));
+        let r = OperatorResponse::refused(2, CommandError::UnknownDrive);
+        assert_eq!((r.drives, r.error()), (0, Ok(CommandError::UnknownDrive)));
+    }
+}

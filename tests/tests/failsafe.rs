@@ -1,0 +1,609 @@
+//! Fail-safe control, end to end (issue 7): real `ussd` processes, real clients (`ussctl`, this
+//! process through the Rust API, a raw iceoryx2 publisher as a foreign controller would be),
+//! real signals. No drive ever runs without a live, deliberate command:
+//!
+//! - a frozen controller trips the drive once; when it resumes the drive stays stopped until a
+//!   controller re-arms it (OFF1, then ON), and `ussctl run` reports the trip and fails;
+//! - a sample the drive would misread is refused at the poll that takes it, latched, named;
+//! - a clean release is "released", a SIGKILL is a watchdog trip: counted apart;
+//! - `ussctl stop/coast/quick-stop` (one drive or `--all`) override a running controller;
+//! - parameter writes to a controlled drive need `--force` (or the controlling process);
+//! - a drive whose own telegram monitoring is off is reported, and refused ON when required;
+//! - the same freeze over a real pty with `uss-sim`.
+//!
+//! Each test starts its own ussd on a bus named after this process; the tests take turns.
+//! Measured latencies are printed (run with `--nocapture`).
+#![allow(clippy::unwrap_used, clippy::float_cmp)]
+
+use iceoryx2::prelude::*;
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+use uss_client::{
+    Bus, ClientError, ControlOptions, DriveState, LatchReason, Monitoring, ParamError, PzdInput,
+    Rejection, Setpoint, StopCommand, Value, WriteOptions, state_of,
+};
+use uss_integration_tests::{ChildProc, SimProcess, Ussd, monotonic_ns};
+use uss_shm_types::names;
+use uss_shm_types::{BusName, DriveAddress, LAYOUT_VERSION, PzdOutput};
+
+/// One ussd at a time: each runs a `SCHED_FIFO` bus thread, and the machine has two cores.
+fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+const OFF1: u16 = 0x047E;
+const OFF2: u16 = 0x047C;
+const OFF3: u16 = 0x047A;
+const RUN: u16 = 0x047F;
+
+fn hz(i: &PzdInput) -> f32 {
+    Setpoint::from_word(i.hiw).hz(50.0)
+}
+
+fn signal(child: &ChildProc, s: Signal) -> u64 {
+    let at = monotonic_ns();
+    kill(Pid::from_raw(i32::try_from(child.pid()).unwrap()), s).unwrap();
+    at
+}
+
+/// Whether ussd logged a line with `text` (waiting up to 2 s for it).
+fn logged(ussd: &Ussd, text: &str) -> bool {
+    ussd.log_line(text, Duration::from_secs(2)).is_some()
+}
+
+/// Quick ramps for drive `a`: 50 Hz in 1 s up, in 0.5 s down.
+fn quick_ramps(bus: &Bus, a: u8) {
+    bus.write(a, 1120, None, Value::from_f32(1.0), false)
+        .unwrap();
+    bus.write(a, 1121, None, Value::from_f32(0.5), false)
+        .unwrap();
+}
+
+/// `ussctl run DRIVE --hz HZ` until it says the drive runs.
+fn run(ussd: &Ussd, drive: u8, hz: &str) -> ChildProc {
+    let mut run = ussd.ussctl(&["run", &drive.to_string(), "--hz", hz]);
+    let said = run.says(&format!("drive {drive}:"));
+    assert!(said.starts_with(" running towards"), "{said}");
+    run
+}
+
+/// Waits for `ussctl run` to end: its exit code and stderr.
+fn ended(run: &mut ChildProc, within: Duration) -> (Option<i32>, String) {
+    let deadline = Instant::now() + within;
+    while run.child.try_wait().unwrap().is_none() {
+        assert!(Instant::now() < deadline, "ussctl run still runs");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let (status, _, err) = run.finish();
+    (status.code(), err)
+}
+
+/// The first image at or after now that `done` accepts, looking every 100 us.
+fn first_image(bus: &Bus, a: u8, timeout: Duration, done: impl Fn(&PzdInput) -> bool) -> PzdInput {
+    let watch = bus.watch(a).unwrap();
+    let deadline = Instant::now() + timeout;
+    loop {
+        let i = watch.latest();
+        if done(&i) {
+            return i;
+        }
+        assert!(Instant::now() < deadline, "drive {a}: still {i:?}");
+        std::thread::sleep(Duration::from_micros(100));
+    }
+}
+
+/// The drive's diagnostics once `done` accepts them (republished every 100 ms).
+fn diag_when(
+    bus: &Bus,
+    a: u8,
+    done: impl Fn(&uss_client::DriveDiag) -> bool,
+) -> uss_client::DriveDiag {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let d = bus.diag(a).unwrap();
+        if done(&d) {
+            return d;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "drive {a}: diagnostics still {d:?}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Asserts for `during` that drive `a` stays latched by `reason` with OFF1 going out and never
+/// runs faster than it did at the start.
+fn stays_stopped(bus: &Bus, a: u8, reason: LatchReason, during: Duration) {
+    let watch = bus.watch(a).unwrap();
+    let start = watch.latest();
+    let end = Instant::now() + during;
+    while Instant::now() < end {
+        let i = watch.latest();
+        assert_eq!(i.latch_reason, reason.code(), "{i:?}");
+        assert_eq!(i.sent_stw1, OFF1, "{i:?}");
+        assert!(hz(&i) <= hz(&start) + 0.01, "the motor speeds up: {i:?}");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+#[test]
+fn frozen_controller_trips_once_and_the_drive_stays_stopped_when_it_resumes() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "watchdog_ms = 100.0"), (2, "")]);
+    let bus = ussd.bus();
+    quick_ramps(&bus, 1);
+    let mut controller = run(&ussd, 1, "20");
+    first_image(&bus, 1, Duration::from_secs(5), |i| hz(i) >= 19.9);
+
+    let frozen_at = signal(&controller, Signal::SIGSTOP);
+    let trip = first_image(&bus, 1, Duration::from_secs(2), |i| !i.is_live());
+    let latency = trip.timestamp_ns.saturating_sub(frozen_at) as f64 / 1e6;
+    println!("failsafe: frozen controller latched {latency:.1} ms after SIGSTOP (watchdog 100 ms)");
+    assert_eq!(trip.latch_reason, LatchReason::Stale.code());
+    assert_eq!(trip.sent_stw1, OFF1, "the trip's own telegram carried OFF1");
+    // The last refresh (every 20 ms) may have come up to 20 ms before the freeze: the watchdog
+    // runs from it, not from the freeze.
+    assert!(latency > 75.0, "tripped before its watchdog: {latency} ms");
+    // It ramps down to S2, then the controller resumes.
+    first_image(&bus, 1, Duration::from_secs(3), |i| {
+        state_of(i) == DriveState::ReadyToSwitchOn && i.hiw == 0
+    });
+    signal(&controller, Signal::SIGCONT);
+    stays_stopped(&bus, 1, LatchReason::Stale, Duration::from_secs(1));
+    let (code, err) = ended(&mut controller, Duration::from_secs(3));
+    assert_eq!(code, Some(1), "{err}");
+    assert!(
+        err.contains("drive 1 on")
+            && err.contains("tripped after")
+            && err.contains("its controller stopped publishing within the watchdog time")
+            && err.contains("run `ussctl run 1` again to re-arm it"),
+        "{err}"
+    );
+    let d = diag_when(&bus, 1, |d| d.watchdog_trips == 1);
+    assert_eq!(d.latch_reason, LatchReason::Stale.code());
+    assert!(logged(&ussd, "drive 1: controller stale"), "{}", ussd.log());
+
+    // Only a deliberate re-arm runs it again: OFF1, then ON.
+    let c = bus.control(1, ControlOptions::default()).unwrap();
+    assert!(matches!(
+        c.run_hz(10.0, 50.0),
+        Err(ClientError::NotArmed { .. })
+    ));
+    c.enable().unwrap();
+    c.run_hz(10.0, 50.0).unwrap();
+    let again = c
+        .wait_for(Duration::from_secs(5), "10 Hz", |i| hz(i) >= 9.9)
+        .unwrap();
+    assert!(again.is_live());
+}
+
+/// A foreign controller: a raw iceoryx2 publisher of the contract's `out` service.
+struct RawController {
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, PzdOutput, ()>,
+    sequence: u64,
+    _node: Node<ipc::Service>,
+}
+
+impl RawController {
+    fn open(bus: &str, a: u8) -> Self {
+        let node = NodeBuilder::new()
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .unwrap();
+        let name = names::drive_out(&BusName::new(bus).unwrap(), DriveAddress::new(a).unwrap());
+        let publisher = node
+            .service_builder(&name)
+            .publish_subscribe::<PzdOutput>()
+            .open()
+            .unwrap()
+            .publisher_builder()
+            .create()
+            .unwrap();
+        Self {
+            publisher,
+            sequence: 0,
+            _node: node,
+        }
+    }
+
+    /// Publishes `sample` with the next sequence number; returns that number.
+    fn send(&mut self, mut sample: PzdOutput) -> u64 {
+        self.sequence += 1;
+        sample.sequence = self.sequence;
+        self.publisher.send_copy(sample).unwrap();
+        self.sequence
+    }
+
+    fn words(&mut self, words: &[u16]) -> u64 {
+        self.send(PzdOutput::from_words(words, 0, monotonic_ns(), std::process::id()).unwrap())
+    }
+
+    /// Publishes `words` every 10 ms until drive `a` satisfies `done`.
+    fn until(&mut self, bus: &Bus, a: u8, words: &[u16], done: impl Fn(&PzdInput) -> bool) {
+        let watch = bus.watch(a).unwrap();
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while !done(&watch.latest()) {
+            assert!(Instant::now() < deadline, "{:?}", watch.latest());
+            self.words(words);
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+#[test]
+fn every_kind_of_bad_sample_from_a_raw_publisher_latches_the_drive_at_the_poll_that_takes_it() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let bus = ussd.bus();
+    let mut raw = RawController::open(&ussd.bus, 1);
+    let valid = PzdOutput::from_words(&[RUN, 0x2000], 0, 0, std::process::id()).unwrap();
+    let kinds = [
+        (
+            "an all-zero C struct",
+            PzdOutput {
+                version: 0,
+                word_count: 0,
+                stw1: 0,
+                setpoint: 0,
+                ..valid
+            },
+            Rejection::Version,
+        ),
+        (
+            "STW1 0x0000",
+            PzdOutput {
+                stw1: 0x0000,
+                ..valid
+            },
+            Rejection::NoPlcControl,
+        ),
+        (
+            "STW1 0x007F (bit 10 clear)",
+            PzdOutput {
+                stw1: 0x007F,
+                ..valid
+            },
+            Rejection::NoPlcControl,
+        ),
+        (
+            "1 word for a drive with 2",
+            PzdOutput {
+                word_count: 1,
+                ..valid
+            },
+            Rejection::WordCount,
+        ),
+        (
+            "word count 0",
+            PzdOutput {
+                word_count: 0,
+                ..valid
+            },
+            Rejection::WordCount,
+        ),
+        (
+            "layout version 3",
+            PzdOutput {
+                version: LAYOUT_VERSION + 1,
+                ..valid
+            },
+            Rejection::Version,
+        ),
+    ];
+    for (n, (name, bad, rejection)) in kinds.into_iter().enumerate() {
+        // Armed with OFF1, running with ON.
+        raw.until(&bus, 1, &[OFF1, 0], PzdInput::is_live);
+        raw.until(&bus, 1, &[RUN, 0x1000], |i| {
+            state_of(i) == DriveState::OperationEnabled
+        });
+        let seq = raw.send(bad);
+        let taken = first_image(&bus, 1, Duration::from_secs(1), |i| i.taken_sequence >= seq);
+        assert_eq!(taken.taken_sequence, seq, "{name}");
+        assert_eq!(
+            taken.sent_stw1, OFF1,
+            "{name}: the safe command at the poll that took it"
+        );
+        assert_eq!(taken.latch_reason, LatchReason::Rejected.code(), "{name}");
+        assert_eq!(taken.rejection, rejection.code(), "{name}");
+        assert_eq!(taken.latched_by_pid, std::process::id(), "{name}");
+        // The good samples after it do not bring the drive back.
+        for _ in 0..20 {
+            raw.words(&[RUN, 0x1000]);
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let after = bus.watch(1).unwrap().latest();
+        assert_eq!(
+            (after.sent_stw1, after.latch_reason),
+            (OFF1, LatchReason::Rejected.code()),
+            "{name}"
+        );
+        let d = diag_when(&bus, 1, |d| d.rejected_outputs == n as u64 + 1);
+        assert_eq!(d.rejection, rejection.code(), "{name}");
+    }
+    assert_eq!(
+        bus.diag(1).unwrap().watchdog_trips,
+        0,
+        "refusals are not watchdog trips"
+    );
+    let log = ussd.log_line(
+        "(STW1 bit 10 (control by PLC) is clear)",
+        Duration::from_secs(2),
+    );
+    assert!(
+        log.is_some_and(|l| l.contains("drive 1: refused a sample of process")),
+        "{}",
+        ussd.log()
+    );
+}
+
+#[test]
+fn a_clean_release_is_not_a_trip_and_a_sigkill_is() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let bus = ussd.bus();
+    quick_ramps(&bus, 1);
+
+    // `ussctl run --for` ends cleanly: released.
+    let mut clean = ussd.ussctl(&["run", "1", "--hz", "10", "--for", "0.5"]);
+    let (status, out, err) = clean.finish();
+    assert!(status.success(), "{out}{err}");
+    let d = diag_when(&bus, 1, |d| d.releases == 1);
+    assert_eq!(
+        (d.latch_reason, d.watchdog_trips),
+        (LatchReason::Released.code(), 0)
+    );
+    assert!(
+        logged(&ussd, "drive 1: released by its controller"),
+        "{}",
+        ussd.log()
+    );
+    assert!(
+        ussd.log_line("drive 1: controller stale", Duration::from_millis(100))
+            .is_none()
+    );
+
+    // A controller of this process that is dropped: released too, the drive confirmed it.
+    let c = bus.control(1, ControlOptions::default()).unwrap();
+    c.enable().unwrap();
+    c.wait_for(Duration::from_secs(2), "live", PzdInput::is_live)
+        .unwrap();
+    let released = c.release().unwrap();
+    assert_eq!(released.latch_reason, LatchReason::Released.code());
+    let d = diag_when(&bus, 1, |d| d.releases == 2);
+    assert_eq!(d.watchdog_trips, 0);
+
+    // SIGKILL: no release; the watchdog trips, counted.
+    let mut killed = run(&ussd, 1, "10");
+    killed.kill();
+    let d = diag_when(&bus, 1, |d| d.watchdog_trips == 1);
+    assert_eq!((d.latch_reason, d.releases), (LatchReason::Stale.code(), 2));
+}
+
+/// Runs drives with `ussctl run`, gives the operator's `command` with `ussctl ARGS`, and checks
+/// the STW1 that went out, the latch, and that each controller failed with the override.
+fn operator_overrides(ussd: &Ussd, drives: &[u8], args: &[&str], stw1: u16, name: &str) {
+    let bus = ussd.bus();
+    let mut runs: Vec<ChildProc> = drives.iter().map(|&a| run(ussd, a, "20")).collect();
+    let mut stop = ussd.ussctl(args);
+    let (status, out, err) = stop.finish();
+    assert!(status.success(), "{args:?}: {out}{err}");
+    for &a in drives {
+        assert!(
+            out.contains(&format!("drive {a}: {name} sent (STW1 {stw1:#06X})")),
+            "{args:?}: {out}"
+        );
+        let i = bus.watch(a).unwrap().latest();
+        assert_eq!(
+            (i.sent_stw1, i.latch_reason),
+            (stw1, LatchReason::Override.code()),
+            "{args:?}"
+        );
+    }
+    for run in &mut runs {
+        let (code, err) = ended(run, Duration::from_secs(3));
+        assert_eq!(code, Some(1), "{err}");
+        assert!(
+            err.contains(&format!("an operator sent {name} from process")),
+            "{err}"
+        );
+    }
+    // Latched: still the operator's command after the controllers' last "run".
+    std::thread::sleep(Duration::from_millis(300));
+    for &a in drives {
+        assert_eq!(bus.watch(a).unwrap().latest().sent_stw1, stw1, "{args:?}");
+    }
+}
+
+#[test]
+fn ussctl_stop_coast_and_quick_stop_override_a_running_controller_and_latch() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, ""), (2, ""), (3, "")]);
+    let bus = ussd.bus();
+    for a in [1, 2, 3] {
+        quick_ramps(&bus, a);
+    }
+    operator_overrides(&ussd, &[1], &["coast", "1"], OFF2, "OFF2");
+    // OFF2 leaves the drive in S1 (switching-on inhibited) at once.
+    first_image(&bus, 1, Duration::from_secs(1), |i| {
+        state_of(i) == DriveState::SwitchingOnInhibited
+    });
+    operator_overrides(&ussd, &[2], &["stop", "2"], OFF1, "OFF1");
+    operator_overrides(&ussd, &[3], &["quick-stop", "3"], OFF3, "OFF3");
+    operator_overrides(&ussd, &[1, 2], &["quick-stop", "--all"], OFF3, "OFF3");
+    assert_eq!(bus.diag(2).unwrap().overrides, 2);
+
+    // The latency of the override: the API call -> the first reply to a telegram carrying it.
+    let c = bus.control(3, ControlOptions::default()).unwrap();
+    let _refresh = c.spawn_refresher(Duration::from_millis(20));
+    c.enable().unwrap();
+    c.run_hz(20.0, 50.0).unwrap();
+    c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
+        .unwrap();
+    // This process's command client is opened by its first use, not measured.
+    bus.stop_drive(2, StopCommand::Off1).unwrap();
+    let asked = monotonic_ns();
+    bus.stop_drive(3, StopCommand::Off2).unwrap();
+    let out = first_image(&bus, 3, Duration::from_secs(1), |i| i.sent_stw1 == OFF2);
+    let latency = out.timestamp_ns.saturating_sub(asked) as f64 / 1e6;
+    println!("failsafe: operator OFF2 on the wire, reply in, {latency:.1} ms after the API call");
+    assert_eq!(out.latch_reason, LatchReason::Override.code());
+    assert_eq!(out.latched_by_pid, std::process::id());
+    assert!(matches!(
+        c.set_setpoint(Setpoint::from_percent(10.0)),
+        Err(ClientError::Tripped { .. })
+    ));
+}
+
+#[test]
+fn parameter_writes_to_a_controlled_drive_need_force_or_the_controlling_process() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, ""), (2, ""), (3, "params_writable = false")]);
+    let bus = ussd.bus();
+    let controller = run(&ussd, 1, "5");
+    let pid = controller.pid();
+
+    // Another process (this one, and a ussctl) may read but not write.
+    assert_eq!(bus.read_f32(1, 1082, None), Ok(50.0));
+    let stretch = Value::from_f32(650.0);
+    assert_eq!(
+        bus.write(1, 1121, None, stretch, false),
+        Err(ParamError::Controlled { address: 1, pid })
+    );
+    let mut refused = ussd.ussctl(&["param", "write", "1", "P1121", "650.0"]);
+    let (status, _, err) = refused.finish();
+    assert_eq!(status.code(), Some(1));
+    assert!(
+        err.contains(&format!("drive 1 is controlled by process {pid}")),
+        "{err}"
+    );
+    assert!(err.contains("--force"), "{err}");
+    assert_ne!(
+        bus.read_f32(1, 1121, None),
+        Ok(650.0),
+        "nothing was written"
+    );
+
+    // Deliberately, with force.
+    let mut forced = ussd.ussctl(&["param", "write", "1", "P1121", "2.5", "--force"]);
+    let (status, out, err) = forced.finish();
+    assert!(status.success(), "{out}{err}");
+    assert_eq!(bus.read_f32(1, 1121, None), Ok(2.5));
+    let options = WriteOptions {
+        eeprom: false,
+        force: true,
+    };
+    assert_eq!(
+        bus.write_with(1, 1120, None, Value::from_f32(1.5), options),
+        Ok(Value::from_f32(1.5))
+    );
+
+    // The controlling process writes through its own handles.
+    let own = bus.control(2, ControlOptions::default()).unwrap();
+    own.enable().unwrap();
+    assert_eq!(bus.write(2, 1121, None, stretch, false), Ok(stretch));
+    drop(own);
+
+    // params_writable = false refuses everything, forced or not.
+    assert!(matches!(
+        bus.write_with(3, 1121, None, stretch, options),
+        Err(ParamError::Refused {
+            error: uss_client::RequestError::WritesDisabled,
+            ..
+        })
+    ));
+}
+
+#[test]
+fn a_drive_without_telegram_monitoring_is_reported_and_refused_on_when_required() {
+    let _serial = serial();
+    let ussd = Ussd::start(
+        "",
+        &[
+            (1, ""),
+            (2, "require_monitoring = true"),
+            (3, "require_monitoring = true\nsim = \"p2014=100\""),
+        ],
+    );
+    let bus = ussd.bus();
+    let off = diag_when(&bus, 1, |d| d.monitoring != Monitoring::Unknown.code());
+    assert_eq!(
+        (off.monitoring, off.monitoring_ms),
+        (Monitoring::Off.code(), 0)
+    );
+    let on = diag_when(&bus, 3, |d| d.monitoring != Monitoring::Unknown.code());
+    assert_eq!(
+        (on.monitoring, on.monitoring_ms),
+        (Monitoring::On.code(), 100)
+    );
+    assert!(
+        logged(&ussd, "drive 1: telegram monitoring is OFF (P2014[1] = 0)"),
+        "{}",
+        ussd.log()
+    );
+
+    let mut status = ussd.ussctl(&["status"]);
+    let (_, out, _) = status.finish();
+    assert!(
+        out.contains("warning: drive 1: telegram monitoring is OFF"),
+        "{out}"
+    );
+    assert!(
+        out.contains("warning: drive 2: telegram monitoring is OFF"),
+        "{out}"
+    );
+    assert!(!out.contains("warning: drive 3"), "{out}");
+
+    // Required and off: OFF1 arms, ON is refused and latches.
+    let mut refused = ussd.ussctl(&["run", "2", "--hz", "10"]);
+    let (status, _, err) = refused.finish();
+    assert_eq!(status.code(), Some(1));
+    assert!(
+        err.contains("telegram monitoring is required but off"),
+        "{err}"
+    );
+    let i = bus.watch(2).unwrap().latest();
+    assert_eq!(
+        (i.latch_reason, i.sent_stw1),
+        (LatchReason::MonitoringOff.code(), OFF1)
+    );
+    assert_ne!(state_of(&i), DriveState::OperationEnabled);
+    // Required and on: it runs.
+    let mut ok = ussd.ussctl(&["run", "3", "--hz", "10", "--for", "0.3"]);
+    let (status, out, err) = ok.finish();
+    assert!(status.success(), "{out}{err}");
+}
+
+#[test]
+fn a_frozen_controller_over_a_pty_to_uss_sim_does_not_restart_the_drive() {
+    let _serial = serial();
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "1"]);
+    let ussd = Ussd::start_on(&sim.path, "baud = 115200", &[(1, "")]);
+    let bus = ussd.bus();
+    quick_ramps(&bus, 1);
+    let mut controller = run(&ussd, 1, "20");
+    first_image(&bus, 1, Duration::from_secs(5), |i| hz(i) >= 19.9);
+    let frozen_at = signal(&controller, Signal::SIGSTOP);
+    let trip = first_image(&bus, 1, Duration::from_secs(2), |i| !i.is_live());
+    println!(
+        "failsafe (pty): latched {:.1} ms after SIGSTOP",
+        trip.timestamp_ns.saturating_sub(frozen_at) as f64 / 1e6
+    );
+    first_image(&bus, 1, Duration::from_secs(3), |i| i.hiw == 0);
+    signal(&controller, Signal::SIGCONT);
+    stays_stopped(&bus, 1, LatchReason::Stale, Duration::from_millis(500));
+    let (code, _) = ended(&mut controller, Duration::from_secs(3));
+    assert_eq!(code, Some(1));
+    drop(ussd);
+    let summary = sim.stop();
+    // uss-sim's own view of its drive, over the pty: S2 at 0 Hz.
+    assert!(
+        summary.contains("drive  1:")
+            && summary.contains("ReadyToSwitchOn")
+            && summary.contains("0.00 Hz"),
+        "{summary}"
+    );
+}
