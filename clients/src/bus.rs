@@ -1,56 +1,40 @@
 //! [`Bus`]: one bus run by ussd, opened by name.
 
-use crate::open::{Ipc, layout_verifier, opened};
+use crate::link::{Health, Link, Services};
+use crate::open::Ipc;
 use crate::{ClientError, ControlOptions, Controller, CycleListener, DriveWatch};
 use core::time::Duration;
-use iceoryx2::port::reader::{EntryHandle, Reader};
-use iceoryx2::prelude::{CallbackProgression, Node, NodeBuilder, NodeName, SignalHandlingMode};
-use iceoryx2::service::port_factory::blackboard::PortFactory as Blackboard;
-use std::sync::OnceLock;
-use uss_shm_types::names;
+use iceoryx2::prelude::{CallbackProgression, NodeBuilder, NodeName, SignalHandlingMode};
+use std::sync::Arc;
 use uss_shm_types::{BlackboardKey, BusName, BusStatus, DriveAddress, DriveDiag};
 
 /// The node name [`Bus::open`] uses, as `Node::list` (and a refused controller's error) shows it.
 pub const DEFAULT_NODE_NAME: &str = "uss-client";
 
-pub(crate) type ParamClient = iceoryx2::port::client::Client<
-    Ipc,
-    uss_shm_types::ParamRequest,
-    (),
-    uss_shm_types::ParamResponse,
-    (),
->;
-
-pub(crate) type CommandClient = iceoryx2::port::client::Client<
-    Ipc,
-    uss_shm_types::OperatorRequest,
-    (),
-    uss_shm_types::OperatorResponse,
-    (),
->;
-
-/// One bus run by ussd. Opening it checks that ussd runs there; everything else (drive
-/// images, control, parameters, events) is opened on first use.
+/// One bus run by ussd. Opening it waits for ussd's heartbeat; everything else (drive images,
+/// control, parameters, events) is opened on first use.
+///
+/// **ussd's health.** Every call looks at ussd's heartbeat (at most every millisecond): when
+/// ussd died or hangs (no heartbeat for 0.5 s), stopped, or its bus line is down, images show
+/// the drives offline and calls that need a polling bus fail with [`ClientError::UssdGone`],
+/// [`ClientError::UssdStopped`] or [`ClientError::LineDown`]. [`Bus::health`] says which. When a
+/// ussd serves the bus again (a restart), everything opened from this `Bus` reconnects by
+/// itself: watches resume; controllers find their drive latched by the new ussd and must
+/// re-arm it (see [`Controller`]).
 ///
 /// A `Bus` is `Send` and `Sync`. Its iceoryx2 node handles no signals: the application owns
 /// SIGINT and SIGTERM. Run clients as the same user (or group) as ussd: iceoryx2 keeps its
 /// state in `/dev/shm` and `/tmp/iceoryx2`.
 pub struct Bus {
-    name: BusName,
-    node: Node<Ipc>,
-    status: EntryHandle<Ipc, BlackboardKey, BusStatus>,
-    diag_service: Blackboard<Ipc, BlackboardKey>,
-    diag: Reader<Ipc, BlackboardKey>,
-    params: OnceLock<ParamClient>,
-    commands: OnceLock<CommandClient>,
+    link: Arc<Link>,
     answer_timeout: Option<Duration>,
 }
 
 impl core::fmt::Debug for Bus {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("Bus")
-            .field("name", &self.name.as_str())
-            .field("node", &self.node.name().as_str())
+            .field("name", &self.name())
+            .field("node", &self.link.node.name().as_str())
             .finish_non_exhaustive()
     }
 }
@@ -62,10 +46,10 @@ impl Bus {
     }
 
     /// Opens bus `name` under the node name `node_name` (shown by `Node::list` and in the
-    /// error another process gets when it tries to take a drive this one controls).
+    /// error another process gets when it tries to take a drive this one controls). Fails
+    /// with [`ClientError::NotRunning`] when no ussd serves the bus.
     pub fn open_as(name: &str, node_name: &str) -> Result<Bus, ClientError> {
         let name = BusName::new(name)?;
-        let bus = name.as_str();
         let node_name =
             NodeName::new(node_name).map_err(|e| ClientError::ipc("the node name", e))?;
         let node = NodeBuilder::new()
@@ -73,67 +57,24 @@ impl Bus {
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<Ipc>()
             .map_err(|e| ClientError::ipc("creating the iceoryx2 node", e))?;
-        let not_running = || ClientError::NotRunning {
-            bus: bus.to_owned(),
-        };
-        let verifier = layout_verifier()?;
-
-        let status_name = names::status(&name);
-        let status_service = opened(
-            node.service_builder(&status_name)
-                .blackboard_opener::<BlackboardKey>()
-                .open_with_attributes(&verifier),
-            bus,
-            &status_name,
-            not_running,
-        )?;
-        let status = status_service
-            .reader_builder()
-            .create()
-            .map_err(|e| ClientError::ipc(format!("reading {}", status_name.as_str()), e))?
-            .entry::<BusStatus>(&BlackboardKey::IMAGE)
-            .map_err(|_| ClientError::Incompatible {
-                bus: bus.to_owned(),
-                service: status_name.as_str().to_owned(),
-            })?;
-
-        let diag_name = names::diag(&name);
-        let diag_service = opened(
-            node.service_builder(&diag_name)
-                .blackboard_opener::<BlackboardKey>()
-                .open_with_attributes(&verifier),
-            bus,
-            &diag_name,
-            not_running,
-        )?;
-        let diag = diag_service
-            .reader_builder()
-            .create()
-            .map_err(|e| ClientError::ipc(format!("reading {}", diag_name.as_str()), e))?;
-
         Ok(Bus {
-            name,
-            node,
-            status,
-            diag_service,
-            diag,
-            params: OnceLock::new(),
-            commands: OnceLock::new(),
+            link: Arc::new(Link::open(name, node)?),
             answer_timeout: None,
         })
     }
 
     /// The bus name.
     pub fn name(&self) -> &str {
-        self.name.as_str()
+        self.link.name.as_str()
     }
 
-    pub(crate) fn bus_name(&self) -> &BusName {
-        &self.name
+    pub(crate) fn link(&self) -> &Arc<Link> {
+        &self.link
     }
 
-    pub(crate) fn node(&self) -> &Node<Ipc> {
-        &self.node
+    /// What ussd's heartbeat says now: running, line down, stopped or gone.
+    pub fn health(&self) -> Health {
+        self.link.health()
     }
 
     /// How long a parameter request may take before [`crate::ParamError::NoAnswer`]; `None`
@@ -148,23 +89,35 @@ impl Bus {
             .unwrap_or_else(|| Duration::from_secs(5) + Duration::from_millis(2500) * items as u32)
     }
 
-    pub(crate) fn params_client(&self) -> &OnceLock<ParamClient> {
-        &self.params
+    /// The services of the ussd serving the bus now, or why there are none.
+    pub(crate) fn services(&self) -> Result<Arc<Services>, ClientError> {
+        self.link.services()
     }
 
-    pub(crate) fn command_client(&self) -> &OnceLock<CommandClient> {
-        &self.commands
+    /// The bus status, as ussd last published it (every 50 ms; its line fields say whether
+    /// the line is down). Fails when ussd is gone or stopped.
+    pub fn status(&self) -> Result<BusStatus, ClientError> {
+        let (health, services) = self.link.current();
+        match (health, services) {
+            (Health::Running { .. } | Health::LineDown { .. }, Some(s)) => Ok(s.status()),
+            (health, _) => {
+                Err(health
+                    .error(self.name())
+                    .unwrap_or_else(|| ClientError::NotRunning {
+                        bus: self.name().to_owned(),
+                    }))
+            }
+        }
     }
 
-    /// The bus status, as ussd last published it (about every 100 ms).
-    pub fn status(&self) -> BusStatus {
-        *self.status.get()
-    }
-
-    /// The addresses of the drives ussd polls on this bus, ascending.
+    /// The addresses of the drives ussd polls on this bus, ascending (none while no ussd
+    /// serves it).
     pub fn drives(&self) -> Vec<u8> {
+        let Ok(services) = self.services() else {
+            return Vec::new();
+        };
         let mut keys = Vec::new();
-        self.diag_service.list_keys(|k| {
+        services.diag_service.list_keys(|k| {
             if let Ok(a) = u8::try_from(k.value) {
                 keys.push(a);
             }
@@ -174,17 +127,19 @@ impl Bus {
         keys
     }
 
-    /// A drive's diagnostics, as ussd last published them (about every 100 ms).
+    /// A drive's diagnostics, as ussd last published them (every 50 ms). Fails when ussd is
+    /// gone or stopped.
     pub fn diag(&self, address: u8) -> Result<DriveDiag, ClientError> {
         let a = self.known(address)?;
-        let entry = self
+        let services = self.services()?;
+        let entry = services
             .diag
             .entry::<DriveDiag>(&BlackboardKey::drive(a))
             .map_err(|_| self.unknown_drive(address))?;
         Ok(*entry.get())
     }
 
-    /// Watches a drive's input image (written by ussd after every good reply).
+    /// Watches a drive's input image (written by ussd after every poll).
     pub fn watch(&self, address: u8) -> Result<DriveWatch, ClientError> {
         DriveWatch::open(self, DriveAddress::new(address)?)
     }
@@ -196,7 +151,7 @@ impl Bus {
 
     /// Takes exclusive control of a drive. Fails with [`ClientError::Controlled`] ("drive 5 on
     /// bus0 is controlled by process 1234") while another controller holds it. See
-    /// [`Controller`] for the watchdog rule.
+    /// [`Controller`] for the watchdog and latch rules.
     pub fn control(&self, address: u8, options: ControlOptions) -> Result<Controller, ClientError> {
         Controller::open(self, DriveAddress::new(address)?, options)
     }
@@ -204,6 +159,7 @@ impl Bus {
     /// Checks that ussd polls `address` on this bus.
     pub(crate) fn known(&self, address: u8) -> Result<DriveAddress, ClientError> {
         let a = DriveAddress::new(address)?;
+        self.services()?;
         if self.drives().contains(&address) {
             Ok(a)
         } else {

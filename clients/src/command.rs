@@ -48,8 +48,9 @@ impl Bus {
     }
 
     fn operator(&self, address: u8, command: StopCommand) -> Result<Vec<u8>, ClientError> {
-        let name = names::command(self.bus_name());
-        let client = client(self, self.command_client(), &name)?;
+        let services = self.link().check()?;
+        let name = names::command(&services.instance);
+        let client = client(self.link(), &services.commands, &name)?;
         let answer = round_trip(
             client,
             OperatorRequest::new(address, command),

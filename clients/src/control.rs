@@ -2,7 +2,8 @@
 //! PZD words), with helpers that follow the PROFIdrive state machine (USS.md section 7), and
 //! the latch rules of ussd (`uss_shm_types::control`) surfaced as typed errors.
 
-use crate::open::{Ipc, layout_verifier, opened};
+use crate::link::{Link, Services};
+use crate::open::{Ipc, layout_verifier, opened, unknown_drive};
 use crate::{Bus, ClientError, DriveWatch};
 use core::time::Duration;
 use iceoryx2::node::NodeView;
@@ -14,7 +15,7 @@ use std::thread::JoinHandle;
 use std::time::Instant;
 use uss_protocol::{DriveState, Setpoint, Stw1};
 use uss_shm_types::names;
-use uss_shm_types::{ControlState, DriveAddress, MAX_PZD_WORDS, PzdInput, PzdOutput};
+use uss_shm_types::{ControlState, DriveAddress, Generation, MAX_PZD_WORDS, PzdInput, PzdOutput};
 
 /// A refresh period that suits ussd's default watchdog of 100 ms (`watchdog_ms`).
 pub const DEFAULT_REFRESH: Duration = Duration::from_millis(20);
@@ -62,9 +63,15 @@ fn latch_id(i: &PzdInput) -> LatchId {
     (i.latches, i.latched_since_ns)
 }
 
+/// The publisher on the `out` service of one ussd generation.
+struct Port {
+    generation: Generation,
+    publisher: Publisher<Ipc, PzdOutput, ()>,
+}
+
 /// The controller's own state, shared with a [`Refresher`] thread.
-#[derive(Debug)]
 struct State {
+    port: Port,
     image: Image,
     known_latch: LatchId,
     /// An OFF1 went out while `known_latch` held: ussd re-arms the drive when it takes it.
@@ -73,7 +80,7 @@ struct State {
 
 /// Shared with a [`Refresher`] thread.
 struct Shared {
-    publisher: Publisher<Ipc, PzdOutput, ()>,
+    link: Arc<Link>,
     state: Mutex<State>,
     watch: DriveWatch,
     pid: u32,
@@ -104,7 +111,9 @@ impl Shared {
     /// ([`ClientError::InvalidSample`]), and when an ON is asked of a latched drive that no OFF1
     /// of this controller has re-armed ([`ClientError::NotArmed`]).
     fn publish(&self, f: impl FnOnce(&mut Image)) -> Result<(), ClientError> {
+        let services = self.link.check()?;
         let mut state = self.state();
+        self.follow(&mut state, &services)?;
         let input = self.watch.latest();
         if let Some(e) = self.news(&input, &state) {
             return Err(e);
@@ -134,7 +143,7 @@ impl Shared {
         } else if latched && !on {
             state.off1_sent = true;
         }
-        self.send(&mut state, next, sample)
+        Self::send(&mut state, next, sample)
     }
 
     /// The sample `image` makes with the next sequence number, as ussd would check it.
@@ -156,13 +165,19 @@ impl Shared {
         Ok(sample)
     }
 
-    fn send(
-        &self,
-        state: &mut State,
-        mut image: Image,
-        sample: PzdOutput,
-    ) -> Result<(), ClientError> {
-        self.publisher
+    /// After a restart of ussd, publishes on the new generation's `out` service.
+    fn follow(&self, state: &mut State, services: &Services) -> Result<(), ClientError> {
+        if state.port.generation != services.generation() {
+            let address = DriveAddress::new(self.address)?;
+            state.port = open_port(&self.link, services, address)?;
+        }
+        Ok(())
+    }
+
+    fn send(state: &mut State, mut image: Image, sample: PzdOutput) -> Result<(), ClientError> {
+        state
+            .port
+            .publisher
             .send_copy(sample)
             .map_err(|e| ClientError::ipc("publishing the output image", e))?;
         image.sequence = sample.sequence;
@@ -173,10 +188,15 @@ impl Shared {
     /// Publishes a release and waits (at most `timeout`) until ussd took it, so the publisher
     /// can go: iceoryx2 drops samples not yet received with their publisher.
     fn release(&self, timeout: Duration) -> Result<PzdInput, ClientError> {
+        // Nobody to hand the drive to: the watchdog of a new ussd is not involved either.
+        let services = self.link.check()?;
         let mut state = self.state();
+        self.follow(&mut state, &services)?;
         let sequence = state.image.sequence.wrapping_add(1).max(1);
         let sample = PzdOutput::release(sequence, monotonic_ns(), self.pid);
-        self.publisher
+        state
+            .port
+            .publisher
             .send_copy(sample)
             .map_err(|e| ClientError::ipc("publishing the release", e))?;
         state.image.sequence = sequence;
@@ -186,12 +206,43 @@ impl Shared {
     }
 }
 
-/// `CLOCK_MONOTONIC` in ns, the clock of every `*_ns` field of the contract.
-pub(crate) fn monotonic_ns() -> u64 {
-    nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC).map_or(0, |t| {
-        (t.tv_sec() as u64)
-            .saturating_mul(1_000_000_000)
-            .saturating_add(t.tv_nsec() as u64)
+use crate::link::monotonic_ns;
+
+/// This process's publisher on drive `address`'s `out` service of the generation `services`
+/// belong to; [`ClientError::Controlled`] while another process holds it.
+fn open_port(link: &Link, services: &Services, address: DriveAddress) -> Result<Port, ClientError> {
+    let bus = link.name.as_str();
+    let name = names::drive_out(&services.instance, address);
+    let service = opened(
+        link.node
+            .service_builder(&name)
+            .publish_subscribe::<PzdOutput>()
+            .open_with_attributes(&layout_verifier()?),
+        bus,
+        &name,
+        unknown_drive(bus, address.get()),
+    )?;
+    let publisher = match service.publisher_builder().create() {
+        Ok(p) => p,
+        Err(PublisherCreateError::ExceedsMaxSupportedPublishers) => {
+            let (pid, node) = holder(&link.node, &service).unzip();
+            return Err(ClientError::Controlled {
+                bus: bus.to_owned(),
+                address: address.get(),
+                pid,
+                node,
+            });
+        }
+        Err(e) => {
+            return Err(ClientError::ipc(
+                format!("publishing on {}", name.as_str()),
+                e,
+            ));
+        }
+    };
+    Ok(Port {
+        generation: services.generation(),
+        publisher,
     })
 }
 
@@ -260,42 +311,20 @@ impl Controller {
                 expected: pzd,
             });
         }
-        let name = names::drive_out(bus.bus_name(), address);
-        let service = opened(
-            bus.node()
-                .service_builder(&name)
-                .publish_subscribe::<PzdOutput>()
-                .open_with_attributes(&layout_verifier()?),
-            bus.name(),
-            &name,
-            || bus.unknown_drive(address.get()),
-        )?;
-        let publisher = match service.publisher_builder().create() {
-            Ok(p) => p,
-            Err(PublisherCreateError::ExceedsMaxSupportedPublishers) => {
-                let (pid, node) = holder(bus.node(), &service).unzip();
-                return Err(ClientError::Controlled {
-                    bus: bus.name().to_owned(),
-                    address: address.get(),
-                    pid,
-                    node,
-                });
-            }
-            Err(e) => {
-                return Err(ClientError::ipc(
-                    format!("publishing on {}", name.as_str()),
-                    e,
-                ));
-            }
-        };
+        let services = bus.services()?;
+        let port = open_port(bus.link(), &services, address).map_err(|e| match e {
+            ClientError::UnknownDrive { .. } => bus.unknown_drive(address.get()),
+            other => other,
+        })?;
         let watch = DriveWatch::open(bus, address)?;
         let mut words = [0; MAX_PZD_WORDS];
         words[0] = Stw1::READY.bits();
         let known_latch = latch_id(&watch.latest());
         Ok(Self {
             shared: Arc::new(Shared {
-                publisher,
+                link: Arc::clone(bus.link()),
                 state: Mutex::new(State {
+                    port,
                     image: Image {
                         words,
                         count: pzd,
@@ -346,6 +375,7 @@ impl Controller {
     /// The latest input image, or [`ClientError::Tripped`] when the drive latched since this
     /// controller last acknowledged a latch. For control loops that read more than they write.
     pub fn check(&self) -> Result<PzdInput, ClientError> {
+        self.shared.link.check()?;
         let state = self.shared.state();
         let input = self.shared.watch.latest();
         match self.shared.news(&input, &state) {
@@ -592,9 +622,17 @@ fn refresh_loop(shared: &Shared, stop: &StopFlag, period: Duration) -> Result<()
             return Ok(());
         }
         match shared.publish(|_| {}) {
-            // The owner learns of a latch at its next call and decides; until then the
-            // refresher must not keep a tripped drive's controller looking alive.
-            Ok(()) | Err(ClientError::Tripped { .. } | ClientError::NotArmed { .. }) => {}
+            // The owner learns of a latch (or of ussd's absence) at its next call and decides;
+            // until then the refresher must not keep a tripped drive's controller looking
+            // alive. After a re-arm (or a reconnect) it goes on.
+            Ok(())
+            | Err(
+                ClientError::Tripped { .. }
+                | ClientError::NotArmed { .. }
+                | ClientError::UssdGone { .. }
+                | ClientError::UssdStopped { .. }
+                | ClientError::LineDown { .. },
+            ) => {}
             Err(e) => return Err(e),
         }
     }

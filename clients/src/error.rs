@@ -26,7 +26,7 @@ pub struct Latch {
 impl Latch {
     /// The latch an input image shows.
     pub fn of(input: &PzdInput) -> Self {
-        let now = crate::control::monotonic_ns();
+        let now = crate::link::monotonic_ns();
         Self {
             reason: LatchReason::try_from(input.latch_reason).unwrap_or(LatchReason::None),
             command: StopCommand::try_from(input.latch_command).unwrap_or(StopCommand::None),
@@ -101,9 +101,40 @@ pub enum ClientError {
         "{what} failed: {detail}: check that ussd and this program run as the same user or group (iceoryx2 keeps its state in /dev/shm and /tmp/iceoryx2)"
     )]
     Ipc { what: String, detail: String },
-    /// ussd died (its notifier's dead event on `cycle`). The services of this `Bus` are stale.
-    #[error("ussd on {bus} stopped: open the bus again once ussd runs")]
-    UssdGone { bus: String },
+    /// No heartbeat from ussd for longer than `uss_shm_types::names::GONE_AFTER_NS`: it died
+    /// or hangs. Images are stale (they show the drives offline). The bus reconnects by itself
+    /// when a ussd serves it again.
+    #[error(
+        "ussd on {bus} is gone (no heartbeat for {:.2} s{}): the drives are not polled; only their own telegram monitoring stops them. Restart ussd (systemctl restart ussd)",
+        silent_for.as_secs_f64(), Pid(*.pid)
+    )]
+    UssdGone {
+        bus: String,
+        /// The process of its last heartbeat (0 if none was seen).
+        pid: u32,
+        silent_for: Duration,
+    },
+    /// ussd said it stops (a clean exit, e.g. SIGTERM): every drive got its safe command once.
+    #[error(
+        "ussd on {bus} stopped {:.2} s ago{}: start it again (`ussd`); this program reconnects by itself",
+        ago.as_secs_f64(), Pid(*.pid)
+    )]
+    UssdStopped {
+        bus: String,
+        pid: u32,
+        ago: Duration,
+    },
+    /// ussd runs, but the bus line is down: nothing reaches the drives until it reopens.
+    #[error(
+        "bus {bus}: line down ({fault}) for {:.2} s: ussd reopens the device; check the adapter and cable",
+        down_for.as_secs_f64()
+    )]
+    LineDown {
+        bus: String,
+        /// Why, in words.
+        fault: String,
+        down_for: Duration,
+    },
     /// ussd stopped updating the drive's input image (it stopped, or the drive is gone).
     #[error(
         "ussd did not update the inputs of drive {address} on {bus} for {timeout:?}: check that ussd still runs (`ussctl status`)"
@@ -214,6 +245,18 @@ impl ClientError {
     }
 }
 
+/// `, it was process N`, or nothing for pid 0.
+struct Pid(u32);
+
+impl fmt::Display for Pid {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.0 {
+            0 => Ok(()),
+            pid => write!(f, "; it was process {pid}"),
+        }
+    }
+}
+
 struct Known<'a>(&'a [u8]);
 
 impl fmt::Display for Known<'_> {
@@ -286,6 +329,11 @@ pub enum ParamError {
     /// ussd stopped before the item finished.
     #[error("ussd shut down before the task finished: retry once ussd runs again")]
     Shutdown,
+    /// The bus line failed before the item finished.
+    #[error(
+        "the bus line went down before the task finished: ussd reopens it; check the adapter and cable (`ussctl status`), then retry"
+    )]
+    LineDown,
     /// A write to a drive another process controls, not marked deliberate (force).
     #[error(
         "drive {address} is controlled by process {pid}: a parameter write from another process is refused; stop that controller first, or force the write if it is deliberate (ussctl param write --force)"
@@ -348,6 +396,9 @@ fn refusal_hint(error: RequestError) -> &'static str {
         }
         RequestError::Controlled => {
             ": another process controls the drive; force the write if it is deliberate"
+        }
+        RequestError::LineDown => {
+            ": the bus line is down; ussd reopens it, retry once `ussctl status` shows it up"
         }
         RequestError::Ok
         | RequestError::PnuOutOfRange

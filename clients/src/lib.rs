@@ -64,6 +64,7 @@ mod bus;
 mod command;
 mod control;
 mod error;
+mod link;
 mod open;
 pub mod params;
 mod request;
@@ -72,11 +73,12 @@ mod watch;
 pub use bus::{Bus, DEFAULT_NODE_NAME};
 pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, HANDSHAKE_TIMEOUT, Jog, Refresher};
 pub use error::{ClientError, Latch, ParamError};
+pub use link::Health;
 pub use params::{WriteOptions, array_len_item, read_item, write_item};
 pub use uss_protocol::{DriveState, Setpoint, Stw1, Value, Zsw1};
 pub use uss_shm_types::{
-    BusStatus, ControlState, DriveDiag, LatchReason, Monitoring, ParamItem, ParamRequest,
-    ParamResponse, PzdInput, PzdOutput, Rejection, RequestError, StopCommand,
+    BusState, BusStatus, ControlState, DriveDiag, LatchReason, LineFault, Monitoring, ParamItem,
+    ParamRequest, ParamResponse, PzdInput, PzdOutput, Rejection, RequestError, StopCommand,
 };
 pub use watch::{CycleEvent, CycleListener, DriveWatch};
 /// The protocol and contract crates this API speaks, so applications use the same versions.

@@ -2,11 +2,14 @@
 //! means to a client.
 
 use crate::ClientError;
+use iceoryx2::port::reader::EntryHandle;
 use iceoryx2::prelude::{AttributeVerifier, ServiceName};
 use iceoryx2::service::builder::blackboard::BlackboardOpenError;
 use iceoryx2::service::builder::event::EventOpenError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 use iceoryx2::service::builder::request_response::RequestResponseOpenError;
+use iceoryx2::service::port_factory::blackboard::PortFactory as Blackboard;
+use uss_shm_types::BlackboardKey;
 use uss_shm_types::LAYOUT_VERSION;
 use uss_shm_types::names::LAYOUT_VERSION_ATTRIBUTE;
 
@@ -91,6 +94,36 @@ impl OpenError for RequestResponseOpenError {
             | Self::IncompatibleMessagingPattern => Failure::Incompatible,
             _ => Failure::Other,
         }
+    }
+}
+
+/// The entry `key` of a blackboard service `name` of bus `bus`, through a reader of its own
+/// (the entry keeps it); a missing or differently typed entry is [`ClientError::Incompatible`].
+pub(crate) fn entry<T: Copy + core::fmt::Debug + iceoryx2::prelude::ZeroCopySend + 'static>(
+    service: &Blackboard<Ipc, BlackboardKey>,
+    bus: &str,
+    name: &ServiceName,
+    key: BlackboardKey,
+) -> Result<EntryHandle<Ipc, BlackboardKey, T>, ClientError> {
+    service
+        .reader_builder()
+        .create()
+        .map_err(|e| ClientError::ipc(format!("reading {}", name.as_str()), e))?
+        .entry::<T>(&key)
+        .map_err(|_| ClientError::Incompatible {
+            bus: bus.to_owned(),
+            service: name.as_str().to_owned(),
+        })
+}
+
+/// The error for a drive whose service does not exist (the list of drives is filled in by
+/// [`crate::Bus`], which knows them).
+pub(crate) fn unknown_drive(bus: &str, address: u8) -> impl FnOnce() -> ClientError {
+    let bus = bus.to_owned();
+    move || ClientError::UnknownDrive {
+        bus,
+        address,
+        known: Vec::new(),
     }
 }
 

@@ -78,6 +78,7 @@ pub fn item_result(result: &ParamResult) -> Result<Value, ParamError> {
         Ok(Outcome::DriveOffline) => Err(ParamError::DriveOffline),
         Ok(Outcome::MailboxFull) => Err(ParamError::MailboxFull),
         Ok(Outcome::Shutdown) => Err(ParamError::Shutdown),
+        Ok(Outcome::LineDown) => Err(ParamError::LineDown),
         Ok(Outcome::Refused) => match RequestError::try_from(result.refusal) {
             Ok(error) => Err(ParamError::Refused { error, item: None }),
             Err(e) => Err(ParamError::Unexpected(e.to_string())),
@@ -251,8 +252,9 @@ impl Bus {
     /// for tools that build requests themselves. [`response_results`] reads it. Fails when
     /// ussd does not answer within the answer timeout ([`Bus::set_answer_timeout`]).
     pub fn send_request(&self, request: &ParamRequest) -> Result<ParamResponse, ParamError> {
-        let name = names::params(self.bus_name());
-        let client = crate::request::client(self, self.params_client(), &name)?;
+        let services = self.link().check()?;
+        let name = names::params(&services.instance);
+        let client = crate::request::client(self.link(), &services.params, &name)?;
         let timeout = self.answer_timeout(usize::from(request.count).min(MAX_PARAM_ITEMS));
         match crate::request::round_trip(client, *request, timeout)? {
             Ok(response) => Ok(response),

@@ -1,8 +1,9 @@
 //! One request, one answer: the client side of ussd's request-response services (`params`,
-//! `command`), opened once per [`Bus`] and shared by its threads.
+//! `command`), opened once per ussd generation and shared by a bus's threads.
 
+use crate::ClientError;
+use crate::link::Link;
 use crate::open::{Ipc, layout_verifier, opened};
-use crate::{Bus, ClientError};
 use core::fmt::Debug;
 use core::time::Duration;
 use iceoryx2::port::client::Client;
@@ -23,7 +24,7 @@ pub(crate) enum NoAnswer {
 
 /// The client of service `name` kept in `cell`, opened on first use.
 pub(crate) fn client<'a, Req, Resp>(
-    bus: &Bus,
+    link: &Link,
     cell: &'a OnceLock<Client<Ipc, Req, (), Resp, ()>>,
     name: &ServiceName,
 ) -> Result<&'a Client<Ipc, Req, (), Resp, ()>, ClientError>
@@ -34,15 +35,16 @@ where
     if let Some(client) = cell.get() {
         return Ok(client);
     }
+    let bus = link.name.as_str();
     let service = opened(
-        bus.node()
+        link.node
             .service_builder(name)
             .request_response::<Req, Resp>()
             .open_with_attributes(&layout_verifier()?),
-        bus.name(),
+        bus,
         name,
         || ClientError::NotRunning {
-            bus: bus.name().to_owned(),
+            bus: bus.to_owned(),
         },
     )?;
     let client = service

@@ -1,62 +1,125 @@
 //! Reading a drive's inputs ([`DriveWatch`]) and running in step with the bus
 //! ([`CycleListener`]).
 
-use crate::open::{Ipc, layout_verifier, opened};
+use crate::link::{HEARTBEAT_PERIOD, Link, Services};
+use crate::open::{Ipc, entry, layout_verifier, opened, unknown_drive};
 use crate::{Bus, ClientError};
 use core::time::Duration;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::reader::EntryHandle;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 use uss_protocol::{DriveState, Setpoint, Zsw1};
 use uss_shm_types::names;
-use uss_shm_types::{BlackboardKey, DriveAddress, PzdInput};
+use uss_shm_types::{BlackboardKey, DriveAddress, Generation, PzdInput};
 
 /// How often the `wait_*` helpers look at the input image.
 pub(crate) const POLL: Duration = Duration::from_millis(1);
 
-/// A drive's input image (USS.md section 7: ZSW1, HIW, further PZD words), read from the
-/// blackboard ussd writes after every good reply. Reading never blocks and never allocates.
-pub struct DriveWatch {
-    bus: String,
-    address: DriveAddress,
+/// The input image entry of one ussd generation.
+struct Port {
+    generation: Generation,
     entry: EntryHandle<Ipc, BlackboardKey, PzdInput>,
+}
+
+/// What a watch keeps between reads.
+struct State {
+    port: Option<Port>,
+    /// The last image read while ussd served the bus.
+    last: PzdInput,
+}
+
+/// A drive's input image (USS.md section 7: ZSW1, HIW, further PZD words), read from the
+/// blackboard ussd writes after every poll. Reading never blocks and never allocates (unless
+/// ussd was restarted: then the new generation's image is opened on the next read).
+///
+/// The image never shows a healthy picture that is not true: while ussd is gone or stopped,
+/// or its line is down, [`DriveWatch::latest`] returns the last image with `online = 0`, and
+/// [`DriveWatch::read`] says why with an error.
+pub struct DriveWatch {
+    link: Arc<Link>,
+    address: DriveAddress,
+    state: Mutex<State>,
 }
 
 impl core::fmt::Debug for DriveWatch {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("DriveWatch")
-            .field("bus", &self.bus)
+            .field("bus", &self.link.name.as_str())
             .field("address", &self.address.get())
             .finish_non_exhaustive()
     }
 }
 
+/// Opens the input image entry of drive `address` of the generation `services` belong to.
+fn open_port(link: &Link, services: &Services, address: DriveAddress) -> Result<Port, ClientError> {
+    let bus = link.name.as_str();
+    let name = names::drive_in(&services.instance, address);
+    let service = opened(
+        link.node
+            .service_builder(&name)
+            .blackboard_opener::<BlackboardKey>()
+            .open_with_attributes(&layout_verifier()?),
+        bus,
+        &name,
+        unknown_drive(bus, address.get()),
+    )?;
+    let entry = entry(&service, bus, &name, BlackboardKey::IMAGE)?;
+    Ok(Port {
+        generation: services.generation(),
+        entry,
+    })
+}
+
 impl DriveWatch {
     pub(crate) fn open(bus: &Bus, address: DriveAddress) -> Result<Self, ClientError> {
-        let name = names::drive_in(bus.bus_name(), address);
-        let service = opened(
-            bus.node()
-                .service_builder(&name)
-                .blackboard_opener::<BlackboardKey>()
-                .open_with_attributes(&layout_verifier()?),
-            bus.name(),
-            &name,
-            || bus.unknown_drive(address.get()),
-        )?;
-        let entry = service
-            .reader_builder()
-            .create()
-            .map_err(|e| ClientError::ipc(format!("reading {}", name.as_str()), e))?
-            .entry::<PzdInput>(&BlackboardKey::IMAGE)
-            .map_err(|_| ClientError::Incompatible {
-                bus: bus.name().to_owned(),
-                service: name.as_str().to_owned(),
-            })?;
+        let services = bus.services()?;
+        let port = open_port(bus.link(), &services, address).map_err(|e| match e {
+            ClientError::UnknownDrive { .. } => bus.unknown_drive(address.get()),
+            other => other,
+        })?;
+        let last = *port.entry.get();
         Ok(Self {
-            bus: bus.name().to_owned(),
+            link: Arc::clone(bus.link()),
             address,
-            entry,
+            state: Mutex::new(State {
+                port: Some(port),
+                last,
+            }),
         })
+    }
+
+    fn cache(&self) -> MutexGuard<'_, State> {
+        // Plain data, valid whatever a panicking holder left behind.
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The latest input image and, when it cannot be trusted, why. A stale image is the last
+    /// one read, with `online = 0`.
+    fn look(&self) -> (PzdInput, Option<ClientError>) {
+        let (health, services) = self.link.current();
+        let mut state = self.cache();
+        if let Some(services) = services.filter(|_| health.is_serving()) {
+            if state.port.as_ref().map(|p| p.generation) != Some(services.generation()) {
+                state.port = open_port(&self.link, &services, self.address).ok();
+            }
+            if let Some(port) = &state.port {
+                state.last = *port.entry.get();
+            }
+        }
+        let problem = health.error(self.link.name.as_str());
+        let mut image = state.last;
+        if problem.is_some() || state.port.is_none() {
+            image.online = 0;
+        }
+        let problem = problem.or_else(|| {
+            state.port.is_none().then(|| ClientError::UnknownDrive {
+                bus: self.link.name.as_str().to_owned(),
+                address: self.address.get(),
+                known: Vec::new(),
+            })
+        });
+        (image, problem)
     }
 
     /// The drive's address.
@@ -65,9 +128,25 @@ impl DriveWatch {
     }
 
     /// The latest input image. `sequence` counts good replies (0 = none yet); `online` is 0
-    /// while the drive does not answer.
+    /// while the drive does not answer, and while ussd does not poll it (gone, stopped, line
+    /// down); `known` is 0 until ussd's first poll decided `online`.
     pub fn latest(&self) -> PzdInput {
-        *self.entry.get()
+        self.look().0
+    }
+
+    /// The latest input image, or why it cannot be trusted: [`ClientError::UssdGone`],
+    /// [`ClientError::UssdStopped`], [`ClientError::LineDown`].
+    pub fn read(&self) -> Result<PzdInput, ClientError> {
+        match self.look() {
+            (image, None) => Ok(image),
+            (_, Some(e)) => Err(e),
+        }
+    }
+
+    /// How long ago the image's reply arrived.
+    pub fn age(&self) -> Duration {
+        let at = self.look().0.timestamp_ns;
+        Duration::from_nanos(crate::link::monotonic_ns().saturating_sub(at))
     }
 
     /// Whether the drive answers.
@@ -138,8 +217,9 @@ impl DriveWatch {
         })
     }
 
-    /// The error of a wait that began when the image had sequence `first`: stale when ussd
-    /// wrote nothing meanwhile (an offline drive's image is still written after every poll).
+    /// The error of a wait that began when the image had sequence `first`: why ussd does not
+    /// poll, or stale when ussd wrote nothing meanwhile (an offline drive's image is still
+    /// written after every poll).
     pub(crate) fn timed_out(
         &self,
         timeout: Duration,
@@ -147,15 +227,18 @@ impl DriveWatch {
         first: u64,
         latest: &PzdInput,
     ) -> ClientError {
+        if let Some(e) = self.look().1 {
+            return e;
+        }
         if latest.sequence == first && latest.online != 0 {
             return ClientError::Stale {
-                bus: self.bus.clone(),
+                bus: self.link.name.as_str().to_owned(),
                 address: self.address.get(),
                 timeout,
             };
         }
         ClientError::WaitTimeout {
-            bus: self.bus.clone(),
+            bus: self.link.name.as_str().to_owned(),
             address: self.address.get(),
             timeout,
             wanted: wanted.to_owned(),
@@ -174,9 +257,9 @@ pub enum CycleEvent {
     CycleCompleted,
     /// `status` and `diag` were republished.
     StatusPublished,
-    /// ussd died: drop this [`Bus`] and everything opened from it, then open the bus again
-    /// once ussd runs (a restarted ussd cannot update blackboards its predecessor held while
-    /// clients keep them open).
+    /// ussd left this generation (a clean stop says goodbye; a killed ussd's dead notifier
+    /// says it when its node is cleaned up). The heartbeat says the same within 0.5 s, and a
+    /// restarted ussd is followed by itself.
     UssdGone,
     /// An id this client does not know (a newer ussd).
     Other(usize),
@@ -195,69 +278,97 @@ impl CycleEvent {
 }
 
 /// Wakes on the bus's exchange and cycle events, so a control loop runs in step with the bus
-/// instead of polling.
+/// instead of polling. Follows a restarted ussd to its new generation.
 pub struct CycleListener {
-    bus: String,
-    listener: Listener<Ipc>,
+    link: Arc<Link>,
+    listener: Mutex<(Generation, Listener<Ipc>)>,
 }
 
 impl core::fmt::Debug for CycleListener {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("CycleListener")
-            .field("bus", &self.bus)
+            .field("bus", &self.link.name.as_str())
             .finish_non_exhaustive()
     }
 }
 
+fn open_listener(link: &Link, services: &Services) -> Result<Listener<Ipc>, ClientError> {
+    let bus = link.name.as_str();
+    let name = names::cycle(&services.instance);
+    let service = opened(
+        link.node
+            .service_builder(&name)
+            .event()
+            .open_with_attributes(&layout_verifier()?),
+        bus,
+        &name,
+        || ClientError::NotRunning {
+            bus: bus.to_owned(),
+        },
+    )?;
+    service
+        .listener_builder()
+        .create()
+        .map_err(|e| ClientError::ipc(format!("listening on {}", name.as_str()), e))
+}
+
 impl CycleListener {
     pub(crate) fn open(bus: &Bus) -> Result<Self, ClientError> {
-        let name = names::cycle(bus.bus_name());
-        let service = opened(
-            bus.node()
-                .service_builder(&name)
-                .event()
-                .open_with_attributes(&layout_verifier()?),
-            bus.name(),
-            &name,
-            || ClientError::NotRunning {
-                bus: bus.name().to_owned(),
-            },
-        )?;
-        let listener = service
-            .listener_builder()
-            .create()
-            .map_err(|e| ClientError::ipc(format!("listening on {}", name.as_str()), e))?;
+        let services = bus.services()?;
+        let listener = open_listener(bus.link(), &services)?;
         Ok(Self {
-            bus: bus.name().to_owned(),
-            listener,
+            link: Arc::clone(bus.link()),
+            listener: Mutex::new((services.generation(), listener)),
         })
+    }
+
+    /// The listener of the current generation (reopened after a restart of ussd), or why ussd
+    /// does not serve the bus.
+    fn listener(&self) -> Result<MutexGuard<'_, (Generation, Listener<Ipc>)>, ClientError> {
+        let services = self.link.check()?;
+        let mut current = self.listener.lock().unwrap_or_else(PoisonError::into_inner);
+        if current.0 != services.generation() {
+            *current = (services.generation(), open_listener(&self.link, &services)?);
+        }
+        Ok(current)
     }
 
     /// Waits up to `timeout` for events and hands each to `f` (an id notified several times
     /// since the last wait is handed over once). Returns how many ids were handed over: 0
-    /// after a timeout.
+    /// after a timeout. Fails when ussd is gone, stopped or its line is down (looked at every
+    /// heartbeat period while waiting).
     pub fn wait(
         &self,
         timeout: Duration,
         mut f: impl FnMut(CycleEvent),
     ) -> Result<usize, ClientError> {
-        let mut n = 0;
-        self.listener
-            .timed_wait(
-                |a| {
-                    n += 1;
-                    f(CycleEvent::from_id(a.id.as_value()));
-                },
-                timeout,
-            )
-            .map_err(|e| ClientError::ipc("waiting for cycle events", e))?;
-        Ok(n)
+        let deadline = Instant::now() + timeout;
+        loop {
+            let step = deadline
+                .saturating_duration_since(Instant::now())
+                .min(HEARTBEAT_PERIOD);
+            let mut n = 0;
+            self.listener()?
+                .1
+                .timed_wait(
+                    |a| {
+                        n += 1;
+                        f(CycleEvent::from_id(a.id.as_value()));
+                    },
+                    step,
+                )
+                .map_err(|e| ClientError::ipc("waiting for cycle events", e))?;
+            if n > 0 || Instant::now() >= deadline {
+                return Ok(n);
+            }
+        }
     }
 
     /// Hands over the events already pending, without waiting.
     pub fn try_events(&self, mut f: impl FnMut(CycleEvent)) -> Result<usize, ClientError> {
         let mut n = 0;
-        self.listener
+        self.listener()?
+            .1
             .try_wait(|a| {
                 n += 1;
                 f(CycleEvent::from_id(a.id.as_value()));
@@ -266,22 +377,14 @@ impl CycleListener {
         Ok(n)
     }
 
-    /// Waits until `event` arrives: `Ok(true)`, or `Ok(false)` after `timeout`. Fails with
-    /// [`ClientError::UssdGone`] when ussd died.
+    /// Waits until `event` arrives: `Ok(true)`, or `Ok(false)` after `timeout`. Fails when
+    /// ussd is gone, stopped or its line is down.
     pub fn wait_for(&self, event: CycleEvent, timeout: Duration) -> Result<bool, ClientError> {
         let deadline = Instant::now() + timeout;
         loop {
-            let (mut seen, mut gone) = (false, false);
+            let mut seen = false;
             let left = deadline.saturating_duration_since(Instant::now());
-            self.wait(left, |e| {
-                seen |= e == event;
-                gone |= e == CycleEvent::UssdGone;
-            })?;
-            if gone && event != CycleEvent::UssdGone {
-                return Err(ClientError::UssdGone {
-                    bus: self.bus.clone(),
-                });
-            }
+            self.wait(left, |e| seen |= e == event)?;
             if seen {
                 return Ok(true);
             }

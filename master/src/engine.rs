@@ -14,7 +14,7 @@ use crate::control::{Control, Gate, GateSetup, Latch, Operator, Poll, Transition
 use crate::image::DriveImages;
 use crate::jobs::{Job, JobResult, Mailbox, Outcome};
 use crate::monitoring::MonitoringSetup;
-use crate::stats::{DriveStatus, Failure, Stats, record};
+use crate::stats::{DriveStatus, Failure, LineFault, Stats, record};
 use crate::transport::{Transport, TransportError};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
@@ -26,7 +26,7 @@ use uss_protocol::{
     Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, PkwError, PkwMode,
     ReplyKind, Timing, Words, encode,
 };
-use uss_shm_types::{Monitoring, PzdOutput, Rejection, StopCommand};
+use uss_shm_types::{LatchReason, Monitoring, PzdOutput, Rejection, StopCommand};
 
 /// Job ids with this bit are ussd's own (the telegram-monitoring check); clients use the rest.
 pub const INTERNAL_JOB: u64 = 1 << 63;
@@ -123,6 +123,16 @@ pub enum Event {
         at: Duration,
         took: Duration,
     },
+    /// The bus line failed: every drive is offline, every pending job ended.
+    LineDown {
+        at: Duration,
+        fault: LineFault,
+    },
+    /// The line is back: every drive is latched and probed.
+    LineUp {
+        at: Duration,
+        down_for: Duration,
+    },
 }
 
 /// Where process images leave and enter the bus thread (iceoryx2 in `ussd`; in-process cells
@@ -174,6 +184,8 @@ pub enum RequestError {
     ReservedJobId(u64),
     #[error("{0} is not a stop command: use OFF1, OFF2 or OFF3")]
     NotAStop(StopCommand),
+    #[error("the bus line is down: ussd reopens it; retry once it is back")]
+    LineDown,
 }
 
 /// Operator stop commands for one drive, from any thread, taken by the bus thread without
@@ -198,6 +210,10 @@ struct Shared {
     overrides: Vec<Overrides>,
     stats: Mutex<Stats>,
     stop: AtomicBool,
+    /// Set by the bus thread while its line is down.
+    line_down: AtomicBool,
+    /// Attempts to reopen the line since it went down (by whoever reopens it).
+    reopen_attempts: AtomicU32,
     outstanding: AtomicUsize,
     capacity: usize,
 }
@@ -320,6 +336,9 @@ impl EngineHandle {
         if job.id & INTERNAL_JOB != 0 {
             return Err(RequestError::ReservedJobId(job.id));
         }
+        if self.shared.line_down.load(Ordering::Acquire) {
+            return Err(RequestError::LineDown);
+        }
         let slot = self.shared.slot(job.address)?;
         let setup = &self.shared.setups[slot];
         if job.task.is_write() && !setup.params_writable {
@@ -369,6 +388,21 @@ impl EngineHandle {
 
     pub fn is_stopped(&self) -> bool {
         self.shared.stop.load(Ordering::Acquire)
+    }
+
+    /// Whether the bus line is down (the engine waits for a reopened transport).
+    pub fn is_line_down(&self) -> bool {
+        self.shared.line_down.load(Ordering::Acquire)
+    }
+
+    /// Counts one attempt to reopen the line (for the bus status).
+    pub fn note_reopen_attempt(&self) {
+        self.shared.reopen_attempts.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Attempts to reopen the line since it last went down.
+    pub fn reopen_attempts(&self) -> u32 {
+        self.shared.reopen_attempts.load(Ordering::Relaxed)
     }
 
     pub fn drives(&self) -> &[DriveSetup] {
@@ -492,12 +526,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             overrides: cfg.drives.iter().map(|_| Overrides::default()).collect(),
             stats: Mutex::new(stats.clone()),
             stop: AtomicBool::new(false),
+            line_down: AtomicBool::new(false),
+            reopen_attempts: AtomicU32::new(0),
             outstanding: AtomicUsize::new(0),
             capacity,
         });
-        for image in &shared.images {
-            image.online.store(true, Ordering::Release);
-        }
         // Outstanding jobs never exceed `capacity`, so neither channel can be full when the
         // engine sends: no result is ever lost.
         let (jobs_tx, jobs_rx) = bounded(capacity);
@@ -567,15 +600,83 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         &self.stats
     }
 
-    /// Polls until the handle asks to stop, then shuts down (see [`Engine::shutdown`]).
+    /// Polls until the handle asks to stop, then shuts down (see [`Engine::shutdown`]). When
+    /// the line fails, takes the bus down ([`Engine::line_down`]) and returns the error: the
+    /// caller reopens the line and resumes with [`Engine::restore`].
     pub fn run(&mut self) -> Result<(), TransportError> {
         while !self.shared.stop.load(Ordering::Acquire) {
             if let Err(e) = self.poll_next() {
-                self.fail_all_jobs(Outcome::Shutdown);
+                self.line_down(&e);
                 return Err(e);
             }
         }
         self.shutdown()
+    }
+
+    /// The line failed: every pending job ends with [`Outcome::LineDown`] (the one on the wire
+    /// included: its reply cannot come), every drive is offline, and new jobs are refused until
+    /// the line is back. Nothing can be sent meanwhile: a running drive's own telegram
+    /// monitoring (P2014) is what stops it.
+    pub fn line_down(&mut self, error: &TransportError) {
+        let now = self.clock.now();
+        let fault = LineFault::of(error);
+        self.shared.reopen_attempts.store(0, Ordering::Relaxed);
+        self.shared.line_down.store(true, Ordering::Release);
+        self.fail_all_jobs(Outcome::LineDown);
+        for slot in 0..self.drives.len() {
+            let status = &mut self.stats.drives[slot];
+            if status.online {
+                status.online = false;
+                status.since = now;
+            }
+            status.no_reply = true;
+            self.shared.images[slot]
+                .online
+                .store(false, Ordering::Release);
+            self.bridge
+                .after_poll(slot, &self.shared.images[slot], &self.stats.drives[slot]);
+        }
+        self.stats.line.down = Some((now, fault));
+        self.stats.line.downs += 1;
+        self.emit(Event::LineDown { at: now, fault });
+        self.publish();
+    }
+
+    /// The line is back on `transport`: every drive latches ([`LatchReason::LineRestored`])
+    /// and is probed at once, coming online with its first good reply. A drive that ran before
+    /// runs again only when its controller re-arms it (OFF1, then ON).
+    pub fn restore(&mut self, transport: T) {
+        let now = self.clock.now();
+        self.transport = transport;
+        self.framer.reset();
+        self.line_free_at = now;
+        self.last_reply_done = None;
+        self.last_reply_seen = None;
+        for slot in 0..self.drives.len() {
+            let d = &mut self.drives[slot];
+            d.next_probe = now;
+            let change = d.gate.latch(LatchReason::LineRestored, now);
+            let address = d.setup.address;
+            let status = &mut self.stats.drives[slot];
+            status.control = d.gate.control();
+            status.counters.set_control(&d.gate.counters());
+            if let Transition::Latched { latch, rejection } = change {
+                self.emit(Event::Latched {
+                    address,
+                    latch,
+                    rejection,
+                });
+            }
+        }
+        let down_for = self
+            .stats
+            .line
+            .down
+            .take()
+            .map_or(Duration::ZERO, |(since, _)| now.saturating_sub(since));
+        self.shared.line_down.store(false, Ordering::Release);
+        self.emit(Event::LineUp { at: now, down_for });
+        self.publish();
     }
 
     /// Polls the next drive in the circulating list (or waits for the next offline probe when
@@ -598,6 +699,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     pub fn shutdown(&mut self) -> Result<(), TransportError> {
         self.shared.stop.store(true, Ordering::Release);
         self.fail_all_jobs(Outcome::Shutdown);
+        if self.stats.line.down.is_some() {
+            // Nothing reaches the drives; their own telegram monitoring stops them.
+            self.publish();
+            return Ok(());
+        }
         for slot in 0..self.drives.len() {
             let setup = self.drives[slot].setup;
             // The safe command, or the stronger command a latched drive already gets.
@@ -642,7 +748,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             };
             let outcome = if self.shared.stop.load(Ordering::Acquire) {
                 Some(Outcome::Shutdown)
-            } else if !self.stats.drives[slot].online {
+            } else if self.stats.drives[slot].known && !self.stats.drives[slot].online {
                 Some(Outcome::DriveOffline)
             } else {
                 self.drives[slot]
@@ -700,7 +806,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             }
             Outcome::ElementCount(_) | Outcome::Description(_) => return,
             // The drive is gone or ussd stops: read again when it is back.
-            Outcome::DriveOffline | Outcome::MailboxFull | Outcome::Shutdown => {
+            Outcome::DriveOffline
+            | Outcome::MailboxFull
+            | Outcome::Shutdown
+            | Outcome::LineDown => {
                 if result.job.id & INTERNAL_JOB != 0 {
                     self.drives[slot].monitoring_due = true;
                 }
@@ -921,6 +1030,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let came_back = !status.online;
         if came_back {
             status.online = true;
+            status.known = true;
             status.since = timing.done;
         }
         let good = status.counters.good;
@@ -953,7 +1063,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 at: timing.done,
             });
         }
-        if came_back || self.stats.drives[slot].counters.good == 1 {
+        if came_back {
             // A drive that comes online may have been replaced or reset: read its monitoring.
             self.drives[slot].monitoring_due = true;
         }
@@ -979,8 +1089,13 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         status.no_reply = true;
         status.consecutive_failed_polls += 1;
         self.drives[slot].next_probe = now + self.cfg.offline_probe;
-        if status.online && status.consecutive_failed_polls >= self.cfg.offline_after {
+        // A drive of unknown state is offline with its first failed poll; an online one after
+        // `offline_after` in a row.
+        let decides = !status.known
+            || (status.online && status.consecutive_failed_polls >= self.cfg.offline_after);
+        if decides {
             status.online = false;
+            status.known = true;
             status.since = now;
             self.shared.images[slot]
                 .online

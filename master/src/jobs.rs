@@ -36,6 +36,8 @@ pub enum Outcome {
     MailboxFull,
     /// The engine stopped before the job completed.
     Shutdown,
+    /// The bus line failed (device unplugged, I/O error) before the job completed.
+    LineDown,
 }
 
 impl Outcome {

@@ -18,6 +18,7 @@ use crate::stats::Stats;
 use crate::transport::{SimTransport, Transport, TransportError};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, bounded};
+use std::path::{Path, PathBuf};
 use std::thread::JoinHandle;
 use thiserror::Error;
 use uss_drive_sim::{BusError, SimBus, VirtualWire};
@@ -65,7 +66,7 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
         param_timeout: bus.param_timeout,
         echo: bus.echo,
         mailbox_depth: MAILBOX_DEPTH,
-        publish_every: Duration::from_millis(250),
+        publish_every: STATUS_EVERY,
         drives: bus
             .drives
             .iter()
@@ -109,6 +110,8 @@ pub struct RunningBus {
     pub rt_report: RtReport,
     engine_thread: JoinHandle<Result<(), TransportError>>,
     params_thread: JoinHandle<()>,
+    /// Reopens a serial line that failed (none for a simulated bus).
+    line_thread: Option<JoinHandle<()>>,
     housekeeping: JoinHandle<()>,
     /// The bus's iceoryx2 node: dropped last, after every thread using its ports.
     node: crate::ipc::IpcNode,
@@ -121,7 +124,9 @@ impl RunningBus {
         self.node.try_cleanup_dead_nodes().cleanups
     }
 
-    /// Whether the bus thread has ended without being asked to (its line failed).
+    /// Whether the bus thread has ended without being asked to (it cannot go on: a simulated
+    /// bus whose wire failed, or a line nobody can reopen). A serial line that fails does not
+    /// end it: the bus waits, line down, until its line thread reopened the device.
     pub fn has_failed(&self) -> bool {
         self.engine_thread.is_finished() && !self.handle.is_stopped()
     }
@@ -132,6 +137,9 @@ impl RunningBus {
         self.handle.stop();
         let result = self.engine_thread.join().unwrap_or(Ok(()));
         let _ = self.params_thread.join();
+        if let Some(line) = self.line_thread {
+            let _ = line.join();
+        }
         let _ = self.housekeeping.join();
         result
     }
@@ -144,18 +152,154 @@ struct Spawned {
     reports: Receiver<RtReport>,
     thread: JoinHandle<Result<(), TransportError>>,
     params_thread: JoinHandle<()>,
+    line_thread: Option<JoinHandle<()>>,
     events: Receiver<Event>,
     status: StatusPublisher,
     node: crate::ipc::IpcNode,
 }
 
+/// How a bus thread gets its line back after it failed: it asks once, then waits for the new
+/// transport (from the bus's line thread), checking for a stop now and then.
+struct Reopen<T> {
+    ask: Sender<()>,
+    reopened: Receiver<T>,
+}
+
+/// Runs `engine` until it is stopped; when its line fails, waits (line down, allocating
+/// nothing) for a reopened transport and resumes. Without `reopen` a failed line ends the bus.
+fn run_bus<T: Transport, C: crate::clock::Clock, B: crate::engine::Bridge>(
+    engine: &mut Engine<T, C, B>,
+    handle: &EngineHandle,
+    reopen: Option<&Reopen<T>>,
+) -> Result<(), TransportError> {
+    loop {
+        let Err(error) = engine.run() else {
+            return Ok(());
+        };
+        let Some(reopen) = reopen else {
+            return Err(error);
+        };
+        let _ = reopen.ask.try_send(());
+        loop {
+            if handle.is_stopped() {
+                return engine.shutdown();
+            }
+            match reopen.reopened.recv_timeout(Duration::from_millis(50)) {
+                Ok(transport) => {
+                    engine.restore(transport);
+                    break;
+                }
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => return Err(error),
+            }
+        }
+    }
+}
+
+/// The first wait before reopening a failed line, and the longest (it doubles in between).
+const REOPEN_FIRST: Duration = Duration::from_millis(100);
+const REOPEN_MAX: Duration = Duration::from_secs(5);
+
+/// Opens a bus's device again: the transport and a report for the log, or why not.
+type Opener<T> = Box<dyn FnMut() -> Result<(T, String), String> + Send>;
+
+/// The line thread of a serial bus: on each ask, reopens `device` with backoff until it opens
+/// (or the bus stops) and hands the transport to the bus thread. Not real-time: opening a
+/// device allocates and may block.
+fn spawn_line<T: Send + 'static>(
+    bus: &BusConfig,
+    device: PathBuf,
+    mut open: Opener<T>,
+    handle: EngineHandle,
+    asks: Receiver<()>,
+    reopened: Sender<T>,
+) -> std::io::Result<JoinHandle<()>> {
+    let name = bus.name.clone();
+    std::thread::Builder::new()
+        .name(format!("uss-{}-line", bus.name))
+        .spawn(move || {
+            while asks.recv().is_ok() {
+                let Some(transport) = reopen_with_backoff(&name, &device, &mut open, &handle)
+                else {
+                    return;
+                };
+                if reopened.send(transport).is_err() {
+                    return;
+                }
+            }
+        })
+}
+
+/// Tries to open the device after 0.1 s, 0.2 s, ... up to every 5 s, until it opens or the bus
+/// stops (`None`).
+fn reopen_with_backoff<T>(
+    bus: &str,
+    device: &Path,
+    open: &mut Opener<T>,
+    handle: &EngineHandle,
+) -> Option<T> {
+    let started = std::time::Instant::now();
+    let mut delay = REOPEN_FIRST;
+    let mut attempts = 0u32;
+    loop {
+        if !sleep_unless_stopped(handle, delay) {
+            return None;
+        }
+        attempts += 1;
+        handle.note_reopen_attempt();
+        match open() {
+            Ok((transport, report)) => {
+                tracing::info!(
+                    bus,
+                    device = %device.display(),
+                    attempts,
+                    down_s = started.elapsed().as_secs_f64(),
+                    "line reopened after {attempts} attempts: {report}"
+                );
+                return Some(transport);
+            }
+            Err(e) => {
+                // The first failure, then one line a minute or so: the status has the count.
+                if attempts == 1 || attempts.is_multiple_of(12) {
+                    tracing::warn!(
+                        bus,
+                        device = %device.display(),
+                        attempts,
+                        "cannot reopen the line yet ({e}); retrying, at most every {} s",
+                        REOPEN_MAX.as_secs()
+                    );
+                }
+                delay = (delay * 2).min(REOPEN_MAX);
+            }
+        }
+    }
+}
+
+/// Sleeps `d` in steps of 50 ms; `false` as soon as the bus is asked to stop.
+fn sleep_unless_stopped(handle: &EngineHandle, d: Duration) -> bool {
+    let end = std::time::Instant::now() + d;
+    loop {
+        if handle.is_stopped() {
+            return false;
+        }
+        let left = end.saturating_duration_since(std::time::Instant::now());
+        if left.is_zero() {
+            return true;
+        }
+        std::thread::sleep(left.min(Duration::from_millis(50)));
+    }
+}
+
 /// Builds one engine and spawns its thread. The thread waits on `go` before its real-time set-up
-/// and exits at once if `go` is dropped instead (another bus failed to start).
+/// and exits at once if `go` is dropped instead (another bus failed to start). With `line`
+/// (a serial bus: its device and how to open it), a line thread reopens the device when it
+/// fails.
 fn spawn<T: Transport + Send + 'static>(
     bus: &BusConfig,
     transport: T,
     options: RunOptions,
     go: &Receiver<()>,
+    line: Option<(PathBuf, Opener<T>)>,
 ) -> Result<Spawned, StartError> {
     let clock = MonotonicClock::new();
     let config = engine_config(bus);
@@ -179,6 +323,21 @@ fn spawn<T: Transport + Send + 'static>(
     let (report_tx, reports) = bounded(1);
     let go = go.clone();
     let require_rt = options.require_rt;
+    let spawn_error = |source| StartError::Spawn {
+        bus: bus.name.clone(),
+        source,
+    };
+    let (reopen, line_thread) = match line {
+        Some((device, open)) => {
+            let (ask, asks) = bounded(1);
+            let (give, reopened) = bounded(1);
+            let thread =
+                spawn_line(bus, device, open, handle.clone(), asks, give).map_err(spawn_error)?;
+            (Some(Reopen { ask, reopened }), Some(thread))
+        }
+        None => (None, None),
+    };
+    let bus_handle = handle.clone();
     let thread = std::thread::Builder::new()
         .name(format!("uss-{}", bus.name))
         .stack_size(PREFAULT_STACK * 4)
@@ -194,7 +353,7 @@ fn spawn<T: Transport + Send + 'static>(
             }
             // Wake-ups as precise as the kernel allows (the default slack is 50 us).
             let _ = nix::sys::prctl::set_timerslack(1);
-            engine.run()
+            run_bus(&mut engine, &bus_handle, reopen.as_ref())
         })
         .map_err(|source| StartError::Spawn {
             bus: bus.name.clone(),
@@ -206,6 +365,7 @@ fn spawn<T: Transport + Send + 'static>(
         reports,
         thread,
         params_thread,
+        line_thread,
         events,
         status: ipc.status,
         node: ipc.node,
@@ -223,7 +383,7 @@ fn open_and_spawn(
                 bus: bus.name.clone(),
                 source,
             })?;
-            spawn(bus, t, options, go)
+            spawn(bus, t, options, go, None)
         }
         Device::Serial(path) => {
             let serial = SerialOptions {
@@ -237,7 +397,13 @@ fn open_and_spawn(
                     source,
                 })?;
             tracing::info!(bus = %bus.name, device = %path.display(), "opened: {report}");
-            spawn(bus, t, options, go)
+            let device = path.clone();
+            let open: Opener<SerialTransport> = Box::new(move || {
+                SerialTransport::open(&device, &serial)
+                    .map(|(t, report)| (t, report.to_string()))
+                    .map_err(|e| e.to_string())
+            });
+            spawn(bus, t, options, go, Some((path.clone(), open)))
         }
     }
 }
@@ -248,6 +414,9 @@ fn abandon(spawned: Vec<Spawned>, go: Sender<()>) {
         s.handle.stop();
         let _ = s.thread.join();
         let _ = s.params_thread.join();
+        if let Some(line) = s.line_thread {
+            let _ = line.join();
+        }
     }
 }
 
@@ -310,6 +479,7 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             rt_report,
             engine_thread: s.thread,
             params_thread: s.params_thread,
+            line_thread: s.line_thread,
             housekeeping,
             node: s.node,
         });
@@ -323,10 +493,9 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
     Ok(running)
 }
 
-/// Logs events as they come and the summary every `every`; logs the final summary when the
-/// engine has stopped.
-/// How often bus status and drive diagnostics are republished for clients.
-const STATUS_EVERY: Duration = Duration::from_millis(100);
+/// How often bus status, drive diagnostics and the heartbeat are published for clients: with
+/// the engine's snapshot at most as old, what clients read is at most 100 ms old.
+const STATUS_EVERY: Duration = Duration::from_nanos(uss_shm_types::names::HEARTBEAT_PERIOD_NS);
 
 /// Logs events as they come, publishes status and diagnostics every [`STATUS_EVERY`], and logs
 /// the summary every `every`; logs the final summary when the engine has stopped.
@@ -334,7 +503,7 @@ fn spawn_housekeeping(
     bus: &BusConfig,
     handle: EngineHandle,
     events: Receiver<Event>,
-    publisher: StatusPublisher,
+    mut publisher: StatusPublisher,
     mode: &'static str,
     every: Duration,
 ) -> std::io::Result<JoinHandle<()>> {
@@ -351,28 +520,28 @@ fn spawn_housekeeping(
                 let wait = next.saturating_duration_since(std::time::Instant::now());
                 match events.recv_timeout(wait) {
                     Ok(event) => log_event(&bus, &event),
-                    Err(RecvTimeoutError::Timeout) => {
-                        let now = std::time::Instant::now();
-                        if now >= next_status {
-                            publisher.publish(&handle.stats(), true);
-                            next_status += STATUS_EVERY;
-                        }
-                        if now >= next_summary {
-                            let stats = handle.stats();
-                            tracing::info!(
-                                "\n{}",
-                                crate::summary::render(&bus, mode, &stats, previous.as_ref())
-                                    .trim_end()
-                            );
-                            previous = Some(stats);
-                            next_summary += every;
-                        }
-                    }
+                    Err(RecvTimeoutError::Timeout) => {}
                     Err(RecvTimeoutError::Disconnected) => break,
+                }
+                // After every wake-up: a burst of events must not hold back the heartbeat,
+                // by which clients tell that ussd lives.
+                let now = std::time::Instant::now();
+                if now >= next_status {
+                    publisher.publish(&handle.stats(), true, handle.reopen_attempts());
+                    next_status = (next_status + STATUS_EVERY).max(now);
+                }
+                if now >= next_summary {
+                    let stats = handle.stats();
+                    tracing::info!(
+                        "\n{}",
+                        crate::summary::render(&bus, mode, &stats, previous.as_ref()).trim_end()
+                    );
+                    previous = Some(stats);
+                    next_summary = (next_summary + every).max(now);
                 }
             }
             let stats = handle.stats();
-            publisher.publish(&stats, false);
+            publisher.publish(&stats, false, handle.reopen_attempts());
             publisher.goodbye();
             tracing::info!(
                 "final\n{}",
@@ -496,6 +665,22 @@ fn log_event(bus: &BusConfig, event: &Event) {
             state,
             ms,
         } => log_monitoring(bus, address, at, state, ms),
+        Event::LineDown { at, fault } => {
+            tracing::error!(
+                bus = bus.name,
+                at_s = at.as_secs_f64(),
+                "line down ({fault}): every drive offline, pending parameter jobs ended; reopening the device with backoff (0.1 s doubling to 5 s); meanwhile only the drives' own telegram monitoring stops them"
+            );
+        }
+        Event::LineUp { at, down_for } => {
+            tracing::info!(
+                bus = bus.name,
+                at_s = at.as_secs_f64(),
+                down_s = down_for.as_secs_f64(),
+                "line back after {:.1} s: every drive latched until its controller re-arms it (OFF1, then ON)",
+                down_for.as_secs_f64()
+            );
+        }
         Event::CycleOverrun { at, took } => {
             tracing::warn!(
                 bus = bus.name,

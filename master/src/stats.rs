@@ -3,6 +3,7 @@
 //! counting and recording never allocate.
 
 use crate::control::{Control, ControlCounters};
+use crate::transport::TransportError;
 use core::time::Duration;
 use hdrhistogram::Histogram;
 use uss_protocol::{Address, FrameError, LineError};
@@ -59,6 +60,46 @@ impl Failure {
             Self::Echo => "echo mismatch",
         }
     }
+}
+
+/// Why a bus line stopped carrying telegrams.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LineFault {
+    /// The device was closed or unplugged (EOF, EIO, ENXIO, ENODEV; a pty whose far side is gone).
+    Closed,
+    /// Another I/O error, with its errno (0 if none was given).
+    Io(i32),
+}
+
+impl LineFault {
+    pub fn of(e: &TransportError) -> Self {
+        match e {
+            TransportError::Closed => Self::Closed,
+            TransportError::Io(io) => Self::Io(io.raw_os_error().unwrap_or(0)),
+        }
+    }
+}
+
+impl core::fmt::Display for LineFault {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Closed => f.write_str("the serial device was closed or unplugged"),
+            Self::Io(errno) => write!(
+                f,
+                "serial I/O failed: {}",
+                std::io::Error::from_raw_os_error(*errno)
+            ),
+        }
+    }
+}
+
+/// The bus line: up, or down since when and why.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LineStatus {
+    /// `Some` while the line is down: since (bus clock) and why.
+    pub down: Option<(Duration, LineFault)>,
+    /// Times the line went down since the engine started.
+    pub downs: u64,
 }
 
 /// Receive statistics of one drive.
@@ -135,7 +176,10 @@ impl DriveCounters {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DriveStatus {
     pub address: Address,
+    /// The drive answers; false while unknown (see `known`) too.
     pub online: bool,
+    /// The first poll (with its retries) decided `online`: until then the drive is unknown.
+    pub known: bool,
     /// When `online` last changed (bus clock).
     pub since: Duration,
     /// "Slave x does not respond": set when a poll fails all retries, cleared by the next good
@@ -166,8 +210,9 @@ impl DriveStatus {
     pub fn new(address: Address, control: Control) -> Self {
         Self {
             address,
-            // Drives start online: the first poll decides.
-            online: true,
+            // Unknown until the first poll decides.
+            online: false,
+            known: false,
             since: Duration::ZERO,
             no_reply: false,
             last_failure: None,
@@ -289,6 +334,7 @@ pub struct Stats {
     /// Bus clock time of this snapshot.
     pub at: Duration,
     pub bus: BusCounters,
+    pub line: LineStatus,
     pub drives: Vec<DriveStatus>,
     pub histograms: BusHistograms,
     /// Per drive (same order as `drives`): time between two good replies.
@@ -306,6 +352,7 @@ impl Stats {
         Self {
             at: Duration::ZERO,
             bus: BusCounters::default(),
+            line: LineStatus::default(),
             drives,
             histograms: BusHistograms::new(),
             update_period,
@@ -316,6 +363,7 @@ impl Stats {
     pub fn copy_from(&mut self, other: &Self) {
         self.at = other.at;
         self.bus = other.bus;
+        self.line = other.line;
         self.drives.copy_from_slice(&other.drives);
         self.histograms.copy_from(&other.histograms);
         for (dst, src) in self.update_period.iter_mut().zip(&other.update_period) {

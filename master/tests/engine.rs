@@ -228,13 +228,22 @@ fn silent_drive_is_retried_then_offline_then_probed_and_back_online() {
     assert_eq!(s.counters.requests, 12);
     assert_eq!(s.counters.timeouts, 12);
     assert_eq!(s.counters.retries, 8);
-    assert!(matches!(
-        b.events_but_monitoring()[..],
-        [Event::DriveOffline {
-            failure: Failure::NoResponse,
-            ..
-        }]
-    ));
+    // Both drives start unknown: the first poll of each decides.
+    let events = b.events_but_monitoring();
+    assert!(
+        matches!(
+            events[..],
+            [
+                Event::DriveOnline { address: a1, .. },
+                Event::DriveOffline {
+                    address: a2,
+                    failure: Failure::NoResponse,
+                    ..
+                }
+            ] if a1 == addr(1) && a2 == addr(2)
+        ),
+        "{events:?}"
+    );
     assert!(b.status(1).online, "the other drive is unaffected");
     b.run_for(Duration::from_millis(700), &[]);
     let s = b.status(2);
@@ -886,5 +895,159 @@ fn bad_requests_are_refused_with_a_reason() {
             given: 3,
             allowed: 2
         })
+    );
+}
+
+/// The simulated line, failing on demand: a serial device being unplugged.
+struct Unpluggable {
+    inner: SimTransport,
+    unplugged: bool,
+}
+
+impl uss_master::Transport for Unpluggable {
+    fn flush_input(&mut self, now: Duration) -> Result<(), uss_master::TransportError> {
+        self.inner.flush_input(now)
+    }
+
+    fn send(
+        &mut self,
+        bytes: &[u8],
+        now: Duration,
+    ) -> Result<Duration, uss_master::TransportError> {
+        if self.unplugged {
+            return Err(uss_master::TransportError::Closed);
+        }
+        self.inner.send(bytes, now)
+    }
+
+    fn recv(
+        &mut self,
+        deadline: Duration,
+        clock: &mut impl uss_master::Clock,
+    ) -> Result<Option<uss_master::Rx>, uss_master::TransportError> {
+        self.inner.recv(deadline, clock)
+    }
+}
+
+#[test]
+fn a_failed_line_ends_every_job_and_the_restored_line_latches_every_drive() {
+    let config = EngineConfig {
+        timing: timing(),
+        response_timeout: ms(20),
+        retries: 2,
+        offline_after: 1,
+        offline_probe: ms(500),
+        cycle_time: None,
+        param_timeout: ms(2000),
+        echo: false,
+        mailbox_depth: 16,
+        publish_every: ms(100),
+        drives: vec![
+            DriveSetup::new(addr(1), layout(PkwMode::Four, 2)),
+            DriveSetup::new(addr(2), layout(PkwMode::Four, 2)),
+        ],
+    };
+    let wire = |seed| {
+        let mut bus = SimBus::new(seed);
+        for a in [1, 2] {
+            bus.add(DriveConfig::new(addr(a), layout(PkwMode::Four, 2)))
+                .unwrap();
+        }
+        SimTransport::new(VirtualWire::new(bus, timing()))
+    };
+    let line = Unpluggable {
+        inner: wire(1),
+        unplugged: false,
+    };
+    let (mut engine, handle, events) = Engine::new(config, line, VirtualClock::new());
+    // Drive 1 runs; a job is queued for drive 2.
+    for _ in 0..20 {
+        handle.set_output(addr(1), &[0x047E, 0]).unwrap();
+        engine.poll_next().unwrap();
+    }
+    for _ in 0..40 {
+        handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
+        engine.poll_next().unwrap();
+    }
+    assert_eq!(
+        engine.stats().drive(addr(1)).unwrap().control,
+        Control::Live
+    );
+    handle.submit(read(9, 2, 1082)).unwrap();
+    handle.submit(read(10, 2, 1082)).unwrap();
+
+    engine.transport_mut().unplugged = true;
+    let error = engine.poll_next().unwrap_err();
+    engine.line_down(&error);
+    let results: Vec<_> = std::iter::from_fn(|| handle.recv_result(Duration::ZERO)).collect();
+    assert_eq!(results.len(), 2, "every job ended: {results:?}");
+    assert!(results.iter().all(|r| r.outcome == Outcome::LineDown));
+    assert!(engine.stats().drives.iter().all(|d| !d.online));
+    assert!(engine.stats().line.down.is_some());
+    assert_eq!(
+        handle.submit(read(11, 2, 1082)),
+        Err(RequestError::LineDown)
+    );
+    assert!(
+        events
+            .try_iter()
+            .any(|e| matches!(e, Event::LineDown { .. }))
+    );
+
+    engine.restore(Unpluggable {
+        inner: wire(2),
+        unplugged: false,
+    });
+    for _ in 0..20 {
+        handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
+        engine.poll_next().unwrap();
+    }
+    let d1 = engine.stats().drive(addr(1)).unwrap();
+    assert!(d1.online);
+    assert!(
+        matches!(d1.control, Control::Latched(l) if l.reason == LatchReason::LineRestored),
+        "the controller's ON does not pass: {:?}",
+        d1.control
+    );
+    assert_eq!(
+        engine
+            .transport()
+            .inner
+            .wire()
+            .bus()
+            .drive(addr(1))
+            .unwrap()
+            .stw1(),
+        Stw1::READY
+    );
+    assert!(events.try_iter().any(|e| matches!(e, Event::LineUp { .. })));
+    assert_eq!(handle.submit(read(12, 2, 1082)), Ok(()));
+}
+
+#[test]
+fn a_drive_is_unknown_until_its_first_poll_decides() {
+    let mut b = bench(&[(1, PkwMode::Four), (2, PkwMode::Four)]);
+    b.faults(2).unplug(Duration::ZERO, None);
+    for a in [1, 2] {
+        let s = b.status(a);
+        assert_eq!(
+            (s.known, s.online),
+            (false, false),
+            "drive {a} before any poll"
+        );
+    }
+    // A parameter job for a drive of unknown state waits for the first poll to decide.
+    b.handle.submit(read(1, 1, 1082)).unwrap();
+    b.engine.poll_next().unwrap();
+    assert_eq!((b.status(1).known, b.status(1).online), (true, true));
+    b.engine.poll_next().unwrap();
+    assert_eq!(
+        (b.status(2).known, b.status(2).online),
+        (true, false),
+        "no reply decides too"
+    );
+    assert_eq!(
+        b.results(1)[0].outcome,
+        Outcome::Value(Value::Dword(0x4248_0000))
     );
 }

@@ -20,7 +20,7 @@ use uss_master::{DriveSetup, Engine, EngineConfig, SimTransport, VirtualClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Timing};
 use uss_shm_types::names;
-use uss_shm_types::{BlackboardKey, BusName, DriveAddress, PzdInput, PzdOutput};
+use uss_shm_types::{BlackboardKey, DriveAddress, PzdInput, PzdOutput};
 
 #[test]
 fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
@@ -41,6 +41,7 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
         });
     }
     let bus_ipc = ussd_ipc::create(&bus_name, &setups, Duration::ZERO).unwrap();
+    let instance = bus_ipc.instance.clone();
     let config = EngineConfig {
         timing,
         response_timeout: Duration::from_millis(20),
@@ -66,10 +67,9 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<ipc::Service>()
         .unwrap();
-    let bus = BusName::new(&bus_name).unwrap();
     let one = DriveAddress::new(1).unwrap();
     let publisher = client
-        .service_builder(&names::drive_out(&bus, one))
+        .service_builder(&names::drive_out(&instance, one))
         .publish_subscribe::<PzdOutput>()
         .open()
         .unwrap()
@@ -77,7 +77,7 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
         .create()
         .unwrap();
     let reader = client
-        .service_builder(&names::drive_in(&bus, one))
+        .service_builder(&names::drive_in(&instance, one))
         .blackboard_opener::<BlackboardKey>()
         .open()
         .unwrap()

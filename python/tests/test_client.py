@@ -39,14 +39,15 @@ def ussctl_binary() -> str:
 
 
 class Ussd:
-    """A ussd process running BUS."""
+    """A ussd process running ``bus`` (BUS by default)."""
 
-    def __init__(self, tmp: Path):
-        self.config = tmp / "ussd.toml"
+    def __init__(self, tmp: Path, bus: str = BUS):
+        self.bus = bus
+        self.config = tmp / f"ussd-{bus}.toml"
         drives = "".join(f"\n[[bus.drive]]\naddress = {a}\n" for a in DRIVES)
-        self.config.write_text(f'[[bus]]\nname = "{BUS}"\ndevice = "sim"\n{drives}')
-        self.log = tmp / "ussd.log"
-        with self.log.open("w") as log:
+        self.config.write_text(f'[[bus]]\nname = "{bus}"\ndevice = "sim"\n{drives}')
+        self.log = tmp / f"ussd-{bus}.log"
+        with self.log.open("a") as log:
             self.process = subprocess.Popen(
                 [ussd_binary(), "--config", str(self.config), "--summary-every", "3600"],
                 stdout=log,
@@ -61,7 +62,7 @@ class Ussd:
         deadline = time.monotonic() + timeout
         while True:
             try:
-                uss_rt.open_bus(BUS).close()
+                uss_rt.open_bus(self.bus).close()
                 return
             except uss_rt.NotRunning:
                 assert self.process.poll() is None, f"ussd ended early:\n{self.output()}"
@@ -159,7 +160,7 @@ def test_a_drive_without_a_controller_is_latched_with_its_safe_command(bus):
     assert image["latch_reason"] == uss_rt.LatchReason.STARTUP
     assert image["latch_command"] == uss_rt.StopCommand.OFF1
     assert image["sent_stw1"] == 0x047E
-    diag = bus._diag_service.reader_builder().create().entry(
+    diag = bus._services["diag"].reader_builder().create().entry(
         uss_rt.BlackboardKey(1), uss_rt.DriveDiag
     ).get().decode_as(uss_rt.DriveDiag)
     assert (diag.pzd_words, diag.latches) == (2, 1)
@@ -206,7 +207,38 @@ def test_bus_without_ussd_raises_not_running():
         uss_rt.open_bus(f"{BUS}x")
 
 
-def test_sigterm_stops_ussd_and_removes_its_services(ussd):
-    assert ussd.stop() == 0, ussd.output()
-    with pytest.raises(uss_rt.NotRunning):
+def test_a_monitor_sees_a_killed_ussd_gone_within_a_second_and_follows_its_restart(tmp_path):
+    """Its own ussd (bus BUS + "k"): SIGKILL, the monitor's image turns stale, a new ussd starts
+    while the monitor still holds the old one's services, and the monitor reads it."""
+    daemon = Ussd(tmp_path, BUS + "k")
+    daemon.wait_for_services()
+    with uss_rt.open_bus(BUS + "k") as bus:
+        wait_for_input(bus, 1, lambda i: i["online"] == 1 and i["sequence"] > 0)
+        killed = time.monotonic()
+        daemon.process.kill()
+        daemon.process.wait()
+        stale = wait_for_input(bus, 1, lambda i: i["health"] == "gone", timeout=3.0)
+        noticed = time.monotonic() - killed
+        print(f"python: noticed the SIGKILL after {noticed * 1e3:.0f} ms")
+        assert noticed < 2.0
+        assert stale["online"] == 0
+        assert isinstance(bus.health().error(), uss_rt.UssdGone)
+        with pytest.raises(uss_rt.UssdGone, match="is gone"):
+            uss_rt.read_param(bus, 1, 1082)
+        restarted = Ussd(tmp_path, BUS + "k")
+        try:
+            back = wait_for_input(bus, 1, lambda i: i["health"] == "running" and i["online"] == 1)
+            assert back["control"] == uss_rt.ControlState.LATCHED
+            assert back["latch_reason"] == uss_rt.LatchReason.STARTUP
+            assert uss_rt.read_param(bus, 1, 1082).as_float() == 50.0
+        finally:
+            assert restarted.stop() == 0, restarted.output()
+
+
+def test_sigterm_stops_ussd_and_clients_are_told(ussd):
+    with uss_rt.open_bus(BUS) as bus:
+        assert ussd.stop() == 0, ussd.output()
+        wait_for_input(bus, 1, lambda i: i["health"] == "stopped", timeout=3.0)
+        assert isinstance(bus.health().error(), uss_rt.UssdStopped)
+    with pytest.raises((uss_rt.NotRunning, uss_rt.UssdGone)):
         uss_rt.open_bus(BUS)

@@ -82,6 +82,9 @@ def test_code_tables_have_exactly_the_codes_of_the_header():
         uss_rt.StopCommand,
         uss_rt.Monitoring,
         uss_rt.CommandError,
+        uss_rt.LineState,
+        uss_rt.LineFault,
+        uss_rt.BusState,
     ):
         prefix = f"USS_{screaming(table.__name__)}_"
         body = re.search(r"enum Uss%s\b.*?\{(.*?)\};" % table.__name__, text, re.S).group(1)
@@ -110,18 +113,27 @@ def test_limits_match_the_header():
         "ALL_DRIVES",
         "OUTPUT_RELEASE",
         "REQUEST_FORCE",
+        "HEARTBEAT_PERIOD_NS",
+        "GONE_AFTER_NS",
     ):
         assert getattr(uss_rt, name) == value(name), name
 
 
 def test_service_names_and_attribute_match_the_header():
-    strings = dict(re.findall(r'#define USS_(\w+) "([^"]*)"', header_text()))
+    # C's %016llx (an unsigned long long) is Python's %016x.
+    strings = {
+        name: pattern.replace("%016llx", "%016x")
+        for name, pattern in re.findall(r'#define USS_(\w+) "([^"]*)"', header_text())
+    }
     assert uss_rt.LAYOUT_VERSION_ATTRIBUTE == strings["LAYOUT_VERSION_ATTRIBUTE"]
+    generation = 0x0000_1234_ABCD_EF01
+    assert uss_rt.heartbeat_service("line-1_A") == strings["SERVICE_HEARTBEAT"] % "line-1_A"
     for name, make in (
         ("SERVICE_DRIVE_OUT", uss_rt.drive_out_service),
         ("SERVICE_DRIVE_IN", uss_rt.drive_in_service),
     ):
-        assert make("line-1_A", 7) == strings[name] % ("line-1_A", 7), name
+        expected = strings[name] % ("line-1_A", generation, 7)
+        assert make("line-1_A", generation, 7) == expected, name
     for name, make in (
         ("SERVICE_DIAG", uss_rt.diag_service),
         ("SERVICE_STATUS", uss_rt.status_service),
@@ -129,7 +141,7 @@ def test_service_names_and_attribute_match_the_header():
         ("SERVICE_PARAMS", uss_rt.params_service),
         ("SERVICE_COMMAND", uss_rt.command_service),
     ):
-        assert make("line-1_A") == strings[name] % "line-1_A", name
+        assert make("line-1_A", generation) == strings[name] % ("line-1_A", generation), name
 
 
 def test_stop_commands_carry_bit_10_and_clear_on():

@@ -16,6 +16,7 @@ Errors are exceptions derived from :class:`UssError`; each message says what to 
 
 import ctypes
 import enum
+import os
 import struct
 import time
 
@@ -27,8 +28,14 @@ __all__ = [
     "BlackboardKey",
     "CommandError",
     "CommandRefused",
+    "BusState",
     "ControlState",
     "DriveDiag",
+    "Heartbeat",
+    "LineDown",
+    "LineFault",
+    "UssdGone",
+    "UssdStopped",
     "DriveError",
     "Incompatible",
     "LastFailure",
@@ -89,6 +96,11 @@ OUTPUT_RELEASE = 0x01
 REQUEST_FORCE = 0x01
 """``ParamRequest.flags``: write although another process controls the drive."""
 
+HEARTBEAT_PERIOD_NS = 50_000_000
+"""How often ussd publishes its heartbeat."""
+GONE_AFTER_NS = 10 * HEARTBEAT_PERIOD_NS
+"""A heartbeat older than this means ussd is gone (killed or hung)."""
+
 DEFAULT_NODE_NAME = "uss-py-client"
 
 # iceoryx2 reports at info level that it runs without a config file; keep its log to errors
@@ -96,39 +108,44 @@ DEFAULT_NODE_NAME = "uss-py-client"
 iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
 
 
-def drive_out_service(bus: str, address: int) -> str:
+def heartbeat_service(bus: str) -> str:
+    """Publish-subscribe, :class:`Heartbeat`: ussd's heartbeat; its generation names the rest."""
+    return f"uss/{bus}/ussd"
+
+
+def drive_out_service(bus: str, generation: int, address: int) -> str:
     """Publish-subscribe, :class:`PzdOutput`: the controller's output image (one publisher)."""
-    return f"uss/{bus}/drive/{address}/out"
+    return f"uss/{bus}/{generation:016x}/drive/{address}/out"
 
 
-def drive_in_service(bus: str, address: int) -> str:
+def drive_in_service(bus: str, generation: int, address: int) -> str:
     """Blackboard, key 0 -> :class:`PzdInput`: the drive's input image."""
-    return f"uss/{bus}/drive/{address}/in"
+    return f"uss/{bus}/{generation:016x}/drive/{address}/in"
 
 
-def diag_service(bus: str) -> str:
+def diag_service(bus: str, generation: int) -> str:
     """Blackboard, key = drive address -> :class:`DriveDiag`."""
-    return f"uss/{bus}/diag"
+    return f"uss/{bus}/{generation:016x}/diag"
 
 
-def status_service(bus: str) -> str:
+def status_service(bus: str, generation: int) -> str:
     """Blackboard, key 0 -> :class:`BusStatus`."""
-    return f"uss/{bus}/status"
+    return f"uss/{bus}/{generation:016x}/status"
 
 
-def cycle_service(bus: str) -> str:
+def cycle_service(bus: str, generation: int) -> str:
     """Event: drive address (exchange completed), 32 cycle completed, 33 status published."""
-    return f"uss/{bus}/cycle"
+    return f"uss/{bus}/{generation:016x}/cycle"
 
 
-def params_service(bus: str) -> str:
+def params_service(bus: str, generation: int) -> str:
     """Request-response, :class:`ParamRequest` -> :class:`ParamResponse`."""
-    return f"uss/{bus}/params"
+    return f"uss/{bus}/{generation:016x}/params"
 
 
-def command_service(bus: str) -> str:
+def command_service(bus: str, generation: int) -> str:
     """Request-response, :class:`OperatorRequest` -> :class:`OperatorResponse`: stop commands."""
-    return f"uss/{bus}/command"
+    return f"uss/{bus}/{generation:016x}/command"
 
 
 # -------------------------------------------------------------------------------------------
@@ -152,6 +169,29 @@ class LastFailure(enum.IntEnum):
     FRAMING = 10
     OVERRUN = 11
     ECHO = 12
+
+
+class LineState(enum.IntEnum):
+    """Whether the bus line carries telegrams (``BusStatus.line_state``)."""
+
+    UP = 0
+    DOWN = 1
+
+
+class LineFault(enum.IntEnum):
+    """Why the bus line went down."""
+
+    NONE = 0
+    CLOSED = 1
+    IO = 2
+
+
+class BusState(enum.IntEnum):
+    """What ussd says of its bus (``Heartbeat.state``)."""
+
+    RUNNING = 0
+    LINE_DOWN = 1
+    STOPPING = 2
 
 
 class RtMode(enum.IntEnum):
@@ -200,6 +240,7 @@ class RequestError(enum.IntEnum):
     DWORD_OVER_THREE_WORDS = 13
     CONTROLLED = 14
     BAD_FLAGS = 15
+    LINE_DOWN = 16
 
 
 class Outcome(enum.IntEnum):
@@ -216,6 +257,7 @@ class Outcome(enum.IntEnum):
     MAILBOX_FULL = 8
     SHUTDOWN = 9
     REFUSED = 10
+    LINE_DOWN = 11
 
 
 class ControlState(enum.IntEnum):
@@ -374,7 +416,8 @@ class PzdInput(ctypes.Structure):
         ("latched_by_pid", u32),
         ("latch_command", u8),
         ("rejection", u8),
-        ("reserved", u8 * 2),
+        ("known", u8),
+        ("reserved", u8),
         ("taken_sequence", u64),
     ]
 
@@ -401,7 +444,8 @@ class DriveDiag(ctypes.Structure):
         ("rejection", u8),
         ("monitoring", u8),
         ("pzd_words", u8),
-        ("reserved", u8 * 2),
+        ("known", u8),
+        ("reserved", u8),
         ("monitoring_ms", u32),
         ("controller_pid", u32),
     ] + [
@@ -468,6 +512,15 @@ class BusStatus(ctypes.Structure):
             "bus_clock_ns",
             "timestamp_ns",
         )
+    ] + [
+        ("line_state", u8),
+        ("line_fault", u8),
+        ("reserved", u8 * 2),
+        ("line_errno", i32),
+        ("line_down_since_ns", u64),
+        ("line_downs", u64),
+        ("reopen_attempts", u32),
+        ("reserved2", u32),
     ]
 
     @staticmethod
@@ -547,6 +600,28 @@ class ParamResponse(ctypes.Structure):
         return "UssParamResponseV2"
 
 
+class Heartbeat(ctypes.Structure):
+    """ussd's heartbeat on ``uss/<bus>/ussd``: which generation serves the bus, and its state."""
+
+    _fields_ = [
+        ("version", u32),
+        ("pid", u32),
+        ("generation", u64),
+        ("sequence", u64),
+        ("timestamp_ns", u64),
+        ("exchanges", u64),
+        ("line_down_since_ns", u64),
+        ("state", u8),
+        ("line_fault", u8),
+        ("reserved", u8 * 2),
+        ("line_errno", i32),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssHeartbeatV2"
+
+
 class OperatorRequest(ctypes.Structure):
     """An operator's stop command for one drive or every drive (``uss/<bus>/command``)."""
 
@@ -588,6 +663,7 @@ PAYLOAD_TYPES = (
     ParamRequest,
     ParamResult,
     ParamResponse,
+    Heartbeat,
     OperatorRequest,
     OperatorResponse,
 )
@@ -685,6 +761,40 @@ class Refused(UssError):
         )
 
 
+class UssdGone(UssError):
+    """No heartbeat from ussd for longer than GONE_AFTER_NS: it died or hangs."""
+
+    def __init__(self, bus: str, pid: int, silent_for: float):
+        self.bus, self.pid, self.silent_for = bus, pid, silent_for
+        was = f"; it was process {pid}" if pid else ""
+        super().__init__(
+            f"ussd on {bus} is gone (no heartbeat for {silent_for:.2f} s{was}): the drives are "
+            "not polled; only their own telegram monitoring stops them. Restart ussd"
+        )
+
+
+class UssdStopped(UssError):
+    """ussd said it stops (a clean exit)."""
+
+    def __init__(self, bus: str, pid: int, ago: float):
+        self.bus, self.pid = bus, pid
+        super().__init__(
+            f"ussd on {bus} stopped {ago:.2f} s ago; it was process {pid}: start it again; "
+            "this module reconnects by itself"
+        )
+
+
+class LineDown(UssError):
+    """ussd runs, but the bus line is down."""
+
+    def __init__(self, bus: str, fault: str, down_for: float):
+        self.bus, self.fault = bus, fault
+        super().__init__(
+            f"bus {bus}: line down ({fault}) for {down_for:.2f} s: ussd reopens the device; "
+            "check the adapter and cable"
+        )
+
+
 class CommandRefused(UssError):
     """ussd refused an operator stop command; ``error`` is a :class:`CommandError`."""
 
@@ -748,24 +858,71 @@ class ParamValue(int):
         return f"ParamValue({int(self):#0{width}x})"
 
 
-class Bus:
-    """An open bus: one iceoryx2 node and the ussd services it uses so far.
+def _monotonic_ns() -> int:
+    """CLOCK_MONOTONIC in ns: the clock of every time stamp of the contract."""
+    return time.clock_gettime_ns(time.CLOCK_MONOTONIC)
 
-    :meth:`close` (or a ``with`` block) lets go of every service at once; until then a ussd
-    that stopped cannot remove the services this bus still uses.
+
+class Health:
+    """What ussd's heartbeat says: ``state`` is "running", "line down", "stopped" or "gone"."""
+
+    def __init__(self, bus: str, beat: Heartbeat, now_ns: int):
+        self.bus, self.pid = bus, beat.pid
+        self.at_ns = beat.timestamp_ns
+        if now_ns - beat.timestamp_ns > GONE_AFTER_NS:
+            self.state = "gone"
+        elif beat.state == BusState.STOPPING:
+            self.state = "stopped"
+        elif beat.state == BusState.LINE_DOWN:
+            self.state = "line down"
+        else:
+            self.state = "running"
+        self.line_down_since_ns = beat.line_down_since_ns
+        self.line_fault = _code(LineFault, beat.line_fault)
+        self.line_errno = beat.line_errno
+
+    @property
+    def serving(self) -> bool:
+        """Whether ussd serves the bus (running, or waiting for its line)."""
+        return self.state in ("running", "line down")
+
+    def error(self):
+        """The error a call that needs a polling bus gets now, or None."""
+        now = _monotonic_ns()
+        if self.state == "gone":
+            return UssdGone(self.bus, self.pid, (now - self.at_ns) / 1e9)
+        if self.state == "stopped":
+            return UssdStopped(self.bus, self.pid, (now - self.at_ns) / 1e9)
+        if self.state == "line down":
+            if self.line_fault == LineFault.IO:
+                fault = f"serial I/O failed: {os.strerror(self.line_errno)}"
+            else:
+                fault = "the serial device was closed or unplugged"
+            return LineDown(self.bus, fault, (now - self.line_down_since_ns) / 1e9)
+        return None
+
+    def __repr__(self):
+        return f"Health({self.state!r}, pid={self.pid})"
+
+
+class Bus:
+    """An open bus: one iceoryx2 node, ussd's heartbeat, and the services of the generation it
+    names (reopened by themselves when a restarted ussd serves a new one).
+
+    Every read looks at the heartbeat: when ussd died or hangs (no heartbeat for 0.5 s), stopped,
+    or its line is down, images show the drives offline and calls that need a polling bus raise
+    :class:`UssdGone`, :class:`UssdStopped` or :class:`LineDown`. :meth:`close` (or a ``with``
+    block) lets go of every service at once.
     """
 
-    def __init__(self, name: str, node, status_service, diag_service):
+    def __init__(self, name: str, node, heartbeat_service, subscriber, beat: Heartbeat):
         self.name = name
         self.node = node
-        self._status_service = status_service
-        # The reader stays referenced as long as its entry handle.
-        self._status_reader = status_service.reader_builder().create()
-        self._status = self._status_reader.entry(BlackboardKey(0), BusStatus)
-        self._diag_service = diag_service
-        self._inputs = {}
-        self._param_client = None
-        self._command_client = None
+        self._heartbeat_service = heartbeat_service
+        self._heartbeat = subscriber
+        self._beat = beat
+        self._generation = None
+        self._services = {}
 
     def __enter__(self):
         return self
@@ -775,59 +932,100 @@ class Bus:
 
     def close(self):
         """Drops every port and service of this bus; the bus cannot be used afterwards."""
-        self._inputs.clear()
-        self._param_client = None
-        self._command_client = None
-        self._status = self._status_reader = self._status_service = self._diag_service = None
+        self._services = {}
+        self._heartbeat = self._heartbeat_service = None
+
+    def health(self) -> Health:
+        """What ussd's heartbeat says now."""
+        while True:
+            sample = self._heartbeat.receive()
+            if sample is None:
+                break
+            beat = Heartbeat.from_buffer_copy(sample.payload().contents)
+            if beat.version == LAYOUT_VERSION:
+                self._beat = beat
+        return Health(self.name, self._beat, _monotonic_ns())
+
+    def _current(self):
+        """The services of the generation that serves the bus, opened on first use; raises
+        what the heartbeat says when ussd does not poll."""
+        health = self.health()
+        error = health.error()
+        if error is not None and not isinstance(error, LineDown):
+            raise error
+        if self._generation != self._beat.generation:
+            # A restarted ussd: drop the old generation's ports, open the new one's.
+            self._services = {}
+            self._generation = self._beat.generation
+            self._services["status"], self._services["diag"] = (
+                self._blackboard(status_service(self.name, self._generation)),
+                self._blackboard(diag_service(self.name, self._generation)),
+            )
+            reader = self._services["status"].reader_builder().create()
+            self._services["status_reader"] = reader
+            self._services["status_entry"] = reader.entry(BlackboardKey(0), BusStatus)
+        return self._services, health
+
+    def _blackboard(self, service: str):
+        return _open(
+            self.node,
+            self.name,
+            service,
+            lambda b: b.blackboard_opener(BlackboardKey),
+            lambda: NotRunning(self.name),
+        )
 
     def status(self) -> BusStatus:
-        """The bus status as ussd last published it (about every 100 ms)."""
-        return self._status.get().decode_as(BusStatus)
+        """The bus status as ussd last published it (every 50 ms); raises UssdGone/UssdStopped."""
+        services, _ = self._current()
+        return services["status_entry"].get().decode_as(BusStatus)
 
     def drives(self):
         """The addresses ussd polls on this bus (the keys of its ``diag`` blackboard)."""
-        keys = self._diag_service.list_keys()
+        services, _ = self._current()
+        keys = services["diag"].list_keys()
         return sorted(k.decode_as(BlackboardKey).value for k in keys)
 
     def _input_entry(self, address: int):
         """The entry of drive ``address``'s input blackboard, opened on first use."""
-        if address not in self._inputs:
+        services, _ = self._current()
+        key = ("in", address)
+        if key not in services:
             service = _open(
                 self.node,
                 self.name,
-                drive_in_service(self.name, address),
+                drive_in_service(self.name, self._generation, address),
                 lambda b: b.blackboard_opener(BlackboardKey),
                 lambda: UnknownDrive(self.name, address, self.drives()),
             )
             reader = service.reader_builder().create()
-            self._inputs[address] = (service, reader, reader.entry(BlackboardKey(0), PzdInput))
-        return self._inputs[address][2]
+            services[key] = (service, reader, reader.entry(BlackboardKey(0), PzdInput))
+        return services[key][2]
+
+    def _client(self, kind: str, service, request_type, response_type):
+        """The client of a request-response service of the current generation."""
+        services, health = self._current()
+        error = health.error()
+        if error is not None:
+            raise error
+        if kind not in services:
+            factory = _open(
+                self.node,
+                self.name,
+                service(self.name, self._generation),
+                lambda b: b.request_response(request_type, response_type),
+                lambda: NotRunning(self.name),
+            )
+            services[kind] = (factory, factory.client_builder().create())
+        return services[kind][1]
 
     def _params(self):
-        """The client of the ``params`` service, created on first use."""
-        if self._param_client is None:
-            service = _open(
-                self.node,
-                self.name,
-                params_service(self.name),
-                lambda b: b.request_response(ParamRequest, ParamResponse),
-                lambda: NotRunning(self.name),
-            )
-            self._param_client = (service, service.client_builder().create())
-        return self._param_client[1]
+        """The client of the ``params`` service."""
+        return self._client("params", params_service, ParamRequest, ParamResponse)
 
     def _commands(self):
-        """The client of the ``command`` service, created on first use."""
-        if self._command_client is None:
-            service = _open(
-                self.node,
-                self.name,
-                command_service(self.name),
-                lambda b: b.request_response(OperatorRequest, OperatorResponse),
-                lambda: NotRunning(self.name),
-            )
-            self._command_client = (service, service.client_builder().create())
-        return self._command_client[1]
+        """The client of the ``command`` service."""
+        return self._client("command", command_service, OperatorRequest, OperatorResponse)
 
 
 def _open(node, bus: str, service: str, pattern, missing):
@@ -859,7 +1057,9 @@ def _check_address(address: int):
 
 
 def open_bus(name: str, node_name: str = DEFAULT_NODE_NAME) -> Bus:
-    """Opens bus ``name`` (e.g. ``bus0``) of a running ussd; raises :class:`NotRunning`."""
+    """Opens bus ``name`` (e.g. ``bus0``) of a running ussd: waits for its heartbeat (at most
+    0.5 s). Raises :class:`NotRunning` when no ussd ever served the bus (or all its clients are
+    gone), :class:`UssdGone` or :class:`UssdStopped` when its heartbeat says so."""
     charset = all(c.isascii() and (c.isalnum() or c in "_-") for c in name)
     if not (1 <= len(name) <= MAX_BUS_NAME_LEN and charset):
         raise ValueError(
@@ -872,17 +1072,28 @@ def open_bus(name: str, node_name: str = DEFAULT_NODE_NAME) -> Bus:
         .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
         .create(iox2.ServiceType.Ipc)
     )
-
-    def blackboard(service):
-        return _open(
-            node,
-            name,
-            service,
-            lambda b: b.blackboard_opener(BlackboardKey),
-            lambda: NotRunning(name),
-        )
-
-    return Bus(name, node, blackboard(status_service(name)), blackboard(diag_service(name)))
+    service = _open(
+        node,
+        name,
+        heartbeat_service(name),
+        lambda b: b.publish_subscribe(Heartbeat),
+        lambda: NotRunning(name),
+    )
+    subscriber = service.subscriber_builder().buffer_size(1).create()
+    # A new subscriber is connected at ussd's next heartbeat.
+    deadline = time.monotonic() + GONE_AFTER_NS / 1e9
+    while True:
+        sample = subscriber.receive()
+        if sample is not None:
+            beat = Heartbeat.from_buffer_copy(sample.payload().contents)
+            if beat.version == LAYOUT_VERSION:
+                break
+        if time.monotonic() >= deadline:
+            raise UssdGone(name, 0, GONE_AFTER_NS / 1e9)
+        time.sleep(2e-3)
+    bus = Bus(name, node, service, subscriber, beat)
+    bus._current()
+    return bus
 
 
 def read_input(bus: Bus, address: int) -> dict:
@@ -890,20 +1101,32 @@ def read_input(bus: Bus, address: int) -> dict:
 
     ``words`` holds the PZD words in use (ZSW1 first); ``extra`` and ``reserved`` are left
     out. ``sequence`` counts good replies (0 = none yet); ``online`` is 1 while the drive
-    answers; time stamps are CLOCK_MONOTONIC ns. ``control`` is a :class:`ControlState`; while
+    answers, and 0 whenever ussd does not poll the bus (``health`` says why: "gone",
+    "stopped", "line down"; the image is then the last one read); ``known`` is 0 until ussd's
+    first poll decided ``online``. Time stamps are CLOCK_MONOTONIC ns. ``control`` is a :class:`ControlState`; while
     latched, ``latch_reason`` (:class:`LatchReason`) says why and ``latch_command``
     (:class:`StopCommand`) what the drive gets; ``sent_stw1`` is the control word that went out.
     """
     _check_address(address)
-    image = bus._input_entry(address).get().decode_as(PzdInput)
+    health = bus.health()
+    if health.serving:
+        image = bus._input_entry(address).get().decode_as(PzdInput)
+        bus._services[("last", address)] = image
+    else:
+        # The last image read, or an empty one: offline either way.
+        image = bus._services.get(("last", address)) or PzdInput(version=LAYOUT_VERSION)
     if image.version != LAYOUT_VERSION:
-        service = drive_in_service(bus.name, address)
+        service = drive_in_service(bus.name, bus._generation, address)
         raise Incompatible(bus.name, service, f"version {image.version}")
+    # A stale picture is never shown: ussd gone, stopped or its line down means offline.
+    stale = health.error()
     count = min(image.word_count, MAX_PZD_WORDS)
     words = ([image.zsw1, image.hiw] + list(image.extra))[:count]
     return {
         "address": address,
-        "online": image.online,
+        "online": 0 if stale is not None else image.online,
+        "known": image.known,
+        "health": health.state,
         "control": _code(ControlState, image.control),
         "latch_reason": _code(LatchReason, image.latch_reason),
         "latch_command": _code(StopCommand, image.latch_command),
@@ -946,7 +1169,8 @@ def read_param(bus: Bus, address: int, pnu: int, index=None, timeout: float = 7.
     )
     response = _send(bus, request, timeout)
     if response.version != LAYOUT_VERSION:
-        raise Incompatible(bus.name, params_service(bus.name), f"version {response.version}")
+        service = params_service(bus.name, bus._generation)
+        raise Incompatible(bus.name, service, f"version {response.version}")
     if response.error != RequestError.OK:
         item = None if response.error_item == NO_ITEM else response.error_item
         raise _refused(bus, address, response.error, item)
@@ -1012,7 +1236,8 @@ def _operator(bus: Bus, address: int, command, timeout: float):
     response = _round_trip(bus, bus._commands(), request, timeout)
     response = OperatorResponse.from_buffer_copy(response)
     if response.version != LAYOUT_VERSION:
-        raise Incompatible(bus.name, command_service(bus.name), f"version {response.version}")
+        service = command_service(bus.name, bus._generation)
+        raise Incompatible(bus.name, service, f"version {response.version}")
     if response.error != CommandError.OK:
         if response.error == CommandError.UNKNOWN_DRIVE:
             raise UnknownDrive(bus.name, address, bus.drives())

@@ -67,11 +67,19 @@ static void expect_string(const char *what, const char *found, const char *expec
 
 #define EXPECT_STRING(name, expected) expect_string(#name, name, expected);
 
-/* A service name for one drive: pattern with %s (bus) and %u (address). */
-#define EXPECT_DRIVE_NAME(pattern, bus, address, expected)                                     \
+/* A service name for one drive: pattern with %s (bus), %016llx (generation), %u (address). */
+#define EXPECT_DRIVE_NAME(pattern, bus, generation, address, expected)                         \
     {                                                                                          \
         char name[256];                                                                        \
-        snprintf(name, sizeof name, pattern, bus, address);                                    \
+        snprintf(name, sizeof name, pattern, bus, (unsigned long long)(generation), address);  \
+        expect_string(#pattern, name, expected);                                               \
+    }
+
+/* A service name of one ussd instance: pattern with %s (bus) and %016llx (generation). */
+#define EXPECT_INSTANCE_NAME(pattern, bus, generation, expected)                               \
+    {                                                                                          \
+        char name[256];                                                                        \
+        snprintf(name, sizeof name, pattern, bus, (unsigned long long)(generation));           \
         expect_string(#pattern, name, expected);                                               \
     }
 

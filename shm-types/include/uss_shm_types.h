@@ -27,31 +27,37 @@
 #define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV2"
 #define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV2"
 #define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV2"
+#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV2"
 #define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV2"
 #define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV2"
 
 /*
- * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; %u = drive address
- * 0..31 in decimal). Every service carries the attribute USS_LAYOUT_VERSION_ATTRIBUTE whose value
- * is USS_LAYOUT_VERSION in decimal.
+ * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; %016llx = the
+ * serving ussd's generation from its newest heartbeat, as an unsigned long long; %u = drive
+ * address 0..31 in decimal). Every service carries the attribute USS_LAYOUT_VERSION_ATTRIBUTE whose
+ * value is USS_LAYOUT_VERSION in decimal.
  */
 #define USS_LAYOUT_VERSION_ATTRIBUTE "uss.layout_version"
+/** publish-subscribe, UssHeartbeat: ussd's heartbeat; its generation names the services below. */
+#define USS_SERVICE_HEARTBEAT "uss/%s/ussd"
 /** publish-subscribe, UssPzdOutput: the controller's output image (one publisher). */
-#define USS_SERVICE_DRIVE_OUT "uss/%s/drive/%u/out"
+#define USS_SERVICE_DRIVE_OUT "uss/%s/%016llx/drive/%u/out"
 /** blackboard, key UssBlackboardKey_IMAGE (value 0) -> UssPzdInput. */
-#define USS_SERVICE_DRIVE_IN "uss/%s/drive/%u/in"
+#define USS_SERVICE_DRIVE_IN "uss/%s/%016llx/drive/%u/in"
 /** blackboard, key = drive address -> UssDriveDiag. */
-#define USS_SERVICE_DIAG "uss/%s/diag"
+#define USS_SERVICE_DIAG "uss/%s/%016llx/diag"
 /** blackboard, key UssBlackboardKey_IMAGE (value 0) -> UssBusStatus. */
-#define USS_SERVICE_STATUS "uss/%s/status"
+#define USS_SERVICE_STATUS "uss/%s/%016llx/status"
 /** event: drive address (exchange completed), USS_CYCLE_COMPLETED, USS_STATUS_PUBLISHED, USS_USSD_GONE. */
-#define USS_SERVICE_CYCLE "uss/%s/cycle"
+#define USS_SERVICE_CYCLE "uss/%s/%016llx/cycle"
 /** request-response, UssParamRequest -> UssParamResponse. */
-#define USS_SERVICE_PARAMS "uss/%s/params"
+#define USS_SERVICE_PARAMS "uss/%s/%016llx/params"
 /** request-response, UssOperatorRequest -> UssOperatorResponse (operator stop commands). */
-#define USS_SERVICE_COMMAND "uss/%s/command"
+#define USS_SERVICE_COMMAND "uss/%s/%016llx/command"
 /** ussd's node name for a bus. */
 #define USS_USSD_NODE "ussd-%s"
+/** how a generation is written in service names (after the bus). */
+#define USS_GENERATION_FORMAT "uss/%s/%016llx"
 
 /**
  * `address` of an [`OperatorRequest`] for every drive of the bus.
@@ -98,7 +104,17 @@
 #define USS_OUT_HISTORY 0
 
 /**
- * Highest event id on `uss/<bus>/cycle`; ussd creates the service with it.
+ * How often ussd publishes its heartbeat, ns.
+ */
+#define USS_HEARTBEAT_PERIOD_NS 50000000
+
+/**
+ * A heartbeat older than this means ussd is gone (killed, hung): 10 periods, 500 ms.
+ */
+#define USS_GONE_AFTER_NS (10 * USS_HEARTBEAT_PERIOD_NS)
+
+/**
+ * Highest event id on `uss/<bus>/<gen>/cycle`; ussd creates the service with it.
  */
 #define USS_EVENT_ID_MAX 63
 
@@ -456,6 +472,54 @@ typedef uint8_t UssLastFailure;
 #endif // __cplusplus
 
 /**
+ * Whether the bus line carries telegrams; the `line_state` byte of [`BusStatus`].
+ */
+enum UssLineState
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  USS_LINE_STATE_UP = 0,
+  /**
+   * The device failed; ussd reopens it with backoff (0.1 s, doubling to 5 s).
+   */
+  USS_LINE_STATE_DOWN = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssLineState UssLineState;
+#else
+typedef uint8_t UssLineState;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Why the bus line went down; the `line_fault` byte of [`BusStatus`].
+ */
+enum UssLineFault
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  USS_LINE_FAULT_NONE = 0,
+  /**
+   * The device was closed or unplugged (EOF, EIO, ENXIO, ENODEV).
+   */
+  USS_LINE_FAULT_CLOSED = 1,
+  /**
+   * Another I/O error; `line_errno` says which.
+   */
+  USS_LINE_FAULT_IO = 2,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssLineFault UssLineFault;
+#else
+typedef uint8_t UssLineFault;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
  * The scheduling ussd's bus thread obtained; the `rt_mode` byte of [`BusStatus`].
  */
 enum UssRtMode
@@ -477,6 +541,35 @@ enum UssRtMode
 typedef enum UssRtMode UssRtMode;
 #else
 typedef uint8_t UssRtMode;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * What ussd says of its bus; the `state` byte of [`Heartbeat`].
+ */
+enum UssBusState
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * Polling the drives.
+   */
+  USS_BUS_STATE_RUNNING = 0,
+  /**
+   * The line failed; ussd reopens it (see `line_fault`).
+   */
+  USS_BUS_STATE_LINE_DOWN = 1,
+  /**
+   * ussd is stopping cleanly: this is its last heartbeat.
+   */
+  USS_BUS_STATE_STOPPING = 2,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssBusState UssBusState;
+#else
+typedef uint8_t UssBusState;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
@@ -628,6 +721,10 @@ enum UssRequestError
    * `flags` has bits this layout does not define.
    */
   USS_REQUEST_ERROR_BAD_FLAGS = 15,
+  /**
+   * The bus line is down; ussd reopens it.
+   */
+  USS_REQUEST_ERROR_LINE_DOWN = 16,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -690,6 +787,10 @@ enum UssOutcome
    * ussd refused the item before the bus; the reason is in `refusal`.
    */
   USS_OUTCOME_REFUSED = 10,
+  /**
+   * The bus line failed (device unplugged, I/O error) before the item completed.
+   */
+  USS_OUTCOME_LINE_DOWN = 11,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -849,7 +950,11 @@ typedef struct UssPzdInput {
    * The [`Rejection`] of the last refused sample (0 if none was refused).
    */
   uint8_t rejection;
-  uint8_t reserved[2];
+  /**
+   * 1 once the drive's first poll decided `online` (answered or not); 0: unknown yet.
+   */
+  uint8_t known;
+  uint8_t reserved;
   /**
    * `sequence` of the controller's latest sample ussd has taken for this drive (0 = none):
    * a controller knows from it that ussd has seen a sample (a release, an OFF1).
@@ -923,7 +1028,11 @@ typedef struct UssDriveDiag {
    * exactly this many.
    */
   uint8_t pzd_words;
-  uint8_t reserved[2];
+  /**
+   * 1 once the drive's first poll decided `online`; 0: unknown yet.
+   */
+  uint8_t known;
+  uint8_t reserved;
   /**
    * The telegram-off time read from the drive, ms (0 = off or not read).
    */
@@ -1080,6 +1189,32 @@ typedef struct UssBusStatus {
    * `CLOCK_MONOTONIC` ns at the same instant as `bus_clock_ns`.
    */
   uint64_t timestamp_ns;
+  /**
+   * A [`LineState`] code.
+   */
+  uint8_t line_state;
+  /**
+   * A [`LineFault`] code (0 while the line is up).
+   */
+  uint8_t line_fault;
+  uint8_t reserved[2];
+  /**
+   * With [`LineFault::Io`]: the errno.
+   */
+  int32_t line_errno;
+  /**
+   * When the line went down, `CLOCK_MONOTONIC` ns (0 while up).
+   */
+  uint64_t line_down_since_ns;
+  /**
+   * Times the line went down since ussd started.
+   */
+  uint64_t line_downs;
+  /**
+   * Attempts to reopen the line since it went down.
+   */
+  uint32_t reopen_attempts;
+  uint32_t reserved2;
 #ifdef __cplusplus
   static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV2";
 #endif
@@ -1221,6 +1356,56 @@ typedef struct UssParamResponse {
   static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV2";
 #endif
 } UssParamResponse;
+
+/**
+ * One heartbeat.
+ */
+typedef struct UssHeartbeat {
+  /**
+   * [`LAYOUT_VERSION`].
+   */
+  uint32_t version;
+  /**
+   * ussd's process id.
+   */
+  uint32_t pid;
+  /**
+   * The instance's [`Generation`]: its services are `uss/<bus>/<generation>/...`.
+   */
+  uint64_t generation;
+  /**
+   * Counts the heartbeats of this instance.
+   */
+  uint64_t sequence;
+  /**
+   * When it was sent, `CLOCK_MONOTONIC` ns.
+   */
+  uint64_t timestamp_ns;
+  /**
+   * Exchanges the bus thread completed (its progress).
+   */
+  uint64_t exchanges;
+  /**
+   * When the line went down, `CLOCK_MONOTONIC` ns (0 while up).
+   */
+  uint64_t line_down_since_ns;
+  /**
+   * A [`BusState`] code.
+   */
+  uint8_t state;
+  /**
+   * A [`LineFault`] code (0 while the line is up).
+   */
+  uint8_t line_fault;
+  uint8_t reserved[2];
+  /**
+   * With [`LineFault::Io`]: the errno.
+   */
+  int32_t line_errno;
+#ifdef __cplusplus
+  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV2";
+#endif
+} UssHeartbeat;
 
 /**
  * An operator's stop command for one drive or every drive of a bus, from any process.

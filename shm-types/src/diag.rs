@@ -38,6 +38,26 @@ code_table! {
 }
 
 code_table! {
+    /// Whether the bus line carries telegrams; the `line_state` byte of [`BusStatus`].
+    pub enum LineState {
+        Up = 0 => "up",
+        /// The device failed; ussd reopens it with backoff (0.1 s, doubling to 5 s).
+        Down = 1 => "down",
+    }
+}
+
+code_table! {
+    /// Why the bus line went down; the `line_fault` byte of [`BusStatus`].
+    pub enum LineFault {
+        None = 0 => "none",
+        /// The device was closed or unplugged (EOF, EIO, ENXIO, ENODEV).
+        Closed = 1 => "the serial device was closed or unplugged",
+        /// Another I/O error; `line_errno` says which.
+        Io = 2 => "serial I/O failed",
+    }
+}
+
+code_table! {
     /// The scheduling ussd's bus thread obtained; the `rt_mode` byte of [`BusStatus`].
     pub enum RtMode {
         /// `SCHED_FIFO` or memory locking failed (or was not asked for): the bus runs best effort.
@@ -83,7 +103,9 @@ pub struct DriveDiag {
     /// PZD words the drive exchanges as configured (P2012): a controller's samples must carry
     /// exactly this many.
     pub pzd_words: u8,
-    pub reserved: [u8; 2],
+    /// 1 once the drive's first poll decided `online`; 0: unknown yet.
+    pub known: u8,
+    pub reserved: u8,
     /// The telegram-off time read from the drive, ms (0 = off or not read).
     pub monitoring_ms: u32,
     /// The process id in the controller's latest sample; 0 if no controller published yet.
@@ -172,6 +194,20 @@ pub struct BusStatus {
     pub bus_clock_ns: u64,
     /// `CLOCK_MONOTONIC` ns at the same instant as `bus_clock_ns`.
     pub timestamp_ns: u64,
+    /// A [`LineState`] code.
+    pub line_state: u8,
+    /// A [`LineFault`] code (0 while the line is up).
+    pub line_fault: u8,
+    pub reserved: [u8; 2],
+    /// With [`LineFault::Io`]: the errno.
+    pub line_errno: i32,
+    /// When the line went down, `CLOCK_MONOTONIC` ns (0 while up).
+    pub line_down_since_ns: u64,
+    /// Times the line went down since ussd started.
+    pub line_downs: u64,
+    /// Attempts to reopen the line since it went down.
+    pub reopen_attempts: u32,
+    pub reserved2: u32,
 }
 
 impl DriveDiag {
@@ -192,7 +228,8 @@ impl DriveDiag {
             rejection: Rejection::None.code(),
             monitoring: Monitoring::Unknown.code(),
             pzd_words: 0,
-            reserved: [0; 2],
+            known: 0,
+            reserved: 0,
             monitoring_ms: 0,
             controller_pid: 0,
             since_ns: 0,
@@ -272,6 +309,14 @@ impl BusStatus {
         mean_exchange_ns: 0,
         bus_clock_ns: 0,
         timestamp_ns: 0,
+        line_state: LineState::Up.code(),
+        line_fault: LineFault::None.code(),
+        reserved: [0; 2],
+        line_errno: 0,
+        line_down_since_ns: 0,
+        line_downs: 0,
+        reopen_attempts: 0,
+        reserved2: 0,
     };
 
     pub fn rt_mode(&self) -> Result<RtMode, UnknownCode> {
@@ -281,6 +326,26 @@ impl BusStatus {
     /// Wire-time floor over achieved exchange time, if measured.
     pub fn efficiency(&self) -> Option<f64> {
         (self.efficiency_ppm > 0).then(|| f64::from(self.efficiency_ppm) / 1e6)
+    }
+
+    /// Whether the bus line is down.
+    pub fn is_line_down(&self) -> bool {
+        self.line_state == LineState::Down.code()
+    }
+
+    /// Why the line is down, in words (with the errno's text for an I/O error); `None` while up.
+    pub fn line_fault_text(&self) -> Option<String> {
+        if !self.is_line_down() {
+            return None;
+        }
+        Some(match LineFault::try_from(self.line_fault) {
+            Ok(LineFault::Io) => format!(
+                "serial I/O failed: {}",
+                std::io::Error::from_raw_os_error(self.line_errno)
+            ),
+            Ok(f) => f.name().to_owned(),
+            Err(e) => e.to_string(),
+        })
     }
 }
 

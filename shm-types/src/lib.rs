@@ -1,15 +1,19 @@
 //! The shared-memory contract between `ussd` and its client processes (Rust, C, C++, Python):
 //! the payloads they exchange over iceoryx2 0.10, their code tables, and where to find them.
 //!
-//! | service ([`names`])          | iceoryx2 pattern          | written by              | read by | payload |
-//! |------------------------------|---------------------------|-------------------------|---------|---------|
-//! | `uss/<bus>/drive/<addr>/out` | publish-subscribe         | exactly one controller  | ussd    | [`PzdOutput`] |
-//! | `uss/<bus>/drive/<addr>/in`  | blackboard, key 0         | ussd                    | anyone  | [`PzdInput`] |
-//! | `uss/<bus>/diag`             | blackboard, key = address | ussd                    | anyone  | [`DriveDiag`] |
-//! | `uss/<bus>/status`           | blackboard, key 0         | ussd                    | anyone  | [`BusStatus`] |
-//! | `uss/<bus>/cycle`            | event                     | ussd                    | anyone  | event ids in [`names`] |
-//! | `uss/<bus>/params`           | request-response          | clients ask, ussd answers | -     | [`ParamRequest`] / [`ParamResponse`] |
-//! | `uss/<bus>/command`          | request-response          | any process asks, ussd answers | - | [`OperatorRequest`] / [`OperatorResponse`] |
+//! | service ([`names`])                | iceoryx2 pattern          | written by              | read by | payload |
+//! |------------------------------------|---------------------------|-------------------------|---------|---------|
+//! | `uss/<bus>/ussd`                   | publish-subscribe         | ussd (one publisher)    | anyone  | [`Heartbeat`] |
+//! | `uss/<bus>/<gen>/drive/<addr>/out` | publish-subscribe         | exactly one controller  | ussd    | [`PzdOutput`] |
+//! | `uss/<bus>/<gen>/drive/<addr>/in`  | blackboard, key 0         | ussd                    | anyone  | [`PzdInput`] |
+//! | `uss/<bus>/<gen>/diag`             | blackboard, key = address | ussd                    | anyone  | [`DriveDiag`] |
+//! | `uss/<bus>/<gen>/status`           | blackboard, key 0         | ussd                    | anyone  | [`BusStatus`] |
+//! | `uss/<bus>/<gen>/cycle`            | event                     | ussd                    | anyone  | event ids in [`names`] |
+//! | `uss/<bus>/<gen>/params`           | request-response          | clients ask, ussd answers | -     | [`ParamRequest`] / [`ParamResponse`] |
+//! | `uss/<bus>/<gen>/command`          | request-response          | any process asks, ussd answers | - | [`OperatorRequest`] / [`OperatorResponse`] |
+//!
+//! `<gen>` is the serving ussd instance's generation, named by its heartbeat: a restarted ussd
+//! serves a new generation while clients of the old one still hold its services.
 //!
 //! ussd creates every service; clients open them. The `out` service admits one publisher, so
 //! "one controlling writer per drive" is a property of the service, not a convention: a second
@@ -33,6 +37,7 @@
 mod codes;
 pub mod control;
 pub mod diag;
+pub mod heartbeat;
 pub mod layout;
 pub mod names;
 pub mod params;
@@ -43,8 +48,9 @@ pub use control::{
     ALL_DRIVES, CommandError, ControlState, LatchReason, Monitoring, OperatorRequest,
     OperatorResponse, Rejection, StopCommand,
 };
-pub use diag::{BusStatus, DriveDiag, LastFailure, RtMode};
-pub use names::{BlackboardKey, BusName, DriveAddress, NameError};
+pub use diag::{BusStatus, DriveDiag, LastFailure, LineFault, LineState, RtMode};
+pub use heartbeat::{BusState, Heartbeat};
+pub use names::{BlackboardKey, BusName, DriveAddress, Generation, Instance, NameError};
 pub use params::{
     MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, REQUEST_FORCE,
     Refusal, RequestError, Storage, TaskCode,

@@ -2,19 +2,26 @@
 //! derived from the bus name. This module is the only place that spells them; other languages
 //! follow the table below.
 //!
-//! | service name                 | pattern          | keys / ids                                   |
-//! |------------------------------|------------------|----------------------------------------------|
-//! | `uss/<bus>/drive/<addr>/out` | publish-subscribe| `PzdOutput`; 1 publisher, subscriber buffer 1, history 1, safe overflow |
-//! | `uss/<bus>/drive/<addr>/in`  | blackboard       | [`BlackboardKey::IMAGE`] -> `PzdInput`        |
-//! | `uss/<bus>/diag`             | blackboard       | [`BlackboardKey::drive`] (address) -> `DriveDiag` |
-//! | `uss/<bus>/status`           | blackboard       | [`BlackboardKey::IMAGE`] -> `BusStatus`       |
-//! | `uss/<bus>/cycle`            | event            | [`exchange_completed`], [`CYCLE_COMPLETED`], [`STATUS_PUBLISHED`], [`USSD_GONE`] |
-//! | `uss/<bus>/params`           | request-response | `ParamRequest` -> `ParamResponse`             |
-//! | `uss/<bus>/command`          | request-response | `OperatorRequest` -> `OperatorResponse`       |
+//! | service name                       | pattern          | keys / ids                             |
+//! |------------------------------------|------------------|----------------------------------------|
+//! | `uss/<bus>/ussd`                   | publish-subscribe| `Heartbeat`; 1 publisher (ussd), subscriber buffer 1, history 1, safe overflow |
+//! | `uss/<bus>/<gen>/drive/<addr>/out` | publish-subscribe| `PzdOutput`; 1 publisher, subscriber buffer 1, no history, safe overflow |
+//! | `uss/<bus>/<gen>/drive/<addr>/in`  | blackboard       | [`BlackboardKey::IMAGE`] -> `PzdInput`  |
+//! | `uss/<bus>/<gen>/diag`             | blackboard       | [`BlackboardKey::drive`] (address) -> `DriveDiag` |
+//! | `uss/<bus>/<gen>/status`           | blackboard       | [`BlackboardKey::IMAGE`] -> `BusStatus` |
+//! | `uss/<bus>/<gen>/cycle`            | event            | [`exchange_completed`], [`CYCLE_COMPLETED`], [`STATUS_PUBLISHED`], [`USSD_GONE`] |
+//! | `uss/<bus>/<gen>/params`           | request-response | `ParamRequest` -> `ParamResponse`       |
+//! | `uss/<bus>/<gen>/command`          | request-response | `OperatorRequest` -> `OperatorResponse` |
 //!
-//! `<bus>` is 1 to 32 characters of `A-Z a-z 0-9 _ -`; `<addr>` is the drive address in decimal
-//! without leading zeros (0..=31, USS.md section 1). Every service carries the attribute
-//! [`LAYOUT_VERSION_ATTRIBUTE`] = `LAYOUT_VERSION` in decimal.
+//! `<bus>` is 1 to 32 characters of `A-Z a-z 0-9 _ -`; `<gen>` is the serving ussd's
+//! [`Generation`] (16 lowercase hex digits), read from the newest heartbeat; `<addr>` is the
+//! drive address in decimal without leading zeros (0..=31, USS.md section 1). Every service
+//! carries the attribute [`LAYOUT_VERSION_ATTRIBUTE`] = `LAYOUT_VERSION` in decimal.
+//!
+//! A client opens `uss/<bus>/ussd` first: its newest heartbeat names the generation (and tells
+//! whether ussd runs, its line is down, or it is stopping); no heartbeat within
+//! [`GONE_AFTER_NS`] means ussd is gone. When a heartbeat names another generation, ussd was
+//! restarted: the client drops the old generation's ports and opens the new one's.
 //!
 //! Why `out` is publish-subscribe and not a blackboard (measured with iceoryx2 0.10 in
 //! `tests/patterns.rs`): both enforce one writer with a clear error, but a blackboard entry
@@ -128,7 +135,12 @@ pub const OUT_LATEST_ONLY: usize = 1;
 /// subscribed, never on one its predecessor had already seen (`crate::control`).
 pub const OUT_HISTORY: usize = 0;
 
-/// Highest event id on `uss/<bus>/cycle`; ussd creates the service with it.
+/// How often ussd publishes its heartbeat, ns.
+pub const HEARTBEAT_PERIOD_NS: u64 = 50_000_000;
+/// A heartbeat older than this means ussd is gone (killed, hung): 10 periods, 500 ms.
+pub const GONE_AFTER_NS: u64 = 10 * HEARTBEAT_PERIOD_NS;
+
+/// Highest event id on `uss/<bus>/<gen>/cycle`; ussd creates the service with it.
 pub const EVENT_ID_MAX: usize = 63;
 /// A pass through the circulating list completed (USS.md section 5).
 pub const CYCLE_COMPLETED: usize = 32;
@@ -155,39 +167,84 @@ pub const fn exchange_completed(address: DriveAddress) -> usize {
     address.get() as usize
 }
 
-/// The controller's output image of one drive.
-pub fn drive_out(bus: &BusName, address: DriveAddress) -> ServiceName {
-    service(&format!("uss/{bus}/drive/{address}/out"))
+/// One ussd instance: its services live under `uss/<bus>/<generation>/`, so a restarted ussd
+/// never meets the services its predecessor left to clients (iceoryx2 keeps a service while
+/// any port holds it, and a blackboard entry whose writer was killed stays locked,
+/// eclipse-iceoryx/iceoryx2#2008). Clients learn the current generation from the bus's
+/// [`heartbeat`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Generation(pub u64);
+
+impl fmt::Display for Generation {
+    /// 16 lowercase hex digits, as in the service names.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:016x}", self.0)
+    }
 }
 
-/// The drive's input image, written by ussd after every good reply.
-pub fn drive_in(bus: &BusName, address: DriveAddress) -> ServiceName {
-    service(&format!("uss/{bus}/drive/{address}/in"))
+/// The services of one ussd instance on one bus.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct Instance {
+    pub bus: BusName,
+    pub generation: Generation,
+}
+
+impl Instance {
+    pub fn new(bus: BusName, generation: Generation) -> Self {
+        Self { bus, generation }
+    }
+
+    fn service(&self, rest: &str) -> ServiceName {
+        service(&format!("uss/{}/{}/{rest}", self.bus, self.generation))
+    }
+}
+
+impl fmt::Display for Instance {
+    /// The bus name, as messages name a bus.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.bus.fmt(f)
+    }
+}
+
+/// The heartbeat of the ussd serving `bus` (publish-subscribe, one publisher, history 1): the
+/// one service whose name stays when ussd restarts. It says which generation serves the bus.
+pub fn heartbeat(bus: &BusName) -> ServiceName {
+    service(&format!("uss/{bus}/ussd"))
+}
+
+/// The controller's output image of one drive.
+pub fn drive_out(i: &Instance, address: DriveAddress) -> ServiceName {
+    i.service(&format!("drive/{address}/out"))
+}
+
+/// The drive's input image, written by ussd after every poll.
+pub fn drive_in(i: &Instance, address: DriveAddress) -> ServiceName {
+    i.service(&format!("drive/{address}/in"))
 }
 
 /// Diagnostics of every drive of the bus, keyed by address.
-pub fn diag(bus: &BusName) -> ServiceName {
-    service(&format!("uss/{bus}/diag"))
+pub fn diag(i: &Instance) -> ServiceName {
+    i.service("diag")
 }
 
 /// The bus status.
-pub fn status(bus: &BusName) -> ServiceName {
-    service(&format!("uss/{bus}/status"))
+pub fn status(i: &Instance) -> ServiceName {
+    i.service("status")
 }
 
 /// Exchange and cycle events.
-pub fn cycle(bus: &BusName) -> ServiceName {
-    service(&format!("uss/{bus}/cycle"))
+pub fn cycle(i: &Instance) -> ServiceName {
+    i.service("cycle")
 }
 
 /// Parameter requests.
-pub fn params(bus: &BusName) -> ServiceName {
-    service(&format!("uss/{bus}/params"))
+pub fn params(i: &Instance) -> ServiceName {
+    i.service("params")
 }
 
 /// Operator stop commands (OFF1, OFF2, OFF3 for one drive or all), open to every process.
-pub fn command(bus: &BusName) -> ServiceName {
-    service(&format!("uss/{bus}/command"))
+pub fn command(i: &Instance) -> ServiceName {
+    i.service("command")
 }
 
 /// The name of ussd's node for a bus, as `Node::list` shows it.
@@ -213,15 +270,26 @@ mod tests {
     #[test]
     fn service_names_follow_the_table() {
         let b = bus("line-1_A");
+        let i = Instance::new(b.clone(), Generation(0x1234_abcd));
         let a = DriveAddress::new(7).unwrap();
-        assert_eq!(drive_out(&b, a).as_str(), "uss/line-1_A/drive/7/out");
-        assert_eq!(drive_in(&b, a).as_str(), "uss/line-1_A/drive/7/in");
-        assert_eq!(diag(&b).as_str(), "uss/line-1_A/diag");
-        assert_eq!(status(&b).as_str(), "uss/line-1_A/status");
-        assert_eq!(cycle(&b).as_str(), "uss/line-1_A/cycle");
-        assert_eq!(params(&b).as_str(), "uss/line-1_A/params");
-        assert_eq!(command(&b).as_str(), "uss/line-1_A/command");
+        let g = "000000001234abcd";
+        assert_eq!(heartbeat(&b).as_str(), "uss/line-1_A/ussd");
+        assert_eq!(
+            drive_out(&i, a).as_str(),
+            format!("uss/line-1_A/{g}/drive/7/out")
+        );
+        assert_eq!(
+            drive_in(&i, a).as_str(),
+            format!("uss/line-1_A/{g}/drive/7/in")
+        );
+        assert_eq!(diag(&i).as_str(), format!("uss/line-1_A/{g}/diag"));
+        assert_eq!(status(&i).as_str(), format!("uss/line-1_A/{g}/status"));
+        assert_eq!(cycle(&i).as_str(), format!("uss/line-1_A/{g}/cycle"));
+        assert_eq!(params(&i).as_str(), format!("uss/line-1_A/{g}/params"));
+        assert_eq!(command(&i).as_str(), format!("uss/line-1_A/{g}/command"));
         assert_eq!(ussd_node(&b).as_str(), "ussd-line-1_A");
+        let longest = Instance::new(bus(&"x".repeat(32)), Generation(u64::MAX));
+        assert!(drive_out(&longest, a).as_str().len() < 255);
     }
 
     #[test]

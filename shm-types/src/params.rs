@@ -87,6 +87,8 @@ code_table! {
         Controlled = 14 => "drive controlled by another process",
         /// `flags` has bits this layout does not define.
         BadFlags = 15 => "unknown flags",
+        /// The bus line is down; ussd reopens it.
+        LineDown = 16 => "bus line down",
     }
 }
 
@@ -122,6 +124,8 @@ code_table! {
         Shutdown = 9 => "shut down",
         /// ussd refused the item before the bus; the reason is in `refusal`.
         Refused = 10 => "refused",
+        /// The bus line failed (device unplugged, I/O error) before the item completed.
+        LineDown = 11 => "bus line down",
     }
 }
 

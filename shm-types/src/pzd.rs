@@ -113,7 +113,9 @@ pub struct PzdInput {
     pub latch_command: u8,
     /// The [`Rejection`] of the last refused sample (0 if none was refused).
     pub rejection: u8,
-    pub reserved: [u8; 2],
+    /// 1 once the drive's first poll decided `online` (answered or not); 0: unknown yet.
+    pub known: u8,
+    pub reserved: u8,
     /// `sequence` of the controller's latest sample ussd has taken for this drive (0 = none):
     /// a controller knows from it that ussd has seen a sample (a release, an OFF1).
     pub taken_sequence: u64,
@@ -256,7 +258,8 @@ impl PzdInput {
         latched_by_pid: 0,
         latch_command: StopCommand::None.code(),
         rejection: Rejection::None.code(),
-        reserved: [0; 2],
+        known: 0,
+        reserved: 0,
         taken_sequence: 0,
     };
 

@@ -15,10 +15,11 @@ use std::process::Command;
 use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
 use uss_shm_types::names::{self, BlackboardKey};
 use uss_shm_types::{
-    BusName, BusStatus, CommandError, ControlState, DriveAddress, DriveDiag, LastFailure,
-    LatchReason, Monitoring, OperatorRequest, OperatorResponse, Outcome, ParamItem, ParamRequest,
-    ParamResponse, ParamResult, PzdInput, PzdOutput, Rejection, RequestError, RtMode, StopCommand,
-    Storage, TaskCode,
+    BusName, BusState, BusStatus, CommandError, ControlState, DriveAddress, DriveDiag, Generation,
+    Heartbeat, Instance, LastFailure, LatchReason, LineFault, LineState, Monitoring,
+    OperatorRequest, OperatorResponse, Outcome, ParamItem, ParamRequest, ParamResponse,
+    ParamResult, PzdInput, PzdOutput, Rejection, RequestError, RtMode, StopCommand, Storage,
+    TaskCode,
 };
 
 const REGENERATE: &str =
@@ -119,8 +120,10 @@ fn strings_section() -> String {
     }
     s.push_str(
         "\n/*\n * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; \
-         %u = drive address\n * 0..31 in decimal). Every service carries the attribute \
-         USS_LAYOUT_VERSION_ATTRIBUTE whose value\n * is USS_LAYOUT_VERSION in decimal.\n */\n",
+         %016llx = the\n * serving ussd's generation from its newest heartbeat, as an unsigned \
+         long long; %u = drive\n * address 0..31 in decimal). Every service carries the \
+         attribute USS_LAYOUT_VERSION_ATTRIBUTE whose\n * value is USS_LAYOUT_VERSION in \
+         decimal.\n */\n",
     );
     let _ = writeln!(
         s,
@@ -140,89 +143,117 @@ fn strings_section() -> String {
     s
 }
 
+/// What a name of [`names`] is made of besides the bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Scope {
+    /// The bus alone (`%s`).
+    Bus,
+    /// One ussd instance: the bus and its generation (`%s`, `%016llx`).
+    Instance,
+    /// One drive of an instance (`%s`, `%016llx`, `%u`).
+    Drive,
+}
+
 /// One name of [`names`], for C.
 struct Service {
     /// After `USS_`.
     c_name: &'static str,
-    /// Whether the name has a drive address (`%u`) as well as the bus (`%s`).
-    per_drive: bool,
+    scope: Scope,
     what: &'static str,
-    name: fn(&BusName, DriveAddress) -> String,
+    name: fn(&Instance, DriveAddress) -> String,
 }
 
+/// The stand-ins a pattern is found with.
+const BUS: &str = "BUS";
+const GENERATION: Generation = Generation(0x0123_4567_89ab_cdef);
+const ADDRESS: u8 = 31;
+
 impl Service {
-    /// The name as a printf pattern, found by asking [`names`] for a stand-in bus and address.
+    /// The name as a printf pattern, found by asking [`names`] for stand-ins.
     fn pattern(&self) -> String {
-        const BUS: &str = "BUS";
-        const ADDRESS: u8 = 31;
-        let name = (self.name)(
-            &BusName::new(BUS).unwrap(),
-            DriveAddress::new(ADDRESS).unwrap(),
-        );
+        let instance = Instance::new(BusName::new(BUS).unwrap(), GENERATION);
+        let name = (self.name)(&instance, DriveAddress::new(ADDRESS).unwrap());
         let p = name
             .replace(&format!("/{ADDRESS}/"), "/%u/")
+            .replace(&GENERATION.to_string(), "%016llx")
             .replace(BUS, "%s");
         assert_eq!(p.matches("%s").count(), 1, "{name}");
-        assert_eq!(p.contains("%u"), self.per_drive, "{name}");
+        assert_eq!(p.contains("%016llx"), self.scope != Scope::Bus, "{name}");
+        assert_eq!(p.contains("%u"), self.scope == Scope::Drive, "{name}");
         p
     }
 }
 
 /// Every name of [`names`].
-fn services() -> [Service; 8] {
-    let s = |c_name, per_drive, what, name| Service {
+fn services() -> [Service; 10] {
+    let s = |c_name, scope, what, name| Service {
         c_name,
-        per_drive,
+        scope,
         what,
         name,
     };
     [
         s(
+            "SERVICE_HEARTBEAT",
+            Scope::Bus,
+            "publish-subscribe, UssHeartbeat: ussd's heartbeat; its generation names the services below.",
+            |i, _| names::heartbeat(&i.bus).as_str().into(),
+        ),
+        s(
             "SERVICE_DRIVE_OUT",
-            true,
+            Scope::Drive,
             "publish-subscribe, UssPzdOutput: the controller's output image (one publisher).",
-            |b, a| names::drive_out(b, a).as_str().into(),
+            |i, a| names::drive_out(i, a).as_str().into(),
         ),
         s(
             "SERVICE_DRIVE_IN",
-            true,
+            Scope::Drive,
             "blackboard, key UssBlackboardKey_IMAGE (value 0) -> UssPzdInput.",
-            |b, a| names::drive_in(b, a).as_str().into(),
+            |i, a| names::drive_in(i, a).as_str().into(),
         ),
         s(
             "SERVICE_DIAG",
-            false,
+            Scope::Instance,
             "blackboard, key = drive address -> UssDriveDiag.",
-            |b, _| names::diag(b).as_str().into(),
+            |i, _| names::diag(i).as_str().into(),
         ),
         s(
             "SERVICE_STATUS",
-            false,
+            Scope::Instance,
             "blackboard, key UssBlackboardKey_IMAGE (value 0) -> UssBusStatus.",
-            |b, _| names::status(b).as_str().into(),
+            |i, _| names::status(i).as_str().into(),
         ),
         s(
             "SERVICE_CYCLE",
-            false,
+            Scope::Instance,
             "event: drive address (exchange completed), USS_CYCLE_COMPLETED, \
              USS_STATUS_PUBLISHED, USS_USSD_GONE.",
-            |b, _| names::cycle(b).as_str().into(),
+            |i, _| names::cycle(i).as_str().into(),
         ),
         s(
             "SERVICE_PARAMS",
-            false,
+            Scope::Instance,
             "request-response, UssParamRequest -> UssParamResponse.",
-            |b, _| names::params(b).as_str().into(),
+            |i, _| names::params(i).as_str().into(),
         ),
         s(
             "SERVICE_COMMAND",
-            false,
+            Scope::Instance,
             "request-response, UssOperatorRequest -> UssOperatorResponse (operator stop commands).",
-            |b, _| names::command(b).as_str().into(),
+            |i, _| names::command(i).as_str().into(),
         ),
-        s("USSD_NODE", false, "ussd's node name for a bus.", |b, _| {
-            names::ussd_node(b).as_str().into()
-        }),
+        s(
+            "USSD_NODE",
+            Scope::Bus,
+            "ussd's node name for a bus.",
+            |i, _| names::ussd_node(&i.bus).as_str().into(),
+        ),
+        s(
+            "GENERATION_FORMAT",
+            Scope::Instance,
+            "how a generation is written in service names (after the bus).",
+            |i, _| format!("uss/{}/{}", i.bus, i.generation),
+        ),
     ]
 }
 
@@ -350,13 +381,21 @@ fn expected_checks(layouts: &[TypeLayout]) -> String {
         let _ = writeln!(s, "EXPECT_NUMBER({c_name}, {code}ull)");
     }
     let bus = BusName::new("line-1_A").unwrap();
+    let g = Generation(0x0000_1234_abcd_ef01);
+    let instance = Instance::new(bus.clone(), g);
     let a = DriveAddress::new(7).unwrap();
     for service in services() {
-        let (c_name, expected) = (service.c_name, (service.name)(&bus, a));
-        let call = if service.per_drive {
-            format!("EXPECT_DRIVE_NAME(USS_{c_name}, \"{bus}\", {a}u, \"{expected}\")")
-        } else {
-            format!("EXPECT_BUS_NAME(USS_{c_name}, \"{bus}\", \"{expected}\")")
+        let (c_name, expected) = (service.c_name, (service.name)(&instance, a));
+        let call = match service.scope {
+            Scope::Drive => format!(
+                "EXPECT_DRIVE_NAME(USS_{c_name}, \"{bus}\", {}ull, {a}u, \"{expected}\")",
+                g.0
+            ),
+            Scope::Instance => format!(
+                "EXPECT_INSTANCE_NAME(USS_{c_name}, \"{bus}\", {}ull, \"{expected}\")",
+                g.0
+            ),
+            Scope::Bus => format!("EXPECT_BUS_NAME(USS_{c_name}, \"{bus}\", \"{expected}\")"),
         };
         let _ = writeln!(s, "{call}");
     }
@@ -382,6 +421,7 @@ fn actual_type_name(rust: &str) -> &'static str {
             "ParamRequest" => ParamRequest::type_name(),
             "ParamResult" => ParamResult::type_name(),
             "ParamResponse" => ParamResponse::type_name(),
+            "Heartbeat" => Heartbeat::type_name(),
             "OperatorRequest" => OperatorRequest::type_name(),
             "OperatorResponse" => OperatorResponse::type_name(),
             other => panic!("{other} is in LAYOUTS but not here"),
@@ -416,6 +456,8 @@ fn numbers() -> Vec<(&'static str, u64)> {
         ("CYCLE_COMPLETED", names::CYCLE_COMPLETED as u64),
         ("STATUS_PUBLISHED", names::STATUS_PUBLISHED as u64),
         ("USSD_GONE", names::USSD_GONE as u64),
+        ("HEARTBEAT_PERIOD_NS", names::HEARTBEAT_PERIOD_NS),
+        ("GONE_AFTER_NS", names::GONE_AFTER_NS),
     ]
 }
 
@@ -442,6 +484,9 @@ fn codes() -> Vec<(String, u8)> {
         table("StopCommand", StopCommand::ALL),
         table("Monitoring", Monitoring::ALL),
         table("CommandError", CommandError::ALL),
+        table("LineState", LineState::ALL),
+        table("LineFault", LineFault::ALL),
+        table("BusState", BusState::ALL),
     ]
     .concat()
 }

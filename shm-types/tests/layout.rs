@@ -5,9 +5,9 @@ use core::mem::{align_of, offset_of, size_of, size_of_val};
 use iceoryx2::prelude::ZeroCopySend;
 use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
 use uss_shm_types::{
-    BlackboardKey, BusStatus, DriveDiag, LAYOUT_VERSION, MAX_PARAM_ITEMS, OperatorRequest,
-    OperatorResponse, ParamItem, ParamRequest, ParamResponse, ParamResult, PzdInput, PzdOutput,
-    StopCommand,
+    BlackboardKey, BusStatus, DriveDiag, Generation, Heartbeat, LAYOUT_VERSION, MAX_PARAM_ITEMS,
+    OperatorRequest, OperatorResponse, ParamItem, ParamRequest, ParamResponse, ParamResult,
+    PzdInput, PzdOutput, StopCommand,
 };
 
 /// The layout the compiler gave a type, in the table's shape.
@@ -50,12 +50,12 @@ fn actual_layouts() -> Vec<Actual> {
         actual!(PzdInput = PzdInput::EMPTY, [
             version, online, control, word_count, latch_reason, sequence, timestamp_ns,
             age_ns, zsw1, hiw, extra, sent_stw1, sent_setpoint, latches, latched_since_ns,
-            latched_by_pid, latch_command, rejection, reserved, taken_sequence,
+            latched_by_pid, latch_command, rejection, known, reserved, taken_sequence,
         ]),
         actual!(DriveDiag = DriveDiag::new(0), [
             version, consecutive_failed_polls, last_zsw1, last_hiw, address, online, no_reply,
             control, last_failure, latch_reason, latch_command, rejection, monitoring, pzd_words,
-            reserved,
+            known, reserved,
             monitoring_ms, controller_pid, since_ns, last_good_ns, latched_since_ns, requests,
             good, rejected, timeouts, retries, failed_polls, missing_stx, start_pause, bad_lge,
             bcc, residual, length, wrong_address, parity, framing, overrun, echo, pkw_busy,
@@ -64,7 +64,8 @@ fn actual_layouts() -> Vec<Actual> {
         actual!(BusStatus = BusStatus::EMPTY, [
             version, rt_cpu, rt_mode, rt_priority, drive_count, running, efficiency_ppm,
             exchanges, good, cycles, cycle_overruns, events_dropped, results_lost, jobs_accepted,
-            jobs_finished, mean_exchange_ns, bus_clock_ns, timestamp_ns,
+            jobs_finished, mean_exchange_ns, bus_clock_ns, timestamp_ns, line_state, line_fault,
+            reserved, line_errno, line_down_since_ns, line_downs, reopen_attempts, reserved2,
         ]),
         actual!(ParamItem = ParamItem::EMPTY, [task, storage, pnu, index, reserved, value]),
         actual!(ParamRequest = ParamRequest {
@@ -76,6 +77,10 @@ fn actual_layouts() -> Vec<Actual> {
         ]),
         actual!(ParamResponse = ParamResponse::new(0), [
             version, error, error_item, address, count, controller_pid, reserved, results,
+        ]),
+        actual!(Heartbeat = Heartbeat::new(1, Generation(2)), [
+            version, pid, generation, sequence, timestamp_ns, exchanges, line_down_since_ns, state,
+            line_fault, reserved, line_errno,
         ]),
         actual!(OperatorRequest = OperatorRequest::new(1, StopCommand::Off1), [
             version, address, command, reserved,

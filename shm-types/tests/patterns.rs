@@ -42,8 +42,9 @@ use iceoryx2::service::port_factory::blackboard::PortFactory as Blackboard;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSub;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{
-    BlackboardKey, BusName, DriveAddress, DriveDiag, LAYOUT_VERSION, Outcome, ParamItem,
-    ParamRequest, ParamResponse, ParamResult, PzdInput, PzdOutput, RequestError, Storage, TaskCode,
+    BlackboardKey, BusName, DriveAddress, DriveDiag, Generation, Heartbeat, Instance,
+    LAYOUT_VERSION, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, PzdInput,
+    PzdOutput, RequestError, Storage, TaskCode,
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -173,10 +174,13 @@ fn node(name: &str) -> Node<ipc::Service> {
     node_in(config(), name)
 }
 
-fn unique_bus() -> BusName {
+/// A bus of its own for one test, served by generation 1 (the tests here play one ussd
+/// instance each, except where a test restarts it).
+fn unique_bus() -> Instance {
     static NEXT: AtomicU32 = AtomicU32::new(0);
     let n = NEXT.fetch_add(1, Ordering::Relaxed);
-    BusName::new(&format!("t{}-{n}", std::process::id())).unwrap()
+    let bus = BusName::new(&format!("t{}-{n}", std::process::id())).unwrap();
+    Instance::new(bus, Generation(1))
 }
 
 fn drive(a: u8) -> DriveAddress {
@@ -192,10 +196,19 @@ fn version_attribute() -> AttributeSpecifier {
         .unwrap()
 }
 
+fn version_verifier() -> AttributeVerifier {
+    AttributeVerifier::new()
+        .require(
+            &LAYOUT_VERSION_ATTRIBUTE.try_into().unwrap(),
+            &LAYOUT_VERSION.to_string().as_str().try_into().unwrap(),
+        )
+        .unwrap()
+}
+
 /// ussd's side of a drive's `out` service.
 fn create_out(
     ussd: &Node<ipc::Service>,
-    bus: &BusName,
+    bus: &Instance,
     a: DriveAddress,
 ) -> PubSub<ipc::Service, PzdOutput, ()> {
     ussd.service_builder(&names::drive_out(bus, a))
@@ -211,7 +224,7 @@ fn create_out(
 /// A controller's side of a drive's `out` service.
 fn open_out(
     controller: &Node<ipc::Service>,
-    bus: &BusName,
+    bus: &Instance,
     a: DriveAddress,
 ) -> PubSub<ipc::Service, PzdOutput, ()> {
     controller
@@ -224,7 +237,7 @@ fn open_out(
 /// ussd's side of a drive's `in` service: a blackboard with one entry, `PzdInput::EMPTY`.
 fn create_in(
     ussd: &Node<ipc::Service>,
-    bus: &BusName,
+    bus: &Instance,
     a: DriveAddress,
     max_readers: usize,
 ) -> Result<Blackboard<ipc::Service, BlackboardKey>, BlackboardCreateError> {
@@ -588,7 +601,7 @@ fn threadsafe_ussd_ports_move_to_another_thread_and_serve_plain_ipc_clients() {
 /// ussd's side of the `cycle` event service.
 fn create_cycle(
     ussd: &Node<ipc::Service>,
-    bus: &BusName,
+    bus: &Instance,
 ) -> iceoryx2::service::port_factory::event::PortFactory<ipc::Service> {
     ussd.service_builder(&names::cycle(bus))
         .event()
@@ -721,7 +734,7 @@ fn answer(req: &ParamRequest) -> ParamResponse {
 /// ussd's IPC bridge loop until `stop`: polls the server (a server has no file descriptor to
 /// wait on), answers each request once. Returns what every answered request allocated:
 /// (in `receive`, in `send_copy`).
-fn serve(bus: &BusName, ready: &mpsc::Sender<()>, stop: &AtomicBool) -> Vec<(u64, u64)> {
+fn serve(bus: &Instance, ready: &mpsc::Sender<()>, stop: &AtomicBool) -> Vec<(u64, u64)> {
     let ussd = node("ussd-bridge");
     let svc = ussd
         .service_builder(&names::params(bus))
@@ -854,7 +867,11 @@ impl Drop for ChildGuard {
 }
 
 /// Runs this test binary's [`child_process`] in `role`, in the instance `config`.
-fn spawn_child(role: &str, bus: &BusName, config: &Config) -> (ChildGuard, BufReader<ChildStdout>) {
+fn spawn_child(
+    role: &str,
+    bus: &Instance,
+    config: &Config,
+) -> (ChildGuard, BufReader<ChildStdout>) {
     let mut child = Command::new(std::env::current_exe().unwrap())
         .args([
             "child_process",
@@ -864,7 +881,7 @@ fn spawn_child(role: &str, bus: &BusName, config: &Config) -> (ChildGuard, BufRe
         ])
         .env(ROLE_ENV, role)
         .env(PREFIX_ENV, config.global.prefix.as_str())
-        .env(BUS_ENV, bus.as_str())
+        .env(BUS_ENV, bus.bus.as_str())
         .stdout(Stdio::piped())
         .spawn()
         .unwrap();
@@ -890,7 +907,7 @@ fn child_says(out: &mut BufReader<ChildStdout>, tag: &str) -> String {
 
 /// Starts a child in `role`, waits until it is READY, kills it with SIGKILL (no destructor
 /// runs) and returns its process id.
-fn kill_child(role: &str, bus: &BusName, config: &Config) -> i32 {
+fn kill_child(role: &str, bus: &Instance, config: &Config) -> i32 {
     let (mut child, mut out) = spawn_child(role, bus, config);
     let pid = i32::try_from(child.0.id()).unwrap();
     assert_eq!(child_says(&mut out, "READY"), "");
@@ -1023,6 +1040,83 @@ fn listeners_hear_ussd_gone_when_the_killed_ussd_is_cleaned_up() {
     assert_eq!(ids, [names::USSD_GONE]);
 }
 
+/// ussd's side of the heartbeat service: opened if clients of an earlier ussd hold it,
+/// created otherwise.
+fn open_heartbeat(
+    ussd: &Node<ipc::Service>,
+    bus: &Instance,
+) -> PubSub<ipc::Service, Heartbeat, ()> {
+    ussd.service_builder(&names::heartbeat(&bus.bus))
+        .publish_subscribe::<Heartbeat>()
+        .max_publishers(1)
+        .subscriber_max_buffer_size(1)
+        .history_size(1)
+        .enable_safe_overflow(true)
+        .open_or_create_with_attributes(&version_verifier())
+        .unwrap()
+}
+
+/// What a restarted ussd relies on: a client subscribed to the heartbeat of a killed ussd stays
+/// subscribed, the restarted one cleans up the dead node, takes the one publisher slot and is
+/// heard by that subscriber; a client that subscribes later gets its newest heartbeat at once.
+#[test]
+fn a_restarted_ussd_takes_over_the_heartbeat_while_clients_stay_subscribed() {
+    let (bus, config) = (unique_bus(), isolated());
+    let hmi = node_in(&config, "hmi");
+    let _cleanup = CleanupDeadNodes(&hmi);
+    let (mut child, mut out) = spawn_child("heartbeat", &bus, &config);
+    assert_eq!(child_says(&mut out, "READY"), "");
+    let subscriber = open_heartbeat(&hmi, &bus)
+        .subscriber_builder()
+        .buffer_size(1)
+        .create()
+        .unwrap();
+    // A subscriber is connected when the publisher sends next: within one period.
+    assert_eq!(next_heartbeat(&subscriber).generation, 1);
+    child.0.kill().unwrap();
+    child.0.wait().unwrap();
+
+    let restarted = node_in(&config, "ussd-restarted");
+    assert_eq!(restarted.try_cleanup_dead_nodes().cleanups, 1);
+    let service = open_heartbeat(&restarted, &bus);
+    let publisher = service.publisher_builder().create().unwrap();
+    publisher
+        .send_copy(Heartbeat::new(std::process::id(), Generation(2)))
+        .unwrap();
+    assert_eq!(
+        next_heartbeat(&subscriber).generation,
+        2,
+        "the old subscriber hears the new ussd"
+    );
+    let late = open_heartbeat(&node_in(&config, "late"), &bus)
+        .subscriber_builder()
+        .buffer_size(1)
+        .create()
+        .unwrap();
+    publisher
+        .send_copy(Heartbeat::new(std::process::id(), Generation(2)))
+        .unwrap();
+    assert_eq!(
+        next_heartbeat(&late).generation,
+        2,
+        "history at the next send"
+    );
+}
+
+/// The next heartbeat, waiting up to 1 s.
+fn next_heartbeat(
+    subscriber: &iceoryx2::port::subscriber::Subscriber<ipc::Service, Heartbeat, ()>,
+) -> Heartbeat {
+    let deadline = Instant::now() + Duration::from_secs(1);
+    loop {
+        if let Some(h) = subscriber.receive().unwrap() {
+            return *h;
+        }
+        assert!(Instant::now() < deadline, "no heartbeat");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
 /// iceoryx2 0.10 (eclipse-iceoryx/iceoryx2#2008, open): cleanup frees a killed writer's port
 /// but not the entry it held (`has_producer` stays set in shared memory), so no later writer
 /// can update that entry while the service lives. A restarted ussd therefore writes its
@@ -1114,7 +1208,10 @@ fn child_process() {
     let Ok(role) = std::env::var(ROLE_ENV) else {
         return;
     };
-    let bus = BusName::new(&std::env::var(BUS_ENV).unwrap()).unwrap();
+    let bus = Instance::new(
+        BusName::new(&std::env::var(BUS_ENV).unwrap()).unwrap(),
+        Generation(1),
+    );
     match role.as_str() {
         "controller" => {
             let node = node("controller-child");
@@ -1136,6 +1233,22 @@ fn child_process() {
                 .create()
                 .unwrap();
             ready_until_killed();
+        }
+        "heartbeat" => {
+            let node = node("ussd-child");
+            let publisher = open_heartbeat(&node, &bus)
+                .publisher_builder()
+                .create()
+                .unwrap();
+            let mut h = Heartbeat::new(std::process::id(), Generation(1));
+            println!("READY");
+            std::io::stdout().flush().unwrap();
+            // As ussd does: a heartbeat every period (here 10 ms), until killed.
+            for sequence in 1..3000 {
+                h.sequence = sequence;
+                publisher.send_copy(h).unwrap();
+                std::thread::sleep(Duration::from_millis(10));
+            }
         }
         "signals-disabled" | "signals-default" => {
             let mode = if role == "signals-disabled" {

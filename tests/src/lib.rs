@@ -126,6 +126,32 @@ pub fn monotonic_ns() -> u64 {
 }
 
 /// A ussd process on a bus of its own, its output in a file; stopped with SIGTERM when dropped.
+/// `ussd --config CONFIG`, its output appended to `log`.
+fn spawn_ussd(config: &std::path::Path, log: &std::path::Path) -> Child {
+    let log = std::fs::OpenOptions::new().append(true).open(log).unwrap();
+    Command::new(binary("uss-master", "ussd"))
+        .arg("--config")
+        .arg(config)
+        .args(["--summary-every", "3600"])
+        .stdout(log.try_clone().unwrap())
+        .stderr(log)
+        .spawn()
+        .unwrap()
+}
+
+/// One bus of [`Ussd::start_buses`].
+#[derive(Debug, Clone, Copy)]
+pub struct BusSpec<'a> {
+    /// Appended to the test's bus name.
+    pub suffix: &'a str,
+    /// "sim", or a serial device or pty path.
+    pub device: &'a str,
+    /// Further `[[bus]]` keys, one per line.
+    pub keys: &'a str,
+    /// Each drive's address and further `[[bus.drive]]` keys.
+    pub drives: &'a [(u8, &'a str)],
+}
+
 #[derive(Debug)]
 pub struct Ussd {
     pub child: Child,
@@ -144,51 +170,92 @@ impl Ussd {
 
     /// Like [`Ussd::start`], on `device` (a serial device or pty path, or "sim").
     pub fn start_on(device: &str, bus_keys: &str, drives: &[(u8, &str)]) -> Ussd {
+        Self::start_buses(&[BusSpec {
+            suffix: "",
+            device,
+            keys: bus_keys,
+            drives,
+        }])
+    }
+
+    /// Starts ussd with one bus per spec, named [`Ussd::bus`] followed by the spec's suffix,
+    /// and waits until every drive of every bus answered.
+    pub fn start_buses(specs: &[BusSpec<'_>]) -> Ussd {
         static NEXT: AtomicU32 = AtomicU32::new(0);
         let bus = format!(
             "s{}n{}",
             std::process::id(),
             NEXT.fetch_add(1, Ordering::Relaxed)
         );
-        let mut toml = format!("[[bus]]\nname = \"{bus}\"\ndevice = \"{device}\"\n{bus_keys}\n");
-        for (address, keys) in drives {
-            let _ = write!(toml, "\n[[bus.drive]]\naddress = {address}\n{keys}\n");
+        let mut toml = String::new();
+        for spec in specs {
+            let _ = write!(
+                toml,
+                "[[bus]]\nname = \"{bus}{}\"\ndevice = \"{}\"\n{}\n",
+                spec.suffix, spec.device, spec.keys
+            );
+            for (address, keys) in spec.drives {
+                let _ = write!(toml, "\n[[bus.drive]]\naddress = {address}\n{keys}\n");
+            }
+            toml.push('\n');
         }
         let dir = std::env::temp_dir();
         let config = dir.join(format!("ussd-stress-{bus}.toml"));
         let log = dir.join(format!("ussd-stress-{bus}.log"));
         std::fs::write(&config, toml).unwrap();
-        let log_file = std::fs::File::create(&log).unwrap();
-        let child = Command::new(binary("uss-master", "ussd"))
-            .arg("--config")
-            .arg(&config)
-            .args(["--summary-every", "3600"])
-            .stdout(log_file.try_clone().unwrap())
-            .stderr(log_file)
-            .spawn()
-            .unwrap();
+        std::fs::File::create(&log).unwrap();
+        let child = spawn_ussd(&config, &log);
         let mut ussd = Ussd {
             child,
             bus,
             config,
             log,
         };
-        let bus = ussd.open_when_running();
-        for &(a, _) in drives {
-            bus.watch(a)
-                .unwrap()
-                .wait_for(Duration::from_secs(20), "a reply", |i| {
-                    i.online != 0 && i.sequence > 0
-                })
-                .unwrap();
+        for spec in specs {
+            let bus = ussd.open_when_running(spec.suffix);
+            for &(a, _) in spec.drives {
+                bus.watch(a)
+                    .unwrap()
+                    .wait_for(Duration::from_secs(20), "a reply", |i| {
+                        i.online != 0 && i.sequence > 0
+                    })
+                    .unwrap();
+            }
         }
         ussd
     }
 
-    pub fn open_when_running(&mut self) -> Bus {
+    /// Starts ussd again with the same configuration (after [`Ussd::kill`] or
+    /// [`Ussd::terminate`]), its output appended to the same log; does not wait for it.
+    pub fn restart(&mut self) {
+        assert!(!self.is_running(), "ussd still runs");
+        self.child = spawn_ussd(&self.config, &self.log);
+    }
+
+    /// SIGKILL: ussd gets no chance to say anything. Returns `CLOCK_MONOTONIC` just before.
+    pub fn kill(&mut self) -> u64 {
+        let at = monotonic_ns();
+        self.child.kill().unwrap();
+        self.child.wait().unwrap();
+        at
+    }
+
+    /// SIGTERM, then waits for the clean exit; returns `CLOCK_MONOTONIC` just before the
+    /// signal and the exit code.
+    pub fn terminate(&mut self) -> (u64, Option<i32>) {
+        let at = monotonic_ns();
+        let pid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).unwrap());
+        nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM).unwrap();
+        let code = self.child.wait().unwrap().code();
+        (at, code)
+    }
+
+    /// The bus whose name ends in `suffix`, once ussd created it.
+    pub fn open_when_running(&mut self, suffix: &str) -> Bus {
+        let name = format!("{}{suffix}", self.bus);
         let deadline = Instant::now() + Duration::from_secs(30);
         loop {
-            match Bus::open(&self.bus) {
+            match Bus::open(&name) {
                 Ok(bus) => return bus,
                 Err(ClientError::NotRunning { .. }) if Instant::now() < deadline => {
                     assert!(
@@ -205,6 +272,11 @@ impl Ussd {
 
     pub fn bus(&self) -> Bus {
         Bus::open(&self.bus).unwrap()
+    }
+
+    /// The bus whose name ends in `suffix`.
+    pub fn bus_named(&self, suffix: &str) -> Bus {
+        Bus::open(&format!("{}{suffix}", self.bus)).unwrap()
     }
 
     pub fn is_running(&mut self) -> bool {

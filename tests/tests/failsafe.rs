@@ -26,7 +26,7 @@ use uss_client::{
 };
 use uss_integration_tests::{ChildProc, SimProcess, Ussd, monotonic_ns};
 use uss_shm_types::names;
-use uss_shm_types::{BusName, DriveAddress, LAYOUT_VERSION, PzdOutput};
+use uss_shm_types::{BusName, DriveAddress, Heartbeat, Instance, LAYOUT_VERSION, PzdOutput};
 
 /// One ussd at a time: each runs a `SCHED_FIFO` bus thread, and the machine has two cores.
 fn serial() -> MutexGuard<'static, ()> {
@@ -194,7 +194,26 @@ impl RawController {
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<ipc::Service>()
             .unwrap();
-        let name = names::drive_out(&BusName::new(bus).unwrap(), DriveAddress::new(a).unwrap());
+        // As any client: the newest heartbeat names the generation that serves the bus.
+        let bus = BusName::new(bus).unwrap();
+        let heartbeat = node
+            .service_builder(&names::heartbeat(&bus))
+            .publish_subscribe::<Heartbeat>()
+            .open()
+            .unwrap()
+            .subscriber_builder()
+            .create()
+            .unwrap();
+        let deadline = Instant::now() + Duration::from_secs(2);
+        let beat = loop {
+            if let Some(beat) = heartbeat.receive().unwrap() {
+                break *beat;
+            }
+            assert!(Instant::now() < deadline, "no heartbeat");
+            std::thread::sleep(Duration::from_millis(1));
+        };
+        let instance = Instance::new(bus, beat.generation());
+        let name = names::drive_out(&instance, DriveAddress::new(a).unwrap());
         let publisher = node
             .service_builder(&name)
             .publish_subscribe::<PzdOutput>()

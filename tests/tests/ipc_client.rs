@@ -154,7 +154,7 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
             .unwrap()
     );
 
-    let status = bus.status();
+    let status = bus.status().unwrap();
     assert_eq!((status.running, status.drive_count), (1, 3));
     assert!(status.cycles > 0 && status.good > 0, "{status:?}");
     let diag = bus.diag(2).unwrap();

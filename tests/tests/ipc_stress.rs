@@ -278,7 +278,7 @@ fn wait_status(
 ) -> uss_client::BusStatus {
     let deadline = Instant::now() + timeout;
     loop {
-        let s = bus.status();
+        let s = bus.status().unwrap();
         if done(&s) {
             return s;
         }
@@ -303,7 +303,7 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
     bus.set_answer_timeout(Some(Duration::from_secs(60)));
     // A first request opens this process's parameter port: after the kill, this process opens
     // no service (opening one would clean up dead nodes itself, doing ussd's job).
-    let start = bus.status();
+    let start = bus.status().unwrap();
     assert_eq!(bus.read_f32(1, 1082, None), Ok(50.0));
     let before = wait_status(&bus, Duration::from_secs(10), "1 job finished", |s| {
         s.jobs_finished == start.jobs_finished + 1
@@ -345,9 +345,9 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
         .finish();
     assert!(out.0.success(), "{}", out.2);
     assert_eq!(out.1, "drive 1 P2000 = 50.0 (dword 0x42480000)\n");
-    let polling = bus.status();
+    let polling = bus.status().unwrap();
     std::thread::sleep(Duration::from_millis(500));
-    let later = bus.status();
+    let later = bus.status().unwrap();
     assert!(
         later.exchanges > polling.exchanges && later.good > polling.good,
         "ussd stopped polling: {polling:?} -> {later:?}"
@@ -522,7 +522,7 @@ fn ten_thousand_requests_from_four_processes_with_faults_are_each_answered_once_
         &drives,
     );
     let bus = ussd.bus();
-    let before = bus.status();
+    let before = bus.status().unwrap();
 
     // Process p asks drives 2p+1 and 2p+2.
     let per_process = REQUESTS / u32::from(PROCESSES);

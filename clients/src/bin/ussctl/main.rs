@@ -25,6 +25,9 @@ use uss_client::{
 
 /// How long a state change of the drive may take before ussctl gives up.
 const STATE_TIMEOUT: Duration = Duration::from_secs(3);
+/// How long `run` waits for a drive that stopped answering before it gives up (longer than
+/// an offline probe interval, 0.5 s by default, with room to spare).
+const OFFLINE_GRACE: Duration = Duration::from_secs(3);
 
 static STOP: AtomicBool = AtomicBool::new(false);
 
@@ -197,19 +200,21 @@ fn diags(bus: &Bus) -> Result<Vec<uss_client::DriveDiag>, String> {
         .collect()
 }
 
+/// `status`: the table; with the line down, the table and then the failure (exit 1).
 fn status(bus: &Bus, out: &Output, ref_hz: f32) -> Result<(), Failure> {
     let report = StatusReport {
-        bus: BusReport::new(bus.name(), &bus.status()),
+        bus: BusReport::new(bus.name(), &bus.status().map_err(|e| e.to_string())?),
         drives: diags(bus)?
             .iter()
             .map(|d| DriveRow::new(d, ref_hz))
             .collect(),
     };
-    out.show(&report, StatusReport::human)
+    out.show(&report, StatusReport::human)?;
+    healthy(bus)
 }
 
 fn stats(bus: &Bus, out: &Output) -> Result<(), Failure> {
-    let status = bus.status();
+    let status = bus.status().map_err(|e| e.to_string())?;
     let report = StatsReport {
         bus: BusReport::new(bus.name(), &status),
         drives: diags(bus)?
@@ -217,7 +222,16 @@ fn stats(bus: &Bus, out: &Output) -> Result<(), Failure> {
             .map(|d| DriveStats::new(d, status.timestamp_ns))
             .collect(),
     };
-    out.show(&report, StatsReport::human)
+    out.show(&report, StatsReport::human)?;
+    healthy(bus)
+}
+
+/// Fails with what ussd's heartbeat says when it does not poll the bus.
+fn healthy(bus: &Bus) -> Result<(), Failure> {
+    match bus.health().error(bus.name()) {
+        Some(e) => Err(e.to_string().into()),
+        None => Ok(()),
+    }
 }
 
 fn watch(
@@ -251,8 +265,10 @@ fn watch(
         }
         let t = start.elapsed().as_secs_f64();
         for w in &watches {
+            // A stale picture is never shown: ussd gone, stopped or its line down ends it.
+            let image = w.read().map_err(|e| e.to_string())?;
             out.show(
-                &WatchLine::new(t, w.address(), &w.latest(), ref_hz),
+                &WatchLine::new(t, w.address(), &image, ref_hz),
                 WatchLine::human,
             )?;
         }
@@ -286,6 +302,75 @@ fn faulted(drive: u8, i: &PzdInput) -> String {
     )
 }
 
+/// Arms the drive (OFF1: S1 -> S2, or it stays in S2..S4) and runs it (S2 -> S3 -> S4).
+fn start_running(bus: &Bus, c: &Controller, hz: f32, ref_hz: f32) -> Result<(), Failure> {
+    let drive = c.address();
+    let first = c.inputs().latest();
+    if first.online == 0 {
+        return Err(format!(
+            "drive {drive} on {} is offline: check `ussctl status`, its wiring, address and baud rate",
+            bus.name()
+        )
+        .into());
+    }
+    if uss_client::state_of(&first) == DriveState::Fault {
+        return Err(faulted(drive, &first).into());
+    }
+    c.enable().map_err(|e| e.to_string())?;
+    c.wait_for(STATE_TIMEOUT, "S2 (ready to switch on)", |i| {
+        i.online != 0
+            && matches!(
+                uss_client::state_of(i),
+                DriveState::ReadyToSwitchOn
+                    | DriveState::ReadyForOperation
+                    | DriveState::OperationEnabled
+            )
+    })
+    .map_err(|e| e.to_string())?;
+    c.run_hz(hz, ref_hz).map_err(|e| e.to_string())?;
+    c.wait_for_state(DriveState::OperationEnabled, STATE_TIMEOUT)
+        .map_err(|e| e.to_string())?;
+    Ok(())
+}
+
+/// A running drive that stops answering: reported, and given [`OFFLINE_GRACE`] to come back
+/// (an offline probe interval or two); the controller keeps publishing meanwhile, and the
+/// drive gets its words again when it answers.
+#[derive(Default)]
+struct Absence {
+    since: Option<Instant>,
+}
+
+impl Absence {
+    /// Takes whether the drive answers now; the failure when it stayed away too long.
+    fn note(&mut self, out: &Output, drive: u8, online: bool) -> Option<String> {
+        match (online, self.since) {
+            (false, None) => {
+                out.note(&format!(
+                    "  drive {drive} does not answer; waiting up to {} s for it",
+                    OFFLINE_GRACE.as_secs()
+                ));
+                self.since = Some(Instant::now());
+            }
+            (false, Some(t)) if t.elapsed() > OFFLINE_GRACE => {
+                return Some(format!(
+                    "drive {drive} went offline while running and did not come back within {} s: check `ussctl status`, its wiring and power",
+                    OFFLINE_GRACE.as_secs()
+                ));
+            }
+            (true, Some(t)) => {
+                out.note(&format!(
+                    "  drive {drive} answers again after {:.2} s",
+                    t.elapsed().as_secs_f64()
+                ));
+                self.since = None;
+            }
+            _ => {}
+        }
+        None
+    }
+}
+
 fn run_drive(
     bus: &Bus,
     out: &Output,
@@ -302,32 +387,7 @@ fn run_drive(
         .transpose()?;
     let c = control(bus, drive)?;
     catch_signals()?;
-    let first = c.inputs().latest();
-    if first.online == 0 {
-        return Err(format!(
-            "drive {drive} on {} is offline: check `ussctl status`, its wiring, address and baud rate",
-            bus.name()
-        )
-        .into());
-    }
-    if uss_client::state_of(&first) == DriveState::Fault {
-        return Err(faulted(drive, &first).into());
-    }
-    // S1 -> S2 (or stay in S2..S4), then S2 -> S3 -> S4.
-    c.enable().map_err(|e| e.to_string())?;
-    c.wait_for(STATE_TIMEOUT, "S2 (ready to switch on)", |i| {
-        i.online != 0
-            && matches!(
-                uss_client::state_of(i),
-                DriveState::ReadyToSwitchOn
-                    | DriveState::ReadyForOperation
-                    | DriveState::OperationEnabled
-            )
-    })
-    .map_err(|e| e.to_string())?;
-    c.run_hz(hz, ref_hz).map_err(|e| e.to_string())?;
-    c.wait_for_state(DriveState::OperationEnabled, STATE_TIMEOUT)
-        .map_err(|e| e.to_string())?;
+    start_running(bus, &c, hz, ref_hz)?;
     out.note(&format!(
         "drive {drive}: running towards {hz} Hz (reference {ref_hz} Hz); {}",
         match duration {
@@ -340,9 +400,19 @@ fn run_drive(
     let start = Instant::now();
     let mut peak = 0.0f32;
     let mut last_note = Instant::now();
+    let mut absence = Absence::default();
     let failure = loop {
         let i = match c.check() {
             Ok(i) => i,
+            Err(
+                e @ (ClientError::UssdGone { .. }
+                | ClientError::UssdStopped { .. }
+                | ClientError::LineDown { .. }),
+            ) => {
+                // Nothing to stop through: the drive's own telegram monitoring stops it.
+                drop(refresher);
+                return Err(format!("drive {drive}: {e}").into());
+            }
             Err(ClientError::Tripped { latch, .. }) => {
                 // Latched by ussd: the drive gets its stop command; leave it so.
                 drop(refresher);
@@ -361,8 +431,8 @@ fn run_drive(
         if actual.abs() > peak.abs() {
             peak = actual;
         }
-        if i.online == 0 {
-            break Some(format!("drive {drive} went offline while running"));
+        if let Some(f) = absence.note(out, drive, i.online != 0) {
+            break Some(f);
         }
         if uss_client::state_of(&i) == DriveState::Fault {
             break Some(faulted(drive, &i));

@@ -12,9 +12,13 @@ use uss_client::{
 use uss_shm_types::diag::{LastFailure, NEVER, RtMode};
 
 /// S1..S4, "fault", "not ready" from ZSW1; "offline" while the drive does not answer (its last
-/// ZSW1 is history then).
-fn shown_state(online: bool, zsw1: u16) -> &'static str {
-    if online { state_name(zsw1) } else { "offline" }
+/// ZSW1 is history then); "unknown" until ussd's first poll decided.
+fn shown_state(known: u8, online: u8, zsw1: u16) -> &'static str {
+    match (known, online) {
+        (0, _) => "unknown",
+        (_, 0) => "offline",
+        _ => state_name(zsw1),
+    }
 }
 
 /// Whether a drive is live or latched, and why (`uss_shm_types::control`).
@@ -99,6 +103,14 @@ pub struct BusReport {
     pub mean_exchange_us: f64,
     /// Wire-time floor over achieved exchange time; null until measured.
     pub efficiency: Option<f64>,
+    /// "up" or "down".
+    pub line: &'static str,
+    /// Why the line is down; null while up.
+    pub line_error: Option<String>,
+    /// Attempts to reopen a line that is down.
+    pub reopen_attempts: u32,
+    /// Times the line went down since ussd started.
+    pub line_downs: u64,
 }
 
 impl BusReport {
@@ -120,6 +132,10 @@ impl BusReport {
             jobs_finished: s.jobs_finished,
             mean_exchange_us: s.mean_exchange_ns as f64 / 1e3,
             efficiency: s.efficiency(),
+            line: if s.is_line_down() { "down" } else { "up" },
+            line_error: s.line_fault_text(),
+            reopen_attempts: s.reopen_attempts,
+            line_downs: s.line_downs,
         }
     }
 
@@ -142,6 +158,13 @@ impl BusReport {
         );
         if let Some(e) = self.efficiency {
             let _ = write!(out, ", efficiency {e:.2}");
+        }
+        if let Some(error) = &self.line_error {
+            let _ = write!(
+                out,
+                "\nLINE DOWN ({error}): every drive offline; ussd reopens the device ({} attempts so far)",
+                self.reopen_attempts
+            );
         }
         out
     }
@@ -178,7 +201,7 @@ impl DriveRow {
         Self {
             address: d.address,
             online,
-            state: shown_state(online, d.last_zsw1),
+            state: shown_state(d.known, d.online, d.last_zsw1),
             zsw1: d.last_zsw1,
             zsw1_hex: format!("{:#06X}", d.last_zsw1),
             flags: zsw1_flags(d.last_zsw1),
@@ -420,7 +443,7 @@ impl WatchLine {
             t,
             drive,
             online,
-            state: shown_state(online, i.zsw1),
+            state: shown_state(i.known, i.online, i.zsw1),
             zsw1: i.zsw1,
             hiw: i.hiw,
             actual_hz: Setpoint::from_word(i.hiw).hz(reference_hz),
@@ -585,7 +608,7 @@ impl StopReport {
         self.drives.push(StoppedDrive {
             drive,
             online,
-            state: shown_state(online, i.zsw1),
+            state: shown_state(i.known, i.online, i.zsw1),
             zsw1: i.zsw1,
             sent_stw1: i.sent_stw1,
             control: ControlReport::of_input(i),
@@ -639,7 +662,7 @@ impl DriveReport {
             drive,
             action,
             online,
-            state: shown_state(online, i.zsw1),
+            state: shown_state(i.known, i.online, i.zsw1),
             zsw1: i.zsw1,
             actual_hz: Setpoint::from_word(i.hiw).hz(ref_hz),
             peak_hz: None,
@@ -669,6 +692,7 @@ mod tests {
     fn diag() -> DriveDiag {
         DriveDiag {
             online: 1,
+            known: 1,
             last_zsw1: 0xFB34,
             last_hiw: 0x2000,
             good: 10,
@@ -739,6 +763,19 @@ mod tests {
     }
 
     #[test]
+    fn a_drive_is_unknown_until_its_first_poll_decided() {
+        let d = DriveRow::new(
+            &DriveDiag {
+                known: 0,
+                online: 0,
+                ..diag()
+            },
+            50.0,
+        );
+        assert_eq!(d.state, "unknown");
+    }
+
+    #[test]
     fn offline_drives_show_offline_not_a_stale_state() {
         let d = DriveRow::new(
             &DriveDiag {
@@ -796,7 +833,7 @@ mod tests {
     #[test]
     fn watch_lines_carry_the_extra_words_in_use() {
         let mut i = PzdInput::from_words(&[0xFB31, 0, 5, 6], 9, 0, 2_000_000).unwrap();
-        i.online = 1;
+        (i.online, i.known) = (1, 1);
         let w = WatchLine::new(0.5, 4, &i, 50.0);
         assert_eq!(
             (w.state, w.extra.as_slice(), w.period_ms),

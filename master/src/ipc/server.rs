@@ -1,0 +1,427 @@
+//! The request bridge thread's side: [`ParamServer`] serves the request-response services,
+//! which allocate per request and so stay out of the bus thread (ARCHITECTURE.md, "Data
+//! flow"). Parameters: each multi-parameter request becomes one job per item, executed one PKW
+//! task at a time by the drive's mailbox, and every accepted request is answered exactly once;
+//! writes to a drive another process controls are refused unless forced. Operator commands:
+//! OFF1/OFF2/OFF3 for a drive or the whole bus from any process, handed to the bus thread
+//! through atomics (`EngineHandle::stop_drive`).
+
+use super::bridge::OutService;
+use super::{IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, as_ns, fail, pid_of, text};
+use crate::engine::{EngineHandle, RequestError as EngineRefusal};
+use crate::jobs::{Job, JobResult, Outcome as JobOutcome};
+use core::time::Duration;
+use iceoryx2::active_request::ActiveRequest;
+use iceoryx2::port::server::Server;
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::request_response::PortFactory as RequestResponseFactory;
+use std::time::Instant;
+use uss_protocol::{Address, ParamTask, PkwError, Pnu, Storage as PkwStorage, Subindex, Value};
+use uss_shm_types::names;
+use uss_shm_types::{
+    ALL_DRIVES, CommandError, Instance, OperatorRequest, OperatorResponse, Outcome, ParamItem,
+    ParamRequest, ParamResponse, ParamResult, RequestError, Storage, TaskCode,
+};
+
+/// Creates the parameter and command services of `bus` and their servers; `outs` are the
+/// drives' output services, asked who controls a drive.
+pub(super) fn create(
+    node: &IpcNode,
+    bus: &Instance,
+    attributes: &AttributeSpecifier,
+    outs: Vec<(Address, OutService)>,
+) -> Result<ParamServer, IpcError> {
+    let (params, server) = serve(node, bus, &names::params(bus), attributes, "parameter")?;
+    let (commands, command_server) = serve(node, bus, &names::command(bus), attributes, "command")?;
+    Ok(ParamServer {
+        server,
+        commands: command_server,
+        identities: Identities {
+            config: node.config().clone(),
+            params,
+            commands,
+            outs,
+        },
+        pending: Vec::new(),
+        next_id: 1,
+    })
+}
+
+type Factory<Req, Resp> = RequestResponseFactory<Svc, Req, (), Resp, ()>;
+/// A request-response service and ussd's server on it.
+type Served<Req, Resp> = (Factory<Req, Resp>, Server<Svc, Req, (), Resp, ()>);
+
+/// A request-response service (`what`: "parameter", "command") with ussd as its one server.
+fn serve<Req, Resp>(
+    node: &IpcNode,
+    bus: &Instance,
+    name: &ServiceName,
+    attributes: &AttributeSpecifier,
+    what: &str,
+) -> Result<Served<Req, Resp>, IpcError>
+where
+    Req: core::fmt::Debug + ZeroCopySend + Copy,
+    Resp: core::fmt::Debug + ZeroCopySend + Copy,
+{
+    let service = node
+        .service_builder(name)
+        .request_response::<Req, Resp>()
+        .max_clients(MAX_CLIENTS)
+        .max_servers(1)
+        .max_active_requests_per_client(4)
+        .max_nodes(MAX_NODES)
+        .create_with_attributes(attributes)
+        .map_err(|e| fail(bus, format!("the {what} service"))(text(e)))?;
+    let server = service
+        .server_builder()
+        .create()
+        .map_err(|e| fail(bus, format!("the {what} server"))(text(e)))?;
+    Ok((service, server))
+}
+
+type Active = ActiveRequest<Svc, ParamRequest, (), ParamResponse, ()>;
+
+/// A request whose items are on their way.
+struct Pending {
+    active: Active,
+    response: ParamResponse,
+    /// Job id of item 0; item i is `first_id + i`.
+    first_id: u64,
+    count: u64,
+    remaining: usize,
+}
+
+/// The parameter bridge's servers. See the module documentation.
+pub struct ParamServer {
+    server: Server<Svc, ParamRequest, (), ParamResponse, ()>,
+    commands: Server<Svc, OperatorRequest, (), OperatorResponse, ()>,
+    identities: Identities,
+    pending: Vec<Pending>,
+    next_id: u64,
+}
+
+/// Who is behind a request and who controls a drive, from iceoryx2's own records (the node
+/// of each port and the process of each node), not from what a client says of itself.
+struct Identities {
+    config: iceoryx2::config::Config,
+    params: RequestResponseFactory<Svc, ParamRequest, (), ParamResponse, ()>,
+    commands: RequestResponseFactory<Svc, OperatorRequest, (), OperatorResponse, ()>,
+    outs: Vec<(Address, OutService)>,
+}
+
+impl Identities {
+    /// The process of a live node.
+    fn pid(&self, node: &iceoryx2::identifiers::UniqueNodeId) -> Option<u32> {
+        pid_of(&self.config, node)
+    }
+
+    /// The process that sent a parameter request.
+    fn param_client(&self, origin: iceoryx2::identifiers::UniqueClientId) -> Option<u32> {
+        let mut node = None;
+        self.params.dynamic_config().list_clients(|c| {
+            if c.client_id == origin {
+                node = Some(c.node_id);
+                return CallbackProgression::Stop;
+            }
+            CallbackProgression::Continue
+        });
+        node.and_then(|n| self.pid(&n))
+    }
+
+    /// The process that sent an operator command.
+    fn command_client(&self, origin: iceoryx2::identifiers::UniqueClientId) -> Option<u32> {
+        let mut node = None;
+        self.commands.dynamic_config().list_clients(|c| {
+            if c.client_id == origin {
+                node = Some(c.node_id);
+                return CallbackProgression::Stop;
+            }
+            CallbackProgression::Continue
+        });
+        node.and_then(|n| self.pid(&n))
+    }
+
+    /// The live process that holds the drive's `out` publisher (its controller), if any.
+    fn controller(&self, address: Address) -> Option<u32> {
+        let (_, out) = self.outs.iter().find(|(a, _)| *a == address)?;
+        let mut node = None;
+        out.dynamic_config().list_publishers(|p| {
+            node = Some(p.node_id);
+            CallbackProgression::Stop
+        });
+        node.and_then(|n| self.pid(&n))
+    }
+}
+
+impl core::fmt::Debug for ParamServer {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ParamServer")
+            .field("pending", &self.pending.len())
+            .finish_non_exhaustive()
+    }
+}
+
+/// The PKW task an item asks for (USS.md section 6).
+fn task_of(item: &ParamItem, code: TaskCode) -> Result<ParamTask, RequestError> {
+    let pnu = Pnu::from_u16(item.pnu);
+    let index = u8::try_from(item.index)
+        .ok()
+        .and_then(|i| Subindex::new(i).ok())
+        .ok_or(RequestError::BadSubindex)?;
+    let storage = match item.storage().map_err(|_| RequestError::BadStorage)? {
+        Storage::Ram => PkwStorage::Ram,
+        Storage::RamAndEeprom => PkwStorage::RamAndEeprom,
+    };
+    let word = || Value::Word(item.value as u16);
+    let dword = Value::Dword(item.value);
+    Ok(match code {
+        TaskCode::Read => ParamTask::Read { pnu },
+        TaskCode::WriteWord => ParamTask::Write {
+            pnu,
+            value: word(),
+            storage,
+        },
+        TaskCode::WriteDword => ParamTask::Write {
+            pnu,
+            value: dword,
+            storage,
+        },
+        TaskCode::ReadArray => ParamTask::ReadArray { pnu, index },
+        TaskCode::WriteArrayWord => ParamTask::WriteArray {
+            pnu,
+            index,
+            value: word(),
+            storage,
+        },
+        TaskCode::WriteArrayDword => ParamTask::WriteArray {
+            pnu,
+            index,
+            value: dword,
+            storage,
+        },
+        TaskCode::ReadElementCount => ParamTask::ReadArrayLen { pnu },
+        TaskCode::ReadDescription => ParamTask::ReadDescription {
+            pnu,
+            element: index,
+        },
+    })
+}
+
+fn refusal_of(e: EngineRefusal) -> RequestError {
+    match e {
+        EngineRefusal::UnknownDrive(_) => RequestError::UnknownDrive,
+        EngineRefusal::WritesDisabled(_) => RequestError::WritesDisabled,
+        EngineRefusal::Pkw {
+            error: PkwError::NoChannel,
+            ..
+        } => RequestError::NoParameterChannel,
+        EngineRefusal::Pkw {
+            error: PkwError::DwordOverThreeWords,
+            ..
+        } => RequestError::DwordOverThreeWords,
+        EngineRefusal::Pkw {
+            error: PkwError::Subindex(_),
+            ..
+        } => RequestError::BadSubindex,
+        EngineRefusal::Pkw { .. } | EngineRefusal::PzdWords { .. } => RequestError::ValueType,
+        EngineRefusal::Busy(_) => RequestError::Busy,
+        EngineRefusal::Stopped => RequestError::Shutdown,
+        EngineRefusal::ReservedJobId(_) | EngineRefusal::NotAStop(_) => RequestError::BadTask,
+        EngineRefusal::LineDown => RequestError::LineDown,
+    }
+}
+
+fn result_of(r: &JobResult) -> ParamResult {
+    let (outcome, value, drive_error) = match r.outcome {
+        JobOutcome::Value(v) => (Outcome::Value, Some(v), 0),
+        JobOutcome::ElementCount(n) => (Outcome::ElementCount, Some(Value::Word(n)), 0),
+        JobOutcome::Description(v) => (Outcome::Description, Some(v), 0),
+        JobOutcome::DriveError(e) => (Outcome::DriveError, None, e.number()),
+        JobOutcome::NoChangeRights => (Outcome::NoChangeRights, None, 0),
+        JobOutcome::Timeout => (Outcome::Timeout, None, 0),
+        JobOutcome::DriveOffline => (Outcome::DriveOffline, None, 0),
+        JobOutcome::MailboxFull => (Outcome::MailboxFull, None, 0),
+        JobOutcome::Shutdown => (Outcome::Shutdown, None, 0),
+        JobOutcome::LineDown => (Outcome::LineDown, None, 0),
+    };
+    ParamResult {
+        outcome: outcome.code(),
+        value_is_dword: u8::from(value.is_some_and(Value::is_dword)),
+        drive_error,
+        value: value.map_or(0, Value::as_u32),
+        telegrams: r.telegrams,
+        on_wire_ns: as_ns(r.on_wire),
+        ..ParamResult::NOT_RUN
+    }
+}
+
+impl ParamServer {
+    /// Serves requests until the engine stops, then answers what is still pending (the
+    /// engine ends every job it holds with "shutdown"; jobs it never took get that here).
+    pub fn run(mut self, handle: &EngineHandle) {
+        while !handle.is_stopped() {
+            self.serve_once(handle, Duration::from_millis(1));
+        }
+        let deadline = Instant::now() + Duration::from_secs(2);
+        while !self.pending.is_empty() && Instant::now() < deadline {
+            self.serve_once(handle, Duration::from_millis(5));
+        }
+        for mut p in self.pending.drain(..) {
+            for r in &mut p.response.results[..p.count as usize] {
+                if r.outcome == Outcome::NotRun.code() {
+                    *r = ParamResult {
+                        outcome: Outcome::Shutdown.code(),
+                        ..ParamResult::NOT_RUN
+                    };
+                }
+            }
+            let _ = p.active.send_copy(p.response);
+        }
+    }
+
+    /// Takes new requests, then waits up to `wait` for job results and routes them.
+    pub fn serve_once(&mut self, handle: &EngineHandle, wait: Duration) {
+        self.serve_commands(handle);
+        while let Ok(Some(active)) = self.server.receive() {
+            self.accept(active, handle);
+        }
+        let mut wait = wait;
+        while let Some(r) = handle.recv_result(wait) {
+            self.route(&r);
+            wait = Duration::ZERO;
+        }
+    }
+
+    fn accept(&mut self, active: Active, handle: &EngineHandle) {
+        let request = *active.payload();
+        if let Some(refusal) = self.refuse_controlled(&active, &request) {
+            let _ = active.send_copy(refusal);
+            return;
+        }
+        let (address, items) = match request.validate() {
+            Ok(ok) => ok,
+            Err(refusal) => {
+                // A client that died meanwhile cannot be answered; nothing else to do.
+                let _ = active.send_copy(ParamResponse::refused(request.address, refusal));
+                return;
+            }
+        };
+        let Ok(address) = Address::new(address.get()) else {
+            let refusal = ParamResponse::new(request.address);
+            let _ = active.send_copy(ParamResponse {
+                error: RequestError::UnknownDrive.code(),
+                ..refusal
+            });
+            return;
+        };
+        let mut response = ParamResponse::new(address.get());
+        response.count = items.len() as u8;
+        let first_id = self.next_id;
+        self.next_id += items.len() as u64;
+        let mut remaining = 0;
+        for (i, item) in items.iter().enumerate() {
+            // `validate` checked every item's task code.
+            let submitted = item
+                .check()
+                .and_then(|code| task_of(item, code))
+                .and_then(|task| {
+                    handle
+                        .submit(Job {
+                            id: first_id + i as u64,
+                            address,
+                            task,
+                        })
+                        .map_err(refusal_of)
+                });
+            match submitted {
+                Ok(()) => remaining += 1,
+                Err(e) => response.results[i] = ParamResult::refused(e),
+            }
+        }
+        if remaining == 0 {
+            let _ = active.send_copy(response);
+            return;
+        }
+        self.pending.push(Pending {
+            active,
+            response,
+            first_id,
+            count: items.len() as u64,
+            remaining,
+        });
+    }
+
+    /// A write to a drive that another process controls is refused unless the request says it
+    /// is deliberate ([`uss_shm_types::REQUEST_FORCE`]); reads are never restricted, and the
+    /// controlling process may write through its own handles.
+    fn refuse_controlled(&self, active: &Active, request: &ParamRequest) -> Option<ParamResponse> {
+        let writes = request.items[..usize::from(request.count).min(request.items.len())]
+            .iter()
+            .any(|i| i.task().is_ok_and(TaskCode::is_write));
+        if !writes || request.is_forced() || request.validate().is_err() {
+            return None;
+        }
+        let address = Address::new(request.address).ok()?;
+        let controller = self.identities.controller(address)?;
+        let requester = self.identities.param_client(active.origin());
+        if requester == Some(controller) {
+            return None;
+        }
+        let mut response = ParamResponse::refused(
+            request.address,
+            uss_shm_types::Refusal {
+                error: RequestError::Controlled,
+                item: None,
+            },
+        );
+        response.controller_pid = controller;
+        Some(response)
+    }
+
+    /// Answers operator commands: each goes to the bus thread at once (it applies it at the
+    /// drive's next poll, latched) and is answered with the drives it reached.
+    fn serve_commands(&mut self, handle: &EngineHandle) {
+        while let Ok(Some(active)) = self.commands.receive() {
+            let request = *active.payload();
+            let response = match request.validate() {
+                Err(e) => OperatorResponse::refused(request.command, e),
+                Ok(_) if handle.is_stopped() => {
+                    OperatorResponse::refused(request.command, CommandError::Shutdown)
+                }
+                Ok(command) => {
+                    let pid = self.identities.command_client(active.origin()).unwrap_or(0);
+                    let target = match request.address {
+                        ALL_DRIVES => Ok(None),
+                        a => Address::new(a).map(Some),
+                    };
+                    match target.map(|t| handle.stop_drive(t, command, pid)) {
+                        Ok(Ok(drives)) => OperatorResponse::done(command, drives),
+                        Ok(Err(_)) | Err(_) => {
+                            OperatorResponse::refused(request.command, CommandError::UnknownDrive)
+                        }
+                    }
+                }
+            };
+            // A client that died meanwhile cannot be answered; the command stands.
+            let _ = active.send_copy(response);
+        }
+    }
+
+    fn route(&mut self, r: &JobResult) {
+        let id = r.job.id;
+        let Some(at) = self
+            .pending
+            .iter()
+            .position(|p| (p.first_id..p.first_id + p.count).contains(&id))
+        else {
+            return;
+        };
+        let p = &mut self.pending[at];
+        p.response.results[(id - p.first_id) as usize] = result_of(r);
+        p.remaining -= 1;
+        if p.remaining == 0 {
+            let p = self.pending.swap_remove(at);
+            let _ = p.active.send_copy(p.response);
+        }
+    }
+}

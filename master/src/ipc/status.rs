@@ -1,0 +1,383 @@
+//! The housekeeping thread's side: [`StatusPublisher`] publishes the bus status, every
+//! drive's diagnostics and ussd's heartbeat (which names this instance's generation) every
+//! 50 ms, and says goodbye when ussd stops.
+
+use super::{
+    IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, as_ns, fail, monotonic_ns, pid_of, text,
+};
+use crate::control::Control;
+use crate::engine::DriveSetup;
+use crate::stats::{DriveStatus, Failure, LineFault, Stats};
+use core::time::Duration;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
+use iceoryx2::port::writer::{EntryHandleMut, Writer};
+use iceoryx2::prelude::*;
+use uss_protocol::{Address, LineError};
+use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
+use uss_shm_types::{
+    BlackboardKey, BusName, BusState, BusStatus, ControlState, DriveAddress, DriveDiag, Heartbeat,
+    Instance, LAYOUT_VERSION, LastFailure, LatchReason, LineFault as ContractLineFault, LineState,
+    RtMode, StopCommand,
+};
+
+/// The heartbeat's one publisher, on the bus's stable `ussd` service: opened when clients of
+/// an earlier ussd still hold it (a dead predecessor's publisher was cleaned up with its node
+/// just before), created otherwise. While another ussd serves the bus, its publisher holds
+/// the slot: [`IpcError::Served`].
+pub(super) fn heartbeat_publisher(
+    node: &IpcNode,
+    bus: &BusName,
+) -> Result<Publisher<Svc, Heartbeat, ()>, IpcError> {
+    let verifier = AttributeVerifier::new()
+        .require(
+            &LAYOUT_VERSION_ATTRIBUTE
+                .try_into()
+                .map_err(|e| fail(bus, "attributes")(text(e)))?,
+            &LAYOUT_VERSION
+                .to_string()
+                .as_str()
+                .try_into()
+                .map_err(|e| fail(bus, "attributes")(text(e)))?,
+        )
+        .map_err(|e| fail(bus, "attributes")(text(e)))?;
+    let service = node
+        .service_builder(&names::heartbeat(bus))
+        .publish_subscribe::<Heartbeat>()
+        .max_publishers(1)
+        .max_subscribers(MAX_CLIENTS * 4)
+        .subscriber_max_buffer_size(1)
+        .history_size(1)
+        .enable_safe_overflow(true)
+        .max_nodes(MAX_NODES)
+        .open_or_create_with_attributes(&verifier)
+        .map_err(|e| fail(bus, "the heartbeat service")(text(e)))?;
+    match service.publisher_builder().create() {
+        Ok(p) => Ok(p),
+        Err(PublisherCreateError::ExceedsMaxSupportedPublishers) => {
+            let mut holder = None;
+            service.dynamic_config().list_publishers(|p| {
+                holder = Some(p.node_id);
+                CallbackProgression::Stop
+            });
+            Err(IpcError::Served {
+                bus: bus.to_string(),
+                pid: holder.and_then(|n| pid_of(node.config(), &n)),
+            })
+        }
+        Err(e) => Err(fail(bus, "the heartbeat publisher")(text(e))),
+    }
+}
+
+/// The bus status and drive diagnostics blackboards, written by the housekeeping thread.
+pub(super) fn create(
+    node: &IpcNode,
+    bus: &Instance,
+    drives: &[DriveSetup],
+    attributes: &AttributeSpecifier,
+    (notifier, heartbeat): (Notifier<Svc>, Publisher<Svc, Heartbeat, ()>),
+    clock_origin: Duration,
+) -> Result<StatusPublisher, IpcError> {
+    let addresses: Vec<Address> = drives.iter().map(|d| d.address).collect();
+    let mut diag_builder = node
+        .service_builder(&names::diag(bus))
+        .blackboard_creator::<BlackboardKey>()
+        .max_readers(MAX_CLIENTS)
+        .max_nodes(MAX_NODES);
+    for d in drives {
+        let a =
+            DriveAddress::new(d.address.get()).map_err(|e| fail(bus, "a drive")(e.to_string()))?;
+        // What a client needs before the first publish: the drive's PZD length.
+        let initial = DriveDiag {
+            pzd_words: d.layout.pzd.get() as u8,
+            ..DriveDiag::new(d.address.get())
+        };
+        diag_builder = diag_builder.add::<DriveDiag>(BlackboardKey::drive(a), initial);
+    }
+    let diag = diag_builder
+        .create_with_attributes(attributes)
+        .map_err(|e| fail(bus, "the diag blackboard")(text(e)))?;
+    let diag_writer = diag
+        .writer_builder()
+        .create()
+        .map_err(|e| fail(bus, "the diag writer")(text(e)))?;
+    let mut diag_entries = Vec::with_capacity(addresses.len());
+    for &address in &addresses {
+        let a =
+            DriveAddress::new(address.get()).map_err(|e| fail(bus, "a drive")(e.to_string()))?;
+        diag_entries.push(
+            diag_writer
+                .entry::<DriveDiag>(&BlackboardKey::drive(a))
+                .map_err(|e| fail(bus, "a diag entry")(text(e)))?,
+        );
+    }
+    let status = node
+        .service_builder(&names::status(bus))
+        .blackboard_creator::<BlackboardKey>()
+        .max_readers(MAX_CLIENTS)
+        .max_nodes(MAX_NODES)
+        .add::<BusStatus>(BlackboardKey::IMAGE, BusStatus::EMPTY)
+        .create_with_attributes(attributes)
+        .map_err(|e| fail(bus, "the status blackboard")(text(e)))?;
+    let status_writer = status
+        .writer_builder()
+        .create()
+        .map_err(|e| fail(bus, "the status writer")(text(e)))?;
+    let status_entry = status_writer
+        .entry::<BusStatus>(&BlackboardKey::IMAGE)
+        .map_err(|e| fail(bus, "the status entry")(text(e)))?;
+    Ok(StatusPublisher {
+        heartbeat,
+        beat: Heartbeat::new(std::process::id(), bus.generation),
+        bus: bus.clone(),
+        pzd_words: drives.iter().map(|d| d.layout.pzd.get() as u8).collect(),
+        diag: diag_entries,
+        status: status_entry,
+        _writers: (diag_writer, status_writer),
+        notifier,
+        origin_ns: as_ns(clock_origin),
+        rt: RtMode::BestEffort,
+        rt_cpu: -1,
+        rt_priority: 0,
+    })
+}
+
+/// The housekeeping thread's ports: bus status and drive diagnostics.
+pub struct StatusPublisher {
+    bus: Instance,
+    /// The bus's heartbeat (its generation names this instance's services), sent with each
+    /// status.
+    heartbeat: Publisher<Svc, Heartbeat, ()>,
+    beat: Heartbeat,
+    /// Each drive's PZD length, in slot order.
+    pzd_words: Vec<u8>,
+    diag: Vec<EntryHandleMut<Svc, BlackboardKey, DriveDiag>>,
+    status: EntryHandleMut<Svc, BlackboardKey, BusStatus>,
+    _writers: (Writer<Svc, BlackboardKey>, Writer<Svc, BlackboardKey>),
+    notifier: Notifier<Svc>,
+    origin_ns: u64,
+    rt: RtMode,
+    rt_cpu: i32,
+    rt_priority: u8,
+}
+
+impl core::fmt::Debug for StatusPublisher {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("StatusPublisher")
+            .field("bus", &self.bus.bus.as_str())
+            .finish_non_exhaustive()
+    }
+}
+
+/// A drive's control as the contract carries it.
+pub(super) struct ControlView {
+    pub(super) state: ControlState,
+    pub(super) reason: LatchReason,
+    pub(super) command: StopCommand,
+    /// `CLOCK_MONOTONIC` ns of the latch (0 while live).
+    pub(super) since_ns: u64,
+    pub(super) by_pid: u32,
+}
+
+impl ControlView {
+    pub(super) fn of(status: &DriveStatus, origin_ns: u64) -> Self {
+        match status.control {
+            Control::Live => Self {
+                state: ControlState::Live,
+                reason: LatchReason::None,
+                command: StopCommand::None,
+                since_ns: 0,
+                by_pid: 0,
+            },
+            Control::Latched(l) => Self {
+                state: ControlState::Latched,
+                reason: l.reason,
+                command: l.command,
+                since_ns: origin_ns.saturating_add(as_ns(l.since)),
+                by_pid: l.by_pid,
+            },
+        }
+    }
+}
+
+fn failure_code(f: Option<Failure>) -> LastFailure {
+    match f {
+        None => LastFailure::None,
+        Some(Failure::NoResponse) => LastFailure::NoResponse,
+        Some(Failure::MissingStx) => LastFailure::MissingStx,
+        Some(Failure::StartPause) => LastFailure::StartPause,
+        Some(Failure::BadLge) => LastFailure::BadLge,
+        Some(Failure::Bcc) => LastFailure::Bcc,
+        Some(Failure::Residual) => LastFailure::Residual,
+        Some(Failure::Length) => LastFailure::Length,
+        Some(Failure::WrongAddress) => LastFailure::WrongAddress,
+        Some(Failure::Line(LineError::Parity)) => LastFailure::Parity,
+        Some(Failure::Line(LineError::Framing)) => LastFailure::Framing,
+        Some(Failure::Line(LineError::Overrun)) => LastFailure::Overrun,
+        Some(Failure::Echo) => LastFailure::Echo,
+    }
+}
+
+impl StatusPublisher {
+    /// Records the real-time mode the bus thread obtained.
+    pub fn set_rt(&mut self, realtime: bool, cpu: Option<usize>, priority: Option<u8>) {
+        self.rt = if realtime {
+            RtMode::Realtime
+        } else {
+            RtMode::BestEffort
+        };
+        self.rt_cpu = cpu.and_then(|c| i32::try_from(c).ok()).unwrap_or(-1);
+        self.rt_priority = priority.unwrap_or(0);
+    }
+
+    /// Publishes `stats` as the bus status and every drive's diagnostics, and the heartbeat
+    /// (running, line down, or, with `running` false, stopping); `reopen_attempts` counts
+    /// attempts to reopen a line that is down.
+    pub fn publish(&mut self, stats: &Stats, running: bool, reopen_attempts: u32) {
+        self.publish_diagnostics(stats);
+        self.publish_status(stats, running, reopen_attempts);
+        let _ = self
+            .notifier
+            .notify_with_custom_event_id(EventId::new(names::STATUS_PUBLISHED));
+        let bus_state = if running {
+            if stats.line.down.is_some() {
+                BusState::LineDown
+            } else {
+                BusState::Running
+            }
+        } else {
+            BusState::Stopping
+        };
+        self.beat(bus_state, stats);
+    }
+
+    fn publish_diagnostics(&self, stats: &Stats) {
+        let ns = |d: Duration| self.origin_ns.saturating_add(as_ns(d));
+        for ((entry, d), &pzd_words) in self.diag.iter().zip(&stats.drives).zip(&self.pzd_words) {
+            let c = &d.counters;
+            let control = ControlView::of(d, self.origin_ns);
+            entry.update_with_copy(DriveDiag {
+                consecutive_failed_polls: d.consecutive_failed_polls,
+                last_zsw1: d.last_zsw1,
+                last_hiw: d.last_hiw,
+                online: u8::from(d.online),
+                known: u8::from(d.known),
+                no_reply: u8::from(d.no_reply),
+                control: control.state.code(),
+                last_failure: failure_code(d.last_failure).code(),
+                latch_reason: control.reason.code(),
+                latch_command: control.command.code(),
+                rejection: d.rejection.code(),
+                monitoring: d.monitoring.code(),
+                pzd_words,
+                monitoring_ms: d.monitoring_ms,
+                controller_pid: d.controller_pid,
+                since_ns: ns(d.since),
+                last_good_ns: d.last_good.map_or(uss_shm_types::diag::NEVER, ns),
+                latched_since_ns: control.since_ns,
+                requests: c.requests,
+                good: c.good,
+                rejected: c.rejected,
+                timeouts: c.timeouts,
+                retries: c.retries,
+                failed_polls: c.failed_polls,
+                missing_stx: c.missing_stx,
+                start_pause: c.start_pause,
+                bad_lge: c.bad_lge,
+                bcc: c.bcc,
+                residual: c.residual,
+                length: c.length,
+                wrong_address: c.wrong_address,
+                parity: c.parity,
+                framing: c.framing,
+                overrun: c.overrun,
+                echo: c.echo,
+                pkw_busy: c.pkw_busy,
+                jobs_done: c.jobs_done,
+                watchdog_trips: c.watchdog_trips,
+                latches: c.latches,
+                rejected_outputs: c.rejected_outputs,
+                releases: c.releases,
+                overrides: c.overrides,
+                ..DriveDiag::new(d.address.get())
+            });
+        }
+    }
+
+    fn publish_status(&self, stats: &Stats, running: bool, reopen_attempts: u32) {
+        let ns = |d: Duration| self.origin_ns.saturating_add(as_ns(d));
+        let b = &stats.bus;
+        self.status.update_with_copy(BusStatus {
+            rt_cpu: self.rt_cpu,
+            rt_mode: self.rt.code(),
+            rt_priority: self.rt_priority,
+            drive_count: stats.drives.len() as u8,
+            running: u8::from(running),
+            efficiency_ppm: b.efficiency().map_or(0, |e| (e * 1e6) as u32),
+            exchanges: b.exchanges,
+            good: b.good,
+            cycles: b.cycles,
+            cycle_overruns: b.cycle_overruns,
+            events_dropped: b.events_dropped,
+            results_lost: b.results_lost,
+            jobs_accepted: b.jobs_accepted,
+            jobs_finished: b.jobs_finished,
+            mean_exchange_ns: stats.histograms.exchange.mean() as u64,
+            bus_clock_ns: as_ns(stats.at),
+            timestamp_ns: ns(stats.at),
+            line_state: if stats.line.down.is_some() {
+                LineState::Down
+            } else {
+                LineState::Up
+            }
+            .code(),
+            line_fault: match stats.line.down {
+                None => ContractLineFault::None,
+                Some((_, LineFault::Closed)) => ContractLineFault::Closed,
+                Some((_, LineFault::Io(_))) => ContractLineFault::Io,
+            }
+            .code(),
+            line_errno: match stats.line.down {
+                Some((_, LineFault::Io(errno))) => errno,
+                _ => 0,
+            },
+            line_down_since_ns: stats.line.down.map_or(0, |(since, _)| ns(since)),
+            line_downs: stats.line.downs,
+            reopen_attempts,
+            ..BusStatus::EMPTY
+        });
+    }
+
+    /// Sends the next heartbeat.
+    fn beat(&mut self, bus_state: BusState, stats: &Stats) {
+        let origin_ns = self.origin_ns;
+        let b = &mut self.beat;
+        b.sequence += 1;
+        b.timestamp_ns = monotonic_ns();
+        b.exchanges = stats.bus.exchanges;
+        b.state = bus_state.code();
+        (b.line_fault, b.line_errno, b.line_down_since_ns) = match stats.line.down {
+            None => (ContractLineFault::None.code(), 0, 0),
+            Some((since, LineFault::Closed)) => (
+                ContractLineFault::Closed.code(),
+                0,
+                origin_ns.saturating_add(as_ns(since)),
+            ),
+            Some((since, LineFault::Io(errno))) => (
+                ContractLineFault::Io.code(),
+                errno,
+                origin_ns.saturating_add(as_ns(since)),
+            ),
+        };
+        // A client that is not there cannot miss it; the next one gets the history.
+        let _ = self.heartbeat.send_copy(*b);
+    }
+
+    /// Tells listeners ussd is leaving this bus (the same event a dead ussd's notifier leaves
+    /// behind), so clients drop their ports and the services can go.
+    pub fn goodbye(&self) {
+        let _ = self
+            .notifier
+            .notify_with_custom_event_id(EventId::new(names::USSD_GONE));
+    }
+}

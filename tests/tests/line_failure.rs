@@ -1,0 +1,200 @@
+//! A bus whose serial line fails goes down alone and comes back (issue 8): two buses on two
+//! pseudo-terminals, each served by its own `uss-sim` process and reached through a symlink,
+//! the way udev gives an adapter a stable name. When one `uss-sim` dies its pty disappears:
+//! that bus reports "line down", its drives go offline and its parameter jobs end, while the
+//! other bus and ussd keep running. When a new `uss-sim` appears behind the same name, ussd
+//! reopens it and the drives come back latched. Measured figures are printed.
+#![allow(clippy::unwrap_used)]
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+use uss_client::{
+    Bus, ClientError, Health, LatchReason, ParamError, RequestError, Value, read_item,
+};
+use uss_integration_tests::{BusSpec, SimProcess, Ussd, monotonic_ns};
+
+/// A symlink in a directory of its own, pointing at a pty.
+struct Link {
+    dir: PathBuf,
+    path: PathBuf,
+}
+
+impl Link {
+    fn new(name: &str, target: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("uss-line-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(name);
+        std::os::unix::fs::symlink(target, &path).unwrap();
+        Self { dir, path }
+    }
+
+    /// Points the link at `target`, atomically (a new link renamed over the old one).
+    fn retarget(&self, target: &str) {
+        let next = self.dir.join("next");
+        let _ = std::fs::remove_file(&next);
+        std::os::unix::fs::symlink(target, &next).unwrap();
+        std::fs::rename(&next, &self.path).unwrap();
+    }
+
+    fn path(&self) -> &str {
+        self.path.to_str().unwrap()
+    }
+}
+
+impl Drop for Link {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+fn sim() -> SimProcess {
+    SimProcess::start(&["--baud", "115200", "--drive", "1:busy=100", "--drive", "2"])
+}
+
+/// Waits until bus status `done` holds (republished every 100 ms).
+fn status_when(bus: &Bus, done: impl Fn(&uss_client::BusStatus) -> bool) -> uss_client::BusStatus {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let s = bus.status().unwrap();
+        if done(&s) {
+            return s;
+        }
+        assert!(Instant::now() < deadline, "bus status still {s:?}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+fn exists(p: &Path) -> bool {
+    std::fs::metadata(p).is_ok()
+}
+
+#[test]
+fn a_failed_line_takes_only_its_bus_down_and_ussd_reopens_it_when_it_is_back() {
+    let (sim_a, sim_b) = (sim(), sim());
+    let (link_a, link_b) = (Link::new("a", &sim_a.path), Link::new("b", &sim_b.path));
+    let drives: &[(u8, &str)] = &[(1, ""), (2, "")];
+    let mut ussd = Ussd::start_buses(&[
+        BusSpec {
+            suffix: "a",
+            device: link_a.path(),
+            keys: "baud = 115200",
+            drives,
+        },
+        BusSpec {
+            suffix: "b",
+            device: link_b.path(),
+            keys: "baud = 115200",
+            drives,
+        },
+    ]);
+    let (a, b) = (ussd.bus_named("a"), ussd.bus_named("b"));
+
+    // 39 parameter reads on bus A, each answered after 100 busy replies: seconds of work.
+    let requester = {
+        let name = format!("{}a", ussd.bus);
+        std::thread::spawn(move || {
+            let bus = Bus::open(&name).unwrap();
+            bus.batch(1, &[read_item(1082, None); 39])
+        })
+    };
+    std::thread::sleep(Duration::from_millis(300));
+
+    let pty_a = PathBuf::from(&sim_a.path);
+    let killed_at = monotonic_ns();
+    drop(sim_a);
+    let down = status_when(&a, uss_client::BusStatus::is_line_down);
+    println!(
+        "line: bus A down in its status {:.1} ms after uss-sim was killed",
+        (down.line_down_since_ns.saturating_sub(killed_at)) as f64 / 1e6
+    );
+    assert_eq!(
+        down.line_fault_text().as_deref(),
+        Some("the serial device was closed or unplugged")
+    );
+    assert!(!exists(&pty_a), "the pty went with its uss-sim");
+    for d in [1, 2] {
+        let i = a.watch(d).unwrap().latest();
+        assert_eq!(i.online, 0, "drive {d} of bus A: {i:?}");
+    }
+    // Every item of the request ended: the ones done, then the rest with "line down".
+    let results = requester.join().unwrap();
+    assert_eq!(results.len(), 39);
+    let done = results.iter().filter(|r| r.is_ok()).count();
+    assert!(
+        results[done..]
+            .iter()
+            .all(|r| *r == Err(ParamError::LineDown)),
+        "{results:?}"
+    );
+    assert!(done < 39, "the line went down before the request finished");
+    // New requests are refused at once while the line is down: by this client when the
+    // heartbeat already said so, else by ussd.
+    let refused = a.read(2, 1082, None);
+    assert!(
+        matches!(
+            refused,
+            Err(ParamError::Client(ClientError::LineDown { .. })
+                | ParamError::Refused {
+                    error: RequestError::LineDown,
+                    item: None
+                })
+        ),
+        "{refused:?}"
+    );
+    let health = a.health();
+    assert!(matches!(health, Health::LineDown { .. }), "{health:?}");
+    assert!(
+        matches!(
+            a.watch(1).unwrap().read(),
+            Err(ClientError::LineDown { .. })
+        ),
+        "a watcher is told"
+    );
+
+    // Bus B and ussd carry on.
+    let watch_b = b.watch(2).unwrap();
+    let before = watch_b.latest().sequence;
+    std::thread::sleep(Duration::from_millis(500));
+    assert!(
+        watch_b.latest().sequence > before + 20,
+        "bus B keeps polling"
+    );
+    assert_eq!(b.read(2, 1082, None), Ok(Value::Dword(0x4248_0000)));
+    assert!(ussd.is_running(), "{}", ussd.log());
+
+    comes_back_latched(&a, &link_a, &ussd);
+    drop(sim_b);
+}
+
+/// A new uss-sim behind bus A's name: ussd reopens it and its drives come back latched.
+fn comes_back_latched(a: &Bus, link_a: &Link, ussd: &Ussd) {
+    // A new uss-sim behind the same name: bus A reopens it and its drives come back latched.
+    let sim_a2 = sim();
+    let relinked_at = monotonic_ns();
+    link_a.retarget(&sim_a2.path);
+    status_when(a, |s| !s.is_line_down());
+    let up_at = monotonic_ns();
+    println!(
+        "line: bus A reopened {:.0} ms after its device came back ({} attempts)",
+        (up_at - relinked_at) as f64 / 1e6,
+        a.status().unwrap().reopen_attempts
+    );
+    for d in [1, 2] {
+        let i = a
+            .watch(d)
+            .unwrap()
+            .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
+            .unwrap();
+        assert_eq!(i.latch_reason, LatchReason::LineRestored.code(), "{i:?}");
+        assert_eq!(i.sent_stw1, 0x047E);
+    }
+    assert_eq!(a.read(2, 1082, None), Ok(Value::Dword(0x4248_0000)));
+    assert_eq!(a.status().unwrap().line_downs, 1);
+    let log = ussd.log();
+    assert!(
+        log.contains("line down (the serial device was closed or unplugged)"),
+        "{log}"
+    );
+    assert!(log.contains("line back after"), "{log}");
+}

@@ -1,0 +1,198 @@
+//! Clients always know, and survive a restart of ussd (issue 8): real ussd processes killed
+//! (SIGKILL) or stopped (SIGTERM) under real clients (`ussctl run`, `ussctl watch`, `ussctl
+//! status`, this process through the Rust API).
+//!
+//! - A client notices a killed ussd from its heartbeat (none for 0.5 s): images report the
+//!   drives offline, reads and controllers fail with `UssdGone`, the tools say so and exit 1.
+//! - A stopped ussd says so itself (its last heartbeat): `UssdStopped`.
+//! - A restarted ussd starts while clients of the old one are still attached (it serves a new
+//!   generation of services); the clients reconnect by themselves: monitors resume, and a
+//!   controller finds its drive latched by the new ussd until it re-arms it.
+//!
+//! Measured figures are printed (run with `--nocapture`).
+#![allow(clippy::unwrap_used)]
+
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+use uss_client::{
+    Bus, ClientError, ControlOptions, DriveState, DriveWatch, Health, LatchReason, Setpoint,
+    state_of,
+};
+use uss_integration_tests::{Ussd, monotonic_ns};
+
+/// One ussd at a time: each runs a `SCHED_FIFO` bus thread, and the machine has two cores.
+fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+const DRIVES: &[(u8, &str)] = &[(1, ""), (2, "")];
+
+/// Reads `watch` every millisecond until it fails; the error and when (`CLOCK_MONOTONIC`).
+fn first_failure(watch: &DriveWatch) -> (ClientError, u64) {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        if let Err(e) = watch.read() {
+            return (e, monotonic_ns());
+        }
+        assert!(Instant::now() < deadline, "still read as healthy");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+#[test]
+fn clients_learn_within_a_second_that_a_killed_ussd_is_gone_and_say_so() {
+    let _serial = serial();
+    let mut ussd = Ussd::start("", DRIVES);
+    let bus = ussd.bus();
+    let watch = bus.watch(2).unwrap();
+    let mut run = ussd.ussctl(&["run", "1", "--hz", "10"]);
+    assert!(run.says("drive 1:").starts_with(" running towards"));
+    let mut watching = ussd.ussctl(&["watch", "2", "--interval", "20"]);
+    watching.says("drive  2");
+
+    let killed_at = ussd.kill();
+    let (error, noticed_at) = first_failure(&watch);
+    let after = (noticed_at - killed_at) as f64 / 1e6;
+    println!("lifecycle: a client noticed the SIGKILL of ussd {after:.0} ms after it");
+    assert!(matches!(error, ClientError::UssdGone { .. }), "{error}");
+    assert!(after < 2000.0, "{after} ms");
+    assert!(
+        error
+            .to_string()
+            .starts_with(&format!("ussd on {} is gone (no heartbeat for", ussd.bus)),
+        "{error}"
+    );
+    let stale = watch.latest();
+    assert_eq!(stale.online, 0, "a stale image shows the drive offline");
+    assert!(matches!(bus.health(), Health::Gone { .. }));
+    assert!(matches!(bus.status(), Err(ClientError::UssdGone { .. })));
+
+    for (what, child) in [("run", &mut run), ("watch", &mut watching)] {
+        let deadline = Instant::now() + Duration::from_secs(3);
+        while child.child.try_wait().unwrap().is_none() {
+            assert!(Instant::now() < deadline, "ussctl {what} goes on");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let (status, _, err) = child.finish();
+        assert_eq!(status.code(), Some(1), "ussctl {what}: {err}");
+        assert!(
+            err.contains("is gone (no heartbeat for"),
+            "ussctl {what}: {err}"
+        );
+    }
+    let mut status = ussd.ussctl(&["status"]);
+    let (code, _, err) = status.finish();
+    assert_eq!(code.code(), Some(1));
+    assert!(err.contains("is gone"), "{err}");
+}
+
+#[test]
+fn a_cleanly_stopped_ussd_is_reported_stopped_not_gone() {
+    let _serial = serial();
+    let mut ussd = Ussd::start("", DRIVES);
+    let bus = ussd.bus();
+    let watch = bus.watch(1).unwrap();
+    let (stopped_at, code) = ussd.terminate();
+    assert_eq!(code, Some(0), "{}", ussd.log());
+    let (error, noticed_at) = first_failure(&watch);
+    println!(
+        "lifecycle: a client noticed the clean stop {:.0} ms after SIGTERM",
+        (noticed_at - stopped_at) as f64 / 1e6
+    );
+    assert!(matches!(error, ClientError::UssdStopped { .. }), "{error}");
+    assert!(error.to_string().contains("stopped"), "{error}");
+}
+
+#[test]
+fn a_restarted_ussd_starts_beside_clients_of_the_old_one_and_they_reconnect() {
+    let _serial = serial();
+    let mut ussd = Ussd::start("", DRIVES);
+    let bus = ussd.bus();
+    let monitor = bus.watch(2).unwrap();
+    let listener = bus.cycle_listener().unwrap();
+    let c = bus.control(1, ControlOptions::default()).unwrap();
+    let _refresh = c.spawn_refresher(Duration::from_millis(20));
+    c.enable().unwrap();
+    c.run_hz(10.0, 50.0).unwrap();
+    c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
+        .unwrap();
+    for how in ["SIGKILL", "SIGTERM"] {
+        if how == "SIGKILL" {
+            ussd.kill();
+        } else {
+            assert_eq!(ussd.terminate().1, Some(0));
+        }
+        first_failure(&monitor);
+        // Every client of the old ussd is still attached: the new one starts anyway.
+        let restarted_at = monotonic_ns();
+        ussd.restart();
+        let back = monitor
+            .wait_for(Duration::from_secs(20), "the new ussd's images", |i| {
+                i.online == 1 && i.sequence > 0
+            })
+            .unwrap();
+        println!(
+            "lifecycle ({how}): a monitor saw the restarted ussd's first image {:.0} ms after its start",
+            (back.timestamp_ns.saturating_sub(restarted_at)) as f64 / 1e6
+        );
+        assert!(ussd.is_running(), "{}", ussd.log());
+        assert!(monitor.read().is_ok());
+        assert!(matches!(bus.health(), Health::Running { .. }));
+        // Events from the new generation.
+        assert!(
+            listener
+                .wait_for(
+                    uss_client::CycleEvent::CycleCompleted,
+                    Duration::from_secs(2)
+                )
+                .unwrap()
+        );
+        // The controller reconnects and finds its drive latched by the new ussd: it must
+        // re-arm (OFF1, then ON) to run it again.
+        let tripped = loop {
+            match c.set_setpoint(Setpoint::from_hz(10.0, 50.0)) {
+                Err(ClientError::Tripped { latch, .. }) => break latch,
+                Err(ClientError::UssdGone { .. } | ClientError::UssdStopped { .. }) | Ok(()) => {
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                Err(e) => panic!("{e}"),
+            }
+        };
+        assert_eq!(tripped.reason, LatchReason::Startup, "{tripped}");
+        let i = c.inputs().latest();
+        assert_eq!(
+            (i.sent_stw1, state_of(&i) == DriveState::OperationEnabled),
+            (0x047E, false)
+        );
+        c.rearm().unwrap();
+        c.run_hz(10.0, 50.0).unwrap();
+        c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
+            .unwrap();
+    }
+    let bus_again = Bus::open(&ussd.bus).unwrap();
+    assert_eq!(bus_again.drives(), [1, 2]);
+}
+
+/// A drive that misses polls for less than ussctl's grace (3 s) does not end `ussctl run`: it
+/// is reported, the controller keeps publishing, and the drive runs on its words again when it
+/// answers (nothing latched: the controller never stopped being live).
+#[test]
+fn a_short_offline_blip_is_reported_and_the_controller_carries_on() {
+    let _serial = serial();
+    // Built before ussd starts: the drive drops out 3 s after ussd's start, for 0.7 s.
+    uss_integration_tests::binary("uss-client", "ussctl");
+    let ussd = Ussd::start("", &[(1, "sim = \"unplug=3000..3700\""), (2, "")]);
+    let bus = ussd.bus();
+    let mut run = ussd.ussctl(&["run", "1", "--hz", "10", "--for", "5"]);
+    assert!(run.says("drive 1:").starts_with(" running towards"));
+    let gone = run.says("drive 1 does not answer");
+    assert!(gone.contains("waiting up to 3 s"), "{gone}");
+    let back = run.says("drive 1 answers again after");
+    println!("lifecycle: the drive was away {back}");
+    let (status, out, err) = run.finish();
+    assert!(status.success(), "{out}{err}");
+    assert!(out.contains("drive 1: ran; OFF1 sent"), "{out}");
+    let d = bus.diag(1).unwrap();
+    assert_eq!((d.watchdog_trips, d.failed_polls > 0), (0, true));
+}
