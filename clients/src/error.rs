@@ -329,6 +329,10 @@ pub enum ParamError {
     /// ussd stopped before the item finished.
     #[error("ussd shut down before the task finished: retry once ussd runs again")]
     Shutdown,
+    /// The request's client died before the item reached the wire (seen only by tools that
+    /// send requests for another process).
+    #[error("the task was cancelled before it reached the drive: its client process died")]
+    Cancelled,
     /// The bus line failed before the item finished.
     #[error(
         "the bus line went down before the task finished: ussd reopens it; check the adapter and cable (`ussctl status`), then retry"

@@ -18,21 +18,11 @@ use uss_shm_types::{
     LineFault,
 };
 
-pub(crate) type ParamClient = iceoryx2::port::client::Client<
-    Ipc,
-    uss_shm_types::ParamRequest,
-    (),
-    uss_shm_types::ParamResponse,
-    (),
->;
+pub(crate) type ParamClient =
+    crate::request::Requester<uss_shm_types::ParamRequest, uss_shm_types::ParamResponse>;
 
-pub(crate) type CommandClient = iceoryx2::port::client::Client<
-    Ipc,
-    uss_shm_types::OperatorRequest,
-    (),
-    uss_shm_types::OperatorResponse,
-    (),
->;
+pub(crate) type CommandClient =
+    crate::request::Requester<uss_shm_types::OperatorRequest, uss_shm_types::OperatorResponse>;
 
 /// What the bus's heartbeat says of ussd. Time stamps are `CLOCK_MONOTONIC` ns.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -79,6 +79,7 @@ pub fn item_result(result: &ParamResult) -> Result<Value, ParamError> {
         Ok(Outcome::MailboxFull) => Err(ParamError::MailboxFull),
         Ok(Outcome::Shutdown) => Err(ParamError::Shutdown),
         Ok(Outcome::LineDown) => Err(ParamError::LineDown),
+        Ok(Outcome::Cancelled) => Err(ParamError::Cancelled),
         Ok(Outcome::Refused) => match RequestError::try_from(result.refusal) {
             Ok(error) => Err(ParamError::Refused { error, item: None }),
             Err(e) => Err(ParamError::Unexpected(e.to_string())),

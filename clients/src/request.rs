@@ -8,8 +8,66 @@ use core::fmt::Debug;
 use core::time::Duration;
 use iceoryx2::port::client::Client;
 use iceoryx2::prelude::{ServiceName, ZeroCopySend};
-use std::sync::OnceLock;
+use std::sync::{Condvar, Mutex, OnceLock, PoisonError};
 use std::time::Instant;
+use uss_shm_types::names::MAX_ACTIVE_REQUESTS;
+
+/// A client port of a request-response service and its free request slots: iceoryx2 refuses
+/// a port's request beyond [`MAX_ACTIVE_REQUESTS`] on their way, so a bus's threads take
+/// turns here instead (a fifth thread waits until one of the four is answered).
+#[derive(Debug)]
+pub(crate) struct Requester<Req, Resp>
+where
+    Req: Debug + ZeroCopySend + Copy,
+    Resp: Debug + ZeroCopySend + Copy,
+{
+    client: Client<Ipc, Req, (), Resp, ()>,
+    in_flight: Mutex<usize>,
+    freed: Condvar,
+}
+
+/// One taken request slot, given back when dropped.
+struct Slot<'a> {
+    in_flight: &'a Mutex<usize>,
+    freed: &'a Condvar,
+}
+
+impl Drop for Slot<'_> {
+    fn drop(&mut self) {
+        *self
+            .in_flight
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) -= 1;
+        self.freed.notify_one();
+    }
+}
+
+impl<Req, Resp> Requester<Req, Resp>
+where
+    Req: Debug + ZeroCopySend + Copy,
+    Resp: Debug + ZeroCopySend + Copy,
+{
+    /// Takes a request slot, waiting until `deadline` at most.
+    fn slot(&self, deadline: Instant) -> Option<Slot<'_>> {
+        let mut in_flight = self
+            .in_flight
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        while *in_flight >= MAX_ACTIVE_REQUESTS {
+            let left = deadline.checked_duration_since(Instant::now())?;
+            in_flight = self
+                .freed
+                .wait_timeout(in_flight, left)
+                .unwrap_or_else(PoisonError::into_inner)
+                .0;
+        }
+        *in_flight += 1;
+        Some(Slot {
+            in_flight: &self.in_flight,
+            freed: &self.freed,
+        })
+    }
+}
 
 /// How a round trip ended without an answer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -25,9 +83,9 @@ pub(crate) enum NoAnswer {
 /// The client of service `name` kept in `cell`, opened on first use.
 pub(crate) fn client<'a, Req, Resp>(
     link: &Link,
-    cell: &'a OnceLock<Client<Ipc, Req, (), Resp, ()>>,
+    cell: &'a OnceLock<Requester<Req, Resp>>,
     name: &ServiceName,
-) -> Result<&'a Client<Ipc, Req, (), Resp, ()>, ClientError>
+) -> Result<&'a Requester<Req, Resp>, ClientError>
 where
     Req: Debug + ZeroCopySend + Copy,
     Resp: Debug + ZeroCopySend + Copy,
@@ -52,14 +110,19 @@ where
         .create()
         .map_err(|e| ClientError::ipc(format!("a client of {}", name.as_str()), e))?;
     // Another thread may have won the race; its client serves as well as this one.
-    let _ = cell.set(client);
+    let _ = cell.set(Requester {
+        client,
+        in_flight: Mutex::new(0),
+        freed: Condvar::new(),
+    });
     cell.get()
         .ok_or_else(|| ClientError::ipc(format!("the client of {}", name.as_str()), "not kept"))
 }
 
-/// Sends `request` and waits up to `timeout` for its one answer.
+/// Sends `request` and waits up to `timeout` for its one answer (the wait for a free request
+/// slot included).
 pub(crate) fn round_trip<Req, Resp>(
-    client: &Client<Ipc, Req, (), Resp, ()>,
+    requester: &Requester<Req, Resp>,
     request: Req,
     timeout: Duration,
 ) -> Result<Result<Resp, NoAnswer>, ClientError>
@@ -67,13 +130,17 @@ where
     Req: Debug + ZeroCopySend + Copy,
     Resp: Debug + ZeroCopySend + Copy,
 {
-    let pending = client
+    let deadline = Instant::now() + timeout;
+    let Some(_slot) = requester.slot(deadline) else {
+        return Ok(Err(NoAnswer::Timeout));
+    };
+    let pending = requester
+        .client
         .send_copy(request)
         .map_err(|e| ClientError::ipc("sending a request to ussd", e))?;
     if pending.number_of_server_connections() == 0 {
         return Ok(Err(NoAnswer::NotRunning));
     }
-    let deadline = Instant::now() + timeout;
     let mut pause = Duration::from_micros(50);
     loop {
         // Looked at before `receive`, so an answer sent just before the server let go of the

@@ -188,6 +188,9 @@ pub enum RequestError {
     LineDown,
 }
 
+/// How many cancellations can wait for the bus thread.
+const CANCEL_QUEUE: usize = 64;
+
 /// Operator stop commands for one drive, from any thread, taken by the bus thread without
 /// locks: a counter per command (so OFF2 and OFF1 arriving between two polls both count and
 /// the stronger wins) and the last requester's process id.
@@ -231,6 +234,7 @@ impl Shared {
 pub struct EngineHandle {
     shared: Arc<Shared>,
     jobs: Sender<Job>,
+    cancels: Sender<core::ops::Range<u64>>,
     results: Receiver<JobResult>,
 }
 
@@ -364,6 +368,13 @@ impl EngineHandle {
         })
     }
 
+    /// Cancels the jobs with ids in `ids` that have not reached the wire yet (their client
+    /// died): each ends with [`Outcome::Cancelled`] at the bus thread's next step. `false` when
+    /// the bus thread's queue of cancellations is full (ask again later).
+    pub fn cancel(&self, ids: core::ops::Range<u64>) -> bool {
+        self.cancels.try_send(ids).is_ok()
+    }
+
     /// The next finished job, waiting at most `timeout`.
     pub fn recv_result(&self, timeout: Duration) -> Option<JobResult> {
         let r = self.results.recv_timeout(timeout).ok()?;
@@ -449,6 +460,7 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     cycle_start: Duration,
     last_publish: Duration,
     jobs: Receiver<Job>,
+    cancels: Receiver<core::ops::Range<u64>>,
     results: Sender<JobResult>,
     events: Sender<Event>,
     stats: Stats,
@@ -534,6 +546,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         // Outstanding jobs never exceed `capacity`, so neither channel can be full when the
         // engine sends: no result is ever lost.
         let (jobs_tx, jobs_rx) = bounded(capacity);
+        let (cancels_tx, cancels_rx) = bounded(CANCEL_QUEUE);
         let (results_tx, results_rx) = bounded(capacity);
         let (events_tx, events_rx) = bounded(1024);
         let drives = cfg
@@ -565,6 +578,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             cycle_start: now,
             last_publish: now,
             jobs: jobs_rx,
+            cancels: cancels_rx,
             results: results_tx,
             events: events_tx,
             stats,
@@ -574,6 +588,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let handle = EngineHandle {
             shared,
             jobs: jobs_tx,
+            cancels: cancels_tx,
             results: results_rx,
         };
         (engine, handle, events_rx)
@@ -683,6 +698,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// every drive is offline). Returns the address polled.
     pub fn poll_next(&mut self) -> Result<Option<Address>, TransportError> {
         self.take_jobs();
+        self.take_cancels();
         let polled = match self.next_slot() {
             Some(slot) => {
                 self.poll_drive(slot)?;
@@ -768,6 +784,18 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
     }
 
+    /// Takes out the jobs of dead clients that have not reached the wire.
+    fn take_cancels(&mut self) {
+        while let Ok(ids) = self.cancels.try_recv() {
+            for slot in 0..self.drives.len() {
+                while let Some(r) = self.drives[slot].mailbox.cancel(ids.clone()) {
+                    self.stats.bus.jobs_cancelled += 1;
+                    self.deliver(r);
+                }
+            }
+        }
+    }
+
     fn deliver(&mut self, result: JobResult) {
         let slot = self.shared.slot_of[result.job.address.get() as usize].map(usize::from);
         if let Some(slot) = slot
@@ -809,7 +837,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             Outcome::DriveOffline
             | Outcome::MailboxFull
             | Outcome::Shutdown
-            | Outcome::LineDown => {
+            | Outcome::LineDown
+            | Outcome::Cancelled => {
                 if result.job.id & INTERNAL_JOB != 0 {
                     self.drives[slot].monitoring_due = true;
                 }

@@ -38,6 +38,8 @@ pub enum Outcome {
     Shutdown,
     /// The bus line failed (device unplugged, I/O error) before the job completed.
     LineDown,
+    /// The client that asked died before the job reached the wire: it was never sent.
+    Cancelled,
 }
 
 impl Outcome {
@@ -153,6 +155,23 @@ impl Mailbox {
         }
     }
 
+    /// Takes out one job with an id in `ids` that has not gone out yet (a job on the wire stays:
+    /// its reply is on the way), ending it with [`Outcome::Cancelled`]. Call until `None`.
+    pub fn cancel(&mut self, ids: core::ops::Range<u64>) -> Option<JobResult> {
+        let at = self
+            .queue
+            .iter()
+            .position(|a| ids.contains(&a.job.id) && a.first_sent.is_none())?;
+        // `position` found it, so `remove` returns it; no allocation.
+        let a = self.queue.remove(at)?;
+        Some(JobResult {
+            job: a.job,
+            outcome: Outcome::Cancelled,
+            telegrams: 0,
+            on_wire: Duration::ZERO,
+        })
+    }
+
     /// Ends the current job with `outcome`.
     pub fn finish(&mut self, outcome: Outcome, now: Duration) -> Option<JobResult> {
         let a = self.queue.pop_front()?;
@@ -215,6 +234,30 @@ mod tests {
         assert_eq!(r.telegrams, 2);
         assert_eq!(r.on_wire, Duration::from_millis(3));
         assert_eq!(m.current(), Some(&job(2, 1000).task));
+    }
+
+    #[test]
+    fn cancel_takes_out_what_has_not_gone_out_and_keeps_the_job_on_the_wire() {
+        let mut m = Mailbox::new(8);
+        for id in 1..=5 {
+            m.push(job(id, 700)).unwrap();
+        }
+        m.push(job(50, 700)).unwrap();
+        m.sent(Duration::from_millis(1)); // job 1 is on the wire
+        let cancelled: Vec<u64> = std::iter::from_fn(|| m.cancel(1..6))
+            .map(|r| r.job.id)
+            .collect();
+        assert_eq!(cancelled, [2, 3, 4, 5]);
+        assert_eq!(
+            m.current(),
+            Some(&job(1, 700).task),
+            "the job on the wire stays"
+        );
+        assert_eq!(m.len(), 2, "job 50 is someone else's");
+        let r = m
+            .on_reply(&reply(1, 700, 5), Duration::from_millis(2))
+            .unwrap();
+        assert_eq!((r.job.id, r.outcome), (1, Outcome::Value(Value::Word(5))));
     }
 
     #[test]

@@ -249,6 +249,8 @@ pub struct BusCounters {
     pub results_lost: u64,
     pub jobs_accepted: u64,
     pub jobs_finished: u64,
+    /// Jobs of clients that died, taken out before they reached the wire.
+    pub jobs_cancelled: u64,
     /// Sum over good first attempts of the time from line free to reply complete, in ns.
     pub exchange_ns: u64,
     /// Sum over the same exchanges of their wire-time floor (USS.md section 4): start pause,

@@ -139,6 +139,22 @@ def test_p1082_reads_as_the_float_50_hz(bus):
     assert value.as_float() == 50.0
 
 
+def test_eight_threads_sharing_one_bus_take_turns_and_all_are_answered(bus):
+    import threading
+
+    answers = []
+
+    def reader():
+        answers.extend(uss_rt.read_param(bus, 1, 1082) for _ in range(10))
+
+    threads = [threading.Thread(target=reader) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert answers == [0x4248_0000] * 80
+
+
 def test_unknown_pnu_raises_drive_error_0(bus):
     with pytest.raises(uss_rt.DriveError) as e:
         uss_rt.read_param(bus, 2, 1999)

@@ -18,6 +18,7 @@ import ctypes
 import enum
 import os
 import struct
+import threading
 import time
 
 import iceoryx2 as iox2
@@ -82,6 +83,9 @@ LAYOUT_VERSION_ATTRIBUTE = "uss.layout_version"
 MAX_PZD_WORDS = 16
 EXTRA_PZD_WORDS = MAX_PZD_WORDS - 2
 MAX_PARAM_ITEMS = 39
+MAX_ACTIVE_REQUESTS = 4
+"""Requests one client port may have on their way at once: a bus's further requests (from
+other threads) wait for a free slot."""
 MAX_SUBINDEX = 254
 NO_ITEM = 0xFF
 """``ParamResponse.error_item`` when the error concerns no single item."""
@@ -258,6 +262,7 @@ class Outcome(enum.IntEnum):
     SHUTDOWN = 9
     REFUSED = 10
     LINE_DOWN = 11
+    CANCELLED = 12
 
 
 class ControlState(enum.IntEnum):
@@ -521,6 +526,7 @@ class BusStatus(ctypes.Structure):
         ("line_downs", u64),
         ("reopen_attempts", u32),
         ("reserved2", u32),
+        ("jobs_cancelled", u64),
     ]
 
     @staticmethod
@@ -923,6 +929,7 @@ class Bus:
         self._beat = beat
         self._generation = None
         self._services = {}
+        self._request_slots = threading.BoundedSemaphore(MAX_ACTIVE_REQUESTS)
 
     def __enter__(self):
         return self
@@ -1251,11 +1258,21 @@ def _send(bus: Bus, request: ParamRequest, timeout: float) -> ParamResponse:
 
 
 def _round_trip(bus: Bus, client, request, timeout: float):
-    """Sends ``request`` through ``client`` and returns the bytes of ussd's one answer."""
-    pending = client.send_copy(request)
+    """Sends ``request`` through ``client`` and returns the bytes of ussd's one answer (the
+    wait for a free request slot counts into ``timeout``)."""
+    deadline = time.monotonic() + timeout
+    if not bus._request_slots.acquire(timeout=timeout):
+        raise NoAnswer(bus.name, f"did not answer within {timeout} s (all request slots busy)")
+    try:
+        return _answer(bus, client.send_copy(request), deadline, timeout)
+    finally:
+        bus._request_slots.release()
+
+
+def _answer(bus: Bus, pending, deadline: float, timeout: float):
+    """Waits until ``deadline`` for the answer to ``pending``."""
     if pending.number_of_server_connections == 0:
         raise NotRunning(bus.name)
-    deadline = time.monotonic() + timeout
     pause = 50e-6
     while True:
         # Looked at before `receive`, so an answer sent just before ussd let go of the request

@@ -104,6 +104,12 @@
 #define USS_OUT_HISTORY 0
 
 /**
+ * Requests one client port of `params` or `command` may have on their way at once (and loan
+ * at once); a client library queues its threads' further requests until one is answered.
+ */
+#define USS_MAX_ACTIVE_REQUESTS 4
+
+/**
  * How often ussd publishes its heartbeat, ns.
  */
 #define USS_HEARTBEAT_PERIOD_NS 50000000
@@ -791,6 +797,10 @@ enum UssOutcome
    * The bus line failed (device unplugged, I/O error) before the item completed.
    */
   USS_OUTCOME_LINE_DOWN = 11,
+  /**
+   * The client that asked died before the item reached the wire: it was never sent.
+   */
+  USS_OUTCOME_CANCELLED = 12,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -1215,6 +1225,10 @@ typedef struct UssBusStatus {
    */
   uint32_t reopen_attempts;
   uint32_t reserved2;
+  /**
+   * Parameter jobs of clients that died, taken out before they reached the wire.
+   */
+  uint64_t jobs_cancelled;
 #ifdef __cplusplus
   static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV2";
 #endif

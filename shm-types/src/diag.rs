@@ -208,6 +208,8 @@ pub struct BusStatus {
     /// Attempts to reopen the line since it went down.
     pub reopen_attempts: u32,
     pub reserved2: u32,
+    /// Parameter jobs of clients that died, taken out before they reached the wire.
+    pub jobs_cancelled: u64,
 }
 
 impl DriveDiag {
@@ -317,6 +319,7 @@ impl BusStatus {
         line_downs: 0,
         reopen_attempts: 0,
         reserved2: 0,
+        jobs_cancelled: 0,
     };
 
     pub fn rt_mode(&self) -> Result<RtMode, UnknownCode> {

@@ -139,7 +139,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     TypeLayout {
         name: "BusStatus",
         type_name: "UssBusStatusV2",
-        size: 136,
+        size: 144,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -168,6 +168,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("line_downs", 120, 8),
             f("reopen_attempts", 128, 4),
             f("reserved2", 132, 4),
+            f("jobs_cancelled", 136, 8),
         ],
     },
     TypeLayout {

@@ -135,6 +135,10 @@ pub const OUT_LATEST_ONLY: usize = 1;
 /// subscribed, never on one its predecessor had already seen (`crate::control`).
 pub const OUT_HISTORY: usize = 0;
 
+/// Requests one client port of `params` or `command` may have on their way at once (and loan
+/// at once); a client library queues its threads' further requests until one is answered.
+pub const MAX_ACTIVE_REQUESTS: usize = 4;
+
 /// How often ussd publishes its heartbeat, ns.
 pub const HEARTBEAT_PERIOD_NS: u64 = 50_000_000;
 /// A heartbeat older than this means ussd is gone (killed, hung): 10 periods, 500 ms.

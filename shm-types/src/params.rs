@@ -126,6 +126,8 @@ code_table! {
         Refused = 10 => "refused",
         /// The bus line failed (device unplugged, I/O error) before the item completed.
         LineDown = 11 => "bus line down",
+        /// The client that asked died before the item reached the wire: it was never sent.
+        Cancelled = 12 => "cancelled",
     }
 }
 

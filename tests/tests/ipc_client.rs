@@ -313,6 +313,34 @@ fn a_batch_of_39_reads_gets_39_results_in_order() {
 }
 
 #[test]
+fn twelve_threads_sharing_one_bus_take_turns_and_every_request_is_answered() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+    // Three times as many threads as a client port may have requests on their way: the client
+    // queues the rest instead of failing them.
+    let answers: Vec<Vec<Result<Value, ParamError>>> = std::thread::scope(|s| {
+        let threads: Vec<_> = (0..12u8)
+            .map(|k| {
+                let bus = &bus;
+                s.spawn(move || {
+                    (0..20)
+                        .map(|_| bus.read(1 + k % 3, 1082, None))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        threads.into_iter().map(|t| t.join().unwrap()).collect()
+    });
+    for (k, a) in answers.iter().enumerate() {
+        assert!(
+            a.iter().all(|r| *r == Ok(Value::from_f32(50.0))),
+            "thread {k}: {a:?}"
+        );
+    }
+}
+
+#[test]
 fn bad_requests_are_answered_with_errors() {
     let _serial = serial();
     let ussd = Ussd::start();

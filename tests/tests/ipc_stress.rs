@@ -1,6 +1,6 @@
 //! Multi-process stress tests of ussd and its clients (issue 4, "Tests"): a controller killed
-//! while its drive runs, a client killed mid-request, 16 monitor processes reading while one
-//! process controls, and 10,000 parameter requests from 4 processes on a bus with faults.
+//! while its drive runs, a client killed mid-request or with 128 EEPROM writes queued, 16
+//! monitor processes reading while one process controls, and 10,000 parameter requests from 4 processes on a bus with faults.
 //!
 //! Every test starts its own `ussd --config FILE` on a simulated bus named after this process
 //! and the test (`s<pid>n<k>`), so parallel runs never share a service; the tests here take
@@ -323,8 +323,9 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
     let (_, rest, _) = child.finish();
     assert!(!rest.contains("ANSWER"), "answered before the kill: {rest}");
 
-    // ussd is undisturbed: other clients are answered, here and in another process, while the
-    // dead client's jobs finish on drive 2; within a few seconds its node is gone.
+    // ussd is undisturbed: other clients are answered, here and in another process; the dead
+    // client's job on the wire finishes on drive 2 and the 3 behind it are cancelled; within a
+    // few seconds its node is gone.
     assert!(ussd.is_running());
     let gone = wait_until_nodes_gone(pid, Duration::from_secs(5));
     assert_eq!(bus.read_f32(1, 1082, None), Ok(50.0));
@@ -340,6 +341,12 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
     println!(
         "mid-request kill: the dead client's node was gone {gone:?} later; ussd logged: {cleanup}"
     );
+    let cancelled = ussd
+        .log_line(
+            &format!("client process {pid} died"),
+            Duration::from_secs(5),
+        )
+        .expect("ussd logs the cancellation");
     let out = ussd
         .ussctl(&["param", "read", "1", "2000", "--type", "float"])
         .finish();
@@ -355,7 +362,8 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
     assert_eq!(bus.read(2, 700, None), Ok(Value::Word(5)));
     let p1120 = bus.read_f32(2, 1120, None).unwrap();
 
-    // Every job ended, the dead client's 4 included: 4 + 4 accepted, 8 finished.
+    // Every job ended exactly once, the dead client's 4 included: 4 + 4 accepted, 8 finished,
+    // of them 3 or 4 cancelled (4 if the kill came before the first reached the wire).
     let done = wait_status(&bus, Duration::from_secs(10), "every job finished", |s| {
         s.jobs_finished == before.jobs_finished + 8
     });
@@ -364,9 +372,84 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
         (before.jobs_accepted + 8, 0),
         "{done:?}"
     );
+    let cancelled_jobs = done.jobs_cancelled - before.jobs_cancelled;
+    assert!((3..=4).contains(&cancelled_jobs), "{done:?}");
     assert!(ussd.is_running());
     assert!(nodes_of(pid).is_empty());
-    println!("mid-request kill: P1120 on drive 2 is now {p1120} (the dead client asked for 7.5)");
+    println!(
+        "mid-request kill: {cancelled_jobs} of the dead client's 4 jobs cancelled ({cancelled}); \
+         P1120 on drive 2 is now {p1120} (the dead client asked for 7.5)"
+    );
+}
+
+#[test]
+fn killed_client_queued_eeprom_writes_are_cancelled_not_sent() {
+    let _serial = serial();
+    // At 19200 baud one PKW task takes about 20 ms on the wire: 128 queued writes (64 per
+    // drive, as many as ussd queues for one drive) take seconds.
+    let mut ussd = Ussd::start(
+        "baud = 19200\nparam_timeout_ms = 30000.0",
+        &[(1, ""), (2, "")],
+    );
+    let bus = ussd.bus();
+    let before = bus.status().unwrap();
+    let mut child = child(&ussd, "eeprom-writer", "1,2");
+    child.says("QUEUED");
+    let pid = child.pid();
+    let queued = wait_status(&bus, Duration::from_secs(10), "128 jobs accepted", |s| {
+        s.jobs_accepted >= before.jobs_accepted + 128
+    });
+    child.kill();
+    let killed = Instant::now();
+    let at_kill = bus.status().unwrap();
+    let (_, rest, _) = child.finish();
+    assert!(
+        !rest.contains("DONE"),
+        "the writes ended before the kill: {rest}"
+    );
+    let outstanding = before.jobs_finished + 128 - at_kill.jobs_finished;
+    assert!(
+        outstanding > 80,
+        "too few writes left at the kill: {at_kill:?}"
+    );
+
+    let cancelling = wait_status(&bus, Duration::from_secs(10), "jobs cancelled", |s| {
+        s.jobs_cancelled > before.jobs_cancelled
+    });
+    let noticed = killed.elapsed();
+    let done = wait_status(&bus, Duration::from_secs(30), "every job finished", |s| {
+        s.jobs_finished == s.jobs_accepted
+    });
+    let cancelled = done.jobs_cancelled - before.jobs_cancelled;
+    // Every write ended exactly once: cancelled, or run (before the kill, or on the wire and
+    // in the bus thread's queue until the cancellation arrived).
+    let ran_after_kill = outstanding - cancelled;
+    assert_eq!(
+        (done.jobs_accepted - before.jobs_accepted, done.results_lost),
+        (128, 0),
+        "{done:?}"
+    );
+    assert!(
+        ran_after_kill < outstanding / 4,
+        "{ran_after_kill} of {outstanding} writes still ran after the kill: {done:?}"
+    );
+    let logged = ussd
+        .log_line(
+            &format!("client process {pid} died"),
+            Duration::from_secs(2),
+        )
+        .expect("ussd logs the cancellation");
+    // ussd goes on serving: the drive answers, and no job is left.
+    assert_eq!(bus.read(1, 700, None), Ok(Value::Word(5)));
+    assert_eq!(bus.read(2, 700, None), Ok(Value::Word(5)));
+    assert!(ussd.is_running());
+    println!(
+        "dead client's EEPROM writes: {outstanding} of 128 outstanding at the kill, {cancelled} \
+         cancelled, {ran_after_kill} still ran; status showed the cancellation {noticed:?} after \
+         the kill (queued at {} finished, seen at {}); ussd logged: {logged}",
+        queued.jobs_finished - before.jobs_finished,
+        cancelling.jobs_finished - before.jobs_finished
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -544,7 +627,8 @@ fn ten_thousand_requests_from_four_processes_with_faults_are_each_answered_once_
     let tallies: Vec<Tally> = reports.iter().map(|r| Tally::parse(r)).collect();
     let sum = |f: fn(&Tally) -> u32| tallies.iter().map(f).sum::<u32>();
 
-    let done = wait_status(&bus, Duration::from_secs(10), "10,000 jobs finished", |s| {
+    let wanted = format!("10,000 jobs finished; the requesters said {reports:?}");
+    let done = wait_status(&bus, Duration::from_secs(10), &wanted, |s| {
         s.jobs_finished >= before.jobs_finished + u64::from(REQUESTS)
     });
     let faults: u64 = bus
@@ -784,6 +868,25 @@ fn slow_requester(bus: &str, drive: u8) {
     });
 }
 
+/// Queues 4 requests of 32 EEPROM writes of P1120 at once from 4 threads (the client's limit
+/// of active requests), 2 for drive `a` and 2 for drive `b`; says `QUEUED`, and `DONE` if
+/// they all ended.
+fn eeprom_writer(bus: &str, a: u8, b: u8) {
+    let mut bus = Bus::open_as(bus, "stress-eeprom-writer").unwrap();
+    bus.set_answer_timeout(Some(Duration::from_secs(120)));
+    let items: Vec<_> = (0..32u16)
+        .map(|k| write_item(1120, None, Value::from_f32(1.0 + f32::from(k)), true))
+        .collect();
+    std::thread::scope(|s| {
+        for drive in [a, a, b, b] {
+            let (bus, items) = (&bus, &items);
+            s.spawn(move || bus.batch(drive, items));
+        }
+        println!("QUEUED");
+    });
+    println!("DONE");
+}
+
 /// Not a test of its own: the entry point of the child processes the tests above start. Does
 /// nothing unless `USS_STRESS_ROLE` is set.
 #[test]
@@ -801,6 +904,7 @@ fn child_process() {
     match role.as_str() {
         "slow-requester" => slow_requester(&bus, drive(0)),
         "monitor" => monitor(&bus, drive(0)),
+        "eeprom-writer" => eeprom_writer(&bus, drive(0), drive(1)),
         "requester" => requester(&bus, drive(0), drive(1), args[2]),
         other => panic!("unknown role {other}"),
     }

@@ -12,6 +12,8 @@ use crate::engine::{EngineHandle, RequestError as EngineRefusal};
 use crate::jobs::{Job, JobResult, Outcome as JobOutcome};
 use core::time::Duration;
 use iceoryx2::active_request::ActiveRequest;
+use iceoryx2::identifiers::UniqueNodeId;
+use iceoryx2::node::{NodeDetails, NodeView};
 use iceoryx2::port::server::Server;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::request_response::PortFactory as RequestResponseFactory;
@@ -44,6 +46,7 @@ pub(super) fn create(
         },
         pending: Vec::new(),
         next_id: 1,
+        next_dead_check: Instant::now(),
     })
 }
 
@@ -68,7 +71,10 @@ where
         .request_response::<Req, Resp>()
         .max_clients(MAX_CLIENTS)
         .max_servers(1)
-        .max_active_requests_per_client(4)
+        .max_active_requests_per_client(names::MAX_ACTIVE_REQUESTS)
+        // As many loans as active requests: a client's threads may loan all at once (the
+        // default, 2, refuses a third thread's loan while two are between loan and send).
+        .max_loaned_requests(names::MAX_ACTIVE_REQUESTS)
         .max_nodes(MAX_NODES)
         .create_with_attributes(attributes)
         .map_err(|e| fail(bus, format!("the {what} service"))(text(e)))?;
@@ -89,7 +95,17 @@ struct Pending {
     first_id: u64,
     count: u64,
     remaining: usize,
+    /// The asking client's node, if iceoryx2 lists it: when it dies, its jobs die too.
+    client: Option<UniqueNodeId>,
+    /// Its process id, once looked up (0: not yet).
+    pid: u32,
+    /// The jobs not yet on the wire were cancelled (the client died).
+    cancelled: bool,
 }
+
+/// How often pending requests are checked for dead clients: within this of a client's death
+/// its jobs that have not reached the wire are cancelled.
+const DEAD_CLIENT_CHECK: Duration = Duration::from_millis(100);
 
 /// The parameter bridge's servers. See the module documentation.
 pub struct ParamServer {
@@ -98,6 +114,7 @@ pub struct ParamServer {
     identities: Identities,
     pending: Vec<Pending>,
     next_id: u64,
+    next_dead_check: Instant,
 }
 
 /// Who is behind a request and who controls a drive, from iceoryx2's own records (the node
@@ -117,6 +134,14 @@ impl Identities {
 
     /// The process that sent a parameter request.
     fn param_client(&self, origin: iceoryx2::identifiers::UniqueClientId) -> Option<u32> {
+        self.param_client_node(origin).and_then(|n| self.pid(&n))
+    }
+
+    /// The node that sent a parameter request.
+    fn param_client_node(
+        &self,
+        origin: iceoryx2::identifiers::UniqueClientId,
+    ) -> Option<UniqueNodeId> {
         let mut node = None;
         self.params.dynamic_config().list_clients(|c| {
             if c.client_id == origin {
@@ -125,7 +150,29 @@ impl Identities {
             }
             CallbackProgression::Continue
         });
-        node.and_then(|n| self.pid(&n))
+        node
+    }
+
+    /// Every node iceoryx2 lists: whether it is dead (its process is gone), and its process id
+    /// where known. A node that is not listed at all died and was cleaned up already (by
+    /// ussd's periodic cleanup or by any other process that opened a node since). `None` when
+    /// the list cannot be read.
+    fn nodes(&self) -> Option<Vec<(UniqueNodeId, bool, u32)>> {
+        fn pid(details: Option<&NodeDetails>) -> u32 {
+            details
+                .and_then(|d| u32::try_from(d.process_id().value()).ok())
+                .unwrap_or(0)
+        }
+        let mut nodes = Vec::new();
+        let listed = Node::<Svc>::list(&self.config, |state| {
+            nodes.push(match &state {
+                NodeState::Alive(view) => (*view.id(), false, pid(view.details().as_ref())),
+                NodeState::Dead(view) => (*view.id(), true, pid(view.details().as_ref())),
+                NodeState::Inaccessible(id) | NodeState::Undefined(id) => (*id, false, 0),
+            });
+            CallbackProgression::Continue
+        });
+        listed.ok().map(|()| nodes)
     }
 
     /// The process that sent an operator command.
@@ -243,6 +290,7 @@ fn result_of(r: &JobResult) -> ParamResult {
         JobOutcome::MailboxFull => (Outcome::MailboxFull, None, 0),
         JobOutcome::Shutdown => (Outcome::Shutdown, None, 0),
         JobOutcome::LineDown => (Outcome::LineDown, None, 0),
+        JobOutcome::Cancelled => (Outcome::Cancelled, None, 0),
     };
     ParamResult {
         outcome: outcome.code(),
@@ -282,6 +330,7 @@ impl ParamServer {
     /// Takes new requests, then waits up to `wait` for job results and routes them.
     pub fn serve_once(&mut self, handle: &EngineHandle, wait: Duration) {
         self.serve_commands(handle);
+        self.cancel_for_dead_clients(handle);
         while let Ok(Some(active)) = self.server.receive() {
             self.accept(active, handle);
         }
@@ -342,13 +391,54 @@ impl ParamServer {
             let _ = active.send_copy(response);
             return;
         }
+        // Only the node: its process id costs a walk over every node, done every
+        // DEAD_CLIENT_CHECK for all pending requests at once.
+        let client = self.identities.param_client_node(active.origin());
         self.pending.push(Pending {
             active,
             response,
             first_id,
             count: items.len() as u64,
             remaining,
+            client,
+            pid: 0,
+            cancelled: false,
         });
+    }
+
+    /// Cancels the jobs of requests whose client died that have not reached the wire (every
+    /// [`DEAD_CLIENT_CHECK`] while requests are pending). The one on the wire completes; every
+    /// job still ends in exactly one result, which nobody receives.
+    fn cancel_for_dead_clients(&mut self, handle: &EngineHandle) {
+        if self.pending.iter().all(|p| p.cancelled) || Instant::now() < self.next_dead_check {
+            return;
+        }
+        self.next_dead_check = Instant::now() + DEAD_CLIENT_CHECK;
+        let Some(nodes) = self.identities.nodes() else {
+            return;
+        };
+        for p in self.pending.iter_mut().filter(|p| !p.cancelled) {
+            let Some(client) = p.client else {
+                continue;
+            };
+            if let Some(&(_, dead, pid)) = nodes.iter().find(|(node, _, _)| *node == client) {
+                if pid != 0 {
+                    p.pid = pid;
+                }
+                if !dead {
+                    continue;
+                }
+            }
+            let pid = p.pid;
+            if handle.cancel(p.first_id..p.first_id + p.count) {
+                p.cancelled = true;
+                tracing::info!(
+                    pid,
+                    jobs = p.remaining,
+                    "client process {pid} died: its parameter jobs that have not reached the wire are cancelled"
+                );
+            }
+        }
     }
 
     /// A write to a drive that another process controls is refused unless the request says it

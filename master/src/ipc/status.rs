@@ -344,6 +344,7 @@ impl StatusPublisher {
             line_down_since_ns: stats.line.down.map_or(0, |(since, _)| ns(since)),
             line_downs: stats.line.downs,
             reopen_attempts,
+            jobs_cancelled: b.jobs_cancelled,
             ..BusStatus::EMPTY
         });
     }
