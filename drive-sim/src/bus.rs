@@ -76,6 +76,11 @@ impl SimBus {
         self.slot_mut(address).map(|s| &mut s.faults)
     }
 
+    /// Whether a drive's fault plan hangs the line at `now` ([`FaultPlan::hang`]).
+    pub fn hangs(&self, now: Duration) -> bool {
+        self.slots.iter().flatten().any(|s| s.faults.hangs(now))
+    }
+
     /// Every drive on the bus, by ascending address.
     pub fn drives(&self) -> impl Iterator<Item = &Drive> {
         self.slots.iter().flatten().map(|s| &s.drive)

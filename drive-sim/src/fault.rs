@@ -102,6 +102,8 @@ pub struct FaultPlan {
     probability: [f64; Fault::ALL.len()],
     script: VecDeque<Option<Fault>>,
     unplugged: Option<(Duration, Option<Duration>)>,
+    /// From when on the line hangs (see [`FaultPlan::hang`]).
+    hang_from: Option<Duration>,
     /// How far past the 20 ms limit a late reply comes.
     pub late_by: Duration,
     injected: [u64; Fault::ALL.len()],
@@ -139,6 +141,18 @@ impl FaultPlan {
 
     pub fn plug(&mut self) {
         self.unplugged = None;
+    }
+
+    /// Hangs the whole line from `from` on, for good: on the in-process virtual wire the
+    /// master's next send never returns (as with a wedged USB-serial driver); `uss-sim` stops
+    /// reading and answering. For testing how a master supervises its bus threads.
+    pub fn hang(&mut self, from: Duration) {
+        self.hang_from = Some(from);
+    }
+
+    /// Whether the line hangs at `now`.
+    pub fn hangs(&self, now: Duration) -> bool {
+        self.hang_from.is_some_and(|from| now >= from)
     }
 
     /// Whether the drive is off the bus at `now`.

@@ -147,6 +147,11 @@ pub fn serve(
     let mut framer = Framer::new(FramerConfig::strict(timing));
     let mut buf = [0u8; 512];
     while !stop.load(Ordering::Relaxed) {
+        if bus.hangs(start.elapsed()) {
+            // The injected hang: read nothing, answer nothing, until stopped.
+            std::thread::sleep(TICK);
+            continue;
+        }
         let n = port.read_some(&mut buf, TICK)?;
         let now = start.elapsed();
         bus.advance(now);

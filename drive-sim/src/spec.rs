@@ -10,7 +10,7 @@ use uss_protocol::{Address, Layout, ParamError, PkwMode, PzdCount};
 /// The keys a drive specification understands, for error messages and `--help`.
 pub const KEYS: &str = "pkw=0|3|4|127, pzd=0..16, delay=MS, jitter=MS, eeprom-busy=N, busy=N, \
 p2014=MS, dword-error=5|103, drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, \
-unplug=FROM_MS..[TO_MS]";
+unplug=FROM_MS..[TO_MS], hang=FROM_MS";
 
 /// A drive and its fault plan, parsed from a specification.
 #[derive(Debug, Clone)]
@@ -111,6 +111,7 @@ fn parse(spec: &str) -> Result<DriveSpec, String> {
                 };
                 faults.unplug(from, duration);
             }
+            "hang" => faults.hang(millis(key, value)?),
             other => {
                 let fault = Fault::from_name(other)
                     .ok_or_else(|| format!("unknown key '{other}' (keys: {KEYS})"))?;
@@ -159,7 +160,7 @@ mod tests {
     #[test]
     fn every_key_is_understood() {
         let d: DriveSpec = "3:pkw=127,pzd=8,delay=2.5,jitter=0.5,eeprom-busy=5,busy=1,p2014=200,\
-            dword-error=103,drop=0.1,late=0.2,late-by=7,unplug=1000..1500"
+            dword-error=103,drop=0.1,late=0.2,late-by=7,unplug=1000..1500,hang=2000"
             .parse()
             .unwrap();
         let c = d.config;
@@ -176,6 +177,8 @@ mod tests {
         assert!(!d.faults.is_unplugged(Duration::from_millis(999)));
         assert!(d.faults.is_unplugged(Duration::from_secs(1)));
         assert!(!d.faults.is_unplugged(Duration::from_millis(1500)));
+        assert!(!d.faults.hangs(Duration::from_millis(1999)));
+        assert!(d.faults.hangs(Duration::from_secs(2)));
     }
 
     #[test]

@@ -76,6 +76,12 @@ impl VirtualWire {
     /// The master starts sending `bytes` at `at`. The drives hear each character when its stop
     /// bit ends and answer after their response delay. Returns when the last character has left.
     pub fn transmit(&mut self, bytes: &[u8], at: Duration) -> Duration {
+        if self.bus.hangs(at) {
+            // The injected hang (`hang=` in a drive spec): this call never returns.
+            loop {
+                std::thread::sleep(Duration::from_secs(3600));
+            }
+        }
         let tz = self.timing.char_time();
         let mut t = at;
         for &b in bytes {

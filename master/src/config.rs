@@ -1167,10 +1167,15 @@ impl<'t> Checker<'t> {
         } else if device.is_empty() {
             let problem = format!("device = \"\" is not allowed: {allowed}");
             self.fail_at(&t.scope, "device", span, &problem)
-        } else if Path::new(device).exists() {
+        } else if Path::new(device).exists() || Path::new(device).is_absolute() {
+            // An absolute path may be absent now (an adapter plugged in later, a udev name):
+            // ussd starts that bus line down and opens the device when it appears.
             Ok(Device::Serial(PathBuf::from(device)))
         } else {
-            let problem = format!("unknown device: {device} does not exist: {allowed}");
+            let problem = format!(
+                "unknown device: {device} does not exist (a device that may be absent when ussd \
+                 starts needs its absolute path): {allowed}"
+            );
             self.fail_at(&t.scope, "device", span, &problem)
         }
     }
@@ -2114,14 +2119,19 @@ sim = ""
     }
 
     #[test]
-    fn a_serial_device_must_exist() {
-        let text =
-            "[[bus]]\nname = \"bus0\"\ndevice = \"/dev/ttyXYZ\"\n[[bus.drive]]\naddress = 1\n";
+    fn a_relative_serial_device_must_exist_an_absolute_one_may_come_later() {
+        let text = "[[bus]]\nname = \"bus0\"\ndevice = \"ttyXYZ\"\n[[bus.drive]]\naddress = 1\n";
+        let later = text.replace("ttyXYZ", "/dev/ttyXYZ");
+        assert_eq!(
+            parse(&later).buses[0].device,
+            Device::Serial(PathBuf::from("/dev/ttyXYZ"))
+        );
         assert_eq!(
             refused(text),
             (
-                "bus.toml:3:10: bus \"bus0\": unknown device: /dev/ttyXYZ does not exist: device \
-                 is \"sim\" (the built-in simulated bus) or the path of a serial device"
+                "bus.toml:3:10: bus \"bus0\": unknown device: ttyXYZ does not exist (a device \
+                 that may be absent when ussd starts needs its absolute path): device is \"sim\" \
+                 (the built-in simulated bus) or the path of a serial device"
                     .to_owned(),
                 Some("bus[0].device".to_owned())
             )
@@ -2162,11 +2172,16 @@ sim = ""
                 Some("bus[0].seed".to_owned())
             )
         );
-        // Also when the serial device itself is wrong: the text asked for a serial bus.
+        // Also when the serial device is absent (it may appear later): the text asked for a
+        // serial bus.
         let text = "[[bus]]\nname = \"bus1\"\ndevice = \"/dev/ttyXYZ\"\n[[bus.drive]]\n\
                     address = 1\nsim = \"delay=1\"\n";
         let e = error(text);
-        assert_eq!(e.line, Some(3));
+        assert_eq!(e.line, Some(6));
+        assert!(
+            e.to_string().contains("only allowed with device = \"sim\""),
+            "{e}"
+        );
         let c = parse(&serial("", ""));
         assert!(c.buses[0].drives[0].sim.is_none());
     }

@@ -191,6 +191,10 @@ pub enum RequestError {
 /// How many cancellations can wait for the bus thread.
 const CANCEL_QUEUE: usize = 64;
 
+/// The longest single sleep of an idle bus thread (every drive offline, or a fixed cycle time
+/// reached early): it wakes at least this often to count progress and to see a stop.
+pub const IDLE_STEP: Duration = Duration::from_millis(50);
+
 /// Operator stop commands for one drive, from any thread, taken by the bus thread without
 /// locks: a counter per command (so OFF2 and OFF1 arriving between two polls both count and
 /// the stronger wins) and the last requester's process id.
@@ -217,6 +221,10 @@ struct Shared {
     line_down: AtomicBool,
     /// Attempts to reopen the line since it went down (by whoever reopens it).
     reopen_attempts: AtomicU32,
+    /// Counts the bus thread's steps: every telegram attempt, every poll, every
+    /// [`IDLE_STEP`] of an idle wait, every wait for a reopened line. A counter that stops
+    /// means the bus thread hangs (see `crate::supervise`).
+    progress: AtomicU64,
     outstanding: AtomicUsize,
     capacity: usize,
 }
@@ -406,6 +414,17 @@ impl EngineHandle {
         self.shared.line_down.load(Ordering::Acquire)
     }
 
+    /// How many steps the bus thread has made (see `Shared::progress`); it moves at least every
+    /// [`IDLE_STEP`] and every telegram attempt while the thread runs.
+    pub fn progress(&self) -> u64 {
+        self.shared.progress.load(Ordering::Relaxed)
+    }
+
+    /// Counts a step of the bus thread made outside the engine (waiting for its line).
+    pub fn note_progress(&self) {
+        self.shared.progress.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// Counts one attempt to reopen the line (for the bus status).
     pub fn note_reopen_attempt(&self) {
         self.shared.reopen_attempts.fetch_add(1, Ordering::Relaxed);
@@ -540,6 +559,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             stop: AtomicBool::new(false),
             line_down: AtomicBool::new(false),
             reopen_attempts: AtomicU32::new(0),
+            progress: AtomicU64::new(0),
             outstanding: AtomicUsize::new(0),
             capacity,
         });
@@ -697,6 +717,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// Polls the next drive in the circulating list (or waits for the next offline probe when
     /// every drive is offline). Returns the address polled.
     pub fn poll_next(&mut self) -> Result<Option<Address>, TransportError> {
+        self.shared.progress.fetch_add(1, Ordering::Relaxed);
         self.take_jobs();
         self.take_cancels();
         let polled = match self.next_slot() {
@@ -911,8 +932,21 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .min()
             .unwrap_or(now);
         self.transport.idle(now);
-        self.clock.sleep_until(next);
+        self.idle_until(next);
         None
+    }
+
+    /// Sleeps until `at` in steps of at most [`IDLE_STEP`], counting progress after each;
+    /// returns early when asked to stop.
+    fn idle_until(&mut self, at: Duration) {
+        loop {
+            let now = self.clock.now();
+            if now >= at || self.shared.stop.load(Ordering::Acquire) {
+                return;
+            }
+            self.clock.sleep_until(at.min(now + IDLE_STEP));
+            self.shared.progress.fetch_add(1, Ordering::Relaxed);
+        }
     }
 
     fn end_cycle(&mut self) {
@@ -930,7 +964,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             Some(cycle) => {
                 self.transport.idle(now);
                 self.cycle_start += cycle;
-                self.clock.sleep_until(self.cycle_start);
+                self.idle_until(self.cycle_start);
             }
             None => self.cycle_start = now,
         }
@@ -1148,6 +1182,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         pzd: &[u16],
         with_task: bool,
     ) -> Result<Attempt, TransportError> {
+        self.shared.progress.fetch_add(1, Ordering::Relaxed);
         let setup = self.drives[slot].setup;
         let mut pkw = [0u16; MAX_PKW_WORDS];
         let task = if with_task {

@@ -28,6 +28,7 @@ pub mod runtime;
 pub mod serial;
 pub mod stats;
 pub mod summary;
+pub mod supervise;
 pub mod transport;
 
 pub use clock::{Clock, MonotonicClock, VirtualClock};

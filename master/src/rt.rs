@@ -405,6 +405,13 @@ fn touch_stack(bytes: usize) {
     std::hint::black_box(&chunk);
 }
 
+/// Whether `mlockall` is safe to call: the memlock limit is unlimited or the process has
+/// `CAP_IPC_LOCK` (then no limit applies).
+pub fn may_lock_memory() -> bool {
+    getrlimit(Resource::RLIMIT_MEMLOCK).is_ok_and(|(soft, _)| soft == RLIM_INFINITY)
+        || has_cap(effective_caps(), CAP_IPC_LOCK)
+}
+
 fn lock_memory() -> Result<(), RtFailure> {
     let caps = effective_caps();
     let (soft, hard) = getrlimit(Resource::RLIMIT_MEMLOCK).map_err(|errno| {
@@ -419,14 +426,15 @@ fn lock_memory() -> Result<(), RtFailure> {
         limit_text(hard),
         cap_text(caps, CAP_IPC_LOCK, "CAP_IPC_LOCK")
     );
-    if soft != RLIM_INFINITY {
-        // MCL_FUTURE charges every later mapping to the limit: measured here, later thread spawns
-        // fail with EAGAIN and iceoryx2 shared-memory creation fails (ARCHITECTURE.md "Gotchas").
+    // With CAP_IPC_LOCK the limit does not apply (mlock(2)); without it, MCL_FUTURE charges every
+    // later mapping to the limit: measured here, later thread spawns fail with EAGAIN and
+    // iceoryx2 shared-memory creation fails (ARCHITECTURE.md "Gotchas").
+    if soft != RLIM_INFINITY && !has_cap(caps, CAP_IPC_LOCK) {
         let raise = if hard == RLIM_INFINITY {
             "the hard limit allows it: `ulimit -l unlimited` before starting ussd"
         } else {
             "set memlock unlimited (/etc/security/limits.conf `<user> - memlock unlimited`, systemd \
-             LimitMEMLOCK=infinity, docker --ulimit memlock=-1)"
+             LimitMEMLOCK=infinity, docker --ulimit memlock=-1) or grant CAP_IPC_LOCK"
         };
         return Err(failure(
             RtStep::MemoryLock,
@@ -648,7 +656,7 @@ mod tests {
     }
 
     #[test]
-    fn memory_lock_is_skipped_with_an_explanation_unless_memlock_is_unlimited() {
+    fn memory_lock_is_skipped_with_an_explanation_unless_memlock_is_unlimited_or_capable() {
         let (soft, _) = getrlimit(Resource::RLIMIT_MEMLOCK).expect("getrlimit");
         let report = on_fresh_thread(|| {
             apply_to_current_thread(&RtRequest {
@@ -656,7 +664,7 @@ mod tests {
                 ..request(10)
             })
         });
-        if soft == RLIM_INFINITY {
+        if may_lock_memory() {
             // mlockall is process-wide: undo it so the other tests run as usual.
             nix::sys::mman::munlockall().expect("munlockall");
             assert!(report.memory_locked);
@@ -689,8 +697,7 @@ mod tests {
         assert!(summary.contains("EINVAL"), "{summary}");
         assert!(summary.contains("RLIMIT_RTPRIO soft="), "{summary}");
         assert!(!summary.contains('\n'), "one line: {summary}");
-        let (soft, _) = getrlimit(Resource::RLIMIT_MEMLOCK).expect("getrlimit");
-        if soft == RLIM_INFINITY {
+        if may_lock_memory() {
             nix::sys::mman::munlockall().expect("munlockall");
         } else {
             assert!(summary.contains("RLIMIT_MEMLOCK soft="), "{summary}");

@@ -15,7 +15,7 @@ use crate::monitoring::MonitoringSetup;
 use crate::rt::{RtReport, RtRequest, apply_to_current_thread};
 use crate::serial::{SerialError, SerialOptions, SerialTransport};
 use crate::stats::Stats;
-use crate::transport::{SimTransport, Transport, TransportError};
+use crate::transport::{Line, SimTransport, Transport, TransportError};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, bounded};
 use std::path::{Path, PathBuf};
@@ -108,6 +108,9 @@ pub struct RunningBus {
     pub name: String,
     pub handle: EngineHandle,
     pub rt_report: RtReport,
+    /// How long its bus thread may go without progress before it counts as hung
+    /// ([`crate::supervise::stall_bound`]).
+    pub stall_bound: Duration,
     engine_thread: JoinHandle<Result<(), TransportError>>,
     params_thread: JoinHandle<()>,
     /// Reopens a serial line that failed (none for a simulated bus).
@@ -131,18 +134,44 @@ impl RunningBus {
         self.engine_thread.is_finished() && !self.handle.is_stopped()
     }
 
+    /// How many steps its bus thread has made ([`EngineHandle::progress`]).
+    pub fn progress(&self) -> u64 {
+        self.handle.progress()
+    }
+
     /// Stops the engine (pending jobs end with "shutdown", each drive gets its safe command
-    /// once) and waits for both threads; the housekeeping thread logs the final summary.
-    pub fn stop(self) -> Result<(), TransportError> {
+    /// once) and waits for its threads; the housekeeping thread logs the final summary. A bus
+    /// thread that does not end within its stall bound (plus a second) hangs: it is left
+    /// behind (it ends with the process) and reported.
+    pub fn stop(self) -> Result<(), StopError> {
         self.handle.stop();
+        let deadline = std::time::Instant::now() + self.stall_bound + Duration::from_secs(1);
+        while !self.engine_thread.is_finished() {
+            if std::time::Instant::now() >= deadline {
+                return Err(StopError::Hung(self.stall_bound + Duration::from_secs(1)));
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
         let result = self.engine_thread.join().unwrap_or(Ok(()));
         let _ = self.params_thread.join();
         if let Some(line) = self.line_thread {
             let _ = line.join();
         }
         let _ = self.housekeeping.join();
-        result
+        result.map_err(StopError::Line)
     }
+}
+
+/// Why a bus did not stop cleanly.
+#[derive(Debug, Error)]
+pub enum StopError {
+    #[error("{0}")]
+    Line(#[from] TransportError),
+    #[error(
+        "its bus thread hangs (no end within {0:?} of the stop): its drives got no safe command \
+         from ussd; their telegram monitoring (P2014) stops them"
+    )]
+    Hung(Duration),
 }
 
 /// A bus whose engine thread is spawned and waits for the go signal.
@@ -184,7 +213,8 @@ fn run_bus<T: Transport, C: crate::clock::Clock, B: crate::engine::Bridge>(
             if handle.is_stopped() {
                 return engine.shutdown();
             }
-            match reopen.reopened.recv_timeout(Duration::from_millis(50)) {
+            handle.note_progress();
+            match reopen.reopened.recv_timeout(crate::engine::IDLE_STEP) {
                 Ok(transport) => {
                     engine.restore(transport);
                     break;
@@ -391,16 +421,33 @@ fn open_and_spawn(
                 kernel_rs485: bus.rs485 == Rs485Mode::Kernel,
                 low_latency: true,
             };
-            let (t, report) =
-                SerialTransport::open(path, &serial).map_err(|source| StartError::Serial {
-                    bus: bus.name.clone(),
-                    source,
-                })?;
-            tracing::info!(bus = %bus.name, device = %path.display(), "opened: {report}");
+            let t = match SerialTransport::open(path, &serial) {
+                Ok((t, report)) => {
+                    tracing::info!(bus = %bus.name, device = %path.display(), "opened: {report}");
+                    Line::Open(t)
+                }
+                // Not plugged in yet, or udev has not named it yet: the bus starts line down
+                // and its line thread opens the device when it appears.
+                Err(SerialError::NotFound { .. }) => {
+                    tracing::warn!(
+                        bus = %bus.name,
+                        device = %path.display(),
+                        "{} is not there: the bus starts line down and opens it when it appears",
+                        path.display()
+                    );
+                    Line::Absent
+                }
+                Err(source) => {
+                    return Err(StartError::Serial {
+                        bus: bus.name.clone(),
+                        source,
+                    });
+                }
+            };
             let device = path.clone();
-            let open: Opener<SerialTransport> = Box::new(move || {
+            let open: Opener<Line<SerialTransport>> = Box::new(move || {
                 SerialTransport::open(&device, &serial)
-                    .map(|(t, report)| (t, report.to_string()))
+                    .map(|(t, report)| (Line::Open(t), report.to_string()))
                     .map_err(|e| e.to_string())
             });
             spawn(bus, t, options, go, Some((path.clone(), open)))
@@ -477,6 +524,7 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             name: s.bus.name.clone(),
             handle: s.handle,
             rt_report,
+            stall_bound: crate::supervise::stall_bound(&s.bus),
             engine_thread: s.thread,
             params_thread: s.params_thread,
             line_thread: s.line_thread,
@@ -498,7 +546,9 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
 const STATUS_EVERY: Duration = Duration::from_nanos(uss_shm_types::names::HEARTBEAT_PERIOD_NS);
 
 /// Logs events as they come, publishes status and diagnostics every [`STATUS_EVERY`], and logs
-/// the summary every `every`; logs the final summary when the engine has stopped.
+/// the summary every `every`; logs the final summary when the engine has stopped. While the bus
+/// thread hangs (no progress for its [`crate::supervise::stall_bound`]) it publishes nothing:
+/// no heartbeat, so clients learn within half a second more that nobody serves the bus.
 fn spawn_housekeeping(
     bus: &BusConfig,
     handle: EngineHandle,
@@ -508,11 +558,13 @@ fn spawn_housekeeping(
     every: Duration,
 ) -> std::io::Result<JoinHandle<()>> {
     let bus = bus.clone();
+    let stall_bound = crate::supervise::stall_bound(&bus);
     std::thread::Builder::new()
         .name(format!("uss-{}-hk", bus.name))
         .spawn(move || {
             let mut previous: Option<Stats> = None;
             let start = std::time::Instant::now();
+            let mut progress = (handle.progress(), start);
             let mut next_summary = start + every;
             let mut next_status = start;
             loop {
@@ -526,8 +578,14 @@ fn spawn_housekeeping(
                 // After every wake-up: a burst of events must not hold back the heartbeat,
                 // by which clients tell that ussd lives.
                 let now = std::time::Instant::now();
+                if handle.progress() != progress.0 {
+                    progress = (handle.progress(), now);
+                }
+                let hangs = now.duration_since(progress.1) >= stall_bound;
                 if now >= next_status {
-                    publisher.publish(&handle.stats(), true, handle.reopen_attempts());
+                    if !hangs {
+                        publisher.publish(&handle.stats(), true, handle.reopen_attempts());
+                    }
                     next_status = (next_status + STATUS_EVERY).max(now);
                 }
                 if now >= next_summary {

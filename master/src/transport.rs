@@ -108,3 +108,52 @@ impl Transport for SimTransport {
         self.wire.advance(now);
     }
 }
+
+/// A serial line that may not be there yet: a bus whose device is absent when ussd starts
+/// (an adapter not plugged in, its udev name not made yet) starts line down, and its line
+/// thread opens the device when it appears.
+#[derive(Debug)]
+pub enum Line<T> {
+    Open(T),
+    /// Not opened; every use fails as the missing device does (`ENOENT`).
+    Absent,
+}
+
+impl<T> Line<T> {
+    fn absent() -> TransportError {
+        TransportError::Io(std::io::Error::from_raw_os_error(nix::libc::ENOENT))
+    }
+}
+
+impl<T: Transport> Transport for Line<T> {
+    fn flush_input(&mut self, now: Duration) -> Result<(), TransportError> {
+        match self {
+            Self::Open(t) => t.flush_input(now),
+            Self::Absent => Err(Self::absent()),
+        }
+    }
+
+    fn send(&mut self, bytes: &[u8], now: Duration) -> Result<Duration, TransportError> {
+        match self {
+            Self::Open(t) => t.send(bytes, now),
+            Self::Absent => Err(Self::absent()),
+        }
+    }
+
+    fn recv(
+        &mut self,
+        deadline: Duration,
+        clock: &mut impl Clock,
+    ) -> Result<Option<Rx>, TransportError> {
+        match self {
+            Self::Open(t) => t.recv(deadline, clock),
+            Self::Absent => Err(Self::absent()),
+        }
+    }
+
+    fn idle(&mut self, now: Duration) {
+        if let Self::Open(t) = self {
+            t.idle(now);
+        }
+    }
+}

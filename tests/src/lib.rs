@@ -127,12 +127,13 @@ pub fn monotonic_ns() -> u64 {
 
 /// A ussd process on a bus of its own, its output in a file; stopped with SIGTERM when dropped.
 /// `ussd --config CONFIG`, its output appended to `log`.
-fn spawn_ussd(config: &std::path::Path, log: &std::path::Path) -> Child {
+fn spawn_ussd(config: &std::path::Path, log: &std::path::Path, env: &[(String, String)]) -> Child {
     let log = std::fs::OpenOptions::new().append(true).open(log).unwrap();
     Command::new(binary("uss-master", "ussd"))
         .arg("--config")
         .arg(config)
         .args(["--summary-every", "3600"])
+        .envs(env.iter().map(|(k, v)| (k, v)))
         .stdout(log.try_clone().unwrap())
         .stderr(log)
         .spawn()
@@ -158,6 +159,8 @@ pub struct Ussd {
     pub bus: String,
     config: PathBuf,
     log: PathBuf,
+    /// Environment variables set for ussd (kept for [`Ussd::restart`]).
+    env: Vec<(String, String)>,
 }
 
 impl Ussd {
@@ -181,6 +184,29 @@ impl Ussd {
     /// Starts ussd with one bus per spec, named [`Ussd::bus`] followed by the spec's suffix,
     /// and waits until every drive of every bus answered.
     pub fn start_buses(specs: &[BusSpec<'_>]) -> Ussd {
+        Self::start_buses_with_env(specs, &[])
+    }
+
+    /// Like [`Ussd::start_buses`], with environment variables `env` set for ussd.
+    pub fn start_buses_with_env(specs: &[BusSpec<'_>], env: &[(&str, &str)]) -> Ussd {
+        let mut ussd = Self::launch(specs, env);
+        for spec in specs {
+            let bus = ussd.open_when_running(spec.suffix);
+            for &(a, _) in spec.drives {
+                bus.watch(a)
+                    .unwrap()
+                    .wait_for(Duration::from_secs(20), "a reply", |i| {
+                        i.online != 0 && i.sequence > 0
+                    })
+                    .unwrap();
+            }
+        }
+        ussd
+    }
+
+    /// Starts ussd with one bus per spec and environment variables `env`, and returns at once
+    /// (its services may not be there yet: see [`Ussd::open_when_running`]).
+    pub fn launch(specs: &[BusSpec<'_>], env: &[(&str, &str)]) -> Ussd {
         static NEXT: AtomicU32 = AtomicU32::new(0);
         let bus = format!(
             "s{}n{}",
@@ -204,32 +230,25 @@ impl Ussd {
         let log = dir.join(format!("ussd-stress-{bus}.log"));
         std::fs::write(&config, toml).unwrap();
         std::fs::File::create(&log).unwrap();
-        let child = spawn_ussd(&config, &log);
-        let mut ussd = Ussd {
+        let env: Vec<(String, String)> = env
+            .iter()
+            .map(|&(k, v)| (k.to_owned(), v.to_owned()))
+            .collect();
+        let child = spawn_ussd(&config, &log, &env);
+        Ussd {
             child,
             bus,
             config,
             log,
-        };
-        for spec in specs {
-            let bus = ussd.open_when_running(spec.suffix);
-            for &(a, _) in spec.drives {
-                bus.watch(a)
-                    .unwrap()
-                    .wait_for(Duration::from_secs(20), "a reply", |i| {
-                        i.online != 0 && i.sequence > 0
-                    })
-                    .unwrap();
-            }
+            env,
         }
-        ussd
     }
 
     /// Starts ussd again with the same configuration (after [`Ussd::kill`] or
     /// [`Ussd::terminate`]), its output appended to the same log; does not wait for it.
     pub fn restart(&mut self) {
         assert!(!self.is_running(), "ussd still runs");
-        self.child = spawn_ussd(&self.config, &self.log);
+        self.child = spawn_ussd(&self.config, &self.log, &self.env);
     }
 
     /// SIGKILL: ussd gets no chance to say anything. Returns `CLOCK_MONOTONIC` just before.
@@ -315,7 +334,9 @@ impl Drop for Ussd {
     fn drop(&mut self) {
         terminate(&mut self.child);
         let _ = std::fs::remove_file(&self.config);
-        let _ = std::fs::remove_file(&self.log);
+        if std::env::var_os("USS_KEEP_LOG").is_none() {
+            let _ = std::fs::remove_file(&self.log);
+        }
     }
 }
 

@@ -167,6 +167,59 @@ fn a_failed_line_takes_only_its_bus_down_and_ussd_reopens_it_when_it_is_back() {
     drop(sim_b);
 }
 
+#[test]
+fn a_device_absent_at_start_is_opened_when_it_appears() {
+    // The adapter's udev name points nowhere yet (not plugged in).
+    let link = Link::new("later", "/nonexistent/uss-adapter");
+    let mut ussd = Ussd::launch(
+        &[BusSpec {
+            suffix: "",
+            device: link.path(),
+            keys: "baud = 115200",
+            drives: &[(1, ""), (2, "")],
+        }],
+        &[],
+    );
+    let bus = ussd.open_when_running("");
+    let down = status_when(&bus, uss_client::BusStatus::is_line_down);
+    assert_eq!(
+        down.line_fault_text().as_deref(),
+        Some("serial I/O failed: No such file or directory (os error 2)"),
+        "{down:?}"
+    );
+    for d in [1, 2] {
+        assert_eq!(bus.watch(d).unwrap().latest().online, 0);
+    }
+    let said = ussd
+        .log_line(
+            "is not there: the bus starts line down",
+            Duration::from_secs(5),
+        )
+        .expect("ussd says the device is not there");
+    assert!(said.contains(link.path()), "{said}");
+    assert!(ussd.is_running());
+
+    // Plugged in: the bus opens it at its next attempt, the drives come online latched.
+    let sim = sim();
+    let plugged = monotonic_ns();
+    link.retarget(&sim.path);
+    status_when(&bus, |s| !s.is_line_down());
+    println!(
+        "line: a device absent at start opened {:.0} ms after it appeared ({} attempts)",
+        (monotonic_ns() - plugged) as f64 / 1e6,
+        bus.status().unwrap().reopen_attempts
+    );
+    for d in [1, 2] {
+        let i = bus
+            .watch(d)
+            .unwrap()
+            .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
+            .unwrap();
+        assert_eq!(i.latch_reason, LatchReason::LineRestored.code(), "{i:?}");
+    }
+    assert_eq!(bus.read(2, 1082, None), Ok(Value::Dword(0x4248_0000)));
+}
+
 /// A new uss-sim behind bus A's name: ussd reopens it and its drives come back latched.
 fn comes_back_latched(a: &Bus, link_a: &Link, ussd: &Ussd) {
     // A new uss-sim behind the same name: bus A reopens it and its drives come back latched.

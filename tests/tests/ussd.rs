@@ -198,3 +198,59 @@ fn require_rt_is_fatal_exactly_when_real_time_is_incomplete() {
         assert!(stdout.contains("realtime"), "{stdout}");
     }
 }
+
+/// `deploy/`: the example configuration is valid, and the unit's `ExecStart` options are ones
+/// ussd takes (run here with a simulated bus in place of the example's adapter).
+#[test]
+fn the_deploy_files_fit_this_ussd() {
+    let deploy = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../deploy");
+    let mut example = std::fs::read_to_string(deploy.join("ussd.toml.example")).unwrap();
+    if std::thread::available_parallelism().map_or(1, usize::from) < 2 {
+        // It pins its bus to CPU 1, which a one-CPU machine does not have.
+        example = example.replace("cpu = 1 ", "cpu = 0 ");
+    }
+    let example = config_file("example", &example);
+    let out = ussd().arg("--check-config").arg(&example).output().unwrap();
+    let _ = std::fs::remove_file(&example);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let effective = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        effective.contains("device = \"/dev/uss-line1\""),
+        "{effective}"
+    );
+
+    let unit = std::fs::read_to_string(deploy.join("ussd.service")).unwrap();
+    let key = |k: &str| {
+        unit.lines()
+            .find_map(|l| l.strip_prefix(&format!("{k}=")))
+            .unwrap_or_else(|| panic!("no {k}= in ussd.service"))
+    };
+    assert_eq!(key("Type"), "notify");
+    assert_eq!(key("LimitMEMLOCK"), "infinity");
+    let exec = key("ExecStart");
+    let mut args: Vec<&str> = exec.split_whitespace().skip(1).collect();
+    let at = args.iter().position(|a| *a == "--config").unwrap();
+    let bus = format!("deploy{}", std::process::id());
+    let sim = config_file(
+        "deploy",
+        &format!("[[bus]]\nname = \"{bus}\"\ndevice = \"sim\"\n\n[[bus.drive]]\naddress = 1\n"),
+    );
+    args[at + 1] = sim.to_str().unwrap();
+    // Real time is the machine's business, not the unit's: without it ussd would refuse.
+    args.retain(|a| *a != "--require-rt");
+    let out = ussd()
+        .args(&args)
+        .args(["--duration", "0.3"])
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_file(&sim);
+    assert!(
+        out.status.success(),
+        "ussd {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

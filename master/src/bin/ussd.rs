@@ -7,7 +7,8 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use uss_master::config::Config;
-use uss_master::runtime::{self, RunOptions};
+use uss_master::runtime::{self, RunOptions, RunningBus};
+use uss_master::supervise::{Change, Notifier, Progress};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -115,16 +116,37 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
         tracing::info!(bus = %b.name, drives = b.handle.drives().len(), "polling");
     }
     let started = Instant::now();
+    let mut notifier = Notifier::from_env(started);
+    notifier.ready(&status_line(&buses));
+    if let Some(period) = notifier.watchdog() {
+        let bounds: Vec<String> = buses
+            .iter()
+            .map(|b| format!("{} {:.1} s", b.name, b.stall_bound.as_secs_f64()))
+            .collect();
+        tracing::info!(
+            "systemd watchdog every {:.1} s: keep-alives only while every bus thread makes progress (hung after {})",
+            period.as_secs_f64(),
+            bounds.join(", ")
+        );
+    }
+    let bounds: Vec<Duration> = buses.iter().map(|b| b.stall_bound).collect();
+    let mut progress = Progress::new(&bounds, &counts(&buses), started);
     let mut line_failed = false;
     let mut next_cleanup = Duration::from_secs(1);
+    let mut next_status = Duration::from_secs(5);
     while !STOP.load(Ordering::Relaxed) && duration.is_none_or(|d| started.elapsed() < d) {
         if let Some(b) = buses.iter().find(|b| b.has_failed()) {
-            // A dead line is not something to poll around: stop, and let the supervisor
-            // (systemd Restart=on-failure) bring ussd back when the device returns.
+            // A bus that cannot go on (a simulated wire failed): stop, and let the supervisor
+            // (systemd Restart=on-failure) bring ussd back.
             tracing::error!(bus = %b.name, "the bus thread ended: its line failed");
             line_failed = true;
             break;
         }
+        let now = Instant::now();
+        for change in progress.check(&counts(&buses), now) {
+            report(&buses, change, notifier.watchdog().is_some());
+        }
+        notifier.keep_alive(now, progress.all_moving());
         if started.elapsed() >= next_cleanup {
             next_cleanup += Duration::from_secs(1);
             for b in &buses {
@@ -134,11 +156,16 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
                 }
             }
         }
+        if started.elapsed() >= next_status {
+            next_status += Duration::from_secs(5);
+            notifier.status(&status_line(&buses));
+        }
         std::thread::sleep(Duration::from_millis(20));
     }
     tracing::info!(
         "stopping: pending parameter jobs end with 'shutdown', each drive gets its safe command once"
     );
+    notifier.stopping("stopping: each drive gets its safe command once");
     let mut failed = Vec::new();
     for b in buses {
         let name = b.name.clone();
@@ -154,4 +181,56 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
     } else {
         Err((1, failed.join("; ")))
     }
+}
+
+/// Every bus thread's progress counter, in the order of `buses`.
+fn counts(buses: &[RunningBus]) -> Vec<u64> {
+    buses.iter().map(RunningBus::progress).collect()
+}
+
+/// Logs a bus thread that hangs or moves again.
+fn report(buses: &[RunningBus], change: Change, watchdog: bool) {
+    match change {
+        Change::Hung { bus, for_ } => {
+            let consequence = if watchdog {
+                "ussd withholds systemd's watchdog keep-alive, so systemd restarts it"
+            } else {
+                "no systemd watchdog is set to restart ussd; restart it by hand"
+            };
+            tracing::error!(
+                bus = %buses[bus].name,
+                "bus thread hangs: no progress for {:.1} s (a wedged serial driver, or a bug); its drives are not polled and their telegram monitoring (P2014) stops them; {consequence}",
+                for_.as_secs_f64()
+            );
+        }
+        Change::Moving { bus, for_ } => {
+            tracing::warn!(
+                bus = %buses[bus].name,
+                "bus thread moves again after hanging for {:.1} s",
+                for_.as_secs_f64()
+            );
+        }
+    }
+}
+
+/// One line for `systemctl status`: each bus, its drives online and whether its line is up.
+fn status_line(buses: &[RunningBus]) -> String {
+    let parts: Vec<String> = buses
+        .iter()
+        .map(|b| {
+            let stats = b.handle.stats();
+            let online = stats.drives.iter().filter(|d| d.online).count();
+            let line = if b.handle.is_line_down() {
+                ", line down"
+            } else {
+                ""
+            };
+            format!(
+                "bus {}: {online}/{} drives online{line}",
+                b.name,
+                stats.drives.len()
+            )
+        })
+        .collect();
+    parts.join("; ")
 }
