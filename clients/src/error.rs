@@ -98,7 +98,7 @@ pub enum ClientError {
     Contract(#[from] ContractError),
     /// An iceoryx2 call failed for another reason.
     #[error(
-        "{what} failed: {detail}: check that ussd and this program run as the same user or group (iceoryx2 keeps its state in /dev/shm and /tmp/iceoryx2)"
+        "{what} failed: {detail}: run ussd and this program as the same user (or root): iceoryx2 keeps its state owner-only in /dev/shm and /tmp/iceoryx2"
     )]
     Ipc { what: String, detail: String },
     /// No heartbeat from ussd for longer than `uss_shm_types::names::GONE_AFTER_NS`: it died

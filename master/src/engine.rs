@@ -834,11 +834,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         if let Some(slot) = self.shared.slot_of[result.job.address.get() as usize] {
             self.stats.drives[usize::from(slot)].counters.jobs_done += 1;
         }
-        // Cannot be full: outstanding jobs are capped at the channel's capacity.
+        // Cannot be full: outstanding jobs are capped at the channel's capacity; disconnected
+        // only when the parameter bridge is gone. Either way the result is lost, and counted.
         if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
             self.results.try_send(result)
         {
-            self.stats.bus.events_dropped += 1;
+            self.stats.bus.results_lost += 1;
         }
     }
 

@@ -392,6 +392,23 @@ fn eeprom_write_is_repeated_through_busy_replies_with_pzd_in_every_telegram() {
 }
 
 #[test]
+fn a_result_nobody_can_take_is_counted_as_lost() {
+    let Bench {
+        mut engine,
+        handle,
+        events: _events,
+    } = bench(&[(1, PkwMode::Four)]);
+    handle.submit(read(1, 1, 700)).unwrap();
+    // The parameter bridge is gone: nobody holds the receiving end of the results.
+    drop(handle);
+    while engine.stats().bus.jobs_finished == 0 {
+        engine.poll_next().unwrap();
+    }
+    let bus = &engine.stats().bus;
+    assert_eq!((bus.results_lost, bus.events_dropped), (1, 0));
+}
+
+#[test]
 fn job_that_never_gets_its_reply_times_out() {
     let mut b = bench_with(
         &[(1, PkwMode::Four)],

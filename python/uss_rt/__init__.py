@@ -1053,8 +1053,8 @@ def _open(node, bus: str, service: str, pattern, missing):
         if variant.startswith("Incompatible"):
             raise Incompatible(bus, service, variant) from e
         raise UssError(
-            f"opening {service} failed: {e!r}: check that ussd and this program run as the "
-            "same user or group (iceoryx2 keeps its state in /dev/shm and /tmp/iceoryx2)"
+            f"opening {service} failed: {e!r}: run ussd and this program as the "
+            "same user (or root): iceoryx2 keeps its state owner-only in /dev/shm and /tmp/iceoryx2"
         ) from e
 
 

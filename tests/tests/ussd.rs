@@ -113,13 +113,19 @@ fn ussd_polls_a_pty_bus_with_faults_and_its_summary_tells_the_truth() {
 
 #[test]
 fn ussd_without_arguments_runs_the_embedded_simulated_bus() {
+    // Its own bus name (the embedded default's is bus0): the tests pass beside a user's ussd.
+    let bus = format!("embedded{}", std::process::id());
     let out = ussd()
-        .args(["--summary-every", "1", "--duration", "2.5"])
+        .args(["--bus", &bus, "--summary-every", "1", "--duration", "2.5"])
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(out.status.success(), "{stdout}");
     assert!(stdout.contains("running the embedded default"), "{stdout}");
+    assert!(
+        stdout.contains(&format!("bus {bus}: 115200 baud")),
+        "{stdout}"
+    );
     for a in 1..=4 {
         let line = final_line(&stdout, a);
         assert!(
@@ -253,4 +259,56 @@ fn the_deploy_files_fit_this_ussd() {
         "ussd {args:?}: {}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+/// README "Access": a process of another user cannot connect, and is told why.
+#[test]
+fn a_process_of_another_user_cannot_connect_and_is_told_why() {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    if unsafe { nix::libc::geteuid() } != 0 {
+        println!("skipped: running ussctl as another user needs root");
+        return;
+    }
+    let ussd = uss_integration_tests::Ussd::start("", &[(1, "")]);
+    // A copy every user may run (the build directory may not be theirs to enter).
+    let ussctl = std::env::temp_dir().join(format!("ussctl-access-{}", std::process::id()));
+    std::fs::copy(binary("uss-client", "ussctl"), &ussctl).unwrap();
+    std::fs::set_permissions(&ussctl, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    let as_nobody = Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+        .arg(&ussctl)
+        .args(["--bus", &ussd.bus, "status"])
+        .output()
+        .expect("setpriv (util-linux)");
+    let _ = std::fs::remove_file(&ussctl);
+    let err = String::from_utf8_lossy(&as_nobody.stderr);
+    assert_eq!(as_nobody.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("run ussd and this program as the same user (or root)"),
+        "{err}"
+    );
+    let (status, out, _) = ussd.ussctl(&["status"]).finish();
+    assert!(status.success(), "{out}");
+}
+
+/// A second ussd on a bus that is already served says so in plain words, once, and leaves the
+/// first one serving.
+#[test]
+fn a_second_ussd_on_a_served_bus_says_who_serves_it() {
+    let mut first = uss_integration_tests::Ussd::start("", &[(1, "")]);
+    let out = ussd()
+        .args(["--bus", &first.bus, "--duration", "1"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    let said = format!(
+        "bus {} is already served by ussd process {}",
+        first.bus,
+        first.child.id()
+    );
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.matches(&said).count(), 1, "{err}");
+    assert!(first.is_running());
+    let (status, text, _) = first.ussctl(&["status"]).finish();
+    assert!(status.success(), "{text}");
 }

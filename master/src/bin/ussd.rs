@@ -23,6 +23,9 @@ struct Cli {
     /// Validate a configuration file, print the effective configuration and exit.
     #[arg(long, value_name = "FILE")]
     check_config: Option<PathBuf>,
+    /// The embedded default's bus name (without --config): e.g. to run it beside another ussd.
+    #[arg(long, value_name = "NAME", conflicts_with_all = ["config", "check_config"], default_value = "bus0")]
+    bus: String,
     /// Exit with an error unless every bus thread gets its CPU, real-time priority and memory lock.
     #[arg(long)]
     require_rt: bool,
@@ -99,7 +102,11 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
         Config::load(path).map_err(|e| (2, e.to_string()))?
     } else {
         tracing::info!("no --config given: running the embedded default (one simulated bus)");
-        Config::embedded_default()
+        let mut config = Config::embedded_default();
+        config.buses[0].name = uss_shm_types::BusName::new(&cli.bus)
+            .map(|_| cli.bus.clone())
+            .map_err(|e| (2, format!("--bus {}: {e}", cli.bus)))?;
+        config
     };
     let options = RunOptions {
         require_rt: cli.require_rt,
