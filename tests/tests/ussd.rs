@@ -96,16 +96,14 @@ fn ussd_polls_a_pty_bus_with_faults_and_its_summary_tells_the_truth() {
     assert!(counter(d3, "timeouts") >= 3, "{d3}");
     let sim_out = sim.stop();
     let sim_d1 = sim_out.lines().find(|l| l.contains("drive  1:")).unwrap();
-    // Every telegram ussd sent to drive 1 arrived intact. Nothing else did, unless a reply was
-    // late (the machine was busy): then the retry can meet the late reply on the line, which
-    // uss-sim rejects as a start-pause violation, at most once per timeout.
-    assert_eq!(
-        counter(sim_d1, "good"),
-        counter(d1, "sent"),
-        "uss-sim: {sim_d1}\nussd: {d1}"
-    );
+    // Every telegram ussd sent to drive 1 arrived intact, and nothing else did, unless a reply
+    // was late (the machine was busy): then the retry can meet the late reply on the line,
+    // which uss-sim rejects as a start-pause violation: at most one telegram spoilt, and one
+    // rejection, per timeout.
+    let (sent, timeouts) = (counter(d1, "sent"), counter(d1, "timeouts"));
+    let (good, rejected) = (counter(sim_d1, "good"), counter(sim_d1, "rejected"));
     assert!(
-        counter(sim_d1, "rejected") <= counter(d1, "timeouts"),
+        good <= sent && sent - good <= timeouts && rejected <= timeouts,
         "uss-sim: {sim_d1}\nussd: {d1}"
     );
     let _ = std::fs::remove_file(config);
