@@ -15,6 +15,7 @@ use std::fmt::Write;
 use std::time::{Duration, Instant};
 use uss_benches::{Parts, percentiles_us};
 use uss_drive_sim::{DriveConfig, SimBus, VirtualWire};
+use uss_master::clock::SPIN_BEFORE_DEADLINE;
 use uss_master::config::Config;
 use uss_master::rt::{RtRequest, apply_to_current_thread};
 use uss_master::runtime::{self, RunOptions};
@@ -29,6 +30,18 @@ const S7_1200_AT_19200_MS: f64 = 68.2;
 /// Runs one engine for `exchanges` exchanges with four drives in real time; returns its stats
 /// and the real-time mode its thread got.
 fn run_engine(baud: u32, pzd: usize, exchanges: u64) -> (Stats, &'static str) {
+    let (stats, mode, _) = run_engine_spinning(baud, pzd, exchanges, SPIN_BEFORE_DEADLINE);
+    (stats, mode)
+}
+
+/// [`run_engine`] with the clock spinning `spin` before each start-pause deadline; also
+/// returns the bus thread's CPU time.
+fn run_engine_spinning(
+    baud: u32,
+    pzd: usize,
+    exchanges: u64,
+    spin: Duration,
+) -> (Stats, &'static str, Duration) {
     let timing = Timing::new(Baud::new(baud).expect("benchmark baud"));
     let layout = Layout::new(PkwMode::Four, PzdCount::new(pzd).expect("pzd"));
     let mut bus = SimBus::new(1);
@@ -60,19 +73,28 @@ fn run_engine(baud: u32, pzd: usize, exchanges: u64) -> (Stats, &'static str) {
             prefault_stack_bytes: 128 * 1024,
         });
         let _ = nix::sys::prctl::set_timerslack(1);
-        let (mut engine, _handle, _events) = Engine::new(config, transport, MonotonicClock::new());
+        let clock = MonotonicClock::new().with_spin(spin);
+        let (mut engine, _handle, _events) = Engine::new(config, transport, clock);
+        let cpu_start = thread_cpu();
         while engine.stats().bus.exchanges < exchanges {
             engine.poll_next().expect("virtual wire never fails");
         }
+        let cpu = thread_cpu().saturating_sub(cpu_start);
         let mode = if report.priority.is_some() {
             "SCHED_FIFO"
         } else {
             "best-effort"
         };
-        (engine.stats().clone(), mode)
+        (engine.stats().clone(), mode, cpu)
     })
     .join()
     .expect("bench thread")
+}
+
+/// CPU time of the calling thread.
+fn thread_cpu() -> Duration {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_THREAD_CPUTIME_ID)
+        .map_or(Duration::ZERO, Duration::from)
 }
 
 fn efficiency() {
@@ -105,8 +127,43 @@ fn efficiency() {
 
 fn turnaround() {
     let baud = 187_500;
-    let (stats, mode) = run_engine(baud, 2, 5000);
     let pause = Timing::new(Baud::new(baud).expect("baud")).start_pause();
+    // The same run with a plain sleep to the start-pause deadline, then with the precise wait
+    // (sleep, then spin the last stretch): the spin's effect and its CPU cost, in one run.
+    println!(
+        "== start-pause wait at {baud} baud: plain sleep vs sleep + spin ({} us), 5000 exchanges each",
+        SPIN_BEFORE_DEADLINE.as_micros()
+    );
+    let mut spun = None;
+    for spin in [Duration::ZERO, SPIN_BEFORE_DEADLINE] {
+        let (stats, mode, cpu) = run_engine_spinning(baud, 2, 5000, spin);
+        let h = &stats.histograms.turnaround;
+        let n = stats.bus.exchanges.max(1);
+        println!(
+            "   spin {:3} us: turnaround p50 / pause = {:.3}, p99 / pause = {:.3}; efficiency {:.4}; bus thread CPU {:.1} us per exchange [{mode}]",
+            spin.as_micros(),
+            h.value_at_quantile(0.5) as f64 / pause.as_nanos() as f64,
+            h.value_at_quantile(0.99) as f64 / pause.as_nanos() as f64,
+            stats.bus.efficiency().unwrap_or(0.0),
+            cpu.as_secs_f64() * 1e6 / n as f64
+        );
+        // Where the rest of the efficiency goes: the turnarounds above their median, i.e.
+        // the machine's scheduling stalls (the tail), against the mean exchange.
+        let mean_exchange = stats.bus.exchange_ns as f64 / stats.bus.good.max(1) as f64;
+        let tail = h.mean() - h.value_at_quantile(0.5) as f64;
+        println!(
+            "              mean turnaround {:.1} us vs median {:.1} us (max {:.1} ms): the tail costs {:.4} of efficiency, so with every turnaround at its median it would be {:.4}",
+            h.mean() / 1e3,
+            h.value_at_quantile(0.5) as f64 / 1e3,
+            h.max() as f64 / 1e6,
+            tail / mean_exchange,
+            stats.bus.efficiency().unwrap_or(0.0) * mean_exchange / (mean_exchange - tail)
+        );
+        spun = Some((stats, mode));
+    }
+    let Some((stats, mode)) = spun else {
+        return;
+    };
     let h = &stats.histograms.turnaround;
     println!(
         "== master turnaround at {baud} baud (reply complete -> next request written) [{mode}]"

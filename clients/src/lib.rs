@@ -56,9 +56,10 @@
 //!
 //! Errors say what happened and what to do ([`ClientError`], [`ParamError`]).
 //!
-//! iceoryx2 logs to stderr on its own (e.g. a warning that no iceoryx2 config file exists, so
-//! its defaults apply, as they do for ussd). Applications that explain errors themselves call
-//! [`quiet_iceoryx2_logs`] first, as `ussctl` does.
+//! iceoryx2 logs through `tracing` (this workspace builds it with its `tracing` feature): an
+//! application with a tracing subscriber sees its messages, one without sees nothing.
+//! Applications that explain errors themselves call [`quiet_iceoryx2_logs`] first, as `ussctl`
+//! does, to keep iceoryx2's warnings out of their log.
 
 mod bus;
 mod command;
@@ -129,7 +130,7 @@ pub fn zsw1_flags(zsw1: u16) -> Vec<&'static str> {
 }
 
 /// Limits iceoryx2's own logging to errors (unless `IOX2_LOG_LEVEL` says otherwise), for
-/// applications that report errors themselves; without it iceoryx2 prints multi-kilobyte
+/// applications that report errors themselves; without it iceoryx2 logs multi-kilobyte
 /// warnings, e.g. when a service still holds a dead process's ports.
 pub fn quiet_iceoryx2_logs() {
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);

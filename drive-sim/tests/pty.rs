@@ -217,3 +217,34 @@ fn bad_command_lines_exit_non_zero_with_a_clear_error() {
     assert_eq!(code, Some(1));
     assert!(err.contains("cannot open /nonexistent/tty"), "{err}");
 }
+
+/// `uss-sim --demo | head -1`: the reader goes away after one line; the demo ends quietly
+/// (it used to abort with exit 134 on the broken pipe).
+#[test]
+fn the_demo_ends_quietly_when_its_reader_goes_away() {
+    use std::io::BufRead as _;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_uss-sim"))
+        .arg("--demo")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    std::io::BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    // The reader is dropped here: the demo's next line meets a closed pipe.
+    assert!(first.starts_with("demo: 4 simulated drives"), "{first}");
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{:?}: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        out.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

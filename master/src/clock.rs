@@ -29,6 +29,9 @@ pub const SPIN_BEFORE_DEADLINE: Duration = Duration::from_micros(60);
 #[derive(Debug, Clone, Copy)]
 pub struct MonotonicClock {
     origin: Duration,
+    /// How long before a precise deadline [`Clock::sleep_until_precise`] stops sleeping and
+    /// spins ([`SPIN_BEFORE_DEADLINE`] unless set).
+    spin: Duration,
 }
 
 fn monotonic() -> Duration {
@@ -41,7 +44,15 @@ impl MonotonicClock {
     pub fn new() -> Self {
         Self {
             origin: monotonic(),
+            spin: SPIN_BEFORE_DEADLINE,
         }
+    }
+
+    /// This clock, spinning `spin` before a precise deadline instead of
+    /// [`SPIN_BEFORE_DEADLINE`] (zero: no spin, a plain sleep).
+    #[must_use]
+    pub const fn with_spin(self, spin: Duration) -> Self {
+        Self { spin, ..self }
     }
 
     /// The origin on `CLOCK_MONOTONIC`: add it to a time of this clock for an absolute stamp.
@@ -53,6 +64,7 @@ impl MonotonicClock {
     pub const fn with_origin_of(other: &Self) -> Self {
         Self {
             origin: other.origin,
+            spin: other.spin,
         }
     }
 }
@@ -76,6 +88,19 @@ impl Clock for MonotonicClock {
             ClockNanosleepFlags::TIMER_ABSTIME,
             &target,
         ) {}
+    }
+
+    /// Sleeps until `spin` before `t`, then spins on the clock: a wake-up is late by the
+    /// kernel's timer latency, a spin by one `clock_gettime` (tens of ns, in the vDSO).
+    fn sleep_until_precise(&mut self, t: Duration) {
+        if let Some(wake) = t.checked_sub(self.spin)
+            && wake > self.now()
+        {
+            self.sleep_until(wake);
+        }
+        while self.now() < t {
+            core::hint::spin_loop();
+        }
     }
 }
 
@@ -135,5 +160,24 @@ mod tests {
         let precise = c.now() + Duration::from_micros(500);
         c.sleep_until_precise(precise);
         assert!(c.now() >= precise);
+    }
+
+    #[test]
+    fn the_precise_wait_never_returns_early_with_or_without_its_spin() {
+        for spin in [
+            Duration::ZERO,
+            SPIN_BEFORE_DEADLINE,
+            Duration::from_millis(5),
+        ] {
+            let mut c = MonotonicClock::new().with_spin(spin);
+            for wait_us in [0, 10, 100, 1000] {
+                let target = c.now() + Duration::from_micros(wait_us);
+                c.sleep_until_precise(target);
+                assert!(c.now() >= target, "spin {spin:?}, wait {wait_us} us");
+            }
+            // A deadline already past returns at once (no sleep, no spin).
+            let past = c.now().saturating_sub(Duration::from_millis(1));
+            c.sleep_until_precise(past);
+        }
     }
 }

@@ -2,11 +2,13 @@
 //! simulated bus, four drives at 115200 baud), so it works on any machine without hardware.
 
 use clap::Parser;
+use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
-use uss_master::config::Config;
+use uss_master::config::{Config, ConfigError};
 use uss_master::runtime::{self, RunOptions, RunningBus};
 use uss_master::supervise::{Change, Notifier, Progress};
 
@@ -37,25 +39,13 @@ struct Cli {
     duration: Option<f64>,
 }
 
-static STOP: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn on_signal(_: nix::libc::c_int) {
-    STOP.store(true, Ordering::Relaxed);
-}
-
-/// ussd owns its signals: SIGINT and SIGTERM stop it cleanly.
-fn install_signal_handlers() -> nix::Result<()> {
-    use nix::sys::signal::{SaFlags, SigAction, SigHandler, SigSet, Signal, sigaction};
-    let action = SigAction::new(
-        SigHandler::Handler(on_signal),
-        SaFlags::empty(),
-        SigSet::empty(),
-    );
-    for signal in [Signal::SIGINT, Signal::SIGTERM] {
-        // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
-        unsafe { sigaction(signal, &action) }?;
+/// SIGINT and SIGTERM set the returned flag: ussd then stops cleanly.
+fn stop_on_signals() -> std::io::Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))?;
     }
-    Ok(())
+    Ok(stop)
 }
 
 fn seconds(name: &str, value: f64) -> Result<Duration, String> {
@@ -65,12 +55,40 @@ fn seconds(name: &str, value: f64) -> Result<Duration, String> {
         .ok_or_else(|| format!("--{name} {value}: give a positive number of seconds"))
 }
 
+/// Why ussd did not run, or did not stop cleanly.
+#[derive(Debug, thiserror::Error)]
+enum Failure {
+    /// A command-line value that cannot be used.
+    #[error("{0}")]
+    Usage(String),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("cannot install signal handlers: {0}")]
+    Signals(std::io::Error),
+    #[error(transparent)]
+    Start(#[from] runtime::StartError),
+    /// Buses that did not stop cleanly (a failed line, a hung bus thread).
+    #[error("{}", .0.join("; "))]
+    Stop(Vec<String>),
+}
+
+impl Failure {
+    /// 2 for what the user gave (command line, configuration), 1 for what happened.
+    fn exit_code(&self) -> u8 {
+        match self {
+            Self::Usage(_) | Self::Config(_) => 2,
+            Self::Signals(_) | Self::Start(_) | Self::Stop(_) => 1,
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     if let Some(path) = &cli.check_config {
         return match Config::load(path) {
             Ok(config) => {
-                print!("{}", config.to_toml());
+                // A reader that went away early (`ussd --check-config F | head`) is no error.
+                let _ = std::io::stdout().write_all(config.to_toml().as_bytes());
                 ExitCode::SUCCESS
             }
             Err(e) => {
@@ -89,36 +107,36 @@ fn main() -> ExitCode {
         .init();
     match run(&cli) {
         Ok(()) => ExitCode::SUCCESS,
-        Err((code, message)) => {
-            tracing::error!("{message}");
-            eprintln!("ussd: {message}");
-            ExitCode::from(code)
+        Err(failure) => {
+            tracing::error!("{failure}");
+            eprintln!("ussd: {failure}");
+            ExitCode::from(failure.exit_code())
         }
     }
 }
 
-fn run(cli: &Cli) -> Result<(), (u8, String)> {
+fn run(cli: &Cli) -> Result<(), Failure> {
     let config = if let Some(path) = &cli.config {
-        Config::load(path).map_err(|e| (2, e.to_string()))?
+        Config::load(path)?
     } else {
         tracing::info!("no --config given: running the embedded default (one simulated bus)");
         let mut config = Config::embedded_default();
         config.buses[0].name = uss_shm_types::BusName::new(&cli.bus)
             .map(|_| cli.bus.clone())
-            .map_err(|e| (2, format!("--bus {}: {e}", cli.bus)))?;
+            .map_err(|e| Failure::Usage(format!("--bus {}: {e}", cli.bus)))?;
         config
     };
     let options = RunOptions {
         require_rt: cli.require_rt,
-        summary_every: seconds("summary-every", cli.summary_every).map_err(|e| (2, e))?,
+        summary_every: seconds("summary-every", cli.summary_every).map_err(Failure::Usage)?,
     };
     let duration = cli
         .duration
         .map(|d| seconds("duration", d))
         .transpose()
-        .map_err(|e| (2, e))?;
-    install_signal_handlers().map_err(|e| (1, format!("cannot install signal handlers: {e}")))?;
-    let buses = runtime::start(&config.buses, options).map_err(|e| (1, e.to_string()))?;
+        .map_err(Failure::Usage)?;
+    let stop = stop_on_signals().map_err(Failure::Signals)?;
+    let buses = runtime::start(&config.buses, options)?;
     for b in &buses {
         tracing::info!(bus = %b.name, drives = b.handle.drives().len(), "polling");
     }
@@ -141,7 +159,7 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
     let mut line_failed = false;
     let mut next_cleanup = Duration::from_secs(1);
     let mut next_status = Duration::from_secs(5);
-    while !STOP.load(Ordering::Relaxed) && duration.is_none_or(|d| started.elapsed() < d) {
+    while !stop.load(Ordering::Relaxed) && duration.is_none_or(|d| started.elapsed() < d) {
         if let Some(b) = buses.iter().find(|b| b.has_failed()) {
             // A bus that cannot go on (a simulated wire failed): stop, and let the supervisor
             // (systemd Restart=on-failure) bring ussd back.
@@ -186,7 +204,7 @@ fn run(cli: &Cli) -> Result<(), (u8, String)> {
     if failed.is_empty() {
         Ok(())
     } else {
-        Err((1, failed.join("; ")))
+        Err(Failure::Stop(failed))
     }
 }
 

@@ -17,6 +17,7 @@ use serde::Serialize;
 use std::io::Write as _;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, LazyLock};
 use std::time::Instant;
 use uss_client::uss_protocol::Subindex;
 use uss_client::{
@@ -29,24 +30,14 @@ const STATE_TIMEOUT: Duration = Duration::from_secs(3);
 /// an offline probe interval, 0.5 s by default, with room to spare).
 const OFFLINE_GRACE: Duration = Duration::from_secs(3);
 
-static STOP: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn on_signal(_: nix::libc::c_int) {
-    STOP.store(true, Ordering::Relaxed);
-}
+/// Set by SIGINT/SIGTERM once [`catch_signals`] ran.
+static STOP: LazyLock<Arc<AtomicBool>> = LazyLock::new(|| Arc::new(AtomicBool::new(false)));
 
 /// `watch` and `run` end cleanly on SIGINT/SIGTERM (`run` stops the drive first).
 fn catch_signals() -> Result<(), String> {
-    use nix::sys::signal::{SaFlags, SigAction, SigHandler, SigSet, Signal, sigaction};
-    let action = SigAction::new(
-        SigHandler::Handler(on_signal),
-        SaFlags::empty(),
-        SigSet::empty(),
-    );
-    for signal in [Signal::SIGINT, Signal::SIGTERM] {
-        // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
-        unsafe { sigaction(signal, &action) }
-            .map_err(|e| format!("cannot install a {signal} handler: {e}"))?;
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&STOP))
+            .map_err(|e| format!("cannot install a handler of signal {signal}: {e}"))?;
     }
     Ok(())
 }

@@ -3,7 +3,9 @@
 //! channel, stops them again, and prints what it sees. `ussd` (the bus-engine work) is the real
 //! master; this shows the simulator on its own with no hardware and no second process.
 
+use crate::Failure;
 use std::collections::VecDeque;
+use std::io::Write as _;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use uss_drive_sim::spec::DriveSpec;
@@ -89,12 +91,12 @@ impl Master {
         st: &mut Station,
         stw: Stw1,
         setpoint: Setpoint,
-    ) -> Result<Option<Words>, String> {
+    ) -> Result<Option<Words>, Failure> {
         let mut pkw = [0u16; MAX_PKW_WORDS];
         let pkw_len = match st.tasks.front() {
             Some(task) => task
                 .encode(st.layout.pkw, &mut pkw)
-                .map_err(|e| e.to_string())?,
+                .map_err(|e| Failure::Demo(e.to_string()))?,
             None => st.layout.pkw.request_words(),
         };
         let mut pzd = [0u16; 16];
@@ -106,7 +108,7 @@ impl Master {
             &pkw[..pkw_len],
             &pzd[..st.layout.pzd.get()],
         )
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| Failure::Demo(e.to_string()))?;
         // Observe the start pause, flush what is left of earlier replies, then send.
         let send_at = self
             .start
@@ -145,12 +147,22 @@ impl Master {
     }
 }
 
+/// Prints a line of the demo; when nobody reads any more (`uss-sim --demo | head -1`), the demo
+/// ends quietly instead of failing on the closed pipe.
+macro_rules! say {
+    ($($arg:tt)*) => {
+        if writeln!(std::io::stdout(), $($arg)*).is_err() {
+            return Ok(());
+        }
+    };
+}
+
 pub fn run(
     bus: SimBus,
     timing: Timing,
     duration: Duration,
     stop: &AtomicBool,
-) -> Result<(), String> {
+) -> Result<(), Failure> {
     let mut stations: Vec<Station> = bus
         .drives()
         .map(|d| Station {
@@ -174,7 +186,7 @@ pub fn run(
     let start = master.start;
     let mut next_print = Duration::ZERO;
     let mut exchanges = 0u64;
-    println!(
+    say!(
         "demo: {} simulated drives at {} baud on the virtual wire, {:.0} s; start pause {:?}",
         stations.len(),
         timing.baud(),
@@ -199,7 +211,7 @@ pub fn run(
             if let (Some(task), Ok(r)) = (st.tasks.front(), ParamReply::decode(words.pkw()))
                 && r.answers(task)
             {
-                println!(
+                say!(
                     "{:6.2} s  drive {}: {}",
                     start.elapsed().as_secs_f64(),
                     st.address,
@@ -222,11 +234,11 @@ pub fn run(
                     )
                 })
                 .collect();
-            println!("{:6.2} s  {}", t.as_secs_f64(), line.join(" | "));
+            say!("{:6.2} s  {}", t.as_secs_f64(), line.join(" | "));
         }
     }
     let secs = start.elapsed().as_secs_f64();
-    println!(
+    say!(
         "demo done: {exchanges} exchanges in {secs:.2} s ({:.0}/s)",
         exchanges as f64 / secs
     );
@@ -237,9 +249,12 @@ pub fn run(
             .drive(s.address)
             .map(uss_drive_sim::Drive::counters)
             .unwrap_or_default();
-        println!(
+        say!(
             "  drive {}: master saw {} timeouts, {} bad replies; drive counted {} good telegrams",
-            s.address, s.timeouts, s.errors, counters.good
+            s.address,
+            s.timeouts,
+            s.errors,
+            counters.good
         );
     }
     Ok(())

@@ -7,6 +7,7 @@ use clap::{ArgGroup, Parser};
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use uss_drive_sim::serve::{Port, Pty, SerialDevice, serve};
@@ -53,81 +54,96 @@ fn parse_baud(s: &str) -> Result<u32, String> {
     Baud::new(baud).map(Baud::get).map_err(|e| e.to_string())
 }
 
-static STOP: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn on_signal(_: nix::libc::c_int) {
-    STOP.store(true, Ordering::Relaxed);
+/// SIGINT and SIGTERM set the returned flag: uss-sim then stops and prints its summary.
+fn stop_on_signals() -> std::io::Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))?;
+    }
+    Ok(stop)
 }
 
-fn install_signal_handlers() -> nix::Result<()> {
-    use nix::sys::signal::{SaFlags, SigAction, SigHandler, SigSet, Signal, sigaction};
-    let action = SigAction::new(
-        SigHandler::Handler(on_signal),
-        SaFlags::empty(),
-        SigSet::empty(),
-    );
-    for signal in [Signal::SIGINT, Signal::SIGTERM] {
-        // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
-        unsafe { sigaction(signal, &action) }?;
-    }
-    Ok(())
+/// Why uss-sim did not run or stopped early.
+#[derive(Debug, thiserror::Error)]
+pub enum Failure {
+    #[error("give at least one --drive ADDR[:key=value,...], e.g. --drive 1:pkw=4,pzd=2")]
+    NoDrives,
+    #[error(transparent)]
+    Baud(#[from] uss_protocol::BaudError),
+    #[error(transparent)]
+    Bus(#[from] uss_drive_sim::BusError),
+    #[error("cannot install signal handlers: {0}")]
+    Signals(std::io::Error),
+    #[error("cannot open {}: {source}", .path.display())]
+    Open {
+        path: PathBuf,
+        source: serialport::Error,
+    },
+    #[error("cannot create a pseudo-terminal: {0}")]
+    Pty(nix::Error),
+    #[error("serving stopped: {0}")]
+    Serve(std::io::Error),
+    /// The demo's own master could not build a telegram.
+    #[error("demo: {0}")]
+    Demo(String),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(message) => {
-            eprintln!("uss-sim: {message}");
+        Err(failure) => {
+            eprintln!("uss-sim: {failure}");
             ExitCode::FAILURE
         }
     }
 }
 
-fn run(cli: Cli) -> Result<(), String> {
-    let timing = Timing::new(Baud::new(cli.baud).map_err(|e| e.to_string())?);
+fn run(cli: Cli) -> Result<(), Failure> {
+    let timing = Timing::new(Baud::new(cli.baud)?);
     let mut specs = cli.drives;
     if specs.is_empty() {
         if !cli.demo {
-            return Err(
-                "give at least one --drive ADDR[:key=value,...], e.g. --drive 1:pkw=4,pzd=2".into(),
-            );
+            return Err(Failure::NoDrives);
         }
         specs = demo::default_drives();
     }
     let mut bus = SimBus::new(cli.seed);
     for spec in &specs {
-        bus.add(spec.config).map_err(|e| e.to_string())?;
+        bus.add(spec.config)?;
         if let Some(plan) = bus.faults_mut(spec.config.address) {
             *plan = spec.faults.clone();
         }
     }
-    install_signal_handlers().map_err(|e| format!("cannot install signal handlers: {e}"))?;
+    let stop = stop_on_signals().map_err(Failure::Signals)?;
     let duration = cli.duration.map(Duration::from_secs_f64);
     if cli.demo {
         return demo::run(
             bus,
             timing,
             duration.unwrap_or(Duration::from_secs(8)),
-            &STOP,
+            &stop,
         );
     }
     if let Some(limit) = duration {
+        let stop = Arc::clone(&stop);
         std::thread::spawn(move || {
             std::thread::sleep(limit);
-            STOP.store(true, Ordering::Relaxed);
+            stop.store(true, Ordering::Relaxed);
         });
     }
     let start = Instant::now();
     let result = if let Some(path) = &cli.device {
-        let mut port = SerialDevice::open(path, cli.baud)
-            .map_err(|e| format!("cannot open {}: {e}", path.display()))?;
+        let mut port = SerialDevice::open(path, cli.baud).map_err(|source| Failure::Open {
+            path: path.clone(),
+            source,
+        })?;
         announce(&format!("DEVICE {}", path.display()), &bus, timing);
-        serve_until_stopped(&mut port, &mut bus, timing, start)
+        serve_until_stopped(&mut port, &mut bus, timing, start, &stop)
     } else {
-        let mut pty = Pty::open().map_err(|e| format!("cannot create a pseudo-terminal: {e}"))?;
+        let mut pty = Pty::open().map_err(Failure::Pty)?;
         announce(&format!("PTY {}", pty.path().display()), &bus, timing);
-        serve_until_stopped(&mut pty, &mut bus, timing, start)
+        serve_until_stopped(&mut pty, &mut bus, timing, start, &stop)
     };
     print_summary(&bus);
     result
@@ -138,8 +154,9 @@ fn serve_until_stopped(
     bus: &mut SimBus,
     timing: Timing,
     start: Instant,
-) -> Result<(), String> {
-    serve(port, bus, timing, start, &STOP).map_err(|e| format!("serving stopped: {e}"))
+    stop: &AtomicBool,
+) -> Result<(), Failure> {
+    serve(port, bus, timing, start, stop).map_err(Failure::Serve)
 }
 
 /// The first line is machine-readable (`PTY /dev/pts/N`); tests and scripts wait for it.
