@@ -35,7 +35,7 @@ def ussd_binary() -> str:
 
 
 def ussctl_binary() -> str:
-    return binary("uss-client", "ussctl", "USSCTL")
+    return binary("ussctl", "ussctl", "USSCTL")
 
 
 class Ussd:

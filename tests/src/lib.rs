@@ -324,7 +324,7 @@ impl Ussd {
 
     /// `ussctl --bus BUS ARGS...` in its own process.
     pub fn ussctl(&self, args: &[&str]) -> ChildProc {
-        let mut command = Command::new(binary("uss-client", "ussctl"));
+        let mut command = Command::new(binary("ussctl", "ussctl"));
         command.args(["--bus", &self.bus]).args(args);
         ChildProc::spawn(format!("ussctl {}", args.join(" ")), command)
     }

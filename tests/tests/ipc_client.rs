@@ -99,7 +99,7 @@ impl Ussd {
     }
 
     fn ussctl(&self, args: &[&str]) -> Output {
-        Command::new(binary("uss-client", "ussctl"))
+        Command::new(binary("ussctl", "ussctl"))
             .args(["--bus", &self.bus])
             .args(args)
             .output()
@@ -182,7 +182,7 @@ fn client_without_ussd_is_told_how_to_start_it() {
         Bus::open(&bus).unwrap_err().to_string(),
         format!("ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`)")
     );
-    let out = Command::new(binary("uss-client", "ussctl"))
+    let out = Command::new(binary("ussctl", "ussctl"))
         .args(["--bus", &bus, "status"])
         .output()
         .unwrap();
@@ -425,7 +425,7 @@ fn a_second_controller_is_refused_with_the_controlling_process_id() {
     drop(first);
 
     // `ussctl run` in another process holds drive 3.
-    let mut run = Command::new(binary("uss-client", "ussctl"))
+    let mut run = Command::new(binary("ussctl", "ussctl"))
         .args(["--bus", &ussd.bus, "run", "3", "--hz", "5", "--for", "20"])
         .stdout(Stdio::piped())
         .spawn()

@@ -270,7 +270,7 @@ fn a_process_of_another_user_cannot_connect_and_is_told_why() {
     let ussd = uss_integration_tests::Ussd::start("", &[(1, "")]);
     // A copy every user may run (the build directory may not be theirs to enter).
     let ussctl = std::env::temp_dir().join(format!("ussctl-access-{}", std::process::id()));
-    std::fs::copy(binary("uss-client", "ussctl"), &ussctl).unwrap();
+    std::fs::copy(binary("ussctl", "ussctl"), &ussctl).unwrap();
     std::fs::set_permissions(&ussctl, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
     let as_nobody = Command::new("setpriv")
         .args(["--reuid=65534", "--regid=65534", "--clear-groups"])

@@ -181,7 +181,7 @@ fn a_restarted_ussd_starts_beside_clients_of_the_old_one_and_they_reconnect() {
 fn a_short_offline_blip_is_reported_and_the_controller_carries_on() {
     let _serial = serial();
     // Built before ussd starts: the drive drops out 3 s after ussd's start, for 0.7 s.
-    uss_integration_tests::binary("uss-client", "ussctl");
+    uss_integration_tests::binary("ussctl", "ussctl");
     let ussd = Ussd::start("", &[(1, "sim = \"unplug=3000..3700\""), (2, "")]);
     let bus = ussd.bus();
     let mut run = ussd.ussctl(&["run", "1", "--hz", "10", "--for", "5"]);

@@ -1,0 +1,9 @@
+//! One file per subcommand.
+
+pub mod ack;
+pub mod common;
+pub mod param;
+pub mod run;
+pub mod status;
+pub mod stop;
+pub mod watch;

@@ -1,0 +1,172 @@
+//! `run`: takes a drive, runs it towards a frequency, and stops it whatever happens.
+
+use super::common::{STATE_TIMEOUT, control, faulted, stop_confirmed};
+use crate::report::DriveReport;
+use crate::{Failure, Output, catch_signals, stopped};
+use core::time::Duration;
+use std::time::Instant;
+use uss_client::{Bus, ClientError, Controller, DriveState};
+
+/// How long `run` waits for a drive that stopped answering before it gives up (longer than
+/// an offline probe interval, 0.5 s by default, with room to spare).
+const OFFLINE_GRACE: Duration = Duration::from_secs(3);
+
+/// Arms the drive (OFF1: S1 -> S2, or it stays in S2..S4) and runs it (S2 -> S3 -> S4).
+fn start_running(bus: &Bus, c: &Controller, hz: f32, ref_hz: f32) -> Result<(), Failure> {
+    let drive = c.address();
+    let first = c.inputs().latest();
+    if first.online == 0 {
+        return Err(format!(
+            "drive {drive} on {} is offline: check `ussctl status`, its wiring, address and baud rate",
+            bus.name()
+        )
+        .into());
+    }
+    if uss_client::state_of(&first) == DriveState::Fault {
+        return Err(faulted(drive, &first).into());
+    }
+    c.enable().map_err(|e| e.to_string())?;
+    c.wait_for(STATE_TIMEOUT, "S2 (ready to switch on)", |i| {
+        i.online != 0
+            && matches!(
+                uss_client::state_of(i),
+                DriveState::ReadyToSwitchOn
+                    | DriveState::ReadyForOperation
+                    | DriveState::OperationEnabled
+            )
+    })
+    .map_err(|e| e.to_string())?;
+    c.run_hz(hz, ref_hz).map_err(|e| e.to_string())?;
+    c.wait_for_state(DriveState::OperationEnabled, STATE_TIMEOUT)
+        .map_err(|e| e.to_string())?;
+    Ok(())
+}
+
+/// A running drive that stops answering: reported, and given [`OFFLINE_GRACE`] to come back
+/// (an offline probe interval or two); the controller keeps publishing meanwhile, and the
+/// drive gets its words again when it answers.
+#[derive(Default)]
+struct Absence {
+    since: Option<Instant>,
+}
+
+impl Absence {
+    /// Takes whether the drive answers now; the failure when it stayed away too long.
+    fn note(&mut self, out: &Output, drive: u8, online: bool) -> Option<String> {
+        match (online, self.since) {
+            (false, None) => {
+                out.note(&format!(
+                    "  drive {drive} does not answer; waiting up to {} s for it",
+                    OFFLINE_GRACE.as_secs()
+                ));
+                self.since = Some(Instant::now());
+            }
+            (false, Some(t)) if t.elapsed() > OFFLINE_GRACE => {
+                return Some(format!(
+                    "drive {drive} went offline while running and did not come back within {} s: check `ussctl status`, its wiring and power",
+                    OFFLINE_GRACE.as_secs()
+                ));
+            }
+            (true, Some(t)) => {
+                out.note(&format!(
+                    "  drive {drive} answers again after {:.2} s",
+                    t.elapsed().as_secs_f64()
+                ));
+                self.since = None;
+            }
+            _ => {}
+        }
+        None
+    }
+}
+
+pub(crate) fn run_drive(
+    bus: &Bus,
+    out: &Output,
+    drive: u8,
+    hz: f32,
+    ref_hz: f32,
+    duration: Option<f64>,
+) -> Result<(), Failure> {
+    let duration = duration
+        .map(|s| {
+            Duration::try_from_secs_f64(s)
+                .map_err(|_| format!("--for {s}: give a number of seconds >= 0"))
+        })
+        .transpose()?;
+    let c = control(bus, drive)?;
+    catch_signals()?;
+    start_running(bus, &c, hz, ref_hz)?;
+    out.note(&format!(
+        "drive {drive}: running towards {hz} Hz (reference {ref_hz} Hz); {}",
+        match duration {
+            Some(d) => format!("stopping after {d:?}"),
+            None => "Ctrl-C stops it".to_owned(),
+        }
+    ));
+
+    let refresher = c.spawn_refresher(uss_client::DEFAULT_REFRESH);
+    let start = Instant::now();
+    let mut peak = 0.0f32;
+    let mut last_note = Instant::now();
+    let mut absence = Absence::default();
+    let failure = loop {
+        let i = match c.check() {
+            Ok(i) => i,
+            Err(
+                e @ (ClientError::UssdGone { .. }
+                | ClientError::UssdStopped { .. }
+                | ClientError::LineDown { .. }),
+            ) => {
+                // Nothing to stop through: the drive's own telegram monitoring stops it.
+                drop(refresher);
+                return Err(format!("drive {drive}: {e}").into());
+            }
+            Err(ClientError::Tripped { latch, .. }) => {
+                // Latched by ussd: the drive gets its stop command; leave it so.
+                drop(refresher);
+                return Err(format!(
+                    "drive {drive} on {} tripped after {:.2} s: {latch} ({:.2} s ago); it gets {}, latched: run `ussctl run {drive}` again to re-arm it (OFF1, then ON)",
+                    bus.name(),
+                    start.elapsed().as_secs_f64(),
+                    latch.ago.as_secs_f64(),
+                    latch.command
+                )
+                .into());
+            }
+            Err(e) => break Some(e.to_string()),
+        };
+        let actual = c.inputs().actual_hz(ref_hz);
+        if actual.abs() > peak.abs() {
+            peak = actual;
+        }
+        if let Some(f) = absence.note(out, drive, i.online != 0) {
+            break Some(f);
+        }
+        if uss_client::state_of(&i) == DriveState::Fault {
+            break Some(faulted(drive, &i));
+        }
+        if stopped() || duration.is_some_and(|d| start.elapsed() >= d) {
+            break None;
+        }
+        if last_note.elapsed() >= Duration::from_millis(500) {
+            out.note(&format!(
+                "  {:6.1} s  {actual:8.2} Hz",
+                start.elapsed().as_secs_f64()
+            ));
+            last_note = Instant::now();
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let refresh_result = refresher.stop();
+    // Stop whatever happened: OFF1, and make sure the drive received it before leaving it
+    // to the watchdog (whose safe command is OFF1 by default too).
+    let last = stop_confirmed(&c)?;
+    refresh_result.map_err(|e| e.to_string())?;
+    if let Some(f) = failure {
+        return Err(f.into());
+    }
+    let mut report = DriveReport::new(bus.name(), "run", &last, drive, ref_hz);
+    report.peak_hz = Some(peak);
+    out.show(&report, DriveReport::human)
+}

@@ -1,0 +1,32 @@
+//! `status` and `stats`: the bus and its drives, once.
+
+use super::common::{diags, healthy};
+use crate::report::{BusReport, DriveRow, DriveStats, StatsReport, StatusReport};
+use crate::{Failure, Output};
+use uss_client::Bus;
+
+/// `status`: the table; with the line down, the table and then the failure (exit 1).
+pub(crate) fn status(bus: &Bus, out: &Output, ref_hz: f32) -> Result<(), Failure> {
+    let report = StatusReport {
+        bus: BusReport::new(bus.name(), &bus.status().map_err(|e| e.to_string())?),
+        drives: diags(bus)?
+            .iter()
+            .map(|d| DriveRow::new(d, ref_hz))
+            .collect(),
+    };
+    out.show(&report, StatusReport::human)?;
+    healthy(bus)
+}
+
+pub(crate) fn stats(bus: &Bus, out: &Output) -> Result<(), Failure> {
+    let status = bus.status().map_err(|e| e.to_string())?;
+    let report = StatsReport {
+        bus: BusReport::new(bus.name(), &status),
+        drives: diags(bus)?
+            .iter()
+            .map(|d| DriveStats::new(d, status.timestamp_ns))
+            .collect(),
+    };
+    out.show(&report, StatsReport::human)?;
+    healthy(bus)
+}

@@ -1,0 +1,36 @@
+//! `stop`, `coast`, `quick-stop`: an operator's command through ussd.
+
+use crate::cli::Target;
+use crate::report::StopReport;
+use crate::{Failure, Output};
+use core::time::Duration;
+use uss_client::{Bus, StopCommand};
+
+/// How long an operator command may take to show in the drive's image: an offline drive is
+/// probed only every `offline_probe_ms`.
+const STOP_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// `stop`, `coast`, `quick-stop`: the operator's command through ussd, whoever controls the
+/// drive; waits until each drive's image shows it went out.
+pub(crate) fn stop(
+    bus: &Bus,
+    out: &Output,
+    target: Target,
+    command: StopCommand,
+) -> Result<(), Failure> {
+    let drives = match target.drive {
+        Some(drive) => {
+            bus.stop_drive(drive, command).map_err(|e| e.to_string())?;
+            vec![drive]
+        }
+        None => bus.stop_all(command).map_err(|e| e.to_string())?,
+    };
+    let mut report = StopReport::new(bus.name(), command);
+    for drive in drives {
+        let last = bus
+            .wait_stopped(drive, command, STOP_TIMEOUT)
+            .map_err(|e| format!("drive {drive}: {command} sent, not yet confirmed: {e}"))?;
+        report.push(drive, &last);
+    }
+    out.show(&report, StopReport::human)
+}

@@ -1,0 +1,62 @@
+//! `watch`: the drives' images, one line per drive and round, until Ctrl-C or a count.
+
+use crate::report::WatchLine;
+use crate::{Failure, Output, catch_signals, stopped};
+use core::time::Duration;
+use std::time::Instant;
+use uss_client::Bus;
+
+pub(crate) fn watch(
+    bus: &Bus,
+    out: &Output,
+    only: &[u8],
+    interval_ms: u64,
+    count: Option<u64>,
+    ref_hz: f32,
+) -> Result<(), Failure> {
+    let addresses = if only.is_empty() {
+        bus.drives()
+    } else {
+        only.to_vec()
+    };
+    let watches = addresses
+        .iter()
+        .map(|&a| bus.watch(a))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| e.to_string())?;
+    catch_signals()?;
+    let start = Instant::now();
+    let interval = Duration::from_millis(interval_ms.max(1));
+    let mut round = 0;
+    while !stopped() && count.is_none_or(|n| round < n) {
+        if round > 0 {
+            sleep_unless_stopped(interval);
+            if stopped() {
+                break;
+            }
+        }
+        let t = start.elapsed().as_secs_f64();
+        for w in &watches {
+            // A stale picture is never shown: ussd gone, stopped or its line down ends it.
+            let image = w.read().map_err(|e| e.to_string())?;
+            out.show(
+                &WatchLine::new(t, w.address(), &image, ref_hz),
+                WatchLine::human,
+            )?;
+        }
+        round += 1;
+    }
+    Ok(())
+}
+
+/// Sleeps `d` in small steps so Ctrl-C is noticed quickly.
+fn sleep_unless_stopped(d: Duration) {
+    let end = Instant::now() + d;
+    while !stopped() {
+        let left = end.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return;
+        }
+        std::thread::sleep(left.min(Duration::from_millis(20)));
+    }
+}

@@ -1,0 +1,154 @@
+//! `ussctl`: look at and operate the drives of a bus that ussd runs. Short, predictable
+//! subcommands in the manner of the `ethercat` tool of `EtherCAT` masters, human output by default,
+//! `--json` for machines. Errors go to stderr, say what to do, and exit with 1 (2 for usage
+//! errors).
+
+mod cli;
+mod commands;
+mod report;
+
+use clap::Parser;
+use cli::{Cli, Command, ParamCommand};
+use core::time::Duration;
+use serde::Serialize;
+use std::io::Write as _;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, LazyLock};
+use uss_client::{Bus, StopCommand};
+
+/// Set by SIGINT/SIGTERM once [`catch_signals`] ran.
+static STOP: LazyLock<Arc<AtomicBool>> = LazyLock::new(|| Arc::new(AtomicBool::new(false)));
+
+/// `watch` and `run` end cleanly on SIGINT/SIGTERM (`run` stops the drive first).
+pub(crate) fn catch_signals() -> Result<(), String> {
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&STOP))
+            .map_err(|e| format!("cannot install a handler of signal {signal}: {e}"))?;
+    }
+    Ok(())
+}
+
+pub(crate) fn stopped() -> bool {
+    STOP.load(Ordering::Relaxed)
+}
+
+/// Why ussctl ends early.
+pub(crate) enum Failure {
+    /// An error to report on stderr (exit 1).
+    Message(String),
+    /// Whoever reads our output went away (`ussctl watch | head`): end quietly.
+    Closed,
+}
+
+impl From<String> for Failure {
+    fn from(message: String) -> Self {
+        Self::Message(message)
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    // iceoryx2 reports every refused open at warning level with a debug dump; ussctl explains
+    // errors itself. IOX2_LOG_LEVEL still overrides.
+    uss_client::quiet_iceoryx2_logs();
+    match run(&cli) {
+        Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,
+        Err(Failure::Message(e)) => {
+            eprintln!("ussctl: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: &Cli) -> Result<(), Failure> {
+    let mut bus = Bus::open_as(&cli.bus, "ussctl").map_err(|e| e.to_string())?;
+    if let Some(t) = cli.timeout {
+        let t = Duration::try_from_secs_f64(t)
+            .ok()
+            .filter(|d| !d.is_zero())
+            .ok_or_else(|| format!("--timeout {t}: give a positive number of seconds"))?;
+        bus.set_answer_timeout(Some(t));
+    }
+    let out = Output { json: cli.json };
+    match &cli.command {
+        Command::Status { ref_hz } => commands::status::status(&bus, &out, *ref_hz),
+        Command::Watch {
+            drives,
+            interval,
+            count,
+            ref_hz,
+        } => commands::watch::watch(&bus, &out, drives, *interval, *count, *ref_hz),
+        Command::Param(ParamCommand::Read { drive, param, kind }) => {
+            commands::param::read(&bus, &out, *drive, *param, *kind)
+        }
+        Command::Param(ParamCommand::Write {
+            drive,
+            param,
+            value,
+            eeprom,
+            kind,
+            force,
+        }) => {
+            let write = commands::param::Write {
+                drive: *drive,
+                param: *param,
+                value,
+                eeprom: *eeprom,
+                kind: *kind,
+                force: *force,
+            };
+            commands::param::write(&bus, &out, &write)
+        }
+        Command::Run {
+            drive,
+            hz,
+            ref_hz,
+            duration,
+        } => commands::run::run_drive(&bus, &out, *drive, *hz, *ref_hz, *duration),
+        Command::Stop(target) => commands::stop::stop(&bus, &out, *target, StopCommand::Off1),
+        Command::Coast(target) => commands::stop::stop(&bus, &out, *target, StopCommand::Off2),
+        Command::QuickStop(target) => commands::stop::stop(&bus, &out, *target, StopCommand::Off3),
+        Command::Ack { drive } => commands::ack::ack(&bus, &out, *drive),
+        Command::Faults { drive } => commands::param::faults(&bus, &out, *drive),
+        Command::Stats => commands::status::stats(&bus, &out),
+    }
+}
+
+/// Human or JSON output.
+pub(crate) struct Output {
+    json: bool,
+}
+
+impl Output {
+    pub(crate) fn show<T: Serialize>(
+        &self,
+        report: &T,
+        human: impl Fn(&T) -> String,
+    ) -> Result<(), Failure> {
+        let mut text = if self.json {
+            serde_json::to_string(report).map_err(|e| format!("cannot write JSON: {e}"))?
+        } else {
+            human(report)
+        };
+        if !text.ends_with('\n') {
+            text.push('\n');
+        }
+        let mut stdout = std::io::stdout().lock();
+        match stdout
+            .write_all(text.as_bytes())
+            .and_then(|()| stdout.flush())
+        {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(Failure::Closed),
+            Err(e) => Err(format!("cannot write the output: {e}").into()),
+        }
+    }
+
+    /// Progress for people (nothing with `--json`); a closed output does not stop the work.
+    pub(crate) fn note(&self, text: &str) {
+        if !self.json {
+            let _ = writeln!(std::io::stdout().lock(), "{text}");
+        }
+    }
+}
