@@ -1,5 +1,5 @@
 //! Simulated USS drives that behave like MICROMASTER 4 / SINAMICS G120 on the wire
-//! (see `shared/USS.md`).
+//! (see `docs/USS.md`).
 //!
 //! - [`drive`]: one drive: PROFIdrive state machine, ramp, PKW handshake, telegram monitoring.
 //! - [`params`]: its parameter table with limits, types, arrays, RAM vs EEPROM and error numbers.

@@ -391,7 +391,7 @@ const MONITORING_MAX: MsKey = MsKey {
 /// MICROMASTER 4 / G110 / CU240S: P2014, index 1 = the RS485 COM link (USS.md section 5).
 const MONITORING_PARAM_DEFAULT: &str = "P2014.1";
 
-/// The reference frequency P2000 is above 0 Hz and at most this (USS.md section 7).
+/// The reference frequency P2000 is above 0 Hz and at most this (the MICROMASTER/G120 range of P2000; scaling in USS.md section 7).
 const REFERENCE_HZ_MAX: f32 = 650.0;
 const REFERENCE_HZ_DEFAULT: f32 = 50.0;
 
@@ -1375,7 +1375,7 @@ impl<'t> Checker<'t> {
         }
     }
 
-    /// P2000: above 0, at most 650 Hz (USS.md section 7).
+    /// P2000: above 0, at most 650 Hz (the MICROMASTER/G120 range of P2000).
     fn reference_hz(&mut self, t: &Table<'_, '_>) -> Checked<f32> {
         let allowed =
             format!("the reference frequency (P2000) is above 0 and at most {REFERENCE_HZ_MAX} Hz");

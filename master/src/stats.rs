@@ -9,7 +9,7 @@ use hdrhistogram::Histogram;
 use uss_protocol::{Address, FrameError, LineError};
 use uss_shm_types::{Monitoring, Rejection};
 
-/// Why one attempt at an exchange failed (USS.md section 4, receive errors).
+/// Why one attempt at an exchange failed (USS.md section 4, receive errors; the echo check: section 9).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Failure {
     /// No STX within the response timeout ("slave x does not respond").

@@ -1,4 +1,4 @@
-//! Sans-I/O codec for the Siemens USS protocol, as described in `shared/USS.md`.
+//! Sans-I/O codec for the Siemens USS protocol, as described in `docs/USS.md`.
 //!
 //! Everything here works on caller-owned buffers and caller-supplied timestamps: no I/O, no clock,
 //! no allocation. The crate is `no_std`; the master's real-time thread and the drive simulator

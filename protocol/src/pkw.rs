@@ -288,7 +288,7 @@ impl ParamTask {
 
     /// Encodes the task for a slave with the given PKW mode; returns how many words of `out` the
     /// request carries (3 or 4). A dword over a 3-word channel is refused here, before it reaches
-    /// the wire (USS.md section 9).
+    /// the wire (USS.md section 6; MICROMASTER answers error 5, section 9).
     pub fn encode(&self, mode: PkwMode, out: &mut [u16; MAX_PKW_WORDS]) -> Result<usize, PkwError> {
         let words = match mode {
             PkwMode::None => return Err(PkwError::NoChannel),
