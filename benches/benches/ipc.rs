@@ -35,12 +35,12 @@ use uss_client::{
     Bus, ControlOptions, CycleEvent, ParamRequest, PzdInput, Setpoint, Value, read_item,
 };
 use uss_master::config::Config;
-use uss_master::image::DriveImages;
-use uss_master::ipc::{IpcNode, RtBridge, StatusPublisher};
-use uss_master::rt::{RtRequest, apply_to_current_thread};
+use uss_master::daemon::ipc::{IpcNode, RtBridge, StatusPublisher};
+use uss_master::daemon::rt::{RtRequest, apply_to_current_thread};
+use uss_master::engine::image::DriveImages;
 use uss_master::{
     Bridge, Clock, DriveStatus, Engine, EngineHandle, MonotonicClock, Rx, SimTransport, Stats,
-    Transport, TransportError, runtime,
+    Transport, TransportError, daemon::runtime,
 };
 use uss_protocol::{Layout, Telegram};
 use uss_shm_types::names::EVENT_ID_MAX;
@@ -241,7 +241,7 @@ impl BusUnderTest {
         let bus = &config.buses[0];
         let clock = MonotonicClock::new();
         let engine_config = runtime::engine_config(bus);
-        let ipc = uss_master::ipc::create(&bus.name, &engine_config.drives, clock.origin())
+        let ipc = uss_master::daemon::ipc::create(&bus.name, &engine_config.drives, clock.origin())
             .expect("the bus's services");
         let transport = Recording {
             inner: runtime::sim_transport(bus).expect("simulated drives"),
@@ -352,7 +352,7 @@ fn failures(stats: &Stats) -> String {
     )
 }
 
-fn mode(report: &uss_master::rt::RtReport) -> String {
+fn mode(report: &uss_master::daemon::rt::RtReport) -> String {
     match (report.priority, report.cpu) {
         (Some(p), Some(cpu)) => format!("SCHED_FIFO {p} on CPU {cpu}"),
         _ => format!("best-effort: {}", report.summary()),

@@ -6,7 +6,7 @@
 use crossbeam_channel::Receiver;
 use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, State, VirtualWire};
-use uss_master::control::Control;
+use uss_master::engine::control::Control;
 use uss_master::{
     DriveSetup, Engine, EngineConfig, EngineHandle, Event, Failure, Job, Outcome, RequestError,
     SimTransport, VirtualClock,

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, VirtualWire};
-use uss_master::ipc as ussd_ipc;
+use uss_master::daemon::ipc as ussd_ipc;
 use uss_master::{DriveSetup, Engine, EngineConfig, SimTransport, VirtualClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Timing};

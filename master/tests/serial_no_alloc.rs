@@ -11,9 +11,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use uss_drive_sim::serve::{Pty, serve};
 use uss_drive_sim::{DriveConfig, SimBus};
-use uss_master::clock::{Clock, MonotonicClock};
-use uss_master::serial::{SerialOptions, SerialTransport};
-use uss_master::transport::Transport;
+use uss_master::engine::clock::{Clock, MonotonicClock};
+use uss_master::engine::transport::Transport;
+use uss_master::transports::serial::{SerialOptions, SerialTransport};
 use uss_protocol::telegram::{Layout, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, encode};
 use uss_protocol::{Address, Adr, Baud, Framer, FramerConfig, Timing};
 

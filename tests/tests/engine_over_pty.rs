@@ -5,7 +5,7 @@
 
 use std::time::{Duration, Instant};
 use uss_integration_tests::SimProcess;
-use uss_master::serial::{SerialOptions, SerialTransport};
+use uss_master::transports::serial::{SerialOptions, SerialTransport};
 use uss_master::{DriveSetup, Engine, EngineConfig, EngineHandle, Job, MonotonicClock, Outcome};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{

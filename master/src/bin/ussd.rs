@@ -9,8 +9,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use uss_master::config::{Config, ConfigError};
-use uss_master::runtime::{self, RunOptions, RunningBus};
-use uss_master::supervise::{Change, Notifier, Progress};
+use uss_master::daemon::runtime::{self, RunOptions, RunningBus};
+use uss_master::daemon::supervise::{Change, Notifier, Progress};
 
 #[derive(Debug, Parser)]
 #[command(

@@ -8,8 +8,8 @@
 
 use super::bridge::OutService;
 use super::{IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, as_ns, fail, pid_of, text};
+use crate::engine::jobs::{Job, JobResult, Outcome as JobOutcome};
 use crate::engine::{EngineHandle, RequestError as EngineRefusal};
-use crate::jobs::{Job, JobResult, Outcome as JobOutcome};
 use core::time::Duration;
 use iceoryx2::active_request::ActiveRequest;
 use iceoryx2::identifiers::UniqueNodeId;

@@ -1,29 +1,27 @@
 //! Running buses: for each configured bus an engine on its transport in its own real-time
-//! thread, and a housekeeping thread that owns logging and the live summary (ARCHITECTURE.md,
-//! "Data flow" and "Real-time setup").
+//! thread, its parameter bridge, its line thread (a serial bus) and its housekeeping thread
+//! ([`super::housekeeping`]) (docs/ARCHITECTURE.md, "Data flow" and "Real-time setup").
 //!
 //! Start-up order matters: every engine (and so every buffer and channel) is built and every
 //! thread spawned first; only then do the bus threads pin, raise their priority, prefault and
 //! (where the limit allows) lock memory, so a memory lock cannot starve later thread creation.
 
-use crate::clock::MonotonicClock;
 use crate::config::{BusConfig, Device, Rs485Mode};
-use crate::control::Latch;
+use crate::daemon::ipc::StatusPublisher;
+use crate::daemon::rt::{RtReport, RtRequest, apply_to_current_thread};
+use crate::engine::clock::MonotonicClock;
+use crate::engine::monitoring::MonitoringSetup;
+use crate::engine::transport::{Line, Transport, TransportError};
 use crate::engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event};
-use crate::ipc::StatusPublisher;
-use crate::monitoring::MonitoringSetup;
-use crate::rt::{RtReport, RtRequest, apply_to_current_thread};
-use crate::serial::{SerialError, SerialOptions, SerialTransport};
-use crate::stats::Stats;
-use crate::transport::{Line, SimTransport, Transport, TransportError};
+use crate::transports::serial::{SerialError, SerialOptions, SerialTransport};
+use crate::transports::sim::SimTransport;
 use core::time::Duration;
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, bounded};
 use std::path::{Path, PathBuf};
 use std::thread::JoinHandle;
 use thiserror::Error;
 use uss_drive_sim::{BusError, SimBus, VirtualWire};
-use uss_protocol::{Address, Timing};
-use uss_shm_types::{LatchReason, Monitoring, Rejection};
+use uss_protocol::Timing;
 
 /// Parameter jobs each drive can hold.
 const MAILBOX_DEPTH: usize = 64;
@@ -49,7 +47,7 @@ pub enum StartError {
     #[error("bus {bus}: real-time set-up incomplete and --require-rt given: {summary}")]
     RealTime { bus: String, summary: String },
     #[error(transparent)]
-    Ipc(#[from] crate::ipc::IpcError),
+    Ipc(#[from] crate::daemon::ipc::IpcError),
     #[error("bus {bus}: cannot start its threads: {source}")]
     Spawn { bus: String, source: std::io::Error },
 }
@@ -66,7 +64,7 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
         param_timeout: bus.param_timeout,
         echo: bus.echo,
         mailbox_depth: MAILBOX_DEPTH,
-        publish_every: STATUS_EVERY,
+        publish_every: super::housekeeping::STATUS_EVERY,
         drives: bus
             .drives
             .iter()
@@ -109,7 +107,7 @@ pub struct RunningBus {
     pub handle: EngineHandle,
     pub rt_report: RtReport,
     /// How long its bus thread may go without progress before it counts as hung
-    /// ([`crate::supervise::stall_bound`]).
+    /// ([`crate::daemon::supervise::stall_bound`]).
     pub stall_bound: Duration,
     engine_thread: JoinHandle<Result<(), TransportError>>,
     params_thread: JoinHandle<()>,
@@ -117,7 +115,7 @@ pub struct RunningBus {
     line_thread: Option<JoinHandle<()>>,
     housekeeping: JoinHandle<()>,
     /// The bus's iceoryx2 node: dropped last, after every thread using its ports.
-    node: crate::ipc::IpcNode,
+    node: crate::daemon::ipc::IpcNode,
 }
 
 impl RunningBus {
@@ -184,7 +182,7 @@ struct Spawned {
     line_thread: Option<JoinHandle<()>>,
     events: Receiver<Event>,
     status: StatusPublisher,
-    node: crate::ipc::IpcNode,
+    node: crate::daemon::ipc::IpcNode,
 }
 
 /// How a bus thread gets its line back after it failed: it asks once, then waits for the new
@@ -196,7 +194,7 @@ struct Reopen<T> {
 
 /// Runs `engine` until it is stopped; when its line fails, waits (line down, allocating
 /// nothing) for a reopened transport and resumes. Without `reopen` a failed line ends the bus.
-fn run_bus<T: Transport, C: crate::clock::Clock, B: crate::engine::Bridge>(
+fn run_bus<T: Transport, C: crate::engine::clock::Clock, B: crate::engine::Bridge>(
     engine: &mut Engine<T, C, B>,
     handle: &EngineHandle,
     reopen: Option<&Reopen<T>>,
@@ -333,7 +331,7 @@ fn spawn<T: Transport + Send + 'static>(
 ) -> Result<Spawned, StartError> {
     let clock = MonotonicClock::new();
     let config = engine_config(bus);
-    let ipc = crate::ipc::create(&bus.name, &config.drives, clock.origin())?;
+    let ipc = crate::daemon::ipc::create(&bus.name, &config.drives, clock.origin())?;
     let (mut engine, handle, events) = Engine::with_bridge(config, transport, clock, ipc.rt);
     let params = ipc.params;
     let params_handle = handle.clone();
@@ -508,7 +506,7 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
         }
         let mut status = s.status;
         status.set_rt(rt_report.is_full_rt(), rt_report.cpu, rt_report.priority);
-        let housekeeping = spawn_housekeeping(
+        let housekeeping = super::housekeeping::spawn(
             &s.bus,
             s.handle.clone(),
             s.events,
@@ -524,7 +522,7 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             name: s.bus.name.clone(),
             handle: s.handle,
             rt_report,
-            stall_bound: crate::supervise::stall_bound(&s.bus),
+            stall_bound: crate::daemon::supervise::stall_bound(&s.bus),
             engine_thread: s.thread,
             params_thread: s.params_thread,
             line_thread: s.line_thread,
@@ -539,213 +537,4 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
         return Err(e);
     }
     Ok(running)
-}
-
-/// How often bus status, drive diagnostics and the heartbeat are published for clients: with
-/// the engine's snapshot at most as old, what clients read is at most 100 ms old.
-const STATUS_EVERY: Duration = Duration::from_nanos(uss_shm_types::names::HEARTBEAT_PERIOD_NS);
-
-/// Logs events as they come, publishes status and diagnostics every [`STATUS_EVERY`], and logs
-/// the summary every `every`; logs the final summary when the engine has stopped. While the bus
-/// thread hangs (no progress for its [`crate::supervise::stall_bound`]) it publishes nothing:
-/// no heartbeat, so clients learn within half a second more that nobody serves the bus.
-fn spawn_housekeeping(
-    bus: &BusConfig,
-    handle: EngineHandle,
-    events: Receiver<Event>,
-    mut publisher: StatusPublisher,
-    mode: &'static str,
-    every: Duration,
-) -> std::io::Result<JoinHandle<()>> {
-    let bus = bus.clone();
-    let stall_bound = crate::supervise::stall_bound(&bus);
-    std::thread::Builder::new()
-        .name(format!("uss-{}-hk", bus.name))
-        .spawn(move || {
-            let mut previous: Option<Stats> = None;
-            let start = std::time::Instant::now();
-            let mut progress = (handle.progress(), start);
-            let mut next_summary = start + every;
-            let mut next_status = start;
-            loop {
-                let next = next_summary.min(next_status);
-                let wait = next.saturating_duration_since(std::time::Instant::now());
-                match events.recv_timeout(wait) {
-                    Ok(event) => log_event(&bus, &event),
-                    Err(RecvTimeoutError::Timeout) => {}
-                    Err(RecvTimeoutError::Disconnected) => break,
-                }
-                // After every wake-up: a burst of events must not hold back the heartbeat,
-                // by which clients tell that ussd lives.
-                let now = std::time::Instant::now();
-                if handle.progress() != progress.0 {
-                    progress = (handle.progress(), now);
-                }
-                let hangs = now.duration_since(progress.1) >= stall_bound;
-                if now >= next_status {
-                    if !hangs {
-                        publisher.publish(&handle.stats(), true, handle.reopen_attempts());
-                    }
-                    next_status = (next_status + STATUS_EVERY).max(now);
-                }
-                if now >= next_summary {
-                    let stats = handle.stats();
-                    tracing::info!(
-                        "\n{}",
-                        crate::summary::render(&bus, mode, &stats, previous.as_ref()).trim_end()
-                    );
-                    previous = Some(stats);
-                    next_summary = (next_summary + every).max(now);
-                }
-            }
-            let stats = handle.stats();
-            publisher.publish(&stats, false, handle.reopen_attempts());
-            publisher.goodbye();
-            tracing::info!(
-                "final\n{}",
-                crate::summary::render(&bus, mode, &stats, None).trim_end()
-            );
-        })
-}
-
-fn log_latch(bus: &BusConfig, address: Address, latch: &Latch, rejection: Rejection) {
-    let (drive, at_s, pid) = (address.get(), latch.since.as_secs_f64(), latch.by_pid);
-    let command = latch.command;
-    let bus = bus.name.as_str();
-    match latch.reason {
-        LatchReason::Released => tracing::info!(
-            bus,
-            drive,
-            at_s,
-            pid,
-            "drive {address}: released by its controller (process {pid}); sending {command}, latched"
-        ),
-        LatchReason::Override => tracing::warn!(
-            bus,
-            drive,
-            at_s,
-            pid,
-            "drive {address}: operator {command} from process {pid}; latched until its controller re-arms (OFF1, then ON)"
-        ),
-        LatchReason::Rejected => tracing::warn!(
-            bus,
-            drive,
-            at_s,
-            pid,
-            "drive {address}: refused a sample of process {pid} ({rejection}); sending {command}, latched until the controller re-arms (OFF1, then ON)"
-        ),
-        reason => tracing::warn!(
-            bus,
-            drive,
-            at_s,
-            pid,
-            "drive {address}: {reason}; sending {command}, latched until the controller re-arms (OFF1, then ON)"
-        ),
-    }
-}
-
-fn log_monitoring(bus: &BusConfig, address: Address, at: Duration, state: Monitoring, ms: u32) {
-    let param = bus
-        .drives
-        .iter()
-        .find(|d| d.address == address)
-        .and_then(|d| d.monitoring_param)
-        .map_or_else(|| "the monitoring parameter".to_owned(), |p| p.to_string());
-    let (drive, at_s, bus) = (address.get(), at.as_secs_f64(), bus.name.as_str());
-    match state {
-        Monitoring::On => tracing::info!(
-            bus,
-            drive,
-            at_s,
-            "drive {address}: telegram monitoring on ({param} = {ms} ms)"
-        ),
-        Monitoring::Off => tracing::warn!(
-            bus,
-            drive,
-            at_s,
-            "drive {address}: telegram monitoring is OFF ({param} = 0): if ussd or its line dies, nothing stops this drive; set {param} to e.g. 100 ms (USS.md section 5)"
-        ),
-        Monitoring::TooLong => tracing::warn!(
-            bus,
-            drive,
-            at_s,
-            "drive {address}: telegram monitoring {param} = {ms} ms is longer than monitoring_max_ms: after ussd or its line dies the drive runs on for that long"
-        ),
-        other => tracing::warn!(
-            bus,
-            drive,
-            at_s,
-            "drive {address}: telegram monitoring {other} ({param}): check monitoring_param for this drive family (P2014.1 on MICROMASTER 4, p2040 on G120)"
-        ),
-    }
-}
-
-fn log_event(bus: &BusConfig, event: &Event) {
-    match *event {
-        Event::DriveOffline {
-            address,
-            at,
-            failure,
-        } => {
-            tracing::warn!(
-                bus = bus.name,
-                drive = address.get(),
-                at_s = at.as_secs_f64(),
-                "drive {address} does not respond ({}): offline",
-                failure.name()
-            );
-        }
-        Event::DriveOnline { address, at } => {
-            tracing::info!(
-                bus = bus.name,
-                drive = address.get(),
-                at_s = at.as_secs_f64(),
-                "drive {address} online"
-            );
-        }
-        Event::Latched {
-            address,
-            latch,
-            rejection,
-        } => log_latch(bus, address, &latch, rejection),
-        Event::Rearmed { address, at, pid } => {
-            tracing::info!(
-                bus = bus.name,
-                drive = address.get(),
-                at_s = at.as_secs_f64(),
-                pid,
-                "drive {address}: re-armed by process {pid} (OFF1 after the latch): its controller's words go out again"
-            );
-        }
-        Event::Monitoring {
-            address,
-            at,
-            state,
-            ms,
-        } => log_monitoring(bus, address, at, state, ms),
-        Event::LineDown { at, fault } => {
-            tracing::error!(
-                bus = bus.name,
-                at_s = at.as_secs_f64(),
-                "line down ({fault}): every drive offline, pending parameter jobs ended; reopening the device with backoff (0.1 s doubling to 5 s); meanwhile only the drives' own telegram monitoring stops them"
-            );
-        }
-        Event::LineUp { at, down_for } => {
-            tracing::info!(
-                bus = bus.name,
-                at_s = at.as_secs_f64(),
-                down_s = down_for.as_secs_f64(),
-                "line back after {:.1} s: every drive latched until its controller re-arms it (OFF1, then ON)",
-                down_for.as_secs_f64()
-            );
-        }
-        Event::CycleOverrun { at, took } => {
-            tracing::warn!(
-                bus = bus.name,
-                at_s = at.as_secs_f64(),
-                took_ms = took.as_secs_f64() * 1e3,
-                "cycle took longer than cycle_time"
-            );
-        }
-    }
 }

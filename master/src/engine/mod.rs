@@ -9,13 +9,25 @@
 //! engine through lock-free process images and bounded channels ([`EngineHandle`]), and events go
 //! to a housekeeping thread over a bounded channel, dropped and counted when it lags.
 
-use crate::clock::Clock;
-use crate::control::{Control, Gate, GateSetup, Latch, Operator, Poll, Transition};
-use crate::image::DriveImages;
-use crate::jobs::{Job, JobResult, Mailbox, Outcome};
-use crate::monitoring::MonitoringSetup;
-use crate::stats::{DriveStatus, Failure, LineFault, Stats, record};
-use crate::transport::{Transport, TransportError};
+pub mod clock;
+pub mod control;
+pub mod image;
+pub mod jobs;
+pub mod monitoring;
+pub mod stats;
+pub mod transport;
+
+mod exchange;
+use exchange::Attempt;
+mod handle;
+
+use crate::engine::clock::Clock;
+use crate::engine::control::{Control, Gate, GateSetup, Latch, Operator, Poll, Transition};
+use crate::engine::image::DriveImages;
+use crate::engine::jobs::{Job, JobResult, Mailbox, Outcome};
+use crate::engine::monitoring::MonitoringSetup;
+use crate::engine::stats::{DriveStatus, Failure, LineFault, Stats, record};
+use crate::engine::transport::{Transport, TransportError};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
@@ -223,7 +235,7 @@ struct Shared {
     reopen_attempts: AtomicU32,
     /// Counts the bus thread's steps: every telegram attempt, every poll, every
     /// [`IDLE_STEP`] of an idle wait, every wait for a reopened line. A counter that stops
-    /// means the bus thread hangs (see `crate::supervise`).
+    /// means the bus thread hangs (see `crate::daemon::supervise`).
     progress: AtomicU64,
     outstanding: AtomicUsize,
     capacity: usize,
@@ -246,218 +258,18 @@ pub struct EngineHandle {
     results: Receiver<JobResult>,
 }
 
-impl EngineHandle {
-    /// Publishes the PZD words the drive should get (STW1, setpoint, ...) as an in-process
-    /// controller (an engine built with [`Engine::new`]). Every call refreshes the watchdog: a
-    /// controller must publish at least once per watchdog time. Like every sample, it reaches
-    /// the drive only while the drive is live (see [`crate::control`]).
-    pub fn set_output(&self, address: Address, words: &[u16]) -> Result<(), RequestError> {
-        let slot = self.shared.slot(address)?;
-        let allowed = self.shared.setups[slot].layout.pzd.get();
-        if words.len() != allowed {
-            return Err(RequestError::PzdWords {
-                address,
-                given: words.len(),
-                allowed,
-            });
-        }
-        let number = self.next_number(slot);
-        let sample = PzdOutput::from_words(words, number, 0, std::process::id()).map_err(|_| {
-            RequestError::PzdWords {
-                address,
-                given: words.len(),
-                allowed,
-            }
-        })?;
-        self.shared.images[slot].output.put(sample);
-        Ok(())
-    }
-
-    /// Publishes a sample exactly as given (any version, count or flags), as a foreign
-    /// controller could: the engine's checks decide what reaches the drive.
-    pub fn publish_sample(&self, address: Address, sample: PzdOutput) -> Result<(), RequestError> {
-        let slot = self.shared.slot(address)?;
-        self.shared.images[slot].output.put(sample);
-        Ok(())
-    }
-
-    /// Hands the drive back, as a controller that ends cleanly does: it gets its safe command,
-    /// latched, with the reason "released" (not a watchdog trip).
-    pub fn release(&self, address: Address) -> Result<(), RequestError> {
-        let slot = self.shared.slot(address)?;
-        let number = self.next_number(slot);
-        let sample = PzdOutput::release(number, 0, std::process::id());
-        self.shared.images[slot].output.put(sample);
-        Ok(())
-    }
-
-    fn next_number(&self, slot: usize) -> u64 {
-        self.shared.output_numbers[slot].fetch_add(1, Ordering::Relaxed) + 1
-    }
-
-    /// An operator's stop command (OFF1, OFF2, OFF3) for drive `address`, or every drive with
-    /// `None`, from process `pid`: it overrides the drive's controller from its next poll on
-    /// and latches. Returns the drives it reached (bit = address).
-    pub fn stop_drive(
-        &self,
-        address: Option<Address>,
-        command: StopCommand,
-        pid: u32,
-    ) -> Result<u32, RequestError> {
-        let which = STOPS
-            .iter()
-            .position(|&c| c == command)
-            .ok_or(RequestError::NotAStop(command))?;
-        let slots = match address {
-            Some(a) => {
-                let slot = self.shared.slot(a)?;
-                slot..slot + 1
-            }
-            None => 0..self.shared.setups.len(),
-        };
-        let mut reached = 0u32;
-        for slot in slots {
-            let o = &self.shared.overrides[slot];
-            o.pid.store(pid, Ordering::Relaxed);
-            o.counts[which].fetch_add(1, Ordering::Release);
-            reached |= 1 << self.shared.setups[slot].address.get();
-        }
-        Ok(reached)
-    }
-
-    /// The drive's last reply PZD (number = count of good replies) and whether it is online.
-    pub fn input(
-        &self,
-        address: Address,
-    ) -> Result<(Option<crate::image::Words>, bool), RequestError> {
-        let slot = self.shared.slot(address)?;
-        let image = &self.shared.images[slot];
-        let words = image
-            .input
-            .is_written()
-            .then(|| image.input.read())
-            .flatten();
-        Ok((words, image.online.load(Ordering::Acquire)))
-    }
-
-    /// Queues a parameter job. Once accepted it ends in exactly one [`JobResult`].
-    pub fn submit(&self, job: Job) -> Result<(), RequestError> {
-        if self.shared.stop.load(Ordering::Acquire) {
-            return Err(RequestError::Stopped);
-        }
-        if job.id & INTERNAL_JOB != 0 {
-            return Err(RequestError::ReservedJobId(job.id));
-        }
-        if self.shared.line_down.load(Ordering::Acquire) {
-            return Err(RequestError::LineDown);
-        }
-        let slot = self.shared.slot(job.address)?;
-        let setup = &self.shared.setups[slot];
-        if job.task.is_write() && !setup.params_writable {
-            return Err(RequestError::WritesDisabled(job.address));
-        }
-        let mut words = [0u16; MAX_PKW_WORDS];
-        job.task
-            .encode(setup.layout.pkw, &mut words)
-            .map_err(|error| RequestError::Pkw {
-                address: job.address,
-                error,
-            })?;
-        let cap = self.shared.capacity;
-        self.shared
-            .outstanding
-            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
-                (n < cap).then_some(n + 1)
-            })
-            .map_err(|_| RequestError::Busy(cap))?;
-        self.jobs.try_send(job).map_err(|_| {
-            self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
-            RequestError::Stopped
-        })
-    }
-
-    /// Cancels the jobs with ids in `ids` that have not reached the wire yet (their client
-    /// died): each ends with [`Outcome::Cancelled`] at the bus thread's next step. `false` when
-    /// the bus thread's queue of cancellations is full (ask again later).
-    pub fn cancel(&self, ids: core::ops::Range<u64>) -> bool {
-        self.cancels.try_send(ids).is_ok()
-    }
-
-    /// The next finished job, waiting at most `timeout`.
-    pub fn recv_result(&self, timeout: Duration) -> Option<JobResult> {
-        let r = self.results.recv_timeout(timeout).ok()?;
-        self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
-        Some(r)
-    }
-
-    /// A copy of the latest published statistics.
-    pub fn stats(&self) -> Stats {
-        // A poisoned lock means a panic elsewhere; the data is plain counters and still usable.
-        self.shared
-            .stats
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .clone()
-    }
-
-    /// Asks the engine to stop after its current exchange.
-    pub fn stop(&self) {
-        self.shared.stop.store(true, Ordering::Release);
-    }
-
-    pub fn is_stopped(&self) -> bool {
-        self.shared.stop.load(Ordering::Acquire)
-    }
-
-    /// Whether the bus line is down (the engine waits for a reopened transport).
-    pub fn is_line_down(&self) -> bool {
-        self.shared.line_down.load(Ordering::Acquire)
-    }
-
-    /// How many steps the bus thread has made (see `Shared::progress`); it moves at least every
-    /// [`IDLE_STEP`] and every telegram attempt while the thread runs.
-    pub fn progress(&self) -> u64 {
-        self.shared.progress.load(Ordering::Relaxed)
-    }
-
-    /// Counts a step of the bus thread made outside the engine (waiting for its line).
-    pub fn note_progress(&self) {
-        self.shared.progress.fetch_add(1, Ordering::Relaxed);
-    }
-
-    /// Counts one attempt to reopen the line (for the bus status).
-    pub fn note_reopen_attempt(&self) {
-        self.shared.reopen_attempts.fetch_add(1, Ordering::Relaxed);
-    }
-
-    /// Attempts to reopen the line since it last went down.
-    pub fn reopen_attempts(&self) -> u32 {
-        self.shared.reopen_attempts.load(Ordering::Relaxed)
-    }
-
-    pub fn drives(&self) -> &[DriveSetup] {
-        &self.shared.setups
-    }
-}
-
 /// Per-drive state the engine keeps.
 #[derive(Debug)]
 struct DriveRt {
     setup: DriveSetup,
     mailbox: Mailbox,
     next_probe: Duration,
-    /// Decides the words that go out (`crate::control`).
+    /// Decides the words that go out (`crate::engine::control`).
     gate: Gate,
     /// Operator commands already taken: OFF1, OFF2, OFF3.
     overrides_seen: [u32; 3],
     /// The telegram-monitoring parameter should be read (the drive came online).
     monitoring_due: bool,
-}
-
-/// How one attempt ended.
-enum Attempt {
-    Reply { words: Words, timing: ReplyTiming },
-    Failed(Failure),
 }
 
 /// The bus engine. See the module documentation.
@@ -972,7 +784,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     }
 
     /// The PZD to send now, as the drive's [`Gate`] decides from the controller's newest
-    /// sample, operator commands and the telegram-monitoring rule (`crate::control`).
+    /// sample, operator commands and the telegram-monitoring rule (`crate::engine::control`).
     fn output(&mut self, slot: usize, now: Duration, out: &mut [u16; MAX_PZD_WORDS]) {
         let sample = self.bridge.take_sample(slot, &self.shared.images[slot]);
         let operator = self.take_override(slot);
@@ -1030,326 +842,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         })
     }
 
-    fn poll_drive(&mut self, slot: usize) -> Result<(), TransportError> {
-        let now = self.clock.now();
-        if let Some(r) = self.drives[slot]
-            .mailbox
-            .expire(self.cfg.param_timeout, now)
-        {
-            self.deliver(r);
-        }
-        self.check_monitoring(slot);
-        let mut output = [0u16; MAX_PZD_WORDS];
-        self.output(slot, now, &mut output);
-        let len = self.drives[slot].setup.layout.pzd.get();
-        let mut last = Failure::NoResponse;
-        for attempt in 0..=self.cfg.retries {
-            if attempt > 0 {
-                self.stats.drives[slot].counters.retries += 1;
-            }
-            let begin = self.line_free_at;
-            match self.attempt(slot, &output[..len], true)? {
-                Attempt::Reply { words, mut timing } => {
-                    timing.first_attempt = attempt == 0;
-                    self.on_reply(slot, &words, begin, timing);
-                    self.bridge.after_poll(
-                        slot,
-                        &self.shared.images[slot],
-                        &self.stats.drives[slot],
-                    );
-                    return Ok(());
-                }
-                Attempt::Failed(f) => {
-                    let c = &mut self.stats.drives[slot].counters;
-                    c.rejected += 1;
-                    c.count(f);
-                    self.stats.drives[slot].last_failure = Some(f);
-                    last = f;
-                }
-            }
-        }
-        self.on_failed_poll(slot, last);
-        self.bridge
-            .after_poll(slot, &self.shared.images[slot], &self.stats.drives[slot]);
-        Ok(())
-    }
-
-    fn on_reply(&mut self, slot: usize, words: &Words, begin: Duration, timing: ReplyTiming) {
-        let address = self.drives[slot].setup.address;
-        let status = &mut self.stats.drives[slot];
-        status.counters.good += 1;
-        self.stats.bus.good += 1;
-        if let Some(previous) = status.last_good {
-            record(
-                &mut self.stats.update_period[slot],
-                timing.done.saturating_sub(previous),
-            );
-        }
-        status.last_good = Some(timing.done);
-        status.no_reply = false;
-        status.consecutive_failed_polls = 0;
-        let pzd = words.pzd();
-        status.last_zsw1 = pzd.first().copied().unwrap_or(0);
-        status.last_hiw = pzd.get(1).copied().unwrap_or(0);
-        let came_back = !status.online;
-        if came_back {
-            status.online = true;
-            status.known = true;
-            status.since = timing.done;
-        }
-        let good = status.counters.good;
-        // The STX's arrival time is the end of its stop bit: its start was one tz earlier.
-        let tz = self.cfg.timing.char_time();
-        let response_delay = timing.stx_at.saturating_sub(tz + timing.request_end);
-        let exchange = timing.done.saturating_sub(begin);
-        let h = &mut self.stats.histograms;
-        record(&mut h.response_delay, response_delay);
-        record(&mut h.exchange, exchange);
-        if timing.first_attempt {
-            let reply_len = 4 + 2 * (words.pkw().len() + words.pzd().len());
-            let chars = (timing.request_len + reply_len) as u64;
-            let floor =
-                self.cfg.timing.start_pause() + self.cfg.timing.chars(chars) + response_delay;
-            let bus = &mut self.stats.bus;
-            bus.exchange_ns += u64::try_from(exchange.as_nanos()).unwrap_or(u64::MAX);
-            bus.wire_floor_ns += u64::try_from(floor.as_nanos()).unwrap_or(u64::MAX);
-        }
-        let image = &self.shared.images[slot];
-        image.input.write(
-            pzd,
-            good,
-            u64::try_from(timing.done.as_nanos()).unwrap_or(u64::MAX),
-        );
-        if came_back {
-            image.online.store(true, Ordering::Release);
-            self.emit(Event::DriveOnline {
-                address,
-                at: timing.done,
-            });
-        }
-        if came_back {
-            // A drive that comes online may have been replaced or reset: read its monitoring.
-            self.drives[slot].monitoring_due = true;
-        }
-        self.last_reply_done = Some(timing.done);
-        if words.pkw().is_empty() || self.drives[slot].mailbox.is_empty() {
-            return;
-        }
-        if let Ok(reply) = ParamReply::decode(words.pkw()) {
-            if reply.kind == ReplyKind::NotYet {
-                self.stats.drives[slot].counters.pkw_busy += 1;
-            }
-            if let Some(result) = self.drives[slot].mailbox.on_reply(&reply, timing.done) {
-                self.deliver(result);
-            }
-        }
-    }
-
-    fn on_failed_poll(&mut self, slot: usize, failure: Failure) {
-        let now = self.clock.now();
-        let address = self.drives[slot].setup.address;
-        let status = &mut self.stats.drives[slot];
-        status.counters.failed_polls += 1;
-        status.no_reply = true;
-        status.consecutive_failed_polls += 1;
-        self.drives[slot].next_probe = now + self.cfg.offline_probe;
-        // A drive of unknown state is offline with its first failed poll; an online one after
-        // `offline_after` in a row.
-        let decides = !status.known
-            || (status.online && status.consecutive_failed_polls >= self.cfg.offline_after);
-        if decides {
-            status.online = false;
-            status.known = true;
-            status.since = now;
-            self.shared.images[slot]
-                .online
-                .store(false, Ordering::Release);
-            self.emit(Event::DriveOffline {
-                address,
-                at: now,
-                failure,
-            });
-            while let Some(r) = self.drives[slot].mailbox.finish(Outcome::DriveOffline, now) {
-                self.deliver(r);
-            }
-        }
-    }
-
-    /// One telegram to the drive in `slot` and its reply. `with_task` puts the pending PKW task
-    /// in (not for the shutdown telegrams).
-    fn attempt(
-        &mut self,
-        slot: usize,
-        pzd: &[u16],
-        with_task: bool,
-    ) -> Result<Attempt, TransportError> {
-        self.shared.progress.fetch_add(1, Ordering::Relaxed);
-        let setup = self.drives[slot].setup;
-        let mut pkw = [0u16; MAX_PKW_WORDS];
-        let task = if with_task {
-            self.drives[slot].mailbox.current().copied()
-        } else {
-            None
-        };
-        // Tasks were checked against the PKW mode when submitted, so encoding succeeds; a task
-        // that somehow does not fit goes out as "no task".
-        let pkw_len = task
-            .and_then(|t| t.encode(setup.layout.pkw, &mut pkw).ok())
-            .unwrap_or_else(|| {
-                pkw = [0; MAX_PKW_WORDS];
-                setup.layout.pkw.request_words()
-            });
-        let Ok(n) = encode(&mut self.tx, Adr::to(setup.address), &pkw[..pkw_len], pzd) else {
-            return Ok(Attempt::Failed(Failure::Length));
-        };
-        if let Some(seen) = self.last_reply_seen.take() {
-            let ready = self.clock.now();
-            record(&mut self.stats.histograms.work, ready.saturating_sub(seen));
-        }
-        // The start pause, then a clean input buffer, then our telegram (USS.md section 4).
-        self.clock
-            .sleep_until_precise(self.line_free_at + self.cfg.timing.start_pause());
-        let send_at = self.clock.now();
-        if let Some(done) = self.last_reply_done.take() {
-            record(
-                &mut self.stats.histograms.turnaround,
-                send_at.saturating_sub(done),
-            );
-        }
-        self.transport.flush_input(send_at)?;
-        self.framer.reset();
-        let request_end = self.transport.send(&self.tx[..n], send_at)?;
-        if task.is_some() {
-            self.drives[slot].mailbox.sent(send_at);
-        }
-        self.stats.drives[slot].counters.requests += 1;
-        self.stats.bus.exchanges += 1;
-        self.framer.line_busy_until(request_end);
-        self.line_free_at = request_end;
-        if self.cfg.echo
-            && let Some(f) = self.discard_echo(n, request_end)?
-        {
-            return Ok(Attempt::Failed(f));
-        }
-        self.receive_reply(setup, n, request_end)
-    }
-
-    /// Receives until a valid reply from the right drive, or a failure.
-    fn receive_reply(
-        &mut self,
-        setup: DriveSetup,
-        request_len: usize,
-        request_end: Duration,
-    ) -> Result<Attempt, TransportError> {
-        let stx_deadline = request_end + self.cfg.response_timeout;
-        let mut stx_at = None;
-        let mut garbage = None;
-        loop {
-            let deadline = self.framer.deadline().unwrap_or(stx_deadline);
-            let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {
-                if self.framer.is_receiving() {
-                    // recv returns at the deadline: the telegram did not complete in time.
-                    self.framer.reset();
-                    self.drain()?;
-                    return Ok(Attempt::Failed(Failure::Residual));
-                }
-                return Ok(Attempt::Failed(garbage.unwrap_or(Failure::NoResponse)));
-            };
-            self.line_free_at = self.line_free_at.max(rx.at);
-            let was_receiving = self.framer.is_receiving();
-            let event = match rx.error {
-                Some(e) => Some(Err(self.framer.push_line_error(e, rx.at))),
-                None => self
-                    .framer
-                    .push(rx.byte, rx.at)
-                    .map(|r| r.map(|telegram| (telegram.adr(), telegram.words(setup.layout)))),
-            };
-            if !was_receiving && self.framer.is_receiving() {
-                stx_at = Some(rx.at);
-            }
-            let (adr, words) = match event {
-                None => continue,
-                Some(Ok(parts)) => parts,
-                Some(Err(e @ (FrameError::MissingStx(_) | FrameError::StartPauseNotObserved))) => {
-                    // Garbage before the reply: the reply may still follow after a pause.
-                    garbage.get_or_insert(Failure::from_frame(&e));
-                    continue;
-                }
-                Some(Err(e)) => {
-                    self.drain()?;
-                    return Ok(Attempt::Failed(Failure::from_frame(&e)));
-                }
-            };
-            let failure = if adr == Adr::to(setup.address) {
-                match words {
-                    Ok(words) => {
-                        if let Some(g) = garbage {
-                            let slot = self.slot(setup.address);
-                            self.stats.drives[slot].counters.count(g);
-                        }
-                        self.last_reply_seen = Some(self.clock.now());
-                        let timing = ReplyTiming {
-                            request_len,
-                            request_end,
-                            stx_at: stx_at.unwrap_or(rx.at),
-                            done: rx.at,
-                            first_attempt: true,
-                        };
-                        return Ok(Attempt::Reply { words, timing });
-                    }
-                    Err(_) => Failure::Length,
-                }
-            } else {
-                Failure::WrongAddress
-            };
-            self.drain()?;
-            return Ok(Attempt::Failed(failure));
-        }
-    }
-
-    fn slot(&self, address: Address) -> usize {
-        self.shared.slot_of[address.get() as usize].map_or(0, usize::from)
-    }
-
-    /// Reads our own request back from a 2-wire adapter and checks it byte for byte.
-    fn discard_echo(
-        &mut self,
-        n: usize,
-        request_end: Duration,
-    ) -> Result<Option<Failure>, TransportError> {
-        let deadline = request_end + self.cfg.response_timeout;
-        for i in 0..n {
-            let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {
-                return Ok(Some(Failure::Echo));
-            };
-            self.line_free_at = self.line_free_at.max(rx.at);
-            if rx.byte != self.tx[i] || rx.error.is_some() {
-                self.drain()?;
-                return Ok(Some(Failure::Echo));
-            }
-        }
-        self.framer.line_busy_until(self.line_free_at);
-        Ok(None)
-    }
-
-    /// After a broken reply, waits until the line has been quiet for a start pause, so the rest
-    /// of it is not taken for the next reply. Bounded by the longest telegram's residual time.
-    fn drain(&mut self) -> Result<(), TransportError> {
-        let pause = self.cfg.timing.start_pause();
-        let limit = self.clock.now() + self.cfg.timing.max_residual(MAX_NET_BYTES);
-        loop {
-            let quiet = (self.line_free_at + pause).min(limit);
-            match self.transport.recv(quiet, &mut self.clock)? {
-                Some(rx) if self.clock.now() < limit => {
-                    self.line_free_at = self.line_free_at.max(rx.at);
-                }
-                _ => break,
-            }
-        }
-        self.framer.reset();
-        Ok(())
-    }
-
     fn publish_if_due(&mut self) {
         let now = self.clock.now();
         if now.saturating_sub(self.last_publish) >= self.cfg.publish_every {
@@ -1377,16 +869,6 @@ fn initial_monitoring(setup: &DriveSetup) -> Monitoring {
     } else {
         Monitoring::Unknown
     }
-}
-
-/// When the parts of a good reply happened.
-#[derive(Debug, Clone, Copy)]
-struct ReplyTiming {
-    request_len: usize,
-    request_end: Duration,
-    stx_at: Duration,
-    done: Duration,
-    first_attempt: bool,
 }
 
 #[cfg(test)]

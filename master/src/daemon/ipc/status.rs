@@ -5,9 +5,9 @@
 use super::{
     IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, as_ns, fail, monotonic_ns, pid_of, text,
 };
-use crate::control::Control;
 use crate::engine::DriveSetup;
-use crate::stats::{DriveStatus, Failure, LineFault, Stats};
+use crate::engine::control::Control;
+use crate::engine::stats::{DriveStatus, Failure, LineFault, Stats};
 use core::time::Duration;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};

@@ -2,8 +2,8 @@
 //! USS.md section 7), plus timing histograms. Everything is allocated when the engine starts;
 //! counting and recording never allocate.
 
-use crate::control::{Control, ControlCounters};
-use crate::transport::TransportError;
+use crate::engine::control::{Control, ControlCounters};
+use crate::engine::transport::TransportError;
 use core::time::Duration;
 use hdrhistogram::Histogram;
 use uss_protocol::{Address, FrameError, LineError};
@@ -190,7 +190,7 @@ pub struct DriveStatus {
     pub last_zsw1: u16,
     pub last_hiw: u16,
     pub last_good: Option<Duration>,
-    /// Live (the controller's words go out) or latched, and why (`crate::control`).
+    /// Live (the controller's words go out) or latched, and why (`crate::engine::control`).
     pub control: Control,
     /// The last refused sample's rejection.
     pub rejection: Rejection,

@@ -3,8 +3,8 @@
 //! state, online flag, last ZSW1 and actual value, and telegram counters.
 
 use crate::config::BusConfig;
-use crate::control::Control;
-use crate::stats::{DriveCounters, DriveStatus, Stats};
+use crate::engine::control::Control;
+use crate::engine::stats::{DriveCounters, DriveStatus, Stats};
 use core::fmt::Write;
 use core::time::Duration;
 use uss_protocol::{DriveState, Setpoint, Zsw1};
@@ -73,7 +73,8 @@ pub fn render(bus: &BusConfig, rt_mode: &str, stats: &Stats, previous: Option<&S
             c.residual,
             c.wrong_address,
             c.parity,
-            d.last_failure.map_or("-", crate::stats::Failure::name),
+            d.last_failure
+                .map_or("-", crate::engine::stats::Failure::name),
             control_note(d),
         );
     }

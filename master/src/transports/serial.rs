@@ -8,8 +8,8 @@
 //! timestamps it once and hands it out byte by byte: nothing allocates after `open`, because
 //! `send` and `recv` run in the real-time thread.
 
-use crate::clock::Clock;
-use crate::transport::{Rx, Transport, TransportError};
+use crate::engine::clock::Clock;
+use crate::engine::transport::{Rx, Transport, TransportError};
 use core::fmt;
 use core::ops::RangeInclusive;
 use core::time::Duration;
@@ -576,7 +576,7 @@ fn set_low_latency(fd: BorrowedFd<'_>) -> Result<(), Errno> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::clock::{MonotonicClock, VirtualClock};
+    use crate::engine::clock::{MonotonicClock, VirtualClock};
     use proptest::prelude::*;
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::time::Instant;

@@ -1,11 +1,10 @@
 //! The line under the engine. [`Transport`] is the seam between the bus engine and the bytes:
 //! [`SimTransport`] attaches to the simulator's in-process virtual wire, and
-//! [`crate::serial::SerialTransport`] to a serial device or pseudo-terminal.
+//! [`crate::transports::serial::SerialTransport`] to a serial device or pseudo-terminal.
 
-use crate::clock::Clock;
+use crate::engine::clock::Clock;
 use core::time::Duration;
 use thiserror::Error;
-use uss_drive_sim::VirtualWire;
 use uss_protocol::LineError;
 
 /// One character received from the line.
@@ -49,63 +48,6 @@ pub trait Transport {
     /// lines need nothing.
     fn idle(&mut self, now: Duration) {
         let _ = now;
-    }
-}
-
-/// The in-process virtual wire to simulated drives: bytes take their real wire time.
-#[derive(Debug)]
-pub struct SimTransport {
-    wire: VirtualWire,
-}
-
-impl SimTransport {
-    pub const fn new(wire: VirtualWire) -> Self {
-        Self { wire }
-    }
-
-    pub const fn wire(&self) -> &VirtualWire {
-        &self.wire
-    }
-
-    /// The wire and its drives, for fault injection and inspection in tests.
-    pub fn wire_mut(&mut self) -> &mut VirtualWire {
-        &mut self.wire
-    }
-}
-
-impl Transport for SimTransport {
-    fn flush_input(&mut self, now: Duration) -> Result<(), TransportError> {
-        self.wire.flush_input(now);
-        Ok(())
-    }
-
-    fn send(&mut self, bytes: &[u8], now: Duration) -> Result<Duration, TransportError> {
-        Ok(self.wire.transmit(bytes, now))
-    }
-
-    fn recv(
-        &mut self,
-        deadline: Duration,
-        clock: &mut impl Clock,
-    ) -> Result<Option<Rx>, TransportError> {
-        match self.wire.next_arrival() {
-            Some(at) if at <= deadline => {
-                clock.sleep_until(at);
-                Ok(self.wire.receive(at).map(|b| Rx {
-                    byte: b.byte,
-                    at: b.at,
-                    error: b.error,
-                }))
-            }
-            _ => {
-                clock.sleep_until(deadline);
-                Ok(None)
-            }
-        }
-    }
-
-    fn idle(&mut self, now: Duration) {
-        self.wire.advance(now);
     }
 }
 

@@ -7,8 +7,8 @@
 use super::status::ControlView;
 use super::{IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, fail, text};
 use crate::engine::Bridge;
-use crate::image::DriveImages;
-use crate::stats::DriveStatus;
+use crate::engine::image::DriveImages;
+use crate::engine::stats::DriveStatus;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::writer::{EntryHandleMut, Writer};

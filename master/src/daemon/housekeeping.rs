@@ -1,0 +1,225 @@
+//! A bus's housekeeping thread: logs the engine's events as they come, publishes status,
+//! diagnostics and the heartbeat for clients, and logs the live and the final summary. Not
+//! real-time: it may allocate, block and log.
+
+use crate::config::BusConfig;
+use crate::daemon::ipc::StatusPublisher;
+use crate::engine::control::Latch;
+use crate::engine::stats::Stats;
+use crate::engine::{EngineHandle, Event};
+use core::time::Duration;
+use crossbeam_channel::{Receiver, RecvTimeoutError};
+use std::thread::JoinHandle;
+use uss_protocol::Address;
+use uss_shm_types::{LatchReason, Monitoring, Rejection};
+
+/// How often bus status, drive diagnostics and the heartbeat are published for clients: with
+/// the engine's snapshot at most as old, what clients read is at most 100 ms old.
+pub(super) const STATUS_EVERY: Duration =
+    Duration::from_nanos(uss_shm_types::names::HEARTBEAT_PERIOD_NS);
+
+/// Logs events as they come, publishes status and diagnostics every [`STATUS_EVERY`], and logs
+/// the summary every `every`; logs the final summary when the engine has stopped. While the bus
+/// thread hangs (no progress for its [`crate::daemon::supervise::stall_bound`]) it publishes nothing:
+/// no heartbeat, so clients learn within half a second more that nobody serves the bus.
+pub(super) fn spawn(
+    bus: &BusConfig,
+    handle: EngineHandle,
+    events: Receiver<Event>,
+    mut publisher: StatusPublisher,
+    mode: &'static str,
+    every: Duration,
+) -> std::io::Result<JoinHandle<()>> {
+    let bus = bus.clone();
+    let stall_bound = crate::daemon::supervise::stall_bound(&bus);
+    std::thread::Builder::new()
+        .name(format!("uss-{}-hk", bus.name))
+        .spawn(move || {
+            let mut previous: Option<Stats> = None;
+            let start = std::time::Instant::now();
+            let mut progress = (handle.progress(), start);
+            let mut next_summary = start + every;
+            let mut next_status = start;
+            loop {
+                let next = next_summary.min(next_status);
+                let wait = next.saturating_duration_since(std::time::Instant::now());
+                match events.recv_timeout(wait) {
+                    Ok(event) => log_event(&bus, &event),
+                    Err(RecvTimeoutError::Timeout) => {}
+                    Err(RecvTimeoutError::Disconnected) => break,
+                }
+                // After every wake-up: a burst of events must not hold back the heartbeat,
+                // by which clients tell that ussd lives.
+                let now = std::time::Instant::now();
+                if handle.progress() != progress.0 {
+                    progress = (handle.progress(), now);
+                }
+                let hangs = now.duration_since(progress.1) >= stall_bound;
+                if now >= next_status {
+                    if !hangs {
+                        publisher.publish(&handle.stats(), true, handle.reopen_attempts());
+                    }
+                    next_status = (next_status + STATUS_EVERY).max(now);
+                }
+                if now >= next_summary {
+                    let stats = handle.stats();
+                    tracing::info!(
+                        "\n{}",
+                        crate::daemon::summary::render(&bus, mode, &stats, previous.as_ref())
+                            .trim_end()
+                    );
+                    previous = Some(stats);
+                    next_summary = (next_summary + every).max(now);
+                }
+            }
+            let stats = handle.stats();
+            publisher.publish(&stats, false, handle.reopen_attempts());
+            publisher.goodbye();
+            tracing::info!(
+                "final\n{}",
+                crate::daemon::summary::render(&bus, mode, &stats, None).trim_end()
+            );
+        })
+}
+
+fn log_latch(bus: &BusConfig, address: Address, latch: &Latch, rejection: Rejection) {
+    let (drive, at_s, pid) = (address.get(), latch.since.as_secs_f64(), latch.by_pid);
+    let command = latch.command;
+    let bus = bus.name.as_str();
+    match latch.reason {
+        LatchReason::Released => tracing::info!(
+            bus,
+            drive,
+            at_s,
+            pid,
+            "drive {address}: released by its controller (process {pid}); sending {command}, latched"
+        ),
+        LatchReason::Override => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            pid,
+            "drive {address}: operator {command} from process {pid}; latched until its controller re-arms (OFF1, then ON)"
+        ),
+        LatchReason::Rejected => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            pid,
+            "drive {address}: refused a sample of process {pid} ({rejection}); sending {command}, latched until the controller re-arms (OFF1, then ON)"
+        ),
+        reason => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            pid,
+            "drive {address}: {reason}; sending {command}, latched until the controller re-arms (OFF1, then ON)"
+        ),
+    }
+}
+
+fn log_monitoring(bus: &BusConfig, address: Address, at: Duration, state: Monitoring, ms: u32) {
+    let param = bus
+        .drives
+        .iter()
+        .find(|d| d.address == address)
+        .and_then(|d| d.monitoring_param)
+        .map_or_else(|| "the monitoring parameter".to_owned(), |p| p.to_string());
+    let (drive, at_s, bus) = (address.get(), at.as_secs_f64(), bus.name.as_str());
+    match state {
+        Monitoring::On => tracing::info!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: telegram monitoring on ({param} = {ms} ms)"
+        ),
+        Monitoring::Off => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: telegram monitoring is OFF ({param} = 0): if ussd or its line dies, nothing stops this drive; set {param} to e.g. 100 ms (USS.md section 5)"
+        ),
+        Monitoring::TooLong => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: telegram monitoring {param} = {ms} ms is longer than monitoring_max_ms: after ussd or its line dies the drive runs on for that long"
+        ),
+        other => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: telegram monitoring {other} ({param}): check monitoring_param for this drive family (P2014.1 on MICROMASTER 4, p2040 on G120)"
+        ),
+    }
+}
+
+fn log_event(bus: &BusConfig, event: &Event) {
+    match *event {
+        Event::DriveOffline {
+            address,
+            at,
+            failure,
+        } => {
+            tracing::warn!(
+                bus = bus.name,
+                drive = address.get(),
+                at_s = at.as_secs_f64(),
+                "drive {address} does not respond ({}): offline",
+                failure.name()
+            );
+        }
+        Event::DriveOnline { address, at } => {
+            tracing::info!(
+                bus = bus.name,
+                drive = address.get(),
+                at_s = at.as_secs_f64(),
+                "drive {address} online"
+            );
+        }
+        Event::Latched {
+            address,
+            latch,
+            rejection,
+        } => log_latch(bus, address, &latch, rejection),
+        Event::Rearmed { address, at, pid } => {
+            tracing::info!(
+                bus = bus.name,
+                drive = address.get(),
+                at_s = at.as_secs_f64(),
+                pid,
+                "drive {address}: re-armed by process {pid} (OFF1 after the latch): its controller's words go out again"
+            );
+        }
+        Event::Monitoring {
+            address,
+            at,
+            state,
+            ms,
+        } => log_monitoring(bus, address, at, state, ms),
+        Event::LineDown { at, fault } => {
+            tracing::error!(
+                bus = bus.name,
+                at_s = at.as_secs_f64(),
+                "line down ({fault}): every drive offline, pending parameter jobs ended; reopening the device with backoff (0.1 s doubling to 5 s); meanwhile only the drives' own telegram monitoring stops them"
+            );
+        }
+        Event::LineUp { at, down_for } => {
+            tracing::info!(
+                bus = bus.name,
+                at_s = at.as_secs_f64(),
+                down_s = down_for.as_secs_f64(),
+                "line back after {:.1} s: every drive latched until its controller re-arms it (OFF1, then ON)",
+                down_for.as_secs_f64()
+            );
+        }
+        Event::CycleOverrun { at, took } => {
+            tracing::warn!(
+                bus = bus.name,
+                at_s = at.as_secs_f64(),
+                took_ms = took.as_secs_f64() * 1e3,
+                "cycle took longer than cycle_time"
+            );
+        }
+    }
+}

@@ -1,0 +1,353 @@
+//! One drive's poll: the telegram with its PZD words and PKW task, the reply and its checks
+//! (USS.md section 4: start pause, response delay, residual time, BCC, the right slave), retries,
+//! the echo of a 2-wire adapter, and what a good or failed poll changes.
+
+use super::{
+    Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, Failure, FrameError,
+    MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, Outcome, ParamReply, ReplyKind,
+    Transport, TransportError, Words, encode, record,
+};
+
+/// How one attempt ended.
+pub(super) enum Attempt {
+    Reply { words: Words, timing: ReplyTiming },
+    Failed(Failure),
+}
+
+/// When the parts of a good reply happened.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct ReplyTiming {
+    request_len: usize,
+    request_end: Duration,
+    stx_at: Duration,
+    done: Duration,
+    first_attempt: bool,
+}
+
+impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
+    pub(super) fn poll_drive(&mut self, slot: usize) -> Result<(), TransportError> {
+        let now = self.clock.now();
+        if let Some(r) = self.drives[slot]
+            .mailbox
+            .expire(self.cfg.param_timeout, now)
+        {
+            self.deliver(r);
+        }
+        self.check_monitoring(slot);
+        let mut output = [0u16; MAX_PZD_WORDS];
+        self.output(slot, now, &mut output);
+        let len = self.drives[slot].setup.layout.pzd.get();
+        let mut last = Failure::NoResponse;
+        for attempt in 0..=self.cfg.retries {
+            if attempt > 0 {
+                self.stats.drives[slot].counters.retries += 1;
+            }
+            let begin = self.line_free_at;
+            match self.attempt(slot, &output[..len], true)? {
+                Attempt::Reply { words, mut timing } => {
+                    timing.first_attempt = attempt == 0;
+                    self.on_reply(slot, &words, begin, timing);
+                    self.bridge.after_poll(
+                        slot,
+                        &self.shared.images[slot],
+                        &self.stats.drives[slot],
+                    );
+                    return Ok(());
+                }
+                Attempt::Failed(f) => {
+                    let c = &mut self.stats.drives[slot].counters;
+                    c.rejected += 1;
+                    c.count(f);
+                    self.stats.drives[slot].last_failure = Some(f);
+                    last = f;
+                }
+            }
+        }
+        self.on_failed_poll(slot, last);
+        self.bridge
+            .after_poll(slot, &self.shared.images[slot], &self.stats.drives[slot]);
+        Ok(())
+    }
+
+    pub(super) fn on_reply(
+        &mut self,
+        slot: usize,
+        words: &Words,
+        begin: Duration,
+        timing: ReplyTiming,
+    ) {
+        let address = self.drives[slot].setup.address;
+        let status = &mut self.stats.drives[slot];
+        status.counters.good += 1;
+        self.stats.bus.good += 1;
+        if let Some(previous) = status.last_good {
+            record(
+                &mut self.stats.update_period[slot],
+                timing.done.saturating_sub(previous),
+            );
+        }
+        status.last_good = Some(timing.done);
+        status.no_reply = false;
+        status.consecutive_failed_polls = 0;
+        let pzd = words.pzd();
+        status.last_zsw1 = pzd.first().copied().unwrap_or(0);
+        status.last_hiw = pzd.get(1).copied().unwrap_or(0);
+        let came_back = !status.online;
+        if came_back {
+            status.online = true;
+            status.known = true;
+            status.since = timing.done;
+        }
+        let good = status.counters.good;
+        // The STX's arrival time is the end of its stop bit: its start was one tz earlier.
+        let tz = self.cfg.timing.char_time();
+        let response_delay = timing.stx_at.saturating_sub(tz + timing.request_end);
+        let exchange = timing.done.saturating_sub(begin);
+        let h = &mut self.stats.histograms;
+        record(&mut h.response_delay, response_delay);
+        record(&mut h.exchange, exchange);
+        if timing.first_attempt {
+            let reply_len = 4 + 2 * (words.pkw().len() + words.pzd().len());
+            let chars = (timing.request_len + reply_len) as u64;
+            let floor =
+                self.cfg.timing.start_pause() + self.cfg.timing.chars(chars) + response_delay;
+            let bus = &mut self.stats.bus;
+            bus.exchange_ns += u64::try_from(exchange.as_nanos()).unwrap_or(u64::MAX);
+            bus.wire_floor_ns += u64::try_from(floor.as_nanos()).unwrap_or(u64::MAX);
+        }
+        let image = &self.shared.images[slot];
+        image.input.write(
+            pzd,
+            good,
+            u64::try_from(timing.done.as_nanos()).unwrap_or(u64::MAX),
+        );
+        if came_back {
+            image.online.store(true, Ordering::Release);
+            self.emit(Event::DriveOnline {
+                address,
+                at: timing.done,
+            });
+        }
+        if came_back {
+            // A drive that comes online may have been replaced or reset: read its monitoring.
+            self.drives[slot].monitoring_due = true;
+        }
+        self.last_reply_done = Some(timing.done);
+        if words.pkw().is_empty() || self.drives[slot].mailbox.is_empty() {
+            return;
+        }
+        if let Ok(reply) = ParamReply::decode(words.pkw()) {
+            if reply.kind == ReplyKind::NotYet {
+                self.stats.drives[slot].counters.pkw_busy += 1;
+            }
+            if let Some(result) = self.drives[slot].mailbox.on_reply(&reply, timing.done) {
+                self.deliver(result);
+            }
+        }
+    }
+
+    pub(super) fn on_failed_poll(&mut self, slot: usize, failure: Failure) {
+        let now = self.clock.now();
+        let address = self.drives[slot].setup.address;
+        let status = &mut self.stats.drives[slot];
+        status.counters.failed_polls += 1;
+        status.no_reply = true;
+        status.consecutive_failed_polls += 1;
+        self.drives[slot].next_probe = now + self.cfg.offline_probe;
+        // A drive of unknown state is offline with its first failed poll; an online one after
+        // `offline_after` in a row.
+        let decides = !status.known
+            || (status.online && status.consecutive_failed_polls >= self.cfg.offline_after);
+        if decides {
+            status.online = false;
+            status.known = true;
+            status.since = now;
+            self.shared.images[slot]
+                .online
+                .store(false, Ordering::Release);
+            self.emit(Event::DriveOffline {
+                address,
+                at: now,
+                failure,
+            });
+            while let Some(r) = self.drives[slot].mailbox.finish(Outcome::DriveOffline, now) {
+                self.deliver(r);
+            }
+        }
+    }
+
+    /// One telegram to the drive in `slot` and its reply. `with_task` puts the pending PKW task
+    /// in (not for the shutdown telegrams).
+    pub(super) fn attempt(
+        &mut self,
+        slot: usize,
+        pzd: &[u16],
+        with_task: bool,
+    ) -> Result<Attempt, TransportError> {
+        self.shared.progress.fetch_add(1, Ordering::Relaxed);
+        let setup = self.drives[slot].setup;
+        let mut pkw = [0u16; MAX_PKW_WORDS];
+        let task = if with_task {
+            self.drives[slot].mailbox.current().copied()
+        } else {
+            None
+        };
+        // Tasks were checked against the PKW mode when submitted, so encoding succeeds; a task
+        // that somehow does not fit goes out as "no task".
+        let pkw_len = task
+            .and_then(|t| t.encode(setup.layout.pkw, &mut pkw).ok())
+            .unwrap_or_else(|| {
+                pkw = [0; MAX_PKW_WORDS];
+                setup.layout.pkw.request_words()
+            });
+        let Ok(n) = encode(&mut self.tx, Adr::to(setup.address), &pkw[..pkw_len], pzd) else {
+            return Ok(Attempt::Failed(Failure::Length));
+        };
+        if let Some(seen) = self.last_reply_seen.take() {
+            let ready = self.clock.now();
+            record(&mut self.stats.histograms.work, ready.saturating_sub(seen));
+        }
+        // The start pause, then a clean input buffer, then our telegram (USS.md section 4).
+        self.clock
+            .sleep_until_precise(self.line_free_at + self.cfg.timing.start_pause());
+        let send_at = self.clock.now();
+        if let Some(done) = self.last_reply_done.take() {
+            record(
+                &mut self.stats.histograms.turnaround,
+                send_at.saturating_sub(done),
+            );
+        }
+        self.transport.flush_input(send_at)?;
+        self.framer.reset();
+        let request_end = self.transport.send(&self.tx[..n], send_at)?;
+        if task.is_some() {
+            self.drives[slot].mailbox.sent(send_at);
+        }
+        self.stats.drives[slot].counters.requests += 1;
+        self.stats.bus.exchanges += 1;
+        self.framer.line_busy_until(request_end);
+        self.line_free_at = request_end;
+        if self.cfg.echo
+            && let Some(f) = self.discard_echo(n, request_end)?
+        {
+            return Ok(Attempt::Failed(f));
+        }
+        self.receive_reply(setup, n, request_end)
+    }
+
+    /// Receives until a valid reply from the right drive, or a failure.
+    pub(super) fn receive_reply(
+        &mut self,
+        setup: DriveSetup,
+        request_len: usize,
+        request_end: Duration,
+    ) -> Result<Attempt, TransportError> {
+        let stx_deadline = request_end + self.cfg.response_timeout;
+        let mut stx_at = None;
+        let mut garbage = None;
+        loop {
+            let deadline = self.framer.deadline().unwrap_or(stx_deadline);
+            let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {
+                if self.framer.is_receiving() {
+                    // recv returns at the deadline: the telegram did not complete in time.
+                    self.framer.reset();
+                    self.drain()?;
+                    return Ok(Attempt::Failed(Failure::Residual));
+                }
+                return Ok(Attempt::Failed(garbage.unwrap_or(Failure::NoResponse)));
+            };
+            self.line_free_at = self.line_free_at.max(rx.at);
+            let was_receiving = self.framer.is_receiving();
+            let event = match rx.error {
+                Some(e) => Some(Err(self.framer.push_line_error(e, rx.at))),
+                None => self
+                    .framer
+                    .push(rx.byte, rx.at)
+                    .map(|r| r.map(|telegram| (telegram.adr(), telegram.words(setup.layout)))),
+            };
+            if !was_receiving && self.framer.is_receiving() {
+                stx_at = Some(rx.at);
+            }
+            let (adr, words) = match event {
+                None => continue,
+                Some(Ok(parts)) => parts,
+                Some(Err(e @ (FrameError::MissingStx(_) | FrameError::StartPauseNotObserved))) => {
+                    // Garbage before the reply: the reply may still follow after a pause.
+                    garbage.get_or_insert(Failure::from_frame(&e));
+                    continue;
+                }
+                Some(Err(e)) => {
+                    self.drain()?;
+                    return Ok(Attempt::Failed(Failure::from_frame(&e)));
+                }
+            };
+            let failure = if adr == Adr::to(setup.address) {
+                match words {
+                    Ok(words) => {
+                        if let Some(g) = garbage {
+                            let slot = self.slot(setup.address);
+                            self.stats.drives[slot].counters.count(g);
+                        }
+                        self.last_reply_seen = Some(self.clock.now());
+                        let timing = ReplyTiming {
+                            request_len,
+                            request_end,
+                            stx_at: stx_at.unwrap_or(rx.at),
+                            done: rx.at,
+                            first_attempt: true,
+                        };
+                        return Ok(Attempt::Reply { words, timing });
+                    }
+                    Err(_) => Failure::Length,
+                }
+            } else {
+                Failure::WrongAddress
+            };
+            self.drain()?;
+            return Ok(Attempt::Failed(failure));
+        }
+    }
+
+    pub(super) fn slot(&self, address: Address) -> usize {
+        self.shared.slot_of[address.get() as usize].map_or(0, usize::from)
+    }
+
+    /// Reads our own request back from a 2-wire adapter and checks it byte for byte.
+    pub(super) fn discard_echo(
+        &mut self,
+        n: usize,
+        request_end: Duration,
+    ) -> Result<Option<Failure>, TransportError> {
+        let deadline = request_end + self.cfg.response_timeout;
+        for i in 0..n {
+            let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {
+                return Ok(Some(Failure::Echo));
+            };
+            self.line_free_at = self.line_free_at.max(rx.at);
+            if rx.byte != self.tx[i] || rx.error.is_some() {
+                self.drain()?;
+                return Ok(Some(Failure::Echo));
+            }
+        }
+        self.framer.line_busy_until(self.line_free_at);
+        Ok(None)
+    }
+
+    /// After a broken reply, waits until the line has been quiet for a start pause, so the rest
+    /// of it is not taken for the next reply. Bounded by the longest telegram's residual time.
+    pub(super) fn drain(&mut self) -> Result<(), TransportError> {
+        let pause = self.cfg.timing.start_pause();
+        let limit = self.clock.now() + self.cfg.timing.max_residual(MAX_NET_BYTES);
+        loop {
+            let quiet = (self.line_free_at + pause).min(limit);
+            match self.transport.recv(quiet, &mut self.clock)? {
+                Some(rx) if self.clock.now() < limit => {
+                    self.line_free_at = self.line_free_at.max(rx.at);
+                }
+                _ => break,
+            }
+        }
+        self.framer.reset();
+        Ok(())
+    }
+}

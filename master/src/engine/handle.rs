@@ -1,0 +1,201 @@
+//! The engine's side for everyone else ([`EngineHandle`]): process images, parameter jobs,
+//! operator stops, statistics, stop; lock-free or bounded, never waiting on the bus thread.
+
+use super::{
+    Address, DriveSetup, Duration, EngineHandle, INTERNAL_JOB, Job, JobResult, MAX_PKW_WORDS,
+    Ordering, PzdOutput, RequestError, STOPS, Stats, StopCommand,
+};
+
+impl EngineHandle {
+    /// Publishes the PZD words the drive should get (STW1, setpoint, ...) as an in-process
+    /// controller (an engine built with [`Engine::new`]). Every call refreshes the watchdog: a
+    /// controller must publish at least once per watchdog time. Like every sample, it reaches
+    /// the drive only while the drive is live (see [`crate::engine::control`]).
+    pub fn set_output(&self, address: Address, words: &[u16]) -> Result<(), RequestError> {
+        let slot = self.shared.slot(address)?;
+        let allowed = self.shared.setups[slot].layout.pzd.get();
+        if words.len() != allowed {
+            return Err(RequestError::PzdWords {
+                address,
+                given: words.len(),
+                allowed,
+            });
+        }
+        let number = self.next_number(slot);
+        let sample = PzdOutput::from_words(words, number, 0, std::process::id()).map_err(|_| {
+            RequestError::PzdWords {
+                address,
+                given: words.len(),
+                allowed,
+            }
+        })?;
+        self.shared.images[slot].output.put(sample);
+        Ok(())
+    }
+
+    /// Publishes a sample exactly as given (any version, count or flags), as a foreign
+    /// controller could: the engine's checks decide what reaches the drive.
+    pub fn publish_sample(&self, address: Address, sample: PzdOutput) -> Result<(), RequestError> {
+        let slot = self.shared.slot(address)?;
+        self.shared.images[slot].output.put(sample);
+        Ok(())
+    }
+
+    /// Hands the drive back, as a controller that ends cleanly does: it gets its safe command,
+    /// latched, with the reason "released" (not a watchdog trip).
+    pub fn release(&self, address: Address) -> Result<(), RequestError> {
+        let slot = self.shared.slot(address)?;
+        let number = self.next_number(slot);
+        let sample = PzdOutput::release(number, 0, std::process::id());
+        self.shared.images[slot].output.put(sample);
+        Ok(())
+    }
+
+    fn next_number(&self, slot: usize) -> u64 {
+        self.shared.output_numbers[slot].fetch_add(1, Ordering::Relaxed) + 1
+    }
+
+    /// An operator's stop command (OFF1, OFF2, OFF3) for drive `address`, or every drive with
+    /// `None`, from process `pid`: it overrides the drive's controller from its next poll on
+    /// and latches. Returns the drives it reached (bit = address).
+    pub fn stop_drive(
+        &self,
+        address: Option<Address>,
+        command: StopCommand,
+        pid: u32,
+    ) -> Result<u32, RequestError> {
+        let which = STOPS
+            .iter()
+            .position(|&c| c == command)
+            .ok_or(RequestError::NotAStop(command))?;
+        let slots = match address {
+            Some(a) => {
+                let slot = self.shared.slot(a)?;
+                slot..slot + 1
+            }
+            None => 0..self.shared.setups.len(),
+        };
+        let mut reached = 0u32;
+        for slot in slots {
+            let o = &self.shared.overrides[slot];
+            o.pid.store(pid, Ordering::Relaxed);
+            o.counts[which].fetch_add(1, Ordering::Release);
+            reached |= 1 << self.shared.setups[slot].address.get();
+        }
+        Ok(reached)
+    }
+
+    /// The drive's last reply PZD (number = count of good replies) and whether it is online.
+    pub fn input(
+        &self,
+        address: Address,
+    ) -> Result<(Option<crate::engine::image::Words>, bool), RequestError> {
+        let slot = self.shared.slot(address)?;
+        let image = &self.shared.images[slot];
+        let words = image
+            .input
+            .is_written()
+            .then(|| image.input.read())
+            .flatten();
+        Ok((words, image.online.load(Ordering::Acquire)))
+    }
+
+    /// Queues a parameter job. Once accepted it ends in exactly one [`JobResult`].
+    pub fn submit(&self, job: Job) -> Result<(), RequestError> {
+        if self.shared.stop.load(Ordering::Acquire) {
+            return Err(RequestError::Stopped);
+        }
+        if job.id & INTERNAL_JOB != 0 {
+            return Err(RequestError::ReservedJobId(job.id));
+        }
+        if self.shared.line_down.load(Ordering::Acquire) {
+            return Err(RequestError::LineDown);
+        }
+        let slot = self.shared.slot(job.address)?;
+        let setup = &self.shared.setups[slot];
+        if job.task.is_write() && !setup.params_writable {
+            return Err(RequestError::WritesDisabled(job.address));
+        }
+        let mut words = [0u16; MAX_PKW_WORDS];
+        job.task
+            .encode(setup.layout.pkw, &mut words)
+            .map_err(|error| RequestError::Pkw {
+                address: job.address,
+                error,
+            })?;
+        let cap = self.shared.capacity;
+        self.shared
+            .outstanding
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                (n < cap).then_some(n + 1)
+            })
+            .map_err(|_| RequestError::Busy(cap))?;
+        self.jobs.try_send(job).map_err(|_| {
+            self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
+            RequestError::Stopped
+        })
+    }
+
+    /// Cancels the jobs with ids in `ids` that have not reached the wire yet (their client
+    /// died): each ends with [`Outcome::Cancelled`] at the bus thread's next step. `false` when
+    /// the bus thread's queue of cancellations is full (ask again later).
+    pub fn cancel(&self, ids: core::ops::Range<u64>) -> bool {
+        self.cancels.try_send(ids).is_ok()
+    }
+
+    /// The next finished job, waiting at most `timeout`.
+    pub fn recv_result(&self, timeout: Duration) -> Option<JobResult> {
+        let r = self.results.recv_timeout(timeout).ok()?;
+        self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
+        Some(r)
+    }
+
+    /// A copy of the latest published statistics.
+    pub fn stats(&self) -> Stats {
+        // A poisoned lock means a panic elsewhere; the data is plain counters and still usable.
+        self.shared
+            .stats
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    /// Asks the engine to stop after its current exchange.
+    pub fn stop(&self) {
+        self.shared.stop.store(true, Ordering::Release);
+    }
+
+    pub fn is_stopped(&self) -> bool {
+        self.shared.stop.load(Ordering::Acquire)
+    }
+
+    /// Whether the bus line is down (the engine waits for a reopened transport).
+    pub fn is_line_down(&self) -> bool {
+        self.shared.line_down.load(Ordering::Acquire)
+    }
+
+    /// How many steps the bus thread has made (see `Shared::progress`); it moves at least every
+    /// [`IDLE_STEP`] and every telegram attempt while the thread runs.
+    pub fn progress(&self) -> u64 {
+        self.shared.progress.load(Ordering::Relaxed)
+    }
+
+    /// Counts a step of the bus thread made outside the engine (waiting for its line).
+    pub fn note_progress(&self) {
+        self.shared.progress.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Counts one attempt to reopen the line (for the bus status).
+    pub fn note_reopen_attempt(&self) {
+        self.shared.reopen_attempts.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Attempts to reopen the line since it last went down.
+    pub fn reopen_attempts(&self) -> u32 {
+        self.shared.reopen_attempts.load(Ordering::Relaxed)
+    }
+
+    pub fn drives(&self) -> &[DriveSetup] {
+        &self.shared.setups
+    }
+}
