@@ -1,5 +1,5 @@
 //! Benchmarks of uss-rt live in `benches/benches/`; each prints ratios measured in one run
-//! (see `shared/ARCHITECTURE.md`, "Measuring"). Run them with `cargo bench -p uss-benches`.
+//! (see `docs/ARCHITECTURE.md`, "Measuring"). Run them with `cargo bench -p uss-benches`.
 //! This library holds what they share.
 
 use hdrhistogram::Histogram;

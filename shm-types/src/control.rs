@@ -6,7 +6,7 @@
 //! latch, before an ON is passed again). The input image and the diagnostics say which, since
 //! when, why, and what is sent. ussd keeps the latch; a client cannot clear it any other way.
 //!
-//! Operator stop commands arrive on `uss/<bus>/command` ([`OperatorRequest`] ->
+//! Operator stop commands arrive on `uss/<bus>/<gen>/command` ([`OperatorRequest`] ->
 //! [`OperatorResponse`], request-response): OFF1, OFF2 or OFF3 for one drive or every drive
 //! of the bus, accepted from any process and overriding the drive's controller.
 

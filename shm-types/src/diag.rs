@@ -1,5 +1,5 @@
-//! Diagnostics: one [`DriveDiag`] per drive on `uss/<bus>/diag` (keyed by address) and one
-//! [`BusStatus`] on `uss/<bus>/status`, republished by ussd's housekeeping thread.
+//! Diagnostics: one [`DriveDiag`] per drive on `uss/<bus>/<gen>/diag` (keyed by address) and
+//! one [`BusStatus`] on `uss/<bus>/<gen>/status`, republished by ussd's housekeeping thread.
 
 use crate::LAYOUT_VERSION;
 use crate::codes::{UnknownCode, code_table};

@@ -64,7 +64,7 @@ pub enum Rs485Mode {
 }
 
 /// What a drive gets when its controller is gone or stopped refreshing within its watchdog time
-/// (`shared/ARCHITECTURE.md`, "Exclusive control"); the STW1 words are those of USS.md section 7.
+/// (docs/ARCHITECTURE.md, "Failure model"); the STW1 words are those of USS.md section 7.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum SafeCommand {
     /// OFF1: ramp down and stop (STW1 0x047E).

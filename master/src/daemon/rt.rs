@@ -1,9 +1,9 @@
 //! Real-time setup of a bus thread: CPU pinning, `SCHED_FIFO`, stack prefault and memory locking.
 //!
-//! The steps run in the order of ARCHITECTURE.md "Real-time setup (order matters)". None of them is
+//! The steps run in the order of docs/ARCHITECTURE.md "Real-time setup (order matters)". None of them is
 //! fatal here: a step that fails is recorded with its errno and the capabilities, limits and kernel
-//! settings that explain it, plus what to change, and the thread carries on best-effort (STYLE.md:
-//! "honest, actionable degradation"). Whether that is acceptable is the caller's decision
+//! settings that explain it, plus what to change, and the thread carries on best-effort (honest,
+//! actionable degradation). Whether that is acceptable is the caller's decision
 //! (`--require-rt`).
 
 use std::fmt;

@@ -2,9 +2,12 @@
 //! thread, its parameter bridge, its line thread (a serial bus) and its housekeeping thread
 //! ([`super::housekeeping`]) (docs/ARCHITECTURE.md, "Data flow" and "Real-time setup").
 //!
-//! Start-up order matters: every engine (and so every buffer and channel) is built and every
-//! thread spawned first; only then do the bus threads pin, raise their priority, prefault and
-//! (where the limit allows) lock memory, so a memory lock cannot starve later thread creation.
+//! Start-up order matters: every engine (and so every buffer and channel) is built and its bus,
+//! parameter and line threads spawned first; only then do the bus threads pin, raise their
+//! priority, prefault and lock memory. The housekeeping threads are spawned after that (they
+//! need each bus's real-time report): safe because memory is locked only where no limit applies
+//! (memlock unlimited or `CAP_IPC_LOCK`, [`crate::daemon::rt`]), so a later thread or mapping
+//! cannot fail on it.
 
 use crate::config::{BusConfig, Device, Rs485Mode};
 use crate::daemon::ipc::StatusPublisher;

@@ -10,7 +10,7 @@
 //! Without a service manager (no `NOTIFY_SOCKET`) nothing is sent, and a hung bus thread is
 //! still logged.
 
-use crate::config::BusConfig;
+use crate::config::{BusConfig, Device};
 use core::time::Duration;
 use sd_notify::NotifyState;
 use std::time::Instant;
@@ -19,14 +19,21 @@ use uss_protocol::telegram::MAX_NET_BYTES;
 
 /// How long a bus thread may go without progress before it counts as hung: twice its longest
 /// single step (one attempt: a request and a reply of the longest telegram, the response
-/// timeout and its margin, two start pauses), at least one second. Idle waits are cut into
-/// steps of [`crate::engine::IDLE_STEP`], so they never come near it.
+/// timeout and its margin, two start pauses; on a serial line also the longest a write may wait
+/// before it counts as a line failure, which the line thread then reopens), at least one
+/// second. Idle waits are cut into steps of [`crate::engine::IDLE_STEP`], so they never come
+/// near it.
 pub fn stall_bound(bus: &BusConfig) -> Duration {
     let timing = Timing::new(bus.baud);
+    let write_stall = match bus.device {
+        Device::Sim => Duration::ZERO,
+        Device::Serial(_) => crate::transports::serial::write_stall(timing),
+    };
     let attempt = timing.telegram(MAX_NET_BYTES) * 2
         + timing.start_pause() * 2
         + bus.response_timeout
-        + bus.timeout_margin;
+        + bus.timeout_margin
+        + write_stall;
     (attempt * 2).max(Duration::from_secs(1))
 }
 
@@ -225,6 +232,14 @@ mod tests {
         let slow = bus(1200);
         let timing = Timing::new(slow.baud);
         assert!(stall_bound(&slow) > timing.telegram(MAX_NET_BYTES) * 4);
+        // On a serial line a write stuck for its whole allowance is a line failure, not a
+        // hang: the bound covers it.
+        let serial = BusConfig {
+            device: Device::Serial("/dev/ttyUSB0".into()),
+            ..bus(9600)
+        };
+        let write_stall = crate::transports::serial::write_stall(Timing::new(serial.baud));
+        assert!(stall_bound(&serial) > write_stall * 2, "{write_stall:?}");
     }
 
     #[test]

@@ -43,6 +43,12 @@ const BSD_PTY_SLAVE_MAJOR: u64 = 3;
 const TX_QUEUE_CHARS: u64 = 4096;
 const STUCK_MARGIN: Duration = Duration::from_millis(100);
 
+/// How long a write may wait for room in the kernel's transmit queue before the line counts as
+/// stuck (a line failure, reopened): the queue's wire time and a margin.
+pub fn write_stall(timing: Timing) -> Duration {
+    timing.chars(TX_QUEUE_CHARS) + STUCK_MARGIN
+}
+
 /// The longest single `ppoll`: a far deadline (even `Duration::MAX`) becomes several waits
 /// instead of a timeout `ppoll` cannot represent.
 const MAX_WAIT: Duration = Duration::from_secs(3600);
@@ -310,7 +316,7 @@ impl SerialTransport {
         let mut transport = Self {
             port,
             timing,
-            write_stall: timing.chars(TX_QUEUE_CHARS) + STUCK_MARGIN,
+            write_stall: write_stall(timing),
             raw: [0; READ_CHUNK],
             len: 0,
             pos: 0,
