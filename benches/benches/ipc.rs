@@ -567,7 +567,7 @@ const VARIANTS: [(&str, bool); 4] = [
 fn input_path() {
     let name = format!("ipcin{}", std::process::id());
     let drive =
-        format!("[[bus.drive]]\naddress = {WATCHED}\npkw = 0\npzd = 2\nsim = \"delay=0.1\"\n");
+        format!("[[bus.drive]]\naddress = {WATCHED}\npkw = 0\npzd = 2\nsim = {{ delay = 0.1 }}\n");
     let bus = BusUnderTest::start(&bus_toml(&name, &drive), false);
     bus.wait_until_answering();
     // One drive: its poll period is the exchange time, and the raw writer's period.

@@ -13,6 +13,7 @@
 pub mod bus;
 pub mod drive;
 pub mod fault;
+pub mod options;
 pub mod params;
 pub mod serve;
 pub mod spec;
@@ -21,4 +22,5 @@ pub mod wire;
 pub use bus::{BusError, SimBus, Slot};
 pub use drive::{Counters, Drive, DriveConfig, State, Stop};
 pub use fault::{Fault, FaultPlan, Reply};
+pub use options::SimOptions;
 pub use wire::{RxByte, VirtualWire};

@@ -2,21 +2,32 @@
 //! `ADDR[:key=value,...]`, for example `3:pkw=4,pzd=2,delay=2,drop=0.05`.
 
 use crate::drive::DriveConfig;
-use crate::fault::{Fault, FaultPlan};
-use core::time::Duration;
+use crate::fault::FaultPlan;
+use crate::options::SimOptions;
+use serde::Deserialize as _;
 use thiserror::Error;
-use uss_protocol::{Address, Layout, ParamError, PkwMode, PzdCount};
+use uss_protocol::{Address, Layout, PkwMode, PzdCount};
 
 /// The keys a drive specification understands, for error messages and `--help`.
 pub const KEYS: &str = "pkw=0|3|4|127, pzd=0..16, delay=MS, jitter=MS, eeprom-busy=N, busy=N, \
 p2014=MS, dword-error=5|103, drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, \
-unplug=FROM_MS..[TO_MS], hang=FROM_MS";
+unplug=FROM_MS..[TO_MS], hang=MS";
 
 /// A drive and its fault plan, parsed from a specification.
 #[derive(Debug, Clone)]
 pub struct DriveSpec {
     pub config: DriveConfig,
     pub faults: FaultPlan,
+}
+
+impl DriveSpec {
+    /// The drive at `address` with `layout` and `options` (a `[bus.drive.sim]` table).
+    pub fn new(address: Address, layout: Layout, options: &SimOptions) -> Result<Self, String> {
+        let mut config = DriveConfig::new(address, layout);
+        let mut faults = FaultPlan::new();
+        options.apply(&mut config, &mut faults)?;
+        Ok(Self { config, faults })
+    }
 }
 
 /// What is wrong with a drive specification.
@@ -46,12 +57,10 @@ fn parse(spec: &str) -> Result<DriveSpec, String> {
         .map_err(|_| format!("'{addr}' is not a drive address (0..=31)"))?;
     let address = Address::new(addr).map_err(|e| e.to_string())?;
     let mut pkw = PkwMode::Four;
-    let mut pzd = 2usize;
-    let mut config = DriveConfig::new(
-        address,
-        Layout::new(pkw, PzdCount::new(pzd).map_err(|e| e.to_string())?),
-    );
-    let mut faults = FaultPlan::new();
+    let mut pzd = PzdCount::new(2).map_err(|e| e.to_string())?;
+    // Every other key goes into the options' table, typed as TOML would type it, so the
+    // command line and a configuration file read the same keys the same way.
+    let mut table = toml::Table::new();
     for option in options.split(',').map(str::trim).filter(|o| !o.is_empty()) {
         let (key, value) = option
             .split_once('=')
@@ -68,86 +77,43 @@ fn parse(spec: &str) -> Result<DriveSpec, String> {
                     })?;
             }
             "pzd" => {
-                pzd = value.parse().ok().filter(|n| *n <= 16).ok_or_else(|| {
-                    format!("pzd={value}: the PZD length (P2012) is 0..=16 words")
-                })?;
-            }
-            "delay" => config.response_delay = millis(key, value)?,
-            "jitter" => config.response_jitter = millis(key, value)?,
-            "late-by" => faults.late_by = millis(key, value)?,
-            "eeprom-busy" => config.eeprom_busy_telegrams = count(key, value)?,
-            "busy" => config.task_busy_telegrams = count(key, value)?,
-            "p2014" => {
-                config.telegram_off_time_ms = value
-                    .parse()
-                    .map_err(|_| format!("p2014={value}: the telegram-off time is 0..=65535 ms"))?;
-            }
-            "dword-error" => {
-                config.dword_over_three_words = match value {
-                    "5" => ParamError::WrongDataType,
-                    "103" => ParamError::DwordOverThreeWords,
-                    _ => {
-                        return Err(format!(
-                            "dword-error={value}: use 5 (MICROMASTER) or 103 (MASTERDRIVES)"
-                        ));
-                    }
-                };
-            }
-            "unplug" => {
-                let (from, to) = value
-                    .split_once("..")
-                    .ok_or_else(|| format!("unplug={value}: write FROM_MS..TO_MS or FROM_MS.."))?;
-                let from = millis(key, from)?;
-                let to = if to.trim().is_empty() {
-                    None
-                } else {
-                    Some(millis(key, to)?)
-                };
-                let duration = match to {
-                    Some(to) => Some(to.checked_sub(from).filter(|d| !d.is_zero()).ok_or_else(
-                        || format!("unplug={value}: the end must come after the start"),
-                    )?),
-                    None => None,
-                };
-                faults.unplug(from, duration);
-            }
-            "hang" => faults.hang(millis(key, value)?),
-            other => {
-                let fault = Fault::from_name(other)
-                    .ok_or_else(|| format!("unknown key '{other}' (keys: {KEYS})"))?;
-                let p: f64 = value
+                pzd = value
                     .parse()
                     .ok()
-                    .filter(|p| (0.0..=1.0).contains(p))
-                    .ok_or_else(|| format!("{other}={value}: a probability is 0..=1"))?;
-                faults.set_probability(fault, p);
+                    .and_then(|n| PzdCount::new(n).ok())
+                    .ok_or_else(|| {
+                        format!("pzd={value}: the PZD length (P2012) is 0..=16 words")
+                    })?;
+            }
+            _ => {
+                let typed = if let Ok(n) = value.parse::<i64>() {
+                    toml::Value::Integer(n)
+                } else if let Ok(x) = value.parse::<f64>() {
+                    toml::Value::Float(x)
+                } else {
+                    toml::Value::String(value.to_owned())
+                };
+                table.insert(key.to_owned(), typed);
             }
         }
     }
-    // Both came from validated values above.
-    config.layout = Layout::new(pkw, PzdCount::new(pzd).map_err(|e| e.to_string())?);
-    Ok(DriveSpec { config, faults })
-}
-
-fn millis(key: &str, value: &str) -> Result<Duration, String> {
-    value
-        .trim()
-        .parse::<f64>()
-        .ok()
-        .filter(|v| v.is_finite() && *v >= 0.0 && *v <= 3_600_000.0)
-        .map(|v| Duration::from_secs_f64(v / 1000.0))
-        .ok_or_else(|| format!("{key}={value}: a time in milliseconds, 0..=3600000"))
-}
-
-fn count(key: &str, value: &str) -> Result<u32, String> {
-    value
-        .parse()
-        .map_err(|_| format!("{key}={value}: a number of telegrams"))
+    let options = SimOptions::deserialize(table).map_err(|e| {
+        let message = e.message().trim_end().to_owned();
+        if message.starts_with("unknown field") {
+            format!("{message} (keys: {KEYS})")
+        } else {
+            message
+        }
+    })?;
+    DriveSpec::new(address, Layout::new(pkw, pzd), &options)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fault::Fault;
+    use core::time::Duration;
+    use uss_protocol::ParamError;
 
     #[test]
     fn address_alone_gives_pkw4_pzd2() {
@@ -195,7 +161,7 @@ mod tests {
         assert!(err("1:pkw=5").contains("P2013) is 0, 3, 4 or 127"));
         assert!(err("1:pzd=17").contains("0..=16 words"));
         assert!(err("1:drop=2").contains("a probability is 0..=1"));
-        assert!(err("1:colour=red").contains("unknown key 'colour'"));
+        assert!(err("1:colour=red").contains("unknown field `colour`"));
         assert!(err("1:pkw").contains("is not key=value"));
         assert!(err("1:unplug=500..100").contains("end must come after"));
         assert!(err("1:delay=-1").contains("milliseconds"));

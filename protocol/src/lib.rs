@@ -18,6 +18,8 @@ pub mod framer;
 pub mod notation;
 pub mod pkw;
 pub mod pzd;
+#[cfg(feature = "serde")]
+pub mod serde_impls;
 pub mod telegram;
 pub mod timing;
 

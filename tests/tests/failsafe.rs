@@ -544,7 +544,7 @@ fn a_drive_without_telegram_monitoring_is_reported_and_refused_on_when_required(
         &[
             (1, ""),
             (2, "require_monitoring = true"),
-            (3, "require_monitoring = true\nsim = \"p2014=100\""),
+            (3, "require_monitoring = true\nsim.p2014 = 100"),
         ],
     );
     let bus = ussd.bus();

@@ -37,7 +37,8 @@ impl Ussd {
         Self::start_with("")
     }
 
-    /// Like [`Ussd::start`], with drive 3 simulated as `drive3_sim` says (uss-sim's keys).
+    /// Like [`Ussd::start`], with drive 3 simulated as `drive3_sim` says (the keys of its
+    /// `[bus.drive.sim]` table, as an inline table's contents).
     fn start_with(drive3_sim: &str) -> Ussd {
         static NEXT: AtomicU32 = AtomicU32::new(0);
         let bus = format!(
@@ -51,7 +52,7 @@ impl Ussd {
             format!(
                 "[[bus]]\nname = \"{bus}\"\ndevice = \"sim\"\n\n\
                  [[bus.drive]]\naddress = 1\n\n[[bus.drive]]\naddress = 2\n\n[[bus.drive]]\naddress = 3\n\
-                 sim = \"{drive3_sim}\"\n"
+                 sim = {{ {drive3_sim} }}\n"
             ),
         )
         .unwrap();
@@ -589,7 +590,7 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
     let _serial = serial();
     // Drive 3 watches its telegrams (P2014 = 100 ms) and is unplugged for half a second, so it
     // trips with F0072 (USS telegram off) and answers again in fault.
-    let ussd = Ussd::start_with("p2014=100,unplug=2000..2500");
+    let ussd = Ussd::start_with("p2014 = 100, unplug = \"2000..2500\"");
     let bus = ussd.bus();
     let faulted = bus
         .watch(3)

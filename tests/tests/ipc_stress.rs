@@ -293,10 +293,10 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
     // Drive 2 answers every new task with "busy" (AK 0) 600 times before doing it: about a
     // second on the wire per request at 1 Mbaud.
     let mut ussd = Ussd::start(
-        "baud = 1000000\nparam_timeout_ms = 30000.0",
+        "baud = 1000000\nnonstandard_baud = true\nparam_timeout_ms = 30000.0",
         &[
-            (1, "sim = \"delay=0.1\""),
-            (2, "sim = \"delay=0.1,busy=600\""),
+            (1, "sim.delay = 0.1"),
+            (2, "sim = { delay = 0.1, busy = 600 }"),
         ],
     );
     let mut bus = ussd.bus();
@@ -598,10 +598,13 @@ fn ten_thousand_requests_from_four_processes_with_faults_are_each_answered_once_
     // 8 drives at 1 Mbaud, each reply spoilt with 6 % probability. A drive is offline only
     // after 3 failed polls in a row (9 failed exchanges), so jobs end with "drive offline"
     // next to never; the response timeout suits the fast line.
-    let drive = "pkw = 4\nsim = \"delay=0.1,drop=0.02,bcc=0.02,byte=0.01,noise=0.01\"";
+    let drive =
+        "pkw = 4\nsim = { delay = 0.1, drop = 0.02, bcc = 0.02, byte = 0.01, noise = 0.01 }";
     let drives: Vec<_> = (1..=2 * PROCESSES).map(|a| (a, drive)).collect();
     let ussd = Ussd::start(
-        &format!("baud = 1000000\nresponse_timeout_ms = 2.0\noffline_after = 3\nseed = {seed}"),
+        &format!(
+            "baud = 1000000\nnonstandard_baud = true\nresponse_timeout_ms = 2.0\noffline_after = 3\nseed = {seed}"
+        ),
         &drives,
     );
     let bus = ussd.bus();

@@ -67,7 +67,7 @@ fn ussd_says_ready_feeds_the_watchdog_and_starves_it_when_a_bus_thread_hangs() {
                 suffix: "b",
                 device: "sim",
                 keys: "",
-                drives: &[(1, "sim = \"hang=3000\"")],
+                drives: &[(1, "sim.hang = 3000")],
             },
         ],
         &[

@@ -182,7 +182,7 @@ fn a_short_offline_blip_is_reported_and_the_controller_carries_on() {
     let _serial = serial();
     // Built before ussd starts: the drive drops out 3 s after ussd's start, for 0.7 s.
     uss_integration_tests::binary("ussctl", "ussctl");
-    let ussd = Ussd::start("", &[(1, "sim = \"unplug=3000..3700\""), (2, "")]);
+    let ussd = Ussd::start("", &[(1, "sim.unplug = \"3000..3700\""), (2, "")]);
     let bus = ussd.bus();
     let mut run = ussd.ussctl(&["run", "1", "--hz", "10", "--for", "5"]);
     assert!(run.says("drive 1:").starts_with(" running towards"));

@@ -26,6 +26,8 @@ const DRIVES: u8 = 8;
 const REFERENCE_HZ: f32 = 50.0;
 /// 5 % of replies spoilt, spread over the kinds of fault.
 const FAULTS: &str = "drop=0.015,bcc=0.01,byte=0.01,truncate=0.01,noise=0.005";
+/// The same as a `[bus.drive.sim]` table's keys.
+const FAULT_KEYS: &str = "drop = 0.015, bcc = 0.01, byte = 0.01, truncate = 0.01, noise = 0.005";
 
 fn main() -> ExitCode {
     let duration = match duration_from_args() {
@@ -99,10 +101,10 @@ fn start_ussd(bus: &str) -> Result<Daemon, String> {
         std::process::id()
     );
     for a in 1..=DRIVES {
-        let monitoring = if a == 1 { ",p2014=200" } else { "" };
+        let monitoring = if a == 1 { ", p2014 = 200" } else { "" };
         let _ = write!(
             toml,
-            "\n[[bus.drive]]\naddress = {a}\nsim = \"{FAULTS}{monitoring}\"\n"
+            "\n[[bus.drive]]\naddress = {a}\nsim = {{ {FAULT_KEYS}{monitoring} }}\n"
         );
     }
     let config = std::env::temp_dir().join(format!("ussd-soak-{bus}.toml"));

@@ -1,0 +1,223 @@
+//! A simulated drive's options: response timing, the PKW handshake, telegram monitoring and the
+//! fault plan. One definition for both places they are written: `uss-sim --drive
+//! ADDR:key=value,...` ([`crate::spec`]) and a `[bus.drive.sim]` table of ussd's configuration
+//! (serde, with the same key names).
+
+use crate::drive::DriveConfig;
+use crate::fault::{Fault, FaultPlan};
+use core::time::Duration;
+use serde::{Deserialize, Serialize};
+use uss_protocol::ParamError;
+
+/// The keys, for messages and `--help`.
+pub const KEYS: &str = "delay=MS, jitter=MS, eeprom-busy=N, busy=N, p2014=MS, dword-error=5|103, \
+drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, unplug=\"FROM_MS..[TO_MS]\", \
+hang=MS";
+
+/// What a simulated drive does besides its address and layout; every key is optional (the
+/// simulator's default applies).
+#[derive(Debug, Clone, Default, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, rename_all = "kebab-case")]
+pub struct SimOptions {
+    /// Response delay, ms.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub delay: Option<f64>,
+    /// Uniform jitter added to the response delay, ms.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub jitter: Option<f64>,
+    /// Telegrams answered with AK 0 "busy" before an EEPROM write completes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub eeprom_busy: Option<u32>,
+    /// Telegrams answered with AK 0 before any task completes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub busy: Option<u32>,
+    /// The telegram-off time P2014, ms (0 = off).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub p2014: Option<u16>,
+    /// The error number for a double word over a 3-word PKW: 5 (MICROMASTER) or 103.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dword_error: Option<u8>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drop: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bcc: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub byte: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub truncate: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub late: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wrong_addr: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise: Option<f64>,
+    /// How far past the 20 ms limit a late reply comes, ms.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub late_by: Option<f64>,
+    /// `FROM_MS..TO_MS` after start during which the drive is off the bus (`FROM_MS..` = for
+    /// good).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unplug: Option<String>,
+    /// Ms after start from which the whole line hangs for good ([`FaultPlan::hang`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hang: Option<f64>,
+}
+
+impl SimOptions {
+    /// Sets these options on a drive and its fault plan; what is wrong, if anything, in the
+    /// words of the key (`"delay=-1: a time in milliseconds, 0..=3600000"`).
+    pub fn apply(&self, config: &mut DriveConfig, faults: &mut FaultPlan) -> Result<(), String> {
+        if let Some(ms) = self.delay {
+            config.response_delay = millis("delay", ms)?;
+        }
+        if let Some(ms) = self.jitter {
+            config.response_jitter = millis("jitter", ms)?;
+        }
+        if let Some(ms) = self.late_by {
+            faults.late_by = millis("late-by", ms)?;
+        }
+        if let Some(n) = self.eeprom_busy {
+            config.eeprom_busy_telegrams = n;
+        }
+        if let Some(n) = self.busy {
+            config.task_busy_telegrams = n;
+        }
+        if let Some(ms) = self.p2014 {
+            config.telegram_off_time_ms = ms;
+        }
+        if let Some(code) = self.dword_error {
+            config.dword_over_three_words = match code {
+                5 => ParamError::WrongDataType,
+                103 => ParamError::DwordOverThreeWords,
+                _ => {
+                    return Err(format!(
+                        "dword-error={code}: use 5 (MICROMASTER) or 103 (MASTERDRIVES)"
+                    ));
+                }
+            };
+        }
+        for (fault, p) in [
+            (Fault::DropReply, self.drop),
+            (Fault::CorruptBcc, self.bcc),
+            (Fault::CorruptByte, self.byte),
+            (Fault::Truncate, self.truncate),
+            (Fault::Late, self.late),
+            (Fault::WrongAddress, self.wrong_addr),
+            (Fault::Noise, self.noise),
+        ] {
+            if let Some(p) = p {
+                if !(0.0..=1.0).contains(&p) {
+                    return Err(format!("{}={p}: a probability is 0..=1", fault.name()));
+                }
+                faults.set_probability(fault, p);
+            }
+        }
+        if let Some(window) = &self.unplug {
+            let (from, to) = unplug_window(window)?;
+            faults.unplug(from, to);
+        }
+        if let Some(ms) = self.hang {
+            faults.hang(millis("hang", ms)?);
+        }
+        Ok(())
+    }
+}
+
+/// `FROM..TO` or `FROM..` in ms: when the drive goes off the bus, and for how long.
+fn unplug_window(value: &str) -> Result<(Duration, Option<Duration>), String> {
+    let (from, to) = value
+        .split_once("..")
+        .ok_or_else(|| format!("unplug={value}: write FROM_MS..TO_MS or FROM_MS.."))?;
+    let number = |s: &str| {
+        s.trim()
+            .parse::<f64>()
+            .map_err(|_| format!("unplug={value}: {s:?} is not a number of milliseconds"))
+    };
+    let from = millis("unplug", number(from)?)?;
+    if to.trim().is_empty() {
+        return Ok((from, None));
+    }
+    let to = millis("unplug", number(to)?)?;
+    to.checked_sub(from)
+        .filter(|d| !d.is_zero())
+        .map(|d| (from, Some(d)))
+        .ok_or_else(|| format!("unplug={value}: the end must come after the start"))
+}
+
+fn millis(key: &str, ms: f64) -> Result<Duration, String> {
+    if ms.is_finite() && (0.0..=3_600_000.0).contains(&ms) {
+        Ok(Duration::from_secs_f64(ms / 1000.0))
+    } else {
+        Err(format!("{key}={ms}: a time in milliseconds, 0..=3600000"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::DriveConfig;
+    use uss_protocol::{Address, Layout, PkwMode, PzdCount};
+
+    fn apply(options: &SimOptions) -> Result<(DriveConfig, FaultPlan), String> {
+        let layout = Layout::new(PkwMode::Four, PzdCount::new(2).unwrap());
+        let mut config = DriveConfig::new(Address::new(1).unwrap(), layout);
+        let mut faults = FaultPlan::new();
+        options.apply(&mut config, &mut faults)?;
+        Ok((config, faults))
+    }
+
+    #[test]
+    fn a_table_reads_with_the_command_line_names_and_refuses_unknown_keys() {
+        let options: SimOptions =
+            toml::from_str("delay = 2\neeprom-busy = 3\nwrong-addr = 0.5\nunplug = \"10..20\"")
+                .unwrap();
+        let (config, faults) = apply(&options).unwrap();
+        assert_eq!(config.response_delay, Duration::from_millis(2));
+        assert_eq!(config.eeprom_busy_telegrams, 3);
+        assert!((faults.probability(Fault::WrongAddress) - 0.5).abs() < 1e-12);
+        assert!(faults.is_unplugged(Duration::from_millis(15)));
+        let unknown = toml::from_str::<SimOptions>("colour = 1").unwrap_err();
+        assert!(
+            unknown.message().contains("unknown field `colour`"),
+            "{unknown}"
+        );
+        // Written back, only what was set.
+        assert_eq!(
+            toml::to_string(&options).unwrap(),
+            "delay = 2.0\neeprom-busy = 3\nwrong-addr = 0.5\nunplug = \"10..20\"\n"
+        );
+    }
+
+    #[test]
+    fn out_of_range_values_say_which_key_and_what_is_allowed() {
+        let bad = |o: SimOptions| apply(&o).unwrap_err();
+        assert_eq!(
+            bad(SimOptions {
+                drop: Some(2.0),
+                ..SimOptions::default()
+            }),
+            "drop=2: a probability is 0..=1"
+        );
+        assert_eq!(
+            bad(SimOptions {
+                delay: Some(-1.0),
+                ..SimOptions::default()
+            }),
+            "delay=-1: a time in milliseconds, 0..=3600000"
+        );
+        assert_eq!(
+            bad(SimOptions {
+                dword_error: Some(7),
+                ..SimOptions::default()
+            }),
+            "dword-error=7: use 5 (MICROMASTER) or 103 (MASTERDRIVES)"
+        );
+        assert_eq!(
+            bad(SimOptions {
+                unplug: Some("500..100".into()),
+                ..SimOptions::default()
+            }),
+            "unplug=500..100: the end must come after the start"
+        );
+    }
+}

@@ -1,0 +1,960 @@
+#![allow(
+    clippy::float_cmp,
+    reason = "a value parsed from the same decimal text is the same float, bit for bit"
+)]
+use super::*;
+use uss_drive_sim::{DriveConfig, Fault};
+use uss_protocol::{PkwMode, PzdCount};
+
+fn parse(text: &str) -> Config {
+    match Config::parse(text, "bus.toml") {
+        Ok(config) => config,
+        Err(e) => panic!("{e}"),
+    }
+}
+
+fn error(text: &str) -> ConfigError {
+    Config::parse(text, "bus.toml").unwrap_err()
+}
+
+/// The message and field path of the error `text` gets.
+fn refused(text: &str) -> (String, Option<String>) {
+    let e = error(text);
+    (e.to_string(), e.path)
+}
+
+/// A simulated bus with `line` as its line 4 and one drive at address 3.
+fn bus_key(line: &str) -> String {
+    format!("[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\n{line}\n\n[[bus.drive]]\naddress = 3\n")
+}
+
+/// A simulated bus with one drive at address 3 that has `line` as line 7.
+fn drive_key(line: &str) -> String {
+    format!("[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\n\n[[bus.drive]]\naddress = 3\n{line}\n")
+}
+
+/// A serial bus on /dev/null with `bus_line` as line 4 and a drive at address 3 with
+/// `drive_line` as line 7.
+fn serial(bus_line: &str, drive_line: &str) -> String {
+    format!(
+        "[[bus]]\nname = \"bus1\"\ndevice = \"/dev/null\"\n{bus_line}\n\n[[bus.drive]]\n\
+         address = 3\n{drive_line}\n"
+    )
+}
+
+fn ms(ms: u64) -> Duration {
+    Duration::from_millis(ms)
+}
+
+const PKW4_PZD2: Layout = Layout::new(
+    PkwMode::Four,
+    match PzdCount::new(2) {
+        Ok(p) => p,
+        Err(_) => panic!("2 PZD words"),
+    },
+);
+
+const FULL: &str = r#"# two buses, every key set
+[[bus]]
+name = "line-A_1"
+device = "sim"
+baud = 19200
+rs485 = "kernel"
+echo = true
+response_timeout_ms = 25.5
+timeout_margin_ms = 5
+retries = 3
+offline_after = 4
+offline_probe_ms = 1000.0
+cycle_time_ms = 12.25
+param_timeout_ms = 3000.0
+cpu = 0
+priority = 70
+seed = 42
+
+[[bus.drive]]
+address = 0x1F
+pkw = 127
+pzd = 6
+weight = 3
+reference_hz = 60.1
+watchdog_ms = 250
+safe_command = "off3"
+params_writable = false
+sim = { delay = 2.5, jitter = 0.5, drop = 0.05, bcc = 0.1, unplug = "1000..1500" }
+
+[[bus.drive]]
+address = 2
+pkw = 0
+pzd = 0
+
+[[bus]]
+name = "serial"
+device = "/dev/null"
+baud = 250000
+nonstandard_baud = true
+rs485 = "auto"
+
+[[bus.drive]]
+address = 7
+pkw = 3
+pzd = 16
+safe_command = "off2"
+"#;
+
+#[test]
+fn embedded_default_is_one_simulated_bus_with_four_drives() {
+    let c = Config::embedded_default();
+    assert_eq!(c.buses.len(), 1);
+    let bus = &c.buses[0];
+    assert_eq!(bus.name, "bus0");
+    assert_eq!(bus.device, Device::Sim);
+    assert_eq!(bus.baud.get(), 115_200);
+    let shape: Vec<_> = bus
+        .drives
+        .iter()
+        .map(|d| (d.address.get(), d.layout.pkw.p2013(), d.layout.pzd.get()))
+        .collect();
+    assert_eq!(shape, [(1, 4, 2), (2, 4, 2), (3, 127, 2), (4, 4, 2)]);
+    for d in &bus.drives {
+        let sim = d
+            .sim
+            .as_ref()
+            .expect("a simulated bus has simulated drives");
+        let recommended = DriveConfig {
+            telegram_off_time_ms: 100,
+            ..DriveConfig::new(d.address, d.layout)
+        };
+        assert_eq!(sim.config, recommended, "P2014.1 = 100 ms");
+        assert_eq!(sim.faults.probability(Fault::DropReply), 0.0);
+    }
+}
+
+#[test]
+fn missing_keys_get_their_documented_defaults() {
+    let c = parse(&bus_key(""));
+    let bus = &c.buses[0];
+    assert_eq!(bus.baud.get(), 115_200);
+    assert_eq!(bus.rs485, Rs485Mode::None);
+    assert!(!bus.echo);
+    assert_eq!(bus.response_timeout, ms(20));
+    assert_eq!(bus.timeout_margin, Duration::ZERO);
+    assert_eq!((bus.retries, bus.offline_after), (2, 1));
+    assert_eq!(bus.offline_probe, ms(500));
+    assert_eq!(bus.cycle_time, None);
+    assert_eq!(bus.param_timeout, ms(2000));
+    assert_eq!((bus.cpu, bus.priority, bus.seed), (None, 80, 1));
+    let d = &bus.drives[0];
+    assert_eq!(d.address.get(), 3);
+    assert_eq!(d.layout, PKW4_PZD2);
+    assert_eq!(d.weight, 1);
+    assert_eq!(d.reference_hz, 50.0);
+    assert_eq!(d.watchdog, ms(100));
+    assert_eq!(d.safe_command, SafeCommand::Off1);
+    assert!(d.params_writable);
+    assert_eq!(
+        d.monitoring_param.map(|p| p.to_string()),
+        Some("P2014[1]".into())
+    );
+    assert_eq!((d.monitoring_max, d.require_monitoring), (ms(1000), false));
+    // Without `sim`, the simulator's own defaults at the entry's address and layout.
+    let sim = d
+        .sim
+        .as_ref()
+        .expect("a simulated bus has simulated drives");
+    assert_eq!(sim.config, DriveConfig::new(d.address, PKW4_PZD2));
+}
+
+#[test]
+fn every_key_is_read_as_written() {
+    let c = parse(FULL);
+    let [sim, serial] = &c.buses[..] else {
+        panic!("two buses expected");
+    };
+    assert_eq!(sim.name, "line-A_1");
+    assert_eq!(sim.baud.get(), 19200);
+    assert_eq!(sim.rs485, Rs485Mode::Kernel);
+    assert!(sim.echo);
+    assert_eq!(sim.response_timeout, Duration::from_micros(25_500));
+    assert_eq!(sim.timeout_margin, ms(5));
+    assert_eq!((sim.retries, sim.offline_after), (3, 4));
+    assert_eq!(sim.offline_probe, ms(1000));
+    assert_eq!(sim.cycle_time, Some(Duration::from_micros(12_250)));
+    assert_eq!(sim.param_timeout, ms(3000));
+    assert_eq!((sim.cpu, sim.priority, sim.seed), (Some(0), 70, 42));
+    let d = &sim.drives[0];
+    assert_eq!(d.address.get(), 31);
+    assert_eq!((d.layout.pkw, d.layout.pzd.get()), (PkwMode::Variable, 6));
+    assert_eq!(d.weight, 3);
+    assert_eq!(d.reference_hz, 60.1_f32);
+    assert_eq!(d.watchdog, ms(250));
+    assert_eq!(d.safe_command, SafeCommand::Off3);
+    assert!(!d.params_writable);
+    let d = &sim.drives[1];
+    assert_eq!((d.layout.pkw, d.layout.pzd.get()), (PkwMode::None, 0));
+
+    assert_eq!(serial.device, Device::Serial(PathBuf::from("/dev/null")));
+    assert_eq!(
+        (serial.baud.get(), serial.rs485),
+        (250_000, Rs485Mode::Auto)
+    );
+    let d = &serial.drives[0];
+    assert_eq!((d.layout.pkw, d.layout.pzd.get()), (PkwMode::Three, 16));
+    assert_eq!(d.safe_command, SafeCommand::Off2);
+    assert!(d.sim.is_none());
+}
+
+#[test]
+fn simulated_drive_takes_address_and_layout_from_the_entry_and_faults_from_sim() {
+    let c = parse(FULL);
+    let d = &c.buses[0].drives[0];
+    let sim = d
+        .sim
+        .as_ref()
+        .expect("a simulated bus has simulated drives");
+    assert_eq!(sim.config.address.get(), 31);
+    assert_eq!(sim.config.layout, d.layout);
+    assert_eq!(sim.config.response_delay, Duration::from_micros(2500));
+    assert_eq!(sim.config.response_jitter, Duration::from_micros(500));
+    assert_eq!(sim.faults.probability(Fault::DropReply), 0.05);
+    assert_eq!(sim.faults.probability(Fault::CorruptBcc), 0.1);
+    assert_eq!(sim.faults.probability(Fault::Late), 0.0);
+    assert!(sim.faults.is_unplugged(ms(1200)));
+    assert!(!sim.faults.is_unplugged(ms(1500)));
+    // Without `sim`, the simulator's defaults at the entry's layout.
+    let d = &c.buses[0].drives[1];
+    let sim = d
+        .sim
+        .as_ref()
+        .expect("a simulated bus has simulated drives");
+    let pzd0 = Layout::new(PkwMode::None, PzdCount::new(0).unwrap());
+    assert_eq!(sim.config, DriveConfig::new(d.address, pzd0));
+    // Dotted keys and a header table read the same.
+    let dotted = parse(&drive_key("sim.delay = 2.5\nsim.drop = 0.05"));
+    let header = parse(&drive_key("[bus.drive.sim]\ndelay = 2.5\ndrop = 0.05"));
+    assert_eq!(dotted, header);
+    let sim = dotted.buses[0].drives[0].sim.as_ref().unwrap();
+    assert_eq!(sim.config.response_delay, Duration::from_micros(2500));
+}
+
+#[test]
+fn embedded_default_round_trips_through_to_toml() {
+    let c = Config::embedded_default();
+    assert_eq!(Config::parse(&c.to_toml(), "default").unwrap(), c);
+}
+
+#[test]
+fn full_example_round_trips_through_to_toml() {
+    let c = parse(FULL);
+    let text = c.to_toml();
+    assert_eq!(Config::parse(&text, "check").unwrap(), c);
+    // And the second trip writes the same text.
+    assert_eq!(parse(&text).to_toml(), text);
+    // Times are written as the exact milliseconds they were read as.
+    assert!(text.contains("response_timeout_ms = 25.5\n"), "{text}");
+    assert!(text.contains("timeout_margin_ms = 5.0\n"), "{text}");
+    assert!(text.contains("reference_hz = 60.1\n"), "{text}");
+}
+
+#[test]
+fn to_toml_writes_every_default_and_what_a_serial_device_is() {
+    assert_eq!(
+        parse(&serial("", "")).to_toml(),
+        r#"# ussd configuration: the effective settings, every default filled in
+# bus bus1: /dev/null is a character device
+
+[[bus]]
+name = "bus1"
+device = "/dev/null"
+baud = 115200
+nonstandard_baud = false
+rs485 = "none"
+echo = false
+response_timeout_ms = 20.0
+timeout_margin_ms = 0.0
+retries = 2
+offline_after = 1
+offline_probe_ms = 500.0
+cycle_time_ms = 0.0
+param_timeout_ms = 2000.0
+priority = 80
+
+[[bus.drive]]
+address = 3
+pkw = 4
+pzd = 2
+weight = 1
+reference_hz = 50.0
+watchdog_ms = 100.0
+safe_command = "off1"
+params_writable = true
+monitoring_param = "P2014.1"
+monitoring_max_ms = 1000.0
+require_monitoring = false
+"#
+    );
+    let later = serial("", "").replace("/dev/null", "/dev/uss-nothing-here");
+    assert!(parse(&later).to_toml().contains(
+        "# bus bus1: /dev/uss-nothing-here does not exist now: ussd starts this bus line \
+             down and opens it when it appears\n"
+    ));
+    let regular = std::env::temp_dir().join(format!("uss-config-file-{}", std::process::id()));
+    std::fs::write(&regular, "").unwrap();
+    let text = serial("", "").replace("/dev/null", regular.to_str().unwrap());
+    let toml = parse(&text).to_toml();
+    std::fs::remove_file(&regular).unwrap();
+    assert!(toml.contains("is not a character device"), "{toml}");
+    // The simulated bus gets its seed written.
+    assert!(parse(&bus_key("")).to_toml().contains("\nseed = 1\n"));
+}
+
+#[test]
+fn times_read_to_the_nanosecond() {
+    let c = parse(&bus_key("response_timeout_ms = 1.0955"));
+    assert_eq!(c.buses[0].response_timeout, Duration::from_nanos(1_095_500));
+}
+
+#[test]
+fn a_zero_cycle_time_means_as_fast_as_the_wire_allows() {
+    assert_eq!(
+        parse(&bus_key("cycle_time_ms = 0")).buses[0].cycle_time,
+        None
+    );
+    assert_eq!(
+        parse(&bus_key("cycle_time_ms = 10")).buses[0].cycle_time,
+        Some(ms(10))
+    );
+}
+
+#[test]
+fn safe_commands_send_the_stw1_of_uss_md_section_7() {
+    assert_eq!(SafeCommand::Off1.command().stw1(), Some(0x047E));
+    assert_eq!(SafeCommand::Off2.command().stw1(), Some(0x047C));
+    assert_eq!(SafeCommand::Off3.command().stw1(), Some(0x047A));
+}
+
+#[test]
+fn load_reads_a_file_and_names_it_in_errors() {
+    let dir = std::env::temp_dir().join(format!("uss-config-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let good = dir.join("good.toml");
+    std::fs::write(&good, bus_key("")).unwrap();
+    assert_eq!(Config::load(&good).unwrap(), parse(&bus_key("")));
+    let bad = dir.join("bad.toml");
+    std::fs::write(&bad, bus_key("retries = 11")).unwrap();
+    let e = Config::load(&bad).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        format!(
+            "{}:4:11: bus \"bus0\": retries = 11 is out of range: retries after a failed \
+             exchange are 0..=10",
+            bad.display()
+        )
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn unreadable_file_is_an_error_without_a_line() {
+    let e = Config::load(Path::new("/nonexistent/ussd.toml")).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "/nonexistent/ussd.toml: cannot read the configuration: No such file or directory \
+         (os error 2)"
+    );
+    assert_eq!((e.line, e.column, e.path), (None, None, None));
+}
+
+#[test]
+fn toml_syntax_error_keeps_tomls_message_and_position() {
+    let e = error(&drive_key("pzd = 3 x"));
+    assert_eq!(
+        e.to_string(),
+        "bus.toml:7:7: invalid TOML: string values must be quoted, expected literal string"
+    );
+    assert_eq!((e.line, e.column, e.path), (Some(7), Some(7), None));
+    assert_eq!(
+        error(&drive_key("address = 4")).to_string(),
+        "bus.toml:7:1: invalid TOML: duplicate key"
+    );
+}
+
+#[test]
+fn telegram_monitoring_is_checked_as_configured() {
+    let d = |line: &str| parse(&drive_key(line)).buses[0].drives[0].clone();
+    let g120 =
+        d("monitoring_param = \"p2040\"\nmonitoring_max_ms = 200\nrequire_monitoring = true");
+    assert_eq!(
+        g120.monitoring_param.map(|p| p.to_string()),
+        Some("p2040".into())
+    );
+    assert_eq!(
+        (g120.monitoring_max, g120.require_monitoring),
+        (ms(200), true)
+    );
+    assert_eq!(d("monitoring_param = \"\"").monitoring_param, None);
+}
+
+#[test]
+fn a_monitoring_that_cannot_be_verified_cannot_be_required() {
+    assert_eq!(
+        refused(&drive_key("monitoring_param = \"P20x4\"")),
+        (
+            "bus.toml:7:20: bus \"bus0\" drive 3: monitoring_param = \"P20x4\" is not a \
+             parameter: write a parameter as P1082, p1082, r0021 or 1082, an element as P0947[3] \
+             or r0947.3; name the drive's telegram-off time as the manual writes it, e.g. \
+             \"P2014.1\" (MICROMASTER 4, COM link) or \"p2040\" (G120), or \"\" for no check"
+                .to_owned(),
+            Some("bus[0].drive[0].monitoring_param".to_owned())
+        )
+    );
+    assert_eq!(
+        refused(&drive_key(
+            "monitoring_param = \"\"\nrequire_monitoring = true"
+        )),
+        (
+            "bus.toml:8:22: bus \"bus0\" drive 3: require_monitoring = true needs \
+             monitoring_param (e.g. \"P2014.1\"): ussd cannot verify a monitoring it does not read"
+                .to_owned(),
+            Some("bus[0].drive[0].require_monitoring".to_owned())
+        )
+    );
+    let (message, _) = refused(&drive_key("pkw = 0\nrequire_monitoring = true"));
+    assert!(
+        message.contains("require_monitoring = true needs a parameter channel"),
+        "{message}"
+    );
+}
+
+#[test]
+fn unknown_keys_are_named_with_their_table_in_every_table() {
+    assert_eq!(
+        refused(&drive_key("colour = \"red\"")),
+        (
+            "bus.toml:7:1: bus \"bus0\" drive 3: unknown key `colour`: a [[bus.drive]] table \
+             takes address, pkw, pzd, weight, reference_hz, watchdog_ms, safe_command, \
+             params_writable, monitoring_param, monitoring_max_ms, require_monitoring, sim"
+                .to_owned(),
+            Some("bus[0].drive[0].colour".to_owned())
+        )
+    );
+    // A typo of a required key is the typo, not "address is missing".
+    let (message, path) =
+        refused("[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\n\n[[bus.drive]]\nadress = 3\n");
+    assert!(message.starts_with("bus.toml:6:1: bus \"bus0\" drive[0]: unknown key `adress`"));
+    assert_eq!(path.as_deref(), Some("bus[0].drive[0].adress"));
+    let (message, path) = refused(&bus_key("baudrate = 9600"));
+    assert!(
+        message.starts_with(
+            "bus.toml:4:1: bus \"bus0\": unknown key `baudrate`: a [[bus]] table takes name, \
+             device, baud,"
+        ),
+        "{message}"
+    );
+    assert_eq!(path.as_deref(), Some("bus[0].baudrate"));
+    assert_eq!(
+        refused(&format!("version = 2\n{}", bus_key(""))),
+        (
+            "bus.toml:1:1: unknown key `version`: the file takes bus".to_owned(),
+            Some("version".to_owned())
+        )
+    );
+    let (message, path) = refused(&drive_key("sim = { pzd = 4 }"));
+    assert!(
+        message.starts_with(
+            "bus.toml:7:9: bus \"bus0\" drive 3: unknown key `pzd`: a [bus.drive.sim] table \
+             takes delay, jitter,"
+        ),
+        "{message}"
+    );
+    assert_eq!(path.as_deref(), Some("bus[0].drive[0].sim.pzd"));
+}
+
+#[test]
+fn wrong_types_say_what_is_expected() {
+    assert_eq!(
+        refused(&drive_key("pzd = \"two\"")),
+        (
+            "bus.toml:7:7: bus \"bus0\" drive 3: pzd = \"two\" is not an integer: PZD words \
+             (P2012) are 0..=16"
+                .to_owned(),
+            Some("bus[0].drive[0].pzd".to_owned())
+        )
+    );
+    assert_eq!(
+        error(&drive_key("pzd = 2.0")).to_string(),
+        "bus.toml:7:7: bus \"bus0\" drive 3: pzd = 2.0 is not an integer: PZD words (P2012) are \
+         0..=16"
+    );
+    assert_eq!(
+        error(&bus_key("echo = \"yes\"")).to_string(),
+        "bus.toml:4:8: bus \"bus0\": echo = \"yes\" is not a boolean: write true or false"
+    );
+    assert_eq!(
+        error(&bus_key("response_timeout_ms = \"20\"")).to_string(),
+        "bus.toml:4:23: bus \"bus0\": response_timeout_ms = \"20\" is not a number: the \
+         response timeout is 1..=1000 ms (USS.md section 4: a slave answers within 20 ms)"
+    );
+    assert_eq!(
+        error("[[bus]]\nname = 7\ndevice = \"sim\"\n[[bus.drive]]\naddress = 1\n").to_string(),
+        "bus.toml:2:8: bus[0]: name = 7 is not a string: a bus name is 1..=32 characters from \
+         A-Z, a-z, 0-9, _ and - (it becomes part of shared-memory service names)"
+    );
+    assert_eq!(
+        refused("[bus]\nname = \"bus0\"\n"),
+        (
+            "bus.toml:1:1: bus is a table, not [[bus]] tables: write a [[bus]] table for each"
+                .to_owned(),
+            Some("bus".to_owned())
+        )
+    );
+    assert_eq!(
+        error("[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\ndrive = 3\n").to_string(),
+        "bus.toml:4:9: bus \"bus0\": drive = 3 is not [[bus.drive]] tables: write a \
+         [[bus.drive]] table for each"
+    );
+    assert_eq!(
+        error(&drive_key("sim = 1")).to_string(),
+        "bus.toml:7:7: bus \"bus0\" drive 3: sim = 1 is not a table of uss-sim's drive keys, \
+         e.g. sim = { delay = 1, drop = 0.01 }"
+    );
+    assert_eq!(
+        refused(&drive_key("[bus.drive.sim]\ndelay = \"x\"")),
+        (
+            "bus.toml:8:9: bus \"bus0\" drive 3: delay = \"x\" is not a number".to_owned(),
+            Some("bus[0].drive[0].sim.delay".to_owned())
+        )
+    );
+}
+
+#[test]
+fn address_must_be_0_to_31_and_is_required() {
+    let drive = |line: &str| {
+        format!("[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\n\n[[bus.drive]]\n{line}\n")
+    };
+    assert_eq!(
+        refused(&drive("address = 32")),
+        (
+            "bus.toml:6:11: bus \"bus0\" drive[0]: address = 32 is out of range: USS addresses \
+             are 0..=31"
+                .to_owned(),
+            Some("bus[0].drive[0].address".to_owned())
+        )
+    );
+    assert_eq!(
+        error(&drive("address = -1")).to_string(),
+        "bus.toml:6:11: bus \"bus0\" drive[0]: address = -1 is out of range: USS addresses are \
+         0..=31"
+    );
+    assert_eq!(
+        refused(&drive("pzd = 4")),
+        (
+            "bus.toml:5:1: bus \"bus0\" drive[0]: address is missing: USS addresses are 0..=31"
+                .to_owned(),
+            Some("bus[0].drive[0].address".to_owned())
+        )
+    );
+}
+
+#[test]
+fn an_address_or_bus_name_used_twice_names_the_first_line() {
+    let text = "[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\n\n[[bus.drive]]\naddress = 3\n\n\
+                [[bus.drive]]\naddress = 3\n";
+    assert_eq!(
+        refused(text),
+        (
+            "bus.toml:9:11: bus \"bus0\" drive 3: address = 3 is used twice (first at line 6): \
+             every drive on a bus needs its own address"
+                .to_owned(),
+            Some("bus[0].drive[1].address".to_owned())
+        )
+    );
+    // The same address on two buses is fine.
+    let two_buses = "[[bus]]\nname = \"a\"\ndevice = \"sim\"\n[[bus.drive]]\naddress = 3\n\
+                     [[bus]]\nname = \"b\"\ndevice = \"sim\"\n[[bus.drive]]\naddress = 3\n";
+    assert_eq!(parse(two_buses).buses.len(), 2);
+    let text = "[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\n[[bus.drive]]\naddress = 1\n\n\
+                [[bus]]\nname = \"bus0\"\ndevice = \"sim\"\n[[bus.drive]]\naddress = 1\n";
+    assert_eq!(
+        refused(text),
+        (
+            "bus.toml:8:8: bus \"bus0\": name = \"bus0\" is used twice (first at line 2): every \
+             bus needs its own name"
+                .to_owned(),
+            Some("bus[1].name".to_owned())
+        )
+    );
+}
+
+#[test]
+fn bus_names_are_1_to_32_of_letters_digits_underscore_and_dash() {
+    let named = |name: &str| {
+        format!("[[bus]]\nname = {name}\ndevice = \"sim\"\n[[bus.drive]]\naddress = 1\n")
+    };
+    let allowed = "a bus name is 1..=32 characters from A-Z, a-z, 0-9, _ and - (it becomes part \
+                   of shared-memory service names)";
+    assert_eq!(
+        refused(&named("\"bus 0\"")),
+        (
+            format!("bus.toml:2:8: bus[0]: name = \"bus 0\" is not allowed: {allowed}"),
+            Some("bus[0].name".to_owned())
+        )
+    );
+    assert_eq!(
+        error(&named("\"\"")).to_string(),
+        format!("bus.toml:2:8: bus[0]: name = \"\" is not allowed: {allowed}")
+    );
+    let long = "b".repeat(33);
+    assert_eq!(
+        error(&named(&format!("\"{long}\""))).to_string(),
+        format!("bus.toml:2:8: bus[0]: name = \"{long}\" is not allowed: {allowed}")
+    );
+    assert_eq!(
+        parse(&named(&format!("\"{}\"", "b".repeat(32)))).buses[0]
+            .name
+            .len(),
+        32
+    );
+    assert_eq!(
+        error("[[bus]]\ndevice = \"sim\"\n[[bus.drive]]\naddress = 1\n").to_string(),
+        format!("bus.toml:1:1: bus[0]: name is missing: {allowed}")
+    );
+}
+
+#[test]
+fn layout_keys_are_checked_by_their_types() {
+    assert_eq!(
+        refused(&drive_key("pzd = 17")),
+        (
+            "bus.toml:7:7: bus \"bus0\" drive 3: pzd = 17 is out of range: PZD words (P2012) \
+             are 0..=16"
+                .to_owned(),
+            Some("bus[0].drive[0].pzd".to_owned())
+        )
+    );
+    assert_eq!(
+        parse(&drive_key("pzd = 16")).buses[0].drives[0]
+            .layout
+            .pzd
+            .get(),
+        16
+    );
+    assert_eq!(
+        refused(&drive_key("pkw = 5")),
+        (
+            "bus.toml:7:7: bus \"bus0\" drive 3: pkw = 5 is not allowed: the PKW length (P2013) \
+             is 0, 3, 4 or 127 (variable)"
+                .to_owned(),
+            Some("bus[0].drive[0].pkw".to_owned())
+        )
+    );
+    assert_eq!(error(&drive_key("pkw = -4")).line, Some(7));
+    let message = |w: &str| {
+        format!(
+            "bus.toml:7:10: bus \"bus0\" drive 3: weight = {w} is out of range: poll weights \
+             (entries in the circulating list) are 1..=16"
+        )
+    };
+    assert_eq!(error(&drive_key("weight = 0")).to_string(), message("0"));
+    assert_eq!(error(&drive_key("weight = 17")).to_string(), message("17"));
+    assert_eq!(
+        parse(&drive_key("weight = 16")).buses[0].drives[0].weight,
+        16
+    );
+}
+
+#[test]
+fn baud_rates_are_the_ones_uss_names_unless_another_is_meant() {
+    let message = |b: &str| {
+        format!(
+            "bus.toml:4:8: bus \"bus0\": baud = {b} is out of range: baud rates are \
+             300..=12000000 (USS.md section 2 names 300 to 187500)"
+        )
+    };
+    assert_eq!(error(&bus_key("baud = 299")).to_string(), message("299"));
+    assert_eq!(
+        error(&bus_key("baud = 99999999999")).to_string(),
+        message("99999999999")
+    );
+    assert_eq!(
+        refused(&bus_key("baud = 100000")),
+        (
+            "bus.toml:4:8: bus \"bus0\": baud = 100000 is not a USS baud rate (USS.md section 2: \
+             300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 76800, 93750, 115200, \
+             187500): set nonstandard_baud = true for a drive and adapter that take it"
+                .to_owned(),
+            Some("bus[0].baud".to_owned())
+        )
+    );
+    let c = parse(&bus_key("baud = 1000000\nnonstandard_baud = true"));
+    assert_eq!(c.buses[0].baud.get(), 1_000_000);
+    assert_eq!(parse(&bus_key("baud = 93750")).buses[0].baud.get(), 93750);
+}
+
+#[test]
+fn unknown_rs485_mode_and_safe_command_list_the_choices() {
+    assert_eq!(
+        refused(&bus_key("rs485 = \"rts\"")),
+        (
+            "bus.toml:4:9: bus \"bus0\": rs485 = \"rts\" is not allowed: use \"kernel\", \"auto\", \
+             \"none\""
+                .to_owned(),
+            Some("bus[0].rs485".to_owned())
+        )
+    );
+    assert_eq!(
+        error(&drive_key("safe_command = \"stop\"")).to_string(),
+        "bus.toml:7:16: bus \"bus0\" drive 3: safe_command = \"stop\" is not allowed: use \
+         \"off1\", \"off2\", \"off3\""
+    );
+}
+
+#[test]
+fn a_relative_serial_device_must_exist_an_absolute_one_may_come_later() {
+    let text = "[[bus]]\nname = \"bus0\"\ndevice = \"ttyXYZ\"\n[[bus.drive]]\naddress = 1\n";
+    let later = text.replace("ttyXYZ", "/dev/ttyXYZ");
+    assert_eq!(
+        parse(&later).buses[0].device,
+        Device::Serial(PathBuf::from("/dev/ttyXYZ"))
+    );
+    assert_eq!(
+        refused(text),
+        (
+            "bus.toml:3:10: bus \"bus0\": device = \"ttyXYZ\" does not exist (a device that may \
+             be absent when ussd starts needs its absolute path): device is \"sim\" (the \
+             built-in simulated bus) or the path of a serial device"
+                .to_owned(),
+            Some("bus[0].device".to_owned())
+        )
+    );
+    assert_eq!(
+        error("[[bus]]\nname = \"bus0\"\n[[bus.drive]]\naddress = 1\n").to_string(),
+        "bus.toml:1:1: bus \"bus0\": device is missing: device is \"sim\" (the built-in \
+         simulated bus) or the path of a serial device"
+    );
+}
+
+#[test]
+fn sim_and_seed_are_refused_on_a_serial_bus() {
+    assert_eq!(
+        refused(&serial("", "sim = { delay = 1 }")),
+        (
+            "bus.toml:8:7: bus \"bus1\" drive 3: sim is only allowed with device = \"sim\": the \
+             drives on a serial bus are real"
+                .to_owned(),
+            Some("bus[0].drive[0].sim".to_owned())
+        )
+    );
+    assert_eq!(
+        refused(&serial("seed = 7", "")),
+        (
+            "bus.toml:4:8: bus \"bus1\": seed = 7 is only allowed with device = \"sim\": the \
+             drives on a serial bus are real"
+                .to_owned(),
+            Some("bus[0].seed".to_owned())
+        )
+    );
+    // Also when the serial device is absent (it may appear later).
+    let text = serial("", "sim.delay = 1").replace("/dev/null", "/dev/ttyXYZ");
+    assert!(
+        error(&text)
+            .to_string()
+            .contains("only allowed with device = \"sim\"")
+    );
+    assert!(parse(&serial("", "")).buses[0].drives[0].sim.is_none());
+}
+
+#[test]
+fn a_bad_sim_option_carries_the_simulators_message() {
+    assert_eq!(
+        refused(&drive_key("sim = { delay = -1 }")),
+        (
+            "bus.toml:7:7: bus \"bus0\" drive 3: sim: delay=-1: a time in milliseconds, \
+             0..=3600000"
+                .to_owned(),
+            Some("bus[0].drive[0].sim".to_owned())
+        )
+    );
+    assert_eq!(
+        error(&drive_key("sim = { drop = 2 }")).to_string(),
+        "bus.toml:7:7: bus \"bus0\" drive 3: sim: drop=2: a probability is 0..=1"
+    );
+}
+
+#[test]
+fn values_out_of_range_name_their_limits() {
+    let cases = [
+        (
+            "response_timeout_ms = 0.5",
+            "response_timeout_ms = 0.5 is out of range: the response timeout is 1..=1000 ms \
+             (USS.md section 4: a slave answers within 20 ms)",
+        ),
+        (
+            "timeout_margin_ms = -1",
+            "timeout_margin_ms = -1 is out of range: the timeout margin is 0..=1000 ms",
+        ),
+        (
+            "offline_probe_ms = 5",
+            "offline_probe_ms = 5 is out of range: the poll interval of an offline drive is \
+             10..=60000 ms",
+        ),
+        (
+            "cycle_time_ms = 60001",
+            "cycle_time_ms = 60001 is out of range: the cycle time (0 = as fast as the wire \
+             allows) is 0..=60000 ms",
+        ),
+        (
+            "param_timeout_ms = 1e9",
+            "param_timeout_ms = 1e9 is out of range: the parameter job timeout is 10..=600000 ms",
+        ),
+        (
+            "response_timeout_ms = nan",
+            "response_timeout_ms = nan is out of range: the response timeout is 1..=1000 ms \
+             (USS.md section 4: a slave answers within 20 ms)",
+        ),
+        (
+            "offline_after = 0",
+            "offline_after = 0 is out of range: failed polls before a drive is marked offline \
+             are 1..=100",
+        ),
+        (
+            "priority = 100",
+            "priority = 100 is out of range: SCHED_FIFO priorities are 1..=99",
+        ),
+    ];
+    for (line, problem) in cases {
+        let (key, _) = line.split_once(" = ").unwrap();
+        let column = key.len() + 4;
+        assert_eq!(
+            refused(&bus_key(line)),
+            (
+                format!("bus.toml:4:{column}: bus \"bus0\": {problem}"),
+                Some(format!("bus[0].{key}"))
+            )
+        );
+    }
+    assert_eq!(
+        refused(&drive_key("watchdog_ms = 0")),
+        (
+            "bus.toml:7:15: bus \"bus0\" drive 3: watchdog_ms = 0 is out of range: the \
+             controller watchdog is 1..=60000 ms"
+                .to_owned(),
+            Some("bus[0].drive[0].watchdog_ms".to_owned())
+        )
+    );
+    assert_eq!(
+        error(&drive_key("reference_hz = 0")).to_string(),
+        "bus.toml:7:16: bus \"bus0\" drive 3: reference_hz = 0 is out of range: the reference \
+         frequency (P2000) is above 0 and at most 650 Hz"
+    );
+    assert_eq!(error(&drive_key("reference_hz = 650.5")).line, Some(7));
+    assert_eq!(
+        parse(&drive_key("reference_hz = 650")).buses[0].drives[0].reference_hz,
+        650.0
+    );
+    assert_eq!(parse(&bus_key("priority = 99")).buses[0].priority, 99);
+}
+
+#[test]
+fn cpu_must_be_online() {
+    let online = std::thread::available_parallelism().unwrap().get();
+    let plural = if online == 1 { "" } else { "s" };
+    assert_eq!(
+        refused(&bus_key(&format!("cpu = {online}"))),
+        (
+            format!(
+                "bus.toml:4:7: bus \"bus0\": cpu = {online} is out of range: this machine has \
+                 {online} online CPU{plural}: cpu is 0..={}",
+                online - 1
+            ),
+            Some("bus[0].cpu".to_owned())
+        )
+    );
+    assert_eq!(error(&bus_key("cpu = -1")).line, Some(4));
+    assert_eq!(parse(&bus_key("cpu = 0")).buses[0].cpu, Some(0));
+}
+
+#[test]
+fn a_configuration_needs_a_bus_and_a_bus_needs_a_drive() {
+    for text in ["# nothing here\n", "bus = []\n"] {
+        let e = error(text);
+        assert_eq!(
+            e.to_string(),
+            "bus.toml: no [[bus]] table: a configuration needs at least one bus"
+        );
+        assert_eq!((e.line, e.path.as_deref()), (None, Some("bus")));
+    }
+    assert_eq!(
+        refused("# a bus\n[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\n"),
+        (
+            "bus.toml:2:1: bus \"bus0\": no [[bus.drive]] table: every bus needs at least one \
+             drive"
+                .to_owned(),
+            Some("bus[0].drive".to_owned())
+        )
+    );
+}
+
+#[test]
+fn one_error_at_a_time_each_at_its_own_place() {
+    // serde stops at the first value it refuses (the tables in file order, a table's keys in
+    // name order): each error is reported where it is, and fixing it shows the next.
+    let text = "[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\nretries = 11\n\n[[bus.drive]]\n\
+                address = 3\npzd = 17\n";
+    assert_eq!(error(text).path.as_deref(), Some("bus[0].drive[0].pzd"));
+    let fixed = text.replace("pzd = 17", "pzd = 2");
+    assert_eq!(error(&fixed).line, Some(4));
+    // A later bus with a bad name does not hide an earlier bus's error.
+    let text = "[[bus]]\nname = \"a\"\ndevice = \"sim\"\n[[bus.drive]]\naddress = 3\npzd = 99\n\
+                [[bus]]\nname = \"b b\"\ndevice = \"sim\"\n[[bus.drive]]\naddress = 3\n";
+    assert_eq!(error(text).line, Some(6));
+    // Of several broken rules, the first in the file.
+    let text = "[[bus]]\nname = \"a a\"\ndevice = \"ttyXYZ\"\n[[bus.drive]]\naddress = 3\n";
+    assert_eq!(error(text).path.as_deref(), Some("bus[0].name"));
+}
+
+#[test]
+fn inline_tables_are_checked_like_headers() {
+    let text = "bus = [{ name = \"bus0\", device = \"sim\", drive = [{ address = 1 }, \
+                { address = 2, pzd = 17 }] }]\n";
+    assert_eq!(
+        refused(text),
+        (
+            "bus.toml:1:88: bus \"bus0\" drive 2: pzd = 17 is out of range: PZD words (P2012) \
+             are 0..=16"
+                .to_owned(),
+            Some("bus[0].drive[1].pzd".to_owned())
+        )
+    );
+    let ok = text.replace("pzd = 17", "pzd = 4");
+    assert_eq!(parse(&ok).buses[0].drives[1].layout.pzd.get(), 4);
+}
+
+#[test]
+fn integers_may_be_written_in_hex_and_times_as_integers() {
+    let c = parse(&drive_key("watchdog_ms = 0x10"));
+    assert_eq!(c.buses[0].drives[0].watchdog, ms(16));
+    let c = parse("[[bus]]\nname = \"b\"\ndevice = \"sim\"\n[[bus.drive]]\naddress = 0x1f\n");
+    assert_eq!(c.buses[0].drives[0].address.get(), 31);
+}
+
+#[test]
+fn columns_count_characters_not_bytes() {
+    assert_eq!(errors::position("aé\nxéy", 7), (2, 3));
+    assert_eq!(errors::position("abc", 0), (1, 1));
+    assert_eq!(errors::position("abc", 99), (1, 4));
+    // A serial device whose path has a two-byte character before the error on the same line.
+    let device = std::env::temp_dir().join(format!("uss-config-é-{}", std::process::id()));
+    std::fs::write(&device, "").unwrap();
+    let text = format!(
+        "bus = [{{ name = \"b\", device = \"{}\", drive = [{{ address = 3, pzd = 17 }}] }}]\n",
+        device.display()
+    );
+    let e = error(&text);
+    std::fs::remove_file(&device).unwrap();
+    // Search for the whole key: the process id in the path may contain "17" too.
+    let at = text.find("pzd = 17").unwrap() + "pzd = ".len();
+    let column = text[..at].chars().count() + 1;
+    assert_eq!((e.line, e.column), (Some(1), Some(column)));
+    assert_eq!(at + 1, column + 1, "the path holds one two-byte character");
+}
