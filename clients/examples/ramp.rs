@@ -6,8 +6,9 @@
 //! ussd &                                   # the embedded simulated bus0 with drives 1..4
 //! cargo run -p uss-client --example ramp -- bus0 1 40 3
 //! ```
-//! Arguments: bus (bus0), drive (1), peak in Hz (40), ramps up and down (1); the reference
-//! frequency P2000 is read from the drive.
+//! Arguments: bus (bus0), drive (1), peak in Hz (40), ramps up and down (1). Hz are scaled by
+//! the reference frequency P2000 as ussd's configuration gives it; the drive's own P2000 is read
+//! to warn when the two differ.
 
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -47,14 +48,22 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let ramps: u32 = arg(4, 1)?;
 
     let bus = Bus::open_as(&bus_name, "ramp-example")?;
-    let reference_hz = bus.read_f32(drive, P2000, None)?;
     let events = bus.cycle_listener()?;
     let c = bus.control(drive, ControlOptions::default())?;
+    // Hz are scaled by the drive's P2000 as ussd's configuration gives it.
+    let reference_hz = c.inputs().info().reference_hz;
+    let drive_says = bus.read_f32(drive, P2000, None)?;
+    if (drive_says - reference_hz).abs() > 0.005 {
+        eprintln!(
+            "warning: drive {drive} has P2000 = {drive_says} Hz, ussd's configuration says \
+             reference_hz = {reference_hz}: Hz shown here follow the configuration"
+        );
+    }
 
     // S1 -> S2 -> S4 (USS.md section 7). `wait_for_state` refreshes while it waits.
     c.enable()?;
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))?;
-    c.run_hz(0.0, reference_hz)?;
+    c.run_hz(0.0)?;
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(2))?;
     println!(
         "drive {drive} on {bus_name}: S4, reference {reference_hz} Hz, ramping to {peak_hz} Hz"
@@ -80,12 +89,12 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         let setpoint = peak_hz * if phase <= 1.0 { phase } else { 2.0 - phase };
         // Published on each exchange, or at least every 200 ms without events: the watchdog
         // never sees a stale controller.
-        c.run_hz(setpoint, reference_hz)?;
+        c.run_hz(setpoint)?;
         if ours && last_print.elapsed() >= Duration::from_millis(250) {
             println!(
                 "{:5.2} s  setpoint {setpoint:6.2} Hz  actual {:6.2} Hz  {}",
                 start.elapsed().as_secs_f32(),
-                c.inputs().actual_hz(reference_hz),
+                c.inputs().actual_hz(),
                 c.inputs().state().short_name()
             );
             last_print = Instant::now();

@@ -296,7 +296,7 @@ impl Controller {
         options: ControlOptions,
     ) -> Result<Self, ClientError> {
         let diag = bus.diag(address.get())?;
-        let pzd = usize::from(diag.pzd_words);
+        let pzd = usize::from(diag.info.pzd_words);
         if pzd == 0 {
             return Err(ClientError::NoProcessData {
                 bus: bus.name().to_owned(),
@@ -437,8 +437,11 @@ impl Controller {
         self.run_setpoint(Setpoint::from_percent(percent))
     }
 
-    /// Like [`Controller::run_percent`], in Hz given the drive's reference frequency P2000.
-    pub fn run_hz(&self, hz: f32, reference_hz: f32) -> Result<(), ClientError> {
+    /// Like [`Controller::run_percent`], in Hz: scaled by the drive's reference frequency
+    /// P2000 as ussd's configuration gives it ([`DriveWatch::info`]), so a controller and every
+    /// monitor show the same Hz for the same setpoint.
+    pub fn run_hz(&self, hz: f32) -> Result<(), ClientError> {
+        let reference_hz = self.shared.watch.info().reference_hz;
         self.run_setpoint(Setpoint::from_hz(hz, reference_hz))
     }
 

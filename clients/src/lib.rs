@@ -9,7 +9,7 @@
 //! let bus = Bus::open("bus0")?; // "ussd is not running on bus0: start it with ..." otherwise
 //! for address in bus.drives() {
 //!     let d = bus.diag(address)?;
-//!     println!("drive {address}: online {} good {}", d.online, d.good);
+//!     println!("drive {address}: online {} good {}", d.online, d.counters.good);
 //! }
 //!
 //! // Parameters: typed values, typed errors.
@@ -21,9 +21,9 @@
 //! let _refresher = drive.spawn_refresher(Duration::from_millis(20)); // the watchdog
 //! drive.enable()?; // OFF1: arms the drive (ussd latched it at start), S1 -> S2
 //! drive.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(1))?;
-//! drive.run_hz(0.5 * max_hz, 50.0)?; // S2 -> S4
+//! drive.run_hz(0.5 * max_hz)?; // S2 -> S4
 //! drive.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(1))?;
-//! println!("{:.1} Hz", drive.inputs().actual_hz(50.0));
+//! println!("{:.1} Hz", drive.inputs().actual_hz());
 //! match drive.set_setpoint(uss_client::Setpoint::from_percent(20.0)) {
 //!     // Frozen too long, an operator's stop, ...: the drive is latched until re-armed.
 //!     Err(uss_client::ClientError::Tripped { latch, .. }) => {

@@ -11,15 +11,16 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 use uss_protocol::{DriveState, Setpoint, Zsw1};
 use uss_shm_types::names;
-use uss_shm_types::{BlackboardKey, DriveAddress, Generation, PzdInput};
+use uss_shm_types::{BlackboardKey, DriveAddress, DriveDiag, DriveInfo, Generation, PzdInput};
 
 /// How often the `wait_*` helpers look at the input image.
 pub(crate) const POLL: Duration = Duration::from_millis(1);
 
-/// The input image entry of one ussd generation.
+/// The input image entry of one ussd generation, and what that ussd says of the drive.
 struct Port {
     generation: Generation,
     entry: EntryHandle<Ipc, BlackboardKey, PzdInput>,
+    info: DriveInfo,
 }
 
 /// What a watch keeps between reads.
@@ -27,6 +28,8 @@ struct State {
     port: Option<Port>,
     /// The last image read while ussd served the bus.
     last: PzdInput,
+    /// What the ussd that wrote `last` says of the drive.
+    info: DriveInfo,
 }
 
 /// A drive's input image (USS.md section 7: ZSW1, HIW, further PZD words), read from the
@@ -65,9 +68,16 @@ fn open_port(link: &Link, services: &Services, address: DriveAddress) -> Result<
         unknown_drive(bus, address.get()),
     )?;
     let entry = entry(&service, bus, &name, BlackboardKey::IMAGE)?;
+    let info = services
+        .diag
+        .entry::<DriveDiag>(&BlackboardKey::drive(address))
+        .map_err(|_| unknown_drive(bus, address.get())())?
+        .get()
+        .info;
     Ok(Port {
         generation: services.generation(),
         entry,
+        info,
     })
 }
 
@@ -79,12 +89,14 @@ impl DriveWatch {
             other => other,
         })?;
         let last = *port.entry.get();
+        let info = port.info;
         Ok(Self {
             link: Arc::clone(bus.link()),
             address,
             state: Mutex::new(State {
                 port: Some(port),
                 last,
+                info,
             }),
         })
     }
@@ -103,8 +115,9 @@ impl DriveWatch {
             if state.port.as_ref().map(|p| p.generation) != Some(services.generation()) {
                 state.port = open_port(&self.link, &services, self.address).ok();
             }
-            if let Some(port) = &state.port {
-                state.last = *port.entry.get();
+            if let Some((last, info)) = state.port.as_ref().map(|p| (*p.entry.get(), p.info)) {
+                state.last = last;
+                state.info = info;
             }
         }
         let problem = health.error(self.link.name.as_str());
@@ -164,9 +177,20 @@ impl DriveWatch {
         DriveState::from_zsw1(self.zsw1())
     }
 
-    /// The main actual value HIW in Hz, given the drive's reference frequency P2000.
-    pub fn actual_hz(&self, reference_hz: f32) -> f32 {
-        Setpoint::from_word(self.latest().hiw).hz(reference_hz)
+    /// What ussd says of the drive (its configuration): reference frequency, PZD and PKW
+    /// lengths, watchdog, safe command, writability. A restarted ussd's description replaces
+    /// the old one on the next read.
+    pub fn info(&self) -> DriveInfo {
+        self.look();
+        self.cache().info
+    }
+
+    /// The main actual value HIW in Hz, scaled by the drive's reference frequency P2000 as
+    /// ussd's configuration gives it ([`DriveInfo::reference_hz`]).
+    pub fn actual_hz(&self) -> f32 {
+        let (image, _) = self.look();
+        let reference_hz = self.cache().info.reference_hz;
+        Setpoint::from_word(image.hiw).hz(reference_hz)
     }
 
     /// The main actual value HIW in % of the reference.

@@ -7,7 +7,8 @@
 //!   monitoring ([`engine::monitoring`]), lock-free process images ([`engine::image`]); and the
 //!   traits it owns: [`engine::transport::Transport`], [`engine::clock::Clock`].
 //! - [`transports`]: real serial devices ([`transports::serial`]) and the simulator's virtual
-//!   wire ([`transports::sim`]).
+//!   wire (`transports::sim`, behind the default-on `sim` feature: a field build can leave the
+//!   simulator out).
 //! - [`daemon`]: buses in their real-time threads ([`daemon::runtime`], [`daemon::rt`]), the
 //!   iceoryx2 services of a bus ([`daemon::ipc`]), the live summary ([`daemon::summary`]) and
 //!   the service manager ([`daemon::supervise`]).
@@ -21,10 +22,11 @@ pub mod transports;
 pub use engine::clock::{Clock, MonotonicClock, VirtualClock};
 pub use engine::jobs::{Job, JobResult, Outcome};
 pub use engine::monitoring::MonitoringSetup;
-pub use engine::stats::{DriveCounters, DriveStatus, Failure, Stats};
+pub use engine::stats::{DriveCounters, DriveStatus, LastFailure, Stats};
 pub use engine::transport::{Rx, Transport, TransportError};
 pub use engine::{
     Bridge, DriveSetup, Engine, EngineConfig, EngineHandle, Event, INTERNAL_JOB, LocalBridge,
     RequestError,
 };
+#[cfg(feature = "sim")]
 pub use transports::sim::SimTransport;

@@ -1,6 +1,7 @@
 //! The bus engine on a virtual clock against the simulator's virtual wire: every timing rule and
 //! failure path of USS.md sections 4 to 6, driven by the simulator's fault injector. Runs in
 //! milliseconds, deterministically.
+#![cfg(feature = "sim")]
 #![allow(clippy::unwrap_used)]
 
 use crossbeam_channel::Receiver;
@@ -8,7 +9,7 @@ use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, State, VirtualWire};
 use uss_master::engine::control::Control;
 use uss_master::{
-    DriveSetup, Engine, EngineConfig, EngineHandle, Event, Failure, Job, Outcome, RequestError,
+    DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, LastFailure, Outcome, RequestError,
     SimTransport, VirtualClock,
 };
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
@@ -222,7 +223,7 @@ fn silent_drive_is_retried_then_offline_then_probed_and_back_online() {
     b.run_for(Duration::from_millis(1900), &[]);
     let s = b.status(2);
     assert!(!s.online && s.no_reply);
-    assert_eq!(s.last_failure, Some(Failure::NoResponse));
+    assert_eq!(s.last_failure, LastFailure::NoResponse);
     // First poll: 1 + 2 retries; then a probe every 500 ms: at about 0.56 s, 1.06 s, 1.57 s.
     assert_eq!(s.counters.failed_polls, 4, "{:?}", s.counters);
     assert_eq!(s.counters.requests, 12);
@@ -237,7 +238,7 @@ fn silent_drive_is_retried_then_offline_then_probed_and_back_online() {
                 Event::DriveOnline { address: a1, .. },
                 Event::DriveOffline {
                     address: a2,
-                    failure: Failure::NoResponse,
+                    failure: LastFailure::NoResponse,
                     ..
                 }
             ] if a1 == addr(1) && a2 == addr(2)

@@ -2,6 +2,7 @@
 //! controller's samples (subscriber), publishes input images (blackboard) and signals events
 //! while a controller in another thread publishes and a reader reads. Only the bus thread's
 //! allocations are counted.
+#![cfg(feature = "sim")]
 #![allow(clippy::unwrap_used)]
 
 mod common;

@@ -2,6 +2,7 @@
 //! jobs, busy replies, retries, injected faults, offline drives, watchdog trips, re-arms,
 //! rejected samples, releases, operator overrides and statistics publishing, under a counting
 //! global allocator (ARCHITECTURE.md, "Data flow").
+#![cfg(feature = "sim")]
 #![allow(clippy::unwrap_used)]
 
 mod common;

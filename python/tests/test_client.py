@@ -179,7 +179,8 @@ def test_a_drive_without_a_controller_is_latched_with_its_safe_command(bus):
     diag = bus._services["diag"].reader_builder().create().entry(
         uss_rt.BlackboardKey(1), uss_rt.DriveDiag
     ).get().decode_as(uss_rt.DriveDiag)
-    assert (diag.pzd_words, diag.latches) == (2, 1)
+    assert (diag.info.pzd_words, diag.counters.latches) == (2, 1)
+    assert (diag.info.reference_hz, diag.info.watchdog_ms) == (50.0, 100)
 
 
 def test_python_stops_a_drive_another_process_runs_and_the_stop_latches(bus):

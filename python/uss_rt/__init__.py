@@ -31,7 +31,9 @@ __all__ = [
     "CommandRefused",
     "BusState",
     "ControlState",
+    "DriveCounters",
     "DriveDiag",
+    "DriveInfo",
     "Heartbeat",
     "LineDown",
     "LineFault",
@@ -77,7 +79,7 @@ __all__ = [
 # Limits and names (uss_shm_types: lib.rs, pzd.rs, params.rs, names.rs)
 # -------------------------------------------------------------------------------------------
 
-LAYOUT_VERSION = 2
+LAYOUT_VERSION = 3
 """The layout version of every payload; its ``version`` field and the services' attribute."""
 LAYOUT_VERSION_ATTRIBUTE = "uss.layout_version"
 MAX_PZD_WORDS = 16
@@ -356,12 +358,13 @@ _DRIVE_ERRORS = {
 # Payload types: _fields_ in memory order, exactly as uss_shm_types::layout::LAYOUTS
 # -------------------------------------------------------------------------------------------
 
-u8, u16, u32, u64, i32 = (
+u8, u16, u32, u64, i32, f32 = (
     ctypes.c_uint8,
     ctypes.c_uint16,
     ctypes.c_uint32,
     ctypes.c_uint64,
     ctypes.c_int32,
+    ctypes.c_float,
 )
 
 
@@ -396,7 +399,7 @@ class PzdOutput(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssPzdOutputV2"
+        return "UssPzdOutputV3"
 
 
 class PzdInput(ctypes.Structure):
@@ -428,37 +431,35 @@ class PzdInput(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssPzdInputV2"
+        return "UssPzdInputV3"
 
 
-class DriveDiag(ctypes.Structure):
-    """The master's view of one drive (``uss/<bus>/diag``, key = address)."""
+class DriveInfo(ctypes.Structure):
+    """What ussd knows of a drive from its configuration (``DriveDiag.info``): scale Hz with
+    ``reference_hz`` (P2000), send exactly ``pzd_words``."""
 
     _fields_ = [
-        ("version", u32),
-        ("consecutive_failed_polls", u32),
-        ("last_zsw1", u16),
-        ("last_hiw", u16),
-        ("address", u8),
-        ("online", u8),
-        ("no_reply", u8),
-        ("control", u8),
-        ("last_failure", u8),
-        ("latch_reason", u8),
-        ("latch_command", u8),
-        ("rejection", u8),
-        ("monitoring", u8),
+        ("reference_hz", f32),
+        ("watchdog_ms", u32),
+        ("safe_command", u8),
+        ("params_writable", u8),
+        ("pkw_words", u8),
         ("pzd_words", u8),
-        ("known", u8),
-        ("reserved", u8),
-        ("monitoring_ms", u32),
-        ("controller_pid", u32),
-    ] + [
+        ("weight", u8),
+        ("reserved", u8 * 3),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssDriveInfoV3"
+
+
+class DriveCounters(ctypes.Structure):
+    """What ussd counted for a drive (``DriveDiag.counters``)."""
+
+    _fields_ = [
         (name, u64)
         for name in (
-            "since_ns",
-            "last_good_ns",
-            "latched_since_ns",
             "requests",
             "good",
             "rejected",
@@ -488,7 +489,40 @@ class DriveDiag(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveDiagV2"
+        return "UssDriveCountersV3"
+
+
+class DriveDiag(ctypes.Structure):
+    """The master's view of one drive (``uss/<bus>/diag``, key = address)."""
+
+    _fields_ = [
+        ("version", u32),
+        ("consecutive_failed_polls", u32),
+        ("last_zsw1", u16),
+        ("last_hiw", u16),
+        ("address", u8),
+        ("online", u8),
+        ("no_reply", u8),
+        ("control", u8),
+        ("last_failure", u8),
+        ("latch_reason", u8),
+        ("latch_command", u8),
+        ("rejection", u8),
+        ("monitoring", u8),
+        ("known", u8),
+        ("reserved", u8 * 2),
+        ("monitoring_ms", u32),
+        ("controller_pid", u32),
+        ("since_ns", u64),
+        ("last_good_ns", u64),
+        ("latched_since_ns", u64),
+        ("info", DriveInfo),
+        ("counters", DriveCounters),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssDriveDiagV3"
 
 
 class BusStatus(ctypes.Structure):
@@ -531,7 +565,7 @@ class BusStatus(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssBusStatusV2"
+        return "UssBusStatusV3"
 
 
 class ParamItem(ctypes.Structure):
@@ -548,7 +582,7 @@ class ParamItem(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamItemV2"
+        return "UssParamItemV3"
 
 
 class ParamRequest(ctypes.Structure):
@@ -565,7 +599,7 @@ class ParamRequest(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamRequestV2"
+        return "UssParamRequestV3"
 
 
 class ParamResult(ctypes.Structure):
@@ -584,7 +618,7 @@ class ParamResult(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamResultV2"
+        return "UssParamResultV3"
 
 
 class ParamResponse(ctypes.Structure):
@@ -603,7 +637,7 @@ class ParamResponse(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamResponseV2"
+        return "UssParamResponseV3"
 
 
 class Heartbeat(ctypes.Structure):
@@ -625,7 +659,7 @@ class Heartbeat(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssHeartbeatV2"
+        return "UssHeartbeatV3"
 
 
 class OperatorRequest(ctypes.Structure):
@@ -640,7 +674,7 @@ class OperatorRequest(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssOperatorRequestV2"
+        return "UssOperatorRequestV3"
 
 
 class OperatorResponse(ctypes.Structure):
@@ -656,13 +690,15 @@ class OperatorResponse(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssOperatorResponseV2"
+        return "UssOperatorResponseV3"
 
 
 PAYLOAD_TYPES = (
     BlackboardKey,
     PzdOutput,
     PzdInput,
+    DriveInfo,
+    DriveCounters,
     DriveDiag,
     BusStatus,
     ParamItem,

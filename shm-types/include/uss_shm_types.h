@@ -19,17 +19,19 @@
  * as IOX2_TYPE_NAME.
  */
 #define USS_BLACKBOARD_KEY_TYPE_NAME "UssBlackboardKey"
-#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV2"
-#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV2"
-#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV2"
-#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV2"
-#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV2"
-#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV2"
-#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV2"
-#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV2"
-#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV2"
-#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV2"
-#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV2"
+#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV3"
+#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV3"
+#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV3"
+#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV3"
+#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV3"
+#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV3"
+#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV3"
+#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV3"
+#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV3"
+#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV3"
+#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV3"
+#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV3"
+#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV3"
 
 /*
  * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; %016llx = the
@@ -73,7 +75,7 @@
  * The layout version of every payload type in this crate. Bump it with any change to a type's
  * fields, sizes or code tables, together with the type names' `V<n>` suffix.
  */
-#define USS_LAYOUT_VERSION 2
+#define USS_LAYOUT_VERSION 3
 
 /**
  * Longest bus name.
@@ -876,7 +878,7 @@ typedef struct UssPzdOutput {
   uint8_t flags;
   uint8_t reserved[6];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV3";
 #endif
 } UssPzdOutput;
 
@@ -971,98 +973,55 @@ typedef struct UssPzdInput {
    */
   uint64_t taken_sequence;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV3";
 #endif
 } UssPzdInput;
 
 /**
- * The master's view of one drive, mirroring what the drive keeps itself (r2024..r2031,
- * USS.md section 7) plus timeouts and retries.
+ * What ussd knows of one drive from its configuration, published so that no client has to be
+ * told it again (a controller scales Hz with `reference_hz`, sends exactly `pzd_words`).
  */
-typedef struct UssDriveDiag {
+typedef struct UssDriveInfo {
   /**
-   * [`LAYOUT_VERSION`].
+   * The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
+   * frequency (USS.md section 7).
    */
-  uint32_t version;
+  float reference_hz;
   /**
-   * Polls in a row that failed all their retries.
+   * The controller watchdog, ms: a controller that does not refresh within it trips the drive.
    */
-  uint32_t consecutive_failed_polls;
+  uint32_t watchdog_ms;
   /**
-   * ZSW1 of the last good reply.
+   * The [`StopCommand`] a latched drive gets (OFF1, OFF2 or OFF3).
    */
-  uint16_t last_zsw1;
+  uint8_t safe_command;
   /**
-   * HIW of the last good reply.
+   * 1: parameter writes are allowed; 0: refused (`params_writable = false`).
    */
-  uint16_t last_hiw;
+  uint8_t params_writable;
   /**
-   * The drive address, 0..=31 (also the blackboard key).
+   * The PKW setting P2013: 0, 3 or 4 words, or 127 for variable length (USS.md section 3).
    */
-  uint8_t address;
+  uint8_t pkw_words;
   /**
-   * 1 while the drive answers.
-   */
-  uint8_t online;
-  /**
-   * 1 after a poll failed all retries ("slave x does not respond"), until the next good
-   * reply (USS.md section 4).
-   */
-  uint8_t no_reply;
-  /**
-   * A [`ControlState`] code: 0 live, 1 latched (see [`crate::control`]).
-   */
-  uint8_t control;
-  /**
-   * A [`LastFailure`] code.
-   */
-  uint8_t last_failure;
-  /**
-   * A [`LatchReason`] code (0 while live).
-   */
-  uint8_t latch_reason;
-  /**
-   * The [`StopCommand`] a latched drive gets (0 while live).
-   */
-  uint8_t latch_command;
-  /**
-   * The [`Rejection`] of the last refused sample (0 if none).
-   */
-  uint8_t rejection;
-  /**
-   * A [`Monitoring`] code: the drive's own telegram monitoring as ussd read it.
-   */
-  uint8_t monitoring;
-  /**
-   * PZD words the drive exchanges as configured (P2012): a controller's samples must carry
-   * exactly this many.
+   * PZD words (P2012): a controller's samples must carry exactly this many.
    */
   uint8_t pzd_words;
   /**
-   * 1 once the drive's first poll decided `online`; 0: unknown yet.
+   * Entries of the drive in the circulating list, 1..=16 (USS.md section 5).
    */
-  uint8_t known;
-  uint8_t reserved;
-  /**
-   * The telegram-off time read from the drive, ms (0 = off or not read).
-   */
-  uint32_t monitoring_ms;
-  /**
-   * The process id in the controller's latest sample; 0 if no controller published yet.
-   */
-  uint32_t controller_pid;
-  /**
-   * When `online` last changed, `CLOCK_MONOTONIC` ns.
-   */
-  uint64_t since_ns;
-  /**
-   * When the last good reply arrived, `CLOCK_MONOTONIC` ns; [`NEVER`] before the first.
-   */
-  uint64_t last_good_ns;
-  /**
-   * When the current (or last) latch began, `CLOCK_MONOTONIC` ns.
-   */
-  uint64_t latched_since_ns;
+  uint8_t weight;
+  uint8_t reserved[3];
+#ifdef __cplusplus
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV3";
+#endif
+} UssDriveInfo;
+
+/**
+ * What ussd counts for one drive: the engine counts into this type and the same value is
+ * published (USS.md section 4, "Receive errors to detect and count").
+ */
+typedef struct UssDriveCounters {
   /**
    * Telegrams sent to the drive (retries included).
    */
@@ -1125,7 +1084,103 @@ typedef struct UssDriveDiag {
    */
   uint64_t overrides;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV3";
+#endif
+} UssDriveCounters;
+
+/**
+ * The master's view of one drive, mirroring what the drive keeps itself (r2024..r2031,
+ * USS.md section 7) plus timeouts and retries.
+ */
+typedef struct UssDriveDiag {
+  /**
+   * [`LAYOUT_VERSION`].
+   */
+  uint32_t version;
+  /**
+   * Polls in a row that failed all their retries.
+   */
+  uint32_t consecutive_failed_polls;
+  /**
+   * ZSW1 of the last good reply.
+   */
+  uint16_t last_zsw1;
+  /**
+   * HIW of the last good reply.
+   */
+  uint16_t last_hiw;
+  /**
+   * The drive address, 0..=31 (also the blackboard key).
+   */
+  uint8_t address;
+  /**
+   * 1 while the drive answers.
+   */
+  uint8_t online;
+  /**
+   * 1 after a poll failed all retries ("slave x does not respond"), until the next good
+   * reply (USS.md section 4).
+   */
+  uint8_t no_reply;
+  /**
+   * A [`ControlState`] code: 0 live, 1 latched (see [`crate::control`]).
+   */
+  uint8_t control;
+  /**
+   * A [`LastFailure`] code.
+   */
+  uint8_t last_failure;
+  /**
+   * A [`LatchReason`] code (0 while live).
+   */
+  uint8_t latch_reason;
+  /**
+   * The [`StopCommand`] a latched drive gets (0 while live).
+   */
+  uint8_t latch_command;
+  /**
+   * The [`Rejection`] of the last refused sample (0 if none).
+   */
+  uint8_t rejection;
+  /**
+   * A [`Monitoring`] code: the drive's own telegram monitoring as ussd read it.
+   */
+  uint8_t monitoring;
+  /**
+   * 1 once the drive's first poll decided `online`; 0: unknown yet.
+   */
+  uint8_t known;
+  uint8_t reserved[2];
+  /**
+   * The telegram-off time read from the drive, ms (0 = off or not read).
+   */
+  uint32_t monitoring_ms;
+  /**
+   * The process id in the controller's latest sample; 0 if no controller published yet.
+   */
+  uint32_t controller_pid;
+  /**
+   * When `online` last changed, `CLOCK_MONOTONIC` ns.
+   */
+  uint64_t since_ns;
+  /**
+   * When the last good reply arrived, `CLOCK_MONOTONIC` ns; [`NEVER`] before the first.
+   */
+  uint64_t last_good_ns;
+  /**
+   * When the current (or last) latch began, `CLOCK_MONOTONIC` ns.
+   */
+  uint64_t latched_since_ns;
+  /**
+   * What ussd knows of the drive from its configuration.
+   */
+  struct UssDriveInfo info;
+  /**
+   * What ussd counted for the drive since it started.
+   */
+  struct UssDriveCounters counters;
+#ifdef __cplusplus
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV3";
 #endif
 } UssDriveDiag;
 
@@ -1230,7 +1285,7 @@ typedef struct UssBusStatus {
    */
   uint64_t jobs_cancelled;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV3";
 #endif
 } UssBusStatus;
 
@@ -1260,7 +1315,7 @@ typedef struct UssParamItem {
    */
   uint32_t value;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV3";
 #endif
 } UssParamItem;
 /**
@@ -1291,7 +1346,7 @@ typedef struct UssParamRequest {
   uint8_t reserved;
   struct UssParamItem items[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV3";
 #endif
 } UssParamRequest;
 
@@ -1331,7 +1386,7 @@ typedef struct UssParamResult {
    */
   uint64_t on_wire_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV3";
 #endif
 } UssParamResult;
 
@@ -1367,7 +1422,7 @@ typedef struct UssParamResponse {
   uint32_t reserved;
   struct UssParamResult results[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV3";
 #endif
 } UssParamResponse;
 
@@ -1417,7 +1472,7 @@ typedef struct UssHeartbeat {
    */
   int32_t line_errno;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV3";
 #endif
 } UssHeartbeat;
 
@@ -1439,7 +1494,7 @@ typedef struct UssOperatorRequest {
   uint8_t command;
   uint8_t reserved[2];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV3";
 #endif
 } UssOperatorRequest;
 
@@ -1465,7 +1520,7 @@ typedef struct UssOperatorResponse {
    */
   uint32_t drives;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV2";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV3";
 #endif
 } UssOperatorResponse;
 

@@ -5,6 +5,7 @@ use crate::LAYOUT_VERSION;
 use crate::codes::{UnknownCode, code_table};
 use crate::control::{ControlState, LatchReason, Monitoring, Rejection, StopCommand};
 use iceoryx2::prelude::ZeroCopySend;
+use uss_protocol::{FrameError, LineError};
 
 /// `last_good_ns` of a drive that never replied.
 pub const NEVER: u64 = u64::MAX;
@@ -70,8 +71,8 @@ code_table! {
 /// The master's view of one drive, mirroring what the drive keeps itself (r2024..r2031,
 /// USS.md section 7) plus timeouts and retries.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssDriveDiagV2")]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("UssDriveDiagV3")]
 pub struct DriveDiag {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -100,12 +101,9 @@ pub struct DriveDiag {
     pub rejection: u8,
     /// A [`Monitoring`] code: the drive's own telegram monitoring as ussd read it.
     pub monitoring: u8,
-    /// PZD words the drive exchanges as configured (P2012): a controller's samples must carry
-    /// exactly this many.
-    pub pzd_words: u8,
     /// 1 once the drive's first poll decided `online`; 0: unknown yet.
     pub known: u8,
-    pub reserved: u8,
+    pub reserved: [u8; 2],
     /// The telegram-off time read from the drive, ms (0 = off or not read).
     pub monitoring_ms: u32,
     /// The process id in the controller's latest sample; 0 if no controller published yet.
@@ -116,6 +114,60 @@ pub struct DriveDiag {
     pub last_good_ns: u64,
     /// When the current (or last) latch began, `CLOCK_MONOTONIC` ns.
     pub latched_since_ns: u64,
+    /// What ussd knows of the drive from its configuration.
+    pub info: DriveInfo,
+    /// What ussd counted for the drive since it started.
+    pub counters: DriveCounters,
+}
+
+/// What ussd knows of one drive from its configuration, published so that no client has to be
+/// told it again (a controller scales Hz with `reference_hz`, sends exactly `pzd_words`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("UssDriveInfoV3")]
+pub struct DriveInfo {
+    /// The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
+    /// frequency (USS.md section 7).
+    pub reference_hz: f32,
+    /// The controller watchdog, ms: a controller that does not refresh within it trips the drive.
+    pub watchdog_ms: u32,
+    /// The [`StopCommand`] a latched drive gets (OFF1, OFF2 or OFF3).
+    pub safe_command: u8,
+    /// 1: parameter writes are allowed; 0: refused (`params_writable = false`).
+    pub params_writable: u8,
+    /// The PKW setting P2013: 0, 3 or 4 words, or 127 for variable length (USS.md section 3).
+    pub pkw_words: u8,
+    /// PZD words (P2012): a controller's samples must carry exactly this many.
+    pub pzd_words: u8,
+    /// Entries of the drive in the circulating list, 1..=16 (USS.md section 5).
+    pub weight: u8,
+    pub reserved: [u8; 3],
+}
+
+impl DriveInfo {
+    /// A drive ussd has not described (all zero but the version-independent defaults).
+    pub const UNKNOWN: Self = Self {
+        reference_hz: 0.0,
+        watchdog_ms: 0,
+        safe_command: StopCommand::None.code(),
+        params_writable: 0,
+        pkw_words: 0,
+        pzd_words: 0,
+        weight: 0,
+        reserved: [0; 3],
+    };
+
+    pub fn safe_command(&self) -> Result<StopCommand, UnknownCode> {
+        StopCommand::try_from(self.safe_command)
+    }
+}
+
+/// What ussd counts for one drive: the engine counts into this type and the same value is
+/// published (USS.md section 4, "Receive errors to detect and count").
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, ZeroCopySend)]
+#[type_name("UssDriveCountersV3")]
+pub struct DriveCounters {
     /// Telegrams sent to the drive (retries included).
     pub requests: u64,
     /// Valid replies.
@@ -155,10 +207,79 @@ pub struct DriveDiag {
     pub overrides: u64,
 }
 
+impl From<&FrameError> for LastFailure {
+    /// The receive error of the framer (USS.md section 4) as the contract names it.
+    fn from(e: &FrameError) -> Self {
+        match e {
+            FrameError::MissingStx(_) => Self::MissingStx,
+            FrameError::StartPauseNotObserved => Self::StartPause,
+            FrameError::BadLge(_) => Self::BadLge,
+            FrameError::Bcc { .. } => Self::Bcc,
+            FrameError::ResidualTimeExceeded { .. } => Self::Residual,
+            FrameError::Line(LineError::Parity) => Self::Parity,
+            FrameError::Line(LineError::Framing) => Self::Framing,
+            FrameError::Line(LineError::Overrun) => Self::Overrun,
+        }
+    }
+}
+
+impl DriveCounters {
+    /// Every counter by its field name, in field order (for tools that show or export them).
+    pub const fn named(&self) -> [(&'static str, u64); 24] {
+        [
+            ("requests", self.requests),
+            ("good", self.good),
+            ("rejected", self.rejected),
+            ("timeouts", self.timeouts),
+            ("retries", self.retries),
+            ("failed_polls", self.failed_polls),
+            ("missing_stx", self.missing_stx),
+            ("start_pause", self.start_pause),
+            ("bad_lge", self.bad_lge),
+            ("bcc", self.bcc),
+            ("residual", self.residual),
+            ("length", self.length),
+            ("wrong_address", self.wrong_address),
+            ("parity", self.parity),
+            ("framing", self.framing),
+            ("overrun", self.overrun),
+            ("echo", self.echo),
+            ("pkw_busy", self.pkw_busy),
+            ("jobs_done", self.jobs_done),
+            ("watchdog_trips", self.watchdog_trips),
+            ("latches", self.latches),
+            ("rejected_outputs", self.rejected_outputs),
+            ("releases", self.releases),
+            ("overrides", self.overrides),
+        ]
+    }
+
+    /// Counts a failed attempt under its own counter (`rejected`, the count of every failed
+    /// attempt, is counted by the caller); [`LastFailure::None`] counts nothing.
+    pub fn count(&mut self, f: LastFailure) {
+        let c = match f {
+            LastFailure::None => return,
+            LastFailure::NoResponse => &mut self.timeouts,
+            LastFailure::MissingStx => &mut self.missing_stx,
+            LastFailure::StartPause => &mut self.start_pause,
+            LastFailure::BadLge => &mut self.bad_lge,
+            LastFailure::Bcc => &mut self.bcc,
+            LastFailure::Residual => &mut self.residual,
+            LastFailure::Length => &mut self.length,
+            LastFailure::WrongAddress => &mut self.wrong_address,
+            LastFailure::Parity => &mut self.parity,
+            LastFailure::Framing => &mut self.framing,
+            LastFailure::Overrun => &mut self.overrun,
+            LastFailure::Echo => &mut self.echo,
+        };
+        *c += 1;
+    }
+}
+
 /// The state of the bus as a whole.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssBusStatusV2")]
+#[type_name("UssBusStatusV3")]
 pub struct BusStatus {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -229,38 +350,40 @@ impl DriveDiag {
             latch_command: StopCommand::None.code(),
             rejection: Rejection::None.code(),
             monitoring: Monitoring::Unknown.code(),
-            pzd_words: 0,
             known: 0,
-            reserved: 0,
+            reserved: [0; 2],
             monitoring_ms: 0,
             controller_pid: 0,
             since_ns: 0,
             last_good_ns: NEVER,
             latched_since_ns: 0,
-            requests: 0,
-            good: 0,
-            rejected: 0,
-            timeouts: 0,
-            retries: 0,
-            failed_polls: 0,
-            missing_stx: 0,
-            start_pause: 0,
-            bad_lge: 0,
-            bcc: 0,
-            residual: 0,
-            length: 0,
-            wrong_address: 0,
-            parity: 0,
-            framing: 0,
-            overrun: 0,
-            echo: 0,
-            pkw_busy: 0,
-            jobs_done: 0,
-            watchdog_trips: 0,
-            latches: 0,
-            rejected_outputs: 0,
-            releases: 0,
-            overrides: 0,
+            info: DriveInfo::UNKNOWN,
+            counters: DriveCounters {
+                requests: 0,
+                good: 0,
+                rejected: 0,
+                timeouts: 0,
+                retries: 0,
+                failed_polls: 0,
+                missing_stx: 0,
+                start_pause: 0,
+                bad_lge: 0,
+                bcc: 0,
+                residual: 0,
+                length: 0,
+                wrong_address: 0,
+                parity: 0,
+                framing: 0,
+                overrun: 0,
+                echo: 0,
+                pkw_busy: 0,
+                jobs_done: 0,
+                watchdog_trips: 0,
+                latches: 0,
+                rejected_outputs: 0,
+                releases: 0,
+                overrides: 0,
+            },
         }
     }
 

@@ -48,7 +48,9 @@ pub use control::{
     ALL_DRIVES, CommandError, ControlState, LatchReason, Monitoring, OperatorRequest,
     OperatorResponse, Rejection, StopCommand,
 };
-pub use diag::{BusStatus, DriveDiag, LastFailure, LineFault, LineState, RtMode};
+pub use diag::{
+    BusStatus, DriveCounters, DriveDiag, DriveInfo, LastFailure, LineFault, LineState, RtMode,
+};
 pub use heartbeat::{BusState, Heartbeat};
 pub use names::{BlackboardKey, BusName, DriveAddress, Generation, Instance, NameError};
 pub use params::{
@@ -59,7 +61,7 @@ pub use pzd::{EXTRA_PZD_WORDS, MAX_PZD_WORDS, OUTPUT_RELEASE, OutputSample, PzdI
 
 /// The layout version of every payload type in this crate. Bump it with any change to a type's
 /// fields, sizes or code tables, together with the type names' `V<n>` suffix.
-pub const LAYOUT_VERSION: u32 = 2;
+pub const LAYOUT_VERSION: u32 = 3;
 
 /// Checks a payload's `version` field.
 pub const fn check_version(found: u32) -> Result<(), ContractError> {

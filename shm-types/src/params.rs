@@ -148,7 +148,7 @@ impl TaskCode {
 /// One parameter access.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamItemV2")]
+#[type_name("UssParamItemV3")]
 pub struct ParamItem {
     /// A [`TaskCode`].
     pub task: u8,
@@ -166,7 +166,7 @@ pub struct ParamItem {
 /// A request for up to 39 parameter accesses on one drive.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamRequestV2")]
+#[type_name("UssParamRequestV3")]
 pub struct ParamRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -183,7 +183,7 @@ pub struct ParamRequest {
 /// The result of one item.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResultV2")]
+#[type_name("UssParamResultV3")]
 pub struct ParamResult {
     /// An [`Outcome`] code.
     pub outcome: u8,
@@ -207,7 +207,7 @@ pub struct ParamResult {
 /// The one response to a [`ParamRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResponseV2")]
+#[type_name("UssParamResponseV3")]
 pub struct ParamResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -15,11 +15,11 @@ use std::process::Command;
 use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
 use uss_shm_types::names::{self, BlackboardKey};
 use uss_shm_types::{
-    BusName, BusState, BusStatus, CommandError, ControlState, DriveAddress, DriveDiag, Generation,
-    Heartbeat, Instance, LastFailure, LatchReason, LineFault, LineState, Monitoring,
-    OperatorRequest, OperatorResponse, Outcome, ParamItem, ParamRequest, ParamResponse,
-    ParamResult, PzdInput, PzdOutput, Rejection, RequestError, RtMode, StopCommand, Storage,
-    TaskCode,
+    BusName, BusState, BusStatus, CommandError, ControlState, DriveAddress, DriveCounters,
+    DriveDiag, DriveInfo, Generation, Heartbeat, Instance, LastFailure, LatchReason, LineFault,
+    LineState, Monitoring, OperatorRequest, OperatorResponse, Outcome, ParamItem, ParamRequest,
+    ParamResponse, ParamResult, PzdInput, PzdOutput, Rejection, RequestError, RtMode, StopCommand,
+    Storage, TaskCode,
 };
 
 const REGENERATE: &str =
@@ -415,6 +415,8 @@ fn actual_type_name(rust: &str) -> &'static str {
             "BlackboardKey" => BlackboardKey::type_name(),
             "PzdOutput" => PzdOutput::type_name(),
             "PzdInput" => PzdInput::type_name(),
+            "DriveInfo" => DriveInfo::type_name(),
+            "DriveCounters" => DriveCounters::type_name(),
             "DriveDiag" => DriveDiag::type_name(),
             "BusStatus" => BusStatus::type_name(),
             "ParamItem" => ParamItem::type_name(),

@@ -5,9 +5,9 @@ use core::mem::{align_of, offset_of, size_of, size_of_val};
 use iceoryx2::prelude::ZeroCopySend;
 use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
 use uss_shm_types::{
-    BlackboardKey, BusStatus, DriveDiag, Generation, Heartbeat, LAYOUT_VERSION, MAX_PARAM_ITEMS,
-    OperatorRequest, OperatorResponse, ParamItem, ParamRequest, ParamResponse, ParamResult,
-    PzdInput, PzdOutput, StopCommand,
+    BlackboardKey, BusStatus, DriveCounters, DriveDiag, DriveInfo, Generation, Heartbeat,
+    LAYOUT_VERSION, MAX_PARAM_ITEMS, OperatorRequest, OperatorResponse, ParamItem, ParamRequest,
+    ParamResponse, ParamResult, PzdInput, PzdOutput, StopCommand,
 };
 
 /// The layout the compiler gave a type, in the table's shape.
@@ -52,14 +52,20 @@ fn actual_layouts() -> Vec<Actual> {
             age_ns, zsw1, hiw, extra, sent_stw1, sent_setpoint, latches, latched_since_ns,
             latched_by_pid, latch_command, rejection, known, reserved, taken_sequence,
         ]),
+        actual!(DriveInfo = DriveInfo::UNKNOWN, [
+            reference_hz, watchdog_ms, safe_command, params_writable, pkw_words, pzd_words,
+            weight, reserved,
+        ]),
+        actual!(DriveCounters = DriveCounters::default(), [
+            requests, good, rejected, timeouts, retries, failed_polls, missing_stx, start_pause,
+            bad_lge, bcc, residual, length, wrong_address, parity, framing, overrun, echo,
+            pkw_busy, jobs_done, watchdog_trips, latches, rejected_outputs, releases, overrides,
+        ]),
         actual!(DriveDiag = DriveDiag::new(0), [
             version, consecutive_failed_polls, last_zsw1, last_hiw, address, online, no_reply,
-            control, last_failure, latch_reason, latch_command, rejection, monitoring, pzd_words,
-            known, reserved,
-            monitoring_ms, controller_pid, since_ns, last_good_ns, latched_since_ns, requests,
-            good, rejected, timeouts, retries, failed_polls, missing_stx, start_pause, bad_lge,
-            bcc, residual, length, wrong_address, parity, framing, overrun, echo, pkw_busy,
-            jobs_done, watchdog_trips, latches, rejected_outputs, releases, overrides,
+            control, last_failure, latch_reason, latch_command, rejection, monitoring, known,
+            reserved, monitoring_ms, controller_pid, since_ns, last_good_ns, latched_since_ns,
+            info, counters,
         ]),
         actual!(BusStatus = BusStatus::EMPTY, [
             version, rt_cpu, rt_mode, rt_priority, drive_count, running, efficiency_ppm,
@@ -135,8 +141,14 @@ fn the_table_leaves_no_implicit_padding() {
 #[test]
 fn payloads_start_with_the_version_and_name_it_in_their_type_name() {
     let suffix = format!("V{LAYOUT_VERSION}");
-    // The key and the array elements are not payloads of their own.
-    let not_payloads = ["BlackboardKey", "ParamItem", "ParamResult"];
+    // The key, the array elements and the nested records are not payloads of their own.
+    let not_payloads = [
+        "BlackboardKey",
+        "ParamItem",
+        "ParamResult",
+        "DriveInfo",
+        "DriveCounters",
+    ];
     for t in LAYOUTS {
         if t.name != "BlackboardKey" {
             assert!(

@@ -42,9 +42,9 @@ use iceoryx2::service::port_factory::blackboard::PortFactory as Blackboard;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSub;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{
-    BlackboardKey, BusName, DriveAddress, DriveDiag, Generation, Heartbeat, Instance,
-    LAYOUT_VERSION, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, PzdInput,
-    PzdOutput, RequestError, Storage, TaskCode,
+    BlackboardKey, BusName, DriveAddress, DriveCounters, DriveDiag, Generation, Heartbeat,
+    Instance, LAYOUT_VERSION, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult,
+    PzdInput, PzdOutput, RequestError, Storage, TaskCode,
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -482,7 +482,10 @@ fn diag_blackboard_is_keyed_by_drive_address() {
         .unwrap();
     five.update_with_copy(DriveDiag {
         online: 1,
-        good: 17,
+        counters: DriveCounters {
+            good: 17,
+            ..DriveCounters::default()
+        },
         ..DriveDiag::new(5)
     });
 
@@ -500,7 +503,7 @@ fn diag_blackboard_is_keyed_by_drive_address() {
         .entry::<DriveDiag>(&BlackboardKey::drive(drive(5)))
         .unwrap()
         .get();
-    assert_eq!((d.address, d.online, d.good), (5, 1, 17));
+    assert_eq!((d.address, d.online, d.counters.good), (5, 1, 17));
     assert_eq!(
         refusal(reader.entry::<DriveDiag>(&BlackboardKey::drive(drive(3)))),
         EntryHandleError::EntryDoesNotExist

@@ -163,18 +163,15 @@ fn frozen_controller_trips_once_and_the_drive_stays_stopped_when_it_resumes() {
             && err.contains("run `ussctl run 1` again to re-arm it"),
         "{err}"
     );
-    let d = diag_when(&bus, 1, |d| d.watchdog_trips == 1);
+    let d = diag_when(&bus, 1, |d| d.counters.watchdog_trips == 1);
     assert_eq!(d.latch_reason, LatchReason::Stale.code());
     assert!(logged(&ussd, "drive 1: controller stale"), "{}", ussd.log());
 
     // Only a deliberate re-arm runs it again: OFF1, then ON.
     let c = bus.control(1, ControlOptions::default()).unwrap();
-    assert!(matches!(
-        c.run_hz(10.0, 50.0),
-        Err(ClientError::NotArmed { .. })
-    ));
+    assert!(matches!(c.run_hz(10.0), Err(ClientError::NotArmed { .. })));
     c.enable().unwrap();
-    c.run_hz(10.0, 50.0).unwrap();
+    c.run_hz(10.0).unwrap();
     let again = c
         .wait_for(Duration::from_secs(5), "10 Hz", |i| hz(i) >= 9.9)
         .unwrap();
@@ -340,11 +337,11 @@ fn every_kind_of_bad_sample_from_a_raw_publisher_latches_the_drive_at_the_poll_t
             (OFF1, LatchReason::Rejected.code()),
             "{name}"
         );
-        let d = diag_when(&bus, 1, |d| d.rejected_outputs == n as u64 + 1);
+        let d = diag_when(&bus, 1, |d| d.counters.rejected_outputs == n as u64 + 1);
         assert_eq!(d.rejection, rejection.code(), "{name}");
     }
     assert_eq!(
-        bus.diag(1).unwrap().watchdog_trips,
+        bus.diag(1).unwrap().counters.watchdog_trips,
         0,
         "refusals are not watchdog trips"
     );
@@ -370,9 +367,9 @@ fn a_clean_release_is_not_a_trip_and_a_sigkill_is() {
     let mut clean = ussd.ussctl(&["run", "1", "--hz", "10", "--for", "0.5"]);
     let (status, out, err) = clean.finish();
     assert!(status.success(), "{out}{err}");
-    let d = diag_when(&bus, 1, |d| d.releases == 1);
+    let d = diag_when(&bus, 1, |d| d.counters.releases == 1);
     assert_eq!(
-        (d.latch_reason, d.watchdog_trips),
+        (d.latch_reason, d.counters.watchdog_trips),
         (LatchReason::Released.code(), 0)
     );
     assert!(
@@ -392,14 +389,17 @@ fn a_clean_release_is_not_a_trip_and_a_sigkill_is() {
         .unwrap();
     let released = c.release().unwrap();
     assert_eq!(released.latch_reason, LatchReason::Released.code());
-    let d = diag_when(&bus, 1, |d| d.releases == 2);
-    assert_eq!(d.watchdog_trips, 0);
+    let d = diag_when(&bus, 1, |d| d.counters.releases == 2);
+    assert_eq!(d.counters.watchdog_trips, 0);
 
     // SIGKILL: no release; the watchdog trips, counted.
     let mut killed = run(&ussd, 1, "10");
     killed.kill();
-    let d = diag_when(&bus, 1, |d| d.watchdog_trips == 1);
-    assert_eq!((d.latch_reason, d.releases), (LatchReason::Stale.code(), 2));
+    let d = diag_when(&bus, 1, |d| d.counters.watchdog_trips == 1);
+    assert_eq!(
+        (d.latch_reason, d.counters.releases),
+        (LatchReason::Stale.code(), 2)
+    );
 }
 
 /// Runs drives with `ussctl run`, gives the operator's `command` with `ussctl ARGS`, and checks
@@ -453,13 +453,13 @@ fn ussctl_stop_coast_and_quick_stop_override_a_running_controller_and_latch() {
     operator_overrides(&ussd, &[2], &["stop", "2"], OFF1, "OFF1");
     operator_overrides(&ussd, &[3], &["quick-stop", "3"], OFF3, "OFF3");
     operator_overrides(&ussd, &[1, 2], &["quick-stop", "--all"], OFF3, "OFF3");
-    assert_eq!(bus.diag(2).unwrap().overrides, 2);
+    assert_eq!(bus.diag(2).unwrap().counters.overrides, 2);
 
     // The latency of the override: the API call -> the first reply to a telegram carrying it.
     let c = bus.control(3, ControlOptions::default()).unwrap();
     let _refresh = c.spawn_refresher(Duration::from_millis(20));
     c.enable().unwrap();
-    c.run_hz(20.0, 50.0).unwrap();
+    c.run_hz(20.0).unwrap();
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
         .unwrap();
     // This process's command client is opened by its first use, not measured.

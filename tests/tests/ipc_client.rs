@@ -40,6 +40,11 @@ impl Ussd {
     /// Like [`Ussd::start`], with drive 3 simulated as `drive3_sim` says (the keys of its
     /// `[bus.drive.sim]` table, as an inline table's contents).
     fn start_with(drive3_sim: &str) -> Ussd {
+        Self::start_custom("", drive3_sim)
+    }
+
+    /// Like [`Ussd::start_with`], with more keys for drive 1's table (`key = value` lines).
+    fn start_custom(drive1: &str, drive3_sim: &str) -> Ussd {
         static NEXT: AtomicU32 = AtomicU32::new(0);
         let bus = format!(
             "t{}n{}",
@@ -51,8 +56,8 @@ impl Ussd {
             &config,
             format!(
                 "[[bus]]\nname = \"{bus}\"\ndevice = \"sim\"\n\n\
-                 [[bus.drive]]\naddress = 1\n\n[[bus.drive]]\naddress = 2\n\n[[bus.drive]]\naddress = 3\n\
-                 sim = {{ {drive3_sim} }}\n"
+                 [[bus.drive]]\naddress = 1\n{drive1}\n\n[[bus.drive]]\naddress = 2\n\n\
+                 [[bus.drive]]\naddress = 3\nsim = {{ {drive3_sim} }}\n"
             ),
         )
         .unwrap();
@@ -88,7 +93,11 @@ impl Ussd {
         }
         // Diagnostics lag the images (the engine hands its counters over every 250 ms, ussd
         // republishes them every 100 ms): wait until they show the replies too.
-        while bus.drives().iter().any(|&a| bus.diag(a).unwrap().good == 0) {
+        while bus
+            .drives()
+            .iter()
+            .any(|&a| bus.diag(a).unwrap().counters.good == 0)
+        {
             assert!(Instant::now() < deadline, "no diagnostics published");
             std::thread::sleep(Duration::from_millis(20));
         }
@@ -133,7 +142,7 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
         .unwrap();
     let first = watch.latest();
     assert_eq!((first.online, first.word_count, first.hiw), (1, 2, 0));
-    assert_eq!(watch.actual_hz(50.0), 0.0);
+    assert_eq!(watch.actual_hz(), 0.0);
     let later = watch.wait_exchanges(3, Duration::from_secs(2)).unwrap();
     assert!(later.timestamp_ns > first.timestamp_ns);
     assert!(later.age_ns > 0, "the update period is published");
@@ -160,7 +169,10 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
     assert!(status.cycles > 0 && status.good > 0, "{status:?}");
     let diag = bus.diag(2).unwrap();
     assert_eq!((diag.address, diag.online), (2, 1));
-    assert!(diag.good > 0 && diag.requests >= diag.good, "{diag:?}");
+    assert!(
+        diag.counters.good > 0 && diag.counters.requests >= diag.counters.good,
+        "{diag:?}"
+    );
 
     let unknown = bus.watch(9).unwrap_err();
     assert_eq!(
@@ -467,17 +479,17 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
     c.enable().unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
-    c.run_hz(25.0, 50.0).unwrap();
+    c.run_hz(25.0).unwrap();
     assert_eq!(c.words(), [0x047F, 0x2000]);
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(2))
         .unwrap();
 
     let refresher = c.spawn_refresher(Duration::from_millis(20));
-    let mut seen = vec![c.inputs().actual_hz(50.0)];
+    let mut seen = vec![c.inputs().actual_hz()];
     let deadline = Instant::now() + Duration::from_secs(5);
     while *seen.last().unwrap() < 24.9 && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(20));
-        seen.push(c.inputs().actual_hz(50.0));
+        seen.push(c.inputs().actual_hz());
     }
     assert!(*seen.last().unwrap() >= 24.9, "{seen:?}");
     assert!(seen[0] < 20.0, "started low: {seen:?}");
@@ -506,6 +518,79 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
     let live = c.rearm().unwrap();
     assert!(live.is_live());
     assert_eq!(c.words()[0], 0x047E);
+}
+
+/// ussd publishes what it knows of each drive; the Rust API and every ussctl command scale Hz
+/// with the reference frequency of ussd's configuration (here 60 Hz, not the 50 Hz default),
+/// so no tool asks for it and all show the same Hz for one drive.
+#[test]
+fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
+    let _serial = serial();
+    let ussd = Ussd::start_custom(
+        "reference_hz = 60.0\nwatchdog_ms = 150\nsafe_command = \"off3\"",
+        "",
+    );
+    let bus = ussd.bus();
+    let info = bus.diag(1).unwrap().info;
+    assert_eq!(
+        (
+            info.reference_hz,
+            info.pzd_words,
+            info.pkw_words,
+            info.watchdog_ms
+        ),
+        (60.0, 2, 4, 150)
+    );
+    assert_eq!(info.safe_command(), Ok(uss_client::StopCommand::Off3));
+    assert_eq!((info.params_writable, info.weight), (1, 1));
+    assert_eq!(bus.diag(2).unwrap().info.reference_hz, 50.0);
+
+    // A quick ramp: 100 % in 1 s.
+    bus.write(1, 1120, None, Value::from_f32(1.0), false)
+        .unwrap();
+    let c = bus.control(1, ControlOptions::default()).unwrap();
+    assert_eq!(c.inputs().info().reference_hz, 60.0);
+    c.enable().unwrap();
+    c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
+        .unwrap();
+    c.run_hz(30.0).unwrap();
+    assert_eq!(c.words(), [0x047F, 0x2000], "30 Hz of 60 Hz is 50 %");
+    let refresher = c.spawn_refresher(Duration::from_millis(20));
+    c.inputs()
+        .wait_for(Duration::from_secs(5), "30 Hz", |i| i.hiw == 0x2000)
+        .unwrap();
+    assert_eq!(c.inputs().actual_hz(), 30.0);
+
+    let out = ussd.ussctl(&["--json", "status"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let status = text(&out.stdout);
+    assert!(status.contains("\"address\":1,"), "{status}");
+    assert!(
+        status.contains("\"hiw\":8192,\"actual_hz\":30.0,"),
+        "{status}"
+    );
+    let out = ussd.ussctl(&["--json", "watch", "--count", "1", "1"]);
+    let watch = text(&out.stdout);
+    assert!(watch.contains("\"actual_hz\":30.0"), "{watch}");
+    let out = ussd.ussctl(&["--json", "stats"]);
+    let described = text(&out.stdout);
+    assert!(
+        described.contains(
+            "\"info\":{\"reference_hz\":60.0,\"pzd_words\":2,\"pkw\":4,\"watchdog_ms\":150,\
+             \"safe_command\":\"OFF3\",\"params_writable\":true,\"weight\":1}"
+        ),
+        "{described}"
+    );
+    let out = ussd.ussctl(&["stats"]);
+    assert!(
+        text(&out.stdout).contains(
+            "reference 60 Hz, PZD 2, PKW 4, watchdog 150 ms, safe command OFF3, weight 1, \
+             parameters writable"
+        ),
+        "{}",
+        text(&out.stdout)
+    );
+    refresher.stop().unwrap();
 }
 
 #[test]

@@ -86,7 +86,7 @@ fn client_controls_and_parameterises_a_drive_through_ussd_over_a_pty() {
     let controller = bus.control(1, ControlOptions::default()).unwrap();
     let _refresh = controller.spawn_refresher(Duration::from_millis(20));
     controller.enable().unwrap();
-    controller.run_hz(25.0, 50.0).unwrap();
+    controller.run_hz(25.0).unwrap();
     controller
         .wait_for_state(DriveState::OperationEnabled, Duration::from_secs(10))
         .unwrap();

@@ -248,12 +248,12 @@ fn killed_controller_trips_the_watchdog_within_its_time_and_the_drive_can_be_tak
     println!(
         "watchdog: drive taken again {waited:?} after the ramp, ussctl's node gone after \
          {gone:?} more; watchdog trips counted by ussd: {}",
-        diag.watchdog_trips
+        diag.counters.watchdog_trips
     );
     c.enable().unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(5))
         .unwrap();
-    c.run_hz(10.0, REFERENCE_HZ).unwrap();
+    c.run_hz(10.0).unwrap();
     let again = c
         .wait_for(Duration::from_secs(5), "S4 without the watchdog", |i| {
             state_of(i) == DriveState::OperationEnabled && i.is_live()
@@ -639,7 +639,12 @@ fn ten_thousand_requests_from_four_processes_with_faults_are_each_answered_once_
         .iter()
         .map(|&a| {
             let d = bus.diag(a).unwrap();
-            d.bcc + d.timeouts + d.length + d.missing_stx + d.bad_lge + d.residual
+            d.counters.bcc
+                + d.counters.timeouts
+                + d.counters.length
+                + d.counters.missing_stx
+                + d.counters.bad_lge
+                + d.counters.residual
         })
         .sum();
     println!(

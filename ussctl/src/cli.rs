@@ -27,11 +27,9 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Table of drives: online, state, ZSW1, actual frequency, telegram counters, last error.
-    Status {
-        /// Reference frequency P2000 in Hz, to scale the actual value.
-        #[arg(long, default_value_t = 50.0, value_name = "HZ")]
-        ref_hz: f32,
-    },
+    ///
+    /// Hz are scaled by each drive's reference frequency P2000 as ussd's configuration gives it.
+    Status,
     /// Live input images, until Ctrl-C or --count rounds.
     Watch {
         /// Only these drives (default: all).
@@ -42,9 +40,6 @@ pub enum Command {
         /// Stop after this many rounds.
         #[arg(long, value_name = "N")]
         count: Option<u64>,
-        /// Reference frequency P2000 in Hz, to scale the actual value.
-        #[arg(long, default_value_t = 50.0, value_name = "HZ")]
-        ref_hz: f32,
     },
     /// Read or write a parameter.
     #[command(subcommand)]
@@ -55,9 +50,6 @@ pub enum Command {
         /// Frequency in Hz; negative runs the other way.
         #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
         hz: f32,
-        /// Reference frequency P2000 in Hz.
-        #[arg(long, default_value_t = 50.0, value_name = "HZ")]
-        ref_hz: f32,
         /// Run this many seconds, then stop (default: until Ctrl-C).
         #[arg(long = "for", value_name = "SECONDS")]
         duration: Option<f64>,

@@ -72,13 +72,12 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     }
     let out = Output { json: cli.json };
     match &cli.command {
-        Command::Status { ref_hz } => commands::status::status(&bus, &out, *ref_hz),
+        Command::Status => commands::status::status(&bus, &out),
         Command::Watch {
             drives,
             interval,
             count,
-            ref_hz,
-        } => commands::watch::watch(&bus, &out, drives, *interval, *count, *ref_hz),
+        } => commands::watch::watch(&bus, &out, drives, *interval, *count),
         Command::Param(ParamCommand::Read { drive, param, kind }) => {
             commands::param::read(&bus, &out, *drive, *param, *kind)
         }
@@ -103,9 +102,8 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Run {
             drive,
             hz,
-            ref_hz,
             duration,
-        } => commands::run::run_drive(&bus, &out, *drive, *hz, *ref_hz, *duration),
+        } => commands::run::run_drive(&bus, &out, *drive, *hz, *duration),
         Command::Stop(target) => commands::stop::stop(&bus, &out, *target, StopCommand::Off1),
         Command::Coast(target) => commands::stop::stop(&bus, &out, *target, StopCommand::Off2),
         Command::QuickStop(target) => commands::stop::stop(&bus, &out, *target, StopCommand::Off3),

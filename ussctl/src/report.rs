@@ -9,6 +9,7 @@ use uss_client::{
     BusStatus, DriveDiag, LatchReason, Monitoring, PzdInput, Setpoint, StopCommand, Value,
     state_name, zsw1_flags,
 };
+use uss_shm_types::DriveInfo;
 use uss_shm_types::diag::{LastFailure, NEVER, RtMode};
 
 /// S1..S4, "fault", "not ready" from ZSW1; "offline" while the drive does not answer (its last
@@ -196,7 +197,7 @@ pub struct DriveRow {
 }
 
 impl DriveRow {
-    pub fn new(d: &DriveDiag, reference_hz: f32) -> Self {
+    pub fn new(d: &DriveDiag) -> Self {
         let online = d.online != 0;
         Self {
             address: d.address,
@@ -206,10 +207,10 @@ impl DriveRow {
             zsw1_hex: format!("{:#06X}", d.last_zsw1),
             flags: zsw1_flags(d.last_zsw1),
             hiw: d.last_hiw,
-            actual_hz: Setpoint::from_word(d.last_hiw).hz(reference_hz),
-            good: d.good,
-            rejected: d.rejected,
-            timeouts: d.timeouts,
+            actual_hz: Setpoint::from_word(d.last_hiw).hz(d.info.reference_hz),
+            good: d.counters.good,
+            rejected: d.counters.rejected,
+            timeouts: d.counters.timeouts,
             control: ControlReport::of_diag(d),
             monitoring: d.monitoring().map_or("unknown", Monitoring::name),
             monitoring_ms: d.monitoring_ms,
@@ -313,6 +314,8 @@ pub struct DriveStats {
     pub consecutive_failed_polls: u32,
     /// ms since the last good reply, by the bus status's clock; null: never.
     pub last_good_ms_ago: Option<f64>,
+    /// What ussd knows of the drive from its configuration.
+    pub info: InfoReport,
     /// Every counter by name.
     pub counters: serde_json::Map<String, serde_json::Value>,
     /// The same, in the contract's order, for people.
@@ -323,36 +326,62 @@ pub struct DriveStats {
 /// Every counter of a drive, in the order of the contract (USS.md section 7's list plus
 /// timeouts, retries and parameter jobs).
 fn counters(d: &DriveDiag) -> [(&'static str, u64); 28] {
-    [
-        ("requests", d.requests),
-        ("good", d.good),
-        ("rejected", d.rejected),
-        ("timeouts", d.timeouts),
-        ("retries", d.retries),
-        ("failed_polls", d.failed_polls),
-        ("missing_stx", d.missing_stx),
-        ("start_pause", d.start_pause),
-        ("bad_lge", d.bad_lge),
-        ("bcc", d.bcc),
-        ("residual", d.residual),
-        ("length", d.length),
-        ("wrong_address", d.wrong_address),
-        ("parity", d.parity),
-        ("framing", d.framing),
-        ("overrun", d.overrun),
-        ("echo", d.echo),
-        ("pkw_busy", d.pkw_busy),
-        ("jobs_done", d.jobs_done),
-        ("watchdog_trips", d.watchdog_trips),
-        ("latches", d.latches),
-        ("rejected_outputs", d.rejected_outputs),
-        ("releases", d.releases),
-        ("overrides", d.overrides),
+    let mut all = [("", 0); 28];
+    all[..24].copy_from_slice(&d.counters.named());
+    all[24..].copy_from_slice(&[
         ("since_ns", d.since_ns),
         ("last_good_ns", d.last_good_ns),
         ("last_zsw1", u64::from(d.last_zsw1)),
         ("last_hiw", u64::from(d.last_hiw)),
-    ]
+    ]);
+    all
+}
+
+/// What ussd knows of a drive from its configuration.
+#[derive(Debug, Serialize)]
+pub struct InfoReport {
+    /// P2000: the frequency of a setpoint or actual value of 0x4000 (100 %).
+    pub reference_hz: f32,
+    pub pzd_words: u8,
+    /// P2013: 0, 3, 4, or 127 (variable).
+    pub pkw: u8,
+    pub watchdog_ms: u32,
+    /// What a latched drive gets: "OFF1", "OFF2", "OFF3".
+    pub safe_command: &'static str,
+    pub params_writable: bool,
+    pub weight: u8,
+}
+
+impl InfoReport {
+    pub fn of(i: &DriveInfo) -> Self {
+        Self {
+            reference_hz: i.reference_hz,
+            pzd_words: i.pzd_words,
+            pkw: i.pkw_words,
+            watchdog_ms: i.watchdog_ms,
+            safe_command: i.safe_command().map_or("unknown", StopCommand::name),
+            params_writable: i.params_writable != 0,
+            weight: i.weight,
+        }
+    }
+
+    pub fn human(&self) -> String {
+        format!(
+            "reference {} Hz, PZD {}, PKW {}, watchdog {} ms, safe command {}, weight {}, \
+             parameters {}",
+            self.reference_hz,
+            self.pzd_words,
+            self.pkw,
+            self.watchdog_ms,
+            self.safe_command,
+            self.weight,
+            if self.params_writable {
+                "writable"
+            } else {
+                "read-only"
+            }
+        )
+    }
 }
 
 impl DriveStats {
@@ -366,6 +395,7 @@ impl DriveStats {
             consecutive_failed_polls: d.consecutive_failed_polls,
             last_good_ms_ago: (d.last_good_ns != NEVER)
                 .then(|| now_ns.saturating_sub(d.last_good_ns) as f64 / 1e6),
+            info: InfoReport::of(&d.info),
             counters: counters(d)
                 .iter()
                 .map(|&(k, v)| (k.to_owned(), v.into()))
@@ -397,6 +427,7 @@ impl StatsReport {
             }
             let _ = write!(out, ", {}", d.control.human());
             out.push('\n');
+            let _ = writeln!(out, "  {}", d.info.human());
             let line: Vec<String> = d
                 .ordered
                 .iter()
@@ -688,6 +719,7 @@ impl DriveReport {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use uss_shm_types::DriveCounters;
 
     fn diag() -> DriveDiag {
         DriveDiag {
@@ -695,9 +727,18 @@ mod tests {
             known: 1,
             last_zsw1: 0xFB34,
             last_hiw: 0x2000,
-            good: 10,
-            rejected: 1,
-            timeouts: 1,
+            counters: DriveCounters {
+                good: 10,
+                rejected: 1,
+                timeouts: 1,
+                ..DriveCounters::default()
+            },
+            // 0x2000 = 50 % of this drive's P2000 as ussd's configuration gives it.
+            info: DriveInfo {
+                reference_hz: 60.0,
+                pzd_words: 2,
+                ..DriveInfo::UNKNOWN
+            },
             last_failure: LastFailure::NoResponse.code(),
             latch_command: StopCommand::Off1.code(),
             ..DriveDiag::new(3)
@@ -708,7 +749,7 @@ mod tests {
     fn status_json_has_one_object_per_drive_with_decoded_zsw1() {
         let report = StatusReport {
             bus: BusReport::new("b0", &BusStatus::EMPTY),
-            drives: vec![DriveRow::new(&diag(), 50.0)],
+            drives: vec![DriveRow::new(&diag())],
         };
         let v = serde_json::to_value(&report).unwrap();
         assert_eq!(v["bus"]["bus"], "b0");
@@ -723,7 +764,7 @@ mod tests {
             d["flags"],
             serde_json::json!(["at-setpoint", "control-requested", "running-right"])
         );
-        assert_eq!(d["actual_hz"], 25.0);
+        assert_eq!(d["actual_hz"], 30.0);
         assert_eq!(
             (d["good"].as_u64(), d["rejected"].as_u64()),
             (Some(10), Some(1))
@@ -734,7 +775,7 @@ mod tests {
         assert_eq!(d["monitoring"], "not read yet");
         let text = report.human();
         assert!(
-            text.contains("   3  yes     S4         0xFB34      25.00"),
+            text.contains("   3  yes     S4         0xFB34      30.00"),
             "{text}"
         );
         assert!(text.contains("latched: ussd started, OFF1"), "{text}");
@@ -742,14 +783,11 @@ mod tests {
 
     #[test]
     fn a_drive_without_telegram_monitoring_is_warned_about() {
-        let off = DriveRow::new(
-            &DriveDiag {
-                monitoring: Monitoring::Off.code(),
-                control: uss_client::ControlState::Live.code(),
-                ..diag()
-            },
-            50.0,
-        );
+        let off = DriveRow::new(&DriveDiag {
+            monitoring: Monitoring::Off.code(),
+            control: uss_client::ControlState::Live.code(),
+            ..diag()
+        });
         let report = StatusReport {
             bus: BusReport::new("b0", &BusStatus::EMPTY),
             drives: vec![off],
@@ -764,26 +802,20 @@ mod tests {
 
     #[test]
     fn a_drive_is_unknown_until_its_first_poll_decided() {
-        let d = DriveRow::new(
-            &DriveDiag {
-                known: 0,
-                online: 0,
-                ..diag()
-            },
-            50.0,
-        );
+        let d = DriveRow::new(&DriveDiag {
+            known: 0,
+            online: 0,
+            ..diag()
+        });
         assert_eq!(d.state, "unknown");
     }
 
     #[test]
     fn offline_drives_show_offline_not_a_stale_state() {
-        let d = DriveRow::new(
-            &DriveDiag {
-                online: 0,
-                ..diag()
-            },
-            50.0,
-        );
+        let d = DriveRow::new(&DriveDiag {
+            online: 0,
+            ..diag()
+        });
         assert_eq!((d.online, d.state), (false, "offline"));
     }
 

@@ -23,7 +23,6 @@ use std::time::{Duration, Instant};
 use uss_client::{Bus, ClientError, ControlOptions, DriveState, ParamError, Value, state_of};
 
 const DRIVES: u8 = 8;
-const REFERENCE_HZ: f32 = 50.0;
 /// 5 % of replies spoilt, spread over the kinds of fault.
 const FAULTS: &str = "drop=0.015,bcc=0.01,byte=0.01,truncate=0.01,noise=0.005";
 /// The same as a `[bus.drive.sim]` table's keys.
@@ -174,7 +173,7 @@ fn controller(bus: &Bus, stop: &AtomicBool, counts: &Counts) -> Result<(), Strin
         .map_err(|e| e.to_string())?;
     let run = |c: &uss_client::Controller| -> Result<(), String> {
         c.rearm().map_err(|e| e.to_string())?;
-        c.run_hz(10.0, REFERENCE_HZ).map_err(|e| e.to_string())?;
+        c.run_hz(10.0).map_err(|e| e.to_string())?;
         c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(10))
             .map_err(|e| e.to_string())?;
         Ok(())
@@ -339,7 +338,8 @@ fn soak(duration: Duration) -> Result<bool, String> {
         .iter()
         .filter_map(|&a| bus.diag(a).ok())
         .map(|d| {
-            d.timeouts + d.bcc + d.length + d.missing_stx + d.bad_lge + d.residual + d.start_pause
+            let c = d.counters;
+            c.timeouts + c.bcc + c.length + c.missing_stx + c.bad_lge + c.residual + c.start_pause
         })
         .sum();
     let cpu = cpu_end.saturating_sub(cpu_start);

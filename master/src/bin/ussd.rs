@@ -115,16 +115,32 @@ fn main() -> ExitCode {
     }
 }
 
+/// No `--config`: the embedded default (one simulated bus), on bus `bus`.
+#[cfg(feature = "sim")]
+fn embedded_default(bus: &str) -> Result<Config, Failure> {
+    tracing::info!("no --config given: running the embedded default (one simulated bus)");
+    let mut config = Config::embedded_default();
+    config.buses[0].name = uss_shm_types::BusName::new(bus)
+        .map(|_| bus.to_owned())
+        .map_err(|e| Failure::Usage(format!("--bus {bus}: {e}")))?;
+    Ok(config)
+}
+
+/// A build without the simulator has no embedded default.
+#[cfg(not(feature = "sim"))]
+fn embedded_default(_bus: &str) -> Result<Config, Failure> {
+    Err(Failure::Usage(
+        "this ussd was built without the simulated bus (the `sim` feature), so it has no \
+         embedded default: give --config FILE"
+            .to_owned(),
+    ))
+}
+
 fn run(cli: &Cli) -> Result<(), Failure> {
     let config = if let Some(path) = &cli.config {
         Config::load(path)?
     } else {
-        tracing::info!("no --config given: running the embedded default (one simulated bus)");
-        let mut config = Config::embedded_default();
-        config.buses[0].name = uss_shm_types::BusName::new(&cli.bus)
-            .map(|_| cli.bus.clone())
-            .map_err(|e| Failure::Usage(format!("--bus {}: {e}", cli.bus)))?;
-        config
+        embedded_default(&cli.bus)?
     };
     let options = RunOptions {
         require_rt: cli.require_rt,

@@ -8,7 +8,11 @@ use core::time::Duration;
 use serde::de::{Error as _, Visitor};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use toml::Spanned;
+#[cfg(feature = "sim")]
 use uss_drive_sim::SimOptions;
+/// Without the simulated bus (`sim` feature off) a `sim` table is read only to be refused.
+#[cfg(not(feature = "sim"))]
+type SimOptions = toml::Table;
 use uss_protocol::{Address, Baud, PkwMode, PzdCount};
 
 /// The whole file.

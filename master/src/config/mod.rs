@@ -37,6 +37,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 use toml::Spanned;
 use toml::de::DeTable;
+#[cfg(feature = "sim")]
 use uss_drive_sim::spec::DriveSpec;
 use uss_protocol::{Address, Baud, Layout, ParamRef};
 use uss_shm_types::StopCommand;
@@ -169,6 +170,7 @@ pub struct DriveEntry {
     pub require_monitoring: bool,
     /// The simulated drive (config + fault plan), only with `Device::Sim`: this entry's address
     /// and layout with its `[bus.drive.sim]` options.
+    #[cfg(feature = "sim")]
     pub sim: Option<DriveSpec>,
 }
 
@@ -176,7 +178,10 @@ pub struct DriveEntry {
 /// comparing the simulated drives' configurations compares what the file set.
 impl PartialEq for DriveEntry {
     fn eq(&self, other: &Self) -> bool {
-        let sim_config = |e: &Self| e.sim.as_ref().map(|s| s.config);
+        #[cfg(feature = "sim")]
+        let same_sim = self.sim.as_ref().map(|s| s.config) == other.sim.as_ref().map(|s| s.config);
+        #[cfg(not(feature = "sim"))]
+        let same_sim = true;
         self.address == other.address
             && self.layout == other.layout
             && self.weight == other.weight
@@ -187,13 +192,14 @@ impl PartialEq for DriveEntry {
             && self.monitoring_param == other.monitoring_param
             && self.monitoring_max == other.monitoring_max
             && self.require_monitoring == other.require_monitoring
-            && sim_config(self) == sim_config(other)
+            && same_sim
     }
 }
 
 /// What `ussd` runs with no arguments: one simulated bus at 115200 baud with four drives, the
 /// third with a variable-length PKW, each watching its telegrams as we recommend real drives
 /// to (P2014.1 = 100 ms, USS.md section 5).
+#[cfg(feature = "sim")]
 const EMBEDDED_DEFAULT: &str = r#"
 [[bus]]
 name = "bus0"
@@ -255,7 +261,9 @@ impl Config {
         })
     }
 
-    /// What `ussd` runs with no arguments (see [`EMBEDDED_DEFAULT`]).
+    /// What `ussd` runs with no arguments (see [`EMBEDDED_DEFAULT`]): a simulated bus, so only
+    /// in a build with the simulator.
+    #[cfg(feature = "sim")]
     pub fn embedded_default() -> Config {
         match Config::parse(EMBEDDED_DEFAULT, "the embedded default") {
             Ok(config) => config,
@@ -311,4 +319,8 @@ fn device_note(path: &Path) -> String {
 }
 
 #[cfg(test)]
+#[cfg(feature = "sim")]
 mod tests;
+#[cfg(test)]
+#[cfg(not(feature = "sim"))]
+mod tests_without_sim;

@@ -9,6 +9,7 @@ use super::{BusConfig, Config, Device, DriveEntry, SIM_DEVICE};
 use core::ops::Range;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
+#[cfg(feature = "sim")]
 use uss_drive_sim::spec::DriveSpec;
 use uss_protocol::{Baud, Layout, ParamRef, PkwMode};
 
@@ -202,26 +203,30 @@ impl Rules<'_> {
     /// (ussd starts that bus line down and opens the device when it appears).
     fn device(&mut self, device: &Spanned<String>) -> Option<Device> {
         let path = device.get_ref();
-        if path == SIM_DEVICE {
+        if path == SIM_DEVICE && cfg!(feature = "sim") {
             return Some(Device::Sim);
         }
         if !path.is_empty() && (Path::new(path).exists() || Path::new(path).is_absolute()) {
             return Some(Device::Serial(PathBuf::from(path)));
         }
-        let problem = if path.is_empty() {
-            "is not allowed".to_owned()
+        let problem = if path == SIM_DEVICE {
+            "is not available: this ussd was built without the simulated bus (the `sim` \
+             feature of uss-master)"
+        } else if path.is_empty() {
+            "is not allowed"
         } else {
             "does not exist (a device that may be absent when ussd starts needs its absolute \
              path)"
-                .to_owned()
+        };
+        let allowed = if cfg!(feature = "sim") {
+            "device is \"sim\" (the built-in simulated bus) or the path of a serial device"
+        } else {
+            "device is the path of a serial device"
         };
         self.fail(
             Some(device.span()),
             "device",
-            format!(
-                "{problem}: device is \"sim\" (the built-in simulated bus) or the path of a \
-                 serial device"
-            ),
+            format!("{problem}: {allowed}"),
         );
         None
     }
@@ -284,12 +289,12 @@ impl Rules<'_> {
                 );
             }
         }
+        if let (Some(sim), Some(Device::Serial(_))) = (&drive.sim, device) {
+            let problem = format!("sim {}", only_on_sim());
+            self.fail_whole(Some(sim.span()), "sim", problem);
+        }
+        #[cfg(feature = "sim")]
         let sim = match (&drive.sim, device) {
-            (Some(sim), Some(Device::Serial(_))) => {
-                let problem = format!("sim {}", only_on_sim());
-                self.fail_whole(Some(sim.span()), "sim", problem);
-                None
-            }
             (sim, Some(Device::Sim)) => {
                 let options = sim
                     .as_ref()
@@ -317,6 +322,7 @@ impl Rules<'_> {
             monitoring_param,
             monitoring_max: drive.monitoring_max_ms.duration(),
             require_monitoring: require.is_some_and(|r| *r.get_ref()),
+            #[cfg(feature = "sim")]
             sim,
         })
     }

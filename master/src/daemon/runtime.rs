@@ -17,12 +17,14 @@ use crate::engine::monitoring::MonitoringSetup;
 use crate::engine::transport::{Line, Transport, TransportError};
 use crate::engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event};
 use crate::transports::serial::{SerialError, SerialOptions, SerialTransport};
+#[cfg(feature = "sim")]
 use crate::transports::sim::SimTransport;
 use core::time::Duration;
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, bounded};
 use std::path::{Path, PathBuf};
 use std::thread::JoinHandle;
 use thiserror::Error;
+#[cfg(feature = "sim")]
 use uss_drive_sim::{BusError, SimBus, VirtualWire};
 use uss_protocol::Timing;
 
@@ -45,8 +47,14 @@ pub struct RunOptions {
 pub enum StartError {
     #[error("bus {bus}: {source}")]
     Serial { bus: String, source: SerialError },
+    #[cfg(feature = "sim")]
     #[error("bus {bus}: simulated bus: {source}")]
     Sim { bus: String, source: BusError },
+    /// Only when a `Device::Sim` is built by hand: the configuration refuses `device = "sim"`
+    /// in a build without the simulator.
+    #[cfg(not(feature = "sim"))]
+    #[error("bus {bus}: this ussd was built without the simulated bus (the `sim` feature)")]
+    NoSim { bus: String },
     #[error("bus {bus}: real-time set-up incomplete and --require-rt given: {summary}")]
     RealTime { bus: String, summary: String },
     #[error(transparent)]
@@ -83,12 +91,14 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
                     max: d.monitoring_max,
                     required: d.require_monitoring,
                 },
+                reference_hz: d.reference_hz,
             })
             .collect(),
     }
 }
 
 /// The simulated drives of a `device = "sim"` bus on the in-process virtual wire.
+#[cfg(feature = "sim")]
 pub fn sim_transport(bus: &BusConfig) -> Result<SimTransport, BusError> {
     let mut sim = SimBus::new(bus.seed);
     for d in &bus.drives {
@@ -409,6 +419,7 @@ fn open_and_spawn(
     go: &Receiver<()>,
 ) -> Result<Spawned, StartError> {
     match &bus.device {
+        #[cfg(feature = "sim")]
         Device::Sim => {
             let t = sim_transport(bus).map_err(|source| StartError::Sim {
                 bus: bus.name.clone(),
@@ -416,6 +427,10 @@ fn open_and_spawn(
             })?;
             spawn(bus, t, options, go, None)
         }
+        #[cfg(not(feature = "sim"))]
+        Device::Sim => Err(StartError::NoSim {
+            bus: bus.name.clone(),
+        }),
         Device::Serial(path) => {
             let serial = SerialOptions {
                 baud: bus.baud,

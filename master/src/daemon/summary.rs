@@ -73,8 +73,10 @@ pub fn render(bus: &BusConfig, rt_mode: &str, stats: &Stats, previous: Option<&S
             c.residual,
             c.wrong_address,
             c.parity,
-            d.last_failure
-                .map_or("-", crate::engine::stats::Failure::name),
+            match d.last_failure {
+                crate::engine::stats::LastFailure::None => "-",
+                f => f.name(),
+            },
             control_note(d),
         );
     }

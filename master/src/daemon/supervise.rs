@@ -220,12 +220,16 @@ mod tests {
     fn the_stall_bound_covers_the_longest_attempt_and_is_at_least_a_second() {
         let bus = |baud: u32| {
             let toml = format!(
-                "[[bus]]\nname = \"b\"\ndevice = \"sim\"\nbaud = {baud}\n\n[[bus.drive]]\naddress = 1\n"
+                "[[bus]]\nname = \"b\"\ndevice = \"/dev/ttyUSB0\"\nbaud = {baud}\n\n[[bus.drive]]\naddress = 1\n"
             );
-            crate::config::Config::parse(&toml, "test")
+            let bus = crate::config::Config::parse(&toml, "test")
                 .unwrap()
                 .buses
-                .remove(0)
+                .remove(0);
+            BusConfig {
+                device: Device::Sim,
+                ..bus
+            }
         };
         assert_eq!(stall_bound(&bus(115_200)), Duration::from_secs(1));
         // At 1200 baud one telegram of 252 net characters takes 2.3 s on the wire.

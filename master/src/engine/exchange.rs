@@ -3,7 +3,7 @@
 //! the echo of a 2-wire adapter, and what a good or failed poll changes.
 
 use super::{
-    Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, Failure, FrameError,
+    Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, FrameError, LastFailure,
     MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, Outcome, ParamReply, ReplyKind,
     Transport, TransportError, Words, encode, record,
 };
@@ -11,7 +11,7 @@ use super::{
 /// How one attempt ended.
 pub(super) enum Attempt {
     Reply { words: Words, timing: ReplyTiming },
-    Failed(Failure),
+    Failed(LastFailure),
 }
 
 /// When the parts of a good reply happened.
@@ -37,7 +37,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let mut output = [0u16; MAX_PZD_WORDS];
         self.output(slot, now, &mut output);
         let len = self.drives[slot].setup.layout.pzd.get();
-        let mut last = Failure::NoResponse;
+        let mut last = LastFailure::NoResponse;
         for attempt in 0..=self.cfg.retries {
             if attempt > 0 {
                 self.stats.drives[slot].counters.retries += 1;
@@ -58,7 +58,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                     let c = &mut self.stats.drives[slot].counters;
                     c.rejected += 1;
                     c.count(f);
-                    self.stats.drives[slot].last_failure = Some(f);
+                    self.stats.drives[slot].last_failure = f;
                     last = f;
                 }
             }
@@ -146,7 +146,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
     }
 
-    pub(super) fn on_failed_poll(&mut self, slot: usize, failure: Failure) {
+    pub(super) fn on_failed_poll(&mut self, slot: usize, failure: LastFailure) {
         let now = self.clock.now();
         let address = self.drives[slot].setup.address;
         let status = &mut self.stats.drives[slot];
@@ -201,7 +201,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 setup.layout.pkw.request_words()
             });
         let Ok(n) = encode(&mut self.tx, Adr::to(setup.address), &pkw[..pkw_len], pzd) else {
-            return Ok(Attempt::Failed(Failure::Length));
+            return Ok(Attempt::Failed(LastFailure::Length));
         };
         if let Some(seen) = self.last_reply_seen.take() {
             let ready = self.clock.now();
@@ -252,9 +252,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                     // recv returns at the deadline: the telegram did not complete in time.
                     self.framer.reset();
                     self.drain()?;
-                    return Ok(Attempt::Failed(Failure::Residual));
+                    return Ok(Attempt::Failed(LastFailure::Residual));
                 }
-                return Ok(Attempt::Failed(garbage.unwrap_or(Failure::NoResponse)));
+                return Ok(Attempt::Failed(garbage.unwrap_or(LastFailure::NoResponse)));
             };
             self.line_free_at = self.line_free_at.max(rx.at);
             let was_receiving = self.framer.is_receiving();
@@ -273,12 +273,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 Some(Ok(parts)) => parts,
                 Some(Err(e @ (FrameError::MissingStx(_) | FrameError::StartPauseNotObserved))) => {
                     // Garbage before the reply: the reply may still follow after a pause.
-                    garbage.get_or_insert(Failure::from_frame(&e));
+                    garbage.get_or_insert(LastFailure::from(&e));
                     continue;
                 }
                 Some(Err(e)) => {
                     self.drain()?;
-                    return Ok(Attempt::Failed(Failure::from_frame(&e)));
+                    return Ok(Attempt::Failed(LastFailure::from(&e)));
                 }
             };
             let failure = if adr == Adr::to(setup.address) {
@@ -298,10 +298,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                         };
                         return Ok(Attempt::Reply { words, timing });
                     }
-                    Err(_) => Failure::Length,
+                    Err(_) => LastFailure::Length,
                 }
             } else {
-                Failure::WrongAddress
+                LastFailure::WrongAddress
             };
             self.drain()?;
             return Ok(Attempt::Failed(failure));
@@ -317,16 +317,16 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         &mut self,
         n: usize,
         request_end: Duration,
-    ) -> Result<Option<Failure>, TransportError> {
+    ) -> Result<Option<LastFailure>, TransportError> {
         let deadline = request_end + self.cfg.response_timeout;
         for i in 0..n {
             let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {
-                return Ok(Some(Failure::Echo));
+                return Ok(Some(LastFailure::Echo));
             };
             self.line_free_at = self.line_free_at.max(rx.at);
             if rx.byte != self.tx[i] || rx.error.is_some() {
                 self.drain()?;
-                return Ok(Some(Failure::Echo));
+                return Ok(Some(LastFailure::Echo));
             }
         }
         self.framer.line_busy_until(self.line_free_at);

@@ -26,7 +26,7 @@ use crate::engine::control::{Control, Gate, GateSetup, Latch, Operator, Poll, Tr
 use crate::engine::image::DriveImages;
 use crate::engine::jobs::{Job, JobResult, Mailbox, Outcome};
 use crate::engine::monitoring::MonitoringSetup;
-use crate::engine::stats::{DriveStatus, Failure, LineFault, Stats, record};
+use crate::engine::stats::{DriveStatus, LastFailure, LineFault, Stats, record};
 use crate::engine::transport::{Transport, TransportError};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
@@ -57,6 +57,9 @@ pub struct DriveSetup {
     pub params_writable: bool,
     /// The drive's own telegram monitoring, checked when it comes online.
     pub monitoring: MonitoringSetup,
+    /// The reference frequency P2000 in Hz (0x4000 = 100 %, USS.md section 7): the engine
+    /// does not scale, it publishes it for the clients that do.
+    pub reference_hz: f32,
 }
 
 impl DriveSetup {
@@ -71,6 +74,7 @@ impl DriveSetup {
             watchdog: Duration::from_millis(100),
             params_writable: true,
             monitoring: MonitoringSetup::micromaster(),
+            reference_hz: 50.0,
         }
     }
 }
@@ -105,7 +109,7 @@ pub enum Event {
     DriveOffline {
         address: Address,
         at: Duration,
-        failure: Failure,
+        failure: LastFailure,
     },
     DriveOnline {
         address: Address,
@@ -358,7 +362,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 .map(|(d, g)| (d.address, g.control())),
         );
         for ((status, setup), gate) in stats.drives.iter_mut().zip(&cfg.drives).zip(&gates) {
-            status.counters.set_control(&gate.counters());
+            stats::set_control(&mut status.counters, &gate.counters());
             status.monitoring = initial_monitoring(setup);
         }
         let shared = Arc::new(Shared {
@@ -506,7 +510,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             let address = d.setup.address;
             let status = &mut self.stats.drives[slot];
             status.control = d.gate.control();
-            status.counters.set_control(&d.gate.counters());
+            stats::set_control(&mut status.counters, &d.gate.counters());
             if let Transition::Latched { latch, rejection } = change {
                 self.emit(Event::Latched {
                     address,
@@ -804,7 +808,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         status.rejection = d.gate.rejection();
         status.controller_pid = d.gate.controller_pid();
         status.taken_sequence = d.gate.taken_sequence();
-        status.counters.set_control(&d.gate.counters());
+        stats::set_control(&mut status.counters, &d.gate.counters());
         status.sent = [out[0], out[1]];
         let address = d.setup.address;
         match change {

@@ -6,61 +6,9 @@ use crate::engine::control::{Control, ControlCounters};
 use crate::engine::transport::TransportError;
 use core::time::Duration;
 use hdrhistogram::Histogram;
-use uss_protocol::{Address, FrameError, LineError};
+use uss_protocol::Address;
+pub use uss_shm_types::{DriveCounters, LastFailure};
 use uss_shm_types::{Monitoring, Rejection};
-
-/// Why one attempt at an exchange failed (USS.md section 4, receive errors; the echo check: section 9).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Failure {
-    /// No STX within the response timeout ("slave x does not respond").
-    NoResponse,
-    /// Garbage before the start of the reply.
-    MissingStx,
-    /// An STX without the start pause.
-    StartPause,
-    BadLge,
-    Bcc,
-    /// The reply did not finish within 1.5 x (n+3) character times.
-    Residual,
-    /// The reply's length does not fit the drive's PKW/PZD layout.
-    Length,
-    /// Another slave answered.
-    WrongAddress,
-    /// The UART flagged a character.
-    Line(LineError),
-    /// A 2-wire adapter's echo of our request did not match what we sent.
-    Echo,
-}
-
-impl Failure {
-    pub const fn from_frame(e: &FrameError) -> Self {
-        match e {
-            FrameError::MissingStx(_) => Self::MissingStx,
-            FrameError::StartPauseNotObserved => Self::StartPause,
-            FrameError::BadLge(_) => Self::BadLge,
-            FrameError::Bcc { .. } => Self::Bcc,
-            FrameError::ResidualTimeExceeded { .. } => Self::Residual,
-            FrameError::Line(l) => Self::Line(*l),
-        }
-    }
-
-    pub const fn name(self) -> &'static str {
-        match self {
-            Self::NoResponse => "no response",
-            Self::MissingStx => "missing STX",
-            Self::StartPause => "start pause not observed",
-            Self::BadLge => "bad LGE",
-            Self::Bcc => "BCC error",
-            Self::Residual => "residual time exceeded",
-            Self::Length => "wrong length",
-            Self::WrongAddress => "wrong slave answered",
-            Self::Line(LineError::Parity) => "parity error",
-            Self::Line(LineError::Framing) => "framing error",
-            Self::Line(LineError::Overrun) => "overrun",
-            Self::Echo => "echo mismatch",
-        }
-    }
-}
 
 /// Why a bus line stopped carrying telegrams.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -102,74 +50,13 @@ pub struct LineStatus {
     pub downs: u64,
 }
 
-/// Receive statistics of one drive.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct DriveCounters {
-    /// Telegrams sent to the drive (retries included).
-    pub requests: u64,
-    /// Valid replies.
-    pub good: u64,
-    /// Replies or silences that failed (every failed attempt).
-    pub rejected: u64,
-    pub timeouts: u64,
-    /// Attempts repeated after a failure.
-    pub retries: u64,
-    /// Polls that failed all their retries.
-    pub failed_polls: u64,
-    pub missing_stx: u64,
-    pub start_pause: u64,
-    pub bad_lge: u64,
-    pub bcc: u64,
-    pub residual: u64,
-    pub length: u64,
-    pub wrong_address: u64,
-    pub parity: u64,
-    pub framing: u64,
-    pub overrun: u64,
-    pub echo: u64,
-    /// Replies "not yet" (AK 0) while a parameter task was pending.
-    pub pkw_busy: u64,
-    pub jobs_done: u64,
-    /// Times a live controller stopped refreshing (a frozen, hung or dead controller).
-    pub watchdog_trips: u64,
-    /// Latches of any reason, the start-up latch included.
-    pub latches: u64,
-    /// Controller samples refused before the wire.
-    pub rejected_outputs: u64,
-    /// Clean hand-backs by a controller.
-    pub releases: u64,
-    /// Operator stop commands applied.
-    pub overrides: u64,
-}
-
-impl DriveCounters {
-    /// Counts `f` under its own counter (`rejected` counts failed attempts separately).
-    pub fn count(&mut self, f: Failure) {
-        let c = match f {
-            Failure::NoResponse => &mut self.timeouts,
-            Failure::MissingStx => &mut self.missing_stx,
-            Failure::StartPause => &mut self.start_pause,
-            Failure::BadLge => &mut self.bad_lge,
-            Failure::Bcc => &mut self.bcc,
-            Failure::Residual => &mut self.residual,
-            Failure::Length => &mut self.length,
-            Failure::WrongAddress => &mut self.wrong_address,
-            Failure::Line(LineError::Parity) => &mut self.parity,
-            Failure::Line(LineError::Framing) => &mut self.framing,
-            Failure::Line(LineError::Overrun) => &mut self.overrun,
-            Failure::Echo => &mut self.echo,
-        };
-        *c += 1;
-    }
-
-    /// Takes the control counters of the drive's gate.
-    pub fn set_control(&mut self, c: &ControlCounters) {
-        self.watchdog_trips = c.watchdog_trips;
-        self.latches = c.latches;
-        self.rejected_outputs = c.rejected_outputs;
-        self.releases = c.releases;
-        self.overrides = c.overrides;
-    }
+/// Copies the control counters of a drive's gate into its counters.
+pub fn set_control(counters: &mut DriveCounters, c: &ControlCounters) {
+    counters.watchdog_trips = c.watchdog_trips;
+    counters.latches = c.latches;
+    counters.rejected_outputs = c.rejected_outputs;
+    counters.releases = c.releases;
+    counters.overrides = c.overrides;
 }
 
 /// The state of one drive as the master sees it.
@@ -185,7 +72,8 @@ pub struct DriveStatus {
     /// "Slave x does not respond": set when a poll fails all retries, cleared by the next good
     /// reply (USS.md section 4).
     pub no_reply: bool,
-    pub last_failure: Option<Failure>,
+    /// Why the last failed attempt failed ([`LastFailure::None`] before the first).
+    pub last_failure: LastFailure,
     pub consecutive_failed_polls: u32,
     pub last_zsw1: u16,
     pub last_hiw: u16,
@@ -215,7 +103,7 @@ impl DriveStatus {
             known: false,
             since: Duration::ZERO,
             no_reply: false,
-            last_failure: None,
+            last_failure: LastFailure::None,
             consecutive_failed_polls: 0,
             last_zsw1: 0,
             last_hiw: 0,

@@ -2,4 +2,5 @@
 //! virtual wire.
 
 pub mod serial;
+#[cfg(feature = "sim")]
 pub mod sim;

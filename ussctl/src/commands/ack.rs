@@ -28,7 +28,13 @@ pub(crate) fn ack(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {
         Err(e) => return Err(e.to_string().into()),
     };
     out.show(
-        &DriveReport::new(bus.name(), "ack", &last, drive, 50.0),
+        &DriveReport::new(
+            bus.name(),
+            "ack",
+            &last,
+            drive,
+            c.inputs().info().reference_hz,
+        ),
         DriveReport::human,
     )
 }

@@ -12,7 +12,7 @@ use uss_client::{Bus, ClientError, Controller, DriveState};
 const OFFLINE_GRACE: Duration = Duration::from_secs(3);
 
 /// Arms the drive (OFF1: S1 -> S2, or it stays in S2..S4) and runs it (S2 -> S3 -> S4).
-fn start_running(bus: &Bus, c: &Controller, hz: f32, ref_hz: f32) -> Result<(), Failure> {
+fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
     let drive = c.address();
     let first = c.inputs().latest();
     if first.online == 0 {
@@ -36,7 +36,7 @@ fn start_running(bus: &Bus, c: &Controller, hz: f32, ref_hz: f32) -> Result<(), 
             )
     })
     .map_err(|e| e.to_string())?;
-    c.run_hz(hz, ref_hz).map_err(|e| e.to_string())?;
+    c.run_hz(hz).map_err(|e| e.to_string())?;
     c.wait_for_state(DriveState::OperationEnabled, STATE_TIMEOUT)
         .map_err(|e| e.to_string())?;
     Ok(())
@@ -85,7 +85,6 @@ pub(crate) fn run_drive(
     out: &Output,
     drive: u8,
     hz: f32,
-    ref_hz: f32,
     duration: Option<f64>,
 ) -> Result<(), Failure> {
     let duration = duration
@@ -96,7 +95,8 @@ pub(crate) fn run_drive(
         .transpose()?;
     let c = control(bus, drive)?;
     catch_signals()?;
-    start_running(bus, &c, hz, ref_hz)?;
+    start_running(bus, &c, hz)?;
+    let ref_hz = c.inputs().info().reference_hz;
     out.note(&format!(
         "drive {drive}: running towards {hz} Hz (reference {ref_hz} Hz); {}",
         match duration {
@@ -136,7 +136,7 @@ pub(crate) fn run_drive(
             }
             Err(e) => break Some(e.to_string()),
         };
-        let actual = c.inputs().actual_hz(ref_hz);
+        let actual = c.inputs().actual_hz();
         if actual.abs() > peak.abs() {
             peak = actual;
         }

@@ -6,13 +6,10 @@ use crate::{Failure, Output};
 use uss_client::Bus;
 
 /// `status`: the table; with the line down, the table and then the failure (exit 1).
-pub(crate) fn status(bus: &Bus, out: &Output, ref_hz: f32) -> Result<(), Failure> {
+pub(crate) fn status(bus: &Bus, out: &Output) -> Result<(), Failure> {
     let report = StatusReport {
         bus: BusReport::new(bus.name(), &bus.status().map_err(|e| e.to_string())?),
-        drives: diags(bus)?
-            .iter()
-            .map(|d| DriveRow::new(d, ref_hz))
-            .collect(),
+        drives: diags(bus)?.iter().map(DriveRow::new).collect(),
     };
     out.show(&report, StatusReport::human)?;
     healthy(bus)

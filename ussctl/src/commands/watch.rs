@@ -12,7 +12,6 @@ pub(crate) fn watch(
     only: &[u8],
     interval_ms: u64,
     count: Option<u64>,
-    ref_hz: f32,
 ) -> Result<(), Failure> {
     let addresses = if only.is_empty() {
         bus.drives()
@@ -40,7 +39,7 @@ pub(crate) fn watch(
             // A stale picture is never shown: ussd gone, stopped or its line down ends it.
             let image = w.read().map_err(|e| e.to_string())?;
             out.show(
-                &WatchLine::new(t, w.address(), &image, ref_hz),
+                &WatchLine::new(t, w.address(), &image, w.info().reference_hz),
                 WatchLine::human,
             )?;
         }

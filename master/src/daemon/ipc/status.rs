@@ -7,17 +7,17 @@ use super::{
 };
 use crate::engine::DriveSetup;
 use crate::engine::control::Control;
-use crate::engine::stats::{DriveStatus, Failure, LineFault, Stats};
+use crate::engine::stats::{DriveStatus, LineFault, Stats};
 use core::time::Duration;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::writer::{EntryHandleMut, Writer};
 use iceoryx2::prelude::*;
-use uss_protocol::{Address, LineError};
+use uss_protocol::Address;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{
-    BlackboardKey, BusName, BusState, BusStatus, ControlState, DriveAddress, DriveDiag, Heartbeat,
-    Instance, LAYOUT_VERSION, LastFailure, LatchReason, LineFault as ContractLineFault, LineState,
+    BlackboardKey, BusName, BusState, BusStatus, ControlState, DriveAddress, DriveDiag, DriveInfo,
+    Heartbeat, Instance, LAYOUT_VERSION, LatchReason, LineFault as ContractLineFault, LineState,
     RtMode, StopCommand,
 };
 
@@ -87,9 +87,9 @@ pub(super) fn create(
     for d in drives {
         let a =
             DriveAddress::new(d.address.get()).map_err(|e| fail(bus, "a drive")(e.to_string()))?;
-        // What a client needs before the first publish: the drive's PZD length.
+        // What a client needs before the first publish: what ussd knows of the drive.
         let initial = DriveDiag {
-            pzd_words: d.layout.pzd.get() as u8,
+            info: info(d),
             ..DriveDiag::new(d.address.get())
         };
         diag_builder = diag_builder.add::<DriveDiag>(BlackboardKey::drive(a), initial);
@@ -130,7 +130,7 @@ pub(super) fn create(
         heartbeat,
         beat: Heartbeat::new(std::process::id(), bus.generation),
         bus: bus.clone(),
-        pzd_words: drives.iter().map(|d| d.layout.pzd.get() as u8).collect(),
+        info: drives.iter().map(info).collect(),
         diag: diag_entries,
         status: status_entry,
         _writers: (diag_writer, status_writer),
@@ -149,8 +149,8 @@ pub struct StatusPublisher {
     /// status.
     heartbeat: Publisher<Svc, Heartbeat, ()>,
     beat: Heartbeat,
-    /// Each drive's PZD length, in slot order.
-    pzd_words: Vec<u8>,
+    /// What ussd knows of each drive, in slot order.
+    info: Vec<DriveInfo>,
     diag: Vec<EntryHandleMut<Svc, BlackboardKey, DriveDiag>>,
     status: EntryHandleMut<Svc, BlackboardKey, BusStatus>,
     _writers: (Writer<Svc, BlackboardKey>, Writer<Svc, BlackboardKey>),
@@ -200,21 +200,17 @@ impl ControlView {
     }
 }
 
-fn failure_code(f: Option<Failure>) -> LastFailure {
-    match f {
-        None => LastFailure::None,
-        Some(Failure::NoResponse) => LastFailure::NoResponse,
-        Some(Failure::MissingStx) => LastFailure::MissingStx,
-        Some(Failure::StartPause) => LastFailure::StartPause,
-        Some(Failure::BadLge) => LastFailure::BadLge,
-        Some(Failure::Bcc) => LastFailure::Bcc,
-        Some(Failure::Residual) => LastFailure::Residual,
-        Some(Failure::Length) => LastFailure::Length,
-        Some(Failure::WrongAddress) => LastFailure::WrongAddress,
-        Some(Failure::Line(LineError::Parity)) => LastFailure::Parity,
-        Some(Failure::Line(LineError::Framing)) => LastFailure::Framing,
-        Some(Failure::Line(LineError::Overrun)) => LastFailure::Overrun,
-        Some(Failure::Echo) => LastFailure::Echo,
+/// What ussd knows of a drive from its configuration, as the contract carries it.
+fn info(d: &DriveSetup) -> DriveInfo {
+    DriveInfo {
+        reference_hz: d.reference_hz,
+        watchdog_ms: u32::try_from(d.watchdog.as_millis()).unwrap_or(u32::MAX),
+        safe_command: d.safe.code(),
+        params_writable: u8::from(d.params_writable),
+        pkw_words: d.layout.pkw.p2013() as u8,
+        pzd_words: d.layout.pzd.get() as u8,
+        weight: d.weight,
+        ..DriveInfo::UNKNOWN
     }
 }
 
@@ -253,8 +249,7 @@ impl StatusPublisher {
 
     fn publish_diagnostics(&self, stats: &Stats) {
         let ns = |d: Duration| self.origin_ns.saturating_add(as_ns(d));
-        for ((entry, d), &pzd_words) in self.diag.iter().zip(&stats.drives).zip(&self.pzd_words) {
-            let c = &d.counters;
+        for ((entry, d), &info) in self.diag.iter().zip(&stats.drives).zip(&self.info) {
             let control = ControlView::of(d, self.origin_ns);
             entry.update_with_copy(DriveDiag {
                 consecutive_failed_polls: d.consecutive_failed_polls,
@@ -264,41 +259,18 @@ impl StatusPublisher {
                 known: u8::from(d.known),
                 no_reply: u8::from(d.no_reply),
                 control: control.state.code(),
-                last_failure: failure_code(d.last_failure).code(),
+                last_failure: d.last_failure.code(),
                 latch_reason: control.reason.code(),
                 latch_command: control.command.code(),
                 rejection: d.rejection.code(),
                 monitoring: d.monitoring.code(),
-                pzd_words,
                 monitoring_ms: d.monitoring_ms,
                 controller_pid: d.controller_pid,
                 since_ns: ns(d.since),
                 last_good_ns: d.last_good.map_or(uss_shm_types::diag::NEVER, ns),
                 latched_since_ns: control.since_ns,
-                requests: c.requests,
-                good: c.good,
-                rejected: c.rejected,
-                timeouts: c.timeouts,
-                retries: c.retries,
-                failed_polls: c.failed_polls,
-                missing_stx: c.missing_stx,
-                start_pause: c.start_pause,
-                bad_lge: c.bad_lge,
-                bcc: c.bcc,
-                residual: c.residual,
-                length: c.length,
-                wrong_address: c.wrong_address,
-                parity: c.parity,
-                framing: c.framing,
-                overrun: c.overrun,
-                echo: c.echo,
-                pkw_busy: c.pkw_busy,
-                jobs_done: c.jobs_done,
-                watchdog_trips: c.watchdog_trips,
-                latches: c.latches,
-                rejected_outputs: c.rejected_outputs,
-                releases: c.releases,
-                overrides: c.overrides,
+                info,
+                counters: d.counters,
                 ..DriveDiag::new(d.address.get())
             });
         }
