@@ -32,7 +32,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use uss_benches::{Parts, percentiles_us};
 use uss_client::{
-    Bus, ControlOptions, CycleEvent, ParamRequest, PzdInput, Setpoint, Value, read_item,
+    Bus, ControlOptions, CycleEvent, ParamItem, ParamRequest, ParamTask, Pnu, PzdInput, Setpoint,
+    Value,
 };
 use uss_master::config::Config;
 use uss_master::daemon::ipc::{IpcNode, RtBridge, StatusPublisher};
@@ -948,7 +949,14 @@ fn control(name: &str, duration: Duration, period: Duration) -> String {
 fn params(name: &str, duration: Duration, period: Duration) -> String {
     let bus = Bus::open(name).expect("open the bus");
     let drive = DriveAddress::new(WATCHED).expect("a drive address");
-    let request = ParamRequest::new(drive, &[read_item(P1082, None)]).expect("a valid request");
+    let request = ParamRequest::new(
+        drive,
+        &[ParamItem::from(&ParamTask::read(
+            Pnu::from_u16(P1082),
+            None,
+        ))],
+    )
+    .expect("a valid request");
     // The first request opens the client port: not timed.
     bus.send_request(&request).expect("an answer");
     let mut rng = SmallRng::seed_from_u64(7);

@@ -4,8 +4,8 @@ use core::fmt;
 use core::time::Duration;
 use thiserror::Error;
 use uss_shm_types::{
-    CommandError, ContractError, LatchReason, NameError, PzdInput, Rejection, RequestError,
-    StopCommand,
+    CommandError, ContractError, DriveError, LatchReason, NameError, PathError, PzdInput,
+    Rejection, RequestError, StopCommand,
 };
 
 /// Why and since when a drive is latched, as its input image says (see
@@ -307,37 +307,15 @@ impl fmt::Display for Still {
 #[derive(Debug, Clone, PartialEq, Eq, Error)]
 #[non_exhaustive]
 pub enum ParamError {
-    /// Reply 7: the drive refused the task with this error number (USS.md section 6).
-    #[error("the drive refused the task with {0}")]
-    Drive(uss_protocol::ParamError),
-    /// Reply 8: no PKW change rights.
-    #[error(
-        "the drive grants no parameter change rights (reply 8): allow parameter changes over USS on the drive (MICROMASTER: P0927)"
-    )]
-    NoChangeRights,
-    /// No matching reply within ussd's parameter timeout.
-    #[error(
-        "no matching reply within ussd's parameter timeout: check the drive's PKW length (P2013); raise param_timeout_ms for slow EEPROM writes"
-    )]
-    Timeout,
-    /// The drive was or went offline.
-    #[error("the drive is offline: check `ussctl status`, its wiring, address and baud rate")]
-    DriveOffline,
-    /// The drive's parameter queue in ussd was full.
-    #[error("ussd's parameter queue for the drive is full: retry once earlier requests finished")]
-    MailboxFull,
-    /// ussd stopped before the item finished.
-    #[error("ussd shut down before the task finished: retry once ussd runs again")]
-    Shutdown,
-    /// The request's client died before the item reached the wire (seen only by tools that
-    /// send requests for another process).
-    #[error("the task was cancelled before it reached the drive: its client process died")]
-    Cancelled,
-    /// The bus line failed before the item finished.
-    #[error(
-        "the bus line went down before the task finished: ussd reopens it; check the adapter and cable (`ussctl status`), then retry"
-    )]
-    LineDown,
+    /// The drive refused the task: reply 7 with its error number, or reply 8 (USS.md
+    /// section 6).
+    #[error(transparent)]
+    Drive(#[from] DriveError),
+    /// The task did not get to the drive or its answer did not come back (timeout, offline,
+    /// line down, ussd shut down, cancelled, queue full). An item ussd refused before the bus
+    /// is [`ParamError::Refused`].
+    #[error(transparent)]
+    Path(#[from] PathError),
     /// A write to a drive another process controls, not marked deliberate (force).
     #[error(
         "drive {address} is controlled by process {pid}: a parameter write from another process is refused; stop that controller first, or force the write if it is deliberate (ussctl param write --force)"
@@ -465,7 +443,9 @@ mod tests {
 
     #[test]
     fn drive_errors_carry_number_and_name() {
-        let e = ParamError::Drive(uss_protocol::ParamError::from_number(2));
+        let e = ParamError::Drive(DriveError::Refused(uss_protocol::ParamError::from_number(
+            2,
+        )));
         assert_eq!(
             e.to_string(),
             "the drive refused the task with error 2: limit exceeded"

@@ -75,11 +75,12 @@ pub use bus::{Bus, DEFAULT_NODE_NAME};
 pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, HANDSHAKE_TIMEOUT, Jog, Refresher};
 pub use error::{ClientError, Latch, ParamError};
 pub use link::Health;
-pub use params::{WriteOptions, array_len_item, read_item, write_item};
-pub use uss_protocol::{DriveState, Setpoint, Stw1, Value, Zsw1};
+pub use params::WriteOptions;
+pub use uss_protocol::{DriveState, ParamTask, Pnu, Setpoint, Stw1, Subindex, Value, Zsw1};
 pub use uss_shm_types::{
-    BusState, BusStatus, ControlState, DriveDiag, LatchReason, LineFault, Monitoring, ParamItem,
-    ParamRequest, ParamResponse, PzdInput, PzdOutput, Rejection, RequestError, StopCommand,
+    BusState, BusStatus, ControlState, DriveDiag, DriveError, DriveInfo, LatchReason, LineFault,
+    Monitoring, ParamItem, ParamRequest, ParamResponse, PathError, PzdInput, PzdOutput, Rejection,
+    RequestError, StopCommand,
 };
 pub use watch::{CycleEvent, CycleListener, DriveWatch};
 /// The protocol and contract crates this API speaks, so applications use the same versions.

@@ -4,11 +4,11 @@
 
 use crate::request::NoAnswer;
 use crate::{Bus, ClientError, ParamError};
-use uss_protocol::Value;
+use uss_protocol::{ParamTask, Pnu, Storage, Subindex, Value};
 use uss_shm_types::names;
 use uss_shm_types::{
-    DriveAddress, MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult,
-    RequestError, Storage, TaskCode,
+    DriveAddress, MAX_PARAM_ITEMS, ParamItem, ParamRequest, ParamResponse, ParamResult, PathError,
+    RequestError,
 };
 
 /// How [`Bus::write_with`] writes.
@@ -25,66 +25,26 @@ pub const FAULT_BUFFER_PNU: u16 = 947;
 /// Elements of [`FAULT_BUFFER_PNU`].
 pub const FAULT_BUFFER_LEN: u8 = 8;
 
-/// A read of `pnu`, or of its array element `index` (AK 1 / AK 6).
-pub const fn read_item(pnu: u16, index: Option<u8>) -> ParamItem {
-    match index {
-        None => ParamItem::read(pnu),
-        Some(i) => ParamItem::new(TaskCode::ReadArray, pnu, i as u16, 0, Storage::Ram),
-    }
-}
-
-/// A change of `pnu` (or its element `index`) to `value`, a word or a double word (a float as
-/// its IEEE-754 bits: [`Value::from_f32`]); in RAM, or RAM and EEPROM with `eeprom`.
-pub const fn write_item(pnu: u16, index: Option<u8>, value: Value, eeprom: bool) -> ParamItem {
-    let storage = if eeprom {
-        Storage::RamAndEeprom
-    } else {
-        Storage::Ram
-    };
-    let (task, value) = match (index, value) {
-        (None, Value::Word(w)) => (TaskCode::WriteWord, w as u32),
-        (None, Value::Dword(d)) => (TaskCode::WriteDword, d),
-        (Some(_), Value::Word(w)) => (TaskCode::WriteArrayWord, w as u32),
-        (Some(_), Value::Dword(d)) => (TaskCode::WriteArrayDword, d),
-    };
-    let index = match index {
-        Some(i) => i as u16,
-        None => 0,
-    };
-    ParamItem::new(task, pnu, index, value, storage)
-}
-
-/// A read of the number of elements of array `pnu` (AK 9).
-pub const fn array_len_item(pnu: u16) -> ParamItem {
-    ParamItem::new(TaskCode::ReadElementCount, pnu, 0, 0, Storage::Ram)
+/// `index` as a subindex: 0..=254 (USS.md section 6); 255 is refused like ussd refuses it.
+fn subindex(index: Option<u8>) -> Result<Option<Subindex>, ParamError> {
+    index
+        .map(Subindex::new)
+        .transpose()
+        .map_err(|_| ParamError::Refused {
+            error: RequestError::BadSubindex,
+            item: Some(0),
+        })
 }
 
 /// What one item delivered: a value (read or changed: the value the drive now holds), an
-/// element count (as a word) or a descriptive element.
+/// element count (as a word) or a descriptive element; or why not, in the contract's one
+/// vocabulary (the drive refused, or the path failed).
 pub fn item_result(result: &ParamResult) -> Result<Value, ParamError> {
-    let value = if result.value_is_dword != 0 {
-        Value::Dword(result.value)
-    } else {
-        Value::Word(result.value as u16)
-    };
-    match result.outcome() {
-        Ok(Outcome::Value | Outcome::Description) => Ok(value),
-        Ok(Outcome::ElementCount) => Ok(Value::Word(result.value as u16)),
-        Ok(Outcome::DriveError) => Err(ParamError::Drive(uss_protocol::ParamError::from_number(
-            result.drive_error,
-        ))),
-        Ok(Outcome::NoChangeRights) => Err(ParamError::NoChangeRights),
-        Ok(Outcome::Timeout) => Err(ParamError::Timeout),
-        Ok(Outcome::DriveOffline) => Err(ParamError::DriveOffline),
-        Ok(Outcome::MailboxFull) => Err(ParamError::MailboxFull),
-        Ok(Outcome::Shutdown) => Err(ParamError::Shutdown),
-        Ok(Outcome::LineDown) => Err(ParamError::LineDown),
-        Ok(Outcome::Cancelled) => Err(ParamError::Cancelled),
-        Ok(Outcome::Refused) => match RequestError::try_from(result.refusal) {
-            Ok(error) => Err(ParamError::Refused { error, item: None }),
-            Err(e) => Err(ParamError::Unexpected(e.to_string())),
-        },
-        Ok(Outcome::NotRun) => Err(ParamError::Unexpected("an item was not run".into())),
+    match result.outcome_of() {
+        Ok(Ok(Ok(answer))) => Ok(answer.value()),
+        Ok(Ok(Err(refused))) => Err(ParamError::Drive(refused)),
+        Ok(Err(PathError::Refused(error))) => Err(ParamError::Refused { error, item: None }),
+        Ok(Err(failed)) => Err(ParamError::Path(failed)),
         Err(e) => Err(ParamError::Unexpected(e.to_string())),
     }
 }
@@ -123,7 +83,10 @@ pub fn response_results(
 impl Bus {
     /// Reads `pnu` (or its array element `index`) from drive `address`.
     pub fn read(&self, address: u8, pnu: u16, index: Option<u8>) -> Result<Value, ParamError> {
-        self.one(address, read_item(pnu, index))
+        self.one(
+            address,
+            ParamTask::read(Pnu::from_u16(pnu), subindex(index)?),
+        )
     }
 
     /// Reads a float parameter (a double word holding IEEE-754 bits; P1082 reads 50.0).
@@ -177,26 +140,34 @@ impl Bus {
         value: Value,
         options: WriteOptions,
     ) -> Result<Value, ParamError> {
-        self.request(
-            address,
-            &[write_item(pnu, index, value, options.eeprom)],
-            options.force,
-        )?
-        .pop()
-        .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
+        let storage = if options.eeprom {
+            Storage::RamAndEeprom
+        } else {
+            Storage::Ram
+        };
+        let task = ParamTask::write(Pnu::from_u16(pnu), subindex(index)?, value, storage);
+        self.request(address, &[task], options.force)?
+            .pop()
+            .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
     }
 
     /// Reads the number of elements of array `pnu`.
     pub fn read_array_len(&self, address: u8, pnu: u16) -> Result<u16, ParamError> {
-        self.one(address, array_len_item(pnu))
-            .map(|v| v.as_u32() as u16)
+        self.one(
+            address,
+            ParamTask::ReadArrayLen {
+                pnu: Pnu::from_u16(pnu),
+            },
+        )
+        .map(|v| v.as_u32() as u16)
     }
 
     /// The drive's fault buffer r0947 (8 fault codes, newest first, 0 = empty), read in one
     /// request of 8 array reads.
     pub fn faults(&self, address: u8) -> Result<Vec<u16>, ParamError> {
         let items: Vec<_> = (0..FAULT_BUFFER_LEN)
-            .map(|i| read_item(FAULT_BUFFER_PNU, Some(i)))
+            .filter_map(|i| Subindex::new(i).ok())
+            .map(|i| ParamTask::read(Pnu::from_u16(FAULT_BUFFER_PNU), Some(i)))
             .collect();
         self.batch(address, &items)
             .into_iter()
@@ -204,10 +175,10 @@ impl Bus {
             .collect()
     }
 
-    /// Runs up to 39 items on drive `address` in one request; one result per item, in order.
+    /// Runs up to 39 tasks on drive `address` in one request; one result per task, in order.
     /// A failure of the request as a whole (ussd refused it, did not answer, is not running)
-    /// is reported for every item.
-    pub fn batch(&self, address: u8, items: &[ParamItem]) -> Vec<Result<Value, ParamError>> {
+    /// is reported for every task.
+    pub fn batch(&self, address: u8, items: &[ParamTask]) -> Vec<Result<Value, ParamError>> {
         self.batch_with(address, items, false)
     }
 
@@ -215,7 +186,7 @@ impl Bus {
     pub fn batch_with(
         &self,
         address: u8,
-        items: &[ParamItem],
+        items: &[ParamTask],
         force: bool,
     ) -> Vec<Result<Value, ParamError>> {
         match self.request(address, items, force) {
@@ -224,7 +195,7 @@ impl Bus {
         }
     }
 
-    fn one(&self, address: u8, item: ParamItem) -> Result<Value, ParamError> {
+    fn one(&self, address: u8, item: ParamTask) -> Result<Value, ParamError> {
         self.request(address, &[item], false)?
             .pop()
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
@@ -234,11 +205,13 @@ impl Bus {
     fn request(
         &self,
         address: u8,
-        items: &[ParamItem],
+        tasks: &[ParamTask],
         force: bool,
     ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
         let drive = DriveAddress::new(address).map_err(ClientError::from)?;
-        let mut request = ParamRequest::new(drive, items).map_err(|r| ParamError::Refused {
+        // The one conversion from the protocol's tasks to the contract's items.
+        let items: Vec<ParamItem> = tasks.iter().map(ParamItem::from).collect();
+        let mut request = ParamRequest::new(drive, &items).map_err(|r| ParamError::Refused {
             error: r.error,
             item: r.item,
         })?;
@@ -272,6 +245,7 @@ impl Bus {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use uss_shm_types::{DriveError, Outcome};
 
     fn result(outcome: Outcome, value: u32, dword: bool) -> ParamResult {
         ParamResult {
@@ -283,25 +257,31 @@ mod tests {
     }
 
     #[test]
-    fn items_carry_the_task_for_their_value_width_and_storage() {
-        let w = write_item(1120, None, Value::from_f32(2.0), false);
-        assert_eq!(w.task(), Ok(TaskCode::WriteDword));
-        assert_eq!((w.value, w.storage()), (0x4000_0000, Ok(Storage::Ram)));
-        let w = write_item(2010, Some(3), Value::Word(7), true);
-        assert_eq!(w.task(), Ok(TaskCode::WriteArrayWord));
-        assert_eq!((w.index, w.value), (3, 7));
-        assert_eq!(w.storage(), Ok(Storage::RamAndEeprom));
-        assert_eq!(
-            write_item(1, Some(0), Value::Dword(1), false).task(),
-            Ok(TaskCode::WriteArrayDword)
-        );
-        assert_eq!(read_item(947, Some(7)).task(), Ok(TaskCode::ReadArray));
-        assert_eq!(read_item(947, Some(7)).index, 7);
-        assert_eq!(read_item(1082, None), ParamItem::read(1082));
-        assert_eq!(array_len_item(947).task(), Ok(TaskCode::ReadElementCount));
-        for item in [w, read_item(1, Some(254)), array_len_item(2)] {
-            assert!(item.check().is_ok(), "{item:?}");
+    fn tasks_go_out_as_the_items_the_contract_checks() {
+        let p = Pnu::from_u16;
+        let tasks = [
+            ParamTask::read(p(947), Subindex::new(7).ok()),
+            ParamTask::read(p(1082), None),
+            ParamTask::write(p(1120), None, Value::from_f32(2.0), Storage::Ram),
+            ParamTask::write(
+                p(2010),
+                Subindex::new(3).ok(),
+                Value::Word(7),
+                Storage::RamAndEeprom,
+            ),
+            ParamTask::ReadArrayLen { pnu: p(947) },
+        ];
+        for t in tasks {
+            assert_eq!(ParamTask::try_from(&ParamItem::from(&t)), Ok(t));
         }
+        assert_eq!(ParamItem::from(&tasks[1]), ParamItem::read(1082));
+        assert_eq!(
+            subindex(Some(255)),
+            Err(ParamError::Refused {
+                error: RequestError::BadSubindex,
+                item: Some(0)
+            })
+        );
     }
 
     #[test]
@@ -328,23 +308,25 @@ mod tests {
         };
         assert_eq!(
             item_result(&drive_error),
-            Err(ParamError::Drive(uss_protocol::ParamError::LimitExceeded))
+            Err(ParamError::Drive(DriveError::Refused(
+                uss_protocol::ParamError::LimitExceeded
+            )))
         );
         assert_eq!(
             item_result(&result(Outcome::NoChangeRights, 0, false)),
-            Err(ParamError::NoChangeRights)
+            Err(ParamError::Drive(DriveError::NoChangeRights))
         );
         assert_eq!(
             item_result(&result(Outcome::Timeout, 0, false)),
-            Err(ParamError::Timeout)
+            Err(ParamError::Path(PathError::Timeout))
         );
         assert_eq!(
             item_result(&result(Outcome::DriveOffline, 0, false)),
-            Err(ParamError::DriveOffline)
+            Err(ParamError::Path(PathError::DriveOffline))
         );
         assert_eq!(
             item_result(&result(Outcome::Shutdown, 0, false)),
-            Err(ParamError::Shutdown)
+            Err(ParamError::Path(PathError::Shutdown))
         );
         assert_eq!(
             item_result(&ParamResult::refused(RequestError::WritesDisabled)),

@@ -20,7 +20,7 @@ pub mod engine;
 pub mod transports;
 
 pub use engine::clock::{Clock, MonotonicClock, VirtualClock};
-pub use engine::jobs::{Job, JobResult, Outcome};
+pub use engine::jobs::{Job, JobResult};
 pub use engine::monitoring::MonitoringSetup;
 pub use engine::stats::{DriveCounters, DriveStatus, LastFailure, Stats};
 pub use engine::transport::{Rx, Transport, TransportError};

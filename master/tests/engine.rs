@@ -9,13 +9,14 @@ use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, State, VirtualWire};
 use uss_master::engine::control::Control;
 use uss_master::{
-    DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, LastFailure, Outcome, RequestError,
+    DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, LastFailure, RequestError,
     SimTransport, VirtualClock,
 };
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{
     Address, Baud, ParamError, ParamTask, PkwError, Pnu, Storage, Stw1, Timing, Value,
 };
+use uss_shm_types::{Answer, DriveError, PathError};
 use uss_shm_types::{LatchReason, Monitoring, PzdOutput, Rejection, StopCommand};
 
 type TestEngine = Engine<SimTransport, VirtualClock>;
@@ -269,7 +270,7 @@ fn late_reply_is_not_matched_to_the_next_request() {
     let results = b.results(1);
     assert_eq!(
         results[0].outcome,
-        Outcome::Value(Value::Dword(0x4248_0000))
+        Ok(Ok(Answer::Value(Value::Dword(0x4248_0000))))
     );
     let s = b.status(1);
     assert!(s.counters.timeouts >= 1);
@@ -380,7 +381,7 @@ fn eeprom_write_is_repeated_through_busy_replies_with_pzd_in_every_telegram() {
     assert_eq!(results.len(), 1);
     assert_eq!(
         results[0].outcome,
-        Outcome::Value(Value::Dword(0x4040_0000))
+        Ok(Ok(Answer::Value(Value::Dword(0x4040_0000))))
     );
     assert_eq!(results[0].telegrams, 4, "3 busy replies, then the answer");
     assert_eq!(b.status(1).counters.pkw_busy, 3);
@@ -419,7 +420,7 @@ fn job_that_never_gets_its_reply_times_out() {
     );
     b.handle.submit(read(5, 1, 700)).unwrap();
     let r = b.results(1);
-    assert_eq!(r[0].outcome, Outcome::Timeout);
+    assert_eq!(r[0].outcome, Err(PathError::Timeout));
     assert!(
         r[0].on_wire > ms(300) && r[0].on_wire < ms(330),
         "{:?}",
@@ -444,10 +445,13 @@ fn drive_errors_reach_the_client_with_their_number() {
         })
         .unwrap();
     let r = b.results(2);
-    assert_eq!(r[0].outcome, Outcome::DriveError(ParamError::IllegalPnu));
+    assert_eq!(
+        r[0].outcome,
+        Ok(Err(DriveError::Refused(ParamError::IllegalPnu)))
+    );
     assert_eq!(
         r[1].outcome,
-        Outcome::DriveError(ParamError::ValueNotChangeable)
+        Ok(Err(DriveError::Refused(ParamError::ValueNotChangeable)))
     );
 }
 
@@ -457,10 +461,10 @@ fn jobs_for_an_offline_drive_end_with_drive_offline() {
     b.faults(2).unplug(Duration::ZERO, None);
     b.handle.submit(read(1, 2, 700)).unwrap();
     let r = b.results(1);
-    assert_eq!(r[0].outcome, Outcome::DriveOffline);
+    assert_eq!(r[0].outcome, Err(PathError::DriveOffline));
     b.handle.submit(read(2, 2, 700)).unwrap();
     let r = b.results(1);
-    assert_eq!(r[0].outcome, Outcome::DriveOffline);
+    assert_eq!(r[0].outcome, Err(PathError::DriveOffline));
     assert_eq!(r[0].telegrams, 0);
 }
 
@@ -514,12 +518,16 @@ fn every_job_ends_exactly_once_under_faults() {
         assert_eq!(r.job.address, addr(a));
         let three_words = a == 3;
         let ok = match (pnu, r.outcome) {
-            (_, Outcome::DriveOffline | Outcome::Timeout)
-            | (1999, Outcome::DriveError(ParamError::IllegalPnu)) => true,
-            (700, Outcome::Value(v)) => v == Value::Word(5),
-            (1082 | 2000, Outcome::Value(v)) => !three_words && v == Value::Dword(0x4248_0000),
-            (1082 | 2000, Outcome::DriveError(ParamError::ChannelTooNarrow)) => three_words,
-            (2010, Outcome::Value(v)) => v == Value::Word(6),
+            (_, Err(PathError::DriveOffline | PathError::Timeout))
+            | (1999, Ok(Err(DriveError::Refused(ParamError::IllegalPnu)))) => true,
+            (700, Ok(Ok(Answer::Value(v)))) => v == Value::Word(5),
+            (1082 | 2000, Ok(Ok(Answer::Value(v)))) => {
+                !three_words && v == Value::Dword(0x4248_0000)
+            }
+            (1082 | 2000, Ok(Err(DriveError::Refused(ParamError::ChannelTooNarrow)))) => {
+                three_words
+            }
+            (2010, Ok(Ok(Answer::Value(v)))) => v == Value::Word(6),
             _ => false,
         };
         assert!(ok, "job {} to drive {a} P{pnu}: {:?}", r.job.id, r.outcome);
@@ -763,7 +771,7 @@ fn the_drives_telegram_monitoring_is_read_when_it_comes_online() {
     let refused = b.results(1);
     assert_eq!(
         refused[0].outcome,
-        Outcome::DriveError(ParamError::AccessLevelTooLow)
+        Ok(Err(DriveError::Refused(ParamError::AccessLevelTooLow)))
     );
     assert_eq!(
         b.status(1).monitoring,
@@ -820,7 +828,11 @@ fn shutdown_ends_pending_jobs_and_sends_the_safe_command_once() {
     b.engine.shutdown().unwrap();
     let results: Vec<_> = std::iter::from_fn(|| b.handle.recv_result(Duration::ZERO)).collect();
     assert_eq!(results.len(), 5);
-    assert!(results.iter().all(|r| r.outcome == Outcome::Shutdown));
+    assert!(
+        results
+            .iter()
+            .all(|r| r.outcome == Err(PathError::Shutdown))
+    );
     for a in [1, 2] {
         assert_eq!(b.sim_drive(a).stw1(), Stw1::READY, "drive {a} got OFF1");
     }
@@ -999,7 +1011,11 @@ fn a_failed_line_ends_every_job_and_the_restored_line_latches_every_drive() {
     engine.line_down(&error);
     let results: Vec<_> = std::iter::from_fn(|| handle.recv_result(Duration::ZERO)).collect();
     assert_eq!(results.len(), 2, "every job ended: {results:?}");
-    assert!(results.iter().all(|r| r.outcome == Outcome::LineDown));
+    assert!(
+        results
+            .iter()
+            .all(|r| r.outcome == Err(PathError::LineDown))
+    );
     assert!(engine.stats().drives.iter().all(|d| !d.online));
     assert!(engine.stats().line.down.is_some());
     assert_eq!(
@@ -1066,6 +1082,6 @@ fn a_drive_is_unknown_until_its_first_poll_decides() {
     );
     assert_eq!(
         b.results(1)[0].outcome,
-        Outcome::Value(Value::Dword(0x4248_0000))
+        Ok(Ok(Answer::Value(Value::Dword(0x4248_0000))))
     );
 }

@@ -235,6 +235,32 @@ fn pnu_of(words: &[u16]) -> Result<Pnu, PkwError> {
 }
 
 impl ParamTask {
+    /// A read of `pnu` (AK 1), or of its array element `index` (AK 6).
+    pub const fn read(pnu: Pnu, index: Option<Subindex>) -> Self {
+        match index {
+            None => Self::Read { pnu },
+            Some(index) => Self::ReadArray { pnu, index },
+        }
+    }
+
+    /// A change of `pnu` (or of its array element `index`) to `value`, a word or a double
+    /// word (a float as its IEEE-754 bits), stored as `storage` says.
+    pub const fn write(pnu: Pnu, index: Option<Subindex>, value: Value, storage: Storage) -> Self {
+        match index {
+            None => Self::Write {
+                pnu,
+                value,
+                storage,
+            },
+            Some(index) => Self::WriteArray {
+                pnu,
+                index,
+                value,
+                storage,
+            },
+        }
+    }
+
     /// The task ID (AK).
     pub const fn id(&self) -> u8 {
         match *self {

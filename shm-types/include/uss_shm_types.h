@@ -705,11 +705,11 @@ enum UssRequestError
    */
   USS_REQUEST_ERROR_BAD_TASK = 9,
   /**
-   * `storage` is not a [`Storage`] code.
+   * `storage` is not a [`Storage`] code, or not RAM with a read.
    */
   USS_REQUEST_ERROR_BAD_STORAGE = 10,
   /**
-   * `index` is above 254 (USS.md section 6).
+   * `index` is above 254 (USS.md section 6), or given with a task that takes none.
    */
   USS_REQUEST_ERROR_BAD_SUBINDEX = 11,
   /**

@@ -40,6 +40,7 @@ pub mod diag;
 pub mod heartbeat;
 pub mod layout;
 pub mod names;
+pub mod outcome;
 pub mod params;
 pub mod pzd;
 
@@ -53,6 +54,7 @@ pub use diag::{
 };
 pub use heartbeat::{BusState, Heartbeat};
 pub use names::{BlackboardKey, BusName, DriveAddress, Generation, Instance, NameError};
+pub use outcome::{Answer, DriveError, ItemOutcome, PathError, ResultError};
 pub use params::{
     MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, REQUEST_FORCE,
     Refusal, RequestError, Storage, TaskCode,

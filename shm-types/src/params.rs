@@ -7,6 +7,7 @@ use crate::codes::{UnknownCode, code_table};
 use crate::names::DriveAddress;
 use crate::{LAYOUT_VERSION, check_version};
 use iceoryx2::prelude::ZeroCopySend;
+use uss_protocol::ParamTask;
 
 /// Most items in one request (the PROFIdrive parameter-access limit for multi-parameter
 /// requests).
@@ -74,9 +75,9 @@ code_table! {
         Version = 8 => "layout version mismatch",
         /// `task` is not a [`TaskCode`].
         BadTask = 9 => "unknown task code",
-        /// `storage` is not a [`Storage`] code.
+        /// `storage` is not a [`Storage`] code, or not RAM with a read.
         BadStorage = 10 => "unknown storage code",
-        /// `index` is above 254 (USS.md section 6).
+        /// `index` is above 254 (USS.md section 6), or given with a task that takes none.
         BadSubindex = 11 => "subindex out of range",
         /// The drive has no parameter channel (PKW length 0, USS.md section 3).
         NoParameterChannel = 12 => "no parameter channel",
@@ -280,25 +281,6 @@ impl ParamItem {
     pub fn storage(&self) -> Result<Storage, UnknownCode> {
         Storage::try_from(self.storage)
     }
-
-    /// Checks the item on its own (task, storage, subindex, value width).
-    pub fn check(&self) -> Result<TaskCode, RequestError> {
-        let task = self.task().map_err(|_| RequestError::BadTask)?;
-        self.storage().map_err(|_| RequestError::BadStorage)?;
-        if self.index > MAX_SUBINDEX {
-            return Err(RequestError::BadSubindex);
-        }
-        let value_fits = if task.writes_word() {
-            u16::try_from(self.value).is_ok()
-        } else {
-            task.is_write() || self.value == 0
-        };
-        if value_fits {
-            Ok(task)
-        } else {
-            Err(RequestError::ValueType)
-        }
-    }
 }
 
 impl ParamRequest {
@@ -325,8 +307,8 @@ impl ParamRequest {
     }
 
     /// Checks everything ussd can check without the bus configuration (version, address
-    /// range, count, every item) and returns the items in use.
-    pub fn validate(&self) -> Result<(DriveAddress, &[ParamItem]), Refusal> {
+    /// range, count, every item) and returns the tasks the items ask for.
+    pub fn validate(&self) -> Result<(DriveAddress, Vec<ParamTask>), Refusal> {
         check_version(self.version).map_err(|_| Refusal::request(RequestError::Version))?;
         if self.flags & !REQUEST_FLAGS != 0 {
             return Err(Refusal::request(RequestError::BadFlags));
@@ -337,11 +319,12 @@ impl ParamRequest {
         if !(1..=MAX_PARAM_ITEMS).contains(&count) {
             return Err(Refusal::request(RequestError::BadCount));
         }
-        let items = &self.items[..count];
-        for (i, item) in items.iter().enumerate() {
-            item.check().map_err(|e| Refusal::item(e, i))?;
-        }
-        Ok((address, items))
+        let tasks = self.items[..count]
+            .iter()
+            .enumerate()
+            .map(|(i, item)| ParamTask::try_from(item).map_err(|e| Refusal::item(e, i)))
+            .collect::<Result<_, _>>()?;
+        Ok((address, tasks))
     }
 }
 
@@ -426,9 +409,11 @@ mod tests {
         ];
         let req = ParamRequest::new(drive(3), &items).unwrap();
         let (address, got) = req.validate().unwrap();
-        assert_eq!((address.get(), got), (3, &items[..]));
-        assert_eq!(got[1].task(), Ok(TaskCode::WriteWord));
-        assert_eq!(got[1].storage(), Ok(Storage::RamAndEeprom));
+        assert_eq!(address.get(), 3);
+        let back: Vec<ParamItem> = got.iter().map(ParamItem::from).collect();
+        assert_eq!(back, items);
+        assert_eq!(items[1].task(), Ok(TaskCode::WriteWord));
+        assert_eq!(items[1].storage(), Ok(Storage::RamAndEeprom));
     }
 
     #[test]

@@ -40,6 +40,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::builder::blackboard::{BlackboardCreateError, BlackboardOpenError};
 use iceoryx2::service::port_factory::blackboard::PortFactory as Blackboard;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSub;
+use uss_protocol::Pnu;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{
     BlackboardKey, BusName, DriveAddress, DriveCounters, DriveDiag, Generation, Heartbeat,
@@ -724,7 +725,8 @@ fn answer(req: &ParamRequest) -> ParamResponse {
             for (slot, item) in r.results.iter_mut().zip(items) {
                 *slot = ParamResult {
                     outcome: Outcome::Value.code(),
-                    value: u32::from(item.pnu) * 10 + u32::from(item.index),
+                    value: u32::from(item.pnu().map_or(0, Pnu::get)) * 10
+                        + u32::from(item.subindex()),
                     telegrams: 1,
                     ..ParamResult::NOT_RUN
                 };

@@ -438,3 +438,19 @@ impl Drop for ChildProc {
         let _ = self.child.wait();
     }
 }
+
+/// A read of `pnu`, or of its element `index` (0..=254), as the protocol's task.
+pub fn read(pnu: u16, index: Option<u8>) -> uss_protocol::ParamTask {
+    let index = index.map(|i| uss_protocol::Subindex::new(i).expect("a subindex 0..=254"));
+    uss_protocol::ParamTask::read(uss_protocol::Pnu::from_u16(pnu), index)
+}
+
+/// A change of `pnu` to `value`, in RAM or, with `eeprom`, RAM and EEPROM.
+pub fn write(pnu: u16, value: uss_protocol::Value, eeprom: bool) -> uss_protocol::ParamTask {
+    let storage = if eeprom {
+        uss_protocol::Storage::RamAndEeprom
+    } else {
+        uss_protocol::Storage::Ram
+    };
+    uss_protocol::ParamTask::write(uss_protocol::Pnu::from_u16(pnu), None, value, storage)
+}

@@ -6,11 +6,12 @@
 use std::time::{Duration, Instant};
 use uss_integration_tests::SimProcess;
 use uss_master::transports::serial::{SerialOptions, SerialTransport};
-use uss_master::{DriveSetup, Engine, EngineConfig, EngineHandle, Job, MonotonicClock, Outcome};
+use uss_master::{DriveSetup, Engine, EngineConfig, EngineHandle, Job, MonotonicClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{
     Address, Baud, DriveState, ParamTask, Pnu, Setpoint, Storage, Stw1, Timing, Value, Zsw1,
 };
+use uss_shm_types::{Answer, DriveError, ItemOutcome as Outcome};
 
 fn addr(a: u8) -> Address {
     Address::new(a).unwrap()
@@ -86,7 +87,10 @@ fn parameters_through_faults(handle: &EngineHandle) {
         value: two_seconds,
         storage: Storage::RamAndEeprom,
     };
-    assert_eq!(ask(handle, 4, 2, eeprom), Outcome::Value(two_seconds));
+    assert_eq!(
+        ask(handle, 4, 2, eeprom),
+        Ok(Ok(Answer::Value(two_seconds)))
+    );
     // P2014 needs access level 3 (P0003 = 1 here): the drive's error 204 reaches us.
     let p2014 = ParamTask::Write {
         pnu: Pnu::from_u16(2014),
@@ -95,7 +99,9 @@ fn parameters_through_faults(handle: &EngineHandle) {
     };
     assert_eq!(
         ask(handle, 5, 2, p2014),
-        Outcome::DriveError(uss_protocol::ParamError::AccessLevelTooLow)
+        Ok(Err(DriveError::Refused(
+            uss_protocol::ParamError::AccessLevelTooLow
+        )))
     );
     for id in 10..40 {
         let outcome = ask(
@@ -106,7 +112,11 @@ fn parameters_through_faults(handle: &EngineHandle) {
                 pnu: Pnu::from_u16(2000),
             },
         );
-        assert_eq!(outcome, Outcome::Value(Value::from_f32(50.0)), "job {id}");
+        assert_eq!(
+            outcome,
+            Ok(Ok(Answer::Value(Value::from_f32(50.0)))),
+            "job {id}"
+        );
     }
     let a0 = ask(
         handle,
@@ -116,7 +126,7 @@ fn parameters_through_faults(handle: &EngineHandle) {
             pnu: Pnu::from_u16(947),
         },
     );
-    assert_eq!(a0, Outcome::ElementCount(8));
+    assert_eq!(a0, Ok(Ok(Answer::ElementCount(8))));
 }
 
 #[test]
@@ -146,7 +156,7 @@ fn engine_drives_a_simulated_drive_over_a_real_pty() {
         value: one_second,
         storage: Storage::Ram,
     };
-    assert_eq!(ask(&handle, 1, 1, write), Outcome::Value(one_second));
+    assert_eq!(ask(&handle, 1, 1, write), Ok(Ok(Answer::Value(one_second))));
     assert_eq!(
         ask(
             &handle,
@@ -156,7 +166,7 @@ fn engine_drives_a_simulated_drive_over_a_real_pty() {
                 pnu: Pnu::from_u16(1120)
             }
         ),
-        Outcome::Value(one_second)
+        Ok(Ok(Answer::Value(one_second)))
     );
     control(
         &handle,
@@ -181,7 +191,7 @@ fn engine_drives_a_simulated_drive_over_a_real_pty() {
             pnu: Pnu::from_u16(21),
         },
     );
-    assert_eq!(r0021, Outcome::Value(Value::from_f32(25.0)));
+    assert_eq!(r0021, Ok(Ok(Answer::Value(Value::from_f32(25.0)))));
 
     parameters_through_faults(&handle);
 

@@ -11,12 +11,13 @@ use std::process::{Child, Command, Output, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
-use uss_client::uss_protocol::ParamError as DriveError;
+use uss_client::DriveError;
+use uss_client::uss_protocol::ParamError as DriveSays;
 use uss_client::{
-    Bus, ClientError, ControlOptions, CycleEvent, DriveState, LatchReason, ParamError,
-    ParamRequest, RequestError, Value, read_item,
+    Bus, ClientError, ControlOptions, CycleEvent, DriveState, LatchReason, ParamError, ParamItem,
+    ParamRequest, RequestError, Value,
 };
-use uss_integration_tests::{binary, terminate};
+use uss_integration_tests::{binary, read, terminate};
 
 /// One ussd at a time: each runs a paced bus thread, and the machine has two cores.
 fn serial() -> MutexGuard<'static, ()> {
@@ -239,28 +240,39 @@ fn parameters_read_and_write_with_typed_values_and_drive_errors() {
 
     // Drive errors carry their number and name (USS.md section 6).
     let err = bus.read(1, 1999, None).unwrap_err();
-    assert_eq!(err, ParamError::Drive(DriveError::IllegalPnu));
+    assert_eq!(
+        err,
+        ParamError::Drive(DriveError::Refused(DriveSays::IllegalPnu))
+    );
     assert_eq!(
         err.to_string(),
         "the drive refused the task with error 0: illegal parameter number"
     );
     assert_eq!(
         bus.read(1, 947, Some(8)),
-        Err(ParamError::Drive(DriveError::FaultySubindex))
+        Err(ParamError::Drive(DriveError::Refused(
+            DriveSays::FaultySubindex
+        )))
     );
     assert_eq!(
         bus.write(1, 947, Some(0), Value::Word(1), false),
-        Err(ParamError::Drive(DriveError::ValueNotChangeable))
+        Err(ParamError::Drive(DriveError::Refused(
+            DriveSays::ValueNotChangeable
+        )))
     );
     assert_eq!(
         bus.write(1, 1120, None, Value::Word(2), false),
-        Err(ParamError::Drive(DriveError::WrongDataType))
+        Err(ParamError::Drive(DriveError::Refused(
+            DriveSays::WrongDataType
+        )))
     );
     // P0927 (access level 2, so raise P0003 first) with bit 3 clear: no more changes over
     // USS (reply 8).
     assert_eq!(
         bus.write(3, 927, None, Value::Word(15), false),
-        Err(ParamError::Drive(DriveError::AccessLevelTooLow))
+        Err(ParamError::Drive(DriveError::Refused(
+            DriveSays::AccessLevelTooLow
+        )))
     );
     assert_eq!(
         bus.write(3, 3, None, Value::Word(3), false),
@@ -272,7 +284,7 @@ fn parameters_read_and_write_with_typed_values_and_drive_errors() {
     );
     assert_eq!(
         bus.write(3, 1120, None, Value::from_f32(1.0), false),
-        Err(ParamError::NoChangeRights)
+        Err(ParamError::Drive(DriveError::NoChangeRights))
     );
 }
 
@@ -284,8 +296,8 @@ fn a_batch_of_39_reads_gets_39_results_in_order() {
     let pnus = [1082, 2000, 1120, 1121, 947];
     let items: Vec<_> = (0..39)
         .map(|i| match pnus[i % pnus.len()] {
-            947 => read_item(947, Some((i % 8) as u8)),
-            pnu => read_item(pnu, None),
+            947 => read(947, Some((i % 8) as u8)),
+            pnu => read(pnu, None),
         })
         .collect();
     let results = bus.batch(2, &items);
@@ -299,24 +311,19 @@ fn a_batch_of_39_reads_gets_39_results_in_order() {
         assert_eq!(r, &Ok(expected), "item {i}: {:?}", items[i]);
     }
     // Items that fail fail alone.
-    let mixed = bus.batch(
-        2,
-        &[
-            read_item(1082, None),
-            read_item(1999, None),
-            read_item(2000, None),
-        ],
-    );
+    let mixed = bus.batch(2, &[read(1082, None), read(1999, None), read(2000, None)]);
     assert_eq!(
         mixed,
         [
             Ok(Value::from_f32(50.0)),
-            Err(ParamError::Drive(DriveError::IllegalPnu)),
+            Err(ParamError::Drive(DriveError::Refused(
+                DriveSays::IllegalPnu
+            ))),
             Ok(Value::from_f32(50.0))
         ]
     );
     // 40 items do not fit one request: refused on this side, for every item.
-    let too_many = bus.batch(2, &[read_item(1082, None); 40]);
+    let too_many = bus.batch(2, &[read(1082, None); 40]);
     assert_eq!(too_many.len(), 40);
     assert!(too_many.iter().all(|r| *r
         == Err(ParamError::Refused {
@@ -377,7 +384,10 @@ fn bad_requests_are_answered_with_errors() {
     // Malformed requests, sent as they are: each gets exactly one refusal.
     let good = ParamRequest::new(
         uss_client::uss_shm_types::DriveAddress::new(1).unwrap(),
-        &[read_item(1082, None), read_item(947, Some(1))],
+        &[
+            ParamItem::from(&read(1082, None)),
+            ParamItem::from(&read(947, Some(1))),
+        ],
     )
     .unwrap();
     let mut bad_index = good;
@@ -390,7 +400,14 @@ fn bad_requests_are_answered_with_errors() {
     bad_address.address = 40;
     let mut bad_task = good;
     bad_task.items[0].task = 0;
+    // A subindex with a task that takes none, storage with a read: refused, not ignored.
+    let mut index_on_read = good;
+    index_on_read.items[0].index = 3;
+    let mut storage_on_read = good;
+    storage_on_read.items[1].storage = 1;
     for (request, error, item) in [
+        (index_on_read, RequestError::BadSubindex, 0),
+        (storage_on_read, RequestError::BadStorage, 1),
         (bad_index, RequestError::BadSubindex, 1),
         (bad_version, RequestError::Version, u8::MAX),
         (no_items, RequestError::BadCount, u8::MAX),
@@ -509,7 +526,9 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
     // A running drive refuses to change P1082 (error 17, not in this state).
     assert_eq!(
         bus.write(1, 1082, None, Value::from_f32(60.0), false),
-        Err(ParamError::Drive(DriveError::NotInThisState))
+        Err(ParamError::Drive(DriveError::Refused(
+            DriveSays::NotInThisState
+        )))
     );
     // The controller learns of the trip at its next call, and every call fails so until it
     // re-arms the drive.
@@ -560,6 +579,12 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
         .wait_for(Duration::from_secs(5), "30 Hz", |i| i.hiw == 0x2000)
         .unwrap();
     assert_eq!(c.inputs().actual_hz(), 30.0);
+    // Diagnostics (what `status` shows) lag the image by up to a few hundred ms.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while bus.diag(1).unwrap().last_hiw != 0x2000 {
+        assert!(Instant::now() < deadline, "diagnostics never showed 30 Hz");
+        std::thread::sleep(Duration::from_millis(20));
+    }
 
     let out = ussd.ussctl(&["--json", "status"]);
     assert!(out.status.success(), "{}", text(&out.stderr));

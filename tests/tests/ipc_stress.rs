@@ -18,9 +18,9 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 use uss_client::{
     Bus, ClientError, ControlOptions, CycleEvent, DriveState, DriveWatch, LatchReason, ParamError,
-    PzdInput, Setpoint, Value, Zsw1, read_item, state_of, write_item,
+    PzdInput, Setpoint, Value, Zsw1, state_of,
 };
-use uss_integration_tests::{ChildProc, Ussd};
+use uss_integration_tests::{ChildProc, Ussd, read, write};
 
 const ROLE_ENV: &str = "USS_STRESS_ROLE";
 const BUS_ENV: &str = "USS_STRESS_BUS";
@@ -718,8 +718,8 @@ impl Tally {
                 self.ok += 1;
                 return true;
             }
-            Err(ParamError::Timeout) => self.timeouts += 1,
-            Err(ParamError::DriveOffline) => self.offline += 1,
+            Err(ParamError::Path(uss_client::PathError::Timeout)) => self.timeouts += 1,
+            Err(ParamError::Path(uss_client::PathError::DriveOffline)) => self.offline += 1,
             _ => {
                 self.wrong += 1;
                 if self.wrong_examples.len() < 5 {
@@ -862,10 +862,10 @@ fn slow_requester(bus: &str, drive: u8) {
     let mut bus = Bus::open_as(bus, "stress-slow-requester").unwrap();
     bus.set_answer_timeout(Some(Duration::from_secs(120)));
     let items = [
-        read_item(700, None),
-        read_item(1082, None),
-        read_item(2000, None),
-        write_item(1120, None, Value::from_f32(7.5), false),
+        read(700, None),
+        read(1082, None),
+        read(2000, None),
+        write(1120, Value::from_f32(7.5), false),
     ];
     std::thread::scope(|s| {
         for item in items {
@@ -883,7 +883,7 @@ fn eeprom_writer(bus: &str, a: u8, b: u8) {
     let mut bus = Bus::open_as(bus, "stress-eeprom-writer").unwrap();
     bus.set_answer_timeout(Some(Duration::from_secs(120)));
     let items: Vec<_> = (0..32u16)
-        .map(|k| write_item(1120, None, Value::from_f32(1.0 + f32::from(k)), true))
+        .map(|k| write(1120, Value::from_f32(1.0 + f32::from(k)), true))
         .collect();
     std::thread::scope(|s| {
         for drive in [a, a, b, b] {

@@ -8,10 +8,8 @@
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
-use uss_client::{
-    Bus, ClientError, Health, LatchReason, ParamError, RequestError, Value, read_item,
-};
-use uss_integration_tests::{BusSpec, SimProcess, Ussd, monotonic_ns};
+use uss_client::{Bus, ClientError, Health, LatchReason, ParamError, RequestError, Value};
+use uss_integration_tests::{BusSpec, SimProcess, Ussd, monotonic_ns, read};
 
 /// A symlink in a directory of its own, pointing at a pty.
 struct Link {
@@ -95,7 +93,7 @@ fn a_failed_line_takes_only_its_bus_down_and_ussd_reopens_it_when_it_is_back() {
         let name = format!("{}a", ussd.bus);
         std::thread::spawn(move || {
             let bus = Bus::open(&name).unwrap();
-            bus.batch(1, &[read_item(1082, None); 39])
+            bus.batch(1, &[read(1082, None); 39])
         })
     };
     std::thread::sleep(Duration::from_millis(300));
@@ -124,7 +122,7 @@ fn a_failed_line_takes_only_its_bus_down_and_ussd_reopens_it_when_it_is_back() {
     assert!(
         results[done..]
             .iter()
-            .all(|r| *r == Err(ParamError::LineDown)),
+            .all(|r| *r == Err(ParamError::Path(uss_client::PathError::LineDown))),
         "{results:?}"
     );
     assert!(done < 39, "the line went down before the request finished");

@@ -4,7 +4,7 @@
 
 use super::{
     Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, FrameError, LastFailure,
-    MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, Outcome, ParamReply, ReplyKind,
+    MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, ParamReply, PathError, ReplyKind,
     Transport, TransportError, Words, encode, record,
 };
 
@@ -170,7 +170,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 at: now,
                 failure,
             });
-            while let Some(r) = self.drives[slot].mailbox.finish(Outcome::DriveOffline, now) {
+            while let Some(r) = self.drives[slot]
+                .mailbox
+                .finish(Err(PathError::DriveOffline), now)
+            {
                 self.deliver(r);
             }
         }
@@ -186,21 +189,16 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     ) -> Result<Attempt, TransportError> {
         self.shared.progress.fetch_add(1, Ordering::Relaxed);
         let setup = self.drives[slot].setup;
-        let mut pkw = [0u16; MAX_PKW_WORDS];
-        let task = if with_task {
-            self.drives[slot].mailbox.current().copied()
-        } else {
-            None
-        };
-        // Tasks were checked against the PKW mode when submitted, so encoding succeeds; a task
-        // that somehow does not fit goes out as "no task".
-        let pkw_len = task
-            .and_then(|t| t.encode(setup.layout.pkw, &mut pkw).ok())
-            .unwrap_or_else(|| {
-                pkw = [0; MAX_PKW_WORDS];
-                setup.layout.pkw.request_words()
-            });
-        let Ok(n) = encode(&mut self.tx, Adr::to(setup.address), &pkw[..pkw_len], pzd) else {
+        // The task's words were encoded once when it was accepted; without a task the channel
+        // carries zeros ("no task").
+        let none = [0u16; MAX_PKW_WORDS];
+        let task_words = self.drives[slot]
+            .mailbox
+            .current_words()
+            .filter(|_| with_task);
+        let carries_task = task_words.is_some();
+        let pkw = task_words.unwrap_or(&none[..setup.layout.pkw.request_words()]);
+        let Ok(n) = encode(&mut self.tx, Adr::to(setup.address), pkw, pzd) else {
             return Ok(Attempt::Failed(LastFailure::Length));
         };
         if let Some(seen) = self.last_reply_seen.take() {
@@ -220,7 +218,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.transport.flush_input(send_at)?;
         self.framer.reset();
         let request_end = self.transport.send(&self.tx[..n], send_at)?;
-        if task.is_some() {
+        if carries_task {
             self.drives[slot].mailbox.sent(send_at);
         }
         self.stats.drives[slot].counters.requests += 1;

@@ -2,8 +2,8 @@
 //! operator stops, statistics, stop; lock-free or bounded, never waiting on the bus thread.
 
 use super::{
-    Address, DriveSetup, Duration, EngineHandle, INTERNAL_JOB, Job, JobResult, MAX_PKW_WORDS,
-    Ordering, PzdOutput, RequestError, STOPS, Stats, StopCommand,
+    Address, DriveSetup, Duration, Encoded, EngineHandle, INTERNAL_JOB, Job, JobResult, Ordering,
+    PzdOutput, RequestError, STOPS, Stats, StopCommand,
 };
 
 impl EngineHandle {
@@ -116,13 +116,12 @@ impl EngineHandle {
         if job.task.is_write() && !setup.params_writable {
             return Err(RequestError::WritesDisabled(job.address));
         }
-        let mut words = [0u16; MAX_PKW_WORDS];
-        job.task
-            .encode(setup.layout.pkw, &mut words)
-            .map_err(|error| RequestError::Pkw {
-                address: job.address,
-                error,
-            })?;
+        // The one check that the task fits the drive's channel, and its words for every
+        // telegram that will carry it.
+        let pkw = Encoded::new(&job.task, setup.layout.pkw).map_err(|error| RequestError::Pkw {
+            address: job.address,
+            error,
+        })?;
         let cap = self.shared.capacity;
         self.shared
             .outstanding
@@ -130,14 +129,14 @@ impl EngineHandle {
                 (n < cap).then_some(n + 1)
             })
             .map_err(|_| RequestError::Busy(cap))?;
-        self.jobs.try_send(job).map_err(|_| {
+        self.jobs.try_send((job, pkw)).map_err(|_| {
             self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
             RequestError::Stopped
         })
     }
 
     /// Cancels the jobs with ids in `ids` that have not reached the wire yet (their client
-    /// died): each ends with [`Outcome::Cancelled`] at the bus thread's next step. `false` when
+    /// died): each ends with [`uss_shm_types::PathError::Cancelled`] at the bus thread's next step. `false` when
     /// the bus thread's queue of cancellations is full (ask again later).
     pub fn cancel(&self, ids: core::ops::Range<u64>) -> bool {
         self.cancels.try_send(ids).is_ok()

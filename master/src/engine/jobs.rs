@@ -3,7 +3,9 @@
 
 use core::time::Duration;
 use std::collections::VecDeque;
-use uss_protocol::{Address, ParamError, ParamReply, ParamTask, ReplyKind, Value};
+use uss_protocol::telegram::MAX_PKW_WORDS;
+use uss_protocol::{Address, ParamReply, ParamTask, PkwError, PkwMode};
+use uss_shm_types::{Answer, ItemOutcome, PathError};
 
 /// A parameter request for one drive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -14,55 +16,28 @@ pub struct Job {
     pub task: ParamTask,
 }
 
-/// How a job ended. Every accepted job ends in exactly one of these.
+/// A task's PKW words for its drive's PKW mode, encoded once when the job is accepted: every
+/// telegram that repeats the task copies them (USS.md section 6, handshake).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Outcome {
-    /// The value read or, for a change, the value the drive now holds.
-    Value(Value),
-    /// The number of array elements (task 9).
-    ElementCount(u16),
-    /// A descriptive element (task 4).
-    Description(Value),
-    /// Reply 7: the drive refused the task with this error number.
-    DriveError(ParamError),
-    /// Reply 8: no PKW change rights.
-    NoChangeRights,
-    /// No matching reply within the job timeout (the drive kept answering "not yet" or with other
-    /// tasks' replies).
-    Timeout,
-    /// The drive went offline, or was offline, before the job completed.
-    DriveOffline,
-    /// The drive's mailbox was full when the job reached the bus thread.
-    MailboxFull,
-    /// The engine stopped before the job completed.
-    Shutdown,
-    /// The bus line failed (device unplugged, I/O error) before the job completed.
-    LineDown,
-    /// The client that asked died before the job reached the wire: it was never sent.
-    Cancelled,
+pub struct Encoded {
+    words: [u16; MAX_PKW_WORDS],
+    len: u8,
 }
 
-impl Outcome {
-    /// The outcome a matching reply gives.
-    pub fn from_reply(reply: &ParamReply) -> Self {
-        match reply.kind {
-            ReplyKind::Error(e) => Self::DriveError(e),
-            ReplyKind::NoChangeRights => Self::NoChangeRights,
-            ReplyKind::ElementCount(n) => Self::ElementCount(n),
-            ReplyKind::Description(v) => Self::Description(v),
-            // `answers` admits only value replies besides the ones above.
-            other => other.value().map_or(
-                Self::DriveError(ParamError::Other(u16::from(other.id()))),
-                Self::Value,
-            ),
-        }
+impl Encoded {
+    /// Encodes `task` for a drive in PKW mode `mode`: the check that the task fits the drive's
+    /// parameter channel.
+    pub fn new(task: &ParamTask, mode: PkwMode) -> Result<Self, PkwError> {
+        let mut words = [0; MAX_PKW_WORDS];
+        let len = task.encode(mode, &mut words)?;
+        Ok(Self {
+            words,
+            len: len as u8,
+        })
     }
 
-    pub const fn is_success(&self) -> bool {
-        matches!(
-            self,
-            Self::Value(_) | Self::ElementCount(_) | Self::Description(_)
-        )
+    pub fn words(&self) -> &[u16] {
+        &self.words[..usize::from(self.len)]
     }
 }
 
@@ -70,7 +45,8 @@ impl Outcome {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct JobResult {
     pub job: Job,
-    pub outcome: Outcome,
+    /// The one outcome vocabulary from the engine to the client API (`uss_shm_types::outcome`).
+    pub outcome: ItemOutcome,
     /// Telegrams that carried the task (1 when answered at once; more with busy replies or retries).
     pub telegrams: u32,
     /// From the first telegram carrying the task to the result (zero if it never reached the wire).
@@ -81,6 +57,7 @@ pub struct JobResult {
 #[derive(Debug, Clone, Copy)]
 struct Active {
     job: Job,
+    pkw: Encoded,
     first_sent: Option<Duration>,
     telegrams: u32,
 }
@@ -101,13 +78,14 @@ impl Mailbox {
         }
     }
 
-    /// Queues a job; gives it back when the mailbox is full.
-    pub fn push(&mut self, job: Job) -> Result<(), Job> {
+    /// Queues a job with its encoded PKW words; gives it back when the mailbox is full.
+    pub fn push(&mut self, job: Job, pkw: Encoded) -> Result<(), Job> {
         if self.queue.len() >= self.capacity {
             return Err(job);
         }
         self.queue.push_back(Active {
             job,
+            pkw,
             first_sent: None,
             telegrams: 0,
         });
@@ -127,6 +105,11 @@ impl Mailbox {
         self.queue.front().map(|a| &a.job.task)
     }
 
+    /// The PKW words of the task to put into the next telegram, if any.
+    pub fn current_words(&self) -> Option<&[u16]> {
+        self.queue.front().map(|a| a.pkw.words())
+    }
+
     /// Records that the current task went out at `now`.
     pub fn sent(&mut self, now: Duration) {
         if let Some(a) = self.queue.front_mut() {
@@ -142,21 +125,21 @@ impl Mailbox {
         if !reply.answers(&active.job.task) {
             return None;
         }
-        self.finish(Outcome::from_reply(reply), now)
+        self.finish(Ok(Answer::of_reply(reply)), now)
     }
 
     /// Ends the current job with a timeout when it has been on the wire longer than `limit`.
     pub fn expire(&mut self, limit: Duration, now: Duration) -> Option<JobResult> {
         let first = self.queue.front()?.first_sent?;
         if now.saturating_sub(first) > limit {
-            self.finish(Outcome::Timeout, now)
+            self.finish(Err(PathError::Timeout), now)
         } else {
             None
         }
     }
 
     /// Takes out one job with an id in `ids` that has not gone out yet (a job on the wire stays:
-    /// its reply is on the way), ending it with [`Outcome::Cancelled`]. Call until `None`.
+    /// its reply is on the way), ending it with [`PathError::Cancelled`]. Call until `None`.
     pub fn cancel(&mut self, ids: core::ops::Range<u64>) -> Option<JobResult> {
         let at = self
             .queue
@@ -166,14 +149,14 @@ impl Mailbox {
         let a = self.queue.remove(at)?;
         Some(JobResult {
             job: a.job,
-            outcome: Outcome::Cancelled,
+            outcome: Err(PathError::Cancelled),
             telegrams: 0,
             on_wire: Duration::ZERO,
         })
     }
 
     /// Ends the current job with `outcome`.
-    pub fn finish(&mut self, outcome: Outcome, now: Duration) -> Option<JobResult> {
+    pub fn finish(&mut self, outcome: ItemOutcome, now: Duration) -> Option<JobResult> {
         let a = self.queue.pop_front()?;
         Some(JobResult {
             job: a.job,
@@ -189,7 +172,12 @@ impl Mailbox {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use uss_protocol::{Pnu, Storage};
+    use uss_protocol::{ParamError, Pnu, Storage, Value};
+    use uss_shm_types::DriveError;
+
+    fn words(job: &Job) -> Encoded {
+        Encoded::new(&job.task, PkwMode::Four).unwrap()
+    }
 
     fn job(id: u64, pnu: u16) -> Job {
         Job {
@@ -211,8 +199,8 @@ mod tests {
     #[test]
     fn one_task_at_a_time_in_fifo_order() {
         let mut m = Mailbox::new(4);
-        m.push(job(1, 700)).unwrap();
-        m.push(job(2, 1000)).unwrap();
+        m.push(job(1, 700), words(&job(1, 700))).unwrap();
+        m.push(job(2, 1000), words(&job(2, 1000))).unwrap();
         assert_eq!(m.current(), Some(&job(1, 700).task));
         m.sent(Duration::from_millis(1));
         assert!(
@@ -230,19 +218,20 @@ mod tests {
             .on_reply(&reply(1, 700, 5), Duration::from_millis(4))
             .unwrap();
         assert_eq!(r.job.id, 1);
-        assert_eq!(r.outcome, Outcome::Value(Value::Word(5)));
+        assert_eq!(r.outcome, Ok(Ok(Answer::Value(Value::Word(5)))));
         assert_eq!(r.telegrams, 2);
         assert_eq!(r.on_wire, Duration::from_millis(3));
         assert_eq!(m.current(), Some(&job(2, 1000).task));
+        assert_eq!(m.current_words(), Some(words(&job(2, 1000)).words()));
     }
 
     #[test]
     fn cancel_takes_out_what_has_not_gone_out_and_keeps_the_job_on_the_wire() {
         let mut m = Mailbox::new(8);
         for id in 1..=5 {
-            m.push(job(id, 700)).unwrap();
+            m.push(job(id, 700), words(&job(id, 700))).unwrap();
         }
-        m.push(job(50, 700)).unwrap();
+        m.push(job(50, 700), words(&job(50, 700))).unwrap();
         m.sent(Duration::from_millis(1)); // job 1 is on the wire
         let cancelled: Vec<u64> = std::iter::from_fn(|| m.cancel(1..6))
             .map(|r| r.job.id)
@@ -257,20 +246,23 @@ mod tests {
         let r = m
             .on_reply(&reply(1, 700, 5), Duration::from_millis(2))
             .unwrap();
-        assert_eq!((r.job.id, r.outcome), (1, Outcome::Value(Value::Word(5))));
+        assert_eq!(
+            (r.job.id, r.outcome),
+            (1, Ok(Ok(Answer::Value(Value::Word(5)))))
+        );
     }
 
     #[test]
     fn full_mailbox_gives_the_job_back() {
         let mut m = Mailbox::new(1);
-        m.push(job(1, 700)).unwrap();
-        assert_eq!(m.push(job(2, 700)), Err(job(2, 700)));
+        m.push(job(1, 700), words(&job(1, 700))).unwrap();
+        assert_eq!(m.push(job(2, 700), words(&job(2, 700))), Err(job(2, 700)));
     }
 
     #[test]
     fn job_expires_only_after_reaching_the_wire() {
         let mut m = Mailbox::new(2);
-        m.push(job(1, 700)).unwrap();
+        m.push(job(1, 700), words(&job(1, 700))).unwrap();
         assert!(
             m.expire(Duration::from_millis(10), Duration::from_secs(5))
                 .is_none()
@@ -283,7 +275,7 @@ mod tests {
         let r = m
             .expire(Duration::from_millis(10), Duration::from_millis(5011))
             .unwrap();
-        assert_eq!(r.outcome, Outcome::Timeout);
+        assert_eq!(r.outcome, Err(PathError::Timeout));
     }
 
     #[test]
@@ -298,11 +290,14 @@ mod tests {
             },
         };
         let mut m = Mailbox::new(2);
-        m.push(write).unwrap();
+        m.push(write, words(&write)).unwrap();
         let r = m.on_reply(&reply(7, 1082, 5), Duration::ZERO).unwrap();
-        assert_eq!(r.outcome, Outcome::DriveError(ParamError::WrongDataType));
-        m.push(write).unwrap();
+        assert_eq!(
+            r.outcome,
+            Ok(Err(DriveError::Refused(ParamError::WrongDataType)))
+        );
+        m.push(write, words(&write)).unwrap();
         let r = m.on_reply(&reply(8, 1082, 0), Duration::ZERO).unwrap();
-        assert_eq!(r.outcome, Outcome::NoChangeRights);
+        assert_eq!(r.outcome, Ok(Err(DriveError::NoChangeRights)));
     }
 }

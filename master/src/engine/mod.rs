@@ -24,7 +24,7 @@ mod handle;
 use crate::engine::clock::Clock;
 use crate::engine::control::{Control, Gate, GateSetup, Latch, Operator, Poll, Transition};
 use crate::engine::image::DriveImages;
-use crate::engine::jobs::{Job, JobResult, Mailbox, Outcome};
+use crate::engine::jobs::{Encoded, Job, JobResult, Mailbox};
 use crate::engine::monitoring::MonitoringSetup;
 use crate::engine::stats::{DriveStatus, LastFailure, LineFault, Stats, record};
 use crate::engine::transport::{Transport, TransportError};
@@ -38,7 +38,9 @@ use uss_protocol::{
     Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, PkwError, PkwMode,
     ReplyKind, Timing, Words, encode,
 };
-use uss_shm_types::{LatchReason, Monitoring, PzdOutput, Rejection, StopCommand};
+use uss_shm_types::{
+    Answer, ItemOutcome, LatchReason, Monitoring, PathError, PzdOutput, Rejection, StopCommand,
+};
 
 /// Job ids with this bit are ussd's own (the telegram-monitoring check); clients use the rest.
 pub const INTERNAL_JOB: u64 = 1 << 63;
@@ -204,6 +206,29 @@ pub enum RequestError {
     LineDown,
 }
 
+impl From<&RequestError> for uss_shm_types::RequestError {
+    /// What a client is told of a job the engine would not take (the contract's codes; the
+    /// engine's error keeps the detail for ussd's log).
+    fn from(e: &RequestError) -> Self {
+        use uss_shm_types::RequestError as Told;
+        match e {
+            RequestError::UnknownDrive(_) => Told::UnknownDrive,
+            RequestError::WritesDisabled(_) => Told::WritesDisabled,
+            RequestError::Pkw { error, .. } => match error {
+                PkwError::NoChannel => Told::NoParameterChannel,
+                PkwError::DwordOverThreeWords => Told::DwordOverThreeWords,
+                PkwError::Subindex(_) => Told::BadSubindex,
+                _ => Told::ValueType,
+            },
+            RequestError::PzdWords { .. } => Told::ValueType,
+            RequestError::Busy(_) => Told::Busy,
+            RequestError::Stopped => Told::Shutdown,
+            RequestError::ReservedJobId(_) | RequestError::NotAStop(_) => Told::BadTask,
+            RequestError::LineDown => Told::LineDown,
+        }
+    }
+}
+
 /// How many cancellations can wait for the bus thread.
 const CANCEL_QUEUE: usize = 64;
 
@@ -257,7 +282,7 @@ impl Shared {
 #[derive(Debug, Clone)]
 pub struct EngineHandle {
     shared: Arc<Shared>,
-    jobs: Sender<Job>,
+    jobs: Sender<(Job, Encoded)>,
     cancels: Sender<core::ops::Range<u64>>,
     results: Receiver<JobResult>,
 }
@@ -294,7 +319,7 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     last_reply_seen: Option<Duration>,
     cycle_start: Duration,
     last_publish: Duration,
-    jobs: Receiver<Job>,
+    jobs: Receiver<(Job, Encoded)>,
     cancels: Receiver<core::ops::Range<u64>>,
     results: Sender<JobResult>,
     events: Sender<Event>,
@@ -464,7 +489,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.shutdown()
     }
 
-    /// The line failed: every pending job ends with [`Outcome::LineDown`] (the one on the wire
+    /// The line failed: every pending job ends with [`PathError::LineDown`] (the one on the wire
     /// included: its reply cannot come), every drive is offline, and new jobs are refused until
     /// the line is back. Nothing can be sent meanwhile: a running drive's own telegram
     /// monitoring (P2014) is what stops it.
@@ -473,7 +498,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let fault = LineFault::of(error);
         self.shared.reopen_attempts.store(0, Ordering::Relaxed);
         self.shared.line_down.store(true, Ordering::Release);
-        self.fail_all_jobs(Outcome::LineDown);
+        self.fail_all_jobs(Err(PathError::LineDown));
         for slot in 0..self.drives.len() {
             let status = &mut self.stats.drives[slot];
             if status.online {
@@ -547,11 +572,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         Ok(polled)
     }
 
-    /// Ends every pending job with [`Outcome::Shutdown`] and sends each drive its safe command
+    /// Ends every pending job with [`PathError::Shutdown`] and sends each drive its safe command
     /// once (one attempt, no retries).
     pub fn shutdown(&mut self) -> Result<(), TransportError> {
         self.shared.stop.store(true, Ordering::Release);
-        self.fail_all_jobs(Outcome::Shutdown);
+        self.fail_all_jobs(Err(PathError::Shutdown));
         if self.stats.line.down.is_some() {
             // Nothing reaches the drives; their own telegram monitoring stops them.
             self.publish();
@@ -581,7 +606,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         Ok(())
     }
 
-    fn fail_all_jobs(&mut self, outcome: Outcome) {
+    fn fail_all_jobs(&mut self, outcome: ItemOutcome) {
         let now = self.clock.now();
         self.take_jobs();
         for slot in 0..self.drives.len() {
@@ -593,27 +618,27 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
 
     /// Moves submitted jobs into their drives' mailboxes.
     fn take_jobs(&mut self) {
-        while let Ok(job) = self.jobs.try_recv() {
+        while let Ok((job, pkw)) = self.jobs.try_recv() {
             self.stats.bus.jobs_accepted += 1;
             let Some(slot) = self.shared.slot_of[job.address.get() as usize].map(usize::from)
             else {
                 continue; // the handle checked the address; a stale job cannot name another
             };
             let outcome = if self.shared.stop.load(Ordering::Acquire) {
-                Some(Outcome::Shutdown)
+                Some(PathError::Shutdown)
             } else if self.stats.drives[slot].known && !self.stats.drives[slot].online {
-                Some(Outcome::DriveOffline)
+                Some(PathError::DriveOffline)
             } else {
                 self.drives[slot]
                     .mailbox
-                    .push(job)
+                    .push(job, pkw)
                     .err()
-                    .map(|_| Outcome::MailboxFull)
+                    .map(|_| PathError::MailboxFull)
             };
-            if let Some(outcome) = outcome {
+            if let Some(failed) = outcome {
                 self.deliver(JobResult {
                     job,
-                    outcome,
+                    outcome: Err(failed),
                     telegrams: 0,
                     on_wire: Duration::ZERO,
                 });
@@ -664,19 +689,20 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     fn on_monitoring_result(&mut self, slot: usize, result: &JobResult) {
         let setup = self.drives[slot].setup.monitoring;
         let (state, ms) = match result.outcome {
-            Outcome::Value(v) => setup.evaluate(v),
+            Ok(Ok(Answer::Value(v))) => setup.evaluate(v),
             // A refused write leaves the parameter as it was.
             _ if result.job.task.is_write() => return,
-            Outcome::DriveError(_) | Outcome::NoChangeRights | Outcome::Timeout => {
-                (Monitoring::Unreadable, 0)
-            }
-            Outcome::ElementCount(_) | Outcome::Description(_) => return,
+            Ok(Err(_)) | Err(PathError::Timeout) => (Monitoring::Unreadable, 0),
+            Ok(Ok(Answer::ElementCount(_) | Answer::Description(_))) => return,
             // The drive is gone or ussd stops: read again when it is back.
-            Outcome::DriveOffline
-            | Outcome::MailboxFull
-            | Outcome::Shutdown
-            | Outcome::LineDown
-            | Outcome::Cancelled => {
+            Err(
+                PathError::DriveOffline
+                | PathError::MailboxFull
+                | PathError::Shutdown
+                | PathError::LineDown
+                | PathError::Cancelled
+                | PathError::Refused(_),
+            ) => {
                 if result.job.id & INTERNAL_JOB != 0 {
                     self.drives[slot].monitoring_due = true;
                 }
@@ -716,7 +742,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             address: d.setup.address,
             task,
         };
-        if d.mailbox.push(job).is_ok() {
+        // A monitoring parameter the channel cannot carry is not checked.
+        let Ok(pkw) = Encoded::new(&task, d.setup.layout.pkw) else {
+            d.monitoring_due = false;
+            return;
+        };
+        if d.mailbox.push(job, pkw).is_ok() {
             d.monitoring_due = false;
         }
     }

@@ -8,8 +8,8 @@
 
 use super::bridge::OutService;
 use super::{IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, as_ns, fail, pid_of, text};
-use crate::engine::jobs::{Job, JobResult, Outcome as JobOutcome};
-use crate::engine::{EngineHandle, RequestError as EngineRefusal};
+use crate::engine::EngineHandle;
+use crate::engine::jobs::{Job, JobResult};
 use core::time::Duration;
 use iceoryx2::active_request::ActiveRequest;
 use iceoryx2::identifiers::UniqueNodeId;
@@ -18,11 +18,11 @@ use iceoryx2::port::server::Server;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::request_response::PortFactory as RequestResponseFactory;
 use std::time::Instant;
-use uss_protocol::{Address, ParamTask, PkwError, Pnu, Storage as PkwStorage, Subindex, Value};
+use uss_protocol::Address;
 use uss_shm_types::names;
 use uss_shm_types::{
-    ALL_DRIVES, CommandError, Instance, OperatorRequest, OperatorResponse, Outcome, ParamItem,
-    ParamRequest, ParamResponse, ParamResult, RequestError, Storage, TaskCode,
+    ALL_DRIVES, CommandError, Instance, OperatorRequest, OperatorResponse, Outcome, ParamRequest,
+    ParamResponse, ParamResult, RequestError, TaskCode,
 };
 
 /// Creates the parameter and command services of `bus` and their servers; `outs` are the
@@ -208,101 +208,6 @@ impl core::fmt::Debug for ParamServer {
     }
 }
 
-/// The PKW task an item asks for (USS.md section 6).
-fn task_of(item: &ParamItem, code: TaskCode) -> Result<ParamTask, RequestError> {
-    let pnu = Pnu::from_u16(item.pnu);
-    let index = u8::try_from(item.index)
-        .ok()
-        .and_then(|i| Subindex::new(i).ok())
-        .ok_or(RequestError::BadSubindex)?;
-    let storage = match item.storage().map_err(|_| RequestError::BadStorage)? {
-        Storage::Ram => PkwStorage::Ram,
-        Storage::RamAndEeprom => PkwStorage::RamAndEeprom,
-    };
-    let word = || Value::Word(item.value as u16);
-    let dword = Value::Dword(item.value);
-    Ok(match code {
-        TaskCode::Read => ParamTask::Read { pnu },
-        TaskCode::WriteWord => ParamTask::Write {
-            pnu,
-            value: word(),
-            storage,
-        },
-        TaskCode::WriteDword => ParamTask::Write {
-            pnu,
-            value: dword,
-            storage,
-        },
-        TaskCode::ReadArray => ParamTask::ReadArray { pnu, index },
-        TaskCode::WriteArrayWord => ParamTask::WriteArray {
-            pnu,
-            index,
-            value: word(),
-            storage,
-        },
-        TaskCode::WriteArrayDword => ParamTask::WriteArray {
-            pnu,
-            index,
-            value: dword,
-            storage,
-        },
-        TaskCode::ReadElementCount => ParamTask::ReadArrayLen { pnu },
-        TaskCode::ReadDescription => ParamTask::ReadDescription {
-            pnu,
-            element: index,
-        },
-    })
-}
-
-fn refusal_of(e: EngineRefusal) -> RequestError {
-    match e {
-        EngineRefusal::UnknownDrive(_) => RequestError::UnknownDrive,
-        EngineRefusal::WritesDisabled(_) => RequestError::WritesDisabled,
-        EngineRefusal::Pkw {
-            error: PkwError::NoChannel,
-            ..
-        } => RequestError::NoParameterChannel,
-        EngineRefusal::Pkw {
-            error: PkwError::DwordOverThreeWords,
-            ..
-        } => RequestError::DwordOverThreeWords,
-        EngineRefusal::Pkw {
-            error: PkwError::Subindex(_),
-            ..
-        } => RequestError::BadSubindex,
-        EngineRefusal::Pkw { .. } | EngineRefusal::PzdWords { .. } => RequestError::ValueType,
-        EngineRefusal::Busy(_) => RequestError::Busy,
-        EngineRefusal::Stopped => RequestError::Shutdown,
-        EngineRefusal::ReservedJobId(_) | EngineRefusal::NotAStop(_) => RequestError::BadTask,
-        EngineRefusal::LineDown => RequestError::LineDown,
-    }
-}
-
-fn result_of(r: &JobResult) -> ParamResult {
-    let (outcome, value, drive_error) = match r.outcome {
-        JobOutcome::Value(v) => (Outcome::Value, Some(v), 0),
-        JobOutcome::ElementCount(n) => (Outcome::ElementCount, Some(Value::Word(n)), 0),
-        JobOutcome::Description(v) => (Outcome::Description, Some(v), 0),
-        JobOutcome::DriveError(e) => (Outcome::DriveError, None, e.number()),
-        JobOutcome::NoChangeRights => (Outcome::NoChangeRights, None, 0),
-        JobOutcome::Timeout => (Outcome::Timeout, None, 0),
-        JobOutcome::DriveOffline => (Outcome::DriveOffline, None, 0),
-        JobOutcome::MailboxFull => (Outcome::MailboxFull, None, 0),
-        JobOutcome::Shutdown => (Outcome::Shutdown, None, 0),
-        JobOutcome::LineDown => (Outcome::LineDown, None, 0),
-        JobOutcome::Cancelled => (Outcome::Cancelled, None, 0),
-    };
-    ParamResult {
-        outcome: outcome.code(),
-        value_is_dword: u8::from(value.is_some_and(Value::is_dword)),
-        drive_error,
-        value: value.map_or(0, Value::as_u32),
-        telegrams: r.telegrams,
-        on_wire_ns: as_ns(r.on_wire),
-        ..ParamResult::NOT_RUN
-    }
-}
-
 impl ParamServer {
     /// Serves requests until the engine stops, then answers what is still pending (the
     /// engine ends every job it holds with "shutdown"; jobs it never took get that here).
@@ -368,20 +273,14 @@ impl ParamServer {
         let first_id = self.next_id;
         self.next_id += items.len() as u64;
         let mut remaining = 0;
-        for (i, item) in items.iter().enumerate() {
-            // `validate` checked every item's task code.
-            let submitted = item
-                .check()
-                .and_then(|code| task_of(item, code))
-                .and_then(|task| {
-                    handle
-                        .submit(Job {
-                            id: first_id + i as u64,
-                            address,
-                            task,
-                        })
-                        .map_err(refusal_of)
-                });
+        for (i, &task) in items.iter().enumerate() {
+            let submitted = handle
+                .submit(Job {
+                    id: first_id + i as u64,
+                    address,
+                    task,
+                })
+                .map_err(|e| RequestError::from(&e));
             match submitted {
                 Ok(()) => remaining += 1,
                 Err(e) => response.results[i] = ParamResult::refused(e),
@@ -507,7 +406,8 @@ impl ParamServer {
             return;
         };
         let p = &mut self.pending[at];
-        p.response.results[(id - p.first_id) as usize] = result_of(r);
+        p.response.results[(id - p.first_id) as usize] =
+            ParamResult::of(&r.outcome, r.telegrams, as_ns(r.on_wire));
         p.remaining -= 1;
         if p.remaining == 0 {
             let p = self.pending.swap_remove(at);
