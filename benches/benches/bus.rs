@@ -2,7 +2,8 @@
 //! run on this machine:
 //!
 //! 1. Exchange efficiency: on the real-time-paced virtual wire (bytes take 11 bits of wire time,
-//!    the drives answer after 1 ms), the wire-time floor of USS.md section 4 over the achieved
+//!    the drives answer after 1 ms, at 19200 baud after the start pause and one character time,
+//!    1.72 ms), the wire-time floor of USS.md section 4 over the achieved
 //!    exchange time, at 19200, 115200 and 187500 baud with PKW 4 + PZD 2 and PKW 4 + PZD 8; and
 //!    for PKW 4 + PZD 8 at 19200 the speed-up over the S7-1200 library's 68.2 ms per exchange.
 //! 2. Master turnaround (reply complete -> next request written) against the start pause the
@@ -99,7 +100,7 @@ fn thread_cpu() -> Duration {
 
 fn efficiency() {
     println!(
-        "== exchange efficiency on the real-time-paced virtual wire (4 drives, 1 ms response delay)"
+        "== exchange efficiency on the real-time-paced virtual wire (4 drives, 1 ms response delay, 1.72 ms at 19200 baud)"
     );
     println!("   baud    layout        mean exchange   wire floor   efficiency (floor / achieved)");
     for pzd in [2, 8] {

@@ -86,6 +86,21 @@ pub enum Stop {
     Off3,
 }
 
+impl core::fmt::Display for State {
+    /// The state as the manuals name it: "S4 operation enabled", "S5 OFF1 ramp-down", "fault".
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::SwitchingOnInhibited => "S1 switching on inhibited",
+            Self::ReadyToSwitchOn => "S2 ready to switch on",
+            Self::ReadyForOperation => "S3 ready for operation",
+            Self::OperationEnabled => "S4 operation enabled",
+            Self::SwitchingOff(Stop::Off1) => "S5 OFF1 ramp-down",
+            Self::SwitchingOff(Stop::Off3) => "S5 OFF3 quick stop",
+            Self::Fault => "fault",
+        })
+    }
+}
+
 impl State {
     /// Whether the motor is energised (S4 or S5): some parameters cannot be changed then.
     pub const fn is_running(self) -> bool {
@@ -508,8 +523,10 @@ impl Drive {
             _ if target.abs() > self.frequency_hz.abs() => self.param_f32(P1120),
             _ => self.param_f32(P1121),
         };
+        // A ramp time too short to matter (down to the smallest float) ends the ramp in one
+        // step; the rate is capped so a zero time step never multiplies an infinity into NaN.
         let step = if ramp_time > 0.0 && max > 0.0 {
-            max / ramp_time * dt
+            (max / ramp_time).min(f32::MAX) * dt
         } else {
             f32::INFINITY
         };

@@ -185,7 +185,8 @@ fn send(
     start: Instant,
     request_end: Duration,
 ) -> io::Result<Duration> {
-    let due = request_end + reply.delay;
+    // A slave keeps the start pause before its reply too (USS.md section 4).
+    let due = request_end + reply.delay.max(timing.earliest_reply());
     std::thread::sleep(due.saturating_sub(start.elapsed()));
     // On a pty the master can read the reply the moment `write` starts copying it, so the line
     // is free from then on; stamping after `write` returns would move the start pause later by

@@ -96,7 +96,8 @@ impl VirtualWire {
             match self.framer.push(b, t) {
                 Some(Ok(telegram)) => {
                     if let Some(reply) = self.bus.on_telegram(&telegram, t) {
-                        let mut r = t + reply.delay;
+                        // A slave keeps the start pause before its reply too (USS.md section 4).
+                        let mut r = t + reply.delay.max(self.timing.earliest_reply());
                         for (i, &rb) in reply.bytes().iter().enumerate() {
                             r += tz;
                             let error =

@@ -446,3 +446,34 @@ fn telegram_of_wrong_length_is_rejected_silently_and_counted() {
     send(&mut d, &[0, 0, 0, 0], &[0x047E, 0], ms(10)).unwrap();
     assert_eq!(d.params().get(2024, COM_LINK), Some(1), "r2024 good");
 }
+
+#[test]
+fn a_ramp_time_too_short_to_matter_ends_the_ramp_at_once_and_never_gives_nan() {
+    let mut d = drive(PkwMode::Four);
+    // AK 3: P1120 = 1.2e-38 s (the smallest normal floats), accepted by the drive's limits.
+    let tiny = 1.2e-38f32.to_bits();
+    let task = [0x3000 | 1120, 0, (tiny >> 16) as u16, tiny as u16];
+    let (pkw, _) = send(&mut d, &task, &[0x047E, 0], ms(0)).unwrap();
+    assert_eq!(pkw[0] >> 12, 2, "changed: {pkw:04X?}");
+    let t = run_to(&mut d, 0x2000, ms(30));
+    // Same instant again (a zero time step), then later: always 25 Hz, never NaN.
+    for at in [t, t, t + ms(1), t + ms(10)] {
+        let (_, hiw) = control(&mut d, 0x047F, 0x2000, at);
+        assert!(d.frequency_hz().is_finite(), "{}", d.frequency_hz());
+        assert_eq!(d.frequency_hz(), 25.0);
+        assert_eq!(hiw, 0x2000);
+    }
+}
+
+#[test]
+fn states_print_as_the_manuals_name_them() {
+    assert_eq!(State::OperationEnabled.to_string(), "S4 operation enabled");
+    assert_eq!(
+        State::SwitchingOff(Stop::Off3).to_string(),
+        "S5 OFF3 quick stop"
+    );
+    assert_eq!(
+        State::SwitchingOnInhibited.to_string(),
+        "S1 switching on inhibited"
+    );
+}

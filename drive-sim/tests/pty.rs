@@ -181,7 +181,7 @@ fn sigterm_stops_the_simulator_with_a_summary() {
         .unwrap();
     assert!(out.contains("stopped; final state:"), "{out}");
     assert!(
-        out.contains("drive  1: PKW Four PZD 2, ReadyToSwitchOn"),
+        out.contains("drive  1: PKW 4 PZD 2, S2 ready to switch on"),
         "{out}"
     );
     assert!(out.contains("good 1 rejected 0"), "{out}");

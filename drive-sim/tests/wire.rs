@@ -5,7 +5,7 @@
 use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, RxByte, SimBus, VirtualWire};
 use uss_protocol::telegram::{Layout, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, encode};
-use uss_protocol::{Address, Adr, Baud, LineError, Telegram, Timing};
+use uss_protocol::{Address, Adr, Baud, Framer, FramerConfig, LineError, Telegram, Timing};
 
 const BAUD: u32 = 19200;
 
@@ -14,6 +14,10 @@ fn timing() -> Timing {
 }
 
 fn wire(delay_ms: u64) -> VirtualWire {
+    wire_at(timing(), delay_ms)
+}
+
+fn wire_at(timing: Timing, delay_ms: u64) -> VirtualWire {
     let mut bus = SimBus::new(1);
     let mut config = DriveConfig::new(
         Address::new(1).unwrap(),
@@ -21,7 +25,7 @@ fn wire(delay_ms: u64) -> VirtualWire {
     );
     config.response_delay = Duration::from_millis(delay_ms);
     bus.add(config).unwrap();
-    VirtualWire::new(bus, timing())
+    VirtualWire::new(bus, timing)
 }
 
 fn request(stw: u16) -> Vec<u8> {
@@ -169,4 +173,33 @@ fn flush_input_drops_only_what_has_arrived() {
     w.flush_input(first + timing().char_time() * 3);
     assert_eq!(drain(&mut w).len(), 12);
     assert!(first > end);
+}
+
+/// A slave keeps the start pause before its reply too (USS.md section 4): even a drive set to
+/// answer at once starts its reply no sooner than the start pause plus one character time, at
+/// every baud rate, so a strict master takes every reply.
+#[test]
+fn a_reply_never_starts_before_the_start_pause_at_any_baud() {
+    for baud in Baud::STANDARD {
+        let timing = Timing::new(Baud::new(baud).unwrap());
+        for delay_ms in [0, 1] {
+            let mut w = wire_at(timing, delay_ms);
+            let end = w.transmit(&request(0x047E), Duration::ZERO);
+            let rx = drain(&mut w);
+            let stx_done = rx.first().unwrap().at;
+            let delay = Duration::from_millis(delay_ms).max(timing.earliest_reply());
+            assert_eq!(stx_done, end + delay + timing.char_time(), "{baud} baud");
+            assert!(stx_done >= end + timing.start_pause() + timing.char_time());
+            let mut master = Framer::new(FramerConfig::strict(timing));
+            master.line_busy_until(end);
+            let mut complete = false;
+            for b in &rx {
+                if let Some(got) = master.push(b.byte, b.at) {
+                    assert!(got.is_ok(), "{baud} baud, delay {delay_ms}: {got:?}");
+                    complete = true;
+                }
+            }
+            assert!(complete, "{baud} baud, delay {delay_ms}: no telegram");
+        }
+    }
 }

@@ -35,6 +35,12 @@ fn timing() -> Timing {
     Timing::new(Baud::new(BAUD).unwrap())
 }
 
+/// The simulated drives' response delay: 1 ms, but never before the start pause and one
+/// character time (at 19200 baud 1.72 ms).
+fn response() -> Duration {
+    ms(1).max(timing().earliest_reply())
+}
+
 struct Bench {
     engine: TestEngine,
     handle: EngineHandle,
@@ -166,8 +172,8 @@ fn polls_in_list_order_at_the_wire_floor() {
     for _ in 0..300 {
         b.engine.poll_next().unwrap();
     }
-    // Every exchange takes exactly start pause + request + 1 ms response delay + reply.
-    let floor = timing().wire_floor(12, 12, ms(1)).as_nanos() as u64;
+    // Every exchange takes exactly start pause + request + the drive's response delay + reply.
+    let floor = timing().wire_floor(12, 12, response()).as_nanos() as u64;
     let h = &b.engine.stats().histograms.exchange;
     assert_eq!(h.len(), 306);
     assert!(
@@ -191,9 +197,12 @@ fn polls_in_list_order_at_the_wire_floor() {
         );
     }
     let delay = &b.engine.stats().histograms.response_delay;
+    let expected = response().as_nanos() as u64;
     assert!(
-        delay.equivalent(delay.min(), 1_000_000) && delay.equivalent(delay.max(), 1_000_000),
-        "the drive's 1 ms"
+        delay.equivalent(delay.min(), expected) && delay.equivalent(delay.max(), expected),
+        "the drive's response delay, {expected} ns: {}..{}",
+        delay.min(),
+        delay.max()
     );
     let efficiency = b.engine.stats().bus.efficiency().unwrap();
     assert!(
@@ -544,7 +553,7 @@ fn watchdog_latches_the_safe_command_when_the_controller_stops_refreshing() {
     // The controller stops refreshing at `t0`. Until its watchdog time (100 ms) has passed the
     // drive keeps getting "run"; within one poll period after that it gets OFF1.
     let t0 = b.now();
-    let poll = timing().wire_floor(12, 12, ms(1));
+    let poll = timing().wire_floor(12, 12, response());
     let mut first_off = None;
     while first_off.is_none() && b.now() < t0 + ms(500) {
         b.engine.poll_next().unwrap();

@@ -100,6 +100,13 @@ impl Timing {
         Duration::from_nanos(nanos as u64)
     }
 
+    /// The earliest a slave may start its reply after the request's last character: the
+    /// start pause (USS.md section 4: the response delay is at least the start pause), with
+    /// one character time of margin for the scheduling of a real line.
+    pub const fn earliest_reply(self) -> Duration {
+        self.start_pause().saturating_add(self.char_time())
+    }
+
     /// Character time `tz = 11 / baud`.
     pub const fn char_time(self) -> Duration {
         self.chars(1)

@@ -214,7 +214,7 @@ fn engine_drives_a_simulated_drive_over_a_real_pty() {
         "{line} vs {d1:?}"
     );
     assert!(
-        line.contains("SwitchingOff(Off1)") || line.contains("ReadyToSwitchOn"),
+        line.contains("S5 OFF1 ramp-down") || line.contains("S2 ready to switch on"),
         "OFF1 at shutdown: {line}"
     );
 }

@@ -621,7 +621,7 @@ fn a_frozen_controller_over_a_pty_to_uss_sim_does_not_restart_the_drive() {
     // uss-sim's own view of its drive, over the pty: S2 at 0 Hz.
     assert!(
         summary.contains("drive  1:")
-            && summary.contains("ReadyToSwitchOn")
+            && summary.contains("S2 ready to switch on")
             && summary.contains("0.00 Hz"),
         "{summary}"
     );

@@ -5,6 +5,7 @@
 
 mod cli;
 mod commands;
+mod failure;
 mod report;
 
 use clap::Parser;
@@ -21,10 +22,10 @@ use uss_client::{Bus, StopCommand};
 static STOP: LazyLock<Arc<AtomicBool>> = LazyLock::new(|| Arc::new(AtomicBool::new(false)));
 
 /// `watch` and `run` end cleanly on SIGINT/SIGTERM (`run` stops the drive first).
-pub(crate) fn catch_signals() -> Result<(), String> {
+pub(crate) fn catch_signals() -> Result<(), Failure> {
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, Arc::clone(&STOP))
-            .map_err(|e| format!("cannot install a handler of signal {signal}: {e}"))?;
+            .map_err(|source| Failure::Signal { signal, source })?;
     }
     Ok(())
 }
@@ -33,19 +34,7 @@ pub(crate) fn stopped() -> bool {
     STOP.load(Ordering::Relaxed)
 }
 
-/// Why ussctl ends early.
-pub(crate) enum Failure {
-    /// An error to report on stderr (exit 1).
-    Message(String),
-    /// Whoever reads our output went away (`ussctl watch | head`): end quietly.
-    Closed,
-}
-
-impl From<String> for Failure {
-    fn from(message: String) -> Self {
-        Self::Message(message)
-    }
-}
+pub(crate) use failure::Failure;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
@@ -54,7 +43,7 @@ fn main() -> ExitCode {
     uss_client::quiet_iceoryx2_logs();
     match run(&cli) {
         Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,
-        Err(Failure::Message(e)) => {
+        Err(e) => {
             eprintln!("ussctl: {e}");
             ExitCode::FAILURE
         }
@@ -62,12 +51,14 @@ fn main() -> ExitCode {
 }
 
 fn run(cli: &Cli) -> Result<(), Failure> {
-    let mut bus = Bus::open_as(&cli.bus, "ussctl").map_err(|e| e.to_string())?;
+    let mut bus = Bus::open_as(&cli.bus, "ussctl")?;
     if let Some(t) = cli.timeout {
         let t = Duration::try_from_secs_f64(t)
             .ok()
             .filter(|d| !d.is_zero())
-            .ok_or_else(|| format!("--timeout {t}: give a positive number of seconds"))?;
+            .ok_or_else(|| {
+                Failure::Usage(format!("--timeout {t}: give a positive number of seconds"))
+            })?;
         bus.set_answer_timeout(Some(t));
     }
     let out = Output { json: cli.json };
@@ -125,7 +116,7 @@ impl Output {
         human: impl Fn(&T) -> String,
     ) -> Result<(), Failure> {
         let mut text = if self.json {
-            serde_json::to_string(report).map_err(|e| format!("cannot write JSON: {e}"))?
+            serde_json::to_string(report)?
         } else {
             human(report)
         };
@@ -139,7 +130,7 @@ impl Output {
         {
             Ok(()) => Ok(()),
             Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(Failure::Closed),
-            Err(e) => Err(format!("cannot write the output: {e}").into()),
+            Err(e) => Err(Failure::Output(e)),
         }
     }
 

@@ -13,19 +13,13 @@ pub(crate) fn ack(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {
             "drive {drive} shows no fault; acknowledging anyway"
         ));
     }
-    c.acknowledge_fault(Duration::from_secs(1))
-        .map_err(|e| e.to_string())?;
+    c.acknowledge_fault(Duration::from_secs(1))?;
     let last = match c.wait_for(Duration::from_secs(1), "fault cleared", |i| {
         uss_client::state_of(i) != DriveState::Fault
     }) {
         Ok(i) => i,
-        Err(ClientError::WaitTimeout { .. }) => {
-            return Err(format!(
-                "drive {drive}: the fault is still active after the acknowledge, so its cause persists: see `ussctl faults {drive}`"
-            )
-            .into());
-        }
-        Err(e) => return Err(e.to_string().into()),
+        Err(ClientError::WaitTimeout { .. }) => return Err(Failure::FaultPersists { drive }),
+        Err(e) => return Err(e.into()),
     };
     out.show(
         &DriveReport::new(

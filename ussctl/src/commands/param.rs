@@ -15,7 +15,11 @@ pub(crate) fn read(
 ) -> Result<(), Failure> {
     let v = bus
         .read(drive, param.pnu.get(), param.index.map(Subindex::get))
-        .map_err(|e| format!("drive {drive} {param}: {e}"))?;
+        .map_err(|source| Failure::Param {
+            drive,
+            param: param.to_string(),
+            source,
+        })?;
     out.show(
         &ParamReport::new(bus.name(), drive, param, v, kind),
         ParamReport::human,
@@ -33,7 +37,7 @@ pub(crate) struct Write<'a> {
 }
 
 pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failure> {
-    let (value, kind) = cli::parse_value(w.value, w.kind)?;
+    let (value, kind) = cli::parse_value(w.value, w.kind).map_err(Failure::Usage)?;
     let options = WriteOptions {
         eeprom: w.eeprom,
         force: w.force,
@@ -47,7 +51,11 @@ pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failur
             value,
             options,
         )
-        .map_err(|e| format!("drive {drive} {param}: {e}"))?;
+        .map_err(|source| Failure::Param {
+            drive,
+            param: param.to_string(),
+            source,
+        })?;
     // The value the drive now holds, read as the type it was written as.
     let mut report = ParamReport::new(bus.name(), drive, param, now, Some(kind));
     report.eeprom = Some(w.eeprom);
@@ -55,9 +63,11 @@ pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failur
 }
 
 pub(crate) fn faults(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {
-    let faults = bus
-        .faults(drive)
-        .map_err(|e| format!("drive {drive} r0947: {e}"))?;
+    let faults = bus.faults(drive).map_err(|source| Failure::Param {
+        drive,
+        param: "r0947".to_owned(),
+        source,
+    })?;
     out.show(
         &FaultsReport {
             bus: bus.name().to_owned(),

@@ -16,16 +16,15 @@ fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
     let drive = c.address();
     let first = c.inputs().latest();
     if first.online == 0 {
-        return Err(format!(
-            "drive {drive} on {} is offline: check `ussctl status`, its wiring, address and baud rate",
-            bus.name()
-        )
-        .into());
+        return Err(Failure::Offline {
+            drive,
+            bus: bus.name().to_owned(),
+        });
     }
     if uss_client::state_of(&first) == DriveState::Fault {
-        return Err(faulted(drive, &first).into());
+        return Err(faulted(drive, &first));
     }
-    c.enable().map_err(|e| e.to_string())?;
+    c.enable()?;
     c.wait_for(STATE_TIMEOUT, "S2 (ready to switch on)", |i| {
         i.online != 0
             && matches!(
@@ -34,11 +33,9 @@ fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
                     | DriveState::ReadyForOperation
                     | DriveState::OperationEnabled
             )
-    })
-    .map_err(|e| e.to_string())?;
-    c.run_hz(hz).map_err(|e| e.to_string())?;
-    c.wait_for_state(DriveState::OperationEnabled, STATE_TIMEOUT)
-        .map_err(|e| e.to_string())?;
+    })?;
+    c.run_hz(hz)?;
+    c.wait_for_state(DriveState::OperationEnabled, STATE_TIMEOUT)?;
     Ok(())
 }
 
@@ -52,7 +49,7 @@ struct Absence {
 
 impl Absence {
     /// Takes whether the drive answers now; the failure when it stayed away too long.
-    fn note(&mut self, out: &Output, drive: u8, online: bool) -> Option<String> {
+    fn note(&mut self, out: &Output, drive: u8, online: bool) -> Option<Failure> {
         match (online, self.since) {
             (false, None) => {
                 out.note(&format!(
@@ -62,10 +59,10 @@ impl Absence {
                 self.since = Some(Instant::now());
             }
             (false, Some(t)) if t.elapsed() > OFFLINE_GRACE => {
-                return Some(format!(
-                    "drive {drive} went offline while running and did not come back within {} s: check `ussctl status`, its wiring and power",
-                    OFFLINE_GRACE.as_secs()
-                ));
+                return Some(Failure::WentOffline {
+                    drive,
+                    grace: OFFLINE_GRACE,
+                });
             }
             (true, Some(t)) => {
                 out.note(&format!(
@@ -90,7 +87,7 @@ pub(crate) fn run_drive(
     let duration = duration
         .map(|s| {
             Duration::try_from_secs_f64(s)
-                .map_err(|_| format!("--for {s}: give a number of seconds >= 0"))
+                .map_err(|_| Failure::Usage(format!("--for {s}: give a number of seconds >= 0")))
         })
         .transpose()?;
     let c = control(bus, drive)?;
@@ -120,21 +117,19 @@ pub(crate) fn run_drive(
             ) => {
                 // Nothing to stop through: the drive's own telegram monitoring stops it.
                 drop(refresher);
-                return Err(format!("drive {drive}: {e}").into());
+                return Err(Failure::OfDrive { drive, source: e });
             }
             Err(ClientError::Tripped { latch, .. }) => {
                 // Latched by ussd: the drive gets its stop command; leave it so.
                 drop(refresher);
-                return Err(format!(
-                    "drive {drive} on {} tripped after {:.2} s: {latch} ({:.2} s ago); it gets {}, latched: run `ussctl run {drive}` again to re-arm it (OFF1, then ON)",
-                    bus.name(),
-                    start.elapsed().as_secs_f64(),
-                    latch.ago.as_secs_f64(),
-                    latch.command
-                )
-                .into());
+                return Err(Failure::Tripped {
+                    drive,
+                    bus: bus.name().to_owned(),
+                    after: start.elapsed(),
+                    latch,
+                });
             }
-            Err(e) => break Some(e.to_string()),
+            Err(e) => break Some(e.into()),
         };
         let actual = c.inputs().actual_hz();
         if actual.abs() > peak.abs() {
@@ -162,9 +157,9 @@ pub(crate) fn run_drive(
     // Stop whatever happened: OFF1, and make sure the drive received it before leaving it
     // to the watchdog (whose safe command is OFF1 by default too).
     let last = stop_confirmed(&c)?;
-    refresh_result.map_err(|e| e.to_string())?;
+    refresh_result?;
     if let Some(f) = failure {
-        return Err(f.into());
+        return Err(f);
     }
     let mut report = DriveReport::new(bus.name(), "run", &last, drive, ref_hz);
     report.peak_hz = Some(peak);

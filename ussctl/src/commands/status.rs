@@ -8,7 +8,7 @@ use uss_client::Bus;
 /// `status`: the table; with the line down, the table and then the failure (exit 1).
 pub(crate) fn status(bus: &Bus, out: &Output) -> Result<(), Failure> {
     let report = StatusReport {
-        bus: BusReport::new(bus.name(), &bus.status().map_err(|e| e.to_string())?),
+        bus: BusReport::new(bus.name(), &bus.status()?),
         drives: diags(bus)?.iter().map(DriveRow::new).collect(),
     };
     out.show(&report, StatusReport::human)?;
@@ -16,7 +16,7 @@ pub(crate) fn status(bus: &Bus, out: &Output) -> Result<(), Failure> {
 }
 
 pub(crate) fn stats(bus: &Bus, out: &Output) -> Result<(), Failure> {
-    let status = bus.status().map_err(|e| e.to_string())?;
+    let status = bus.status()?;
     let report = StatsReport {
         bus: BusReport::new(bus.name(), &status),
         drives: diags(bus)?

@@ -20,16 +20,20 @@ pub(crate) fn stop(
 ) -> Result<(), Failure> {
     let drives = match target.drive {
         Some(drive) => {
-            bus.stop_drive(drive, command).map_err(|e| e.to_string())?;
+            bus.stop_drive(drive, command)?;
             vec![drive]
         }
-        None => bus.stop_all(command).map_err(|e| e.to_string())?,
+        None => bus.stop_all(command)?,
     };
     let mut report = StopReport::new(bus.name(), command);
     for drive in drives {
         let last = bus
             .wait_stopped(drive, command, STOP_TIMEOUT)
-            .map_err(|e| format!("drive {drive}: {command} sent, not yet confirmed: {e}"))?;
+            .map_err(|source| Failure::StopUnconfirmed {
+                drive,
+                command,
+                source,
+            })?;
         report.push(drive, &last);
     }
     out.show(&report, StopReport::human)

@@ -21,8 +21,7 @@ pub(crate) fn watch(
     let watches = addresses
         .iter()
         .map(|&a| bus.watch(a))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| e.to_string())?;
+        .collect::<Result<Vec<_>, _>>()?;
     catch_signals()?;
     let start = Instant::now();
     let interval = Duration::from_millis(interval_ms.max(1));
@@ -37,7 +36,7 @@ pub(crate) fn watch(
         let t = start.elapsed().as_secs_f64();
         for w in &watches {
             // A stale picture is never shown: ussd gone, stopped or its line down ends it.
-            let image = w.read().map_err(|e| e.to_string())?;
+            let image = w.read()?;
             out.show(
                 &WatchLine::new(t, w.address(), &image, w.info().reference_hz),
                 WatchLine::human,

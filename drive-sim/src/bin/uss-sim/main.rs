@@ -180,9 +180,9 @@ fn describe(d: &Drive) -> String {
     let c = d.config();
     let n = d.counters();
     format!(
-        "drive {:2}: PKW {:?} PZD {}, {:?} {:6.2} Hz ZSW1 0x{:04X}; telegrams good {} rejected {} (BCC {} length {} start {})",
+        "drive {:2}: PKW {} PZD {}, {} {:6.2} Hz ZSW1 0x{:04X}; telegrams good {} rejected {} (BCC {} length {} start {})",
         c.address,
-        c.layout.pkw,
+        c.layout.pkw.p2013(),
         c.layout.pzd.get(),
         d.state(),
         d.frequency_hz(),

@@ -1,0 +1,111 @@
+//! Why ussctl ends early: one variant per kind of failure, each saying what to do. All exit 1
+//! (clap's usage errors exit 2), except a closed output, which ends quietly.
+
+use core::time::Duration;
+use uss_client::{ClientError, Latch, ParamError, StopCommand};
+
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum Failure {
+    /// The bus or ussd (not running, gone, stopped, line down), or a refusal of the client API.
+    #[error(transparent)]
+    Client(#[from] ClientError),
+    /// The same, while running one drive (ussd gone, stopped, line down).
+    #[error("drive {drive}: {source}")]
+    OfDrive { drive: u8, source: ClientError },
+    /// A parameter access of a drive; `param` as the manuals write it, e.g. `P1082`.
+    #[error("drive {drive} {param}: {source}")]
+    Param {
+        drive: u8,
+        param: String,
+        source: ParamError,
+    },
+    /// An operator's stop went to ussd but the drive's image does not show it yet.
+    #[error("drive {drive}: {command} sent, not yet confirmed: {source}")]
+    StopUnconfirmed {
+        drive: u8,
+        command: StopCommand,
+        source: ClientError,
+    },
+    #[error(
+        "drive {drive} on {bus} is offline: check `ussctl status`, its wiring, address and baud rate"
+    )]
+    Offline { drive: u8, bus: String },
+    #[error(
+        "drive {drive} went offline while running and did not come back within {} s: check `ussctl status`, its wiring and power",
+        .grace.as_secs()
+    )]
+    WentOffline { drive: u8, grace: Duration },
+    #[error(
+        "drive {drive} is in fault (ZSW1 {zsw1:#06X}): see `ussctl faults {drive}`, then acknowledge with `ussctl ack {drive}`"
+    )]
+    Faulted { drive: u8, zsw1: u16 },
+    #[error(
+        "drive {drive}: the fault is still active after the acknowledge, so its cause persists: see `ussctl faults {drive}`"
+    )]
+    FaultPersists { drive: u8 },
+    /// ussd latched the drive while `run` ran it: it gets its stop command until re-armed.
+    #[error(
+        "drive {drive} on {bus} tripped after {:.2} s: {latch} ({:.2} s ago); it gets {}, latched: run `ussctl run {drive}` again to re-arm it (OFF1, then ON)",
+        .after.as_secs_f64(), .latch.ago.as_secs_f64(), .latch.command
+    )]
+    Tripped {
+        drive: u8,
+        bus: String,
+        after: Duration,
+        latch: Latch,
+    },
+    /// A value on the command line that clap cannot check by itself.
+    #[error("{0}")]
+    Usage(String),
+    #[error("cannot install a handler of signal {signal}: {source}")]
+    Signal { signal: i32, source: std::io::Error },
+    #[error("cannot write JSON: {0}")]
+    Json(#[from] serde_json::Error),
+    #[error("cannot write the output: {0}")]
+    Output(std::io::Error),
+    /// Whoever reads our output went away (`ussctl watch | head`): end quietly.
+    #[error("the output was closed")]
+    Closed,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use uss_client::{LatchReason, Rejection};
+
+    #[test]
+    fn each_failure_says_what_happened_and_what_to_do() {
+        let latch = Latch {
+            reason: LatchReason::Stale,
+            command: StopCommand::Off1,
+            rejection: Rejection::None,
+            by_pid: 0,
+            ago: Duration::from_millis(250),
+        };
+        let tripped = Failure::Tripped {
+            drive: 2,
+            bus: "line1".into(),
+            after: Duration::from_millis(1500),
+            latch,
+        };
+        assert!(
+            tripped.to_string().starts_with(&format!(
+                "drive 2 on line1 tripped after 1.50 s: {latch} (0.25 s ago); it gets OFF1, latched: run `ussctl run 2` again"
+            )),
+            "{tripped}"
+        );
+        let fault = Failure::Faulted {
+            drive: 3,
+            zsw1: 0xFB38,
+        };
+        assert_eq!(
+            fault.to_string(),
+            "drive 3 is in fault (ZSW1 0xFB38): see `ussctl faults 3`, then acknowledge with `ussctl ack 3`"
+        );
+        let gone = Failure::WentOffline {
+            drive: 1,
+            grace: Duration::from_secs(3),
+        };
+        assert!(gone.to_string().contains("did not come back within 3 s"));
+    }
+}
