@@ -28,6 +28,8 @@ pub const DEFAULT_NODE_NAME: &str = "uss-client";
 pub struct Bus {
     link: Arc<Link>,
     answer_timeout: Option<Duration>,
+    /// Data types the drives described (AK 4) for parameters the catalogue does not know.
+    pub(crate) described: crate::typed::Described,
 }
 
 impl core::fmt::Debug for Bus {
@@ -58,6 +60,7 @@ impl Bus {
             .create::<Ipc>()
             .map_err(|e| ClientError::ipc("creating the iceoryx2 node", e))?;
         Ok(Bus {
+            described: crate::typed::Described::default(),
             link: Arc::new(Link::open(name, node)?),
             answer_timeout: None,
         })

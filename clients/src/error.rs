@@ -316,6 +316,10 @@ pub enum ParamError {
     /// is [`ParamError::Refused`].
     #[error(transparent)]
     Path(#[from] PathError),
+    /// A value that does not fit the parameter (its type, or a read-only parameter), refused
+    /// before the bus.
+    #[error("{param}: {problem}")]
+    Value { param: String, problem: String },
     /// A write to a drive another process controls, not marked deliberate (force).
     #[error(
         "drive {address} is controlled by process {pid}: a parameter write from another process is refused; stop that controller first, or force the write if it is deliberate (ussctl param write --force)"

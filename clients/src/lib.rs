@@ -69,6 +69,7 @@ mod link;
 mod open;
 pub mod params;
 mod request;
+mod typed;
 mod watch;
 
 pub use bus::{Bus, DEFAULT_NODE_NAME};
@@ -76,6 +77,8 @@ pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, HANDSHAKE_TIMEOUT
 pub use error::{ClientError, Latch, ParamError};
 pub use link::Health;
 pub use params::WriteOptions;
+pub use typed::{Fault, FaultReport, ParamValue, Warning};
+pub use uss_catalogue::{Catalogue, DataType, Typed};
 pub use uss_protocol::{DriveState, ParamTask, Pnu, Setpoint, Stw1, Subindex, Value, Zsw1};
 pub use uss_shm_types::{
     BusState, BusStatus, ControlState, DriveDiag, DriveError, DriveInfo, LatchReason, LineFault,
@@ -84,7 +87,7 @@ pub use uss_shm_types::{
 };
 pub use watch::{CycleEvent, CycleListener, DriveWatch};
 /// The protocol and contract crates this API speaks, so applications use the same versions.
-pub use {uss_protocol, uss_shm_types};
+pub use {uss_catalogue, uss_protocol, uss_shm_types};
 
 /// The PROFIdrive state of an input image.
 pub fn state_of(input: &PzdInput) -> DriveState {

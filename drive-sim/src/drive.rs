@@ -8,7 +8,7 @@
 
 use crate::params::{
     COM_LINK, DriveContext, P0700, P1000, P1080, P1082, P1120, P1121, P1135, P2000, P2011, P2012,
-    P2013, P2014, ParamTable, R0021, R0052, R0054, R0947, R2024,
+    P2013, P2014, ParamTable, R0021, R0052, R0054, R0947, R0949, R2024,
 };
 use core::time::Duration;
 use uss_protocol::pkw::{ParamError, ParamReply, ParamTask, PkwError, Pnu, ReplyKind};
@@ -237,15 +237,23 @@ impl Drive {
 
     /// Trips the drive with a fault code (as an overcurrent or the telegram monitor would).
     pub fn trip(&mut self, code: u16) {
+        self.trip_with_value(code, 0);
+    }
+
+    /// Trips the drive with a fault code and its fault value (r0949).
+    pub fn trip_with_value(&mut self, code: u16, value: u16) {
         self.state = State::Fault;
         self.frequency_hz = 0.0;
         if self.fault.is_none() {
-            // r0947: the newest fault first, older ones shift down.
-            for i in (1..8).rev() {
-                let older = self.params.get(R0947, i - 1).unwrap_or(0);
-                self.params.set_internal(R0947, i, older);
+            // r0947 / r0949: the newest fault first, older ones shift down.
+            for pnu in [R0947, R0949] {
+                for i in (1..8).rev() {
+                    let older = self.params.get(pnu, i - 1).unwrap_or(0);
+                    self.params.set_internal(pnu, i, older);
+                }
             }
             self.params.set_internal(R0947, 0, u32::from(code));
+            self.params.set_internal(R0949, 0, u32::from(value));
         }
         self.fault = Some(code);
         self.publish();

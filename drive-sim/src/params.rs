@@ -209,6 +209,7 @@ pub const P0700: u16 = 700;
 pub const P0719: u16 = 719;
 pub const P0927: u16 = 927;
 pub const R0947: u16 = 947;
+pub const R0949: u16 = 949;
 pub const P0970: u16 = 970;
 pub const P1000: u16 = 1000;
 pub const P1058: u16 = 1058;
@@ -231,6 +232,7 @@ pub const R2028: u16 = 2028;
 pub const R2029: u16 = 2029;
 pub const R2030: u16 = 2030;
 pub const R2031: u16 = 2031;
+pub const R2110: u16 = 2110;
 
 /// P0927 bit 3: parameters may be changed over USS on the COM link.
 pub const P0927_USS_COM: u32 = 1 << 3;
@@ -298,6 +300,9 @@ const DEFS: &[ParamDef] = {
             .limits(0.0, 15.0)
             .default_raw(15),
         ParamDef::new(R0947, "r0947 CO: Last fault code", U16, ReadOnly, 2)
+            .limits(0.0, U16_MAX)
+            .array(8),
+        ParamDef::new(R0949, "r0949 CO: Fault value", U16, ReadOnly, 3)
             .limits(0.0, U16_MAX)
             .array(8),
         ParamDef::new(P0970, "P0970 Factory reset", U16, Commissioning, 1).limits(0.0, 1.0),
@@ -377,6 +382,9 @@ const DEFS: &[ParamDef] = {
             .limits(0.0, U16_MAX),
         ParamDef::new(R2031, "r2031 USS length error", U16, ReadOnly, 3)
             .array(2)
+            .limits(0.0, U16_MAX),
+        ParamDef::new(R2110, "r2110 CO: Warning number", U16, ReadOnly, 2)
+            .array(4)
             .limits(0.0, U16_MAX),
     ]
 };

@@ -106,8 +106,11 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
     let (seen, live) = control_until(&running, &publisher, &input);
     let (allocations, stats) = bus_thread.join().unwrap();
     assert_eq!(allocations, 0, "the bus thread allocated during 3000 polls");
+    // The controller thread runs in real time beside a bus thread on a virtual clock: how many
+    // live images it sees depends on the machine's load (over 100 when idle, 49 seen while
+    // a compiler ran beside it); a handful proves the words went through.
     assert!(
-        live > 100,
+        live > 10,
         "the drive ran on the controller's words ({live})"
     );
     let rejected: u64 = stats

@@ -14,8 +14,8 @@ use std::time::{Duration, Instant};
 use uss_client::DriveError;
 use uss_client::uss_protocol::ParamError as DriveSays;
 use uss_client::{
-    Bus, ClientError, ControlOptions, CycleEvent, DriveState, LatchReason, ParamError, ParamItem,
-    ParamRequest, RequestError, Value,
+    Bus, Catalogue, ClientError, ControlOptions, CycleEvent, DataType, DriveState, LatchReason,
+    ParamError, ParamItem, ParamRequest, RequestError, Typed, Value,
 };
 use uss_integration_tests::{binary, read, terminate};
 
@@ -618,6 +618,147 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
     refresher.stop().unwrap();
 }
 
+/// The Rust API reads and writes parameters as their own type; a parameter the catalogue does
+/// not know is typed by the drive's own description (AK 4, element 1), asked once.
+#[test]
+fn parameters_are_read_and_written_as_their_own_type() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+    let p = |s: &str| s.parse::<uss_client::uss_protocol::ParamRef>().unwrap();
+    let v = bus.read_param(1, p("1082")).unwrap();
+    assert_eq!(v.to_string(), "P1082 = 50.00 Hz");
+    assert_eq!(
+        (v.typed(), v.unit(), v.name()),
+        (Typed::Float(50.0), "Hz", Some("Max. frequency"))
+    );
+    let options = uss_client::WriteOptions::default();
+    let v = bus.write_param(1, p("P1120"), "2", options).unwrap();
+    assert_eq!(
+        (v.typed(), v.to_string()),
+        (Typed::Float(2.0), "P1120 = 2.00 s".to_owned())
+    );
+    assert_eq!(
+        bus.write_param(1, p("P0700"), "-1", options),
+        Err(ParamError::Value {
+            param: "P0700".into(),
+            problem: "-1 does not fit U16 (0..=65535)".into()
+        })
+    );
+
+    // A catalogue that knows nothing: the drive describes each parameter's type, once.
+    let empty = Catalogue::parse(
+        "family = \"none\"\nparam = []\nfault = []\nwarning = []\n",
+        "empty",
+    )
+    .unwrap();
+    let bus = ussd.bus().with_catalogue(Box::leak(Box::new(empty)));
+    let jobs_done = |settle: Duration| {
+        std::thread::sleep(settle);
+        bus.diag(1).unwrap().counters.jobs_done
+    };
+    let before = jobs_done(Duration::from_millis(500));
+    let v = bus.read_param(1, p("1082")).unwrap();
+    assert_eq!(
+        (v.data_type, v.info, v.to_string()),
+        (DataType::Float, None, "P1082 = 50.00".to_owned())
+    );
+    let again = bus.read_param(1, p("1082")).unwrap();
+    assert_eq!(again.typed(), Typed::Float(50.0));
+    let w = bus.read_param(1, p("700")).unwrap();
+    assert_eq!((w.data_type, w.typed()), (DataType::U16, Typed::U16(5)));
+    // Two descriptions (P1082, P0700) and three reads reached the drive.
+    assert_eq!(jobs_done(Duration::from_millis(600)) - before, 5);
+}
+
+#[test]
+fn ussctl_reads_and_writes_parameters_in_their_own_type_and_unit() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    // Parameters in their own type and unit, in the manuals' notation.
+    let read = |args: &[&str]| {
+        let out = ussd.ussctl(&[&["param", "read"], args].concat());
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        text(&out.stdout)
+    };
+    assert_eq!(
+        read(&["1", "P1082"]),
+        "drive 1 P1082 = 50.00 Hz  (Max. frequency)\n"
+    );
+    assert_eq!(
+        read(&["1", "21"]),
+        "drive 1 r0021 = 0.00 Hz  (CO: Act. frequency)\n",
+        "the catalogue's prefix and four digits"
+    );
+    assert_eq!(
+        read(&["1", "P0700"]),
+        "drive 1 P0700 = 5  (Selection of command source)\n"
+    );
+    assert!(
+        read(&["1", "r0052"]).starts_with("drive 1 r0052 = 0xBB31  (CO/BO: Act. status word 1): "),
+        "a status word with its bits named"
+    );
+    assert_eq!(
+        read(&["1", "r0947[0]"]),
+        "drive 1 r0947[0] = 0  (CO: Last fault code)\n"
+    );
+    assert_eq!(
+        read(&["1", "1082", "--type", "dword"]),
+        "drive 1 P1082 = 1112014848\n",
+        "--type overrides"
+    );
+    let out = ussd.ussctl(&["--json", "param", "read", "1", "r0947.2"]);
+    assert_eq!(
+        text(&out.stdout),
+        format!(
+            "{{\"bus\":\"{}\",\"drive\":1,\"param\":\"r0947[2]\",\"pnu\":947,\"index\":2,\"name\":\"CO: Last fault code\",\"type\":\"U16\",\"unit\":\"\",\"raw\":0,\"hex\":\"0x0000\",\"value\":0}}\n",
+            ussd.bus
+        )
+    );
+    // Writes convert to the parameter's type: 45 is 45.0 for a float parameter.
+    let out = ussd.ussctl(&["param", "write", "2", "P1082", "45"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(
+        text(&out.stdout),
+        "drive 2 P1082 := 45.00 Hz, RAM  (Max. frequency)\n"
+    );
+    assert_eq!(ussd.bus().read_f32(2, 1082, None), Ok(45.0));
+    let out = ussd.ussctl(&["param", "write", "2", "1120", "3.5"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(
+        text(&out.stdout),
+        "drive 2 P1120 := 3.50 s, RAM  (Ramp-up time)\n"
+    );
+    assert_eq!(ussd.bus().read_f32(2, 1120, None), Ok(3.5));
+    // What does not fit the type, or a read-only parameter, is refused before the bus.
+    for (args, said) in [
+        (
+            ["2", "P0700", "70000"],
+            "ussctl: drive 2 P0700: 70000 does not fit U16 (0..=65535)\n",
+        ),
+        (
+            ["2", "P0700", "4.5"],
+            "ussctl: drive 2 P0700: 4.5 is not a whole number, and U16 holds only whole numbers\n",
+        ),
+        (
+            ["2", "r0021", "5"],
+            "ussctl: drive 2 r0021: read-only: a monitoring (r) parameter cannot be written\n",
+        ),
+    ] {
+        let out = ussd.ussctl(&[&["param", "write"], &args[..]].concat());
+        assert_eq!(out.status.code(), Some(1));
+        assert_eq!(text(&out.stderr), said);
+    }
+    // --type sends what it says; the drive judges it (a word to a float parameter: error 5).
+    let out = ussd.ussctl(&["param", "write", "2", "1120", "3", "--type", "word"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        text(&out.stderr).contains("error 5: wrong data type"),
+        "{}",
+        text(&out.stderr)
+    );
+}
+
 #[test]
 fn ussctl_prints_status_as_json_and_reads_and_writes_parameters() {
     let _serial = serial();
@@ -650,39 +791,10 @@ fn ussctl_prints_status_as_json_and_reads_and_writes_parameters() {
     assert!(table.contains("addr  online  state"), "{table}");
     assert!(table.contains("   2  yes     S2"), "{table}");
 
-    let out = ussd.ussctl(&["param", "read", "1", "1082", "--type", "float"]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    assert_eq!(
-        text(&out.stdout),
-        "drive 1 P1082 = 50.0 (dword 0x42480000)\n"
-    );
-    let out = ussd.ussctl(&["--json", "param", "read", "1", "r0947.2"]);
-    assert_eq!(
-        text(&out.stdout),
-        format!(
-            "{{\"bus\":\"{}\",\"drive\":1,\"param\":\"r0947[2]\",\"pnu\":947,\"index\":2,\"type\":\"word\",\"raw\":0,\"hex\":\"0x0000\",\"value\":0}}\n",
-            ussd.bus
-        )
-    );
-    let out = ussd.ussctl(&["param", "write", "2", "1120", "3.5"]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    assert_eq!(
-        text(&out.stdout),
-        "drive 2 P1120 := 3.5 (dword 0x40600000), RAM\n"
-    );
-    assert_eq!(ussd.bus().read_f32(2, 1120, None), Ok(3.5));
-    let out = ussd.ussctl(&["param", "write", "2", "1120", "3"]);
-    assert_eq!(out.status.code(), Some(1));
-    assert!(
-        text(&out.stderr).contains("error 5: wrong data type"),
-        "{}",
-        text(&out.stderr)
-    );
-
     let out = ussd.ussctl(&["faults", "3"]);
     assert_eq!(
         text(&out.stdout),
-        "drive 3: no faults recorded (r0947 empty)\n"
+        "drive 3: no faults recorded (r0947 empty)\nactive warnings (r2110): none\n"
     );
     let out = ussd.ussctl(&["--json", "watch", "--count", "2", "--interval", "50", "1"]);
     let lines = text(&out.stdout);
@@ -711,10 +823,22 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
         .unwrap();
     assert_eq!(faulted.zsw1 & 0x0008, 0x0008);
     assert_eq!(bus.faults(3), Ok(vec![72, 0, 0, 0, 0, 0, 0, 0]));
+    assert_eq!(
+        bus.fault_report(3),
+        Ok(uss_client::FaultReport {
+            faults: vec![uss_client::Fault {
+                slot: 0,
+                number: 72,
+                value: Some(0),
+                text: Some("USS (COM link) setpoint fault")
+            }],
+            warnings: Some(Vec::new()),
+        })
+    );
     let out = ussd.ussctl(&["faults", "3"]);
     assert_eq!(
         text(&out.stdout),
-        "drive 3 fault buffer r0947, newest first:\n  0: F0072\n"
+        "drive 3 fault buffer r0947, newest first:\n  0: F0072 USS (COM link) setpoint fault (fault value r0949 = 0)\nactive warnings (r2110): none\n"
     );
 
     // A faulted drive is not run: ussctl says what to do.

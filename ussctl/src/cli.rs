@@ -87,7 +87,8 @@ pub enum ParamCommand {
         drive: u8,
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
-        /// How to show the value (default: as the drive replied).
+        /// How to show the value (default: the parameter's own type, from the catalogue or the
+        /// drive's description).
         #[arg(long = "type", value_enum)]
         kind: Option<Kind>,
     },
@@ -96,19 +97,32 @@ pub enum ParamCommand {
         drive: u8,
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
-        /// A number: decimal, 0x hex, negative, or with a '.' for a float.
+        /// A number: decimal, 0x hex, negative, or with a decimal point (converted to the
+        /// parameter's type).
         #[arg(allow_negative_numbers = true)]
         value: String,
         /// Store in EEPROM as well as RAM (survives a power cycle).
         #[arg(long)]
         eeprom: bool,
-        /// The parameter's type (default: float if VALUE has a '.', else word).
+        /// The type to send (default: the parameter's own type, from the catalogue or the
+        /// drive's description; VALUE is converted to it and refused when it does not fit).
         #[arg(long = "type", value_enum)]
         kind: Option<Kind>,
         /// Write even though another process controls the drive (a deliberate act).
         #[arg(long)]
         force: bool,
     },
+}
+
+impl Kind {
+    /// The data type a `--type` stands for.
+    pub const fn data_type(self) -> uss_client::DataType {
+        match self {
+            Self::Word => uss_client::DataType::U16,
+            Self::Dword => uss_client::DataType::U32,
+            Self::Float => uss_client::DataType::Float,
+        }
+    }
 }
 
 /// A parameter's type on the wire (USS.md section 6).

@@ -19,6 +19,9 @@ pub(crate) enum Failure {
         param: String,
         source: ParamError,
     },
+    /// A value that does not fit the parameter, refused before the bus.
+    #[error("drive {drive} {source}")]
+    Value { drive: u8, source: ParamError },
     /// An operator's stop went to ussd but the drive's image does not show it yet.
     #[error("drive {drive}: {command} sent, not yet confirmed: {source}")]
     StopUnconfirmed {

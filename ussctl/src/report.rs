@@ -1,13 +1,13 @@
 //! What ussctl prints: one report type per answer, shown as a table or text for people and
 //! as JSON (`--json`) for machines. The JSON field names are part of ussctl's interface.
 
-use crate::cli::{Kind, ParamRef};
 use serde::Serialize;
 use std::fmt::Write as _;
+use uss_client::uss_catalogue::Bits;
 use uss_client::uss_protocol::Subindex;
 use uss_client::{
-    BusStatus, DriveDiag, LatchReason, Monitoring, PzdInput, Setpoint, StopCommand, Value,
-    state_name, zsw1_flags,
+    BusStatus, DriveDiag, FaultReport, LatchReason, Monitoring, ParamValue, PzdInput, Setpoint,
+    StopCommand, Typed, Value, state_name, zsw1_flags,
 };
 use uss_shm_types::DriveInfo;
 use uss_shm_types::diag::{LastFailure, NEVER, RtMode};
@@ -508,7 +508,7 @@ impl WatchLine {
     }
 }
 
-/// A parameter value read or written.
+/// `param read` / `param write`: the value in the parameter's own type and unit.
 #[derive(Debug, Serialize)]
 pub struct ParamReport {
     pub bus: String,
@@ -517,67 +517,111 @@ pub struct ParamReport {
     pub param: String,
     pub pnu: u16,
     pub index: Option<u8>,
-    /// "word" or "dword", as the drive replied.
+    /// The catalogue's name; null for a parameter it does not know.
+    pub name: Option<&'static str>,
+    /// The data type: "float", "U16", "I16", "U32", "I32".
     #[serde(rename = "type")]
-    pub kind: &'static str,
+    pub data_type: String,
+    /// "Hz", "s", ...; empty when none or not known.
+    pub unit: &'static str,
     pub raw: u32,
     pub hex: String,
-    /// The value as the type asked for (`--type`), or the raw number; a float for float.
+    /// The value in its type: a float for float, an integer otherwise.
     pub value: serde_json::Value,
+    /// A status or control word's set bits by name (r0052, r0054).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub bits: Vec<&'static str>,
     /// Set for a write: whether it went to EEPROM too.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub eeprom: Option<bool>,
+    /// The value as shown to people: `50.00 Hz`.
+    #[serde(skip)]
+    shown: String,
 }
 
 impl ParamReport {
-    pub fn new(bus: &str, drive: u8, param: ParamRef, v: Value, shown: Option<Kind>) -> Self {
-        let (kind, hex) = match v {
-            Value::Word(w) => ("word", format!("{w:#06X}")),
-            Value::Dword(d) => ("dword", format!("{d:#010X}")),
+    pub fn new(bus: &str, drive: u8, v: &ParamValue) -> Self {
+        let typed = v.typed();
+        let value = match typed {
+            Typed::Float(f) => f64::from(f).into(),
+            Typed::I16(n) => n.into(),
+            Typed::I32(n) => n.into(),
+            Typed::U16(n) => n.into(),
+            Typed::U32(n) => n.into(),
         };
-        let value = match shown {
-            Some(Kind::Float) => f64::from(v.as_f32()).into(),
-            Some(Kind::Word) => (v.as_u32() as u16).into(),
-            Some(Kind::Dword) | None => v.as_u32().into(),
+        let bits = match v.info.and_then(|p| p.bits) {
+            Some(Bits::ZSW1) => zsw1_flags(v.raw.as_u32() as u16),
+            Some(Bits::STW1) => stw1_bits(v.raw.as_u32() as u16),
+            None => Vec::new(),
         };
         Self {
             bus: bus.to_owned(),
             drive,
-            param: param.to_string(),
-            pnu: param.pnu.get(),
-            index: param.index.map(Subindex::get),
-            kind,
-            raw: v.as_u32(),
-            hex,
+            param: v.param.to_string(),
+            pnu: v.param.pnu.get(),
+            index: v.param.index.map(Subindex::get),
+            name: v.name(),
+            data_type: v.data_type.to_string(),
+            unit: v.unit(),
+            raw: v.raw.as_u32(),
+            hex: match v.raw {
+                Value::Word(w) => format!("{w:#06X}"),
+                Value::Dword(d) => format!("{d:#010X}"),
+            },
             value,
+            bits,
             eeprom: None,
+            shown: v.shown(),
         }
     }
 
     pub fn human(&self) -> String {
-        let head = format!("drive {} {}", self.drive, self.param);
-        let value = if self.value.is_f64() {
-            format!("{} ({} {})", self.value, self.kind, self.hex)
-        } else if self.kind == "dword" {
-            // Most MICROMASTER double words are floats: show both readings.
-            format!(
-                "{} ({} {}; as float {})",
-                self.raw,
-                self.kind,
-                self.hex,
-                f32::from_bits(self.raw)
-            )
-        } else {
-            format!("{} ({} {})", self.value, self.kind, self.hex)
-        };
-        match self.eeprom {
-            None => format!("{head} = {value}"),
+        let mut out = match self.eeprom {
+            None => format!("drive {} {} = {}", self.drive, self.param, self.shown),
             Some(eeprom) => format!(
-                "{head} := {value}{}",
+                "drive {} {} := {}{}",
+                self.drive,
+                self.param,
+                self.shown,
                 if eeprom { ", RAM and EEPROM" } else { ", RAM" }
             ),
+        };
+        if let Some(name) = self.name {
+            let _ = write!(out, "  ({name})");
         }
+        if !self.bits.is_empty() {
+            let _ = write!(out, ": {}", self.bits.join(", "));
+        }
+        out
     }
+}
+
+/// The set bits of a control word 1 by name (USS.md section 7).
+fn stw1_bits(stw1: u16) -> Vec<&'static str> {
+    const NAMES: [&str; 16] = [
+        "ON",
+        "no-OFF2",
+        "no-OFF3",
+        "pulses-enabled",
+        "RFG-enabled",
+        "RFG-start",
+        "setpoint-enabled",
+        "fault-ack",
+        "jog-right",
+        "jog-left",
+        "control-by-PLC",
+        "reverse",
+        "bit12",
+        "motor-pot-up",
+        "motor-pot-down",
+        "local-remote",
+    ];
+    NAMES
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| stw1 & (1 << i) != 0)
+        .map(|(_, &n)| n)
+        .collect()
 }
 
 /// `faults`.
@@ -585,19 +629,84 @@ impl ParamReport {
 pub struct FaultsReport {
     pub bus: String,
     pub drive: u8,
-    /// r0947, newest first; 0 = empty slot.
-    pub faults: Vec<u16>,
+    /// r0947 with r0949, newest first; empty slots left out.
+    pub faults: Vec<FaultEntry>,
+    /// r2110; null when the drive has no r2110.
+    pub warnings: Option<Vec<WarningEntry>>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct FaultEntry {
+    /// Element of r0947: 0 is the newest.
+    pub slot: u8,
+    pub number: u16,
+    /// `F0072`.
+    pub code: String,
+    /// r0949; null when the drive has no r0949.
+    pub value: Option<u16>,
+    pub text: Option<&'static str>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct WarningEntry {
+    pub number: u16,
+    /// `A0501`.
+    pub code: String,
+    pub text: Option<&'static str>,
 }
 
 impl FaultsReport {
-    pub fn human(&self) -> String {
-        if self.faults.iter().all(|&f| f == 0) {
-            return format!("drive {}: no faults recorded (r0947 empty)\n", self.drive);
+    pub fn new(bus: &str, drive: u8, r: &FaultReport) -> Self {
+        Self {
+            bus: bus.to_owned(),
+            drive,
+            faults: r
+                .faults
+                .iter()
+                .map(|f| FaultEntry {
+                    slot: f.slot,
+                    number: f.number,
+                    code: format!("F{:04}", f.number),
+                    value: f.value,
+                    text: f.text,
+                })
+                .collect(),
+            warnings: r.warnings.as_ref().map(|w| {
+                w.iter()
+                    .map(|w| WarningEntry {
+                        number: w.number,
+                        code: format!("A{:04}", w.number),
+                        text: w.text,
+                    })
+                    .collect()
+            }),
         }
-        let mut out = format!("drive {} fault buffer r0947, newest first:\n", self.drive);
-        for (i, f) in self.faults.iter().enumerate() {
-            if *f != 0 {
-                let _ = writeln!(out, "  {i}: F{f:04}");
+    }
+
+    pub fn human(&self) -> String {
+        let mut out = if self.faults.is_empty() {
+            format!("drive {}: no faults recorded (r0947 empty)\n", self.drive)
+        } else {
+            format!("drive {} fault buffer r0947, newest first:\n", self.drive)
+        };
+        for f in &self.faults {
+            let _ = write!(out, "  {}: {}", f.slot, f.code);
+            if let Some(text) = f.text {
+                let _ = write!(out, " {text}");
+            }
+            if let Some(v) = f.value {
+                let _ = write!(out, " (fault value r0949 = {v})");
+            }
+            out.push('\n');
+        }
+        match &self.warnings {
+            None => {}
+            Some(w) if w.is_empty() => out.push_str("active warnings (r2110): none\n"),
+            Some(w) => {
+                out.push_str("active warnings (r2110):\n");
+                for w in w {
+                    let _ = writeln!(out, "  {} {}", w.code, w.text.unwrap_or("(no text known)"));
+                }
             }
         }
         out
@@ -820,46 +929,96 @@ mod tests {
     }
 
     #[test]
-    fn float_parameters_show_both_readings() {
-        let r = |v, shown| ParamReport::new("b0", 1, "P1082".parse().unwrap(), v, shown);
-        let p = r(Value::Dword(0x4248_0000), None);
+    fn parameters_show_in_their_type_and_unit() {
+        let info = uss_client::Catalogue::micromaster4().param(1082);
+        let v = ParamValue {
+            param: "P1082".parse().unwrap(),
+            raw: Value::Dword(0x4248_0000),
+            data_type: uss_client::DataType::Float,
+            info,
+        };
+        let p = ParamReport::new("b0", 1, &v);
+        assert_eq!(p.human(), "drive 1 P1082 = 50.00 Hz  (Max. frequency)");
         assert_eq!(
-            p.human(),
-            "drive 1 P1082 = 1112014848 (dword 0x42480000; as float 50)"
-        );
-        let v = serde_json::to_value(&p).unwrap();
-        assert_eq!(
-            v,
+            serde_json::to_value(&p).unwrap(),
             serde_json::json!({"bus": "b0", "drive": 1, "param": "P1082", "pnu": 1082, "index": null,
-                               "type": "dword", "raw": 1_112_014_848_u32, "hex": "0x42480000",
-                               "value": 1_112_014_848_u32})
+                               "name": "Max. frequency", "type": "float", "unit": "Hz",
+                               "raw": 1_112_014_848_u32, "hex": "0x42480000", "value": 50.0})
         );
-        let p = r(Value::Dword(0x4248_0000), Some(Kind::Float));
-        assert_eq!(p.human(), "drive 1 P1082 = 50.0 (dword 0x42480000)");
-        assert_eq!(serde_json::to_value(&p).unwrap()["value"], 50.0);
-        let mut p = r(Value::Word(7), None);
+        let zsw1 = ParamValue {
+            param: "r0052".parse().unwrap(),
+            raw: Value::Word(0xFB31),
+            data_type: uss_client::DataType::U16,
+            info: uss_client::Catalogue::micromaster4().param(52),
+        };
+        let mut p = ParamReport::new("b0", 1, &zsw1);
+        assert!(
+            p.human()
+                .starts_with("drive 1 r0052 = 0xFB31  (CO/BO: Act. status word 1): at-setpoint, control-requested"),
+            "{}",
+            p.human()
+        );
         p.eeprom = Some(true);
+        assert!(
+            p.human()
+                .starts_with("drive 1 r0052 := 0xFB31, RAM and EEPROM")
+        );
         assert_eq!(
-            p.human(),
-            "drive 1 P1082 := 7 (word 0x0007), RAM and EEPROM"
+            stw1_bits(0x047E),
+            [
+                "no-OFF2",
+                "no-OFF3",
+                "pulses-enabled",
+                "RFG-enabled",
+                "RFG-start",
+                "setpoint-enabled",
+                "control-by-PLC"
+            ]
         );
     }
 
     #[test]
-    fn faults_list_only_recorded_codes() {
-        let f = FaultsReport {
-            bus: "b".into(),
-            drive: 2,
-            faults: vec![70, 11, 0, 0, 0, 0, 0, 0],
+    fn faults_list_recorded_codes_with_texts_values_and_warnings() {
+        let report = uss_client::FaultReport {
+            faults: vec![
+                uss_client::Fault {
+                    slot: 0,
+                    number: 70,
+                    value: Some(3),
+                    text: Some("CB setpoint fault"),
+                },
+                uss_client::Fault {
+                    slot: 1,
+                    number: 999,
+                    value: None,
+                    text: None,
+                },
+            ],
+            warnings: Some(vec![uss_client::Warning {
+                number: 501,
+                text: Some("Current limit"),
+            }]),
         };
+        let f = FaultsReport::new("b", 2, &report);
         assert_eq!(
             f.human(),
-            "drive 2 fault buffer r0947, newest first:\n  0: F0070\n  1: F0011\n"
+            "drive 2 fault buffer r0947, newest first:\n  0: F0070 CB setpoint fault (fault value r0949 = 3)\n  1: F0999\nactive warnings (r2110):\n  A0501 Current limit\n"
         );
+        let v = serde_json::to_value(&f).unwrap();
         assert_eq!(
-            serde_json::to_value(&f).unwrap()["faults"],
-            serde_json::json!([70, 11, 0, 0, 0, 0, 0, 0])
+            v["faults"][0],
+            serde_json::json!({"slot": 0, "number": 70, "code": "F0070", "value": 3, "text": "CB setpoint fault"})
         );
+        assert_eq!(v["warnings"][0]["code"], "A0501");
+        let none = FaultsReport::new(
+            "b",
+            2,
+            &uss_client::FaultReport {
+                faults: Vec::new(),
+                warnings: None,
+            },
+        );
+        assert_eq!(none.human(), "drive 2: no faults recorded (r0947 empty)\n");
     }
 
     #[test]

@@ -4,7 +4,7 @@ use crate::cli::{self, Kind, ParamRef};
 use crate::report::{FaultsReport, ParamReport};
 use crate::{Failure, Output};
 use uss_client::uss_protocol::Subindex;
-use uss_client::{Bus, WriteOptions};
+use uss_client::{Bus, ParamError, ParamValue, WriteOptions};
 
 pub(crate) fn read(
     bus: &Bus,
@@ -13,17 +13,25 @@ pub(crate) fn read(
     param: ParamRef,
     kind: Option<Kind>,
 ) -> Result<(), Failure> {
-    let v = bus
-        .read(drive, param.pnu.get(), param.index.map(Subindex::get))
-        .map_err(|source| Failure::Param {
-            drive,
-            param: param.to_string(),
-            source,
-        })?;
-    out.show(
-        &ParamReport::new(bus.name(), drive, param, v, kind),
-        ParamReport::human,
-    )
+    let failed = |source| Failure::Param {
+        drive,
+        param: param.to_string(),
+        source,
+    };
+    let v = match kind {
+        // The parameter's own type (catalogue, or asked from the drive).
+        None => bus.read_param(drive, param).map_err(failed)?,
+        // The type the user says, as the drive sent it.
+        Some(kind) => ParamValue {
+            param,
+            raw: bus
+                .read(drive, param.pnu.get(), param.index.map(Subindex::get))
+                .map_err(failed)?,
+            data_type: kind.data_type(),
+            info: None,
+        },
+    };
+    out.show(&ParamReport::new(bus.name(), drive, &v), ParamReport::human)
 }
 
 /// What `param write` was asked to do.
@@ -37,43 +45,50 @@ pub(crate) struct Write<'a> {
 }
 
 pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failure> {
-    let (value, kind) = cli::parse_value(w.value, w.kind).map_err(Failure::Usage)?;
     let options = WriteOptions {
         eeprom: w.eeprom,
         force: w.force,
     };
     let (drive, param) = (w.drive, w.param);
-    let now = bus
-        .write_with(
-            drive,
-            param.pnu.get(),
-            param.index.map(Subindex::get),
-            value,
-            options,
-        )
-        .map_err(|source| Failure::Param {
+    let failed = |source| match source {
+        ParamError::Value { .. } => Failure::Value { drive, source },
+        source => Failure::Param {
             drive,
             param: param.to_string(),
             source,
-        })?;
-    // The value the drive now holds, read as the type it was written as.
-    let mut report = ParamReport::new(bus.name(), drive, param, now, Some(kind));
+        },
+    };
+    let now = match w.kind {
+        // Converted to the parameter's own type; what does not fit is refused before the bus.
+        None => bus
+            .write_param(drive, param, w.value, options)
+            .map_err(failed)?,
+        Some(kind) => {
+            let (value, _) = cli::parse_value(w.value, Some(kind)).map_err(Failure::Usage)?;
+            let index = param.index.map(Subindex::get);
+            ParamValue {
+                param,
+                raw: bus
+                    .write_with(drive, param.pnu.get(), index, value, options)
+                    .map_err(failed)?,
+                data_type: kind.data_type(),
+                info: None,
+            }
+        }
+    };
+    let mut report = ParamReport::new(bus.name(), drive, &now);
     report.eeprom = Some(w.eeprom);
     out.show(&report, ParamReport::human)
 }
 
 pub(crate) fn faults(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {
-    let faults = bus.faults(drive).map_err(|source| Failure::Param {
+    let report = bus.fault_report(drive).map_err(|source| Failure::Param {
         drive,
         param: "r0947".to_owned(),
         source,
     })?;
     out.show(
-        &FaultsReport {
-            bus: bus.name().to_owned(),
-            drive,
-            faults,
-        },
+        &FaultsReport::new(bus.name(), drive, &report),
         FaultsReport::human,
     )
 }

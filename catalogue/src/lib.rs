@@ -1,0 +1,390 @@
+//! What a drive's parameters are, as the drives engineer knows them from the parameter list:
+//! number and prefix (`P` settable, `r` read-only), name, PROFIdrive data type, unit, array size,
+//! access level, when it can be changed; and the texts of fault and warning numbers.
+//!
+//! The catalogue is data: one TOML file per drive family (`data/*.toml`), compiled in and read at
+//! first use. [`DataType`] turns the words of the PKW channel into typed values and back, refusing
+//! what does not fit the type before it reaches the bus.
+//!
+//! ```
+//! use uss_catalogue::{Catalogue, DataType};
+//! use uss_protocol::Value;
+//!
+//! let p1082 = Catalogue::micromaster4().param(1082).unwrap();
+//! assert_eq!((p1082.name.as_str(), p1082.data_type, p1082.unit.as_str()), ("Max. frequency", DataType::Float, "Hz"));
+//! assert_eq!(p1082.show(Value::Dword(0x4248_0000)), "50.00 Hz");
+//! assert_eq!(p1082.data_type.parse("45"), Ok(Value::from_f32(45.0)));
+//! assert_eq!(Catalogue::micromaster4().fault(72), Some("USS (COM link) setpoint fault"));
+//! ```
+
+use core::fmt;
+use serde::Deserialize;
+use std::sync::LazyLock;
+use uss_protocol::{ParamRef, Prefix, Value};
+
+/// The PROFIdrive data types of the parameters these drives have, with their type codes (the
+/// value of descriptive element 1, USS.md section 6).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize)]
+pub enum DataType {
+    I16,
+    I32,
+    U16,
+    U32,
+    /// IEEE-754 single precision in a double word.
+    Float,
+}
+
+/// A value of a parameter's own type.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Typed {
+    I16(i16),
+    I32(i32),
+    U16(u16),
+    U32(u32),
+    Float(f32),
+}
+
+/// Text that is not a value of the parameter's type.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ValueError {
+    #[error("{text:?} is not a number")]
+    NotANumber { text: String },
+    #[error("{text} does not fit {data_type} ({range})")]
+    OutOfRange {
+        text: String,
+        data_type: DataType,
+        range: &'static str,
+    },
+    #[error("{text} is not a whole number, and {data_type} holds only whole numbers")]
+    NotWhole { text: String, data_type: DataType },
+}
+
+impl DataType {
+    /// The PROFIdrive type code.
+    pub const fn code(self) -> u16 {
+        match self {
+            Self::I16 => 3,
+            Self::I32 => 4,
+            Self::U16 => 6,
+            Self::U32 => 7,
+            Self::Float => 8,
+        }
+    }
+
+    /// The type of a PROFIdrive type code (descriptive element 1), if it is one of these.
+    pub const fn from_code(code: u16) -> Option<Self> {
+        match code {
+            3 => Some(Self::I16),
+            4 => Some(Self::I32),
+            6 => Some(Self::U16),
+            7 => Some(Self::U32),
+            8 => Some(Self::Float),
+            _ => None,
+        }
+    }
+
+    /// Whether the value travels as a double word.
+    pub const fn is_dword(self) -> bool {
+        matches!(self, Self::I32 | Self::U32 | Self::Float)
+    }
+
+    const fn range(self) -> &'static str {
+        match self {
+            Self::I16 => "-32768..=32767",
+            Self::I32 => "-2147483648..=2147483647",
+            Self::U16 => "0..=65535",
+            Self::U32 => "0..=4294967295",
+            Self::Float => "a finite single-precision number",
+        }
+    }
+
+    /// The value the PKW channel carried, read as this type (a word of a dword type, or a
+    /// dword of a word type, is read from its low bits).
+    pub fn decode(self, v: Value) -> Typed {
+        let raw = v.as_u32();
+        match self {
+            Self::I16 => Typed::I16(raw as u16 as i16),
+            Self::I32 => Typed::I32(raw as i32),
+            Self::U16 => Typed::U16(raw as u16),
+            Self::U32 => Typed::U32(raw),
+            Self::Float => Typed::Float(f32::from_bits(raw)),
+        }
+    }
+
+    /// A value written as text (`45`, `45.5`, `-3`, `0x1F`), as this type's word or double word;
+    /// what does not fit the type is refused here, before the bus.
+    pub fn parse(self, text: &str) -> Result<Value, ValueError> {
+        let t = text.trim();
+        let out_of_range = || ValueError::OutOfRange {
+            text: t.to_owned(),
+            data_type: self,
+            range: self.range(),
+        };
+        if self == Self::Float {
+            let f: f32 = t
+                .parse()
+                .map_err(|_| ValueError::NotANumber { text: t.to_owned() })?;
+            return if f.is_finite() {
+                Ok(Value::from_f32(f))
+            } else {
+                Err(out_of_range())
+            };
+        }
+        let hex = t
+            .strip_prefix("0x")
+            .or_else(|| t.strip_prefix("0X"))
+            .map(|h| i64::from_str_radix(h, 16));
+        let n = match hex {
+            Some(parsed) => parsed.map_err(|_| ValueError::NotANumber { text: t.to_owned() })?,
+            None => match t.parse::<i64>() {
+                Ok(n) => n,
+                Err(_) if t.parse::<f64>().is_ok() => {
+                    return Err(ValueError::NotWhole {
+                        text: t.to_owned(),
+                        data_type: self,
+                    });
+                }
+                Err(_) => {
+                    return Err(ValueError::NotANumber { text: t.to_owned() });
+                }
+            },
+        };
+        match self {
+            Self::I16 => i16::try_from(n).map(|v| Value::Word(v as u16)),
+            Self::U16 => u16::try_from(n).map(Value::Word),
+            Self::I32 => i32::try_from(n).map(|v| Value::Dword(v as u32)),
+            Self::U32 | Self::Float => u32::try_from(n).map(Value::Dword),
+        }
+        .map_err(|_| out_of_range())
+    }
+}
+
+impl fmt::Display for DataType {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::I16 => "I16",
+            Self::I32 => "I32",
+            Self::U16 => "U16",
+            Self::U32 => "U32",
+            Self::Float => "float",
+        })
+    }
+}
+
+impl Typed {
+    /// The value as a number (for JSON and comparisons).
+    pub fn as_f64(self) -> f64 {
+        match self {
+            Self::I16(v) => f64::from(v),
+            Self::I32(v) => f64::from(v),
+            Self::U16(v) => f64::from(v),
+            Self::U32(v) => f64::from(v),
+            Self::Float(v) => f64::from(v),
+        }
+    }
+}
+
+impl fmt::Display for Typed {
+    /// Floats with two decimals (as the operator panels show them), integers as they are.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::I16(v) => write!(f, "{v}"),
+            Self::I32(v) => write!(f, "{v}"),
+            Self::U16(v) => write!(f, "{v}"),
+            Self::U32(v) => write!(f, "{v}"),
+            Self::Float(v) => write!(f, "{v:.2}"),
+        }
+    }
+}
+
+/// When a parameter can be changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Change {
+    /// Any time, also while the motor runs.
+    Always,
+    /// Only while the motor does not run (S1..S3).
+    NotRunning,
+    /// Only in quick commissioning (P0010 = 1).
+    Commissioning,
+    /// Never: a monitoring (`r`) parameter.
+    ReadOnly,
+}
+
+/// A control or status word whose bits have names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize)]
+pub enum Bits {
+    /// Control word 1 (USS.md section 7).
+    STW1,
+    /// Status word 1 (USS.md section 7).
+    ZSW1,
+}
+
+/// One parameter of the catalogue.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Param {
+    /// As the manual writes it: `P1082`, `r0021`.
+    #[serde(rename = "id", deserialize_with = "param_id")]
+    pub id: ParamRef,
+    pub name: String,
+    #[serde(rename = "type")]
+    pub data_type: DataType,
+    #[serde(default)]
+    pub unit: String,
+    /// Elements of an indexed parameter; 0 = not indexed.
+    #[serde(default)]
+    pub array: u16,
+    /// User access level (P0003) needed: 1 standard, 2 extended, 3 expert, 4 service.
+    pub level: u8,
+    pub change: Change,
+    /// A change is kept over a power cycle (stored to EEPROM when asked).
+    #[serde(default = "yes")]
+    pub eeprom: bool,
+    pub min: Option<f64>,
+    pub max: Option<f64>,
+    pub bits: Option<Bits>,
+}
+
+const fn yes() -> bool {
+    true
+}
+
+fn param_id<'de, D: serde::Deserializer<'de>>(d: D) -> Result<ParamRef, D::Error> {
+    let text = String::deserialize(d)?;
+    text.parse::<ParamRef>()
+        .map_err(|e| serde::de::Error::custom(format_args!("{text:?}: {e}")))
+}
+
+impl Param {
+    /// The parameter number.
+    pub const fn number(&self) -> u16 {
+        self.id.pnu.get()
+    }
+
+    /// Whether the parameter can be written at all.
+    pub fn is_writable(&self) -> bool {
+        self.change != Change::ReadOnly
+    }
+
+    /// The value as it is shown: `50.00 Hz`, `5`, `0xFB31`.
+    pub fn show(&self, v: Value) -> String {
+        let typed = self.data_type.decode(v);
+        let shown = if self.bits.is_some() {
+            format!("{:#06X}", v.as_u32() as u16)
+        } else {
+            typed.to_string()
+        };
+        if self.unit.is_empty() {
+            shown
+        } else {
+            format!("{shown} {}", self.unit)
+        }
+    }
+
+    /// Whether `v` lies within the drive's limits the catalogue knows (none known: it does).
+    pub fn within_limits(&self, v: Value) -> bool {
+        let x = self.data_type.decode(v).as_f64();
+        self.min.is_none_or(|m| x >= m - 1e-9) && self.max.is_none_or(|m| x <= m + 1e-9)
+    }
+}
+
+/// A fault or warning number with its text.
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Message {
+    pub number: u16,
+    pub text: String,
+}
+
+/// The catalogue of one drive family.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Catalogue {
+    pub family: String,
+    pub param: Vec<Param>,
+    pub fault: Vec<Message>,
+    pub warning: Vec<Message>,
+}
+
+/// A catalogue file that cannot be read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{origin}: {message}")]
+pub struct CatalogueError {
+    pub origin: String,
+    pub message: String,
+}
+
+const MICROMASTER4: &str = include_str!("../data/micromaster4.toml");
+
+static MM4: LazyLock<Catalogue> = LazyLock::new(|| {
+    Catalogue::parse(MICROMASTER4, "data/micromaster4.toml")
+        .unwrap_or_else(|e| unreachable!("the built-in catalogue is valid (tested): {e}"))
+});
+
+impl Catalogue {
+    /// MICROMASTER 420/430/440 and SINAMICS G110.
+    pub fn micromaster4() -> &'static Self {
+        &MM4
+    }
+
+    /// Reads a catalogue file: every entry checked, numbers unique and sorted.
+    pub fn parse(text: &str, origin: &str) -> Result<Self, CatalogueError> {
+        let error = |message: String| CatalogueError {
+            origin: origin.to_owned(),
+            message,
+        };
+        let c: Self = toml::from_str(text).map_err(|e| error(e.to_string()))?;
+        let sorted = |numbers: Vec<u16>, what: &str| {
+            numbers
+                .windows(2)
+                .find(|w| w[0] >= w[1])
+                .map_or(Ok(()), |w| {
+                    Err(error(format!(
+                        "{what} {} follows {}: keep them unique and sorted by number",
+                        w[1], w[0]
+                    )))
+                })
+        };
+        sorted(c.param.iter().map(Param::number).collect(), "parameter")?;
+        sorted(c.fault.iter().map(|m| m.number).collect(), "fault")?;
+        sorted(c.warning.iter().map(|m| m.number).collect(), "warning")?;
+        for p in &c.param {
+            let settable = p.id.prefix != Prefix::R;
+            if settable != p.is_writable() {
+                return Err(error(format!(
+                    "{}: an r parameter is read-only and a P parameter is not",
+                    p.id
+                )));
+            }
+        }
+        Ok(c)
+    }
+
+    /// The parameter with number `pnu`.
+    pub fn param(&self, pnu: u16) -> Option<&Param> {
+        self.param
+            .binary_search_by_key(&pnu, Param::number)
+            .ok()
+            .map(|i| &self.param[i])
+    }
+
+    /// The text of fault `number` (F0072 -> 72).
+    pub fn fault(&self, number: u16) -> Option<&str> {
+        find(&self.fault, number)
+    }
+
+    /// The text of warning `number` (A0501 -> 501).
+    pub fn warning(&self, number: u16) -> Option<&str> {
+        find(&self.warning, number)
+    }
+}
+
+fn find(list: &[Message], number: u16) -> Option<&str> {
+    list.binary_search_by_key(&number, |m| m.number)
+        .ok()
+        .map(|i| list[i].text.as_str())
+}
+
+#[cfg(test)]
+mod tests;

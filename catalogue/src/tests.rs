@@ -1,0 +1,132 @@
+#![allow(clippy::float_cmp)]
+use super::*;
+
+#[test]
+fn the_built_in_catalogue_reads_and_finds_by_number() {
+    let c = Catalogue::micromaster4();
+    assert_eq!(c.family, "MICROMASTER 4 / SINAMICS G110");
+    let r0021 = c.param(21).unwrap();
+    assert_eq!(r0021.id.to_string(), "r0021");
+    assert!(!r0021.is_writable());
+    let r0947 = c.param(947).unwrap();
+    assert_eq!((r0947.array, r0947.data_type), (8, DataType::U16));
+    assert_eq!(c.param(9999), None);
+    assert_eq!(c.fault(72), Some("USS (COM link) setpoint fault"));
+    assert_eq!(c.warning(501), Some("Current limit"));
+    assert_eq!(c.fault(9999), None);
+}
+
+#[test]
+fn values_show_in_their_type_and_unit() {
+    let c = Catalogue::micromaster4();
+    assert_eq!(
+        c.param(1082).unwrap().show(Value::Dword(0x4248_0000)),
+        "50.00 Hz"
+    );
+    assert_eq!(c.param(700).unwrap().show(Value::Word(5)), "5");
+    assert_eq!(c.param(52).unwrap().show(Value::Word(0xFB31)), "0xFB31");
+    assert_eq!(c.param(2014).unwrap().show(Value::Word(100)), "100 ms");
+    assert_eq!(DataType::I16.decode(Value::Word(0xFFFF)), Typed::I16(-1));
+    assert_eq!(DataType::I32.decode(Value::Dword(u32::MAX)), Typed::I32(-1));
+}
+
+#[test]
+fn text_becomes_the_parameters_own_type_or_is_refused_before_the_bus() {
+    assert_eq!(DataType::Float.parse("45"), Ok(Value::from_f32(45.0)));
+    assert_eq!(DataType::Float.parse(" 2.5 "), Ok(Value::from_f32(2.5)));
+    assert_eq!(DataType::U16.parse("5"), Ok(Value::Word(5)));
+    assert_eq!(DataType::U16.parse("0x1F"), Ok(Value::Word(0x1F)));
+    assert_eq!(DataType::I16.parse("-3"), Ok(Value::Word(0xFFFD)));
+    assert_eq!(DataType::I32.parse("-1"), Ok(Value::Dword(u32::MAX)));
+    assert_eq!(DataType::U32.parse("70000"), Ok(Value::Dword(70000)));
+    assert_eq!(
+        DataType::U16.parse("70000").unwrap_err().to_string(),
+        "70000 does not fit U16 (0..=65535)"
+    );
+    assert_eq!(
+        DataType::U16.parse("4.5").unwrap_err().to_string(),
+        "4.5 is not a whole number, and U16 holds only whole numbers"
+    );
+    assert_eq!(
+        DataType::Float.parse("fast").unwrap_err().to_string(),
+        "\"fast\" is not a number"
+    );
+    assert!(DataType::Float.parse("inf").is_err());
+    assert!(DataType::I16.parse("40000").is_err());
+}
+
+#[test]
+fn limits_and_type_codes() {
+    let p2000 = Catalogue::micromaster4().param(2000).unwrap();
+    assert!(p2000.within_limits(Value::from_f32(50.0)));
+    assert!(!p2000.within_limits(Value::from_f32(0.5)));
+    for t in [
+        DataType::I16,
+        DataType::I32,
+        DataType::U16,
+        DataType::U32,
+        DataType::Float,
+    ] {
+        assert_eq!(DataType::from_code(t.code()), Some(t));
+    }
+    assert_eq!(DataType::from_code(5), None);
+}
+
+#[test]
+fn a_broken_catalogue_file_is_refused_naming_what_is_wrong() {
+    let unsorted = "family = \"x\"\nfault = []\nwarning = []\nparam = [\n\
+        { id = \"P0010\", name = \"a\", type = \"U16\", level = 1, change = \"always\" },\n\
+        { id = \"P0003\", name = \"b\", type = \"U16\", level = 1, change = \"always\" },\n]\n";
+    let e = Catalogue::parse(unsorted, "x.toml").unwrap_err();
+    assert!(e.to_string().contains("parameter 3 follows 10"), "{e}");
+    let r_writable = "family = \"x\"\nfault = []\nwarning = []\nparam = [\n\
+        { id = \"r0021\", name = \"a\", type = \"Float\", level = 1, change = \"always\" },\n]\n";
+    let e = Catalogue::parse(r_writable, "x.toml").unwrap_err();
+    assert!(
+        e.to_string().contains("r0021: an r parameter is read-only"),
+        "{e}"
+    );
+    let typo = "family = \"x\"\nfault = []\nwarning = []\nparam = [\n\
+        { id = \"P0003\", name = \"a\", type = \"U61\", level = 1, change = \"always\" },\n]\n";
+    let e = Catalogue::parse(typo, "x.toml").unwrap_err();
+    assert!(e.to_string().contains("U61"), "{e}");
+}
+
+mod properties {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #[test]
+        fn every_value_of_a_type_written_as_text_reads_back(
+            i16v in any::<i16>(), u16v in any::<u16>(), i32v in any::<i32>(),
+            u32v in any::<u32>(), f in any::<f32>().prop_filter("finite", |f| f.is_finite()),
+        ) {
+            let back = |t: DataType, text: String| t.decode(t.parse(&text).unwrap());
+            prop_assert_eq!(back(DataType::I16, i16v.to_string()), Typed::I16(i16v));
+            prop_assert_eq!(back(DataType::U16, u16v.to_string()), Typed::U16(u16v));
+            prop_assert_eq!(back(DataType::U16, format!("{u16v:#X}")), Typed::U16(u16v));
+            prop_assert_eq!(back(DataType::I32, i32v.to_string()), Typed::I32(i32v));
+            prop_assert_eq!(back(DataType::U32, u32v.to_string()), Typed::U32(u32v));
+            prop_assert_eq!(back(DataType::Float, f.to_string()), Typed::Float(f));
+        }
+
+        #[test]
+        fn whole_numbers_outside_a_type_are_refused_and_any_text_gets_an_answer(
+            n in any::<i64>(), text in ".{0,12}",
+        ) {
+            for t in [DataType::I16, DataType::U16, DataType::I32, DataType::U32] {
+                let fits = match t {
+                    DataType::I16 => i16::try_from(n).is_ok(),
+                    DataType::U16 => u16::try_from(n).is_ok(),
+                    DataType::I32 => i32::try_from(n).is_ok(),
+                    _ => u32::try_from(n).is_ok(),
+                };
+                prop_assert_eq!(t.parse(&n.to_string()).is_ok(), fits);
+                // Never a panic, whatever the text.
+                let _ = t.parse(&text);
+            }
+            let _ = DataType::Float.parse(&text);
+        }
+    }
+}

@@ -1,0 +1,275 @@
+//! Parameters the way a drives engineer thinks of them: named in the manuals' notation
+//! (`P1082`, `r0021`, `P0947[3]`, `r0947.3`), read as their own type with their unit
+//! (`P1082 = 50.00 Hz`), and written from text converted to their own type, refused before the
+//! bus when it does not fit. What a parameter is comes from the catalogue (`uss-catalogue`);
+//! for a parameter the catalogue does not know, the drive is asked (descriptive element 1, its
+//! PROFIdrive data type; USS.md section 6) once per drive and parameter.
+
+use crate::{Bus, ParamError, WriteOptions};
+use core::fmt;
+use std::collections::HashMap;
+use std::sync::{Mutex, PoisonError};
+use uss_catalogue::{Catalogue, DataType, Param, Typed};
+use uss_protocol::{ParamRef, ParamTask, Pnu, Subindex, Value};
+
+/// The catalogue a [`Bus`] consults, and the data types drives described, by (address, PNU),
+/// for parameters it does not know.
+#[derive(Debug)]
+pub(crate) struct Described {
+    catalogue: &'static Catalogue,
+    types: Mutex<HashMap<(u8, u16), DataType>>,
+}
+
+impl Default for Described {
+    fn default() -> Self {
+        Self {
+            catalogue: Catalogue::micromaster4(),
+            types: Mutex::default(),
+        }
+    }
+}
+
+impl Described {
+    fn get(&self, address: u8, pnu: u16) -> Option<DataType> {
+        self.types
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .get(&(address, pnu))
+            .copied()
+    }
+
+    fn insert(&self, address: u8, pnu: u16, t: DataType) {
+        self.types
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .insert((address, pnu), t);
+    }
+}
+
+/// A parameter value and what it is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ParamValue {
+    /// The parameter as the catalogue writes it (`r0021`, not `P21`), with the index asked for.
+    pub param: ParamRef,
+    /// The word or double word the drive sent.
+    pub raw: Value,
+    pub data_type: DataType,
+    /// The catalogue's entry; `None`: the drive described the type itself.
+    pub info: Option<&'static Param>,
+}
+
+impl ParamValue {
+    /// The value in its own type.
+    pub fn typed(&self) -> Typed {
+        self.data_type.decode(self.raw)
+    }
+
+    /// The unit (`Hz`, `s`, ...), empty when it has none or is not known.
+    pub fn unit(&self) -> &'static str {
+        self.info.map_or("", |p| p.unit.as_str())
+    }
+
+    /// The catalogue's name of the parameter.
+    pub fn name(&self) -> Option<&'static str> {
+        self.info.map(|p| p.name.as_str())
+    }
+
+    /// The value as shown: `50.00 Hz`, `5`, `0xFB31` (a status or control word).
+    pub fn shown(&self) -> String {
+        match self.info {
+            Some(p) => p.show(self.raw),
+            None => self.typed().to_string(),
+        }
+    }
+}
+
+impl fmt::Display for ParamValue {
+    /// `P1082 = 50.00 Hz`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} = {}", self.param, self.shown())
+    }
+}
+
+impl Bus {
+    /// Consults `catalogue` instead of the built-in one (MICROMASTER 4 / G110), e.g. for
+    /// another drive family; parameters it does not know are described by the drives.
+    #[must_use]
+    pub fn with_catalogue(mut self, catalogue: &'static Catalogue) -> Self {
+        self.described = Described {
+            catalogue,
+            types: Mutex::default(),
+        };
+        self
+    }
+
+    /// What parameter `pnu` of drive `address` is: the catalogue's entry, or the type the drive
+    /// describes (asked once per drive and parameter).
+    pub fn describe(
+        &self,
+        address: u8,
+        pnu: u16,
+    ) -> Result<(DataType, Option<&'static Param>), ParamError> {
+        if let Some(p) = self.described.catalogue.param(pnu) {
+            return Ok((p.data_type, Some(p)));
+        }
+        if let Some(t) = self.described.get(address, pnu) {
+            return Ok((t, None));
+        }
+        let element = Subindex::new(1).map_err(|e| ParamError::Unexpected(e.to_string()))?;
+        let task = ParamTask::ReadDescription {
+            pnu: Pnu::from_u16(pnu),
+            element,
+        };
+        let code = self
+            .batch(address, &[task])
+            .pop()
+            .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))?;
+        let t = DataType::from_code(code.as_u32() as u16).ok_or_else(|| {
+            ParamError::Unexpected(format!(
+                "drive {address} describes P{pnu:04} with data type {}, which uss-rt does not read",
+                code.as_u32()
+            ))
+        })?;
+        self.described.insert(address, pnu, t);
+        Ok((t, None))
+    }
+
+    /// Reads a parameter as its own type (`P1082 = 50.00 Hz`).
+    pub fn read_param(&self, address: u8, param: ParamRef) -> Result<ParamValue, ParamError> {
+        let (data_type, info) = self.describe(address, param.pnu.get())?;
+        let raw = self.read(address, param.pnu.get(), param.index.map(Subindex::get))?;
+        Ok(ParamValue {
+            param: shown_as(param, info),
+            raw,
+            data_type,
+            info,
+        })
+    }
+
+    /// Writes `text` (`45`, `2.5`, `-3`, `0x1F`) to a parameter, converted to the parameter's
+    /// own type; text that does not fit the type, or a read-only parameter, is refused before
+    /// the bus ([`ParamError::Value`]). Returns the value the drive now holds.
+    pub fn write_param(
+        &self,
+        address: u8,
+        param: ParamRef,
+        text: &str,
+        options: WriteOptions,
+    ) -> Result<ParamValue, ParamError> {
+        let (data_type, info) = self.describe(address, param.pnu.get())?;
+        let shown = shown_as(param, info);
+        if info.is_some_and(|p| !p.is_writable()) {
+            return Err(ParamError::Value {
+                param: shown.to_string(),
+                problem: "read-only: a monitoring (r) parameter cannot be written".to_owned(),
+            });
+        }
+        let value = data_type.parse(text).map_err(|e| ParamError::Value {
+            param: shown.to_string(),
+            problem: e.to_string(),
+        })?;
+        let index = param.index.map(Subindex::get);
+        let raw = self.write_with(address, param.pnu.get(), index, value, options)?;
+        Ok(ParamValue {
+            param: shown,
+            raw,
+            data_type,
+            info,
+        })
+    }
+}
+
+/// `param` with the catalogue's prefix (`21` and `P0021` show as `r0021`).
+fn shown_as(param: ParamRef, info: Option<&Param>) -> ParamRef {
+    match info {
+        Some(p) => ParamRef {
+            prefix: p.id.prefix,
+            ..param
+        },
+        None => param,
+    }
+}
+
+/// The active warnings parameter (r2110, 4 elements on MICROMASTER 4).
+pub const WARNINGS_PNU: u16 = 2110;
+/// Elements of [`WARNINGS_PNU`].
+pub const WARNINGS_LEN: u8 = 4;
+/// The fault values (r0949), one per element of the fault buffer r0947.
+pub const FAULT_VALUES_PNU: u16 = 949;
+
+/// One recorded fault: where it sits in the fault buffer, its number, its fault value and text.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Fault {
+    /// Element of r0947: 0 is the newest.
+    pub slot: u8,
+    /// F0072 -> 72.
+    pub number: u16,
+    /// r0949 of the same element; `None` when the drive has no r0949.
+    pub value: Option<u16>,
+    /// The catalogue's text.
+    pub text: Option<&'static str>,
+}
+
+/// One active warning.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Warning {
+    /// A0501 -> 501.
+    pub number: u16,
+    pub text: Option<&'static str>,
+}
+
+/// The drive's fault buffer and active warnings, read in one request.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FaultReport {
+    /// Recorded faults, newest first (empty slots left out).
+    pub faults: Vec<Fault>,
+    /// Active warnings; `None` when the drive has no r2110.
+    pub warnings: Option<Vec<Warning>>,
+}
+
+impl Bus {
+    /// The fault buffer r0947 with the fault values r0949 and texts, and the active warnings
+    /// r2110, in one request of 20 reads. A drive without r0949 or r2110 (error 0) still gets
+    /// its fault codes.
+    pub fn fault_report(&self, address: u8) -> Result<FaultReport, ParamError> {
+        let element = |pnu: u16, i: u8| {
+            Subindex::new(i).map(|i| ParamTask::read(Pnu::from_u16(pnu), Some(i)))
+        };
+        let mut tasks = Vec::new();
+        for pnu in [crate::params::FAULT_BUFFER_PNU, FAULT_VALUES_PNU] {
+            tasks.extend((0..crate::params::FAULT_BUFFER_LEN).filter_map(|i| element(pnu, i).ok()));
+        }
+        tasks.extend((0..WARNINGS_LEN).filter_map(|i| element(WARNINGS_PNU, i).ok()));
+        let results = self.batch(address, &tasks);
+        let len = usize::from(crate::params::FAULT_BUFFER_LEN);
+        let word = |r: &Result<Value, ParamError>| r.clone().map(|v| v.as_u32() as u16);
+        let catalogue = self.described.catalogue;
+        let mut faults = Vec::new();
+        for (slot, code) in results[..len].iter().enumerate() {
+            let number = word(code)?;
+            if number != 0 {
+                faults.push(Fault {
+                    slot: slot as u8,
+                    number,
+                    value: word(&results[len + slot]).ok(),
+                    text: catalogue.fault(number),
+                });
+            }
+        }
+        let warnings = results[2 * len..]
+            .iter()
+            .map(|r| word(r).ok())
+            .collect::<Option<Vec<u16>>>()
+            .map(|numbers| {
+                numbers
+                    .into_iter()
+                    .filter(|&n| n != 0)
+                    .map(|number| Warning {
+                        number,
+                        text: catalogue.warning(number),
+                    })
+                    .collect()
+            });
+        Ok(FaultReport { faults, warnings })
+    }
+}
