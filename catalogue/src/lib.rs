@@ -244,6 +244,10 @@ pub struct Param {
     pub min: Option<f64>,
     pub max: Option<f64>,
     pub bits: Option<Bits>,
+    /// Writing it starts something (a factory reset, an identification run): a command, not a
+    /// setting; never saved in or restored from a backup.
+    #[serde(default)]
+    pub action: bool,
 }
 
 const fn yes() -> bool {

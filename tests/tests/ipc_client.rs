@@ -109,6 +109,12 @@ impl Ussd {
         Bus::open(&self.bus).unwrap()
     }
 
+    /// ussctl's exit code, stdout and stderr.
+    fn ussctl_said(&self, args: &[&str]) -> (Option<i32>, String, String) {
+        let out = self.ussctl(args);
+        (out.status.code(), text(&out.stdout), text(&out.stderr))
+    }
+
     fn ussctl(&self, args: &[&str]) -> Output {
         Command::new(binary("ussctl", "ussctl"))
             .args(["--bus", &self.bus])
@@ -865,4 +871,179 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
     c.run_percent(10.0).unwrap();
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(2))
         .unwrap();
+}
+
+/// Backup -> change -> restore -> diff shows nothing: the restore writes only what differs, in a
+/// safe order (it raises the access level for an expert parameter and enters quick
+/// commissioning for a commissioning parameter, then puts both back), and a file that does not
+/// fit is refused before anything is written.
+#[test]
+fn backup_change_restore_and_diff_shows_nothing() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+    let dir = std::env::temp_dir().join(format!("uss-backup-{}", ussd.bus));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("drive1.toml");
+    let path = file.to_str().unwrap();
+    let run = |args: &[&str]| ussd.ussctl_said(args);
+
+    let (code, said, err) = run(&["param", "backup", "1", "-o", path]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(
+        said.starts_with("drive 1: 19 parameters (24 values) saved to "),
+        "{said}"
+    );
+    assert!(
+        said.contains("; not on this drive: P0004, P0100, P0300"),
+        "{said}"
+    );
+    let saved = std::fs::read_to_string(&file).unwrap();
+    for line in [
+        "format = 1",
+        "family = \"MICROMASTER 4 / SINAMICS G110\"",
+        "firmware = 2.09",
+        "P1082 = 50.0",
+        "P2013 = [127, 4]",
+        "P2011 = [0, 1]",
+        "P0003 = 1",
+    ] {
+        assert!(saved.lines().any(|l| l == line), "{line}: {saved}");
+    }
+    assert!(!saved.contains("P0970"), "a command is not a setting");
+
+    // Change four settings: a plain one, a float, an expert one (level 3) and a commissioning
+    // one (P0010 = 1 needed); put the access level back to 1.
+    let w = |pnu, v| bus.write(1, pnu, None, v, false).unwrap();
+    w(1082, Value::from_f32(45.0));
+    w(1120, Value::from_f32(2.5));
+    w(3, Value::Word(3));
+    w(719, Value::Word(11));
+    w(10, Value::Word(1));
+    w(310, Value::from_f32(60.0));
+    w(10, Value::Word(0));
+    w(3, Value::Word(1));
+    let (code, said, _) = run(&["param", "diff", "1", path]);
+    assert_eq!(code, Some(0));
+    assert!(
+        said.contains("P0310      drive 1: 60.00 Hz")
+            && said.contains("P1082      drive 1: 45.00 Hz")
+            && said.ends_with("4 differences, 20 values the same\n"),
+        "{said}"
+    );
+    let (code, said, _) = run(&["param", "restore", "1", path, "--dry-run"]);
+    assert_eq!(code, Some(0));
+    assert!(
+        said.contains("would write 4; 20 already as in the file"),
+        "{said}"
+    );
+    assert_eq!(
+        bus.read_f32(1, 1082, None),
+        Ok(45.0),
+        "a dry run writes nothing"
+    );
+
+    // Refused while another process controls the drive; nothing is written.
+    let controller = bus.control(1, ControlOptions::default()).unwrap();
+    let (code, _, err) = run(&["param", "restore", "1", path]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("is controlled by process"), "{err}");
+    assert_eq!(bus.read_f32(1, 1082, None), Ok(45.0));
+    controller.release().unwrap();
+
+    let (code, said, err) = run(&["param", "restore", "1", path]);
+    assert_eq!(code, Some(0), "{said}{err}");
+    assert!(said.contains("P0719      11 -> 0: written"), "{said}");
+    assert!(
+        said.contains("wrote 4, refused 0; 20 already as in the file"),
+        "{said}"
+    );
+    let (_, said, _) = run(&["param", "diff", "1", path]);
+    assert!(said.starts_with("drive 1 and "), "{said}");
+    assert!(
+        said.ends_with(": no differences (24 values compared)\n"),
+        "{said}"
+    );
+    assert_eq!(
+        bus.read(1, 3, None),
+        Ok(Value::Word(1)),
+        "access level back"
+    );
+    assert_eq!(
+        bus.read(1, 10, None),
+        Ok(Value::Word(0)),
+        "commissioning left"
+    );
+    another_drive_keeps_its_com_link(&ussd, path);
+    files_that_do_not_fit_are_refused(&ussd, &dir, &saved);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Backup files that do not fit are refused before anything is written, naming line and field.
+fn files_that_do_not_fit_are_refused(ussd: &Ussd, dir: &std::path::Path, saved: &str) {
+    let bus = ussd.bus();
+    let run = |args: &[&str]| ussd.ussctl_said(args);
+    let refused = |name: &str, from: &str, to: &str| {
+        let bad = dir.join(name);
+        std::fs::write(&bad, saved.replacen(from, to, 1)).unwrap();
+        let (code, _, err) = run(&["param", "restore", "1", bad.to_str().unwrap()]);
+        assert_eq!(code, Some(1), "{err}");
+        err
+    };
+    let line = |key: &str| saved.lines().position(|l| l.starts_with(key)).unwrap() + 1;
+    let err = refused(
+        "family.toml",
+        "MICROMASTER 4 / SINAMICS G110",
+        "SINAMICS G120",
+    );
+    assert!(
+        err.contains("the backup is of a SINAMICS G120 drive"),
+        "{err}"
+    );
+    let err = refused("range.toml", "P1082 = 50.0", "P1082 = 700.0");
+    assert!(
+        err.contains(&format!(
+            ":{}: P1082: 700 is outside the drive's limits 0..=650; nothing was written",
+            line("P1082")
+        )),
+        "{err}"
+    );
+    let err = refused("type.toml", "P0003 = 1", "P0003 = 1.5");
+    assert!(err.contains("P0003: 1.5 is not a whole number"), "{err}");
+    let err = refused("unknown.toml", "P0003 = 1", "P9999 = 1");
+    assert!(
+        err.contains("P9999: not a parameter of MICROMASTER 4"),
+        "{err}"
+    );
+    let err = refused("array.toml", "P2013 = [127, 4]", "P2013 = 127");
+    assert!(
+        err.contains("P2013: P2013 takes a list of 2 values"),
+        "{err}"
+    );
+    assert_eq!(bus.read(1, 3, None), Ok(Value::Word(1)));
+}
+
+/// Drive 2 differs from drive 1 in its address on the COM link only; restoring drive 1's
+/// backup there keeps the address (and baud rate, PZD and PKW length) of the line ussd talks
+/// over.
+fn another_drive_keeps_its_com_link(ussd: &Ussd, path: &str) {
+    let bus = ussd.bus();
+    let run = |args: &[&str]| ussd.ussctl_said(args);
+    let (_, said, _) = run(&["param", "diff", "1", "2"]);
+    assert_eq!(
+        said,
+        "  P2011[1]   drive 1: 1              drive 2: 2              (USS address)\n\
+         drive 1 and drive 2: 1 differences, 23 values the same\n"
+    );
+    let (code, said, err) = run(&["param", "restore", "2", path]);
+    assert_eq!(code, Some(0), "{said}{err}");
+    assert!(
+        said.contains("P2011[1]   2 -> 1: kept: the COM link ussd talks over"),
+        "{said}"
+    );
+    assert!(
+        said.contains("wrote 0, refused 0; 23 already as in the file, 1 COM-link settings kept"),
+        "{said}"
+    );
+    assert_eq!(bus.read(2, 2011, Some(1)), Ok(Value::Word(2)));
 }

@@ -112,6 +112,34 @@ pub enum ParamCommand {
         #[arg(long)]
         force: bool,
     },
+    /// Save every settable parameter of a drive (the catalogue's, array elements included) to
+    /// a TOML file (stdout without -o).
+    Backup {
+        drive: u8,
+        #[arg(short, long, value_name = "FILE")]
+        output: Option<std::path::PathBuf>,
+    },
+    /// Write a backup to a drive: only what differs, in a safe order, each value checked
+    /// against the drive's answer. Refused while another process controls the drive.
+    Restore {
+        drive: u8,
+        file: std::path::PathBuf,
+        /// Store in EEPROM as well as RAM (survives a power cycle).
+        #[arg(long)]
+        eeprom: bool,
+        /// Show what would be written; write nothing.
+        #[arg(long)]
+        dry_run: bool,
+        /// Write even though another process controls the drive (a deliberate act).
+        #[arg(long)]
+        force: bool,
+    },
+    /// Compare a drive's settings with a backup file, or with another drive (an address).
+    Diff {
+        drive: u8,
+        /// A backup file, or the address of another drive on the bus.
+        other: String,
+    },
 }
 
 impl Kind {

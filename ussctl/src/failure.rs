@@ -57,6 +57,19 @@ pub(crate) enum Failure {
         after: Duration,
         latch: Latch,
     },
+    /// A backup file that cannot be read or written.
+    #[error("{path}: {source}")]
+    File {
+        path: String,
+        source: std::io::Error,
+    },
+    /// A backup file that fails its checks: nothing was written.
+    #[error("{0}; nothing was written")]
+    Backup(#[from] crate::backup::FileError),
+    /// A restore that did not write everything (refused values, or cut short): the report says
+    /// which; running it again completes what can be.
+    #[error("drive {drive}: the restore is incomplete (see above); run it again to complete it")]
+    Incomplete { drive: u8 },
     /// A value on the command line that clap cannot check by itself.
     #[error("{0}")]
     Usage(String),

@@ -3,6 +3,7 @@
 //! `--json` for machines. Errors go to stderr, say what to do, and exit with 1 (2 for usage
 //! errors).
 
+mod backup;
 mod cli;
 mod commands;
 mod failure;
@@ -90,6 +91,28 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             };
             commands::param::write(&bus, &out, &write)
         }
+        Command::Param(ParamCommand::Backup { drive, output }) => {
+            commands::backup::backup(&bus, &out, *drive, output.as_deref())
+        }
+        Command::Param(ParamCommand::Restore {
+            drive,
+            file,
+            eeprom,
+            dry_run,
+            force,
+        }) => {
+            let restore = commands::backup::Restore {
+                drive: *drive,
+                file,
+                eeprom: *eeprom,
+                dry_run: *dry_run,
+                force: *force,
+            };
+            commands::backup::restore(&bus, &out, &restore)
+        }
+        Command::Param(ParamCommand::Diff { drive, other }) => {
+            commands::backup::diff(&bus, &out, *drive, other)
+        }
         Command::Run {
             drive,
             hz,
@@ -101,6 +124,19 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Ack { drive } => commands::ack::ack(&bus, &out, *drive),
         Command::Faults { drive } => commands::param::faults(&bus, &out, *drive),
         Command::Stats => commands::status::stats(&bus, &out),
+    }
+}
+
+/// Writes `text` to stdout as it is; a reader that went away (`| head`) ends ussctl quietly.
+pub(crate) fn write_out(text: &str) -> Result<(), Failure> {
+    let mut stdout = std::io::stdout().lock();
+    match stdout
+        .write_all(text.as_bytes())
+        .and_then(|()| stdout.flush())
+    {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(Failure::Closed),
+        Err(e) => Err(Failure::Output(e)),
     }
 }
 
@@ -123,15 +159,7 @@ impl Output {
         if !text.ends_with('\n') {
             text.push('\n');
         }
-        let mut stdout = std::io::stdout().lock();
-        match stdout
-            .write_all(text.as_bytes())
-            .and_then(|()| stdout.flush())
-        {
-            Ok(()) => Ok(()),
-            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(Failure::Closed),
-            Err(e) => Err(Failure::Output(e)),
-        }
+        write_out(&text)
     }
 
     /// Progress for people (nothing with `--json`); a closed output does not stop the work.

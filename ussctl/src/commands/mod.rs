@@ -1,6 +1,7 @@
 //! One file per subcommand.
 
 pub mod ack;
+pub mod backup;
 pub mod common;
 pub mod param;
 pub mod run;

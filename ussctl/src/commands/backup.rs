@@ -1,0 +1,414 @@
+//! `param backup`, `param restore`, `param diff`: a drive's settings saved, put back, compared.
+//!
+//! A backup reads every settable parameter of the catalogue (array elements included; commands
+//! such as the factory reset left out) in requests of up to 39 reads. A restore reads the drive,
+//! writes only what differs, in a safe order (the access level P0003 raised first when a
+//! parameter needs it; P0010 = 1 around parameters that only quick commissioning may change; the
+//! file's P0010 and P0003 last), checks each written value against the drive's answer, and
+//! reports what the drive refused. Cut short (drive offline, ussd gone, Ctrl-C), it says which
+//! values were written and which not; run again, it completes the rest.
+
+use crate::backup::{BackupFile, Entry, Number, Saved, now_utc};
+use crate::report::{DiffLine, DiffReport, RestoreReport};
+use crate::{Failure, Output, catch_signals, stopped};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Instant;
+use uss_client::uss_catalogue::{Catalogue, Change, Param};
+use uss_client::uss_protocol::{ParamError as DriveSays, ParamRef, Prefix, Subindex};
+use uss_client::{Bus, DriveError, ParamError, ParamTask, Value, WriteOptions};
+
+/// Reads per request (the PROFIdrive multi-parameter limit).
+const PER_REQUEST: usize = 39;
+const P0003: u16 = 3;
+const P0010: u16 = 10;
+/// USS baud rate, address, PZD and PKW length: index 1 is the COM link (RS485), the line ussd
+/// talks to the drive over. A restore keeps them: writing another drive's address or baud rate
+/// there would cut the drive off the bus in the middle of the restore.
+const LINK_PARAMS: [u16; 4] = [2010, 2011, 2012, 2013];
+const COM_LINK: u8 = 1;
+
+/// Whether `e` is a setting of the line ussd talks over.
+fn on_the_link(e: &Entry) -> bool {
+    LINK_PARAMS.contains(&e.param.pnu.get()) && e.param.index.map(Subindex::get) == Some(COM_LINK)
+}
+
+/// A drive's settings: each element with its catalogue entry and value.
+type Settings = Vec<(ParamRef, &'static Param, Value)>;
+
+/// The elements of the catalogue's settable parameters, in catalogue order.
+fn settings(catalogue: &'static Catalogue) -> Vec<(ParamRef, &'static Param)> {
+    let mut out = Vec::new();
+    for p in catalogue
+        .param
+        .iter()
+        .filter(|p| p.is_writable() && !p.action)
+    {
+        let id = ParamRef {
+            prefix: Prefix::P,
+            ..p.id
+        };
+        if p.array == 0 {
+            out.push((id, p));
+        } else {
+            for i in 0..p.array {
+                if let Some(i) = u8::try_from(i).ok().and_then(|i| Subindex::new(i).ok()) {
+                    out.push((id.at(i), p));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// A bar on stderr while a terminal watches (nothing otherwise).
+fn progress(len: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len as u64).with_message(what.to_owned());
+    if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len}") {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar
+}
+
+/// Reads `params` of `drive` in requests of up to 39; one result each, in order.
+fn read_all(
+    bus: &Bus,
+    drive: u8,
+    params: &[ParamRef],
+    what: &str,
+) -> Vec<Result<Value, ParamError>> {
+    let bar = progress(params.len(), what);
+    let mut out = Vec::with_capacity(params.len());
+    for chunk in params.chunks(PER_REQUEST) {
+        let tasks: Vec<ParamTask> = chunk
+            .iter()
+            .map(|p| ParamTask::read(p.pnu, p.index))
+            .collect();
+        out.extend(bus.batch(drive, &tasks));
+        bar.inc(chunk.len() as u64);
+    }
+    bar.finish_and_clear();
+    out
+}
+
+/// Whether a read failed because the drive does not have the parameter.
+fn not_on_drive(r: &Result<Value, ParamError>) -> bool {
+    matches!(
+        r,
+        Err(ParamError::Drive(DriveError::Refused(
+            DriveSays::IllegalPnu
+        )))
+    )
+}
+
+/// The drive's settings: each element's value, and the parameters it does not have. A failure
+/// of the path (offline, ussd gone) fails it all.
+fn read_settings(
+    bus: &Bus,
+    drive: u8,
+    catalogue: &'static Catalogue,
+) -> Result<(Settings, Vec<String>), Failure> {
+    let all = settings(catalogue);
+    let refs: Vec<ParamRef> = all.iter().map(|(r, _)| *r).collect();
+    let results = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
+    let mut values = Vec::new();
+    let mut missing = Vec::new();
+    for ((param, info), r) in all.into_iter().zip(results) {
+        match r {
+            Ok(v) => values.push((param, info, v)),
+            Err(ParamError::Drive(DriveError::Refused(DriveSays::IllegalPnu))) => {
+                let id = info.id.to_string();
+                if missing.last() != Some(&id) {
+                    missing.push(id);
+                }
+            }
+            Err(source) => {
+                return Err(Failure::Param {
+                    drive,
+                    param: param.to_string(),
+                    source,
+                });
+            }
+        }
+    }
+    Ok((values, missing))
+}
+
+/// `param backup DRIVE [-o FILE]`.
+pub(crate) fn backup(
+    bus: &Bus,
+    out: &Output,
+    drive: u8,
+    output: Option<&Path>,
+) -> Result<(), Failure> {
+    let catalogue = Catalogue::micromaster4();
+    let start = Instant::now();
+    let firmware = bus
+        .read_param(
+            drive,
+            "r0018"
+                .parse()
+                .map_err(|_| Failure::Usage("r0018".into()))?,
+        )
+        .ok()
+        .map(|v| v.typed().as_f64())
+        .map(|f| format!("{f:.2}").parse().unwrap_or(f));
+    let (values, missing) = read_settings(bus, drive, catalogue)?;
+    let mut param: BTreeMap<String, Saved> = BTreeMap::new();
+    for (r, info, v) in &values {
+        let n = Number::of(info.data_type, *v);
+        let key = info.id.to_string();
+        if r.index.is_some() {
+            match param.entry(key).or_insert_with(|| Saved::Many(Vec::new())) {
+                Saved::Many(list) => list.push(n),
+                Saved::One(_) => {}
+            }
+        } else {
+            param.insert(key, Saved::One(n));
+        }
+    }
+    let file = BackupFile {
+        format: crate::backup::FORMAT,
+        family: catalogue.family.clone(),
+        bus: bus.name().to_owned(),
+        drive,
+        firmware,
+        taken: now_utc(),
+        not_on_drive: missing,
+        param,
+    };
+    let text = file.to_text();
+    match output {
+        None => {
+            crate::write_out(&text)?;
+        }
+        Some(path) => {
+            std::fs::write(path, &text).map_err(|source| Failure::File {
+                path: path.display().to_string(),
+                source,
+            })?;
+            out.note(&format!(
+                "drive {drive}: {} parameters ({} values) saved to {} in {:.2} s{}",
+                file.param.len(),
+                values.len(),
+                path.display(),
+                start.elapsed().as_secs_f64(),
+                if file.not_on_drive.is_empty() {
+                    String::new()
+                } else {
+                    format!("; not on this drive: {}", file.not_on_drive.join(", "))
+                }
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Reads and checks a backup file.
+fn load(path: &Path) -> Result<(BackupFile, Vec<Entry>), Failure> {
+    let text = std::fs::read_to_string(path).map_err(|source| Failure::File {
+        path: path.display().to_string(),
+        source,
+    })?;
+    Ok(BackupFile::parse(
+        &text,
+        &path.display().to_string(),
+        Catalogue::micromaster4(),
+    )?)
+}
+
+/// What a restore was asked to do.
+pub(crate) struct Restore<'a> {
+    pub drive: u8,
+    pub file: &'a Path,
+    pub eeprom: bool,
+    pub dry_run: bool,
+    pub force: bool,
+}
+
+/// `param restore DRIVE FILE [--eeprom] [--dry-run] [--force]`.
+pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Failure> {
+    let drive = r.drive;
+    let (_, entries) = load(r.file)?;
+    let start = Instant::now();
+    let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
+    let now = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
+    let mut report = RestoreReport::new(bus.name(), drive, r.file, r.dry_run);
+    let mut differing = Vec::new();
+    for (e, current) in entries.iter().zip(&now) {
+        match current {
+            Ok(v) if *v == e.value => report.equal += 1,
+            Ok(v) if on_the_link(e) => report.keep_link(e, *v),
+            Ok(v) => differing.push((*e, Some(*v))),
+            Err(err) if not_on_drive(current) => report.refuse(e, err),
+            Err(source) => {
+                return Err(Failure::Param {
+                    drive,
+                    param: e.param.to_string(),
+                    source: source.clone(),
+                });
+            }
+        }
+    }
+    for (e, was) in &differing {
+        report.plan(e, *was);
+    }
+    if r.dry_run || differing.is_empty() {
+        report.seconds = start.elapsed().as_secs_f64();
+        return out.show(&report, RestoreReport::human);
+    }
+    catch_signals()?;
+    let options = WriteOptions {
+        eeprom: r.eeprom,
+        force: r.force,
+    };
+    let steps = order(bus, drive, &differing);
+    let bar = progress(steps.len(), &format!("writing drive {drive}"));
+    for (i, step) in steps.iter().enumerate() {
+        if stopped() {
+            report.cut_short("Ctrl-C", &steps[i..]);
+            break;
+        }
+        let (pnu, index, value) = step.target();
+        match bus.write_with(drive, pnu, index, value, options) {
+            Ok(held) => {
+                if let Step::Restore(e) = step {
+                    report.written(e, held);
+                }
+            }
+            Err(ParamError::Controlled { address, pid }) if i == 0 => {
+                bar.finish_and_clear();
+                return Err(Failure::Param {
+                    drive,
+                    param: "restore".into(),
+                    source: ParamError::Controlled { address, pid },
+                });
+            }
+            Err(e @ ParamError::Drive(_)) => match step {
+                Step::Restore(entry) => report.refuse(entry, &e),
+                Step::Helper(pnu, v) => report.helper_refused(*pnu, *v, &e),
+            },
+            Err(e) => {
+                report.cut_short(&e.to_string(), &steps[i..]);
+                break;
+            }
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    report.seconds = start.elapsed().as_secs_f64();
+    let complete = report.is_complete();
+    out.show(&report, RestoreReport::human)?;
+    if complete {
+        Ok(())
+    } else {
+        Err(Failure::Incomplete { drive })
+    }
+}
+
+/// The writes of a restore, in a safe order: access level first, quick commissioning around
+/// what needs it, the file's P0010 and then P0003 last.
+fn order(bus: &Bus, drive: u8, differing: &[(Entry, Option<Value>)]) -> Vec<Step> {
+    let now = |pnu| bus.read(drive, pnu, None).map_or(0, |v| v.as_u32() as u16);
+    let (level_now, commissioning_now) = (now(P0003), now(P0010));
+    let needed = differing.iter().map(|(e, _)| u16::from(e.info.level)).max();
+    let raise = needed.filter(|&n| n > level_now);
+    let commissioning = differing
+        .iter()
+        .any(|(e, _)| e.info.change == Change::Commissioning);
+    let (last, body): (Vec<_>, Vec<_>) = differing
+        .iter()
+        .partition(|(e, _)| matches!(e.param.pnu.get(), P0003 | P0010));
+    let (p0010_in_file, p0003_in_file) = (
+        last.iter().any(|(e, _)| e.param.pnu.get() == P0010),
+        last.iter().any(|(e, _)| e.param.pnu.get() == P0003),
+    );
+    let mut steps: Vec<Step> = Vec::new();
+    steps.extend(raise.map(|n| Step::Helper(P0003, n)));
+    if commissioning {
+        steps.push(Step::Helper(P0010, 1));
+    }
+    steps.extend(body.iter().map(|(e, _)| Step::Restore(*e)));
+    // Quick commissioning left and the access level put back: to the file's values (P0010
+    // before P0003, which leaving commissioning may need), or to what the drive had.
+    if commissioning && !p0010_in_file {
+        steps.push(Step::Helper(P0010, commissioning_now));
+    }
+    let mut last = last;
+    last.sort_by_key(|(e, _)| std::cmp::Reverse(e.param.pnu));
+    steps.extend(last.iter().map(|(e, _)| Step::Restore(*e)));
+    if raise.is_some() && !p0003_in_file {
+        steps.push(Step::Helper(P0003, level_now));
+    }
+    steps
+}
+
+/// One write of a restore.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Step {
+    /// A value of the file.
+    Restore(Entry),
+    /// P0003 or P0010 set on the way (access level, quick commissioning).
+    Helper(u16, u16),
+}
+
+impl Step {
+    fn target(&self) -> (u16, Option<u8>, Value) {
+        match self {
+            Self::Restore(e) => (e.param.pnu.get(), e.param.index.map(Subindex::get), e.value),
+            Self::Helper(pnu, v) => (*pnu, None, Value::Word(*v)),
+        }
+    }
+
+    pub(crate) fn name(&self) -> String {
+        match self {
+            Self::Restore(e) => e.param.to_string(),
+            Self::Helper(pnu, v) => format!("P{pnu:04} := {v} (on the way)"),
+        }
+    }
+}
+
+/// `param diff DRIVE (FILE | DRIVE)`.
+pub(crate) fn diff(bus: &Bus, out: &Output, drive: u8, other: &str) -> Result<(), Failure> {
+    let catalogue = Catalogue::micromaster4();
+    let mut report = DiffReport::new(bus.name(), drive, other);
+    if let Ok(second) = other.parse::<u8>() {
+        let (a, _) = read_settings(bus, drive, catalogue)?;
+        let (b, _) = read_settings(bus, second, catalogue)?;
+        let theirs: BTreeMap<_, _> = b.iter().map(|(r, _, v)| ((r.pnu, r.index), *v)).collect();
+        for (r, info, v) in &a {
+            match theirs.get(&(r.pnu, r.index)) {
+                Some(w) if w == v => report.same += 1,
+                w => report
+                    .lines
+                    .push(DiffLine::new(*r, info, Some(*v), w.copied())),
+            }
+        }
+    } else {
+        let (_, entries) = load(Path::new(other))?;
+        let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
+        let now = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
+        for (e, current) in entries.iter().zip(now) {
+            match current {
+                Ok(v) if v == e.value => report.same += 1,
+                Ok(v) => report
+                    .lines
+                    .push(DiffLine::new(e.param, e.info, Some(v), Some(e.value))),
+                Err(ref err) if not_on_drive(&current) || matches!(err, ParamError::Drive(_)) => {
+                    report
+                        .lines
+                        .push(DiffLine::new(e.param, e.info, None, Some(e.value)));
+                }
+                Err(source) => {
+                    return Err(Failure::Param {
+                        drive,
+                        param: e.param.to_string(),
+                        source,
+                    });
+                }
+            }
+        }
+    }
+    out.show(&report, DiffReport::human)
+}
