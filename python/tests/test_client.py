@@ -219,6 +219,66 @@ def test_stopping_a_drive_ussd_does_not_poll_raises_unknown_drive(bus):
         uss_rt.stop_drive(bus, 9)
 
 
+def test_parameters_read_in_the_manuals_notation_as_their_own_type(bus):
+    assert repr(uss_rt.read(bus, 1, "P1082")) == "P1082 = 50.00 Hz"
+    assert repr(uss_rt.read(bus, 1, "21")) == "r0021 = 0.00 Hz"
+    assert repr(uss_rt.read(bus, 1, "r0947[0]")) == "r0947[0] = 0"
+    status = uss_rt.read(bus, 1, "r0052")
+    assert (status.value, status.name) == (status.raw, "CO/BO: Act. status word 1")
+    assert repr(status).startswith("r0052 = 0x")
+    assert uss_rt.parse_param("r0947.3") == (947, 3, "r")
+    with pytest.raises(ValueError, match="write a parameter as P1082"):
+        uss_rt.parse_param("Q12")
+
+
+def test_writes_convert_to_the_parameters_type_and_refuse_what_does_not_fit(bus):
+    held = uss_rt.write(bus, 2, "P1120", 3)
+    assert (held.value, repr(held)) == (3.0, "P1120 = 3.00 s")
+    assert uss_rt.read_param(bus, 2, 1120).as_float() == 3.0
+    assert uss_rt.write(bus, 2, "P0700", "0x05").value == 5
+    with pytest.raises(ValueError, match=r"P0700: 70000 does not fit U16 \(0..=65535\)"):
+        uss_rt.write(bus, 2, "P0700", 70000)
+    with pytest.raises(ValueError, match="P0700: 4.5 is not a whole number"):
+        uss_rt.write(bus, 2, "P0700", 4.5)
+    with pytest.raises(ValueError, match="r0021: read-only"):
+        uss_rt.write(bus, 2, "r0021", 5)
+    with pytest.raises(uss_rt.DriveError):
+        uss_rt.write(bus, 2, "P2000", 0.5)  # below the drive's limit: error 2
+    assert uss_rt.drive.fault_text(72) == "USS (COM link) setpoint fault"
+
+
+def test_python_takes_control_runs_stops_and_releases_a_drive(bus):
+    uss_rt.write(bus, 1, "P1120", 0.5)
+    uss_rt.write(bus, 1, "P1121", 0.5)
+    with uss_rt.control(bus, 1) as c:
+        assert repr(c) == f"Controller(bus='{BUS}', drive=1, stw1=0x047e)"
+        with pytest.raises(uss_rt.Controlled, match="drive 1 on .* is controlled by another"):
+            uss_rt.control(bus, 1)
+        c.rearm()  # ussd latched the drive at start: OFF1 re-arms it
+        c.enable()
+        c.wait_for(lambda i: i["zsw1"] & 0x7F == 0x31, what="S2")
+        c.run_hz(25)
+        image = c.wait_for(lambda i: i["hiw"] == 0x2000, what="25 Hz")
+        assert image["sent_stw1"] == 0x047F and image["control"] == uss_rt.ControlState.LIVE
+        c.acknowledge()
+        c.stop()
+        c.wait_for(lambda i: i["hiw"] == 0, what="stopped")
+        # An operator's stop latches the drive: the controller is told at its next call.
+        uss_rt.stop_drive(bus, 1, uss_rt.StopCommand.OFF2)
+        uss_rt.wait_stopped(bus, 1, uss_rt.StopCommand.OFF2)
+        with pytest.raises(uss_rt.Tripped, match="drive 1 is latched"):
+            c.run_hz(10)
+        assert c.rearm()["control"] == uss_rt.ControlState.LIVE
+    released = wait_for_input(bus, 1, lambda i: i["latch_reason"] == uss_rt.LatchReason.RELEASED)
+    assert released["sent_stw1"] == 0x047E
+    uss_rt.control(bus, 1).release()  # free again
+
+
+def test_the_catalogue_is_the_rust_crates_file():
+    rust = ROOT / "catalogue" / "data" / "micromaster4.toml"
+    assert uss_rt.drive.CATALOGUE_FILE.read_bytes() == rust.read_bytes()
+
+
 def test_bus_without_ussd_raises_not_running():
     with pytest.raises(uss_rt.NotRunning, match=f"ussd is not running on {BUS}x"):
         uss_rt.open_bus(f"{BUS}x")

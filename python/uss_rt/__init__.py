@@ -73,6 +73,14 @@ __all__ = [
     "stop_all",
     "stop_drive",
     "wait_stopped",
+    "parse_param",
+    "read",
+    "write",
+    "control",
+    "Controller",
+    "Controlled",
+    "Tripped",
+    "Value",
 ]
 
 # -------------------------------------------------------------------------------------------
@@ -1197,19 +1205,33 @@ def read_param(bus: Bus, address: int, pnu: int, index=None, timeout: float = 7.
     the drive refuses, :class:`ParamTimeout` when the drive does not answer in ussd's parameter
     timeout, :class:`NoAnswer` when ussd does not answer within ``timeout`` seconds,
     :class:`Refused` when ussd refuses the request, :class:`ParamFailed` otherwise.
+    :func:`uss_rt.read` reads a parameter in the manuals' notation as its own type.
     """
-    _check_address(address)
+    task = TaskCode.READ if index is None else TaskCode.READ_ARRAY
+    return _request(bus, address, [_item(task, pnu, index or 0)], timeout)[0]
+
+
+def _item(task, pnu: int, index: int = 0, value: int = 0, storage=Storage.RAM) -> ParamItem:
+    """One item of a parameter request, its numbers checked."""
     if not 0 <= pnu <= 0xFFFF:
         raise ValueError(f"PNU {pnu} is out of range 0..=65535")
-    if index is not None and not 0 <= index <= MAX_SUBINDEX:
+    if not 0 <= index <= MAX_SUBINDEX:
         raise ValueError(f"subindex {index} is out of range 0..=254 (USS.md section 6)")
-    request = ParamRequest(version=LAYOUT_VERSION, address=address, count=1)
-    request.items[0] = ParamItem(
-        task=TaskCode.READ if index is None else TaskCode.READ_ARRAY,
-        storage=Storage.RAM,
-        pnu=pnu,
-        index=index or 0,
+    return ParamItem(task=task, storage=storage, pnu=pnu, index=index, value=value)
+
+
+def _request(bus: Bus, address: int, items, timeout: float, force: bool = False):
+    """Sends one request of ``items`` for drive ``address``; the value of each item, or the
+    error of the first that failed."""
+    _check_address(address)
+    request = ParamRequest(
+        version=LAYOUT_VERSION,
+        address=address,
+        count=len(items),
+        flags=REQUEST_FORCE if force else 0,
     )
+    for i, item in enumerate(items):
+        request.items[i] = item
     response = _send(bus, request, timeout)
     if response.version != LAYOUT_VERSION:
         service = params_service(bus.name, bus._generation)
@@ -1217,16 +1239,18 @@ def read_param(bus: Bus, address: int, pnu: int, index=None, timeout: float = 7.
     if response.error != RequestError.OK:
         item = None if response.error_item == NO_ITEM else response.error_item
         raise _refused(bus, address, response.error, item)
-    if response.address != address or response.count != 1:
+    if response.address != address or response.count != len(items):
         raise UssError(
             f"ussd answered for drive {response.address} with {response.count} results a "
-            f"request for drive {address} with 1 item: check that ussd and this module are "
-            "the same uss-rt version"
+            f"request for drive {address} with {len(items)} items: check that ussd and this "
+            "module are the same uss-rt version"
         )
-    result = response.results[0]
-    if result.outcome == Outcome.REFUSED:
-        raise _refused(bus, address, result.refusal, None)
-    return _value(result)
+    values = []
+    for result in response.results[: len(items)]:
+        if result.outcome == Outcome.REFUSED:
+            raise _refused(bus, address, result.refusal, None)
+        values.append(_value(result))
+    return values
 
 
 def _refused(bus: Bus, address: int, error: int, item) -> UssError:
@@ -1338,3 +1362,18 @@ def _value(result: ParamResult) -> ParamValue:
     if outcome == Outcome.TIMEOUT:
         raise ParamTimeout()
     raise ParamFailed(outcome)
+
+
+# Parameters in the manuals' notation and exclusive control (drive.py uses the names above).
+from .drive import (  # noqa: E402
+    Controlled,
+    Controller,
+    Tripped,
+    Value,
+    control,
+    fault_text,
+    parse_param,
+    read,
+    warning_text,
+    write,
+)
