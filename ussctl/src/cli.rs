@@ -67,6 +67,20 @@ pub enum Command {
     Faults { drive: u8 },
     /// Bus statistics and every drive's counters.
     Stats,
+    /// Find the drives on a line ussd does not serve: each address that answers at each baud
+    /// rate, its PKW and PZD length and firmware (r0018). Probes carry STW1 = 0 (bit 10 clear):
+    /// the drives ignore them, no motor moves.
+    Scan {
+        /// The serial device, e.g. /dev/ttyUSB0.
+        device: std::path::PathBuf,
+        /// Baud rates: a list (9600,19200), or `all` (the 13 of USS.md section 2); default the
+        /// eight of MICROMASTER's P2010 (1200 to 115200).
+        #[arg(long, value_name = "LIST|all", value_parser = baud_list)]
+        baud: Option<BaudList>,
+        /// Addresses: a range (0-31) or a list (1,3,5).
+        #[arg(long, value_name = "RANGE", default_value = "0-31", value_parser = address_list)]
+        addresses: AddressList,
+    },
 }
 
 /// The drive a stop command is for, or every drive of the bus.
@@ -166,6 +180,65 @@ pub enum Kind {
 
 /// A parameter as the manuals write it (`P1082`, `r0021`, `1082`, `P0947[3]`, `r0947.3`).
 pub use uss_client::uss_protocol::ParamRef;
+
+/// Baud rates given to `scan`.
+#[derive(Debug, Clone)]
+pub struct BaudList(pub Vec<uss_client::uss_protocol::Baud>);
+
+/// Addresses given to `scan`.
+#[derive(Debug, Clone)]
+pub struct AddressList(pub Vec<uss_client::uss_protocol::Address>);
+
+/// Baud rates for `scan`: `all`, or a comma-separated list of rates USS names.
+pub fn baud_list(s: &str) -> Result<BaudList, String> {
+    use uss_client::uss_protocol::Baud;
+    let rates: Vec<u32> = if s == "all" {
+        Baud::STANDARD.to_vec()
+    } else {
+        s.split(',')
+            .map(|r| {
+                r.trim()
+                    .parse::<u32>()
+                    .map_err(|_| format!("{r:?} is not a baud rate"))
+            })
+            .collect::<Result<_, _>>()?
+    };
+    rates
+        .into_iter()
+        .map(|r| {
+            Baud::new(r)
+                .ok()
+                .filter(|b| b.is_standard())
+                .ok_or_else(|| format!("{r} is not a USS baud rate (USS.md section 2)"))
+        })
+        .collect::<Result<_, _>>()
+        .map(BaudList)
+}
+
+/// Addresses for `scan`: `0-31`, or a comma-separated list.
+pub fn address_list(s: &str) -> Result<AddressList, String> {
+    use uss_client::uss_protocol::Address;
+    let number = |t: &str| {
+        t.trim()
+            .parse::<u8>()
+            .ok()
+            .and_then(|a| Address::new(a).ok())
+            .ok_or_else(|| format!("{t:?} is not a drive address 0..=31"))
+    };
+    if let Some((from, to)) = s.split_once('-') {
+        let (from, to) = (number(from)?, number(to)?);
+        Ok(AddressList(
+            (from.get()..=to.get())
+                .filter_map(|a| Address::new(a).ok())
+                .collect(),
+        ))
+    } else {
+        s.split(',')
+            .map(number)
+            .collect::<Result<_, _>>()
+            .map(AddressList)
+    }
+}
 
 /// Parses a parameter reference for clap, naming what was written.
 pub fn param_ref(s: &str) -> Result<ParamRef, String> {

@@ -51,7 +51,31 @@ fn main() -> ExitCode {
     }
 }
 
+/// MICROMASTER's P2010 settings 4..=12: the rates `scan` tries by default.
+const SCAN_BAUDS: [u32; 8] = [1200, 2400, 4800, 9600, 19200, 38400, 57600, 115_200];
+
 fn run(cli: &Cli) -> Result<(), Failure> {
+    // `scan` works on a line ussd does not serve: no bus to open.
+    if let Command::Scan {
+        device,
+        baud,
+        addresses,
+    } = &cli.command
+    {
+        let bauds = match baud {
+            Some(list) => list.0.clone(),
+            None => SCAN_BAUDS
+                .iter()
+                .filter_map(|&b| uss_client::uss_protocol::Baud::new(b).ok())
+                .collect(),
+        };
+        let scan = commands::scan::Scan {
+            device,
+            bauds,
+            addresses: addresses.0.clone(),
+        };
+        return commands::scan::scan(&Output { json: cli.json }, &scan);
+    }
     let mut bus = Bus::open_as(&cli.bus, "ussctl")?;
     if let Some(t) = cli.timeout {
         let t = Duration::try_from_secs_f64(t)
@@ -124,6 +148,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Ack { drive } => commands::ack::ack(&bus, &out, *drive),
         Command::Faults { drive } => commands::param::faults(&bus, &out, *drive),
         Command::Stats => commands::status::stats(&bus, &out),
+        Command::Scan { .. } => unreachable!("handled before the bus is opened"),
     }
 }
 

@@ -5,6 +5,7 @@ pub mod backup;
 pub mod common;
 pub mod param;
 pub mod run;
+pub mod scan;
 pub mod status;
 pub mod stop;
 pub mod watch;
