@@ -63,6 +63,7 @@ fn run_engine_spinning(
         echo: false,
         mailbox_depth: 16,
         publish_every: Duration::from_millis(100),
+        param_priority: false,
         drives,
     };
     let transport = SimTransport::new(VirtualWire::new(bus, timing));

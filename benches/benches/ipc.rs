@@ -36,7 +36,7 @@ use uss_client::{
     Value,
 };
 use uss_master::config::Config;
-use uss_master::daemon::ipc::{IpcNode, RtBridge, StatusPublisher};
+use uss_master::daemon::ipc::{IpcNode, RtBridge};
 use uss_master::daemon::rt::{RtRequest, apply_to_current_thread};
 use uss_master::engine::image::DriveImages;
 use uss_master::{
@@ -212,7 +212,9 @@ struct BusUnderTest {
     engine: JoinHandle<(Stats, Vec<Sent>, String)>,
     params: Option<JoinHandle<()>>,
     // Held until the threads above have ended: they use ports of this node.
-    _status: StatusPublisher,
+    /// Publishes status, diagnostics and the heartbeat every 50 ms, as ussd's housekeeping
+    /// thread does (clients open a bus only while its heartbeat says it is served).
+    status: std::thread::JoinHandle<()>,
     _node: IpcNode,
 }
 
@@ -280,6 +282,17 @@ impl BusUnderTest {
             let sent = std::mem::take(&mut engine.transport_mut().sent);
             (engine.stats().clone(), sent, mode)
         });
+        let status = {
+            let handle = handle.clone();
+            let mut publisher = ipc.status;
+            std::thread::spawn(move || {
+                while !handle.is_stopped() {
+                    publisher.publish(&handle.stats(), true, 0);
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+                publisher.publish(&handle.stats(), false, 0);
+            })
+        };
         Self {
             name: bus.name.clone(),
             handle,
@@ -287,7 +300,7 @@ impl BusUnderTest {
             handed_over,
             engine,
             params,
-            _status: ipc.status,
+            status,
             _node: ipc.node,
         }
     }
@@ -332,6 +345,7 @@ impl BusUnderTest {
         if let Some(params) = self.params {
             params.join().expect("parameter bridge thread");
         }
+        self.status.join().expect("status thread");
         Finished {
             stats,
             sent,
@@ -735,7 +749,7 @@ fn parameter_round_trip(bus: &BusUnderTest, period: Duration) -> Vec<[u64; 3]> {
     rows::<3>(&run_client("params", &bus.name, PARAM_SECS, period), "P ")
 }
 
-fn report_params(answered: &[[u64; 3]], finished: &Finished) {
+fn report_params(answered: &[[u64; 3]], finished: &Finished, option: &str) {
     let (mut round_trip, mut on_wire, mut rest) = (histogram(), histogram(), histogram());
     for &[rt, wire, _] in answered {
         record(&mut round_trip, rt);
@@ -747,7 +761,7 @@ fn report_params(answered: &[[u64; 3]], finished: &Finished) {
     let floor = exchange + h.cycle.value_at_quantile(0.5) / 2;
     let b = &finished.stats.bus;
     println!(
-        "== parameter read round trip: Bus::send_request in a client process -> ussd's ParamServer -> PKW exchange -> response (drive 1 of 4) [bus thread {}]",
+        "== parameter read round trip, {option}: Bus::send_request in a client process -> ussd's ParamServer -> PKW exchange -> response (drive 1 of 4) [bus thread {}]",
         finished.mode
     );
     println!(
@@ -783,6 +797,20 @@ fn report_params(answered: &[[u64; 3]], finished: &Finished) {
         floor as f64 / 1e6,
         r(0.5, floor),
         r(0.99, floor)
+    );
+    // The other drives (2..4): their longest time between two good replies against the
+    // cycle's median.
+    let worst = finished.stats.update_period[1..]
+        .iter()
+        .map(Histogram::max)
+        .max()
+        .unwrap_or(0);
+    let cycle = h.cycle.value_at_quantile(0.5).max(1);
+    println!(
+        "   worst poll period of the other drives: {:.3} ms = {:.2} x the median cycle ({:.3} ms)",
+        worst as f64 / 1e6,
+        worst as f64 / cycle as f64,
+        cycle as f64 / 1e6
     );
 }
 
@@ -1033,6 +1061,14 @@ fn main() {
         report_output(&published, &finished);
     }
     if wanted("params") {
-        report_params(&answered, &finished);
+        report_params(&answered, &finished, "param_priority = false");
+        // The same with the drive that has a job waiting polled after each regular poll.
+        let name = format!("ipcprio{}", std::process::id());
+        let toml = bus_toml(&name, drives)
+            .replace("baud = 187500\n", "baud = 187500\nparam_priority = true\n");
+        let bus = BusUnderTest::start(&toml, true);
+        bus.wait_until_answering();
+        let answered = parameter_round_trip(&bus, bus.poll_period());
+        report_params(&answered, &bus.stop(), "param_priority = true");
     }
 }

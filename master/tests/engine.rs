@@ -76,6 +76,7 @@ fn bench_with(
         echo,
         mailbox_depth: 16,
         publish_every: ms(100),
+        param_priority: false,
         drives: setups,
     };
     cfg(&mut config);
@@ -981,6 +982,7 @@ fn a_failed_line_ends_every_job_and_the_restored_line_latches_every_drive() {
         echo: false,
         mailbox_depth: 16,
         publish_every: ms(100),
+        param_priority: false,
         drives: vec![
             DriveSetup::new(addr(1), layout(PkwMode::Four, 2)),
             DriveSetup::new(addr(2), layout(PkwMode::Four, 2)),
@@ -1092,5 +1094,87 @@ fn a_drive_is_unknown_until_its_first_poll_decides() {
     assert_eq!(
         b.results(1)[0].outcome,
         Ok(Ok(Answer::Value(Value::Dword(0x4248_0000))))
+    );
+}
+
+/// The longest run of exchanges between two polls of each drive but `busy` in `polled`.
+fn longest_gap(polled: &[u8], busy: u8) -> usize {
+    (1..=8)
+        .filter(|&a| a != busy)
+        .map(|a| {
+            let at: Vec<usize> = polled
+                .iter()
+                .enumerate()
+                .filter(|&(_, &p)| p == a)
+                .map(|(i, _)| i)
+                .collect();
+            at.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0)
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+/// With `param_priority` a drive with a parameter job waiting gets an extra poll after each
+/// regular one: an EEPROM write that the drive answers "not yet" three times needs four
+/// telegrams, which then come within a few exchanges instead of four cycles. While the drive
+/// always has jobs waiting, no other drive waits more than twice its usual poll period.
+#[test]
+fn param_priority_speeds_a_waiting_job_and_at_most_doubles_the_others_poll_period() {
+    let drives: Vec<(u8, PkwMode)> = (1..=8).map(|a| (a, PkwMode::Four)).collect();
+    let mut measured = Vec::new();
+    for priority in [false, true] {
+        let mut b = bench_with(&drives, |_| {}, |c| c.param_priority = priority, false);
+        b.run_for(ms(300), &[]);
+        let write = Job {
+            id: 1,
+            address: addr(1),
+            task: ParamTask::Write {
+                pnu: Pnu::from_u16(1120),
+                value: Value::from_f32(2.0),
+                storage: uss_protocol::Storage::RamAndEeprom,
+            },
+        };
+        b.handle.submit(write).unwrap();
+        let mut exchanges = 0;
+        let result = loop {
+            b.engine.poll_next().unwrap();
+            exchanges += 1;
+            if let Some(r) = b.handle.recv_result(Duration::ZERO) {
+                break r;
+            }
+        };
+        assert_eq!(
+            result.outcome,
+            Ok(Ok(Answer::Value(Value::from_f32(2.0)))),
+            "priority {priority}"
+        );
+        assert_eq!(result.telegrams, 4, "three busy replies, then the value");
+        // Drive 1 always has a job waiting: 400 polls.
+        let mut polled = Vec::new();
+        let mut id = 100;
+        for _ in 0..400 {
+            while b.handle.recv_result(Duration::ZERO).is_some() {}
+            id += 1;
+            // A full mailbox refuses it (Busy): drive 1 has jobs waiting either way.
+            let _ = b.handle.submit(read(id, 1, 1082));
+            polled.push(b.engine.poll_next().unwrap().unwrap().get());
+        }
+        measured.push((exchanges, longest_gap(&polled, 1)));
+    }
+    let [(without, gap_without), (with, gap_with)] = measured[..] else {
+        unreachable!()
+    };
+    println!(
+        "param_priority: exchanges until the result {without} -> {with}; the longest gap \
+         between two polls of another drive {gap_without} -> {gap_with} exchanges"
+    );
+    assert_eq!(gap_without, 8, "{measured:?}");
+    assert!(
+        gap_with > gap_without && gap_with <= 2 * gap_without,
+        "{measured:?}"
+    );
+    assert!(
+        with * 3 < without,
+        "exchanges until the result: {measured:?}"
     );
 }

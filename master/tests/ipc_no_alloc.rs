@@ -54,6 +54,7 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
         echo: false,
         mailbox_depth: 8,
         publish_every: Duration::from_millis(20),
+        param_priority: false,
         drives: setups,
     };
     let (mut engine, _handle, _events) = Engine::with_bridge(

@@ -62,6 +62,8 @@ fn faulty_bus() -> (TestEngine, EngineHandle, Receiver<Event>) {
         echo: true,
         mailbox_depth: 8,
         publish_every: Duration::from_millis(20),
+        // The extra polls for parameter jobs allocate nothing either.
+        param_priority: true,
         drives: setups,
     };
     let wire = VirtualWire::new(bus, timing).with_echo(true);

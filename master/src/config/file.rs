@@ -52,6 +52,9 @@ pub struct BusTable {
     pub cycle_time_ms: CycleTime,
     #[serde(default)]
     pub param_timeout_ms: ParamTimeout,
+    /// A drive with a parameter job waiting gets an extra poll after each regular one.
+    #[serde(default)]
+    pub param_priority: bool,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cpu: Option<Spanned<i64>>,
     #[serde(default)]

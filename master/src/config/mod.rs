@@ -135,6 +135,9 @@ pub struct BusConfig {
     pub cycle_time: Option<Duration>,
     /// A parameter job with no matching reply in this time ends with a timeout (USS.md section 6).
     pub param_timeout: Duration,
+    /// A drive with a parameter job waiting gets an extra poll after each regular poll of the
+    /// circulating list (no other drive's poll period more than doubles).
+    pub param_priority: bool,
     /// The CPU to pin the bus thread to; `None` = not pinned.
     pub cpu: Option<usize>,
     /// The bus thread's `SCHED_FIFO` priority, 1..=99.

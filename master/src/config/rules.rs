@@ -192,6 +192,7 @@ impl Rules<'_> {
             offline_probe: bus.offline_probe_ms.duration(),
             cycle_time: Some(bus.cycle_time_ms.duration()).filter(|d| !d.is_zero()),
             param_timeout: bus.param_timeout_ms.duration(),
+            param_priority: bus.param_priority,
             cpu: bus.cpu.as_ref().map(|c| *c.get_ref() as usize),
             priority: bus.priority.0,
             seed: bus.seed.as_ref().map_or(1, |s| *s.get_ref()),

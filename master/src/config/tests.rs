@@ -68,6 +68,7 @@ offline_after = 4
 offline_probe_ms = 1000.0
 cycle_time_ms = 12.25
 param_timeout_ms = 3000.0
+param_priority = true
 cpu = 0
 priority = 70
 seed = 42
@@ -143,6 +144,7 @@ fn missing_keys_get_their_documented_defaults() {
     assert_eq!(bus.offline_probe, ms(500));
     assert_eq!(bus.cycle_time, None);
     assert_eq!(bus.param_timeout, ms(2000));
+    assert!(!bus.param_priority);
     assert_eq!((bus.cpu, bus.priority, bus.seed), (None, 80, 1));
     let d = &bus.drives[0];
     assert_eq!(d.address.get(), 3);
@@ -181,6 +183,7 @@ fn every_key_is_read_as_written() {
     assert_eq!(sim.offline_probe, ms(1000));
     assert_eq!(sim.cycle_time, Some(Duration::from_micros(12_250)));
     assert_eq!(sim.param_timeout, ms(3000));
+    assert!(sim.param_priority);
     assert_eq!((sim.cpu, sim.priority, sim.seed), (Some(0), 70, 42));
     let d = &sim.drives[0];
     assert_eq!(d.address.get(), 31);
@@ -277,6 +280,7 @@ offline_after = 1
 offline_probe_ms = 500.0
 cycle_time_ms = 0.0
 param_timeout_ms = 2000.0
+param_priority = false
 priority = 80
 
 [[bus.drive]]

@@ -76,6 +76,7 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
         echo: bus.echo,
         mailbox_depth: MAILBOX_DEPTH,
         publish_every: super::housekeeping::STATUS_EVERY,
+        param_priority: bus.param_priority,
         drives: bus
             .drives
             .iter()

@@ -102,6 +102,10 @@ pub struct EngineConfig {
     pub mailbox_depth: usize,
     /// How often statistics are published to other threads.
     pub publish_every: Duration,
+    /// A drive with a parameter job waiting gets an extra poll after every poll of the
+    /// circulating list, so the job does not wait a whole cycle for its drive's turn; at most one
+    /// extra poll follows each regular one, so no other drive's poll period more than doubles.
+    pub param_priority: bool,
     pub drives: Vec<DriveSetup>,
 }
 
@@ -312,6 +316,10 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     drives: Vec<DriveRt>,
     poll_list: Vec<u8>,
     position: usize,
+    /// With `param_priority`: whether the last poll was an extra one for a parameter job, and
+    /// where the search for the next such drive starts (round robin among them).
+    extra_was_last: bool,
+    extra_cursor: usize,
     tx: [u8; MAX_TELEGRAM_BYTES],
     line_free_at: Duration,
     last_reply_done: Option<Duration>,
@@ -432,6 +440,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             drives,
             poll_list,
             position: 0,
+            extra_was_last: false,
+            extra_cursor: 0,
             tx: [0; MAX_TELEGRAM_BYTES],
             line_free_at: now,
             last_reply_done: None,
@@ -758,8 +768,28 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
     }
 
-    /// The next slot of the circulating list that is due, ending a cycle when the list wraps.
+    /// With `param_priority`, after a regular poll: the next online drive (round robin) with
+    /// a parameter job waiting.
+    fn extra_slot(&mut self) -> Option<usize> {
+        if !self.cfg.param_priority || self.extra_was_last {
+            self.extra_was_last = false;
+            return None;
+        }
+        let n = self.drives.len();
+        let found = (0..n).map(|k| (self.extra_cursor + k) % n).find(|&slot| {
+            self.stats.drives[slot].online && !self.drives[slot].mailbox.is_empty()
+        })?;
+        self.extra_cursor = (found + 1) % n;
+        self.extra_was_last = true;
+        Some(found)
+    }
+
+    /// The next slot of the circulating list that is due, ending a cycle when the list wraps
+    /// (or, with `param_priority`, an extra poll of a drive with a parameter job waiting).
     fn next_slot(&mut self) -> Option<usize> {
+        if let Some(slot) = self.extra_slot() {
+            return Some(slot);
+        }
         let now = self.clock.now();
         for _ in 0..self.poll_list.len() {
             if self.position == self.poll_list.len() {
