@@ -46,6 +46,7 @@ pub enum Command {
     Param(ParamCommand),
     /// Take control of a drive, run it at a frequency, stop it at the end (OFF1).
     Run {
+        /// The drive's address on the bus, 0..=31.
         drive: u8,
         /// Frequency in Hz; negative runs the other way.
         #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
@@ -62,11 +63,25 @@ pub enum Command {
     /// Quick-stop a drive (OFF3: along the OFF3 ramp), whoever controls it; latched.
     QuickStop(Target),
     /// Acknowledge a drive's fault (rising edge of STW1 bit 7).
-    Ack { drive: u8 },
-    /// The drive's fault buffer (r0947), newest first.
-    Faults { drive: u8 },
+    Ack {
+        /// The drive's address on the bus, 0..=31.
+        drive: u8,
+    },
+    /// The drive's fault buffer (r0947 with the fault values r0949), newest first, and its
+    /// active warnings (r2110).
+    Faults {
+        /// The drive's address on the bus, 0..=31.
+        drive: u8,
+    },
     /// Bus statistics and every drive's counters.
     Stats,
+    /// Print a completion script for SHELL (bash, zsh, fish, elvish, powershell).
+    Completions {
+        /// The shell to complete for.
+        shell: clap_complete::Shell,
+    },
+    /// Print the manual page (roff, for man).
+    Man,
     /// Find the drives on a line ussd does not serve: each address that answers at each baud
     /// rate, its PKW and PZD length and firmware (r0018). Probes carry STW1 = 0 (bit 10 clear):
     /// the drives ignore them, no motor moves.
@@ -98,7 +113,9 @@ pub struct Target {
 pub enum ParamCommand {
     /// Read a parameter or an array element, e.g. `P1082`, `r0021`, `P0947[3]`, `r0947.3`.
     Read {
+        /// The drive's address on the bus, 0..=31.
         drive: u8,
+        /// The parameter as the manuals write it: P1082, p1082, r0021, 1082, P0947[3], r0947.3.
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
         /// How to show the value (default: the parameter's own type, from the catalogue or the
@@ -108,7 +125,9 @@ pub enum ParamCommand {
     },
     /// Write VALUE to a parameter or an array element.
     Write {
+        /// The drive's address on the bus, 0..=31.
         drive: u8,
+        /// The parameter as the manuals write it: P1082, p1082, r0021, 1082, P0947[3], r0947.3.
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
         /// A number: decimal, 0x hex, negative, or with a decimal point (converted to the
@@ -129,14 +148,18 @@ pub enum ParamCommand {
     /// Save every settable parameter of a drive (the catalogue's, array elements included) to
     /// a TOML file (stdout without -o).
     Backup {
+        /// The drive's address on the bus, 0..=31.
         drive: u8,
+        /// Write the backup to FILE instead of stdout.
         #[arg(short, long, value_name = "FILE")]
         output: Option<std::path::PathBuf>,
     },
     /// Write a backup to a drive: only what differs, in a safe order, each value checked
     /// against the drive's answer. Refused while another process controls the drive.
     Restore {
+        /// The drive's address on the bus, 0..=31.
         drive: u8,
+        /// The backup file (written by `param backup`).
         file: std::path::PathBuf,
         /// Store in EEPROM as well as RAM (survives a power cycle).
         #[arg(long)]
@@ -150,6 +173,7 @@ pub enum ParamCommand {
     },
     /// Compare a drive's settings with a backup file, or with another drive (an address).
     Diff {
+        /// The drive's address on the bus, 0..=31.
         drive: u8,
         /// A backup file, or the address of another drive on the bus.
         other: String,

@@ -54,7 +54,9 @@ fn main() -> ExitCode {
 /// MICROMASTER's P2010 settings 4..=12: the rates `scan` tries by default.
 const SCAN_BAUDS: [u32; 8] = [1200, 2400, 4800, 9600, 19200, 38400, 57600, 115_200];
 
-fn run(cli: &Cli) -> Result<(), Failure> {
+/// The commands that need no bus: completions and the man page (generated from this command
+/// line's own definition) and `scan` (a line ussd does not serve).
+fn run_without_bus(cli: &Cli) -> Option<Result<(), Failure>> {
     // `scan` works on a line ussd does not serve: no bus to open.
     if let Command::Scan {
         device,
@@ -74,7 +76,32 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             bauds,
             addresses: addresses.0.clone(),
         };
-        return commands::scan::scan(&Output { json: cli.json }, &scan);
+        return Some(commands::scan::scan(&Output { json: cli.json }, &scan));
+    }
+    // Generated from this command line's own definition; no bus needed.
+    match &cli.command {
+        Command::Completions { shell } => {
+            let mut command = <Cli as clap::CommandFactory>::command();
+            let mut out = Vec::new();
+            clap_complete::generate(*shell, &mut command, "ussctl", &mut out);
+            Some(write_out(&String::from_utf8_lossy(&out)))
+        }
+        Command::Man => {
+            let mut out = Vec::new();
+            Some(
+                clap_mangen::Man::new(<Cli as clap::CommandFactory>::command())
+                    .render(&mut out)
+                    .map_err(Failure::Output)
+                    .and_then(|()| write_out(&String::from_utf8_lossy(&out))),
+            )
+        }
+        _ => None,
+    }
+}
+
+fn run(cli: &Cli) -> Result<(), Failure> {
+    if let Some(done) = run_without_bus(cli) {
+        return done;
     }
     let mut bus = Bus::open_as(&cli.bus, "ussctl")?;
     if let Some(t) = cli.timeout {
@@ -148,7 +175,9 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Ack { drive } => commands::ack::ack(&bus, &out, *drive),
         Command::Faults { drive } => commands::param::faults(&bus, &out, *drive),
         Command::Stats => commands::status::stats(&bus, &out),
-        Command::Scan { .. } => unreachable!("handled before the bus is opened"),
+        Command::Scan { .. } | Command::Completions { .. } | Command::Man => {
+            unreachable!("handled before the bus is opened")
+        }
     }
 }
 
@@ -192,5 +221,37 @@ impl Output {
         if !self.json {
             let _ = writeln!(std::io::stdout().lock(), "{text}");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    /// Every subcommand and argument of `cmd` (but clap's own --help and --version) without
+    /// help text, by path.
+    fn undocumented(cmd: &clap::Command, path: &str, out: &mut Vec<String>) {
+        if cmd.get_about().is_none() {
+            out.push(path.to_owned());
+        }
+        for a in cmd.get_arguments() {
+            let own = !matches!(a.get_id().as_str(), "help" | "version");
+            if own && a.get_help().is_none() && !a.is_hide_set() {
+                out.push(format!("{path} {}", a.get_id()));
+            }
+        }
+        for sub in cmd.get_subcommands() {
+            undocumented(sub, &format!("{path} {}", sub.get_name()), out);
+        }
+    }
+
+    #[test]
+    fn every_subcommand_and_argument_has_help_text() {
+        let cmd = Cli::command();
+        cmd.clone().debug_assert();
+        let mut missing = Vec::new();
+        undocumented(&cmd, "ussctl", &mut missing);
+        assert!(missing.is_empty(), "without help text: {missing:?}");
     }
 }

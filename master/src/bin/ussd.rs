@@ -37,6 +37,28 @@ struct Cli {
     /// Stop after this many seconds (default: until SIGINT/SIGTERM).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
+    /// Print a completion script for SHELL (bash, zsh, fish, elvish, powershell) and exit.
+    #[arg(long, value_name = "SHELL", exclusive = true)]
+    completions: Option<clap_complete::Shell>,
+    /// Print the manual page (roff, for man) and exit.
+    #[arg(long, exclusive = true)]
+    man: bool,
+}
+
+/// `--completions SHELL` / `--man`: generated from this command line's own definition.
+fn print_docs(shell: Option<clap_complete::Shell>, man: bool) -> std::io::Result<bool> {
+    let mut command = <Cli as clap::CommandFactory>::command();
+    let mut out = std::io::stdout().lock();
+    if let Some(shell) = shell {
+        let name = command.get_name().to_owned();
+        clap_complete::generate(shell, &mut command, name, &mut out);
+        return Ok(true);
+    }
+    if man {
+        clap_mangen::Man::new(command).render(&mut out)?;
+        return Ok(true);
+    }
+    Ok(false)
 }
 
 /// SIGINT and SIGTERM set the returned flag: ussd then stops cleanly.
@@ -84,6 +106,10 @@ impl Failure {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // A reader that went away (`ussd --man | head`) is no error either.
+    if print_docs(cli.completions, cli.man).unwrap_or(true) {
+        return ExitCode::SUCCESS;
+    }
     if let Some(path) = &cli.check_config {
         return match Config::load(path) {
             Ok(config) => {

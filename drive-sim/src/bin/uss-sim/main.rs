@@ -20,7 +20,7 @@ use uss_protocol::{Baud, Timing};
     name = "uss-sim",
     version,
     about = "Simulated USS drives (MICROMASTER 4 / SINAMICS G120-like) on a serial device or a pseudo-terminal",
-    group(ArgGroup::new("mode").required(true).args(["device", "pty", "demo"]))
+    group(ArgGroup::new("mode").required(true).args(["device", "pty", "demo", "completions", "man"]))
 )]
 struct Cli {
     /// Serve this serial device (8E1, opened exclusively), e.g. /dev/ttyUSB0.
@@ -47,6 +47,28 @@ struct Cli {
     /// Stop after this many seconds (default: until SIGINT/SIGTERM; the demo runs 8 s).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
+    /// Print a completion script for SHELL (bash, zsh, fish, elvish, powershell) and exit.
+    #[arg(long, value_name = "SHELL", exclusive = true)]
+    completions: Option<clap_complete::Shell>,
+    /// Print the manual page (roff, for man) and exit.
+    #[arg(long, exclusive = true)]
+    man: bool,
+}
+
+/// `--completions SHELL` / `--man`: generated from this command line's own definition.
+fn print_docs(shell: Option<clap_complete::Shell>, man: bool) -> std::io::Result<bool> {
+    let mut command = <Cli as clap::CommandFactory>::command();
+    let mut out = std::io::stdout().lock();
+    if let Some(shell) = shell {
+        let name = command.get_name().to_owned();
+        clap_complete::generate(shell, &mut command, name, &mut out);
+        return Ok(true);
+    }
+    if man {
+        clap_mangen::Man::new(command).render(&mut out)?;
+        return Ok(true);
+    }
+    Ok(false)
 }
 
 fn parse_baud(s: &str) -> Result<u32, String> {
@@ -90,6 +112,10 @@ pub enum Failure {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // A reader that went away (`uss-sim --man | head`) is no error either.
+    if print_docs(cli.completions, cli.man).unwrap_or(true) {
+        return ExitCode::SUCCESS;
+    }
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(failure) => {
