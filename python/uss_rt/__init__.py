@@ -87,7 +87,7 @@ __all__ = [
 # Limits and names (uss_shm_types: lib.rs, pzd.rs, params.rs, names.rs)
 # -------------------------------------------------------------------------------------------
 
-LAYOUT_VERSION = 3
+LAYOUT_VERSION = 4
 """The layout version of every payload; its ``version`` field and the services' attribute."""
 LAYOUT_VERSION_ATTRIBUTE = "uss.layout_version"
 MAX_PZD_WORDS = 16
@@ -407,7 +407,7 @@ class PzdOutput(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssPzdOutputV3"
+        return "UssPzdOutputV4"
 
 
 class PzdInput(ctypes.Structure):
@@ -439,7 +439,7 @@ class PzdInput(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssPzdInputV3"
+        return "UssPzdInputV4"
 
 
 class DriveInfo(ctypes.Structure):
@@ -459,7 +459,7 @@ class DriveInfo(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveInfoV3"
+        return "UssDriveInfoV4"
 
 
 class DriveCounters(ctypes.Structure):
@@ -497,7 +497,7 @@ class DriveCounters(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveCountersV3"
+        return "UssDriveCountersV4"
 
 
 class DriveDiag(ctypes.Structure):
@@ -530,7 +530,7 @@ class DriveDiag(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveDiagV3"
+        return "UssDriveDiagV4"
 
 
 class BusStatus(ctypes.Structure):
@@ -569,11 +569,14 @@ class BusStatus(ctypes.Structure):
         ("reopen_attempts", u32),
         ("reserved2", u32),
         ("jobs_cancelled", u64),
+        ("exchange_ns", u64 * 4),
+        ("response_delay_ns", u64 * 4),
+        ("turnaround_ns", u64 * 4),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "UssBusStatusV3"
+        return "UssBusStatusV4"
 
 
 class ParamItem(ctypes.Structure):
@@ -590,7 +593,7 @@ class ParamItem(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamItemV3"
+        return "UssParamItemV4"
 
 
 class ParamRequest(ctypes.Structure):
@@ -607,7 +610,7 @@ class ParamRequest(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamRequestV3"
+        return "UssParamRequestV4"
 
 
 class ParamResult(ctypes.Structure):
@@ -626,7 +629,7 @@ class ParamResult(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamResultV3"
+        return "UssParamResultV4"
 
 
 class ParamResponse(ctypes.Structure):
@@ -645,7 +648,7 @@ class ParamResponse(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamResponseV3"
+        return "UssParamResponseV4"
 
 
 class Heartbeat(ctypes.Structure):
@@ -667,7 +670,7 @@ class Heartbeat(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssHeartbeatV3"
+        return "UssHeartbeatV4"
 
 
 class OperatorRequest(ctypes.Structure):
@@ -682,7 +685,7 @@ class OperatorRequest(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssOperatorRequestV3"
+        return "UssOperatorRequestV4"
 
 
 class OperatorResponse(ctypes.Structure):
@@ -698,7 +701,7 @@ class OperatorResponse(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssOperatorResponseV3"
+        return "UssOperatorResponseV4"
 
 
 PAYLOAD_TYPES = (

@@ -19,19 +19,19 @@
  * as IOX2_TYPE_NAME.
  */
 #define USS_BLACKBOARD_KEY_TYPE_NAME "UssBlackboardKey"
-#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV3"
-#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV3"
-#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV3"
-#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV3"
-#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV3"
-#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV3"
-#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV3"
-#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV3"
-#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV3"
-#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV3"
-#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV3"
-#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV3"
-#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV3"
+#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV4"
+#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV4"
+#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV4"
+#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV4"
+#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV4"
+#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV4"
+#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV4"
+#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV4"
+#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV4"
+#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV4"
+#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV4"
+#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV4"
+#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV4"
 
 /*
  * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; %016llx = the
@@ -75,7 +75,7 @@
  * The layout version of every payload type in this crate. Bump it with any change to a type's
  * fields, sizes or code tables, together with the type names' `V<n>` suffix.
  */
-#define USS_LAYOUT_VERSION 3
+#define USS_LAYOUT_VERSION 4
 
 /**
  * Longest bus name.
@@ -878,7 +878,7 @@ typedef struct UssPzdOutput {
   uint8_t flags;
   uint8_t reserved[6];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV4";
 #endif
 } UssPzdOutput;
 
@@ -973,7 +973,7 @@ typedef struct UssPzdInput {
    */
   uint64_t taken_sequence;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV4";
 #endif
 } UssPzdInput;
 
@@ -1013,7 +1013,7 @@ typedef struct UssDriveInfo {
   uint8_t weight;
   uint8_t reserved[3];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV4";
 #endif
 } UssDriveInfo;
 
@@ -1084,7 +1084,7 @@ typedef struct UssDriveCounters {
    */
   uint64_t overrides;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV4";
 #endif
 } UssDriveCounters;
 
@@ -1180,7 +1180,7 @@ typedef struct UssDriveDiag {
    */
   struct UssDriveCounters counters;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV4";
 #endif
 } UssDriveDiag;
 
@@ -1284,8 +1284,20 @@ typedef struct UssBusStatus {
    * Parameter jobs of clients that died, taken out before they reached the wire.
    */
   uint64_t jobs_cancelled;
+  /**
+   * Exchange time (line free -> reply complete), ns: p50, p99, p99.9, max; 0 = none yet.
+   */
+  uint64_t exchange_ns[4];
+  /**
+   * Response delay (end of our request -> the reply's STX), ns: p50, p99, p99.9, max.
+   */
+  uint64_t response_delay_ns[4];
+  /**
+   * Turnaround (reply complete -> next request written), ns: p50, p99, p99.9, max.
+   */
+  uint64_t turnaround_ns[4];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV4";
 #endif
 } UssBusStatus;
 
@@ -1315,7 +1327,7 @@ typedef struct UssParamItem {
    */
   uint32_t value;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV4";
 #endif
 } UssParamItem;
 /**
@@ -1346,7 +1358,7 @@ typedef struct UssParamRequest {
   uint8_t reserved;
   struct UssParamItem items[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV4";
 #endif
 } UssParamRequest;
 
@@ -1386,7 +1398,7 @@ typedef struct UssParamResult {
    */
   uint64_t on_wire_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV4";
 #endif
 } UssParamResult;
 
@@ -1422,7 +1434,7 @@ typedef struct UssParamResponse {
   uint32_t reserved;
   struct UssParamResult results[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV4";
 #endif
 } UssParamResponse;
 
@@ -1472,7 +1484,7 @@ typedef struct UssHeartbeat {
    */
   int32_t line_errno;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV4";
 #endif
 } UssHeartbeat;
 
@@ -1494,7 +1506,7 @@ typedef struct UssOperatorRequest {
   uint8_t command;
   uint8_t reserved[2];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV4";
 #endif
 } UssOperatorRequest;
 
@@ -1520,7 +1532,7 @@ typedef struct UssOperatorResponse {
    */
   uint32_t drives;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV3";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV4";
 #endif
 } UssOperatorResponse;
 

@@ -72,7 +72,7 @@ code_table! {
 /// USS.md section 7) plus timeouts and retries.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveDiagV3")]
+#[type_name("UssDriveDiagV4")]
 pub struct DriveDiag {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -124,7 +124,7 @@ pub struct DriveDiag {
 /// told it again (a controller scales Hz with `reference_hz`, sends exactly `pzd_words`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveInfoV3")]
+#[type_name("UssDriveInfoV4")]
 pub struct DriveInfo {
     /// The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
     /// frequency (USS.md section 7).
@@ -166,7 +166,7 @@ impl DriveInfo {
 /// published (USS.md section 4, "Receive errors to detect and count").
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssDriveCountersV3")]
+#[type_name("UssDriveCountersV4")]
 pub struct DriveCounters {
     /// Telegrams sent to the drive (retries included).
     pub requests: u64,
@@ -279,7 +279,7 @@ impl DriveCounters {
 /// The state of the bus as a whole.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssBusStatusV3")]
+#[type_name("UssBusStatusV4")]
 pub struct BusStatus {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -331,6 +331,12 @@ pub struct BusStatus {
     pub reserved2: u32,
     /// Parameter jobs of clients that died, taken out before they reached the wire.
     pub jobs_cancelled: u64,
+    /// Exchange time (line free -> reply complete), ns: p50, p99, p99.9, max; 0 = none yet.
+    pub exchange_ns: [u64; 4],
+    /// Response delay (end of our request -> the reply's STX), ns: p50, p99, p99.9, max.
+    pub response_delay_ns: [u64; 4],
+    /// Turnaround (reply complete -> next request written), ns: p50, p99, p99.9, max.
+    pub turnaround_ns: [u64; 4],
 }
 
 impl DriveDiag {
@@ -443,6 +449,9 @@ impl BusStatus {
         reopen_attempts: 0,
         reserved2: 0,
         jobs_cancelled: 0,
+        exchange_ns: [0; 4],
+        response_delay_ns: [0; 4],
+        turnaround_ns: [0; 4],
     };
 
     pub fn rt_mode(&self) -> Result<RtMode, UnknownCode> {

@@ -38,7 +38,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdOutput",
-        type_name: "UssPzdOutputV3",
+        type_name: "UssPzdOutputV4",
         size: 64,
         align: 8,
         fields: &[
@@ -56,7 +56,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdInput",
-        type_name: "UssPzdInputV3",
+        type_name: "UssPzdInputV4",
         size: 96,
         align: 8,
         fields: &[
@@ -85,7 +85,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveInfo",
-        type_name: "UssDriveInfoV3",
+        type_name: "UssDriveInfoV4",
         size: 16,
         align: 4,
         fields: &[
@@ -101,7 +101,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveCounters",
-        type_name: "UssDriveCountersV3",
+        type_name: "UssDriveCountersV4",
         size: 192,
         align: 8,
         fields: &[
@@ -133,7 +133,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveDiag",
-        type_name: "UssDriveDiagV3",
+        type_name: "UssDriveDiagV4",
         size: 264,
         align: 8,
         fields: &[
@@ -163,8 +163,8 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "BusStatus",
-        type_name: "UssBusStatusV3",
-        size: 144,
+        type_name: "UssBusStatusV4",
+        size: 240,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -194,11 +194,14 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("reopen_attempts", 128, 4),
             f("reserved2", 132, 4),
             f("jobs_cancelled", 136, 8),
+            f("exchange_ns", 144, 32),
+            f("response_delay_ns", 176, 32),
+            f("turnaround_ns", 208, 32),
         ],
     },
     TypeLayout {
         name: "ParamItem",
-        type_name: "UssParamItemV3",
+        type_name: "UssParamItemV4",
         size: 12,
         align: 4,
         fields: &[
@@ -212,7 +215,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamRequest",
-        type_name: "UssParamRequestV3",
+        type_name: "UssParamRequestV4",
         size: 476,
         align: 4,
         fields: &[
@@ -226,7 +229,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResult",
-        type_name: "UssParamResultV3",
+        type_name: "UssParamResultV4",
         size: 24,
         align: 8,
         fields: &[
@@ -242,7 +245,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResponse",
-        type_name: "UssParamResponseV3",
+        type_name: "UssParamResponseV4",
         size: 952,
         align: 8,
         fields: &[
@@ -258,7 +261,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "Heartbeat",
-        type_name: "UssHeartbeatV3",
+        type_name: "UssHeartbeatV4",
         size: 56,
         align: 8,
         fields: &[
@@ -277,7 +280,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorRequest",
-        type_name: "UssOperatorRequestV3",
+        type_name: "UssOperatorRequestV4",
         size: 8,
         align: 4,
         fields: &[
@@ -289,7 +292,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorResponse",
-        type_name: "UssOperatorResponseV3",
+        type_name: "UssOperatorResponseV4",
         size: 12,
         align: 4,
         fields: &[

@@ -63,7 +63,7 @@ pub use pzd::{EXTRA_PZD_WORDS, MAX_PZD_WORDS, OUTPUT_RELEASE, OutputSample, PzdI
 
 /// The layout version of every payload type in this crate. Bump it with any change to a type's
 /// fields, sizes or code tables, together with the type names' `V<n>` suffix.
-pub const LAYOUT_VERSION: u32 = 3;
+pub const LAYOUT_VERSION: u32 = 4;
 
 /// Checks a payload's `version` field.
 pub const fn check_version(found: u32) -> Result<(), ContractError> {

@@ -173,6 +173,20 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
 
     let status = bus.status().unwrap();
     assert_eq!((status.running, status.drive_count), (1, 3));
+    // Timing percentiles leave ussd, not only means: p50 <= p99 <= p99.9 <= max, all measured.
+    for q in [
+        status.exchange_ns,
+        status.response_delay_ns,
+        status.turnaround_ns,
+    ] {
+        assert!(q[0] > 0 && q.windows(2).all(|w| w[0] <= w[1]), "{q:?}");
+    }
+    let out = ussd.ussctl(&["stats"]);
+    assert!(
+        text(&out.stdout).contains("  exchange        p50 "),
+        "{}",
+        text(&out.stdout)
+    );
     assert!(status.cycles > 0 && status.good > 0, "{status:?}");
     let diag = bus.diag(2).unwrap();
     assert_eq!((diag.address, diag.online), (2, 1));

@@ -303,7 +303,46 @@ impl StatusReport {
 #[derive(Debug, Serialize)]
 pub struct StatsReport {
     pub bus: BusReport,
+    /// The bus's timing, µs: p50, p99, p99.9, max.
+    pub timing: TimingReport,
     pub drives: Vec<DriveStats>,
+}
+
+/// Timing percentiles of a bus in µs: `[p50, p99, p99.9, max]`, zeros while none measured.
+#[derive(Debug, Serialize)]
+pub struct TimingReport {
+    /// Line free -> reply complete.
+    pub exchange: [f64; 4],
+    /// End of the request -> the reply's STX.
+    pub response_delay: [f64; 4],
+    /// Reply complete -> next request written.
+    pub turnaround: [f64; 4],
+}
+
+impl TimingReport {
+    pub fn of(s: &BusStatus) -> Self {
+        let us = |ns: [u64; 4]| ns.map(|n| n as f64 / 1e3);
+        Self {
+            exchange: us(s.exchange_ns),
+            response_delay: us(s.response_delay_ns),
+            turnaround: us(s.turnaround_ns),
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let row = |name: &str, q: [f64; 4]| {
+            format!(
+                "  {name:<15} p50 {:9.1} us  p99 {:9.1} us  p99.9 {:9.1} us  max {:9.1} us\n",
+                q[0], q[1], q[2], q[3]
+            )
+        };
+        [
+            row("exchange", self.exchange),
+            row("response delay", self.response_delay),
+            row("turnaround", self.turnaround),
+        ]
+        .concat()
+    }
 }
 
 #[derive(Debug, Serialize)]
@@ -416,6 +455,7 @@ impl StatsReport {
             "\n  cycle overruns {}, parameter jobs accepted {} finished {}, events dropped {}, results lost {}",
             b.cycle_overruns, b.jobs_accepted, b.jobs_finished, b.events_dropped, b.results_lost
         );
+        out.push_str(&self.timing.human());
         for d in &self.drives {
             let _ = write!(
                 out,

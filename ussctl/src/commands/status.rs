@@ -1,7 +1,7 @@
 //! `status` and `stats`: the bus and its drives, once.
 
 use super::common::{diags, healthy};
-use crate::report::{BusReport, DriveRow, DriveStats, StatsReport, StatusReport};
+use crate::report::{BusReport, DriveRow, DriveStats, StatsReport, StatusReport, TimingReport};
 use crate::{Failure, Output};
 use uss_client::Bus;
 
@@ -19,6 +19,7 @@ pub(crate) fn stats(bus: &Bus, out: &Output) -> Result<(), Failure> {
     let status = bus.status()?;
     let report = StatsReport {
         bus: BusReport::new(bus.name(), &status),
+        timing: TimingReport::of(&status),
         drives: diags(bus)?
             .iter()
             .map(|d| DriveStats::new(d, status.timestamp_ns))

@@ -200,6 +200,19 @@ impl ControlView {
     }
 }
 
+/// p50, p99, p99.9 and max of a timing histogram, ns (zeros while empty).
+fn quantiles(h: &hdrhistogram::Histogram<u64>) -> [u64; 4] {
+    if h.is_empty() {
+        return [0; 4];
+    }
+    [
+        h.value_at_quantile(0.5),
+        h.value_at_quantile(0.99),
+        h.value_at_quantile(0.999),
+        h.max(),
+    ]
+}
+
 /// What ussd knows of a drive from its configuration, as the contract carries it.
 fn info(d: &DriveSetup) -> DriveInfo {
     DriveInfo {
@@ -317,6 +330,9 @@ impl StatusPublisher {
             line_downs: stats.line.downs,
             reopen_attempts,
             jobs_cancelled: b.jobs_cancelled,
+            exchange_ns: quantiles(&stats.histograms.exchange),
+            response_delay_ns: quantiles(&stats.histograms.response_delay),
+            turnaround_ns: quantiles(&stats.histograms.turnaround),
             ..BusStatus::EMPTY
         });
     }
