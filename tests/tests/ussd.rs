@@ -99,11 +99,13 @@ fn ussd_polls_a_pty_bus_with_faults_and_its_summary_tells_the_truth() {
     // Every telegram ussd sent to drive 1 arrived intact, and nothing else did, unless a reply
     // was late (the machine was busy): then the retry can meet the late reply on the line,
     // which uss-sim rejects as a start-pause violation: at most one telegram spoilt, and one
-    // rejection, per timeout.
+    // rejection, per timeout. uss-sim also sees the safe command ussd sends drive 1 at shutdown,
+    // after its last summary; it can meet a reply of drive 2 still on its way (seen once in CI:
+    // good 541 = sent 541, rejected 1 for the start pause), so one more rejection is allowed.
     let (sent, timeouts) = (counter(d1, "sent"), counter(d1, "timeouts"));
     let (good, rejected) = (counter(sim_d1, "good"), counter(sim_d1, "rejected"));
     assert!(
-        good <= sent && sent - good <= timeouts && rejected <= timeouts,
+        good <= sent + 1 && sent.saturating_sub(good) <= timeouts && rejected <= timeouts + 1,
         "uss-sim: {sim_d1}\nussd: {d1}"
     );
     let _ = std::fs::remove_file(config);
