@@ -1,6 +1,6 @@
 //! `ussctl scan` against `uss-sim` over a real pseudo-terminal: several drives of different
 //! layouts on one line, each answering only telegrams of its own length; the scan finds exactly
-//! that set. A device that does not exist, is not a tty, or is held by another process is a
+//! that set, and leaves them in S2 (every probe carries OFF1). A device that does not exist, is not a tty, or is held by another process is a
 //! clear error with exit code 1.
 #![allow(clippy::unwrap_used)]
 
@@ -40,10 +40,10 @@ fn a_scan_finds_exactly_the_drives_on_the_line_with_their_layouts() {
     assert_eq!(
         lines[..4],
         [
-            " 19200 baud  drive  3: PKW 4, PZD 2, ZSW1 0xBB40 (S1), firmware 2.09",
-            " 19200 baud  drive  5: PKW variable (127), PZD 6, ZSW1 0xBB40 (S1), firmware 2.09",
-            " 19200 baud  drive  7: PKW 3, PZD 4, ZSW1 0xBB40 (S1)",
-            " 19200 baud  drive  9: PKW 0, PZD 2, ZSW1 0xBB40 (S1)",
+            " 19200 baud  drive  3: PKW 4, PZD 2, ZSW1 0xBB31 (S2), firmware 2.09",
+            " 19200 baud  drive  5: PKW variable (127), PZD 6, ZSW1 0xBB31 (S2), firmware 2.09",
+            " 19200 baud  drive  7: PKW 3, PZD 4, ZSW1 0xBB31 (S2)",
+            " 19200 baud  drive  9: PKW 0, PZD 2, ZSW1 0xBB31 (S2)",
         ],
         "{said}"
     );
@@ -65,13 +65,14 @@ fn a_scan_finds_exactly_the_drives_on_the_line_with_their_layouts() {
     ]);
     assert_eq!(code, Some(0));
     assert!(
-        json.contains("\"drives\":[{\"baud\":19200,\"address\":5,\"pkw\":\"variable (127)\",\"pzd\":6,\"zsw1\":47936,\"firmware\":2.09},{\"baud\":19200,\"address\":7,\"pkw\":\"3\",\"pzd\":4,\"zsw1\":47936,\"firmware\":null}]"),
+        json.contains("\"drives\":[{\"baud\":19200,\"address\":5,\"pkw\":\"variable (127)\",\"pzd\":6,\"zsw1\":47921,\"firmware\":2.09},{\"baud\":19200,\"address\":7,\"pkw\":\"3\",\"pzd\":4,\"zsw1\":47921,\"firmware\":null}]"),
         "{json}"
     );
-    // The probes carry STW1 = 0 (bit 10 clear): the drives ignored them and stayed in S1.
+    // Every probe carries OFF1 (STW1 0x047E, bit 10 set): the drives went S1 -> S2, ready but
+    // not switched on, and none runs.
     let summary = sim.stop();
     assert_eq!(
-        summary.matches("S1 switching on inhibited").count(),
+        summary.matches("S2 ready to switch on   0.00 Hz").count(),
         4,
         "{summary}"
     );

@@ -83,8 +83,8 @@ pub enum Command {
     /// Print the manual page (roff, for man).
     Man,
     /// Find the drives on a line ussd does not serve: each address that answers at each baud
-    /// rate, its PKW and PZD length and firmware (r0018). Probes carry STW1 = 0 (bit 10 clear):
-    /// the drives ignore them, no motor moves.
+    /// rate, its PKW and PZD length and firmware (r0018). Probes carry OFF1 (STW1 0x047E, bit 10
+    /// set): no drive is switched on.
     Scan {
         /// The serial device, e.g. /dev/ttyUSB0.
         device: std::path::PathBuf,

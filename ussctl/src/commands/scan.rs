@@ -4,11 +4,13 @@
 //! For each baud rate and address a mirror telegram (ADR bit 6) asks whether a slave is there:
 //! it comes back unchanged whatever the slave's telegram length. A slave that mirrors is then
 //! asked with telegrams of each layout in turn (the common ones first) until it answers: a
-//! slave answers only telegrams of its own length. Every probe carries STW1 = 0, so bit 10
-//! ("control by PLC") is clear and the drive ignores the process data: a scan never moves a
-//! motor. The PKW probe reads P0003 (a word): a 4-word request answered with 3 words is the
-//! variable length (P2013 = 127). With a parameter channel, the firmware r0018 is read.
+//! slave answers only telegrams of its own length. Every probe's PZD carry the safe command OFF1
+//! (STW1 0x047E, bit 10 set, setpoint 0), as every telegram of uss-rt does: a scan never switches
+//! a drive on, and a drive USS controls gets OFF1. The PKW probe reads P0003 (a word): a 4-word
+//! request answered with 3 words is the variable length (P2013 = 127). With a 4-word or
+//! variable parameter channel, the firmware r0018 (a float, which 3 words cannot carry) is read.
 
+use super::common::firmware_version;
 use crate::report::{ScanReport, ScannedDrive};
 use crate::{Failure, Output, catch_signals, stopped};
 use core::time::Duration;
@@ -22,6 +24,14 @@ use uss_client::uss_protocol::{
 };
 use uss_master::transports::serial::{SerialError, SerialOptions, SerialTransport};
 use uss_master::{Clock, MonotonicClock, Transport};
+
+/// The PZD of every probe: OFF1 (STW1 0x047E, bit 10 "control by PLC" set) with a zero setpoint
+/// and zero further words, the first `pzd` of them.
+const SAFE_PZD: [u16; 16] = {
+    let mut words = [0; 16];
+    words[0] = 0x047E;
+    words
+};
 
 /// Layouts tried on a slave that answered the mirror telegram, the common ones first.
 fn layouts() -> Vec<(PkwMode, usize)> {
@@ -83,14 +93,13 @@ fn identify(probe: &mut Probe, address: Address) -> Result<Option<ScannedDrive>,
             continue;
         };
         let layout = Layout::new(pkw, count);
-        // Read P0003 (a word) with the PKW channel; STW1 0: the drive ignores the PZD.
+        // Read P0003 (a word) with the PKW channel; the PZD carry OFF1.
         let task = [0x1000 | 3, 0, 0, 0];
         let pkw_words = &task[..pkw.request_words()];
-        let zeros = [0u16; 16];
         // Twice: one lost reply must not hide the layout.
         let mut answer = None;
         for _ in 0..2 {
-            answer = probe.exchange(Adr::to(address), pkw_words, &zeros[..pzd])?;
+            answer = probe.exchange(Adr::to(address), pkw_words, &SAFE_PZD[..pzd])?;
             if answer.is_some() {
                 break;
             }
@@ -142,7 +151,7 @@ fn identify(probe: &mut Probe, address: Address) -> Result<Option<ScannedDrive>,
             zsw1: words.pzd().first().copied(),
             firmware: None,
         };
-        if pkw != PkwMode::None {
+        if matches!(layout.pkw, PkwMode::Four | PkwMode::Variable) {
             drive.firmware = firmware(probe, address, layout)?;
         }
         return Ok(Some(drive));
@@ -153,9 +162,8 @@ fn identify(probe: &mut Probe, address: Address) -> Result<Option<ScannedDrive>,
 /// Whether a slave asked for r0018 (a double word) through `layout` answers with a double
 /// word (AK 2), which a 3-word channel cannot carry.
 fn answers_a_dword(probe: &mut Probe, address: Address, layout: Layout) -> Result<bool, Failure> {
-    let zeros = [0u16; 16];
     let task = [0x1000 | 18, 0, 0];
-    let answer = probe.exchange(Adr::to(address), &task, &zeros[..layout.pzd.get()])?;
+    let answer = probe.exchange(Adr::to(address), &task, &SAFE_PZD[..layout.pzd.get()])?;
     Ok(answer
         .and_then(|b| {
             uss_client::uss_protocol::Telegram::parse(&b)
@@ -168,11 +176,11 @@ fn answers_a_dword(probe: &mut Probe, address: Address, layout: Layout) -> Resul
 
 /// r0018 (a float) read over the drive's own layout, repeated while it answers "not yet".
 fn firmware(probe: &mut Probe, address: Address, layout: Layout) -> Result<Option<f64>, Failure> {
-    let zeros = [0u16; 16];
     let task = [0x1000 | 18, 0, 0, 0];
     for _ in 0..5 {
         let pkw = &task[..layout.pkw.request_words()];
-        let Some(bytes) = probe.exchange(Adr::to(address), pkw, &zeros[..layout.pzd.get()])? else {
+        let Some(bytes) = probe.exchange(Adr::to(address), pkw, &SAFE_PZD[..layout.pzd.get()])?
+        else {
             return Ok(None);
         };
         let words = uss_client::uss_protocol::Telegram::parse(&bytes)
@@ -184,10 +192,7 @@ fn firmware(probe: &mut Probe, address: Address, layout: Layout) -> Result<Optio
         match ParamReply::decode(words.pkw()).map(|r| r.kind) {
             Ok(ReplyKind::NotYet) => {}
             Ok(kind) => {
-                return Ok(kind.value().map(|v: Value| {
-                    let f = f64::from(v.as_f32());
-                    (f * 100.0).round() / 100.0
-                }));
+                return Ok(kind.value().map(|v: Value| firmware_version(v.as_f32())));
             }
             Err(_) => return Ok(None),
         }
@@ -249,7 +254,7 @@ pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
                 mirror: true,
                 ..Adr::to(address)
             };
-            let Some(echo) = probe.exchange(mirror, &[], &[0, 0])? else {
+            let Some(echo) = probe.exchange(mirror, &[], &SAFE_PZD[..2])? else {
                 continue;
             };
             let answered = uss_client::uss_protocol::Telegram::parse(&echo)
