@@ -867,11 +867,6 @@ impl DriveReport {
     }
 }
 
-/// A value as the parameter shows it (`50.00 Hz`), or `-` when there is none.
-fn shown(info: &Param, v: Option<Value>) -> String {
-    v.map_or_else(|| "-".to_owned(), |v| info.show(v))
-}
-
 /// One value of a restore: what the drive had, what the file says, what happened.
 #[derive(Debug, Serialize)]
 pub struct RestoreLine {
@@ -1054,8 +1049,8 @@ impl DiffLine {
         Self {
             param: param.to_string(),
             name: info.name.as_str(),
-            drive: drive.map(|v| shown(info, Some(v))),
-            other: other.map(|v| shown(info, Some(v))),
+            drive: drive.map(|v| info.show(v)),
+            other: other.map(|v| info.show(v)),
         }
     }
 }

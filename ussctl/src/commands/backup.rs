@@ -8,6 +8,7 @@
 //! reports what the drive refused. Cut short (drive offline, ussd gone, Ctrl-C), it says which
 //! values were written and which not; run again, it completes the rest.
 
+use super::common::firmware_version;
 use crate::backup::{BackupFile, Entry, Number, Saved, now_utc};
 use crate::report::{DiffLine, DiffReport, RestoreReport};
 use crate::{Failure, Output, catch_signals, stopped};
@@ -16,7 +17,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;
 use uss_client::uss_catalogue::{Catalogue, Change, Param};
-use uss_client::uss_protocol::{ParamError as DriveSays, ParamRef, Prefix, Subindex};
+use uss_client::uss_protocol::{ParamError as DriveSays, ParamRef, Pnu, Prefix, Subindex};
 use uss_client::{Bus, DriveError, ParamError, ParamTask, Value, WriteOptions};
 
 /// Reads per request (the PROFIdrive multi-parameter limit).
@@ -93,12 +94,10 @@ fn read_all(
 }
 
 /// Whether a read failed because the drive does not have the parameter.
-fn not_on_drive(r: &Result<Value, ParamError>) -> bool {
+const fn not_on_drive(e: &ParamError) -> bool {
     matches!(
-        r,
-        Err(ParamError::Drive(DriveError::Refused(
-            DriveSays::IllegalPnu
-        )))
+        e,
+        ParamError::Drive(DriveError::Refused(DriveSays::IllegalPnu))
     )
 }
 
@@ -117,7 +116,7 @@ fn read_settings(
     for ((param, info), r) in all.into_iter().zip(results) {
         match r {
             Ok(v) => values.push((param, info, v)),
-            Err(ParamError::Drive(DriveError::Refused(DriveSays::IllegalPnu))) => {
+            Err(e) if not_on_drive(&e) => {
                 let id = info.id.to_string();
                 if missing.last() != Some(&id) {
                     missing.push(id);
@@ -144,16 +143,14 @@ pub(crate) fn backup(
 ) -> Result<(), Failure> {
     let catalogue = Catalogue::micromaster4();
     let start = Instant::now();
+    let r0018 = ParamRef {
+        prefix: Prefix::R,
+        ..ParamRef::new(Pnu::from_u16(18))
+    };
     let firmware = bus
-        .read_param(
-            drive,
-            "r0018"
-                .parse()
-                .map_err(|_| Failure::Usage("r0018".into()))?,
-        )
+        .read_param(drive, r0018)
         .ok()
-        .map(|v| v.typed().as_f64())
-        .map(|f| format!("{f:.2}").parse().unwrap_or(f));
+        .map(|v| firmware_version(v.typed().as_f64() as f32));
     let (values, missing) = read_settings(bus, drive, catalogue)?;
     let mut param: BTreeMap<String, Saved> = BTreeMap::new();
     for (r, info, v) in &values {
@@ -241,7 +238,7 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
             Ok(v) if *v == e.value => report.equal += 1,
             Ok(v) if on_the_link(e) => report.keep_link(e, *v),
             Ok(v) => differing.push((*e, Some(*v))),
-            Err(err) if not_on_drive(current) => report.refuse(e, err),
+            Err(err) if not_on_drive(err) => report.refuse(e, err),
             Err(source) => {
                 return Err(Failure::Param {
                     drive,
@@ -395,7 +392,8 @@ pub(crate) fn diff(bus: &Bus, out: &Output, drive: u8, other: &str) -> Result<()
                 Ok(v) => report
                     .lines
                     .push(DiffLine::new(e.param, e.info, Some(v), Some(e.value))),
-                Err(ref err) if not_on_drive(&current) || matches!(err, ParamError::Drive(_)) => {
+                // The drive refused the read (e.g. it does not have the parameter).
+                Err(ParamError::Drive(_)) => {
                     report
                         .lines
                         .push(DiffLine::new(e.param, e.info, None, Some(e.value)));
