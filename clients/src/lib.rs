@@ -77,7 +77,7 @@ pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, HANDSHAKE_TIMEOUT
 pub use error::{ClientError, Latch, ParamError};
 pub use link::Health;
 pub use params::WriteOptions;
-pub use typed::{Fault, FaultReport, ParamValue, Warning};
+pub use typed::{Fault, FaultReport, FaultTime, ParamValue, Warning};
 pub use uss_catalogue::{Catalogue, DataType, Typed};
 pub use uss_protocol::{DriveState, ParamTask, Pnu, Setpoint, Stw1, Subindex, Value, Zsw1};
 pub use uss_shm_types::{

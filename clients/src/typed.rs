@@ -196,6 +196,52 @@ pub const WARNINGS_PNU: u16 = 2110;
 pub const WARNINGS_LEN: u8 = 4;
 /// The fault values (r0949), one per element of the fault buffer r0947.
 pub const FAULT_VALUES_PNU: u16 = 949;
+/// The fault times (r0948): three words per trip, a trip being two elements of r0947.
+pub const FAULT_TIMES_PNU: u16 = 948;
+/// Elements of [`FAULT_TIMES_PNU`].
+pub const FAULT_TIMES_LEN: u8 = 12;
+
+/// When a trip happened, as r0948 holds it: three words in the format of the real-time clock
+/// P2115, low byte first (seconds + minutes, hours + days, month + year). A drive stamps it
+/// from the clock an operator panel set, or, with a clock never set, from its own count of
+/// days and hours since power-up (month and year 0).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FaultTime {
+    pub words: [u16; 3],
+}
+
+impl FaultTime {
+    /// `(seconds, minutes, hours, days, month, year)`, one per byte.
+    const fn fields(self) -> [u8; 6] {
+        let [a, b, c] = self.words;
+        [
+            (a & 0xFF) as u8,
+            (a >> 8) as u8,
+            (b & 0xFF) as u8,
+            (b >> 8) as u8,
+            (c & 0xFF) as u8,
+            (c >> 8) as u8,
+        ]
+    }
+}
+
+/// `2026-11-22 20:31:05` (a set clock: year 2000 + the year byte), `day 3 04:05:06` (a clock
+/// never set), or the three words in hex when they are neither.
+impl core::fmt::Display for FaultTime {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let [sec, min, hour, day, month, year] = self.fields();
+        let time_ok = sec < 60 && min < 60 && hour < 24;
+        if time_ok && (1..=12).contains(&month) && (1..=31).contains(&day) && year < 100 {
+            let year = 2000 + u16::from(year);
+            write!(f, "{year}-{month:02}-{day:02} {hour:02}:{min:02}:{sec:02}")
+        } else if time_ok && month == 0 && year == 0 {
+            write!(f, "day {day} {hour:02}:{min:02}:{sec:02}")
+        } else {
+            let [a, b, c] = self.words;
+            write!(f, "{a:#06X} {b:#06X} {c:#06X}")
+        }
+    }
+}
 
 /// One recorded fault: where it sits in the fault buffer, its number, its fault value and text.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -206,6 +252,8 @@ pub struct Fault {
     pub number: u16,
     /// r0949 of the same element; `None` when the drive has no r0949.
     pub value: Option<u16>,
+    /// r0948 of its trip; `None` when the drive has no r0948 or left it 0.
+    pub time: Option<FaultTime>,
     /// The catalogue's text.
     pub text: Option<&'static str>,
 }
@@ -228,35 +276,54 @@ pub struct FaultReport {
 }
 
 impl Bus {
-    /// The fault buffer r0947 with the fault values r0949 and texts, and the active warnings
-    /// r2110, in one request of 20 reads. A drive without r0949 or r2110 (error 0) still gets
-    /// its fault codes.
+    /// The fault buffer r0947 with the fault values r0949, the trips' times r0948 and texts,
+    /// and the active warnings r2110, in one request of 32 reads. A drive without r0948, r0949
+    /// or r2110 (error 0) still gets its fault codes.
     pub fn fault_report(&self, address: u8) -> Result<FaultReport, ParamError> {
         let element = |pnu: u16, i: u8| {
             Subindex::new(i).map(|i| ParamTask::read(Pnu::from_u16(pnu), Some(i)))
         };
+        let len = crate::params::FAULT_BUFFER_LEN;
         let mut tasks = Vec::new();
-        for pnu in [crate::params::FAULT_BUFFER_PNU, FAULT_VALUES_PNU] {
-            tasks.extend((0..crate::params::FAULT_BUFFER_LEN).filter_map(|i| element(pnu, i).ok()));
+        for (pnu, n) in [
+            (crate::params::FAULT_BUFFER_PNU, len),
+            (FAULT_VALUES_PNU, len),
+            (WARNINGS_PNU, WARNINGS_LEN),
+            (FAULT_TIMES_PNU, FAULT_TIMES_LEN),
+        ] {
+            tasks.extend((0..n).filter_map(|i| element(pnu, i).ok()));
         }
-        tasks.extend((0..WARNINGS_LEN).filter_map(|i| element(WARNINGS_PNU, i).ok()));
         let results = self.batch(address, &tasks);
-        let len = usize::from(crate::params::FAULT_BUFFER_LEN);
+        let len = usize::from(len);
+        let (codes, rest) = results.split_at(len);
+        let (values, rest) = rest.split_at(len);
+        let (warnings, times) = rest.split_at(usize::from(WARNINGS_LEN));
         let word = |r: &Result<Value, ParamError>| r.clone().map(|v| v.as_u32() as u16);
         let catalogue = self.described.catalogue;
         let mut faults = Vec::new();
-        for (slot, code) in results[..len].iter().enumerate() {
+        for (slot, code) in codes.iter().enumerate() {
             let number = word(code)?;
             if number != 0 {
+                // Two faults per trip, three time words per trip.
+                let trip = &times[(slot / 2 * 3).min(times.len())..];
+                let time = trip
+                    .iter()
+                    .take(3)
+                    .map(|r| word(r).ok())
+                    .collect::<Option<Vec<u16>>>()
+                    .and_then(|w| <[u16; 3]>::try_from(w).ok())
+                    .filter(|w| *w != [0; 3])
+                    .map(|words| FaultTime { words });
                 faults.push(Fault {
                     slot: slot as u8,
                     number,
-                    value: word(&results[len + slot]).ok(),
+                    value: word(&values[slot]).ok(),
+                    time,
                     text: catalogue.fault(number),
                 });
             }
         }
-        let warnings = results[2 * len..]
+        let warnings = warnings
             .iter()
             .map(|r| word(r).ok())
             .collect::<Option<Vec<u16>>>()
@@ -271,5 +338,25 @@ impl Bus {
                     .collect()
             });
         Ok(FaultReport { faults, warnings })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::FaultTime;
+
+    #[test]
+    fn fault_times_show_a_set_clock_a_clock_never_set_or_their_words() {
+        let shown = |words| FaultTime { words }.to_string();
+        // 20:31:05 on the 22nd of November 2026.
+        assert_eq!(
+            shown([5 | 31 << 8, 20 | 22 << 8, 11 | 26 << 8]),
+            "2026-11-22 20:31:05"
+        );
+        // A drive clock never set: days since power-up, no month or year.
+        assert_eq!(shown([3 | 2 << 8, 1 | 4 << 8, 0]), "day 4 01:02:03");
+        // Neither (e.g. a run-time counter in seconds): shown as read.
+        assert_eq!(shown([0x0001, 0x5180, 0]), "0x0001 0x5180 0x0000");
+        assert_eq!(shown([60, 0, 1 | 1 << 8]), "0x003C 0x0000 0x0101");
     }
 }

@@ -8,7 +8,7 @@
 
 use crate::params::{
     COM_LINK, DriveContext, P0700, P1000, P1080, P1082, P1120, P1121, P1135, P2000, P2011, P2012,
-    P2013, P2014, ParamTable, R0021, R0052, R0054, R0947, R0949, R2024,
+    P2013, P2014, ParamTable, R0021, R0052, R0054, R0947, R0948, R0949, R2024,
 };
 use core::time::Duration;
 use uss_protocol::pkw::{ParamError, ParamReply, ParamTask, PkwError, Pnu, ReplyKind};
@@ -240,20 +240,35 @@ impl Drive {
         self.trip_with_value(code, 0);
     }
 
-    /// Trips the drive with a fault code and its fault value (r0949).
+    /// Trips the drive with a fault code and its fault value (r0949). As on MICROMASTER 4, the
+    /// fault buffer holds four trips of two faults each, newest first: r0947/r0949 elements 0
+    /// and 1 are the latest trip, 2 and 3 the one before, ...; r0948 holds each trip's time in
+    /// three words (elements 0..=2 the latest trip's). A second fault while the drive is
+    /// already tripped becomes the trip's second fault.
     pub fn trip_with_value(&mut self, code: u16, value: u16) {
         self.state = State::Fault;
         self.frequency_hz = 0.0;
         if self.fault.is_none() {
-            // r0947 / r0949: the newest fault first, older ones shift down.
-            for pnu in [R0947, R0949] {
-                for i in (1..8).rev() {
-                    let older = self.params.get(pnu, i - 1).unwrap_or(0);
+            for (pnu, per_trip, len) in [(R0947, 2, 8), (R0949, 2, 8), (R0948, 3, 12)] {
+                for i in (per_trip..len).rev() {
+                    let older = self.params.get(pnu, i - per_trip).unwrap_or(0);
                     self.params.set_internal(pnu, i, older);
+                }
+                for i in 0..per_trip {
+                    self.params.set_internal(pnu, i, 0);
                 }
             }
             self.params.set_internal(R0947, 0, u32::from(code));
             self.params.set_internal(R0949, 0, u32::from(value));
+            for (i, word) in fault_time(self.last_tick.unwrap_or_default())
+                .into_iter()
+                .enumerate()
+            {
+                self.params.set_internal(R0948, i as u8, u32::from(word));
+            }
+        } else if self.params.get(R0947, 1) == Some(0) && self.fault != Some(code) {
+            self.params.set_internal(R0947, 1, u32::from(code));
+            self.params.set_internal(R0949, 1, u32::from(value));
         }
         self.fault = Some(code);
         self.publish();
@@ -654,4 +669,14 @@ fn is_eeprom(task: &ParamTask) -> bool {
             ..
         }
     )
+}
+
+/// A trip's time as r0948 holds it, in the format of the real-time clock P2115 (low byte
+/// first: seconds + minutes, hours + days, month + year). The simulator's clock was never set:
+/// it counts days from 0 since the simulator started, month and year stay 0.
+fn fault_time(since_start: Duration) -> [u16; 3] {
+    let s = since_start.as_secs();
+    let (seconds, minutes, hours, days) = (s % 60, s / 60 % 60, s / 3600 % 24, s / 86_400);
+    let pair = |low: u64, high: u64| (low | (high.min(255) << 8)) as u16;
+    [pair(seconds, minutes), pair(hours, days), 0]
 }

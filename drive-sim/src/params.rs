@@ -209,6 +209,7 @@ pub const P0700: u16 = 700;
 pub const P0719: u16 = 719;
 pub const P0927: u16 = 927;
 pub const R0947: u16 = 947;
+pub const R0948: u16 = 948;
 pub const R0949: u16 = 949;
 pub const P0970: u16 = 970;
 pub const P1000: u16 = 1000;
@@ -302,6 +303,10 @@ const DEFS: &[ParamDef] = {
         ParamDef::new(R0947, "r0947 CO: Last fault code", U16, ReadOnly, 2)
             .limits(0.0, U16_MAX)
             .array(8),
+        // Three words per trip (seconds + minutes, hours + days, month + year: P2115's format).
+        ParamDef::new(R0948, "r0948 Fault time", U16, ReadOnly, 3)
+            .limits(0.0, U16_MAX)
+            .array(12),
         ParamDef::new(R0949, "r0949 CO: Fault value", U16, ReadOnly, 3)
             .limits(0.0, U16_MAX)
             .array(8),
@@ -969,7 +974,7 @@ mod tests {
                 pnu: pnu(2015),
                 index: sub(0),
             },
-            ParamTask::ReadArrayLen { pnu: pnu(948) },
+            ParamTask::ReadArrayLen { pnu: pnu(950) },
             describe_task(1081, 1),
             write_task(1083, Value::Word(1), Storage::Ram),
             write_at_task(2032, 0, Value::Word(1), Storage::RamAndEeprom),

@@ -224,6 +224,38 @@ fn fault_acknowledge_needs_a_rising_edge_of_bit_7() {
 }
 
 #[test]
+fn fault_buffer_holds_four_trips_of_two_faults_with_their_times() {
+    let mut d = drive(PkwMode::Four);
+    let acknowledge = |d: &mut Drive, t: Duration| {
+        control(d, 0x047E, 0, t);
+        control(d, 0x04FE, 0, t + ms(10));
+        control(d, 0x047E, 0, t + ms(20));
+    };
+    // Trip 1 at 61 s with two faults; trip 2 at 1 h 2 min 3 s with one.
+    control(&mut d, 0x047E, 0, Duration::from_secs(61));
+    d.trip_with_value(7, 11);
+    d.trip_with_value(30, 12);
+    d.trip_with_value(30, 13);
+    acknowledge(&mut d, Duration::from_secs(62));
+    control(&mut d, 0x047E, 0, Duration::from_secs(3723));
+    d.trip_with_value(72, 14);
+    let read = |pnu: u16| (0..12).map(|i| d.params().get(pnu, i)).collect::<Vec<_>>();
+    let words = |v: &[u32]| v.iter().map(|&w| Some(w)).collect::<Vec<_>>();
+    let mut codes = words(&[72, 0, 7, 30, 0, 0, 0, 0]);
+    codes.extend([None; 4]);
+    assert_eq!(read(947), codes, "newest trip first, two faults per trip");
+    let mut values = words(&[14, 0, 11, 12, 0, 0, 0, 0]);
+    values.extend([None; 4]);
+    assert_eq!(read(949), values, "a fault value per fault");
+    // seconds | minutes << 8, hours | days << 8, month | year << 8 (a clock never set).
+    assert_eq!(
+        read(948),
+        words(&[3 | 2 << 8, 1, 0, 1 | 1 << 8, 0, 0, 0, 0, 0, 0, 0, 0]),
+        "three time words per trip"
+    );
+}
+
+#[test]
 fn stw1_without_bit_10_is_ignored() {
     let mut d = drive(PkwMode::Four);
     let t = run_to(&mut d, 0x2000, ms(500));

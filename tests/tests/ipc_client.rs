@@ -843,22 +843,32 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
         .unwrap();
     assert_eq!(faulted.zsw1 & 0x0008, 0x0008);
     assert_eq!(bus.faults(3), Ok(vec![72, 0, 0, 0, 0, 0, 0, 0]));
+    // The simulated drive's clock was never set: r0948 stamps the trip with the time since it
+    // started, taken when a telegram meets it again after the unplugged half second (~2.5 s).
+    let report = bus.fault_report(3).unwrap();
+    let time = report.faults.first().and_then(|f| f.time);
+    let seconds = time.map_or(0, |t| t.words[0]);
+    assert!((2..=9).contains(&seconds), "r0948 = {time:?}");
+    assert_eq!(time.map(|t| t.words[1..].to_vec()), Some(vec![0, 0]));
     assert_eq!(
-        bus.fault_report(3),
-        Ok(uss_client::FaultReport {
+        report,
+        uss_client::FaultReport {
             faults: vec![uss_client::Fault {
                 slot: 0,
                 number: 72,
                 value: Some(0),
+                time,
                 text: Some("USS (COM link) setpoint fault")
             }],
             warnings: Some(Vec::new()),
-        })
+        }
     );
     let out = ussd.ussctl(&["faults", "3"]);
     assert_eq!(
         text(&out.stdout),
-        "drive 3 fault buffer r0947, newest first:\n  0: F0072 USS (COM link) setpoint fault (fault value r0949 = 0)\nactive warnings (r2110): none\n"
+        format!(
+            "drive 3 fault buffer r0947, newest first:\n  0: F0072 USS (COM link) setpoint fault (fault value r0949 = 0) at day 0 00:00:{seconds:02}\nactive warnings (r2110): none\n"
+        )
     );
 
     // A faulted drive is not run: ussctl says what to do.

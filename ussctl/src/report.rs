@@ -686,6 +686,11 @@ pub struct FaultEntry {
     pub code: String,
     /// r0949; null when the drive has no r0949.
     pub value: Option<u16>,
+    /// r0948 of its trip as shown (`2026-11-22 20:31:05`, or `day 3 04:05:06` from a drive
+    /// clock never set); null when the drive has no r0948 or left it empty.
+    pub time: Option<String>,
+    /// r0948's three words as read.
+    pub time_words: Option<[u16; 3]>,
     pub text: Option<&'static str>,
 }
 
@@ -710,6 +715,8 @@ impl FaultsReport {
                     number: f.number,
                     code: format!("F{:04}", f.number),
                     value: f.value,
+                    time: f.time.map(|t| t.to_string()),
+                    time_words: f.time.map(|t| t.words),
                     text: f.text,
                 })
                 .collect(),
@@ -738,6 +745,9 @@ impl FaultsReport {
             }
             if let Some(v) = f.value {
                 let _ = write!(out, " (fault value r0949 = {v})");
+            }
+            if let Some(t) = &f.time {
+                let _ = write!(out, " at {t}");
             }
             out.push('\n');
         }
@@ -1351,12 +1361,16 @@ mod tests {
                     slot: 0,
                     number: 70,
                     value: Some(3),
+                    time: Some(uss_client::FaultTime {
+                        words: [5 | 31 << 8, 20 | 22 << 8, 11 | 26 << 8],
+                    }),
                     text: Some("CB setpoint fault"),
                 },
                 uss_client::Fault {
                     slot: 1,
                     number: 999,
                     value: None,
+                    time: None,
                     text: None,
                 },
             ],
@@ -1368,12 +1382,12 @@ mod tests {
         let f = FaultsReport::new("b", 2, &report);
         assert_eq!(
             f.human(),
-            "drive 2 fault buffer r0947, newest first:\n  0: F0070 CB setpoint fault (fault value r0949 = 3)\n  1: F0999\nactive warnings (r2110):\n  A0501 Current limit\n"
+            "drive 2 fault buffer r0947, newest first:\n  0: F0070 CB setpoint fault (fault value r0949 = 3) at 2026-11-22 20:31:05\n  1: F0999\nactive warnings (r2110):\n  A0501 Current limit\n"
         );
         let v = serde_json::to_value(&f).unwrap();
         assert_eq!(
             v["faults"][0],
-            serde_json::json!({"slot": 0, "number": 70, "code": "F0070", "value": 3, "text": "CB setpoint fault"})
+            serde_json::json!({"slot": 0, "number": 70, "code": "F0070", "value": 3, "time": "2026-11-22 20:31:05", "time_words": [7941, 5652, 6667], "text": "CB setpoint fault"})
         );
         assert_eq!(v["warnings"][0]["code"], "A0501");
         let none = FaultsReport::new(
