@@ -192,6 +192,10 @@ impl Bridge for Stamping {
     fn cycle_completed(&mut self) {
         self.inner.cycle_completed();
     }
+
+    fn job_done(&mut self) {
+        self.inner.job_done();
+    }
 }
 
 /// What the bus thread leaves when it stops.

@@ -7,10 +7,17 @@ use crate::open::{Ipc, layout_verifier, opened};
 use core::fmt::Debug;
 use core::time::Duration;
 use iceoryx2::port::client::Client;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::prelude::EventId;
 use iceoryx2::prelude::{ServiceName, ZeroCopySend};
 use std::sync::{Condvar, Mutex, OnceLock, PoisonError};
 use std::time::Instant;
-use uss_shm_types::names::MAX_ACTIVE_REQUESTS;
+use uss_shm_types::Instance;
+use uss_shm_types::names::{self, MAX_ACTIVE_REQUESTS};
+
+/// The longest a waiting client sleeps before it looks at its request again.
+const ANSWER_CHECK: Duration = Duration::from_millis(2);
 
 /// A client port of a request-response service and its free request slots: iceoryx2 refuses
 /// a port's request beyond [`MAX_ACTIVE_REQUESTS`] on their way, so a bus's threads take
@@ -24,6 +31,11 @@ where
     client: Client<Ipc, Req, (), Resp, ()>,
     in_flight: Mutex<usize>,
     freed: Condvar,
+    /// Tells ussd a request was sent ([`names::REQUEST_SENT`]); `None`: ussd finds it within
+    /// [`names::REQUEST_POLL_NS`] anyway.
+    requests: Option<Notifier<Ipc>>,
+    /// ussd's [`names::ANSWER_SENT`] events; `None`: the answer is polled for.
+    answers: Option<Listener<Ipc>>,
 }
 
 /// One taken request slot, given back when dropped.
@@ -80,10 +92,13 @@ pub(crate) enum NoAnswer {
     Timeout,
 }
 
-/// The client of service `name` kept in `cell`, opened on first use.
+/// The client of service `name` of `instance` kept in `cell`, opened on first use, with the
+/// instance's request and answer events where it can have them (a process beyond the events'
+/// port limits polls instead).
 pub(crate) fn client<'a, Req, Resp>(
     link: &Link,
     cell: &'a OnceLock<Requester<Req, Resp>>,
+    instance: &Instance,
     name: &ServiceName,
 ) -> Result<&'a Requester<Req, Resp>, ClientError>
 where
@@ -94,11 +109,12 @@ where
         return Ok(client);
     }
     let bus = link.name.as_str();
+    let verifier = layout_verifier()?;
     let service = opened(
         link.node
             .service_builder(name)
             .request_response::<Req, Resp>()
-            .open_with_attributes(&layout_verifier()?),
+            .open_with_attributes(&verifier),
         bus,
         name,
         || ClientError::NotRunning {
@@ -109,11 +125,27 @@ where
         .client_builder()
         .create()
         .map_err(|e| ClientError::ipc(format!("a client of {}", name.as_str()), e))?;
+    let event = |name: ServiceName| {
+        link.node
+            .service_builder(&name)
+            .event()
+            .open_with_attributes(&verifier)
+            .ok()
+    };
+    let requests = event(names::requests(instance)).and_then(|s| {
+        s.notifier_builder()
+            .default_event_id(EventId::new(names::REQUEST_SENT))
+            .create()
+            .ok()
+    });
+    let answers = event(names::answers(instance)).and_then(|s| s.listener_builder().create().ok());
     // Another thread may have won the race; its client serves as well as this one.
     let _ = cell.set(Requester {
         client,
         in_flight: Mutex::new(0),
         freed: Condvar::new(),
+        requests,
+        answers,
     });
     cell.get()
         .ok_or_else(|| ClientError::ipc(format!("the client of {}", name.as_str()), "not kept"))
@@ -141,6 +173,9 @@ where
     if pending.number_of_server_connections() == 0 {
         return Ok(Err(NoAnswer::NotRunning));
     }
+    if let Some(requests) = &requester.requests {
+        let _ = requests.notify();
+    }
     let mut pause = Duration::from_micros(50);
     loop {
         // Looked at before `receive`, so an answer sent just before the server let go of the
@@ -155,11 +190,20 @@ where
         if !connected {
             return Ok(Err(NoAnswer::Dropped));
         }
-        if Instant::now() >= deadline {
+        let Some(left) = deadline.checked_duration_since(Instant::now()) else {
             return Ok(Err(NoAnswer::Timeout));
+        };
+        // Woken by ussd's answer to any request (another thread's or process's too, then
+        // looked again); at least every ANSWER_CHECK, for a ussd that let go of the request and
+        // for threads that share the listener (one waits on it, the others take turns).
+        let woken = requester
+            .answers
+            .as_ref()
+            .is_some_and(|a| a.timed_wait(|_| {}, left.min(ANSWER_CHECK)).is_ok());
+        if !woken {
+            // No events: poll, backing off to 2 ms.
+            std::thread::sleep(pause.min(left));
+            pause = (pause * 2).min(ANSWER_CHECK);
         }
-        // A response has no file descriptor to wait on: poll, backing off to 2 ms.
-        std::thread::sleep(pause);
-        pause = (pause * 2).min(Duration::from_millis(2));
     }
 }

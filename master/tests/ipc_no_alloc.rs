@@ -17,7 +17,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, VirtualWire};
 use uss_master::daemon::ipc as ussd_ipc;
-use uss_master::{DriveSetup, Engine, EngineConfig, SimTransport, VirtualClock};
+use uss_master::{DriveSetup, Engine, EngineConfig, Job, SimTransport, VirtualClock};
+use uss_protocol::pkw::{ParamTask, Pnu};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Timing};
 use uss_shm_types::names;
@@ -28,36 +29,11 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
     let bus_name = format!("na{}", std::process::id());
     let timing = Timing::new(Baud::new(115_200).unwrap());
     let layout = Layout::new(PkwMode::Four, PzdCount::new(2).unwrap());
-    let mut sim = SimBus::new(5);
-    let mut setups = Vec::new();
-    for a in [1u8, 2] {
-        let address = Address::new(a).unwrap();
-        sim.add(DriveConfig::new(address, layout)).unwrap();
-        for f in Fault::ALL {
-            sim.faults_mut(address).unwrap().set_probability(f, 0.02);
-        }
-        setups.push(DriveSetup {
-            watchdog: Duration::from_millis(50),
-            ..DriveSetup::new(address, layout)
-        });
-    }
+    let (sim, setups) = two_faulty_drives(layout);
     let bus_ipc = ussd_ipc::create(&bus_name, &setups, Duration::ZERO).unwrap();
     let instance = bus_ipc.instance.clone();
-    let config = EngineConfig {
-        timing,
-        response_timeout: Duration::from_millis(20),
-        retries: 2,
-        offline_after: 1,
-        offline_probe: Duration::from_millis(200),
-        cycle_time: None,
-        param_timeout: Duration::from_millis(500),
-        echo: false,
-        mailbox_depth: 8,
-        publish_every: Duration::from_millis(20),
-        param_priority: false,
-        drives: setups,
-    };
-    let (mut engine, _handle, _events) = Engine::with_bridge(
+    let config = engine_config(timing, setups);
+    let (mut engine, handle, _events) = Engine::with_bridge(
         config,
         SimTransport::new(VirtualWire::new(sim, timing)),
         VirtualClock::new(),
@@ -95,18 +71,43 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
             for _ in 0..300 {
                 engine.poll_next().unwrap();
             }
+            // Parameter jobs too: each result wakes the parameter bridge (`Bridge::job_done`,
+            // an event nobody takes here, so the notifications pile up as in a hung bridge).
+            let two = Address::new(2).unwrap();
+            let read = ParamTask::Read {
+                pnu: Pnu::from_u16(1082),
+            };
+            let (mut id, mut results) = (1, 0);
             let before = allocations();
-            for _ in 0..3000 {
+            for i in 0..3000 {
+                if i % 5 == 0
+                    && handle
+                        .submit(Job {
+                            id,
+                            address: two,
+                            task: read,
+                        })
+                        .is_ok()
+                {
+                    id += 1;
+                }
                 engine.poll_next().unwrap();
+                while handle.recv_result(Duration::ZERO).is_some() {
+                    results += 1;
+                }
             }
             let during = allocations() - before;
             running.store(false, Ordering::Release);
-            (during, engine.stats().clone())
+            (during, engine.stats().clone(), results)
         })
     };
     let (seen, live) = control_until(&running, &publisher, &input);
-    let (allocations, stats) = bus_thread.join().unwrap();
+    let (allocations, stats, results) = bus_thread.join().unwrap();
     assert_eq!(allocations, 0, "the bus thread allocated during 3000 polls");
+    assert!(
+        results > 300,
+        "parameter jobs ran and woke the bridge ({results})"
+    );
     // The controller thread runs in real time beside a bus thread on a virtual clock: how many
     // live images it sees depends on the machine's load (over 100 when idle, 49 seen while
     // a compiler ran beside it); a handful proves the words went through.
@@ -128,6 +129,41 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
     assert!(retries > 0, "faults and retries were part of the run");
     drop(bus_ipc.status);
     drop(bus_ipc.params);
+}
+
+/// Drives 1 and 2 with 2 % of every fault, and their setups.
+fn two_faulty_drives(layout: Layout) -> (SimBus, Vec<DriveSetup>) {
+    let mut sim = SimBus::new(5);
+    let mut setups = Vec::new();
+    for a in [1u8, 2] {
+        let address = Address::new(a).unwrap();
+        sim.add(DriveConfig::new(address, layout)).unwrap();
+        for f in Fault::ALL {
+            sim.faults_mut(address).unwrap().set_probability(f, 0.02);
+        }
+        setups.push(DriveSetup {
+            watchdog: Duration::from_millis(50),
+            ..DriveSetup::new(address, layout)
+        });
+    }
+    (sim, setups)
+}
+
+fn engine_config(timing: Timing, drives: Vec<DriveSetup>) -> EngineConfig {
+    EngineConfig {
+        timing,
+        response_timeout: Duration::from_millis(20),
+        retries: 2,
+        offline_after: 1,
+        offline_probe: Duration::from_millis(200),
+        cycle_time: None,
+        param_timeout: Duration::from_millis(500),
+        echo: false,
+        mailbox_depth: 8,
+        publish_every: Duration::from_millis(20),
+        param_priority: false,
+        drives,
+    }
 }
 
 /// A controller publishing on drive 1 while `running`, reading its input image. Its phase

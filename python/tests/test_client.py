@@ -155,6 +155,19 @@ def test_eight_threads_sharing_one_bus_take_turns_and_all_are_answered(bus):
     assert answers == [0x4248_0000] * 80
 
 
+def test_a_request_sent_without_the_events_is_still_answered(bus):
+    # A client that neither notifies `requests` nor listens on `answers` (a C program that
+    # skips them): ussd finds its request by polling, the client polls for the answer.
+    uss_rt.read_param(bus, 1, 1082)
+    events = bus._services["events"]
+    assert all(port is not None for port in events), "this client has both event ports"
+    bus._services["events"] = (None, None)
+    try:
+        assert [uss_rt.read_param(bus, 1, 1082) for _ in range(5)] == [0x4248_0000] * 5
+    finally:
+        bus._services["events"] = events
+
+
 def test_unknown_pnu_raises_drive_error_0(bus):
     with pytest.raises(uss_rt.DriveError) as e:
         uss_rt.read_param(bus, 2, 1999)

@@ -115,6 +115,8 @@ def test_limits_match_the_header():
         "REQUEST_FORCE",
         "HEARTBEAT_PERIOD_NS",
         "GONE_AFTER_NS",
+        "REQUEST_SENT",
+        "ANSWER_SENT",
     ):
         assert getattr(uss_rt, name) == value(name), name
 
@@ -140,6 +142,8 @@ def test_service_names_and_attribute_match_the_header():
         ("SERVICE_CYCLE", uss_rt.cycle_service),
         ("SERVICE_PARAMS", uss_rt.params_service),
         ("SERVICE_COMMAND", uss_rt.command_service),
+        ("SERVICE_REQUESTS", uss_rt.requests_service),
+        ("SERVICE_ANSWERS", uss_rt.answers_service),
     ):
         assert make("line-1_A", generation) == strings[name] % ("line-1_A", generation), name
 

@@ -162,6 +162,22 @@ def command_service(bus: str, generation: int) -> str:
     return f"uss/{bus}/{generation:016x}/command"
 
 
+def requests_service(bus: str, generation: int) -> str:
+    """Event: a client notifies :data:`REQUEST_SENT` after sending on ``params`` or
+    ``command``, so ussd takes the request at once (else within a few ms)."""
+    return f"uss/{bus}/{generation:016x}/requests"
+
+
+def answers_service(bus: str, generation: int) -> str:
+    """Event: ussd notifies :data:`ANSWER_SENT` after each answer on ``params`` and
+    ``command``, so a waiting client receives it at once."""
+    return f"uss/{bus}/{generation:016x}/answers"
+
+
+REQUEST_SENT = 0
+ANSWER_SENT = 0
+
+
 # -------------------------------------------------------------------------------------------
 # Code tables: the u8 fields with a fixed meaning (payloads keep them as plain integers)
 # -------------------------------------------------------------------------------------------
@@ -1071,7 +1087,36 @@ class Bus:
                 lambda: NotRunning(self.name),
             )
             services[kind] = (factory, factory.client_builder().create())
+        if "events" not in services:
+            services["events"] = self._events()
         return services[kind][1]
+
+    def _events(self):
+        """The notifier of ``requests`` and the listener of ``answers`` of the current
+        generation; ``None`` for either that cannot be had (the request is then found by
+        ussd's own poll, the answer polled for)."""
+        def port(service, make):
+            try:
+                factory = _open(
+                    self.node,
+                    self.name,
+                    service(self.name, self._generation),
+                    lambda b: b.event(),
+                    lambda: NotRunning(self.name),
+                )
+                return factory, make(factory)
+            except Exception:  # noqa: BLE001 - events only speed things up
+                return None
+
+        return (
+            port(
+                requests_service,
+                lambda f: f.notifier_builder()
+                .default_event_id(iox2.EventId.new(REQUEST_SENT))
+                .create(),
+            ),
+            port(answers_service, lambda f: f.listener_builder().create()),
+        )
 
     def _params(self):
         """The client of the ``params`` service."""
@@ -1327,13 +1372,21 @@ def _round_trip(bus: Bus, client, request, timeout: float):
     if not bus._request_slots.acquire(timeout=timeout):
         raise NoAnswer(bus.name, f"did not answer within {timeout} s (all request slots busy)")
     try:
-        return _answer(bus, client.send_copy(request), deadline, timeout)
+        pending = client.send_copy(request)
+        requests, answers = bus._services.get("events", (None, None))
+        if requests is not None:
+            try:
+                requests[1].notify()
+            except Exception:  # noqa: BLE001, S110 - ussd polls for requests anyway
+                pass
+        return _answer(bus, pending, deadline, timeout, answers and answers[1])
     finally:
         bus._request_slots.release()
 
 
-def _answer(bus: Bus, pending, deadline: float, timeout: float):
-    """Waits until ``deadline`` for the answer to ``pending``."""
+def _answer(bus: Bus, pending, deadline: float, timeout: float, answers=None):
+    """Waits until ``deadline`` for the answer to ``pending``, woken by ussd's ``answers``
+    events where the listener ``answers`` is given."""
     if pending.number_of_server_connections == 0:
         raise NotRunning(bus.name)
     pause = 50e-6
@@ -1346,10 +1399,18 @@ def _answer(bus: Bus, pending, deadline: float, timeout: float):
             return bytes(response.payload().contents)
         if not connected:
             raise NoAnswer(bus.name, "dropped the request without answering")
-        if time.monotonic() >= deadline:
+        left = deadline - time.monotonic()
+        if left <= 0:
             raise NoAnswer(bus.name, f"did not answer within {timeout} s")
-        # A response has no file descriptor to wait on: poll, backing off to 2 ms.
-        time.sleep(pause)
+        if answers is not None:
+            # Woken by any answer of ussd (then looked again), at least every 2 ms.
+            try:
+                answers.timed_wait(iox2.Duration.from_secs_f64(min(left, 2e-3)))
+                continue
+            except Exception:  # noqa: BLE001 - poll instead
+                answers = None
+        # No events: poll, backing off to 2 ms.
+        time.sleep(min(pause, left))
         pause = min(pause * 2, 2e-3)
 
 

@@ -56,6 +56,10 @@
 #define USS_SERVICE_PARAMS "uss/%s/%016llx/params"
 /** request-response, UssOperatorRequest -> UssOperatorResponse (operator stop commands). */
 #define USS_SERVICE_COMMAND "uss/%s/%016llx/command"
+/** event: notify USS_REQUEST_SENT after sending on params or command (else ussd finds the request within USS_REQUEST_POLL_NS). */
+#define USS_SERVICE_REQUESTS "uss/%s/%016llx/requests"
+/** event: ussd notifies USS_ANSWER_SENT after each answer on params and command. */
+#define USS_SERVICE_ANSWERS "uss/%s/%016llx/answers"
 /** ussd's node name for a bus. */
 #define USS_USSD_NODE "ussd-%s"
 /** how a generation is written in service names (after the bus). */
@@ -143,6 +147,27 @@
  * service lives on (iceoryx2 0.10, eclipse-iceoryx/iceoryx2#2008).
  */
 #define USS_USSD_GONE 34
+
+/**
+ * The event id clients notify on [`requests`].
+ */
+#define USS_REQUEST_SENT 0
+
+/**
+ * The event id ussd's bus thread notifies on [`requests`] when a parameter job's result is
+ * ready for the parameter bridge (ussd-internal).
+ */
+#define USS_RESULT_READY 1
+
+/**
+ * The event id on [`answers`].
+ */
+#define USS_ANSWER_SENT 0
+
+/**
+ * How often ussd looks for requests that came without a [`REQUEST_SENT`] event, ns.
+ */
+#define USS_REQUEST_POLL_NS 2000000
 
 /**
  * Most items in one request (the PROFIdrive parameter-access limit for multi-parameter

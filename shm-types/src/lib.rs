@@ -11,6 +11,8 @@
 //! | `uss/<bus>/<gen>/cycle`            | event                     | ussd                    | anyone  | event ids in [`names`] |
 //! | `uss/<bus>/<gen>/params`           | request-response          | clients ask, ussd answers | -     | [`ParamRequest`] / [`ParamResponse`] |
 //! | `uss/<bus>/<gen>/command`          | request-response          | any process asks, ussd answers | - | [`OperatorRequest`] / [`OperatorResponse`] |
+//! | `uss/<bus>/<gen>/requests`         | event                     | clients, after sending a request | ussd | [`names::REQUEST_SENT`] |
+//! | `uss/<bus>/<gen>/answers`          | event                     | ussd, after each answer | clients | [`names::ANSWER_SENT`] |
 //!
 //! `<gen>` is the serving ussd instance's generation, named by its heartbeat: a restarted ussd
 //! serves a new generation while clients of the old one still hold its services.

@@ -12,6 +12,8 @@
 //! | `uss/<bus>/<gen>/cycle`            | event            | [`exchange_completed`], [`CYCLE_COMPLETED`], [`STATUS_PUBLISHED`], [`USSD_GONE`] |
 //! | `uss/<bus>/<gen>/params`           | request-response | `ParamRequest` -> `ParamResponse`       |
 //! | `uss/<bus>/<gen>/command`          | request-response | `OperatorRequest` -> `OperatorResponse` |
+//! | `uss/<bus>/<gen>/requests`         | event            | [`REQUEST_SENT`]: a client notifies after sending on `params` or `command`; [`RESULT_READY`] (ussd's own) |
+//! | `uss/<bus>/<gen>/answers`          | event            | [`ANSWER_SENT`]: ussd notifies after answering on `params` or `command` |
 //!
 //! `<bus>` is 1 to 32 characters of `A-Z a-z 0-9 _ -`; `<gen>` is the serving ussd's
 //! [`Generation`] (16 lowercase hex digits), read from the newest heartbeat; `<addr>` is the
@@ -250,6 +252,29 @@ pub fn params(i: &Instance) -> ServiceName {
 pub fn command(i: &Instance) -> ServiceName {
     i.service("command")
 }
+
+/// Clients notify [`REQUEST_SENT`] here after sending a parameter request or an operator
+/// command, so ussd takes it at once; a request without it is still taken, within
+/// [`REQUEST_POLL_NS`].
+pub fn requests(i: &Instance) -> ServiceName {
+    i.service("requests")
+}
+
+/// ussd notifies [`ANSWER_SENT`] here after each answer on `params` and `command`, so a
+/// waiting client receives it at once instead of polling.
+pub fn answers(i: &Instance) -> ServiceName {
+    i.service("answers")
+}
+
+/// The event id clients notify on [`requests`].
+pub const REQUEST_SENT: usize = 0;
+/// The event id ussd's bus thread notifies on [`requests`] when a parameter job's result is
+/// ready for the parameter bridge (ussd-internal).
+pub const RESULT_READY: usize = 1;
+/// The event id on [`answers`].
+pub const ANSWER_SENT: usize = 0;
+/// How often ussd looks for requests that came without a [`REQUEST_SENT`] event, ns.
+pub const REQUEST_POLL_NS: u64 = 2_000_000;
 
 /// The name of ussd's node for a bus, as `Node::list` shows it.
 pub fn ussd_node(bus: &BusName) -> NodeName {

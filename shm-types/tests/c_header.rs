@@ -185,7 +185,7 @@ impl Service {
 }
 
 /// Every name of [`names`].
-fn services() -> [Service; 10] {
+fn services() -> [Service; 12] {
     let s = |c_name, scope, what, name| Service {
         c_name,
         scope,
@@ -241,6 +241,19 @@ fn services() -> [Service; 10] {
             Scope::Instance,
             "request-response, UssOperatorRequest -> UssOperatorResponse (operator stop commands).",
             |i, _| names::command(i).as_str().into(),
+        ),
+        s(
+            "SERVICE_REQUESTS",
+            Scope::Instance,
+            "event: notify USS_REQUEST_SENT after sending on params or command (else ussd \
+             finds the request within USS_REQUEST_POLL_NS).",
+            |i, _| names::requests(i).as_str().into(),
+        ),
+        s(
+            "SERVICE_ANSWERS",
+            Scope::Instance,
+            "event: ussd notifies USS_ANSWER_SENT after each answer on params and command.",
+            |i, _| names::answers(i).as_str().into(),
         ),
         s(
             "USSD_NODE",

@@ -168,6 +168,8 @@ pub trait Bridge {
     fn after_poll(&mut self, slot: usize, images: &DriveImages, status: &DriveStatus);
     /// After a pass through the circulating list.
     fn cycle_completed(&mut self);
+    /// After a parameter job's result was handed to the parameter bridge: wake it.
+    fn job_done(&mut self);
 }
 
 /// Process images in this process only: samples come from [`EngineHandle::set_output`] and
@@ -181,6 +183,7 @@ impl Bridge for LocalBridge {
     }
     fn after_poll(&mut self, _: usize, _: &DriveImages, _: &DriveStatus) {}
     fn cycle_completed(&mut self) {}
+    fn job_done(&mut self) {}
 }
 
 /// A request the handle refuses before it reaches the bus.
@@ -687,10 +690,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
         // Cannot be full: outstanding jobs are capped at the channel's capacity; disconnected
         // only when the parameter bridge is gone. Either way the result is lost, and counted.
-        if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
-            self.results.try_send(result)
-        {
-            self.stats.bus.results_lost += 1;
+        match self.results.try_send(result) {
+            Ok(()) => self.bridge.job_done(),
+            Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
+                self.stats.bus.results_lost += 1;
+            }
         }
     }
 

@@ -86,14 +86,21 @@ pub(super) struct RtDrive {
 pub struct RtBridge {
     drives: Vec<RtDrive>,
     notifier: Notifier<Svc>,
+    /// Wakes the parameter bridge when a job's result is ready ([`names::RESULT_READY`]).
+    results: Notifier<Svc>,
     origin_ns: u64,
 }
 
 impl RtBridge {
-    pub(super) fn new(drives: Vec<RtDrive>, notifier: Notifier<Svc>, origin_ns: u64) -> Self {
+    pub(super) fn new(
+        drives: Vec<RtDrive>,
+        (notifier, results): (Notifier<Svc>, Notifier<Svc>),
+        origin_ns: u64,
+    ) -> Self {
         Self {
             drives,
             notifier,
+            results,
             origin_ns,
         }
     }
@@ -167,5 +174,9 @@ impl Bridge for RtBridge {
         let _ = self
             .notifier
             .notify_with_custom_event_id(EventId::new(names::CYCLE_COMPLETED));
+    }
+
+    fn job_done(&mut self) {
+        let _ = self.results.notify();
     }
 }

@@ -204,7 +204,27 @@ pub fn create(
         drives.push(drive);
         outs.push((address, out));
     }
-    let rt = RtBridge::new(drives, notifier()?, as_ns(clock_origin));
+    // Clients and the bus thread wake the parameter bridge here.
+    let requests = node
+        .service_builder(&names::requests(&bus))
+        .event()
+        .max_listeners(1)
+        .max_notifiers(MAX_CLIENTS)
+        .max_nodes(MAX_NODES)
+        .create_with_attributes(&attributes)
+        .map_err(|e| fail(&bus, "the request event service")(text(e)))?;
+    // The listener first: a notifier connects to the listeners there are when it is created
+    // (a later listener is connected by the next notify, which allocates: not in the bus thread).
+    let woken = requests
+        .listener_builder()
+        .create()
+        .map_err(|e| fail(&bus, "the request listener")(text(e)))?;
+    let results = requests
+        .notifier_builder()
+        .default_event_id(EventId::new(names::RESULT_READY))
+        .create()
+        .map_err(|e| fail(&bus, "the result notifier")(text(e)))?;
+    let rt = RtBridge::new(drives, (notifier()?, results), as_ns(clock_origin));
 
     let status = status::create(
         &node,
@@ -214,7 +234,7 @@ pub fn create(
         (notifier()?, heartbeat),
         clock_origin,
     )?;
-    let params = server::create(&node, &bus, &attributes, outs)?;
+    let params = server::create(&node, &bus, &attributes, (outs, woken))?;
     Ok(BusIpc {
         instance: bus,
         node,

@@ -14,6 +14,8 @@ use core::time::Duration;
 use iceoryx2::active_request::ActiveRequest;
 use iceoryx2::identifiers::UniqueNodeId;
 use iceoryx2::node::{NodeDetails, NodeView};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::server::Server;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::request_response::PortFactory as RequestResponseFactory;
@@ -31,13 +33,28 @@ pub(super) fn create(
     node: &IpcNode,
     bus: &Instance,
     attributes: &AttributeSpecifier,
-    outs: Vec<(Address, OutService)>,
+    (outs, requests): (Vec<(Address, OutService)>, Listener<Svc>),
 ) -> Result<ParamServer, IpcError> {
     let (params, server) = serve(node, bus, &names::params(bus), attributes, "parameter")?;
     let (commands, command_server) = serve(node, bus, &names::command(bus), attributes, "command")?;
+    let answers = node
+        .service_builder(&names::answers(bus))
+        .event()
+        .max_listeners(MAX_CLIENTS)
+        .max_notifiers(1)
+        .max_nodes(MAX_NODES)
+        .create_with_attributes(attributes)
+        .map_err(|e| fail(bus, "the answer event service")(text(e)))?
+        .notifier_builder()
+        .default_event_id(EventId::new(names::ANSWER_SENT))
+        .create()
+        .map_err(|e| fail(bus, "the answer notifier")(text(e)))?;
     Ok(ParamServer {
         server,
         commands: command_server,
+        requests,
+        answers,
+        answered: false,
         identities: Identities {
             config: node.config().clone(),
             params,
@@ -107,10 +124,19 @@ struct Pending {
 /// its jobs that have not reached the wire are cancelled.
 const DEAD_CLIENT_CHECK: Duration = Duration::from_millis(100);
 
+/// Requests sent without a [`names::REQUEST_SENT`] event are taken within this.
+const REQUEST_POLL: Duration = Duration::from_nanos(names::REQUEST_POLL_NS);
+
 /// The parameter bridge's servers. See the module documentation.
 pub struct ParamServer {
     server: Server<Svc, ParamRequest, (), ParamResponse, ()>,
     commands: Server<Svc, OperatorRequest, (), OperatorResponse, ()>,
+    /// Clients' "request sent" and the bus thread's "result ready" events.
+    requests: Listener<Svc>,
+    /// "Answer sent", for waiting clients.
+    answers: Notifier<Svc>,
+    /// Something was answered since the last notification.
+    answered: bool,
     identities: Identities,
     pending: Vec<Pending>,
     next_id: u64,
@@ -211,9 +237,13 @@ impl core::fmt::Debug for ParamServer {
 impl ParamServer {
     /// Serves requests until the engine stops, then answers what is still pending (the
     /// engine ends every job it holds with "shutdown"; jobs it never took get that here).
+    ///
+    /// The thread sleeps until a client's [`names::REQUEST_SENT`] or the bus thread's
+    /// [`names::RESULT_READY`] wakes it, or [`names::REQUEST_POLL_NS`] passes (for requests
+    /// sent without the event).
     pub fn run(mut self, handle: &EngineHandle) {
         while !handle.is_stopped() {
-            self.serve_once(handle, Duration::from_millis(1));
+            self.serve_once(handle, REQUEST_POLL);
         }
         let deadline = Instant::now() + Duration::from_secs(2);
         while !self.pending.is_empty() && Instant::now() < deadline {
@@ -229,20 +259,33 @@ impl ParamServer {
                 }
             }
             let _ = p.active.send_copy(p.response);
+            self.answered = true;
         }
+        self.notify_answered();
     }
 
-    /// Takes new requests, then waits up to `wait` for job results and routes them.
+    /// Takes new requests and finished jobs and routes them, tells waiting clients when
+    /// something was answered, then sleeps until woken or `wait` passes.
     pub fn serve_once(&mut self, handle: &EngineHandle, wait: Duration) {
-        self.serve_commands(handle);
-        self.cancel_for_dead_clients(handle);
+        // Results and new requests first: the rest can wait a moment.
+        while let Some(r) = handle.recv_result(Duration::ZERO) {
+            self.route(&r);
+        }
         while let Ok(Some(active)) = self.server.receive() {
             self.accept(active, handle);
         }
-        let mut wait = wait;
-        while let Some(r) = handle.recv_result(wait) {
-            self.route(&r);
-            wait = Duration::ZERO;
+        self.serve_commands(handle);
+        self.notify_answered();
+        self.cancel_for_dead_clients(handle);
+        if self.requests.timed_wait(|_| {}, wait).is_err() {
+            // The event is broken (it never is in practice): keep serving by polling.
+            std::thread::sleep(wait.min(Duration::from_millis(1)));
+        }
+    }
+
+    fn notify_answered(&mut self) {
+        if core::mem::take(&mut self.answered) {
+            let _ = self.answers.notify();
         }
     }
 
@@ -250,6 +293,7 @@ impl ParamServer {
         let request = *active.payload();
         if let Some(refusal) = self.refuse_controlled(&active, &request) {
             let _ = active.send_copy(refusal);
+            self.answered = true;
             return;
         }
         let (address, items) = match request.validate() {
@@ -257,6 +301,7 @@ impl ParamServer {
             Err(refusal) => {
                 // A client that died meanwhile cannot be answered; nothing else to do.
                 let _ = active.send_copy(ParamResponse::refused(request.address, refusal));
+                self.answered = true;
                 return;
             }
         };
@@ -266,6 +311,7 @@ impl ParamServer {
                 error: RequestError::UnknownDrive.code(),
                 ..refusal
             });
+            self.answered = true;
             return;
         };
         let mut response = ParamResponse::new(address.get());
@@ -288,6 +334,7 @@ impl ParamServer {
         }
         if remaining == 0 {
             let _ = active.send_copy(response);
+            self.answered = true;
             return;
         }
         // Only the node: its process id costs a walk over every node, done every
@@ -393,6 +440,7 @@ impl ParamServer {
             };
             // A client that died meanwhile cannot be answered; the command stands.
             let _ = active.send_copy(response);
+            self.answered = true;
         }
     }
 
@@ -412,6 +460,7 @@ impl ParamServer {
         if p.remaining == 0 {
             let p = self.pending.swap_remove(at);
             let _ = p.active.send_copy(p.response);
+            self.answered = true;
         }
     }
 }
