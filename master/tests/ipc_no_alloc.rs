@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::allocations;
+use common::{allocations, engine_config};
 
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::reader::EntryHandle;
@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, VirtualWire};
 use uss_master::daemon::ipc as ussd_ipc;
-use uss_master::{DriveSetup, Engine, EngineConfig, Job, SimTransport, VirtualClock};
+use uss_master::{DriveSetup, Engine, Job, SimTransport, VirtualClock};
 use uss_protocol::pkw::{ParamTask, Pnu};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Timing};
@@ -147,23 +147,6 @@ fn two_faulty_drives(layout: Layout) -> (SimBus, Vec<DriveSetup>) {
         });
     }
     (sim, setups)
-}
-
-fn engine_config(timing: Timing, drives: Vec<DriveSetup>) -> EngineConfig {
-    EngineConfig {
-        timing,
-        response_timeout: Duration::from_millis(20),
-        retries: 2,
-        offline_after: 1,
-        offline_probe: Duration::from_millis(200),
-        cycle_time: None,
-        param_timeout: Duration::from_millis(500),
-        echo: false,
-        mailbox_depth: 8,
-        publish_every: Duration::from_millis(20),
-        param_priority: false,
-        drives,
-    }
 }
 
 /// A controller publishing on drive 1 while `running`, reading its input image. Its phase

@@ -52,19 +52,10 @@ fn faulty_bus() -> (TestEngine, EngineHandle, Receiver<Event>) {
         .unwrap()
         .unplug(Duration::from_secs(2), Some(Duration::from_secs(3)));
     let config = EngineConfig {
-        timing,
-        response_timeout: Duration::from_millis(20),
-        retries: 2,
-        offline_after: 1,
-        offline_probe: Duration::from_millis(200),
-        cycle_time: None,
-        param_timeout: Duration::from_millis(500),
         echo: true,
-        mailbox_depth: 8,
-        publish_every: Duration::from_millis(20),
         // The extra polls for parameter jobs allocate nothing either.
         param_priority: true,
-        drives: setups,
+        ..common::engine_config(timing, setups)
     };
     let wire = VirtualWire::new(bus, timing).with_echo(true);
     Engine::new(config, SimTransport::new(wire), VirtualClock::new())

@@ -42,3 +42,31 @@ unsafe impl GlobalAlloc for Counting {
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
+
+/// The engine settings of the allocation tests on a simulated bus: 20 ms response timeout, two
+/// retries, offline after one failed poll, 200 ms probes, 500 ms parameter timeout, mailboxes
+/// of 8, status every 20 ms; no echo, no parameter priority.
+#[allow(
+    dead_code,
+    reason = "not every allocation test runs an engine on a simulated bus"
+)]
+pub fn engine_config(
+    timing: uss_protocol::Timing,
+    drives: Vec<uss_master::DriveSetup>,
+) -> uss_master::EngineConfig {
+    use std::time::Duration;
+    uss_master::EngineConfig {
+        timing,
+        response_timeout: Duration::from_millis(20),
+        retries: 2,
+        offline_after: 1,
+        offline_probe: Duration::from_millis(200),
+        cycle_time: None,
+        param_timeout: Duration::from_millis(500),
+        echo: false,
+        mailbox_depth: 8,
+        publish_every: Duration::from_millis(20),
+        param_priority: false,
+        drives,
+    }
+}
