@@ -64,6 +64,7 @@ fn run_engine_spinning(
         mailbox_depth: 16,
         publish_every: Duration::from_millis(100),
         param_priority: false,
+        capture: false,
         drives,
     };
     let transport = SimTransport::new(VirtualWire::new(bus, timing));

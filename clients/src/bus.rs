@@ -147,6 +147,11 @@ impl Bus {
         DriveWatch::open(self, DriveAddress::new(address)?)
     }
 
+    /// A subscription to every telegram of the bus, as ussd's bus thread sent and received it.
+    pub fn capture(&self) -> Result<crate::Capture, ClientError> {
+        crate::Capture::open(self)
+    }
+
     /// A listener for the bus's exchange and cycle events, to run in step with the bus.
     pub fn cycle_listener(&self) -> Result<CycleListener, ClientError> {
         CycleListener::open(self)

@@ -62,6 +62,7 @@
 //! does, to keep iceoryx2's warnings out of their log.
 
 mod bus;
+mod capture;
 mod command;
 mod control;
 mod error;
@@ -73,9 +74,10 @@ mod typed;
 mod watch;
 
 pub use bus::{Bus, DEFAULT_NODE_NAME};
+pub use capture::Capture;
 pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, HANDSHAKE_TIMEOUT, Jog, Refresher};
 pub use error::{ClientError, Latch, ParamError};
-pub use link::Health;
+pub use link::{Health, monotonic_ns};
 pub use params::WriteOptions;
 pub use typed::{Fault, FaultReport, FaultTime, ParamValue, Warning};
 pub use uss_catalogue::{Catalogue, DataType, Typed};

@@ -113,7 +113,7 @@ fn fault_text(fault: LineFault, errno: i32) -> String {
 }
 
 /// `CLOCK_MONOTONIC` in ns, the clock of every `*_ns` field of the contract.
-pub(crate) fn monotonic_ns() -> u64 {
+pub fn monotonic_ns() -> u64 {
     nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC).map_or(0, |t| {
         (t.tv_sec() as u64)
             .saturating_mul(1_000_000_000)

@@ -77,6 +77,7 @@ fn bench_with(
         mailbox_depth: 16,
         publish_every: ms(100),
         param_priority: false,
+        capture: false,
         drives: setups,
     };
     cfg(&mut config);
@@ -983,6 +984,7 @@ fn a_failed_line_ends_every_job_and_the_restored_line_latches_every_drive() {
         mailbox_depth: 16,
         publish_every: ms(100),
         param_priority: false,
+        capture: false,
         drives: vec![
             DriveSetup::new(addr(1), layout(PkwMode::Four, 2)),
             DriveSetup::new(addr(2), layout(PkwMode::Four, 2)),

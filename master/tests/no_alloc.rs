@@ -119,6 +119,8 @@ fn bus_loop_allocates_nothing_per_exchange() {
     ];
     let mut results = 0u64;
     let mut id = 0u64;
+    // Every telegram is captured (as in ussd) and taken here, as ussd's housekeeping does.
+    let captured = std::cell::Cell::new(0u64);
     let mut step = |count: usize, results: &mut u64, id: &mut u64| {
         for i in 0..count {
             control(&handle, i);
@@ -146,6 +148,9 @@ fn bus_loop_allocates_nothing_per_exchange() {
                 *results += 1;
             }
             while events.try_recv().is_ok() {}
+            while handle.captures().try_recv().is_ok() {
+                captured.set(captured.get() + 1);
+            }
         }
     };
     step(500, &mut results, &mut id);
@@ -168,4 +173,10 @@ fn bus_loop_allocates_nothing_per_exchange() {
     assert!(total(|c| c.releases) > 0, "releases");
     assert!(total(|c| c.latches) > 10, "latches and re-arms");
     assert!(results > 500, "{results} job results");
+    assert!(
+        captured.get() >= 2 * stats.bus.exchanges,
+        "every request and every reply captured ({} for {} exchanges)",
+        captured.get(),
+        stats.bus.exchanges
+    );
 }

@@ -85,6 +85,7 @@ def test_code_tables_have_exactly_the_codes_of_the_header():
         uss_rt.LineState,
         uss_rt.LineFault,
         uss_rt.BusState,
+        uss_rt.Direction,
     ):
         prefix = f"USS_{screaming(table.__name__)}_"
         body = re.search(r"enum Uss%s\b.*?\{(.*?)\};" % table.__name__, text, re.S).group(1)
@@ -117,6 +118,11 @@ def test_limits_match_the_header():
         "GONE_AFTER_NS",
         "REQUEST_SENT",
         "ANSWER_SENT",
+        "CAPTURE_BYTES",
+        "CAPTURE_TRUNCATED",
+        "CAPTURE_TASK",
+        "CAPTURE_BUFFER",
+        "CAPTURE_MAX_SUBSCRIBERS",
     ):
         assert getattr(uss_rt, name) == value(name), name
 
@@ -142,6 +148,7 @@ def test_service_names_and_attribute_match_the_header():
         ("SERVICE_CYCLE", uss_rt.cycle_service),
         ("SERVICE_PARAMS", uss_rt.params_service),
         ("SERVICE_COMMAND", uss_rt.command_service),
+        ("SERVICE_CAPTURE", uss_rt.capture_service),
         ("SERVICE_REQUESTS", uss_rt.requests_service),
         ("SERVICE_ANSWERS", uss_rt.answers_service),
     ):

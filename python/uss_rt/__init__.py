@@ -87,7 +87,7 @@ __all__ = [
 # Limits and names (uss_shm_types: lib.rs, pzd.rs, params.rs, names.rs)
 # -------------------------------------------------------------------------------------------
 
-LAYOUT_VERSION = 4
+LAYOUT_VERSION = 5
 """The layout version of every payload; its ``version`` field and the services' attribute."""
 LAYOUT_VERSION_ATTRIBUTE = "uss.layout_version"
 MAX_PZD_WORDS = 16
@@ -168,6 +168,11 @@ def requests_service(bus: str, generation: int) -> str:
     return f"uss/{bus}/{generation:016x}/requests"
 
 
+def capture_service(bus: str, generation: int) -> str:
+    """Publish-subscribe, :class:`TelegramRecord`: every telegram of the bus."""
+    return f"uss/{bus}/{generation:016x}/capture"
+
+
 def answers_service(bus: str, generation: int) -> str:
     """Event: ussd notifies :data:`ANSWER_SENT` after each answer on ``params`` and
     ``command``, so a waiting client receives it at once."""
@@ -214,6 +219,13 @@ class LineFault(enum.IntEnum):
     NONE = 0
     CLOSED = 1
     IO = 2
+
+
+class Direction(enum.IntEnum):
+    """Which way a captured telegram went (``TelegramRecord.direction``)."""
+
+    REQUEST = 0
+    REPLY = 1
 
 
 class BusState(enum.IntEnum):
@@ -423,7 +435,7 @@ class PzdOutput(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssPzdOutputV4"
+        return "UssPzdOutputV5"
 
 
 class PzdInput(ctypes.Structure):
@@ -455,7 +467,7 @@ class PzdInput(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssPzdInputV4"
+        return "UssPzdInputV5"
 
 
 class DriveInfo(ctypes.Structure):
@@ -475,7 +487,7 @@ class DriveInfo(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveInfoV4"
+        return "UssDriveInfoV5"
 
 
 class DriveCounters(ctypes.Structure):
@@ -513,7 +525,7 @@ class DriveCounters(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveCountersV4"
+        return "UssDriveCountersV5"
 
 
 class DriveDiag(ctypes.Structure):
@@ -546,7 +558,7 @@ class DriveDiag(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveDiagV4"
+        return "UssDriveDiagV5"
 
 
 class BusStatus(ctypes.Structure):
@@ -592,7 +604,7 @@ class BusStatus(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssBusStatusV4"
+        return "UssBusStatusV5"
 
 
 class ParamItem(ctypes.Structure):
@@ -609,7 +621,7 @@ class ParamItem(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamItemV4"
+        return "UssParamItemV5"
 
 
 class ParamRequest(ctypes.Structure):
@@ -626,7 +638,7 @@ class ParamRequest(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamRequestV4"
+        return "UssParamRequestV5"
 
 
 class ParamResult(ctypes.Structure):
@@ -645,7 +657,7 @@ class ParamResult(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamResultV4"
+        return "UssParamResultV5"
 
 
 class ParamResponse(ctypes.Structure):
@@ -664,7 +676,7 @@ class ParamResponse(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamResponseV4"
+        return "UssParamResponseV5"
 
 
 class Heartbeat(ctypes.Structure):
@@ -686,7 +698,7 @@ class Heartbeat(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssHeartbeatV4"
+        return "UssHeartbeatV5"
 
 
 class OperatorRequest(ctypes.Structure):
@@ -701,7 +713,7 @@ class OperatorRequest(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssOperatorRequestV4"
+        return "UssOperatorRequestV5"
 
 
 class OperatorResponse(ctypes.Structure):
@@ -717,7 +729,38 @@ class OperatorResponse(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssOperatorResponseV4"
+        return "UssOperatorResponseV5"
+
+
+CAPTURE_BYTES = 264
+CAPTURE_TRUNCATED = 1 << 0
+CAPTURE_TASK = 1 << 1
+CAPTURE_BUFFER = 1024
+CAPTURE_MAX_SUBSCRIBERS = 4
+
+
+class TelegramRecord(ctypes.Structure):
+    """One telegram of the bus as ussd's bus thread sent or received it (``uss/<bus>/capture``)."""
+
+    _fields_ = [
+        ("version", u32),
+        ("len", u16),
+        ("direction", u8),
+        ("outcome", u8),
+        ("address", u8),
+        ("pkw", u8),
+        ("pzd", u8),
+        ("flags", u8),
+        ("reserved", u8 * 4),
+        ("sequence", u64),
+        ("start_ns", u64),
+        ("end_ns", u64),
+        ("bytes", u8 * CAPTURE_BYTES),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "UssTelegramRecordV5"
 
 
 PAYLOAD_TYPES = (
@@ -735,6 +778,7 @@ PAYLOAD_TYPES = (
     Heartbeat,
     OperatorRequest,
     OperatorResponse,
+    TelegramRecord,
 )
 
 # -------------------------------------------------------------------------------------------

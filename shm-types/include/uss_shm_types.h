@@ -19,19 +19,20 @@
  * as IOX2_TYPE_NAME.
  */
 #define USS_BLACKBOARD_KEY_TYPE_NAME "UssBlackboardKey"
-#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV4"
-#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV4"
-#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV4"
-#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV4"
-#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV4"
-#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV4"
-#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV4"
-#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV4"
-#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV4"
-#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV4"
-#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV4"
-#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV4"
-#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV4"
+#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV5"
+#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV5"
+#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV5"
+#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV5"
+#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV5"
+#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV5"
+#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV5"
+#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV5"
+#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV5"
+#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV5"
+#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV5"
+#define USS_TELEGRAM_RECORD_TYPE_NAME "UssTelegramRecordV5"
+#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV5"
+#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV5"
 
 /*
  * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; %016llx = the
@@ -56,6 +57,8 @@
 #define USS_SERVICE_PARAMS "uss/%s/%016llx/params"
 /** request-response, UssOperatorRequest -> UssOperatorResponse (operator stop commands). */
 #define USS_SERVICE_COMMAND "uss/%s/%016llx/command"
+/** publish-subscribe, UssTelegramRecord: every telegram of the bus (ussd publishes). */
+#define USS_SERVICE_CAPTURE "uss/%s/%016llx/capture"
 /** event: notify USS_REQUEST_SENT after sending on params or command (else ussd finds the request within USS_REQUEST_POLL_NS). */
 #define USS_SERVICE_REQUESTS "uss/%s/%016llx/requests"
 /** event: ussd notifies USS_ANSWER_SENT after each answer on params and command. */
@@ -64,6 +67,22 @@
 #define USS_USSD_NODE "ussd-%s"
 /** how a generation is written in service names (after the bus). */
 #define USS_GENERATION_FORMAT "uss/%s/%016llx"
+
+/**
+ * Bytes a record holds: the longest telegram (STX, LGE 254, its 254 bytes) and 8 more of
+ * whatever came with it.
+ */
+#define USS_CAPTURE_BYTES 264
+
+/**
+ * `flags` bit: more bytes came than [`CAPTURE_BYTES`]; the rest are not in the record.
+ */
+#define USS_CAPTURE_TRUNCATED (1 << 0)
+
+/**
+ * `flags` bit: the request carries a parameter task (its PKW words are not "no task").
+ */
+#define USS_CAPTURE_TASK (1 << 1)
 
 /**
  * `address` of an [`OperatorRequest`] for every drive of the bus.
@@ -79,7 +98,7 @@
  * The layout version of every payload type in this crate. Bump it with any change to a type's
  * fields, sizes or code tables, together with the type names' `V<n>` suffix.
  */
-#define USS_LAYOUT_VERSION 4
+#define USS_LAYOUT_VERSION 5
 
 /**
  * Longest bus name.
@@ -147,6 +166,18 @@
  * service lives on (iceoryx2 0.10, eclipse-iceoryx/iceoryx2#2008).
  */
 #define USS_USSD_GONE 34
+
+/**
+ * Records a `capture` subscriber holds before the oldest are lost: 2 s of a bus at
+ * 187500 baud.
+ */
+#define USS_CAPTURE_BUFFER 1024
+
+/**
+ * Captures at once (`ussctl capture` and the like): each holds [`CAPTURE_BUFFER`] records of
+ * shared memory.
+ */
+#define USS_CAPTURE_MAX_SUBSCRIBERS 4
 
 /**
  * The event id clients notify on [`requests`].
@@ -226,6 +257,31 @@
  * STW1 bit 0, ON / OFF1.
  */
 #define USS_STW1_ON 1
+
+/**
+ * Which way a captured telegram went; the `direction` byte of [`TelegramRecord`].
+ */
+enum UssDirection
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * Master to drive: the request.
+   */
+  USS_DIRECTION_REQUEST = 0,
+  /**
+   * Drive to master: the reply, what came instead of it, or nothing.
+   */
+  USS_DIRECTION_REPLY = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssDirection UssDirection;
+#else
+typedef uint8_t UssDirection;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
 
 /**
  * Whether a drive gets its controller's words; the `control` byte of the input image and
@@ -903,7 +959,7 @@ typedef struct UssPzdOutput {
   uint8_t flags;
   uint8_t reserved[6];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV5";
 #endif
 } UssPzdOutput;
 
@@ -998,7 +1054,7 @@ typedef struct UssPzdInput {
    */
   uint64_t taken_sequence;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV5";
 #endif
 } UssPzdInput;
 
@@ -1038,7 +1094,7 @@ typedef struct UssDriveInfo {
   uint8_t weight;
   uint8_t reserved[3];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV5";
 #endif
 } UssDriveInfo;
 
@@ -1109,7 +1165,7 @@ typedef struct UssDriveCounters {
    */
   uint64_t overrides;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV5";
 #endif
 } UssDriveCounters;
 
@@ -1205,7 +1261,7 @@ typedef struct UssDriveDiag {
    */
   struct UssDriveCounters counters;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV5";
 #endif
 } UssDriveDiag;
 
@@ -1322,7 +1378,7 @@ typedef struct UssBusStatus {
    */
   uint64_t turnaround_ns[4];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV5";
 #endif
 } UssBusStatus;
 
@@ -1352,7 +1408,7 @@ typedef struct UssParamItem {
    */
   uint32_t value;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV5";
 #endif
 } UssParamItem;
 /**
@@ -1383,7 +1439,7 @@ typedef struct UssParamRequest {
   uint8_t reserved;
   struct UssParamItem items[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV5";
 #endif
 } UssParamRequest;
 
@@ -1423,7 +1479,7 @@ typedef struct UssParamResult {
    */
   uint64_t on_wire_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV5";
 #endif
 } UssParamResult;
 
@@ -1459,7 +1515,7 @@ typedef struct UssParamResponse {
   uint32_t reserved;
   struct UssParamResult results[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV5";
 #endif
 } UssParamResponse;
 
@@ -1509,9 +1565,66 @@ typedef struct UssHeartbeat {
    */
   int32_t line_errno;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV5";
 #endif
 } UssHeartbeat;
+
+/**
+ * One captured telegram.
+ */
+typedef struct UssTelegramRecord {
+  /**
+   * [`LAYOUT_VERSION`].
+   */
+  uint32_t version;
+  /**
+   * Bytes used in `bytes`.
+   */
+  uint16_t len;
+  /**
+   * A [`Direction`] code.
+   */
+  uint8_t direction;
+  /**
+   * A reply's [`LastFailure`] code: 0 (`None`) for a good reply of the polled drive, e.g.
+   * `NoResponse` with no bytes, `Bcc` with the broken bytes. 0 for a request.
+   */
+  uint8_t outcome;
+  /**
+   * The polled drive's address (a reply from another drive is `WrongAddress`).
+   */
+  uint8_t address;
+  /**
+   * The drive's PKW mode as P2013 says it: 0, 3, 4 or 127 (variable length).
+   */
+  uint8_t pkw;
+  /**
+   * The drive's PZD words.
+   */
+  uint8_t pzd;
+  /**
+   * [`CAPTURE_TRUNCATED`], [`CAPTURE_TASK`].
+   */
+  uint8_t flags;
+  uint8_t reserved[4];
+  /**
+   * Counts the records of this ussd instance's bus, from 1; a gap is records lost.
+   */
+  uint64_t sequence;
+  /**
+   * The first byte on the wire, `CLOCK_MONOTONIC` ns (a reply without bytes: when the wait
+   * for it ended).
+   */
+  uint64_t start_ns;
+  /**
+   * The last byte on the wire, `CLOCK_MONOTONIC` ns.
+   */
+  uint64_t end_ns;
+  uint8_t bytes[USS_CAPTURE_BYTES];
+#ifdef __cplusplus
+  static constexpr const char *IOX2_TYPE_NAME = "UssTelegramRecordV5";
+#endif
+} UssTelegramRecord;
 
 /**
  * An operator's stop command for one drive or every drive of a bus, from any process.
@@ -1531,7 +1644,7 @@ typedef struct UssOperatorRequest {
   uint8_t command;
   uint8_t reserved[2];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV5";
 #endif
 } UssOperatorRequest;
 
@@ -1557,7 +1670,7 @@ typedef struct UssOperatorResponse {
    */
   uint32_t drives;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV4";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV5";
 #endif
 } UssOperatorResponse;
 

@@ -144,7 +144,7 @@ impl StopCommand {
 /// An operator's stop command for one drive or every drive of a bus, from any process.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorRequestV4")]
+#[type_name("UssOperatorRequestV5")]
 pub struct OperatorRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -158,7 +158,7 @@ pub struct OperatorRequest {
 /// The one answer to an [`OperatorRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorResponseV4")]
+#[type_name("UssOperatorResponseV5")]
 pub struct OperatorResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

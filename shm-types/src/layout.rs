@@ -38,7 +38,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdOutput",
-        type_name: "UssPzdOutputV4",
+        type_name: "UssPzdOutputV5",
         size: 64,
         align: 8,
         fields: &[
@@ -56,7 +56,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdInput",
-        type_name: "UssPzdInputV4",
+        type_name: "UssPzdInputV5",
         size: 96,
         align: 8,
         fields: &[
@@ -85,7 +85,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveInfo",
-        type_name: "UssDriveInfoV4",
+        type_name: "UssDriveInfoV5",
         size: 16,
         align: 4,
         fields: &[
@@ -101,7 +101,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveCounters",
-        type_name: "UssDriveCountersV4",
+        type_name: "UssDriveCountersV5",
         size: 192,
         align: 8,
         fields: &[
@@ -133,7 +133,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveDiag",
-        type_name: "UssDriveDiagV4",
+        type_name: "UssDriveDiagV5",
         size: 264,
         align: 8,
         fields: &[
@@ -163,7 +163,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "BusStatus",
-        type_name: "UssBusStatusV4",
+        type_name: "UssBusStatusV5",
         size: 240,
         align: 8,
         fields: &[
@@ -201,7 +201,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamItem",
-        type_name: "UssParamItemV4",
+        type_name: "UssParamItemV5",
         size: 12,
         align: 4,
         fields: &[
@@ -215,7 +215,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamRequest",
-        type_name: "UssParamRequestV4",
+        type_name: "UssParamRequestV5",
         size: 476,
         align: 4,
         fields: &[
@@ -229,7 +229,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResult",
-        type_name: "UssParamResultV4",
+        type_name: "UssParamResultV5",
         size: 24,
         align: 8,
         fields: &[
@@ -245,7 +245,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResponse",
-        type_name: "UssParamResponseV4",
+        type_name: "UssParamResponseV5",
         size: 952,
         align: 8,
         fields: &[
@@ -261,7 +261,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "Heartbeat",
-        type_name: "UssHeartbeatV4",
+        type_name: "UssHeartbeatV5",
         size: 56,
         align: 8,
         fields: &[
@@ -279,8 +279,29 @@ pub const LAYOUTS: &[TypeLayout] = &[
         ],
     },
     TypeLayout {
+        name: "TelegramRecord",
+        type_name: "UssTelegramRecordV5",
+        size: 304,
+        align: 8,
+        fields: &[
+            f("version", 0, 4),
+            f("len", 4, 2),
+            f("direction", 6, 1),
+            f("outcome", 7, 1),
+            f("address", 8, 1),
+            f("pkw", 9, 1),
+            f("pzd", 10, 1),
+            f("flags", 11, 1),
+            f("reserved", 12, 4),
+            f("sequence", 16, 8),
+            f("start_ns", 24, 8),
+            f("end_ns", 32, 8),
+            f("bytes", 40, 264),
+        ],
+    },
+    TypeLayout {
         name: "OperatorRequest",
-        type_name: "UssOperatorRequestV4",
+        type_name: "UssOperatorRequestV5",
         size: 8,
         align: 4,
         fields: &[
@@ -292,7 +313,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorResponse",
-        type_name: "UssOperatorResponseV4",
+        type_name: "UssOperatorResponseV5",
         size: 12,
         align: 4,
         fields: &[

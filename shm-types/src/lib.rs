@@ -11,6 +11,7 @@
 //! | `uss/<bus>/<gen>/cycle`            | event                     | ussd                    | anyone  | event ids in [`names`] |
 //! | `uss/<bus>/<gen>/params`           | request-response          | clients ask, ussd answers | -     | [`ParamRequest`] / [`ParamResponse`] |
 //! | `uss/<bus>/<gen>/command`          | request-response          | any process asks, ussd answers | - | [`OperatorRequest`] / [`OperatorResponse`] |
+//! | `uss/<bus>/<gen>/capture`          | publish-subscribe         | ussd                    | anyone  | [`TelegramRecord`] |
 //! | `uss/<bus>/<gen>/requests`         | event                     | clients, after sending a request | ussd | [`names::REQUEST_SENT`] |
 //! | `uss/<bus>/<gen>/answers`          | event                     | ussd, after each answer | clients | [`names::ANSWER_SENT`] |
 //!
@@ -36,6 +37,7 @@
 //!   there); the code tables are `#[repr(u8)]` enums with `TryFrom<u8>`.
 //! - Time stamps (`*_ns`) are `CLOCK_MONOTONIC` nanoseconds unless a field says otherwise.
 
+pub mod capture;
 mod codes;
 pub mod control;
 pub mod diag;
@@ -46,6 +48,7 @@ pub mod outcome;
 pub mod params;
 pub mod pzd;
 
+pub use capture::{CAPTURE_BYTES, CAPTURE_TASK, CAPTURE_TRUNCATED, Direction, TelegramRecord};
 pub use codes::{ContractError, UnknownCode};
 pub use control::{
     ALL_DRIVES, CommandError, ControlState, LatchReason, Monitoring, OperatorRequest,
@@ -65,7 +68,7 @@ pub use pzd::{EXTRA_PZD_WORDS, MAX_PZD_WORDS, OUTPUT_RELEASE, OutputSample, PzdI
 
 /// The layout version of every payload type in this crate. Bump it with any change to a type's
 /// fields, sizes or code tables, together with the type names' `V<n>` suffix.
-pub const LAYOUT_VERSION: u32 = 4;
+pub const LAYOUT_VERSION: u32 = 5;
 
 /// Checks a payload's `version` field.
 pub const fn check_version(found: u32) -> Result<(), ContractError> {

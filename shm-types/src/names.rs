@@ -12,6 +12,7 @@
 //! | `uss/<bus>/<gen>/cycle`            | event            | [`exchange_completed`], [`CYCLE_COMPLETED`], [`STATUS_PUBLISHED`], [`USSD_GONE`] |
 //! | `uss/<bus>/<gen>/params`           | request-response | `ParamRequest` -> `ParamResponse`       |
 //! | `uss/<bus>/<gen>/command`          | request-response | `OperatorRequest` -> `OperatorResponse` |
+//! | `uss/<bus>/<gen>/capture`          | publish-subscribe| `TelegramRecord`; 1 publisher (ussd), subscriber buffer [`CAPTURE_BUFFER`], no history |
 //! | `uss/<bus>/<gen>/requests`         | event            | [`REQUEST_SENT`]: a client notifies after sending on `params` or `command`; [`RESULT_READY`] (ussd's own) |
 //! | `uss/<bus>/<gen>/answers`          | event            | [`ANSWER_SENT`]: ussd notifies after answering on `params` or `command` |
 //!
@@ -252,6 +253,19 @@ pub fn params(i: &Instance) -> ServiceName {
 pub fn command(i: &Instance) -> ServiceName {
     i.service("command")
 }
+
+/// Every telegram of the bus, as ussd's bus thread sent and received it.
+pub fn capture(i: &Instance) -> ServiceName {
+    i.service("capture")
+}
+
+/// Records a `capture` subscriber holds before the oldest are lost: 2 s of a bus at
+/// 187500 baud.
+pub const CAPTURE_BUFFER: usize = 1024;
+
+/// Captures at once (`ussctl capture` and the like): each holds [`CAPTURE_BUFFER`] records of
+/// shared memory.
+pub const CAPTURE_MAX_SUBSCRIBERS: usize = 4;
 
 /// Clients notify [`REQUEST_SENT`] here after sending a parameter request or an operator
 /// command, so ussd takes it at once; a request without it is still taken, within

@@ -32,7 +32,7 @@ pub const STW1_ON: u16 = 0x0001;
 /// the wire: a sample the drive would misread is refused and latches the drive too.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdOutputV4")]
+#[type_name("UssPzdOutputV5")]
 pub struct PzdOutput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -72,7 +72,7 @@ pub enum OutputSample {
 /// of the drive, good or failed.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdInputV4")]
+#[type_name("UssPzdInputV5")]
 pub struct PzdInput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -15,11 +15,11 @@ use std::process::Command;
 use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
 use uss_shm_types::names::{self, BlackboardKey};
 use uss_shm_types::{
-    BusName, BusState, BusStatus, CommandError, ControlState, DriveAddress, DriveCounters,
-    DriveDiag, DriveInfo, Generation, Heartbeat, Instance, LastFailure, LatchReason, LineFault,
-    LineState, Monitoring, OperatorRequest, OperatorResponse, Outcome, ParamItem, ParamRequest,
-    ParamResponse, ParamResult, PzdInput, PzdOutput, Rejection, RequestError, RtMode, StopCommand,
-    Storage, TaskCode,
+    BusName, BusState, BusStatus, CommandError, ControlState, Direction, DriveAddress,
+    DriveCounters, DriveDiag, DriveInfo, Generation, Heartbeat, Instance, LastFailure, LatchReason,
+    LineFault, LineState, Monitoring, OperatorRequest, OperatorResponse, Outcome, ParamItem,
+    ParamRequest, ParamResponse, ParamResult, PzdInput, PzdOutput, Rejection, RequestError, RtMode,
+    StopCommand, Storage, TaskCode, TelegramRecord,
 };
 
 const REGENERATE: &str =
@@ -185,7 +185,7 @@ impl Service {
 }
 
 /// Every name of [`names`].
-fn services() -> [Service; 12] {
+fn services() -> [Service; 13] {
     let s = |c_name, scope, what, name| Service {
         c_name,
         scope,
@@ -241,6 +241,12 @@ fn services() -> [Service; 12] {
             Scope::Instance,
             "request-response, UssOperatorRequest -> UssOperatorResponse (operator stop commands).",
             |i, _| names::command(i).as_str().into(),
+        ),
+        s(
+            "SERVICE_CAPTURE",
+            Scope::Instance,
+            "publish-subscribe, UssTelegramRecord: every telegram of the bus (ussd publishes).",
+            |i, _| names::capture(i).as_str().into(),
         ),
         s(
             "SERVICE_REQUESTS",
@@ -439,6 +445,7 @@ fn actual_type_name(rust: &str) -> &'static str {
             "Heartbeat" => Heartbeat::type_name(),
             "OperatorRequest" => OperatorRequest::type_name(),
             "OperatorResponse" => OperatorResponse::type_name(),
+            "TelegramRecord" => TelegramRecord::type_name(),
             other => panic!("{other} is in LAYOUTS but not here"),
         }
     }
@@ -473,6 +480,13 @@ fn numbers() -> Vec<(&'static str, u64)> {
         ("USSD_GONE", names::USSD_GONE as u64),
         ("HEARTBEAT_PERIOD_NS", names::HEARTBEAT_PERIOD_NS),
         ("GONE_AFTER_NS", names::GONE_AFTER_NS),
+        ("CAPTURE_BYTES", uss_shm_types::CAPTURE_BYTES as u64),
+        (
+            "CAPTURE_TRUNCATED",
+            u64::from(uss_shm_types::CAPTURE_TRUNCATED),
+        ),
+        ("CAPTURE_TASK", u64::from(uss_shm_types::CAPTURE_TASK)),
+        ("CAPTURE_BUFFER", names::CAPTURE_BUFFER as u64),
     ]
 }
 
@@ -502,6 +516,7 @@ fn codes() -> Vec<(String, u8)> {
         table("LineState", LineState::ALL),
         table("LineFault", LineFault::ALL),
         table("BusState", BusState::ALL),
+        table("Direction", Direction::ALL),
     ]
     .concat()
 }

@@ -7,7 +7,7 @@ use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
 use uss_shm_types::{
     BlackboardKey, BusStatus, DriveCounters, DriveDiag, DriveInfo, Generation, Heartbeat,
     LAYOUT_VERSION, MAX_PARAM_ITEMS, OperatorRequest, OperatorResponse, ParamItem, ParamRequest,
-    ParamResponse, ParamResult, PzdInput, PzdOutput, StopCommand,
+    ParamResponse, ParamResult, PzdInput, PzdOutput, StopCommand, TelegramRecord,
 };
 
 /// The layout the compiler gave a type, in the table's shape.
@@ -94,6 +94,10 @@ fn actual_layouts() -> Vec<Actual> {
         ]),
         actual!(OperatorResponse = OperatorResponse::done(StopCommand::Off1, 0), [
             version, error, command, reserved, drives,
+        ]),
+        actual!(TelegramRecord = TelegramRecord::EMPTY, [
+            version, len, direction, outcome, address, pkw, pzd, flags, reserved, sequence,
+            start_ns, end_ns, bytes,
         ]),
     ]
 }

@@ -82,6 +82,26 @@ pub enum Command {
     },
     /// Print the manual page (roff, for man).
     Man,
+    /// Every telegram of the bus as ussd sends and receives it, decoded; optionally written to a
+    /// pcapng file for Wireshark (tools/wireshark/uss.lua decodes it).
+    Capture {
+        /// Only this drive's telegrams.
+        #[arg(long, value_name = "ADDRESS")]
+        drive: Option<u8>,
+        /// raw: the bytes; frame: STX, LGE, ADR, PKW, PZD, BCC; app: parameter tasks and
+        /// replies, control and status words, setpoints and actual values.
+        #[arg(long, value_enum, default_value = "app")]
+        level: crate::decode::Level,
+        /// Capture this many seconds (default: until Ctrl-C).
+        #[arg(long = "for", value_name = "SECONDS")]
+        duration: Option<f64>,
+        /// Stop after this many telegrams.
+        #[arg(long, value_name = "N")]
+        count: Option<u64>,
+        /// Also write the telegrams to this pcapng file.
+        #[arg(short = 'o', long = "output", value_name = "FILE")]
+        output: Option<std::path::PathBuf>,
+    },
     /// Find the drives on a line ussd does not serve: each address that answers at each baud
     /// rate, its PKW and PZD length and firmware (r0018). Probes carry OFF1 (STW1 0x047E, bit 10
     /// set): no drive is switched on.

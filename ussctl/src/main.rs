@@ -6,7 +6,9 @@
 mod backup;
 mod cli;
 mod commands;
+mod decode;
 mod failure;
+mod pcapng;
 mod report;
 
 use clap::Parser;
@@ -121,6 +123,22 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             interval,
             count,
         } => commands::watch::watch(&bus, &out, drives, *interval, *count),
+        Command::Capture {
+            drive,
+            level,
+            duration,
+            count,
+            output,
+        } => {
+            let capture = commands::capture::Options {
+                drive: *drive,
+                level: *level,
+                duration: *duration,
+                count: *count,
+                output: output.as_deref(),
+            };
+            commands::capture::capture(&bus, &out, &capture)
+        }
         Command::Param(ParamCommand::Read { drive, param, kind }) => {
             commands::param::read(&bus, &out, *drive, *param, *kind)
         }

@@ -639,7 +639,7 @@ impl ParamReport {
 }
 
 /// The set bits of a control word 1 by name (USS.md section 7).
-fn stw1_bits(stw1: u16) -> Vec<&'static str> {
+pub(crate) fn stw1_bits(stw1: u16) -> Vec<&'static str> {
     const NAMES: [&str; 16] = [
         "ON",
         "no-OFF2",

@@ -8,7 +8,7 @@ use crate::engine::control::Latch;
 use crate::engine::stats::Stats;
 use crate::engine::{EngineHandle, Event};
 use core::time::Duration;
-use crossbeam_channel::{Receiver, RecvTimeoutError};
+use crossbeam_channel::Receiver;
 use std::thread::JoinHandle;
 use uss_protocol::Address;
 use uss_shm_types::{LatchReason, Monitoring, Rejection};
@@ -43,10 +43,16 @@ pub(super) fn spawn(
             loop {
                 let next = next_summary.min(next_status);
                 let wait = next.saturating_duration_since(std::time::Instant::now());
-                match events.recv_timeout(wait) {
-                    Ok(event) => log_event(&bus, &event),
-                    Err(RecvTimeoutError::Timeout) => {}
-                    Err(RecvTimeoutError::Disconnected) => break,
+                crossbeam_channel::select! {
+                    recv(events) -> event => match event {
+                        Ok(event) => log_event(&bus, &event),
+                        Err(_) => break,
+                    },
+                    recv(handle.captures()) -> record => match record {
+                        Ok(record) => publisher.capture(&record),
+                        Err(_) => break,
+                    },
+                    default(wait) => {}
                 }
                 // After every wake-up: a burst of events must not hold back the heartbeat,
                 // by which clients tell that ussd lives.

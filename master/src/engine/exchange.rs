@@ -218,6 +218,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.transport.flush_input(send_at)?;
         self.framer.reset();
         let request_end = self.transport.send(&self.tx[..n], send_at)?;
+        self.capture
+            .request(&setup, &self.tx[..n], carries_task, (send_at, request_end));
         if carries_task {
             self.drives[slot].mailbox.sent(send_at);
         }
@@ -225,12 +227,19 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.stats.bus.exchanges += 1;
         self.framer.line_busy_until(request_end);
         self.line_free_at = request_end;
-        if self.cfg.echo
+        let attempt = if self.cfg.echo
             && let Some(f) = self.discard_echo(n, request_end)?
         {
-            return Ok(Attempt::Failed(f));
-        }
-        self.receive_reply(setup, n, request_end)
+            Attempt::Failed(f)
+        } else {
+            self.receive_reply(setup, n, request_end)?
+        };
+        let outcome = match &attempt {
+            Attempt::Reply { .. } => LastFailure::None,
+            Attempt::Failed(f) => *f,
+        };
+        self.capture.reply_end(&setup, outcome, self.clock.now());
+        Ok(attempt)
     }
 
     /// Receives until a valid reply from the right drive, or a failure.
@@ -255,6 +264,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 return Ok(Attempt::Failed(garbage.unwrap_or(LastFailure::NoResponse)));
             };
             self.line_free_at = self.line_free_at.max(rx.at);
+            self.capture.byte(rx.byte, rx.at);
             let was_receiving = self.framer.is_receiving();
             let event = match rx.error {
                 Some(e) => Some(Err(self.framer.push_line_error(e, rx.at))),
@@ -322,12 +332,15 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 return Ok(Some(LastFailure::Echo));
             };
             self.line_free_at = self.line_free_at.max(rx.at);
+            self.capture.byte(rx.byte, rx.at);
             if rx.byte != self.tx[i] || rx.error.is_some() {
                 self.drain()?;
                 return Ok(Some(LastFailure::Echo));
             }
         }
         self.framer.line_busy_until(self.line_free_at);
+        // Our own bytes: the reply starts after them.
+        self.capture.reply_begin();
         Ok(None)
     }
 
@@ -341,6 +354,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             match self.transport.recv(quiet, &mut self.clock)? {
                 Some(rx) if self.clock.now() < limit => {
                     self.line_free_at = self.line_free_at.max(rx.at);
+                    self.capture.byte(rx.byte, rx.at);
                 }
                 _ => break,
             }

@@ -142,6 +142,13 @@ impl EngineHandle {
         self.cancels.try_send(ids).is_ok()
     }
 
+    /// Every telegram the bus thread sent and received, when the engine captures
+    /// ([`crate::EngineConfig::capture`]); whoever takes them must keep up (the channel holds
+    /// [`crate::engine::CAPTURE_QUEUE`] records; more are lost, which their `sequence` shows).
+    pub fn captures(&self) -> &crossbeam_channel::Receiver<uss_shm_types::TelegramRecord> {
+        &self.captures
+    }
+
     /// The next finished job, waiting at most `timeout`.
     pub fn recv_result(&self, timeout: Duration) -> Option<JobResult> {
         let r = self.results.recv_timeout(timeout).ok()?;

@@ -17,6 +17,8 @@ pub mod monitoring;
 pub mod stats;
 pub mod transport;
 
+mod capture;
+pub use capture::CAPTURE_QUEUE;
 mod exchange;
 use exchange::Attempt;
 mod handle;
@@ -106,6 +108,8 @@ pub struct EngineConfig {
     /// circulating list, so the job does not wait a whole cycle for its drive's turn; at most one
     /// extra poll follows each regular one, so no other drive's poll period more than doubles.
     pub param_priority: bool,
+    /// Copy every telegram into the capture channel ([`EngineHandle::captures`]).
+    pub capture: bool,
     pub drives: Vec<DriveSetup>,
 }
 
@@ -292,6 +296,7 @@ pub struct EngineHandle {
     jobs: Sender<(Job, Encoded)>,
     cancels: Sender<core::ops::Range<u64>>,
     results: Receiver<JobResult>,
+    captures: Receiver<uss_shm_types::TelegramRecord>,
 }
 
 /// Per-drive state the engine keeps.
@@ -334,6 +339,7 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     cancels: Receiver<core::ops::Range<u64>>,
     results: Sender<JobResult>,
     events: Sender<Event>,
+    capture: capture::Capture,
     stats: Stats,
     bridge: B,
 }
@@ -421,6 +427,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let (cancels_tx, cancels_rx) = bounded(CANCEL_QUEUE);
         let (results_tx, results_rx) = bounded(capacity);
         let (events_tx, events_rx) = bounded(1024);
+        let (capture, captures) = capture::Capture::new(cfg.capture);
         let drives = cfg
             .drives
             .iter()
@@ -455,6 +462,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             cancels: cancels_rx,
             results: results_tx,
             events: events_tx,
+            capture,
             stats,
             cfg,
             bridge,
@@ -464,6 +472,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             jobs: jobs_tx,
             cancels: cancels_tx,
             results: results_rx,
+            captures,
         };
         (engine, handle, events_rx)
     }

@@ -45,7 +45,7 @@ static GLOBAL: Counting = Counting;
 
 /// The engine settings of the allocation tests on a simulated bus: 20 ms response timeout, two
 /// retries, offline after one failed poll, 200 ms probes, 500 ms parameter timeout, mailboxes
-/// of 8, status every 20 ms; no echo, no parameter priority.
+/// of 8, status every 20 ms, every telegram captured; no echo, no parameter priority.
 #[allow(
     dead_code,
     reason = "not every allocation test runs an engine on a simulated bus"
@@ -67,6 +67,7 @@ pub fn engine_config(
         mailbox_depth: 8,
         publish_every: Duration::from_millis(20),
         param_priority: false,
+        capture: true,
         drives,
     }
 }

@@ -2,6 +2,7 @@
 
 pub mod ack;
 pub mod backup;
+pub mod capture;
 pub mod common;
 pub mod param;
 pub mod run;

@@ -18,7 +18,7 @@ use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{
     BlackboardKey, BusName, BusState, BusStatus, ControlState, DriveAddress, DriveDiag, DriveInfo,
     Heartbeat, Instance, LAYOUT_VERSION, LatchReason, LineFault as ContractLineFault, LineState,
-    RtMode, StopCommand,
+    RtMode, StopCommand, TelegramRecord,
 };
 
 /// The heartbeat's one publisher, on the bus's stable `ussd` service: opened when clients of
@@ -126,8 +126,23 @@ pub(super) fn create(
     let status_entry = status_writer
         .entry::<BusStatus>(&BlackboardKey::IMAGE)
         .map_err(|e| fail(bus, "the status entry")(text(e)))?;
+    let capture = node
+        .service_builder(&names::capture(bus))
+        .publish_subscribe::<TelegramRecord>()
+        .max_publishers(1)
+        .max_subscribers(names::CAPTURE_MAX_SUBSCRIBERS)
+        .subscriber_max_buffer_size(names::CAPTURE_BUFFER)
+        .history_size(0)
+        .enable_safe_overflow(true)
+        .max_nodes(MAX_NODES)
+        .create_with_attributes(attributes)
+        .map_err(|e| fail(bus, "the capture service")(text(e)))?
+        .publisher_builder()
+        .create()
+        .map_err(|e| fail(bus, "the capture publisher")(text(e)))?;
     Ok(StatusPublisher {
         heartbeat,
+        capture,
         beat: Heartbeat::new(std::process::id(), bus.generation),
         bus: bus.clone(),
         info: drives.iter().map(info).collect(),
@@ -148,6 +163,8 @@ pub struct StatusPublisher {
     /// The bus's heartbeat (its generation names this instance's services), sent with each
     /// status.
     heartbeat: Publisher<Svc, Heartbeat, ()>,
+    /// Every telegram of the bus, as the bus thread captured it.
+    capture: Publisher<Svc, TelegramRecord, ()>,
     beat: Heartbeat,
     /// What ussd knows of each drive, in slot order.
     info: Vec<DriveInfo>,
@@ -360,6 +377,17 @@ impl StatusPublisher {
         };
         // A client that is not there cannot miss it; the next one gets the history.
         let _ = self.heartbeat.send_copy(*b);
+    }
+
+    /// Publishes a telegram the bus thread captured, its times made `CLOCK_MONOTONIC`. A
+    /// subscriber that does not keep up loses its oldest records.
+    pub fn capture(&self, record: &TelegramRecord) {
+        let record = TelegramRecord {
+            start_ns: record.start_ns.saturating_add(self.origin_ns),
+            end_ns: record.end_ns.saturating_add(self.origin_ns),
+            ..*record
+        };
+        let _ = self.capture.send_copy(record);
     }
 
     /// Tells listeners ussd is leaving this bus (the same event a dead ussd's notifier leaves

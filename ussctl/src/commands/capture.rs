@@ -1,0 +1,125 @@
+//! `capture`: every telegram of the bus, decoded, until Ctrl-C, a time or a count; optionally
+//! written to a pcapng file.
+
+use crate::decode::{Decoder, Level};
+use crate::{Failure, Output, catch_signals, stopped};
+use core::time::Duration;
+use std::path::Path;
+use std::time::Instant;
+use uss_client::{Bus, Catalogue};
+
+/// What `capture` was asked for.
+pub(crate) struct Options<'a> {
+    pub drive: Option<u8>,
+    pub level: Level,
+    pub duration: Option<f64>,
+    pub count: Option<u64>,
+    pub output: Option<&'a Path>,
+}
+
+/// How often the capture looks for new records.
+const POLL: Duration = Duration::from_millis(10);
+
+pub(crate) fn capture(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Failure> {
+    let duration = o
+        .duration
+        .map(|s| {
+            Duration::try_from_secs_f64(s)
+                .map_err(|_| Failure::Usage(format!("--for {s}: give a number of seconds")))
+        })
+        .transpose()?;
+    if let Some(a) = o.drive {
+        bus.watch(a)?;
+    }
+    // Each drive's reference frequency, for setpoints and actual values in Hz.
+    let reference: Vec<(u8, f32)> = bus
+        .drives()
+        .into_iter()
+        .filter_map(|a| Some((a, bus.watch(a).ok()?.info().reference_hz)))
+        .collect();
+    let reference_hz = |a: u8| reference.iter().find(|(d, _)| *d == a).map(|(_, hz)| *hz);
+    let decoder = Decoder {
+        catalogue: Catalogue::micromaster4(),
+        reference_hz: &reference_hz,
+        level: o.level,
+    };
+    let mut capture = bus.capture()?;
+    let mut pcap = match o.output {
+        Some(path) => {
+            let file = std::fs::File::create(path).map_err(|source| Failure::File {
+                path: path.display().to_string(),
+                source,
+            })?;
+            let writer = crate::pcapng::Writer::new(
+                std::io::BufWriter::new(file),
+                crate::pcapng::wall_offset_ns(),
+            )
+            .map_err(|e| pcap_failure(path, &e))?;
+            Some((path, writer))
+        }
+        None => None,
+    };
+    catch_signals()?;
+    let start = Instant::now();
+    let mut first_ns = None;
+    let mut shown = 0u64;
+    let done = |shown: u64| {
+        stopped()
+            || o.count.is_some_and(|n| shown >= n)
+            || duration.is_some_and(|d| start.elapsed() >= d)
+    };
+    let mut outcome = Ok(());
+    while !done(shown) {
+        let records = match capture.take() {
+            Ok(r) => r,
+            Err(e) => {
+                outcome = Err(e.into());
+                break;
+            }
+        };
+        if records.is_empty() {
+            std::thread::sleep(POLL);
+            continue;
+        }
+        for r in records
+            .iter()
+            .filter(|r| o.drive.is_none_or(|a| r.address == a))
+        {
+            if done(shown) {
+                break;
+            }
+            let first = *first_ns.get_or_insert(r.start_ns);
+            let t = r.start_ns.saturating_sub(first) as f64 / 1e9;
+            if let Some((path, writer)) = &mut pcap {
+                writer.write(r).map_err(|e| pcap_failure(path, &e))?;
+            }
+            let line = decoder.decode(r, t);
+            out.show(&line, crate::decode::CaptureLine::human)?;
+            shown += 1;
+        }
+    }
+    if let Some((path, writer)) = pcap {
+        use std::io::Write as _;
+        writer
+            .into_inner()
+            .flush()
+            .map_err(|source| Failure::File {
+                path: path.display().to_string(),
+                source,
+            })?;
+    }
+    if capture.lost() > 0 {
+        out.note(&format!(
+            "{} telegrams were lost: this capture did not keep up",
+            capture.lost()
+        ));
+    }
+    outcome
+}
+
+fn pcap_failure(path: &Path, e: &pcap_file::PcapError) -> Failure {
+    Failure::File {
+        path: path.display().to_string(),
+        source: std::io::Error::other(e.to_string()),
+    }
+}
