@@ -9,6 +9,7 @@
 //! 2. Master turnaround (reply complete -> next request written) against the start pause the
 //!    protocol demands anyway (117 us at 187500 baud).
 //! 3. Scale: 8 simulated buses x 31 drives in one process, CPU use and peak memory.
+//! 4. Telegram capture: the bus thread's cost with every telegram captured, against without.
 //!
 //! The bus threads run `SCHED_FIFO` where the machine allows (root here); the mode is printed.
 
@@ -31,17 +32,19 @@ const S7_1200_AT_19200_MS: f64 = 68.2;
 /// Runs one engine for `exchanges` exchanges with four drives in real time; returns its stats
 /// and the real-time mode its thread got.
 fn run_engine(baud: u32, pzd: usize, exchanges: u64) -> (Stats, &'static str) {
-    let (stats, mode, _) = run_engine_spinning(baud, pzd, exchanges, SPIN_BEFORE_DEADLINE);
+    let (stats, mode, _) = run_engine_spinning(baud, pzd, exchanges, SPIN_BEFORE_DEADLINE, false);
     (stats, mode)
 }
 
-/// [`run_engine`] with the clock spinning `spin` before each start-pause deadline; also
-/// returns the bus thread's CPU time.
+/// [`run_engine`] with the clock spinning `spin` before each start-pause deadline and, with
+/// `capture`, every telegram captured (and taken by another thread, as ussd's housekeeping
+/// thread does); also returns the bus thread's CPU time.
 fn run_engine_spinning(
     baud: u32,
     pzd: usize,
     exchanges: u64,
     spin: Duration,
+    capture: bool,
 ) -> (Stats, &'static str, Duration) {
     let timing = Timing::new(Baud::new(baud).expect("benchmark baud"));
     let layout = Layout::new(PkwMode::Four, PzdCount::new(pzd).expect("pzd"));
@@ -64,7 +67,7 @@ fn run_engine_spinning(
         mailbox_depth: 16,
         publish_every: Duration::from_millis(100),
         param_priority: false,
-        capture: false,
+        capture,
         drives,
     };
     let transport = SimTransport::new(VirtualWire::new(bus, timing));
@@ -77,18 +80,40 @@ fn run_engine_spinning(
         });
         let _ = nix::sys::prctl::set_timerslack(1);
         let clock = MonotonicClock::new().with_spin(spin);
-        let (mut engine, _handle, _events) = Engine::new(config, transport, clock);
+        let (mut engine, handle, _events) = Engine::new(config, transport, clock);
+        let captures = handle.captures().clone();
+        // Taken as ussd's housekeeping thread takes them: every 10 ms, never waiting on the
+        // channel (a waiting receiver would turn each send into a wake-up).
+        let drain = std::thread::spawn(move || {
+            let mut taken = 0usize;
+            loop {
+                loop {
+                    match captures.try_recv() {
+                        Ok(_) => taken += 1,
+                        Err(e) if e.is_disconnected() => return taken,
+                        Err(_) => break,
+                    }
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        });
         let cpu_start = thread_cpu();
         while engine.stats().bus.exchanges < exchanges {
             engine.poll_next().expect("virtual wire never fails");
         }
         let cpu = thread_cpu().saturating_sub(cpu_start);
+        let stats = engine.stats().clone();
+        drop((engine, handle));
+        let taken = drain.join().expect("capture drain");
+        if capture {
+            assert!(taken as u64 >= 2 * exchanges, "every telegram captured");
+        }
         let mode = if report.priority.is_some() {
             "SCHED_FIFO"
         } else {
             "best-effort"
         };
-        (engine.stats().clone(), mode, cpu)
+        (stats, mode, cpu)
     })
     .join()
     .expect("bench thread")
@@ -139,7 +164,7 @@ fn turnaround() {
     );
     let mut spun = None;
     for spin in [Duration::ZERO, SPIN_BEFORE_DEADLINE] {
-        let (stats, mode, cpu) = run_engine_spinning(baud, 2, 5000, spin);
+        let (stats, mode, cpu) = run_engine_spinning(baud, 2, 5000, spin, false);
         let h = &stats.histograms.turnaround;
         let n = stats.bus.exchanges.max(1);
         println!(
@@ -293,6 +318,38 @@ fn scale() {
     );
 }
 
+/// Part 4, what capturing every telegram costs the bus thread: the same run without and with
+/// capture (a copy of each telegram into a preallocated queue), the master's own work per
+/// exchange (reply seen -> ready to send) and the bus thread's CPU per exchange.
+fn capture_cost() {
+    let baud = 187_500;
+    println!(
+        "== telegram capture at {baud} baud, 4 drives PKW 4 + PZD 2, 5000 exchanges each: off vs on"
+    );
+    let mut runs = Vec::new();
+    for capture in [false, true] {
+        let (stats, mode, cpu) = run_engine_spinning(baud, 2, 5000, SPIN_BEFORE_DEADLINE, capture);
+        let h = &stats.histograms.work;
+        let n = stats.bus.exchanges.max(1);
+        let per_exchange_us = cpu.as_secs_f64() * 1e6 / n as f64;
+        println!(
+            "   capture {}: master work p50 {:.2} us, p99 {:.2} us; bus thread CPU {per_exchange_us:.1} us per exchange; efficiency {:.4} [{mode}]",
+            if capture { "on " } else { "off" },
+            h.value_at_quantile(0.5) as f64 / 1e3,
+            h.value_at_quantile(0.99) as f64 / 1e3,
+            stats.bus.efficiency().unwrap_or(0.0)
+        );
+        runs.push((h.value_at_quantile(0.5) as f64, per_exchange_us));
+    }
+    if let [(work_off, cpu_off), (work_on, cpu_on)] = runs[..] {
+        println!(
+            "   on / off: master work p50 {:.3}, bus thread CPU per exchange {:.3}",
+            work_on / work_off.max(1.0),
+            cpu_on / cpu_off.max(1e-9)
+        );
+    }
+}
+
 fn main() {
     let parts = Parts::from_args();
     let wanted = |name: &str| parts.wanted(name);
@@ -304,5 +361,8 @@ fn main() {
     }
     if wanted("scale") {
         scale();
+    }
+    if wanted("capture") {
+        capture_cost();
     }
 }

@@ -14,7 +14,7 @@ use uss_master::{
 };
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{
-    Address, Baud, ParamError, ParamTask, PkwError, Pnu, Storage, Stw1, Timing, Value,
+    Address, Baud, DriveState, ParamError, ParamTask, PkwError, Pnu, Storage, Stw1, Timing, Value,
 };
 use uss_shm_types::{Answer, DriveError, PathError};
 use uss_shm_types::{LatchReason, Monitoring, PzdOutput, Rejection, StopCommand};
@@ -138,16 +138,25 @@ impl Bench {
         *self.engine.stats().drive(addr(a)).unwrap()
     }
 
+    /// The events but the retries and state changes (debug-level detail, checked on their own).
     fn events(&self) -> Vec<Event> {
-        self.events.try_iter().collect()
+        self.events
+            .try_iter()
+            .filter(|e| !matches!(e, Event::Retry { .. } | Event::StateChanged { .. }))
+            .collect()
     }
 
     /// The events, without the telegram-monitoring reports every drive coming online brings.
     fn events_but_monitoring(&self) -> Vec<Event> {
-        self.events
-            .try_iter()
+        self.events()
+            .into_iter()
             .filter(|e| !matches!(e, Event::Monitoring { .. }))
             .collect()
+    }
+
+    /// Every event as the engine emitted it.
+    fn all_events(&self) -> Vec<Event> {
+        self.events.try_iter().collect()
     }
 
     /// Polls until `count` results arrived (or 60 s of bus time pass).
@@ -225,6 +234,54 @@ fn weighted_drive_appears_twice_per_cycle() {
         .map(|_| b.engine.poll_next().unwrap().unwrap().get())
         .collect();
     assert_eq!(polled, vec![1, 2, 1, 3, 1, 2, 1, 3]);
+}
+
+#[test]
+fn retries_and_state_changes_are_events_with_their_reasons() {
+    let mut b = bench(&[(1, PkwMode::Four), (2, PkwMode::Four)]);
+    b.faults(2)
+        .unplug(Duration::ZERO, Some(Duration::from_millis(700)));
+    b.run_for(Duration::from_millis(1900), &[]);
+    let events = b.all_events();
+    let retries: Vec<(u8, LastFailure)> = events
+        .iter()
+        .filter_map(|e| match *e {
+            Event::Retry {
+                address,
+                attempt,
+                failure,
+                ..
+            } => {
+                assert_eq!(address, addr(2));
+                Some((attempt, failure))
+            }
+            _ => None,
+        })
+        .collect();
+    // The first poll and the probe at about 0.56 s: each 1 + 2 retries, all unanswered.
+    assert_eq!(
+        retries,
+        [1, 2, 1, 2].map(|a| (a, LastFailure::NoResponse)).to_vec()
+    );
+    assert_eq!(retries.len() as u64, b.status(2).counters.retries);
+    let changes: Vec<(Address, Option<DriveState>, DriveState)> = events
+        .iter()
+        .filter_map(|e| match *e {
+            Event::StateChanged {
+                address, from, to, ..
+            } => Some((address, from, to)),
+            _ => None,
+        })
+        .collect();
+    // Each drive's first reply decides its state: S2, as the safe command OFF1 of the very
+    // first telegram leaves a drive; drive 2 answers only after its plug is back.
+    assert_eq!(
+        changes,
+        [
+            (addr(1), None, DriveState::ReadyToSwitchOn),
+            (addr(2), None, DriveState::ReadyToSwitchOn)
+        ]
+    );
 }
 
 #[test]

@@ -5,7 +5,8 @@ use pcap_file::DataLink;
 use pcap_file::pcapng::{Block, PcapNgReader};
 use serde_json::Value as Json;
 use std::process::Command;
-use uss_integration_tests::Ussd;
+use std::time::Duration;
+use uss_integration_tests::{BusSpec, Ussd};
 use uss_protocol::bcc;
 
 /// A request to drive 1 reading P1082 (AK 1, PNU 0x43A) with the safe command OFF1 that a drive
@@ -137,4 +138,39 @@ fn dissect(path: &str) {
     let lines: Vec<&str> = shown.lines().collect();
     assert!(lines.contains(&"0\t1\trequest value P1082\t1"), "{shown}");
     assert!(lines.contains(&"1\t1\tvalue (dword) P1082\t1"), "{shown}");
+}
+
+/// `RUST_LOG=debug` shows state changes, retries with their reasons and the parameter jobs'
+/// life cycle; `trace` every telegram and every job's end. All from ussd's non-real-time
+/// threads (the bus thread hands events and telegrams over).
+#[test]
+fn rust_log_debug_and_trace_show_states_retries_jobs_and_telegrams() {
+    let ussd = Ussd::start_buses_with_env(
+        &[BusSpec {
+            suffix: "",
+            device: "sim",
+            keys: "",
+            drives: &[(1, "sim = { drop = 0.2 }")],
+        }],
+        &[("RUST_LOG", "uss_master=trace")],
+    );
+    let bus = ussd.bus();
+    // Three tries at 20 % lost replies: a read may still fail; its jobs are logged either way.
+    let _ = bus.read(1, 1082, None);
+    let wait = Duration::from_secs(10);
+    for said in [
+        "drive 1: unknown -> S",
+        "retry 1 of 2",
+        "parameter request of 1 item(s) accepted as jobs",
+        "answered",
+        "ended: Ok(Ok(",
+        "-> drive 1 sent: 02 0E 01",
+        "<- drive 1 no response",
+    ] {
+        assert!(
+            ussd.log_line(said, wait).is_some(),
+            "ussd's log does not say {said:?}:\n{}",
+            ussd.log()
+        );
+    }
 }

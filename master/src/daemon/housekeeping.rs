@@ -8,7 +8,7 @@ use crate::engine::control::Latch;
 use crate::engine::stats::Stats;
 use crate::engine::{EngineHandle, Event};
 use core::time::Duration;
-use crossbeam_channel::Receiver;
+use crossbeam_channel::{Receiver, RecvTimeoutError};
 use std::thread::JoinHandle;
 use uss_protocol::Address;
 use uss_shm_types::{LatchReason, Monitoring, Rejection};
@@ -17,6 +17,10 @@ use uss_shm_types::{LatchReason, Monitoring, Rejection};
 /// the engine's snapshot at most as old, what clients read is at most 100 ms old.
 pub(super) const STATUS_EVERY: Duration =
     Duration::from_nanos(uss_shm_types::names::HEARTBEAT_PERIOD_NS);
+
+/// How often captured telegrams are taken from the bus thread and published: a 187500-baud bus
+/// captures about 700 telegrams per second, so a take holds at most a few dozen.
+const CAPTURE_EVERY: Duration = Duration::from_millis(10);
 
 /// Logs events as they come, publishes status and diagnostics every [`STATUS_EVERY`], and logs
 /// the summary every `every`; logs the final summary when the engine has stopped. While the bus
@@ -43,16 +47,16 @@ pub(super) fn spawn(
             loop {
                 let next = next_summary.min(next_status);
                 let wait = next.saturating_duration_since(std::time::Instant::now());
-                crossbeam_channel::select! {
-                    recv(events) -> event => match event {
-                        Ok(event) => log_event(&bus, &event),
-                        Err(_) => break,
-                    },
-                    recv(handle.captures()) -> record => match record {
-                        Ok(record) => publisher.capture(&record),
-                        Err(_) => break,
-                    },
-                    default(wait) => {}
+                match events.recv_timeout(wait.min(CAPTURE_EVERY)) {
+                    Ok(event) => log_event(&bus, &event),
+                    Err(RecvTimeoutError::Timeout) => {}
+                    Err(RecvTimeoutError::Disconnected) => break,
+                }
+                // Taken without waiting on the channel: a waiting receiver would make the bus
+                // thread's every send a wake-up (a system call) in the real-time loop.
+                while let Ok(record) = handle.captures().try_recv() {
+                    trace_telegram(&bus, &record);
+                    publisher.capture(&record);
                 }
                 // After every wake-up: a burst of events must not hold back the heartbeat,
                 // by which clients tell that ussd lives.
@@ -86,6 +90,30 @@ pub(super) fn spawn(
                 crate::daemon::summary::render(&bus, mode, &stats, None).trim_end()
             );
         })
+}
+
+/// Every telegram at `trace` level: direction, drive, outcome and bytes.
+fn trace_telegram(bus: &BusConfig, r: &uss_shm_types::TelegramRecord) {
+    if !tracing::enabled!(tracing::Level::TRACE) {
+        return;
+    }
+    let request = r.direction() == Ok(uss_shm_types::Direction::Request);
+    let outcome = match r.outcome() {
+        _ if request => "sent",
+        Ok(uss_shm_types::LastFailure::None) => "good",
+        Ok(f) => f.name(),
+        Err(_) => "?",
+    };
+    let bytes: Vec<String> = r.bytes().iter().map(|b| format!("{b:02X}")).collect();
+    tracing::trace!(
+        bus = bus.name,
+        drive = r.address,
+        sequence = r.sequence,
+        "{} drive {} {outcome}: {}",
+        if request { "->" } else { "<-" },
+        r.address,
+        bytes.join(" ")
+    );
 }
 
 fn log_latch(bus: &BusConfig, address: Address, latch: &Latch, rejection: Rejection) {
@@ -217,6 +245,37 @@ fn log_event(bus: &BusConfig, event: &Event) {
                 down_s = down_for.as_secs_f64(),
                 "line back after {:.1} s: every drive latched until its controller re-arms it (OFF1, then ON)",
                 down_for.as_secs_f64()
+            );
+        }
+        Event::Retry {
+            address,
+            at,
+            attempt,
+            failure,
+        } => {
+            tracing::debug!(
+                bus = bus.name,
+                drive = address.get(),
+                at_s = at.as_secs_f64(),
+                attempt,
+                "drive {address}: {}, retry {attempt} of {}",
+                failure.name(),
+                bus.retries
+            );
+        }
+        Event::StateChanged {
+            address,
+            at,
+            from,
+            to,
+        } => {
+            let from = from.map_or("unknown", uss_protocol::DriveState::short_name);
+            tracing::debug!(
+                bus = bus.name,
+                drive = address.get(),
+                at_s = at.as_secs_f64(),
+                "drive {address}: {from} -> {}",
+                to.short_name()
             );
         }
         Event::CycleOverrun { at, took } => {

@@ -7,6 +7,7 @@ use super::{
     MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, ParamReply, PathError, ReplyKind,
     Transport, TransportError, Words, encode, record,
 };
+use uss_protocol::{DriveState, Zsw1};
 
 /// How one attempt ended.
 pub(super) enum Attempt {
@@ -60,6 +61,14 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                     c.count(f);
                     self.stats.drives[slot].last_failure = f;
                     last = f;
+                    if attempt < self.cfg.retries {
+                        self.emit(Event::Retry {
+                            address: self.drives[slot].setup.address,
+                            at: self.clock.now(),
+                            attempt: attempt + 1,
+                            failure: f,
+                        });
+                    }
                 }
             }
         }
@@ -90,7 +99,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         status.no_reply = false;
         status.consecutive_failed_polls = 0;
         let pzd = words.pzd();
-        status.last_zsw1 = pzd.first().copied().unwrap_or(0);
+        let zsw1 = pzd.first().copied().unwrap_or(0);
+        let state = |z| DriveState::from_zsw1(Zsw1::from_bits_retain(z));
+        let from = (status.counters.good > 1).then(|| state(status.last_zsw1));
+        let changed = !pzd.is_empty() && from != Some(state(zsw1));
+        status.last_zsw1 = zsw1;
         status.last_hiw = pzd.get(1).copied().unwrap_or(0);
         let came_back = !status.online;
         if came_back {
@@ -114,6 +127,14 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             let bus = &mut self.stats.bus;
             bus.exchange_ns += u64::try_from(exchange.as_nanos()).unwrap_or(u64::MAX);
             bus.wire_floor_ns += u64::try_from(floor.as_nanos()).unwrap_or(u64::MAX);
+        }
+        if changed {
+            self.emit(Event::StateChanged {
+                address,
+                at: timing.done,
+                from,
+                to: state(zsw1),
+            });
         }
         let image = &self.shared.images[slot];
         image.input.write(

@@ -159,6 +159,21 @@ pub enum Event {
         at: Duration,
         down_for: Duration,
     },
+    /// An attempt failed and the poll tries again (`attempt` is the retry's number, from 1).
+    Retry {
+        address: Address,
+        at: Duration,
+        attempt: u8,
+        failure: LastFailure,
+    },
+    /// The drive's state from its ZSW1 (S1..S5, fault) changed; `from` is `None` for its first
+    /// reply.
+    StateChanged {
+        address: Address,
+        at: Duration,
+        from: Option<uss_protocol::DriveState>,
+        to: uss_protocol::DriveState,
+    },
 }
 
 /// Where process images leave and enter the bus thread (iceoryx2 in `ussd`; in-process cells

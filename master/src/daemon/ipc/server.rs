@@ -62,6 +62,7 @@ pub(super) fn create(
             outs,
         },
         pending: Vec::new(),
+        bus: bus.bus.as_str().to_owned(),
         next_id: 1,
         next_dead_check: Instant::now(),
     })
@@ -139,6 +140,8 @@ pub struct ParamServer {
     answered: bool,
     identities: Identities,
     pending: Vec<Pending>,
+    /// The bus, for log events.
+    bus: String,
     next_id: u64,
     next_dead_check: Instant,
 }
@@ -332,6 +335,15 @@ impl ParamServer {
                 Err(e) => response.results[i] = ParamResult::refused(e),
             }
         }
+        tracing::debug!(
+            bus = self.bus,
+            drive = address.get(),
+            first_job = first_id,
+            "drive {address}: parameter request of {} item(s) accepted as jobs {first_id}..{}, {} refused",
+            items.len(),
+            first_id + items.len() as u64,
+            items.len() - remaining
+        );
         if remaining == 0 {
             let _ = active.send_copy(response);
             self.answered = true;
@@ -453,11 +465,28 @@ impl ParamServer {
         else {
             return;
         };
+        tracing::trace!(
+            bus = self.bus,
+            drive = r.job.address.get(),
+            job = id,
+            telegrams = r.telegrams,
+            on_wire_us = r.on_wire.as_micros() as u64,
+            "job {id} ended: {:?}",
+            r.outcome
+        );
         let p = &mut self.pending[at];
         p.response.results[(id - p.first_id) as usize] =
             ParamResult::of(&r.outcome, r.telegrams, as_ns(r.on_wire));
         p.remaining -= 1;
         if p.remaining == 0 {
+            tracing::debug!(
+                bus = self.bus,
+                drive = r.job.address.get(),
+                first_job = p.first_id,
+                "jobs {}..{} answered",
+                p.first_id,
+                p.first_id + p.count
+            );
             let p = self.pending.swap_remove(at);
             let _ = p.active.send_copy(p.response);
             self.answered = true;
