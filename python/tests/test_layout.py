@@ -122,6 +122,7 @@ def test_limits_match_the_header():
         "CAPTURE_TRUNCATED",
         "CAPTURE_TASK",
         "CAPTURE_BUFFER",
+        "EXCHANGE_BUCKETS",
         "CAPTURE_MAX_SUBSCRIBERS",
     ):
         assert getattr(uss_rt, name) == value(name), name

@@ -561,6 +561,14 @@ class DriveDiag(ctypes.Structure):
         return "UssDriveDiagV5"
 
 
+EXCHANGE_BUCKETS = 12
+# Upper bounds of BusStatus.exchange_le, ns.
+EXCHANGE_BUCKETS_NS = (
+    500_000, 1_000_000, 2_000_000, 3_000_000, 5_000_000, 7_500_000,
+    10_000_000, 20_000_000, 50_000_000, 100_000_000, 250_000_000, 1_000_000_000,
+)
+
+
 class BusStatus(ctypes.Structure):
     """The state of the bus as a whole (``uss/<bus>/status``)."""
 
@@ -600,6 +608,9 @@ class BusStatus(ctypes.Structure):
         ("exchange_ns", u64 * 4),
         ("response_delay_ns", u64 * 4),
         ("turnaround_ns", u64 * 4),
+        ("exchange_count", u64),
+        ("exchange_sum_ns", u64),
+        ("exchange_le", u64 * EXCHANGE_BUCKETS),
     ]
 
     @staticmethod

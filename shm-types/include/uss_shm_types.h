@@ -95,6 +95,11 @@
 #define USS_NEVER UINT64_MAX
 
 /**
+ * Buckets of [`BusStatus::exchange_le`].
+ */
+#define USS_EXCHANGE_BUCKETS 12
+
+/**
  * The layout version of every payload type in this crate. Bump it with any change to a type's
  * fields, sizes or code tables, together with the type names' `V<n>` suffix.
  */
@@ -1377,6 +1382,19 @@ typedef struct UssBusStatus {
    * Turnaround (reply complete -> next request written), ns: p50, p99, p99.9, max.
    */
   uint64_t turnaround_ns[4];
+  /**
+   * Exchanges timed so far (every good reply).
+   */
+  uint64_t exchange_count;
+  /**
+   * Their summed exchange time, ns (from the histogram: to 1 %).
+   */
+  uint64_t exchange_sum_ns;
+  /**
+   * Cumulative exchange-time histogram: exchanges that took at most
+   * [`EXCHANGE_BUCKETS_NS`]`[i]` (Prometheus's `le` buckets; `exchange_count` is `+Inf`).
+   */
+  uint64_t exchange_le[USS_EXCHANGE_BUCKETS];
 #ifdef __cplusplus
   static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV5";
 #endif
@@ -1673,5 +1691,11 @@ typedef struct UssOperatorResponse {
   static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV5";
 #endif
 } UssOperatorResponse;
+
+/**
+ * The upper bounds of [`BusStatus::exchange_le`], ns: 0.5 ms to 1 s, spanning a 187500-baud
+ * exchange (about 2 ms) to a slow one at 1200 baud and the 20 ms response timeout.
+ */
+#define USS_EXCHANGE_BUCKETS_NS { 500000, 1000000, 2000000, 3000000, 5000000, 7500000, 10000000, 20000000, 50000000, 100000000, 250000000, 1000000000, }
 
 #endif  /* USS_SHM_TYPES_H */

@@ -337,7 +337,34 @@ pub struct BusStatus {
     pub response_delay_ns: [u64; 4],
     /// Turnaround (reply complete -> next request written), ns: p50, p99, p99.9, max.
     pub turnaround_ns: [u64; 4],
+    /// Exchanges timed so far (every good reply).
+    pub exchange_count: u64,
+    /// Their summed exchange time, ns (from the histogram: to 1 %).
+    pub exchange_sum_ns: u64,
+    /// Cumulative exchange-time histogram: exchanges that took at most
+    /// [`EXCHANGE_BUCKETS_NS`]`[i]` (Prometheus's `le` buckets; `exchange_count` is `+Inf`).
+    pub exchange_le: [u64; EXCHANGE_BUCKETS],
 }
+
+/// Buckets of [`BusStatus::exchange_le`].
+pub const EXCHANGE_BUCKETS: usize = 12;
+
+/// The upper bounds of [`BusStatus::exchange_le`], ns: 0.5 ms to 1 s, spanning a 187500-baud
+/// exchange (about 2 ms) to a slow one at 1200 baud and the 20 ms response timeout.
+pub const EXCHANGE_BUCKETS_NS: [u64; EXCHANGE_BUCKETS] = [
+    500_000,
+    1_000_000,
+    2_000_000,
+    3_000_000,
+    5_000_000,
+    7_500_000,
+    10_000_000,
+    20_000_000,
+    50_000_000,
+    100_000_000,
+    250_000_000,
+    1_000_000_000,
+];
 
 impl DriveDiag {
     /// A drive nothing is known about yet.
@@ -452,6 +479,9 @@ impl BusStatus {
         exchange_ns: [0; 4],
         response_delay_ns: [0; 4],
         turnaround_ns: [0; 4],
+        exchange_count: 0,
+        exchange_sum_ns: 0,
+        exchange_le: [0; EXCHANGE_BUCKETS],
     };
 
     pub fn rt_mode(&self) -> Result<RtMode, UnknownCode> {

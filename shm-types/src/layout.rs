@@ -164,7 +164,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     TypeLayout {
         name: "BusStatus",
         type_name: "UssBusStatusV5",
-        size: 240,
+        size: 352,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -197,6 +197,9 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("exchange_ns", 144, 32),
             f("response_delay_ns", 176, 32),
             f("turnaround_ns", 208, 32),
+            f("exchange_count", 240, 8),
+            f("exchange_sum_ns", 248, 8),
+            f("exchange_le", 256, 96),
         ],
     },
     TypeLayout {

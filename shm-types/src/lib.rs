@@ -55,7 +55,8 @@ pub use control::{
     OperatorResponse, Rejection, StopCommand,
 };
 pub use diag::{
-    BusStatus, DriveCounters, DriveDiag, DriveInfo, LastFailure, LineFault, LineState, RtMode,
+    BusStatus, DriveCounters, DriveDiag, DriveInfo, EXCHANGE_BUCKETS, EXCHANGE_BUCKETS_NS,
+    LastFailure, LineFault, LineState, RtMode,
 };
 pub use heartbeat::{BusState, Heartbeat};
 pub use names::{BlackboardKey, BusName, DriveAddress, Generation, Instance, NameError};

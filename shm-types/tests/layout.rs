@@ -72,7 +72,8 @@ fn actual_layouts() -> Vec<Actual> {
             exchanges, good, cycles, cycle_overruns, events_dropped, results_lost, jobs_accepted,
             jobs_finished, mean_exchange_ns, bus_clock_ns, timestamp_ns, line_state, line_fault,
             reserved, line_errno, line_down_since_ns, line_downs, reopen_attempts, reserved2,
-            jobs_cancelled, exchange_ns, response_delay_ns, turnaround_ns,
+            jobs_cancelled, exchange_ns, response_delay_ns, turnaround_ns, exchange_count,
+            exchange_sum_ns, exchange_le,
         ]),
         actual!(ParamItem = ParamItem::EMPTY, [task, storage, pnu, index, reserved, value]),
         actual!(ParamRequest = ParamRequest {

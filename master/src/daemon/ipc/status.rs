@@ -350,6 +350,11 @@ impl StatusPublisher {
             exchange_ns: quantiles(&stats.histograms.exchange),
             response_delay_ns: quantiles(&stats.histograms.response_delay),
             turnaround_ns: quantiles(&stats.histograms.turnaround),
+            exchange_count: stats.histograms.exchange.len(),
+            exchange_sum_ns: (stats.histograms.exchange.mean()
+                * stats.histograms.exchange.len() as f64) as u64,
+            exchange_le: uss_shm_types::EXCHANGE_BUCKETS_NS
+                .map(|le| stats.histograms.exchange.count_between(0, le)),
             ..BusStatus::EMPTY
         });
     }

@@ -1,0 +1,422 @@
+//! `uss-exporter`: the buses a ussd runs as Prometheus metrics, at `http://ADDR:PORT/metrics` in
+//! the `OpenMetrics` text format. A separate, non-real-time process: it reads ussd's status and
+//! diagnostics services like any client, keeps serving while ussd is gone or restarts (and says
+//! so in `uss_ussd_up` and `uss_ussd_restarts_total`), and never touches the bus threads.
+
+use clap::Parser;
+use prometheus_client::encoding::{EncodeLabelSet, EncodeMetric, MetricEncoder, text::encode};
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::{MetricType, TypedMetric};
+use prometheus_client::registry::{Registry, Unit};
+use std::process::ExitCode;
+use std::sync::atomic::AtomicU64;
+use uss_client::uss_shm_types::{BusStatus, DriveDiag, EXCHANGE_BUCKETS_NS, LineState};
+use uss_client::{Bus, ControlState, Health};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "uss-exporter",
+    version,
+    about = "Serve the metrics of the buses a ussd runs for Prometheus (GET /metrics)"
+)]
+struct Cli {
+    /// A bus to export, as named in ussd's configuration; repeat for more.
+    #[arg(long = "bus", value_name = "NAME", default_value = "bus0")]
+    buses: Vec<String>,
+    /// Where to listen; loopback unless you mean otherwise.
+    #[arg(long, value_name = "ADDR:PORT", default_value = "127.0.0.1:9781")]
+    listen: String,
+}
+
+/// What the exporter remembers of a bus between scrapes.
+struct Exported {
+    name: String,
+    bus: Option<Bus>,
+    /// The process of the ussd seen last, to count restarts.
+    pid: Option<u32>,
+    restarts: u64,
+}
+
+impl Exported {
+    /// The bus, opened on first need (ussd may start after the exporter).
+    fn bus(&mut self) -> Option<&Bus> {
+        if self.bus.is_none() {
+            self.bus = Bus::open_as(&self.name, "uss-exporter").ok();
+        }
+        self.bus.as_ref()
+    }
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct BuildLabels {
+    version: &'static str,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct BusLabels {
+    bus: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct DriveLabels {
+    bus: String,
+    drive: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct TelegramLabels {
+    bus: String,
+    drive: String,
+    result: &'static str,
+}
+
+/// A histogram ussd already counted (its buckets are cumulative counts at fixed bounds).
+#[derive(Debug)]
+struct CountedHistogram {
+    sum_seconds: f64,
+    count: u64,
+    /// (upper bound in seconds, cumulative count), ascending.
+    le: Vec<(f64, u64)>,
+}
+
+impl TypedMetric for CountedHistogram {
+    const TYPE: MetricType = MetricType::Histogram;
+}
+
+impl EncodeMetric for CountedHistogram {
+    fn encode(&self, mut encoder: MetricEncoder) -> Result<(), std::fmt::Error> {
+        // The encoder takes each bucket's own count and adds them up.
+        let mut buckets = Vec::with_capacity(self.le.len() + 1);
+        let mut below = 0;
+        for &(bound, cumulative) in &self.le {
+            buckets.push((bound, cumulative.saturating_sub(below)));
+            below = cumulative;
+        }
+        buckets.push((f64::MAX, self.count.saturating_sub(below)));
+        encoder.encode_histogram::<prometheus_client::encoding::NoLabelSet>(
+            self.sum_seconds,
+            self.count,
+            &buckets,
+            None,
+        )
+    }
+
+    fn metric_type(&self) -> MetricType {
+        Self::TYPE
+    }
+}
+
+/// The metric families of one scrape.
+struct Metrics {
+    ussd_up: Family<BusLabels, Gauge>,
+    restarts: Family<BusLabels, Counter>,
+    line_up: Family<BusLabels, Gauge>,
+    exchanges: Family<BusLabels, Counter>,
+    cycles: Family<BusLabels, Counter>,
+    efficiency: Family<BusLabels, Gauge<f64, AtomicU64>>,
+    online: Family<DriveLabels, Gauge>,
+    latched: Family<DriveLabels, Gauge>,
+    telegrams: Family<TelegramLabels, Counter>,
+    retries: Family<DriveLabels, Counter>,
+    watchdog_trips: Family<DriveLabels, Counter>,
+    latches: Family<DriveLabels, Counter>,
+}
+
+impl Metrics {
+    fn new() -> Self {
+        Self {
+            ussd_up: Family::default(),
+            restarts: Family::default(),
+            line_up: Family::default(),
+            exchanges: Family::default(),
+            cycles: Family::default(),
+            efficiency: Family::default(),
+            online: Family::default(),
+            latched: Family::default(),
+            telegrams: Family::default(),
+            retries: Family::default(),
+            watchdog_trips: Family::default(),
+            latches: Family::default(),
+        }
+    }
+
+    fn register(self, registry: &mut Registry) {
+        let r = registry;
+        r.register(
+            "uss_ussd_up",
+            "1 while a ussd serves the bus (its heartbeat is fresh)",
+            self.ussd_up,
+        );
+        r.register(
+            "uss_ussd_restarts",
+            "Restarts of ussd seen by this exporter",
+            self.restarts,
+        );
+        r.register("uss_line_up", "1 while the bus line is up", self.line_up);
+        r.register(
+            "uss_exchanges",
+            "Exchanges (request and reply) on the bus",
+            self.exchanges,
+        );
+        r.register(
+            "uss_cycles",
+            "Passes through the circulating list",
+            self.cycles,
+        );
+        r.register(
+            "uss_efficiency_ratio",
+            "Wire-time floor over achieved exchange time (1 = the master adds nothing)",
+            self.efficiency,
+        );
+        r.register("uss_drive_online", "1 while the drive answers", self.online);
+        r.register(
+            "uss_drive_latched",
+            "1 while the drive gets its safe command until its controller re-arms",
+            self.latched,
+        );
+        r.register(
+            "uss_telegrams",
+            "Replies by result: good, or why the attempt failed",
+            self.telegrams,
+        );
+        r.register(
+            "uss_retries",
+            "Attempts repeated after a failure",
+            self.retries,
+        );
+        r.register(
+            "uss_watchdog_trips",
+            "Times the controller did not refresh within its watchdog time",
+            self.watchdog_trips,
+        );
+        r.register(
+            "uss_latches",
+            "Times the drive latched its safe command",
+            self.latches,
+        );
+    }
+
+    fn bus(&self, labels: &BusLabels, s: &BusStatus) {
+        self.line_up
+            .get_or_create(labels)
+            .set(i64::from(s.line_state != LineState::Down.code()));
+        self.exchanges.get_or_create(labels).inc_by(s.exchanges);
+        self.cycles.get_or_create(labels).inc_by(s.cycles);
+        if s.efficiency_ppm > 0 {
+            self.efficiency
+                .get_or_create(labels)
+                .set(f64::from(s.efficiency_ppm) / 1e6);
+        }
+    }
+
+    fn drive(&self, bus: &str, d: &DriveDiag) {
+        let labels = DriveLabels {
+            bus: bus.to_owned(),
+            drive: d.address.to_string(),
+        };
+        let c = &d.counters;
+        self.online
+            .get_or_create(&labels)
+            .set(i64::from(d.online != 0));
+        self.latched
+            .get_or_create(&labels)
+            .set(i64::from(d.control == ControlState::Latched.code()));
+        for (result, n) in [
+            ("good", c.good),
+            ("no_response", c.timeouts),
+            ("missing_stx", c.missing_stx),
+            ("start_pause", c.start_pause),
+            ("bad_lge", c.bad_lge),
+            ("bcc", c.bcc),
+            ("residual", c.residual),
+            ("length", c.length),
+            ("wrong_address", c.wrong_address),
+            ("parity", c.parity),
+            ("framing", c.framing),
+            ("overrun", c.overrun),
+            ("echo", c.echo),
+        ] {
+            self.telegrams
+                .get_or_create(&TelegramLabels {
+                    bus: bus.to_owned(),
+                    drive: labels.drive.clone(),
+                    result,
+                })
+                .inc_by(n);
+        }
+        self.retries.get_or_create(&labels).inc_by(c.retries);
+        self.watchdog_trips
+            .get_or_create(&labels)
+            .inc_by(c.watchdog_trips);
+        self.latches.get_or_create(&labels).inc_by(c.latches);
+    }
+}
+
+/// One scrape: every bus as it is now.
+fn scrape(buses: &mut [Exported]) -> String {
+    let mut registry = Registry::default();
+    // An OpenMetrics info metric as a gauge of 1: `promtool check metrics` reads the classic
+    // text format, which has no info type.
+    let build: Family<BuildLabels, Gauge> = Family::default();
+    build
+        .get_or_create(&BuildLabels {
+            version: env!("CARGO_PKG_VERSION"),
+        })
+        .set(1);
+    registry.register("uss_build_info", "The exporter's version", build);
+    let metrics = Metrics::new();
+    let mut histograms = Vec::new();
+    for e in buses.iter_mut() {
+        let labels = BusLabels {
+            bus: e.name.clone(),
+        };
+        let name = e.name.clone();
+        let Some(bus) = e.bus() else {
+            metrics.ussd_up.get_or_create(&labels).set(0);
+            metrics.restarts.get_or_create(&labels).inc_by(e.restarts);
+            continue;
+        };
+        let pid = match bus.health() {
+            Health::Running { pid } | Health::LineDown { pid, .. } => Some(pid),
+            Health::Stopped { .. } | Health::Gone { .. } => None,
+        };
+        let status = pid.and_then(|_| bus.status().ok());
+        let diags: Vec<DriveDiag> = bus
+            .drives()
+            .into_iter()
+            .filter_map(|a| bus.diag(a).ok())
+            .collect();
+        if let (Some(pid), Some(before)) = (pid, e.pid)
+            && pid != before
+        {
+            e.restarts += 1;
+        }
+        if pid.is_some() {
+            e.pid = pid;
+        }
+        metrics
+            .ussd_up
+            .get_or_create(&labels)
+            .set(i64::from(status.is_some()));
+        metrics.restarts.get_or_create(&labels).inc_by(e.restarts);
+        let Some(status) = status else {
+            continue;
+        };
+        metrics.bus(&labels, &status);
+        for d in &diags {
+            metrics.drive(&name, d);
+        }
+        histograms.push((name, exchange_histogram(&status)));
+    }
+    metrics.register(&mut registry);
+    for (bus, h) in histograms {
+        registry
+            .sub_registry_with_label(("bus".into(), bus.into()))
+            .register_with_unit(
+                "uss_exchange_duration",
+                "Exchange time: line free to reply complete",
+                Unit::Seconds,
+                h,
+            );
+    }
+    let mut text = String::new();
+    // Writing into a String cannot fail.
+    let _ = encode(&mut text, &registry);
+    text
+}
+
+fn exchange_histogram(s: &BusStatus) -> CountedHistogram {
+    CountedHistogram {
+        sum_seconds: s.exchange_sum_ns as f64 / 1e9,
+        count: s.exchange_count,
+        le: EXCHANGE_BUCKETS_NS
+            .iter()
+            .zip(s.exchange_le)
+            .map(|(&ns, n)| (ns as f64 / 1e9, n))
+            .collect(),
+    }
+}
+
+const OPENMETRICS: &[u8] = b"application/openmetrics-text; version=1.0.0; charset=utf-8";
+const CLASSIC: &[u8] = b"text/plain; version=0.0.4; charset=utf-8";
+
+/// The classic Prometheus text format (0.0.4) of an `OpenMetrics` exposition: a counter's family
+/// takes its samples' `_total` name, and there are no `# UNIT` and `# EOF` lines.
+fn classic(openmetrics: &str) -> String {
+    let lines: Vec<&str> = openmetrics.lines().collect();
+    let counters: Vec<&str> = lines
+        .iter()
+        .filter_map(|l| l.strip_prefix("# TYPE ")?.strip_suffix(" counter"))
+        .collect();
+    let mut out = String::with_capacity(openmetrics.len() + 64 * counters.len());
+    for line in lines {
+        if line.starts_with("# UNIT ") || line == "# EOF" {
+            continue;
+        }
+        let renamed = ["# HELP ", "# TYPE "].iter().find_map(|prefix| {
+            let rest = line.strip_prefix(prefix)?;
+            let (name, tail) = rest.split_once(' ')?;
+            counters
+                .contains(&name)
+                .then(|| format!("{prefix}{name}_total {tail}"))
+        });
+        match renamed {
+            Some(l) => out.push_str(&l),
+            None => out.push_str(line),
+        }
+        out.push('\n');
+    }
+    out
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let server = match tiny_http::Server::http(&cli.listen) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("uss-exporter: cannot listen on {}: {e}", cli.listen);
+            return ExitCode::FAILURE;
+        }
+    };
+    let mut buses: Vec<Exported> = cli
+        .buses
+        .iter()
+        .map(|name| Exported {
+            name: name.clone(),
+            bus: None,
+            pid: None,
+            restarts: 0,
+        })
+        .collect();
+    // The address as bound (port 0 picks a free one), for whoever started us.
+    match server.server_addr().to_ip() {
+        Some(addr) => println!("uss-exporter: serving http://{addr}/metrics"),
+        None => println!("uss-exporter: serving /metrics"),
+    }
+    for request in server.incoming_requests() {
+        let response = if request.url() == "/metrics" {
+            // Prometheus asks for OpenMetrics; anything else (curl, promtool) gets the classic
+            // text format.
+            let openmetrics = request.headers().iter().any(|h| {
+                h.field.equiv("Accept") && h.value.as_str().contains("application/openmetrics-text")
+            });
+            let text = scrape(&mut buses);
+            let (body, content_type) = if openmetrics {
+                (text, OPENMETRICS)
+            } else {
+                (classic(&text), CLASSIC)
+            };
+            let mut r = tiny_http::Response::from_string(body);
+            if let Ok(h) = tiny_http::Header::from_bytes(&b"Content-Type"[..], content_type) {
+                r.add_header(h);
+            }
+            r
+        } else {
+            tiny_http::Response::from_string("uss-exporter: GET /metrics\n").with_status_code(404)
+        };
+        let _ = request.respond(response);
+    }
+    ExitCode::SUCCESS
+}

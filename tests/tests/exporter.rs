@@ -1,0 +1,160 @@
+//! `uss-exporter` against a real ussd: scraped over HTTP, parsed, checked with `promtool check
+//! metrics` (CI installs it and sets `USS_REQUIRE_PROMTOOL`), and still serving while ussd is
+//! killed and restarted, which its metrics say.
+
+#![allow(clippy::unwrap_used, clippy::float_cmp)]
+
+use std::collections::HashMap;
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+use uss_integration_tests::{ChildProc, Ussd, binary};
+
+/// One scrape: the body, sent as `OpenMetrics` when `openmetrics`, else the classic format.
+fn scrape(addr: &str, openmetrics: bool) -> String {
+    let mut s = TcpStream::connect(addr).unwrap();
+    let accept = if openmetrics {
+        "Accept: application/openmetrics-text; version=1.0.0\r\n"
+    } else {
+        ""
+    };
+    write!(s, "GET /metrics HTTP/1.0\r\nHost: {addr}\r\n{accept}\r\n").unwrap();
+    let mut response = String::new();
+    s.read_to_string(&mut response).unwrap();
+    let (head, body) = response.split_once("\r\n\r\n").unwrap();
+    assert!(
+        head.starts_with("HTTP/1.0 200") || head.starts_with("HTTP/1.1 200"),
+        "{head}"
+    );
+    let expected = if openmetrics {
+        "application/openmetrics-text"
+    } else {
+        "text/plain; version=0.0.4"
+    };
+    assert!(head.contains(expected), "{head}");
+    body.to_owned()
+}
+
+/// Samples by name with labels as written (`uss_drive_online{bus="b",drive="1"}`).
+fn samples(body: &str) -> HashMap<String, f64> {
+    body.lines()
+        .filter(|l| !l.starts_with('#') && !l.is_empty())
+        .map(|l| {
+            let (name, value) = l.rsplit_once(' ').unwrap();
+            (name.to_owned(), value.parse().unwrap())
+        })
+        .collect()
+}
+
+fn wait_for(
+    addr: &str,
+    what: &str,
+    ok: impl Fn(&HashMap<String, f64>) -> bool,
+) -> HashMap<String, f64> {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let s = samples(&scrape(addr, true));
+        if ok(&s) {
+            return s;
+        }
+        assert!(Instant::now() < deadline, "no scrape showed {what}: {s:?}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+#[test]
+fn exporter_serves_metrics_that_promtool_accepts_and_follows_a_restarted_ussd() {
+    let mut ussd = Ussd::start("", &[(1, ""), (2, "sim = { drop = 0.1 }")]);
+    let bus = ussd.bus.clone();
+    let mut command = Command::new(binary("uss-exporter", "uss-exporter"));
+    command.args(["--bus", &bus, "--listen", "127.0.0.1:0"]);
+    let mut exporter = ChildProc::spawn("uss-exporter".into(), command);
+    let addr = exporter
+        .says("serving http://")
+        .trim_end_matches("/metrics")
+        .to_owned();
+
+    let up = |s: &HashMap<String, f64>| s.get(&format!("uss_ussd_up{{bus=\"{bus}\"}}")).copied();
+    let s = wait_for(&addr, "drive 2's lost replies", |s| {
+        s.get(&format!(
+            "uss_telegrams_total{{bus=\"{bus}\",drive=\"2\",result=\"no_response\"}}"
+        ))
+        .is_some_and(|&n| n > 0.0)
+    });
+    assert_eq!(up(&s), Some(1.0));
+    assert_eq!(s["uss_build_info{version=\"0.1.0\"}"], 1.0);
+    for drive in ["1", "2"] {
+        assert_eq!(
+            s[&format!("uss_drive_online{{bus=\"{bus}\",drive=\"{drive}\"}}")],
+            1.0
+        );
+        assert!(
+            s[&format!("uss_telegrams_total{{bus=\"{bus}\",drive=\"{drive}\",result=\"good\"}}")]
+                > 0.0
+        );
+    }
+    assert!(s[&format!("uss_retries_total{{bus=\"{bus}\",drive=\"2\"}}")] > 0.0);
+    // The exchange-time histogram: cumulative buckets, +Inf is the count, the sum plausible.
+    let bucket =
+        |le: &str| s[&format!("uss_exchange_duration_seconds_bucket{{bus=\"{bus}\",le=\"{le}\"}}")];
+    let count = s[&format!("uss_exchange_duration_seconds_count{{bus=\"{bus}\"}}")];
+    let sum = s[&format!("uss_exchange_duration_seconds_sum{{bus=\"{bus}\"}}")];
+    assert!(count > 0.0);
+    assert_eq!(bucket("+Inf"), count);
+    let les = [
+        "0.0005", "0.001", "0.002", "0.003", "0.005", "0.0075", "0.01", "0.02", "0.05", "0.1",
+        "0.25", "1.0",
+    ];
+    assert!(
+        les.windows(2).all(|w| bucket(w[0]) <= bucket(w[1])),
+        "{s:?}"
+    );
+    // At 115200 baud an exchange of PKW 4 + PZD 2 takes about 3 ms, with the 1 ms reply delay.
+    let mean = sum / count;
+    assert!((0.001..0.02).contains(&mean), "mean exchange {mean} s");
+
+    promtool(&scrape(&addr, false));
+
+    // ussd killed: the exporter keeps serving and says so; restarted: it counts the restart.
+    ussd.kill();
+    wait_for(&addr, "ussd gone", |s| up(s) == Some(0.0));
+    ussd.restart();
+    let s = wait_for(&addr, "the restarted ussd", |s| up(s) == Some(1.0));
+    assert_eq!(s[&format!("uss_ussd_restarts_total{{bus=\"{bus}\"}}")], 1.0);
+    exporter.kill();
+}
+
+/// `promtool check metrics` on the classic text format. Without promtool the check says so;
+/// CI installs it and sets `USS_REQUIRE_PROMTOOL`, so there it cannot be skipped.
+fn promtool(body: &str) {
+    let run = Command::new("promtool")
+        .args(["check", "metrics"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn();
+    let mut child = match run {
+        Ok(child) => child,
+        Err(e) if std::env::var_os("USS_REQUIRE_PROMTOOL").is_none() => {
+            eprintln!(
+                "SKIPPED promtool check metrics: promtool does not run ({e}); install it with `apt-get install prometheus`"
+            );
+            return;
+        }
+        Err(e) => panic!("promtool does not run ({e}) but USS_REQUIRE_PROMTOOL is set"),
+    };
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(body.as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "promtool check metrics: {}{}\n{body}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
