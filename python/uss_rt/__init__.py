@@ -554,6 +554,8 @@ class DriveDiag(ctypes.Structure):
         ("latched_since_ns", u64),
         ("info", DriveInfo),
         ("counters", DriveCounters),
+        ("exchange_ns", u64 * 4),
+        ("response_delay_ns", u64 * 4),
     ]
 
     @staticmethod

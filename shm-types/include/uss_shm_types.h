@@ -1265,6 +1265,16 @@ typedef struct UssDriveDiag {
    * What ussd counted for the drive since it started.
    */
   struct UssDriveCounters counters;
+  /**
+   * This drive's exchange time (line free -> its reply complete), ns: p50, p99, p99.9, max;
+   * 0 = none yet.
+   */
+  uint64_t exchange_ns[4];
+  /**
+   * This drive's response delay (end of our request -> its reply's STX), ns: p50, p99,
+   * p99.9, max.
+   */
+  uint64_t response_delay_ns[4];
 #ifdef __cplusplus
   static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV5";
 #endif

@@ -118,6 +118,12 @@ pub struct DriveDiag {
     pub info: DriveInfo,
     /// What ussd counted for the drive since it started.
     pub counters: DriveCounters,
+    /// This drive's exchange time (line free -> its reply complete), ns: p50, p99, p99.9, max;
+    /// 0 = none yet.
+    pub exchange_ns: [u64; 4],
+    /// This drive's response delay (end of our request -> its reply's STX), ns: p50, p99,
+    /// p99.9, max.
+    pub response_delay_ns: [u64; 4],
 }
 
 /// What ussd knows of one drive from its configuration, published so that no client has to be
@@ -417,6 +423,8 @@ impl DriveDiag {
                 releases: 0,
                 overrides: 0,
             },
+            exchange_ns: [0; 4],
+            response_delay_ns: [0; 4],
         }
     }
 

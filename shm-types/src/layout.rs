@@ -134,7 +134,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     TypeLayout {
         name: "DriveDiag",
         type_name: "UssDriveDiagV5",
-        size: 264,
+        size: 328,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -159,6 +159,8 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("latched_since_ns", 48, 8),
             f("info", 56, 16),
             f("counters", 72, 192),
+            f("exchange_ns", 264, 32),
+            f("response_delay_ns", 296, 32),
         ],
     },
     TypeLayout {

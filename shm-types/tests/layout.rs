@@ -65,7 +65,7 @@ fn actual_layouts() -> Vec<Actual> {
             version, consecutive_failed_polls, last_zsw1, last_hiw, address, online, no_reply,
             control, last_failure, latch_reason, latch_command, rejection, monitoring, known,
             reserved, monitoring_ms, controller_pid, since_ns, last_good_ns, latched_since_ns,
-            info, counters,
+            info, counters, exchange_ns, response_delay_ns,
         ]),
         actual!(BusStatus = BusStatus::EMPTY, [
             version, rt_cpu, rt_mode, rt_priority, drive_count, running, efficiency_ppm,

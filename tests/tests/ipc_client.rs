@@ -194,6 +194,27 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
         diag.counters.good > 0 && diag.counters.requests >= diag.counters.good,
         "{diag:?}"
     );
+    // Per drive too: each drive's own percentiles, within the bus's (to the drive histograms'
+    // 6 %; the bus's were published at the same moment or later).
+    for a in [1, 2, 3] {
+        let d = bus.diag(a).unwrap();
+        for q in [d.exchange_ns, d.response_delay_ns] {
+            assert!(q[0] > 0 && q.windows(2).all(|w| w[0] <= w[1]), "{q:?}");
+        }
+        assert!(
+            d.exchange_ns[3]
+                <= status.exchange_ns[3].max(bus.status().unwrap().exchange_ns[3]) * 107 / 100,
+            "drive {a}: {:?} vs the bus's {:?}",
+            d.exchange_ns,
+            status.exchange_ns
+        );
+    }
+    let shown = text(&ussd.ussctl(&["stats"]).stdout);
+    assert_eq!(
+        shown.matches("  response delay  p50 ").count(),
+        4,
+        "the bus and each of its 3 drives: {shown}"
+    );
 
     let unknown = bus.watch(9).unwrap_err();
     assert_eq!(

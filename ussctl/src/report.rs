@@ -319,6 +319,13 @@ pub struct TimingReport {
     pub turnaround: [f64; 4],
 }
 
+/// Timing percentiles of a drive in µs: `[p50, p99, p99.9, max]`, zeros while none measured.
+#[derive(Debug, Serialize)]
+pub struct DriveTiming {
+    pub exchange: [f64; 4],
+    pub response_delay: [f64; 4],
+}
+
 impl TimingReport {
     pub fn of(s: &BusStatus) -> Self {
         let us = |ns: [u64; 4]| ns.map(|n| n as f64 / 1e3);
@@ -359,6 +366,8 @@ pub struct DriveStats {
     pub info: InfoReport,
     /// Every counter by name.
     pub counters: serde_json::Map<String, serde_json::Value>,
+    /// This drive's exchange time and response delay, µs: p50, p99, p99.9, max.
+    pub timing: DriveTiming,
     /// The same, in the contract's order, for people.
     #[serde(skip)]
     ordered: [(&'static str, u64); 28],
@@ -441,6 +450,10 @@ impl DriveStats {
                 .iter()
                 .map(|&(k, v)| (k.to_owned(), v.into()))
                 .collect(),
+            timing: DriveTiming {
+                exchange: d.exchange_ns.map(|n| n as f64 / 1e3),
+                response_delay: d.response_delay_ns.map(|n| n as f64 / 1e3),
+            },
             ordered: counters(d),
         }
     }
@@ -470,6 +483,16 @@ impl StatsReport {
             let _ = write!(out, ", {}", d.control.human());
             out.push('\n');
             let _ = writeln!(out, "  {}", d.info.human());
+            for (name, q) in [
+                ("exchange", d.timing.exchange),
+                ("response delay", d.timing.response_delay),
+            ] {
+                let _ = writeln!(
+                    out,
+                    "  {name:<15} p50 {:9.1} us  p99 {:9.1} us  p99.9 {:9.1} us  max {:9.1} us",
+                    q[0], q[1], q[2], q[3]
+                );
+            }
             let line: Vec<String> = d
                 .ordered
                 .iter()

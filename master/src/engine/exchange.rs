@@ -119,6 +119,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let h = &mut self.stats.histograms;
         record(&mut h.response_delay, response_delay);
         record(&mut h.exchange, exchange);
+        let d = &mut self.stats.drive_histograms[slot];
+        record(&mut d.response_delay, response_delay);
+        record(&mut d.exchange, exchange);
         if timing.first_attempt {
             let reply_len = 4 + 2 * (words.pkw().len() + words.pzd().len());
             let chars = (timing.request_len + reply_len) as u64;

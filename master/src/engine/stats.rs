@@ -229,6 +229,25 @@ pub struct Stats {
     pub histograms: BusHistograms,
     /// Per drive (same order as `drives`): time between two good replies.
     pub update_period: Vec<Histogram<u64>>,
+    /// Per drive: its exchange times and response delays (the bus's are in `histograms`), to
+    /// one significant figure plus (6 %: about 500 counters each, cheap to publish).
+    pub drive_histograms: Vec<DriveHistograms>,
+}
+
+/// One drive's timing.
+#[derive(Debug, Clone)]
+pub struct DriveHistograms {
+    pub exchange: Histogram<u64>,
+    pub response_delay: Histogram<u64>,
+}
+
+impl DriveHistograms {
+    fn new() -> Self {
+        Self {
+            exchange: histogram(1),
+            response_delay: histogram(1),
+        }
+    }
 }
 
 impl Stats {
@@ -239,6 +258,7 @@ impl Stats {
             .map(|(a, c)| DriveStatus::new(a, c))
             .collect();
         let update_period = drives.iter().map(|_| histogram(2)).collect();
+        let drive_histograms = drives.iter().map(|_| DriveHistograms::new()).collect();
         Self {
             at: Duration::ZERO,
             bus: BusCounters::default(),
@@ -246,6 +266,7 @@ impl Stats {
             drives,
             histograms: BusHistograms::new(),
             update_period,
+            drive_histograms,
         }
     }
 
@@ -259,6 +280,19 @@ impl Stats {
         for (dst, src) in self.update_period.iter_mut().zip(&other.update_period) {
             dst.reset();
             let _ = dst.add(src);
+        }
+        for (dst, src) in self
+            .drive_histograms
+            .iter_mut()
+            .zip(&other.drive_histograms)
+        {
+            for (d, s) in [
+                (&mut dst.exchange, &src.exchange),
+                (&mut dst.response_delay, &src.response_delay),
+            ] {
+                d.reset();
+                let _ = d.add(s);
+            }
         }
     }
 

@@ -279,7 +279,13 @@ impl StatusPublisher {
 
     fn publish_diagnostics(&self, stats: &Stats) {
         let ns = |d: Duration| self.origin_ns.saturating_add(as_ns(d));
-        for ((entry, d), &info) in self.diag.iter().zip(&stats.drives).zip(&self.info) {
+        for (((entry, d), &info), h) in self
+            .diag
+            .iter()
+            .zip(&stats.drives)
+            .zip(&self.info)
+            .zip(&stats.drive_histograms)
+        {
             let control = ControlView::of(d, self.origin_ns);
             entry.update_with_copy(DriveDiag {
                 consecutive_failed_polls: d.consecutive_failed_polls,
@@ -301,6 +307,8 @@ impl StatusPublisher {
                 latched_since_ns: control.since_ns,
                 info,
                 counters: d.counters,
+                exchange_ns: quantiles(&h.exchange),
+                response_delay_ns: quantiles(&h.response_delay),
                 ..DriveDiag::new(d.address.get())
             });
         }
