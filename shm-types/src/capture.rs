@@ -95,9 +95,41 @@ impl TelegramRecord {
         LastFailure::try_from(self.outcome)
     }
 
+    /// Whether it is our request (not a reply).
+    pub fn is_request(&self) -> bool {
+        self.direction() == Ok(Direction::Request)
+    }
+
+    /// How it ended, in words: "sent" (a request), "good" (a good reply), or what failed
+    /// ("no response", "BCC error", ...).
+    pub fn outcome_name(&self) -> &'static str {
+        match self.outcome() {
+            _ if self.is_request() => "sent",
+            Ok(LastFailure::None) => "good",
+            Ok(f) => f.name(),
+            Err(_) => "unknown outcome",
+        }
+    }
+
     /// Checks the record's version.
     pub const fn check(&self) -> Result<(), crate::ContractError> {
         check_version(self.version)
+    }
+}
+
+/// Bytes as hex pairs separated by spaces: `02 0E 01`.
+#[derive(Debug, Clone, Copy)]
+pub struct Hex<'a>(pub &'a [u8]);
+
+impl core::fmt::Display for Hex<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        for (i, b) in self.0.iter().enumerate() {
+            if i > 0 {
+                f.write_str(" ")?;
+            }
+            write!(f, "{b:02X}")?;
+        }
+        Ok(())
     }
 }
 

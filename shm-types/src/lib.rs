@@ -48,7 +48,7 @@ pub mod outcome;
 pub mod params;
 pub mod pzd;
 
-pub use capture::{CAPTURE_BYTES, CAPTURE_TASK, CAPTURE_TRUNCATED, Direction, TelegramRecord};
+pub use capture::{CAPTURE_BYTES, CAPTURE_TASK, CAPTURE_TRUNCATED, Direction, Hex, TelegramRecord};
 pub use codes::{ContractError, UnknownCode};
 pub use control::{
     ALL_DRIVES, CommandError, ControlState, LatchReason, Monitoring, OperatorRequest,

@@ -8,6 +8,7 @@ use std::process::Command;
 use std::time::Duration;
 use uss_integration_tests::{BusSpec, Ussd};
 use uss_protocol::bcc;
+use uss_shm_types::Hex;
 
 /// A request to drive 1 reading P1082 (AK 1, PNU 0x43A) with the safe command OFF1 that a drive
 /// without a controller gets (STW1 0x047E) and setpoint 0.
@@ -17,14 +18,6 @@ fn read_p1082_request() -> Vec<u8> {
     ];
     t.push(bcc(&t));
     t
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes
-        .iter()
-        .map(|b| format!("{b:02X}"))
-        .collect::<Vec<_>>()
-        .join(" ")
 }
 
 #[test]
@@ -56,7 +49,7 @@ fn capture_decodes_a_parameter_read_and_writes_pcapng_for_wireshark() {
     let r = &lines[request];
     assert_eq!(r["direction"], "request");
     assert_eq!(r["outcome"], "sent");
-    assert_eq!(r["bytes"], hex(&read_p1082_request()));
+    assert_eq!(r["bytes"], Hex(&read_p1082_request()).to_string());
     assert_eq!(r["frame"]["pkw"], serde_json::json!([0x143A, 0, 0, 0]));
     assert_eq!(r["frame"]["pzd"], serde_json::json!([0x047E, 0]));
     assert_eq!(r["app"]["word1_name"], "STW1");

@@ -10,7 +10,7 @@ use uss_client::uss_protocol::{
     Adr, Layout, ParamRef, ParamReply, PkwMode, Prefix, PzdCount, ReplyKind, Subindex, Telegram,
     bcc,
 };
-use uss_client::uss_shm_types::{Direction, LastFailure, TelegramRecord};
+use uss_client::uss_shm_types::{Hex, TelegramRecord};
 use uss_client::{Catalogue, ParamTask, Pnu, Setpoint, Value, state_name, zsw1_flags};
 
 /// How much of a telegram `capture` shows.
@@ -93,16 +93,7 @@ pub struct Decoder<'a> {
 
 impl Decoder<'_> {
     pub fn decode(&self, r: &TelegramRecord, t: f64) -> CaptureLine {
-        let request = r.direction() == Ok(Direction::Request);
-        let outcome = if request {
-            "sent"
-        } else {
-            match r.outcome() {
-                Ok(LastFailure::None) => "good",
-                Ok(f) => f.name(),
-                Err(_) => "unknown outcome",
-            }
-        };
+        let request = r.is_request();
         let bytes = r.bytes();
         let frame = frame(bytes, layout(r));
         let app = match (&frame, self.level) {
@@ -116,8 +107,8 @@ impl Decoder<'_> {
             end_ns: r.end_ns,
             direction: if request { "request" } else { "reply" },
             drive: r.address,
-            outcome,
-            bytes: hex(bytes),
+            outcome: r.outcome_name(),
+            bytes: Hex(bytes).to_string(),
             truncated: r.flags & uss_client::uss_shm_types::CAPTURE_TRUNCATED != 0,
             frame,
             app,
@@ -320,14 +311,6 @@ fn frame(bytes: &[u8], layout: Option<Layout>) -> Option<Frame> {
     })
 }
 
-fn hex(bytes: &[u8]) -> String {
-    bytes
-        .iter()
-        .map(|b| format!("{b:02X}"))
-        .collect::<Vec<_>>()
-        .join(" ")
-}
-
 fn words(w: &[u16]) -> String {
     w.iter()
         .map(|w| format!("{w:04X}"))
@@ -415,7 +398,7 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
     use uss_client::uss_protocol::{Address, encode};
-    use uss_client::uss_shm_types::CAPTURE_BYTES;
+    use uss_client::uss_shm_types::{CAPTURE_BYTES, Direction, LastFailure};
 
     fn record(direction: Direction, outcome: LastFailure, bytes: &[u8]) -> TelegramRecord {
         let mut r = TelegramRecord {

@@ -337,19 +337,21 @@ impl TimingReport {
     }
 
     pub fn human(&self) -> String {
-        let row = |name: &str, q: [f64; 4]| {
-            format!(
-                "  {name:<15} p50 {:9.1} us  p99 {:9.1} us  p99.9 {:9.1} us  max {:9.1} us\n",
-                q[0], q[1], q[2], q[3]
-            )
-        };
         [
-            row("exchange", self.exchange),
-            row("response delay", self.response_delay),
-            row("turnaround", self.turnaround),
+            timing_row("exchange", self.exchange),
+            timing_row("response delay", self.response_delay),
+            timing_row("turnaround", self.turnaround),
         ]
         .concat()
     }
+}
+
+/// One line of percentiles in µs: `  exchange        p50 ... us  p99 ... max ... us`.
+fn timing_row(name: &str, q: [f64; 4]) -> String {
+    format!(
+        "  {name:<15} p50 {:9.1} us  p99 {:9.1} us  p99.9 {:9.1} us  max {:9.1} us\n",
+        q[0], q[1], q[2], q[3]
+    )
 }
 
 #[derive(Debug, Serialize)]
@@ -483,16 +485,8 @@ impl StatsReport {
             let _ = write!(out, ", {}", d.control.human());
             out.push('\n');
             let _ = writeln!(out, "  {}", d.info.human());
-            for (name, q) in [
-                ("exchange", d.timing.exchange),
-                ("response delay", d.timing.response_delay),
-            ] {
-                let _ = writeln!(
-                    out,
-                    "  {name:<15} p50 {:9.1} us  p99 {:9.1} us  p99.9 {:9.1} us  max {:9.1} us",
-                    q[0], q[1], q[2], q[3]
-                );
-            }
+            out.push_str(&timing_row("exchange", d.timing.exchange));
+            out.push_str(&timing_row("response delay", d.timing.response_delay));
             let line: Vec<String> = d
                 .ordered
                 .iter()

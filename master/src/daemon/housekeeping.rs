@@ -97,22 +97,15 @@ fn trace_telegram(bus: &BusConfig, r: &uss_shm_types::TelegramRecord) {
     if !tracing::enabled!(tracing::Level::TRACE) {
         return;
     }
-    let request = r.direction() == Ok(uss_shm_types::Direction::Request);
-    let outcome = match r.outcome() {
-        _ if request => "sent",
-        Ok(uss_shm_types::LastFailure::None) => "good",
-        Ok(f) => f.name(),
-        Err(_) => "?",
-    };
-    let bytes: Vec<String> = r.bytes().iter().map(|b| format!("{b:02X}")).collect();
     tracing::trace!(
         bus = bus.name,
         drive = r.address,
         sequence = r.sequence,
-        "{} drive {} {outcome}: {}",
-        if request { "->" } else { "<-" },
+        "{} drive {} {}: {}",
+        if r.is_request() { "->" } else { "<-" },
         r.address,
-        bytes.join(" ")
+        r.outcome_name(),
+        uss_shm_types::Hex(r.bytes())
     );
 }
 

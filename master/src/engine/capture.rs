@@ -110,7 +110,6 @@ impl Capture {
         }
         let mut record = self.reply;
         self.stamp(&mut record, setup);
-        record.version = uss_shm_types::LAYOUT_VERSION;
         record.direction = Direction::Reply.code();
         record.outcome = outcome.code();
         if record.len == 0 {
