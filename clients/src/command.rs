@@ -50,7 +50,7 @@ impl Bus {
     fn operator(&self, address: u8, command: StopCommand) -> Result<Vec<u8>, ClientError> {
         let services = self.link().check()?;
         let name = names::command(&services.instance);
-        let client = client(self.link(), &services.commands, &services.instance, &name)?;
+        let client = client(self.link(), &services, &services.commands, &name)?;
         let answer = round_trip(
             client,
             OperatorRequest::new(address, command),

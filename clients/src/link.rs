@@ -129,6 +129,8 @@ pub(crate) struct Services {
     pub(crate) diag: Reader<Ipc, BlackboardKey>,
     pub(crate) params: OnceLock<ParamClient>,
     pub(crate) commands: OnceLock<CommandClient>,
+    /// The request and answer events both requesters use.
+    pub(crate) events: OnceLock<Arc<crate::request::RequestEvents>>,
 }
 
 impl Services {
@@ -168,6 +170,7 @@ impl Services {
             diag,
             params: OnceLock::new(),
             commands: OnceLock::new(),
+            events: OnceLock::new(),
         })
     }
 

@@ -228,8 +228,7 @@ impl Bus {
     pub fn send_request(&self, request: &ParamRequest) -> Result<ParamResponse, ParamError> {
         let services = self.link().check()?;
         let name = names::params(&services.instance);
-        let client =
-            crate::request::client(self.link(), &services.params, &services.instance, &name)?;
+        let client = crate::request::client(self.link(), &services, &services.params, &name)?;
         let timeout = self.answer_timeout(usize::from(request.count).min(MAX_PARAM_ITEMS));
         match crate::request::round_trip(client, *request, timeout)? {
             Ok(response) => Ok(response),

@@ -2,7 +2,7 @@
 //! `command`), opened once per ussd generation and shared by a bus's threads.
 
 use crate::ClientError;
-use crate::link::Link;
+use crate::link::{Link, Services};
 use crate::open::{Ipc, layout_verifier, opened};
 use core::fmt::Debug;
 use core::time::Duration;
@@ -11,7 +11,7 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::EventId;
 use iceoryx2::prelude::{ServiceName, ZeroCopySend};
-use std::sync::{Condvar, Mutex, OnceLock, PoisonError};
+use std::sync::{Arc, Condvar, Mutex, OnceLock, PoisonError};
 use std::time::Instant;
 use uss_shm_types::Instance;
 use uss_shm_types::names::{self, MAX_ACTIVE_REQUESTS};
@@ -31,11 +31,43 @@ where
     client: Client<Ipc, Req, (), Resp, ()>,
     in_flight: Mutex<usize>,
     freed: Condvar,
+    /// The generation's request and answer events, shared by the bus's requesters.
+    events: Arc<RequestEvents>,
+}
+
+/// A ussd instance's request and answer events, opened once per client process and
+/// generation for both the parameter and the command requester.
+#[derive(Debug)]
+pub(crate) struct RequestEvents {
     /// Tells ussd a request was sent ([`names::REQUEST_SENT`]); `None`: ussd finds it within
     /// [`names::REQUEST_POLL_NS`] anyway.
     requests: Option<Notifier<Ipc>>,
     /// ussd's [`names::ANSWER_SENT`] events; `None`: the answer is polled for.
     answers: Option<Listener<Ipc>>,
+}
+
+impl RequestEvents {
+    /// The events of `instance` where this process can have them (one beyond the events' port
+    /// limits polls instead).
+    fn open(link: &Link, instance: &Instance) -> Result<Self, ClientError> {
+        let verifier = layout_verifier()?;
+        let event = |name: ServiceName| {
+            link.node
+                .service_builder(&name)
+                .event()
+                .open_with_attributes(&verifier)
+                .ok()
+        };
+        let requests = event(names::requests(instance)).and_then(|s| {
+            s.notifier_builder()
+                .default_event_id(EventId::new(names::REQUEST_SENT))
+                .create()
+                .ok()
+        });
+        let answers =
+            event(names::answers(instance)).and_then(|s| s.listener_builder().create().ok());
+        Ok(Self { requests, answers })
+    }
 }
 
 /// One taken request slot, given back when dropped.
@@ -92,13 +124,12 @@ pub(crate) enum NoAnswer {
     Timeout,
 }
 
-/// The client of service `name` of `instance` kept in `cell`, opened on first use, with the
-/// instance's request and answer events where it can have them (a process beyond the events'
-/// port limits polls instead).
+/// The client of service `name` kept in `cell` (one of `services`'), opened on first use,
+/// with the generation's request and answer events.
 pub(crate) fn client<'a, Req, Resp>(
     link: &Link,
+    services: &'a Services,
     cell: &'a OnceLock<Requester<Req, Resp>>,
-    instance: &Instance,
     name: &ServiceName,
 ) -> Result<&'a Requester<Req, Resp>, ClientError>
 where
@@ -109,12 +140,11 @@ where
         return Ok(client);
     }
     let bus = link.name.as_str();
-    let verifier = layout_verifier()?;
     let service = opened(
         link.node
             .service_builder(name)
             .request_response::<Req, Resp>()
-            .open_with_attributes(&verifier),
+            .open_with_attributes(&layout_verifier()?),
         bus,
         name,
         || ClientError::NotRunning {
@@ -125,27 +155,19 @@ where
         .client_builder()
         .create()
         .map_err(|e| ClientError::ipc(format!("a client of {}", name.as_str()), e))?;
-    let event = |name: ServiceName| {
-        link.node
-            .service_builder(&name)
-            .event()
-            .open_with_attributes(&verifier)
-            .ok()
+    let events = if let Some(events) = services.events.get() {
+        Arc::clone(events)
+    } else {
+        let events = Arc::new(RequestEvents::open(link, &services.instance)?);
+        // Another thread may have won the race; its events serve as well as these.
+        Arc::clone(services.events.get_or_init(|| events))
     };
-    let requests = event(names::requests(instance)).and_then(|s| {
-        s.notifier_builder()
-            .default_event_id(EventId::new(names::REQUEST_SENT))
-            .create()
-            .ok()
-    });
-    let answers = event(names::answers(instance)).and_then(|s| s.listener_builder().create().ok());
     // Another thread may have won the race; its client serves as well as this one.
     let _ = cell.set(Requester {
         client,
         in_flight: Mutex::new(0),
         freed: Condvar::new(),
-        requests,
-        answers,
+        events,
     });
     cell.get()
         .ok_or_else(|| ClientError::ipc(format!("the client of {}", name.as_str()), "not kept"))
@@ -173,7 +195,7 @@ where
     if pending.number_of_server_connections() == 0 {
         return Ok(Err(NoAnswer::NotRunning));
     }
-    if let Some(requests) = &requester.requests {
+    if let Some(requests) = &requester.events.requests {
         let _ = requests.notify();
     }
     let mut pause = Duration::from_micros(50);
@@ -197,6 +219,7 @@ where
         // looked again); at least every ANSWER_CHECK, for a ussd that let go of the request and
         // for threads that share the listener (one waits on it, the others take turns).
         let woken = requester
+            .events
             .answers
             .as_ref()
             .is_some_and(|a| a.timed_wait(|_| {}, left.min(ANSWER_CHECK)).is_ok());
