@@ -41,6 +41,16 @@ fn capture_decodes_a_parameter_read_and_writes_pcapng_for_wireshark() {
         .collect();
     assert!(lines.len() > 20, "{} telegrams in 3 s", lines.len());
     assert!(lines.iter().all(|l| l["drive"] == 1), "only drive 1");
+    // On the wire, every request of those 3 s carries STW1 with bit 10 (control by PLC) set.
+    let requests: Vec<&Json> = lines
+        .iter()
+        .filter(|l| l["direction"] == "request")
+        .collect();
+    assert!(requests.len() > 10, "{rest}");
+    for r in &requests {
+        let stw1 = r["frame"]["pzd"][0].as_u64().unwrap();
+        assert_ne!(stw1 & 0x0400, 0, "a telegram without STW1 bit 10: {r}");
+    }
 
     let request = lines
         .iter()
