@@ -102,6 +102,34 @@ pub enum Command {
         #[arg(short = 'o', long = "output", value_name = "FILE")]
         output: Option<std::path::PathBuf>,
     },
+    /// Record every input image of some drives at bus rate (actual and set Hz, ZSW1, state,
+    /// age) to CSV, optionally from a trigger on, and plot speed against setpoint over time with
+    /// state changes and faults marked.
+    Trace {
+        /// The drives to record (addresses 0..=31).
+        #[arg(required = true)]
+        drives: Vec<u8>,
+        /// How long to record (after the trigger, when there is one): 10, 10s, 2.5s or 500ms.
+        #[arg(long = "for", value_name = "DURATION", default_value = "10s", value_parser = duration)]
+        duration: core::time::Duration,
+        /// Start recording when this becomes true on a traced drive: `fault` (ZSW1 bit 3),
+        /// `zsw1-bit=N` (bit N set), `hz>F` or `hz<F` (actual frequency). A condition already
+        /// true when the trace starts fires once it has been false.
+        #[arg(long, value_name = "CONDITION", value_parser = trigger)]
+        trigger: Option<Trigger>,
+        /// Keep this much from before the trigger (time 0 is the trigger).
+        #[arg(long, value_name = "DURATION", value_parser = duration, requires = "trigger")]
+        pre: Option<core::time::Duration>,
+        /// Give up when the trigger has not fired after this long (default: wait until Ctrl-C).
+        #[arg(long, value_name = "DURATION", value_parser = duration, requires = "trigger")]
+        wait: Option<core::time::Duration>,
+        /// Write the CSV to FILE (default: stdout).
+        #[arg(short = 'o', long = "output", value_name = "FILE")]
+        output: Option<std::path::PathBuf>,
+        /// Render the trace to FILE: .svg or .png.
+        #[arg(long, value_name = "FILE")]
+        plot: Option<std::path::PathBuf>,
+    },
     /// Find the drives on a line ussd does not serve: each address that answers at each baud
     /// rate, its PKW and PZD length and firmware (r0018). Probes carry OFF1 (STW1 0x047E, bit 10
     /// set): no drive is switched on.
@@ -334,6 +362,73 @@ fn integer(text: &str) -> Option<i64> {
     }
 }
 
+/// What starts a trace (`--trigger`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Trigger {
+    /// ZSW1 bit 3.
+    Fault,
+    /// ZSW1 bit N set.
+    Zsw1Bit(u8),
+    /// Actual frequency above F Hz.
+    HzAbove(f32),
+    /// Actual frequency below F Hz.
+    HzBelow(f32),
+}
+
+impl core::fmt::Display for Trigger {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Fault => f.write_str("fault"),
+            Self::Zsw1Bit(n) => write!(f, "zsw1-bit={n}"),
+            Self::HzAbove(hz) => write!(f, "hz>{hz}"),
+            Self::HzBelow(hz) => write!(f, "hz<{hz}"),
+        }
+    }
+}
+
+/// Parses `fault`, `zsw1-bit=N` (0..=15), `hz>F`, `hz<F`.
+pub fn trigger(s: &str) -> Result<Trigger, String> {
+    let hz = |f: &str| {
+        f.trim()
+            .parse::<f32>()
+            .ok()
+            .filter(|f| f.is_finite())
+            .ok_or_else(|| format!("{s:?}: {f:?} is not a frequency in Hz"))
+    };
+    if s == "fault" {
+        Ok(Trigger::Fault)
+    } else if let Some(n) = s.strip_prefix("zsw1-bit=") {
+        n.parse::<u8>()
+            .ok()
+            .filter(|&n| n < 16)
+            .map(Trigger::Zsw1Bit)
+            .ok_or_else(|| format!("{s:?}: ZSW1 bits are 0..=15"))
+    } else if let Some(f) = s.strip_prefix("hz>") {
+        hz(f).map(Trigger::HzAbove)
+    } else if let Some(f) = s.strip_prefix("hz<") {
+        hz(f).map(Trigger::HzBelow)
+    } else {
+        Err(format!(
+            "{s:?} is not a trigger: give fault, zsw1-bit=N, hz>F or hz<F"
+        ))
+    }
+}
+
+/// Parses a duration: seconds (`10`, `2.5`), or with a unit (`10s`, `500ms`).
+pub fn duration(s: &str) -> Result<core::time::Duration, String> {
+    let (number, scale) = if let Some(ms) = s.strip_suffix("ms") {
+        (ms, 1e-3)
+    } else {
+        (s.strip_suffix('s').unwrap_or(s), 1.0)
+    };
+    number
+        .trim()
+        .parse::<f64>()
+        .ok()
+        .and_then(|n| core::time::Duration::try_from_secs_f64(n * scale).ok())
+        .ok_or_else(|| format!("{s:?} is not a duration: give seconds (10, 2.5s) or 500ms"))
+}
+
 #[cfg(test)]
 #[allow(clippy::float_cmp)] // the values compared are exactly representable
 mod tests {
@@ -435,5 +530,65 @@ mod tests {
             Command::Run { drive: 5, hz, duration: Some(d), .. } if hz == -10.0 && d == 2.0
         ));
         assert!(Cli::try_parse_from(["ussctl", "param", "read", "1", "99999"]).is_err());
+    }
+
+    #[test]
+    fn trace_takes_triggers_and_durations_as_written() {
+        use core::time::Duration;
+        assert_eq!(trigger("fault"), Ok(Trigger::Fault));
+        assert_eq!(trigger("zsw1-bit=11"), Ok(Trigger::Zsw1Bit(11)));
+        assert_eq!(trigger("hz>12.5"), Ok(Trigger::HzAbove(12.5)));
+        assert_eq!(trigger("hz<-3"), Ok(Trigger::HzBelow(-3.0)));
+        for bad in ["zsw1-bit=16", "hz>fast", "hz>inf", "speed>3", ""] {
+            assert!(trigger(bad).is_err(), "{bad}");
+        }
+        assert_eq!(duration("10s"), Ok(Duration::from_secs(10)));
+        assert_eq!(duration("2.5"), Ok(Duration::from_millis(2500)));
+        assert_eq!(duration("500ms"), Ok(Duration::from_millis(500)));
+        for bad in ["-1", "ten", "5 min", "NaN"] {
+            assert!(duration(bad).is_err(), "{bad}");
+        }
+        let cli = Cli::try_parse_from([
+            "ussctl",
+            "trace",
+            "1",
+            "3",
+            "--trigger",
+            "fault",
+            "--pre",
+            "2s",
+            "-o",
+            "run.csv",
+        ])
+        .unwrap();
+        assert!(matches!(
+            cli.command,
+            Command::Trace { ref drives, trigger: Some(Trigger::Fault), pre: Some(p), duration, .. }
+                if drives == &[1, 3] && p == Duration::from_secs(2) && duration == Duration::from_secs(10)
+        ));
+        assert!(Cli::try_parse_from(["ussctl", "trace"]).is_err(), "a drive");
+        assert!(
+            Cli::try_parse_from(["ussctl", "trace", "1", "--pre", "1"]).is_err(),
+            "--pre needs a trigger"
+        );
+    }
+
+    proptest::proptest! {
+        /// A trigger reads back as it prints; any text parses or is refused, never panics.
+        #[test]
+        fn triggers_round_trip(bit in 0u8..16, hz in -650.0f32..650.0, text in ".{0,16}") {
+            for t in [Trigger::Fault, Trigger::Zsw1Bit(bit), Trigger::HzAbove(hz), Trigger::HzBelow(hz)] {
+                proptest::prop_assert_eq!(trigger(&t.to_string()), Ok(t));
+            }
+            let _ = trigger(&text);
+            let _ = duration(&text);
+        }
+
+        #[test]
+        fn durations_in_seconds_and_milliseconds_agree(ms in 0u32..10_000_000) {
+            let a = duration(&format!("{ms}ms")).unwrap();
+            let b = duration(&format!("{}s", f64::from(ms) / 1000.0)).unwrap();
+            proptest::prop_assert!(a.abs_diff(b) < core::time::Duration::from_micros(1));
+        }
     }
 }

@@ -79,6 +79,15 @@ pub(crate) enum Failure {
     Json(#[from] serde_json::Error),
     #[error("cannot write the output: {0}")]
     Output(std::io::Error),
+    /// The trace's CSV cannot be written.
+    #[error("cannot write the CSV: {0}")]
+    Csv(csv::Error),
+    /// The trace's plot cannot be rendered or written.
+    #[error("{path}: cannot plot: {reason}")]
+    Plot { path: String, reason: String },
+    /// Neither the trigger fired nor was anything recorded.
+    #[error("the trigger {trigger} {why}; nothing was written")]
+    NotTriggered { trigger: String, why: String },
     /// Whoever reads our output went away (`ussctl watch | head`): end quietly.
     #[error("the output was closed")]
     Closed,

@@ -9,6 +9,7 @@ mod commands;
 mod decode;
 mod failure;
 mod pcapng;
+mod plot;
 mod report;
 
 use clap::Parser;
@@ -139,49 +140,27 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             };
             commands::capture::capture(&bus, &out, &capture)
         }
-        Command::Param(ParamCommand::Read { drive, param, kind }) => {
-            commands::param::read(&bus, &out, *drive, *param, *kind)
-        }
-        Command::Param(ParamCommand::Write {
-            drive,
-            param,
-            value,
-            eeprom,
-            kind,
-            force,
-        }) => {
-            let write = commands::param::Write {
-                drive: *drive,
-                param: *param,
-                value,
-                eeprom: *eeprom,
-                kind: *kind,
-                force: *force,
+        Command::Trace {
+            drives,
+            duration,
+            trigger,
+            pre,
+            wait,
+            output,
+            plot,
+        } => {
+            let trace = commands::trace::Options {
+                drives,
+                duration: *duration,
+                trigger: *trigger,
+                pre: pre.unwrap_or_default(),
+                wait: *wait,
+                output: output.as_deref(),
+                plot: plot.as_deref(),
             };
-            commands::param::write(&bus, &out, &write)
+            commands::trace::trace(&bus, &out, &trace)
         }
-        Command::Param(ParamCommand::Backup { drive, output }) => {
-            commands::backup::backup(&bus, &out, *drive, output.as_deref())
-        }
-        Command::Param(ParamCommand::Restore {
-            drive,
-            file,
-            eeprom,
-            dry_run,
-            force,
-        }) => {
-            let restore = commands::backup::Restore {
-                drive: *drive,
-                file,
-                eeprom: *eeprom,
-                dry_run: *dry_run,
-                force: *force,
-            };
-            commands::backup::restore(&bus, &out, &restore)
-        }
-        Command::Param(ParamCommand::Diff { drive, other }) => {
-            commands::backup::diff(&bus, &out, *drive, other)
-        }
+        Command::Param(command) => run_param(&bus, &out, command),
         Command::Run {
             drive,
             hz,
@@ -196,6 +175,53 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Scan { .. } | Command::Completions { .. } | Command::Man => {
             unreachable!("handled before the bus is opened")
         }
+    }
+}
+
+/// `param ...`: parameter access, backup, restore, diff.
+fn run_param(bus: &Bus, out: &Output, command: &ParamCommand) -> Result<(), Failure> {
+    match command {
+        ParamCommand::Read { drive, param, kind } => {
+            commands::param::read(bus, out, *drive, *param, *kind)
+        }
+        ParamCommand::Write {
+            drive,
+            param,
+            value,
+            eeprom,
+            kind,
+            force,
+        } => {
+            let write = commands::param::Write {
+                drive: *drive,
+                param: *param,
+                value,
+                eeprom: *eeprom,
+                kind: *kind,
+                force: *force,
+            };
+            commands::param::write(bus, out, &write)
+        }
+        ParamCommand::Backup { drive, output } => {
+            commands::backup::backup(bus, out, *drive, output.as_deref())
+        }
+        ParamCommand::Restore {
+            drive,
+            file,
+            eeprom,
+            dry_run,
+            force,
+        } => {
+            let restore = commands::backup::Restore {
+                drive: *drive,
+                file,
+                eeprom: *eeprom,
+                dry_run: *dry_run,
+                force: *force,
+            };
+            commands::backup::restore(bus, out, &restore)
+        }
+        ParamCommand::Diff { drive, other } => commands::backup::diff(bus, out, *drive, other),
     }
 }
 

@@ -9,4 +9,5 @@ pub mod run;
 pub mod scan;
 pub mod status;
 pub mod stop;
+pub mod trace;
 pub mod watch;
