@@ -130,6 +130,13 @@ pub enum Command {
         #[arg(long, value_name = "FILE")]
         plot: Option<std::path::PathBuf>,
     },
+    /// A live monitor: per bus a status bar, the drives (changes and errors marked), the selected
+    /// drive's counters, timing and fault buffer, and keys for the safe stops (s OFF1, c OFF2,
+    /// x OFF3; S C X for every drive), each confirmed with y. Needs a terminal.
+    Top {
+        /// More buses to monitor beside --bus; tab switches between them.
+        buses: Vec<String>,
+    },
     /// Find the drives on a line ussd does not serve: each address that answers at each baud
     /// rate, its PKW and PZD length and firmware (r0018). Probes carry OFF1 (STW1 0x047E, bit 10
     /// set): no drive is switched on.

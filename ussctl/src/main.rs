@@ -83,6 +83,12 @@ fn run_without_bus(cli: &Cli) -> Option<Result<(), Failure>> {
     }
     // Generated from this command line's own definition; no bus needed.
     match &cli.command {
+        // `top` waits for a ussd that is not there yet, and follows one that goes.
+        Command::Top { buses } => {
+            let mut all = vec![cli.bus.clone()];
+            all.extend(buses.iter().filter(|b| **b != cli.bus).cloned());
+            Some(commands::top::top(&all))
+        }
         Command::Completions { shell } => {
             let mut command = <Cli as clap::CommandFactory>::command();
             let mut out = Vec::new();
@@ -172,7 +178,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Ack { drive } => commands::ack::ack(&bus, &out, *drive),
         Command::Faults { drive } => commands::param::faults(&bus, &out, *drive),
         Command::Stats => commands::status::stats(&bus, &out),
-        Command::Scan { .. } | Command::Completions { .. } | Command::Man => {
+        Command::Scan { .. } | Command::Completions { .. } | Command::Man | Command::Top { .. } => {
             unreachable!("handled before the bus is opened")
         }
     }

@@ -62,11 +62,11 @@ impl ControlReport {
         }
     }
 
-    fn of_diag(d: &DriveDiag) -> Self {
+    pub(crate) fn of_diag(d: &DriveDiag) -> Self {
         Self::new(d.control, d.latch_reason, d.latch_command, 0, d.rejection)
     }
 
-    fn of_input(i: &PzdInput) -> Self {
+    pub(crate) fn of_input(i: &PzdInput) -> Self {
         Self::new(
             i.control,
             i.latch_reason,

@@ -9,5 +9,6 @@ pub mod run;
 pub mod scan;
 pub mod status;
 pub mod stop;
+pub mod top;
 pub mod trace;
 pub mod watch;
