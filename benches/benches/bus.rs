@@ -10,6 +10,9 @@
 //!    protocol demands anyway (117 us at 187500 baud).
 //! 3. Scale: 8 simulated buses x 31 drives in one process, CPU use and peak memory.
 //! 4. Telegram capture: the bus thread's cost with every telegram captured, against without.
+//! 5. Publishing the statistics (every 50 ms, for ussctl stats, the exporter, the status
+//!    service): what the bus thread spends per publication handing its timing over, against
+//!    copying the histograms as it did before, with 4 and 31 drives.
 //!
 //! The bus threads run `SCHED_FIFO` where the machine allows (root here); the mode is printed.
 
@@ -21,6 +24,8 @@ use uss_master::config::Config;
 use uss_master::daemon::rt::{RtRequest, apply_to_current_thread};
 use uss_master::daemon::runtime::{self, RunOptions};
 use uss_master::engine::clock::SPIN_BEFORE_DEADLINE;
+use uss_master::engine::control::Control;
+use uss_master::engine::stats::{FreshTiming, Published};
 use uss_master::{DriveSetup, Engine, EngineConfig, MonotonicClock, SimTransport, Stats};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Timing};
@@ -350,6 +355,108 @@ fn capture_cost() {
     }
 }
 
+/// Statistics of `drives` drives whose histograms look like a bus that ran for a while: each
+/// drive 1000 exchange times, response delays and update periods, the bus 10000 exchanges.
+fn busy_stats(drives: u8) -> Stats {
+    let addresses = (1..=drives).map(|a| (Address::new(a).expect("address"), Control::Live));
+    let mut stats = Stats::new(addresses);
+    for (i, d) in stats.drive_histograms.iter_mut().enumerate() {
+        for k in 0..1000 {
+            d.exchange
+                .saturating_record(2_000_000 + k * 1000 + i as u64);
+            d.response_delay.saturating_record(1_000_000 + k * 50);
+        }
+    }
+    for (i, h) in stats.update_period.iter_mut().enumerate() {
+        for k in 0..1000 {
+            h.saturating_record(12_000_000 + k * 3000 + i as u64);
+        }
+    }
+    let h = &mut stats.histograms;
+    for k in 0..10_000 {
+        for x in [
+            &mut h.exchange,
+            &mut h.response_delay,
+            &mut h.turnaround,
+            &mut h.work,
+        ] {
+            x.saturating_record(100_000 + k * 300);
+        }
+        h.cycle.saturating_record(10_000_000 + k * 1000);
+    }
+    stats
+}
+
+/// What the bus thread did to publish before: every histogram copied (reset, then added).
+fn copy_all(dst: &mut Stats, src: &Stats) {
+    dst.at = src.at;
+    dst.bus = src.bus;
+    dst.line = src.line;
+    dst.drives.copy_from_slice(&src.drives);
+    let (d, s) = (&mut dst.histograms, &src.histograms);
+    for (d, s) in [
+        (&mut d.exchange, &s.exchange),
+        (&mut d.response_delay, &s.response_delay),
+        (&mut d.turnaround, &s.turnaround),
+        (&mut d.work, &s.work),
+        (&mut d.cycle, &s.cycle),
+    ] {
+        d.reset();
+        let _ = d.add(s);
+    }
+    for (d, s) in dst.update_period.iter_mut().zip(&src.update_period) {
+        d.reset();
+        let _ = d.add(s);
+    }
+    for (d, s) in dst.drive_histograms.iter_mut().zip(&src.drive_histograms) {
+        d.exchange.reset();
+        let _ = d.exchange.add(&s.exchange);
+        d.response_delay.reset();
+        let _ = d.response_delay.add(&s.response_delay);
+    }
+}
+
+/// Part 5: one publication of the statistics, as the bus thread does it (the median of 300).
+fn publish_cost() {
+    println!("== publishing the statistics: the bus thread's share, median of 300 publications");
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    for drives in [4, 31] {
+        let stats = busy_stats(drives);
+        let mut copy = stats.clone();
+        let mut before = Vec::new();
+        for _ in 0..300 {
+            let t = Instant::now();
+            copy_all(&mut copy, &stats);
+            before.push(t.elapsed().as_secs_f64() * 1e6);
+        }
+        let mut published = Published::new(&stats);
+        let mut fresh = FreshTiming::new(usize::from(drives));
+        let (mut now, mut merge) = (Vec::new(), Vec::new());
+        for _ in 0..300 {
+            // 50 ms of a busy bus: one exchange per drive and some.
+            for (i, d) in fresh.drive_histograms.iter_mut().enumerate() {
+                d.exchange.saturating_record(2_000_000 + i as u64);
+            }
+            fresh.histograms.exchange.saturating_record(2_000_000);
+            let t = Instant::now();
+            published.hand_over(&stats, &mut fresh);
+            now.push(t.elapsed().as_secs_f64() * 1e6);
+            // The reader's side (housekeeping, not the bus thread).
+            let t = Instant::now();
+            let _ = published.read();
+            merge.push(t.elapsed().as_secs_f64() * 1e6);
+        }
+        let (before, now, merge) = (median(before), median(now), median(merge));
+        println!(
+            "   {drives:2} drives: histograms copied {before:.1} us, handed over {now:.2} us: {:.0}x less for the bus thread (the reader merges them in {merge:.1} us)",
+            before / now.max(1e-3)
+        );
+    }
+}
+
 fn main() {
     let parts = Parts::from_args();
     let wanted = |name: &str| parts.wanted(name);
@@ -364,5 +471,8 @@ fn main() {
     }
     if wanted("capture") {
         capture_cost();
+    }
+    if wanted("publish") {
+        publish_cost();
     }
 }

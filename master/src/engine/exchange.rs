@@ -5,7 +5,7 @@
 use super::{
     Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, FrameError, LastFailure,
     MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, ParamReply, PathError, ReplyKind,
-    Transport, TransportError, Words, encode, record,
+    Transport, TransportError, Words, encode, record_both,
 };
 use uss_protocol::{DriveState, Zsw1};
 
@@ -90,8 +90,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         status.counters.good += 1;
         self.stats.bus.good += 1;
         if let Some(previous) = status.last_good {
-            record(
+            record_both(
                 &mut self.stats.update_period[slot],
+                &mut self.timing.update_period[slot],
                 timing.done.saturating_sub(previous),
             );
         }
@@ -116,12 +117,13 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let tz = self.cfg.timing.char_time();
         let response_delay = timing.stx_at.saturating_sub(tz + timing.request_end);
         let exchange = timing.done.saturating_sub(begin);
-        let h = &mut self.stats.histograms;
-        record(&mut h.response_delay, response_delay);
-        record(&mut h.exchange, exchange);
+        let (h, t) = (&mut self.stats.histograms, &mut self.timing.histograms);
+        record_both(&mut h.response_delay, &mut t.response_delay, response_delay);
+        record_both(&mut h.exchange, &mut t.exchange, exchange);
         let d = &mut self.stats.drive_histograms[slot];
-        record(&mut d.response_delay, response_delay);
-        record(&mut d.exchange, exchange);
+        let t = &mut self.timing.drive_histograms[slot];
+        record_both(&mut d.response_delay, &mut t.response_delay, response_delay);
+        record_both(&mut d.exchange, &mut t.exchange, exchange);
         if timing.first_attempt {
             let reply_len = 4 + 2 * (words.pkw().len() + words.pzd().len());
             let chars = (timing.request_len + reply_len) as u64;
@@ -227,15 +229,20 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         };
         if let Some(seen) = self.last_reply_seen.take() {
             let ready = self.clock.now();
-            record(&mut self.stats.histograms.work, ready.saturating_sub(seen));
+            record_both(
+                &mut self.stats.histograms.work,
+                &mut self.timing.histograms.work,
+                ready.saturating_sub(seen),
+            );
         }
         // The start pause, then a clean input buffer, then our telegram (USS.md section 4).
         self.clock
             .sleep_until_precise(self.line_free_at + self.cfg.timing.start_pause());
         let send_at = self.clock.now();
         if let Some(done) = self.last_reply_done.take() {
-            record(
+            record_both(
                 &mut self.stats.histograms.turnaround,
+                &mut self.timing.histograms.turnaround,
                 send_at.saturating_sub(done),
             );
         }

@@ -163,6 +163,7 @@ impl EngineHandle {
             .stats
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .read()
             .clone()
     }
 

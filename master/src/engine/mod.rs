@@ -28,7 +28,9 @@ use crate::engine::control::{Control, Gate, GateSetup, Latch, Operator, Poll, Tr
 use crate::engine::image::DriveImages;
 use crate::engine::jobs::{Encoded, Job, JobResult, Mailbox};
 use crate::engine::monitoring::MonitoringSetup;
-use crate::engine::stats::{DriveStatus, LastFailure, LineFault, Stats, record};
+use crate::engine::stats::{
+    DriveStatus, FreshTiming, LastFailure, LineFault, Published, Stats, record_both,
+};
 use crate::engine::transport::{Transport, TransportError};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
@@ -282,7 +284,7 @@ struct Shared {
     images: Vec<DriveImages>,
     output_numbers: Vec<AtomicU64>,
     overrides: Vec<Overrides>,
-    stats: Mutex<Stats>,
+    stats: Mutex<Published>,
     stop: AtomicBool,
     /// Set by the bus thread while its line is down.
     line_down: AtomicBool,
@@ -356,6 +358,8 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     events: Sender<Event>,
     capture: capture::Capture,
     stats: Stats,
+    /// What was recorded into `stats`' histograms since the last hand-over to `shared.stats`.
+    timing: FreshTiming,
     bridge: B,
 }
 
@@ -428,7 +432,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             images: cfg.drives.iter().map(|_| DriveImages::default()).collect(),
             output_numbers: cfg.drives.iter().map(|_| AtomicU64::new(0)).collect(),
             overrides: cfg.drives.iter().map(|_| Overrides::default()).collect(),
-            stats: Mutex::new(stats.clone()),
+            stats: Mutex::new(Published::new(&stats)),
             stop: AtomicBool::new(false),
             line_down: AtomicBool::new(false),
             reopen_attempts: AtomicU32::new(0),
@@ -478,6 +482,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             results: results_tx,
             events: events_tx,
             capture,
+            timing: FreshTiming::new(cfg.drives.len()),
             stats,
             cfg,
             bridge,
@@ -860,7 +865,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let now = self.clock.now();
         let took = now.saturating_sub(self.cycle_start);
         self.stats.bus.cycles += 1;
-        record(&mut self.stats.histograms.cycle, took);
+        record_both(
+            &mut self.stats.histograms.cycle,
+            &mut self.timing.histograms.cycle,
+            took,
+        );
         match self.cfg.cycle_time {
             Some(cycle) if took > cycle => {
                 self.stats.bus.cycle_overruns += 1;
@@ -947,7 +956,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let now = self.clock.now();
         self.stats.at = now;
         if let Ok(mut shared) = self.shared.stats.try_lock() {
-            shared.copy_from(&self.stats);
+            shared.hand_over(&self.stats, &mut self.timing);
             self.last_publish = now;
         }
     }
