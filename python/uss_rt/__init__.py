@@ -1265,10 +1265,16 @@ def read_input(bus: Bus, address: int) -> dict:
     """
     _check_address(address)
     health = bus.health()
+    image = None
     if health.serving:
-        image = bus._input_entry(address).get().decode_as(PzdInput)
-        bus._services[("last", address)] = image
-    else:
+        try:
+            image = bus._input_entry(address).get().decode_as(PzdInput)
+            bus._services[("last", address)] = image
+        except (UssdGone, UssdStopped):
+            # The heartbeat aged past its limit between the two looks: ussd is gone now, and
+            # the image says so like any other stale one.
+            health = bus.health()
+    if image is None:
         # The last image read, or an empty one: offline either way.
         image = bus._services.get(("last", address)) or PzdInput(version=LAYOUT_VERSION)
     if image.version != LAYOUT_VERSION:
