@@ -110,6 +110,31 @@ def wait_for_input(bus, address, accept, timeout=10.0):
         time.sleep(0.01)
 
 
+def test_an_image_read_as_ussd_goes_is_stale_not_an_error(bus, monkeypatch):
+    """The heartbeat can age past its limit between read_input's look at it and the read of the
+    image (seen once in CI): the image is then the last one, marked gone, never an exception."""
+    last = wait_for_input(bus, 1, lambda i: i["online"] == 1 and i["sequence"] > 0)
+    real = bus.health
+    looks = []
+
+    def health():
+        h = real()
+        looks.append(h)
+        if len(looks) > 1:
+            h.state = "gone"
+        return h
+
+    def gone(address):
+        raise uss_rt.UssdGone(bus.name, 0, 0.5)
+
+    monkeypatch.setattr(bus, "health", health)
+    monkeypatch.setattr(bus, "_input_entry", gone)
+    image = uss_rt.read_input(bus, 1)
+    assert image["health"] == "gone"
+    assert image["online"] == 0
+    assert image["sequence"] >= last["sequence"]
+
+
 def test_bus_lists_the_polled_drives_and_runs(bus):
     assert bus.drives() == list(DRIVES)
     status = bus.status()
@@ -333,27 +358,3 @@ def test_sigterm_stops_ussd_and_clients_are_told(ussd):
     with pytest.raises((uss_rt.NotRunning, uss_rt.UssdGone)):
         uss_rt.open_bus(BUS)
 
-
-def test_an_image_read_as_ussd_goes_is_stale_not_an_error(bus, monkeypatch):
-    """The heartbeat can age past its limit between read_input's look at it and the read of the
-    image (seen once in CI): the image is then the last one, marked gone, never an exception."""
-    last = wait_for_input(bus, 1, lambda i: i["online"] == 1 and i["sequence"] > 0)
-    real = bus.health
-    looks = []
-
-    def health():
-        h = real()
-        looks.append(h)
-        if len(looks) > 1:
-            h.state = "gone"
-        return h
-
-    def gone(address):
-        raise uss_rt.UssdGone(bus.name, 0, 0.5)
-
-    monkeypatch.setattr(bus, "health", health)
-    monkeypatch.setattr(bus, "_input_entry", gone)
-    image = uss_rt.read_input(bus, 1)
-    assert image["health"] == "gone"
-    assert image["online"] == 0
-    assert image["sequence"] >= last["sequence"]

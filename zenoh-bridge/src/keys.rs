@@ -1,0 +1,103 @@
+//! The Zenoh key expressions of a bus (the README's table), and reading a parameter query's
+//! key back into a drive and a parameter.
+
+use uss_client::uss_protocol::ParamRef;
+
+/// The keys of one bus under a prefix (`uss/<site>`).
+#[derive(Debug, Clone)]
+pub struct Keys {
+    /// `<prefix>/<bus>`.
+    base: String,
+}
+
+impl Keys {
+    pub fn new(prefix: &str, bus: &str) -> Self {
+        Self {
+            base: format!("{}/{bus}", prefix.trim_end_matches('/')),
+        }
+    }
+
+    /// The bus's status (JSON, every 0.5 s and when ussd comes or goes).
+    pub fn status(&self) -> String {
+        format!("{}/status", self.base)
+    }
+
+    /// The liveliness token declared while ussd serves the bus.
+    pub fn alive(&self) -> String {
+        format!("{}/alive", self.base)
+    }
+
+    /// A drive's input images (JSON, each new one).
+    pub fn input(&self, drive: u8) -> String {
+        format!("{}/drive/{drive}/in", self.base)
+    }
+
+    /// A drive's diagnostics (JSON, every second).
+    pub fn diag(&self, drive: u8) -> String {
+        format!("{}/drive/{drive}/diag", self.base)
+    }
+
+    /// What ussd knows of a drive from its configuration (JSON, every 5 s).
+    pub fn info(&self, drive: u8) -> String {
+        format!("{}/drive/{drive}/info", self.base)
+    }
+
+    /// The queryable of every drive's parameters: `.../drive/<addr>/param/<P1082>`.
+    pub fn params(&self) -> String {
+        format!("{}/drive/*/param/*", self.base)
+    }
+
+    /// The drive and parameter a parameter query's key names, or why it names none.
+    pub fn param_of(&self, key: &str) -> Result<(u8, ParamRef), String> {
+        let rest = key
+            .strip_prefix(&self.base)
+            .and_then(|r| r.strip_prefix("/drive/"))
+            .ok_or_else(|| format!("{key}: not a parameter key of {}", self.base))?;
+        let (drive, param) = rest
+            .split_once("/param/")
+            .ok_or_else(|| format!("{key}: write .../drive/<address>/param/<parameter>"))?;
+        let drive = drive
+            .parse::<u8>()
+            .ok()
+            .filter(|&a| a <= 31)
+            .ok_or_else(|| format!("{key}: {drive:?} is not a drive address 0..=31"))?;
+        let param = param
+            .parse::<ParamRef>()
+            .map_err(|e| format!("{key}: {param:?}: {e}"))?;
+        Ok((drive, param))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keys_follow_the_readme_table_and_parameter_keys_read_back() {
+        let k = Keys::new("uss/plant/", "line1");
+        assert_eq!(k.input(3), "uss/plant/line1/drive/3/in");
+        assert_eq!(k.params(), "uss/plant/line1/drive/*/param/*");
+        assert_eq!(k.alive(), "uss/plant/line1/alive");
+        let (drive, param) = k
+            .param_of("uss/plant/line1/drive/3/param/r0947[2]")
+            .unwrap();
+        assert_eq!((drive, param.to_string().as_str()), (3, "r0947[2]"));
+        for bad in [
+            "uss/plant/line2/drive/3/param/P1082",
+            "uss/plant/line1/drive/32/param/P1082",
+            "uss/plant/line1/drive/3/param/X1",
+            "uss/plant/line1/drive/3/in",
+        ] {
+            assert!(k.param_of(bad).is_err(), "{bad}");
+        }
+    }
+
+    proptest::proptest! {
+        /// Any key is read or refused, never a panic.
+        #[test]
+        fn any_key_is_read_or_refused(tail in ".{0,40}") {
+            let k = Keys::new("uss/p", "b");
+            let _ = k.param_of(&format!("uss/p/b/drive/{tail}"));
+        }
+    }
+}

@@ -1,0 +1,144 @@
+//! `uss-zenoh`: the buses a ussd runs, on the network through Zenoh. A separate process (its
+//! crash never touches ussd or a bus thread) that reads ussd's services like any local client
+//! and maps them to Zenoh key expressions (README, "Beyond one host"): status, input images,
+//! diagnostics and descriptions as JSON, liveliness tokens for the bridge and for each bus ussd
+//! serves, and a queryable for parameters, read-only unless `--allow-writes`.
+
+mod keys;
+mod params;
+mod payload;
+mod publish;
+
+use clap::Parser;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use zenoh::{Config, Wait};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "uss-zenoh",
+    version,
+    about = "Bridge the buses a ussd runs to Zenoh: status, inputs, diagnostics, liveliness and parameters (read-only unless --allow-writes)"
+)]
+struct Cli {
+    /// A bus to bridge, as named in ussd's configuration; repeat for more.
+    #[arg(long = "bus", value_name = "NAME", default_value = "bus0")]
+    buses: Vec<String>,
+    /// A Zenoh configuration file (JSON5 or YAML): mode, endpoints, scouting, lease, ...
+    #[arg(long, value_name = "FILE")]
+    zenoh_config: Option<std::path::PathBuf>,
+    /// Listen on this Zenoh endpoint too, e.g. tcp/0.0.0.0:7447; repeat for more.
+    #[arg(long = "listen", value_name = "ENDPOINT")]
+    listen: Vec<String>,
+    /// Connect to this Zenoh endpoint (a router, or a peer), e.g. tcp/10.0.0.5:7447; repeat for
+    /// more.
+    #[arg(long = "connect", value_name = "ENDPOINT")]
+    connect: Vec<String>,
+    /// Where the keys start: <prefix>/<bus>/... (default uss/<host name>).
+    #[arg(long, value_name = "KEY")]
+    prefix: Option<String>,
+    /// Publish at most this many input images per second and drive (default: every one).
+    #[arg(long, value_name = "HZ")]
+    max_rate: Option<f64>,
+    /// Accept parameter writes (a query with the new value as its payload), under the same
+    /// rules as a local write. Without it a write query gets an error reply.
+    #[arg(long)]
+    allow_writes: bool,
+}
+
+/// The Zenoh configuration: the file's, with `--listen` and `--connect` added.
+fn zenoh_config(cli: &Cli) -> Result<Config, String> {
+    let mut config = match &cli.zenoh_config {
+        Some(path) => Config::from_file(path).map_err(|e| format!("{}: {e}", path.display()))?,
+        None => Config::default(),
+    };
+    let list = |v: &[String]| serde_json::to_string(v).unwrap_or_default();
+    if !cli.listen.is_empty() {
+        config
+            .insert_json5("listen/endpoints", &list(&cli.listen))
+            .map_err(|e| format!("--listen {:?}: {e}", cli.listen))?;
+    }
+    if !cli.connect.is_empty() {
+        config
+            .insert_json5("connect/endpoints", &list(&cli.connect))
+            .map_err(|e| format!("--connect {:?}: {e}", cli.connect))?;
+    }
+    Ok(config)
+}
+
+fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_owned())
+        .ok()
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "localhost".to_owned())
+}
+
+fn run(cli: &Cli) -> Result<(), String> {
+    let prefix = cli
+        .prefix
+        .clone()
+        .unwrap_or_else(|| format!("uss/{}", host_name()));
+    if let Some(r) = cli.max_rate.filter(|r| !(r.is_finite() && *r > 0.0)) {
+        return Err(format!(
+            "--max-rate {r}: give a positive number of images per second"
+        ));
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))
+            .map_err(|e| format!("cannot handle signal {signal}: {e}"))?;
+    }
+    let session = zenoh::open(zenoh_config(cli)?)
+        .wait()
+        .map_err(|e| format!("cannot open the Zenoh session: {e}"))?;
+    let bridge_key = format!("{prefix}/bridge");
+    let bridge = session
+        .liveliness()
+        .declare_token(&bridge_key)
+        .wait()
+        .map_err(|e| format!("liveliness token {bridge_key}: {e}"))?;
+    let mut threads = Vec::new();
+    for bus in &cli.buses {
+        let options = publish::Options {
+            bus: bus.clone(),
+            keys: keys::Keys::new(&prefix, bus),
+            max_rate: cli.max_rate,
+        };
+        let (s, st, o) = (session.clone(), Arc::clone(&stop), options.clone());
+        threads.push(std::thread::spawn(move || publish::run(&s, &o, &st)));
+        let (s, st, allow) = (session.clone(), Arc::clone(&stop), cli.allow_writes);
+        threads.push(std::thread::spawn(move || {
+            params::serve(&s, &options.bus, &options.keys, allow, &st);
+        }));
+    }
+    println!(
+        "uss-zenoh: bridging {} under {prefix}/ (parameter writes {}), Zenoh id {}",
+        cli.buses.join(", "),
+        if cli.allow_writes {
+            "allowed"
+        } else {
+            "refused"
+        },
+        session.zid()
+    );
+    for t in threads {
+        let _ = t.join();
+    }
+    let _ = bridge.undeclare().wait();
+    let _ = session.close().wait();
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    uss_client::quiet_iceoryx2_logs();
+    match run(&cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("uss-zenoh: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

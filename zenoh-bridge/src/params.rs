@@ -1,0 +1,109 @@
+//! Parameters over the network: one queryable per bus for `.../drive/<addr>/param/<P1082>`. A
+//! query without a payload reads the parameter from the drive through ussd; a query with a
+//! payload (`45.0`) writes it, only when the bridge runs with `--allow-writes`, and then under
+//! the same rules as a local write (refused while another process controls the drive). Every
+//! query ends in exactly one reply: the value as JSON, or an error reply with the text `ussctl`
+//! gives for the same failure.
+
+use crate::keys::Keys;
+use crate::payload::ParamReply;
+use core::time::Duration;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use uss_client::{Bus, ParamError, WriteOptions};
+use zenoh::bytes::Encoding;
+use zenoh::query::Query;
+use zenoh::{Session, Wait};
+
+/// What a write query is refused with while the bridge does not allow writes.
+pub const WRITES_REFUSED: &str = "writes are refused: this uss-zenoh runs without --allow-writes";
+
+/// The answer to one query: the JSON of the value, or the error text.
+fn answer(
+    bus: Result<&Bus, &String>,
+    keys: &Keys,
+    name: &str,
+    query: &Query,
+    allow_writes: bool,
+) -> Result<String, String> {
+    let (drive, param) = keys.param_of(query.key_expr().as_str())?;
+    let payload = query
+        .payload()
+        .map(|p| {
+            p.try_to_string()
+                .map(|s| s.trim().to_owned())
+                .map_err(|_| "the value to write is not text: send e.g. 45.0".to_owned())
+        })
+        .transpose()?
+        .filter(|s| !s.is_empty());
+    let bus = bus.map_err(Clone::clone)?;
+    // The texts of `ussctl param read/write` for the same failures.
+    let failed = |e: ParamError| match e {
+        ParamError::Value { .. } => format!("drive {drive} {e}"),
+        e => format!("drive {drive} {param}: {e}"),
+    };
+    let value = match payload {
+        None => ParamReply::new(
+            name,
+            drive,
+            &bus.read_param(drive, param).map_err(failed)?,
+            None,
+        ),
+        Some(_) if !allow_writes => return Err(WRITES_REFUSED.to_owned()),
+        Some(text) => {
+            let options = WriteOptions {
+                eeprom: query
+                    .parameters()
+                    .get("eeprom")
+                    .is_some_and(|v| v == "true" || v.is_empty()),
+                force: false,
+            };
+            let written = bus
+                .write_param(drive, param, &text, options)
+                .map_err(failed)?;
+            ParamReply::new(name, drive, &written, Some(options.eeprom))
+        }
+    };
+    serde_json::to_string(&value).map_err(|e| e.to_string())
+}
+
+/// Serves the parameter queries of bus `name` until `stop`.
+pub fn serve(
+    session: &Session,
+    name: &str,
+    keys: &Keys,
+    allow_writes: bool,
+    stop: &Arc<AtomicBool>,
+) {
+    let queryable = match session.declare_queryable(keys.params()).wait() {
+        Ok(q) => q,
+        Err(e) => {
+            eprintln!(
+                "uss-zenoh: cannot declare the queryable {}: {e}",
+                keys.params()
+            );
+            return;
+        }
+    };
+    let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
+    while !stop.load(Ordering::Relaxed) {
+        let query = match queryable.recv_timeout(Duration::from_millis(100)) {
+            Ok(Some(q)) => q,
+            Ok(None) => continue,
+            Err(_) => break,
+        };
+        if bus.is_err() {
+            bus = Bus::open_as(name, "uss-zenoh-params").map_err(|e| e.to_string());
+        }
+        let sent = match answer(bus.as_ref(), keys, name, &query, allow_writes) {
+            Ok(json) => query
+                .reply(query.key_expr().clone(), json)
+                .encoding(Encoding::APPLICATION_JSON)
+                .wait(),
+            Err(text) => query.reply_err(text).wait(),
+        };
+        if let Err(e) = sent {
+            eprintln!("uss-zenoh: reply to {}: {e}", query.key_expr());
+        }
+    }
+}

@@ -1,0 +1,244 @@
+//! One bus on Zenoh: its status, each drive's input images (each new one, woken by the bus's
+//! exchange event, at most `max_rate` per drive), diagnostics and description, and the bus's
+//! liveliness token, declared only while ussd serves the bus (withdrawn when ussd is gone,
+//! stopped or its line is down, and when the bridge stops).
+
+use crate::keys::Keys;
+use crate::payload::{Diag, Info, Input, Status};
+use core::time::Duration;
+use serde::Serialize;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+use uss_client::{Bus, DriveWatch, Health, PzdInput};
+use zenoh::bytes::Encoding;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::{Session, Wait};
+
+/// How often the status goes out (and when ussd comes or goes).
+const STATUS_EVERY: Duration = Duration::from_millis(500);
+const DIAG_EVERY: Duration = Duration::from_secs(1);
+const INFO_EVERY: Duration = Duration::from_secs(5);
+/// How often a bus without ussd is tried again.
+const RECONNECT: Duration = Duration::from_millis(250);
+/// The longest wait for an exchange event before the health is looked at again.
+const WAIT_STEP: Duration = Duration::from_millis(20);
+
+/// What one bus's publisher was asked for.
+#[derive(Debug, Clone)]
+pub struct Options {
+    pub bus: String,
+    pub keys: Keys,
+    /// At most this many images per second and drive (None: every one).
+    pub max_rate: Option<f64>,
+}
+
+/// Puts `value` as JSON on `key`; a failed put is reported once per kind of key on stderr and
+/// otherwise survived (the next one may pass).
+fn put(session: &Session, key: &str, value: &impl Serialize) {
+    let Ok(json) = serde_json::to_string(value) else {
+        return;
+    };
+    if let Err(e) = session
+        .put(key, json)
+        .encoding(Encoding::APPLICATION_JSON)
+        .wait()
+    {
+        eprintln!("uss-zenoh: put {key}: {e}");
+    }
+}
+
+/// A drive being published: its watch and what went out last.
+struct Drive {
+    watch: DriveWatch,
+    last: Option<(PzdInput, bool)>,
+    sent_at: Option<Instant>,
+    key: String,
+}
+
+/// One bus's state between rounds.
+struct Publisher<'a> {
+    session: &'a Session,
+    o: &'a Options,
+    bus: Option<Bus>,
+    next_open: Instant,
+    drives: Vec<Drive>,
+    token: Option<LivelinessToken>,
+    serving: bool,
+    next_status: Instant,
+    next_diag: Instant,
+    next_info: Instant,
+}
+
+impl Publisher<'_> {
+    fn health(&self) -> Option<Health> {
+        self.bus.as_ref().map(Bus::health)
+    }
+
+    /// Opens the bus when there is none; true when one is open.
+    fn open(&mut self) -> bool {
+        if self.bus.is_none() && Instant::now() >= self.next_open {
+            self.next_open = Instant::now() + RECONNECT;
+            if let Ok(bus) = Bus::open_as(&self.o.bus, "uss-zenoh") {
+                self.drives = bus
+                    .drives()
+                    .into_iter()
+                    .filter_map(|a| {
+                        Some(Drive {
+                            watch: bus.watch(a).ok()?,
+                            last: None,
+                            sent_at: None,
+                            key: self.o.keys.input(a),
+                        })
+                    })
+                    .collect();
+                self.bus = Some(bus);
+                self.next_info = Instant::now();
+            }
+        }
+        self.bus.is_some()
+    }
+
+    /// Declares or withdraws the bus's token as ussd serves it or not; publishes the status
+    /// when that changed.
+    fn presence(&mut self) {
+        let health = self.health();
+        let serving = health.as_ref().is_some_and(Health::is_serving);
+        if serving != self.serving {
+            self.serving = serving;
+            self.token = if serving {
+                match self
+                    .session
+                    .liveliness()
+                    .declare_token(self.o.keys.alive())
+                    .wait()
+                {
+                    Ok(t) => Some(t),
+                    Err(e) => {
+                        eprintln!("uss-zenoh: liveliness token {}: {e}", self.o.keys.alive());
+                        None
+                    }
+                }
+            } else {
+                None
+            };
+            self.next_status = Instant::now();
+        }
+        if Instant::now() >= self.next_status {
+            self.next_status = Instant::now() + STATUS_EVERY;
+            let status = self.bus.as_ref().and_then(|b| b.status().ok());
+            put(
+                self.session,
+                &self.o.keys.status(),
+                &Status::new(&self.o.bus, health.as_ref(), status.as_ref()),
+            );
+        }
+    }
+
+    /// Publishes each drive's image that changed (and, while ussd does not serve the bus, its
+    /// last image once, marked stale).
+    fn inputs(&mut self) {
+        let min_gap = self
+            .o
+            .max_rate
+            .filter(|r| *r > 0.0)
+            .map(|r| Duration::from_secs_f64(1.0 / r));
+        let stale = !self.serving;
+        for d in &mut self.drives {
+            let image = d.watch.latest();
+            let changed = d.last.is_none_or(|(last, last_stale)| {
+                last.sequence != image.sequence
+                    || last.online != image.online
+                    || last.control != image.control
+                    || last.zsw1 != image.zsw1
+                    || last_stale != stale
+            });
+            // A stale mark always goes out; fresh images at most at `max_rate`.
+            let too_soon = !stale
+                && d.last.is_some_and(|(_, s)| !s)
+                && min_gap.is_some_and(|gap| d.sent_at.is_some_and(|t| t.elapsed() < gap));
+            if changed && !too_soon {
+                let reference_hz = d.watch.info().reference_hz;
+                put(
+                    self.session,
+                    &d.key,
+                    &Input::new(&self.o.bus, d.watch.address(), &image, reference_hz, stale),
+                );
+                d.last = Some((image, stale));
+                d.sent_at = Some(Instant::now());
+            }
+        }
+    }
+
+    fn diagnostics(&mut self) {
+        let now = Instant::now();
+        let (diag_due, info_due) = (now >= self.next_diag, now >= self.next_info);
+        if !diag_due && !info_due {
+            return;
+        }
+        let Some(bus) = &self.bus else { return };
+        for d in &self.drives {
+            let a = d.watch.address();
+            let Ok(diag) = bus.diag(a) else { continue };
+            if diag_due {
+                put(
+                    self.session,
+                    &self.o.keys.diag(a),
+                    &Diag::new(&self.o.bus, &diag, !self.serving),
+                );
+            }
+            if info_due {
+                put(
+                    self.session,
+                    &self.o.keys.info(a),
+                    &Info::new(&self.o.bus, &diag),
+                );
+            }
+        }
+        if diag_due {
+            self.next_diag = now + DIAG_EVERY;
+        }
+        if info_due {
+            self.next_info = now + INFO_EVERY;
+        }
+    }
+}
+
+/// Publishes bus `o.bus` until `stop`; withdraws its token on the way out.
+pub fn run(session: &Session, o: &Options, stop: &Arc<AtomicBool>) {
+    let now = Instant::now();
+    let mut p = Publisher {
+        session,
+        o,
+        bus: None,
+        next_open: now,
+        drives: Vec::new(),
+        token: None,
+        serving: false,
+        next_status: now,
+        next_diag: now,
+        next_info: now,
+    };
+    let mut cycle = None;
+    while !stop.load(Ordering::Relaxed) {
+        if !p.open() {
+            p.presence();
+            std::thread::sleep(RECONNECT.min(Duration::from_millis(50)));
+            continue;
+        }
+        if cycle.is_none() {
+            cycle = p.bus.as_ref().and_then(|b| b.cycle_listener().ok());
+        }
+        // Woken by the exchange events; while ussd is gone the wait fails at once.
+        let waited = cycle.as_ref().map(|c| c.wait(WAIT_STEP, |_| {}));
+        if !matches!(waited, Some(Ok(_))) {
+            std::thread::sleep(WAIT_STEP);
+        }
+        p.presence();
+        p.inputs();
+        p.diagnostics();
+    }
+    if let Some(t) = p.token.take() {
+        let _ = t.undeclare().wait();
+    }
+}
