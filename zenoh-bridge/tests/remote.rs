@@ -13,7 +13,12 @@ use serde_json::Value;
 use std::process::Command;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
-use uss_integration_tests::{ChildProc, Ussd, binary};
+use uss_integration_tests::{ChildProc, Ussd};
+
+/// This package's binaries, built by cargo for this test with the test's own features (a
+/// separate `cargo build -p uss-zenoh` would resolve zenoh's features anew and rebuild it).
+const BRIDGE: &str = env!("CARGO_BIN_EXE_uss-zenoh");
+const CLIENT: &str = env!("CARGO_BIN_EXE_uss-zenoh-client");
 
 /// A network namespace joined to this one by a veth pair: here 10.231.N.1, there 10.231.N.2.
 struct Netns {
@@ -92,7 +97,7 @@ impl Netns {
         let mut command = Command::new("ip");
         command
             .args(["netns", "exec", &self.name])
-            .arg(binary("uss-zenoh", "uss-zenoh-client"))
+            .arg(CLIENT)
             .args(["--connect", &format!("tcp/{}:7447", self.here())])
             .args(args);
         ChildProc::spawn(format!("uss-zenoh-client {}", args.join(" ")), command)
@@ -127,7 +132,7 @@ fn bridge(ns: &Netns, bus: &str, prefix: &str, extra: &[&str]) -> (ChildProc, st
         ),
     )
     .unwrap();
-    let mut command = Command::new(binary("uss-zenoh", "uss-zenoh"));
+    let mut command = Command::new(BRIDGE);
     command
         .args(["--bus", bus, "--prefix", prefix, "--zenoh-config"])
         .arg(&config)
@@ -152,8 +157,7 @@ fn python_reads_p1082(ns: &Netns, key: &str) {
         eprintln!("SKIPPED the Python client: pip install eclipse-zenoh==1.10.2");
         return;
     }
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../zenoh-bridge/examples/read_param.py");
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/read_param.py");
     let out = Command::new("ip")
         .args(["netns", "exec", &ns.name, "python3"])
         .arg(script)
