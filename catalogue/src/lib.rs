@@ -44,6 +44,20 @@ pub enum Typed {
     Float(f32),
 }
 
+/// A value serializes as the plain number (a float widened to f64 as it is, not re-rounded), so
+/// every JSON report of a parameter value writes it the same way.
+impl serde::Serialize for Typed {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match *self {
+            Self::I16(n) => s.serialize_i16(n),
+            Self::I32(n) => s.serialize_i32(n),
+            Self::U16(n) => s.serialize_u16(n),
+            Self::U32(n) => s.serialize_u32(n),
+            Self::Float(f) => s.serialize_f64(f64::from(f)),
+        }
+    }
+}
+
 /// Text that is not a value of the parameter's type.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ValueError {

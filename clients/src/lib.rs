@@ -87,7 +87,7 @@ pub use uss_shm_types::{
     Monitoring, ParamItem, ParamRequest, ParamResponse, PathError, PzdInput, PzdOutput, Rejection,
     RequestError, StopCommand,
 };
-pub use watch::{CycleEvent, CycleListener, DriveWatch};
+pub use watch::{CycleEvent, CycleListener, DriveWatch, Snapshot};
 /// The protocol and contract crates this API speaks, so applications use the same versions.
 pub use {uss_catalogue, uss_protocol, uss_shm_types};
 

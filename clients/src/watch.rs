@@ -23,6 +23,18 @@ struct Port {
     info: DriveInfo,
 }
 
+/// One look at a drive ([`DriveWatch::snapshot`]).
+#[derive(Debug)]
+pub struct Snapshot {
+    /// The input image; `online = 0` when it cannot be trusted.
+    pub image: PzdInput,
+    /// What the ussd that wrote it says of the drive.
+    pub info: DriveInfo,
+    /// Why the image cannot be trusted (ussd gone, stopped, line down, drive unknown); None
+    /// while it can.
+    pub problem: Option<ClientError>,
+}
+
 /// What a watch keeps between reads.
 struct State {
     port: Option<Port>,
@@ -106,9 +118,10 @@ impl DriveWatch {
         self.state.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// The latest input image and, when it cannot be trusted, why. A stale image is the last
-    /// one read, with `online = 0`.
-    fn look(&self) -> (PzdInput, Option<ClientError>) {
+    /// The latest input image, what ussd says of the drive, and, when the image cannot be
+    /// trusted, why: all from one read of the image. A stale image is the last one read, with
+    /// `online = 0`.
+    pub fn snapshot(&self) -> Snapshot {
         let (health, services) = self.link.current();
         let mut state = self.cache();
         if let Some(services) = services.filter(|_| health.is_serving()) {
@@ -132,7 +145,11 @@ impl DriveWatch {
                 known: Vec::new(),
             })
         });
-        (image, problem)
+        Snapshot {
+            image,
+            info: state.info,
+            problem,
+        }
     }
 
     /// The drive's address.
@@ -144,21 +161,19 @@ impl DriveWatch {
     /// while the drive does not answer, and while ussd does not poll it (gone, stopped, line
     /// down); `known` is 0 until ussd's first poll decided `online`.
     pub fn latest(&self) -> PzdInput {
-        self.look().0
+        self.snapshot().image
     }
 
     /// The latest input image, or why it cannot be trusted: [`ClientError::UssdGone`],
     /// [`ClientError::UssdStopped`], [`ClientError::LineDown`].
     pub fn read(&self) -> Result<PzdInput, ClientError> {
-        match self.look() {
-            (image, None) => Ok(image),
-            (_, Some(e)) => Err(e),
-        }
+        let s = self.snapshot();
+        s.problem.map_or(Ok(s.image), Err)
     }
 
     /// How long ago the image's reply arrived.
     pub fn age(&self) -> Duration {
-        let at = self.look().0.timestamp_ns;
+        let at = self.snapshot().image.timestamp_ns;
         Duration::from_nanos(crate::link::monotonic_ns().saturating_sub(at))
     }
 
@@ -181,16 +196,14 @@ impl DriveWatch {
     /// lengths, watchdog, safe command, writability. A restarted ussd's description replaces
     /// the old one on the next read.
     pub fn info(&self) -> DriveInfo {
-        self.look();
-        self.cache().info
+        self.snapshot().info
     }
 
     /// The main actual value HIW in Hz, scaled by the drive's reference frequency P2000 as
     /// ussd's configuration gives it ([`DriveInfo::reference_hz`]).
     pub fn actual_hz(&self) -> f32 {
-        let (image, _) = self.look();
-        let reference_hz = self.cache().info.reference_hz;
-        Setpoint::from_word(image.hiw).hz(reference_hz)
+        let s = self.snapshot();
+        Setpoint::from_word(s.image.hiw).hz(s.info.reference_hz)
     }
 
     /// The main actual value HIW in % of the reference.
@@ -251,7 +264,7 @@ impl DriveWatch {
         first: u64,
         latest: &PzdInput,
     ) -> ClientError {
-        if let Some(e) = self.look().1 {
+        if let Some(e) = self.snapshot().problem {
             return e;
         }
         if latest.sequence == first && latest.online != 0 {

@@ -238,6 +238,16 @@ impl Default for PzdOutput {
 }
 
 impl PzdInput {
+    /// Whether `other` shows the drive as this image does: no new reply (`sequence`), and the
+    /// same online, control and status word. What tools that follow a drive (trace, the Zenoh
+    /// bridge) use to tell a new picture from the one they already have.
+    pub const fn same_picture(&self, other: &Self) -> bool {
+        self.sequence == other.sequence
+            && self.online == other.online
+            && self.control == other.control
+            && self.zsw1 == other.zsw1
+    }
+
     /// No reply yet.
     pub const EMPTY: Self = Self {
         version: LAYOUT_VERSION,

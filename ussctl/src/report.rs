@@ -586,7 +586,7 @@ pub struct ParamReport {
     pub raw: u32,
     pub hex: String,
     /// The value in its type: a float for float, an integer otherwise.
-    pub value: serde_json::Value,
+    pub value: Typed,
     /// A status or control word's set bits by name (r0052, r0054).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub bits: Vec<&'static str>,
@@ -600,14 +600,6 @@ pub struct ParamReport {
 
 impl ParamReport {
     pub fn new(bus: &str, drive: u8, v: &ParamValue) -> Self {
-        let typed = v.typed();
-        let value = match typed {
-            Typed::Float(f) => f64::from(f).into(),
-            Typed::I16(n) => n.into(),
-            Typed::I32(n) => n.into(),
-            Typed::U16(n) => n.into(),
-            Typed::U32(n) => n.into(),
-        };
         let bits = match v.info.and_then(|p| p.bits) {
             Some(Bits::ZSW1) => zsw1_flags(v.raw.as_u32() as u16),
             Some(Bits::STW1) => stw1_bits(v.raw.as_u32() as u16),
@@ -627,7 +619,7 @@ impl ParamReport {
                 Value::Word(w) => format!("{w:#06X}"),
                 Value::Dword(d) => format!("{d:#010X}"),
             },
-            value,
+            value: v.typed(),
             bits,
             eeprom: None,
             shown: v.shown(),

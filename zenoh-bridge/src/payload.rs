@@ -218,7 +218,7 @@ pub struct ParamReply<'a> {
     /// As the catalogue writes it: `P1082`, `r0947[2]`.
     pub param: String,
     /// The number, in the parameter's own type.
-    pub value: serde_json::Value,
+    pub value: Typed,
     /// The word or double word on the wire.
     pub raw: u32,
     pub data_type: String,
@@ -232,19 +232,12 @@ pub struct ParamReply<'a> {
 
 impl<'a> ParamReply<'a> {
     pub fn new(bus: &'a str, drive: u8, p: &ParamValue, written: Option<bool>) -> Self {
-        let value = match p.typed() {
-            Typed::Float(f) => f64::from(f).into(),
-            Typed::I16(n) => n.into(),
-            Typed::I32(n) => n.into(),
-            Typed::U16(n) => n.into(),
-            Typed::U32(n) => n.into(),
-        };
         Self {
             v: VERSION,
             bus,
             drive,
             param: p.param.to_string(),
-            value,
+            value: p.typed(),
             raw: p.raw.as_u32(),
             data_type: p.data_type.to_string(),
             unit: p.unit(),

@@ -33,8 +33,8 @@ pub struct Options {
     pub max_rate: Option<f64>,
 }
 
-/// Puts `value` as JSON on `key`; a failed put is reported once per kind of key on stderr and
-/// otherwise survived (the next one may pass).
+/// Puts `value` as JSON on `key`; a failed put is reported on stderr and survived (the next one
+/// may pass).
 fn put(session: &Session, key: &str, value: &impl Serialize) {
     let Ok(json) = serde_json::to_string(value) else {
         return;
@@ -145,20 +145,17 @@ impl Publisher<'_> {
             .map(|r| Duration::from_secs_f64(1.0 / r));
         let stale = !self.serving;
         for d in &mut self.drives {
-            let image = d.watch.latest();
-            let changed = d.last.is_none_or(|(last, last_stale)| {
-                last.sequence != image.sequence
-                    || last.online != image.online
-                    || last.control != image.control
-                    || last.zsw1 != image.zsw1
-                    || last_stale != stale
-            });
+            let look = d.watch.snapshot();
+            let image = look.image;
+            let changed = d
+                .last
+                .is_none_or(|(last, last_stale)| !last.same_picture(&image) || last_stale != stale);
             // A stale mark always goes out; fresh images at most at `max_rate`.
             let too_soon = !stale
                 && d.last.is_some_and(|(_, s)| !s)
                 && min_gap.is_some_and(|gap| d.sent_at.is_some_and(|t| t.elapsed() < gap));
             if changed && !too_soon {
-                let reference_hz = d.watch.info().reference_hz;
+                let reference_hz = look.info.reference_hz;
                 put(
                     self.session,
                     &d.key,

@@ -32,6 +32,13 @@ pub(crate) struct Options<'a> {
 /// coalesced with the next, or ussd may be gone).
 const WAIT_STEP: Duration = Duration::from_millis(20);
 
+/// Which drive an image is of, its reference frequency, and when it was seen.
+struct At {
+    drive: u8,
+    reference_hz: f32,
+    ns: u64,
+}
+
 /// One recorded input image: a CSV row.
 #[derive(Debug, Clone, Serialize)]
 pub(crate) struct Row {
@@ -69,18 +76,12 @@ pub(crate) struct Row {
 }
 
 impl Row {
-    fn new(
-        watch: &DriveWatch,
-        image: &PzdInput,
-        at_ns: u64,
-        missed: u64,
-        note: &'static str,
-    ) -> Self {
-        let reference_hz = watch.info().reference_hz;
+    fn new(at: &At, image: &PzdInput, missed: u64, note: &'static str) -> Self {
+        let reference_hz = at.reference_hz;
         let z = Zsw1::from_bits_retain(image.zsw1);
         Self {
             t_s: 0.0,
-            drive: watch.address(),
+            drive: at.drive,
             sequence: image.sequence,
             online: image.online,
             control: ControlState::try_from(image.control).map_or("unknown", ControlState::name),
@@ -94,7 +95,7 @@ impl Row {
             age_ms: image.age_ns as f64 / 1e6,
             missed,
             note,
-            at_ns,
+            at_ns: at.ns,
             zsw1_bits: image.zsw1,
         }
     }
@@ -134,17 +135,11 @@ struct Traced {
 impl Traced {
     /// The row for the drive's current image, if it differs from the last one seen.
     fn look(&mut self) -> Option<Row> {
-        let (image, note) = match self.watch.read() {
-            Ok(image) => (image, ""),
-            Err(e) => (self.watch.latest(), note_of(&e)),
-        };
-        let changed = self.last.is_none_or(|(last, last_note)| {
-            last.sequence != image.sequence
-                || last.online != image.online
-                || last.control != image.control
-                || last.zsw1 != image.zsw1
-                || last_note != note
-        });
+        let look = self.watch.snapshot();
+        let (image, note) = (look.image, look.problem.as_ref().map_or("", note_of));
+        let changed = self
+            .last
+            .is_none_or(|(last, last_note)| !last.same_picture(&image) || last_note != note);
         if !changed {
             return None;
         }
@@ -160,7 +155,12 @@ impl Traced {
             monotonic_ns()
         };
         self.last = Some((image, note));
-        Some(Row::new(&self.watch, &image, at_ns, missed, note))
+        let at = At {
+            drive: self.watch.address(),
+            reference_hz: look.info.reference_hz,
+            ns: at_ns,
+        };
+        Some(Row::new(&at, &image, missed, note))
     }
 }
 
