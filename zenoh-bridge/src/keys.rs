@@ -42,6 +42,41 @@ impl Keys {
         format!("{}/drive/{drive}/info", self.base)
     }
 
+    /// Where a remote controller sends a drive's output image (only with `--allow-control`).
+    pub fn output(&self, drive: u8) -> String {
+        format!("{}/drive/{drive}/out", self.base)
+    }
+
+    /// What the bridge did with the remote controller's samples of a drive (JSON).
+    pub fn control(&self, drive: u8) -> String {
+        format!("{}/drive/{drive}/control", self.base)
+    }
+
+    /// The queryable of operator stops: `.../drive/<addr>/stop` for one drive, `.../stop` for
+    /// every drive of the bus.
+    pub fn stops(&self) -> [String; 2] {
+        [
+            format!("{}/drive/*/stop", self.base),
+            format!("{}/stop", self.base),
+        ]
+    }
+
+    /// The drive a stop query's key names (`None`: every drive), or why it names none.
+    pub fn stop_of(&self, key: &str) -> Result<Option<u8>, String> {
+        let rest = key
+            .strip_prefix(&self.base)
+            .ok_or_else(|| format!("{key}: not a key of {}", self.base))?;
+        if rest == "/stop" {
+            return Ok(None);
+        }
+        rest.strip_prefix("/drive/")
+            .and_then(|r| r.strip_suffix("/stop"))
+            .and_then(|d| d.parse::<u8>().ok())
+            .filter(|&a| a <= 31)
+            .map(Some)
+            .ok_or_else(|| format!("{key}: write .../drive/<address 0..=31>/stop or .../stop"))
+    }
+
     /// The queryable of every drive's parameters: `.../drive/<addr>/param/<P1082>`.
     pub fn params(&self) -> String {
         format!("{}/drive/*/param/*", self.base)
@@ -82,6 +117,11 @@ mod tests {
             .param_of("uss/plant/line1/drive/3/param/r0947[2]")
             .unwrap();
         assert_eq!((drive, param.to_string().as_str()), (3, "r0947[2]"));
+        assert_eq!(k.output(3), "uss/plant/line1/drive/3/out");
+        assert_eq!(k.stop_of("uss/plant/line1/drive/3/stop"), Ok(Some(3)));
+        assert_eq!(k.stop_of("uss/plant/line1/stop"), Ok(None));
+        assert!(k.stop_of("uss/plant/line1/drive/32/stop").is_err());
+        assert!(k.stop_of("uss/plant/line2/stop").is_err());
         for bad in [
             "uss/plant/line2/drive/3/param/P1082",
             "uss/plant/line1/drive/32/param/P1082",
@@ -98,6 +138,7 @@ mod tests {
         fn any_key_is_read_or_refused(tail in ".{0,40}") {
             let k = Keys::new("uss/p", "b");
             let _ = k.param_of(&format!("uss/p/b/drive/{tail}"));
+            let _ = k.stop_of(&format!("uss/p/b/drive/{tail}"));
         }
     }
 }

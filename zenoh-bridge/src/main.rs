@@ -2,8 +2,10 @@
 //! crash never touches ussd or a bus thread) that reads ussd's services like any local client
 //! and maps them to Zenoh key expressions (README, "Beyond one host"): status, input images,
 //! diagnostics and descriptions as JSON, liveliness tokens for the bridge and for each bus ussd
-//! serves, and a queryable for parameters, read-only unless `--allow-writes`.
+//! serves, a queryable for parameters, read-only unless `--allow-writes`, operator stops from
+//! anywhere, and remote control only with `--allow-control`.
 
+mod control;
 mod keys;
 mod params;
 mod payload;
@@ -45,6 +47,12 @@ struct Cli {
     /// rules as a local write. Without it a write query gets an error reply.
     #[arg(long)]
     allow_writes: bool,
+    /// Let remote controllers run the drives: a sample on .../drive/<addr>/out is passed on
+    /// through the drive's local controller, which the bridge holds while samples arrive. The
+    /// drive's watchdog sees the remote controller itself: no fresh sample within its watchdog
+    /// time, and the drive gets its safe command, latched until the remote re-arms it.
+    #[arg(long)]
+    allow_control: bool,
 }
 
 /// The Zenoh configuration: the file's, with `--listen` and `--connect` added.
@@ -73,6 +81,10 @@ fn host_name() -> String {
         .ok()
         .filter(|h| !h.is_empty())
         .unwrap_or_else(|| "localhost".to_owned())
+}
+
+const fn allowed(yes: bool) -> &'static str {
+    if yes { "allowed" } else { "refused" }
 }
 
 fn run(cli: &Cli) -> Result<(), String> {
@@ -108,19 +120,29 @@ fn run(cli: &Cli) -> Result<(), String> {
         };
         let (s, st, o) = (session.clone(), Arc::clone(&stop), options.clone());
         threads.push(std::thread::spawn(move || publish::run(&s, &o, &st)));
+        let (s, st, o) = (session.clone(), Arc::clone(&stop), options.clone());
+        threads.push(std::thread::spawn(move || {
+            control::serve_stops(&s, &o.bus, &o.keys, &st);
+        }));
+        let (s, st, o, allow) = (
+            session.clone(),
+            Arc::clone(&stop),
+            options.clone(),
+            cli.allow_control,
+        );
+        threads.push(std::thread::spawn(move || {
+            control::serve_control(&s, &o.bus, &o.keys, allow, &st);
+        }));
         let (s, st, allow) = (session.clone(), Arc::clone(&stop), cli.allow_writes);
         threads.push(std::thread::spawn(move || {
             params::serve(&s, &options.bus, &options.keys, allow, &st);
         }));
     }
     println!(
-        "uss-zenoh: bridging {} under {prefix}/ (parameter writes {}), Zenoh id {}",
+        "uss-zenoh: bridging {} under {prefix}/ (parameter writes {}, remote control {}), Zenoh id {}",
         cli.buses.join(", "),
-        if cli.allow_writes {
-            "allowed"
-        } else {
-            "refused"
-        },
+        allowed(cli.allow_writes),
+        allowed(cli.allow_control),
         session.zid()
     );
     for t in threads {

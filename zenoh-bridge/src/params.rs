@@ -95,15 +95,24 @@ pub fn serve(
         if bus.is_err() {
             bus = Bus::open_as(name, "uss-zenoh-params").map_err(|e| e.to_string());
         }
-        let sent = match answer(bus.as_ref(), keys, name, &query, allow_writes) {
-            Ok(json) => query
-                .reply(query.key_expr().clone(), json)
-                .encoding(Encoding::APPLICATION_JSON)
-                .wait(),
-            Err(text) => query.reply_err(text).wait(),
-        };
-        if let Err(e) = sent {
-            eprintln!("uss-zenoh: reply to {}: {e}", query.key_expr());
-        }
+        reply(
+            &query,
+            answer(bus.as_ref(), keys, name, &query, allow_writes),
+        );
+    }
+}
+
+/// Ends `query` with its one answer: the JSON as a reply, or the text as an error reply; a reply
+/// that cannot be sent is reported on stderr.
+pub fn reply(query: &Query, answer: Result<String, String>) {
+    let sent = match answer {
+        Ok(json) => query
+            .reply(query.key_expr().clone(), json)
+            .encoding(Encoding::APPLICATION_JSON)
+            .wait(),
+        Err(text) => query.reply_err(text).wait(),
+    };
+    if let Err(e) = sent {
+        eprintln!("uss-zenoh: reply to {}: {e}", query.key_expr());
     }
 }

@@ -1,7 +1,7 @@
 //! The payloads, JSON with a version field `v` (this is version 1): what any Zenoh client in any
 //! language reads, never ussd's `#[repr(C)]` bytes. A field is only ever added within a version.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use uss_client::uss_shm_types::diag::RtMode;
 use uss_client::{
     BusStatus, ControlState, DriveDiag, Health, LatchReason, ParamValue, PzdInput, Setpoint,
@@ -244,6 +244,175 @@ impl<'a> ParamReply<'a> {
             name: p.name(),
             shown: p.shown(),
             written,
+        }
+    }
+}
+
+/// `<prefix>/<bus>/drive/<addr>/out`: one sample of a remote controller (only with
+/// `--allow-control`). Either `stw1` (with `hz`, the setpoint in Hz of the drive's reference
+/// frequency; further PZD words 0) or `words` (every PZD word, STW1 first), or `release`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Out {
+    pub v: u32,
+    /// Grows with every sample of the controller (its clock in ns at start plus a count suits):
+    /// a sample not newer than the last one taken is refused as old or repeated.
+    pub seq: u64,
+    pub stw1: Option<u16>,
+    pub hz: Option<f32>,
+    pub words: Option<Vec<u16>>,
+    /// Hands the drive back: ussd sends its safe command, latched as "released".
+    #[serde(default)]
+    pub release: bool,
+}
+
+impl Out {
+    /// Reads a sample, or says what is wrong with it.
+    pub fn parse(bytes: &[u8]) -> Result<Out, String> {
+        let out: Out = serde_json::from_slice(bytes).map_err(|e| {
+            format!("not a sample: {e}; send e.g. {{\"v\":1,\"seq\":1,\"stw1\":1150,\"hz\":0.0}}")
+        })?;
+        if out.v != VERSION {
+            return Err(format!(
+                "payload version {} is not {VERSION}: this uss-zenoh speaks version {VERSION}",
+                out.v
+            ));
+        }
+        match (&out.words, out.stw1, out.release) {
+            (Some(_), Some(_), _) => Err("give stw1 (and hz) or words, not both".to_owned()),
+            (None, None, false) => Err("give stw1 (and hz), words, or release".to_owned()),
+            (Some(_), None, _) if out.hz.is_some() => {
+                Err("hz goes with stw1; with words, the setpoint is words[1]".to_owned())
+            }
+            _ if out.hz.is_some_and(|hz| !hz.is_finite()) => {
+                Err("hz is not a finite number".to_owned())
+            }
+            _ => Ok(out),
+        }
+    }
+
+    /// The PZD words to send to a drive of `pzd` words and reference frequency `reference_hz`.
+    pub fn pzd(&self, pzd: usize, reference_hz: f32) -> Result<Vec<u16>, String> {
+        if let Some(words) = &self.words {
+            return Ok(words.clone());
+        }
+        let stw1 = self.stw1.unwrap_or(0);
+        let mut words = vec![0; pzd.max(1)];
+        words[0] = stw1;
+        match (self.hz, pzd) {
+            (Some(hz), 1) if hz != 0.0 => {
+                return Err("the drive exchanges only STW1 (pzd = 1): no setpoint".to_owned());
+            }
+            (Some(hz), 2..) => words[1] = Setpoint::from_hz(hz, reference_hz).word(),
+            _ => {}
+        }
+        Ok(words)
+    }
+}
+
+/// `<prefix>/<bus>/drive/<addr>/control`: what the bridge does with a remote controller's
+/// samples of the drive; on every change and every second.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ControlReport<'a> {
+    pub v: u32,
+    pub bus: &'a str,
+    pub drive: u8,
+    /// `idle` (the bridge holds no controller for the drive), `controlling` (it does, and
+    /// passed the last sample on), `refused` (the last sample was not passed on: `error`
+    /// says why), `released` (the remote controller handed the drive back).
+    pub state: &'static str,
+    /// The sequence number of the last sample passed on.
+    pub seq: Option<u64>,
+    /// Why the last sample was not passed on, in ussctl's words.
+    pub error: Option<String>,
+    /// Samples passed on and refused since the bridge started.
+    pub taken: u64,
+    pub refused: u64,
+    pub published_unix_ns: u64,
+}
+
+/// The reply to a stop query: the command, and the image that shows it went out.
+#[derive(Debug, Serialize)]
+pub struct StopReply<'a> {
+    pub v: u32,
+    pub bus: &'a str,
+    pub drive: u8,
+    /// `OFF1`, `OFF2`, `OFF3`.
+    pub command: &'static str,
+    /// The control word that went out.
+    pub stw1: u16,
+    pub control: &'static str,
+    pub latch_reason: &'static str,
+    pub state: &'static str,
+}
+
+impl<'a> StopReply<'a> {
+    pub fn new(bus: &'a str, drive: u8, command: StopCommand, i: &PzdInput) -> Self {
+        Self {
+            v: VERSION,
+            bus,
+            drive,
+            command: command.name(),
+            stw1: i.sent_stw1,
+            control: ControlState::try_from(i.control).map_or("unknown", ControlState::name),
+            latch_reason: LatchReason::try_from(i.latch_reason)
+                .map_or("unknown", LatchReason::name),
+            state: state_name(i.zsw1),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_sample_says_stw1_and_hz_or_words() {
+        let out = Out::parse(br#"{"v":1,"seq":7,"stw1":1151,"hz":25.0}"#).unwrap();
+        assert_eq!(out.pzd(2, 50.0).unwrap(), [0x047F, 0x2000]);
+        assert_eq!(out.pzd(4, 50.0).unwrap(), [0x047F, 0x2000, 0, 0]);
+        assert!(out.pzd(1, 50.0).is_err());
+        let out = Out::parse(br#"{"v":1,"seq":8,"words":[1150,0,5]}"#).unwrap();
+        assert_eq!(out.pzd(2, 50.0).unwrap(), [0x047E, 0, 5]);
+        assert!(
+            Out::parse(br#"{"v":1,"seq":9,"release":true}"#)
+                .unwrap()
+                .release
+        );
+        for bad in [
+            &br#"{"v":2,"seq":1,"stw1":1150}"#[..],
+            br#"{"v":1,"seq":1}"#,
+            br#"{"v":1,"seq":1,"stw1":1150,"words":[1150]}"#,
+            br#"{"v":1,"seq":1,"words":[1150],"hz":3}"#,
+            br#"{"v":1,"seq":1,"stw1":1150,"speed":3}"#,
+            br#"{"v":1,"seq":-1,"stw1":1150}"#,
+            b"run",
+        ] {
+            assert!(Out::parse(bad).is_err(), "{}", String::from_utf8_lossy(bad));
+        }
+    }
+
+    proptest::proptest! {
+        /// Any payload is read or refused with a reason, never a panic; a read one gives words
+        /// or a reason for any drive.
+        #[test]
+        fn any_payload_is_read_or_refused(bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..80),
+                                          pzd in 0usize..9, reference in 1.0f32..650.0) {
+            if let Ok(out) = Out::parse(&bytes) {
+                let _ = out.pzd(pzd, reference);
+            }
+        }
+
+        #[test]
+        fn any_json_sample_is_read_or_refused(seq: u64, stw1: u16, hz in proptest::num::f32::ANY,
+                                              pzd in 0usize..9) {
+            let text = format!(r#"{{"v":1,"seq":{seq},"stw1":{stw1},"hz":{hz}}}"#);
+            if let Ok(out) = Out::parse(text.as_bytes()) {
+                let words = out.pzd(pzd, 50.0);
+                if let Ok(words) = words {
+                    proptest::prop_assert_eq!(words[0], stw1);
+                }
+            }
         }
     }
 }

@@ -4,6 +4,11 @@
 //! refused by default and works with `--allow-writes`, killing ussd withdraws the bus's
 //! liveliness token and marks the inputs stale, killing the bridge withdraws its own.
 //!
+//! Remote control across the same boundary: refused by default; with `--allow-control` a remote
+//! `uss-zenoh-client run` re-arms and runs a drive, and taking the veth link down trips it
+//! (safe command, latched) within the watchdog time; the link back up does not restart it, only a
+//! new run does; an operator's stop from either side and a killed bridge latch it too.
+//!
 //! Creating namespaces needs root; without it the test says it is skipped. CI runs as root and
 //! sets `USS_REQUIRE_NETNS`, so there it cannot be skipped.
 
@@ -13,6 +18,7 @@ use serde_json::Value;
 use std::process::Command;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
+use uss_client::{ControlState, DriveWatch, LatchReason, PzdInput};
 use uss_integration_tests::{ChildProc, Ussd};
 
 /// This package's binaries, built by cargo for this test with the test's own features (a
@@ -103,6 +109,11 @@ impl Netns {
         ChildProc::spawn(format!("uss-zenoh-client {}", args.join(" ")), command)
     }
 
+    /// Takes the link between the namespaces down or up.
+    fn link(&self, up: bool) {
+        ip(&["link", "set", &self.host_if, if up { "up" } else { "down" }]).unwrap();
+    }
+
     /// Runs the client to its end: (success, stdout, stderr).
     fn call(&self, args: &[&str]) -> (bool, String, String) {
         let (status, out, err) = self.client(args).finish();
@@ -117,6 +128,11 @@ impl Drop for Netns {
     }
 }
 
+/// The Zenoh lease of the bridge and of the remote watcher: a session that hears nothing from
+/// its peer for its own lease closes and withdraws the peer's liveliness tokens (Zenoh's
+/// default is 10 s).
+const LEASE_MS: u64 = 2000;
+
 /// uss-zenoh for `bus`, listening on the namespace's near address (scouting off).
 fn bridge(ns: &Netns, bus: &str, prefix: &str, extra: &[&str]) -> (ChildProc, std::path::PathBuf) {
     let config = std::env::temp_dir().join(format!(
@@ -127,7 +143,7 @@ fn bridge(ns: &Netns, bus: &str, prefix: &str, extra: &[&str]) -> (ChildProc, st
     std::fs::write(
         &config,
         format!(
-            "{{ mode: \"peer\", listen: {{ endpoints: [\"tcp/{}:7447\"] }}, scouting: {{ multicast: {{ enabled: false }}, gossip: {{ enabled: false }} }} }}",
+            "{{ mode: \"peer\", listen: {{ endpoints: [\"tcp/{}:7447\"] }}, scouting: {{ multicast: {{ enabled: false }}, gossip: {{ enabled: false }} }}, transport: {{ link: {{ tx: {{ lease: {LEASE_MS} }} }} }} }}",
             ns.here()
         ),
     )
@@ -173,6 +189,16 @@ fn python_reads_p1082(ns: &Netns, key: &str) {
     assert_eq!(text.trim(), "50.0 Hz (P1082 Max. frequency)");
 }
 
+/// A remote watcher of the liveliness token `key` (with the client options `options`), once it
+/// has seen the token.
+fn watch_alive(ns: &Netns, key: &str, options: &[&str]) -> ChildProc {
+    let mut args = options.to_vec();
+    args.extend(["alive", key, "--count", "2", "--timeout", "30"]);
+    let mut alive = ns.client(&args);
+    alive.says(&format!("+ {key}"));
+    alive
+}
+
 fn json(line: &str) -> Value {
     serde_json::from_str(line.trim()).unwrap_or_else(|e| panic!("{e}: {line:?}"))
 }
@@ -191,8 +217,7 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
     parameters_read_and_writes_refused(&ns, &key);
 
     // ussd killed: the bus's token goes, the last image comes once more, marked stale.
-    let mut alive = ns.client(&["alive", &key("alive"), "--count", "2", "--timeout", "30"]);
-    alive.says(&format!("+ {}", key("alive")));
+    let mut alive = watch_alive(&ns, &key("alive"), &[]);
     let mut inputs = ns.client(&[
         "sub",
         &key("drive/1/in"),
@@ -247,15 +272,7 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
     );
 
     // The bridge killed: its own token goes.
-    let mut alive = ns.client(&[
-        "alive",
-        &format!("{prefix}/bridge"),
-        "--count",
-        "2",
-        "--timeout",
-        "30",
-    ]);
-    alive.says(&format!("+ {prefix}/bridge"));
+    let mut alive = watch_alive(&ns, &format!("{prefix}/bridge"), &[]);
     let killed = Instant::now();
     bridge_proc.kill();
     alive.says(&format!("- {prefix}/bridge"));
@@ -326,4 +343,222 @@ fn parameters_read_and_writes_refused(ns: &Netns, key: &dyn Fn(&str) -> String) 
     let (ok, _, err) = ns.call(&["get", &key("drive/7/param/P1082")]);
     assert!(!ok);
     assert!(err.contains("drive 7 P1082:"), "{err}");
+}
+
+/// Waits until the drive's image satisfies `done`, at most `timeout`; the image and how long it
+/// took.
+fn wait_image(
+    watch: &DriveWatch,
+    timeout: Duration,
+    what: &str,
+    done: impl Fn(&PzdInput) -> bool,
+) -> (PzdInput, Duration) {
+    let start = Instant::now();
+    loop {
+        let i = watch.latest();
+        if done(&i) {
+            return (i, start.elapsed());
+        }
+        assert!(
+            start.elapsed() < timeout,
+            "drive {} not {what} within {timeout:?}: control {}, latch {}, zsw1 {:#06x}",
+            watch.address(),
+            i.control,
+            i.latch_reason,
+            i.zsw1
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+fn latched(i: &PzdInput) -> bool {
+    i.control == ControlState::Latched.code()
+}
+
+fn reason(i: &PzdInput) -> LatchReason {
+    LatchReason::try_from(i.latch_reason).unwrap()
+}
+
+#[test]
+fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
+    let Some(ns) = Netns::create() else { return };
+    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let bus = ussd.bus.clone();
+    let prefix = format!("uss/c{}", std::process::id());
+    let drive = format!("{prefix}/{bus}/drive/1");
+    let watch = ussd.bus().watch(1).unwrap();
+
+    // By default a remote controller is told no, and the drive keeps its safe command.
+    let (mut bridge_proc, config) = bridge(&ns, &bus, &prefix, &[]);
+    let (ok, _, err) = ns.call(&["run", &drive, "--hz", "10"]);
+    assert!(!ok);
+    assert!(
+        err.contains("remote control is refused: this uss-zenoh runs without --allow-control"),
+        "{err}"
+    );
+    let i = watch.latest();
+    assert!(latched(&i) && reason(&i) == LatchReason::Startup);
+    assert_eq!(i.sent_stw1, 0x047E);
+    bridge_proc.kill();
+
+    // With --allow-control the remote run re-arms (OFF1, then ON) and runs the drive.
+    let (mut bridge_proc, _) = bridge(&ns, &bus, &prefix, &["--allow-control"]);
+    let mut run = ns.client(&["run", &drive, "--hz", "10"]);
+    run.says("re-armed");
+    let (i, _) = wait_image(&watch, Duration::from_secs(10), "above 3 Hz", |i| {
+        hz(i) > 3.0
+    });
+    assert!(!latched(&i) && i.sent_stw1 == 0x047F, "{i:?}");
+
+    let lease = link_down_trips_and_latches(&ns, &prefix, &watch, run);
+    let _ = std::fs::remove_file(lease);
+
+    // Only a new, deliberate run re-arms it.
+    let (ok, out, err) = ns.call(&["run", &drive, "--hz", "5", "--for", "1"]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("re-armed") && out.contains("and released"),
+        "{out}"
+    );
+    let i = watch.latest();
+    assert!(latched(&i) && reason(&i) == LatchReason::Released, "{i:?}");
+
+    operator_stops_latch(&ns, &ussd, &drive);
+
+    // A sample the bridge cannot read is refused, reported, and not passed on.
+    let mut reports = ns.client(&[
+        "sub",
+        &format!("{drive}/control"),
+        "--count",
+        "100",
+        "--timeout",
+        "10",
+    ]);
+    reports.says("\"drive\":1");
+    let (ok, _, err) = ns.call(&["put", &format!("{drive}/out"), "run fast"]);
+    assert!(ok, "{err}");
+    let report = reports.says("not a sample");
+    assert!(report.contains("send e.g."), "{report}");
+    reports.kill();
+
+    // A bridge that dies is a stale controller: latched within the watchdog time.
+    let mut run = ns.client(&["run", &drive, "--hz", "10"]);
+    run.says("re-armed");
+    wait_image(&watch, Duration::from_secs(5), "live", |i| !latched(i));
+    let killed = Instant::now();
+    bridge_proc.kill();
+    let (i, _) = wait_image(&watch, Duration::from_secs(3), "latched", latched);
+    assert_eq!(reason(&i), LatchReason::Stale);
+    println!(
+        "drive latched {:.0} ms after the bridge was killed",
+        killed.elapsed().as_secs_f64() * 1e3
+    );
+    run.kill();
+    let _ = std::fs::remove_file(config);
+}
+
+fn hz(i: &PzdInput) -> f32 {
+    uss_client::Setpoint::from_word(i.hiw).hz(50.0)
+}
+
+/// The link between the namespaces goes down while `run` controls drive 1: the drive trips within
+/// its watchdog time, the blind `run` gives up, the remote side learns within the lease that the
+/// bridge is unreachable; the link back up restarts nothing. Returns the lease file to remove.
+fn link_down_trips_and_latches(
+    ns: &Netns,
+    prefix: &str,
+    watch: &DriveWatch,
+    mut run: ChildProc,
+) -> std::path::PathBuf {
+    // The network goes: no fresh sample within the watchdog time (100 ms) trips the drive.
+    // A watcher on the remote side with the same lease (a session expires on its own lease).
+    let lease = std::env::temp_dir().join(format!("uss-zenoh-lease-{}.json5", ns.name));
+    std::fs::write(
+        &lease,
+        format!("{{ transport: {{ link: {{ tx: {{ lease: {LEASE_MS} }} }} }} }}"),
+    )
+    .unwrap();
+    let mut alive = watch_alive(
+        ns,
+        &format!("{prefix}/bridge"),
+        &["--zenoh-config", lease.to_str().unwrap()],
+    );
+    let cut = Instant::now();
+    ns.link(false);
+    let (tripped, after) = wait_image(watch, Duration::from_secs(3), "latched", latched);
+    assert_eq!(reason(&tripped), LatchReason::Stale);
+    assert_eq!(tripped.sent_stw1 & 0x0401, 0x0400, "OFF1 with bit 10 set");
+    println!(
+        "drive latched {:.0} ms after the link went down (watchdog 100 ms)",
+        after.as_secs_f64() * 1e3
+    );
+    assert!(after < Duration::from_secs(1), "{after:?}");
+    // The remote run, blind, gives up and sends nothing more.
+    let (status, _, err) = run.finish();
+    assert!(!status.success());
+    assert!(err.contains("no fresh image"), "{err}");
+    println!(
+        "the remote run gave up {:.0} ms after the link went down",
+        cut.elapsed().as_secs_f64() * 1e3
+    );
+    // The remote side learns the bridge is unreachable within the bridge's lease.
+    alive.says(&format!("- {prefix}/bridge"));
+    let unreachable = cut.elapsed();
+    println!(
+        "the remote side saw the bridge's token withdrawn {:.0} ms after the link went down \
+         (lease {LEASE_MS} ms)",
+        unreachable.as_secs_f64() * 1e3
+    );
+    assert!(
+        unreachable < Duration::from_millis(LEASE_MS * 2),
+        "{unreachable:?}"
+    );
+    let down = watch.latest();
+    assert!(
+        hz(&down) < hz(&tripped) - 2.0,
+        "{} -> {}",
+        hz(&tripped),
+        hz(&down)
+    );
+
+    // The link back: the drive stays latched and keeps ramping down; nothing restarts it.
+    ns.link(true);
+    std::thread::sleep(Duration::from_secs(2));
+    let after_link = watch.latest();
+    assert!(latched(&after_link) && reason(&after_link) == LatchReason::Stale);
+    assert!(hz(&after_link) <= hz(&down));
+    assert_eq!(after_link.sent_stw1, 0x047E);
+
+    lease
+}
+
+/// An operator's stop from either side latches a remotely controlled drive; the remote run is
+/// told.
+fn operator_stops_latch(ns: &Netns, ussd: &Ussd, drive: &str) {
+    // An operator's stop from the remote side latches the drive; the remote run is told.
+    let mut run = ns.client(&["run", drive, "--hz", "10"]);
+    run.says("re-armed");
+    let (ok, out, err) = ns.call(&["stop", drive, "--quick"]);
+    assert!(ok, "{err}");
+    let stop = json(&out);
+    assert_eq!(
+        (stop["command"].as_str(), stop["latch_reason"].as_str()),
+        (Some("OFF3"), Some("operator stop"))
+    );
+    let (status, _, err) = run.finish();
+    assert!(
+        !status.success() && err.contains("(operator stop)"),
+        "{err}"
+    );
+
+    // ... and so does one from this side (ussctl).
+    let mut run = ns.client(&["run", drive, "--hz", "10"]);
+    run.says("re-armed");
+    let (status, _, err) = ussd.ussctl(&["stop", "1"]).finish();
+    assert!(status.success(), "{err}");
+    let (status, _, err) = run.finish();
+    assert!(
+        !status.success() && err.contains("(operator stop)"),
+        "{err}"
+    );
 }

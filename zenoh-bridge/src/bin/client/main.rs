@@ -1,6 +1,9 @@
 //! `uss-zenoh-client`: a small remote client of uss-zenoh for another host (an HMI, a laptop):
-//! follow a drive's inputs, read or write a parameter, watch a bus's liveliness. It is also how
-//! the tests look at the bridge from the other side of a network boundary.
+//! follow a drive's inputs, read or write a parameter, watch a bus's liveliness, stop a drive,
+//! and run one through a bridge that allows remote control. It is also how the tests look at
+//! the bridge from the other side of a network boundary.
+
+mod run;
 
 use clap::{Parser, Subcommand};
 use core::time::Duration;
@@ -48,6 +51,33 @@ enum Command {
         #[arg(long, default_value_t = 10.0)]
         timeout: f64,
     },
+    /// Run a drive through a bridge started with --allow-control: OFF1 until the drive is
+    /// re-armed, then ON towards HZ, every --period ms; OFF1 and release at the end. Gives up
+    /// (sending nothing more) when the drive latches or its images stop coming for a second:
+    /// only a new `run` re-arms it.
+    Run {
+        /// The drive's key, e.g. uss/site/bus0/drive/1.
+        drive: String,
+        #[arg(long, allow_hyphen_values = true)]
+        hz: f32,
+        /// Stop after this many seconds (default: at Ctrl-C).
+        #[arg(long = "for", value_name = "SECONDS")]
+        for_s: Option<f64>,
+        /// Milliseconds between samples; keep it well inside the drive's watchdog time.
+        #[arg(long, default_value_t = 20)]
+        period: u64,
+    },
+    /// Put VALUE on KEY once, e.g. a sample of your own on uss/site/bus0/drive/1/out.
+    Put { key: String, value: String },
+    /// An operator's stop of the drive KEY (e.g. uss/site/bus0/drive/1), or of every drive of a
+    /// bus (uss/site/bus0): OFF1 unless --coast (OFF2) or --quick (OFF3).
+    Stop {
+        key: String,
+        #[arg(long, conflicts_with = "quick")]
+        coast: bool,
+        #[arg(long)]
+        quick: bool,
+    },
     /// Print `+ KEY` when a liveliness token appears, `- KEY` when it goes, with the time in ms
     /// since the client started.
     Alive {
@@ -81,10 +111,42 @@ fn config(cli: &Cli) -> Result<Config, String> {
     Ok(config)
 }
 
+/// Prints each reply of a query as a line; the first error reply, or no reply, is the error.
+fn print_replies(
+    key: &str,
+    replies: &zenoh::handlers::FifoChannelHandler<zenoh::query::Reply>,
+) -> Result<(), String> {
+    let mut answered = false;
+    while let Ok(reply) = replies.recv() {
+        answered = true;
+        match reply.result() {
+            Ok(s) => println!("{}", s.payload().try_to_string().unwrap_or_default()),
+            Err(e) => return Err(e.payload().try_to_string().unwrap_or_default().into_owned()),
+        }
+    }
+    if answered {
+        Ok(())
+    } else {
+        Err(format!("{key}: no uss-zenoh answers this key"))
+    }
+}
+
 fn run(cli: &Cli) -> Result<(), String> {
     let session = zenoh::open(config(cli)?)
         .wait()
         .map_err(|e| format!("cannot open the Zenoh session: {e}"))?;
+    let done = command(&session, cli);
+    if done.is_ok() {
+        let _ = session.close().wait();
+    } else {
+        // The link may be down: a close would wait for the peer (10 s) before the program
+        // could say why it failed. The process ends now and the system closes its sockets.
+        std::mem::forget(session);
+    }
+    done
+}
+
+fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), String> {
     let start = Instant::now();
     match &cli.command {
         Command::Sub {
@@ -115,19 +177,38 @@ fn run(cli: &Cli) -> Result<(), String> {
                 get = get.payload(v.clone());
             }
             let replies = get.wait().map_err(|e| format!("{key}: {e}"))?;
-            let mut answered = false;
-            while let Ok(reply) = replies.recv() {
-                answered = true;
-                match reply.result() {
-                    Ok(s) => println!("{}", s.payload().try_to_string().unwrap_or_default()),
-                    Err(e) => {
-                        return Err(e.payload().try_to_string().unwrap_or_default().into_owned());
-                    }
-                }
-            }
-            if !answered {
-                return Err(format!("{key}: no uss-zenoh answers this key"));
-            }
+            print_replies(key, &replies)?;
+        }
+        Command::Run {
+            drive,
+            hz,
+            for_s,
+            period,
+        } => run::run(
+            session,
+            drive,
+            *hz,
+            for_s.map(seconds).transpose()?,
+            *period,
+        )?,
+        Command::Put { key, value } => session
+            .put(key, value.clone())
+            .wait()
+            .map_err(|e| format!("{key}: {e}"))?,
+        Command::Stop { key, coast, quick } => {
+            let command = match (coast, quick) {
+                (true, _) => "off2",
+                (_, true) => "off3",
+                _ => "off1",
+            };
+            let key = format!("{}/stop", key.trim_end_matches('/'));
+            let replies = session
+                .get(&key)
+                .payload(command)
+                .timeout(Duration::from_secs(10))
+                .wait()
+                .map_err(|e| format!("{key}: {e}"))?;
+            print_replies(&key, &replies)?;
         }
         Command::Alive {
             key,
@@ -157,7 +238,6 @@ fn run(cli: &Cli) -> Result<(), String> {
             }
         }
     }
-    let _ = session.close().wait();
     Ok(())
 }
 

@@ -1,0 +1,251 @@
+//! `uss-zenoh-client run`: a remote controller of one drive through a bridge that allows remote
+//! control. OFF1 until the drive is re-armed, ON every period, OFF1 and a release at the end.
+//! It gives up, sending nothing more, when the drive latches or its images stop coming: only a
+//! new run re-arms the drive.
+
+use core::time::Duration;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+use zenoh::Wait;
+use zenoh::bytes::Encoding;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::sample::Sample;
+
+/// No fresh image for this long and `run` gives up.
+const BLIND_AFTER: Duration = Duration::from_secs(1);
+/// How long the re-arm may take.
+const ARM_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long the drive may take to ramp down at the end.
+const STOP_TIMEOUT: Duration = Duration::from_secs(30);
+const OFF1: &str = r#""stw1":1150,"hz":0.0"#;
+
+/// The remote controller and what it sees of the drive: the latest image and the bridge's
+/// latest control report.
+struct Remote<'a> {
+    drive: &'a str,
+    publisher: Publisher<'a>,
+    images: Subscriber<FifoChannelHandler<Sample>>,
+    reports: Subscriber<FifoChannelHandler<Sample>>,
+    seq: u64,
+    period: Duration,
+    image: Option<serde_json::Value>,
+    seen_at: Instant,
+    report: Option<serde_json::Value>,
+}
+
+impl Remote<'_> {
+    fn send(&mut self, body: &str) -> Result<(), String> {
+        self.seq += 1;
+        self.publisher
+            .put(format!("{{\"v\":1,\"seq\":{},{body}}}", self.seq))
+            .wait()
+            .map_err(|e| format!("{}/out: {e}", self.drive))
+    }
+
+    /// Sends `body`, waits a period, and takes in what arrived meanwhile.
+    fn step(&mut self, body: &str) -> Result<(), String> {
+        self.send(body)?;
+        std::thread::sleep(self.period);
+        self.look();
+        Ok(())
+    }
+
+    fn look(&mut self) {
+        while let Ok(Some(s)) = self.images.try_recv() {
+            if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&s.payload().to_bytes()) {
+                if v["stale"] == false {
+                    self.seen_at = Instant::now();
+                }
+                self.image = Some(v);
+            }
+        }
+        while let Ok(Some(s)) = self.reports.try_recv() {
+            self.report = serde_json::from_slice(&s.payload().to_bytes()).ok();
+        }
+    }
+
+    fn field(&self, name: &str) -> &str {
+        self.image
+            .as_ref()
+            .and_then(|i| i[name].as_str())
+            .unwrap_or_default()
+    }
+
+    fn live(&self) -> bool {
+        self.image
+            .as_ref()
+            .is_some_and(|i| i["control"] == "live" && i["stale"] == false && i["online"] == true)
+    }
+
+    fn actual_hz(&self) -> f64 {
+        self.image
+            .as_ref()
+            .and_then(|i| i["actual_hz"].as_f64())
+            .unwrap_or_default()
+    }
+
+    /// The bridge's reason for refusing the last sample, if it refused it.
+    fn refusal(&self) -> Option<String> {
+        self.report
+            .as_ref()
+            .filter(|r| r["state"] == "refused")
+            .map(|r| r["error"].as_str().unwrap_or("refused").to_owned())
+    }
+
+    /// OFF1 until the drive is live (ussd took the OFF1).
+    fn arm(&mut self, stop: &AtomicBool) -> Result<(), String> {
+        let deadline = Instant::now() + ARM_TIMEOUT;
+        loop {
+            self.step(OFF1)?;
+            if self.live() {
+                return Ok(());
+            }
+            if let Some(why) = self.refusal() {
+                return Err(format!("the bridge refused the OFF1: {why}"));
+            }
+            if Instant::now() >= deadline || stop.load(Ordering::Relaxed) {
+                return Err(format!(
+                    "{} was not re-armed within {ARM_TIMEOUT:?} (control {:?}, latch {:?}); is \
+                     the bridge running with --allow-control?",
+                    self.drive,
+                    self.field("control"),
+                    self.field("latch_reason")
+                ));
+            }
+        }
+    }
+
+    /// ON towards `hz` until `duration` or `stop`; fails when the drive latches, the bridge
+    /// refuses a sample, or the images stop coming.
+    fn run(
+        &mut self,
+        hz: f32,
+        duration: Option<Duration>,
+        stop: &AtomicBool,
+    ) -> Result<(), String> {
+        let start = Instant::now();
+        let mut last_note = start;
+        let on = format!(r#""stw1":1151,"hz":{hz}"#);
+        loop {
+            self.step(&on)?;
+            if !self.live() && self.field("control") == "latched" {
+                return Err(format!(
+                    "{} latched after {:.2} s ({}): it gets its safe command until a new run \
+                     re-arms it",
+                    self.drive,
+                    start.elapsed().as_secs_f64(),
+                    self.field("latch_reason")
+                ));
+            }
+            if let Some(why) = self.refusal() {
+                return Err(format!("the bridge refused a sample: {why}"));
+            }
+            if self.seen_at.elapsed() > BLIND_AFTER {
+                return Err(format!(
+                    "no fresh image of {} for {:.2} s: giving up, sending nothing more (the \
+                     drive's watchdog stops it)",
+                    self.drive,
+                    self.seen_at.elapsed().as_secs_f64()
+                ));
+            }
+            if stop.load(Ordering::Relaxed) || duration.is_some_and(|d| start.elapsed() >= d) {
+                return Ok(());
+            }
+            if last_note.elapsed() >= Duration::from_millis(500) {
+                println!(
+                    "  {:6.1} s  {:8.2} Hz",
+                    start.elapsed().as_secs_f64(),
+                    self.actual_hz()
+                );
+                last_note = Instant::now();
+            }
+        }
+    }
+
+    /// OFF1 along the ramp until the drive is back in S2, then the release; how it ended.
+    fn wind_down(&mut self) -> Result<&'static str, String> {
+        let deadline = Instant::now() + STOP_TIMEOUT;
+        while self.field("state") != "S2" && Instant::now() < deadline {
+            self.step(OFF1)?;
+            if !self.live() || self.seen_at.elapsed() > BLIND_AFTER {
+                break;
+            }
+        }
+        self.send(r#""release":true"#)?;
+        // The bridge says when it handed the drive back.
+        let deadline = Instant::now() + Duration::from_secs(2);
+        loop {
+            self.look();
+            if self
+                .report
+                .as_ref()
+                .is_some_and(|r| r["state"] == "released")
+            {
+                return Ok("released");
+            }
+            if Instant::now() >= deadline {
+                return Ok("not confirmed released (its watchdog stops it all the same)");
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+}
+
+/// Runs the drive whose key is `drive` (`uss/site/bus0/drive/1`) towards `hz`.
+pub fn run(
+    session: &zenoh::Session,
+    drive: &str,
+    hz: f32,
+    duration: Option<Duration>,
+    period_ms: u64,
+) -> Result<(), String> {
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))
+            .map_err(|e| format!("cannot handle signal {signal}: {e}"))?;
+    }
+    let drive = drive.trim_end_matches('/');
+    let subscribe = |what: &str| {
+        session
+            .declare_subscriber(format!("{drive}/{what}"))
+            .wait()
+            .map_err(|e| format!("{drive}/{what}: {e}"))
+    };
+    let mut remote = Remote {
+        drive,
+        publisher: session
+            .declare_publisher(format!("{drive}/out"))
+            .encoding(Encoding::APPLICATION_JSON)
+            .express(true)
+            .wait()
+            .map_err(|e| format!("{drive}/out: {e}"))?,
+        images: subscribe("in")?,
+        reports: subscribe("control")?,
+        // A clock-based start: a later run's samples are newer than this run's.
+        seq: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(1, |d| u64::try_from(d.as_nanos()).unwrap_or(1)),
+        period: Duration::from_millis(period_ms.max(1)),
+        image: None,
+        seen_at: Instant::now(),
+        report: None,
+    };
+    remote.arm(&stop)?;
+    println!(
+        "{drive}: re-armed; running towards {hz} Hz; {}",
+        match duration {
+            Some(d) => format!("stopping after {d:?}"),
+            None => "Ctrl-C stops it".to_owned(),
+        }
+    );
+    remote.run(hz, duration, &stop)?;
+    let released = remote.wind_down()?;
+    println!(
+        "{drive}: stopped (OFF1, {}, {:.2} Hz) and {released}",
+        remote.field("state"),
+        remote.actual_hz()
+    );
+    Ok(())
+}
