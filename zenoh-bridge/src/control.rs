@@ -36,7 +36,8 @@ pub const RELEASE_AFTER: Duration = Duration::from_secs(15);
 /// How long a stop query waits for the drive's image to show the command: an offline drive is
 /// probed only every `offline_probe_ms`.
 const STOP_TIMEOUT: Duration = Duration::from_secs(3);
-/// How often the control report goes out besides on every change.
+/// How often the control report goes out besides on every change, while the bridge holds the
+/// drive's controller.
 const REPORT_EVERY: Duration = Duration::from_secs(1);
 /// How often a bus without ussd is tried again.
 const RECONNECT: Duration = Duration::from_millis(250);
@@ -87,33 +88,29 @@ fn stop(bus: &Bus, name: &str, keys: &Keys, query: &Query) -> Result<String, Str
 /// Serves the operator stops of bus `name` until `stop_flag`: every query ends in exactly one
 /// answer (a reply, or an error reply).
 pub fn serve_stops(session: &Session, name: &str, keys: &Keys, stop_flag: &Arc<AtomicBool>) {
-    let mut queryables = Vec::new();
-    for key in keys.stops() {
-        match session.declare_queryable(&key).wait() {
-            Ok(q) => queryables.push(q),
-            Err(e) => eprintln!("uss-zenoh: cannot declare the queryable {key}: {e}"),
+    let key = keys.stops();
+    let queryable = match session.declare_queryable(&key).wait() {
+        Ok(q) => q,
+        Err(e) => {
+            eprintln!("uss-zenoh: cannot declare the queryable {key}: {e}");
+            return;
         }
-    }
+    };
     let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
     while !stop_flag.load(Ordering::Relaxed) {
-        let mut idle = true;
-        for queryable in &queryables {
-            let Ok(Some(query)) = queryable.try_recv() else {
-                continue;
-            };
-            idle = false;
-            if bus.is_err() {
-                bus = Bus::open_as(name, "uss-zenoh-stops").map_err(|e| e.to_string());
-            }
-            let answer = bus
-                .as_ref()
-                .map_err(Clone::clone)
-                .and_then(|b| stop(b, name, keys, &query));
-            crate::params::reply(&query, answer);
+        let query = match queryable.recv_timeout(Duration::from_millis(100)) {
+            Ok(Some(q)) => q,
+            Ok(None) => continue,
+            Err(_) => break,
+        };
+        if bus.is_err() {
+            bus = Bus::open_as(name, "uss-zenoh-stops").map_err(|e| e.to_string());
         }
-        if idle {
-            std::thread::sleep(Duration::from_millis(5));
-        }
+        let answer = bus
+            .as_ref()
+            .map_err(Clone::clone)
+            .and_then(|b| stop(b, name, keys, &query));
+        crate::params::reply(&query, answer);
     }
 }
 
@@ -145,9 +142,16 @@ pub fn serve_control(
         .map(|drive| {
             let (session, name, keys) = (session.clone(), name.to_owned(), keys.clone());
             let stop_flag = Arc::clone(stop_flag);
-            std::thread::spawn(move || {
-                control_drive(&session, &name, &keys, (drive, allowed), &stop_flag);
-            })
+            std::thread::Builder::new()
+                .name(format!("control-{drive}"))
+                .spawn(move || {
+                    control_drive(&session, &name, &keys, (drive, allowed), &stop_flag);
+                })
+        })
+        .filter_map(|spawned| {
+            spawned
+                .map_err(|e| eprintln!("uss-zenoh: cannot start a control thread: {e}"))
+                .ok()
         })
         .collect();
     for t in threads {
@@ -238,7 +242,8 @@ impl Remote<'_> {
     /// Publishes the report when it changed or is due.
     fn publish_report(&mut self) {
         let changed = self.reported.as_ref() != Some(&self.report);
-        if !changed && Instant::now() < self.next_report {
+        let due = self.controller.is_some() && Instant::now() >= self.next_report;
+        if !changed && !due {
             return;
         }
         self.report.published_unix_ns = unix_ns();
@@ -317,7 +322,7 @@ fn control_drive(
         next_report: Instant::now(),
     };
     while !stop_flag.load(Ordering::Relaxed) {
-        if let Ok(Some(sample)) = subscriber.recv_timeout(Duration::from_millis(50)) {
+        if let Ok(Some(sample)) = subscriber.recv_timeout(Duration::from_millis(200)) {
             match remote.take(&sample) {
                 Ok(()) => {
                     remote.report.taken += 1;

@@ -53,12 +53,9 @@ impl Keys {
     }
 
     /// The queryable of operator stops: `.../drive/<addr>/stop` for one drive, `.../stop` for
-    /// every drive of the bus.
-    pub fn stops(&self) -> [String; 2] {
-        [
-            format!("{}/drive/*/stop", self.base),
-            format!("{}/stop", self.base),
-        ]
+    /// every drive of the bus (`**` matches both).
+    pub fn stops(&self) -> String {
+        format!("{}/**/stop", self.base)
     }
 
     /// The drive a stop query's key names (`None`: every drive), or why it names none.

@@ -83,6 +83,9 @@ fn host_name() -> String {
         .unwrap_or_else(|| "localhost".to_owned())
 }
 
+/// One of a bus's threads: publisher, stops, control, parameters.
+type Job = Box<dyn FnOnce(&zenoh::Session, &publish::Options, &Arc<AtomicBool>) + Send>;
+
 const fn allowed(yes: bool) -> &'static str {
     if yes { "allowed" } else { "refused" }
 }
@@ -118,25 +121,30 @@ fn run(cli: &Cli) -> Result<(), String> {
             keys: keys::Keys::new(&prefix, bus),
             max_rate: cli.max_rate,
         };
-        let (s, st, o) = (session.clone(), Arc::clone(&stop), options.clone());
-        threads.push(std::thread::spawn(move || publish::run(&s, &o, &st)));
-        let (s, st, o) = (session.clone(), Arc::clone(&stop), options.clone());
-        threads.push(std::thread::spawn(move || {
-            control::serve_stops(&s, &o.bus, &o.keys, &st);
-        }));
-        let (s, st, o, allow) = (
-            session.clone(),
-            Arc::clone(&stop),
-            options.clone(),
-            cli.allow_control,
-        );
-        threads.push(std::thread::spawn(move || {
-            control::serve_control(&s, &o.bus, &o.keys, allow, &st);
-        }));
-        let (s, st, allow) = (session.clone(), Arc::clone(&stop), cli.allow_writes);
-        threads.push(std::thread::spawn(move || {
-            params::serve(&s, &options.bus, &options.keys, allow, &st);
-        }));
+        let (w, c) = (cli.allow_writes, cli.allow_control);
+        let jobs: [(&str, Job); 4] = [
+            ("publish", Box::new(publish::run)),
+            (
+                "stops",
+                Box::new(|s, o, st| control::serve_stops(s, &o.bus, &o.keys, st)),
+            ),
+            (
+                "control",
+                Box::new(move |s, o, st| control::serve_control(s, &o.bus, &o.keys, c, st)),
+            ),
+            (
+                "params",
+                Box::new(move |s, o, st| params::serve(s, &o.bus, &o.keys, w, st)),
+            ),
+        ];
+        for (what, job) in jobs {
+            let (s, st, o) = (session.clone(), Arc::clone(&stop), options.clone());
+            let thread = std::thread::Builder::new()
+                .name(format!("{what}-{bus}"))
+                .spawn(move || job(&s, &o, &st))
+                .map_err(|e| format!("cannot start a thread: {e}"))?;
+            threads.push(thread);
+        }
     }
     println!(
         "uss-zenoh: bridging {} under {prefix}/ (parameter writes {}, remote control {}), Zenoh id {}",

@@ -311,7 +311,7 @@ impl Out {
 }
 
 /// `<prefix>/<bus>/drive/<addr>/control`: what the bridge does with a remote controller's
-/// samples of the drive; on every change and every second.
+/// samples of the drive; on every change, and every second while the bridge holds the drive.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ControlReport<'a> {
     pub v: u32,

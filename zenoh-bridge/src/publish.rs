@@ -1,5 +1,5 @@
 //! One bus on Zenoh: its status, each drive's input images (each new one, woken by the bus's
-//! exchange event, at most `max_rate` per drive), diagnostics and description, and the bus's
+//! exchange event, which names the drive to look at; at most `max_rate` per drive), diagnostics and description, and the bus's
 //! liveliness token, declared only while ussd serves the bus (withdrawn when ussd is gone,
 //! stopped or its line is down, and when the bridge stops).
 
@@ -10,7 +10,7 @@ use serde::Serialize;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-use uss_client::{Bus, DriveWatch, Health, PzdInput};
+use uss_client::{Bus, CycleEvent, DriveWatch, Health, PzdInput};
 use zenoh::bytes::Encoding;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::{Session, Wait};
@@ -23,6 +23,11 @@ const INFO_EVERY: Duration = Duration::from_secs(5);
 const RECONNECT: Duration = Duration::from_millis(250);
 /// The longest wait for an exchange event before the health is looked at again.
 const WAIT_STEP: Duration = Duration::from_millis(20);
+/// Every drive's image is looked at this often, besides those an exchange event names (an
+/// image that changed without one: a drive going offline, ussd going).
+const SWEEP_EVERY: Duration = Duration::from_millis(250);
+/// Every drive.
+const ALL: u32 = u32::MAX;
 
 /// What one bus's publisher was asked for.
 #[derive(Debug, Clone)]
@@ -135,9 +140,9 @@ impl Publisher<'_> {
         }
     }
 
-    /// Publishes each drive's image that changed (and, while ussd does not serve the bus, its
-    /// last image once, marked stale).
-    fn inputs(&mut self) {
+    /// Publishes the image of each drive in `due` (a bit per address) that changed (and, while
+    /// ussd does not serve the bus, its last image once, marked stale).
+    fn inputs(&mut self, due: u32) {
         let min_gap = self
             .o
             .max_rate
@@ -145,6 +150,9 @@ impl Publisher<'_> {
             .map(|r| Duration::from_secs_f64(1.0 / r));
         let stale = !self.serving;
         for d in &mut self.drives {
+            if due & (1 << d.watch.address()) == 0 {
+                continue;
+            }
             let look = d.watch.snapshot();
             let image = look.image;
             let changed = d
@@ -217,6 +225,7 @@ pub fn run(session: &Session, o: &Options, stop: &Arc<AtomicBool>) {
         next_info: now,
     };
     let mut cycle = None;
+    let mut next_sweep = now;
     while !stop.load(Ordering::Relaxed) {
         if !p.open() {
             p.presence();
@@ -226,13 +235,25 @@ pub fn run(session: &Session, o: &Options, stop: &Arc<AtomicBool>) {
         if cycle.is_none() {
             cycle = p.bus.as_ref().and_then(|b| b.cycle_listener().ok());
         }
-        // Woken by the exchange events; while ussd is gone the wait fails at once.
-        let waited = cycle.as_ref().map(|c| c.wait(WAIT_STEP, |_| {}));
+        // Woken by the exchange events, which name the drives to look at; while ussd is gone
+        // the wait fails at once.
+        let mut due = 0u32;
+        let waited = cycle.as_ref().map(|c| {
+            c.wait(WAIT_STEP, |e| {
+                if let CycleEvent::Exchange(a) = e {
+                    due |= 1u32.checked_shl(u32::from(a)).unwrap_or(0);
+                }
+            })
+        });
         if !matches!(waited, Some(Ok(_))) {
             std::thread::sleep(WAIT_STEP);
         }
         p.presence();
-        p.inputs();
+        if !p.serving || Instant::now() >= next_sweep {
+            due = ALL;
+            next_sweep = Instant::now() + SWEEP_EVERY;
+        }
+        p.inputs(due);
         p.diagnostics();
     }
     if let Some(t) = p.token.take() {

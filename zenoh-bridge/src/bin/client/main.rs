@@ -40,6 +40,14 @@ enum Command {
         /// Give up after this many seconds.
         #[arg(long, default_value_t = 10.0)]
         timeout: f64,
+        /// Print what arrives for this many seconds (at most --count samples) and end without
+        /// an error, whatever arrived.
+        #[arg(long = "for", value_name = "SECONDS", conflicts_with = "timeout")]
+        for_s: Option<f64>,
+        /// Start each line with the time it arrived, ns since the Unix epoch (for latency
+        /// measurements on one host or hosts with synchronised clocks).
+        #[arg(long)]
+        stamp: bool,
     },
     /// Query KEY (e.g. uss/site/bus0/drive/1/param/P1082); with --value, write that value.
     Get {
@@ -50,6 +58,12 @@ enum Command {
         /// Seconds to wait for the answer.
         #[arg(long, default_value_t = 10.0)]
         timeout: f64,
+        /// Ask this many times, one query after the other.
+        #[arg(long, default_value_t = 1)]
+        repeat: u32,
+        /// Start each reply's line with the query's round trip in ns.
+        #[arg(long)]
+        timed: bool,
     },
     /// Run a drive through a bridge started with --allow-control: OFF1 until the drive is
     /// re-armed, then ON towards HZ, every --period ms; OFF1 and release at the end. Gives up
@@ -111,16 +125,23 @@ fn config(cli: &Cli) -> Result<Config, String> {
     Ok(config)
 }
 
-/// Prints each reply of a query as a line; the first error reply, or no reply, is the error.
+/// Prints each reply of a query as a line (after the round trip in ns since `asked`, if given);
+/// the first error reply, or no reply, is the error.
 fn print_replies(
     key: &str,
     replies: &zenoh::handlers::FifoChannelHandler<zenoh::query::Reply>,
+    asked: Option<Instant>,
 ) -> Result<(), String> {
     let mut answered = false;
     while let Ok(reply) = replies.recv() {
         answered = true;
+        let round_trip = asked.map(|t| format!("{} ", t.elapsed().as_nanos()));
         match reply.result() {
-            Ok(s) => println!("{}", s.payload().try_to_string().unwrap_or_default()),
+            Ok(s) => println!(
+                "{}{}",
+                round_trip.unwrap_or_default(),
+                s.payload().try_to_string().unwrap_or_default()
+            ),
             Err(e) => return Err(e.payload().try_to_string().unwrap_or_default().into_owned()),
         }
     }
@@ -129,6 +150,48 @@ fn print_replies(
     } else {
         Err(format!("{key}: no uss-zenoh answers this key"))
     }
+}
+
+/// Prints each sample on `key` as a line (after its arrival time if `stamp`), at most `count`,
+/// for at most `seconds`: running out of time is an error unless `open_ended`.
+fn subscribe(
+    session: &zenoh::Session,
+    key: &str,
+    count: u64,
+    seconds_: f64,
+    open_ended: bool,
+    stamp: bool,
+) -> Result<(), String> {
+    use std::io::Write as _;
+    let deadline = Instant::now() + seconds(seconds_)?;
+    let sub = session
+        .declare_subscriber(key)
+        .wait()
+        .map_err(|e| format!("{key}: {e}"))?;
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    for _ in 0..count {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match sub.recv_timeout(left) {
+            Ok(Some(s)) => {
+                if stamp {
+                    let _ = write!(out, "{} ", unix_ns());
+                }
+                let _ = writeln!(out, "{}", s.payload().try_to_string().unwrap_or_default());
+                if !open_ended {
+                    let _ = out.flush();
+                }
+            }
+            _ if open_ended => break,
+            _ => return Err(format!("{key}: nothing within {seconds_} s")),
+        }
+    }
+    out.flush().map_err(|e| format!("stdout: {e}"))
+}
+
+fn unix_ns() -> u128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos())
 }
 
 fn run(cli: &Cli) -> Result<(), String> {
@@ -153,31 +216,32 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), String> {
             key,
             count,
             timeout,
-        } => {
-            let deadline = start + seconds(*timeout)?;
-            let sub = session
-                .declare_subscriber(key)
-                .wait()
-                .map_err(|e| format!("{key}: {e}"))?;
-            for _ in 0..*count {
-                let left = deadline.saturating_duration_since(Instant::now());
-                match sub.recv_timeout(left) {
-                    Ok(Some(s)) => println!("{}", s.payload().try_to_string().unwrap_or_default()),
-                    _ => return Err(format!("{key}: nothing within {timeout} s")),
-                }
-            }
-        }
+            for_s,
+            stamp,
+        } => subscribe(
+            session,
+            key,
+            *count,
+            for_s.unwrap_or(*timeout),
+            for_s.is_some(),
+            *stamp,
+        )?,
         Command::Get {
             key,
             value,
             timeout,
+            repeat,
+            timed,
         } => {
-            let mut get = session.get(key).timeout(seconds(*timeout)?);
-            if let Some(v) = value {
-                get = get.payload(v.clone());
+            for _ in 0..*repeat {
+                let asked = Instant::now();
+                let mut get = session.get(key).timeout(seconds(*timeout)?);
+                if let Some(v) = value {
+                    get = get.payload(v.clone());
+                }
+                let replies = get.wait().map_err(|e| format!("{key}: {e}"))?;
+                print_replies(key, &replies, timed.then_some(asked))?;
             }
-            let replies = get.wait().map_err(|e| format!("{key}: {e}"))?;
-            print_replies(key, &replies)?;
         }
         Command::Run {
             drive,
@@ -208,7 +272,7 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), String> {
                 .timeout(Duration::from_secs(10))
                 .wait()
                 .map_err(|e| format!("{key}: {e}"))?;
-            print_replies(&key, &replies)?;
+            print_replies(&key, &replies, None)?;
         }
         Command::Alive {
             key,
