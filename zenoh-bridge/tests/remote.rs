@@ -26,19 +26,10 @@ use uss_integration_tests::{ChildProc, Ussd};
 /// `zenoh-bridge/examples/read_param.py` in the namespace reads `key`: P1082 = 50.0 Hz. Without
 /// the `eclipse-zenoh` package it says it is skipped, unless `USS_REQUIRE_PY_ZENOH` is set (CI).
 fn python_reads_p1082(ns: &Netns, key: &str) {
-    let has = Command::new("python3")
-        .args(["-c", "import zenoh"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !has {
-        assert!(
-            std::env::var_os("USS_REQUIRE_PY_ZENOH").is_none(),
-            "python3 cannot import zenoh but USS_REQUIRE_PY_ZENOH is set"
-        );
-        eprintln!("SKIPPED the Python client: pip install eclipse-zenoh==1.10.2");
+    if !python_has_zenoh("the Python client") {
         return;
     }
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/read_param.py");
+    let script = example("read_param.py");
     let out = Command::new("ip")
         .args(["netns", "exec", &ns.name, "python3"])
         .arg(script)
@@ -52,6 +43,29 @@ fn python_reads_p1082(ns: &Netns, key: &str) {
         String::from_utf8_lossy(&out.stderr)
     );
     assert_eq!(text.trim(), "50.0 Hz (P1082 Max. frequency)");
+}
+
+/// Whether `python3` has the `eclipse-zenoh` package; without it `what` is skipped (said on
+/// stderr), unless `USS_REQUIRE_PY_ZENOH` is set (CI).
+fn python_has_zenoh(what: &str) -> bool {
+    let has = Command::new("python3")
+        .args(["-c", "import zenoh"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !has {
+        assert!(
+            std::env::var_os("USS_REQUIRE_PY_ZENOH").is_none(),
+            "python3 cannot import zenoh but USS_REQUIRE_PY_ZENOH is set"
+        );
+        eprintln!("SKIPPED {what}: pip install eclipse-zenoh==1.10.2");
+    }
+    has
+}
+
+fn example(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("examples")
+        .join(name)
 }
 
 /// A remote watcher of the liveliness token `key` (with the client options `options`), once it
@@ -242,6 +256,42 @@ fn latched(i: &PzdInput) -> bool {
 
 fn reason(i: &PzdInput) -> LatchReason {
     LatchReason::try_from(i.latch_reason).unwrap()
+}
+
+/// The README's two hosts through a router: the bridge and the remote client each connect to a
+/// Zenoh router (here eclipse-zenoh's, `examples/router.py`, in place of `zenohd`), neither to
+/// the other.
+#[test]
+fn a_remote_client_reaches_the_bridge_through_a_router() {
+    let Some(ns) = Netns::create() else { return };
+    if !python_has_zenoh("the router test") {
+        return;
+    }
+    let ussd = Ussd::start("", &[(1, "")]);
+    let router_at = format!("tcp/{}:7448", ns.here());
+    let mut command = Command::new("python3");
+    command.arg(example("router.py")).arg(&router_at);
+    let mut router = ChildProc::spawn("router.py".into(), command);
+    router.says("listening on");
+    let prefix = format!("uss/r{}", std::process::id());
+    let (_bridge, config) = bridge(&ns, &ussd.bus, &prefix, &["--connect", &router_at]);
+    let key = format!("{prefix}/{}/drive/1/param/P1082", ussd.bus);
+    // The router learns the bridge's queryable when the bridge has connected.
+    let deadline = Instant::now() + Duration::from_secs(15);
+    let read = loop {
+        let (status, out, err) = ns.client_of(&router_at, &["get", &key]).finish();
+        if status.success() {
+            break json(&out);
+        }
+        assert!(Instant::now() < deadline, "never answered: {err}");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert_eq!(read["value"].as_f64(), Some(50.0), "{read}");
+    let inputs = format!("{prefix}/{}/drive/1/in", ussd.bus);
+    let (status, out, err) = ns.client_of(&router_at, &["sub", &inputs]).finish();
+    assert!(status.success(), "{err}");
+    assert_eq!(json(&out)["online"].as_bool(), Some(true));
+    let _ = std::fs::remove_file(config);
 }
 
 #[test]

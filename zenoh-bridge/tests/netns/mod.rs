@@ -87,11 +87,16 @@ impl Netns {
 
     /// `uss-zenoh-client` in the namespace, connected to the bridge.
     pub fn client(&self, args: &[&str]) -> ChildProc {
+        self.client_of(&format!("tcp/{}:7447", self.here()), args)
+    }
+
+    /// `uss-zenoh-client` in the namespace, connected to `endpoint` (a router).
+    pub fn client_of(&self, endpoint: &str, args: &[&str]) -> ChildProc {
         let mut command = Command::new("ip");
         command
             .args(["netns", "exec", &self.name])
             .arg(CLIENT)
-            .args(["--connect", &format!("tcp/{}:7447", self.here())])
+            .args(["--connect", endpoint])
             .args(args);
         ChildProc::spawn(format!("uss-zenoh-client {}", args.join(" ")), command)
     }
