@@ -213,22 +213,10 @@ impl Ussd {
             std::process::id(),
             NEXT.fetch_add(1, Ordering::Relaxed)
         );
-        let mut toml = String::new();
-        for spec in specs {
-            let _ = write!(
-                toml,
-                "[[bus]]\nname = \"{bus}{}\"\ndevice = \"{}\"\n{}\n",
-                spec.suffix, spec.device, spec.keys
-            );
-            for (address, keys) in spec.drives {
-                let _ = write!(toml, "\n[[bus.drive]]\naddress = {address}\n{keys}\n");
-            }
-            toml.push('\n');
-        }
         let dir = std::env::temp_dir();
         let config = dir.join(format!("ussd-stress-{bus}.toml"));
         let log = dir.join(format!("ussd-stress-{bus}.log"));
-        std::fs::write(&config, toml).unwrap();
+        std::fs::write(&config, config_text(&bus, specs)).unwrap();
         std::fs::File::create(&log).unwrap();
         let env: Vec<(String, String)> = env
             .iter()
@@ -249,6 +237,13 @@ impl Ussd {
     pub fn restart(&mut self) {
         assert!(!self.is_running(), "ussd still runs");
         self.child = spawn_ussd(&self.config, &self.log, &self.env);
+    }
+
+    /// Like [`Ussd::restart`], with other buses and drives under the same bus name (a site that
+    /// changed its configuration); does not wait for it.
+    pub fn restart_with(&mut self, specs: &[BusSpec<'_>]) {
+        std::fs::write(&self.config, config_text(&self.bus, specs)).unwrap();
+        self.restart();
     }
 
     /// SIGKILL: ussd gets no chance to say anything. Returns `CLOCK_MONOTONIC` just before.
@@ -342,6 +337,23 @@ impl Drop for Ussd {
             let _ = std::fs::remove_file(&self.log);
         }
     }
+}
+
+/// ussd's configuration of `specs`, the buses named `bus` followed by each spec's suffix.
+fn config_text(bus: &str, specs: &[BusSpec<'_>]) -> String {
+    let mut toml = String::new();
+    for spec in specs {
+        let _ = write!(
+            toml,
+            "[[bus]]\nname = \"{bus}{}\"\ndevice = \"{}\"\n{}\n",
+            spec.suffix, spec.device, spec.keys
+        );
+        for (address, keys) in spec.drives {
+            let _ = write!(toml, "\n[[bus.drive]]\naddress = {address}\n{keys}\n");
+        }
+        toml.push('\n');
+    }
+    toml
 }
 
 /// A process the test started: stdout read line by line, stderr collected by a thread;

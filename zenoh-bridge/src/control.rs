@@ -128,32 +128,41 @@ pub fn serve_control(
     allowed: bool,
     stop_flag: &Arc<AtomicBool>,
 ) {
-    let drives = loop {
+    let bus = loop {
         if stop_flag.load(Ordering::Relaxed) {
             return;
         }
         match Bus::open_as(name, "uss-zenoh-control") {
-            Ok(bus) => break bus.drives(),
+            Ok(bus) => break bus,
             Err(_) => std::thread::sleep(RECONNECT),
         }
     };
-    let threads: Vec<_> = drives
-        .into_iter()
-        .map(|drive| {
+    // A thread for each drive of the ussd serving the bus, and for each drive a restarted ussd
+    // adds (a drive it no longer runs refuses the samples: not on the bus).
+    let mut threads = Vec::new();
+    let mut served: Vec<u8> = Vec::new();
+    while !stop_flag.load(Ordering::Relaxed) {
+        for drive in bus.drives() {
+            if served.contains(&drive) {
+                continue;
+            }
+            served.push(drive);
             let (session, name, keys) = (session.clone(), name.to_owned(), keys.clone());
             let stop_flag = Arc::clone(stop_flag);
-            std::thread::Builder::new()
+            let spawned = std::thread::Builder::new()
                 .name(format!("control-{drive}"))
                 .spawn(move || {
                     control_drive(&session, &name, &keys, (drive, allowed), &stop_flag);
-                })
-        })
-        .filter_map(|spawned| {
-            spawned
-                .map_err(|e| eprintln!("uss-zenoh: cannot start a control thread: {e}"))
-                .ok()
-        })
-        .collect();
+                });
+            match spawned {
+                Ok(t) => threads.push(t),
+                Err(e) => {
+                    eprintln!("uss-zenoh: cannot start the control thread of drive {drive}: {e}");
+                }
+            }
+        }
+        std::thread::sleep(Duration::from_secs(1));
+    }
     for t in threads {
         let _ = t.join();
     }

@@ -70,6 +70,8 @@ struct Publisher<'a> {
     drives: Vec<Drive>,
     token: Option<LivelinessToken>,
     serving: bool,
+    /// The ussd whose drive list `drives` follows.
+    pid: Option<u32>,
     next_status: Instant,
     next_diag: Instant,
     next_info: Instant,
@@ -85,23 +87,32 @@ impl Publisher<'_> {
         if self.bus.is_none() && Instant::now() >= self.next_open {
             self.next_open = Instant::now() + RECONNECT;
             if let Ok(bus) = Bus::open_as(&self.o.bus, "uss-zenoh") {
-                self.drives = bus
-                    .drives()
-                    .into_iter()
-                    .filter_map(|a| {
-                        Some(Drive {
-                            watch: bus.watch(a).ok()?,
-                            last: None,
-                            sent_at: None,
-                            key: self.o.keys.input(a),
-                        })
-                    })
-                    .collect();
                 self.bus = Some(bus);
-                self.next_info = Instant::now();
+                self.follow_drives();
             }
         }
         self.bus.is_some()
+    }
+
+    /// Takes the drive list of the ussd serving the bus now (a restarted ussd may run other
+    /// drives): drives still there keep what went out last.
+    fn follow_drives(&mut self) {
+        let Some(bus) = &self.bus else { return };
+        let mut drives = Vec::new();
+        for a in bus.drives() {
+            if let Some(i) = self.drives.iter().position(|d| d.watch.address() == a) {
+                drives.push(self.drives.swap_remove(i));
+            } else if let Ok(watch) = bus.watch(a) {
+                drives.push(Drive {
+                    watch,
+                    last: None,
+                    sent_at: None,
+                    key: self.o.keys.input(a),
+                });
+            }
+        }
+        self.drives = drives;
+        self.next_info = Instant::now();
     }
 
     /// Declares or withdraws the bus's token as ussd serves it or not; publishes the status
@@ -109,6 +120,14 @@ impl Publisher<'_> {
     fn presence(&mut self) {
         let health = self.health();
         let serving = health.as_ref().is_some_and(Health::is_serving);
+        let pid = match health {
+            Some(Health::Running { pid } | Health::LineDown { pid, .. }) => Some(pid),
+            _ => None,
+        };
+        if pid.is_some() && pid != self.pid {
+            self.pid = pid;
+            self.follow_drives();
+        }
         if serving != self.serving {
             self.serving = serving;
             self.token = if serving {
@@ -220,6 +239,7 @@ pub fn run(session: &Session, o: &Options, stop: &Arc<AtomicBool>) {
         drives: Vec::new(),
         token: None,
         serving: false,
+        pid: None,
         next_status: now,
         next_diag: now,
         next_info: now,

@@ -21,7 +21,7 @@ use serde_json::Value;
 use std::process::Command;
 use std::time::{Duration, Instant};
 use uss_client::{ControlState, DriveWatch, LatchReason, PzdInput};
-use uss_integration_tests::{ChildProc, Ussd};
+use uss_integration_tests::{BusSpec, ChildProc, Ussd};
 
 /// `zenoh-bridge/examples/read_param.py` in the namespace reads `key`: P1082 = 50.0 Hz. Without
 /// the `eclipse-zenoh` package it says it is skipped, unless `USS_REQUIRE_PY_ZENOH` is set (CI).
@@ -119,8 +119,18 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
     assert!(withdrawn < Duration::from_secs(3), "{withdrawn:?}");
     inputs.kill();
 
-    // With --allow-writes (and ussd back), a write goes to the drive and reads back.
-    ussd.restart();
+    // ussd back with another drive list: the bridge follows it (drive 5 is new).
+    ussd.restart_with(&[BusSpec {
+        suffix: "",
+        device: "sim",
+        keys: "",
+        drives: &[(1, ""), (2, ""), (5, "")],
+    }]);
+    let (ok, out, err) = ns.call(&["sub", &key("drive/5/in")]);
+    assert!(ok, "{err}");
+    assert_eq!(json(&out)["drive"].as_u64(), Some(5));
+
+    // With --allow-writes, a write goes to the drive and reads back.
     bridge_proc.kill();
     let (mut bridge_proc, _) = bridge(&ns, &bus, &prefix, &["--allow-writes"]);
     let deadline = Instant::now() + Duration::from_secs(15);
