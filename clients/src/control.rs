@@ -390,7 +390,7 @@ impl Controller {
     }
 
     /// Acknowledges the drive's latch (a trip, an override, ussd's start) and re-arms it the
-    /// PROFIdrive way: sends OFF1 (STW1 0x047E, setpoint 0) and waits until ussd has taken it
+    /// PROFIdrive way: sends OFF1 (STW1 0x047E, setpoint and every further word 0) and waits until ussd has taken it
     /// and the drive is live again. Then an ON ([`Controller::run_hz`], ...) reaches the drive.
     /// The drive itself may need [`Controller::acknowledge_fault`] too.
     pub fn rearm(&self) -> Result<PzdInput, ClientError> {
@@ -402,11 +402,11 @@ impl Controller {
                 state.off1_sent = false;
             }
         }
+        // OFF1 with every other word 0: nothing of the words before the latch (a setpoint,
+        // PZD3.. such as STW2 or a second setpoint) goes out again with the re-arm.
         self.shared.publish(|i| {
+            i.words = [0; MAX_PZD_WORDS];
             i.words[0] = Stw1::READY.bits();
-            if i.count > 1 {
-                i.words[1] = 0;
-            }
         })?;
         let live = self.wait_for(HANDSHAKE_TIMEOUT, "re-armed (live)", PzdInput::is_live);
         match live {

@@ -3,29 +3,45 @@
 //! **Operator stops, always.** A query on `.../drive/<addr>/stop` (or `.../stop` for every drive)
 //! with `off1` (the default), `off2` or `off3` as its payload is an operator's stop through ussd,
 //! whoever controls the drive, exactly like `ussctl stop/coast/quick-stop`: a safe command is
-//! sendable from anywhere, so this needs no `--allow-control`. The reply comes once the drive's
-//! image shows the command went out.
+//! sendable from anywhere, so this needs no `--allow-control`. The command goes to ussd as soon
+//! as the query arrives; the reply comes once the drive's image shows it went out (or says it
+//! was not confirmed), from a thread of its own, so one stop never waits for another.
 //!
 //! **Remote control, only with `--allow-control`.** A remote controller publishes samples on
-//! `.../drive/<addr>/out` ([`Out`]). The bridge takes the drive's local exclusive controller at
-//! the first sample and passes each fresh sample on as one publish, and nothing else: it never
-//! refreshes on its own. So ussd's watchdog sees the remote controller itself: when its samples
-//! stop arriving within the drive's watchdog time (a partition, a dead remote, a bridge crash),
-//! the drive gets its safe command, latched, and only an OFF1 then an ON of the remote
-//! controller re-arm it (docs/ARCHITECTURE.md, "Failure model"). A sample that cannot be passed
-//! on (unreadable, old, refused by the controller rules) is reported on `.../control` and not
+//! `.../drive/<addr>/out` ([`Out`]). The bridge takes the drive's local exclusive controller and
+//! passes each fresh sample on as one publish, and nothing else: it never refreshes on its own.
+//! While a sender (`from`) controls the drive (its last sample passed on within the drive's
+//! watchdog time) every other sender is refused. So ussd's watchdog sees the remote controller
+//! itself: when its samples stop arriving within the drive's watchdog time (a partition, a dead
+//! remote, a bridge crash), the drive gets its safe command, latched. A latched drive is
+//! re-armed only by a stop (OFF1, OFF2, OFF3) that names the latch it acknowledges (`rearm` =
+//! the image's `latch_id`), then an ON: a sample sent before the latch, delivered late after a
+//! partition, or from a controller that never saw the latch, re-arms nothing
+//! (docs/ARCHITECTURE.md, "Failure model"). A sample that is not passed on (unreadable, old,
+//! from another sender, refused by the controller rules) is reported on `.../control` and not
 //! sent, so a controller that speaks garbage trips the drive too. After [`RELEASE_AFTER`]
-//! without samples the bridge hands the drive back, so a local controller can take it.
+//! without a sample taken the bridge hands the drive back, so a local controller can take it.
+//!
+//! Samples reach the bridge through one subscriber whose callback never blocks Zenoh: it queues
+//! them for a dispatcher, which hands each drive's samples to a thread of that drive (a re-arm
+//! handshake of one drive never delays another's samples) and reports itself what it cannot
+//! hand on (control not allowed, ussd not running, a drive ussd does not poll, a full queue).
 
 use crate::keys::Keys;
-use crate::payload::{ControlReport, Out, StopReply, VERSION, unix_ns};
+use crate::payload::{ControlReport, Out, StopReply, stops, unix_ns};
 use core::time::Duration;
+use crossbeam_channel::{Receiver, Sender, TrySendError};
+use std::collections::HashMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-use uss_client::{Bus, ClientError, ControlOptions, Controller, Latch, StopCommand};
+use uss_client::{
+    Bus, ClientError, ControlOptions, ControlState, Controller, DriveWatch, LatchReason, PzdInput,
+    StopCommand,
+};
 use zenoh::bytes::Encoding;
-use zenoh::query::Query;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::query::{Query, Queryable};
 use zenoh::sample::Sample;
 use zenoh::{Session, Wait};
 
@@ -33,14 +49,19 @@ use zenoh::{Session, Wait};
 /// (the drive tripped long before, at its watchdog time). Above Zenoh's default lease (10 s),
 /// so a short partition keeps the drive's latch reason ("controller stale") for the operator.
 pub const RELEASE_AFTER: Duration = Duration::from_secs(15);
-/// How long a stop query waits for the drive's image to show the command: an offline drive is
-/// probed only every `offline_probe_ms`.
+/// How long a stop query waits for the drives' images to show the command (an offline drive is
+/// probed only every `offline_probe_ms`), well inside a client's query timeout (10 s).
 const STOP_TIMEOUT: Duration = Duration::from_secs(3);
 /// How often the control report goes out besides on every change, while the bridge holds the
 /// drive's controller.
 const REPORT_EVERY: Duration = Duration::from_secs(1);
-/// How often a bus without ussd is tried again.
-const RECONNECT: Duration = Duration::from_millis(250);
+/// Samples waiting for the dispatcher, and for each drive's thread.
+const QUEUE: usize = 1024;
+const DRIVE_QUEUE: usize = 64;
+
+/// What a remote controller's sample gets while the bridge does not allow remote control.
+pub const CONTROL_REFUSED: &str =
+    "remote control is refused: this uss-zenoh runs without --allow-control";
 
 /// What a stop query's payload asks for.
 fn stop_command(payload: Option<&str>) -> Result<StopCommand, String> {
@@ -54,9 +75,8 @@ fn stop_command(payload: Option<&str>) -> Result<StopCommand, String> {
     }
 }
 
-/// The answer to one stop query: the JSON of the drive's [`StopReply`] (an array of them for
-/// every drive: replies on one key would be consolidated into one), or the error text.
-fn stop(bus: &Bus, name: &str, keys: &Keys, query: &Query) -> Result<String, String> {
+/// Sends the stop a query asks for: the command and the drives it went to, or the error text.
+fn send_stop(bus: &Bus, keys: &Keys, query: &Query) -> Result<(StopCommand, Vec<u8>), String> {
     let target = keys.stop_of(query.key_expr().as_str())?;
     let payload = query
         .payload()
@@ -71,31 +91,57 @@ fn stop(bus: &Bus, name: &str, keys: &Keys, query: &Query) -> Result<String, Str
             .map_err(|e| e.to_string())?,
         None => bus.stop_all(command).map_err(|e| e.to_string())?,
     };
-    let mut replies = Vec::new();
-    for drive in drives {
-        let last = bus
-            .wait_stopped(drive, command, STOP_TIMEOUT)
-            .map_err(|e| format!("drive {drive}: {} sent, not confirmed: {e}", command.name()))?;
-        replies.push(StopReply::new(name, drive, command, &last));
-    }
-    let json = match (target, replies.as_slice()) {
-        (Some(_), [one]) => serde_json::to_string(one),
-        _ => serde_json::to_string(&replies),
-    };
-    json.map_err(|e| e.to_string())
+    Ok((command, drives))
 }
 
-/// Serves the operator stops of bus `name` until `stop_flag`: every query ends in exactly one
-/// answer (a reply, or an error reply).
-pub fn serve_stops(session: &Session, name: &str, keys: &Keys, stop_flag: &Arc<AtomicBool>) {
-    let key = keys.stops();
-    let queryable = match session.declare_queryable(&key).wait() {
-        Ok(q) => q,
-        Err(e) => {
-            eprintln!("uss-zenoh: cannot declare the queryable {key}: {e}");
-            return;
-        }
+/// The reply to a stop that went out: each drive's image once it shows the command, within
+/// [`STOP_TIMEOUT`] for all of them; a drive that does not show it in time is marked
+/// unconfirmed. One object for one drive, an array for the bus (replies on one key would be
+/// consolidated into one).
+fn confirm_stop(name: &str, one: bool, command: StopCommand, drives: &[u8]) -> String {
+    let bus = Bus::open_as(name, "uss-zenoh-stop").ok();
+    let deadline = Instant::now() + STOP_TIMEOUT;
+    let replies: Vec<StopReply<'_>> = drives
+        .iter()
+        .map(|&drive| {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let shown = bus
+                .as_ref()
+                .ok_or_else(|| format!("ussd is not running on {name}"))
+                .and_then(|b| {
+                    b.wait_stopped(drive, command, left)
+                        .map_err(|e| e.to_string())
+                });
+            StopReply::new(name, drive, command, shown)
+        })
+        .collect();
+    let json = match replies.as_slice() {
+        [reply] if one => serde_json::to_string(reply),
+        _ => serde_json::to_string(&replies),
     };
+    json.unwrap_or_default()
+}
+
+/// The queryable of bus `keys`'s operator stops. The bridge does not run without it: a safe
+/// command must be sendable from anywhere.
+pub fn declare_stops(
+    session: &Session,
+    keys: &Keys,
+) -> Result<Queryable<FifoChannelHandler<Query>>, String> {
+    session
+        .declare_queryable(keys.stops())
+        .wait()
+        .map_err(|e| format!("cannot declare the queryable {}: {e}", keys.stops()))
+}
+
+/// Serves the operator stops of bus `name` until `stop_flag`: each stop goes to ussd as soon as
+/// its query arrives; every query ends in exactly one answer (a reply, or an error reply).
+pub fn serve_stops(
+    queryable: &Queryable<FifoChannelHandler<Query>>,
+    name: &str,
+    keys: &Keys,
+    stop_flag: &Arc<AtomicBool>,
+) {
     let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
     while !stop_flag.load(Ordering::Relaxed) {
         let query = match queryable.recv_timeout(Duration::from_millis(100)) {
@@ -106,21 +152,31 @@ pub fn serve_stops(session: &Session, name: &str, keys: &Keys, stop_flag: &Arc<A
         if bus.is_err() {
             bus = Bus::open_as(name, "uss-zenoh-stops").map_err(|e| e.to_string());
         }
-        let answer = bus
+        let sent = bus
             .as_ref()
             .map_err(Clone::clone)
-            .and_then(|b| stop(b, name, keys, &query));
-        crate::params::reply(&query, answer);
+            .and_then(|b| send_stop(b, keys, &query));
+        match sent {
+            Ok((command, drives)) => {
+                let one = keys.stop_of(query.key_expr().as_str()) != Ok(None);
+                let name = name.to_owned();
+                let confirmed = std::thread::Builder::new()
+                    .name("stop-reply".to_owned())
+                    .spawn(move || {
+                        let json = confirm_stop(&name, one, command, &drives);
+                        crate::params::reply(&query, Ok(json));
+                    });
+                if let Err(e) = confirmed {
+                    eprintln!("uss-zenoh: cannot start a thread for a stop's reply: {e}");
+                }
+            }
+            Err(text) => crate::params::reply(&query, Err(text)),
+        }
     }
 }
 
-/// What a remote controller's sample gets while the bridge does not allow remote control.
-pub const CONTROL_REFUSED: &str =
-    "remote control is refused: this uss-zenoh runs without --allow-control";
-
-/// Serves the remote controllers of every drive of bus `name` (one thread per drive, so a
-/// re-arm handshake of one drive never delays another's samples) until `stop_flag`; without
-/// `allowed`, every sample is refused (and the refusal reported), none is passed on.
+/// Serves the remote controllers of bus `name` until `stop_flag`; without `allowed`, every
+/// sample is refused (and the refusal reported), none is passed on.
 pub fn serve_control(
     session: &Session,
     name: &str,
@@ -128,43 +184,140 @@ pub fn serve_control(
     allowed: bool,
     stop_flag: &Arc<AtomicBool>,
 ) {
-    let bus = loop {
-        if stop_flag.load(Ordering::Relaxed) {
+    let (tx, rx) = crossbeam_channel::bounded::<Sample>(QUEUE);
+    // The callback runs on Zenoh's own thread: it never blocks it (a full queue drops the
+    // sample, and the drive's watchdog sees a missing sample as it sees a lost one).
+    let subscriber = session
+        .declare_subscriber(keys.outputs())
+        .callback(move |sample| {
+            let _ = tx.try_send(sample);
+        })
+        .wait();
+    let _subscriber = match subscriber {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("uss-zenoh: cannot subscribe to {}: {e}", keys.outputs());
             return;
         }
-        match Bus::open_as(name, "uss-zenoh-control") {
-            Ok(bus) => break bus,
-            Err(_) => std::thread::sleep(RECONNECT),
-        }
     };
-    // A thread for each drive of the ussd serving the bus, and for each drive a restarted ussd
-    // adds (a drive it no longer runs refuses the samples: not on the bus).
-    let mut threads = Vec::new();
-    let mut served: Vec<u8> = Vec::new();
+    let mut d = Dispatcher {
+        session,
+        name,
+        keys,
+        allowed,
+        stop_flag,
+        bus: None,
+        next_open: Instant::now(),
+        drives: HashMap::new(),
+        refused: HashMap::new(),
+    };
     while !stop_flag.load(Ordering::Relaxed) {
-        for drive in bus.drives() {
-            if served.contains(&drive) {
-                continue;
+        match rx.recv_timeout(Duration::from_millis(200)) {
+            Ok(sample) => d.dispatch(sample),
+            Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}
+            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
+        }
+    }
+    for (_, (tx, thread)) in d.drives.drain() {
+        drop(tx);
+        let _ = thread.join();
+    }
+}
+
+/// Hands each drive's samples to that drive's thread.
+struct Dispatcher<'a> {
+    session: &'a Session,
+    name: &'a str,
+    keys: &'a Keys,
+    allowed: bool,
+    stop_flag: &'a Arc<AtomicBool>,
+    bus: Option<Bus>,
+    /// When ussd is tried again while it is not running.
+    next_open: Instant,
+    drives: HashMap<u8, (Sender<Sample>, std::thread::JoinHandle<()>)>,
+    /// Samples this dispatcher refused, per drive.
+    refused: HashMap<u8, u64>,
+}
+
+impl Dispatcher<'_> {
+    fn dispatch(&mut self, sample: Sample) {
+        let Some(drive) = self.keys.output_of(sample.key_expr().as_str()) else {
+            return;
+        };
+        if let Err(why) = self.hand_on(drive, sample) {
+            let refused = self.refused.entry(drive).or_default();
+            *refused += 1;
+            let mut report = ControlReport::new(self.name, drive);
+            report.state = "refused";
+            report.error = Some(why);
+            report.refused = *refused;
+            put_report(self.session, &self.keys.control(drive), &report);
+        }
+    }
+
+    fn hand_on(&mut self, drive: u8, sample: Sample) -> Result<(), String> {
+        if !self.allowed {
+            return Err(CONTROL_REFUSED.to_owned());
+        }
+        if self.bus.is_none() && Instant::now() >= self.next_open {
+            self.next_open = Instant::now() + Duration::from_millis(250);
+            self.bus = Bus::open_as(self.name, "uss-zenoh-control").ok();
+        }
+        let bus = self
+            .bus
+            .as_ref()
+            .ok_or_else(|| format!("ussd is not running on {}: nothing was sent", self.name))?;
+        if !self.drives.contains_key(&drive) {
+            let known = bus.drives();
+            if !known.contains(&drive) {
+                return Err(format!(
+                    "drive {drive} is not on {} (ussd polls drives {known:?} there)",
+                    self.name
+                ));
             }
-            served.push(drive);
-            let (session, name, keys) = (session.clone(), name.to_owned(), keys.clone());
-            let stop_flag = Arc::clone(stop_flag);
-            let spawned = std::thread::Builder::new()
+            let (tx, rx) = crossbeam_channel::bounded(DRIVE_QUEUE);
+            let (session, name, keys) = (
+                self.session.clone(),
+                self.name.to_owned(),
+                self.keys.clone(),
+            );
+            let stop_flag = Arc::clone(self.stop_flag);
+            let thread = std::thread::Builder::new()
                 .name(format!("control-{drive}"))
-                .spawn(move || {
-                    control_drive(&session, &name, &keys, (drive, allowed), &stop_flag);
-                });
-            match spawned {
-                Ok(t) => threads.push(t),
-                Err(e) => {
-                    eprintln!("uss-zenoh: cannot start the control thread of drive {drive}: {e}");
-                }
+                .spawn(move || control_drive(&session, &name, &keys, drive, &rx, &stop_flag))
+                .map_err(|e| format!("cannot start the control thread of drive {drive}: {e}"))?;
+            self.drives.insert(drive, (tx, thread));
+        }
+        let Some((tx, _)) = self.drives.get(&drive) else {
+            return Err("no control thread".to_owned());
+        };
+        match tx.try_send(sample) {
+            Ok(()) => Ok(()),
+            Err(TrySendError::Full(_)) => Err(format!(
+                "the bridge is {DRIVE_QUEUE} samples behind with drive {drive}: this one was dropped"
+            )),
+            Err(TrySendError::Disconnected(_)) => {
+                // The thread could not reach ussd: the next sample starts another.
+                self.drives.remove(&drive);
+                Err(format!(
+                    "ussd is not running on {}: nothing was sent",
+                    self.name
+                ))
             }
         }
-        std::thread::sleep(Duration::from_secs(1));
     }
-    for t in threads {
-        let _ = t.join();
+}
+
+fn put_report(session: &Session, key: &str, report: &ControlReport<'_>) {
+    let mut report = report.clone();
+    report.published_unix_ns = unix_ns();
+    if let Ok(json) = serde_json::to_string(&report)
+        && let Err(e) = session
+            .put(key, json)
+            .encoding(Encoding::APPLICATION_JSON)
+            .wait()
+    {
+        eprintln!("uss-zenoh: put {key}: {e}");
     }
 }
 
@@ -172,14 +325,20 @@ pub fn serve_control(
 struct Remote<'a> {
     session: &'a Session,
     bus: Bus,
+    /// The drive's inputs, for the latch the report shows.
+    watch: Option<DriveWatch>,
     name: &'a str,
     drive: u8,
-    allowed: bool,
     report_key: String,
     controller: Option<Controller>,
-    /// The sequence number of the last sample passed on (reset when the drive is handed back).
+    /// The sequence number of the last sample passed on (forgotten when the drive is handed
+    /// back, and after a silence longer than the drive's watchdog time).
     last_seq: Option<u64>,
-    last_sample: Option<Instant>,
+    /// When the last sample was passed on.
+    last_taken: Option<Instant>,
+    /// When the controller was taken or a sample last passed on: the drive is handed back
+    /// [`RELEASE_AFTER`] after it (refused samples do not keep it).
+    active: Option<Instant>,
     report: ControlReport<'a>,
     reported: Option<ControlReport<'a>>,
     next_report: Instant,
@@ -188,11 +347,14 @@ struct Remote<'a> {
 impl Remote<'_> {
     /// Passes one sample on, or says why not.
     fn take(&mut self, sample: &Sample) -> Result<(), String> {
-        self.last_sample = Some(Instant::now());
-        if !self.allowed {
-            return Err(CONTROL_REFUSED.to_owned());
-        }
         let out = Out::parse(&sample.payload().to_bytes())?;
+        if let Some(holder) = self.report.holder.as_ref().filter(|h| **h != out.from) {
+            return Err(format!(
+                "drive {} is controlled remotely by {holder:?} until it releases it or falls \
+                 silent: nothing of {:?} was sent",
+                self.drive, out.from
+            ));
+        }
         if let Some(last) = self.last_seq.filter(|&last| out.seq <= last) {
             return Err(format!(
                 "old sample: seq {} is not above {last}, the last one taken",
@@ -201,7 +363,6 @@ impl Remote<'_> {
         }
         if out.release {
             self.release();
-            self.last_seq = Some(out.seq);
             return Ok(());
         }
         if self.controller.is_none() {
@@ -210,29 +371,52 @@ impl Remote<'_> {
                 .control(self.drive, ControlOptions::default())
                 .map_err(|e| e.to_string())?;
             self.controller = Some(c);
+            self.active = Some(Instant::now());
         }
         let Some(c) = &self.controller else {
             return Err("no controller".to_owned());
         };
         let info = c.inputs().info();
         let words = out.pzd(usize::from(info.pzd_words), info.reference_hz)?;
-        let off1 = words
-            .first()
-            .is_some_and(|w| w & uss_client::uss_shm_types::pzd::STW1_ON == 0);
-        let sent = match c.set_words(&words) {
-            // The remote controller's OFF1 after a trip is its acknowledgment: re-arm (OFF1,
-            // until ussd took it), then its words.
-            Err(ClientError::Tripped { .. }) if off1 => c.rearm().and_then(|_| c.set_words(&words)),
-            other => other,
+        // The checks ussd makes, before anything is sent (a re-arm included).
+        if words.len() != usize::from(info.pzd_words) {
+            return Err(format!(
+                "{} words: drive {} exchanges {} PZD words (pzd in ussd's configuration)",
+                words.len(),
+                self.drive,
+                info.pzd_words
+            ));
+        }
+        if words[0] & 0x0400 == 0 {
+            return Err(format!(
+                "STW1 {:#06x} has bit 10 (control by PLC) clear: the drive would ignore it",
+                words[0]
+            ));
+        }
+        let image = c.inputs().latest();
+        let sent = if image.is_live() {
+            c.set_words(&words)
+        } else if out.rearm == Some(image.latched_since_ns) && stops(words[0]) {
+            // The remote controller acknowledges this very latch with a stop: re-arm (its
+            // first OFF1 after a trip it did not see yet goes through `rearm`), then its words.
+            match c.set_words(&words) {
+                Err(ClientError::Tripped { .. }) => c.rearm().and_then(|_| c.set_words(&words)),
+                other => other,
+            }
+        } else {
+            return Err(latched(self.name, self.drive, &image));
         };
         match sent {
             Ok(()) => {
                 self.last_seq = Some(out.seq);
+                self.last_taken = Some(Instant::now());
+                self.active = self.last_taken;
                 self.report.seq = Some(out.seq);
+                self.report.holder = Some(out.from);
                 Ok(())
             }
-            Err(ClientError::Tripped { latch, .. } | ClientError::NotArmed { latch, .. }) => {
-                Err(latched(self.name, self.drive, &latch))
+            Err(ClientError::Tripped { .. } | ClientError::NotArmed { .. }) => {
+                Err(latched(self.name, self.drive, &c.inputs().latest()))
             }
             Err(e) => Err(e.to_string()),
         }
@@ -245,94 +429,78 @@ impl Remote<'_> {
             self.report.state = "released";
             self.report.error = None;
         }
+        self.report.holder = None;
         self.last_seq = None;
+        self.last_taken = None;
+        self.active = None;
     }
 
-    /// Publishes the report when it changed or is due.
+    /// Publishes the report (with the drive's latch as ussd shows it) when it changed or, while
+    /// the bridge holds the drive, when it is due.
     fn publish_report(&mut self) {
+        if let Some(watch) = &self.watch {
+            let image = watch.latest();
+            self.report.control =
+                ControlState::try_from(image.control).map_or("unknown", ControlState::name);
+            self.report.latch_reason =
+                LatchReason::try_from(image.latch_reason).map_or("unknown", LatchReason::name);
+            self.report.latch_id = image.latched_since_ns;
+        }
         let changed = self.reported.as_ref() != Some(&self.report);
         let due = self.controller.is_some() && Instant::now() >= self.next_report;
         if !changed && !due {
             return;
         }
-        self.report.published_unix_ns = unix_ns();
-        if let Ok(json) = serde_json::to_string(&self.report)
-            && let Err(e) = self
-                .session
-                .put(&self.report_key, json)
-                .encoding(Encoding::APPLICATION_JSON)
-                .wait()
-        {
-            eprintln!("uss-zenoh: put {}: {e}", self.report_key);
-        }
-        self.report.published_unix_ns = 0;
+        put_report(self.session, &self.report_key, &self.report);
         self.reported = Some(self.report.clone());
         self.next_report = Instant::now() + REPORT_EVERY;
     }
 }
 
 /// A latch in words a remote controller can act on.
-fn latched(bus: &str, drive: u8, latch: &Latch) -> String {
+fn latched(bus: &str, drive: u8, image: &PzdInput) -> String {
+    let latch = uss_client::Latch::of(image);
     format!(
         "drive {drive} on {bus} is latched ({latch}) and gets {}: nothing was sent; re-arm it \
-         with OFF1 (stw1 1150 = 0x047E), then ON",
-        latch.command
+         with a stop naming the latch ({{\"stw1\":1150,\"rearm\":{}}}), then ON",
+        latch.command, image.latched_since_ns
     )
 }
 
-/// Serves the remote controller of one drive until `stop_flag`; hands the drive back on the
-/// way out.
+/// Serves the remote controller of one drive until `stop_flag` or the dispatcher goes; hands
+/// the drive back on the way out.
 fn control_drive(
     session: &Session,
     name: &str,
     keys: &Keys,
-    (drive, allowed): (u8, bool),
+    drive: u8,
+    samples: &Receiver<Sample>,
     stop_flag: &AtomicBool,
 ) {
-    let key = keys.output(drive);
-    let subscriber = match session.declare_subscriber(&key).wait() {
-        Ok(s) => s,
-        Err(e) => {
-            eprintln!("uss-zenoh: cannot subscribe to {key}: {e}");
-            return;
-        }
+    let Ok(bus) = Bus::open_as(name, "uss-zenoh-control") else {
+        return;
     };
-    let bus = loop {
-        if stop_flag.load(Ordering::Relaxed) {
-            return;
-        }
-        match Bus::open_as(name, "uss-zenoh-control") {
-            Ok(bus) => break bus,
-            Err(_) => std::thread::sleep(RECONNECT),
-        }
-    };
+    let watchdog = bus.diag(drive).map_or(Duration::from_millis(100), |d| {
+        Duration::from_millis(u64::from(d.info.watchdog_ms))
+    });
     let mut remote = Remote {
         session,
+        watch: bus.watch(drive).ok(),
         bus,
         name,
         drive,
-        allowed,
         report_key: keys.control(drive),
         controller: None,
         last_seq: None,
-        last_sample: None,
-        report: ControlReport {
-            v: VERSION,
-            bus: name,
-            drive,
-            state: "idle",
-            seq: None,
-            error: None,
-            taken: 0,
-            refused: 0,
-            published_unix_ns: 0,
-        },
+        last_taken: None,
+        active: None,
+        report: ControlReport::new(name, drive),
         reported: None,
         next_report: Instant::now(),
     };
     while !stop_flag.load(Ordering::Relaxed) {
-        if let Ok(Some(sample)) = subscriber.recv_timeout(Duration::from_millis(200)) {
-            match remote.take(&sample) {
+        match samples.recv_timeout(Duration::from_millis(200)) {
+            Ok(sample) => match remote.take(&sample) {
                 Ok(()) => {
                     remote.report.taken += 1;
                     remote.report.error = None;
@@ -345,16 +513,21 @@ fn control_drive(
                     remote.report.state = "refused";
                     remote.report.error = Some(e);
                 }
-            }
+            },
+            Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}
+            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
         }
-        if remote.controller.is_some()
-            && remote
-                .last_sample
-                .is_some_and(|t| t.elapsed() > RELEASE_AFTER)
-        {
+        if remote.last_taken.is_some_and(|t| t.elapsed() > watchdog) {
+            // The holder fell silent and the drive tripped: another sender (or the same one
+            // restarted, with an older sequence number) may take it, re-arming it by its latch.
+            remote.last_seq = None;
+            remote.report.holder = None;
+        }
+        if remote.active.is_some_and(|t| t.elapsed() > RELEASE_AFTER) {
             remote.release();
         }
         remote.publish_report();
     }
     remote.release();
+    remote.publish_report();
 }

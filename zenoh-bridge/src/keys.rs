@@ -42,9 +42,20 @@ impl Keys {
         format!("{}/drive/{drive}/info", self.base)
     }
 
-    /// Where a remote controller sends a drive's output image (only with `--allow-control`).
-    pub fn output(&self, drive: u8) -> String {
-        format!("{}/drive/{drive}/out", self.base)
+    /// Every drive's `out` key (`.../drive/<addr>/out`, where a remote controller sends a drive's
+    /// output image, only with `--allow-control`), for one subscriber.
+    pub fn outputs(&self) -> String {
+        format!("{}/drive/*/out", self.base)
+    }
+
+    /// The drive an `out` sample's key names.
+    pub fn output_of(&self, key: &str) -> Option<u8> {
+        key.strip_prefix(&self.base)?
+            .strip_prefix("/drive/")?
+            .strip_suffix("/out")?
+            .parse::<u8>()
+            .ok()
+            .filter(|&a| a <= 31)
     }
 
     /// What the bridge did with the remote controller's samples of a drive (JSON).
@@ -114,7 +125,9 @@ mod tests {
             .param_of("uss/plant/line1/drive/3/param/r0947[2]")
             .unwrap();
         assert_eq!((drive, param.to_string().as_str()), (3, "r0947[2]"));
-        assert_eq!(k.output(3), "uss/plant/line1/drive/3/out");
+        assert_eq!(k.output_of("uss/plant/line1/drive/3/out"), Some(3));
+        assert_eq!(k.output_of("uss/plant/line1/drive/32/out"), None);
+        assert_eq!(k.output_of("uss/plant/line1/drive/3/in"), None);
         assert_eq!(k.stop_of("uss/plant/line1/drive/3/stop"), Ok(Some(3)));
         assert_eq!(k.stop_of("uss/plant/line1/stop"), Ok(None));
         assert!(k.stop_of("uss/plant/line1/drive/32/stop").is_err());
@@ -136,6 +149,7 @@ mod tests {
             let k = Keys::new("uss/p", "b");
             let _ = k.param_of(&format!("uss/p/b/drive/{tail}"));
             let _ = k.stop_of(&format!("uss/p/b/drive/{tail}"));
+            let _ = k.output_of(&format!("uss/p/b/drive/{tail}"));
         }
     }
 }

@@ -122,11 +122,13 @@ fn run(cli: &Cli) -> Result<(), String> {
             max_rate: cli.max_rate,
         };
         let (w, c) = (cli.allow_writes, cli.allow_control);
+        // Declared before anything else runs: without it the bridge does not run.
+        let stops = control::declare_stops(&session, &options.keys)?;
         let jobs: [(&str, Job); 4] = [
             ("publish", Box::new(publish::run)),
             (
                 "stops",
-                Box::new(|s, o, st| control::serve_stops(s, &o.bus, &o.keys, st)),
+                Box::new(move |_, o, st| control::serve_stops(&stops, &o.bus, &o.keys, st)),
             ),
             (
                 "control",

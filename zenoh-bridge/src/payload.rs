@@ -94,6 +94,9 @@ pub struct Input<'a> {
     pub control: &'static str,
     /// Why it is latched (`none` while live).
     pub latch_reason: &'static str,
+    /// Which latch (its start, ussd's monotonic ns; 0 if the drive never latched): a remote
+    /// controller re-arms a latched drive only by naming the latch it saw (`rearm`).
+    pub latch_id: u64,
     /// S1..S4, `fault`, `not ready`.
     pub state: &'static str,
     pub zsw1: u16,
@@ -125,6 +128,7 @@ impl<'a> Input<'a> {
             control: ControlState::try_from(i.control).map_or("unknown", ControlState::name),
             latch_reason: LatchReason::try_from(i.latch_reason)
                 .map_or("unknown", LatchReason::name),
+            latch_id: i.latched_since_ns,
             state: state_name(i.zsw1),
             zsw1: i.zsw1,
             hiw: i.hiw,
@@ -255,6 +259,9 @@ impl<'a> ParamReply<'a> {
 #[serde(deny_unknown_fields)]
 pub struct Out {
     pub v: u32,
+    /// Who sends (e.g. `hmi-1:4711`): the bridge takes the drive for the first sender and
+    /// refuses every other one until that one releases the drive or falls silent.
+    pub from: String,
     /// Grows with every sample of the controller (its clock in ns at start plus a count suits):
     /// a sample not newer than the last one taken is refused as old or repeated.
     pub seq: u64,
@@ -264,13 +271,23 @@ pub struct Out {
     /// Hands the drive back: ussd sends its safe command, latched as "released".
     #[serde(default)]
     pub release: bool,
+    /// The `latch_id` of the latch this sample acknowledges: a latched drive is re-armed only
+    /// by an OFF1 that names its current latch (so a sample sent before the latch, delivered
+    /// late, or one that never saw it, re-arms nothing).
+    pub rearm: Option<u64>,
+}
+
+/// Whether `stw1` is a stop that may re-arm a latched drive: ON (bit 0) and both jog bits (8,
+/// 9) clear, control by PLC (bit 10) set; OFF1 0x047E, OFF2 0x047C, OFF3 0x047A are.
+pub const fn stops(stw1: u16) -> bool {
+    stw1 & 0x0301 == 0 && stw1 & 0x0400 != 0
 }
 
 impl Out {
     /// Reads a sample, or says what is wrong with it.
     pub fn parse(bytes: &[u8]) -> Result<Out, String> {
         let out: Out = serde_json::from_slice(bytes).map_err(|e| {
-            format!("not a sample: {e}; send e.g. {{\"v\":1,\"seq\":1,\"stw1\":1150,\"hz\":0.0}}")
+            format!("not a sample: {e}; send e.g. {{\"v\":1,\"from\":\"hmi-1\",\"seq\":1,\"stw1\":1150,\"hz\":0.0}}")
         })?;
         if out.v != VERSION {
             return Err(format!(
@@ -321,6 +338,12 @@ pub struct ControlReport<'a> {
     /// passed the last sample on), `refused` (the last sample was not passed on: `error`
     /// says why), `released` (the remote controller handed the drive back).
     pub state: &'static str,
+    /// The remote controller the bridge holds the drive for (its `from`).
+    pub holder: Option<String>,
+    /// The drive as ussd shows it: `live` or `latched`, why, and the latch to name in `rearm`.
+    pub control: &'static str,
+    pub latch_reason: &'static str,
+    pub latch_id: u64,
     /// The sequence number of the last sample passed on.
     pub seq: Option<u64>,
     /// Why the last sample was not passed on, in ussctl's words.
@@ -331,7 +354,8 @@ pub struct ControlReport<'a> {
     pub published_unix_ns: u64,
 }
 
-/// The reply to a stop query: the command, and the image that shows it went out.
+/// The reply to a stop query, per drive: the command, and the image that shows it went out, or
+/// why that was not seen in time (the command was sent all the same).
 #[derive(Debug, Serialize)]
 pub struct StopReply<'a> {
     pub v: u32,
@@ -339,25 +363,60 @@ pub struct StopReply<'a> {
     pub drive: u8,
     /// `OFF1`, `OFF2`, `OFF3`.
     pub command: &'static str,
+    /// Whether the drive's image showed the command within the bridge's wait.
+    pub confirmed: bool,
+    /// Why it was not confirmed.
+    pub error: Option<String>,
     /// The control word that went out.
-    pub stw1: u16,
-    pub control: &'static str,
-    pub latch_reason: &'static str,
-    pub state: &'static str,
+    pub stw1: Option<u16>,
+    pub control: Option<&'static str>,
+    pub latch_reason: Option<&'static str>,
+    pub state: Option<&'static str>,
 }
 
 impl<'a> StopReply<'a> {
-    pub fn new(bus: &'a str, drive: u8, command: StopCommand, i: &PzdInput) -> Self {
+    pub fn new(
+        bus: &'a str,
+        drive: u8,
+        command: StopCommand,
+        shown: Result<PzdInput, String>,
+    ) -> Self {
+        let i = shown.as_ref().ok();
         Self {
             v: VERSION,
             bus,
             drive,
             command: command.name(),
-            stw1: i.sent_stw1,
-            control: ControlState::try_from(i.control).map_or("unknown", ControlState::name),
-            latch_reason: LatchReason::try_from(i.latch_reason)
-                .map_or("unknown", LatchReason::name),
-            state: state_name(i.zsw1),
+            confirmed: i.is_some(),
+            stw1: i.map(|i| i.sent_stw1),
+            control: i
+                .map(|i| ControlState::try_from(i.control).map_or("unknown", ControlState::name)),
+            latch_reason: i.map(|i| {
+                LatchReason::try_from(i.latch_reason).map_or("unknown", LatchReason::name)
+            }),
+            state: i.map(|i| state_name(i.zsw1)),
+            error: shown.err(),
+        }
+    }
+}
+
+impl<'a> ControlReport<'a> {
+    /// A drive the bridge holds no controller for and has taken no sample of.
+    pub fn new(bus: &'a str, drive: u8) -> Self {
+        Self {
+            v: VERSION,
+            bus,
+            drive,
+            state: "idle",
+            holder: None,
+            control: "unknown",
+            latch_reason: "unknown",
+            latch_id: 0,
+            seq: None,
+            error: None,
+            taken: 0,
+            refused: 0,
+            published_unix_ns: 0,
         }
     }
 }
@@ -368,24 +427,34 @@ mod tests {
 
     #[test]
     fn a_sample_says_stw1_and_hz_or_words() {
-        let out = Out::parse(br#"{"v":1,"seq":7,"stw1":1151,"hz":25.0}"#).unwrap();
+        let out = Out::parse(br#"{"v":1,"from":"t","seq":7,"stw1":1151,"hz":25.0}"#).unwrap();
         assert_eq!(out.pzd(2, 50.0).unwrap(), [0x047F, 0x2000]);
         assert_eq!(out.pzd(4, 50.0).unwrap(), [0x047F, 0x2000, 0, 0]);
         assert!(out.pzd(1, 50.0).is_err());
-        let out = Out::parse(br#"{"v":1,"seq":8,"words":[1150,0,5]}"#).unwrap();
+        let out =
+            Out::parse(br#"{"v":1,"from":"t","seq":8,"words":[1150,0,5],"rearm":12}"#).unwrap();
         assert_eq!(out.pzd(2, 50.0).unwrap(), [0x047E, 0, 5]);
         assert!(
-            Out::parse(br#"{"v":1,"seq":9,"release":true}"#)
+            Out::parse(br#"{"v":1,"from":"t","seq":9,"release":true}"#)
                 .unwrap()
                 .release
         );
+        assert_eq!(
+            Out::parse(br#"{"v":1,"from":"t","seq":8,"words":[1150],"rearm":12}"#)
+                .unwrap()
+                .rearm,
+            Some(12)
+        );
+        assert!(stops(0x047E) && stops(0x047C) && stops(0x047A));
+        assert!(!stops(0x047F) && !stops(0x057E) && !stops(0x067E) && !stops(0x007E));
         for bad in [
-            &br#"{"v":2,"seq":1,"stw1":1150}"#[..],
-            br#"{"v":1,"seq":1}"#,
-            br#"{"v":1,"seq":1,"stw1":1150,"words":[1150]}"#,
-            br#"{"v":1,"seq":1,"words":[1150],"hz":3}"#,
-            br#"{"v":1,"seq":1,"stw1":1150,"speed":3}"#,
-            br#"{"v":1,"seq":-1,"stw1":1150}"#,
+            &br#"{"v":1,"seq":1,"stw1":1150}"#[..],
+            br#"{"v":2,"from":"t","seq":1,"stw1":1150}"#,
+            br#"{"v":1,"from":"t","seq":1}"#,
+            br#"{"v":1,"from":"t","seq":1,"stw1":1150,"words":[1150]}"#,
+            br#"{"v":1,"from":"t","seq":1,"words":[1150],"hz":3}"#,
+            br#"{"v":1,"from":"t","seq":1,"stw1":1150,"speed":3}"#,
+            br#"{"v":1,"from":"t","seq":-1,"stw1":1150}"#,
             b"run",
         ] {
             assert!(Out::parse(bad).is_err(), "{}", String::from_utf8_lossy(bad));
@@ -406,7 +475,7 @@ mod tests {
         #[test]
         fn any_json_sample_is_read_or_refused(seq: u64, stw1: u16, hz in proptest::num::f32::ANY,
                                               pzd in 0usize..9) {
-            let text = format!(r#"{{"v":1,"seq":{seq},"stw1":{stw1},"hz":{hz}}}"#);
+            let text = format!(r#"{{"v":1,"from":"p","seq":{seq},"stw1":{stw1},"hz":{hz}}}"#);
             if let Ok(out) = Out::parse(text.as_bytes()) {
                 let words = out.pzd(pzd, 50.0);
                 if let Ok(words) = words {

@@ -78,6 +78,55 @@ fn watch_alive(ns: &Netns, key: &str, options: &[&str]) -> ChildProc {
     alive
 }
 
+/// Puts `payload` on the drive's `out` key from the other side and returns the rest of the
+/// bridge's control report that says `expect`.
+fn put_sample(ns: &Netns, drive: &str, payload: &str, expect: &str) -> String {
+    let mut reports = ns.client(&[
+        "sub",
+        &format!("{drive}/control"),
+        "--count",
+        "100",
+        "--timeout",
+        "10",
+    ]);
+    // Put until the report comes: the subscriber may not be there for the first one (every
+    // refusal changes the report, so each put brings one).
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let putter = {
+        let (done, name, host) = (done.clone(), ns.name.clone(), ns.here());
+        let (key, payload) = (format!("{drive}/out"), payload.to_owned());
+        std::thread::spawn(move || {
+            for _ in 0..20 {
+                if done.load(std::sync::atomic::Ordering::Relaxed) {
+                    break;
+                }
+                let put = Command::new("ip")
+                    .args(["netns", "exec", &name, netns::CLIENT])
+                    .args([
+                        "--connect",
+                        &format!("tcp/{host}:7447"),
+                        "put",
+                        &key,
+                        &payload,
+                    ])
+                    .output()
+                    .unwrap();
+                assert!(
+                    put.status.success(),
+                    "{}",
+                    String::from_utf8_lossy(&put.stderr)
+                );
+                std::thread::sleep(Duration::from_millis(300));
+            }
+        })
+    };
+    let report = reports.says(expect);
+    done.store(true, std::sync::atomic::Ordering::Relaxed);
+    putter.join().unwrap();
+    reports.kill();
+    report
+}
+
 fn json(line: &str) -> Value {
     serde_json::from_str(line.trim()).unwrap_or_else(|e| panic!("{e}: {line:?}"))
 }
@@ -338,6 +387,22 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     let lease = link_down_trips_and_latches(&ns, &prefix, &watch, run);
     let _ = std::fs::remove_file(lease);
 
+    // An OFF1 that does not name the latch (sent before it, or by one that never saw it)
+    // re-arms nothing.
+    let report = put_sample(
+        &ns,
+        &drive,
+        r#"{"v":1,"from":"late","seq":1,"stw1":1150,"hz":0.0}"#,
+        "is latched",
+    );
+    assert!(
+        report.contains("re-arm it with a stop naming the latch"),
+        "{report}"
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    let i = watch.latest();
+    assert!(latched(&i) && reason(&i) == LatchReason::Stale, "{i:?}");
+
     // Only a new, deliberate run re-arms it.
     let (ok, out, err) = ns.call(&["run", &drive, "--hz", "5", "--for", "1"]);
     assert!(ok, "{err}");
@@ -351,20 +416,8 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     operator_stops_latch(&ns, &ussd, &drive);
 
     // A sample the bridge cannot read is refused, reported, and not passed on.
-    let mut reports = ns.client(&[
-        "sub",
-        &format!("{drive}/control"),
-        "--count",
-        "100",
-        "--timeout",
-        "10",
-    ]);
-    reports.says("\"drive\":1");
-    let (ok, _, err) = ns.call(&["put", &format!("{drive}/out"), "run fast"]);
-    assert!(ok, "{err}");
-    let report = reports.says("not a sample");
+    let report = put_sample(&ns, &drive, "run fast", "not a sample");
     assert!(report.contains("send e.g."), "{report}");
-    reports.kill();
 
     // A bridge that dies is a stale controller: latched within the watchdog time.
     let mut run = ns.client(&["run", &drive, "--hz", "10"]);
@@ -463,9 +516,21 @@ fn operator_stops_latch(ns: &Netns, ussd: &Ussd, drive: &str) {
     // An operator's stop from the remote side latches the drive; the remote run is told.
     let mut run = ns.client(&["run", drive, "--hz", "10"]);
     run.says("re-armed");
+    // While it controls the drive, another sender is refused.
+    let report = put_sample(
+        ns,
+        drive,
+        r#"{"v":1,"from":"intruder","seq":9999999999999999999,"stw1":1151,"hz":40.0}"#,
+        "controlled remotely by",
+    );
+    assert!(
+        report.contains("nothing of \\\"intruder\\\" was sent"),
+        "{report}"
+    );
     let (ok, out, err) = ns.call(&["stop", drive, "--quick"]);
     assert!(ok, "{err}");
     let stop = json(&out);
+    assert_eq!(stop["confirmed"].as_bool(), Some(true), "{stop}");
     assert_eq!(
         (stop["command"].as_str(), stop["latch_reason"].as_str()),
         (Some("OFF3"), Some("operator stop"))

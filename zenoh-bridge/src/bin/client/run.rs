@@ -25,6 +25,8 @@ const OFF1: &str = r#""stw1":1150,"hz":0.0"#;
 /// latest control report.
 struct Remote<'a> {
     drive: &'a str,
+    /// Who sends: `<host>:<pid>`.
+    from: String,
     publisher: Publisher<'a>,
     images: Subscriber<FifoChannelHandler<Sample>>,
     reports: Subscriber<FifoChannelHandler<Sample>>,
@@ -39,7 +41,10 @@ impl Remote<'_> {
     fn send(&mut self, body: &str) -> Result<(), String> {
         self.seq += 1;
         self.publisher
-            .put(format!("{{\"v\":1,\"seq\":{},{body}}}", self.seq))
+            .put(format!(
+                "{{\"v\":1,\"from\":{:?},\"seq\":{},{body}}}",
+                self.from, self.seq
+            ))
             .wait()
             .map_err(|e| format!("{}/out: {e}", self.drive))
     }
@@ -94,11 +99,30 @@ impl Remote<'_> {
             .map(|r| r["error"].as_str().unwrap_or("refused").to_owned())
     }
 
-    /// OFF1 until the drive is live (ussd took the OFF1).
+    /// OFF1 until the drive is live (ussd took the OFF1). A latched drive's OFF1 names the
+    /// latch its image shows: nothing is sent before an image was seen.
     fn arm(&mut self, stop: &AtomicBool) -> Result<(), String> {
         let deadline = Instant::now() + ARM_TIMEOUT;
+        while self.image.is_none() {
+            if Instant::now() >= deadline {
+                return Err(format!(
+                    "no image of {} within {ARM_TIMEOUT:?}: is uss-zenoh running for its bus?",
+                    self.drive
+                ));
+            }
+            std::thread::sleep(self.period);
+            self.look();
+        }
         loop {
-            self.step(OFF1)?;
+            let latch = self
+                .image
+                .as_ref()
+                .filter(|i| i["control"] == "latched")
+                .and_then(|i| i["latch_id"].as_u64());
+            match latch {
+                Some(id) => self.step(&format!("{OFF1},\"rearm\":{id}"))?,
+                None => self.step(OFF1)?,
+            }
             if self.live() {
                 return Ok(());
             }
@@ -213,8 +237,10 @@ pub fn run(
             .wait()
             .map_err(|e| format!("{drive}/{what}: {e}"))
     };
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
     let mut remote = Remote {
         drive,
+        from: format!("{}:{}", host.trim(), std::process::id()),
         publisher: session
             .declare_publisher(format!("{drive}/out"))
             .encoding(Encoding::APPLICATION_JSON)
