@@ -121,7 +121,8 @@ impl Shared {
         let mut next = state.image;
         f(&mut next);
         let sample = self.sample(&next)?;
-        let on = self.pzd > 0 && next.words[0] & ON != 0;
+        // ON or a jog runs the motor; only a stop re-arms (ussd's rule).
+        let on = self.pzd > 0 && next.words[0] & (ON | uss_shm_types::pzd::STW1_JOG) != 0;
         let latched = !input.is_live();
         if on && latched {
             if !state.off1_sent {

@@ -20,6 +20,9 @@ pub const OUTPUT_FLAGS: u8 = OUTPUT_RELEASE;
 pub const STW1_CONTROL_BY_PLC: u16 = 0x0400;
 /// STW1 bit 0, ON / OFF1.
 pub const STW1_ON: u16 = 0x0001;
+/// STW1 bits 8 and 9, jog right and jog left: a jog runs the motor, so a word with either set
+/// never re-arms a latched drive.
+pub const STW1_JOG: u16 = 0x0300;
 
 /// The controller's output image of one drive, published on `uss/<bus>/drive/<addr>/out`.
 ///

@@ -57,6 +57,9 @@ const STOP_TIMEOUT: Duration = Duration::from_secs(3);
 const REPORT_EVERY: Duration = Duration::from_secs(1);
 /// Samples waiting for the dispatcher, and for each drive's thread.
 const QUEUE: usize = 1024;
+/// Stop replies being confirmed at once; beyond, a stop is sent and its reply says it is not
+/// confirmed.
+const MAX_CONFIRMING: usize = 4;
 const DRIVE_QUEUE: usize = 64;
 
 /// What a remote controller's sample gets while the bridge does not allow remote control.
@@ -143,6 +146,7 @@ pub fn serve_stops(
     stop_flag: &Arc<AtomicBool>,
 ) {
     let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
+    let confirming = Arc::new(std::sync::atomic::AtomicUsize::new(0));
     while !stop_flag.load(Ordering::Relaxed) {
         let query = match queryable.recv_timeout(Duration::from_millis(100)) {
             Ok(Some(q)) => q,
@@ -159,12 +163,33 @@ pub fn serve_stops(
         match sent {
             Ok((command, drives)) => {
                 let one = keys.stop_of(query.key_expr().as_str()) != Ok(None);
-                let name = name.to_owned();
+                if confirming.load(Ordering::Relaxed) >= MAX_CONFIRMING {
+                    // Each confirmation holds a reader of ussd's services: a flood of stops must
+                    // not take them from ussctl and the controllers. The stop went out.
+                    let replies: Vec<_> = drives
+                        .iter()
+                        .map(|&d| {
+                            let why = format!(
+                                "sent; not confirmed: {MAX_CONFIRMING} stops are being confirmed"
+                            );
+                            StopReply::new(name, d, command, Err(why))
+                        })
+                        .collect();
+                    let json = match replies.as_slice() {
+                        [reply] if one => serde_json::to_string(reply),
+                        _ => serde_json::to_string(&replies),
+                    };
+                    crate::params::reply(&query, Ok(json.unwrap_or_default()));
+                    continue;
+                }
+                confirming.fetch_add(1, Ordering::Relaxed);
+                let (name, confirming) = (name.to_owned(), Arc::clone(&confirming));
                 let confirmed = std::thread::Builder::new()
                     .name("stop-reply".to_owned())
                     .spawn(move || {
                         let json = confirm_stop(&name, one, command, &drives);
                         crate::params::reply(&query, Ok(json));
+                        confirming.fetch_sub(1, Ordering::Relaxed);
                     });
                 if let Err(e) = confirmed {
                     eprintln!("uss-zenoh: cannot start a thread for a stop's reply: {e}");
@@ -244,11 +269,15 @@ impl Dispatcher<'_> {
         let Some(drive) = self.keys.output_of(sample.key_expr().as_str()) else {
             return;
         };
+        let sender = Out::parse(&sample.payload().to_bytes())
+            .ok()
+            .map(|o| o.from);
         if let Err(why) = self.hand_on(drive, sample) {
             let refused = self.refused.entry(drive).or_default();
             *refused += 1;
             let mut report = ControlReport::new(self.name, drive);
             report.state = "refused";
+            report.sender = sender;
             report.error = Some(why);
             report.refused = *refused;
             put_report(self.session, &self.keys.control(drive), &report);
@@ -348,6 +377,7 @@ impl Remote<'_> {
     /// Passes one sample on, or says why not.
     fn take(&mut self, sample: &Sample) -> Result<(), String> {
         let out = Out::parse(&sample.payload().to_bytes())?;
+        self.report.sender = Some(out.from.clone());
         if let Some(holder) = self.report.holder.as_ref().filter(|h| **h != out.from) {
             return Err(format!(
                 "drive {} is controlled remotely by {holder:?} until it releases it or falls \
@@ -394,13 +424,30 @@ impl Remote<'_> {
             ));
         }
         let image = c.inputs().latest();
-        let sent = if image.is_live() {
+        let holds = self.report.holder.as_ref() == Some(&out.from);
+        let named = out
+            .rearm
+            .filter(|&id| id != 0 && id == image.latched_since_ns);
+        let sent = if image.is_live() && holds {
             c.set_words(&words)
-        } else if out.rearm == Some(image.latched_since_ns) && stops(words[0]) {
-            // The remote controller acknowledges this very latch with a stop: re-arm (its
-            // first OFF1 after a trip it did not see yet goes through `rearm`), then its words.
+        } else if image.is_live() {
+            // Live without this sender having re-armed it: its holder fell silent and ussd has
+            // not shown the trip yet. Only a named re-arm of that latch takes it over.
+            return Err(format!(
+                "drive {} is live under an earlier remote controller's words: wait for its latch \
+                 and re-arm it by name",
+                self.drive
+            ));
+        } else if named.is_some() && stops(words[0]) {
+            // The remote controller acknowledges this very latch with a stop: its words re-arm
+            // it (after a trip the controller has not acknowledged yet, through `rearm`, which
+            // is done only while the latch is still the one named).
             match c.set_words(&words) {
-                Err(ClientError::Tripped { .. }) => c.rearm().and_then(|_| c.set_words(&words)),
+                Err(ClientError::Tripped { .. })
+                    if named == Some(c.inputs().latest().latched_since_ns) =>
+                {
+                    c.rearm().and_then(|_| c.set_words(&words))
+                }
                 other => other,
             }
         } else {
@@ -478,6 +525,15 @@ fn control_drive(
     stop_flag: &AtomicBool,
 ) {
     let Ok(bus) = Bus::open_as(name, "uss-zenoh-control") else {
+        let mut report = ControlReport::new(name, drive);
+        report.state = "refused";
+        report.sender = samples
+            .try_iter()
+            .last()
+            .and_then(|s| Out::parse(&s.payload().to_bytes()).ok())
+            .map(|o| o.from);
+        report.error = Some(format!("ussd is not running on {name}: nothing was sent"));
+        put_report(session, &keys.control(drive), &report);
         return;
     };
     let watchdog = bus.diag(drive).map_or(Duration::from_millis(100), |d| {
@@ -499,7 +555,12 @@ fn control_drive(
         next_report: Instant::now(),
     };
     while !stop_flag.load(Ordering::Relaxed) {
-        match samples.recv_timeout(Duration::from_millis(200)) {
+        // Only the newest of the samples waiting is taken: older ones (queued during a re-arm
+        // handshake or a stall) would refresh the watchdog with words already superseded.
+        let newest = samples
+            .recv_timeout(Duration::from_millis(200))
+            .map(|first| samples.try_iter().last().unwrap_or(first));
+        match newest {
             Ok(sample) => match remote.take(&sample) {
                 Ok(()) => {
                     remote.report.taken += 1;
@@ -517,7 +578,8 @@ fn control_drive(
             Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}
             Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
         }
-        if remote.last_taken.is_some_and(|t| t.elapsed() > watchdog) {
+        let shows_latch = remote.watch.as_ref().is_some_and(|w| !w.latest().is_live());
+        if shows_latch && remote.last_taken.is_some_and(|t| t.elapsed() > watchdog) {
             // The holder fell silent and the drive tripped: another sender (or the same one
             // restarted, with an older sequence number) may take it, re-arming it by its latch.
             remote.last_seq = None;

@@ -280,7 +280,8 @@ pub struct Out {
 /// Whether `stw1` is a stop that may re-arm a latched drive: ON (bit 0) and both jog bits (8,
 /// 9) clear, control by PLC (bit 10) set; OFF1 0x047E, OFF2 0x047C, OFF3 0x047A are.
 pub const fn stops(stw1: u16) -> bool {
-    stw1 & 0x0301 == 0 && stw1 & 0x0400 != 0
+    use uss_client::uss_shm_types::pzd::{STW1_CONTROL_BY_PLC, STW1_JOG, STW1_ON};
+    stw1 & (STW1_ON | STW1_JOG) == 0 && stw1 & STW1_CONTROL_BY_PLC != 0
 }
 
 impl Out {
@@ -340,6 +341,8 @@ pub struct ControlReport<'a> {
     pub state: &'static str,
     /// The remote controller the bridge holds the drive for (its `from`).
     pub holder: Option<String>,
+    /// Who sent the last sample, taken or refused (what `state` and `error` are about).
+    pub sender: Option<String>,
     /// The drive as ussd shows it: `live` or `latched`, why, and the latch to name in `rearm`.
     pub control: &'static str,
     pub latch_reason: &'static str,
@@ -409,6 +412,7 @@ impl<'a> ControlReport<'a> {
             drive,
             state: "idle",
             holder: None,
+            sender: None,
             control: "unknown",
             latch_reason: "unknown",
             latch_id: 0,

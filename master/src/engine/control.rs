@@ -12,8 +12,9 @@
 //! - an ON arrives while the drive's own telegram monitoring is required but not verified.
 //!
 //! The latch holds until the controller re-arms the drive the PROFIdrive way: a valid sample
-//! with STW1 bit 0 = 0 (OFF1) that arrives at a later poll than the latch. That sample goes out
-//! and the drive is live again, so the controller's next ON reaches the drive. A frozen
+//! with STW1 bit 0 = 0 and the jog bits 8 and 9 clear (OFF1, or OFF2/OFF3; a jog runs the
+//! motor) that arrives at a later poll than the latch. That sample goes out and the drive is
+//! live again, so the controller's next ON reaches the drive. A frozen
 //! controller that resumes with ON, or a process that reconnects, never restarts a motor by
 //! itself. The latch lives here, in ussd; a client cannot clear it any other way.
 //!
@@ -115,6 +116,7 @@ pub struct Gate {
 }
 
 const STW1_ON: u16 = uss_shm_types::pzd::STW1_ON;
+const STW1_JOG: u16 = uss_shm_types::pzd::STW1_JOG;
 
 impl Gate {
     /// A gate latched by ussd's start: the drive gets its safe command until a controller arms it.
@@ -263,6 +265,8 @@ impl Gate {
             }
             Ok(OutputSample::Words { words, .. }) => {
                 let on = self.setup.pzd > 0 && words[0] & STW1_ON != 0;
+                // A stop re-arms (OFF1, OFF2, OFF3); a jog word has bit 0 clear too, but runs.
+                let stop = !on && words[0] & STW1_JOG == 0;
                 match self.control {
                     Control::Live if on && !poll.on_allowed => Some(self.latch_with(
                         LatchReason::MonitoringOff,
@@ -275,7 +279,7 @@ impl Gate {
                         self.words = words;
                         None
                     }
-                    Control::Latched(_) if !on && !latched_now => {
+                    Control::Latched(_) if stop && !latched_now => {
                         self.words = words;
                         self.control = Control::Live;
                         Some(Transition::Rearmed { pid })
@@ -488,6 +492,8 @@ mod tests {
             // Latched after a trip or an override.
             ("stale, the frozen controller resumes with ON: latched", tripped, |p| p.send(300, &[RUN, 0x2000]), [READY, 0], Some(Stale)),
             ("stale, OFF1 re-arms", tripped, |p| p.send(300, &[READY, 0]), [READY, 0], None),
+            ("stale, jog right does not re-arm", tripped, |p| p.send(300, &[0x057E, 0]), [READY, 0], Some(Stale)),
+            ("stale, jog left does not re-arm", tripped, |p| p.send(300, &[0x067E, 0]), [READY, 0], Some(Stale)),
             ("stale, garbage does not re-arm", tripped, |p| foreign(p, 210, |s| { s.version = 9; s.stw1 = READY; }), [READY, 0], Some(Rejected)),
             ("stale, a release keeps the trip's reason", tripped, release, [READY, 0], Some(Stale)),
             ("coasted, operator OFF1: OFF2 stays", coasted, |p| p.poll(20, None, Some(StopCommand::Off1)), [COAST, 0], Some(Override)),

@@ -91,12 +91,19 @@ impl Remote<'_> {
             .unwrap_or_default()
     }
 
-    /// The bridge's reason for refusing the last sample, if it refused it.
+    /// The bridge's reason for refusing this client's last sample, if it refused it.
     fn refusal(&self) -> Option<String> {
         self.report
             .as_ref()
-            .filter(|r| r["state"] == "refused")
+            .filter(|r| r["state"] == "refused" && r["sender"] == self.from.as_str())
             .map(|r| r["error"].as_str().unwrap_or("refused").to_owned())
+    }
+
+    /// Whether the bridge holds the drive for this client.
+    fn holds(&self) -> bool {
+        self.report
+            .as_ref()
+            .is_some_and(|r| r["holder"] == self.from.as_str())
     }
 
     /// OFF1 until the drive is live (ussd took the OFF1). A latched drive's OFF1 names the
@@ -123,11 +130,12 @@ impl Remote<'_> {
                 Some(id) => self.step(&format!("{OFF1},\"rearm\":{id}"))?,
                 None => self.step(OFF1)?,
             }
-            if self.live() {
-                return Ok(());
-            }
             if let Some(why) = self.refusal() {
                 return Err(format!("the bridge refused the OFF1: {why}"));
+            }
+            // Live by this client's own re-arm, not by someone else's.
+            if self.live() && self.holds() {
+                return Ok(());
             }
             if Instant::now() >= deadline || stop.load(Ordering::Relaxed) {
                 return Err(format!(
