@@ -13,8 +13,9 @@
 //!
 //! The latch holds until the controller re-arms the drive the PROFIdrive way: a valid sample
 //! with STW1 bit 0 = 0 and the jog bits 8 and 9 clear (OFF1, or OFF2/OFF3; a jog runs the
-//! motor) that arrives at a later poll than the latch. That sample goes out and the drive is
-//! live again, so the controller's next ON reaches the drive. A frozen
+//! motor) that arrives after the poll that follows the latch (so it was published after the
+//! drive's image showed the latch, not by a controller that could not know of it). That sample
+//! goes out and the drive is live again, so the controller's next ON reaches the drive. A frozen
 //! controller that resumes with ON, or a process that reconnects, never restarts a motor by
 //! itself. The latch lives here, in ussd; a client cannot clear it any other way.
 //!
@@ -104,6 +105,9 @@ pub struct Poll<'a> {
 pub struct Gate {
     setup: GateSetup,
     control: Control,
+    /// A latch was made at the last decision (or the gate is new): the next poll takes no re-arm,
+    /// since its sample may have been published before the drive's image showed the latch.
+    settling: bool,
     /// The live controller's latest valid words.
     words: [u16; MAX_PZD_WORDS],
     /// Sequence of the last sample taken: a repeat is not a refresh.
@@ -129,6 +133,7 @@ impl Gate {
                 since: now,
                 by_pid: 0,
             }),
+            settling: true,
             words: [0; MAX_PZD_WORDS],
             last_sequence: None,
             refreshed_at: now,
@@ -174,9 +179,12 @@ impl Gate {
     /// what changed, if anything.
     pub fn decide(&mut self, poll: Poll<'_>, out: &mut [u16; MAX_PZD_WORDS]) -> Option<Transition> {
         let mut changed = None;
+        // The first poll after a latch takes no re-arm: its sample may have been published before
+        // the image that shows the latch (written after the latching poll's exchange), by a
+        // controller that could not know of it. A stop published after that poll re-arms.
+        let mut latched_now = core::mem::take(&mut self.settling);
         // An operator's command comes first and is final for this poll: a sample that arrived
         // with it cannot re-arm the drive (it may have been published before the command).
-        let mut latched_now = false;
         if let Some(op) = poll.operator.filter(|op| op.command != StopCommand::None) {
             self.counters.overrides += 1;
             changed = Some(self.latch_with(
@@ -310,6 +318,7 @@ impl Gate {
         };
         self.counters.latches += 1;
         self.control = Control::Latched(latch);
+        self.settling = true;
         Transition::Latched { latch, rejection }
     }
 }
@@ -352,11 +361,14 @@ mod tests {
     }
 
     impl Play {
+        /// A gate after ussd's start and its first poll (which takes no re-arm).
         fn new() -> Self {
-            Self {
+            let mut p = Self {
                 gate: Gate::new(setup(), ms(0)),
                 seq: 0,
-            }
+            };
+            p.poll(0, None, None);
+            p
         }
 
         /// A gate that is live and running: armed with OFF1, then ON with a setpoint.
@@ -419,15 +431,23 @@ mod tests {
         }
     }
 
-    /// After a stale trip at 200 ms.
+    /// After a stale trip at 200 ms and the poll after it.
     fn tripped() -> Play {
         let mut p = Play::running();
         p.poll(200, None, None);
+        p.poll(210, None, None);
+        p
+    }
+
+    /// Overridden with OFF2 at 10 ms, and the poll after it.
+    fn coasted() -> Play {
+        let mut p = just_coasted();
+        p.poll(15, None, None);
         p
     }
 
     /// Overridden with OFF2 at 10 ms.
-    fn coasted() -> Play {
+    fn just_coasted() -> Play {
         let mut p = Play::running();
         p.poll(10, None, Some(StopCommand::Off2));
         p
@@ -499,6 +519,8 @@ mod tests {
             ("coasted, operator OFF1: OFF2 stays", coasted, |p| p.poll(20, None, Some(StopCommand::Off1)), [COAST, 0], Some(Override)),
             ("coasted, ON: latched", coasted, |p| p.send(20, &[RUN, 0x2000]), [COAST, 0], Some(Override)),
             ("coasted, OFF1 at a later poll re-arms", coasted, |p| p.send(20, &[READY, 0]), [READY, 0], None),
+            ("coasted, OFF1 at the first poll after it (published before its image): no re-arm", just_coasted, |p| p.send(20, &[READY, 0]), [COAST, 0], Some(Override)),
+            ("stale, OFF1 at the first poll after the trip: no re-arm", Play::running, |p| { p.poll(200, None, None); p.send(210, &[READY, 0]) }, [READY, 0], Some(Stale)),
             ("running, OFF1 with an override at the same poll: no re-arm", Play::running, |p| with(p, 10, &[READY, 0], Some(StopCommand::Off2), true), [COAST, 0], Some(Override)),
         ];
         for (name, start, event, words, reason) in cases {
@@ -570,7 +592,9 @@ mod tests {
         let (_, command, _) = latched(p.poll(30, None, Some(StopCommand::Off2)).change);
         assert_eq!(command, StopCommand::Off2);
         assert_eq!(p.gate.counters().overrides, 3);
-        // Re-armed, the next latch starts from the safe command again.
+        // Re-armed (by an OFF1 after the poll that follows the latch), the next latch starts
+        // from the safe command again.
+        p.poll(35, None, None);
         p.send(40, &[READY, 0]);
         let (_, command, _) = latched(p.poll(200, None, None).change);
         assert_eq!(command, StopCommand::Off1);
