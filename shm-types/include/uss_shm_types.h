@@ -264,6 +264,12 @@
 #define USS_STW1_ON 1
 
 /**
+ * STW1 bits 8 and 9, jog right and jog left: a jog runs the motor, so a word with either set
+ * never re-arms a latched drive.
+ */
+#define USS_STW1_JOG 768
+
+/**
  * Which way a captured telegram went; the `direction` byte of [`TelegramRecord`].
  */
 enum UssDirection
