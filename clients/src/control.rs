@@ -90,8 +90,6 @@ struct Shared {
     pzd: usize,
 }
 
-const ON: u16 = uss_shm_types::pzd::STW1_ON;
-
 impl Shared {
     fn state(&self) -> MutexGuard<'_, State> {
         // Plain data, valid whatever a panicking holder left behind.
@@ -122,7 +120,7 @@ impl Shared {
         f(&mut next);
         let sample = self.sample(&next)?;
         // ON or a jog runs the motor; only a stop re-arms (ussd's rule).
-        let on = self.pzd > 0 && next.words[0] & (ON | uss_shm_types::pzd::STW1_JOG) != 0;
+        let on = self.pzd > 0 && !uss_shm_types::pzd::is_stop(next.words[0]);
         let latched = !input.is_live();
         if on && latched {
             if !state.off1_sent {

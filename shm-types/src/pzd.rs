@@ -24,6 +24,13 @@ pub const STW1_ON: u16 = 0x0001;
 /// never re-arms a latched drive.
 pub const STW1_JOG: u16 = 0x0300;
 
+/// Whether control word `stw1` is a stop (OFF1, OFF2, OFF3): ON and both jog bits clear. Only a
+/// stop re-arms a latched drive; the one test of that for ussd, the client library and the
+/// Zenoh bridge.
+pub const fn is_stop(stw1: u16) -> bool {
+    stw1 & (STW1_ON | STW1_JOG) == 0
+}
+
 /// The controller's output image of one drive, published on `uss/<bus>/drive/<addr>/out`.
 ///
 /// Exactly one controller publishes it (the service admits one publisher). ussd sends the
@@ -241,6 +248,18 @@ impl Default for PzdOutput {
 }
 
 impl PzdInput {
+    /// The control state by name (`live`, `latched`), `unknown` for a code this layout does not
+    /// define.
+    pub fn control_name(&self) -> &'static str {
+        ControlState::try_from(self.control).map_or("unknown", ControlState::name)
+    }
+
+    /// Why the drive is latched, by name (`none` while live), `unknown` for a code this layout
+    /// does not define.
+    pub fn latch_reason_name(&self) -> &'static str {
+        LatchReason::try_from(self.latch_reason).map_or("unknown", LatchReason::name)
+    }
+
     /// Whether `other` shows the drive as this image does: no new reply (`sequence`), and the
     /// same online, control and status word. What tools that follow a drive (trace, the Zenoh
     /// bridge) use to tell a new picture from the one they already have.
@@ -334,6 +353,12 @@ impl Default for PzdInput {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stops_are_off1_off2_off3_and_no_jog_or_on() {
+        assert!(is_stop(0x047E) && is_stop(0x047C) && is_stop(0x047A));
+        assert!(!is_stop(0x047F) && !is_stop(0x057E) && !is_stop(0x067E));
+    }
 
     #[test]
     fn output_words_round_trip_in_pzd_order() {

@@ -28,16 +28,16 @@
 //! hand on (control not allowed, ussd not running, a drive ussd does not poll, a full queue).
 
 use crate::keys::Keys;
-use crate::payload::{ControlReport, Out, StopReply, stops, unix_ns};
+use crate::payload::{ControlReport, Out, StopReply, unix_ns};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
+use uss_client::uss_shm_types::pzd::is_stop;
 use uss_client::{
-    Bus, ClientError, ControlOptions, ControlState, Controller, DriveWatch, LatchReason, PzdInput,
-    StopCommand,
+    Bus, ClientError, ControlOptions, Controller, DriveWatch, PzdInput, PzdOutput, StopCommand,
 };
 use zenoh::bytes::Encoding;
 use zenoh::handlers::FifoChannelHandler;
@@ -55,6 +55,9 @@ const STOP_TIMEOUT: Duration = Duration::from_secs(3);
 /// How often the control report goes out besides on every change, while the bridge holds the
 /// drive's controller.
 const REPORT_EVERY: Duration = Duration::from_secs(1);
+/// A sample as the dispatcher read it: parsed once, or why it could not be.
+type Parsed = Result<Out, String>;
+
 /// Samples waiting for the dispatcher, and for each drive's thread.
 const QUEUE: usize = 1024;
 /// Stop replies being confirmed at once; beyond, a stop is sent and its reply says it is not
@@ -99,8 +102,7 @@ fn send_stop(bus: &Bus, keys: &Keys, query: &Query) -> Result<(StopCommand, Vec<
 
 /// The reply to a stop that went out: each drive's image once it shows the command, within
 /// [`STOP_TIMEOUT`] for all of them; a drive that does not show it in time is marked
-/// unconfirmed. One object for one drive, an array for the bus (replies on one key would be
-/// consolidated into one).
+/// unconfirmed ([`stop_json`]).
 fn confirm_stop(name: &str, one: bool, command: StopCommand, drives: &[u8]) -> String {
     let bus = Bus::open_as(name, "uss-zenoh-stop").ok();
     let deadline = Instant::now() + STOP_TIMEOUT;
@@ -118,9 +120,15 @@ fn confirm_stop(name: &str, one: bool, command: StopCommand, drives: &[u8]) -> S
             StopReply::new(name, drive, command, shown)
         })
         .collect();
-    let json = match replies.as_slice() {
+    stop_json(one, &replies)
+}
+
+/// A stop query's answer: the drive's reply for a query on one drive, an array for the bus
+/// (replies on one key would be consolidated into one).
+fn stop_json(one: bool, replies: &[StopReply<'_>]) -> String {
+    let json = match replies {
         [reply] if one => serde_json::to_string(reply),
-        _ => serde_json::to_string(&replies),
+        _ => serde_json::to_string(replies),
     };
     json.unwrap_or_default()
 }
@@ -175,11 +183,7 @@ pub fn serve_stops(
                             StopReply::new(name, d, command, Err(why))
                         })
                         .collect();
-                    let json = match replies.as_slice() {
-                        [reply] if one => serde_json::to_string(reply),
-                        _ => serde_json::to_string(&replies),
-                    };
-                    crate::params::reply(&query, Ok(json.unwrap_or_default()));
+                    crate::params::reply(&query, Ok(stop_json(one, &replies)));
                     continue;
                 }
                 confirming.fetch_add(1, Ordering::Relaxed);
@@ -238,7 +242,7 @@ pub fn serve_control(
     };
     while !stop_flag.load(Ordering::Relaxed) {
         match rx.recv_timeout(Duration::from_millis(200)) {
-            Ok(sample) => d.dispatch(sample),
+            Ok(sample) => d.dispatch(&sample),
             Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}
             Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
         }
@@ -259,20 +263,19 @@ struct Dispatcher<'a> {
     bus: Option<Bus>,
     /// When ussd is tried again while it is not running.
     next_open: Instant,
-    drives: HashMap<u8, (Sender<Sample>, std::thread::JoinHandle<()>)>,
+    drives: HashMap<u8, (Sender<Parsed>, std::thread::JoinHandle<()>)>,
     /// Samples this dispatcher refused, per drive.
     refused: HashMap<u8, u64>,
 }
 
 impl Dispatcher<'_> {
-    fn dispatch(&mut self, sample: Sample) {
+    fn dispatch(&mut self, sample: &Sample) {
         let Some(drive) = self.keys.output_of(sample.key_expr().as_str()) else {
             return;
         };
-        let sender = Out::parse(&sample.payload().to_bytes())
-            .ok()
-            .map(|o| o.from);
-        if let Err(why) = self.hand_on(drive, sample) {
+        let parsed = Out::parse(&sample.payload().to_bytes());
+        let sender = parsed.as_ref().ok().map(|o| o.from.clone());
+        if let Err(why) = self.hand_on(drive, parsed) {
             let refused = self.refused.entry(drive).or_default();
             *refused += 1;
             let mut report = ControlReport::new(self.name, drive);
@@ -284,7 +287,7 @@ impl Dispatcher<'_> {
         }
     }
 
-    fn hand_on(&mut self, drive: u8, sample: Sample) -> Result<(), String> {
+    fn hand_on(&mut self, drive: u8, sample: Parsed) -> Result<(), String> {
         if !self.allowed {
             return Err(CONTROL_REFUSED.to_owned());
         }
@@ -375,8 +378,8 @@ struct Remote<'a> {
 
 impl Remote<'_> {
     /// Passes one sample on, or says why not.
-    fn take(&mut self, sample: &Sample) -> Result<(), String> {
-        let out = Out::parse(&sample.payload().to_bytes())?;
+    fn take(&mut self, sample: Parsed) -> Result<(), String> {
+        let out = sample?;
         self.report.sender = Some(out.from.clone());
         if let Some(holder) = self.report.holder.as_ref().filter(|h| **h != out.from) {
             return Err(format!(
@@ -408,21 +411,11 @@ impl Remote<'_> {
         };
         let info = c.inputs().info();
         let words = out.pzd(usize::from(info.pzd_words), info.reference_hz)?;
-        // The checks ussd makes, before anything is sent (a re-arm included).
-        if words.len() != usize::from(info.pzd_words) {
-            return Err(format!(
-                "{} words: drive {} exchanges {} PZD words (pzd in ussd's configuration)",
-                words.len(),
-                self.drive,
-                info.pzd_words
-            ));
-        }
-        if words[0] & 0x0400 == 0 {
-            return Err(format!(
-                "STW1 {:#06x} has bit 10 (control by PLC) clear: the drive would ignore it",
-                words[0]
-            ));
-        }
+        // ussd's own checks of a sample, before anything is sent (a re-arm included).
+        PzdOutput::from_words(&words, 1, 0, 0)
+            .map_err(|e| e.to_string())?
+            .validate(usize::from(info.pzd_words))
+            .map_err(|r| format!("ussd would refuse these words ({r}): nothing was sent"))?;
         let image = c.inputs().latest();
         let holds = self.report.holder.as_ref() == Some(&out.from);
         let named = out
@@ -438,7 +431,7 @@ impl Remote<'_> {
                  and re-arm it by name",
                 self.drive
             ));
-        } else if named.is_some() && stops(words[0]) {
+        } else if named.is_some() && is_stop(words[0]) {
             // The remote controller acknowledges this very latch with a stop: its words re-arm
             // it (after a trip the controller has not acknowledged yet, through `rearm`, which
             // is done only while the latch is still the one named).
@@ -487,10 +480,8 @@ impl Remote<'_> {
     fn publish_report(&mut self) {
         if let Some(watch) = &self.watch {
             let image = watch.latest();
-            self.report.control =
-                ControlState::try_from(image.control).map_or("unknown", ControlState::name);
-            self.report.latch_reason =
-                LatchReason::try_from(image.latch_reason).map_or("unknown", LatchReason::name);
+            self.report.control = image.control_name();
+            self.report.latch_reason = image.latch_reason_name();
             self.report.latch_id = image.latched_since_ns;
         }
         let changed = self.reported.as_ref() != Some(&self.report);
@@ -521,7 +512,7 @@ fn control_drive(
     name: &str,
     keys: &Keys,
     drive: u8,
-    samples: &Receiver<Sample>,
+    samples: &Receiver<Parsed>,
     stop_flag: &AtomicBool,
 ) {
     let Ok(bus) = Bus::open_as(name, "uss-zenoh-control") else {
@@ -529,8 +520,8 @@ fn control_drive(
         report.state = "refused";
         report.sender = samples
             .try_iter()
+            .filter_map(Result::ok)
             .last()
-            .and_then(|s| Out::parse(&s.payload().to_bytes()).ok())
             .map(|o| o.from);
         report.error = Some(format!("ussd is not running on {name}: nothing was sent"));
         put_report(session, &keys.control(drive), &report);
@@ -561,7 +552,7 @@ fn control_drive(
             .recv_timeout(Duration::from_millis(200))
             .map(|first| samples.try_iter().last().unwrap_or(first));
         match newest {
-            Ok(sample) => match remote.take(&sample) {
+            Ok(sample) => match remote.take(sample) {
                 Ok(()) => {
                     remote.report.taken += 1;
                     remote.report.error = None;

@@ -2,6 +2,7 @@
 //! key back into a drive and a parameter.
 
 use uss_client::uss_protocol::ParamRef;
+use uss_client::uss_shm_types::DriveAddress;
 
 /// The keys of one bus under a prefix (`uss/<site>`).
 #[derive(Debug, Clone)]
@@ -52,10 +53,8 @@ impl Keys {
     pub fn output_of(&self, key: &str) -> Option<u8> {
         key.strip_prefix(&self.base)?
             .strip_prefix("/drive/")?
-            .strip_suffix("/out")?
-            .parse::<u8>()
-            .ok()
-            .filter(|&a| a <= 31)
+            .strip_suffix("/out")
+            .and_then(address)
     }
 
     /// What the bridge did with the remote controller's samples of a drive (JSON).
@@ -79,8 +78,7 @@ impl Keys {
         }
         rest.strip_prefix("/drive/")
             .and_then(|r| r.strip_suffix("/stop"))
-            .and_then(|d| d.parse::<u8>().ok())
-            .filter(|&a| a <= 31)
+            .and_then(address)
             .map(Some)
             .ok_or_else(|| format!("{key}: write .../drive/<address 0..=31>/stop or .../stop"))
     }
@@ -99,16 +97,19 @@ impl Keys {
         let (drive, param) = rest
             .split_once("/param/")
             .ok_or_else(|| format!("{key}: write .../drive/<address>/param/<parameter>"))?;
-        let drive = drive
-            .parse::<u8>()
-            .ok()
-            .filter(|&a| a <= 31)
+        let drive = address(drive)
             .ok_or_else(|| format!("{key}: {drive:?} is not a drive address 0..=31"))?;
         let param = param
             .parse::<ParamRef>()
             .map_err(|e| format!("{key}: {param:?}: {e}"))?;
         Ok((drive, param))
     }
+}
+
+/// A drive address 0..=31 as a key writes it.
+fn address(text: &str) -> Option<u8> {
+    let a = text.parse::<u8>().ok()?;
+    DriveAddress::new(a).ok().map(DriveAddress::get)
 }
 
 #[cfg(test)]

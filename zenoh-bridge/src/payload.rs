@@ -4,8 +4,7 @@
 use serde::{Deserialize, Serialize};
 use uss_client::uss_shm_types::diag::RtMode;
 use uss_client::{
-    BusStatus, ControlState, DriveDiag, Health, LatchReason, ParamValue, PzdInput, Setpoint,
-    StopCommand, Typed, state_name,
+    BusStatus, DriveDiag, Health, ParamValue, PzdInput, Setpoint, StopCommand, Typed, state_name,
 };
 
 /// The payload version.
@@ -125,9 +124,8 @@ impl<'a> Input<'a> {
             sequence: i.sequence,
             stale,
             online: i.online != 0 && !stale,
-            control: ControlState::try_from(i.control).map_or("unknown", ControlState::name),
-            latch_reason: LatchReason::try_from(i.latch_reason)
-                .map_or("unknown", LatchReason::name),
+            control: i.control_name(),
+            latch_reason: i.latch_reason_name(),
             latch_id: i.latched_since_ns,
             state: state_name(i.zsw1),
             zsw1: i.zsw1,
@@ -277,13 +275,6 @@ pub struct Out {
     pub rearm: Option<u64>,
 }
 
-/// Whether `stw1` is a stop that may re-arm a latched drive: ON (bit 0) and both jog bits (8,
-/// 9) clear, control by PLC (bit 10) set; OFF1 0x047E, OFF2 0x047C, OFF3 0x047A are.
-pub const fn stops(stw1: u16) -> bool {
-    use uss_client::uss_shm_types::pzd::{STW1_CONTROL_BY_PLC, STW1_JOG, STW1_ON};
-    stw1 & (STW1_ON | STW1_JOG) == 0 && stw1 & STW1_CONTROL_BY_PLC != 0
-}
-
 impl Out {
     /// Reads a sample, or says what is wrong with it.
     pub fn parse(bytes: &[u8]) -> Result<Out, String> {
@@ -392,11 +383,8 @@ impl<'a> StopReply<'a> {
             command: command.name(),
             confirmed: i.is_some(),
             stw1: i.map(|i| i.sent_stw1),
-            control: i
-                .map(|i| ControlState::try_from(i.control).map_or("unknown", ControlState::name)),
-            latch_reason: i.map(|i| {
-                LatchReason::try_from(i.latch_reason).map_or("unknown", LatchReason::name)
-            }),
+            control: i.map(PzdInput::control_name),
+            latch_reason: i.map(PzdInput::latch_reason_name),
             state: i.map(|i| state_name(i.zsw1)),
             error: shown.err(),
         }
@@ -449,8 +437,6 @@ mod tests {
                 .rearm,
             Some(12)
         );
-        assert!(stops(0x047E) && stops(0x047C) && stops(0x047A));
-        assert!(!stops(0x047F) && !stops(0x057E) && !stops(0x067E) && !stops(0x007E));
         for bad in [
             &br#"{"v":1,"seq":1,"stw1":1150}"#[..],
             br#"{"v":2,"from":"t","seq":1,"stw1":1150}"#,

@@ -91,38 +91,23 @@ fn put_sample(ns: &Netns, drive: &str, payload: &str, expect: &str) -> String {
     ]);
     // Put until the report comes: the subscriber may not be there for the first one (every
     // refusal changes the report, so each put brings one).
-    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let putter = {
-        let (done, name, host) = (done.clone(), ns.name.clone(), ns.here());
-        let (key, payload) = (format!("{drive}/out"), payload.to_owned());
-        std::thread::spawn(move || {
+    let done = std::sync::atomic::AtomicBool::new(false);
+    let key = format!("{drive}/out");
+    let report = std::thread::scope(|scope| {
+        scope.spawn(|| {
             for _ in 0..20 {
                 if done.load(std::sync::atomic::Ordering::Relaxed) {
                     break;
                 }
-                let put = Command::new("ip")
-                    .args(["netns", "exec", &name, netns::CLIENT])
-                    .args([
-                        "--connect",
-                        &format!("tcp/{host}:7447"),
-                        "put",
-                        &key,
-                        &payload,
-                    ])
-                    .output()
-                    .unwrap();
-                assert!(
-                    put.status.success(),
-                    "{}",
-                    String::from_utf8_lossy(&put.stderr)
-                );
+                let (ok, _, err) = ns.call(&["put", &key, payload]);
+                assert!(ok, "{err}");
                 std::thread::sleep(Duration::from_millis(300));
             }
-        })
-    };
-    let report = reports.says(expect);
-    done.store(true, std::sync::atomic::Ordering::Relaxed);
-    putter.join().unwrap();
+        });
+        let report = reports.says(expect);
+        done.store(true, std::sync::atomic::Ordering::Relaxed);
+        report
+    });
     reports.kill();
     report
 }

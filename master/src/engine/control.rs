@@ -120,7 +120,6 @@ pub struct Gate {
 }
 
 const STW1_ON: u16 = uss_shm_types::pzd::STW1_ON;
-const STW1_JOG: u16 = uss_shm_types::pzd::STW1_JOG;
 
 impl Gate {
     /// A gate latched by ussd's start: the drive gets its safe command until a controller arms it.
@@ -274,7 +273,8 @@ impl Gate {
             Ok(OutputSample::Words { words, .. }) => {
                 let on = self.setup.pzd > 0 && words[0] & STW1_ON != 0;
                 // A stop re-arms (OFF1, OFF2, OFF3); a jog word has bit 0 clear too, but runs.
-                let stop = !on && words[0] & STW1_JOG == 0;
+                // (Without PZD every word is 0: a stop.)
+                let stop = self.setup.pzd == 0 || uss_shm_types::pzd::is_stop(words[0]);
                 match self.control {
                     Control::Live if on && !poll.on_allowed => Some(self.latch_with(
                         LatchReason::MonitoringOff,

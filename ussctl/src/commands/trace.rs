@@ -14,7 +14,6 @@ use serde::Serialize;
 use std::collections::VecDeque;
 use std::path::Path;
 use uss_client::uss_protocol::{Setpoint, Zsw1};
-use uss_client::uss_shm_types::ControlState;
 use uss_client::{Bus, ClientError, DriveWatch, PzdInput, monotonic_ns, state_name};
 
 /// What `trace` was asked for.
@@ -84,7 +83,7 @@ impl Row {
             drive: at.drive,
             sequence: image.sequence,
             online: image.online,
-            control: ControlState::try_from(image.control).map_or("unknown", ControlState::name),
+            control: image.control_name(),
             state: state_name(image.zsw1),
             zsw1: format!("0x{:04X}", image.zsw1),
             fault: u8::from(z.contains(Zsw1::FAULT)),

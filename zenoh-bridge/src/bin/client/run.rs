@@ -258,9 +258,7 @@ pub fn run(
         images: subscribe("in")?,
         reports: subscribe("control")?,
         // A clock-based start: a later run's samples are newer than this run's.
-        seq: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(1, |d| u64::try_from(d.as_nanos()).unwrap_or(1)),
+        seq: u64::try_from(super::unix_ns()).unwrap_or(1),
         period: Duration::from_millis(period_ms.max(1)),
         image: None,
         seen_at: Instant::now(),
