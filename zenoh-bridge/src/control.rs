@@ -551,6 +551,15 @@ fn control_drive(
         let newest = samples
             .recv_timeout(Duration::from_millis(200))
             .map(|first| samples.try_iter().last().unwrap_or(first));
+        // Looked at before the sample is: the first sample of a new sender after its
+        // predecessor fell silent finds the drive free.
+        let shows_latch = remote.watch.as_ref().is_some_and(|w| !w.latest().is_live());
+        if shows_latch && remote.last_taken.is_some_and(|t| t.elapsed() > watchdog) {
+            // The holder fell silent and the drive tripped: another sender (or the same one
+            // restarted, with an older sequence number) may take it, re-arming it by its latch.
+            remote.last_seq = None;
+            remote.report.holder = None;
+        }
         match newest {
             Ok(sample) => match remote.take(sample) {
                 Ok(()) => {
@@ -568,13 +577,6 @@ fn control_drive(
             },
             Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}
             Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
-        }
-        let shows_latch = remote.watch.as_ref().is_some_and(|w| !w.latest().is_live());
-        if shows_latch && remote.last_taken.is_some_and(|t| t.elapsed() > watchdog) {
-            // The holder fell silent and the drive tripped: another sender (or the same one
-            // restarted, with an older sequence number) may take it, re-arming it by its latch.
-            remote.last_seq = None;
-            remote.report.holder = None;
         }
         if remote.active.is_some_and(|t| t.elapsed() > RELEASE_AFTER) {
             remote.release();

@@ -99,6 +99,13 @@ impl Remote<'_> {
             .map(|r| r["error"].as_str().unwrap_or("refused").to_owned())
     }
 
+    /// Whether the bridge holds the drive for another remote controller.
+    fn held_by_another(&self) -> bool {
+        self.report
+            .as_ref()
+            .is_some_and(|r| r["holder"].is_string() && r["holder"] != self.from.as_str())
+    }
+
     /// Whether the bridge holds the drive for this client.
     fn holds(&self) -> bool {
         self.report
@@ -130,7 +137,8 @@ impl Remote<'_> {
                 Some(id) => self.step(&format!("{OFF1},\"rearm\":{id}"))?,
                 None => self.step(OFF1)?,
             }
-            if let Some(why) = self.refusal() {
+            let refused = self.refusal();
+            if let Some(why) = refused.as_ref().filter(|_| !self.held_by_another()) {
                 return Err(format!("the bridge refused the OFF1: {why}"));
             }
             // Live by this client's own re-arm, not by someone else's.
@@ -138,6 +146,11 @@ impl Remote<'_> {
                 return Ok(());
             }
             if Instant::now() >= deadline || stop.load(Ordering::Relaxed) {
+                // Another remote controller may be falling silent (the bridge lets go of it
+                // when its drive shows the trip): that refusal is final only now.
+                if let Some(why) = refused {
+                    return Err(format!("the bridge refused the OFF1: {why}"));
+                }
                 return Err(format!(
                     "{} was not re-armed within {ARM_TIMEOUT:?} (control {:?}, latch {:?}); is \
                      the bridge running with --allow-control?",
