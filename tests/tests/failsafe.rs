@@ -7,6 +7,7 @@
 //! - a sample the drive would misread is refused at the poll that takes it, latched, named;
 //! - a clean release is "released", a SIGKILL is a watchdog trip: counted apart;
 //! - `ussctl stop/coast/quick-stop` (one drive or `--all`) override a running controller;
+//! - after an operator's stop a jogging controller re-arms nothing; only its stop does;
 //! - parameter writes to a controlled drive need `--force` (or the controlling process);
 //! - a drive whose own telegram monitoring is off is reported, and refused ON when required;
 //! - the same freeze over a real pty with `uss-sim`.
@@ -475,6 +476,48 @@ fn ussctl_stop_coast_and_quick_stop_override_a_running_controller_and_latch() {
         c.set_setpoint(Setpoint::from_percent(10.0)),
         Err(ClientError::Tripped { .. })
     ));
+}
+
+/// The gate's re-arm rule with a real ussd and a foreign controller: after an operator's stop,
+/// a controller that keeps jogging (JOG1/JOG2 have STW1 bit 0 clear, like a stop) re-arms
+/// nothing and no jog word goes out; only its stop (OFF1) re-arms, and only its ON after that
+/// runs the drive.
+#[test]
+fn a_jog_does_not_re_arm_an_operator_stop_only_a_stop_does() {
+    const JOG1: u16 = OFF1 | 0x0100;
+    const JOG2: u16 = OFF1 | 0x0200;
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let mut raw = RawController::open(&ussd.bus, 1);
+    raw.until(&bus, 1, &[OFF1, 0], PzdInput::is_live);
+    raw.until(&bus, 1, &[RUN, 0x1000], |i| {
+        state_of(i) == DriveState::OperationEnabled
+    });
+    bus.stop_drive(1, StopCommand::Off1).unwrap();
+    first_image(&bus, 1, Duration::from_secs(1), |i| {
+        i.latch_reason == LatchReason::Override.code()
+    });
+    let watch = bus.watch(1).unwrap();
+    for n in 0..60 {
+        let jog = if n % 2 == 0 { JOG1 } else { JOG2 };
+        let seq = raw.words(&[jog, 0x1000]);
+        let i = first_image(&bus, 1, Duration::from_secs(1), |i| i.taken_sequence >= seq);
+        assert_eq!(
+            (i.sent_stw1, i.latch_reason),
+            (OFF1, LatchReason::Override.code()),
+            "jog {jog:#06X} (sample {seq}) was taken as a re-arm: {i:?}"
+        );
+        assert!(!i.is_live(), "{i:?}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(watch.latest().latch_reason, LatchReason::Override.code());
+    // The deliberate re-arm: a stop, then ON runs the drive again.
+    raw.until(&bus, 1, &[OFF1, 0], PzdInput::is_live);
+    raw.until(&bus, 1, &[RUN, 0x1000], |i| {
+        state_of(i) == DriveState::OperationEnabled
+    });
+    raw.words(&[OFF1, 0]);
 }
 
 #[test]
