@@ -252,7 +252,7 @@ impl BusUnderTest {
             .expect("the bus's services");
         let transport = Recording {
             inner: runtime::sim_transport(bus).expect("simulated drives"),
-            layout: bus.drives[0].layout,
+            layout: bus.drives[0].layout(),
             origin_ns: as_ns(clock.origin()),
             sent: Vec::with_capacity(CAPACITY),
         };

@@ -25,6 +25,19 @@ pub struct ConfigError {
     pub message: String,
 }
 
+impl ConfigError {
+    /// A file that cannot be read: an error without a line.
+    pub fn unreadable(origin: &str, e: &std::io::Error) -> Self {
+        ConfigError {
+            origin: origin.to_owned(),
+            line: None,
+            column: None,
+            path: None,
+            message: format!("cannot read the configuration: {e}"),
+        }
+    }
+}
+
 /// `:line:column`, or nothing.
 struct Position(Option<usize>, Option<usize>);
 
@@ -82,16 +95,6 @@ impl Reporter<'_> {
             column,
             path: None,
             message: format!("invalid TOML: {}", e.message().trim_end()),
-        }
-    }
-
-    pub fn io(&self, e: &std::io::Error) -> ConfigError {
-        ConfigError {
-            origin: self.origin.to_owned(),
-            line: None,
-            column: None,
-            path: None,
-            message: format!("cannot read the configuration: {e}"),
         }
     }
 
@@ -189,7 +192,7 @@ impl Reporter<'_> {
     /// A broken rule, in our words.
     pub fn rule(&self, b: &Broken) -> ConfigError {
         let path = if b.table.is_empty() {
-            b.key.clone()
+            b.key.to_owned()
         } else {
             format!("{}.{}", b.table, b.key)
         };
@@ -214,6 +217,25 @@ impl Reporter<'_> {
             format!("{}: {text}", place.label)
         };
         self.error(b.span.as_ref(), path, message)
+    }
+
+    /// Where the table at `path` (`[("bus", 0), ("drive", 2)]`) writes `key`'s value, or where
+    /// the table is when it does not write `key`.
+    pub fn span(&self, path: &[(&str, usize)], key: &str) -> Option<Range<usize>> {
+        let mut table = self.root.as_ref()?;
+        let mut span = None;
+        for &(array, i) in path {
+            let DeValue::Array(items) = table.get(array)?.get_ref() else {
+                return None;
+            };
+            let item = items.get(i)?;
+            let DeValue::Table(inner) = item.get_ref() else {
+                return None;
+            };
+            span = Some(item.span());
+            table = inner;
+        }
+        table.get(key).map(Spanned::span).or(span)
     }
 
     /// The innermost table around `offset` and the key there.

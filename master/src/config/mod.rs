@@ -23,38 +23,34 @@
 //! ([`errors`]); of several broken rules the one nearest the start of the file is reported.
 
 mod errors;
-mod file;
+mod keys;
 mod rules;
 
 pub use errors::ConfigError;
+pub use keys::*;
 pub use rules::BUS_NAME_MAX;
 
 use core::fmt::Write as _;
 use errors::Reporter;
-use file::File;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::time::Duration;
-use toml::Spanned;
 use toml::de::DeTable;
 #[cfg(feature = "sim")]
+use uss_drive_sim::SimOptions;
+#[cfg(feature = "sim")]
 use uss_drive_sim::spec::DriveSpec;
-use uss_protocol::{Address, Baud, Layout, ParamRef};
+/// Without the simulated bus (`sim` feature off) a `sim` table is read only to be refused.
+#[cfg(not(feature = "sim"))]
+type SimOptions = toml::Table;
+use uss_protocol::{Address, Baud, Layout, PkwMode, PzdCount};
 use uss_shm_types::StopCommand;
 
 /// A whole configuration: one or more buses, each run by its own real-time thread.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
 pub struct Config {
+    #[serde(rename = "bus", default)]
     pub buses: Vec<BusConfig>,
-    /// The file as read, with every default: what [`Config::to_toml`] writes.
-    file: File,
-}
-
-/// Two configurations are the same when they run the same buses.
-impl PartialEq for Config {
-    fn eq(&self, other: &Self) -> bool {
-        self.buses == other.buses
-    }
 }
 
 /// Where a bus lives.
@@ -108,94 +104,110 @@ impl SafeCommand {
     }
 }
 
-/// One bus: its device, line settings, polling and retry policy, real-time placement and drives.
-#[derive(Debug, Clone, PartialEq)]
+/// A `[[bus]]` table: its device, line settings, polling and retry policy, real-time placement
+/// and drives. The keys' types say what each allows and its default ([`keys`]).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
 pub struct BusConfig {
     /// Unique, [`BUS_NAME_MAX`] characters at most from `A-Z a-z 0-9 _ -`: it becomes part of
     /// shared-memory service names.
     pub name: String,
     pub device: Device,
     /// Character rate; the frame is always 8E1 (USS.md section 2).
+    #[serde(default = "default_baud")]
     pub baud: Baud,
+    /// A rate USS does not name (USS.md section 2) is refused unless this says it is meant.
+    #[serde(default)]
+    pub nonstandard_baud: bool,
+    #[serde(default)]
     pub rs485: Rs485Mode,
     /// A 2-wire adapter returns our own bytes: discard them (USS.md section 9).
+    #[serde(default)]
     pub echo: bool,
-    /// The slave's response delay limit, 20 ms by the specification (USS.md section 4).
-    pub response_timeout: Duration,
-    /// Added to the response timeout for adapters with latency (USS.md section 9).
-    pub timeout_margin: Duration,
-    /// Retries after a failed exchange, like the S7-1200 library's 2 (USS.md section 8).
-    pub retries: u8,
-    /// Consecutive polls that failed all their retries before a drive is marked offline.
-    pub offline_after: u32,
-    /// An offline drive is polled at most this often.
-    pub offline_probe: Duration,
-    /// A fixed cycle time for the circulating list, waited out after its last entry; `None` = as
-    /// fast as the wire allows (USS.md section 5).
-    pub cycle_time: Option<Duration>,
-    /// A parameter job with no matching reply in this time ends with a timeout (USS.md section 6).
-    pub param_timeout: Duration,
+    #[serde(default)]
+    pub response_timeout_ms: ResponseTimeout,
+    #[serde(default)]
+    pub timeout_margin_ms: TimeoutMargin,
+    #[serde(default)]
+    pub retries: Retries,
+    #[serde(default)]
+    pub offline_after: OfflineAfter,
+    #[serde(default)]
+    pub offline_probe_ms: OfflineProbe,
+    #[serde(default)]
+    pub cycle_time_ms: CycleTime,
+    #[serde(default)]
+    pub param_timeout_ms: ParamTimeout,
     /// A drive with a parameter job waiting gets an extra poll after each regular poll of the
     /// circulating list (no other drive's poll period more than doubles).
+    #[serde(default)]
     pub param_priority: bool,
-    /// The CPU to pin the bus thread to; `None` = not pinned.
-    pub cpu: Option<usize>,
-    /// The bus thread's `SCHED_FIFO` priority, 1..=99.
-    pub priority: u8,
-    /// Fault injector and jitter seed of the simulated bus (unused on a serial bus).
-    pub seed: u64,
+    /// `None` = not pinned.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpu: Option<Cpu>,
+    #[serde(default)]
+    pub priority: Priority,
+    /// Fault injector and jitter seed of the simulated bus (only there: [`BusConfig::seed`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    #[serde(rename = "drive", default)]
     pub drives: Vec<DriveEntry>,
 }
 
-/// One drive on a bus.
-#[derive(Debug, Clone)]
+impl BusConfig {
+    /// The simulated bus's seed: as written, or 1.
+    pub fn seed(&self) -> u64 {
+        self.seed.unwrap_or(1)
+    }
+}
+
+/// A `[[bus.drive]]` table: one drive on a bus.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
 pub struct DriveEntry {
     /// 0..=31, unique per bus (USS.md section 1).
     pub address: Address,
     /// PKW mode (P2013) and PZD words (P2012): must match the drive's settings (USS.md section 3).
-    pub layout: Layout,
-    /// How many times the drive appears in the circulating list, 1..=16 (USS.md section 5).
-    pub weight: u8,
-    /// The reference frequency P2000 in Hz: 0x4000 = 100 % (USS.md section 7).
-    pub reference_hz: f32,
-    /// The controller must refresh the drive's PZD within this time, or the drive gets
-    /// [`DriveEntry::safe_command`].
-    pub watchdog: Duration,
+    #[serde(default = "default_pkw")]
+    pub pkw: PkwMode,
+    #[serde(default = "default_pzd")]
+    pub pzd: PzdCount,
+    #[serde(default)]
+    pub weight: Weight,
+    #[serde(default)]
+    pub reference_hz: ReferenceHz,
+    #[serde(default)]
+    pub watchdog_ms: Watchdog,
+    #[serde(default)]
     pub safe_command: SafeCommand,
     /// `false`: parameter writes are refused (read-only monitoring deployments).
+    #[serde(default = "yes")]
     pub params_writable: bool,
-    /// The parameter holding the drive's own telegram-off time (USS.md section 5), read when
-    /// the drive comes online; `None` (`monitoring_param = ""`): not checked.
-    pub monitoring_param: Option<ParamRef>,
-    /// A telegram-off time above this is reported as too long.
-    pub monitoring_max: Duration,
+    /// Read when the drive comes online; a telegram-off time above `monitoring_max_ms` is
+    /// reported as too long.
+    #[serde(default)]
+    pub monitoring_param: MonitoringParam,
+    #[serde(default)]
+    pub monitoring_max_ms: MonitoringMax,
     /// Refuse ON unless the drive's telegram monitoring was read and is on within the limit.
+    #[serde(default)]
     pub require_monitoring: bool,
-    /// The simulated drive (config + fault plan), only with `Device::Sim`: this entry's address
-    /// and layout with its `[bus.drive.sim]` options.
-    #[cfg(feature = "sim")]
-    pub sim: Option<DriveSpec>,
+    /// Only on the simulated bus: the simulated drive's options (uss-sim's drive keys).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sim: Option<SimOptions>,
 }
 
-/// The fault plan inside [`DriveSpec`] has no `PartialEq` (it also counts injected faults);
-/// comparing the simulated drives' configurations compares what the file set.
-impl PartialEq for DriveEntry {
-    fn eq(&self, other: &Self) -> bool {
-        #[cfg(feature = "sim")]
-        let same_sim = self.sim.as_ref().map(|s| s.config) == other.sim.as_ref().map(|s| s.config);
-        #[cfg(not(feature = "sim"))]
-        let same_sim = true;
-        self.address == other.address
-            && self.layout == other.layout
-            && self.weight == other.weight
-            && self.reference_hz.to_bits() == other.reference_hz.to_bits()
-            && self.watchdog == other.watchdog
-            && self.safe_command == other.safe_command
-            && self.params_writable == other.params_writable
-            && self.monitoring_param == other.monitoring_param
-            && self.monitoring_max == other.monitoring_max
-            && self.require_monitoring == other.require_monitoring
-            && same_sim
+impl DriveEntry {
+    pub fn layout(&self) -> Layout {
+        Layout::new(self.pkw, self.pzd)
+    }
+
+    /// The simulated drive (config + fault plan) at this entry's address and layout with its
+    /// `[bus.drive.sim]` options; the error says which option is wrong (checked as read).
+    #[cfg(feature = "sim")]
+    pub fn sim_spec(&self) -> Result<DriveSpec, String> {
+        let options = self.sim.clone().unwrap_or_default();
+        DriveSpec::new(self.address, self.layout(), &options)
     }
 }
 
@@ -231,15 +243,9 @@ impl Config {
     /// line.
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
         let origin = path.display().to_string();
-        match std::fs::read_to_string(path) {
-            Ok(text) => Config::parse(&text, &origin),
-            Err(e) => Err(Reporter {
-                text: "",
-                origin: &origin,
-                root: None,
-            }
-            .io(&e)),
-        }
+        let text =
+            std::fs::read_to_string(path).map_err(|e| ConfigError::unreadable(&origin, &e))?;
+        Config::parse(&text, &origin)
     }
 
     /// Parses and checks a configuration; `origin` names it in errors (usually the file name).
@@ -251,17 +257,19 @@ impl Config {
         };
         let root = DeTable::parse(text).map_err(|e| reporter.syntax(&e))?;
         reporter.root = Some(root.into_inner());
-        let file: File = toml::from_str(text).map_err(|e| reporter.serde(&e))?;
-        rules::check(file, text).map_err(|broken| {
-            let nearest = broken
-                .iter()
-                .min_by_key(|b| b.span.as_ref().map_or(usize::MAX, |s| s.start));
-            // `check` fails only with something broken.
-            nearest.map_or_else(
-                || unreachable!("a refused configuration names what is broken"),
-                |b| reporter.rule(b),
-            )
-        })
+        let mut config: Config = toml::from_str(text).map_err(|e| reporter.serde(&e))?;
+        let broken = rules::check(&config, &reporter);
+        // Of several broken rules, the one nearest the start of the file.
+        if let Some(b) = broken
+            .iter()
+            .min_by_key(|b| b.span.as_ref().map_or(usize::MAX, |s| s.start))
+        {
+            return Err(reporter.rule(b));
+        }
+        for bus in config.buses.iter_mut().filter(|b| b.device == Device::Sim) {
+            bus.seed = Some(bus.seed());
+        }
+        Ok(config)
     }
 
     /// What `ussd` runs with no arguments (see [`EMBEDDED_DEFAULT`]): a simulated bus, so only
@@ -279,20 +287,6 @@ impl Config {
     /// character device, something else, or not there now (ussd then opens it when it
     /// appears).
     pub fn to_toml(&self) -> String {
-        let mut file = self.file.clone();
-        for (table, bus) in file.bus.iter_mut().zip(&self.buses) {
-            let table = table.get_mut();
-            table.seed = match bus.device {
-                Device::Sim => Some(Spanned::new(0..0, bus.seed)),
-                Device::Serial(_) => None,
-            };
-            for drive in &mut table.drive {
-                let drive = drive.get_mut();
-                if drive.require_monitoring.is_none() {
-                    drive.require_monitoring = Some(Spanned::new(0..0, false));
-                }
-            }
-        }
         let mut text =
             "# ussd configuration: the effective settings, every default filled in\n".to_owned();
         for bus in &self.buses {
@@ -302,7 +296,7 @@ impl Config {
         }
         text.push('\n');
         // Plain data of known types: serialising cannot fail.
-        text.push_str(&toml::to_string(&file).unwrap_or_default());
+        text.push_str(&toml::to_string(self).unwrap_or_default());
         text
     }
 }

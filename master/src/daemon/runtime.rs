@@ -67,12 +67,12 @@ pub enum StartError {
 pub fn engine_config(bus: &BusConfig) -> EngineConfig {
     EngineConfig {
         timing: Timing::new(bus.baud),
-        response_timeout: bus.response_timeout + bus.timeout_margin,
-        retries: bus.retries,
-        offline_after: bus.offline_after,
-        offline_probe: bus.offline_probe,
-        cycle_time: bus.cycle_time,
-        param_timeout: bus.param_timeout,
+        response_timeout: bus.response_timeout_ms.get() + bus.timeout_margin_ms.get(),
+        retries: bus.retries.get(),
+        offline_after: bus.offline_after.get(),
+        offline_probe: bus.offline_probe_ms.get(),
+        cycle_time: bus.cycle_time_ms.period(),
+        param_timeout: bus.param_timeout_ms.get(),
         echo: bus.echo,
         mailbox_depth: MAILBOX_DEPTH,
         publish_every: super::housekeeping::STATUS_EVERY,
@@ -83,17 +83,17 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
             .iter()
             .map(|d| DriveSetup {
                 address: d.address,
-                layout: d.layout,
-                weight: d.weight,
+                layout: d.layout(),
+                weight: d.weight.get(),
                 safe: d.safe_command.command(),
-                watchdog: d.watchdog,
+                watchdog: d.watchdog_ms.get(),
                 params_writable: d.params_writable,
                 monitoring: MonitoringSetup {
-                    param: d.monitoring_param.map(|p| (p.pnu, p.index)),
-                    max: d.monitoring_max,
+                    param: d.monitoring_param.param.map(|p| (p.pnu, p.index)),
+                    max: d.monitoring_max_ms.get(),
                     required: d.require_monitoring,
                 },
-                reference_hz: d.reference_hz,
+                reference_hz: d.reference_hz.0,
             })
             .collect(),
     }
@@ -102,13 +102,15 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
 /// The simulated drives of a `device = "sim"` bus on the in-process virtual wire.
 #[cfg(feature = "sim")]
 pub fn sim_transport(bus: &BusConfig) -> Result<SimTransport, BusError> {
-    let mut sim = SimBus::new(bus.seed);
+    let mut sim = SimBus::new(bus.seed());
     for d in &bus.drives {
-        if let Some(spec) = &d.sim {
-            sim.add(spec.config)?;
-            if let Some(plan) = sim.faults_mut(spec.config.address) {
-                *plan = spec.faults.clone();
-            }
+        // The configuration's rules built every drive of a simulated bus once: it builds.
+        let spec = d
+            .sim_spec()
+            .unwrap_or_else(|e| unreachable!("checked by the configuration's rules: {e}"));
+        sim.add(spec.config)?;
+        if let Some(plan) = sim.faults_mut(spec.config.address) {
+            *plan = spec.faults;
         }
     }
     let wire = VirtualWire::new(sim, Timing::new(bus.baud)).with_echo(bus.echo);
@@ -358,8 +360,8 @@ fn spawn<T: Transport + Send + 'static>(
             source,
         })?;
     let request = RtRequest {
-        cpu: bus.cpu,
-        priority: bus.priority,
+        cpu: bus.cpu.map(|c| c.0),
+        priority: bus.priority.get(),
         lock_memory: true,
         prefault_stack_bytes: PREFAULT_STACK,
     };

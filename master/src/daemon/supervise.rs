@@ -31,8 +31,8 @@ pub fn stall_bound(bus: &BusConfig) -> Duration {
     };
     let attempt = timing.telegram(MAX_NET_BYTES) * 2
         + timing.start_pause() * 2
-        + bus.response_timeout
-        + bus.timeout_margin
+        + bus.response_timeout_ms.get()
+        + bus.timeout_margin_ms.get()
         + write_stall;
     (attempt * 2).max(Duration::from_secs(1))
 }
