@@ -28,7 +28,7 @@
 //! hand on (control not allowed, ussd not running, a drive ussd does not poll, a full queue).
 
 use crate::keys::Keys;
-use crate::payload::{ControlReport, Out, StopReply, unix_ns};
+use crate::payload::{ControlReport, Out, SampleError, StopReply, unix_ns};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use std::collections::HashMap;
@@ -56,7 +56,7 @@ const STOP_TIMEOUT: Duration = Duration::from_secs(3);
 /// drive's controller.
 const REPORT_EVERY: Duration = Duration::from_secs(1);
 /// A sample as the dispatcher read it: parsed once, or why it could not be.
-type Parsed = Result<Out, String>;
+type Parsed = Result<Out, SampleError>;
 
 /// Samples waiting for the dispatcher, and for each drive's thread.
 const QUEUE: usize = 1024;
@@ -83,7 +83,9 @@ fn stop_command(payload: Option<&str>) -> Result<StopCommand, String> {
 
 /// Sends the stop a query asks for: the command and the drives it went to, or the error text.
 fn send_stop(bus: &Bus, keys: &Keys, query: &Query) -> Result<(StopCommand, Vec<u8>), String> {
-    let target = keys.stop_of(query.key_expr().as_str())?;
+    let target = keys
+        .stop_of(query.key_expr().as_str())
+        .map_err(|e| e.to_string())?;
     let payload = query
         .payload()
         .map(|p| p.try_to_string().map(std::borrow::Cow::into_owned))
@@ -131,18 +133,6 @@ fn stop_json(one: bool, replies: &[StopReply<'_>]) -> String {
         _ => serde_json::to_string(replies),
     };
     json.unwrap_or_default()
-}
-
-/// The queryable of bus `keys`'s operator stops. The bridge does not run without it: a safe
-/// command must be sendable from anywhere.
-pub fn declare_stops(
-    session: &Session,
-    keys: &Keys,
-) -> Result<Queryable<FifoChannelHandler<Query>>, String> {
-    session
-        .declare_queryable(keys.stops())
-        .wait()
-        .map_err(|e| format!("cannot declare the queryable {}: {e}", keys.stops()))
 }
 
 /// Serves the operator stops of bus `name` until `stop_flag`: each stop goes to ussd as soon as
@@ -379,7 +369,7 @@ struct Remote<'a> {
 impl Remote<'_> {
     /// Passes one sample on, or says why not.
     fn take(&mut self, sample: Parsed) -> Result<(), String> {
-        let out = sample?;
+        let out = sample.map_err(|e| e.to_string())?;
         self.report.sender = Some(out.from.clone());
         if let Some(holder) = self.report.holder.as_ref().filter(|h| **h != out.from) {
             return Err(format!(
@@ -410,7 +400,9 @@ impl Remote<'_> {
             return Err("no controller".to_owned());
         };
         let info = c.inputs().info();
-        let words = out.pzd(usize::from(info.pzd_words), info.reference_hz)?;
+        let words = out
+            .pzd(usize::from(info.pzd_words), info.reference_hz)
+            .map_err(|e| e.to_string())?;
         // ussd's own checks of a sample, before anything is sent (a re-arm included).
         PzdOutput::from_words(&words, 1, 0, 0)
             .map_err(|e| e.to_string())?

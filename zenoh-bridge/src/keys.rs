@@ -69,10 +69,14 @@ impl Keys {
     }
 
     /// The drive a stop query's key names (`None`: every drive), or why it names none.
-    pub fn stop_of(&self, key: &str) -> Result<Option<u8>, String> {
+    pub fn stop_of(&self, key: &str) -> Result<Option<u8>, KeyError> {
+        let bad = |kind| KeyError {
+            key: key.to_owned(),
+            kind,
+        };
         let rest = key
             .strip_prefix(&self.base)
-            .ok_or_else(|| format!("{key}: not a key of {}", self.base))?;
+            .ok_or_else(|| bad(BadKey::Foreign(self.base.clone())))?;
         if rest == "/stop" {
             return Ok(None);
         }
@@ -80,7 +84,7 @@ impl Keys {
             .and_then(|r| r.strip_suffix("/stop"))
             .and_then(address)
             .map(Some)
-            .ok_or_else(|| format!("{key}: write .../drive/<address 0..=31>/stop or .../stop"))
+            .ok_or_else(|| bad(BadKey::Stop))
     }
 
     /// The queryable of every drive's parameters: `.../drive/<addr>/param/<P1082>`.
@@ -89,21 +93,49 @@ impl Keys {
     }
 
     /// The drive and parameter a parameter query's key names, or why it names none.
-    pub fn param_of(&self, key: &str) -> Result<(u8, ParamRef), String> {
+    pub fn param_of(&self, key: &str) -> Result<(u8, ParamRef), KeyError> {
+        let bad = |kind| KeyError {
+            key: key.to_owned(),
+            kind,
+        };
         let rest = key
             .strip_prefix(&self.base)
             .and_then(|r| r.strip_prefix("/drive/"))
-            .ok_or_else(|| format!("{key}: not a parameter key of {}", self.base))?;
+            .ok_or_else(|| bad(BadKey::ForeignParam(self.base.clone())))?;
         let (drive, param) = rest
             .split_once("/param/")
-            .ok_or_else(|| format!("{key}: write .../drive/<address>/param/<parameter>"))?;
-        let drive = address(drive)
-            .ok_or_else(|| format!("{key}: {drive:?} is not a drive address 0..=31"))?;
+            .ok_or_else(|| bad(BadKey::Param))?;
+        let drive = address(drive).ok_or_else(|| bad(BadKey::Address(drive.to_owned())))?;
         let param = param
             .parse::<ParamRef>()
-            .map_err(|e| format!("{key}: {param:?}: {e}"))?;
+            .map_err(|e| bad(BadKey::Notation(param.to_owned(), e)))?;
         Ok((drive, param))
     }
+}
+
+/// A query's key that names no drive or parameter of this bridge.
+#[derive(Debug, PartialEq, thiserror::Error)]
+#[error("{key}: {kind}")]
+pub struct KeyError {
+    pub key: String,
+    pub kind: BadKey,
+}
+
+/// What is wrong with a key.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum BadKey {
+    #[error("not a key of {0}")]
+    Foreign(String),
+    #[error("not a parameter key of {0}")]
+    ForeignParam(String),
+    #[error("write .../drive/<address 0..=31>/stop or .../stop")]
+    Stop,
+    #[error("write .../drive/<address>/param/<parameter>")]
+    Param,
+    #[error("{0:?} is not a drive address 0..=31")]
+    Address(String),
+    #[error("{0:?}: {1}")]
+    Notation(String, uss_client::uss_protocol::NotationError),
 }
 
 /// A drive address 0..=31 as a key writes it.

@@ -12,6 +12,7 @@ mod payload;
 mod publish;
 
 use clap::Parser;
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -55,22 +56,59 @@ struct Cli {
     allow_control: bool,
 }
 
+/// Why the bridge did not start. Zenoh's errors are boxed trait objects (not `Error` sources
+/// themselves): they are shown, not chained.
+#[derive(Debug, thiserror::Error)]
+enum StartError {
+    #[error("{}: {error}", .path.display())]
+    ZenohConfig { path: PathBuf, error: zenoh::Error },
+    #[error("{flag} {endpoints:?}: {error}")]
+    Endpoints {
+        flag: &'static str,
+        endpoints: Vec<String>,
+        error: zenoh::Error,
+    },
+    #[error("--max-rate {0}: give a positive number of images per second")]
+    MaxRate(f64),
+    #[error("cannot handle signal {signal}: {source}")]
+    Signal { signal: i32, source: std::io::Error },
+    #[error("cannot open the Zenoh session: {0}")]
+    Session(zenoh::Error),
+    /// The bridge's own token or the operator-stop queryable: without either it does not run.
+    #[error("cannot declare {what} {key}: {error}")]
+    Declare {
+        what: &'static str,
+        key: String,
+        error: zenoh::Error,
+    },
+    #[error("cannot start a thread: {0}")]
+    Thread(std::io::Error),
+}
+
 /// The Zenoh configuration: the file's, with `--listen` and `--connect` added.
-fn zenoh_config(cli: &Cli) -> Result<Config, String> {
+fn zenoh_config(cli: &Cli) -> Result<Config, StartError> {
     let mut config = match &cli.zenoh_config {
-        Some(path) => Config::from_file(path).map_err(|e| format!("{}: {e}", path.display()))?,
+        Some(path) => Config::from_file(path).map_err(|error| StartError::ZenohConfig {
+            path: path.clone(),
+            error,
+        })?,
         None => Config::default(),
     };
-    let list = |v: &[String]| serde_json::to_string(v).unwrap_or_default();
-    if !cli.listen.is_empty() {
+    for (flag, key, endpoints) in [
+        ("--listen", "listen/endpoints", &cli.listen),
+        ("--connect", "connect/endpoints", &cli.connect),
+    ] {
+        if endpoints.is_empty() {
+            continue;
+        }
+        let list = serde_json::to_string(endpoints).unwrap_or_default();
         config
-            .insert_json5("listen/endpoints", &list(&cli.listen))
-            .map_err(|e| format!("--listen {:?}: {e}", cli.listen))?;
-    }
-    if !cli.connect.is_empty() {
-        config
-            .insert_json5("connect/endpoints", &list(&cli.connect))
-            .map_err(|e| format!("--connect {:?}: {e}", cli.connect))?;
+            .insert_json5(key, &list)
+            .map_err(|error| StartError::Endpoints {
+                flag,
+                endpoints: endpoints.clone(),
+                error,
+            })?;
     }
     Ok(config)
 }
@@ -90,30 +128,32 @@ const fn allowed(yes: bool) -> &'static str {
     if yes { "allowed" } else { "refused" }
 }
 
-fn run(cli: &Cli) -> Result<(), String> {
+fn run(cli: &Cli) -> Result<(), StartError> {
     let prefix = cli
         .prefix
         .clone()
         .unwrap_or_else(|| format!("uss/{}", host_name()));
     if let Some(r) = cli.max_rate.filter(|r| !(r.is_finite() && *r > 0.0)) {
-        return Err(format!(
-            "--max-rate {r}: give a positive number of images per second"
-        ));
+        return Err(StartError::MaxRate(r));
     }
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, Arc::clone(&stop))
-            .map_err(|e| format!("cannot handle signal {signal}: {e}"))?;
+            .map_err(|source| StartError::Signal { signal, source })?;
     }
     let session = zenoh::open(zenoh_config(cli)?)
         .wait()
-        .map_err(|e| format!("cannot open the Zenoh session: {e}"))?;
+        .map_err(StartError::Session)?;
     let bridge_key = format!("{prefix}/bridge");
     let bridge = session
         .liveliness()
         .declare_token(&bridge_key)
         .wait()
-        .map_err(|e| format!("liveliness token {bridge_key}: {e}"))?;
+        .map_err(|error| StartError::Declare {
+            what: "the liveliness token",
+            key: bridge_key.clone(),
+            error,
+        })?;
     let mut threads = Vec::new();
     for bus in &cli.buses {
         let options = publish::Options {
@@ -123,7 +163,14 @@ fn run(cli: &Cli) -> Result<(), String> {
         };
         let (w, c) = (cli.allow_writes, cli.allow_control);
         // Declared before anything else runs: without it the bridge does not run.
-        let stops = control::declare_stops(&session, &options.keys)?;
+        let stops = session
+            .declare_queryable(options.keys.stops())
+            .wait()
+            .map_err(|error| StartError::Declare {
+                what: "the queryable",
+                key: options.keys.stops(),
+                error,
+            })?;
         let jobs: [(&str, Job); 4] = [
             ("publish", Box::new(publish::run)),
             (
@@ -144,7 +191,7 @@ fn run(cli: &Cli) -> Result<(), String> {
             let thread = std::thread::Builder::new()
                 .name(format!("{what}-{bus}"))
                 .spawn(move || job(&s, &o, &st))
-                .map_err(|e| format!("cannot start a thread: {e}"))?;
+                .map_err(StartError::Thread)?;
             threads.push(thread);
         }
     }

@@ -26,7 +26,9 @@ fn answer(
     query: &Query,
     allow_writes: bool,
 ) -> Result<String, String> {
-    let (drive, param) = keys.param_of(query.key_expr().as_str())?;
+    let (drive, param) = keys
+        .param_of(query.key_expr().as_str())
+        .map_err(|e| e.to_string())?;
     let payload = query
         .payload()
         .map(|p| {

@@ -277,31 +277,22 @@ pub struct Out {
 
 impl Out {
     /// Reads a sample, or says what is wrong with it.
-    pub fn parse(bytes: &[u8]) -> Result<Out, String> {
-        let out: Out = serde_json::from_slice(bytes).map_err(|e| {
-            format!("not a sample: {e}; send e.g. {{\"v\":1,\"from\":\"hmi-1\",\"seq\":1,\"stw1\":1150,\"hz\":0.0}}")
-        })?;
+    pub fn parse(bytes: &[u8]) -> Result<Out, SampleError> {
+        let out: Out = serde_json::from_slice(bytes).map_err(SampleError::Unreadable)?;
         if out.v != VERSION {
-            return Err(format!(
-                "payload version {} is not {VERSION}: this uss-zenoh speaks version {VERSION}",
-                out.v
-            ));
+            return Err(SampleError::Version(out.v));
         }
         match (&out.words, out.stw1, out.release) {
-            (Some(_), Some(_), _) => Err("give stw1 (and hz) or words, not both".to_owned()),
-            (None, None, false) => Err("give stw1 (and hz), words, or release".to_owned()),
-            (Some(_), None, _) if out.hz.is_some() => {
-                Err("hz goes with stw1; with words, the setpoint is words[1]".to_owned())
-            }
-            _ if out.hz.is_some_and(|hz| !hz.is_finite()) => {
-                Err("hz is not a finite number".to_owned())
-            }
+            (Some(_), Some(_), _) => Err(SampleError::WordsAndStw1),
+            (None, None, false) => Err(SampleError::Empty),
+            (Some(_), None, _) if out.hz.is_some() => Err(SampleError::WordsAndHz),
+            _ if out.hz.is_some_and(|hz| !hz.is_finite()) => Err(SampleError::HzNotFinite),
             _ => Ok(out),
         }
     }
 
     /// The PZD words to send to a drive of `pzd` words and reference frequency `reference_hz`.
-    pub fn pzd(&self, pzd: usize, reference_hz: f32) -> Result<Vec<u16>, String> {
+    pub fn pzd(&self, pzd: usize, reference_hz: f32) -> Result<Vec<u16>, SampleError> {
         if let Some(words) = &self.words {
             return Ok(words.clone());
         }
@@ -309,14 +300,34 @@ impl Out {
         let mut words = vec![0; pzd.max(1)];
         words[0] = stw1;
         match (self.hz, pzd) {
-            (Some(hz), 1) if hz != 0.0 => {
-                return Err("the drive exchanges only STW1 (pzd = 1): no setpoint".to_owned());
-            }
+            (Some(hz), 1) if hz != 0.0 => return Err(SampleError::NoSetpoint),
             (Some(hz), 2..) => words[1] = Setpoint::from_hz(hz, reference_hz).word(),
             _ => {}
         }
         Ok(words)
     }
+}
+
+/// What is wrong with a remote controller's sample (the bridge's report says it in these
+/// words).
+#[derive(Debug, thiserror::Error)]
+pub enum SampleError {
+    #[error(
+        "not a sample: {0}; send e.g. {{\"v\":1,\"from\":\"hmi-1\",\"seq\":1,\"stw1\":1150,\"hz\":0.0}}"
+    )]
+    Unreadable(serde_json::Error),
+    #[error("payload version {0} is not {VERSION}: this uss-zenoh speaks version {VERSION}")]
+    Version(u32),
+    #[error("give stw1 (and hz) or words, not both")]
+    WordsAndStw1,
+    #[error("give stw1 (and hz), words, or release")]
+    Empty,
+    #[error("hz goes with stw1; with words, the setpoint is words[1]")]
+    WordsAndHz,
+    #[error("hz is not a finite number")]
+    HzNotFinite,
+    #[error("the drive exchanges only STW1 (pzd = 1): no setpoint")]
+    NoSetpoint,
 }
 
 /// `<prefix>/<bus>/drive/<addr>/control`: what the bridge does with a remote controller's

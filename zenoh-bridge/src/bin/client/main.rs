@@ -105,13 +105,60 @@ enum Command {
     },
 }
 
-fn seconds(s: f64) -> Result<Duration, String> {
-    Duration::try_from_secs_f64(s).map_err(|_| format!("{s}: give a number of seconds"))
+/// Why a command failed. Zenoh's errors are boxed trait objects (not `Error` sources
+/// themselves): they are shown, not chained.
+#[derive(Debug, thiserror::Error)]
+pub enum Failure {
+    #[error("{}: {error}", .path.display())]
+    ZenohConfig {
+        path: std::path::PathBuf,
+        error: zenoh::Error,
+    },
+    #[error("--connect {endpoints:?}: {error}")]
+    Connect {
+        endpoints: Vec<String>,
+        error: zenoh::Error,
+    },
+    #[error("cannot open the Zenoh session: {0}")]
+    Session(zenoh::Error),
+    #[error("{0}: give a number of seconds")]
+    Seconds(f64),
+    /// A subscriber, publisher, query or put on `key` that Zenoh refused.
+    #[error("{key}: {error}")]
+    Zenoh { key: String, error: zenoh::Error },
+    /// An error reply: the bridge's own words.
+    #[error("{0}")]
+    Replied(String),
+    #[error("{0}: no uss-zenoh answers this key")]
+    NoAnswer(String),
+    #[error("{key}: nothing within {seconds} s")]
+    Nothing { key: String, seconds: f64 },
+    #[error("{key}: no change within {seconds} s")]
+    NoChange { key: String, seconds: f64 },
+    #[error("stdout: {0}")]
+    Stdout(std::io::Error),
+    #[error(transparent)]
+    Run(#[from] run::RunFailure),
 }
 
-fn config(cli: &Cli) -> Result<Config, String> {
+fn seconds(s: f64) -> Result<Duration, Failure> {
+    Duration::try_from_secs_f64(s).map_err(|_| Failure::Seconds(s))
+}
+
+/// What Zenoh refused on `key`.
+fn on(key: &str) -> impl FnOnce(zenoh::Error) -> Failure + '_ {
+    move |error| Failure::Zenoh {
+        key: key.to_owned(),
+        error,
+    }
+}
+
+fn config(cli: &Cli) -> Result<Config, Failure> {
     let mut config = match &cli.zenoh_config {
-        Some(path) => Config::from_file(path).map_err(|e| format!("{}: {e}", path.display()))?,
+        Some(path) => Config::from_file(path).map_err(|error| Failure::ZenohConfig {
+            path: path.clone(),
+            error,
+        })?,
         None => Config::default(),
     };
     if !cli.connect.is_empty() {
@@ -120,7 +167,10 @@ fn config(cli: &Cli) -> Result<Config, String> {
             .insert_json5("connect/endpoints", &list)
             .and_then(|()| config.insert_json5("mode", r#""client""#))
             .and_then(|()| config.insert_json5("scouting/multicast/enabled", "false"))
-            .map_err(|e| format!("--connect {:?}: {e}", cli.connect))?;
+            .map_err(|error| Failure::Connect {
+                endpoints: cli.connect.clone(),
+                error,
+            })?;
     }
     Ok(config)
 }
@@ -131,7 +181,7 @@ fn print_replies(
     key: &str,
     replies: &zenoh::handlers::FifoChannelHandler<zenoh::query::Reply>,
     asked: Option<Instant>,
-) -> Result<(), String> {
+) -> Result<(), Failure> {
     let mut answered = false;
     while let Ok(reply) = replies.recv() {
         answered = true;
@@ -142,13 +192,16 @@ fn print_replies(
                 round_trip.unwrap_or_default(),
                 s.payload().try_to_string().unwrap_or_default()
             ),
-            Err(e) => return Err(e.payload().try_to_string().unwrap_or_default().into_owned()),
+            Err(e) => {
+                let said = e.payload().try_to_string().unwrap_or_default();
+                return Err(Failure::Replied(said.into_owned()));
+            }
         }
     }
     if answered {
         Ok(())
     } else {
-        Err(format!("{key}: no uss-zenoh answers this key"))
+        Err(Failure::NoAnswer(key.to_owned()))
     }
 }
 
@@ -161,13 +214,10 @@ fn subscribe(
     seconds_: f64,
     open_ended: bool,
     stamp: bool,
-) -> Result<(), String> {
+) -> Result<(), Failure> {
     use std::io::Write as _;
     let deadline = Instant::now() + seconds(seconds_)?;
-    let sub = session
-        .declare_subscriber(key)
-        .wait()
-        .map_err(|e| format!("{key}: {e}"))?;
+    let sub = session.declare_subscriber(key).wait().map_err(on(key))?;
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     for _ in 0..count {
         let left = deadline.saturating_duration_since(Instant::now());
@@ -182,10 +232,15 @@ fn subscribe(
                 }
             }
             _ if open_ended => break,
-            _ => return Err(format!("{key}: nothing within {seconds_} s")),
+            _ => {
+                return Err(Failure::Nothing {
+                    key: key.to_owned(),
+                    seconds: seconds_,
+                });
+            }
         }
     }
-    out.flush().map_err(|e| format!("stdout: {e}"))
+    out.flush().map_err(Failure::Stdout)
 }
 
 fn unix_ns() -> u128 {
@@ -194,10 +249,8 @@ fn unix_ns() -> u128 {
         .map_or(0, |d| d.as_nanos())
 }
 
-fn run(cli: &Cli) -> Result<(), String> {
-    let session = zenoh::open(config(cli)?)
-        .wait()
-        .map_err(|e| format!("cannot open the Zenoh session: {e}"))?;
+fn run(cli: &Cli) -> Result<(), Failure> {
+    let session = zenoh::open(config(cli)?).wait().map_err(Failure::Session)?;
     let done = command(&session, cli);
     if done.is_ok() {
         let _ = session.close().wait();
@@ -209,7 +262,7 @@ fn run(cli: &Cli) -> Result<(), String> {
     done
 }
 
-fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), String> {
+fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), Failure> {
     let start = Instant::now();
     match &cli.command {
         Command::Sub {
@@ -239,7 +292,7 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), String> {
                 if let Some(v) = value {
                     get = get.payload(v.clone());
                 }
-                let replies = get.wait().map_err(|e| format!("{key}: {e}"))?;
+                let replies = get.wait().map_err(on(key))?;
                 print_replies(key, &replies, timed.then_some(asked))?;
             }
         }
@@ -255,10 +308,7 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), String> {
             for_s.map(seconds).transpose()?,
             *period,
         )?,
-        Command::Put { key, value } => session
-            .put(key, value.clone())
-            .wait()
-            .map_err(|e| format!("{key}: {e}"))?,
+        Command::Put { key, value } => session.put(key, value.clone()).wait().map_err(on(key))?,
         Command::Stop { key, coast, quick } => {
             let command = match (coast, quick) {
                 (true, _) => "off2",
@@ -271,7 +321,7 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), String> {
                 .payload(command)
                 .timeout(Duration::from_secs(10))
                 .wait()
-                .map_err(|e| format!("{key}: {e}"))?;
+                .map_err(on(&key))?;
             print_replies(&key, &replies, None)?;
         }
         Command::Alive {
@@ -285,7 +335,7 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), String> {
                 .declare_subscriber(key)
                 .history(true)
                 .wait()
-                .map_err(|e| format!("{key}: {e}"))?;
+                .map_err(on(key))?;
             for _ in 0..*count {
                 let left = deadline.saturating_duration_since(Instant::now());
                 match sub.recv_timeout(left) {
@@ -297,7 +347,12 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), String> {
                         };
                         println!("{sign} {} {}", s.key_expr(), start.elapsed().as_millis());
                     }
-                    _ => return Err(format!("{key}: no change within {timeout} s")),
+                    _ => {
+                        return Err(Failure::NoChange {
+                            key: key.clone(),
+                            seconds: *timeout,
+                        });
+                    }
                 }
             }
         }

@@ -21,6 +21,50 @@ const ARM_TIMEOUT: Duration = Duration::from_secs(5);
 const STOP_TIMEOUT: Duration = Duration::from_secs(30);
 const OFF1: &str = r#""stw1":1150,"hz":0.0"#;
 
+/// Why a remote run ended before its time; with each, the client sends nothing more.
+#[derive(Debug, thiserror::Error)]
+pub enum RunFailure {
+    #[error("cannot handle signal {signal}: {source}")]
+    Signal { signal: i32, source: std::io::Error },
+    /// A subscriber, the publisher or a put that Zenoh refused.
+    #[error("{key}: {error}")]
+    Zenoh { key: String, error: zenoh::Error },
+    #[error("no image of {0} within {ARM_TIMEOUT:?}: is uss-zenoh running for its bus?")]
+    NoImage(String),
+    #[error("the bridge refused the OFF1: {0}")]
+    ArmRefused(String),
+    #[error(
+        "{drive} was not re-armed within {ARM_TIMEOUT:?} (control {control:?}, latch {latch:?}); \
+         is the bridge running with --allow-control?"
+    )]
+    NotArmed {
+        drive: String,
+        control: String,
+        latch: String,
+    },
+    #[error(
+        "{drive} latched after {seconds:.2} s ({reason}): it gets its safe command until a new \
+         run re-arms it"
+    )]
+    Latched {
+        drive: String,
+        seconds: f64,
+        reason: String,
+    },
+    #[error("the bridge refused a sample: {0}")]
+    SampleRefused(String),
+    #[error(
+        "no fresh image of {drive} for {seconds:.2} s: giving up, sending nothing more (the \
+         drive's watchdog stops it)"
+    )]
+    Blind { drive: String, seconds: f64 },
+}
+
+/// What Zenoh refused on `key`.
+fn on(key: String) -> impl FnOnce(zenoh::Error) -> RunFailure {
+    move |error| RunFailure::Zenoh { key, error }
+}
+
 /// The remote controller and what it sees of the drive: the latest image and the bridge's
 /// latest control report.
 struct Remote<'a> {
@@ -38,7 +82,7 @@ struct Remote<'a> {
 }
 
 impl Remote<'_> {
-    fn send(&mut self, body: &str) -> Result<(), String> {
+    fn send(&mut self, body: &str) -> Result<(), RunFailure> {
         self.seq += 1;
         self.publisher
             .put(format!(
@@ -46,11 +90,14 @@ impl Remote<'_> {
                 self.from, self.seq
             ))
             .wait()
-            .map_err(|e| format!("{}/out: {e}", self.drive))
+            .map_err(|error| RunFailure::Zenoh {
+                key: format!("{}/out", self.drive),
+                error,
+            })
     }
 
     /// Sends `body`, waits a period, and takes in what arrived meanwhile.
-    fn step(&mut self, body: &str) -> Result<(), String> {
+    fn step(&mut self, body: &str) -> Result<(), RunFailure> {
         self.send(body)?;
         std::thread::sleep(self.period);
         self.look();
@@ -115,14 +162,11 @@ impl Remote<'_> {
 
     /// OFF1 until the drive is live (ussd took the OFF1). A latched drive's OFF1 names the
     /// latch its image shows: nothing is sent before an image was seen.
-    fn arm(&mut self, stop: &AtomicBool) -> Result<(), String> {
+    fn arm(&mut self, stop: &AtomicBool) -> Result<(), RunFailure> {
         let deadline = Instant::now() + ARM_TIMEOUT;
         while self.image.is_none() {
             if Instant::now() >= deadline {
-                return Err(format!(
-                    "no image of {} within {ARM_TIMEOUT:?}: is uss-zenoh running for its bus?",
-                    self.drive
-                ));
+                return Err(RunFailure::NoImage(self.drive.to_owned()));
             }
             std::thread::sleep(self.period);
             self.look();
@@ -139,7 +183,7 @@ impl Remote<'_> {
             }
             let refused = self.refusal();
             if let Some(why) = refused.as_ref().filter(|_| !self.held_by_another()) {
-                return Err(format!("the bridge refused the OFF1: {why}"));
+                return Err(RunFailure::ArmRefused(why.clone()));
             }
             // Live by this client's own re-arm, not by someone else's.
             if self.live() && self.holds() {
@@ -149,15 +193,13 @@ impl Remote<'_> {
                 // Another remote controller may be falling silent (the bridge lets go of it
                 // when its drive shows the trip): that refusal is final only now.
                 if let Some(why) = refused {
-                    return Err(format!("the bridge refused the OFF1: {why}"));
+                    return Err(RunFailure::ArmRefused(why));
                 }
-                return Err(format!(
-                    "{} was not re-armed within {ARM_TIMEOUT:?} (control {:?}, latch {:?}); is \
-                     the bridge running with --allow-control?",
-                    self.drive,
-                    self.field("control"),
-                    self.field("latch_reason")
-                ));
+                return Err(RunFailure::NotArmed {
+                    drive: self.drive.to_owned(),
+                    control: self.field("control").to_owned(),
+                    latch: self.field("latch_reason").to_owned(),
+                });
             }
         }
     }
@@ -169,31 +211,27 @@ impl Remote<'_> {
         hz: f32,
         duration: Option<Duration>,
         stop: &AtomicBool,
-    ) -> Result<(), String> {
+    ) -> Result<(), RunFailure> {
         let start = Instant::now();
         let mut last_note = start;
         let on = format!(r#""stw1":1151,"hz":{hz}"#);
         loop {
             self.step(&on)?;
             if !self.live() && self.field("control") == "latched" {
-                return Err(format!(
-                    "{} latched after {:.2} s ({}): it gets its safe command until a new run \
-                     re-arms it",
-                    self.drive,
-                    start.elapsed().as_secs_f64(),
-                    self.field("latch_reason")
-                ));
+                return Err(RunFailure::Latched {
+                    drive: self.drive.to_owned(),
+                    seconds: start.elapsed().as_secs_f64(),
+                    reason: self.field("latch_reason").to_owned(),
+                });
             }
             if let Some(why) = self.refusal() {
-                return Err(format!("the bridge refused a sample: {why}"));
+                return Err(RunFailure::SampleRefused(why));
             }
             if self.seen_at.elapsed() > BLIND_AFTER {
-                return Err(format!(
-                    "no fresh image of {} for {:.2} s: giving up, sending nothing more (the \
-                     drive's watchdog stops it)",
-                    self.drive,
-                    self.seen_at.elapsed().as_secs_f64()
-                ));
+                return Err(RunFailure::Blind {
+                    drive: self.drive.to_owned(),
+                    seconds: self.seen_at.elapsed().as_secs_f64(),
+                });
             }
             if stop.load(Ordering::Relaxed) || duration.is_some_and(|d| start.elapsed() >= d) {
                 return Ok(());
@@ -210,7 +248,7 @@ impl Remote<'_> {
     }
 
     /// OFF1 along the ramp until the drive is back in S2, then the release; how it ended.
-    fn wind_down(&mut self) -> Result<&'static str, String> {
+    fn wind_down(&mut self) -> Result<&'static str, RunFailure> {
         let deadline = Instant::now() + STOP_TIMEOUT;
         while self.field("state") != "S2" && Instant::now() < deadline {
             self.step(OFF1)?;
@@ -245,18 +283,18 @@ pub fn run(
     hz: f32,
     duration: Option<Duration>,
     period_ms: u64,
-) -> Result<(), String> {
+) -> Result<(), RunFailure> {
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, Arc::clone(&stop))
-            .map_err(|e| format!("cannot handle signal {signal}: {e}"))?;
+            .map_err(|source| RunFailure::Signal { signal, source })?;
     }
     let drive = drive.trim_end_matches('/');
     let subscribe = |what: &str| {
         session
             .declare_subscriber(format!("{drive}/{what}"))
             .wait()
-            .map_err(|e| format!("{drive}/{what}: {e}"))
+            .map_err(on(format!("{drive}/{what}")))
     };
     let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
     let mut remote = Remote {
@@ -267,7 +305,7 @@ pub fn run(
             .encoding(Encoding::APPLICATION_JSON)
             .express(true)
             .wait()
-            .map_err(|e| format!("{drive}/out: {e}"))?,
+            .map_err(on(format!("{drive}/out")))?,
         images: subscribe("in")?,
         reports: subscribe("control")?,
         // A clock-based start: a later run's samples are newer than this run's.
