@@ -10,6 +10,7 @@ use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::metrics::{MetricType, TypedMetric};
 use prometheus_client::registry::{Registry, Unit};
+use std::io::Write as _;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicU64;
 use uss_client::uss_shm_types::{BusStatus, DriveDiag, EXCHANGE_BUCKETS_NS, LineState};
@@ -390,11 +391,15 @@ fn main() -> ExitCode {
             restarts: 0,
         })
         .collect();
-    // The address as bound (port 0 picks a free one), for whoever started us.
-    match server.server_addr().to_ip() {
-        Some(addr) => println!("uss-exporter: serving http://{addr}/metrics"),
-        None => println!("uss-exporter: serving /metrics"),
-    }
+    // The address as bound (port 0 picks a free one), for whoever started us; a reader of
+    // stdout that went away is no reason not to serve.
+    let _ = match server.server_addr().to_ip() {
+        Some(addr) => writeln!(
+            std::io::stdout(),
+            "uss-exporter: serving http://{addr}/metrics"
+        ),
+        None => writeln!(std::io::stdout(), "uss-exporter: serving /metrics"),
+    };
     for request in server.incoming_requests() {
         let response = if request.url() == "/metrics" {
             // Prometheus asks for OpenMetrics; anything else (curl, promtool) gets the classic

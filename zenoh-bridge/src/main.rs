@@ -12,6 +12,7 @@ mod payload;
 mod publish;
 
 use clap::Parser;
+use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -195,7 +196,9 @@ fn run(cli: &Cli) -> Result<(), StartError> {
             threads.push(thread);
         }
     }
-    println!(
+    // A reader of stdout that went away is no reason not to bridge.
+    let _ = writeln!(
+        std::io::stdout(),
         "uss-zenoh: bridging {} under {prefix}/ (parameter writes {}, remote control {}), Zenoh id {}",
         cli.buses.join(", "),
         allowed(cli.allow_writes),

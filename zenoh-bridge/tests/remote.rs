@@ -230,6 +230,7 @@ fn inputs_arrive(ns: &Netns, key: &dyn Fn(&str) -> String) {
         assert!(i["stw1"].as_u64().unwrap() & 0x0400 != 0);
     }
     assert!(images[0]["sequence"].as_u64() < images[2]["sequence"].as_u64());
+    reader_goes_away(ns, &["sub", &key("drive/1/in"), "--count", "100000"]);
     let (ok, out, err) = ns.call(&["sub", &key("status")]);
     assert!(ok, "{err}");
     let status = json(&out);
@@ -242,11 +243,44 @@ fn inputs_arrive(ns: &Netns, key: &dyn Fn(&str) -> String) {
     assert_eq!(json(&out)["reference_hz"].as_f64(), Some(50.0));
 }
 
+/// `uss-zenoh-client ARGS | head -1`: the reader goes away after one line, and the client
+/// ends quietly (it used to panic on the closed pipe, or fail with "stdout: Broken pipe").
+fn reader_goes_away(ns: &Netns, args: &[&str]) {
+    use std::io::BufRead as _;
+    let mut child = ns
+        .command_of(&format!("tcp/{}:7447", ns.here()), args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    stdout.read_line(&mut first).unwrap();
+    assert!(first.starts_with('{'), "{first}");
+    drop(stdout);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while child.try_wait().unwrap().is_none() {
+        assert!(
+            Instant::now() < deadline,
+            "{args:?} still runs after its reader went away"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && err.is_empty(),
+        "{args:?}: {:?} {err}",
+        out.status
+    );
+}
+
 /// P1082 read from Rust and Python; a write refused by default; a drive that is not there.
 fn parameters_read_and_writes_refused(ns: &Netns, key: &dyn Fn(&str) -> String) {
     // A parameter read from the real (simulated) drive, in the parameter's own type.
     let (ok, out, err) = ns.call(&["get", &key("drive/1/param/P1082")]);
     assert!(ok, "{err}");
+    reader_goes_away(ns, &["get", &key("drive/1/param/P1082"), "--repeat", "20"]);
     let p = json(&out);
     assert_eq!(p["value"].as_f64(), Some(50.0), "{p}");
     assert_eq!(

@@ -92,13 +92,19 @@ impl Netns {
 
     /// `uss-zenoh-client` in the namespace, connected to `endpoint` (a router).
     pub fn client_of(&self, endpoint: &str, args: &[&str]) -> ChildProc {
+        let command = self.command_of(endpoint, args);
+        ChildProc::spawn(format!("uss-zenoh-client {}", args.join(" ")), command)
+    }
+
+    /// The command line of `uss-zenoh-client` in the namespace, connected to `endpoint`.
+    pub fn command_of(&self, endpoint: &str, args: &[&str]) -> Command {
         let mut command = Command::new("ip");
         command
             .args(["netns", "exec", &self.name])
             .arg(CLIENT)
             .args(["--connect", endpoint])
             .args(args);
-        ChildProc::spawn(format!("uss-zenoh-client {}", args.join(" ")), command)
+        command
     }
 
     /// Takes the link between the namespaces down or up.

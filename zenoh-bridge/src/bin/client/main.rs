@@ -137,8 +137,29 @@ pub enum Failure {
     NoChange { key: String, seconds: f64 },
     #[error("stdout: {0}")]
     Stdout(std::io::Error),
+    /// The reader of stdout went away (`| head`): the client ends quietly.
+    #[error("the output was closed")]
+    Closed,
     #[error(transparent)]
     Run(#[from] run::RunFailure),
+}
+
+/// A failed write to stdout: [`Failure::Closed`] when its reader went away.
+fn stdout_failed(e: std::io::Error) -> Failure {
+    if e.kind() == std::io::ErrorKind::BrokenPipe {
+        Failure::Closed
+    } else {
+        Failure::Stdout(e)
+    }
+}
+
+/// Writes `line` to stdout at once.
+fn say(line: &str) -> Result<(), Failure> {
+    use std::io::Write as _;
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{line}")
+        .and_then(|()| out.flush())
+        .map_err(stdout_failed)
 }
 
 fn seconds(s: f64) -> Result<Duration, Failure> {
@@ -187,11 +208,11 @@ fn print_replies(
         answered = true;
         let round_trip = asked.map(|t| format!("{} ", t.elapsed().as_nanos()));
         match reply.result() {
-            Ok(s) => println!(
+            Ok(s) => say(&format!(
                 "{}{}",
                 round_trip.unwrap_or_default(),
                 s.payload().try_to_string().unwrap_or_default()
-            ),
+            ))?,
             Err(e) => {
                 let said = e.payload().try_to_string().unwrap_or_default();
                 return Err(Failure::Replied(said.into_owned()));
@@ -224,11 +245,12 @@ fn subscribe(
         match sub.recv_timeout(left) {
             Ok(Some(s)) => {
                 if stamp {
-                    let _ = write!(out, "{} ", unix_ns());
+                    write!(out, "{} ", unix_ns()).map_err(stdout_failed)?;
                 }
-                let _ = writeln!(out, "{}", s.payload().try_to_string().unwrap_or_default());
+                let payload = s.payload().try_to_string().unwrap_or_default();
+                writeln!(out, "{payload}").map_err(stdout_failed)?;
                 if !open_ended {
-                    let _ = out.flush();
+                    out.flush().map_err(stdout_failed)?;
                 }
             }
             _ if open_ended => break,
@@ -240,7 +262,7 @@ fn subscribe(
             }
         }
     }
-    out.flush().map_err(Failure::Stdout)
+    out.flush().map_err(stdout_failed)
 }
 
 fn unix_ns() -> u128 {
@@ -345,7 +367,11 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), Failure> {
                         } else {
                             '-'
                         };
-                        println!("{sign} {} {}", s.key_expr(), start.elapsed().as_millis());
+                        say(&format!(
+                            "{sign} {} {}",
+                            s.key_expr(),
+                            start.elapsed().as_millis()
+                        ))?;
                     }
                     _ => {
                         return Err(Failure::NoChange {
@@ -363,7 +389,7 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), Failure> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(&cli) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("uss-zenoh-client: {e}");
             ExitCode::FAILURE

@@ -60,6 +60,15 @@ pub enum RunFailure {
     Blind { drive: String, seconds: f64 },
 }
 
+/// A line to stdout; a reader that went away does not end the run (the drive is wound down at
+/// its end as always).
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
 /// What Zenoh refused on `key`.
 fn on(key: String) -> impl FnOnce(zenoh::Error) -> RunFailure {
     move |error| RunFailure::Zenoh { key, error }
@@ -237,7 +246,7 @@ impl Remote<'_> {
                 return Ok(());
             }
             if last_note.elapsed() >= Duration::from_millis(500) {
-                println!(
+                say!(
                     "  {:6.1} s  {:8.2} Hz",
                     start.elapsed().as_secs_f64(),
                     self.actual_hz()
@@ -316,7 +325,7 @@ pub fn run(
         report: None,
     };
     remote.arm(&stop)?;
-    println!(
+    say!(
         "{drive}: re-armed; running towards {hz} Hz; {}",
         match duration {
             Some(d) => format!("stopping after {d:?}"),
@@ -325,7 +334,7 @@ pub fn run(
     );
     remote.run(hz, duration, &stop)?;
     let released = remote.wind_down()?;
-    println!(
+    say!(
         "{drive}: stopped (OFF1, {}, {:.2} Hz) and {released}",
         remote.field("state"),
         remote.actual_hz()
