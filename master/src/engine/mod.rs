@@ -39,11 +39,11 @@ use std::sync::{Arc, Mutex};
 use thiserror::Error;
 use uss_protocol::telegram::{MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, MAX_TELEGRAM_BYTES};
 use uss_protocol::{
-    Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, PkwError, PkwMode,
-    ReplyKind, Timing, Words, encode,
+    Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, PkwError, ReplyKind,
+    Timing, Words, encode,
 };
 use uss_shm_types::{
-    Answer, ItemOutcome, LatchReason, Monitoring, PathError, PzdOutput, Rejection, StopCommand,
+    ItemOutcome, LatchReason, Monitoring, PathError, PzdOutput, Rejection, StopCommand,
 };
 
 /// Job ids with this bit are ussd's own (the telegram-monitoring check); clients use the rest.
@@ -424,7 +424,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         );
         for ((status, setup), gate) in stats.drives.iter_mut().zip(&cfg.drives).zip(&gates) {
             stats::set_control(&mut status.counters, &gate.counters());
-            status.monitoring = initial_monitoring(setup);
+            status.monitoring = monitoring::initial_monitoring(setup);
         }
         let shared = Arc::new(Shared {
             setups: cfg.drives.clone(),
@@ -727,74 +727,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
     }
 
-    /// A result that says what the drive's telegram monitoring is (ussd's own read, or a
-    /// client's read or write of that parameter).
-    fn on_monitoring_result(&mut self, slot: usize, result: &JobResult) {
-        let setup = self.drives[slot].setup.monitoring;
-        let (state, ms) = match result.outcome {
-            Ok(Ok(Answer::Value(v))) => setup.evaluate(v),
-            // A refused write leaves the parameter as it was.
-            _ if result.job.task.is_write() => return,
-            Ok(Err(_)) | Err(PathError::Timeout) => (Monitoring::Unreadable, 0),
-            Ok(Ok(Answer::ElementCount(_) | Answer::Description(_))) => return,
-            // The drive is gone or ussd stops: read again when it is back.
-            Err(
-                PathError::DriveOffline
-                | PathError::MailboxFull
-                | PathError::Shutdown
-                | PathError::LineDown
-                | PathError::Cancelled
-                | PathError::Refused(_),
-            ) => {
-                if result.job.id & INTERNAL_JOB != 0 {
-                    self.drives[slot].monitoring_due = true;
-                }
-                return;
-            }
-        };
-        let status = &mut self.stats.drives[slot];
-        let changed = (status.monitoring, status.monitoring_ms) != (state, ms);
-        status.monitoring = state;
-        status.monitoring_ms = ms;
-        if changed {
-            let address = self.drives[slot].setup.address;
-            let at = self.clock.now();
-            self.emit(Event::Monitoring {
-                address,
-                at,
-                state,
-                ms,
-            });
-        }
-    }
-
-    /// Queues ussd's own read of the drive's telegram monitoring when it is due and the
-    /// mailbox has room (otherwise at a later poll).
-    fn check_monitoring(&mut self, slot: usize) {
-        let d = &mut self.drives[slot];
-        if !d.monitoring_due {
-            return;
-        }
-        let task = d.setup.monitoring.task();
-        let Some(task) = task.filter(|_| d.setup.layout.pkw != PkwMode::None) else {
-            d.monitoring_due = false;
-            return;
-        };
-        let job = Job {
-            id: INTERNAL_JOB | u64::from(d.setup.address.get()),
-            address: d.setup.address,
-            task,
-        };
-        // A monitoring parameter the channel cannot carry is not checked.
-        let Ok(pkw) = Encoded::new(&task, d.setup.layout.pkw) else {
-            d.monitoring_due = false;
-            return;
-        };
-        if d.mailbox.push(job, pkw).is_ok() {
-            d.monitoring_due = false;
-        }
-    }
-
     fn emit(&mut self, event: Event) {
         if self.events.try_send(event).is_err() {
             self.stats.bus.events_dropped += 1;
@@ -962,21 +894,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     }
 }
 
-/// What is known of a drive's telegram monitoring before it was read.
-fn initial_monitoring(setup: &DriveSetup) -> Monitoring {
-    if setup.monitoring.param.is_none() {
-        Monitoring::NotChecked
-    } else if setup.layout.pkw == PkwMode::None {
-        Monitoring::Unreadable
-    } else {
-        Monitoring::Unknown
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use uss_protocol::PzdCount;
+    use uss_protocol::{PkwMode, PzdCount};
 
     fn setup(address: u8, weight: u8) -> DriveSetup {
         DriveSetup {

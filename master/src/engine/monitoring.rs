@@ -4,9 +4,13 @@
 //! ussd reads it whenever a drive comes online, and again whenever a parameter access through
 //! it reads or writes that parameter, and says what it found ([`Monitoring`]).
 
+use super::clock::Clock;
+use super::jobs::{Encoded, Job, JobResult};
+use super::transport::Transport;
+use super::{Bridge, DriveSetup, Engine, Event, INTERNAL_JOB};
 use core::time::Duration;
-use uss_protocol::{ParamTask, Pnu, Subindex, Value};
-use uss_shm_types::Monitoring;
+use uss_protocol::{ParamTask, PkwMode, Pnu, Subindex, Value};
+use uss_shm_types::{Answer, Monitoring, PathError};
 
 /// Which parameter holds a drive's telegram-off time, and what ussd expects of it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -81,6 +85,88 @@ impl MonitoringSetup {
     /// Whether an ON may reach a drive whose monitoring is `state`.
     pub fn allows_on(&self, state: Monitoring) -> bool {
         !self.required || state == Monitoring::On
+    }
+}
+
+/// ussd's own reads of the drive's telegram monitoring, and what the results say.
+impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
+    /// A result that says what the drive's telegram monitoring is (ussd's own read, or a
+    /// client's read or write of that parameter).
+    pub(super) fn on_monitoring_result(&mut self, slot: usize, result: &JobResult) {
+        let setup = self.drives[slot].setup.monitoring;
+        let (state, ms) = match result.outcome {
+            Ok(Ok(Answer::Value(v))) => setup.evaluate(v),
+            // A refused write leaves the parameter as it was.
+            _ if result.job.task.is_write() => return,
+            Ok(Err(_)) | Err(PathError::Timeout) => (Monitoring::Unreadable, 0),
+            Ok(Ok(Answer::ElementCount(_) | Answer::Description(_))) => return,
+            // The drive is gone or ussd stops: read again when it is back.
+            Err(
+                PathError::DriveOffline
+                | PathError::MailboxFull
+                | PathError::Shutdown
+                | PathError::LineDown
+                | PathError::Cancelled
+                | PathError::Refused(_),
+            ) => {
+                if result.job.id & INTERNAL_JOB != 0 {
+                    self.drives[slot].monitoring_due = true;
+                }
+                return;
+            }
+        };
+        let status = &mut self.stats.drives[slot];
+        let changed = (status.monitoring, status.monitoring_ms) != (state, ms);
+        status.monitoring = state;
+        status.monitoring_ms = ms;
+        if changed {
+            let address = self.drives[slot].setup.address;
+            let at = self.clock.now();
+            self.emit(Event::Monitoring {
+                address,
+                at,
+                state,
+                ms,
+            });
+        }
+    }
+
+    /// Queues ussd's own read of the drive's telegram monitoring when it is due and the
+    /// mailbox has room (otherwise at a later poll).
+    pub(super) fn check_monitoring(&mut self, slot: usize) {
+        let d = &mut self.drives[slot];
+        if !d.monitoring_due {
+            return;
+        }
+        let task = d.setup.monitoring.task();
+        let Some(task) = task.filter(|_| d.setup.layout.pkw != PkwMode::None) else {
+            d.monitoring_due = false;
+            return;
+        };
+        let job = Job {
+            id: INTERNAL_JOB | u64::from(d.setup.address.get()),
+            address: d.setup.address,
+            task,
+        };
+        // A monitoring parameter the channel cannot carry is not checked.
+        let Ok(pkw) = Encoded::new(&task, d.setup.layout.pkw) else {
+            d.monitoring_due = false;
+            return;
+        };
+        if d.mailbox.push(job, pkw).is_ok() {
+            d.monitoring_due = false;
+        }
+    }
+}
+
+/// What is known of a drive's telegram monitoring before it was read.
+pub(super) fn initial_monitoring(setup: &DriveSetup) -> Monitoring {
+    if setup.monitoring.param.is_none() {
+        Monitoring::NotChecked
+    } else if setup.layout.pkw == PkwMode::None {
+        Monitoring::Unreadable
+    } else {
+        Monitoring::Unknown
     }
 }
 

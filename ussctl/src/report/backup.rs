@@ -1,0 +1,254 @@
+//! `param restore` and `param diff`.
+
+use crate::backup::Entry;
+use serde::Serialize;
+use std::fmt::Write as _;
+use uss_client::uss_catalogue::Param;
+use uss_client::uss_protocol::ParamRef;
+use uss_client::{ParamError, Value};
+
+/// One value of a restore: what the drive had, what the file says, what happened.
+#[derive(Debug, Serialize)]
+pub struct RestoreLine {
+    pub param: String,
+    pub was: Option<String>,
+    pub wanted: String,
+    /// "planned", "written", "refused: ...", "not written".
+    pub result: String,
+}
+
+/// `param restore`.
+#[derive(Debug, Serialize)]
+pub struct RestoreReport {
+    pub bus: String,
+    pub drive: u8,
+    pub file: String,
+    pub dry_run: bool,
+    /// Values the drive already held.
+    pub equal: usize,
+    pub written: usize,
+    pub refused: usize,
+    /// COM-link settings that differ but are kept (baud rate, address, PZD/PKW length).
+    pub kept: usize,
+    /// Why the restore stopped early (null: it ran to the end).
+    pub cut_short: Option<String>,
+    pub lines: Vec<RestoreLine>,
+    pub seconds: f64,
+}
+
+impl RestoreReport {
+    pub fn new(bus: &str, drive: u8, file: &std::path::Path, dry_run: bool) -> Self {
+        Self {
+            bus: bus.to_owned(),
+            drive,
+            file: file.display().to_string(),
+            dry_run,
+            equal: 0,
+            written: 0,
+            refused: 0,
+            kept: 0,
+            cut_short: None,
+            lines: Vec::new(),
+            seconds: 0.0,
+        }
+    }
+
+    fn line(&mut self, e: &Entry) -> &mut RestoreLine {
+        let name = e.param.to_string();
+        if let Some(i) = self.lines.iter().position(|l| l.param == name) {
+            return &mut self.lines[i];
+        }
+        self.lines.push(RestoreLine {
+            param: name,
+            was: None,
+            wanted: e.info.show(e.value),
+            result: "not written".into(),
+        });
+        let last = self.lines.len() - 1;
+        &mut self.lines[last]
+    }
+
+    /// A differing value, to be written.
+    pub fn plan(&mut self, e: &Entry, was: Option<Value>) {
+        let line = self.line(e);
+        line.was = was.map(|v| e.info.show(v));
+        line.result = "planned".into();
+    }
+
+    /// A setting of the line ussd talks over that differs: kept.
+    pub fn keep_link(&mut self, e: &Entry, held: Value) {
+        let line = self.line(e);
+        line.was = Some(e.info.show(held));
+        line.result = "kept: the COM link ussd talks over (change it at the drive)".into();
+        self.kept += 1;
+    }
+
+    /// Written; the drive holds `held` now (checked against the file's value).
+    pub fn written(&mut self, e: &Entry, held: Value) {
+        let ok = held == e.value;
+        let line = self.line(e);
+        line.result = if ok {
+            "written".into()
+        } else {
+            format!("written, but the drive holds {}", e.info.show(held))
+        };
+        if ok {
+            self.written += 1;
+        } else {
+            self.refused += 1;
+        }
+    }
+
+    /// The drive refused the value (or does not have the parameter).
+    pub fn refuse(&mut self, e: &Entry, error: &ParamError) {
+        self.line(e).result = format!("refused: {error}");
+        self.refused += 1;
+    }
+
+    /// The drive refused a value set on the way (access level, quick commissioning).
+    pub fn helper_refused(&mut self, pnu: u16, value: u16, error: &ParamError) {
+        self.lines.push(RestoreLine {
+            param: format!("P{pnu:04}"),
+            was: None,
+            wanted: value.to_string(),
+            result: format!("refused on the way: {error}"),
+        });
+        self.refused += 1;
+    }
+
+    /// Stopped before `rest` was written.
+    pub fn cut_short(&mut self, why: &str, rest: &[crate::commands::backup::Step]) {
+        self.cut_short = Some(format!(
+            "{why}; not written: {}",
+            rest.iter()
+                .map(crate::commands::backup::Step::name)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
+
+    pub fn is_complete(&self) -> bool {
+        self.refused == 0 && self.cut_short.is_none()
+    }
+
+    pub fn human(&self) -> String {
+        let mut out = String::new();
+        for l in &self.lines {
+            let _ = writeln!(
+                out,
+                "  {:<10} {} -> {}: {}",
+                l.param,
+                l.was.as_deref().unwrap_or("-"),
+                l.wanted,
+                l.result
+            );
+        }
+        let what = if self.dry_run {
+            format!("would write {}", self.lines.len() - self.kept)
+        } else {
+            format!("wrote {}, refused {}", self.written, self.refused)
+        };
+        let _ = writeln!(
+            out,
+            "drive {} from {}: {what}; {} already as in the file{} ({:.2} s)",
+            self.drive,
+            self.file,
+            self.equal,
+            if self.kept == 0 {
+                String::new()
+            } else {
+                format!(", {} COM-link settings kept", self.kept)
+            },
+            self.seconds
+        );
+        if let Some(why) = &self.cut_short {
+            let _ = writeln!(out, "cut short: {why}");
+        }
+        out
+    }
+}
+
+/// One difference of `param diff`.
+#[derive(Debug, Serialize)]
+pub struct DiffLine {
+    pub param: String,
+    pub name: &'static str,
+    /// The drive's value; null: the drive does not have it.
+    pub drive: Option<String>,
+    /// The other drive's or the file's value; null: it has none.
+    pub other: Option<String>,
+}
+
+impl DiffLine {
+    pub fn new(
+        param: ParamRef,
+        info: &'static Param,
+        drive: Option<Value>,
+        other: Option<Value>,
+    ) -> Self {
+        Self {
+            param: param.to_string(),
+            name: info.name.as_str(),
+            drive: drive.map(|v| info.show(v)),
+            other: other.map(|v| info.show(v)),
+        }
+    }
+}
+
+/// `param diff`.
+#[derive(Debug, Serialize)]
+pub struct DiffReport {
+    pub bus: String,
+    pub drive: u8,
+    /// The file or the other drive's address.
+    pub other: String,
+    /// Values that are the same.
+    pub same: usize,
+    pub lines: Vec<DiffLine>,
+}
+
+impl DiffReport {
+    pub fn new(bus: &str, drive: u8, other: &str) -> Self {
+        Self {
+            bus: bus.to_owned(),
+            drive,
+            other: other.to_owned(),
+            same: 0,
+            lines: Vec::new(),
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let other = if self.other.parse::<u8>().is_ok() {
+            format!("drive {}", self.other)
+        } else {
+            self.other.clone()
+        };
+        if self.lines.is_empty() {
+            return format!(
+                "drive {} and {other}: no differences ({} values compared)\n",
+                self.drive, self.same
+            );
+        }
+        let mut out = String::new();
+        for l in &self.lines {
+            let _ = writeln!(
+                out,
+                "  {:<10} drive {}: {:<14} {other}: {:<14} ({})",
+                l.param,
+                self.drive,
+                l.drive.as_deref().unwrap_or("(none)"),
+                l.other.as_deref().unwrap_or("(none)"),
+                l.name
+            );
+        }
+        let _ = writeln!(
+            out,
+            "drive {} and {other}: {} differences, {} values the same",
+            self.drive,
+            self.lines.len(),
+            self.same
+        );
+        out
+    }
+}

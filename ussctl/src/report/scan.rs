@@ -1,0 +1,83 @@
+//! `scan`: the drives that answered.
+
+use serde::Serialize;
+use std::fmt::Write as _;
+use uss_client::state_name;
+
+/// One drive `scan` found.
+#[derive(Debug, Serialize)]
+pub struct ScannedDrive {
+    pub baud: u32,
+    pub address: u8,
+    /// "0", "3", "4", "variable (127)", or "unknown" (it mirrored but answered no layout).
+    pub pkw: String,
+    pub pzd: usize,
+    /// The ZSW1 it answered with.
+    pub zsw1: Option<u16>,
+    /// r0018, with a parameter channel.
+    pub firmware: Option<f64>,
+}
+
+/// `scan`.
+#[derive(Debug, Serialize)]
+pub struct ScanReport {
+    pub device: String,
+    pub bauds: Vec<u32>,
+    pub addresses: usize,
+    pub drives: Vec<ScannedDrive>,
+    /// Ctrl-C ended it early.
+    pub cut_short: bool,
+    pub seconds: f64,
+}
+
+impl ScanReport {
+    pub fn new(
+        device: &std::path::Path,
+        bauds: &[uss_client::uss_protocol::Baud],
+        addresses: usize,
+    ) -> Self {
+        Self {
+            device: device.display().to_string(),
+            bauds: bauds.iter().map(|b| b.get()).collect(),
+            addresses,
+            drives: Vec::new(),
+            cut_short: false,
+            seconds: 0.0,
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let mut out = String::new();
+        for d in &self.drives {
+            let _ = write!(
+                out,
+                "{:>6} baud  drive {:2}: PKW {}, PZD {}",
+                d.baud, d.address, d.pkw, d.pzd
+            );
+            if let Some(z) = d.zsw1 {
+                let _ = write!(out, ", ZSW1 {z:#06X} ({})", state_name(z));
+            }
+            if let Some(f) = d.firmware {
+                let _ = write!(out, ", firmware {f:.2}");
+            }
+            out.push('\n');
+        }
+        let plural =
+            |n: usize, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
+        let _ = writeln!(
+            out,
+            "{}: {} found, {} x {} in {:.2} s{}",
+            self.device,
+            plural(self.drives.len(), "drive", "drives"),
+            plural(self.addresses, "address", "addresses"),
+            plural(self.bauds.len(), "baud rate", "baud rates"),
+            self.seconds,
+            if self.cut_short {
+                " (cut short by Ctrl-C)"
+            } else {
+                ""
+            }
+        );
+        out
+    }
+}

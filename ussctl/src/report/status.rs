@@ -1,0 +1,284 @@
+//! `status`: the bus and its drives, each drive's control (live or latched, why).
+
+use super::shown_state;
+use serde::Serialize;
+use std::fmt::Write as _;
+use uss_client::{
+    BusStatus, DriveDiag, LatchReason, Monitoring, PzdInput, Setpoint, StopCommand, zsw1_flags,
+};
+use uss_shm_types::diag::{LastFailure, RtMode};
+
+/// Whether a drive is live or latched, and why (`uss_shm_types::control`).
+#[derive(Debug, Clone, Serialize)]
+pub struct ControlReport {
+    /// "live" or "latched".
+    pub state: &'static str,
+    /// Why it is latched ("controller stale", "operator stop", ...); null while live.
+    pub reason: Option<&'static str>,
+    /// What a latched drive gets ("OFF1", "OFF2", "OFF3"); null while live.
+    pub command: Option<&'static str>,
+    /// The operator or controller process behind the latch; null if none.
+    pub by_pid: Option<u32>,
+    /// The refused sample's fault, with reason "sample rejected".
+    pub rejection: Option<&'static str>,
+}
+
+impl ControlReport {
+    fn new(control: u8, reason: u8, command: u8, by_pid: u32, rejection: u8) -> Self {
+        let latched = control != uss_client::ControlState::Live.code();
+        let name = |r: Result<&'static str, _>| r.ok();
+        Self {
+            state: if latched { "latched" } else { "live" },
+            reason: latched
+                .then(|| name(LatchReason::try_from(reason).map(LatchReason::name)))
+                .flatten(),
+            command: latched
+                .then(|| name(StopCommand::try_from(command).map(StopCommand::name)))
+                .flatten(),
+            by_pid: (latched && by_pid != 0).then_some(by_pid),
+            rejection: (latched && reason == LatchReason::Rejected.code())
+                .then(|| {
+                    name(
+                        uss_client::Rejection::try_from(rejection).map(uss_client::Rejection::name),
+                    )
+                })
+                .flatten(),
+        }
+    }
+
+    pub(crate) fn of_diag(d: &DriveDiag) -> Self {
+        Self::new(d.control, d.latch_reason, d.latch_command, 0, d.rejection)
+    }
+
+    pub(crate) fn of_input(i: &PzdInput) -> Self {
+        Self::new(
+            i.control,
+            i.latch_reason,
+            i.latch_command,
+            i.latched_by_pid,
+            i.rejection,
+        )
+    }
+
+    /// `live`, or `latched: controller stale, OFF1`.
+    pub fn human(&self) -> String {
+        match (self.reason, self.command) {
+            (Some(reason), Some(command)) => format!("latched: {reason}, {command}"),
+            _ => self.state.to_owned(),
+        }
+    }
+}
+
+/// The bus as a whole.
+#[derive(Debug, Serialize)]
+pub struct BusReport {
+    pub bus: String,
+    pub running: bool,
+    pub rt_mode: &'static str,
+    /// -1: not pinned.
+    pub rt_cpu: i32,
+    pub rt_priority: u8,
+    pub drive_count: u8,
+    pub cycles: u64,
+    pub exchanges: u64,
+    pub good: u64,
+    pub cycle_overruns: u64,
+    pub events_dropped: u64,
+    pub results_lost: u64,
+    pub jobs_accepted: u64,
+    pub jobs_finished: u64,
+    pub mean_exchange_us: f64,
+    /// Wire-time floor over achieved exchange time; null until measured.
+    pub efficiency: Option<f64>,
+    /// "up" or "down".
+    pub line: &'static str,
+    /// Why the line is down; null while up.
+    pub line_error: Option<String>,
+    /// Attempts to reopen a line that is down.
+    pub reopen_attempts: u32,
+    /// Times the line went down since ussd started.
+    pub line_downs: u64,
+}
+
+impl BusReport {
+    pub fn new(bus: &str, s: &BusStatus) -> Self {
+        Self {
+            bus: bus.to_owned(),
+            running: s.running != 0,
+            rt_mode: RtMode::try_from(s.rt_mode).map_or("unknown", RtMode::name),
+            rt_cpu: s.rt_cpu,
+            rt_priority: s.rt_priority,
+            drive_count: s.drive_count,
+            cycles: s.cycles,
+            exchanges: s.exchanges,
+            good: s.good,
+            cycle_overruns: s.cycle_overruns,
+            events_dropped: s.events_dropped,
+            results_lost: s.results_lost,
+            jobs_accepted: s.jobs_accepted,
+            jobs_finished: s.jobs_finished,
+            mean_exchange_us: s.mean_exchange_ns as f64 / 1e3,
+            efficiency: s.efficiency(),
+            line: if s.is_line_down() { "down" } else { "up" },
+            line_error: s.line_fault_text(),
+            reopen_attempts: s.reopen_attempts,
+            line_downs: s.line_downs,
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let mut out = format!(
+            "bus {}: {}, {}{}, {} drives, {} cycles, {} exchanges ({} good), mean exchange {:.0} us",
+            self.bus,
+            if self.running { "running" } else { "stopped" },
+            self.rt_mode,
+            if self.rt_cpu >= 0 {
+                format!(" on CPU {} priority {}", self.rt_cpu, self.rt_priority)
+            } else {
+                String::new()
+            },
+            self.drive_count,
+            self.cycles,
+            self.exchanges,
+            self.good,
+            self.mean_exchange_us,
+        );
+        if let Some(e) = self.efficiency {
+            let _ = write!(out, ", efficiency {e:.2}");
+        }
+        if let Some(error) = &self.line_error {
+            let _ = write!(
+                out,
+                "\nLINE DOWN ({error}): every drive offline; ussd reopens the device ({} attempts so far)",
+                self.reopen_attempts
+            );
+        }
+        out
+    }
+}
+
+/// One drive in `status`: state and the main counters.
+#[derive(Debug, Serialize)]
+pub struct DriveRow {
+    pub address: u8,
+    pub online: bool,
+    /// S1..S4, "fault", "not ready"; "offline" while the drive does not answer.
+    pub state: &'static str,
+    pub zsw1: u16,
+    pub zsw1_hex: String,
+    pub flags: Vec<&'static str>,
+    pub hiw: u16,
+    pub actual_hz: f32,
+    pub good: u64,
+    pub rejected: u64,
+    pub timeouts: u64,
+    pub control: ControlReport,
+    /// The drive's own telegram monitoring as ussd read it: "on", "off", ...
+    pub monitoring: &'static str,
+    /// Its telegram-off time in ms (0: off or not read).
+    pub monitoring_ms: u32,
+    /// The process in the controller's latest sample; null before any.
+    pub controller_pid: Option<u32>,
+    pub last_error: &'static str,
+}
+
+impl DriveRow {
+    pub fn new(d: &DriveDiag) -> Self {
+        let online = d.online != 0;
+        Self {
+            address: d.address,
+            online,
+            state: shown_state(d.known, d.online, d.last_zsw1),
+            zsw1: d.last_zsw1,
+            zsw1_hex: format!("{:#06X}", d.last_zsw1),
+            flags: zsw1_flags(d.last_zsw1),
+            hiw: d.last_hiw,
+            actual_hz: Setpoint::from_word(d.last_hiw).hz(d.info.reference_hz),
+            good: d.counters.good,
+            rejected: d.counters.rejected,
+            timeouts: d.counters.timeouts,
+            control: ControlReport::of_diag(d),
+            monitoring: d.monitoring().map_or("unknown", Monitoring::name),
+            monitoring_ms: d.monitoring_ms,
+            controller_pid: (d.controller_pid != 0).then_some(d.controller_pid),
+            last_error: last_failure(d),
+        }
+    }
+
+    /// Whether the drive's own telegram monitoring deserves a warning.
+    fn monitoring_warning(&self) -> Option<String> {
+        match self.monitoring {
+            "on" | "not read yet" | "not checked" => None,
+            "off" => Some(format!(
+                "drive {}: telegram monitoring is OFF: if ussd or its line dies, nothing stops this drive; set its telegram-off time (MICROMASTER 4: P2014.1, G120: p2040), e.g. 100 ms",
+                self.address
+            )),
+            "longer than the limit" => Some(format!(
+                "drive {}: telegram monitoring is {} ms, longer than monitoring_max_ms: after ussd or its line dies it runs on for that long",
+                self.address, self.monitoring_ms
+            )),
+            other => Some(format!(
+                "drive {}: telegram monitoring {other}: check monitoring_param in ussd's configuration",
+                self.address
+            )),
+        }
+    }
+}
+
+pub(super) fn last_failure(d: &DriveDiag) -> &'static str {
+    LastFailure::try_from(d.last_failure).map_or("unknown", LastFailure::name)
+}
+
+/// `status`.
+#[derive(Debug, Serialize)]
+pub struct StatusReport {
+    pub bus: BusReport,
+    pub drives: Vec<DriveRow>,
+}
+
+impl StatusReport {
+    pub fn human(&self) -> String {
+        let mut out = self.bus.human();
+        out.push('\n');
+        let _ = writeln!(
+            out,
+            "{:>4}  {:<6}  {:<9}  {:<6}  {:>9}  {:>10}  {:>8}  {:>8}  {:<16}  {:<32}  flags",
+            "addr",
+            "online",
+            "state",
+            "ZSW1",
+            "actual Hz",
+            "good",
+            "rejected",
+            "timeouts",
+            "last error",
+            "control"
+        );
+        for d in &self.drives {
+            let _ = writeln!(
+                out,
+                "{:>4}  {:<6}  {:<9}  {:<6}  {:>9.2}  {:>10}  {:>8}  {:>8}  {:<16}  {:<32}  {}",
+                d.address,
+                if d.online { "yes" } else { "no" },
+                d.state,
+                d.zsw1_hex,
+                d.actual_hz,
+                d.good,
+                d.rejected,
+                d.timeouts,
+                d.last_error,
+                d.control.human(),
+                d.flags.join(",")
+            );
+        }
+        for warning in self.drives.iter().filter_map(DriveRow::monitoring_warning) {
+            let _ = writeln!(out, "warning: {warning}");
+        }
+        if self.drives.iter().any(|d| d.control.state == "latched") {
+            out.push_str(
+                "latched: the drive gets the stop command shown until its controller re-arms it (OFF1, then ON)\n",
+            );
+        }
+        out
+    }
+}
