@@ -520,6 +520,78 @@ fn a_jog_does_not_re_arm_an_operator_stop_only_a_stop_does() {
     raw.words(&[OFF1, 0]);
 }
 
+/// The other re-arm rule with a real ussd: a stop taken at the poll right after a latch does not
+/// re-arm it (it may have been published before the drive's image showed the latch, by a
+/// controller that never saw it). A controller publishing OFF1 all the time (every 0.2 ms, many
+/// samples per poll) while an operator's stop comes in: the poll after the latching one takes a
+/// fresh OFF1 and the drive stays latched; only a later poll's OFF1 re-arms it.
+#[test]
+fn a_stop_that_crossed_an_operator_stop_does_not_re_arm_it() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let mut raw = RawController::open(&ussd.bus, 1);
+    let watch = bus.watch(1).unwrap();
+    raw.until(&bus, 1, &[OFF1, 0], PzdInput::is_live);
+    // A round is judged only when this loop saw the last live image, the latching one and the
+    // next one without a gap (sequence numbers in a row): a busy machine may hide one.
+    let mut judged = 0;
+    for round in 0..20 {
+        if judged == 3 {
+            break;
+        }
+        let mut stop = ussd.ussctl(&["stop", "1"]);
+        let deadline = Instant::now() + Duration::from_secs(5);
+        let mut previous = watch.latest();
+        let start_latches = previous.latches;
+        let mut latching: Option<PzdInput> = None;
+        let next = loop {
+            assert!(
+                Instant::now() < deadline,
+                "round {round}: {:?}",
+                watch.latest()
+            );
+            raw.words(&[OFF1, 0]);
+            let i = watch.latest();
+            if i.sequence != previous.sequence {
+                let in_a_row = i.sequence == previous.sequence + 1;
+                match latching {
+                    None if i.latch_reason == LatchReason::Override.code() => {
+                        if !in_a_row || previous.latch_reason != 0 {
+                            break None;
+                        }
+                        latching = Some(i);
+                    }
+                    // Latched and re-armed between two looks: not seen.
+                    None if i.latches > start_latches => break None,
+                    None => {}
+                    Some(_) => break in_a_row.then_some(i),
+                }
+                previous = i;
+            }
+            std::thread::sleep(Duration::from_micros(200));
+        };
+        // A later poll's OFF1 is a deliberate stop of a controller that could see the latch: it
+        // re-arms the drive (ussctl then cannot confirm its stop).
+        raw.until(&bus, 1, &[OFF1, 0], PzdInput::is_live);
+        stop.kill();
+        let (Some(latching), Some(next)) = (latching, next) else {
+            continue;
+        };
+        if next.taken_sequence == latching.taken_sequence {
+            continue; // no fresh sample at that poll: nothing to judge
+        }
+        judged += 1;
+        assert_eq!(
+            (next.latch_reason, next.sent_stw1),
+            (LatchReason::Override.code(), OFF1),
+            "round {round}: the OFF1 taken at the poll after the latch re-armed it: {next:?}"
+        );
+        assert!(!next.is_live(), "round {round}: {next:?}");
+    }
+    assert_eq!(judged, 3, "too few rounds seen without a gap");
+}
+
 #[test]
 fn parameter_writes_to_a_controlled_drive_need_force_or_the_controlling_process() {
     let _serial = serial();

@@ -75,13 +75,11 @@ enum StartError {
     Signal { signal: i32, source: std::io::Error },
     #[error("cannot open the Zenoh session: {0}")]
     Session(zenoh::Error),
-    /// The bridge's own token or the operator-stop queryable: without either it does not run.
-    #[error("cannot declare {what} {key}: {error}")]
-    Declare {
-        what: &'static str,
-        key: String,
-        error: zenoh::Error,
-    },
+    #[error("liveliness token {key}: {error}")]
+    Token { key: String, error: zenoh::Error },
+    /// The operator-stop queryable: without it the bridge does not run.
+    #[error("cannot declare the queryable {key}: {error}")]
+    Stops { key: String, error: zenoh::Error },
     #[error("cannot start a thread: {0}")]
     Thread(std::io::Error),
 }
@@ -150,8 +148,7 @@ fn run(cli: &Cli) -> Result<(), StartError> {
         .liveliness()
         .declare_token(&bridge_key)
         .wait()
-        .map_err(|error| StartError::Declare {
-            what: "the liveliness token",
+        .map_err(|error| StartError::Token {
             key: bridge_key.clone(),
             error,
         })?;
@@ -167,8 +164,7 @@ fn run(cli: &Cli) -> Result<(), StartError> {
         let stops = session
             .declare_queryable(options.keys.stops())
             .wait()
-            .map_err(|error| StartError::Declare {
-                what: "the queryable",
+            .map_err(|error| StartError::Stops {
                 key: options.keys.stops(),
                 error,
             })?;

@@ -220,8 +220,8 @@ impl Reporter<'_> {
     }
 
     /// Where the table at `path` (`[("bus", 0), ("drive", 2)]`) writes `key`'s value, or where
-    /// the table is when it does not write `key`.
-    pub fn span(&self, path: &[(&str, usize)], key: &str) -> Option<Range<usize>> {
+    /// the table is when it does not write `key` (or no key is asked for).
+    pub fn span(&self, path: &[(&str, usize)], key: Option<&str>) -> Option<Range<usize>> {
         let mut table = self.root.as_ref()?;
         let mut span = None;
         for &(array, i) in path {
@@ -235,7 +235,7 @@ impl Reporter<'_> {
             span = Some(item.span());
             table = inner;
         }
-        table.get(key).map(Spanned::span).or(span)
+        key.and_then(|k| table.get(k)).map(Spanned::span).or(span)
     }
 
     /// The innermost table around `offset` and the key there.

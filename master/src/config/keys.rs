@@ -5,11 +5,11 @@
 use super::{Device, SIM_DEVICE};
 use core::fmt;
 use core::time::Duration;
-use serde::de::{Error as _, Visitor};
+use serde::de::Visitor;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::path::PathBuf;
 use uss_protocol::serde_impls::integer;
-use uss_protocol::{Baud, ParamRef, PkwMode, PzdCount};
+use uss_protocol::{Baud, NotationError, ParamRef, PkwMode, PzdCount};
 
 /// A number read from the file (integer or float), with what is allowed for the messages.
 struct NumberVisitor(&'static str);
@@ -186,69 +186,53 @@ impl Serialize for ReferenceHz {
     }
 }
 
-/// The CPU to pin a bus thread to: one of this machine's online CPUs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Cpu(pub usize);
+/// The CPU to pin a bus thread to, as written: whether this machine has it is a rule
+/// ([`super::rules`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(transparent)]
+pub struct Cpu(pub i64);
 
-impl<'de> Deserialize<'de> for Cpu {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let online = std::thread::available_parallelism().ok().map(usize::from);
-        let allowed = match online {
-            Some(n) => format!(
-                "this machine has {n} online CPU{}: cpu is 0..={}",
-                if n == 1 { "" } else { "s" },
-                n - 1
-            ),
-            None => "cpu is a CPU number from 0".to_owned(),
-        };
-        let n = integer(d, "cpu is a CPU number from 0")?;
-        let cpu = usize::try_from(n)
-            .ok()
-            .filter(|&n| online.is_none_or(|online| n < online));
-        in_range(cpu.map(Cpu), &allowed)
-    }
-}
-
-impl Serialize for Cpu {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_u64(self.0 as u64)
+impl Cpu {
+    /// The CPU number; the rules let only an online CPU (0 or more) through.
+    pub fn get(self) -> usize {
+        usize::try_from(self.0).unwrap_or_default()
     }
 }
 
 /// The parameter holding the drive's own telegram-off time (USS.md section 5) as the manuals
 /// write it (and as the file wrote it); `""`: not checked. MICROMASTER 4 / G110 / CU240S: P2014,
-/// index 1 = the RS485 COM link.
+/// index 1 = the RS485 COM link. What is not a parameter is refused by the rules, with `error`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct MonitoringParam {
     pub param: Option<ParamRef>,
+    pub error: Option<NotationError>,
     written: String,
 }
 
-impl Default for MonitoringParam {
-    fn default() -> Self {
-        let written = "P2014.1".to_owned();
+impl MonitoringParam {
+    fn new(written: String) -> Self {
+        let (param, error) = match written.parse() {
+            _ if written.is_empty() => (None, None),
+            Ok(param) => (Some(param), None),
+            Err(e) => (None, Some(e)),
+        };
         Self {
-            param: written.parse().ok(),
+            param,
+            error,
             written,
         }
     }
 }
 
+impl Default for MonitoringParam {
+    fn default() -> Self {
+        Self::new("P2014.1".to_owned())
+    }
+}
+
 impl<'de> Deserialize<'de> for MonitoringParam {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let written = String::deserialize(d)?;
-        let param = match written.parse() {
-            _ if written.is_empty() => None,
-            Ok(param) => Some(param),
-            Err(e) => {
-                return Err(D::Error::custom(format_args!(
-                    "is not a parameter: {e}; name the drive's telegram-off time as the manual \
-                     writes it, e.g. \"P2014.1\" (MICROMASTER 4, COM link) or \"p2040\" (G120), \
-                     or \"\" for no check"
-                )));
-            }
-        };
-        Ok(Self { param, written })
+        String::deserialize(d).map(Self::new)
     }
 }
 

@@ -17,8 +17,8 @@
 //! ```
 //!
 //! Every key but `name`, `device` and `address` has a default; [`Config::to_toml`] writes them
-//! all out. serde reads the file ([`file`]: unknown keys refused in every table, each value
-//! range checked by its type), then [`rules`] checks what needs more than one value. Every
+//! all out. serde reads the file (unknown keys refused in every table, each value range checked
+//! by its type: [`keys`]), then [`rules`] checks what needs more than one value. Every
 //! error names the file, line and column, the bus and drive, the key, and what is allowed
 //! ([`errors`]); of several broken rules the one nearest the start of the file is reported.
 
@@ -105,7 +105,7 @@ impl SafeCommand {
 }
 
 /// A `[[bus]]` table: its device, line settings, polling and retry policy, real-time placement
-/// and drives. The keys' types say what each allows and its default ([`keys`]).
+/// and drives. The keys' types say what each allows and its default.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct BusConfig {

@@ -82,7 +82,7 @@ impl Rules<'_> {
     fn fail(&mut self, kind: Kind, key: &'static str, problem: String) {
         let table: Vec<String> = self.at.iter().map(|(t, i)| format!("{t}[{i}]")).collect();
         self.broken.push(Broken {
-            span: self.reporter.span(&self.at, key),
+            span: self.reporter.span(&self.at, Some(key)),
             table: table.join("."),
             key,
             kind,
@@ -92,7 +92,7 @@ impl Rules<'_> {
 
     /// The line where the table at `at` writes `key`, for "first at line N".
     fn line_of(&self, at: &[(&str, usize)], key: &str) -> usize {
-        let offset = self.reporter.span(at, key).map_or(0, |s| s.start);
+        let offset = self.reporter.span(at, Some(key)).map_or(0, |s| s.start);
         super::errors::position(self.reporter.text, offset).0
     }
 
@@ -106,12 +106,30 @@ impl Rules<'_> {
         }
         let device = self.device(&bus.device).then_some(&bus.device);
         self.baud(bus);
+        if let Some(cpu) = bus.cpu {
+            let online = std::thread::available_parallelism().ok().map(usize::from);
+            if cpu.0 < 0 || online.is_some_and(|online| cpu.get() >= online) {
+                let allowed = match online {
+                    Some(n) => format!(
+                        "this machine has {n} online CPU{}: cpu is 0..={}",
+                        if n == 1 { "" } else { "s" },
+                        n - 1
+                    ),
+                    None => "cpu is a CPU number from 0".to_owned(),
+                };
+                self.fail(Kind::Value, "cpu", format!("is out of range: {allowed}"));
+            }
+        }
         if bus.seed.is_some() && matches!(device, Some(Device::Serial(_))) {
             self.fail(Kind::Value, "seed", only_on_sim());
         }
         if bus.drives.is_empty() {
             let problem = "no [[bus.drive]] table: every bus needs at least one drive";
             self.fail(Kind::Whole, "drive", problem.to_owned());
+            // At the [[bus]] table, also when it writes `drive = []`.
+            if let Some(b) = self.broken.last_mut() {
+                b.span = self.reporter.span(&self.at, None);
+            }
         }
         for (i, drive) in bus.drives.iter().enumerate() {
             self.at.truncate(1);
@@ -173,6 +191,15 @@ impl Rules<'_> {
     }
 
     fn drive(&mut self, drive: &DriveEntry, device: Option<&Device>) {
+        if let Some(e) = drive.monitoring_param.error {
+            let problem = format!(
+                "is not a parameter: {e}; name the drive's telegram-off time as the manual \
+                 writes it, e.g. \"P2014.1\" (MICROMASTER 4, COM link) or \"p2040\" (G120), or \
+                 \"\" for no check"
+            );
+            self.fail(Kind::Value, "monitoring_param", problem);
+            return;
+        }
         if drive.require_monitoring {
             let missing = if drive.monitoring_param.param.is_none() {
                 "needs monitoring_param (e.g. \"P2014.1\"): ussd cannot verify a monitoring it \

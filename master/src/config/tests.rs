@@ -893,6 +893,26 @@ fn cpu_must_be_online() {
     );
     assert_eq!(error(&bus_key("cpu = -1")).line, Some(4));
     assert_eq!(parse(&bus_key("cpu = 0")).buses[0].cpu, Some(Cpu(0)));
+    assert_eq!(
+        error(&bus_key("cpu = \"x\"")).to_string(),
+        "bus.toml:4:7: bus \"bus0\": cpu = \"x\" is not an integer"
+    );
+}
+
+#[test]
+fn the_broken_rule_nearest_the_start_is_reported_whatever_the_kinds() {
+    // A bad name (line 2) before a CPU this machine lacks and a monitoring parameter that is
+    // none (both checked as rules, not as the file is read).
+    let text = "[[bus]]\nname = \"b a d\"\ndevice = \"sim\"\ncpu = 4096\n\n[[bus.drive]]\n\
+                address = 3\nmonitoring_param = \"Q1\"\n";
+    assert_eq!(error(text).path.as_deref(), Some("bus[0].name"));
+    let text = text.replace("b a d", "bus0");
+    assert_eq!(error(&text).path.as_deref(), Some("bus[0].cpu"));
+    let text = text.replace("cpu = 4096", "cpu = 0");
+    assert_eq!(
+        error(&text).path.as_deref(),
+        Some("bus[0].drive[0].monitoring_param")
+    );
 }
 
 #[test]
@@ -913,6 +933,11 @@ fn a_configuration_needs_a_bus_and_a_bus_needs_a_drive() {
                 .to_owned(),
             Some("bus[0].drive".to_owned())
         )
+    );
+    // Also at the [[bus]] table when it writes an empty drive array.
+    assert_eq!(
+        error("# a bus\n[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\ndrive = []\n").line,
+        Some(2)
     );
 }
 

@@ -9,7 +9,7 @@
 //! (memlock unlimited or `CAP_IPC_LOCK`, [`crate::daemon::rt`]), so a later thread or mapping
 //! cannot fail on it.
 
-use crate::config::{BusConfig, Device, Rs485Mode};
+use crate::config::{BusConfig, Cpu, Device, Rs485Mode};
 use crate::daemon::ipc::StatusPublisher;
 use crate::daemon::rt::{RtReport, RtRequest, apply_to_current_thread};
 use crate::engine::clock::MonotonicClock;
@@ -50,6 +50,14 @@ pub enum StartError {
     #[cfg(feature = "sim")]
     #[error("bus {bus}: simulated bus: {source}")]
     Sim { bus: String, source: BusError },
+    /// Only for a configuration that did not go through `Config::parse`'s rules.
+    #[cfg(feature = "sim")]
+    #[error("bus {bus}: simulated drive {address}: {problem}")]
+    SimDrive {
+        bus: String,
+        address: u8,
+        problem: String,
+    },
     /// Only when a `Device::Sim` is built by hand: the configuration refuses `device = "sim"`
     /// in a build without the simulator.
     #[cfg(not(feature = "sim"))]
@@ -101,14 +109,18 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
 
 /// The simulated drives of a `device = "sim"` bus on the in-process virtual wire.
 #[cfg(feature = "sim")]
-pub fn sim_transport(bus: &BusConfig) -> Result<SimTransport, BusError> {
+pub fn sim_transport(bus: &BusConfig) -> Result<SimTransport, StartError> {
     let mut sim = SimBus::new(bus.seed());
     for d in &bus.drives {
-        // The configuration's rules built every drive of a simulated bus once: it builds.
-        let spec = d
-            .sim_spec()
-            .unwrap_or_else(|e| unreachable!("checked by the configuration's rules: {e}"));
-        sim.add(spec.config)?;
+        let spec = d.sim_spec().map_err(|problem| StartError::SimDrive {
+            bus: bus.name.clone(),
+            address: d.address.get(),
+            problem,
+        })?;
+        sim.add(spec.config).map_err(|source| StartError::Sim {
+            bus: bus.name.clone(),
+            source,
+        })?;
         if let Some(plan) = sim.faults_mut(spec.config.address) {
             *plan = spec.faults;
         }
@@ -360,7 +372,7 @@ fn spawn<T: Transport + Send + 'static>(
             source,
         })?;
     let request = RtRequest {
-        cpu: bus.cpu.map(|c| c.0),
+        cpu: bus.cpu.map(Cpu::get),
         priority: bus.priority.get(),
         lock_memory: true,
         prefault_stack_bytes: PREFAULT_STACK,
@@ -425,10 +437,7 @@ fn open_and_spawn(
     match &bus.device {
         #[cfg(feature = "sim")]
         Device::Sim => {
-            let t = sim_transport(bus).map_err(|source| StartError::Sim {
-                bus: bus.name.clone(),
-                source,
-            })?;
+            let t = sim_transport(bus)?;
             spawn(bus, t, options, go, None)
         }
         #[cfg(not(feature = "sim"))]
