@@ -7,7 +7,8 @@
 //! - a sample the drive would misread is refused at the poll that takes it, latched, named;
 //! - a clean release is "released", a SIGKILL is a watchdog trip: counted apart;
 //! - `ussctl stop/coast/quick-stop` (one drive or `--all`) override a running controller;
-//! - after an operator's stop a jogging controller re-arms nothing; only its stop does;
+//! - after an operator's stop a jogging controller re-arms nothing; only its stop does, and not
+//!   one taken at the poll right after the latch (it may have crossed the stop);
 //! - parameter writes to a controlled drive need `--force` (or the controlling process);
 //! - a drive whose own telegram monitoring is off is reported, and refused ON when required;
 //! - the same freeze over a real pty with `uss-sim`.
