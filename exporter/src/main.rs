@@ -123,6 +123,9 @@ struct Metrics {
     retries: Family<DriveLabels, Counter>,
     watchdog_trips: Family<DriveLabels, Counter>,
     latches: Family<DriveLabels, Counter>,
+    refused_samples: Family<DriveLabels, Counter>,
+    overrides: Family<DriveLabels, Counter>,
+    releases: Family<DriveLabels, Counter>,
 }
 
 impl Metrics {
@@ -140,6 +143,9 @@ impl Metrics {
             retries: Family::default(),
             watchdog_trips: Family::default(),
             latches: Family::default(),
+            refused_samples: Family::default(),
+            overrides: Family::default(),
+            releases: Family::default(),
         }
     }
 
@@ -197,6 +203,21 @@ impl Metrics {
             "Times the drive latched its safe command",
             self.latches,
         );
+        r.register(
+            "uss_refused_samples",
+            "Controller samples refused before the wire (each latches the drive)",
+            self.refused_samples,
+        );
+        r.register(
+            "uss_overrides",
+            "Operator stops (OFF1, OFF2, OFF3) applied to the drive",
+            self.overrides,
+        );
+        r.register(
+            "uss_releases",
+            "Clean hand-backs of the drive by its controller",
+            self.releases,
+        );
     }
 
     fn bus(&self, labels: &BusLabels, s: &BusStatus) {
@@ -252,6 +273,11 @@ impl Metrics {
             .get_or_create(&labels)
             .inc_by(c.watchdog_trips);
         self.latches.get_or_create(&labels).inc_by(c.latches);
+        self.refused_samples
+            .get_or_create(&labels)
+            .inc_by(c.rejected_outputs);
+        self.overrides.get_or_create(&labels).inc_by(c.overrides);
+        self.releases.get_or_create(&labels).inc_by(c.releases);
     }
 }
 

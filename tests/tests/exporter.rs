@@ -1,6 +1,7 @@
 //! `uss-exporter` against a real ussd: scraped over HTTP, parsed, checked with `promtool check
 //! metrics` (CI installs it and sets `USS_REQUIRE_PROMTOOL`), and still serving while ussd is
-//! killed and restarted, which its metrics say.
+//! killed and restarted, which its metrics say; the safety events of a drive (releases, operator
+//! stops, refused samples) counted.
 
 #![allow(clippy::unwrap_used, clippy::float_cmp)]
 
@@ -9,6 +10,7 @@ use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use uss_client::{ControlOptions, StopCommand};
 use uss_integration_tests::{ChildProc, Ussd, binary};
 
 /// One scrape: the body, sent as `OpenMetrics` when `openmetrics`, else the classic format.
@@ -116,6 +118,26 @@ fn exporter_serves_metrics_that_promtool_accepts_and_follows_a_restarted_ussd() 
     // At 115200 baud an exchange of PKW 4 + PZD 2 takes about 3 ms, with the 1 ms reply delay.
     let mean = sum / count;
     assert!((0.001..0.02).contains(&mean), "mean exchange {mean} s");
+
+    // The safety events of drive 1: a controller that re-arms it and hands it back cleanly,
+    // then an operator's stop; no sample of it was refused.
+    let drive1 = |s: &HashMap<String, f64>, name: &str| {
+        s.get(&format!("{name}{{bus=\"{bus}\",drive=\"1\"}}"))
+            .copied()
+    };
+    assert_eq!(drive1(&s, "uss_overrides_total"), Some(0.0));
+    let client = ussd.bus();
+    let c = client.control(1, ControlOptions::default()).unwrap();
+    let refresh = c.spawn_refresher(Duration::from_millis(20));
+    c.enable().unwrap();
+    drop(refresh);
+    c.release().unwrap();
+    client.stop_drive(1, StopCommand::Off1).unwrap();
+    let s = wait_for(&addr, "drive 1's release and operator stop", |s| {
+        drive1(s, "uss_overrides_total") == Some(1.0)
+            && drive1(s, "uss_releases_total") == Some(1.0)
+    });
+    assert_eq!(drive1(&s, "uss_refused_samples_total"), Some(0.0));
 
     promtool(&scrape(&addr, false));
 
