@@ -201,26 +201,28 @@ impl Cpu {
 
 /// The parameter holding the drive's own telegram-off time (USS.md section 5) as the manuals
 /// write it (and as the file wrote it); `""`: not checked. MICROMASTER 4 / G110 / CU240S: P2014,
-/// index 1 = the RS485 COM link. What is not a parameter is refused by the rules, with `error`.
+/// index 1 = the RS485 COM link. What is not a parameter is refused by the rules, with its error.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct MonitoringParam {
-    pub param: Option<ParamRef>,
-    pub error: Option<NotationError>,
+    /// The parameter, `None` for `""`; or why the text is not a parameter.
+    pub parsed: Result<Option<ParamRef>, NotationError>,
     written: String,
 }
 
 impl MonitoringParam {
     fn new(written: String) -> Self {
-        let (param, error) = match written.parse() {
-            _ if written.is_empty() => (None, None),
-            Ok(param) => (Some(param), None),
-            Err(e) => (None, Some(e)),
+        let parsed = if written.is_empty() {
+            Ok(None)
+        } else {
+            written.parse().map(Some)
         };
-        Self {
-            param,
-            error,
-            written,
-        }
+        Self { parsed, written }
+    }
+
+    /// The parameter to read; `None` when not checked (the rules refuse a text that is not a
+    /// parameter).
+    pub fn param(&self) -> Option<ParamRef> {
+        self.parsed.ok().flatten()
     }
 }
 

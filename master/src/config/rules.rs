@@ -48,13 +48,8 @@ pub fn check(config: &Config, reporter: &Reporter<'_>) -> Vec<Broken> {
         broken: Vec::new(),
     };
     if config.buses.is_empty() {
-        rules.broken.push(Broken {
-            span: None,
-            table: String::new(),
-            key: "bus",
-            kind: Kind::Whole,
-            problem: "no [[bus]] table: a configuration needs at least one bus".to_owned(),
-        });
+        let problem = "no [[bus]] table: a configuration needs at least one bus";
+        rules.push(None, Kind::Whole, "bus", problem.to_owned());
     }
     for (i, bus) in config.buses.iter().enumerate() {
         rules.at = vec![("bus", i)];
@@ -80,9 +75,15 @@ impl Rules<'_> {
     /// A problem with `key` of the current table (with the table's own place when the file
     /// does not write the key).
     fn fail(&mut self, kind: Kind, key: &'static str, problem: String) {
+        let span = self.reporter.span(&self.at, Some(key));
+        self.push(span, kind, key, problem);
+    }
+
+    /// A problem with `key` of the current table, placed at `span`.
+    fn push(&mut self, span: Option<Range<usize>>, kind: Kind, key: &'static str, problem: String) {
         let table: Vec<String> = self.at.iter().map(|(t, i)| format!("{t}[{i}]")).collect();
         self.broken.push(Broken {
-            span: self.reporter.span(&self.at, Some(key)),
+            span,
             table: table.join("."),
             key,
             kind,
@@ -124,28 +125,24 @@ impl Rules<'_> {
             self.fail(Kind::Value, "seed", only_on_sim());
         }
         if bus.drives.is_empty() {
-            let problem = "no [[bus.drive]] table: every bus needs at least one drive";
-            self.fail(Kind::Whole, "drive", problem.to_owned());
             // At the [[bus]] table, also when it writes `drive = []`.
-            if let Some(b) = self.broken.last_mut() {
-                b.span = self.reporter.span(&self.at, None);
-            }
+            let span = self.reporter.span(&self.at, None);
+            let problem = "no [[bus.drive]] table: every bus needs at least one drive";
+            self.push(span, Kind::Whole, "drive", problem.to_owned());
         }
+        let bus_at = self.at[0];
         for (i, drive) in bus.drives.iter().enumerate() {
-            self.at.truncate(1);
+            self.at = vec![bus_at, ("drive", i)];
             if let Some(first) = bus.drives[..i]
                 .iter()
                 .position(|d| d.address == drive.address)
             {
-                let line = self.line_of(&[self.at[0], ("drive", first)], "address");
-                self.at.push(("drive", i));
+                let line = self.line_of(&[bus_at, ("drive", first)], "address");
                 let problem = format!(
                     "is used twice (first at line {line}): every drive on a bus needs its own \
                      address"
                 );
                 self.fail(Kind::Value, "address", problem);
-            } else {
-                self.at.push(("drive", i));
             }
             self.drive(drive, device);
         }
@@ -191,7 +188,7 @@ impl Rules<'_> {
     }
 
     fn drive(&mut self, drive: &DriveEntry, device: Option<&Device>) {
-        if let Some(e) = drive.monitoring_param.error {
+        if let Err(e) = drive.monitoring_param.parsed {
             let problem = format!(
                 "is not a parameter: {e}; name the drive's telegram-off time as the manual \
                  writes it, e.g. \"P2014.1\" (MICROMASTER 4, COM link) or \"p2040\" (G120), or \
@@ -201,7 +198,7 @@ impl Rules<'_> {
             return;
         }
         if drive.require_monitoring {
-            let missing = if drive.monitoring_param.param.is_none() {
+            let missing = if drive.monitoring_param.param().is_none() {
                 "needs monitoring_param (e.g. \"P2014.1\"): ussd cannot verify a monitoring it \
                  does not read"
             } else if drive.pkw == PkwMode::None {

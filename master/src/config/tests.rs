@@ -159,7 +159,7 @@ fn missing_keys_get_their_documented_defaults() {
     assert_eq!(d.safe_command, SafeCommand::Off1);
     assert!(d.params_writable);
     assert_eq!(
-        d.monitoring_param.param.map(|p| p.to_string()),
+        d.monitoring_param.param().map(|p| p.to_string()),
         Some("P2014[1]".into())
     );
     assert_eq!(
@@ -403,14 +403,14 @@ fn telegram_monitoring_is_checked_as_configured() {
     let g120 =
         d("monitoring_param = \"p2040\"\nmonitoring_max_ms = 200\nrequire_monitoring = true");
     assert_eq!(
-        g120.monitoring_param.param.map(|p| p.to_string()),
+        g120.monitoring_param.param().map(|p| p.to_string()),
         Some("p2040".into())
     );
     assert_eq!(
         (g120.monitoring_max_ms.get(), g120.require_monitoring),
         (ms(200), true)
     );
-    assert_eq!(d("monitoring_param = \"\"").monitoring_param.param, None);
+    assert_eq!(d("monitoring_param = \"\"").monitoring_param.param(), None);
 }
 
 #[test]

@@ -150,7 +150,7 @@ fn log_monitoring(bus: &BusConfig, address: Address, at: Duration, state: Monito
         .drives
         .iter()
         .find(|d| d.address == address)
-        .and_then(|d| d.monitoring_param.param)
+        .and_then(|d| d.monitoring_param.param())
         .map_or_else(|| "the monitoring parameter".to_owned(), |p| p.to_string());
     let (drive, at_s, bus) = (address.get(), at.as_secs_f64(), bus.name.as_str());
     match state {

@@ -97,7 +97,7 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
                 watchdog: d.watchdog_ms.get(),
                 params_writable: d.params_writable,
                 monitoring: MonitoringSetup {
-                    param: d.monitoring_param.param.map(|p| (p.pnu, p.index)),
+                    param: d.monitoring_param.param().map(|p| (p.pnu, p.index)),
                     max: d.monitoring_max_ms.get(),
                     required: d.require_monitoring,
                 },
