@@ -81,8 +81,12 @@ fn stop_command(payload: Option<&str>) -> Result<StopCommand, String> {
     }
 }
 
-/// Sends the stop a query asks for: the command and the drives it went to, or the error text.
-fn send_stop(bus: &Bus, keys: &Keys, query: &Query) -> Result<(StopCommand, Vec<u8>), String> {
+/// What a stop query sent: the command, the drives it went to, and whether the query named one
+/// drive (its reply is that drive's, not an array).
+type Sent = (StopCommand, Vec<u8>, bool);
+
+/// Sends the stop a query asks for, or says why not.
+fn send_stop(bus: &Bus, keys: &Keys, query: &Query) -> Result<Sent, String> {
     let target = keys
         .stop_of(query.key_expr().as_str())
         .map_err(|e| e.to_string())?;
@@ -99,7 +103,7 @@ fn send_stop(bus: &Bus, keys: &Keys, query: &Query) -> Result<(StopCommand, Vec<
             .map_err(|e| e.to_string())?,
         None => bus.stop_all(command).map_err(|e| e.to_string())?,
     };
-    Ok((command, drives))
+    Ok((command, drives, target.is_some()))
 }
 
 /// The reply to a stop that went out: each drive's image once it shows the command, within
@@ -159,8 +163,7 @@ pub fn serve_stops(
             .map_err(Clone::clone)
             .and_then(|b| send_stop(b, keys, &query));
         match sent {
-            Ok((command, drives)) => {
-                let one = keys.stop_of(query.key_expr().as_str()) != Ok(None);
+            Ok((command, drives, one)) => {
                 if confirming.load(Ordering::Relaxed) >= MAX_CONFIRMING {
                     // Each confirmation holds a reader of ussd's services: a flood of stops must
                     // not take them from ussctl and the controllers. The stop went out.

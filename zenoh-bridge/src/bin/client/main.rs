@@ -140,8 +140,42 @@ pub enum Failure {
     /// The reader of stdout went away (`| head`): the client ends quietly.
     #[error("the output was closed")]
     Closed,
-    #[error(transparent)]
-    Run(#[from] run::RunFailure),
+    // Why a remote run ended before its time; with each, the client sends nothing more.
+    #[error("cannot handle signal {signal}: {source}")]
+    Signal { signal: i32, source: std::io::Error },
+    #[error(
+        "no image of {drive} within {:?}: is uss-zenoh running for its bus?",
+        run::ARM_TIMEOUT
+    )]
+    NoImage { drive: String },
+    #[error("the bridge refused the OFF1: {0}")]
+    ArmRefused(String),
+    #[error(
+        "{drive} was not re-armed within {:?} (control {control:?}, latch {latch:?}); is the \
+         bridge running with --allow-control?",
+        run::ARM_TIMEOUT
+    )]
+    NotArmed {
+        drive: String,
+        control: String,
+        latch: String,
+    },
+    #[error(
+        "{drive} latched after {seconds:.2} s ({reason}): it gets its safe command until a new \
+         run re-arms it"
+    )]
+    Latched {
+        drive: String,
+        seconds: f64,
+        reason: String,
+    },
+    #[error("the bridge refused a sample: {0}")]
+    SampleRefused(String),
+    #[error(
+        "no fresh image of {drive} for {seconds:.2} s: giving up, sending nothing more (the \
+         drive's watchdog stops it)"
+    )]
+    Blind { drive: String, seconds: f64 },
 }
 
 /// A failed write to stdout: [`Failure::Closed`] when its reader went away.
@@ -167,9 +201,9 @@ fn seconds(s: f64) -> Result<Duration, Failure> {
 }
 
 /// What Zenoh refused on `key`.
-fn on(key: &str) -> impl FnOnce(zenoh::Error) -> Failure + '_ {
+fn on<K: Into<String>>(key: K) -> impl FnOnce(zenoh::Error) -> Failure {
     move |error| Failure::Zenoh {
-        key: key.to_owned(),
+        key: key.into(),
         error,
     }
 }

@@ -13,66 +13,17 @@ use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::sample::Sample;
 
+// Its progress lines ignore a reader of stdout that went away: the run goes on and winds the
+// drive down at its end as always.
+use super::{Failure, on, say};
+
 /// No fresh image for this long and `run` gives up.
 const BLIND_AFTER: Duration = Duration::from_secs(1);
 /// How long the re-arm may take.
-const ARM_TIMEOUT: Duration = Duration::from_secs(5);
+pub const ARM_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long the drive may take to ramp down at the end.
 const STOP_TIMEOUT: Duration = Duration::from_secs(30);
 const OFF1: &str = r#""stw1":1150,"hz":0.0"#;
-
-/// Why a remote run ended before its time; with each, the client sends nothing more.
-#[derive(Debug, thiserror::Error)]
-pub enum RunFailure {
-    #[error("cannot handle signal {signal}: {source}")]
-    Signal { signal: i32, source: std::io::Error },
-    /// A subscriber, the publisher or a put that Zenoh refused.
-    #[error("{key}: {error}")]
-    Zenoh { key: String, error: zenoh::Error },
-    #[error("no image of {0} within {ARM_TIMEOUT:?}: is uss-zenoh running for its bus?")]
-    NoImage(String),
-    #[error("the bridge refused the OFF1: {0}")]
-    ArmRefused(String),
-    #[error(
-        "{drive} was not re-armed within {ARM_TIMEOUT:?} (control {control:?}, latch {latch:?}); \
-         is the bridge running with --allow-control?"
-    )]
-    NotArmed {
-        drive: String,
-        control: String,
-        latch: String,
-    },
-    #[error(
-        "{drive} latched after {seconds:.2} s ({reason}): it gets its safe command until a new \
-         run re-arms it"
-    )]
-    Latched {
-        drive: String,
-        seconds: f64,
-        reason: String,
-    },
-    #[error("the bridge refused a sample: {0}")]
-    SampleRefused(String),
-    #[error(
-        "no fresh image of {drive} for {seconds:.2} s: giving up, sending nothing more (the \
-         drive's watchdog stops it)"
-    )]
-    Blind { drive: String, seconds: f64 },
-}
-
-/// A line to stdout; a reader that went away does not end the run (the drive is wound down at
-/// its end as always).
-macro_rules! say {
-    ($($arg:tt)*) => {{
-        use std::io::Write as _;
-        let _ = writeln!(std::io::stdout(), $($arg)*);
-    }};
-}
-
-/// What Zenoh refused on `key`.
-fn on(key: String) -> impl FnOnce(zenoh::Error) -> RunFailure {
-    move |error| RunFailure::Zenoh { key, error }
-}
 
 /// The remote controller and what it sees of the drive: the latest image and the bridge's
 /// latest control report.
@@ -91,7 +42,7 @@ struct Remote<'a> {
 }
 
 impl Remote<'_> {
-    fn send(&mut self, body: &str) -> Result<(), RunFailure> {
+    fn send(&mut self, body: &str) -> Result<(), Failure> {
         self.seq += 1;
         self.publisher
             .put(format!(
@@ -99,14 +50,14 @@ impl Remote<'_> {
                 self.from, self.seq
             ))
             .wait()
-            .map_err(|error| RunFailure::Zenoh {
+            .map_err(|error| Failure::Zenoh {
                 key: format!("{}/out", self.drive),
                 error,
             })
     }
 
     /// Sends `body`, waits a period, and takes in what arrived meanwhile.
-    fn step(&mut self, body: &str) -> Result<(), RunFailure> {
+    fn step(&mut self, body: &str) -> Result<(), Failure> {
         self.send(body)?;
         std::thread::sleep(self.period);
         self.look();
@@ -171,11 +122,13 @@ impl Remote<'_> {
 
     /// OFF1 until the drive is live (ussd took the OFF1). A latched drive's OFF1 names the
     /// latch its image shows: nothing is sent before an image was seen.
-    fn arm(&mut self, stop: &AtomicBool) -> Result<(), RunFailure> {
+    fn arm(&mut self, stop: &AtomicBool) -> Result<(), Failure> {
         let deadline = Instant::now() + ARM_TIMEOUT;
         while self.image.is_none() {
             if Instant::now() >= deadline {
-                return Err(RunFailure::NoImage(self.drive.to_owned()));
+                return Err(Failure::NoImage {
+                    drive: self.drive.to_owned(),
+                });
             }
             std::thread::sleep(self.period);
             self.look();
@@ -192,7 +145,7 @@ impl Remote<'_> {
             }
             let refused = self.refusal();
             if let Some(why) = refused.as_ref().filter(|_| !self.held_by_another()) {
-                return Err(RunFailure::ArmRefused(why.clone()));
+                return Err(Failure::ArmRefused(why.clone()));
             }
             // Live by this client's own re-arm, not by someone else's.
             if self.live() && self.holds() {
@@ -202,9 +155,9 @@ impl Remote<'_> {
                 // Another remote controller may be falling silent (the bridge lets go of it
                 // when its drive shows the trip): that refusal is final only now.
                 if let Some(why) = refused {
-                    return Err(RunFailure::ArmRefused(why));
+                    return Err(Failure::ArmRefused(why));
                 }
-                return Err(RunFailure::NotArmed {
+                return Err(Failure::NotArmed {
                     drive: self.drive.to_owned(),
                     control: self.field("control").to_owned(),
                     latch: self.field("latch_reason").to_owned(),
@@ -220,24 +173,24 @@ impl Remote<'_> {
         hz: f32,
         duration: Option<Duration>,
         stop: &AtomicBool,
-    ) -> Result<(), RunFailure> {
+    ) -> Result<(), Failure> {
         let start = Instant::now();
         let mut last_note = start;
         let on = format!(r#""stw1":1151,"hz":{hz}"#);
         loop {
             self.step(&on)?;
             if !self.live() && self.field("control") == "latched" {
-                return Err(RunFailure::Latched {
+                return Err(Failure::Latched {
                     drive: self.drive.to_owned(),
                     seconds: start.elapsed().as_secs_f64(),
                     reason: self.field("latch_reason").to_owned(),
                 });
             }
             if let Some(why) = self.refusal() {
-                return Err(RunFailure::SampleRefused(why));
+                return Err(Failure::SampleRefused(why));
             }
             if self.seen_at.elapsed() > BLIND_AFTER {
-                return Err(RunFailure::Blind {
+                return Err(Failure::Blind {
                     drive: self.drive.to_owned(),
                     seconds: self.seen_at.elapsed().as_secs_f64(),
                 });
@@ -246,18 +199,18 @@ impl Remote<'_> {
                 return Ok(());
             }
             if last_note.elapsed() >= Duration::from_millis(500) {
-                say!(
+                let _ = say(&format!(
                     "  {:6.1} s  {:8.2} Hz",
                     start.elapsed().as_secs_f64(),
                     self.actual_hz()
-                );
+                ));
                 last_note = Instant::now();
             }
         }
     }
 
     /// OFF1 along the ramp until the drive is back in S2, then the release; how it ended.
-    fn wind_down(&mut self) -> Result<&'static str, RunFailure> {
+    fn wind_down(&mut self) -> Result<&'static str, Failure> {
         let deadline = Instant::now() + STOP_TIMEOUT;
         while self.field("state") != "S2" && Instant::now() < deadline {
             self.step(OFF1)?;
@@ -292,11 +245,11 @@ pub fn run(
     hz: f32,
     duration: Option<Duration>,
     period_ms: u64,
-) -> Result<(), RunFailure> {
+) -> Result<(), Failure> {
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, Arc::clone(&stop))
-            .map_err(|source| RunFailure::Signal { signal, source })?;
+            .map_err(|source| Failure::Signal { signal, source })?;
     }
     let drive = drive.trim_end_matches('/');
     let subscribe = |what: &str| {
@@ -325,19 +278,19 @@ pub fn run(
         report: None,
     };
     remote.arm(&stop)?;
-    say!(
+    let _ = say(&format!(
         "{drive}: re-armed; running towards {hz} Hz; {}",
         match duration {
             Some(d) => format!("stopping after {d:?}"),
             None => "Ctrl-C stops it".to_owned(),
         }
-    );
+    ));
     remote.run(hz, duration, &stop)?;
     let released = remote.wind_down()?;
-    say!(
+    let _ = say(&format!(
         "{drive}: stopped (OFF1, {}, {:.2} Hz) and {released}",
         remote.field("state"),
         remote.actual_hz()
-    );
+    ));
     Ok(())
 }
