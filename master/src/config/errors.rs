@@ -1,16 +1,16 @@
-//! Errors that name the file, line, column, table, key and what is allowed: the parser's and
-//! serde's errors carry a byte span, and the span is found again in the file's tables (parsed
-//! with spans, [`toml::de::DeTable`]) to name the bus, the drive and the key.
+//! Errors that name the file, line, column, table, key and what is allowed. serde's errors
+//! carry a byte span and, read through `serde_path_to_error`, the key's path; the bus and
+//! drive are named from the file's tables, parsed with spans ([`toml::de::DeTable`]).
 
-use super::rules::{Broken, Kind};
-use core::fmt;
+use super::rules::{BUS_NAMES, Broken, DEVICES};
 use core::ops::Range;
+use serde_path_to_error::Segment;
 use toml::Spanned;
 use toml::de::{DeTable, DeValue};
 
 /// Why a configuration was refused: where, which key, and what is allowed.
 #[derive(Debug, thiserror::Error)]
-#[error("{origin}{}: {message}", Position(*.line, *.column))]
+#[error("{origin}{}: {message}", line.zip(*column).map(|(l, c)| format!(":{l}:{c}")).unwrap_or_default())]
 pub struct ConfigError {
     /// The file name (or whatever [`super::Config::parse`] was given).
     pub origin: String,
@@ -28,26 +28,8 @@ pub struct ConfigError {
 impl ConfigError {
     /// A file that cannot be read: an error without a line.
     pub fn unreadable(origin: &str, e: &std::io::Error) -> Self {
-        ConfigError {
-            origin: origin.to_owned(),
-            line: None,
-            column: None,
-            path: None,
-            message: format!("cannot read the configuration: {e}"),
-        }
-    }
-}
-
-/// `:line:column`, or nothing.
-struct Position(Option<usize>, Option<usize>);
-
-impl fmt::Display for Position {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match *self {
-            Position(Some(line), Some(column)) => write!(f, ":{line}:{column}"),
-            Position(Some(line), None) => write!(f, ":{line}"),
-            Position(None, _) => Ok(()),
-        }
+        let message = format!("cannot read the configuration: {e}");
+        Reporter::new("", origin).error(None, None, message)
     }
 }
 
@@ -65,91 +47,99 @@ pub fn position(text: &str, offset: usize) -> (usize, usize) {
     )
 }
 
+/// A table of the file: the array it is in (`bus`, `drive`) and its index.
+pub type At<'a> = [(&'a str, usize)];
+
 /// Builds errors for one file.
 pub struct Reporter<'t> {
     pub text: &'t str,
-    pub origin: &'t str,
+    origin: &'t str,
     /// The file's tables with spans; `None` when it is not valid TOML.
     pub root: Option<DeTable<'t>>,
 }
 
-/// Where a span is in the file's tables.
-#[derive(Debug, Default)]
-struct Place {
-    /// `bus[0].drive[1]`; empty for the file itself.
-    table: String,
-    /// `bus "line1" drive 3`; empty for the file itself.
-    label: String,
-    /// What takes the keys: "the file", "a [[bus]] table", ...
-    kind: &'static str,
-    /// The key whose key or value holds the span, with its value as written.
-    key: Option<(String, String)>,
-}
-
-impl Reporter<'_> {
-    pub fn syntax(&self, e: &toml::de::Error) -> ConfigError {
-        let (line, column) = e.span().map(|s| position(self.text, s.start)).unzip();
-        ConfigError {
-            origin: self.origin.to_owned(),
-            line,
-            column,
-            path: None,
-            message: format!("invalid TOML: {}", e.message().trim_end()),
+impl<'t> Reporter<'t> {
+    pub fn new(text: &'t str, origin: &'t str) -> Self {
+        Reporter {
+            text,
+            origin,
+            root: None,
         }
     }
 
-    fn error(&self, span: Option<&Range<usize>>, path: String, message: String) -> ConfigError {
+    pub fn syntax(&self, e: &toml::de::Error) -> ConfigError {
+        let message = format!("invalid TOML: {}", e.message().trim_end());
+        self.error(e.span(), None, message)
+    }
+
+    fn error(
+        &self,
+        span: Option<Range<usize>>,
+        path: Option<String>,
+        message: String,
+    ) -> ConfigError {
         let (line, column) = span.map(|s| position(self.text, s.start)).unzip();
         ConfigError {
             origin: self.origin.to_owned(),
             line,
             column,
-            path: Some(path),
+            path,
             message,
         }
     }
 
-    /// A value serde refused (wrong type, out of range, unknown or missing key), in our words.
-    pub fn serde(&self, e: &toml::de::Error) -> ConfigError {
-        let span = e.span();
-        let place = span
-            .as_ref()
-            .map(|s| self.place(s.start))
+    /// The first line of what the file writes at `span`.
+    pub fn written(&self, span: Option<&Range<usize>>) -> &str {
+        let written = span
+            .and_then(|s| self.text.get(s.clone()))
             .unwrap_or_default();
-        let message = e.message().trim_end();
-        let label = |text: String| {
-            if place.label.is_empty() {
-                text
-            } else {
-                format!("{}: {text}", place.label)
+        written.lines().next().unwrap_or_default().trim()
+    }
+
+    /// A value serde refused (wrong type, out of range, unknown or missing key), in our words.
+    pub fn serde(&self, e: &serde_path_to_error::Error<toml::de::Error>) -> ConfigError {
+        // The tables (`bus[0]`, `drive[2]`) and the keys below them (`sim`, `delay`).
+        let (mut at, mut keys) = (Vec::new(), Vec::new());
+        let mut segments = e.path().iter().peekable();
+        while let Some(segment) = segments.next() {
+            if let Segment::Map { key } = segment {
+                match segments.peek() {
+                    Some(Segment::Seq { index }) if ["bus", "drive"].contains(&key.as_str()) => {
+                        at.push((key.as_str(), *index));
+                        segments.next();
+                    }
+                    _ => keys.push(key.as_str()),
+                }
             }
-        };
-        let join = |key: &str| {
-            if place.table.is_empty() {
-                key.to_owned()
-            } else {
-                format!("{}.{key}", place.table)
-            }
-        };
-        if let Some(rest) = message.strip_prefix("unknown field `") {
-            let (key, expected) = rest.split_once('`').unwrap_or((rest, ""));
+        }
+        let mut path = e.path().to_string();
+        let span = e.inner().span();
+        let message = e.inner().message().trim_end();
+        let missing = message.strip_prefix("missing field `");
+        let key = missing.map_or(keys.last().copied().unwrap_or_default(), |k| {
+            k.trim_end_matches('`')
+        });
+        let written = self.written(span.as_ref());
+        let text = if let Some(rest) = message.strip_prefix("unknown field `") {
+            let (_, expected) = rest.split_once('`').unwrap_or((rest, ""));
             let known = expected
                 .trim_start_matches(", expected one of ")
                 .trim_start_matches(", expected ")
                 .replace('`', "");
-            let text = format!("unknown key `{key}`: {} takes {known}", place.kind);
-            return self.error(span.as_ref(), join(key), label(text));
-        }
-        if let Some(rest) = message.strip_prefix("missing field `") {
-            let key = rest.trim_end_matches('`');
-            let text = match required(key) {
+            let table = match (keys.len(), at.len()) {
+                (2.., _) => "a [bus.drive.sim] table",
+                (_, 0) => "the file",
+                (_, 1) => "a [[bus]] table",
+                _ => "a [[bus.drive]] table",
+            };
+            format!("unknown key `{key}`: {table} takes {known}")
+        } else if missing.is_some() {
+            path = format!("{path}.{key}");
+            match required(key) {
                 "" => format!("{key} is missing"),
                 allowed => format!("{key} is missing: {allowed}"),
-            };
-            return self.error(span.as_ref(), join(key), label(text));
-        }
-        let (key, written) = place.key.clone().unwrap_or_default();
-        let text = if let Some(rest) = message.strip_prefix("invalid type: ") {
+            }
+        } else if let Some(rest) = message.strip_prefix("invalid type: ") {
             let (found, expected) = rest.split_once(", expected ").unwrap_or((rest, "?"));
             let expected = match expected {
                 "a sequence" => {
@@ -163,7 +153,7 @@ impl Reporter<'_> {
                 "a boolean" => "a boolean: write true or false".to_owned(),
                 "f64" => "a number".to_owned(),
                 "u8" | "u16" | "u32" | "u64" | "i64" => "an integer".to_owned(),
-                "a string" if !required(&key).is_empty() => format!("a string: {}", required(&key)),
+                "a string" if !required(key).is_empty() => format!("a string: {}", required(key)),
                 e if e.starts_with("struct SimOptions") => {
                     "a table of uss-sim's drive keys, e.g. sim = { delay = 1, drop = 0.01 }"
                         .to_owned()
@@ -186,166 +176,71 @@ impl Reporter<'_> {
         } else {
             format!("{key} = {written}: {message}")
         };
-        self.error(span.as_ref(), join(&key), label(text))
+        self.error(span, Some(path), self.label(&at, text))
     }
 
     /// A broken rule, in our words.
     pub fn rule(&self, b: &Broken) -> ConfigError {
-        let path = if b.table.is_empty() {
-            b.key.to_owned()
-        } else {
-            format!("{}.{}", b.table, b.key)
-        };
-        let place = b
-            .span
-            .as_ref()
-            .map(|s| self.place(s.start))
-            .unwrap_or_default();
-        let written = b
-            .span
-            .as_ref()
-            .and_then(|s| self.text.get(s.clone()))
-            .map(|w| w.lines().next().unwrap_or_default().trim().to_owned())
-            .unwrap_or_default();
-        let text = match b.kind {
-            Kind::Value => format!("{} = {written} {}", b.key, b.problem),
-            Kind::Whole => b.problem.clone(),
-        };
-        let message = if place.label.is_empty() {
-            text
-        } else {
-            format!("{}: {text}", place.label)
-        };
-        self.error(b.span.as_ref(), path, message)
+        let mut path: Vec<String> = b.at.iter().map(|(t, i)| format!("{t}[{i}]")).collect();
+        path.push(b.key.to_owned());
+        let text = self.label(&b.at, b.text.clone());
+        self.error(b.span.clone(), Some(path.join(".")), text)
     }
 
-    /// Where the table at `path` (`[("bus", 0), ("drive", 2)]`) writes `key`'s value, or where
-    /// the table is when it does not write `key` (or no key is asked for).
-    pub fn span(&self, path: &[(&str, usize)], key: Option<&str>) -> Option<Range<usize>> {
-        let mut table = self.root.as_ref()?;
-        let mut span = None;
-        for &(array, i) in path {
-            let DeValue::Array(items) = table.get(array)?.get_ref() else {
+    /// The table at `at` (`[("bus", 0), ("drive", 2)]`) with its span, if the file has it.
+    fn table(&self, at: &At<'_>) -> Option<(&DeTable<'t>, Option<Range<usize>>)> {
+        let mut table = (self.root.as_ref()?, None);
+        for &(array, i) in at {
+            let DeValue::Array(items) = table.0.get(array)?.get_ref() else {
                 return None;
             };
             let item = items.get(i)?;
             let DeValue::Table(inner) = item.get_ref() else {
                 return None;
             };
-            span = Some(item.span());
-            table = inner;
+            table = (inner, Some(item.span()));
         }
+        Some(table)
+    }
+
+    /// Where the table at `at` writes `key`'s value, or where the table is when it does not
+    /// write `key` (or no key is asked for).
+    pub fn span(&self, at: &At<'_>, key: Option<&str>) -> Option<Range<usize>> {
+        let (table, span) = self.table(at)?;
         key.and_then(|k| table.get(k)).map(Spanned::span).or(span)
     }
 
-    /// The innermost table around `offset` and the key there.
-    fn place(&self, offset: usize) -> Place {
-        let mut place = Place {
-            kind: "the file",
-            ..Place::default()
-        };
-        let Some(root) = &self.root else {
-            return place;
-        };
-        let mut table = root;
-        let mut key_at = find_key(self.text, table, offset);
-        for (key, header, kind) in [
-            ("bus", "bus", "a [[bus]] table"),
-            ("drive", "drive", "a [[bus.drive]] table"),
-        ] {
-            let Some((i, inner)) = array_table_at(table, key, offset) else {
-                break;
+    /// `text` after the bus and drive it is about: `bus "line1" drive 3: `, or by index when the
+    /// name or address is not usable.
+    fn label(&self, at: &At<'_>, text: String) -> String {
+        let mut label = Vec::new();
+        for (n, &(key, index)) in at.iter().enumerate() {
+            let value = |k| Some(self.table(&at[..=n])?.0.get(k)?.get_ref());
+            let own = match (key, value(if key == "bus" { "name" } else { "address" })) {
+                ("bus", Some(DeValue::String(name))) => Some(name.as_ref())
+                    .filter(|n| super::rules::valid_bus_name(n))
+                    .map(|n| format!("bus {n:?}")),
+                ("drive", Some(DeValue::Integer(i))) => i64::from_str_radix(i.as_str(), i.radix())
+                    .ok()
+                    .filter(|a| (0..=31).contains(a))
+                    .map(|a| format!("drive {a}")),
+                _ => None,
             };
-            let index = if place.table.is_empty() {
-                format!("{header}[{i}]")
-            } else {
-                format!("{}.{header}[{i}]", place.table)
-            };
-            place.label = label(&place.label, key, i, inner);
-            place.table = index;
-            place.kind = kind;
-            table = inner;
-            key_at = find_key(self.text, table, offset);
+            label.push(own.unwrap_or_else(|| format!("{key}[{index}]")));
         }
-        // The drive's `sim` table: inline, dotted keys, or a `[bus.drive.sim]` header (whose
-        // span is the header alone, so its keys are looked up whenever the offset is past it).
-        if let Some(sim_value) = table.get("sim")
-            && let DeValue::Table(sim) = sim_value.get_ref()
-            && sim_value.span().start <= offset
-            && let Some(inner) = find_key(self.text, sim, offset)
-        {
-            place.table = format!("{}.sim", place.table);
-            place.kind = "a [bus.drive.sim] table";
-            key_at = Some(inner);
+        if label.is_empty() {
+            text
+        } else {
+            format!("{}: {text}", label.join(" "))
         }
-        place.key = key_at;
-        place
-    }
-}
-
-/// The table of array `key` in `table` whose span holds `offset`, with its index.
-fn array_table_at<'a, 't>(
-    table: &'a DeTable<'t>,
-    key: &str,
-    offset: usize,
-) -> Option<(usize, &'a DeTable<'t>)> {
-    let DeValue::Array(items) = table.get(key)?.get_ref() else {
-        return None;
-    };
-    // Header tables have the span of their header: the last one starting at or before offset.
-    items
-        .iter()
-        .enumerate()
-        .rev()
-        .find(|(_, item)| item.span().start <= offset)
-        .and_then(|(i, item)| match item.get_ref() {
-            DeValue::Table(t) => Some((i, t)),
-            _ => None,
-        })
-}
-
-/// The key of `table` whose key or value holds `offset`, and its value as written.
-fn find_key(text: &str, table: &DeTable<'_>, offset: usize) -> Option<(String, String)> {
-    table.iter().find_map(|(key, value)| {
-        let holds = |s: Range<usize>| s.start <= offset && offset < s.end.max(s.start + 1);
-        (holds(key.span()) || holds(value.span())).then(|| {
-            let written = text.get(value.span()).unwrap_or_default();
-            let first = written.lines().next().unwrap_or_default().trim();
-            (key.get_ref().to_string(), first.to_owned())
-        })
-    })
-}
-
-/// `bus "line1"` / `bus "line1" drive 3`, or by index when the name or address is not usable.
-fn label(outer: &str, key: &str, index: usize, table: &DeTable<'_>) -> String {
-    let value = |k: &str| table.get(k).map(Spanned::get_ref);
-    let own = match (key, value(if key == "bus" { "name" } else { "address" })) {
-        ("bus", Some(DeValue::String(name))) if super::rules::valid_bus_name(name) => {
-            format!("bus {name:?}")
-        }
-        ("drive", Some(DeValue::Integer(i)))
-            if i64::from_str_radix(i.as_str(), i.radix()).is_ok_and(|a| (0..=31).contains(&a)) =>
-        {
-            let a = i64::from_str_radix(i.as_str(), i.radix()).unwrap_or_default();
-            format!("drive {a}")
-        }
-        _ => format!("{key}[{index}]"),
-    };
-    if outer.is_empty() {
-        own
-    } else {
-        format!("{outer} {own}")
     }
 }
 
 /// What a required key allows.
 fn required(key: &str) -> &'static str {
     match key {
-        "name" => {
-            "a bus name is 1..=32 characters from A-Z, a-z, 0-9, _ and - (it becomes part of \
-             shared-memory service names)"
-        }
-        "device" => "device is \"sim\" (the built-in simulated bus) or the path of a serial device",
+        "name" => BUS_NAMES,
+        "device" => DEVICES,
         "address" => "USS addresses are 0..=31",
         _ => "",
     }

@@ -54,7 +54,8 @@ pub struct Config {
 }
 
 /// Where a bus lives.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(from = "String", into = "String")]
 pub enum Device {
     /// The built-in simulated bus: `uss-drive-sim` drives on an in-process virtual wire.
     Sim,
@@ -219,23 +220,12 @@ const EMBEDDED_DEFAULT: &str = r#"
 [[bus]]
 name = "bus0"
 device = "sim"
-
-[[bus.drive]]
-address = 1
-sim = { p2014 = 100 }
-
-[[bus.drive]]
-address = 2
-sim = { p2014 = 100 }
-
-[[bus.drive]]
-address = 3
-pkw = 127
-sim = { p2014 = 100 }
-
-[[bus.drive]]
-address = 4
-sim = { p2014 = 100 }
+drive = [
+    { address = 1, sim = { p2014 = 100 } },
+    { address = 2, sim = { p2014 = 100 } },
+    { address = 3, pkw = 127, sim = { p2014 = 100 } },
+    { address = 4, sim = { p2014 = 100 } },
+]
 "#;
 
 impl Config {
@@ -250,14 +240,12 @@ impl Config {
 
     /// Parses and checks a configuration; `origin` names it in errors (usually the file name).
     pub fn parse(text: &str, origin: &str) -> Result<Config, ConfigError> {
-        let mut reporter = Reporter {
-            text,
-            origin,
-            root: None,
-        };
+        let mut reporter = Reporter::new(text, origin);
         let root = DeTable::parse(text).map_err(|e| reporter.syntax(&e))?;
         reporter.root = Some(root.into_inner());
-        let mut config: Config = toml::from_str(text).map_err(|e| reporter.serde(&e))?;
+        let file = toml::Deserializer::parse(text).map_err(|e| reporter.syntax(&e))?;
+        let mut config: Config =
+            serde_path_to_error::deserialize(file).map_err(|e| reporter.serde(&e))?;
         let broken = rules::check(&config, &reporter);
         // Of several broken rules, the one nearest the start of the file.
         if let Some(b) = broken

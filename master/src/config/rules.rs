@@ -11,25 +11,26 @@ use uss_protocol::{Baud, PkwMode};
 /// The longest bus name: it becomes part of shared-memory service names.
 pub const BUS_NAME_MAX: usize = 32;
 
-/// A broken rule: where (byte span; `None`: nowhere in the text), which key (the path below the
-/// table, e.g. `name` or `drive`), and what is wrong and allowed.
+/// What a bus name is (with [`BUS_NAME_MAX`]).
+pub const BUS_NAMES: &str = "a bus name is 1..=32 characters from A-Z, a-z, 0-9, _ and - (it \
+                             becomes part of shared-memory service names)";
+
+/// What a device is.
+pub const DEVICES: &str = if cfg!(feature = "sim") {
+    "device is \"sim\" (the built-in simulated bus) or the path of a serial device"
+} else {
+    "device is the path of a serial device"
+};
+
+/// A broken rule: where (byte span; `None`: nowhere in the text), which key of which table, and
+/// what is wrong and allowed.
 #[derive(Debug)]
 pub struct Broken {
     pub span: Option<Range<usize>>,
-    /// `bus[0]`, `bus[0].drive[2]`, or empty for the file.
-    pub table: String,
+    /// The table: `[("bus", 0), ("drive", 2)]`, or empty for the file.
+    pub at: Vec<(&'static str, usize)>,
     pub key: &'static str,
-    pub kind: Kind,
-    pub problem: String,
-}
-
-/// How a problem reads.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Kind {
-    /// About the value: "`key = value` problem".
-    Value,
-    /// A sentence of its own.
-    Whole,
+    pub text: String,
 }
 
 /// Whether `name` is a valid bus name: 1..=32 of `A-Z a-z 0-9 _ -`.
@@ -49,7 +50,7 @@ pub fn check(config: &Config, reporter: &Reporter<'_>) -> Vec<Broken> {
     };
     if config.buses.is_empty() {
         let problem = "no [[bus]] table: a configuration needs at least one bus";
-        rules.push(None, Kind::Whole, "bus", problem.to_owned());
+        rules.push(None, "bus", problem.to_owned());
     }
     for (i, bus) in config.buses.iter().enumerate() {
         rules.at = vec![("bus", i)];
@@ -57,7 +58,7 @@ pub fn check(config: &Config, reporter: &Reporter<'_>) -> Vec<Broken> {
             let line = rules.line_of(&[("bus", first)], "name");
             let problem =
                 format!("is used twice (first at line {line}): every bus needs its own name");
-            rules.fail(Kind::Value, "name", problem);
+            rules.fail("name", &problem);
         }
         rules.bus(bus);
     }
@@ -72,22 +73,22 @@ struct Rules<'a> {
 }
 
 impl Rules<'_> {
-    /// A problem with `key` of the current table (with the table's own place when the file
-    /// does not write the key).
-    fn fail(&mut self, kind: Kind, key: &'static str, problem: String) {
+    /// A problem with the value of `key` in the current table: "`key = value` problem" (at the
+    /// table when the file does not write the key).
+    fn fail(&mut self, key: &'static str, problem: &str) {
         let span = self.reporter.span(&self.at, Some(key));
-        self.push(span, kind, key, problem);
+        let text = format!("{key} = {} {problem}", self.reporter.written(span.as_ref()));
+        self.push(span, key, text);
     }
 
-    /// A problem with `key` of the current table, placed at `span`.
-    fn push(&mut self, span: Option<Range<usize>>, kind: Kind, key: &'static str, problem: String) {
-        let table: Vec<String> = self.at.iter().map(|(t, i)| format!("{t}[{i}]")).collect();
+    /// A problem with `key` of the current table, in a sentence of its own, placed at `span`.
+    fn push(&mut self, span: Option<Range<usize>>, key: &'static str, text: String) {
+        let at = self.at.clone();
         self.broken.push(Broken {
             span,
-            table: table.join("."),
+            at,
             key,
-            kind,
-            problem,
+            text,
         });
     }
 
@@ -99,11 +100,7 @@ impl Rules<'_> {
 
     fn bus(&mut self, bus: &BusConfig) {
         if !valid_bus_name(&bus.name) {
-            let problem = format!(
-                "is not allowed: a bus name is 1..={BUS_NAME_MAX} characters from A-Z, a-z, \
-                 0-9, _ and - (it becomes part of shared-memory service names)"
-            );
-            self.fail(Kind::Value, "name", problem);
+            self.fail("name", &format!("is not allowed: {BUS_NAMES}"));
         }
         let device = self.device(&bus.device).then_some(&bus.device);
         self.baud(bus);
@@ -118,17 +115,17 @@ impl Rules<'_> {
                     ),
                     None => "cpu is a CPU number from 0".to_owned(),
                 };
-                self.fail(Kind::Value, "cpu", format!("is out of range: {allowed}"));
+                self.fail("cpu", &format!("is out of range: {allowed}"));
             }
         }
         if bus.seed.is_some() && matches!(device, Some(Device::Serial(_))) {
-            self.fail(Kind::Value, "seed", only_on_sim());
+            self.fail("seed", ONLY_ON_SIM);
         }
         if bus.drives.is_empty() {
             // At the [[bus]] table, also when it writes `drive = []`.
             let span = self.reporter.span(&self.at, None);
             let problem = "no [[bus.drive]] table: every bus needs at least one drive";
-            self.push(span, Kind::Whole, "drive", problem.to_owned());
+            self.push(span, "drive", problem.to_owned());
         }
         let bus_at = self.at[0];
         for (i, drive) in bus.drives.iter().enumerate() {
@@ -142,7 +139,7 @@ impl Rules<'_> {
                     "is used twice (first at line {line}): every drive on a bus needs its own \
                      address"
                 );
-                self.fail(Kind::Value, "address", problem);
+                self.fail("address", &problem);
             }
             self.drive(drive, device);
         }
@@ -165,12 +162,7 @@ impl Rules<'_> {
                  path)"
             }
         };
-        let allowed = if cfg!(feature = "sim") {
-            "device is \"sim\" (the built-in simulated bus) or the path of a serial device"
-        } else {
-            "device is the path of a serial device"
-        };
-        self.fail(Kind::Value, "device", format!("{problem}: {allowed}"));
+        self.fail("device", &format!("{problem}: {DEVICES}"));
         false
     }
 
@@ -183,7 +175,7 @@ impl Rules<'_> {
                  for a drive and adapter that take it",
                 named.join(", ")
             );
-            self.fail(Kind::Value, "baud", problem);
+            self.fail("baud", &problem);
         }
     }
 
@@ -194,7 +186,7 @@ impl Rules<'_> {
                  writes it, e.g. \"P2014.1\" (MICROMASTER 4, COM link) or \"p2040\" (G120), or \
                  \"\" for no check"
             );
-            self.fail(Kind::Value, "monitoring_param", problem);
+            self.fail("monitoring_param", &problem);
             return;
         }
         if drive.require_monitoring {
@@ -208,21 +200,22 @@ impl Rules<'_> {
                 ""
             };
             if !missing.is_empty() {
-                self.fail(Kind::Value, "require_monitoring", missing.to_owned());
+                self.fail("require_monitoring", missing);
             }
         }
         if drive.sim.is_some() && matches!(device, Some(Device::Serial(_))) {
-            self.fail(Kind::Whole, "sim", format!("sim {}", only_on_sim()));
+            let span = self.reporter.span(&self.at, Some("sim"));
+            self.push(span, "sim", format!("sim {ONLY_ON_SIM}"));
         }
         #[cfg(feature = "sim")]
         if device == Some(&Device::Sim)
             && let Err(problem) = drive.sim_spec()
         {
-            self.fail(Kind::Whole, "sim", format!("sim: {problem}"));
+            let span = self.reporter.span(&self.at, Some("sim"));
+            self.push(span, "sim", format!("sim: {problem}"));
         }
     }
 }
 
-fn only_on_sim() -> String {
-    "is only allowed with device = \"sim\": the drives on a serial bus are real".to_owned()
-}
+const ONLY_ON_SIM: &str =
+    "is only allowed with device = \"sim\": the drives on a serial bus are real";

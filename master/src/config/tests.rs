@@ -486,6 +486,14 @@ fn unknown_keys_are_named_with_their_table_in_every_table() {
         "{message}"
     );
     assert_eq!(path.as_deref(), Some("bus[0].drive[0].sim.pzd"));
+    // A table header of its own after a [[bus]] belongs to the file, not to that bus.
+    assert_eq!(
+        refused(&format!("{}[other]\nx = 1\n", bus_key(""))),
+        (
+            "bus.toml:8:2: unknown key `other`: the file takes bus".to_owned(),
+            Some("other".to_owned())
+        )
+    );
 }
 
 #[test]
