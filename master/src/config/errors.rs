@@ -112,14 +112,22 @@ impl<'t> Reporter<'t> {
                 }
             }
         }
-        let mut path = e.path().to_string();
         let span = e.inner().span();
         let message = e.inner().message().trim_end();
         let missing = message.strip_prefix("missing field `");
-        let key = missing.map_or(keys.last().copied().unwrap_or_default(), |k| {
-            k.trim_end_matches('`')
-        });
-        let written = self.written(span.as_ref());
+        let mut written = self.written(span.as_ref());
+        if let Some(key) = missing {
+            keys.push(key.trim_end_matches('`'));
+        } else if keys.is_empty()
+            && let Some((array, _)) = at.pop()
+        {
+            // An item of `drive = [...]` that is not a table: the array is wrong.
+            keys.push(array);
+            written = self.written(self.span(&at, Some(array)).as_ref());
+        }
+        let key = keys.last().copied().unwrap_or_default();
+        let mut path: Vec<String> = at.iter().map(|(t, i)| format!("{t}[{i}]")).collect();
+        path.extend(keys.iter().map(|k| (*k).to_owned()));
         let text = if let Some(rest) = message.strip_prefix("unknown field `") {
             let (_, expected) = rest.split_once('`').unwrap_or((rest, ""));
             let known = expected
@@ -134,7 +142,6 @@ impl<'t> Reporter<'t> {
             };
             format!("unknown key `{key}`: {table} takes {known}")
         } else if missing.is_some() {
-            path = format!("{path}.{key}");
             match required(key) {
                 "" => format!("{key} is missing"),
                 allowed => format!("{key} is missing: {allowed}"),
@@ -142,7 +149,10 @@ impl<'t> Reporter<'t> {
         } else if let Some(rest) = message.strip_prefix("invalid type: ") {
             let (found, expected) = rest.split_once(", expected ").unwrap_or((rest, "?"));
             let expected = match expected {
-                "a sequence" => {
+                e if e == "a sequence"
+                    || e.starts_with("struct BusConfig")
+                    || e.starts_with("struct DriveEntry") =>
+                {
                     let header = if key == "bus" {
                         "[[bus]]"
                     } else {
@@ -176,7 +186,7 @@ impl<'t> Reporter<'t> {
         } else {
             format!("{key} = {written}: {message}")
         };
-        self.error(span, Some(path), self.label(&at, text))
+        self.error(span, Some(path.join(".")), self.label(&at, text))
     }
 
     /// A broken rule, in our words.

@@ -539,6 +539,16 @@ fn wrong_types_say_what_is_expected() {
         "bus.toml:4:9: bus \"bus0\": drive = 3 is not [[bus.drive]] tables: write a \
          [[bus.drive]] table for each"
     );
+    // An item of the array that is not a table: the array is named, as written.
+    assert_eq!(
+        refused("[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\ndrive = [{ address = 1 }, 2]\n"),
+        (
+            "bus.toml:4:27: bus \"bus0\": drive = [{ address = 1 }, 2] is not [[bus.drive]] \
+             tables: write a [[bus.drive]] table for each"
+                .to_owned(),
+            Some("bus[0].drive".to_owned())
+        )
+    );
     assert_eq!(
         error(&drive_key("sim = 1")).to_string(),
         "bus.toml:7:7: bus \"bus0\" drive 3: sim = 1 is not a table of uss-sim's drive keys, \
