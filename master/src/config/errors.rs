@@ -98,38 +98,44 @@ impl<'t> Reporter<'t> {
 
     /// A value serde refused (wrong type, out of range, unknown or missing key), in our words.
     pub fn serde(&self, e: &serde_path_to_error::Error<toml::de::Error>) -> ConfigError {
-        // The tables (`bus[0]`, `drive[2]`) and the keys below them (`sim`, `delay`).
-        let (mut at, mut keys) = (Vec::new(), Vec::new());
-        let mut segments = e.path().iter().peekable();
-        while let Some(segment) = segments.next() {
-            if let Segment::Map { key } = segment {
-                match segments.peek() {
-                    Some(Segment::Seq { index }) if ["bus", "drive"].contains(&key.as_str()) => {
-                        at.push((key.as_str(), *index));
-                        segments.next();
-                    }
-                    _ => keys.push(key.as_str()),
-                }
-            }
-        }
+        let (mut at, mut keys) = tables_and_keys(e.path());
         let span = e.inner().span();
         let message = e.inner().message().trim_end();
         let missing = message.strip_prefix("missing field `");
-        let mut written = self.written(span.as_ref());
+        let mut path = e.path().to_string();
+        // toml gives serde a date-time as a table of one private key.
+        let datetime = keys.last() == Some(&"$__toml_private_datetime");
+        if datetime {
+            keys.pop();
+            path.truncate(path.rfind('.').unwrap_or_default());
+        }
         if let Some(key) = missing {
             keys.push(key.trim_end_matches('`'));
+            path = format!("{path}.{}", key.trim_end_matches('`'));
         } else if keys.is_empty()
             && let Some((array, _)) = at.pop()
         {
             // An item of `drive = [...]` that is not a table: the array is wrong.
             keys.push(array);
-            written = self.written(self.span(&at, Some(array)).as_ref());
+            path.truncate(path.rfind('[').unwrap_or(path.len()));
         }
         let key = keys.last().copied().unwrap_or_default();
-        let mut path: Vec<String> = at.iter().map(|(t, i)| format!("{t}[{i}]")).collect();
-        path.extend(keys.iter().map(|k| (*k).to_owned()));
-        let text = if let Some(rest) = message.strip_prefix("unknown field `") {
-            let (_, expected) = rest.split_once('`').unwrap_or((rest, ""));
+        // The key's value as written; serde's span may be inside it (a table, an array). A table
+        // written as a [header] or by dotted keys has no text of its own: then serde's place.
+        let value = self
+            .value(&at, &keys)
+            .map(|v| (self.written(Some(&v.span())), v.get_ref()));
+        let written = match value {
+            Some((w, v)) if w.starts_with('{') || !matches!(v, DeValue::Table(_)) => w,
+            _ => self.written(span.as_ref()),
+        };
+        let text = if datetime {
+            format!("{key} = {written}: a date-time where a table belongs")
+        } else if let Some(rest) = message.strip_prefix("unknown field `") {
+            // After the key (which may hold a backtick itself).
+            let expected = rest
+                .strip_prefix(key)
+                .map_or(rest, |r| r.trim_start_matches('`'));
             let known = expected
                 .trim_start_matches(", expected one of ")
                 .trim_start_matches(", expected ")
@@ -186,7 +192,7 @@ impl<'t> Reporter<'t> {
         } else {
             format!("{key} = {written}: {message}")
         };
-        self.error(span, Some(path.join(".")), self.label(&at, text))
+        self.error(span, Some(path), self.label(&at, text))
     }
 
     /// A broken rule, in our words.
@@ -213,11 +219,25 @@ impl<'t> Reporter<'t> {
         Some(table)
     }
 
+    /// The value of `keys` (`["sim", "delay"]`) in the table at `at`, if the file writes it.
+    fn value(&self, at: &At<'_>, keys: &[&str]) -> Option<&Spanned<DeValue<'t>>> {
+        let (mut table, _) = self.table(at)?;
+        let (last, inner) = keys.split_last()?;
+        for key in inner {
+            let DeValue::Table(t) = table.get(*key)?.get_ref() else {
+                return None;
+            };
+            table = t;
+        }
+        table.get(*last)
+    }
+
     /// Where the table at `at` writes `key`'s value, or where the table is when it does not
     /// write `key` (or no key is asked for).
     pub fn span(&self, at: &At<'_>, key: Option<&str>) -> Option<Range<usize>> {
-        let (table, span) = self.table(at)?;
-        key.and_then(|k| table.get(k)).map(Spanned::span).or(span)
+        key.and_then(|k| self.value(at, &[k]))
+            .map(Spanned::span)
+            .or_else(|| self.table(at)?.1)
     }
 
     /// `text` after the bus and drive it is about: `bus "line1" drive 3: `, or by index when the
@@ -244,6 +264,24 @@ impl<'t> Reporter<'t> {
             format!("{}: {text}", label.join(" "))
         }
     }
+}
+
+/// The tables of a path (`bus[0]`, `drive[2]`) and the keys below them (`sim`, `delay`).
+fn tables_and_keys(path: &serde_path_to_error::Path) -> (Vec<(&str, usize)>, Vec<&str>) {
+    let (mut at, mut keys) = (Vec::new(), Vec::new());
+    let mut segments = path.iter().peekable();
+    while let Some(segment) = segments.next() {
+        if let Segment::Map { key } = segment {
+            match segments.peek() {
+                Some(Segment::Seq { index }) if ["bus", "drive"].contains(&key.as_str()) => {
+                    at.push((key.as_str(), *index));
+                    segments.next();
+                }
+                _ => keys.push(key.as_str()),
+            }
+        }
+    }
+    (at, keys)
 }
 
 /// What a required key allows.

@@ -32,9 +32,9 @@ fn ms<'de, D: Deserializer<'de>>(d: D, allowed: &'static str) -> Result<Option<f
     d.deserialize_any(Number(allowed)).map(Some)
 }
 
-/// A number of the file as an `f32`.
-fn hz<'de, D: Deserializer<'de>>(d: D, allowed: &'static str) -> Result<Option<f32>, D::Error> {
-    Ok(ms(d, allowed)?.map(|v| v as f32))
+/// A frequency: a number of the file ([`get`](ReferenceHz::get) as an `f32`).
+fn hz<'de, D: Deserializer<'de>>(d: D, allowed: &'static str) -> Result<Option<f64>, D::Error> {
+    ms(d, allowed)
 }
 
 /// An integer of the file, `None` when it does not fit `T`.
@@ -46,8 +46,8 @@ fn int<'de, D: Deserializer<'de>, T: TryFrom<i64>>(
 }
 
 /// Keys with a range: type and how the file writes it (`ms`: milliseconds, integer or float,
-/// [`get`](Watchdog::get) as a `Duration`; `int`; `hz`), range, default, what is allowed. Written
-/// back as read.
+/// [`get`](Watchdog::get) as a `Duration`; `int`; `hz`: checked as read, used as `f32`), range,
+/// default, what is allowed. Written back as read.
 macro_rules! keys {
     ($($(#[$doc:meta])* $name:ident($t:ty, $read:ident): $range:expr, $default:literal, $allowed:literal;)*) => {$(
         $(#[$doc])*
@@ -81,6 +81,13 @@ macro_rules! keys {
             pub fn get(self) -> Duration {
                 // Finite and non-negative (range checked): to the nanosecond.
                 Duration::from_nanos((self.0 * 1e6).round() as u64)
+            }
+        }
+    };
+    (@get hz $name:ident $t:ty) => {
+        impl $name {
+            pub fn get(self) -> f32 {
+                self.0 as f32
             }
         }
     };
@@ -124,7 +131,7 @@ keys! {
     Weight(u8, int): 1..=16, 1, "poll weights (entries in the circulating list) are 1..=16";
     /// The reference frequency P2000 in Hz, 0x4000 = 100 % (USS.md section 7), up to 650 Hz
     /// (the MICROMASTER/G120 range).
-    ReferenceHz(f32, hz): f32::MIN_POSITIVE..=650.0, 50.0,
+    ReferenceHz(f64, hz): f64::from(f32::MIN_POSITIVE)..=650.0, 50.0,
         "the reference frequency (P2000) is above 0 and at most 650 Hz";
 }
 

@@ -154,7 +154,7 @@ fn missing_keys_get_their_documented_defaults() {
     assert_eq!(d.address.get(), 3);
     assert_eq!(d.layout(), PKW4_PZD2);
     assert_eq!(d.weight.get(), 1);
-    assert_eq!(d.reference_hz.0, 50.0);
+    assert_eq!(d.reference_hz.get(), 50.0);
     assert_eq!(d.watchdog_ms.get(), ms(100));
     assert_eq!(d.safe_command, SafeCommand::Off1);
     assert!(d.params_writable);
@@ -202,7 +202,7 @@ fn every_key_is_read_as_written() {
         (PkwMode::Variable, 6)
     );
     assert_eq!(d.weight.get(), 3);
-    assert_eq!(d.reference_hz.0, 60.1_f32);
+    assert_eq!(d.reference_hz.get(), 60.1_f32);
     assert_eq!(d.watchdog_ms.get(), ms(250));
     assert_eq!(d.safe_command, SafeCommand::Off3);
     assert!(!d.params_writable);
@@ -486,6 +486,22 @@ fn unknown_keys_are_named_with_their_table_in_every_table() {
         "{message}"
     );
     assert_eq!(path.as_deref(), Some("bus[0].drive[0].sim.pzd"));
+    // A date-time where a table belongs (toml hands it over as a table with a private key).
+    assert_eq!(
+        refused(&drive_key("sim = 1979-05-27")),
+        (
+            "bus.toml:7:7: bus \"bus0\" drive 3: sim = 1979-05-27: a date-time where a table \
+             belongs"
+                .to_owned(),
+            Some("bus[0].drive[0].sim".to_owned())
+        )
+    );
+    // A key with a backtick in it is named whole, and the keys allowed are listed as usual.
+    assert!(
+        error(&drive_key("\"a`b\" = 1"))
+            .to_string()
+            .contains("unknown key `a`b`: a [[bus.drive]] table takes address, pkw,"),
+    );
     // A table header of its own after a [[bus]] belongs to the file, not to that bus.
     assert_eq!(
         refused(&format!("{}[other]\nx = 1\n", bus_key(""))),
@@ -743,6 +759,12 @@ fn unknown_rs485_mode_and_safe_command_list_the_choices() {
         "bus.toml:7:16: bus \"bus0\" drive 3: safe_command = \"stop\" is not allowed: use \
          \"off1\", \"off2\", \"off3\""
     );
+    // A table where a choice belongs is quoted as written, not by the key inside it.
+    assert!(
+        error(&bus_key("rs485 = { a = 1 }"))
+            .to_string()
+            .contains("rs485 = { a = 1 } is not allowed: use \"kernel\""),
+    );
 }
 
 #[test]
@@ -884,6 +906,8 @@ fn values_out_of_range_name_their_limits() {
          frequency (P2000) is above 0 and at most 650 Hz"
     );
     assert_eq!(error(&drive_key("reference_hz = 650.5")).line, Some(7));
+    // Checked as written, before it becomes an f32 (which would round this to 650).
+    assert_eq!(error(&drive_key("reference_hz = 650.00003")).line, Some(7));
     assert_eq!(
         parse(&drive_key("reference_hz = 650")).buses[0].drives[0].reference_hz,
         ReferenceHz(650.0)

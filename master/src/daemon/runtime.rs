@@ -101,7 +101,7 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
                     max: d.monitoring_max_ms.get(),
                     required: d.require_monitoring,
                 },
-                reference_hz: d.reference_hz.0,
+                reference_hz: d.reference_hz.get(),
             })
             .collect(),
     }
