@@ -159,21 +159,13 @@ impl<'t> Reporter<'t> {
                     || e.starts_with("struct BusConfig")
                     || e.starts_with("struct DriveEntry") =>
                 {
-                    let header = if key == "bus" {
-                        "[[bus]]"
-                    } else {
-                        "[[bus.drive]]"
-                    };
-                    format!("{header} tables: write a {header} table for each")
+                    tables(if key == "bus" { "bus" } else { "drive" }).to_owned()
                 }
                 "a boolean" => "a boolean: write true or false".to_owned(),
                 "f64" => "a number".to_owned(),
                 "u8" | "u16" | "u32" | "u64" | "i64" => "an integer".to_owned(),
                 "a string" if !required(key).is_empty() => format!("a string: {}", required(key)),
-                e if e.starts_with("struct SimOptions") => {
-                    "a table of uss-sim's drive keys, e.g. sim = { delay = 1, drop = 0.01 }"
-                        .to_owned()
-                }
+                e if e.starts_with("struct SimOptions") => tables("sim").to_owned(),
                 other => other.to_owned(),
             };
             if found.starts_with("map") {
@@ -201,6 +193,47 @@ impl<'t> Reporter<'t> {
         path.push(b.key.to_owned());
         let text = self.label(&b.at, b.text.clone());
         self.error(b.span.clone(), Some(path.join(".")), text)
+    }
+
+    /// serde would read a table written as an array (`drive = [[3]]`) field by field and leave
+    /// extra items unread: refused before serde sees the file.
+    pub fn arrays_for_tables(&self) -> Result<(), ConfigError> {
+        let Some(root) = &self.root else {
+            return Ok(());
+        };
+        let fail = |at: &At<'static>, key: &'static str, item: &Spanned<DeValue<'_>>| {
+            let written = self.written(self.span(at, Some(key)).as_ref());
+            let text = format!("{key} = {written} is not {}", tables(key));
+            let (span, at) = (Some(item.span()), at.to_vec());
+            Err(self.rule(&Broken {
+                span,
+                at,
+                key,
+                text,
+            }))
+        };
+        for (b, bus) in items(root, "bus").iter().enumerate() {
+            let DeValue::Table(bus_table) = bus.get_ref() else {
+                if matches!(bus.get_ref(), DeValue::Array(_)) {
+                    return fail(&[], "bus", bus);
+                }
+                continue;
+            };
+            for (d, drive) in items(bus_table, "drive").iter().enumerate() {
+                match drive.get_ref() {
+                    DeValue::Array(_) => return fail(&[("bus", b)], "drive", drive),
+                    DeValue::Table(t) => {
+                        if let Some(sim) = t.get("sim")
+                            && let DeValue::Array(_) = sim.get_ref()
+                        {
+                            return fail(&[("bus", b), ("drive", d)], "sim", sim);
+                        }
+                    }
+                    _ => {}
+                }
+            }
+        }
+        Ok(())
     }
 
     /// The table at `at` (`[("bus", 0), ("drive", 2)]`) with its span, if the file has it.
@@ -282,6 +315,23 @@ fn tables_and_keys(path: &serde_path_to_error::Path) -> (Vec<(&str, usize)>, Vec
         }
     }
     (at, keys)
+}
+
+/// The items of array `key` of `table` (none when it is not an array).
+fn items<'a, 't>(table: &'a DeTable<'t>, key: &str) -> &'a [Spanned<DeValue<'t>>] {
+    match table.get(key).map(Spanned::get_ref) {
+        Some(DeValue::Array(items)) => items,
+        _ => &[],
+    }
+}
+
+/// What `bus`, `drive` or `sim` is.
+fn tables(key: &str) -> &'static str {
+    match key {
+        "bus" => "[[bus]] tables: write a [[bus]] table for each",
+        "drive" => "[[bus.drive]] tables: write a [[bus.drive]] table for each",
+        _ => "a table of uss-sim's drive keys, e.g. sim = { delay = 1, drop = 0.01 }",
+    }
 }
 
 /// What a required key allows.

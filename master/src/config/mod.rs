@@ -243,6 +243,7 @@ impl Config {
         let mut reporter = Reporter::new(text, origin);
         let root = DeTable::parse(text).map_err(|e| reporter.syntax(&e))?;
         reporter.root = Some(root.into_inner());
+        reporter.arrays_for_tables()?;
         let file = toml::Deserializer::parse(text).map_err(|e| reporter.syntax(&e))?;
         let mut config: Config =
             serde_path_to_error::deserialize(file).map_err(|e| reporter.serde(&e))?;

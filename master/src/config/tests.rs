@@ -555,6 +555,30 @@ fn wrong_types_say_what_is_expected() {
         "bus.toml:4:9: bus \"bus0\": drive = 3 is not [[bus.drive]] tables: write a \
          [[bus.drive]] table for each"
     );
+    // A table written as an array would be read field by field (extra items unread): refused.
+    assert_eq!(
+        refused("[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\ndrive = [[3], { address = 4 }]\n"),
+        (
+            "bus.toml:4:10: bus \"bus0\": drive = [[3], { address = 4 }] is not [[bus.drive]] \
+             tables: write a [[bus.drive]] table for each"
+                .to_owned(),
+            Some("bus[0].drive".to_owned())
+        )
+    );
+    assert!(
+        error("bus = [[\"bus0\", \"sim\"]]\n")
+            .to_string()
+            .starts_with("bus.toml:1:8: bus = [[\"bus0\", \"sim\"]] is not [[bus]] tables"),
+    );
+    assert_eq!(
+        refused(&drive_key("sim = [1.0, 0.5]")),
+        (
+            "bus.toml:7:7: bus \"bus0\" drive 3: sim = [1.0, 0.5] is not a table of uss-sim's \
+             drive keys, e.g. sim = { delay = 1, drop = 0.01 }"
+                .to_owned(),
+            Some("bus[0].drive[0].sim".to_owned())
+        )
+    );
     // An item of the array that is not a table: the array is named, as written.
     assert_eq!(
         refused("[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\ndrive = [{ address = 1 }, 2]\n"),
