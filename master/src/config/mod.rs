@@ -241,12 +241,12 @@ impl Config {
     /// Parses and checks a configuration; `origin` names it in errors (usually the file name).
     pub fn parse(text: &str, origin: &str) -> Result<Config, ConfigError> {
         let mut reporter = Reporter::new(text, origin);
+        // Parsed once: the reporter keeps the tables with their spans, serde reads a copy.
         let root = DeTable::parse(text).map_err(|e| reporter.syntax(&e))?;
-        reporter.root = Some(root.into_inner());
+        reporter.root = Some(root.get_ref().clone());
         reporter.arrays_for_tables()?;
-        let file = toml::Deserializer::parse(text).map_err(|e| reporter.syntax(&e))?;
-        let mut config: Config =
-            serde_path_to_error::deserialize(file).map_err(|e| reporter.serde(&e))?;
+        let mut config: Config = serde_path_to_error::deserialize(toml::Deserializer::from(root))
+            .map_err(|e| reporter.serde(&e))?;
         let broken = rules::check(&config, &reporter);
         // Of several broken rules, the one nearest the start of the file.
         if let Some(b) = broken
