@@ -28,7 +28,6 @@ mod rules;
 
 pub use errors::ConfigError;
 pub use keys::*;
-pub use rules::BUS_NAME_MAX;
 
 use core::fmt::Write as _;
 use errors::Reporter;
@@ -110,8 +109,8 @@ impl SafeCommand {
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct BusConfig {
-    /// Unique, [`BUS_NAME_MAX`] characters at most from `A-Z a-z 0-9 _ -`: it becomes part of
-    /// shared-memory service names.
+    /// Unique, [`MAX_BUS_NAME_LEN`](uss_shm_types::names::MAX_BUS_NAME_LEN) characters at most
+    /// from `A-Z a-z 0-9 _ -`: it becomes part of shared-memory service names.
     pub name: String,
     pub device: Device,
     /// Character rate; the frame is always 8E1 (USS.md section 2).

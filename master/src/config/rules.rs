@@ -7,11 +7,9 @@ use super::errors::Reporter;
 use super::{BusConfig, Config, Device, DriveEntry};
 use core::ops::Range;
 use uss_protocol::{Baud, PkwMode};
+use uss_shm_types::names::{BusName, MAX_BUS_NAME_LEN};
 
-/// The longest bus name: it becomes part of shared-memory service names.
-pub const BUS_NAME_MAX: usize = 32;
-
-/// What a bus name is (with [`BUS_NAME_MAX`]).
+/// What a bus name is: [`BusName`]'s rule (it becomes part of shared-memory service names).
 pub const BUS_NAMES: &str = "a bus name is 1..=32 characters from A-Z, a-z, 0-9, _ and - (it \
                              becomes part of shared-memory service names)";
 
@@ -33,12 +31,12 @@ pub struct Broken {
     pub text: String,
 }
 
-/// Whether `name` is a valid bus name: 1..=32 of `A-Z a-z 0-9 _ -`.
+// The words of [`BUS_NAMES`] say 32.
+const _: () = assert!(MAX_BUS_NAME_LEN == 32);
+
+/// Whether `name` can name a bus ([`BusName`]).
 pub fn valid_bus_name(name: &str) -> bool {
-    (1..=BUS_NAME_MAX).contains(&name.len())
-        && name
-            .bytes()
-            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+    BusName::new(name).is_ok()
 }
 
 /// Every rule `config` breaks, placed in the file `reporter` reads.
