@@ -7,8 +7,8 @@
 //! cargo run -p uss-client --example ramp -- bus0 1 40 3
 //! ```
 //! Arguments: bus (bus0), drive (1), peak in Hz (40), ramps up and down (1). Hz are scaled by
-//! the reference frequency P2000 as ussd's configuration gives it; the drive's own P2000 is read
-//! to warn when the two differ.
+//! the reference frequency ussd publishes: the drive's own P2000 once ussd has read it (ussd
+//! logs a difference from its configuration's `reference_hz`).
 
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -16,8 +16,6 @@ use uss_client::{Bus, ControlOptions, CycleEvent, DriveState};
 
 /// Seconds for one ramp from 0 to the peak.
 const RAMP_SECONDS: f32 = 2.0;
-/// P2000, the reference frequency (USS.md section 7).
-const P2000: u16 = 2000;
 
 fn main() -> ExitCode {
     match run() {
@@ -50,15 +48,8 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let bus = Bus::open_as(&bus_name, "ramp-example")?;
     let events = bus.cycle_listener()?;
     let c = bus.control(drive, ControlOptions::default())?;
-    // Hz are scaled by the drive's P2000 as ussd's configuration gives it.
+    // Hz are scaled by the drive's P2000 as ussd publishes it.
     let reference_hz = c.inputs().info().reference_hz;
-    let drive_says = bus.read_f32(drive, P2000, None)?;
-    if (drive_says - reference_hz).abs() > 0.005 {
-        eprintln!(
-            "warning: drive {drive} has P2000 = {drive_says} Hz, ussd's configuration says \
-             reference_hz = {reference_hz}: Hz shown here follow the configuration"
-        );
-    }
 
     // S1 -> S2 -> S4 (USS.md section 7). `wait_for_state` refreshes while it waits.
     c.enable()?;

@@ -200,7 +200,7 @@ impl DriveWatch {
     }
 
     /// The main actual value HIW in Hz, scaled by the drive's reference frequency P2000 as
-    /// ussd's configuration gives it ([`DriveInfo::reference_hz`]).
+    /// ussd publishes it ([`DriveInfo::reference_hz`]: the drive's own value once read).
     pub fn actual_hz(&self) -> f32 {
         let s = self.snapshot();
         Setpoint::from_word(s.image.hiw).hz(s.info.reference_hz)

@@ -41,6 +41,8 @@ pub struct DriveConfig {
     pub dword_over_three_words: ParamError,
     /// Initial P2014 (ms, 0 = off) for the COM link.
     pub telegram_off_time_ms: u16,
+    /// Initial P2000, the reference frequency in Hz (0x4000 = 100 %).
+    pub reference_hz: f32,
 }
 
 impl DriveConfig {
@@ -56,6 +58,7 @@ impl DriveConfig {
             task_busy_telegrams: 0,
             dword_over_three_words: ParamError::WrongDataType,
             telegram_off_time_ms: 0,
+            reference_hz: 50.0,
         }
     }
 }
@@ -178,6 +181,7 @@ impl Drive {
         for (pnu, value) in commissioned {
             params.set_commissioned(pnu, COM_LINK, value);
         }
+        params.set_commissioned(P2000, 0, config.reference_hz.to_bits());
         let mut drive = Self {
             config,
             params,

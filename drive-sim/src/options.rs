@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use uss_protocol::ParamError;
 
 /// The keys, for messages and `--help`.
-pub const KEYS: &str = "delay=MS, jitter=MS, eeprom-busy=N, busy=N, p2014=MS, dword-error=5|103, \
+pub const KEYS: &str = "delay=MS, jitter=MS, eeprom-busy=N, busy=N, p2014=MS, p2000=HZ, dword-error=5|103, \
 drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, unplug=\"FROM_MS..[TO_MS]\", \
 hang=MS";
 
@@ -34,6 +34,9 @@ pub struct SimOptions {
     /// The telegram-off time P2014, ms (0 = off).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub p2014: Option<u16>,
+    /// The reference frequency P2000, Hz.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub p2000: Option<f64>,
     /// The error number for a double word over a 3-word PKW: 5 (MICROMASTER) or 103.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dword_error: Option<u8>,
@@ -84,6 +87,12 @@ impl SimOptions {
         }
         if let Some(ms) = self.p2014 {
             config.telegram_off_time_ms = ms;
+        }
+        if let Some(hz) = self.p2000 {
+            if !(1.0..=650.0).contains(&hz) {
+                return Err(format!("p2000={hz}: the reference frequency is 1..=650 Hz"));
+            }
+            config.reference_hz = hz as f32;
         }
         if let Some(code) = self.dword_error {
             config.dword_over_three_words = match code {

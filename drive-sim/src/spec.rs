@@ -10,7 +10,7 @@ use uss_protocol::{Address, Layout, PkwMode, PzdCount};
 
 /// The keys a drive specification understands, for error messages and `--help`.
 pub const KEYS: &str = "pkw=0|3|4|127, pzd=0..16, delay=MS, jitter=MS, eeprom-busy=N, busy=N, \
-p2014=MS, dword-error=5|103, drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, \
+p2014=MS, p2000=HZ, dword-error=5|103, drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, \
 unplug=FROM_MS..[TO_MS], hang=MS";
 
 /// A drive and its fault plan, parsed from a specification.
@@ -126,7 +126,7 @@ mod tests {
     #[test]
     fn every_key_is_understood() {
         let d: DriveSpec = "3:pkw=127,pzd=8,delay=2.5,jitter=0.5,eeprom-busy=5,busy=1,p2014=200,\
-            dword-error=103,drop=0.1,late=0.2,late-by=7,unplug=1000..1500,hang=2000"
+            p2000=60,dword-error=103,drop=0.1,late=0.2,late-by=7,unplug=1000..1500,hang=2000"
             .parse()
             .unwrap();
         let c = d.config;
@@ -136,6 +136,7 @@ mod tests {
         assert_eq!(c.response_jitter, Duration::from_micros(500));
         assert_eq!((c.eeprom_busy_telegrams, c.task_busy_telegrams), (5, 1));
         assert_eq!(c.telegram_off_time_ms, 200);
+        assert_eq!(c.reference_hz.to_bits(), 60.0_f32.to_bits());
         assert_eq!(c.dword_over_three_words, ParamError::DwordOverThreeWords);
         assert!((d.faults.probability(Fault::DropReply) - 0.1).abs() < 1e-12);
         assert!((d.faults.probability(Fault::Late) - 0.2).abs() < 1e-12);
@@ -165,5 +166,6 @@ mod tests {
         assert!(err("1:pkw").contains("is not key=value"));
         assert!(err("1:unplug=500..100").contains("end must come after"));
         assert!(err("1:delay=-1").contains("milliseconds"));
+        assert!(err("1:p2000=0.5").contains("p2000=0.5: the reference frequency is 1..=650 Hz"));
     }
 }

@@ -4,7 +4,8 @@
 //! - [`engine`]: the circulating list on one line: timing rules, retries, offline handling,
 //!   PKW mailboxes ([`engine::jobs`]), diagnostics ([`engine::stats`]), the decision of which
 //!   PZD words go to a drive ([`engine::control`]), the check of the drive's own telegram
-//!   monitoring ([`engine::monitoring`]), lock-free process images ([`engine::image`]); and the
+//!   monitoring ([`engine::monitoring`]) and reference frequency ([`engine::reference`]),
+//!   lock-free process images ([`engine::image`]); and the
 //!   traits it owns: [`engine::transport::Transport`], [`engine::clock::Clock`].
 //! - [`transports`]: real serial devices ([`transports::serial`]) and the simulator's virtual
 //!   wire (`transports::sim`, behind the default-on `sim` feature: a field build can leave the
@@ -21,7 +22,8 @@ pub mod transports;
 
 pub use engine::clock::{Clock, MonotonicClock, VirtualClock};
 pub use engine::jobs::{Job, JobResult};
-pub use engine::monitoring::MonitoringSetup;
+pub use engine::monitoring::{MonitoringSetup, WatchedParam};
+pub use engine::reference::Reference;
 pub use engine::stats::{DriveCounters, DriveStatus, LastFailure, Stats};
 pub use engine::transport::{Rx, Transport, TransportError};
 pub use engine::{

@@ -9,8 +9,8 @@ use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, State, VirtualWire};
 use uss_master::engine::control::Control;
 use uss_master::{
-    DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, LastFailure, RequestError,
-    SimTransport, VirtualClock,
+    DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, LastFailure, Reference,
+    RequestError, SimTransport, VirtualClock,
 };
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{
@@ -146,11 +146,12 @@ impl Bench {
             .collect()
     }
 
-    /// The events, without the telegram-monitoring reports every drive coming online brings.
-    fn events_but_monitoring(&self) -> Vec<Event> {
+    /// The events, without the reports of ussd's own reads (telegram monitoring, reference
+    /// frequency) every drive coming online brings.
+    fn events_but_own_reads(&self) -> Vec<Event> {
         self.events()
             .into_iter()
-            .filter(|e| !matches!(e, Event::Monitoring { .. }))
+            .filter(|e| !matches!(e, Event::Monitoring { .. } | Event::Reference { .. }))
             .collect()
     }
 
@@ -299,7 +300,7 @@ fn silent_drive_is_retried_then_offline_then_probed_and_back_online() {
     assert_eq!(s.counters.timeouts, 12);
     assert_eq!(s.counters.retries, 8);
     // Both drives start unknown: the first poll of each decides.
-    let events = b.events_but_monitoring();
+    let events = b.events_but_own_reads();
     assert!(
         matches!(
             events[..],
@@ -323,7 +324,7 @@ fn silent_drive_is_retried_then_offline_then_probed_and_back_online() {
     );
     assert!(s.counters.good > 0);
     assert!(matches!(
-        b.events_but_monitoring()[..],
+        b.events_but_own_reads()[..],
         [Event::DriveOnline { .. }]
     ));
     let (_, online) = b.handle.input(addr(2)).unwrap();
@@ -867,6 +868,69 @@ fn the_drives_telegram_monitoring_is_read_when_it_comes_online() {
     assert_eq!(b.status(1).monitoring_ms, 100);
 }
 
+/// The drive scales setpoints by its own P2000: ussd reads it when the drive comes online
+/// and whenever a client reads or writes it through ussd, and publishes that value.
+#[test]
+#[allow(clippy::float_cmp)] // the values asserted are exactly representable
+fn the_drives_reference_frequency_is_read_when_it_comes_online() {
+    let drives = [(1, PkwMode::Four), (2, PkwMode::Three), (3, PkwMode::Four)];
+    // The drives' P2000 is 60 Hz; the configuration says 50 Hz (DriveSetup's default).
+    let mut b = bench_with(
+        &drives,
+        |d| d.reference_hz = 60.0,
+        |c| c.drives[2].reference_param = None,
+        false,
+    );
+    b.run_for(ms(1000), &[]);
+    assert_eq!(b.status(1).reference, Reference::Read(60.0));
+    assert_eq!(b.status(1).reference.hz(50.0), 60.0);
+    assert!(b.status(1).reference.differs_from(50.0));
+    // Three PKW words cannot carry the float; drive 3 is not asked.
+    assert_eq!(b.status(2).reference, Reference::NotChecked);
+    assert_eq!(b.status(3).reference, Reference::NotChecked);
+    let reported: Vec<Event> = b
+        .events()
+        .into_iter()
+        .filter(|e| matches!(e, Event::Reference { .. }))
+        .collect();
+    assert!(
+        matches!(
+            reported[..],
+            [Event::Reference {
+                address,
+                reference: Reference::Read(60.0),
+                configured_hz: 50.0,
+                ..
+            }] if address == addr(1)
+        ),
+        "{reported:?}"
+    );
+
+    // A client sets P2000 = 50 Hz (access level 3 first, as the drive wants): ussd sees it
+    // from the write's result, and its own read is no job of the client's.
+    let write = |id, pnu, value| Job {
+        id,
+        address: addr(1),
+        task: ParamTask::Write {
+            pnu: Pnu::from_u16(pnu),
+            value,
+            storage: Storage::Ram,
+        },
+    };
+    b.handle.submit(write(1, 3, Value::Word(3))).unwrap();
+    b.handle
+        .submit(write(2, 2000, Value::from_f32(50.0)))
+        .unwrap();
+    let results = b.results(2);
+    assert_eq!(results.len(), 2, "{results:?}");
+    assert_eq!(
+        results[1].outcome,
+        Ok(Ok(Answer::Value(Value::from_f32(50.0))))
+    );
+    assert_eq!(b.status(1).reference, Reference::Read(50.0));
+    assert!(!b.status(1).reference.differs_from(50.0));
+}
+
 #[test]
 fn on_is_refused_while_required_monitoring_is_off() {
     let mut b = bench_with(
@@ -1183,7 +1247,8 @@ fn param_priority_speeds_a_waiting_job_and_at_most_doubles_the_others_poll_perio
     let mut measured = Vec::new();
     for priority in [false, true] {
         let mut b = bench_with(&drives, |_| {}, |c| c.param_priority = priority, false);
-        b.run_for(ms(300), &[]);
+        // Past ussd's own reads (telegram monitoring, reference frequency) of every drive.
+        b.run_for(ms(1000), &[]);
         let write = Job {
             id: 1,
             address: addr(1),

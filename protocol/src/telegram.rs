@@ -43,6 +43,11 @@ impl PkwMode {
         }
     }
 
+    /// Whether a double-word value (a float parameter) fits in the channel: not in three words.
+    pub const fn carries_dword(self) -> bool {
+        matches!(self, Self::Four | Self::Variable)
+    }
+
     /// Whether a reply carrying `words` PKW words has a length this mode allows.
     pub const fn accepts_reply_words(self, words: usize) -> bool {
         match self {

@@ -1076,7 +1076,8 @@ typedef struct UssPzdInput {
 typedef struct UssDriveInfo {
   /**
    * The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
-   * frequency (USS.md section 7).
+   * frequency (USS.md section 7). The drive's own value once ussd has read it, until then
+   * (or when it is not read) the configuration's `reference_hz`.
    */
   float reference_hz;
   /**

@@ -133,7 +133,8 @@ pub struct DriveDiag {
 #[type_name("UssDriveInfoV5")]
 pub struct DriveInfo {
     /// The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
-    /// frequency (USS.md section 7).
+    /// frequency (USS.md section 7). The drive's own value once ussd has read it, until then
+    /// (or when it is not read) the configuration's `reference_hz`.
     pub reference_hz: f32,
     /// The controller watchdog, ms: a controller that does not refresh within it trips the drive.
     pub watchdog_ms: u32,

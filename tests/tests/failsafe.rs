@@ -652,6 +652,56 @@ fn parameter_writes_to_a_controlled_drive_need_force_or_the_controlling_process(
     ));
 }
 
+/// A configuration whose `reference_hz` differs from the drive's P2000 would scale every Hz
+/// wrong: with 60 configured and 50 in the drive, `run_hz(50)` would run the motor at 41.7 Hz
+/// and a reading of 50 Hz would show 60. ussd reads P2000 when the drive comes online,
+/// publishes the drive's value (so every client scales by what the drive scales by) and says
+/// so in its log.
+#[test]
+fn hz_are_scaled_by_the_reference_frequency_the_drive_uses() {
+    let _serial = serial();
+    let ussd = Ussd::start(
+        "",
+        &[
+            (1, "reference_hz = 60.0"),
+            (2, "reference_hz = 60.0\nsim.p2000 = 60"),
+            (3, "reference_hz = 60.0\nreference_param = \"\""),
+        ],
+    );
+    let bus = ussd.bus();
+    let read = diag_when(&bus, 1, |d| d.info.reference_hz != 60.0);
+    assert_eq!(read.info.reference_hz, 50.0, "the drive's P2000");
+    assert!(
+        logged(
+            &ussd,
+            "drive 1: reference frequency P2000 = 50 Hz, but reference_hz = 60 in the \
+             configuration: Hz are scaled by the drive's 50 Hz"
+        ),
+        "{}",
+        ussd.log()
+    );
+    // Drive 2 agrees with the configuration; drive 3's is not read.
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(bus.diag(2).unwrap().info.reference_hz, 60.0);
+    assert_eq!(bus.diag(3).unwrap().info.reference_hz, 60.0);
+    let log = ussd.log();
+    assert!(!log.contains("drive 2: reference"), "{log}");
+    assert!(!log.contains("drive 3: reference"), "{log}");
+
+    // 25 Hz of the drive's 50 Hz is 50 %.
+    let c = bus.control(1, ControlOptions::default()).unwrap();
+    assert_eq!(c.inputs().info().reference_hz, 50.0);
+    c.enable().unwrap();
+    c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
+        .unwrap();
+    c.run_hz(25.0).unwrap();
+    assert_eq!(c.words(), [0x047F, 0x2000]);
+    c.stop().unwrap();
+    let mut stats = ussd.ussctl(&["stats"]);
+    let (_, out, _) = stats.finish();
+    assert!(out.contains("reference 50 Hz,"), "{out}");
+}
+
 #[test]
 fn a_drive_without_telegram_monitoring_is_reported_and_refused_on_when_required() {
     let _serial = serial();

@@ -581,13 +581,14 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
 }
 
 /// ussd publishes what it knows of each drive; the Rust API and every ussctl command scale Hz
-/// with the reference frequency of ussd's configuration (here 60 Hz, not the 50 Hz default),
-/// so no tool asks for it and all show the same Hz for one drive.
+/// with the reference frequency ussd publishes (here 60 Hz, not the 50 Hz default, in the
+/// configuration and in the drive's P2000), so no tool asks for it and all show the same Hz
+/// for one drive.
 #[test]
 fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
     let _serial = serial();
     let ussd = Ussd::start_custom(
-        "reference_hz = 60.0\nwatchdog_ms = 150\nsafe_command = \"off3\"",
+        "reference_hz = 60.0\nwatchdog_ms = 150\nsafe_command = \"off3\"\nsim.p2000 = 60",
         "",
     );
     let bus = ussd.bus();

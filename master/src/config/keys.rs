@@ -155,18 +155,20 @@ impl Cpu {
     }
 }
 
-/// The parameter holding the drive's own telegram-off time (USS.md section 5) as the manuals
-/// write it (and as the file wrote it); `""`: not checked. MICROMASTER 4 / G110 / CU240S: P2014,
-/// index 1 = the RS485 COM link. What is not a parameter is refused by the rules, with its error.
+/// A drive parameter ussd reads itself, as the manuals write it (and as the file wrote it);
+/// `""`: not read. `monitoring_param`: the drive's own telegram-off time (USS.md section 5;
+/// MICROMASTER 4 / G110 / CU240S: P2014, index 1 = the RS485 COM link). `reference_param`: the
+/// reference frequency in Hz (P2000). What is not a parameter is refused by the rules, with its
+/// error.
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(from = "String", into = "String")]
-pub struct MonitoringParam {
+pub struct ParamName {
     /// The parameter, `None` for `""`; or why the text is not a parameter.
     pub parsed: Result<Option<ParamRef>, NotationError>,
     written: String,
 }
 
-impl From<String> for MonitoringParam {
+impl From<String> for ParamName {
     fn from(written: String) -> Self {
         let parsed = if written.is_empty() {
             Ok(None)
@@ -177,13 +179,13 @@ impl From<String> for MonitoringParam {
     }
 }
 
-impl From<MonitoringParam> for String {
-    fn from(m: MonitoringParam) -> Self {
+impl From<ParamName> for String {
+    fn from(m: ParamName) -> Self {
         m.written
     }
 }
 
-impl MonitoringParam {
+impl ParamName {
     /// The parameter to read; `None` when not checked (the rules refuse a text that is not a
     /// parameter).
     pub fn param(&self) -> Option<ParamRef> {
@@ -191,9 +193,15 @@ impl MonitoringParam {
     }
 }
 
-impl Default for MonitoringParam {
-    fn default() -> Self {
+impl ParamName {
+    /// `monitoring_param`'s default: P2014.1 (MICROMASTER 4, COM link).
+    pub fn p2014_1() -> Self {
         Self::from("P2014.1".to_owned())
+    }
+
+    /// `reference_param`'s default: P2000 (MICROMASTER 4 / G110, Hz).
+    pub fn p2000() -> Self {
+        Self::from("P2000".to_owned())
     }
 }
 

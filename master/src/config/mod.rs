@@ -176,6 +176,10 @@ pub struct DriveEntry {
     pub weight: Weight,
     #[serde(default)]
     pub reference_hz: ReferenceHz,
+    /// The drive's reference frequency in Hz, read when it comes online; the drive's value is
+    /// published (clients scale Hz by it) and a difference from `reference_hz` is reported.
+    #[serde(default = "ParamName::p2000")]
+    pub reference_param: ParamName,
     #[serde(default)]
     pub watchdog_ms: Watchdog,
     #[serde(default)]
@@ -185,8 +189,8 @@ pub struct DriveEntry {
     pub params_writable: bool,
     /// Read when the drive comes online; a telegram-off time above `monitoring_max_ms` is
     /// reported as too long.
-    #[serde(default)]
-    pub monitoring_param: MonitoringParam,
+    #[serde(default = "ParamName::p2014_1")]
+    pub monitoring_param: ParamName,
     #[serde(default)]
     pub monitoring_max_ms: MonitoringMax,
     /// Refuse ON unless the drive's telegram monitoring was read and is on within the limit.

@@ -187,6 +187,15 @@ impl Rules<'_> {
             self.fail("monitoring_param", &problem);
             return;
         }
+        if let Err(e) = drive.reference_param.parsed {
+            let problem = format!(
+                "is not a parameter: {e}; name the drive's reference frequency in Hz as the \
+                 manual writes it, e.g. \"P2000\" (MICROMASTER 4, G110), or \"\" for no check \
+                 (G120: p2000 is a speed in rpm)"
+            );
+            self.fail("reference_param", &problem);
+            return;
+        }
         if drive.require_monitoring {
             let missing = if drive.monitoring_param.param().is_none() {
                 "needs monitoring_param (e.g. \"P2014.1\"): ussd cannot verify a monitoring it \

@@ -296,6 +296,7 @@ pkw = 4
 pzd = 2
 weight = 1
 reference_hz = 50.0
+reference_param = "P2000"
 watchdog_ms = 100.0
 safe_command = "off1"
 params_writable = true
@@ -414,6 +415,28 @@ fn telegram_monitoring_is_checked_as_configured() {
 }
 
 #[test]
+fn the_reference_frequency_parameter_is_p2000_unless_told() {
+    let d = |line: &str| parse(&drive_key(line)).buses[0].drives[0].clone();
+    assert_eq!(
+        d("").reference_param.param().map(|p| p.to_string()),
+        Some("P2000".into())
+    );
+    assert_eq!(d("reference_param = \"\"").reference_param.param(), None);
+    assert_eq!(
+        refused(&drive_key("reference_param = \"rpm\"")),
+        (
+            "bus.toml:7:19: bus \"bus0\" drive 3: reference_param = \"rpm\" is not a \
+             parameter: write a parameter as P1082, p1082, r0021 or 1082, an element as P0947[3] \
+             or r0947.3; name the drive's reference frequency in Hz as the manual writes it, \
+             e.g. \"P2000\" (MICROMASTER 4, G110), or \"\" for no check (G120: p2000 is a \
+             speed in rpm)"
+                .to_owned(),
+            Some("bus[0].drive[0].reference_param".to_owned())
+        )
+    );
+}
+
+#[test]
 fn a_monitoring_that_cannot_be_verified_cannot_be_required() {
     assert_eq!(
         refused(&drive_key("monitoring_param = \"P20x4\"")),
@@ -450,8 +473,9 @@ fn unknown_keys_are_named_with_their_table_in_every_table() {
         refused(&drive_key("colour = \"red\"")),
         (
             "bus.toml:7:1: bus \"bus0\" drive 3: unknown key `colour`: a [[bus.drive]] table \
-             takes address, pkw, pzd, weight, reference_hz, watchdog_ms, safe_command, \
-             params_writable, monitoring_param, monitoring_max_ms, require_monitoring, sim"
+             takes address, pkw, pzd, weight, reference_hz, reference_param, watchdog_ms, \
+             safe_command, params_writable, monitoring_param, monitoring_max_ms, \
+             require_monitoring, sim"
                 .to_owned(),
             Some("bus[0].drive[0].colour".to_owned())
         )

@@ -2,9 +2,10 @@
 //! diagnostics and the heartbeat for clients, and logs the live and the final summary. Not
 //! real-time: it may allocate, block and log.
 
-use crate::config::BusConfig;
+use crate::config::{BusConfig, DriveEntry, ParamName};
 use crate::daemon::ipc::StatusPublisher;
 use crate::engine::control::Latch;
+use crate::engine::reference::Reference;
 use crate::engine::stats::Stats;
 use crate::engine::{EngineHandle, Event};
 use core::time::Duration;
@@ -145,13 +146,27 @@ fn log_latch(bus: &BusConfig, address: Address, latch: &Latch, rejection: Reject
     }
 }
 
-fn log_monitoring(bus: &BusConfig, address: Address, at: Duration, state: Monitoring, ms: u32) {
-    let param = bus
-        .drives
+/// The parameter a drive's key names, as the manuals write it (`P2014[1]`), or `otherwise`.
+fn param_name(
+    bus: &BusConfig,
+    address: Address,
+    key: fn(&DriveEntry) -> &ParamName,
+    otherwise: &str,
+) -> String {
+    bus.drives
         .iter()
         .find(|d| d.address == address)
-        .and_then(|d| d.monitoring_param.param())
-        .map_or_else(|| "the monitoring parameter".to_owned(), |p| p.to_string());
+        .and_then(|d| key(d).param())
+        .map_or_else(|| otherwise.to_owned(), |p| p.to_string())
+}
+
+fn log_monitoring(bus: &BusConfig, address: Address, at: Duration, state: Monitoring, ms: u32) {
+    let param = param_name(
+        bus,
+        address,
+        |d| &d.monitoring_param,
+        "the monitoring parameter",
+    );
     let (drive, at_s, bus) = (address.get(), at.as_secs_f64(), bus.name.as_str());
     match state {
         Monitoring::On => tracing::info!(
@@ -178,6 +193,61 @@ fn log_monitoring(bus: &BusConfig, address: Address, at: Duration, state: Monito
             at_s,
             "drive {address}: telegram monitoring {other} ({param}): check monitoring_param for this drive family (P2014.1 on MICROMASTER 4, p2040 on G120)"
         ),
+    }
+}
+
+fn log_reference(
+    bus: &BusConfig,
+    address: Address,
+    at: Duration,
+    reference: Reference,
+    configured: f32,
+) {
+    let param = param_name(
+        bus,
+        address,
+        |d| &d.reference_param,
+        "the reference parameter",
+    );
+    let (drive, at_s, bus) = (address.get(), at.as_secs_f64(), bus.name.as_str());
+    match reference {
+        Reference::Read(hz) if reference.differs_from(configured) => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: reference frequency {param} = {hz} Hz, but reference_hz = {configured} in the configuration: Hz are scaled by the drive's {hz} Hz (run_hz, ussctl, the exporter); set reference_hz = {hz} to agree (USS.md section 7)"
+        ),
+        Reference::Read(hz) => tracing::debug!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: reference frequency {param} = {hz} Hz, as configured"
+        ),
+        _ => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: reference frequency {param} is not readable as Hz: Hz are scaled by reference_hz = {configured} as configured, unverified; set reference_param = \"\" for a drive whose {param} is not in Hz (G120: rpm)"
+        ),
+    }
+}
+
+/// What ussd's own reads of a drive (telegram monitoring, reference frequency) found.
+fn log_own_read(bus: &BusConfig, event: &Event) {
+    match *event {
+        Event::Monitoring {
+            address,
+            at,
+            state,
+            ms,
+        } => log_monitoring(bus, address, at, state, ms),
+        Event::Reference {
+            address,
+            at,
+            reference,
+            configured_hz,
+        } => log_reference(bus, address, at, reference, configured_hz),
+        _ => {}
     }
 }
 
@@ -218,12 +288,7 @@ fn log_event(bus: &BusConfig, event: &Event) {
                 "drive {address}: re-armed by process {pid} (OFF1 after the latch): its controller's words go out again"
             );
         }
-        Event::Monitoring {
-            address,
-            at,
-            state,
-            ms,
-        } => log_monitoring(bus, address, at, state, ms),
+        Event::Monitoring { .. } | Event::Reference { .. } => log_own_read(bus, event),
         Event::LineDown { at, fault } => {
             tracing::error!(
                 bus = bus.name,

@@ -13,7 +13,7 @@ use crate::config::{BusConfig, Cpu, Device, Rs485Mode};
 use crate::daemon::ipc::StatusPublisher;
 use crate::daemon::rt::{RtReport, RtRequest, apply_to_current_thread};
 use crate::engine::clock::MonotonicClock;
-use crate::engine::monitoring::MonitoringSetup;
+use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
 use crate::engine::transport::{Line, Transport, TransportError};
 use crate::engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event};
 use crate::transports::serial::{SerialError, SerialOptions, SerialTransport};
@@ -97,11 +97,12 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
                 watchdog: d.watchdog_ms.get(),
                 params_writable: d.params_writable,
                 monitoring: MonitoringSetup {
-                    param: d.monitoring_param.param().map(|p| (p.pnu, p.index)),
+                    param: d.monitoring_param.param().map(WatchedParam::from),
                     max: d.monitoring_max_ms.get(),
                     required: d.require_monitoring,
                 },
                 reference_hz: d.reference_hz.get(),
+                reference_param: d.reference_param.param().map(WatchedParam::from),
             })
             .collect(),
     }

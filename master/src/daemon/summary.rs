@@ -41,7 +41,7 @@ pub fn render(bus: &BusConfig, rt_mode: &str, stats: &Stats, previous: Option<&S
     for (d, entry) in stats.drives.iter().zip(&bus.drives) {
         let c = &d.counters;
         let z = Zsw1::from_bits_retain(d.last_zsw1);
-        let hz = Setpoint::from_word(d.last_hiw).hz(entry.reference_hz.get());
+        let hz = Setpoint::from_word(d.last_hiw).hz(d.reference.hz(entry.reference_hz.get()));
         let prev = previous
             .and_then(|p| p.drive(d.address))
             .map(|p| p.counters);

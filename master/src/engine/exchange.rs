@@ -34,7 +34,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         {
             self.deliver(r);
         }
-        self.check_monitoring(slot);
+        self.check_own_reads(slot);
         let mut output = [0u16; MAX_PZD_WORDS];
         self.output(slot, now, &mut output);
         let len = self.drives[slot].setup.layout.pzd.get();
@@ -155,8 +155,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             });
         }
         if came_back {
-            // A drive that comes online may have been replaced or reset: read its monitoring.
+            // A drive that comes online may have been replaced or reset: read its monitoring
+            // and its reference frequency.
             self.drives[slot].monitoring_due = true;
+            self.drives[slot].reference_due = true;
         }
         self.last_reply_done = Some(timing.done);
         if words.pkw().is_empty() || self.drives[slot].mailbox.is_empty() {

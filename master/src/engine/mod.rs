@@ -14,6 +14,7 @@ pub mod control;
 pub mod image;
 pub mod jobs;
 pub mod monitoring;
+pub mod reference;
 pub mod stats;
 pub mod transport;
 
@@ -27,7 +28,7 @@ use crate::engine::clock::Clock;
 use crate::engine::control::{Control, Gate, GateSetup, Latch, Operator, Poll, Transition};
 use crate::engine::image::DriveImages;
 use crate::engine::jobs::{Encoded, Job, JobResult, Mailbox};
-use crate::engine::monitoring::MonitoringSetup;
+use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
 use crate::engine::stats::{
     DriveStatus, FreshTiming, LastFailure, LineFault, Published, Stats, record_both,
 };
@@ -46,7 +47,8 @@ use uss_shm_types::{
     ItemOutcome, LatchReason, Monitoring, PathError, PzdOutput, Rejection, StopCommand,
 };
 
-/// Job ids with this bit are ussd's own (the telegram-monitoring check); clients use the rest.
+/// Job ids with this bit are ussd's own (telegram monitoring, reference frequency); clients use
+/// the rest.
 pub const INTERNAL_JOB: u64 = 1 << 63;
 
 /// One drive as the engine polls it.
@@ -63,9 +65,13 @@ pub struct DriveSetup {
     pub params_writable: bool,
     /// The drive's own telegram monitoring, checked when it comes online.
     pub monitoring: MonitoringSetup,
-    /// The reference frequency P2000 in Hz (0x4000 = 100 %, USS.md section 7): the engine
-    /// does not scale, it publishes it for the clients that do.
+    /// The reference frequency P2000 in Hz (0x4000 = 100 %, USS.md section 7) as configured:
+    /// the engine does not scale, it publishes it for the clients that do, unless the drive's
+    /// own value was read ([`reference::Reference`]).
     pub reference_hz: f32,
+    /// The drive's reference-frequency parameter in Hz (P2000 on MICROMASTER 4 / G110), read
+    /// when it comes online; `None`: not read (G120's p2000 is a speed in rpm).
+    pub reference_param: Option<WatchedParam>,
 }
 
 impl DriveSetup {
@@ -81,6 +87,7 @@ impl DriveSetup {
             params_writable: true,
             monitoring: MonitoringSetup::micromaster(),
             reference_hz: 50.0,
+            reference_param: Some(reference::P2000),
         }
     }
 }
@@ -116,7 +123,7 @@ pub struct EngineConfig {
 }
 
 /// Something the housekeeping thread should know (and log).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Event {
     DriveOffline {
         address: Address,
@@ -139,6 +146,14 @@ pub enum Event {
         address: Address,
         at: Duration,
         pid: u32,
+    },
+    /// What the drive's reference frequency was found to be.
+    Reference {
+        address: Address,
+        at: Duration,
+        reference: reference::Reference,
+        /// The configuration's `reference_hz`.
+        configured_hz: f32,
     },
     /// What the drive's own telegram monitoring was found to be.
     Monitoring {
@@ -328,6 +343,8 @@ struct DriveRt {
     overrides_seen: [u32; 3],
     /// The telegram-monitoring parameter should be read (the drive came online).
     monitoring_due: bool,
+    /// The reference-frequency parameter should be read (the drive came online).
+    reference_due: bool,
 }
 
 /// The bus engine. See the module documentation.
@@ -425,6 +442,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         for ((status, setup), gate) in stats.drives.iter_mut().zip(&cfg.drives).zip(&gates) {
             stats::set_control(&mut status.counters, &gate.counters());
             status.monitoring = monitoring::initial_monitoring(setup);
+            status.reference = reference::Reference::initial(setup);
         }
         let shared = Arc::new(Shared {
             setups: cfg.drives.clone(),
@@ -458,6 +476,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 gate,
                 overrides_seen: [0; 3],
                 monitoring_due: false,
+                reference_due: false,
             })
             .collect();
         let poll_list = circulating_list(&cfg.drives);
@@ -709,6 +728,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 .concerns(&result.job.task)
         {
             self.on_monitoring_result(slot, &result);
+        }
+        if let Some(slot) = slot
+            && let Some(param) = self.drives[slot].setup.reference_param
+            && param.concerns(&result.job.task)
+        {
+            self.on_reference_result(slot, &result);
         }
         if result.job.id & INTERNAL_JOB != 0 {
             return; // ussd's own read: nobody waits for it

@@ -2,21 +2,66 @@
 //! CU240S (index 1 = the RS485 COM link), p2040 on G120 / S110. When ussd or its line dies,
 //! nothing else stops a running motor: the drive trips (F0070..F0072) only if this time is set.
 //! ussd reads it whenever a drive comes online, and again whenever a parameter access through
-//! it reads or writes that parameter, and says what it found ([`Monitoring`]).
+//! it reads or writes that parameter, and says what it found ([`Monitoring`]). The reads ussd
+//! makes of its own ([`WatchedParam`]) are queued here, the reference frequency's too
+//! ([`super::reference`]).
 
 use super::clock::Clock;
 use super::jobs::{Encoded, Job, JobResult};
 use super::transport::Transport;
-use super::{Bridge, DriveSetup, Engine, Event, INTERNAL_JOB};
+use super::{Bridge, DriveRt, DriveSetup, Engine, Event, INTERNAL_JOB};
 use core::time::Duration;
-use uss_protocol::{ParamTask, PkwMode, Pnu, Subindex, Value};
+use uss_protocol::{ParamRef, ParamTask, PkwMode, Pnu, Subindex, Value};
 use uss_shm_types::{Answer, Monitoring, PathError};
+
+/// A drive parameter ussd reads itself when the drive comes online (telegram monitoring,
+/// reference frequency); a client's read or write of it through ussd updates what ussd knows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WatchedParam {
+    pub pnu: Pnu,
+    /// The array index, for an indexed parameter.
+    pub index: Option<Subindex>,
+}
+
+impl From<ParamRef> for WatchedParam {
+    fn from(p: ParamRef) -> Self {
+        Self {
+            pnu: p.pnu,
+            index: p.index,
+        }
+    }
+}
+
+impl WatchedParam {
+    /// The read task for the parameter.
+    pub fn task(self) -> ParamTask {
+        let pnu = self.pnu;
+        match self.index {
+            Some(index) => ParamTask::ReadArray { pnu, index },
+            None => ParamTask::Read { pnu },
+        }
+    }
+
+    /// Whether `task` reads or writes the parameter (so its result says what the drive now
+    /// holds).
+    pub fn concerns(self, task: &ParamTask) -> bool {
+        match (*task, self.index) {
+            (ParamTask::Read { pnu } | ParamTask::Write { pnu, .. }, None) => pnu == self.pnu,
+            (
+                ParamTask::ReadArray { pnu, index: i }
+                | ParamTask::WriteArray { pnu, index: i, .. },
+                Some(index),
+            ) => pnu == self.pnu && i == index,
+            _ => false,
+        }
+    }
+}
 
 /// Which parameter holds a drive's telegram-off time, and what ussd expects of it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MonitoringSetup {
-    /// The parameter (and array index); `None`: not checked.
-    pub param: Option<(Pnu, Option<Subindex>)>,
+    /// The parameter; `None`: not checked.
+    pub param: Option<WatchedParam>,
     /// Times above this are reported as too long.
     pub max: Duration,
     /// Refuse ON unless the monitoring was read and is on within `max`.
@@ -28,7 +73,10 @@ impl MonitoringSetup {
     pub fn micromaster() -> Self {
         Self {
             // 2014 is a valid PNU and 1 a valid subindex.
-            param: Some((Pnu::from_u16(2014), Subindex::new(1).ok())),
+            param: Some(WatchedParam {
+                pnu: Pnu::from_u16(2014),
+                index: Subindex::new(1).ok(),
+            }),
             max: Duration::from_secs(1),
             required: false,
         }
@@ -36,29 +84,12 @@ impl MonitoringSetup {
 
     /// The read task for the parameter, if it is checked.
     pub fn task(&self) -> Option<ParamTask> {
-        self.param.map(|(pnu, index)| match index {
-            Some(index) => ParamTask::ReadArray { pnu, index },
-            None => ParamTask::Read { pnu },
-        })
+        self.param.map(WatchedParam::task)
     }
 
-    /// Whether `task` reads or writes the monitoring parameter (so its result says what the
-    /// drive now holds).
+    /// Whether `task` reads or writes the monitoring parameter.
     pub fn concerns(&self, task: &ParamTask) -> bool {
-        let Some((pnu, index)) = self.param else {
-            return false;
-        };
-        match (*task, index) {
-            (ParamTask::Read { pnu: p } | ParamTask::Write { pnu: p, .. }, None) => p == pnu,
-            (
-                ParamTask::ReadArray { pnu: p, index: i }
-                | ParamTask::WriteArray {
-                    pnu: p, index: i, ..
-                },
-                Some(index),
-            ) => p == pnu && i == index,
-            _ => false,
-        }
+        self.param.is_some_and(|p| p.concerns(task))
     }
 
     /// What a value of the parameter means: a word is milliseconds (P2014); a double word is
@@ -131,32 +162,48 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
     }
 
-    /// Queues ussd's own read of the drive's telegram monitoring when it is due and the
-    /// mailbox has room (otherwise at a later poll).
-    pub(super) fn check_monitoring(&mut self, slot: usize) {
+    /// Queues ussd's own reads of the drive's telegram monitoring and reference frequency
+    /// when they are due and the mailbox has room (otherwise at a later poll).
+    pub(super) fn check_own_reads(&mut self, slot: usize) {
         let d = &mut self.drives[slot];
-        if !d.monitoring_due {
-            return;
+        let setup = d.setup;
+        if d.monitoring_due {
+            d.monitoring_due = queue_own_read(d, setup.monitoring.param, MONITORING_READ);
         }
-        let task = d.setup.monitoring.task();
-        let Some(task) = task.filter(|_| d.setup.layout.pkw != PkwMode::None) else {
-            d.monitoring_due = false;
-            return;
-        };
-        let job = Job {
-            id: INTERNAL_JOB | u64::from(d.setup.address.get()),
-            address: d.setup.address,
-            task,
-        };
-        // A monitoring parameter the channel cannot carry is not checked.
-        let Ok(pkw) = Encoded::new(&task, d.setup.layout.pkw) else {
-            d.monitoring_due = false;
-            return;
-        };
-        if d.mailbox.push(job, pkw).is_ok() {
-            d.monitoring_due = false;
+        if d.reference_due {
+            let param = setup
+                .reference_param
+                .filter(|_| setup.layout.pkw.carries_dword());
+            d.reference_due = queue_own_read(d, param, REFERENCE_READ);
         }
     }
+}
+
+/// The job-id tag of ussd's own read of the telegram monitoring (with [`INTERNAL_JOB`] and the
+/// drive's address).
+const MONITORING_READ: u64 = 0;
+/// The tag of ussd's own read of the reference frequency.
+const REFERENCE_READ: u64 = 1 << 8;
+
+/// Puts ussd's own read of `param` into the drive's mailbox; whether it is still due (the
+/// mailbox was full). A parameter the channel cannot carry is not read.
+fn queue_own_read(d: &mut DriveRt, param: Option<WatchedParam>, tag: u64) -> bool {
+    let Some(task) = param
+        .map(WatchedParam::task)
+        .filter(|_| d.setup.layout.pkw != PkwMode::None)
+    else {
+        return false;
+    };
+    let address = d.setup.address;
+    let job = Job {
+        id: INTERNAL_JOB | tag | u64::from(address.get()),
+        address,
+        task,
+    };
+    let Ok(pkw) = Encoded::new(&task, d.setup.layout.pkw) else {
+        return false;
+    };
+    d.mailbox.push(job, pkw).is_err()
 }
 
 /// What is known of a drive's telegram monitoring before it was read.
@@ -219,7 +266,10 @@ mod tests {
         assert!(!setup.concerns(&other_index));
         assert!(!setup.concerns(&ParamTask::Read { pnu }));
         let g120 = MonitoringSetup {
-            param: Some((Pnu::from_u16(2040), None)),
+            param: Some(WatchedParam {
+                pnu: Pnu::from_u16(2040),
+                index: None,
+            }),
             ..setup
         };
         assert!(g120.concerns(&ParamTask::Read {

@@ -3,6 +3,7 @@
 //! counting and recording never allocate.
 
 use crate::engine::control::{Control, ControlCounters};
+use crate::engine::reference::Reference;
 use crate::engine::transport::TransportError;
 use core::time::Duration;
 use hdrhistogram::Histogram;
@@ -60,7 +61,7 @@ pub fn set_control(counters: &mut DriveCounters, c: &ControlCounters) {
 }
 
 /// The state of one drive as the master sees it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DriveStatus {
     pub address: Address,
     /// The drive answers; false while unknown (see `known`) too.
@@ -91,6 +92,8 @@ pub struct DriveStatus {
     /// The drive's own telegram monitoring as read from it, and its time in ms.
     pub monitoring: Monitoring,
     pub monitoring_ms: u32,
+    /// The drive's reference frequency as read from it.
+    pub reference: Reference,
     pub counters: DriveCounters,
 }
 
@@ -115,6 +118,7 @@ impl DriveStatus {
             taken_sequence: 0,
             monitoring: Monitoring::Unknown,
             monitoring_ms: 0,
+            reference: Reference::Unknown,
             counters: DriveCounters::default(),
         }
     }

@@ -305,7 +305,11 @@ impl StatusPublisher {
                 since_ns: ns(d.since),
                 last_good_ns: d.last_good.map_or(uss_shm_types::diag::NEVER, ns),
                 latched_since_ns: control.since_ns,
-                info,
+                // Clients scale Hz by the drive's own reference once it was read.
+                info: DriveInfo {
+                    reference_hz: d.reference.hz(info.reference_hz),
+                    ..info
+                },
                 counters: d.counters,
                 exchange_ns: quantiles(&h.exchange),
                 response_delay_ns: quantiles(&h.response_delay),

@@ -1,0 +1,170 @@
+//! The drive's reference frequency (USS.md section 7): a setpoint or main actual value of
+//! 0x4000 is 100 % of P2000 on MICROMASTER 4 / G110, in Hz. Clients scale Hz by the reference
+//! ussd publishes; the configuration's `reference_hz` gives it, but the drive scales by its own
+//! P2000. ussd reads P2000 whenever a drive comes online (and whenever a parameter access
+//! through it reads or writes it) and publishes the drive's value, so `run_hz` and every tool
+//! use the frequency the drive uses; the housekeeping thread says when the two differ.
+
+use super::clock::Clock;
+use super::jobs::JobResult;
+use super::monitoring::WatchedParam;
+use super::transport::Transport;
+use super::{Bridge, DriveSetup, Engine, Event, INTERNAL_JOB};
+use uss_protocol::{Pnu, Value};
+use uss_shm_types::{Answer, PathError};
+
+/// P2000, the reference frequency of MICROMASTER 4 / G110 / CU240S.
+pub const P2000: WatchedParam = WatchedParam {
+    pnu: Pnu::from_u16(2000),
+    index: None,
+};
+
+/// The highest reference frequency a drive takes (P2000: 1..=650 Hz).
+const MAX_HZ: f32 = 650.0;
+
+/// Within this many Hz the drive's reference agrees with the configuration.
+pub const AGREES_WITHIN_HZ: f32 = 0.005;
+
+/// What ussd knows of a drive's reference frequency.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Reference {
+    /// Not read: no `reference_param`, or a PKW channel that cannot carry a float.
+    NotChecked,
+    /// Not read yet.
+    Unknown,
+    /// The drive's value, Hz.
+    Read(f32),
+    /// The drive refused the read, it timed out, or the value is not a frequency (G120's
+    /// p2000 is in rpm).
+    Unreadable,
+}
+
+impl Reference {
+    /// What it means: a float of 1..=650 Hz is a reference frequency.
+    pub fn of(value: Value) -> Self {
+        match value {
+            Value::Dword(bits) => {
+                let hz = f32::from_bits(bits);
+                if hz.is_finite() && hz > 0.0 && hz <= MAX_HZ {
+                    Self::Read(hz)
+                } else {
+                    Self::Unreadable
+                }
+            }
+            Value::Word(_) => Self::Unreadable,
+        }
+    }
+
+    /// The reference clients scale by: the drive's, once read, else the configured one.
+    pub fn hz(self, configured: f32) -> f32 {
+        match self {
+            Self::Read(hz) => hz,
+            _ => configured,
+        }
+    }
+
+    /// Whether the drive's value was read and differs from the configured one.
+    pub fn differs_from(self, configured: f32) -> bool {
+        matches!(self, Self::Read(hz) if (hz - configured).abs() > AGREES_WITHIN_HZ)
+    }
+
+    /// What is known before the read.
+    pub(super) fn initial(setup: &DriveSetup) -> Self {
+        if setup.reference_param.is_some() && setup.layout.pkw.carries_dword() {
+            Self::Unknown
+        } else {
+            Self::NotChecked
+        }
+    }
+}
+
+impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
+    /// A result that says what the drive's reference frequency is (ussd's own read, or a
+    /// client's read or write of that parameter).
+    pub(super) fn on_reference_result(&mut self, slot: usize, result: &JobResult) {
+        let reference = match result.outcome {
+            Ok(Ok(Answer::Value(v))) => Reference::of(v),
+            // A refused write leaves the parameter as it was.
+            _ if result.job.task.is_write() => return,
+            Ok(Err(_)) | Err(PathError::Timeout) => Reference::Unreadable,
+            Ok(Ok(_)) => return,
+            // The drive is gone or ussd stops: read again when it is back.
+            Err(_) => {
+                if result.job.id & INTERNAL_JOB != 0 {
+                    self.drives[slot].reference_due = true;
+                }
+                return;
+            }
+        };
+        let status = &mut self.stats.drives[slot];
+        if status.reference == reference {
+            return;
+        }
+        status.reference = reference;
+        let setup = self.drives[slot].setup;
+        let at = self.clock.now();
+        self.emit(Event::Reference {
+            address: setup.address,
+            at,
+            reference,
+            configured_hz: setup.reference_hz,
+        });
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp)] // the values asserted are exactly representable
+mod tests {
+    use super::*;
+
+    fn float(hz: f32) -> Value {
+        Value::Dword(hz.to_bits())
+    }
+
+    #[test]
+    fn a_float_of_1_to_650_is_the_drive_reference() {
+        assert_eq!(Reference::of(float(50.0)), Reference::Read(50.0));
+        assert_eq!(Reference::of(float(650.0)), Reference::Read(650.0));
+        for not_hz in [0.0, -50.0, 1500.0, f32::NAN, f32::INFINITY] {
+            assert_eq!(
+                Reference::of(float(not_hz)),
+                Reference::Unreadable,
+                "{not_hz}"
+            );
+        }
+        assert_eq!(Reference::of(Value::Word(50)), Reference::Unreadable);
+    }
+
+    #[test]
+    fn clients_scale_by_the_drive_value_once_read() {
+        assert_eq!(Reference::Read(50.0).hz(60.0), 50.0);
+        for unread in [
+            Reference::NotChecked,
+            Reference::Unknown,
+            Reference::Unreadable,
+        ] {
+            assert_eq!(unread.hz(60.0), 60.0);
+            assert!(!unread.differs_from(60.0));
+        }
+        assert!(Reference::Read(50.0).differs_from(60.0));
+        assert!(!Reference::Read(60.001).differs_from(60.0));
+    }
+
+    #[test]
+    fn p2000_is_read_whole_and_its_writes_are_recognised() {
+        use uss_protocol::{ParamTask, Storage, Subindex};
+        let pnu = Pnu::from_u16(2000);
+        assert_eq!(P2000.task(), ParamTask::Read { pnu });
+        let write = ParamTask::Write {
+            pnu,
+            value: float(60.0),
+            storage: Storage::Ram,
+        };
+        assert!(P2000.concerns(&write));
+        let indexed = ParamTask::ReadArray {
+            pnu,
+            index: Subindex::new(1).unwrap(),
+        };
+        assert!(!P2000.concerns(&indexed));
+    }
+}
