@@ -295,6 +295,7 @@ def test_python_takes_control_runs_stops_and_releases_a_drive(bus):
         c.rearm()  # ussd latched the drive at start: OFF1 re-arms it
         c.enable()
         c.wait_for(lambda i: i["zsw1"] & 0x7F == 0x31, what="S2")
+        assert c.reference_hz == 50.0  # the drive's P2000, as ussd publishes it now
         c.run_hz(25)
         image = c.wait_for(lambda i: i["hiw"] == 0x2000, what="25 Hz")
         assert image["sent_stw1"] == 0x047F and image["control"] == uss_rt.ControlState.LIVE

@@ -253,8 +253,9 @@ class Controller:
         services, _ = bus._current()
         self.bus, self.address = bus, address
         diag = services["diag"].reader_builder().create().entry(_u.BlackboardKey(address), _u.DriveDiag)
+        self._diag = diag
         info = diag.get().decode_as(_u.DriveDiag).info
-        self.reference_hz, self.words_count = info.reference_hz, info.pzd_words
+        self.words_count = info.pzd_words
         if self.words_count == 0:
             raise _u.UssError(f"drive {address} on {bus.name} exchanges no process data (PZD length 0)")
         service = _u._open(
@@ -356,9 +357,15 @@ class Controller:
             time.sleep(2e-3)
         raise _u.UssError(f"drive {self.address} is still latched after OFF1: {image}")
 
+    @property
+    def reference_hz(self) -> float:
+        """The reference frequency P2000 ussd publishes now (0x4000 = 100 %): the drive's own
+        value once ussd has read it, until then the configuration's ``reference_hz``."""
+        return self._diag.get().decode_as(_u.DriveDiag).info.reference_hz
+
     def run_hz(self, hz: float):
         """ON (STW1 0x047F) with a setpoint in Hz, scaled by the reference frequency P2000 that
-        ussd's configuration gives (0x4000 = 100 %)."""
+        ussd publishes (:attr:`reference_hz`)."""
         self._command(STW1_RUN, _setpoint(hz / self.reference_hz * 100.0))
 
     def stop(self):
