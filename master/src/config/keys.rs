@@ -191,9 +191,7 @@ impl ParamName {
     pub fn param(&self) -> Option<ParamRef> {
         self.parsed.ok().flatten()
     }
-}
 
-impl ParamName {
     /// `monitoring_param`'s default: P2014.1 (MICROMASTER 4, COM link).
     pub fn p2014_1() -> Self {
         Self::from("P2014.1".to_owned())

@@ -178,23 +178,26 @@ impl Rules<'_> {
     }
 
     fn drive(&mut self, drive: &DriveEntry, device: Option<&Device>) {
-        if let Err(e) = drive.monitoring_param.parsed {
-            let problem = format!(
-                "is not a parameter: {e}; name the drive's telegram-off time as the manual \
-                 writes it, e.g. \"P2014.1\" (MICROMASTER 4, COM link) or \"p2040\" (G120), or \
-                 \"\" for no check"
-            );
-            self.fail("monitoring_param", &problem);
-            return;
-        }
-        if let Err(e) = drive.reference_param.parsed {
-            let problem = format!(
-                "is not a parameter: {e}; name the drive's reference frequency in Hz as the \
-                 manual writes it, e.g. \"P2000\" (MICROMASTER 4, G110), or \"\" for no check \
-                 (G120: p2000 is a speed in rpm)"
-            );
-            self.fail("reference_param", &problem);
-            return;
+        let params = [
+            (
+                "monitoring_param",
+                &drive.monitoring_param,
+                "name the drive's telegram-off time as the manual writes it, e.g. \"P2014.1\" \
+                 (MICROMASTER 4, COM link) or \"p2040\" (G120), or \"\" for no check",
+            ),
+            (
+                "reference_param",
+                &drive.reference_param,
+                "name the drive's reference frequency in Hz as the manual writes it, e.g. \
+                 \"P2000\" (MICROMASTER 4, G110), or \"\" for no check (G120: p2000 is a speed \
+                 in rpm)",
+            ),
+        ];
+        for (key, name, hint) in params {
+            if let Err(e) = name.parsed {
+                self.fail(key, &format!("is not a parameter: {e}; {hint}"));
+                return;
+            }
         }
         if drive.require_monitoring {
             let missing = if drive.monitoring_param.param().is_none() {

@@ -90,6 +90,13 @@ impl DriveSetup {
             reference_param: Some(reference::P2000),
         }
     }
+
+    /// The reference-frequency parameter ussd reads: only over a PKW channel that carries its
+    /// float.
+    pub fn reference_read(&self) -> Option<WatchedParam> {
+        self.reference_param
+            .filter(|_| self.layout.pkw.carries_dword())
+    }
 }
 
 /// How the engine runs one bus.

@@ -171,10 +171,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             d.monitoring_due = queue_own_read(d, setup.monitoring.param, MONITORING_READ);
         }
         if d.reference_due {
-            let param = setup
-                .reference_param
-                .filter(|_| setup.layout.pkw.carries_dword());
-            d.reference_due = queue_own_read(d, param, REFERENCE_READ);
+            d.reference_due = queue_own_read(d, setup.reference_read(), REFERENCE_READ);
         }
     }
 }

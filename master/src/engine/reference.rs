@@ -19,11 +19,11 @@ pub const P2000: WatchedParam = WatchedParam {
     index: None,
 };
 
-/// The highest reference frequency a drive takes (P2000: 1..=650 Hz).
+/// The highest reference frequency: above 0 and at most 650 Hz, as `reference_hz` allows.
 const MAX_HZ: f32 = 650.0;
 
 /// Within this many Hz the drive's reference agrees with the configuration.
-pub const AGREES_WITHIN_HZ: f32 = 0.005;
+const AGREES_WITHIN_HZ: f32 = 0.005;
 
 /// What ussd knows of a drive's reference frequency.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,7 +40,7 @@ pub enum Reference {
 }
 
 impl Reference {
-    /// What it means: a float of 1..=650 Hz is a reference frequency.
+    /// What it means: a float above 0 and at most 650 Hz is a reference frequency.
     pub fn of(value: Value) -> Self {
         match value {
             Value::Dword(bits) => {
@@ -70,7 +70,7 @@ impl Reference {
 
     /// What is known before the read.
     pub(super) fn initial(setup: &DriveSetup) -> Self {
-        if setup.reference_param.is_some() && setup.layout.pkw.carries_dword() {
+        if setup.reference_read().is_some() {
             Self::Unknown
         } else {
             Self::NotChecked
