@@ -313,6 +313,34 @@ def test_python_takes_control_runs_stops_and_releases_a_drive(bus):
     uss_rt.control(bus, 1).release()  # free again
 
 
+@pytest.mark.xfail(strict=True, reason="issue 20: the refresher re-arms an operator's stop")
+def test_an_operators_stop_after_the_controllers_own_stop_stays_latched(bus):
+    """Issue 20, as a new user tried it: the controller's own OFF1, then an operator's coast
+    from another process. The refresher must not republish the OFF1 over the coast (that
+    re-armed the operator's stop), so the next ON raises Tripped and never reaches the wire."""
+    with uss_rt.control(bus, 1) as drive:
+        drive.rearm()
+        for _ in range(25):  # the control loop: ON at 10 Hz for half a second
+            drive.run_hz(10)
+            time.sleep(0.02)
+        drive.stop()
+        coast = subprocess.run(
+            [ussctl_binary(), "--bus", BUS, "coast", "1"], capture_output=True, text=True
+        )
+        # ussctl waited until the image showed the coast; then many refresher periods and
+        # polls, long enough for a republished OFF1 to re-arm.
+        time.sleep(0.3)
+        image = uss_rt.read_input(bus, 1)
+        assert image["control"] == uss_rt.ControlState.LATCHED, (image, coast.stderr)
+        assert image["latch_reason"] == uss_rt.LatchReason.OVERRIDE, image
+        assert coast.returncode == 0 and "OFF2 sent" in coast.stdout, (coast.stdout, coast.stderr)
+        with pytest.raises(uss_rt.Tripped, match="drive 1 is latched"):
+            drive.run_hz(10)
+        time.sleep(0.1)
+        assert uss_rt.read_input(bus, 1)["sent_stw1"] == 0x047C
+        drive.rearm()  # the deliberate re-arm: OFF1, then ON may run the drive again
+
+
 def test_the_catalogue_is_the_rust_crates_file():
     rust = ROOT / "catalogue" / "data" / "micromaster4.toml"
     assert uss_rt.drive.CATALOGUE_FILE.read_bytes() == rust.read_bytes()
