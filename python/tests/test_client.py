@@ -313,7 +313,6 @@ def test_python_takes_control_runs_stops_and_releases_a_drive(bus):
     uss_rt.control(bus, 1).release()  # free again
 
 
-@pytest.mark.xfail(strict=True, reason="issue 20: the refresher re-arms an operator's stop")
 def test_an_operators_stop_after_the_controllers_own_stop_stays_latched(bus):
     """Issue 20, as a new user tried it: the controller's own OFF1, then an operator's coast
     from another process. The refresher must not republish the OFF1 over the coast (that

@@ -302,9 +302,18 @@ class Controller:
                     out.extra[i] = w
             self._publisher.send_copy(out)
 
+    def _news(self, image: dict) -> bool:
+        """Whether ``image`` shows a latch this controller has not acknowledged."""
+        latch = self._latch_id(image)
+        return latch is not None and latch != self._known_latch
+
     def _refresh(self):
+        # While the drive shows a latch this controller has not acknowledged (an operator's
+        # stop, a trip), the refresher publishes nothing: a republished stop word would re-arm
+        # the latch behind the controller's back. The next call raises Tripped; rearm() goes on.
         while not self._stop.wait(REFRESH):
-            self._publish()
+            if not self._news(self.inputs()):
+                self._publish()
 
     def inputs(self) -> dict:
         """The drive's input image (:func:`uss_rt.read_input`)."""
@@ -312,8 +321,7 @@ class Controller:
 
     def _check(self):
         image = self.inputs()
-        latch = self._latch_id(image)
-        if latch is not None and latch != self._known_latch:
+        if self._news(image):
             raise Tripped(self.address, image)
         return image
 
@@ -345,6 +353,9 @@ class Controller:
     def rearm(self) -> dict:
         """OFF1 after a trip, then waits until ussd passes this controller's words again."""
         with self._lock:
+            # Acknowledges the latch the image shows, so the refresher repeats the OFF1 until
+            # ussd takes it; a later latch is news again.
+            self._known_latch = self._latch_id(self.inputs())
             self._words[0] = STW1_OFF1
         self._publish()
         image = None
