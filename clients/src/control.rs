@@ -1,6 +1,6 @@
 //! [`Controller`]: the one handle that writes a drive's output image (STW1, setpoint, further
 //! PZD words), with helpers that follow the PROFIdrive state machine (USS.md section 7), and
-//! the latch rules of ussd (`uss_shm_types::control`) surfaced as typed errors.
+//! the client rules of `uss_shm_types::session` surfaced as typed errors.
 
 use crate::link::{Link, Services};
 use crate::open::{Ipc, layout_verifier, opened, unknown_drive};
@@ -15,7 +15,10 @@ use std::thread::JoinHandle;
 use std::time::Instant;
 use uss_protocol::{DriveState, Setpoint, Stw1};
 use uss_shm_types::names;
-use uss_shm_types::{ControlState, DriveAddress, Generation, MAX_PZD_WORDS, PzdInput, PzdOutput};
+use uss_shm_types::{
+    DriveAddress, Generation, MAX_PZD_WORDS, PzdInput, PzdOutput, Session, SessionError,
+    SessionSetup, Step, Words,
+};
 
 /// A refresh period that suits ussd's default watchdog of 100 ms (`watchdog_ms`).
 pub const DEFAULT_REFRESH: Duration = Duration::from_millis(20);
@@ -31,12 +34,26 @@ pub struct ControlOptions {
     /// is configured (P2012), which every sample must carry anyway; a different number is
     /// refused here before it could be refused by ussd.
     pub words: Option<usize>,
+    /// A relay of a remote controller (the Zenoh bridge): opening the drive acknowledges no
+    /// latch, so only a stop after [`Controller::acknowledge_latch`] re-arms it.
+    pub relay: bool,
 }
 
 impl ControlOptions {
     /// Sends exactly `words` PZD words.
     pub fn words(words: usize) -> Self {
-        Self { words: Some(words) }
+        Self {
+            words: Some(words),
+            ..Self::default()
+        }
+    }
+
+    /// A relay of a remote controller: see [`ControlOptions::relay`](field@Self::relay).
+    pub fn relay() -> Self {
+        Self {
+            relay: true,
+            ..Self::default()
+        }
     }
 }
 
@@ -47,35 +64,18 @@ pub enum Jog {
     Left,
 }
 
-/// What the controller sends, and the sequence of its last write.
-#[derive(Debug, Clone, Copy)]
-struct Image {
-    words: [u16; MAX_PZD_WORDS],
-    count: usize,
-    sequence: u64,
-}
-
-/// Which latch of the drive this controller knows about: `(latches, latched_since_ns)` of the
-/// input image. A latch in the image other than this one is news (a trip, an override).
-type LatchId = (u32, u64);
-
-fn latch_id(i: &PzdInput) -> LatchId {
-    (i.latches, i.latched_since_ns)
-}
-
 /// The publisher on the `out` service of one ussd generation.
 struct Port {
     generation: Generation,
     publisher: Publisher<Ipc, PzdOutput, ()>,
 }
 
-/// The controller's own state, shared with a [`Refresher`] thread.
+/// The controller's own state, shared with a [`Refresher`] thread: its publisher and the
+/// [`Session`] that decides what it publishes (`uss_shm_types::session`, the one place of the
+/// client rules).
 struct State {
     port: Port,
-    image: Image,
-    known_latch: LatchId,
-    /// An OFF1 went out while `known_latch` held: ussd re-arms the drive when it takes it.
-    off1_sent: bool,
+    session: Session,
 }
 
 /// Shared with a [`Refresher`] thread.
@@ -83,11 +83,8 @@ struct Shared {
     link: Arc<Link>,
     state: Mutex<State>,
     watch: DriveWatch,
-    pid: u32,
     bus: String,
     address: u8,
-    /// The drive's PZD length: every sample carries exactly this many words.
-    pzd: usize,
 }
 
 impl Shared {
@@ -96,72 +93,68 @@ impl Shared {
         self.state.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// The error for a latch this controller has not acknowledged, if the image shows one.
-    fn news(&self, input: &PzdInput, state: &State) -> Option<ClientError> {
-        let latched = input.control == ControlState::Latched.code();
-        (latched && latch_id(input) != state.known_latch)
-            .then(|| ClientError::latched(&self.bus, self.address, input, true))
-    }
-
-    /// Changes the image with `f`, checks it, and publishes it with the next sequence number.
-    /// Fails without publishing when the drive latched since this controller last looked
-    /// ([`ClientError::Tripped`]), when the words would be refused by ussd
-    /// ([`ClientError::InvalidSample`]), and when an ON is asked of a latched drive that no OFF1
-    /// of this controller has re-armed ([`ClientError::NotArmed`]).
-    fn publish(&self, f: impl FnOnce(&mut Image)) -> Result<(), ClientError> {
-        let services = self.link.check()?;
-        let mut state = self.state();
-        self.follow(&mut state, &services)?;
-        let input = self.watch.latest();
-        if let Some(e) = self.news(&input, &state) {
-            return Err(e);
-        }
-        let mut next = state.image;
-        f(&mut next);
-        let sample = self.sample(&next)?;
-        // ON or a jog runs the motor; only a stop re-arms (ussd's rule).
-        let on = self.pzd > 0 && !uss_shm_types::pzd::is_stop(next.words[0]);
-        let latched = !input.is_live();
-        if on && latched {
-            if !state.off1_sent {
-                return Err(ClientError::latched(&self.bus, self.address, &input, false));
-            }
-            // The OFF1 is out: wait (without the lock, so a refresher keeps going) until ussd
-            // took it and the drive is live, then pass the ON.
-            drop(state);
-            let armed = self.watch.wait_for(HANDSHAKE_TIMEOUT, "re-armed", |i| {
-                i.is_live() || latch_id(i) != latch_id(&input)
-            })?;
-            state = self.state();
-            if let Some(e) = self.news(&armed, &state) {
-                return Err(e);
-            }
-            if !armed.is_live() {
-                return Err(ClientError::latched(&self.bus, self.address, &armed, false));
-            }
-        } else if latched && !on {
-            state.off1_sent = true;
-        }
-        Self::send(&mut state, next, sample)
-    }
-
-    /// The sample `image` makes with the next sequence number, as ussd would check it.
-    fn sample(&self, image: &Image) -> Result<PzdOutput, ClientError> {
-        let sequence = image.sequence.wrapping_add(1).max(1);
-        let sample = PzdOutput::from_words(
-            &image.words[..image.count],
-            sequence,
-            monotonic_ns(),
-            self.pid,
-        )?;
-        sample
-            .validate(self.pzd)
-            .map_err(|rejection| ClientError::InvalidSample {
-                bus: self.bus.clone(),
-                address: self.address,
+    /// A session's refusal in this controller's words, with the latch `input` shows.
+    fn error(&self, e: SessionError, input: &PzdInput) -> ClientError {
+        let (bus, address) = (self.bus.clone(), self.address);
+        match e {
+            SessionError::Tripped { .. } => ClientError::latched(&bus, address, input, true),
+            SessionError::NotArmed { .. } => ClientError::latched(&bus, address, input, false),
+            SessionError::Stalled {
+                gap_ns,
+                watchdog_ns,
+            } => ClientError::Stalled {
+                bus,
+                address,
+                gap: Duration::from_nanos(gap_ns),
+                watchdog: Duration::from_nanos(watchdog_ns),
+            },
+            SessionError::Invalid(rejection) => ClientError::InvalidSample {
+                bus,
+                address,
                 rejection,
-            })?;
-        Ok(sample)
+            },
+            SessionError::NotTheLatch { named, shown } => ClientError::NotTheLatch {
+                bus,
+                address,
+                named,
+                shown,
+            },
+            SessionError::Released => ClientError::Released { bus, address },
+        }
+    }
+
+    /// A call of the program that changes the words with `change` (or only refreshes them), as
+    /// the session decides. An ON right after a re-arming stop waits (at most
+    /// [`HANDSHAKE_TIMEOUT`], repeating the stop) until ussd took the stop and the drive is live.
+    fn publish(&self, change: impl Fn(&mut Words)) -> Result<(), ClientError> {
+        let deadline = Instant::now() + HANDSHAKE_TIMEOUT;
+        loop {
+            let services = self.link.check()?;
+            let mut state = self.state();
+            self.follow(&mut state, &services)?;
+            let input = self.watch.latest();
+            let step = state
+                .session
+                .publish(monotonic_ns(), &input, &change)
+                .map_err(|e| self.error(e, &input))?;
+            let sample = match step {
+                Step::Publish(sample) => return Self::send(&mut state, sample),
+                Step::AwaitRearm if Instant::now() < deadline => {
+                    // The program waits inside its call: the stop goes on being refreshed.
+                    match state.session.publish(monotonic_ns(), &input, |_| {}) {
+                        Ok(Step::Publish(repeated)) => repeated,
+                        Ok(Step::AwaitRearm) => continue,
+                        Err(e) => return Err(self.error(e, &input)),
+                    }
+                }
+                Step::AwaitRearm => {
+                    return Err(ClientError::latched(&self.bus, self.address, &input, false));
+                }
+            };
+            Self::send(&mut state, sample)?;
+            drop(state);
+            std::thread::sleep(crate::watch::POLL);
+        }
     }
 
     /// After a restart of ussd, publishes on the new generation's `out` service.
@@ -173,15 +166,28 @@ impl Shared {
         Ok(())
     }
 
-    fn send(state: &mut State, mut image: Image, sample: PzdOutput) -> Result<(), ClientError> {
+    fn send(state: &mut State, sample: PzdOutput) -> Result<(), ClientError> {
         state
             .port
             .publisher
             .send_copy(sample)
-            .map_err(|e| ClientError::ipc("publishing the output image", e))?;
-        image.sequence = sample.sequence;
-        state.image = image;
-        Ok(())
+            .map(|_| ())
+            .map_err(|e| ClientError::ipc("publishing the output image", e))
+    }
+
+    /// What a background refresher publishes now, if the session allows it.
+    fn refresh_in_background(&self) -> Result<(), ClientError> {
+        let Ok(services) = self.link.check() else {
+            // The owner learns of ussd's absence at its next call.
+            return Ok(());
+        };
+        let mut state = self.state();
+        self.follow(&mut state, &services)?;
+        let input = self.watch.latest();
+        match state.session.refresh(monotonic_ns(), &input) {
+            Some(sample) => Self::send(&mut state, sample),
+            None => Ok(()),
+        }
     }
 
     /// Publishes a release and waits (at most `timeout`) until ussd took it, so the publisher
@@ -191,17 +197,16 @@ impl Shared {
         let services = self.link.check()?;
         let mut state = self.state();
         self.follow(&mut state, &services)?;
-        let sequence = state.image.sequence.wrapping_add(1).max(1);
-        let sample = PzdOutput::release(sequence, monotonic_ns(), self.pid);
+        let sample = state.session.release(monotonic_ns());
         state
             .port
             .publisher
             .send_copy(sample)
             .map_err(|e| ClientError::ipc("publishing the release", e))?;
-        state.image.sequence = sequence;
         drop(state);
-        self.watch
-            .wait_for(timeout, "release taken", |i| i.taken_sequence == sequence)
+        self.watch.wait_for(timeout, "release taken", |i| {
+            i.taken_sequence == sample.sequence
+        })
     }
 }
 
@@ -247,6 +252,8 @@ fn open_port(link: &Link, services: &Services, address: DriveAddress) -> Result<
 
 /// Exclusive control of one drive: the only writer of its output image. Obtained from
 /// [`Bus::control`]; a second controller for the same drive is refused while this one lives.
+/// What it publishes is decided by a [`Session`] (`uss_shm_types::session`): the client rules,
+/// written once for every language.
 ///
 /// **Latched until re-armed.** ussd passes this controller's words to the drive only while the
 /// drive is *live*. It starts *latched* (ussd's start), and latches again when this
@@ -254,7 +261,7 @@ fn open_port(link: &Link, services: &Services, address: DriveAddress) -> Result<
 /// hung or died), when a sample would be misread by the drive, when an operator stops the
 /// drive from another process (`ussctl stop/coast/quick-stop`), or when the bus line comes
 /// back. A latched drive gets its safe command (OFF1 unless configured otherwise) until this
-/// controller re-arms it the PROFIdrive way: OFF1, then ON.
+/// controller re-arms it the PROFIdrive way: a stop that names the latch, then ON.
 ///
 /// - A new controller re-arms with its first OFF1: [`Controller::enable`] (or
 ///   [`Controller::rearm`]), then [`Controller::run_hz`] and friends.
@@ -264,15 +271,20 @@ fn open_port(link: &Link, services: &Services, address: DriveAddress) -> Result<
 /// - An ON while latched, before an OFF1 of this controller re-armed the drive, fails with
 ///   [`ClientError::NotArmed`].
 ///
-/// **Watchdog.** Every setter publishes; between changes call [`Controller::refresh`] at least
-/// once per watchdog time (every [`DEFAULT_REFRESH`] suits the default), or let
-/// [`Controller::spawn_refresher`] do it from a thread. Dropping the controller (or
+/// **Watchdog: the program's own calls.** Every setter publishes; between changes call
+/// [`Controller::keepalive`] at least once per watchdog time (every [`DEFAULT_REFRESH`] suits
+/// the default) from the control loop itself. A call after a longer gap (the process was
+/// paused, the loop blocked) fails with [`ClientError::Stalled`] and every ON does until
+/// [`Controller::rearm`]: a gap is a trip, not a fresh start. [`Controller::spawn_refresher`]
+/// fills shorter gaps from a thread for tools, but stops refreshing once the program has not
+/// called for longer than the watchdog time. Dropping the controller (or
 /// [`Controller::release`]) hands the drive back cleanly: ussd sends the safe command and shows
 /// the drive "released", which is not a watchdog trip.
 ///
 /// Every sample keeps STW1 bit 10 ("control by PLC") set, carries exactly the drive's PZD
-/// length, this process's id, a `CLOCK_MONOTONIC` time stamp and a new sequence number; a
-/// sample ussd would refuse is refused here first ([`ClientError::InvalidSample`]).
+/// length, this process's id, a `CLOCK_MONOTONIC` time stamp, a new sequence number and the
+/// latch it acknowledges; a sample ussd would refuse is refused here first
+/// ([`ClientError::InvalidSample`]).
 pub struct Controller {
     shared: Arc<Shared>,
     released: bool,
@@ -316,30 +328,26 @@ impl Controller {
             other => other,
         })?;
         let watch = DriveWatch::open(bus, address)?;
-        let mut words = [0; MAX_PZD_WORDS];
-        words[0] = Stw1::READY.bits();
-        let known_latch = latch_id(&watch.latest());
+        let setup = SessionSetup {
+            pzd,
+            pid: std::process::id(),
+            watchdog_ns: u64::from(diag.info.watchdog_ms).saturating_mul(1_000_000),
+            // A clock-based start: the first sample of a new controller never repeats its
+            // predecessor's last sequence number.
+            first_sequence: monotonic_ns(),
+        };
+        let session = if options.relay {
+            Session::relay(setup)
+        } else {
+            Session::new(setup, &watch.latest())
+        };
         Ok(Self {
             shared: Arc::new(Shared {
                 link: Arc::clone(bus.link()),
-                state: Mutex::new(State {
-                    port,
-                    image: Image {
-                        words,
-                        count: pzd,
-                        // A clock-based start: the first sample of a new controller never
-                        // repeats its predecessor's last sequence number (ussd takes a sample
-                        // as new only when the sequence changes).
-                        sequence: monotonic_ns(),
-                    },
-                    known_latch,
-                    off1_sent: false,
-                }),
+                state: Mutex::new(State { port, session }),
                 watch,
-                pid: std::process::id(),
                 bus: bus.name().to_owned(),
                 address: address.get(),
-                pzd,
             }),
             released: false,
         })
@@ -357,56 +365,61 @@ impl Controller {
 
     /// The words this controller sends (STW1 first).
     pub fn words(&self) -> Vec<u16> {
-        let state = self.shared.state();
-        state.image.words[..state.image.count].to_vec()
+        self.shared.state().session.words().as_slice().to_vec()
     }
 
     /// The current STW1.
     pub fn stw1(&self) -> Stw1 {
-        Stw1::from_bits_retain(self.shared.state().image.words[0])
+        Stw1::from_bits_retain(self.shared.state().session.words().stw1())
     }
 
     /// The sequence number of the last publish.
     pub fn sequence(&self) -> u64 {
-        self.shared.state().image.sequence
+        self.shared.state().session.sequence()
     }
 
     /// The latest input image, or [`ClientError::Tripped`] when the drive latched since this
-    /// controller last acknowledged a latch. For control loops that read more than they write.
+    /// controller last acknowledged a latch ([`ClientError::Stalled`] after a gap in the
+    /// program's calls). For control loops that read more than they write: it is no call that
+    /// refreshes the drive ([`Controller::keepalive`] is).
     pub fn check(&self) -> Result<PzdInput, ClientError> {
         self.shared.link.check()?;
         let state = self.shared.state();
         let input = self.shared.watch.latest();
-        match self.shared.news(&input, &state) {
-            Some(e) => Err(e),
-            None => Ok(input),
+        match state.session.check(monotonic_ns(), &input) {
+            Ok(()) => Ok(input),
+            Err(e) => Err(self.shared.error(e, &input)),
         }
     }
 
-    /// Re-publishes the current words with a new sequence number: the watchdog refresh.
-    pub fn refresh(&self) -> Result<(), ClientError> {
+    /// Re-publishes the current words with a new sequence number: the program's watchdog
+    /// refresh, once per watchdog time at least.
+    pub fn keepalive(&self) -> Result<(), ClientError> {
         self.shared.publish(|_| {})
     }
 
-    /// Acknowledges the drive's latch (a trip, an override, ussd's start) and re-arms it the
-    /// PROFIdrive way: sends OFF1 (STW1 0x047E, setpoint and every further word 0) and waits until ussd has taken it
-    /// and the drive is live again. Then an ON ([`Controller::run_hz`], ...) reaches the drive.
-    /// The drive itself may need [`Controller::acknowledge_fault`] too.
+    /// The same as [`Controller::keepalive`].
+    pub fn refresh(&self) -> Result<(), ClientError> {
+        self.keepalive()
+    }
+
+    /// Acknowledges the drive's latch (a trip, an override, ussd's start, a gap in the
+    /// program's calls) and re-arms it the PROFIdrive way: sends OFF1 naming the latch (STW1
+    /// 0x047E, setpoint and every further word 0) and waits until ussd has taken it and the
+    /// drive is live again. Then an ON ([`Controller::run_hz`], ...) reaches the drive. The
+    /// drive itself may need [`Controller::acknowledge_fault`] too.
     pub fn rearm(&self) -> Result<PzdInput, ClientError> {
         {
+            let services = self.shared.link.check()?;
             let mut state = self.shared.state();
+            self.shared.follow(&mut state, &services)?;
             let input = self.shared.watch.latest();
-            if !input.is_live() {
-                state.known_latch = latch_id(&input);
-                state.off1_sent = false;
-            }
+            let sample = state
+                .session
+                .rearm(monotonic_ns(), &input)
+                .map_err(|e| self.shared.error(e, &input))?;
+            Shared::send(&mut state, sample)?;
         }
-        // OFF1 with every other word 0: nothing of the words before the latch (a setpoint,
-        // PZD3.. such as STW2 or a second setpoint) goes out again with the re-arm.
-        self.shared.publish(|i| {
-            i.words = [0; MAX_PZD_WORDS];
-            i.words[0] = Stw1::READY.bits();
-        })?;
         let live = self.wait_for(HANDSHAKE_TIMEOUT, "re-armed (live)", PzdInput::is_live);
         match live {
             Ok(input) => Ok(input),
@@ -437,8 +450,8 @@ impl Controller {
     }
 
     /// Like [`Controller::run_percent`], in Hz: scaled by the drive's reference frequency
-    /// P2000 as ussd's configuration gives it ([`DriveWatch::info`]), so a controller and every
-    /// monitor show the same Hz for the same setpoint.
+    /// P2000 as ussd publishes it ([`DriveWatch::info`]), so a controller and every monitor
+    /// show the same Hz for the same setpoint.
     pub fn run_hz(&self, hz: f32) -> Result<(), ClientError> {
         let reference_hz = self.shared.watch.info().reference_hz;
         self.run_setpoint(Setpoint::from_hz(hz, reference_hz))
@@ -446,15 +459,15 @@ impl Controller {
 
     /// STW1 0x047F with a raw setpoint.
     pub fn run_setpoint(&self, setpoint: Setpoint) -> Result<(), ClientError> {
-        self.shared.publish(|i| {
-            i.words[0] = with_direction(Stw1::RUN, i.words[0]).bits();
-            set_word(i, 1, setpoint.word());
+        self.shared.publish(|w| {
+            w.words[0] = with_direction(Stw1::RUN, w.words[0]).bits();
+            set_word(w, 1, setpoint.word());
         })
     }
 
     /// Changes only the setpoint (STW1 stays as it is).
     pub fn set_setpoint(&self, setpoint: Setpoint) -> Result<(), ClientError> {
-        self.shared.publish(|i| set_word(i, 1, setpoint.word()))
+        self.shared.publish(|w| set_word(w, 1, setpoint.word()))
     }
 
     /// OFF1: ramp down along the ramp-down time, then S2 (STW1 0x047E).
@@ -474,10 +487,10 @@ impl Controller {
 
     /// Sets or clears the reverse bit (STW1 bit 11), which inverts the setpoint.
     pub fn reverse(&self, reverse: bool) -> Result<(), ClientError> {
-        self.shared.publish(|i| {
-            let mut stw1 = Stw1::from_bits_retain(i.words[0]);
+        self.shared.publish(|w| {
+            let mut stw1 = Stw1::from_bits_retain(w.words[0]);
             stw1.set(Stw1::REVERSE, reverse);
-            i.words[0] = stw1.bits();
+            w.words[0] = stw1.bits();
         })
     }
 
@@ -511,15 +524,27 @@ impl Controller {
         if words.len() > MAX_PZD_WORDS {
             return Err(uss_shm_types::ContractError::PzdWords(words.len()).into());
         }
-        self.shared.publish(|i| {
-            i.words = [0; MAX_PZD_WORDS];
-            i.words[..words.len()].copy_from_slice(words);
-            i.count = words.len();
+        self.shared.publish(|w| {
+            w.words = [0; MAX_PZD_WORDS];
+            w.words[..words.len()].copy_from_slice(words);
+            w.count = words.len();
         })
     }
 
+    /// For a relay of a remote controller (the Zenoh bridge): acknowledges latch `named`, the
+    /// latch the remote controller names, only while the drive shows it
+    /// ([`ClientError::NotTheLatch`] else). The relay's next stop then re-arms the drive.
+    pub fn acknowledge_latch(&self, named: u64) -> Result<(), ClientError> {
+        let mut state = self.shared.state();
+        let input = self.shared.watch.latest();
+        state
+            .session
+            .acknowledge(monotonic_ns(), &input, named)
+            .map_err(|e| self.shared.error(e, &input))
+    }
+
     /// Waits until `done` holds for the drive's input image, refreshing every
-    /// [`DEFAULT_REFRESH`] meanwhile so the watchdog stays quiet. Fails with
+    /// [`DEFAULT_REFRESH`] meanwhile (the program waits inside its own call). Fails with
     /// [`ClientError::Tripped`] as soon as the drive latches.
     pub fn wait_for(
         &self,
@@ -540,7 +565,7 @@ impl Controller {
                 return Err(watch.timed_out(timeout, wanted, first, &latest));
             }
             if refreshed.elapsed() >= DEFAULT_REFRESH {
-                self.refresh()?;
+                self.keepalive()?;
                 refreshed = Instant::now();
             }
             std::thread::sleep(crate::watch::POLL);
@@ -559,9 +584,11 @@ impl Controller {
     }
 
     /// Refreshes from a thread every `period` until the returned [`Refresher`] is dropped or
-    /// stopped. Setters keep working meanwhile. While the drive is latched by news this
-    /// controller has not acknowledged, the refresher publishes nothing (the next call of the
-    /// owning thread reports the latch); after [`Controller::rearm`] it goes on.
+    /// stopped, for tools whose loop calls less often than `period` but within the watchdog
+    /// time: it stops refreshing when the program has not called for longer than the drive's
+    /// watchdog time (a blocked or deadlocked loop trips the drive like a dead one), and while
+    /// the drive shows a latch this controller has not acknowledged (the next call of the
+    /// program reports it).
     pub fn spawn_refresher(&self, period: Duration) -> Refresher {
         let shared = Arc::clone(&self.shared);
         let stop = Arc::new((Mutex::new(false), Condvar::new()));
@@ -585,7 +612,7 @@ impl Controller {
     }
 
     fn command(&self, stw1: Stw1) -> Result<(), ClientError> {
-        self.shared.publish(|i| i.words[0] = stw1.bits())
+        self.shared.publish(|w| w.words[0] = stw1.bits())
     }
 }
 
@@ -604,10 +631,10 @@ fn with_direction(stw1: Stw1, previous: u16) -> Stw1 {
     stw1 | (Stw1::from_bits_retain(previous) & Stw1::REVERSE)
 }
 
-/// Sets word `index`, widening the image if it was shorter.
-fn set_word(image: &mut Image, index: usize, word: u16) {
-    image.words[index] = word;
-    image.count = image.count.max(index + 1);
+/// Sets word `index`, widening the words if they were shorter.
+fn set_word(words: &mut Words, index: usize, word: u16) {
+    words.words[index] = word;
+    words.count = words.count.max(index + 1);
 }
 
 type StopFlag = Arc<(Mutex<bool>, Condvar)>;
@@ -623,20 +650,7 @@ fn refresh_loop(shared: &Shared, stop: &StopFlag, period: Duration) -> Result<()
         if *stopped {
             return Ok(());
         }
-        match shared.publish(|_| {}) {
-            // The owner learns of a latch (or of ussd's absence) at its next call and decides;
-            // until then the refresher must not keep a tripped drive's controller looking
-            // alive. After a re-arm (or a reconnect) it goes on.
-            Ok(())
-            | Err(
-                ClientError::Tripped { .. }
-                | ClientError::NotArmed { .. }
-                | ClientError::UssdGone { .. }
-                | ClientError::UssdStopped { .. }
-                | ClientError::LineDown { .. },
-            ) => {}
-            Err(e) => return Err(e),
-        }
+        shared.refresh_in_background()?;
     }
 }
 
@@ -719,25 +733,16 @@ mod tests {
     }
 
     #[test]
-    fn setting_the_setpoint_widens_a_short_image() {
-        let mut image = Image {
+    fn setting_the_setpoint_widens_short_words() {
+        let mut words = Words {
             words: [0; MAX_PZD_WORDS],
             count: 1,
-            sequence: 0,
         };
-        set_word(&mut image, 1, 0x2000);
-        assert_eq!((image.count, image.words[1]), (2, 0x2000));
-        image.count = 4;
-        set_word(&mut image, 1, 0x1000);
-        assert_eq!(image.count, 4);
-    }
-
-    #[test]
-    fn a_latch_is_known_by_its_count_and_start() {
-        let mut i = PzdInput::EMPTY;
-        i.latches = 3;
-        i.latched_since_ns = 99;
-        assert_eq!(latch_id(&i), (3, 99));
+        set_word(&mut words, 1, 0x2000);
+        assert_eq!((words.count, words.words[1]), (2, 0x2000));
+        words.count = 4;
+        set_word(&mut words, 1, 0x1000);
+        assert_eq!(words.count, 4);
     }
 
     #[test]

@@ -166,6 +166,33 @@ pub enum ClientError {
         address: u8,
         latch: Latch,
     },
+    /// The program made no call for longer than the drive's watchdog time (a paused process, a
+    /// blocked loop): a trip, not a fresh start. ussd latches the drive (or has); every ON fails
+    /// until [`crate::Controller::rearm`].
+    #[error(
+        "drive {address} on {bus}: this controller made no call for {:.3} s, longer than the drive's watchdog ({:.3} s): that is a trip; re-arm it (OFF1, then ON: Controller::rearm)",
+        gap.as_secs_f64(), watchdog.as_secs_f64()
+    )]
+    Stalled {
+        bus: String,
+        address: u8,
+        gap: Duration,
+        watchdog: Duration,
+    },
+    /// A relay named a latch the drive does not show now.
+    #[error(
+        "drive {address} on {bus}: latch {named} is not the drive's current latch ({}): nothing was re-armed; name the latch its image shows",
+        if *.shown == 0 { "it is live".to_owned() } else { format!("latch {shown}") }
+    )]
+    NotTheLatch {
+        bus: String,
+        address: u8,
+        named: u64,
+        shown: u64,
+    },
+    /// The controller handed the drive back: take control again for more.
+    #[error("drive {address} on {bus}: this controller released the drive; take control again")]
+    Released { bus: String, address: u8 },
     /// Words ussd would refuse (and latch the drive for).
     #[error(
         "drive {address} on {bus}: ussd would refuse these words ({rejection}); nothing was sent"

@@ -151,7 +151,8 @@ fn two_faulty_drives(layout: Layout) -> (SimBus, Vec<DriveSetup>) {
 
 /// A controller publishing on drive 1 while `running`, reading its input image. Its phase
 /// follows the bus's own progress (the image's exchange count), so every phase is seen however
-/// fast the bus thread runs: OFF1 arms the drive (ussd latched it at start), then ON; at the end
+/// fast the bus thread runs: OFF1 naming the latch the image shows arms the drive (ussd latched
+/// it at start), then ON; at the end
 /// of each round a sample with STW1 bit 10 clear is refused and latches the drive again, and
 /// the next round's OFF1 re-arms it. Returns the highest input sequence seen and how many
 /// images showed the drive live on the controller's ON.
@@ -175,7 +176,9 @@ fn control_until(
             _ => 0x007F,
         };
         sequence += 1;
-        let out = PzdOutput::from_words(&[stw1, 0x2000], sequence, 0, std::process::id()).unwrap();
+        let out = PzdOutput::from_words(&[stw1, 0x2000], sequence, 0, std::process::id())
+            .unwrap()
+            .naming(image.latch_id);
         publisher.send_copy(out).unwrap();
         std::thread::sleep(Duration::from_micros(100));
     }

@@ -87,7 +87,7 @@ __all__ = [
 # Limits and names (uss_shm_types: lib.rs, pzd.rs, params.rs, names.rs)
 # -------------------------------------------------------------------------------------------
 
-LAYOUT_VERSION = 5
+LAYOUT_VERSION = 6
 """The layout version of every payload; its ``version`` field and the services' attribute."""
 LAYOUT_VERSION_ATTRIBUTE = "uss.layout_version"
 MAX_PZD_WORDS = 16
@@ -431,11 +431,12 @@ class PzdOutput(ctypes.Structure):
         ("word_count", u8),
         ("flags", u8),
         ("reserved", u8 * 6),
+        ("latch_id", u64),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "UssPzdOutputV5"
+        return "UssPzdOutputV6"
 
 
 class PzdInput(ctypes.Structure):
@@ -463,11 +464,12 @@ class PzdInput(ctypes.Structure):
         ("known", u8),
         ("reserved", u8),
         ("taken_sequence", u64),
+        ("latch_id", u64),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "UssPzdInputV5"
+        return "UssPzdInputV6"
 
 
 class DriveInfo(ctypes.Structure):
@@ -487,7 +489,7 @@ class DriveInfo(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveInfoV5"
+        return "UssDriveInfoV6"
 
 
 class DriveCounters(ctypes.Structure):
@@ -525,7 +527,7 @@ class DriveCounters(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveCountersV5"
+        return "UssDriveCountersV6"
 
 
 class DriveDiag(ctypes.Structure):
@@ -560,7 +562,7 @@ class DriveDiag(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssDriveDiagV5"
+        return "UssDriveDiagV6"
 
 
 EXCHANGE_BUCKETS = 12
@@ -617,7 +619,7 @@ class BusStatus(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssBusStatusV5"
+        return "UssBusStatusV6"
 
 
 class ParamItem(ctypes.Structure):
@@ -634,7 +636,7 @@ class ParamItem(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamItemV5"
+        return "UssParamItemV6"
 
 
 class ParamRequest(ctypes.Structure):
@@ -651,7 +653,7 @@ class ParamRequest(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamRequestV5"
+        return "UssParamRequestV6"
 
 
 class ParamResult(ctypes.Structure):
@@ -670,7 +672,7 @@ class ParamResult(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamResultV5"
+        return "UssParamResultV6"
 
 
 class ParamResponse(ctypes.Structure):
@@ -689,7 +691,7 @@ class ParamResponse(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssParamResponseV5"
+        return "UssParamResponseV6"
 
 
 class Heartbeat(ctypes.Structure):
@@ -711,7 +713,7 @@ class Heartbeat(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssHeartbeatV5"
+        return "UssHeartbeatV6"
 
 
 class OperatorRequest(ctypes.Structure):
@@ -726,7 +728,7 @@ class OperatorRequest(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssOperatorRequestV5"
+        return "UssOperatorRequestV6"
 
 
 class OperatorResponse(ctypes.Structure):
@@ -742,7 +744,7 @@ class OperatorResponse(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssOperatorResponseV5"
+        return "UssOperatorResponseV6"
 
 
 CAPTURE_BYTES = 264
@@ -773,7 +775,7 @@ class TelegramRecord(ctypes.Structure):
 
     @staticmethod
     def type_name() -> str:
-        return "UssTelegramRecordV5"
+        return "UssTelegramRecordV6"
 
 
 PAYLOAD_TYPES = (
@@ -1294,6 +1296,7 @@ def read_input(bus: Bus, address: int) -> dict:
         "latch_command": _code(StopCommand, image.latch_command),
         "latches": image.latches,
         "latched_since_ns": image.latched_since_ns,
+        "latch_id": image.latch_id,
         "latched_by_pid": image.latched_by_pid,
         "rejection": _code(Rejection, image.rejection),
         "sent_stw1": image.sent_stw1,

@@ -283,7 +283,7 @@ class Controller:
     @staticmethod
     def _latch_id(image: dict):
         latched = image["control"] == _u.ControlState.LATCHED
-        return (image["latches"], image["latched_since_ns"]) if latched else None
+        return image["latch_id"] if latched else None
 
     def _publish(self, flags: int = 0):
         with self._lock:
@@ -295,6 +295,8 @@ class Controller:
                 timestamp_ns=time.clock_gettime_ns(time.CLOCK_MONOTONIC),
                 word_count=0 if flags else self.words_count,
                 flags=flags,
+                # The latch this controller acknowledged: ussd re-arms only by a stop naming it.
+                latch_id=self._known_latch or 0,
             )
             if not flags:
                 out.stw1, out.setpoint = self._words[0], self._words[1] if self.words_count > 1 else 0

@@ -19,20 +19,20 @@
  * as IOX2_TYPE_NAME.
  */
 #define USS_BLACKBOARD_KEY_TYPE_NAME "UssBlackboardKey"
-#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV5"
-#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV5"
-#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV5"
-#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV5"
-#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV5"
-#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV5"
-#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV5"
-#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV5"
-#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV5"
-#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV5"
-#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV5"
-#define USS_TELEGRAM_RECORD_TYPE_NAME "UssTelegramRecordV5"
-#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV5"
-#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV5"
+#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV6"
+#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV6"
+#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV6"
+#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV6"
+#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV6"
+#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV6"
+#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV6"
+#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV6"
+#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV6"
+#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV6"
+#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV6"
+#define USS_TELEGRAM_RECORD_TYPE_NAME "UssTelegramRecordV6"
+#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV6"
+#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV6"
 
 /*
  * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; %016llx = the
@@ -103,7 +103,7 @@
  * The layout version of every payload type in this crate. Bump it with any change to a type's
  * fields, sizes or code tables, together with the type names' `V<n>` suffix.
  */
-#define USS_LAYOUT_VERSION 5
+#define USS_LAYOUT_VERSION 6
 
 /**
  * Longest bus name.
@@ -268,6 +268,11 @@
  * never re-arms a latched drive.
  */
 #define USS_STW1_JOG 768
+
+/**
+ * STW1 of the re-arming stop: OFF1 with everything else enabled (0x047E).
+ */
+#define USS_REARM_STW1 1150
 
 /**
  * Which way a captured telegram went; the `direction` byte of [`TelegramRecord`].
@@ -927,8 +932,10 @@ typedef struct UssBlackboardKey {
  * every telegram) while the drive is live. A controller must publish a new `sequence` within
  * the drive's watchdog time; when it stops, the drive gets its configured safe command (OFF1
  * by default), latched until the controller re-arms it with OFF1 then ON (see
- * [`crate::control`]). ussd checks every sample with [`PzdOutput::validate`] before it reaches
- * the wire: a sample the drive would misread is refused and latches the drive too.
+ * [`crate::control`]): the re-arming stop names the latch it acknowledges (`latch_id`, read from
+ * the input image), so only a stop made after the image showed the latch re-arms it. ussd
+ * checks every sample with [`PzdOutput::validate`] before it reaches the wire: a sample the
+ * drive would misread is refused and latches the drive too.
  */
 typedef struct UssPzdOutput {
   /**
@@ -969,8 +976,14 @@ typedef struct UssPzdOutput {
    */
   uint8_t flags;
   uint8_t reserved[6];
+  /**
+   * The latch this controller acknowledges: the input image's [`PzdInput::latch_id`] as it
+   * showed it (0 = none). A stop re-arms a latched drive only when it names the drive's
+   * current latch; while the drive is live ussd does not look at it.
+   */
+  uint64_t latch_id;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV6";
 #endif
 } UssPzdOutput;
 
@@ -1064,8 +1077,16 @@ typedef struct UssPzdInput {
    * a controller knows from it that ussd has seen a sample (a release, an OFF1).
    */
   uint64_t taken_sequence;
+  /**
+   * The identity of the current latch (0 while live): `CLOCK_MONOTONIC` ns when it began,
+   * made strictly greater than every earlier latch id of the drive (an earlier ussd's
+   * included, which began earlier). Every latch, a stronger command or a new reason for a
+   * latched drive included, gets a new id. A controller re-arms the drive with a stop that
+   * names it ([`PzdOutput::latch_id`]); a latch id it did not acknowledge is news.
+   */
+  uint64_t latch_id;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV6";
 #endif
 } UssPzdInput;
 
@@ -1106,7 +1127,7 @@ typedef struct UssDriveInfo {
   uint8_t weight;
   uint8_t reserved[3];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV6";
 #endif
 } UssDriveInfo;
 
@@ -1177,7 +1198,7 @@ typedef struct UssDriveCounters {
    */
   uint64_t overrides;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV6";
 #endif
 } UssDriveCounters;
 
@@ -1283,7 +1304,7 @@ typedef struct UssDriveDiag {
    */
   uint64_t response_delay_ns[4];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV6";
 #endif
 } UssDriveDiag;
 
@@ -1413,7 +1434,7 @@ typedef struct UssBusStatus {
    */
   uint64_t exchange_le[USS_EXCHANGE_BUCKETS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV6";
 #endif
 } UssBusStatus;
 
@@ -1443,7 +1464,7 @@ typedef struct UssParamItem {
    */
   uint32_t value;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV6";
 #endif
 } UssParamItem;
 /**
@@ -1474,7 +1495,7 @@ typedef struct UssParamRequest {
   uint8_t reserved;
   struct UssParamItem items[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV6";
 #endif
 } UssParamRequest;
 
@@ -1514,7 +1535,7 @@ typedef struct UssParamResult {
    */
   uint64_t on_wire_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV6";
 #endif
 } UssParamResult;
 
@@ -1550,7 +1571,7 @@ typedef struct UssParamResponse {
   uint32_t reserved;
   struct UssParamResult results[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV6";
 #endif
 } UssParamResponse;
 
@@ -1600,7 +1621,7 @@ typedef struct UssHeartbeat {
    */
   int32_t line_errno;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV6";
 #endif
 } UssHeartbeat;
 
@@ -1657,7 +1678,7 @@ typedef struct UssTelegramRecord {
   uint64_t end_ns;
   uint8_t bytes[USS_CAPTURE_BYTES];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssTelegramRecordV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssTelegramRecordV6";
 #endif
 } UssTelegramRecord;
 
@@ -1679,7 +1700,7 @@ typedef struct UssOperatorRequest {
   uint8_t command;
   uint8_t reserved[2];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV6";
 #endif
 } UssOperatorRequest;
 
@@ -1705,7 +1726,7 @@ typedef struct UssOperatorResponse {
    */
   uint32_t drives;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV5";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV6";
 #endif
 } UssOperatorResponse;
 

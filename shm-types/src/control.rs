@@ -2,9 +2,10 @@
 //!
 //! A drive's output is either **live** (its controller's samples go to the drive) or
 //! **latched** (it gets a stop command, the configured safe command or an operator's, until its
-//! controller re-arms it the PROFIdrive way: a sample with STW1 bit 0 = 0, OFF1, seen after the
-//! latch, before an ON is passed again). The input image and the diagnostics say which, since
-//! when, why, and what is sent. ussd keeps the latch; a client cannot clear it any other way.
+//! controller re-arms it the PROFIdrive way: a stop (STW1 bit 0 = 0, no jog) that names the
+//! latch, `PzdOutput::latch_id` = the input image's `latch_id`, before an ON is passed again).
+//! The input image and the diagnostics say which, since when, why, and what is sent. ussd keeps
+//! the latch; a client cannot clear it any other way.
 //!
 //! Operator stop commands arrive on `uss/<bus>/<gen>/command` ([`OperatorRequest`] ->
 //! [`OperatorResponse`], request-response): OFF1, OFF2 or OFF3 for one drive or every drive
@@ -144,7 +145,7 @@ impl StopCommand {
 /// An operator's stop command for one drive or every drive of a bus, from any process.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorRequestV5")]
+#[type_name("UssOperatorRequestV6")]
 pub struct OperatorRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -158,7 +159,7 @@ pub struct OperatorRequest {
 /// The one answer to an [`OperatorRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorResponseV5")]
+#[type_name("UssOperatorResponseV6")]
 pub struct OperatorResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

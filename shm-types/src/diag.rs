@@ -72,7 +72,7 @@ code_table! {
 /// USS.md section 7) plus timeouts and retries.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveDiagV5")]
+#[type_name("UssDriveDiagV6")]
 pub struct DriveDiag {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -130,7 +130,7 @@ pub struct DriveDiag {
 /// told it again (a controller scales Hz with `reference_hz`, sends exactly `pzd_words`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveInfoV5")]
+#[type_name("UssDriveInfoV6")]
 pub struct DriveInfo {
     /// The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
     /// frequency (USS.md section 7). The drive's own value once ussd has read it, until then
@@ -173,7 +173,7 @@ impl DriveInfo {
 /// published (USS.md section 4, "Receive errors to detect and count").
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssDriveCountersV5")]
+#[type_name("UssDriveCountersV6")]
 pub struct DriveCounters {
     /// Telegrams sent to the drive (retries included).
     pub requests: u64,
@@ -286,7 +286,7 @@ impl DriveCounters {
 /// The state of the bus as a whole.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssBusStatusV5")]
+#[type_name("UssBusStatusV6")]
 pub struct BusStatus {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -38,8 +38,8 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdOutput",
-        type_name: "UssPzdOutputV5",
-        size: 64,
+        type_name: "UssPzdOutputV6",
+        size: 72,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -52,12 +52,13 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("word_count", 56, 1),
             f("flags", 57, 1),
             f("reserved", 58, 6),
+            f("latch_id", 64, 8),
         ],
     },
     TypeLayout {
         name: "PzdInput",
-        type_name: "UssPzdInputV5",
-        size: 96,
+        type_name: "UssPzdInputV6",
+        size: 104,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -81,11 +82,12 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("known", 86, 1),
             f("reserved", 87, 1),
             f("taken_sequence", 88, 8),
+            f("latch_id", 96, 8),
         ],
     },
     TypeLayout {
         name: "DriveInfo",
-        type_name: "UssDriveInfoV5",
+        type_name: "UssDriveInfoV6",
         size: 16,
         align: 4,
         fields: &[
@@ -101,7 +103,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveCounters",
-        type_name: "UssDriveCountersV5",
+        type_name: "UssDriveCountersV6",
         size: 192,
         align: 8,
         fields: &[
@@ -133,7 +135,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveDiag",
-        type_name: "UssDriveDiagV5",
+        type_name: "UssDriveDiagV6",
         size: 328,
         align: 8,
         fields: &[
@@ -165,7 +167,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "BusStatus",
-        type_name: "UssBusStatusV5",
+        type_name: "UssBusStatusV6",
         size: 352,
         align: 8,
         fields: &[
@@ -206,7 +208,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamItem",
-        type_name: "UssParamItemV5",
+        type_name: "UssParamItemV6",
         size: 12,
         align: 4,
         fields: &[
@@ -220,7 +222,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamRequest",
-        type_name: "UssParamRequestV5",
+        type_name: "UssParamRequestV6",
         size: 476,
         align: 4,
         fields: &[
@@ -234,7 +236,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResult",
-        type_name: "UssParamResultV5",
+        type_name: "UssParamResultV6",
         size: 24,
         align: 8,
         fields: &[
@@ -250,7 +252,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResponse",
-        type_name: "UssParamResponseV5",
+        type_name: "UssParamResponseV6",
         size: 952,
         align: 8,
         fields: &[
@@ -266,7 +268,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "Heartbeat",
-        type_name: "UssHeartbeatV5",
+        type_name: "UssHeartbeatV6",
         size: 56,
         align: 8,
         fields: &[
@@ -285,7 +287,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "TelegramRecord",
-        type_name: "UssTelegramRecordV5",
+        type_name: "UssTelegramRecordV6",
         size: 304,
         align: 8,
         fields: &[
@@ -306,7 +308,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorRequest",
-        type_name: "UssOperatorRequestV5",
+        type_name: "UssOperatorRequestV6",
         size: 8,
         align: 4,
         fields: &[
@@ -318,7 +320,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorResponse",
-        type_name: "UssOperatorResponseV5",
+        type_name: "UssOperatorResponseV6",
         size: 12,
         align: 4,
         fields: &[

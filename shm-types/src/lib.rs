@@ -47,6 +47,7 @@ pub mod names;
 pub mod outcome;
 pub mod params;
 pub mod pzd;
+pub mod session;
 
 pub use capture::{CAPTURE_BYTES, CAPTURE_TASK, CAPTURE_TRUNCATED, Direction, Hex, TelegramRecord};
 pub use codes::{ContractError, UnknownCode};
@@ -66,10 +67,11 @@ pub use params::{
     Refusal, RequestError, Storage, TaskCode,
 };
 pub use pzd::{EXTRA_PZD_WORDS, MAX_PZD_WORDS, OUTPUT_RELEASE, OutputSample, PzdInput, PzdOutput};
+pub use session::{Session, SessionError, SessionSetup, Step, Words};
 
 /// The layout version of every payload type in this crate. Bump it with any change to a type's
 /// fields, sizes or code tables, together with the type names' `V<n>` suffix.
-pub const LAYOUT_VERSION: u32 = 5;
+pub const LAYOUT_VERSION: u32 = 6;
 
 /// Checks a payload's `version` field.
 pub const fn check_version(found: u32) -> Result<(), ContractError> {

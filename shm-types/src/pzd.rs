@@ -25,8 +25,8 @@ pub const STW1_ON: u16 = 0x0001;
 pub const STW1_JOG: u16 = 0x0300;
 
 /// Whether control word `stw1` is a stop (OFF1, OFF2, OFF3): ON and both jog bits clear. Only a
-/// stop re-arms a latched drive; the one test of that for ussd, the client library and the
-/// Zenoh bridge.
+/// stop that names the drive's current latch ([`PzdOutput::latch_id`]) re-arms a latched drive;
+/// the one test of "is a stop" for ussd and the client rules ([`crate::session`]).
 pub const fn is_stop(stw1: u16) -> bool {
     stw1 & (STW1_ON | STW1_JOG) == 0
 }
@@ -38,11 +38,13 @@ pub const fn is_stop(stw1: u16) -> bool {
 /// every telegram) while the drive is live. A controller must publish a new `sequence` within
 /// the drive's watchdog time; when it stops, the drive gets its configured safe command (OFF1
 /// by default), latched until the controller re-arms it with OFF1 then ON (see
-/// [`crate::control`]). ussd checks every sample with [`PzdOutput::validate`] before it reaches
-/// the wire: a sample the drive would misread is refused and latches the drive too.
+/// [`crate::control`]): the re-arming stop names the latch it acknowledges (`latch_id`, read from
+/// the input image), so only a stop made after the image showed the latch re-arms it. ussd
+/// checks every sample with [`PzdOutput::validate`] before it reaches the wire: a sample the
+/// drive would misread is refused and latches the drive too.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdOutputV5")]
+#[type_name("UssPzdOutputV6")]
 pub struct PzdOutput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -64,6 +66,10 @@ pub struct PzdOutput {
     /// [`OUTPUT_RELEASE`] or 0.
     pub flags: u8,
     pub reserved: [u8; 6],
+    /// The latch this controller acknowledges: the input image's [`PzdInput::latch_id`] as it
+    /// showed it (0 = none). A stop re-arms a latched drive only when it names the drive's
+    /// current latch; while the drive is live ussd does not look at it.
+    pub latch_id: u64,
 }
 
 /// What a valid [`PzdOutput`] asks for.
@@ -82,7 +88,7 @@ pub enum OutputSample {
 /// of the drive, good or failed.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdInputV5")]
+#[type_name("UssPzdInputV6")]
 pub struct PzdInput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -129,6 +135,12 @@ pub struct PzdInput {
     /// `sequence` of the controller's latest sample ussd has taken for this drive (0 = none):
     /// a controller knows from it that ussd has seen a sample (a release, an OFF1).
     pub taken_sequence: u64,
+    /// The identity of the current latch (0 while live): `CLOCK_MONOTONIC` ns when it began,
+    /// made strictly greater than every earlier latch id of the drive (an earlier ussd's
+    /// included, which began earlier). Every latch, a stronger command or a new reason for a
+    /// latched drive included, gets a new id. A controller re-arms the drive with a stop that
+    /// names it ([`PzdOutput::latch_id`]); a latch id it did not acknowledge is news.
+    pub latch_id: u64,
 }
 
 /// Puts up to 16 PZD words into the named word fields.
@@ -174,6 +186,7 @@ impl PzdOutput {
         word_count: 0,
         flags: 0,
         reserved: [0; 6],
+        latch_id: 0,
     };
 
     /// An image carrying `words` (PZD1 = STW1 first, at most 16).
@@ -194,6 +207,12 @@ impl PzdOutput {
             word_count,
             ..Self::EMPTY
         })
+    }
+
+    /// This sample, naming `latch_id` as the latch its controller acknowledges.
+    #[must_use]
+    pub const fn naming(self, latch_id: u64) -> Self {
+        Self { latch_id, ..self }
     }
 
     /// The image that hands the drive back ([`OUTPUT_RELEASE`], no words).
@@ -261,12 +280,13 @@ impl PzdInput {
     }
 
     /// Whether `other` shows the drive as this image does: no new reply (`sequence`), and the
-    /// same online, control and status word. What tools that follow a drive (trace, the Zenoh
+    /// same online, control, latch and status word. What tools that follow a drive (trace, the Zenoh
     /// bridge) use to tell a new picture from the one they already have.
     pub const fn same_picture(&self, other: &Self) -> bool {
         self.sequence == other.sequence
             && self.online == other.online
             && self.control == other.control
+            && self.latch_id == other.latch_id
             && self.zsw1 == other.zsw1
     }
 
@@ -293,6 +313,7 @@ impl PzdInput {
         known: 0,
         reserved: 0,
         taken_sequence: 0,
+        latch_id: 0,
     };
 
     /// An image carrying the reply's `words` (PZD1 = ZSW1 first, at most 16); `online` set.
@@ -325,6 +346,11 @@ impl PzdInput {
     /// Whether the drive gets its controller's words (not latched).
     pub fn is_live(&self) -> bool {
         self.control == ControlState::Live.code()
+    }
+
+    /// The current latch's id, `None` while the drive is live.
+    pub fn latch(&self) -> Option<u64> {
+        (!self.is_live()).then_some(self.latch_id)
     }
 
     pub fn control(&self) -> Result<ControlState, crate::UnknownCode> {

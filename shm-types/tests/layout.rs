@@ -45,12 +45,12 @@ fn actual_layouts() -> Vec<Actual> {
         actual!(BlackboardKey = BlackboardKey::IMAGE, [value]),
         actual!(PzdOutput = PzdOutput::EMPTY, [
             version, controller_pid, sequence, timestamp_ns, stw1, setpoint, extra, word_count,
-            flags, reserved,
+            flags, reserved, latch_id,
         ]),
         actual!(PzdInput = PzdInput::EMPTY, [
             version, online, control, word_count, latch_reason, sequence, timestamp_ns,
             age_ns, zsw1, hiw, extra, sent_stw1, sent_setpoint, latches, latched_since_ns,
-            latched_by_pid, latch_command, rejection, known, reserved, taken_sequence,
+            latched_by_pid, latch_command, rejection, known, reserved, taken_sequence, latch_id,
         ]),
         actual!(DriveInfo = DriveInfo::UNKNOWN, [
             reference_hz, watchdog_ms, safe_command, params_writable, pkw_words, pzd_words,

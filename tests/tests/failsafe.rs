@@ -7,8 +7,9 @@
 //! - a sample the drive would misread is refused at the poll that takes it, latched, named;
 //! - a clean release is "released", a SIGKILL is a watchdog trip: counted apart;
 //! - `ussctl stop/coast/quick-stop` (one drive or `--all`) override a running controller;
-//! - after an operator's stop a jogging controller re-arms nothing; only its stop does, and not
-//!   one taken at the poll right after the latch (it may have crossed the stop);
+//! - after an operator's stop a jogging controller re-arms nothing; only its stop does, and only
+//!   one that names the latch (a stop republished from before it, as a refresher would, or one
+//!   that crossed the operator's stop, never does);
 //! - parameter writes to a controlled drive need `--force` (or the controlling process);
 //! - a drive whose own telegram monitoring is off is reported, and refused ON when required;
 //! - the same freeze over a real pty with `uss-sim`.
@@ -183,18 +184,20 @@ fn frozen_controller_trips_once_and_the_drive_stays_stopped_when_it_resumes() {
 /// A foreign controller: a raw iceoryx2 publisher of the contract's `out` service.
 struct RawController {
     publisher: iceoryx2::port::publisher::Publisher<ipc::Service, PzdOutput, ()>,
+    /// The drive's image, for the latch a sample names.
+    watch: uss_client::DriveWatch,
     sequence: u64,
     _node: Node<ipc::Service>,
 }
 
 impl RawController {
-    fn open(bus: &str, a: u8) -> Self {
+    fn open(bus_name: &str, a: u8) -> Self {
         let node = NodeBuilder::new()
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<ipc::Service>()
             .unwrap();
         // As any client: the newest heartbeat names the generation that serves the bus.
-        let bus = BusName::new(bus).unwrap();
+        let bus = BusName::new(bus_name).unwrap();
         let heartbeat = node
             .service_builder(&names::heartbeat(&bus))
             .publish_subscribe::<Heartbeat>()
@@ -223,9 +226,23 @@ impl RawController {
             .unwrap();
         Self {
             publisher,
+            watch: Bus::open(bus_name).unwrap().watch(a).unwrap(),
             sequence: 0,
             _node: node,
         }
+    }
+
+    /// Publishes `words` naming the latch the drive's image shows now, as a controller that
+    /// looked at it; returns the sample's sequence number.
+    fn words(&mut self, words: &[u16]) -> u64 {
+        let seen = self.watch.latest().latch_id;
+        self.words_naming(words, seen)
+    }
+
+    /// Publishes `words` naming latch `latch_id` (0: none).
+    fn words_naming(&mut self, words: &[u16], latch_id: u64) -> u64 {
+        let sample = PzdOutput::from_words(words, 0, monotonic_ns(), std::process::id()).unwrap();
+        self.send(sample.naming(latch_id))
     }
 
     /// Publishes `sample` with the next sequence number; returns that number.
@@ -234,10 +251,6 @@ impl RawController {
         sample.sequence = self.sequence;
         self.publisher.send_copy(sample).unwrap();
         self.sequence
-    }
-
-    fn words(&mut self, words: &[u16]) -> u64 {
-        self.send(PzdOutput::from_words(words, 0, monotonic_ns(), std::process::id()).unwrap())
     }
 
     /// Publishes `words` every 10 ms until drive `a` satisfies `done`.
@@ -356,6 +369,42 @@ fn every_kind_of_bad_sample_from_a_raw_publisher_latches_the_drive_at_the_poll_t
         "{}",
         ussd.log()
     );
+}
+
+/// The watchdog watches the program, not a thread (issue 20): a control loop that stops
+/// calling (blocked, deadlocked) while its refresher thread lives trips the drive within the
+/// watchdog time, and the program's next call is the trip, not a fresh start.
+#[test]
+fn a_refresher_does_not_keep_a_drive_live_for_a_program_that_stopped_calling() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    quick_ramps(&bus, 1);
+    let c = bus.control(1, ControlOptions::default()).unwrap();
+    let refresher = c.spawn_refresher(Duration::from_millis(20));
+    c.enable().unwrap();
+    c.run_hz(10.0).unwrap();
+    c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
+        .unwrap();
+    // The loop blocks: its last call was the wait above.
+    let blocked = monotonic_ns();
+    let tripped = first_image(&bus, 1, Duration::from_secs(2), |i| !i.is_live());
+    let after = tripped.timestamp_ns.saturating_sub(blocked) as f64 / 1e6;
+    println!("failsafe: a stalled program's drive latched {after:.0} ms after its last call");
+    assert_eq!(
+        tripped.latch_reason,
+        LatchReason::Stale.code(),
+        "{tripped:?}"
+    );
+    assert_eq!(tripped.sent_stw1, OFF1);
+    stays_stopped(&bus, 1, LatchReason::Stale, Duration::from_millis(500));
+    // Resumed, the program's next call is the trip; only the deliberate re-arm runs it again.
+    assert!(matches!(c.run_hz(10.0), Err(ClientError::Tripped { .. })));
+    c.rearm().unwrap();
+    c.run_hz(10.0).unwrap();
+    c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
+        .unwrap();
+    refresher.stop().unwrap();
 }
 
 #[test]
@@ -521,76 +570,57 @@ fn a_jog_does_not_re_arm_an_operator_stop_only_a_stop_does() {
     raw.words(&[OFF1, 0]);
 }
 
-/// The other re-arm rule with a real ussd: a stop taken at the poll right after a latch does not
-/// re-arm it (it may have been published before the drive's image showed the latch, by a
-/// controller that never saw it). A controller publishing OFF1 all the time (every 0.2 ms, many
-/// samples per poll) while an operator's stop comes in: the poll after the latching one takes a
-/// fresh OFF1 and the drive stays latched; only a later poll's OFF1 re-arms it.
+/// The other re-arm rule with a real ussd: a stop re-arms only when it names the latch, so a
+/// controller that republishes its OFF1 all the time (every 0.2 ms, many samples per poll, as
+/// a refresher would) never re-arms an operator's stop that comes in meanwhile, however its
+/// samples and the stop cross: the drive stays latched poll after poll. Only a stop naming the
+/// new latch, published after the image showed it, re-arms it.
 #[test]
-fn a_stop_that_crossed_an_operator_stop_does_not_re_arm_it() {
+fn a_republished_stop_never_re_arms_an_operator_stop() {
     let _serial = serial();
     let ussd = Ussd::start("", &[(1, "")]);
     let bus = ussd.bus();
     let mut raw = RawController::open(&ussd.bus, 1);
     let watch = bus.watch(1).unwrap();
-    raw.until(&bus, 1, &[OFF1, 0], PzdInput::is_live);
-    // A round is judged only when this loop saw the last live image, the latching one and the
-    // next one without a gap (sequence numbers in a row): a busy machine may hide one.
-    let mut judged = 0;
-    for round in 0..20 {
-        if judged == 3 {
-            break;
-        }
+    for round in 0..3 {
+        raw.until(&bus, 1, &[OFF1, 0], PzdInput::is_live);
+        // Live: the controller's OFF1 names no latch (there is none), and keeps coming.
         let mut stop = ussd.ussctl(&["stop", "1"]);
         let deadline = Instant::now() + Duration::from_secs(5);
-        let mut previous = watch.latest();
-        let start_latches = previous.latches;
-        let mut latching: Option<PzdInput> = None;
-        let next = loop {
+        // Then twenty more polls of republished OFF1s: the drive stays latched by the operator.
+        let mut latched: Option<PzdInput> = None;
+        loop {
             assert!(
                 Instant::now() < deadline,
                 "round {round}: {:?}",
                 watch.latest()
             );
-            raw.words(&[OFF1, 0]);
+            raw.words_naming(&[OFF1, 0], 0);
             let i = watch.latest();
-            if i.sequence != previous.sequence {
-                let in_a_row = i.sequence == previous.sequence + 1;
-                match latching {
-                    None if i.latch_reason == LatchReason::Override.code() => {
-                        if !in_a_row || previous.latch_reason != 0 {
-                            break None;
-                        }
-                        latching = Some(i);
-                    }
-                    // Latched and re-armed between two looks: not seen.
-                    None if i.latches > start_latches => break None,
-                    None => {}
-                    Some(_) => break in_a_row.then_some(i),
-                }
-                previous = i;
+            match latched {
+                None if i.latch_reason == LatchReason::Override.code() => latched = Some(i),
+                None => {}
+                Some(l) if i.sequence >= l.sequence + 20 => break,
+                Some(l) => assert_eq!(
+                    (i.latch_reason, i.latch_id, i.sent_stw1),
+                    (LatchReason::Override.code(), l.latch_id, OFF1),
+                    "round {round}: a republished OFF1 re-armed the operator's stop: {i:?}"
+                ),
             }
             std::thread::sleep(Duration::from_micros(200));
-        };
-        // A later poll's OFF1 is a deliberate stop of a controller that could see the latch: it
-        // re-arms the drive (ussctl then cannot confirm its stop).
-        raw.until(&bus, 1, &[OFF1, 0], PzdInput::is_live);
-        stop.kill();
-        let (Some(latching), Some(next)) = (latching, next) else {
-            continue;
-        };
-        if next.taken_sequence == latching.taken_sequence {
-            continue; // no fresh sample at that poll: nothing to judge
         }
-        judged += 1;
+        let latched = latched.unwrap();
+        let (status, _) = ended(&mut stop, Duration::from_secs(5));
         assert_eq!(
-            (next.latch_reason, next.sent_stw1),
-            (LatchReason::Override.code(), OFF1),
-            "round {round}: the OFF1 taken at the poll after the latch re-armed it: {next:?}"
+            status,
+            Some(0),
+            "round {round}: ussctl stop confirmed its stop"
         );
-        assert!(!next.is_live(), "round {round}: {next:?}");
+        // A stop naming the latch, made after the image showed it, re-arms.
+        let seq = raw.words_naming(&[OFF1, 0], latched.latch_id);
+        let i = first_image(&bus, 1, Duration::from_secs(1), |i| i.taken_sequence >= seq);
+        assert!(i.is_live(), "round {round}: {i:?}");
     }
-    assert_eq!(judged, 3, "too few rounds seen without a gap");
 }
 
 #[test]

@@ -8,7 +8,7 @@
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Output, Stdio};
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 use uss_client::DriveError;
@@ -542,11 +542,12 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(2))
         .unwrap();
 
-    let refresher = c.spawn_refresher(Duration::from_millis(20));
+    // The control loop's own calls keep the drive live.
     let mut seen = vec![c.inputs().actual_hz()];
     let deadline = Instant::now() + Duration::from_secs(5);
     while *seen.last().unwrap() < 24.9 && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(20));
+        c.keepalive().unwrap();
         seen.push(c.inputs().actual_hz());
     }
     assert!(*seen.last().unwrap() >= 24.9, "{seen:?}");
@@ -554,7 +555,6 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
     assert!(seen.windows(2).all(|w| w[1] >= w[0]), "rises: {seen:?}");
     assert_eq!(c.inputs().state(), DriveState::OperationEnabled);
     assert!(c.inputs().latest().is_live());
-    refresher.stop().unwrap();
 
     // Without refreshes the drive latches within its 100 ms watchdog: it gets OFF1.
     let stale = c
@@ -616,11 +616,25 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
         .unwrap();
     c.run_hz(30.0).unwrap();
     assert_eq!(c.words(), [0x047F, 0x2000], "30 Hz of 60 Hz is 50 %");
-    let refresher = c.spawn_refresher(Duration::from_millis(20));
-    c.inputs()
-        .wait_for(Duration::from_secs(5), "30 Hz", |i| i.hiw == 0x2000)
+    c.wait_for(Duration::from_secs(5), "30 Hz", |i| i.hiw == 0x2000)
         .unwrap();
     assert_eq!(c.inputs().actual_hz(), 30.0);
+    // The control loop goes on in a thread of its own while the tools look.
+    let looking = AtomicBool::new(true);
+    std::thread::scope(|scope| {
+        scope.spawn(|| {
+            while looking.load(Ordering::Relaxed) {
+                c.keepalive().unwrap();
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        });
+        every_tool_shows_30_hz(&ussd, &bus);
+        looking.store(false, Ordering::Relaxed);
+    });
+}
+
+/// `status`, `watch` and `stats` of drive 1 running at 30 Hz of its 60 Hz reference.
+fn every_tool_shows_30_hz(ussd: &Ussd, bus: &Bus) {
     // Diagnostics (what `status` shows) lag the image by up to a few hundred ms.
     let deadline = Instant::now() + Duration::from_secs(5);
     while bus.diag(1).unwrap().last_hiw != 0x2000 {
@@ -657,7 +671,6 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
         "{}",
         text(&out.stdout)
     );
-    refresher.stop().unwrap();
 }
 
 /// The Rust API reads and writes parameters as their own type; a parameter the catalogue does

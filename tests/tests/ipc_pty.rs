@@ -84,13 +84,12 @@ fn client_controls_and_parameterises_a_drive_through_ussd_over_a_pty() {
 
     // Exclusive control: run to S4 at 25 Hz, see the actual value.
     let controller = bus.control(1, ControlOptions::default()).unwrap();
-    let _refresh = controller.spawn_refresher(Duration::from_millis(20));
     controller.enable().unwrap();
     controller.run_hz(25.0).unwrap();
     controller
         .wait_for_state(DriveState::OperationEnabled, Duration::from_secs(10))
         .unwrap();
-    let running = watch
+    let running = controller
         .wait_for(Duration::from_secs(10), "25 Hz", |i| i.hiw == 0x2000)
         .unwrap();
     assert_eq!(running.online, 1);
@@ -99,7 +98,7 @@ fn client_controls_and_parameterises_a_drive_through_ussd_over_a_pty() {
         "one controller per drive"
     );
     controller.stop().unwrap();
-    watch
+    controller
         .wait_for(Duration::from_secs(10), "stopped", |i| i.hiw == 0)
         .unwrap();
     drop(ussd);

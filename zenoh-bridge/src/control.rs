@@ -35,10 +35,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-use uss_client::uss_shm_types::pzd::is_stop;
-use uss_client::{
-    Bus, ClientError, ControlOptions, Controller, DriveWatch, PzdInput, PzdOutput, StopCommand,
-};
+use uss_client::{Bus, ClientError, ControlOptions, Controller, DriveWatch, PzdInput, StopCommand};
 use zenoh::bytes::Encoding;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::query::{Query, Queryable};
@@ -392,9 +389,11 @@ impl Remote<'_> {
             return Ok(());
         }
         if self.controller.is_none() {
+            // A relay's session acknowledges no latch by opening the drive: only a remote
+            // controller's stop that names the latch re-arms it.
             let c = self
                 .bus
-                .control(self.drive, ControlOptions::default())
+                .control(self.drive, ControlOptions::relay())
                 .map_err(|e| e.to_string())?;
             self.controller = Some(c);
             self.active = Some(Instant::now());
@@ -406,19 +405,9 @@ impl Remote<'_> {
         let words = out
             .pzd(usize::from(info.pzd_words), info.reference_hz)
             .map_err(|e| e.to_string())?;
-        // ussd's own checks of a sample, before anything is sent (a re-arm included).
-        PzdOutput::from_words(&words, 1, 0, 0)
-            .map_err(|e| e.to_string())?
-            .validate(usize::from(info.pzd_words))
-            .map_err(|r| format!("ussd would refuse these words ({r}): nothing was sent"))?;
         let image = c.inputs().latest();
         let holds = self.report.holder.as_ref() == Some(&out.from);
-        let named = out
-            .rearm
-            .filter(|&id| id != 0 && id == image.latched_since_ns);
-        let sent = if image.is_live() && holds {
-            c.set_words(&words)
-        } else if image.is_live() {
+        if image.is_live() && !holds {
             // Live without this sender having re-armed it: its holder fell silent and ussd has
             // not shown the trip yet. Only a named re-arm of that latch takes it over.
             return Err(format!(
@@ -426,21 +415,14 @@ impl Remote<'_> {
                  and re-arm it by name",
                 self.drive
             ));
-        } else if named.is_some() && is_stop(words[0]) {
-            // The remote controller acknowledges this very latch with a stop: its words re-arm
-            // it (after a trip the controller has not acknowledged yet, through `rearm`, which
-            // is done only while the latch is still the one named).
-            match c.set_words(&words) {
-                Err(ClientError::Tripped { .. })
-                    if named == Some(c.inputs().latest().latched_since_ns) =>
-                {
-                    c.rearm().and_then(|_| c.set_words(&words))
-                }
-                other => other,
-            }
-        } else {
-            return Err(latched(self.name, self.drive, &image));
-        };
+        }
+        // The remote controller acknowledges the latch it names (the session checks that the
+        // drive shows it); then its stop re-arms the drive and its ON runs it, as the session
+        // decides for every controller.
+        let named = out.rearm.filter(|&id| id != 0 && !image.is_live());
+        let sent = named
+            .map_or(Ok(()), |id| c.acknowledge_latch(id))
+            .and_then(|()| c.set_words(&words));
         match sent {
             Ok(()) => {
                 self.last_seq = Some(out.seq);
@@ -450,9 +432,11 @@ impl Remote<'_> {
                 self.report.holder = Some(out.from);
                 Ok(())
             }
-            Err(ClientError::Tripped { .. } | ClientError::NotArmed { .. }) => {
-                Err(latched(self.name, self.drive, &c.inputs().latest()))
-            }
+            Err(
+                ClientError::Tripped { .. }
+                | ClientError::NotArmed { .. }
+                | ClientError::NotTheLatch { .. },
+            ) => Err(latched(self.name, self.drive, &c.inputs().latest())),
             Err(e) => Err(e.to_string()),
         }
     }
@@ -477,7 +461,7 @@ impl Remote<'_> {
             let image = watch.latest();
             self.report.control = image.control_name();
             self.report.latch_reason = image.latch_reason_name();
-            self.report.latch_id = image.latched_since_ns;
+            self.report.latch_id = image.latch_id;
         }
         let changed = self.reported.as_ref() != Some(&self.report);
         let due = self.controller.is_some() && Instant::now() >= self.next_report;
@@ -496,7 +480,7 @@ fn latched(bus: &str, drive: u8, image: &PzdInput) -> String {
     format!(
         "drive {drive} on {bus} is latched ({latch}) and gets {}: nothing was sent; re-arm it \
          with a stop naming the latch ({{\"stw1\":1150,\"rearm\":{}}}), then ON",
-        latch.command, image.latched_since_ns
+        latch.command, image.latch_id
     )
 }
 

@@ -4,7 +4,8 @@
 use serde::{Deserialize, Serialize};
 use uss_client::uss_shm_types::diag::RtMode;
 use uss_client::{
-    BusStatus, DriveDiag, Health, ParamValue, PzdInput, Setpoint, StopCommand, Typed, state_name,
+    BusStatus, DriveDiag, DriveInfo, Health, ParamValue, PzdInput, Setpoint, StopCommand, Typed,
+    state_name,
 };
 
 /// The payload version.
@@ -93,9 +94,12 @@ pub struct Input<'a> {
     pub control: &'static str,
     /// Why it is latched (`none` while live).
     pub latch_reason: &'static str,
-    /// Which latch (its start, ussd's monotonic ns; 0 if the drive never latched): a remote
-    /// controller re-arms a latched drive only by naming the latch it saw (`rearm`).
+    /// Which latch (the image's `latch_id`; 0 while live): a remote controller re-arms a
+    /// latched drive only by naming the latch it saw (`rearm`).
     pub latch_id: u64,
+    /// The drive's watchdog time (`watchdog_ms` of ussd's configuration): a remote
+    /// controller's samples must come closer together than this.
+    pub watchdog_ms: u32,
     /// S1..S4, `fault`, `not ready`.
     pub state: &'static str,
     pub zsw1: u16,
@@ -114,7 +118,8 @@ pub struct Input<'a> {
 }
 
 impl<'a> Input<'a> {
-    pub fn new(bus: &'a str, drive: u8, i: &'a PzdInput, reference_hz: f32, stale: bool) -> Self {
+    pub fn new(bus: &'a str, drive: u8, i: &'a PzdInput, info: &DriveInfo, stale: bool) -> Self {
+        let reference_hz = info.reference_hz;
         let extra = usize::from(i.word_count.saturating_sub(2)).min(i.extra.len());
         let now = uss_client::monotonic_ns();
         Self {
@@ -126,7 +131,8 @@ impl<'a> Input<'a> {
             online: i.online != 0 && !stale,
             control: i.control_name(),
             latch_reason: i.latch_reason_name(),
-            latch_id: i.latched_since_ns,
+            latch_id: i.latch_id,
+            watchdog_ms: info.watchdog_ms,
             state: state_name(i.zsw1),
             zsw1: i.zsw1,
             hiw: i.hiw,

@@ -182,11 +182,10 @@ impl Publisher<'_> {
                 && d.last.is_some_and(|(_, s)| !s)
                 && min_gap.is_some_and(|gap| d.sent_at.is_some_and(|t| t.elapsed() < gap));
             if changed && !too_soon {
-                let reference_hz = look.info.reference_hz;
                 put(
                     self.session,
                     &d.key,
-                    &Input::new(&self.o.bus, d.watch.address(), &image, reference_hz, stale),
+                    &Input::new(&self.o.bus, d.watch.address(), &image, &look.info, stale),
                 );
                 d.last = Some((image, stale));
                 d.sent_at = Some(Instant::now());

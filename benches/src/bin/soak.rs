@@ -179,10 +179,10 @@ fn controller(bus: &Bus, stop: &AtomicBool, counts: &Counts) -> Result<(), Strin
         Ok(())
     };
     run(&c)?;
-    let refresher = c.spawn_refresher(Duration::from_millis(20));
     let mut offline = false;
     while !stop.load(Ordering::Relaxed) {
-        match c.check() {
+        // The loop's own call refreshes the drive (every 10 ms, inside its 100 ms watchdog).
+        match c.keepalive().and_then(|()| c.check()) {
             Ok(i) => {
                 if i.online == 0 && !offline {
                     counts.offline_blips.fetch_add(1, Ordering::Relaxed);
@@ -205,7 +205,6 @@ fn controller(bus: &Bus, stop: &AtomicBool, counts: &Counts) -> Result<(), Strin
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    refresher.stop().map_err(|e| e.to_string())?;
     c.release().map_err(|e| e.to_string())?;
     Ok(())
 }

@@ -18,6 +18,12 @@ pub trait Clock {
     fn sleep_until_precise(&mut self, t: Duration) {
         self.sleep_until(t);
     }
+
+    /// This clock's zero on `CLOCK_MONOTONIC` (zero for a clock that is not on it): what makes
+    /// a time of this clock a time stamp other processes read.
+    fn monotonic_origin(&self) -> Duration {
+        Duration::ZERO
+    }
 }
 
 /// How long before a precise deadline the monotonic clock stops sleeping and spins: a wake-up
@@ -78,6 +84,10 @@ impl Default for MonotonicClock {
 impl Clock for MonotonicClock {
     fn now(&self) -> Duration {
         monotonic().saturating_sub(self.origin)
+    }
+
+    fn monotonic_origin(&self) -> Duration {
+        self.origin
     }
 
     fn sleep_until(&mut self, t: Duration) {

@@ -13,11 +13,13 @@
 //!
 //! The latch holds until the controller re-arms the drive the PROFIdrive way: a valid sample
 //! with STW1 bit 0 = 0 and the jog bits 8 and 9 clear (OFF1, or OFF2/OFF3; a jog runs the
-//! motor) that arrives after the poll that follows the latch (so it was published after the
-//! drive's image showed the latch, not by a controller that could not know of it). That sample
-//! goes out and the drive is live again, so the controller's next ON reaches the drive. A frozen
-//! controller that resumes with ON, or a process that reconnects, never restarts a motor by
-//! itself. The latch lives here, in ussd; a client cannot clear it any other way.
+//! motor) that names the latch (`PzdOutput::latch_id` = the latch's [`Latch::id`], which the
+//! drive's input image publishes): so it was made after the image showed the latch, never by a
+//! controller that could not know of it (a stop republished by a refresher, one delivered late,
+//! one that crossed an operator's stop). That sample goes out and the drive is live again, so the
+//! controller's next ON reaches the drive. A frozen controller that resumes with ON, or a
+//! process that reconnects, never restarts a motor by itself. The latch lives here, in ussd; a
+//! client cannot clear it any other way.
 //!
 //! [`Gate::decide`] is a pure function of the gate's state and one poll's inputs (the newest
 //! sample, an operator command, whether ON is allowed, the time): no I/O, no allocation, so
@@ -45,6 +47,9 @@ pub struct Latch {
     pub since: Duration,
     /// The operator behind an override, or the controller whose sample caused the latch.
     pub by_pid: u32,
+    /// Which latch: `CLOCK_MONOTONIC` ns when it began, strictly greater than the drive's
+    /// earlier latch ids (never 0). A stop re-arms the drive only when it names this id.
+    pub id: u64,
 }
 
 /// The drive's control as published.
@@ -85,6 +90,9 @@ pub struct GateSetup {
     pub safe: StopCommand,
     /// A live controller that publishes nothing new for longer than this is stale.
     pub watchdog: Duration,
+    /// `CLOCK_MONOTONIC` at the bus clock's zero (zero on a virtual clock): latch ids are
+    /// `CLOCK_MONOTONIC` ns, so a restarted ussd never repeats an earlier one's.
+    pub clock_origin: Duration,
 }
 
 /// One poll's inputs.
@@ -105,9 +113,8 @@ pub struct Poll<'a> {
 pub struct Gate {
     setup: GateSetup,
     control: Control,
-    /// A latch was made at the last decision (or the gate is new): the next poll takes no re-arm,
-    /// since its sample may have been published before the drive's image showed the latch.
-    settling: bool,
+    /// The id of the latest latch (0 before the first).
+    last_id: u64,
     /// The live controller's latest valid words.
     words: [u16; MAX_PZD_WORDS],
     /// Sequence of the last sample taken: a repeat is not a refresh.
@@ -124,6 +131,7 @@ const STW1_ON: u16 = uss_shm_types::pzd::STW1_ON;
 impl Gate {
     /// A gate latched by ussd's start: the drive gets its safe command until a controller arms it.
     pub fn new(setup: GateSetup, now: Duration) -> Self {
+        let id = latch_id(&setup, now, 0);
         Self {
             setup,
             control: Control::Latched(Latch {
@@ -131,8 +139,9 @@ impl Gate {
                 command: setup.safe,
                 since: now,
                 by_pid: 0,
+                id,
             }),
-            settling: true,
+            last_id: id,
             words: [0; MAX_PZD_WORDS],
             last_sequence: None,
             refreshed_at: now,
@@ -178,12 +187,8 @@ impl Gate {
     /// what changed, if anything.
     pub fn decide(&mut self, poll: Poll<'_>, out: &mut [u16; MAX_PZD_WORDS]) -> Option<Transition> {
         let mut changed = None;
-        // The first poll after a latch takes no re-arm: its sample may have been published before
-        // the image that shows the latch (written after the latching poll's exchange), by a
-        // controller that could not know of it. A stop published after that poll re-arms.
-        let mut latched_now = core::mem::take(&mut self.settling);
-        // An operator's command comes first and is final for this poll: a sample that arrived
-        // with it cannot re-arm the drive (it may have been published before the command).
+        // An operator's command comes first: its latch has a new id, which a sample that arrived
+        // with it cannot name, so that sample cannot re-arm the drive.
         if let Some(op) = poll.operator.filter(|op| op.command != StopCommand::None) {
             self.counters.overrides += 1;
             changed = Some(self.latch_with(
@@ -193,7 +198,6 @@ impl Gate {
                 op.pid,
                 Rejection::None,
             ));
-            latched_now = true;
         }
         let sample = poll
             .sample
@@ -202,7 +206,7 @@ impl Gate {
             self.last_sequence = Some(sample.sequence);
             self.refreshed_at = poll.now;
             self.controller_pid = sample.controller_pid;
-            if let Some(t) = self.take(sample, poll, latched_now) {
+            if let Some(t) = self.take(sample, poll) {
                 changed = Some(t);
             }
         } else if self.control == Control::Live
@@ -233,12 +237,7 @@ impl Gate {
     }
 
     /// Takes a new sample.
-    fn take(
-        &mut self,
-        sample: &PzdOutput,
-        poll: Poll<'_>,
-        latched_now: bool,
-    ) -> Option<Transition> {
+    fn take(&mut self, sample: &PzdOutput, poll: Poll<'_>) -> Option<Transition> {
         let pid = sample.controller_pid;
         match sample.validate(self.setup.pzd) {
             Err(rejection) => {
@@ -287,7 +286,7 @@ impl Gate {
                         self.words = words;
                         None
                     }
-                    Control::Latched(_) if stop && !latched_now => {
+                    Control::Latched(latch) if stop && sample.latch_id == latch.id => {
                         self.words = words;
                         self.control = Control::Live;
                         Some(Transition::Rearmed { pid })
@@ -310,17 +309,35 @@ impl Gate {
             Control::Latched(l) if l.command.strength() > command.strength() => l.command,
             _ => command,
         };
+        let id = latch_id(&self.setup, now, self.last_id);
         let latch = Latch {
             reason,
             command,
             since: now,
             by_pid,
+            id,
         };
+        self.last_id = id;
         self.counters.latches += 1;
         self.control = Control::Latched(latch);
-        self.settling = true;
         Transition::Latched { latch, rejection }
     }
+}
+
+/// The id of `control`'s latch, 0 while live: the input image's `latch_id`.
+pub const fn latch_id_of(control: Control) -> u64 {
+    match control {
+        Control::Live => 0,
+        Control::Latched(l) => l.id,
+    }
+}
+
+/// The id of a latch made at bus time `now`, after one with id `last`.
+fn latch_id(setup: &GateSetup, now: Duration, last: u64) -> u64 {
+    let at = setup.clock_origin.saturating_add(now).as_nanos();
+    u64::try_from(at)
+        .unwrap_or(u64::MAX)
+        .max(last.saturating_add(1))
 }
 
 #[cfg(test)]
@@ -341,6 +358,7 @@ mod tests {
             pzd: 2,
             safe: StopCommand::Off1,
             watchdog: ms(100),
+            clock_origin: ms(5000),
         }
     }
 
@@ -361,7 +379,7 @@ mod tests {
     }
 
     impl Play {
-        /// A gate after ussd's start and its first poll (which takes no re-arm).
+        /// A gate after ussd's start and its first poll.
         fn new() -> Self {
             let mut p = Self {
                 gate: Gate::new(setup(), ms(0)),
@@ -407,11 +425,26 @@ mod tests {
             }
         }
 
-        /// A fresh sample with the next sequence number.
+        /// A fresh sample with the next sequence number from a controller that saw the image
+        /// as it is: it names the current latch.
         fn send(&mut self, t: u64, words: &[u16]) -> Step {
+            let seen = self.latch_id();
+            self.send_naming(t, words, seen)
+        }
+
+        /// A fresh sample naming latch `id` (an earlier one, or 0: none).
+        fn send_naming(&mut self, t: u64, words: &[u16], id: u64) -> Step {
             self.seq += 1;
-            let s = sample(self.seq, words);
+            let s = sample(self.seq, words).naming(id);
             self.poll(t, Some(s), None)
+        }
+
+        /// The current latch's id (0 while live).
+        fn latch_id(&self) -> u64 {
+            match self.gate.control() {
+                Control::Live => 0,
+                Control::Latched(l) => l.id,
+            }
         }
 
         fn reason(&self) -> Option<LatchReason> {
@@ -439,18 +472,20 @@ mod tests {
         p
     }
 
-    /// Overridden with OFF2 at 10 ms, and the poll after it.
-    fn coasted() -> Play {
-        let mut p = just_coasted();
-        p.poll(15, None, None);
-        p
-    }
-
     /// Overridden with OFF2 at 10 ms.
-    fn just_coasted() -> Play {
+    fn coasted() -> Play {
         let mut p = Play::running();
         p.poll(10, None, Some(StopCommand::Off2));
         p
+    }
+
+    /// Latched at start, then coasted by an operator at 10 ms: the start-up latch's id is an
+    /// earlier one.
+    fn coasted_at_start() -> (Play, u64) {
+        let mut p = Play::new();
+        let startup = p.latch_id();
+        p.poll(10, None, Some(StopCommand::Off2));
+        (p, startup)
     }
 
     /// `sample` published with the next sequence number and taken at `t`.
@@ -518,9 +553,13 @@ mod tests {
             ("stale, a release keeps the trip's reason", tripped, release, [READY, 0], Some(Stale)),
             ("coasted, operator OFF1: OFF2 stays", coasted, |p| p.poll(20, None, Some(StopCommand::Off1)), [COAST, 0], Some(Override)),
             ("coasted, ON: latched", coasted, |p| p.send(20, &[RUN, 0x2000]), [COAST, 0], Some(Override)),
-            ("coasted, OFF1 at a later poll re-arms", coasted, |p| p.send(20, &[READY, 0]), [READY, 0], None),
-            ("coasted, OFF1 at the first poll after it (published before its image): no re-arm", just_coasted, |p| p.send(20, &[READY, 0]), [COAST, 0], Some(Override)),
-            ("stale, OFF1 at the first poll after the trip: no re-arm", Play::running, |p| { p.poll(200, None, None); p.send(210, &[READY, 0]) }, [READY, 0], Some(Stale)),
+            ("coasted, OFF1 naming it re-arms", coasted, |p| p.send(20, &[READY, 0]), [READY, 0], None),
+            ("coasted, OFF1 naming it at the very next poll re-arms", coasted, |p| p.send(11, &[READY, 0]), [READY, 0], None),
+            ("coasted, OFF1 naming no latch (made while live, republished): no re-arm", coasted, |p| p.send_naming(20, &[READY, 0], 0), [COAST, 0], Some(Override)),
+            ("coasted at start, OFF1 naming the start-up latch: no re-arm", || coasted_at_start().0, |p| { let (_, startup) = coasted_at_start(); p.send_naming(20, &[READY, 0], startup) }, [COAST, 0], Some(Override)),
+            ("coasted, OFF1 naming a later id: no re-arm", coasted, |p| { let id = p.latch_id() + 1; p.send_naming(20, &[READY, 0], id) }, [COAST, 0], Some(Override)),
+            ("start, OFF1 naming no latch: no re-arm", Play::new, |p| p.send_naming(1, &[READY, 0], 0), [READY, 0], Some(Startup)),
+            ("stale, OFF1 naming no latch (the refresher's, before the trip): no re-arm", tripped, |p| p.send_naming(300, &[READY, 0], 0), [READY, 0], Some(Stale)),
             ("running, OFF1 with an override at the same poll: no re-arm", Play::running, |p| with(p, 10, &[READY, 0], Some(StopCommand::Off2), true), [COAST, 0], Some(Override)),
         ];
         for (name, start, event, words, reason) in cases {
@@ -546,7 +585,10 @@ mod tests {
         for t in (200..2000).step_by(20) {
             assert_eq!(p.send(t, &[RUN, 0x2000]).words, [READY, 0], "t = {t} ms");
         }
-        // The deliberate re-arm: OFF1, then ON.
+        // OFF1 naming no latch (the refresher's words from before the freeze): still latched.
+        assert_eq!(p.send_naming(1990, &[READY, 0], 0).change, None);
+        assert!(p.reason().is_some());
+        // The deliberate re-arm: OFF1 naming the trip, then ON.
         let step = p.send(2000, &[READY, 0]);
         assert_eq!(step.change, Some(Transition::Rearmed { pid: 42 }));
         assert_eq!(p.send(2020, &[RUN, 0x2000]).words, [RUN, 0x2000]);
@@ -592,9 +634,8 @@ mod tests {
         let (_, command, _) = latched(p.poll(30, None, Some(StopCommand::Off2)).change);
         assert_eq!(command, StopCommand::Off2);
         assert_eq!(p.gate.counters().overrides, 3);
-        // Re-armed (by an OFF1 after the poll that follows the latch), the next latch starts
-        // from the safe command again.
-        p.poll(35, None, None);
+        // Re-armed (by an OFF1 naming the latch), the next latch starts from the safe command
+        // again.
         p.send(40, &[READY, 0]);
         let (_, command, _) = latched(p.poll(200, None, None).change);
         assert_eq!(command, StopCommand::Off1);
@@ -620,6 +661,34 @@ mod tests {
             &mut out,
         );
         assert_eq!(out[..2], [COAST, 0]);
+    }
+
+    #[test]
+    fn every_latch_has_a_new_id_above_the_last_in_monotonic_ns() {
+        let mut p = Play::new();
+        let startup = p.latch_id();
+        assert_eq!(startup, 5_000_000_000, "the clock origin plus 0 ms");
+        // Two latches at the same bus time still get two ids.
+        let (_, first) = (p.poll(10, None, Some(StopCommand::Off1)), p.latch_id());
+        let _ = p.gate.latch(LatchReason::LineRestored, ms(10));
+        let second = p.latch_id();
+        assert_eq!(first, 5_010_000_000);
+        assert_eq!(second, first + 1);
+        let Some(Transition::Latched { latch, .. }) =
+            p.poll(20, None, Some(StopCommand::Off2)).change
+        else {
+            panic!("a stronger command is a new latch");
+        };
+        assert_eq!(latch.id, 5_020_000_000);
+        // A gate on a virtual clock at 0 still never uses id 0 ("no latch").
+        let gate = Gate::new(
+            GateSetup {
+                clock_origin: Duration::ZERO,
+                ..setup()
+            },
+            ms(0),
+        );
+        assert!(matches!(gate.control(), Control::Latched(l) if l.id == 1));
     }
 
     #[test]

@@ -10,7 +10,9 @@ impl EngineHandle {
     /// Publishes the PZD words the drive should get (STW1, setpoint, ...) as an in-process
     /// controller (an engine built with [`Engine::new`]). Every call refreshes the watchdog: a
     /// controller must publish at least once per watchdog time. Like every sample, it reaches
-    /// the drive only while the drive is live (see [`crate::engine::control`]).
+    /// the drive only while the drive is live (see [`crate::engine::control`]); it names the
+    /// latch the drive shows now, so a stop given here re-arms it (the caller sends it knowing
+    /// the drive's state: this is no refresher).
     pub fn set_output(&self, address: Address, words: &[u16]) -> Result<(), RequestError> {
         let slot = self.shared.slot(address)?;
         let allowed = self.shared.setups[slot].layout.pzd.get();
@@ -22,13 +24,14 @@ impl EngineHandle {
             });
         }
         let number = self.next_number(slot);
-        let sample = PzdOutput::from_words(words, number, 0, std::process::id()).map_err(|_| {
-            RequestError::PzdWords {
+        let shown = self.shared.images[slot].latch_id.load(Ordering::Acquire);
+        let sample = PzdOutput::from_words(words, number, 0, std::process::id())
+            .map_err(|_| RequestError::PzdWords {
                 address,
                 given: words.len(),
                 allowed,
-            }
-        })?;
+            })?
+            .naming(shown);
         self.shared.images[slot].output.put(sample);
         Ok(())
     }

@@ -104,6 +104,8 @@ pub struct DriveImages {
     pub input: WordCell,
     /// Whether the drive answers (cleared when it goes offline).
     pub online: AtomicBool,
+    /// The id of the drive's current latch, 0 while live (the input image's `latch_id`).
+    pub latch_id: AtomicU64,
     /// The newest sample of an in-process controller, until the bus thread takes it.
     pub output: SampleCell,
 }

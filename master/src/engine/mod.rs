@@ -25,7 +25,9 @@ use exchange::Attempt;
 mod handle;
 
 use crate::engine::clock::Clock;
-use crate::engine::control::{Control, Gate, GateSetup, Latch, Operator, Poll, Transition};
+use crate::engine::control::{
+    Control, Gate, GateSetup, Latch, Operator, Poll, Transition, latch_id_of,
+};
 use crate::engine::image::DriveImages;
 use crate::engine::jobs::{Encoded, Job, JobResult, Mailbox};
 use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
@@ -436,6 +438,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                     pzd: d.layout.pzd.get(),
                     safe: d.safe,
                     watchdog: d.watchdog,
+                    clock_origin: clock.monotonic_origin(),
                 };
                 Gate::new(setup, now)
             })
@@ -603,6 +606,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             let address = d.setup.address;
             let status = &mut self.stats.drives[slot];
             status.control = d.gate.control();
+            self.shared.images[slot]
+                .latch_id
+                .store(latch_id_of(status.control), Ordering::Release);
             stats::set_control(&mut status.counters, &d.gate.counters());
             if let Transition::Latched { latch, rejection } = change {
                 self.emit(Event::Latched {
@@ -867,6 +873,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             out,
         );
         status.control = d.gate.control();
+        self.shared.images[slot]
+            .latch_id
+            .store(latch_id_of(status.control), Ordering::Release);
         status.rejection = d.gate.rejection();
         status.controller_pid = d.gate.controller_pid();
         status.taken_sequence = d.gate.taken_sequence();

@@ -102,13 +102,13 @@ pub(crate) fn run_drive(
         }
     ));
 
-    let refresher = c.spawn_refresher(uss_client::DEFAULT_REFRESH);
     let start = Instant::now();
     let mut peak = 0.0f32;
     let mut last_note = Instant::now();
     let mut absence = Absence::default();
     let failure = loop {
-        let i = match c.check() {
+        // The loop's own call refreshes the drive: a stalled ussctl trips it, as a dead one.
+        let i = match c.keepalive().and_then(|()| c.check()) {
             Ok(i) => i,
             Err(
                 e @ (ClientError::UssdGone { .. }
@@ -116,12 +116,10 @@ pub(crate) fn run_drive(
                 | ClientError::LineDown { .. }),
             ) => {
                 // Nothing to stop through: the drive's own telegram monitoring stops it.
-                drop(refresher);
                 return Err(Failure::OfDrive { drive, source: e });
             }
             Err(ClientError::Tripped { latch, .. }) => {
                 // Latched by ussd: the drive gets its stop command; leave it so.
-                drop(refresher);
                 return Err(Failure::Tripped {
                     drive,
                     bus: bus.name().to_owned(),
@@ -153,11 +151,9 @@ pub(crate) fn run_drive(
         }
         std::thread::sleep(Duration::from_millis(10));
     };
-    let refresh_result = refresher.stop();
     // Stop whatever happened: OFF1, and make sure the drive received it before leaving it
     // to the watchdog (whose safe command is OFF1 by default too).
     let last = stop_confirmed(&c)?;
-    refresh_result?;
     if let Some(f) = failure {
         return Err(f);
     }

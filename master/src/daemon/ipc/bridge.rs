@@ -161,6 +161,7 @@ impl Bridge for RtBridge {
         image.latch_reason = c.reason.code();
         image.latch_command = c.command.code();
         image.latched_since_ns = c.since_ns;
+        image.latch_id = c.id;
         image.latched_by_pid = c.by_pid;
         image.latches = u32::try_from(status.counters.latches).unwrap_or(u32::MAX);
         image.rejection = status.rejection.code();

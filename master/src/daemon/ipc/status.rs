@@ -194,6 +194,8 @@ pub(super) struct ControlView {
     /// `CLOCK_MONOTONIC` ns of the latch (0 while live).
     pub(super) since_ns: u64,
     pub(super) by_pid: u32,
+    /// The latch's id (0 while live).
+    pub(super) id: u64,
 }
 
 impl ControlView {
@@ -205,6 +207,7 @@ impl ControlView {
                 command: StopCommand::None,
                 since_ns: 0,
                 by_pid: 0,
+                id: 0,
             },
             Control::Latched(l) => Self {
                 state: ControlState::Latched,
@@ -212,6 +215,7 @@ impl ControlView {
                 command: l.command,
                 since_ns: origin_ns.saturating_add(as_ns(l.since)),
                 by_pid: l.by_pid,
+                id: l.id,
             },
         }
     }

@@ -172,6 +172,11 @@ pub enum Failure {
     #[error("the bridge refused a sample: {0}")]
     SampleRefused(String),
     #[error(
+        "{drive}: this client's own loop made no call for {seconds:.3} s, longer than the \
+         drive's watchdog: that is a trip; it sends nothing more (a new run re-arms the drive)"
+    )]
+    Stalled { drive: String, seconds: f64 },
+    #[error(
         "no fresh image of {drive} for {seconds:.2} s: giving up, sending nothing more (the \
          drive's watchdog stops it)"
     )]

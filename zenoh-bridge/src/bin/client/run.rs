@@ -1,12 +1,18 @@
 //! `uss-zenoh-client run`: a remote controller of one drive through a bridge that allows remote
 //! control. OFF1 until the drive is re-armed, ON every period, OFF1 and a release at the end.
-//! It gives up, sending nothing more, when the drive latches or its images stop coming: only a
-//! new run re-arms the drive.
+//! What it sends is decided by the client rules every controller runs on
+//! (`uss_shm_types::session`), fed with the drive's images as the bridge publishes them: every
+//! sample names the latch this client acknowledged (`rearm`). It gives up, sending nothing more,
+//! when the drive latches, its own loop stalled past the drive's watchdog time, or the images
+//! stop coming: only a new run re-arms the drive.
 
 use core::time::Duration;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
+use uss_client::uss_shm_types::{
+    ControlState, PzdInput, PzdOutput, Session, SessionError, SessionSetup, Step,
+};
 use zenoh::Wait;
 use zenoh::bytes::Encoding;
 use zenoh::handlers::FifoChannelHandler;
@@ -23,7 +29,10 @@ const BLIND_AFTER: Duration = Duration::from_secs(1);
 pub const ARM_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long the drive may take to ramp down at the end.
 const STOP_TIMEOUT: Duration = Duration::from_secs(30);
-const OFF1: &str = r#""stw1":1150,"hz":0.0"#;
+/// STW1 of the run: ON with everything enabled.
+const RUN: u16 = 0x047F;
+/// The drive's watchdog when its image does not say.
+const DEFAULT_WATCHDOG_MS: u64 = 100;
 
 /// The remote controller and what it sees of the drive: the latest image and the bridge's
 /// latest control report.
@@ -39,9 +48,37 @@ struct Remote<'a> {
     image: Option<serde_json::Value>,
     seen_at: Instant,
     report: Option<serde_json::Value>,
+    /// The client rules, once the first image said the drive's PZD length and watchdog.
+    session: Option<Session>,
+    hz: f32,
+}
+
+/// The part of an image the client rules look at: live or latched, and which latch.
+fn input_of(image: &serde_json::Value) -> PzdInput {
+    let state = if image["control"] == "live" {
+        ControlState::Live
+    } else {
+        ControlState::Latched
+    };
+    PzdInput {
+        control: state.code(),
+        latch_id: image["latch_id"].as_u64().unwrap_or(0),
+        ..PzdInput::EMPTY
+    }
 }
 
 impl Remote<'_> {
+    /// Sends a sample the session made: its STW1, the run's Hz (0 for a stop) and the latch it
+    /// names.
+    fn send_sample(&mut self, sample: &PzdOutput) -> Result<(), Failure> {
+        let hz = if sample.stw1 == RUN { self.hz } else { 0.0 };
+        let body = match sample.latch_id {
+            0 => format!("\"stw1\":{},\"hz\":{hz:?}", sample.stw1),
+            id => format!("\"stw1\":{},\"hz\":{hz:?},\"rearm\":{id}", sample.stw1),
+        };
+        self.send(&body)
+    }
+
     fn send(&mut self, body: &str) -> Result<(), Failure> {
         self.seq += 1;
         self.publisher
@@ -56,12 +93,61 @@ impl Remote<'_> {
             })
     }
 
-    /// Sends `body`, waits a period, and takes in what arrived meanwhile.
-    fn step(&mut self, body: &str) -> Result<(), Failure> {
-        self.send(body)?;
+    /// One call of this controller: the session's decision on `stw1` for the drive as its
+    /// latest image shows it; a sample it makes is sent; then a period's wait and what arrived
+    /// meanwhile. An ON while the re-arming stop is out sends the stop again.
+    fn step(&mut self, stw1: u16) -> Result<(), SessionError> {
+        let image = self.image.as_ref().map(input_of).unwrap_or_default();
+        let now = uss_client::monotonic_ns();
+        let Some(session) = self.session.as_mut() else {
+            return Ok(());
+        };
+        let sample = match session.publish(now, &image, |w| w.words[0] = stw1)? {
+            Step::Publish(sample) => Some(sample),
+            Step::AwaitRearm => match session.publish(now, &image, |_| {})? {
+                Step::Publish(stop) => Some(stop),
+                Step::AwaitRearm => None,
+            },
+        };
+        if let Some(sample) = sample
+            && let Err(e) = self.send_sample(&sample)
+        {
+            let _ = say(&format!("{}: {e}", self.drive));
+        }
         std::thread::sleep(self.period);
         self.look();
         Ok(())
+    }
+
+    /// The session, made from the first image: the drive's PZD length and watchdog time.
+    fn start_session(&mut self) {
+        let Some(image) = self.image.as_ref() else {
+            return;
+        };
+        let pzd = 2 + image["words"].as_array().map_or(0, Vec::len);
+        let watchdog_ms = image["watchdog_ms"].as_u64().unwrap_or(DEFAULT_WATCHDOG_MS);
+        let setup = SessionSetup {
+            pzd,
+            pid: std::process::id(),
+            watchdog_ns: watchdog_ms.saturating_mul(1_000_000),
+            first_sequence: 0,
+        };
+        self.session = Some(Session::new(setup, &input_of(image)));
+    }
+
+    /// The failure a session's refusal ends the run with.
+    fn failure(&self, e: SessionError, since: Instant) -> Failure {
+        match e {
+            SessionError::Stalled { gap_ns, .. } => Failure::Stalled {
+                drive: self.drive.to_owned(),
+                seconds: gap_ns as f64 / 1e9,
+            },
+            _ => Failure::Latched {
+                drive: self.drive.to_owned(),
+                seconds: since.elapsed().as_secs_f64(),
+                reason: self.field("latch_reason").to_owned(),
+            },
+        }
     }
 
     fn look(&mut self) {
@@ -121,9 +207,11 @@ impl Remote<'_> {
     }
 
     /// OFF1 until the drive is live (ussd took the OFF1). A latched drive's OFF1 names the
-    /// latch its image shows: nothing is sent before an image was seen.
+    /// latch its image shows (the session's re-arm): nothing is sent before an image was seen,
+    /// and a latch that comes during the re-arm ends it.
     fn arm(&mut self, stop: &AtomicBool) -> Result<(), Failure> {
-        let deadline = Instant::now() + ARM_TIMEOUT;
+        let start = Instant::now();
+        let deadline = start + ARM_TIMEOUT;
         while self.image.is_none() {
             if Instant::now() >= deadline {
                 return Err(Failure::NoImage {
@@ -133,15 +221,22 @@ impl Remote<'_> {
             std::thread::sleep(self.period);
             self.look();
         }
+        self.start_session();
+        let image = self.image.as_ref().map(input_of).unwrap_or_default();
+        if let Some(session) = self.session.as_mut() {
+            let sample = session
+                .rearm(uss_client::monotonic_ns(), &image)
+                .map_err(|e| Failure::ArmRefused(e.to_string()))?;
+            self.send_sample(&sample)?;
+        }
         loop {
-            let latch = self
-                .image
-                .as_ref()
-                .filter(|i| i["control"] == "latched")
-                .and_then(|i| i["latch_id"].as_u64());
-            match latch {
-                Some(id) => self.step(&format!("{OFF1},\"rearm\":{id}"))?,
-                None => self.step(OFF1)?,
+            std::thread::sleep(self.period);
+            self.look();
+            let image = self.image.as_ref().map(input_of).unwrap_or_default();
+            if let Some(session) = self.session.as_mut() {
+                session
+                    .rearmed(&image)
+                    .map_err(|e| Failure::ArmRefused(e.to_string()))?;
             }
             let refused = self.refusal();
             if let Some(why) = refused.as_ref().filter(|_| !self.held_by_another()) {
@@ -163,6 +258,8 @@ impl Remote<'_> {
                     latch: self.field("latch_reason").to_owned(),
                 });
             }
+            // The re-arming stop again, until the bridge holds the drive for this client.
+            self.step(0x047E).map_err(|e| self.failure(e, start))?;
         }
     }
 
@@ -176,9 +273,9 @@ impl Remote<'_> {
     ) -> Result<(), Failure> {
         let start = Instant::now();
         let mut last_note = start;
-        let on = format!(r#""stw1":1151,"hz":{hz}"#);
+        self.hz = hz;
         loop {
-            self.step(&on)?;
+            self.step(RUN).map_err(|e| self.failure(e, start))?;
             if !self.live() && self.field("control") == "latched" {
                 return Err(Failure::Latched {
                     drive: self.drive.to_owned(),
@@ -211,12 +308,16 @@ impl Remote<'_> {
 
     /// OFF1 along the ramp until the drive is back in S2, then the release; how it ended.
     fn wind_down(&mut self) -> Result<&'static str, Failure> {
-        let deadline = Instant::now() + STOP_TIMEOUT;
+        let start = Instant::now();
+        let deadline = start + STOP_TIMEOUT;
         while self.field("state") != "S2" && Instant::now() < deadline {
-            self.step(OFF1)?;
+            self.step(0x047E).map_err(|e| self.failure(e, start))?;
             if !self.live() || self.seen_at.elapsed() > BLIND_AFTER {
                 break;
             }
+        }
+        if let Some(session) = self.session.as_mut() {
+            session.release(uss_client::monotonic_ns());
         }
         self.send(r#""release":true"#)?;
         // The bridge says when it handed the drive back.
@@ -276,6 +377,8 @@ pub fn run(
         image: None,
         seen_at: Instant::now(),
         report: None,
+        session: None,
+        hz: 0.0,
     };
     remote.arm(&stop)?;
     let _ = say(&format!(

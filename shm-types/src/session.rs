@@ -1,0 +1,376 @@
+//! The rules a controller follows, written once: [`Session`] decides, from the drive's input
+//! image and the time, what a controller publishes and which error its call gets. It does no
+//! I/O (no clock, no shared memory, no allocation), so it is tested as a table, and every
+//! controller is thin I/O around it: the Rust `uss_client::Controller` (and through it the C
+//! ABI, the Python module and the `LinuxCNC` component), the Zenoh bridge and the Zenoh client.
+//!
+//! The rules (docs/ARCHITECTURE.md, "Failure model"; ussd's side is `uss_master`'s `Gate`):
+//! - **Latch identity.** The input image names the drive's current latch (`latch_id`). Every
+//!   sample names the latch this controller acknowledged; ussd re-arms a latched drive only
+//!   with a stop that names its current latch. A latch the controller did not acknowledge is
+//!   news: every call fails with [`SessionError::Tripped`] and nothing is published, by a
+//!   refresher neither, until [`Session::rearm`] acknowledges it.
+//! - **Re-arm: a stop, then ON.** [`Session::rearm`] acknowledges the latch the image shows and
+//!   publishes OFF1 naming it (every other word 0); [`Session::rearmed`] says when ussd took it.
+//!   An ON asked of a latched drive waits for that ([`Step::AwaitRearm`]) when a re-arming stop
+//!   is out, and fails with [`SessionError::NotArmed`] when none is. A controller that opens a
+//!   drive acknowledges the latch it shows then (its first stop re-arms it).
+//! - **The watchdog watches the program.** Only the program's own calls refresh the drive:
+//!   [`Session::refresh`] (for a background refresher kept for tools) publishes only while the
+//!   program called within the drive's watchdog time, and a call that comes after a longer gap
+//!   (a paused process, a stalled thread) is a trip, not a fresh start: it fails with
+//!   [`SessionError::Stalled`] and every ON does until [`Session::rearm`]. A stop is always
+//!   published: a safe command is sendable whatever happened.
+//! - **Every sample is one ussd takes:** the drive's PZD length, STW1 bit 10, a new sequence
+//!   number; words ussd would refuse fail with [`SessionError::Invalid`] before they are sent.
+//! - **Release** hands the drive back; nothing is published after it.
+//!
+//! What ussd's heartbeat says (gone, stopped, line down, a new generation) is the I/O layer's:
+//! a restarted ussd latches every drive with a new id, which is news here.
+
+use crate::control::Rejection;
+use crate::pzd::{MAX_PZD_WORDS, PzdInput, PzdOutput, is_stop};
+
+/// STW1 of the re-arming stop: OFF1 with everything else enabled (0x047E).
+pub const REARM_STW1: u16 = 0x047E;
+
+/// What a session needs to know of its drive and controller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SessionSetup {
+    /// PZD words the drive exchanges (P2012); every sample carries exactly these.
+    pub pzd: usize,
+    /// The controlling process (written into every sample).
+    pub pid: u32,
+    /// The drive's watchdog time (`DriveInfo::watchdog_ms`), ns: the longest gap between the
+    /// program's calls.
+    pub watchdog_ns: u64,
+    /// The sequence number before the first sample: a clock-based start, so a new controller
+    /// never repeats its predecessor's last number (ussd takes a sample only when it changes).
+    pub first_sequence: u64,
+}
+
+/// The words a controller sends: STW1 first, `count` of them in use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Words {
+    pub words: [u16; MAX_PZD_WORDS],
+    pub count: usize,
+}
+
+impl Words {
+    /// The words in use.
+    pub fn as_slice(&self) -> &[u16] {
+        &self.words[..self.count.min(MAX_PZD_WORDS)]
+    }
+
+    /// STW1.
+    pub const fn stw1(&self) -> u16 {
+        self.words[0]
+    }
+}
+
+/// What the I/O layer does after a call.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Step {
+    /// Publish this sample.
+    Publish(PzdOutput),
+    /// An ON while the re-arming stop is out and ussd has not shown the drive live yet: wait
+    /// for the next image and make the same call again (nothing was changed).
+    AwaitRearm,
+}
+
+/// Why a call publishes nothing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum SessionError {
+    /// The image shows a latch this controller has not acknowledged (a trip, an operator's
+    /// stop, a restarted ussd): re-arm it ([`Session::rearm`]).
+    #[error("the drive latched (latch {latch_id}): re-arm it (OFF1, then ON)")]
+    Tripped { latch_id: u64 },
+    /// An ON for a latched drive that no re-arming stop of this controller has been sent to.
+    #[error("the drive is latched (latch {latch_id}): send OFF1 first, then ON")]
+    NotArmed { latch_id: u64 },
+    /// The program made no call for longer than the drive's watchdog time: a trip.
+    #[error(
+        "no call for {:.3} s, longer than the drive's watchdog ({:.3} s): a trip; re-arm it (OFF1, then ON)",
+        *gap_ns as f64 / 1e9, *watchdog_ns as f64 / 1e9
+    )]
+    Stalled { gap_ns: u64, watchdog_ns: u64 },
+    /// Words ussd would refuse and latch the drive for; nothing was sent.
+    #[error("ussd would refuse these words ({0}); nothing was sent")]
+    Invalid(Rejection),
+    /// A relay named a latch the drive does not show now (an old one, or none).
+    #[error("latch {named} is not the drive's current latch ({shown}): nothing was re-armed")]
+    NotTheLatch { named: u64, shown: u64 },
+    /// The controller handed the drive back.
+    #[error("this controller released the drive")]
+    Released,
+}
+
+/// The client side of one drive's control. See the module documentation.
+#[derive(Debug, Clone)]
+pub struct Session {
+    setup: SessionSetup,
+    words: Words,
+    sequence: u64,
+    /// The latch this controller acknowledged (named in every sample); 0 = none.
+    acknowledged: u64,
+    /// A stop naming `acknowledged` went out while the drive showed that latch.
+    rearming: bool,
+    /// When the program last called (`None` before its first call).
+    last_call_ns: Option<u64>,
+    /// The gap that tripped this session, until a re-arm.
+    stalled: Option<u64>,
+    released: bool,
+}
+
+impl Session {
+    /// A controller that opened the drive when it showed `image`: it sends OFF1 (every other
+    /// word 0) and acknowledges the latch the image shows.
+    pub fn new(setup: SessionSetup, image: &PzdInput) -> Self {
+        Self {
+            setup,
+            words: stop_words(setup.pzd),
+            sequence: setup.first_sequence,
+            acknowledged: image.latch().unwrap_or(0),
+            rearming: false,
+            last_call_ns: None,
+            stalled: None,
+            released: false,
+        }
+    }
+
+    /// A relay of a remote controller (the Zenoh bridge): it acknowledges no latch until the
+    /// remote controller names one ([`Session::acknowledge`]).
+    pub fn relay(setup: SessionSetup) -> Self {
+        Self::new(
+            setup,
+            &PzdInput {
+                control: crate::control::ControlState::Live.code(),
+                ..PzdInput::EMPTY
+            },
+        )
+    }
+
+    /// The words this controller sends.
+    pub const fn words(&self) -> &Words {
+        &self.words
+    }
+
+    /// The sequence number of the last sample.
+    pub const fn sequence(&self) -> u64 {
+        self.sequence
+    }
+
+    /// The latch this controller acknowledged (0: none).
+    pub const fn acknowledged(&self) -> u64 {
+        self.acknowledged
+    }
+
+    /// The drive's PZD length.
+    pub const fn pzd(&self) -> usize {
+        self.setup.pzd
+    }
+
+    /// Whether a call at `now_ns` may go on, and what `image` means for it: released, stalled
+    /// (with ON), a latch not acknowledged. For programs that read more than they write; it is
+    /// no call that keeps the drive refreshed.
+    pub fn check(&self, now_ns: u64, image: &PzdInput) -> Result<(), SessionError> {
+        if self.released {
+            return Err(SessionError::Released);
+        }
+        self.news(image)?;
+        match (self.stalled, self.gap(now_ns)) {
+            (Some(gap_ns), _) | (None, Some(gap_ns)) => Err(self.stall(gap_ns)),
+            (None, None) => Ok(()),
+        }
+    }
+
+    /// A call of the program at `now_ns` that changes the words with `change` (or only
+    /// refreshes them); `image` is the drive's latest input image.
+    pub fn publish(
+        &mut self,
+        now_ns: u64,
+        image: &PzdInput,
+        change: impl FnOnce(&mut Words),
+    ) -> Result<Step, SessionError> {
+        if self.released {
+            return Err(SessionError::Released);
+        }
+        if let Some(gap_ns) = self.gap(now_ns) {
+            self.stalled = Some(gap_ns);
+        }
+        self.last_call_ns = Some(now_ns);
+        self.news(image)?;
+        let mut next = self.words;
+        change(&mut next);
+        let sample = self.sample(now_ns, &next)?;
+        let on = self.setup.pzd > 0 && !is_stop(next.stw1());
+        if let Some(gap_ns) = self.stalled.filter(|_| on) {
+            return Err(self.stall(gap_ns));
+        }
+        match image.latch() {
+            Some(latch_id) if on => {
+                if self.rearming {
+                    Ok(Step::AwaitRearm)
+                } else {
+                    Err(SessionError::NotArmed { latch_id })
+                }
+            }
+            latch => {
+                // A stop while latched re-arms the drive (it names the acknowledged latch).
+                self.rearming = latch.is_some();
+                Ok(Step::Publish(self.commit(next, sample)))
+            }
+        }
+    }
+
+    /// What a background refresher publishes at `now_ns`: the current words again, only while
+    /// the program called within the watchdog time and the drive shows no news; `None` else.
+    pub fn refresh(&mut self, now_ns: u64, image: &PzdInput) -> Option<PzdOutput> {
+        let fed = self.last_call_ns.is_some() && self.gap(now_ns).is_none();
+        if self.released || self.stalled.is_some() || !fed || self.news(image).is_err() {
+            return None;
+        }
+        // A latched drive gets only the re-arming stop again, never an ON.
+        let on = self.setup.pzd > 0 && !is_stop(self.words.stw1());
+        if on && image.latch().is_some() {
+            return None;
+        }
+        let words = self.words;
+        let sample = self.sample(now_ns, &words).ok()?;
+        self.sequence = sample.sequence;
+        Some(sample)
+    }
+
+    /// Acknowledges the latch `image` shows (if any) and re-arms: OFF1 naming it, every other
+    /// word 0. Clears a stall. Wait with [`Session::rearmed`] before an ON.
+    pub fn rearm(&mut self, now_ns: u64, image: &PzdInput) -> Result<PzdOutput, SessionError> {
+        if self.released {
+            return Err(SessionError::Released);
+        }
+        if let Some(latch_id) = image.latch() {
+            self.acknowledged = latch_id;
+        }
+        self.stalled = None;
+        self.last_call_ns = Some(now_ns);
+        let next = stop_words(self.setup.pzd);
+        let sample = self.sample(now_ns, &next)?;
+        self.rearming = image.latch().is_some();
+        Ok(self.commit(next, sample))
+    }
+
+    /// For a relay (the Zenoh bridge): acknowledges latch `named`, which the remote controller
+    /// names in its sample at `now_ns`, only when `image` shows it as the drive's current latch.
+    /// Like a local [`Session::rearm`] it clears a stall and counts as a call; the relay's stop
+    /// then re-arms the drive.
+    pub fn acknowledge(
+        &mut self,
+        now_ns: u64,
+        image: &PzdInput,
+        named: u64,
+    ) -> Result<(), SessionError> {
+        if self.released {
+            return Err(SessionError::Released);
+        }
+        match image.latch() {
+            Some(shown) if shown == named => {
+                if self.acknowledged != named {
+                    self.acknowledged = named;
+                    self.rearming = false;
+                }
+                self.stalled = None;
+                self.last_call_ns = Some(now_ns);
+                Ok(())
+            }
+            shown => Err(SessionError::NotTheLatch {
+                named,
+                shown: shown.unwrap_or(0),
+            }),
+        }
+    }
+
+    /// Whether the re-arm is done: `Ok(true)` once `image` shows the drive live, `Ok(false)`
+    /// while it still shows the acknowledged latch, [`SessionError::Tripped`] for a new latch.
+    pub fn rearmed(&mut self, image: &PzdInput) -> Result<bool, SessionError> {
+        self.news(image)?;
+        let live = image.is_live();
+        if live {
+            self.rearming = false;
+        }
+        Ok(live)
+    }
+
+    /// The release sample at `now_ns`; the session publishes nothing after it.
+    pub fn release(&mut self, now_ns: u64) -> PzdOutput {
+        self.released = true;
+        self.sequence = next(self.sequence);
+        PzdOutput::release(self.sequence, now_ns, self.setup.pid).naming(self.acknowledged)
+    }
+
+    /// Whether this session has released the drive.
+    pub const fn is_released(&self) -> bool {
+        self.released
+    }
+
+    fn news(&self, image: &PzdInput) -> Result<(), SessionError> {
+        match image.latch() {
+            Some(latch_id) if latch_id != self.acknowledged => {
+                Err(SessionError::Tripped { latch_id })
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The gap since the program's last call, when it is longer than the watchdog time.
+    fn gap(&self, now_ns: u64) -> Option<u64> {
+        let gap = now_ns.saturating_sub(self.last_call_ns?);
+        (gap > self.setup.watchdog_ns).then_some(gap)
+    }
+
+    const fn stall(&self, gap_ns: u64) -> SessionError {
+        SessionError::Stalled {
+            gap_ns,
+            watchdog_ns: self.setup.watchdog_ns,
+        }
+    }
+
+    /// The sample `words` make with the next sequence number, as ussd would check it.
+    fn sample(&self, now_ns: u64, words: &Words) -> Result<PzdOutput, SessionError> {
+        let sample = PzdOutput::from_words(
+            words.as_slice(),
+            next(self.sequence),
+            now_ns,
+            self.setup.pid,
+        )
+        .map_err(|_| SessionError::Invalid(Rejection::WordCount))?
+        .naming(self.acknowledged);
+        sample
+            .validate(self.setup.pzd)
+            .map_err(SessionError::Invalid)?;
+        Ok(sample)
+    }
+
+    fn commit(&mut self, words: Words, sample: PzdOutput) -> PzdOutput {
+        self.words = words;
+        self.sequence = sample.sequence;
+        sample
+    }
+}
+
+/// OFF1 and every other of `pzd` words 0: nothing of the words before a latch (a setpoint,
+/// STW2, a second setpoint) goes out again with a re-arm.
+fn stop_words(pzd: usize) -> Words {
+    let mut words = [0; MAX_PZD_WORDS];
+    words[0] = REARM_STW1;
+    Words {
+        words,
+        count: pzd.min(MAX_PZD_WORDS),
+    }
+}
+
+const fn next(sequence: u64) -> u64 {
+    let n = sequence.wrapping_add(1);
+    if n == 0 { 1 } else { n }
+}
+
+#[cfg(test)]
+mod tests;

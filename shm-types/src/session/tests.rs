@@ -1,0 +1,325 @@
+//! The session's rules as a table: a state, a call, what is published or which error.
+#![allow(clippy::unwrap_used)]
+
+use super::*;
+use crate::control::{ControlState, LatchReason};
+
+const READY: u16 = 0x047E;
+const RUN: u16 = 0x047F;
+const COAST: u16 = 0x047C;
+const MS: u64 = 1_000_000;
+const WATCHDOG: u64 = 100 * MS;
+/// The start-up latch, an operator's coast after it, and one more.
+const L1: u64 = 1_000;
+const L2: u64 = 2_000;
+const L3: u64 = 3_000;
+
+fn live() -> PzdInput {
+    PzdInput {
+        control: ControlState::Live.code(),
+        latch_reason: LatchReason::None.code(),
+        latch_id: 0,
+        ..PzdInput::EMPTY
+    }
+}
+
+fn latched(id: u64) -> PzdInput {
+    PzdInput {
+        control: ControlState::Latched.code(),
+        latch_reason: LatchReason::Override.code(),
+        latch_id: id,
+        ..PzdInput::EMPTY
+    }
+}
+
+/// A session and the image and time it sees.
+struct Play {
+    s: Session,
+    image: PzdInput,
+    now: u64,
+}
+
+/// What a call came to, in the table's terms.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Out {
+    /// Published: STW1 and the latch it names.
+    Sent(u16, u64),
+    Await,
+    Nothing,
+    Err(SessionError),
+}
+
+fn out(r: Result<Step, SessionError>) -> Out {
+    match r {
+        Ok(Step::Publish(s)) => Out::Sent(s.stw1, s.latch_id),
+        Ok(Step::AwaitRearm) => Out::Await,
+        Err(e) => Out::Err(e),
+    }
+}
+
+impl Play {
+    /// A controller that opened the drive latched at start (L1) at t = 0.
+    fn opened() -> Self {
+        let setup = SessionSetup {
+            pzd: 2,
+            pid: 7,
+            watchdog_ns: WATCHDOG,
+            first_sequence: 500,
+        };
+        Self {
+            s: Session::new(setup, &latched(L1)),
+            image: latched(L1),
+            now: 0,
+        }
+    }
+
+    /// Re-armed (its OFF1 taken, the image live) and running: ON at 10 ms.
+    fn running() -> Self {
+        let mut p = Self::opened();
+        assert_eq!(p.stw1(READY), Out::Sent(READY, L1));
+        p.image = live();
+        p.at(10);
+        assert_eq!(p.run(), Out::Sent(RUN, L1));
+        p
+    }
+
+    fn at(&mut self, ms: u64) -> &mut Self {
+        self.now = ms * MS;
+        self
+    }
+
+    fn show(&mut self, image: PzdInput) -> &mut Self {
+        self.image = image;
+        self
+    }
+
+    fn call(&mut self, change: impl FnOnce(&mut Words)) -> Out {
+        out(self.s.publish(self.now, &self.image, change))
+    }
+
+    fn stw1(&mut self, stw1: u16) -> Out {
+        self.call(|w| w.words[0] = stw1)
+    }
+
+    fn run(&mut self) -> Out {
+        self.call(|w| {
+            w.words[0] = RUN;
+            w.words[1] = 0x2000;
+        })
+    }
+
+    fn refresh(&mut self) -> Out {
+        self.s
+            .refresh(self.now, &self.image)
+            .map_or(Out::Nothing, |s| Out::Sent(s.stw1, s.latch_id))
+    }
+
+    fn rearm(&mut self) -> Out {
+        self.s
+            .rearm(self.now, &self.image)
+            .map_or_else(Out::Err, |s| Out::Sent(s.stw1, s.latch_id))
+    }
+}
+
+/// Running, then the controller's own OFF1 at 20 ms, then an operator's coast (L2) shown at
+/// 30 ms: issue 20's sequence.
+fn stopped_then_coasted() -> Play {
+    let mut p = Play::running();
+    p.at(20);
+    assert_eq!(p.stw1(READY), Out::Sent(READY, L1));
+    p.at(30).show(latched(L2));
+    p
+}
+
+fn tripped(latch_id: u64) -> Out {
+    Out::Err(SessionError::Tripped { latch_id })
+}
+
+fn stalled(gap_ms: u64) -> Out {
+    Out::Err(SessionError::Stalled {
+        gap_ns: gap_ms * MS,
+        watchdog_ns: WATCHDOG,
+    })
+}
+
+#[rustfmt::skip]
+#[test]
+fn decision_table() {
+    type Case = (&'static str, fn() -> Play, fn(&mut Play) -> Out, Out);
+    let cases: &[Case] = &[
+        // Opened while latched at ussd's start (L1).
+        ("opened: OFF1 re-arms, naming the latch it saw", Play::opened, |p| p.stw1(READY), Out::Sent(READY, L1)),
+        ("opened: OFF2 re-arms too", Play::opened, |p| p.stw1(COAST), Out::Sent(COAST, L1)),
+        ("opened: ON before any stop is not armed", Play::opened, Play::run, Out::Err(SessionError::NotArmed { latch_id: L1 })),
+        ("opened: jog before any stop is not armed", Play::opened, |p| p.stw1(READY | 0x0100), Out::Err(SessionError::NotArmed { latch_id: L1 })),
+        ("opened: ON after its OFF1, before ussd took it, waits", Play::opened, |p| { p.stw1(READY); p.run() }, Out::Await),
+        ("opened: ON once the image is live goes out", Play::opened, |p| { p.stw1(READY); p.show(live()).run() }, Out::Sent(RUN, L1)),
+        ("opened: a new latch before the re-arm is news", Play::opened, |p| { p.stw1(READY); p.show(latched(L2)).run() }, tripped(L2)),
+        ("opened: bit 10 clear is refused before the wire", Play::opened, |p| p.stw1(0x007E), Out::Err(SessionError::Invalid(Rejection::NoPlcControl))),
+        ("opened: three words for two are refused", Play::opened, |p| p.call(|w| w.count = 3), Out::Err(SessionError::Invalid(Rejection::WordCount))),
+        ("opened: no refresh before the program's first call", Play::opened, Play::refresh, Out::Nothing),
+        ("opened: the refresher repeats the re-arming OFF1", Play::opened, |p| { p.stw1(READY); p.at(20).refresh() }, Out::Sent(READY, L1)),
+        // Live and running.
+        ("running: ON again", Play::running, |p| p.at(30).run(), Out::Sent(RUN, L1)),
+        ("running: a refresh 90 ms after the last call", Play::running, |p| p.at(100).refresh(), Out::Sent(RUN, L1)),
+        ("running: no refresh 101 ms after the last call (the program stalled)", Play::running, |p| p.at(111).refresh(), Out::Nothing),
+        ("running: a call 150 ms after the last is a trip", Play::running, |p| p.at(160).run(), stalled(150)),
+        ("running: after a gap, a stop still goes out", Play::running, |p| p.at(160).stw1(READY), Out::Sent(READY, L1)),
+        ("running: after a gap, ON fails until a re-arm", Play::running, |p| { p.at(160).stw1(READY); p.at(170).run() }, stalled(150)),
+        ("running: after a gap the refresher sends nothing", Play::running, |p| { p.at(160).stw1(READY); p.at(170).refresh() }, Out::Nothing),
+        ("running: after a gap, re-armed, ON goes out", Play::running, |p| { p.at(160).run(); p.at(170).rearm(); p.at(180).run() }, Out::Sent(RUN, L1)),
+        ("running: an operator's coast (L2) is news for ON", Play::running, |p| p.at(20).show(latched(L2)).run(), tripped(L2)),
+        ("running: ... and for a stop", Play::running, |p| p.at(20).show(latched(L2)).stw1(READY), tripped(L2)),
+        ("running: ... and the refresher sends nothing", Play::running, |p| p.at(20).show(latched(L2)).refresh(), Out::Nothing),
+        ("running: re-arm names the new latch", Play::running, |p| p.at(20).show(latched(L2)).rearm(), Out::Sent(READY, L2)),
+        ("running: released, a call fails", Play::running, |p| { p.s.release(p.now); p.run() }, Out::Err(SessionError::Released)),
+        ("running: released, nothing is refreshed", Play::running, |p| { p.s.release(p.now); p.refresh() }, Out::Nothing),
+        ("running: released, no re-arm", Play::running, |p| { p.s.release(p.now); p.rearm() }, Out::Err(SessionError::Released)),
+        // Issue 20: the controller's own OFF1, then an operator's coast.
+        ("own OFF1 then a coast: the refresher does not re-arm it", stopped_then_coasted, Play::refresh, Out::Nothing),
+        ("own OFF1 then a coast: ON is news", stopped_then_coasted, Play::run, tripped(L2)),
+        ("own OFF1 then a coast: re-armed, ON waits for ussd", stopped_then_coasted, |p| { p.rearm(); p.run() }, Out::Await),
+        ("own OFF1 then a coast: re-armed and live, ON goes out", stopped_then_coasted, |p| { p.rearm(); p.show(live()).run() }, Out::Sent(RUN, L2)),
+        ("own OFF1 then a coast, then a third latch during the re-arm: news", stopped_then_coasted, |p| { p.rearm(); p.show(latched(L3)).refresh() }, Out::Nothing),
+    ];
+    for (name, start, event, expected) in cases {
+        let mut p = start();
+        assert_eq!(event(&mut p), *expected, "{name}");
+    }
+}
+
+#[test]
+fn a_relay_re_arms_only_the_latch_the_drive_shows() {
+    let mut p = Play::running();
+    p.at(20).show(latched(L2));
+    // The remote controller names L1 (the latch it saw before): not the drive's latch now.
+    assert_eq!(
+        p.s.acknowledge(p.now, &p.image, L1),
+        Err(SessionError::NotTheLatch {
+            named: L1,
+            shown: L2
+        })
+    );
+    assert_eq!(p.stw1(READY), tripped(L2));
+    // Naming L2 acknowledges it; the relay's stop then re-arms, naming L2.
+    assert_eq!(p.s.acknowledge(p.now, &p.image, L2), Ok(()));
+    assert_eq!(p.stw1(READY), Out::Sent(READY, L2));
+    // Naming a latch while the drive is live acknowledges nothing.
+    p.show(live());
+    assert_eq!(
+        p.s.acknowledge(p.now, &p.image, L2),
+        Err(SessionError::NotTheLatch {
+            named: L2,
+            shown: 0
+        })
+    );
+}
+
+#[test]
+fn a_relay_opens_the_drive_acknowledging_no_latch() {
+    let setup = SessionSetup {
+        pzd: 2,
+        pid: 7,
+        watchdog_ns: WATCHDOG,
+        first_sequence: 0,
+    };
+    let mut p = Play {
+        s: Session::relay(setup),
+        image: latched(L1),
+        now: 0,
+    };
+    // A remote stop that names no latch re-arms nothing: nothing is published.
+    assert_eq!(p.stw1(READY), tripped(L1));
+    assert_eq!(p.refresh(), Out::Nothing);
+    assert_eq!(p.s.acknowledge(p.now, &p.image, L1), Ok(()));
+    assert_eq!(p.stw1(READY), Out::Sent(READY, L1));
+}
+
+#[test]
+fn a_relays_named_re_arm_after_a_silence_is_a_fresh_call() {
+    // The remote controller fell silent (the drive tripped: L2), then a new run names L2 0.6 s
+    // later: its stop re-arms and its ON runs, the silence before is not held against it.
+    let mut p = Play::running();
+    p.at(650).show(latched(L2));
+    assert_eq!(p.s.acknowledge(p.now, &p.image, L2), Ok(()));
+    assert_eq!(p.stw1(READY), Out::Sent(READY, L2));
+    p.at(670).show(live());
+    assert_eq!(p.run(), Out::Sent(RUN, L2));
+}
+
+#[test]
+fn rearmed_follows_the_image() {
+    let mut p = Play::running();
+    p.at(20).show(latched(L2));
+    p.rearm();
+    assert_eq!(p.s.rearmed(&p.image), Ok(false));
+    assert_eq!(
+        p.s.rearmed(&latched(L3)),
+        Err(SessionError::Tripped { latch_id: L3 })
+    );
+    assert_eq!(p.s.rearmed(&live()), Ok(true));
+}
+
+#[test]
+fn check_reports_news_and_a_stall_without_counting_as_a_call() {
+    let mut p = Play::running();
+    assert_eq!(p.s.check(50 * MS, &p.image), Ok(()));
+    assert_eq!(
+        p.s.check(50 * MS, &latched(L2)),
+        Err(SessionError::Tripped { latch_id: L2 })
+    );
+    // 150 ms without a call: check says so, and it did not feed the watchdog.
+    assert!(matches!(
+        p.s.check(160 * MS, &p.image),
+        Err(SessionError::Stalled { .. })
+    ));
+    assert_eq!(p.at(160).refresh(), Out::Nothing);
+}
+
+#[test]
+fn every_sample_has_a_new_sequence_the_pid_and_the_time() {
+    let mut p = Play::opened();
+    let Ok(Step::Publish(first)) = p.s.publish(3, &p.image, |_| {}) else {
+        panic!()
+    };
+    let refreshed = p.s.refresh(4, &p.image).unwrap();
+    let release = p.s.release(5);
+    assert_eq!(
+        (first.sequence, refreshed.sequence, release.sequence),
+        (501, 502, 503)
+    );
+    assert_eq!(
+        (
+            first.timestamp_ns,
+            refreshed.timestamp_ns,
+            first.controller_pid
+        ),
+        (3, 4, 7)
+    );
+    assert_eq!(release.flags, crate::OUTPUT_RELEASE);
+    assert_eq!(release.latch_id, L1);
+    // The sequence wraps past 0, which ussd reads as "never written".
+    let setup = SessionSetup {
+        pzd: 2,
+        pid: 7,
+        watchdog_ns: WATCHDOG,
+        first_sequence: u64::MAX,
+    };
+    let mut s = Session::new(setup, &latched(L1));
+    let Ok(Step::Publish(w)) = s.publish(1, &latched(L1), |_| {}) else {
+        panic!()
+    };
+    assert_eq!(w.sequence, 1);
+}
+
+#[test]
+fn a_re_arm_sends_off1_with_every_other_word_zero() {
+    let mut p = Play::running();
+    p.at(20).call(|w| w.words[1] = 0x1234);
+    p.show(latched(L2));
+    let sample = p.s.rearm(p.now, &p.image).unwrap();
+    assert_eq!(
+        (sample.stw1, sample.setpoint, sample.word_count),
+        (READY, 0, 2)
+    );
+}
