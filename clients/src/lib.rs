@@ -17,8 +17,9 @@
 //! bus.write(1, 1120, None, Value::from_f32(2.0), false)?; // ramp-up time 2 s, RAM only
 //!
 //! // Exclusive control: a second controller of drive 1 is refused.
+//! // Every call refreshes the drive's watchdog; a loop calls at least once per watchdog time
+//! // (drive.keepalive() between changes).
 //! let drive = bus.control(1, ControlOptions::default())?;
-//! let _refresher = drive.spawn_refresher(Duration::from_millis(20)); // the watchdog
 //! drive.enable()?; // OFF1: arms the drive (ussd latched it at start), S1 -> S2
 //! drive.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(1))?;
 //! drive.run_hz(0.5 * max_hz)?; // S2 -> S4

@@ -1,0 +1,312 @@
+//! Exclusive control of a drive: the Rust `Controller`, whose session (`uss_shm_types::session`)
+//! decides every sample. The same rules as in Rust and Python: latched until re-armed (a stop,
+//! then ON), only the program's own calls refresh the watchdog, a gap in them is a trip.
+
+use crate::bus::{UssrtBus, UssrtDrive};
+use crate::error::{Failure, UssrtStatus, arg, guard, out};
+use core::time::Duration;
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use uss_client::{ControlOptions, Controller, DriveState, Setpoint};
+
+/// The one controller of a drive (opaque): made by [`ussrt_control_open`], owned by the caller
+/// until [`ussrt_control_close`]. Usable from several threads (calls take turns).
+#[derive(Debug)]
+pub struct UssrtController {
+    /// `None` once released.
+    controller: Mutex<Option<Controller>>,
+    bus: String,
+    address: u8,
+}
+
+impl UssrtController {
+    fn lock(&self) -> MutexGuard<'_, Option<Controller>> {
+        self.controller
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+/// Runs `f` on the controller behind `c`, or fails with `RELEASED`.
+fn with(
+    c: *const UssrtController,
+    f: impl FnOnce(&Controller) -> Result<(), Failure>,
+) -> UssrtStatus {
+    guard(|| {
+        let c = arg(c, "controller")?;
+        let held = c.lock();
+        let controller = held.as_ref().ok_or_else(|| {
+            Failure::Client(uss_client::ClientError::Released {
+                bus: c.bus.clone(),
+                address: c.address,
+            })
+        })?;
+        f(controller)
+    })
+}
+
+/// Takes exclusive control of drive `address` (`CONTROLLED` while another process holds it)
+/// and writes the handle to `*controller`. The drive stays latched (ussd latched it at its
+/// start) until [`ussrt_control_rearm`] or a first stop ([`ussrt_control_enable`]).
+///
+/// # Safety
+/// `bus` is a live handle; `controller` points to writable memory for one pointer.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_open(
+    bus: *const UssrtBus,
+    address: u8,
+    controller: *mut *mut UssrtController,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let controller = out(controller, "controller")?;
+        let c = bus.bus.control(address, ControlOptions::default())?;
+        *controller = Box::into_raw(Box::new(UssrtController {
+            controller: Mutex::new(Some(c)),
+            bus: bus.bus.name().to_owned(),
+            address,
+        }));
+        Ok(())
+    })
+}
+
+/// Hands the drive back (if not released yet: ussd sends its safe command, "released") and
+/// frees the handle; NULL is ignored.
+///
+/// # Safety
+/// `controller` is NULL or a handle of [`ussrt_control_open`] not closed yet, used by no other
+/// thread now.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_close(controller: *mut UssrtController) {
+    if !controller.is_null() {
+        // SAFETY: made by `Box::into_raw` in `ussrt_control_open`, closed once.
+        drop(unsafe { Box::from_raw(controller) });
+    }
+}
+
+/// Hands the drive back cleanly: ussd sends its safe command, latched as "released" (not a
+/// trip), once it took the release. Every later call but close fails with `RELEASED`.
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_release(controller: *const UssrtController) -> UssrtStatus {
+    guard(|| {
+        let c = arg(controller, "controller")?;
+        let taken = c.lock().take();
+        match taken {
+            Some(controller) => controller.release().map(|_| ()).map_err(Failure::from),
+            None => Ok(()),
+        }
+    })
+}
+
+/// Acknowledges the drive's latch (a trip, an operator's stop, ussd's start, a gap in this
+/// program's calls) and re-arms it: OFF1 naming the latch, then waits until ussd passes this
+/// controller's words again. Then an ON reaches the drive. `*drive` (may be NULL) gets the
+/// drive as it is then.
+///
+/// # Safety
+/// `controller` is a live handle; `drive` is NULL or writable memory for one `UssrtDrive`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_rearm(
+    controller: *const UssrtController,
+    drive: *mut UssrtDrive,
+) -> UssrtStatus {
+    with(controller, |c| {
+        c.rearm()?;
+        // SAFETY: NULL or the caller's memory (as documented).
+        if let Some(drive) = unsafe { drive.as_mut() } {
+            *drive = UssrtDrive::of(c.inputs());
+        }
+        Ok(())
+    })
+}
+
+/// The drive as this controller sees it, into `*drive`; `TRIPPED` when it latched since this
+/// controller acknowledged a latch (`*drive` is written then too), `STALLED` after a gap in the
+/// program's calls. A read: it does not refresh the watchdog ([`ussrt_control_keepalive`] does).
+///
+/// # Safety
+/// `controller` is a live handle; `drive` points to writable memory for one `UssrtDrive`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_check(
+    controller: *const UssrtController,
+    drive: *mut UssrtDrive,
+) -> UssrtStatus {
+    with(controller, |c| {
+        let drive = out(drive, "drive")?;
+        let checked = c.check();
+        *drive = UssrtDrive::of(c.inputs());
+        checked.map(|_| ()).map_err(Failure::from)
+    })
+}
+
+/// The control loop's refresh: the current words again. Call it (or any other command) at
+/// least once per watchdog time (`UssrtDrive::watchdog_ms`).
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_keepalive(
+    controller: *const UssrtController,
+) -> UssrtStatus {
+    with(controller, |c| Ok(c.keepalive()?))
+}
+
+/// OFF1 with everything else enabled (STW1 0x047E): S1 -> S2; stops a running drive along its
+/// ramp. The first stop of a new controller re-arms the latch the drive showed at open.
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_enable(controller: *const UssrtController) -> UssrtStatus {
+    with(controller, |c| Ok(c.enable()?))
+}
+
+/// ON (STW1 0x047F) with a setpoint in Hz of the drive's reference frequency (negative: the
+/// other way). `NOT_ARMED` on a latched drive this controller has not re-armed.
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_run_hz(
+    controller: *const UssrtController,
+    hz: f32,
+) -> UssrtStatus {
+    with(controller, |c| {
+        if !hz.is_finite() {
+            return Err(Failure::Argument(format!("{hz} Hz is not a finite number")));
+        }
+        Ok(c.run_hz(hz)?)
+    })
+}
+
+/// ON with a setpoint in % of the reference (-200..+199.99).
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_run_percent(
+    controller: *const UssrtController,
+    percent: f32,
+) -> UssrtStatus {
+    with(controller, |c| {
+        if !percent.is_finite() {
+            return Err(Failure::Argument(format!(
+                "{percent} % is not a finite number"
+            )));
+        }
+        Ok(c.run_setpoint(Setpoint::from_percent(percent))?)
+    })
+}
+
+/// OFF1: ramp down, then S2 (STW1 0x047E).
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_stop(controller: *const UssrtController) -> UssrtStatus {
+    with(controller, |c| Ok(c.stop()?))
+}
+
+/// OFF2: coast, the motor is switched off at once (STW1 0x047C).
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_coast(controller: *const UssrtController) -> UssrtStatus {
+    with(controller, |c| Ok(c.coast()?))
+}
+
+/// OFF3: quick stop along the OFF3 ramp (STW1 0x047A).
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_quick_stop(
+    controller: *const UssrtController,
+) -> UssrtStatus {
+    with(controller, |c| Ok(c.quick_stop()?))
+}
+
+/// Sets (`reverse` != 0) or clears the reverse bit (STW1 bit 11).
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_reverse(
+    controller: *const UssrtController,
+    reverse: u8,
+) -> UssrtStatus {
+    with(controller, |c| Ok(c.reverse(reverse != 0)?))
+}
+
+/// Acknowledges a drive fault (a rising edge of STW1 bit 7, at most `timeout_ms` for the drive
+/// to receive it), then OFF1.
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_acknowledge_fault(
+    controller: *const UssrtController,
+    timeout_ms: u32,
+) -> UssrtStatus {
+    with(controller, |c| {
+        Ok(c.acknowledge_fault(Duration::from_millis(u64::from(timeout_ms)))?)
+    })
+}
+
+/// Sends `count` PZD words (STW1 first) as they are: exactly the drive's PZD length, STW1 bit
+/// 10 set, or `INVALID_SAMPLE` and nothing is sent.
+///
+/// # Safety
+/// `controller` is a live handle; `words` points to `count` readable `uint16_t`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_set_words(
+    controller: *const UssrtController,
+    words: *const u16,
+    count: usize,
+) -> UssrtStatus {
+    with(controller, |c| {
+        if words.is_null() {
+            return Err(Failure::Argument("words is NULL".to_owned()));
+        }
+        if count > uss_client::uss_shm_types::MAX_PZD_WORDS {
+            return Err(Failure::Argument(format!(
+                "{count} words: a drive has 0..=16"
+            )));
+        }
+        // SAFETY: not NULL, `count` (at most 16) words of the caller (as documented).
+        let words = unsafe { core::slice::from_raw_parts(words, count) };
+        Ok(c.set_words(words)?)
+    })
+}
+
+/// Waits (at most `timeout_ms`, refreshing the watchdog meanwhile: this program waits inside
+/// its own call) until the drive is in PROFIdrive state `state` (1..4 for S1..S4).
+/// `TRIPPED` as soon as the drive latches.
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_wait_state(
+    controller: *const UssrtController,
+    state: u8,
+    timeout_ms: u32,
+) -> UssrtStatus {
+    with(controller, |c| {
+        let wanted = match state {
+            1 => DriveState::SwitchingOnInhibited,
+            2 => DriveState::ReadyToSwitchOn,
+            3 => DriveState::ReadyForOperation,
+            4 => DriveState::OperationEnabled,
+            other => {
+                return Err(Failure::Argument(format!(
+                    "state {other}: wait for 1..4 (S1..S4)"
+                )));
+            }
+        };
+        c.wait_for_state(wanted, Duration::from_millis(u64::from(timeout_ms)))?;
+        Ok(())
+    })
+}

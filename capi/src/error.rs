@@ -1,0 +1,362 @@
+//! Status codes, the calling thread's last error, and the guard every exported function runs
+//! its body in (no panic crosses the boundary).
+
+use core::ffi::{CStr, c_char};
+use std::cell::RefCell;
+use std::ffi::CString;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use uss_client::uss_shm_types::{DriveError, PathError};
+use uss_client::{ClientError, Latch, ParamError};
+
+/// What a call came to. `USSRT_STATUS_OK` is 0; every other code has a message
+/// ([`ussrt_last_error`]).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UssrtStatus {
+    Ok = 0,
+    /// A NULL pointer, a bus name or address that cannot exist, a parameter that is not
+    /// written the manuals' way, a value of another type.
+    InvalidArgument = 1,
+    /// No ussd serves this bus.
+    NotRunning = 2,
+    /// ussd does not poll this drive.
+    UnknownDrive = 3,
+    /// ussd's heartbeat stopped: it died or hangs. Images are stale.
+    UssdGone = 4,
+    /// ussd stopped cleanly.
+    UssdStopped = 5,
+    /// ussd runs, but the bus line is down.
+    LineDown = 6,
+    /// Another process controls the drive.
+    Controlled = 7,
+    /// The drive latched since this controller last acknowledged a latch: re-arm it
+    /// ([`UssrtErrorInfo`] says why).
+    Tripped = 8,
+    /// An ON for a latched drive no stop of this controller re-armed: stop (OFF1) first.
+    NotArmed = 9,
+    /// This program made no call for longer than the drive's watchdog time: a trip; re-arm.
+    Stalled = 10,
+    /// Words ussd would refuse (word count, STW1 bit 10): nothing was sent.
+    InvalidSample = 11,
+    /// This controller released the drive.
+    Released = 12,
+    /// A wait, a parameter task or ussd's answer did not end in time.
+    Timeout = 13,
+    /// The drive refused the parameter task ([`UssrtErrorInfo::drive_error`]: its number).
+    DriveError = 14,
+    /// ussd refused the request before the bus (write protection, a controlled drive, ...).
+    Refused = 15,
+    /// The task did not reach the drive or its answer did not come back (offline, line down,
+    /// shutdown, cancelled).
+    PathFailed = 16,
+    /// A value that does not fit the parameter, refused before the bus.
+    Value = 17,
+    /// The drive exchanges no process data (pzd = 0).
+    NoProcessData = 18,
+    /// ussd speaks another layout version.
+    Incompatible = 19,
+    /// The shared memory failed otherwise (permissions, resources).
+    Ipc = 20,
+    /// A defect in this library (a caught panic); the message says where.
+    Internal = 21,
+}
+
+/// Details of the calling thread's last failure, beyond its status and message.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UssrtErrorInfo {
+    /// The status of the last failure (`USSRT_STATUS_OK` after a success).
+    pub status: UssrtStatus,
+    /// With `TRIPPED` and `NOT_ARMED`: why the drive is latched (a `UssLatchReason` code of
+    /// `uss_shm_types.h`), what it gets meanwhile (a `UssStopCommand` code), and why a sample
+    /// was refused (a `UssRejection` code); 0 otherwise.
+    pub latch_reason: u8,
+    pub latch_command: u8,
+    pub rejection: u8,
+    pub reserved: u8,
+    /// With `DRIVE_ERROR`: the drive's error number (USS.md section 6: 0 illegal PNU, 2 limit
+    /// exceeded, ...), or 0xFFFF for reply 8 (no change rights); 0xFFFF otherwise.
+    pub drive_error: u16,
+    pub reserved2: u16,
+    /// With a latch: the operator or controller process behind it (0 if unknown).
+    pub latched_by_pid: u32,
+    /// With a latch: how long ago it began, ms.
+    pub latched_ms_ago: u32,
+}
+
+const NO_DRIVE_ERROR: u16 = 0xFFFF;
+
+impl UssrtErrorInfo {
+    const fn of(status: UssrtStatus) -> Self {
+        Self {
+            status,
+            latch_reason: 0,
+            latch_command: 0,
+            rejection: 0,
+            reserved: 0,
+            drive_error: NO_DRIVE_ERROR,
+            reserved2: 0,
+            latched_by_pid: 0,
+            latched_ms_ago: 0,
+        }
+    }
+
+    fn with_latch(mut self, latch: &Latch) -> Self {
+        self.latch_reason = latch.reason.code();
+        self.latch_command = latch.command.code();
+        self.rejection = latch.rejection.code();
+        self.latched_by_pid = latch.by_pid;
+        self.latched_ms_ago = u32::try_from(latch.ago.as_millis()).unwrap_or(u32::MAX);
+        self
+    }
+}
+
+/// Why a call failed, before it becomes a status and a message.
+#[derive(Debug)]
+pub(crate) enum Failure {
+    Argument(String),
+    Client(ClientError),
+    Param(ParamError),
+}
+
+impl From<ClientError> for Failure {
+    fn from(e: ClientError) -> Self {
+        Self::Client(e)
+    }
+}
+
+impl From<ParamError> for Failure {
+    fn from(e: ParamError) -> Self {
+        match e {
+            ParamError::Client(c) => Self::Client(c),
+            other => Self::Param(other),
+        }
+    }
+}
+
+fn client_info(e: &ClientError) -> UssrtErrorInfo {
+    use UssrtStatus as S;
+    let status = match e {
+        ClientError::Name(_) => S::InvalidArgument,
+        ClientError::NotRunning { .. } => S::NotRunning,
+        ClientError::UnknownDrive { .. } => S::UnknownDrive,
+        ClientError::Controlled { .. } => S::Controlled,
+        ClientError::Incompatible { .. } | ClientError::Contract(_) => S::Incompatible,
+        ClientError::UssdGone { .. } => S::UssdGone,
+        ClientError::UssdStopped { .. } => S::UssdStopped,
+        ClientError::LineDown { .. } => S::LineDown,
+        ClientError::Stale { .. } | ClientError::WaitTimeout { .. } => S::Timeout,
+        ClientError::Tripped { latch, .. } => {
+            return UssrtErrorInfo::of(S::Tripped).with_latch(latch);
+        }
+        ClientError::NotArmed { latch, .. } => {
+            return UssrtErrorInfo::of(S::NotArmed).with_latch(latch);
+        }
+        ClientError::Stalled { .. } => S::Stalled,
+        ClientError::InvalidSample { .. } | ClientError::PzdWords { .. } => S::InvalidSample,
+        ClientError::NotTheLatch { .. } => S::Tripped,
+        ClientError::Released { .. } => S::Released,
+        ClientError::NoProcessData { .. } => S::NoProcessData,
+        ClientError::CommandRefused { .. } => S::Refused,
+        _ => S::Ipc,
+    };
+    UssrtErrorInfo::of(status)
+}
+
+fn param_info(e: &ParamError) -> UssrtErrorInfo {
+    use UssrtStatus as S;
+    match e {
+        ParamError::Drive(d) => UssrtErrorInfo {
+            drive_error: match d {
+                DriveError::Refused(p) => p.number(),
+                DriveError::NoChangeRights => NO_DRIVE_ERROR,
+            },
+            ..UssrtErrorInfo::of(S::DriveError)
+        },
+        ParamError::Path(PathError::Timeout) | ParamError::NoAnswer(_) => {
+            UssrtErrorInfo::of(S::Timeout)
+        }
+        ParamError::Path(PathError::Refused(_))
+        | ParamError::Refused { .. }
+        | ParamError::Controlled { .. } => UssrtErrorInfo::of(S::Refused),
+        ParamError::Path(_) | ParamError::Dropped => UssrtErrorInfo::of(S::PathFailed),
+        ParamError::Value { .. } => UssrtErrorInfo::of(S::Value),
+        ParamError::Client(c) => client_info(c),
+        _ => UssrtErrorInfo::of(S::Incompatible),
+    }
+}
+
+impl Failure {
+    fn info(&self) -> UssrtErrorInfo {
+        match self {
+            Self::Argument(_) => UssrtErrorInfo::of(UssrtStatus::InvalidArgument),
+            Self::Client(e) => client_info(e),
+            Self::Param(e) => param_info(e),
+        }
+    }
+
+    fn message(&self) -> String {
+        match self {
+            Self::Argument(m) => m.clone(),
+            Self::Client(e) => e.to_string(),
+            Self::Param(e) => e.to_string(),
+        }
+    }
+}
+
+struct Last {
+    info: UssrtErrorInfo,
+    message: CString,
+}
+
+thread_local! {
+    static LAST: RefCell<Last> = RefCell::new(Last {
+        info: UssrtErrorInfo::of(UssrtStatus::Ok),
+        message: CString::default(),
+    });
+}
+
+fn remember(info: UssrtErrorInfo, message: &str) {
+    // A message with a NUL byte inside is cut there; it never fails.
+    let text = message.split('\0').next().unwrap_or_default();
+    let message = CString::new(text).unwrap_or_default();
+    LAST.with(|l| *l.borrow_mut() = Last { info, message });
+}
+
+/// Runs `f` (an exported function's body): its failure, or a panic, becomes the status and the
+/// thread's last error; success clears it.
+pub(crate) fn guard(f: impl FnOnce() -> Result<(), Failure>) -> UssrtStatus {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(Ok(())) => {
+            remember(UssrtErrorInfo::of(UssrtStatus::Ok), "");
+            UssrtStatus::Ok
+        }
+        Ok(Err(failure)) => {
+            let info = failure.info();
+            remember(info, &failure.message());
+            info.status
+        }
+        Err(panic) => {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_owned())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            remember(
+                UssrtErrorInfo::of(UssrtStatus::Internal),
+                &format!("a defect in libussrt (please report it): {what}"),
+            );
+            UssrtStatus::Internal
+        }
+    }
+}
+
+/// `ptr` as a reference, or an argument error naming `what`.
+pub(crate) fn arg<'a, T>(ptr: *const T, what: &str) -> Result<&'a T, Failure> {
+    // SAFETY: the caller passes a pointer to a live `T` or NULL (the header says so); NULL is
+    // refused here.
+    unsafe { ptr.as_ref() }.ok_or_else(|| Failure::Argument(format!("{what} is NULL")))
+}
+
+/// `ptr` as a mutable reference (an output of the caller), or an argument error.
+pub(crate) fn out<'a, T>(ptr: *mut T, what: &str) -> Result<&'a mut T, Failure> {
+    // SAFETY: as `arg`, for memory the caller lends for writing.
+    unsafe { ptr.as_mut() }.ok_or_else(|| Failure::Argument(format!("{what} is NULL")))
+}
+
+/// A NUL-terminated UTF-8 string of the caller.
+pub(crate) fn text<'a>(ptr: *const c_char, what: &str) -> Result<&'a str, Failure> {
+    if ptr.is_null() {
+        return Err(Failure::Argument(format!("{what} is NULL")));
+    }
+    // SAFETY: not NULL; the caller passes a NUL-terminated string that lives during the call.
+    unsafe { CStr::from_ptr(ptr) }
+        .to_str()
+        .map_err(|_| Failure::Argument(format!("{what} is not UTF-8")))
+}
+
+/// The message of the calling thread's last failure ("" after a success): owned by the
+/// library, valid until this thread's next `ussrt_*` call. Never NULL.
+#[unsafe(no_mangle)]
+pub extern "C" fn ussrt_last_error() -> *const c_char {
+    LAST.with(|l| l.borrow().message.as_ptr())
+}
+
+/// Copies the details of the calling thread's last failure into `*info` (the caller's
+/// memory). Returns `USSRT_STATUS_INVALID_ARGUMENT` for a NULL `info` and leaves the last
+/// error as it was.
+///
+/// # Safety
+/// `info` is NULL or points to writable memory for one `UssrtErrorInfo`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_last_error_info(info: *mut UssrtErrorInfo) -> UssrtStatus {
+    // SAFETY: as documented.
+    match unsafe { info.as_mut() } {
+        Some(info) => {
+            *info = LAST.with(|l| l.borrow().info);
+            UssrtStatus::Ok
+        }
+        None => UssrtStatus::InvalidArgument,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn last() -> (UssrtErrorInfo, String) {
+        let mut info = UssrtErrorInfo::of(UssrtStatus::Ok);
+        // SAFETY: a local.
+        assert_eq!(
+            unsafe { ussrt_last_error_info(&raw mut info) },
+            UssrtStatus::Ok
+        );
+        // SAFETY: the library's NUL-terminated message.
+        let text = unsafe { CStr::from_ptr(ussrt_last_error()) };
+        (info, text.to_str().unwrap_or_default().to_owned())
+    }
+
+    #[test]
+    fn a_failure_leaves_its_status_and_message_and_a_success_clears_them() {
+        let status = guard(|| Err(Failure::Argument("bus is NULL".to_owned())));
+        assert_eq!(status, UssrtStatus::InvalidArgument);
+        assert_eq!(last().1, "bus is NULL");
+        assert_eq!(last().0.status, UssrtStatus::InvalidArgument);
+        assert_eq!(guard(|| Ok(())), UssrtStatus::Ok);
+        assert_eq!(last(), (UssrtErrorInfo::of(UssrtStatus::Ok), String::new()));
+    }
+
+    #[test]
+    fn a_panic_is_caught_and_named() {
+        let status = guard(|| panic!("boom"));
+        assert_eq!(status, UssrtStatus::Internal);
+        assert!(last().1.ends_with("boom"), "{}", last().1);
+    }
+
+    #[test]
+    fn a_drive_error_carries_its_number() {
+        use uss_client::uss_protocol::ParamError as Says;
+        let e = ParamError::Drive(DriveError::Refused(Says::LimitExceeded));
+        let status = guard(|| Err(e.into()));
+        assert_eq!(status, UssrtStatus::DriveError);
+        assert_eq!(last().0.drive_error, 2);
+    }
+
+    #[test]
+    fn null_pointers_and_bad_text_are_argument_errors() {
+        assert!(matches!(
+            arg::<u8>(core::ptr::null(), "bus"),
+            Err(Failure::Argument(m)) if m == "bus is NULL"
+        ));
+        let bad = [0xFFu8, 0];
+        assert!(matches!(
+            text(bad.as_ptr().cast(), "name"),
+            Err(Failure::Argument(m)) if m == "name is not UTF-8"
+        ));
+        // SAFETY: testing the NULL check itself.
+        assert_eq!(
+            unsafe { ussrt_last_error_info(core::ptr::null_mut()) },
+            UssrtStatus::InvalidArgument
+        );
+    }
+}

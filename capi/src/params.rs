@@ -1,0 +1,335 @@
+//! Parameters: in the manuals' notation as their own type (`P1082` = `50.00 Hz`), as raw words,
+//! and the fault report.
+
+use crate::bus::UssrtBus;
+use crate::error::{Failure, UssrtStatus, arg, guard, out, text};
+use core::ffi::c_char;
+use uss_client::uss_protocol::ParamRef;
+use uss_client::{ParamValue, Typed, Value, WriteOptions};
+
+/// `flags` bit of a write: RAM and EEPROM (survives a power cycle) instead of RAM only.
+pub const USSRT_WRITE_EEPROM: u32 = 1;
+/// `flags` bit of a write: write even while another process controls the drive (deliberate).
+pub const USSRT_WRITE_FORCE: u32 = 2;
+/// `index` of a raw read or write for a parameter without index.
+pub const USSRT_NO_INDEX: i32 = -1;
+
+/// A parameter value and what it is.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct UssrtValue {
+    /// The value in its own type: a float parameter's float, an integer's integer (exact).
+    pub value: f64,
+    /// The word or double word the drive sent.
+    pub raw: u32,
+    /// 1: a double word (PKW reply 2 or 5).
+    pub is_dword: u8,
+    /// 1: an IEEE-754 float (from the catalogue or the drive's description).
+    pub is_float: u8,
+    pub reserved: [u8; 2],
+    /// The manuals' text, NUL-terminated: `P1082 = 50.00 Hz`.
+    pub text: [c_char; 64],
+    /// The unit (`Hz`, `s`), empty when none is known.
+    pub unit: [c_char; 16],
+}
+
+/// One recorded fault.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct UssrtFault {
+    /// F0072 -> 72.
+    pub number: u16,
+    /// The fault value (r0949), when `has_value`.
+    pub value: u16,
+    pub has_value: u8,
+    /// Element of r0947: 0 is the newest.
+    pub slot: u8,
+    pub reserved: [u8; 2],
+    /// The catalogue's text, NUL-terminated (empty when it does not know the fault).
+    pub text: [c_char; 64],
+}
+
+/// The drive's fault buffer (r0947 with r0949 values) and active warnings (r2110).
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct UssrtFaultReport {
+    /// Faults in `faults`, newest first.
+    pub fault_count: u8,
+    /// Warnings in `warnings`; 0xFF when the drive has no r2110.
+    pub warning_count: u8,
+    pub reserved: [u8; 2],
+    pub faults: [UssrtFault; 8],
+    /// Active warnings: A0501 -> 501.
+    pub warnings: [u16; 4],
+}
+
+/// `s` into `buf`, cut at a character boundary to fit with its NUL.
+fn copy_text(buf: &mut [c_char], s: &str) {
+    let mut n = s.len().min(buf.len().saturating_sub(1));
+    while !s.is_char_boundary(n) {
+        n -= 1;
+    }
+    for (b, &c) in buf.iter_mut().zip(&s.as_bytes()[..n]) {
+        *b = c as c_char;
+    }
+    if let Some(end) = buf.get_mut(n) {
+        *end = 0;
+    }
+}
+
+fn value_of(v: &ParamValue) -> UssrtValue {
+    let (value, is_float) = match v.typed() {
+        Typed::I16(x) => (f64::from(x), 0),
+        Typed::I32(x) => (f64::from(x), 0),
+        Typed::U16(x) => (f64::from(x), 0),
+        Typed::U32(x) => (f64::from(x), 0),
+        Typed::Float(x) => (f64::from(x), 1),
+    };
+    let (raw, is_dword) = raw_of(v.raw);
+    let mut out = UssrtValue {
+        value,
+        raw,
+        is_dword,
+        is_float,
+        reserved: [0; 2],
+        text: [0; 64],
+        unit: [0; 16],
+    };
+    copy_text(&mut out.text, &v.to_string());
+    copy_text(&mut out.unit, v.unit());
+    out
+}
+
+fn raw_of(v: Value) -> (u32, u8) {
+    match v {
+        Value::Word(w) => (u32::from(w), 0),
+        Value::Dword(d) => (d, 1),
+    }
+}
+
+fn param_ref(param: *const c_char) -> Result<ParamRef, Failure> {
+    let text = text(param, "param")?;
+    text.parse::<ParamRef>()
+        .map_err(|e| Failure::Argument(format!("{text:?}: {e}")))
+}
+
+fn index_of(index: i32) -> Result<Option<u8>, Failure> {
+    match index {
+        USSRT_NO_INDEX => Ok(None),
+        0..=254 => Ok(Some(index as u8)),
+        other => Err(Failure::Argument(format!(
+            "index {other}: array indices are 0..=254, or -1 for none"
+        ))),
+    }
+}
+
+fn options(flags: u32) -> Result<WriteOptions, Failure> {
+    if flags & !(USSRT_WRITE_EEPROM | USSRT_WRITE_FORCE) != 0 {
+        return Err(Failure::Argument(format!(
+            "flags {flags:#x}: only USSRT_WRITE_EEPROM and USSRT_WRITE_FORCE are defined"
+        )));
+    }
+    Ok(WriteOptions {
+        eeprom: flags & USSRT_WRITE_EEPROM != 0,
+        force: flags & USSRT_WRITE_FORCE != 0,
+    })
+}
+
+/// Reads `param` of drive `address`, written as the manuals do (`"P1082"`, `"r0021"`,
+/// `"P0947[3]"`, `"r0947.3"`), as its own type into `*value`. `DRIVE_ERROR` with the drive's
+/// error number when it refuses (`ussrt_last_error_info`).
+///
+/// # Safety
+/// `bus` is a live handle; `param` a NUL-terminated string; `value` writable memory for one
+/// `UssrtValue`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_read(
+    bus: *const UssrtBus,
+    address: u8,
+    param: *const c_char,
+    value: *mut UssrtValue,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let value = out(value, "value")?;
+        let read = bus.bus.read_param(address, param_ref(param)?)?;
+        *value = value_of(&read);
+        Ok(())
+    })
+}
+
+/// Writes `text` (`"45"`, `"2.5"`, `"0x1F"`) to `param`, converted to the parameter's own type;
+/// what does not fit, or a read-only parameter, is refused before the bus (`VALUE`). `flags`:
+/// `USSRT_WRITE_EEPROM`, `USSRT_WRITE_FORCE`. `*held` (may be NULL) gets the value the drive
+/// now holds.
+///
+/// # Safety
+/// `bus` is a live handle; `param` and `text` NUL-terminated strings; `held` NULL or writable
+/// memory for one `UssrtValue`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_write(
+    bus: *const UssrtBus,
+    address: u8,
+    param: *const c_char,
+    value_text: *const c_char,
+    flags: u32,
+    held: *mut UssrtValue,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let param = param_ref(param)?;
+        let value_text = text(value_text, "value_text")?;
+        let written = bus
+            .bus
+            .write_param(address, param, value_text, options(flags)?)?;
+        // SAFETY: NULL or the caller's memory (as documented).
+        if let Some(held) = unsafe { held.as_mut() } {
+            *held = value_of(&written);
+        }
+        Ok(())
+    })
+}
+
+/// Reads parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as the raw word or
+/// double word the drive sends: `*value`, and `*is_dword` (may be NULL).
+///
+/// # Safety
+/// `bus` is a live handle; `value` writable memory for one `uint32_t`; `is_dword` NULL or
+/// writable memory for one `uint8_t`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_read_raw(
+    bus: *const UssrtBus,
+    address: u8,
+    pnu: u16,
+    index: i32,
+    value: *mut u32,
+    is_dword: *mut u8,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let value = out(value, "value")?;
+        let (raw, dword) = raw_of(bus.bus.read(address, pnu, index_of(index)?)?);
+        *value = raw;
+        // SAFETY: NULL or the caller's memory (as documented).
+        if let Some(is_dword) = unsafe { is_dword.as_mut() } {
+            *is_dword = dword;
+        }
+        Ok(())
+    })
+}
+
+/// Writes `value` to parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as a double
+/// word (`dword` != 0) or a word (a value above 0xFFFF is refused); `flags` as
+/// [`ussrt_param_write`]. `*held` (may be NULL) gets what the drive answered.
+///
+/// # Safety
+/// `bus` is a live handle; `held` NULL or writable memory for one `uint32_t`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_write_raw(
+    bus: *const UssrtBus,
+    address: u8,
+    pnu: u16,
+    index: i32,
+    value: u32,
+    dword: u8,
+    flags: u32,
+    held: *mut u32,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let value = if dword != 0 {
+            Value::Dword(value)
+        } else {
+            Value::Word(u16::try_from(value).map_err(|_| {
+                Failure::Argument(format!("{value} does not fit a word (0..=65535)"))
+            })?)
+        };
+        let answered =
+            bus.bus
+                .write_with(address, pnu, index_of(index)?, value, options(flags)?)?;
+        // SAFETY: NULL or the caller's memory (as documented).
+        if let Some(held) = unsafe { held.as_mut() } {
+            *held = raw_of(answered).0;
+        }
+        Ok(())
+    })
+}
+
+/// Reads the drive's fault buffer with fault values and texts, and its active warnings, in one
+/// request, into `*report`.
+///
+/// # Safety
+/// `bus` is a live handle; `report` writable memory for one `UssrtFaultReport`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_fault_report(
+    bus: *const UssrtBus,
+    address: u8,
+    report: *mut UssrtFaultReport,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let report = out(report, "report")?;
+        let read = bus.bus.fault_report(address)?;
+        let empty = UssrtFault {
+            number: 0,
+            value: 0,
+            has_value: 0,
+            slot: 0,
+            reserved: [0; 2],
+            text: [0; 64],
+        };
+        let mut r = UssrtFaultReport {
+            fault_count: 0,
+            warning_count: 0xFF,
+            reserved: [0; 2],
+            faults: [empty; 8],
+            warnings: [0; 4],
+        };
+        for (slot, f) in r.faults.iter_mut().zip(&read.faults) {
+            slot.number = f.number;
+            slot.value = f.value.unwrap_or(0);
+            slot.has_value = u8::from(f.value.is_some());
+            slot.slot = f.slot;
+            copy_text(&mut slot.text, f.text.unwrap_or_default());
+            r.fault_count += 1;
+        }
+        if let Some(warnings) = &read.warnings {
+            r.warning_count = 0;
+            for (slot, w) in r.warnings.iter_mut().zip(warnings) {
+                *slot = w.number;
+                r.warning_count += 1;
+            }
+        }
+        *report = r;
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn text_is_cut_at_a_character_boundary_and_terminated() {
+        let mut buf = [1 as c_char; 5];
+        copy_text(&mut buf, "abc°def");
+        // Four bytes fit: "abc" and the first of the two of "°", inside it: cut before it.
+        assert_eq!(
+            buf[..4],
+            [b'a' as c_char, b'b' as c_char, b'c' as c_char, 0]
+        );
+        let mut buf = [1 as c_char; 4];
+        copy_text(&mut buf, "Hz");
+        assert_eq!(buf[..3], [b'H' as c_char, b'z' as c_char, 0]);
+    }
+
+    #[test]
+    fn indices_and_flags_outside_their_range_are_argument_errors() {
+        assert_eq!(index_of(-1).ok(), Some(None));
+        assert_eq!(index_of(254).ok(), Some(Some(254)));
+        assert!(index_of(255).is_err() && index_of(-2).is_err());
+        assert!(options(4).is_err());
+        let o = options(USSRT_WRITE_EEPROM | USSRT_WRITE_FORCE).ok();
+        assert_eq!(o.map(|o| (o.eeprom, o.force)), Some((true, true)));
+    }
+}

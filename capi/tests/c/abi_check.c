@@ -1,0 +1,150 @@
+/*
+ * abi_check: every kind of call of the C ABI against a real ussd (started by capi's Rust
+ * test, tests/tests/capi.rs): statuses, messages, the latch as an error code with its
+ * reason, the drive's error number, a stall, a release. Exits 1 at the first wrong answer.
+ *
+ *   abi_check BUS    (drives 1 and 2, 100 ms watchdog)
+ */
+#define _POSIX_C_SOURCE 200809L /* clock_gettime, nanosleep */
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include <ussrt.h>
+
+static int checks;
+
+#define EXPECT(cond, ...)                                                                  \
+  do {                                                                                     \
+    checks++;                                                                              \
+    if (!(cond)) {                                                                         \
+      fprintf(stderr, "abi_check:%d: %s: ", __LINE__, #cond);                              \
+      fprintf(stderr, __VA_ARGS__);                                                        \
+      fprintf(stderr, " (last error: %s)\n", ussrt_last_error());                          \
+      exit(1);                                                                             \
+    }                                                                                      \
+  } while (0)
+
+#define OK(call) EXPECT((call) == USSRT_STATUS_OK, "%s", #call)
+
+static void sleep_ms(long ms) {
+  struct timespec t = {ms / 1000, (ms % 1000) * 1000000L};
+  nanosleep(&t, NULL);
+}
+
+static UssrtErrorInfo info(void) {
+  UssrtErrorInfo i;
+  ussrt_last_error_info(&i);
+  return i;
+}
+
+int main(int argc, char **argv) {
+  if (argc != 2) return 2;
+  const char *name = argv[1];
+  UssrtBus *bus = NULL;
+  UssrtDrive d;
+  UssrtValue v;
+
+  EXPECT(ussrt_bus_open("no-ussd-here", &bus) == USSRT_STATUS_NOT_RUNNING, "no ussd");
+  EXPECT(strstr(ussrt_last_error(), "ussd is not running on no-ussd-here") != NULL, "message");
+  EXPECT(info().status == USSRT_STATUS_NOT_RUNNING, "info");
+  EXPECT(ussrt_bus_open("a/b", &bus) == USSRT_STATUS_INVALID_ARGUMENT, "bad name");
+  EXPECT(ussrt_bus_open(NULL, &bus) == USSRT_STATUS_INVALID_ARGUMENT, "NULL name");
+  OK(ussrt_bus_open(name, &bus));
+  EXPECT(*ussrt_last_error() == '\0', "a success clears the message");
+
+  uint32_t drives = 0;
+  OK(ussrt_bus_drives(bus, &drives));
+  EXPECT(drives == 0x6, "drives 1 and 2: %#x", drives);
+  EXPECT(ussrt_drive_read(bus, 9, &d) == USSRT_STATUS_UNKNOWN_DRIVE, "drive 9");
+  EXPECT(ussrt_drive_read(bus, 1, NULL) == USSRT_STATUS_INVALID_ARGUMENT, "NULL drive");
+  OK(ussrt_wait_exchange(bus, 1, 2000));
+  OK(ussrt_drive_read(bus, 1, &d));
+  EXPECT(d.image.version == USS_LAYOUT_VERSION && d.image.online == 1 && d.stale == 0, "online");
+  EXPECT(d.live == 0 && d.image.latch_reason == USS_LATCH_REASON_STARTUP, "latched at start");
+  EXPECT(d.image.latch_id != 0 && d.state == 2 && d.image.sent_stw1 == 0x047E, "S2, OFF1");
+  EXPECT(d.reference_hz == 50.0f && d.watchdog_ms == 100, "info %f %u", d.reference_hz,
+         d.watchdog_ms);
+
+  /* Parameters. */
+  OK(ussrt_param_read(bus, 1, "P1082", &v));
+  EXPECT(strcmp(v.text, "P1082 = 50.00 Hz") == 0 && strcmp(v.unit, "Hz") == 0, "%s", v.text);
+  EXPECT(v.value == 50.0 && v.raw == 0x42480000 && v.is_dword && v.is_float, "P1082 value");
+  uint32_t raw = 0;
+  uint8_t dword = 0;
+  OK(ussrt_param_read_raw(bus, 1, 2000, USSRT_NO_INDEX, &raw, &dword));
+  EXPECT(raw == 0x42480000 && dword == 1, "P2000 raw %#x", raw);
+  EXPECT(ussrt_param_read(bus, 1, "P1999", &v) == USSRT_STATUS_DRIVE_ERROR, "P1999");
+  EXPECT(info().drive_error == 0, "error 0: illegal PNU, got %u", info().drive_error);
+  EXPECT(ussrt_param_read(bus, 1, "Q12", &v) == USSRT_STATUS_INVALID_ARGUMENT, "notation");
+  EXPECT(ussrt_param_write(bus, 2, "P0700", "70000", 0, &v) == USSRT_STATUS_VALUE, "70000");
+  EXPECT(strstr(ussrt_last_error(), "70000 does not fit") != NULL, "says why");
+  OK(ussrt_param_write(bus, 1, "P1120", "0.5", 0, &v));
+  EXPECT(strcmp(v.text, "P1120 = 0.50 s") == 0, "%s", v.text);
+  OK(ussrt_param_write(bus, 1, "P1121", "0.5", 0, NULL));
+  EXPECT(ussrt_param_write(bus, 1, "P1120", "1", 8, NULL) == USSRT_STATUS_INVALID_ARGUMENT,
+         "flags");
+  UssrtFaultReport faults;
+  OK(ussrt_fault_report(bus, 1, &faults));
+  EXPECT(faults.fault_count <= 8, "faults %u", faults.fault_count);
+
+  /* Control: the same rules as Rust and Python. */
+  UssrtController *c = NULL, *second = NULL;
+  OK(ussrt_control_open(bus, 1, &c));
+  EXPECT(ussrt_control_open(bus, 1, &second) == USSRT_STATUS_CONTROLLED, "one controller");
+  EXPECT(ussrt_control_run_hz(c, 10.0f) == USSRT_STATUS_NOT_ARMED, "ON before a stop");
+  EXPECT(info().latch_reason == USS_LATCH_REASON_STARTUP, "why: %u", info().latch_reason);
+  OK(ussrt_control_rearm(c, &d));
+  EXPECT(d.live == 1, "re-armed");
+  OK(ussrt_control_run_hz(c, 10.0f));
+  OK(ussrt_control_wait_state(c, 4, 5000));
+  const uint16_t bad[2] = {0x007F, 0};
+  EXPECT(ussrt_control_set_words(c, bad, 2) == USSRT_STATUS_INVALID_SAMPLE, "bit 10 clear");
+  EXPECT(ussrt_control_set_words(c, bad, 1) == USSRT_STATUS_INVALID_SAMPLE, "one word");
+  OK(ussrt_control_keepalive(c));
+
+  /* An operator's coast: the next call is the latch, with its reason and command. */
+  OK(ussrt_stop_drive(bus, 1, 2));
+  UssrtStatus s;
+  do {
+    OK(ussrt_wait_exchange(bus, 1, 1000));
+    s = ussrt_control_keepalive(c);
+  } while (s == USSRT_STATUS_OK);
+  EXPECT(s == USSRT_STATUS_TRIPPED, "tripped, got %d", (int)s);
+  EXPECT(info().latch_reason == USS_LATCH_REASON_OVERRIDE, "override %u", info().latch_reason);
+  EXPECT(info().latch_command == USS_STOP_COMMAND_OFF2, "OFF2 %u", info().latch_command);
+  EXPECT(info().latched_by_pid != 0, "the operator's pid");
+  EXPECT(strstr(ussrt_last_error(), "an operator sent OFF2") != NULL, "message");
+  EXPECT(ussrt_control_run_hz(c, 10.0f) == USSRT_STATUS_TRIPPED, "every call until re-armed");
+  EXPECT(ussrt_control_check(c, &d) == USSRT_STATUS_TRIPPED && d.image.sent_stw1 == 0x047C,
+         "still coasting: %#x", d.image.sent_stw1);
+  EXPECT(ussrt_stop_drive(bus, 1, 7) == USSRT_STATUS_INVALID_ARGUMENT, "stop command 7");
+  OK(ussrt_control_rearm(c, NULL));
+  OK(ussrt_control_run_hz(c, 10.0f));
+
+  /* A stall of this program: no call for 3 watchdog times is a trip, not a fresh start. */
+  sleep_ms(300);
+  s = ussrt_control_run_hz(c, 10.0f);
+  EXPECT(s == USSRT_STATUS_TRIPPED || s == USSRT_STATUS_STALLED, "a gap trips: %d", (int)s);
+  OK(ussrt_drive_read(bus, 1, &d));
+  EXPECT(d.live == 0 && d.image.latch_reason == USS_LATCH_REASON_STALE, "stale latch");
+  OK(ussrt_control_rearm(c, NULL));
+  OK(ussrt_control_stop(c));
+  OK(ussrt_control_release(c));
+  EXPECT(ussrt_control_run_hz(c, 1.0f) == USSRT_STATUS_RELEASED, "released");
+  ussrt_control_close(c);
+  ussrt_control_close(NULL);
+  OK(ussrt_drive_read(bus, 1, &d));
+  EXPECT(d.image.latch_reason == USS_LATCH_REASON_RELEASED, "released %u",
+         d.image.latch_reason);
+
+  uint32_t reached = 0;
+  OK(ussrt_stop_all(bus, 3, &reached));
+  EXPECT(reached == 0x6, "stop all: %#x", reached);
+  ussrt_bus_close(bus);
+  ussrt_bus_close(NULL);
+  printf("abi_check: all %d checks passed (libussrt %s)\n", checks, ussrt_version());
+  return 0;
+}

@@ -1,0 +1,145 @@
+//! The C ABI (`libussrt`, crate `uss-rt-c`) from real C and C++ programs against a real ussd:
+//! the C example and the C++ example (RAII wrapper) of `capi/examples` run a drive as the
+//! README shows, and `capi/tests/c/abi_check.c` goes through every kind of call: statuses and
+//! messages, the latch as an error code with its reason, the drive's error number, a stall of
+//! the program, a release.
+#![allow(clippy::unwrap_used)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use uss_integration_tests::Ussd;
+
+/// One ussd at a time: each runs a paced bus thread, and the machine has two cores.
+fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+fn root() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+/// `target/<profile>` of this test.
+fn target_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    exe.parent().and_then(Path::parent).unwrap().to_path_buf()
+}
+
+/// Where the test links libussrt from: `libussrt.so` and its soname `libussrt.so.0`.
+fn libdir() -> PathBuf {
+    target_dir().join("ussrt-lib")
+}
+
+/// Builds libussrt (once per test binary) and compiles `source` with `compiler` against it.
+fn compile(compiler: &str, source: &str, extra: &[&str]) -> PathBuf {
+    static BUILT: Mutex<bool> = Mutex::new(false);
+    let mut built = BUILT.lock().unwrap_or_else(PoisonError::into_inner);
+    let target = target_dir();
+    if !*built {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut cmd = Command::new(cargo);
+        cmd.args(["build", "--quiet", "-p", "uss-rt-c", "--lib"]);
+        if target.file_name().is_some_and(|p| p == "release") {
+            cmd.arg("--release");
+        }
+        assert!(cmd.status().unwrap().success(), "cargo build -p uss-rt-c");
+        // The library's soname, as capi/install.sh lays it out.
+        let lib = libdir();
+        std::fs::create_dir_all(&lib).unwrap();
+        for name in ["libussrt.so", "libussrt.so.0"] {
+            let _ = std::fs::remove_file(lib.join(name));
+            std::os::unix::fs::symlink(target.join("libussrt.so"), lib.join(name)).unwrap();
+        }
+        *built = true;
+    }
+    let source = root().join(source);
+    let exe = target.join(format!(
+        "capi-{}-{}",
+        source.file_stem().unwrap().to_string_lossy(),
+        source.extension().unwrap().to_string_lossy()
+    ));
+    let out = Command::new(compiler)
+        .args(["-Wall", "-Wextra", "-Werror", "-O1"])
+        .args(extra)
+        .arg("-I")
+        .arg(root().join("capi/include"))
+        .arg("-I")
+        .arg(root().join("shm-types/include"))
+        .arg(&source)
+        .arg("-o")
+        .arg(&exe)
+        .arg(format!("-L{}", libdir().display()))
+        .arg(format!("-Wl,-rpath,{}", libdir().display()))
+        .args(["-lussrt", "-lm"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{compiler} {}:\n{}",
+        source.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    exe
+}
+
+fn run(exe: &Path, args: &[&str]) -> Output {
+    Command::new(exe).args(args).output().unwrap()
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+#[test]
+fn every_kind_of_call_of_the_c_abi_against_a_real_ussd() {
+    let exe = compile("cc", "capi/tests/c/abi_check.c", &["-std=c11"]);
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let out = run(&exe, &[&ussd.bus]);
+    let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
+    assert!(out.status.success(), "{stdout}{stderr}\n{}", ussd.log());
+    assert!(stdout.starts_with("abi_check: all "), "{stdout}");
+    println!("{stdout}");
+}
+
+#[test]
+fn the_c_and_cpp_examples_run_a_drive_as_the_readme_shows() {
+    let c = compile("cc", "capi/examples/run_drive.c", &["-std=c11"]);
+    let cpp = compile("c++", "capi/examples/run_drive.cpp", &["-std=c++17"]);
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    // Quick ramps: 50 Hz in 1 s up and down.
+    for p in ["P1120", "P1121"] {
+        let p = p.parse().unwrap();
+        bus.write_param(1, p, "1", uss_client::WriteOptions::default())
+            .unwrap();
+    }
+    let out = run(&c, &[&ussd.bus, "1", "10", "1"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(
+        text(&out.stdout),
+        format!(
+            "{} drive 1: S2, latched, 0.00 Hz of 50.00 Hz\nP1082 = 50.00 Hz\n\
+             drive 1: re-armed; running towards 10.0 Hz\ndrive 1: S4 at 10.00 Hz\n\
+             drive 1: stopped (OFF1, S2) and released\n",
+            ussd.bus
+        )
+    );
+    let out = run(&cpp, &[&ussd.bus, "1", "10", "1"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(
+        text(&out.stdout),
+        "P1082 = 50.00 Hz\ndrive 1: re-armed; running towards 10.0 Hz\n\
+         drive 1: S4 at 10.00 Hz\ndrive 1: stopped (OFF1, S2) and released\n"
+    );
+    // A bus nobody serves: the library's message, exit 1.
+    let out = run(&cpp, &["nobody-here", "1", "10", "1"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        text(&out.stderr).contains("ussd is not running on nobody-here"),
+        "{}",
+        text(&out.stderr)
+    );
+}
