@@ -28,8 +28,9 @@ pub const DEFAULT_NODE_NAME: &str = "uss-client";
 pub struct Bus {
     link: Arc<Link>,
     answer_timeout: Option<Duration>,
-    /// Data types the drives described (AK 4) for parameters the catalogue does not know.
-    pub(crate) described: crate::typed::Described,
+    /// Data types the drives described (AK 4) for parameters the catalogue does not know,
+    /// shared with the views of [`Bus::with_answer_timeout`].
+    pub(crate) described: Arc<crate::typed::Described>,
 }
 
 impl core::fmt::Debug for Bus {
@@ -60,7 +61,7 @@ impl Bus {
             .create::<Ipc>()
             .map_err(|e| ClientError::ipc("creating the iceoryx2 node", e))?;
         Ok(Bus {
-            described: crate::typed::Described::default(),
+            described: Arc::default(),
             link: Arc::new(Link::open(name, node)?),
             answer_timeout: None,
         })
@@ -85,6 +86,18 @@ impl Bus {
     /// per item).
     pub fn set_answer_timeout(&mut self, timeout: Option<Duration>) {
         self.answer_timeout = timeout;
+    }
+
+    /// This bus with another answer timeout for parameter requests ([`Bus::set_answer_timeout`]):
+    /// the same connection and everything it knows, for calls that wait longer or shorter
+    /// than the others (a client library's per-call timeout).
+    #[must_use]
+    pub fn with_answer_timeout(&self, timeout: Option<Duration>) -> Bus {
+        Bus {
+            link: Arc::clone(&self.link),
+            answer_timeout: timeout,
+            described: Arc::clone(&self.described),
+        }
     }
 
     pub(crate) fn answer_timeout(&self, items: usize) -> Duration {

@@ -95,10 +95,10 @@ impl Bus {
     /// another drive family; parameters it does not know are described by the drives.
     #[must_use]
     pub fn with_catalogue(mut self, catalogue: &'static Catalogue) -> Self {
-        self.described = Described {
+        self.described = std::sync::Arc::new(Described {
             catalogue,
             types: Mutex::default(),
-        };
+        });
         self
     }
 

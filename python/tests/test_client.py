@@ -110,31 +110,6 @@ def wait_for_input(bus, address, accept, timeout=10.0):
         time.sleep(0.01)
 
 
-def test_an_image_read_as_ussd_goes_is_stale_not_an_error(bus, monkeypatch):
-    """The heartbeat can age past its limit between read_input's look at it and the read of the
-    image (seen once in CI): the image is then the last one, marked gone, never an exception."""
-    last = wait_for_input(bus, 1, lambda i: i["online"] == 1 and i["sequence"] > 0)
-    real = bus.health
-    looks = []
-
-    def health():
-        h = real()
-        looks.append(h)
-        if len(looks) > 1:
-            h.state = "gone"
-        return h
-
-    def gone(address):
-        raise uss_rt.UssdGone(bus.name, 0, 0.5)
-
-    monkeypatch.setattr(bus, "health", health)
-    monkeypatch.setattr(bus, "_input_entry", gone)
-    image = uss_rt.read_input(bus, 1)
-    assert image["health"] == "gone"
-    assert image["online"] == 0
-    assert image["sequence"] >= last["sequence"]
-
-
 def test_bus_lists_the_polled_drives_and_runs(bus):
     assert bus.drives() == list(DRIVES)
     status = bus.status()
@@ -180,19 +155,6 @@ def test_eight_threads_sharing_one_bus_take_turns_and_all_are_answered(bus):
     assert answers == [0x4248_0000] * 80
 
 
-def test_a_request_sent_without_the_events_is_still_answered(bus):
-    # A client that neither notifies `requests` nor listens on `answers` (a C program that
-    # skips them): ussd finds its request by polling, the client polls for the answer.
-    uss_rt.read_param(bus, 1, 1082)
-    events = bus._services["events"]
-    assert all(port is not None for port in events), "this client has both event ports"
-    bus._services["events"] = (None, None)
-    try:
-        assert [uss_rt.read_param(bus, 1, 1082) for _ in range(5)] == [0x4248_0000] * 5
-    finally:
-        bus._services["events"] = events
-
-
 def test_unknown_pnu_raises_drive_error_0(bus):
     with pytest.raises(uss_rt.DriveError) as e:
         uss_rt.read_param(bus, 2, 1999)
@@ -214,11 +176,9 @@ def test_a_drive_without_a_controller_is_latched_with_its_safe_command(bus):
     assert image["latch_reason"] == uss_rt.LatchReason.STARTUP
     assert image["latch_command"] == uss_rt.StopCommand.OFF1
     assert image["sent_stw1"] == 0x047E
-    diag = bus._services["diag"].reader_builder().create().entry(
-        uss_rt.BlackboardKey(1), uss_rt.DriveDiag
-    ).get().decode_as(uss_rt.DriveDiag)
-    assert (diag.info.pzd_words, diag.counters.latches) == (2, 1)
-    assert (diag.info.reference_hz, diag.info.watchdog_ms) == (50.0, 100)
+    diag = bus.diag(1)
+    assert (diag["info"]["pzd_words"], diag["counters"]["latches"]) == (2, 1)
+    assert (diag["info"]["reference_hz"], diag["info"]["watchdog_ms"]) == (50.0, 100)
 
 
 def test_python_stops_a_drive_another_process_runs_and_the_stop_latches(bus):
@@ -340,9 +300,56 @@ def test_an_operators_stop_after_the_controllers_own_stop_stays_latched(bus):
         drive.rearm()  # the deliberate re-arm: OFF1, then ON may run the drive again
 
 
-def test_the_catalogue_is_the_rust_crates_file():
-    rust = ROOT / "catalogue" / "data" / "micromaster4.toml"
-    assert uss_rt.drive.CATALOGUE_FILE.read_bytes() == rust.read_bytes()
+def test_a_python_program_that_stops_calling_trips_its_drive_and_its_next_call_says_so(bus):
+    """Issue 20: the watchdog watches the program, not a thread. A program that called
+    run_hz and then made no call for 0.5 s (five watchdog times) no longer keeps its drive
+    live through the refresher thread; its next call is the trip."""
+    with uss_rt.control(bus, 2) as drive:
+        drive.rearm()
+        drive.run_hz(10)
+        drive.wait_for(lambda i: i["sent_stw1"] == 0x047F, what="ON on the wire")
+        time.sleep(0.5)
+        image = uss_rt.read_input(bus, 2)
+        assert image["control"] == uss_rt.ControlState.LATCHED, image
+        assert image["latch_reason"] == uss_rt.LatchReason.STALE, image
+        assert image["sent_stw1"] == 0x047E
+        with pytest.raises(uss_rt.Tripped):
+            drive.run_hz(10)
+        drive.rearm()  # the deliberate re-arm runs it again
+        drive.run_hz(10)
+        drive.wait_for(lambda i: i["sent_stw1"] == 0x047F, what="ON on the wire")
+        drive.stop()
+
+
+def test_calls_that_wait_release_the_gil(bus):
+    """A thread of the program keeps running while another waits in the native module: the
+    GIL is released while a call waits for the drive or for ussd's answer."""
+    import threading
+
+    counter, stop = [0], threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            counter[0] += 1
+
+    spinner = threading.Thread(target=spin)
+    spinner.start()
+    try:
+        with uss_rt.control(bus, 1) as drive:
+            drive.rearm()
+            before = counter[0]
+            with pytest.raises(uss_rt.WaitTimeout):
+                drive.wait_for(lambda i: False, timeout=0.3, what="never")
+            during_wait = counter[0] - before
+            before = counter[0]
+            for _ in range(20):
+                uss_rt.read_param(bus, 1, 1082)
+            during_reads = counter[0] - before
+    finally:
+        stop.set()
+        spinner.join()
+    print(f"python: the other thread counted {during_wait} during a wait, {during_reads} during reads")
+    assert during_wait > 10_000 and during_reads > 10_000
 
 
 def test_bus_without_ussd_raises_not_running():
@@ -357,6 +364,8 @@ def test_a_monitor_sees_a_killed_ussd_gone_within_a_second_and_follows_its_resta
     daemon.wait_for_services()
     with uss_rt.open_bus(BUS + "k") as bus:
         wait_for_input(bus, 1, lambda i: i["online"] == 1 and i["sequence"] > 0)
+        drive = uss_rt.control(bus, 2)
+        drive.rearm()
         killed = time.monotonic()
         daemon.process.kill()
         daemon.process.wait()
@@ -368,12 +377,20 @@ def test_a_monitor_sees_a_killed_ussd_gone_within_a_second_and_follows_its_resta
         assert isinstance(bus.health().error(), uss_rt.UssdGone)
         with pytest.raises(uss_rt.UssdGone, match="is gone"):
             uss_rt.read_param(bus, 1, 1082)
+        # A controller is told too: nothing would reach the drive.
+        with pytest.raises(uss_rt.UssdGone):
+            drive.run_hz(10)
         restarted = Ussd(tmp_path, BUS + "k")
         try:
             back = wait_for_input(bus, 1, lambda i: i["health"] == "running" and i["online"] == 1)
             assert back["control"] == uss_rt.ControlState.LATCHED
             assert back["latch_reason"] == uss_rt.LatchReason.STARTUP
             assert uss_rt.read_param(bus, 1, 1082).as_float() == 50.0
+            # The new ussd latched every drive: the controller's next call is that news.
+            with pytest.raises(uss_rt.Tripped):
+                drive.run_hz(10)
+            drive.rearm()
+            drive.release()
         finally:
             assert restarted.stop() == 0, restarted.output()
 

@@ -24,6 +24,20 @@ pub enum ContractError {
     Code(#[from] UnknownCode),
 }
 
+/// The C and Python name of a Rust name: `PzdOutput` -> `PZD_OUTPUT`, `Off1` -> `OFF1`,
+/// `DwordOverThreeWords` -> `DWORD_OVER_THREE_WORDS` (the C header's constants and the Python
+/// enums' members are spelt so).
+pub fn screaming_snake(camel: &str) -> String {
+    let mut out = String::new();
+    for (i, c) in camel.chars().enumerate() {
+        if c.is_ascii_uppercase() && i > 0 {
+            out.push('_');
+        }
+        out.push(c.to_ascii_uppercase());
+    }
+    out
+}
+
 /// Defines a `#[repr(u8)]` code table with `code()`, `name()`, `ALL` and `TryFrom<u8>`.
 macro_rules! code_table {
     (

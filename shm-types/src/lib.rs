@@ -50,7 +50,7 @@ pub mod pzd;
 pub mod session;
 
 pub use capture::{CAPTURE_BYTES, CAPTURE_TASK, CAPTURE_TRUNCATED, Direction, Hex, TelegramRecord};
-pub use codes::{ContractError, UnknownCode};
+pub use codes::{ContractError, UnknownCode, screaming_snake};
 pub use control::{
     ALL_DRIVES, CommandError, ControlState, LatchReason, Monitoring, OperatorRequest,
     OperatorResponse, Rejection, StopCommand,

@@ -40,17 +40,7 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
-/// `PzdOutput` -> `PZD_OUTPUT`, `DwordOverThreeWords` -> `DWORD_OVER_THREE_WORDS`.
-fn screaming(camel: &str) -> String {
-    let mut out = String::new();
-    for (i, c) in camel.chars().enumerate() {
-        if c.is_ascii_uppercase() && i > 0 {
-            out.push('_');
-        }
-        out.push(c.to_ascii_uppercase());
-    }
-    out
-}
+use uss_shm_types::screaming_snake as screaming;
 
 /// The C name of a contract type: `PzdOutput` -> `UssPzdOutput`.
 fn c_type(rust: &str) -> String {

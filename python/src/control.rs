@@ -1,0 +1,232 @@
+//! Exclusive control of a drive from Python: the Rust `Controller`, whose session decides every
+//! sample. A refresher fills the gaps between the program's calls, only while the program
+//! called within the drive's watchdog time: a Python loop that blocks trips its drive.
+
+use crate::errors;
+use crate::{NativeBus, duration, image_dict};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use uss_client::{
+    ClientError, ControlOptions, Controller as RustController, DEFAULT_REFRESH, Refresher,
+};
+
+/// The one controller of a drive.
+#[pyclass(frozen, module = "uss_rt._native")]
+pub(crate) struct Controller {
+    /// `None` once released.
+    inner: Mutex<Option<(RustController, Refresher)>>,
+    bus: String,
+    address: u8,
+    pzd: usize,
+}
+
+impl Controller {
+    fn held(&self) -> MutexGuard<'_, Option<(RustController, Refresher)>> {
+        self.inner.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Runs `f` on the controller without the GIL; a released controller is an error.
+    fn with<R: Send>(
+        &self,
+        py: Python<'_>,
+        f: impl FnOnce(&RustController) -> Result<R, ClientError> + Send,
+    ) -> PyResult<R> {
+        let result = py.detach(|| {
+            let held = self.held();
+            match held.as_ref() {
+                Some((c, _)) => f(c),
+                None => Err(ClientError::Released {
+                    bus: self.bus.clone(),
+                    address: self.address,
+                }),
+            }
+        });
+        result.map_err(|e| errors::client(py, e))
+    }
+
+    fn image<'py>(&self, py: Python<'py>, c: &RustController) -> PyResult<Bound<'py, PyDict>> {
+        let look = c.inputs().snapshot();
+        let health = if look.problem.is_some() {
+            "gone"
+        } else {
+            "running"
+        };
+        image_dict(py, self.address, &look.image, health)
+    }
+}
+
+/// Takes exclusive control of drive `address`; a refresher thread (every 20 ms) fills the gaps
+/// between the program's own calls while they come within the watchdog time.
+#[pyfunction]
+pub(crate) fn control(
+    py: Python<'_>,
+    bus: &Bound<'_, NativeBus>,
+    address: u8,
+) -> PyResult<Controller> {
+    let rust_bus = &bus.get().inner;
+    let opened = py.detach(|| rust_bus.control(address, ControlOptions::default()));
+    let c = opened.map_err(|e| errors::client(py, e))?;
+    let refresher = c.spawn_refresher(DEFAULT_REFRESH);
+    let pzd = c.words().len();
+    Ok(Controller {
+        inner: Mutex::new(Some((c, refresher))),
+        bus: rust_bus.name().to_owned(),
+        address,
+        pzd,
+    })
+}
+
+#[pymethods]
+impl Controller {
+    #[getter]
+    fn address(&self) -> u8 {
+        self.address
+    }
+
+    /// The drive's PZD length: every sample carries this many words.
+    #[getter]
+    fn words_count(&self) -> usize {
+        self.pzd
+    }
+
+    /// The words this controller sends (STW1 first); empty once released.
+    fn words(&self) -> Vec<u16> {
+        self.held()
+            .as_ref()
+            .map(|(c, _)| c.words())
+            .unwrap_or_default()
+    }
+
+    /// The reference frequency P2000 ussd publishes now.
+    #[getter]
+    fn reference_hz(&self, py: Python<'_>) -> PyResult<f32> {
+        self.with(py, |c| Ok(c.inputs().info().reference_hz))
+    }
+
+    /// The drive's input image.
+    fn inputs<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let held = self.held();
+        match held.as_ref() {
+            Some((c, _)) => self.image(py, c),
+            None => Err(errors::client(
+                py,
+                ClientError::Released {
+                    bus: self.bus.clone(),
+                    address: self.address,
+                },
+            )),
+        }
+    }
+
+    /// The image, or the latch (Tripped) or stall this controller has not acknowledged.
+    fn check<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        self.with(py, |c| c.check().map(|_| ()))?;
+        self.inputs(py)
+    }
+
+    /// Acknowledges the latch and re-arms: OFF1 naming it, then waits until the drive is live.
+    fn rearm<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        self.with(py, |c| c.rearm().map(|_| ()))?;
+        self.inputs(py)
+    }
+
+    /// The program's refresh: the current words again.
+    fn keepalive(&self, py: Python<'_>) -> PyResult<()> {
+        self.with(py, RustController::keepalive)
+    }
+
+    fn enable(&self, py: Python<'_>) -> PyResult<()> {
+        self.with(py, RustController::enable)
+    }
+
+    fn run_hz(&self, py: Python<'_>, hz: f32) -> PyResult<()> {
+        if !hz.is_finite() {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "{hz} Hz is not a finite number"
+            )));
+        }
+        self.with(py, |c| c.run_hz(hz))
+    }
+
+    fn stop(&self, py: Python<'_>) -> PyResult<()> {
+        self.with(py, RustController::stop)
+    }
+
+    fn coast(&self, py: Python<'_>) -> PyResult<()> {
+        self.with(py, RustController::coast)
+    }
+
+    fn quick_stop(&self, py: Python<'_>) -> PyResult<()> {
+        self.with(py, RustController::quick_stop)
+    }
+
+    fn reverse(&self, py: Python<'_>, reverse: bool) -> PyResult<()> {
+        self.with(py, |c| c.reverse(reverse))
+    }
+
+    /// A rising edge of STW1 bit 7 until the drive received it (at most `timeout` s), then OFF1.
+    fn acknowledge(&self, py: Python<'_>, timeout: f64) -> PyResult<()> {
+        let timeout = duration(timeout)?;
+        self.with(py, |c| c.acknowledge_fault(timeout))
+    }
+
+    #[allow(clippy::needless_pass_by_value)] // PyO3 extracts a Python list as a Vec
+    fn set_words(&self, py: Python<'_>, words: Vec<u16>) -> PyResult<()> {
+        self.with(py, |c| c.set_words(&words))
+    }
+
+    /// Waits (without the GIL but for the predicate, refreshing meanwhile: the program waits
+    /// inside its own call) until `predicate(image)` holds; the image that satisfied it.
+    fn wait_for<'py>(
+        &self,
+        py: Python<'py>,
+        predicate: &Bound<'py, PyAny>,
+        timeout: f64,
+        what: &str,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let timeout = duration(timeout)?;
+        let address = self.address;
+        let predicate = predicate.clone().unbind();
+        let failed: Mutex<Option<PyErr>> = Mutex::new(None);
+        let waited = self.with(py, |c| {
+            c.wait_for(timeout, what, |i| {
+                Python::attach(|py| {
+                    let image = image_dict(py, address, i, "running")?;
+                    predicate.bind(py).call1((image,))?.is_truthy()
+                })
+                .unwrap_or_else(|e| {
+                    // The predicate raised: end the wait, raise it.
+                    *failed.lock().unwrap_or_else(PoisonError::into_inner) = Some(e);
+                    true
+                })
+            })
+        });
+        if let Some(e) = failed.into_inner().unwrap_or_else(PoisonError::into_inner) {
+            return Err(e);
+        }
+        image_dict(py, address, &waited?, "running")
+    }
+
+    /// Hands the drive back: ussd sends its safe command, "released" (not a trip). Later calls
+    /// raise; a second release does nothing.
+    fn release(&self, py: Python<'_>) -> PyResult<()> {
+        let taken = self.held().take();
+        let Some((c, refresher)) = taken else {
+            return Ok(());
+        };
+        let released = py.detach(|| {
+            let _ = refresher.stop();
+            c.release().map(|_| ())
+        });
+        released.map_err(|e| errors::client(py, e))
+    }
+
+    fn __repr__(&self) -> String {
+        let stw1 = self.words().first().copied().unwrap_or(0);
+        format!(
+            "Controller(bus='{}', drive={}, stw1={stw1:#06x})",
+            self.bus, self.address
+        )
+    }
+}

@@ -1,0 +1,211 @@
+//! Parameters from Python: raw words, the manuals' notation as their own type (the catalogue
+//! and the drive's own description, as in Rust), the fault report.
+
+use crate::errors;
+use crate::{NativeBus, duration};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use uss_client::uss_protocol::{ParamRef, Prefix};
+use uss_client::{Catalogue, DataType, ParamValue, Typed, Value, WriteOptions};
+
+fn raw(v: Value) -> (u32, bool) {
+    match v {
+        Value::Word(w) => (u32::from(w), false),
+        Value::Dword(d) => (d, true),
+    }
+}
+
+fn index(index: Option<u16>) -> PyResult<Option<u8>> {
+    index
+        .map(|i| {
+            u8::try_from(i).ok().filter(|&i| i <= 254).ok_or_else(|| {
+                PyValueError::new_err(format!(
+                    "subindex {i} is out of range 0..=254 (USS.md section 6)"
+                ))
+            })
+        })
+        .transpose()
+}
+
+/// `pnu` (or its element `index`) of drive `address` as the raw `(value, is_dword)`.
+#[pyfunction]
+#[pyo3(signature = (bus, address, pnu, index_=None, timeout=7.5))]
+fn read_param(
+    py: Python<'_>,
+    bus: &Bound<'_, NativeBus>,
+    address: u8,
+    pnu: u16,
+    index_: Option<u16>,
+    timeout: f64,
+) -> PyResult<(u32, bool)> {
+    let index = index(index_)?;
+    let bus = bus
+        .get()
+        .inner
+        .with_answer_timeout(Some(duration(timeout)?));
+    py.detach(|| bus.read(address, pnu, index))
+        .map(raw)
+        .map_err(|e| errors::param(py, &bus, address, e))
+}
+
+fn type_name(t: DataType) -> &'static str {
+    match t {
+        DataType::I16 => "I16",
+        DataType::I32 => "I32",
+        DataType::U16 => "U16",
+        DataType::U32 => "U32",
+        DataType::Float => "Float",
+    }
+}
+
+/// A parameter value as a dict: `param` (`P1082`), `raw`, `is_dword`, `data_type`, `value`
+/// (float or int), `unit`, `name`, `shown` (`50.00 Hz`), `text` (`P1082 = 50.00 Hz`).
+fn value_dict<'py>(py: Python<'py>, v: &ParamValue) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let (raw, is_dword) = raw(v.raw);
+    d.set_item("param", v.param.to_string())?;
+    d.set_item("raw", raw)?;
+    d.set_item("is_dword", is_dword)?;
+    d.set_item("data_type", type_name(v.data_type))?;
+    match v.typed() {
+        Typed::Float(x) => d.set_item("value", f64::from(x))?,
+        Typed::I16(x) => d.set_item("value", x)?,
+        Typed::I32(x) => d.set_item("value", x)?,
+        Typed::U16(x) => d.set_item("value", x)?,
+        Typed::U32(x) => d.set_item("value", x)?,
+    }
+    d.set_item("unit", v.unit())?;
+    d.set_item("name", v.name())?;
+    d.set_item("bits", v.info.is_some_and(|p| p.bits.is_some()))?;
+    d.set_item("shown", v.shown())?;
+    d.set_item("text", v.to_string())?;
+    Ok(d)
+}
+
+fn param_ref(text: &str) -> PyResult<ParamRef> {
+    text.trim()
+        .parse::<ParamRef>()
+        .map_err(|e| PyValueError::new_err(format!("{text:?}: {e}")))
+}
+
+/// Reads `param` in the manuals' notation as its own type.
+#[pyfunction]
+#[pyo3(signature = (bus, address, param, timeout=7.5))]
+fn read<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+    param: &str,
+    timeout: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    typed(py, bus, address, param, timeout, |bus, param| {
+        bus.read_param(address, param)
+    })
+}
+
+/// A typed parameter call `f` of `param`, answered within `timeout` s, without the GIL.
+fn typed<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+    param: &str,
+    timeout: f64,
+    f: impl FnOnce(&uss_client::Bus, ParamRef) -> Result<ParamValue, uss_client::ParamError> + Send,
+) -> PyResult<Bound<'py, PyDict>> {
+    let param = param_ref(param)?;
+    let bus = bus
+        .get()
+        .inner
+        .with_answer_timeout(Some(duration(timeout)?));
+    let value = py
+        .detach(|| f(&bus, param))
+        .map_err(|e| errors::param(py, &bus, address, e))?;
+    value_dict(py, &value)
+}
+
+/// Writes `text` to `param`, converted to the parameter's own type; the value the drive holds.
+#[pyfunction]
+#[pyo3(signature = (bus, address, param, text, eeprom=false, force=false, timeout=7.5))]
+#[allow(clippy::too_many_arguments)] // the Python call's own keyword arguments
+fn write<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+    param: &str,
+    text: &str,
+    eeprom: bool,
+    force: bool,
+    timeout: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    let options = WriteOptions { eeprom, force };
+    typed(py, bus, address, param, timeout, |bus, param| {
+        bus.write_param(address, param, text, options)
+    })
+}
+
+/// The fault buffer with values, times and texts, and the active warnings: `{"faults": [...],
+/// "warnings": [...] or None}`.
+#[pyfunction]
+fn fault_report<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+) -> PyResult<Bound<'py, PyDict>> {
+    let bus = &bus.get().inner;
+    let report = py
+        .detach(|| bus.fault_report(address))
+        .map_err(|e| errors::param(py, bus, address, e))?;
+    let faults = pyo3::types::PyList::empty(py);
+    for f in &report.faults {
+        let d = PyDict::new(py);
+        d.set_item("slot", f.slot)?;
+        d.set_item("number", f.number)?;
+        d.set_item("value", f.value)?;
+        d.set_item("time", f.time.map(|t| t.to_string()))?;
+        d.set_item("text", f.text)?;
+        faults.append(d)?;
+    }
+    let d = PyDict::new(py);
+    d.set_item("faults", faults)?;
+    let warnings = report
+        .warnings
+        .map(|ws| ws.iter().map(|w| (w.number, w.text)).collect::<Vec<_>>());
+    d.set_item("warnings", warnings)?;
+    Ok(d)
+}
+
+/// `(pnu, index, prefix)` of a parameter as the manuals write it.
+#[pyfunction]
+fn parse_param(text: &str) -> PyResult<(u16, Option<u8>, &'static str)> {
+    let p = param_ref(text)?;
+    let prefix = match p.prefix {
+        Prefix::LowerP => "p",
+        Prefix::R => "r",
+        Prefix::P | Prefix::None => "P",
+    };
+    Ok((p.pnu.get(), p.index.map(uss_client::Subindex::get), prefix))
+}
+
+/// The catalogue's text of fault `number` (F0072 -> 72).
+#[pyfunction]
+fn fault_text(number: u16) -> Option<&'static str> {
+    Catalogue::micromaster4().fault(number)
+}
+
+/// The catalogue's text of warning `number` (A0501 -> 501).
+#[pyfunction]
+fn warning_text(number: u16) -> Option<&'static str> {
+    Catalogue::micromaster4().warning(number)
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(read_param, m)?)?;
+    m.add_function(wrap_pyfunction!(read, m)?)?;
+    m.add_function(wrap_pyfunction!(write, m)?)?;
+    m.add_function(wrap_pyfunction!(fault_report, m)?)?;
+    m.add_function(wrap_pyfunction!(parse_param, m)?)?;
+    m.add_function(wrap_pyfunction!(fault_text, m)?)?;
+    m.add_function(wrap_pyfunction!(warning_text, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,102 @@
+"""The Python face of the native module against the Rust contract, without a running ussd.
+
+The enums are made from the native module's own code tables (the Rust crate's); these tests
+hold them to the C header that cbindgen generates from the same crate
+(shm-types/include/uss_shm_types.h, checked against the crate by shm-types/tests/c_header.rs),
+and check the exception classes the native module raises.
+"""
+
+import re
+from pathlib import Path
+
+import pytest
+
+import uss_rt
+
+ROOT = Path(__file__).resolve().parents[2]
+HEADER = ROOT / "shm-types" / "include" / "uss_shm_types.h"
+
+
+def header_text():
+    return HEADER.read_text()
+
+
+def screaming(camel):
+    return re.sub(r"(?<!^)([A-Z])", r"_\1", camel).upper()
+
+
+def test_code_tables_have_exactly_the_codes_of_the_header():
+    text = header_text()
+    for table in (
+        uss_rt.LastFailure,
+        uss_rt.RtMode,
+        uss_rt.TaskCode,
+        uss_rt.Storage,
+        uss_rt.RequestError,
+        uss_rt.Outcome,
+        uss_rt.ControlState,
+        uss_rt.LatchReason,
+        uss_rt.Rejection,
+        uss_rt.StopCommand,
+        uss_rt.Monitoring,
+        uss_rt.CommandError,
+        uss_rt.LineState,
+        uss_rt.LineFault,
+        uss_rt.BusState,
+        uss_rt.Direction,
+    ):
+        prefix = f"USS_{screaming(table.__name__)}_"
+        body = re.search(r"enum Uss%s\b.*?\{(.*?)\};" % table.__name__, text, re.S).group(1)
+        header = {m: int(v) for m, v in re.findall(r"%s(\w+) = (\d+)," % prefix, body)}
+        assert header == {m.name: m.value for m in table}, table.__name__
+
+
+def test_the_native_module_speaks_the_headers_layout_version():
+    version = re.search(r"#define USS_LAYOUT_VERSION (\d+)", header_text()).group(1)
+    assert uss_rt.LAYOUT_VERSION == int(version)
+
+
+def test_stop_commands_carry_bit_10_and_clear_on():
+    for command, stw1 in uss_rt.STOP_STW1.items():
+        assert stw1 & 0x0400 and not stw1 & 0x0001, command
+
+
+def test_float_values_decode_from_their_ieee754_bits_and_words_are_not_floats():
+    assert uss_rt.ParamValue(0x4248_0000, True).as_float() == 50.0
+    assert uss_rt.ParamValue(0xC120_0000, True).as_float() == -10.0
+    word = uss_rt.ParamValue(0x1234, False)
+    assert word == 0x1234 and not word.is_dword
+    with pytest.raises(ValueError, match="0x1234"):
+        word.as_float()
+
+
+def test_errors_carry_their_codes_and_say_what_to_do():
+    e = uss_rt.DriveError(2)
+    assert e.number == 2
+    assert str(e) == "the drive refused the task with error 2: limit exceeded"
+    e = uss_rt.Refused(uss_rt.RequestError.WRITES_DISABLED, 0)
+    assert (e.error, e.item) == (uss_rt.RequestError.WRITES_DISABLED, 0)
+    assert "params_writable = false" in str(e)
+    assert uss_rt.Refused(200).error == 200  # a code this module does not know stays a number
+    assert isinstance(uss_rt.ParamTimeout(), TimeoutError)
+    assert isinstance(uss_rt.NoAnswer("bus0", "did not answer"), TimeoutError)
+    assert str(uss_rt.NotRunning("bus0")).startswith("ussd is not running on bus0: start it")
+    tripped = uss_rt.Tripped(1, uss_rt.LatchReason.OVERRIDE, uss_rt.StopCommand.OFF2, 4711)
+    assert (tripped.reason, tripped.command, tripped.by_pid) == (5, 2, 4711)
+    assert str(tripped) == (
+        "drive 1 is latched (override): it gets OFF2; re-arm it with rearm() (OFF1, then ON)"
+    )
+    stalled = uss_rt.Stalled(1, 0.4, "no call for 0.400 s")
+    assert isinstance(stalled, uss_rt.Tripped) and stalled.gap == 0.4
+    assert str(stalled) == "no call for 0.400 s"
+
+
+def test_parameters_are_parsed_in_the_manuals_notation_by_the_rust_code():
+    assert uss_rt.parse_param("P1082") == (1082, None, "P")
+    assert uss_rt.parse_param("p1082") == (1082, None, "p")
+    assert uss_rt.parse_param("r0947.3") == (947, 3, "r")
+    assert uss_rt.parse_param("P0947[3]") == (947, 3, "P")
+    assert uss_rt.parse_param("21") == (21, None, "P")
+    with pytest.raises(ValueError, match="write a parameter as P1082"):
+        uss_rt.parse_param("Q12")
+    assert uss_rt.fault_text(72) == "USS (COM link) setpoint fault"
