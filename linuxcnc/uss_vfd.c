@@ -1,0 +1,326 @@
+/*
+ * uss_vfd: a LinuxCNC userspace HAL component that runs a spindle drive through ussd, the way
+ * LinuxCNC's own VFD drivers (vfs11_vfd, gs2_vfd, hy_vfd) run theirs over Modbus:
+ *
+ *   loadusr -Wn uss_vfd uss_vfd --bus line1 --drive 3
+ *
+ * It is a controller of libussrt (the C ABI of the uss-rt client), so the drive follows the
+ * rules every uss-rt controller follows: it runs only on a live, deliberate command; a latch
+ * (an operator's stop, a trip of this component, a restarted ussd) holds until spindle-on goes
+ * from high to low (the re-arming OFF1: latched while idle, it must be switched on and off) and
+ * then high again (ON); at start spindle-on must be seen low first; the watchdog is fed by this
+ * component's own loop, one command per exchange.
+ *
+ * Pins (NAME is --name, default uss_vfd):
+ *   NAME.speed-command       float in   spindle speed in rpm (the sign gives the direction when
+ *                                       neither spindle-fwd nor spindle-rev is set)
+ *   NAME.spindle-on          bit   in   run; a latch needs it low, then high, to run again
+ *   NAME.spindle-fwd         bit   in   forward
+ *   NAME.spindle-rev         bit   in   reverse
+ *   NAME.enable              bit   in   must be high for the drive to run (low: OFF1)
+ *   NAME.err-reset           bit   in   a rising edge acknowledges a drive fault
+ *   NAME.at-speed            bit   out  running within tolerance of the command
+ *   NAME.spindle-speed-fb    float out  actual speed in rpm
+ *   NAME.spindle-speed-fb-hz float out  actual frequency in Hz
+ *   NAME.frequency-command   float out  the commanded frequency in Hz
+ *   NAME.fault               bit   out  the drive reports a fault (ZSW1 bit 3)
+ *   NAME.fault-code          s32   out  the drive's newest fault number (r0947[0], F0072 -> 72)
+ *   NAME.latched             bit   out  ussd holds the drive stopped until it is re-armed
+ *   NAME.comm-ok             bit   out  ussd serves the bus and the drive answers
+ *   NAME.error-count         s32   out  failed calls and lost contacts since the start
+ *   NAME.state               s32   out  PROFIdrive state: 1..4 for S1..S4, 6 fault, 0 not ready
+ * Parameters:
+ *   NAME.rpm-at-reference    float rw   rpm at the drive's reference frequency (P2000)
+ *   NAME.tolerance           float rw   at-speed tolerance, a fraction of the command (0.02)
+ */
+#define _POSIX_C_SOURCE 200809L
+
+#include <math.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "hal.h"
+#include "ussrt.h"
+
+typedef struct {
+  hal_float_t *speed_command;
+  hal_bit_t *spindle_on;
+  hal_bit_t *spindle_fwd;
+  hal_bit_t *spindle_rev;
+  hal_bit_t *enable;
+  hal_bit_t *err_reset;
+  hal_bit_t *at_speed;
+  hal_float_t *speed_fb;
+  hal_float_t *speed_fb_hz;
+  hal_float_t *frequency_command;
+  hal_bit_t *fault;
+  hal_s32_t *fault_code;
+  hal_bit_t *latched;
+  hal_bit_t *comm_ok;
+  hal_s32_t *error_count;
+  hal_s32_t *state;
+  hal_float_t rpm_at_reference;
+  hal_float_t tolerance;
+} pins_t;
+
+static volatile sig_atomic_t done;
+
+static void quit(int signal) {
+  (void)signal;
+  done = 1;
+}
+
+static void usage(void) {
+  fprintf(stderr, "usage: uss_vfd --bus BUS --drive ADDRESS [--name NAME]\n");
+}
+
+/* What the component knows between two loops. */
+typedef struct {
+  const char *name;
+  const char *bus_name;
+  uint8_t address;
+  UssrtBus *bus;
+  UssrtController *c;
+  /* The start needs spindle-on low before the drive may run (the re-arming OFF1). */
+  int need_low;
+  /* A latch needs spindle-on to go from high to low (the deliberate re-arm) before it runs. */
+  int need_fall;
+  int was_on;
+  int was_fault;
+  int was_reset;
+  int was_comm;
+  int complained;
+} vfd_t;
+
+static void say(vfd_t *v, const char *what, UssrtStatus s) {
+  /* One line per kind of failure in a row, not one per loop. */
+  if (v->complained != (int)s) {
+    fprintf(stderr, "%s: %s: %s\n", v->name, what, ussrt_last_error());
+    v->complained = (int)s;
+  }
+}
+
+/* Lets go of bus and controller (the controller hands the drive back). */
+static void disconnect(vfd_t *v) {
+  ussrt_control_close(v->c);
+  v->c = NULL;
+  ussrt_bus_close(v->bus);
+  v->bus = NULL;
+}
+
+/* Opens bus and controller when they are not; 0 when both are there. */
+static int connect(vfd_t *v, pins_t *p) {
+  UssrtStatus s;
+  if (v->bus == NULL) {
+    s = ussrt_bus_open(v->bus_name, &v->bus);
+    if (s != USSRT_STATUS_OK) {
+      say(v, "bus", s);
+      return -1;
+    }
+  }
+  if (v->c == NULL) {
+    s = ussrt_control_open(v->bus, v->address, &v->c);
+    if (s != USSRT_STATUS_OK) {
+      say(v, "control", s);
+      (*p->error_count)++;
+      return -1;
+    }
+    /* A new controller: the drive runs only after spindle-on was seen low. */
+    v->need_low = 1;
+    v->need_fall = 0;
+  }
+  return 0;
+}
+
+static void outputs_off(pins_t *p) {
+  *p->at_speed = 0;
+  *p->comm_ok = 0;
+}
+
+/* One loop: read the drive, decide the command, send it (the watchdog refresh). */
+static void step(vfd_t *v, pins_t *p) {
+  if (connect(v, p) != 0) {
+    outputs_off(p);
+    return;
+  }
+  UssrtDrive d;
+  UssrtStatus s = ussrt_drive_read(v->bus, v->address, &d);
+  if (s != USSRT_STATUS_OK) {
+    say(v, "read", s);
+    (*p->error_count)++;
+    outputs_off(p);
+    return;
+  }
+  int comm = !d.stale && d.image.online;
+  if (v->was_comm && !comm) (*p->error_count)++;
+  v->was_comm = comm;
+  *p->comm_ok = comm;
+  *p->state = d.state;
+  *p->fault = d.state == 6;
+  double reference = d.reference_hz > 0 ? d.reference_hz : 50.0;
+  double rpm_per_hz = p->rpm_at_reference / reference;
+  *p->speed_fb_hz = d.actual_hz;
+  *p->speed_fb = d.actual_hz * rpm_per_hz;
+
+  /* The drive's newest fault number, read once per fault. */
+  if (*p->fault && !v->was_fault) {
+    UssrtValue f;
+    if (ussrt_param_read(v->bus, v->address, "r0947[0]", &f) == USSRT_STATUS_OK) {
+      *p->fault_code = (hal_s32_t)f.value;
+    }
+  }
+  v->was_fault = *p->fault;
+
+  /* The command: stopped unless on, enabled and re-armed. */
+  double command = *p->speed_command;
+  int reverse = (*p->spindle_rev && !*p->spindle_fwd) ||
+                (!*p->spindle_fwd && !*p->spindle_rev && command < 0);
+  double hz = fabs(command) / (rpm_per_hz > 0 ? rpm_per_hz : 1.0) * (reverse ? -1 : 1);
+  *p->frequency_command = hz;
+  int on = *p->spindle_on;
+  int fell = v->was_on && !on;
+  v->was_on = on;
+  int run = on && *p->enable;
+  if (v->need_fall) {
+    /* Latched: nothing is sent until spindle-on falls, which re-arms (OFF1 naming the latch). */
+    s = USSRT_STATUS_OK;
+    if (fell) {
+      s = ussrt_control_rearm(v->c, NULL);
+      if (s == USSRT_STATUS_OK) v->need_fall = v->need_low = 0;
+    }
+  } else if (!on) {
+    if (v->need_low || !d.live) {
+      /* spindle-on low at the start: the re-arming OFF1 of ussd's start-up latch. */
+      s = ussrt_control_rearm(v->c, NULL);
+      if (s == USSRT_STATUS_OK) v->need_low = 0;
+    } else {
+      s = ussrt_control_stop(v->c);
+    }
+  } else if (v->need_low || !run) {
+    s = ussrt_control_stop(v->c);
+  } else {
+    s = ussrt_control_run_hz(v->c, (float)hz);
+  }
+  if (*p->err_reset && !v->was_reset && s == USSRT_STATUS_OK) {
+    s = ussrt_control_acknowledge_fault(v->c, 1000);
+  }
+  v->was_reset = *p->err_reset;
+
+  switch (s) {
+  case USSRT_STATUS_OK:
+    v->complained = 0;
+    break;
+  case USSRT_STATUS_TRIPPED:
+  case USSRT_STATUS_NOT_ARMED:
+  case USSRT_STATUS_STALLED:
+    /* Latched: nothing runs the drive until spindle-on falls (re-arm), then rises (ON). */
+    v->need_fall = 1;
+    say(v, "latched", s);
+    break;
+  case USSRT_STATUS_RELEASED:
+  case USSRT_STATUS_CONTROLLED:
+    disconnect(v);
+    (*p->error_count)++;
+    break;
+  default:
+    say(v, "command", s);
+    (*p->error_count)++;
+    break;
+  }
+  UssrtDrive now;
+  if (ussrt_drive_read(v->bus, v->address, &now) == USSRT_STATUS_OK) d = now;
+  *p->latched = !d.live || v->need_low || v->need_fall;
+  double want = fabs(command);
+  double got = fabs(*p->speed_fb);
+  *p->at_speed = comm && !*p->latched && run && d.state == 4 && want > 0 &&
+                 fabs(got - want) <= p->tolerance * want + 1e-6;
+}
+
+int main(int argc, char **argv) {
+  vfd_t v = {.name = "uss_vfd", .bus_name = NULL, .address = 0xFF};
+  for (int i = 1; i < argc; i++) {
+    if (!strcmp(argv[i], "--bus") && i + 1 < argc) {
+      v.bus_name = argv[++i];
+    } else if (!strcmp(argv[i], "--drive") && i + 1 < argc) {
+      char *end = NULL;
+      long a = strtol(argv[++i], &end, 10);
+      if (*end != '\0' || a < 0 || a > 31) {
+        fprintf(stderr, "uss_vfd: --drive %s: a drive address is 0..31\n", argv[i]);
+        return 1;
+      }
+      v.address = (uint8_t)a;
+    } else if ((!strcmp(argv[i], "--name") || !strcmp(argv[i], "-n")) && i + 1 < argc) {
+      v.name = argv[++i];
+    } else {
+      usage();
+      return 1;
+    }
+  }
+  if (v.bus_name == NULL || v.address == 0xFF) {
+    usage();
+    return 1;
+  }
+
+  int comp = hal_init(v.name);
+  if (comp < 0) {
+    fprintf(stderr, "%s: hal_init failed (%d)\n", v.name, comp);
+    return 1;
+  }
+  signal(SIGINT, quit);
+  signal(SIGTERM, quit);
+  pins_t *p = hal_malloc(sizeof *p);
+  int r = p == NULL;
+  if (!r) {
+    const char *n = v.name;
+    r |= hal_pin_float_newf(HAL_IN, &p->speed_command, comp, "%s.speed-command", n);
+    r |= hal_pin_bit_newf(HAL_IN, &p->spindle_on, comp, "%s.spindle-on", n);
+    r |= hal_pin_bit_newf(HAL_IN, &p->spindle_fwd, comp, "%s.spindle-fwd", n);
+    r |= hal_pin_bit_newf(HAL_IN, &p->spindle_rev, comp, "%s.spindle-rev", n);
+    r |= hal_pin_bit_newf(HAL_IN, &p->enable, comp, "%s.enable", n);
+    r |= hal_pin_bit_newf(HAL_IN, &p->err_reset, comp, "%s.err-reset", n);
+    r |= hal_pin_bit_newf(HAL_OUT, &p->at_speed, comp, "%s.at-speed", n);
+    r |= hal_pin_float_newf(HAL_OUT, &p->speed_fb, comp, "%s.spindle-speed-fb", n);
+    r |= hal_pin_float_newf(HAL_OUT, &p->speed_fb_hz, comp, "%s.spindle-speed-fb-hz", n);
+    r |= hal_pin_float_newf(HAL_OUT, &p->frequency_command, comp, "%s.frequency-command", n);
+    r |= hal_pin_bit_newf(HAL_OUT, &p->fault, comp, "%s.fault", n);
+    r |= hal_pin_s32_newf(HAL_OUT, &p->fault_code, comp, "%s.fault-code", n);
+    r |= hal_pin_bit_newf(HAL_OUT, &p->latched, comp, "%s.latched", n);
+    r |= hal_pin_bit_newf(HAL_OUT, &p->comm_ok, comp, "%s.comm-ok", n);
+    r |= hal_pin_s32_newf(HAL_OUT, &p->error_count, comp, "%s.error-count", n);
+    r |= hal_pin_s32_newf(HAL_OUT, &p->state, comp, "%s.state", n);
+    r |= hal_param_float_newf(HAL_RW, &p->rpm_at_reference, comp, "%s.rpm-at-reference", n);
+    r |= hal_param_float_newf(HAL_RW, &p->tolerance, comp, "%s.tolerance", n);
+  }
+  if (r) {
+    fprintf(stderr, "%s: creating the pins failed\n", v.name);
+    hal_exit(comp);
+    return 1;
+  }
+  *p->speed_command = 0;
+  *p->spindle_on = *p->spindle_fwd = *p->spindle_rev = *p->err_reset = 0;
+  *p->enable = 1;
+  *p->at_speed = *p->fault = *p->comm_ok = 0;
+  *p->latched = 1;
+  *p->speed_fb = *p->speed_fb_hz = *p->frequency_command = 0;
+  *p->fault_code = *p->error_count = *p->state = 0;
+  p->rpm_at_reference = 1500.0; /* a 4-pole motor at 50 Hz */
+  p->tolerance = 0.02;
+  v.need_low = 1;
+  hal_ready(comp);
+
+  while (!done) {
+    step(&v, p);
+    /* In step with the bus: the next exchange with the drive, at most 50 ms (well inside the
+     * default 100 ms watchdog, which this loop's own command feeds). */
+    if (v.bus == NULL || ussrt_wait_exchange(v.bus, v.address, 50) != USSRT_STATUS_OK) {
+      struct timespec pause = {0, 20 * 1000 * 1000};
+      nanosleep(&pause, NULL);
+    }
+  }
+  disconnect(&v); /* hands the drive back: ussd sends its safe command, "released" */
+  hal_exit(comp);
+  return 0;
+}

@@ -1,0 +1,231 @@
+//! The LinuxCNC HAL component `uss_vfd` (linuxcnc/uss_vfd.c, on libussrt) in a real `halrun`
+//! against a real ussd and simulated drive, pins set and read with `halcmd`: spindle on ->
+//! at-speed, a speed change, off; an operator's stop -> latched, and the drive does not run
+//! again until spindle-on is cycled; ussd killed -> comm-ok false.
+//!
+//! Needs Debian's linuxcnc-uspace and linuxcnc-uspace-dev (`halrun`, `halcmd`, hal.h) and root;
+//! without them the test says it is skipped, unless `USS_REQUIRE_LINUXCNC` is set (`.ci/run`
+//! installs them and sets it).
+#![allow(clippy::unwrap_used)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+use uss_client::{StopCommand, WriteOptions};
+use uss_integration_tests::Ussd;
+
+fn root() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+/// Whether LinuxCNC is here; panics when it must be.
+fn linuxcnc_here() -> bool {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    let root_user = unsafe { nix::libc::geteuid() } == 0;
+    let here = root_user
+        && Path::new("/usr/include/linuxcnc/hal.h").exists()
+        && Command::new("halcmd").arg("-v").output().is_ok();
+    if !here {
+        assert!(
+            std::env::var_os("USS_REQUIRE_LINUXCNC").is_none(),
+            "USS_REQUIRE_LINUXCNC is set, but halrun, halcmd, hal.h or root are missing \
+             (apt-get install linuxcnc-uspace linuxcnc-uspace-dev)"
+        );
+        println!("skipped: LinuxCNC (linuxcnc-uspace, linuxcnc-uspace-dev) and root are needed");
+    }
+    here
+}
+
+/// Builds the component the way the README says: `make -C linuxcnc`.
+fn build() -> PathBuf {
+    let out = Command::new("make")
+        .args(["-C", "linuxcnc", "--no-print-directory"])
+        .current_dir(root())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "make -C linuxcnc:\n{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let target = std::env::var_os("CARGO_TARGET_DIR")
+        .map_or_else(|| root().join("target"), PathBuf::from);
+    target.join("release/uss_vfd")
+}
+
+/// A `halrun` session of this test: RTAPI as an unprivileged user (rtapi_app refuses root), its
+/// socket in a directory of the test.
+struct Hal {
+    halrun: Child,
+    env: Vec<(String, String)>,
+    log: PathBuf,
+}
+
+impl Hal {
+    fn start(hal_file: &Path, log: PathBuf) -> Hal {
+        let fifo = std::env::temp_dir().join(format!("rtapi-fifo-{}", std::process::id()));
+        let env = vec![
+            ("RTAPI_UID".to_owned(), "65534".to_owned()),
+            ("RTAPI_FIFO_PATH".to_owned(), fifo.display().to_string()),
+        ];
+        // A session a crashed run may have left.
+        let _ = Command::new("halrun").arg("-U").envs(env.clone()).output();
+        let out = std::fs::File::create(&log).unwrap();
+        let halrun = Command::new("halrun")
+            .arg(hal_file)
+            .envs(env.clone())
+            .stdout(out.try_clone().unwrap())
+            .stderr(out)
+            .stdin(Stdio::null())
+            .spawn()
+            .unwrap();
+        let hal = Hal { halrun, env, log };
+        hal.until("the component's pins", Duration::from_secs(20), |h| {
+            h.halcmd(&["-s", "show", "pin", "uss_vfd.at-speed"])
+                .contains("uss_vfd.at-speed")
+        });
+        hal
+    }
+
+    fn run(&self, args: &[&str]) -> Output {
+        Command::new("halcmd")
+            .args(args)
+            .envs(self.env.clone())
+            .output()
+            .unwrap()
+    }
+
+    fn halcmd(&self, args: &[&str]) -> String {
+        String::from_utf8_lossy(&self.run(args).stdout).into_owned()
+    }
+
+    fn set(&self, pin: &str, value: &str) {
+        let out = self.run(&["setp", &format!("uss_vfd.{pin}"), value]);
+        assert!(
+            out.status.success(),
+            "setp {pin} {value}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+
+    fn get(&self, pin: &str) -> String {
+        self.halcmd(&["getp", &format!("uss_vfd.{pin}")])
+            .trim()
+            .to_owned()
+    }
+
+    fn float(&self, pin: &str) -> f64 {
+        self.get(pin).parse().unwrap_or(f64::NAN)
+    }
+
+    fn until(&self, what: &str, timeout: Duration, done: impl Fn(&Hal) -> bool) {
+        let deadline = Instant::now() + timeout;
+        while !done(self) {
+            assert!(
+                Instant::now() < deadline,
+                "{what} not within {timeout:?}; pins:\n{}\nhalrun:\n{}",
+                self.halcmd(&["show", "pin", "uss_vfd"]),
+                std::fs::read_to_string(&self.log).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    fn stop(mut self) -> String {
+        let _ = self.run(&["unload", "uss_vfd"]);
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while self.halrun.try_wait().unwrap().is_none() && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        if self.halrun.try_wait().unwrap().is_none() {
+            let _ = Command::new("halrun").arg("-U").envs(self.env.clone()).output();
+            let _ = self.halrun.kill();
+            let _ = self.halrun.wait();
+        }
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+}
+
+#[test]
+fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
+    if !linuxcnc_here() {
+        return;
+    }
+    let component = build();
+    let mut ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    // Quick ramps: 50 Hz in 1 s, up and down.
+    for p in ["P1120", "P1121"] {
+        bus.write_param(1, p.parse().unwrap(), "1", WriteOptions::default())
+            .unwrap();
+    }
+    let dir = std::env::temp_dir();
+    let hal_file = dir.join(format!("uss_vfd-{}.hal", std::process::id()));
+    std::fs::write(
+        &hal_file,
+        format!(
+            "loadusr -Wn uss_vfd {} --bus {} --drive 1\nsetp uss_vfd.rpm-at-reference 1500\n\
+             setp uss_vfd.tolerance 0.02\nwaitusr uss_vfd\n",
+            component.display(),
+            ussd.bus
+        ),
+    )
+    .unwrap();
+    let hal = Hal::start(&hal_file, dir.join(format!("halrun-{}.log", std::process::id())));
+    let s = Duration::from_secs(10);
+
+    // Spindle on at 600 rpm (20 Hz of the 50 Hz reference): at speed.
+    hal.until("comm-ok", s, |h| h.get("comm-ok") == "TRUE");
+    assert_eq!(hal.get("latched"), "FALSE", "spindle-on low at start re-armed it");
+    hal.set("speed-command", "600");
+    hal.set("spindle-on", "1");
+    hal.until("at speed (600 rpm)", s, |h| h.get("at-speed") == "TRUE");
+    assert!((hal.float("spindle-speed-fb") - 600.0).abs() < 12.0);
+    assert!((hal.float("spindle-speed-fb-hz") - 20.0).abs() < 0.4);
+    assert!((hal.float("frequency-command") - 20.0).abs() < 1e-3);
+    // A speed change: off speed until the ramp got there.
+    hal.set("speed-command", "900");
+    hal.until("at speed (900 rpm)", s, |h| {
+        h.get("at-speed") == "TRUE" && (h.float("spindle-speed-fb") - 900.0).abs() < 18.0
+    });
+    // Off: the drive ramps down (OFF1).
+    hal.set("spindle-on", "0");
+    hal.until("stopped", s, |h| h.float("spindle-speed-fb").abs() < 1.0);
+    assert_eq!(hal.get("at-speed"), "FALSE");
+    assert_eq!(bus.watch(1).unwrap().latest().sent_stw1, 0x047E);
+
+    // On again, then an operator's stop from another process: latched, not restarted while
+    // spindle-on stays high.
+    hal.set("spindle-on", "1");
+    hal.until("at speed again", s, |h| h.get("at-speed") == "TRUE");
+    bus.stop_drive(1, StopCommand::Off1).unwrap();
+    hal.until("latched", s, |h| h.get("latched") == "TRUE");
+    assert_eq!(hal.get("at-speed"), "FALSE");
+    let watch = bus.watch(1).unwrap();
+    let held = Instant::now() + Duration::from_millis(1500);
+    while Instant::now() < held {
+        let i = watch.latest();
+        assert!(!i.is_live() && i.sent_stw1 == 0x047E, "restarted by itself: {i:?}");
+        assert_eq!(hal.get("latched"), "TRUE");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    hal.until("stopped by the operator", s, |h| {
+        h.float("spindle-speed-fb").abs() < 1.0
+    });
+    // Cycled: low re-arms (OFF1 naming the latch), high runs.
+    hal.set("spindle-on", "0");
+    hal.until("re-armed", s, |h| h.get("latched") == "FALSE");
+    hal.set("spindle-on", "1");
+    hal.until("running after the cycle", s, |h| h.get("at-speed") == "TRUE");
+
+    // ussd killed: comm-ok and at-speed drop.
+    ussd.kill();
+    hal.until("comm-ok false", Duration::from_secs(3), |h| {
+        h.get("comm-ok") == "FALSE" && h.get("at-speed") == "FALSE"
+    });
+    assert!(hal.get("error-count").parse::<i32>().unwrap() > 0);
+    let log = hal.stop();
+    let _ = std::fs::remove_file(&hal_file);
+    println!("{log}");
+}
