@@ -121,6 +121,12 @@ fn bus_loop_allocates_nothing_per_exchange() {
     let mut id = 0u64;
     // Every telegram is captured (as in ussd) and taken here, as ussd's housekeeping does.
     let captured = std::cell::Cell::new(0u64);
+    // Every other job names a watched requester (this process, alive): the bus thread checks
+    // it before the job leaves the mailbox.
+    let me = uss_master::engine::requesters::pidfd_of(std::process::id()).unwrap();
+    let requester = handle
+        .watch_requester(std::os::fd::AsFd::as_fd(&me))
+        .unwrap();
     let mut step = |count: usize, results: &mut u64, id: &mut u64| {
         for i in 0..count {
             control(&handle, i);
@@ -132,14 +138,17 @@ fn bus_loop_allocates_nothing_per_exchange() {
                         pnu: Pnu::from_u16(700),
                     };
                 }
-                if handle
-                    .submit(Job {
-                        id: *id,
-                        address: a,
-                        task,
-                    })
-                    .is_ok()
-                {
+                let job = Job {
+                    id: *id,
+                    address: a,
+                    task,
+                };
+                let submitted = if (*id).is_multiple_of(2) {
+                    handle.submit_for(job, requester)
+                } else {
+                    handle.submit(job)
+                };
+                if submitted.is_ok() {
                     *id += 1;
                 }
             }

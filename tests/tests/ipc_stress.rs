@@ -429,8 +429,10 @@ fn killed_client_queued_eeprom_writes_are_cancelled_not_sent() {
         (128, 0),
         "{done:?}"
     );
+    // At most the job on the wire of each drive ran to its reply; the status read at the kill
+    // may be up to one publication (50 ms, a few writes) old.
     assert!(
-        ran_after_kill < outstanding / 4,
+        ran_after_kill <= 2 + outstanding / 16,
         "{ran_after_kill} of {outstanding} writes still ran after the kill: {done:?}"
     );
     let logged = ussd
@@ -453,14 +455,13 @@ fn killed_client_queued_eeprom_writes_are_cancelled_not_sent() {
 }
 
 /// A dead client's work dies with it, every time (issue 20): four requests of 39 EEPROM writes
-/// of P1120 (each a value of its own) from a client SIGKILLed right after ussd accepted them
+/// of P1120 (each a value of its own) from a client killed (SIGKILL) right after ussd accepted them
 /// (the 64 its queue for the drive takes).
 /// Over 12 runs, the capture of every telegram shows no write first sent after the client was
 /// gone (a margin of 5 ms for the job whose check passed just before): ussd checks the
 /// requester before each job leaves the mailbox, not every 100 ms. At most the job on the wire
 /// finishes.
 #[test]
-#[should_panic(expected = "[")] // issue 20: today the writes still go out; fixed next
 fn a_dead_clients_writes_never_leave_the_mailbox_after_its_death() {
     const RUNS: u32 = 12;
     const MARGIN_NS: u64 = 5_000_000;
@@ -500,7 +501,7 @@ fn a_dead_clients_writes_never_leave_the_mailbox_after_its_death() {
             "run {run}: capture records were lost"
         );
         // Each write task's first telegram (its PKE, IND, PWE1, PWE2 words are its own).
-        let mut first_sent: std::collections::HashMap<[u8; 8], u64> = Default::default();
+        let mut first_sent = std::collections::HashMap::<[u8; 8], u64>::new();
         for r in records.iter().filter(|r| {
             r.direction == uss_client::uss_shm_types::Direction::Request.code()
                 && r.flags & uss_client::uss_shm_types::CAPTURE_TASK != 0

@@ -1,4 +1,4 @@
-//! The LinuxCNC HAL component `uss_vfd` (linuxcnc/uss_vfd.c, on libussrt) in a real `halrun`
+//! The `LinuxCNC` HAL component `uss_vfd` (`linuxcnc/uss_vfd.c`, on `libussrt`) in a real `halrun`
 //! against a real ussd and simulated drive, pins set and read with `halcmd`: spindle on ->
 //! at-speed, a speed change, off; an operator's stop -> latched, and the drive does not run
 //! again until spindle-on is cycled; ussd killed -> comm-ok false.
@@ -18,7 +18,7 @@ fn root() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
 }
 
-/// Whether LinuxCNC is here; panics when it must be.
+/// Whether `LinuxCNC` is here; panics when it must be.
 fn linuxcnc_here() -> bool {
     // SAFETY: geteuid has no preconditions and cannot fail.
     let root_user = unsafe { nix::libc::geteuid() } == 0;
@@ -49,12 +49,12 @@ fn build() -> PathBuf {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
-    let target = std::env::var_os("CARGO_TARGET_DIR")
-        .map_or_else(|| root().join("target"), PathBuf::from);
+    let target =
+        std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root().join("target"), PathBuf::from);
     target.join("release/uss_vfd")
 }
 
-/// A `halrun` session of this test: RTAPI as an unprivileged user (rtapi_app refuses root), its
+/// A `halrun` session of this test: RTAPI as an unprivileged user (`rtapi_app` refuses root), its
 /// socket in a directory of the test.
 struct Hal {
     halrun: Child,
@@ -139,7 +139,10 @@ impl Hal {
             std::thread::sleep(Duration::from_millis(20));
         }
         if self.halrun.try_wait().unwrap().is_none() {
-            let _ = Command::new("halrun").arg("-U").envs(self.env.clone()).output();
+            let _ = Command::new("halrun")
+                .arg("-U")
+                .envs(self.env.clone())
+                .output();
             let _ = self.halrun.kill();
             let _ = self.halrun.wait();
         }
@@ -172,12 +175,19 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
         ),
     )
     .unwrap();
-    let hal = Hal::start(&hal_file, dir.join(format!("halrun-{}.log", std::process::id())));
+    let hal = Hal::start(
+        &hal_file,
+        dir.join(format!("halrun-{}.log", std::process::id())),
+    );
     let s = Duration::from_secs(10);
 
     // Spindle on at 600 rpm (20 Hz of the 50 Hz reference): at speed.
     hal.until("comm-ok", s, |h| h.get("comm-ok") == "TRUE");
-    assert_eq!(hal.get("latched"), "FALSE", "spindle-on low at start re-armed it");
+    assert_eq!(
+        hal.get("latched"),
+        "FALSE",
+        "spindle-on low at start re-armed it"
+    );
     hal.set("speed-command", "600");
     hal.set("spindle-on", "1");
     hal.until("at speed (600 rpm)", s, |h| h.get("at-speed") == "TRUE");
@@ -206,7 +216,10 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
     let held = Instant::now() + Duration::from_millis(1500);
     while Instant::now() < held {
         let i = watch.latest();
-        assert!(!i.is_live() && i.sent_stw1 == 0x047E, "restarted by itself: {i:?}");
+        assert!(
+            !i.is_live() && i.sent_stw1 == 0x047E,
+            "restarted by itself: {i:?}"
+        );
         assert_eq!(hal.get("latched"), "TRUE");
         std::thread::sleep(Duration::from_millis(50));
     }
@@ -217,7 +230,9 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
     hal.set("spindle-on", "0");
     hal.until("re-armed", s, |h| h.get("latched") == "FALSE");
     hal.set("spindle-on", "1");
-    hal.until("running after the cycle", s, |h| h.get("at-speed") == "TRUE");
+    hal.until("running after the cycle", s, |h| {
+        h.get("at-speed") == "TRUE"
+    });
 
     // ussd killed: comm-ok and at-speed drop.
     ussd.kill();

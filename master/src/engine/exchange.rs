@@ -220,6 +220,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         // The task's words were encoded once when it was accepted; without a task the channel
         // carries zeros ("no task").
         let none = [0u16; MAX_PKW_WORDS];
+        if with_task {
+            self.drop_jobs_of_the_dead(slot);
+        }
         let task_words = self.drives[slot]
             .mailbox
             .current_words()

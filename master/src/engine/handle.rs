@@ -3,7 +3,7 @@
 
 use super::{
     Address, DriveSetup, Duration, Encoded, EngineHandle, INTERNAL_JOB, Job, JobResult, Ordering,
-    PzdOutput, RequestError, STOPS, Stats, StopCommand,
+    PzdOutput, RequestError, Requester, STOPS, Stats, StopCommand,
 };
 
 impl EngineHandle {
@@ -105,6 +105,13 @@ impl EngineHandle {
 
     /// Queues a parameter job. Once accepted it ends in exactly one [`JobResult`].
     pub fn submit(&self, job: Job) -> Result<(), RequestError> {
+        self.submit_for(job, Requester::NONE)
+    }
+
+    /// [`EngineHandle::submit`] for a job of `requester` ([`EngineHandle::watch_requester`]):
+    /// the bus thread ends it with [`uss_shm_types::PathError::Cancelled`] instead of sending
+    /// it when the requester has died by the time the job would leave the mailbox.
+    pub fn submit_for(&self, job: Job, requester: Requester) -> Result<(), RequestError> {
         if self.shared.stop.load(Ordering::Acquire) {
             return Err(RequestError::Stopped);
         }
@@ -132,10 +139,23 @@ impl EngineHandle {
                 (n < cap).then_some(n + 1)
             })
             .map_err(|_| RequestError::Busy(cap))?;
-        self.jobs.try_send((job, pkw)).map_err(|_| {
+        self.jobs.try_send((job, pkw, requester)).map_err(|_| {
             self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
             RequestError::Stopped
         })
+    }
+
+    /// Watches the process of `pidfd` ([`crate::engine::requesters::pidfd_of`]) for the jobs
+    /// submitted with the returned requester; `None` when the table is full. Keep the fd open
+    /// until [`EngineHandle::forget_requester`], and call that only when none of its jobs is
+    /// left (every one has its result).
+    pub fn watch_requester(&self, pidfd: std::os::fd::BorrowedFd<'_>) -> Option<Requester> {
+        self.shared.requesters.watch(pidfd)
+    }
+
+    /// Frees a requester's slot (see [`EngineHandle::watch_requester`]).
+    pub fn forget_requester(&self, requester: Requester) {
+        self.shared.requesters.forget(requester);
     }
 
     /// Cancels the jobs with ids in `ids` that have not reached the wire yet (their client

@@ -16,6 +16,22 @@ pub struct Job {
     pub task: ParamTask,
 }
 
+/// Who asked for a job, as the bus thread can check it: a slot of the engine's table of
+/// requesters' liveness ([`crate::EngineHandle::watch_requester`]), or none (ussd's own jobs,
+/// in-process clients, a requester that could not be watched).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Requester(pub(crate) u16);
+
+impl Requester {
+    /// Nobody the bus thread can check.
+    pub const NONE: Self = Self(0);
+
+    /// The slot in the engine's table, if any.
+    pub(crate) fn slot(self) -> Option<usize> {
+        usize::from(self.0).checked_sub(1)
+    }
+}
+
 /// A task's PKW words for its drive's PKW mode, encoded once when the job is accepted: every
 /// telegram that repeats the task copies them (USS.md section 6, handshake).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -58,6 +74,7 @@ pub struct JobResult {
 struct Active {
     job: Job,
     pkw: Encoded,
+    requester: Requester,
     first_sent: Option<Duration>,
     telegrams: u32,
 }
@@ -80,16 +97,43 @@ impl Mailbox {
 
     /// Queues a job with its encoded PKW words; gives it back when the mailbox is full.
     pub fn push(&mut self, job: Job, pkw: Encoded) -> Result<(), Job> {
+        self.push_for(job, pkw, Requester::NONE)
+    }
+
+    /// [`Mailbox::push`] for a job whose requester the bus thread checks before the job goes
+    /// out ([`Mailbox::drop_unsent_if`]).
+    pub fn push_for(&mut self, job: Job, pkw: Encoded, requester: Requester) -> Result<(), Job> {
         if self.queue.len() >= self.capacity {
             return Err(job);
         }
         self.queue.push_back(Active {
             job,
             pkw,
+            requester,
             first_sent: None,
             telegrams: 0,
         });
         Ok(())
+    }
+
+    /// Ends the current job with [`PathError::Cancelled`] when it has not gone out yet and
+    /// `gone(its requester)` says its requester died: its work dies with it. Call until `None`
+    /// before a telegram; a job on the wire runs to its reply.
+    pub fn drop_unsent_if(&mut self, gone: impl Fn(Requester) -> bool) -> Option<JobResult> {
+        let front = self.queue.front()?;
+        if front.first_sent.is_some()
+            || front.requester == Requester::NONE
+            || !gone(front.requester)
+        {
+            return None;
+        }
+        let a = self.queue.pop_front()?;
+        Some(JobResult {
+            job: a.job,
+            outcome: Err(PathError::Cancelled),
+            telegrams: 0,
+            on_wire: Duration::ZERO,
+        })
     }
 
     pub fn len(&self) -> usize {
@@ -249,6 +293,34 @@ mod tests {
         assert_eq!(
             (r.job.id, r.outcome),
             (1, Ok(Ok(Answer::Value(Value::Word(5)))))
+        );
+    }
+
+    #[test]
+    fn a_dead_requesters_jobs_are_dropped_before_the_wire_and_the_one_on_it_stays() {
+        let mut m = Mailbox::new(8);
+        let dead = Requester(3);
+        m.push_for(job(1, 700), words(&job(1, 700)), dead).unwrap();
+        m.push_for(job(2, 700), words(&job(2, 700)), dead).unwrap();
+        m.push_for(job(3, 700), words(&job(3, 700)), Requester(4))
+            .unwrap();
+        m.push(job(4, 700), words(&job(4, 700))).unwrap();
+        m.sent(Duration::from_millis(1)); // job 1 is on the wire
+        let gone = |r: Requester| r == dead;
+        assert!(
+            m.drop_unsent_if(gone).is_none(),
+            "the job on the wire stays"
+        );
+        m.on_reply(&reply(1, 700, 5), Duration::from_millis(2))
+            .unwrap();
+        let r = m.drop_unsent_if(gone).unwrap();
+        assert_eq!((r.job.id, r.outcome), (2, Err(PathError::Cancelled)));
+        assert!(m.drop_unsent_if(gone).is_none(), "job 3's requester lives");
+        assert_eq!(m.current(), Some(&job(3, 700).task));
+        m.finish(Ok(Ok(Answer::Value(Value::Word(0)))), Duration::ZERO);
+        assert!(
+            m.drop_unsent_if(|_| true).is_none(),
+            "ussd's own job has no requester to die"
         );
     }
 

@@ -15,6 +15,7 @@ pub mod image;
 pub mod jobs;
 pub mod monitoring;
 pub mod reference;
+pub mod requesters;
 pub mod stats;
 pub mod transport;
 
@@ -29,7 +30,7 @@ use crate::engine::control::{
     Control, Gate, GateSetup, Latch, Operator, Poll, Transition, latch_id_of,
 };
 use crate::engine::image::DriveImages;
-use crate::engine::jobs::{Encoded, Job, JobResult, Mailbox};
+use crate::engine::jobs::{Encoded, Job, JobResult, Mailbox, Requester};
 use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
 use crate::engine::stats::{
     DriveStatus, FreshTiming, LastFailure, LineFault, Published, Stats, record_both,
@@ -320,6 +321,8 @@ struct Shared {
     progress: AtomicU64,
     outstanding: AtomicUsize,
     capacity: usize,
+    /// The processes behind parameter jobs, checked before each job leaves its mailbox.
+    requesters: requesters::Requesters,
 }
 
 impl Shared {
@@ -334,7 +337,7 @@ impl Shared {
 #[derive(Debug, Clone)]
 pub struct EngineHandle {
     shared: Arc<Shared>,
-    jobs: Sender<(Job, Encoded)>,
+    jobs: Sender<(Job, Encoded, Requester)>,
     cancels: Sender<core::ops::Range<u64>>,
     results: Receiver<JobResult>,
     captures: Receiver<uss_shm_types::TelegramRecord>,
@@ -378,7 +381,7 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     last_reply_seen: Option<Duration>,
     cycle_start: Duration,
     last_publish: Duration,
-    jobs: Receiver<(Job, Encoded)>,
+    jobs: Receiver<(Job, Encoded, Requester)>,
     cancels: Receiver<core::ops::Range<u64>>,
     results: Sender<JobResult>,
     events: Sender<Event>,
@@ -466,6 +469,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             reopen_attempts: AtomicU32::new(0),
             progress: AtomicU64::new(0),
             outstanding: AtomicUsize::new(0),
+            requesters: requesters::Requesters::default(),
             capacity,
         });
         // Outstanding jobs never exceed `capacity`, so neither channel can be full when the
@@ -692,7 +696,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
 
     /// Moves submitted jobs into their drives' mailboxes.
     fn take_jobs(&mut self) {
-        while let Ok((job, pkw)) = self.jobs.try_recv() {
+        while let Ok((job, pkw, requester)) = self.jobs.try_recv() {
             self.stats.bus.jobs_accepted += 1;
             let Some(slot) = self.shared.slot_of[job.address.get() as usize].map(usize::from)
             else {
@@ -705,7 +709,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             } else {
                 self.drives[slot]
                     .mailbox
-                    .push(job, pkw)
+                    .push_for(job, pkw, requester)
                     .err()
                     .map(|_| PathError::MailboxFull)
             };
@@ -717,6 +721,19 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                     on_wire: Duration::ZERO,
                 });
             }
+        }
+    }
+
+    /// Ends the jobs at the front of drive `slot`'s mailbox whose requester died, before one
+    /// of them leaves it: a dead client's work dies with it, whenever it died.
+    fn drop_jobs_of_the_dead(&mut self, slot: usize) {
+        let shared = Arc::clone(&self.shared);
+        while let Some(r) = self.drives[slot]
+            .mailbox
+            .drop_unsent_if(|who| shared.requesters.has_ended(who))
+        {
+            self.stats.bus.jobs_cancelled += 1;
+            self.deliver(r);
         }
     }
 

@@ -20,6 +20,7 @@
 mod bridge;
 mod server;
 mod status;
+mod watches;
 
 pub use bridge::RtBridge;
 pub use server::ParamServer;

@@ -9,7 +9,7 @@
 use super::bridge::OutService;
 use super::{IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, as_ns, fail, pid_of, text};
 use crate::engine::EngineHandle;
-use crate::engine::jobs::{Job, JobResult};
+use crate::engine::jobs::{Job, JobResult, Requester};
 use core::time::Duration;
 use iceoryx2::active_request::ActiveRequest;
 use iceoryx2::identifiers::UniqueNodeId;
@@ -65,6 +65,7 @@ pub(super) fn create(
         bus: bus.bus.as_str().to_owned(),
         next_id: 1,
         next_dead_check: Instant::now(),
+        watches: super::watches::Watches::default(),
     })
 }
 
@@ -144,6 +145,8 @@ pub struct ParamServer {
     bus: String,
     next_id: u64,
     next_dead_check: Instant,
+    /// The requesting processes, watched by the bus thread before each job leaves a mailbox.
+    watches: super::watches::Watches,
 }
 
 /// Who is behind a request and who controls a drive, from iceoryx2's own records (the node
@@ -272,7 +275,7 @@ impl ParamServer {
     pub fn serve_once(&mut self, handle: &EngineHandle, wait: Duration) {
         // Results and new requests first: the rest can wait a moment.
         while let Some(r) = handle.recv_result(Duration::ZERO) {
-            self.route(&r);
+            self.route(&r, handle);
         }
         while let Ok(Some(active)) = self.server.receive() {
             self.accept(active, handle);
@@ -322,13 +325,21 @@ impl ParamServer {
         let first_id = self.next_id;
         self.next_id += items.len() as u64;
         let mut remaining = 0;
+        // The node is cheap to find; its process (a walk over every node) only at its first
+        // request: the bus thread checks that process before each job leaves the mailbox.
+        let client = self.identities.param_client_node(active.origin());
+        let requester = client.map_or(Requester::NONE, |node| {
+            let identities = &self.identities;
+            self.watches.request(node, || identities.pid(&node), handle)
+        });
         for (i, &task) in items.iter().enumerate() {
+            let job = Job {
+                id: first_id + i as u64,
+                address,
+                task,
+            };
             let submitted = handle
-                .submit(Job {
-                    id: first_id + i as u64,
-                    address,
-                    task,
-                })
+                .submit_for(job, requester)
                 .map_err(|e| RequestError::from(&e));
             match submitted {
                 Ok(()) => remaining += 1,
@@ -347,11 +358,11 @@ impl ParamServer {
         if remaining == 0 {
             let _ = active.send_copy(response);
             self.answered = true;
+            if let Some(node) = client {
+                self.watches.answered(node, handle);
+            }
             return;
         }
-        // Only the node: its process id costs a walk over every node, done every
-        // DEAD_CLIENT_CHECK for all pending requests at once.
-        let client = self.identities.param_client_node(active.origin());
         self.pending.push(Pending {
             active,
             response,
@@ -456,7 +467,7 @@ impl ParamServer {
         }
     }
 
-    fn route(&mut self, r: &JobResult) {
+    fn route(&mut self, r: &JobResult, handle: &EngineHandle) {
         let id = r.job.id;
         let Some(at) = self
             .pending
@@ -488,8 +499,24 @@ impl ParamServer {
                 p.first_id + p.count
             );
             let p = self.pending.swap_remove(at);
+            let cancelled = p.response.results[..p.count as usize]
+                .iter()
+                .filter(|r| r.outcome == Outcome::Cancelled.code())
+                .count();
+            if cancelled > 0 {
+                let pid = p.client.and_then(|n| self.watches.pid(n)).unwrap_or(p.pid);
+                tracing::info!(
+                    bus = self.bus,
+                    pid,
+                    jobs = cancelled,
+                    "client process {pid} died: {cancelled} of its parameter jobs were cancelled before they reached the wire"
+                );
+            }
             let _ = p.active.send_copy(p.response);
             self.answered = true;
+            if let Some(node) = p.client {
+                self.watches.answered(node, handle);
+            }
         }
     }
 }
