@@ -488,12 +488,23 @@ def open_bus(name: str, node_name: str = DEFAULT_NODE_NAME) -> Bus:
     return Bus(_native.open_bus(name, node_name))
 
 
+# Code -> member of the tables an image carries (a dict lookup per field of every image).
+_IMAGE_CODES = tuple(
+    (field, {m.value: m for m in table})
+    for field, table in (
+        ("control", ControlState),
+        ("latch_reason", LatchReason),
+        ("latch_command", StopCommand),
+        ("rejection", Rejection),
+    )
+)
+
+
 def _image(raw: dict) -> dict:
-    """A native image with its codes as enums."""
-    raw["control"] = _code(ControlState, raw["control"])
-    raw["latch_reason"] = _code(LatchReason, raw["latch_reason"])
-    raw["latch_command"] = _code(StopCommand, raw["latch_command"])
-    raw["rejection"] = _code(Rejection, raw["rejection"])
+    """A native image with its codes as enums (a code no table defines stays a number)."""
+    for field, members in _IMAGE_CODES:
+        code = raw[field]
+        raw[field] = members.get(code, code)
     return raw
 
 
