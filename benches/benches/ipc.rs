@@ -45,6 +45,7 @@ use uss_master::{
 };
 use uss_protocol::{Layout, Telegram};
 use uss_shm_types::names::EVENT_ID_MAX;
+use uss_shm_types::service::Ipc;
 use uss_shm_types::{BlackboardKey, DriveAddress, PzdOutput};
 
 /// What a client process does; unset in the benchmark itself.
@@ -436,10 +437,11 @@ fn raw_service(prefix: &str, what: &str) -> ServiceName {
     ServiceName::new(&format!("{prefix}/raw/{what}")).expect("a valid service name")
 }
 
-fn raw_node() -> Node<ipc::Service> {
+fn raw_node() -> Node<Ipc> {
     NodeBuilder::new()
+        .config(&uss_shm_types::service::config().expect("the shared-memory root"))
         .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc::Service>()
+        .create::<Ipc>()
         .expect("an iceoryx2 node")
 }
 

@@ -24,7 +24,8 @@ pub const DEFAULT_NODE_NAME: &str = "uss-client";
 ///
 /// A `Bus` is `Send` and `Sync`. Its iceoryx2 node handles no signals: the application owns
 /// SIGINT and SIGTERM. Run clients as the same user (or group) as ussd: iceoryx2 keeps its
-/// state in `/dev/shm` and `/tmp/iceoryx2`.
+/// state below one root directory (`uss_shm_types::service`, `/dev/shm/uss-rt`), which ussd's
+/// `access_group` opens to a group.
 pub struct Bus {
     link: Arc<Link>,
     answer_timeout: Option<Duration>,
@@ -55,8 +56,10 @@ impl Bus {
         let name = BusName::new(name)?;
         let node_name =
             NodeName::new(node_name).map_err(|e| ClientError::ipc("the node name", e))?;
+        let config = crate::open::iceoryx_config(name.as_str())?;
         let node = NodeBuilder::new()
             .name(&node_name)
+            .config(&config)
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<Ipc>()
             .map_err(|e| ClientError::ipc("creating the iceoryx2 node", e))?;

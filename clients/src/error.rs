@@ -93,12 +93,25 @@ pub enum ClientError {
         "ussd on {bus} speaks another layout version ({service}): rebuild this program against the uss-shm-types of the running ussd"
     )]
     Incompatible { bus: String, service: String },
+    /// This process may not use ussd's shared memory: its root directory is another user's
+    /// (and group's, with `access_group`).
+    #[error(
+        "{} (ussd's shared memory) belongs to user {owner} and group {group}, mode {mode:04o}: this process may not use it: run ussd and this program as the same user (or root){}",
+        root.display(),
+        if mode & 0o070 == 0o070 { format!(", or as a member of group {group} (ussd's access_group)") } else { String::new() }
+    )]
+    Access {
+        root: std::path::PathBuf,
+        owner: String,
+        group: String,
+        mode: u32,
+    },
     /// A payload breaks the contract.
     #[error(transparent)]
     Contract(#[from] ContractError),
     /// An iceoryx2 call failed for another reason.
     #[error(
-        "{what} failed: {detail}: run ussd and this program as the same user (or root): iceoryx2 keeps its state owner-only in /dev/shm and /tmp/iceoryx2"
+        "{what} failed: {detail}: run ussd and this program as the same user (or root), or in ussd's access_group: iceoryx2 keeps its state in /dev/shm/uss-rt"
     )]
     Ipc { what: String, detail: String },
     /// No heartbeat from ussd for longer than `uss_shm_types::names::GONE_AFTER_NS`: it died

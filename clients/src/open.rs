@@ -13,11 +13,53 @@ use uss_shm_types::BlackboardKey;
 use uss_shm_types::LAYOUT_VERSION;
 use uss_shm_types::names::LAYOUT_VERSION_ATTRIBUTE;
 
-/// The client's side of iceoryx2 everywhere in this crate: thread-safe ports, so a `Bus`, a
-/// `DriveWatch` and a `Controller` can move between threads (a refresher thread publishes
-/// through the controller's publisher). The shared-memory format is the one of
-/// `ipc::Service`: ussd's `ipc_threadsafe` and plain `ipc` clients interoperate with it.
-pub(crate) type Ipc = iceoryx2::prelude::ipc_threadsafe::Service;
+/// The client's side of iceoryx2 everywhere in this crate: uss-rt's service variant
+/// (`uss_shm_types::service`) with thread-safe ports, so a `Bus`, a `DriveWatch` and a
+/// `Controller` can move between threads (a refresher thread publishes through the
+/// controller's publisher). Its files are those of `uss_shm_types::service::Ipc`: both
+/// interoperate.
+pub(crate) type Ipc = uss_shm_types::service::IpcThreadsafe;
+
+/// The iceoryx2 configuration of uss-rt (`uss_shm_types::service::config`), once this process
+/// may use ussd's root directory: [`ClientError::NotRunning`] when there is none (no ussd made
+/// it), [`ClientError::Access`] when this process may not enter it.
+pub(crate) fn iceoryx_config(bus: &str) -> Result<iceoryx2::config::Config, ClientError> {
+    use nix::unistd::{AccessFlags, Group, User, access};
+    use std::os::unix::fs::MetadataExt as _;
+    let root = uss_shm_types::service::root();
+    let Ok(meta) = std::fs::metadata(&root) else {
+        return Err(ClientError::NotRunning {
+            bus: bus.to_owned(),
+        });
+    };
+    if access(
+        &root,
+        AccessFlags::R_OK | AccessFlags::W_OK | AccessFlags::X_OK,
+    )
+    .is_err()
+    {
+        let owner = User::from_uid(meta.uid().into())
+            .ok()
+            .flatten()
+            .map_or_else(|| meta.uid().to_string(), |u| u.name);
+        let group = Group::from_gid(meta.gid().into())
+            .ok()
+            .flatten()
+            .map_or_else(|| meta.gid().to_string(), |g| g.name);
+        return Err(ClientError::Access {
+            root,
+            owner,
+            group,
+            mode: meta.mode() & 0o7777,
+        });
+    }
+    uss_shm_types::service::config().ok_or_else(|| {
+        ClientError::ipc(
+            "the shared-memory root",
+            format!("{} is not an absolute path iceoryx2 takes", root.display()),
+        )
+    })
+}
 
 /// Requires `uss.layout_version` = [`LAYOUT_VERSION`], so a ussd built against another layout
 /// is refused at open time with a clear message instead of read as garbage.

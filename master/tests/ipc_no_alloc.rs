@@ -22,6 +22,7 @@ use uss_protocol::pkw::{ParamTask, Pnu};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Timing};
 use uss_shm_types::names;
+use uss_shm_types::service::Ipc;
 use uss_shm_types::{BlackboardKey, DriveAddress, PzdInput, PzdOutput};
 
 #[test]
@@ -42,8 +43,9 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
 
     // A controller for drive 1 and a reader of its inputs, in this thread.
     let client = NodeBuilder::new()
+        .config(&uss_shm_types::service::config().unwrap())
         .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc::Service>()
+        .create::<Ipc>()
         .unwrap();
     let one = DriveAddress::new(1).unwrap();
     let publisher = client
@@ -158,8 +160,8 @@ fn two_faulty_drives(layout: Layout) -> (SimBus, Vec<DriveSetup>) {
 /// images showed the drive live on the controller's ON.
 fn control_until(
     running: &AtomicBool,
-    publisher: &Publisher<ipc::Service, PzdOutput, ()>,
-    input: &EntryHandle<ipc::Service, BlackboardKey, PzdInput>,
+    publisher: &Publisher<Ipc, PzdOutput, ()>,
+    input: &EntryHandle<Ipc, BlackboardKey, PzdInput>,
 ) -> (u64, u64) {
     let mut sequence = 0;
     let mut seen = 0;

@@ -47,6 +47,7 @@ pub mod names;
 pub mod outcome;
 pub mod params;
 pub mod pzd;
+pub mod service;
 pub mod session;
 
 pub use capture::{CAPTURE_BYTES, CAPTURE_TASK, CAPTURE_TRUNCATED, Direction, Hex, TelegramRecord};

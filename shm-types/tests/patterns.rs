@@ -42,6 +42,7 @@ use iceoryx2::service::port_factory::blackboard::PortFactory as Blackboard;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSub;
 use uss_protocol::Pnu;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
+use uss_shm_types::service::{Ipc, IpcThreadsafe};
 use uss_shm_types::{
     BlackboardKey, BusName, DriveAddress, DriveCounters, DriveDiag, Generation, Heartbeat,
     Instance, LAYOUT_VERSION, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult,
@@ -105,13 +106,19 @@ const ROLE_ENV: &str = "USS_SHM_TEST_ROLE";
 const PREFIX_ENV: &str = "USS_SHM_TEST_PREFIX";
 const BUS_ENV: &str = "USS_SHM_TEST_BUS";
 
-/// An iceoryx2 instance of its own: files and shared memory under `prefix`; node creation and
-/// destruction clean up no dead nodes (opening a service still does:
+/// The root directory of these tests' iceoryx2 files (the variant of uss-rt keeps every file
+/// below one root: `uss_shm_types::service`), apart from a running ussd's.
+const TEST_ROOT: &str = "/dev/shm/uss-shm-test";
+
+/// An iceoryx2 instance of its own: files below [`TEST_ROOT`] named with `prefix`; node
+/// creation and destruction clean up no dead nodes (opening a service still does:
 /// `service.cleanup_dead_nodes_on_open`).
 fn instance(prefix: &str) -> Config {
     // iceoryx2 logs warnings with full Debug dumps of its state; tests assert instead.
     set_log_level(LogLevel::Error);
     let mut c = Config::default();
+    c.global
+        .set_root_path(&iceoryx2_bb_system_types::path::Path::new(TEST_ROOT.as_bytes()).unwrap());
     c.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
     c.global.node.cleanup_dead_nodes_on_creation = false;
     c.global.node.cleanup_dead_nodes_on_destruction = false;
@@ -148,30 +155,35 @@ impl core::ops::Deref for Isolated {
 
 impl Drop for Isolated {
     fn drop(&mut self) {
-        let prefix = self.0.global.prefix.as_str();
-        for entry in std::fs::read_dir("/dev/shm")
-            .into_iter()
-            .flatten()
-            .flatten()
-        {
-            if entry.file_name().to_string_lossy().starts_with(prefix) {
-                let _ = std::fs::remove_file(entry.path());
+        /// Every file below `dir` whose name starts with `prefix`.
+        fn remove(dir: &std::path::Path, prefix: &str) {
+            for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+                let path = entry.path();
+                if path.is_dir() {
+                    remove(&path, prefix);
+                } else if entry.file_name().to_string_lossy().starts_with(prefix) {
+                    let _ = std::fs::remove_file(path);
+                }
             }
         }
+        remove(
+            std::path::Path::new(TEST_ROOT),
+            self.0.global.prefix.as_str(),
+        );
     }
 }
 
 /// A node like ussd and clients create them: named, signal handling left to the process.
-fn node_in(config: &Config, name: &str) -> Node<ipc::Service> {
+fn node_in(config: &Config, name: &str) -> Node<Ipc> {
     NodeBuilder::new()
         .name(&NodeName::new(name).unwrap())
         .config(config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc::Service>()
+        .create::<Ipc>()
         .unwrap()
 }
 
-fn node(name: &str) -> Node<ipc::Service> {
+fn node(name: &str) -> Node<Ipc> {
     node_in(config(), name)
 }
 
@@ -207,11 +219,7 @@ fn version_verifier() -> AttributeVerifier {
 }
 
 /// ussd's side of a drive's `out` service.
-fn create_out(
-    ussd: &Node<ipc::Service>,
-    bus: &Instance,
-    a: DriveAddress,
-) -> PubSub<ipc::Service, PzdOutput, ()> {
+fn create_out(ussd: &Node<Ipc>, bus: &Instance, a: DriveAddress) -> PubSub<Ipc, PzdOutput, ()> {
     ussd.service_builder(&names::drive_out(bus, a))
         .publish_subscribe::<PzdOutput>()
         .max_publishers(names::OUT_MAX_PUBLISHERS)
@@ -223,11 +231,7 @@ fn create_out(
 }
 
 /// A controller's side of a drive's `out` service.
-fn open_out(
-    controller: &Node<ipc::Service>,
-    bus: &Instance,
-    a: DriveAddress,
-) -> PubSub<ipc::Service, PzdOutput, ()> {
+fn open_out(controller: &Node<Ipc>, bus: &Instance, a: DriveAddress) -> PubSub<Ipc, PzdOutput, ()> {
     controller
         .service_builder(&names::drive_out(bus, a))
         .publish_subscribe::<PzdOutput>()
@@ -237,11 +241,11 @@ fn open_out(
 
 /// ussd's side of a drive's `in` service: a blackboard with one entry, `PzdInput::EMPTY`.
 fn create_in(
-    ussd: &Node<ipc::Service>,
+    ussd: &Node<Ipc>,
     bus: &Instance,
     a: DriveAddress,
     max_readers: usize,
-) -> Result<Blackboard<ipc::Service, BlackboardKey>, BlackboardCreateError> {
+) -> Result<Blackboard<Ipc, BlackboardKey>, BlackboardCreateError> {
     ussd.service_builder(&names::drive_in(bus, a))
         .blackboard_creator::<BlackboardKey>()
         .max_readers(max_readers)
@@ -250,10 +254,7 @@ fn create_in(
 }
 
 /// A client's side of a blackboard.
-fn open_blackboard(
-    client: &Node<ipc::Service>,
-    name: &ServiceName,
-) -> Blackboard<ipc::Service, BlackboardKey> {
+fn open_blackboard(client: &Node<Ipc>, name: &ServiceName) -> Blackboard<Ipc, BlackboardKey> {
     client
         .service_builder(name)
         .blackboard_opener::<BlackboardKey>()
@@ -573,7 +574,7 @@ fn threadsafe_ussd_ports_move_to_another_thread_and_serve_plain_ipc_clients() {
     let ussd = NodeBuilder::new()
         .config(config())
         .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc_threadsafe::Service>()
+        .create::<IpcThreadsafe>()
         .unwrap();
     let name = names::drive_in(&bus, drive(7));
     let svc = ussd
@@ -604,9 +605,9 @@ fn threadsafe_ussd_ports_move_to_another_thread_and_serve_plain_ipc_clients() {
 
 /// ussd's side of the `cycle` event service.
 fn create_cycle(
-    ussd: &Node<ipc::Service>,
+    ussd: &Node<Ipc>,
     bus: &Instance,
-) -> iceoryx2::service::port_factory::event::PortFactory<ipc::Service> {
+) -> iceoryx2::service::port_factory::event::PortFactory<Ipc> {
     ussd.service_builder(&names::cycle(bus))
         .event()
         .event_id_max_value(names::EVENT_ID_MAX)
@@ -763,7 +764,7 @@ fn serve(bus: &Instance, ready: &mpsc::Sender<()>, stop: &AtomicBool) -> Vec<(u6
     allocations
 }
 
-type ParamClient = Client<ipc::Service, ParamRequest, (), ParamResponse, ()>;
+type ParamClient = Client<Ipc, ParamRequest, (), ParamResponse, ()>;
 
 /// Sends `req`, waits for its response and checks no second one follows.
 fn round_trip(client: &ParamClient, req: &ParamRequest) -> ParamResponse {
@@ -924,7 +925,7 @@ fn kill_child(role: &str, bus: &Instance, config: &Config) -> i32 {
 /// The dead nodes `Node::list` reports: (id, process id, name).
 fn dead_nodes(config: &Config) -> Vec<(UniqueNodeId, i32, String)> {
     let mut dead = Vec::new();
-    Node::<ipc::Service>::list(config, |state| {
+    Node::<Ipc>::list(config, |state| {
         if let NodeState::Dead(view) = state {
             let details = view.details().as_ref().expect("details of a dead node");
             dead.push((
@@ -940,7 +941,7 @@ fn dead_nodes(config: &Config) -> Vec<(UniqueNodeId, i32, String)> {
 }
 
 /// Cleans up dead nodes of this test instance even when an assertion fails.
-struct CleanupDeadNodes<'a>(&'a Node<ipc::Service>);
+struct CleanupDeadNodes<'a>(&'a Node<Ipc>);
 
 impl Drop for CleanupDeadNodes<'_> {
     fn drop(&mut self) {
@@ -1047,10 +1048,7 @@ fn listeners_hear_ussd_gone_when_the_killed_ussd_is_cleaned_up() {
 
 /// ussd's side of the heartbeat service: opened if clients of an earlier ussd hold it,
 /// created otherwise.
-fn open_heartbeat(
-    ussd: &Node<ipc::Service>,
-    bus: &Instance,
-) -> PubSub<ipc::Service, Heartbeat, ()> {
+fn open_heartbeat(ussd: &Node<Ipc>, bus: &Instance) -> PubSub<Ipc, Heartbeat, ()> {
     ussd.service_builder(&names::heartbeat(&bus.bus))
         .publish_subscribe::<Heartbeat>()
         .max_publishers(1)
@@ -1110,7 +1108,7 @@ fn a_restarted_ussd_takes_over_the_heartbeat_while_clients_stay_subscribed() {
 
 /// The next heartbeat, waiting up to 1 s.
 fn next_heartbeat(
-    subscriber: &iceoryx2::port::subscriber::Subscriber<ipc::Service, Heartbeat, ()>,
+    subscriber: &iceoryx2::port::subscriber::Subscriber<Ipc, Heartbeat, ()>,
 ) -> Heartbeat {
     let deadline = Instant::now() + Duration::from_secs(1);
     loop {
@@ -1264,7 +1262,7 @@ fn child_process() {
             let node = NodeBuilder::new()
                 .config(config())
                 .signal_handling_mode(mode)
-                .create::<ipc::Service>()
+                .create::<Ipc>()
                 .unwrap();
             assert_eq!(node.signal_handling_mode(), mode);
             node.wait(Duration::from_millis(1)).unwrap();

@@ -29,6 +29,7 @@ use uss_client::{
 };
 use uss_integration_tests::{ChildProc, SimProcess, Ussd, monotonic_ns};
 use uss_shm_types::names;
+use uss_shm_types::service::Ipc;
 use uss_shm_types::{BusName, DriveAddress, Heartbeat, Instance, LAYOUT_VERSION, PzdOutput};
 
 /// One ussd at a time: each runs a `SCHED_FIFO` bus thread, and the machine has two cores.
@@ -183,18 +184,19 @@ fn frozen_controller_trips_once_and_the_drive_stays_stopped_when_it_resumes() {
 
 /// A foreign controller: a raw iceoryx2 publisher of the contract's `out` service.
 struct RawController {
-    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, PzdOutput, ()>,
+    publisher: iceoryx2::port::publisher::Publisher<Ipc, PzdOutput, ()>,
     /// The drive's image, for the latch a sample names.
     watch: uss_client::DriveWatch,
     sequence: u64,
-    _node: Node<ipc::Service>,
+    _node: Node<Ipc>,
 }
 
 impl RawController {
     fn open(bus_name: &str, a: u8) -> Self {
         let node = NodeBuilder::new()
+            .config(&uss_shm_types::service::config().unwrap())
             .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<ipc::Service>()
+            .create::<Ipc>()
             .unwrap();
         // As any client: the newest heartbeat names the generation that serves the bus.
         let bus = BusName::new(bus_name).unwrap();

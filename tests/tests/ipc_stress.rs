@@ -29,13 +29,6 @@ const ARGS_ENV: &str = "USS_STRESS_ARGS";
 /// P2000 of the simulated drives: setpoints and actual values are scaled by it.
 const REFERENCE_HZ: f32 = 50.0;
 
-/// Where iceoryx2 keeps one directory per node under its default configuration (no config
-/// file), which ussd and its clients use here. Each holds `iox2_node.details` (TOML with
-/// `process = PID`) and stays after its process died until a dead-node cleanup removes it.
-/// `iceoryx2::node::Node::list` reads the same directories; this crate does not depend on
-/// iceoryx2, so the tests read them themselves.
-const NODES_DIR: &str = "/tmp/iceoryx2/nodes";
-
 /// One test at a time: each ussd runs a paced bus thread, and the machine has two cores.
 fn serial() -> MutexGuard<'static, ()> {
     static LOCK: Mutex<()> = Mutex::new(());
@@ -43,9 +36,14 @@ fn serial() -> MutexGuard<'static, ()> {
 }
 
 /// The iceoryx2 node directories of process `pid`, alive or dead.
+///
+/// iceoryx2 keeps one directory per node below uss-rt's root (`nodes/`), each with
+/// `iox2_node.details` (TOML with `process = PID`), until a dead-node cleanup removes it;
+/// `iceoryx2::node::Node::list` reads the same directories.
 fn nodes_of(pid: u32) -> Vec<PathBuf> {
     let owned_by = format!("\nprocess = {pid}\n");
-    let Ok(dir) = std::fs::read_dir(NODES_DIR) else {
+    // uss-rt's iceoryx2 variant keeps node state below its root (uss_shm_types::service).
+    let Ok(dir) = std::fs::read_dir(uss_shm_types::service::root().join("nodes")) else {
         return Vec::new();
     };
     dir.flatten()

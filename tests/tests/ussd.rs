@@ -297,6 +297,165 @@ fn a_process_of_another_user_cannot_connect_and_is_told_why() {
 
 /// A second ussd on a bus that is already served says so in plain words, once, and leaves the
 /// first one serving.
+/// A group made for one test (groupadd), removed when it goes.
+struct TestGroup {
+    name: String,
+    gid: u32,
+}
+
+impl TestGroup {
+    fn new(name: String) -> Self {
+        let made = Command::new("groupadd").arg(&name).output().unwrap();
+        assert!(
+            made.status.success(),
+            "{}",
+            String::from_utf8_lossy(&made.stderr)
+        );
+        let gid = nix::unistd::Group::from_name(&name)
+            .unwrap()
+            .unwrap()
+            .gid
+            .as_raw();
+        Self { name, gid }
+    }
+}
+
+impl Drop for TestGroup {
+    fn drop(&mut self) {
+        let _ = Command::new("groupdel").arg(&self.name).output();
+    }
+}
+
+/// `ussctl` on a bus and a shared-memory root, as other users (setpriv).
+struct Ussctl {
+    /// A copy every user may run (the build directory may not be theirs to enter).
+    exe: std::path::PathBuf,
+    bus: String,
+    root: std::path::PathBuf,
+}
+
+impl Ussctl {
+    fn new(bus: &str, root: &std::path::Path) -> Self {
+        use std::os::unix::fs::PermissionsExt as _;
+        let exe = std::env::temp_dir().join(format!("ussctl-group-{}", std::process::id()));
+        std::fs::copy(binary("ussctl", "ussctl"), &exe).unwrap();
+        std::fs::set_permissions(&exe, std::fs::Permissions::from_mode(0o755)).unwrap();
+        Self {
+            exe,
+            bus: bus.to_owned(),
+            root: root.to_owned(),
+        }
+    }
+
+    /// `ussctl ARGS` as user `uid` with the supplementary groups `groups`.
+    fn run_as(&self, uid: u32, groups: &str, args: &[&str]) -> std::process::Output {
+        Command::new("setpriv")
+            .args([
+                &format!("--reuid={uid}"),
+                &format!("--regid={uid}"),
+                &format!("--groups={groups}"),
+            ])
+            .arg(&self.exe)
+            .args(["--bus", &self.bus])
+            .args(args)
+            .env(uss_shm_types::service::ROOT_ENV, &self.root)
+            .output()
+            .expect("setpriv (util-linux)")
+    }
+}
+
+impl Drop for Ussctl {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.exe);
+    }
+}
+
+/// README "Access": with `access_group`, processes of other users in that group monitor and
+/// control drives (`ussctl status`, `ussctl run`); a user outside it is refused and told to
+/// join the group; ussd made its root directory the group's, mode 2770.
+#[test]
+fn members_of_the_access_group_use_the_services_as_their_own_users_and_others_are_refused() {
+    use std::os::unix::fs::MetadataExt as _;
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    if unsafe { nix::libc::geteuid() } != 0 {
+        println!("skipped: making a group and running processes as other users needs root");
+        return;
+    }
+    let pid = std::process::id();
+    let group = TestGroup::new(format!("ussg{}", pid % 1_000_000));
+    // A root of this test's own, so the test's other ussd processes keep theirs.
+    let root = std::path::PathBuf::from(format!("/dev/shm/uss-rt-access-{pid}"));
+    let bus = format!("grp{pid}");
+    let config = config_file(
+        "access",
+        &format!(
+            "access_group = \"{}\"\n\n[[bus]]\nname = \"{bus}\"\ndevice = \"sim\"\n\n\
+             [[bus.drive]]\naddress = 1\n",
+            group.name
+        ),
+    );
+    let daemon = ussd()
+        .arg("--config")
+        .arg(&config)
+        .env(uss_shm_types::service::ROOT_ENV, &root)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let ussctl = Ussctl::new(&bus, &root);
+    let member = (61_000 + pid % 1000, group.gid.to_string());
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    let status = loop {
+        let out = ussctl.run_as(member.0, &member.1, &["status"]);
+        if out.status.success() {
+            break String::from_utf8_lossy(&out.stdout).into_owned();
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "a member's ussctl status: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
+    assert!(status.contains(&format!("bus {bus}: running")), "{status}");
+    assert!(status.contains("   1  yes"), "{status}");
+    let meta = std::fs::metadata(&root).unwrap();
+    assert_eq!((meta.mode() & 0o7777, meta.gid()), (0o2770, group.gid));
+    // A member controls a drive: takes it, re-arms, runs, stops and hands it back.
+    let run = ussctl.run_as(
+        member.0,
+        &member.1,
+        &["run", "1", "--hz", "5", "--for", "1"],
+    );
+    assert!(
+        run.status.success(),
+        "a member's ussctl run: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(String::from_utf8_lossy(&run.stdout).contains("drive 1: ran; OFF1 sent"));
+    // A user outside the group is refused, and told what to do.
+    let out = ussctl.run_as(62_000 + pid % 1000, "65534", &["status"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    let hint = format!(
+        "or as a member of group {} (ussd's access_group)",
+        group.name
+    );
+    assert!(err.contains(&hint), "{err}");
+    let _ = nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(daemon.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    );
+    let log = String::from_utf8_lossy(&daemon.wait_with_output().unwrap().stdout).into_owned();
+    let said = format!(
+        "the members of group {} (gid {}) may use",
+        group.name, group.gid
+    );
+    assert!(log.contains(&said), "{log}");
+    let _ = std::fs::remove_dir_all(&root);
+    let _ = std::fs::remove_file(&config);
+}
+
 #[test]
 fn a_second_ussd_on_a_served_bus_says_who_serves_it() {
     let mut first = uss_integration_tests::Ussd::start("", &[(1, "")]);

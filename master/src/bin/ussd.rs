@@ -87,6 +87,9 @@ enum Failure {
     Config(#[from] ConfigError),
     #[error("cannot install signal handlers: {0}")]
     Signals(std::io::Error),
+    /// The shared memory's root directory cannot be made what the configuration asks.
+    #[error("{0}")]
+    Access(#[from] uss_master::daemon::access::AccessError),
     #[error(transparent)]
     Start(#[from] runtime::StartError),
     /// Buses that did not stop cleanly (a failed line, a hung bus thread).
@@ -99,7 +102,7 @@ impl Failure {
     fn exit_code(&self) -> u8 {
         match self {
             Self::Usage(_) | Self::Config(_) => 2,
-            Self::Signals(_) | Self::Start(_) | Self::Stop(_) => 1,
+            Self::Signals(_) | Self::Access(_) | Self::Start(_) | Self::Stop(_) => 1,
         }
     }
 }
@@ -178,6 +181,9 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         .transpose()
         .map_err(Failure::Usage)?;
     let stop = stop_on_signals().map_err(Failure::Signals)?;
+    // Who may use the services, before any exists.
+    let access = uss_master::daemon::access::prepare(config.access_group.as_deref())?;
+    tracing::info!("{access}");
     let buses = runtime::start(&config.buses, options)?;
     for b in &buses {
         tracing::info!(bus = %b.name, drives = b.handle.drives().len(), "polling");

@@ -48,6 +48,12 @@ use uss_shm_types::StopCommand;
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
+    /// A group whose members may use ussd's services as their own users (monitors and
+    /// controllers): the root directory of the shared memory is made theirs to read and write
+    /// (mode 2770, `uss_shm_types::service`). A group name, or a number (a gid). Without it
+    /// only ussd's user (and root) may.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub access_group: Option<String>,
     #[serde(rename = "bus", default)]
     pub buses: Vec<BusConfig>,
 }

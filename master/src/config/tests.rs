@@ -497,7 +497,7 @@ fn unknown_keys_are_named_with_their_table_in_every_table() {
     assert_eq!(
         refused(&format!("version = 2\n{}", bus_key(""))),
         (
-            "bus.toml:1:1: unknown key `version`: the file takes bus".to_owned(),
+            "bus.toml:1:1: unknown key `version`: the file takes access_group or bus".to_owned(),
             Some("version".to_owned())
         )
     );
@@ -530,7 +530,7 @@ fn unknown_keys_are_named_with_their_table_in_every_table() {
     assert_eq!(
         refused(&format!("{}[other]\nx = 1\n", bus_key(""))),
         (
-            "bus.toml:8:2: unknown key `other`: the file takes bus".to_owned(),
+            "bus.toml:8:2: unknown key `other`: the file takes access_group or bus".to_owned(),
             Some("other".to_owned())
         )
     );

@@ -1,6 +1,7 @@
 //! `ussd` around the engine: buses in their real-time threads, the iceoryx2 services clients use,
 //! housekeeping and the live summary, the real-time set-up and the service manager.
 
+pub mod access;
 pub mod housekeeping;
 pub mod ipc;
 pub mod rt;

@@ -35,7 +35,9 @@ use uss_protocol::Address;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{BusName, Generation, Instance, LAYOUT_VERSION};
 
-pub(crate) type Svc = ipc_threadsafe::Service;
+/// uss-rt's iceoryx2 service variant (`uss_shm_types::service`), with thread-safe ports: they
+/// are made before the bus threads start and moved into them.
+pub(crate) type Svc = uss_shm_types::service::IpcThreadsafe;
 
 /// ussd's iceoryx2 node for one bus.
 pub type IpcNode = Node<Svc>;
@@ -157,8 +159,18 @@ pub fn create(
         what: "its services".into(),
         detail: e.to_string(),
     })?;
+    let config = uss_shm_types::service::config().ok_or_else(|| IpcError::Create {
+        bus: name.into(),
+        what: "its node".into(),
+        detail: format!(
+            "{} is no absolute path iceoryx2 takes ({})",
+            uss_shm_types::service::root().display(),
+            uss_shm_types::service::ROOT_ENV
+        ),
+    })?;
     let node = NodeBuilder::new()
         .name(&names::ussd_node(&bus))
+        .config(&config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Svc>()
         .map_err(|e| fail(&bus, "its node")(text(e)))?;

@@ -1,0 +1,157 @@
+//! Who may use ussd's services: the root directory of uss-rt's iceoryx2 files
+//! (`uss_shm_types::service::root`, `/dev/shm/uss-rt`), made and checked by ussd before any of
+//! its nodes. Inside it iceoryx2 opens every file to all; the root alone decides: owner-only
+//! (mode 0700), or with `access_group` readable and writable by that group (mode 2770, the
+//! group set) so its members run monitors and controllers as their own users. Everybody else
+//! cannot enter it, and the client library says why.
+
+use nix::unistd::{Gid, Group, Uid, User, chown, geteuid};
+use std::os::unix::fs::{DirBuilderExt as _, MetadataExt as _};
+use std::path::PathBuf;
+use thiserror::Error;
+
+/// The root as ussd left it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Access {
+    pub root: PathBuf,
+    /// The group that may use the services, with its gid; `None`: owner-only.
+    pub group: Option<(String, u32)>,
+}
+
+impl core::fmt::Display for Access {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match &self.group {
+            Some((name, gid)) => write!(
+                f,
+                "shared memory in {}: ussd's user and the members of group {name} (gid {gid}) may use the services (mode 2770)",
+                self.root.display()
+            ),
+            None => write!(
+                f,
+                "shared memory in {}: only ussd's user (and root) may use the services (mode 0700; access_group opens it to a group)",
+                self.root.display()
+            ),
+        }
+    }
+}
+
+/// Why ussd cannot make the root what its configuration asks.
+#[derive(Debug, Error)]
+pub enum AccessError {
+    #[error(
+        "access_group = {0:?}: no such group on this machine: create it (groupadd {0}) or change the configuration"
+    )]
+    NoSuchGroup(String),
+    #[error("{}: {what} failed: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        what: &'static str,
+        source: std::io::Error,
+    },
+    #[error("{} is not a directory (a symbolic link or a file): remove it; ussd makes it", path.display())]
+    NotADirectory { path: PathBuf },
+    #[error(
+        "{} belongs to user {owner}, not to ussd's user {me}: remove it (ussd makes it) or run ussd as {owner}",
+        path.display()
+    )]
+    Foreign {
+        path: PathBuf,
+        owner: String,
+        me: String,
+    },
+}
+
+fn user_name(uid: u32) -> String {
+    User::from_uid(Uid::from_raw(uid))
+        .ok()
+        .flatten()
+        .map_or_else(|| uid.to_string(), |u| u.name)
+}
+
+/// The group `access_group` names: a name, or a number (a gid).
+fn group(access_group: &str) -> Result<(String, u32), AccessError> {
+    let found = if let Ok(gid) = access_group.parse::<u32>() {
+        Group::from_gid(Gid::from_raw(gid))
+            .ok()
+            .flatten()
+            .map_or((access_group.to_owned(), gid), |g| (g.name, gid))
+    } else {
+        let g = Group::from_name(access_group)
+            .ok()
+            .flatten()
+            .ok_or_else(|| AccessError::NoSuchGroup(access_group.to_owned()))?;
+        (g.name, g.gid.as_raw())
+    };
+    Ok(found)
+}
+
+/// Makes the root directory (when it is not there) and gives it the owner, group and mode the
+/// configuration asks for: ussd's user, `access_group`'s group with mode 2770, or mode 0700.
+/// Refuses a root that is a link or a file, or another user's (unless ussd runs as root).
+pub fn prepare(access_group: Option<&str>) -> Result<Access, AccessError> {
+    let path = uss_shm_types::service::root();
+    let io = |what, path: &PathBuf| {
+        let path = path.clone();
+        move |source| AccessError::Io { path, what, source }
+    };
+    let group = access_group.map(group).transpose()?;
+    match std::fs::symlink_metadata(&path) {
+        Ok(meta) if !meta.file_type().is_dir() => {
+            return Err(AccessError::NotADirectory { path });
+        }
+        Ok(meta) => {
+            let me = geteuid();
+            if meta.uid() != me.as_raw() {
+                if !me.is_root() {
+                    return Err(AccessError::Foreign {
+                        owner: user_name(meta.uid()),
+                        me: user_name(me.as_raw()),
+                        path,
+                    });
+                }
+                // Root takes it over: nobody else decides who enters ussd's services.
+                chown(&path, Some(me), None)
+                    .map_err(|e| io("chown", &path)(std::io::Error::from(e)))?;
+            }
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            std::fs::DirBuilder::new()
+                .recursive(true)
+                .mode(0o700)
+                .create(&path)
+                .map_err(io("mkdir", &path))?;
+        }
+        Err(e) => return Err(io("stat", &path)(e)),
+    }
+    let mode = match &group {
+        Some((_, gid)) => {
+            chown(&path, None, Some(Gid::from_raw(*gid)))
+                .map_err(|e| io("chown", &path)(std::io::Error::from(e)))?;
+            0o2770
+        }
+        None => 0o700,
+    };
+    // The path is ussd's directory, no link (checked above; in /dev/shm, sticky, nobody else
+    // may replace it).
+    std::fs::set_permissions(&path, std::os::unix::fs::PermissionsExt::from_mode(mode))
+        .map_err(io("chmod", &path))?;
+    Ok(Access { root: path, group })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_group_is_found_by_name_or_number_and_a_missing_one_is_named() {
+        let (name, gid) = group("0").unwrap();
+        assert_eq!((name.as_str(), gid), ("root", 0));
+        assert_eq!(group("root").unwrap(), ("root".to_owned(), 0));
+        let e = group("no-such-group-here").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "access_group = \"no-such-group-here\": no such group on this machine: create it \
+             (groupadd no-such-group-here) or change the configuration"
+        );
+    }
+}
