@@ -31,20 +31,27 @@ impl Bus {
 
     /// Waits until drive `address` got a stop command at least as strong as `command` from an
     /// operator (its input image shows the override and the control word that went out) and
-    /// returns that image.
+    /// returns that image. `timeout` `None` waits the drive's own time for it
+    /// ([`crate::DriveWatch::handshake`]: its turn in the circulating list, or its next probe
+    /// while offline, and the poll).
     pub fn wait_stopped(
         &self,
         address: u8,
         command: StopCommand,
-        timeout: Duration,
+        timeout: Option<Duration>,
     ) -> Result<PzdInput, ClientError> {
         let watch = self.watch(address)?;
-        watch.wait_for(timeout, &format!("{command} applied"), |i| {
+        let wanted = format!("{command} applied");
+        let shown = |i: &PzdInput| {
             let got = StopCommand::try_from(i.latch_command).unwrap_or(StopCommand::None);
             i.latch_reason == LatchReason::Override.code()
                 && got.strength() >= command.strength()
                 && got.stw1() == Some(i.sent_stw1)
-        })
+        };
+        match timeout {
+            Some(timeout) => watch.wait_for(timeout, &wanted, shown),
+            None => watch.wait_polled(&wanted, shown),
+        }
     }
 
     fn operator(&self, address: u8, command: StopCommand) -> Result<Vec<u8>, ClientError> {

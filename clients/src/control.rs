@@ -22,9 +22,11 @@ use uss_shm_types::{
 
 /// A refresh period that suits ussd's default watchdog of 100 ms (`watchdog_ms`).
 pub const DEFAULT_REFRESH: Duration = Duration::from_millis(20);
-/// How long a call waits for ussd to take an OFF1 before passing an ON ([`Controller::rearm`],
-/// or an ON right after [`Controller::enable`]), and for a release on drop.
-pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(1);
+/// The least a call waits for ussd to take an OFF1 before passing an ON ([`Controller::rearm`],
+/// or an ON right after [`Controller::enable`]), and for a release on drop. The wait is the
+/// drive's own ([`DriveWatch::handshake`]): ussd's freshness limit for it, which on a full slow
+/// line (31 drives at 9600 baud) is seconds.
+pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_nanos(uss_shm_types::MIN_HANDSHAKE_NS);
 
 /// How a [`Controller`] starts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -124,10 +126,10 @@ impl Shared {
     }
 
     /// A call of the program that changes the words with `change` (or only refreshes them), as
-    /// the session decides. An ON right after a re-arming stop waits (at most
-    /// [`HANDSHAKE_TIMEOUT`], repeating the stop) until ussd took the stop and the drive is live.
+    /// the session decides. An ON right after a re-arming stop waits (at most the drive's
+    /// handshake time, repeating the stop) until ussd took the stop and the drive is live.
     fn publish(&self, change: impl Fn(&mut Words)) -> Result<(), ClientError> {
-        let deadline = Instant::now() + HANDSHAKE_TIMEOUT;
+        let start = Instant::now();
         loop {
             let services = self.link.check()?;
             let mut state = self.state();
@@ -139,7 +141,7 @@ impl Shared {
                 .map_err(|e| self.error(e, &input))?;
             let sample = match step {
                 Step::Publish(sample) => return Self::send(&mut state, sample),
-                Step::AwaitRearm if Instant::now() < deadline => {
+                Step::AwaitRearm if start.elapsed() < handshake(&input) => {
                     // The program waits inside its call: the stop goes on being refreshed.
                     match state.session.publish(monotonic_ns(), &input, |_| {}) {
                         Ok(Step::Publish(repeated)) => repeated,
@@ -192,7 +194,7 @@ impl Shared {
 
     /// Publishes a release and waits (at most `timeout`) until ussd took it, so the publisher
     /// can go: iceoryx2 drops samples not yet received with their publisher.
-    fn release(&self, timeout: Duration) -> Result<PzdInput, ClientError> {
+    fn release(&self) -> Result<PzdInput, ClientError> {
         // Nobody to hand the drive to: the watchdog of a new ussd is not involved either.
         let services = self.link.check()?;
         let mut state = self.state();
@@ -204,13 +206,17 @@ impl Shared {
             .send_copy(sample)
             .map_err(|e| ClientError::ipc("publishing the release", e))?;
         drop(state);
-        self.watch.wait_for(timeout, "release taken", |i| {
-            i.taken_sequence == sample.sequence
-        })
+        self.watch
+            .wait_polled("release taken", |i| i.taken_sequence == sample.sequence)
     }
 }
 
 use crate::link::monotonic_ns;
+
+/// How long to wait for what the drive's next poll brings, as its image `input` states it.
+fn handshake(input: &PzdInput) -> Duration {
+    Duration::from_nanos(input.handshake_ns())
+}
 
 /// This process's publisher on drive `address`'s `out` service of the generation `services`
 /// belong to; [`ClientError::Controlled`] while another process holds it.
@@ -420,7 +426,7 @@ impl Controller {
                 .map_err(|e| self.shared.error(e, &input))?;
             Shared::send(&mut state, sample)?;
         }
-        let live = self.wait_for(HANDSHAKE_TIMEOUT, "re-armed (live)", PzdInput::is_live);
+        let live = self.wait_polled("re-armed (live)", PzdInput::is_live);
         match live {
             Ok(input) => Ok(input),
             Err(ClientError::WaitTimeout { .. } | ClientError::Stale { .. }) => {
@@ -550,6 +556,25 @@ impl Controller {
         &self,
         timeout: Duration,
         wanted: &str,
+        done: impl FnMut(&PzdInput) -> bool,
+    ) -> Result<PzdInput, ClientError> {
+        self.wait_until(|_| timeout, wanted, done)
+    }
+
+    /// Like [`Controller::wait_for`], for what the drive's next poll brings: waits the drive's
+    /// handshake time ([`DriveWatch::handshake`]) as its image states it while waiting.
+    pub fn wait_polled(
+        &self,
+        wanted: &str,
+        done: impl FnMut(&PzdInput) -> bool,
+    ) -> Result<PzdInput, ClientError> {
+        self.wait_until(handshake, wanted, done)
+    }
+
+    fn wait_until(
+        &self,
+        timeout: impl Fn(&PzdInput) -> Duration,
+        wanted: &str,
         mut done: impl FnMut(&PzdInput) -> bool,
     ) -> Result<PzdInput, ClientError> {
         let start = Instant::now();
@@ -561,6 +586,7 @@ impl Controller {
             if done(&latest) {
                 return Ok(latest);
             }
+            let timeout = timeout(&latest);
             if start.elapsed() >= timeout {
                 return Err(watch.timed_out(timeout, wanted, first, &latest));
             }
@@ -603,12 +629,12 @@ impl Controller {
     }
 
     /// Hands the drive back cleanly: ussd sends its safe command, latched, and shows it
-    /// "released" (not a watchdog trip). Waits until ussd took the release (at most
-    /// [`HANDSHAKE_TIMEOUT`]) and returns the image that says so. Dropping a controller does
+    /// "released" (not a watchdog trip). Waits until ussd took the release (at most the
+    /// drive's handshake time) and returns the image that says so. Dropping a controller does
     /// the same, ignoring errors.
     pub fn release(mut self) -> Result<PzdInput, ClientError> {
         self.released = true;
-        self.shared.release(HANDSHAKE_TIMEOUT)
+        self.shared.release()
     }
 
     fn command(&self, stw1: Stw1) -> Result<(), ClientError> {
@@ -621,7 +647,7 @@ impl Drop for Controller {
         if !self.released {
             // A drive that stays unreachable (ussd gone) ends the wait at the timeout; the
             // watchdog then covers it, as it covers a crash.
-            let _ = self.shared.release(HANDSHAKE_TIMEOUT);
+            let _ = self.shared.release();
         }
     }
 }

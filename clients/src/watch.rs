@@ -133,8 +133,17 @@ impl DriveWatch {
                 state.info = info;
             }
         }
-        let problem = health.error(self.link.name.as_str());
+        let mut problem = health.error(self.link.name.as_str());
         let mut image = state.last;
+        if problem.is_none() && image.is_overdue(crate::link::monotonic_ns()) {
+            // ussd serves the bus, but the drive's poll is overdue by ussd's own limit: the
+            // image is not the drive as it is (a stalled bus thread, a line slower than it was).
+            problem = Some(ClientError::Stale {
+                bus: self.link.name.as_str().to_owned(),
+                address: self.address.get(),
+                timeout: Duration::from_nanos(image.stale_after_ns),
+            });
+        }
         if problem.is_some() || state.port.is_none() {
             image.online = 0;
         }
@@ -211,22 +220,50 @@ impl DriveWatch {
         Setpoint::from_word(self.latest().hiw).percent()
     }
 
+    /// How long to wait for what the drive's next poll brings (a stop confirmed, a re-arm or
+    /// release taken): ussd's freshness limit for the drive as its image states it (its turn in
+    /// the circulating list and one poll with all its retries), at least
+    /// [`crate::HANDSHAKE_TIMEOUT`]. 31 drives at 9600 baud poll each drive only every 1.3 s.
+    pub fn handshake(&self) -> Duration {
+        Duration::from_nanos(self.latest().handshake_ns())
+    }
+
     /// Waits until `done` holds for the input image (looking every millisecond) and returns
     /// that image; after `timeout`, fails with [`ClientError::WaitTimeout`] naming `wanted`.
     pub fn wait_for(
         &self,
         timeout: Duration,
         wanted: &str,
+        done: impl FnMut(&PzdInput) -> bool,
+    ) -> Result<PzdInput, ClientError> {
+        self.wait_until(|_| timeout, wanted, done)
+    }
+
+    /// Like [`DriveWatch::wait_for`], for what the drive's next poll brings: waits the drive's
+    /// [`DriveWatch::handshake`] time, as its image states it while waiting.
+    pub fn wait_polled(
+        &self,
+        wanted: &str,
+        done: impl FnMut(&PzdInput) -> bool,
+    ) -> Result<PzdInput, ClientError> {
+        self.wait_until(|i| Duration::from_nanos(i.handshake_ns()), wanted, done)
+    }
+
+    fn wait_until(
+        &self,
+        timeout: impl Fn(&PzdInput) -> Duration,
+        wanted: &str,
         mut done: impl FnMut(&PzdInput) -> bool,
     ) -> Result<PzdInput, ClientError> {
-        let deadline = Instant::now() + timeout;
+        let start = Instant::now();
         let first = self.latest().sequence;
         loop {
             let latest = self.latest();
             if done(&latest) {
                 return Ok(latest);
             }
-            if Instant::now() >= deadline {
+            let timeout = timeout(&latest);
+            if start.elapsed() >= timeout {
                 return Err(self.timed_out(timeout, wanted, first, &latest));
             }
             std::thread::sleep(POLL);

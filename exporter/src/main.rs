@@ -118,6 +118,8 @@ struct Metrics {
     cycles: Family<BusLabels, Counter>,
     efficiency: Family<BusLabels, Gauge<f64, AtomicU64>>,
     online: Family<DriveLabels, Gauge>,
+    stale: Family<DriveLabels, Gauge>,
+    period: Family<DriveLabels, Gauge<f64, AtomicU64>>,
     latched: Family<DriveLabels, Gauge>,
     telegrams: Family<TelegramLabels, Counter>,
     retries: Family<DriveLabels, Counter>,
@@ -138,6 +140,8 @@ impl Metrics {
             cycles: Family::default(),
             efficiency: Family::default(),
             online: Family::default(),
+            stale: Family::default(),
+            period: Family::default(),
             latched: Family::default(),
             telegrams: Family::default(),
             retries: Family::default(),
@@ -177,7 +181,21 @@ impl Metrics {
             "Wire-time floor over achieved exchange time (1 = the master adds nothing)",
             self.efficiency,
         );
-        r.register("uss_drive_online", "1 while the drive answers", self.online);
+        r.register(
+            "uss_drive_online",
+            "1 while the drive answers and its poll is not overdue",
+            self.online,
+        );
+        r.register(
+            "uss_drive_stale",
+            "1 while the drive's last reply is older than ussd's limit for it (a stalled bus thread)",
+            self.stale,
+        );
+        r.register(
+            "uss_drive_poll_period_seconds",
+            "How often ussd polls the drive now (0: not known yet)",
+            self.period,
+        );
         r.register(
             "uss_drive_latched",
             "1 while the drive gets its safe command until its controller re-arms",
@@ -239,9 +257,14 @@ impl Metrics {
             drive: d.address.to_string(),
         };
         let c = &d.counters;
+        let overdue = d.is_overdue(uss_client::monotonic_ns());
         self.online
             .get_or_create(&labels)
-            .set(i64::from(d.online != 0));
+            .set(i64::from(d.online != 0 && !overdue));
+        self.stale.get_or_create(&labels).set(i64::from(overdue));
+        self.period
+            .get_or_create(&labels)
+            .set(d.period_ns as f64 / 1e9);
         self.latched
             .get_or_create(&labels)
             .set(i64::from(d.control == ControlState::Latched.code()));

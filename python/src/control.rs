@@ -165,10 +165,20 @@ impl Controller {
         self.with(py, |c| c.reverse(reverse))
     }
 
-    /// A rising edge of STW1 bit 7 until the drive received it (at most `timeout` s), then OFF1.
-    fn acknowledge(&self, py: Python<'_>, timeout: f64) -> PyResult<()> {
-        let timeout = duration(timeout)?;
-        self.with(py, |c| c.acknowledge_fault(timeout))
+    /// A rising edge of STW1 bit 7 until the drive received it (at most `timeout` s; `None`:
+    /// the drive's handshake time), then OFF1.
+    #[pyo3(signature = (timeout=None))]
+    fn acknowledge(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<()> {
+        let timeout = timeout.map(duration).transpose()?;
+        self.with(py, |c| {
+            c.acknowledge_fault(timeout.unwrap_or_else(|| c.inputs().handshake()))
+        })
+    }
+
+    /// How long a call waits for what the drive's next poll brings, s (ussd's freshness limit
+    /// for the drive, at least 1 s).
+    fn handshake(&self, py: Python<'_>) -> PyResult<f64> {
+        self.with(py, |c| Ok(c.inputs().handshake().as_secs_f64()))
     }
 
     #[allow(clippy::needless_pass_by_value)] // PyO3 extracts a Python list as a Vec

@@ -168,6 +168,8 @@ pub(crate) fn image_dict<'py>(
     d.set_item("sequence", i.sequence)?;
     d.set_item("timestamp_ns", i.timestamp_ns)?;
     d.set_item("age_ns", i.age_ns)?;
+    d.set_item("period_ns", i.period_ns)?;
+    d.set_item("stale_after_ns", i.stale_after_ns)?;
     d.set_item("zsw1", i.zsw1)?;
     d.set_item("hiw", i.hiw)?;
     d.set_item("word_count", i.word_count)?;
@@ -210,8 +212,10 @@ fn read_input<'py>(
         return image_dict(py, address, &PzdInput::EMPTY, state);
     }
     let look = bus.watch(py, address, DriveWatch::snapshot)?;
-    // A problem the snapshot saw (ussd went between two looks) marks it stale too.
+    // A problem the snapshot saw marks it too: the drive's poll overdue by ussd's own limit
+    // (a stalled bus thread), or ussd went between two looks.
     let state = match (&look.problem, state) {
+        (Some(uss_client::ClientError::Stale { .. }), "running") => "stale",
         (Some(_), "running") => "gone",
         (_, s) => s,
     };
@@ -251,19 +255,21 @@ pub(crate) fn widen(addresses: &[u8]) -> Vec<u32> {
     addresses.iter().map(|&a| u32::from(a)).collect()
 }
 
-/// Waits (at most `timeout` s, without the GIL) until drive `address`'s image shows an
-/// operator's stop at least as strong as `command` and its control word went out.
+/// Waits (at most `timeout` s, without the GIL; `None`: the drive's handshake time) until
+/// drive `address`'s image shows an operator's stop at least as strong as `command` and its
+/// control word went out.
 #[pyfunction]
+#[pyo3(signature = (bus, address, command, timeout=None))]
 fn wait_stopped<'py>(
     py: Python<'py>,
     bus: &Bound<'py, Bus>,
     address: u8,
     command: u8,
-    timeout: f64,
+    timeout: Option<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let bus = bus.get();
     let command = stop_command(command)?;
-    let timeout = duration(timeout)?;
+    let timeout = timeout.map(duration).transpose()?;
     let image = py
         .detach(|| bus.inner.wait_stopped(address, command, timeout))
         .map_err(|e| errors::client(py, e))?;

@@ -39,13 +39,14 @@ def ussctl_binary() -> str:
 
 
 class Ussd:
-    """A ussd process running ``bus`` (BUS by default)."""
+    """A ussd process running ``bus`` (BUS by default) on a simulated line with ``drives``
+    (default keys) and the further ``[[bus]]`` keys ``keys``."""
 
-    def __init__(self, tmp: Path, bus: str = BUS):
+    def __init__(self, tmp: Path, bus: str = BUS, drives=DRIVES, keys: str = ""):
         self.bus = bus
         self.config = tmp / f"ussd-{bus}.toml"
-        drives = "".join(f"\n[[bus.drive]]\naddress = {a}\n" for a in DRIVES)
-        self.config.write_text(f'[[bus]]\nname = "{bus}"\ndevice = "sim"\n{drives}')
+        drives = "".join(f"\n[[bus.drive]]\naddress = {a}\n" for a in drives)
+        self.config.write_text(f'[[bus]]\nname = "{bus}"\ndevice = "sim"\n{keys}\n{drives}')
         self.log = tmp / f"ussd-{bus}.log"
         with self.log.open("a") as log:
             self.process = subprocess.Popen(

@@ -514,7 +514,10 @@ def read_input(bus: Bus, address: int) -> dict:
     ``words`` holds the PZD words in use (ZSW1 first). ``sequence`` counts good replies (0 =
     none yet); ``online`` is 1 while the drive answers, and 0 whenever ussd does not poll the
     bus (``health`` says why: "gone", "stopped", "line down"; the image is then the last one
-    read); ``known`` is 0 until ussd's first poll decided ``online``. Time stamps are
+    read) and while the drive's poll is overdue by ussd's own limit (``health`` "stale": a
+    stalled bus thread); ``known`` is 0 until ussd's first poll decided ``online``.
+    ``period_ns`` is how often ussd polls the drive now, ``stale_after_ns`` the age
+    (``timestamp_ns`` to now) beyond which the image is stale. Time stamps are
     CLOCK_MONOTONIC ns. ``control`` is a :class:`ControlState`; while latched,
     ``latch_reason`` (:class:`LatchReason`) says why, ``latch_command`` (:class:`StopCommand`)
     what the drive gets and ``latch_id`` which latch; ``sent_stw1`` is the control word that
@@ -563,9 +566,11 @@ def stop_all(bus: Bus, command=StopCommand.OFF1, timeout: float = 2.0):
     return _native.stop_all(bus._open(), int(StopCommand(command)))
 
 
-def wait_stopped(bus: Bus, address: int, command=StopCommand.OFF1, timeout: float = 3.0) -> dict:
+def wait_stopped(bus: Bus, address: int, command=StopCommand.OFF1, timeout=None) -> dict:
     """Waits until drive ``address``'s image shows an operator's stop at least as strong as
-    ``command`` and the control word that went out; returns that image (:func:`read_input`)."""
+    ``command`` and the control word that went out; returns that image (:func:`read_input`).
+    ``timeout`` None waits as long as the drive's next poll may take (its ``stale_after_ns``,
+    at least 1 s; an offline drive's next probe)."""
     _check_address(address)
     return _image(
         _native.wait_stopped(bus._open(), address, int(StopCommand(command)), timeout)

@@ -165,19 +165,28 @@ class Controller:
         """Sets or clears the reverse bit (STW1 bit 11)."""
         self._c.reverse(bool(reverse))
 
-    def acknowledge(self, timeout: float = 1.0):
-        """Acknowledges a fault: a rising edge of STW1 bit 7 until the drive received it, then
-        OFF1."""
+    def acknowledge(self, timeout=None):
+        """Acknowledges a fault: a rising edge of STW1 bit 7 until the drive received it (at
+        most ``timeout`` s; None: the drive's handshake time, :meth:`handshake`), then OFF1."""
         self._c.acknowledge(timeout)
+
+    def handshake(self) -> float:
+        """How long a call waits for what the drive's next poll brings, s: ussd's freshness
+        limit for the drive (its turn in the circulating list and the poll with its retries),
+        at least 1 s. A full line at 9600 baud polls each drive only every 1.3 s."""
+        return self._c.handshake()
 
     def set_words(self, words):
         """Sends the PZD ``words`` as they are (STW1 first, bit 10 set, the drive's length)."""
         self._c.set_words(list(words))
 
-    def wait_for(self, predicate, timeout: float = 3.0, what: str = "the drive") -> dict:
+    def wait_for(self, predicate, timeout=None, what: str = "the drive") -> dict:
         """Waits until ``predicate(image)`` holds, refreshing the watchdog meanwhile (this
         program waits inside its own call); raises :class:`Tripped` as soon as the drive
-        latches, :class:`WaitTimeout` after ``timeout`` s."""
+        latches, :class:`WaitTimeout` after ``timeout`` s (None: 3 s for the drive and its
+        :meth:`handshake` time for the bus to carry the command and the answer)."""
+        if timeout is None:
+            timeout = 3.0 + self.handshake()
         return _u._image(self._c.wait_for(lambda raw: predicate(_u._image(raw)), timeout, what))
 
     def release(self):

@@ -19,20 +19,20 @@
  * as IOX2_TYPE_NAME.
  */
 #define USS_BLACKBOARD_KEY_TYPE_NAME "UssBlackboardKey"
-#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV6"
-#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV6"
-#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV6"
-#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV6"
-#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV6"
-#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV6"
-#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV6"
-#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV6"
-#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV6"
-#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV6"
-#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV6"
-#define USS_TELEGRAM_RECORD_TYPE_NAME "UssTelegramRecordV6"
-#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV6"
-#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV6"
+#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV7"
+#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV7"
+#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV7"
+#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV7"
+#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV7"
+#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV7"
+#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV7"
+#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV7"
+#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV7"
+#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV7"
+#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV7"
+#define USS_TELEGRAM_RECORD_TYPE_NAME "UssTelegramRecordV7"
+#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV7"
+#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV7"
 
 /*
  * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; %016llx = the
@@ -103,7 +103,7 @@
  * The layout version of every payload type in this crate. Bump it with any change to a type's
  * fields, sizes or code tables, together with the type names' `V<n>` suffix.
  */
-#define USS_LAYOUT_VERSION 6
+#define USS_LAYOUT_VERSION 7
 
 /**
  * Longest bus name.
@@ -268,6 +268,12 @@
  * never re-arms a latched drive.
  */
 #define USS_STW1_JOG 768
+
+/**
+ * The least time a client waits for a poll of a drive to show in its image
+ * ([`PzdInput::handshake_ns`]): one second.
+ */
+#define USS_MIN_HANDSHAKE_NS 1000000000
 
 /**
  * STW1 of the re-arming stop: OFF1 with everything else enabled (0x047E).
@@ -983,7 +989,7 @@ typedef struct UssPzdOutput {
    */
   uint64_t latch_id;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV7";
 #endif
 } UssPzdOutput;
 
@@ -1085,8 +1091,20 @@ typedef struct UssPzdInput {
    * names it ([`PzdOutput::latch_id`]); a latch id it did not acknowledge is news.
    */
   uint64_t latch_id;
+  /**
+   * How often ussd expects to poll the drive now, ns: its share of the circulating list at
+   * the measured cycle time (an offline drive: its probe interval). What a client waits for
+   * the drive's next poll (a re-arm, a stop's confirmation), instead of a fixed time: a full
+   * line at 9600 baud polls each drive only every 1.3 s. 0: not known yet.
+   */
+  uint64_t period_ns;
+  /**
+   * An online drive's image older than this (`timestamp_ns` to now) is not the drive as it is:
+   * its poll is overdue (two periods and one poll with all its retries). 0: not known yet.
+   */
+  uint64_t stale_after_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV7";
 #endif
 } UssPzdInput;
 
@@ -1127,7 +1145,7 @@ typedef struct UssDriveInfo {
   uint8_t weight;
   uint8_t reserved[3];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV7";
 #endif
 } UssDriveInfo;
 
@@ -1198,7 +1216,7 @@ typedef struct UssDriveCounters {
    */
   uint64_t overrides;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV7";
 #endif
 } UssDriveCounters;
 
@@ -1303,8 +1321,14 @@ typedef struct UssDriveDiag {
    * p99.9, max.
    */
   uint64_t response_delay_ns[4];
+  /**
+   * How often ussd polls the drive now, ns, and after how long its image is stale
+   * ([`crate::PzdInput::period_ns`], [`crate::PzdInput::stale_after_ns`]); 0: not known yet.
+   */
+  uint64_t period_ns;
+  uint64_t stale_after_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV7";
 #endif
 } UssDriveDiag;
 
@@ -1434,7 +1458,7 @@ typedef struct UssBusStatus {
    */
   uint64_t exchange_le[USS_EXCHANGE_BUCKETS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV7";
 #endif
 } UssBusStatus;
 
@@ -1464,7 +1488,7 @@ typedef struct UssParamItem {
    */
   uint32_t value;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV7";
 #endif
 } UssParamItem;
 /**
@@ -1495,7 +1519,7 @@ typedef struct UssParamRequest {
   uint8_t reserved;
   struct UssParamItem items[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV7";
 #endif
 } UssParamRequest;
 
@@ -1535,7 +1559,7 @@ typedef struct UssParamResult {
    */
   uint64_t on_wire_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV7";
 #endif
 } UssParamResult;
 
@@ -1571,7 +1595,7 @@ typedef struct UssParamResponse {
   uint32_t reserved;
   struct UssParamResult results[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV7";
 #endif
 } UssParamResponse;
 
@@ -1621,7 +1645,7 @@ typedef struct UssHeartbeat {
    */
   int32_t line_errno;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV7";
 #endif
 } UssHeartbeat;
 
@@ -1678,7 +1702,7 @@ typedef struct UssTelegramRecord {
   uint64_t end_ns;
   uint8_t bytes[USS_CAPTURE_BYTES];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssTelegramRecordV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssTelegramRecordV7";
 #endif
 } UssTelegramRecord;
 
@@ -1700,7 +1724,7 @@ typedef struct UssOperatorRequest {
   uint8_t command;
   uint8_t reserved[2];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV7";
 #endif
 } UssOperatorRequest;
 
@@ -1726,7 +1750,7 @@ typedef struct UssOperatorResponse {
    */
   uint32_t drives;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV6";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV7";
 #endif
 } UssOperatorResponse;
 

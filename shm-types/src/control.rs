@@ -145,7 +145,7 @@ impl StopCommand {
 /// An operator's stop command for one drive or every drive of a bus, from any process.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorRequestV6")]
+#[type_name("UssOperatorRequestV7")]
 pub struct OperatorRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -159,7 +159,7 @@ pub struct OperatorRequest {
 /// The one answer to an [`OperatorRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorResponseV6")]
+#[type_name("UssOperatorResponseV7")]
 pub struct OperatorResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

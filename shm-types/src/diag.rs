@@ -72,7 +72,7 @@ code_table! {
 /// USS.md section 7) plus timeouts and retries.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveDiagV6")]
+#[type_name("UssDriveDiagV7")]
 pub struct DriveDiag {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -124,13 +124,17 @@ pub struct DriveDiag {
     /// This drive's response delay (end of our request -> its reply's STX), ns: p50, p99,
     /// p99.9, max.
     pub response_delay_ns: [u64; 4],
+    /// How often ussd polls the drive now, ns, and after how long its image is stale
+    /// ([`crate::PzdInput::period_ns`], [`crate::PzdInput::stale_after_ns`]); 0: not known yet.
+    pub period_ns: u64,
+    pub stale_after_ns: u64,
 }
 
 /// What ussd knows of one drive from its configuration, published so that no client has to be
 /// told it again (a controller scales Hz with `reference_hz`, sends exactly `pzd_words`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveInfoV6")]
+#[type_name("UssDriveInfoV7")]
 pub struct DriveInfo {
     /// The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
     /// frequency (USS.md section 7). The drive's own value once ussd has read it, until then
@@ -173,7 +177,7 @@ impl DriveInfo {
 /// published (USS.md section 4, "Receive errors to detect and count").
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssDriveCountersV6")]
+#[type_name("UssDriveCountersV7")]
 pub struct DriveCounters {
     /// Telegrams sent to the drive (retries included).
     pub requests: u64,
@@ -286,7 +290,7 @@ impl DriveCounters {
 /// The state of the bus as a whole.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssBusStatusV6")]
+#[type_name("UssBusStatusV7")]
 pub struct BusStatus {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -426,7 +430,15 @@ impl DriveDiag {
             },
             exchange_ns: [0; 4],
             response_delay_ns: [0; 4],
+            period_ns: 0,
+            stale_after_ns: 0,
         }
+    }
+
+    /// Whether the drive's last good reply is older at `now_ns` than ussd's limit for it while
+    /// it counts as online: these diagnostics are not the drive as it is (a stalled bus thread).
+    pub const fn is_overdue(&self, now_ns: u64) -> bool {
+        crate::pzd::overdue(self.online, self.last_good_ns, self.stale_after_ns, now_ns)
     }
 
     pub fn last_failure(&self) -> Result<LastFailure, UnknownCode> {

@@ -38,7 +38,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdOutput",
-        type_name: "UssPzdOutputV6",
+        type_name: "UssPzdOutputV7",
         size: 72,
         align: 8,
         fields: &[
@@ -57,8 +57,8 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdInput",
-        type_name: "UssPzdInputV6",
-        size: 104,
+        type_name: "UssPzdInputV7",
+        size: 120,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -83,11 +83,13 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("reserved", 87, 1),
             f("taken_sequence", 88, 8),
             f("latch_id", 96, 8),
+            f("period_ns", 104, 8),
+            f("stale_after_ns", 112, 8),
         ],
     },
     TypeLayout {
         name: "DriveInfo",
-        type_name: "UssDriveInfoV6",
+        type_name: "UssDriveInfoV7",
         size: 16,
         align: 4,
         fields: &[
@@ -103,7 +105,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveCounters",
-        type_name: "UssDriveCountersV6",
+        type_name: "UssDriveCountersV7",
         size: 192,
         align: 8,
         fields: &[
@@ -135,8 +137,8 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveDiag",
-        type_name: "UssDriveDiagV6",
-        size: 328,
+        type_name: "UssDriveDiagV7",
+        size: 344,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -163,11 +165,13 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("counters", 72, 192),
             f("exchange_ns", 264, 32),
             f("response_delay_ns", 296, 32),
+            f("period_ns", 328, 8),
+            f("stale_after_ns", 336, 8),
         ],
     },
     TypeLayout {
         name: "BusStatus",
-        type_name: "UssBusStatusV6",
+        type_name: "UssBusStatusV7",
         size: 352,
         align: 8,
         fields: &[
@@ -208,7 +212,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamItem",
-        type_name: "UssParamItemV6",
+        type_name: "UssParamItemV7",
         size: 12,
         align: 4,
         fields: &[
@@ -222,7 +226,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamRequest",
-        type_name: "UssParamRequestV6",
+        type_name: "UssParamRequestV7",
         size: 476,
         align: 4,
         fields: &[
@@ -236,7 +240,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResult",
-        type_name: "UssParamResultV6",
+        type_name: "UssParamResultV7",
         size: 24,
         align: 8,
         fields: &[
@@ -252,7 +256,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResponse",
-        type_name: "UssParamResponseV6",
+        type_name: "UssParamResponseV7",
         size: 952,
         align: 8,
         fields: &[
@@ -268,7 +272,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "Heartbeat",
-        type_name: "UssHeartbeatV6",
+        type_name: "UssHeartbeatV7",
         size: 56,
         align: 8,
         fields: &[
@@ -287,7 +291,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "TelegramRecord",
-        type_name: "UssTelegramRecordV6",
+        type_name: "UssTelegramRecordV7",
         size: 304,
         align: 8,
         fields: &[
@@ -308,7 +312,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorRequest",
-        type_name: "UssOperatorRequestV6",
+        type_name: "UssOperatorRequestV7",
         size: 8,
         align: 4,
         fields: &[
@@ -320,7 +324,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorResponse",
-        type_name: "UssOperatorResponseV6",
+        type_name: "UssOperatorResponseV7",
         size: 12,
         align: 4,
         fields: &[

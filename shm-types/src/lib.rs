@@ -67,12 +67,15 @@ pub use params::{
     MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, REQUEST_FORCE,
     Refusal, RequestError, Storage, TaskCode,
 };
-pub use pzd::{EXTRA_PZD_WORDS, MAX_PZD_WORDS, OUTPUT_RELEASE, OutputSample, PzdInput, PzdOutput};
+pub use pzd::{
+    EXTRA_PZD_WORDS, MAX_PZD_WORDS, MIN_HANDSHAKE_NS, OUTPUT_RELEASE, OutputSample, PzdInput,
+    PzdOutput,
+};
 pub use session::{Session, SessionError, SessionSetup, Step, Words};
 
 /// The layout version of every payload type in this crate. Bump it with any change to a type's
 /// fields, sizes or code tables, together with the type names' `V<n>` suffix.
-pub const LAYOUT_VERSION: u32 = 6;
+pub const LAYOUT_VERSION: u32 = 7;
 
 /// Checks a payload's `version` field.
 pub const fn check_version(found: u32) -> Result<(), ContractError> {

@@ -149,7 +149,7 @@ impl TaskCode {
 /// One parameter access.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamItemV6")]
+#[type_name("UssParamItemV7")]
 pub struct ParamItem {
     /// A [`TaskCode`].
     pub task: u8,
@@ -167,7 +167,7 @@ pub struct ParamItem {
 /// A request for up to 39 parameter accesses on one drive.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamRequestV6")]
+#[type_name("UssParamRequestV7")]
 pub struct ParamRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -184,7 +184,7 @@ pub struct ParamRequest {
 /// The result of one item.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResultV6")]
+#[type_name("UssParamResultV7")]
 pub struct ParamResult {
     /// An [`Outcome`] code.
     pub outcome: u8,
@@ -208,7 +208,7 @@ pub struct ParamResult {
 /// The one response to a [`ParamRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResponseV6")]
+#[type_name("UssParamResponseV7")]
 pub struct ParamResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

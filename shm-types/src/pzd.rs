@@ -44,7 +44,7 @@ pub const fn is_stop(stw1: u16) -> bool {
 /// drive would misread is refused and latches the drive too.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdOutputV6")]
+#[type_name("UssPzdOutputV7")]
 pub struct PzdOutput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -88,7 +88,7 @@ pub enum OutputSample {
 /// of the drive, good or failed.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdInputV6")]
+#[type_name("UssPzdInputV7")]
 pub struct PzdInput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -141,7 +141,26 @@ pub struct PzdInput {
     /// latched drive included, gets a new id. A controller re-arms the drive with a stop that
     /// names it ([`PzdOutput::latch_id`]); a latch id it did not acknowledge is news.
     pub latch_id: u64,
+    /// How often ussd expects to poll the drive now, ns: its share of the circulating list at
+    /// the measured cycle time (an offline drive: its probe interval). What a client waits for
+    /// the drive's next poll (a re-arm, a stop's confirmation), instead of a fixed time: a full
+    /// line at 9600 baud polls each drive only every 1.3 s. 0: not known yet.
+    pub period_ns: u64,
+    /// An online drive's image older than this (`timestamp_ns` to now) is not the drive as it is:
+    /// its poll is overdue (two periods and one poll with all its retries). 0: not known yet.
+    pub stale_after_ns: u64,
 }
+
+/// Whether a drive that is `online` and last answered at `last_ns` is overdue at `now_ns` by
+/// ussd's limit `stale_after_ns` for it (0: no limit known yet): the one rule behind
+/// [`PzdInput::is_overdue`] and [`crate::DriveDiag::is_overdue`].
+pub const fn overdue(online: u8, last_ns: u64, stale_after_ns: u64, now_ns: u64) -> bool {
+    online != 0 && stale_after_ns != 0 && now_ns.saturating_sub(last_ns) > stale_after_ns
+}
+
+/// The least time a client waits for a poll of a drive to show in its image
+/// ([`PzdInput::handshake_ns`]): one second.
+pub const MIN_HANDSHAKE_NS: u64 = 1_000_000_000;
 
 /// Puts up to 16 PZD words into the named word fields.
 fn split(words: &[u16]) -> Result<(u16, u16, [u16; EXTRA_PZD_WORDS], u8), ContractError> {
@@ -314,6 +333,8 @@ impl PzdInput {
         reserved: 0,
         taken_sequence: 0,
         latch_id: 0,
+        period_ns: 0,
+        stale_after_ns: 0,
     };
 
     /// An image carrying the reply's `words` (PZD1 = ZSW1 first, at most 16); `online` set.
@@ -346,6 +367,24 @@ impl PzdInput {
     /// Whether the drive gets its controller's words (not latched).
     pub fn is_live(&self) -> bool {
         self.control == ControlState::Live.code()
+    }
+
+    /// Whether the image of an online drive is older at `now_ns` than ussd's limit for it
+    /// (`stale_after_ns`): its poll is overdue, the picture is not the drive as it is.
+    pub const fn is_overdue(&self, now_ns: u64) -> bool {
+        overdue(self.online, self.timestamp_ns, self.stale_after_ns, now_ns)
+    }
+
+    /// How long a client waits for what the drive's next poll brings (a re-arm taken, a stop
+    /// confirmed, a release shown), ns: ussd's freshness limit for the drive, which covers the
+    /// wait for its turn and the poll with all its retries, and never less than
+    /// [`MIN_HANDSHAKE_NS`] (the IPC, a busy machine, a limit not known yet).
+    pub const fn handshake_ns(&self) -> u64 {
+        if self.stale_after_ns > MIN_HANDSHAKE_NS {
+            self.stale_after_ns
+        } else {
+            MIN_HANDSHAKE_NS
+        }
     }
 
     /// The current latch's id, `None` while the drive is live.

@@ -28,12 +28,20 @@ fn serial() -> MutexGuard<'static, ()> {
 
 const DRIVES: &[(u8, &str)] = &[(1, ""), (2, "")];
 
-/// Reads `watch` every millisecond until it fails; the error and when (`CLOCK_MONOTONIC`).
+/// Reads `watch` every millisecond until it fails with what ussd's heartbeat says; the error and
+/// when (`CLOCK_MONOTONIC`). Before, the image may read stale (its poll overdue by ussd's own
+/// limit for the drive, [`ClientError::Stale`]): that is printed.
 fn first_failure(watch: &DriveWatch) -> (ClientError, u64) {
     let deadline = Instant::now() + Duration::from_secs(5);
+    let mut stale_seen = false;
     loop {
-        if let Err(e) = watch.read() {
-            return (e, monotonic_ns());
+        match watch.read() {
+            Err(ClientError::Stale { timeout, .. }) if !stale_seen => {
+                stale_seen = true;
+                println!("lifecycle: the image read stale first (limit {timeout:?})");
+            }
+            Err(ClientError::Stale { .. }) | Ok(_) => {}
+            Err(e) => return (e, monotonic_ns()),
         }
         assert!(Instant::now() < deadline, "still read as healthy");
         std::thread::sleep(Duration::from_millis(1));

@@ -46,9 +46,13 @@ use zenoh::{Session, Wait};
 /// (the drive tripped long before, at its watchdog time). Above Zenoh's default lease (10 s),
 /// so a short partition keeps the drive's latch reason ("controller stale") for the operator.
 pub const RELEASE_AFTER: Duration = Duration::from_secs(15);
-/// How long a stop query waits for the drives' images to show the command (an offline drive is
-/// probed only every `offline_probe_ms`), well inside a client's query timeout (10 s).
+/// How long a stop query waits at least for the drives' images to show the command; longer
+/// when a drive's handshake time (its turn on a slow full line, its next probe while offline)
+/// says so, up to [`STOP_TIMEOUT_MAX`].
 const STOP_TIMEOUT: Duration = Duration::from_secs(3);
+/// The longest a stop query waits, well inside a client's query timeout (10 s): a drive not
+/// confirmed by then is marked unconfirmed (an offline drive probed every minute).
+const STOP_TIMEOUT_MAX: Duration = Duration::from_secs(8);
 /// How often the control report goes out besides on every change, while the bridge holds the
 /// drive's controller.
 const REPORT_EVERY: Duration = Duration::from_secs(1);
@@ -104,11 +108,19 @@ fn send_stop(bus: &Bus, keys: &Keys, query: &Query) -> Result<Sent, String> {
 }
 
 /// The reply to a stop that went out: each drive's image once it shows the command, within
-/// [`STOP_TIMEOUT`] for all of them; a drive that does not show it in time is marked
+/// [`STOP_TIMEOUT`] or the longest handshake time of the drives (at most
+/// [`STOP_TIMEOUT_MAX`]) for all of them; a drive that does not show it in time is marked
 /// unconfirmed ([`stop_json`]).
 fn confirm_stop(name: &str, one: bool, command: StopCommand, drives: &[u8]) -> String {
     let bus = Bus::open_as(name, "uss-zenoh-stop").ok();
-    let deadline = Instant::now() + STOP_TIMEOUT;
+    let wait = bus.as_ref().map_or(STOP_TIMEOUT, |b| {
+        drives
+            .iter()
+            .filter_map(|&d| b.watch(d).ok().map(|w| w.handshake()))
+            .fold(STOP_TIMEOUT, Duration::max)
+            .min(STOP_TIMEOUT_MAX)
+    });
+    let deadline = Instant::now() + wait;
     let replies: Vec<StopReply<'_>> = drives
         .iter()
         .map(|&drive| {
@@ -117,7 +129,7 @@ fn confirm_stop(name: &str, one: bool, command: StopCommand, drives: &[u8]) -> S
                 .as_ref()
                 .ok_or_else(|| format!("ussd is not running on {name}"))
                 .and_then(|b| {
-                    b.wait_stopped(drive, command, left)
+                    b.wait_stopped(drive, command, Some(left))
                         .map_err(|e| e.to_string())
                 });
             StopReply::new(name, drive, command, shown)

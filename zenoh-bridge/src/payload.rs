@@ -100,6 +100,13 @@ pub struct Input<'a> {
     /// The drive's watchdog time (`watchdog_ms` of ussd's configuration): a remote
     /// controller's samples must come closer together than this.
     pub watchdog_ms: u32,
+    /// How often ussd polls the drive now, ms (0: not known yet): its share of the
+    /// circulating list (its probe interval while offline).
+    pub period_ms: f64,
+    /// How long a remote controller waits for what the drive's next poll brings (a re-arm
+    /// taken, a stop shown), and the longest gap between this drive's images before they are
+    /// stale, ms: ussd's freshness limit for the drive, at least 1 s.
+    pub handshake_ms: f64,
     /// S1..S4, `fault`, `not ready`.
     pub state: &'static str,
     pub zsw1: u16,
@@ -133,6 +140,8 @@ impl<'a> Input<'a> {
             latch_reason: i.latch_reason_name(),
             latch_id: i.latch_id,
             watchdog_ms: info.watchdog_ms,
+            period_ms: i.period_ns as f64 / 1e6,
+            handshake_ms: i.handshake_ns() as f64 / 1e6,
             state: state_name(i.zsw1),
             zsw1: i.zsw1,
             hiw: i.hiw,

@@ -160,19 +160,20 @@ impl Publisher<'_> {
     }
 
     /// Publishes the image of each drive in `due` (a bit per address) that changed (and, while
-    /// ussd does not serve the bus, its last image once, marked stale).
+    /// ussd does not serve the bus or the drive's poll is overdue, its last image once, marked
+    /// stale).
     fn inputs(&mut self, due: u32) {
         let min_gap = self
             .o
             .max_rate
             .filter(|r| *r > 0.0)
             .map(|r| Duration::from_secs_f64(1.0 / r));
-        let stale = !self.serving;
         for d in &mut self.drives {
             if due & (1 << d.watch.address()) == 0 {
                 continue;
             }
             let look = d.watch.snapshot();
+            let stale = !self.serving || look.problem.is_some();
             let image = look.image;
             let changed = d
                 .last

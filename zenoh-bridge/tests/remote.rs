@@ -571,3 +571,40 @@ fn operator_stops_latch(ns: &Netns, ussd: &Ussd, drive: &str) {
         "{err}"
     );
 }
+
+/// A full line at the factory baud rate (31 drives at 9600 baud, each polled every 1.3 s): a
+/// remote run re-arms, runs and releases drive 20, and a remote stop is confirmed. The client
+/// waits by the drive's handshake time in its images (`handshake_ms`), not by fixed seconds.
+#[test]
+fn a_remote_client_controls_a_drive_of_a_full_line_at_9600_baud() {
+    let Some(ns) = Netns::create() else { return };
+    let drives: Vec<(u8, &str)> = (1..=31).map(|a| (a, "")).collect();
+    let ussd = Ussd::start("baud = 9600", &drives);
+    let bus = ussd.bus.clone();
+    let prefix = format!("uss/f{}", std::process::id());
+    let drive = format!("{prefix}/{bus}/drive/20");
+    let watch = ussd.bus().watch(20).unwrap();
+    let (_bridge, config) = bridge(&ns, &bus, &prefix, &["--allow-control"]);
+
+    let (ok, out, err) = ns.call(&["run", &drive, "--hz", "10", "--for", "3"]);
+    assert!(ok, "{out}{err}");
+    assert!(
+        out.contains("re-armed") && out.contains("and released"),
+        "{out}"
+    );
+    let i = watch.latest();
+    assert!(latched(&i) && reason(&i) == LatchReason::Released, "{i:?}");
+
+    let mut run = ns.client(&["run", &drive, "--hz", "10"]);
+    run.says("re-armed");
+    let (ok, out, err) = ns.call(&["stop", &drive]);
+    assert!(ok, "{err}");
+    let stop = json(&out);
+    assert_eq!(stop["confirmed"].as_bool(), Some(true), "{stop}");
+    let (status, _, err) = run.finish();
+    assert!(
+        !status.success() && err.contains("(operator stop)"),
+        "{err}"
+    );
+    let _ = std::fs::remove_file(config);
+}

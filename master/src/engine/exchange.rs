@@ -48,11 +48,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 Attempt::Reply { words, mut timing } => {
                     timing.first_attempt = attempt == 0;
                     self.on_reply(slot, &words, begin, timing);
-                    self.bridge.after_poll(
-                        slot,
-                        &self.shared.images[slot],
-                        &self.stats.drives[slot],
-                    );
+                    self.after_poll(slot);
                     return Ok(());
                 }
                 Attempt::Failed(f) => {
@@ -73,8 +69,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             }
         }
         self.on_failed_poll(slot, last);
-        self.bridge
-            .after_poll(slot, &self.shared.images[slot], &self.stats.drives[slot]);
+        self.after_poll(slot);
         Ok(())
     }
 

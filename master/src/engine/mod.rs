@@ -14,6 +14,7 @@ pub mod control;
 pub mod image;
 pub mod jobs;
 pub mod monitoring;
+pub mod period;
 pub mod reference;
 pub mod requesters;
 pub mod stats;
@@ -32,6 +33,7 @@ use crate::engine::control::{
 use crate::engine::image::DriveImages;
 use crate::engine::jobs::{Encoded, Job, JobResult, Mailbox, Requester};
 use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
+use crate::engine::period::{PeriodSetup, Periods};
 use crate::engine::stats::{
     DriveStatus, FreshTiming, LastFailure, LineFault, Published, Stats, record_both,
 };
@@ -369,6 +371,8 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     shared: Arc<Shared>,
     drives: Vec<DriveRt>,
     poll_list: Vec<u8>,
+    /// Each drive's expected poll period and freshness limit, published with its image.
+    periods: Periods,
     position: usize,
     /// With `param_priority`: whether the last poll was an extra one for a parameter job, and
     /// where the search for the next such drive starts (round robin among them).
@@ -409,6 +413,48 @@ fn circulating_list(drives: &[DriveSetup]) -> Vec<u8> {
     entries.into_iter().map(|(_, i)| i as u8).collect()
 }
 
+/// Each drive's gate, latched by ussd's start at `now`.
+fn gates(drives: &[DriveSetup], clock_origin: Duration, now: Duration) -> Vec<Gate> {
+    drives
+        .iter()
+        .map(|d| {
+            let setup = GateSetup {
+                pzd: d.layout.pzd.get(),
+                safe: d.safe,
+                watchdog: d.watchdog,
+                clock_origin,
+            };
+            Gate::new(setup, now)
+        })
+        .collect()
+}
+
+/// What the poll periods of `cfg`'s bus depend on. One attempt at worst: the request, the
+/// drive's response timeout and the longest reply at its maximum residual time (USS.md
+/// section 4), for the bus's largest telegrams.
+fn period_setup(cfg: &EngineConfig) -> PeriodSetup {
+    let request = cfg
+        .drives
+        .iter()
+        .map(|d| d.layout.request_net_bytes())
+        .max()
+        .unwrap_or(0);
+    let reply = cfg
+        .drives
+        .iter()
+        .map(|d| d.layout.max_reply_net_bytes())
+        .max()
+        .unwrap_or(0);
+    let worst = cfg.timing.worst_case_transaction(request, reply);
+    PeriodSetup {
+        attempt: worst.saturating_sub(uss_protocol::MAX_RESPONSE_DELAY) + cfg.response_timeout,
+        retries: cfg.retries,
+        probe: cfg.offline_probe,
+        param_priority: cfg.param_priority,
+        fixed_cycle: cfg.cycle_time,
+    }
+}
+
 impl<T: Transport, C: Clock> Engine<T, C> {
     /// Builds the engine with process images in this process only; returns it with its handle
     /// and the event receiver for the housekeeping thread.
@@ -433,19 +479,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
         let capacity = (cfg.mailbox_depth * cfg.drives.len()).max(1);
         let now = clock.now();
-        let gates: Vec<Gate> = cfg
-            .drives
-            .iter()
-            .map(|d| {
-                let setup = GateSetup {
-                    pzd: d.layout.pzd.get(),
-                    safe: d.safe,
-                    watchdog: d.watchdog,
-                    clock_origin: clock.monotonic_origin(),
-                };
-                Gate::new(setup, now)
-            })
-            .collect();
+        let gates = gates(&cfg.drives, clock.monotonic_origin(), now);
         let mut stats = Stats::new(
             cfg.drives
                 .iter()
@@ -494,6 +528,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             })
             .collect();
         let poll_list = circulating_list(&cfg.drives);
+        let periods = Periods::new(&poll_list, cfg.drives.len(), period_setup(&cfg));
         let engine = Self {
             framer: Framer::new(FramerConfig::strict(cfg.timing)),
             transport,
@@ -501,6 +536,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             shared: Arc::clone(&shared),
             drives,
             poll_list,
+            periods,
             position: 0,
             extra_was_last: false,
             extra_cursor: 0,
@@ -584,8 +620,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             self.shared.images[slot]
                 .online
                 .store(false, Ordering::Release);
-            self.bridge
-                .after_poll(slot, &self.shared.images[slot], &self.stats.drives[slot]);
+            self.after_poll(slot);
         }
         self.stats.line.down = Some((now, fault));
         self.stats.line.downs += 1;
@@ -851,6 +886,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.bridge.cycle_completed();
         let now = self.clock.now();
         let took = now.saturating_sub(self.cycle_start);
+        self.periods.cycle_done(took);
         self.stats.bus.cycles += 1;
         record_both(
             &mut self.stats.histograms.cycle,
@@ -912,6 +948,16 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             }),
             None => {}
         }
+    }
+
+    /// After every poll of the drive in `slot`, good or failed: its period and freshness limit
+    /// as they are now, then its image to the clients.
+    fn after_poll(&mut self, slot: usize) {
+        let status = &mut self.stats.drives[slot];
+        status.period = self.periods.period(slot, status.online);
+        status.stale_after = self.periods.stale_after(slot, status.online);
+        self.bridge
+            .after_poll(slot, &self.shared.images[slot], &self.stats.drives[slot]);
     }
 
     /// The strongest operator command that arrived for the drive since its last poll.

@@ -94,6 +94,10 @@ pub struct DriveStatus {
     pub monitoring_ms: u32,
     /// The drive's reference frequency as read from it.
     pub reference: Reference,
+    /// How often the drive is polled now, and after how long its image is stale
+    /// (`crate::engine::period`); set before each [`crate::engine::Bridge::after_poll`].
+    pub period: Duration,
+    pub stale_after: Duration,
     pub counters: DriveCounters,
 }
 
@@ -119,6 +123,8 @@ impl DriveStatus {
             monitoring: Monitoring::Unknown,
             monitoring_ms: 0,
             reference: Reference::Unknown,
+            period: Duration::ZERO,
+            stale_after: Duration::ZERO,
             counters: DriveCounters::default(),
         }
     }

@@ -3,7 +3,6 @@
 use super::common::control;
 use crate::report::DriveReport;
 use crate::{Failure, Output};
-use core::time::Duration;
 use uss_client::{Bus, ClientError, DriveState};
 
 pub(crate) fn ack(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {
@@ -13,8 +12,10 @@ pub(crate) fn ack(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {
             "drive {drive} shows no fault; acknowledging anyway"
         ));
     }
-    c.acknowledge_fault(Duration::from_secs(1))?;
-    let last = match c.wait_for(Duration::from_secs(1), "fault cleared", |i| {
+    // The edge takes two exchanges, the drive's answer a third: the drive's handshake time
+    // each (31 drives at 9600 baud poll each drive only every 1.3 s).
+    c.acknowledge_fault(c.inputs().handshake())?;
+    let last = match c.wait_polled("fault cleared", |i| {
         uss_client::state_of(i) != DriveState::Fault
     }) {
         Ok(i) => i,

@@ -5,8 +5,15 @@ use crate::Failure;
 use core::time::Duration;
 use uss_client::{Bus, ControlOptions, Controller, PzdInput};
 
-/// How long a state change of the drive may take before ussctl gives up.
-pub(crate) const STATE_TIMEOUT: Duration = Duration::from_secs(3);
+/// How long a state change may take in the drive before ussctl gives up; the bus adds the
+/// drive's handshake time ([`state_timeout`]).
+const STATE_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// How long a state change of drive `c` may take: the drive's own time and the bus's time to
+/// carry the command and the answer (31 drives at 9600 baud poll each only every 1.3 s).
+pub(crate) fn state_timeout(c: &Controller) -> Duration {
+    STATE_TIMEOUT + c.inputs().handshake()
+}
 
 pub(crate) fn diags(bus: &Bus) -> Result<Vec<uss_client::DriveDiag>, Failure> {
     Ok(bus
@@ -44,7 +51,7 @@ pub(crate) fn firmware_version(r0018: f32) -> f64 {
 /// Sends OFF1 and waits until the drive has answered two more exchanges, so it has received it.
 pub(crate) fn stop_confirmed(c: &Controller) -> Result<PzdInput, Failure> {
     c.stop()?;
-    Ok(c.wait_for(Duration::from_secs(1), "OFF1 sent", {
+    Ok(c.wait_polled("OFF1 sent", {
         let start = c.inputs().latest().sequence;
         move |i| i.sequence >= start + 2
     })?)

@@ -1,6 +1,6 @@
 //! `run`: takes a drive, runs it towards a frequency, and stops it whatever happens.
 
-use super::common::{STATE_TIMEOUT, control, faulted, stop_confirmed};
+use super::common::{control, faulted, state_timeout, stop_confirmed};
 use crate::report::DriveReport;
 use crate::{Failure, Output, catch_signals, stopped};
 use core::time::Duration;
@@ -25,7 +25,7 @@ fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
         return Err(faulted(drive, &first));
     }
     c.enable()?;
-    c.wait_for(STATE_TIMEOUT, "S2 (ready to switch on)", |i| {
+    c.wait_for(state_timeout(c), "S2 (ready to switch on)", |i| {
         i.online != 0
             && matches!(
                 uss_client::state_of(i),
@@ -35,7 +35,7 @@ fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
             )
     })?;
     c.run_hz(hz)?;
-    c.wait_for_state(DriveState::OperationEnabled, STATE_TIMEOUT)?;
+    c.wait_for_state(DriveState::OperationEnabled, state_timeout(c))?;
     Ok(())
 }
 

@@ -3,15 +3,11 @@
 use crate::cli::Target;
 use crate::report::StopReport;
 use crate::{Failure, Output};
-use core::time::Duration;
 use uss_client::{Bus, StopCommand};
 
-/// How long an operator command may take to show in the drive's image: an offline drive is
-/// probed only every `offline_probe_ms`.
-const STOP_TIMEOUT: Duration = Duration::from_secs(3);
-
 /// `stop`, `coast`, `quick-stop`: the operator's command through ussd, whoever controls the
-/// drive; waits until each drive's image shows it went out.
+/// drive; waits until each drive's image shows it went out, as long as ussd says the drive's
+/// next poll may take (an offline drive's next probe).
 pub(crate) fn stop(
     bus: &Bus,
     out: &Output,
@@ -27,13 +23,13 @@ pub(crate) fn stop(
     };
     let mut report = StopReport::new(bus.name(), command);
     for drive in drives {
-        let last = bus
-            .wait_stopped(drive, command, STOP_TIMEOUT)
-            .map_err(|source| Failure::StopUnconfirmed {
-                drive,
-                command,
-                source,
-            })?;
+        let last =
+            bus.wait_stopped(drive, command, None)
+                .map_err(|source| Failure::StopUnconfirmed {
+                    drive,
+                    command,
+                    source,
+                })?;
         report.push(drive, &last);
     }
     out.show(&report, StopReport::human)

@@ -4,7 +4,7 @@ use crate::report::WatchLine;
 use crate::{Failure, Output, catch_signals, stopped};
 use core::time::Duration;
 use std::time::Instant;
-use uss_client::Bus;
+use uss_client::{Bus, ClientError};
 
 pub(crate) fn watch(
     bus: &Bus,
@@ -35,12 +35,18 @@ pub(crate) fn watch(
         }
         let t = start.elapsed().as_secs_f64();
         for w in &watches {
-            // A stale picture is never shown: ussd gone, stopped or its line down ends it.
-            let image = w.read()?;
-            out.show(
-                &WatchLine::new(t, w.address(), &image, w.info().reference_hz),
-                WatchLine::human,
-            )?;
+            // A stale picture is never shown as fresh: ussd gone, stopped or its line down ends
+            // it; a drive whose poll is overdue (a stalled bus thread) shows as stale.
+            let (image, stale) = match w.read() {
+                Ok(image) => (image, false),
+                Err(ClientError::Stale { .. }) => (w.latest(), true),
+                Err(e) => return Err(e.into()),
+            };
+            let mut line = WatchLine::new(t, w.address(), &image, w.info().reference_hz);
+            if stale {
+                line.state = "stale";
+            }
+            out.show(&line, WatchLine::human)?;
         }
         round += 1;
     }

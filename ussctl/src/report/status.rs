@@ -180,6 +180,11 @@ pub struct DriveRow {
     /// The process in the controller's latest sample; null before any.
     pub controller_pid: Option<u32>,
     pub last_error: &'static str,
+    /// How often ussd polls the drive now, ms (its probe interval while offline); null until
+    /// known.
+    pub period_ms: Option<f64>,
+    /// After how long without a poll ussd's image of the drive is stale, ms; null until known.
+    pub stale_after_ms: Option<f64>,
 }
 
 impl DriveRow {
@@ -202,6 +207,8 @@ impl DriveRow {
             monitoring_ms: d.monitoring_ms,
             controller_pid: (d.controller_pid != 0).then_some(d.controller_pid),
             last_error: last_failure(d),
+            period_ms: (d.period_ns != 0).then(|| d.period_ns as f64 / 1e6),
+            stale_after_ms: (d.stale_after_ns != 0).then(|| d.stale_after_ns as f64 / 1e6),
         }
     }
 
@@ -242,7 +249,7 @@ impl StatusReport {
         out.push('\n');
         let _ = writeln!(
             out,
-            "{:>4}  {:<6}  {:<9}  {:<6}  {:>9}  {:>10}  {:>8}  {:>8}  {:<16}  {:<32}  flags",
+            "{:>4}  {:<6}  {:<9}  {:<6}  {:>9}  {:>10}  {:>8}  {:>8}  {:>9}  {:<16}  {:<32}  flags",
             "addr",
             "online",
             "state",
@@ -251,13 +258,14 @@ impl StatusReport {
             "good",
             "rejected",
             "timeouts",
+            "polled ms",
             "last error",
             "control"
         );
         for d in &self.drives {
             let _ = writeln!(
                 out,
-                "{:>4}  {:<6}  {:<9}  {:<6}  {:>9.2}  {:>10}  {:>8}  {:>8}  {:<16}  {:<32}  {}",
+                "{:>4}  {:<6}  {:<9}  {:<6}  {:>9.2}  {:>10}  {:>8}  {:>8}  {:>9}  {:<16}  {:<32}  {}",
                 d.address,
                 if d.online { "yes" } else { "no" },
                 d.state,
@@ -266,6 +274,8 @@ impl StatusReport {
                 d.good,
                 d.rejected,
                 d.timeouts,
+                d.period_ms
+                    .map_or_else(|| "-".to_owned(), |ms| format!("{ms:.0}")),
                 d.last_error,
                 d.control.human(),
                 d.flags.join(",")

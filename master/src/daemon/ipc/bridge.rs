@@ -167,6 +167,8 @@ impl Bridge for RtBridge {
         image.rejection = status.rejection.code();
         image.taken_sequence = status.taken_sequence;
         [image.sent_stw1, image.sent_setpoint] = status.sent;
+        image.period_ns = u64::try_from(status.period.as_nanos()).unwrap_or(u64::MAX);
+        image.stale_after_ns = u64::try_from(status.stale_after.as_nanos()).unwrap_or(u64::MAX);
         d.entry.update_with_copy(image);
         let _ = self.notifier.notify_with_custom_event_id(d.event);
     }

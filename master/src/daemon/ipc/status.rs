@@ -317,6 +317,8 @@ impl StatusPublisher {
                 counters: d.counters,
                 exchange_ns: quantiles(&h.exchange),
                 response_delay_ns: quantiles(&h.response_delay),
+                period_ns: as_ns(d.period),
+                stale_after_ns: as_ns(d.stale_after),
                 ..DriveDiag::new(d.address.get())
             });
         }

@@ -259,18 +259,29 @@ fn read(
     let mut drives = Vec::with_capacity(addresses.len());
     for &a in &addresses {
         let diag = bus.diag(a)?;
-        let image: Option<PzdInput> = watches
+        let look = watches
             .iter()
             .find(|w| w.address() == a)
-            .map(DriveWatch::latest);
+            .map(DriveWatch::snapshot);
+        // The drive's poll overdue by ussd's own limit (a stalled bus thread): not online as
+        // the diagnostics last said.
+        let overdue = look
+            .as_ref()
+            .is_some_and(|l| matches!(l.problem, Some(uss_client::ClientError::Stale { .. })));
+        let image: Option<PzdInput> = look.map(|l| l.image);
         let set_hz = image.map(|i| Setpoint::from_word(i.sent_setpoint).hz(diag.info.reference_hz));
         let control = image.map_or_else(
             || ControlReport::of_diag(&diag),
             |i| ControlReport::of_input(&i),
         );
+        let mut row = DriveRow::new(&diag);
+        if overdue {
+            row.online = false;
+            row.state = "stale";
+        }
         drives.push(DriveView {
-            row: DriveRow::new(&diag),
             diag,
+            row,
             set_hz,
             control,
         });

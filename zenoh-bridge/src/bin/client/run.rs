@@ -23,9 +23,10 @@ use zenoh::sample::Sample;
 // drive down at its end as always.
 use super::{Failure, on, say};
 
-/// No fresh image for this long and `run` gives up.
+/// No fresh image for this long, or the drive's handshake time as its image says when that is
+/// longer (a full slow line polls a drive only every second or so), and `run` gives up.
 const BLIND_AFTER: Duration = Duration::from_secs(1);
-/// How long the re-arm may take.
+/// How long the re-arm may take at least; two handshake times of the drive when longer.
 pub const ARM_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long the drive may take to ramp down at the end.
 const STOP_TIMEOUT: Duration = Duration::from_secs(30);
@@ -164,6 +165,21 @@ impl Remote<'_> {
         }
     }
 
+    /// The drive's handshake time as its latest image says (at least 1 s).
+    fn handshake(&self) -> Duration {
+        self.image
+            .as_ref()
+            .and_then(|i| i["handshake_ms"].as_f64())
+            .and_then(|ms| Duration::try_from_secs_f64(ms / 1e3).ok())
+            .unwrap_or_default()
+            .max(BLIND_AFTER)
+    }
+
+    /// No fresh image for longer than the drive's handshake time.
+    fn blind(&self) -> bool {
+        self.seen_at.elapsed() > self.handshake()
+    }
+
     fn field(&self, name: &str) -> &str {
         self.image
             .as_ref()
@@ -211,7 +227,7 @@ impl Remote<'_> {
     /// and a latch that comes during the re-arm ends it.
     fn arm(&mut self, stop: &AtomicBool) -> Result<(), Failure> {
         let start = Instant::now();
-        let deadline = start + ARM_TIMEOUT;
+        let mut deadline = start + ARM_TIMEOUT;
         while self.image.is_none() {
             if Instant::now() >= deadline {
                 return Err(Failure::NoImage {
@@ -222,6 +238,7 @@ impl Remote<'_> {
             self.look();
         }
         self.start_session();
+        deadline = deadline.max(start + self.handshake() * 2);
         let image = self.image.as_ref().map(input_of).unwrap_or_default();
         if let Some(session) = self.session.as_mut() {
             let sample = session
@@ -286,7 +303,7 @@ impl Remote<'_> {
             if let Some(why) = self.refusal() {
                 return Err(Failure::SampleRefused(why));
             }
-            if self.seen_at.elapsed() > BLIND_AFTER {
+            if self.blind() {
                 return Err(Failure::Blind {
                     drive: self.drive.to_owned(),
                     seconds: self.seen_at.elapsed().as_secs_f64(),
@@ -312,7 +329,7 @@ impl Remote<'_> {
         let deadline = start + STOP_TIMEOUT;
         while self.field("state") != "S2" && Instant::now() < deadline {
             self.step(0x047E).map_err(|e| self.failure(e, start))?;
-            if !self.live() || self.seen_at.elapsed() > BLIND_AFTER {
+            if !self.live() || self.blind() {
                 break;
             }
         }
@@ -321,7 +338,7 @@ impl Remote<'_> {
         }
         self.send(r#""release":true"#)?;
         // The bridge says when it handed the drive back.
-        let deadline = Instant::now() + Duration::from_secs(2);
+        let deadline = Instant::now() + self.handshake() + Duration::from_secs(1);
         loop {
             self.look();
             if self
