@@ -56,6 +56,9 @@ impl fmt::Display for Latch {
             LatchReason::MonitoringOff => f.write_str(
                 "an ON was refused: the drive's telegram monitoring is required but off or not verified",
             ),
+            LatchReason::Paused => f.write_str(
+                "ussd could not look for longer than the drive's watchdog time (paused, suspended or starved)",
+            ),
         }
     }
 }

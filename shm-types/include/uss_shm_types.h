@@ -373,6 +373,11 @@ enum UssLatchReason
    * verified, and its configuration requires it (`require_monitoring`).
    */
   USS_LATCH_REASON_MONITORING_OFF = 7,
+  /**
+   * ussd itself could not look for longer than the drive's watchdog time (paused by
+   * SIGSTOP, a suspended machine, a starved CPU): nothing it held from before is fresh.
+   */
+  USS_LATCH_REASON_PAUSED = 8,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -1457,6 +1462,12 @@ typedef struct UssBusStatus {
    * [`EXCHANGE_BUCKETS_NS`]`[i]` (Prometheus's `le` buckets; `exchange_count` is `+Inf`).
    */
   uint64_t exchange_le[USS_EXCHANGE_BUCKETS];
+  /**
+   * Polls out of turn: a drive whose words became a stronger stop than it last got (an
+   * operator's stop, a trip, a release, a controller's own stop), or that a re-arm made
+   * live, polled before the circulating list goes on.
+   */
+  uint64_t out_of_turn;
 #ifdef __cplusplus
   static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV7";
 #endif

@@ -50,6 +50,9 @@ code_table! {
         /// An ON was refused: the drive's own telegram monitoring is off, too long or not
         /// verified, and its configuration requires it (`require_monitoring`).
         MonitoringOff = 7 => "telegram monitoring off",
+        /// ussd itself could not look for longer than the drive's watchdog time (paused by
+        /// SIGSTOP, a suspended machine, a starved CPU): nothing it held from before is fresh.
+        Paused = 8 => "ussd paused",
     }
 }
 

@@ -355,6 +355,10 @@ pub struct BusStatus {
     /// Cumulative exchange-time histogram: exchanges that took at most
     /// [`EXCHANGE_BUCKETS_NS`]`[i]` (Prometheus's `le` buckets; `exchange_count` is `+Inf`).
     pub exchange_le: [u64; EXCHANGE_BUCKETS],
+    /// Polls out of turn: a drive whose words became a stronger stop than it last got (an
+    /// operator's stop, a trip, a release, a controller's own stop), or that a re-arm made
+    /// live, polled before the circulating list goes on.
+    pub out_of_turn: u64,
 }
 
 /// Buckets of [`BusStatus::exchange_le`].
@@ -503,6 +507,7 @@ impl BusStatus {
         exchange_count: 0,
         exchange_sum_ns: 0,
         exchange_le: [0; EXCHANGE_BUCKETS],
+        out_of_turn: 0,
     };
 
     pub fn rt_mode(&self) -> Result<RtMode, UnknownCode> {

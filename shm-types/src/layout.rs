@@ -172,7 +172,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     TypeLayout {
         name: "BusStatus",
         type_name: "UssBusStatusV7",
-        size: 352,
+        size: 360,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -208,6 +208,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("exchange_count", 240, 8),
             f("exchange_sum_ns", 248, 8),
             f("exchange_le", 256, 96),
+            f("out_of_turn", 352, 8),
         ],
     },
     TypeLayout {

@@ -31,6 +31,21 @@ pub const fn is_stop(stw1: u16) -> bool {
     stw1 & (STW1_ON | STW1_JOG) == 0
 }
 
+/// How strongly control word `stw1` stops the drive, as [`crate::StopCommand::strength`]: 3 for
+/// OFF2 (bit 1 clear: coast, whatever else is set), 2 for OFF3 (bit 2 clear: quick stop), 1 for
+/// OFF1 (a stop by [`is_stop`]), 0 for a word that runs the motor (ON, a jog).
+pub const fn stop_strength(stw1: u16) -> u8 {
+    if stw1 & 0x0002 == 0 {
+        3
+    } else if stw1 & 0x0004 == 0 {
+        2
+    } else if is_stop(stw1) {
+        1
+    } else {
+        0
+    }
+}
+
 /// The controller's output image of one drive, published on `uss/<bus>/drive/<addr>/out`.
 ///
 /// Exactly one controller publishes it (the service admits one publisher). ussd sends the

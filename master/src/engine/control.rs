@@ -4,7 +4,10 @@
 //! A drive is **live** (its controller's words go out) or **latched** (it gets a stop command:
 //! its configured safe command, or an operator's OFF1/OFF2/OFF3, whichever is stronger). It
 //! starts latched when ussd starts, and latches again when
-//! - its live controller stops publishing within the watchdog time (frozen, hung or dead),
+//! - its live controller stops publishing within the watchdog time (frozen, hung or dead), or
+//!   its newest sample was written longer ago than that (its own `timestamp_ns`),
+//! - ussd itself could not look for longer than the watchdog time (paused by SIGSTOP, a
+//!   suspended machine, a starved CPU): a gap in time is a trip, not a fresh start,
 //! - a sample arrives that the drive would misread (wrong layout version or flags, a word
 //!   count other than the drive's PZD length, STW1 bit 10 clear: [`PzdOutput::validate`]),
 //! - the controller releases the drive cleanly,
@@ -21,9 +24,11 @@
 //! process that reconnects, never restarts a motor by itself. The latch lives here, in ussd; a
 //! client cannot clear it any other way.
 //!
-//! [`Gate::decide`] is a pure function of the gate's state and one poll's inputs (the newest
-//! sample, an operator command, whether ON is allowed, the time): no I/O, no allocation, so
-//! the bus thread calls it every poll and the tests drive it as a table.
+//! [`Gate::observe`] is a pure function of the gate's state and one look's inputs (the newest
+//! sample, an operator command, whether ON is allowed, the time, the engine's own gap): no I/O,
+//! no allocation, so the bus thread calls it before every telegram, for every drive, and the
+//! tests drive it as a table. [`Gate::words`] are what the drive gets now; [`Gate::decide`]
+//! does both for a poll.
 
 use core::time::Duration;
 use uss_protocol::telegram::MAX_PZD_WORDS;
@@ -95,10 +100,14 @@ pub struct GateSetup {
     pub clock_origin: Duration,
 }
 
-/// One poll's inputs.
+/// One look's inputs (before every telegram, and at the drive's poll).
 #[derive(Debug, Clone, Copy)]
 pub struct Poll<'a> {
     pub now: Duration,
+    /// How much longer than its work explains the engine did not look (0 normally): paused by
+    /// SIGSTOP, a suspended machine, a starved CPU. Longer than the watchdog time latches a
+    /// live drive ([`LatchReason::Paused`]).
+    pub gap: Duration,
     /// The controller's newest sample since the previous poll, if any.
     pub sample: Option<&'a PzdOutput>,
     /// An operator's stop command that arrived since the previous poll.
@@ -184,8 +193,15 @@ impl Gate {
     }
 
     /// Decides the words for this poll into `out` (the first `pzd` words are sent) and returns
-    /// what changed, if anything.
+    /// what changed, if anything: [`Gate::observe`], then [`Gate::words`].
     pub fn decide(&mut self, poll: Poll<'_>, out: &mut [u16; MAX_PZD_WORDS]) -> Option<Transition> {
+        let changed = self.observe(poll);
+        self.words(out);
+        changed
+    }
+
+    /// Takes one look's inputs and returns what changed, if anything.
+    pub fn observe(&mut self, poll: Poll<'_>) -> Option<Transition> {
         let mut changed = None;
         // An operator's command comes first: its latch has a new id, which a sample that arrived
         // with it cannot name, so that sample cannot re-arm the drive.
@@ -202,14 +218,27 @@ impl Gate {
         let sample = poll
             .sample
             .filter(|s| self.last_sequence != Some(s.sequence));
+        if self.control == Control::Live && poll.gap > self.setup.watchdog {
+            // ussd could not look for longer than the watchdog time: whatever waits now was
+            // not seen in time, and the drive went that long without a fresh command.
+            self.counters.watchdog_trips += 1;
+            changed = Some(self.latch_with(
+                LatchReason::Paused,
+                self.setup.safe,
+                poll.now,
+                self.controller_pid,
+                Rejection::None,
+            ));
+        }
         if let Some(sample) = sample {
             self.last_sequence = Some(sample.sequence);
-            self.refreshed_at = poll.now;
+            self.refreshed_at = self.written_at(sample, poll.now);
             self.controller_pid = sample.controller_pid;
             if let Some(t) = self.take(sample, poll) {
                 changed = Some(t);
             }
-        } else if self.control == Control::Live
+        }
+        if self.control == Control::Live
             && poll.now.saturating_sub(self.refreshed_at) > self.setup.watchdog
         {
             self.counters.watchdog_trips += 1;
@@ -221,6 +250,23 @@ impl Gate {
                 Rejection::None,
             ));
         }
+        changed
+    }
+
+    /// When `sample` was written, on the bus clock: its own `timestamp_ns` (`CLOCK_MONOTONIC`),
+    /// never later than `now`; `now` when it carries none (0).
+    fn written_at(&self, sample: &PzdOutput, now: Duration) -> Duration {
+        if sample.timestamp_ns == 0 {
+            return now;
+        }
+        Duration::from_nanos(sample.timestamp_ns)
+            .saturating_sub(self.setup.clock_origin)
+            .min(now)
+    }
+
+    /// The words the drive gets now into `out` (the first `pzd` are sent): the live
+    /// controller's, or the latch's stop command.
+    pub fn words(&self, out: &mut [u16; MAX_PZD_WORDS]) {
         *out = [0; MAX_PZD_WORDS];
         match self.control {
             Control::Live => out.copy_from_slice(&self.words),
@@ -233,7 +279,6 @@ impl Gate {
                     .unwrap_or(0x047E);
             }
         }
-        changed
     }
 
     /// Takes a new sample.
@@ -413,6 +458,7 @@ mod tests {
             let change = self.gate.decide(
                 Poll {
                     now: ms(t),
+                    gap: Duration::ZERO,
                     sample: sample.as_ref(),
                     operator: op.map(|command| Operator { command, pid: 7 }),
                     on_allowed,
@@ -654,6 +700,7 @@ mod tests {
         gate.decide(
             Poll {
                 now: ms(1),
+                gap: Duration::ZERO,
                 sample: None,
                 operator: None,
                 on_allowed: true,
@@ -661,6 +708,59 @@ mod tests {
             &mut out,
         );
         assert_eq!(out[..2], [COAST, 0]);
+    }
+
+    #[test]
+    fn a_gap_of_the_engine_longer_than_the_watchdog_latches_a_live_drive_as_paused() {
+        fn look(gap: u64, sample: Option<&PzdOutput>) -> Poll<'_> {
+            Poll {
+                now: ms(10),
+                gap: ms(gap),
+                sample,
+                operator: None,
+                on_allowed: true,
+            }
+        }
+        let mut p = Play::running();
+        // A gap within the watchdog time changes nothing.
+        assert_eq!(p.gate.observe(look(100, None)), None);
+        // Beyond it, even with a fresh sample waiting: latched, counted as a trip.
+        let fresh = sample(99, &[RUN, 0x2000]);
+        let change = p.gate.observe(look(101, Some(&fresh)));
+        assert!(matches!(
+            change,
+            Some(Transition::Latched { latch, .. }) if latch.reason == LatchReason::Paused
+        ));
+        assert_eq!(p.gate.counters().watchdog_trips, 1);
+        let mut out = [0; MAX_PZD_WORDS];
+        p.gate.words(&mut out);
+        assert_eq!(out[0], READY);
+    }
+
+    #[test]
+    fn a_sample_is_as_fresh_as_its_own_time_stamp() {
+        fn look(s: &PzdOutput) -> Poll<'_> {
+            Poll {
+                now: ms(1000),
+                gap: Duration::ZERO,
+                sample: Some(s),
+                operator: None,
+                on_allowed: true,
+            }
+        }
+        let mut p = Play::running();
+        // Bus time 1000 ms is CLOCK_MONOTONIC 6000 ms (the clock's origin is 5000 ms).
+        let stamped = |seq: u64, at_ms: u64| {
+            PzdOutput::from_words(&[RUN, 0x2000], seq, at_ms * 1_000_000, 42).unwrap()
+        };
+        // Written 50 ms ago: fresh.
+        assert_eq!(p.gate.observe(look(&stamped(90, 5950))), None);
+        // Written 150 ms ago (a paused controller's last sample, delivered now): stale.
+        let change = p.gate.observe(look(&stamped(91, 5850)));
+        assert!(matches!(
+            change,
+            Some(Transition::Latched { latch, .. }) if latch.reason == LatchReason::Stale
+        ));
     }
 
     #[test]

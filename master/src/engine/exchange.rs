@@ -26,7 +26,13 @@ pub(super) struct ReplyTiming {
 }
 
 impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
-    pub(super) fn poll_drive(&mut self, slot: usize) -> Result<(), TransportError> {
+    /// Polls the drive in `slot`: at its turn in the circulating list (`regular`), or out of
+    /// turn (`engine::turns`). Before a retry the drives due out of turn go first; every
+    /// attempt carries the drive's words as they are then.
+    pub(super) fn poll_drive(&mut self, slot: usize, regular: bool) -> Result<(), TransportError> {
+        if regular {
+            self.rearm_spent &= !(1u32 << slot);
+        }
         let now = self.clock.now();
         if let Some(r) = self.drives[slot]
             .mailbox
@@ -36,13 +42,15 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
         self.check_own_reads(slot);
         let mut output = [0u16; MAX_PZD_WORDS];
-        self.output(slot, now, &mut output);
         let len = self.drives[slot].setup.layout.pzd.get();
         let mut last = LastFailure::NoResponse;
         for attempt in 0..=self.cfg.retries {
             if attempt > 0 {
                 self.stats.drives[slot].counters.retries += 1;
+                self.serve_out_of_turn(Some(slot))?;
             }
+            let now = self.clock.now();
+            self.output(slot, now, &mut output);
             let begin = self.line_free_at;
             match self.attempt(slot, &output[..len], true)? {
                 Attempt::Reply { words, mut timing } => {

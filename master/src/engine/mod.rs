@@ -25,6 +25,8 @@ pub use capture::CAPTURE_QUEUE;
 mod exchange;
 use exchange::Attempt;
 mod handle;
+mod turns;
+pub use turns::LOOK_STEP;
 
 use crate::engine::clock::Clock;
 use crate::engine::control::{
@@ -373,6 +375,17 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     poll_list: Vec<u8>,
     /// Each drive's expected poll period and freshness limit, published with its image.
     periods: Periods,
+    /// Drives (a bit per slot) due a poll out of turn (`engine::turns`).
+    out_of_turn: u32,
+    /// Drives (a bit per slot) that had their out-of-turn re-arm since their last regular poll.
+    rearm_spent: u32,
+    /// Within an out-of-turn poll: none nests in it.
+    serving_out_of_turn: bool,
+    /// When the engine last looked at every drive (`engine::turns`).
+    last_look: Duration,
+    /// How far apart two looks may be for the work between them: one attempt at worst and one
+    /// idle step. Beyond, the engine was paused.
+    look_lag: Duration,
     position: usize,
     /// With `param_priority`: whether the last poll was an extra one for a parameter job, and
     /// where the search for the next such drive starts (round robin among them).
@@ -528,7 +541,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             })
             .collect();
         let poll_list = circulating_list(&cfg.drives);
-        let periods = Periods::new(&poll_list, cfg.drives.len(), period_setup(&cfg));
+        let period_setup = period_setup(&cfg);
+        let periods = Periods::new(&poll_list, cfg.drives.len(), period_setup);
         let engine = Self {
             framer: Framer::new(FramerConfig::strict(cfg.timing)),
             transport,
@@ -537,6 +551,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             drives,
             poll_list,
             periods,
+            out_of_turn: 0,
+            rearm_spent: 0,
+            serving_out_of_turn: false,
+            last_look: now,
+            look_lag: period_setup.attempt + LOOK_STEP * 2,
             position: 0,
             extra_was_last: false,
             extra_cursor: 0,
@@ -636,6 +655,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.transport = transport;
         self.framer.reset();
         self.line_free_at = now;
+        // The line was down: no gap of the engine's, every drive latches below anyway.
+        self.last_look = now;
         self.last_reply_done = None;
         self.last_reply_seen = None;
         for slot in 0..self.drives.len() {
@@ -674,12 +695,19 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.shared.progress.fetch_add(1, Ordering::Relaxed);
         self.take_jobs();
         self.take_cancels();
-        let polled = match self.next_slot() {
-            Some(slot) => {
-                self.poll_drive(slot)?;
-                Some(self.drives[slot].setup.address)
+        // A drive due out of turn first (`engine::turns`), then the circulating list.
+        self.look();
+        let polled = if let Some(slot) = self.next_out_of_turn(None) {
+            self.poll_out_of_turn(slot)?;
+            Some(self.drives[slot].setup.address)
+        } else {
+            match self.next_slot()? {
+                Some(slot) => {
+                    self.poll_drive(slot, true)?;
+                    Some(self.drives[slot].setup.address)
+                }
+                None => None,
             }
-            None => None,
         };
         self.publish_if_due();
         Ok(polled)
@@ -841,20 +869,21 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
 
     /// The next slot of the circulating list that is due, ending a cycle when the list wraps
     /// (or, with `param_priority`, an extra poll of a drive with a parameter job waiting).
-    fn next_slot(&mut self) -> Option<usize> {
+    fn next_slot(&mut self) -> Result<Option<usize>, TransportError> {
         if let Some(slot) = self.extra_slot() {
-            return Some(slot);
+            return Ok(Some(slot));
         }
-        let now = self.clock.now();
+        let mut now = self.clock.now();
         for _ in 0..self.poll_list.len() {
             if self.position == self.poll_list.len() {
                 self.position = 0;
-                self.end_cycle();
+                self.end_cycle()?;
+                now = self.clock.now();
             }
             let slot = usize::from(self.poll_list[self.position]);
             self.position += 1;
             if self.stats.drives[slot].online || now >= self.drives[slot].next_probe {
-                return Some(slot);
+                return Ok(Some(slot));
             }
         }
         // Every drive is offline and none is due: wait for the first probe.
@@ -865,24 +894,26 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .min()
             .unwrap_or(now);
         self.transport.idle(now);
-        self.idle_until(next);
-        None
+        self.idle_until(next)?;
+        Ok(None)
     }
 
-    /// Sleeps until `at` in steps of at most [`IDLE_STEP`], counting progress after each;
-    /// returns early when asked to stop.
-    fn idle_until(&mut self, at: Duration) {
+    /// Sleeps until `at` in steps of at most [`LOOK_STEP`], counting progress after each and
+    /// polling the drives due out of turn meanwhile (`engine::turns`); returns early when
+    /// asked to stop.
+    fn idle_until(&mut self, at: Duration) -> Result<(), TransportError> {
         loop {
             let now = self.clock.now();
             if now >= at || self.shared.stop.load(Ordering::Acquire) {
-                return;
+                return Ok(());
             }
-            self.clock.sleep_until(at.min(now + IDLE_STEP));
+            self.clock.sleep_until(at.min(now + LOOK_STEP));
             self.shared.progress.fetch_add(1, Ordering::Relaxed);
+            self.serve_out_of_turn(None)?;
         }
     }
 
-    fn end_cycle(&mut self) {
+    fn end_cycle(&mut self) -> Result<(), TransportError> {
         self.bridge.cycle_completed();
         let now = self.clock.now();
         let took = now.saturating_sub(self.cycle_start);
@@ -902,29 +933,32 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             Some(cycle) => {
                 self.transport.idle(now);
                 self.cycle_start += cycle;
-                self.idle_until(self.cycle_start);
+                self.idle_until(self.cycle_start)?;
             }
             None => self.cycle_start = now,
         }
+        Ok(())
     }
 
-    /// The PZD to send now, as the drive's [`Gate`] decides from the controller's newest
-    /// sample, operator commands and the telegram-monitoring rule (`crate::engine::control`).
-    fn output(&mut self, slot: usize, now: Duration, out: &mut [u16; MAX_PZD_WORDS]) {
+    /// Drive `slot`'s newest sample and operator command, judged by its gate at `now` (`gap`:
+    /// how much longer than its work explains the engine did not look); its status follows, a
+    /// change is an event.
+    fn observe(&mut self, slot: usize, now: Duration, gap: Duration) -> Option<Transition> {
         let sample = self.bridge.take_sample(slot, &self.shared.images[slot]);
         let operator = self.take_override(slot);
         let d = &mut self.drives[slot];
         let status = &mut self.stats.drives[slot];
         let on_allowed = d.setup.monitoring.allows_on(status.monitoring);
-        let change = d.gate.decide(
-            Poll {
-                now,
-                sample: sample.as_ref(),
-                operator,
-                on_allowed,
-            },
-            out,
-        );
+        let change = d.gate.observe(Poll {
+            now,
+            gap,
+            sample: sample.as_ref(),
+            operator,
+            on_allowed,
+        });
+        if sample.is_none() && change.is_none() {
+            return None;
+        }
         status.control = d.gate.control();
         self.shared.images[slot]
             .latch_id
@@ -933,7 +967,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         status.controller_pid = d.gate.controller_pid();
         status.taken_sequence = d.gate.taken_sequence();
         stats::set_control(&mut status.counters, &d.gate.counters());
-        status.sent = [out[0], out[1]];
         let address = d.setup.address;
         match change {
             Some(Transition::Latched { latch, rejection }) => self.emit(Event::Latched {
@@ -948,6 +981,17 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             }),
             None => {}
         }
+        change
+    }
+
+    /// The PZD to send now, as the drive's [`Gate`] decides from the controller's newest
+    /// sample, operator commands and the telegram-monitoring rule (`crate::engine::control`);
+    /// the drive is no longer due out of turn.
+    fn output(&mut self, slot: usize, now: Duration, out: &mut [u16; MAX_PZD_WORDS]) {
+        self.observe(slot, now, Duration::ZERO);
+        self.drives[slot].gate.words(out);
+        self.stats.drives[slot].sent = [out[0], out[1]];
+        self.out_of_turn &= !(1u32 << slot);
     }
 
     /// After every poll of the drive in `slot`, good or failed: its period and freshness limit

@@ -154,6 +154,8 @@ pub struct BusCounters {
     /// Sum over the same exchanges of their wire-time floor (USS.md section 4): start pause,
     /// request and reply characters, and the drive's actual response delay, in ns.
     pub wire_floor_ns: u64,
+    /// Polls out of turn ([`uss_shm_types::BusStatus::out_of_turn`]).
+    pub out_of_turn: u64,
 }
 
 impl BusCounters {

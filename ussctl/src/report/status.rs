@@ -98,6 +98,8 @@ pub struct BusReport {
     pub reopen_attempts: u32,
     /// Times the line went down since ussd started.
     pub line_downs: u64,
+    /// Polls out of turn: a stop, a trip or a re-arm sent before the circulating list went on.
+    pub out_of_turn: u64,
 }
 
 impl BusReport {
@@ -123,6 +125,7 @@ impl BusReport {
             line_error: s.line_fault_text(),
             reopen_attempts: s.reopen_attempts,
             line_downs: s.line_downs,
+            out_of_turn: s.out_of_turn,
         }
     }
 
@@ -145,6 +148,9 @@ impl BusReport {
         );
         if let Some(e) = self.efficiency {
             let _ = write!(out, ", efficiency {e:.2}");
+        }
+        if self.out_of_turn > 0 {
+            let _ = write!(out, ", {} polls out of turn", self.out_of_turn);
         }
         if let Some(error) = &self.line_error {
             let _ = write!(

@@ -373,6 +373,7 @@ impl StatusPublisher {
                 * stats.histograms.exchange.len() as f64) as u64,
             exchange_le: uss_shm_types::EXCHANGE_BUCKETS_NS
                 .map(|le| stats.histograms.exchange.count_between(0, le)),
+            out_of_turn: b.out_of_turn,
             ..BusStatus::EMPTY
         });
     }
