@@ -337,3 +337,27 @@ fn an_offline_drive_probed_once_a_minute_gets_a_stop_in_the_next_telegram() {
     let took = telegrams_until(&mut b, a, Stw1::COAST, &[(a, RUN)], 100);
     assert_eq!(took, 1);
 }
+
+#[test]
+#[should_panic(expected = "telegrams")] // reproduction: fails on main until the fix
+fn a_stop_of_every_drive_reaches_them_all_within_one_telegram_and_one_exchange() {
+    let n = 31;
+    let mut b = bench_with(n, 9600, |_| {});
+    let all: Vec<(u8, [u16; 2])> = (1..=n).map(|d| (d, OFF1)).collect();
+    while b.engine.stats().bus.cycles < 2 {
+        b.run_for(ms(1), &all);
+    }
+    let run: Vec<(u8, [u16; 2])> = (1..=n).map(|d| (d, RUN)).collect();
+    while (1..=n).any(|a| b.stw1(a).bits() != 0x047F) {
+        b.run_for(ms(1), &run);
+    }
+    b.handle.stop_drive(None, StopCommand::Off2, 7).unwrap();
+    // The exchange that comes next carries the stop to every drive: a broadcast.
+    b.refresh(&run);
+    b.exchange();
+    let missing: Vec<u8> = (1..=n).filter(|&a| b.stw1(a) != Stw1::COAST).collect();
+    assert!(
+        missing.is_empty(),
+        "after one exchange (2 telegrams) drives {missing:?} have no stop yet"
+    );
+}
