@@ -43,6 +43,9 @@ pub struct DriveConfig {
     pub telegram_off_time_ms: u16,
     /// Initial P2000, the reference frequency in Hz (0x4000 = 100 %).
     pub reference_hz: f32,
+    /// Whether the drive takes broadcasts (ADR bit 5, USS.md section 3); S110 and G120
+    /// firmware 4 do not.
+    pub takes_broadcasts: bool,
 }
 
 impl DriveConfig {
@@ -59,6 +62,7 @@ impl DriveConfig {
             dword_over_three_words: ParamError::WrongDataType,
             telegram_off_time_ms: 0,
             reference_hz: 50.0,
+            takes_broadcasts: true,
         }
     }
 }
@@ -357,10 +361,25 @@ impl Drive {
         encode(out, adr, &pkw[..pkw_len], &pzd[..pzd_len]).ok()
     }
 
-    /// Processes a broadcast: PZD and PKW are applied, nothing is sent.
+    /// Processes a broadcast as a drive does: the PZD are taken (STW1 and setpoint, counted for
+    /// telegram monitoring), the PKW ignored, nothing is sent. A drive that does not take
+    /// broadcasts ([`DriveConfig::takes_broadcasts`]), or whose layout the telegram does not
+    /// fit, ignores it.
     pub fn receive_broadcast(&mut self, telegram: &Telegram<'_>, now: Duration) {
-        let mut scratch = [0u8; uss_protocol::telegram::MAX_TELEGRAM_BYTES];
-        self.receive(telegram, now, &mut scratch);
+        if !self.config.takes_broadcasts {
+            return;
+        }
+        self.advance(now);
+        let Ok(words) = telegram.words(self.config.layout) else {
+            self.counters.length = self.counters.length.wrapping_add(1);
+            self.count_rejected();
+            return;
+        };
+        self.counters.good = self.counters.good.wrapping_add(1);
+        if self.apply_pzd(words.pzd()) {
+            self.last_valid = Some(now);
+        }
+        self.advance(now);
     }
 
     /// Applies STW1 and the setpoint. Returns whether the telegram counts for telegram monitoring:

@@ -12,7 +12,7 @@ use uss_protocol::ParamError;
 /// The keys, for messages and `--help`.
 pub const KEYS: &str = "delay=MS, jitter=MS, eeprom-busy=N, busy=N, p2014=MS, p2000=HZ, dword-error=5|103, \
 drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, unplug=\"FROM_MS..[TO_MS]\", \
-hang=MS";
+hang=MS, broadcast=true|false";
 
 /// What a simulated drive does besides its address and layout; every key is optional (the
 /// simulator's default applies).
@@ -64,6 +64,9 @@ pub struct SimOptions {
     /// Ms after start from which the whole line hangs for good ([`FaultPlan::hang`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub hang: Option<f64>,
+    /// `false`: the drive ignores broadcasts, as S110 and G120 firmware 4 do.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub broadcast: Option<bool>,
 }
 
 impl SimOptions {
@@ -127,6 +130,9 @@ impl SimOptions {
         }
         if let Some(ms) = self.hang {
             faults.hang(millis("hang", ms)?);
+        }
+        if let Some(takes) = self.broadcast {
+            config.takes_broadcasts = takes;
         }
         Ok(())
     }

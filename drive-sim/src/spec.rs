@@ -11,7 +11,7 @@ use uss_protocol::{Address, Layout, PkwMode, PzdCount};
 /// The keys a drive specification understands, for error messages and `--help`.
 pub const KEYS: &str = "pkw=0|3|4|127, pzd=0..16, delay=MS, jitter=MS, eeprom-busy=N, busy=N, \
 p2014=MS, p2000=HZ, dword-error=5|103, drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, \
-unplug=FROM_MS..[TO_MS], hang=MS";
+unplug=FROM_MS..[TO_MS], hang=MS, broadcast=true|false";
 
 /// A drive and its fault plan, parsed from a specification.
 #[derive(Debug, Clone)]
@@ -90,6 +90,8 @@ fn parse(spec: &str) -> Result<DriveSpec, String> {
                     toml::Value::Integer(n)
                 } else if let Ok(x) = value.parse::<f64>() {
                     toml::Value::Float(x)
+                } else if let Ok(b) = value.parse::<bool>() {
+                    toml::Value::Boolean(b)
                 } else {
                     toml::Value::String(value.to_owned())
                 };
@@ -114,6 +116,14 @@ mod tests {
     use crate::fault::Fault;
     use core::time::Duration;
     use uss_protocol::ParamError;
+
+    #[test]
+    fn a_drive_may_ignore_broadcasts() {
+        let d: DriveSpec = "7:broadcast=false".parse().unwrap();
+        assert!(!d.config.takes_broadcasts);
+        let d: DriveSpec = "7".parse().unwrap();
+        assert!(d.config.takes_broadcasts);
+    }
 
     #[test]
     fn address_alone_gives_pkw4_pzd2() {

@@ -61,6 +61,58 @@ fn broadcast_is_processed_by_all_and_answered_by_none() {
 }
 
 #[test]
+fn a_broadcast_pkw_task_is_ignored_and_a_drive_that_takes_no_broadcasts_ignores_it_all() {
+    let layout = Layout::new(PkwMode::Four, PzdCount::new(2).unwrap());
+    let mut b = SimBus::new(7);
+    b.add(DriveConfig::new(addr(1), layout)).unwrap();
+    b.add(DriveConfig {
+        takes_broadcasts: false,
+        ..DriveConfig::new(addr(2), layout)
+    })
+    .unwrap();
+    // A write of P1082 = 10.0 (AK 3, PNU 1082, float 10.0) with STW1 OFF1, broadcast.
+    let mut buf = [0u8; MAX_TELEGRAM_BYTES];
+    let n = encode(
+        &mut buf,
+        Adr::broadcast(),
+        &[0x3000 | 1082, 0, 0x4120, 0],
+        &[0x047E, 0],
+    )
+    .unwrap();
+    let t = Telegram::parse(&buf[..n]).unwrap();
+    assert!(b.on_telegram(&t, Duration::ZERO).is_none());
+    assert_eq!(b.drive(addr(1)).unwrap().state(), State::ReadyToSwitchOn);
+    assert_eq!(
+        b.drive(addr(2)).unwrap().state(),
+        State::SwitchingOnInhibited,
+        "drive 2 ignores broadcasts"
+    );
+    // The PKW write was not carried out: P1082 still reads 50.0 Hz.
+    let (buf, n) = {
+        let mut buf = [0u8; MAX_TELEGRAM_BYTES];
+        let n = encode(
+            &mut buf,
+            Adr::to(addr(1)),
+            &[0x1000 | 1082, 0, 0, 0],
+            &[0x047E, 0],
+        )
+        .unwrap();
+        (buf, n)
+    };
+    let reply = b
+        .on_telegram(
+            &Telegram::parse(&buf[..n]).unwrap(),
+            Duration::from_millis(50),
+        )
+        .unwrap();
+    let words = Telegram::parse(reply.bytes())
+        .unwrap()
+        .words(layout)
+        .unwrap();
+    assert_eq!(&words.pkw()[2..4], &[0x4248, 0], "P1082 is still 50.0");
+}
+
+#[test]
 fn mirror_telegram_comes_back_unchanged() {
     let mut b = bus(&[4]);
     let adr = Adr {

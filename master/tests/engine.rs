@@ -1302,3 +1302,33 @@ fn param_priority_speeds_a_waiting_job_and_at_most_doubles_the_others_poll_perio
         "exchanges until the result: {measured:?}"
     );
 }
+
+/// Efficiency is the wire-time floor over the time the exchanges took: at most 1 by definition,
+/// whatever fails on the line (issue 21: drives timing out showed 2.38 and 6.32).
+#[test]
+fn efficiency_is_at_most_one_whatever_fails_on_the_line() {
+    type Spoil<'a> = &'a dyn Fn(&mut Bench);
+    let drives: Vec<(u8, PkwMode)> = (1..=4).map(|a| (a, PkwMode::Four)).collect();
+    let cases: [(&str, Spoil<'_>); 3] = [
+        ("clean", &|_| {}),
+        ("drive 2 never answers", &|b| {
+            b.faults(2).set_probability(Fault::DropReply, 1.0);
+        }),
+        ("every fault now and then", &|b| {
+            for a in 1..=4 {
+                for f in Fault::ALL {
+                    b.faults(a).set_probability(f, 0.05);
+                }
+            }
+        }),
+    ];
+    for (what, spoil) in cases {
+        let mut b = bench(&drives);
+        b.run_for(ms(500), &[]);
+        spoil(&mut b);
+        b.run_for(ms(3000), &[]);
+        let e = b.engine.stats().bus.efficiency();
+        println!("efficiency, {what}: {e:?}");
+        assert!(e.is_some_and(|e| e > 0.0 && e <= 1.0), "{what}: {e:?}");
+    }
+}

@@ -47,11 +47,23 @@ struct Bench {
 /// Drives 1..=`n` at `baud`, PKW 4 + PZD 2, the simulated drives answering after 1 ms (or the
 /// earliest they may).
 fn bench_with(n: u8, baud: u32, cfg: impl FnOnce(&mut EngineConfig)) -> Bench {
+    bench_of(n, baud, |_| {}, cfg)
+}
+
+/// Like [`bench_with`], with each simulated drive as `sim` makes it.
+fn bench_of(
+    n: u8,
+    baud: u32,
+    sim: impl Fn(&mut DriveConfig),
+    cfg: impl FnOnce(&mut EngineConfig),
+) -> Bench {
     let layout = Layout::new(PkwMode::Four, PzdCount::new(2).unwrap());
     let mut bus = SimBus::new(11);
     let mut setups = Vec::new();
     for a in 1..=n {
-        bus.add(DriveConfig::new(addr(a), layout)).unwrap();
+        let mut drive = DriveConfig::new(addr(a), layout);
+        sim(&mut drive);
+        bus.add(drive).unwrap();
         setups.push(DriveSetup::new(addr(a), layout));
     }
     let mut config = EngineConfig {
@@ -338,11 +350,22 @@ fn an_offline_drive_probed_once_a_minute_gets_a_stop_in_the_next_telegram() {
     assert_eq!(took, 1);
 }
 
+/// Drives 5 and 9 ignore broadcasts (as S110 and G120 firmware 4 do) and are configured so.
+const DEAF: [u8; 2] = [5, 9];
+
 #[test]
-#[should_panic(expected = "telegrams")] // reproduction: fails on main until the fix
 fn a_stop_of_every_drive_reaches_them_all_within_one_telegram_and_one_exchange() {
     let n = 31;
-    let mut b = bench_with(n, 9600, |_| {});
+    let mut b = bench_of(
+        n,
+        9600,
+        |d| d.takes_broadcasts = !DEAF.contains(&d.address.get()),
+        |c| {
+            for d in &mut c.drives {
+                d.broadcast = !DEAF.contains(&d.address.get());
+            }
+        },
+    );
     let all: Vec<(u8, [u16; 2])> = (1..=n).map(|d| (d, OFF1)).collect();
     while b.engine.stats().bus.cycles < 2 {
         b.run_for(ms(1), &all);
@@ -352,12 +375,49 @@ fn a_stop_of_every_drive_reaches_them_all_within_one_telegram_and_one_exchange()
         b.run_for(ms(1), &run);
     }
     b.handle.stop_drive(None, StopCommand::Off2, 7).unwrap();
-    // The exchange that comes next carries the stop to every drive: a broadcast.
+    // The next step on the wire: the broadcast, then the first drive that did not hear it.
     b.refresh(&run);
-    b.exchange();
+    let first = b.exchange();
+    assert_eq!(first, DEAF[0]);
     let missing: Vec<u8> = (1..=n).filter(|&a| b.stw1(a) != Stw1::COAST).collect();
-    assert!(
-        missing.is_empty(),
-        "after one exchange (2 telegrams) drives {missing:?} have no stop yet"
-    );
+    assert_eq!(missing, DEAF[1..], "after one broadcast and one exchange");
+    assert_eq!(b.engine.stats().bus.broadcasts, 1);
+    // The other deaf drive, then each drive confirms in its own exchange, out of turn.
+    b.refresh(&run);
+    assert_eq!(b.exchange(), DEAF[1]);
+    let mut confirmed = vec![];
+    for _ in 0..n - 2 {
+        b.refresh(&run);
+        confirmed.push(b.exchange());
+    }
+    let mut expected: Vec<u8> = (1..=n).filter(|a| !DEAF.contains(a)).collect();
+    confirmed.sort_unstable();
+    expected.sort_unstable();
+    assert_eq!(confirmed, expected);
+    for a in 1..=n {
+        assert_eq!(b.stw1(a), Stw1::COAST, "drive {a}");
+        assert!(matches!(
+            b.control(a),
+            Control::Latched(l) if l.reason == LatchReason::Override && l.command == StopCommand::Off2
+        ));
+    }
+}
+
+#[test]
+fn a_broadcast_never_weakens_a_drive_that_has_a_stronger_stop() {
+    let mut b = Bench::running(4, 19200, 2);
+    b.handle
+        .stop_drive(Some(addr(3)), StopCommand::Off2, 7)
+        .unwrap();
+    telegrams_until(&mut b, 3, Stw1::COAST, &[(2, RUN)], 2);
+    // OFF1 for every drive: drive 3 would hear OFF1 in a broadcast, so none goes out; each
+    // drive gets its own telegram, drive 3 keeps OFF2.
+    b.handle.stop_drive(None, StopCommand::Off1, 7).unwrap();
+    for _ in 0..8 {
+        b.refresh(&[(2, RUN)]);
+        b.exchange();
+        assert_eq!(b.stw1(3), Stw1::COAST);
+    }
+    assert_eq!(b.engine.stats().bus.broadcasts, 0);
+    assert_eq!(b.stw1(2), Stw1::READY);
 }

@@ -77,6 +77,17 @@ impl Adr {
         }
     }
 
+    /// A broadcast (bit 5, address bits 0): every slave that takes broadcasts processes it,
+    /// none replies.
+    pub const fn broadcast() -> Self {
+        Self {
+            address: Address(0),
+            broadcast: true,
+            mirror: false,
+            special: false,
+        }
+    }
+
     /// The byte on the wire.
     pub const fn to_byte(self) -> u8 {
         let mut b = self.address.0;

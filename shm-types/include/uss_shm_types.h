@@ -1468,6 +1468,11 @@ typedef struct UssBusStatus {
    * live, polled before the circulating list goes on.
    */
   uint64_t out_of_turn;
+  /**
+   * Broadcast telegrams sent: a stop of every drive, one per telegram shape of the drives
+   * that take broadcasts.
+   */
+  uint64_t broadcasts;
 #ifdef __cplusplus
   static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV7";
 #endif

@@ -359,6 +359,9 @@ pub struct BusStatus {
     /// operator's stop, a trip, a release, a controller's own stop), or that a re-arm made
     /// live, polled before the circulating list goes on.
     pub out_of_turn: u64,
+    /// Broadcast telegrams sent: a stop of every drive, one per telegram shape of the drives
+    /// that take broadcasts.
+    pub broadcasts: u64,
 }
 
 /// Buckets of [`BusStatus::exchange_le`].
@@ -508,6 +511,7 @@ impl BusStatus {
         exchange_sum_ns: 0,
         exchange_le: [0; EXCHANGE_BUCKETS],
         out_of_turn: 0,
+        broadcasts: 0,
     };
 
     pub fn rt_mode(&self) -> Result<RtMode, UnknownCode> {

@@ -172,7 +172,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     TypeLayout {
         name: "BusStatus",
         type_name: "UssBusStatusV7",
-        size: 360,
+        size: 368,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -209,6 +209,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("exchange_sum_ns", 248, 8),
             f("exchange_le", 256, 96),
             f("out_of_turn", 352, 8),
+            f("broadcasts", 360, 8),
         ],
     },
     TypeLayout {

@@ -84,3 +84,42 @@ fn thirty_one_drives_at_9600_baud_publish_their_poll_period_and_are_controllable
         (LatchReason::Override.code(), StopCommand::Off1.code())
     );
 }
+
+/// `ussctl stop --all` on the full line: one broadcast reaches every drive that takes
+/// broadcasts, drives 5 and 9 (which ignore broadcasts, as S110 and G120 firmware 4 do, and are
+/// configured so) get their own telegram, and every drive confirms it in its own exchange; the
+/// command returns once each drive's image shows it.
+#[test]
+fn a_stop_of_every_drive_on_the_full_line_is_one_broadcast_and_confirmed_by_each() {
+    let _one = serial();
+    let drives: Vec<(u8, &str)> = (1..=31)
+        .map(|a| {
+            let keys = if a == 5 || a == 9 {
+                "broadcast = false\nsim = { broadcast = false }"
+            } else {
+                ""
+            };
+            (a, keys)
+        })
+        .collect();
+    let ussd = Ussd::start("baud = 9600", &drives);
+    let bus = ussd.bus();
+    let mut stop = ussd.ussctl(&["coast", "--all"]);
+    let (code, out, err) = ended(&mut stop, Duration::from_secs(60));
+    assert_eq!(code, Some(0), "{out}{err}");
+    for a in 1..=31 {
+        let i = bus.watch(a).unwrap().latest();
+        assert_eq!(
+            (i.latch_reason, i.latch_command, i.sent_stw1),
+            (
+                LatchReason::Override.code(),
+                StopCommand::Off2.code(),
+                0x047C
+            ),
+            "drive {a}"
+        );
+    }
+    let status = bus.status().unwrap();
+    assert_eq!(status.broadcasts, 1, "{status:?}");
+    assert!(status.out_of_turn >= 31, "{status:?}");
+}

@@ -202,6 +202,10 @@ pub struct DriveEntry {
     /// Refuse ON unless the drive's telegram monitoring was read and is on within the limit.
     #[serde(default)]
     pub require_monitoring: bool,
+    /// The drive takes broadcasts (ADR bit 5): a stop of every drive reaches it in one
+    /// telegram. `false` for S110 and G120 firmware 4, which ignore them: they get their own.
+    #[serde(default = "yes")]
+    pub broadcast: bool,
     /// Only on the simulated bus: the simulated drive's options (uss-sim's drive keys).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sim: Option<SimOptions>,

@@ -303,6 +303,7 @@ params_writable = true
 monitoring_param = "P2014.1"
 monitoring_max_ms = 1000.0
 require_monitoring = false
+broadcast = true
 "#
     );
     let later = serial("", "").replace("/dev/null", "/dev/uss-nothing-here");
@@ -475,7 +476,7 @@ fn unknown_keys_are_named_with_their_table_in_every_table() {
             "bus.toml:7:1: bus \"bus0\" drive 3: unknown key `colour`: a [[bus.drive]] table \
              takes address, pkw, pzd, weight, reference_hz, reference_param, watchdog_ms, \
              safe_command, params_writable, monitoring_param, monitoring_max_ms, \
-             require_monitoring, sim"
+             require_monitoring, broadcast, sim"
                 .to_owned(),
             Some("bus[0].drive[0].colour".to_owned())
         )

@@ -103,6 +103,7 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
                 },
                 reference_hz: d.reference_hz.get(),
                 reference_param: d.reference_param.param().map(WatchedParam::from),
+                broadcast: d.broadcast,
             })
             .collect(),
     }

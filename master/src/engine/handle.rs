@@ -78,12 +78,18 @@ impl EngineHandle {
             }
             None => 0..self.shared.setups.len(),
         };
+        let every = address.is_none();
         let mut reached = 0u32;
         for slot in slots {
             let o = &self.shared.overrides[slot];
             o.pid.store(pid, Ordering::Relaxed);
             o.counts[which].fetch_add(1, Ordering::Release);
             reached |= 1 << self.shared.setups[slot].address.get();
+        }
+        if every {
+            // After each drive's own: the bus thread that sees this sees those too.
+            self.shared.stop_all.pid.store(pid, Ordering::Relaxed);
+            self.shared.stop_all.counts[which].fetch_add(1, Ordering::Release);
         }
         Ok(reached)
     }

@@ -79,6 +79,9 @@ pub struct DriveSetup {
     /// The drive's reference-frequency parameter in Hz (P2000 on MICROMASTER 4 / G110), read
     /// when it comes online; `None`: not read (G120's p2000 is a speed in rpm).
     pub reference_param: Option<WatchedParam>,
+    /// The drive takes broadcasts (ADR bit 5): a stop of every drive reaches it in one
+    /// broadcast telegram (`engine::turns`). S110 and G120 firmware 4 do not.
+    pub broadcast: bool,
 }
 
 impl DriveSetup {
@@ -95,6 +98,7 @@ impl DriveSetup {
             monitoring: MonitoringSetup::micromaster(),
             reference_hz: 50.0,
             reference_param: Some(reference::P2000),
+            broadcast: true,
         }
     }
 
@@ -313,6 +317,9 @@ struct Shared {
     images: Vec<DriveImages>,
     output_numbers: Vec<AtomicU64>,
     overrides: Vec<Overrides>,
+    /// Stops of every drive at once (OFF1, OFF2, OFF3 counts): each goes out as a broadcast
+    /// (`engine::turns`) besides each drive's own override.
+    stop_all: Overrides,
     stats: Mutex<Published>,
     stop: AtomicBool,
     /// Set by the bus thread while its line is down.
@@ -381,6 +388,11 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     rearm_spent: u32,
     /// Within an out-of-turn poll: none nests in it.
     serving_out_of_turn: bool,
+    /// Drives (a bit per slot) that heard a stop in a broadcast and are due their own poll to
+    /// confirm it: after the drives that did not hear it.
+    broadcast_heard: u32,
+    /// Stops of every drive already sent (OFF1, OFF2, OFF3 counts).
+    stop_all_seen: [u32; 3],
     /// When the engine last looked at every drive (`engine::turns`).
     last_look: Duration,
     /// How far apart two looks may be for the work between them: one attempt at worst and one
@@ -510,6 +522,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             images: cfg.drives.iter().map(|_| DriveImages::default()).collect(),
             output_numbers: cfg.drives.iter().map(|_| AtomicU64::new(0)).collect(),
             overrides: cfg.drives.iter().map(|_| Overrides::default()).collect(),
+            stop_all: Overrides::default(),
             stats: Mutex::new(Published::new(&stats)),
             stop: AtomicBool::new(false),
             line_down: AtomicBool::new(false),
@@ -554,6 +567,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             out_of_turn: 0,
             rearm_spent: 0,
             serving_out_of_turn: false,
+            broadcast_heard: 0,
+            stop_all_seen: [0; 3],
             last_look: now,
             look_lag: period_setup.attempt + LOOK_STEP * 2,
             position: 0,
@@ -696,7 +711,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.take_jobs();
         self.take_cancels();
         // A drive due out of turn first (`engine::turns`), then the circulating list.
-        self.look();
+        self.look_and_broadcast()?;
         let polled = if let Some(slot) = self.next_out_of_turn(None) {
             self.poll_out_of_turn(slot)?;
             Some(self.drives[slot].setup.address)
@@ -992,6 +1007,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.drives[slot].gate.words(out);
         self.stats.drives[slot].sent = [out[0], out[1]];
         self.out_of_turn &= !(1u32 << slot);
+        self.broadcast_heard &= !(1u32 << slot);
     }
 
     /// After every poll of the drive in `slot`, good or failed: its period and freshness limit

@@ -156,6 +156,8 @@ pub struct BusCounters {
     pub wire_floor_ns: u64,
     /// Polls out of turn ([`uss_shm_types::BusStatus::out_of_turn`]).
     pub out_of_turn: u64,
+    /// Broadcast telegrams sent ([`uss_shm_types::BusStatus::broadcasts`]).
+    pub broadcasts: u64,
 }
 
 impl BusCounters {

@@ -19,13 +19,24 @@
 //! can (run, release, re-arm) takes at most one extra poll per regular poll: the other drives'
 //! poll period at most doubles.
 //!
+//! A stop of every drive goes out as one broadcast telegram (ADR bit 5, USS.md section 3: no
+//! drive answers) per telegram shape of the drives that take broadcasts
+//! ([`crate::DriveSetup::broadcast`]), right after the exchange in progress; then the drives
+//! that did not hear it (S110, G120 firmware 4) get their own telegram, and then every drive
+//! confirms the stop in its own exchange. A broadcast is left out when a drive that would hear
+//! it gets a stronger stop now (it would be weakened): those drives get their own telegrams.
+//!
 //! A look also measures the engine's own continuity: the time since the previous look beyond
 //! what one attempt and one idle step explain is a gap (ussd paused by SIGSTOP, a suspended
 //! machine, a starved CPU), and a gap longer than a drive's watchdog time latches it
 //! (`LatchReason::Paused`).
 
-use super::{Bridge, Clock, Duration, Engine, MAX_PZD_WORDS, Transport, TransportError};
+use super::{
+    Adr, Bridge, Clock, Duration, Engine, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, STOPS, Transport,
+    TransportError, encode,
+};
 use crate::engine::control::Transition;
+use uss_shm_types::StopCommand;
 use uss_shm_types::pzd::stop_strength;
 
 /// The longest an idle wait (a fixed cycle time, every drive offline) goes without a look.
@@ -59,11 +70,125 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
     }
 
-    /// The drive to poll out of turn now, if any (the lowest slot first).
+    /// [`Engine::look`], then a stop of every drive asked for since, as broadcasts.
+    pub(super) fn look_and_broadcast(&mut self) -> Result<(), TransportError> {
+        self.look();
+        self.broadcast_stop_all()
+    }
+
+    /// The drive to poll out of turn now, if any: the drives that did not hear a broadcast stop
+    /// first, the lowest slot first.
     pub(super) fn next_out_of_turn(&self, except: Option<usize>) -> Option<usize> {
         let mask = except.map_or(u32::MAX, |slot| !(1u32 << slot));
         let due = self.out_of_turn & mask;
-        (due != 0).then(|| due.trailing_zeros() as usize)
+        let unheard = due & !self.broadcast_heard;
+        let pick = if unheard != 0 { unheard } else { due };
+        (pick != 0).then(|| pick.trailing_zeros() as usize)
+    }
+
+    /// The strongest stop of every drive asked for since the last one sent, if any.
+    fn take_stop_all(&mut self) -> Option<StopCommand> {
+        let mut strongest: Option<StopCommand> = None;
+        for (i, command) in STOPS.into_iter().enumerate() {
+            let count = self.shared.stop_all.counts[i].load(Ordering::Acquire);
+            if count != self.stop_all_seen[i] {
+                self.stop_all_seen[i] = count;
+                if strongest.is_none_or(|s| command.strength() > s.strength()) {
+                    strongest = Some(command);
+                }
+            }
+        }
+        strongest
+    }
+
+    /// Whether drive `slot` hears broadcasts that carry a stop word.
+    fn hears_broadcasts(&self, slot: usize) -> bool {
+        let setup = &self.drives[slot].setup;
+        setup.broadcast && setup.layout.pzd.get() > 0
+    }
+
+    /// The strongest stop drive `slot` has now: in its last telegram or in its gate's words.
+    fn stop_now(&self, slot: usize) -> u8 {
+        let mut words = [0u16; MAX_PZD_WORDS];
+        self.drives[slot].gate.words(&mut words);
+        stop_strength(words[0]).max(stop_strength(self.stats.drives[slot].sent[0]))
+    }
+
+    /// A stop of every drive: one broadcast per telegram shape (PKW request words, PZD words)
+    /// of the drives that hear broadcasts, unless one of them has a stronger stop now.
+    fn broadcast_stop_all(&mut self) -> Result<(), TransportError> {
+        let Some(command) = self.take_stop_all() else {
+            return Ok(());
+        };
+        let Some(stw1) = command.stw1() else {
+            return Ok(());
+        };
+        let n = self.drives.len();
+        let mut handled = 0u32;
+        for first in 0..n {
+            if handled & (1 << first) != 0 || !self.hears_broadcasts(first) {
+                continue;
+            }
+            let shape = self.drives[first].setup.layout;
+            let same = |s: &Self, slot: usize| {
+                let l = s.drives[slot].setup.layout;
+                s.hears_broadcasts(slot)
+                    && l.pzd == shape.pzd
+                    && l.pkw.request_words() == shape.pkw.request_words()
+            };
+            let mut group = 0u32;
+            let mut weakens = false;
+            for slot in first..n {
+                if same(self, slot) {
+                    group |= 1 << slot;
+                    weakens |= self.stop_now(slot) > command.strength();
+                }
+            }
+            handled |= group;
+            if !weakens {
+                self.send_broadcast(first, stw1)?;
+                self.broadcast_heard |= group;
+            }
+        }
+        Ok(())
+    }
+
+    /// One broadcast telegram in the shape of drive `slot`'s: no PKW task, `stw1` and zeros as
+    /// PZD. Nobody answers: the line is free when it is sent (and its echo read, on two wires).
+    fn send_broadcast(&mut self, slot: usize, stw1: u16) -> Result<(), TransportError> {
+        let setup = self.drives[slot].setup;
+        let none = [0u16; MAX_PKW_WORDS];
+        let mut pzd = [0u16; MAX_PZD_WORDS];
+        pzd[0] = stw1;
+        let adr = Adr::broadcast();
+        let Ok(n) = encode(
+            &mut self.tx,
+            adr,
+            &none[..setup.layout.pkw.request_words()],
+            &pzd[..setup.layout.pzd.get()],
+        ) else {
+            return Ok(());
+        };
+        self.clock
+            .sleep_until_precise(self.line_free_at + self.cfg.timing.start_pause());
+        let send_at = self.clock.now();
+        self.transport.flush_input(send_at)?;
+        self.framer.reset();
+        let end = self.transport.send(&self.tx[..n], send_at)?;
+        let shown = crate::DriveSetup {
+            address: adr.address,
+            ..setup
+        };
+        self.capture
+            .request(&shown, &self.tx[..n], false, (send_at, end));
+        self.stats.bus.broadcasts += 1;
+        self.framer.line_busy_until(end);
+        self.line_free_at = end;
+        if self.cfg.echo {
+            // Our own bytes back; a missing echo fails nothing here (no reply is due).
+            let _ = self.discard_echo(n, end)?;
+        }
+        Ok(())
     }
 
     /// Looks at every drive, then polls each drive due out of turn but `except` (the drive whose
@@ -76,10 +201,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         if self.serving_out_of_turn {
             return Ok(());
         }
-        self.look();
+        self.look_and_broadcast()?;
         while let Some(slot) = self.next_out_of_turn(except) {
             self.poll_out_of_turn(slot)?;
-            self.look();
+            self.look_and_broadcast()?;
         }
         Ok(())
     }

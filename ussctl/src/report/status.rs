@@ -100,6 +100,8 @@ pub struct BusReport {
     pub line_downs: u64,
     /// Polls out of turn: a stop, a trip or a re-arm sent before the circulating list went on.
     pub out_of_turn: u64,
+    /// Broadcast telegrams: stops of every drive.
+    pub broadcasts: u64,
 }
 
 impl BusReport {
@@ -126,6 +128,7 @@ impl BusReport {
             reopen_attempts: s.reopen_attempts,
             line_downs: s.line_downs,
             out_of_turn: s.out_of_turn,
+            broadcasts: s.broadcasts,
         }
     }
 
@@ -151,6 +154,9 @@ impl BusReport {
         }
         if self.out_of_turn > 0 {
             let _ = write!(out, ", {} polls out of turn", self.out_of_turn);
+        }
+        if self.broadcasts > 0 {
+            let _ = write!(out, ", {} broadcast stops", self.broadcasts);
         }
         if let Some(error) = &self.line_error {
             let _ = write!(

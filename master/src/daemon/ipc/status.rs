@@ -374,6 +374,7 @@ impl StatusPublisher {
             exchange_le: uss_shm_types::EXCHANGE_BUCKETS_NS
                 .map(|le| stats.histograms.exchange.count_between(0, le)),
             out_of_turn: b.out_of_turn,
+            broadcasts: b.broadcasts,
             ..BusStatus::EMPTY
         });
     }
