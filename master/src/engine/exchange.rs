@@ -127,14 +127,21 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let t = &mut self.timing.drive_histograms[slot];
         record_both(&mut d.response_delay, &mut t.response_delay, response_delay);
         record_both(&mut d.exchange, &mut t.exchange, exchange);
+        let reply_len = 4 + 2 * (words.pkw().len() + words.pzd().len());
+        let chars = (timing.request_len + reply_len) as u64;
+        let floor = self.cfg.timing.start_pause() + self.cfg.timing.chars(chars) + response_delay;
+        // An exchange shorter than its characters take at the baud rate was not timed by the
+        // wire: the reply came out of a buffer faster than a line carries it (a pty, a stalled
+        // sender's backlog). It says nothing of efficiency, which is at most 1 by definition.
         if timing.first_attempt {
-            let reply_len = 4 + 2 * (words.pkw().len() + words.pzd().len());
-            let chars = (timing.request_len + reply_len) as u64;
-            let floor =
-                self.cfg.timing.start_pause() + self.cfg.timing.chars(chars) + response_delay;
             let bus = &mut self.stats.bus;
-            bus.exchange_ns += u64::try_from(exchange.as_nanos()).unwrap_or(u64::MAX);
-            bus.wire_floor_ns += u64::try_from(floor.as_nanos()).unwrap_or(u64::MAX);
+            if exchange >= floor {
+                bus.exchange_ns += u64::try_from(exchange.as_nanos()).unwrap_or(u64::MAX);
+                bus.wire_floor_ns += u64::try_from(floor.as_nanos()).unwrap_or(u64::MAX);
+                bus.timed += 1;
+            } else {
+                bus.untimed += 1;
+            }
         }
         if changed {
             self.emit(Event::StateChanged {

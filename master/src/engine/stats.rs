@@ -158,12 +158,20 @@ pub struct BusCounters {
     pub out_of_turn: u64,
     /// Broadcast telegrams sent ([`uss_shm_types::BusStatus::broadcasts`]).
     pub broadcasts: u64,
+    /// Good first attempts timed by the wire (in `exchange_ns` and `wire_floor_ns`), and those
+    /// faster than their characters take at the baud rate (a pty, a buffer's backlog).
+    pub timed: u64,
+    pub untimed: u64,
 }
 
 impl BusCounters {
-    /// Wire-time floor over achieved exchange time (1.0 = the master adds nothing), if measured.
+    /// Wire-time floor over achieved exchange time (1.0 = the master adds nothing), at most 1:
+    /// over the exchanges timed by the wire, and only while at most 1 in 100 were not (a line
+    /// that carries replies faster than its baud rate, a pty, is not measured by it: none).
     pub fn efficiency(&self) -> Option<f64> {
-        (self.exchange_ns > 0).then(|| self.wire_floor_ns as f64 / self.exchange_ns as f64)
+        let wire_timed = self.untimed.saturating_mul(100) <= self.timed + self.untimed;
+        (self.exchange_ns > 0 && wire_timed)
+            .then(|| self.wire_floor_ns as f64 / self.exchange_ns as f64)
     }
 }
 
