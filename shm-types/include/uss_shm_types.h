@@ -489,6 +489,11 @@ enum UssMonitoring
    * The configuration turns the check off (`monitoring_param = ""`).
    */
   USS_MONITORING_NOT_CHECKED = 5,
+  /**
+   * On, but shorter than the longest time between two polls of the drive on this bus
+   * (`DriveDiag::monitoring_min_ms`): the drive trips (F0072) between polls.
+   */
+  USS_MONITORING_TOO_SHORT = 6,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -1332,6 +1337,13 @@ typedef struct UssDriveDiag {
    */
   uint64_t period_ns;
   uint64_t stale_after_ns;
+  /**
+   * The shortest telegram-off time that does not trip the drive between two of its polls on
+   * this bus, ms: the longest time between them (every exchange at its worst case) and one
+   * poll with its retries.
+   */
+  uint32_t monitoring_min_ms;
+  uint32_t reserved3;
 #ifdef __cplusplus
   static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV7";
 #endif

@@ -103,6 +103,9 @@ code_table! {
         Unreadable = 4 => "cannot be read",
         /// The configuration turns the check off (`monitoring_param = ""`).
         NotChecked = 5 => "not checked",
+        /// On, but shorter than the longest time between two polls of the drive on this bus
+        /// (`DriveDiag::monitoring_min_ms`): the drive trips (F0072) between polls.
+        TooShort = 6 => "shorter than the poll period",
     }
 }
 

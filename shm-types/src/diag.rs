@@ -128,6 +128,11 @@ pub struct DriveDiag {
     /// ([`crate::PzdInput::period_ns`], [`crate::PzdInput::stale_after_ns`]); 0: not known yet.
     pub period_ns: u64,
     pub stale_after_ns: u64,
+    /// The shortest telegram-off time that does not trip the drive between two of its polls on
+    /// this bus, ms: the longest time between them (every exchange at its worst case) and one
+    /// poll with its retries.
+    pub monitoring_min_ms: u32,
+    pub reserved3: u32,
 }
 
 /// What ussd knows of one drive from its configuration, published so that no client has to be
@@ -439,6 +444,8 @@ impl DriveDiag {
             response_delay_ns: [0; 4],
             period_ns: 0,
             stale_after_ns: 0,
+            monitoring_min_ms: 0,
+            reserved3: 0,
         }
     }
 

@@ -138,7 +138,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     TypeLayout {
         name: "DriveDiag",
         type_name: "UssDriveDiagV7",
-        size: 344,
+        size: 352,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -167,6 +167,8 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("response_delay_ns", 296, 32),
             f("period_ns", 328, 8),
             f("stale_after_ns", 336, 8),
+            f("monitoring_min_ms", 344, 4),
+            f("reserved3", 348, 4),
         ],
     },
     TypeLayout {

@@ -67,6 +67,7 @@ fn actual_layouts() -> Vec<Actual> {
             control, last_failure, latch_reason, latch_command, rejection, monitoring, known,
             reserved, monitoring_ms, controller_pid, since_ns, last_good_ns, latched_since_ns,
             info, counters, exchange_ns, response_delay_ns, period_ns, stale_after_ns,
+            monitoring_min_ms, reserved3,
         ]),
         actual!(BusStatus = BusStatus::EMPTY, [
             version, rt_cpu, rt_mode, rt_priority, drive_count, running, efficiency_ppm,

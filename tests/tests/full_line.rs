@@ -123,3 +123,53 @@ fn a_stop_of_every_drive_on_the_full_line_is_one_broadcast_and_confirmed_by_each
     assert_eq!(status.broadcasts, 1, "{status:?}");
     assert!(status.out_of_turn >= 31, "{status:?}");
 }
+
+/// A drive whose telegram monitoring (P2014.1) is shorter than the time between two polls of it
+/// trips between polls: ussd says so at start, in its log when it reads the value, and in
+/// `ussctl status`, with the smallest value that does not trip.
+#[test]
+fn a_telegram_off_time_shorter_than_the_poll_period_is_reported_with_the_safe_value() {
+    let _one = serial();
+    let drives: Vec<(u8, &str)> = (1..=31)
+        .map(|a| match a {
+            20 => (a, "sim = { p2014 = 100 }"),
+            21 => (a, "monitoring_max_ms = 5000\nsim = { p2014 = 3000 }"),
+            _ => (a, ""),
+        })
+        .collect();
+    let ussd = Ussd::start("baud = 9600", &drives);
+    let start = ussd
+        .log_line("drives are polled at worst every", Duration::from_secs(5))
+        .unwrap();
+    let safe: u32 = start
+        .split("every ")
+        .nth(1)
+        .and_then(|t| t.split(" ms").next())
+        .unwrap()
+        .parse()
+        .unwrap();
+    // 31 exchanges of 67.6 ms at worst.
+    assert!((2000..=2200).contains(&safe), "{start}");
+    let logged = ussd
+        .log_line("drive 20: telegram monitoring", Duration::from_secs(20))
+        .unwrap();
+    assert!(
+        logged.contains(&format!("to at least {safe} ms")),
+        "{logged}"
+    );
+    let bus = ussd.bus();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while bus.diag(21).unwrap().monitoring_ms == 0 {
+        assert!(Instant::now() < deadline, "drive 21's monitoring not read");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let mut status = ussd.ussctl(&["status"]);
+    let (_, out, err) = status.finish();
+    assert!(
+        out.contains(&format!(
+            "warning: drive 20: telegram monitoring is 100 ms, shorter than the time between two polls of it on this bus (up to {safe} ms)"
+        )),
+        "{out}{err}"
+    );
+    assert!(!out.contains("warning: drive 21"), "{out}");
+}

@@ -41,6 +41,7 @@ pub(super) fn spawn(
         .name(format!("uss-{}-hk", bus.name))
         .spawn(move || {
             let mut previous: Option<Stats> = None;
+            log_shortest_monitoring(&bus, &handle.stats());
             let start = std::time::Instant::now();
             let mut progress = (handle.progress(), start);
             let mut next_summary = start + every;
@@ -91,6 +92,19 @@ pub(super) fn spawn(
                 crate::daemon::summary::render(&bus, mode, &stats, None).trim_end()
             );
         })
+}
+
+/// At start: the shortest telegram-off time that does not trip a drive between two of its
+/// polls on this bus, the longest of its drives'.
+fn log_shortest_monitoring(bus: &BusConfig, stats: &Stats) {
+    if let Some(d) = stats.drives.iter().max_by_key(|d| d.monitoring_min) {
+        tracing::info!(
+            bus = bus.name,
+            "drives are polled at worst every {} ms (drive {}): a telegram-off time (P2014.1, p2040) below that trips a drive between polls",
+            d.monitoring_min.as_millis(),
+            d.address
+        );
+    }
 }
 
 /// Every telegram at `trace` level: direction, drive, outcome and bytes.
@@ -160,7 +174,13 @@ fn param_name(
         .map_or_else(|| otherwise.to_owned(), |p| p.to_string())
 }
 
-fn log_monitoring(bus: &BusConfig, address: Address, at: Duration, state: Monitoring, ms: u32) {
+fn log_monitoring(
+    bus: &BusConfig,
+    address: Address,
+    at: Duration,
+    (state, ms): (Monitoring, u32),
+    shortest_ms: u32,
+) {
     let param = param_name(
         bus,
         address,
@@ -180,6 +200,12 @@ fn log_monitoring(bus: &BusConfig, address: Address, at: Duration, state: Monito
             drive,
             at_s,
             "drive {address}: telegram monitoring is OFF ({param} = 0): if ussd or its line dies, nothing stops this drive; set {param} to e.g. 100 ms (USS.md section 5)"
+        ),
+        Monitoring::TooShort => tracing::warn!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: telegram monitoring {param} = {ms} ms is shorter than the time between two polls of it on this bus (up to {shortest_ms} ms): it trips (F0072) between polls; set {param} to at least {shortest_ms} ms, or poll it more often (weight, fewer drives, a faster baud rate)"
         ),
         Monitoring::TooLong => tracing::warn!(
             bus,
@@ -240,7 +266,8 @@ fn log_own_read(bus: &BusConfig, event: &Event) {
             at,
             state,
             ms,
-        } => log_monitoring(bus, address, at, state, ms),
+            shortest_ms,
+        } => log_monitoring(bus, address, at, (state, ms), shortest_ms),
         Event::Reference {
             address,
             at,

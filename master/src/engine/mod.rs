@@ -179,6 +179,8 @@ pub enum Event {
         at: Duration,
         state: Monitoring,
         ms: u32,
+        /// The shortest time that does not trip the drive between two of its polls.
+        shortest_ms: u32,
     },
     CycleOverrun {
         at: Duration,
@@ -368,6 +370,9 @@ struct DriveRt {
     monitoring_due: bool,
     /// The reference-frequency parameter should be read (the drive came online).
     reference_due: bool,
+    /// The shortest telegram-off time that does not trip the drive between two of its polls
+    /// (`Periods::shortest_monitoring`).
+    shortest_monitoring: Duration,
 }
 
 /// The bus engine. See the module documentation.
@@ -454,6 +459,26 @@ fn gates(drives: &[DriveSetup], clock_origin: Duration, now: Duration) -> Vec<Ga
         .collect()
 }
 
+/// The statistics before the first poll: each drive latched by ussd's start, what is known of
+/// its monitoring and reference, the shortest telegram-off time its polls allow.
+fn initial_stats(drives: &[DriveSetup], gates: &[Gate], periods: &Periods) -> Stats {
+    let mut stats = Stats::new(
+        drives
+            .iter()
+            .zip(gates)
+            .map(|(d, g)| (d.address, g.control())),
+    );
+    for (slot, ((status, setup), gate)) in
+        stats.drives.iter_mut().zip(drives).zip(gates).enumerate()
+    {
+        stats::set_control(&mut status.counters, &gate.counters());
+        status.monitoring = monitoring::initial_monitoring(setup);
+        status.reference = reference::Reference::initial(setup);
+        status.monitoring_min = periods.shortest_monitoring(slot);
+    }
+    stats
+}
+
 /// What the poll periods of `cfg`'s bus depend on. One attempt at worst: the request, the
 /// drive's response timeout and the longest reply at its maximum residual time (USS.md
 /// section 4), for the bus's largest telegrams.
@@ -505,17 +530,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let capacity = (cfg.mailbox_depth * cfg.drives.len()).max(1);
         let now = clock.now();
         let gates = gates(&cfg.drives, clock.monotonic_origin(), now);
-        let mut stats = Stats::new(
-            cfg.drives
-                .iter()
-                .zip(&gates)
-                .map(|(d, g)| (d.address, g.control())),
-        );
-        for ((status, setup), gate) in stats.drives.iter_mut().zip(&cfg.drives).zip(&gates) {
-            stats::set_control(&mut status.counters, &gate.counters());
-            status.monitoring = monitoring::initial_monitoring(setup);
-            status.reference = reference::Reference::initial(setup);
-        }
+        let poll_list = circulating_list(&cfg.drives);
+        let period_setup = period_setup(&cfg);
+        let periods = Periods::new(&poll_list, cfg.drives.len(), period_setup);
+        let stats = initial_stats(&cfg.drives, &gates, &periods);
         let shared = Arc::new(Shared {
             setups: cfg.drives.clone(),
             slot_of,
@@ -543,7 +561,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .drives
             .iter()
             .zip(gates)
-            .map(|(&setup, gate)| DriveRt {
+            .enumerate()
+            .map(|(slot, (&setup, gate))| DriveRt {
                 setup,
                 mailbox: Mailbox::new(cfg.mailbox_depth),
                 next_probe: Duration::ZERO,
@@ -551,11 +570,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 overrides_seen: [0; 3],
                 monitoring_due: false,
                 reference_due: false,
+                shortest_monitoring: periods.shortest_monitoring(slot),
             })
             .collect();
-        let poll_list = circulating_list(&cfg.drives);
-        let period_setup = period_setup(&cfg);
-        let periods = Periods::new(&poll_list, cfg.drives.len(), period_setup);
         let engine = Self {
             framer: Framer::new(FramerConfig::strict(cfg.timing)),
             transport,

@@ -93,8 +93,9 @@ impl MonitoringSetup {
     }
 
     /// What a value of the parameter means: a word is milliseconds (P2014); a double word is
-    /// an IEEE-754 float in milliseconds (p2040).
-    pub fn evaluate(&self, value: Value) -> (Monitoring, u32) {
+    /// an IEEE-754 float in milliseconds (p2040). A time shorter than `shortest` (the longest
+    /// gap between two polls of the drive on its bus) trips the drive between polls.
+    pub fn evaluate(&self, value: Value, shortest: Duration) -> (Monitoring, u32) {
         let ms = match value {
             Value::Word(w) => f64::from(w),
             Value::Dword(d) => f64::from(f32::from_bits(d)),
@@ -105,6 +106,8 @@ impl MonitoringSetup {
         let ms = ms.round().min(f64::from(u32::MAX)) as u32;
         let state = if ms == 0 {
             Monitoring::Off
+        } else if u128::from(ms) < shortest.as_millis() {
+            Monitoring::TooShort
         } else if u128::from(ms) > self.max.as_millis() {
             Monitoring::TooLong
         } else {
@@ -126,7 +129,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     pub(super) fn on_monitoring_result(&mut self, slot: usize, result: &JobResult) {
         let setup = self.drives[slot].setup.monitoring;
         let (state, ms) = match result.outcome {
-            Ok(Ok(Answer::Value(v))) => setup.evaluate(v),
+            Ok(Ok(Answer::Value(v))) => setup.evaluate(v, self.drives[slot].shortest_monitoring),
             // A refused write leaves the parameter as it was.
             _ if result.job.task.is_write() => return,
             Ok(Err(_)) | Err(PathError::Timeout) => (Monitoring::Unreadable, 0),
@@ -153,11 +156,14 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         if changed {
             let address = self.drives[slot].setup.address;
             let at = self.clock.now();
+            let shortest_ms = u32::try_from(self.drives[slot].shortest_monitoring.as_millis())
+                .unwrap_or(u32::MAX);
             self.emit(Event::Monitoring {
                 address,
                 at,
                 state,
                 ms,
+                shortest_ms,
             });
         }
     }
@@ -223,13 +229,38 @@ mod tests {
         MonitoringSetup::micromaster()
     }
 
+    /// A bus whose polls never trip a drive.
+    const NONE: Duration = Duration::ZERO;
+
+    #[test]
+    fn a_telegram_off_time_shorter_than_the_gap_between_polls_is_too_short() {
+        let gap = Duration::from_millis(2300);
+        assert_eq!(
+            mm().evaluate(Value::Word(100), gap),
+            (Monitoring::TooShort, 100)
+        );
+        assert_eq!(mm().evaluate(Value::Word(2300), gap).0, Monitoring::TooLong);
+        let long_limit = MonitoringSetup {
+            max: Duration::from_secs(5),
+            ..mm()
+        };
+        assert_eq!(
+            long_limit.evaluate(Value::Word(2300), gap).0,
+            Monitoring::On
+        );
+        assert_eq!(long_limit.evaluate(Value::Word(0), gap).0, Monitoring::Off);
+    }
+
     #[test]
     fn p2014_words_are_milliseconds_against_the_limit() {
-        assert_eq!(mm().evaluate(Value::Word(0)), (Monitoring::Off, 0));
-        assert_eq!(mm().evaluate(Value::Word(100)), (Monitoring::On, 100));
-        assert_eq!(mm().evaluate(Value::Word(1000)), (Monitoring::On, 1000));
+        assert_eq!(mm().evaluate(Value::Word(0), NONE), (Monitoring::Off, 0));
+        assert_eq!(mm().evaluate(Value::Word(100), NONE), (Monitoring::On, 100));
         assert_eq!(
-            mm().evaluate(Value::Word(1001)),
+            mm().evaluate(Value::Word(1000), NONE),
+            (Monitoring::On, 1000)
+        );
+        assert_eq!(
+            mm().evaluate(Value::Word(1001), NONE),
             (Monitoring::TooLong, 1001)
         );
     }
@@ -237,10 +268,13 @@ mod tests {
     #[test]
     fn p2040_floats_are_milliseconds_too() {
         let f = |x: f32| Value::Dword(x.to_bits());
-        assert_eq!(mm().evaluate(f(100.0)), (Monitoring::On, 100));
-        assert_eq!(mm().evaluate(f(0.0)), (Monitoring::Off, 0));
-        assert_eq!(mm().evaluate(f(f32::NAN)), (Monitoring::Unreadable, 0));
-        assert_eq!(mm().evaluate(f(-5.0)), (Monitoring::Unreadable, 0));
+        assert_eq!(mm().evaluate(f(100.0), NONE), (Monitoring::On, 100));
+        assert_eq!(mm().evaluate(f(0.0), NONE), (Monitoring::Off, 0));
+        assert_eq!(
+            mm().evaluate(f(f32::NAN), NONE),
+            (Monitoring::Unreadable, 0)
+        );
+        assert_eq!(mm().evaluate(f(-5.0), NONE), (Monitoring::Unreadable, 0));
     }
 
     #[test]
@@ -295,6 +329,7 @@ mod tests {
             Monitoring::TooLong,
             Monitoring::Unreadable,
             Monitoring::NotChecked,
+            Monitoring::TooShort,
         ] {
             assert!(!required.allows_on(s), "{s}");
             assert!(mm().allows_on(s), "{s}: not required");

@@ -32,6 +32,10 @@ pub struct Periods {
     probe: Duration,
     /// A fixed cycle time, when configured: no cycle is shorter.
     fixed: Option<Duration>,
+    /// The worst case of one attempt.
+    attempt: Duration,
+    /// Entries in the circulating list.
+    list_len: u32,
 }
 
 /// What [`Periods`] needs of a bus.
@@ -64,7 +68,23 @@ impl Periods {
             poll,
             probe: setup.probe,
             fixed: setup.fixed_cycle,
+            attempt: setup.attempt,
+            list_len: u32::try_from(list.len()).unwrap_or(u32::MAX),
         }
+    }
+
+    /// The shortest telegram-off time (P2014) that does not trip drive `slot` between two of
+    /// its polls: the longest time between them with every exchange of the circulating list at
+    /// its worst case (doubled by `param_priority`, at least a fixed cycle time); rounded up to
+    /// 10 ms. Failed attempts (retries) stretch it further: then the drive's trip is its
+    /// monitoring doing its work.
+    pub fn shortest_monitoring(&self, slot: usize) -> Duration {
+        let entries = self.entries.get(slot).copied().unwrap_or(1).max(1);
+        let cycle = (self.attempt * self.list_len).max(self.fixed.unwrap_or_default());
+        let worst = cycle * self.factor / entries;
+        let step = Duration::from_millis(10);
+        let steps = worst.as_nanos().div_ceil(step.as_nanos());
+        step * u32::try_from(steps).unwrap_or(u32::MAX)
     }
 
     /// A pass through the circulating list took `took` (before any fixed-cycle wait).
@@ -149,6 +169,17 @@ mod tests {
             ms(600),
             "300 ms cycles, doubled by param_priority"
         );
+    }
+
+    #[test]
+    fn the_shortest_safe_telegram_off_time_covers_the_worst_cycle_and_a_poll() {
+        let list: Vec<u8> = (0..31).collect();
+        let p = Periods::new(&list, 31, setup());
+        // 31 attempts of 60 ms.
+        assert_eq!(p.shortest_monitoring(5), ms(1860));
+        let weighted = Periods::new(&[0, 1, 0, 2], 3, setup());
+        assert_eq!(weighted.shortest_monitoring(0), ms(120));
+        assert_eq!(weighted.shortest_monitoring(1), ms(240));
     }
 
     #[test]

@@ -98,6 +98,9 @@ pub struct DriveStatus {
     /// (`crate::engine::period`); set before each [`crate::engine::Bridge::after_poll`].
     pub period: Duration,
     pub stale_after: Duration,
+    /// The shortest telegram-off time that does not trip the drive between two of its polls
+    /// (`crate::engine::period::Periods::shortest_monitoring`).
+    pub monitoring_min: Duration,
     pub counters: DriveCounters,
 }
 
@@ -125,6 +128,7 @@ impl DriveStatus {
             reference: Reference::Unknown,
             period: Duration::ZERO,
             stale_after: Duration::ZERO,
+            monitoring_min: Duration::ZERO,
             counters: DriveCounters::default(),
         }
     }

@@ -189,6 +189,8 @@ pub struct DriveRow {
     pub monitoring: &'static str,
     /// Its telegram-off time in ms (0: off or not read).
     pub monitoring_ms: u32,
+    /// The shortest telegram-off time that does not trip it between two of its polls, ms.
+    pub monitoring_min_ms: u32,
     /// The process in the controller's latest sample; null before any.
     pub controller_pid: Option<u32>,
     pub last_error: &'static str,
@@ -217,6 +219,7 @@ impl DriveRow {
             control: ControlReport::of_diag(d),
             monitoring: d.monitoring().map_or("unknown", Monitoring::name),
             monitoring_ms: d.monitoring_ms,
+            monitoring_min_ms: d.monitoring_min_ms,
             controller_pid: (d.controller_pid != 0).then_some(d.controller_pid),
             last_error: last_failure(d),
             period_ms: (d.period_ns != 0).then(|| d.period_ns as f64 / 1e6),
@@ -231,6 +234,10 @@ impl DriveRow {
             "off" => Some(format!(
                 "drive {}: telegram monitoring is OFF: if ussd or its line dies, nothing stops this drive; set its telegram-off time (MICROMASTER 4: P2014.1, G120: p2040), e.g. 100 ms",
                 self.address
+            )),
+            "shorter than the poll period" => Some(format!(
+                "drive {}: telegram monitoring is {} ms, shorter than the time between two polls of it on this bus (up to {} ms): it trips (F0072) between polls; set P2014.1 (G120: p2040) to at least {} ms, or poll it more often",
+                self.address, self.monitoring_ms, self.monitoring_min_ms, self.monitoring_min_ms
             )),
             "longer than the limit" => Some(format!(
                 "drive {}: telegram monitoring is {} ms, longer than monitoring_max_ms: after ussd or its line dies it runs on for that long",

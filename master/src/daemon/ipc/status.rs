@@ -319,6 +319,7 @@ impl StatusPublisher {
                 response_delay_ns: quantiles(&h.response_delay),
                 period_ns: as_ns(d.period),
                 stale_after_ns: as_ns(d.stale_after),
+                monitoring_min_ms: u32::try_from(d.monitoring_min.as_millis()).unwrap_or(u32::MAX),
                 ..DriveDiag::new(d.address.get())
             });
         }
