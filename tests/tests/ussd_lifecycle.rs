@@ -207,3 +207,53 @@ fn a_short_offline_blip_is_reported_and_the_controller_carries_on() {
         (0, true)
     );
 }
+
+/// ussd's log goes to a reader that stopped reading (a full pipe, a stalled journald): ussd
+/// serves on, its heartbeat goes on, and an operator's stop works. Logging never blocks the
+/// heartbeat (on main before issue 21 the housekeeping thread blocked on the full pipe, the
+/// heartbeat stopped, and every client, stops included, was told "ussd is gone").
+#[test]
+#[should_panic(expected = "Gone")] // reproduction: fails on main until the fix
+fn a_blocked_log_reader_neither_stops_the_heartbeat_nor_the_stops() {
+    let _serial = serial();
+    let bus = format!("blk{}", std::process::id());
+    let config = std::env::temp_dir().join(format!("ussd-{bus}.toml"));
+    std::fs::write(
+        &config,
+        format!(
+            "[[bus]]\nname = \"{bus}\"\ndevice = \"sim\"\n\n[[bus.drive]]\naddress = 1\n\n[[bus.drive]]\naddress = 2\n"
+        ),
+    )
+    .unwrap();
+    // Every telegram logged (trace): the 64 KiB pipe is full within a second, and nobody
+    // reads it.
+    let mut ussd = std::process::Command::new(uss_integration_tests::binary("uss-master", "ussd"))
+        .arg("--config")
+        .arg(&config)
+        .env("RUST_LOG", "trace")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let _unread = ussd.stdout.take();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let opened = loop {
+        match uss_client::Bus::open(&bus) {
+            Ok(b) => break b,
+            Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(50)),
+            Err(e) => panic!("{e}"),
+        }
+    };
+    // Long past the pipe filling up.
+    std::thread::sleep(Duration::from_secs(3));
+    let health = opened.health();
+    assert!(health.is_serving(), "{health:?}");
+    opened.stop_drive(2, uss_client::StopCommand::Off2).unwrap();
+    let i = opened
+        .wait_stopped(2, uss_client::StopCommand::Off2, None)
+        .unwrap();
+    assert_eq!(i.sent_stw1, 0x047C);
+    let _ = ussd.kill();
+    let _ = ussd.wait();
+    let _ = std::fs::remove_file(config);
+}
