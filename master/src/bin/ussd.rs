@@ -9,6 +9,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use uss_master::config::{Config, ConfigError};
+
+/// Log lines held for stdout while it does not take them; beyond, lines are dropped (counted).
+const LOG_LINES_BUFFERED: usize = 16_384;
 use uss_master::daemon::runtime::{self, RunOptions, RunningBus};
 use uss_master::daemon::supervise::{Change, Notifier, Progress};
 
@@ -126,22 +129,39 @@ fn main() -> ExitCode {
             }
         };
     }
+    // The log never blocks a thread that logs: a worker writes stdout, and lines that do not
+    // fit its buffer while stdout is stuck (a full pipe, a stalled journald) are dropped and
+    // counted, so the heartbeat and the stops go on (issue 21).
+    let (writer, flush_at_exit) = tracing_appender::non_blocking::NonBlockingBuilder::default()
+        .lossy(true)
+        .buffered_lines_limit(LOG_LINES_BUFFERED)
+        .thread_name("ussd-log")
+        .finish(std::io::stdout());
+    let dropped = writer.error_counter();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
-        .with_writer(std::io::stdout)
+        .with_writer(writer)
         .with_ansi(false)
         .init();
-    match run(&cli) {
+    let code = match run(&cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(failure) => {
             tracing::error!("{failure}");
             eprintln!("ussd: {failure}");
             ExitCode::from(failure.exit_code())
         }
+    };
+    if dropped.dropped_lines() > 0 {
+        eprintln!(
+            "ussd: {} log lines were dropped while stdout could not take them",
+            dropped.dropped_lines()
+        );
     }
+    drop(flush_at_exit);
+    code
 }
 
 /// No `--config`: the embedded default (one simulated bus), on bus `bus`.
