@@ -1,14 +1,17 @@
 //! Operator stop commands (OFF1, OFF2, OFF3) for one drive or a whole bus, from any process,
-//! through ussd's `command` service. They override the drive's controller and latch: the drive
-//! gets the command until its controller re-arms it (OFF1, then ON), and the controller's next
-//! call fails with [`ClientError::Tripped`].
+//! through ussd's stop socket ([`uss_shm_types::names::stop_socket`]): a path of their own,
+//! with no iceoryx2 port to run out of and no heartbeat to depend on. They override the drive's
+//! controller and latch: the drive gets the command until its controller re-arms it (OFF1,
+//! then ON), and the controller's next call fails with [`ClientError::Tripped`].
 
-use crate::request::{NoAnswer, client, round_trip};
 use crate::{Bus, ClientError};
 use core::time::Duration;
+use std::io::{ErrorKind, Read as _, Write as _};
+use std::os::unix::net::UnixStream;
 use uss_shm_types::names;
 use uss_shm_types::{
-    ALL_DRIVES, CommandError, DriveAddress, LatchReason, OperatorRequest, PzdInput, StopCommand,
+    ALL_DRIVES, CommandError, DriveAddress, LatchReason, OPERATOR_RESPONSE_BYTES, OperatorRequest,
+    OperatorResponse, PzdInput, StopCommand,
 };
 
 /// How long ussd may take to answer an operator command.
@@ -16,12 +19,17 @@ const COMMAND_TIMEOUT: Duration = Duration::from_secs(2);
 
 impl Bus {
     /// Stops drive `address` with `command` (OFF1 ramp, OFF2 coast, OFF3 quick stop), whoever
-    /// controls it. Returns once ussd has handed the command to the bus thread, which applies
-    /// it at the drive's next poll; [`Bus::wait_stopped`] waits for that.
+    /// controls it. Returns once ussd has handed the command to the bus thread, which sends it
+    /// in its next telegram; [`Bus::wait_stopped`] waits until the drive's image shows it.
     pub fn stop_drive(&self, address: u8, command: StopCommand) -> Result<(), ClientError> {
         DriveAddress::new(address)?;
-        self.known(address)?;
-        self.operator(address, command).map(|_| ())
+        match self.operator(address, command) {
+            Err(ClientError::CommandRefused {
+                error: CommandError::UnknownDrive,
+                ..
+            }) => Err(self.unknown_drive(address)),
+            other => other.map(|_| ()),
+        }
     }
 
     /// Stops every drive of the bus with `command`; returns their addresses.
@@ -55,36 +63,73 @@ impl Bus {
     }
 
     fn operator(&self, address: u8, command: StopCommand) -> Result<Vec<u8>, ClientError> {
-        let services = self.link().check()?;
-        let name = names::command(&services.instance);
-        let client = client(self.link(), &services, &services.commands, &name)?;
-        let answer = round_trip(
-            client,
-            OperatorRequest::new(address, command),
-            COMMAND_TIMEOUT,
-        )?;
-        let response = match answer {
-            Ok(r) => r,
-            Err(NoAnswer::NotRunning | NoAnswer::Dropped) => {
-                return Err(ClientError::NotRunning {
-                    bus: self.name().to_owned(),
-                });
-            }
-            Err(NoAnswer::Timeout) => {
-                return Err(ClientError::ipc(
-                    "waiting for ussd's answer to a stop command",
-                    format!("no answer within {COMMAND_TIMEOUT:?}"),
-                ));
-            }
-        };
-        uss_shm_types::check_version(response.version)?;
-        match response.error() {
-            Ok(CommandError::Ok) => Ok(response.addresses().collect()),
-            Ok(error) => Err(ClientError::CommandRefused {
-                bus: self.name().to_owned(),
-                error,
-            }),
-            Err(e) => Err(uss_shm_types::ContractError::from(e).into()),
+        send_stop(&self.link().name, address, command)
+    }
+}
+
+/// Stops drive `address` (`None`: every drive) of bus `bus` with `command`, whoever controls
+/// it, through ussd's stop socket alone: no [`Bus`] is opened, so neither the heartbeat nor the
+/// services' port limits (many clients at once) stand in the way. Returns the drives that got
+/// it; the bus thread sends it in its next telegram, latched. What a tool calls first when the
+/// machine must stop; [`Bus::wait_stopped`] confirms it where the images can be read.
+pub fn stop(bus: &str, address: Option<u8>, command: StopCommand) -> Result<Vec<u8>, ClientError> {
+    let name = uss_shm_types::BusName::new(bus)?;
+    if let Some(a) = address {
+        DriveAddress::new(a)?;
+    }
+    send_stop(&name, address.unwrap_or(ALL_DRIVES), command)
+}
+
+/// One request on bus `bus`'s stop socket and its answer.
+fn send_stop(
+    bus: &uss_shm_types::BusName,
+    address: u8,
+    command: StopCommand,
+) -> Result<Vec<u8>, ClientError> {
+    // Who may reach ussd: the root's access rules, said as for every other path.
+    crate::open::iceoryx_config(bus.as_str())?;
+    let path = names::stop_socket(bus);
+    let not_running = || ClientError::NotRunning {
+        bus: bus.as_str().to_owned(),
+    };
+    let mut stream = match UnixStream::connect(&path) {
+        Ok(s) => s,
+        Err(e) if matches!(e.kind(), ErrorKind::NotFound | ErrorKind::ConnectionRefused) => {
+            return Err(not_running());
         }
+        Err(e) => return Err(ClientError::ipc("connecting to ussd's stop socket", e)),
+    };
+    let failed = |e: std::io::Error| {
+        if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) {
+            ClientError::ipc(
+                "waiting for ussd's answer to a stop command",
+                format!("no answer within {COMMAND_TIMEOUT:?}"),
+            )
+        } else {
+            ClientError::ipc("a stop command on ussd's stop socket", e)
+        }
+    };
+    stream
+        .set_read_timeout(Some(COMMAND_TIMEOUT))
+        .and_then(|()| stream.set_write_timeout(Some(COMMAND_TIMEOUT)))
+        .and_then(|()| stream.write_all(&OperatorRequest::new(address, command).to_bytes()))
+        .map_err(failed)?;
+    let mut bytes = [0u8; OPERATOR_RESPONSE_BYTES];
+    match stream.read_exact(&mut bytes) {
+        Ok(()) => {}
+        // ussd ended between taking the connection and answering.
+        Err(e) if e.kind() == ErrorKind::UnexpectedEof => return Err(not_running()),
+        Err(e) => return Err(failed(e)),
+    }
+    let response = OperatorResponse::from_bytes(&bytes)
+        .ok_or_else(|| ClientError::ipc("ussd's answer to a stop command", "bad length"))?;
+    uss_shm_types::check_version(response.version)?;
+    match response.error() {
+        Ok(CommandError::Ok) => Ok(response.addresses().collect()),
+        Ok(error) => Err(ClientError::CommandRefused {
+            bus: bus.as_str().to_owned(),
+            error,
+        }),
+        Err(e) => Err(uss_shm_types::ContractError::from(e).into()),
     }
 }

@@ -113,9 +113,7 @@ pub enum ClientError {
     #[error(transparent)]
     Contract(#[from] ContractError),
     /// An iceoryx2 call failed for another reason.
-    #[error(
-        "{what} failed: {detail}: run ussd and this program as the same user (or root), or in ussd's access_group: iceoryx2 keeps its state in /dev/shm/uss-rt"
-    )]
+    #[error("{what} failed: {detail}: {}", ipc_hint(detail))]
     Ipc { what: String, detail: String },
     /// No heartbeat from ussd for longer than `uss_shm_types::names::GONE_AFTER_NS`: it died
     /// or hangs. Images are stale (they show the drives offline). The bus reconnects by itself
@@ -433,6 +431,15 @@ fn refusal_hint(error: RequestError) -> &'static str {
         | RequestError::PnuOutOfRange
         | RequestError::BadTask
         | RequestError::BadStorage => "",
+    }
+}
+
+/// What to do about a failed iceoryx2 call, by what iceoryx2 said.
+fn ipc_hint(detail: &str) -> &'static str {
+    if detail.contains("ExceedsMax") {
+        "the bus's services admit no more ports of this kind (too many clients at once): close some; stops take their own path and are never refused for this"
+    } else {
+        "run ussd and this program as the same user (or root), or in ussd's access_group: iceoryx2 keeps its state in /dev/shm/uss-rt"
     }
 }
 

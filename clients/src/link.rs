@@ -21,9 +21,6 @@ use uss_shm_types::{
 pub(crate) type ParamClient =
     crate::request::Requester<uss_shm_types::ParamRequest, uss_shm_types::ParamResponse>;
 
-pub(crate) type CommandClient =
-    crate::request::Requester<uss_shm_types::OperatorRequest, uss_shm_types::OperatorResponse>;
-
 /// What the bus's heartbeat says of ussd. Time stamps are `CLOCK_MONOTONIC` ns.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Health {
@@ -128,8 +125,7 @@ pub(crate) struct Services {
     pub(crate) diag_service: Blackboard<Ipc, BlackboardKey>,
     pub(crate) diag: Reader<Ipc, BlackboardKey>,
     pub(crate) params: OnceLock<ParamClient>,
-    pub(crate) commands: OnceLock<CommandClient>,
-    /// The request and answer events both requesters use.
+    /// The request and answer events of the parameter requester.
     pub(crate) events: OnceLock<Arc<crate::request::RequestEvents>>,
 }
 
@@ -169,7 +165,6 @@ impl Services {
             diag_service,
             diag,
             params: OnceLock::new(),
-            commands: OnceLock::new(),
             events: OnceLock::new(),
         })
     }

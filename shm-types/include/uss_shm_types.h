@@ -55,13 +55,13 @@
 #define USS_SERVICE_CYCLE "uss/%s/%016llx/cycle"
 /** request-response, UssParamRequest -> UssParamResponse. */
 #define USS_SERVICE_PARAMS "uss/%s/%016llx/params"
-/** request-response, UssOperatorRequest -> UssOperatorResponse (operator stop commands). */
-#define USS_SERVICE_COMMAND "uss/%s/%016llx/command"
+/** Unix stream socket in the service root (/dev/shm/uss-rt, or $USS_RT_SHM): operator stops, one UssOperatorRequest (8 bytes, version little-endian) in, one UssOperatorResponse (12 bytes, little-endian) out. */
+#define USS_STOP_SOCKET "%s.stop"
 /** publish-subscribe, UssTelegramRecord: every telegram of the bus (ussd publishes). */
 #define USS_SERVICE_CAPTURE "uss/%s/%016llx/capture"
-/** event: notify USS_REQUEST_SENT after sending on params or command (else ussd finds the request within USS_REQUEST_POLL_NS). */
+/** event: notify USS_REQUEST_SENT after sending on params (else ussd finds the request within USS_REQUEST_POLL_NS). */
 #define USS_SERVICE_REQUESTS "uss/%s/%016llx/requests"
-/** event: ussd notifies USS_ANSWER_SENT after each answer on params and command. */
+/** event: ussd notifies USS_ANSWER_SENT after each answer on params. */
 #define USS_SERVICE_ANSWERS "uss/%s/%016llx/answers"
 /** ussd's node name for a bus. */
 #define USS_USSD_NODE "ussd-%s"
@@ -88,6 +88,16 @@
  * `address` of an [`OperatorRequest`] for every drive of the bus.
  */
 #define USS_ALL_DRIVES UINT8_MAX
+
+/**
+ * Bytes of an [`OperatorRequest`] on the stop socket.
+ */
+#define USS_OPERATOR_REQUEST_BYTES 8
+
+/**
+ * Bytes of an [`OperatorResponse`] on the stop socket.
+ */
+#define USS_OPERATOR_RESPONSE_BYTES 12
 
 /**
  * `last_good_ns` of a drive that never replied.

@@ -162,6 +162,11 @@ pub struct OperatorRequest {
     pub reserved: [u8; 2],
 }
 
+/// Bytes of an [`OperatorRequest`] on the stop socket.
+pub const OPERATOR_REQUEST_BYTES: usize = 8;
+/// Bytes of an [`OperatorResponse`] on the stop socket.
+pub const OPERATOR_RESPONSE_BYTES: usize = 12;
+
 /// The one answer to an [`OperatorRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
@@ -187,6 +192,27 @@ impl OperatorRequest {
             command: command.code(),
             reserved: [0; 2],
         }
+    }
+
+    /// Its bytes on the stop socket ([`crate::names::stop_socket`]): version (little-endian),
+    /// address, command, two reserved bytes.
+    pub fn to_bytes(&self) -> [u8; OPERATOR_REQUEST_BYTES] {
+        let v = self.version.to_le_bytes();
+        [v[0], v[1], v[2], v[3], self.address, self.command, 0, 0]
+    }
+
+    /// A request read from the stop socket; `None` unless exactly
+    /// [`OPERATOR_REQUEST_BYTES`] arrived ([`OperatorRequest::validate`] judges the rest).
+    pub fn from_bytes(b: &[u8]) -> Option<Self> {
+        let &[v0, v1, v2, v3, address, command, r0, r1] = b else {
+            return None;
+        };
+        Some(Self {
+            version: u32::from_le_bytes([v0, v1, v2, v3]),
+            address,
+            command,
+            reserved: [r0, r1],
+        })
     }
 
     /// Checks version and command; returns the command.
@@ -226,6 +252,41 @@ impl OperatorResponse {
         CommandError::try_from(self.error)
     }
 
+    /// Its bytes on the stop socket: version and drives little-endian.
+    pub fn to_bytes(&self) -> [u8; OPERATOR_RESPONSE_BYTES] {
+        let v = self.version.to_le_bytes();
+        let d = self.drives.to_le_bytes();
+        [
+            v[0],
+            v[1],
+            v[2],
+            v[3],
+            self.error,
+            self.command,
+            0,
+            0,
+            d[0],
+            d[1],
+            d[2],
+            d[3],
+        ]
+    }
+
+    /// An answer read from the stop socket; `None` unless exactly
+    /// [`OPERATOR_RESPONSE_BYTES`] arrived.
+    pub fn from_bytes(b: &[u8]) -> Option<Self> {
+        let &[v0, v1, v2, v3, error, command, r0, r1, d0, d1, d2, d3] = b else {
+            return None;
+        };
+        Some(Self {
+            version: u32::from_le_bytes([v0, v1, v2, v3]),
+            error,
+            command,
+            reserved: [r0, r1],
+            drives: u32::from_le_bytes([d0, d1, d2, d3]),
+        })
+    }
+
     /// The addresses that got the command, ascending.
     pub fn addresses(&self) -> impl Iterator<Item = u8> + '_ {
         (0..32u8).filter(|a| self.drives & (1 << a) != 0)
@@ -246,6 +307,29 @@ mod tests {
         assert_eq!(StopCommand::None.stw1(), None);
         assert!(StopCommand::Off2.strength() > StopCommand::Off3.strength());
         assert!(StopCommand::Off3.strength() > StopCommand::Off1.strength());
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn stop_socket_bytes_read_back_and_any_other_length_is_refused(
+            bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..32)
+        ) {
+            // Read back as written (the reserved bytes are written as zeros).
+            let request = OperatorRequest::from_bytes(&bytes);
+            proptest::prop_assert_eq!(request.is_some(), bytes.len() == OPERATOR_REQUEST_BYTES);
+            if let Some(r) = request {
+                let mut again = r.to_bytes();
+                again[6..].copy_from_slice(&bytes[6..]);
+                proptest::prop_assert_eq!(&again[..], &bytes[..]);
+            }
+            let response = OperatorResponse::from_bytes(&bytes);
+            proptest::prop_assert_eq!(response.is_some(), bytes.len() == OPERATOR_RESPONSE_BYTES);
+            if let Some(r) = response {
+                let mut again = r.to_bytes();
+                again[6..8].copy_from_slice(&bytes[6..8]);
+                proptest::prop_assert_eq!(&again[..], &bytes[..]);
+            }
+        }
     }
 
     #[test]

@@ -249,9 +249,12 @@ pub fn params(i: &Instance) -> ServiceName {
     i.service("params")
 }
 
-/// Operator stop commands (OFF1, OFF2, OFF3 for one drive or all), open to every process.
-pub fn command(i: &Instance) -> ServiceName {
-    i.service("command")
+/// The bus's stop socket: a Unix stream socket below the service root
+/// ([`crate::service::root`], so the same access rules hold) where ussd takes operator stops
+/// ([`crate::OperatorRequest`], answered by an [`crate::OperatorResponse`]) on a path of their own:
+/// first, with no iceoryx2 port to run out of and no heartbeat to depend on.
+pub fn stop_socket(bus: &BusName) -> std::path::PathBuf {
+    crate::service::root().join(format!("{}.stop", bus.as_str()))
 }
 
 /// Every telegram of the bus, as ussd's bus thread sent and received it.
@@ -329,7 +332,6 @@ mod tests {
         assert_eq!(status(&i).as_str(), format!("uss/line-1_A/{g}/status"));
         assert_eq!(cycle(&i).as_str(), format!("uss/line-1_A/{g}/cycle"));
         assert_eq!(params(&i).as_str(), format!("uss/line-1_A/{g}/params"));
-        assert_eq!(command(&i).as_str(), format!("uss/line-1_A/{g}/command"));
         assert_eq!(ussd_node(&b).as_str(), "ussd-line-1_A");
         let longest = Instance::new(bus(&"x".repeat(32)), Generation(u64::MAX));
         assert!(drive_out(&longest, a).as_str().len() < 255);

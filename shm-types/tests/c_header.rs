@@ -227,10 +227,17 @@ fn services() -> [Service; 13] {
             |i, _| names::params(i).as_str().into(),
         ),
         s(
-            "SERVICE_COMMAND",
-            Scope::Instance,
-            "request-response, UssOperatorRequest -> UssOperatorResponse (operator stop commands).",
-            |i, _| names::command(i).as_str().into(),
+            "STOP_SOCKET",
+            Scope::Bus,
+            "Unix stream socket in the service root (/dev/shm/uss-rt, or $USS_RT_SHM): operator \
+             stops, one UssOperatorRequest (8 bytes, version little-endian) in, one \
+             UssOperatorResponse (12 bytes, little-endian) out.",
+            |i, _| {
+                names::stop_socket(&i.bus)
+                    .file_name()
+                    .map(|f| f.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            },
         ),
         s(
             "SERVICE_CAPTURE",
@@ -241,14 +248,14 @@ fn services() -> [Service; 13] {
         s(
             "SERVICE_REQUESTS",
             Scope::Instance,
-            "event: notify USS_REQUEST_SENT after sending on params or command (else ussd \
-             finds the request within USS_REQUEST_POLL_NS).",
+            "event: notify USS_REQUEST_SENT after sending on params (else ussd finds the \
+             request within USS_REQUEST_POLL_NS).",
             |i, _| names::requests(i).as_str().into(),
         ),
         s(
             "SERVICE_ANSWERS",
             Scope::Instance,
-            "event: ussd notifies USS_ANSWER_SENT after each answer on params and command.",
+            "event: ussd notifies USS_ANSWER_SENT after each answer on params.",
             |i, _| names::answers(i).as_str().into(),
         ),
         s(

@@ -256,3 +256,37 @@ fn a_blocked_log_reader_neither_stops_the_heartbeat_nor_the_stops() {
     let _ = ussd.wait();
     let _ = std::fs::remove_file(config);
 }
+
+/// 64 `ussctl watch` processes use up what the bus's services admit: a stop still goes through,
+/// first, and is confirmed (stops take their own path and are never refused for resources).
+#[test]
+fn a_stop_is_never_refused_for_resources_with_64_watchers() {
+    let _serial = serial();
+    let ussd = Ussd::start("", DRIVES);
+    let mut watchers: Vec<_> = (0..64)
+        .map(|_| ussd.ussctl(&["watch", "1", "--interval", "200"]))
+        .collect();
+    for w in &mut watchers {
+        w.says("drive  1");
+    }
+    let mut stop = ussd.ussctl(&["coast", "2"]);
+    let (status, out, err) = stop.finish();
+    assert!(status.success(), "{out}{err}");
+    println!("ussctl coast 2 with 64 watchers: {}", out.trim());
+    assert!(out.starts_with("drive 2: OFF2"), "{out}");
+    // The stop stands: the drive got OFF2 (read once the watchers are gone).
+    drop(watchers);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let bus = loop {
+        match uss_client::Bus::open(&ussd.bus) {
+            Ok(b) => break b,
+            Err(e) => assert!(Instant::now() < deadline, "{e}"),
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let i = bus.watch(2).unwrap().latest();
+    assert_eq!(
+        (i.sent_stw1, i.latch_reason),
+        (0x047C, uss_client::LatchReason::Override.code())
+    );
+}

@@ -112,6 +112,16 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     if let Some(done) = run_without_bus(cli) {
         return done;
     }
+    // A stop goes out before anything else, on its own path: it needs no open bus.
+    let stop = match &cli.command {
+        Command::Stop(target) => Some((*target, StopCommand::Off1)),
+        Command::Coast(target) => Some((*target, StopCommand::Off2)),
+        Command::QuickStop(target) => Some((*target, StopCommand::Off3)),
+        _ => None,
+    };
+    if let Some((target, command)) = stop {
+        return commands::stop::stop(&cli.bus, &Output { json: cli.json }, target, command);
+    }
     let mut bus = Bus::open_as(&cli.bus, "ussctl")?;
     if let Some(t) = cli.timeout {
         let t = Duration::try_from_secs_f64(t)
@@ -172,13 +182,16 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             hz,
             duration,
         } => commands::run::run_drive(&bus, &out, *drive, *hz, *duration),
-        Command::Stop(target) => commands::stop::stop(&bus, &out, *target, StopCommand::Off1),
-        Command::Coast(target) => commands::stop::stop(&bus, &out, *target, StopCommand::Off2),
-        Command::QuickStop(target) => commands::stop::stop(&bus, &out, *target, StopCommand::Off3),
         Command::Ack { drive } => commands::ack::ack(&bus, &out, *drive),
         Command::Faults { drive } => commands::param::faults(&bus, &out, *drive),
         Command::Stats => commands::status::stats(&bus, &out),
-        Command::Scan { .. } | Command::Completions { .. } | Command::Man | Command::Top { .. } => {
+        Command::Scan { .. }
+        | Command::Completions { .. }
+        | Command::Man
+        | Command::Top { .. }
+        | Command::Stop(_)
+        | Command::Coast(_)
+        | Command::QuickStop(_) => {
             unreachable!("handled before the bus is opened")
         }
     }

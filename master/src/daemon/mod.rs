@@ -6,5 +6,6 @@ pub mod housekeeping;
 pub mod ipc;
 pub mod rt;
 pub mod runtime;
+pub mod stops;
 pub mod summary;
 pub mod supervise;

@@ -145,6 +145,8 @@ pub struct RunningBus {
     /// Reopens a serial line that failed (none for a simulated bus).
     line_thread: Option<JoinHandle<()>>,
     housekeeping: JoinHandle<()>,
+    /// Operator stops on a path of their own (`crate::daemon::stops`).
+    _stops: super::stops::StopSocket,
     /// The bus's iceoryx2 node: dropped last, after every thread using its ports.
     node: crate::daemon::ipc::IpcNode,
 }
@@ -551,6 +553,19 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             bus: s.bus.name.clone(),
             source,
         })?;
+        let stops = uss_shm_types::BusName::new(&s.bus.name)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()))
+            .and_then(|name| {
+                super::stops::StopSocket::serve(
+                    &uss_shm_types::names::stop_socket(&name),
+                    &s.bus.name,
+                    s.handle.clone(),
+                )
+            })
+            .map_err(|source| StartError::Spawn {
+                bus: s.bus.name.clone(),
+                source,
+            })?;
         running.push(RunningBus {
             name: s.bus.name.clone(),
             handle: s.handle,
@@ -560,6 +575,7 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             params_thread: s.params_thread,
             line_thread: s.line_thread,
             housekeeping,
+            _stops: stops,
             node: s.node,
         });
     }

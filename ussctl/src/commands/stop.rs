@@ -3,34 +3,43 @@
 use crate::cli::Target;
 use crate::report::StopReport;
 use crate::{Failure, Output};
-use uss_client::{Bus, StopCommand};
+use uss_client::{Bus, ClientError, StopCommand};
 
-/// `stop`, `coast`, `quick-stop`: the operator's command through ussd, whoever controls the
-/// drive; waits until each drive's image shows it went out, as long as ussd says the drive's
-/// next poll may take (an offline drive's next probe).
+/// `stop`, `coast`, `quick-stop`: the operator's command through ussd's stop socket first (no
+/// open bus needed: neither the heartbeat nor the services' port limits stand in its way),
+/// whoever controls the drive; then waits until each drive's image shows it went out, as long
+/// as ussd says the drive's next poll may take. Where this process cannot read the images (the
+/// services admit no more readers), the stop stands and the report says it is unconfirmed.
 pub(crate) fn stop(
-    bus: &Bus,
+    bus_name: &str,
     out: &Output,
     target: Target,
     command: StopCommand,
 ) -> Result<(), Failure> {
-    let drives = match target.drive {
-        Some(drive) => {
-            bus.stop_drive(drive, command)?;
-            vec![drive]
+    let drives = uss_client::stop(bus_name, target.drive, command)?;
+    let mut report = StopReport::new(bus_name, command);
+    let bus = match Bus::open_as(bus_name, "ussctl") {
+        Ok(bus) => Some(bus),
+        Err(e @ ClientError::Ipc { .. }) => {
+            report.unconfirmed(&drives, &e);
+            None
         }
-        None => bus.stop_all(command)?,
+        Err(e) => return Err(e.into()),
     };
-    let mut report = StopReport::new(bus.name(), command);
-    for drive in drives {
-        let last =
-            bus.wait_stopped(drive, command, None)
-                .map_err(|source| Failure::StopUnconfirmed {
-                    drive,
-                    command,
-                    source,
-                })?;
-        report.push(drive, &last);
+    if let Some(bus) = bus {
+        for drive in drives {
+            match bus.wait_stopped(drive, command, None) {
+                Ok(last) => report.push(drive, &last),
+                Err(e @ ClientError::Ipc { .. }) => report.unconfirmed(&[drive], &e),
+                Err(source) => {
+                    return Err(Failure::StopUnconfirmed {
+                        drive,
+                        command,
+                        source,
+                    });
+                }
+            }
+        }
     }
     out.show(&report, StopReport::human)
 }

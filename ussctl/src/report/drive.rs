@@ -302,6 +302,10 @@ pub struct StoppedDrive {
     /// STW1 of the telegram the image came with: the command that went out.
     pub sent_stw1: u16,
     pub control: ControlReport,
+    /// Whether the drive's image showed the command; when not, why this process could not
+    /// read it (the command stands: ussd took it).
+    pub confirmed: bool,
+    pub unconfirmed_because: Option<String>,
 }
 
 impl StopReport {
@@ -322,7 +326,25 @@ impl StopReport {
             zsw1: i.zsw1,
             sent_stw1: i.sent_stw1,
             control: ControlReport::of_input(i),
+            confirmed: true,
+            unconfirmed_because: None,
         });
+    }
+
+    /// Drives ussd took the command for whose images this process cannot read (`why`).
+    pub fn unconfirmed(&mut self, drives: &[u8], why: &uss_client::ClientError) {
+        for &drive in drives {
+            self.drives.push(StoppedDrive {
+                drive,
+                online: false,
+                state: "not read",
+                zsw1: 0,
+                sent_stw1: 0,
+                control: ControlReport::of_input(&PzdInput::EMPTY),
+                confirmed: false,
+                unconfirmed_because: Some(why.to_string()),
+            });
+        }
     }
 
     pub fn human(&self) -> String {
@@ -333,6 +355,14 @@ impl StopReport {
         };
         let mut out = String::new();
         for d in &self.drives {
+            if let Some(why) = &d.unconfirmed_because {
+                let _ = writeln!(
+                    out,
+                    "drive {}: {} taken by ussd, sent in its next telegram, latched until its controller re-arms it; not confirmed here: {why}",
+                    d.drive, self.command
+                );
+                continue;
+            }
             let _ = writeln!(
                 out,
                 "drive {}: {} sent (STW1 {:#06X}), {what}; now {} (ZSW1 {:#06X}); {} until its controller re-arms it (OFF1, then ON)",

@@ -23,12 +23,12 @@ use std::time::Instant;
 use uss_protocol::Address;
 use uss_shm_types::names;
 use uss_shm_types::{
-    ALL_DRIVES, CommandError, Instance, OperatorRequest, OperatorResponse, Outcome, ParamRequest,
-    ParamResponse, ParamResult, RequestError, TaskCode,
+    Instance, Outcome, ParamRequest, ParamResponse, ParamResult, RequestError, TaskCode,
 };
 
-/// Creates the parameter and command services of `bus` and their servers; `outs` are the
-/// drives' output services, asked who controls a drive.
+/// Creates the parameter service of `bus` and its server; `outs` are the drives' output
+/// services, asked who controls a drive. Operator stops take a path of their own
+/// (`crate::daemon::stops`).
 pub(super) fn create(
     node: &IpcNode,
     bus: &Instance,
@@ -36,7 +36,6 @@ pub(super) fn create(
     (outs, requests): (Vec<(Address, OutService)>, Listener<Svc>),
 ) -> Result<ParamServer, IpcError> {
     let (params, server) = serve(node, bus, &names::params(bus), attributes, "parameter")?;
-    let (commands, command_server) = serve(node, bus, &names::command(bus), attributes, "command")?;
     let answers = node
         .service_builder(&names::answers(bus))
         .event()
@@ -51,14 +50,12 @@ pub(super) fn create(
         .map_err(|e| fail(bus, "the answer notifier")(text(e)))?;
     Ok(ParamServer {
         server,
-        commands: command_server,
         requests,
         answers,
         answered: false,
         identities: Identities {
             config: node.config().clone(),
             params,
-            commands,
             outs,
         },
         pending: Vec::new(),
@@ -132,7 +129,6 @@ const REQUEST_POLL: Duration = Duration::from_nanos(names::REQUEST_POLL_NS);
 /// The parameter bridge's servers. See the module documentation.
 pub struct ParamServer {
     server: Server<Svc, ParamRequest, (), ParamResponse, ()>,
-    commands: Server<Svc, OperatorRequest, (), OperatorResponse, ()>,
     /// Clients' "request sent" and the bus thread's "result ready" events.
     requests: Listener<Svc>,
     /// "Answer sent", for waiting clients.
@@ -154,7 +150,6 @@ pub struct ParamServer {
 struct Identities {
     config: iceoryx2::config::Config,
     params: RequestResponseFactory<Svc, ParamRequest, (), ParamResponse, ()>,
-    commands: RequestResponseFactory<Svc, OperatorRequest, (), OperatorResponse, ()>,
     outs: Vec<(Address, OutService)>,
 }
 
@@ -205,19 +200,6 @@ impl Identities {
             CallbackProgression::Continue
         });
         listed.ok().map(|()| nodes)
-    }
-
-    /// The process that sent an operator command.
-    fn command_client(&self, origin: iceoryx2::identifiers::UniqueClientId) -> Option<u32> {
-        let mut node = None;
-        self.commands.dynamic_config().list_clients(|c| {
-            if c.client_id == origin {
-                node = Some(c.node_id);
-                return CallbackProgression::Stop;
-            }
-            CallbackProgression::Continue
-        });
-        node.and_then(|n| self.pid(&n))
     }
 
     /// The live process that holds the drive's `out` publisher (its controller), if any.
@@ -280,7 +262,6 @@ impl ParamServer {
         while let Ok(Some(active)) = self.server.receive() {
             self.accept(active, handle);
         }
-        self.serve_commands(handle);
         self.notify_answered();
         self.cancel_for_dead_clients(handle);
         if self.requests.timed_wait(|_| {}, wait).is_err() {
@@ -435,36 +416,6 @@ impl ParamServer {
         );
         response.controller_pid = controller;
         Some(response)
-    }
-
-    /// Answers operator commands: each goes to the bus thread at once (it applies it at the
-    /// drive's next poll, latched) and is answered with the drives it reached.
-    fn serve_commands(&mut self, handle: &EngineHandle) {
-        while let Ok(Some(active)) = self.commands.receive() {
-            let request = *active.payload();
-            let response = match request.validate() {
-                Err(e) => OperatorResponse::refused(request.command, e),
-                Ok(_) if handle.is_stopped() => {
-                    OperatorResponse::refused(request.command, CommandError::Shutdown)
-                }
-                Ok(command) => {
-                    let pid = self.identities.command_client(active.origin()).unwrap_or(0);
-                    let target = match request.address {
-                        ALL_DRIVES => Ok(None),
-                        a => Address::new(a).map(Some),
-                    };
-                    match target.map(|t| handle.stop_drive(t, command, pid)) {
-                        Ok(Ok(drives)) => OperatorResponse::done(command, drives),
-                        Ok(Err(_)) | Err(_) => {
-                            OperatorResponse::refused(request.command, CommandError::UnknownDrive)
-                        }
-                    }
-                }
-            };
-            // A client that died meanwhile cannot be answered; the command stands.
-            let _ = active.send_copy(response);
-            self.answered = true;
-        }
     }
 
     fn route(&mut self, r: &JobResult, handle: &EngineHandle) {

@@ -116,7 +116,7 @@ impl App {
         true
     }
 
-    /// Sends a confirmed stop through ussd's command service.
+    /// Sends a confirmed stop through ussd's stop socket.
     fn send(&mut self, p: Pending) {
         let screen = &self.screens[self.current];
         let outcome = screen.stop(p);
