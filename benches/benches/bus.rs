@@ -72,6 +72,7 @@ fn run_engine_spinning(
         mailbox_depth: 16,
         publish_every: Duration::from_millis(100),
         param_priority: false,
+        safety_first: true,
         capture,
         drives,
     };

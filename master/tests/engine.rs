@@ -77,6 +77,7 @@ fn bench_with(
         mailbox_depth: 16,
         publish_every: ms(100),
         param_priority: false,
+        safety_first: true,
         capture: false,
         drives: setups,
     };
@@ -1105,6 +1106,7 @@ fn a_failed_line_ends_every_job_and_the_restored_line_latches_every_drive() {
         mailbox_depth: 16,
         publish_every: ms(100),
         param_priority: false,
+        safety_first: true,
         capture: false,
         drives: vec![
             DriveSetup::new(addr(1), layout(PkwMode::Four, 2)),

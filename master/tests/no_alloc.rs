@@ -55,6 +55,7 @@ fn faulty_bus() -> (TestEngine, EngineHandle, Receiver<Event>) {
         echo: true,
         // The extra polls for parameter jobs allocate nothing either.
         param_priority: true,
+        safety_first: true,
         ..common::engine_config(timing, setups)
     };
     let wire = VirtualWire::new(bus, timing).with_echo(true);

@@ -78,6 +78,7 @@ fn bench_of(
         mailbox_depth: 16,
         publish_every: ms(100),
         param_priority: false,
+        safety_first: true,
         capture: false,
         drives: setups,
     };

@@ -72,6 +72,7 @@ fn start_engine(path: &str) -> (EngineHandle, BusThread) {
         mailbox_depth: 16,
         publish_every: Duration::from_millis(50),
         param_priority: false,
+        safety_first: true,
         capture: false,
         drives: vec![setup(1, PkwMode::Four, 2), setup(2, PkwMode::Variable, 4)],
     };

@@ -85,6 +85,7 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
         mailbox_depth: MAILBOX_DEPTH,
         publish_every: super::housekeeping::STATUS_EVERY,
         param_priority: bus.param_priority,
+        safety_first: true,
         capture: true,
         drives: bus
             .drives

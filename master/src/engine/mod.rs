@@ -112,6 +112,9 @@ impl DriveSetup {
 
 /// How the engine runs one bus.
 #[derive(Debug, Clone, PartialEq)]
+// Four independent switches of the configuration (echo, parameter priority, safety first,
+// capture), not the states of one machine.
+#[allow(clippy::struct_excessive_bools)]
 pub struct EngineConfig {
     pub timing: Timing,
     /// Limit for the reply's STX after our BCC (20 ms by USS.md section 4, plus any margin).
@@ -135,6 +138,11 @@ pub struct EngineConfig {
     /// circulating list, so the job does not wait a whole cycle for its drive's turn; at most one
     /// extra poll follows each regular one, so no other drive's poll period more than doubles.
     pub param_priority: bool,
+    /// Safety telegrams jump the queue (`engine::turns`): before every telegram every drive is
+    /// looked at, a stop, a trip or a re-arm goes out in the next telegram, a stop of every
+    /// drive as a broadcast. Always on in ussd; `false` only measures what it buys (the
+    /// `safety` benchmark): then a drive's words are decided at its turn alone.
+    pub safety_first: bool,
     /// Copy every telegram into the capture channel ([`EngineHandle::captures`]).
     pub capture: bool,
     pub drives: Vec<DriveSetup>,

@@ -46,6 +46,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// Looks at every drive now: its newest sample and operator command, judged by its gate;
     /// marks the drives due out of turn.
     pub(super) fn look(&mut self) {
+        if !self.cfg.safety_first {
+            return;
+        }
         let now = self.clock.now();
         let gap = now
             .saturating_sub(self.last_look)
@@ -117,6 +120,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// A stop of every drive: one broadcast per telegram shape (PKW request words, PZD words)
     /// of the drives that hear broadcasts, unless one of them has a stronger stop now.
     fn broadcast_stop_all(&mut self) -> Result<(), TransportError> {
+        if !self.cfg.safety_first {
+            return Ok(());
+        }
         let Some(command) = self.take_stop_all() else {
             return Ok(());
         };

@@ -67,6 +67,7 @@ pub fn engine_config(
         mailbox_depth: 8,
         publish_every: Duration::from_millis(20),
         param_priority: false,
+        safety_first: true,
         capture: true,
         drives,
     }

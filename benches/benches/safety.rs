@@ -1,0 +1,463 @@
+//! Safety latencies (issue 21), printed as figures measured in one run, before (a drive's words
+//! decided at its turn in the circulating list alone, `EngineConfig::safety_first = false`) and
+//! after (safety telegrams jump the queue, stops of every drive are broadcasts):
+//!
+//! 1. Stop latency: an operator's stop of a running drive, from the request to the start of
+//!    the first telegram to that drive with the stop word.
+//! 2. Trip latency: a controller that stops publishing, from its watchdog deadline (last
+//!    sample + `watchdog_ms`) to the start of the first telegram with the safe command.
+//! 3. Stop-all latency: a stop of every drive, from the request to the start of the first
+//!    telegram that carries it to the last drive (a broadcast reaches every drive at once).
+//!
+//! Each for 4, 16 and 31 drives at 9600, 19200 and 187500 baud, on the virtual clock against
+//! the simulated wire (every byte takes its wire time; the drives answer after 1 ms): the
+//! request comes at a uniformly random moment of the exchange in progress, after a random
+//! number of exchanges. p50 / p99 / max in exchanges (of the bus's median exchange) and in ms.
+//! 4. Through a real ussd (31 simulated drives at 9600 baud), the same stop latency with the
+//!    IPC: `uss_client::stop` from this process to the first telegram with the stop word, as
+//!    ussd's telegram capture timestamps it.
+//!
+//! `cargo bench -p uss-benches --bench safety` (`-- matrix` or `-- ussd` for one part).
+
+use rand::{Rng, SeedableRng};
+use std::fmt::Write as _;
+use std::time::{Duration, Instant};
+use uss_benches::Parts;
+use uss_drive_sim::{DriveConfig, SimBus, VirtualWire};
+use uss_master::{
+    Clock, DriveSetup, Engine, EngineConfig, EngineHandle, SimTransport, VirtualClock,
+};
+use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
+use uss_protocol::{Address, Baud, Timing};
+use uss_shm_types::{StopCommand, TelegramRecord};
+
+type Sim = Engine<SimTransport, VirtualClock>;
+
+const RUN: [u16; 2] = [0x047F, 0x2000];
+const OFF1: [u16; 2] = [0x047E, 0];
+const STOPS: usize = 100;
+const TRIPS: usize = 60;
+const STOP_ALLS: usize = 60;
+const WATCHDOG: Duration = Duration::from_millis(100);
+
+fn addr(a: u8) -> Address {
+    Address::new(a).expect("address")
+}
+
+/// One bus: drives 1..=n at `baud`, every telegram captured.
+struct Bus {
+    engine: Sim,
+    handle: EngineHandle,
+    n: u8,
+    /// Start and end of each exchange so far (bus time).
+    exchanges: Vec<Duration>,
+}
+
+impl Bus {
+    fn new(n: u8, baud: u32, safety_first: bool) -> Self {
+        let timing = Timing::new(Baud::new(baud).expect("baud"));
+        let layout = Layout::new(PkwMode::Four, PzdCount::new(2).expect("pzd"));
+        let mut sim = SimBus::new(5);
+        let mut drives = Vec::new();
+        for a in 1..=n {
+            sim.add(DriveConfig::new(addr(a), layout)).expect("unique");
+            drives.push(DriveSetup::new(addr(a), layout));
+        }
+        let config = EngineConfig {
+            timing,
+            response_timeout: Duration::from_millis(20),
+            retries: 2,
+            offline_after: 1,
+            offline_probe: Duration::from_millis(500),
+            cycle_time: None,
+            param_timeout: Duration::from_secs(2),
+            echo: false,
+            mailbox_depth: 16,
+            publish_every: Duration::from_millis(100),
+            param_priority: false,
+            safety_first,
+            capture: true,
+            drives,
+        };
+        let transport = SimTransport::new(VirtualWire::new(sim, timing));
+        let (engine, handle, _events) = Engine::new(config, transport, VirtualClock::new());
+        Self {
+            engine,
+            handle,
+            n,
+            exchanges: Vec::new(),
+        }
+    }
+
+    fn now(&self) -> Duration {
+        self.engine.clock().now()
+    }
+
+    /// One exchange; returns its start.
+    fn exchange(&mut self, outputs: &[(u8, [u16; 2])]) -> Duration {
+        for (a, w) in outputs {
+            self.handle.set_output(addr(*a), w).expect("output");
+        }
+        let start = self.now();
+        self.engine.poll_next().expect("virtual wire");
+        self.exchanges.push(self.now().saturating_sub(start));
+        start
+    }
+
+    /// Every drive armed, then the drives in `running` running; the capture emptied.
+    fn warm(&mut self, running: &[u8]) {
+        let armed: Vec<(u8, [u16; 2])> = (1..=self.n).map(|a| (a, OFF1)).collect();
+        while self.engine.stats().bus.cycles < 2 {
+            self.exchange(&armed);
+        }
+        let words = self.words(running);
+        let mut left = 4 * usize::from(self.n);
+        while left > 0 {
+            self.exchange(&words);
+            left -= 1;
+        }
+        while self.handle.captures().try_recv().is_ok() {}
+    }
+
+    /// Every drive's words: RUN for `running`, OFF1 for the rest.
+    fn words(&self, running: &[u8]) -> Vec<(u8, [u16; 2])> {
+        (1..=self.n)
+            .map(|a| (a, if running.contains(&a) { RUN } else { OFF1 }))
+            .collect()
+    }
+
+    /// The median exchange time so far.
+    fn exchange_time(&self) -> Duration {
+        let mut v = self.exchanges.clone();
+        v.sort_unstable();
+        v.get(v.len() / 2).copied().unwrap_or_default()
+    }
+}
+
+/// STW1 of a captured request, and whether it was a broadcast.
+fn stw1_of(r: &TelegramRecord) -> Option<(u16, bool)> {
+    let b = r.bytes();
+    (r.is_request() && b.len() >= 15)
+        .then(|| (u16::from_be_bytes([b[11], b[12]]), b[2] & 0x20 != 0))
+}
+
+/// Exchanges until every drive in `drives` got a telegram with STW1 `stw1` (a broadcast counts
+/// for all); the start of the last of those first telegrams.
+fn reached(bus: &mut Bus, drives: &[u8], stw1: u16, outputs: &[(u8, [u16; 2])]) -> Duration {
+    let mut first: Vec<Option<Duration>> = vec![None; drives.len()];
+    for _ in 0..(8 * usize::from(bus.n) + 200) {
+        bus.exchange(outputs);
+        while let Ok(r) = bus.handle.captures().try_recv() {
+            let Some((word, broadcast)) = stw1_of(&r) else {
+                continue;
+            };
+            if word != stw1 {
+                continue;
+            }
+            let at = Duration::from_nanos(r.start_ns);
+            for (i, &d) in drives.iter().enumerate() {
+                if first[i].is_none() && (broadcast || r.address == d) {
+                    first[i] = Some(at);
+                }
+            }
+        }
+        if first.iter().all(Option::is_some) {
+            return first.into_iter().flatten().max().unwrap_or_default();
+        }
+    }
+    panic!("drives {drives:?} never got {stw1:#06X}")
+}
+
+/// Latencies of one kind, in ms, with the bus's exchange time.
+struct Figures {
+    ms: Vec<f64>,
+    exchange_ms: f64,
+}
+
+impl Figures {
+    fn quantiles(&self) -> [f64; 3] {
+        let mut v = self.ms.clone();
+        v.sort_by(f64::total_cmp);
+        let at = |q: f64| v[((v.len() as f64 * q).ceil() as usize).clamp(1, v.len()) - 1];
+        [at(0.5), at(0.99), v[v.len() - 1]]
+    }
+
+    /// `p50 / p99 / max` in exchanges, then in ms.
+    fn show(&self) -> String {
+        let [a, b, c] = self.quantiles();
+        let x = self.exchange_ms;
+        format!(
+            "{:5.2} / {:5.2} / {:5.2} ex ({:6.1} / {:6.1} / {:6.1} ms)",
+            a / x,
+            b / x,
+            c / x,
+            a,
+            b,
+            c
+        )
+    }
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// The request comes at a uniform moment of the exchange that started at `start` and ended now.
+fn arrival(bus: &Bus, start: Duration, rng: &mut impl Rng) -> Duration {
+    let end = bus.now();
+    start + end.saturating_sub(start).mul_f64(rng.random::<f64>())
+}
+
+fn stop_latencies(n: u8, baud: u32, safety_first: bool, rng: &mut impl Rng) -> Figures {
+    let k = n / 2 + 1;
+    let mut out = Vec::new();
+    let mut exchange_ms = 0.0;
+    for _ in 0..STOPS {
+        let mut bus = Bus::new(n, baud, safety_first);
+        bus.warm(&[k]);
+        let words = bus.words(&[k]);
+        for _ in 0..rng.random_range(0..2 * usize::from(n)) {
+            bus.exchange(&words);
+        }
+        let start = bus.exchange(&words);
+        let asked = arrival(&bus, start, rng);
+        while bus.handle.captures().try_recv().is_ok() {}
+        bus.handle
+            .stop_drive(Some(addr(k)), StopCommand::Off1, 1)
+            .expect("stop");
+        let at = reached(&mut bus, &[k], OFF1[0], &words);
+        out.push(ms(at.saturating_sub(asked)));
+        exchange_ms = ms(bus.exchange_time());
+    }
+    Figures {
+        ms: out,
+        exchange_ms,
+    }
+}
+
+fn trip_latencies(n: u8, baud: u32, safety_first: bool, rng: &mut impl Rng) -> Figures {
+    let k = n / 2 + 1;
+    let mut out = Vec::new();
+    let mut exchange_ms = 0.0;
+    for _ in 0..TRIPS {
+        let mut bus = Bus::new(n, baud, safety_first);
+        bus.warm(&[k]);
+        let words = bus.words(&[k]);
+        for _ in 0..rng.random_range(0..2 * usize::from(n)) {
+            bus.exchange(&words);
+        }
+        // The controller's last sample, written at a random moment of the exchange in
+        // progress, then nothing more from it.
+        let start = bus.exchange(&words);
+        let written = arrival(&bus, start, rng);
+        let last = uss_shm_types::PzdOutput::from_words(
+            &RUN,
+            1 << 40,
+            u64::try_from(written.as_nanos()).expect("ns"),
+            1,
+        )
+        .expect("sample");
+        bus.handle.publish_sample(addr(k), last).expect("sample");
+        let deadline = written + WATCHDOG;
+        let others: Vec<(u8, [u16; 2])> = words.into_iter().filter(|&(a, _)| a != k).collect();
+        while bus.handle.captures().try_recv().is_ok() {}
+        let at = reached(&mut bus, &[k], OFF1[0], &others);
+        out.push(ms(at.saturating_sub(deadline)));
+        exchange_ms = ms(bus.exchange_time());
+    }
+    Figures {
+        ms: out,
+        exchange_ms,
+    }
+}
+
+fn stop_all_latencies(n: u8, baud: u32, safety_first: bool, rng: &mut impl Rng) -> Figures {
+    let all: Vec<u8> = (1..=n).collect();
+    let mut out = Vec::new();
+    let mut exchange_ms = 0.0;
+    for _ in 0..STOP_ALLS {
+        let mut bus = Bus::new(n, baud, safety_first);
+        bus.warm(&all);
+        let words = bus.words(&all);
+        for _ in 0..rng.random_range(0..2 * usize::from(n)) {
+            bus.exchange(&words);
+        }
+        let start = bus.exchange(&words);
+        let asked = arrival(&bus, start, rng);
+        while bus.handle.captures().try_recv().is_ok() {}
+        bus.handle
+            .stop_drive(None, StopCommand::Off1, 1)
+            .expect("stop all");
+        let at = reached(&mut bus, &all, OFF1[0], &words);
+        out.push(ms(at.saturating_sub(asked)));
+        exchange_ms = ms(bus.exchange_time());
+    }
+    Figures {
+        ms: out,
+        exchange_ms,
+    }
+}
+
+fn matrix() {
+    println!(
+        "== safety on the virtual clock (PKW 4 + PZD 2, drives answer after 1 ms; {STOPS} stops, \
+         {TRIPS} trips, {STOP_ALLS} stops of every drive per row; p50 / p99 / max in exchanges \
+         of the bus and in ms)"
+    );
+    let mut rng = rand::rngs::SmallRng::seed_from_u64(21);
+    for n in [4u8, 16, 31] {
+        for baud in [9600u32, 19_200, 187_500] {
+            let t0 = Instant::now();
+            let figures = [false, true].map(|after| {
+                (
+                    stop_latencies(n, baud, after, &mut rng),
+                    trip_latencies(n, baud, after, &mut rng),
+                    stop_all_latencies(n, baud, after, &mut rng),
+                )
+            });
+            let [(s0, t0f, a0), (s1, t1, a1)] = figures;
+            println!(
+                "{n:2} drives, {baud:6} baud (exchange {:.2} ms, measured in {:.1} s)",
+                s1.exchange_ms,
+                t0.elapsed().as_secs_f64()
+            );
+            println!(
+                "   stop:                  before {}  after {}",
+                s0.show(),
+                s1.show()
+            );
+            println!(
+                "   trip beyond watchdog:  before {}  after {}",
+                t0f.show(),
+                t1.show()
+            );
+            println!(
+                "   stop all, last drive:  before {}  after {}",
+                a0.show(),
+                a1.show()
+            );
+        }
+    }
+}
+
+/// ussd with 31 simulated drives at 9600 baud; killed when dropped.
+struct Ussd(std::process::Child, std::path::PathBuf);
+
+impl Drop for Ussd {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+        let _ = std::fs::remove_file(&self.1);
+    }
+}
+
+fn through_ussd() {
+    let bus_name = format!("safety{}", std::process::id());
+    let config = std::env::temp_dir().join(format!("safety-{bus_name}.toml"));
+    let mut drives = String::new();
+    for a in 1..=31 {
+        let _ = write!(drives, "\n[[bus.drive]]\naddress = {a}\n");
+    }
+    std::fs::write(
+        &config,
+        format!("[[bus]]\nname = \"{bus_name}\"\ndevice = \"sim\"\nbaud = 9600\n{drives}"),
+    )
+    .expect("config");
+    let exe = std::env::current_exe().expect("bench path");
+    let target = exe
+        .parent()
+        .and_then(|d| d.parent())
+        .expect("target dir")
+        .to_path_buf();
+    let status =
+        std::process::Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+            .args([
+                "build",
+                "--quiet",
+                "--release",
+                "-p",
+                "uss-master",
+                "--bin",
+                "ussd",
+            ])
+            .status()
+            .expect("cargo");
+    assert!(status.success(), "building ussd");
+    let child = std::process::Command::new(target.join("ussd"))
+        .arg("--config")
+        .arg(&config)
+        .args(["--summary-every", "3600"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("ussd");
+    let _ussd = Ussd(child, config);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let bus = loop {
+        match uss_client::Bus::open(&bus_name) {
+            Ok(b) => break b,
+            Err(e) => assert!(Instant::now() < deadline, "{e}"),
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let k = 16u8;
+    let watch = bus.watch(k).expect("watch");
+    watch
+        .wait_exchanges(2, Duration::from_secs(20))
+        .expect("drive 16 polled");
+    let mut capture = bus.capture().expect("capture");
+    let mut rng = rand::rngs::SmallRng::seed_from_u64(7);
+    let mut out = Vec::new();
+    for _ in 0..30 {
+        let c = bus
+            .control(k, uss_client::ControlOptions::default())
+            .expect("control");
+        c.rearm().expect("re-arm");
+        // Running: the ON went out (at the drive's turn), then a random moment of the cycle.
+        while watch.latest().sent_stw1 != RUN[0] {
+            c.run_hz(5.0).expect("run");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let started = Instant::now();
+        while started.elapsed() < Duration::from_millis(rng.random_range(0..1400)) {
+            c.run_hz(5.0).expect("run");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let _ = capture.take();
+        let asked = uss_client::monotonic_ns();
+        uss_client::stop(&bus_name, Some(k), StopCommand::Off1).expect("stop");
+        let deadline = Instant::now() + Duration::from_secs(5);
+        let at = 'found: loop {
+            for r in capture.take().expect("capture") {
+                if r.address == k && stw1_of(&r).is_some_and(|(w, _)| w == OFF1[0]) {
+                    break 'found r.start_ns;
+                }
+            }
+            assert!(Instant::now() < deadline, "no stop telegram");
+            std::thread::sleep(Duration::from_millis(2));
+        };
+        out.push(at.saturating_sub(asked) as f64 / 1e6);
+        drop(c);
+    }
+    let status = bus.status().expect("status");
+    let exchange_ms = status.mean_exchange_ns as f64 / 1e6;
+    let f = Figures {
+        ms: out,
+        exchange_ms,
+    };
+    println!(
+        "== through ussd: 31 simulated drives at 9600 baud, uss_client::stop -> first telegram with \
+         the stop word (ussd's capture), 30 stops: {}",
+        f.show()
+    );
+}
+
+fn main() {
+    let parts = Parts::from_args();
+    if parts.wanted("matrix") {
+        matrix();
+    }
+    if parts.wanted("ussd") {
+        through_ussd();
+    }
+}
