@@ -173,3 +173,47 @@ fn a_telegram_off_time_shorter_than_the_poll_period_is_reported_with_the_safe_va
     );
     assert!(!out.contains("warning: drive 21"), "{out}");
 }
+
+/// A bus thread that stalls (here its line hangs, as a wedged USB-serial driver does) is
+/// noticed by each drive's image within the drive's own freshness limit: images read stale
+/// (`ClientError::Stale`, online 0) seconds before the heartbeat's stall bound, which grows
+/// with slow baud rates, says ussd is gone. Before issue 21 the images stayed `online, live`
+/// until then (2.9 s at 4800 baud, 10 s at 1200).
+#[test]
+fn a_stalled_bus_thread_shows_as_stale_images_before_the_heartbeat_says_gone() {
+    let _one = serial();
+    // At 4800 baud the stall bound is 2.4 s (two of the longest attempts, 256 bytes each) and
+    // the heartbeat says gone 0.5 s later; drive 2 is polled every 0.16 s and its image is
+    // stale after 0.7 s.
+    let ussd = Ussd::start("baud = 4800", &[(1, "sim.hang = 3000"), (2, "")]);
+    let bus = ussd.bus();
+    let watch = bus.watch(2).unwrap();
+    let limit = Duration::from_nanos(watch.latest().stale_after_ns);
+    let deadline = Instant::now() + Duration::from_secs(40);
+    let stale_at = loop {
+        match watch.read() {
+            Err(uss_client::ClientError::Stale { .. }) => break Instant::now(),
+            Err(e) => panic!("before the image read stale: {e}"),
+            Ok(_) => {}
+        }
+        assert!(Instant::now() < deadline, "never stale");
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    assert_eq!(watch.latest().online, 0);
+    let last = watch.latest().timestamp_ns;
+    let gone_at = loop {
+        if !bus.health().is_serving() {
+            break Instant::now();
+        }
+        assert!(Instant::now() < deadline, "never gone");
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    println!(
+        "drive 2's image read stale {:.2} s before the heartbeat said gone (its limit {limit:?}; last reply {:.2} s before it read stale)",
+        (gone_at - stale_at).as_secs_f64(),
+        uss_client::monotonic_ns().saturating_sub(last) as f64 / 1e9
+            - gone_at.elapsed().as_secs_f64()
+            - (gone_at - stale_at).as_secs_f64(),
+    );
+    assert!(stale_at < gone_at);
+}
