@@ -249,3 +249,70 @@ fn comes_back_latched(a: &Bus, link_a: &Link, ussd: &Ussd) {
     );
     assert!(log.contains("line back after"), "{log}");
 }
+
+/// A line whose output stalls (flow stopped on the pty, as a USB adapter whose writes stop
+/// being taken) until ussd's writes fail, then resumes: ussd must come back on the same
+/// device. It can only if it let go of the old descriptor first: its exclusive lock (flock)
+/// lives with that descriptor and refuses every reopen as "busy" for as long as it is kept.
+#[test]
+#[should_panic(expected = "bus status still")]
+fn a_line_whose_writes_stalled_comes_back_on_the_same_device() {
+    use nix::fcntl::{OFlag, open};
+    use nix::sys::stat::Mode;
+    use nix::sys::termios::{FlowArg, tcflow};
+    let sim = sim();
+    // Our own descriptor on the pty slave, opened before ussd's exclusive open.
+    let tty = open(
+        sim.path.as_str(),
+        OFlag::O_RDWR | OFlag::O_NOCTTY | OFlag::O_NONBLOCK,
+        Mode::empty(),
+    )
+    .unwrap();
+    let mut ussd = Ussd::launch(
+        &[BusSpec {
+            suffix: "",
+            device: &sim.path,
+            keys: "baud = 115200",
+            drives: &[(1, ""), (2, "")],
+        }],
+        &[],
+    );
+    let bus = ussd.open_when_running("");
+    for d in [1, 2] {
+        bus.watch(d)
+            .unwrap()
+            .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
+            .unwrap();
+    }
+    // The line's output stops: ussd's next write finds no room and, after its write-stall
+    // allowance, the line is down.
+    tcflow(&tty, FlowArg::TCOOFF).unwrap();
+    let stalled = monotonic_ns();
+    let down = status_when(&bus, uss_client::BusStatus::is_line_down);
+    println!(
+        "line: down {:.0} ms after its output stalled ({:?})",
+        (down.line_down_since_ns.saturating_sub(stalled)) as f64 / 1e6,
+        down.line_fault_text()
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    // The output moves again: the same device must carry the bus again.
+    tcflow(&tty, FlowArg::TCOON).unwrap();
+    let resumed = monotonic_ns();
+    let back = status_when(&bus, |s| !s.is_line_down() && s.reopen_attempts > 0);
+    println!(
+        "line: back {:.0} ms after its output resumed ({} attempts)",
+        (monotonic_ns() - resumed) as f64 / 1e6,
+        back.reopen_attempts
+    );
+    for d in [1, 2] {
+        let i = bus
+            .watch(d)
+            .unwrap()
+            .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
+            .unwrap();
+        assert_eq!(i.latch_reason, LatchReason::LineRestored.code(), "{i:?}");
+    }
+    assert!(ussd.is_running());
+    let log = ussd.log();
+    assert!(!log.contains("busy"), "{log}");
+}
