@@ -641,6 +641,11 @@ enum UssLineFault
    * Another I/O error; `line_errno` says which.
    */
   USS_LINE_FAULT_IO = 2,
+  /**
+   * The line took no bytes for longer than its write-stall allowance (an adapter whose
+   * writes stopped being taken, flow stopped).
+   */
+  USS_LINE_FAULT_STALLED = 3,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

@@ -55,6 +55,9 @@ code_table! {
         Closed = 1 => "the serial device was closed or unplugged",
         /// Another I/O error; `line_errno` says which.
         Io = 2 => "serial I/O failed",
+        /// The line took no bytes for longer than its write-stall allowance (an adapter whose
+        /// writes stopped being taken, flow stopped).
+        Stalled = 3 => "the line's output stalled: no byte could be written for its write-stall allowance",
     }
 }
 

@@ -17,8 +17,10 @@ struct NotifySocket {
 }
 
 impl NotifySocket {
-    fn bind() -> Self {
-        let path = std::env::temp_dir().join(format!("ussd-notify-{}.sock", std::process::id()));
+    /// A socket of this test (`name`): tests run in parallel.
+    fn bind(name: &str) -> Self {
+        let path =
+            std::env::temp_dir().join(format!("ussd-notify-{}-{name}.sock", std::process::id()));
         let _ = std::fs::remove_file(&path);
         let socket = UnixDatagram::bind(&path).unwrap();
         socket
@@ -33,6 +35,16 @@ impl NotifySocket {
         let mut buf = [0u8; 4096];
         while let Ok(n) = self.socket.recv(&mut buf) {
             got.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+        }
+        got
+    }
+
+    /// Every notification that arrives during `d`.
+    fn during(&self, d: Duration) -> Vec<String> {
+        let from = Instant::now();
+        let mut got = Vec::new();
+        while from.elapsed() < d {
+            got.extend(self.take());
         }
         got
     }
@@ -53,7 +65,7 @@ fn keep_alives(notifications: &[String]) -> usize {
 
 #[test]
 fn ussd_says_ready_feeds_the_watchdog_and_starves_it_when_a_bus_thread_hangs() {
-    let notify = NotifySocket::bind();
+    let notify = NotifySocket::bind("hang");
     // The watchdog as `WatchdogSec=0.4` sets it: a keep-alive is due every 0.2 s.
     let mut ussd = Ussd::start_buses_with_env(
         &[
@@ -128,11 +140,7 @@ fn ussd_says_ready_feeds_the_watchdog_and_starves_it_when_a_bus_thread_hangs() {
     // From then on no keep-alive: 1.5 s is over 7 keep-alive periods. Bus a polls on.
     let bus_a = ussd.bus_named("a");
     let polling = bus_a.status().unwrap();
-    let quiet_from = Instant::now();
-    let mut after = Vec::new();
-    while quiet_from.elapsed() < Duration::from_millis(1500) {
-        after.extend(notify.take());
-    }
+    let after = notify.during(Duration::from_millis(1500));
     assert_eq!(
         keep_alives(&after),
         0,
@@ -163,5 +171,59 @@ fn ussd_says_ready_feeds_the_watchdog_and_starves_it_when_a_bus_thread_hangs() {
     println!(
         "systemd: {before} keep-alives while both buses ran, none in the 1.5 s after the hang was \
          found; ussd logged: {hung}"
+    );
+}
+
+#[test]
+fn a_line_down_past_its_limit_starves_the_watchdog_so_systemd_restarts_ussd() {
+    let notify = NotifySocket::bind("line");
+    // A serial bus whose adapter is gone (its udev name points nowhere): line down from the
+    // start, reopened with backoff. Past 1.5 s down, a restart is what is left to try.
+    let mut ussd = Ussd::launch(
+        &[BusSpec {
+            suffix: "",
+            device: "/nonexistent/uss-adapter",
+            keys: "baud = 115200\nline_down_limit_ms = 1500",
+            drives: &[(1, "")],
+        }],
+        &[
+            ("NOTIFY_SOCKET", notify.path.to_str().unwrap()),
+            ("WATCHDOG_USEC", "400000"),
+        ],
+    );
+    let started = Instant::now();
+    let mut seen = Vec::new();
+    let said = loop {
+        seen.extend(notify.take());
+        if let Some(line) = ussd.log_line("line down for", Duration::ZERO) {
+            break line;
+        }
+        assert!(ussd.is_running(), "{}", ussd.log());
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "no line-down limit reported: {}",
+            ussd.log()
+        );
+    };
+    seen.extend(notify.take());
+    let while_down = keep_alives(&seen);
+    println!(
+        "systemd: {while_down} keep-alives while the line was down within its limit, then: {said}"
+    );
+    assert!(while_down >= 3, "{while_down} keep-alives within the limit");
+    assert!(
+        said.contains("withholds systemd's watchdog keep-alive"),
+        "{said}"
+    );
+    assert!(said.contains("line_down_limit_ms"), "{said}");
+    let after = notify.during(Duration::from_millis(1500));
+    assert_eq!(
+        keep_alives(&after),
+        0,
+        "keep-alives past the limit: {after:?}"
+    );
+    assert!(
+        ussd.is_running(),
+        "ussd itself goes on until systemd restarts it"
     );
 }

@@ -223,7 +223,8 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         );
     }
     let bounds: Vec<Duration> = buses.iter().map(|b| b.stall_bound).collect();
-    let mut progress = Progress::new(&bounds, &counts(&buses), started);
+    let limits: Vec<Option<Duration>> = buses.iter().map(|b| b.line_down_limit).collect();
+    let mut progress = Progress::new(&bounds, &limits, &counts(&buses), started);
     let mut line_failed = false;
     let mut next_cleanup = Duration::from_secs(1);
     let mut next_status = Duration::from_secs(5);
@@ -236,10 +237,11 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             break;
         }
         let now = Instant::now();
-        for change in progress.check(&counts(&buses), now) {
+        let down: Vec<bool> = buses.iter().map(|b| b.handle.is_line_down()).collect();
+        for change in progress.check(&counts(&buses), &down, now) {
             report(&buses, change, notifier.watchdog().is_some());
         }
-        notifier.keep_alive(now, progress.all_moving());
+        notifier.keep_alive(now, progress.healthy());
         if started.elapsed() >= next_cleanup {
             next_cleanup += Duration::from_secs(1);
             for b in &buses {
@@ -281,15 +283,15 @@ fn counts(buses: &[RunningBus]) -> Vec<u64> {
     buses.iter().map(RunningBus::progress).collect()
 }
 
-/// Logs a bus thread that hangs or moves again.
+/// Logs a bus thread that hangs or moves again, or a line down past its limit.
 fn report(buses: &[RunningBus], change: Change, watchdog: bool) {
+    let consequence = if watchdog {
+        "ussd withholds systemd's watchdog keep-alive, so systemd restarts it"
+    } else {
+        "no systemd watchdog is set to restart ussd; restart it by hand"
+    };
     match change {
         Change::Hung { bus, for_ } => {
-            let consequence = if watchdog {
-                "ussd withholds systemd's watchdog keep-alive, so systemd restarts it"
-            } else {
-                "no systemd watchdog is set to restart ussd; restart it by hand"
-            };
             tracing::error!(
                 bus = %buses[bus].name,
                 "bus thread hangs: no progress for {:.1} s (a wedged serial driver, or a bug); its drives are not polled and their telegram monitoring (P2014) stops them; {consequence}",
@@ -300,6 +302,13 @@ fn report(buses: &[RunningBus], change: Change, watchdog: bool) {
             tracing::warn!(
                 bus = %buses[bus].name,
                 "bus thread moves again after hanging for {:.1} s",
+                for_.as_secs_f64()
+            );
+        }
+        Change::LineDownTooLong { bus, for_ } => {
+            tracing::error!(
+                bus = %buses[bus].name,
+                "line down for {:.1} s (line_down_limit_ms), still reopened by its configured path; {consequence}",
                 for_.as_secs_f64()
             );
         }

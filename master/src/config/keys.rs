@@ -113,6 +113,10 @@ keys! {
     /// as the wire allows (USS.md section 5).
     CycleTime(f64, ms): 0.0..=60_000.0, 0.0,
         "the cycle time (0 = as fast as the wire allows) is 0..=60000 ms";
+    /// A serial line down this long makes ussd withhold systemd's watchdog keep-alive, so
+    /// systemd restarts it; 0 = never.
+    LineDownLimit(f64, ms): 0.0..=86_400_000.0, 30_000.0,
+        "the line-down limit (0 = never) is 0..=86400000 ms";
     /// A parameter job with no matching reply in this time ends with a timeout (USS.md section 6).
     ParamTimeout(f64, ms): 10.0..=600_000.0, 2000.0, "the parameter job timeout is 10..=600000 ms";
     /// The controller must refresh the drive's PZD within this time, or the drive gets its safe

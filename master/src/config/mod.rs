@@ -148,6 +148,9 @@ pub struct BusConfig {
     /// circulating list (no other drive's poll period more than doubles).
     #[serde(default)]
     pub param_priority: bool,
+    /// How long a serial line may stay down before ussd stops feeding systemd's watchdog.
+    #[serde(default)]
+    pub line_down_limit_ms: LineDownLimit,
     /// `None` = not pinned.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cpu: Option<Cpu>,

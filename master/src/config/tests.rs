@@ -288,6 +288,7 @@ offline_probe_ms = 500.0
 cycle_time_ms = 0.0
 param_timeout_ms = 2000.0
 param_priority = false
+line_down_limit_ms = 30000.0
 priority = 80
 
 [[bus.drive]]
@@ -911,6 +912,10 @@ fn values_out_of_range_name_their_limits() {
              allows) is 0..=60000 ms",
         ),
         (
+            "line_down_limit_ms = -1",
+            "line_down_limit_ms = -1 is out of range: the line-down limit (0 = never) is 0..=86400000 ms",
+        ),
+        (
             "param_timeout_ms = 1e9",
             "param_timeout_ms = 1e9 is out of range: the parameter job timeout is 10..=600000 ms",
         ),
@@ -1157,6 +1162,7 @@ const BUS_KEYS: &[&str] = &[
     "offline_after = 5",
     "cycle_time_ms = 12.25",
     "param_priority = true",
+    "line_down_limit_ms = 0",
     "priority = 99",
     "seed = 7",
     "cpu = 0",

@@ -141,6 +141,9 @@ pub struct RunningBus {
     /// How long its bus thread may go without progress before it counts as hung
     /// ([`crate::daemon::supervise::stall_bound`]).
     pub stall_bound: Duration,
+    /// How long its line may stay down before ussd counts as unhealthy (`None`: a simulated
+    /// bus, or `line_down_limit_ms = 0`).
+    pub line_down_limit: Option<Duration>,
     engine_thread: JoinHandle<Result<(), TransportError>>,
     params_thread: JoinHandle<()>,
     /// Reopens a serial line that failed (none for a simulated bus).
@@ -219,15 +222,17 @@ struct Spawned {
     node: crate::daemon::ipc::IpcNode,
 }
 
-/// How a bus thread gets its line back after it failed: it asks once, then waits for the new
-/// transport (from the bus's line thread), checking for a stop now and then.
+/// How a bus thread gets its line back after it failed: it hands what held the device to the
+/// line thread (which closes it, then reopens), then waits for the new transport, checking for
+/// a stop now and then.
 struct Reopen<T> {
-    ask: Sender<()>,
+    ask: Sender<Option<T>>,
     reopened: Receiver<T>,
 }
 
-/// Runs `engine` until it is stopped; when its line fails, waits (line down, allocating
-/// nothing) for a reopened transport and resumes. Without `reopen` a failed line ends the bus.
+/// Runs `engine` until it is stopped; when its line fails, releases the device and waits (line
+/// down, allocating nothing) for a reopened transport and resumes. Without `reopen` a failed
+/// line ends the bus.
 fn run_bus<T: Transport, C: crate::engine::clock::Clock, B: crate::engine::Bridge>(
     engine: &mut Engine<T, C, B>,
     handle: &EngineHandle,
@@ -240,7 +245,9 @@ fn run_bus<T: Transport, C: crate::engine::clock::Clock, B: crate::engine::Bridg
         let Some(reopen) = reopen else {
             return Err(error);
         };
-        let _ = reopen.ask.try_send(());
+        // The old descriptor goes first: while it is open the device's exclusive lock refuses
+        // the reopen, and a USB adapter's minor stays taken.
+        let _ = reopen.ask.try_send(engine.transport_mut().release());
         loop {
             if handle.is_stopped() {
                 return engine.shutdown();
@@ -265,22 +272,33 @@ const REOPEN_MAX: Duration = Duration::from_secs(5);
 /// Opens a bus's device again: the transport and a report for the log, or why not.
 type Opener<T> = Box<dyn FnMut() -> Result<(T, String), String> + Send>;
 
-/// The line thread of a serial bus: on each ask, reopens `device` with backoff until it opens
-/// (or the bus stops) and hands the transport to the bus thread. Not real-time: opening a
-/// device allocates and may block.
+/// The line thread of a serial bus: on each ask, closes what held the device, reopens `device`
+/// by its configured path with backoff until it opens (or the bus stops) and hands the
+/// transport to the bus thread. Not real-time: closing and opening a device allocate and may
+/// block.
 fn spawn_line<T: Send + 'static>(
     bus: &BusConfig,
     device: PathBuf,
     mut open: Opener<T>,
     handle: EngineHandle,
-    asks: Receiver<()>,
+    asks: Receiver<Option<T>>,
     reopened: Sender<T>,
 ) -> std::io::Result<JoinHandle<()>> {
     let name = bus.name.clone();
     std::thread::Builder::new()
         .name(format!("uss-{}-line", bus.name))
         .spawn(move || {
-            while asks.recv().is_ok() {
+            while let Ok(old) = asks.recv() {
+                let closing = std::time::Instant::now();
+                drop(old);
+                if closing.elapsed() > Duration::from_secs(1) {
+                    tracing::warn!(
+                        bus = %name,
+                        device = %device.display(),
+                        "closing the failed line took {:.1} s (its driver waited for output)",
+                        closing.elapsed().as_secs_f64()
+                    );
+                }
                 let Some(transport) = reopen_with_backoff(&name, &device, &mut open, &handle)
                 else {
                     return;
@@ -572,6 +590,10 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             handle: s.handle,
             rt_report,
             stall_bound: crate::daemon::supervise::stall_bound(&s.bus),
+            line_down_limit: match s.bus.device {
+                Device::Serial(_) => Some(s.bus.line_down_limit_ms.get()).filter(|d| !d.is_zero()),
+                Device::Sim => None,
+            },
             engine_thread: s.thread,
             params_thread: s.params_thread,
             line_thread: s.line_thread,
@@ -587,4 +609,104 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
         return Err(e);
     }
     Ok(running)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::engine::clock::Clock;
+    use crate::engine::transport::Rx;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+    /// A device whose writes fail and whose close is observed: while it is open, it holds the
+    /// device's exclusive lock, as a serial port does.
+    struct Held {
+        open: Arc<AtomicBool>,
+    }
+
+    impl Drop for Held {
+        fn drop(&mut self) {
+            self.open.store(false, Ordering::Release);
+        }
+    }
+
+    impl Transport for Held {
+        fn flush_input(&mut self, _now: Duration) -> Result<(), TransportError> {
+            Ok(())
+        }
+        fn send(&mut self, _bytes: &[u8], _now: Duration) -> Result<Duration, TransportError> {
+            Err(TransportError::Stalled)
+        }
+        fn recv(
+            &mut self,
+            deadline: Duration,
+            clock: &mut impl Clock,
+        ) -> Result<Option<Rx>, TransportError> {
+            clock.sleep_until(deadline);
+            Ok(None)
+        }
+    }
+
+    fn bus() -> BusConfig {
+        let toml = "[[bus]]\nname = \"held\"\ndevice = \"/dev/ttyUSB0\"\nbaud = 115200\n\n[[bus.drive]]\naddress = 1\n";
+        crate::config::Config::parse(toml, "test")
+            .unwrap()
+            .buses
+            .remove(0)
+    }
+
+    #[test]
+    fn a_failed_line_is_closed_before_it_is_reopened() {
+        let bus = bus();
+        let open = Arc::new(AtomicBool::new(true));
+        let transport = Line::Open(Held { open: open.clone() });
+        let (mut engine, handle, _events) =
+            Engine::new(engine_config(&bus), transport, MonotonicClock::new());
+        // The reopen is refused as busy while the old descriptor is open, like serialport's
+        // flock; once it is closed, the device opens (and fails again at once).
+        let (refused, opened) = (Arc::new(AtomicU32::new(0)), Arc::new(AtomicU32::new(0)));
+        let open_device: Opener<Line<Held>> = {
+            let (old, refused, opened) = (open.clone(), refused.clone(), opened.clone());
+            Box::new(move || {
+                if old.load(Ordering::Acquire) {
+                    refused.fetch_add(1, Ordering::Relaxed);
+                    return Err("device is busy (opened exclusively by another process)".into());
+                }
+                opened.fetch_add(1, Ordering::Relaxed);
+                let next = Arc::new(AtomicBool::new(true));
+                Ok((Line::Open(Held { open: next }), "opened".into()))
+            })
+        };
+        let (ask, asks) = bounded(1);
+        let (give, reopened) = bounded(1);
+        let line = spawn_line(
+            &bus,
+            "/dev/ttyUSB0".into(),
+            open_device,
+            handle.clone(),
+            asks,
+            give,
+        )
+        .unwrap();
+        let bus_handle = handle.clone();
+        let thread = std::thread::spawn(move || {
+            let reopen = Reopen { ask, reopened };
+            run_bus(&mut engine, &bus_handle, Some(&reopen))
+        });
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        while opened.load(Ordering::Relaxed) < 2 {
+            assert!(std::time::Instant::now() < deadline, "never reopened");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        handle.stop();
+        let _ = thread.join().unwrap();
+        line.join().unwrap();
+        assert!(!open.load(Ordering::Acquire), "the failed line was closed");
+        assert_eq!(
+            refused.load(Ordering::Relaxed),
+            0,
+            "no reopen found it open"
+        );
+    }
 }

@@ -44,6 +44,8 @@ pub enum Change {
     Hung { bus: usize, for_: Duration },
     /// Its thread moves again after hanging for `for_`.
     Moving { bus: usize, for_: Duration },
+    /// Its line has been down for `for_`, past its `line_down_limit_ms`.
+    LineDownTooLong { bus: usize, for_: Duration },
 }
 
 /// The progress of every bus thread, as last seen.
@@ -58,40 +60,64 @@ struct Seen {
     since: Instant,
     bound: Duration,
     hung: bool,
+    /// How long its line may stay down (`None`: for ever), and since when it is.
+    line_limit: Option<Duration>,
+    down_since: Option<Instant>,
+    down_too_long: bool,
 }
 
 impl Progress {
-    /// Starts watching buses whose stall bounds are `bounds`, their counters at `counts`.
-    pub fn new(bounds: &[Duration], counts: &[u64], now: Instant) -> Self {
+    /// Starts watching buses whose stall bounds are `bounds` and line-down limits
+    /// `line_limits`, their counters at `counts`.
+    pub fn new(
+        bounds: &[Duration],
+        line_limits: &[Option<Duration>],
+        counts: &[u64],
+        now: Instant,
+    ) -> Self {
         let buses = bounds
             .iter()
+            .zip(line_limits)
             .zip(counts)
-            .map(|(&bound, &count)| Seen {
+            .map(|((&bound, &line_limit), &count)| Seen {
                 count,
                 since: now,
                 bound,
                 hung: false,
+                line_limit,
+                down_since: None,
+                down_too_long: false,
             })
             .collect();
         Self { buses }
     }
 
-    /// Looks at the counters `counts` (one per bus, in the order of [`Progress::new`]) at
-    /// `now`; returns what changed since the last look.
-    pub fn check(&mut self, counts: &[u64], now: Instant) -> Vec<Change> {
+    /// Looks at the counters `counts` and whether each line is down (`down`, one per bus, in
+    /// the order of [`Progress::new`]) at `now`; returns what changed since the last look.
+    pub fn check(&mut self, counts: &[u64], down: &[bool], now: Instant) -> Vec<Change> {
         let mut changes = Vec::new();
+        for (bus, (seen, &is_down)) in self.buses.iter_mut().zip(down).enumerate() {
+            if !is_down {
+                seen.down_since = None;
+                seen.down_too_long = false;
+                continue;
+            }
+            let since = *seen.down_since.get_or_insert(now);
+            let for_ = now.saturating_duration_since(since);
+            if !seen.down_too_long && seen.line_limit.is_some_and(|limit| for_ >= limit) {
+                seen.down_too_long = true;
+                changes.push(Change::LineDownTooLong { bus, for_ });
+            }
+        }
         for (bus, (seen, &count)) in self.buses.iter_mut().zip(counts).enumerate() {
             let for_ = now.saturating_duration_since(seen.since);
             if count != seen.count {
                 if seen.hung {
                     changes.push(Change::Moving { bus, for_ });
                 }
-                *seen = Seen {
-                    count,
-                    since: now,
-                    hung: false,
-                    ..*seen
-                };
+                seen.count = count;
+                seen.since = now;
+                seen.hung = false;
             } else if !seen.hung && for_ >= seen.bound {
                 seen.hung = true;
                 changes.push(Change::Hung { bus, for_ });
@@ -103,6 +129,13 @@ impl Progress {
     /// Whether every bus thread makes progress (none hangs).
     pub fn all_moving(&self) -> bool {
         self.buses.iter().all(|b| !b.hung)
+    }
+
+    /// Whether ussd is healthy: every bus thread makes progress and no line has been down past
+    /// its limit. An unhealthy ussd withholds systemd's watchdog keep-alive, so systemd
+    /// restarts it.
+    pub fn healthy(&self) -> bool {
+        self.buses.iter().all(|b| !b.hung && !b.down_too_long)
     }
 }
 
@@ -182,23 +215,24 @@ mod tests {
     fn a_counter_that_stops_past_its_bound_is_hung_and_reported_once_until_it_moves() {
         let t0 = Instant::now();
         let bounds = [1000 * MS, 2000 * MS];
-        let mut p = Progress::new(&bounds, &[5, 7], t0);
-        assert_eq!(p.check(&[6, 7], t0 + 900 * MS), []);
+        let mut p = Progress::new(&bounds, &[None, None], &[5, 7], t0);
+        let check = |p: &mut Progress, counts: &[u64], at| p.check(counts, &[false, false], at);
+        assert_eq!(check(&mut p, &[6, 7], t0 + 900 * MS), []);
         assert!(p.all_moving());
         // Bus 1 has not moved since t0: hung at its 2 s bound, not before.
-        assert_eq!(p.check(&[7, 7], t0 + 1900 * MS), []);
+        assert_eq!(check(&mut p, &[7, 7], t0 + 1900 * MS), []);
         assert_eq!(
-            p.check(&[8, 7], t0 + 2000 * MS),
+            check(&mut p, &[8, 7], t0 + 2000 * MS),
             [Change::Hung {
                 bus: 1,
                 for_: 2000 * MS
             }]
         );
         assert!(!p.all_moving());
-        assert_eq!(p.check(&[9, 7], t0 + 5000 * MS), [], "reported once");
+        assert_eq!(check(&mut p, &[9, 7], t0 + 5000 * MS), [], "reported once");
         assert!(!p.all_moving());
         assert_eq!(
-            p.check(&[10, 8], t0 + 5500 * MS),
+            check(&mut p, &[10, 8], t0 + 5500 * MS),
             [Change::Moving {
                 bus: 1,
                 for_: 5500 * MS
@@ -206,14 +240,46 @@ mod tests {
         );
         assert!(p.all_moving());
         // Bus 0 last moved at t0 + 5.5 s: hung 1 s later.
-        assert_eq!(p.check(&[10, 9], t0 + 6400 * MS), []);
+        assert_eq!(check(&mut p, &[10, 9], t0 + 6400 * MS), []);
         assert_eq!(
-            p.check(&[10, 10], t0 + 6500 * MS),
+            check(&mut p, &[10, 10], t0 + 6500 * MS),
             [Change::Hung {
                 bus: 0,
                 for_: 1000 * MS
             }]
         );
+    }
+
+    #[test]
+    fn a_line_down_past_its_limit_makes_ussd_unhealthy_until_it_is_back() {
+        let t0 = Instant::now();
+        let limits = [Some(30_000 * MS), None];
+        let mut p = Progress::new(&[1000 * MS, 1000 * MS], &limits, &[0, 0], t0);
+        // Both lines go down at t0 + 1 s; the threads keep moving (they wait for the reopen).
+        assert_eq!(p.check(&[1, 1], &[true, true], t0 + 1000 * MS), []);
+        assert_eq!(p.check(&[2, 2], &[true, true], t0 + 30_900 * MS), []);
+        assert!(p.healthy());
+        assert_eq!(
+            p.check(&[3, 3], &[true, true], t0 + 31_000 * MS),
+            [Change::LineDownTooLong {
+                bus: 0,
+                for_: 30_000 * MS
+            }]
+        );
+        assert!(!p.healthy());
+        assert!(p.all_moving(), "not a hang");
+        assert_eq!(
+            p.check(&[4, 4], &[true, true], t0 + 90_000 * MS),
+            [],
+            "once"
+        );
+        // Bus 1 has no limit: down for ever is never unhealthy. Bus 0 back: healthy again, and
+        // a new outage counts from its own start.
+        assert_eq!(p.check(&[5, 5], &[false, true], t0 + 91_000 * MS), []);
+        assert!(p.healthy());
+        assert_eq!(p.check(&[6, 6], &[true, true], t0 + 92_000 * MS), []);
+        assert_eq!(p.check(&[7, 7], &[true, true], t0 + 121_000 * MS), []);
+        assert!(p.healthy());
     }
 
     #[test]

@@ -18,6 +18,8 @@ pub enum LineFault {
     Closed,
     /// Another I/O error, with its errno (0 if none was given).
     Io(i32),
+    /// No byte could be written for the write-stall allowance.
+    Stalled,
 }
 
 impl LineFault {
@@ -25,6 +27,7 @@ impl LineFault {
         match e {
             TransportError::Closed => Self::Closed,
             TransportError::Io(io) => Self::Io(io.raw_os_error().unwrap_or(0)),
+            TransportError::Stalled => Self::Stalled,
         }
     }
 }
@@ -37,6 +40,9 @@ impl core::fmt::Display for LineFault {
                 f,
                 "serial I/O failed: {}",
                 std::io::Error::from_raw_os_error(*errno)
+            ),
+            Self::Stalled => f.write_str(
+                "the line's output stalled: no byte could be written for its write-stall allowance",
             ),
         }
     }

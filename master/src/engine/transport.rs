@@ -24,6 +24,9 @@ pub enum TransportError {
     Io(#[from] std::io::Error),
     #[error("the serial device was closed or unplugged")]
     Closed,
+    /// A write found no room for its whole allowance: the line's output stalled.
+    #[error("the line's output stalled: no byte could be written for its write-stall allowance")]
+    Stalled,
 }
 
 /// A half-duplex line to the drives.
@@ -48,6 +51,23 @@ pub trait Transport {
     /// lines need nothing.
     fn idle(&mut self, now: Duration) {
         let _ = now;
+    }
+
+    /// Drops output not yet sent, for a line that failed: nothing queued for it is still
+    /// wanted, and a tty closed with output queued waits for it to drain (30 s by default).
+    fn discard_output(&mut self) {}
+
+    /// The line failed: gives up the device so that it can be opened again, returning what
+    /// holds it (to be closed off the real-time thread: closing a tty may wait for its output
+    /// to drain). A device held open keeps its exclusive lock, so the reopen would be refused as
+    /// busy, and keeps its minor number, so a replugged USB adapter would get another name.
+    /// Afterwards every use fails as a missing device does. A line that cannot be reopened
+    /// (the simulator's) gives up nothing.
+    fn release(&mut self) -> Option<Self>
+    where
+        Self: Sized,
+    {
+        None
     }
 }
 
@@ -96,6 +116,20 @@ impl<T: Transport> Transport for Line<T> {
     fn idle(&mut self, now: Duration) {
         if let Self::Open(t) = self {
             t.idle(now);
+        }
+    }
+
+    fn discard_output(&mut self) {
+        if let Self::Open(t) = self {
+            t.discard_output();
+        }
+    }
+
+    fn release(&mut self) -> Option<Self> {
+        self.discard_output();
+        match core::mem::replace(self, Self::Absent) {
+            open @ Self::Open(_) => Some(open),
+            Self::Absent => None,
         }
     }
 }

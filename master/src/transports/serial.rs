@@ -461,6 +461,11 @@ impl Transport for SerialTransport {
         Ok(())
     }
 
+    /// `tcflush(TCOFLUSH)`: errors are of no interest on a line that failed.
+    fn discard_output(&mut self) {
+        let _ = termios::tcflush(self.fd(), FlushArg::TCOFLUSH);
+    }
+
     /// Writes every byte and returns when the last character leaves the UART: `now` plus their
     /// wire time (USS.md section 4). No `tcdrain`: it is slow on USB adapters.
     fn send(&mut self, bytes: &[u8], now: Duration) -> Result<Duration, TransportError> {
@@ -470,7 +475,7 @@ impl Transport for SerialTransport {
                 Ok(n) if n > 0 => rest = &rest[n..],
                 Ok(_) | Err(Errno::EAGAIN) => {
                     if !self.wait_for(PollFlags::POLLOUT, self.write_stall)? {
-                        return Err(std::io::Error::from(std::io::ErrorKind::TimedOut).into());
+                        return Err(TransportError::Stalled);
                     }
                 }
                 Err(Errno::EINTR) => {}

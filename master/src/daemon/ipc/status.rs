@@ -352,16 +352,8 @@ impl StatusPublisher {
                 LineState::Up
             }
             .code(),
-            line_fault: match stats.line.down {
-                None => ContractLineFault::None,
-                Some((_, LineFault::Closed)) => ContractLineFault::Closed,
-                Some((_, LineFault::Io(_))) => ContractLineFault::Io,
-            }
-            .code(),
-            line_errno: match stats.line.down {
-                Some((_, LineFault::Io(errno))) => errno,
-                _ => 0,
-            },
+            line_fault: contract_fault(stats.line.down).0.code(),
+            line_errno: contract_fault(stats.line.down).1,
             line_down_since_ns: stats.line.down.map_or(0, |(since, _)| ns(since)),
             line_downs: stats.line.downs,
             reopen_attempts,
@@ -388,19 +380,12 @@ impl StatusPublisher {
         b.timestamp_ns = monotonic_ns();
         b.exchanges = stats.bus.exchanges;
         b.state = bus_state.code();
-        (b.line_fault, b.line_errno, b.line_down_since_ns) = match stats.line.down {
-            None => (ContractLineFault::None.code(), 0, 0),
-            Some((since, LineFault::Closed)) => (
-                ContractLineFault::Closed.code(),
-                0,
-                origin_ns.saturating_add(as_ns(since)),
-            ),
-            Some((since, LineFault::Io(errno))) => (
-                ContractLineFault::Io.code(),
-                errno,
-                origin_ns.saturating_add(as_ns(since)),
-            ),
-        };
+        let (fault, errno) = contract_fault(stats.line.down);
+        (b.line_fault, b.line_errno) = (fault.code(), errno);
+        b.line_down_since_ns = stats
+            .line
+            .down
+            .map_or(0, |(since, _)| origin_ns.saturating_add(as_ns(since)));
         // A client that is not there cannot miss it; the next one gets the history.
         let _ = self.heartbeat.send_copy(*b);
     }
@@ -422,5 +407,15 @@ impl StatusPublisher {
         let _ = self
             .notifier
             .notify_with_custom_event_id(EventId::new(names::USSD_GONE));
+    }
+}
+
+/// A line fault as the contract writes it: its code and, for an I/O error, the errno.
+fn contract_fault(down: Option<(Duration, LineFault)>) -> (ContractLineFault, i32) {
+    match down {
+        None => (ContractLineFault::None, 0),
+        Some((_, LineFault::Closed)) => (ContractLineFault::Closed, 0),
+        Some((_, LineFault::Io(errno))) => (ContractLineFault::Io, errno),
+        Some((_, LineFault::Stalled)) => (ContractLineFault::Stalled, 0),
     }
 }
