@@ -10,7 +10,7 @@ use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
-use uss_drive_sim::serve::{Port, Pty, SerialDevice, serve};
+use uss_drive_sim::serve::{Delivered, Delivery, Port, Pty, SerialDevice, serve};
 use uss_drive_sim::spec::DriveSpec;
 use uss_drive_sim::{Drive, SimBus};
 use uss_protocol::{Baud, Timing};
@@ -22,6 +22,8 @@ use uss_protocol::{Baud, Timing};
     about = "Simulated USS drives (MICROMASTER 4 / SINAMICS G120-like) on a serial device or a pseudo-terminal",
     group(ArgGroup::new("mode").required(true).args(["device", "pty", "demo", "completions", "man"]))
 )]
+// Command-line switches (pty, demo, man, echo), each its own yes or no.
+#[allow(clippy::struct_excessive_bools)]
 struct Cli {
     /// Serve this serial device (8E1, opened exclusively), e.g. /dev/ttyUSB0.
     #[arg(long, value_name = "PATH")]
@@ -41,6 +43,21 @@ struct Cli {
     /// noise, late-by, unplug (see the README).
     #[arg(long = "drive", value_name = "ADDR[:key=value,...]")]
     drives: Vec<DriveSpec>,
+    /// With --pty: imitate a USB adapter's latency timer or a UART's FIFO trigger: bytes toward
+    /// the master take their wire time and are handed over together every MS milliseconds.
+    #[arg(long, value_name = "MS", requires = "pty", value_parser = parse_ms)]
+    rx_tick: Option<Duration>,
+    /// With --pty: hand each reply over in two halves MS milliseconds apart.
+    #[arg(long, value_name = "MS", requires = "pty", value_parser = parse_ms)]
+    split_reply: Option<Duration>,
+    /// With --pty: hold each reply until MS milliseconds after it left the wire, then hand it
+    /// over in one burst.
+    #[arg(long, value_name = "MS", requires = "pty", value_parser = parse_ms)]
+    late_reply: Option<Duration>,
+    /// With --pty: send the master's request back to it before the reply, as a 2-wire
+    /// adapter's echo does (ussd's `echo = true`).
+    #[arg(long, requires = "pty")]
+    echo: bool,
     /// Seed of the fault injector and response jitter (runs are repeatable).
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -69,6 +86,15 @@ fn print_docs(shell: Option<clap_complete::Shell>, man: bool) -> std::io::Result
         return Ok(true);
     }
     Ok(false)
+}
+
+fn parse_ms(s: &str) -> Result<Duration, String> {
+    match s.parse::<f64>() {
+        Ok(ms) if ms.is_finite() && (0.0..=10_000.0).contains(&ms) => {
+            Ok(Duration::from_secs_f64(ms / 1000.0))
+        }
+        _ => Err(format!("'{s}' is not a time of 0..=10000 ms")),
+    }
 }
 
 fn parse_baud(s: &str) -> Result<u32, String> {
@@ -169,10 +195,36 @@ fn run(cli: Cli) -> Result<(), Failure> {
     } else {
         let mut pty = Pty::open().map_err(Failure::Pty)?;
         announce(&format!("PTY {}", pty.path().display()), &bus, timing);
-        serve_until_stopped(&mut pty, &mut bus, timing, start, &stop)
+        let delivery = Delivery {
+            tick: cli.rx_tick,
+            split: cli.split_reply,
+            late: cli.late_reply,
+            echo: cli.echo,
+        };
+        if delivery.is_imitated() {
+            imitate_in_real_time();
+            let mut port = Delivered::new(pty, delivery, timing, start);
+            serve_until_stopped(&mut port, &mut bus, timing, start, &stop)
+        } else {
+            serve_until_stopped(&mut pty, &mut bus, timing, start, &stop)
+        }
     };
     print_summary(&bus);
     result
+}
+
+/// An imitated adapter hands bytes over on time only if nothing else runs first: ask for
+/// `SCHED_FIFO` (below ussd's bus threads), and go on without it where it is refused.
+fn imitate_in_real_time() {
+    let param = nix::libc::sched_param { sched_priority: 10 };
+    // SAFETY: sets this process's policy from a valid sched_param; no memory is handed over.
+    let set = unsafe { nix::libc::sched_setscheduler(0, nix::libc::SCHED_FIFO, &raw const param) };
+    if set != 0 {
+        eprintln!(
+            "uss-sim: no SCHED_FIFO ({}): the imitated delivery may be late under load",
+            std::io::Error::last_os_error()
+        );
+    }
 }
 
 fn serve_until_stopped(
