@@ -73,6 +73,7 @@ fn run_engine_spinning(
         publish_every: Duration::from_millis(100),
         param_priority: false,
         safety_first: true,
+        rx_latency: Duration::ZERO,
         capture,
         drives,
     };

@@ -76,6 +76,7 @@ impl Bus {
             publish_every: Duration::from_millis(100),
             param_priority: false,
             safety_first,
+            rx_latency: Duration::ZERO,
             capture: true,
             drives,
         };

@@ -36,3 +36,92 @@ impl Parts {
         self.0.is_empty() || self.0.iter().any(|o| o == name)
     }
 }
+
+/// The workspace's target directory.
+pub fn target_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR").map_or_else(
+        || std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target"),
+        std::path::PathBuf::from,
+    )
+}
+
+/// Builds `bin` of `package` in release and returns its path.
+pub fn release_binary(package: &str, bin: &str) -> std::path::PathBuf {
+    let status = std::process::Command::new(env!("CARGO"))
+        .args(["build", "--quiet", "--release", "-p", package, "--bin", bin])
+        .status()
+        .unwrap_or_else(|e| panic!("cargo build {bin}: {e}"));
+    assert!(status.success(), "building {bin}");
+    target_dir().join("release").join(bin)
+}
+
+/// A child process killed (and its configuration file removed) when dropped.
+#[derive(Debug)]
+pub struct Child {
+    pub child: std::process::Child,
+    pub file: Option<std::path::PathBuf>,
+}
+
+impl Drop for Child {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        if let Some(f) = &self.file {
+            let _ = std::fs::remove_file(f);
+        }
+    }
+}
+
+/// A release `ussd` running `config` (TOML text), quiet; killed when dropped.
+pub fn start_ussd(name: &str, config: &str) -> Child {
+    let ussd = release_binary("uss-master", "ussd");
+    let file = std::env::temp_dir().join(format!("{name}-{}.toml", std::process::id()));
+    std::fs::write(&file, config).expect("the benchmark's configuration file");
+    let child = std::process::Command::new(ussd)
+        .arg("--config")
+        .arg(&file)
+        .args(["--summary-every", "3600"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("the release ussd");
+    Child {
+        child,
+        file: Some(file),
+    }
+}
+
+/// A release `uss-sim --pty` with `args`; returns it and the pty's path.
+pub fn start_sim(args: &[&str]) -> (Child, String) {
+    use std::io::BufRead;
+    let sim = release_binary("uss-drive-sim", "uss-sim");
+    let mut child = std::process::Command::new(sim)
+        .arg("--pty")
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("the release uss-sim");
+    let mut line = String::new();
+    std::io::BufReader::new(child.stdout.take().expect("piped"))
+        .read_line(&mut line)
+        .expect("uss-sim's first line");
+    let path = line
+        .trim()
+        .strip_prefix("PTY ")
+        .unwrap_or_else(|| panic!("uss-sim printed {line:?}"))
+        .to_owned();
+    (Child { child, file: None }, path)
+}
+
+/// Opens bus `name` once its ussd serves it (at most 30 s).
+pub fn open_bus(name: &str) -> uss_client::Bus {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    loop {
+        match uss_client::Bus::open(name) {
+            Ok(b) => return b,
+            Err(e) => assert!(std::time::Instant::now() < deadline, "bus {name}: {e}"),
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}

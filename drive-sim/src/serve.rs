@@ -34,6 +34,13 @@ pub trait Port {
         std::thread::sleep(at.saturating_duration_since(Instant::now()));
         Ok(())
     }
+    /// When a telegram of `chars` characters whose last one was read at `read_at` ended on
+    /// the wire: then, where bytes arrive at their wire pace (a UART); an imitated adapter on a
+    /// pty gets the master's bytes at once, so theirs ends its characters' wire time later.
+    fn request_end(&self, read_at: Duration, chars: usize) -> Duration {
+        let _ = chars;
+        read_at
+    }
     /// The master's request, heard back on its own line (a 2-wire adapter's echo; only
     /// [`Delivered`] imitates one).
     fn echo(&mut self, request: &[u8]) -> io::Result<()> {
@@ -172,15 +179,19 @@ pub fn serve(
         }
         for &b in &buf[..n] {
             let reply = match framer.push(b, now) {
-                Some(Ok(telegram)) => bus.on_telegram(&telegram, now),
+                Some(Ok(telegram)) => {
+                    let chars = telegram.as_bytes().len();
+                    bus.on_telegram(&telegram, now).map(|r| (r, chars))
+                }
                 Some(Err(e)) => {
                     bus.on_error(&e, now);
                     None
                 }
                 None => None,
             };
-            if let Some(reply) = reply {
-                let end = send(port, &reply, timing, start, now)?;
+            if let Some((reply, chars)) = reply {
+                let request_end = port.request_end(now, chars);
+                let end = send(port, &reply, timing, start, request_end)?;
                 framer.line_busy_until(end);
             }
         }
@@ -219,9 +230,10 @@ fn send(
 /// (which otherwise hands over every write at once).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Delivery {
-    /// Bytes take their wire time and are handed over together at every multiple of this since
-    /// the start: a USB adapter's latency timer (FTDI: 16 ms by default, 1 ms at best), a
-    /// UART's FIFO trigger.
+    /// Bytes take their wire time (the master's too: a reply waits for the request's) and are
+    /// handed over together at every multiple of this since the start: a USB adapter's latency
+    /// timer (FTDI: 16 ms by default, 1 ms at best), a UART's FIFO trigger. Zero: each byte
+    /// at its own wire time (a UART without FIFO).
     pub tick: Option<Duration>,
     /// Each reply handed over in two halves this far apart (a packet boundary mid-reply).
     pub split: Option<Duration>,
@@ -358,15 +370,17 @@ impl<P: Port> Port for Delivered<P> {
         }
     }
 
+    fn request_end(&self, read_at: Duration, chars: usize) -> Duration {
+        read_at + self.timing.chars(chars as u64)
+    }
+
     fn echo(&mut self, request: &[u8]) -> io::Result<()> {
         if !self.delivery.echo {
             return Ok(());
         }
-        // The request left the master's adapter just now: its characters were on the wire over
-        // the last `len` character times.
+        // The request's characters go onto the wire from now, as the master wrote them.
         let now = self.start.elapsed();
-        let first = now.saturating_sub(self.timing.chars(request.len() as u64));
-        self.queue(request, first, false);
+        self.queue(request, now, false);
         self.deliver_due()
     }
 }

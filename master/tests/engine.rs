@@ -78,6 +78,7 @@ fn bench_with(
         publish_every: ms(100),
         param_priority: false,
         safety_first: true,
+        rx_latency: Duration::ZERO,
         capture: false,
         drives: setups,
     };
@@ -1107,6 +1108,7 @@ fn a_failed_line_ends_every_job_and_the_restored_line_latches_every_drive() {
         publish_every: ms(100),
         param_priority: false,
         safety_first: true,
+        rx_latency: Duration::ZERO,
         capture: false,
         drives: vec![
             DriveSetup::new(addr(1), layout(PkwMode::Four, 2)),

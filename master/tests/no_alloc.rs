@@ -56,6 +56,7 @@ fn faulty_bus() -> (TestEngine, EngineHandle, Receiver<Event>) {
         // The extra polls for parameter jobs allocate nothing either.
         param_priority: true,
         safety_first: true,
+        rx_latency: Duration::ZERO,
         ..common::engine_config(timing, setups)
     };
     let wire = VirtualWire::new(bus, timing).with_echo(true);

@@ -79,6 +79,7 @@ fn bench_of(
         publish_every: ms(100),
         param_priority: false,
         safety_first: true,
+        rx_latency: Duration::ZERO,
         capture: false,
         drives: setups,
     };

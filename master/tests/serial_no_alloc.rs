@@ -39,7 +39,9 @@ fn a_thousand_exchanges_over_a_pty_allocate_nothing() {
         let options = SerialOptions {
             baud: timing.baud(),
             kernel_rs485: false,
+            rs485_settings: uss_master::transports::serial::Rs485Wanted::default(),
             low_latency: true,
+            rx_latency: core::time::Duration::ZERO,
         };
         let before_open = allocations();
         let (mut serial, _) = SerialTransport::open(&path, &options).unwrap();

@@ -49,6 +49,9 @@ pub struct FramerConfig {
     pub require_start_pause: bool,
     /// Added to the residual-time limit, for adapters that deliver bytes in late bursts (USB).
     pub residual_slack: Duration,
+    /// Taken off the start pause an STX must follow, for the same adapters: bytes read
+    /// together seem closer than they were on the wire.
+    pub start_pause_slack: Duration,
 }
 
 impl FramerConfig {
@@ -58,6 +61,19 @@ impl FramerConfig {
             timing,
             require_start_pause: true,
             residual_slack: Duration::ZERO,
+            start_pause_slack: Duration::ZERO,
+        }
+    }
+
+    /// The rules of USS.md section 4 judged on bytes an adapter delivers up to `latency` late
+    /// and in packets: the residual-time limit widened and the start pause shortened by
+    /// exactly that much.
+    pub const fn with_latency(timing: Timing, latency: Duration) -> Self {
+        Self {
+            timing,
+            require_start_pause: true,
+            residual_slack: latency,
+            start_pause_slack: latency,
         }
     }
 }
@@ -145,9 +161,14 @@ impl Framer {
     /// Feeds one byte that arrived at `at`. Returns a telegram when this byte completes one, an
     /// error when this byte reveals one, and `None` otherwise.
     pub fn push(&mut self, byte: u8, at: Duration) -> Option<Result<Telegram<'_>, FrameError>> {
+        let pause = self
+            .config
+            .timing
+            .start_pause()
+            .saturating_sub(self.config.start_pause_slack);
         let paused = self
             .last_activity
-            .is_none_or(|t| at.saturating_sub(t) >= self.config.timing.start_pause());
+            .is_none_or(|t| at.saturating_sub(t) >= pause);
         self.line_busy_until(at);
         match self.state {
             State::Receiving { stx_at, allowed } => {
@@ -406,6 +427,27 @@ mod tests {
             last = f.push(b, late).map(|r| r.is_ok());
         }
         assert_eq!(last, Some(true));
+    }
+
+    #[test]
+    fn latency_shortens_the_start_pause_by_exactly_that_much() {
+        let (buf, n) = telegram(2, &[3, 4]);
+        let t = timing();
+        let latency = t.char_time() / 2;
+        // `feed` puts the STX one character time after its start.
+        let short = t.start_pause().saturating_sub(latency + t.char_time());
+        let mut f = Framer::new(FramerConfig::with_latency(t, latency));
+        f.line_busy_until(Duration::from_millis(10));
+        let (events, _) = feed(&mut f, &buf[..n], Duration::from_millis(10) + short);
+        assert_eq!(events, vec![Ok(buf[..n].to_vec())]);
+        let mut f = Framer::new(FramerConfig::with_latency(t, latency));
+        f.line_busy_until(Duration::from_millis(10));
+        let (events, _) = feed(
+            &mut f,
+            &buf[..n],
+            (Duration::from_millis(10) + short).saturating_sub(Duration::from_nanos(1)),
+        );
+        assert_eq!(events[0], Err(FrameError::StartPauseNotObserved));
     }
 
     #[test]

@@ -407,13 +407,20 @@ fn split_every_way(t: Telegram<'_>) {
 }
 
 fn framer_config() -> impl Strategy<Value = FramerConfig> {
-    (timing(), any::<bool>(), 0u64..=20_000_000).prop_map(|(timing, require_start_pause, slack)| {
-        FramerConfig {
-            timing,
-            require_start_pause,
-            residual_slack: Duration::from_nanos(slack),
-        }
-    })
+    (
+        timing(),
+        any::<bool>(),
+        0u64..=20_000_000,
+        0u64..=20_000_000,
+    )
+        .prop_map(
+            |(timing, require_start_pause, slack, pause_slack)| FramerConfig {
+                timing,
+                require_start_pause,
+                residual_slack: Duration::from_nanos(slack),
+                start_pause_slack: Duration::from_nanos(pause_slack),
+            },
+        )
 }
 
 proptest! {

@@ -56,7 +56,9 @@ fn start_engine(path: &str) -> (EngineHandle, BusThread) {
     let options = SerialOptions {
         baud,
         kernel_rs485: false,
+        rs485_settings: uss_master::transports::serial::Rs485Wanted::default(),
         low_latency: true,
+        rx_latency: core::time::Duration::ZERO,
     };
     let (transport, report) = SerialTransport::open(std::path::Path::new(path), &options).unwrap();
     assert!(report.pseudo_terminal);
@@ -73,6 +75,7 @@ fn start_engine(path: &str) -> (EngineHandle, BusThread) {
         publish_every: Duration::from_millis(50),
         param_priority: false,
         safety_first: true,
+        rx_latency: Duration::ZERO,
         capture: false,
         drives: vec![setup(1, PkwMode::Four, 2), setup(2, PkwMode::Variable, 4)],
     };

@@ -98,7 +98,9 @@ fn a_device_that_is_missing_not_a_tty_or_busy_is_a_clear_error() {
     let options = SerialOptions {
         baud: uss_client::uss_protocol::Baud::new(9600).unwrap(),
         kernel_rs485: false,
+        rs485_settings: uss_master::transports::serial::Rs485Wanted::default(),
         low_latency: false,
+        rx_latency: core::time::Duration::ZERO,
     };
     let _held = SerialTransport::open(std::path::Path::new(&sim.path), &options).unwrap();
     let (code, _, err) = ussctl(&["scan", &sim.path, "--baud", "9600"]);

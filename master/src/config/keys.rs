@@ -104,6 +104,8 @@ keys! {
     /// The slave's response delay limit, 20 ms by the specification (USS.md section 4).
     ResponseTimeout(f64, ms): 1.0..=1000.0, 20.0,
         "the response timeout is 1..=1000 ms (USS.md section 4: a slave answers within 20 ms)";
+    /// How late the adapter delivers received bytes (default: from sysfs).
+    RxLatencyMs(f64, ms): 0.0..=100.0, 0.0, "the receive latency is 0..=100 ms";
     /// Added to the response timeout for adapters with latency (USS.md section 9).
     TimeoutMargin(f64, ms): 0.0..=1000.0, 0.0, "the timeout margin is 0..=1000 ms";
     /// An offline drive is polled at most this often.
@@ -129,6 +131,9 @@ keys! {
     Retries(u8, int): 0..=10, 2, "retries after a failed exchange are 0..=10";
     /// Consecutive polls that failed all their retries before a drive is marked offline.
     OfflineAfter(u32, int): 1..=100, 1, "failed polls before a drive is marked offline are 1..=100";
+    /// RTS delay before or after sending in the kernel's RS485 mode, in whole ms (the kernel
+    /// takes at most 100).
+    Rs485Delay(u32, int): 0..=100, 0, "RS485 delays are 0..=100 ms (whole ms)";
     /// The bus thread's `SCHED_FIFO` priority.
     Priority(u8, int): 1..=99, 80, "SCHED_FIFO priorities are 1..=99";
     /// Entries in the circulating list (USS.md section 5).

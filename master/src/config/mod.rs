@@ -84,6 +84,15 @@ pub enum Rs485Mode {
     None,
 }
 
+/// The level of RTS while sending in the kernel's RS485 mode (`SER_RS485_RTS_ON_SEND` or
+/// `_AFTER_SEND`): as the transceiver's driver-enable is wired.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Rs485Rts {
+    HighWhileSending,
+    LowWhileSending,
+}
+
 /// What a drive gets when its controller is gone or stopped refreshing within its watchdog time
 /// (docs/ARCHITECTURE.md, "Failure model"); the STW1 words are those of USS.md section 7.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
@@ -127,6 +136,14 @@ pub struct BusConfig {
     pub nonstandard_baud: bool,
     #[serde(default)]
     pub rs485: Rs485Mode,
+    /// With `rs485 = "kernel"`: the RTS level while sending and the delays around sending;
+    /// unset, the port's own (device tree) values are kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rs485_rts: Option<Rs485Rts>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rs485_delay_before_ms: Option<Rs485Delay>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rs485_delay_after_ms: Option<Rs485Delay>,
     /// A 2-wire adapter returns our own bytes: discard them (USS.md section 9).
     #[serde(default)]
     pub echo: bool,
@@ -134,6 +151,10 @@ pub struct BusConfig {
     pub response_timeout_ms: ResponseTimeout,
     #[serde(default)]
     pub timeout_margin_ms: TimeoutMargin,
+    /// How late the adapter delivers received bytes; `None`: read from sysfs when the line is
+    /// opened (FTDI `latency_timer`, 8250 FIFO trigger, one USB frame, 0 for a pty).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rx_latency_ms: Option<RxLatencyMs>,
     #[serde(default)]
     pub retries: Retries,
     #[serde(default)]

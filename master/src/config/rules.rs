@@ -58,9 +58,34 @@ pub fn check(config: &Config, reporter: &Reporter<'_>) -> Vec<Broken> {
                 format!("is used twice (first at line {line}): every bus needs its own name");
             rules.fail("name", &problem);
         }
+        if let Some(first) = config.buses[..i]
+            .iter()
+            .position(|b| same_serial_device(&b.device, &bus.device))
+        {
+            let line = rules.line_of(&[("bus", first)], "device");
+            let problem = format!(
+                "is the device of bus \"{}\" too (line {line}): two buses cannot share one line \
+                 (each would take the other's replies, and the second cannot open it)",
+                config.buses[first].name
+            );
+            rules.fail("device", &problem);
+        }
         rules.bus(bus);
     }
     rules.broken
+}
+
+/// Whether two devices are the same serial line: the same path, or two names (a by-id link and
+/// the tty) of one existing device.
+fn same_serial_device(a: &Device, b: &Device) -> bool {
+    let (Device::Serial(a), Device::Serial(b)) = (a, b) else {
+        return false;
+    };
+    a == b
+        || matches!(
+            (std::fs::canonicalize(a), std::fs::canonicalize(b)),
+            (Ok(x), Ok(y)) if x == y
+        )
 }
 
 struct Rules<'a> {
@@ -115,6 +140,26 @@ impl Rules<'_> {
                 };
                 self.fail("cpu", &format!("is out of range: {allowed}"));
             }
+        }
+        if bus.rs485 != super::Rs485Mode::Kernel {
+            for (key, set) in [
+                ("rs485_rts", bus.rs485_rts.is_some()),
+                ("rs485_delay_before_ms", bus.rs485_delay_before_ms.is_some()),
+                ("rs485_delay_after_ms", bus.rs485_delay_after_ms.is_some()),
+            ] {
+                if set {
+                    self.fail(
+                        key,
+                        "applies to the kernel's RS485 mode only: set rs485 = \"kernel\"",
+                    );
+                }
+            }
+        } else if bus.echo {
+            self.fail(
+                "echo",
+                "cannot be heard with rs485 = \"kernel\": the kernel turns the receiver off \
+                 while sending (set echo = false)",
+            );
         }
         if bus.seed.is_some() && matches!(device, Some(Device::Serial(_))) {
             self.fail("seed", ONLY_ON_SIM);

@@ -60,7 +60,7 @@ const FULL: &str = r#"# two buses, every key set
 name = "line-A_1"
 device = "sim"
 baud = 19200
-rs485 = "kernel"
+rs485 = "auto"
 echo = true
 response_timeout_ms = 25.5
 timeout_margin_ms = 5
@@ -179,7 +179,7 @@ fn every_key_is_read_as_written() {
     };
     assert_eq!(sim.name, "line-A_1");
     assert_eq!(sim.baud.get(), 19200);
-    assert_eq!(sim.rs485, Rs485Mode::Kernel);
+    assert_eq!(sim.rs485, Rs485Mode::Auto);
     assert!(sim.echo);
     assert_eq!(sim.response_timeout_ms.get(), Duration::from_micros(25_500));
     assert_eq!(sim.timeout_margin_ms.get(), ms(5));
@@ -689,6 +689,70 @@ fn an_address_or_bus_name_used_twice_names_the_first_line() {
 }
 
 #[test]
+fn two_buses_on_one_device_are_refused_even_under_two_names() {
+    let dir = std::env::temp_dir().join(format!("uss-config-dev-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let link = dir.join("usb-FTDI_FT1ABCDE-if00-port0");
+    std::os::unix::fs::symlink("/dev/null", &link).unwrap();
+    let text = format!(
+        "[[bus]]\nname = \"a\"\ndevice = \"/dev/null\"\n[[bus.drive]]\naddress = 1\n\n\
+         [[bus]]\nname = \"b\"\ndevice = \"{}\"\n[[bus.drive]]\naddress = 2\n",
+        link.display()
+    );
+    let (message, path) = refused(&text);
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(path.as_deref(), Some("bus[1].device"));
+    assert!(
+        message.starts_with("bus.toml:9:10: bus \"b\": device = \""),
+        "{message}"
+    );
+    assert!(
+        message.ends_with(
+            "is the device of bus \"a\" too (line 3): two buses cannot share one line (each \
+             would take the other's replies, and the second cannot open it)"
+        ),
+        "{message}"
+    );
+    // Two simulated buses are two lines.
+    let sims = "[[bus]]\nname = \"a\"\ndevice = \"sim\"\n[[bus.drive]]\naddress = 3\n\
+                [[bus]]\nname = \"b\"\ndevice = \"sim\"\n[[bus.drive]]\naddress = 3\n";
+    assert_eq!(parse(sims).buses.len(), 2);
+}
+
+#[test]
+fn rs485_settings_need_the_kernels_mode_which_hears_no_echo() {
+    assert_eq!(
+        refused(&serial("rs485_rts = \"low-while-sending\"", "")).0,
+        "bus.toml:4:13: bus \"bus1\": rs485_rts = \"low-while-sending\" applies to the \
+         kernel's RS485 mode only: set rs485 = \"kernel\""
+    );
+    assert_eq!(
+        refused(&serial("rs485 = \"kernel\"\necho = true", "")).0,
+        "bus.toml:5:8: bus \"bus1\": echo = true cannot be heard with rs485 = \"kernel\": the \
+         kernel turns the receiver off while sending (set echo = false)"
+    );
+    assert_eq!(
+        refused(&serial(
+            "rs485 = \"kernel\"\nrs485_delay_after_ms = 101",
+            ""
+        ))
+        .0,
+        "bus.toml:5:24: bus \"bus1\": rs485_delay_after_ms = 101 is out of range: RS485 \
+         delays are 0..=100 ms (whole ms)"
+    );
+    let bus = parse(&serial(
+        "rs485 = \"kernel\"\nrs485_rts = \"high-while-sending\"\nrs485_delay_after_ms = 1",
+        "",
+    ))
+    .buses
+    .remove(0);
+    assert_eq!(bus.rs485_rts, Some(super::Rs485Rts::HighWhileSending));
+    assert_eq!(bus.rs485_delay_after_ms.map(Rs485Delay::get), Some(1));
+    assert_eq!(bus.rs485_delay_before_ms, None, "the port's own kept");
+}
+
+#[test]
 fn bus_names_are_1_to_32_of_letters_digits_underscore_and_dash() {
     let named = |name: &str| {
         format!("[[bus]]\nname = {name}\ndevice = \"sim\"\n[[bus.drive]]\naddress = 1\n")
@@ -910,6 +974,10 @@ fn values_out_of_range_name_their_limits() {
             "cycle_time_ms = 60001",
             "cycle_time_ms = 60001 is out of range: the cycle time (0 = as fast as the wire \
              allows) is 0..=60000 ms",
+        ),
+        (
+            "rx_latency_ms = 101",
+            "rx_latency_ms = 101 is out of range: the receive latency is 0..=100 ms",
         ),
         (
             "line_down_limit_ms = -1",
@@ -1158,6 +1226,8 @@ const BUS_KEYS: &[&str] = &[
     "echo = true",
     "response_timeout_ms = 25.5",
     "timeout_margin_ms = 3",
+    "rx_latency_ms = 16",
+    "rs485 = \"kernel\"\nrs485_rts = \"low-while-sending\"\nrs485_delay_before_ms = 2",
     "retries = 0",
     "offline_after = 5",
     "cycle_time_ms = 12.25",

@@ -10,13 +10,15 @@
 //! cannot fail on it.
 
 use crate::config::{BusConfig, Cpu, Device, Rs485Mode};
+use crate::config::{Rs485Delay, RxLatencyMs};
 use crate::daemon::ipc::StatusPublisher;
 use crate::daemon::rt::{RtReport, RtRequest, apply_to_current_thread};
 use crate::engine::clock::MonotonicClock;
 use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
 use crate::engine::transport::{Line, Transport, TransportError};
 use crate::engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event};
-use crate::transports::serial::{SerialError, SerialOptions, SerialTransport};
+use crate::transports::latency::{self, RxLatency, Source};
+use crate::transports::serial::{Rs485Wanted, SerialError, SerialOptions, SerialTransport};
 #[cfg(feature = "sim")]
 use crate::transports::sim::SimTransport;
 use core::time::Duration;
@@ -86,6 +88,8 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
         publish_every: super::housekeeping::STATUS_EVERY,
         param_priority: bus.param_priority,
         safety_first: true,
+        // Set where the line is known (`spawn`): configured, or from sysfs.
+        rx_latency: bus.rx_latency_ms.map_or(Duration::ZERO, RxLatencyMs::get),
         capture: true,
         drives: bus
             .drives
@@ -380,9 +384,13 @@ fn spawn<T: Transport + Send + 'static>(
     options: RunOptions,
     go: &Receiver<()>,
     line: Option<(PathBuf, Opener<T>)>,
+    rx_latency: Duration,
 ) -> Result<Spawned, StartError> {
     let clock = MonotonicClock::new();
-    let config = engine_config(bus);
+    let config = EngineConfig {
+        rx_latency,
+        ..engine_config(bus)
+    };
     let ipc = crate::daemon::ipc::create(&bus.name, &config.drives, clock.origin())?;
     let (mut engine, handle, events) = Engine::with_bridge(config, transport, clock, ipc.rt);
     let params = ipc.params;
@@ -461,7 +469,7 @@ fn open_and_spawn(
         #[cfg(feature = "sim")]
         Device::Sim => {
             let t = sim_transport(bus)?;
-            spawn(bus, t, options, go, None)
+            spawn(bus, t, options, go, None, Duration::ZERO)
         }
         #[cfg(not(feature = "sim"))]
         Device::Sim => Err(StartError::NoSim {
@@ -471,7 +479,15 @@ fn open_and_spawn(
             let serial = SerialOptions {
                 baud: bus.baud,
                 kernel_rs485: bus.rs485 == Rs485Mode::Kernel,
+                rs485_settings: Rs485Wanted {
+                    rts_high_while_sending: bus
+                        .rs485_rts
+                        .map(|r| r == crate::config::Rs485Rts::HighWhileSending),
+                    delay_before_ms: bus.rs485_delay_before_ms.map(Rs485Delay::get),
+                    delay_after_ms: bus.rs485_delay_after_ms.map(Rs485Delay::get),
+                },
                 low_latency: true,
+                rx_latency: bus.rx_latency_ms.map_or(Duration::ZERO, RxLatencyMs::get),
             };
             let t = match SerialTransport::open(path, &serial) {
                 Ok((t, report)) => {
@@ -496,15 +512,38 @@ fn open_and_spawn(
                     });
                 }
             };
+            // After the open: a granted ASYNC_LOW_LATENCY lowers an FTDI latency timer.
+            let rx_latency = rx_latency(bus, path);
             let device = path.clone();
             let open: Opener<Line<SerialTransport>> = Box::new(move || {
                 SerialTransport::open(&device, &serial)
                     .map(|(t, report)| (Line::Open(t), report.to_string()))
                     .map_err(|e| e.to_string())
             });
-            spawn(bus, t, options, go, Some((path.clone(), open)))
+            spawn(bus, t, options, go, Some((path.clone(), open)), rx_latency)
         }
     }
+}
+
+/// The receive latency the bus's timing allows for: as configured, else as sysfs describes the
+/// device (logged, with a warning for a slow FTDI latency timer).
+fn rx_latency(bus: &BusConfig, device: &Path) -> Duration {
+    let found = match bus.rx_latency_ms {
+        Some(ms) => RxLatency {
+            latency: ms.get(),
+            source: Source::Configured,
+        },
+        None => latency::detect(Path::new("/sys"), device, Timing::new(bus.baud)),
+    };
+    tracing::info!(
+        bus = %bus.name,
+        device = %device.display(),
+        "receive latency {found}: the residual-time and start-pause allowances and the response timeout widen by it"
+    );
+    if let Some(warning) = found.warning() {
+        tracing::warn!(bus = %bus.name, device = %device.display(), "{warning}");
+    }
+    found.latency
 }
 
 fn abandon(spawned: Vec<Spawned>, go: Sender<()>) {

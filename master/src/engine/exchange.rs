@@ -295,7 +295,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         request_len: usize,
         request_end: Duration,
     ) -> Result<Attempt, TransportError> {
-        let stx_deadline = request_end + self.cfg.response_timeout;
+        let stx_deadline = request_end + self.cfg.response_timeout + self.cfg.rx_latency;
         let mut stx_at = None;
         let mut garbage = None;
         loop {
@@ -307,6 +307,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                     self.drain()?;
                     return Ok(Attempt::Failed(LastFailure::Residual));
                 }
+                // A reply that started too late on the wire may still be on its way through the
+                // adapter: the next telegram waits it out (and flushes it), so it is not taken
+                // for the answer to the retry.
+                self.line_free_at = self
+                    .line_free_at
+                    .max(self.clock.now() + self.cfg.rx_latency);
                 return Ok(Attempt::Failed(garbage.unwrap_or(LastFailure::NoResponse)));
             };
             self.line_free_at = self.line_free_at.max(rx.at);
@@ -372,7 +378,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         n: usize,
         request_end: Duration,
     ) -> Result<Option<LastFailure>, TransportError> {
-        let deadline = request_end + self.cfg.response_timeout;
+        let deadline = request_end + self.cfg.response_timeout + self.cfg.rx_latency;
         for i in 0..n {
             let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {
                 return Ok(Some(LastFailure::Echo));
@@ -384,7 +390,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 return Ok(Some(LastFailure::Echo));
             }
         }
-        self.framer.line_busy_until(self.line_free_at);
+        // The echo is our own request: the line was busy until the request's computed end,
+        // not until the echo was delivered (an adapter hands the echo's tail and the reply's
+        // start over together; their spacing is the adapter's, not the wire's).
+        self.line_free_at = request_end;
+        self.framer.line_busy_until(request_end);
         // Our own bytes: the reply starts after them.
         self.capture.reply_begin();
         Ok(None)

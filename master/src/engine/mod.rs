@@ -143,6 +143,11 @@ pub struct EngineConfig {
     /// drive as a broadcast. Always on in ussd; `false` only measures what it buys (the
     /// `safety` benchmark): then a drive's words are decided at its turn alone.
     pub safety_first: bool,
+    /// How late the line's adapter may deliver a received byte (USB latency timer, UART FIFO
+    /// trigger): the residual-time and start-pause allowances and the response timeout widen
+    /// by exactly this much, and a retry after a timeout first waits it out, so a reply on its
+    /// way is not taken for the retry's answer.
+    pub rx_latency: Duration,
     /// Copy every telegram into the capture channel ([`EngineHandle::captures`]).
     pub capture: bool,
     pub drives: Vec<DriveSetup>,
@@ -505,7 +510,9 @@ fn period_setup(cfg: &EngineConfig) -> PeriodSetup {
         .unwrap_or(0);
     let worst = cfg.timing.worst_case_transaction(request, reply);
     PeriodSetup {
-        attempt: worst.saturating_sub(uss_protocol::MAX_RESPONSE_DELAY) + cfg.response_timeout,
+        attempt: worst.saturating_sub(uss_protocol::MAX_RESPONSE_DELAY)
+            + cfg.response_timeout
+            + cfg.rx_latency,
         retries: cfg.retries,
         probe: cfg.offline_probe,
         param_priority: cfg.param_priority,
@@ -582,7 +589,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             })
             .collect();
         let engine = Self {
-            framer: Framer::new(FramerConfig::strict(cfg.timing)),
+            framer: Framer::new(FramerConfig::with_latency(cfg.timing, cfg.rx_latency)),
             transport,
             clock,
             shared: Arc::clone(&shared),

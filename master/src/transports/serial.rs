@@ -10,6 +10,7 @@
 
 use crate::engine::clock::Clock;
 use crate::engine::transport::{Rx, Transport, TransportError};
+use crate::transports::rate::ReadBack;
 use core::fmt;
 use core::ops::RangeInclusive;
 use core::time::Duration;
@@ -60,9 +61,51 @@ pub struct SerialOptions {
     /// Let the kernel drive RTS as the RS485 direction line (`TIOCSRS485` with RTS on send), for
     /// embedded UARTs; USB adapters switch by themselves (USS.md section 9).
     pub kernel_rs485: bool,
+    /// With `kernel_rs485`: what to change of the port's RS485 set-up (the rest is kept as the
+    /// driver or device tree has it).
+    pub rs485_settings: Rs485Wanted,
     /// Ask the driver for low latency (`ASYNC_LOW_LATENCY`); an FTDI adapter otherwise holds
     /// received bytes up to 16 ms, most of the 20 ms reply budget (USS.md section 9).
     pub low_latency: bool,
+    /// How late the adapter may deliver a received byte. Bytes read together are back-dated
+    /// by their character times (the last one arrived when read, each earlier one a character
+    /// before) on a UART; a pseudo-terminal with a latency is an adapter imitated on it
+    /// (`uss-sim --rx-tick`), timed as a UART (sending takes wire time, reading is back-dated).
+    pub rx_latency: Duration,
+}
+
+/// What to set of a port's kernel RS485 mode; `None` keeps what the port has (a device tree's
+/// polarity and delays, on a board wired for them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Rs485Wanted {
+    /// RTS high while sending (`true`) or low while sending.
+    pub rts_high_while_sending: Option<bool>,
+    pub delay_before_ms: Option<u32>,
+    pub delay_after_ms: Option<u32>,
+}
+
+/// The kernel RS485 set-up a port runs with, as the driver wrote it back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Rs485Kept {
+    pub rts_high_while_sending: bool,
+    pub delay_before_ms: u32,
+    pub delay_after_ms: u32,
+}
+
+impl fmt::Display for Rs485Kept {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "RTS {} while sending, delays {}/{} ms",
+            if self.rts_high_while_sending {
+                "high"
+            } else {
+                "low"
+            },
+            self.delay_before_ms,
+            self.delay_after_ms
+        )
+    }
 }
 
 /// Whether even parity is really on the line.
@@ -92,6 +135,8 @@ pub struct OpenReport {
     /// Kernel RS485 mode. `Unsupported` only on a pseudo-terminal: a real port that refuses it
     /// fails to open.
     pub rs485: Setting,
+    /// With kernel RS485 set: what the driver runs with.
+    pub rs485_kept: Option<Rs485Kept>,
     pub low_latency: Setting,
 }
 
@@ -120,7 +165,11 @@ impl fmt::Display for OpenReport {
             f,
             "pty={} parity={} rs485={} low_latency={}",
             self.pseudo_terminal, self.parity, self.rs485, self.low_latency
-        )
+        )?;
+        if let Some(kept) = self.rs485_kept {
+            write!(f, " ({kept})")?;
+        }
+        Ok(())
     }
 }
 
@@ -152,6 +201,11 @@ pub enum SerialError {
         .path.display()
     )]
     ParityRefused { path: PathBuf },
+    #[error("cannot use {}: {off}", .path.display())]
+    RateOff {
+        path: PathBuf,
+        off: crate::transports::rate::RateOff,
+    },
     #[error(
         "cannot open {}: kernel RS485 mode requested but the driver refused TIOCSRS485 ({errno:?}): use rs485 = \"auto\" for adapters that switch direction themselves",
         .path.display()
@@ -181,7 +235,7 @@ impl SerialError {
 
 /// `struct serial_rs485` of `linux/serial.h` (the libc crate lacks it).
 #[repr(C)]
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
 struct SerialRs485 {
     flags: u32,
     delay_rts_before_send: u32,
@@ -191,6 +245,10 @@ struct SerialRs485 {
 
 const SER_RS485_ENABLED: u32 = 1 << 0;
 const SER_RS485_RTS_ON_SEND: u32 = 1 << 1;
+const SER_RS485_RTS_AFTER_SEND: u32 = 1 << 2;
+/// Receive while sending: a flag of the device tree's that ussd keeps.
+#[cfg(test)]
+const SER_RS485_RX_DURING_TX: u32 = 1 << 4;
 
 /// `struct serial_struct` of `linux/serial.h` (the libc crate lacks it); its two pointer-sized
 /// fields are `usize` and `c_ulong`, the same layout.
@@ -231,7 +289,10 @@ mod ioctl {
     nix::ioctl_write_ptr_bad!(tiocsserial, libc::TIOCSSERIAL, SerialStruct);
     // The kernel writes back the configuration it applied.
     nix::ioctl_readwrite_bad!(tiocsrs485, libc::TIOCSRS485, SerialRs485);
+    nix::ioctl_read_bad!(tiocgrs485, libc::TIOCGRS485, SerialRs485);
+    nix::ioctl_read_bad!(tiocgicount, libc::TIOCGICOUNT, super::SerialIcounter);
     nix::ioctl_none_bad!(tiocnxcl, libc::TIOCNXCL);
+    nix::ioctl_read_bad!(tcgets2, libc::TCGETS2, libc::termios2);
 }
 
 /// Undoes the tty's `PARMRK` marking (termios(3)): `FF FF` is a literal 0xFF and `FF 00 X` is X
@@ -280,6 +341,16 @@ pub struct SerialTransport {
     pos: usize,
     /// When the bytes in `raw` were read.
     at: Duration,
+    /// Reads the UART's overrun count (`TIOCGICOUNT`), where the driver keeps one: Linux
+    /// counts overruns instead of marking them in the stream.
+    overruns: Option<OverrunProbe>,
+    /// The count at the last read, and whether the next character returned carries the
+    /// overrun (characters were lost before it).
+    overruns_seen: u64,
+    overrun_pending: bool,
+    /// Characters in `raw[..len]` (markings undone), and how many of them were handed out.
+    chars: u64,
+    handed: u64,
     unmark: Unmark,
     /// A UART takes each character's wire time; a pseudo-terminal moves bytes at once, so there
     /// the request has left (and the reply may start) as soon as `write` returns.
@@ -303,6 +374,16 @@ impl SerialTransport {
     /// back and a refused kernel RS485 mode is an error; a pseudo-terminal opens without parity,
     /// RS485 or low latency and the report says so (USS.md section 9).
     pub fn open(path: &Path, options: &SerialOptions) -> Result<(Self, OpenReport), SerialError> {
+        Self::open_with(path, options, read_back_rate)
+    }
+
+    /// [`SerialTransport::open`] with the rate read back by `probe` (an injection point for
+    /// tests: the real one asks the driver, and nothing of a pseudo-terminal).
+    pub fn open_with(
+        path: &Path,
+        options: &SerialOptions,
+        probe: RateProbe,
+    ) -> Result<(Self, OpenReport), SerialError> {
         let mut port = serialport::new(path.to_string_lossy(), options.baud.get())
             .data_bits(DataBits::Eight)
             .parity(Parity::Even)
@@ -321,11 +402,38 @@ impl SerialTransport {
             len: 0,
             pos: 0,
             at: Duration::ZERO,
+            overruns: None,
+            overruns_seen: 0,
+            overrun_pending: false,
+            chars: 0,
+            handed: 0,
             unmark: Unmark::Plain,
             paced: true,
         };
         let report = transport.set_up(path, *options)?;
-        transport.paced = !report.pseudo_terminal;
+        let rate =
+            probe(transport.fd(), report.pseudo_terminal).map_err(|errno| SerialError::Setup {
+                path: path.to_owned(),
+                step: "TCGETS2 (the rate obtained)",
+                errno,
+            })?;
+        if let Some(read_back) = rate {
+            crate::transports::rate::obtained(options.baud.get(), read_back).map_err(|off| {
+                SerialError::RateOff {
+                    path: path.to_owned(),
+                    off,
+                }
+            })?;
+        }
+        if !report.pseudo_terminal
+            && let Ok(count) = read_overruns(transport.fd())
+        {
+            transport.overruns = Some(read_overruns);
+            transport.overruns_seen = count;
+        }
+        // A pseudo-terminal with a receive latency is an adapter imitated on it (uss-sim
+        // --rx-tick): bytes take their wire time there as on a UART.
+        transport.paced = !report.pseudo_terminal || !options.rx_latency.is_zero();
         Ok((transport, report))
     }
 
@@ -357,9 +465,13 @@ impl SerialTransport {
             FcntlArg::F_SETFL(OFlag::from_bits_retain(flags) | OFlag::O_NONBLOCK),
         )
         .map_err(failed("fcntl(F_SETFL, O_NONBLOCK)"))?;
+        let mut rs485_kept = None;
         let rs485 = if options.kernel_rs485 {
-            match enable_rs485(fd) {
-                Ok(true) => Setting::Set,
+            match enable_rs485(fd, options.rs485_settings) {
+                Ok(Some(kept)) => {
+                    rs485_kept = Some(kept);
+                    Setting::Set
+                }
                 Err(errno) if pseudo_terminal => Setting::Unsupported(errno),
                 Err(errno) => {
                     return Err(SerialError::Rs485Refused {
@@ -367,7 +479,7 @@ impl SerialTransport {
                         errno,
                     });
                 }
-                Ok(false) => {
+                Ok(None) => {
                     return Err(SerialError::Rs485LeftOff {
                         path: path.to_owned(),
                     });
@@ -386,6 +498,7 @@ impl SerialTransport {
             pseudo_terminal,
             parity,
             rs485,
+            rs485_kept,
             low_latency,
         })
     }
@@ -400,11 +513,22 @@ impl SerialTransport {
             let raw = self.raw[self.pos];
             self.pos += 1;
             if let Some((byte, error)) = self.unmark.push(raw) {
-                return Some(Rx {
-                    byte,
-                    at: self.at,
-                    error,
-                });
+                self.handed += 1;
+                let error = if self.overrun_pending {
+                    self.overrun_pending = false;
+                    error.or(Some(LineError::Overrun))
+                } else {
+                    error
+                };
+                let at = if self.paced {
+                    // On the wire the last character of the read came last; each one before
+                    // it a character time earlier.
+                    self.at
+                        .saturating_sub(self.timing.chars(self.chars.saturating_sub(self.handed)))
+                } else {
+                    self.at
+                };
+                return Some(Rx { byte, at, error });
             }
         }
         None
@@ -420,12 +544,31 @@ impl SerialTransport {
                     self.len = n;
                     self.pos = 0;
                     self.at = clock.now();
+                    self.handed = 0;
+                    let mut unmark = self.unmark;
+                    self.chars = self.raw[..n]
+                        .iter()
+                        .filter(|&&raw| unmark.push(raw).is_some())
+                        .count() as u64;
+                    self.note_overruns();
                     return Ok(true);
                 }
                 Err(Errno::EAGAIN) => return Ok(false),
                 Err(Errno::EINTR) => {}
                 Err(errno) => return Err(line_failure(errno)),
             }
+        }
+    }
+
+    /// Marks the next character when the UART counted overruns since the last read.
+    fn note_overruns(&mut self) {
+        if let Some(probe) = self.overruns
+            && let Ok(count) = probe(self.fd())
+        {
+            if count > self.overruns_seen {
+                self.overrun_pending = true;
+            }
+            self.overruns_seen = count;
         }
     }
 
@@ -457,6 +600,8 @@ impl Transport for SerialTransport {
         termios::tcflush(self.fd(), FlushArg::TCIFLUSH).map_err(line_failure)?;
         self.len = 0;
         self.pos = 0;
+        self.chars = 0;
+        self.handed = 0;
         self.unmark = Unmark::Plain;
         Ok(())
     }
@@ -519,6 +664,67 @@ impl Transport for SerialTransport {
     }
 }
 
+/// Reads a UART's count of characters lost to overruns.
+type OverrunProbe = fn(BorrowedFd<'_>) -> Result<u64, Errno>;
+
+/// `struct serial_icounter_struct` of `linux/serial.h`.
+#[repr(C)]
+#[derive(Debug, Default)]
+struct SerialIcounter {
+    cts: c_int,
+    dsr: c_int,
+    rng: c_int,
+    dcd: c_int,
+    rx: c_int,
+    tx: c_int,
+    frame: c_int,
+    overrun: c_int,
+    parity: c_int,
+    brk: c_int,
+    buf_overrun: c_int,
+    reserved: [c_int; 9],
+}
+
+/// Hardware (FIFO) and buffer overruns (`TIOCGICOUNT`).
+fn read_overruns(fd: BorrowedFd<'_>) -> Result<u64, Errno> {
+    let mut count = SerialIcounter::default();
+    // SAFETY: the fd is open and `count` is a valid `struct serial_icounter_struct` to fill.
+    unsafe { ioctl::tiocgicount(fd.as_raw_fd(), &raw mut count) }?;
+    Ok(u64::from(count.overrun.unsigned_abs()) + u64::from(count.buf_overrun.unsigned_abs()))
+}
+
+/// Reads back the rate a port obtained (`None`: nothing to read, a pseudo-terminal).
+pub type RateProbe = fn(BorrowedFd<'_>, bool) -> Result<Option<ReadBack>, Errno>;
+
+/// The driver's word on the rate: termios's output speed (`TCGETS2`) and, for an 8250-family
+/// UART, its divisor base (`TIOCGSERIAL`). A pseudo-terminal has no rate.
+pub fn read_back_rate(
+    fd: BorrowedFd<'_>,
+    pseudo_terminal: bool,
+) -> Result<Option<ReadBack>, Errno> {
+    if pseudo_terminal {
+        return Ok(None);
+    }
+    let mut t2 = core::mem::MaybeUninit::<nix::libc::termios2>::zeroed();
+    // SAFETY: the fd is open and `t2` is a `struct termios2` for the kernel to fill.
+    unsafe { ioctl::tcgets2(fd.as_raw_fd(), t2.as_mut_ptr()) }?;
+    // SAFETY: zeroed, then filled by the kernel: every field is an integer.
+    let t2 = unsafe { t2.assume_init() };
+    let mut serial = SerialStruct::default();
+    // SAFETY: as in `set_low_latency`. A driver without it (most USB adapters) refuses.
+    let baud_base = match unsafe { ioctl::tiocgserial(fd.as_raw_fd(), &raw mut serial) } {
+        // An 8250-family port: a known UART type and a divisor base.
+        Ok(_) if serial.kind != 0 && serial.baud_base > 0 && serial.line >= 0 => {
+            u32::try_from(serial.baud_base).ok()
+        }
+        _ => None,
+    };
+    Ok(Some(ReadBack {
+        termios: t2.c_ospeed,
+        baud_base,
+    }))
+}
+
 fn port_fd(port: &TTYPort) -> BorrowedFd<'_> {
     // SAFETY: `port` owns this fd and keeps it open for as long as it lives, which the returned
     // borrow cannot outlive.
@@ -559,16 +765,42 @@ fn is_8e1(flags: ControlFlags) -> bool {
         && !flags.intersects(ControlFlags::PARODD | ControlFlags::CMSPAR | ControlFlags::CSTOPB)
 }
 
-/// RTS high while sending, low after, no extra delays; whether the driver kept RS485 on.
-fn enable_rs485(fd: BorrowedFd<'_>) -> Result<bool, Errno> {
-    let mut rs485 = SerialRs485 {
-        flags: SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND,
-        ..SerialRs485::default()
-    };
+/// Turns the port's kernel RS485 mode on with what `wanted` changes and the rest as the port
+/// has it (read first: `TIOCGRS485`); what the driver runs with, `None` if it left RS485 off.
+fn enable_rs485(fd: BorrowedFd<'_>, wanted: Rs485Wanted) -> Result<Option<Rs485Kept>, Errno> {
+    let mut current = SerialRs485::default();
+    // SAFETY: the fd is open and `current` is a valid `struct serial_rs485` to fill.
+    unsafe { ioctl::tiocgrs485(fd.as_raw_fd(), &raw mut current) }?;
+    let mut rs485 = rs485_settings(current, wanted);
     // SAFETY: the fd is open and `rs485` is a valid `struct serial_rs485` the kernel reads and
     // writes back.
     unsafe { ioctl::tiocsrs485(fd.as_raw_fd(), &raw mut rs485) }?;
-    Ok(rs485.flags & SER_RS485_ENABLED != 0)
+    Ok((rs485.flags & SER_RS485_ENABLED != 0).then_some(Rs485Kept {
+        rts_high_while_sending: rs485.flags & SER_RS485_RTS_ON_SEND != 0,
+        delay_before_ms: rs485.delay_rts_before_send,
+        delay_after_ms: rs485.delay_rts_after_send,
+    }))
+}
+
+/// The RS485 set-up to write: `current` (the driver's, perhaps from the device tree) enabled,
+/// with what `wanted` says; a port that has no polarity yet gets RTS high while sending.
+fn rs485_settings(current: SerialRs485, wanted: Rs485Wanted) -> SerialRs485 {
+    let mut s = current;
+    s.flags |= SER_RS485_ENABLED;
+    let polarity = SER_RS485_RTS_ON_SEND | SER_RS485_RTS_AFTER_SEND;
+    match wanted.rts_high_while_sending {
+        Some(true) => s.flags = (s.flags & !polarity) | SER_RS485_RTS_ON_SEND,
+        Some(false) => s.flags = (s.flags & !polarity) | SER_RS485_RTS_AFTER_SEND,
+        None if s.flags & polarity == 0 => s.flags |= SER_RS485_RTS_ON_SEND,
+        None => {}
+    }
+    if let Some(ms) = wanted.delay_before_ms {
+        s.delay_rts_before_send = ms;
+    }
+    if let Some(ms) = wanted.delay_after_ms {
+        s.delay_rts_after_send = ms;
+    }
+    s
 }
 
 fn set_low_latency(fd: BorrowedFd<'_>) -> Result<(), Errno> {
@@ -606,7 +838,9 @@ mod tests {
         SerialOptions {
             baud: baud(),
             kernel_rs485,
+            rs485_settings: Rs485Wanted::default(),
             low_latency,
+            rx_latency: core::time::Duration::ZERO,
         }
     }
 
@@ -808,6 +1042,7 @@ mod tests {
                 pseudo_terminal: true,
                 parity: ParityState::NotOnPseudoTerminal,
                 rs485: Setting::Unsupported(Errno::ENOTTY),
+                rs485_kept: None,
                 low_latency: Setting::Unsupported(Errno::ENOTTY),
             }
         );
@@ -820,6 +1055,54 @@ mod tests {
         assert_eq!(
             report.to_string(),
             "pty=true parity=none-on-pty rs485=not-requested low_latency=not-requested"
+        );
+    }
+
+    #[test]
+    fn rs485_keeps_the_ports_polarity_and_delays_unless_configured() {
+        // A board whose device tree wires RTS active-low with delays and receive during send.
+        let tree = SerialRs485 {
+            flags: SER_RS485_RTS_AFTER_SEND | SER_RS485_RX_DURING_TX,
+            delay_rts_before_send: 2,
+            delay_rts_after_send: 3,
+            ..SerialRs485::default()
+        };
+        let kept = rs485_settings(tree, Rs485Wanted::default());
+        assert_eq!(
+            kept,
+            SerialRs485 {
+                flags: SER_RS485_ENABLED | SER_RS485_RTS_AFTER_SEND | SER_RS485_RX_DURING_TX,
+                ..tree
+            }
+        );
+        // Configured: polarity and one delay change, the rest stays.
+        let set = rs485_settings(
+            tree,
+            Rs485Wanted {
+                rts_high_while_sending: Some(true),
+                delay_before_ms: None,
+                delay_after_ms: Some(0),
+            },
+        );
+        assert_eq!(
+            set.flags,
+            SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND | SER_RS485_RX_DURING_TX
+        );
+        assert_eq!(
+            (set.delay_rts_before_send, set.delay_rts_after_send),
+            (2, 0)
+        );
+        // A port with no polarity at all gets RTS high while sending.
+        let bare = rs485_settings(SerialRs485::default(), Rs485Wanted::default());
+        assert_eq!(bare.flags, SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND);
+        assert_eq!(
+            Rs485Kept {
+                rts_high_while_sending: false,
+                delay_before_ms: 2,
+                delay_after_ms: 3
+            }
+            .to_string(),
+            "RTS low while sending, delays 2/3 ms"
         );
     }
 
@@ -870,6 +1153,96 @@ mod tests {
             assert!(before <= rx.at && rx.at <= after, "{rx:?}");
         }
         assert!(got.windows(2).all(|w| w[0].at <= w[1].at));
+    }
+
+    #[test]
+    fn bytes_read_together_behind_an_adapter_are_dated_back_by_their_character_times() {
+        let pty = Pty::open().unwrap();
+        let with_latency = SerialOptions {
+            rx_latency: 16 * MS,
+            ..options(false, false)
+        };
+        let (mut serial, _) = SerialTransport::open(pty.path(), &with_latency).unwrap();
+        let mut pty = pty;
+        let mut clock = MonotonicClock::new();
+        // Sleep first, so the first read holds every byte: one packet of an adapter, a
+        // marked 0xFF among them (two raw bytes, one character).
+        pty.write_all(&[0x02, 0xFF, 0x05, 0x00]).unwrap();
+        std::thread::sleep(20 * MS);
+        let got = recv_n(&mut serial, &mut clock, 4);
+        let c = Timing::new(baud()).chars(1);
+        assert_eq!(got.len(), 4, "{got:?}");
+        let read_at = got[3].at;
+        for (i, rx) in got.iter().enumerate() {
+            assert_eq!(
+                Some(rx.at),
+                read_at.checked_sub(c * (3 - i as u32)),
+                "{got:?}"
+            );
+        }
+    }
+
+    #[test]
+    // The probes have the type of the injection point.
+    #[allow(clippy::unnecessary_wraps)]
+    fn a_rate_the_port_cannot_make_is_refused_naming_what_it_made() {
+        // A CP2102 behind the pty: asked for 187500, it reads back 230400.
+        fn cp2102(_: BorrowedFd<'_>, _: bool) -> Result<Option<ReadBack>, Errno> {
+            Ok(Some(ReadBack {
+                termios: 230_400,
+                baud_base: None,
+            }))
+        }
+        fn uart_16550(_: BorrowedFd<'_>, _: bool) -> Result<Option<ReadBack>, Errno> {
+            Ok(Some(ReadBack {
+                termios: 187_500,
+                baud_base: Some(921_600),
+            }))
+        }
+        let pty = Pty::open().unwrap();
+        let fast = SerialOptions {
+            baud: Baud::new(187_500).unwrap(),
+            ..options(false, false)
+        };
+        let err = SerialTransport::open_with(pty.path(), &fast, cp2102).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            format!(
+                "cannot use {}: the port runs 230400 baud for the 187500 asked (+22.9 %, more \
+                 than 2 % off: the drives would not answer)",
+                pty.path().display()
+            )
+        );
+        // The device was let go: a 16550 on a 14.7456 MHz crystal makes it (184320).
+        assert!(SerialTransport::open_with(pty.path(), &fast, uart_16550).is_ok());
+        // And a pseudo-terminal itself has no rate to check.
+    }
+
+    #[test]
+    // The probe has the type of the injection point.
+    #[allow(clippy::unnecessary_wraps)]
+    fn characters_lost_to_an_overrun_flag_the_next_one_received() {
+        use std::sync::atomic::AtomicU64;
+        static COUNT: AtomicU64 = AtomicU64::new(0);
+        fn counted(_: BorrowedFd<'_>) -> Result<u64, Errno> {
+            Ok(COUNT.load(Ordering::Relaxed))
+        }
+        let (mut pty, mut serial) = open_pty();
+        serial.overruns = Some(counted);
+        let mut clock = MonotonicClock::new();
+        pty.write_all(&[1, 2]).unwrap();
+        let clean = recv_n(&mut serial, &mut clock, 2);
+        assert!(clean.iter().all(|rx| rx.error.is_none()), "{clean:?}");
+        // The UART lost characters before the next read: its first character carries it.
+        COUNT.store(3, Ordering::Relaxed);
+        pty.write_all(&[3, 4]).unwrap();
+        let got = recv_n(&mut serial, &mut clock, 2);
+        assert_eq!(
+            got.iter().map(|rx| (rx.byte, rx.error)).collect::<Vec<_>>(),
+            [(3, Some(LineError::Overrun)), (4, None)]
+        );
+        // A pseudo-terminal keeps no count: not asked.
+        assert!(open_pty().1.overruns.is_none());
     }
 
     #[test]

@@ -68,6 +68,7 @@ pub fn engine_config(
         publish_every: Duration::from_millis(20),
         param_priority: false,
         safety_first: true,
+        rx_latency: Duration::ZERO,
         capture: true,
         drives,
     }

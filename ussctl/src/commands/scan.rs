@@ -223,7 +223,9 @@ pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
         let options = SerialOptions {
             baud,
             kernel_rs485: false,
+            rs485_settings: uss_master::transports::serial::Rs485Wanted::default(),
             low_latency: true,
+            rx_latency: core::time::Duration::ZERO,
         };
         let (line, _) = SerialTransport::open(s.device, &options).map_err(|e| {
             Failure::Usage(match e {
