@@ -105,3 +105,13 @@ fn a_reply_later_than_the_latency_is_never_taken_for_the_retry_answer() {
     assert_eq!(f.failed, f.exchanges, "late replies taken as answers");
     assert!(f.exchanges > 10, "{} exchanges", f.exchanges);
 }
+
+#[test]
+fn a_reply_handed_over_in_two_halves_within_the_latency_is_whole() {
+    let f = run(&["--split-reply", "2"], "rx_latency_ms = 5", 2);
+    assert_eq!(f.failed, 0, "failed exchanges of {}", f.exchanges);
+    assert!(f.exchanges > 100, "{} exchanges", f.exchanges);
+    // Allowing no latency, the same replies break at the split (residual time).
+    let strict = run(&["--split-reply", "2"], "rx_latency_ms = 0.001", 2);
+    assert_eq!(strict.failed, strict.exchanges, "every split reply fails");
+}
