@@ -11,7 +11,7 @@ use crate::params::{
     P2013, P2014, ParamTable, R0021, R0052, R0054, R0947, R0948, R0949, R2024,
 };
 use core::time::Duration;
-use uss_protocol::pkw::{ParamError, ParamReply, ParamTask, PkwError, Pnu, ReplyKind};
+use uss_protocol::pkw::{ParamError, ParamReply, ParamTask, PkwError, Pnu, ReplyKind, Value};
 use uss_protocol::telegram::{Layout, MAX_PKW_WORDS, MAX_PZD_WORDS, Telegram, encode};
 use uss_protocol::{Address, Adr, FrameError, LineError, Setpoint, Stw1, Zsw1};
 
@@ -46,7 +46,31 @@ pub struct DriveConfig {
     /// Whether the drive takes broadcasts (ADR bit 5, USS.md section 3); S110 and G120
     /// firmware 4 do not.
     pub takes_broadcasts: bool,
+    /// Which parameters the slave has ([`Personality`]).
+    pub personality: Personality,
 }
+
+/// What kind of USS slave is simulated: its parameters, and how it takes a task it does not
+/// know.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Personality {
+    /// A MICROMASTER 4-like drive ([`crate::params`]).
+    #[default]
+    Micromaster4,
+    /// A USS slave that is not a drive of a known family (a pump controller, say): the state
+    /// machine and PZD as any USS slave, but only [`GENERIC_PARAMS`] as parameters (values,
+    /// no descriptions) and error 0 (illegal parameter number) to the rest. `fragile`: a task
+    /// it does not know makes it stop answering for good, as some firmware does.
+    Generic { fragile: bool },
+}
+
+/// The parameters of a [`Personality::Generic`] slave: number, value, writable. P1 a device
+/// type word, P2 a setpoint word, P3 operating hours as a double word.
+pub const GENERIC_PARAMS: [(u16, Value, bool); 3] = [
+    (1, Value::Word(0x0A51), false),
+    (2, Value::Word(500), true),
+    (3, Value::Dword(12_345), false),
+];
 
 impl DriveConfig {
     /// A drive with a typical MICROMASTER response: 1 ms response delay, 3 busy telegrams for
@@ -63,6 +87,7 @@ impl DriveConfig {
             telegram_off_time_ms: 0,
             reference_hz: 50.0,
             takes_broadcasts: true,
+            personality: Personality::Micromaster4,
         }
     }
 }
@@ -168,6 +193,10 @@ pub struct Drive {
     last_valid: Option<Duration>,
     last_tick: Option<Duration>,
     counters: Counters,
+    /// The values of a generic slave's parameters ([`GENERIC_PARAMS`]).
+    generic: [Value; GENERIC_PARAMS.len()],
+    /// A fragile generic slave that met a task it does not know: silent for good.
+    dead: bool,
 }
 
 impl Drive {
@@ -198,6 +227,8 @@ impl Drive {
             last_valid: None,
             last_tick: None,
             counters: Counters::default(),
+            generic: GENERIC_PARAMS.map(|(_, value, _)| value),
+            dead: false,
         };
         drive.publish();
         drive
@@ -331,6 +362,9 @@ impl Drive {
         now: Duration,
         out: &mut [u8],
     ) -> Option<usize> {
+        if self.dead {
+            return None;
+        }
         self.advance(now);
         let Ok(words) = telegram.words(self.config.layout) else {
             self.counters.length = self.counters.length.wrapping_add(1);
@@ -347,6 +381,9 @@ impl Drive {
         } else {
             self.handle_pkw(words.pkw(), &mut pkw)
         };
+        if self.dead {
+            return None;
+        }
         self.advance(now);
         let mut pzd = [0u16; MAX_PZD_WORDS];
         let pzd_len = self.config.layout.pzd.get();
@@ -366,7 +403,7 @@ impl Drive {
     /// broadcasts ([`DriveConfig::takes_broadcasts`]), or whose layout the telegram does not
     /// fit, ignores it.
     pub fn receive_broadcast(&mut self, telegram: &Telegram<'_>, now: Duration) {
-        if !self.config.takes_broadcasts {
+        if !self.config.takes_broadcasts || self.dead {
             return;
         }
         self.advance(now);
@@ -483,15 +520,25 @@ impl Drive {
             .unwrap_or(Pnu::from_u16(0));
         let subindex = (request[1] & 0xFF) as u8;
         let (task, kind) = match ParamTask::decode(request) {
-            Ok(task) => {
-                let ctx = DriveContext {
-                    running: self.state.is_running(),
-                };
-                (
-                    Some(task),
-                    self.params.execute(&task, self.config.layout.pkw, ctx),
-                )
-            }
+            Ok(task) if task != ParamTask::None => match self.config.personality {
+                Personality::Micromaster4 => {
+                    let ctx = DriveContext {
+                        running: self.state.is_running(),
+                    };
+                    (
+                        Some(task),
+                        self.params.execute(&task, self.config.layout.pkw, ctx),
+                    )
+                }
+                Personality::Generic { fragile } => {
+                    let kind = self.generic_task(&task);
+                    if fragile && kind == ReplyKind::Error(ParamError::IllegalPnu) {
+                        self.dead = true;
+                    }
+                    (Some(task), kind)
+                }
+            },
+            Ok(task) => (Some(task), ReplyKind::NotYet),
             Err(e) => (None, ReplyKind::Error(self.decode_error(e))),
         };
         let reply = match task {
@@ -525,6 +572,44 @@ impl Drive {
             Some(t) if t.is_write() && is_eeprom(&t) => self.config.eeprom_busy_telegrams,
             Some(_) => self.config.task_busy_telegrams,
         };
+    }
+
+    /// A generic slave's answer: a value of [`GENERIC_PARAMS`] read or changed, error 0 to
+    /// anything else (another parameter, a description, an array).
+    fn generic_task(&mut self, task: &ParamTask) -> ReplyKind {
+        let reply = |v: Value| match v {
+            Value::Word(w) => ReplyKind::Word(w),
+            Value::Dword(d) => ReplyKind::Dword(d),
+        };
+        let slot = |pnu: Pnu| {
+            GENERIC_PARAMS
+                .iter()
+                .position(|p| Pnu::from_u16(p.0) == pnu)
+        };
+        match *task {
+            ParamTask::Read { pnu } => match slot(pnu) {
+                Some(i) => reply(self.generic[i]),
+                None => ReplyKind::Error(ParamError::IllegalPnu),
+            },
+            ParamTask::Write { pnu, value, .. } => match slot(pnu) {
+                Some(i) if !GENERIC_PARAMS[i].2 => ReplyKind::Error(ParamError::ValueNotChangeable),
+                Some(i)
+                    if core::mem::discriminant(&value)
+                        == core::mem::discriminant(&self.generic[i]) =>
+                {
+                    self.generic[i] = value;
+                    reply(value)
+                }
+                Some(_) => ReplyKind::Error(ParamError::WrongDataType),
+                None => ReplyKind::Error(ParamError::IllegalPnu),
+            },
+            _ => ReplyKind::Error(ParamError::IllegalPnu),
+        }
+    }
+
+    /// Whether a fragile generic slave stopped answering.
+    pub const fn is_dead(&self) -> bool {
+        self.dead
     }
 
     fn decode_error(&self, e: PkwError) -> ParamError {

@@ -3,7 +3,7 @@
 //! ADDR:key=value,...` ([`crate::spec`]) and a `[bus.drive.sim]` table of ussd's configuration
 //! (serde, with the same key names).
 
-use crate::drive::DriveConfig;
+use crate::drive::{DriveConfig, Personality};
 use crate::fault::{Fault, FaultPlan};
 use core::time::Duration;
 use serde::{Deserialize, Serialize};
@@ -12,7 +12,7 @@ use uss_protocol::ParamError;
 /// The keys, for messages and `--help`.
 pub const KEYS: &str = "delay=MS, jitter=MS, eeprom-busy=N, busy=N, p2014=MS, p2000=HZ, dword-error=5|103, \
 drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, unplug=\"FROM_MS..[TO_MS]\", \
-hang=MS, broadcast=true|false";
+hang=MS, broadcast=true|false, family=micromaster4|generic, fragile=true|false";
 
 /// What a simulated drive does besides its address and layout; every key is optional (the
 /// simulator's default applies).
@@ -67,6 +67,14 @@ pub struct SimOptions {
     /// `false`: the drive ignores broadcasts, as S110 and G120 firmware 4 do.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub broadcast: Option<bool>,
+    /// The slave's personality: `micromaster4` (the default) or `generic` (a USS slave of no
+    /// known family: three parameters of its own, error 0 to the rest).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub family: Option<String>,
+    /// With `family = "generic"`: a task on a parameter it does not know makes it stop
+    /// answering for good.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fragile: Option<bool>,
 }
 
 impl SimOptions {
@@ -134,6 +142,20 @@ impl SimOptions {
         if let Some(takes) = self.broadcast {
             config.takes_broadcasts = takes;
         }
+        config.personality = match (self.family.as_deref(), self.fragile) {
+            (None | Some("micromaster4"), None) => Personality::Micromaster4,
+            (Some("generic"), fragile) => Personality::Generic {
+                fragile: fragile.unwrap_or(false),
+            },
+            (None | Some("micromaster4"), Some(_)) => {
+                return Err("fragile=...: only a family=generic slave can be fragile".to_owned());
+            }
+            (Some(other), _) => {
+                return Err(format!(
+                    "family={other}: the simulator has the families micromaster4 and generic"
+                ));
+            }
+        };
         Ok(())
     }
 }

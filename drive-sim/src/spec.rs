@@ -11,7 +11,7 @@ use uss_protocol::{Address, Layout, PkwMode, PzdCount};
 /// The keys a drive specification understands, for error messages and `--help`.
 pub const KEYS: &str = "pkw=0|3|4|127, pzd=0..16, delay=MS, jitter=MS, eeprom-busy=N, busy=N, \
 p2014=MS, p2000=HZ, dword-error=5|103, drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, \
-unplug=FROM_MS..[TO_MS], hang=MS, broadcast=true|false";
+unplug=FROM_MS..[TO_MS], hang=MS, broadcast=true|false, family=micromaster4|generic, fragile=true|false";
 
 /// A drive and its fault plan, parsed from a specification.
 #[derive(Debug, Clone)]
@@ -116,6 +116,23 @@ mod tests {
     use crate::fault::Fault;
     use core::time::Duration;
     use uss_protocol::ParamError;
+
+    #[test]
+    fn a_generic_slave_may_be_fragile_and_only_it() {
+        use crate::drive::Personality;
+        let d: DriveSpec = "4:family=generic,fragile=true,pzd=6".parse().unwrap();
+        assert_eq!(d.config.personality, Personality::Generic { fragile: true });
+        let d: DriveSpec = "4".parse().unwrap();
+        assert_eq!(d.config.personality, Personality::Micromaster4);
+        assert_eq!(
+            "4:fragile=true".parse::<DriveSpec>().unwrap_err().problem,
+            "fragile=...: only a family=generic slave can be fragile"
+        );
+        assert_eq!(
+            "4:family=g150".parse::<DriveSpec>().unwrap_err().problem,
+            "family=g150: the simulator has the families micromaster4 and generic"
+        );
+    }
 
     #[test]
     fn a_drive_may_ignore_broadcasts() {

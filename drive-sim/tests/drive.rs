@@ -509,3 +509,32 @@ fn states_print_as_the_manuals_name_them() {
         "S1 switching on inhibited"
     );
 }
+
+#[test]
+fn a_generic_slave_answers_its_own_parameters_and_a_fragile_one_dies_of_any_other() {
+    use uss_drive_sim::drive::Personality;
+    let generic = |fragile| {
+        Drive::new(DriveConfig {
+            personality: Personality::Generic { fragile },
+            ..DriveConfig::new(Address::new(ADDR).unwrap(), layout(PkwMode::Four, 2))
+        })
+    };
+    let mut d = generic(false);
+    // P1 a word (AK 1), P3 a double word (AK 2), P2 written.
+    let (pkw, _) = send(&mut d, &[0x1000 | 1, 0, 0, 0], &[0x047E, 0], ms(0)).unwrap();
+    assert_eq!(pkw, vec![0x1000 | 1, 0, 0, 0x0A51]);
+    let (pkw, _) = send(&mut d, &[0x1000 | 3, 0, 0, 0], &[0x047E, 0], ms(10)).unwrap();
+    assert_eq!(pkw, vec![0x2000 | 3, 0, 0, 12_345]);
+    let (pkw, _) = send(&mut d, &[0x2000 | 2, 0, 0, 700], &[0x047E, 0], ms(20)).unwrap();
+    assert_eq!(pkw, vec![0x1000 | 2, 0, 0, 700]);
+    // P2014 index 1 (an array read) and P1's description are unknown here: error 0.
+    // (P2014 is PNU part 14 with the page bit in IND.)
+    let (pkw, _) = send(&mut d, &[0x6000 | 14, 0x8001, 0, 0], &[0x047E, 0], ms(30)).unwrap();
+    assert_eq!(pkw, vec![0x7000 | 14, 0x8001, 0, 0]);
+    // The fragile one answers nothing from then on.
+    let mut d = generic(true);
+    assert!(send(&mut d, &[0x1000 | 1, 0, 0, 0], &[0x047E, 0], ms(0)).is_some());
+    assert!(send(&mut d, &[0x4000 | 1, 0, 0, 0], &[0x047E, 0], ms(10)).is_none());
+    assert!(d.is_dead());
+    assert!(send(&mut d, &[0, 0, 0, 0], &[0x047E, 0], ms(20)).is_none());
+}
