@@ -11,6 +11,7 @@ use std::collections::HashMap;
 use std::sync::{Mutex, PoisonError};
 use uss_catalogue::{Catalogue, DataType, Param, Typed};
 use uss_protocol::{ParamRef, ParamTask, Pnu, Subindex, Value};
+use uss_shm_types::DriveFamily;
 
 /// The catalogue a [`Bus`] consults, and the data types drives described, by (address, PNU),
 /// for parameters it does not know.
@@ -102,15 +103,48 @@ impl Bus {
         self
     }
 
+    /// What kind of slave ussd says drive `address` is (its configured `family`); a drive
+    /// ussd does not describe counts as a MICROMASTER 4.
+    pub fn family(&self, address: u8) -> DriveFamily {
+        self.diag(address)
+            .ok()
+            .and_then(|d| DriveFamily::try_from(d.info.family).ok())
+            .unwrap_or(DriveFamily::Micromaster4)
+    }
+
+    /// The catalogue that applies to drive `address`: the built-in one for a MICROMASTER 4
+    /// or G110 (which share its parameter numbers), or one given with [`Bus::with_catalogue`];
+    /// none for another family, whose parameters the drive describes itself.
+    fn catalogue_for(&self, address: u8) -> Option<&'static Catalogue> {
+        let catalogue = self.described.catalogue;
+        let built_in = core::ptr::eq(catalogue, Catalogue::micromaster4());
+        let shares = matches!(
+            self.family(address),
+            DriveFamily::Micromaster4 | DriveFamily::G110
+        );
+        (!built_in || shares).then_some(catalogue)
+    }
+
     /// What parameter `pnu` of drive `address` is: the catalogue's entry, or the type the drive
-    /// describes (asked once per drive and parameter).
+    /// describes (asked once per drive and parameter). A `generic` slave is never asked: it
+    /// may not know descriptions (some firmware stops answering), so this is refused.
     pub fn describe(
         &self,
         address: u8,
         pnu: u16,
     ) -> Result<(DataType, Option<&'static Param>), ParamError> {
-        if let Some(p) = self.described.catalogue.param(pnu) {
+        if let Some(p) = self.catalogue_for(address).and_then(|c| c.param(pnu)) {
             return Ok((p.data_type, Some(p)));
+        }
+        if self.family(address) == DriveFamily::Generic {
+            return Err(ParamError::Value {
+                param: format!("P{pnu}"),
+                problem: format!(
+                    "drive {address} is a generic USS slave: uss-rt asks it for values alone, \
+                     never for descriptions (read the parameter: its reply says word or double \
+                     word)"
+                ),
+            });
         }
         if let Some(t) = self.described.get(address, pnu) {
             return Ok((t, None));
@@ -134,8 +168,18 @@ impl Bus {
         Ok((t, None))
     }
 
-    /// Reads a parameter as its own type (`P1082 = 50.00 Hz`).
+    /// Reads a parameter as its own type (`P1082 = 50.00 Hz`). A `generic` slave's value is
+    /// typed by its reply alone: a word unsigned 16 bits, a double word unsigned 32.
     pub fn read_param(&self, address: u8, param: ParamRef) -> Result<ParamValue, ParamError> {
+        if self.family(address) == DriveFamily::Generic {
+            let raw = self.read(address, param.pnu.get(), param.index.map(Subindex::get))?;
+            return Ok(ParamValue {
+                param,
+                raw,
+                data_type: by_reply(raw),
+                info: None,
+            });
+        }
         let (data_type, info) = self.describe(address, param.pnu.get())?;
         let raw = self.read(address, param.pnu.get(), param.index.map(Subindex::get))?;
         Ok(ParamValue {
@@ -156,7 +200,12 @@ impl Bus {
         text: &str,
         options: WriteOptions,
     ) -> Result<ParamValue, ParamError> {
-        let (data_type, info) = self.describe(address, param.pnu.get())?;
+        let (data_type, info) = if self.family(address) == DriveFamily::Generic {
+            // The width of what it holds now says what to write.
+            (self.read_param(address, param)?.data_type, None)
+        } else {
+            self.describe(address, param.pnu.get())?
+        };
         let shown = shown_as(param, info);
         if info.is_some_and(|p| !p.is_writable()) {
             return Err(ParamError::Value {
@@ -176,6 +225,14 @@ impl Bus {
             data_type,
             info,
         })
+    }
+}
+
+/// The type a reply's width gives a generic slave's value.
+const fn by_reply(raw: Value) -> DataType {
+    match raw {
+        Value::Word(_) => DataType::U16,
+        Value::Dword(_) => DataType::U32,
     }
 }
 
@@ -280,6 +337,15 @@ impl Bus {
     /// and the active warnings r2110, in one request of 32 reads. A drive without r0948, r0949
     /// or r2110 (error 0) still gets its fault codes.
     pub fn fault_report(&self, address: u8) -> Result<FaultReport, ParamError> {
+        if self.family(address) == DriveFamily::Generic {
+            return Err(ParamError::Value {
+                param: "r0947".to_owned(),
+                problem: format!(
+                    "drive {address} is a generic USS slave: it has no fault buffer uss-rt \
+                     knows (read its own fault parameters by number)"
+                ),
+            });
+        }
         let element = |pnu: u16, i: u8| {
             Subindex::new(i).map(|i| ParamTask::read(Pnu::from_u16(pnu), Some(i)))
         };
@@ -299,7 +365,8 @@ impl Bus {
         let (values, rest) = rest.split_at(len);
         let (warnings, times) = rest.split_at(usize::from(WARNINGS_LEN));
         let word = |r: &Result<Value, ParamError>| r.clone().map(|v| v.as_u32() as u16);
-        let catalogue = self.described.catalogue;
+        // Texts from the catalogue of the drive's family only.
+        let catalogue = self.catalogue_for(address);
         let mut faults = Vec::new();
         for (slot, code) in codes.iter().enumerate() {
             let number = word(code)?;
@@ -319,7 +386,7 @@ impl Bus {
                     number,
                     value: word(&values[slot]).ok(),
                     time,
-                    text: catalogue.fault(number),
+                    text: catalogue.and_then(|c| c.fault(number)),
                 });
             }
         }
@@ -333,7 +400,7 @@ impl Bus {
                     .filter(|&n| n != 0)
                     .map(|number| Warning {
                         number,
-                        text: catalogue.warning(number),
+                        text: catalogue.and_then(|c| c.warning(number)),
                     })
                     .collect()
             });

@@ -603,6 +603,45 @@ typedef uint8_t UssLastFailure;
 #endif // __cplusplus
 
 /**
+ * What kind of USS slave a drive is (its `family` in ussd's configuration); the `family`
+ * byte of [`DriveInfo`]. It says which parameters exist: a client reads a `generic`
+ * slave's parameters by value alone (typed by the reply), never asking for descriptions.
+ */
+enum UssDriveFamily
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * MICROMASTER 4 (MM420/430/440): the built-in catalogue.
+   */
+  USS_DRIVE_FAMILY_MICROMASTER4 = 0,
+  /**
+   * SINAMICS G110.
+   */
+  USS_DRIVE_FAMILY_G110 = 1,
+  /**
+   * SINAMICS G120 with a CU240 on RS485.
+   */
+  USS_DRIVE_FAMILY_G120 = 2,
+  /**
+   * SIMOREG DC-Master 6RA70.
+   */
+  USS_DRIVE_FAMILY_SIMOREG = 3,
+  /**
+   * A USS slave of no known family: nothing read unasked, raw words and numbers.
+   */
+  USS_DRIVE_FAMILY_GENERIC = 4,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssDriveFamily UssDriveFamily;
+#else
+typedef uint8_t UssDriveFamily;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
  * Whether the bus line carries telegrams; the `line_state` byte of [`BusStatus`].
  */
 enum UssLineState
@@ -1168,7 +1207,11 @@ typedef struct UssDriveInfo {
    * Entries of the drive in the circulating list, 1..=16 (USS.md section 5).
    */
   uint8_t weight;
-  uint8_t reserved[3];
+  /**
+   * A [`DriveFamily`] code.
+   */
+  uint8_t family;
+  uint8_t reserved[2];
 #ifdef __cplusplus
   static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV7";
 #endif

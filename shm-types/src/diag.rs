@@ -39,6 +39,24 @@ code_table! {
 }
 
 code_table! {
+    /// What kind of USS slave a drive is (its `family` in ussd's configuration); the `family`
+    /// byte of [`DriveInfo`]. It says which parameters exist: a client reads a `generic`
+    /// slave's parameters by value alone (typed by the reply), never asking for descriptions.
+    pub enum DriveFamily {
+        /// MICROMASTER 4 (MM420/430/440): the built-in catalogue.
+        Micromaster4 = 0 => "micromaster4",
+        /// SINAMICS G110.
+        G110 = 1 => "g110",
+        /// SINAMICS G120 with a CU240 on RS485.
+        G120 = 2 => "g120",
+        /// SIMOREG DC-Master 6RA70.
+        Simoreg = 3 => "simoreg",
+        /// A USS slave of no known family: nothing read unasked, raw words and numbers.
+        Generic = 4 => "generic",
+    }
+}
+
+code_table! {
     /// Whether the bus line carries telegrams; the `line_state` byte of [`BusStatus`].
     pub enum LineState {
         Up = 0 => "up",
@@ -160,7 +178,9 @@ pub struct DriveInfo {
     pub pzd_words: u8,
     /// Entries of the drive in the circulating list, 1..=16 (USS.md section 5).
     pub weight: u8,
-    pub reserved: [u8; 3],
+    /// A [`DriveFamily`] code.
+    pub family: u8,
+    pub reserved: [u8; 2],
 }
 
 impl DriveInfo {
@@ -173,7 +193,8 @@ impl DriveInfo {
         pkw_words: 0,
         pzd_words: 0,
         weight: 0,
-        reserved: [0; 3],
+        family: DriveFamily::Micromaster4.code(),
+        reserved: [0; 2],
     };
 
     pub fn safe_command(&self) -> Result<StopCommand, UnknownCode> {

@@ -100,7 +100,8 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("pkw_words", 10, 1),
             f("pzd_words", 11, 1),
             f("weight", 12, 1),
-            f("reserved", 13, 3),
+            f("family", 13, 1),
+            f("reserved", 14, 2),
         ],
     },
     TypeLayout {

@@ -57,8 +57,8 @@ pub use control::{
     OPERATOR_RESPONSE_BYTES, OperatorRequest, OperatorResponse, Rejection, StopCommand,
 };
 pub use diag::{
-    BusStatus, DriveCounters, DriveDiag, DriveInfo, EXCHANGE_BUCKETS, EXCHANGE_BUCKETS_NS,
-    LastFailure, LineFault, LineState, RtMode,
+    BusStatus, DriveCounters, DriveDiag, DriveFamily, DriveInfo, EXCHANGE_BUCKETS,
+    EXCHANGE_BUCKETS_NS, LastFailure, LineFault, LineState, RtMode,
 };
 pub use heartbeat::{BusState, Heartbeat};
 pub use names::{BlackboardKey, BusName, DriveAddress, Generation, Instance, NameError};

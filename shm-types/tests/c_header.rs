@@ -16,10 +16,10 @@ use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
 use uss_shm_types::names::{self, BlackboardKey};
 use uss_shm_types::{
     BusName, BusState, BusStatus, CommandError, ControlState, Direction, DriveAddress,
-    DriveCounters, DriveDiag, DriveInfo, Generation, Heartbeat, Instance, LastFailure, LatchReason,
-    LineFault, LineState, Monitoring, OperatorRequest, OperatorResponse, Outcome, ParamItem,
-    ParamRequest, ParamResponse, ParamResult, PzdInput, PzdOutput, Rejection, RequestError, RtMode,
-    StopCommand, Storage, TaskCode, TelegramRecord,
+    DriveCounters, DriveDiag, DriveFamily, DriveInfo, Generation, Heartbeat, Instance, LastFailure,
+    LatchReason, LineFault, LineState, Monitoring, OperatorRequest, OperatorResponse, Outcome,
+    ParamItem, ParamRequest, ParamResponse, ParamResult, PzdInput, PzdOutput, Rejection,
+    RequestError, RtMode, StopCommand, Storage, TaskCode, TelegramRecord,
 };
 
 const REGENERATE: &str =
@@ -512,6 +512,7 @@ fn codes() -> Vec<(String, u8)> {
         table("CommandError", CommandError::ALL),
         table("LineState", LineState::ALL),
         table("LineFault", LineFault::ALL),
+        table("DriveFamily", DriveFamily::ALL),
         table("BusState", BusState::ALL),
         table("Direction", Direction::ALL),
     ]

@@ -93,6 +93,56 @@ pub enum Rs485Rts {
     LowWhileSending,
 }
 
+/// What kind of USS slave a drive is: which parameters ussd reads of its own when it comes
+/// online (telegram monitoring, reference frequency), which catalogue clients consult, and
+/// how they read parameters. `generic`: nothing is read unasked, parameters are read by value
+/// alone (never a description), every safety rule still holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Family {
+    #[default]
+    Micromaster4,
+    G110,
+    G120,
+    Simoreg,
+    Generic,
+}
+
+impl Family {
+    /// The drive's telegram-off time parameter as far as uss-rt knows it (`""`: not known;
+    /// the user names it with `monitoring_param`): P2014.1 on MICROMASTER 4 and G110 (which
+    /// share the MM4 parameter numbers; index 1 = the COM link), p2040 on G120 (fieldbus
+    /// monitoring time, USS on the CU240 included).
+    pub const fn monitoring_param(self) -> &'static str {
+        match self {
+            Self::Micromaster4 | Self::G110 => "P2014.1",
+            Self::G120 => "p2040",
+            Self::Simoreg | Self::Generic => "",
+        }
+    }
+
+    /// The reference frequency parameter in Hz (`""`: none known in Hz; G120's p2000 is a
+    /// speed in rpm): P2000 on MICROMASTER 4 and G110.
+    pub const fn reference_param(self) -> &'static str {
+        match self {
+            Self::Micromaster4 | Self::G110 => "P2000",
+            Self::G120 | Self::Simoreg | Self::Generic => "",
+        }
+    }
+
+    /// The contract's code.
+    pub const fn code(self) -> uss_shm_types::DriveFamily {
+        use uss_shm_types::DriveFamily as F;
+        match self {
+            Self::Micromaster4 => F::Micromaster4,
+            Self::G110 => F::G110,
+            Self::G120 => F::G120,
+            Self::Simoreg => F::Simoreg,
+            Self::Generic => F::Generic,
+        }
+    }
+}
+
 /// What a drive gets when its controller is gone or stopped refreshing within its watchdog time
 /// (docs/ARCHITECTURE.md, "Failure model"); the STW1 words are those of USS.md section 7.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
@@ -206,10 +256,14 @@ pub struct DriveEntry {
     pub weight: Weight,
     #[serde(default)]
     pub reference_hz: ReferenceHz,
+    /// What kind of slave it is ([`Family`]).
+    #[serde(default)]
+    pub family: Family,
     /// The drive's reference frequency in Hz, read when it comes online; the drive's value is
     /// published (clients scale Hz by it) and a difference from `reference_hz` is reported.
-    #[serde(default = "ParamName::p2000")]
-    pub reference_param: ParamName,
+    /// Unset: the family's ([`Family::reference_param`]), filled in as the file is read.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_param: Option<ParamName>,
     #[serde(default)]
     pub watchdog_ms: Watchdog,
     #[serde(default)]
@@ -218,9 +272,9 @@ pub struct DriveEntry {
     #[serde(default = "yes")]
     pub params_writable: bool,
     /// Read when the drive comes online; a telegram-off time above `monitoring_max_ms` is
-    /// reported as too long.
-    #[serde(default = "ParamName::p2014_1")]
-    pub monitoring_param: ParamName,
+    /// reported as too long. Unset: the family's ([`Family::monitoring_param`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub monitoring_param: Option<ParamName>,
     #[serde(default)]
     pub monitoring_max_ms: MonitoringMax,
     /// Refuse ON unless the drive's telegram monitoring was read and is on within the limit.
@@ -238,6 +292,20 @@ pub struct DriveEntry {
 impl DriveEntry {
     pub fn layout(&self) -> Layout {
         Layout::new(self.pkw, self.pzd)
+    }
+
+    /// The telegram-off time parameter: as written, else the family's.
+    pub fn monitoring_param(&self) -> ParamName {
+        self.monitoring_param
+            .clone()
+            .unwrap_or_else(|| ParamName::from(self.family.monitoring_param().to_owned()))
+    }
+
+    /// The reference frequency parameter: as written, else the family's.
+    pub fn reference_param(&self) -> ParamName {
+        self.reference_param
+            .clone()
+            .unwrap_or_else(|| ParamName::from(self.family.reference_param().to_owned()))
     }
 
     /// The simulated drive (config + fault plan) at this entry's address and layout with its
@@ -294,6 +362,11 @@ impl Config {
         }
         for bus in config.buses.iter_mut().filter(|b| b.device == Device::Sim) {
             bus.seed = Some(bus.seed());
+        }
+        // The effective parameters, written back by `--check-config`.
+        for drive in config.buses.iter_mut().flat_map(|b| b.drives.iter_mut()) {
+            drive.monitoring_param = Some(drive.monitoring_param());
+            drive.reference_param = Some(drive.reference_param());
         }
         Ok(config)
     }

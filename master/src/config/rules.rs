@@ -223,29 +223,30 @@ impl Rules<'_> {
     }
 
     fn drive(&mut self, drive: &DriveEntry, device: Option<&Device>) {
+        let (monitoring, reference) = (drive.monitoring_param(), drive.reference_param());
         let params = [
             (
                 "monitoring_param",
-                &drive.monitoring_param,
+                &monitoring,
                 "name the drive's telegram-off time as the manual writes it, e.g. \"P2014.1\" \
                  (MICROMASTER 4, COM link) or \"p2040\" (G120), or \"\" for no check",
             ),
             (
                 "reference_param",
-                &drive.reference_param,
+                &reference,
                 "name the drive's reference frequency in Hz as the manual writes it, e.g. \
                  \"P2000\" (MICROMASTER 4, G110), or \"\" for no check (G120: p2000 is a speed \
                  in rpm)",
             ),
         ];
         for (key, name, hint) in params {
-            if let Err(e) = name.parsed {
+            if let Err(e) = &name.parsed {
                 self.fail(key, &format!("is not a parameter: {e}; {hint}"));
                 return;
             }
         }
         if drive.require_monitoring {
-            let missing = if drive.monitoring_param.param().is_none() {
+            let missing = if monitoring.param().is_none() {
                 "needs monitoring_param (e.g. \"P2014.1\"): ussd cannot verify a monitoring it \
                  does not read"
             } else if drive.pkw == PkwMode::None {

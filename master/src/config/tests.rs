@@ -159,7 +159,7 @@ fn missing_keys_get_their_documented_defaults() {
     assert_eq!(d.safe_command, SafeCommand::Off1);
     assert!(d.params_writable);
     assert_eq!(
-        d.monitoring_param.param().map(|p| p.to_string()),
+        d.monitoring_param().param().map(|p| p.to_string()),
         Some("P2014[1]".into())
     );
     assert_eq!(
@@ -297,6 +297,7 @@ pkw = 4
 pzd = 2
 weight = 1
 reference_hz = 50.0
+family = "micromaster4"
 reference_param = "P2000"
 watchdog_ms = 100.0
 safe_command = "off1"
@@ -406,24 +407,27 @@ fn telegram_monitoring_is_checked_as_configured() {
     let g120 =
         d("monitoring_param = \"p2040\"\nmonitoring_max_ms = 200\nrequire_monitoring = true");
     assert_eq!(
-        g120.monitoring_param.param().map(|p| p.to_string()),
+        g120.monitoring_param().param().map(|p| p.to_string()),
         Some("p2040".into())
     );
     assert_eq!(
         (g120.monitoring_max_ms.get(), g120.require_monitoring),
         (ms(200), true)
     );
-    assert_eq!(d("monitoring_param = \"\"").monitoring_param.param(), None);
+    assert_eq!(
+        d("monitoring_param = \"\"").monitoring_param().param(),
+        None
+    );
 }
 
 #[test]
 fn the_reference_frequency_parameter_is_p2000_unless_told() {
     let d = |line: &str| parse(&drive_key(line)).buses[0].drives[0].clone();
     assert_eq!(
-        d("").reference_param.param().map(|p| p.to_string()),
+        d("").reference_param().param().map(|p| p.to_string()),
         Some("P2000".into())
     );
-    assert_eq!(d("reference_param = \"\"").reference_param.param(), None);
+    assert_eq!(d("reference_param = \"\"").reference_param().param(), None);
     assert_eq!(
         refused(&drive_key("reference_param = \"rpm\"")),
         (
@@ -475,8 +479,8 @@ fn unknown_keys_are_named_with_their_table_in_every_table() {
         refused(&drive_key("colour = \"red\"")),
         (
             "bus.toml:7:1: bus \"bus0\" drive 3: unknown key `colour`: a [[bus.drive]] table \
-             takes address, pkw, pzd, weight, reference_hz, reference_param, watchdog_ms, \
-             safe_command, params_writable, monitoring_param, monitoring_max_ms, \
+             takes address, pkw, pzd, weight, reference_hz, family, reference_param, \
+             watchdog_ms, safe_command, params_writable, monitoring_param, monitoring_max_ms, \
              require_monitoring, broadcast, sim"
                 .to_owned(),
             Some("bus[0].drive[0].colour".to_owned())
@@ -750,6 +754,38 @@ fn rs485_settings_need_the_kernels_mode_which_hears_no_echo() {
     assert_eq!(bus.rs485_rts, Some(super::Rs485Rts::HighWhileSending));
     assert_eq!(bus.rs485_delay_after_ms.map(Rs485Delay::get), Some(1));
     assert_eq!(bus.rs485_delay_before_ms, None, "the port's own kept");
+}
+
+#[test]
+fn a_family_decides_what_ussd_reads_unasked_and_an_unknown_one_is_refused_with_the_list() {
+    let d = |line: &str| parse(&drive_key(line)).buses.remove(0).drives.remove(0);
+    let read = |e: &DriveEntry| {
+        (
+            e.monitoring_param().param().map(|p| p.to_string()),
+            e.reference_param().param().map(|p| p.to_string()),
+        )
+    };
+    assert_eq!(
+        read(&d("")),
+        (Some("P2014[1]".into()), Some("P2000".into()))
+    );
+    assert_eq!(read(&d("family = \"generic\"")), (None, None));
+    assert_eq!(read(&d("family = \"g120\"")), (Some("p2040".into()), None));
+    assert_eq!(
+        read(&d("family = \"g110\"")),
+        (Some("P2014[1]".into()), Some("P2000".into()))
+    );
+    assert_eq!(read(&d("family = \"simoreg\"")), (None, None));
+    // What is written wins over the family's.
+    assert_eq!(
+        read(&d("family = \"simoreg\"\nmonitoring_param = \"P2014.0\"")).0,
+        Some("P2014[0]".into())
+    );
+    assert_eq!(
+        refused(&drive_key("family = \"g150\"")).0,
+        "bus.toml:7:10: bus \"bus0\" drive 3: family = \"g150\" is not allowed: use \
+         \"micromaster4\", \"g110\", \"g120\", \"simoreg\", \"generic\""
+    );
 }
 
 #[test]

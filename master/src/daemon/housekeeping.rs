@@ -164,7 +164,7 @@ fn log_latch(bus: &BusConfig, address: Address, latch: &Latch, rejection: Reject
 fn param_name(
     bus: &BusConfig,
     address: Address,
-    key: fn(&DriveEntry) -> &ParamName,
+    key: fn(&DriveEntry) -> ParamName,
     otherwise: &str,
 ) -> String {
     bus.drives
@@ -184,7 +184,7 @@ fn log_monitoring(
     let param = param_name(
         bus,
         address,
-        |d| &d.monitoring_param,
+        DriveEntry::monitoring_param,
         "the monitoring parameter",
     );
     let (drive, at_s, bus) = (address.get(), at.as_secs_f64(), bus.name.as_str());
@@ -232,7 +232,7 @@ fn log_reference(
     let param = param_name(
         bus,
         address,
-        |d| &d.reference_param,
+        DriveEntry::reference_param,
         "the reference parameter",
     );
     let (drive, at_s, bus) = (address.get(), at.as_secs_f64(), bus.name.as_str());

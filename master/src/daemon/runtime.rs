@@ -102,13 +102,14 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
                 watchdog: d.watchdog_ms.get(),
                 params_writable: d.params_writable,
                 monitoring: MonitoringSetup {
-                    param: d.monitoring_param.param().map(WatchedParam::from),
+                    param: d.monitoring_param().param().map(WatchedParam::from),
                     max: d.monitoring_max_ms.get(),
                     required: d.require_monitoring,
                 },
                 reference_hz: d.reference_hz.get(),
-                reference_param: d.reference_param.param().map(WatchedParam::from),
+                reference_param: d.reference_param().param().map(WatchedParam::from),
                 broadcast: d.broadcast,
+                family: d.family.code(),
             })
             .collect(),
     }

@@ -82,6 +82,10 @@ pub struct DriveSetup {
     /// The drive takes broadcasts (ADR bit 5): a stop of every drive reaches it in one
     /// broadcast telegram (`engine::turns`). S110 and G120 firmware 4 do not.
     pub broadcast: bool,
+    /// What kind of slave it is, published for the clients (which read a generic slave's
+    /// parameters by value alone). The engine reads only `monitoring` and `reference_param`
+    /// of its own, which the family decides.
+    pub family: uss_shm_types::DriveFamily,
 }
 
 impl DriveSetup {
@@ -99,6 +103,7 @@ impl DriveSetup {
             reference_hz: 50.0,
             reference_param: Some(reference::P2000),
             broadcast: true,
+            family: uss_shm_types::DriveFamily::Micromaster4,
         }
     }
 

@@ -244,6 +244,7 @@ fn info(d: &DriveSetup) -> DriveInfo {
         pkw_words: d.layout.pkw.p2013() as u8,
         pzd_words: d.layout.pzd.get() as u8,
         weight: d.weight,
+        family: d.family.code(),
         ..DriveInfo::UNKNOWN
     }
 }
