@@ -91,3 +91,40 @@ fn a_generic_slave_is_read_by_value_alone_and_stays_online() {
     assert!(bus.fault_report(1).is_err());
     stays_online(&bus, 1).unwrap();
 }
+
+#[test]
+#[should_panic(expected = "a write that takes the drive away")]
+fn a_write_that_takes_the_drive_from_ussd_needs_unsafe_and_the_drive_then_shows_it() {
+    let ussd = Ussd::start("", &[(1, "")]);
+    // The command source off USS (P0700 = 2, terminals): refused without --unsafe, --force
+    // being for another process's drive.
+    let mut plain = ussd.ussctl(&["param", "write", "1", "P0700", "2", "--force"]);
+    let (status, out, err) = plain.finish();
+    println!("families: ussctl param write 1 P0700 2 --force: {status} {out}{err}");
+    assert!(
+        !status.success() && err.contains("--unsafe"),
+        "a write that takes the drive away went through: {out}{err}"
+    );
+    let bus = ussd.bus();
+    assert_eq!(bus.read(1, 700, None), Ok(uss_protocol::Value::Word(5)));
+    // Deliberately: written, logged, verified; the drive no longer takes USS commands and
+    // ussd says so; a coast is sent but not confirmed as obeyed.
+    let mut deliberate = ussd.ussctl(&["param", "write", "1", "P0700", "2", "--unsafe"]);
+    let (status, out, err) = deliberate.finish();
+    assert!(status.success(), "{out}{err}");
+    assert!(
+        ussd.log_line("unsafe", Duration::from_secs(2)).is_some(),
+        "the unsafe write is logged: {}",
+        ussd.log()
+    );
+    let said = ussd.log_line("does not take its commands", Duration::from_secs(2));
+    assert!(said.is_some(), "{}", ussd.log());
+    let mut coast = ussd.ussctl(&["coast", "1"]);
+    let (status, out, err) = coast.finish();
+    println!("families: ussctl coast 1: {status} {out}{err}");
+    assert!(
+        !status.success(),
+        "a coast the drive ignores is not confirmed: {out}{err}"
+    );
+    assert!(err.contains("does not take its commands"), "{err}");
+}
