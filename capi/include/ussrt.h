@@ -31,6 +31,12 @@
 #define USSRT_WRITE_FORCE 2
 
 /**
+ * Write even a parameter that takes the drive away from ussd (command or setpoint source,
+ * COM link, telegram monitoring off, factory reset); ussd logs it, the value is verified.
+ */
+#define USSRT_WRITE_UNSAFE 4
+
+/**
  * `index` of a raw read or write for a parameter without index.
  */
 #define USSRT_NO_INDEX -1
@@ -128,6 +134,11 @@ typedef enum UssrtStatus {
    * A defect in this library (a caught panic); the message says where.
    */
   USSRT_STATUS_INTERNAL = 21,
+  /**
+   * The drive does not take its commands from this link (ZSW1 bit 9 = 0): a stop ussd sent
+   * is not obeyed.
+   */
+  USSRT_STATUS_NOT_CONTROLLABLE = 22,
 } UssrtStatus;
 
 /**
@@ -550,7 +561,7 @@ enum UssrtStatus ussrt_param_read(const struct UssrtBus *bus,
 /**
  * Writes `text` (`"45"`, `"2.5"`, `"0x1F"`) to `param`, converted to the parameter's own type;
  * what does not fit, or a read-only parameter, is refused before the bus (`VALUE`). `flags`:
- * `USSRT_WRITE_EEPROM`, `USSRT_WRITE_FORCE`. `*held` (may be NULL) gets the value the drive
+ * `USSRT_WRITE_EEPROM`, `USSRT_WRITE_FORCE`, `USSRT_WRITE_UNSAFE`. `*held` (may be NULL) gets the value the drive
  * now holds.
  *
  * # Safety

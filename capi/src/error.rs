@@ -59,6 +59,9 @@ pub enum UssrtStatus {
     Ipc = 20,
     /// A defect in this library (a caught panic); the message says where.
     Internal = 21,
+    /// The drive does not take its commands from this link (ZSW1 bit 9 = 0): a stop ussd sent
+    /// is not obeyed.
+    NotControllable = 22,
 }
 
 /// Details of the calling thread's last failure, beyond its status and message.
@@ -158,6 +161,7 @@ fn client_info(e: &ClientError) -> UssrtErrorInfo {
         ClientError::Released { .. } => S::Released,
         ClientError::NoProcessData { .. } => S::NoProcessData,
         ClientError::CommandRefused { .. } => S::Refused,
+        ClientError::NotControllable { .. } => S::NotControllable,
         _ => S::Ipc,
     };
     UssrtErrorInfo::of(status)

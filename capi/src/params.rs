@@ -11,6 +11,9 @@ use uss_client::{ParamValue, Typed, Value, WriteOptions};
 pub const USSRT_WRITE_EEPROM: u32 = 1;
 /// `flags` bit of a write: write even while another process controls the drive (deliberate).
 pub const USSRT_WRITE_FORCE: u32 = 2;
+/// Write even a parameter that takes the drive away from ussd (command or setpoint source,
+/// COM link, telegram monitoring off, factory reset); ussd logs it, the value is verified.
+pub const USSRT_WRITE_UNSAFE: u32 = 4;
 /// `index` of a raw read or write for a parameter without index.
 pub const USSRT_NO_INDEX: i32 = -1;
 
@@ -124,14 +127,16 @@ fn index_of(index: i32) -> Result<Option<u8>, Failure> {
 }
 
 fn options(flags: u32) -> Result<WriteOptions, Failure> {
-    if flags & !(USSRT_WRITE_EEPROM | USSRT_WRITE_FORCE) != 0 {
+    if flags & !(USSRT_WRITE_EEPROM | USSRT_WRITE_FORCE | USSRT_WRITE_UNSAFE) != 0 {
         return Err(Failure::Argument(format!(
-            "flags {flags:#x}: only USSRT_WRITE_EEPROM and USSRT_WRITE_FORCE are defined"
+            "flags {flags:#x}: only USSRT_WRITE_EEPROM, USSRT_WRITE_FORCE and \
+             USSRT_WRITE_UNSAFE are defined"
         )));
     }
     Ok(WriteOptions {
         eeprom: flags & USSRT_WRITE_EEPROM != 0,
         force: flags & USSRT_WRITE_FORCE != 0,
+        unsafe_write: flags & USSRT_WRITE_UNSAFE != 0,
     })
 }
 
@@ -160,7 +165,7 @@ pub unsafe extern "C" fn ussrt_param_read(
 
 /// Writes `text` (`"45"`, `"2.5"`, `"0x1F"`) to `param`, converted to the parameter's own type;
 /// what does not fit, or a read-only parameter, is refused before the bus (`VALUE`). `flags`:
-/// `USSRT_WRITE_EEPROM`, `USSRT_WRITE_FORCE`. `*held` (may be NULL) gets the value the drive
+/// `USSRT_WRITE_EEPROM`, `USSRT_WRITE_FORCE`, `USSRT_WRITE_UNSAFE`. `*held` (may be NULL) gets the value the drive
 /// now holds.
 ///
 /// # Safety

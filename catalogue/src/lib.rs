@@ -315,14 +315,34 @@ pub struct Message {
     pub text: String,
 }
 
+/// A parameter whose change can take the drive away from ussd: its command or setpoint
+/// source, its COM link, the access that hides these, its telegram monitoring switched off, a
+/// factory reset. ussd refuses to write it unless the request is marked unsafe.
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Guard {
+    #[serde(deserialize_with = "param_id")]
+    pub id: ParamRef,
+    /// What a change does, in a few words (for the refusal and the log).
+    pub why: String,
+    /// Only a change to 0 is guarded (switching telegram monitoring off).
+    #[serde(default)]
+    pub zero_only: bool,
+}
+
 /// The catalogue of one drive family.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Catalogue {
     pub family: String,
+    #[serde(default)]
     pub param: Vec<Param>,
+    #[serde(default)]
     pub fault: Vec<Message>,
+    #[serde(default)]
     pub warning: Vec<Message>,
+    #[serde(default)]
+    pub guard: Vec<Guard>,
 }
 
 /// A catalogue file that cannot be read.
@@ -334,9 +354,15 @@ pub struct CatalogueError {
 }
 
 const MICROMASTER4: &str = include_str!("../data/micromaster4.toml");
+const G120: &str = include_str!("../data/g120.toml");
 
 static MM4: LazyLock<Catalogue> = LazyLock::new(|| {
     Catalogue::parse(MICROMASTER4, "data/micromaster4.toml")
+        .unwrap_or_else(|e| unreachable!("the built-in catalogue is valid (tested): {e}"))
+});
+
+static G120_CATALOGUE: LazyLock<Catalogue> = LazyLock::new(|| {
+    Catalogue::parse(G120, "data/g120.toml")
         .unwrap_or_else(|e| unreachable!("the built-in catalogue is valid (tested): {e}"))
 });
 
@@ -344,6 +370,30 @@ impl Catalogue {
     /// MICROMASTER 420/430/440 and SINAMICS G110.
     pub fn micromaster4() -> &'static Self {
         &MM4
+    }
+
+    /// SINAMICS G120 with a CU240 over USS: its guarded parameters only so far (its
+    /// parameters are described by the drive).
+    pub fn g120() -> &'static Self {
+        &G120_CATALOGUE
+    }
+
+    /// The built-in catalogue of a family by its configuration name (`micromaster4`, `g110`,
+    /// `g120`); `None` for a family uss-rt has none of (`simoreg`, `generic`).
+    pub fn of_family(family: &str) -> Option<&'static Self> {
+        match family {
+            "micromaster4" | "g110" => Some(Self::micromaster4()),
+            "g120" => Some(Self::g120()),
+            _ => None,
+        }
+    }
+
+    /// Why writing `value` to parameter `pnu` can take the drive away from ussd, if it can.
+    pub fn guard(&self, pnu: u16, value: u32) -> Option<&str> {
+        self.guard
+            .iter()
+            .find(|g| g.id.pnu.get() == pnu && (!g.zero_only || value == 0))
+            .map(|g| g.why.as_str())
     }
 
     /// Reads a catalogue file: every entry checked, numbers unique and sorted.

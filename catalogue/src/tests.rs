@@ -130,3 +130,19 @@ mod properties {
         }
     }
 }
+
+#[test]
+fn guarded_parameters_are_marked_per_family_and_monitoring_only_when_switched_off() {
+    let mm4 = Catalogue::of_family("micromaster4").unwrap();
+    assert!(core::ptr::eq(mm4, Catalogue::of_family("g110").unwrap()));
+    assert!(mm4.guard(700, 2).unwrap().starts_with("command source"));
+    assert_eq!(mm4.guard(1120, 0), None, "a ramp time is not guarded");
+    assert_eq!(mm4.guard(2014, 100), None, "monitoring set is fine");
+    assert!(mm4.guard(2014, 0).unwrap().contains("monitoring off"));
+    let g120 = Catalogue::of_family("g120").unwrap();
+    assert!(g120.guard(2021, 5).unwrap().contains("address"));
+    assert!(g120.guard(2040, 0).is_some() && g120.guard(2040, 100).is_none());
+    assert!(Catalogue::of_family("generic").is_none() && Catalogue::of_family("simoreg").is_none());
+    // Guarded by number: the BICO sources need no typed entry.
+    assert!(mm4.param(840).is_none() && mm4.guard(840, 0).is_some());
+}

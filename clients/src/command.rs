@@ -56,10 +56,22 @@ impl Bus {
                 && got.strength() >= command.strength()
                 && got.stw1() == Some(i.sent_stw1)
         };
-        match timeout {
+        let last = match timeout {
             Some(timeout) => watch.wait_for(timeout, &wanted, shown),
             None => watch.wait_polled(&wanted, shown),
+        }?;
+        if last.word_count > 0
+            && !uss_protocol::Zsw1::from_bits_retain(last.zsw1)
+                .contains(uss_protocol::Zsw1::CONTROL_REQUESTED)
+        {
+            return Err(ClientError::NotControllable {
+                bus: self.link().name.to_string(),
+                address,
+                command: command.to_string(),
+                zsw1: last.zsw1,
+            });
         }
+        Ok(last)
     }
 
     fn operator(&self, address: u8, command: StopCommand) -> Result<Vec<u8>, ClientError> {

@@ -248,6 +248,18 @@ pub enum ClientError {
         /// ZSW1 at the end.
         zsw1: u16,
     },
+    /// ussd sent the command, but the drive does not take its commands from this link: its
+    /// ZSW1 bit 9 ("control requested") is 0, its command source is elsewhere. It ignores
+    /// the command, stops included.
+    #[error(
+        "drive {address} on {bus} got {command} from ussd but does not take its commands from this link (ZSW1 {zsw1:#06X}, bit 9 control requested = 0): stop it where it takes its commands; its command source (P0700 on MICROMASTER 4) is not USS"
+    )]
+    NotControllable {
+        bus: String,
+        address: u8,
+        command: String,
+        zsw1: u16,
+    },
 }
 
 fn command_hint(error: CommandError) -> &'static str {
@@ -423,6 +435,11 @@ fn refusal_hint(error: RequestError) -> &'static str {
         }
         RequestError::Controlled => {
             ": another process controls the drive; force the write if it is deliberate"
+        }
+        RequestError::Guarded => {
+            " (its command or setpoint source, COM link, telegram monitoring off or a factory \
+             reset); write it deliberately with --unsafe (WriteOptions::unsafe_write): ussd \
+             logs it"
         }
         RequestError::LineDown => {
             ": the bus line is down; ussd reopens it, retry once `ussctl status` shows it up"

@@ -85,9 +85,9 @@ pub use typed::{Fault, FaultReport, FaultTime, ParamValue, Warning};
 pub use uss_catalogue::{Catalogue, DataType, Typed};
 pub use uss_protocol::{DriveState, ParamTask, Pnu, Setpoint, Stw1, Subindex, Value, Zsw1};
 pub use uss_shm_types::{
-    BusState, BusStatus, ControlState, DriveDiag, DriveError, DriveInfo, LatchReason, LineFault,
-    Monitoring, ParamItem, ParamRequest, ParamResponse, PathError, PzdInput, PzdOutput, Rejection,
-    RequestError, StopCommand,
+    BusState, BusStatus, ControlState, DriveDiag, DriveError, DriveFamily, DriveInfo, LatchReason,
+    LineFault, Monitoring, ParamItem, ParamRequest, ParamResponse, PathError, PzdInput, PzdOutput,
+    Rejection, RequestError, StopCommand,
 };
 pub use watch::{CycleEvent, CycleListener, DriveWatch, Snapshot};
 /// The protocol and contract crates this API speaks, so applications use the same versions.

@@ -18,6 +18,10 @@ pub struct WriteOptions {
     pub eeprom: bool,
     /// Write even while another process controls the drive.
     pub force: bool,
+    /// Write even a parameter that can take the drive away from ussd (the family's catalogue
+    /// marks them: command or setpoint source, COM link, telegram monitoring off, factory
+    /// reset). ussd logs it; the value is read back and verified.
+    pub unsafe_write: bool,
 }
 
 /// The fault buffer: r0947, 8 elements, newest fault first (MICROMASTER).
@@ -124,14 +128,16 @@ impl Bus {
     ) -> Result<Value, ParamError> {
         let options = WriteOptions {
             eeprom,
-            force: false,
+            ..WriteOptions::default()
         };
         self.write_with(address, pnu, index, value, options)
     }
 
     /// [`Bus::write`] with all its options: `force` writes even while another process controls
     /// the drive (a deliberate act, e.g. during commissioning; ussd logs nothing extra, the
-    /// controller is not told).
+    /// controller is not told); `unsafe_write` writes even a parameter that can take the drive
+    /// away from ussd (ussd logs it), and reads it back: a drive that holds something else is
+    /// [`ParamError::Unexpected`].
     pub fn write_with(
         &self,
         address: u8,
@@ -146,9 +152,26 @@ impl Bus {
             Storage::Ram
         };
         let task = ParamTask::write(Pnu::from_u16(pnu), subindex(index)?, value, storage);
-        self.request(address, &[task], options.force)?
+        let mut flags = 0;
+        if options.force {
+            flags |= uss_shm_types::REQUEST_FORCE;
+        }
+        if options.unsafe_write {
+            flags |= uss_shm_types::REQUEST_UNSAFE;
+        }
+        let written = self
+            .request(address, &[task], flags)?
             .pop()
-            .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
+            .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))?;
+        if options.unsafe_write {
+            let held = self.read(address, pnu, index)?;
+            if held != written {
+                return Err(ParamError::Unexpected(format!(
+                    "P{pnu} was written as {written:?} but the drive holds {held:?}"
+                )));
+            }
+        }
+        Ok(written)
     }
 
     /// Reads the number of elements of array `pnu`.
@@ -189,14 +212,19 @@ impl Bus {
         items: &[ParamTask],
         force: bool,
     ) -> Vec<Result<Value, ParamError>> {
-        match self.request(address, items, force) {
+        let flags = if force {
+            uss_shm_types::REQUEST_FORCE
+        } else {
+            0
+        };
+        match self.request(address, items, flags) {
             Ok(results) => results,
             Err(e) => vec![Err(e); items.len()],
         }
     }
 
     fn one(&self, address: u8, item: ParamTask) -> Result<Value, ParamError> {
-        self.request(address, &[item], false)?
+        self.request(address, &[item], 0)?
             .pop()
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
     }
@@ -206,7 +234,7 @@ impl Bus {
         &self,
         address: u8,
         tasks: &[ParamTask],
-        force: bool,
+        flags: u8,
     ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
         let drive = DriveAddress::new(address).map_err(ClientError::from)?;
         // The one conversion from the protocol's tasks to the contract's items.
@@ -215,9 +243,7 @@ impl Bus {
             error: r.error,
             item: r.item,
         })?;
-        if force {
-            request.flags |= uss_shm_types::REQUEST_FORCE;
-        }
+        request.flags |= flags;
         let response = self.send_request(&request)?;
         response_results(&response, address, items.len())
     }

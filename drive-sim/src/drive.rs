@@ -429,7 +429,7 @@ impl Drive {
         if !stw.contains(Stw1::CONTROL_BY_PLC) {
             return false;
         }
-        if self.param_u32(P0700) == SOURCE_USS {
+        if self.takes_commands() {
             let rising_ack = stw.contains(Stw1::FAULT_ACK) && !self.stw1.contains(Stw1::FAULT_ACK);
             if rising_ack && self.state == State::Fault {
                 self.fault = None;
@@ -623,6 +623,15 @@ impl Drive {
         }
     }
 
+    /// Whether the drive takes its commands from USS (P0700 = 5 on a MICROMASTER 4; a generic
+    /// slave always does).
+    fn takes_commands(&self) -> bool {
+        match self.config.personality {
+            Personality::Micromaster4 => self.param_u32(P0700) == SOURCE_USS,
+            Personality::Generic { .. } => true,
+        }
+    }
+
     /// Moves the model to `now`: telegram monitoring and the ramp-function generator.
     pub fn advance(&mut self, now: Duration) {
         let dt = self
@@ -701,11 +710,15 @@ impl Drive {
 
     /// ZSW1 as the drive reports it (USS.md section 7).
     pub fn zsw1(&self) -> Zsw1 {
-        let mut z = Zsw1::CONTROL_REQUESTED
-            | Zsw1::NO_CURRENT_LIMIT
+        let mut z = Zsw1::NO_CURRENT_LIMIT
             | Zsw1::NO_HOLDING_BRAKE
             | Zsw1::NO_MOTOR_OVERLOAD
             | Zsw1::NO_INVERTER_OVERLOAD;
+        // Control requested: the drive takes its commands from this link (USS on the COM
+        // link); with another command source it ignores the control words.
+        if self.takes_commands() {
+            z |= Zsw1::CONTROL_REQUESTED;
+        }
         z |= match self.state {
             State::SwitchingOnInhibited => Zsw1::SWITCHING_ON_INHIBITED,
             State::ReadyToSwitchOn => Zsw1::READY_TO_SWITCH_ON,

@@ -90,6 +90,7 @@ pub(crate) fn client(py: Python<'_>, e: ClientError) -> PyErr {
         ClientError::Stale { .. } | ClientError::WaitTimeout { .. } => {
             raise(py, "WaitTimeout", (message,))
         }
+        ClientError::NotControllable { .. } => raise(py, "NotControllable", (message,)),
         _ => raise(py, "UssError", (message,)),
     }
 }

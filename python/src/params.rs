@@ -126,7 +126,7 @@ fn typed<'py>(
 
 /// Writes `text` to `param`, converted to the parameter's own type; the value the drive holds.
 #[pyfunction]
-#[pyo3(signature = (bus, address, param, text, eeprom=false, force=false, timeout=7.5))]
+#[pyo3(signature = (bus, address, param, text, eeprom=false, force=false, timeout=7.5, unsafe_write=false))]
 #[allow(clippy::too_many_arguments)] // the Python call's own keyword arguments
 fn write<'py>(
     py: Python<'py>,
@@ -137,8 +137,13 @@ fn write<'py>(
     eeprom: bool,
     force: bool,
     timeout: f64,
+    unsafe_write: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let options = WriteOptions { eeprom, force };
+    let options = WriteOptions {
+        eeprom,
+        force,
+        unsafe_write,
+    };
     typed(py, bus, address, param, timeout, |bus, param| {
         bus.write_param(address, param, text, options)
     })

@@ -49,6 +49,7 @@ __all__ = [
     "ParamFailed",
     "ParamTimeout",
     "ParamValue",
+    "NotControllable",
     "Refused",
     "Rejection",
     "RequestError",
@@ -229,6 +230,11 @@ class WaitTimeout(UssError, TimeoutError):
     """A drive did not get where it was asked to in time."""
 
 
+class NotControllable(UssError):
+    """ussd sent a command, but the drive does not take its commands from this link (ZSW1 bit
+    9 = 0: its command source is elsewhere); it ignores it, stops included."""
+
+
 class Refused(UssError):
     """ussd refused the request (or one item) before the bus; ``error`` is a RequestError."""
 
@@ -242,6 +248,9 @@ class Refused(UssError):
         RequestError.NO_PARAMETER_CHANNEL: "the drive has no parameter channel (PKW length 0)",
         RequestError.CONTROLLED: "another process controls the drive: write with force=True "
         "if it is deliberate",
+        RequestError.GUARDED: "the parameter takes the drive away from ussd (command or "
+        "setpoint source, COM link, telegram monitoring off, factory reset): write with "
+        "unsafe=True if it is deliberate",
     }
 
     def __init__(self, error: int, item=None):

@@ -86,13 +86,16 @@ def read(bus, address: int, param: str, timeout: float = 7.5) -> Value:
 
 
 def write(bus, address: int, param: str, value, eeprom: bool = False, force: bool = False,
-          timeout: float = 7.5) -> Value:
+          timeout: float = 7.5, unsafe: bool = False) -> Value:
     """Writes ``value`` (a number or text) to ``param`` of drive ``address``, converted to the
     parameter's type (45 is 45.0 for a float parameter); what does not fit, or a read-only
     parameter, raises :class:`ValueError` before the bus. Returns the value the drive now holds.
-    ``force`` writes while another process controls the drive (a deliberate act)."""
+    ``force`` writes while another process controls the drive (a deliberate act); ``unsafe``
+    writes even a parameter that takes the drive away from ussd (command or setpoint source,
+    COM link, telegram monitoring off, factory reset): ussd logs it, the value is verified."""
     _u._check_address(address)
-    fields = _native.write(bus._open(), address, param, _value_text(value), eeprom, force, timeout)
+    fields = _native.write(bus._open(), address, param, _value_text(value), eeprom, force,
+                           timeout, unsafe)
     return Value(fields)
 
 

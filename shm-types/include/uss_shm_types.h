@@ -238,9 +238,16 @@
 #define USS_REQUEST_FORCE 1
 
 /**
+ * `flags` bit of a [`ParamRequest`]: write even a parameter that can take the drive away from
+ * ussd (its command or setpoint source, its COM link, its telegram monitoring off, a factory
+ * reset; the family's catalogue marks them), e.g. `ussctl param write --unsafe`. Logged.
+ */
+#define USS_REQUEST_UNSAFE 2
+
+/**
  * Every `flags` bit this layout defines.
  */
-#define USS_REQUEST_FLAGS USS_REQUEST_FORCE
+#define USS_REQUEST_FLAGS (USS_REQUEST_FORCE | USS_REQUEST_UNSAFE)
 
 /**
  * Most PZD words a drive exchanges (USS.md section 3: 0..16, fixed per slave).
@@ -900,6 +907,11 @@ enum UssRequestError
    * The bus line is down; ussd reopens it.
    */
   USS_REQUEST_ERROR_LINE_DOWN = 16,
+  /**
+   * A write of a parameter that can take the drive away from ussd (the family's
+   * catalogue marks it), without [`REQUEST_UNSAFE`]; `item` names it.
+   */
+  USS_REQUEST_ERROR_GUARDED = 17,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

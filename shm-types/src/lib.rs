@@ -65,7 +65,7 @@ pub use names::{BlackboardKey, BusName, DriveAddress, Generation, Instance, Name
 pub use outcome::{Answer, DriveError, ItemOutcome, PathError, ResultError};
 pub use params::{
     MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, REQUEST_FORCE,
-    Refusal, RequestError, Storage, TaskCode,
+    REQUEST_UNSAFE, Refusal, RequestError, Storage, TaskCode,
 };
 pub use pzd::{
     EXTRA_PZD_WORDS, MAX_PZD_WORDS, MIN_HANDSHAKE_NS, OUTPUT_RELEASE, OutputSample, PzdInput,

@@ -90,14 +90,21 @@ code_table! {
         BadFlags = 15 => "unknown flags",
         /// The bus line is down; ussd reopens it.
         LineDown = 16 => "bus line down",
+        /// A write of a parameter that can take the drive away from ussd (the family's
+        /// catalogue marks it), without [`REQUEST_UNSAFE`]; `item` names it.
+        Guarded = 17 => "guarded parameter: takes the drive away from ussd",
     }
 }
 
 /// `flags` bit of a [`ParamRequest`]: write even though another process controls the drive
 /// (a deliberate act, e.g. `ussctl param write --force`).
 pub const REQUEST_FORCE: u8 = 0x01;
+/// `flags` bit of a [`ParamRequest`]: write even a parameter that can take the drive away from
+/// ussd (its command or setpoint source, its COM link, its telegram monitoring off, a factory
+/// reset; the family's catalogue marks them), e.g. `ussctl param write --unsafe`. Logged.
+pub const REQUEST_UNSAFE: u8 = 0x02;
 /// Every `flags` bit this layout defines.
-pub const REQUEST_FLAGS: u8 = REQUEST_FORCE;
+pub const REQUEST_FLAGS: u8 = REQUEST_FORCE | REQUEST_UNSAFE;
 
 code_table! {
     /// How one item ended; the `outcome` byte of [`ParamResult`]. Every item of an accepted
@@ -306,6 +313,11 @@ impl ParamRequest {
         self.flags & REQUEST_FORCE != 0
     }
 
+    /// Whether the request may write guarded parameters ([`REQUEST_UNSAFE`]).
+    pub const fn is_unsafe(&self) -> bool {
+        self.flags & REQUEST_UNSAFE != 0
+    }
+
     /// Checks everything ussd can check without the bus configuration (version, address
     /// range, count, every item) and returns the tasks the items ask for.
     pub fn validate(&self) -> Result<(DriveAddress, Vec<ParamTask>), Refusal> {
@@ -491,13 +503,15 @@ mod tests {
             Err(Refusal::request(RequestError::UnknownDrive))
         );
         req.address = 1;
-        req.flags = 0x02;
+        req.flags = 0x04;
         assert_eq!(
             req.validate(),
             Err(Refusal::request(RequestError::BadFlags))
         );
         req.flags = REQUEST_FORCE;
-        assert!(req.validate().is_ok() && req.is_forced());
+        assert!(req.validate().is_ok() && req.is_forced() && !req.is_unsafe());
+        req.flags = REQUEST_FORCE | REQUEST_UNSAFE;
+        assert!(req.validate().is_ok() && req.is_unsafe());
         req.version = 0;
         assert_eq!(req.validate(), Err(Refusal::request(RequestError::Version)));
     }

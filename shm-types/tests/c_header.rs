@@ -464,6 +464,7 @@ fn numbers() -> Vec<(&'static str, u64)> {
         ("STW1_CONTROL_BY_PLC", u64::from(pzd::STW1_CONTROL_BY_PLC)),
         ("STW1_ON", u64::from(pzd::STW1_ON)),
         ("REQUEST_FORCE", u64::from(params::REQUEST_FORCE)),
+        ("REQUEST_UNSAFE", u64::from(params::REQUEST_UNSAFE)),
         ("REQUEST_FLAGS", u64::from(params::REQUEST_FLAGS)),
         ("ALL_DRIVES", u64::from(control::ALL_DRIVES)),
         ("MAX_BUS_NAME_LEN", names::MAX_BUS_NAME_LEN as u64),

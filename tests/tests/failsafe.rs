@@ -660,8 +660,8 @@ fn parameter_writes_to_a_controlled_drive_need_force_or_the_controlling_process(
     assert!(status.success(), "{out}{err}");
     assert_eq!(bus.read_f32(1, 1121, None), Ok(2.5));
     let options = WriteOptions {
-        eeprom: false,
         force: true,
+        ..WriteOptions::default()
     };
     assert_eq!(
         bus.write_with(1, 1120, None, Value::from_f32(1.5), options),

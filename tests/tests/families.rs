@@ -93,7 +93,6 @@ fn a_generic_slave_is_read_by_value_alone_and_stays_online() {
 }
 
 #[test]
-#[should_panic(expected = "a write that takes the drive away")]
 fn a_write_that_takes_the_drive_from_ussd_needs_unsafe_and_the_drive_then_shows_it() {
     let ussd = Ussd::start("", &[(1, "")]);
     // The command source off USS (P0700 = 2, terminals): refused without --unsafe, --force

@@ -199,6 +199,11 @@ pub enum ParamCommand {
         /// Write even though another process controls the drive (a deliberate act).
         #[arg(long)]
         force: bool,
+        /// Write even a parameter that takes the drive away from ussd: its command or setpoint
+        /// source, its COM link, telegram monitoring off, a factory reset (the family's
+        /// catalogue marks them). ussd logs it; the value is read back and verified.
+        #[arg(long = "unsafe")]
+        unsafe_write: bool,
     },
     /// Save every settable parameter of a drive (the catalogue's, array elements included) to
     /// a TOML file (stdout without -o).
@@ -502,7 +507,9 @@ mod tests {
                 eeprom,
                 kind,
                 force,
+                unsafe_write,
             }) => {
+                assert!(!unsafe_write);
                 let index = param.index.map(Subindex::get);
                 assert_eq!((drive, param.pnu.get(), index), (3, 1120, Some(0)));
                 assert_eq!(

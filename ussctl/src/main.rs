@@ -210,6 +210,7 @@ fn run_param(bus: &Bus, out: &Output, command: &ParamCommand) -> Result<(), Fail
             eeprom,
             kind,
             force,
+            unsafe_write,
         } => {
             let write = commands::param::Write {
                 drive: *drive,
@@ -218,6 +219,7 @@ fn run_param(bus: &Bus, out: &Output, command: &ParamCommand) -> Result<(), Fail
                 eeprom: *eeprom,
                 kind: *kind,
                 force: *force,
+                guarded: *unsafe_write,
             };
             commands::param::write(bus, out, &write)
         }

@@ -59,6 +59,9 @@ fn answer(
                     .get("eeprom")
                     .is_some_and(|v| v == "true" || v.is_empty()),
                 force: false,
+                // Never from across the network: a guarded parameter (command source, COM
+                // link, ...) is written on the machine's own host, deliberately.
+                unsafe_write: false,
             };
             let written = bus
                 .write_param(drive, param, &text, options)

@@ -278,6 +278,26 @@ fn log_own_read(bus: &BusConfig, event: &Event) {
     }
 }
 
+/// Whether a drive takes its commands from this link (ZSW1 bit 9), when that changes.
+fn log_commands(bus: &BusConfig, address: Address, at: Duration, taken: bool) {
+    let (drive, at_s) = (address.get(), at.as_secs_f64());
+    if taken {
+        tracing::info!(
+            bus = bus.name,
+            drive,
+            at_s,
+            "drive {address} takes its commands from this link again (ZSW1 bit 9 = 1)"
+        );
+    } else {
+        tracing::warn!(
+            bus = bus.name,
+            drive,
+            at_s,
+            "drive {address} does not take its commands from this link (ZSW1 bit 9, control requested, is 0): it ignores ussd's control words, stops included; its command source is elsewhere (P0700 = 5 on MICROMASTER 4 takes them from USS on the COM link): stop it where it takes its commands"
+        );
+    }
+}
+
 fn log_event(bus: &BusConfig, event: &Event) {
     match *event {
         Event::DriveOffline {
@@ -293,6 +313,7 @@ fn log_event(bus: &BusConfig, event: &Event) {
                 failure.name()
             );
         }
+        Event::Commands { address, at, taken } => log_commands(bus, address, at, taken),
         Event::DriveOnline { address, at } => {
             tracing::info!(
                 bus = bus.name,

@@ -107,6 +107,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let state = |z| DriveState::from_zsw1(Zsw1::from_bits_retain(z));
         let from = (status.counters.good > 1).then(|| state(status.last_zsw1));
         let changed = !pzd.is_empty() && from != Some(state(zsw1));
+        let taken = |z: u16| Zsw1::from_bits_retain(z).contains(Zsw1::CONTROL_REQUESTED);
+        let took = (status.counters.good > 1).then(|| taken(status.last_zsw1));
+        // Said when it changes, and at the first reply only when the drive does not take them.
+        let commands =
+            (!pzd.is_empty() && took != Some(taken(zsw1)) && (took.is_some() || !taken(zsw1)))
+                .then_some(taken(zsw1));
         status.last_zsw1 = zsw1;
         status.last_hiw = pzd.get(1).copied().unwrap_or(0);
         let came_back = !status.online;
@@ -142,6 +148,13 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             } else {
                 bus.untimed += 1;
             }
+        }
+        if let Some(taken) = commands {
+            self.emit(Event::Commands {
+                address,
+                at: timing.done,
+                taken,
+            });
         }
         if changed {
             self.emit(Event::StateChanged {

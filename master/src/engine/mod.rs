@@ -223,6 +223,14 @@ pub enum Event {
     },
     /// The drive's state from its ZSW1 (S1..S5, fault) changed; `from` is `None` for its first
     /// reply.
+    /// The drive's ZSW1 bit 9 ("control requested") changed, or was clear at the first
+    /// reply: `taken` false means the drive does not take its commands from this link (its
+    /// command source is elsewhere): ussd's control words, stops included, are ignored.
+    Commands {
+        address: Address,
+        at: Duration,
+        taken: bool,
+    },
     StateChanged {
         address: Address,
         at: Duration,

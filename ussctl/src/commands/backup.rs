@@ -256,9 +256,11 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
         return out.show(&report, RestoreReport::human);
     }
     catch_signals()?;
+    // A restore never writes a guarded parameter unasked: ussd refuses it, and it is named.
     let options = WriteOptions {
         eeprom: r.eeprom,
         force: r.force,
+        unsafe_write: false,
     };
     let steps = order(bus, drive, &differing);
     let bar = progress(steps.len(), &format!("writing drive {drive}"));

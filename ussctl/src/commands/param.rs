@@ -42,12 +42,14 @@ pub(crate) struct Write<'a> {
     pub eeprom: bool,
     pub kind: Option<Kind>,
     pub force: bool,
+    pub guarded: bool,
 }
 
 pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failure> {
     let options = WriteOptions {
         eeprom: w.eeprom,
         force: w.force,
+        unsafe_write: w.guarded,
     };
     let (drive, param) = (w.drive, w.param);
     let failed = |source| match source {

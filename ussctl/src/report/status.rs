@@ -199,6 +199,11 @@ pub struct DriveRow {
     pub period_ms: Option<f64>,
     /// After how long without a poll ussd's image of the drive is stale, ms; null until known.
     pub stale_after_ms: Option<f64>,
+    /// Whether the drive takes its commands from this link (ZSW1 bit 9, control requested);
+    /// false: it ignores ussd's control words, stops included.
+    pub takes_commands: bool,
+    #[serde(skip)]
+    pzd_words: u8,
 }
 
 impl DriveRow {
@@ -224,7 +229,20 @@ impl DriveRow {
             last_error: last_failure(d),
             period_ms: (d.period_ns != 0).then(|| d.period_ns as f64 / 1e6),
             stale_after_ms: (d.stale_after_ns != 0).then(|| d.stale_after_ns as f64 / 1e6),
+            takes_commands: uss_client::Zsw1::from_bits_retain(d.last_zsw1)
+                .contains(uss_client::Zsw1::CONTROL_REQUESTED),
+            pzd_words: d.info.pzd_words,
         }
+    }
+
+    /// A drive that answers but does not take its commands from this link.
+    fn commands_warning(&self) -> Option<String> {
+        (self.online && !self.takes_commands && d_has_pzd(self)).then(|| {
+            format!(
+                "drive {}: NOT CONTROLLABLE: it does not take its commands from this link (ZSW1 bit 9, control requested, is 0): it ignores ussd's control words, stops included; its command source is elsewhere (P0700 = 5 on MICROMASTER 4 takes them from USS)",
+                self.address
+            )
+        })
     }
 
     /// Whether the drive's own telegram monitoring deserves a warning.
@@ -249,6 +267,12 @@ impl DriveRow {
             )),
         }
     }
+}
+
+/// Whether the drive's images carry a ZSW1 at all (PZD words configured): a drive without
+/// process data has no control word to take.
+fn d_has_pzd(d: &DriveRow) -> bool {
+    d.pzd_words > 0
 }
 
 pub(super) fn last_failure(d: &DriveDiag) -> &'static str {
@@ -299,6 +323,9 @@ impl StatusReport {
                 d.control.human(),
                 d.flags.join(",")
             );
+        }
+        for warning in self.drives.iter().filter_map(DriveRow::commands_warning) {
+            let _ = writeln!(out, "warning: {warning}");
         }
         for warning in self.drives.iter().filter_map(DriveRow::monitoring_warning) {
             let _ = writeln!(out, "warning: {warning}");

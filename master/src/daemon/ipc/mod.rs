@@ -247,7 +247,7 @@ pub fn create(
         (notifier()?, heartbeat),
         clock_origin,
     )?;
-    let params = server::create(&node, &bus, &attributes, (outs, woken))?;
+    let params = server::create(&node, &bus, &attributes, (outs, woken), setups)?;
     Ok(BusIpc {
         instance: bus,
         node,

@@ -20,6 +20,7 @@ use iceoryx2::port::server::Server;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::request_response::PortFactory as RequestResponseFactory;
 use std::time::Instant;
+use uss_catalogue::Catalogue;
 use uss_protocol::Address;
 use uss_shm_types::names;
 use uss_shm_types::{
@@ -34,7 +35,12 @@ pub(super) fn create(
     bus: &Instance,
     attributes: &AttributeSpecifier,
     (outs, requests): (Vec<(Address, OutService)>, Listener<Svc>),
+    setups: &[crate::engine::DriveSetup],
 ) -> Result<ParamServer, IpcError> {
+    let guards = setups
+        .iter()
+        .map(|d| (d.address, Catalogue::of_family(d.family.name())))
+        .collect();
     let (params, server) = serve(node, bus, &names::params(bus), attributes, "parameter")?;
     let answers = node
         .service_builder(&names::answers(bus))
@@ -63,6 +69,7 @@ pub(super) fn create(
         next_id: 1,
         next_dead_check: Instant::now(),
         watches: super::watches::Watches::default(),
+        guards,
     })
 }
 
@@ -143,6 +150,9 @@ pub struct ParamServer {
     next_dead_check: Instant,
     /// The requesting processes, watched by the bus thread before each job leaves a mailbox.
     watches: super::watches::Watches,
+    /// Each drive's family catalogue, which marks the parameters whose change takes the drive
+    /// away from ussd (none for a family uss-rt has no catalogue of).
+    guards: Vec<(Address, Option<&'static Catalogue>)>,
 }
 
 /// Who is behind a request and who controls a drive, from iceoryx2's own records (the node
@@ -278,7 +288,10 @@ impl ParamServer {
 
     fn accept(&mut self, active: Active, handle: &EngineHandle) {
         let request = *active.payload();
-        if let Some(refusal) = self.refuse_controlled(&active, &request) {
+        if let Some(refusal) = self
+            .refuse_controlled(&active, &request)
+            .or_else(|| self.refuse_guarded(&active, &request))
+        {
             let _ = active.send_copy(refusal);
             self.answered = true;
             return;
@@ -416,6 +429,46 @@ impl ParamServer {
         );
         response.controller_pid = controller;
         Some(response)
+    }
+
+    /// A write of a parameter that can take the drive away from ussd (its family's catalogue
+    /// marks it) is refused unless the request is marked unsafe
+    /// ([`uss_shm_types::REQUEST_UNSAFE`]); an unsafe one is logged with its process.
+    fn refuse_guarded(&self, active: &Active, request: &ParamRequest) -> Option<ParamResponse> {
+        let address = Address::new(request.address).ok()?;
+        let catalogue = self
+            .guards
+            .iter()
+            .find(|(a, _)| *a == address)
+            .and_then(|(_, c)| *c)?;
+        let count = usize::from(request.count).min(request.items.len());
+        for (i, item) in request.items[..count].iter().enumerate() {
+            if !item.task().is_ok_and(TaskCode::is_write) {
+                continue;
+            }
+            let Some(why) = catalogue.guard(item.pnu, item.value) else {
+                continue;
+            };
+            if !request.is_unsafe() {
+                return Some(ParamResponse::refused(
+                    request.address,
+                    uss_shm_types::Refusal {
+                        error: RequestError::Guarded,
+                        item: u8::try_from(i).ok(),
+                    },
+                ));
+            }
+            let pid = self.identities.param_client(active.origin()).unwrap_or(0);
+            tracing::warn!(
+                bus = self.bus,
+                drive = address.get(),
+                pid,
+                "drive {address}: P{:04} written as {} with --unsafe by process {pid}: {why}",
+                item.pnu,
+                item.value
+            );
+        }
+        None
     }
 
     fn route(&mut self, r: &JobResult, handle: &EngineHandle) {
