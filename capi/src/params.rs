@@ -333,8 +333,12 @@ mod tests {
         assert_eq!(index_of(-1).ok(), Some(None));
         assert_eq!(index_of(254).ok(), Some(Some(254)));
         assert!(index_of(255).is_err() && index_of(-2).is_err());
-        assert!(options(4).is_err());
+        assert!(options(8).is_err());
         let o = options(USSRT_WRITE_EEPROM | USSRT_WRITE_FORCE).ok();
-        assert_eq!(o.map(|o| (o.eeprom, o.force)), Some((true, true)));
+        assert_eq!(
+            o.map(|o| (o.eeprom, o.force, o.unsafe_write)),
+            Some((true, true, false))
+        );
+        assert!(options(USSRT_WRITE_UNSAFE).is_ok_and(|o| o.unsafe_write));
     }
 }

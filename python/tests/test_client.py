@@ -234,7 +234,11 @@ def test_writes_convert_to_the_parameters_type_and_refuse_what_does_not_fit(bus)
     held = uss_rt.write(bus, 2, "P1120", 3)
     assert (held.value, repr(held)) == (3.0, "P1120 = 3.00 s")
     assert uss_rt.read_param(bus, 2, 1120).as_float() == 3.0
-    assert uss_rt.write(bus, 2, "P0700", "0x05").value == 5
+    # P0700 (the command source) takes the drive away from ussd: only deliberately.
+    with pytest.raises(uss_rt.Refused, match="unsafe=True") as refused:
+        uss_rt.write(bus, 2, "P0700", "0x05")
+    assert refused.value.error == uss_rt.RequestError.GUARDED
+    assert uss_rt.write(bus, 2, "P0700", "0x05", unsafe=True).value == 5
     with pytest.raises(ValueError, match=r"P0700: 70000 does not fit U16 \(0..=65535\)"):
         uss_rt.write(bus, 2, "P0700", 70000)
     with pytest.raises(ValueError, match="P0700: 4.5 is not a whole number"):

@@ -308,9 +308,16 @@ fn parameters_read_and_write_with_typed_values_and_drive_errors() {
         )))
     );
     // P0927 (access level 2, so raise P0003 first) with bit 3 clear: no more changes over
-    // USS (reply 8).
+    // USS (reply 8). It can lock ussd out: guarded, written only when marked unsafe.
     assert_eq!(
         bus.write(3, 927, None, Value::Word(15), false),
+        Err(ParamError::Refused {
+            error: uss_client::RequestError::Guarded,
+            item: Some(0)
+        })
+    );
+    assert_eq!(
+        bus.write_with(3, 927, None, Value::Word(15), deliberate()),
         Err(ParamError::Drive(DriveError::Refused(
             DriveSays::AccessLevelTooLow
         )))
@@ -320,13 +327,21 @@ fn parameters_read_and_write_with_typed_values_and_drive_errors() {
         Ok(Value::Word(3))
     );
     assert_eq!(
-        bus.write(3, 927, None, Value::Word(0b0111), false),
+        bus.write_with(3, 927, None, Value::Word(0b0111), deliberate()),
         Ok(Value::Word(0b0111))
     );
     assert_eq!(
         bus.write(3, 1120, None, Value::from_f32(1.0), false),
         Err(ParamError::Drive(DriveError::NoChangeRights))
     );
+}
+
+/// A write of a guarded parameter, marked deliberate (`--unsafe`).
+fn deliberate() -> uss_client::WriteOptions {
+    uss_client::WriteOptions {
+        unsafe_write: true,
+        ..uss_client::WriteOptions::default()
+    }
 }
 
 #[test]
@@ -977,7 +992,9 @@ fn backup_change_restore_and_diff_shows_nothing() {
     w(1082, Value::from_f32(45.0));
     w(1120, Value::from_f32(2.5));
     w(3, Value::Word(3));
-    w(719, Value::Word(11));
+    // P0719 (command and setpoint source) is guarded: deliberately.
+    bus.write_with(1, 719, None, Value::Word(11), deliberate())
+        .unwrap();
     w(10, Value::Word(1));
     w(310, Value::from_f32(60.0));
     w(10, Value::Word(0));
@@ -1004,13 +1021,22 @@ fn backup_change_restore_and_diff_shows_nothing() {
 
     // Refused while another process controls the drive; nothing is written.
     let controller = bus.control(1, ControlOptions::default()).unwrap();
-    let (code, _, err) = run(&["param", "restore", "1", path]);
+    let (code, _, err) = run(&["param", "restore", "1", path, "--unsafe"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("is controlled by process"), "{err}");
     assert_eq!(bus.read_f32(1, 1082, None), Ok(45.0));
     controller.release().unwrap();
 
+    // Without --unsafe the guarded P0719 is named and nothing is written.
     let (code, said, err) = run(&["param", "restore", "1", path]);
+    assert_eq!(code, Some(1), "{said}{err}");
+    assert!(
+        err.contains("the backup changes P0719, which can take the drive away from ussd")
+            && err.contains("nothing was written: restore with --unsafe"),
+        "{err}"
+    );
+    assert_eq!(bus.read_f32(1, 1082, None), Ok(45.0), "nothing written");
+    let (code, said, err) = run(&["param", "restore", "1", path, "--unsafe"]);
     assert_eq!(code, Some(0), "{said}{err}");
     assert!(said.contains("P0719      11 -> 0: written"), "{said}");
     assert!(

@@ -230,6 +230,10 @@ pub enum ParamCommand {
         /// Write even though another process controls the drive (a deliberate act).
         #[arg(long)]
         force: bool,
+        /// Write guarded parameters too (command or setpoint source, COM link, ...): without
+        /// it they are refused and named, the rest written. ussd logs each.
+        #[arg(long = "unsafe")]
+        unsafe_write: bool,
     },
     /// Compare a drive's settings with a backup file, or with another drive (an address).
     Diff {

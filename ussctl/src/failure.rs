@@ -70,6 +70,15 @@ pub(crate) enum Failure {
     /// which; running it again completes what can be.
     #[error("drive {drive}: the restore is incomplete (see above); run it again to complete it")]
     Incomplete { drive: u8 },
+    /// A restore that would change guarded parameters, without `--unsafe`: nothing written.
+    #[error(
+        "drive {drive}: the backup changes {params}, which can take the drive away from ussd ({why}); nothing was written: restore with --unsafe if it is deliberate"
+    )]
+    Guarded {
+        drive: u8,
+        params: String,
+        why: String,
+    },
     /// A value on the command line that clap cannot check by itself.
     #[error("{0}")]
     Usage(String),

@@ -232,13 +232,17 @@ fn run_param(bus: &Bus, out: &Output, command: &ParamCommand) -> Result<(), Fail
             eeprom,
             dry_run,
             force,
+            unsafe_write,
         } => {
             let restore = commands::backup::Restore {
                 drive: *drive,
                 file,
-                eeprom: *eeprom,
                 dry_run: *dry_run,
-                force: *force,
+                options: uss_client::WriteOptions {
+                    eeprom: *eeprom,
+                    force: *force,
+                    unsafe_write: *unsafe_write,
+                },
             };
             commands::backup::restore(bus, out, &restore)
         }

@@ -219,12 +219,12 @@ fn load(path: &Path) -> Result<(BackupFile, Vec<Entry>), Failure> {
 pub(crate) struct Restore<'a> {
     pub drive: u8,
     pub file: &'a Path,
-    pub eeprom: bool,
     pub dry_run: bool,
-    pub force: bool,
+    /// EEPROM, forced, guarded parameters too (`--eeprom`, `--force`, `--unsafe`).
+    pub options: WriteOptions,
 }
 
-/// `param restore DRIVE FILE [--eeprom] [--dry-run] [--force]`.
+/// `param restore DRIVE FILE [--eeprom] [--dry-run] [--force] [--unsafe]`.
 pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Failure> {
     let drive = r.drive;
     let (_, entries) = load(r.file)?;
@@ -255,13 +255,33 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
         report.seconds = start.elapsed().as_secs_f64();
         return out.show(&report, RestoreReport::human);
     }
+    // Guarded parameters (command or setpoint source, COM link, ...) only with --unsafe, and
+    // then before anything is written: never a restore cut short half way.
+    if !r.options.unsafe_write
+        && let Some(catalogue) = Catalogue::of_family(bus.family(drive).name())
+    {
+        let guarded: Vec<(&Entry, &str)> = differing
+            .iter()
+            .filter_map(|(e, _)| {
+                catalogue
+                    .guard(e.param.pnu.get(), e.value.as_u32())
+                    .map(|why| (e, why))
+            })
+            .collect();
+        if let Some((_, why)) = guarded.first() {
+            return Err(Failure::Guarded {
+                drive,
+                params: guarded
+                    .iter()
+                    .map(|(e, _)| e.param.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                why: (*why).to_owned(),
+            });
+        }
+    }
     catch_signals()?;
-    // A restore never writes a guarded parameter unasked: ussd refuses it, and it is named.
-    let options = WriteOptions {
-        eeprom: r.eeprom,
-        force: r.force,
-        unsafe_write: false,
-    };
+    let options = r.options;
     let steps = order(bus, drive, &differing);
     let bar = progress(steps.len(), &format!("writing drive {drive}"));
     for (i, step) in steps.iter().enumerate() {
