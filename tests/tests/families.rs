@@ -127,3 +127,42 @@ fn a_write_that_takes_the_drive_from_ussd_needs_unsafe_and_the_drive_then_shows_
     );
     assert!(err.contains("does not take its commands"), "{err}");
 }
+
+#[test]
+fn a_backup_records_its_family_and_is_restored_to_that_family_only() {
+    let ussd = Ussd::start(
+        "",
+        &[
+            (1, ""),
+            (2, "family = \"g110\""),
+            (3, "family = \"generic\"\nsim = { family = \"generic\" }"),
+        ],
+    );
+    let dir = std::env::temp_dir().join(format!("uss-families-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("drive1.toml");
+    let path = file.to_str().unwrap();
+    let (status, out, err) = ussd.ussctl(&["param", "backup", "1", "-o", path]).finish();
+    assert!(status.success(), "{out}{err}");
+    let saved = std::fs::read_to_string(&file).unwrap();
+    assert!(saved.contains("drive_family = \"micromaster4\""), "{saved}");
+    // A G110 shares the MM4 parameter numbers, but is another family: refused, not written.
+    let (status, out, err) = ussd.ussctl(&["param", "restore", "2", path]).finish();
+    println!("families: restore of drive 1's backup to the G110: {status} {err}");
+    assert!(!status.success(), "{out}");
+    assert!(
+        err.contains("the backup is of a micromaster4 drive, this drive is configured as g110"),
+        "{err}"
+    );
+    // Its own family: the same drive takes it back.
+    let (status, out, err) = ussd.ussctl(&["param", "restore", "1", path]).finish();
+    assert!(status.success(), "{out}{err}");
+    // A generic slave has no catalogue of settings to back up.
+    let (status, _, err) = ussd.ussctl(&["param", "backup", "3"]).finish();
+    assert!(!status.success());
+    assert!(
+        err.contains("it is a generic drive: uss-rt has no catalogue"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

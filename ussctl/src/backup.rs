@@ -35,6 +35,10 @@ pub struct BackupFile {
     pub format: u32,
     /// The catalogue's drive family the values belong to.
     pub family: String,
+    /// The drive's configured `family` in ussd (`micromaster4`, `g110`): a restore to a drive
+    /// of another family is refused. Absent in backups taken before families existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive_family: Option<String>,
     pub bus: String,
     pub drive: u8,
     /// r0018 of the drive the backup was taken from.
@@ -268,6 +272,7 @@ mod tests {
         BackupFile {
             format: FORMAT,
             family: Catalogue::micromaster4().family.clone(),
+            drive_family: None,
             bus: "b".into(),
             drive: 3,
             firmware: Some(2.09),

@@ -70,6 +70,10 @@ pub(crate) enum Failure {
     /// which; running it again completes what can be.
     #[error("drive {drive}: the restore is incomplete (see above); run it again to complete it")]
     Incomplete { drive: u8 },
+    /// A backup or restore of a drive whose family has no parameter catalogue in uss-rt, or a
+    /// restore of another family's backup.
+    #[error("drive {drive}: {problem}")]
+    Family { drive: u8, problem: String },
     /// A restore that would change guarded parameters, without `--unsafe`: nothing written.
     #[error(
         "drive {drive}: the backup changes {params}, which can take the drive away from ussd ({why}); nothing was written: restore with --unsafe if it is deliberate"

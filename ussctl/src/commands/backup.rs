@@ -141,7 +141,8 @@ pub(crate) fn backup(
     drive: u8,
     output: Option<&Path>,
 ) -> Result<(), Failure> {
-    let catalogue = Catalogue::micromaster4();
+    let family = bus.family(drive);
+    let catalogue = settings_catalogue(drive, family.name())?;
     let start = Instant::now();
     let r0018 = ParamRef {
         prefix: Prefix::R,
@@ -168,6 +169,7 @@ pub(crate) fn backup(
     let file = BackupFile {
         format: crate::backup::FORMAT,
         family: catalogue.family.clone(),
+        drive_family: Some(family.name().to_owned()),
         bus: bus.name().to_owned(),
         drive,
         firmware,
@@ -215,6 +217,69 @@ fn load(path: &Path) -> Result<(BackupFile, Vec<Entry>), Failure> {
     )?)
 }
 
+/// The catalogue whose settings a drive of `family` has; a family without one (G120,
+/// SIMOREG, a generic slave) has nothing uss-rt could back up or check.
+fn settings_catalogue(drive: u8, family: &str) -> Result<&'static Catalogue, Failure> {
+    Catalogue::of_family(family)
+        .filter(|c| !c.param.is_empty())
+        .ok_or_else(|| Failure::Family {
+            drive,
+            problem: format!(
+                "it is a {family} drive: uss-rt has no catalogue of its settings to back up or \
+                 restore (read and write its parameters by number)"
+            ),
+        })
+}
+
+/// A restore goes to a drive of the backup's family only (nothing written otherwise).
+fn check_family(bus: &Bus, drive: u8, file: &BackupFile) -> Result<(), Failure> {
+    let family = bus.family(drive);
+    settings_catalogue(drive, family.name())?;
+    match file.drive_family.as_deref() {
+        Some(theirs) if theirs != family.name() => Err(Failure::Family {
+            drive,
+            problem: format!(
+                "the backup is of a {theirs} drive, this drive is configured as {}: values of \
+                 another family are not restored (nothing was written)",
+                family.name()
+            ),
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Guarded parameters (command or setpoint source, COM link, ...) are restored only with
+/// --unsafe, and then before anything is written: never a restore cut short half way.
+fn refuse_guarded(
+    bus: &Bus,
+    drive: u8,
+    differing: &[(Entry, Option<Value>)],
+) -> Result<(), Failure> {
+    let Some(catalogue) = Catalogue::of_family(bus.family(drive).name()) else {
+        return Ok(());
+    };
+    let guarded: Vec<(&Entry, &str)> = differing
+        .iter()
+        .filter_map(|(e, _)| {
+            catalogue
+                .guard(e.param.pnu.get(), e.value.as_u32())
+                .map(|why| (e, why))
+        })
+        .collect();
+    match guarded.first() {
+        Some((_, why)) => Err(Failure::Guarded {
+            drive,
+            params: guarded
+                .iter()
+                .map(|(e, _)| e.param.to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            why: (*why).to_owned(),
+        }),
+        None => Ok(()),
+    }
+}
+
 /// What a restore was asked to do.
 pub(crate) struct Restore<'a> {
     pub drive: u8,
@@ -227,7 +292,8 @@ pub(crate) struct Restore<'a> {
 /// `param restore DRIVE FILE [--eeprom] [--dry-run] [--force] [--unsafe]`.
 pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Failure> {
     let drive = r.drive;
-    let (_, entries) = load(r.file)?;
+    let (file, entries) = load(r.file)?;
+    check_family(bus, drive, &file)?;
     let start = Instant::now();
     let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
     let now = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
@@ -255,30 +321,8 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
         report.seconds = start.elapsed().as_secs_f64();
         return out.show(&report, RestoreReport::human);
     }
-    // Guarded parameters (command or setpoint source, COM link, ...) only with --unsafe, and
-    // then before anything is written: never a restore cut short half way.
-    if !r.options.unsafe_write
-        && let Some(catalogue) = Catalogue::of_family(bus.family(drive).name())
-    {
-        let guarded: Vec<(&Entry, &str)> = differing
-            .iter()
-            .filter_map(|(e, _)| {
-                catalogue
-                    .guard(e.param.pnu.get(), e.value.as_u32())
-                    .map(|why| (e, why))
-            })
-            .collect();
-        if let Some((_, why)) = guarded.first() {
-            return Err(Failure::Guarded {
-                drive,
-                params: guarded
-                    .iter()
-                    .map(|(e, _)| e.param.to_string())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                why: (*why).to_owned(),
-            });
-        }
+    if !r.options.unsafe_write {
+        refuse_guarded(bus, drive, &differing)?;
     }
     catch_signals()?;
     let options = r.options;
