@@ -149,6 +149,23 @@ impl Bus {
         if let Some(t) = self.described.get(address, pnu) {
             return Ok((t, None));
         }
+        let t = self.drive_describes(address, pnu)?;
+        self.described.insert(address, pnu, t);
+        Ok((t, None))
+    }
+
+    /// What drive `address` itself says parameter `pnu` is: its descriptive element 1, the
+    /// PROFIdrive data type (AK 4), asked every time. A `generic` slave is not asked.
+    pub fn drive_describes(&self, address: u8, pnu: u16) -> Result<DataType, ParamError> {
+        if self.family(address) == DriveFamily::Generic {
+            return Err(ParamError::Value {
+                param: format!("P{pnu}"),
+                problem: format!(
+                    "drive {address} is a generic USS slave: uss-rt asks it for values alone, \
+                     never for descriptions"
+                ),
+            });
+        }
         let element = Subindex::new(1).map_err(|e| ParamError::Unexpected(e.to_string()))?;
         let task = ParamTask::ReadDescription {
             pnu: Pnu::from_u16(pnu),
@@ -158,14 +175,17 @@ impl Bus {
             .batch(address, &[task])
             .pop()
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))?;
-        let t = DataType::from_code(code.as_u32() as u16).ok_or_else(|| {
+        DataType::from_code(code.as_u32() as u16).ok_or_else(|| {
             ParamError::Unexpected(format!(
                 "drive {address} describes P{pnu:04} with data type {}, which uss-rt does not read",
                 code.as_u32()
             ))
-        })?;
-        self.described.insert(address, pnu, t);
-        Ok((t, None))
+        })
+    }
+
+    /// The catalogue entry for parameter `pnu` of drive `address`, where its family has one.
+    pub fn catalogue_entry(&self, address: u8, pnu: u16) -> Option<&'static Param> {
+        self.catalogue_for(address).and_then(|c| c.param(pnu))
     }
 
     /// Reads a parameter as its own type (`P1082 = 50.00 Hz`). A `generic` slave's value is

@@ -157,6 +157,19 @@ fn a_backup_records_its_family_and_is_restored_to_that_family_only() {
     // Its own family: the same drive takes it back.
     let (status, out, err) = ussd.ussctl(&["param", "restore", "1", path]).finish();
     assert!(status.success(), "{out}{err}");
+    // What a parameter is: the drive's own word, and its family's catalogue.
+    let (status, out, err) = ussd.ussctl(&["param", "describe", "1", "P1082"]).finish();
+    assert!(status.success(), "{out}{err}");
+    assert_eq!(
+        out,
+        "drive 1 P1082 (micromaster4): the drive describes it as Float\ncatalogue: Max. \
+         frequency, Float, Hz, access level 1\n"
+    );
+    let (status, _, err) = ussd.ussctl(&["param", "describe", "3", "P1"]).finish();
+    assert!(
+        !status.success() && err.contains("never for descriptions"),
+        "{err}"
+    );
     // A generic slave has no catalogue of settings to back up.
     let (status, _, err) = ussd.ussctl(&["param", "backup", "3"]).finish();
     assert!(!status.success());

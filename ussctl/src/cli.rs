@@ -178,6 +178,15 @@ pub enum ParamCommand {
         #[arg(long = "type", value_enum)]
         kind: Option<Kind>,
     },
+    /// What a parameter is: what the drive itself says (its data type, descriptive element
+    /// 1) and the catalogue's entry for its family, if any.
+    Describe {
+        /// The drive's address on the bus, 0..=31.
+        drive: u8,
+        /// The parameter as the manuals write it: P1082, p1082, r0021, 1082.
+        #[arg(value_name = "PARAM", value_parser = param_ref)]
+        param: ParamRef,
+    },
     /// Write VALUE to a parameter or an array element.
     Write {
         /// The drive's address on the bus, 0..=31.

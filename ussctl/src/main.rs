@@ -203,6 +203,9 @@ fn run_param(bus: &Bus, out: &Output, command: &ParamCommand) -> Result<(), Fail
         ParamCommand::Read { drive, param, kind } => {
             commands::param::read(bus, out, *drive, *param, *kind)
         }
+        ParamCommand::Describe { drive, param } => {
+            commands::param::describe(bus, out, *drive, *param)
+        }
         ParamCommand::Write {
             drive,
             param,

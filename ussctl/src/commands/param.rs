@@ -34,6 +34,100 @@ pub(crate) fn read(
     out.show(&ParamReport::new(bus.name(), drive, &v), ParamReport::human)
 }
 
+use std::fmt::Write as _;
+
+/// `param describe DRIVE PARAM`: what the drive says the parameter is, and the catalogue.
+pub(crate) fn describe(bus: &Bus, out: &Output, drive: u8, param: ParamRef) -> Result<(), Failure> {
+    let pnu = param.pnu.get();
+    let drive_says = bus
+        .drive_describes(drive, pnu)
+        .map_err(|source| Failure::Param {
+            drive,
+            param: param.to_string(),
+            source,
+        })?;
+    let entry = bus.catalogue_entry(drive, pnu);
+    let report = DescribeReport {
+        bus: bus.name().to_owned(),
+        drive,
+        param: entry.map_or_else(|| param.to_string(), |p| p.id.to_string()),
+        family: bus.family(drive).name(),
+        drive_type: format!("{drive_says:?}"),
+        catalogue: entry.map(|p| CatalogueEntry {
+            name: p.name.clone(),
+            data_type: format!("{:?}", p.data_type),
+            unit: p.unit.clone(),
+            array: p.array,
+            level: p.level,
+            agrees: p.data_type == drive_says,
+        }),
+    };
+    out.show(&report, DescribeReport::human)
+}
+
+/// `param describe`'s report.
+#[derive(Debug, serde::Serialize)]
+pub(crate) struct DescribeReport {
+    bus: String,
+    drive: u8,
+    param: String,
+    family: &'static str,
+    /// The data type the drive describes (descriptive element 1).
+    drive_type: String,
+    /// The catalogue's entry of the drive's family; null when it has none.
+    catalogue: Option<CatalogueEntry>,
+}
+
+#[derive(Debug, serde::Serialize)]
+struct CatalogueEntry {
+    name: String,
+    data_type: String,
+    unit: String,
+    array: u16,
+    level: u8,
+    /// Whether the catalogue's data type is the drive's.
+    agrees: bool,
+}
+
+impl DescribeReport {
+    fn human(&self) -> String {
+        let mut out = format!(
+            "drive {} {} ({}): the drive describes it as {}\n",
+            self.drive, self.param, self.family, self.drive_type
+        );
+        match &self.catalogue {
+            Some(c) => {
+                let array = if c.array > 0 {
+                    format!(", {} elements", c.array)
+                } else {
+                    String::new()
+                };
+                let unit = if c.unit.is_empty() {
+                    String::new()
+                } else {
+                    format!(", {}", c.unit)
+                };
+                let _ = writeln!(
+                    out,
+                    "catalogue: {}, {}{unit}{array}, access level {}{}",
+                    c.name,
+                    c.data_type,
+                    c.level,
+                    if c.agrees {
+                        ""
+                    } else {
+                        " (NOT the drive's data type: the catalogue is wrong for this drive)"
+                    }
+                );
+            }
+            None => {
+                out.push_str("catalogue: none for this family: the drive's description is used\n");
+            }
+        }
+        out
+    }
+}
+
 /// What `param write` was asked to do.
 pub(crate) struct Write<'a> {
     pub drive: u8,
