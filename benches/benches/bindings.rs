@@ -15,7 +15,7 @@
 //! `cargo bench -p uss-benches --bench bindings`
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 use uss_client::Bus;
 
@@ -40,34 +40,14 @@ fn median(mut v: Vec<u64>) -> u64 {
     v[v.len() / 2]
 }
 
-/// ussd on a bus of its own; killed when dropped.
-struct Ussd(Child);
-
-impl Drop for Ussd {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn start_ussd(bus: &str) -> Ussd {
-    let config = std::env::temp_dir().join(format!("bindings-{bus}.toml"));
-    std::fs::write(
-        &config,
-        format!(
+/// ussd on a bus of its own (one simulated drive at 187500 baud); killed when dropped.
+fn start_ussd(bus: &str) -> uss_benches::Child {
+    uss_benches::start_ussd(
+        bus,
+        &format!(
             "[[bus]]\nname = \"{bus}\"\ndevice = \"sim\"\nbaud = 187500\n\n[[bus.drive]]\naddress = 1\n"
         ),
     )
-    .expect("the benchmark's configuration file");
-    let child = Command::new(target().join("release/ussd"))
-        .args(["--config"])
-        .arg(&config)
-        .args(["--summary-every", "3600"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("the release ussd");
-    Ussd(child)
 }
 
 fn rust_calls(bus: &Bus) -> (u64, u64) {
@@ -165,18 +145,6 @@ fn python_calls(bus: &str) -> Option<(u64, u64)> {
 }
 
 fn main() {
-    run(
-        "cargo build ussd",
-        Command::new(env!("CARGO")).current_dir(root()).args([
-            "build",
-            "--quiet",
-            "--release",
-            "-p",
-            "uss-master",
-            "--bin",
-            "ussd",
-        ]),
-    );
     run(
         "cargo build libussrt",
         Command::new(env!("CARGO")).current_dir(root()).args([

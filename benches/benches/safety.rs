@@ -341,66 +341,18 @@ fn matrix() {
     }
 }
 
-/// ussd with 31 simulated drives at 9600 baud; killed when dropped.
-struct Ussd(std::process::Child, std::path::PathBuf);
-
-impl Drop for Ussd {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-        let _ = std::fs::remove_file(&self.1);
-    }
-}
-
 fn through_ussd() {
     let bus_name = format!("safety{}", std::process::id());
-    let config = std::env::temp_dir().join(format!("safety-{bus_name}.toml"));
     let mut drives = String::new();
     for a in 1..=31 {
         let _ = write!(drives, "\n[[bus.drive]]\naddress = {a}\n");
     }
-    std::fs::write(
-        &config,
-        format!("[[bus]]\nname = \"{bus_name}\"\ndevice = \"sim\"\nbaud = 9600\n{drives}"),
-    )
-    .expect("config");
-    let exe = std::env::current_exe().expect("bench path");
-    let target = exe
-        .parent()
-        .and_then(|d| d.parent())
-        .expect("target dir")
-        .to_path_buf();
-    let status =
-        std::process::Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-            .args([
-                "build",
-                "--quiet",
-                "--release",
-                "-p",
-                "uss-master",
-                "--bin",
-                "ussd",
-            ])
-            .status()
-            .expect("cargo");
-    assert!(status.success(), "building ussd");
-    let child = std::process::Command::new(target.join("ussd"))
-        .arg("--config")
-        .arg(&config)
-        .args(["--summary-every", "3600"])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .expect("ussd");
-    let _ussd = Ussd(child, config);
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let bus = loop {
-        match uss_client::Bus::open(&bus_name) {
-            Ok(b) => break b,
-            Err(e) => assert!(Instant::now() < deadline, "{e}"),
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    };
+    // ussd with 31 simulated drives at 9600 baud; killed when dropped.
+    let _ussd = uss_benches::start_ussd(
+        &bus_name,
+        &format!("[[bus]]\nname = \"{bus_name}\"\ndevice = \"sim\"\nbaud = 9600\n{drives}"),
+    );
+    let bus = uss_benches::open_bus(&bus_name);
     let k = 16u8;
     let watch = bus.watch(k).expect("watch");
     watch
