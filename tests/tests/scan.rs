@@ -40,8 +40,8 @@ fn a_scan_finds_exactly_the_drives_on_the_line_with_their_layouts() {
     assert_eq!(
         lines[..4],
         [
-            " 19200 baud  drive  3: PKW 4, PZD 2, ZSW1 0xBB31 (S2), firmware 2.09",
-            " 19200 baud  drive  5: PKW variable (127), PZD 6, ZSW1 0xBB31 (S2), firmware 2.09",
+            " 19200 baud  drive  3: PKW 4, PZD 2, ZSW1 0xBB31 (S2), firmware 2.09, family = \"micromaster4\" (or \"g110\" for a G110)",
+            " 19200 baud  drive  5: PKW variable (127), PZD 6, ZSW1 0xBB31 (S2), firmware 2.09, family = \"micromaster4\" (or \"g110\" for a G110)",
             " 19200 baud  drive  7: PKW 3, PZD 4, ZSW1 0xBB31 (S2)",
             " 19200 baud  drive  9: PKW 0, PZD 2, ZSW1 0xBB31 (S2)",
         ],
@@ -65,7 +65,7 @@ fn a_scan_finds_exactly_the_drives_on_the_line_with_their_layouts() {
     ]);
     assert_eq!(code, Some(0));
     assert!(
-        json.contains("\"drives\":[{\"baud\":19200,\"address\":5,\"pkw\":\"variable (127)\",\"pzd\":6,\"zsw1\":47921,\"firmware\":2.09},{\"baud\":19200,\"address\":7,\"pkw\":\"3\",\"pzd\":4,\"zsw1\":47921,\"firmware\":null}]"),
+        json.contains("\"drives\":[{\"baud\":19200,\"address\":5,\"pkw\":\"variable (127)\",\"pzd\":6,\"zsw1\":47921,\"firmware\":2.09,\"family\":\"micromaster4\"},{\"baud\":19200,\"address\":7,\"pkw\":\"3\",\"pzd\":4,\"zsw1\":47921,\"firmware\":null,\"family\":null}]"),
         "{json}"
     );
     // Every probe carries OFF1 (STW1 0x047E, bit 10 set): the drives went S1 -> S2, ready but

@@ -150,9 +150,11 @@ fn identify(probe: &mut Probe, address: Address) -> Result<Option<ScannedDrive>,
             pzd,
             zsw1: words.pzd().first().copied(),
             firmware: None,
+            family: None,
         };
         if matches!(layout.pkw, PkwMode::Four | PkwMode::Variable) {
             drive.firmware = firmware(probe, address, layout)?;
+            drive.family = drive.firmware.map(|_| "micromaster4");
         }
         return Ok(Some(drive));
     }
@@ -273,6 +275,7 @@ pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
                     pzd: 0,
                     zsw1: None,
                     firmware: None,
+                    family: None,
                 }),
             }
         }

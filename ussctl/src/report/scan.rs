@@ -16,6 +16,9 @@ pub struct ScannedDrive {
     pub zsw1: Option<u16>,
     /// r0018, with a parameter channel.
     pub firmware: Option<f64>,
+    /// The `family` to configure, where the answers tell it: a drive that has r0018 (the
+    /// MICROMASTER 4 firmware float) is `micromaster4` (a G110 answers the same: `g110`).
+    pub family: Option<&'static str>,
 }
 
 /// `scan`.
@@ -59,6 +62,9 @@ impl ScanReport {
             }
             if let Some(f) = d.firmware {
                 let _ = write!(out, ", firmware {f:.2}");
+            }
+            if let Some(family) = d.family {
+                let _ = write!(out, ", family = \"{family}\" (or \"g110\" for a G110)");
             }
             out.push('\n');
         }
