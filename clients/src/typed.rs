@@ -112,16 +112,13 @@ impl Bus {
             .unwrap_or(DriveFamily::Micromaster4)
     }
 
-    /// The catalogue that applies to drive `address`: the built-in one for a MICROMASTER 4
+    /// The catalogue that applies to a drive of `family`: the built-in one for a MICROMASTER 4
     /// or G110 (which share its parameter numbers), or one given with [`Bus::with_catalogue`];
     /// none for another family, whose parameters the drive describes itself.
-    fn catalogue_for(&self, address: u8) -> Option<&'static Catalogue> {
+    fn catalogue_of(&self, family: DriveFamily) -> Option<&'static Catalogue> {
         let catalogue = self.described.catalogue;
         let built_in = core::ptr::eq(catalogue, Catalogue::micromaster4());
-        let shares = matches!(
-            self.family(address),
-            DriveFamily::Micromaster4 | DriveFamily::G110
-        );
+        let shares = matches!(family, DriveFamily::Micromaster4 | DriveFamily::G110);
         (!built_in || shares).then_some(catalogue)
     }
 
@@ -133,23 +130,26 @@ impl Bus {
         address: u8,
         pnu: u16,
     ) -> Result<(DataType, Option<&'static Param>), ParamError> {
-        if let Some(p) = self.catalogue_for(address).and_then(|c| c.param(pnu)) {
+        self.describe_as(address, pnu, self.family(address))
+    }
+
+    /// [`Bus::describe`] for a drive of `family`.
+    fn describe_as(
+        &self,
+        address: u8,
+        pnu: u16,
+        family: DriveFamily,
+    ) -> Result<(DataType, Option<&'static Param>), ParamError> {
+        if let Some(p) = self.catalogue_of(family).and_then(|c| c.param(pnu)) {
             return Ok((p.data_type, Some(p)));
         }
-        if self.family(address) == DriveFamily::Generic {
-            return Err(ParamError::Value {
-                param: format!("P{pnu}"),
-                problem: format!(
-                    "drive {address} is a generic USS slave: uss-rt asks it for values alone, \
-                     never for descriptions (read the parameter: its reply says word or double \
-                     word)"
-                ),
-            });
+        if family == DriveFamily::Generic {
+            return Err(never_described(address, pnu));
         }
         if let Some(t) = self.described.get(address, pnu) {
             return Ok((t, None));
         }
-        let t = self.drive_describes(address, pnu)?;
+        let t = self.ask_description(address, pnu)?;
         self.described.insert(address, pnu, t);
         Ok((t, None))
     }
@@ -158,14 +158,13 @@ impl Bus {
     /// PROFIdrive data type (AK 4), asked every time. A `generic` slave is not asked.
     pub fn drive_describes(&self, address: u8, pnu: u16) -> Result<DataType, ParamError> {
         if self.family(address) == DriveFamily::Generic {
-            return Err(ParamError::Value {
-                param: format!("P{pnu}"),
-                problem: format!(
-                    "drive {address} is a generic USS slave: uss-rt asks it for values alone, \
-                     never for descriptions"
-                ),
-            });
+            return Err(never_described(address, pnu));
         }
+        self.ask_description(address, pnu)
+    }
+
+    /// Asks the drive for descriptive element 1 of `pnu`, its data type.
+    fn ask_description(&self, address: u8, pnu: u16) -> Result<DataType, ParamError> {
         let element = Subindex::new(1).map_err(|e| ParamError::Unexpected(e.to_string()))?;
         let task = ParamTask::ReadDescription {
             pnu: Pnu::from_u16(pnu),
@@ -185,28 +184,35 @@ impl Bus {
 
     /// The catalogue entry for parameter `pnu` of drive `address`, where its family has one.
     pub fn catalogue_entry(&self, address: u8, pnu: u16) -> Option<&'static Param> {
-        self.catalogue_for(address).and_then(|c| c.param(pnu))
+        self.catalogue_of(self.family(address))
+            .and_then(|c| c.param(pnu))
     }
 
     /// Reads a parameter as its own type (`P1082 = 50.00 Hz`). A `generic` slave's value is
     /// typed by its reply alone: a word unsigned 16 bits, a double word unsigned 32.
     pub fn read_param(&self, address: u8, param: ParamRef) -> Result<ParamValue, ParamError> {
-        if self.family(address) == DriveFamily::Generic {
-            let raw = self.read(address, param.pnu.get(), param.index.map(Subindex::get))?;
-            return Ok(ParamValue {
-                param,
-                raw,
-                data_type: by_reply(raw),
-                info: None,
-            });
+        let family = self.family(address);
+        if family == DriveFamily::Generic {
+            return self.read_by_value(address, param);
         }
-        let (data_type, info) = self.describe(address, param.pnu.get())?;
+        let (data_type, info) = self.describe_as(address, param.pnu.get(), family)?;
         let raw = self.read(address, param.pnu.get(), param.index.map(Subindex::get))?;
         Ok(ParamValue {
             param: shown_as(param, info),
             raw,
             data_type,
             info,
+        })
+    }
+
+    /// A parameter read by its value alone, typed by the reply (a generic slave's).
+    fn read_by_value(&self, address: u8, param: ParamRef) -> Result<ParamValue, ParamError> {
+        let raw = self.read(address, param.pnu.get(), param.index.map(Subindex::get))?;
+        Ok(ParamValue {
+            param,
+            raw,
+            data_type: by_reply(raw),
+            info: None,
         })
     }
 
@@ -220,11 +226,12 @@ impl Bus {
         text: &str,
         options: WriteOptions,
     ) -> Result<ParamValue, ParamError> {
-        let (data_type, info) = if self.family(address) == DriveFamily::Generic {
+        let family = self.family(address);
+        let (data_type, info) = if family == DriveFamily::Generic {
             // The width of what it holds now says what to write.
-            (self.read_param(address, param)?.data_type, None)
+            (self.read_by_value(address, param)?.data_type, None)
         } else {
-            self.describe(address, param.pnu.get())?
+            self.describe_as(address, param.pnu.get(), family)?
         };
         let shown = shown_as(param, info);
         if info.is_some_and(|p| !p.is_writable()) {
@@ -245,6 +252,17 @@ impl Bus {
             data_type,
             info,
         })
+    }
+}
+
+/// Why a generic slave is not asked for a description.
+fn never_described(address: u8, pnu: u16) -> ParamError {
+    ParamError::Value {
+        param: format!("P{pnu}"),
+        problem: format!(
+            "drive {address} is a generic USS slave: uss-rt asks it for values alone, never for \
+             descriptions (read the parameter: its reply says word or double word)"
+        ),
     }
 }
 
@@ -357,7 +375,8 @@ impl Bus {
     /// and the active warnings r2110, in one request of 32 reads. A drive without r0948, r0949
     /// or r2110 (error 0) still gets its fault codes.
     pub fn fault_report(&self, address: u8) -> Result<FaultReport, ParamError> {
-        if self.family(address) == DriveFamily::Generic {
+        let family = self.family(address);
+        if family == DriveFamily::Generic {
             return Err(ParamError::Value {
                 param: "r0947".to_owned(),
                 problem: format!(
@@ -386,7 +405,7 @@ impl Bus {
         let (warnings, times) = rest.split_at(usize::from(WARNINGS_LEN));
         let word = |r: &Result<Value, ParamError>| r.clone().map(|v| v.as_u32() as u16);
         // Texts from the catalogue of the drive's family only.
-        let catalogue = self.catalogue_for(address);
+        let catalogue = self.catalogue_of(family);
         let mut faults = Vec::new();
         for (slot, code) in codes.iter().enumerate() {
             let number = word(code)?;

@@ -16,6 +16,22 @@ fn fragile_pump() -> SimProcess {
     ])
 }
 
+/// The fragile pump as drive 1 (`family = "generic"`) of a ussd of its own, and its bus.
+fn generic_pump_bus() -> (SimProcess, Ussd, uss_client::Bus) {
+    let sim = fragile_pump();
+    let mut ussd = Ussd::launch(
+        &[BusSpec {
+            suffix: "",
+            device: &sim.path,
+            keys: "baud = 19200",
+            drives: &[(1, "pzd = 6\nfamily = \"generic\"")],
+        }],
+        &[],
+    );
+    let bus = ussd.open_when_running("");
+    (sim, ussd, bus)
+}
+
 /// Whether drive 1 stays online and polled for `secs` seconds.
 fn stays_online(bus: &uss_client::Bus, secs: u64) -> Result<(), String> {
     let watch = bus.watch(1).unwrap();
@@ -34,34 +50,14 @@ fn stays_online(bus: &uss_client::Bus, secs: u64) -> Result<(), String> {
 
 #[test]
 fn a_generic_slave_that_dies_of_unknown_parameters_stays_online() {
-    let sim = fragile_pump();
-    let mut ussd = Ussd::launch(
-        &[BusSpec {
-            suffix: "",
-            device: &sim.path,
-            keys: "baud = 19200",
-            drives: &[(1, "pzd = 6\nfamily = \"generic\"")],
-        }],
-        &[],
-    );
-    let bus = ussd.open_when_running("");
+    let (_sim, _ussd, bus) = generic_pump_bus();
     stays_online(&bus, 3).unwrap();
     assert_eq!(bus.family(1), uss_shm_types::DriveFamily::Generic);
 }
 
 #[test]
 fn a_generic_slave_is_read_by_value_alone_and_stays_online() {
-    let sim = fragile_pump();
-    let mut ussd = Ussd::launch(
-        &[BusSpec {
-            suffix: "",
-            device: &sim.path,
-            keys: "baud = 19200",
-            drives: &[(1, "pzd = 6\nfamily = \"generic\"")],
-        }],
-        &[],
-    );
-    let bus = ussd.open_when_running("");
+    let (_sim, _ussd, bus) = generic_pump_bus();
     stays_online(&bus, 1).unwrap();
     // Its own parameter P1, a word: read as the reply types it.
     let p1 = bus.read_param(1, "P1".parse().unwrap());

@@ -545,11 +545,14 @@ impl SerialTransport {
                     self.pos = 0;
                     self.at = clock.now();
                     self.handed = 0;
-                    let mut unmark = self.unmark;
-                    self.chars = self.raw[..n]
-                        .iter()
-                        .filter(|&&raw| unmark.push(raw).is_some())
-                        .count() as u64;
+                    // Only a paced line dates bytes back, and only then needs their count.
+                    if self.paced {
+                        let mut unmark = self.unmark;
+                        self.chars = self.raw[..n]
+                            .iter()
+                            .filter(|&&raw| unmark.push(raw).is_some())
+                            .count() as u64;
+                    }
                     self.note_overruns();
                     return Ok(true);
                 }

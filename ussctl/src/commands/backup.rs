@@ -18,7 +18,7 @@ use std::path::Path;
 use std::time::Instant;
 use uss_client::uss_catalogue::{Catalogue, Change, Param};
 use uss_client::uss_protocol::{ParamError as DriveSays, ParamRef, Pnu, Prefix, Subindex};
-use uss_client::{Bus, DriveError, ParamError, ParamTask, Value, WriteOptions};
+use uss_client::{Bus, DriveError, DriveFamily, ParamError, ParamTask, Value, WriteOptions};
 
 /// Reads per request (the PROFIdrive multi-parameter limit).
 const PER_REQUEST: usize = 39;
@@ -232,8 +232,7 @@ fn settings_catalogue(drive: u8, family: &str) -> Result<&'static Catalogue, Fai
 }
 
 /// A restore goes to a drive of the backup's family only (nothing written otherwise).
-fn check_family(bus: &Bus, drive: u8, file: &BackupFile) -> Result<(), Failure> {
-    let family = bus.family(drive);
+fn check_family(drive: u8, family: DriveFamily, file: &BackupFile) -> Result<(), Failure> {
     settings_catalogue(drive, family.name())?;
     match file.drive_family.as_deref() {
         Some(theirs) if theirs != family.name() => Err(Failure::Family {
@@ -251,11 +250,11 @@ fn check_family(bus: &Bus, drive: u8, file: &BackupFile) -> Result<(), Failure> 
 /// Guarded parameters (command or setpoint source, COM link, ...) are restored only with
 /// --unsafe, and then before anything is written: never a restore cut short half way.
 fn refuse_guarded(
-    bus: &Bus,
     drive: u8,
+    family: DriveFamily,
     differing: &[(Entry, Option<Value>)],
 ) -> Result<(), Failure> {
-    let Some(catalogue) = Catalogue::of_family(bus.family(drive).name()) else {
+    let Some(catalogue) = Catalogue::of_family(family.name()) else {
         return Ok(());
     };
     let guarded: Vec<(&Entry, &str)> = differing
@@ -293,7 +292,8 @@ pub(crate) struct Restore<'a> {
 pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Failure> {
     let drive = r.drive;
     let (file, entries) = load(r.file)?;
-    check_family(bus, drive, &file)?;
+    let family = bus.family(drive);
+    check_family(drive, family, &file)?;
     let start = Instant::now();
     let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
     let now = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
@@ -322,7 +322,7 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
         return out.show(&report, RestoreReport::human);
     }
     if !r.options.unsafe_write {
-        refuse_guarded(bus, drive, &differing)?;
+        refuse_guarded(drive, family, &differing)?;
     }
     catch_signals()?;
     let options = r.options;
