@@ -6,17 +6,15 @@
 //! answers into a caller buffer. Nothing here allocates after construction, so the simulator can
 //! run inside the master's real-time thread in tests.
 
-use crate::params::{
-    COM_LINK, DriveContext, P0700, P1000, P1080, P1082, P1120, P1121, P1135, P2000, P2011, P2012,
-    P2013, P2014, ParamTable, R0021, R0052, R0054, R0947, R0948, R0949, R2024,
+use crate::family::{
+    G110, G120, G120_IDENTIFICATION, G120_ROLES, MICROMASTER4_ROLES, Roles, SIMOREG, SIMOREG_ROLES,
 };
+use crate::params::{DriveContext, MICROMASTER4, ParamSet, ParamTable};
 use core::time::Duration;
 use uss_protocol::pkw::{ParamError, ParamReply, ParamTask, PkwError, Pnu, ReplyKind, Value};
 use uss_protocol::telegram::{Layout, MAX_PKW_WORDS, MAX_PZD_WORDS, Telegram, encode};
 use uss_protocol::{Address, Adr, FrameError, LineError, Setpoint, Stw1, Zsw1};
 
-/// P0700 / P1000 value selecting USS on the COM link.
-const SOURCE_USS: u32 = 5;
 /// Fault code of "USS (COM link) setpoint fault", the telegram-off trip (USS.md section 5).
 pub const FAULT_TELEGRAM_OFF: u16 = 72;
 /// Setpoint and actual value within this many Hz set ZSW1 bit 8.
@@ -57,11 +55,39 @@ pub enum Personality {
     /// A MICROMASTER 4-like drive ([`crate::params`]).
     #[default]
     Micromaster4,
+    /// A SINAMICS G110: the MICROMASTER 4 numbers, its own firmware version.
+    G110,
+    /// A SINAMICS G120 with a CU240 on USS: speeds in rpm, p2040 monitoring, r0945 faults.
+    G120,
+    /// A SIMOREG DC-Master 6RA70 ([`crate::family::SIMOREG`]).
+    Simoreg,
     /// A USS slave that is not a drive of a known family (a pump controller, say): the state
     /// machine and PZD as any USS slave, but only [`GENERIC_PARAMS`] as parameters (values,
     /// no descriptions) and error 0 (illegal parameter number) to the rest. `fragile`: a task
     /// it does not know makes it stop answering for good, as some firmware does.
     Generic { fragile: bool },
+}
+
+impl Personality {
+    /// The parameter set the drive keeps (a generic slave's model runs on a MICROMASTER 4's,
+    /// which it never shows).
+    pub const fn param_set(self) -> &'static ParamSet {
+        match self {
+            Self::Micromaster4 | Self::Generic { .. } => &MICROMASTER4,
+            Self::G110 => &G110,
+            Self::G120 => &G120,
+            Self::Simoreg => &SIMOREG,
+        }
+    }
+
+    /// The parameters its drive model uses.
+    pub const fn roles(self) -> &'static Roles {
+        match self {
+            Self::Micromaster4 | Self::G110 | Self::Generic { .. } => &MICROMASTER4_ROLES,
+            Self::G120 => &G120_ROLES,
+            Self::Simoreg => &SIMOREG_ROLES,
+        }
+    }
 }
 
 /// The parameters of a [`Personality::Generic`] slave: number, value, writable. P1 a device
@@ -203,18 +229,39 @@ impl Drive {
     /// A drive just powered up, in S1. The configured address, layout and telegram-off time are
     /// stored as if commissioned (RAM and EEPROM).
     pub fn new(config: DriveConfig) -> Self {
-        let mut params = ParamTable::new();
+        let personality = config.personality;
+        let roles = personality.roles();
+        let mut params = ParamTable::of(personality.param_set());
         let layout = config.layout;
+        let float = |v: f32| v.to_bits();
+        let monitoring = match params
+            .set()
+            .definitions()
+            .iter()
+            .find(|d| roles.monitoring.is_some_and(|(pnu, _)| pnu == d.pnu))
+        {
+            Some(d) if d.ty == crate::params::DataType::Float => {
+                float(f32::from(config.telegram_off_time_ms))
+            }
+            _ => u32::from(config.telegram_off_time_ms),
+        };
         let commissioned = [
-            (P2011, u32::from(config.address.get())),
-            (P2012, layout.pzd.get() as u32),
-            (P2013, u32::from(layout.pkw.p2013())),
-            (P2014, u32::from(config.telegram_off_time_ms)),
+            (roles.address, u32::from(config.address.get())),
+            (roles.pzd, layout.pzd.get() as u32),
+            (roles.pkw, u32::from(layout.pkw.p2013())),
+            (roles.monitoring, monitoring),
+            (roles.reference.map(|p| (p, 0)), float(config.reference_hz)),
         ];
-        for (pnu, value) in commissioned {
-            params.set_commissioned(pnu, COM_LINK, value);
+        for (param, value) in commissioned {
+            if let Some((pnu, index)) = param {
+                params.set_commissioned(pnu, index, value);
+            }
         }
-        params.set_commissioned(P2000, 0, config.reference_hz.to_bits());
+        if personality == Personality::G120 {
+            for (i, word) in G120_IDENTIFICATION.into_iter().enumerate() {
+                params.set_internal(964, i as u8, u32::from(word));
+            }
+        }
         let mut drive = Self {
             config,
             params,
@@ -287,8 +334,18 @@ impl Drive {
     pub fn trip_with_value(&mut self, code: u16, value: u16) {
         self.state = State::Fault;
         self.frequency_hz = 0.0;
+        let f = self.roles().faults;
         if self.fault.is_none() {
-            for (pnu, per_trip, len) in [(R0947, 2, 8), (R0949, 2, 8), (R0948, 3, 12)] {
+            let mut buffers = [
+                (f.codes, f.per_trip, f.len),
+                (f.values, f.per_trip, f.len),
+                (0, 0, 0),
+            ];
+            if let Some(times) = f.times {
+                // Three time words per trip.
+                buffers[2] = (times, 3, f.len / f.per_trip * 3);
+            }
+            for (pnu, per_trip, len) in buffers.into_iter().filter(|b| b.2 > 0) {
                 for i in (per_trip..len).rev() {
                     let older = self.params.get(pnu, i - per_trip).unwrap_or(0);
                     self.params.set_internal(pnu, i, older);
@@ -297,17 +354,19 @@ impl Drive {
                     self.params.set_internal(pnu, i, 0);
                 }
             }
-            self.params.set_internal(R0947, 0, u32::from(code));
-            self.params.set_internal(R0949, 0, u32::from(value));
-            for (i, word) in fault_time(self.last_tick.unwrap_or_default())
-                .into_iter()
-                .enumerate()
-            {
-                self.params.set_internal(R0948, i as u8, u32::from(word));
+            self.params.set_internal(f.codes, 0, u32::from(code));
+            self.params.set_internal(f.values, 0, u32::from(value));
+            if let Some(times) = f.times {
+                for (i, word) in fault_time(self.last_tick.unwrap_or_default())
+                    .into_iter()
+                    .enumerate()
+                {
+                    self.params.set_internal(times, i as u8, u32::from(word));
+                }
             }
-        } else if self.params.get(R0947, 1) == Some(0) && self.fault != Some(code) {
-            self.params.set_internal(R0947, 1, u32::from(code));
-            self.params.set_internal(R0949, 1, u32::from(value));
+        } else if self.params.get(f.codes, 1) == Some(0) && self.fault != Some(code) {
+            self.params.set_internal(f.codes, 1, u32::from(code));
+            self.params.set_internal(f.values, 1, u32::from(value));
         }
         self.fault = Some(code);
         self.publish();
@@ -438,9 +497,11 @@ impl Drive {
             self.stw1 = stw;
             self.step_state_machine();
         }
-        if self.param_u32(P1000) == SOURCE_USS
-            && let Some(&hsw) = pzd.get(1)
-        {
+        let setpoint_from_link = self
+            .roles()
+            .setpoint_source
+            .is_none_or(|(pnu, uss)| self.param_u32(pnu) == uss);
+        if setpoint_from_link && let Some(&hsw) = pzd.get(1) {
             self.setpoint = Setpoint::from_word(hsw);
         }
         self.publish();
@@ -521,7 +582,10 @@ impl Drive {
         let subindex = (request[1] & 0xFF) as u8;
         let (task, kind) = match ParamTask::decode(request) {
             Ok(task) if task != ParamTask::None => match self.config.personality {
-                Personality::Micromaster4 => {
+                Personality::Micromaster4
+                | Personality::G110
+                | Personality::G120
+                | Personality::Simoreg => {
                     let ctx = DriveContext {
                         running: self.state.is_running(),
                     };
@@ -623,13 +687,49 @@ impl Drive {
         }
     }
 
-    /// Whether the drive takes its commands from USS (P0700 = 5 on a MICROMASTER 4; a generic
-    /// slave always does).
+    /// Whether the drive takes its commands from USS (P0700 = 5 on a MICROMASTER 4, p0700 = 6
+    /// on a G120; a family without a command-source parameter and a generic slave always do).
     fn takes_commands(&self) -> bool {
         match self.config.personality {
-            Personality::Micromaster4 => self.param_u32(P0700) == SOURCE_USS,
             Personality::Generic { .. } => true,
+            _ => self
+                .roles()
+                .command_source
+                .is_none_or(|(pnu, uss)| self.param_u32(pnu) == uss),
         }
+    }
+
+    /// The parameters this drive's model uses.
+    const fn roles(&self) -> &'static Roles {
+        self.config.personality.roles()
+    }
+
+    /// The telegram-off time in ms: the family's monitoring parameter, or the configured fixed
+    /// time where the family has none.
+    fn telegram_off_ms(&self) -> f32 {
+        match self.roles().monitoring {
+            Some((pnu, index)) => self.params.get_f32(pnu, index).unwrap_or(0.0),
+            None => f32::from(self.config.telegram_off_time_ms),
+        }
+    }
+
+    /// A ramp time in seconds.
+    fn ramp_time(&self, pnu: Option<u16>) -> f32 {
+        pnu.map_or(0.0, |p| self.param_f32(p) * self.roles().time_unit)
+    }
+
+    /// The maximum of the ramp's output: P1082, or the reference where the family has none.
+    fn max_output(&self) -> f32 {
+        self.roles()
+            .max
+            .map_or_else(|| self.reference(), |p| self.param_f32(p))
+    }
+
+    /// What 0x4000 of the setpoint stands for.
+    fn reference(&self) -> f32 {
+        self.roles()
+            .reference
+            .map_or(self.config.reference_hz, |p| self.param_f32(p))
     }
 
     /// Moves the model to `now`: telegram monitoring and the ramp-function generator.
@@ -638,10 +738,10 @@ impl Drive {
             .last_tick
             .map_or(Duration::ZERO, |t| now.saturating_sub(t));
         self.last_tick = Some(self.last_tick.map_or(now, |t| t.max(now)));
-        let off_time = self.params.get(P2014, COM_LINK).unwrap_or(0);
+        let off_time = self.telegram_off_ms();
         if let Some(last) = self.last_valid {
-            let limit = Duration::from_millis(u64::from(off_time));
-            if off_time > 0 && now.saturating_sub(last) > limit && self.state != State::Fault {
+            let limit = Duration::from_secs_f32(off_time.max(0.0) / 1000.0);
+            if off_time > 0.0 && now.saturating_sub(last) > limit && self.state != State::Fault {
                 self.trip(FAULT_TELEGRAM_OFF);
                 // Monitoring re-arms with the next valid telegram.
                 self.last_valid = None;
@@ -652,16 +752,18 @@ impl Drive {
     }
 
     fn ramp(&mut self, dt: f32) {
-        let max = self.param_f32(P1082).max(0.0);
+        let max = self.max_output().max(0.0);
         if self.state == State::OperationEnabled && !self.stw1.contains(Stw1::RFG_ENABLE) {
             // STW1 bit 4 = 0 sets the ramp-function generator's output to zero at once.
             self.frequency_hz = 0.0;
         }
         let target = self.target_hz(max);
         let ramp_time = match self.state {
-            State::SwitchingOff(Stop::Off3) => self.param_f32(P1135),
-            _ if target.abs() > self.frequency_hz.abs() => self.param_f32(P1120),
-            _ => self.param_f32(P1121),
+            State::SwitchingOff(Stop::Off3) => self.ramp_time(self.roles().off3),
+            _ if target.abs() > self.frequency_hz.abs() => {
+                self.ramp_time(Some(self.roles().ramp_up))
+            }
+            _ => self.ramp_time(Some(self.roles().ramp_down)),
         };
         // A ramp time too short to matter (down to the smallest float) ends the ramp in one
         // step; the rate is capped so a zero time step never multiplies an infinity into NaN.
@@ -699,11 +801,15 @@ impl Drive {
         if !s.contains(Stw1::SETPOINT_ENABLE) {
             return 0.0;
         }
-        let mut hz = self.setpoint.hz(self.param_f32(P2000));
+        let mut hz = self.setpoint.hz(self.reference());
         if s.contains(Stw1::REVERSE) {
             hz = -hz;
         }
-        let min = self.param_f32(P1080).clamp(0.0, max);
+        let min = self
+            .roles()
+            .min
+            .map_or(0.0, |p| self.param_f32(p))
+            .clamp(0.0, max);
         let magnitude = hz.abs().clamp(min, max);
         magnitude.copysign(hz)
     }
@@ -734,7 +840,7 @@ impl Drive {
         if self.stw1.contains(Stw1::NO_OFF3) {
             z |= Zsw1::NO_OFF3;
         }
-        let max = self.param_f32(P1082);
+        let max = self.max_output();
         if (self.frequency_hz - self.target_hz(max)).abs() <= AT_SETPOINT_TOLERANCE_HZ {
             z |= Zsw1::AT_SETPOINT;
         }
@@ -749,7 +855,7 @@ impl Drive {
 
     /// The main actual value HIW: the output frequency scaled by P2000.
     pub fn actual_value(&self) -> Setpoint {
-        Setpoint::from_hz(self.frequency_hz, self.param_f32(P2000))
+        Setpoint::from_hz(self.frequency_hz, self.reference())
     }
 
     fn param_f32(&self, pnu: u16) -> f32 {
@@ -763,18 +869,26 @@ impl Drive {
     /// Mirrors the model into its read-only parameters r0021, r0052, r0054.
     fn publish(&mut self) {
         let z = self.zsw1();
-        self.params
-            .set_internal(R0021, 0, self.frequency_hz.to_bits());
-        self.params.set_internal(R0052, 0, u32::from(z.bits()));
-        self.params
-            .set_internal(R0054, 0, u32::from(self.stw1.bits()));
+        let roles = self.roles();
+        for (param, value) in [
+            (roles.actual, self.frequency_hz.to_bits()),
+            (roles.status, u32::from(z.bits())),
+            (roles.control, u32::from(self.stw1.bits())),
+        ] {
+            if let Some(pnu) = param {
+                self.params.set_internal(pnu, 0, value);
+            }
+        }
         self.publish_counters();
     }
 
     fn publish_counters(&mut self) {
+        let Some((first, index)) = self.roles().diagnostics else {
+            return;
+        };
         for (i, value) in self.counters.as_array().into_iter().enumerate() {
             self.params
-                .set_internal(R2024 + i as u16, COM_LINK, u32::from(value));
+                .set_internal(first + i as u16, index, u32::from(value));
         }
     }
 }

@@ -12,7 +12,7 @@ use uss_protocol::ParamError;
 /// The keys, for messages and `--help`.
 pub const KEYS: &str = "delay=MS, jitter=MS, eeprom-busy=N, busy=N, p2014=MS, p2000=HZ, dword-error=5|103, \
 drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, unplug=\"FROM_MS..[TO_MS]\", \
-hang=MS, broadcast=true|false, family=micromaster4|generic, fragile=true|false";
+hang=MS, broadcast=true|false, family=micromaster4|g110|g120|simoreg|generic, fragile=true|false";
 
 /// What a simulated drive does besides its address and layout; every key is optional (the
 /// simulator's default applies).
@@ -34,7 +34,8 @@ pub struct SimOptions {
     /// The telegram-off time P2014, ms (0 = off).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub p2014: Option<u16>,
-    /// The reference frequency P2000, Hz.
+    /// The reference P2000: Hz (1..=650) on MICROMASTER 4 and G110, rpm (6..=210000) on G120
+    /// (default 1500), the value 100 % of the setpoint stands for on SIMOREG (default 100).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub p2000: Option<f64>,
     /// The error number for a double word over a 3-word PKW: 5 (MICROMASTER) or 103.
@@ -67,8 +68,9 @@ pub struct SimOptions {
     /// `false`: the drive ignores broadcasts, as S110 and G120 firmware 4 do.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub broadcast: Option<bool>,
-    /// The slave's personality: `micromaster4` (the default) or `generic` (a USS slave of no
-    /// known family: three parameters of its own, error 0 to the rest).
+    /// The slave's personality: `micromaster4` (the default), `g110`, `g120`, `simoreg`, or
+    /// `generic` (a USS slave of no known family: three parameters of its own, error 0 to the
+    /// rest).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub family: Option<String>,
     /// With `family = "generic"`: a task on a parameter it does not know makes it stop
@@ -98,12 +100,6 @@ impl SimOptions {
         }
         if let Some(ms) = self.p2014 {
             config.telegram_off_time_ms = ms;
-        }
-        if let Some(hz) = self.p2000 {
-            if !(1.0..=650.0).contains(&hz) {
-                return Err(format!("p2000={hz}: the reference frequency is 1..=650 Hz"));
-            }
-            config.reference_hz = hz as f32;
         }
         if let Some(code) = self.dword_error {
             config.dword_over_three_words = match code {
@@ -143,19 +139,43 @@ impl SimOptions {
             config.takes_broadcasts = takes;
         }
         config.personality = match (self.family.as_deref(), self.fragile) {
-            (None | Some("micromaster4"), None) => Personality::Micromaster4,
             (Some("generic"), fragile) => Personality::Generic {
                 fragile: fragile.unwrap_or(false),
             },
-            (None | Some("micromaster4"), Some(_)) => {
+            (_, Some(_)) => {
                 return Err("fragile=...: only a family=generic slave can be fragile".to_owned());
             }
-            (Some(other), _) => {
+            (None | Some("micromaster4"), None) => Personality::Micromaster4,
+            (Some("g110"), None) => Personality::G110,
+            (Some("g120"), None) => Personality::G120,
+            (Some("simoreg"), None) => Personality::Simoreg,
+            (Some(other), None) => {
                 return Err(format!(
-                    "family={other}: the simulator has the families micromaster4 and generic"
+                    "family={other}: the simulator has the families micromaster4, g110, g120, \
+                     simoreg and generic"
                 ));
             }
         };
+        let (range, unit, default) = match config.personality {
+            Personality::G120 => (6.0..=210_000.0, "rpm (the reference speed)", 1500.0),
+            Personality::Simoreg => (1.0..=1000.0, "(100 % of the setpoint)", 100.0),
+            _ => (
+                1.0..=650.0,
+                "Hz (the reference frequency)",
+                config.reference_hz,
+            ),
+        };
+        config.reference_hz = default;
+        if let Some(value) = self.p2000 {
+            if !range.contains(&value) {
+                return Err(format!(
+                    "p2000={value}: {}..={} {unit} on this family",
+                    range.start(),
+                    range.end()
+                ));
+            }
+            config.reference_hz = value as f32;
+        }
         Ok(())
     }
 }

@@ -1,9 +1,10 @@
-//! The parameter table of the simulated drive: a MICROMASTER 4 (MM420/MM440) look-alike on the
-//! parameter channel (USS.md section 6).
+//! The parameter table of the simulated drive on the parameter channel (USS.md section 6).
 //!
-//! [`DEFINITIONS`] lists the parameters with their MM4 numbers, names, types, limits and change
-//! rules; [`ParamTable`] holds a RAM and an EEPROM value for every element of every parameter and
-//! executes PKW tasks against them. Storage is sized at compile time, so the table never touches
+//! A [`ParamSet`] is one family's list of parameters with their numbers, names, types, limits
+//! and change rules, laid out at compile time: [`MICROMASTER4`] (its list is [`DEFINITIONS`]),
+//! and the others in [`crate::family`]. [`ParamTable`] holds a RAM and an EEPROM value for every
+//! element of every parameter of its set and executes PKW tasks against them. Storage is sized
+//! at compile time ([`MAX_SLOTS`]), so the table never touches
 //! the heap: [`ParamTable::execute`], [`ParamTable::get`], [`ParamTable::get_f32`] and
 //! [`ParamTable::set_internal`] are safe to call from a real-time thread.
 //!
@@ -13,8 +14,10 @@
 //! 2. addressing: an array task on a plain parameter is error 4, an index beyond the array error 3
 //!    (AK 2/3/13/14 on an array change element 0, as AK 1 reads it);
 //! 3. read-only (`r` parameters): error 1;
-//! 4. change rights: P0927 bit 3 (USS on COM link) clear gives reply 8, "no PKW change rights";
-//! 5. access level: a parameter above the level in P0003 is error 204;
+//! 4. change rights: P0927 bit 3 (USS on COM link) clear gives reply 8, "no PKW change rights"
+//!    (a family whose set names no change-rights parameter skips this);
+//! 5. access level: a parameter above the level in P0003 is error 204 (likewise skipped without
+//!    an access-level parameter);
 //! 6. data type: a word for a dword type or the other way round is error 5;
 //! 7. channel width: a dword over a 3-word channel is error 102;
 //! 8. operating state: a "not while running" parameter while running, or a commissioning
@@ -133,7 +136,7 @@ impl ParamDef {
     }
 
     /// Values stored for this parameter: 1 for a plain parameter.
-    const fn slots(&self) -> usize {
+    pub(crate) const fn slots(&self) -> usize {
         if self.elements == 0 {
             1
         } else {
@@ -156,7 +159,13 @@ impl ParamDef {
         Ok(())
     }
 
-    const fn new(pnu: u16, name: &'static str, ty: DataType, change: Change, level: u8) -> Self {
+    pub(crate) const fn new(
+        pnu: u16,
+        name: &'static str,
+        ty: DataType,
+        change: Change,
+        level: u8,
+    ) -> Self {
         Self {
             pnu,
             name,
@@ -171,28 +180,28 @@ impl ParamDef {
         }
     }
 
-    const fn limits(mut self, min: f64, max: f64) -> Self {
+    pub(crate) const fn limits(mut self, min: f64, max: f64) -> Self {
         self.min = min;
         self.max = max;
         self
     }
 
-    const fn settings(mut self, allowed: &'static [u32]) -> Self {
+    pub(crate) const fn settings(mut self, allowed: &'static [u32]) -> Self {
         self.allowed = allowed;
         self
     }
 
-    const fn default_raw(mut self, raw: u32) -> Self {
+    pub(crate) const fn default_raw(mut self, raw: u32) -> Self {
         self.default = raw;
         self
     }
 
-    const fn default_f32(mut self, value: f32) -> Self {
+    pub(crate) const fn default_f32(mut self, value: f32) -> Self {
         self.default = value.to_bits();
         self
     }
 
-    const fn array(mut self, elements: u8) -> Self {
+    pub(crate) const fn array(mut self, elements: u8) -> Self {
         self.elements = elements;
         self
     }
@@ -394,56 +403,181 @@ const DEFS: &[ParamDef] = {
     ]
 };
 
-/// The definitions, sorted by PNU.
+/// The MICROMASTER 4 definitions, sorted by PNU.
 pub static DEFINITIONS: &[ParamDef] = DEFS;
+/// The same, for constant evaluation (the G110's list is made from it).
+pub(crate) const DEFINITIONS_CONST: &[ParamDef] = DEFS;
+/// How many parameters the MICROMASTER 4 list has.
+pub(crate) const DEFS_LEN: usize = DEFS.len();
 
-const COUNT: usize = DEFS.len();
+/// Most parameters one family's set lists.
+pub const MAX_DEFS: usize = 48;
+/// Most values (one per plain parameter, one per array element) one family's set stores.
+pub const MAX_SLOTS: usize = 320;
 
-/// Where each parameter's first element sits in the value arrays.
-const OFFSETS: [usize; COUNT] = {
-    let mut out = [0; COUNT];
-    let mut i = 1;
-    while i < COUNT {
-        out[i] = out[i - 1] + DEFS[i - 1].slots();
-        i += 1;
-    }
-    out
-};
-
-/// Values stored in all: one per plain parameter, one per array element.
-const SLOTS: usize = OFFSETS[COUNT - 1] + DEFS[COUNT - 1].slots();
-
-const DEFAULTS: [u32; SLOTS] = {
-    let mut out = [0; SLOTS];
-    let mut i = 0;
-    while i < COUNT {
-        let mut k = 0;
-        while k < DEFS[i].slots() {
-            out[OFFSETS[i] + k] = DEFS[i].default;
-            k += 1;
-        }
-        i += 1;
-    }
-    out
-};
-
-/// The slot of a plain parameter the table itself consults. A PNU missing from [`DEFS`] is a
-/// compile-time error (the panic happens during constant evaluation), never a run-time one.
-const fn slot_of(pnu: u16) -> usize {
-    let mut i = 0;
-    while i < COUNT {
-        if DEFS[i].pnu == pnu {
-            return OFFSETS[i];
-        }
-        i += 1;
-    }
-    panic!("a parameter the table consults is missing from DEFS")
+/// The parameters a family's table consults itself; `None` where the family has none (its
+/// check is then skipped).
+#[derive(Debug, Clone, Copy)]
+pub struct Consulted {
+    /// The user access level (P0003): a change above it is error 204.
+    pub access_level: Option<u16>,
+    /// The commissioning parameter (P0010): "C" parameters only at 1, the reset only at 30.
+    pub commissioning: Option<u16>,
+    /// Which interfaces may change parameters (P0927), and the bit of this USS link.
+    pub change_rights: Option<(u16, u32)>,
+    /// The factory reset (P0970): writing 1 puts every setting back to its default.
+    pub factory_reset: Option<u16>,
 }
 
-const AT_P0003: usize = slot_of(P0003);
-const AT_P0010: usize = slot_of(P0010);
-const AT_P0927: usize = slot_of(P0927);
-const AT_P0970: usize = slot_of(P0970);
+/// One family's parameter list, laid out at compile time: where each parameter's values sit,
+/// their defaults, and the slots of the parameters the table consults.
+#[derive(Debug)]
+pub struct ParamSet {
+    /// The family as the simulator's `family=` names it.
+    pub family: &'static str,
+    defs: &'static [ParamDef],
+    offsets: [usize; MAX_DEFS],
+    defaults: [u32; MAX_SLOTS],
+    access_level: Option<usize>,
+    commissioning: Option<usize>,
+    change_rights: Option<(usize, u32)>,
+    factory_reset: Option<usize>,
+}
+
+/// The slot of a plain parameter of `defs`. A PNU missing from the list is a compile-time
+/// error (the panic happens during constant evaluation), never a run-time one.
+const fn slot_of(defs: &[ParamDef], offsets: &[usize; MAX_DEFS], pnu: u16) -> usize {
+    let mut i = 0;
+    while i < defs.len() {
+        if defs[i].pnu == pnu {
+            return offsets[i];
+        }
+        i += 1;
+    }
+    panic!("a parameter the table consults is missing from its set")
+}
+
+const fn slot_of_opt(
+    defs: &[ParamDef],
+    offsets: &[usize; MAX_DEFS],
+    pnu: Option<u16>,
+) -> Option<usize> {
+    match pnu {
+        Some(pnu) => Some(slot_of(defs, offsets, pnu)),
+        None => None,
+    }
+}
+
+impl ParamSet {
+    /// Lays `defs` out (sorted by PNU, checked at compile time) and finds what it consults.
+    pub const fn new(
+        family: &'static str,
+        defs: &'static [ParamDef],
+        consulted: Consulted,
+    ) -> Self {
+        assert!(
+            !defs.is_empty() && defs.len() <= MAX_DEFS,
+            "a set has 1..=MAX_DEFS parameters"
+        );
+        let mut offsets = [0; MAX_DEFS];
+        let mut i = 1;
+        while i < defs.len() {
+            assert!(
+                defs[i - 1].pnu < defs[i].pnu,
+                "a set is sorted by PNU, each once"
+            );
+            offsets[i] = offsets[i - 1] + defs[i - 1].slots();
+            i += 1;
+        }
+        let slots = offsets[defs.len() - 1] + defs[defs.len() - 1].slots();
+        assert!(slots <= MAX_SLOTS, "a set stores at most MAX_SLOTS values");
+        let mut defaults = [0; MAX_SLOTS];
+        let mut i = 0;
+        while i < defs.len() {
+            let mut k = 0;
+            while k < defs[i].slots() {
+                defaults[offsets[i] + k] = defs[i].default;
+                k += 1;
+            }
+            i += 1;
+        }
+        let change_rights = match consulted.change_rights {
+            Some((pnu, bit)) => Some((slot_of(defs, &offsets, pnu), bit)),
+            None => None,
+        };
+        Self {
+            family,
+            defs,
+            offsets,
+            defaults,
+            access_level: slot_of_opt(defs, &offsets, consulted.access_level),
+            commissioning: slot_of_opt(defs, &offsets, consulted.commissioning),
+            change_rights,
+            factory_reset: slot_of_opt(defs, &offsets, consulted.factory_reset),
+        }
+    }
+
+    /// The definitions, sorted by PNU.
+    pub const fn definitions(&self) -> &'static [ParamDef] {
+        self.defs
+    }
+
+    /// The index of a parameter in the list.
+    fn find(&self, pnu: u16) -> Option<usize> {
+        self.defs.binary_search_by_key(&pnu, |d| d.pnu).ok()
+    }
+
+    /// The definition and value slot a task addresses. `index` is `None` for the plain tasks
+    /// (AK 1, 2/3, 13/14), which address element 0, and the IND subindex for array tasks
+    /// (USS.md section 6).
+    fn locate(
+        &self,
+        pnu: Pnu,
+        index: Option<Subindex>,
+    ) -> Result<(&'static ParamDef, usize), ReplyKind> {
+        let n = self.find(pnu.get()).ok_or(refuse(ParamError::IllegalPnu))?;
+        let def = &self.defs[n];
+        let Some(index) = index else {
+            return Ok((def, self.offsets[n]));
+        };
+        if !def.is_array() {
+            return Err(refuse(ParamError::NotAnArray));
+        }
+        if index.get() >= def.elements {
+            return Err(refuse(ParamError::FaultySubindex));
+        }
+        Ok((def, self.offsets[n] + usize::from(index.get())))
+    }
+
+    /// The definition and slot of an element, for the accessors of [`ParamTable`].
+    fn slot(&self, pnu: u16, index: u8) -> Option<(&'static ParamDef, usize)> {
+        let n = self.find(pnu)?;
+        let def = &self.defs[n];
+        (usize::from(index) < def.slots()).then(|| (def, self.offsets[n] + usize::from(index)))
+    }
+}
+
+/// Two sets are the same when they are the same static.
+impl PartialEq for ParamSet {
+    fn eq(&self, other: &Self) -> bool {
+        core::ptr::eq(self, other)
+    }
+}
+
+impl Eq for ParamSet {}
+
+/// MICROMASTER 420/430/440: P0003 access level, P0010 commissioning, P0927 bit 3 (USS on the
+/// COM link), P0970 factory reset.
+pub static MICROMASTER4: ParamSet = ParamSet::new(
+    "micromaster4",
+    DEFS,
+    Consulted {
+        access_level: Some(P0003),
+        commissioning: Some(P0010),
+        change_rights: Some((P0927, P0927_USS_COM)),
+        factory_reset: Some(P0970),
+    },
+);
 
 /// P0010 settings: quick commissioning, factory setting.
 const P0010_QUICK_COMMISSIONING: u32 = 1;
@@ -458,11 +592,12 @@ pub struct DriveContext {
 /// RAM and EEPROM values of every parameter element, sized at compile time.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ParamTable {
-    ram: [u32; SLOTS],
+    set: &'static ParamSet,
+    ram: [u32; MAX_SLOTS],
     /// Only [`ParamTable::execute`] (with [`Storage::RamAndEeprom`]) and
     /// [`ParamTable::set_commissioned`] write it, and both leave read-only parameters alone, so
     /// read-only parameters always hold their defaults here.
-    eeprom: [u32; SLOTS],
+    eeprom: [u32; MAX_SLOTS],
 }
 
 impl Default for ParamTable {
@@ -473,28 +608,6 @@ impl Default for ParamTable {
 
 fn refuse(error: ParamError) -> ReplyKind {
     ReplyKind::Error(error)
-}
-
-/// The index of a parameter in [`DEFS`].
-fn find(pnu: u16) -> Option<usize> {
-    DEFS.binary_search_by_key(&pnu, |d| d.pnu).ok()
-}
-
-/// The definition and value slot a task addresses. `index` is `None` for the plain tasks (AK 1,
-/// 2/3, 13/14), which address element 0, and the IND subindex for array tasks (USS.md section 6).
-fn locate(pnu: Pnu, index: Option<Subindex>) -> Result<(&'static ParamDef, usize), ReplyKind> {
-    let n = find(pnu.get()).ok_or(refuse(ParamError::IllegalPnu))?;
-    let def = &DEFS[n];
-    let Some(index) = index else {
-        return Ok((def, OFFSETS[n]));
-    };
-    if !def.is_array() {
-        return Err(refuse(ParamError::NotAnArray));
-    }
-    if index.get() >= def.elements {
-        return Err(refuse(ParamError::FaultySubindex));
-    }
-    Ok((def, OFFSETS[n] + usize::from(index.get())))
 }
 
 /// A dword value needs PWE1 and PWE2: a 3-word channel is too narrow (USS.md section 6).
@@ -541,12 +654,23 @@ fn describe(def: &ParamDef, element: Subindex, pkw: PkwMode) -> Result<ReplyKind
 }
 
 impl ParamTable {
-    /// Factory defaults in RAM and EEPROM.
+    /// A MICROMASTER 4 with factory defaults in RAM and EEPROM.
     pub fn new() -> Self {
+        Self::of(&MICROMASTER4)
+    }
+
+    /// A drive of `set`'s family with factory defaults in RAM and EEPROM.
+    pub const fn of(set: &'static ParamSet) -> Self {
         Self {
-            ram: DEFAULTS,
-            eeprom: DEFAULTS,
+            set,
+            ram: set.defaults,
+            eeprom: set.defaults,
         }
+    }
+
+    /// The family's parameter set.
+    pub const fn set(&self) -> &'static ParamSet {
+        self.set
     }
 
     /// Executes one task and returns the reply kind the drive sends (USS.md section 6). Writes
@@ -572,16 +696,16 @@ impl ParamTable {
         match *task {
             ParamTask::None => Ok(ReplyKind::NotYet),
             ParamTask::Read { pnu } => {
-                let (def, at) = locate(pnu, None)?;
+                let (def, at) = self.set.locate(pnu, None)?;
                 value_reply(def, self.ram[at], pkw, ReplyKind::Word, ReplyKind::Dword)
             }
             ParamTask::ReadArray { pnu, index } => {
-                let (def, at) = locate(pnu, Some(index))?;
+                let (def, at) = self.set.locate(pnu, Some(index))?;
                 let raw = self.ram[at];
                 value_reply(def, raw, pkw, ReplyKind::ArrayWord, ReplyKind::ArrayDword)
             }
             ParamTask::ReadArrayLen { pnu } => {
-                let (def, _) = locate(pnu, None)?;
+                let (def, _) = self.set.locate(pnu, None)?;
                 if def.is_array() {
                     Ok(ReplyKind::ElementCount(u16::from(def.elements)))
                 } else {
@@ -589,7 +713,7 @@ impl ParamTable {
                 }
             }
             ParamTask::ReadDescription { pnu, element } => {
-                let (def, _) = locate(pnu, None)?;
+                let (def, _) = self.set.locate(pnu, None)?;
                 describe(def, element, pkw)
             }
             ParamTask::Write {
@@ -597,7 +721,7 @@ impl ParamTable {
                 value,
                 storage,
             } => {
-                let (def, at) = locate(pnu, None)?;
+                let (def, at) = self.set.locate(pnu, None)?;
                 let raw = self.write(def, at, value, storage, pkw, ctx)?;
                 value_reply(def, raw, pkw, ReplyKind::Word, ReplyKind::Dword)
             }
@@ -607,7 +731,7 @@ impl ParamTable {
                 value,
                 storage,
             } => {
-                let (def, at) = locate(pnu, Some(index))?;
+                let (def, at) = self.set.locate(pnu, Some(index))?;
                 let raw = self.write(def, at, value, storage, pkw, ctx)?;
                 value_reply(def, raw, pkw, ReplyKind::ArrayWord, ReplyKind::ArrayDword)
             }
@@ -628,10 +752,14 @@ impl ParamTable {
         if def.is_read_only() {
             return Err(refuse(ParamError::ValueNotChangeable));
         }
-        if self.ram[AT_P0927] & P0927_USS_COM == 0 {
+        if let Some((at, bit)) = self.set.change_rights
+            && self.ram[at] & bit == 0
+        {
             return Err(ReplyKind::NoChangeRights);
         }
-        if u32::from(def.level) > self.ram[AT_P0003] {
+        if let Some(level) = self.set.access_level
+            && u32::from(def.level) > self.ram[level]
+        {
             return Err(refuse(ParamError::AccessLevelTooLow));
         }
         if value.is_dword() != def.ty.is_dword() {
@@ -647,7 +775,7 @@ impl ParamTable {
         if storage == Storage::RamAndEeprom {
             self.eeprom[at] = raw;
         }
-        if at == AT_P0970 && raw == 1 {
+        if Some(at) == self.set.factory_reset && raw == 1 {
             self.factory_reset(storage);
         }
         Ok(self.ram[at])
@@ -660,12 +788,14 @@ impl ParamTable {
             Change::Always => true,
             Change::NotRunning => !ctx.running,
             Change::Commissioning => {
-                let needed = if at == AT_P0970 {
+                let needed = if Some(at) == self.set.factory_reset {
                     P0010_FACTORY_SETTING
                 } else {
                     P0010_QUICK_COMMISSIONING
                 };
-                self.ram[AT_P0010] == needed
+                self.set
+                    .commissioning
+                    .is_none_or(|p0010| self.ram[p0010] == needed)
             }
         };
         if allowed {
@@ -679,41 +809,37 @@ impl ParamTable {
     /// stored to EEPROM, in EEPROM. That includes P0970 and P0010 themselves (both default 0).
     /// Read-only parameters are actual values and diagnostics, not settings: they are kept.
     fn factory_reset(&mut self, storage: Storage) {
-        for (n, def) in DEFS.iter().enumerate() {
+        let set = self.set;
+        for (n, def) in set.defs.iter().enumerate() {
             if def.is_read_only() {
                 continue;
             }
-            let range = OFFSETS[n]..OFFSETS[n] + def.slots();
-            self.ram[range.clone()].copy_from_slice(&DEFAULTS[range.clone()]);
+            let range = set.offsets[n]..set.offsets[n] + def.slots();
+            self.ram[range.clone()].copy_from_slice(&set.defaults[range.clone()]);
             if storage == Storage::RamAndEeprom {
-                self.eeprom[range.clone()].copy_from_slice(&DEFAULTS[range]);
+                self.eeprom[range.clone()].copy_from_slice(&set.defaults[range]);
             }
         }
-    }
-
-    /// The definition and slot of an element, for the accessors below.
-    fn slot(pnu: u16, index: u8) -> Option<(&'static ParamDef, usize)> {
-        let n = find(pnu)?;
-        let def = &DEFS[n];
-        (usize::from(index) < def.slots()).then(|| (def, OFFSETS[n] + usize::from(index)))
     }
 
     /// Raw value of an element as stored in RAM (None for an unknown PNU or index out of range).
     /// Index 0 is the value of a plain parameter.
     pub fn get(&self, pnu: u16, index: u8) -> Option<u32> {
-        Self::slot(pnu, index).map(|(_, at)| self.ram[at])
+        self.set.slot(pnu, index).map(|(_, at)| self.ram[at])
     }
 
     /// An element's RAM value as a number: integer types converted, floats from their bits.
     pub fn get_f32(&self, pnu: u16, index: u8) -> Option<f32> {
-        Self::slot(pnu, index).map(|(def, at)| def.ty.number(self.ram[at]) as f32)
+        self.set
+            .slot(pnu, index)
+            .map(|(def, at)| def.ty.number(self.ram[at]) as f32)
     }
 
     /// Sets a value from inside the drive (actual values, status words, diagnostics, fault
     /// buffer), bypassing every check; ignored for an unknown PNU/index. Writes RAM only. A word
     /// type keeps the low 16 bits, so `-5i16 as u32` and `0xFFFB` store the same.
     pub fn set_internal(&mut self, pnu: u16, index: u8, raw: u32) {
-        if let Some((def, at)) = Self::slot(pnu, index) {
+        if let Some((def, at)) = self.set.slot(pnu, index) {
             self.ram[at] = raw & def.ty.mask();
         }
     }
@@ -723,7 +849,7 @@ impl ParamTable {
     /// survives [`ParamTable::power_cycle`]. Ignored for read-only parameters and for an unknown
     /// PNU/index; word types keep the low 16 bits.
     pub fn set_commissioned(&mut self, pnu: u16, index: u8, raw: u32) {
-        match Self::slot(pnu, index) {
+        match self.set.slot(pnu, index) {
             Some((def, at)) if !def.is_read_only() => {
                 self.ram[at] = raw & def.ty.mask();
                 self.eeprom[at] = self.ram[at];
@@ -740,7 +866,7 @@ impl ParamTable {
 
     /// Whether a parameter is defined.
     pub fn definition(&self, pnu: u16) -> Option<&'static ParamDef> {
-        find(pnu).map(|n| &DEFINITIONS[n])
+        self.set.find(pnu).map(|n| &self.set.defs[n])
     }
 }
 

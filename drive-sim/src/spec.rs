@@ -11,7 +11,7 @@ use uss_protocol::{Address, Layout, PkwMode, PzdCount};
 /// The keys a drive specification understands, for error messages and `--help`.
 pub const KEYS: &str = "pkw=0|3|4|127, pzd=0..16, delay=MS, jitter=MS, eeprom-busy=N, busy=N, \
 p2014=MS, p2000=HZ, dword-error=5|103, drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, \
-unplug=FROM_MS..[TO_MS], hang=MS, broadcast=true|false, family=micromaster4|generic, fragile=true|false";
+unplug=FROM_MS..[TO_MS], hang=MS, broadcast=true|false, family=micromaster4|g110|g120|simoreg|generic, fragile=true|false";
 
 /// A drive and its fault plan, parsed from a specification.
 #[derive(Debug, Clone)]
@@ -130,7 +130,8 @@ mod tests {
         );
         assert_eq!(
             "4:family=g150".parse::<DriveSpec>().unwrap_err().problem,
-            "family=g150: the simulator has the families micromaster4 and generic"
+            "family=g150: the simulator has the families micromaster4, g110, g120, simoreg and \
+             generic"
         );
     }
 
@@ -193,6 +194,9 @@ mod tests {
         assert!(err("1:pkw").contains("is not key=value"));
         assert!(err("1:unplug=500..100").contains("end must come after"));
         assert!(err("1:delay=-1").contains("milliseconds"));
-        assert!(err("1:p2000=0.5").contains("p2000=0.5: the reference frequency is 1..=650 Hz"));
+        assert!(
+            err("1:p2000=0.5")
+                .contains("p2000=0.5: 1..=650 Hz (the reference frequency) on this family")
+        );
     }
 }
