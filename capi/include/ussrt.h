@@ -262,16 +262,16 @@ typedef struct UssrtFault {
    * F0072 -> 72.
    */
   uint16_t number;
-  /**
-   * The fault value (r0949), when `has_value`.
-   */
-  uint16_t value;
   uint8_t has_value;
   /**
-   * Element of r0947: 0 is the newest.
+   * Element of the fault buffer (r0947 on MICROMASTER 4): 0 is the newest.
    */
   uint8_t slot;
-  uint8_t reserved[2];
+  /**
+   * The fault value (r0949), its 32 bits as the drive sent them (signed on a G120), when
+   * `has_value`.
+   */
+  uint32_t value;
   /**
    * The catalogue's text, NUL-terminated (empty when it does not know the fault).
    */
@@ -279,7 +279,8 @@ typedef struct UssrtFault {
 } UssrtFault;
 
 /**
- * The drive's fault buffer (r0947 with r0949 values) and active warnings (r2110).
+ * The drive's fault buffer and active warnings, where its family keeps them (MICROMASTER 4:
+ * r0947 with r0949 values and r2110; G120: r0945, r0949, r2122; SIMOREG: r947, r949).
  */
 typedef struct UssrtFaultReport {
   /**
@@ -293,9 +294,9 @@ typedef struct UssrtFaultReport {
   uint8_t reserved[2];
   struct UssrtFault faults[8];
   /**
-   * Active warnings: A0501 -> 501.
+   * Active warnings: A0501 -> 501 (4 on MICROMASTER 4, up to 8 current alarms on G120).
    */
-  uint16_t warnings[4];
+  uint16_t warnings[8];
 } UssrtFaultReport;
 
 #ifdef __cplusplus

@@ -42,17 +42,18 @@ pub struct UssrtValue {
 pub struct UssrtFault {
     /// F0072 -> 72.
     pub number: u16,
-    /// The fault value (r0949), when `has_value`.
-    pub value: u16,
     pub has_value: u8,
-    /// Element of r0947: 0 is the newest.
+    /// Element of the fault buffer (r0947 on MICROMASTER 4): 0 is the newest.
     pub slot: u8,
-    pub reserved: [u8; 2],
+    /// The fault value (r0949), its 32 bits as the drive sent them (signed on a G120), when
+    /// `has_value`.
+    pub value: u32,
     /// The catalogue's text, NUL-terminated (empty when it does not know the fault).
     pub text: [c_char; 64],
 }
 
-/// The drive's fault buffer (r0947 with r0949 values) and active warnings (r2110).
+/// The drive's fault buffer and active warnings, where its family keeps them (MICROMASTER 4:
+/// r0947 with r0949 values and r2110; G120: r0945, r0949, r2122; SIMOREG: r947, r949).
 #[repr(C)]
 #[derive(Debug, Clone, Copy)]
 pub struct UssrtFaultReport {
@@ -62,8 +63,8 @@ pub struct UssrtFaultReport {
     pub warning_count: u8,
     pub reserved: [u8; 2],
     pub faults: [UssrtFault; 8],
-    /// Active warnings: A0501 -> 501.
-    pub warnings: [u16; 4],
+    /// Active warnings: A0501 -> 501 (4 on MICROMASTER 4, up to 8 current alarms on G120).
+    pub warnings: [u16; 8],
 }
 
 /// `s` into `buf`, cut at a character boundary to fit with its NUL.
@@ -280,7 +281,6 @@ pub unsafe extern "C" fn ussrt_fault_report(
             value: 0,
             has_value: 0,
             slot: 0,
-            reserved: [0; 2],
             text: [0; 64],
         };
         let mut r = UssrtFaultReport {
@@ -288,7 +288,7 @@ pub unsafe extern "C" fn ussrt_fault_report(
             warning_count: 0xFF,
             reserved: [0; 2],
             faults: [empty; 8],
-            warnings: [0; 4],
+            warnings: [0; 8],
         };
         for (slot, f) in r.faults.iter_mut().zip(&read.faults) {
             slot.number = f.number;

@@ -274,6 +274,20 @@ fn param_id<'de, D: serde::Deserializer<'de>>(d: D) -> Result<ParamRef, D::Error
         .map_err(|e| serde::de::Error::custom(format_args!("{text:?}: {e}")))
 }
 
+fn some_param_id<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<ParamRef>, D::Error> {
+    param_id(d).map(Some)
+}
+
+fn param_ids<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<ParamRef>, D::Error> {
+    Vec::<String>::deserialize(d)?
+        .into_iter()
+        .map(|text| {
+            text.parse::<ParamRef>()
+                .map_err(|e| serde::de::Error::custom(format_args!("{text:?}: {e}")))
+        })
+        .collect()
+}
+
 impl Param {
     /// The parameter number.
     pub const fn number(&self) -> u16 {
@@ -330,11 +344,49 @@ pub struct Guard {
     pub zero_only: bool,
 }
 
+/// Where a family keeps its faults and warnings: what a fault report reads.
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FaultBuffers {
+    /// The fault numbers, newest first (MM4 r0947, G120 r0945, SIMOREG r947).
+    #[serde(deserialize_with = "param_id")]
+    pub codes: ParamRef,
+    /// One fault value per element of `codes` (r0949).
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub values: Option<ParamRef>,
+    /// The trips' times in the MICROMASTER 4's format: three words per trip of `per_trip`
+    /// faults (r0948).
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub times: Option<ParamRef>,
+    /// Elements of `codes` (and `values`) a report reads.
+    pub len: u8,
+    /// Faults per trip (fault case), for the times.
+    pub per_trip: u8,
+    /// The active warnings (MM4 r2110, G120 r2122's current alarms).
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub warnings: Option<ParamRef>,
+    /// Elements of `warnings` a report reads.
+    #[serde(default)]
+    pub warnings_len: u8,
+}
+
 /// The catalogue of one drive family.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Catalogue {
     pub family: String,
+    /// The user access level a change may need raised (P0003), if the family has one.
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub access_level: Option<ParamRef>,
+    /// The commissioning parameter (P0010: 1 for "commissioning" parameters), if any.
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub commissioning: Option<ParamRef>,
+    /// The settings of the line ussd talks to the drive over (baud rate, address, PZD and PKW
+    /// length of the USS link): a restore keeps the drive's own values.
+    #[serde(default, deserialize_with = "param_ids")]
+    pub link: Vec<ParamRef>,
+    /// The fault buffer and warnings; none: uss-rt knows no fault buffer of the family.
+    pub faults: Option<FaultBuffers>,
     #[serde(default)]
     pub param: Vec<Param>,
     #[serde(default)]
@@ -355,6 +407,7 @@ pub struct CatalogueError {
 
 const MICROMASTER4: &str = include_str!("../data/micromaster4.toml");
 const G120: &str = include_str!("../data/g120.toml");
+const SIMOREG: &str = include_str!("../data/simoreg.toml");
 
 static MM4: LazyLock<Catalogue> = LazyLock::new(|| {
     Catalogue::parse(MICROMASTER4, "data/micromaster4.toml")
@@ -366,26 +419,43 @@ static G120_CATALOGUE: LazyLock<Catalogue> = LazyLock::new(|| {
         .unwrap_or_else(|e| unreachable!("the built-in catalogue is valid (tested): {e}"))
 });
 
+static SIMOREG_CATALOGUE: LazyLock<Catalogue> = LazyLock::new(|| {
+    Catalogue::parse(SIMOREG, "data/simoreg.toml")
+        .unwrap_or_else(|e| unreachable!("the built-in catalogue is valid (tested): {e}"))
+});
+
 impl Catalogue {
     /// MICROMASTER 420/430/440 and SINAMICS G110.
     pub fn micromaster4() -> &'static Self {
         &MM4
     }
 
-    /// SINAMICS G120 with a CU240 over USS: its guarded parameters only so far (its
-    /// parameters are described by the drive).
+    /// SINAMICS G120 with a CU240 over USS.
     pub fn g120() -> &'static Self {
         &G120_CATALOGUE
     }
 
+    /// SIMOREG DC-Master 6RA70.
+    pub fn simoreg() -> &'static Self {
+        &SIMOREG_CATALOGUE
+    }
+
     /// The built-in catalogue of a family by its configuration name (`micromaster4`, `g110`,
-    /// `g120`); `None` for a family uss-rt has none of (`simoreg`, `generic`).
+    /// `g120`, `simoreg`); `None` for a `generic` slave.
     pub fn of_family(family: &str) -> Option<&'static Self> {
         match family {
             "micromaster4" | "g110" => Some(Self::micromaster4()),
             "g120" => Some(Self::g120()),
+            "simoreg" => Some(Self::simoreg()),
             _ => None,
         }
+    }
+
+    /// Whether `param` (number and index) is a setting of the line ussd talks over.
+    pub fn is_link(&self, param: ParamRef) -> bool {
+        self.link
+            .iter()
+            .any(|l| l.pnu == param.pnu && l.index == param.index)
     }
 
     /// Why writing `value` to parameter `pnu` can take the drive away from ussd, if it can.

@@ -142,7 +142,33 @@ fn guarded_parameters_are_marked_per_family_and_monitoring_only_when_switched_of
     let g120 = Catalogue::of_family("g120").unwrap();
     assert!(g120.guard(2021, 5).unwrap().contains("address"));
     assert!(g120.guard(2040, 0).is_some() && g120.guard(2040, 100).is_none());
-    assert!(Catalogue::of_family("generic").is_none() && Catalogue::of_family("simoreg").is_none());
+    assert!(Catalogue::of_family("generic").is_none());
+    let simoreg = Catalogue::of_family("simoreg").unwrap();
+    assert!(simoreg.guard(782, 3).is_some() && simoreg.guard(303, 100).is_none());
     // Guarded by number: the BICO sources need no typed entry.
     assert!(mm4.param(840).is_none() && mm4.guard(840, 0).is_some());
+}
+
+#[test]
+fn each_family_says_where_its_faults_and_its_link_are() {
+    let faults = |family: &str| {
+        let f = Catalogue::of_family(family)
+            .unwrap()
+            .faults
+            .clone()
+            .unwrap();
+        (f.codes.to_string(), f.values.map(|v| v.to_string()), f.len)
+    };
+    assert_eq!(
+        faults("micromaster4"),
+        ("r0947".into(), Some("r0949".into()), 8)
+    );
+    assert_eq!(faults("g120"), ("r0945".into(), Some("r0949".into()), 8));
+    assert_eq!(faults("simoreg"), ("r0947".into(), Some("r0949".into()), 8));
+    let mm4 = Catalogue::micromaster4();
+    let at = |s: &str| s.parse::<uss_protocol::ParamRef>().unwrap();
+    assert!(mm4.is_link(at("P2011[1]")) && !mm4.is_link(at("P2011[0]")));
+    assert!(Catalogue::g120().is_link(at("p2021")));
+    assert_eq!(mm4.access_level.map(|p| p.pnu.get()), Some(3));
+    assert_eq!(Catalogue::simoreg().access_level, None);
 }

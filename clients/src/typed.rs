@@ -112,14 +112,17 @@ impl Bus {
             .unwrap_or(DriveFamily::Micromaster4)
     }
 
-    /// The catalogue that applies to a drive of `family`: the built-in one for a MICROMASTER 4
-    /// or G110 (which share its parameter numbers), or one given with [`Bus::with_catalogue`];
-    /// none for another family, whose parameters the drive describes itself.
+    /// The catalogue that applies to a drive of `family`: the family's built-in one
+    /// (`catalogue/data/<family>.toml`; a G110 shares the MICROMASTER 4's numbers), or the one
+    /// given with [`Bus::with_catalogue`]; none for a `generic` slave. What a catalogue does
+    /// not list, the drive describes itself.
     fn catalogue_of(&self, family: DriveFamily) -> Option<&'static Catalogue> {
         let catalogue = self.described.catalogue;
-        let built_in = core::ptr::eq(catalogue, Catalogue::micromaster4());
-        let shares = matches!(family, DriveFamily::Micromaster4 | DriveFamily::G110);
-        (!built_in || shares).then_some(catalogue)
+        if core::ptr::eq(catalogue, Catalogue::micromaster4()) {
+            Catalogue::of_family(family.name())
+        } else {
+            Some(catalogue)
+        }
     }
 
     /// What parameter `pnu` of drive `address` is: the catalogue's entry, or the type the drive
@@ -285,17 +288,6 @@ fn shown_as(param: ParamRef, info: Option<&Param>) -> ParamRef {
     }
 }
 
-/// The active warnings parameter (r2110, 4 elements on MICROMASTER 4).
-pub const WARNINGS_PNU: u16 = 2110;
-/// Elements of [`WARNINGS_PNU`].
-pub const WARNINGS_LEN: u8 = 4;
-/// The fault values (r0949), one per element of the fault buffer r0947.
-pub const FAULT_VALUES_PNU: u16 = 949;
-/// The fault times (r0948): three words per trip, a trip being two elements of r0947.
-pub const FAULT_TIMES_PNU: u16 = 948;
-/// Elements of [`FAULT_TIMES_PNU`].
-pub const FAULT_TIMES_LEN: u8 = 12;
-
 /// When a trip happened, as r0948 holds it: three words in the format of the real-time clock
 /// P2115, low byte first (seconds + minutes, hours + days, month + year). A drive stamps it
 /// from the clock an operator panel set, or, with a clock never set, from its own count of
@@ -341,12 +333,13 @@ impl core::fmt::Display for FaultTime {
 /// One recorded fault: where it sits in the fault buffer, its number, its fault value and text.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Fault {
-    /// Element of r0947: 0 is the newest.
+    /// Element of the fault buffer (r0947 on MICROMASTER 4): 0 is the newest.
     pub slot: u8,
     /// F0072 -> 72.
     pub number: u16,
-    /// r0949 of the same element; `None` when the drive has no r0949.
-    pub value: Option<u16>,
+    /// The fault value (r0949) of the same element, its 32 bits as the drive sent them (a
+    /// G120's is signed: `as i32`); `None` when the drive has none.
+    pub value: Option<u32>,
     /// r0948 of its trip; `None` when the drive has no r0948 or left it 0.
     pub time: Option<FaultTime>,
     /// The catalogue's text.
@@ -364,54 +357,65 @@ pub struct Warning {
 /// The drive's fault buffer and active warnings, read in one request.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FaultReport {
+    /// Where they were read: the fault codes (MM4 r0947, G120 r0945), the fault values
+    /// (r0949), the warnings (MM4 r2110, G120 r2122).
+    pub codes: ParamRef,
+    pub values: Option<ParamRef>,
+    pub warnings_from: Option<ParamRef>,
     /// Recorded faults, newest first (empty slots left out).
     pub faults: Vec<Fault>,
-    /// Active warnings; `None` when the drive has no r2110.
+    /// Active warnings; `None` when the drive (or its family) has none.
     pub warnings: Option<Vec<Warning>>,
 }
 
 impl Bus {
-    /// The fault buffer r0947 with the fault values r0949, the trips' times r0948 and texts,
-    /// and the active warnings r2110, in one request of 32 reads. A drive without r0948, r0949
-    /// or r2110 (error 0) still gets its fault codes.
+    /// The fault buffer with its values, the trips' times and texts, and the active warnings,
+    /// in one request, where the drive's family keeps them (its catalogue's `faults`: MM4
+    /// r0947/r0949/r0948/r2110, G120 r0945/r0949/r2122, SIMOREG r947/r949). A drive without
+    /// the values, times or warnings (error 0) still gets its fault codes; a `generic` slave
+    /// has no buffer uss-rt knows, and is refused.
     pub fn fault_report(&self, address: u8) -> Result<FaultReport, ParamError> {
         let family = self.family(address);
-        if family == DriveFamily::Generic {
+        let catalogue = self.catalogue_of(family);
+        let Some(b) = catalogue.and_then(|c| c.faults.as_ref()) else {
             return Err(ParamError::Value {
-                param: "r0947".to_owned(),
+                param: "fault buffer".to_owned(),
                 problem: format!(
-                    "drive {address} is a generic USS slave: it has no fault buffer uss-rt \
-                     knows (read its own fault parameters by number)"
+                    "drive {address} is a {} slave: it has no fault buffer uss-rt knows \
+                     (read its own fault parameters by number)",
+                    family.name()
                 ),
             });
-        }
-        let element = |pnu: u16, i: u8| {
-            Subindex::new(i).map(|i| ParamTask::read(Pnu::from_u16(pnu), Some(i)))
         };
-        let len = crate::params::FAULT_BUFFER_LEN;
+        let element =
+            |p: ParamRef, i: u8| Subindex::new(i).map(|i| ParamTask::read(p.pnu, Some(i)));
+        let times_len = b.len / b.per_trip.max(1) * 3;
+        let parts = [
+            (Some(b.codes), b.len),
+            (b.values, b.len),
+            (b.warnings, b.warnings_len),
+            (b.times, times_len),
+        ];
         let mut tasks = Vec::new();
-        for (pnu, n) in [
-            (crate::params::FAULT_BUFFER_PNU, len),
-            (FAULT_VALUES_PNU, len),
-            (WARNINGS_PNU, WARNINGS_LEN),
-            (FAULT_TIMES_PNU, FAULT_TIMES_LEN),
-        ] {
-            tasks.extend((0..n).filter_map(|i| element(pnu, i).ok()));
+        let mut counts = [0usize; 4];
+        for (k, (param, n)) in parts.into_iter().enumerate() {
+            if let Some(p) = param {
+                let before = tasks.len();
+                tasks.extend((0..n).filter_map(|i| element(p, i).ok()));
+                counts[k] = tasks.len() - before;
+            }
         }
         let results = self.batch(address, &tasks);
-        let len = usize::from(len);
-        let (codes, rest) = results.split_at(len);
-        let (values, rest) = rest.split_at(len);
-        let (warnings, times) = rest.split_at(usize::from(WARNINGS_LEN));
+        let (codes, rest) = results.split_at(counts[0].min(results.len()));
+        let (values, rest) = rest.split_at(counts[1].min(rest.len()));
+        let (warnings, times) = rest.split_at(counts[2].min(rest.len()));
         let word = |r: &Result<Value, ParamError>| r.clone().map(|v| v.as_u32() as u16);
-        // Texts from the catalogue of the drive's family only.
-        let catalogue = self.catalogue_of(family);
         let mut faults = Vec::new();
         for (slot, code) in codes.iter().enumerate() {
             let number = word(code)?;
             if number != 0 {
-                // Two faults per trip, three time words per trip.
-                let trip = &times[(slot / 2 * 3).min(times.len())..];
+                // `per_trip` faults per trip, three time words per trip.
+                let trip = &times[(slot / usize::from(b.per_trip.max(1)) * 3).min(times.len())..];
                 let time = trip
                     .iter()
                     .take(3)
@@ -423,16 +427,23 @@ impl Bus {
                 faults.push(Fault {
                     slot: slot as u8,
                     number,
-                    value: word(&values[slot]).ok(),
+                    value: values
+                        .get(slot)
+                        .and_then(|r| r.as_ref().ok())
+                        .map(|v| v.as_u32()),
                     time,
                     text: catalogue.and_then(|c| c.fault(number)),
                 });
             }
         }
-        let warnings = warnings
-            .iter()
-            .map(|r| word(r).ok())
-            .collect::<Option<Vec<u16>>>()
+        let warnings = (b.warnings.is_some() && !warnings.is_empty())
+            .then(|| {
+                warnings
+                    .iter()
+                    .map(|r| word(r).ok())
+                    .collect::<Option<Vec<u16>>>()
+            })
+            .flatten()
             .map(|numbers| {
                 numbers
                     .into_iter()
@@ -443,7 +454,13 @@ impl Bus {
                     })
                     .collect()
             });
-        Ok(FaultReport { faults, warnings })
+        Ok(FaultReport {
+            codes: b.codes,
+            values: b.values,
+            warnings_from: b.warnings,
+            faults,
+            warnings,
+        })
     }
 }
 

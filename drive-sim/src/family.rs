@@ -332,20 +332,20 @@ const SIMOREG_DEFS: &[ParamDef] = {
     use Change::{Always, ReadOnly};
     use DataType::U16;
     &[
-        ParamDef::new(P303, "P303 Ramp-up time 1 (10 ms)", U16, Always, 1)
+        ParamDef::new(P303, "P0303 Ramp-up time 1", U16, Always, 1)
             .limits(1.0, 65000.0)
             .default_raw(1000),
-        ParamDef::new(P304, "P304 Ramp-down time 1 (10 ms)", U16, Always, 1)
+        ParamDef::new(P304, "P0304 Ramp-down time 1", U16, Always, 1)
             .limits(1.0, 65000.0)
             .default_raw(1000),
-        ParamDef::new(P782, "P782 G-SST1 parameter data length", U16, Always, 1)
+        ParamDef::new(P782, "P0782 G-SST1 parameter data length", U16, Always, 1)
             .limits(0.0, 127.0)
             .settings(&[0, 3, 4, 127])
             .default_raw(127),
-        ParamDef::new(R947, "r947 Fault memory", U16, ReadOnly, 1)
+        ParamDef::new(R947, "r0947 Fault memory", U16, ReadOnly, 1)
             .limits(0.0, U16_MAX)
             .array(64),
-        ParamDef::new(R949, "r949 Fault value", U16, ReadOnly, 1)
+        ParamDef::new(R949, "r0949 Fault value", U16, ReadOnly, 1)
             .limits(0.0, U16_MAX)
             .array(64),
     ]

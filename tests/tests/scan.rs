@@ -108,3 +108,29 @@ fn a_device_that_is_missing_not_a_tty_or_busy_is_a_clear_error() {
     assert!(err.contains("device is busy"), "{err}");
     assert!(err.contains("is ussd serving this line?"), "{err}");
 }
+
+#[test]
+fn a_scan_tells_a_g120_by_its_device_identification_and_leaves_an_unknown_slave_unnamed() {
+    let sim = SimProcess::start(&[
+        "--baud",
+        "19200",
+        "--drive",
+        "2:pkw=4,pzd=2,family=g120",
+        "--drive",
+        "4:pkw=4,pzd=2,family=simoreg",
+        "--drive",
+        "6:pkw=127,pzd=2,family=g110",
+    ]);
+    let (code, said, err) = ussctl(&["scan", &sim.path, "--baud", "19200", "--addresses", "0-7"]);
+    assert_eq!(code, Some(0), "{err}");
+    let lines: Vec<&str> = said.lines().collect();
+    assert_eq!(
+        lines[..3],
+        [
+            " 19200 baud  drive  2: PKW 4, PZD 2, ZSW1 0xBB31 (S2), firmware 4.70, family = \"g120\"",
+            " 19200 baud  drive  4: PKW 4, PZD 2, ZSW1 0xBB31 (S2)",
+            " 19200 baud  drive  6: PKW variable (127), PZD 2, ZSW1 0xBB31 (S2), firmware 1.18, family = \"micromaster4\" (or \"g110\" for a G110)",
+        ],
+        "{said}"
+    );
+}

@@ -22,18 +22,6 @@ use uss_client::{Bus, DriveError, DriveFamily, ParamError, ParamTask, Value, Wri
 
 /// Reads per request (the PROFIdrive multi-parameter limit).
 const PER_REQUEST: usize = 39;
-const P0003: u16 = 3;
-const P0010: u16 = 10;
-/// USS baud rate, address, PZD and PKW length: index 1 is the COM link (RS485), the line ussd
-/// talks to the drive over. A restore keeps them: writing another drive's address or baud rate
-/// there would cut the drive off the bus in the middle of the restore.
-const LINK_PARAMS: [u16; 4] = [2010, 2011, 2012, 2013];
-const COM_LINK: u8 = 1;
-
-/// Whether `e` is a setting of the line ussd talks over.
-fn on_the_link(e: &Entry) -> bool {
-    LINK_PARAMS.contains(&e.param.pnu.get()) && e.param.index.map(Subindex::get) == Some(COM_LINK)
-}
 
 /// A drive's settings: each element with its catalogue entry and value.
 type Settings = Vec<(ParamRef, &'static Param, Value)>;
@@ -148,9 +136,11 @@ pub(crate) fn backup(
         prefix: Prefix::R,
         ..ParamRef::new(Pnu::from_u16(18))
     };
-    let firmware = bus
-        .read_param(drive, r0018)
-        .ok()
+    // The firmware version where the family has r0018 as MICROMASTER 4 shows it (a float).
+    let firmware = catalogue
+        .param(18)
+        .filter(|p| p.data_type == uss_client::uss_catalogue::DataType::Float)
+        .and_then(|_| bus.read_param(drive, r0018).ok())
         .map(|v| firmware_version(v.typed().as_f64() as f32));
     let (values, missing) = read_settings(bus, drive, catalogue)?;
     let mut param: BTreeMap<String, Saved> = BTreeMap::new();
@@ -204,8 +194,8 @@ pub(crate) fn backup(
     Ok(())
 }
 
-/// Reads and checks a backup file.
-fn load(path: &Path) -> Result<(BackupFile, Vec<Entry>), Failure> {
+/// Reads and checks a backup file against the catalogue of the drive's family.
+fn load(path: &Path, catalogue: &'static Catalogue) -> Result<(BackupFile, Vec<Entry>), Failure> {
     let text = std::fs::read_to_string(path).map_err(|source| Failure::File {
         path: path.display().to_string(),
         source,
@@ -213,12 +203,12 @@ fn load(path: &Path) -> Result<(BackupFile, Vec<Entry>), Failure> {
     Ok(BackupFile::parse(
         &text,
         &path.display().to_string(),
-        Catalogue::micromaster4(),
+        catalogue,
     )?)
 }
 
-/// The catalogue whose settings a drive of `family` has; a family without one (G120,
-/// SIMOREG, a generic slave) has nothing uss-rt could back up or check.
+/// The catalogue whose settings a drive of `family` has (`catalogue/data/<family>.toml`); a
+/// generic slave has none, and nothing uss-rt could back up or check.
 fn settings_catalogue(drive: u8, family: &str) -> Result<&'static Catalogue, Failure> {
     Catalogue::of_family(family)
         .filter(|c| !c.param.is_empty())
@@ -233,7 +223,6 @@ fn settings_catalogue(drive: u8, family: &str) -> Result<&'static Catalogue, Fai
 
 /// A restore goes to a drive of the backup's family only (nothing written otherwise).
 fn check_family(drive: u8, family: DriveFamily, file: &BackupFile) -> Result<(), Failure> {
-    settings_catalogue(drive, family.name())?;
     match file.drive_family.as_deref() {
         Some(theirs) if theirs != family.name() => Err(Failure::Family {
             drive,
@@ -291,8 +280,9 @@ pub(crate) struct Restore<'a> {
 /// `param restore DRIVE FILE [--eeprom] [--dry-run] [--force] [--unsafe]`.
 pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Failure> {
     let drive = r.drive;
-    let (file, entries) = load(r.file)?;
     let family = bus.family(drive);
+    let catalogue = settings_catalogue(drive, family.name())?;
+    let (file, entries) = load(r.file, catalogue)?;
     check_family(drive, family, &file)?;
     let start = Instant::now();
     let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
@@ -302,7 +292,9 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     for (e, current) in entries.iter().zip(&now) {
         match current {
             Ok(v) if *v == e.value => report.equal += 1,
-            Ok(v) if on_the_link(e) => report.keep_link(e, *v),
+            // The line ussd talks over: writing another drive's address or baud rate there
+            // would cut the drive off the bus in the middle of the restore.
+            Ok(v) if catalogue.is_link(e.param) => report.keep_link(e, *v),
             Ok(v) => differing.push((*e, Some(*v))),
             Err(err) if not_on_drive(err) => report.refuse(e, err),
             Err(source) => {
@@ -326,7 +318,7 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     }
     catch_signals()?;
     let options = r.options;
-    let steps = order(bus, drive, &differing);
+    let steps = order(bus, drive, catalogue, &differing);
     let bar = progress(steps.len(), &format!("writing drive {drive}"));
     for (i, step) in steps.iter().enumerate() {
         if stopped() {
@@ -371,38 +363,55 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
 }
 
 /// The writes of a restore, in a safe order: access level first, quick commissioning around
-/// what needs it, the file's P0010 and then P0003 last.
-fn order(bus: &Bus, drive: u8, differing: &[(Entry, Option<Value>)]) -> Vec<Step> {
-    let now = |pnu| bus.read(drive, pnu, None).map_or(0, |v| v.as_u32() as u16);
-    let (level_now, commissioning_now) = (now(P0003), now(P0010));
+/// what needs it, the file's P0010 and then P0003 last (where the family has them: its
+/// catalogue's `access_level` and `commissioning`).
+fn order(
+    bus: &Bus,
+    drive: u8,
+    catalogue: &Catalogue,
+    differing: &[(Entry, Option<Value>)],
+) -> Vec<Step> {
+    let now = |p: Option<ParamRef>| {
+        p.map_or(0, |p| {
+            bus.read(drive, p.pnu.get(), None)
+                .map_or(0, |v| v.as_u32() as u16)
+        })
+    };
+    let (access, commissioning_param) = (catalogue.access_level, catalogue.commissioning);
+    let (level_now, commissioning_now) = (now(access), now(commissioning_param));
     let needed = differing.iter().map(|(e, _)| u16::from(e.info.level)).max();
-    let raise = needed.filter(|&n| n > level_now);
-    let commissioning = differing
-        .iter()
-        .any(|(e, _)| e.info.change == Change::Commissioning);
+    let raise = access.and(needed.filter(|&n| n > level_now));
+    let commissioning = commissioning_param.is_some()
+        && differing
+            .iter()
+            .any(|(e, _)| e.info.change == Change::Commissioning);
+    let number = |p: Option<ParamRef>| p.map(|p| p.pnu.get());
+    let (p0003, p0010) = (number(access), number(commissioning_param));
     let (last, body): (Vec<_>, Vec<_>) = differing
         .iter()
-        .partition(|(e, _)| matches!(e.param.pnu.get(), P0003 | P0010));
+        .partition(|(e, _)| [p0003, p0010].contains(&Some(e.param.pnu.get())));
     let (p0010_in_file, p0003_in_file) = (
-        last.iter().any(|(e, _)| e.param.pnu.get() == P0010),
-        last.iter().any(|(e, _)| e.param.pnu.get() == P0003),
+        last.iter().any(|(e, _)| Some(e.param.pnu.get()) == p0010),
+        last.iter().any(|(e, _)| Some(e.param.pnu.get()) == p0003),
     );
     let mut steps: Vec<Step> = Vec::new();
-    steps.extend(raise.map(|n| Step::Helper(P0003, n)));
-    if commissioning {
-        steps.push(Step::Helper(P0010, 1));
+    if let (Some(p), Some(n)) = (access, raise) {
+        steps.push(Step::Helper(p, n));
+    }
+    if let (true, Some(p)) = (commissioning, commissioning_param) {
+        steps.push(Step::Helper(p, 1));
     }
     steps.extend(body.iter().map(|(e, _)| Step::Restore(*e)));
     // Quick commissioning left and the access level put back: to the file's values (P0010
     // before P0003, which leaving commissioning may need), or to what the drive had.
-    if commissioning && !p0010_in_file {
-        steps.push(Step::Helper(P0010, commissioning_now));
+    if let (true, false, Some(p)) = (commissioning, p0010_in_file, commissioning_param) {
+        steps.push(Step::Helper(p, commissioning_now));
     }
     let mut last = last;
     last.sort_by_key(|(e, _)| std::cmp::Reverse(e.param.pnu));
     steps.extend(last.iter().map(|(e, _)| Step::Restore(*e)));
-    if raise.is_some() && !p0003_in_file {
-        steps.push(Step::Helper(P0003, level_now));
+    if let (Some(p), Some(_), false) = (access, raise, p0003_in_file) {
+        steps.push(Step::Helper(p, level_now));
     }
     steps
 }
@@ -413,28 +422,28 @@ pub(crate) enum Step {
     /// A value of the file.
     Restore(Entry),
     /// P0003 or P0010 set on the way (access level, quick commissioning).
-    Helper(u16, u16),
+    Helper(ParamRef, u16),
 }
 
 impl Step {
     fn target(&self) -> (u16, Option<u8>, Value) {
         match self {
             Self::Restore(e) => (e.param.pnu.get(), e.param.index.map(Subindex::get), e.value),
-            Self::Helper(pnu, v) => (*pnu, None, Value::Word(*v)),
+            Self::Helper(p, v) => (p.pnu.get(), None, Value::Word(*v)),
         }
     }
 
     pub(crate) fn name(&self) -> String {
         match self {
             Self::Restore(e) => e.param.to_string(),
-            Self::Helper(pnu, v) => format!("P{pnu:04} := {v} (on the way)"),
+            Self::Helper(p, v) => format!("{p} := {v} (on the way)"),
         }
     }
 }
 
 /// `param diff DRIVE (FILE | DRIVE)`.
 pub(crate) fn diff(bus: &Bus, out: &Output, drive: u8, other: &str) -> Result<(), Failure> {
-    let catalogue = Catalogue::micromaster4();
+    let catalogue = settings_catalogue(drive, bus.family(drive).name())?;
     let mut report = DiffReport::new(bus.name(), drive, other);
     if let Ok(second) = other.parse::<u8>() {
         let (a, _) = read_settings(bus, drive, catalogue)?;
@@ -449,7 +458,7 @@ pub(crate) fn diff(bus: &Bus, out: &Output, drive: u8, other: &str) -> Result<()
             }
         }
     } else {
-        let (_, entries) = load(Path::new(other))?;
+        let (_, entries) = load(Path::new(other), catalogue)?;
         let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
         let now = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
         for (e, current) in entries.iter().zip(now) {

@@ -8,7 +8,11 @@
 //! (STW1 0x047E, bit 10 set, setpoint 0), as every telegram of uss-rt does: a scan never switches
 //! a drive on, and a drive USS controls gets OFF1. The PKW probe reads P0003 (a word): a 4-word
 //! request answered with 3 words is the variable length (P2013 = 127). With a 4-word or
-//! variable parameter channel, the firmware r0018 (a float, which 3 words cannot carry) is read.
+//! variable parameter channel, the family is asked for: a SINAMICS drive (G120) answers the
+//! PROFIdrive device identification r0964[0] with 42 (Siemens), and its r0964[2] is the firmware
+//! version; a MICROMASTER 4 or G110 has no r0964 but answers r0018, its firmware as a float
+//! (which 3 words cannot carry). A slave that answers neither is left for the user to name
+//! (`simoreg`, `generic`).
 
 use super::common::firmware_version;
 use crate::report::{ScanReport, ScannedDrive};
@@ -153,8 +157,17 @@ fn identify(probe: &mut Probe, address: Address) -> Result<Option<ScannedDrive>,
             family: None,
         };
         if matches!(layout.pkw, PkwMode::Four | PkwMode::Variable) {
-            drive.firmware = firmware(probe, address, layout)?;
-            drive.family = drive.firmware.map(|_| "micromaster4");
+            let identification = |probe: &mut Probe, element: u16| {
+                read_value(probe, address, layout, [0x6000 | R0964, element, 0, 0])
+            };
+            if identification(probe, 0)?.map(Value::as_u32) == Some(PROFIDRIVE_SIEMENS) {
+                drive.family = Some("g120");
+                drive.firmware = identification(probe, 2)?.map(|v| f64::from(v.as_u32()) / 100.0);
+            } else {
+                drive.firmware = read_value(probe, address, layout, [0x1000 | 18, 0, 0, 0])?
+                    .map(|v| firmware_version(v.as_f32()));
+                drive.family = drive.firmware.map(|_| "micromaster4");
+            }
         }
         return Ok(Some(drive));
     }
@@ -176,9 +189,20 @@ fn answers_a_dword(probe: &mut Probe, address: Address, layout: Layout) -> Resul
         .is_some_and(|pke_high| pke_high >> 4 == 2))
 }
 
-/// r0018 (a float) read over the drive's own layout, repeated while it answers "not yet".
-fn firmware(probe: &mut Probe, address: Address, layout: Layout) -> Result<Option<f64>, Failure> {
-    let task = [0x1000 | 18, 0, 0, 0];
+/// The PROFIdrive device identification (SINAMICS): element 0 the manufacturer, 2 the firmware
+/// version (470 = 4.70).
+const R0964: u16 = 964;
+/// r0964[0] of a Siemens device.
+const PROFIDRIVE_SIEMENS: u32 = 42;
+
+/// A read task's value over the drive's own layout, repeated while it answers "not yet";
+/// `None` when the drive refuses it (it does not have the parameter) or does not answer.
+fn read_value(
+    probe: &mut Probe,
+    address: Address,
+    layout: Layout,
+    task: [u16; 4],
+) -> Result<Option<Value>, Failure> {
     for _ in 0..5 {
         let pkw = &task[..layout.pkw.request_words()];
         let Some(bytes) = probe.exchange(Adr::to(address), pkw, &SAFE_PZD[..layout.pzd.get()])?
@@ -193,9 +217,7 @@ fn firmware(probe: &mut Probe, address: Address, layout: Layout) -> Result<Optio
         };
         match ParamReply::decode(words.pkw()).map(|r| r.kind) {
             Ok(ReplyKind::NotYet) => {}
-            Ok(kind) => {
-                return Ok(kind.value().map(|v: Value| firmware_version(v.as_f32())));
-            }
+            Ok(kind) => return Ok(kind.value()),
             Err(_) => return Ok(None),
         }
     }

@@ -106,9 +106,14 @@ impl RestoreReport {
     }
 
     /// The drive refused a value set on the way (access level, quick commissioning).
-    pub fn helper_refused(&mut self, pnu: u16, value: u16, error: &ParamError) {
+    pub fn helper_refused(
+        &mut self,
+        param: uss_client::uss_protocol::ParamRef,
+        value: u16,
+        error: &ParamError,
+    ) {
         self.lines.push(RestoreLine {
-            param: format!("P{pnu:04}"),
+            param: param.to_string(),
             was: None,
             wanted: value.to_string(),
             result: format!("refused on the way: {error}"),

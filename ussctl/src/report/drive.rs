@@ -189,21 +189,26 @@ pub(crate) fn stw1_bits(stw1: u16) -> Vec<&'static str> {
 pub struct FaultsReport {
     pub bus: String,
     pub drive: u8,
-    /// r0947 with r0949, newest first; empty slots left out.
+    /// Where the faults were read: the fault codes (`r0947` on MICROMASTER 4, `r0945` on
+    /// G120), their values (`r0949`), the warnings (`r2110`, `r2122`).
+    pub codes_param: String,
+    pub values_param: Option<String>,
+    pub warnings_param: Option<String>,
+    /// The fault codes with their values, newest first; empty slots left out.
     pub faults: Vec<FaultEntry>,
-    /// r2110; null when the drive has no r2110.
+    /// The active warnings; null when the drive has none uss-rt reads.
     pub warnings: Option<Vec<WarningEntry>>,
 }
 
 #[derive(Debug, Serialize)]
 pub struct FaultEntry {
-    /// Element of r0947: 0 is the newest.
+    /// Element of the fault buffer: 0 is the newest.
     pub slot: u8,
     pub number: u16,
     /// `F0072`.
     pub code: String,
-    /// r0949; null when the drive has no r0949.
-    pub value: Option<u16>,
+    /// The fault value (r0949, its 32 bits unsigned); null when the drive has none.
+    pub value: Option<u32>,
     /// r0948 of its trip as shown (`2026-11-22 20:31:05`, or `day 3 04:05:06` from a drive
     /// clock never set); null when the drive has no r0948 or left it empty.
     pub time: Option<String>,
@@ -225,6 +230,9 @@ impl FaultsReport {
         Self {
             bus: bus.to_owned(),
             drive,
+            codes_param: r.codes.to_string(),
+            values_param: r.values.map(|p| p.to_string()),
+            warnings_param: r.warnings_from.map(|p| p.to_string()),
             faults: r
                 .faults
                 .iter()
@@ -251,29 +259,33 @@ impl FaultsReport {
     }
 
     pub fn human(&self) -> String {
+        let codes = &self.codes_param;
         let mut out = if self.faults.is_empty() {
-            format!("drive {}: no faults recorded (r0947 empty)\n", self.drive)
+            format!("drive {}: no faults recorded ({codes} empty)\n", self.drive)
         } else {
-            format!("drive {} fault buffer r0947, newest first:\n", self.drive)
+            format!("drive {} fault buffer {codes}, newest first:\n", self.drive)
         };
         for f in &self.faults {
             let _ = write!(out, "  {}: {}", f.slot, f.code);
             if let Some(text) = f.text {
                 let _ = write!(out, " {text}");
             }
-            if let Some(v) = f.value {
-                let _ = write!(out, " (fault value r0949 = {v})");
+            if let (Some(v), Some(p)) = (f.value, &self.values_param) {
+                let _ = write!(out, " (fault value {p} = {v})");
             }
             if let Some(t) = &f.time {
                 let _ = write!(out, " at {t}");
             }
             out.push('\n');
         }
+        let from = self.warnings_param.as_deref().unwrap_or("warnings");
         match &self.warnings {
             None => {}
-            Some(w) if w.is_empty() => out.push_str("active warnings (r2110): none\n"),
+            Some(w) if w.is_empty() => {
+                let _ = writeln!(out, "active warnings ({from}): none");
+            }
             Some(w) => {
-                out.push_str("active warnings (r2110):\n");
+                let _ = writeln!(out, "active warnings ({from}):");
                 for w in w {
                     let _ = writeln!(out, "  {} {}", w.code, w.text.unwrap_or("(no text known)"));
                 }

@@ -16,8 +16,9 @@ pub struct ScannedDrive {
     pub zsw1: Option<u16>,
     /// r0018, with a parameter channel.
     pub firmware: Option<f64>,
-    /// The `family` to configure, where the answers tell it: a drive that has r0018 (the
-    /// MICROMASTER 4 firmware float) is `micromaster4` (a G110 answers the same: `g110`).
+    /// The `family` to configure, where the answers tell it: a drive whose device
+    /// identification r0964[0] is 42 (Siemens, PROFIdrive) is `g120`; one that has r0018 as a
+    /// float (the MICROMASTER 4 firmware) is `micromaster4` (a G110 answers the same: `g110`).
     pub family: Option<&'static str>,
 }
 
@@ -63,8 +64,14 @@ impl ScanReport {
             if let Some(f) = d.firmware {
                 let _ = write!(out, ", firmware {f:.2}");
             }
-            if let Some(family) = d.family {
-                let _ = write!(out, ", family = \"{family}\" (or \"g110\" for a G110)");
+            match d.family {
+                Some(f @ "micromaster4") => {
+                    let _ = write!(out, ", family = \"{f}\" (or \"g110\" for a G110)");
+                }
+                Some(f) => {
+                    let _ = write!(out, ", family = \"{f}\"");
+                }
+                None => {}
             }
             out.push('\n');
         }

@@ -155,6 +155,9 @@ fn parameters_show_in_their_type_and_unit() {
 #[test]
 fn faults_list_recorded_codes_with_texts_values_and_warnings() {
     let report = uss_client::FaultReport {
+        codes: "r0947".parse().unwrap(),
+        values: Some("r0949".parse().unwrap()),
+        warnings_from: Some("r2110".parse().unwrap()),
         faults: vec![
             uss_client::Fault {
                 slot: 0,
@@ -193,6 +196,9 @@ fn faults_list_recorded_codes_with_texts_values_and_warnings() {
         "b",
         2,
         &uss_client::FaultReport {
+            codes: "r0947".parse().unwrap(),
+            values: None,
+            warnings_from: None,
             faults: Vec::new(),
             warnings: None,
         },
