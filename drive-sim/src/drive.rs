@@ -15,7 +15,8 @@ use uss_protocol::pkw::{ParamError, ParamReply, ParamTask, PkwError, Pnu, ReplyK
 use uss_protocol::telegram::{Layout, MAX_PKW_WORDS, MAX_PZD_WORDS, Telegram, encode};
 use uss_protocol::{Address, Adr, FrameError, LineError, Setpoint, Stw1, Zsw1};
 
-/// Fault code of "USS (COM link) setpoint fault", the telegram-off trip (USS.md section 5).
+/// Fault code of "USS (COM link) setpoint fault", a MICROMASTER 4's telegram-off trip (USS.md
+/// section 5; other families: [`Roles::telegram_off_fault`]).
 pub const FAULT_TELEGRAM_OFF: u16 = 72;
 /// Setpoint and actual value within this many Hz set ZSW1 bit 8.
 const AT_SETPOINT_TOLERANCE_HZ: f32 = 0.5;
@@ -742,7 +743,7 @@ impl Drive {
         if let Some(last) = self.last_valid {
             let limit = Duration::from_secs_f32(off_time.max(0.0) / 1000.0);
             if off_time > 0.0 && now.saturating_sub(last) > limit && self.state != State::Fault {
-                self.trip(FAULT_TELEGRAM_OFF);
+                self.trip(self.roles().telegram_off_fault);
                 // Monitoring re-arms with the next valid telegram.
                 self.last_valid = None;
             }

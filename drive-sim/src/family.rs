@@ -61,6 +61,10 @@ pub struct Roles {
     pub faults: FaultBuffer,
     /// The first of the eight USS receive counters r2024..r2031, and its index.
     pub diagnostics: Option<(u16, u8)>,
+    /// The fault a telegram-off trip records: F0072 on MM4 ("USS (COM link) setpoint fault"),
+    /// F01910 on G120 ("fieldbus: setpoint timeout"), F011 on SIMOREG (telegram failure on
+    /// G-SST1).
+    pub telegram_off_fault: u16,
 }
 
 /// Index 1 of the MM4's USS parameters: the COM link (RS485).
@@ -92,6 +96,7 @@ pub const MICROMASTER4_ROLES: Roles = Roles {
         per_trip: 2,
     },
     diagnostics: Some((R2024, COM_LINK)),
+    telegram_off_fault: 72,
 };
 
 /// A list of `N` parameters copied from `list` with r0018 (the firmware version) set to
@@ -315,6 +320,7 @@ pub const G120_ROLES: Roles = Roles {
         per_trip: 8,
     },
     diagnostics: None,
+    telegram_off_fault: 1910,
 };
 
 const P303: u16 = 303;
@@ -388,4 +394,5 @@ pub const SIMOREG_ROLES: Roles = Roles {
         per_trip: 8,
     },
     diagnostics: None,
+    telegram_off_fault: 11,
 };

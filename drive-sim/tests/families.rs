@@ -4,7 +4,7 @@
 #![allow(clippy::unwrap_used, clippy::float_cmp)]
 
 use std::time::Duration;
-use uss_drive_sim::drive::{FAULT_TELEGRAM_OFF, Personality};
+use uss_drive_sim::drive::Personality;
 use uss_drive_sim::{Drive, DriveConfig, State};
 use uss_protocol::telegram::{Layout, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, Telegram, encode};
 use uss_protocol::{Address, Adr, ParamReply, ParamTask, Pnu, ReplyKind, Storage, Value, Zsw1};
@@ -121,7 +121,7 @@ fn a_g120_watches_its_fieldbus_with_p2040_in_ms() {
     );
     let t = run(&mut d, 1);
     d.advance(t + ms(150));
-    assert_eq!(d.fault(), Some(FAULT_TELEGRAM_OFF));
+    assert_eq!(d.fault(), Some(1910), "F01910 fieldbus setpoint timeout");
 }
 
 #[test]

@@ -175,3 +175,156 @@ fn a_backup_records_its_family_and_is_restored_to_that_family_only() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// One family's drive on the built-in simulated bus: its address, `family`, the setting a
+/// backup and restore round-trips (with a value the drive takes), the fault a telegram-off trip
+/// records, and where the fault report reads it.
+struct FamilyCase {
+    drive: u8,
+    family: &'static str,
+    setting: &'static str,
+    changed: &'static str,
+    telegram_off_fault: u16,
+    codes: &'static str,
+}
+
+const CASES: [FamilyCase; 4] = [
+    FamilyCase {
+        drive: 1,
+        family: "micromaster4",
+        setting: "P1120",
+        changed: "2.5",
+        telegram_off_fault: 72,
+        codes: "r0947",
+    },
+    FamilyCase {
+        drive: 2,
+        family: "g110",
+        setting: "P1121",
+        changed: "3.5",
+        telegram_off_fault: 72,
+        codes: "r0947",
+    },
+    FamilyCase {
+        drive: 3,
+        family: "g120",
+        setting: "p1121",
+        changed: "1.5",
+        telegram_off_fault: 1910,
+        codes: "r0945",
+    },
+    FamilyCase {
+        drive: 4,
+        family: "simoreg",
+        setting: "P303",
+        changed: "250",
+        telegram_off_fault: 11,
+        codes: "r0947",
+    },
+];
+
+#[test]
+fn each_family_runs_faults_control_parameters_and_backup_against_its_personality() {
+    // Every drive watches its telegrams (100 ms) and is unplugged for half a second: it trips
+    // with its family's telegram-off fault and answers again in fault.
+    let keys: Vec<String> = CASES
+        .iter()
+        .map(|c| {
+            format!(
+                "family = \"{0}\"\nsim = {{ family = \"{0}\", p2014 = 100, unplug = \"1500..2000\" }}",
+                c.family
+            )
+        })
+        .collect();
+    let drives: Vec<(u8, &str)> = CASES
+        .iter()
+        .zip(&keys)
+        .map(|(c, k)| (c.drive, k.as_str()))
+        .collect();
+    let ussd = Ussd::start("", &drives);
+    let bus = ussd.bus();
+    let dir = std::env::temp_dir().join(format!("uss-family-cases-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for c in &CASES {
+        let d = c.drive;
+        let what = format!("drive {d} ({})", c.family);
+        assert_eq!(bus.family(d).name(), c.family, "{what}");
+        bus.watch(d)
+            .unwrap()
+            .wait_for(Duration::from_secs(10), "fault", |i| {
+                i.online != 0 && uss_client::state_of(i) == uss_client::DriveState::Fault
+            })
+            .unwrap_or_else(|e| panic!("{what}: {e:?}"));
+        // Faults: where the family keeps them.
+        let report = bus.fault_report(d).unwrap();
+        assert_eq!(report.codes.to_string(), c.codes, "{what}");
+        assert_eq!(
+            report.faults.first().map(|f| f.number),
+            Some(c.telegram_off_fault),
+            "{what}: {report:?}"
+        );
+        let (status, out, err) = ussd.ussctl(&["faults", &d.to_string()]).finish();
+        assert!(status.success(), "{what}: {err}");
+        assert!(
+            out.starts_with(&format!(
+                "drive {d} fault buffer {}, newest first:",
+                c.codes
+            )),
+            "{what}: {out}"
+        );
+        println!("families: {what}: {}", out.lines().nth(1).unwrap_or(""));
+
+        // Control: acknowledged, re-armed, run at 20 % and stopped.
+        let control = bus
+            .control(d, uss_client::ControlOptions::default())
+            .unwrap();
+        control
+            .acknowledge_fault(Duration::from_secs(2))
+            .unwrap_or_else(|e| panic!("{what}: {e:?}"));
+        control.enable().unwrap();
+        control.run_percent(20.0).unwrap();
+        control
+            .wait_for(Duration::from_secs(5), "running", |i| {
+                uss_client::state_of(i) == uss_client::DriveState::OperationEnabled && i.hiw > 0
+            })
+            .unwrap_or_else(|e| panic!("{what}: {e:?}"));
+        control.stop().unwrap();
+        control
+            .wait_for(Duration::from_secs(15), "stopped", |i| {
+                uss_client::state_of(i) != uss_client::DriveState::OperationEnabled && i.hiw == 0
+            })
+            .unwrap_or_else(|e| panic!("{what}: {e:?}"));
+        control.release().unwrap();
+
+        // Parameters: the setting read and written in its own type (catalogue or the drive's
+        // own description), then a backup, a change, and a restore that puts it back.
+        let setting: uss_protocol::ParamRef = c.setting.parse().unwrap();
+        let before = bus.read_param(d, setting).unwrap();
+        let file = dir.join(format!("{}.toml", c.family));
+        let path = file.to_str().unwrap();
+        let (status, out, err) = ussd
+            .ussctl(&["param", "backup", &d.to_string(), "-o", path])
+            .finish();
+        assert!(status.success(), "{what}: {out}{err}");
+        let saved = std::fs::read_to_string(&file).unwrap();
+        assert!(
+            saved.contains(&format!("drive_family = \"{}\"", c.family)),
+            "{what}: {saved}"
+        );
+        let written = bus
+            .write_param(d, setting, c.changed, uss_client::WriteOptions::default())
+            .unwrap_or_else(|e| panic!("{what}: {e}"));
+        assert_ne!(written.raw, before.raw, "{what}");
+        let (status, out, err) = ussd
+            .ussctl(&["param", "restore", &d.to_string(), path])
+            .finish();
+        assert!(status.success(), "{what}: {out}{err}");
+        assert_eq!(
+            bus.read_param(d, setting).unwrap().raw,
+            before.raw,
+            "{what}: restored"
+        );
+        println!("families: {what}: {before} backed up, {written} written, restored");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
