@@ -1,8 +1,9 @@
-//! Drive families (issue 23): a USS slave that is not a MICROMASTER 4, on a pty served by
-//! `uss-sim`, here a generic slave (a pump controller, say: three parameters of its own, PKW 4,
-//! PZD 6, 19200 baud) whose firmware stops answering after a task on a parameter it does not
-//! know. ussd must leave it alone: nothing but what clients ask.
-#![allow(clippy::unwrap_used)]
+//! Drive families (issue 23): slaves that are not MICROMASTER 4s, through ussd. A generic slave
+//! (a pump controller, say: three parameters of its own, PKW 4, PZD 6, 19200 baud) whose firmware
+//! stops answering after a task on a parameter it does not know is left alone: nothing but what
+//! clients ask. Each drive family (MM4, G110, G120, SIMOREG) runs faults, control, parameters and
+//! backup/restore against its simulator personality; a G120 reference speed becomes Hz.
+#![allow(clippy::unwrap_used, clippy::float_cmp)] // references asserted are exact: 1800 x 2 / 60, 50
 
 use std::time::Duration;
 use uss_integration_tests::{BusSpec, SimProcess, Ussd};
@@ -327,4 +328,61 @@ fn each_family_runs_faults_control_parameters_and_backup_against_its_personality
         println!("families: {what}: {before} backed up, {written} written, restored");
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_g120_reference_speed_is_read_with_its_pole_pairs_and_unverified_without() {
+    // p2000 = 1800 rpm on a 4-pole motor is 60 Hz; the configuration says 50.
+    let ussd = Ussd::start(
+        "",
+        &[
+            (
+                3,
+                "family = \"g120\"\npole_pairs = 2\nsim = { family = \"g120\", p2000 = 1800 }",
+            ),
+            (
+                4,
+                "family = \"g120\"\nsim = { family = \"g120\", p2000 = 1800 }",
+            ),
+        ],
+    );
+    let bus = ussd.bus();
+    let watch = bus.watch(3).unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while watch.info().reference_hz != 60.0 && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(watch.info().reference_hz, 60.0);
+    assert!(
+        ussd.log_line(
+            "p2000 (rpm) x 2 pole pairs / 60 = 60 Hz",
+            Duration::from_secs(2)
+        )
+        .is_some(),
+        "{}",
+        ussd.log()
+    );
+    // 30 Hz is half the reference: the setpoint 0x2000 runs the drive towards 900 rpm.
+    let control = bus
+        .control(3, uss_client::ControlOptions::default())
+        .unwrap();
+    control.enable().unwrap();
+    control.run_hz(30.0).unwrap();
+    assert_eq!(control.words()[1], 0x2000);
+    control
+        .wait_for(Duration::from_secs(5), "running", |i| i.hiw > 0)
+        .unwrap();
+    control.stop().unwrap();
+    control.release().unwrap();
+    // Without its pole pairs nothing checks reference_hz against the drive: ussd says so.
+    assert_eq!(bus.watch(4).unwrap().info().reference_hz, 50.0);
+    assert!(
+        ussd.log_line(
+            "drive 4: its setpoint reference p2000 is a speed in rpm",
+            Duration::from_secs(2)
+        )
+        .is_some(),
+        "{}",
+        ussd.log()
+    );
 }

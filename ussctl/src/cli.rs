@@ -67,8 +67,9 @@ pub enum Command {
         /// The drive's address on the bus, 0..=31.
         drive: u8,
     },
-    /// The drive's fault buffer (r0947 with the fault values r0949), newest first, and its
-    /// active warnings (r2110).
+    /// The drive's fault buffer with its fault values, newest first, and its active warnings,
+    /// where its family keeps them (MICROMASTER 4: r0947, r0949, r2110; G120: r0945, r0949,
+    /// r2122; SIMOREG: r947, r949).
     Faults {
         /// The drive's address on the bus, 0..=31.
         drive: u8,

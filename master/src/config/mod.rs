@@ -121,12 +121,21 @@ impl Family {
         }
     }
 
-    /// The reference frequency parameter in Hz (`""`: none known in Hz; G120's p2000 is a
-    /// speed in rpm): P2000 on MICROMASTER 4 and G110.
+    /// The reference frequency parameter in Hz (`""`: none known in Hz): P2000 on
+    /// MICROMASTER 4 and G110. A G120's p2000 is a speed in rpm: ussd reads it only when the
+    /// drive's `pole_pairs` are configured ([`DriveEntry::reference_param`]).
     pub const fn reference_param(self) -> &'static str {
         match self {
             Self::Micromaster4 | Self::G110 => "P2000",
             Self::G120 | Self::Simoreg | Self::Generic => "",
+        }
+    }
+
+    /// The reference speed parameter in rpm, where the family has one (G120: p2000).
+    pub const fn reference_speed_param(self) -> &'static str {
+        match self {
+            Self::G120 => "p2000",
+            Self::Micromaster4 | Self::G110 | Self::Simoreg | Self::Generic => "",
         }
     }
 
@@ -264,6 +273,11 @@ pub struct DriveEntry {
     /// Unset: the family's ([`Family::reference_param`]), filled in as the file is read.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference_param: Option<ParamName>,
+    /// The motor's pole pairs (1..=32) for a drive whose reference is a speed (G120: p2000 in
+    /// rpm): ussd reads p2000 and publishes `p2000 x pole_pairs / 60` Hz, which clients scale
+    /// Hz by. Unset on a G120: Hz are scaled by `reference_hz`, unverified (ussd warns).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pole_pairs: Option<u8>,
     #[serde(default)]
     pub watchdog_ms: Watchdog,
     #[serde(default)]
@@ -301,11 +315,26 @@ impl DriveEntry {
             .unwrap_or_else(|| ParamName::from(self.family.monitoring_param().to_owned()))
     }
 
-    /// The reference frequency parameter: as written, else the family's.
+    /// The reference parameter: as written, else the family's (a G120's p2000 in rpm when its
+    /// `pole_pairs` are given).
     pub fn reference_param(&self) -> ParamName {
-        self.reference_param
-            .clone()
-            .unwrap_or_else(|| ParamName::from(self.family.reference_param().to_owned()))
+        self.reference_param.clone().unwrap_or_else(|| {
+            let family = if self.pole_pairs.is_some() {
+                self.family.reference_speed_param()
+            } else {
+                self.family.reference_param()
+            };
+            ParamName::from(family.to_owned())
+        })
+    }
+
+    /// The unit of the reference parameter: rpm when `pole_pairs` are given, else Hz.
+    pub fn reference_unit(&self) -> crate::engine::reference::ReferenceUnit {
+        use crate::engine::reference::ReferenceUnit;
+        self.pole_pairs
+            .map_or(ReferenceUnit::Hz, |pole_pairs| ReferenceUnit::Rpm {
+                pole_pairs,
+            })
     }
 
     /// The simulated drive (config + fault plan) at this entry's address and layout with its

@@ -259,6 +259,23 @@ impl Rules<'_> {
                 self.fail("require_monitoring", missing);
             }
         }
+        match drive.pole_pairs {
+            Some(0 | 33..) => self.fail(
+                "pole_pairs",
+                "is 1..=32: the motor's pole pairs (2 for a 4-pole motor, whose 1500 rpm is 50 Hz)",
+            ),
+            Some(_)
+                if drive.reference_param.is_none()
+                    && drive.family.reference_speed_param().is_empty() =>
+            {
+                self.fail(
+                    "pole_pairs",
+                    "is only for a drive whose reference is a speed in rpm (family = \"g120\": \
+                     p2000); this family's reference is in Hz",
+                );
+            }
+            _ => {}
+        }
         if drive.sim.is_some() && matches!(device, Some(Device::Serial(_))) {
             let span = self.reporter.span(&self.at, Some("sim"));
             self.push(span, "sim", format!("sim {ONLY_ON_SIM}"));

@@ -421,6 +421,29 @@ fn telegram_monitoring_is_checked_as_configured() {
 }
 
 #[test]
+fn a_g120_reference_speed_is_read_only_with_its_pole_pairs() {
+    use crate::engine::reference::ReferenceUnit;
+    let d = |line: &str| parse(&drive_key(line)).buses[0].drives[0].clone();
+    let unverified = d("family = \"g120\"");
+    assert_eq!(unverified.reference_param().param(), None);
+    let g120 = d("family = \"g120\"\npole_pairs = 2");
+    assert_eq!(
+        g120.reference_param().param().map(|p| p.to_string()),
+        Some("p2000".into())
+    );
+    assert_eq!(g120.reference_unit(), ReferenceUnit::Rpm { pole_pairs: 2 });
+    assert_eq!(d("").reference_unit(), ReferenceUnit::Hz);
+    let (message, path) = refused(&drive_key("pole_pairs = 2"));
+    assert!(
+        message.contains("pole_pairs = 2 is only for a drive whose reference is a speed"),
+        "{message}"
+    );
+    assert_eq!(path.as_deref(), Some("bus[0].drive[0].pole_pairs"));
+    let (message, _) = refused(&drive_key("family = \"g120\"\npole_pairs = 0"));
+    assert!(message.contains("pole_pairs = 0 is 1..=32"), "{message}");
+}
+
+#[test]
 fn the_reference_frequency_parameter_is_p2000_unless_told() {
     let d = |line: &str| parse(&drive_key(line)).buses[0].drives[0].clone();
     assert_eq!(
@@ -480,7 +503,7 @@ fn unknown_keys_are_named_with_their_table_in_every_table() {
         (
             "bus.toml:7:1: bus \"bus0\" drive 3: unknown key `colour`: a [[bus.drive]] table \
              takes address, pkw, pzd, weight, reference_hz, family, reference_param, \
-             watchdog_ms, safe_command, params_writable, monitoring_param, monitoring_max_ms, \
+             pole_pairs, watchdog_ms, safe_command, params_writable, monitoring_param, monitoring_max_ms, \
              require_monitoring, broadcast, sim"
                 .to_owned(),
             Some("bus[0].drive[0].colour".to_owned())

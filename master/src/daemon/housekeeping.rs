@@ -229,12 +229,20 @@ fn log_reference(
     reference: Reference,
     configured: f32,
 ) {
-    let param = param_name(
+    let mut param = param_name(
         bus,
         address,
         DriveEntry::reference_param,
         "the reference parameter",
     );
+    if let Some(pairs) = bus
+        .drives
+        .iter()
+        .find(|d| d.address == address)
+        .and_then(|d| d.pole_pairs)
+    {
+        param = format!("{param} (rpm) x {pairs} pole pairs / 60");
+    }
     let (drive, at_s, bus) = (address.get(), at.as_secs_f64(), bus.name.as_str());
     match reference {
         Reference::Read(hz) if reference.differs_from(configured) => tracing::warn!(

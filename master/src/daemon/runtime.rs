@@ -108,6 +108,7 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
                 },
                 reference_hz: d.reference_hz.get(),
                 reference_param: d.reference_param().param().map(WatchedParam::from),
+                reference_unit: d.reference_unit(),
                 broadcast: d.broadcast,
                 family: d.family.code(),
             })
@@ -587,6 +588,7 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             abandon(vec![s], bounded(0).0);
             continue;
         };
+        warn_unverified_references(&s.bus);
         if rt_report.is_full_rt() {
             tracing::info!(bus = %s.bus.name, mode = rt_report.mode(), "{}", rt_report.summary());
         } else {
@@ -649,6 +651,23 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
         return Err(e);
     }
     Ok(running)
+}
+
+/// A drive whose reference is a speed (G120: p2000 in rpm) without its pole pairs: Hz are
+/// scaled by `reference_hz` as configured, which nothing checks against the drive.
+fn warn_unverified_references(bus: &BusConfig) {
+    for d in &bus.drives {
+        let speed = d.family.reference_speed_param();
+        if !speed.is_empty() && d.reference_param().param().is_none() {
+            tracing::warn!(
+                bus = %bus.name,
+                drive = d.address.get(),
+                "drive {}: its setpoint reference {speed} is a speed in rpm; Hz (run_hz, ussctl, the exporter) are scaled by reference_hz = {} as configured, unverified: set pole_pairs (2 for a 4-pole motor) and ussd reads {speed} and scales by {speed} x pole_pairs / 60, or use percent",
+                d.address,
+                d.reference_hz.get()
+            );
+        }
+    }
 }
 
 #[cfg(test)]

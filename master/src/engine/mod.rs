@@ -76,9 +76,11 @@ pub struct DriveSetup {
     /// the engine does not scale, it publishes it for the clients that do, unless the drive's
     /// own value was read ([`reference::Reference`]).
     pub reference_hz: f32,
-    /// The drive's reference-frequency parameter in Hz (P2000 on MICROMASTER 4 / G110), read
-    /// when it comes online; `None`: not read (G120's p2000 is a speed in rpm).
+    /// The drive's reference parameter (P2000 on MICROMASTER 4 / G110, in Hz; p2000 on a G120
+    /// whose pole pairs are configured, in rpm), read when it comes online; `None`: not read.
     pub reference_param: Option<WatchedParam>,
+    /// What unit `reference_param` is in, and how it becomes Hz.
+    pub reference_unit: reference::ReferenceUnit,
     /// The drive takes broadcasts (ADR bit 5): a stop of every drive reaches it in one
     /// broadcast telegram (`engine::turns`). S110 and G120 firmware 4 do not.
     pub broadcast: bool,
@@ -102,6 +104,7 @@ impl DriveSetup {
             monitoring: MonitoringSetup::micromaster(),
             reference_hz: 50.0,
             reference_param: Some(reference::P2000),
+            reference_unit: reference::ReferenceUnit::Hz,
             broadcast: true,
             family: uss_shm_types::DriveFamily::Micromaster4,
         }

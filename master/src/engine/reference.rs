@@ -1,5 +1,6 @@
 //! The drive's reference frequency (USS.md section 7): a setpoint or main actual value of
-//! 0x4000 is 100 % of P2000 on MICROMASTER 4 / G110, in Hz. Clients scale Hz by the reference
+//! 0x4000 is 100 % of P2000 on MICROMASTER 4 / G110, in Hz; on a G120, of p2000, a speed in
+//! rpm, which is `p2000 x pole pairs / 60` Hz at the motor (synchronous speed). Clients scale Hz by the reference
 //! ussd publishes; the configuration's `reference_hz` gives it, but the drive scales by its own
 //! P2000. ussd reads P2000 whenever a drive comes online (and whenever a parameter access
 //! through it reads or writes it) and publishes the drive's value, so `run_hz` and every tool
@@ -25,6 +26,27 @@ const MAX_HZ: f32 = 650.0;
 /// Within this many Hz the drive's reference agrees with the configuration.
 const AGREES_WITHIN_HZ: f32 = 0.005;
 
+/// The unit of a drive's reference parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReferenceUnit {
+    /// A frequency in Hz (P2000 on MICROMASTER 4 / G110).
+    Hz,
+    /// A speed in rpm (G120's p2000), made Hz with the motor's pole pairs (`pole_pairs` in
+    /// the configuration: 2 for a 4-pole motor, 1500 rpm = 50 Hz).
+    Rpm { pole_pairs: u8 },
+}
+
+impl ReferenceUnit {
+    /// A value of the parameter in Hz (rpm x pole pairs / 60, in that order: 1800 rpm at 2
+    /// pole pairs is exactly 60 Hz).
+    pub fn to_hz(self, value: f32) -> f32 {
+        match self {
+            Self::Hz => value,
+            Self::Rpm { pole_pairs } => value * f32::from(pole_pairs) / 60.0,
+        }
+    }
+}
+
 /// What ussd knows of a drive's reference frequency.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Reference {
@@ -40,11 +62,12 @@ pub enum Reference {
 }
 
 impl Reference {
-    /// What it means: a float above 0 and at most 650 Hz is a reference frequency.
-    pub fn of(value: Value) -> Self {
+    /// What it means: a float that makes above 0 and at most 650 Hz in `unit` is a reference
+    /// frequency.
+    pub fn of(value: Value, unit: ReferenceUnit) -> Self {
         match value {
             Value::Dword(bits) => {
-                let hz = f32::from_bits(bits);
+                let hz = unit.to_hz(f32::from_bits(bits));
                 if hz.is_finite() && hz > 0.0 && hz <= MAX_HZ {
                     Self::Read(hz)
                 } else {
@@ -83,7 +106,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// client's read or write of that parameter).
     pub(super) fn on_reference_result(&mut self, slot: usize, result: &JobResult) {
         let reference = match result.outcome {
-            Ok(Ok(Answer::Value(v))) => Reference::of(v),
+            Ok(Ok(Answer::Value(v))) => Reference::of(v, self.drives[slot].setup.reference_unit),
             // A refused write leaves the parameter as it was.
             _ if result.job.task.is_write() => return,
             Ok(Err(_)) | Err(PathError::Timeout) => Reference::Unreadable,
@@ -123,16 +146,40 @@ mod tests {
 
     #[test]
     fn a_float_of_1_to_650_is_the_drive_reference() {
-        assert_eq!(Reference::of(float(50.0)), Reference::Read(50.0));
-        assert_eq!(Reference::of(float(650.0)), Reference::Read(650.0));
+        let hz = ReferenceUnit::Hz;
+        assert_eq!(Reference::of(float(50.0), hz), Reference::Read(50.0));
+        assert_eq!(Reference::of(float(650.0), hz), Reference::Read(650.0));
         for not_hz in [0.0, -50.0, 1500.0, f32::NAN, f32::INFINITY] {
             assert_eq!(
-                Reference::of(float(not_hz)),
+                Reference::of(float(not_hz), hz),
                 Reference::Unreadable,
                 "{not_hz}"
             );
         }
-        assert_eq!(Reference::of(Value::Word(50)), Reference::Unreadable);
+        assert_eq!(Reference::of(Value::Word(50), hz), Reference::Unreadable);
+    }
+
+    #[test]
+    fn a_g120_reference_speed_becomes_hz_with_the_pole_pairs() {
+        let four_pole = ReferenceUnit::Rpm { pole_pairs: 2 };
+        assert_eq!(
+            Reference::of(float(1500.0), four_pole),
+            Reference::Read(50.0)
+        );
+        assert_eq!(
+            Reference::of(float(1800.0), four_pole),
+            Reference::Read(60.0)
+        );
+        let two_pole = ReferenceUnit::Rpm { pole_pairs: 1 };
+        assert_eq!(
+            Reference::of(float(3000.0), two_pole),
+            Reference::Read(50.0)
+        );
+        // 210 000 rpm on a 4-pole motor is 7000 Hz: not a reference frequency.
+        assert_eq!(
+            Reference::of(float(210_000.0), four_pole),
+            Reference::Unreadable
+        );
     }
 
     #[test]
