@@ -149,8 +149,9 @@ fn write<'py>(
     })
 }
 
-/// The fault buffer with values, times and texts, and the active warnings: `{"faults": [...],
-/// "warnings": [...] or None}`.
+/// The fault buffer with values, times and texts, and the active warnings, where the drive's
+/// family keeps them: `{"codes": "r0947", "values": "r0949", "warnings_from": "r2110",
+/// "faults": [...], "warnings": [...] or None}`.
 #[pyfunction]
 fn fault_report<'py>(
     py: Python<'py>,
@@ -172,6 +173,9 @@ fn fault_report<'py>(
         faults.append(d)?;
     }
     let d = PyDict::new(py);
+    d.set_item("codes", report.codes.to_string())?;
+    d.set_item("values", report.values.map(|p| p.to_string()))?;
+    d.set_item("warnings_from", report.warnings_from.map(|p| p.to_string()))?;
     d.set_item("faults", faults)?;
     let warnings = report
         .warnings

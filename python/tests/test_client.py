@@ -45,7 +45,13 @@ class Ussd:
     def __init__(self, tmp: Path, bus: str = BUS, drives=DRIVES, keys: str = ""):
         self.bus = bus
         self.config = tmp / f"ussd-{bus}.toml"
-        drives = "".join(f"\n[[bus.drive]]\naddress = {a}\n" for a in drives)
+        # An address, or (address, further keys of its [[bus.drive]] table).
+        drives = "".join(
+            f"\n[[bus.drive]]\naddress = {d}\n"
+            if isinstance(d, int)
+            else f"\n[[bus.drive]]\naddress = {d[0]}\n{d[1]}\n"
+            for d in drives
+        )
         self.config.write_text(f'[[bus]]\nname = "{bus}"\ndevice = "sim"\n{keys}\n{drives}')
         self.log = tmp / f"ussd-{bus}.log"
         with self.log.open("a") as log:
@@ -398,6 +404,36 @@ def test_a_monitor_sees_a_killed_ussd_gone_within_a_second_and_follows_its_resta
             drive.release()
         finally:
             assert restarted.stop() == 0, restarted.output()
+
+
+
+def test_each_family_reads_its_own_parameters_and_fault_buffer(tmp_path):
+    """A G120 and a SIMOREG through Python: parameters typed by their family's catalogue, the
+    telegram-off trip read where the family keeps faults; a generic slave has no fault buffer."""
+    trip = 'p2014 = 100, unplug = "1500..2000"'
+    daemon = Ussd(
+        tmp_path,
+        bus=f"{BUS}-families",
+        drives=[
+            (3, f'family = "g120"\nsim = {{ family = "g120", {trip} }}'),
+            (4, f'family = "simoreg"\nsim = {{ family = "simoreg", {trip} }}'),
+            (5, 'family = "generic"\nsim = { family = "generic" }'),
+        ],
+    )
+    try:
+        daemon.wait_for_services()
+        with uss_rt.open_bus(f"{BUS}-families") as bus:
+            for address, codes, number in [(3, "r0945", 1910), (4, "r0947", 11)]:
+                wait_for_input(bus, address, lambda i: i["online"] == 1 and i["zsw1"] & 0x0008)
+                report = uss_rt.fault_report(bus, address)
+                assert report["codes"] == codes
+                assert report["faults"][0]["number"] == number
+            assert repr(uss_rt.read(bus, 3, "p1121")) == "p1121 = 10.00 s"
+            assert repr(uss_rt.read(bus, 4, "P303")) == "P0303 = 1000 x 0.01 s"
+            with pytest.raises(ValueError, match="no fault buffer uss-rt knows"):
+                uss_rt.fault_report(bus, 5)
+    finally:
+        daemon.stop()
 
 
 def test_sigterm_stops_ussd_and_clients_are_told(ussd):

@@ -553,9 +553,11 @@ def read_param(bus: Bus, address: int, pnu: int, index=None, timeout: float = 7.
 
 
 def fault_report(bus: Bus, address: int) -> dict:
-    """The drive's fault buffer (r0947) with fault values (r0949), times (r0948) and texts, and
-    its active warnings (r2110), in one request: ``{"faults": [{"slot", "number", "value",
-    "time", "text"}, ...], "warnings": [(number, text), ...] or None}``."""
+    """The drive's fault buffer with fault values, times and texts, and its active warnings, in
+    one request, where the drive's family keeps them (MICROMASTER 4: r0947, r0949, r0948, r2110;
+    G120: r0945, r0949, r2122; SIMOREG: r947, r949): ``{"codes": "r0947", "values": "r0949",
+    "warnings_from": "r2110", "faults": [{"slot", "number", "value", "time", "text"}, ...],
+    "warnings": [(number, text), ...] or None}``. A generic slave has none: ValueError."""
     _check_address(address)
     return _native.fault_report(bus._open(), address)
 
