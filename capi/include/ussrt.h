@@ -288,10 +288,13 @@ typedef struct UssrtFaultReport {
    */
   uint8_t fault_count;
   /**
-   * Warnings in `warnings`; 0xFF when the drive has no r2110.
+   * Warnings in `warnings`; 0xFF when the drive has none uss-rt reads.
    */
   uint8_t warning_count;
-  uint8_t reserved[2];
+  /**
+   * The parameter the fault numbers were read from: 947 (MICROMASTER 4, SIMOREG), 945 (G120).
+   */
+  uint16_t codes_pnu;
   struct UssrtFault faults[8];
   /**
    * Active warnings: A0501 -> 501 (4 on MICROMASTER 4, up to 8 current alarms on G120).

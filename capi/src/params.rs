@@ -59,9 +59,10 @@ pub struct UssrtFault {
 pub struct UssrtFaultReport {
     /// Faults in `faults`, newest first.
     pub fault_count: u8,
-    /// Warnings in `warnings`; 0xFF when the drive has no r2110.
+    /// Warnings in `warnings`; 0xFF when the drive has none uss-rt reads.
     pub warning_count: u8,
-    pub reserved: [u8; 2],
+    /// The parameter the fault numbers were read from: 947 (MICROMASTER 4, SIMOREG), 945 (G120).
+    pub codes_pnu: u16,
     pub faults: [UssrtFault; 8],
     /// Active warnings: A0501 -> 501 (4 on MICROMASTER 4, up to 8 current alarms on G120).
     pub warnings: [u16; 8],
@@ -286,7 +287,7 @@ pub unsafe extern "C" fn ussrt_fault_report(
         let mut r = UssrtFaultReport {
             fault_count: 0,
             warning_count: 0xFF,
-            reserved: [0; 2],
+            codes_pnu: read.codes.pnu.get(),
             faults: [empty; 8],
             warnings: [0; 8],
         };

@@ -89,6 +89,7 @@ int main(int argc, char **argv) {
   UssrtFaultReport faults;
   OK(ussrt_fault_report(bus, 1, &faults));
   EXPECT(faults.fault_count <= 8, "faults %u", faults.fault_count);
+  EXPECT(faults.codes_pnu == 947, "a MICROMASTER 4 keeps its faults in r0947: %u", faults.codes_pnu);
 
   /* Control: the same rules as Rust and Python. */
   UssrtController *c = NULL, *second = NULL;
