@@ -2,19 +2,33 @@
 
     python3 read_param.py tcp/10.0.0.2:7447 uss/plant/line1/drive/1/param/P1082
     50.0 Hz (P1082 Max. frequency)
+
+Against a bridge on mutual TLS, with this host's certificate and the plant's CA:
+
+    python3 read_param.py tls/10.0.0.2:7447 uss/plant/line1/drive/1/param/P1082 \\
+        --cert hmi.pem --key hmi.key --ca ca.pem
 """
 
+import argparse
 import json
 import sys
 
 import zenoh
 
 
-def main(endpoint: str, key: str) -> int:
+def main(endpoint: str, key: str, cert=None, private_key=None, ca=None) -> int:
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    if cert:
+        for setting, path in [
+            ("connect_certificate", cert),
+            ("connect_private_key", private_key),
+            ("root_ca_certificate", ca),
+        ]:
+            conf.insert_json5(f"transport/link/tls/{setting}", json.dumps(path))
+        conf.insert_json5("transport/link/tls/enable_mtls", "true")
     with zenoh.open(conf) as session:
         for reply in session.get(key, timeout=10.0):
             if reply.ok is None:
@@ -28,4 +42,13 @@ def main(endpoint: str, key: str) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1], sys.argv[2]))
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("endpoint")
+    parser.add_argument("key")
+    parser.add_argument("--cert", help="this host's certificate (PEM), for mutual TLS")
+    parser.add_argument("--key", dest="private_key", help="its private key (PEM)")
+    parser.add_argument("--ca", help="the CA (PEM) the bridge's certificate is signed by")
+    a = parser.parse_args()
+    if a.cert and not (a.private_key and a.ca):
+        parser.error("--cert needs --key and --ca")
+    sys.exit(main(a.endpoint, a.key, a.cert, a.private_key, a.ca))

@@ -10,6 +10,7 @@ mod keys;
 mod params;
 mod payload;
 mod publish;
+mod security;
 
 use clap::Parser;
 use std::io::Write as _;
@@ -55,6 +56,11 @@ struct Cli {
     /// time, and the drive gets its safe command, latched until the remote re-arms it.
     #[arg(long)]
     allow_control: bool,
+    /// Allow --allow-control and --allow-writes on links that do not authenticate who reaches
+    /// the bridge (plain TCP, multicast scouting): anyone who can reach its port may then run
+    /// the drives or change their parameters. For a lab network only; said at start.
+    #[arg(long)]
+    insecure_network: bool,
 }
 
 /// Why the bridge did not start. Zenoh's errors are boxed trait objects (not `Error` sources
@@ -82,6 +88,23 @@ enum StartError {
     Stops { key: String, error: zenoh::Error },
     #[error("cannot start a thread: {0}")]
     Thread(std::io::Error),
+    /// Control or writes asked for on links anyone can use.
+    #[error(
+        "{what} needs links that authenticate who reaches the bridge, and these do not ({why}): {how}",
+        why = .why.join("; "),
+        how = security::HOW
+    )]
+    Unauthenticated { what: String, why: Vec<String> },
+}
+
+/// What the bridge lets remote peers do: run drives, change parameters.
+fn remote_rights(cli: &Cli) -> Option<String> {
+    match (cli.allow_control, cli.allow_writes) {
+        (true, true) => Some("--allow-control with --allow-writes".to_owned()),
+        (true, false) => Some("--allow-control".to_owned()),
+        (false, true) => Some("--allow-writes".to_owned()),
+        (false, false) => None,
+    }
 }
 
 /// The Zenoh configuration: the file's, with `--listen` and `--connect` added.
@@ -140,9 +163,27 @@ fn run(cli: &Cli) -> Result<(), StartError> {
         signal_hook::flag::register(signal, Arc::clone(&stop))
             .map_err(|source| StartError::Signal { signal, source })?;
     }
-    let session = zenoh::open(zenoh_config(cli)?)
-        .wait()
-        .map_err(StartError::Session)?;
+    let config = zenoh_config(cli)?;
+    let links = security::links(&config);
+    if let (Some(what), security::Links::Open(why)) = (remote_rights(cli), &links) {
+        if !cli.insecure_network {
+            return Err(StartError::Unauthenticated {
+                what,
+                why: why.clone(),
+            });
+        }
+        eprintln!(
+            "uss-zenoh: --insecure-network: {what} on links that do not authenticate ({}): \
+             anyone who reaches this bridge may {}",
+            why.join("; "),
+            if cli.allow_control {
+                "run the drives"
+            } else {
+                "change the drives' parameters"
+            }
+        );
+    }
+    let session = zenoh::open(config).wait().map_err(StartError::Session)?;
     let bridge_key = format!("{prefix}/bridge");
     let bridge = session
         .liveliness()
@@ -195,10 +236,11 @@ fn run(cli: &Cli) -> Result<(), StartError> {
     // A reader of stdout that went away is no reason not to bridge.
     let _ = writeln!(
         std::io::stdout(),
-        "uss-zenoh: bridging {} under {prefix}/ (parameter writes {}, remote control {}), Zenoh id {}",
+        "uss-zenoh: bridging {} under {prefix}/ (parameter writes {}, remote control {}, links {}), Zenoh id {}",
         cli.buses.join(", "),
         allowed(cli.allow_writes),
         allowed(cli.allow_control),
+        links.name(),
         session.zid()
     );
     for t in threads {

@@ -9,6 +9,10 @@
 //! (safe command, latched) within the watchdog time; the link back up does not restart it, only a
 //! new run does; an operator's stop from either side and a killed bridge latch it too.
 //!
+//! A bridge that moves motors or writes runs on mutual TLS (certificates made by the test with
+//! openssl as the README shows): on plain TCP it refuses to start, and a client without a
+//! certificate, or with one of another CA, does not get in (and the drive does not move).
+//!
 //! Creating namespaces needs root; without it the test says it is skipped. CI runs as root and
 //! sets `USS_REQUIRE_NETNS`, so there it cannot be skipped.
 
@@ -16,26 +20,37 @@
 
 mod netns;
 
-use netns::{LEASE_MS, Netns, bridge};
+use netns::{LEASE_MS, Netns, Pki, bridge, bridge_tls};
 use serde_json::Value;
 use std::process::Command;
 use std::time::{Duration, Instant};
 use uss_client::{ControlState, DriveWatch, LatchReason, PzdInput};
 use uss_integration_tests::{BusSpec, ChildProc, Ussd};
 
-/// `zenoh-bridge/examples/read_param.py` in the namespace reads `key`: P1082 = 50.0 Hz. Without
-/// the `eclipse-zenoh` package it says it is skipped, unless `USS_REQUIRE_PY_ZENOH` is set (CI).
-fn python_reads_p1082(ns: &Netns, key: &str) {
+/// `zenoh-bridge/examples/read_param.py` in the namespace reads `key`: P1082 = 50.0 Hz (over
+/// mutual TLS with `tls`). Without the `eclipse-zenoh` package it says it is skipped, unless
+/// `USS_REQUIRE_PY_ZENOH` is set (CI).
+fn python_reads_p1082(ns: &Netns, key: &str, tls: Option<&netns::ClientTls>) {
     if !python_has_zenoh("the Python client") {
         return;
     }
     let script = example("read_param.py");
-    let out = Command::new("ip")
+    let scheme = if tls.is_some() { "tls" } else { "tcp" };
+    let mut command = Command::new("ip");
+    command
         .args(["netns", "exec", &ns.name, "python3"])
         .arg(script)
-        .args([&format!("tcp/{}:7447", ns.here()), key])
-        .output()
-        .unwrap();
+        .args([&format!("{scheme}/{}:7447", ns.here()), key]);
+    if let Some(tls) = tls {
+        command
+            .arg("--cert")
+            .arg(&tls.cert)
+            .arg("--key")
+            .arg(&tls.key)
+            .arg("--ca")
+            .arg(&tls.ca);
+    }
+    let out = command.output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -164,9 +179,23 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
     assert!(ok, "{err}");
     assert_eq!(json(&out)["drive"].as_u64(), Some(5));
 
-    // With --allow-writes, a write goes to the drive and reads back.
+    // With --allow-writes (over mutual TLS: writes need authenticated links), a write goes to
+    // the drive and reads back.
     bridge_proc.kill();
-    let (mut bridge_proc, _) = bridge(&ns, &bus, &prefix, &["--allow-writes"]);
+    let pki = Pki::new("writes", "uss-rt test CA", &ns.here());
+    let engineer = pki.client("engineer");
+    ns.use_tls(Some(engineer.clone()));
+    let (mut bridge_proc, _) = bridge_tls(&ns, &bus, &prefix, &["--allow-writes"], &pki);
+    // The README's Python example over mutual TLS too.
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while !ns.call(&["get", &key("drive/1/param/P1082")]).0 {
+        assert!(
+            Instant::now() < deadline,
+            "the bridge never answered over TLS"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    python_reads_p1082(&ns, &key("drive/1/param/P1082"), Some(&engineer));
     let deadline = Instant::now() + Duration::from_secs(15);
     let written = loop {
         let (ok, out, err) = ns.call(&["get", &key("drive/1/param/P1082"), "--value", "45"]);
@@ -289,7 +318,7 @@ fn parameters_read_and_writes_refused(ns: &Netns, key: &dyn Fn(&str) -> String) 
     );
     assert_eq!(p["shown"].as_str(), Some("50.00 Hz"));
     // The same from Python (eclipse-zenoh, the README's example), in the other namespace too.
-    python_reads_p1082(ns, &key("drive/1/param/P1082"));
+    python_reads_p1082(ns, &key("drive/1/param/P1082"), None);
     // A write is refused by default, with a reply that says why; a bad key says why too.
     let (ok, _, err) = ns.call(&["get", &key("drive/1/param/P1082"), "--value", "45"]);
     assert!(!ok);
@@ -394,8 +423,11 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     assert_eq!(i.sent_stw1, 0x047E);
     bridge_proc.kill();
 
-    // With --allow-control the remote run re-arms (OFF1, then ON) and runs the drive.
-    let (mut bridge_proc, _) = bridge(&ns, &bus, &prefix, &["--allow-control"]);
+    // With --allow-control (over mutual TLS) the remote run re-arms (OFF1, then ON) and runs
+    // the drive.
+    let pki = Pki::new("control", "uss-rt test CA", &ns.here());
+    ns.use_tls(Some(pki.client("controller")));
+    let (mut bridge_proc, _) = bridge_tls(&ns, &bus, &prefix, &["--allow-control"], &pki);
     let mut run = ns.client(&["run", &drive, "--hz", "10"]);
     run.says("re-armed");
     let (i, _) = wait_image(&watch, Duration::from_secs(10), "above 3 Hz", |i| {
@@ -584,7 +616,9 @@ fn a_remote_client_controls_a_drive_of_a_full_line_at_9600_baud() {
     let prefix = format!("uss/f{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/20");
     let watch = ussd.bus().watch(20).unwrap();
-    let (_bridge, config) = bridge(&ns, &bus, &prefix, &["--allow-control"]);
+    let pki = Pki::new("full", "uss-rt test CA", &ns.here());
+    ns.use_tls(Some(pki.client("controller")));
+    let (_bridge, config) = bridge_tls(&ns, &bus, &prefix, &["--allow-control"], &pki);
 
     let (ok, out, err) = ns.call(&["run", &drive, "--hz", "10", "--for", "3"]);
     assert!(ok, "{out}{err}");
@@ -606,5 +640,93 @@ fn a_remote_client_controls_a_drive_of_a_full_line_at_9600_baud() {
         !status.success() && err.contains("(operator stop)"),
         "{err}"
     );
+    let _ = std::fs::remove_file(config);
+}
+
+#[test]
+fn a_bridge_that_moves_motors_or_writes_refuses_plain_tcp_unless_told_it_is_a_lab() {
+    for rights in [
+        &["--allow-control"][..],
+        &["--allow-writes"],
+        &["--allow-control", "--allow-writes"],
+    ] {
+        let out = Command::new(netns::BRIDGE)
+            .args(["--bus", "uss-nobus", "--listen", "tcp/127.0.0.1:0"])
+            .args(rights)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{rights:?}: {err}");
+        assert!(
+            err.contains("needs links that authenticate who reaches the bridge")
+                && err.contains("endpoint tcp/127.0.0.1:0 is not TLS")
+                && err.contains("--insecure-network"),
+            "{err}"
+        );
+    }
+    // Read-only it runs on plain TCP; in a lab, --insecure-network lets control through and
+    // says what it means.
+    let mut command = Command::new(netns::BRIDGE);
+    command.args([
+        "--bus",
+        "uss-nobus",
+        "--listen",
+        "tcp/127.0.0.1:0",
+        "--allow-control",
+        "--insecure-network",
+    ]);
+    let mut lab = ChildProc::spawn("uss-zenoh --insecure-network".into(), command);
+    let said = lab.says("bridging");
+    assert!(said.contains("links unauthenticated"), "{said}");
+    lab.kill();
+    let err = lab.stderr();
+    assert!(
+        err.contains("--insecure-network: --allow-control on links that do not authenticate")
+            && err.contains("anyone who reaches this bridge may run the drives"),
+        "{err}"
+    );
+}
+
+#[test]
+fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_in() {
+    let Some(ns) = Netns::create() else { return };
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus.clone();
+    let prefix = format!("uss/m{}", std::process::id());
+    let drive = format!("{prefix}/{bus}/drive/1");
+    let watch = ussd.bus().watch(1).unwrap();
+    let pki = Pki::new("mtls", "uss-rt test CA", &ns.here());
+    let (mut bridge_proc, config) = bridge_tls(&ns, &bus, &prefix, &["--allow-control"], &pki);
+    let other = Pki::new("other", "another CA", &ns.here());
+    let strangers = [
+        ("no certificate (plain TCP)", None),
+        (
+            "a certificate of another CA",
+            Some(other.client("intruder")),
+        ),
+    ];
+    for (who, tls) in strangers {
+        ns.use_tls(tls);
+        let (ok, _, err) = ns.call(&["run", &drive, "--hz", "10", "--for", "1"]);
+        assert!(!ok, "{who}: got in");
+        assert!(
+            err.contains("cannot open the Zenoh session"),
+            "{who}: {err}"
+        );
+        println!("mtls: {who}: {}", err.lines().next().unwrap_or(""));
+    }
+    // No trace of them on the drive: still latched since start, OFF1.
+    let i = watch.latest();
+    assert!(latched(&i) && reason(&i) == LatchReason::Startup, "{i:?}");
+    assert_eq!(i.sent_stw1, 0x047E);
+    // The plant's controller gets in and runs it.
+    ns.use_tls(Some(pki.client("controller")));
+    let (ok, out, err) = ns.call(&["run", &drive, "--hz", "5", "--for", "1"]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("re-armed") && out.contains("and released"),
+        "{out}"
+    );
+    bridge_proc.kill();
     let _ = std::fs::remove_file(config);
 }

@@ -4,7 +4,9 @@
 
 #![allow(dead_code, clippy::unwrap_used)]
 
+use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicU32, Ordering};
 use uss_integration_tests::ChildProc;
 
@@ -18,6 +20,129 @@ pub struct Netns {
     pub name: String,
     pub host_if: String,
     pub subnet: u32,
+    /// The certificate the clients show: `None`, plain TCP to the bridge.
+    tls: Mutex<Option<ClientTls>>,
+}
+
+/// What a client in the namespace connects with over TLS: its certificate and key, and the CA
+/// it checks the bridge's certificate against.
+#[derive(Debug, Clone)]
+pub struct ClientTls {
+    pub cert: PathBuf,
+    pub key: PathBuf,
+    pub ca: PathBuf,
+}
+
+/// Certificates made with openssl exactly as the README shows: a CA, the bridge's certificate
+/// (for the namespace's near address), and clients' certificates by common name.
+pub struct Pki {
+    pub dir: PathBuf,
+}
+
+fn openssl(dir: &Path, args: &[&str]) {
+    let out = Command::new("openssl")
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .expect("openssl (apt-get install openssl)");
+    assert!(
+        out.status.success(),
+        "openssl {}: {}",
+        args.join(" "),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+impl Pki {
+    /// A CA called `ca_name` and the bridge's certificate for `bridge_ip`.
+    pub fn new(tag: &str, ca_name: &str, bridge_ip: &str) -> Pki {
+        let dir = std::env::temp_dir().join(format!("uss-pki-{}-{tag}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        // 1. The CA.
+        openssl(
+            &dir,
+            &[
+                "req",
+                "-x509",
+                "-newkey",
+                "ec",
+                "-pkeyopt",
+                "ec_paramgen_curve:P-256",
+                "-nodes",
+                "-days",
+                "3650",
+                "-subj",
+                &format!("/CN={ca_name}"),
+                "-keyout",
+                "ca.key",
+                "-out",
+                "ca.pem",
+            ],
+        );
+        let pki = Pki { dir };
+        // 2. The bridge's certificate, for the address clients connect to.
+        pki.issue(
+            "bridge",
+            "uss-bridge",
+            Some(&format!("IP:{bridge_ip},DNS:uss-bridge")),
+        );
+        pki
+    }
+
+    /// 3. A certificate with common name `cn`, signed by the CA: `<file>.pem`, `<file>.key`.
+    fn issue(&self, file: &str, cn: &str, san: Option<&str>) {
+        let (key, pem) = (format!("{file}.key"), format!("{file}.pem"));
+        let subject = format!("/CN={cn}");
+        let mut args = vec![
+            "req",
+            "-x509",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:P-256",
+            "-nodes",
+            "-days",
+            "825",
+            "-subj",
+            &subject,
+            "-addext",
+            "basicConstraints=critical,CA:FALSE",
+            "-CA",
+            "ca.pem",
+            "-CAkey",
+            "ca.key",
+            "-keyout",
+            &key,
+            "-out",
+            &pem,
+        ];
+        let san = san.map(|s| format!("subjectAltName={s}"));
+        if let Some(san) = &san {
+            args.extend(["-addext", san]);
+        }
+        openssl(&self.dir, &args);
+    }
+
+    /// A client's certificate with common name `cn`, and this CA to check the bridge with.
+    pub fn client(&self, cn: &str) -> ClientTls {
+        self.issue(cn, cn, None);
+        ClientTls {
+            cert: self.dir.join(format!("{cn}.pem")),
+            key: self.dir.join(format!("{cn}.key")),
+            ca: self.dir.join("ca.pem"),
+        }
+    }
+
+    pub fn path(&self, file: &str) -> String {
+        self.dir.join(file).display().to_string()
+    }
+}
+
+impl Drop for Pki {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
 }
 
 fn ip(args: &[&str]) -> Result<(), String> {
@@ -45,6 +170,7 @@ impl Netns {
             name: format!("uss-zt-{id}"),
             host_if: format!("uzh{id}"),
             subnet: 1 + id % 250,
+            tls: Mutex::new(None),
         };
         let peer_if = format!("uzp{id}");
         let (here, there) = (ns.here(), format!("{}/30", ns.there()));
@@ -85,9 +211,20 @@ impl Netns {
         format!("10.231.{}.2", self.subnet)
     }
 
-    /// `uss-zenoh-client` in the namespace, connected to the bridge.
+    /// From now on the clients connect over TLS with `tls` (`None`: plain TCP again).
+    pub fn use_tls(&self, tls: Option<ClientTls>) {
+        *self.tls.lock().unwrap() = tls;
+    }
+
+    /// `uss-zenoh-client` in the namespace, connected to the bridge (over TLS after
+    /// [`Netns::use_tls`]).
     pub fn client(&self, args: &[&str]) -> ChildProc {
-        self.client_of(&format!("tcp/{}:7447", self.here()), args)
+        let scheme = if self.tls.lock().unwrap().is_some() {
+            "tls"
+        } else {
+            "tcp"
+        };
+        self.client_of(&format!("{scheme}/{}:7447", self.here()), args)
     }
 
     /// `uss-zenoh-client` in the namespace, connected to `endpoint` (a router).
@@ -102,8 +239,17 @@ impl Netns {
         command
             .args(["netns", "exec", &self.name])
             .arg(CLIENT)
-            .args(["--connect", endpoint])
-            .args(args);
+            .args(["--connect", endpoint]);
+        if let Some(tls) = &*self.tls.lock().unwrap() {
+            command
+                .arg("--cert")
+                .arg(&tls.cert)
+                .arg("--key")
+                .arg(&tls.key)
+                .arg("--ca")
+                .arg(&tls.ca);
+        }
+        command.args(args);
         command
     }
 
@@ -131,22 +277,56 @@ impl Drop for Netns {
 /// default is 10 s).
 pub const LEASE_MS: u64 = 2000;
 
-/// uss-zenoh for `bus`, listening on the namespace's near address (scouting off).
+/// uss-zenoh for `bus`, listening on the namespace's near address (scouting off), over plain
+/// TCP: a read-only bridge (or one with --insecure-network).
 pub fn bridge(
     ns: &Netns,
     bus: &str,
     prefix: &str,
     extra: &[&str],
 ) -> (ChildProc, std::path::PathBuf) {
+    bridge_with(ns, bus, prefix, extra, None)
+}
+
+/// uss-zenoh for `bus` as [`bridge`], over mutual TLS with `pki`'s CA and bridge certificate.
+pub fn bridge_tls(
+    ns: &Netns,
+    bus: &str,
+    prefix: &str,
+    extra: &[&str],
+    pki: &Pki,
+) -> (ChildProc, std::path::PathBuf) {
+    bridge_with(ns, bus, prefix, extra, Some(pki))
+}
+
+fn bridge_with(
+    ns: &Netns,
+    bus: &str,
+    prefix: &str,
+    extra: &[&str],
+    pki: Option<&Pki>,
+) -> (ChildProc, std::path::PathBuf) {
     let config = std::env::temp_dir().join(format!(
         "uss-zenoh-{}-{}.json5",
         std::process::id(),
         ns.name
     ));
+    let (scheme, tls) = match pki {
+        Some(pki) => (
+            "tls",
+            format!(
+                ", tls: {{ root_ca_certificate: \"{}\", listen_certificate: \"{}\", listen_private_key: \"{}\", enable_mtls: true }}",
+                pki.path("ca.pem"),
+                pki.path("bridge.pem"),
+                pki.path("bridge.key")
+            ),
+        ),
+        None => ("tcp", String::new()),
+    };
     std::fs::write(
         &config,
         format!(
-            "{{ mode: \"peer\", listen: {{ endpoints: [\"tcp/{}:7447\"] }}, scouting: {{ multicast: {{ enabled: false }}, gossip: {{ enabled: false }} }}, transport: {{ link: {{ tx: {{ lease: {LEASE_MS} }} }} }} }}",
+            "{{ mode: \"peer\", listen: {{ endpoints: [\"{scheme}/{}:7447\"] }}, scouting: {{ multicast: {{ enabled: false }}, gossip: {{ enabled: false }} }}, transport: {{ link: {{ tx: {{ lease: {LEASE_MS} }}{tls} }} }} }}",
             ns.here()
         ),
     )

@@ -25,6 +25,16 @@ struct Cli {
     /// A Zenoh configuration file instead (JSON5 or YAML).
     #[arg(long, value_name = "FILE")]
     zenoh_config: Option<std::path::PathBuf>,
+    /// This client's certificate (PEM) for a bridge that asks for one (mutual TLS, tls/
+    /// endpoints); its common name is the identity the bridge's access policy names.
+    #[arg(long, value_name = "FILE", requires_all = ["key", "ca"])]
+    cert: Option<std::path::PathBuf>,
+    /// The private key (PEM) of --cert.
+    #[arg(long, value_name = "FILE", requires = "cert")]
+    key: Option<std::path::PathBuf>,
+    /// The certificate authority (PEM) the bridge's certificate must be signed by.
+    #[arg(long, value_name = "FILE", requires = "cert")]
+    ca: Option<std::path::PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
@@ -121,6 +131,8 @@ pub enum Failure {
     },
     #[error("cannot open the Zenoh session: {0}")]
     Session(zenoh::Error),
+    #[error("--cert/--key/--ca: {0}")]
+    Tls(zenoh::Error),
     #[error("{0}: give a number of seconds")]
     Seconds(f64),
     /// A subscriber, publisher, query or put on `key` that Zenoh refused.
@@ -231,6 +243,24 @@ fn config(cli: &Cli) -> Result<Config, Failure> {
                 endpoints: cli.connect.clone(),
                 error,
             })?;
+    }
+    if let (Some(cert), Some(key), Some(ca)) = (&cli.cert, &cli.key, &cli.ca) {
+        let path = |p: &std::path::Path| serde_json::to_string(&p.display().to_string());
+        for (setting, file) in [
+            ("connect_certificate", cert),
+            ("connect_private_key", key),
+            ("root_ca_certificate", ca),
+        ] {
+            config
+                .insert_json5(
+                    &format!("transport/link/tls/{setting}"),
+                    &path(file).unwrap_or_default(),
+                )
+                .map_err(Failure::Tls)?;
+        }
+        config
+            .insert_json5("transport/link/tls/enable_mtls", "true")
+            .map_err(Failure::Tls)?;
     }
     Ok(config)
 }
