@@ -42,13 +42,7 @@ fn python_reads_p1082(ns: &Netns, key: &str, tls: Option<&netns::ClientTls>) {
         .arg(script)
         .args([&format!("{scheme}/{}:7447", ns.here()), key]);
     if let Some(tls) = tls {
-        command
-            .arg("--cert")
-            .arg(&tls.cert)
-            .arg("--key")
-            .arg(&tls.key)
-            .arg("--ca")
-            .arg(&tls.ca);
+        tls.add_to(&mut command);
     }
     let out = command.output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout);

@@ -33,11 +33,37 @@ pub struct ClientTls {
     pub ca: PathBuf,
 }
 
+impl ClientTls {
+    /// `--cert FILE --key FILE --ca FILE`, as the Rust and the Python client take them.
+    pub fn add_to(&self, command: &mut Command) {
+        command
+            .arg("--cert")
+            .arg(&self.cert)
+            .arg("--key")
+            .arg(&self.key)
+            .arg("--ca")
+            .arg(&self.ca);
+    }
+}
+
 /// Certificates made with openssl exactly as the README shows: a CA, the bridge's certificate
 /// (for the namespace's near address), and clients' certificates by common name.
 pub struct Pki {
     pub dir: PathBuf,
 }
+
+/// A new P-256 key and a self-signed (or, with `-CA`, CA-signed) certificate, valid for the
+/// days that follow.
+const NEW_KEY: [&str; 8] = [
+    "req",
+    "-x509",
+    "-newkey",
+    "ec",
+    "-pkeyopt",
+    "ec_paramgen_curve:P-256",
+    "-nodes",
+    "-days",
+];
 
 fn openssl(dir: &Path, args: &[&str]) {
     let out = Command::new("openssl")
@@ -60,26 +86,12 @@ impl Pki {
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         // 1. The CA.
-        openssl(
-            &dir,
-            &[
-                "req",
-                "-x509",
-                "-newkey",
-                "ec",
-                "-pkeyopt",
-                "ec_paramgen_curve:P-256",
-                "-nodes",
-                "-days",
-                "3650",
-                "-subj",
-                &format!("/CN={ca_name}"),
-                "-keyout",
-                "ca.key",
-                "-out",
-                "ca.pem",
-            ],
-        );
+        let subject = format!("/CN={ca_name}");
+        let mut args = NEW_KEY.to_vec();
+        args.extend([
+            "3650", "-subj", &subject, "-keyout", "ca.key", "-out", "ca.pem",
+        ]);
+        openssl(&dir, &args);
         let pki = Pki { dir };
         // 2. The bridge's certificate, for the address clients connect to.
         pki.issue(
@@ -94,15 +106,8 @@ impl Pki {
     fn issue(&self, file: &str, cn: &str, san: Option<&str>) {
         let (key, pem) = (format!("{file}.key"), format!("{file}.pem"));
         let subject = format!("/CN={cn}");
-        let mut args = vec![
-            "req",
-            "-x509",
-            "-newkey",
-            "ec",
-            "-pkeyopt",
-            "ec_paramgen_curve:P-256",
-            "-nodes",
-            "-days",
+        let mut args = NEW_KEY.to_vec();
+        args.extend([
             "825",
             "-subj",
             &subject,
@@ -116,7 +121,7 @@ impl Pki {
             &key,
             "-out",
             &pem,
-        ];
+        ]);
         let san = san.map(|s| format!("subjectAltName={s}"));
         if let Some(san) = &san {
             args.extend(["-addext", san]);
@@ -241,13 +246,7 @@ impl Netns {
             .arg(CLIENT)
             .args(["--connect", endpoint]);
         if let Some(tls) = &*self.tls.lock().unwrap() {
-            command
-                .arg("--cert")
-                .arg(&tls.cert)
-                .arg("--key")
-                .arg(&tls.key)
-                .arg("--ca")
-                .arg(&tls.ca);
+            tls.add_to(&mut command);
         }
         command.args(args);
         command
