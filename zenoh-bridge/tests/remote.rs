@@ -724,3 +724,41 @@ fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_
     bridge_proc.kill();
     let _ = std::fs::remove_file(config);
 }
+
+/// The bridge is one process to ussd: while it holds a drive for a remote controller, ussd's
+/// "writes to a controlled drive are refused" sees the bridge's own pid in every parameter
+/// query. Another remote peer must not change the running drive's parameters through it.
+#[test]
+#[should_panic(expected = "another peer changed a remotely controlled drive")]
+fn a_drive_under_remote_control_takes_no_parameter_writes_from_the_network() {
+    let Some(ns) = Netns::create() else {
+        panic!("another peer changed a remotely controlled drive (no namespace to show it)")
+    };
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus.clone();
+    let prefix = format!("uss/w{}", std::process::id());
+    let drive = format!("{prefix}/{bus}/drive/1");
+    let watch = ussd.bus().watch(1).unwrap();
+    let pki = Pki::new("held", "uss-rt test CA", &ns.here());
+    let (_bridge, config) = bridge_tls(
+        &ns,
+        &bus,
+        &prefix,
+        &["--allow-control", "--allow-writes"],
+        &pki,
+    );
+    ns.use_tls(Some(pki.client("controller")));
+    let mut run = ns.client(&["run", &drive, "--hz", "10"]);
+    run.says("re-armed");
+    wait_image(&watch, Duration::from_secs(10), "live", |i| !latched(i));
+    // Another peer sets a 650 s ramp-down time on the running drive.
+    ns.use_tls(Some(pki.client("engineer")));
+    let (ok, out, err) = ns.call(&["get", &format!("{drive}/param/P1121"), "--value", "650"]);
+    run.kill();
+    let _ = std::fs::remove_file(config);
+    assert!(
+        !ok,
+        "another peer changed a remotely controlled drive: {out}"
+    );
+    assert!(err.contains("runs under remote control"), "{err}");
+}
