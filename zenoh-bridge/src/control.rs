@@ -32,8 +32,8 @@ use crate::payload::{ControlReport, Out, SampleError, StopReply, unix_ns};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use std::collections::HashMap;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use uss_client::{Bus, ClientError, ControlOptions, Controller, DriveWatch, PzdInput, StopCommand};
 use zenoh::bytes::Encoding;
@@ -206,13 +206,48 @@ pub fn serve_stops(
     }
 }
 
+/// The drives of one bus the bridge holds for a remote controller, with the sender (`from`)
+/// that holds each. ussd's rule "a controlled drive takes no writes from another process" sees
+/// one process in the bridge, whichever peer asks; and the bridge cannot prove that a parameter
+/// query comes from the peer that holds the drive (a query names no sender Zenoh has
+/// authenticated). So while it holds a drive, the bridge refuses every parameter write to it
+/// from the network ([`crate::params`]).
+#[derive(Debug, Default)]
+pub struct Held {
+    holders: Mutex<HashMap<u8, String>>,
+}
+
+impl Held {
+    /// Who holds `drive`, if the bridge holds it.
+    pub fn holder(&self, drive: u8) -> Option<String> {
+        self.holders
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .get(&drive)
+            .cloned()
+    }
+
+    fn set(&self, drive: u8, holder: Option<String>) {
+        let mut holders = self
+            .holders
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        match holder {
+            Some(h) => holders.insert(drive, h),
+            None => holders.remove(&drive),
+        };
+    }
+}
+
 /// Serves the remote controllers of bus `name` until `stop_flag`; without `allowed`, every
-/// sample is refused (and the refusal reported), none is passed on.
+/// sample is refused (and the refusal reported), none is passed on. The drives it holds are
+/// kept in `held`.
 pub fn serve_control(
     session: &Session,
     name: &str,
     keys: &Keys,
     allowed: bool,
+    held: &Arc<Held>,
     stop_flag: &Arc<AtomicBool>,
 ) {
     let (tx, rx) = crossbeam_channel::bounded::<Sample>(QUEUE);
@@ -236,6 +271,7 @@ pub fn serve_control(
         name,
         keys,
         allowed,
+        held,
         stop_flag,
         bus: None,
         next_open: Instant::now(),
@@ -261,6 +297,7 @@ struct Dispatcher<'a> {
     name: &'a str,
     keys: &'a Keys,
     allowed: bool,
+    held: &'a Arc<Held>,
     stop_flag: &'a Arc<AtomicBool>,
     bus: Option<Bus>,
     /// When ussd is tried again while it is not running.
@@ -315,10 +352,12 @@ impl Dispatcher<'_> {
                 self.name.to_owned(),
                 self.keys.clone(),
             );
-            let stop_flag = Arc::clone(self.stop_flag);
+            let (stop_flag, held) = (Arc::clone(self.stop_flag), Arc::clone(self.held));
             let thread = std::thread::Builder::new()
                 .name(format!("control-{drive}"))
-                .spawn(move || control_drive(&session, &name, &keys, drive, &rx, &stop_flag))
+                .spawn(move || {
+                    control_drive(&session, &name, &keys, drive, &rx, &held, &stop_flag);
+                })
                 .map_err(|e| format!("cannot start the control thread of drive {drive}: {e}"))?;
             self.drives.insert(drive, (tx, thread));
         }
@@ -504,6 +543,7 @@ fn control_drive(
     keys: &Keys,
     drive: u8,
     samples: &Receiver<Parsed>,
+    held: &Held,
     stop_flag: &AtomicBool,
 ) {
     let Ok(bus) = Bus::open_as(name, "uss-zenoh-control") else {
@@ -572,8 +612,16 @@ fn control_drive(
         if remote.active.is_some_and(|t| t.elapsed() > RELEASE_AFTER) {
             remote.release();
         }
+        held.set(
+            drive,
+            remote
+                .controller
+                .as_ref()
+                .map(|_| remote.report.holder.clone().unwrap_or_default()),
+        );
         remote.publish_report();
     }
     remote.release();
+    held.set(drive, None);
     remote.publish_report();
 }

@@ -201,6 +201,9 @@ fn run(cli: &Cli) -> Result<(), StartError> {
             max_rate: cli.max_rate,
         };
         let (w, c) = (cli.allow_writes, cli.allow_control);
+        // The drives the bridge holds for remote controllers: no parameter writes to them.
+        let held = Arc::new(control::Held::default());
+        let held_too = Arc::clone(&held);
         // Declared before anything else runs: without it the bridge does not run.
         let stops = session
             .declare_queryable(options.keys.stops())
@@ -217,11 +220,13 @@ fn run(cli: &Cli) -> Result<(), StartError> {
             ),
             (
                 "control",
-                Box::new(move |s, o, st| control::serve_control(s, &o.bus, &o.keys, c, st)),
+                Box::new(move |s, o, st| {
+                    control::serve_control(s, &o.bus, &o.keys, c, &held, st);
+                }),
             ),
             (
                 "params",
-                Box::new(move |s, o, st| params::serve(s, &o.bus, &o.keys, w, st)),
+                Box::new(move |s, o, st| params::serve(s, &o.bus, &o.keys, w, &held_too, st)),
             ),
         ];
         for (what, job) in jobs {

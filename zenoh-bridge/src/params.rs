@@ -1,10 +1,12 @@
 //! Parameters over the network: one queryable per bus for `.../drive/<addr>/param/<P1082>`. A
 //! query without a payload reads the parameter from the drive through ussd; a query with a
 //! payload (`45.0`) writes it, only when the bridge runs with `--allow-writes`, and then under
-//! the same rules as a local write (refused while another process controls the drive). Every
+//! the same rules as a local write (refused while another process controls the drive, and while
+//! this bridge holds the drive for a remote controller: [`crate::control::Held`]). Every
 //! query ends in exactly one reply: the value as JSON, or an error reply with the text `ussctl`
 //! gives for the same failure.
 
+use crate::control::Held;
 use crate::keys::Keys;
 use crate::payload::ParamReply;
 use core::time::Duration;
@@ -25,6 +27,7 @@ fn answer(
     name: &str,
     query: &Query,
     allow_writes: bool,
+    held: &Held,
 ) -> Result<String, String> {
     let (drive, param) = keys
         .param_of(query.key_expr().as_str())
@@ -52,6 +55,14 @@ fn answer(
             None,
         ),
         Some(_) if !allow_writes => return Err(WRITES_REFUSED.to_owned()),
+        Some(_) if let Some(holder) = held.holder(drive) => {
+            return Err(format!(
+                "drive {drive} {param}: the drive runs under remote control by {holder:?} through \
+                 this bridge: parameter writes from the network are refused until it releases \
+                 the drive (the bridge cannot tell that peer's queries from another's); nothing \
+                 was written"
+            ));
+        }
         Some(text) => {
             let options = WriteOptions {
                 eeprom: query
@@ -72,12 +83,14 @@ fn answer(
     serde_json::to_string(&value).map_err(|e| e.to_string())
 }
 
-/// Serves the parameter queries of bus `name` until `stop`.
+/// Serves the parameter queries of bus `name` until `stop`; writes to a drive in `held` are
+/// refused.
 pub fn serve(
     session: &Session,
     name: &str,
     keys: &Keys,
     allow_writes: bool,
+    held: &Held,
     stop: &Arc<AtomicBool>,
 ) {
     let queryable = match session.declare_queryable(keys.params()).wait() {
@@ -102,7 +115,7 @@ pub fn serve(
         }
         reply(
             &query,
-            answer(bus.as_ref(), keys, name, &query, allow_writes),
+            answer(bus.as_ref(), keys, name, &query, allow_writes, held),
         );
     }
 }
