@@ -782,3 +782,28 @@ fn a_drive_under_remote_control_takes_no_parameter_writes_from_the_network() {
     }
     let _ = std::fs::remove_file(config);
 }
+
+/// A Zenoh user finds a bus without knowing the host's prefix: a query with wildcards
+/// (`**/<bus>/drive/1/param/P1082`) is answered, each reply under its concrete key.
+#[test]
+#[should_panic(expected = "a query with wildcards is not answered")]
+fn a_query_with_wildcards_is_answered_under_each_concrete_key() {
+    let Some(ns) = Netns::create() else {
+        panic!("a query with wildcards is not answered (no namespace to show it)")
+    };
+    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let bus = ussd.bus.clone();
+    let prefix = format!("uss/k{}", std::process::id());
+    let (_bridge, config) = bridge(&ns, &bus, &prefix, &[]);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let (ok, out, err) = loop {
+        let answer = ns.call(&["get", &format!("**/{bus}/drive/1/param/P1082")]);
+        if answer.0 || !answer.2.contains("no reply") || Instant::now() > deadline {
+            break answer;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let _ = std::fs::remove_file(config);
+    assert!(ok, "a query with wildcards is not answered: {err}");
+    assert_eq!(json(&out)["value"].as_f64(), Some(50.0), "{out}");
+}
