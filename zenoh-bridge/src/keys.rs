@@ -113,6 +113,63 @@ impl Keys {
     }
 }
 
+/// One parameter a query names: the drive, the parameter, and the concrete key its reply goes
+/// out under.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Named {
+    pub drive: u8,
+    pub param: ParamRef,
+    pub key: String,
+}
+
+/// Whether a key expression has wildcards (`*`, `**`, `$*`).
+pub fn has_wildcards(key: &str) -> bool {
+    key.contains('*')
+}
+
+impl Keys {
+    /// The parameters of `drives` a query's key expression names: itself when it is concrete,
+    /// else every `.../drive/<addr>/param/<P>` of this bus it intersects (`**/line1/drive/1/
+    /// param/P1082`, `uss/*/line1/drive/*/param/P1082`), each with its concrete key. The
+    /// parameter itself must be written out: parameters cannot be listed.
+    pub fn params_named(&self, key: &str, drives: &[u8]) -> Result<Vec<Named>, KeyError> {
+        if !has_wildcards(key) {
+            let (drive, param) = self.param_of(key)?;
+            return Ok(vec![Named {
+                drive,
+                param,
+                key: key.to_owned(),
+            }]);
+        }
+        let bad = |kind| KeyError {
+            key: key.to_owned(),
+            kind,
+        };
+        let last = key.rsplit('/').next().unwrap_or_default();
+        if has_wildcards(last) {
+            return Err(bad(BadKey::ParamWildcard));
+        }
+        let param = last
+            .parse::<ParamRef>()
+            .map_err(|e| bad(BadKey::Notation(last.to_owned(), e)))?;
+        let query = zenoh::key_expr::KeyExpr::try_from(key)
+            .map_err(|e| bad(BadKey::Expression(e.to_string())))?;
+        let named: Vec<Named> = drives
+            .iter()
+            .map(|&drive| (drive, format!("{}/drive/{drive}/param/{last}", self.base)))
+            .filter(|(_, concrete)| {
+                zenoh::key_expr::KeyExpr::try_from(concrete.as_str())
+                    .is_ok_and(|c| query.intersects(&c))
+            })
+            .map(|(drive, key)| Named { drive, param, key })
+            .collect();
+        if named.is_empty() {
+            return Err(bad(BadKey::ForeignParam(self.base.clone())));
+        }
+        Ok(named)
+    }
+}
+
 /// A query's key that names no drive or parameter of this bridge.
 #[derive(Debug, PartialEq, thiserror::Error)]
 #[error("{key}: {kind}")]
@@ -136,6 +193,13 @@ pub enum BadKey {
     Address(String),
     #[error("{0:?}: {1}")]
     Notation(String, uss_client::uss_protocol::NotationError),
+    #[error(
+        "name the parameter: .../param/P1082 (a wildcard may stand for the prefix, the bus or \
+         the drive, not for the parameter)"
+    )]
+    ParamWildcard,
+    #[error("not a key expression: {0}")]
+    Expression(String),
 }
 
 /// A drive address 0..=31 as a key writes it.
@@ -175,6 +239,53 @@ mod tests {
         }
     }
 
+    #[test]
+    fn a_query_with_wildcards_names_each_drive_it_intersects_under_its_concrete_key() {
+        let k = Keys::new("uss/plant", "line1");
+        let keys = |query: &str| -> Vec<String> {
+            k.params_named(query, &[1, 2, 5])
+                .unwrap()
+                .into_iter()
+                .map(|n| n.key)
+                .collect()
+        };
+        assert_eq!(
+            keys("**/line1/drive/1/param/P1082"),
+            ["uss/plant/line1/drive/1/param/P1082"]
+        );
+        assert_eq!(
+            keys("uss/*/line1/drive/*/param/P1082"),
+            [
+                "uss/plant/line1/drive/1/param/P1082",
+                "uss/plant/line1/drive/2/param/P1082",
+                "uss/plant/line1/drive/5/param/P1082"
+            ]
+        );
+        assert_eq!(
+            keys("uss/plant/line1/drive/3/param/P1082"),
+            ["uss/plant/line1/drive/3/param/P1082"],
+            "a concrete key is itself"
+        );
+        let named = k
+            .params_named("**/drive/2/param/r0947[3]", &[1, 2])
+            .unwrap();
+        assert_eq!(
+            (named[0].drive, named[0].param.to_string()),
+            (2, "r0947[3]".to_owned())
+        );
+        let err = |query: &str| k.params_named(query, &[1, 2]).unwrap_err().kind;
+        assert_eq!(err("**/line1/drive/1/param/*"), BadKey::ParamWildcard);
+        assert_eq!(
+            err("**/line2/drive/1/param/P1082"),
+            BadKey::ForeignParam("uss/plant/line1".into())
+        );
+        assert_eq!(
+            err("**/line1/drive/9/param/P1082"),
+            BadKey::ForeignParam("uss/plant/line1".into()),
+            "no such drive on the bus"
+        );
+    }
+
     proptest::proptest! {
         /// Any key is read or refused, never a panic.
         #[test]
@@ -183,6 +294,7 @@ mod tests {
             let _ = k.param_of(&format!("uss/p/b/drive/{tail}"));
             let _ = k.stop_of(&format!("uss/p/b/drive/{tail}"));
             let _ = k.output_of(&format!("uss/p/b/drive/{tail}"));
+            let _ = k.params_named(&format!("**/b/drive/{tail}"), &[1, 2]);
         }
     }
 }

@@ -20,18 +20,51 @@ use zenoh::{Session, Wait};
 /// What a write query is refused with while the bridge does not allow writes.
 pub const WRITES_REFUSED: &str = "writes are refused: this uss-zenoh runs without --allow-writes";
 
-/// The answer to one query: the JSON of the value, or the error text.
-fn answer(
+/// One reply: its concrete key, and the JSON of the value or the error text.
+type Answer = (String, Result<String, String>);
+
+/// The answers to one query: for each parameter it names (one, or with wildcards every drive of
+/// the bus its key intersects), the concrete key and the JSON of the value or the error text;
+/// or why it names none.
+fn answers(
     bus: Result<&Bus, &String>,
     keys: &Keys,
     name: &str,
     query: &Query,
     allow_writes: bool,
     held: &Held,
+) -> Result<Vec<Answer>, String> {
+    let key = query.key_expr().as_str();
+    let drives = match (bus, crate::keys::has_wildcards(key)) {
+        (Ok(b), true) => b.drives(),
+        _ => Vec::new(),
+    };
+    let named = keys.params_named(key, &drives).map_err(|e| e.to_string())?;
+    if named.len() > 1 && query.payload().is_some() {
+        return Err(format!(
+            "{key}: a write names one drive and one parameter exactly (this key names {})",
+            named.len()
+        ));
+    }
+    Ok(named
+        .into_iter()
+        .map(|n| {
+            let answer = answer(bus, name, query, allow_writes, held, n.drive, n.param);
+            (n.key, answer)
+        })
+        .collect())
+}
+
+/// The answer for one drive and parameter: the JSON of the value, or the error text.
+fn answer(
+    bus: Result<&Bus, &String>,
+    name: &str,
+    query: &Query,
+    allow_writes: bool,
+    held: &Held,
+    drive: u8,
+    param: uss_client::uss_protocol::ParamRef,
 ) -> Result<String, String> {
-    let (drive, param) = keys
-        .param_of(query.key_expr().as_str())
-        .map_err(|e| e.to_string())?;
     let payload = query
         .payload()
         .map(|p| {
@@ -113,19 +146,28 @@ pub fn serve(
         if bus.is_err() {
             bus = Bus::open_as(name, "uss-zenoh-params").map_err(|e| e.to_string());
         }
-        reply(
-            &query,
-            answer(bus.as_ref(), keys, name, &query, allow_writes, held),
-        );
+        match answers(bus.as_ref(), keys, name, &query, allow_writes, held) {
+            Ok(list) => {
+                for (key, answer) in list {
+                    reply_as(&query, &key, answer);
+                }
+            }
+            Err(text) => reply(&query, Err(text)),
+        }
     }
 }
 
 /// Ends `query` with its one answer: the JSON as a reply, or the text as an error reply; a reply
 /// that cannot be sent is reported on stderr.
 pub fn reply(query: &Query, answer: Result<String, String>) {
+    reply_as(query, query.key_expr().as_str(), answer);
+}
+
+/// One answer to `query` under the concrete `key` (the query's own when it has no wildcards).
+fn reply_as(query: &Query, key: &str, answer: Result<String, String>) {
     let sent = match answer {
         Ok(json) => query
-            .reply(query.key_expr().clone(), json)
+            .reply(key, json)
             .encoding(Encoding::APPLICATION_JSON)
             .wait(),
         Err(text) => query.reply_err(text).wait(),
