@@ -27,7 +27,7 @@
 //! handshake of one drive never delays another's samples) and reports itself what it cannot
 //! hand on (control not allowed, ussd not running, a drive ussd does not poll, a full queue).
 
-use crate::keys::Keys;
+use crate::keys::{Keys, StopTarget};
 use crate::payload::{ControlReport, Out, SampleError, StopReply, unix_ns};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
@@ -82,36 +82,44 @@ fn stop_command(payload: Option<&str>) -> Result<StopCommand, String> {
     }
 }
 
-/// What a stop query sent: the command, the drives it went to, and whether the query named one
-/// drive (its reply is that drive's, not an array).
-type Sent = (StopCommand, Vec<u8>, bool);
+/// What a stop query sent: the command, and what it named (the drives it went to, and the keys
+/// their replies go out under).
+type Sent = (StopCommand, StopTarget, Vec<u8>);
 
 /// Sends the stop a query asks for, or says why not.
 fn send_stop(bus: &Bus, keys: &Keys, query: &Query) -> Result<Sent, String> {
-    let target = keys
-        .stop_of(query.key_expr().as_str())
-        .map_err(|e| e.to_string())?;
+    let key = query.key_expr().as_str();
+    let drives = if crate::keys::has_wildcards(key) {
+        bus.drives()
+    } else {
+        Vec::new()
+    };
+    let target = keys.stops_named(key, &drives).map_err(|e| e.to_string())?;
     let payload = query
         .payload()
         .map(|p| p.try_to_string().map(std::borrow::Cow::into_owned))
         .transpose()
         .map_err(|_| "the stop command is not text: send off1, off2 or off3".to_owned())?;
     let command = stop_command(payload.as_deref())?;
-    let drives = match target {
-        Some(drive) => bus
-            .stop_drive(drive, command)
-            .map(|()| vec![drive])
-            .map_err(|e| e.to_string())?,
-        None => bus.stop_all(command).map_err(|e| e.to_string())?,
+    let drives = match &target {
+        StopTarget::Drives(named) => {
+            let mut sent = Vec::new();
+            for (drive, _) in named {
+                bus.stop_drive(*drive, command).map_err(|e| e.to_string())?;
+                sent.push(*drive);
+            }
+            sent
+        }
+        StopTarget::Bus(_) => bus.stop_all(command).map_err(|e| e.to_string())?,
     };
-    Ok((command, drives, target.is_some()))
+    Ok((command, target, drives))
 }
 
 /// The reply to a stop that went out: each drive's image once it shows the command, within
 /// [`STOP_TIMEOUT`] or the longest handshake time of the drives (at most
 /// [`STOP_TIMEOUT_MAX`]) for all of them; a drive that does not show it in time is marked
 /// unconfirmed ([`stop_json`]).
-fn confirm_stop(name: &str, one: bool, command: StopCommand, drives: &[u8]) -> String {
+fn confirm_stop<'a>(name: &'a str, command: StopCommand, drives: &[u8]) -> Vec<StopReply<'a>> {
     let bus = Bus::open_as(name, "uss-zenoh-stop").ok();
     let wait = bus.as_ref().map_or(STOP_TIMEOUT, |b| {
         drives
@@ -135,17 +143,24 @@ fn confirm_stop(name: &str, one: bool, command: StopCommand, drives: &[u8]) -> S
             StopReply::new(name, drive, command, shown)
         })
         .collect();
-    stop_json(one, &replies)
+    replies
 }
 
-/// A stop query's answer: the drive's reply for a query on one drive, an array for the bus
-/// (replies on one key would be consolidated into one).
-fn stop_json(one: bool, replies: &[StopReply<'_>]) -> String {
-    let json = match replies {
-        [reply] if one => serde_json::to_string(reply),
-        _ => serde_json::to_string(replies),
-    };
-    json.unwrap_or_default()
+/// Ends a stop query: for the bus, one reply (an array: replies on one key would be
+/// consolidated into one) under `.../stop`; for drives, each drive's reply under its own key.
+fn reply_stops(query: &Query, target: &StopTarget, replies: &[StopReply<'_>]) {
+    match target {
+        StopTarget::Bus(key) => {
+            let json = serde_json::to_string(replies).unwrap_or_default();
+            crate::params::reply_as(query, key, Ok(json));
+        }
+        StopTarget::Drives(named) => {
+            for (reply, (_, key)) in replies.iter().zip(named) {
+                let json = serde_json::to_string(reply).unwrap_or_default();
+                crate::params::reply_as(query, key, Ok(json));
+            }
+        }
+    }
 }
 
 /// Serves the operator stops of bus `name` until `stop_flag`: each stop goes to ussd as soon as
@@ -172,7 +187,7 @@ pub fn serve_stops(
             .map_err(Clone::clone)
             .and_then(|b| send_stop(b, keys, &query));
         match sent {
-            Ok((command, drives, one)) => {
+            Ok((command, target, drives)) => {
                 if confirming.load(Ordering::Relaxed) >= MAX_CONFIRMING {
                     // Each confirmation holds a reader of ussd's services: a flood of stops must
                     // not take them from ussctl and the controllers. The stop went out.
@@ -185,7 +200,7 @@ pub fn serve_stops(
                             StopReply::new(name, d, command, Err(why))
                         })
                         .collect();
-                    crate::params::reply(&query, Ok(stop_json(one, &replies)));
+                    reply_stops(&query, &target, &replies);
                     continue;
                 }
                 confirming.fetch_add(1, Ordering::Relaxed);
@@ -193,8 +208,8 @@ pub fn serve_stops(
                 let confirmed = std::thread::Builder::new()
                     .name("stop-reply".to_owned())
                     .spawn(move || {
-                        let json = confirm_stop(&name, one, command, &drives);
-                        crate::params::reply(&query, Ok(json));
+                        let replies = confirm_stop(&name, command, &drives);
+                        reply_stops(&query, &target, &replies);
                         confirming.fetch_sub(1, Ordering::Relaxed);
                     });
                 if let Err(e) = confirmed {

@@ -170,6 +170,51 @@ impl Keys {
     }
 }
 
+/// What a stop query's key names, and where its replies go.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StopTarget {
+    /// Every drive of the bus: one reply (an array) under `.../stop`.
+    Bus(String),
+    /// These drives, each with the concrete key its reply goes out under.
+    Drives(Vec<(u8, String)>),
+}
+
+impl Keys {
+    /// What a stop query's key expression names: itself when it is concrete; with wildcards,
+    /// the whole bus when it intersects `.../stop`, else every `.../drive/<addr>/stop` of
+    /// `drives` it intersects.
+    pub fn stops_named(&self, key: &str, drives: &[u8]) -> Result<StopTarget, KeyError> {
+        let bus_key = format!("{}/stop", self.base);
+        if !has_wildcards(key) {
+            return Ok(match self.stop_of(key)? {
+                None => StopTarget::Bus(bus_key),
+                Some(d) => StopTarget::Drives(vec![(d, key.to_owned())]),
+            });
+        }
+        let bad = |kind| KeyError {
+            key: key.to_owned(),
+            kind,
+        };
+        let query = zenoh::key_expr::KeyExpr::try_from(key)
+            .map_err(|e| bad(BadKey::Expression(e.to_string())))?;
+        let meets = |concrete: &str| {
+            zenoh::key_expr::KeyExpr::try_from(concrete).is_ok_and(|c| query.intersects(&c))
+        };
+        if meets(&bus_key) {
+            return Ok(StopTarget::Bus(bus_key));
+        }
+        let named: Vec<(u8, String)> = drives
+            .iter()
+            .map(|&d| (d, format!("{}/drive/{d}/stop", self.base)))
+            .filter(|(_, k)| meets(k))
+            .collect();
+        if named.is_empty() {
+            return Err(bad(BadKey::Foreign(self.base.clone())));
+        }
+        Ok(StopTarget::Drives(named))
+    }
+}
+
 /// A query's key that names no drive or parameter of this bridge.
 #[derive(Debug, PartialEq, thiserror::Error)]
 #[error("{key}: {kind}")]
@@ -286,6 +331,31 @@ mod tests {
         );
     }
 
+    #[test]
+    fn a_stop_with_wildcards_stops_what_it_intersects() {
+        let k = Keys::new("uss/plant", "line1");
+        let named = |q: &str| k.stops_named(q, &[1, 2]).unwrap();
+        let one = |d: u8| StopTarget::Drives(vec![(d, format!("uss/plant/line1/drive/{d}/stop"))]);
+        assert_eq!(named("**/line1/drive/2/stop"), one(2));
+        assert_eq!(named("uss/plant/line1/drive/1/stop"), one(1));
+        assert_eq!(
+            named("uss/*/line1/drive/*/stop"),
+            StopTarget::Drives(vec![
+                (1, "uss/plant/line1/drive/1/stop".into()),
+                (2, "uss/plant/line1/drive/2/stop".into())
+            ])
+        );
+        // `**/stop` reaches the bus's own stop too: every drive, one broadcast.
+        for bus in ["**/line1/stop", "**/stop", "uss/plant/line1/stop"] {
+            assert_eq!(
+                named(bus),
+                StopTarget::Bus("uss/plant/line1/stop".into()),
+                "{bus}"
+            );
+        }
+        assert!(k.stops_named("**/line2/drive/1/stop", &[1, 2]).is_err());
+    }
+
     proptest::proptest! {
         /// Any key is read or refused, never a panic.
         #[test]
@@ -295,6 +365,7 @@ mod tests {
             let _ = k.stop_of(&format!("uss/p/b/drive/{tail}"));
             let _ = k.output_of(&format!("uss/p/b/drive/{tail}"));
             let _ = k.params_named(&format!("**/b/drive/{tail}"), &[1, 2]);
+            let _ = k.stops_named(&format!("**/b/drive/{tail}"), &[1, 2]);
         }
     }
 }

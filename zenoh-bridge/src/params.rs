@@ -164,7 +164,7 @@ pub fn reply(query: &Query, answer: Result<String, String>) {
 }
 
 /// One answer to `query` under the concrete `key` (the query's own when it has no wildcards).
-fn reply_as(query: &Query, key: &str, answer: Result<String, String>) {
+pub fn reply_as(query: &Query, key: &str, answer: Result<String, String>) {
     let sent = match answer {
         Ok(json) => query
             .reply(key, json)

@@ -784,7 +784,8 @@ fn a_drive_under_remote_control_takes_no_parameter_writes_from_the_network() {
 }
 
 /// A Zenoh user finds a bus without knowing the host's prefix: a query with wildcards
-/// (`**/<bus>/drive/1/param/P1082`) is answered, each reply under its concrete key.
+/// (`**/<bus>/drive/1/param/P1082`, `**/<bus>/drive/2/stop`) is answered, each reply under its
+/// concrete key.
 #[test]
 fn a_query_with_wildcards_is_answered_under_each_concrete_key() {
     let Some(ns) = Netns::create() else { return };
@@ -805,13 +806,24 @@ fn a_query_with_wildcards_is_answered_under_each_concrete_key() {
     // Every drive of the bus, each reply under its own key (the client prints the keys).
     let (ok, out, err) = ns.call(&["get", &format!("uss/*/{bus}/drive/*/param/P1082")]);
     assert!(ok, "{err}");
-    let drives: Vec<u64> = out
+    let mut drives: Vec<u64> = out
         .lines()
         .filter_map(|l| json(l)["drive"].as_u64())
         .collect();
+    // Replies come in the order they arrive.
+    drives.sort_unstable();
     assert_eq!(drives, [1, 2], "{out}");
     // A wildcard for the parameter, or a write to many drives, is refused with what to do.
     let (ok, _, err) = ns.call(&["get", &format!("**/{bus}/drive/1/param/*")]);
     assert!(!ok && err.contains("name the parameter"), "{err}");
+    // An operator's stop found the same way: drive 2 only, confirmed under its own key.
+    let (ok, out, err) = ns.call(&["stop", &format!("**/{bus}/drive/2")]);
+    assert!(ok, "{err}");
+    let stop = json(&out);
+    assert_eq!(
+        (stop["drive"].as_u64(), stop["confirmed"].as_bool()),
+        (Some(2), Some(true)),
+        "{stop}"
+    );
     let _ = std::fs::remove_file(config);
 }
