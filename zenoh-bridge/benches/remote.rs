@@ -12,6 +12,10 @@
 //!    remote subscriber misses images: offered and delivered images/s, images lost (gaps in each
 //!    drive's sequence as the remote side saw it), and the bridge's CPU time per image.
 //!
+//! 4. `tls`: the cost of mutual TLS: the input latency (as in 1) and the parameter round trip
+//!    (as in 2) through a bridge on plain TCP and through one on mutual TLS (certificates made
+//!    with openssl as the README shows), one after the other in the same run.
+//!
 //! Needs root for the namespaces (it says SKIPPED otherwise). `cargo bench -p uss-zenoh --bench
 //! remote -- latency` runs one part.
 
@@ -21,7 +25,7 @@
 mod netns;
 
 use hdrhistogram::Histogram;
-use netns::{Netns, bridge};
+use netns::{Netns, Pki, bridge, bridge_tls};
 use serde_json::Value;
 use std::collections::{BTreeSet, HashMap};
 use std::sync::Arc;
@@ -87,30 +91,9 @@ fn latency(ns: &Netns) {
         std::thread::spawn(move || local_latency(&bus, &[1, 2, 3, 4], &stop))
     };
     let key = format!("{prefix}/{}/drive/*/in", ussd.bus);
-    let (_, out, err) = ns
-        .client(&[
-            "sub",
-            &key,
-            "--for",
-            &SECONDS.to_string(),
-            "--count",
-            "100000000",
-            "--stamp",
-        ])
-        .finish();
+    let remote = remote_latency(ns, &key, SECONDS);
     stop.store(true, Ordering::Relaxed);
     let local = local.join().unwrap();
-    let mut remote = histogram();
-    for (at, image) in stamped(&out) {
-        if image["stale"] != false {
-            continue;
-        }
-        // The reply's time on the bridge: when it published minus how long ago the reply was.
-        let published = image["published_unix_ns"].as_f64().unwrap_or_default();
-        let reply = published - image["reply_ms_ago"].as_f64().unwrap_or_default() * 1e6;
-        let _ = remote.record(((at as f64 - reply).max(1.0)) as u64);
-    }
-    assert!(remote.len() > 100, "too few remote images: {err}");
     println!("   local iceoryx2  {}", percentiles_us(&local));
     println!("   remote Zenoh    {}", percentiles_us(&remote));
     let ratio = |q: f64| remote.value_at_quantile(q) as f64 / local.value_at_quantile(q) as f64;
@@ -143,15 +126,7 @@ fn params(ns: &Netns) {
         }
     }
     let key = format!("{prefix}/{}/drive/1/param/P1082", ussd.bus);
-    let (ok, out, err) = ns
-        .client(&["get", &key, "--repeat", &READS.to_string(), "--timed"])
-        .finish();
-    assert!(ok.success(), "{err}");
-    let mut remote = histogram();
-    for line in out.lines().skip(WARM_UP) {
-        let ns: u64 = line.split(' ').next().unwrap().parse().unwrap();
-        let _ = remote.record(ns);
-    }
+    let remote = remote_reads(ns, &key, READS, WARM_UP);
     println!("   local Bus::read_param  {}", percentiles_us(&local));
     println!("   remote Zenoh query     {}", percentiles_us(&remote));
     println!(
@@ -160,6 +135,95 @@ fn params(ns: &Netns) {
         remote.value_at_quantile(0.99) as f64 / local.value_at_quantile(0.99) as f64
     );
     let _ = std::fs::remove_file(config);
+}
+
+/// Remote input latency for `seconds` through the bridge the namespace's clients reach now.
+fn remote_latency(ns: &Netns, key: &str, seconds: u64) -> Histogram<u64> {
+    let (_, out, err) = ns
+        .client(&[
+            "sub",
+            key,
+            "--for",
+            &seconds.to_string(),
+            "--count",
+            "100000000",
+            "--stamp",
+        ])
+        .finish();
+    let mut remote = histogram();
+    for (at, image) in stamped(&out) {
+        if image["stale"] != false {
+            continue;
+        }
+        let published = image["published_unix_ns"].as_f64().unwrap_or_default();
+        let reply = published - image["reply_ms_ago"].as_f64().unwrap_or_default() * 1e6;
+        let _ = remote.record(((at as f64 - reply).max(1.0)) as u64);
+    }
+    assert!(remote.len() > 100, "too few remote images: {err}");
+    remote
+}
+
+/// `reads` parameter round trips from the namespace (the first `warm_up` not counted).
+fn remote_reads(ns: &Netns, key: &str, reads: usize, warm_up: usize) -> Histogram<u64> {
+    let (ok, out, err) = ns
+        .client(&["get", key, "--repeat", &reads.to_string(), "--timed"])
+        .finish();
+    assert!(ok.success(), "{err}");
+    let mut h = histogram();
+    for line in out.lines().skip(warm_up) {
+        let ns: u64 = line.split(' ').next().unwrap().parse().unwrap();
+        let _ = h.record(ns);
+    }
+    h
+}
+
+fn tls(ns: &Netns) {
+    const READS: usize = 200;
+    const WARM_UP: usize = 5;
+    println!(
+        "4. mutual TLS vs plain TCP: input latency (4 drives, 115200 baud, {SECONDS} s each) and \
+         P1082 round trip ({READS} reads each)"
+    );
+    let ussd = four_drives();
+    let prefix = prefix();
+    let pki = Pki::new("bench", "uss-rt bench CA", &ns.here());
+    let inputs = format!("{prefix}/{}/drive/*/in", ussd.bus);
+    let param = format!("{prefix}/{}/drive/1/param/P1082", ussd.bus);
+    let mut measured = Vec::new();
+    for secure in [false, true] {
+        let (mut bridge_proc, config) = if secure {
+            ns.use_tls(Some(pki.client("bench")));
+            bridge_tls(ns, &ussd.bus, &prefix, &[], &pki)
+        } else {
+            ns.use_tls(None);
+            bridge(ns, &ussd.bus, &prefix, &[])
+        };
+        let latency = remote_latency(ns, &inputs, SECONDS);
+        let reads = remote_reads(ns, &param, READS, WARM_UP);
+        bridge_proc.kill();
+        let _ = std::fs::remove_file(config);
+        measured.push((
+            if secure { "mutual TLS" } else { "plain TCP " },
+            latency,
+            reads,
+        ));
+    }
+    ns.use_tls(None);
+    for (name, latency, reads) in &measured {
+        println!("   {name} input  {}", percentiles_us(latency));
+        println!("   {name} P1082  {}", percentiles_us(reads));
+    }
+    let (tcp, tls) = (&measured[0], &measured[1]);
+    let ratio = |a: &Histogram<u64>, b: &Histogram<u64>, q: f64| {
+        b.value_at_quantile(q) as f64 / a.value_at_quantile(q) as f64
+    };
+    println!(
+        "   TLS / TCP: input p50 {:.2}x  p99 {:.2}x; P1082 p50 {:.2}x  p99 {:.2}x",
+        ratio(&tcp.1, &tls.1, 0.5),
+        ratio(&tcp.1, &tls.1, 0.99),
+        ratio(&tcp.2, &tls.2, 0.5),
+        ratio(&tcp.2, &tls.2, 0.99)
+    );
 }
 
 /// CPU time (user + system) of process `pid` so far.
@@ -327,5 +391,8 @@ fn main() {
     }
     if parts.wanted("throughput") {
         throughput(&ns);
+    }
+    if parts.wanted("tls") {
+        tls(&ns);
     }
 }
