@@ -92,6 +92,12 @@ impl Keys {
         format!("{}/drive/*/param/*", self.base)
     }
 
+    /// The queryable of every drive's parameter writes: `.../drive/<addr>/set/<P1082>` (a
+    /// query with the value as its payload), the key an access policy's `write` right covers.
+    pub fn writes(&self) -> String {
+        format!("{}/drive/*/set/*", self.base)
+    }
+
     /// The drive and parameter a parameter query's key names, or why it names none.
     pub fn param_of(&self, key: &str) -> Result<(u8, ParamRef), KeyError> {
         let bad = |kind| KeyError {

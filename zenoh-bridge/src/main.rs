@@ -9,6 +9,7 @@ mod control;
 mod keys;
 mod params;
 mod payload;
+mod policy;
 mod publish;
 mod security;
 
@@ -61,6 +62,11 @@ struct Cli {
     /// the drives or change their parameters. For a lab network only; said at start.
     #[arg(long)]
     insecure_network: bool,
+    /// Who may do what: a TOML file granting rights (read, stop, write, control) per
+    /// certificate common name, bus and drive (README, "Who may do what"), enforced by Zenoh's
+    /// access control on every message. Needs mutual TLS.
+    #[arg(long, value_name = "FILE")]
+    policy: Option<PathBuf>,
 }
 
 /// Why the bridge did not start. Zenoh's errors are boxed trait objects (not `Error` sources
@@ -95,6 +101,14 @@ enum StartError {
         how = security::HOW
     )]
     Unauthenticated { what: String, why: Vec<String> },
+    #[error(transparent)]
+    Policy(#[from] policy::PolicyError),
+    #[error(
+        "--policy names peers by their certificates' common names: it needs mutual TLS, and these links are {0}"
+    )]
+    PolicyNeedsTls(&'static str),
+    #[error("--policy: Zenoh refused the access control made of it: {0}")]
+    PolicyConfig(zenoh::Error),
 }
 
 /// What the bridge lets remote peers do: run drives, change parameters.
@@ -150,21 +164,31 @@ const fn allowed(yes: bool) -> &'static str {
     if yes { "allowed" } else { "refused" }
 }
 
-fn run(cli: &Cli) -> Result<(), StartError> {
-    let prefix = cli
-        .prefix
-        .clone()
-        .unwrap_or_else(|| format!("uss/{}", host_name()));
-    if let Some(r) = cli.max_rate.filter(|r| !(r.is_finite() && *r > 0.0)) {
-        return Err(StartError::MaxRate(r));
-    }
-    let stop = Arc::new(AtomicBool::new(false));
-    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(signal, Arc::clone(&stop))
-            .map_err(|source| StartError::Signal { signal, source })?;
-    }
-    let config = zenoh_config(cli)?;
+/// The Zenoh configuration with the checks of who may reach the bridge: control or writes only
+/// on authenticated links (or, said on stderr, with `--insecure-network`), and the access
+/// policy made into Zenoh's access control.
+fn secured_config(
+    cli: &Cli,
+    prefix: &str,
+) -> Result<(Config, security::Links, Option<policy::Policy>), StartError> {
+    let mut config = zenoh_config(cli)?;
     let links = security::links(&config);
+    let policy = match &cli.policy {
+        Some(path) => {
+            let p = policy::Policy::load(path, &cli.buses)?;
+            if links != security::Links::MutualTls {
+                return Err(StartError::PolicyNeedsTls(links.name()));
+            }
+            config
+                .insert_json5(
+                    "access_control",
+                    &p.access_control(prefix, &cli.buses).to_string(),
+                )
+                .map_err(StartError::PolicyConfig)?;
+            Some(p)
+        }
+        None => None,
+    };
     if let (Some(what), security::Links::Open(why)) = (remote_rights(cli), &links) {
         if !cli.insecure_network {
             return Err(StartError::Unauthenticated {
@@ -183,6 +207,23 @@ fn run(cli: &Cli) -> Result<(), StartError> {
             }
         );
     }
+    Ok((config, links, policy))
+}
+
+fn run(cli: &Cli) -> Result<(), StartError> {
+    let prefix = cli
+        .prefix
+        .clone()
+        .unwrap_or_else(|| format!("uss/{}", host_name()));
+    if let Some(r) = cli.max_rate.filter(|r| !(r.is_finite() && *r > 0.0)) {
+        return Err(StartError::MaxRate(r));
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))
+            .map_err(|source| StartError::Signal { signal, source })?;
+    }
+    let (config, links, policy) = secured_config(cli, &prefix)?;
     let session = zenoh::open(config).wait().map_err(StartError::Session)?;
     let bridge_key = format!("{prefix}/bridge");
     let bridge = session
@@ -204,6 +245,7 @@ fn run(cli: &Cli) -> Result<(), StartError> {
         // The drives the bridge holds for remote controllers: no parameter writes to them.
         let held = Arc::new(control::Held::default());
         let held_too = Arc::clone(&held);
+        let with_policy = policy.is_some();
         // Declared before anything else runs: without it the bridge does not run.
         let stops = session
             .declare_queryable(options.keys.stops())
@@ -226,7 +268,14 @@ fn run(cli: &Cli) -> Result<(), StartError> {
             ),
             (
                 "params",
-                Box::new(move |s, o, st| params::serve(s, &o.bus, &o.keys, w, &held_too, st)),
+                Box::new(move |s, o, st| {
+                    let rules = params::Rules {
+                        allow_writes: w,
+                        held: &held_too,
+                        policy: with_policy,
+                    };
+                    params::serve(s, &o.bus, &o.keys, rules, st);
+                }),
             ),
         ];
         for (what, job) in jobs {
@@ -241,11 +290,12 @@ fn run(cli: &Cli) -> Result<(), StartError> {
     // A reader of stdout that went away is no reason not to bridge.
     let _ = writeln!(
         std::io::stdout(),
-        "uss-zenoh: bridging {} under {prefix}/ (parameter writes {}, remote control {}, links {}), Zenoh id {}",
+        "uss-zenoh: bridging {} under {prefix}/ (parameter writes {}, remote control {}, links {}{}), Zenoh id {}",
         cli.buses.join(", "),
         allowed(cli.allow_writes),
         allowed(cli.allow_control),
         links.name(),
+        policy.map_or_else(String::new, |p| format!(", policy: {}", p.summary())),
         session.zid()
     );
     for t in threads {

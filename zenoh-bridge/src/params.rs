@@ -31,25 +31,52 @@ fn answers(
     keys: &Keys,
     name: &str,
     query: &Query,
-    allow_writes: bool,
-    held: &Held,
+    rules: Rules<'_>,
+    write_key: bool,
 ) -> Result<Vec<Answer>, String> {
-    let key = query.key_expr().as_str();
-    let drives = match (bus, crate::keys::has_wildcards(key)) {
+    let asked = query.key_expr().as_str();
+    // A write key (`.../set/P1082`) names its parameter as the read key does.
+    let key = if write_key {
+        asked.replacen("/set/", "/param/", 1)
+    } else {
+        asked.to_owned()
+    };
+    match (write_key, query.payload().is_some()) {
+        (true, false) => {
+            return Err(format!(
+                "{asked}: a query on .../set/<P> writes: send the value as its payload (e.g. 45.0)"
+            ));
+        }
+        (false, true) if rules.policy => {
+            return Err(format!(
+                "{asked}: under this bridge's access policy parameters are written through \
+                 .../drive/<address>/set/<P>, which the policy grants as the right to write"
+            ));
+        }
+        _ => {}
+    }
+    let drives = match (bus, crate::keys::has_wildcards(&key)) {
         (Ok(b), true) => b.drives(),
         _ => Vec::new(),
     };
-    let named = keys.params_named(key, &drives).map_err(|e| e.to_string())?;
+    let mut named = keys
+        .params_named(&key, &drives)
+        .map_err(|e| e.to_string())?;
+    if write_key {
+        for n in &mut named {
+            n.key = n.key.replacen("/param/", "/set/", 1);
+        }
+    }
     if named.len() > 1 && query.payload().is_some() {
         return Err(format!(
-            "{key}: a write names one drive and one parameter exactly (this key names {})",
+            "{asked}: a write names one drive and one parameter exactly (this key names {})",
             named.len()
         ));
     }
     Ok(named
         .into_iter()
         .map(|n| {
-            let answer = answer(bus, name, query, allow_writes, held, n.drive, n.param);
+            let answer = answer(bus, name, query, rules, n.drive, n.param);
             (n.key, answer)
         })
         .collect())
@@ -60,8 +87,7 @@ fn answer(
     bus: Result<&Bus, &String>,
     name: &str,
     query: &Query,
-    allow_writes: bool,
-    held: &Held,
+    rules: Rules<'_>,
     drive: u8,
     param: uss_client::uss_protocol::ParamRef,
 ) -> Result<String, String> {
@@ -87,8 +113,8 @@ fn answer(
             &bus.read_param(drive, param).map_err(failed)?,
             None,
         ),
-        Some(_) if !allow_writes => return Err(WRITES_REFUSED.to_owned()),
-        Some(_) if let Some(holder) = held.holder(drive) => {
+        Some(_) if !rules.allow_writes => return Err(WRITES_REFUSED.to_owned()),
+        Some(_) if let Some(holder) = rules.held.holder(drive) => {
             return Err(format!(
                 "drive {drive} {param}: the drive runs under remote control by {holder:?} through \
                  this bridge: parameter writes from the network are refused until it releases \
@@ -116,37 +142,64 @@ fn answer(
     serde_json::to_string(&value).map_err(|e| e.to_string())
 }
 
-/// Serves the parameter queries of bus `name` until `stop`; writes to a drive in `held` are
-/// refused.
-pub fn serve(
-    session: &Session,
-    name: &str,
-    keys: &Keys,
-    allow_writes: bool,
-    held: &Held,
-    stop: &Arc<AtomicBool>,
-) {
-    let queryable = match session.declare_queryable(keys.params()).wait() {
-        Ok(q) => q,
-        Err(e) => {
-            eprintln!(
-                "uss-zenoh: cannot declare the queryable {}: {e}",
-                keys.params()
-            );
-            return;
+/// What the parameter queries of a bus may do.
+#[derive(Debug, Clone, Copy)]
+pub struct Rules<'a> {
+    /// `--allow-writes`.
+    pub allow_writes: bool,
+    /// The drives the bridge holds for a remote controller: no writes to them.
+    pub held: &'a Held,
+    /// An access policy is in force: writes only through `.../set/<P>`, the key its `write`
+    /// right covers.
+    pub policy: bool,
+}
+
+/// Queries waiting for the parameter thread; a full queue answers at once that it is full.
+const QUEUE: usize = 256;
+
+/// Serves the parameter queries of bus `name` until `stop`: reads (and, without a policy,
+/// writes) on `.../drive/<addr>/param/<P>`, writes on `.../drive/<addr>/set/<P>`.
+pub fn serve(session: &Session, name: &str, keys: &Keys, rules: Rules<'_>, stop: &Arc<AtomicBool>) {
+    let (tx, rx) = crossbeam_channel::bounded::<(Query, bool)>(QUEUE);
+    let mut queryables = Vec::new();
+    for (key, write_key) in [(keys.params(), false), (keys.writes(), true)] {
+        let tx = tx.clone();
+        // Zenoh's callback never blocks: a full queue is an answer too.
+        let declared = session
+            .declare_queryable(&key)
+            .callback(move |q| {
+                if let Err(crossbeam_channel::TrySendError::Full((q, _))) =
+                    tx.try_send((q, write_key))
+                {
+                    reply(
+                        &q,
+                        Err(format!(
+                            "the bridge is {QUEUE} parameter queries behind: ask again"
+                        )),
+                    );
+                }
+            })
+            .wait();
+        match declared {
+            Ok(q) => queryables.push(q),
+            Err(e) => {
+                eprintln!("uss-zenoh: cannot declare the queryable {key}: {e}");
+                return;
+            }
         }
-    };
+    }
+    drop(tx);
     let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
     while !stop.load(Ordering::Relaxed) {
-        let query = match queryable.recv_timeout(Duration::from_millis(100)) {
-            Ok(Some(q)) => q,
-            Ok(None) => continue,
-            Err(_) => break,
+        let (query, write_key) = match rx.recv_timeout(Duration::from_millis(100)) {
+            Ok(q) => q,
+            Err(crossbeam_channel::RecvTimeoutError::Timeout) => continue,
+            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
         };
         if bus.is_err() {
             bus = Bus::open_as(name, "uss-zenoh-params").map_err(|e| e.to_string());
         }
-        match answers(bus.as_ref(), keys, name, &query, allow_writes, held) {
+        match answers(bus.as_ref(), keys, name, &query, rules, write_key) {
             Ok(list) => {
                 for (key, answer) in list {
                     reply_as(&query, &key, answer);

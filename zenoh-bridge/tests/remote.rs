@@ -670,6 +670,32 @@ fn a_bridge_that_moves_motors_or_writes_refuses_plain_tcp_unless_told_it_is_a_la
         "--insecure-network",
     ]);
     let mut lab = ChildProc::spawn("uss-zenoh --insecure-network".into(), command);
+    // A policy names certificates: it needs mutual TLS, lab or not; a bad one names its line.
+    let policy = std::env::temp_dir().join(format!("uss-policy-{}.toml", std::process::id()));
+    for (text, said) in [
+        (
+            "[[grant]]\nwho = [\"a\"]\nrights = [\"read\"]\n",
+            "it needs mutual TLS",
+        ),
+        ("[[grant]]\nwho = [\"a\"]\nrights = [\"run\"]\n", "line 3"),
+    ] {
+        std::fs::write(&policy, text).unwrap();
+        let out = Command::new(netns::BRIDGE)
+            .args([
+                "--bus",
+                "uss-nobus",
+                "--listen",
+                "tcp/127.0.0.1:0",
+                "--insecure-network",
+            ])
+            .arg("--policy")
+            .arg(&policy)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.code() == Some(1) && err.contains(said), "{err}");
+    }
+    let _ = std::fs::remove_file(&policy);
     let said = lab.says("bridging");
     assert!(said.contains("links unauthenticated"), "{said}");
     lab.kill();
@@ -825,5 +851,92 @@ fn a_query_with_wildcards_is_answered_under_each_concrete_key() {
         (Some(2), Some(true)),
         "{stop}"
     );
+    let _ = std::fs::remove_file(config);
+}
+
+/// An access policy (`--policy`) grants rights per certificate: a peer with a valid certificate
+/// but without the `control` right cannot run a drive (it does not move), nor write without
+/// `write`; every authenticated peer may stop a drive; the controller runs only its drive.
+#[test]
+fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
+    let Some(ns) = Netns::create() else { return };
+    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let bus = ussd.bus.clone();
+    let prefix = format!("uss/p{}", std::process::id());
+    let drive = |d: u8| format!("{prefix}/{bus}/drive/{d}");
+    let (watch1, watch2) = (ussd.bus().watch(1).unwrap(), ussd.bus().watch(2).unwrap());
+    let pki = Pki::new("policy", "uss-rt test CA", &ns.here());
+    let policy = pki.dir.join("policy.toml");
+    std::fs::write(
+        &policy,
+        "default = [\"read\", \"stop\"]\n\n[[grant]]\nwho = [\"controller\"]\nrights = [\"control\"]\ndrives = [1]\n\n[[grant]]\nwho = [\"engineer\"]\nrights = [\"write\"]\n",
+    )
+    .unwrap();
+    let (mut bridge_proc, config) = bridge_tls(
+        &ns,
+        &bus,
+        &prefix,
+        &[
+            "--allow-control",
+            "--allow-writes",
+            "--policy",
+            policy.to_str().unwrap(),
+        ],
+        &pki,
+    );
+    let (viewer, controller, engineer) = (
+        pki.client("viewer"),
+        pki.client("controller"),
+        pki.client("engineer"),
+    );
+
+    // A valid certificate without the control right: its samples never reach the bridge.
+    ns.use_tls(Some(viewer.clone()));
+    let (ok, out, err) = ns.call(&["run", &drive(1), "--hz", "10", "--for", "1"]);
+    assert!(!ok, "the viewer ran the drive: {out}");
+    println!("policy: viewer's run: {}", err.lines().next().unwrap_or(""));
+    let i = watch1.latest();
+    assert!(latched(&i) && reason(&i) == LatchReason::Startup, "{i:?}");
+    assert_eq!(i.sent_stw1, 0x047E);
+    // ... it reads, but does not write.
+    let param = format!("{}/param/P1121", drive(1));
+    let (ok, out, err) = ns.call(&["get", &param]);
+    assert!(ok && json(&out)["value"].as_f64() == Some(10.0), "{err}");
+    let (ok, _, _) = ns.call(&["get", &param, "--value", "650", "--timeout", "2"]);
+    assert!(!ok, "the viewer wrote");
+    assert_eq!(
+        ussd.bus().read(1, 1121, None),
+        Ok(uss_client::Value::from_f32(10.0))
+    );
+
+    // The controller runs drive 1, and not drive 2, which it was not granted.
+    ns.use_tls(Some(controller.clone()));
+    let (ok, _, _) = ns.call(&["run", &drive(2), "--hz", "10", "--for", "1"]);
+    assert!(!ok, "the controller ran drive 2");
+    let i = watch2.latest();
+    assert!(latched(&i) && reason(&i) == LatchReason::Startup, "{i:?}");
+    let mut run = ns.client(&["run", &drive(1), "--hz", "10"]);
+    run.says("re-armed");
+    wait_image(&watch1, Duration::from_secs(10), "live", |i| !latched(i));
+
+    // Every authenticated peer may stop it: the viewer's stop latches it.
+    ns.use_tls(Some(viewer));
+    let (ok, out, err) = ns.call(&["stop", &drive(1)]);
+    assert!(ok, "{err}");
+    assert_eq!(json(&out)["confirmed"].as_bool(), Some(true), "{out}");
+    let (status, _, err) = run.finish();
+    assert!(
+        !status.success() && err.contains("(operator stop)"),
+        "{err}"
+    );
+
+    // The engineer writes, through the write key (drive 2: the bridge still holds drive 1 for
+    // its controller, so no peer writes there).
+    ns.use_tls(Some(engineer));
+    let param = format!("{}/param/P1121", drive(2));
+    let (ok, out, err) = ns.call(&["get", &param, "--value", "8"]);
+    assert!(ok, "{err}");
+    assert_eq!(json(&out)["value"].as_f64(), Some(8.0), "{out}");
+    bridge_proc.kill();
     let _ = std::fs::remove_file(config);
 }

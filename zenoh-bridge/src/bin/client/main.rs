@@ -59,7 +59,8 @@ enum Command {
         #[arg(long)]
         stamp: bool,
     },
-    /// Query KEY (e.g. uss/site/bus0/drive/1/param/P1082); with --value, write that value.
+    /// Query KEY (e.g. uss/site/bus0/drive/1/param/P1082); with --value, write that value (through
+    /// the parameter's write key, .../set/P1082).
     Get {
         key: String,
         /// The value to write (the query's payload), e.g. 45.0.
@@ -353,6 +354,33 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     done
 }
 
+/// `get KEY [--value V]`: a read, or a write through the parameter's write key
+/// (`.../set/P1082`: the key an access policy's `write` right covers), `repeat` times.
+fn get(
+    session: &zenoh::Session,
+    key: &str,
+    value: Option<&str>,
+    timeout: f64,
+    repeat: u32,
+    timed: bool,
+) -> Result<(), Failure> {
+    let key = match value {
+        Some(_) => key.replacen("/param/", "/set/", 1),
+        None => key.to_owned(),
+    };
+    let key = &key;
+    for _ in 0..repeat {
+        let asked = Instant::now();
+        let mut get = session.get(key).timeout(seconds(timeout)?);
+        if let Some(v) = value {
+            get = get.payload(v.to_owned());
+        }
+        let replies = get.wait().map_err(on(key))?;
+        print_replies(key, &replies, timed.then_some(asked))?;
+    }
+    Ok(())
+}
+
 fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), Failure> {
     let start = Instant::now();
     match &cli.command {
@@ -376,17 +404,7 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), Failure> {
             timeout,
             repeat,
             timed,
-        } => {
-            for _ in 0..*repeat {
-                let asked = Instant::now();
-                let mut get = session.get(key).timeout(seconds(*timeout)?);
-                if let Some(v) = value {
-                    get = get.payload(v.clone());
-                }
-                let replies = get.wait().map_err(on(key))?;
-                print_replies(key, &replies, timed.then_some(asked))?;
-            }
-        }
+        } => get(session, key, value.as_deref(), *timeout, *repeat, *timed)?,
         Command::Run {
             drive,
             hz,
