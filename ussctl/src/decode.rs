@@ -83,10 +83,10 @@ pub struct App {
     pub hz: Option<f64>,
 }
 
-/// What a decoder needs besides the record: the catalogue for parameter names and types, and
-/// each drive's reference frequency P2000 (by address).
+/// What a decoder needs besides the record: the catalogue of each drive's family for parameter
+/// names and types, and each drive's reference frequency P2000 (both by address).
 pub struct Decoder<'a> {
-    pub catalogue: &'a Catalogue,
+    pub catalogue: &'a dyn Fn(u8) -> Option<&'static Catalogue>,
     pub reference_hz: &'a dyn Fn(u8) -> Option<f32>,
     pub level: Level,
 }
@@ -120,11 +120,11 @@ impl Decoder<'_> {
         let pkw = match f.pkw.len() {
             0 => None,
             _ if request => Some(match ParamTask::decode(&f.pkw) {
-                Ok(task) => self.task(task),
+                Ok(task) => Params((self.catalogue)(r.address)).task(task),
                 Err(e) => format!("PKW not understood: {e}"),
             }),
             _ => Some(match ParamReply::decode(&f.pkw) {
-                Ok(reply) => self.reply(&reply),
+                Ok(reply) => Params((self.catalogue)(r.address)).reply(&reply),
                 Err(e) => format!("PKW not understood: {e}"),
             }),
         };
@@ -154,12 +154,17 @@ impl Decoder<'_> {
             hz,
         }
     }
+}
 
+/// A drive's parameters as its family's catalogue names and shows them (none: as numbers).
+struct Params(Option<&'static Catalogue>);
+
+impl Params {
     /// `P1082` or `r0947[2]`, with the catalogue's prefix.
     fn name(&self, pnu: Pnu, index: Option<u8>) -> String {
         let prefix = self
-            .catalogue
-            .param(pnu.get())
+            .0
+            .and_then(|c| c.param(pnu.get()))
             .map_or(Prefix::P, |p| p.id.prefix);
         ParamRef {
             pnu,
@@ -171,7 +176,7 @@ impl Decoder<'_> {
 
     /// A value of parameter `pnu` as the catalogue shows it: `50.00 Hz`, `5`, `0xFB31`.
     fn value(&self, pnu: Pnu, v: Value) -> String {
-        match self.catalogue.param(pnu.get()) {
+        match self.0.and_then(|c| c.param(pnu.get())) {
             Some(p) => p.show(v),
             None => match v {
                 Value::Word(w) => format!("{w} ({w:#06X})"),
@@ -423,12 +428,39 @@ mod tests {
     fn line(level: Level, r: &TelegramRecord) -> String {
         let hz = |_| Some(50.0);
         Decoder {
-            catalogue: Catalogue::micromaster4(),
+            catalogue: &|_| Some(Catalogue::micromaster4()),
             reference_hz: &hz,
             level,
         }
         .decode(r, 0.25)
         .human()
+    }
+
+    #[test]
+    fn a_drive_of_another_family_is_shown_with_its_own_catalogue() {
+        // p1082 of a G120 is a speed in rpm; of a generic slave, a number.
+        let reply = record(
+            Direction::Reply,
+            LastFailure::None,
+            &telegram(&[0x243A, 0, 0x44BB, 0x8000], &[0xBB37, 0x2000]),
+        );
+        let hz = |_| None;
+        let shown = |catalogue: Option<&'static Catalogue>| {
+            Decoder {
+                catalogue: &move |_| catalogue,
+                reference_hz: &hz,
+                level: Level::App,
+            }
+            .decode(&reply, 0.25)
+            .human()
+        };
+        let g120 = shown(Catalogue::of_family("g120"));
+        assert!(g120.contains("p1082 = 1500.00 rpm |"), "{g120}");
+        let generic = shown(None);
+        assert!(
+            generic.contains("P1082 = 1153138688 (0x44BB8000) |"),
+            "{generic}"
+        );
     }
 
     #[test]

@@ -20,6 +20,41 @@ pub(crate) struct Options<'a> {
 /// How often the capture looks for new records.
 const POLL: Duration = Duration::from_millis(10);
 
+/// What the decoder shows each drive's telegrams with: its reference frequency (setpoints and
+/// actual values in Hz) and its family's catalogue (parameter names and units).
+struct DriveFacts {
+    drives: Vec<(u8, Option<f32>, Option<&'static Catalogue>)>,
+}
+
+impl DriveFacts {
+    fn of(bus: &Bus) -> Self {
+        let drives = bus
+            .drives()
+            .into_iter()
+            .map(|a| {
+                let reference = bus.watch(a).ok().map(|w| w.info().reference_hz);
+                (a, reference, Catalogue::of_family(bus.family(a).name()))
+            })
+            .collect();
+        Self { drives }
+    }
+
+    fn reference_hz(&self, address: u8) -> Option<f32> {
+        self.drives
+            .iter()
+            .find(|d| d.0 == address)
+            .and_then(|d| d.1)
+    }
+
+    /// A drive ussd does not poll (a stray reply) is shown as a MICROMASTER 4.
+    fn catalogue(&self, address: u8) -> Option<&'static Catalogue> {
+        self.drives
+            .iter()
+            .find(|d| d.0 == address)
+            .map_or(Some(Catalogue::micromaster4()), |d| d.2)
+    }
+}
+
 pub(crate) fn capture(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Failure> {
     let duration = o
         .duration
@@ -31,15 +66,11 @@ pub(crate) fn capture(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Fa
     if let Some(a) = o.drive {
         bus.watch(a)?;
     }
-    // Each drive's reference frequency, for setpoints and actual values in Hz.
-    let reference: Vec<(u8, f32)> = bus
-        .drives()
-        .into_iter()
-        .filter_map(|a| Some((a, bus.watch(a).ok()?.info().reference_hz)))
-        .collect();
-    let reference_hz = |a: u8| reference.iter().find(|(d, _)| *d == a).map(|(_, hz)| *hz);
+    let facts = DriveFacts::of(bus);
+    let reference_hz = |a: u8| facts.reference_hz(a);
+    let catalogue = |a: u8| facts.catalogue(a);
     let decoder = Decoder {
-        catalogue: Catalogue::micromaster4(),
+        catalogue: &catalogue,
         reference_hz: &reference_hz,
         level: o.level,
     };
