@@ -368,6 +368,14 @@ pub struct FaultBuffers {
     /// Elements of `warnings` a report reads.
     #[serde(default)]
     pub warnings_len: u8,
+    /// Digits of a fault or warning number as the family's manuals write it: F0072 (4, the
+    /// default), SINAMICS F01910 (5).
+    #[serde(default = "four")]
+    pub digits: u8,
+}
+
+const fn four() -> u8 {
+    4
 }
 
 /// The catalogue of one drive family.

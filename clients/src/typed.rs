@@ -362,6 +362,9 @@ pub struct FaultReport {
     pub codes: ParamRef,
     pub values: Option<ParamRef>,
     pub warnings_from: Option<ParamRef>,
+    /// Digits of a fault or warning number as the family's manuals write it: 4 (F0072), 5 on
+    /// SINAMICS (F01910).
+    pub digits: u8,
     /// Recorded faults, newest first (empty slots left out).
     pub faults: Vec<Fault>,
     /// Active warnings; `None` when the drive (or its family) has none.
@@ -458,6 +461,7 @@ impl Bus {
             codes: b.codes,
             values: b.values,
             warnings_from: b.warnings,
+            digits: b.digits,
             faults,
             warnings,
         })

@@ -187,6 +187,8 @@ struct FamilyCase {
     changed: &'static str,
     telegram_off_fault: u16,
     codes: &'static str,
+    /// The fault as the family's manuals write it.
+    shown: &'static str,
 }
 
 const CASES: [FamilyCase; 4] = [
@@ -197,6 +199,7 @@ const CASES: [FamilyCase; 4] = [
         changed: "2.5",
         telegram_off_fault: 72,
         codes: "r0947",
+        shown: "F0072",
     },
     FamilyCase {
         drive: 2,
@@ -205,6 +208,7 @@ const CASES: [FamilyCase; 4] = [
         changed: "3.5",
         telegram_off_fault: 72,
         codes: "r0947",
+        shown: "F0072",
     },
     FamilyCase {
         drive: 3,
@@ -213,6 +217,7 @@ const CASES: [FamilyCase; 4] = [
         changed: "1.5",
         telegram_off_fault: 1910,
         codes: "r0945",
+        shown: "F01910",
     },
     FamilyCase {
         drive: 4,
@@ -221,6 +226,7 @@ const CASES: [FamilyCase; 4] = [
         changed: "250",
         telegram_off_fault: 11,
         codes: "r0947",
+        shown: "F0011",
     },
 ];
 
@@ -274,6 +280,7 @@ fn each_family_runs_faults_control_parameters_and_backup_against_its_personality
             "{what}: {out}"
         );
         println!("families: {what}: {}", out.lines().nth(1).unwrap_or(""));
+        assert!(out.contains(&format!("0: {}", c.shown)), "{what}: {out}");
 
         // Control: acknowledged, re-armed, run at 20 % and stopped.
         let control = bus

@@ -906,6 +906,7 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
             codes: "r0947".parse().unwrap(),
             values: Some("r0949".parse().unwrap()),
             warnings_from: Some("r2110".parse().unwrap()),
+            digits: 4,
             faults: vec![uss_client::Fault {
                 slot: 0,
                 number: 72,

@@ -239,7 +239,7 @@ impl FaultsReport {
                 .map(|f| FaultEntry {
                     slot: f.slot,
                     number: f.number,
-                    code: format!("F{:04}", f.number),
+                    code: format!("F{:0w$}", f.number, w = usize::from(r.digits)),
                     value: f.value,
                     time: f.time.map(|t| t.to_string()),
                     time_words: f.time.map(|t| t.words),
@@ -250,7 +250,7 @@ impl FaultsReport {
                 w.iter()
                     .map(|w| WarningEntry {
                         number: w.number,
-                        code: format!("A{:04}", w.number),
+                        code: format!("A{:0w$}", w.number, w = usize::from(r.digits)),
                         text: w.text,
                     })
                     .collect()

@@ -158,6 +158,7 @@ fn faults_list_recorded_codes_with_texts_values_and_warnings() {
         codes: "r0947".parse().unwrap(),
         values: Some("r0949".parse().unwrap()),
         warnings_from: Some("r2110".parse().unwrap()),
+        digits: 4,
         faults: vec![
             uss_client::Fault {
                 slot: 0,
@@ -199,6 +200,7 @@ fn faults_list_recorded_codes_with_texts_values_and_warnings() {
             codes: "r0947".parse().unwrap(),
             values: None,
             warnings_from: None,
+            digits: 4,
             faults: Vec::new(),
             warnings: None,
         },
