@@ -235,12 +235,7 @@ impl Drive {
         let mut params = ParamTable::of(personality.param_set());
         let layout = config.layout;
         let float = |v: f32| v.to_bits();
-        let monitoring = match params
-            .set()
-            .definitions()
-            .iter()
-            .find(|d| roles.monitoring.is_some_and(|(pnu, _)| pnu == d.pnu))
-        {
+        let monitoring = match roles.monitoring.and_then(|(pnu, _)| params.definition(pnu)) {
             Some(d) if d.ty == crate::params::DataType::Float => {
                 float(f32::from(config.telegram_off_time_ms))
             }

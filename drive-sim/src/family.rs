@@ -12,7 +12,7 @@
 use crate::params::{
     Change, Consulted, DataType, P0003, P0010, P0700, P0970, P1000, P1080, P1082, P1120, P1121,
     P1135, P2000, P2011, P2012, P2013, P2014, ParamDef, ParamSet, R0018, R0021, R0052, R0054,
-    R0947, R0948, R0949, R2024,
+    R0947, R0948, R0949, R2024, U16_MAX,
 };
 
 /// Where a family keeps its fault buffer: `len` elements of fault codes and of fault values,
@@ -118,16 +118,7 @@ const G110_DEFS: [ParamDef; crate::params::DEFS_LEN] =
     with_firmware(crate::params::DEFINITIONS_CONST, 1.18);
 
 /// SINAMICS G110: the MICROMASTER 4 parameter numbers (its list shares them), firmware 1.18.
-pub static G110: ParamSet = ParamSet::new(
-    "g110",
-    &G110_DEFS,
-    Consulted {
-        access_level: Some(P0003),
-        commissioning: Some(P0010),
-        change_rights: Some((crate::params::P0927, crate::params::P0927_USS_COM)),
-        factory_reset: Some(P0970),
-    },
-);
+pub static G110: ParamSet = ParamSet::new("g110", &G110_DEFS, crate::params::MM4_CONSULTED);
 
 /// p0700 = 6 and p1000 = 6: commands and speed setpoint from the fieldbus (the CU240's USS).
 const G120_FIELDBUS: u32 = 6;
@@ -143,7 +134,6 @@ const R2122: u16 = 2122;
 /// Speeds up to 210 000 rpm, times up to 999 999 s (the G120 list's limits).
 const SPEED_MAX: f64 = 210_000.0;
 const TIME_MAX: f64 = 999_999.0;
-const U16_MAX: f64 = 65535.0;
 
 /// SINAMICS G120 with a CU240 on RS485: speeds in rpm (p2000 is the reference speed), the
 /// fieldbus settings p2020..p2023 with p2030 = 1 (USS), monitoring p2040 in ms (a float), and

@@ -255,7 +255,7 @@ pub const COM_LINK: u8 = 1;
 const FREQ_MAX: f64 = 650.0;
 /// Ramp times, seconds.
 const TIME_MAX: f64 = 650.0;
-const U16_MAX: f64 = 65535.0;
+pub(crate) const U16_MAX: f64 = 65535.0;
 
 /// The MM4 parameter list this drive keeps. P0310 is the one "C" parameter besides P0970: it
 /// shows the quick-commissioning rule (P0010 = 1) that P0970's factory-setting rule
@@ -568,16 +568,15 @@ impl Eq for ParamSet {}
 
 /// MICROMASTER 420/430/440: P0003 access level, P0010 commissioning, P0927 bit 3 (USS on the
 /// COM link), P0970 factory reset.
-pub static MICROMASTER4: ParamSet = ParamSet::new(
-    "micromaster4",
-    DEFS,
-    Consulted {
-        access_level: Some(P0003),
-        commissioning: Some(P0010),
-        change_rights: Some((P0927, P0927_USS_COM)),
-        factory_reset: Some(P0970),
-    },
-);
+pub static MICROMASTER4: ParamSet = ParamSet::new("micromaster4", DEFS, MM4_CONSULTED);
+
+/// What a MICROMASTER 4's table (and a G110's, which shares its numbers) consults.
+pub(crate) const MM4_CONSULTED: Consulted = Consulted {
+    access_level: Some(P0003),
+    commissioning: Some(P0010),
+    change_rights: Some((P0927, P0927_USS_COM)),
+    factory_reset: Some(P0970),
+};
 
 /// P0010 settings: quick commissioning, factory setting.
 const P0010_QUICK_COMMISSIONING: u32 = 1;

@@ -98,8 +98,9 @@ impl Keys {
         format!("{}/drive/*/set/*", self.base)
     }
 
-    /// The drive and parameter a parameter query's key names, or why it names none.
-    pub fn param_of(&self, key: &str) -> Result<(u8, ParamRef), KeyError> {
+    /// The drive and parameter a parameter query's key names (a read key `.../param/<P>` or a
+    /// write key `.../set/<P>`), or why it names none.
+    pub fn param_of(&self, key: &str, which: ParamKey) -> Result<(u8, ParamRef), KeyError> {
         let bad = |kind| KeyError {
             key: key.to_owned(),
             kind,
@@ -109,13 +110,31 @@ impl Keys {
             .and_then(|r| r.strip_prefix("/drive/"))
             .ok_or_else(|| bad(BadKey::ForeignParam(self.base.clone())))?;
         let (drive, param) = rest
-            .split_once("/param/")
+            .split_once(&format!("/{}/", which.segment()))
             .ok_or_else(|| bad(BadKey::Param))?;
         let drive = address(drive).ok_or_else(|| bad(BadKey::Address(drive.to_owned())))?;
         let param = param
             .parse::<ParamRef>()
             .map_err(|e| bad(BadKey::Notation(param.to_owned(), e)))?;
         Ok((drive, param))
+    }
+}
+
+/// Which key of a drive's parameter a query is on: `.../param/<P>` (a read, or without an
+/// access policy a write) or `.../set/<P>` (a write).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ParamKey {
+    Read,
+    Write,
+}
+
+impl ParamKey {
+    /// The key's segment before the parameter.
+    pub const fn segment(self) -> &'static str {
+        match self {
+            Self::Read => "param",
+            Self::Write => "set",
+        }
     }
 }
 
@@ -135,12 +154,17 @@ pub fn has_wildcards(key: &str) -> bool {
 
 impl Keys {
     /// The parameters of `drives` a query's key expression names: itself when it is concrete,
-    /// else every `.../drive/<addr>/param/<P>` of this bus it intersects (`**/line1/drive/1/
+    /// else every `.../drive/<addr>/param/<P>` (or `set/<P>`) of this bus it intersects (`**/line1/drive/1/
     /// param/P1082`, `uss/*/line1/drive/*/param/P1082`), each with its concrete key. The
     /// parameter itself must be written out: parameters cannot be listed.
-    pub fn params_named(&self, key: &str, drives: &[u8]) -> Result<Vec<Named>, KeyError> {
+    pub fn params_named(
+        &self,
+        key: &str,
+        which: ParamKey,
+        drives: &[u8],
+    ) -> Result<Vec<Named>, KeyError> {
         if !has_wildcards(key) {
-            let (drive, param) = self.param_of(key)?;
+            let (drive, param) = self.param_of(key, which)?;
             return Ok(vec![Named {
                 drive,
                 param,
@@ -162,7 +186,13 @@ impl Keys {
             .map_err(|e| bad(BadKey::Expression(e.to_string())))?;
         let named: Vec<Named> = drives
             .iter()
-            .map(|&drive| (drive, format!("{}/drive/{drive}/param/{last}", self.base)))
+            .map(|&drive| {
+                let segment = which.segment();
+                (
+                    drive,
+                    format!("{}/drive/{drive}/{segment}/{last}", self.base),
+                )
+            })
             .filter(|(_, concrete)| {
                 zenoh::key_expr::KeyExpr::try_from(concrete.as_str())
                     .is_ok_and(|c| query.intersects(&c))
@@ -270,7 +300,7 @@ mod tests {
         assert_eq!(k.params(), "uss/plant/line1/drive/*/param/*");
         assert_eq!(k.alive(), "uss/plant/line1/alive");
         let (drive, param) = k
-            .param_of("uss/plant/line1/drive/3/param/r0947[2]")
+            .param_of("uss/plant/line1/drive/3/param/r0947[2]", ParamKey::Read)
             .unwrap();
         assert_eq!((drive, param.to_string().as_str()), (3, "r0947[2]"));
         assert_eq!(k.output_of("uss/plant/line1/drive/3/out"), Some(3));
@@ -286,7 +316,7 @@ mod tests {
             "uss/plant/line1/drive/3/param/X1",
             "uss/plant/line1/drive/3/in",
         ] {
-            assert!(k.param_of(bad).is_err(), "{bad}");
+            assert!(k.param_of(bad, ParamKey::Read).is_err(), "{bad}");
         }
     }
 
@@ -294,7 +324,7 @@ mod tests {
     fn a_query_with_wildcards_names_each_drive_it_intersects_under_its_concrete_key() {
         let k = Keys::new("uss/plant", "line1");
         let keys = |query: &str| -> Vec<String> {
-            k.params_named(query, &[1, 2, 5])
+            k.params_named(query, ParamKey::Read, &[1, 2, 5])
                 .unwrap()
                 .into_iter()
                 .map(|n| n.key)
@@ -318,13 +348,17 @@ mod tests {
             "a concrete key is itself"
         );
         let named = k
-            .params_named("**/drive/2/param/r0947[3]", &[1, 2])
+            .params_named("**/drive/2/param/r0947[3]", ParamKey::Read, &[1, 2])
             .unwrap();
         assert_eq!(
             (named[0].drive, named[0].param.to_string()),
             (2, "r0947[3]".to_owned())
         );
-        let err = |query: &str| k.params_named(query, &[1, 2]).unwrap_err().kind;
+        let err = |query: &str| {
+            k.params_named(query, ParamKey::Read, &[1, 2])
+                .unwrap_err()
+                .kind
+        };
         assert_eq!(err("**/line1/drive/1/param/*"), BadKey::ParamWildcard);
         assert_eq!(
             err("**/line2/drive/1/param/P1082"),
@@ -362,15 +396,52 @@ mod tests {
         assert!(k.stops_named("**/line2/drive/1/stop", &[1, 2]).is_err());
     }
 
+    #[test]
+    fn a_write_key_is_read_by_its_own_segment_whatever_the_prefix_holds() {
+        let k = Keys::new("uss/set/param", "line1");
+        let named = k
+            .params_named(
+                "uss/set/param/line1/drive/2/set/P1121",
+                ParamKey::Write,
+                &[],
+            )
+            .unwrap();
+        assert_eq!(
+            (
+                named[0].drive,
+                named[0].param.to_string(),
+                named[0].key.as_str()
+            ),
+            (
+                2,
+                "P1121".to_owned(),
+                "uss/set/param/line1/drive/2/set/P1121"
+            )
+        );
+        let wild = k
+            .params_named("**/line1/drive/2/set/P1121", ParamKey::Write, &[1, 2])
+            .unwrap();
+        assert_eq!(wild[0].key, "uss/set/param/line1/drive/2/set/P1121");
+        assert!(
+            k.params_named(
+                "uss/set/param/line1/drive/2/param/P1121",
+                ParamKey::Write,
+                &[]
+            )
+            .is_err()
+        );
+    }
+
     proptest::proptest! {
         /// Any key is read or refused, never a panic.
         #[test]
         fn any_key_is_read_or_refused(tail in ".{0,40}") {
             let k = Keys::new("uss/p", "b");
-            let _ = k.param_of(&format!("uss/p/b/drive/{tail}"));
+            let _ = k.param_of(&format!("uss/p/b/drive/{tail}"), ParamKey::Read);
             let _ = k.stop_of(&format!("uss/p/b/drive/{tail}"));
             let _ = k.output_of(&format!("uss/p/b/drive/{tail}"));
-            let _ = k.params_named(&format!("**/b/drive/{tail}"), &[1, 2]);
+            let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Read, &[1, 2]);
+            let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Write, &[1, 2]);
             let _ = k.stops_named(&format!("**/b/drive/{tail}"), &[1, 2]);
         }
     }

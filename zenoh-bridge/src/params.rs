@@ -7,7 +7,7 @@
 //! gives for the same failure.
 
 use crate::control::Held;
-use crate::keys::Keys;
+use crate::keys::{Keys, ParamKey};
 use crate::payload::ParamReply;
 use core::time::Duration;
 use std::sync::Arc;
@@ -32,44 +32,33 @@ fn answers(
     name: &str,
     query: &Query,
     rules: Rules<'_>,
-    write_key: bool,
+    which: ParamKey,
 ) -> Result<Vec<Answer>, String> {
-    let asked = query.key_expr().as_str();
-    // A write key (`.../set/P1082`) names its parameter as the read key does.
-    let key = if write_key {
-        asked.replacen("/set/", "/param/", 1)
-    } else {
-        asked.to_owned()
-    };
-    match (write_key, query.payload().is_some()) {
-        (true, false) => {
+    let key = query.key_expr().as_str();
+    match (which, query.payload().is_some()) {
+        (ParamKey::Write, false) => {
             return Err(format!(
-                "{asked}: a query on .../set/<P> writes: send the value as its payload (e.g. 45.0)"
+                "{key}: a query on .../set/<P> writes: send the value as its payload (e.g. 45.0)"
             ));
         }
-        (false, true) if rules.policy => {
+        (ParamKey::Read, true) if rules.policy => {
             return Err(format!(
-                "{asked}: under this bridge's access policy parameters are written through \
+                "{key}: under this bridge's access policy parameters are written through \
                  .../drive/<address>/set/<P>, which the policy grants as the right to write"
             ));
         }
         _ => {}
     }
-    let drives = match (bus, crate::keys::has_wildcards(&key)) {
+    let drives = match (bus, crate::keys::has_wildcards(key)) {
         (Ok(b), true) => b.drives(),
         _ => Vec::new(),
     };
-    let mut named = keys
-        .params_named(&key, &drives)
+    let named = keys
+        .params_named(key, which, &drives)
         .map_err(|e| e.to_string())?;
-    if write_key {
-        for n in &mut named {
-            n.key = n.key.replacen("/param/", "/set/", 1);
-        }
-    }
     if named.len() > 1 && query.payload().is_some() {
         return Err(format!(
-            "{asked}: a write names one drive and one parameter exactly (this key names {})",
+            "{key}: a write names one drive and one parameter exactly (this key names {})",
             named.len()
         ));
     }
@@ -160,22 +149,29 @@ const QUEUE: usize = 256;
 /// Serves the parameter queries of bus `name` until `stop`: reads (and, without a policy,
 /// writes) on `.../drive/<addr>/param/<P>`, writes on `.../drive/<addr>/set/<P>`.
 pub fn serve(session: &Session, name: &str, keys: &Keys, rules: Rules<'_>, stop: &Arc<AtomicBool>) {
-    let (tx, rx) = crossbeam_channel::bounded::<(Query, bool)>(QUEUE);
+    let (tx, rx) = crossbeam_channel::bounded::<(Query, ParamKey)>(QUEUE);
     let mut queryables = Vec::new();
-    for (key, write_key) in [(keys.params(), false), (keys.writes(), true)] {
+    for (key, which) in [
+        (keys.params(), ParamKey::Read),
+        (keys.writes(), ParamKey::Write),
+    ] {
         let tx = tx.clone();
-        // Zenoh's callback never blocks: a full queue is an answer too.
+        // Zenoh's callback never blocks: a full queue, or a thread that has ended, is an
+        // answer too, so every query ends in one.
         let declared = session
             .declare_queryable(&key)
-            .callback(move |q| {
-                if let Err(crossbeam_channel::TrySendError::Full((q, _))) =
-                    tx.try_send((q, write_key))
-                {
+            .callback(move |q| match tx.try_send((q, which)) {
+                Ok(()) => {}
+                Err(crossbeam_channel::TrySendError::Full((q, _))) => reply(
+                    &q,
+                    Err(format!(
+                        "the bridge is {QUEUE} parameter queries behind: ask again"
+                    )),
+                ),
+                Err(crossbeam_channel::TrySendError::Disconnected((q, _))) => {
                     reply(
                         &q,
-                        Err(format!(
-                            "the bridge is {QUEUE} parameter queries behind: ask again"
-                        )),
+                        Err("the bridge is stopping: nothing was done".to_owned()),
                     );
                 }
             })
@@ -191,7 +187,7 @@ pub fn serve(session: &Session, name: &str, keys: &Keys, rules: Rules<'_>, stop:
     drop(tx);
     let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
     while !stop.load(Ordering::Relaxed) {
-        let (query, write_key) = match rx.recv_timeout(Duration::from_millis(100)) {
+        let (query, which) = match rx.recv_timeout(Duration::from_millis(100)) {
             Ok(q) => q,
             Err(crossbeam_channel::RecvTimeoutError::Timeout) => continue,
             Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
@@ -199,7 +195,7 @@ pub fn serve(session: &Session, name: &str, keys: &Keys, rules: Rules<'_>, stop:
         if bus.is_err() {
             bus = Bus::open_as(name, "uss-zenoh-params").map_err(|e| e.to_string());
         }
-        match answers(bus.as_ref(), keys, name, &query, rules, write_key) {
+        match answers(bus.as_ref(), keys, name, &query, rules, which) {
             Ok(list) => {
                 for (key, answer) in list {
                     reply_as(&query, &key, answer);

@@ -364,9 +364,10 @@ fn get(
     repeat: u32,
     timed: bool,
 ) -> Result<(), Failure> {
-    let key = match value {
-        Some(_) => key.replacen("/param/", "/set/", 1),
-        None => key.to_owned(),
+    // The last `/param/` is the parameter's (a prefix may hold the word too).
+    let key = match (value, key.rfind("/param/")) {
+        (Some(_), Some(at)) => format!("{}/set/{}", &key[..at], &key[at + "/param/".len()..]),
+        _ => key.to_owned(),
     };
     let key = &key;
     for _ in 0..repeat {
