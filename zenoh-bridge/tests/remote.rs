@@ -771,6 +771,15 @@ fn a_drive_under_remote_control_takes_no_parameter_writes_from_the_network() {
         &pki,
     );
     ns.use_tls(Some(pki.client("controller")));
+    // The bridge answers over TLS before the run starts (its first session takes a moment).
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while !ns.call(&["get", &format!("{drive}/param/P1121")]).0 {
+        assert!(
+            Instant::now() < deadline,
+            "the bridge never answered over TLS"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
     let mut run = ns.client(&["run", &drive, "--hz", "10"]);
     run.says("re-armed");
     wait_image(&watch, Duration::from_secs(10), "live", |i| !latched(i));
