@@ -7,16 +7,39 @@ Against a bridge on mutual TLS, with this host's certificate and the plant's CA:
 
     python3 read_param.py tls/10.0.0.2:7447 uss/plant/line1/drive/1/param/P1082 \\
         --cert hmi.pem --key hmi.key --ca ca.pem
+
+With a certificate the query goes out under its common name
+(uss/plant/line1/as/<name>/drive/1/param/P1082), the name a bridge's access policy grants rights
+to; --as NAME names it otherwise.
 """
 
 import argparse
 import json
+import ssl
 import sys
 
 import zenoh
 
 
-def main(endpoint: str, key: str, cert=None, private_key=None, ca=None) -> int:
+def common_name(cert: str):
+    """The common name of the PEM certificate `cert`, or None if it cannot be read."""
+    try:
+        # The decoder Python's own ssl tests use: no package beyond the standard library.
+        subject = ssl._ssl._test_decode_cert(cert)["subject"]
+    except (AttributeError, OSError, ssl.SSLError, KeyError):
+        return None
+    return next((v for rdn in subject for (k, v) in rdn if k == "commonName"), None)
+
+
+def named(key: str, name) -> str:
+    """`key` under the sender's name: as/<name> before the last /drive/ (or after a bus's key)."""
+    if not name:
+        return key
+    at = key.rfind("/drive/")
+    return f"{key[:at]}/as/{name}{key[at:]}" if at >= 0 else f"{key}/as/{name}"
+
+
+def main(endpoint: str, key: str, cert=None, private_key=None, ca=None, name=None) -> int:
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
@@ -29,6 +52,9 @@ def main(endpoint: str, key: str, cert=None, private_key=None, ca=None) -> int:
         ]:
             conf.insert_json5(f"transport/link/tls/{setting}", json.dumps(path))
         conf.insert_json5("transport/link/tls/enable_mtls", "true")
+    if name is None and cert:
+        name = common_name(cert)
+    key = named(key, name)
     with zenoh.open(conf) as session:
         for reply in session.get(key, timeout=10.0):
             if reply.ok is None:
@@ -48,7 +74,10 @@ if __name__ == "__main__":
     parser.add_argument("--cert", help="this host's certificate (PEM), for mutual TLS")
     parser.add_argument("--key", dest="private_key", help="its private key (PEM)")
     parser.add_argument("--ca", help="the CA (PEM) the bridge's certificate is signed by")
+    parser.add_argument(
+        "--as", dest="name", help="send under this name (default: the certificate's common name)"
+    )
     a = parser.parse_args()
     if a.cert and not (a.private_key and a.ca):
         parser.error("--cert needs --key and --ca")
-    sys.exit(main(a.endpoint, a.key, a.cert, a.private_key, a.ca))
+    sys.exit(main(a.endpoint, a.key, a.cert, a.private_key, a.ca, a.name))

@@ -27,8 +27,10 @@
 //! handshake of one drive never delays another's samples) and reports itself what it cannot
 //! hand on (control not allowed, ussd not running, a drive ussd does not poll, a full queue).
 
+use crate::gate::{Gate, Peer};
 use crate::keys::{Keys, StopTarget};
 use crate::payload::{ControlReport, Out, SampleError, StopReply, unix_ns};
+use crate::policy::Right;
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use std::collections::HashMap;
@@ -58,6 +60,8 @@ const STOP_TIMEOUT_MAX: Duration = Duration::from_secs(8);
 const REPORT_EVERY: Duration = Duration::from_secs(1);
 /// A sample as the dispatcher read it: parsed once, or why it could not be.
 type Parsed = Result<Out, SampleError>;
+/// A sample for a drive's thread: as parsed, and who sent it.
+type FromPeer = (Parsed, Peer);
 
 /// Samples waiting for the dispatcher, and for each drive's thread.
 const QUEUE: usize = 1024;
@@ -87,14 +91,24 @@ fn stop_command(payload: Option<&str>) -> Result<StopCommand, String> {
 type Sent = (StopCommand, StopTarget, Vec<u8>);
 
 /// Sends the stop a query asks for, or says why not.
-fn send_stop(bus: &Bus, keys: &Keys, query: &Query) -> Result<Sent, String> {
+fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent, String> {
     let key = query.key_expr().as_str();
+    let (name, keys) = keys.sender(key).map_err(|e| e.to_string())?;
+    let peer = gate.peer(name);
     let drives = if crate::keys::has_wildcards(key) {
         bus.drives()
     } else {
         Vec::new()
     };
     let target = keys.stops_named(key, &drives).map_err(|e| e.to_string())?;
+    match &target {
+        StopTarget::Bus(_) => gate.check(&peer, Right::Stop, None)?,
+        StopTarget::Drives(named) => {
+            for (drive, _) in named {
+                gate.check(&peer, Right::Stop, Some(*drive))?;
+            }
+        }
+    }
     let payload = query
         .payload()
         .map(|p| p.try_to_string().map(std::borrow::Cow::into_owned))
@@ -169,6 +183,7 @@ pub fn serve_stops(
     queryable: &Queryable<FifoChannelHandler<Query>>,
     name: &str,
     keys: &Keys,
+    gate: &Gate,
     stop_flag: &Arc<AtomicBool>,
 ) {
     let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
@@ -185,7 +200,7 @@ pub fn serve_stops(
         let sent = bus
             .as_ref()
             .map_err(Clone::clone)
-            .and_then(|b| send_stop(b, keys, &query));
+            .and_then(|b| send_stop(b, keys, gate, &query));
         match sent {
             Ok((command, target, drives)) => {
                 if confirming.load(Ordering::Relaxed) >= MAX_CONFIRMING {
@@ -221,20 +236,30 @@ pub fn serve_stops(
     }
 }
 
-/// The drives of one bus the bridge holds for a remote controller, with the sender (`from`)
-/// that holds each. ussd's rule "a controlled drive takes no writes from another process" sees
-/// one process in the bridge, whichever peer asks; and the bridge cannot prove that a parameter
-/// query comes from the peer that holds the drive (a query names no sender Zenoh has
-/// authenticated). So while it holds a drive, the bridge refuses every parameter write to it
-/// from the network ([`crate::params`]).
+/// The drives of one bus the bridge holds for a remote controller, with who holds each: its
+/// `from`, and its certificate's name when Zenoh bound its key to it (an access policy that
+/// lists it). ussd's rule "a controlled drive takes no writes from another process" sees one
+/// process in the bridge, whichever peer asks; so the bridge applies it per peer
+/// ([`crate::params`]): while it holds a drive, a parameter write to it is refused unless it
+/// comes from the holder's own certificate (a peer it cannot tell apart from another is
+/// refused).
 #[derive(Debug, Default)]
 pub struct Held {
-    holders: Mutex<HashMap<u8, String>>,
+    holders: Mutex<HashMap<u8, Holder>>,
+}
+
+/// Who the bridge holds a drive for.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Holder {
+    /// The remote controller's `from`.
+    pub from: String,
+    /// Its certificate's name, when the bridge knows it for sure.
+    pub verified: Option<String>,
 }
 
 impl Held {
     /// Who holds `drive`, if the bridge holds it.
-    pub fn holder(&self, drive: u8) -> Option<String> {
+    pub fn holder(&self, drive: u8) -> Option<Holder> {
         self.holders
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
@@ -242,7 +267,7 @@ impl Held {
             .cloned()
     }
 
-    fn set(&self, drive: u8, holder: Option<String>) {
+    fn set(&self, drive: u8, holder: Option<Holder>) {
         let mut holders = self
             .holders
             .lock()
@@ -262,30 +287,38 @@ pub fn serve_control(
     name: &str,
     keys: &Keys,
     allowed: bool,
+    gate: &Gate,
     held: &Arc<Held>,
     stop_flag: &Arc<AtomicBool>,
 ) {
     let (tx, rx) = crossbeam_channel::bounded::<Sample>(QUEUE);
-    // The callback runs on Zenoh's own thread: it never blocks it (a full queue drops the
-    // sample, and the drive's watchdog sees a missing sample as it sees a lost one).
-    let subscriber = session
-        .declare_subscriber(keys.outputs())
-        .callback(move |sample| {
-            let _ = tx.try_send(sample);
-        })
-        .wait();
-    let _subscriber = match subscriber {
-        Ok(s) => s,
-        Err(e) => {
-            eprintln!("uss-zenoh: cannot subscribe to {}: {e}", keys.outputs());
-            return;
+    // Samples of peers that do not name themselves, and of those that do (.../as/<name>/...).
+    let mut subscribers = Vec::new();
+    for key in [keys.outputs(), keys.named().outputs()] {
+        let tx = tx.clone();
+        // The callback runs on Zenoh's own thread: it never blocks it (a full queue drops the
+        // sample, and the drive's watchdog sees a missing sample as it sees a lost one).
+        let subscriber = session
+            .declare_subscriber(&key)
+            .callback(move |sample| {
+                let _ = tx.try_send(sample);
+            })
+            .wait();
+        match subscriber {
+            Ok(s) => subscribers.push(s),
+            Err(e) => {
+                eprintln!("uss-zenoh: cannot subscribe to {key}: {e}");
+                return;
+            }
         }
-    };
+    }
+    drop(tx);
     let mut d = Dispatcher {
         session,
         name,
         keys,
         allowed,
+        gate,
         held,
         stop_flag,
         bus: None,
@@ -312,39 +345,50 @@ struct Dispatcher<'a> {
     name: &'a str,
     keys: &'a Keys,
     allowed: bool,
+    gate: &'a Gate,
     held: &'a Arc<Held>,
     stop_flag: &'a Arc<AtomicBool>,
     bus: Option<Bus>,
     /// When ussd is tried again while it is not running.
     next_open: Instant,
-    drives: HashMap<u8, (Sender<Parsed>, std::thread::JoinHandle<()>)>,
+    drives: HashMap<u8, (Sender<FromPeer>, std::thread::JoinHandle<()>)>,
     /// Samples this dispatcher refused, per drive.
     refused: HashMap<u8, u64>,
 }
 
 impl Dispatcher<'_> {
     fn dispatch(&mut self, sample: &Sample) {
-        let Some(drive) = self.keys.output_of(sample.key_expr().as_str()) else {
+        let key = sample.key_expr().as_str();
+        // A key with a wildcard for the name was published by nobody in particular: dropped.
+        let Ok((name, keys)) = self.keys.sender(key) else {
             return;
         };
+        let Some(drive) = keys.output_of(key) else {
+            return;
+        };
+        let peer = self.gate.peer(name);
         let parsed = Out::parse(&sample.payload().to_bytes());
         let sender = parsed.as_ref().ok().map(|o| o.from.clone());
-        if let Err(why) = self.hand_on(drive, parsed) {
+        let who = peer.to_string();
+        if let Err(why) = self.hand_on(drive, parsed, peer) {
             let refused = self.refused.entry(drive).or_default();
             *refused += 1;
             let mut report = ControlReport::new(self.name, drive);
             report.state = "refused";
             report.sender = sender;
+            report.peer = Some(who);
             report.error = Some(why);
             report.refused = *refused;
             put_report(self.session, &self.keys.control(drive), &report);
         }
     }
 
-    fn hand_on(&mut self, drive: u8, sample: Parsed) -> Result<(), String> {
+    fn hand_on(&mut self, drive: u8, sample: Parsed, peer: Peer) -> Result<(), String> {
         if !self.allowed {
+            self.gate.count(&peer, Right::Control, CONTROL_REFUSED);
             return Err(CONTROL_REFUSED.to_owned());
         }
+        self.gate.check(&peer, Right::Control, Some(drive))?;
         if self.bus.is_none() && Instant::now() >= self.next_open {
             self.next_open = Instant::now() + Duration::from_millis(250);
             self.bus = Bus::open_as(self.name, "uss-zenoh-control").ok();
@@ -379,7 +423,7 @@ impl Dispatcher<'_> {
         let Some((tx, _)) = self.drives.get(&drive) else {
             return Err("no control thread".to_owned());
         };
-        match tx.try_send(sample) {
+        match tx.try_send((sample, peer)) {
             Ok(()) => Ok(()),
             Err(TrySendError::Full(_)) => Err(format!(
                 "the bridge is {DRIVE_QUEUE} samples behind with drive {drive}: this one was dropped"
@@ -428,16 +472,27 @@ struct Remote<'a> {
     /// [`RELEASE_AFTER`] after it (refused samples do not keep it).
     active: Option<Instant>,
     report: ControlReport<'a>,
+    /// The certificate name of the holder, when the bridge knows it for sure.
+    holder_verified: Option<String>,
     reported: Option<ControlReport<'a>>,
     next_report: Instant,
 }
 
 impl Remote<'_> {
     /// Passes one sample on, or says why not.
-    fn take(&mut self, sample: Parsed) -> Result<(), String> {
+    fn take(&mut self, (sample, peer): FromPeer) -> Result<(), String> {
         let out = sample.map_err(|e| e.to_string())?;
         self.report.sender = Some(out.from.clone());
-        if let Some(holder) = self.report.holder.as_ref().filter(|h| **h != out.from) {
+        self.report.peer = Some(peer.to_string());
+        let verified = peer.verified_name().map(str::to_owned);
+        // The holder is its `from` and, where Zenoh checked it, its certificate: a peer that
+        // sends another's `from` is another sender.
+        if let Some(holder) = self
+            .report
+            .holder
+            .as_ref()
+            .filter(|h| **h != out.from || self.holder_verified != verified)
+        {
             return Err(format!(
                 "drive {} is controlled remotely by {holder:?} until it releases it or falls \
                  silent: nothing of {:?} was sent",
@@ -472,7 +527,8 @@ impl Remote<'_> {
             .pzd(usize::from(info.pzd_words), info.reference_hz)
             .map_err(|e| e.to_string())?;
         let image = c.inputs().latest();
-        let holds = self.report.holder.as_ref() == Some(&out.from);
+        let holds =
+            self.report.holder.as_ref() == Some(&out.from) && self.holder_verified == verified;
         if image.is_live() && !holds {
             // Live without this sender having re-armed it: its holder fell silent and ussd has
             // not shown the trip yet. Only a named re-arm of that latch takes it over.
@@ -496,6 +552,8 @@ impl Remote<'_> {
                 self.active = self.last_taken;
                 self.report.seq = Some(out.seq);
                 self.report.holder = Some(out.from);
+                self.report.holder_peer = self.report.peer.clone();
+                self.holder_verified = verified;
                 Ok(())
             }
             Err(
@@ -515,6 +573,8 @@ impl Remote<'_> {
             self.report.error = None;
         }
         self.report.holder = None;
+        self.report.holder_peer = None;
+        self.holder_verified = None;
         self.last_seq = None;
         self.last_taken = None;
         self.active = None;
@@ -557,7 +617,7 @@ fn control_drive(
     name: &str,
     keys: &Keys,
     drive: u8,
-    samples: &Receiver<Parsed>,
+    samples: &Receiver<FromPeer>,
     held: &Held,
     stop_flag: &AtomicBool,
 ) {
@@ -566,7 +626,7 @@ fn control_drive(
         report.state = "refused";
         report.sender = samples
             .try_iter()
-            .filter_map(Result::ok)
+            .filter_map(|(parsed, _)| parsed.ok())
             .last()
             .map(|o| o.from);
         report.error = Some(format!("ussd is not running on {name}: nothing was sent"));
@@ -588,6 +648,7 @@ fn control_drive(
         last_taken: None,
         active: None,
         report: ControlReport::new(name, drive),
+        holder_verified: None,
         reported: None,
         next_report: Instant::now(),
     };
@@ -605,6 +666,8 @@ fn control_drive(
             // restarted, with an older sequence number) may take it, re-arming it by its latch.
             remote.last_seq = None;
             remote.report.holder = None;
+            remote.report.holder_peer = None;
+            remote.holder_verified = None;
         }
         match newest {
             Ok(sample) => match remote.take(sample) {
@@ -629,10 +692,10 @@ fn control_drive(
         }
         held.set(
             drive,
-            remote
-                .controller
-                .as_ref()
-                .map(|_| remote.report.holder.clone().unwrap_or_default()),
+            remote.controller.as_ref().map(|_| Holder {
+                from: remote.report.holder.clone().unwrap_or_default(),
+                verified: remote.holder_verified.clone(),
+            }),
         );
         remote.publish_report();
     }

@@ -98,6 +98,44 @@ impl Keys {
         format!("{}/drive/*/set/*", self.base)
     }
 
+    /// The same layout under a peer's name (`<prefix>/<bus>/as/<name>/drive/...`), where a peer
+    /// that names itself sends: under an access policy Zenoh lets only the peer whose
+    /// certificate's common name is `name` send there (for every name the policy lists), so the
+    /// bridge knows who asks and answers a refusal with the right that is missing.
+    pub fn as_peer(&self, name: &str) -> Self {
+        Self {
+            base: format!("{}/as/{name}", self.base),
+        }
+    }
+
+    /// Every named peer's keys (`<prefix>/<bus>/as/*/...`), for one subscriber or queryable.
+    pub fn named(&self) -> Self {
+        self.as_peer("*")
+    }
+
+    /// Who a message's key says sent it, and the keys to read the rest of it with: the name
+    /// and [`Self::as_peer`] for a key with the identity segment (`.../as/<name>/drive/...`,
+    /// `.../as/<name>/stop`), `None` and these keys for one without.
+    pub fn sender(&self, key: &str) -> Result<(Option<String>, Self), KeyError> {
+        let segments: Vec<&str> = key.split('/').collect();
+        let named = (0..segments.len().saturating_sub(2)).rev().find(|&i| {
+            segments[i] == "as"
+                && (segments[i + 2] == "drive"
+                    || (segments[i + 2] == "stop" && i + 3 == segments.len()))
+        });
+        let Some(i) = named else {
+            return Ok((None, self.clone()));
+        };
+        let name = segments[i + 1];
+        if name.is_empty() || has_wildcards(name) || name.contains('$') {
+            return Err(KeyError {
+                key: key.to_owned(),
+                kind: BadKey::Name(name.to_owned()),
+            });
+        }
+        Ok((Some(name.to_owned()), self.as_peer(name)))
+    }
+
     /// The drive and parameter a parameter query's key names (a read key `.../param/<P>` or a
     /// write key `.../set/<P>`), or why it names none.
     pub fn param_of(&self, key: &str, which: ParamKey) -> Result<(u8, ParamRef), KeyError> {
@@ -281,6 +319,11 @@ pub enum BadKey {
     ParamWildcard,
     #[error("not a key expression: {0}")]
     Expression(String),
+    #[error(
+        "{0:?}: .../as/<name>/... names one peer: write out its name (its certificate's common \
+         name), not a wildcard"
+    )]
+    Name(String),
 }
 
 /// A drive address 0..=31 as a key writes it.
@@ -432,6 +475,47 @@ mod tests {
         );
     }
 
+    #[test]
+    fn a_key_under_as_names_its_sender_and_reads_like_any_other() {
+        let k = Keys::new("uss/plant", "line1");
+        let (who, peer) = k.sender("uss/plant/line1/as/hmi-1/drive/3/out").unwrap();
+        assert_eq!(who.as_deref(), Some("hmi-1"));
+        assert_eq!(
+            peer.output_of("uss/plant/line1/as/hmi-1/drive/3/out"),
+            Some(3)
+        );
+        assert_eq!(peer.control(3), "uss/plant/line1/as/hmi-1/drive/3/control");
+        let (who, peer) = k.sender("uss/plant/line1/as/hmi-1/stop").unwrap();
+        assert_eq!(who.as_deref(), Some("hmi-1"));
+        assert_eq!(peer.stop_of("uss/plant/line1/as/hmi-1/stop"), Ok(None));
+        // A wildcard prefix: the name is found from the end, the reply key is concrete.
+        let (who, peer) = k.sender("**/line1/as/eng/drive/2/set/P1121").unwrap();
+        assert_eq!(who.as_deref(), Some("eng"));
+        let named = peer
+            .params_named(
+                "**/line1/as/eng/drive/2/set/P1121",
+                ParamKey::Write,
+                &[1, 2],
+            )
+            .unwrap();
+        assert_eq!(named[0].key, "uss/plant/line1/as/eng/drive/2/set/P1121");
+        // No name: the keys themselves.
+        let (who, peer) = k.sender("uss/plant/line1/drive/3/param/P1082").unwrap();
+        assert_eq!((who, peer.input(3)), (None, k.input(3)));
+        // A wildcard for the name names nobody.
+        for bad in [
+            "uss/plant/line1/as/*/drive/1/set/P1121",
+            "uss/plant/line1/as/ctl$*/drive/1/out",
+            "uss/plant/line1/as/**/drive/1/out",
+        ] {
+            assert!(
+                matches!(k.sender(bad).unwrap_err().kind, BadKey::Name(_)),
+                "{bad}"
+            );
+        }
+        assert_eq!(k.named().params(), "uss/plant/line1/as/*/drive/*/param/*");
+    }
+
     proptest::proptest! {
         /// Any key is read or refused, never a panic.
         #[test]
@@ -443,6 +527,7 @@ mod tests {
             let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Read, &[1, 2]);
             let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Write, &[1, 2]);
             let _ = k.stops_named(&format!("**/b/drive/{tail}"), &[1, 2]);
+            let _ = k.sender(&format!("uss/p/b/as/{tail}"));
         }
     }
 }

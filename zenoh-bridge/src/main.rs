@@ -6,6 +6,7 @@
 //! anywhere, and remote control only with `--allow-control`.
 
 mod control;
+mod gate;
 mod keys;
 mod params;
 mod payload;
@@ -63,8 +64,10 @@ struct Cli {
     #[arg(long)]
     insecure_network: bool,
     /// Who may do what: a TOML file granting rights (read, stop, write, control) per
-    /// certificate common name, bus and drive (README, "Who may do what"), enforced by Zenoh's
-    /// access control on every message. Needs mutual TLS.
+    /// certificate common name, bus and drive (README, "Who may do what"). Zenoh's access
+    /// control binds each listed name to its certificate and subscriptions to `read`; the
+    /// bridge checks every put and query and answers a refusal with the missing right. Needs
+    /// mutual TLS.
     #[arg(long, value_name = "FILE")]
     policy: Option<PathBuf>,
 }
@@ -240,12 +243,12 @@ fn run(cli: &Cli) -> Result<(), StartError> {
             bus: bus.clone(),
             keys: keys::Keys::new(&prefix, bus),
             max_rate: cli.max_rate,
+            gate: Arc::new(gate::Gate::new(bus, policy.clone())),
         };
         let (w, c) = (cli.allow_writes, cli.allow_control);
         // The drives the bridge holds for remote controllers: no parameter writes to them.
         let held = Arc::new(control::Held::default());
         let held_too = Arc::clone(&held);
-        let with_policy = policy.is_some();
         // Declared before anything else runs: without it the bridge does not run.
         let stops = session
             .declare_queryable(options.keys.stops())
@@ -258,12 +261,14 @@ fn run(cli: &Cli) -> Result<(), StartError> {
             ("publish", Box::new(publish::run)),
             (
                 "stops",
-                Box::new(move |_, o, st| control::serve_stops(&stops, &o.bus, &o.keys, st)),
+                Box::new(move |_, o, st| {
+                    control::serve_stops(&stops, &o.bus, &o.keys, &o.gate, st);
+                }),
             ),
             (
                 "control",
                 Box::new(move |s, o, st| {
-                    control::serve_control(s, &o.bus, &o.keys, c, &held, st);
+                    control::serve_control(s, &o.bus, &o.keys, c, &o.gate, &held, st);
                 }),
             ),
             (
@@ -272,7 +277,7 @@ fn run(cli: &Cli) -> Result<(), StartError> {
                     let rules = params::Rules {
                         allow_writes: w,
                         held: &held_too,
-                        policy: with_policy,
+                        gate: &o.gate,
                     };
                     params::serve(s, &o.bus, &o.keys, rules, st);
                 }),
@@ -295,7 +300,9 @@ fn run(cli: &Cli) -> Result<(), StartError> {
         allowed(cli.allow_writes),
         allowed(cli.allow_control),
         links.name(),
-        policy.map_or_else(String::new, |p| format!(", policy: {}", p.summary())),
+        policy
+            .as_ref()
+            .map_or_else(String::new, |p| format!(", policy: {}", p.summary())),
         session.zid()
     );
     for t in threads {

@@ -2,13 +2,16 @@
 //! query without a payload reads the parameter from the drive through ussd; a query with a
 //! payload (`45.0`) writes it, only when the bridge runs with `--allow-writes`, and then under
 //! the same rules as a local write (refused while another process controls the drive, and while
-//! this bridge holds the drive for a remote controller: [`crate::control::Held`]). Every
+//! this bridge holds the drive for a remote controller: [`crate::control::Held`]), and the
+//! rights of the bridge's access policy ([`crate::gate`]). Every
 //! query ends in exactly one reply: the value as JSON, or an error reply with the text `ussctl`
 //! gives for the same failure.
 
 use crate::control::Held;
+use crate::gate::{Gate, Peer};
 use crate::keys::{Keys, ParamKey};
 use crate::payload::ParamReply;
+use crate::policy::Right;
 use core::time::Duration;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -29,26 +32,19 @@ type Answer = (String, Result<String, String>);
 fn answers(
     bus: Result<&Bus, &String>,
     keys: &Keys,
-    name: &str,
+    bus_name: &str,
     query: &Query,
     rules: Rules<'_>,
     which: ParamKey,
 ) -> Result<Vec<Answer>, String> {
     let key = query.key_expr().as_str();
-    match (which, query.payload().is_some()) {
-        (ParamKey::Write, false) => {
-            return Err(format!(
-                "{key}: a query on .../set/<P> writes: send the value as its payload (e.g. 45.0)"
-            ));
-        }
-        (ParamKey::Read, true) if rules.policy => {
-            return Err(format!(
-                "{key}: under this bridge's access policy parameters are written through \
-                 .../drive/<address>/set/<P>, which the policy grants as the right to write"
-            ));
-        }
-        _ => {}
+    if which == ParamKey::Write && query.payload().is_none() {
+        return Err(format!(
+            "{key}: a query on .../set/<P> writes: send the value as its payload (e.g. 45.0)"
+        ));
     }
+    let (name, keys) = keys.sender(key).map_err(|e| e.to_string())?;
+    let peer = rules.gate.peer(name);
     let drives = match (bus, crate::keys::has_wildcards(key)) {
         (Ok(b), true) => b.drives(),
         _ => Vec::new(),
@@ -65,7 +61,7 @@ fn answers(
     Ok(named
         .into_iter()
         .map(|n| {
-            let answer = answer(bus, name, query, rules, n.drive, n.param);
+            let answer = answer(bus, bus_name, query, rules, &peer, n.drive, n.param);
             (n.key, answer)
         })
         .collect())
@@ -77,6 +73,7 @@ fn answer(
     name: &str,
     query: &Query,
     rules: Rules<'_>,
+    peer: &Peer,
     drive: u8,
     param: uss_client::uss_protocol::ParamRef,
 ) -> Result<String, String> {
@@ -89,6 +86,16 @@ fn answer(
         })
         .transpose()?
         .filter(|s| !s.is_empty());
+    let right = if payload.is_some() {
+        Right::Write
+    } else {
+        Right::Read
+    };
+    if right == Right::Write && !rules.allow_writes {
+        rules.gate.count(peer, right, WRITES_REFUSED);
+        return Err(WRITES_REFUSED.to_owned());
+    }
+    rules.gate.check(peer, right, Some(drive))?;
     let bus = bus.map_err(Clone::clone)?;
     // The texts of `ussctl param read/write` for the same failures.
     let failed = |e: ParamError| match e {
@@ -102,13 +109,17 @@ fn answer(
             &bus.read_param(drive, param).map_err(failed)?,
             None,
         ),
-        Some(_) if !rules.allow_writes => return Err(WRITES_REFUSED.to_owned()),
-        Some(_) if let Some(holder) = rules.held.holder(drive) => {
+        Some(_)
+            if let Some(holder) = rules.held.holder(drive).filter(|h| {
+                h.verified.is_none() || h.verified.as_deref() != peer.verified_name()
+            }) =>
+        {
             return Err(format!(
-                "drive {drive} {param}: the drive runs under remote control by {holder:?} through \
+                "drive {drive} {param}: the drive runs under remote control by {:?} through \
                  this bridge: parameter writes from the network are refused until it releases \
-                 the drive (the bridge cannot tell that peer's queries from another's); nothing \
-                 was written"
+                 the drive, but from that controller's own certificate (named in the bridge's \
+                 access policy, sending under .../as/<its name>/...); nothing was written",
+                holder.from
             ));
         }
         Some(text) => {
@@ -136,24 +147,27 @@ fn answer(
 pub struct Rules<'a> {
     /// `--allow-writes`.
     pub allow_writes: bool,
-    /// The drives the bridge holds for a remote controller: no writes to them.
+    /// The drives the bridge holds for a remote controller: no writes to them from another.
     pub held: &'a Held,
-    /// An access policy is in force: writes only through `.../set/<P>`, the key its `write`
-    /// right covers.
-    pub policy: bool,
+    /// The bus's check of who may do what.
+    pub gate: &'a Gate,
 }
 
 /// Queries waiting for the parameter thread; a full queue answers at once that it is full.
 const QUEUE: usize = 256;
 
-/// Serves the parameter queries of bus `name` until `stop`: reads (and, without a policy,
-/// writes) on `.../drive/<addr>/param/<P>`, writes on `.../drive/<addr>/set/<P>`.
+/// Serves the parameter queries of bus `name` until `stop`: reads (and writes) on
+/// `.../drive/<addr>/param/<P>`, writes on `.../drive/<addr>/set/<P>`, each also under a peer's
+/// name (`.../as/<name>/drive/...`), checked against the bus's access policy.
 pub fn serve(session: &Session, name: &str, keys: &Keys, rules: Rules<'_>, stop: &Arc<AtomicBool>) {
     let (tx, rx) = crossbeam_channel::bounded::<(Query, ParamKey)>(QUEUE);
     let mut queryables = Vec::new();
+    // Queries of peers that do not name themselves, and of those that do (.../as/<name>/...).
     for (key, which) in [
         (keys.params(), ParamKey::Read),
         (keys.writes(), ParamKey::Write),
+        (keys.named().params(), ParamKey::Read),
+        (keys.named().writes(), ParamKey::Write),
     ] {
         let tx = tx.clone();
         // Zenoh's callback never blocks: a full queue, or a thread that has ended, is an

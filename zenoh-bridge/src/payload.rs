@@ -46,6 +46,9 @@ pub struct Status<'a> {
     pub efficiency: Option<f64>,
     pub mean_exchange_us: Option<f64>,
     pub line_up: Option<bool>,
+    /// Puts and queries the bridge refused on this bus since it started, per missing right
+    /// (its access policy, or control and writes not allowed).
+    pub refused: crate::gate::Refused,
     pub published_unix_ns: u64,
 }
 
@@ -73,6 +76,7 @@ impl<'a> Status<'a> {
             efficiency: status.and_then(BusStatus::efficiency),
             mean_exchange_us: status.map(|s| s.mean_exchange_ns as f64 / 1e3),
             line_up: status.map(|s| !s.is_line_down()),
+            refused: crate::gate::Refused::default(),
             published_unix_ns: unix_ns(),
         }
     }
@@ -360,6 +364,11 @@ pub struct ControlReport<'a> {
     pub holder: Option<String>,
     /// Who sent the last sample, taken or refused (what `state` and `error` are about).
     pub sender: Option<String>,
+    /// That sender as the bridge knows it: the name its key carried (`.../as/<name>/...`),
+    /// and whether a certificate vouches for it.
+    pub peer: Option<String>,
+    /// The holder as the bridge knows it (like `peer`).
+    pub holder_peer: Option<String>,
     /// The drive as ussd shows it: `live` or `latched`, why, and the latch to name in `rearm`.
     pub control: &'static str,
     pub latch_reason: &'static str,
@@ -427,6 +436,8 @@ impl<'a> ControlReport<'a> {
             state: "idle",
             holder: None,
             sender: None,
+            peer: None,
+            holder_peer: None,
             control: "unknown",
             latch_reason: "unknown",
             latch_id: 0,

@@ -36,6 +36,8 @@ pub struct Options {
     pub keys: Keys,
     /// At most this many images per second and drive (None: every one).
     pub max_rate: Option<f64>,
+    /// The bus's check of puts and queries: its refusals go out with the status.
+    pub gate: std::sync::Arc<crate::gate::Gate>,
 }
 
 /// Puts `value` as JSON on `key`; a failed put is reported on stderr and survived (the next one
@@ -154,7 +156,10 @@ impl Publisher<'_> {
             put(
                 self.session,
                 &self.o.keys.status(),
-                &Status::new(&self.o.bus, health.as_ref(), status.as_ref()),
+                &Status {
+                    refused: self.o.gate.refused(),
+                    ..Status::new(&self.o.bus, health.as_ref(), status.as_ref())
+                },
             );
         }
     }

@@ -121,6 +121,20 @@ fn put_sample(ns: &Netns, drive: &str, payload: &str, expect: &str) -> String {
     report
 }
 
+/// Waits until the bridge answers a parameter read of `drive` over TLS: its first TLS session
+/// takes a moment on a loaded machine, and a run or a check that starts before it would fail
+/// for that alone.
+fn answers_over_tls(ns: &Netns, drive: &str) {
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while !ns.call(&["get", &format!("{drive}/param/P1121")]).0 {
+        assert!(
+            Instant::now() < deadline,
+            "the bridge never answered over TLS"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
 fn json(line: &str) -> Value {
     serde_json::from_str(line.trim()).unwrap_or_else(|e| panic!("{e}: {line:?}"))
 }
@@ -181,14 +195,7 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
     ns.use_tls(Some(engineer.clone()));
     let (mut bridge_proc, _) = bridge_tls(&ns, &bus, &prefix, &["--allow-writes"], &pki);
     // The README's Python example over mutual TLS too.
-    let deadline = Instant::now() + Duration::from_secs(15);
-    while !ns.call(&["get", &key("drive/1/param/P1082")]).0 {
-        assert!(
-            Instant::now() < deadline,
-            "the bridge never answered over TLS"
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    }
+    answers_over_tls(&ns, &key("drive/1"));
     python_reads_p1082(&ns, &key("drive/1/param/P1082"), Some(&engineer));
     let deadline = Instant::now() + Duration::from_secs(15);
     let written = loop {
@@ -422,6 +429,7 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     let pki = Pki::new("control", "uss-rt test CA", &ns.here());
     ns.use_tls(Some(pki.client("controller")));
     let (mut bridge_proc, _) = bridge_tls(&ns, &bus, &prefix, &["--allow-control"], &pki);
+    answers_over_tls(&ns, &drive);
     let mut run = ns.client(&["run", &drive, "--hz", "10"]);
     run.says("re-armed");
     let (i, _) = wait_image(&watch, Duration::from_secs(10), "above 3 Hz", |i| {
@@ -613,6 +621,7 @@ fn a_remote_client_controls_a_drive_of_a_full_line_at_9600_baud() {
     let pki = Pki::new("full", "uss-rt test CA", &ns.here());
     ns.use_tls(Some(pki.client("controller")));
     let (_bridge, config) = bridge_tls(&ns, &bus, &prefix, &["--allow-control"], &pki);
+    answers_over_tls(&ns, &drive);
 
     let (ok, out, err) = ns.call(&["run", &drive, "--hz", "10", "--for", "3"]);
     assert!(ok, "{out}{err}");
@@ -741,6 +750,7 @@ fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_
     assert_eq!(i.sent_stw1, 0x047E);
     // The plant's controller gets in and runs it.
     ns.use_tls(Some(pki.client("controller")));
+    answers_over_tls(&ns, &drive);
     let (ok, out, err) = ns.call(&["run", &drive, "--hz", "5", "--for", "1"]);
     assert!(ok, "{err}");
     assert!(
@@ -772,14 +782,7 @@ fn a_drive_under_remote_control_takes_no_parameter_writes_from_the_network() {
     );
     ns.use_tls(Some(pki.client("controller")));
     // The bridge answers over TLS before the run starts (its first session takes a moment).
-    let deadline = Instant::now() + Duration::from_secs(15);
-    while !ns.call(&["get", &format!("{drive}/param/P1121")]).0 {
-        assert!(
-            Instant::now() < deadline,
-            "the bridge never answered over TLS"
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    }
+    answers_over_tls(&ns, &drive);
     let mut run = ns.client(&["run", &drive, "--hz", "10"]);
     run.says("re-armed");
     wait_image(&watch, Duration::from_secs(10), "live", |i| !latched(i));
@@ -865,7 +868,10 @@ fn a_query_with_wildcards_is_answered_under_each_concrete_key() {
 
 /// An access policy (`--policy`) grants rights per certificate: a peer with a valid certificate
 /// but without the `control` right cannot run a drive (it does not move), nor write without
-/// `write`; every authenticated peer may stop a drive; the controller runs only its drive.
+/// `write`, and each refusal is answered with the missing right, counted in the bus's status and
+/// logged with the peer's name; a peer that sends under another's name is not let in by Zenoh;
+/// every authenticated peer may stop a drive; the controller runs only its drive, and writes to
+/// it while it runs it (the bridge holds the drive per identity, not for every peer).
 #[test]
 fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
     let Some(ns) = Netns::create() else { return };
@@ -878,7 +884,7 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
     let policy = pki.dir.join("policy.toml");
     std::fs::write(
         &policy,
-        "default = [\"read\", \"stop\"]\n\n[[grant]]\nwho = [\"controller\"]\nrights = [\"control\"]\ndrives = [1]\n\n[[grant]]\nwho = [\"engineer\"]\nrights = [\"write\"]\n",
+        "default = [\"read\", \"stop\"]\n\n[[grant]]\nwho = [\"controller\"]\nrights = [\"control\", \"write\"]\ndrives = [1]\n\n[[grant]]\nwho = [\"engineer\"]\nrights = [\"write\"]\n",
     )
     .unwrap();
     let (mut bridge_proc, config) = bridge_tls(
@@ -899,34 +905,35 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
         pki.client("engineer"),
     );
 
-    // A valid certificate without the control right: its samples never reach the bridge.
     ns.use_tls(Some(viewer.clone()));
-    let (ok, out, err) = ns.call(&["run", &drive(1), "--hz", "10", "--for", "1"]);
-    assert!(!ok, "the viewer ran the drive: {out}");
-    println!("policy: viewer's run: {}", err.lines().next().unwrap_or(""));
-    let i = watch1.latest();
-    assert!(latched(&i) && reason(&i) == LatchReason::Startup, "{i:?}");
-    assert_eq!(i.sent_stw1, 0x047E);
-    // ... it reads, but does not write.
+    a_peer_without_rights_is_refused(&ns, &ussd, &drive(1));
     let param = format!("{}/param/P1121", drive(1));
-    let (ok, out, err) = ns.call(&["get", &param]);
-    assert!(ok && json(&out)["value"].as_f64() == Some(10.0), "{err}");
-    let (ok, _, _) = ns.call(&["get", &param, "--value", "650", "--timeout", "2"]);
-    assert!(!ok, "the viewer wrote");
-    assert_eq!(
-        ussd.bus().read(1, 1121, None),
-        Ok(uss_client::Value::from_f32(10.0))
-    );
 
     // The controller runs drive 1, and not drive 2, which it was not granted.
     ns.use_tls(Some(controller.clone()));
-    let (ok, _, _) = ns.call(&["run", &drive(2), "--hz", "10", "--for", "1"]);
-    assert!(!ok, "the controller ran drive 2");
+    let (ok, _, err) = ns.call(&["run", &drive(2), "--hz", "10", "--for", "1"]);
+    assert!(
+        !ok && err.contains("\"controller\" (certificate) has not the right `control` on drive 2"),
+        "{err}"
+    );
     let i = watch2.latest();
     assert!(latched(&i) && reason(&i) == LatchReason::Startup, "{i:?}");
     let mut run = ns.client(&["run", &drive(1), "--hz", "10"]);
     run.says("re-armed");
     wait_image(&watch1, Duration::from_secs(10), "live", |i| !latched(i));
+    // While it runs the drive, its own certificate writes to it; the engineer's does not.
+    let (ok, out, err) = ns.call(&["get", &param, "--value", "9"]);
+    assert!(ok && json(&out)["value"].as_f64() == Some(9.0), "{err}");
+    ns.use_tls(Some(engineer.clone()));
+    let (ok, _, err) = ns.call(&["get", &param, "--value", "650"]);
+    assert!(
+        !ok && err.contains("runs under remote control by") && err.contains("nothing was written"),
+        "{err}"
+    );
+    assert_eq!(
+        ussd.bus().read(1, 1121, None),
+        Ok(uss_client::Value::from_f32(9.0))
+    );
 
     // Every authenticated peer may stop it: the viewer's stop latches it.
     ns.use_tls(Some(viewer));
@@ -938,14 +945,97 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
         !status.success() && err.contains("(operator stop)"),
         "{err}"
     );
+    // The refusals are counted in the bus's status.
+    let (ok, out, err) = ns.call(&["sub", &format!("{prefix}/{bus}/status")]);
+    assert!(ok, "{err}");
+    let refused = &json(&out)["refused"];
+    assert!(
+        refused["control"].as_u64() >= Some(2) && refused["write"].as_u64() >= Some(1),
+        "{out}"
+    );
 
     // The engineer writes, through the write key (drive 2: the bridge still holds drive 1 for
-    // its controller, so no peer writes there).
+    // its controller until it releases it).
     ns.use_tls(Some(engineer));
     let param = format!("{}/param/P1121", drive(2));
     let (ok, out, err) = ns.call(&["get", &param, "--value", "8"]);
     assert!(ok, "{err}");
     assert_eq!(json(&out)["value"].as_f64(), Some(8.0), "{out}");
     bridge_proc.kill();
+    // Each refusal is logged with who asked.
+    let said = bridge_proc.stderr();
+    assert!(
+        said.contains("\"viewer\" (a name not bound to a certificate) has not the right `control`")
+            && said.contains("\"controller\" (certificate) has not the right `control` on drive 2"),
+        "{said}"
+    );
     let _ = std::fs::remove_file(config);
+}
+
+/// A peer with a valid certificate but only the default rights (the policy does not list it):
+/// its samples are refused with the right it lacks and the drive does not move; it reads but
+/// does not write; under a listed name (another's) nothing of it reaches the bridge.
+fn a_peer_without_rights_is_refused(ns: &Netns, ussd: &Ussd, drive: &str) {
+    let watch = ussd.bus().watch(1).unwrap();
+    // A valid certificate without the control right: its samples are refused with the right
+    // it lacks, and the drive does not move.
+    answers_over_tls(ns, drive);
+    let (ok, out, err) = ns.call(&["run", drive, "--hz", "10", "--for", "1"]);
+    assert!(!ok, "the viewer ran the drive: {out}");
+    assert!(
+        err.contains("the bridge refused the OFF1")
+            && err.contains("\"viewer\" (a name not bound to a certificate) has not the right `control` on drive 1"),
+        "{err}"
+    );
+    let i = watch.latest();
+    assert!(latched(&i) && reason(&i) == LatchReason::Startup, "{i:?}");
+    assert_eq!(i.sent_stw1, 0x047E);
+    // ... it reads, but does not write: the error reply names the right.
+    let param = format!("{drive}/param/P1121");
+    let (ok, out, err) = ns.call(&["get", &param]);
+    assert!(ok && json(&out)["value"].as_f64() == Some(10.0), "{err}");
+    let (ok, _, err) = ns.call(&["get", &param, "--value", "650"]);
+    assert!(
+        !ok && err.contains("has not the right `write` on drive 1"),
+        "{err}"
+    );
+    assert_eq!(
+        ussd.bus().read(1, 1121, None),
+        Ok(uss_client::Value::from_f32(10.0))
+    );
+    // Under the controller's name, the viewer's samples and queries never reach the bridge:
+    // Zenoh binds a listed name to its certificate.
+    let (ok, _, err) = ns.call(&[
+        "--as",
+        "controller",
+        "get",
+        &param,
+        "--value",
+        "650",
+        "--timeout",
+        "2",
+    ]);
+    println!("policy: the viewer's write as the controller: {err}");
+    assert!(!ok && err.contains("no uss-zenoh answers"), "{err}");
+    let (ok, _, err) = ns.call(&[
+        "--as",
+        "controller",
+        "run",
+        drive,
+        "--hz",
+        "10",
+        "--for",
+        "1",
+    ]);
+    println!("policy: the viewer's run as the controller: {err}");
+    assert!(
+        !ok && err.contains("was not re-armed"),
+        "the viewer ran the drive as the controller: {err}"
+    );
+    let i = watch.latest();
+    assert!(latched(&i) && reason(&i) == LatchReason::Startup, "{i:?}");
+    assert_eq!(
+        ussd.bus().read(1, 1121, None),
+        Ok(uss_client::Value::from_f32(10.0))
+    );
 }

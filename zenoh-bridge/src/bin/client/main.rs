@@ -35,6 +35,12 @@ struct Cli {
     /// The certificate authority (PEM) the bridge's certificate must be signed by.
     #[arg(long, value_name = "FILE", requires = "cert")]
     ca: Option<std::path::PathBuf>,
+    /// Send stops, parameter queries and samples under this name (`<prefix>/<bus>/as/NAME/
+    /// drive/...`), the name a bridge's access policy grants rights to; it lets only the
+    /// certificate of that common name send there. Default: the common name of --cert
+    /// (none without it: the keys themselves, with the rights every peer has).
+    #[arg(long = "as", value_name = "NAME", global = true)]
+    as_name: Option<String>,
     #[command(subcommand)]
     command: Command,
 }
@@ -134,6 +140,8 @@ pub enum Failure {
     Session(zenoh::Error),
     #[error("--cert/--key/--ca: {0}")]
     Tls(zenoh::Error),
+    #[error("--cert {path}: {why} (name this client with --as)")]
+    CommonName { path: String, why: String },
     #[error("{0}: give a number of seconds")]
     Seconds(f64),
     /// A subscriber, publisher, query or put on `key` that Zenoh refused.
@@ -341,9 +349,48 @@ fn unix_ns() -> u128 {
         .map_or(0, |d| d.as_nanos())
 }
 
+/// The common name of the certificate in the PEM file `path`.
+fn common_name(path: &std::path::Path) -> Result<String, Failure> {
+    let failed = |why: String| Failure::CommonName {
+        path: path.display().to_string(),
+        why,
+    };
+    let pem = std::fs::read(path).map_err(|e| failed(e.to_string()))?;
+    let (_, pem) = x509_parser::pem::parse_x509_pem(&pem).map_err(|e| failed(e.to_string()))?;
+    let cert = pem.parse_x509().map_err(|e| failed(e.to_string()))?;
+    let name = cert
+        .subject()
+        .iter_common_name()
+        .next()
+        .and_then(|cn| cn.as_str().ok())
+        .ok_or_else(|| failed("it has no common name".to_owned()))?;
+    Ok(name.to_owned())
+}
+
+/// The name this client sends under: `--as`, else its certificate's common name.
+fn own_name(cli: &Cli) -> Result<Option<String>, Failure> {
+    match (&cli.as_name, &cli.cert) {
+        (Some(n), _) => Ok(Some(n.clone())),
+        (None, Some(cert)) => common_name(cert).map(Some),
+        (None, None) => Ok(None),
+    }
+}
+
+/// `key` (a drive's `.../drive/<addr>/...`, or a bus's key) under the sender's name: `as/<name>`
+/// goes before the last `/drive/`, or at the end of a bus's key.
+fn named_key(key: &str, name: Option<&str>) -> String {
+    let key = key.trim_end_matches('/');
+    match (name, key.rfind("/drive/")) {
+        (None, _) => key.to_owned(),
+        (Some(n), Some(at)) => format!("{}/as/{n}{}", &key[..at], &key[at..]),
+        (Some(n), None) => format!("{key}/as/{n}"),
+    }
+}
+
 fn run(cli: &Cli) -> Result<(), Failure> {
+    let name = own_name(cli)?;
     let session = zenoh::open(config(cli)?).wait().map_err(Failure::Session)?;
-    let done = command(&session, cli);
+    let done = command(&session, cli, name.as_deref());
     if done.is_ok() {
         let _ = session.close().wait();
     } else {
@@ -359,12 +406,14 @@ fn run(cli: &Cli) -> Result<(), Failure> {
 fn get(
     session: &zenoh::Session,
     key: &str,
+    name: Option<&str>,
     value: Option<&str>,
     timeout: f64,
     repeat: u32,
     timed: bool,
 ) -> Result<(), Failure> {
     // The last `/param/` is the parameter's (a prefix may hold the word too).
+    let key = &named_key(key, name);
     let key = match (value, key.rfind("/param/")) {
         (Some(_), Some(at)) => format!("{}/set/{}", &key[..at], &key[at + "/param/".len()..]),
         _ => key.to_owned(),
@@ -382,7 +431,7 @@ fn get(
     Ok(())
 }
 
-fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), Failure> {
+fn command(session: &zenoh::Session, cli: &Cli, name: Option<&str>) -> Result<(), Failure> {
     let start = Instant::now();
     match &cli.command {
         Command::Sub {
@@ -405,7 +454,15 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), Failure> {
             timeout,
             repeat,
             timed,
-        } => get(session, key, value.as_deref(), *timeout, *repeat, *timed)?,
+        } => get(
+            session,
+            key,
+            name,
+            value.as_deref(),
+            *timeout,
+            *repeat,
+            *timed,
+        )?,
         Command::Run {
             drive,
             hz,
@@ -414,6 +471,7 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), Failure> {
         } => run::run(
             session,
             drive,
+            &format!("{}/out", named_key(drive, name)),
             *hz,
             for_s.map(seconds).transpose()?,
             *period,
@@ -425,7 +483,7 @@ fn command(session: &zenoh::Session, cli: &Cli) -> Result<(), Failure> {
                 (_, true) => "off3",
                 _ => "off1",
             };
-            let key = format!("{}/stop", key.trim_end_matches('/'));
+            let key = format!("{}/stop", named_key(key, name));
             let replies = session
                 .get(&key)
                 .payload(command)
@@ -482,5 +540,32 @@ fn main() -> ExitCode {
             eprintln!("uss-zenoh-client: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::named_key;
+
+    #[test]
+    fn a_named_key_puts_the_name_before_the_drive_or_after_the_bus() {
+        let n = Some("hmi-1");
+        assert_eq!(
+            named_key("uss/p/line1/drive/1/param/P1082", n),
+            "uss/p/line1/as/hmi-1/drive/1/param/P1082"
+        );
+        assert_eq!(
+            named_key("uss/p/line1/drive/1/", n),
+            "uss/p/line1/as/hmi-1/drive/1"
+        );
+        assert_eq!(named_key("uss/p/line1", n), "uss/p/line1/as/hmi-1");
+        assert_eq!(
+            named_key("**/line1/drive/2", n),
+            "**/line1/as/hmi-1/drive/2"
+        );
+        assert_eq!(
+            named_key("uss/p/line1/drive/1", None),
+            "uss/p/line1/drive/1"
+        );
     }
 }

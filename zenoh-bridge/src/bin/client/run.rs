@@ -89,7 +89,7 @@ impl Remote<'_> {
             ))
             .wait()
             .map_err(|error| Failure::Zenoh {
-                key: format!("{}/out", self.drive),
+                key: self.publisher.key_expr().to_string(),
                 error,
             })
     }
@@ -356,10 +356,12 @@ impl Remote<'_> {
     }
 }
 
-/// Runs the drive whose key is `drive` (`uss/site/bus0/drive/1`) towards `hz`.
+/// Runs the drive whose key is `drive` (`uss/site/bus0/drive/1`) towards `hz`, sending its
+/// samples on `out` (`<drive>/out`, or under this client's name `.../as/<name>/drive/1/out`).
 pub fn run(
     session: &zenoh::Session,
     drive: &str,
+    out: &str,
     hz: f32,
     duration: Option<Duration>,
     period_ms: u64,
@@ -381,11 +383,11 @@ pub fn run(
         drive,
         from: format!("{}:{}", host.trim(), std::process::id()),
         publisher: session
-            .declare_publisher(format!("{drive}/out"))
+            .declare_publisher(out.to_owned())
             .encoding(Encoding::APPLICATION_JSON)
             .express(true)
             .wait()
-            .map_err(on(format!("{drive}/out")))?,
+            .map_err(on(out))?,
         images: subscribe("in")?,
         reports: subscribe("control")?,
         // A clock-based start: a later run's samples are newer than this run's.
