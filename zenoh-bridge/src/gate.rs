@@ -4,7 +4,7 @@
 //! has not, a refusal that names the missing right, counted per right in the bus's status and
 //! logged with the name.
 
-use crate::policy::{Policy, Right};
+use crate::policy::{Names, Policy, Right};
 use core::time::Duration;
 use std::collections::HashMap;
 use std::sync::Mutex;
@@ -16,23 +16,24 @@ use std::time::Instant;
 pub struct Peer {
     /// The name its key carries (`.../as/<name>/...`), if any.
     pub name: Option<String>,
-    /// Zenoh's access control let only the certificate of that common name send under it (the
-    /// policy lists the name).
-    pub verified: bool,
+    /// What vouches for that name (`certificate`, `user/password`): Zenoh's access control let
+    /// only the peer of that certificate's common name, or of that user, send under it (the
+    /// policy lists the name). `None`: nothing does.
+    pub vouched: Option<&'static str>,
 }
 
 impl Peer {
-    /// The name, when the bridge can rely on it: one whose certificate Zenoh checked.
+    /// The name, when the bridge can rely on it: one whose certificate or user Zenoh checked.
     pub fn verified_name(&self) -> Option<&str> {
-        self.name.as_deref().filter(|_| self.verified)
+        self.name.as_deref().filter(|_| self.vouched.is_some())
     }
 }
 
 impl core::fmt::Display for Peer {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match (&self.name, self.verified) {
-            (Some(n), true) => write!(f, "{n:?} (certificate)"),
-            (Some(n), false) => write!(f, "{n:?} (a name not bound to a certificate)"),
+        match (&self.name, self.vouched) {
+            (Some(n), Some(proof)) => write!(f, "{n:?} ({proof})"),
+            (Some(n), None) => write!(f, "{n:?} (a name nothing vouches for)"),
             (None, _) => f.write_str("a peer that did not name itself"),
         }
     }
@@ -49,7 +50,7 @@ type Logged = HashMap<(Option<String>, Right), (Option<Instant>, u64)>;
 #[derive(Debug)]
 pub struct Gate {
     bus: String,
-    policy: Option<Policy>,
+    policy: Option<(Policy, Names)>,
     refused: [AtomicU64; 4],
     logged: Mutex<Logged>,
 }
@@ -64,7 +65,7 @@ pub struct Refused {
 }
 
 impl Gate {
-    pub fn new(bus: &str, policy: Option<Policy>) -> Self {
+    pub fn new(bus: &str, policy: Option<(Policy, Names)>) -> Self {
         Self {
             bus: bus.to_owned(),
             policy,
@@ -75,18 +76,18 @@ impl Gate {
 
     /// The sender of a message whose key carries `name`.
     pub fn peer(&self, name: Option<String>) -> Peer {
-        let verified = match (&self.policy, &name) {
-            (Some(p), Some(n)) => p.lists(n),
-            _ => false,
+        let vouched = match (&self.policy, &name) {
+            (Some((p, by)), Some(n)) if p.lists(n) => Some(by.proof()),
+            _ => None,
         };
-        Peer { name, verified }
+        Peer { name, vouched }
     }
 
     /// Whether `peer` may do `right` on `drive` (`None`: the whole bus); without a policy, every
     /// authenticated peer may (the bridge's flags decide). A refusal is counted and logged,
     /// and its text names the right.
     pub fn check(&self, peer: &Peer, right: Right, drive: Option<u8>) -> Result<(), String> {
-        let Some(policy) = &self.policy else {
+        let Some((policy, _)) = &self.policy else {
             return Ok(());
         };
         if policy.allows(peer.verified_name(), right, &self.bus, drive) {
@@ -98,10 +99,10 @@ impl Gate {
         );
         let text = format!(
             "refused: {peer} has not the right `{right}` on {what} in this bridge's access policy{}; nothing was done",
-            if peer.verified {
+            if peer.vouched.is_some() {
                 ""
             } else {
-                " (a peer granted rights by name sends under .../as/<its certificate's common name>/...)"
+                " (a peer granted rights by name sends under .../as/<its name>/...)"
             }
         );
         self.count(peer, right, &text);
@@ -159,9 +160,9 @@ mod tests {
             &["line1".to_owned()],
         )
         .unwrap();
-        let gate = Gate::new("line1", Some(policy));
+        let gate = Gate::new("line1", Some((policy, Names::Certificates)));
         let ctl = gate.peer(Some("ctl".to_owned()));
-        assert!(ctl.verified);
+        assert_eq!(ctl.vouched, Some("certificate"));
         assert_eq!(gate.check(&ctl, Right::Control, Some(1)), Ok(()));
         let no = gate.check(&ctl, Right::Control, Some(2)).unwrap_err();
         assert!(
@@ -170,11 +171,11 @@ mod tests {
         );
         // An unlisted name, or none, gets the default rights only.
         let viewer = gate.peer(Some("viewer".to_owned()));
-        assert!(!viewer.verified);
+        assert_eq!(viewer.vouched, None);
         assert_eq!(gate.check(&viewer, Right::Stop, Some(2)), Ok(()));
         let no = gate.check(&viewer, Right::Write, Some(2)).unwrap_err();
         assert!(
-            no.contains("not bound to a certificate") && no.contains("`write`"),
+            no.contains("(a name nothing vouches for)") && no.contains("`write`"),
             "{no}"
         );
         let no = gate
@@ -198,6 +199,6 @@ mod tests {
             open.check(&open.peer(None), Right::Control, Some(1)),
             Ok(())
         );
-        assert!(!open.peer(Some("ctl".to_owned())).verified);
+        assert_eq!(open.peer(Some("ctl".to_owned())).vouched, None);
     }
 }

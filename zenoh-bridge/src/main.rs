@@ -107,9 +107,9 @@ enum StartError {
     #[error(transparent)]
     Policy(#[from] policy::PolicyError),
     #[error(
-        "--policy names peers by their certificates' common names: it needs mutual TLS, and these links are {0}"
+        "--policy names peers by their certificates' common names or their users: it needs mutual TLS or user/password authentication, and these links are {0}"
     )]
-    PolicyNeedsTls(&'static str),
+    PolicyNeedsAuth(&'static str),
     #[error("--policy: Zenoh refused the access control made of it: {0}")]
     PolicyConfig(zenoh::Error),
 }
@@ -160,6 +160,14 @@ fn host_name() -> String {
         .unwrap_or_else(|| "localhost".to_owned())
 }
 
+/// The Zenoh configuration the bridge opens with, how its links authenticate, and its access
+/// policy with what it names peers by.
+type Secured = (
+    Config,
+    security::Links,
+    Option<(policy::Policy, policy::Names)>,
+);
+
 /// One of a bus's threads: publisher, stops, control, parameters.
 type Job = Box<dyn FnOnce(&zenoh::Session, &publish::Options, &Arc<AtomicBool>) + Send>;
 
@@ -169,26 +177,25 @@ const fn allowed(yes: bool) -> &'static str {
 
 /// The Zenoh configuration with the checks of who may reach the bridge: control or writes only
 /// on authenticated links (or, said on stderr, with `--insecure-network`), and the access
-/// policy made into Zenoh's access control.
-fn secured_config(
-    cli: &Cli,
-    prefix: &str,
-) -> Result<(Config, security::Links, Option<policy::Policy>), StartError> {
+/// policy made into Zenoh's access control (with what the links name peers by).
+fn secured_config(cli: &Cli, prefix: &str) -> Result<Secured, StartError> {
     let mut config = zenoh_config(cli)?;
     let links = security::links(&config);
     let policy = match &cli.policy {
         Some(path) => {
             let p = policy::Policy::load(path, &cli.buses)?;
-            if links != security::Links::MutualTls {
-                return Err(StartError::PolicyNeedsTls(links.name()));
-            }
+            let by = match links {
+                security::Links::MutualTls => policy::Names::Certificates,
+                security::Links::UserPassword => policy::Names::Users,
+                security::Links::Open(_) => return Err(StartError::PolicyNeedsAuth(links.name())),
+            };
             config
                 .insert_json5(
                     "access_control",
-                    &p.access_control(prefix, &cli.buses).to_string(),
+                    &p.access_control(prefix, &cli.buses, by).to_string(),
                 )
                 .map_err(StartError::PolicyConfig)?;
-            Some(p)
+            Some((p, by))
         }
         None => None,
     };
@@ -302,7 +309,7 @@ fn run(cli: &Cli) -> Result<(), StartError> {
         links.name(),
         policy
             .as_ref()
-            .map_or_else(String::new, |p| format!(", policy: {}", p.summary())),
+            .map_or_else(String::new, |(p, _)| format!(", policy: {}", p.summary())),
         session.zid()
     );
     for t in threads {

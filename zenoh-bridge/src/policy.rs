@@ -1,5 +1,6 @@
 //! Who may do what through the bridge (README, "Who may do what"): an access policy that maps
-//! certificate common names to rights per bus and drive.
+//! peers' names (their certificates' common names under mutual TLS, their users under
+//! user/password authentication: [`Names`]) to rights per bus and drive.
 //!
 //! ```toml
 //! default = ["read", "stop"]          # every peer with a certificate of the CA
@@ -62,7 +63,8 @@ impl core::fmt::Display for Right {
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Grant {
-    /// Certificate common names (the `/CN=` of the peer's certificate).
+    /// Peers' names: certificate common names (the `/CN=` of the peer's certificate) under
+    /// mutual TLS, users under user/password authentication.
     pub who: Vec<String>,
     pub rights: Vec<Right>,
     /// One bus of this bridge (default: every bus).
@@ -85,6 +87,47 @@ pub struct Policy {
 
 fn read_and_stop() -> Vec<Right> {
     vec![Right::Read, Right::Stop]
+}
+
+/// What the links authenticate a peer by, and so what a policy's names are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Names {
+    /// Mutual TLS: the common name of the peer's certificate.
+    Certificates,
+    /// User/password authentication: the user the peer logged in as.
+    Users,
+}
+
+impl Names {
+    /// What vouches for a name, as the bridge says it.
+    pub const fn proof(self) -> &'static str {
+        match self {
+            Self::Certificates => "certificate",
+            Self::Users => "user/password",
+        }
+    }
+
+    /// The subject of Zenoh's access control for these names.
+    fn subject(self, id: &str, names: &[&str]) -> Value {
+        let key = match self {
+            Self::Certificates => "cert_common_names",
+            Self::Users => "usernames",
+        };
+        let mut subject = serde_json::Map::new();
+        subject.insert("id".to_owned(), json!(id));
+        subject.insert(key.to_owned(), json!(names));
+        Value::Object(subject)
+    }
+
+    /// The subject of every authenticated peer: every TLS link under mutual TLS (the handshake
+    /// refused every other certificate); every link under user/password (Zenoh refuses a peer
+    /// without a user of the dictionary).
+    fn everyone(self) -> Value {
+        match self {
+            Self::Certificates => json!({ "id": "authenticated", "link_protocols": ["tls"] }),
+            Self::Users => json!({ "id": "authenticated", "link_protocols": ["tcp", "tls"] }),
+        }
+    }
 }
 
 /// A policy file that cannot be used.
@@ -125,7 +168,9 @@ impl Policy {
         for (n, g) in policy.grant.iter().enumerate() {
             let at = format!("grant {} (who = {:?})", n + 1, g.who);
             if g.who.is_empty() || g.who.iter().any(String::is_empty) {
-                return Err(format!("{at}: name the certificate common names it is for"));
+                return Err(format!(
+                    "{at}: name the peers it is for (certificate common names, or users)"
+                ));
             }
             if let Some(name) = g.who.iter().find(|n| n.contains(['/', '*', '$', '#', '?'])) {
                 return Err(format!(
@@ -202,7 +247,7 @@ impl Policy {
         names
     }
 
-    /// Whether the policy names `name` (so Zenoh binds it to its certificate).
+    /// Whether the policy names `name` (so Zenoh binds it to its certificate or user).
     pub fn lists(&self, name: &str) -> bool {
         self.grant.iter().any(|g| g.who.iter().any(|w| w == name))
     }
@@ -227,9 +272,10 @@ impl Policy {
 
     /// Zenoh's `access_control` for this policy on `buses` under `prefix`: subscriptions only
     /// with `read`; puts and queries on the bridge's keys from every authenticated peer, under
-    /// `.../as/<name>/...` for a listed name only from the peer whose certificate says it;
+    /// `.../as/<name>/...` for a listed name only from the peer whose certificate (or user) says
+    /// it;
     /// nothing else (but what the bridge itself sends).
-    pub fn access_control(&self, prefix: &str, buses: &[String]) -> Value {
+    pub fn access_control(&self, prefix: &str, buses: &[String], by: Names) -> Value {
         const WATCH: [&str; 3] = [
             "declare_subscriber",
             "declare_liveliness_subscriber",
@@ -242,7 +288,7 @@ impl Policy {
             "messages": ALL_MESSAGES,
             "key_exprs": [format!("{prefix}/**")],
         })];
-        let mut subjects = vec![json!({ "id": "authenticated", "link_protocols": ["tls"] })];
+        let mut subjects = vec![by.everyone()];
         let mut policies = Vec::new();
         let rule = |rules: &mut Vec<Value>,
                     id: String,
@@ -287,7 +333,7 @@ impl Policy {
         // name: a subject of two names would let each send as the other).
         for name in &names {
             let subject = format!("peer {name}");
-            subjects.push(json!({ "id": subject, "cert_common_names": [name] }));
+            subjects.push(by.subject(&subject, &[name]));
             let keys = buses
                 .iter()
                 .map(|b| format!("{prefix}/{b}/as/{name}/**"))
@@ -322,7 +368,8 @@ impl Policy {
                 }
             }
             if !ids.is_empty() {
-                subjects.push(json!({ "id": subject, "cert_common_names": g.who }));
+                let who: Vec<&str> = g.who.iter().map(String::as_str).collect();
+                subjects.push(by.subject(&subject, &who));
                 policies.push(json!({ "rules": ids, "subjects": [subject] }));
             }
         }
@@ -374,7 +421,8 @@ mod tests {
         assert_eq!(p.grant[0].drives.as_deref(), Some(&[1, 2][..]));
         let refused = |text: &str| Policy::parse(text, &buses()).unwrap_err();
         assert!(
-            refused("[[grant]]\nwho = []\nrights = [\"read\"]").contains("name the certificate")
+            refused("[[grant]]\nwho = []\nrights = [\"read\"]")
+                .contains("name the peers it is for")
         );
         assert!(refused("[[grant]]\nwho = [\"a\"]\nrights = []").contains("give it rights"));
         assert!(
@@ -436,7 +484,7 @@ mod tests {
             &buses(),
         )
         .unwrap();
-        let acl = p.access_control("uss/plant", &buses());
+        let acl = p.access_control("uss/plant", &buses(), Names::Certificates);
         assert_eq!(acl["default_permission"], "deny");
         let rules = acl["rules"].as_array().unwrap();
         let rule = |id: &str| rules.iter().find(|r| r["id"] == id).cloned().unwrap();
@@ -488,18 +536,20 @@ mod tests {
             &buses(),
         )
         .unwrap();
-        let mut config = zenoh::Config::default();
-        config
-            .insert_json5(
-                "access_control",
-                &p.access_control("uss/t", &buses()).to_string(),
-            )
-            .unwrap();
-        config
-            .insert_json5("scouting/multicast/enabled", "false")
-            .unwrap();
-        config.insert_json5("listen/endpoints", "[]").unwrap();
-        let session = zenoh::open(config).wait().expect("Zenoh takes the rules");
-        let _ = session.close().wait();
+        for by in [Names::Certificates, Names::Users] {
+            let mut config = zenoh::Config::default();
+            config
+                .insert_json5(
+                    "access_control",
+                    &p.access_control("uss/t", &buses(), by).to_string(),
+                )
+                .unwrap();
+            config
+                .insert_json5("scouting/multicast/enabled", "false")
+                .unwrap();
+            config.insert_json5("listen/endpoints", "[]").unwrap();
+            let session = zenoh::open(config).wait().expect("Zenoh takes the rules");
+            let _ = session.close().wait();
+        }
     }
 }

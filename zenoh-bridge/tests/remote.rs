@@ -20,7 +20,7 @@
 
 mod netns;
 
-use netns::{LEASE_MS, Netns, Pki, bridge, bridge_tls};
+use netns::{LEASE_MS, Netns, Pki, bridge, bridge_tls, bridge_users};
 use serde_json::Value;
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -125,8 +125,20 @@ fn put_sample(ns: &Netns, drive: &str, payload: &str, expect: &str) -> String {
 /// takes a moment on a loaded machine, and a run or a check that starts before it would fail
 /// for that alone.
 fn answers_over_tls(ns: &Netns, drive: &str) {
+    answers(ns, &[], drive);
+}
+
+/// Waits until the bridge answers a parameter read of `drive` from a client started with
+/// `options` (a login of its own).
+fn answers(ns: &Netns, options: &[&str], drive: &str) {
     let deadline = Instant::now() + Duration::from_secs(15);
-    while !ns.call(&["get", &format!("{drive}/param/P1121")]).0 {
+    let key = format!("{drive}/param/P1121");
+    let args: Vec<&str> = options
+        .iter()
+        .copied()
+        .chain(["get", key.as_str()])
+        .collect();
+    while !ns.call(&args).0 {
         assert!(
             Instant::now() < deadline,
             "the bridge never answered over TLS"
@@ -965,7 +977,7 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
     // Each refusal is logged with who asked.
     let said = bridge_proc.stderr();
     assert!(
-        said.contains("\"viewer\" (a name not bound to a certificate) has not the right `control`")
+        said.contains("\"viewer\" (a name nothing vouches for) has not the right `control`")
             && said.contains("\"controller\" (certificate) has not the right `control` on drive 2"),
         "{said}"
     );
@@ -984,7 +996,9 @@ fn a_peer_without_rights_is_refused(ns: &Netns, ussd: &Ussd, drive: &str) {
     assert!(!ok, "the viewer ran the drive: {out}");
     assert!(
         err.contains("the bridge refused the OFF1")
-            && err.contains("\"viewer\" (a name not bound to a certificate) has not the right `control` on drive 1"),
+            && err.contains(
+                "\"viewer\" (a name nothing vouches for) has not the right `control` on drive 1"
+            ),
         "{err}"
     );
     let i = watch.latest();
@@ -1038,4 +1052,84 @@ fn a_peer_without_rights_is_refused(ns: &Netns, ussd: &Ussd, drive: &str) {
         ussd.bus().read(1, 1121, None),
         Ok(uss_client::Value::from_f32(10.0))
     );
+}
+
+/// User/password authentication names peers too: a policy grants rights per user; a wrong
+/// password does not get in; a user without the right is refused with the right it lacks, and
+/// under the granted user's name nothing of it reaches the bridge; the granted user runs the
+/// drive.
+#[test]
+fn under_user_password_an_access_policy_grants_rights_per_user() {
+    let Some(ns) = Netns::create() else { return };
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus.clone();
+    let prefix = format!("uss/u{}", std::process::id());
+    let drive = format!("{prefix}/{bus}/drive/1");
+    let watch = ussd.bus().watch(1).unwrap();
+    let dir = std::env::temp_dir().join(format!("uss-users-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let dictionary = dir.join("users.txt");
+    std::fs::write(&dictionary, "operator:op-secret\nguest:guest-secret\n").unwrap();
+    let policy = dir.join("policy.toml");
+    std::fs::write(
+        &policy,
+        "[[grant]]\nwho = [\"operator\"]\nrights = [\"control\"]\n",
+    )
+    .unwrap();
+    let (mut bridge_proc, config) = bridge_users(
+        &ns,
+        &bus,
+        &prefix,
+        &["--allow-control", "--policy", policy.to_str().unwrap()],
+        &dictionary,
+    );
+    let login = |user: &str, password: &str| {
+        let file = dir.join(format!("{user}-{password}.json5"));
+        std::fs::write(
+            &file,
+            format!(
+                "{{ transport: {{ auth: {{ usrpwd: {{ user: \"{user}\", password: \"{password}\" }} }} }} }}"
+            ),
+        )
+        .unwrap();
+        file.display().to_string()
+    };
+    let run = |login: &str, as_name: Option<&str>| {
+        let mut args = vec!["--zenoh-config", login];
+        if let Some(n) = as_name {
+            args.extend(["--as", n]);
+        }
+        args.extend(["run", drive.as_str(), "--hz", "5", "--for", "1"]);
+        ns.call(&args)
+    };
+    let guest = login("guest", "guest-secret");
+    answers(&ns, &["--zenoh-config", &guest], &drive);
+    let (ok, _, err) = run(&login("operator", "guess"), None);
+    assert!(
+        !ok && err.contains("cannot open the Zenoh session"),
+        "{err}"
+    );
+    let (ok, _, err) = run(&guest, None);
+    assert!(
+        !ok && err.contains("\"guest\" (a name nothing vouches for) has not the right `control`"),
+        "{err}"
+    );
+    let (ok, _, err) = run(&guest, Some("operator"));
+    assert!(!ok && err.contains("was not re-armed"), "{err}");
+    let i = watch.latest();
+    assert!(latched(&i) && reason(&i) == LatchReason::Startup, "{i:?}");
+    assert_eq!(i.sent_stw1, 0x047E);
+    let (ok, out, err) = run(&login("operator", "op-secret"), None);
+    assert!(
+        ok && out.contains("re-armed") && out.contains("and released"),
+        "{out}{err}"
+    );
+    bridge_proc.kill();
+    let said = bridge_proc.stderr();
+    assert!(
+        said.contains("\"guest\" (a name nothing vouches for) has not the right `control`"),
+        "{said}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_file(config);
 }

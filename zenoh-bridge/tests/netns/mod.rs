@@ -284,7 +284,7 @@ pub fn bridge(
     prefix: &str,
     extra: &[&str],
 ) -> (ChildProc, std::path::PathBuf) {
-    bridge_with(ns, bus, prefix, extra, None)
+    bridge_with(ns, bus, prefix, extra, Auth::None)
 }
 
 /// uss-zenoh for `bus` as [`bridge`], over mutual TLS with `pki`'s CA and bridge certificate.
@@ -295,7 +295,27 @@ pub fn bridge_tls(
     extra: &[&str],
     pki: &Pki,
 ) -> (ChildProc, std::path::PathBuf) {
-    bridge_with(ns, bus, prefix, extra, Some(pki))
+    bridge_with(ns, bus, prefix, extra, Auth::MutualTls(pki))
+}
+
+/// uss-zenoh for `bus` as [`bridge`], over plain TCP with user/password authentication: every
+/// peer logs in as a user of `dictionary` (`user:password` lines).
+pub fn bridge_users(
+    ns: &Netns,
+    bus: &str,
+    prefix: &str,
+    extra: &[&str],
+    dictionary: &std::path::Path,
+) -> (ChildProc, std::path::PathBuf) {
+    bridge_with(ns, bus, prefix, extra, Auth::Users(dictionary))
+}
+
+/// How the bridge's links authenticate peers.
+#[derive(Clone, Copy)]
+enum Auth<'a> {
+    None,
+    MutualTls(&'a Pki),
+    Users(&'a std::path::Path),
 }
 
 fn bridge_with(
@@ -303,15 +323,15 @@ fn bridge_with(
     bus: &str,
     prefix: &str,
     extra: &[&str],
-    pki: Option<&Pki>,
+    auth: Auth<'_>,
 ) -> (ChildProc, std::path::PathBuf) {
     let config = std::env::temp_dir().join(format!(
         "uss-zenoh-{}-{}.json5",
         std::process::id(),
         ns.name
     ));
-    let (scheme, tls) = match pki {
-        Some(pki) => (
+    let (scheme, tls) = match auth {
+        Auth::MutualTls(pki) => (
             "tls",
             format!(
                 ", tls: {{ root_ca_certificate: \"{}\", listen_certificate: \"{}\", listen_private_key: \"{}\", enable_mtls: true }}",
@@ -320,7 +340,14 @@ fn bridge_with(
                 pki.path("bridge.key")
             ),
         ),
-        None => ("tcp", String::new()),
+        Auth::Users(dictionary) => (
+            "tcp",
+            format!(
+                " }}, auth: {{ usrpwd: {{ dictionary_file: \"{}\" }}",
+                dictionary.display()
+            ),
+        ),
+        Auth::None => ("tcp", String::new()),
     };
     std::fs::write(
         &config,

@@ -37,8 +37,9 @@ struct Cli {
     ca: Option<std::path::PathBuf>,
     /// Send stops, parameter queries and samples under this name (`<prefix>/<bus>/as/NAME/
     /// drive/...`), the name a bridge's access policy grants rights to; it lets only the
-    /// certificate of that common name send there. Default: the common name of --cert
-    /// (none without it: the keys themselves, with the rights every peer has).
+    /// certificate of that common name (or that user) send there. Default: the common name of
+    /// --cert, else the user of --zenoh-config's user/password authentication (none without
+    /// either: the keys themselves, with the rights every peer has).
     #[arg(long = "as", value_name = "NAME", global = true)]
     as_name: Option<String>,
     #[command(subcommand)]
@@ -367,12 +368,17 @@ fn common_name(path: &std::path::Path) -> Result<String, Failure> {
     Ok(name.to_owned())
 }
 
-/// The name this client sends under: `--as`, else its certificate's common name.
-fn own_name(cli: &Cli) -> Result<Option<String>, Failure> {
+/// The name this client sends under: `--as`, else its certificate's common name, else the user
+/// it logs in as (`transport.auth.usrpwd.user` of its Zenoh configuration).
+fn own_name(cli: &Cli, config: &Config) -> Result<Option<String>, Failure> {
     match (&cli.as_name, &cli.cert) {
         (Some(n), _) => Ok(Some(n.clone())),
         (None, Some(cert)) => common_name(cert).map(Some),
-        (None, None) => Ok(None),
+        (None, None) => Ok(config
+            .get_json("transport/auth/usrpwd/user")
+            .ok()
+            .and_then(|j| serde_json::from_str::<Option<String>>(&j).ok().flatten())
+            .filter(|u| !u.is_empty())),
     }
 }
 
@@ -388,8 +394,9 @@ fn named_key(key: &str, name: Option<&str>) -> String {
 }
 
 fn run(cli: &Cli) -> Result<(), Failure> {
-    let name = own_name(cli)?;
-    let session = zenoh::open(config(cli)?).wait().map_err(Failure::Session)?;
+    let config = config(cli)?;
+    let name = own_name(cli, &config)?;
+    let session = zenoh::open(config).wait().map_err(Failure::Session)?;
     let done = command(&session, cli, name.as_deref());
     if done.is_ok() {
         let _ = session.close().wait();
