@@ -388,14 +388,32 @@ fn a_remote_client_reaches_the_bridge_through_a_router() {
         return;
     }
     let ussd = Ussd::start("", &[(1, "")]);
-    let router_at = format!("tcp/{}:7448", ns.here());
+    // The README's router, over mutual TLS: the router, the bridge and the client each show a
+    // certificate of the plant's CA.
+    let pki = Pki::new("router", "uss-rt test CA", &ns.here());
+    let (cert, key) = pki.server("router", &ns.here());
+    let router_at = format!("tls/{}:7448", ns.here());
     let mut command = Command::new("python3");
-    command.arg(example("router.py")).arg(&router_at);
+    command.arg(example("router.py")).arg(&router_at).args([
+        "--cert",
+        &cert,
+        "--key",
+        &key,
+        "--ca",
+        &pki.path("ca.pem"),
+    ]);
     let mut router = ChildProc::spawn("router.py".into(), command);
     router.says("listening on");
     let prefix = format!("uss/r{}", std::process::id());
-    let (_bridge, config) = bridge(&ns, &ussd.bus, &prefix, &["--connect", &router_at]);
+    let (_bridge, config) = bridge_tls(&ns, &ussd.bus, &prefix, &["--connect", &router_at], &pki);
     let key = format!("{prefix}/{}/drive/1/param/P1082", ussd.bus);
+    // A client without a certificate does not get in.
+    let (status, _, err) = ns.client_of(&router_at, &["get", &key]).finish();
+    assert!(
+        !status.success() && err.contains("cannot open the Zenoh session"),
+        "{err}"
+    );
+    ns.use_tls(Some(pki.client("hmi-1")));
     // The router learns the bridge's queryable when the bridge has connected.
     let deadline = Instant::now() + Duration::from_secs(15);
     let read = loop {

@@ -102,6 +102,16 @@ impl Pki {
         pki
     }
 
+    /// A server's certificate (a router's) for `ip`, signed by the CA: `<file>.pem`,
+    /// `<file>.key`.
+    pub fn server(&self, file: &str, ip: &str) -> (String, String) {
+        self.issue(file, &format!("uss-{file}"), Some(&format!("IP:{ip}")));
+        (
+            self.path(&format!("{file}.pem")),
+            self.path(&format!("{file}.key")),
+        )
+    }
+
     /// 3. A certificate with common name `cn`, signed by the CA: `<file>.pem`, `<file>.key`.
     fn issue(&self, file: &str, cn: &str, san: Option<&str>) {
         let (key, pem) = (format!("{file}.key"), format!("{file}.pem"));
@@ -334,10 +344,10 @@ fn bridge_with(
         Auth::MutualTls(pki) => (
             "tls",
             format!(
-                ", tls: {{ root_ca_certificate: \"{}\", listen_certificate: \"{}\", listen_private_key: \"{}\", enable_mtls: true }}",
+                ", tls: {{ root_ca_certificate: \"{}\", listen_certificate: \"{bridge}\", listen_private_key: \"{key}\", connect_certificate: \"{bridge}\", connect_private_key: \"{key}\", enable_mtls: true }}",
                 pki.path("ca.pem"),
-                pki.path("bridge.pem"),
-                pki.path("bridge.key")
+                bridge = pki.path("bridge.pem"),
+                key = pki.path("bridge.key")
             ),
         ),
         Auth::Users(dictionary) => (
