@@ -17,6 +17,29 @@ use uss_client::{Bus, ClientError};
 /// Builds (if needed) and returns the path of a workspace binary. Integration tests only get
 /// their own package's binaries from cargo, so other packages' binaries are built here with the
 /// same cargo and profile.
+/// Checks `line` against the JSON Schema shipped as `docs/schema/<schema>.json`
+/// (`ussctl/status`, `zenoh/in`, ...): what the machine interface promises a script.
+pub fn assert_report(schema: &str, line: &str) {
+    let path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!("../docs/schema/{schema}.json"));
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let schema_json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let validator = jsonschema::validator_for(&schema_json)
+        .unwrap_or_else(|e| panic!("{}: not a schema: {e}", path.display()));
+    let value: serde_json::Value =
+        serde_json::from_str(line).unwrap_or_else(|e| panic!("{schema}: not JSON ({e}): {line}"));
+    let errors: Vec<String> = validator
+        .iter_errors(&value)
+        .map(|e| e.to_string())
+        .collect();
+    assert!(
+        errors.is_empty(),
+        "{schema}: {line}\ndoes not match {}:\n{}",
+        path.display(),
+        errors.join("\n")
+    );
+}
+
 pub fn binary(package: &str, name: &str) -> PathBuf {
     static BUILT: OnceLock<std::sync::Mutex<Vec<String>>> = OnceLock::new();
     let built = BUILT.get_or_init(Default::default);

@@ -64,6 +64,7 @@ fn a_scan_finds_exactly_the_drives_on_the_line_with_their_layouts() {
         "5-7",
     ]);
     assert_eq!(code, Some(0));
+    uss_integration_tests::assert_report("ussctl/scan", json.trim());
     assert!(
         json.contains("\"drives\":[{\"baud\":19200,\"address\":5,\"pkw\":\"variable (127)\",\"pzd\":6,\"zsw1\":47921,\"firmware\":2.09,\"family\":\"micromaster4\"},{\"baud\":19200,\"address\":7,\"pkw\":\"3\",\"pzd\":4,\"zsw1\":47921,\"firmware\":null,\"family\":null}]"),
         "{json}"

@@ -83,6 +83,13 @@ pub enum Command {
     },
     /// Print the manual page (roff, for man).
     Man,
+    /// Print the JSON Schema of a --json report (status, stats, watch, param, describe, faults,
+    /// drive, stop, scan, capture, trace, restore, diff), or list them; the same files are in
+    /// docs/schema/ussctl/.
+    Schema {
+        /// The report; without it, the list.
+        report: Option<String>,
+    },
     /// Every telegram of the bus as ussd sends and receives it, decoded; optionally written to a
     /// pcapng file for Wireshark (tools/wireshark/uss.lua decodes it).
     Capture {

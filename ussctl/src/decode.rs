@@ -25,7 +25,7 @@ pub enum Level {
 }
 
 /// One captured telegram, decoded.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, schemars::JsonSchema)]
 pub struct CaptureLine {
     pub sequence: u64,
     /// Seconds since the first telegram shown.
@@ -51,7 +51,7 @@ pub struct CaptureLine {
 }
 
 /// A telegram's frame: STX, LGE, ADR, words, BCC.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, schemars::JsonSchema)]
 pub struct Frame {
     pub stx: u8,
     pub lge: u8,
@@ -64,7 +64,7 @@ pub struct Frame {
 }
 
 /// A telegram's meaning.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
 pub struct App {
     /// The parameter task or reply: `read P1082`, `P1082 = 50.00 Hz`, `no task`.
     pub pkw: Option<String>,

@@ -90,6 +90,8 @@ pub(crate) enum Failure {
     Signal { signal: i32, source: std::io::Error },
     #[error("cannot write JSON: {0}")]
     Json(#[from] serde_json::Error),
+    #[error("no --json report is called {report:?}: {known}")]
+    NoSchema { report: String, known: String },
     #[error("cannot write the output: {0}")]
     Output(std::io::Error),
     /// The trace's CSV cannot be written.

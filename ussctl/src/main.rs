@@ -8,6 +8,7 @@ mod cli;
 mod commands;
 mod decode;
 mod failure;
+mod interface;
 mod pcapng;
 mod plot;
 mod report;
@@ -95,6 +96,7 @@ fn run_without_bus(cli: &Cli) -> Option<Result<(), Failure>> {
             clap_complete::generate(*shell, &mut command, "ussctl", &mut out);
             Some(write_out(&String::from_utf8_lossy(&out)))
         }
+        Command::Schema { report } => Some(interface::print_schema(report.as_deref())),
         Command::Man => {
             let mut out = Vec::new();
             Some(
@@ -188,6 +190,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Scan { .. }
         | Command::Completions { .. }
         | Command::Man
+        | Command::Schema { .. }
         | Command::Top { .. }
         | Command::Stop(_)
         | Command::Coast(_)
@@ -278,7 +281,10 @@ impl Output {
         human: impl Fn(&T) -> String,
     ) -> Result<(), Failure> {
         let mut text = if self.json {
-            serde_json::to_string(report)?
+            serde_json::to_string(&interface::Versioned {
+                v: interface::VERSION,
+                report,
+            })?
         } else {
             human(report)
         };

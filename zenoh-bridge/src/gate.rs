@@ -56,7 +56,7 @@ pub struct Gate {
 }
 
 /// The refusals of a bus, per right, since the bridge started (the bus's status).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, schemars::JsonSchema)]
 pub struct Refused {
     pub read: u64,
     pub stop: u64,

@@ -31,7 +31,7 @@ pub fn ussd_state(health: Option<&Health>) -> &'static str {
 }
 
 /// `<prefix>/<bus>/status`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct Status<'a> {
     pub v: u32,
     pub bus: &'a str,
@@ -83,7 +83,7 @@ impl<'a> Status<'a> {
 }
 
 /// `<prefix>/<bus>/drive/<addr>/in`: one input image.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct Input<'a> {
     pub v: u32,
     pub bus: &'a str,
@@ -161,7 +161,7 @@ impl<'a> Input<'a> {
 }
 
 /// `<prefix>/<bus>/drive/<addr>/diag`: ussd's counters of the drive, by name.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct Diag<'a> {
     pub v: u32,
     pub bus: &'a str,
@@ -198,7 +198,7 @@ impl<'a> Diag<'a> {
 }
 
 /// `<prefix>/<bus>/drive/<addr>/info`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct Info<'a> {
     pub v: u32,
     pub bus: &'a str,
@@ -231,7 +231,7 @@ impl<'a> Info<'a> {
 }
 
 /// The reply to a parameter query: the value in the parameter's own type.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct ParamReply<'a> {
     pub v: u32,
     pub bus: &'a str,
@@ -239,6 +239,7 @@ pub struct ParamReply<'a> {
     /// As the catalogue writes it: `P1082`, `r0947[2]`.
     pub param: String,
     /// The number, in the parameter's own type.
+    #[schemars(with = "f64")]
     pub value: Typed,
     /// The word or double word on the wire.
     pub raw: u32,
@@ -272,7 +273,7 @@ impl<'a> ParamReply<'a> {
 /// `<prefix>/<bus>/drive/<addr>/out`: one sample of a remote controller (only with
 /// `--allow-control`). Either `stw1` (with `hz`, the setpoint in Hz of the drive's reference
 /// frequency; further PZD words 0) or `words` (every PZD word, STW1 first), or `release`.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Out {
     pub v: u32,
@@ -351,7 +352,7 @@ pub enum SampleError {
 
 /// `<prefix>/<bus>/drive/<addr>/control`: what the bridge does with a remote controller's
 /// samples of the drive; on every change, and every second while the bridge holds the drive.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
 pub struct ControlReport<'a> {
     pub v: u32,
     pub bus: &'a str,
@@ -385,7 +386,7 @@ pub struct ControlReport<'a> {
 
 /// The reply to a stop query, per drive: the command, and the image that shows it went out, or
 /// why that was not seen in time (the command was sent all the same).
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct StopReply<'a> {
     pub v: u32,
     pub bus: &'a str,
@@ -453,6 +454,90 @@ impl<'a> ControlReport<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The schema of a payload of type `T`, for `what`: as the bridge writes it (`write`), or
+    /// as it reads it (a remote controller's sample).
+    fn schema<T: schemars::JsonSchema>(what: &str, write: bool) -> schemars::Schema {
+        let settings = schemars::generate::SchemaSettings::draft2020_12();
+        let settings = if write {
+            settings.for_serialize()
+        } else {
+            settings.for_deserialize()
+        };
+        let mut schema = settings.into_generator().into_root_schema_for::<T>();
+        schema.insert("description".to_owned(), what.into());
+        schema
+    }
+
+    /// The shipped schemas (docs/schema/zenoh/) are the ones the payload types make: a changed
+    /// field changes a file, which needs a new [`VERSION`] and a line in
+    /// docs/schema/CHANGELOG.md.
+    #[test]
+    fn the_shipped_schemas_are_what_the_payload_types_make() {
+        let all = [
+            (
+                "status",
+                schema::<Status<'_>>("<prefix>/<bus>/status", true),
+            ),
+            (
+                "in",
+                schema::<Input<'_>>("<prefix>/<bus>/drive/<addr>/in", true),
+            ),
+            (
+                "diag",
+                schema::<Diag<'_>>("<prefix>/<bus>/drive/<addr>/diag", true),
+            ),
+            (
+                "info",
+                schema::<Info<'_>>("<prefix>/<bus>/drive/<addr>/info", true),
+            ),
+            (
+                "control",
+                schema::<ControlReport<'_>>("<prefix>/<bus>/drive/<addr>/control", true),
+            ),
+            (
+                "param",
+                schema::<ParamReply<'_>>(
+                    "A reply on <prefix>/<bus>/drive/<addr>/param/<P> or .../set/<P>",
+                    true,
+                ),
+            ),
+            (
+                "stop",
+                schema::<StopReply<'_>>(
+                    "A reply on <prefix>/<bus>/drive/<addr>/stop (an array of them on <prefix>/<bus>/stop)",
+                    true,
+                ),
+            ),
+            (
+                "out",
+                schema::<Out>(
+                    "A remote controller's sample on <prefix>/<bus>/drive/<addr>/out",
+                    false,
+                ),
+            ),
+        ];
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/schema/zenoh");
+        let update = std::env::var_os("UPDATE_SCHEMAS").is_some();
+        if update {
+            std::fs::create_dir_all(&dir).unwrap();
+        }
+        for (name, schema) in all {
+            let made = serde_json::to_string_pretty(&schema).unwrap() + "\n";
+            let path = dir.join(format!("{name}.json"));
+            if update {
+                std::fs::write(&path, &made).unwrap();
+                continue;
+            }
+            assert!(
+                std::fs::read_to_string(&path).unwrap_or_default() == made,
+                "{}: not what the payload type makes. If a field changed, raise \
+                 payload::VERSION, say what changed in docs/schema/CHANGELOG.md and run \
+                 `UPDATE_SCHEMAS=1 cargo test -p uss-zenoh schemas`",
+                path.display()
+            );
+        }
+    }
 
     #[test]
     fn a_sample_says_stw1_and_hz_or_words() {

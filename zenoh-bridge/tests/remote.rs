@@ -25,7 +25,7 @@ use serde_json::Value;
 use std::process::Command;
 use std::time::{Duration, Instant};
 use uss_client::{ControlState, DriveWatch, LatchReason, PzdInput};
-use uss_integration_tests::{BusSpec, ChildProc, Ussd};
+use uss_integration_tests::{BusSpec, ChildProc, Ussd, assert_report};
 
 /// `zenoh-bridge/examples/read_param.py` in the namespace reads `key`: P1082 = 50.0 Hz (over
 /// mutual TLS with `tls`). Without the `eclipse-zenoh` package it says it is skipped, unless
@@ -113,7 +113,14 @@ fn put_sample(ns: &Netns, drive: &str, payload: &str, expect: &str) -> String {
                 std::thread::sleep(Duration::from_millis(300));
             }
         });
-        let report = reports.says(expect);
+        // Each report as its shipped schema describes it.
+        let report = loop {
+            let line = format!("{{\"v\":1{}", reports.says("{\"v\":1"));
+            assert_report("zenoh/control", &line);
+            if let Some((_, rest)) = line.split_once(expect) {
+                break rest.to_owned();
+            }
+        };
         done.store(true, std::sync::atomic::Ordering::Relaxed);
         report
     });
@@ -255,6 +262,10 @@ fn inputs_arrive(ns: &Netns, key: &dyn Fn(&str) -> String) {
     assert!(ok, "{err}");
     let images: Vec<Value> = out.lines().map(json).collect();
     assert_eq!(images.len(), 3);
+    // Each payload as its shipped schema (docs/schema/zenoh/) describes it.
+    for line in out.lines() {
+        assert_report("zenoh/in", line);
+    }
     for i in &images {
         assert_eq!(
             (i["v"].as_u64(), i["drive"].as_u64()),
@@ -275,6 +286,7 @@ fn inputs_arrive(ns: &Netns, key: &dyn Fn(&str) -> String) {
     reader_goes_away(ns, &["sub", &key("drive/1/in"), "--count", "100000"]);
     let (ok, out, err) = ns.call(&["sub", &key("status")]);
     assert!(ok, "{err}");
+    assert_report("zenoh/status", out.trim());
     let status = json(&out);
     assert_eq!(
         (status["ussd"].as_str(), status["stale"].as_bool()),
@@ -282,7 +294,11 @@ fn inputs_arrive(ns: &Netns, key: &dyn Fn(&str) -> String) {
     );
     let (ok, out, err) = ns.call(&["sub", &key("drive/2/info")]);
     assert!(ok, "{err}");
+    assert_report("zenoh/info", out.trim());
     assert_eq!(json(&out)["reference_hz"].as_f64(), Some(50.0));
+    let (ok, out, err) = ns.call(&["sub", &key("drive/2/diag")]);
+    assert!(ok, "{err}");
+    assert_report("zenoh/diag", out.trim());
 }
 
 /// `uss-zenoh-client ARGS | head -1`: the reader goes away after one line, and the client
@@ -323,6 +339,7 @@ fn parameters_read_and_writes_refused(ns: &Netns, key: &dyn Fn(&str) -> String) 
     let (ok, out, err) = ns.call(&["get", &key("drive/1/param/P1082")]);
     assert!(ok, "{err}");
     reader_goes_away(ns, &["get", &key("drive/1/param/P1082"), "--repeat", "20"]);
+    assert_report("zenoh/param", out.trim());
     let p = json(&out);
     assert_eq!(p["value"].as_f64(), Some(50.0), "{p}");
     assert_eq!(
@@ -887,6 +904,7 @@ fn a_query_with_wildcards_is_answered_under_each_concrete_key() {
     // An operator's stop found the same way: drive 2 only, confirmed under its own key.
     let (ok, out, err) = ns.call(&["stop", &format!("**/{bus}/drive/2")]);
     assert!(ok, "{err}");
+    assert_report("zenoh/stop", out.trim());
     let stop = json(&out);
     assert_eq!(
         (stop["drive"].as_u64(), stop["confirmed"].as_bool()),

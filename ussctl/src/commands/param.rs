@@ -66,7 +66,7 @@ pub(crate) fn describe(bus: &Bus, out: &Output, drive: u8, param: ParamRef) -> R
 }
 
 /// `param describe`'s report.
-#[derive(Debug, serde::Serialize)]
+#[derive(Debug, serde::Serialize, schemars::JsonSchema)]
 pub(crate) struct DescribeReport {
     bus: String,
     drive: u8,
@@ -78,7 +78,7 @@ pub(crate) struct DescribeReport {
     catalogue: Option<CatalogueEntry>,
 }
 
-#[derive(Debug, serde::Serialize)]
+#[derive(Debug, serde::Serialize, schemars::JsonSchema)]
 struct CatalogueEntry {
     name: String,
     data_type: String,

@@ -39,7 +39,7 @@ struct At {
 }
 
 /// One recorded input image: a CSV row.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, schemars::JsonSchema)]
 pub(crate) struct Row {
     /// Seconds from the trigger (or the start of the trace).
     pub t_s: f64,
@@ -259,8 +259,8 @@ fn finish(rows: VecDeque<Row>, fired: Option<u64>, interrupted: bool) -> Recordi
 }
 
 /// What `trace` reports when done.
-#[derive(Debug, Serialize)]
-struct Summary {
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub(crate) struct Summary {
     drives: Vec<u8>,
     rows: usize,
     seconds: f64,

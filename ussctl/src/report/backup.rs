@@ -8,7 +8,7 @@ use uss_client::uss_protocol::ParamRef;
 use uss_client::{ParamError, Value};
 
 /// One value of a restore: what the drive had, what the file says, what happened.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct RestoreLine {
     pub param: String,
     pub was: Option<String>,
@@ -18,7 +18,7 @@ pub struct RestoreLine {
 }
 
 /// `param restore`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct RestoreReport {
     pub bus: String,
     pub drive: u8,
@@ -174,7 +174,7 @@ impl RestoreReport {
 }
 
 /// One difference of `param diff`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct DiffLine {
     pub param: String,
     pub name: &'static str,
@@ -201,7 +201,7 @@ impl DiffLine {
 }
 
 /// `param diff`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct DiffReport {
     pub bus: String,
     pub drive: u8,

@@ -11,7 +11,7 @@ use uss_client::{
 };
 
 /// One drive in one round of `watch`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct WatchLine {
     /// Seconds since `watch` started.
     pub t: f64,
@@ -77,7 +77,7 @@ impl WatchLine {
 }
 
 /// `param read` / `param write`: the value in the parameter's own type and unit.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct ParamReport {
     pub bus: String,
     pub drive: u8,
@@ -95,6 +95,7 @@ pub struct ParamReport {
     pub raw: u32,
     pub hex: String,
     /// The value in its type: a float for float, an integer otherwise.
+    #[schemars(with = "f64")]
     pub value: Typed,
     /// A status or control word's set bits by name (r0052, r0054).
     #[serde(skip_serializing_if = "Vec::is_empty")]
@@ -185,7 +186,7 @@ pub(crate) fn stw1_bits(stw1: u16) -> Vec<&'static str> {
 }
 
 /// `faults`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct FaultsReport {
     pub bus: String,
     pub drive: u8,
@@ -200,7 +201,7 @@ pub struct FaultsReport {
     pub warnings: Option<Vec<WarningEntry>>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct FaultEntry {
     /// Element of the fault buffer: 0 is the newest.
     pub slot: u8,
@@ -217,7 +218,7 @@ pub struct FaultEntry {
     pub text: Option<&'static str>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct WarningEntry {
     pub number: u16,
     /// `A0501`.
@@ -296,7 +297,7 @@ impl FaultsReport {
 }
 
 /// `stop`, `coast`, `quick-stop`: the drives that got the command and what they show now.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct StopReport {
     pub bus: String,
     /// "OFF1", "OFF2" or "OFF3".
@@ -305,7 +306,7 @@ pub struct StopReport {
 }
 
 /// One drive after an operator's stop command.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct StoppedDrive {
     pub drive: u8,
     pub online: bool,
@@ -391,7 +392,7 @@ impl StopReport {
 }
 
 /// The end of `run` or `ack`: what the drive shows now.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct DriveReport {
     pub bus: String,
     pub drive: u8,

@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use uss_client::state_name;
 
 /// One drive `scan` found.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct ScannedDrive {
     pub baud: u32,
     pub address: u8,
@@ -23,7 +23,7 @@ pub struct ScannedDrive {
 }
 
 /// `scan`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct ScanReport {
     pub device: String,
     pub bauds: Vec<u32>,

@@ -9,7 +9,7 @@ use uss_shm_types::DriveInfo;
 use uss_shm_types::diag::NEVER;
 
 /// `stats`: the bus and every counter of every drive.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct StatsReport {
     pub bus: BusReport,
     /// The bus's timing, µs: p50, p99, p99.9, max.
@@ -18,7 +18,7 @@ pub struct StatsReport {
 }
 
 /// Timing percentiles of a bus in µs: `[p50, p99, p99.9, max]`, zeros while none measured.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct TimingReport {
     /// Line free -> reply complete.
     pub exchange: [f64; 4],
@@ -29,7 +29,7 @@ pub struct TimingReport {
 }
 
 /// Timing percentiles of a drive in µs: `[p50, p99, p99.9, max]`, zeros while none measured.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct DriveTiming {
     pub exchange: [f64; 4],
     pub response_delay: [f64; 4],
@@ -63,7 +63,7 @@ pub(super) fn timing_row(name: &str, q: [f64; 4]) -> String {
     )
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct DriveStats {
     pub address: u8,
     pub online: bool,
@@ -99,7 +99,7 @@ pub(super) fn counters(d: &DriveDiag) -> [(&'static str, u64); 28] {
 }
 
 /// What ussd knows of a drive from its configuration.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct InfoReport {
     /// P2000: the frequency of a setpoint or actual value of 0x4000 (100 %).
     pub reference_hz: f32,

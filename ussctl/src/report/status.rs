@@ -9,7 +9,7 @@ use uss_client::{
 use uss_shm_types::diag::{LastFailure, RtMode};
 
 /// Whether a drive is live or latched, and why (`uss_shm_types::control`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, schemars::JsonSchema)]
 pub struct ControlReport {
     /// "live" or "latched".
     pub state: &'static str,
@@ -70,7 +70,7 @@ impl ControlReport {
 }
 
 /// The bus as a whole.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct BusReport {
     pub bus: String,
     pub running: bool,
@@ -170,7 +170,7 @@ impl BusReport {
 }
 
 /// One drive in `status`: state and the main counters.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct DriveRow {
     pub address: u8,
     pub online: bool,
@@ -280,7 +280,7 @@ pub(super) fn last_failure(d: &DriveDiag) -> &'static str {
 }
 
 /// `status`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct StatusReport {
     pub bus: BusReport,
     pub drives: Vec<DriveRow>,
