@@ -781,7 +781,7 @@ fn ussctl_reads_and_writes_parameters_in_their_own_type_and_unit() {
     assert_eq!(
         text(&out.stdout),
         format!(
-            "{{\"bus\":\"{}\",\"drive\":1,\"param\":\"r0947[2]\",\"pnu\":947,\"index\":2,\"name\":\"CO: Last fault code\",\"type\":\"U16\",\"unit\":\"\",\"raw\":0,\"hex\":\"0x0000\",\"value\":0}}\n",
+            "{{\"v\":1,\"bus\":\"{}\",\"drive\":1,\"param\":\"r0947[2]\",\"pnu\":947,\"index\":2,\"name\":\"CO: Last fault code\",\"type\":\"U16\",\"unit\":\"\",\"raw\":0,\"hex\":\"0x0000\",\"value\":0}}\n",
             ussd.bus
         )
     );
@@ -840,7 +840,7 @@ fn ussctl_prints_status_as_json_and_reads_and_writes_parameters() {
     assert_eq!(json.lines().count(), 1, "{json}");
     assert!(
         json.starts_with(&format!(
-            "{{\"bus\":{{\"bus\":\"{}\",\"running\":true,",
+            "{{\"v\":1,\"bus\":{{\"bus\":\"{}\",\"running\":true,",
             ussd.bus
         )),
         "{json}"
