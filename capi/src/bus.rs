@@ -86,12 +86,11 @@ impl UssrtBus {
 
 /// A stop command code of the caller: 1 OFF1, 2 OFF2, 3 OFF3 (`UssStopCommand`).
 pub(crate) fn stop_command(code: u8) -> Result<StopCommand, Failure> {
-    match StopCommand::try_from(code) {
-        Ok(StopCommand::None) | Err(_) => Err(Failure::Argument(format!(
+    StopCommand::of_code(code).ok_or_else(|| {
+        Failure::Argument(format!(
             "{code} is not a stop command: 1 OFF1 (ramp), 2 OFF2 (coast), 3 OFF3 (quick stop)"
-        ))),
-        Ok(c) => Ok(c),
-    }
+        ))
+    })
 }
 
 /// Opens bus `name` (as ussd's configuration names it) and writes the handle to `*bus`.

@@ -51,10 +51,10 @@ impl Bus {
         let watch = self.watch(address)?;
         let wanted = format!("{command} applied");
         let shown = |i: &PzdInput| {
-            let got = StopCommand::try_from(i.latch_command).unwrap_or(StopCommand::None);
             i.latch_reason == LatchReason::Override.code()
-                && got.strength() >= command.strength()
-                && got.stw1() == Some(i.sent_stw1)
+                && StopCommand::of_code(i.latch_command).is_some_and(|got| {
+                    got.strength() >= command.strength() && got.stw1() == i.sent_stw1
+                })
         };
         let last = match timeout {
             Some(timeout) => watch.wait_for(timeout, &wanted, shown),

@@ -13,8 +13,8 @@ use uss_shm_types::{
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Latch {
     pub reason: LatchReason,
-    /// What the drive gets meanwhile.
-    pub command: StopCommand,
+    /// What the drive gets meanwhile (`None` only for an image that shows no latch).
+    pub command: Option<StopCommand>,
     /// With [`LatchReason::Rejected`]: why the sample was refused.
     pub rejection: Rejection,
     /// The operator behind an override, or the controller whose sample caused the latch.
@@ -24,12 +24,17 @@ pub struct Latch {
 }
 
 impl Latch {
+    /// What the drive gets, for a message: `OFF1`, `OFF2`, `OFF3`.
+    pub fn command_name(&self) -> &'static str {
+        self.command.map_or("no stop command", StopCommand::name)
+    }
+
     /// The latch an input image shows.
     pub fn of(input: &PzdInput) -> Self {
         let now = crate::link::monotonic_ns();
         Self {
             reason: LatchReason::try_from(input.latch_reason).unwrap_or(LatchReason::None),
-            command: StopCommand::try_from(input.latch_command).unwrap_or(StopCommand::None),
+            command: StopCommand::of_code(input.latch_command),
             rejection: Rejection::try_from(input.rejection).unwrap_or(Rejection::None),
             by_pid: input.latched_by_pid,
             ago: Duration::from_nanos(now.saturating_sub(input.latched_since_ns)),
@@ -50,7 +55,7 @@ impl fmt::Display for Latch {
             LatchReason::Rejected => write!(f, "ussd refused a sample: {}", self.rejection),
             LatchReason::Released => write!(f, "its controller (process {pid}) released it"),
             LatchReason::Override => {
-                write!(f, "an operator sent {} from process {pid}", self.command)
+                write!(f, "an operator sent {} from process {pid}", self.command_name())
             }
             LatchReason::LineRestored => f.write_str("the bus line came back after it was down"),
             LatchReason::MonitoringOff => f.write_str(
@@ -163,7 +168,7 @@ pub enum ClientError {
     /// so until [`crate::Controller::rearm`] acknowledges it.
     #[error(
         "drive {address} on {bus} latched {:.2} s ago: {latch}; it gets {} until its controller re-arms it (OFF1, then ON: Controller::rearm)",
-        latch.ago.as_secs_f64(), latch.command
+        latch.ago.as_secs_f64(), latch.command_name()
     )]
     Tripped {
         bus: String,
@@ -173,7 +178,7 @@ pub enum ClientError {
     /// An ON for a latched drive that no OFF1 of this controller has re-armed.
     #[error(
         "drive {address} on {bus} is latched ({latch}, {:.2} s ago) and gets {}: send OFF1 first (Controller::enable or Controller::rearm), then ON",
-        latch.ago.as_secs_f64(), latch.command
+        latch.ago.as_secs_f64(), latch.command_name()
     )]
     NotArmed {
         bus: String,

@@ -223,12 +223,8 @@ fn read_input<'py>(
 }
 
 fn stop_command(code: u8) -> PyResult<StopCommand> {
-    match StopCommand::try_from(code) {
-        Ok(StopCommand::None) | Err(_) => Err(PyValueError::new_err(
-            "a stop command is OFF1, OFF2 or OFF3",
-        )),
-        Ok(c) => Ok(c),
-    }
+    StopCommand::of_code(code)
+        .ok_or_else(|| PyValueError::new_err("a stop command is OFF1, OFF2 or OFF3"))
 }
 
 /// An operator's stop of drive `address` (OFF1, OFF2, OFF3 code), whoever controls it.

@@ -90,6 +90,12 @@
 #define USS_ALL_DRIVES UINT8_MAX
 
 /**
+ * The byte of a stop command field that carries none ([`StopCommand`] has no "none": a live
+ * drive gets no stop command, and a byte of 0 says so).
+ */
+#define USS_NO_STOP_COMMAND 0
+
+/**
  * Bytes of an [`OperatorRequest`] on the stop socket.
  */
 #define USS_OPERATOR_REQUEST_BYTES 8
@@ -440,17 +446,14 @@ typedef uint8_t UssRejection;
 #endif // __cplusplus
 
 /**
- * A stop command: what a latched drive gets, and what an operator asks for.
+ * A stop command: what a latched drive gets, and what an operator asks for. A byte that
+ * carries one is [`NO_STOP_COMMAND`] where there is none (a live drive).
  */
 enum UssStopCommand
 #if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
   : uint8_t
 #endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
  {
-  /**
-   * No command (a live drive).
-   */
-  USS_STOP_COMMAND_NONE = 0,
   /**
    * OFF1: ramp down along the ramp-down time (STW1 0x047E).
    */
@@ -1142,7 +1145,7 @@ typedef struct UssPzdInput {
    */
   uint32_t latched_by_pid;
   /**
-   * The [`StopCommand`] a latched drive gets (0 while live).
+   * The [`StopCommand`] a latched drive gets (0, `NO_STOP_COMMAND`, while live).
    */
   uint8_t latch_command;
   /**
@@ -1347,7 +1350,7 @@ typedef struct UssDriveDiag {
    */
   uint8_t latch_reason;
   /**
-   * The [`StopCommand`] a latched drive gets (0 while live).
+   * The [`StopCommand`] a latched drive gets (0, `NO_STOP_COMMAND`, while live).
    */
   uint8_t latch_command;
   /**
@@ -1817,7 +1820,7 @@ typedef struct UssOperatorRequest {
    */
   uint8_t address;
   /**
-   * A [`StopCommand`] code other than `None`.
+   * A [`StopCommand`] code (never [`NO_STOP_COMMAND`]).
    */
   uint8_t command;
   uint8_t reserved[2];

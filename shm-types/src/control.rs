@@ -72,11 +72,14 @@ code_table! {
     }
 }
 
+/// The byte of a stop command field that carries none ([`StopCommand`] has no "none": a live
+/// drive gets no stop command, and a byte of 0 says so).
+pub const NO_STOP_COMMAND: u8 = 0;
+
 code_table! {
-    /// A stop command: what a latched drive gets, and what an operator asks for.
+    /// A stop command: what a latched drive gets, and what an operator asks for. A byte that
+    /// carries one is [`NO_STOP_COMMAND`] where there is none (a live drive).
     pub enum StopCommand {
-        /// No command (a live drive).
-        None = 0 => "none",
         /// OFF1: ramp down along the ramp-down time (STW1 0x047E).
         Off1 = 1 => "OFF1",
         /// OFF2: coast, the motor is switched off at once (STW1 0x047C).
@@ -129,7 +132,6 @@ impl StopCommand {
     /// (OFF2 switches the pulses off at once, OFF3 brakes hard, OFF1 ramps).
     pub const fn strength(self) -> u8 {
         match self {
-            Self::None => 0,
             Self::Off1 => 1,
             Self::Off3 => 2,
             Self::Off2 => 3,
@@ -137,14 +139,18 @@ impl StopCommand {
     }
 
     /// The control word that carries the command out (USS.md section 7); bit 10 is set, so
-    /// the drive does not ignore it. `None` for [`StopCommand::None`].
-    pub const fn stw1(self) -> Option<u16> {
+    /// the drive does not ignore it.
+    pub const fn stw1(self) -> u16 {
         match self {
-            Self::None => None,
-            Self::Off1 => Some(0x047E),
-            Self::Off2 => Some(0x047C),
-            Self::Off3 => Some(0x047A),
+            Self::Off1 => 0x047E,
+            Self::Off2 => 0x047C,
+            Self::Off3 => 0x047A,
         }
+    }
+
+    /// The command a byte carries, `None` for [`NO_STOP_COMMAND`] (or a byte no command has).
+    pub fn of_code(code: u8) -> Option<Self> {
+        Self::try_from(code).ok()
     }
 }
 
@@ -157,7 +163,7 @@ pub struct OperatorRequest {
     pub version: u32,
     /// Drive address 0..=31, or [`ALL_DRIVES`].
     pub address: u8,
-    /// A [`StopCommand`] code other than `None`.
+    /// A [`StopCommand`] code (never [`NO_STOP_COMMAND`]).
     pub command: u8,
     pub reserved: [u8; 2],
 }
@@ -218,10 +224,7 @@ impl OperatorRequest {
     /// Checks version and command; returns the command.
     pub fn validate(&self) -> Result<StopCommand, CommandError> {
         check_version(self.version).map_err(|_| CommandError::Version)?;
-        match StopCommand::try_from(self.command) {
-            Ok(StopCommand::None) | Err(_) => Err(CommandError::BadCommand),
-            Ok(command) => Ok(command),
-        }
+        StopCommand::try_from(self.command).map_err(|_| CommandError::BadCommand)
     }
 }
 
@@ -300,11 +303,11 @@ mod tests {
     #[test]
     fn stop_commands_carry_plc_control_and_grow_stronger_from_off1_to_off2() {
         for c in [StopCommand::Off1, StopCommand::Off2, StopCommand::Off3] {
-            let stw1 = c.stw1().unwrap();
+            let stw1 = c.stw1();
             assert_ne!(stw1 & 0x0400, 0, "{c}: bit 10");
             assert_eq!(stw1 & 0x0001, 0, "{c}: bit 0 (ON) clear");
         }
-        assert_eq!(StopCommand::None.stw1(), None);
+        assert_eq!(StopCommand::of_code(NO_STOP_COMMAND), None);
         assert!(StopCommand::Off2.strength() > StopCommand::Off3.strength());
         assert!(StopCommand::Off3.strength() > StopCommand::Off1.strength());
     }
@@ -339,7 +342,11 @@ mod tests {
             Ok(StopCommand::Off2)
         );
         assert_eq!(
-            OperatorRequest::new(3, StopCommand::None).validate(),
+            OperatorRequest {
+                command: NO_STOP_COMMAND,
+                ..OperatorRequest::new(3, StopCommand::Off1)
+            }
+            .validate(),
             Err(CommandError::BadCommand)
         );
         let mut r = OperatorRequest::new(ALL_DRIVES, StopCommand::Off1);

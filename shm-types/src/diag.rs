@@ -116,7 +116,7 @@ pub struct DriveDiag {
     pub last_failure: u8,
     /// A [`LatchReason`] code (0 while live).
     pub latch_reason: u8,
-    /// The [`StopCommand`] a latched drive gets (0 while live).
+    /// The [`StopCommand`] a latched drive gets (0, `NO_STOP_COMMAND`, while live).
     pub latch_command: u8,
     /// The [`Rejection`] of the last refused sample (0 if none).
     pub rejection: u8,
@@ -188,7 +188,7 @@ impl DriveInfo {
     pub const UNKNOWN: Self = Self {
         reference_hz: 0.0,
         watchdog_ms: 0,
-        safe_command: StopCommand::None.code(),
+        safe_command: crate::control::NO_STOP_COMMAND,
         params_writable: 0,
         pkw_words: 0,
         pzd_words: 0,
@@ -427,7 +427,7 @@ impl DriveDiag {
             control: ControlState::Latched.code(),
             last_failure: LastFailure::None.code(),
             latch_reason: LatchReason::Startup.code(),
-            latch_command: StopCommand::None.code(),
+            latch_command: crate::control::NO_STOP_COMMAND,
             rejection: Rejection::None.code(),
             monitoring: Monitoring::Unknown.code(),
             known: 0,

@@ -53,8 +53,9 @@ pub mod session;
 pub use capture::{CAPTURE_BYTES, CAPTURE_TASK, CAPTURE_TRUNCATED, Direction, Hex, TelegramRecord};
 pub use codes::{ContractError, UnknownCode, screaming_snake};
 pub use control::{
-    ALL_DRIVES, CommandError, ControlState, LatchReason, Monitoring, OPERATOR_REQUEST_BYTES,
-    OPERATOR_RESPONSE_BYTES, OperatorRequest, OperatorResponse, Rejection, StopCommand,
+    ALL_DRIVES, CommandError, ControlState, LatchReason, Monitoring, NO_STOP_COMMAND,
+    OPERATOR_REQUEST_BYTES, OPERATOR_RESPONSE_BYTES, OperatorRequest, OperatorResponse, Rejection,
+    StopCommand,
 };
 pub use diag::{
     BusStatus, DriveCounters, DriveDiag, DriveFamily, DriveInfo, EXCHANGE_BUCKETS,

@@ -140,7 +140,7 @@ pub struct PzdInput {
     /// The operator process behind an override latch, or the controller process whose sample
     /// was refused or who released the drive; 0 when unknown.
     pub latched_by_pid: u32,
-    /// The [`StopCommand`] a latched drive gets (0 while live).
+    /// The [`StopCommand`] a latched drive gets (0, `NO_STOP_COMMAND`, while live).
     pub latch_command: u8,
     /// The [`Rejection`] of the last refused sample (0 if none was refused).
     pub rejection: u8,
@@ -342,7 +342,7 @@ impl PzdInput {
         latches: 0,
         latched_since_ns: 0,
         latched_by_pid: 0,
-        latch_command: StopCommand::None.code(),
+        latch_command: crate::control::NO_STOP_COMMAND,
         rejection: Rejection::None.code(),
         known: 0,
         reserved: 0,

@@ -33,6 +33,8 @@ use crate::pzd::{MAX_PZD_WORDS, PzdInput, PzdOutput, is_stop};
 
 /// STW1 of the re-arming stop: OFF1 with everything else enabled (0x047E).
 pub const REARM_STW1: u16 = 0x047E;
+// Written out for the C header (cbindgen does not evaluate calls); the same word as OFF1's.
+const _: () = assert!(REARM_STW1 == crate::control::StopCommand::Off1.stw1());
 
 /// What a session needs to know of its drive and controller.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -49,7 +49,7 @@ pub(crate) enum Failure {
     /// ussd latched the drive while `run` ran it: it gets its stop command until re-armed.
     #[error(
         "drive {drive} on {bus} tripped after {:.2} s: {latch} ({:.2} s ago); it gets {}, latched: run `ussctl run {drive}` again to re-arm it (OFF1, then ON)",
-        .after.as_secs_f64(), .latch.ago.as_secs_f64(), .latch.command
+        .after.as_secs_f64(), .latch.ago.as_secs_f64(), .latch.command_name()
     )]
     Tripped {
         drive: u8,
@@ -117,7 +117,7 @@ mod tests {
     fn each_failure_says_what_happened_and_what_to_do() {
         let latch = Latch {
             reason: LatchReason::Stale,
-            command: StopCommand::Off1,
+            command: Some(StopCommand::Off1),
             rejection: Rejection::None,
             by_pid: 0,
             ago: Duration::from_millis(250),

@@ -606,7 +606,8 @@ fn latched(bus: &str, drive: u8, image: &PzdInput) -> String {
     format!(
         "drive {drive} on {bus} is latched ({latch}) and gets {}: nothing was sent; re-arm it \
          with a stop naming the latch ({{\"stw1\":1150,\"rearm\":{}}}), then ON",
-        latch.command, image.latch_id
+        latch.command_name(),
+        image.latch_id
     )
 }
 

@@ -350,9 +350,9 @@ fn a_zero_cycle_time_means_as_fast_as_the_wire_allows() {
 
 #[test]
 fn safe_commands_send_the_stw1_of_uss_md_section_7() {
-    assert_eq!(SafeCommand::Off1.command().stw1(), Some(0x047E));
-    assert_eq!(SafeCommand::Off2.command().stw1(), Some(0x047C));
-    assert_eq!(SafeCommand::Off3.command().stw1(), Some(0x047A));
+    assert_eq!(SafeCommand::Off1.command().stw1(), 0x047E);
+    assert_eq!(SafeCommand::Off2.command().stw1(), 0x047C);
+    assert_eq!(SafeCommand::Off3.command().stw1(), 0x047A);
 }
 
 #[test]

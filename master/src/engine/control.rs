@@ -46,7 +46,7 @@ pub struct Operator {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Latch {
     pub reason: LatchReason,
-    /// What the drive gets: never [`StopCommand::None`].
+    /// What the drive gets.
     pub command: StopCommand,
     /// Bus clock time the latch began (or last changed its reason).
     pub since: Duration,
@@ -205,7 +205,7 @@ impl Gate {
         let mut changed = None;
         // An operator's command comes first: its latch has a new id, which a sample that arrived
         // with it cannot name, so that sample cannot re-arm the drive.
-        if let Some(op) = poll.operator.filter(|op| op.command != StopCommand::None) {
+        if let Some(op) = poll.operator {
             self.counters.overrides += 1;
             changed = Some(self.latch_with(
                 LatchReason::Override,
@@ -270,14 +270,7 @@ impl Gate {
         *out = [0; MAX_PZD_WORDS];
         match self.control {
             Control::Live => out.copy_from_slice(&self.words),
-            Control::Latched(latch) => {
-                // `Latch::command` is never `None`; the safe command is the fallback anyway.
-                out[0] = latch
-                    .command
-                    .stw1()
-                    .or(self.setup.safe.stw1())
-                    .unwrap_or(0x047E);
-            }
+            Control::Latched(latch) => out[0] = latch.command.stw1(),
         }
     }
 

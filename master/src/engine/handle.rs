@@ -3,7 +3,7 @@
 
 use super::{
     Address, DriveSetup, Duration, Encoded, EngineHandle, INTERNAL_JOB, Job, JobResult, Ordering,
-    PzdOutput, RequestError, Requester, STOPS, Stats, StopCommand,
+    PzdOutput, RequestError, Requester, Stats, StopCommand, stop_index,
 };
 
 impl EngineHandle {
@@ -67,10 +67,7 @@ impl EngineHandle {
         command: StopCommand,
         pid: u32,
     ) -> Result<u32, RequestError> {
-        let which = STOPS
-            .iter()
-            .position(|&c| c == command)
-            .ok_or(RequestError::NotAStop(command))?;
+        let which = stop_index(command);
         let slots = match address {
             Some(a) => {
                 let slot = self.shared.slot(a)?;

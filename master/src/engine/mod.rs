@@ -292,8 +292,6 @@ pub enum RequestError {
     Stopped,
     #[error("job id {0:#x} is reserved for ussd's own jobs")]
     ReservedJobId(u64),
-    #[error("{0} is not a stop command: use OFF1, OFF2 or OFF3")]
-    NotAStop(StopCommand),
     #[error("the bus line is down: ussd reopens it; retry once it is back")]
     LineDown,
 }
@@ -315,7 +313,7 @@ impl From<&RequestError> for uss_shm_types::RequestError {
             RequestError::PzdWords { .. } => Told::ValueType,
             RequestError::Busy(_) => Told::Busy,
             RequestError::Stopped => Told::Shutdown,
-            RequestError::ReservedJobId(_) | RequestError::NotAStop(_) => Told::BadTask,
+            RequestError::ReservedJobId(_) => Told::BadTask,
             RequestError::LineDown => Told::LineDown,
         }
     }
@@ -339,6 +337,15 @@ struct Overrides {
 }
 
 const STOPS: [StopCommand; 3] = [StopCommand::Off1, StopCommand::Off2, StopCommand::Off3];
+
+/// Where `command` is in [`STOPS`] (and in the counters kept in that order).
+const fn stop_index(command: StopCommand) -> usize {
+    match command {
+        StopCommand::Off1 => 0,
+        StopCommand::Off2 => 1,
+        StopCommand::Off3 => 2,
+    }
+}
 
 /// State shared by the engine and its handles.
 #[derive(Debug)]
@@ -794,7 +801,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 Control::Live => setup.safe,
             };
             let mut output = [0u16; MAX_PZD_WORDS];
-            output[0] = command.stw1().unwrap_or(0x047E);
+            output[0] = command.stw1();
             let len = setup.layout.pzd.get();
             let begin = self.line_free_at;
             match self.attempt(slot, &output[..len], false)? {

@@ -126,9 +126,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let Some(command) = self.take_stop_all() else {
             return Ok(());
         };
-        let Some(stw1) = command.stw1() else {
-            return Ok(());
-        };
+        let stw1 = command.stw1();
         let n = self.drives.len();
         let mut handled = 0u32;
         for first in 0..n {

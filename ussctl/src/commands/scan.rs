@@ -33,7 +33,7 @@ use uss_master::{Clock, MonotonicClock, Transport};
 /// and zero further words, the first `pzd` of them.
 const SAFE_PZD: [u16; 16] = {
     let mut words = [0; 16];
-    words[0] = 0x047E;
+    words[0] = uss_client::StopCommand::Off1.stw1();
     words
 };
 

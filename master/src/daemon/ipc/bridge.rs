@@ -16,7 +16,9 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use uss_protocol::Address;
 use uss_shm_types::names;
-use uss_shm_types::{BlackboardKey, DriveAddress, Instance, PzdInput, PzdOutput};
+use uss_shm_types::{
+    BlackboardKey, DriveAddress, Instance, NO_STOP_COMMAND, PzdInput, PzdOutput, StopCommand,
+};
 
 pub(crate) type OutService = PubSubFactory<Svc, PzdOutput, ()>;
 
@@ -159,7 +161,7 @@ impl Bridge for RtBridge {
         let c = ControlView::of(status, origin);
         image.control = c.state.code();
         image.latch_reason = c.reason.code();
-        image.latch_command = c.command.code();
+        image.latch_command = c.command.map_or(NO_STOP_COMMAND, StopCommand::code);
         image.latched_since_ns = c.since_ns;
         image.latch_id = c.id;
         image.latched_by_pid = c.by_pid;

@@ -18,7 +18,7 @@ use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{
     BlackboardKey, BusName, BusState, BusStatus, ControlState, DriveAddress, DriveDiag, DriveInfo,
     Heartbeat, Instance, LAYOUT_VERSION, LatchReason, LineFault as ContractLineFault, LineState,
-    RtMode, StopCommand, TelegramRecord,
+    NO_STOP_COMMAND, RtMode, StopCommand, TelegramRecord,
 };
 
 /// The heartbeat's one publisher, on the bus's stable `ussd` service: opened when clients of
@@ -190,7 +190,8 @@ impl core::fmt::Debug for StatusPublisher {
 pub(super) struct ControlView {
     pub(super) state: ControlState,
     pub(super) reason: LatchReason,
-    pub(super) command: StopCommand,
+    /// What a latched drive gets; `None` while live.
+    pub(super) command: Option<StopCommand>,
     /// `CLOCK_MONOTONIC` ns of the latch (0 while live).
     pub(super) since_ns: u64,
     pub(super) by_pid: u32,
@@ -204,7 +205,7 @@ impl ControlView {
             Control::Live => Self {
                 state: ControlState::Live,
                 reason: LatchReason::None,
-                command: StopCommand::None,
+                command: None,
                 since_ns: 0,
                 by_pid: 0,
                 id: 0,
@@ -212,7 +213,7 @@ impl ControlView {
             Control::Latched(l) => Self {
                 state: ControlState::Latched,
                 reason: l.reason,
-                command: l.command,
+                command: Some(l.command),
                 since_ns: origin_ns.saturating_add(as_ns(l.since)),
                 by_pid: l.by_pid,
                 id: l.id,
@@ -302,7 +303,7 @@ impl StatusPublisher {
                 control: control.state.code(),
                 last_failure: d.last_failure.code(),
                 latch_reason: control.reason.code(),
-                latch_command: control.command.code(),
+                latch_command: control.command.map_or(NO_STOP_COMMAND, StopCommand::code),
                 rejection: d.rejection.code(),
                 monitoring: d.monitoring.code(),
                 monitoring_ms: d.monitoring_ms,

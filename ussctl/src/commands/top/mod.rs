@@ -39,7 +39,6 @@ impl Pending {
             StopCommand::Off1 => "Stop (OFF1, along the ramp)",
             StopCommand::Off2 => "Coast (OFF2, pulses off at once)",
             StopCommand::Off3 => "Quick-stop (OFF3, along the OFF3 ramp)",
-            StopCommand::None => "Send nothing to",
         };
         let whom = self.drive.map_or_else(
             || format!("EVERY drive of bus {bus}"),

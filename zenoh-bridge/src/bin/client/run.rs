@@ -32,6 +32,8 @@ pub const ARM_TIMEOUT: Duration = Duration::from_secs(5);
 const STOP_TIMEOUT: Duration = Duration::from_secs(30);
 /// STW1 of the run: ON with everything enabled.
 const RUN: u16 = 0x047F;
+/// STW1 of OFF1: the re-arming stop, and the stop at the end.
+const OFF1: u16 = uss_client::StopCommand::Off1.stw1();
 /// The drive's watchdog when its image does not say.
 const DEFAULT_WATCHDOG_MS: u64 = 100;
 
@@ -276,7 +278,7 @@ impl Remote<'_> {
                 });
             }
             // The re-arming stop again, until the bridge holds the drive for this client.
-            self.step(0x047E).map_err(|e| self.failure(e, start))?;
+            self.step(OFF1).map_err(|e| self.failure(e, start))?;
         }
     }
 
@@ -328,7 +330,7 @@ impl Remote<'_> {
         let start = Instant::now();
         let deadline = start + STOP_TIMEOUT;
         while self.field("state") != "S2" && Instant::now() < deadline {
-            self.step(0x047E).map_err(|e| self.failure(e, start))?;
+            self.step(OFF1).map_err(|e| self.failure(e, start))?;
             if !self.live() || self.blind() {
                 break;
             }
