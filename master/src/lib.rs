@@ -28,7 +28,7 @@ pub use engine::stats::{DriveCounters, DriveStatus, LastFailure, Stats};
 pub use engine::transport::{Rx, Transport, TransportError};
 pub use engine::{
     Bridge, DriveSetup, Engine, EngineConfig, EngineHandle, Event, INTERNAL_JOB, LocalBridge,
-    RequestError,
+    SubmitError,
 };
 #[cfg(feature = "sim")]
 pub use transports::sim::SimTransport;

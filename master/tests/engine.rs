@@ -10,7 +10,7 @@ use uss_drive_sim::{DriveConfig, Fault, SimBus, State, VirtualWire};
 use uss_master::engine::control::Control;
 use uss_master::{
     DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, LastFailure, Reference,
-    RequestError, SimTransport, VirtualClock,
+    SimTransport, SubmitError, VirtualClock,
 };
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{
@@ -971,7 +971,7 @@ fn shutdown_ends_pending_jobs_and_sends_the_safe_command_once() {
         before + 1,
         "exactly one telegram"
     );
-    assert_eq!(b.handle.submit(read(9, 1, 700)), Err(RequestError::Stopped));
+    assert_eq!(b.handle.submit(read(9, 1, 700)), Err(SubmitError::Stopped));
 }
 
 #[test]
@@ -1024,25 +1024,25 @@ fn bad_requests_are_refused_with_a_reason() {
     };
     assert_eq!(
         b.handle.submit(read(1, 9, 700)),
-        Err(RequestError::UnknownDrive(addr(9)))
+        Err(SubmitError::UnknownDrive(addr(9)))
     );
     assert_eq!(
         b.handle.submit(write(1, Value::Dword(1))),
-        Err(RequestError::Pkw {
+        Err(SubmitError::Pkw {
             address: addr(1),
             error: PkwError::DwordOverThreeWords
         })
     );
     assert_eq!(
         b.handle.submit(read(1, 2, 700)),
-        Err(RequestError::Pkw {
+        Err(SubmitError::Pkw {
             address: addr(2),
             error: PkwError::NoChannel
         })
     );
     assert_eq!(
         b.handle.submit(write(3, Value::Word(1))),
-        Err(RequestError::WritesDisabled(addr(3)))
+        Err(SubmitError::WritesDisabled(addr(3)))
     );
     assert!(
         b.handle.submit(read(1, 3, 700)).is_ok(),
@@ -1050,7 +1050,7 @@ fn bad_requests_are_refused_with_a_reason() {
     );
     assert_eq!(
         b.handle.set_output(addr(1), &[1, 2, 3]),
-        Err(RequestError::PzdWords {
+        Err(SubmitError::PzdWords {
             address: addr(1),
             given: 3,
             allowed: 2
@@ -1152,10 +1152,7 @@ fn a_failed_line_ends_every_job_and_the_restored_line_latches_every_drive() {
     );
     assert!(engine.stats().drives.iter().all(|d| !d.online));
     assert!(engine.stats().line.down.is_some());
-    assert_eq!(
-        handle.submit(read(11, 2, 1082)),
-        Err(RequestError::LineDown)
-    );
+    assert_eq!(handle.submit(read(11, 2, 1082)), Err(SubmitError::LineDown));
     assert!(
         events
             .try_iter()

@@ -3,7 +3,7 @@
 
 use super::{
     Address, DriveSetup, Duration, Encoded, EngineHandle, INTERNAL_JOB, Job, JobResult, Ordering,
-    PzdOutput, RequestError, Requester, Stats, StopCommand, stop_index,
+    PzdOutput, Requester, Stats, StopCommand, SubmitError, stop_index,
 };
 
 impl EngineHandle {
@@ -13,11 +13,11 @@ impl EngineHandle {
     /// the drive only while the drive is live (see [`crate::engine::control`]); it names the
     /// latch the drive shows now, so a stop given here re-arms it (the caller sends it knowing
     /// the drive's state: this is no refresher).
-    pub fn set_output(&self, address: Address, words: &[u16]) -> Result<(), RequestError> {
+    pub fn set_output(&self, address: Address, words: &[u16]) -> Result<(), SubmitError> {
         let slot = self.shared.slot(address)?;
         let allowed = self.shared.setups[slot].layout.pzd.get();
         if words.len() != allowed {
-            return Err(RequestError::PzdWords {
+            return Err(SubmitError::PzdWords {
                 address,
                 given: words.len(),
                 allowed,
@@ -26,7 +26,7 @@ impl EngineHandle {
         let number = self.next_number(slot);
         let shown = self.shared.images[slot].latch_id.load(Ordering::Acquire);
         let sample = PzdOutput::from_words(words, number, 0, std::process::id())
-            .map_err(|_| RequestError::PzdWords {
+            .map_err(|_| SubmitError::PzdWords {
                 address,
                 given: words.len(),
                 allowed,
@@ -38,7 +38,7 @@ impl EngineHandle {
 
     /// Publishes a sample exactly as given (any version, count or flags), as a foreign
     /// controller could: the engine's checks decide what reaches the drive.
-    pub fn publish_sample(&self, address: Address, sample: PzdOutput) -> Result<(), RequestError> {
+    pub fn publish_sample(&self, address: Address, sample: PzdOutput) -> Result<(), SubmitError> {
         let slot = self.shared.slot(address)?;
         self.shared.images[slot].output.put(sample);
         Ok(())
@@ -46,7 +46,7 @@ impl EngineHandle {
 
     /// Hands the drive back, as a controller that ends cleanly does: it gets its safe command,
     /// latched, with the reason "released" (not a watchdog trip).
-    pub fn release(&self, address: Address) -> Result<(), RequestError> {
+    pub fn release(&self, address: Address) -> Result<(), SubmitError> {
         let slot = self.shared.slot(address)?;
         let number = self.next_number(slot);
         let sample = PzdOutput::release(number, 0, std::process::id());
@@ -66,7 +66,7 @@ impl EngineHandle {
         address: Option<Address>,
         command: StopCommand,
         pid: u32,
-    ) -> Result<u32, RequestError> {
+    ) -> Result<u32, SubmitError> {
         let which = stop_index(command);
         let slots = match address {
             Some(a) => {
@@ -95,7 +95,7 @@ impl EngineHandle {
     pub fn input(
         &self,
         address: Address,
-    ) -> Result<(Option<crate::engine::image::Words>, bool), RequestError> {
+    ) -> Result<(Option<crate::engine::image::Words>, bool), SubmitError> {
         let slot = self.shared.slot(address)?;
         let image = &self.shared.images[slot];
         let words = image
@@ -107,31 +107,31 @@ impl EngineHandle {
     }
 
     /// Queues a parameter job. Once accepted it ends in exactly one [`JobResult`].
-    pub fn submit(&self, job: Job) -> Result<(), RequestError> {
+    pub fn submit(&self, job: Job) -> Result<(), SubmitError> {
         self.submit_for(job, Requester::NONE)
     }
 
     /// [`EngineHandle::submit`] for a job of `requester` ([`EngineHandle::watch_requester`]):
     /// the bus thread ends it with [`uss_shm_types::PathError::Cancelled`] instead of sending
     /// it when the requester has died by the time the job would leave the mailbox.
-    pub fn submit_for(&self, job: Job, requester: Requester) -> Result<(), RequestError> {
+    pub fn submit_for(&self, job: Job, requester: Requester) -> Result<(), SubmitError> {
         if self.shared.stop.load(Ordering::Acquire) {
-            return Err(RequestError::Stopped);
+            return Err(SubmitError::Stopped);
         }
         if job.id & INTERNAL_JOB != 0 {
-            return Err(RequestError::ReservedJobId(job.id));
+            return Err(SubmitError::ReservedJobId(job.id));
         }
         if self.shared.line_down.load(Ordering::Acquire) {
-            return Err(RequestError::LineDown);
+            return Err(SubmitError::LineDown);
         }
         let slot = self.shared.slot(job.address)?;
         let setup = &self.shared.setups[slot];
         if job.task.is_write() && !setup.params_writable {
-            return Err(RequestError::WritesDisabled(job.address));
+            return Err(SubmitError::WritesDisabled(job.address));
         }
         // The one check that the task fits the drive's channel, and its words for every
         // telegram that will carry it.
-        let pkw = Encoded::new(&job.task, setup.layout.pkw).map_err(|error| RequestError::Pkw {
+        let pkw = Encoded::new(&job.task, setup.layout.pkw).map_err(|error| SubmitError::Pkw {
             address: job.address,
             error,
         })?;
@@ -141,10 +141,10 @@ impl EngineHandle {
             .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
                 (n < cap).then_some(n + 1)
             })
-            .map_err(|_| RequestError::Busy(cap))?;
+            .map_err(|_| SubmitError::Busy(cap))?;
         self.jobs.try_send((job, pkw, requester)).map_err(|_| {
             self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
-            RequestError::Stopped
+            SubmitError::Stopped
         })
     }
 

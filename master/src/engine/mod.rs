@@ -37,7 +37,7 @@ use crate::engine::jobs::{Encoded, Job, JobResult, Mailbox, Requester};
 use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
 use crate::engine::period::{PeriodSetup, Periods};
 use crate::engine::stats::{
-    DriveStatus, FreshTiming, LastFailure, LineFault, Published, Stats, record_both,
+    DriveStatus, FreshTiming, LastFailure, LineFailure, Published, Stats, record_both,
 };
 use crate::engine::transport::{Transport, TransportError};
 use core::time::Duration;
@@ -210,7 +210,7 @@ pub enum Event {
     /// The bus line failed: every drive is offline, every pending job ended.
     LineDown {
         at: Duration,
-        fault: LineFault,
+        fault: LineFailure,
     },
     /// The line is back: every drive is latched and probed.
     LineUp {
@@ -273,7 +273,7 @@ impl Bridge for LocalBridge {
 
 /// A request the handle refuses before it reaches the bus.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Error)]
-pub enum RequestError {
+pub enum SubmitError {
     #[error("no drive {0} on this bus")]
     UnknownDrive(Address),
     #[error("parameter writes are disabled for drive {0} (params_writable = false)")]
@@ -296,25 +296,25 @@ pub enum RequestError {
     LineDown,
 }
 
-impl From<&RequestError> for uss_shm_types::RequestError {
+impl From<&SubmitError> for uss_shm_types::RequestError {
     /// What a client is told of a job the engine would not take (the contract's codes; the
     /// engine's error keeps the detail for ussd's log).
-    fn from(e: &RequestError) -> Self {
+    fn from(e: &SubmitError) -> Self {
         use uss_shm_types::RequestError as Told;
         match e {
-            RequestError::UnknownDrive(_) => Told::UnknownDrive,
-            RequestError::WritesDisabled(_) => Told::WritesDisabled,
-            RequestError::Pkw { error, .. } => match error {
+            SubmitError::UnknownDrive(_) => Told::UnknownDrive,
+            SubmitError::WritesDisabled(_) => Told::WritesDisabled,
+            SubmitError::Pkw { error, .. } => match error {
                 PkwError::NoChannel => Told::NoParameterChannel,
                 PkwError::DwordOverThreeWords => Told::DwordOverThreeWords,
                 PkwError::Subindex(_) => Told::BadSubindex,
                 _ => Told::ValueType,
             },
-            RequestError::PzdWords { .. } => Told::ValueType,
-            RequestError::Busy(_) => Told::Busy,
-            RequestError::Stopped => Told::Shutdown,
-            RequestError::ReservedJobId(_) => Told::BadTask,
-            RequestError::LineDown => Told::LineDown,
+            SubmitError::PzdWords { .. } => Told::ValueType,
+            SubmitError::Busy(_) => Told::Busy,
+            SubmitError::Stopped => Told::Shutdown,
+            SubmitError::ReservedJobId(_) => Told::BadTask,
+            SubmitError::LineDown => Told::LineDown,
         }
     }
 }
@@ -375,10 +375,10 @@ struct Shared {
 }
 
 impl Shared {
-    fn slot(&self, address: Address) -> Result<usize, RequestError> {
+    fn slot(&self, address: Address) -> Result<usize, SubmitError> {
         self.slot_of[address.get() as usize]
             .map(usize::from)
-            .ok_or(RequestError::UnknownDrive(address))
+            .ok_or(SubmitError::UnknownDrive(address))
     }
 }
 
@@ -695,7 +695,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// monitoring (P2014) is what stops it.
     pub fn line_down(&mut self, error: &TransportError) {
         let now = self.clock.now();
-        let fault = LineFault::of(error);
+        let fault = LineFailure::of(error);
         self.shared.reopen_attempts.store(0, Ordering::Relaxed);
         self.shared.line_down.store(true, Ordering::Release);
         self.fail_all_jobs(Err(PathError::LineDown));

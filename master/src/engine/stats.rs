@@ -13,7 +13,7 @@ use uss_shm_types::{Monitoring, Rejection};
 
 /// Why a bus line stopped carrying telegrams.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum LineFault {
+pub enum LineFailure {
     /// The device was closed or unplugged (EOF, EIO, ENXIO, ENODEV; a pty whose far side is gone).
     Closed,
     /// Another I/O error, with its errno (0 if none was given).
@@ -22,7 +22,7 @@ pub enum LineFault {
     Stalled,
 }
 
-impl LineFault {
+impl LineFailure {
     pub fn of(e: &TransportError) -> Self {
         match e {
             TransportError::Closed => Self::Closed,
@@ -32,7 +32,7 @@ impl LineFault {
     }
 }
 
-impl core::fmt::Display for LineFault {
+impl core::fmt::Display for LineFailure {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             Self::Closed => f.write_str("the serial device was closed or unplugged"),
@@ -52,7 +52,7 @@ impl core::fmt::Display for LineFault {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct LineStatus {
     /// `Some` while the line is down: since (bus clock) and why.
-    pub down: Option<(Duration, LineFault)>,
+    pub down: Option<(Duration, LineFailure)>,
     /// Times the line went down since the engine started.
     pub downs: u64,
 }

@@ -7,7 +7,7 @@ use super::{
 };
 use crate::engine::DriveSetup;
 use crate::engine::control::Control;
-use crate::engine::stats::{DriveStatus, LineFault, Stats};
+use crate::engine::stats::{DriveStatus, LineFailure, Stats};
 use core::time::Duration;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
@@ -17,8 +17,8 @@ use uss_protocol::Address;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{
     BlackboardKey, BusName, BusState, BusStatus, ControlState, DriveAddress, DriveDiag, DriveInfo,
-    Heartbeat, Instance, LAYOUT_VERSION, LatchReason, LineFault as ContractLineFault, LineState,
-    NO_STOP_COMMAND, RtMode, StopCommand, TelegramRecord,
+    Heartbeat, Instance, LAYOUT_VERSION, LatchReason, LineFault, LineState, NO_STOP_COMMAND,
+    RtMode, StopCommand, TelegramRecord,
 };
 
 /// The heartbeat's one publisher, on the bus's stable `ussd` service: opened when clients of
@@ -413,11 +413,11 @@ impl StatusPublisher {
 }
 
 /// A line fault as the contract writes it: its code and, for an I/O error, the errno.
-fn contract_fault(down: Option<(Duration, LineFault)>) -> (ContractLineFault, i32) {
+fn contract_fault(down: Option<(Duration, LineFailure)>) -> (LineFault, i32) {
     match down {
-        None => (ContractLineFault::None, 0),
-        Some((_, LineFault::Closed)) => (ContractLineFault::Closed, 0),
-        Some((_, LineFault::Io(errno))) => (ContractLineFault::Io, errno),
-        Some((_, LineFault::Stalled)) => (ContractLineFault::Stalled, 0),
+        None => (LineFault::None, 0),
+        Some((_, LineFailure::Closed)) => (LineFault::Closed, 0),
+        Some((_, LineFailure::Io(errno))) => (LineFault::Io, errno),
+        Some((_, LineFailure::Stalled)) => (LineFault::Stalled, 0),
     }
 }
