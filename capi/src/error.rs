@@ -339,8 +339,8 @@ mod tests {
 
     #[test]
     fn a_drive_error_carries_its_number() {
-        use uss_client::uss_protocol::ParamError as Says;
-        let e = ParamError::Drive(DriveError::Refused(Says::LimitExceeded));
+        use uss_client::uss_protocol::ErrorNumber;
+        let e = ParamError::Drive(DriveError::Refused(ErrorNumber::LimitExceeded));
         let status = guard(|| Err(e.into()));
         assert_eq!(status, UssrtStatus::DriveError);
         assert_eq!(last().0.drive_error, 2);

@@ -519,7 +519,7 @@ mod tests {
 
     #[test]
     fn drive_errors_carry_number_and_name() {
-        let e = ParamError::Drive(DriveError::Refused(uss_protocol::ParamError::from_number(
+        let e = ParamError::Drive(DriveError::Refused(uss_protocol::ErrorNumber::from_number(
             2,
         )));
         assert_eq!(

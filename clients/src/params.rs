@@ -335,7 +335,7 @@ mod tests {
         assert_eq!(
             item_result(&drive_error),
             Err(ParamError::Drive(DriveError::Refused(
-                uss_protocol::ParamError::LimitExceeded
+                uss_protocol::ErrorNumber::LimitExceeded
             )))
         );
         assert_eq!(

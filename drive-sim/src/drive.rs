@@ -11,7 +11,7 @@ use crate::family::{
 };
 use crate::params::{DriveContext, MICROMASTER4, ParamSet, ParamTable};
 use core::time::Duration;
-use uss_protocol::pkw::{ParamError, ParamReply, ParamTask, PkwError, Pnu, ReplyKind, Value};
+use uss_protocol::pkw::{ErrorNumber, ParamReply, ParamTask, PkwError, Pnu, ReplyKind, Value};
 use uss_protocol::telegram::{Layout, MAX_PKW_WORDS, MAX_PZD_WORDS, Telegram, encode};
 use uss_protocol::{Address, Adr, FrameError, LineError, Setpoint, Stw1, Zsw1};
 
@@ -37,7 +37,7 @@ pub struct DriveConfig {
     pub task_busy_telegrams: u32,
     /// The error a dword task over a 3-word PKW gets: 5 on MICROMASTER, 103 on MASTERDRIVES
     /// (USS.md section 6; sources disagree, so it is configurable).
-    pub dword_over_three_words: ParamError,
+    pub dword_over_three_words: ErrorNumber,
     /// Initial P2014 (ms, 0 = off) for the COM link.
     pub telegram_off_time_ms: u16,
     /// Initial P2000, the reference frequency in Hz (0x4000 = 100 %).
@@ -110,7 +110,7 @@ impl DriveConfig {
             response_jitter: Duration::ZERO,
             eeprom_busy_telegrams: 3,
             task_busy_telegrams: 0,
-            dword_over_three_words: ParamError::WrongDataType,
+            dword_over_three_words: ErrorNumber::WrongDataType,
             telegram_off_time_ms: 0,
             reference_hz: 50.0,
             takes_broadcasts: true,
@@ -592,7 +592,7 @@ impl Drive {
                 }
                 Personality::Generic { fragile } => {
                     let kind = self.generic_task(&task);
-                    if fragile && kind == ReplyKind::Error(ParamError::IllegalPnu) {
+                    if fragile && kind == ReplyKind::Error(ErrorNumber::IllegalPnu) {
                         self.dead = true;
                     }
                     (Some(task), kind)
@@ -613,7 +613,7 @@ impl Drive {
         let mut words = [0u16; MAX_PKW_WORDS];
         self.pkw.reply_len = reply.encode(mode, &mut words).unwrap_or_else(|_| {
             let narrow = ParamReply {
-                kind: ReplyKind::Error(ParamError::ChannelTooNarrow),
+                kind: ReplyKind::Error(ErrorNumber::ChannelTooNarrow),
                 ..reply
             };
             narrow.encode(mode, &mut words).unwrap_or(0)
@@ -649,10 +649,12 @@ impl Drive {
         match *task {
             ParamTask::Read { pnu } => match slot(pnu) {
                 Some(i) => reply(self.generic[i]),
-                None => ReplyKind::Error(ParamError::IllegalPnu),
+                None => ReplyKind::Error(ErrorNumber::IllegalPnu),
             },
             ParamTask::Write { pnu, value, .. } => match slot(pnu) {
-                Some(i) if !GENERIC_PARAMS[i].2 => ReplyKind::Error(ParamError::ValueNotChangeable),
+                Some(i) if !GENERIC_PARAMS[i].2 => {
+                    ReplyKind::Error(ErrorNumber::ValueNotChangeable)
+                }
                 Some(i)
                     if core::mem::discriminant(&value)
                         == core::mem::discriminant(&self.generic[i]) =>
@@ -660,10 +662,10 @@ impl Drive {
                     self.generic[i] = value;
                     reply(value)
                 }
-                Some(_) => ReplyKind::Error(ParamError::WrongDataType),
-                None => ReplyKind::Error(ParamError::IllegalPnu),
+                Some(_) => ReplyKind::Error(ErrorNumber::WrongDataType),
+                None => ReplyKind::Error(ErrorNumber::IllegalPnu),
             },
-            _ => ReplyKind::Error(ParamError::IllegalPnu),
+            _ => ReplyKind::Error(ErrorNumber::IllegalPnu),
         }
     }
 
@@ -672,13 +674,13 @@ impl Drive {
         self.dead
     }
 
-    fn decode_error(&self, e: PkwError) -> ParamError {
+    fn decode_error(&self, e: PkwError) -> ErrorNumber {
         match e {
             PkwError::DwordOverThreeWords => self.config.dword_over_three_words,
-            PkwError::Subindex(_) => ParamError::FaultySubindex,
-            PkwError::PnuPart(_) => ParamError::IllegalPnu,
+            PkwError::Subindex(_) => ErrorNumber::FaultySubindex,
+            PkwError::PnuPart(_) => ErrorNumber::IllegalPnu,
             PkwError::UnsupportedTask(_) | PkwError::NoChannel | PkwError::Words(_) => {
-                ParamError::TaskNotImplemented
+                ErrorNumber::TaskNotImplemented
             }
         }
     }

@@ -7,7 +7,7 @@ use crate::drive::{DriveConfig, Personality};
 use crate::fault::{Fault, FaultPlan};
 use core::time::Duration;
 use serde::{Deserialize, Serialize};
-use uss_protocol::ParamError;
+use uss_protocol::ErrorNumber;
 
 /// The keys, for messages and `--help`.
 pub const KEYS: &str = "delay=MS, jitter=MS, eeprom-busy=N, busy=N, p2014=MS, p2000=HZ, dword-error=5|103, \
@@ -103,8 +103,8 @@ impl SimOptions {
         }
         if let Some(code) = self.dword_error {
             config.dword_over_three_words = match code {
-                5 => ParamError::WrongDataType,
-                103 => ParamError::DwordOverThreeWords,
+                5 => ErrorNumber::WrongDataType,
+                103 => ErrorNumber::DwordOverThreeWords,
                 _ => {
                     return Err(format!(
                         "dword-error={code}: use 5 (MICROMASTER) or 103 (MASTERDRIVES)"

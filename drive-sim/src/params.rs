@@ -28,7 +28,7 @@
 //! Read tasks (AK 1, 4, 6, 9) run steps 1, 2 and 7 only: reading needs no change rights and no
 //! access level. Every refused task leaves the table as it was.
 
-use uss_protocol::{ParamError, ParamTask, PkwMode, Pnu, ReplyKind, Storage, Subindex, Value};
+use uss_protocol::{ErrorNumber, ParamTask, PkwMode, Pnu, ReplyKind, Storage, Subindex, Value};
 
 /// Data type of a parameter; descriptive element 1 carries its PROFIdrive code (USS.md section 6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -145,16 +145,16 @@ impl ParamDef {
     }
 
     /// Whether a raw value may be stored (USS.md section 6: errors 104 and 2).
-    fn check_value(&self, raw: u32) -> Result<(), ParamError> {
+    fn check_value(&self, raw: u32) -> Result<(), ErrorNumber> {
         let number = self.ty.number(raw);
         if number.is_nan() {
-            return Err(ParamError::IllegalValue);
+            return Err(ErrorNumber::IllegalValue);
         }
         if number < self.ty.limit(self.min) || number > self.ty.limit(self.max) {
-            return Err(ParamError::LimitExceeded);
+            return Err(ErrorNumber::LimitExceeded);
         }
         if !self.allowed.is_empty() && !self.allowed.contains(&raw) {
-            return Err(ParamError::IllegalValue);
+            return Err(ErrorNumber::IllegalValue);
         }
         Ok(())
     }
@@ -535,16 +535,18 @@ impl ParamSet {
         pnu: Pnu,
         index: Option<Subindex>,
     ) -> Result<(&'static ParamDef, usize), ReplyKind> {
-        let n = self.find(pnu.get()).ok_or(refuse(ParamError::IllegalPnu))?;
+        let n = self
+            .find(pnu.get())
+            .ok_or(refuse(ErrorNumber::IllegalPnu))?;
         let def = &self.defs[n];
         let Some(index) = index else {
             return Ok((def, self.offsets[n]));
         };
         if !def.is_array() {
-            return Err(refuse(ParamError::NotAnArray));
+            return Err(refuse(ErrorNumber::NotAnArray));
         }
         if index.get() >= def.elements {
-            return Err(refuse(ParamError::FaultySubindex));
+            return Err(refuse(ErrorNumber::FaultySubindex));
         }
         Ok((def, self.offsets[n] + usize::from(index.get())))
     }
@@ -605,14 +607,14 @@ impl Default for ParamTable {
     }
 }
 
-fn refuse(error: ParamError) -> ReplyKind {
+fn refuse(error: ErrorNumber) -> ReplyKind {
     ReplyKind::Error(error)
 }
 
 /// A dword value needs PWE1 and PWE2: a 3-word channel is too narrow (USS.md section 6).
 fn dword_fits(pkw: PkwMode) -> Result<(), ReplyKind> {
     match pkw {
-        PkwMode::Three | PkwMode::None => Err(refuse(ParamError::ChannelTooNarrow)),
+        PkwMode::Three | PkwMode::None => Err(refuse(ErrorNumber::ChannelTooNarrow)),
         PkwMode::Four | PkwMode::Variable => Ok(()),
     }
 }
@@ -644,7 +646,7 @@ fn describe(def: &ParamDef, element: Subindex, pkw: PkwMode) -> Result<ReplyKind
         4 => Value::Word(u16::from(def.is_read_only())),
         7 => Value::Dword(def.ty.raw(def.min)),
         8 => Value::Dword(def.ty.raw(def.max)),
-        _ => return Err(refuse(ParamError::FaultySubindex)),
+        _ => return Err(refuse(ErrorNumber::FaultySubindex)),
     };
     if value.is_dword() {
         dword_fits(pkw)?;
@@ -690,7 +692,7 @@ impl ParamTable {
         ctx: DriveContext,
     ) -> Result<ReplyKind, ReplyKind> {
         if pkw == PkwMode::None && *task != ParamTask::None {
-            return Err(refuse(ParamError::ChannelTooNarrow));
+            return Err(refuse(ErrorNumber::ChannelTooNarrow));
         }
         match *task {
             ParamTask::None => Ok(ReplyKind::NotYet),
@@ -708,7 +710,7 @@ impl ParamTable {
                 if def.is_array() {
                     Ok(ReplyKind::ElementCount(u16::from(def.elements)))
                 } else {
-                    Err(refuse(ParamError::NotAnArray))
+                    Err(refuse(ErrorNumber::NotAnArray))
                 }
             }
             ParamTask::ReadDescription { pnu, element } => {
@@ -749,7 +751,7 @@ impl ParamTable {
         ctx: DriveContext,
     ) -> Result<u32, ReplyKind> {
         if def.is_read_only() {
-            return Err(refuse(ParamError::ValueNotChangeable));
+            return Err(refuse(ErrorNumber::ValueNotChangeable));
         }
         if let Some((at, bit)) = self.set.change_rights
             && self.ram[at] & bit == 0
@@ -759,10 +761,10 @@ impl ParamTable {
         if let Some(level) = self.set.access_level
             && u32::from(def.level) > self.ram[level]
         {
-            return Err(refuse(ParamError::AccessLevelTooLow));
+            return Err(refuse(ErrorNumber::AccessLevelTooLow));
         }
         if value.is_dword() != def.ty.is_dword() {
-            return Err(refuse(ParamError::WrongDataType));
+            return Err(refuse(ErrorNumber::WrongDataType));
         }
         if value.is_dword() {
             dword_fits(pkw)?;
@@ -800,7 +802,7 @@ impl ParamTable {
         if allowed {
             Ok(())
         } else {
-            Err(refuse(ParamError::NotInThisState))
+            Err(refuse(ErrorNumber::NotInThisState))
         }
     }
 
@@ -887,7 +889,7 @@ mod tests {
         Subindex::new(i).unwrap()
     }
 
-    fn err(e: ParamError) -> ReplyKind {
+    fn err(e: ErrorNumber) -> ReplyKind {
         ReplyKind::Error(e)
     }
 
@@ -1067,7 +1069,7 @@ mod tests {
         let task = ParamTask::Read { pnu: pnu(P1082) };
         assert_eq!(
             t.execute(&task, PkwMode::Three, STOPPED),
-            err(ParamError::ChannelTooNarrow)
+            err(ErrorNumber::ChannelTooNarrow)
         );
     }
 
@@ -1082,7 +1084,7 @@ mod tests {
         ] {
             assert_eq!(
                 t.execute(&task, PkwMode::None, STOPPED),
-                err(ParamError::ChannelTooNarrow),
+                err(ErrorNumber::ChannelTooNarrow),
                 "{task:?}"
             );
         }
@@ -1104,7 +1106,7 @@ mod tests {
             write_task(1083, Value::Word(1), Storage::Ram),
             write_at_task(2032, 0, Value::Word(1), Storage::RamAndEeprom),
         ] {
-            assert_eq!(run(&mut t, task), err(ParamError::IllegalPnu), "{task:?}");
+            assert_eq!(run(&mut t, task), err(ErrorNumber::IllegalPnu), "{task:?}");
         }
     }
 
@@ -1135,11 +1137,14 @@ mod tests {
     #[test]
     fn array_index_beyond_the_elements_is_error_3() {
         let mut t = expert();
-        assert_eq!(read_at(&mut t, R0947, 8), err(ParamError::FaultySubindex));
-        assert_eq!(read_at(&mut t, P2010, 254), err(ParamError::FaultySubindex));
+        assert_eq!(read_at(&mut t, R0947, 8), err(ErrorNumber::FaultySubindex));
+        assert_eq!(
+            read_at(&mut t, P2010, 254),
+            err(ErrorNumber::FaultySubindex)
+        );
         assert_eq!(
             write_at(&mut t, P2011, 2, Value::Word(3)),
-            err(ParamError::FaultySubindex)
+            err(ErrorNumber::FaultySubindex)
         );
         assert_eq!(t, expert());
     }
@@ -1147,11 +1152,11 @@ mod tests {
     #[test]
     fn array_task_on_a_plain_parameter_is_error_4() {
         let mut t = ParamTable::new();
-        assert_eq!(read_at(&mut t, P0700, 0), err(ParamError::NotAnArray));
-        assert_eq!(array_len(&mut t, P1082), err(ParamError::NotAnArray));
+        assert_eq!(read_at(&mut t, P0700, 0), err(ErrorNumber::NotAnArray));
+        assert_eq!(array_len(&mut t, P1082), err(ErrorNumber::NotAnArray));
         assert_eq!(
             write_at(&mut t, P0700, 0, Value::Word(2)),
-            err(ParamError::NotAnArray)
+            err(ErrorNumber::NotAnArray)
         );
         assert_eq!(t.get(P0700, 0), Some(5));
     }
@@ -1185,7 +1190,7 @@ mod tests {
         for element in [0, 3, 5, 6, 9, 254] {
             assert_eq!(
                 run(&mut t, describe_task(P1082, element)),
-                err(ParamError::FaultySubindex),
+                err(ErrorNumber::FaultySubindex),
                 "element {element}"
             );
         }
@@ -1197,8 +1202,8 @@ mod tests {
         let three =
             |t: &mut ParamTable, e| t.execute(&describe_task(P0700, e), PkwMode::Three, STOPPED);
         assert_eq!(three(&mut t, 1), ReplyKind::Description(Value::Word(6)));
-        assert_eq!(three(&mut t, 7), err(ParamError::ChannelTooNarrow));
-        assert_eq!(three(&mut t, 8), err(ParamError::ChannelTooNarrow));
+        assert_eq!(three(&mut t, 7), err(ErrorNumber::ChannelTooNarrow));
+        assert_eq!(three(&mut t, 8), err(ErrorNumber::ChannelTooNarrow));
     }
 
     #[test]
@@ -1250,11 +1255,11 @@ mod tests {
         let mut t = expert();
         assert_eq!(
             write_f32(&mut t, R0021, 10.0),
-            err(ParamError::ValueNotChangeable)
+            err(ErrorNumber::ValueNotChangeable)
         );
         assert_eq!(
             write_at_eeprom(&mut t, R2024, 1, Value::Word(0)),
-            err(ParamError::ValueNotChangeable)
+            err(ErrorNumber::ValueNotChangeable)
         );
         assert_eq!(t, expert());
     }
@@ -1264,32 +1269,32 @@ mod tests {
         let mut t = expert();
         assert_eq!(
             write_f32(&mut t, P1082, 650.5),
-            err(ParamError::LimitExceeded)
+            err(ErrorNumber::LimitExceeded)
         );
         assert_eq!(
             write_f32(&mut t, P1082, -0.5),
-            err(ParamError::LimitExceeded)
+            err(ErrorNumber::LimitExceeded)
         );
         assert_eq!(
             write_f32(&mut t, P2000, 0.5),
-            err(ParamError::LimitExceeded)
+            err(ErrorNumber::LimitExceeded)
         );
         assert_eq!(
             write_f32(&mut t, P1120, f32::INFINITY),
-            err(ParamError::LimitExceeded)
+            err(ErrorNumber::LimitExceeded)
         );
         assert_eq!(
             write(&mut t, P0003, Value::Word(5)),
-            err(ParamError::LimitExceeded)
+            err(ErrorNumber::LimitExceeded)
         );
         assert_eq!(
             write_at(&mut t, P2011, 1, Value::Word(32)),
-            err(ParamError::LimitExceeded)
+            err(ErrorNumber::LimitExceeded)
         );
         // Below the lowest setting counts as a limit, a gap between settings as illegal.
         assert_eq!(
             write_at(&mut t, P2010, 1, Value::Word(2)),
-            err(ParamError::LimitExceeded)
+            err(ErrorNumber::LimitExceeded)
         );
         assert_eq!(t, expert());
         assert_eq!(
@@ -1306,7 +1311,7 @@ mod tests {
         assert_eq!(signed.check_value(u32::from(-100i16 as u16)), Ok(()));
         assert_eq!(
             signed.check_value(u32::from(-101i16 as u16)),
-            Err(ParamError::LimitExceeded)
+            Err(ErrorNumber::LimitExceeded)
         );
         assert_eq!(
             signed.check_value(0xFFFF_FF9C),
@@ -1316,7 +1321,7 @@ mod tests {
         let wide =
             ParamDef::new(1, "P0001 test", DataType::I32, Change::Always, 1).limits(-70_000.0, 0.0);
         assert_eq!(wide.check_value(-70_000i32 as u32), Ok(()));
-        assert_eq!(wide.check_value(1), Err(ParamError::LimitExceeded));
+        assert_eq!(wide.check_value(1), Err(ErrorNumber::LimitExceeded));
         let float =
             ParamDef::new(1, "P0001 test", DataType::Float, Change::Always, 1).limits(0.0, 2.09);
         assert_eq!(float.check_value(2.09f32.to_bits()), Ok(()));
@@ -1327,15 +1332,15 @@ mod tests {
         let mut t = expert();
         assert_eq!(
             write(&mut t, P1120, Value::Word(10)),
-            err(ParamError::WrongDataType)
+            err(ErrorNumber::WrongDataType)
         );
         assert_eq!(
             write(&mut t, P0700, Value::Dword(2)),
-            err(ParamError::WrongDataType)
+            err(ErrorNumber::WrongDataType)
         );
         assert_eq!(
             write_at(&mut t, P2011, 0, Value::Dword(3)),
-            err(ParamError::WrongDataType)
+            err(ErrorNumber::WrongDataType)
         );
         assert_eq!(t, expert());
     }
@@ -1346,7 +1351,7 @@ mod tests {
         let task = write_task(P1120, Value::from_f32(3.0), Storage::Ram);
         assert_eq!(
             t.execute(&task, PkwMode::Three, STOPPED),
-            err(ParamError::ChannelTooNarrow)
+            err(ErrorNumber::ChannelTooNarrow)
         );
         assert_eq!(t, ParamTable::new());
         let word = write_task(P0700, Value::Word(2), Storage::Ram);
@@ -1362,12 +1367,12 @@ mod tests {
         let task = write_task(P1082, Value::from_f32(60.0), Storage::Ram);
         assert_eq!(
             t.execute(&task, PkwMode::Four, RUNNING),
-            err(ParamError::NotInThisState)
+            err(ErrorNumber::NotInThisState)
         );
         let p0010 = write_task(P0010, Value::Word(1), Storage::Ram);
         assert_eq!(
             t.execute(&p0010, PkwMode::Four, RUNNING),
-            err(ParamError::NotInThisState)
+            err(ErrorNumber::NotInThisState)
         );
         assert_eq!(t, ParamTable::new());
         let ramp = write_task(P1120, Value::from_f32(3.0), Storage::Ram);
@@ -1383,12 +1388,12 @@ mod tests {
         let mut t = ParamTable::new();
         assert_eq!(
             write_f32(&mut t, P0310, 60.0),
-            err(ParamError::NotInThisState)
+            err(ErrorNumber::NotInThisState)
         );
         assert_eq!(write(&mut t, P0010, Value::Word(30)), ReplyKind::Word(30));
         assert_eq!(
             write_f32(&mut t, P0310, 60.0),
-            err(ParamError::NotInThisState)
+            err(ErrorNumber::NotInThisState)
         );
         assert_eq!(write(&mut t, P0010, Value::Word(1)), ReplyKind::Word(1));
         assert_eq!(
@@ -1402,12 +1407,12 @@ mod tests {
         let mut t = ParamTable::new();
         assert_eq!(
             write(&mut t, P0970, Value::Word(1)),
-            err(ParamError::NotInThisState)
+            err(ErrorNumber::NotInThisState)
         );
         assert_eq!(write(&mut t, P0010, Value::Word(1)), ReplyKind::Word(1));
         assert_eq!(
             write(&mut t, P0970, Value::Word(1)),
-            err(ParamError::NotInThisState)
+            err(ErrorNumber::NotInThisState)
         );
     }
 
@@ -1416,11 +1421,11 @@ mod tests {
         let mut t = ParamTable::new();
         assert_eq!(
             write(&mut t, P1120, Value::Dword(0x7FC0_0000)),
-            err(ParamError::IllegalValue)
+            err(ErrorNumber::IllegalValue)
         );
         assert_eq!(
             write(&mut t, P1120, Value::Dword(0xFFFF_FFFF)),
-            err(ParamError::IllegalValue)
+            err(ErrorNumber::IllegalValue)
         );
         assert_eq!(t, ParamTable::new());
     }
@@ -1430,23 +1435,23 @@ mod tests {
         let mut t = expert();
         assert_eq!(
             write(&mut t, P0700, Value::Word(3)),
-            err(ParamError::IllegalValue)
+            err(ErrorNumber::IllegalValue)
         );
         assert_eq!(
             write(&mut t, P0010, Value::Word(2)),
-            err(ParamError::IllegalValue)
+            err(ErrorNumber::IllegalValue)
         );
         assert_eq!(
             write(&mut t, P1000, Value::Word(4)),
-            err(ParamError::IllegalValue)
+            err(ErrorNumber::IllegalValue)
         );
         assert_eq!(
             write_at(&mut t, P2010, 1, Value::Word(10)),
-            err(ParamError::IllegalValue)
+            err(ErrorNumber::IllegalValue)
         );
         assert_eq!(
             write_at(&mut t, P2013, 1, Value::Word(5)),
-            err(ParamError::IllegalValue)
+            err(ErrorNumber::IllegalValue)
         );
         assert_eq!(t, expert());
         assert_eq!(
@@ -1462,17 +1467,17 @@ mod tests {
         // P0003 = 1 (standard): P1058 needs 2, P2012 and P0719 need 3.
         assert_eq!(
             write_f32(&mut t, P1058, 6.0),
-            err(ParamError::AccessLevelTooLow)
+            err(ErrorNumber::AccessLevelTooLow)
         );
         assert_eq!(
             write_at(&mut t, P2012, 1, Value::Word(4)),
-            err(ParamError::AccessLevelTooLow)
+            err(ErrorNumber::AccessLevelTooLow)
         );
         assert_eq!(write(&mut t, P0003, Value::Word(2)), ReplyKind::Word(2));
         assert_eq!(write_f32(&mut t, P1058, 6.0), ReplyKind::Dword(0x40C0_0000));
         assert_eq!(
             write(&mut t, P0719, Value::Word(11)),
-            err(ParamError::AccessLevelTooLow)
+            err(ErrorNumber::AccessLevelTooLow)
         );
         assert_eq!(write(&mut t, P0003, Value::Word(3)), ReplyKind::Word(3));
         assert_eq!(write(&mut t, P0719, Value::Word(11)), ReplyKind::Word(11));
@@ -1514,12 +1519,12 @@ mod tests {
         // An index beyond the array comes before read-only.
         assert_eq!(
             write_at(&mut t, R0947, 9, Value::Dword(1)),
-            err(ParamError::FaultySubindex)
+            err(ErrorNumber::FaultySubindex)
         );
         // Read-only comes before change rights.
         assert_eq!(
             write(&mut t, R0052, Value::Dword(1)),
-            err(ParamError::ValueNotChangeable)
+            err(ErrorNumber::ValueNotChangeable)
         );
         // Change rights come before the access level.
         assert_eq!(
@@ -1530,29 +1535,29 @@ mod tests {
         // The access level comes before the data type.
         assert_eq!(
             write(&mut t, P0719, Value::Dword(1)),
-            err(ParamError::AccessLevelTooLow)
+            err(ErrorNumber::AccessLevelTooLow)
         );
         t.set_internal(P0003, 0, 3);
         // The data type comes before the operating state.
         let wrong_type = write_task(P1082, Value::Word(1), Storage::Ram);
         assert_eq!(
             t.execute(&wrong_type, PkwMode::Four, RUNNING),
-            err(ParamError::WrongDataType)
+            err(ErrorNumber::WrongDataType)
         );
         // The channel width comes before the operating state.
         let nan = write_task(P1082, Value::Dword(0x7FC0_0000), Storage::Ram);
         assert_eq!(
             t.execute(&nan, PkwMode::Three, RUNNING),
-            err(ParamError::ChannelTooNarrow)
+            err(ErrorNumber::ChannelTooNarrow)
         );
         // The operating state comes before the value.
         assert_eq!(
             t.execute(&nan, PkwMode::Four, RUNNING),
-            err(ParamError::NotInThisState)
+            err(ErrorNumber::NotInThisState)
         );
         assert_eq!(
             t.execute(&nan, PkwMode::Four, STOPPED),
-            err(ParamError::IllegalValue)
+            err(ErrorNumber::IllegalValue)
         );
     }
 

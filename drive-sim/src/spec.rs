@@ -115,7 +115,7 @@ mod tests {
     use super::*;
     use crate::fault::Fault;
     use core::time::Duration;
-    use uss_protocol::ParamError;
+    use uss_protocol::ErrorNumber;
 
     #[test]
     fn a_generic_slave_may_be_fragile_and_only_it() {
@@ -165,7 +165,7 @@ mod tests {
         assert_eq!((c.eeprom_busy_telegrams, c.task_busy_telegrams), (5, 1));
         assert_eq!(c.telegram_off_time_ms, 200);
         assert_eq!(c.reference_hz.to_bits(), 60.0_f32.to_bits());
-        assert_eq!(c.dword_over_three_words, ParamError::DwordOverThreeWords);
+        assert_eq!(c.dword_over_three_words, ErrorNumber::DwordOverThreeWords);
         assert!((d.faults.probability(Fault::DropReply) - 0.1).abs() < 1e-12);
         assert!((d.faults.probability(Fault::Late) - 0.2).abs() < 1e-12);
         assert_eq!(d.faults.late_by, Duration::from_millis(7));

@@ -7,7 +7,7 @@ use uss_drive_sim::drive::FAULT_TELEGRAM_OFF;
 use uss_drive_sim::params::COM_LINK;
 use uss_drive_sim::{Drive, DriveConfig, State, Stop};
 use uss_protocol::telegram::{Layout, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, Telegram, encode};
-use uss_protocol::{Address, Adr, ParamError, ParamReply, ReplyKind, Zsw1};
+use uss_protocol::{Address, Adr, ErrorNumber, ParamReply, ReplyKind, Zsw1};
 
 const ADDR: u8 = 3;
 
@@ -411,7 +411,7 @@ fn dword_over_three_word_pkw_is_error_5_or_configured_103() {
     let (pkw, _) = send(&mut d, &[0x3000 | 1120, 0, 0x4040], &[0x047E, 0], ms(0)).unwrap();
     assert_eq!(pkw, vec![0x7000 | 1120, 0, 5]);
     let mut config = DriveConfig::new(Address::new(ADDR).unwrap(), layout(PkwMode::Three, 2));
-    config.dword_over_three_words = ParamError::DwordOverThreeWords;
+    config.dword_over_three_words = ErrorNumber::DwordOverThreeWords;
     let mut d = Drive::new(config);
     let (pkw, _) = send(&mut d, &[0x3000 | 1120, 0, 0x4040], &[0x047E, 0], ms(0)).unwrap();
     assert_eq!(pkw, vec![0x7000 | 1120, 0, 103]);
@@ -431,7 +431,7 @@ fn unsupported_task_ids_are_error_106() {
         let reply = ParamReply::decode(&pkw).unwrap();
         assert_eq!(
             reply.kind,
-            ReplyKind::Error(ParamError::TaskNotImplemented),
+            ReplyKind::Error(ErrorNumber::TaskNotImplemented),
             "AK {ak}"
         );
     }

@@ -14,7 +14,7 @@ use uss_master::{
 };
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{
-    Address, Baud, DriveState, ParamError, ParamTask, PkwError, Pnu, Storage, Stw1, Timing, Value,
+    Address, Baud, DriveState, ErrorNumber, ParamTask, PkwError, Pnu, Storage, Stw1, Timing, Value,
 };
 use uss_shm_types::{Answer, DriveError, PathError};
 use uss_shm_types::{LatchReason, Monitoring, PzdOutput, Rejection, StopCommand};
@@ -518,11 +518,11 @@ fn drive_errors_reach_the_client_with_their_number() {
     let r = b.results(2);
     assert_eq!(
         r[0].outcome,
-        Ok(Err(DriveError::Refused(ParamError::IllegalPnu)))
+        Ok(Err(DriveError::Refused(ErrorNumber::IllegalPnu)))
     );
     assert_eq!(
         r[1].outcome,
-        Ok(Err(DriveError::Refused(ParamError::ValueNotChangeable)))
+        Ok(Err(DriveError::Refused(ErrorNumber::ValueNotChangeable)))
     );
 }
 
@@ -590,12 +590,12 @@ fn every_job_ends_exactly_once_under_faults() {
         let three_words = a == 3;
         let ok = match (pnu, r.outcome) {
             (_, Err(PathError::DriveOffline | PathError::Timeout))
-            | (1999, Ok(Err(DriveError::Refused(ParamError::IllegalPnu)))) => true,
+            | (1999, Ok(Err(DriveError::Refused(ErrorNumber::IllegalPnu)))) => true,
             (700, Ok(Ok(Answer::Value(v)))) => v == Value::Word(5),
             (1082 | 2000, Ok(Ok(Answer::Value(v)))) => {
                 !three_words && v == Value::Dword(0x4248_0000)
             }
-            (1082 | 2000, Ok(Err(DriveError::Refused(ParamError::ChannelTooNarrow)))) => {
+            (1082 | 2000, Ok(Err(DriveError::Refused(ErrorNumber::ChannelTooNarrow)))) => {
                 three_words
             }
             (2010, Ok(Ok(Answer::Value(v)))) => v == Value::Word(6),
@@ -838,7 +838,7 @@ fn the_drives_telegram_monitoring_is_read_when_it_comes_online() {
     let refused = b.results(1);
     assert_eq!(
         refused[0].outcome,
-        Ok(Err(DriveError::Refused(ParamError::AccessLevelTooLow)))
+        Ok(Err(DriveError::Refused(ErrorNumber::AccessLevelTooLow)))
     );
     assert_eq!(
         b.status(1).monitoring,

@@ -27,7 +27,8 @@ pub use adr::{Address, AddressError, Adr};
 pub use framer::{FrameError, Framer, FramerConfig, LineError};
 pub use notation::{NotationError, ParamRef, Prefix};
 pub use pkw::{
-    ParamError, ParamReply, ParamTask, PkwError, Pnu, PnuError, ReplyKind, Storage, Subindex, Value,
+    ErrorNumber, ParamReply, ParamTask, PkwError, Pnu, PnuError, ReplyKind, Storage, Subindex,
+    Value,
 };
 pub use pzd::{DriveState, Setpoint, Stw1, Zsw1};
 pub use telegram::{

@@ -383,9 +383,9 @@ impl ParamTask {
 }
 
 /// An error number carried by reply ID 7 "task cannot be executed" (USS.md section 6). Numbers
-/// this list does not name are kept in [`ParamError::Other`].
+/// this list does not name are kept in [`ErrorNumber::Other`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum ParamError {
+pub enum ErrorNumber {
     IllegalPnu,
     ValueNotChangeable,
     LimitExceeded,
@@ -408,8 +408,8 @@ pub enum ParamError {
     Other(u16),
 }
 
-impl ParamError {
-    const NAMED: [(u16, ParamError); 19] = [
+impl ErrorNumber {
+    const NAMED: [(u16, ErrorNumber); 19] = [
         (0, Self::IllegalPnu),
         (1, Self::ValueNotChangeable),
         (2, Self::LimitExceeded),
@@ -475,7 +475,7 @@ impl ParamError {
     }
 }
 
-impl core::fmt::Display for ParamError {
+impl core::fmt::Display for ErrorNumber {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         write!(f, "error {}: {}", self.number(), self.description())
     }
@@ -499,7 +499,7 @@ pub enum ReplyKind {
     /// 6: the number of array elements.
     ElementCount(u16),
     /// 7: the task cannot be executed.
-    Error(ParamError),
+    Error(ErrorNumber),
     /// 8: no PKW change rights (no master control authority).
     NoChangeRights,
     /// 9-12: change reports (not on MM4).
@@ -579,7 +579,7 @@ impl ParamReply {
             4 => ReplyKind::ArrayWord(last),
             5 => ReplyKind::ArrayDword(dword),
             6 => ReplyKind::ElementCount(last),
-            7 => ReplyKind::Error(ParamError::from_number(last)),
+            7 => ReplyKind::Error(ErrorNumber::from_number(last)),
             8 => ReplyKind::NoChangeRights,
             9..=12 => ReplyKind::ChangeReport { id, value },
             _ => ReplyKind::Other { id, value },
@@ -882,7 +882,7 @@ mod tests {
         let err = ParamReply {
             pnu: pnu(9999),
             subindex: 0,
-            kind: ReplyKind::Error(ParamError::IllegalPnu),
+            kind: ReplyKind::Error(ErrorNumber::IllegalPnu),
         };
         assert_eq!(err.encode(PkwMode::Four, &mut out), Ok(4));
         assert_eq!(out, [0x7000 | (9999 % 2000), 0x2000, 0, 0]);
@@ -891,14 +891,14 @@ mod tests {
 
     #[test]
     fn error_numbers_are_named_and_unknown_ones_kept() {
-        for (n, e) in ParamError::NAMED {
-            assert_eq!(ParamError::from_number(n), e);
+        for (n, e) in ErrorNumber::NAMED {
+            assert_eq!(ErrorNumber::from_number(n), e);
             assert_eq!(e.number(), n);
         }
-        assert_eq!(ParamError::from_number(42), ParamError::Other(42));
-        assert_eq!(ParamError::Other(42).number(), 42);
+        assert_eq!(ErrorNumber::from_number(42), ErrorNumber::Other(42));
+        assert_eq!(ErrorNumber::Other(42).number(), 42);
         assert_eq!(
-            ParamError::from_number(204).to_string(),
+            ErrorNumber::from_number(204).to_string(),
             "error 204: access level too low"
         );
     }

@@ -9,8 +9,8 @@ use proptest::prelude::*;
 use proptest::sample::Index;
 use uss_protocol::telegram::{MAX_TELEGRAM_BYTES, STX};
 use uss_protocol::{
-    Address, Adr, Baud, EncodeError, FrameError, Framer, FramerConfig, Layout, LineError,
-    ParamError, ParamRef, ParamReply, ParamTask, PkwError, PkwMode, Pnu, PzdCount, ReplyKind,
+    Address, Adr, Baud, EncodeError, ErrorNumber, FrameError, Framer, FramerConfig, Layout,
+    LineError, ParamRef, ParamReply, ParamTask, PkwError, PkwMode, Pnu, PzdCount, ReplyKind,
     Setpoint, Storage, Subindex, Telegram, Timing, Value, encode, encode_raw,
 };
 
@@ -591,8 +591,8 @@ fn dword_task() -> impl Strategy<Value = ParamTask> {
 }
 
 /// Error numbers as a reply carries them: named ones often, any other too.
-fn param_error() -> impl Strategy<Value = ParamError> {
-    prop_oneof![0u16..=210, any::<u16>()].prop_map(ParamError::from_number)
+fn param_error() -> impl Strategy<Value = ErrorNumber> {
+    prop_oneof![0u16..=210, any::<u16>()].prop_map(ErrorNumber::from_number)
 }
 
 fn reply_kind() -> impl Strategy<Value = ReplyKind> {
@@ -653,7 +653,7 @@ fn drive_reply(
     pick: Index,
     word: u16,
     dword: u32,
-    error: ParamError,
+    error: ErrorNumber,
 ) -> ParamReply {
     let read = [
         ReplyKind::Word(word),

@@ -13,7 +13,7 @@ use crate::codes::UnknownCode;
 use crate::params::{
     MAX_SUBINDEX, Outcome, ParamItem, ParamResult, RequestError, Storage, TaskCode,
 };
-use uss_protocol::{ParamError, ParamReply, ParamTask, Pnu, ReplyKind, Subindex, Value};
+use uss_protocol::{ErrorNumber, ParamReply, ParamTask, Pnu, ReplyKind, Subindex, Value};
 
 /// What the drive answered to a task it carried out.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -47,7 +47,7 @@ impl Answer {
             other => other
                 .value()
                 .map(Self::Value)
-                .ok_or(DriveError::Refused(ParamError::Other(u16::from(
+                .ok_or(DriveError::Refused(ErrorNumber::Other(u16::from(
                     other.id(),
                 )))),
         }
@@ -59,7 +59,7 @@ impl Answer {
 pub enum DriveError {
     /// Reply 7: the task cannot be executed, with the drive's error number.
     #[error("the drive refused the task with {0}")]
-    Refused(ParamError),
+    Refused(ErrorNumber),
     /// Reply 8: no PKW change rights.
     #[error(
         "the drive grants no parameter change rights (reply 8): allow parameter changes over USS on the drive (MICROMASTER: P0927)"
@@ -283,7 +283,7 @@ impl ParamResult {
             Outcome::Value => Ok(Ok(Answer::Value(value))),
             Outcome::ElementCount => Ok(Ok(Answer::ElementCount(self.value as u16))),
             Outcome::Description => Ok(Ok(Answer::Description(value))),
-            Outcome::DriveError => Ok(Err(DriveError::Refused(ParamError::from_number(
+            Outcome::DriveError => Ok(Err(DriveError::Refused(ErrorNumber::from_number(
                 self.drive_error,
             )))),
             Outcome::NoChangeRights => Ok(Err(DriveError::NoChangeRights)),

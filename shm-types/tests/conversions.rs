@@ -4,7 +4,7 @@
 #![allow(clippy::unwrap_used)]
 
 use proptest::prelude::*;
-use uss_protocol::{ParamError, ParamTask, Pnu, Storage, Subindex, Value};
+use uss_protocol::{ErrorNumber, ParamTask, Pnu, Storage, Subindex, Value};
 use uss_shm_types::{
     Answer, DriveError, ItemOutcome, Outcome, ParamItem, ParamResult, PathError, RequestError,
     ResultError,
@@ -53,7 +53,7 @@ fn outcome() -> impl Strategy<Value = ItemOutcome> {
         any::<u16>().prop_map(|n| Ok(Ok(Answer::ElementCount(n)))),
         value().prop_map(|v| Ok(Ok(Answer::Description(v)))),
         // The drive's error number is what travels: every number reads as one error.
-        any::<u16>().prop_map(|n| Ok(Err(DriveError::Refused(ParamError::from_number(n))))),
+        any::<u16>().prop_map(|n| Ok(Err(DriveError::Refused(ErrorNumber::from_number(n))))),
         Just(Ok(Err(DriveError::NoChangeRights))),
         refusal.prop_map(|e| Err(PathError::Refused(e))),
         prop_oneof![

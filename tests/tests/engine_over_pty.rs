@@ -106,7 +106,7 @@ fn parameters_through_faults(handle: &EngineHandle) {
     assert_eq!(
         ask(handle, 5, 2, p2014),
         Ok(Err(DriveError::Refused(
-            uss_protocol::ParamError::AccessLevelTooLow
+            uss_protocol::ErrorNumber::AccessLevelTooLow
         )))
     );
     for id in 10..40 {

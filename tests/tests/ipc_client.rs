@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 use uss_client::DriveError;
-use uss_client::uss_protocol::ParamError as DriveSays;
+use uss_client::uss_protocol::ErrorNumber;
 use uss_client::{
     Bus, Catalogue, ClientError, ControlOptions, CycleEvent, DataType, DriveState, LatchReason,
     ParamError, ParamItem, ParamRequest, RequestError, Typed, Value,
@@ -283,7 +283,7 @@ fn parameters_read_and_write_with_typed_values_and_drive_errors() {
     let err = bus.read(1, 1999, None).unwrap_err();
     assert_eq!(
         err,
-        ParamError::Drive(DriveError::Refused(DriveSays::IllegalPnu))
+        ParamError::Drive(DriveError::Refused(ErrorNumber::IllegalPnu))
     );
     assert_eq!(
         err.to_string(),
@@ -292,19 +292,19 @@ fn parameters_read_and_write_with_typed_values_and_drive_errors() {
     assert_eq!(
         bus.read(1, 947, Some(8)),
         Err(ParamError::Drive(DriveError::Refused(
-            DriveSays::FaultySubindex
+            ErrorNumber::FaultySubindex
         )))
     );
     assert_eq!(
         bus.write(1, 947, Some(0), Value::Word(1), false),
         Err(ParamError::Drive(DriveError::Refused(
-            DriveSays::ValueNotChangeable
+            ErrorNumber::ValueNotChangeable
         )))
     );
     assert_eq!(
         bus.write(1, 1120, None, Value::Word(2), false),
         Err(ParamError::Drive(DriveError::Refused(
-            DriveSays::WrongDataType
+            ErrorNumber::WrongDataType
         )))
     );
     // P0927 (access level 2, so raise P0003 first) with bit 3 clear: no more changes over
@@ -319,7 +319,7 @@ fn parameters_read_and_write_with_typed_values_and_drive_errors() {
     assert_eq!(
         bus.write_with(3, 927, None, Value::Word(15), deliberate()),
         Err(ParamError::Drive(DriveError::Refused(
-            DriveSays::AccessLevelTooLow
+            ErrorNumber::AccessLevelTooLow
         )))
     );
     assert_eq!(
@@ -373,7 +373,7 @@ fn a_batch_of_39_reads_gets_39_results_in_order() {
         [
             Ok(Value::from_f32(50.0)),
             Err(ParamError::Drive(DriveError::Refused(
-                DriveSays::IllegalPnu
+                ErrorNumber::IllegalPnu
             ))),
             Ok(Value::from_f32(50.0))
         ]
@@ -583,7 +583,7 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
     assert_eq!(
         bus.write(1, 1082, None, Value::from_f32(60.0), false),
         Err(ParamError::Drive(DriveError::Refused(
-            DriveSays::NotInThisState
+            ErrorNumber::NotInThisState
         )))
     );
     // The controller learns of the trip at its next call, and every call fails so until it

@@ -216,7 +216,7 @@ impl Mailbox {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use uss_protocol::{ParamError, Pnu, Storage, Value};
+    use uss_protocol::{ErrorNumber, Pnu, Storage, Value};
     use uss_shm_types::DriveError;
 
     fn words(job: &Job) -> Encoded {
@@ -366,7 +366,7 @@ mod tests {
         let r = m.on_reply(&reply(7, 1082, 5), Duration::ZERO).unwrap();
         assert_eq!(
             r.outcome,
-            Ok(Err(DriveError::Refused(ParamError::WrongDataType)))
+            Ok(Err(DriveError::Refused(ErrorNumber::WrongDataType)))
         );
         m.push(write, words(&write)).unwrap();
         let r = m.on_reply(&reply(8, 1082, 0), Duration::ZERO).unwrap();

@@ -17,7 +17,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;
 use uss_client::uss_catalogue::{Catalogue, Change, Param};
-use uss_client::uss_protocol::{ParamError as DriveSays, ParamRef, Pnu, Prefix, Subindex};
+use uss_client::uss_protocol::{ErrorNumber, ParamRef, Pnu, Prefix, Subindex};
 use uss_client::{Bus, DriveError, DriveFamily, ParamError, ParamTask, Value, WriteOptions};
 
 /// Reads per request (the PROFIdrive multi-parameter limit).
@@ -85,7 +85,7 @@ fn read_all(
 const fn not_on_drive(e: &ParamError) -> bool {
     matches!(
         e,
-        ParamError::Drive(DriveError::Refused(DriveSays::IllegalPnu))
+        ParamError::Drive(DriveError::Refused(ErrorNumber::IllegalPnu))
     )
 }
 
