@@ -20,11 +20,13 @@ pub mod requesters;
 pub mod stats;
 pub mod transport;
 
+mod build;
 mod capture;
 pub use capture::CAPTURE_QUEUE;
 mod exchange;
 use exchange::Attempt;
 mod handle;
+mod line;
 mod turns;
 pub use turns::LOOK_STEP;
 
@@ -462,199 +464,7 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     bridge: B,
 }
 
-/// Builds the circulating list: each drive `weight` times, spread over the cycle (USS.md
-/// section 5). Occurrence k of drive i of n sits at (k + i/n) / weight, so a drive polled twice per
-/// cycle is polled every half cycle and drives of equal weight keep their configured order.
-fn circulating_list(drives: &[DriveSetup]) -> Vec<u8> {
-    let n = drives.len().max(1) as f64;
-    let mut entries: Vec<(f64, usize)> = drives
-        .iter()
-        .enumerate()
-        .flat_map(|(i, d)| {
-            let w = f64::from(d.weight.max(1));
-            (0..d.weight.max(1)).map(move |k| ((f64::from(k) + i as f64 / n) / w, i))
-        })
-        .collect();
-    entries.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    entries.into_iter().map(|(_, i)| i as u8).collect()
-}
-
-/// Each drive's gate, latched by ussd's start at `now`.
-fn gates(drives: &[DriveSetup], clock_origin: Duration, now: Duration) -> Vec<Gate> {
-    drives
-        .iter()
-        .map(|d| {
-            let setup = GateSetup {
-                pzd: d.layout.pzd.get(),
-                safe: d.safe,
-                watchdog: d.watchdog,
-                clock_origin,
-            };
-            Gate::new(setup, now)
-        })
-        .collect()
-}
-
-/// The statistics before the first poll: each drive latched by ussd's start, what is known of
-/// its monitoring and reference, the shortest telegram-off time its polls allow.
-fn initial_stats(drives: &[DriveSetup], gates: &[Gate], periods: &Periods) -> Stats {
-    let mut stats = Stats::new(
-        drives
-            .iter()
-            .zip(gates)
-            .map(|(d, g)| (d.address, g.control())),
-    );
-    for (slot, ((status, setup), gate)) in
-        stats.drives.iter_mut().zip(drives).zip(gates).enumerate()
-    {
-        stats::set_control(&mut status.counters, &gate.counters());
-        status.monitoring = monitoring::initial_monitoring(setup);
-        status.reference = reference::Reference::initial(setup);
-        status.monitoring_min = periods.shortest_monitoring(slot);
-    }
-    stats
-}
-
-/// What the poll periods of `cfg`'s bus depend on. One attempt at worst: the request, the
-/// drive's response timeout and the longest reply at its maximum residual time (USS.md
-/// section 4), for the bus's largest telegrams.
-fn period_setup(cfg: &EngineConfig) -> PeriodSetup {
-    let request = cfg
-        .drives
-        .iter()
-        .map(|d| d.layout.request_net_bytes())
-        .max()
-        .unwrap_or(0);
-    let reply = cfg
-        .drives
-        .iter()
-        .map(|d| d.layout.max_reply_net_bytes())
-        .max()
-        .unwrap_or(0);
-    let worst = cfg.timing.worst_case_transaction(request, reply);
-    PeriodSetup {
-        attempt: worst.saturating_sub(uss_protocol::MAX_RESPONSE_DELAY)
-            + cfg.response_timeout
-            + cfg.rx_latency,
-        retries: cfg.retries,
-        probe: cfg.offline_probe,
-        param_priority: cfg.param_priority,
-        fixed_cycle: cfg.cycle_time,
-    }
-}
-
-impl<T: Transport, C: Clock> Engine<T, C> {
-    /// Builds the engine with process images in this process only; returns it with its handle
-    /// and the event receiver for the housekeeping thread.
-    pub fn new(cfg: EngineConfig, transport: T, clock: C) -> (Self, EngineHandle, Receiver<Event>) {
-        Engine::with_bridge(cfg, transport, clock, LocalBridge)
-    }
-}
-
 impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
-    /// Builds the engine and everything it will use, with `bridge` carrying the process images
-    /// to other processes; returns it with its handle and the event receiver for the
-    /// housekeeping thread.
-    pub fn with_bridge(
-        cfg: EngineConfig,
-        transport: T,
-        clock: C,
-        bridge: B,
-    ) -> (Self, EngineHandle, Receiver<Event>) {
-        let mut slot_of = [None; 32];
-        for (i, d) in cfg.drives.iter().enumerate() {
-            slot_of[d.address.get() as usize] = Some(i as u8);
-        }
-        let capacity = (cfg.mailbox_depth * cfg.drives.len()).max(1);
-        let now = clock.now();
-        let gates = gates(&cfg.drives, clock.monotonic_origin(), now);
-        let poll_list = circulating_list(&cfg.drives);
-        let period_setup = period_setup(&cfg);
-        let periods = Periods::new(&poll_list, cfg.drives.len(), period_setup);
-        let stats = initial_stats(&cfg.drives, &gates, &periods);
-        let shared = Arc::new(Shared {
-            setups: cfg.drives.clone(),
-            slot_of,
-            images: cfg.drives.iter().map(|_| DriveImages::default()).collect(),
-            output_numbers: cfg.drives.iter().map(|_| AtomicU64::new(0)).collect(),
-            overrides: cfg.drives.iter().map(|_| Overrides::default()).collect(),
-            stop_all: Overrides::default(),
-            stats: Mutex::new(Published::new(&stats)),
-            stop: AtomicBool::new(false),
-            line_down: AtomicBool::new(false),
-            reopen_attempts: AtomicU32::new(0),
-            progress: AtomicU64::new(0),
-            outstanding: AtomicUsize::new(0),
-            requesters: requesters::Requesters::default(),
-            capacity,
-        });
-        // Outstanding jobs never exceed `capacity`, so neither channel can be full when the
-        // engine sends: no result is ever lost.
-        let (jobs_tx, jobs_rx) = bounded(capacity);
-        let (cancels_tx, cancels_rx) = bounded(CANCEL_QUEUE);
-        let (results_tx, results_rx) = bounded(capacity);
-        let (events_tx, events_rx) = bounded(1024);
-        let (capture, captures) = capture::Capture::new(cfg.capture);
-        let drives = cfg
-            .drives
-            .iter()
-            .zip(gates)
-            .enumerate()
-            .map(|(slot, (&setup, gate))| DriveRt {
-                setup,
-                mailbox: Mailbox::new(cfg.mailbox_depth),
-                next_probe: Duration::ZERO,
-                gate,
-                overrides_seen: [0; 3],
-                monitoring_due: false,
-                reference_due: false,
-                shortest_monitoring: periods.shortest_monitoring(slot),
-            })
-            .collect();
-        let engine = Self {
-            framer: Framer::new(FramerConfig::with_latency(cfg.timing, cfg.rx_latency)),
-            transport,
-            clock,
-            shared: Arc::clone(&shared),
-            drives,
-            poll_list,
-            periods,
-            out_of_turn: 0,
-            rearm_spent: 0,
-            serving_out_of_turn: false,
-            broadcast_heard: 0,
-            stop_all_seen: [0; 3],
-            last_look: now,
-            look_lag: period_setup.attempt + LOOK_STEP * 2,
-            position: 0,
-            extra_was_last: false,
-            extra_cursor: 0,
-            tx: [0; MAX_TELEGRAM_BYTES],
-            line_free_at: now,
-            last_reply_done: None,
-            last_reply_seen: None,
-            cycle_start: now,
-            last_publish: now,
-            jobs: jobs_rx,
-            cancels: cancels_rx,
-            results: results_tx,
-            events: events_tx,
-            capture,
-            timing: FreshTiming::new(cfg.drives.len()),
-            stats,
-            cfg,
-            bridge,
-        };
-        let handle = EngineHandle {
-            shared,
-            jobs: jobs_tx,
-            cancels: cancels_tx,
-            results: results_rx,
-            captures,
-        };
-        (engine, handle, events_rx)
-    }
-
     pub fn clock(&self) -> &C {
         &self.clock
     }
@@ -687,76 +497,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             }
         }
         self.shutdown()
-    }
-
-    /// The line failed: every pending job ends with [`PathError::LineDown`] (the one on the wire
-    /// included: its reply cannot come), every drive is offline, and new jobs are refused until
-    /// the line is back. Nothing can be sent meanwhile: a running drive's own telegram
-    /// monitoring (P2014) is what stops it.
-    pub fn line_down(&mut self, error: &TransportError) {
-        let now = self.clock.now();
-        let fault = LineFailure::of(error);
-        self.shared.reopen_attempts.store(0, Ordering::Relaxed);
-        self.shared.line_down.store(true, Ordering::Release);
-        self.fail_all_jobs(Err(PathError::LineDown));
-        for slot in 0..self.drives.len() {
-            let status = &mut self.stats.drives[slot];
-            if status.online {
-                status.online = false;
-                status.since = now;
-            }
-            status.no_reply = true;
-            self.shared.images[slot]
-                .online
-                .store(false, Ordering::Release);
-            self.after_poll(slot);
-        }
-        self.stats.line.down = Some((now, fault));
-        self.stats.line.downs += 1;
-        self.emit(Event::LineDown { at: now, fault });
-        self.publish();
-    }
-
-    /// The line is back on `transport`: every drive latches ([`LatchReason::LineRestored`])
-    /// and is probed at once, coming online with its first good reply. A drive that ran before
-    /// runs again only when its controller re-arms it (OFF1, then ON).
-    pub fn restore(&mut self, transport: T) {
-        let now = self.clock.now();
-        self.transport = transport;
-        self.framer.reset();
-        self.line_free_at = now;
-        // The line was down: no gap of the engine's, every drive latches below anyway.
-        self.last_look = now;
-        self.last_reply_done = None;
-        self.last_reply_seen = None;
-        for slot in 0..self.drives.len() {
-            let d = &mut self.drives[slot];
-            d.next_probe = now;
-            let change = d.gate.latch(LatchReason::LineRestored, now);
-            let address = d.setup.address;
-            let status = &mut self.stats.drives[slot];
-            status.control = d.gate.control();
-            self.shared.images[slot]
-                .latch_id
-                .store(latch_id_of(status.control), Ordering::Release);
-            stats::set_control(&mut status.counters, &d.gate.counters());
-            if let Transition::Latched { latch, rejection } = change {
-                self.emit(Event::Latched {
-                    address,
-                    latch,
-                    rejection,
-                });
-            }
-        }
-        let down_for = self
-            .stats
-            .line
-            .down
-            .take()
-            .map_or(Duration::ZERO, |(since, _)| now.saturating_sub(since));
-        self.shared.line_down.store(false, Ordering::Release);
-        self.emit(Event::LineUp { at: now, down_for });
-        self.publish();
     }
 
     /// Polls the next drive in the circulating list (or waits for the next offline probe when
@@ -1110,40 +850,5 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             shared.hand_over(&self.stats, &mut self.timing);
             self.last_publish = now;
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use uss_protocol::{PkwMode, PzdCount};
-
-    fn setup(address: u8, weight: u8) -> DriveSetup {
-        DriveSetup {
-            weight,
-            ..DriveSetup::new(
-                Address::new(address).unwrap(),
-                Layout::new(PkwMode::Four, PzdCount::new(2).unwrap()),
-            )
-        }
-    }
-
-    #[test]
-    fn circulating_list_spreads_weighted_drives() {
-        assert_eq!(
-            circulating_list(&[setup(1, 1), setup(2, 1), setup(3, 1)]),
-            vec![0, 1, 2]
-        );
-        assert_eq!(
-            circulating_list(&[setup(1, 2), setup(2, 1), setup(3, 1)]),
-            vec![0, 1, 0, 2]
-        );
-        assert_eq!(
-            circulating_list(&[setup(1, 1), setup(2, 3)]),
-            vec![0, 1, 1, 1]
-        );
-        let list = circulating_list(&[setup(1, 4), setup(2, 4), setup(3, 1)]);
-        assert_eq!(list.len(), 9);
-        assert_eq!(list.iter().filter(|&&i| usize::from(i) == 2).count(), 1);
     }
 }

@@ -1,0 +1,79 @@
+//! The line failing and coming back: every job ends, every drive goes offline; on return
+//! every drive latches ([`LatchReason::LineRestored`]) and is probed at once.
+
+use super::{
+    Bridge, Clock, Duration, Engine, Event, LatchReason, LineFailure, Ordering, PathError,
+    Transition, Transport, TransportError, latch_id_of, stats,
+};
+
+impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
+    /// The line failed: every pending job ends with [`PathError::LineDown`] (the one on the wire
+    /// included: its reply cannot come), every drive is offline, and new jobs are refused until
+    /// the line is back. Nothing can be sent meanwhile: a running drive's own telegram
+    /// monitoring (P2014) is what stops it.
+    pub fn line_down(&mut self, error: &TransportError) {
+        let now = self.clock.now();
+        let fault = LineFailure::of(error);
+        self.shared.reopen_attempts.store(0, Ordering::Relaxed);
+        self.shared.line_down.store(true, Ordering::Release);
+        self.fail_all_jobs(Err(PathError::LineDown));
+        for slot in 0..self.drives.len() {
+            let status = &mut self.stats.drives[slot];
+            if status.online {
+                status.online = false;
+                status.since = now;
+            }
+            status.no_reply = true;
+            self.shared.images[slot]
+                .online
+                .store(false, Ordering::Release);
+            self.after_poll(slot);
+        }
+        self.stats.line.down = Some((now, fault));
+        self.stats.line.downs += 1;
+        self.emit(Event::LineDown { at: now, fault });
+        self.publish();
+    }
+
+    /// The line is back on `transport`: every drive latches ([`LatchReason::LineRestored`])
+    /// and is probed at once, coming online with its first good reply. A drive that ran before
+    /// runs again only when its controller re-arms it (OFF1, then ON).
+    pub fn restore(&mut self, transport: T) {
+        let now = self.clock.now();
+        self.transport = transport;
+        self.framer.reset();
+        self.line_free_at = now;
+        // The line was down: no gap of the engine's, every drive latches below anyway.
+        self.last_look = now;
+        self.last_reply_done = None;
+        self.last_reply_seen = None;
+        for slot in 0..self.drives.len() {
+            let d = &mut self.drives[slot];
+            d.next_probe = now;
+            let change = d.gate.latch(LatchReason::LineRestored, now);
+            let address = d.setup.address;
+            let status = &mut self.stats.drives[slot];
+            status.control = d.gate.control();
+            self.shared.images[slot]
+                .latch_id
+                .store(latch_id_of(status.control), Ordering::Release);
+            stats::set_control(&mut status.counters, &d.gate.counters());
+            if let Transition::Latched { latch, rejection } = change {
+                self.emit(Event::Latched {
+                    address,
+                    latch,
+                    rejection,
+                });
+            }
+        }
+        let down_for = self
+            .stats
+            .line
+            .down
+            .take()
+            .map_or(Duration::ZERO, |(since, _)| now.saturating_sub(since));
+        self.shared.line_down.store(false, Ordering::Release);
+        self.emit(Event::LineUp { at: now, down_for });
+        self.publish();
+    }
+}
