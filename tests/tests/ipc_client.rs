@@ -484,6 +484,37 @@ fn bad_requests_are_answered_with_errors() {
     );
 }
 
+/// ussd checks a request once, first: a malformed request that also writes a guarded
+/// parameter is refused for what is wrong with it, not as guarded (the guards used to read the
+/// items before they were checked).
+#[test]
+#[should_panic(expected = "refused for what is wrong with it")]
+fn a_malformed_request_with_a_guarded_write_is_refused_for_what_is_wrong_with_it() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+    let guarded = uss_client::uss_protocol::ParamTask::Write {
+        pnu: uss_client::uss_protocol::Pnu::new(927).unwrap(),
+        value: Value::Word(15),
+        storage: uss_client::uss_protocol::Storage::Ram,
+    };
+    let mut request = ParamRequest::new(
+        uss_client::uss_shm_types::DriveAddress::new(1).unwrap(),
+        &[
+            ParamItem::from(&guarded),
+            ParamItem::from(&read(947, Some(1))),
+        ],
+    )
+    .unwrap();
+    request.items[1].index = 300;
+    let response = bus.send_request(&request).unwrap();
+    assert_eq!(
+        (response.error(), response.error_item),
+        (Ok(RequestError::BadSubindex), 1),
+        "refused for what is wrong with it"
+    );
+}
+
 #[test]
 fn a_second_controller_is_refused_with_the_controlling_process_id() {
     let _serial = serial();
