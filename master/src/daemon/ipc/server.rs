@@ -21,11 +21,9 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::request_response::PortFactory as RequestResponseFactory;
 use std::time::Instant;
 use uss_catalogue::Catalogue;
-use uss_protocol::Address;
+use uss_protocol::{Address, ParamTask};
 use uss_shm_types::names;
-use uss_shm_types::{
-    Instance, Outcome, ParamRequest, ParamResponse, ParamResult, RequestError, TaskCode,
-};
+use uss_shm_types::{Instance, Outcome, ParamRequest, ParamResponse, ParamResult, RequestError};
 
 /// Creates the parameter service of `bus` and its server; `outs` are the drives' output
 /// services, asked who controls a drive. Operator stops take a path of their own
@@ -288,15 +286,16 @@ impl ParamServer {
 
     fn accept(&mut self, active: Active, handle: &EngineHandle) {
         let request = *active.payload();
-        if let Some(refusal) = self
-            .refuse_controlled(&active, &request)
-            .or_else(|| self.refuse_guarded(&active, &request))
-        {
-            let _ = active.send_copy(refusal);
-            self.answered = true;
-            return;
-        }
-        let (address, items) = match request.validate() {
+        // Checked once, first: the rules below read the tasks, never the raw items.
+        let checked = request.validate().and_then(|(address, items)| {
+            Address::new(address.get())
+                .map(|a| (a, items))
+                .map_err(|_| uss_shm_types::Refusal {
+                    error: RequestError::UnknownDrive,
+                    item: None,
+                })
+        });
+        let (address, items) = match checked {
             Ok(ok) => ok,
             Err(refusal) => {
                 // A client that died meanwhile cannot be answered; nothing else to do.
@@ -305,15 +304,14 @@ impl ParamServer {
                 return;
             }
         };
-        let Ok(address) = Address::new(address.get()) else {
-            let refusal = ParamResponse::new(request.address);
-            let _ = active.send_copy(ParamResponse {
-                error: RequestError::UnknownDrive.code(),
-                ..refusal
-            });
+        if let Some(refusal) = self
+            .refuse_controlled(&active, &request, address, &items)
+            .or_else(|| self.refuse_guarded(&active, &request, address, &items))
+        {
+            let _ = active.send_copy(refusal);
             self.answered = true;
             return;
-        };
+        }
         let mut response = ParamResponse::new(address.get());
         response.count = items.len() as u8;
         let first_id = self.next_id;
@@ -407,14 +405,16 @@ impl ParamServer {
     /// A write to a drive that another process controls is refused unless the request says it
     /// is deliberate ([`uss_shm_types::REQUEST_FORCE`]); reads are never restricted, and the
     /// controlling process may write through its own handles.
-    fn refuse_controlled(&self, active: &Active, request: &ParamRequest) -> Option<ParamResponse> {
-        let writes = request.items[..usize::from(request.count).min(request.items.len())]
-            .iter()
-            .any(|i| i.task().is_ok_and(TaskCode::is_write));
-        if !writes || request.is_forced() || request.validate().is_err() {
+    fn refuse_controlled(
+        &self,
+        active: &Active,
+        request: &ParamRequest,
+        address: Address,
+        tasks: &[ParamTask],
+    ) -> Option<ParamResponse> {
+        if !tasks.iter().any(|t| written(t).is_some()) || request.is_forced() {
             return None;
         }
-        let address = Address::new(request.address).ok()?;
         let controller = self.identities.controller(address)?;
         let requester = self.identities.param_client(active.origin());
         if requester == Some(controller) {
@@ -434,19 +434,23 @@ impl ParamServer {
     /// A write of a parameter that can take the drive away from ussd (its family's catalogue
     /// marks it) is refused unless the request is marked unsafe
     /// ([`uss_shm_types::REQUEST_UNSAFE`]); an unsafe one is logged with its process.
-    fn refuse_guarded(&self, active: &Active, request: &ParamRequest) -> Option<ParamResponse> {
-        let address = Address::new(request.address).ok()?;
+    fn refuse_guarded(
+        &self,
+        active: &Active,
+        request: &ParamRequest,
+        address: Address,
+        tasks: &[ParamTask],
+    ) -> Option<ParamResponse> {
         let catalogue = self
             .guards
             .iter()
             .find(|(a, _)| *a == address)
             .and_then(|(_, c)| *c)?;
-        let count = usize::from(request.count).min(request.items.len());
-        for (i, item) in request.items[..count].iter().enumerate() {
-            if !item.task().is_ok_and(TaskCode::is_write) {
+        for (i, task) in tasks.iter().enumerate() {
+            let Some((pnu, value)) = written(task) else {
                 continue;
-            }
-            let Some(why) = catalogue.guard(item.pnu, item.value) else {
+            };
+            let Some(why) = catalogue.guard(pnu, value) else {
                 continue;
             };
             if !request.is_unsafe() {
@@ -463,9 +467,7 @@ impl ParamServer {
                 bus = self.bus,
                 drive = address.get(),
                 pid,
-                "drive {address}: P{:04} written as {} with --unsafe by process {pid}: {why}",
-                item.pnu,
-                item.value
+                "drive {address}: P{pnu:04} written as {value} with --unsafe by process {pid}: {why}"
             );
         }
         None
@@ -522,5 +524,15 @@ impl ParamServer {
                 self.watches.answered(node, handle);
             }
         }
+    }
+}
+
+/// The parameter number and value a task writes, if it writes.
+fn written(task: &ParamTask) -> Option<(u16, u32)> {
+    match *task {
+        ParamTask::Write { pnu, value, .. } | ParamTask::WriteArray { pnu, value, .. } => {
+            Some((pnu.get(), value.as_u32()))
+        }
+        _ => None,
     }
 }
