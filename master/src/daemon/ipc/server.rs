@@ -304,9 +304,14 @@ impl ParamServer {
                 return;
             }
         };
+        let checked = Checked {
+            request: &request,
+            address,
+            tasks: &items,
+        };
         if let Some(refusal) = self
-            .refuse_controlled(&active, &request, address, &items)
-            .or_else(|| self.refuse_guarded(&active, &request, address, &items))
+            .refuse_controlled(&active, &checked)
+            .or_else(|| self.refuse_guarded(&active, &checked))
         {
             let _ = active.send_copy(refusal);
             self.answered = true;
@@ -405,13 +410,12 @@ impl ParamServer {
     /// A write to a drive that another process controls is refused unless the request says it
     /// is deliberate ([`uss_shm_types::REQUEST_FORCE`]); reads are never restricted, and the
     /// controlling process may write through its own handles.
-    fn refuse_controlled(
-        &self,
-        active: &Active,
-        request: &ParamRequest,
-        address: Address,
-        tasks: &[ParamTask],
-    ) -> Option<ParamResponse> {
+    fn refuse_controlled(&self, active: &Active, checked: &Checked<'_>) -> Option<ParamResponse> {
+        let Checked {
+            request,
+            address,
+            tasks,
+        } = *checked;
         if !tasks.iter().any(|t| written(t).is_some()) || request.is_forced() {
             return None;
         }
@@ -434,13 +438,12 @@ impl ParamServer {
     /// A write of a parameter that can take the drive away from ussd (its family's catalogue
     /// marks it) is refused unless the request is marked unsafe
     /// ([`uss_shm_types::REQUEST_UNSAFE`]); an unsafe one is logged with its process.
-    fn refuse_guarded(
-        &self,
-        active: &Active,
-        request: &ParamRequest,
-        address: Address,
-        tasks: &[ParamTask],
-    ) -> Option<ParamResponse> {
+    fn refuse_guarded(&self, active: &Active, checked: &Checked<'_>) -> Option<ParamResponse> {
+        let Checked {
+            request,
+            address,
+            tasks,
+        } = *checked;
         let catalogue = self
             .guards
             .iter()
@@ -525,6 +528,14 @@ impl ParamServer {
             }
         }
     }
+}
+
+/// A request ussd has checked: its drive and the tasks its items ask for.
+#[derive(Clone, Copy)]
+struct Checked<'a> {
+    request: &'a ParamRequest,
+    address: Address,
+    tasks: &'a [ParamTask],
 }
 
 /// The parameter number and value a task writes, if it writes.
