@@ -46,7 +46,7 @@ use uss_master::{
 use uss_protocol::{Layout, Telegram};
 use uss_shm_types::names::EVENT_ID_MAX;
 use uss_shm_types::service::Ipc;
-use uss_shm_types::{BlackboardKey, DriveAddress, PzdOutput};
+use uss_shm_types::{Address, BlackboardKey, PzdOutput};
 
 /// What a client process does; unset in the benchmark itself.
 const ROLE_ENV: &str = "USS_BENCH_IPC_ROLE";
@@ -982,7 +982,7 @@ fn control(name: &str, duration: Duration, period: Duration) -> String {
 /// Reads P1082 of drive 1 at random phases: `P round_trip_ns on_wire_ns telegrams` each.
 fn params(name: &str, duration: Duration, period: Duration) -> String {
     let bus = Bus::open(name).expect("open the bus");
-    let drive = DriveAddress::new(WATCHED).expect("a drive address");
+    let drive = Address::new(WATCHED).expect("a drive address");
     let request = ParamRequest::new(
         drive,
         &[ParamItem::from(&ParamTask::read(

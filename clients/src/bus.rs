@@ -6,7 +6,7 @@ use crate::{ClientError, ControlOptions, Controller, CycleListener, DriveWatch};
 use core::time::Duration;
 use iceoryx2::prelude::{CallbackProgression, NodeBuilder, NodeName, SignalHandlingMode};
 use std::sync::Arc;
-use uss_shm_types::{BlackboardKey, BusName, BusStatus, DriveAddress, DriveDiag};
+use uss_shm_types::{Address, BlackboardKey, BusName, BusStatus, DriveDiag};
 
 /// The node name [`Bus::open`] uses, as `Node::list` (and a refused controller's error) shows it.
 pub const DEFAULT_NODE_NAME: &str = "uss-client";
@@ -160,7 +160,7 @@ impl Bus {
 
     /// Watches a drive's input image (written by ussd after every poll).
     pub fn watch(&self, address: u8) -> Result<DriveWatch, ClientError> {
-        DriveWatch::open(self, DriveAddress::new(address)?)
+        DriveWatch::open(self, Address::new(address)?)
     }
 
     /// A subscription to every telegram of the bus, as ussd's bus thread sent and received it.
@@ -177,12 +177,12 @@ impl Bus {
     /// bus0 is controlled by process 1234") while another controller holds it. See
     /// [`Controller`] for the watchdog and latch rules.
     pub fn control(&self, address: u8, options: ControlOptions) -> Result<Controller, ClientError> {
-        Controller::open(self, DriveAddress::new(address)?, options)
+        Controller::open(self, Address::new(address)?, options)
     }
 
     /// Checks that ussd polls `address` on this bus.
-    pub(crate) fn known(&self, address: u8) -> Result<DriveAddress, ClientError> {
-        let a = DriveAddress::new(address)?;
+    pub(crate) fn known(&self, address: u8) -> Result<Address, ClientError> {
+        let a = Address::new(address)?;
         self.services()?;
         if self.drives().contains(&address) {
             Ok(a)

@@ -10,7 +10,7 @@ use std::io::{ErrorKind, Read as _, Write as _};
 use std::os::unix::net::UnixStream;
 use uss_shm_types::names;
 use uss_shm_types::{
-    ALL_DRIVES, CommandError, DriveAddress, LatchReason, OPERATOR_RESPONSE_BYTES, OperatorRequest,
+    ALL_DRIVES, Address, CommandError, LatchReason, OPERATOR_RESPONSE_BYTES, OperatorRequest,
     OperatorResponse, PzdInput, StopCommand,
 };
 
@@ -22,7 +22,7 @@ impl Bus {
     /// controls it. Returns once ussd has handed the command to the bus thread, which sends it
     /// in its next telegram; [`Bus::wait_stopped`] waits until the drive's image shows it.
     pub fn stop_drive(&self, address: u8, command: StopCommand) -> Result<(), ClientError> {
-        DriveAddress::new(address)?;
+        Address::new(address)?;
         match self.operator(address, command) {
             Err(ClientError::CommandRefused {
                 error: CommandError::UnknownDrive,
@@ -87,7 +87,7 @@ impl Bus {
 pub fn stop(bus: &str, address: Option<u8>, command: StopCommand) -> Result<Vec<u8>, ClientError> {
     let name = uss_shm_types::BusName::new(bus)?;
     if let Some(a) = address {
-        DriveAddress::new(a)?;
+        Address::new(a)?;
     }
     send_stop(&name, address.unwrap_or(ALL_DRIVES), command)
 }

@@ -16,8 +16,8 @@ use std::time::Instant;
 use uss_protocol::{DriveState, Setpoint, Stw1};
 use uss_shm_types::names;
 use uss_shm_types::{
-    DriveAddress, Generation, MAX_PZD_WORDS, PzdInput, PzdOutput, Session, SessionError,
-    SessionSetup, Step, Words,
+    Address, Generation, MAX_PZD_WORDS, PzdInput, PzdOutput, Session, SessionError, SessionSetup,
+    Step, Words,
 };
 
 /// A refresh period that suits ussd's default watchdog of 100 ms (`watchdog_ms`).
@@ -162,7 +162,7 @@ impl Shared {
     /// After a restart of ussd, publishes on the new generation's `out` service.
     fn follow(&self, state: &mut State, services: &Services) -> Result<(), ClientError> {
         if state.port.generation != services.generation() {
-            let address = DriveAddress::new(self.address)?;
+            let address = Address::new(self.address)?;
             state.port = open_port(&self.link, services, address)?;
         }
         Ok(())
@@ -220,7 +220,7 @@ fn handshake(input: &PzdInput) -> Duration {
 
 /// This process's publisher on drive `address`'s `out` service of the generation `services`
 /// belong to; [`ClientError::Controlled`] while another process holds it.
-fn open_port(link: &Link, services: &Services, address: DriveAddress) -> Result<Port, ClientError> {
+fn open_port(link: &Link, services: &Services, address: Address) -> Result<Port, ClientError> {
     let bus = link.name.as_str();
     let name = names::drive_out(&services.instance, address);
     let service = opened(
@@ -309,7 +309,7 @@ impl core::fmt::Debug for Controller {
 impl Controller {
     pub(crate) fn open(
         bus: &Bus,
-        address: DriveAddress,
+        address: Address,
         options: ControlOptions,
     ) -> Result<Self, ClientError> {
         let diag = bus.diag(address.get())?;

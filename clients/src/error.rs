@@ -72,9 +72,12 @@ impl fmt::Display for Latch {
 #[derive(Debug, Clone, PartialEq, Eq, Error)]
 #[non_exhaustive]
 pub enum ClientError {
-    /// A bus name or drive address that cannot exist.
+    /// A bus name that cannot exist.
     #[error(transparent)]
     Name(#[from] NameError),
+    /// A drive address outside 0..=31.
+    #[error(transparent)]
+    Address(#[from] uss_protocol::AddressError),
     /// ussd's services for this bus do not exist.
     #[error("ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`)")]
     NotRunning { bus: String },

@@ -7,7 +7,7 @@ use crate::{Bus, ClientError, ParamError};
 use uss_protocol::{ParamTask, Pnu, Storage, Subindex, Value};
 use uss_shm_types::names;
 use uss_shm_types::{
-    DriveAddress, MAX_PARAM_ITEMS, ParamItem, ParamRequest, ParamResponse, ParamResult, PathError,
+    Address, MAX_PARAM_ITEMS, ParamItem, ParamRequest, ParamResponse, ParamResult, PathError,
     RequestError,
 };
 
@@ -236,7 +236,7 @@ impl Bus {
         tasks: &[ParamTask],
         flags: u8,
     ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
-        let drive = DriveAddress::new(address).map_err(ClientError::from)?;
+        let drive = Address::new(address).map_err(ClientError::from)?;
         // The one conversion from the protocol's tasks to the contract's items.
         let items: Vec<ParamItem> = tasks.iter().map(ParamItem::from).collect();
         let mut request = ParamRequest::new(drive, &items).map_err(|r| ParamError::Refused {

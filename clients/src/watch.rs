@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 use uss_protocol::{DriveState, Setpoint, Zsw1};
 use uss_shm_types::names;
-use uss_shm_types::{BlackboardKey, DriveAddress, DriveDiag, DriveInfo, Generation, PzdInput};
+use uss_shm_types::{Address, BlackboardKey, DriveDiag, DriveInfo, Generation, PzdInput};
 
 /// How often the `wait_*` helpers look at the input image.
 pub(crate) const POLL: Duration = Duration::from_millis(1);
@@ -53,7 +53,7 @@ struct State {
 /// [`DriveWatch::read`] says why with an error.
 pub struct DriveWatch {
     link: Arc<Link>,
-    address: DriveAddress,
+    address: Address,
     state: Mutex<State>,
 }
 
@@ -67,7 +67,7 @@ impl core::fmt::Debug for DriveWatch {
 }
 
 /// Opens the input image entry of drive `address` of the generation `services` belong to.
-fn open_port(link: &Link, services: &Services, address: DriveAddress) -> Result<Port, ClientError> {
+fn open_port(link: &Link, services: &Services, address: Address) -> Result<Port, ClientError> {
     let bus = link.name.as_str();
     let name = names::drive_in(&services.instance, address);
     let service = opened(
@@ -94,7 +94,7 @@ fn open_port(link: &Link, services: &Services, address: DriveAddress) -> Result<
 }
 
 impl DriveWatch {
-    pub(crate) fn open(bus: &Bus, address: DriveAddress) -> Result<Self, ClientError> {
+    pub(crate) fn open(bus: &Bus, address: Address) -> Result<Self, ClientError> {
         let services = bus.services()?;
         let port = open_port(bus.link(), &services, address).map_err(|e| match e {
             ClientError::UnknownDrive { .. } => bus.unknown_drive(address.get()),

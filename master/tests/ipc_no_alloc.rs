@@ -23,7 +23,7 @@ use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Timing};
 use uss_shm_types::names;
 use uss_shm_types::service::Ipc;
-use uss_shm_types::{BlackboardKey, DriveAddress, PzdInput, PzdOutput};
+use uss_shm_types::{BlackboardKey, PzdInput, PzdOutput};
 
 #[test]
 fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
@@ -47,7 +47,7 @@ fn bus_thread_with_iceoryx2_allocates_nothing_per_exchange() {
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
         .unwrap();
-    let one = DriveAddress::new(1).unwrap();
+    let one = Address::new(1).unwrap();
     let publisher = client
         .service_builder(&names::drive_out(&instance, one))
         .publish_subscribe::<PzdOutput>()

@@ -62,7 +62,7 @@ pub use diag::{
     EXCHANGE_BUCKETS_NS, LastFailure, LineFault, LineState, RtMode,
 };
 pub use heartbeat::{BusState, Heartbeat};
-pub use names::{BlackboardKey, BusName, DriveAddress, Generation, Instance, NameError};
+pub use names::{Address, BlackboardKey, BusName, Generation, Instance, NameError};
 pub use outcome::{Answer, DriveError, ItemOutcome, PathError, ResultError};
 pub use params::{
     MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, REQUEST_FORCE,

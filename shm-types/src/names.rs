@@ -42,6 +42,7 @@ use thiserror::Error;
 pub const MAX_BUS_NAME_LEN: usize = 32;
 /// Highest USS slave address (USS.md section 1).
 pub const MAX_ADDRESS: u8 = 31;
+const _: () = assert!(MAX_ADDRESS == uss_protocol::Address::MAX);
 
 /// Service attribute every ussd service defines: the payload layout version, in decimal.
 pub const LAYOUT_VERSION_ATTRIBUTE: &str = "uss.layout_version";
@@ -51,8 +52,6 @@ pub const LAYOUT_VERSION_ATTRIBUTE: &str = "uss.layout_version";
 pub enum NameError {
     #[error("bus name {0:?} must be 1 to 32 characters of A-Z, a-z, 0-9, '_' or '-'")]
     BusName(String),
-    #[error("drive address {0} is out of range 0..=31 (USS.md section 1)")]
-    Address(u8),
 }
 
 /// A validated bus name: 1 to 32 characters of `[A-Za-z0-9_-]`.
@@ -83,29 +82,9 @@ impl fmt::Display for BusName {
     }
 }
 
-/// A validated drive address, 0..=31 (USS.md section 1).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct DriveAddress(u8);
-
-impl DriveAddress {
-    pub const fn new(address: u8) -> Result<Self, NameError> {
-        if address <= MAX_ADDRESS {
-            Ok(Self(address))
-        } else {
-            Err(NameError::Address(address))
-        }
-    }
-
-    pub const fn get(self) -> u8 {
-        self.0
-    }
-}
-
-impl fmt::Display for DriveAddress {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}", self.0)
-    }
-}
+/// A drive address is the codec's validated [`Address`] (0..=31, USS.md section 1): one type
+/// for one concept, from the wire to the service names.
+pub use uss_protocol::Address;
 
 /// The key type of every ussd blackboard. Keys are compared byte for byte; C, C++ and Python
 /// declare it as a struct with one `uint32_t value` and the type name `UssBlackboardKey`.
@@ -121,7 +100,7 @@ impl BlackboardKey {
     pub const IMAGE: Self = Self { value: 0 };
 
     /// A drive's entry in the `diag` blackboard: its address.
-    pub const fn drive(address: DriveAddress) -> Self {
+    pub const fn drive(address: Address) -> Self {
         Self {
             value: address.get() as u32,
         }
@@ -170,7 +149,7 @@ const _: () = assert!(
 
 /// An exchange with the drive completed and its `in` image was updated: the event id is the
 /// drive address (0..=31).
-pub const fn exchange_completed(address: DriveAddress) -> usize {
+pub const fn exchange_completed(address: Address) -> usize {
     address.get() as usize
 }
 
@@ -220,12 +199,12 @@ pub fn heartbeat(bus: &BusName) -> ServiceName {
 }
 
 /// The controller's output image of one drive.
-pub fn drive_out(i: &Instance, address: DriveAddress) -> ServiceName {
+pub fn drive_out(i: &Instance, address: Address) -> ServiceName {
     i.service(&format!("drive/{address}/out"))
 }
 
 /// The drive's input image, written by ussd after every poll.
-pub fn drive_in(i: &Instance, address: DriveAddress) -> ServiceName {
+pub fn drive_in(i: &Instance, address: Address) -> ServiceName {
     i.service(&format!("drive/{address}/in"))
 }
 
@@ -317,7 +296,7 @@ mod tests {
     fn service_names_follow_the_table() {
         let b = bus("line-1_A");
         let i = Instance::new(b.clone(), Generation(0x1234_abcd));
-        let a = DriveAddress::new(7).unwrap();
+        let a = Address::new(7).unwrap();
         let g = "000000001234abcd";
         assert_eq!(heartbeat(&b).as_str(), "uss/line-1_A/ussd");
         assert_eq!(
@@ -351,13 +330,13 @@ mod tests {
 
     #[test]
     fn addresses_above_31_are_refused() {
-        assert_eq!(DriveAddress::new(31).map(DriveAddress::get), Ok(31));
-        assert_eq!(DriveAddress::new(32), Err(NameError::Address(32)));
+        assert_eq!(Address::new(31).map(Address::get), Ok(31));
+        assert!(Address::new(32).is_err());
     }
 
     #[test]
     fn diag_keys_are_the_addresses() {
-        let a = DriveAddress::new(12).unwrap();
+        let a = Address::new(12).unwrap();
         assert_eq!(BlackboardKey::drive(a), BlackboardKey { value: 12 });
         assert_eq!(BlackboardKey::IMAGE.value, 0);
     }

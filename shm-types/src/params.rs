@@ -4,7 +4,7 @@
 //! per drive on the wire at a time, FIFO, repeated until its matching reply.
 
 use crate::codes::{UnknownCode, code_table};
-use crate::names::DriveAddress;
+use crate::names::Address;
 use crate::{LAYOUT_VERSION, check_version};
 use iceoryx2::prelude::ZeroCopySend;
 use uss_protocol::ParamTask;
@@ -292,7 +292,7 @@ impl ParamItem {
 
 impl ParamRequest {
     /// A request for `items` on drive `address`.
-    pub fn new(address: DriveAddress, items: &[ParamItem]) -> Result<Self, Refusal> {
+    pub fn new(address: Address, items: &[ParamItem]) -> Result<Self, Refusal> {
         if items.is_empty() || items.len() > MAX_PARAM_ITEMS {
             return Err(Refusal::request(RequestError::BadCount));
         }
@@ -320,13 +320,13 @@ impl ParamRequest {
 
     /// Checks everything ussd can check without the bus configuration (version, address
     /// range, count, every item) and returns the tasks the items ask for.
-    pub fn validate(&self) -> Result<(DriveAddress, Vec<ParamTask>), Refusal> {
+    pub fn validate(&self) -> Result<(Address, Vec<ParamTask>), Refusal> {
         check_version(self.version).map_err(|_| Refusal::request(RequestError::Version))?;
         if self.flags & !REQUEST_FLAGS != 0 {
             return Err(Refusal::request(RequestError::BadFlags));
         }
-        let address = DriveAddress::new(self.address)
-            .map_err(|_| Refusal::request(RequestError::UnknownDrive))?;
+        let address =
+            Address::new(self.address).map_err(|_| Refusal::request(RequestError::UnknownDrive))?;
         let count = usize::from(self.count);
         if !(1..=MAX_PARAM_ITEMS).contains(&count) {
             return Err(Refusal::request(RequestError::BadCount));
@@ -407,8 +407,8 @@ impl ParamResponse {
 mod tests {
     use super::*;
 
-    fn drive(a: u8) -> DriveAddress {
-        DriveAddress::new(a).unwrap()
+    fn drive(a: u8) -> Address {
+        Address::new(a).unwrap()
     }
 
     #[test]

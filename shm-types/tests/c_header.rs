@@ -15,11 +15,11 @@ use std::process::Command;
 use uss_shm_types::layout::{FieldLayout, LAYOUTS, TypeLayout};
 use uss_shm_types::names::{self, BlackboardKey};
 use uss_shm_types::{
-    BusName, BusState, BusStatus, CommandError, ControlState, Direction, DriveAddress,
-    DriveCounters, DriveDiag, DriveFamily, DriveInfo, Generation, Heartbeat, Instance, LastFailure,
-    LatchReason, LineFault, LineState, Monitoring, OperatorRequest, OperatorResponse, Outcome,
-    ParamItem, ParamRequest, ParamResponse, ParamResult, PzdInput, PzdOutput, Rejection,
-    RequestError, RtMode, StopCommand, Storage, TaskCode, TelegramRecord,
+    Address, BusName, BusState, BusStatus, CommandError, ControlState, Direction, DriveCounters,
+    DriveDiag, DriveFamily, DriveInfo, Generation, Heartbeat, Instance, LastFailure, LatchReason,
+    LineFault, LineState, Monitoring, OperatorRequest, OperatorResponse, Outcome, ParamItem,
+    ParamRequest, ParamResponse, ParamResult, PzdInput, PzdOutput, Rejection, RequestError, RtMode,
+    StopCommand, Storage, TaskCode, TelegramRecord,
 };
 
 const REGENERATE: &str =
@@ -150,7 +150,7 @@ struct Service {
     c_name: &'static str,
     scope: Scope,
     what: &'static str,
-    name: fn(&Instance, DriveAddress) -> String,
+    name: fn(&Instance, Address) -> String,
 }
 
 /// The stand-ins a pattern is found with.
@@ -162,7 +162,7 @@ impl Service {
     /// The name as a printf pattern, found by asking [`names`] for stand-ins.
     fn pattern(&self) -> String {
         let instance = Instance::new(BusName::new(BUS).unwrap(), GENERATION);
-        let name = (self.name)(&instance, DriveAddress::new(ADDRESS).unwrap());
+        let name = (self.name)(&instance, Address::new(ADDRESS).unwrap());
         let p = name
             .replace(&format!("/{ADDRESS}/"), "/%u/")
             .replace(&GENERATION.to_string(), "%016llx")
@@ -399,7 +399,7 @@ fn expected_checks(layouts: &[TypeLayout]) -> String {
     let bus = BusName::new("line-1_A").unwrap();
     let g = Generation(0x0000_1234_abcd_ef01);
     let instance = Instance::new(bus.clone(), g);
-    let a = DriveAddress::new(7).unwrap();
+    let a = Address::new(7).unwrap();
     for service in services() {
         let (c_name, expected) = (service.c_name, (service.name)(&instance, a));
         let call = match service.scope {

@@ -44,9 +44,9 @@ use uss_protocol::Pnu;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::service::{Ipc, IpcThreadsafe};
 use uss_shm_types::{
-    BlackboardKey, BusName, DriveAddress, DriveCounters, DriveDiag, Generation, Heartbeat,
-    Instance, LAYOUT_VERSION, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult,
-    PzdInput, PzdOutput, RequestError, Storage, TaskCode,
+    Address, BlackboardKey, BusName, DriveCounters, DriveDiag, Generation, Heartbeat, Instance,
+    LAYOUT_VERSION, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, PzdInput,
+    PzdOutput, RequestError, Storage, TaskCode,
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -196,8 +196,8 @@ fn unique_bus() -> Instance {
     Instance::new(bus, Generation(1))
 }
 
-fn drive(a: u8) -> DriveAddress {
-    DriveAddress::new(a).unwrap()
+fn drive(a: u8) -> Address {
+    Address::new(a).unwrap()
 }
 
 fn version_attribute() -> AttributeSpecifier {
@@ -219,7 +219,7 @@ fn version_verifier() -> AttributeVerifier {
 }
 
 /// ussd's side of a drive's `out` service.
-fn create_out(ussd: &Node<Ipc>, bus: &Instance, a: DriveAddress) -> PubSub<Ipc, PzdOutput, ()> {
+fn create_out(ussd: &Node<Ipc>, bus: &Instance, a: Address) -> PubSub<Ipc, PzdOutput, ()> {
     ussd.service_builder(&names::drive_out(bus, a))
         .publish_subscribe::<PzdOutput>()
         .max_publishers(names::OUT_MAX_PUBLISHERS)
@@ -231,7 +231,7 @@ fn create_out(ussd: &Node<Ipc>, bus: &Instance, a: DriveAddress) -> PubSub<Ipc, 
 }
 
 /// A controller's side of a drive's `out` service.
-fn open_out(controller: &Node<Ipc>, bus: &Instance, a: DriveAddress) -> PubSub<Ipc, PzdOutput, ()> {
+fn open_out(controller: &Node<Ipc>, bus: &Instance, a: Address) -> PubSub<Ipc, PzdOutput, ()> {
     controller
         .service_builder(&names::drive_out(bus, a))
         .publish_subscribe::<PzdOutput>()
@@ -243,7 +243,7 @@ fn open_out(controller: &Node<Ipc>, bus: &Instance, a: DriveAddress) -> PubSub<I
 fn create_in(
     ussd: &Node<Ipc>,
     bus: &Instance,
-    a: DriveAddress,
+    a: Address,
     max_readers: usize,
 ) -> Result<Blackboard<Ipc, BlackboardKey>, BlackboardCreateError> {
     ussd.service_builder(&names::drive_in(bus, a))

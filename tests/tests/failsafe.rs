@@ -30,7 +30,7 @@ use uss_client::{
 use uss_integration_tests::{ChildProc, SimProcess, Ussd, monotonic_ns};
 use uss_shm_types::names;
 use uss_shm_types::service::Ipc;
-use uss_shm_types::{BusName, DriveAddress, Heartbeat, Instance, LAYOUT_VERSION, PzdOutput};
+use uss_shm_types::{Address, BusName, Heartbeat, Instance, LAYOUT_VERSION, PzdOutput};
 
 /// One ussd at a time: each runs a `SCHED_FIFO` bus thread, and the machine has two cores.
 fn serial() -> MutexGuard<'static, ()> {
@@ -217,7 +217,7 @@ impl RawController {
             std::thread::sleep(Duration::from_millis(1));
         };
         let instance = Instance::new(bus, beat.generation());
-        let name = names::drive_out(&instance, DriveAddress::new(a).unwrap());
+        let name = names::drive_out(&instance, Address::new(a).unwrap());
         let publisher = node
             .service_builder(&name)
             .publish_subscribe::<PzdOutput>()

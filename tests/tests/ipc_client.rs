@@ -439,7 +439,7 @@ fn bad_requests_are_answered_with_errors() {
 
     // Malformed requests, sent as they are: each gets exactly one refusal.
     let good = ParamRequest::new(
-        uss_client::uss_shm_types::DriveAddress::new(1).unwrap(),
+        uss_client::uss_shm_types::Address::new(1).unwrap(),
         &[
             ParamItem::from(&read(1082, None)),
             ParamItem::from(&read(947, Some(1))),
@@ -498,7 +498,7 @@ fn a_malformed_request_with_a_guarded_write_is_refused_for_what_is_wrong_with_it
         storage: uss_client::uss_protocol::Storage::Ram,
     };
     let mut request = ParamRequest::new(
-        uss_client::uss_shm_types::DriveAddress::new(1).unwrap(),
+        uss_client::uss_shm_types::Address::new(1).unwrap(),
         &[
             ParamItem::from(&guarded),
             ParamItem::from(&read(947, Some(1))),

@@ -2,7 +2,7 @@
 //! key back into a drive and a parameter.
 
 use uss_client::uss_protocol::ParamRef;
-use uss_client::uss_shm_types::DriveAddress;
+use uss_client::uss_shm_types::Address;
 
 /// The keys of one bus under a prefix (`uss/<site>`).
 #[derive(Debug, Clone)]
@@ -329,7 +329,7 @@ pub enum BadKey {
 /// A drive address 0..=31 as a key writes it.
 fn address(text: &str) -> Option<u8> {
     let a = text.parse::<u8>().ok()?;
-    DriveAddress::new(a).ok().map(DriveAddress::get)
+    Address::new(a).ok().map(Address::get)
 }
 
 #[cfg(test)]

@@ -16,9 +16,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use uss_protocol::Address;
 use uss_shm_types::names;
-use uss_shm_types::{
-    BlackboardKey, DriveAddress, Instance, NO_STOP_COMMAND, PzdInput, PzdOutput, StopCommand,
-};
+use uss_shm_types::{BlackboardKey, Instance, NO_STOP_COMMAND, PzdInput, PzdOutput, StopCommand};
 
 pub(crate) type OutService = PubSubFactory<Svc, PzdOutput, ()>;
 
@@ -30,7 +28,7 @@ pub(super) fn create_drive(
     address: Address,
     attributes: &AttributeSpecifier,
 ) -> Result<(RtDrive, OutService), IpcError> {
-    let a = DriveAddress::new(address.get()).map_err(|e| fail(bus, "a drive")(e.to_string()))?;
+    let a = address;
     let out = node
         .service_builder(&names::drive_out(bus, a))
         .publish_subscribe::<PzdOutput>()

@@ -287,15 +287,7 @@ impl ParamServer {
     fn accept(&mut self, active: Active, handle: &EngineHandle) {
         let request = *active.payload();
         // Checked once, first: the rules below read the tasks, never the raw items.
-        let checked = request.validate().and_then(|(address, items)| {
-            Address::new(address.get())
-                .map(|a| (a, items))
-                .map_err(|_| uss_shm_types::Refusal {
-                    error: RequestError::UnknownDrive,
-                    item: None,
-                })
-        });
-        let (address, items) = match checked {
+        let (address, items) = match request.validate() {
             Ok(ok) => ok,
             Err(refusal) => {
                 // A client that died meanwhile cannot be answered; nothing else to do.

@@ -16,9 +16,9 @@ use iceoryx2::prelude::*;
 use uss_protocol::Address;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{
-    BlackboardKey, BusName, BusState, BusStatus, ControlState, DriveAddress, DriveDiag, DriveInfo,
-    Heartbeat, Instance, LAYOUT_VERSION, LatchReason, LineFault, LineState, NO_STOP_COMMAND,
-    RtMode, StopCommand, TelegramRecord,
+    BlackboardKey, BusName, BusState, BusStatus, ControlState, DriveDiag, DriveInfo, Heartbeat,
+    Instance, LAYOUT_VERSION, LatchReason, LineFault, LineState, NO_STOP_COMMAND, RtMode,
+    StopCommand, TelegramRecord,
 };
 
 /// The heartbeat's one publisher, on the bus's stable `ussd` service: opened when clients of
@@ -85,8 +85,7 @@ pub(super) fn create(
         .max_readers(MAX_CLIENTS)
         .max_nodes(MAX_NODES);
     for d in drives {
-        let a =
-            DriveAddress::new(d.address.get()).map_err(|e| fail(bus, "a drive")(e.to_string()))?;
+        let a = d.address;
         // What a client needs before the first publish: what ussd knows of the drive.
         let initial = DriveDiag {
             info: info(d),
@@ -103,8 +102,7 @@ pub(super) fn create(
         .map_err(|e| fail(bus, "the diag writer")(text(e)))?;
     let mut diag_entries = Vec::with_capacity(addresses.len());
     for &address in &addresses {
-        let a =
-            DriveAddress::new(address.get()).map_err(|e| fail(bus, "a drive")(e.to_string()))?;
+        let a = address;
         diag_entries.push(
             diag_writer
                 .entry::<DriveDiag>(&BlackboardKey::drive(a))
