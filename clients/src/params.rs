@@ -4,7 +4,7 @@
 
 use crate::request::NoAnswer;
 use crate::{Bus, ClientError, ParamError};
-use uss_protocol::{ParamTask, Pnu, Storage, Subindex, Value};
+use uss_protocol::{ParamRef, ParamTask, Pnu, Storage, Subindex, Value};
 use uss_shm_types::names;
 use uss_shm_types::{
     Address, MAX_PARAM_ITEMS, ParamItem, ParamRequest, ParamResponse, ParamResult, PathError,
@@ -91,6 +91,13 @@ impl Bus {
             address,
             ParamTask::read(Pnu::from_u16(pnu), subindex(index)?),
         )
+    }
+
+    /// Reads the parameter (or array element) `param` names as the manuals write it (`P1082`,
+    /// `r0947[2]`): its number and index, checked when it was written, go into the task as they
+    /// are.
+    pub fn read_ref(&self, address: u8, param: ParamRef) -> Result<Value, ParamError> {
+        self.one(address, ParamTask::read(param.pnu, param.index))
     }
 
     /// Reads a float parameter (a double word holding IEEE-754 bits; P1082 reads 50.0).

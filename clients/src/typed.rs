@@ -199,7 +199,7 @@ impl Bus {
             return self.read_by_value(address, param);
         }
         let (data_type, info) = self.describe_as(address, param.pnu.get(), family)?;
-        let raw = self.read(address, param.pnu.get(), param.index.map(Subindex::get))?;
+        let raw = self.read_ref(address, param)?;
         Ok(ParamValue {
             param: shown_as(param, info),
             raw,
@@ -210,7 +210,7 @@ impl Bus {
 
     /// A parameter read by its value alone, typed by the reply (a generic slave's).
     fn read_by_value(&self, address: u8, param: ParamRef) -> Result<ParamValue, ParamError> {
-        let raw = self.read(address, param.pnu.get(), param.index.map(Subindex::get))?;
+        let raw = self.read_ref(address, param)?;
         Ok(ParamValue {
             param,
             raw,

@@ -24,9 +24,7 @@ pub(crate) fn read(
         // The type the user says, as the drive sent it.
         Some(kind) => ParamValue {
             param,
-            raw: bus
-                .read(drive, param.pnu.get(), param.index.map(Subindex::get))
-                .map_err(failed)?,
+            raw: bus.read_ref(drive, param).map_err(failed)?,
             data_type: kind.data_type(),
             info: None,
         },
