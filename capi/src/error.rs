@@ -5,7 +5,7 @@ use core::ffi::{CStr, c_char};
 use std::cell::RefCell;
 use std::ffi::CString;
 use std::panic::{AssertUnwindSafe, catch_unwind};
-use uss_client::uss_shm_types::{DriveError, NO_STOP_COMMAND, PathError, StopCommand};
+use uss_client::uss_shm_types::{DriveError, PathError, StopCommand};
 use uss_client::{ClientError, Latch, ParamError};
 
 /// What a call came to. `USSRT_STATUS_OK` is 0; every other code has a message
@@ -106,7 +106,7 @@ impl UssrtErrorInfo {
 
     fn with_latch(mut self, latch: &Latch) -> Self {
         self.latch_reason = latch.reason.code();
-        self.latch_command = latch.command.map_or(NO_STOP_COMMAND, StopCommand::code);
+        self.latch_command = StopCommand::code_of(latch.command);
         self.rejection = latch.rejection.code();
         self.latched_by_pid = latch.by_pid;
         self.latched_ms_ago = u32::try_from(latch.ago.as_millis()).unwrap_or(u32::MAX);

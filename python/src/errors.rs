@@ -5,9 +5,7 @@ use pyo3::BoundObject as _;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
-use uss_client::uss_shm_types::{
-    DriveError, NO_STOP_COMMAND, PathError, RequestError, StopCommand,
-};
+use uss_client::uss_shm_types::{DriveError, PathError, RequestError, StopCommand};
 use uss_client::{ClientError, Latch, ParamError};
 
 /// `uss_rt.<class>(*args)` as the error to raise (a `RuntimeError` if the module is broken).
@@ -39,7 +37,7 @@ fn latched(py: Python<'_>, class: &str, address: u8, latch: &Latch, message: Str
         (
             address,
             latch.reason.code(),
-            latch.command.map_or(NO_STOP_COMMAND, StopCommand::code),
+            StopCommand::code_of(latch.command),
             latch.by_pid,
             message,
         ),

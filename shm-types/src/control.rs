@@ -152,6 +152,15 @@ impl StopCommand {
     pub fn of_code(code: u8) -> Option<Self> {
         Self::try_from(code).ok()
     }
+
+    /// The byte that carries `command`: its code, [`NO_STOP_COMMAND`] for none (the inverse of
+    /// [`Self::of_code`]).
+    pub const fn code_of(command: Option<Self>) -> u8 {
+        match command {
+            Some(c) => c.code(),
+            None => NO_STOP_COMMAND,
+        }
+    }
 }
 
 /// An operator's stop command for one drive or every drive of a bus, from any process.
@@ -308,6 +317,9 @@ mod tests {
             assert_eq!(stw1 & 0x0001, 0, "{c}: bit 0 (ON) clear");
         }
         assert_eq!(StopCommand::of_code(NO_STOP_COMMAND), None);
+        for c in [None, Some(StopCommand::Off1), Some(StopCommand::Off3)] {
+            assert_eq!(StopCommand::of_code(StopCommand::code_of(c)), c);
+        }
         assert!(StopCommand::Off2.strength() > StopCommand::Off3.strength());
         assert!(StopCommand::Off3.strength() > StopCommand::Off1.strength());
     }

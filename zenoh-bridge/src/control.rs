@@ -487,12 +487,9 @@ impl Remote<'_> {
         let verified = peer.verified_name().map(str::to_owned);
         // The holder is its `from` and, where Zenoh checked it, its certificate: a peer that
         // sends another's `from` is another sender.
-        if let Some(holder) = self
-            .report
-            .holder
-            .as_ref()
-            .filter(|h| **h != out.from || self.holder_verified != verified)
-        {
+        let holds =
+            self.report.holder.as_ref() == Some(&out.from) && self.holder_verified == verified;
+        if let Some(holder) = self.report.holder.as_ref().filter(|_| !holds) {
             return Err(format!(
                 "drive {} is controlled remotely by {holder:?} until it releases it or falls \
                  silent: nothing of {:?} was sent",
@@ -527,8 +524,6 @@ impl Remote<'_> {
             .pzd(usize::from(info.pzd_words), info.reference_hz)
             .map_err(|e| e.to_string())?;
         let image = c.inputs().latest();
-        let holds =
-            self.report.holder.as_ref() == Some(&out.from) && self.holder_verified == verified;
         if image.is_live() && !holds {
             // Live without this sender having re-armed it: its holder fell silent and ussd has
             // not shown the trip yet. Only a named re-arm of that latch takes it over.
@@ -565,6 +560,13 @@ impl Remote<'_> {
         }
     }
 
+    /// No sender holds the drive any more.
+    fn forget_holder(&mut self) {
+        self.report.holder = None;
+        self.report.holder_peer = None;
+        self.holder_verified = None;
+    }
+
     /// Hands the drive back (ussd sends its safe command, latched as "released").
     fn release(&mut self) {
         if let Some(c) = self.controller.take() {
@@ -572,9 +574,7 @@ impl Remote<'_> {
             self.report.state = "released";
             self.report.error = None;
         }
-        self.report.holder = None;
-        self.report.holder_peer = None;
-        self.holder_verified = None;
+        self.forget_holder();
         self.last_seq = None;
         self.last_taken = None;
         self.active = None;
@@ -666,9 +666,7 @@ fn control_drive(
             // The holder fell silent and the drive tripped: another sender (or the same one
             // restarted, with an older sequence number) may take it, re-arming it by its latch.
             remote.last_seq = None;
-            remote.report.holder = None;
-            remote.report.holder_peer = None;
-            remote.holder_verified = None;
+            remote.forget_holder();
         }
         match newest {
             Ok(sample) => match remote.take(sample) {

@@ -67,7 +67,7 @@ struct Cli {
     /// certificate common name, bus and drive (README, "Who may do what"). Zenoh's access
     /// control binds each listed name to its certificate and subscriptions to `read`; the
     /// bridge checks every put and query and answers a refusal with the missing right. Needs
-    /// mutual TLS.
+    /// mutual TLS or user/password authentication (then the names are users).
     #[arg(long, value_name = "FILE")]
     policy: Option<PathBuf>,
 }

@@ -16,7 +16,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use uss_protocol::Address;
 use uss_shm_types::names;
-use uss_shm_types::{BlackboardKey, Instance, NO_STOP_COMMAND, PzdInput, PzdOutput, StopCommand};
+use uss_shm_types::{BlackboardKey, Instance, PzdInput, PzdOutput, StopCommand};
 
 pub(crate) type OutService = PubSubFactory<Svc, PzdOutput, ()>;
 
@@ -28,9 +28,8 @@ pub(super) fn create_drive(
     address: Address,
     attributes: &AttributeSpecifier,
 ) -> Result<(RtDrive, OutService), IpcError> {
-    let a = address;
     let out = node
-        .service_builder(&names::drive_out(bus, a))
+        .service_builder(&names::drive_out(bus, address))
         .publish_subscribe::<PzdOutput>()
         .max_publishers(names::OUT_MAX_PUBLISHERS)
         .max_subscribers(2)
@@ -46,7 +45,7 @@ pub(super) fn create_drive(
         .create()
         .map_err(|e| fail(bus, format!("the output subscriber of drive {address}"))(text(e)))?;
     let input = node
-        .service_builder(&names::drive_in(bus, a))
+        .service_builder(&names::drive_in(bus, address))
         .blackboard_creator::<BlackboardKey>()
         .max_readers(MAX_CLIENTS)
         .max_nodes(MAX_NODES)
@@ -61,7 +60,7 @@ pub(super) fn create_drive(
         .entry::<PzdInput>(&BlackboardKey::IMAGE)
         .map_err(|e| fail(bus, format!("the input entry of drive {address}"))(text(e)))?;
     let drive = RtDrive {
-        event: EventId::new(names::exchange_completed(a)),
+        event: EventId::new(names::exchange_completed(address)),
         last: (0, 0),
         period: 0,
         subscriber,
@@ -159,7 +158,7 @@ impl Bridge for RtBridge {
         let c = ControlView::of(status, origin);
         image.control = c.state.code();
         image.latch_reason = c.reason.code();
-        image.latch_command = c.command.map_or(NO_STOP_COMMAND, StopCommand::code);
+        image.latch_command = StopCommand::code_of(c.command);
         image.latched_since_ns = c.since_ns;
         image.latch_id = c.id;
         image.latched_by_pid = c.by_pid;

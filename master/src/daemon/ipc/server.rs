@@ -408,7 +408,7 @@ impl ParamServer {
             address,
             tasks,
         } = *checked;
-        if !tasks.iter().any(|t| written(t).is_some()) || request.is_forced() {
+        if !tasks.iter().any(ParamTask::is_write) || request.is_forced() {
             return None;
         }
         let controller = self.identities.controller(address)?;

@@ -17,8 +17,8 @@ use uss_protocol::Address;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{
     BlackboardKey, BusName, BusState, BusStatus, ControlState, DriveDiag, DriveInfo, Heartbeat,
-    Instance, LAYOUT_VERSION, LatchReason, LineFault, LineState, NO_STOP_COMMAND, RtMode,
-    StopCommand, TelegramRecord,
+    Instance, LAYOUT_VERSION, LatchReason, LineFault, LineState, RtMode, StopCommand,
+    TelegramRecord,
 };
 
 /// The heartbeat's one publisher, on the bus's stable `ussd` service: opened when clients of
@@ -85,13 +85,12 @@ pub(super) fn create(
         .max_readers(MAX_CLIENTS)
         .max_nodes(MAX_NODES);
     for d in drives {
-        let a = d.address;
         // What a client needs before the first publish: what ussd knows of the drive.
         let initial = DriveDiag {
             info: info(d),
             ..DriveDiag::new(d.address.get())
         };
-        diag_builder = diag_builder.add::<DriveDiag>(BlackboardKey::drive(a), initial);
+        diag_builder = diag_builder.add::<DriveDiag>(BlackboardKey::drive(d.address), initial);
     }
     let diag = diag_builder
         .create_with_attributes(attributes)
@@ -102,10 +101,9 @@ pub(super) fn create(
         .map_err(|e| fail(bus, "the diag writer")(text(e)))?;
     let mut diag_entries = Vec::with_capacity(addresses.len());
     for &address in &addresses {
-        let a = address;
         diag_entries.push(
             diag_writer
-                .entry::<DriveDiag>(&BlackboardKey::drive(a))
+                .entry::<DriveDiag>(&BlackboardKey::drive(address))
                 .map_err(|e| fail(bus, "a diag entry")(text(e)))?,
         );
     }
@@ -301,7 +299,7 @@ impl StatusPublisher {
                 control: control.state.code(),
                 last_failure: d.last_failure.code(),
                 latch_reason: control.reason.code(),
-                latch_command: control.command.map_or(NO_STOP_COMMAND, StopCommand::code),
+                latch_command: StopCommand::code_of(control.command),
                 rejection: d.rejection.code(),
                 monitoring: d.monitoring.code(),
                 monitoring_ms: d.monitoring_ms,
