@@ -14,6 +14,10 @@
 //!    service): what the bus thread spends per publication handing its timing over, against
 //!    copying the histograms as it did before, with 4 and 31 drives.
 //!
+//! 6. The master's own work per exchange without the wire (`work`): the engine on the virtual
+//!    clock, the bus thread's CPU per exchange with 4 and 31 drives (the simulated drives'
+//!    share included; it is the same for every engine), to compare two builds of the engine.
+//!
 //! The bus threads run `SCHED_FIFO` where the machine allows (root here); the mode is printed.
 
 use std::fmt::Write;
@@ -26,13 +30,36 @@ use uss_master::daemon::runtime::{self, RunOptions};
 use uss_master::engine::clock::SPIN_BEFORE_DEADLINE;
 use uss_master::engine::control::Control;
 use uss_master::engine::stats::{FreshTiming, Published};
-use uss_master::{DriveSetup, Engine, EngineConfig, MonotonicClock, SimTransport, Stats};
+use uss_master::{
+    DriveSetup, Engine, EngineConfig, MonotonicClock, SimTransport, Stats, VirtualClock,
+};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Timing};
 
 /// The S7-1200 library's documented minimum call interval per exchange at 19200 baud (USS.md
 /// section 8).
 const S7_1200_AT_19200_MS: f64 = 68.2;
+
+/// The benchmarks' bus: ussd's defaults but a 500 ms probe and one failed poll to go offline.
+fn engine_config(timing: Timing, drives: Vec<DriveSetup>, capture: bool) -> EngineConfig {
+    EngineConfig {
+        timing,
+        response_timeout: Duration::from_millis(20),
+        retries: 2,
+        offline_after: 1,
+        offline_probe: Duration::from_millis(500),
+        cycle_time: None,
+        param_timeout: Duration::from_secs(2),
+        echo: false,
+        mailbox_depth: 16,
+        publish_every: Duration::from_millis(100),
+        param_priority: false,
+        safety_first: true,
+        rx_latency: Duration::ZERO,
+        capture,
+        drives,
+    }
+}
 
 /// Runs one engine for `exchanges` exchanges with four drives in real time; returns its stats
 /// and the real-time mode its thread got.
@@ -60,23 +87,7 @@ fn run_engine_spinning(
         bus.add(DriveConfig::new(address, layout)).expect("unique");
         drives.push(DriveSetup::new(address, layout));
     }
-    let config = EngineConfig {
-        timing,
-        response_timeout: Duration::from_millis(20),
-        retries: 2,
-        offline_after: 1,
-        offline_probe: Duration::from_millis(500),
-        cycle_time: None,
-        param_timeout: Duration::from_secs(2),
-        echo: false,
-        mailbox_depth: 16,
-        publish_every: Duration::from_millis(100),
-        param_priority: false,
-        safety_first: true,
-        rx_latency: Duration::ZERO,
-        capture,
-        drives,
-    };
+    let config = engine_config(timing, drives, capture);
     let transport = SimTransport::new(VirtualWire::new(bus, timing));
     std::thread::spawn(move || {
         let report = apply_to_current_thread(&RtRequest {
@@ -105,7 +116,7 @@ fn run_engine_spinning(
             }
         });
         let cpu_start = thread_cpu();
-        while engine.stats().bus.exchanges < exchanges {
+        while engine.counters().exchanges < exchanges {
             engine.poll_next().expect("virtual wire never fails");
         }
         let cpu = thread_cpu().saturating_sub(cpu_start);
@@ -444,7 +455,11 @@ fn publish_cost() {
             }
             fresh.histograms.exchange.saturating_record(2_000_000);
             let t = Instant::now();
-            published.hand_over(&stats, &mut fresh);
+            let (counters, pending) = published.hand_over();
+            counters.copy_counters_from(&stats);
+            if let Some(pending) = pending {
+                std::mem::swap(pending, &mut fresh);
+            }
             now.push(t.elapsed().as_secs_f64() * 1e6);
             // The reader's side (housekeeping, not the bus thread).
             let t = Instant::now();
@@ -457,6 +472,49 @@ fn publish_cost() {
             before / now.max(1e-3)
         );
     }
+}
+
+/// Part 6: the bus thread's CPU per exchange on the virtual clock (no waiting: every sleep
+/// returns at once), median of 5 runs of 20000 exchanges after 2000 to warm up.
+fn master_work() {
+    println!(
+        "== master work per exchange on the virtual clock, PKW 4 + PZD 2 at 19200 baud: bus thread CPU, median of 5 runs of 20000 exchanges"
+    );
+    for drives in [4u8, 31] {
+        let mut runs: Vec<f64> = (0..5).map(|_| virtual_run(drives, 20_000)).collect();
+        runs.sort_by(f64::total_cmp);
+        println!(
+            "   {drives:2} drives: {:.2} us per exchange (runs from {:.2} to {:.2})",
+            runs[2], runs[0], runs[4]
+        );
+    }
+}
+
+/// One engine with `drives` simulated drives on the virtual clock: its thread's CPU per
+/// exchange over `exchanges` of them, in us.
+fn virtual_run(drives: u8, exchanges: u32) -> f64 {
+    let timing = Timing::new(Baud::new(19_200).expect("benchmark baud"));
+    let layout = Layout::new(PkwMode::Four, PzdCount::new(2).expect("pzd"));
+    let mut bus = SimBus::new(1);
+    let mut setups = Vec::new();
+    for a in 1..=drives {
+        let address = Address::new(a).expect("address");
+        bus.add(DriveConfig::new(address, layout)).expect("unique");
+        setups.push(DriveSetup::new(address, layout));
+    }
+    let config = engine_config(timing, setups, false);
+    let transport = SimTransport::new(VirtualWire::new(bus, timing));
+    let (mut engine, _handle, events) = Engine::new(config, transport, VirtualClock::new());
+    for _ in 0..2000 {
+        engine.poll_next().expect("virtual wire never fails");
+        while events.try_recv().is_ok() {}
+    }
+    let start = thread_cpu();
+    for _ in 0..exchanges {
+        engine.poll_next().expect("virtual wire never fails");
+    }
+    let cpu = thread_cpu().saturating_sub(start);
+    cpu.as_secs_f64() * 1e6 / f64::from(exchanges)
 }
 
 fn main() {
@@ -476,5 +534,8 @@ fn main() {
     }
     if wanted("publish") {
         publish_cost();
+    }
+    if wanted("work") {
+        master_work();
     }
 }

@@ -2,12 +2,13 @@
 //! ussd's start, the statistics before the first poll, and everything the engine and its
 //! handle share.
 
+use super::stats::DriveHistograms;
 use super::{
-    Arc, AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Bridge, CANCEL_QUEUE, Clock, DriveImages,
-    DriveRt, DriveSetup, Duration, Engine, EngineConfig, EngineHandle, Event, Framer, FramerConfig,
-    FreshTiming, Gate, GateSetup, LOOK_STEP, LocalBridge, MAX_TELEGRAM_BYTES, Mailbox, Mutex,
-    Overrides, PeriodSetup, Periods, Published, Receiver, Shared, Stats, Transport, bounded,
-    capture, monitoring, reference, requesters, stats,
+    Arc, AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Bridge, BusCounters, BusTiming,
+    CANCEL_QUEUE, Clock, Drive, DriveCells, DriveSetup, Duration, Engine, EngineConfig,
+    EngineHandle, Event, Framer, FramerConfig, Gate, GateSetup, LOOK_STEP, LineStatus, LocalBridge,
+    MAX_TELEGRAM_BYTES, Mutex, Overrides, PeriodSetup, Periods, Published, Receiver, Shared, Stats,
+    Transport, bounded, capture, requesters,
 };
 
 /// Builds the circulating list: each drive `weight` times, spread over the cycle (USS.md
@@ -43,24 +44,33 @@ fn gates(drives: &[DriveSetup], clock_origin: Duration, now: Duration) -> Vec<Ga
         .collect()
 }
 
-/// The statistics before the first poll: each drive latched by ussd's start, what is known of
-/// its monitoring and reference, the shortest telegram-off time its polls allow.
-fn initial_stats(drives: &[DriveSetup], gates: &[Gate], periods: &Periods) -> Stats {
-    let mut stats = Stats::new(
-        drives
+/// The statistics as published: a snapshot of the bus and of each drive's record, at `at`,
+/// with everything recorded (allocates: the bus thread publishes with [`Published::hand_over`]).
+pub(super) fn snapshot(
+    at: Duration,
+    bus: BusCounters,
+    line: LineStatus,
+    drives: &[Drive],
+    timing: &BusTiming,
+) -> Stats {
+    Stats {
+        at,
+        bus,
+        line,
+        drives: drives.iter().map(Drive::status).collect(),
+        histograms: timing.totals(),
+        update_period: drives
             .iter()
-            .zip(gates)
-            .map(|(d, g)| (d.address, g.control())),
-    );
-    for (slot, ((status, setup), gate)) in
-        stats.drives.iter_mut().zip(drives).zip(gates).enumerate()
-    {
-        stats::set_control(&mut status.counters, &gate.counters());
-        status.monitoring = monitoring::initial_monitoring(setup);
-        status.reference = reference::Reference::initial(setup);
-        status.monitoring_min = periods.shortest_monitoring(slot);
+            .map(|d| d.timing.update_period.total.clone())
+            .collect(),
+        drive_histograms: drives
+            .iter()
+            .map(|d| DriveHistograms {
+                exchange: d.timing.exchange.total.clone(),
+                response_delay: d.timing.response_delay.total.clone(),
+            })
+            .collect(),
     }
-    stats
 }
 
 /// What the poll periods of `cfg`'s bus depend on. One attempt at worst: the request, the
@@ -119,13 +129,28 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let poll_list = circulating_list(&cfg.drives);
         let period_setup = period_setup(&cfg);
         let periods = Periods::new(&poll_list, cfg.drives.len(), period_setup);
-        let stats = initial_stats(&cfg.drives, &gates, &periods);
+        let drives: Vec<Drive> = cfg
+            .drives
+            .iter()
+            .zip(gates)
+            .enumerate()
+            .map(|(slot, (&setup, gate))| {
+                let shortest = periods.shortest_monitoring(slot);
+                Drive::new(setup, gate, cfg.mailbox_depth, shortest)
+            })
+            .collect();
+        let timing = BusTiming::new();
+        let stats = snapshot(
+            now,
+            BusCounters::default(),
+            LineStatus::default(),
+            &drives,
+            &timing,
+        );
         let shared = Arc::new(Shared {
             setups: cfg.drives.clone(),
             slot_of,
-            images: cfg.drives.iter().map(|_| DriveImages::default()).collect(),
-            output_numbers: cfg.drives.iter().map(|_| AtomicU64::new(0)).collect(),
-            overrides: cfg.drives.iter().map(|_| Overrides::default()).collect(),
+            drives: cfg.drives.iter().map(|_| DriveCells::default()).collect(),
             stop_all: Overrides::default(),
             stats: Mutex::new(Published::new(&stats)),
             stop: AtomicBool::new(false),
@@ -143,22 +168,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let (results_tx, results_rx) = bounded(capacity);
         let (events_tx, events_rx) = bounded(1024);
         let (capture, captures) = capture::Capture::new(cfg.capture);
-        let drives = cfg
-            .drives
-            .iter()
-            .zip(gates)
-            .enumerate()
-            .map(|(slot, (&setup, gate))| DriveRt {
-                setup,
-                mailbox: Mailbox::new(cfg.mailbox_depth),
-                next_probe: Duration::ZERO,
-                gate,
-                overrides_seen: [0; 3],
-                monitoring_due: false,
-                reference_due: false,
-                shortest_monitoring: periods.shortest_monitoring(slot),
-            })
-            .collect();
         let engine = Self {
             framer: Framer::new(FramerConfig::with_latency(cfg.timing, cfg.rx_latency)),
             transport,
@@ -188,8 +197,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             results: results_tx,
             events: events_tx,
             capture,
-            timing: FreshTiming::new(cfg.drives.len()),
-            stats,
+            bus: BusCounters::default(),
+            line: LineStatus::default(),
+            timing,
+            snapshot: std::cell::OnceCell::new(),
             cfg,
             bridge,
         };

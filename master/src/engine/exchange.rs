@@ -5,9 +5,8 @@
 use super::{
     Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, FrameError, LastFailure,
     MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, ParamReply, PathError, ReplyKind,
-    Transport, TransportError, Words, encode, record_both,
+    Transport, TransportError, Words, encode,
 };
-use uss_protocol::{DriveState, Zsw1};
 
 /// How one attempt ended.
 pub(super) enum Attempt {
@@ -46,7 +45,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let mut last = LastFailure::NoResponse;
         for attempt in 0..=self.cfg.retries {
             if attempt > 0 {
-                self.stats.drives[slot].counters.retries += 1;
+                self.drives[slot].counters.retries += 1;
                 self.serve_out_of_turn(Some(slot))?;
             }
             let now = self.clock.now();
@@ -60,10 +59,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                     return Ok(());
                 }
                 Attempt::Failed(f) => {
-                    let c = &mut self.stats.drives[slot].counters;
-                    c.rejected += 1;
-                    c.count(f);
-                    self.stats.drives[slot].last_failure = f;
+                    let d = &mut self.drives[slot];
+                    d.attempt_failed(f);
+                    d.link.last_failure = f;
                     last = f;
                     if attempt < self.cfg.retries {
                         self.emit(Event::Retry {
@@ -81,6 +79,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         Ok(())
     }
 
+    /// A good reply from the drive in `slot` (`begin`: when the line was free before its
+    /// request): its link, what it said, its timing, its input image, then its parameter reply.
     pub(super) fn on_reply(
         &mut self,
         slot: usize,
@@ -88,85 +88,23 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         begin: Duration,
         timing: ReplyTiming,
     ) {
-        let address = self.drives[slot].setup.address;
-        let status = &mut self.stats.drives[slot];
-        status.counters.good += 1;
-        self.stats.bus.good += 1;
-        if let Some(previous) = status.last_good {
-            record_both(
-                &mut self.stats.update_period[slot],
-                &mut self.timing.update_period[slot],
-                timing.done.saturating_sub(previous),
-            );
+        self.bus.good += 1;
+        let d = &mut self.drives[slot];
+        d.counters.good += 1;
+        let good = d.counters.good;
+        let (since_last, came_back) = d.link.good(timing.done);
+        if let Some(period) = since_last {
+            d.timing.update_period.record(period);
         }
-        status.last_good = Some(timing.done);
-        status.no_reply = false;
-        status.consecutive_failed_polls = 0;
-        let pzd = words.pzd();
-        let zsw1 = pzd.first().copied().unwrap_or(0);
-        let state = |z| DriveState::from_zsw1(Zsw1::from_bits_retain(z));
-        let from = (status.counters.good > 1).then(|| state(status.last_zsw1));
-        let changed = !pzd.is_empty() && from != Some(state(zsw1));
-        let taken = |z: u16| Zsw1::from_bits_retain(z).contains(Zsw1::CONTROL_REQUESTED);
-        let took = (status.counters.good > 1).then(|| taken(status.last_zsw1));
-        // Said when it changes, and at the first reply only when the drive does not take them.
-        let commands =
-            (!pzd.is_empty() && took != Some(taken(zsw1)) && (took.is_some() || !taken(zsw1)))
-                .then_some(taken(zsw1));
-        status.last_zsw1 = zsw1;
-        status.last_hiw = pzd.get(1).copied().unwrap_or(0);
-        let came_back = !status.online;
-        if came_back {
-            status.online = true;
-            status.known = true;
-            status.since = timing.done;
+        let said = d.heard(words.pzd(), good == 1);
+        let address = d.setup.address;
+        self.record_exchange(slot, words, begin, timing);
+        for event in said.events(address, timing.done) {
+            self.emit(event);
         }
-        let good = status.counters.good;
-        // The STX's arrival time is the end of its stop bit: its start was one tz earlier.
-        let tz = self.cfg.timing.char_time();
-        let response_delay = timing.stx_at.saturating_sub(tz + timing.request_end);
-        let exchange = timing.done.saturating_sub(begin);
-        let (h, t) = (&mut self.stats.histograms, &mut self.timing.histograms);
-        record_both(&mut h.response_delay, &mut t.response_delay, response_delay);
-        record_both(&mut h.exchange, &mut t.exchange, exchange);
-        let d = &mut self.stats.drive_histograms[slot];
-        let t = &mut self.timing.drive_histograms[slot];
-        record_both(&mut d.response_delay, &mut t.response_delay, response_delay);
-        record_both(&mut d.exchange, &mut t.exchange, exchange);
-        let reply_len = 4 + 2 * (words.pkw().len() + words.pzd().len());
-        let chars = (timing.request_len + reply_len) as u64;
-        let floor = self.cfg.timing.start_pause() + self.cfg.timing.chars(chars) + response_delay;
-        // An exchange shorter than its characters take at the baud rate was not timed by the
-        // wire: the reply came out of a buffer faster than a line carries it (a pty, a stalled
-        // sender's backlog). It says nothing of efficiency, which is at most 1 by definition.
-        if timing.first_attempt {
-            let bus = &mut self.stats.bus;
-            if exchange >= floor {
-                bus.exchange_ns += u64::try_from(exchange.as_nanos()).unwrap_or(u64::MAX);
-                bus.wire_floor_ns += u64::try_from(floor.as_nanos()).unwrap_or(u64::MAX);
-                bus.timed += 1;
-            } else {
-                bus.untimed += 1;
-            }
-        }
-        if let Some(taken) = commands {
-            self.emit(Event::Commands {
-                address,
-                at: timing.done,
-                taken,
-            });
-        }
-        if changed {
-            self.emit(Event::StateChanged {
-                address,
-                at: timing.done,
-                from,
-                to: state(zsw1),
-            });
-        }
-        let image = &self.shared.images[slot];
+        let image = &self.shared.drives[slot].images;
         image.input.write(
-            pzd,
+            words.pzd(),
             good,
             u64::try_from(timing.done.as_nanos()).unwrap_or(u64::MAX),
         );
@@ -176,57 +114,90 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 address,
                 at: timing.done,
             });
-        }
-        if came_back {
             // A drive that comes online may have been replaced or reset: read its monitoring
             // and its reference frequency.
             self.drives[slot].monitoring_due = true;
             self.drives[slot].reference_due = true;
         }
         self.last_reply_done = Some(timing.done);
-        if words.pkw().is_empty() || self.drives[slot].mailbox.is_empty() {
+        self.take_param_reply(slot, words.pkw(), timing.done);
+    }
+
+    /// A good reply's timing: the drive's response delay and the exchange, for the drive and
+    /// the bus; a first attempt's exchange against its wire-time floor (USS.md section 4).
+    fn record_exchange(&mut self, slot: usize, words: &Words, begin: Duration, t: ReplyTiming) {
+        // The STX's arrival time is the end of its stop bit: its start was one tz earlier.
+        let tz = self.cfg.timing.char_time();
+        let response_delay = t.stx_at.saturating_sub(tz + t.request_end);
+        let exchange = t.done.saturating_sub(begin);
+        self.timing.response_delay.record(response_delay);
+        self.timing.exchange.record(exchange);
+        let d = &mut self.drives[slot].timing;
+        d.response_delay.record(response_delay);
+        d.exchange.record(exchange);
+        if !t.first_attempt {
             return;
         }
-        if let Ok(reply) = ParamReply::decode(words.pkw()) {
-            if reply.kind == ReplyKind::NotYet {
-                self.stats.drives[slot].counters.pkw_busy += 1;
-            }
-            if let Some(result) = self.drives[slot].mailbox.on_reply(&reply, timing.done) {
-                self.deliver(result);
-            }
+        let reply_len = 4 + 2 * (words.pkw().len() + words.pzd().len());
+        let chars = (t.request_len + reply_len) as u64;
+        let floor = self.cfg.timing.start_pause() + self.cfg.timing.chars(chars) + response_delay;
+        // An exchange shorter than its characters take at the baud rate was not timed by the
+        // wire: the reply came out of a buffer faster than a line carries it (a pty, a stalled
+        // sender's backlog). It says nothing of efficiency, which is at most 1 by definition.
+        let bus = &mut self.bus;
+        if exchange >= floor {
+            bus.exchange_ns += u64::try_from(exchange.as_nanos()).unwrap_or(u64::MAX);
+            bus.wire_floor_ns += u64::try_from(floor.as_nanos()).unwrap_or(u64::MAX);
+            bus.timed += 1;
+        } else {
+            bus.untimed += 1;
         }
     }
 
+    /// The PKW words of a good reply: the answer to the drive's job on the wire, if any.
+    fn take_param_reply(&mut self, slot: usize, pkw: &[u16], at: Duration) {
+        let d = &mut self.drives[slot];
+        if pkw.is_empty() || d.mailbox.is_empty() {
+            return;
+        }
+        let Ok(reply) = ParamReply::decode(pkw) else {
+            return;
+        };
+        if reply.kind == ReplyKind::NotYet {
+            d.counters.pkw_busy += 1;
+        }
+        if let Some(result) = d.mailbox.on_reply(&reply, at) {
+            self.deliver(result);
+        }
+    }
+
+    /// A poll of the drive in `slot` failed all its retries (the last with `failure`): it may
+    /// go offline, and then its jobs end.
     pub(super) fn on_failed_poll(&mut self, slot: usize, failure: LastFailure) {
         let now = self.clock.now();
-        let address = self.drives[slot].setup.address;
-        let status = &mut self.stats.drives[slot];
-        status.counters.failed_polls += 1;
-        status.no_reply = true;
-        status.consecutive_failed_polls += 1;
-        self.drives[slot].next_probe = now + self.cfg.offline_probe;
-        // A drive of unknown state is offline with its first failed poll; an online one after
-        // `offline_after` in a row.
-        let decides = !status.known
-            || (status.online && status.consecutive_failed_polls >= self.cfg.offline_after);
-        if decides {
-            status.online = false;
-            status.known = true;
-            status.since = now;
-            self.shared.images[slot]
-                .online
-                .store(false, Ordering::Release);
-            self.emit(Event::DriveOffline {
-                address,
-                at: now,
-                failure,
-            });
-            while let Some(r) = self.drives[slot]
-                .mailbox
-                .finish(Err(PathError::DriveOffline), now)
-            {
-                self.deliver(r);
-            }
+        let d = &mut self.drives[slot];
+        d.counters.failed_polls += 1;
+        if !d
+            .link
+            .failed(now, self.cfg.offline_after, self.cfg.offline_probe)
+        {
+            return;
+        }
+        let address = d.setup.address;
+        self.shared.drives[slot]
+            .images
+            .online
+            .store(false, Ordering::Release);
+        self.emit(Event::DriveOffline {
+            address,
+            at: now,
+            failure,
+        });
+        while let Some(r) = self.drives[slot]
+            .mailbox
+            .finish(Err(PathError::DriveOffline), now)
+        {
+            self.deliver(r);
         }
     }
 
@@ -257,22 +228,14 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         };
         if let Some(seen) = self.last_reply_seen.take() {
             let ready = self.clock.now();
-            record_both(
-                &mut self.stats.histograms.work,
-                &mut self.timing.histograms.work,
-                ready.saturating_sub(seen),
-            );
+            self.timing.work.record(ready.saturating_sub(seen));
         }
         // The start pause, then a clean input buffer, then our telegram (USS.md section 4).
         self.clock
             .sleep_until_precise(self.line_free_at + self.cfg.timing.start_pause());
         let send_at = self.clock.now();
         if let Some(done) = self.last_reply_done.take() {
-            record_both(
-                &mut self.stats.histograms.turnaround,
-                &mut self.timing.histograms.turnaround,
-                send_at.saturating_sub(done),
-            );
+            self.timing.turnaround.record(send_at.saturating_sub(done));
         }
         self.transport.flush_input(send_at)?;
         self.framer.reset();
@@ -282,8 +245,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         if carries_task {
             self.drives[slot].mailbox.sent(send_at);
         }
-        self.stats.drives[slot].counters.requests += 1;
-        self.stats.bus.exchanges += 1;
+        self.drives[slot].counters.requests += 1;
+        self.bus.exchanges += 1;
         self.framer.line_busy_until(request_end);
         self.line_free_at = request_end;
         let attempt = if self.cfg.echo
@@ -359,7 +322,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                     Ok(words) => {
                         if let Some(g) = garbage {
                             let slot = self.slot(setup.address);
-                            self.stats.drives[slot].counters.count(g);
+                            self.drives[slot].counters.count(g);
                         }
                         self.last_reply_seen = Some(self.clock.now());
                         let timing = ReplyTiming {

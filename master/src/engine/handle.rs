@@ -24,7 +24,10 @@ impl EngineHandle {
             });
         }
         let number = self.next_number(slot);
-        let shown = self.shared.images[slot].latch_id.load(Ordering::Acquire);
+        let shown = self.shared.drives[slot]
+            .images
+            .latch_id
+            .load(Ordering::Acquire);
         let sample = PzdOutput::from_words(words, number, 0, std::process::id())
             .map_err(|_| SubmitError::PzdWords {
                 address,
@@ -32,7 +35,7 @@ impl EngineHandle {
                 allowed,
             })?
             .naming(shown);
-        self.shared.images[slot].output.put(sample);
+        self.shared.drives[slot].images.output.put(sample);
         Ok(())
     }
 
@@ -40,7 +43,7 @@ impl EngineHandle {
     /// controller could: the engine's checks decide what reaches the drive.
     pub fn publish_sample(&self, address: Address, sample: PzdOutput) -> Result<(), SubmitError> {
         let slot = self.shared.slot(address)?;
-        self.shared.images[slot].output.put(sample);
+        self.shared.drives[slot].images.output.put(sample);
         Ok(())
     }
 
@@ -50,12 +53,15 @@ impl EngineHandle {
         let slot = self.shared.slot(address)?;
         let number = self.next_number(slot);
         let sample = PzdOutput::release(number, 0, std::process::id());
-        self.shared.images[slot].output.put(sample);
+        self.shared.drives[slot].images.output.put(sample);
         Ok(())
     }
 
     fn next_number(&self, slot: usize) -> u64 {
-        self.shared.output_numbers[slot].fetch_add(1, Ordering::Relaxed) + 1
+        self.shared.drives[slot]
+            .output_number
+            .fetch_add(1, Ordering::Relaxed)
+            + 1
     }
 
     /// An operator's stop command (OFF1, OFF2, OFF3) for drive `address`, or every drive with
@@ -78,7 +84,7 @@ impl EngineHandle {
         let every = address.is_none();
         let mut reached = 0u32;
         for slot in slots {
-            let o = &self.shared.overrides[slot];
+            let o = &self.shared.drives[slot].overrides;
             o.pid.store(pid, Ordering::Relaxed);
             o.counts[which].fetch_add(1, Ordering::Release);
             reached |= 1 << self.shared.setups[slot].address.get();
@@ -97,7 +103,7 @@ impl EngineHandle {
         address: Address,
     ) -> Result<(Option<crate::engine::image::Words>, bool), SubmitError> {
         let slot = self.shared.slot(address)?;
-        let image = &self.shared.images[slot];
+        let image = &self.shared.drives[slot].images;
         let words = image
             .input
             .is_written()

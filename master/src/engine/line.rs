@@ -3,7 +3,7 @@
 
 use super::{
     Bridge, Clock, Duration, Engine, Event, LatchReason, LineFailure, Ordering, PathError,
-    Transition, Transport, TransportError, latch_id_of, stats,
+    Transition, Transport, TransportError, latch_id_of,
 };
 
 impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
@@ -12,25 +12,22 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// the line is back. Nothing can be sent meanwhile: a running drive's own telegram
     /// monitoring (P2014) is what stops it.
     pub fn line_down(&mut self, error: &TransportError) {
+        self.snapshot.take();
         let now = self.clock.now();
         let fault = LineFailure::of(error);
         self.shared.reopen_attempts.store(0, Ordering::Relaxed);
         self.shared.line_down.store(true, Ordering::Release);
         self.fail_all_jobs(Err(PathError::LineDown));
         for slot in 0..self.drives.len() {
-            let status = &mut self.stats.drives[slot];
-            if status.online {
-                status.online = false;
-                status.since = now;
-            }
-            status.no_reply = true;
-            self.shared.images[slot]
+            self.drives[slot].link.line_down(now);
+            self.shared.drives[slot]
+                .images
                 .online
                 .store(false, Ordering::Release);
             self.after_poll(slot);
         }
-        self.stats.line.down = Some((now, fault));
-        self.stats.line.downs += 1;
+        self.line.down = Some((now, fault));
+        self.line.downs += 1;
         self.emit(Event::LineDown { at: now, fault });
         self.publish();
     }
@@ -39,6 +36,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// and is probed at once, coming online with its first good reply. A drive that ran before
     /// runs again only when its controller re-arms it (OFF1, then ON).
     pub fn restore(&mut self, transport: T) {
+        self.snapshot.take();
         let now = self.clock.now();
         self.transport = transport;
         self.framer.reset();
@@ -49,15 +47,13 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.last_reply_seen = None;
         for slot in 0..self.drives.len() {
             let d = &mut self.drives[slot];
-            d.next_probe = now;
+            d.link.next_probe = now;
             let change = d.gate.latch(LatchReason::LineRestored, now);
             let address = d.setup.address;
-            let status = &mut self.stats.drives[slot];
-            status.control = d.gate.control();
-            self.shared.images[slot]
+            self.shared.drives[slot]
+                .images
                 .latch_id
-                .store(latch_id_of(status.control), Ordering::Release);
-            stats::set_control(&mut status.counters, &d.gate.counters());
+                .store(latch_id_of(d.gate.control()), Ordering::Release);
             if let Transition::Latched { latch, rejection } = change {
                 self.emit(Event::Latched {
                     address,
@@ -67,7 +63,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             }
         }
         let down_for = self
-            .stats
             .line
             .down
             .take()

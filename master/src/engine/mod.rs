@@ -22,7 +22,9 @@ pub mod transport;
 
 mod build;
 mod capture;
+mod drive;
 pub use capture::CAPTURE_QUEUE;
+use drive::Drive;
 mod exchange;
 use exchange::Attempt;
 mod handle;
@@ -35,11 +37,11 @@ use crate::engine::control::{
     Control, Gate, GateSetup, Latch, Operator, Poll, Transition, latch_id_of,
 };
 use crate::engine::image::DriveImages;
-use crate::engine::jobs::{Encoded, Job, JobResult, Mailbox, Requester};
+use crate::engine::jobs::{Encoded, Job, JobResult, Requester};
 use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
 use crate::engine::period::{PeriodSetup, Periods};
 use crate::engine::stats::{
-    DriveStatus, FreshTiming, LastFailure, LineFailure, Published, Stats, record_both,
+    BusCounters, BusTiming, DriveStatus, LastFailure, LineFailure, LineStatus, Published, Stats,
 };
 use crate::engine::transport::{Transport, TransportError};
 use core::time::Duration;
@@ -349,14 +351,22 @@ const fn stop_index(command: StopCommand) -> usize {
     }
 }
 
+/// What other threads reach of one drive: its process images, the number of the last output
+/// sample handed in, its operator stops. The bus thread's own record of it is [`Drive`].
+#[derive(Debug, Default)]
+struct DriveCells {
+    images: DriveImages,
+    output_number: AtomicU64,
+    overrides: Overrides,
+}
+
 /// State shared by the engine and its handles.
 #[derive(Debug)]
 struct Shared {
     setups: Vec<DriveSetup>,
     slot_of: [Option<u8>; 32],
-    images: Vec<DriveImages>,
-    output_numbers: Vec<AtomicU64>,
-    overrides: Vec<Overrides>,
+    /// What other threads reach of each drive, by slot.
+    drives: Vec<DriveCells>,
     /// Stops of every drive at once (OFF1, OFF2, OFF3 counts): each goes out as a broadcast
     /// (`engine::turns`) besides each drive's own override.
     stop_all: Overrides,
@@ -394,25 +404,6 @@ pub struct EngineHandle {
     captures: Receiver<uss_shm_types::TelegramRecord>,
 }
 
-/// Per-drive state the engine keeps.
-#[derive(Debug)]
-struct DriveRt {
-    setup: DriveSetup,
-    mailbox: Mailbox,
-    next_probe: Duration,
-    /// Decides the words that go out (`crate::engine::control`).
-    gate: Gate,
-    /// Operator commands already taken: OFF1, OFF2, OFF3.
-    overrides_seen: [u32; 3],
-    /// The telegram-monitoring parameter should be read (the drive came online).
-    monitoring_due: bool,
-    /// The reference-frequency parameter should be read (the drive came online).
-    reference_due: bool,
-    /// The shortest telegram-off time that does not trip the drive between two of its polls
-    /// (`Periods::shortest_monitoring`).
-    shortest_monitoring: Duration,
-}
-
 /// The bus engine. See the module documentation.
 #[derive(Debug)]
 pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
@@ -421,7 +412,8 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     clock: C,
     framer: Framer,
     shared: Arc<Shared>,
-    drives: Vec<DriveRt>,
+    /// Everything the engine keeps of each drive, by slot (`engine::drive`).
+    drives: Vec<Drive>,
     poll_list: Vec<u8>,
     /// Each drive's expected poll period and freshness limit, published with its image.
     periods: Periods,
@@ -458,9 +450,12 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     results: Sender<JobResult>,
     events: Sender<Event>,
     capture: capture::Capture,
-    stats: Stats,
-    /// What was recorded into `stats`' histograms since the last hand-over to `shared.stats`.
-    timing: FreshTiming,
+    bus: BusCounters,
+    line: LineStatus,
+    /// The bus's timing; each drive's is in its record.
+    timing: BusTiming,
+    /// [`Engine::stats`]' snapshot, built when asked for and dropped by the next step.
+    snapshot: std::cell::OnceCell<Stats>,
     bridge: B,
 }
 
@@ -470,6 +465,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     }
 
     pub fn clock_mut(&mut self) -> &mut C {
+        self.snapshot.take();
         &mut self.clock
     }
 
@@ -478,12 +474,29 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     }
 
     pub fn transport_mut(&mut self) -> &mut T {
+        self.snapshot.take();
         &mut self.transport
     }
 
-    /// The engine's own statistics (the published copy lags by up to `publish_every`).
+    /// The bus's counters now (cheap: no snapshot).
+    pub fn counters(&self) -> &BusCounters {
+        &self.bus
+    }
+
+    /// The engine's statistics now: a snapshot built from its drives when first asked for
+    /// after a step (the published copy, [`EngineHandle::stats`], lags by up to
+    /// `publish_every`). It allocates, and the next step drops it: for tests, benchmarks and
+    /// tools that run an engine in their own thread, not for ussd's bus thread.
     pub fn stats(&self) -> &Stats {
-        &self.stats
+        self.snapshot.get_or_init(|| {
+            build::snapshot(
+                self.clock.now(),
+                self.bus,
+                self.line,
+                &self.drives,
+                &self.timing,
+            )
+        })
     }
 
     /// Polls until the handle asks to stop, then shuts down (see [`Engine::shutdown`]). When
@@ -502,6 +515,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// Polls the next drive in the circulating list (or waits for the next offline probe when
     /// every drive is offline). Returns the address polled.
     pub fn poll_next(&mut self) -> Result<Option<Address>, TransportError> {
+        self.snapshot.take();
         self.shared.progress.fetch_add(1, Ordering::Relaxed);
         self.take_jobs();
         self.take_cancels();
@@ -526,9 +540,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// Ends every pending job with [`PathError::Shutdown`] and sends each drive its safe command
     /// once (one attempt, no retries).
     pub fn shutdown(&mut self) -> Result<(), TransportError> {
+        self.snapshot.take();
         self.shared.stop.store(true, Ordering::Release);
         self.fail_all_jobs(Err(PathError::Shutdown));
-        if self.stats.line.down.is_some() {
+        if self.line.down.is_some() {
             // Nothing reaches the drives; their own telegram monitoring stops them.
             self.publish();
             return Ok(());
@@ -546,11 +561,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             let begin = self.line_free_at;
             match self.attempt(slot, &output[..len], false)? {
                 Attempt::Reply { words, timing } => self.on_reply(slot, &words, begin, timing),
-                Attempt::Failed(f) => {
-                    let c = &mut self.stats.drives[slot].counters;
-                    c.rejected += 1;
-                    c.count(f);
-                }
+                Attempt::Failed(f) => self.drives[slot].attempt_failed(f),
             }
         }
         self.publish();
@@ -570,14 +581,14 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// Moves submitted jobs into their drives' mailboxes.
     fn take_jobs(&mut self) {
         while let Ok((job, pkw, requester)) = self.jobs.try_recv() {
-            self.stats.bus.jobs_accepted += 1;
+            self.bus.jobs_accepted += 1;
             let Some(slot) = self.shared.slot_of[job.address.get() as usize].map(usize::from)
             else {
                 continue; // the handle checked the address; a stale job cannot name another
             };
             let outcome = if self.shared.stop.load(Ordering::Acquire) {
                 Some(PathError::Shutdown)
-            } else if self.stats.drives[slot].known && !self.stats.drives[slot].online {
+            } else if self.drives[slot].link.known && !self.drives[slot].link.online {
                 Some(PathError::DriveOffline)
             } else {
                 self.drives[slot]
@@ -605,7 +616,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .mailbox
             .drop_unsent_if(|who| shared.requesters.has_ended(who))
         {
-            self.stats.bus.jobs_cancelled += 1;
+            self.bus.jobs_cancelled += 1;
             self.deliver(r);
         }
     }
@@ -615,7 +626,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         while let Ok(ids) = self.cancels.try_recv() {
             for slot in 0..self.drives.len() {
                 while let Some(r) = self.drives[slot].mailbox.cancel(ids.clone()) {
-                    self.stats.bus.jobs_cancelled += 1;
+                    self.bus.jobs_cancelled += 1;
                     self.deliver(r);
                 }
             }
@@ -641,23 +652,23 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         if result.job.id & INTERNAL_JOB != 0 {
             return; // ussd's own read: nobody waits for it
         }
-        self.stats.bus.jobs_finished += 1;
-        if let Some(slot) = self.shared.slot_of[result.job.address.get() as usize] {
-            self.stats.drives[usize::from(slot)].counters.jobs_done += 1;
+        self.bus.jobs_finished += 1;
+        if let Some(slot) = slot {
+            self.drives[slot].counters.jobs_done += 1;
         }
         // Cannot be full: outstanding jobs are capped at the channel's capacity; disconnected
         // only when the parameter bridge is gone. Either way the result is lost, and counted.
         match self.results.try_send(result) {
             Ok(()) => self.bridge.job_done(),
             Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
-                self.stats.bus.results_lost += 1;
+                self.bus.results_lost += 1;
             }
         }
     }
 
     fn emit(&mut self, event: Event) {
         if self.events.try_send(event).is_err() {
-            self.stats.bus.events_dropped += 1;
+            self.bus.events_dropped += 1;
         }
     }
 
@@ -669,9 +680,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             return None;
         }
         let n = self.drives.len();
-        let found = (0..n).map(|k| (self.extra_cursor + k) % n).find(|&slot| {
-            self.stats.drives[slot].online && !self.drives[slot].mailbox.is_empty()
-        })?;
+        let found = (0..n)
+            .map(|k| (self.extra_cursor + k) % n)
+            .find(|&slot| self.drives[slot].link.online && !self.drives[slot].mailbox.is_empty())?;
         self.extra_cursor = (found + 1) % n;
         self.extra_was_last = true;
         Some(found)
@@ -692,7 +703,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             }
             let slot = usize::from(self.poll_list[self.position]);
             self.position += 1;
-            if self.stats.drives[slot].online || now >= self.drives[slot].next_probe {
+            let link = &self.drives[slot].link;
+            if link.online || now >= link.next_probe {
                 return Ok(Some(slot));
             }
         }
@@ -700,7 +712,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let next = self
             .drives
             .iter()
-            .map(|d| d.next_probe)
+            .map(|d| d.link.next_probe)
             .min()
             .unwrap_or(now);
         self.transport.idle(now);
@@ -728,15 +740,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let now = self.clock.now();
         let took = now.saturating_sub(self.cycle_start);
         self.periods.cycle_done(took);
-        self.stats.bus.cycles += 1;
-        record_both(
-            &mut self.stats.histograms.cycle,
-            &mut self.timing.histograms.cycle,
-            took,
-        );
+        self.bus.cycles += 1;
+        self.timing.cycle.record(took);
         match self.cfg.cycle_time {
             Some(cycle) if took > cycle => {
-                self.stats.bus.cycle_overruns += 1;
+                self.bus.cycle_overruns += 1;
                 self.emit(Event::CycleOverrun { at: now, took });
                 self.cycle_start = now;
             }
@@ -754,11 +762,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// how much longer than its work explains the engine did not look); its status follows, a
     /// change is an event.
     fn observe(&mut self, slot: usize, now: Duration, gap: Duration) -> Option<Transition> {
-        let sample = self.bridge.take_sample(slot, &self.shared.images[slot]);
+        let sample = self
+            .bridge
+            .take_sample(slot, &self.shared.drives[slot].images);
         let operator = self.take_override(slot);
         let d = &mut self.drives[slot];
-        let status = &mut self.stats.drives[slot];
-        let on_allowed = d.setup.monitoring.allows_on(status.monitoring);
+        let on_allowed = d.setup.monitoring.allows_on(d.monitoring);
         let change = d.gate.observe(Poll {
             now,
             gap,
@@ -769,14 +778,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         if sample.is_none() && change.is_none() {
             return None;
         }
-        status.control = d.gate.control();
-        self.shared.images[slot]
+        self.shared.drives[slot]
+            .images
             .latch_id
-            .store(latch_id_of(status.control), Ordering::Release);
-        status.rejection = d.gate.rejection();
-        status.controller_pid = d.gate.controller_pid();
-        status.taken_sequence = d.gate.taken_sequence();
-        stats::set_control(&mut status.counters, &d.gate.counters());
+            .store(latch_id_of(d.gate.control()), Ordering::Release);
         let address = d.setup.address;
         match change {
             Some(Transition::Latched { latch, rejection }) => self.emit(Event::Latched {
@@ -799,8 +804,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// the drive is no longer due out of turn.
     fn output(&mut self, slot: usize, now: Duration, out: &mut [u16; MAX_PZD_WORDS]) {
         self.observe(slot, now, Duration::ZERO);
-        self.drives[slot].gate.words(out);
-        self.stats.drives[slot].sent = [out[0], out[1]];
+        let d = &mut self.drives[slot];
+        d.gate.words(out);
+        d.sent = [out[0], out[1]];
         self.out_of_turn &= !(1u32 << slot);
         self.broadcast_heard &= !(1u32 << slot);
     }
@@ -808,16 +814,16 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// After every poll of the drive in `slot`, good or failed: its period and freshness limit
     /// as they are now, then its image to the clients.
     fn after_poll(&mut self, slot: usize) {
-        let status = &mut self.stats.drives[slot];
-        status.period = self.periods.period(slot, status.online);
-        status.stale_after = self.periods.stale_after(slot, status.online);
+        let d = &mut self.drives[slot];
+        d.period = self.periods.period(slot, d.link.online);
+        d.stale_after = self.periods.stale_after(slot, d.link.online);
         self.bridge
-            .after_poll(slot, &self.shared.images[slot], &self.stats.drives[slot]);
+            .after_poll(slot, &self.shared.drives[slot].images, &d.status());
     }
 
     /// The strongest operator command that arrived for the drive since its last poll.
     fn take_override(&mut self, slot: usize) -> Option<Operator> {
-        let o = &self.shared.overrides[slot];
+        let o = &self.shared.drives[slot].overrides;
         let seen = &mut self.drives[slot].overrides_seen;
         let mut strongest: Option<StopCommand> = None;
         for (i, command) in STOPS.into_iter().enumerate() {
@@ -842,13 +848,29 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
     }
 
-    /// Copies the statistics to the shared snapshot unless a reader holds it right now.
+    /// Writes a snapshot of the drives into the shared statistics, and hands the timing
+    /// recorded since over, unless a reader holds them right now.
     fn publish(&mut self) {
         let now = self.clock.now();
-        self.stats.at = now;
-        if let Ok(mut shared) = self.shared.stats.try_lock() {
-            shared.hand_over(&self.stats, &mut self.timing);
-            self.last_publish = now;
+        let Ok(mut shared) = self.shared.stats.try_lock() else {
+            return;
+        };
+        let (stats, pending) = shared.hand_over();
+        stats.at = now;
+        stats.bus = self.bus;
+        stats.line = self.line;
+        for (status, d) in stats.drives.iter_mut().zip(&self.drives) {
+            *status = d.status();
         }
+        if let Some(pending) = pending {
+            self.timing.hand_over(&mut pending.histograms);
+            for (slot, d) in self.drives.iter_mut().enumerate() {
+                let (t, p) = (&mut d.timing, &mut pending.drive_histograms[slot]);
+                t.exchange.hand_over(&mut p.exchange);
+                t.response_delay.hand_over(&mut p.response_delay);
+                t.update_period.hand_over(&mut pending.update_period[slot]);
+            }
+        }
+        self.last_publish = now;
     }
 }

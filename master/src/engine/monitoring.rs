@@ -9,7 +9,7 @@
 use super::clock::Clock;
 use super::jobs::{Encoded, Job, JobResult};
 use super::transport::Transport;
-use super::{Bridge, DriveRt, DriveSetup, Engine, Event, INTERNAL_JOB};
+use super::{Bridge, Drive, DriveSetup, Engine, Event, INTERNAL_JOB};
 use core::time::Duration;
 use uss_protocol::{ParamRef, ParamTask, PkwMode, Pnu, Subindex, Value};
 use uss_shm_types::{Answer, Monitoring, PathError};
@@ -149,15 +149,14 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 return;
             }
         };
-        let status = &mut self.stats.drives[slot];
-        let changed = (status.monitoring, status.monitoring_ms) != (state, ms);
-        status.monitoring = state;
-        status.monitoring_ms = ms;
+        let d = &mut self.drives[slot];
+        let changed = (d.monitoring, d.monitoring_ms) != (state, ms);
+        d.monitoring = state;
+        d.monitoring_ms = ms;
         if changed {
-            let address = self.drives[slot].setup.address;
+            let address = d.setup.address;
             let at = self.clock.now();
-            let shortest_ms = u32::try_from(self.drives[slot].shortest_monitoring.as_millis())
-                .unwrap_or(u32::MAX);
+            let shortest_ms = u32::try_from(d.shortest_monitoring.as_millis()).unwrap_or(u32::MAX);
             self.emit(Event::Monitoring {
                 address,
                 at,
@@ -190,7 +189,7 @@ const REFERENCE_READ: u64 = 1 << 8;
 
 /// Puts ussd's own read of `param` into the drive's mailbox; whether it is still due (the
 /// mailbox was full). A parameter the channel cannot carry is not read.
-fn queue_own_read(d: &mut DriveRt, param: Option<WatchedParam>, tag: u64) -> bool {
+fn queue_own_read(d: &mut Drive, param: Option<WatchedParam>, tag: u64) -> bool {
     let Some(task) = param
         .map(WatchedParam::task)
         .filter(|_| d.setup.layout.pkw != PkwMode::None)

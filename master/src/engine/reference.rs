@@ -119,12 +119,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 return;
             }
         };
-        let status = &mut self.stats.drives[slot];
-        if status.reference == reference {
+        let d = &mut self.drives[slot];
+        if d.reference == reference {
             return;
         }
-        status.reference = reference;
-        let setup = self.drives[slot].setup;
+        d.reference = reference;
+        let setup = d.setup;
         let at = self.clock.now();
         self.emit(Event::Reference {
             address: setup.address,

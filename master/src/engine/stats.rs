@@ -218,11 +218,92 @@ pub fn record(h: &mut Histogram<u64>, d: Duration) {
     h.saturating_record(u64::try_from(d.as_nanos()).unwrap_or(MAX_NS).max(1));
 }
 
-/// Records a duration into the engine's histogram and into the same histogram of the
-/// [`FreshTiming`] it hands over next.
-pub fn record_both(own: &mut Histogram<u64>, handed: &mut Histogram<u64>, d: Duration) {
-    record(own, d);
-    record(handed, d);
+/// One timing histogram as the engine keeps it: all of it (for `Engine::stats`) and what was
+/// recorded since the last hand-over to the published copy ([`Published`]). One
+/// [`Recorded::record`] writes both.
+#[derive(Debug, Clone)]
+pub struct Recorded {
+    pub total: Histogram<u64>,
+    pub fresh: Histogram<u64>,
+}
+
+impl Recorded {
+    fn new(sigfig: u8) -> Self {
+        Self {
+            total: histogram(sigfig),
+            fresh: histogram(sigfig),
+        }
+    }
+
+    /// Two significant figures, as the bus's histograms and the update periods.
+    pub fn bus() -> Self {
+        Self::new(2)
+    }
+
+    /// One significant figure plus, as a drive's exchange times and response delays.
+    pub fn drive() -> Self {
+        Self::new(1)
+    }
+
+    /// Records a duration, saturating at the histograms' bounds; never allocates.
+    pub fn record(&mut self, d: Duration) {
+        record(&mut self.total, d);
+        record(&mut self.fresh, d);
+    }
+
+    /// Hands what was recorded since the last hand-over to `pending` (empty, same bounds) and
+    /// keeps the empty one: an exchange of two histograms, no copy of counts.
+    pub fn hand_over(&mut self, pending: &mut Histogram<u64>) {
+        core::mem::swap(&mut self.fresh, pending);
+    }
+}
+
+/// The bus's timing as the engine keeps it (see [`BusHistograms`] for what each is).
+#[derive(Debug, Clone)]
+pub struct BusTiming {
+    pub response_delay: Recorded,
+    pub exchange: Recorded,
+    pub turnaround: Recorded,
+    pub work: Recorded,
+    pub cycle: Recorded,
+}
+
+impl BusTiming {
+    pub fn new() -> Self {
+        Self {
+            response_delay: Recorded::bus(),
+            exchange: Recorded::bus(),
+            turnaround: Recorded::bus(),
+            work: Recorded::bus(),
+            cycle: Recorded::bus(),
+        }
+    }
+
+    /// Everything recorded, as published.
+    pub fn totals(&self) -> BusHistograms {
+        BusHistograms {
+            response_delay: self.response_delay.total.clone(),
+            exchange: self.exchange.total.clone(),
+            turnaround: self.turnaround.total.clone(),
+            work: self.work.total.clone(),
+            cycle: self.cycle.total.clone(),
+        }
+    }
+
+    /// Hands what was recorded since the last hand-over to `pending`.
+    pub fn hand_over(&mut self, pending: &mut BusHistograms) {
+        self.response_delay.hand_over(&mut pending.response_delay);
+        self.exchange.hand_over(&mut pending.exchange);
+        self.turnaround.hand_over(&mut pending.turnaround);
+        self.work.hand_over(&mut pending.work);
+        self.cycle.hand_over(&mut pending.cycle);
+    }
+}
+
+impl Default for BusTiming {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 impl BusHistograms {
@@ -298,7 +379,7 @@ impl Stats {
     /// Copies everything of `other` but its timing histograms into `self` (both made by
     /// [`Stats::new`] for the same drives): plain data, no allocation, a few hundred bytes per
     /// drive.
-    fn copy_counters_from(&mut self, other: &Self) {
+    pub fn copy_counters_from(&mut self, other: &Self) {
         self.at = other.at;
         self.bus = other.bus;
         self.line = other.line;
@@ -396,16 +477,14 @@ impl Published {
         }
     }
 
-    /// The bus thread's side: copies the counters of `stats`, and, unless the last hand-over
-    /// was not merged yet, exchanges `recorded` for the empty [`FreshTiming`] held here (then
-    /// `recorded` is empty again; otherwise it keeps recording and is handed over next time).
-    /// Never allocates.
-    pub fn hand_over(&mut self, stats: &Stats, recorded: &mut FreshTiming) {
-        self.stats.copy_counters_from(stats);
-        if !self.full {
-            core::mem::swap(&mut self.pending, recorded);
-            self.full = true;
-        }
+    /// The bus thread's side: the snapshot to write the latest counters into (plain data),
+    /// and, unless the last hand-over was not merged yet, the empty [`FreshTiming`] to exchange
+    /// what was recorded since for (otherwise the engine keeps recording and hands it over next
+    /// time). Never allocates.
+    pub fn hand_over(&mut self) -> (&mut Stats, Option<&mut FreshTiming>) {
+        let timing = (!self.full).then_some(&mut self.pending);
+        self.full = true;
+        (&mut self.stats, timing)
     }
 
     /// The reader's side: merges what was handed over and returns the snapshot.
@@ -431,18 +510,26 @@ mod tests {
     fn exchanges(own: &mut Stats, fresh: &mut FreshTiming, n: u64) {
         for k in 0..n {
             let d = Duration::from_micros(2000 + k);
-            record_both(
+            for h in [
                 &mut own.histograms.exchange,
                 &mut fresh.histograms.exchange,
-                d,
-            );
-            record_both(
                 &mut own.drive_histograms[1].exchange,
                 &mut fresh.drive_histograms[1].exchange,
-                d,
-            );
-            record_both(&mut own.update_period[1], &mut fresh.update_period[1], d);
+                &mut own.update_period[1],
+                &mut fresh.update_period[1],
+            ] {
+                record(h, d);
+            }
             own.bus.exchanges += 1;
+        }
+    }
+
+    /// The engine's hand-over: its counters, and its fresh timing exchanged for the empty one.
+    fn hand_over(published: &mut Published, own: &Stats, fresh: &mut FreshTiming) {
+        let (stats, pending) = published.hand_over();
+        stats.copy_counters_from(own);
+        if let Some(pending) = pending {
+            core::mem::swap(pending, fresh);
         }
     }
 
@@ -452,10 +539,10 @@ mod tests {
         let mut fresh = FreshTiming::new(3);
         let mut published = Published::new(&own);
         exchanges(&mut own, &mut fresh, 5);
-        published.hand_over(&own, &mut fresh);
+        hand_over(&mut published, &own, &mut fresh);
         // Not read yet: the next publication copies the counters but keeps recording.
         exchanges(&mut own, &mut fresh, 7);
-        published.hand_over(&own, &mut fresh);
+        hand_over(&mut published, &own, &mut fresh);
         assert_eq!(
             fresh.histograms.exchange.len(),
             7,
@@ -464,7 +551,7 @@ mod tests {
         let read = published.read().clone();
         assert_eq!(read.bus.exchanges, 12);
         assert_eq!(read.histograms.exchange.len(), 5);
-        published.hand_over(&own, &mut fresh);
+        hand_over(&mut published, &own, &mut fresh);
         assert_eq!(
             fresh.histograms.exchange.len(),
             0,

@@ -63,7 +63,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             let bit = 1u32 << slot;
             let mut words = [0u16; MAX_PZD_WORDS];
             self.drives[slot].gate.words(&mut words);
-            if stop_strength(words[0]) > stop_strength(self.stats.drives[slot].sent[0]) {
+            if stop_strength(words[0]) > stop_strength(self.drives[slot].sent[0]) {
                 self.out_of_turn |= bit;
             }
             if matches!(change, Some(Transition::Rearmed { .. })) && self.rearm_spent & bit == 0 {
@@ -114,7 +114,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     fn stop_now(&self, slot: usize) -> u8 {
         let mut words = [0u16; MAX_PZD_WORDS];
         self.drives[slot].gate.words(&mut words);
-        stop_strength(words[0]).max(stop_strength(self.stats.drives[slot].sent[0]))
+        stop_strength(words[0]).max(stop_strength(self.drives[slot].sent[0]))
     }
 
     /// A stop of every drive: one broadcast per telegram shape (PKW request words, PZD words)
@@ -185,7 +185,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         };
         self.capture
             .request(&shown, &self.tx[..n], false, (send_at, end));
-        self.stats.bus.broadcasts += 1;
+        self.bus.broadcasts += 1;
         self.framer.line_busy_until(end);
         self.line_free_at = end;
         if self.cfg.echo {
@@ -216,7 +216,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// One poll of `slot` out of turn.
     pub(super) fn poll_out_of_turn(&mut self, slot: usize) -> Result<(), TransportError> {
         self.serving_out_of_turn = true;
-        self.stats.bus.out_of_turn += 1;
+        self.bus.out_of_turn += 1;
         let polled = self.poll_drive(slot, false);
         self.serving_out_of_turn = false;
         polled

@@ -1,0 +1,316 @@
+//! One drive as the engine keeps it: everything the bus thread knows of a slot in one record
+//! ([`Drive`]). Its setup, the gate that decides its words, its parameter mailbox, its link
+//! state, what it last said, its counters and its timing. The published statistics are a
+//! snapshot built from these records ([`Drive::status`]), never a second copy kept beside them.
+//!
+//! What other threads reach (the process images, operator stops) stays in the engine's shared
+//! state, indexed by the same slot.
+
+use super::control::Gate;
+use super::jobs::Mailbox;
+use super::reference::Reference;
+use super::stats::{DriveStatus, LastFailure, Recorded, set_control};
+use super::{DriveSetup, Event, monitoring};
+use core::time::Duration;
+use uss_protocol::{Address, DriveState, Zsw1};
+use uss_shm_types::{DriveCounters, Monitoring};
+
+/// One drive as the engine keeps it. See the module documentation.
+#[derive(Debug)]
+pub(super) struct Drive {
+    pub setup: DriveSetup,
+    /// Decides the words that go out (`crate::engine::control`).
+    pub gate: Gate,
+    pub mailbox: Mailbox,
+    pub link: Link,
+    /// ZSW1 and HIW of its last good reply.
+    pub last_zsw1: u16,
+    pub last_hiw: u16,
+    /// STW1 and setpoint of the last telegram sent to it.
+    pub sent: [u16; 2],
+    /// Its counters, but the gate's (added to the snapshot from the gate itself).
+    pub counters: DriveCounters,
+    /// Its own telegram monitoring as read from it, and its time in ms.
+    pub monitoring: Monitoring,
+    pub monitoring_ms: u32,
+    /// Its reference frequency as read from it.
+    pub reference: Reference,
+    /// The telegram-monitoring parameter should be read (the drive came online).
+    pub monitoring_due: bool,
+    /// The reference-frequency parameter should be read (the drive came online).
+    pub reference_due: bool,
+    /// The shortest telegram-off time that does not trip the drive between two of its polls
+    /// (`Periods::shortest_monitoring`).
+    pub shortest_monitoring: Duration,
+    /// How often it is polled, and after how long its image is stale, as of its last poll
+    /// (`crate::engine::period`).
+    pub period: Duration,
+    pub stale_after: Duration,
+    /// Operator commands already taken: OFF1, OFF2, OFF3.
+    pub overrides_seen: [u32; 3],
+    pub timing: DriveTiming,
+}
+
+/// Whether a drive answers, since when, and when to try it again (USS.md section 4: "slave x
+/// does not respond" after a poll fails all its retries). Published as the [`DriveStatus`]
+/// fields of the same names, which say what each means.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct Link {
+    pub online: bool,
+    pub known: bool,
+    pub since: Duration,
+    pub no_reply: bool,
+    pub last_failure: LastFailure,
+    pub consecutive_failed_polls: u32,
+    pub last_good: Option<Duration>,
+    /// When an offline drive is probed next.
+    pub next_probe: Duration,
+}
+
+impl Link {
+    /// Unknown until the first poll decides.
+    fn new() -> Self {
+        Self {
+            online: false,
+            known: false,
+            since: Duration::ZERO,
+            no_reply: false,
+            last_failure: LastFailure::None,
+            consecutive_failed_polls: 0,
+            last_good: None,
+            next_probe: Duration::ZERO,
+        }
+    }
+
+    /// A good reply completed `at`; returns the time since the previous one, and whether the
+    /// drive came (back) online with it.
+    pub fn good(&mut self, at: Duration) -> (Option<Duration>, bool) {
+        let since_last = self.last_good.map(|previous| at.saturating_sub(previous));
+        self.last_good = Some(at);
+        self.no_reply = false;
+        self.consecutive_failed_polls = 0;
+        let came_back = !self.online;
+        if came_back {
+            self.online = true;
+            self.known = true;
+            self.since = at;
+        }
+        (since_last, came_back)
+    }
+
+    /// A poll failed all its retries at `now`; returns whether that takes the drive offline: a
+    /// drive of unknown state with its first failed poll, an online one after `offline_after`
+    /// in a row. It is probed again after `probe`.
+    pub fn failed(&mut self, now: Duration, offline_after: u32, probe: Duration) -> bool {
+        self.no_reply = true;
+        self.consecutive_failed_polls += 1;
+        self.next_probe = now + probe;
+        let decides =
+            !self.known || (self.online && self.consecutive_failed_polls >= offline_after);
+        if decides {
+            self.online = false;
+            self.known = true;
+            self.since = now;
+        }
+        decides
+    }
+
+    /// The line went down at `now`: nothing answers.
+    pub fn line_down(&mut self, now: Duration) {
+        if self.online {
+            self.online = false;
+            self.since = now;
+        }
+        self.no_reply = true;
+    }
+}
+
+/// What a drive's good reply said that is news: events, as values, for the engine to emit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(super) struct Said {
+    /// ZSW1 bit 9 ("control requested") changed, or was clear at the first reply: whether the
+    /// drive takes its commands from this link.
+    pub commands: Option<bool>,
+    /// Its state changed (from `None` at the first reply).
+    pub state: Option<(Option<DriveState>, DriveState)>,
+}
+
+impl Said {
+    /// The events, in the order the engine emits them.
+    pub fn events(self, address: Address, at: Duration) -> impl Iterator<Item = Event> {
+        let commands = self
+            .commands
+            .map(|taken| Event::Commands { address, at, taken });
+        let state = self.state.map(|(from, to)| Event::StateChanged {
+            address,
+            at,
+            from,
+            to,
+        });
+        commands.into_iter().chain(state)
+    }
+}
+
+/// A drive's timing: its exchanges, its response delays, the time between two good replies.
+#[derive(Debug, Clone)]
+pub(super) struct DriveTiming {
+    pub exchange: Recorded,
+    pub response_delay: Recorded,
+    pub update_period: Recorded,
+}
+
+impl Drive {
+    /// A drive with its gate as it starts, unknown, before its first poll.
+    pub fn new(setup: DriveSetup, gate: Gate, mailbox_depth: usize, shortest: Duration) -> Self {
+        Self {
+            setup,
+            gate,
+            mailbox: Mailbox::new(mailbox_depth),
+            link: Link::new(),
+            last_zsw1: 0,
+            last_hiw: 0,
+            sent: [0; 2],
+            counters: DriveCounters::default(),
+            monitoring: monitoring::initial_monitoring(&setup),
+            monitoring_ms: 0,
+            reference: Reference::initial(&setup),
+            monitoring_due: false,
+            reference_due: false,
+            shortest_monitoring: shortest,
+            period: Duration::ZERO,
+            stale_after: Duration::ZERO,
+            overrides_seen: [0; 3],
+            timing: DriveTiming {
+                exchange: Recorded::drive(),
+                response_delay: Recorded::drive(),
+                update_period: Recorded::bus(),
+            },
+        }
+    }
+
+    /// A good reply's process data: what it says that is news; remembers ZSW1 and HIW.
+    /// `first`: the drive's first good reply.
+    pub fn heard(&mut self, pzd: &[u16], first: bool) -> Said {
+        let Some(&zsw1) = pzd.first() else {
+            self.last_zsw1 = 0;
+            self.last_hiw = 0;
+            return Said::default();
+        };
+        let state = |z| DriveState::from_zsw1(Zsw1::from_bits_retain(z));
+        let taken = |z: u16| Zsw1::from_bits_retain(z).contains(Zsw1::CONTROL_REQUESTED);
+        let from = (!first).then(|| state(self.last_zsw1));
+        let took = (!first).then(|| taken(self.last_zsw1));
+        // Said when it changes, and at the first reply only when the drive does not take them.
+        let commands =
+            (took != Some(taken(zsw1)) && (took.is_some() || !taken(zsw1))).then_some(taken(zsw1));
+        let to = state(zsw1);
+        self.last_zsw1 = zsw1;
+        self.last_hiw = pzd.get(1).copied().unwrap_or(0);
+        Said {
+            commands,
+            state: (from != Some(to)).then_some((from, to)),
+        }
+    }
+
+    /// An attempt failed with `failure`: counted as the drive counts a telegram it refuses.
+    pub fn attempt_failed(&mut self, failure: LastFailure) {
+        self.counters.rejected += 1;
+        self.counters.count(failure);
+    }
+
+    /// The drive as published: a snapshot of this record, the gate's state and counters
+    /// included.
+    pub fn status(&self) -> DriveStatus {
+        let mut counters = self.counters;
+        set_control(&mut counters, &self.gate.counters());
+        DriveStatus {
+            address: self.setup.address,
+            online: self.link.online,
+            known: self.link.known,
+            since: self.link.since,
+            no_reply: self.link.no_reply,
+            last_failure: self.link.last_failure,
+            consecutive_failed_polls: self.link.consecutive_failed_polls,
+            last_zsw1: self.last_zsw1,
+            last_hiw: self.last_hiw,
+            last_good: self.link.last_good,
+            control: self.gate.control(),
+            rejection: self.gate.rejection(),
+            controller_pid: self.gate.controller_pid(),
+            sent: self.sent,
+            taken_sequence: self.gate.taken_sequence(),
+            monitoring: self.monitoring,
+            monitoring_ms: self.monitoring_ms,
+            reference: self.reference,
+            period: self.period,
+            stale_after: self.stale_after,
+            monitoring_min: self.shortest_monitoring,
+            counters,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ms(n: u64) -> Duration {
+        Duration::from_millis(n)
+    }
+
+    #[test]
+    fn an_unknown_drive_is_offline_with_its_first_failed_poll_an_online_one_after_several() {
+        let mut link = Link::new();
+        assert!(link.failed(ms(10), 3, ms(500)), "unknown: decided at once");
+        assert_eq!(
+            (link.online, link.known, link.next_probe),
+            (false, true, ms(510))
+        );
+        assert_eq!(
+            link.good(ms(20)),
+            (None, true),
+            "back with its first good reply"
+        );
+        assert_eq!(link.good(ms(30)), (Some(ms(10)), false));
+        assert!(!link.failed(ms(40), 3, ms(500)));
+        assert!(!link.failed(ms(50), 3, ms(500)));
+        assert!(link.no_reply && link.online);
+        assert!(link.failed(ms(60), 3, ms(500)), "the third in a row");
+        assert_eq!((link.online, link.since), (false, ms(60)));
+    }
+
+    #[test]
+    fn a_reply_says_a_state_change_and_a_drive_that_does_not_take_its_commands() {
+        use uss_protocol::Layout;
+        let setup = DriveSetup::new(
+            Address::new(1).unwrap(),
+            Layout::new(
+                uss_protocol::PkwMode::Four,
+                uss_protocol::PzdCount::new(2).unwrap(),
+            ),
+        );
+        let gate = Gate::new(
+            super::super::control::GateSetup {
+                pzd: 2,
+                safe: setup.safe,
+                watchdog: setup.watchdog,
+                clock_origin: Duration::ZERO,
+            },
+            Duration::ZERO,
+        );
+        let mut d = Drive::new(setup, gate, 1, ms(10));
+        let ready = Zsw1::READY_TO_SWITCH_ON | Zsw1::CONTROL_REQUESTED;
+        let first = d.heard(&[ready.bits(), 0], true);
+        assert_eq!(first.commands, None, "takes them: nothing to say");
+        assert!(matches!(first.state, Some((None, _))));
+        assert_eq!(d.heard(&[ready.bits(), 7], false), Said::default());
+        assert_eq!(d.last_hiw, 7);
+        let local = d.heard(&[Zsw1::READY_TO_SWITCH_ON.bits(), 0], false);
+        assert_eq!(local.commands, Some(false), "its command source moved");
+        assert_eq!(
+            local.events(setup.address, ms(1)).count(),
+            1,
+            "same state, commands only"
+        );
+    }
+}
