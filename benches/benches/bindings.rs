@@ -17,6 +17,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
+use uss_benches::{addr, param};
 use uss_client::Bus;
 
 const BATCHES: usize = 300;
@@ -51,7 +52,7 @@ fn start_ussd(bus: &str) -> uss_benches::Child {
 }
 
 fn rust_calls(bus: &Bus) -> (u64, u64) {
-    let watch = bus.watch(1).expect("drive 1's image");
+    let watch = bus.watch(addr(1)).expect("drive 1's image");
     let mut means = Vec::with_capacity(BATCHES);
     for _ in 0..BATCHES {
         let t0 = Instant::now();
@@ -63,7 +64,7 @@ fn rust_calls(bus: &Bus) -> (u64, u64) {
     let trips = (0..READS)
         .map(|_| {
             let t0 = Instant::now();
-            bus.read(1, 1082, None).expect("P1082");
+            bus.read(addr(1), param(1082)).expect("P1082");
             t0.elapsed().as_nanos() as u64
         })
         .collect();
@@ -119,7 +120,7 @@ for _ in range(batches):
 trips = []
 for _ in range(reads):
     t0 = time.perf_counter_ns()
-    uss_rt.read_param(bus, 1, 1082)
+    uss_rt.read_param(addr(bus), 1, 1082)
     trips.append(time.perf_counter_ns() - t0)
 print("drive_read", int(statistics.median(means)))
 print("param_read", int(statistics.median(trips)))
@@ -162,7 +163,7 @@ fn main() {
     let deadline = Instant::now() + Duration::from_secs(20);
     let bus = loop {
         if let Ok(bus) = Bus::open(&name)
-            && bus.read(1, 1082, None).is_ok()
+            && bus.read(addr(1), param(1082)).is_ok()
         {
             break bus;
         }

@@ -30,7 +30,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use uss_benches::{Parts, percentiles_us};
+use uss_benches::{Parts, addr, percentiles_us};
 use uss_client::{
     Bus, ControlOptions, CycleEvent, ParamItem, ParamRequest, ParamTask, Pnu, PzdInput, Setpoint,
     Value,
@@ -886,7 +886,7 @@ fn observe(
 
 fn watch_ours(name: &str, duration: Duration, woken: bool) -> String {
     let bus = Bus::open(name).expect("open the bus");
-    let watch = bus.watch(WATCHED).expect("watch the drive");
+    let watch = bus.watch(addr(WATCHED)).expect("watch the drive");
     let read = || watch.latest();
     if woken {
         let listener = bus.cycle_listener().expect("listen to the bus");
@@ -949,7 +949,7 @@ fn control(name: &str, duration: Duration, period: Duration) -> String {
                 s.spawn(move || {
                     client_sched(false);
                     let drive = bus
-                        .control(address, ControlOptions::words(2))
+                        .control(addr(address), ControlOptions::words(2))
                         .expect("control the drive");
                     drive.enable().expect("publish");
                     let mut rng = SmallRng::seed_from_u64(u64::from(address));
@@ -1001,7 +1001,7 @@ fn params(name: &str, duration: Duration, period: Duration) -> String {
         let start = Instant::now();
         let response = bus.send_request(&request).expect("an answer");
         let round_trip = start.elapsed();
-        let results = uss_client::params::response_results(&response, WATCHED, 1)
+        let results = uss_client::params::response_results(&response, addr(WATCHED), 1)
             .expect("a response to this request");
         assert_eq!(results, [Ok(Value::Dword(P1082_VALUE))], "P1082 reads 50.0");
         let r = response.results()[0];

@@ -354,7 +354,7 @@ fn through_ussd() {
     );
     let bus = uss_benches::open_bus(&bus_name);
     let k = 16u8;
-    let watch = bus.watch(k).expect("watch");
+    let watch = bus.watch(addr(k)).expect("watch");
     watch
         .wait_exchanges(2, Duration::from_secs(20))
         .expect("drive 16 polled");
@@ -363,7 +363,7 @@ fn through_ussd() {
     let mut out = Vec::new();
     for _ in 0..30 {
         let c = bus
-            .control(k, uss_client::ControlOptions::default())
+            .control(addr(k), uss_client::ControlOptions::default())
             .expect("control");
         c.rearm().expect("re-arm");
         // Running: the ON went out (at the drive's turn), then a random moment of the cycle.
@@ -378,7 +378,7 @@ fn through_ussd() {
         }
         let _ = capture.take();
         let asked = uss_client::monotonic_ns();
-        uss_client::stop(&bus_name, Some(k), StopCommand::Off1).expect("stop");
+        uss_client::stop(&bus_name, Some(addr(k)), StopCommand::Off1).expect("stop");
         let deadline = Instant::now() + Duration::from_secs(5);
         let at = 'found: loop {
             for r in capture.take().expect("capture") {

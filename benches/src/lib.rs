@@ -125,3 +125,13 @@ pub fn open_bus(name: &str) -> uss_client::Bus {
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
 }
+
+/// Drive `a` of a benchmark's bus (1..=31).
+pub fn addr(a: u8) -> uss_client::Address {
+    uss_client::Address::new(a).expect("a benchmark drive's address is 0..=31")
+}
+
+/// Parameter `pnu` (P + the number).
+pub fn param(pnu: u16) -> uss_client::ParamRef {
+    uss_client::ParamRef::p(pnu)
+}

@@ -1,7 +1,7 @@
 //! A bus: open and close it, watch a drive, wait for its next exchange, stop drives as an
 //! operator.
 
-use crate::error::{Failure, UssrtStatus, arg, guard, out, text};
+use crate::error::{Failure, UssrtStatus, arg, drive, guard, out, text};
 use core::ffi::c_char;
 use core::time::Duration;
 use std::collections::HashMap;
@@ -78,7 +78,9 @@ impl UssrtBus {
         let mut watches = self.watches.lock().unwrap_or_else(PoisonError::into_inner);
         let watch = match watches.entry(address) {
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-            std::collections::hash_map::Entry::Vacant(e) => e.insert(self.bus.watch(address)?),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                e.insert(self.bus.watch(drive(address)?)?)
+            }
         };
         Ok(f(watch))
     }
@@ -137,9 +139,11 @@ pub unsafe extern "C" fn ussrt_bus_drives(bus: *const UssrtBus, drives: *mut u32
     guard(|| {
         let bus = arg(bus, "bus")?;
         let drives = out(drives, "drives")?;
-        *drives = bus.bus.drives().iter().fold(0u32, |m, &a| {
-            m | 1u32.checked_shl(u32::from(a)).unwrap_or(0)
-        });
+        *drives = bus
+            .bus
+            .drives()
+            .iter()
+            .fold(0u32, |m, &a| m | 1u32 << a.get());
         Ok(())
     })
 }
@@ -217,7 +221,8 @@ pub unsafe extern "C" fn ussrt_stop_drive(
 ) -> UssrtStatus {
     guard(|| {
         let bus = arg(bus, "bus")?;
-        bus.bus.stop_drive(address, stop_command(command)?)?;
+        bus.bus
+            .stop_drive(drive(address)?, stop_command(command)?)?;
         Ok(())
     })
 }
@@ -238,9 +243,7 @@ pub unsafe extern "C" fn ussrt_stop_all(
         let reached = bus.bus.stop_all(stop_command(command)?)?;
         // SAFETY: NULL or the caller's memory for one u32 (as documented).
         if let Some(drives) = unsafe { drives.as_mut() } {
-            *drives = reached
-                .iter()
-                .fold(0, |m, &a| m | 1u32.checked_shl(u32::from(a)).unwrap_or(0));
+            *drives = reached.iter().fold(0, |m, &a| m | 1u32 << a.get());
         }
         Ok(())
     })

@@ -3,7 +3,7 @@
 //! then ON), only the program's own calls refresh the watchdog, a gap in them is a trip.
 
 use crate::bus::{UssrtBus, UssrtDrive};
-use crate::error::{Failure, UssrtStatus, arg, guard, out};
+use crate::error::{Failure, UssrtStatus, arg, drive, guard, out};
 use core::time::Duration;
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use uss_client::{ControlOptions, Controller, DriveState, Setpoint};
@@ -59,7 +59,9 @@ pub unsafe extern "C" fn ussrt_control_open(
     guard(|| {
         let bus = arg(bus, "bus")?;
         let controller = out(controller, "controller")?;
-        let c = bus.bus.control(address, ControlOptions::default())?;
+        let c = bus
+            .bus
+            .control(drive(address)?, ControlOptions::default())?;
         *controller = Box::into_raw(Box::new(UssrtController {
             controller: Mutex::new(Some(c)),
             bus: bus.bus.name().to_owned(),

@@ -6,7 +6,7 @@ use std::cell::RefCell;
 use std::ffi::CString;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use uss_client::uss_shm_types::{DriveError, PathError, StopCommand};
-use uss_client::{ClientError, Latch, ParamError};
+use uss_client::{Address, ClientError, Latch, ParamError};
 
 /// What a call came to. `USSRT_STATUS_OK` is 0; every other code has a message
 /// ([`ussrt_last_error`]).
@@ -260,6 +260,12 @@ pub(crate) fn arg<'a, T>(ptr: *const T, what: &str) -> Result<&'a T, Failure> {
     // SAFETY: the caller passes a pointer to a live `T` or NULL (the header says so); NULL is
     // refused here.
     unsafe { ptr.as_ref() }.ok_or_else(|| Failure::Argument(format!("{what} is NULL")))
+}
+
+/// A caller's drive address, checked here, where it enters: 0..=31, or the client's address
+/// error.
+pub(crate) fn drive(address: u8) -> Result<Address, Failure> {
+    Address::new(address).map_err(|e| Failure::from(ClientError::from(e)))
 }
 
 /// `ptr` as a mutable reference (an output of the caller), or an argument error.

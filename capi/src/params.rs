@@ -2,9 +2,11 @@
 //! and the fault report.
 
 use crate::bus::UssrtBus;
-use crate::error::{Failure, UssrtStatus, arg, guard, out, text};
+use crate::error::{Failure, UssrtStatus, arg, drive, guard, out, text};
 use core::ffi::c_char;
 use uss_client::uss_protocol::ParamRef;
+#[cfg(test)]
+use uss_client::uss_protocol::Subindex;
 use uss_client::{ParamValue, Typed, Value, WriteOptions};
 
 /// `flags` bit of a write: RAM and EEPROM (survives a power cycle) instead of RAM only.
@@ -118,14 +120,18 @@ fn param_ref(param: *const c_char) -> Result<ParamRef, Failure> {
         .map_err(|e| Failure::Argument(format!("{text:?}: {e}")))
 }
 
-fn index_of(index: i32) -> Result<Option<u8>, Failure> {
-    match index {
-        USSRT_NO_INDEX => Ok(None),
-        0..=254 => Ok(Some(index as u8)),
-        other => Err(Failure::Argument(format!(
-            "index {other}: array indices are 0..=254, or -1 for none"
-        ))),
-    }
+/// Parameter `pnu`, element `index` (or none: [`USSRT_NO_INDEX`]).
+fn param_at(pnu: u16, index: i32) -> Result<ParamRef, Failure> {
+    let bad = || {
+        Failure::Argument(format!(
+            "index {index}: array indices are 0..=254, or -1 for none"
+        ))
+    };
+    let index = match index {
+        USSRT_NO_INDEX => None,
+        i => Some(u8::try_from(i).map_err(|_| bad())?),
+    };
+    ParamRef::numbered(pnu, index).map_err(|_| bad())
 }
 
 fn options(flags: u32) -> Result<WriteOptions, Failure> {
@@ -159,7 +165,7 @@ pub unsafe extern "C" fn ussrt_param_read(
     guard(|| {
         let bus = arg(bus, "bus")?;
         let value = out(value, "value")?;
-        let read = bus.bus.read_param(address, param_ref(param)?)?;
+        let read = bus.bus.read_param(drive(address)?, param_ref(param)?)?;
         *value = value_of(&read);
         Ok(())
     })
@@ -188,7 +194,7 @@ pub unsafe extern "C" fn ussrt_param_write(
         let value_text = text(value_text, "value_text")?;
         let written = bus
             .bus
-            .write_param(address, param, value_text, options(flags)?)?;
+            .write_param(drive(address)?, param, value_text, options(flags)?)?;
         // SAFETY: NULL or the caller's memory (as documented).
         if let Some(held) = unsafe { held.as_mut() } {
             *held = value_of(&written);
@@ -215,7 +221,7 @@ pub unsafe extern "C" fn ussrt_param_read_raw(
     guard(|| {
         let bus = arg(bus, "bus")?;
         let value = out(value, "value")?;
-        let (raw, dword) = raw_of(bus.bus.read(address, pnu, index_of(index)?)?);
+        let (raw, dword) = raw_of(bus.bus.read(drive(address)?, param_at(pnu, index)?)?);
         *value = raw;
         // SAFETY: NULL or the caller's memory (as documented).
         if let Some(is_dword) = unsafe { is_dword.as_mut() } {
@@ -251,9 +257,12 @@ pub unsafe extern "C" fn ussrt_param_write_raw(
                 Failure::Argument(format!("{value} does not fit a word (0..=65535)"))
             })?)
         };
-        let answered =
-            bus.bus
-                .write_with(address, pnu, index_of(index)?, value, options(flags)?)?;
+        let answered = bus.bus.write_with(
+            drive(address)?,
+            param_at(pnu, index)?,
+            value,
+            options(flags)?,
+        )?;
         // SAFETY: NULL or the caller's memory (as documented).
         if let Some(held) = unsafe { held.as_mut() } {
             *held = raw_of(answered).0;
@@ -276,7 +285,7 @@ pub unsafe extern "C" fn ussrt_fault_report(
     guard(|| {
         let bus = arg(bus, "bus")?;
         let report = out(report, "report")?;
-        let read = bus.bus.fault_report(address)?;
+        let read = bus.bus.fault_report(drive(address)?)?;
         let empty = UssrtFault {
             number: 0,
             value: 0,
@@ -331,9 +340,15 @@ mod tests {
 
     #[test]
     fn indices_and_flags_outside_their_range_are_argument_errors() {
-        assert_eq!(index_of(-1).ok(), Some(None));
-        assert_eq!(index_of(254).ok(), Some(Some(254)));
-        assert!(index_of(255).is_err() && index_of(-2).is_err());
+        assert_eq!(param_at(947, -1).ok().and_then(|p| p.index), None);
+        assert_eq!(
+            param_at(947, 254)
+                .ok()
+                .and_then(|p| p.index)
+                .map(Subindex::get),
+            Some(254)
+        );
+        assert!(param_at(947, 255).is_err() && param_at(947, -2).is_err());
         assert!(options(8).is_err());
         let o = options(USSRT_WRITE_EEPROM | USSRT_WRITE_FORCE).ok();
         assert_eq!(

@@ -12,7 +12,7 @@
 
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
-use uss_client::{Bus, ControlOptions, CycleEvent, DriveState};
+use uss_client::{Address, Bus, ControlOptions, CycleEvent, DriveState};
 
 /// Seconds for one ramp from 0 to the peak.
 const RAMP_SECONDS: f32 = 2.0;
@@ -41,7 +41,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     // ussd does; keep its log to errors unless IOX2_LOG_LEVEL says otherwise.
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
     let bus_name: String = arg(1, "bus0".to_owned())?;
-    let drive: u8 = arg(2, 1)?;
+    let drive = Address::new(arg(2, 1)?)?;
     let peak_hz: f32 = arg(3, 40.0)?;
     let ramps: u32 = arg(4, 1)?;
 
@@ -68,7 +68,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         let mut ours = false;
         let mut gone = false;
         events.wait(Duration::from_millis(200), |e| match e {
-            CycleEvent::Exchange(a) if a == drive => ours = true,
+            CycleEvent::Exchange(a) if a == drive.get() => ours = true,
             CycleEvent::UssdGone => gone = true,
             _ => {}
         })?;

@@ -131,13 +131,16 @@ impl Bus {
 
     /// The addresses of the drives ussd polls on this bus, ascending (none while no ussd
     /// serves it).
-    pub fn drives(&self) -> Vec<u8> {
+    pub fn drives(&self) -> Vec<Address> {
         let Ok(services) = self.services() else {
             return Vec::new();
         };
         let mut keys = Vec::new();
         services.diag_service.list_keys(|k| {
-            if let Ok(a) = u8::try_from(k.value) {
+            if let Some(a) = u8::try_from(k.value)
+                .ok()
+                .and_then(|a| Address::new(a).ok())
+            {
                 keys.push(a);
             }
             CallbackProgression::Continue
@@ -148,7 +151,7 @@ impl Bus {
 
     /// A drive's diagnostics, as ussd last published them (every 50 ms). Fails when ussd is
     /// gone or stopped.
-    pub fn diag(&self, address: u8) -> Result<DriveDiag, ClientError> {
+    pub fn diag(&self, address: Address) -> Result<DriveDiag, ClientError> {
         let a = self.known(address)?;
         let services = self.services()?;
         let entry = services
@@ -159,8 +162,8 @@ impl Bus {
     }
 
     /// Watches a drive's input image (written by ussd after every poll).
-    pub fn watch(&self, address: u8) -> Result<DriveWatch, ClientError> {
-        DriveWatch::open(self, Address::new(address)?)
+    pub fn watch(&self, address: Address) -> Result<DriveWatch, ClientError> {
+        DriveWatch::open(self, address)
     }
 
     /// A subscription to every telegram of the bus, as ussd's bus thread sent and received it.
@@ -176,26 +179,29 @@ impl Bus {
     /// Takes exclusive control of a drive. Fails with [`ClientError::Controlled`] ("drive 5 on
     /// bus0 is controlled by process 1234") while another controller holds it. See
     /// [`Controller`] for the watchdog and latch rules.
-    pub fn control(&self, address: u8, options: ControlOptions) -> Result<Controller, ClientError> {
-        Controller::open(self, Address::new(address)?, options)
+    pub fn control(
+        &self,
+        address: Address,
+        options: ControlOptions,
+    ) -> Result<Controller, ClientError> {
+        Controller::open(self, address, options)
     }
 
     /// Checks that ussd polls `address` on this bus.
-    pub(crate) fn known(&self, address: u8) -> Result<Address, ClientError> {
-        let a = Address::new(address)?;
+    pub(crate) fn known(&self, address: Address) -> Result<Address, ClientError> {
         self.services()?;
         if self.drives().contains(&address) {
-            Ok(a)
+            Ok(address)
         } else {
             Err(self.unknown_drive(address))
         }
     }
 
-    pub(crate) fn unknown_drive(&self, address: u8) -> ClientError {
+    pub(crate) fn unknown_drive(&self, address: Address) -> ClientError {
         ClientError::UnknownDrive {
             bus: self.name().to_owned(),
-            address,
-            known: self.drives(),
+            address: address.get(),
+            known: self.drives().into_iter().map(Address::get).collect(),
         }
     }
 }

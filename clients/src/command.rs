@@ -21,9 +21,8 @@ impl Bus {
     /// Stops drive `address` with `command` (OFF1 ramp, OFF2 coast, OFF3 quick stop), whoever
     /// controls it. Returns once ussd has handed the command to the bus thread, which sends it
     /// in its next telegram; [`Bus::wait_stopped`] waits until the drive's image shows it.
-    pub fn stop_drive(&self, address: u8, command: StopCommand) -> Result<(), ClientError> {
-        Address::new(address)?;
-        match self.operator(address, command) {
+    pub fn stop_drive(&self, address: Address, command: StopCommand) -> Result<(), ClientError> {
+        match self.operator(address.get(), command) {
             Err(ClientError::CommandRefused {
                 error: CommandError::UnknownDrive,
                 ..
@@ -33,7 +32,7 @@ impl Bus {
     }
 
     /// Stops every drive of the bus with `command`; returns their addresses.
-    pub fn stop_all(&self, command: StopCommand) -> Result<Vec<u8>, ClientError> {
+    pub fn stop_all(&self, command: StopCommand) -> Result<Vec<Address>, ClientError> {
         self.operator(ALL_DRIVES, command)
     }
 
@@ -44,7 +43,7 @@ impl Bus {
     /// while offline, and the poll).
     pub fn wait_stopped(
         &self,
-        address: u8,
+        address: Address,
         command: StopCommand,
         timeout: Option<Duration>,
     ) -> Result<PzdInput, ClientError> {
@@ -66,7 +65,7 @@ impl Bus {
         {
             return Err(ClientError::NotControllable {
                 bus: self.link().name.to_string(),
-                address,
+                address: address.get(),
                 command: command.to_string(),
                 zsw1: last.zsw1,
             });
@@ -74,7 +73,7 @@ impl Bus {
         Ok(last)
     }
 
-    fn operator(&self, address: u8, command: StopCommand) -> Result<Vec<u8>, ClientError> {
+    fn operator(&self, address: u8, command: StopCommand) -> Result<Vec<Address>, ClientError> {
         send_stop(&self.link().name, address, command)
     }
 }
@@ -84,12 +83,13 @@ impl Bus {
 /// services' port limits (many clients at once) stand in the way. Returns the drives that got
 /// it; the bus thread sends it in its next telegram, latched. What a tool calls first when the
 /// machine must stop; [`Bus::wait_stopped`] confirms it where the images can be read.
-pub fn stop(bus: &str, address: Option<u8>, command: StopCommand) -> Result<Vec<u8>, ClientError> {
+pub fn stop(
+    bus: &str,
+    address: Option<Address>,
+    command: StopCommand,
+) -> Result<Vec<Address>, ClientError> {
     let name = uss_shm_types::BusName::new(bus)?;
-    if let Some(a) = address {
-        Address::new(a)?;
-    }
-    send_stop(&name, address.unwrap_or(ALL_DRIVES), command)
+    send_stop(&name, address.map_or(ALL_DRIVES, Address::get), command)
 }
 
 /// One request on bus `bus`'s stop socket and its answer.
@@ -97,7 +97,7 @@ fn send_stop(
     bus: &uss_shm_types::BusName,
     address: u8,
     command: StopCommand,
-) -> Result<Vec<u8>, ClientError> {
+) -> Result<Vec<Address>, ClientError> {
     // Who may reach ussd: the root's access rules, said as for every other path.
     crate::open::iceoryx_config(bus.as_str())?;
     let path = names::stop_socket(bus);

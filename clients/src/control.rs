@@ -86,7 +86,7 @@ struct Shared {
     state: Mutex<State>,
     watch: DriveWatch,
     bus: String,
-    address: u8,
+    address: Address,
 }
 
 impl Shared {
@@ -97,7 +97,7 @@ impl Shared {
 
     /// A session's refusal in this controller's words, with the latch `input` shows.
     fn error(&self, e: SessionError, input: &PzdInput) -> ClientError {
-        let (bus, address) = (self.bus.clone(), self.address);
+        let (bus, address) = (self.bus.clone(), self.address.get());
         match e {
             SessionError::Tripped { .. } => ClientError::latched(&bus, address, input, true),
             SessionError::NotArmed { .. } => ClientError::latched(&bus, address, input, false),
@@ -150,7 +150,12 @@ impl Shared {
                     }
                 }
                 Step::AwaitRearm => {
-                    return Err(ClientError::latched(&self.bus, self.address, &input, false));
+                    return Err(ClientError::latched(
+                        &self.bus,
+                        self.address.get(),
+                        &input,
+                        false,
+                    ));
                 }
             };
             Self::send(&mut state, sample)?;
@@ -162,8 +167,7 @@ impl Shared {
     /// After a restart of ussd, publishes on the new generation's `out` service.
     fn follow(&self, state: &mut State, services: &Services) -> Result<(), ClientError> {
         if state.port.generation != services.generation() {
-            let address = Address::new(self.address)?;
-            state.port = open_port(&self.link, services, address)?;
+            state.port = open_port(&self.link, services, self.address)?;
         }
         Ok(())
     }
@@ -312,7 +316,7 @@ impl Controller {
         address: Address,
         options: ControlOptions,
     ) -> Result<Self, ClientError> {
-        let diag = bus.diag(address.get())?;
+        let diag = bus.diag(address)?;
         let pzd = usize::from(diag.info.pzd_words);
         if pzd == 0 {
             return Err(ClientError::NoProcessData {
@@ -330,7 +334,7 @@ impl Controller {
         }
         let services = bus.services()?;
         let port = open_port(bus.link(), &services, address).map_err(|e| match e {
-            ClientError::UnknownDrive { .. } => bus.unknown_drive(address.get()),
+            ClientError::UnknownDrive { .. } => bus.unknown_drive(address),
             other => other,
         })?;
         let watch = DriveWatch::open(bus, address)?;
@@ -353,14 +357,14 @@ impl Controller {
                 state: Mutex::new(State { port, session }),
                 watch,
                 bus: bus.name().to_owned(),
-                address: address.get(),
+                address,
             }),
             released: false,
         })
     }
 
     /// The drive's address.
-    pub fn address(&self) -> u8 {
+    pub fn address(&self) -> Address {
         self.shared.address
     }
 
@@ -432,7 +436,7 @@ impl Controller {
             Err(ClientError::WaitTimeout { .. } | ClientError::Stale { .. }) => {
                 Err(ClientError::latched(
                     &self.shared.bus,
-                    self.shared.address,
+                    self.shared.address.get(),
                     &self.inputs().latest(),
                     false,
                 ))

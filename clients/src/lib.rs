@@ -3,7 +3,7 @@
 //!
 //! ```no_run
 //! use std::time::Duration;
-//! use uss_client::{Bus, ControlOptions, DriveState, Value};
+//! use uss_client::{Address, Bus, ControlOptions, DriveState, ParamRef, Value};
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let bus = Bus::open("bus0")?; // "ussd is not running on bus0: start it with ..." otherwise
@@ -12,14 +12,15 @@
 //!     println!("drive {address}: online {} good {}", d.online, d.counters.good);
 //! }
 //!
-//! // Parameters: typed values, typed errors.
-//! let max_hz = bus.read_f32(1, 1082, None)?; // P1082 = 50.0
-//! bus.write(1, 1120, None, Value::from_f32(2.0), false)?; // ramp-up time 2 s, RAM only
+//! // Addresses and parameters are checked where they enter (text, a number): typed after.
+//! let (one, two) = (Address::new(1)?, Address::new(2)?);
+//! let max_hz = bus.read_f32(one, ParamRef::p(1082))?; // P1082 = 50.0
+//! bus.write(one, "P1120".parse()?, Value::from_f32(2.0), false)?; // ramp-up 2 s, RAM only
 //!
 //! // Exclusive control: a second controller of drive 1 is refused.
 //! // Every call refreshes the drive's watchdog; a loop calls at least once per watchdog time
 //! // (drive.keepalive() between changes).
-//! let drive = bus.control(1, ControlOptions::default())?;
+//! let drive = bus.control(one, ControlOptions::default())?;
 //! drive.enable()?; // OFF1: arms the drive (ussd latched it at start), S1 -> S2
 //! drive.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(1))?;
 //! drive.run_hz(0.5 * max_hz)?; // S2 -> S4
@@ -37,7 +38,7 @@
 //! drive.release()?; // hand it back: "released", not a watchdog trip
 //!
 //! // Anyone may stop a drive, whoever controls it (OFF1, OFF2 coast, OFF3 quick stop).
-//! bus.stop_drive(2, uss_client::StopCommand::Off2)?;
+//! bus.stop_drive(two, uss_client::StopCommand::Off2)?;
 //! # Ok(())
 //! # }
 //! ```
@@ -83,7 +84,9 @@ pub use link::{Health, monotonic_ns};
 pub use params::WriteOptions;
 pub use typed::{Fault, FaultReport, FaultTime, ParamValue, Warning};
 pub use uss_catalogue::{Catalogue, DataType, Typed};
-pub use uss_protocol::{DriveState, ParamTask, Pnu, Setpoint, Stw1, Subindex, Value, Zsw1};
+pub use uss_protocol::{
+    Address, DriveState, ParamRef, ParamTask, Pnu, Setpoint, Stw1, Subindex, Value, Zsw1,
+};
 pub use uss_shm_types::{
     BusState, BusStatus, ControlState, DriveDiag, DriveError, DriveFamily, DriveInfo, LatchReason,
     LineFault, Monitoring, ParamItem, ParamRequest, ParamResponse, PathError, PzdInput, PzdOutput,

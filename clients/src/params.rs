@@ -29,17 +29,6 @@ pub const FAULT_BUFFER_PNU: u16 = 947;
 /// Elements of [`FAULT_BUFFER_PNU`].
 pub const FAULT_BUFFER_LEN: u8 = 8;
 
-/// `index` as a subindex: 0..=254 (USS.md section 6); 255 is refused like ussd refuses it.
-fn subindex(index: Option<u8>) -> Result<Option<Subindex>, ParamError> {
-    index
-        .map(Subindex::new)
-        .transpose()
-        .map_err(|_| ParamError::Refused {
-            error: RequestError::BadSubindex,
-            item: Some(0),
-        })
-}
-
 /// What one item delivered: a value (read or changed: the value the drive now holds), an
 /// element count (as a word) or a descriptive element; or why not, in the contract's one
 /// vocabulary (the drive refused, or the path failed).
@@ -56,7 +45,7 @@ pub fn item_result(result: &ParamResult) -> Result<Value, ParamError> {
 /// The results of a whole response to a request of `count` items for drive `address`.
 pub fn response_results(
     response: &ParamResponse,
-    address: u8,
+    address: Address,
     count: usize,
 ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
     uss_shm_types::check_version(response.version).map_err(ClientError::from)?;
@@ -64,7 +53,7 @@ pub fn response_results(
         Ok(RequestError::Ok) => {}
         Ok(RequestError::Controlled) => {
             return Err(ParamError::Controlled {
-                address,
+                address: address.get(),
                 pid: response.controller_pid,
             });
         }
@@ -75,7 +64,7 @@ pub fn response_results(
         }
         Err(e) => return Err(ParamError::Unexpected(e.to_string())),
     }
-    if response.address != address || usize::from(response.count) != count {
+    if response.address != address.get() || usize::from(response.count) != count {
         return Err(ParamError::Unexpected(format!(
             "a response for drive {} with {} results to a request for drive {address} with {count} items",
             response.address, response.count
@@ -85,51 +74,40 @@ pub fn response_results(
 }
 
 impl Bus {
-    /// Reads `pnu` (or its array element `index`) from drive `address`.
-    pub fn read(&self, address: u8, pnu: u16, index: Option<u8>) -> Result<Value, ParamError> {
-        self.one(
-            address,
-            ParamTask::read(Pnu::from_u16(pnu), subindex(index)?),
-        )
-    }
-
-    /// Reads the parameter (or array element) `param` names as the manuals write it (`P1082`,
-    /// `r0947[2]`): its number and index, checked when it was written, go into the task as they
-    /// are.
-    pub fn read_ref(&self, address: u8, param: ParamRef) -> Result<Value, ParamError> {
+    /// Reads the parameter (or array element) `param` names (`P1082`, `r0947[2]`: parse the
+    /// manuals' text, or [`ParamRef::new`]) from drive `address`.
+    pub fn read(&self, address: Address, param: ParamRef) -> Result<Value, ParamError> {
         self.one(address, ParamTask::read(param.pnu, param.index))
     }
 
     /// Reads a float parameter (a double word holding IEEE-754 bits; P1082 reads 50.0).
-    pub fn read_f32(&self, address: u8, pnu: u16, index: Option<u8>) -> Result<f32, ParamError> {
-        self.read(address, pnu, index).map(Value::as_f32)
+    pub fn read_f32(&self, address: Address, param: ParamRef) -> Result<f32, ParamError> {
+        self.read(address, param).map(Value::as_f32)
     }
 
     /// Reads a parameter as an unsigned number (a word is widened).
-    pub fn read_u32(&self, address: u8, pnu: u16, index: Option<u8>) -> Result<u32, ParamError> {
-        self.read(address, pnu, index).map(Value::as_u32)
+    pub fn read_u32(&self, address: Address, param: ParamRef) -> Result<u32, ParamError> {
+        self.read(address, param).map(Value::as_u32)
     }
 
     /// Reads a word parameter; a double word is [`ParamError::Unexpected`].
-    pub fn read_u16(&self, address: u8, pnu: u16, index: Option<u8>) -> Result<u16, ParamError> {
-        match self.read(address, pnu, index)? {
+    pub fn read_u16(&self, address: Address, param: ParamRef) -> Result<u16, ParamError> {
+        match self.read(address, param)? {
             Value::Word(w) => Ok(w),
             Value::Dword(d) => Err(ParamError::Unexpected(format!(
-                "P{pnu} is a double word ({d:#010X}), not a word"
+                "{param} is a double word ({d:#010X}), not a word"
             ))),
         }
     }
 
-    /// Changes `pnu` (or its element `index`) to `value` in RAM, or RAM and EEPROM with
-    /// `eeprom`; returns the value the drive now holds. A float goes as
-    /// [`Value::from_f32`] (`Value::from_f32(2.0)` for P1120 = 2 s). While another process
-    /// controls the drive the write is refused ([`ParamError::Controlled`]); see
-    /// [`Bus::write_with`] to force it.
+    /// Changes `param` to `value` in RAM, or RAM and EEPROM with `eeprom`; returns the value
+    /// the drive now holds. A float goes as [`Value::from_f32`] (`Value::from_f32(2.0)` for
+    /// P1120 = 2 s). While another process controls the drive the write is refused
+    /// ([`ParamError::Controlled`]); see [`Bus::write_with`] to force it.
     pub fn write(
         &self,
-        address: u8,
-        pnu: u16,
-        index: Option<u8>,
+        address: Address,
+        param: ParamRef,
         value: Value,
         eeprom: bool,
     ) -> Result<Value, ParamError> {
@@ -137,7 +115,7 @@ impl Bus {
             eeprom,
             ..WriteOptions::default()
         };
-        self.write_with(address, pnu, index, value, options)
+        self.write_with(address, param, value, options)
     }
 
     /// [`Bus::write`] with all its options: `force` writes even while another process controls
@@ -147,9 +125,8 @@ impl Bus {
     /// [`ParamError::Unexpected`].
     pub fn write_with(
         &self,
-        address: u8,
-        pnu: u16,
-        index: Option<u8>,
+        address: Address,
+        param: ParamRef,
         value: Value,
         options: WriteOptions,
     ) -> Result<Value, ParamError> {
@@ -158,7 +135,7 @@ impl Bus {
         } else {
             Storage::Ram
         };
-        let task = ParamTask::write(Pnu::from_u16(pnu), subindex(index)?, value, storage);
+        let task = ParamTask::write(param.pnu, param.index, value, storage);
         let mut flags = 0;
         if options.force {
             flags |= uss_shm_types::REQUEST_FORCE;
@@ -171,10 +148,10 @@ impl Bus {
             .pop()
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))?;
         if options.unsafe_write {
-            let held = self.read(address, pnu, index)?;
+            let held = self.read(address, param)?;
             if held != written {
                 return Err(ParamError::Unexpected(format!(
-                    "P{pnu} was written as {written:?} but the drive holds {held:?}"
+                    "{param} was written as {written:?} but the drive holds {held:?}"
                 )));
             }
         }
@@ -182,19 +159,14 @@ impl Bus {
     }
 
     /// Reads the number of elements of array `pnu`.
-    pub fn read_array_len(&self, address: u8, pnu: u16) -> Result<u16, ParamError> {
-        self.one(
-            address,
-            ParamTask::ReadArrayLen {
-                pnu: Pnu::from_u16(pnu),
-            },
-        )
-        .map(|v| v.as_u32() as u16)
+    pub fn read_array_len(&self, address: Address, pnu: Pnu) -> Result<u16, ParamError> {
+        self.one(address, ParamTask::ReadArrayLen { pnu })
+            .map(|v| v.as_u32() as u16)
     }
 
     /// The drive's fault buffer r0947 (8 fault codes, newest first, 0 = empty), read in one
     /// request of 8 array reads.
-    pub fn faults(&self, address: u8) -> Result<Vec<u16>, ParamError> {
+    pub fn faults(&self, address: Address) -> Result<Vec<u16>, ParamError> {
         let items: Vec<_> = (0..FAULT_BUFFER_LEN)
             .filter_map(|i| Subindex::new(i).ok())
             .map(|i| ParamTask::read(Pnu::from_u16(FAULT_BUFFER_PNU), Some(i)))
@@ -208,14 +180,14 @@ impl Bus {
     /// Runs up to 39 tasks on drive `address` in one request; one result per task, in order.
     /// A failure of the request as a whole (ussd refused it, did not answer, is not running)
     /// is reported for every task.
-    pub fn batch(&self, address: u8, items: &[ParamTask]) -> Vec<Result<Value, ParamError>> {
+    pub fn batch(&self, address: Address, items: &[ParamTask]) -> Vec<Result<Value, ParamError>> {
         self.batch_with(address, items, false)
     }
 
     /// [`Bus::batch`], its writes forced with `force` (see [`Bus::write_with`]).
     pub fn batch_with(
         &self,
-        address: u8,
+        address: Address,
         items: &[ParamTask],
         force: bool,
     ) -> Vec<Result<Value, ParamError>> {
@@ -230,7 +202,7 @@ impl Bus {
         }
     }
 
-    fn one(&self, address: u8, item: ParamTask) -> Result<Value, ParamError> {
+    fn one(&self, address: Address, item: ParamTask) -> Result<Value, ParamError> {
         self.request(address, &[item], 0)?
             .pop()
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
@@ -239,14 +211,13 @@ impl Bus {
     /// Sends one request and waits for its one response.
     fn request(
         &self,
-        address: u8,
+        address: Address,
         tasks: &[ParamTask],
         flags: u8,
     ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
-        let drive = Address::new(address).map_err(ClientError::from)?;
         // The one conversion from the protocol's tasks to the contract's items.
         let items: Vec<ParamItem> = tasks.iter().map(ParamItem::from).collect();
-        let mut request = ParamRequest::new(drive, &items).map_err(|r| ParamError::Refused {
+        let mut request = ParamRequest::new(address, &items).map_err(|r| ParamError::Refused {
             error: r.error,
             item: r.item,
         })?;
@@ -308,13 +279,6 @@ mod tests {
             assert_eq!(ParamTask::try_from(&ParamItem::from(&t)), Ok(t));
         }
         assert_eq!(ParamItem::from(&tasks[1]), ParamItem::read(1082));
-        assert_eq!(
-            subindex(Some(255)),
-            Err(ParamError::Refused {
-                error: RequestError::BadSubindex,
-                item: Some(0)
-            })
-        );
     }
 
     #[test]
@@ -387,7 +351,7 @@ mod tests {
             },
         );
         assert_eq!(
-            response_results(&r, 9, 1),
+            response_results(&r, Address::new(9).unwrap(), 1),
             Err(ParamError::Refused {
                 error: RequestError::UnknownDrive,
                 item: None
@@ -401,7 +365,7 @@ mod tests {
             },
         );
         assert_eq!(
-            response_results(&r, 3, 4),
+            response_results(&r, Address::new(3).unwrap(), 4),
             Err(ParamError::Refused {
                 error: RequestError::BadSubindex,
                 item: Some(2)
@@ -414,13 +378,16 @@ mod tests {
         let mut r = ParamResponse::new(3);
         r.count = 1;
         r.results[0] = result(Outcome::Value, 1, false);
-        assert_eq!(response_results(&r, 3, 1), Ok(vec![Ok(Value::Word(1))]));
+        assert_eq!(
+            response_results(&r, Address::new(3).unwrap(), 1),
+            Ok(vec![Ok(Value::Word(1))])
+        );
         assert!(matches!(
-            response_results(&r, 4, 1),
+            response_results(&r, Address::new(4).unwrap(), 1),
             Err(ParamError::Unexpected(_))
         ));
         assert!(matches!(
-            response_results(&r, 3, 2),
+            response_results(&r, Address::new(3).unwrap(), 2),
             Err(ParamError::Unexpected(_))
         ));
     }

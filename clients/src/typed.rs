@@ -10,7 +10,7 @@ use core::fmt;
 use std::collections::HashMap;
 use std::sync::{Mutex, PoisonError};
 use uss_catalogue::{Catalogue, DataType, Param, Typed};
-use uss_protocol::{ParamRef, ParamTask, Pnu, Subindex, Value};
+use uss_protocol::{Address, ParamRef, ParamTask, Pnu, Subindex, Value};
 use uss_shm_types::DriveFamily;
 
 /// The catalogue a [`Bus`] consults, and the data types drives described, by (address, PNU),
@@ -105,7 +105,7 @@ impl Bus {
 
     /// What kind of slave ussd says drive `address` is (its configured `family`); a drive
     /// ussd does not describe counts as a MICROMASTER 4.
-    pub fn family(&self, address: u8) -> DriveFamily {
+    pub fn family(&self, address: Address) -> DriveFamily {
         self.diag(address)
             .ok()
             .and_then(|d| DriveFamily::try_from(d.info.family).ok())
@@ -130,8 +130,8 @@ impl Bus {
     /// may not know descriptions (some firmware stops answering), so this is refused.
     pub fn describe(
         &self,
-        address: u8,
-        pnu: u16,
+        address: Address,
+        pnu: Pnu,
     ) -> Result<(DataType, Option<&'static Param>), ParamError> {
         self.describe_as(address, pnu, self.family(address))
     }
@@ -139,27 +139,27 @@ impl Bus {
     /// [`Bus::describe`] for a drive of `family`.
     fn describe_as(
         &self,
-        address: u8,
-        pnu: u16,
+        address: Address,
+        pnu: Pnu,
         family: DriveFamily,
     ) -> Result<(DataType, Option<&'static Param>), ParamError> {
-        if let Some(p) = self.catalogue_of(family).and_then(|c| c.param(pnu)) {
+        if let Some(p) = self.catalogue_of(family).and_then(|c| c.param(pnu.get())) {
             return Ok((p.data_type, Some(p)));
         }
         if family == DriveFamily::Generic {
             return Err(never_described(address, pnu));
         }
-        if let Some(t) = self.described.get(address, pnu) {
+        if let Some(t) = self.described.get(address.get(), pnu.get()) {
             return Ok((t, None));
         }
         let t = self.ask_description(address, pnu)?;
-        self.described.insert(address, pnu, t);
+        self.described.insert(address.get(), pnu.get(), t);
         Ok((t, None))
     }
 
     /// What drive `address` itself says parameter `pnu` is: its descriptive element 1, the
     /// PROFIdrive data type (AK 4), asked every time. A `generic` slave is not asked.
-    pub fn drive_describes(&self, address: u8, pnu: u16) -> Result<DataType, ParamError> {
+    pub fn drive_describes(&self, address: Address, pnu: Pnu) -> Result<DataType, ParamError> {
         if self.family(address) == DriveFamily::Generic {
             return Err(never_described(address, pnu));
         }
@@ -167,39 +167,37 @@ impl Bus {
     }
 
     /// Asks the drive for descriptive element 1 of `pnu`, its data type.
-    fn ask_description(&self, address: u8, pnu: u16) -> Result<DataType, ParamError> {
+    fn ask_description(&self, address: Address, pnu: Pnu) -> Result<DataType, ParamError> {
         let element = Subindex::new(1).map_err(|e| ParamError::Unexpected(e.to_string()))?;
-        let task = ParamTask::ReadDescription {
-            pnu: Pnu::from_u16(pnu),
-            element,
-        };
+        let task = ParamTask::ReadDescription { pnu, element };
         let code = self
             .batch(address, &[task])
             .pop()
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))?;
         DataType::from_code(code.as_u32() as u16).ok_or_else(|| {
             ParamError::Unexpected(format!(
-                "drive {address} describes P{pnu:04} with data type {}, which uss-rt does not read",
+                "drive {address} describes P{:04} with data type {}, which uss-rt does not read",
+                pnu.get(),
                 code.as_u32()
             ))
         })
     }
 
     /// The catalogue entry for parameter `pnu` of drive `address`, where its family has one.
-    pub fn catalogue_entry(&self, address: u8, pnu: u16) -> Option<&'static Param> {
+    pub fn catalogue_entry(&self, address: Address, pnu: Pnu) -> Option<&'static Param> {
         self.catalogue_of(self.family(address))
-            .and_then(|c| c.param(pnu))
+            .and_then(|c| c.param(pnu.get()))
     }
 
     /// Reads a parameter as its own type (`P1082 = 50.00 Hz`). A `generic` slave's value is
     /// typed by its reply alone: a word unsigned 16 bits, a double word unsigned 32.
-    pub fn read_param(&self, address: u8, param: ParamRef) -> Result<ParamValue, ParamError> {
+    pub fn read_param(&self, address: Address, param: ParamRef) -> Result<ParamValue, ParamError> {
         let family = self.family(address);
         if family == DriveFamily::Generic {
             return self.read_by_value(address, param);
         }
-        let (data_type, info) = self.describe_as(address, param.pnu.get(), family)?;
-        let raw = self.read_ref(address, param)?;
+        let (data_type, info) = self.describe_as(address, param.pnu, family)?;
+        let raw = self.read(address, param)?;
         Ok(ParamValue {
             param: shown_as(param, info),
             raw,
@@ -209,8 +207,8 @@ impl Bus {
     }
 
     /// A parameter read by its value alone, typed by the reply (a generic slave's).
-    fn read_by_value(&self, address: u8, param: ParamRef) -> Result<ParamValue, ParamError> {
-        let raw = self.read_ref(address, param)?;
+    fn read_by_value(&self, address: Address, param: ParamRef) -> Result<ParamValue, ParamError> {
+        let raw = self.read(address, param)?;
         Ok(ParamValue {
             param,
             raw,
@@ -224,7 +222,7 @@ impl Bus {
     /// the bus ([`ParamError::Value`]). Returns the value the drive now holds.
     pub fn write_param(
         &self,
-        address: u8,
+        address: Address,
         param: ParamRef,
         text: &str,
         options: WriteOptions,
@@ -234,7 +232,7 @@ impl Bus {
             // The width of what it holds now says what to write.
             (self.read_by_value(address, param)?.data_type, None)
         } else {
-            self.describe_as(address, param.pnu.get(), family)?
+            self.describe_as(address, param.pnu, family)?
         };
         let shown = shown_as(param, info);
         if info.is_some_and(|p| !p.is_writable()) {
@@ -247,8 +245,7 @@ impl Bus {
             param: shown.to_string(),
             problem: e.to_string(),
         })?;
-        let index = param.index.map(Subindex::get);
-        let raw = self.write_with(address, param.pnu.get(), index, value, options)?;
+        let raw = self.write_with(address, param, value, options)?;
         Ok(ParamValue {
             param: shown,
             raw,
@@ -259,9 +256,9 @@ impl Bus {
 }
 
 /// Why a generic slave is not asked for a description.
-fn never_described(address: u8, pnu: u16) -> ParamError {
+fn never_described(address: Address, pnu: Pnu) -> ParamError {
     ParamError::Value {
-        param: format!("P{pnu}"),
+        param: format!("P{}", pnu.get()),
         problem: format!(
             "drive {address} is a generic USS slave: uss-rt asks it for values alone, never for \
              descriptions (read the parameter: its reply says word or double word)"
@@ -377,7 +374,7 @@ impl Bus {
     /// r0947/r0949/r0948/r2110, G120 r0945/r0949/r2122, SIMOREG r947/r949). A drive without
     /// the values, times or warnings (error 0) still gets its fault codes; a `generic` slave
     /// has no buffer uss-rt knows, and is refused.
-    pub fn fault_report(&self, address: u8) -> Result<FaultReport, ParamError> {
+    pub fn fault_report(&self, address: Address) -> Result<FaultReport, ParamError> {
         let family = self.family(address);
         let catalogue = self.catalogue_of(family);
         let Some(b) = catalogue.and_then(|c| c.faults.as_ref()) else {

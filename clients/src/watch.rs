@@ -97,7 +97,7 @@ impl DriveWatch {
     pub(crate) fn open(bus: &Bus, address: Address) -> Result<Self, ClientError> {
         let services = bus.services()?;
         let port = open_port(bus.link(), &services, address).map_err(|e| match e {
-            ClientError::UnknownDrive { .. } => bus.unknown_drive(address.get()),
+            ClientError::UnknownDrive { .. } => bus.unknown_drive(address),
             other => other,
         })?;
         let last = *port.entry.get();
@@ -162,8 +162,8 @@ impl DriveWatch {
     }
 
     /// The drive's address.
-    pub fn address(&self) -> u8 {
-        self.address.get()
+    pub fn address(&self) -> Address {
+        self.address
     }
 
     /// The latest input image. `sequence` counts good replies (0 = none yet); `online` is 0

@@ -48,6 +48,33 @@ impl ParamRef {
         }
     }
 
+    /// `P` + `number`, as the manuals write a settable parameter (`ParamRef::p(1082)` is
+    /// P1082).
+    pub const fn p(number: u16) -> Self {
+        Self::new(Pnu::from_u16(number))
+    }
+
+    /// `r` + `number`, as the manuals write a monitoring parameter (`ParamRef::r(947)` is
+    /// r0947).
+    pub const fn r(number: u16) -> Self {
+        Self {
+            prefix: Prefix::R,
+            ..Self::p(number)
+        }
+    }
+
+    /// Parameter `number` (P), element `index` when there is one (0..=254): what a caller that
+    /// holds numbers (C, Python) names.
+    pub fn numbered(number: u16, index: Option<u8>) -> Result<Self, NotationError> {
+        let param = Self::p(number);
+        match index {
+            None => Ok(param),
+            Some(i) => Subindex::new(i)
+                .map(|i| param.at(i))
+                .map_err(|_| NotationError::Index),
+        }
+    }
+
     /// The same parameter, element `index`.
     #[must_use]
     pub const fn at(self, index: Subindex) -> Self {

@@ -65,7 +65,8 @@ pub(crate) fn control(
     address: u8,
 ) -> PyResult<Controller> {
     let rust_bus = &bus.get().inner;
-    let opened = py.detach(|| rust_bus.control(address, ControlOptions::default()));
+    let drive = errors::drive(py, address)?;
+    let opened = py.detach(|| rust_bus.control(drive, ControlOptions::default()));
     let c = opened.map_err(|e| errors::client(py, e))?;
     let refresher = c.spawn_refresher(DEFAULT_REFRESH);
     let pzd = c.words().len();

@@ -6,7 +6,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 use uss_client::uss_shm_types::{DriveError, PathError, RequestError, StopCommand};
-use uss_client::{ClientError, Latch, ParamError};
+use uss_client::{Address, ClientError, Latch, ParamError};
 
 /// `uss_rt.<class>(*args)` as the error to raise (a `RuntimeError` if the module is broken).
 fn raise<'py>(
@@ -45,6 +45,12 @@ fn latched(py: Python<'_>, class: &str, address: u8, latch: &Latch, message: Str
 }
 
 /// A client error as the matching `uss_rt` exception.
+/// A drive address from Python, checked where it enters: 0..=31, or the client's address
+/// error.
+pub(crate) fn drive(py: Python<'_>, address: u8) -> PyResult<Address> {
+    Address::new(address).map_err(|e| client(py, ClientError::from(e)))
+}
+
 pub(crate) fn client(py: Python<'_>, e: ClientError) -> PyErr {
     let message = e.to_string();
     match e {
@@ -54,7 +60,15 @@ pub(crate) fn client(py: Python<'_>, e: ClientError) -> PyErr {
             bus,
             address,
             known,
-        } => raise(py, "UnknownDrive", (bus, address, crate::widen(&known))),
+        } => raise(
+            py,
+            "UnknownDrive",
+            (
+                bus,
+                address,
+                known.iter().map(|&a| u32::from(a)).collect::<Vec<u32>>(),
+            ),
+        ),
         ClientError::Controlled { bus, address, .. } => {
             raise(py, "Controlled", (bus, address, message))
         }

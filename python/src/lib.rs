@@ -37,7 +37,7 @@ impl Bus {
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
             std::collections::hash_map::Entry::Vacant(e) => e.insert(
                 self.inner
-                    .watch(address)
+                    .watch(errors::drive(py, address)?)
                     .map_err(|err| errors::client(py, err))?,
             ),
         };
@@ -100,7 +100,7 @@ impl Bus {
     fn diag<'py>(&self, py: Python<'py>, address: u8) -> PyResult<Bound<'py, PyDict>> {
         let diag = self
             .inner
-            .diag(address)
+            .diag(errors::drive(py, address)?)
             .map_err(|e| errors::client(py, e))?;
         let info = PyDict::new(py);
         info.set_item("reference_hz", diag.info.reference_hz)?;
@@ -232,7 +232,8 @@ fn stop_command(code: u8) -> PyResult<StopCommand> {
 fn stop_drive(py: Python<'_>, bus: &Bound<'_, Bus>, address: u8, command: u8) -> PyResult<()> {
     let bus = bus.get();
     let command = stop_command(command)?;
-    py.detach(|| bus.inner.stop_drive(address, command))
+    let drive = errors::drive(py, address)?;
+    py.detach(|| bus.inner.stop_drive(drive, command))
         .map_err(|e| errors::client(py, e))
 }
 
@@ -247,8 +248,8 @@ fn stop_all(py: Python<'_>, bus: &Bound<'_, Bus>, command: u8) -> PyResult<Vec<u
 }
 
 /// Addresses as a Python list of ints (`PyO3` makes a `Vec<u8>` `bytes`).
-pub(crate) fn widen(addresses: &[u8]) -> Vec<u32> {
-    addresses.iter().map(|&a| u32::from(a)).collect()
+pub(crate) fn widen(addresses: &[uss_client::Address]) -> Vec<u32> {
+    addresses.iter().map(|a| u32::from(a.get())).collect()
 }
 
 /// Waits (at most `timeout` s, without the GIL; `None`: the drive's handshake time) until
@@ -266,8 +267,9 @@ fn wait_stopped<'py>(
     let bus = bus.get();
     let command = stop_command(command)?;
     let timeout = timeout.map(duration).transpose()?;
+    let drive = errors::drive(py, address)?;
     let image = py
-        .detach(|| bus.inner.wait_stopped(address, command, timeout))
+        .detach(|| bus.inner.wait_stopped(drive, command, timeout))
         .map_err(|e| errors::client(py, e))?;
     let state = health_tuple(bus.inner.health(), bus.inner.name()).0;
     image_dict(py, address, &image, state)

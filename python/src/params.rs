@@ -7,7 +7,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use uss_client::uss_protocol::{ParamRef, Prefix};
-use uss_client::{Catalogue, DataType, ParamValue, Typed, Value, WriteOptions};
+use uss_client::{Address, Catalogue, DataType, ParamValue, Typed, Value, WriteOptions};
 
 fn raw(v: Value) -> (u32, bool) {
     match v {
@@ -16,16 +16,17 @@ fn raw(v: Value) -> (u32, bool) {
     }
 }
 
-fn index(index: Option<u16>) -> PyResult<Option<u8>> {
-    index
-        .map(|i| {
-            u8::try_from(i).ok().filter(|&i| i <= 254).ok_or_else(|| {
-                PyValueError::new_err(format!(
-                    "subindex {i} is out of range 0..=254 (USS.md section 6)"
-                ))
-            })
-        })
-        .transpose()
+/// Parameter `pnu`, element `index` if any: 0..=254 (USS.md section 6).
+fn param_at(pnu: u16, index: Option<u16>) -> PyResult<ParamRef> {
+    let bad = |i| {
+        PyValueError::new_err(format!(
+            "subindex {i} is out of range 0..=254 (USS.md section 6)"
+        ))
+    };
+    let narrow = index
+        .map(|i| u8::try_from(i).map_err(|_| bad(i)))
+        .transpose()?;
+    ParamRef::numbered(pnu, narrow).map_err(|_| bad(index.unwrap_or_default()))
 }
 
 /// `pnu` (or its element `index`) of drive `address` as the raw `(value, is_dword)`.
@@ -39,12 +40,13 @@ fn read_param(
     index_: Option<u16>,
     timeout: f64,
 ) -> PyResult<(u32, bool)> {
-    let index = index(index_)?;
+    let param = param_at(pnu, index_)?;
+    let drive = errors::drive(py, address)?;
     let bus = bus
         .get()
         .inner
         .with_answer_timeout(Some(duration(timeout)?));
-    py.detach(|| bus.read(address, pnu, index))
+    py.detach(|| bus.read(drive, param))
         .map(raw)
         .map_err(|e| errors::param(py, &bus, address, e))
 }
@@ -99,8 +101,8 @@ fn read<'py>(
     param: &str,
     timeout: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    typed(py, bus, address, param, timeout, |bus, param| {
-        bus.read_param(address, param)
+    typed(py, bus, address, param, timeout, |bus, drive, param| {
+        bus.read_param(drive, param)
     })
 }
 
@@ -111,15 +113,17 @@ fn typed<'py>(
     address: u8,
     param: &str,
     timeout: f64,
-    f: impl FnOnce(&uss_client::Bus, ParamRef) -> Result<ParamValue, uss_client::ParamError> + Send,
+    f: impl FnOnce(&uss_client::Bus, Address, ParamRef) -> Result<ParamValue, uss_client::ParamError>
+    + Send,
 ) -> PyResult<Bound<'py, PyDict>> {
     let param = param_ref(param)?;
+    let drive = errors::drive(py, address)?;
     let bus = bus
         .get()
         .inner
         .with_answer_timeout(Some(duration(timeout)?));
     let value = py
-        .detach(|| f(&bus, param))
+        .detach(|| f(&bus, drive, param))
         .map_err(|e| errors::param(py, &bus, address, e))?;
     value_dict(py, &value)
 }
@@ -144,8 +148,8 @@ fn write<'py>(
         force,
         unsafe_write,
     };
-    typed(py, bus, address, param, timeout, |bus, param| {
-        bus.write_param(address, param, text, options)
+    typed(py, bus, address, param, timeout, |bus, drive, param| {
+        bus.write_param(drive, param, text, options)
     })
 }
 
@@ -159,8 +163,9 @@ fn fault_report<'py>(
     address: u8,
 ) -> PyResult<Bound<'py, PyDict>> {
     let bus = &bus.get().inner;
+    let drive = errors::drive(py, address)?;
     let report = py
-        .detach(|| bus.fault_report(address))
+        .detach(|| bus.fault_report(drive))
         .map_err(|e| errors::param(py, bus, address, e))?;
     let faults = pyo3::types::PyList::empty(py);
     for f in &report.faults {

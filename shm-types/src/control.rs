@@ -300,8 +300,8 @@ impl OperatorResponse {
     }
 
     /// The addresses that got the command, ascending.
-    pub fn addresses(&self) -> impl Iterator<Item = u8> + '_ {
-        (0..32u8).filter(|a| self.drives & (1 << a) != 0)
+    pub fn addresses(&self) -> impl Iterator<Item = crate::Address> + '_ {
+        crate::Address::all().filter(|a| self.drives & (1 << a.get()) != 0)
     }
 }
 
@@ -371,7 +371,8 @@ mod tests {
     #[test]
     fn operator_response_lists_the_drives_it_reached() {
         let r = OperatorResponse::done(StopCommand::Off3, (1 << 1) | (1 << 31));
-        assert_eq!(r.addresses().collect::<Vec<_>>(), [1, 31]);
+        let reached: Vec<u8> = r.addresses().map(crate::Address::get).collect();
+        assert_eq!(reached, [1, 31]);
         assert_eq!(r.error(), Ok(CommandError::Ok));
         let r = OperatorResponse::refused(2, CommandError::UnknownDrive);
         assert_eq!((r.drives, r.error()), (0, Ok(CommandError::UnknownDrive)));

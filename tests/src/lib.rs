@@ -12,7 +12,47 @@ use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use uss_client::{Bus, ClientError};
+use uss_client::{Address, Bus, ClientError, ParamRef, Subindex};
+
+/// Drive `a` of a test's bus (the tests name their drives 1..=31).
+pub fn addr(a: impl TestAddress) -> Address {
+    a.address()
+}
+
+/// What a test writes as a drive's address: a number, or an address already.
+pub trait TestAddress {
+    fn address(self) -> Address;
+}
+
+impl TestAddress for Address {
+    fn address(self) -> Address {
+        self
+    }
+}
+
+macro_rules! test_address {
+    ($($t:ty),*) => {$(
+        impl TestAddress for $t {
+            fn address(self) -> Address {
+                u8::try_from(self)
+                    .ok()
+                    .and_then(|a| Address::new(a).ok())
+                    .expect("a test drive's address is 0..=31")
+            }
+        }
+    )*};
+}
+test_address!(u8, i32, u32, usize);
+
+/// Parameter `pnu` (P + the number).
+pub fn param(pnu: u16) -> ParamRef {
+    ParamRef::p(pnu)
+}
+
+/// Element `index` of parameter `pnu`.
+pub fn param_at(pnu: u16, index: u8) -> ParamRef {
+    ParamRef::p(pnu).at(Subindex::new(index).expect("a test's index is 0..=254"))
+}
 
 /// Builds (if needed) and returns the path of a workspace binary. Integration tests only get
 /// their own package's binaries from cargo, so other packages' binaries are built here with the
@@ -216,7 +256,7 @@ impl Ussd {
         for spec in specs {
             let bus = ussd.open_when_running(spec.suffix);
             for &(a, _) in spec.drives {
-                bus.watch(a)
+                bus.watch(addr(a))
                     .unwrap()
                     .wait_for(Duration::from_secs(20), "a reply", |i| {
                         i.online != 0 && i.sequence > 0

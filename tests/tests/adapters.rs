@@ -10,6 +10,7 @@
 
 use std::fmt::Write;
 use std::time::Duration;
+use uss_integration_tests::addr;
 use uss_integration_tests::{BusSpec, SimProcess, Ussd};
 
 /// What a bus did over its measured seconds.
@@ -59,7 +60,7 @@ fn run(sim_args: &[&str], keys: &str, secs: u64) -> Figures {
     };
     let mut why = String::new();
     for d in [1, 2] {
-        let c = bus.diag(d).unwrap().counters;
+        let c = bus.diag(addr(d)).unwrap().counters;
         let _ = write!(
             why,
             " drive {d}: timeouts {} start pause {} missing STX {} residual {} echo {};",

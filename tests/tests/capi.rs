@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use uss_integration_tests::Ussd;
+use uss_integration_tests::addr;
 
 /// One ussd at a time: each runs a paced bus thread, and the machine has two cores.
 fn serial() -> MutexGuard<'static, ()> {
@@ -113,7 +114,7 @@ fn the_c_and_cpp_examples_run_a_drive_as_the_readme_shows() {
     // Quick ramps: 50 Hz in 1 s up and down.
     for p in ["P1120", "P1121"] {
         let p = p.parse().unwrap();
-        bus.write_param(1, p, "1", uss_client::WriteOptions::default())
+        bus.write_param(addr(1), p, "1", uss_client::WriteOptions::default())
             .unwrap();
     }
     let out = run(&c, &[&ussd.bus, "1", "10", "1"]);

@@ -7,6 +7,7 @@ use serde_json::Value as Json;
 use std::process::Command;
 use std::time::Duration;
 use uss_integration_tests::{BusSpec, Ussd};
+use uss_integration_tests::{addr, param};
 use uss_protocol::bcc;
 use uss_shm_types::Hex;
 
@@ -31,7 +32,7 @@ fn capture_decodes_a_parameter_read_and_writes_pcapng_for_wireshark() {
     ]);
     // Subscribed once it shows a telegram.
     capture.says("\"sequence\"");
-    let value = bus.read(1, 1082, None).unwrap();
+    let value = bus.read(addr(1), param(1082)).unwrap();
     assert_eq!(value.as_u32(), 0x4248_0000, "P1082 reads 50.0 Hz");
     let (status, rest, stderr) = capture.finish();
     assert!(status.success(), "{stderr}");
@@ -159,7 +160,7 @@ fn rust_log_debug_and_trace_show_states_retries_jobs_and_telegrams() {
     );
     let bus = ussd.bus();
     // Three tries at 20 % lost replies: a read may still fail; its jobs are logged either way.
-    let _ = bus.read(1, 1082, None);
+    let _ = bus.read(addr(1), param(1082));
     let wait = Duration::from_secs(10);
     for said in [
         "drive 1: unknown -> S",

@@ -127,12 +127,16 @@ fn exporter_serves_metrics_that_promtool_accepts_and_follows_a_restarted_ussd() 
     };
     assert_eq!(drive1(&s, "uss_overrides_total"), Some(0.0));
     let client = ussd.bus();
-    let c = client.control(1, ControlOptions::default()).unwrap();
+    let c = client
+        .control(uss_integration_tests::addr(1), ControlOptions::default())
+        .unwrap();
     let refresh = c.spawn_refresher(Duration::from_millis(20));
     c.enable().unwrap();
     drop(refresh);
     c.release().unwrap();
-    client.stop_drive(1, StopCommand::Off1).unwrap();
+    client
+        .stop_drive(uss_integration_tests::addr(1), StopCommand::Off1)
+        .unwrap();
     let s = wait_for(&addr, "drive 1's release and operator stop", |s| {
         drive1(s, "uss_overrides_total") == Some(1.0)
             && drive1(s, "uss_releases_total") == Some(1.0)

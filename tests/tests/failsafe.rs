@@ -28,6 +28,7 @@ use uss_client::{
     Rejection, Setpoint, StopCommand, Value, WriteOptions, state_of,
 };
 use uss_integration_tests::{ChildProc, SimProcess, Ussd, monotonic_ns};
+use uss_integration_tests::{addr, param};
 use uss_shm_types::names;
 use uss_shm_types::service::Ipc;
 use uss_shm_types::{Address, BusName, Heartbeat, Instance, LAYOUT_VERSION, PzdOutput};
@@ -60,9 +61,9 @@ fn logged(ussd: &Ussd, text: &str) -> bool {
 
 /// Quick ramps for drive `a`: 50 Hz in 1 s up, in 0.5 s down.
 fn quick_ramps(bus: &Bus, a: u8) {
-    bus.write(a, 1120, None, Value::from_f32(1.0), false)
+    bus.write(addr(a), param(1120), Value::from_f32(1.0), false)
         .unwrap();
-    bus.write(a, 1121, None, Value::from_f32(0.5), false)
+    bus.write(addr(a), param(1121), Value::from_f32(0.5), false)
         .unwrap();
 }
 
@@ -87,7 +88,7 @@ fn ended(run: &mut ChildProc, within: Duration) -> (Option<i32>, String) {
 
 /// The first image at or after now that `done` accepts, looking every 100 us.
 fn first_image(bus: &Bus, a: u8, timeout: Duration, done: impl Fn(&PzdInput) -> bool) -> PzdInput {
-    let watch = bus.watch(a).unwrap();
+    let watch = bus.watch(addr(a)).unwrap();
     let deadline = Instant::now() + timeout;
     loop {
         let i = watch.latest();
@@ -107,7 +108,7 @@ fn diag_when(
 ) -> uss_client::DriveDiag {
     let deadline = Instant::now() + Duration::from_secs(5);
     loop {
-        let d = bus.diag(a).unwrap();
+        let d = bus.diag(addr(a)).unwrap();
         if done(&d) {
             return d;
         }
@@ -122,7 +123,7 @@ fn diag_when(
 /// Asserts for `during` that drive `a` stays latched by `reason` with OFF1 going out and never
 /// runs faster than it did at the start.
 fn stays_stopped(bus: &Bus, a: u8, reason: LatchReason, during: Duration) {
-    let watch = bus.watch(a).unwrap();
+    let watch = bus.watch(addr(a)).unwrap();
     let start = watch.latest();
     let end = Instant::now() + during;
     while Instant::now() < end {
@@ -172,7 +173,7 @@ fn frozen_controller_trips_once_and_the_drive_stays_stopped_when_it_resumes() {
     assert!(logged(&ussd, "drive 1: controller stale"), "{}", ussd.log());
 
     // Only a deliberate re-arm runs it again: OFF1, then ON.
-    let c = bus.control(1, ControlOptions::default()).unwrap();
+    let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     assert!(matches!(c.run_hz(10.0), Err(ClientError::NotArmed { .. })));
     c.enable().unwrap();
     c.run_hz(10.0).unwrap();
@@ -228,7 +229,7 @@ impl RawController {
             .unwrap();
         Self {
             publisher,
-            watch: Bus::open(bus_name).unwrap().watch(a).unwrap(),
+            watch: Bus::open(bus_name).unwrap().watch(addr(a)).unwrap(),
             sequence: 0,
             _node: node,
         }
@@ -257,7 +258,7 @@ impl RawController {
 
     /// Publishes `words` every 10 ms until drive `a` satisfies `done`.
     fn until(&mut self, bus: &Bus, a: u8, words: &[u16], done: impl Fn(&PzdInput) -> bool) {
-        let watch = bus.watch(a).unwrap();
+        let watch = bus.watch(addr(a)).unwrap();
         let deadline = Instant::now() + Duration::from_secs(5);
         while !done(&watch.latest()) {
             assert!(Instant::now() < deadline, "{:?}", watch.latest());
@@ -348,7 +349,7 @@ fn every_kind_of_bad_sample_from_a_raw_publisher_latches_the_drive_at_the_poll_t
             raw.words(&[RUN, 0x1000]);
             std::thread::sleep(Duration::from_millis(10));
         }
-        let after = bus.watch(1).unwrap().latest();
+        let after = bus.watch(addr(1)).unwrap().latest();
         assert_eq!(
             (after.sent_stw1, after.latch_reason),
             (OFF1, LatchReason::Rejected.code()),
@@ -358,7 +359,7 @@ fn every_kind_of_bad_sample_from_a_raw_publisher_latches_the_drive_at_the_poll_t
         assert_eq!(d.rejection, rejection.code(), "{name}");
     }
     assert_eq!(
-        bus.diag(1).unwrap().counters.watchdog_trips,
+        bus.diag(addr(1)).unwrap().counters.watchdog_trips,
         0,
         "refusals are not watchdog trips"
     );
@@ -382,7 +383,7 @@ fn a_refresher_does_not_keep_a_drive_live_for_a_program_that_stopped_calling() {
     let ussd = Ussd::start("", &[(1, "")]);
     let bus = ussd.bus();
     quick_ramps(&bus, 1);
-    let c = bus.control(1, ControlOptions::default()).unwrap();
+    let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     let refresher = c.spawn_refresher(Duration::from_millis(20));
     c.enable().unwrap();
     c.run_hz(10.0).unwrap();
@@ -436,7 +437,7 @@ fn a_clean_release_is_not_a_trip_and_a_sigkill_is() {
     );
 
     // A controller of this process that is dropped: released too, the drive confirmed it.
-    let c = bus.control(1, ControlOptions::default()).unwrap();
+    let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     c.enable().unwrap();
     c.wait_for(Duration::from_secs(2), "live", PzdInput::is_live)
         .unwrap();
@@ -468,7 +469,7 @@ fn operator_overrides(ussd: &Ussd, drives: &[u8], args: &[&str], stw1: u16, name
             out.contains(&format!("drive {a}: {name} sent (STW1 {stw1:#06X})")),
             "{args:?}: {out}"
         );
-        let i = bus.watch(a).unwrap().latest();
+        let i = bus.watch(addr(a)).unwrap().latest();
         assert_eq!(
             (i.sent_stw1, i.latch_reason),
             (stw1, LatchReason::Override.code()),
@@ -486,7 +487,11 @@ fn operator_overrides(ussd: &Ussd, drives: &[u8], args: &[&str], stw1: u16, name
     // Latched: still the operator's command after the controllers' last "run".
     std::thread::sleep(Duration::from_millis(300));
     for &a in drives {
-        assert_eq!(bus.watch(a).unwrap().latest().sent_stw1, stw1, "{args:?}");
+        assert_eq!(
+            bus.watch(addr(a)).unwrap().latest().sent_stw1,
+            stw1,
+            "{args:?}"
+        );
     }
 }
 
@@ -506,19 +511,19 @@ fn ussctl_stop_coast_and_quick_stop_override_a_running_controller_and_latch() {
     operator_overrides(&ussd, &[2], &["stop", "2"], OFF1, "OFF1");
     operator_overrides(&ussd, &[3], &["quick-stop", "3"], OFF3, "OFF3");
     operator_overrides(&ussd, &[1, 2], &["quick-stop", "--all"], OFF3, "OFF3");
-    assert_eq!(bus.diag(2).unwrap().counters.overrides, 2);
+    assert_eq!(bus.diag(addr(2)).unwrap().counters.overrides, 2);
 
     // The latency of the override: the API call -> the first reply to a telegram carrying it.
-    let c = bus.control(3, ControlOptions::default()).unwrap();
+    let c = bus.control(addr(3), ControlOptions::default()).unwrap();
     let _refresh = c.spawn_refresher(Duration::from_millis(20));
     c.enable().unwrap();
     c.run_hz(20.0).unwrap();
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
         .unwrap();
     // This process's command client is opened by its first use, not measured.
-    bus.stop_drive(2, StopCommand::Off1).unwrap();
+    bus.stop_drive(addr(2), StopCommand::Off1).unwrap();
     let asked = monotonic_ns();
-    bus.stop_drive(3, StopCommand::Off2).unwrap();
+    bus.stop_drive(addr(3), StopCommand::Off2).unwrap();
     let out = first_image(&bus, 3, Duration::from_secs(1), |i| i.sent_stw1 == OFF2);
     let latency = out.timestamp_ns.saturating_sub(asked) as f64 / 1e6;
     println!("failsafe: operator OFF2 on the wire, reply in, {latency:.1} ms after the API call");
@@ -546,11 +551,11 @@ fn a_jog_does_not_re_arm_an_operator_stop_only_a_stop_does() {
     raw.until(&bus, 1, &[RUN, 0x1000], |i| {
         state_of(i) == DriveState::OperationEnabled
     });
-    bus.stop_drive(1, StopCommand::Off1).unwrap();
+    bus.stop_drive(addr(1), StopCommand::Off1).unwrap();
     first_image(&bus, 1, Duration::from_secs(1), |i| {
         i.latch_reason == LatchReason::Override.code()
     });
-    let watch = bus.watch(1).unwrap();
+    let watch = bus.watch(addr(1)).unwrap();
     for n in 0..60 {
         let jog = if n % 2 == 0 { JOG1 } else { JOG2 };
         let seq = raw.words(&[jog, 0x1000]);
@@ -583,7 +588,7 @@ fn a_republished_stop_never_re_arms_an_operator_stop() {
     let ussd = Ussd::start("", &[(1, "")]);
     let bus = ussd.bus();
     let mut raw = RawController::open(&ussd.bus, 1);
-    let watch = bus.watch(1).unwrap();
+    let watch = bus.watch(addr(1)).unwrap();
     for round in 0..3 {
         raw.until(&bus, 1, &[OFF1, 0], PzdInput::is_live);
         // Live: the controller's OFF1 names no latch (there is none), and keeps coming.
@@ -634,10 +639,10 @@ fn parameter_writes_to_a_controlled_drive_need_force_or_the_controlling_process(
     let pid = controller.pid();
 
     // Another process (this one, and a ussctl) may read but not write.
-    assert_eq!(bus.read_f32(1, 1082, None), Ok(50.0));
+    assert_eq!(bus.read_f32(addr(1), param(1082)), Ok(50.0));
     let stretch = Value::from_f32(650.0);
     assert_eq!(
-        bus.write(1, 1121, None, stretch, false),
+        bus.write(addr(1), param(1121), stretch, false),
         Err(ParamError::Controlled { address: 1, pid })
     );
     let mut refused = ussd.ussctl(&["param", "write", "1", "P1121", "650.0"]);
@@ -649,7 +654,7 @@ fn parameter_writes_to_a_controlled_drive_need_force_or_the_controlling_process(
     );
     assert!(err.contains("--force"), "{err}");
     assert_ne!(
-        bus.read_f32(1, 1121, None),
+        bus.read_f32(addr(1), param(1121)),
         Ok(650.0),
         "nothing was written"
     );
@@ -658,25 +663,25 @@ fn parameter_writes_to_a_controlled_drive_need_force_or_the_controlling_process(
     let mut forced = ussd.ussctl(&["param", "write", "1", "P1121", "2.5", "--force"]);
     let (status, out, err) = forced.finish();
     assert!(status.success(), "{out}{err}");
-    assert_eq!(bus.read_f32(1, 1121, None), Ok(2.5));
+    assert_eq!(bus.read_f32(addr(1), param(1121)), Ok(2.5));
     let options = WriteOptions {
         force: true,
         ..WriteOptions::default()
     };
     assert_eq!(
-        bus.write_with(1, 1120, None, Value::from_f32(1.5), options),
+        bus.write_with(addr(1), param(1120), Value::from_f32(1.5), options),
         Ok(Value::from_f32(1.5))
     );
 
     // The controlling process writes through its own handles.
-    let own = bus.control(2, ControlOptions::default()).unwrap();
+    let own = bus.control(addr(2), ControlOptions::default()).unwrap();
     own.enable().unwrap();
-    assert_eq!(bus.write(2, 1121, None, stretch, false), Ok(stretch));
+    assert_eq!(bus.write(addr(2), param(1121), stretch, false), Ok(stretch));
     drop(own);
 
     // params_writable = false refuses everything, forced or not.
     assert!(matches!(
-        bus.write_with(3, 1121, None, stretch, options),
+        bus.write_with(addr(3), param(1121), stretch, options),
         Err(ParamError::Refused {
             error: uss_client::RequestError::WritesDisabled,
             ..
@@ -714,14 +719,14 @@ fn hz_are_scaled_by_the_reference_frequency_the_drive_uses() {
     );
     // Drive 2 agrees with the configuration; drive 3's is not read.
     std::thread::sleep(Duration::from_millis(500));
-    assert_eq!(bus.diag(2).unwrap().info.reference_hz, 60.0);
-    assert_eq!(bus.diag(3).unwrap().info.reference_hz, 60.0);
+    assert_eq!(bus.diag(addr(2)).unwrap().info.reference_hz, 60.0);
+    assert_eq!(bus.diag(addr(3)).unwrap().info.reference_hz, 60.0);
     let log = ussd.log();
     assert!(!log.contains("drive 2: reference"), "{log}");
     assert!(!log.contains("drive 3: reference"), "{log}");
 
     // 25 Hz of the drive's 50 Hz is 50 %.
-    let c = bus.control(1, ControlOptions::default()).unwrap();
+    let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     assert_eq!(c.inputs().info().reference_hz, 50.0);
     c.enable().unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
@@ -782,7 +787,7 @@ fn a_drive_without_telegram_monitoring_is_reported_and_refused_on_when_required(
         err.contains("telegram monitoring is required but off"),
         "{err}"
     );
-    let i = bus.watch(2).unwrap().latest();
+    let i = bus.watch(addr(2)).unwrap().latest();
     assert_eq!(
         (i.latch_reason, i.sent_stw1),
         (LatchReason::MonitoringOff.code(), OFF1)

@@ -7,6 +7,7 @@
 
 use std::time::Duration;
 use uss_integration_tests::{BusSpec, SimProcess, Ussd};
+use uss_integration_tests::{addr, param};
 
 fn fragile_pump() -> SimProcess {
     SimProcess::start(&[
@@ -35,7 +36,7 @@ fn generic_pump_bus() -> (SimProcess, Ussd, uss_client::Bus) {
 
 /// Whether drive 1 stays online and polled for `secs` seconds.
 fn stays_online(bus: &uss_client::Bus, secs: u64) -> Result<(), String> {
-    let watch = bus.watch(1).unwrap();
+    let watch = bus.watch(addr(1)).unwrap();
     watch
         .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
         .map_err(|e| format!("went offline (or never online): {e:?}"))?;
@@ -53,7 +54,7 @@ fn stays_online(bus: &uss_client::Bus, secs: u64) -> Result<(), String> {
 fn a_generic_slave_that_dies_of_unknown_parameters_stays_online() {
     let (_sim, _ussd, bus) = generic_pump_bus();
     stays_online(&bus, 3).unwrap();
-    assert_eq!(bus.family(1), uss_shm_types::DriveFamily::Generic);
+    assert_eq!(bus.family(addr(1)), uss_shm_types::DriveFamily::Generic);
 }
 
 #[test]
@@ -61,18 +62,18 @@ fn a_generic_slave_is_read_by_value_alone_and_stays_online() {
     let (_sim, _ussd, bus) = generic_pump_bus();
     stays_online(&bus, 1).unwrap();
     // Its own parameter P1, a word: read as the reply types it.
-    let p1 = bus.read_param(1, "P1".parse().unwrap());
+    let p1 = bus.read_param(addr(1), "P1".parse().unwrap());
     println!("families: P1 of the generic slave: {p1:?}");
     stays_online(&bus, 1).unwrap();
     let p1 = p1.unwrap();
     assert_eq!(p1.raw, uss_protocol::Value::Word(0x0A51));
     assert_eq!(p1.to_string(), "P0001 = 2641");
     // A double word, typed by its reply; a write of its writable word, typed by what it holds.
-    let p3 = bus.read_param(1, "P3".parse().unwrap()).unwrap();
+    let p3 = bus.read_param(addr(1), "P3".parse().unwrap()).unwrap();
     assert_eq!(p3.raw, uss_protocol::Value::Dword(12_345));
     let written = bus
         .write_param(
-            1,
+            addr(1),
             "P2".parse().unwrap(),
             "700",
             uss_client::WriteOptions::default(),
@@ -80,12 +81,12 @@ fn a_generic_slave_is_read_by_value_alone_and_stays_online() {
         .unwrap();
     assert_eq!(written.raw, uss_protocol::Value::Word(700));
     // Its description is never asked for: refused before the bus.
-    let described = bus.describe(1, 1);
+    let described = bus.describe(addr(1), uss_client::Pnu::from_u16(1));
     assert!(
         matches!(&described, Err(uss_client::ParamError::Value { problem, .. }) if problem.contains("generic USS slave")),
         "{described:?}"
     );
-    assert!(bus.fault_report(1).is_err());
+    assert!(bus.fault_report(addr(1)).is_err());
     stays_online(&bus, 1).unwrap();
 }
 
@@ -102,7 +103,10 @@ fn a_write_that_takes_the_drive_from_ussd_needs_unsafe_and_the_drive_then_shows_
         "a write that takes the drive away went through: {out}{err}"
     );
     let bus = ussd.bus();
-    assert_eq!(bus.read(1, 700, None), Ok(uss_protocol::Value::Word(5)));
+    assert_eq!(
+        bus.read(addr(1), param(700)),
+        Ok(uss_protocol::Value::Word(5))
+    );
     // Deliberately: written, logged, verified; the drive no longer takes USS commands and
     // ussd says so; a coast is sent but not confirmed as obeyed.
     let mut deliberate = ussd.ussctl(&["param", "write", "1", "P0700", "2", "--unsafe"]);
@@ -255,15 +259,15 @@ fn each_family_runs_faults_control_parameters_and_backup_against_its_personality
     for c in &CASES {
         let d = c.drive;
         let what = format!("drive {d} ({})", c.family);
-        assert_eq!(bus.family(d).name(), c.family, "{what}");
-        bus.watch(d)
+        assert_eq!(bus.family(addr(d)).name(), c.family, "{what}");
+        bus.watch(addr(d))
             .unwrap()
             .wait_for(Duration::from_secs(10), "fault", |i| {
                 i.online != 0 && uss_client::state_of(i) == uss_client::DriveState::Fault
             })
             .unwrap_or_else(|e| panic!("{what}: {e:?}"));
         // Faults: where the family keeps them.
-        let report = bus.fault_report(d).unwrap();
+        let report = bus.fault_report(addr(d)).unwrap();
         assert_eq!(report.codes.to_string(), c.codes, "{what}");
         assert_eq!(
             report.faults.first().map(|f| f.number),
@@ -284,7 +288,7 @@ fn each_family_runs_faults_control_parameters_and_backup_against_its_personality
 
         // Control: acknowledged, re-armed, run at 20 % and stopped.
         let control = bus
-            .control(d, uss_client::ControlOptions::default())
+            .control(addr(d), uss_client::ControlOptions::default())
             .unwrap();
         control
             .acknowledge_fault(Duration::from_secs(2))
@@ -307,7 +311,7 @@ fn each_family_runs_faults_control_parameters_and_backup_against_its_personality
         // Parameters: the setting read and written in its own type (catalogue or the drive's
         // own description), then a backup, a change, and a restore that puts it back.
         let setting: uss_protocol::ParamRef = c.setting.parse().unwrap();
-        let before = bus.read_param(d, setting).unwrap();
+        let before = bus.read_param(addr(d), setting).unwrap();
         let file = dir.join(format!("{}.toml", c.family));
         let path = file.to_str().unwrap();
         let (status, out, err) = ussd
@@ -320,7 +324,12 @@ fn each_family_runs_faults_control_parameters_and_backup_against_its_personality
             "{what}: {saved}"
         );
         let written = bus
-            .write_param(d, setting, c.changed, uss_client::WriteOptions::default())
+            .write_param(
+                addr(d),
+                setting,
+                c.changed,
+                uss_client::WriteOptions::default(),
+            )
             .unwrap_or_else(|e| panic!("{what}: {e}"));
         assert_ne!(written.raw, before.raw, "{what}");
         let (status, out, err) = ussd
@@ -328,7 +337,7 @@ fn each_family_runs_faults_control_parameters_and_backup_against_its_personality
             .finish();
         assert!(status.success(), "{what}: {out}{err}");
         assert_eq!(
-            bus.read_param(d, setting).unwrap().raw,
+            bus.read_param(addr(d), setting).unwrap().raw,
             before.raw,
             "{what}: restored"
         );
@@ -354,7 +363,7 @@ fn a_g120_reference_speed_is_read_with_its_pole_pairs_and_unverified_without() {
         ],
     );
     let bus = ussd.bus();
-    let watch = bus.watch(3).unwrap();
+    let watch = bus.watch(addr(3)).unwrap();
     let deadline = std::time::Instant::now() + Duration::from_secs(5);
     while watch.info().reference_hz != 60.0 && std::time::Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(50));
@@ -371,7 +380,7 @@ fn a_g120_reference_speed_is_read_with_its_pole_pairs_and_unverified_without() {
     );
     // 30 Hz is half the reference: the setpoint 0x2000 runs the drive towards 900 rpm.
     let control = bus
-        .control(3, uss_client::ControlOptions::default())
+        .control(addr(3), uss_client::ControlOptions::default())
         .unwrap();
     control.enable().unwrap();
     control.run_hz(30.0).unwrap();
@@ -382,7 +391,7 @@ fn a_g120_reference_speed_is_read_with_its_pole_pairs_and_unverified_without() {
     control.stop().unwrap();
     control.release().unwrap();
     // Without its pole pairs nothing checks reference_hz against the drive: ussd says so.
-    assert_eq!(bus.watch(4).unwrap().info().reference_hz, 50.0);
+    assert_eq!(bus.watch(addr(4)).unwrap().info().reference_hz, 50.0);
     assert!(
         ussd.log_line(
             "drive 4: its setpoint reference p2000 is a speed in rpm",

@@ -13,6 +13,7 @@
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 use uss_client::{LatchReason, StopCommand};
+use uss_integration_tests::addr;
 use uss_integration_tests::{ChildProc, Ussd};
 
 /// One ussd at a time: each runs a `SCHED_FIFO` bus thread, and the machine has two cores.
@@ -47,7 +48,7 @@ fn thirty_one_drives_at_9600_baud_publish_their_poll_period_and_are_controllable
     // 31 exchanges of at least 42.6 ms of wire time each (PKW 4 + PZD 2 words at 9600 baud):
     // drive 20 is polled every 1.3 s or more, and its image says so (from its second poll on,
     // after a measured cycle; before, the worst case of the list).
-    let watch = bus.watch(20).unwrap();
+    let watch = bus.watch(addr(20)).unwrap();
     let image = watch.wait_exchanges(2, Duration::from_secs(20)).unwrap();
     let period = Duration::from_nanos(image.period_ns);
     let stale_after = Duration::from_nanos(image.stale_after_ns);
@@ -108,7 +109,7 @@ fn a_stop_of_every_drive_on_the_full_line_is_one_broadcast_and_confirmed_by_each
     let (code, out, err) = ended(&mut stop, Duration::from_secs(60));
     assert_eq!(code, Some(0), "{out}{err}");
     for a in 1..=31 {
-        let i = bus.watch(a).unwrap().latest();
+        let i = bus.watch(addr(a)).unwrap().latest();
         assert_eq!(
             (i.latch_reason, i.latch_command, i.sent_stw1),
             (
@@ -161,7 +162,7 @@ fn a_telegram_off_time_shorter_than_the_poll_period_is_reported_with_the_safe_va
     );
     let bus = ussd.bus();
     let deadline = Instant::now() + Duration::from_secs(20);
-    while bus.diag(21).unwrap().monitoring_ms == 0 {
+    while bus.diag(addr(21)).unwrap().monitoring_ms == 0 {
         assert!(Instant::now() < deadline, "drive 21's monitoring not read");
         std::thread::sleep(Duration::from_millis(100));
     }
@@ -189,7 +190,7 @@ fn a_stalled_bus_thread_shows_as_stale_images_before_the_heartbeat_says_gone() {
     // stale after 0.7 s.
     let ussd = Ussd::start("baud = 4800", &[(1, "sim.hang = 3000"), (2, "")]);
     let bus = ussd.bus();
-    let watch = bus.watch(2).unwrap();
+    let watch = bus.watch(addr(2)).unwrap();
     let limit = Duration::from_nanos(watch.latest().stale_after_ns);
     let deadline = Instant::now() + Duration::from_secs(40);
     let stale_at = loop {

@@ -17,6 +17,7 @@ use uss_client::{
     Bus, Catalogue, ClientError, ControlOptions, CycleEvent, DataType, DriveState, LatchReason,
     ParamError, ParamItem, ParamRequest, RequestError, Typed, Value,
 };
+use uss_integration_tests::{addr, param, param_at};
 use uss_integration_tests::{binary, read, terminate};
 
 /// One ussd at a time: each runs a paced bus thread, and the machine has two cores.
@@ -85,7 +86,7 @@ impl Ussd {
             }
         };
         for a in [1, 2, 3] {
-            bus.watch(a)
+            bus.watch(addr(a))
                 .unwrap()
                 .wait_for(Duration::from_secs(10), "a reply", |i| {
                     i.online != 0 && i.sequence > 0
@@ -97,7 +98,7 @@ impl Ussd {
         while bus
             .drives()
             .iter()
-            .any(|&a| bus.diag(a).unwrap().counters.good == 0)
+            .any(|&a| bus.diag(addr(a)).unwrap().counters.good == 0)
         {
             assert!(Instant::now() < deadline, "no diagnostics published");
             std::thread::sleep(Duration::from_millis(20));
@@ -140,10 +141,10 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
     let _serial = serial();
     let ussd = Ussd::start();
     let bus = ussd.bus();
-    assert_eq!(bus.drives(), [1, 2, 3]);
+    assert_eq!(bus.drives(), [addr(1), addr(2), addr(3)]);
 
     // No controller: every drive gets the safe command OFF1, which leads it S1 -> S2.
-    let watch = bus.watch(2).unwrap();
+    let watch = bus.watch(addr(2)).unwrap();
     watch
         .wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
@@ -188,7 +189,7 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
         text(&out.stdout)
     );
     assert!(status.cycles > 0 && status.good > 0, "{status:?}");
-    let diag = bus.diag(2).unwrap();
+    let diag = bus.diag(addr(2)).unwrap();
     assert_eq!((diag.address, diag.online), (2, 1));
     assert!(
         diag.counters.good > 0 && diag.counters.requests >= diag.counters.good,
@@ -197,7 +198,7 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
     // Per drive too: each drive's own percentiles, within the bus's (to the drive histograms'
     // 6 %; the bus's were published at the same moment or later).
     for a in [1, 2, 3] {
-        let d = bus.diag(a).unwrap();
+        let d = bus.diag(addr(a)).unwrap();
         for q in [d.exchange_ns, d.response_delay_ns] {
             assert!(q[0] > 0 && q.windows(2).all(|w| w[0] <= w[1]), "{q:?}");
         }
@@ -216,7 +217,7 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
         "the bus and each of its 3 drives: {shown}"
     );
 
-    let unknown = bus.watch(9).unwrap_err();
+    let unknown = bus.watch(addr(9)).unwrap_err();
     assert_eq!(
         unknown.to_string(),
         format!(
@@ -225,7 +226,7 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
         )
     );
     assert!(matches!(
-        bus.diag(9),
+        bus.diag(addr(9)),
         Err(ClientError::UnknownDrive { address: 9, .. })
     ));
 }
@@ -257,30 +258,36 @@ fn parameters_read_and_write_with_typed_values_and_drive_errors() {
     let bus = ussd.bus();
 
     // USS.md section 6: P1082 reads 0x4248_0000 = 50.0 Hz.
-    assert_eq!(bus.read(1, 1082, None), Ok(Value::Dword(0x4248_0000)));
-    assert_eq!(bus.read_f32(1, 1082, None), Ok(50.0));
-    assert_eq!(bus.read_f32(1, 2000, None), Ok(50.0), "P2000, paged");
+    assert_eq!(
+        bus.read(addr(1), param(1082)),
+        Ok(Value::Dword(0x4248_0000))
+    );
+    assert_eq!(bus.read_f32(addr(1), param(1082)), Ok(50.0));
+    assert_eq!(bus.read_f32(addr(1), param(2000)), Ok(50.0), "P2000, paged");
 
     // P1120 ramp-up time: written as a float, read back.
     assert_eq!(
-        bus.write(1, 1120, None, Value::from_f32(2.5), false),
+        bus.write(addr(1), param(1120), Value::from_f32(2.5), false),
         Ok(Value::Dword(2.5f32.to_bits()))
     );
-    assert_eq!(bus.read_f32(1, 1120, None), Ok(2.5));
+    assert_eq!(bus.read_f32(addr(1), param(1120)), Ok(2.5));
     assert_eq!(
-        bus.write(1, 1120, None, Value::from_f32(3.0), true),
+        bus.write(addr(1), param(1120), Value::from_f32(3.0), true),
         Ok(Value::from_f32(3.0)),
         "RAM + EEPROM"
     );
-    assert_eq!(bus.read_f32(1, 1120, None), Ok(3.0));
+    assert_eq!(bus.read_f32(addr(1), param(1120)), Ok(3.0));
 
     // Arrays: r0947, the fault buffer, has 8 word elements, all empty.
-    assert_eq!(bus.read_array_len(1, 947), Ok(8));
-    assert_eq!(bus.read(1, 947, Some(7)), Ok(Value::Word(0)));
-    assert_eq!(bus.faults(1), Ok(vec![0; 8]));
+    assert_eq!(
+        bus.read_array_len(addr(1), uss_client::Pnu::from_u16(947)),
+        Ok(8)
+    );
+    assert_eq!(bus.read(addr(1), param_at(947, 7)), Ok(Value::Word(0)));
+    assert_eq!(bus.faults(addr(1)), Ok(vec![0; 8]));
 
     // Drive errors carry their number and name (USS.md section 6).
-    let err = bus.read(1, 1999, None).unwrap_err();
+    let err = bus.read(addr(1), param(1999)).unwrap_err();
     assert_eq!(
         err,
         ParamError::Drive(DriveError::Refused(ErrorNumber::IllegalPnu))
@@ -290,19 +297,19 @@ fn parameters_read_and_write_with_typed_values_and_drive_errors() {
         "the drive refused the task with error 0: illegal parameter number"
     );
     assert_eq!(
-        bus.read(1, 947, Some(8)),
+        bus.read(addr(1), param_at(947, 8)),
         Err(ParamError::Drive(DriveError::Refused(
             ErrorNumber::FaultySubindex
         )))
     );
     assert_eq!(
-        bus.write(1, 947, Some(0), Value::Word(1), false),
+        bus.write(addr(1), param_at(947, 0), Value::Word(1), false),
         Err(ParamError::Drive(DriveError::Refused(
             ErrorNumber::ValueNotChangeable
         )))
     );
     assert_eq!(
-        bus.write(1, 1120, None, Value::Word(2), false),
+        bus.write(addr(1), param(1120), Value::Word(2), false),
         Err(ParamError::Drive(DriveError::Refused(
             ErrorNumber::WrongDataType
         )))
@@ -310,28 +317,28 @@ fn parameters_read_and_write_with_typed_values_and_drive_errors() {
     // P0927 (access level 2, so raise P0003 first) with bit 3 clear: no more changes over
     // USS (reply 8). It can lock ussd out: guarded, written only when marked unsafe.
     assert_eq!(
-        bus.write(3, 927, None, Value::Word(15), false),
+        bus.write(addr(3), param(927), Value::Word(15), false),
         Err(ParamError::Refused {
             error: uss_client::RequestError::Guarded,
             item: Some(0)
         })
     );
     assert_eq!(
-        bus.write_with(3, 927, None, Value::Word(15), deliberate()),
+        bus.write_with(addr(3), param(927), Value::Word(15), deliberate()),
         Err(ParamError::Drive(DriveError::Refused(
             ErrorNumber::AccessLevelTooLow
         )))
     );
     assert_eq!(
-        bus.write(3, 3, None, Value::Word(3), false),
+        bus.write(addr(3), param(3), Value::Word(3), false),
         Ok(Value::Word(3))
     );
     assert_eq!(
-        bus.write_with(3, 927, None, Value::Word(0b0111), deliberate()),
+        bus.write_with(addr(3), param(927), Value::Word(0b0111), deliberate()),
         Ok(Value::Word(0b0111))
     );
     assert_eq!(
-        bus.write(3, 1120, None, Value::from_f32(1.0), false),
+        bus.write(addr(3), param(1120), Value::from_f32(1.0), false),
         Err(ParamError::Drive(DriveError::NoChangeRights))
     );
 }
@@ -356,7 +363,7 @@ fn a_batch_of_39_reads_gets_39_results_in_order() {
             pnu => read(pnu, None),
         })
         .collect();
-    let results = bus.batch(2, &items);
+    let results = bus.batch(addr(2), &items);
     assert_eq!(results.len(), 39);
     for (i, r) in results.iter().enumerate() {
         let expected = match pnus[i % pnus.len()] {
@@ -367,7 +374,10 @@ fn a_batch_of_39_reads_gets_39_results_in_order() {
         assert_eq!(r, &Ok(expected), "item {i}: {:?}", items[i]);
     }
     // Items that fail fail alone.
-    let mixed = bus.batch(2, &[read(1082, None), read(1999, None), read(2000, None)]);
+    let mixed = bus.batch(
+        addr(2),
+        &[read(1082, None), read(1999, None), read(2000, None)],
+    );
     assert_eq!(
         mixed,
         [
@@ -379,7 +389,7 @@ fn a_batch_of_39_reads_gets_39_results_in_order() {
         ]
     );
     // 40 items do not fit one request: refused on this side, for every item.
-    let too_many = bus.batch(2, &[read(1082, None); 40]);
+    let too_many = bus.batch(addr(2), &[read(1082, None); 40]);
     assert_eq!(too_many.len(), 40);
     assert!(too_many.iter().all(|r| *r
         == Err(ParamError::Refused {
@@ -401,7 +411,7 @@ fn twelve_threads_sharing_one_bus_take_turns_and_every_request_is_answered() {
                 let bus = &bus;
                 s.spawn(move || {
                     (0..20)
-                        .map(|_| bus.read(1 + k % 3, 1082, None))
+                        .map(|_| bus.read(addr(1 + k % 3), param(1082)))
                         .collect::<Vec<_>>()
                 })
             })
@@ -424,7 +434,7 @@ fn bad_requests_are_answered_with_errors() {
 
     // A drive ussd does not poll.
     assert_eq!(
-        bus.read(9, 1082, None),
+        bus.read(addr(9), param(1082)),
         Err(ParamError::Refused {
             error: RequestError::UnknownDrive,
             item: None
@@ -479,7 +489,7 @@ fn bad_requests_are_answered_with_errors() {
     }
     // The engine is unaffected.
     assert_eq!(
-        uss_client::params::response_results(&bus.send_request(&good).unwrap(), 1, 2),
+        uss_client::params::response_results(&bus.send_request(&good).unwrap(), addr(1), 2),
         Ok(vec![Ok(Value::from_f32(50.0)), Ok(Value::Word(0))])
     );
 }
@@ -522,9 +532,9 @@ fn a_second_controller_is_refused_with_the_controlling_process_id() {
     let me = std::process::id();
 
     // This process controls drive 2: a second handle here, and ussctl, are refused.
-    let first = bus.control(2, ControlOptions::default()).unwrap();
+    let first = bus.control(addr(2), ControlOptions::default()).unwrap();
     first.enable().unwrap();
-    let refused = bus.control(2, ControlOptions::default()).unwrap_err();
+    let refused = bus.control(addr(2), ControlOptions::default()).unwrap_err();
     assert!(
         matches!(refused, ClientError::Controlled { address: 2, pid: Some(pid), .. } if pid == me as i32),
         "{refused:?}"
@@ -550,7 +560,7 @@ fn a_second_controller_is_refused_with_the_controlling_process_id() {
     let mut line = String::new();
     stdout.read_line(&mut line).unwrap();
     assert!(line.starts_with("drive 3: running towards 5 Hz"), "{line}");
-    let refused = bus.control(3, ControlOptions::default()).unwrap_err();
+    let refused = bus.control(addr(3), ControlOptions::default()).unwrap_err();
     assert!(
         refused.to_string().starts_with(&format!(
             "drive 3 on {} is controlled by process {} (node \"ussctl\")",
@@ -566,7 +576,7 @@ fn a_second_controller_is_refused_with_the_controlling_process_id() {
     std::io::Read::read_to_string(&mut stdout, &mut rest).unwrap();
     assert!(run.wait().unwrap().success(), "{rest}");
     assert!(rest.contains("drive 3: ran; OFF1 sent"), "{rest}");
-    bus.control(3, ControlOptions::default()).unwrap();
+    bus.control(addr(3), ControlOptions::default()).unwrap();
 }
 
 #[test]
@@ -575,10 +585,10 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
     let ussd = Ussd::start();
     let bus = ussd.bus();
     // A quick ramp: 50 Hz in 1 s.
-    bus.write(1, 1120, None, Value::from_f32(1.0), false)
+    bus.write(addr(1), param(1120), Value::from_f32(1.0), false)
         .unwrap();
 
-    let c = bus.control(1, ControlOptions::default()).unwrap();
+    let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     c.enable().unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
@@ -611,7 +621,7 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
 
     // A running drive refuses to change P1082 (error 17, not in this state).
     assert_eq!(
-        bus.write(1, 1082, None, Value::from_f32(60.0), false),
+        bus.write(addr(1), param(1082), Value::from_f32(60.0), false),
         Err(ParamError::Drive(DriveError::Refused(
             ErrorNumber::NotInThisState
         )))
@@ -637,7 +647,7 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
         "",
     );
     let bus = ussd.bus();
-    let info = bus.diag(1).unwrap().info;
+    let info = bus.diag(addr(1)).unwrap().info;
     assert_eq!(
         (
             info.reference_hz,
@@ -649,12 +659,12 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
     );
     assert_eq!(info.safe_command(), Ok(uss_client::StopCommand::Off3));
     assert_eq!((info.params_writable, info.weight), (1, 1));
-    assert_eq!(bus.diag(2).unwrap().info.reference_hz, 50.0);
+    assert_eq!(bus.diag(addr(2)).unwrap().info.reference_hz, 50.0);
 
     // A quick ramp: 100 % in 1 s.
-    bus.write(1, 1120, None, Value::from_f32(1.0), false)
+    bus.write(addr(1), param(1120), Value::from_f32(1.0), false)
         .unwrap();
-    let c = bus.control(1, ControlOptions::default()).unwrap();
+    let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     assert_eq!(c.inputs().info().reference_hz, 60.0);
     c.enable().unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
@@ -682,7 +692,7 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
 fn every_tool_shows_30_hz(ussd: &Ussd, bus: &Bus) {
     // Diagnostics (what `status` shows) lag the image by up to a few hundred ms.
     let deadline = Instant::now() + Duration::from_secs(5);
-    while bus.diag(1).unwrap().last_hiw != 0x2000 {
+    while bus.diag(addr(1)).unwrap().last_hiw != 0x2000 {
         assert!(Instant::now() < deadline, "diagnostics never showed 30 Hz");
         std::thread::sleep(Duration::from_millis(20));
     }
@@ -726,20 +736,20 @@ fn parameters_are_read_and_written_as_their_own_type() {
     let ussd = Ussd::start();
     let bus = ussd.bus();
     let p = |s: &str| s.parse::<uss_client::uss_protocol::ParamRef>().unwrap();
-    let v = bus.read_param(1, p("1082")).unwrap();
+    let v = bus.read_param(addr(1), p("1082")).unwrap();
     assert_eq!(v.to_string(), "P1082 = 50.00 Hz");
     assert_eq!(
         (v.typed(), v.unit(), v.name()),
         (Typed::Float(50.0), "Hz", Some("Max. frequency"))
     );
     let options = uss_client::WriteOptions::default();
-    let v = bus.write_param(1, p("P1120"), "2", options).unwrap();
+    let v = bus.write_param(addr(1), p("P1120"), "2", options).unwrap();
     assert_eq!(
         (v.typed(), v.to_string()),
         (Typed::Float(2.0), "P1120 = 2.00 s".to_owned())
     );
     assert_eq!(
-        bus.write_param(1, p("P0700"), "-1", options),
+        bus.write_param(addr(1), p("P0700"), "-1", options),
         Err(ParamError::Value {
             param: "P0700".into(),
             problem: "-1 does not fit U16 (0..=65535)".into()
@@ -755,17 +765,17 @@ fn parameters_are_read_and_written_as_their_own_type() {
     let bus = ussd.bus().with_catalogue(Box::leak(Box::new(empty)));
     let jobs_done = |settle: Duration| {
         std::thread::sleep(settle);
-        bus.diag(1).unwrap().counters.jobs_done
+        bus.diag(addr(1)).unwrap().counters.jobs_done
     };
     let before = jobs_done(Duration::from_millis(500));
-    let v = bus.read_param(1, p("1082")).unwrap();
+    let v = bus.read_param(addr(1), p("1082")).unwrap();
     assert_eq!(
         (v.data_type, v.info, v.to_string()),
         (DataType::Float, None, "P1082 = 50.00".to_owned())
     );
-    let again = bus.read_param(1, p("1082")).unwrap();
+    let again = bus.read_param(addr(1), p("1082")).unwrap();
     assert_eq!(again.typed(), Typed::Float(50.0));
-    let w = bus.read_param(1, p("700")).unwrap();
+    let w = bus.read_param(addr(1), p("700")).unwrap();
     assert_eq!((w.data_type, w.typed()), (DataType::U16, Typed::U16(5)));
     // Two descriptions (P1082, P0700) and three reads reached the drive.
     assert_eq!(jobs_done(Duration::from_millis(600)) - before, 5);
@@ -822,14 +832,14 @@ fn ussctl_reads_and_writes_parameters_in_their_own_type_and_unit() {
         text(&out.stdout),
         "drive 2 P1082 := 45.00 Hz, RAM  (Max. frequency)\n"
     );
-    assert_eq!(ussd.bus().read_f32(2, 1082, None), Ok(45.0));
+    assert_eq!(ussd.bus().read_f32(addr(2), param(1082)), Ok(45.0));
     let out = ussd.ussctl(&["param", "write", "2", "1120", "3.5"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert_eq!(
         text(&out.stdout),
         "drive 2 P1120 := 3.50 s, RAM  (Ramp-up time)\n"
     );
-    assert_eq!(ussd.bus().read_f32(2, 1120, None), Ok(3.5));
+    assert_eq!(ussd.bus().read_f32(addr(2), param(1120)), Ok(3.5));
     // What does not fit the type, or a read-only parameter, is refused before the bus.
     for (args, said) in [
         (
@@ -915,17 +925,17 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
     let ussd = Ussd::start_with("p2014 = 100, unplug = \"2000..2500\"");
     let bus = ussd.bus();
     let faulted = bus
-        .watch(3)
+        .watch(addr(3))
         .unwrap()
         .wait_for(Duration::from_secs(10), "fault", |i| {
             i.online != 0 && uss_client::state_of(i) == DriveState::Fault
         })
         .unwrap();
     assert_eq!(faulted.zsw1 & 0x0008, 0x0008);
-    assert_eq!(bus.faults(3), Ok(vec![72, 0, 0, 0, 0, 0, 0, 0]));
+    assert_eq!(bus.faults(addr(3)), Ok(vec![72, 0, 0, 0, 0, 0, 0, 0]));
     // The simulated drive's clock was never set: r0948 stamps the trip with the time since it
     // started, taken when a telegram meets it again after the unplugged half second (~2.5 s).
-    let report = bus.fault_report(3).unwrap();
+    let report = bus.fault_report(addr(3)).unwrap();
     let time = report.faults.first().and_then(|f| f.time);
     let seconds = time.map_or(0, |t| t.words[0]);
     assert!((2..=9).contains(&seconds), "r0948 = {time:?}");
@@ -970,9 +980,9 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
         said.starts_with("drive 3: fault acknowledge sent; now S"),
         "{said}"
     );
-    assert_ne!(bus.watch(3).unwrap().state(), DriveState::Fault);
+    assert_ne!(bus.watch(addr(3)).unwrap().state(), DriveState::Fault);
     // The acknowledged drive runs again.
-    let c = bus.control(3, ControlOptions::default()).unwrap();
+    let c = bus.control(addr(3), ControlOptions::default()).unwrap();
     c.enable().unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
@@ -1022,13 +1032,14 @@ fn backup_change_restore_and_diff_shows_nothing() {
 
     // Change four settings: a plain one, a float, an expert one (level 3) and a commissioning
     // one (P0010 = 1 needed); put the access level back to 1.
-    let w = |pnu, v| bus.write(1, pnu, None, v, false).unwrap();
+    let w = |pnu, v| bus.write(addr(1), param(pnu), v, false).unwrap();
+    let p1082 = || bus.read_f32(addr(1), param(1082));
     w(1082, Value::from_f32(45.0));
     w(1120, Value::from_f32(2.5));
     w(3, Value::Word(3));
     // P0719 (command and setpoint source) is guarded: deliberately.
-    bus.write_with(1, 719, None, Value::Word(11), deliberate())
-        .unwrap();
+    let guarded = bus.write_with(addr(1), param(719), Value::Word(11), deliberate());
+    guarded.unwrap();
     w(10, Value::Word(1));
     w(310, Value::from_f32(60.0));
     w(10, Value::Word(0));
@@ -1047,18 +1058,14 @@ fn backup_change_restore_and_diff_shows_nothing() {
         said.contains("would write 4; 20 already as in the file"),
         "{said}"
     );
-    assert_eq!(
-        bus.read_f32(1, 1082, None),
-        Ok(45.0),
-        "a dry run writes nothing"
-    );
+    assert_eq!(p1082(), Ok(45.0), "a dry run writes nothing");
 
     // Refused while another process controls the drive; nothing is written.
-    let controller = bus.control(1, ControlOptions::default()).unwrap();
+    let controller = bus.control(addr(1), ControlOptions::default()).unwrap();
     let (code, _, err) = run(&["param", "restore", "1", path, "--unsafe"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("is controlled by process"), "{err}");
-    assert_eq!(bus.read_f32(1, 1082, None), Ok(45.0));
+    assert_eq!(p1082(), Ok(45.0));
     controller.release().unwrap();
 
     // Without --unsafe the guarded P0719 is named and nothing is written.
@@ -1069,7 +1076,7 @@ fn backup_change_restore_and_diff_shows_nothing() {
             && err.contains("nothing was written: restore with --unsafe"),
         "{err}"
     );
-    assert_eq!(bus.read_f32(1, 1082, None), Ok(45.0), "nothing written");
+    assert_eq!(p1082(), Ok(45.0), "nothing written");
     let (code, said, err) = run(&["param", "restore", "1", path, "--unsafe"]);
     assert_eq!(code, Some(0), "{said}{err}");
     assert!(said.contains("P0719      11 -> 0: written"), "{said}");
@@ -1084,12 +1091,12 @@ fn backup_change_restore_and_diff_shows_nothing() {
         "{said}"
     );
     assert_eq!(
-        bus.read(1, 3, None),
+        bus.read(addr(1), param(3)),
         Ok(Value::Word(1)),
         "access level back"
     );
     assert_eq!(
-        bus.read(1, 10, None),
+        bus.read(addr(1), param(10)),
         Ok(Value::Word(0)),
         "commissioning left"
     );
@@ -1139,7 +1146,7 @@ fn files_that_do_not_fit_are_refused(ussd: &Ussd, dir: &std::path::Path, saved: 
         err.contains("P2013: P2013 takes a list of 2 values"),
         "{err}"
     );
-    assert_eq!(bus.read(1, 3, None), Ok(Value::Word(1)));
+    assert_eq!(bus.read(addr(1), param(3)), Ok(Value::Word(1)));
 }
 
 /// Drive 2 differs from drive 1 in its address on the COM link only; restoring drive 1's
@@ -1164,5 +1171,5 @@ fn another_drive_keeps_its_com_link(ussd: &Ussd, path: &str) {
         said.contains("wrote 0, refused 0; 23 already as in the file, 1 COM-link settings kept"),
         "{said}"
     );
-    assert_eq!(bus.read(2, 2011, Some(1)), Ok(Value::Word(2)));
+    assert_eq!(bus.read(addr(2), param_at(2011, 1)), Ok(Value::Word(2)));
 }

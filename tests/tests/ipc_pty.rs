@@ -7,6 +7,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 use uss_client::{Bus, ClientError, ControlOptions, DriveState, Value};
 use uss_integration_tests::{SimProcess, binary, terminate};
+use uss_integration_tests::{addr, param};
 
 /// ussd on the simulator's pty; stopped with SIGTERM when dropped.
 struct Ussd {
@@ -60,7 +61,7 @@ fn client_controls_and_parameterises_a_drive_through_ussd_over_a_pty() {
     let bus = open_when_ready(&bus_name, &mut ussd);
 
     // Inputs: the drive answers over the pty; with no controller it got OFF1 and sits in S2.
-    let watch = bus.watch(1).unwrap();
+    let watch = bus.watch(addr(1)).unwrap();
     let first = watch
         .wait_for(Duration::from_secs(10), "a reply", |i| {
             i.online != 0 && i.sequence > 0
@@ -69,21 +70,24 @@ fn client_controls_and_parameterises_a_drive_through_ussd_over_a_pty() {
     assert_eq!(watch.state(), DriveState::ReadyToSwitchOn, "{first:?}");
 
     // Parameters through the request-response bridge and the drive's PKW channel.
-    assert_eq!(bus.read(1, 1082, None).unwrap(), Value::Dword(0x4248_0000));
     assert_eq!(
-        bus.read(2, 2000, None).unwrap(),
+        bus.read(addr(1), param(1082)).unwrap(),
+        Value::Dword(0x4248_0000)
+    );
+    assert_eq!(
+        bus.read(addr(2), param(2000)).unwrap(),
         Value::Dword(0x4248_0000),
         "P2000 (page bit)"
     );
     let half_second = Value::from_f32(0.5);
     assert_eq!(
-        bus.write(1, 1120, None, half_second, false).unwrap(),
+        bus.write(addr(1), param(1120), half_second, false).unwrap(),
         half_second
     );
-    assert_eq!(bus.read(1, 1120, None).unwrap(), half_second);
+    assert_eq!(bus.read(addr(1), param(1120)).unwrap(), half_second);
 
     // Exclusive control: run to S4 at 25 Hz, see the actual value.
-    let controller = bus.control(1, ControlOptions::default()).unwrap();
+    let controller = bus.control(addr(1), ControlOptions::default()).unwrap();
     controller.enable().unwrap();
     controller.run_hz(25.0).unwrap();
     controller
@@ -94,7 +98,7 @@ fn client_controls_and_parameterises_a_drive_through_ussd_over_a_pty() {
         .unwrap();
     assert_eq!(running.online, 1);
     assert!(
-        bus.control(1, ControlOptions::default()).is_err(),
+        bus.control(addr(1), ControlOptions::default()).is_err(),
         "one controller per drive"
     );
     controller.stop().unwrap();

@@ -21,6 +21,7 @@ use uss_client::{
     PzdInput, Setpoint, Value, Zsw1, state_of,
 };
 use uss_integration_tests::{ChildProc, Ussd, monotonic_ns, read, write};
+use uss_integration_tests::{addr, param, param_at};
 
 const ROLE_ENV: &str = "USS_STRESS_ROLE";
 const BUS_ENV: &str = "USS_STRESS_BUS";
@@ -154,7 +155,7 @@ fn ramp_down(watch: &DriveWatch, trip: PzdInput) -> PzdInput {
 fn take_over(bus: &Bus, drive: u8) -> (uss_client::Controller, Duration) {
     let start = Instant::now();
     loop {
-        match bus.control(drive, ControlOptions::default()) {
+        match bus.control(addr(drive), ControlOptions::default()) {
             Ok(c) => return (c, start.elapsed()),
             Err(ClientError::Controlled { .. }) if start.elapsed() < Duration::from_secs(10) => {
                 std::thread::sleep(Duration::from_millis(20));
@@ -178,11 +179,11 @@ fn killed_controller_trips_the_watchdog_within_its_time_and_the_drive_can_be_tak
     let watchdog = Duration::from_millis(100);
     let bus = ussd.bus();
     // Quick ramps: 50 Hz in 1 s up, in 0.5 s down (20 Hz -> 0 in 0.2 s).
-    bus.write(1, 1120, None, Value::from_f32(1.0), false)
+    bus.write(addr(1), param(1120), Value::from_f32(1.0), false)
         .unwrap();
-    bus.write(1, 1121, None, Value::from_f32(0.5), false)
+    bus.write(addr(1), param(1121), Value::from_f32(0.5), false)
         .unwrap();
-    let watch = bus.watch(1).unwrap();
+    let watch = bus.watch(addr(1)).unwrap();
     let period = poll_period(&watch, Duration::from_millis(500));
 
     let mut run = ussd.ussctl(&["run", "1", "--hz", "20"]);
@@ -227,7 +228,7 @@ fn killed_controller_trips_the_watchdog_within_its_time_and_the_drive_can_be_tak
     // ussd reports the trip in the drive's diagnostics (republished every 100 ms) and its log.
     let deadline = Instant::now() + Duration::from_secs(5);
     let diag = loop {
-        let d = bus.diag(1).unwrap();
+        let d = bus.diag(addr(1)).unwrap();
         if d.latch_reason == LatchReason::Stale.code() {
             break d;
         }
@@ -302,7 +303,7 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
     // A first request opens this process's parameter port: after the kill, this process opens
     // no service (opening one would clean up dead nodes itself, doing ussd's job).
     let start = bus.status().unwrap();
-    assert_eq!(bus.read_f32(1, 1082, None), Ok(50.0));
+    assert_eq!(bus.read_f32(addr(1), param(1082)), Ok(50.0));
     let before = wait_status(&bus, Duration::from_secs(10), "1 job finished", |s| {
         s.jobs_finished == start.jobs_finished + 1
     });
@@ -326,7 +327,7 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
     // few seconds its node is gone.
     assert!(ussd.is_running());
     let gone = wait_until_nodes_gone(pid, Duration::from_secs(5));
-    assert_eq!(bus.read_f32(1, 1082, None), Ok(50.0));
+    assert_eq!(bus.read_f32(addr(1), param(1082)), Ok(50.0));
     // Only ussd and this process use the bus, and this process opened nothing since the kill,
     // so the node went by ussd's periodic cleanup, unless a process starting elsewhere on the
     // machine cleaned it up first (a new iceoryx2 node cleans up every dead node it finds).
@@ -357,8 +358,8 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
         later.exchanges > polling.exchanges && later.good > polling.good,
         "ussd stopped polling: {polling:?} -> {later:?}"
     );
-    assert_eq!(bus.read(2, 700, None), Ok(Value::Word(5)));
-    let p1120 = bus.read_f32(2, 1120, None).unwrap();
+    assert_eq!(bus.read(addr(2), param(700)), Ok(Value::Word(5)));
+    let p1120 = bus.read_f32(addr(2), param(1120)).unwrap();
 
     // Every job ended exactly once, the dead client's 4 included: 4 + 4 accepted, 8 finished,
     // of them 3 or 4 cancelled (4 if the kill came before the first reached the wire).
@@ -440,8 +441,8 @@ fn killed_client_queued_eeprom_writes_are_cancelled_not_sent() {
         )
         .expect("ussd logs the cancellation");
     // ussd goes on serving: the drive answers, and no job is left.
-    assert_eq!(bus.read(1, 700, None), Ok(Value::Word(5)));
-    assert_eq!(bus.read(2, 700, None), Ok(Value::Word(5)));
+    assert_eq!(bus.read(addr(1), param(700)), Ok(Value::Word(5)));
+    assert_eq!(bus.read(addr(2), param(700)), Ok(Value::Word(5)));
     assert!(ussd.is_running());
     println!(
         "dead client's EEPROM writes: {outstanding} of 128 outstanding at the kill, {cancelled} \
@@ -528,7 +529,7 @@ fn sixteen_monitor_processes_read_consistent_images_while_one_process_controls()
     let _serial = serial();
     let ussd = Ussd::start("", &[(1, ""), (2, "")]);
     ussd.bus()
-        .write(1, 1120, None, Value::from_f32(1.0), false)
+        .write(addr(1), param(1120), Value::from_f32(1.0), false)
         .unwrap();
     let mut monitors: Vec<_> = (0..16).map(|_| child(&ussd, "monitor", "1")).collect();
     for m in &mut monitors {
@@ -610,7 +611,7 @@ impl Monitoring {
 /// ...` or `RESULT failed: ...`.
 fn monitor(bus: &str, drive: u8) {
     let bus = Bus::open(bus).unwrap();
-    let watch = bus.watch(drive).unwrap();
+    let watch = bus.watch(addr(drive)).unwrap();
     let events = bus.cycle_listener().unwrap();
     let stop = Arc::new(AtomicBool::new(false));
     std::thread::spawn({
@@ -706,7 +707,7 @@ fn ten_thousand_requests_from_four_processes_with_faults_are_each_answered_once_
         .drives()
         .iter()
         .map(|&a| {
-            let d = bus.diag(a).unwrap();
+            let d = bus.diag(addr(a)).unwrap();
             d.counters.bcc
                 + d.counters.timeouts
                 + d.counters.length
@@ -845,32 +846,38 @@ fn request_loop(bus: &Bus, drive: u8, own: u16, n: u32) -> Tally {
         let (what, got, expected) = match i % 7 {
             0 => (
                 "P1082".into(),
-                bus.read(drive, 1082, None),
+                bus.read(addr(drive), param(1082)),
                 vec![float(50.0)],
             ),
             1 => (
                 "P0700".into(),
-                bus.read(drive, 700, None),
+                bus.read(addr(drive), param(700)),
                 vec![Value::Word(5)],
             ),
             2 => (
                 "P2000".into(),
-                bus.read(drive, 2000, None),
+                bus.read(addr(drive), param(2000)),
                 vec![float(50.0)],
             ),
             3 => {
-                let len = bus.read_array_len(drive, 947).map(Value::Word);
+                let len = bus
+                    .read_array_len(addr(drive), uss_client::Pnu::from_u16(947))
+                    .map(Value::Word);
                 ("r0947 length".into(), len, vec![Value::Word(8)])
             }
             4 => {
-                let element = bus.read(drive, 947, Some(index));
+                let element = bus.read(addr(drive), param_at(947, index));
                 (format!("r0947.{index}"), element, vec![Value::Word(0)])
             }
             5 => {
-                let written = bus.write(drive, own, None, write, false);
+                let written = bus.write(addr(drive), param(own), write, false);
                 (format!("P{own} := {write:X?}"), written, vec![write])
             }
-            _ => (format!("P{own}"), bus.read(drive, own, None), held.clone()),
+            _ => (
+                format!("P{own}"),
+                bus.read(addr(drive), param(own)),
+                held.clone(),
+            ),
         };
         let ok = t.count(&what, &got, &expected);
         match (i % 7, got) {
@@ -938,7 +945,7 @@ fn slow_requester(bus: &str, drive: u8) {
     std::thread::scope(|s| {
         for item in items {
             let bus = &bus;
-            s.spawn(move || println!("ANSWER {:?}", bus.batch(drive, &[item])));
+            s.spawn(move || println!("ANSWER {:?}", bus.batch(addr(drive), &[item])));
         }
         println!("READY");
     });
@@ -956,7 +963,7 @@ fn eeprom_writer(bus: &str, a: u8, b: u8) {
     std::thread::scope(|s| {
         for drive in [a, a, b, b] {
             let (bus, items) = (&bus, &items);
-            s.spawn(move || bus.batch(drive, items));
+            s.spawn(move || bus.batch(addr(drive), items));
         }
         println!("QUEUED");
     });
@@ -978,7 +985,7 @@ fn eeprom_burst(bus: &str, a: u8, run: u32) {
                         write(1120, Value::from_f32(1.0 + n / 64.0), true)
                     })
                     .collect();
-                bus.batch(a, &items)
+                bus.batch(addr(a), &items)
             });
         }
         println!("QUEUED");

@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use uss_client::{Bus, ClientError, Health, LatchReason, ParamError, RequestError, Value};
 use uss_integration_tests::{BusSpec, SimProcess, Ussd, monotonic_ns, read};
+use uss_integration_tests::{addr, param};
 
 /// A symlink in a directory of its own, pointing at a pty.
 struct Link {
@@ -93,7 +94,7 @@ fn a_failed_line_takes_only_its_bus_down_and_ussd_reopens_it_when_it_is_back() {
         let name = format!("{}a", ussd.bus);
         std::thread::spawn(move || {
             let bus = Bus::open(&name).unwrap();
-            bus.batch(1, &[read(1082, None); 39])
+            bus.batch(addr(1), &[read(1082, None); 39])
         })
     };
     std::thread::sleep(Duration::from_millis(300));
@@ -112,7 +113,7 @@ fn a_failed_line_takes_only_its_bus_down_and_ussd_reopens_it_when_it_is_back() {
     );
     assert!(!exists(&pty_a), "the pty went with its uss-sim");
     for d in [1, 2] {
-        let i = a.watch(d).unwrap().latest();
+        let i = a.watch(addr(d)).unwrap().latest();
         assert_eq!(i.online, 0, "drive {d} of bus A: {i:?}");
     }
     // Every item of the request ended: the ones done, then the rest with "line down".
@@ -128,7 +129,7 @@ fn a_failed_line_takes_only_its_bus_down_and_ussd_reopens_it_when_it_is_back() {
     assert!(done < 39, "the line went down before the request finished");
     // New requests are refused at once while the line is down: by this client when the
     // heartbeat already said so, else by ussd.
-    let refused = a.read(2, 1082, None);
+    let refused = a.read(addr(2), param(1082));
     assert!(
         matches!(
             refused,
@@ -144,21 +145,21 @@ fn a_failed_line_takes_only_its_bus_down_and_ussd_reopens_it_when_it_is_back() {
     assert!(matches!(health, Health::LineDown { .. }), "{health:?}");
     assert!(
         matches!(
-            a.watch(1).unwrap().read(),
+            a.watch(addr(1)).unwrap().read(),
             Err(ClientError::LineDown { .. })
         ),
         "a watcher is told"
     );
 
     // Bus B and ussd carry on.
-    let watch_b = b.watch(2).unwrap();
+    let watch_b = b.watch(addr(2)).unwrap();
     let before = watch_b.latest().sequence;
     std::thread::sleep(Duration::from_millis(500));
     assert!(
         watch_b.latest().sequence > before + 20,
         "bus B keeps polling"
     );
-    assert_eq!(b.read(2, 1082, None), Ok(Value::Dword(0x4248_0000)));
+    assert_eq!(b.read(addr(2), param(1082)), Ok(Value::Dword(0x4248_0000)));
     assert!(ussd.is_running(), "{}", ussd.log());
 
     comes_back_latched(&a, &link_a, &ussd);
@@ -186,7 +187,7 @@ fn a_device_absent_at_start_is_opened_when_it_appears() {
         "{down:?}"
     );
     for d in [1, 2] {
-        assert_eq!(bus.watch(d).unwrap().latest().online, 0);
+        assert_eq!(bus.watch(addr(d)).unwrap().latest().online, 0);
     }
     let said = ussd
         .log_line(
@@ -208,14 +209,17 @@ fn a_device_absent_at_start_is_opened_when_it_appears() {
         bus.status().unwrap().reopen_attempts
     );
     online_latched(&bus);
-    assert_eq!(bus.read(2, 1082, None), Ok(Value::Dword(0x4248_0000)));
+    assert_eq!(
+        bus.read(addr(2), param(1082)),
+        Ok(Value::Dword(0x4248_0000))
+    );
 }
 
 /// Both drives come online again, latched because the line was restored.
 fn online_latched(bus: &Bus) {
     for d in [1, 2] {
         let i = bus
-            .watch(d)
+            .watch(addr(d))
             .unwrap()
             .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
             .unwrap();
@@ -238,14 +242,14 @@ fn comes_back_latched(a: &Bus, link_a: &Link, ussd: &Ussd) {
     );
     for d in [1, 2] {
         let i = a
-            .watch(d)
+            .watch(addr(d))
             .unwrap()
             .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
             .unwrap();
         assert_eq!(i.latch_reason, LatchReason::LineRestored.code(), "{i:?}");
         assert_eq!(i.sent_stw1, 0x047E);
     }
-    assert_eq!(a.read(2, 1082, None), Ok(Value::Dword(0x4248_0000)));
+    assert_eq!(a.read(addr(2), param(1082)), Ok(Value::Dword(0x4248_0000)));
     assert_eq!(a.status().unwrap().line_downs, 1);
     let log = ussd.log();
     assert!(
@@ -283,7 +287,7 @@ fn a_line_whose_writes_stalled_comes_back_on_the_same_device() {
     );
     let bus = ussd.open_when_running("");
     for d in [1, 2] {
-        bus.watch(d)
+        bus.watch(addr(d))
             .unwrap()
             .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
             .unwrap();
@@ -314,7 +318,10 @@ fn a_line_whose_writes_stalled_comes_back_on_the_same_device() {
         back.line_downs
     );
     assert!(back.line_downs >= 1);
-    assert_eq!(bus.read(2, 1082, None), Ok(Value::Dword(0x4248_0000)));
+    assert_eq!(
+        bus.read(addr(2), param(1082)),
+        Ok(Value::Dword(0x4248_0000))
+    );
     online_latched(&bus);
     assert!(ussd.is_running());
     let log = ussd.log();

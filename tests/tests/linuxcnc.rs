@@ -13,6 +13,7 @@ use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 use uss_client::{StopCommand, WriteOptions};
 use uss_integration_tests::Ussd;
+use uss_integration_tests::addr;
 
 fn root() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
@@ -175,7 +176,7 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
     let bus = ussd.bus();
     // Quick ramps: 50 Hz in 1 s, up and down.
     for p in ["P1120", "P1121"] {
-        bus.write_param(1, p.parse().unwrap(), "1", WriteOptions::default())
+        bus.write_param(addr(1), p.parse().unwrap(), "1", WriteOptions::default())
             .unwrap();
     }
     let dir = std::env::temp_dir();
@@ -215,16 +216,16 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
     hal.set("spindle-on", "0");
     hal.until("stopped", s, |h| h.float("spindle-speed-fb").abs() < 1.0);
     assert_eq!(hal.get("at-speed"), "FALSE");
-    assert_eq!(bus.watch(1).unwrap().latest().sent_stw1, 0x047E);
+    assert_eq!(bus.watch(addr(1)).unwrap().latest().sent_stw1, 0x047E);
 
     // On again, then an operator's stop from another process: latched, not restarted while
     // spindle-on stays high.
     hal.set("spindle-on", "1");
     hal.until("at speed again", s, |h| h.get("at-speed") == "TRUE");
-    bus.stop_drive(1, StopCommand::Off1).unwrap();
+    bus.stop_drive(addr(1), StopCommand::Off1).unwrap();
     hal.until("latched", s, |h| h.get("latched") == "TRUE");
     assert_eq!(hal.get("at-speed"), "FALSE");
-    let watch = bus.watch(1).unwrap();
+    let watch = bus.watch(addr(1)).unwrap();
     let held = Instant::now() + Duration::from_millis(1500);
     while Instant::now() < held {
         let i = watch.latest();

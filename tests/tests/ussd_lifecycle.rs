@@ -18,6 +18,7 @@ use uss_client::{
     Bus, ClientError, ControlOptions, DriveState, DriveWatch, Health, LatchReason, Setpoint,
     state_of,
 };
+use uss_integration_tests::addr;
 use uss_integration_tests::{Ussd, monotonic_ns};
 
 /// One ussd at a time: each runs a `SCHED_FIFO` bus thread, and the machine has two cores.
@@ -53,7 +54,7 @@ fn clients_learn_within_a_second_that_a_killed_ussd_is_gone_and_say_so() {
     let _serial = serial();
     let mut ussd = Ussd::start("", DRIVES);
     let bus = ussd.bus();
-    let watch = bus.watch(2).unwrap();
+    let watch = bus.watch(addr(2)).unwrap();
     let mut run = ussd.ussctl(&["run", "1", "--hz", "10"]);
     assert!(run.says("drive 1:").starts_with(" running towards"));
     let mut watching = ussd.ussctl(&["watch", "2", "--interval", "20"]);
@@ -100,7 +101,7 @@ fn a_cleanly_stopped_ussd_is_reported_stopped_not_gone() {
     let _serial = serial();
     let mut ussd = Ussd::start("", DRIVES);
     let bus = ussd.bus();
-    let watch = bus.watch(1).unwrap();
+    let watch = bus.watch(addr(1)).unwrap();
     let (stopped_at, code) = ussd.terminate();
     assert_eq!(code, Some(0), "{}", ussd.log());
     let (error, noticed_at) = first_failure(&watch);
@@ -117,9 +118,9 @@ fn a_restarted_ussd_starts_beside_clients_of_the_old_one_and_they_reconnect() {
     let _serial = serial();
     let mut ussd = Ussd::start("", DRIVES);
     let bus = ussd.bus();
-    let monitor = bus.watch(2).unwrap();
+    let monitor = bus.watch(addr(2)).unwrap();
     let listener = bus.cycle_listener().unwrap();
-    let c = bus.control(1, ControlOptions::default()).unwrap();
+    let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     let _refresh = c.spawn_refresher(Duration::from_millis(20));
     c.enable().unwrap();
     c.run_hz(10.0).unwrap();
@@ -179,7 +180,7 @@ fn a_restarted_ussd_starts_beside_clients_of_the_old_one_and_they_reconnect() {
             .unwrap();
     }
     let bus_again = Bus::open(&ussd.bus).unwrap();
-    assert_eq!(bus_again.drives(), [1, 2]);
+    assert_eq!(bus_again.drives(), [addr(1), addr(2)]);
 }
 
 /// A drive that misses polls for less than ussctl's grace (3 s) does not end `ussctl run`: it
@@ -201,7 +202,7 @@ fn a_short_offline_blip_is_reported_and_the_controller_carries_on() {
     let (status, out, err) = run.finish();
     assert!(status.success(), "{out}{err}");
     assert!(out.contains("drive 1: ran; OFF1 sent"), "{out}");
-    let d = bus.diag(1).unwrap();
+    let d = bus.diag(addr(1)).unwrap();
     assert_eq!(
         (d.counters.watchdog_trips, d.counters.failed_polls > 0),
         (0, true)
@@ -247,9 +248,11 @@ fn a_blocked_log_reader_neither_stops_the_heartbeat_nor_the_stops() {
     std::thread::sleep(Duration::from_secs(3));
     let health = opened.health();
     assert!(health.is_serving(), "{health:?}");
-    opened.stop_drive(2, uss_client::StopCommand::Off2).unwrap();
+    opened
+        .stop_drive(addr(2), uss_client::StopCommand::Off2)
+        .unwrap();
     let i = opened
-        .wait_stopped(2, uss_client::StopCommand::Off2, None)
+        .wait_stopped(addr(2), uss_client::StopCommand::Off2, None)
         .unwrap();
     assert_eq!(i.sent_stw1, 0x047C);
     let _ = ussd.kill();
@@ -284,7 +287,7 @@ fn a_stop_is_never_refused_for_resources_with_64_watchers() {
         }
         std::thread::sleep(Duration::from_millis(50));
     };
-    let i = bus.watch(2).unwrap().latest();
+    let i = bus.watch(addr(2)).unwrap().latest();
     assert_eq!(
         (i.sent_stw1, i.latch_reason),
         (0x047C, uss_client::LatchReason::Override.code())

@@ -1,7 +1,7 @@
 //! ussctl's command line: subcommands, and parsing of parameter references and values.
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use uss_client::Value;
+use uss_client::{Address, Value};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -33,7 +33,8 @@ pub enum Command {
     /// Live input images, until Ctrl-C or --count rounds.
     Watch {
         /// Only these drives (default: all).
-        drives: Vec<u8>,
+        #[arg(value_parser = address)]
+        drives: Vec<Address>,
         /// Milliseconds between rounds.
         #[arg(long, default_value_t = 500, value_name = "MS")]
         interval: u64,
@@ -47,7 +48,8 @@ pub enum Command {
     /// Take control of a drive, run it at a frequency, stop it at the end (OFF1).
     Run {
         /// The drive's address on the bus, 0..=31.
-        drive: u8,
+        #[arg(value_parser = address)]
+        drive: Address,
         /// Frequency in Hz; negative runs the other way.
         #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
         hz: f32,
@@ -65,14 +67,16 @@ pub enum Command {
     /// Acknowledge a drive's fault (rising edge of STW1 bit 7).
     Ack {
         /// The drive's address on the bus, 0..=31.
-        drive: u8,
+        #[arg(value_parser = address)]
+        drive: Address,
     },
     /// The drive's fault buffer with its fault values, newest first, and its active warnings,
     /// where its family keeps them (MICROMASTER 4: r0947, r0949, r2110; G120: r0945, r0949,
     /// r2122; SIMOREG: r947, r949).
     Faults {
         /// The drive's address on the bus, 0..=31.
-        drive: u8,
+        #[arg(value_parser = address)]
+        drive: Address,
     },
     /// Bus statistics and every drive's counters.
     Stats,
@@ -94,8 +98,8 @@ pub enum Command {
     /// pcapng file for Wireshark (tools/wireshark/uss.lua decodes it).
     Capture {
         /// Only this drive's telegrams.
-        #[arg(long, value_name = "ADDRESS")]
-        drive: Option<u8>,
+        #[arg(long, value_name = "ADDRESS", value_parser = address)]
+        drive: Option<Address>,
         /// raw: the bytes; frame: STX, LGE, ADR, PKW, PZD, BCC; app: parameter tasks and
         /// replies, control and status words, setpoints and actual values.
         #[arg(long, value_enum, default_value = "app")]
@@ -115,8 +119,8 @@ pub enum Command {
     /// state changes and faults marked.
     Trace {
         /// The drives to record (addresses 0..=31).
-        #[arg(required = true)]
-        drives: Vec<u8>,
+        #[arg(required = true, value_parser = address)]
+        drives: Vec<Address>,
         /// How long to record (after the trigger, when there is one): 10, 10s, 2.5s or 500ms.
         #[arg(long = "for", value_name = "DURATION", default_value = "10s", value_parser = duration)]
         duration: core::time::Duration,
@@ -166,7 +170,8 @@ pub enum Command {
 #[group(required = true, multiple = false)]
 pub struct Target {
     /// The drive's address.
-    pub drive: Option<u8>,
+    #[arg(value_parser = address)]
+    pub drive: Option<Address>,
     /// Every drive of the bus.
     #[arg(long)]
     pub all: bool,
@@ -177,7 +182,8 @@ pub enum ParamCommand {
     /// Read a parameter or an array element, e.g. `P1082`, `r0021`, `P0947[3]`, `r0947.3`.
     Read {
         /// The drive's address on the bus, 0..=31.
-        drive: u8,
+        #[arg(value_parser = address)]
+        drive: Address,
         /// The parameter as the manuals write it: P1082, p1082, r0021, 1082, P0947[3], r0947.3.
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
@@ -190,7 +196,8 @@ pub enum ParamCommand {
     /// 1) and the catalogue's entry for its family, if any.
     Describe {
         /// The drive's address on the bus, 0..=31.
-        drive: u8,
+        #[arg(value_parser = address)]
+        drive: Address,
         /// The parameter as the manuals write it: P1082, p1082, r0021, 1082.
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
@@ -198,7 +205,8 @@ pub enum ParamCommand {
     /// Write VALUE to a parameter or an array element.
     Write {
         /// The drive's address on the bus, 0..=31.
-        drive: u8,
+        #[arg(value_parser = address)]
+        drive: Address,
         /// The parameter as the manuals write it: P1082, p1082, r0021, 1082, P0947[3], r0947.3.
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
@@ -226,7 +234,8 @@ pub enum ParamCommand {
     /// a TOML file (stdout without -o).
     Backup {
         /// The drive's address on the bus, 0..=31.
-        drive: u8,
+        #[arg(value_parser = address)]
+        drive: Address,
         /// Write the backup to FILE instead of stdout.
         #[arg(short, long, value_name = "FILE")]
         output: Option<std::path::PathBuf>,
@@ -235,7 +244,8 @@ pub enum ParamCommand {
     /// against the drive's answer. Refused while another process controls the drive.
     Restore {
         /// The drive's address on the bus, 0..=31.
-        drive: u8,
+        #[arg(value_parser = address)]
+        drive: Address,
         /// The backup file (written by `param backup`).
         file: std::path::PathBuf,
         /// Store in EEPROM as well as RAM (survives a power cycle).
@@ -255,7 +265,8 @@ pub enum ParamCommand {
     /// Compare a drive's settings with a backup file, or with another drive (an address).
     Diff {
         /// The drive's address on the bus, 0..=31.
-        drive: u8,
+        #[arg(value_parser = address)]
+        drive: Address,
         /// A backup file, or the address of another drive on the bus.
         other: String,
     },
@@ -346,6 +357,14 @@ pub fn address_list(s: &str) -> Result<AddressList, String> {
 }
 
 /// Parses a parameter reference for clap, naming what was written.
+/// A drive's address, 0..=31 (USS.md section 3), checked where it enters.
+pub fn address(s: &str) -> Result<Address, String> {
+    let n: u8 = s
+        .parse()
+        .map_err(|_| format!("{s:?} is not a drive address: write a number 0..=31"))?;
+    Address::new(n).map_err(|e| e.to_string())
+}
+
 pub fn param_ref(s: &str) -> Result<ParamRef, String> {
     s.parse().map_err(|e| format!("{s:?}: {e}"))
 }
@@ -532,7 +551,7 @@ mod tests {
             }) => {
                 assert!(!unsafe_write);
                 let index = param.index.map(Subindex::get);
-                assert_eq!((drive, param.pnu.get(), index), (3, 1120, Some(0)));
+                assert_eq!((drive.get(), param.pnu.get(), index), (3, 1120, Some(0)));
                 assert_eq!(
                     (value.as_str(), eeprom, kind, force),
                     ("-2.5", true, None, false)
@@ -549,7 +568,11 @@ mod tests {
             let (Command::Stop(t) | Command::Coast(t) | Command::QuickStop(t)) = cli.command else {
                 panic!("{words:?}")
             };
-            assert_eq!((t.drive, t.all), (drive, all), "{words:?}");
+            assert_eq!(
+                (t.drive.map(Address::get), t.all),
+                (drive, all),
+                "{words:?}"
+            );
         }
         assert!(
             Cli::try_parse_from(["ussctl", "stop"]).is_err(),
@@ -562,7 +585,8 @@ mod tests {
         assert!(cli.json);
         assert!(matches!(
             cli.command,
-            Command::Run { drive: 5, hz, duration: Some(d), .. } if hz == -10.0 && d == 2.0
+            Command::Run { drive, hz, duration: Some(d), .. }
+                if drive.get() == 5 && hz == -10.0 && d == 2.0
         ));
         assert!(Cli::try_parse_from(["ussctl", "param", "read", "1", "99999"]).is_err());
     }
@@ -599,7 +623,7 @@ mod tests {
         assert!(matches!(
             cli.command,
             Command::Trace { ref drives, trigger: Some(Trigger::Fault), pre: Some(p), duration, .. }
-                if drives == &[1, 3] && p == Duration::from_secs(2) && duration == Duration::from_secs(10)
+                if drives.iter().map(|a| a.get()).eq([1, 3]) && p == Duration::from_secs(2) && duration == Duration::from_secs(10)
         ));
         assert!(Cli::try_parse_from(["ussctl", "trace"]).is_err(), "a drive");
         assert!(

@@ -2,7 +2,7 @@
 //! (clap's usage errors exit 2), except a closed output, which ends quietly.
 
 use core::time::Duration;
-use uss_client::{ClientError, Latch, ParamError, StopCommand};
+use uss_client::{Address, ClientError, Latch, ParamError, StopCommand};
 
 #[derive(Debug, thiserror::Error)]
 pub(crate) enum Failure {
@@ -11,48 +11,48 @@ pub(crate) enum Failure {
     Client(#[from] ClientError),
     /// The same, while running one drive (ussd gone, stopped, line down).
     #[error("drive {drive}: {source}")]
-    OfDrive { drive: u8, source: ClientError },
+    OfDrive { drive: Address, source: ClientError },
     /// A parameter access of a drive; `param` as the manuals write it, e.g. `P1082`.
     #[error("drive {drive} {param}: {source}")]
     Param {
-        drive: u8,
+        drive: Address,
         param: String,
         source: ParamError,
     },
     /// A value that does not fit the parameter, refused before the bus.
     #[error("drive {drive} {source}")]
-    Value { drive: u8, source: ParamError },
+    Value { drive: Address, source: ParamError },
     /// An operator's stop went to ussd but the drive's image does not show it yet.
     #[error("drive {drive}: {command} sent, not yet confirmed: {source}")]
     StopUnconfirmed {
-        drive: u8,
+        drive: Address,
         command: StopCommand,
         source: ClientError,
     },
     #[error(
         "drive {drive} on {bus} is offline: check `ussctl status`, its wiring, address and baud rate"
     )]
-    Offline { drive: u8, bus: String },
+    Offline { drive: Address, bus: String },
     #[error(
         "drive {drive} went offline while running and did not come back within {} s: check `ussctl status`, its wiring and power",
         .grace.as_secs()
     )]
-    WentOffline { drive: u8, grace: Duration },
+    WentOffline { drive: Address, grace: Duration },
     #[error(
         "drive {drive} is in fault (ZSW1 {zsw1:#06X}): see `ussctl faults {drive}`, then acknowledge with `ussctl ack {drive}`"
     )]
-    Faulted { drive: u8, zsw1: u16 },
+    Faulted { drive: Address, zsw1: u16 },
     #[error(
         "drive {drive}: the fault is still active after the acknowledge, so its cause persists: see `ussctl faults {drive}`"
     )]
-    FaultPersists { drive: u8 },
+    FaultPersists { drive: Address },
     /// ussd latched the drive while `run` ran it: it gets its stop command until re-armed.
     #[error(
         "drive {drive} on {bus} tripped after {:.2} s: {latch} ({:.2} s ago); it gets {}, latched: run `ussctl run {drive}` again to re-arm it (OFF1, then ON)",
         .after.as_secs_f64(), .latch.ago.as_secs_f64(), .latch.command_name()
     )]
     Tripped {
-        drive: u8,
+        drive: Address,
         bus: String,
         after: Duration,
         latch: Latch,
@@ -69,17 +69,17 @@ pub(crate) enum Failure {
     /// A restore that did not write everything (refused values, or cut short): the report says
     /// which; running it again completes what can be.
     #[error("drive {drive}: the restore is incomplete (see above); run it again to complete it")]
-    Incomplete { drive: u8 },
+    Incomplete { drive: Address },
     /// A backup or restore of a drive whose family has no parameter catalogue in uss-rt, or a
     /// restore of another family's backup.
     #[error("drive {drive}: {problem}")]
-    Family { drive: u8, problem: String },
+    Family { drive: Address, problem: String },
     /// A restore that would change guarded parameters, without `--unsafe`: nothing written.
     #[error(
         "drive {drive}: the backup changes {params}, which can take the drive away from ussd ({why}); nothing was written: restore with --unsafe if it is deliberate"
     )]
     Guarded {
-        drive: u8,
+        drive: Address,
         params: String,
         why: String,
     },
@@ -123,7 +123,7 @@ mod tests {
             ago: Duration::from_millis(250),
         };
         let tripped = Failure::Tripped {
-            drive: 2,
+            drive: Address::new(2).unwrap(),
             bus: "line1".into(),
             after: Duration::from_millis(1500),
             latch,
@@ -135,7 +135,7 @@ mod tests {
             "{tripped}"
         );
         let fault = Failure::Faulted {
-            drive: 3,
+            drive: Address::new(3).unwrap(),
             zsw1: 0xFB38,
         };
         assert_eq!(
@@ -143,7 +143,7 @@ mod tests {
             "drive 3 is in fault (ZSW1 0xFB38): see `ussctl faults 3`, then acknowledge with `ussctl ack 3`"
         );
         let gone = Failure::WentOffline {
-            drive: 1,
+            drive: Address::new(1).unwrap(),
             grace: Duration::from_secs(3),
         };
         assert!(gone.to_string().contains("did not come back within 3 s"));

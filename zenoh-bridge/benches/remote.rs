@@ -32,6 +32,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use uss_benches::{Parts, percentiles_us};
+use uss_integration_tests::addr;
 use uss_integration_tests::{Ussd, monotonic_ns};
 
 /// How long each measurement runs.
@@ -63,7 +64,10 @@ fn stamped(out: &str) -> impl Iterator<Item = (u128, Value)> + '_ {
 fn local_latency(bus: &str, drives: &[u8], stop: &AtomicBool) -> Histogram<u64> {
     let bus = uss_client::Bus::open(bus).unwrap();
     let listener = bus.cycle_listener().unwrap();
-    let watches: Vec<_> = drives.iter().map(|&a| bus.watch(a).unwrap()).collect();
+    let watches: Vec<_> = drives
+        .iter()
+        .map(|&a| bus.watch(addr(a)).unwrap())
+        .collect();
     let mut last: Vec<u64> = watches.iter().map(|w| w.latest().sequence).collect();
     let mut h = histogram();
     while !stop.load(Ordering::Relaxed) {
@@ -120,7 +124,7 @@ fn params(ns: &Netns) {
     let mut local = histogram();
     for n in 0..READS {
         let t = Instant::now();
-        bus.read_param(1, param).unwrap();
+        bus.read_param(addr(1), param).unwrap();
         if n >= WARM_UP {
             let _ = local.record(t.elapsed().as_nanos() as u64);
         }

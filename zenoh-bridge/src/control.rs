@@ -37,7 +37,9 @@ use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
-use uss_client::{Bus, ClientError, ControlOptions, Controller, DriveWatch, PzdInput, StopCommand};
+use uss_client::{
+    Address, Bus, ClientError, ControlOptions, Controller, DriveWatch, PzdInput, StopCommand,
+};
 use zenoh::bytes::Encoding;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::query::{Query, Queryable};
@@ -88,7 +90,7 @@ fn stop_command(payload: Option<&str>) -> Result<StopCommand, String> {
 
 /// What a stop query sent: the command, and what it named (the drives it went to, and the keys
 /// their replies go out under).
-type Sent = (StopCommand, StopTarget, Vec<u8>);
+type Sent = (StopCommand, StopTarget, Vec<Address>);
 
 /// Sends the stop a query asks for, or says why not.
 fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent, String> {
@@ -105,7 +107,7 @@ fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent,
         StopTarget::Bus(_) => gate.check(&peer, Right::Stop, None)?,
         StopTarget::Drives(named) => {
             for (drive, _) in named {
-                gate.check(&peer, Right::Stop, Some(*drive))?;
+                gate.check(&peer, Right::Stop, Some(drive.get()))?;
             }
         }
     }
@@ -133,7 +135,7 @@ fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent,
 /// [`STOP_TIMEOUT`] or the longest handshake time of the drives (at most
 /// [`STOP_TIMEOUT_MAX`]) for all of them; a drive that does not show it in time is marked
 /// unconfirmed ([`stop_json`]).
-fn confirm_stop<'a>(name: &'a str, command: StopCommand, drives: &[u8]) -> Vec<StopReply<'a>> {
+fn confirm_stop<'a>(name: &'a str, command: StopCommand, drives: &[Address]) -> Vec<StopReply<'a>> {
     let bus = Bus::open_as(name, "uss-zenoh-stop").ok();
     let wait = bus.as_ref().map_or(STOP_TIMEOUT, |b| {
         drives
@@ -154,7 +156,7 @@ fn confirm_stop<'a>(name: &'a str, command: StopCommand, drives: &[u8]) -> Vec<S
                     b.wait_stopped(drive, command, Some(left))
                         .map_err(|e| e.to_string())
                 });
-            StopReply::new(name, drive, command, shown)
+            StopReply::new(name, drive.get(), command, shown)
         })
         .collect();
     replies
@@ -212,7 +214,7 @@ pub fn serve_stops(
                             let why = format!(
                                 "sent; not confirmed: {MAX_CONFIRMING} stops are being confirmed"
                             );
-                            StopReply::new(name, d, command, Err(why))
+                            StopReply::new(name, d.get(), command, Err(why))
                         })
                         .collect();
                     reply_stops(&query, &target, &replies);
@@ -259,22 +261,22 @@ pub struct Holder {
 
 impl Held {
     /// Who holds `drive`, if the bridge holds it.
-    pub fn holder(&self, drive: u8) -> Option<Holder> {
+    pub fn holder(&self, drive: Address) -> Option<Holder> {
         self.holders
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .get(&drive)
+            .get(&drive.get())
             .cloned()
     }
 
-    fn set(&self, drive: u8, holder: Option<Holder>) {
+    fn set(&self, drive: Address, holder: Option<Holder>) {
         let mut holders = self
             .holders
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         match holder {
-            Some(h) => holders.insert(drive, h),
-            None => holders.remove(&drive),
+            Some(h) => holders.insert(drive.get(), h),
+            None => holders.remove(&drive.get()),
         };
     }
 }
@@ -371,9 +373,9 @@ impl Dispatcher<'_> {
         let sender = parsed.as_ref().ok().map(|o| o.from.clone());
         let who = peer.to_string();
         if let Err(why) = self.hand_on(drive, parsed, peer) {
-            let refused = self.refused.entry(drive).or_default();
+            let refused = self.refused.entry(drive.get()).or_default();
             *refused += 1;
-            let mut report = ControlReport::new(self.name, drive);
+            let mut report = ControlReport::new(self.name, drive.get());
             report.state = "refused";
             report.sender = sender;
             report.peer = Some(who);
@@ -383,12 +385,12 @@ impl Dispatcher<'_> {
         }
     }
 
-    fn hand_on(&mut self, drive: u8, sample: Parsed, peer: Peer) -> Result<(), String> {
+    fn hand_on(&mut self, drive: Address, sample: Parsed, peer: Peer) -> Result<(), String> {
         if !self.allowed {
             self.gate.count(&peer, Right::Control, CONTROL_REFUSED);
             return Err(CONTROL_REFUSED.to_owned());
         }
-        self.gate.check(&peer, Right::Control, Some(drive))?;
+        self.gate.check(&peer, Right::Control, Some(drive.get()))?;
         if self.bus.is_none() && Instant::now() >= self.next_open {
             self.next_open = Instant::now() + Duration::from_millis(250);
             self.bus = Bus::open_as(self.name, "uss-zenoh-control").ok();
@@ -397,7 +399,7 @@ impl Dispatcher<'_> {
             .bus
             .as_ref()
             .ok_or_else(|| format!("ussd is not running on {}: nothing was sent", self.name))?;
-        if !self.drives.contains_key(&drive) {
+        if !self.drives.contains_key(&drive.get()) {
             let known = bus.drives();
             if !known.contains(&drive) {
                 return Err(format!(
@@ -418,9 +420,9 @@ impl Dispatcher<'_> {
                     control_drive(&session, &name, &keys, drive, &rx, &held, &stop_flag);
                 })
                 .map_err(|e| format!("cannot start the control thread of drive {drive}: {e}"))?;
-            self.drives.insert(drive, (tx, thread));
+            self.drives.insert(drive.get(), (tx, thread));
         }
-        let Some((tx, _)) = self.drives.get(&drive) else {
+        let Some((tx, _)) = self.drives.get(&drive.get()) else {
             return Err("no control thread".to_owned());
         };
         match tx.try_send((sample, peer)) {
@@ -430,7 +432,7 @@ impl Dispatcher<'_> {
             )),
             Err(TrySendError::Disconnected(_)) => {
                 // The thread could not reach ussd: the next sample starts another.
-                self.drives.remove(&drive);
+                self.drives.remove(&drive.get());
                 Err(format!(
                     "ussd is not running on {}: nothing was sent",
                     self.name
@@ -460,7 +462,7 @@ struct Remote<'a> {
     /// The drive's inputs, for the latch the report shows.
     watch: Option<DriveWatch>,
     name: &'a str,
-    drive: u8,
+    drive: Address,
     report_key: String,
     controller: Option<Controller>,
     /// The sequence number of the last sample passed on (forgotten when the drive is handed
@@ -601,7 +603,7 @@ impl Remote<'_> {
 }
 
 /// A latch in words a remote controller can act on.
-fn latched(bus: &str, drive: u8, image: &PzdInput) -> String {
+fn latched(bus: &str, drive: Address, image: &PzdInput) -> String {
     let latch = uss_client::Latch::of(image);
     format!(
         "drive {drive} on {bus} is latched ({latch}) and gets {}: nothing was sent; re-arm it \
@@ -617,13 +619,13 @@ fn control_drive(
     session: &Session,
     name: &str,
     keys: &Keys,
-    drive: u8,
+    drive: Address,
     samples: &Receiver<FromPeer>,
     held: &Held,
     stop_flag: &AtomicBool,
 ) {
     let Ok(bus) = Bus::open_as(name, "uss-zenoh-control") else {
-        let mut report = ControlReport::new(name, drive);
+        let mut report = ControlReport::new(name, drive.get());
         report.state = "refused";
         report.sender = samples
             .try_iter()
@@ -648,7 +650,7 @@ fn control_drive(
         last_seq: None,
         last_taken: None,
         active: None,
-        report: ControlReport::new(name, drive),
+        report: ControlReport::new(name, drive.get()),
         holder_verified: None,
         reported: None,
         next_report: Instant::now(),

@@ -29,17 +29,17 @@ impl Keys {
     }
 
     /// A drive's input images (JSON, each new one).
-    pub fn input(&self, drive: u8) -> String {
+    pub fn input(&self, drive: Address) -> String {
         format!("{}/drive/{drive}/in", self.base)
     }
 
     /// A drive's diagnostics (JSON, every second).
-    pub fn diag(&self, drive: u8) -> String {
+    pub fn diag(&self, drive: Address) -> String {
         format!("{}/drive/{drive}/diag", self.base)
     }
 
     /// What ussd knows of a drive from its configuration (JSON, every 5 s).
-    pub fn info(&self, drive: u8) -> String {
+    pub fn info(&self, drive: Address) -> String {
         format!("{}/drive/{drive}/info", self.base)
     }
 
@@ -50,7 +50,7 @@ impl Keys {
     }
 
     /// The drive an `out` sample's key names.
-    pub fn output_of(&self, key: &str) -> Option<u8> {
+    pub fn output_of(&self, key: &str) -> Option<Address> {
         key.strip_prefix(&self.base)?
             .strip_prefix("/drive/")?
             .strip_suffix("/out")
@@ -58,7 +58,7 @@ impl Keys {
     }
 
     /// What the bridge did with the remote controller's samples of a drive (JSON).
-    pub fn control(&self, drive: u8) -> String {
+    pub fn control(&self, drive: Address) -> String {
         format!("{}/drive/{drive}/control", self.base)
     }
 
@@ -69,7 +69,7 @@ impl Keys {
     }
 
     /// The drive a stop query's key names (`None`: every drive), or why it names none.
-    pub fn stop_of(&self, key: &str) -> Result<Option<u8>, KeyError> {
+    pub fn stop_of(&self, key: &str) -> Result<Option<Address>, KeyError> {
         let bad = |kind| KeyError {
             key: key.to_owned(),
             kind,
@@ -138,7 +138,7 @@ impl Keys {
 
     /// The drive and parameter a parameter query's key names (a read key `.../param/<P>` or a
     /// write key `.../set/<P>`), or why it names none.
-    pub fn param_of(&self, key: &str, which: ParamKey) -> Result<(u8, ParamRef), KeyError> {
+    pub fn param_of(&self, key: &str, which: ParamKey) -> Result<(Address, ParamRef), KeyError> {
         let bad = |kind| KeyError {
             key: key.to_owned(),
             kind,
@@ -180,7 +180,7 @@ impl ParamKey {
 /// out under.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Named {
-    pub drive: u8,
+    pub drive: Address,
     pub param: ParamRef,
     pub key: String,
 }
@@ -199,7 +199,7 @@ impl Keys {
         &self,
         key: &str,
         which: ParamKey,
-        drives: &[u8],
+        drives: &[Address],
     ) -> Result<Vec<Named>, KeyError> {
         if !has_wildcards(key) {
             let (drive, param) = self.param_of(key, which)?;
@@ -250,14 +250,14 @@ pub enum StopTarget {
     /// Every drive of the bus: one reply (an array) under `.../stop`.
     Bus(String),
     /// These drives, each with the concrete key its reply goes out under.
-    Drives(Vec<(u8, String)>),
+    Drives(Vec<(Address, String)>),
 }
 
 impl Keys {
     /// What a stop query's key expression names: itself when it is concrete; with wildcards,
     /// the whole bus when it intersects `.../stop`, else every `.../drive/<addr>/stop` of
     /// `drives` it intersects.
-    pub fn stops_named(&self, key: &str, drives: &[u8]) -> Result<StopTarget, KeyError> {
+    pub fn stops_named(&self, key: &str, drives: &[Address]) -> Result<StopTarget, KeyError> {
         let bus_key = format!("{}/stop", self.base);
         if !has_wildcards(key) {
             return Ok(match self.stop_of(key)? {
@@ -277,7 +277,7 @@ impl Keys {
         if meets(&bus_key) {
             return Ok(StopTarget::Bus(bus_key));
         }
-        let named: Vec<(u8, String)> = drives
+        let named: Vec<(Address, String)> = drives
             .iter()
             .map(|&d| (d, format!("{}/drive/{d}/stop", self.base)))
             .filter(|(_, k)| meets(k))
@@ -327,9 +327,8 @@ pub enum BadKey {
 }
 
 /// A drive address 0..=31 as a key writes it.
-fn address(text: &str) -> Option<u8> {
-    let a = text.parse::<u8>().ok()?;
-    Address::new(a).ok().map(Address::get)
+fn address(text: &str) -> Option<Address> {
+    Address::new(text.parse::<u8>().ok()?).ok()
 }
 
 #[cfg(test)]
@@ -339,17 +338,29 @@ mod tests {
     #[test]
     fn keys_follow_the_readme_table_and_parameter_keys_read_back() {
         let k = Keys::new("uss/plant/", "line1");
-        assert_eq!(k.input(3), "uss/plant/line1/drive/3/in");
+        assert_eq!(
+            k.input(Address::new(3).unwrap()),
+            "uss/plant/line1/drive/3/in"
+        );
         assert_eq!(k.params(), "uss/plant/line1/drive/*/param/*");
         assert_eq!(k.alive(), "uss/plant/line1/alive");
         let (drive, param) = k
             .param_of("uss/plant/line1/drive/3/param/r0947[2]", ParamKey::Read)
             .unwrap();
-        assert_eq!((drive, param.to_string().as_str()), (3, "r0947[2]"));
-        assert_eq!(k.output_of("uss/plant/line1/drive/3/out"), Some(3));
+        assert_eq!(
+            (drive, param.to_string().as_str()),
+            (Address::new(3).unwrap(), "r0947[2]")
+        );
+        assert_eq!(
+            k.output_of("uss/plant/line1/drive/3/out"),
+            Address::new(3).ok()
+        );
         assert_eq!(k.output_of("uss/plant/line1/drive/32/out"), None);
         assert_eq!(k.output_of("uss/plant/line1/drive/3/in"), None);
-        assert_eq!(k.stop_of("uss/plant/line1/drive/3/stop"), Ok(Some(3)));
+        assert_eq!(
+            k.stop_of("uss/plant/line1/drive/3/stop"),
+            Ok(Address::new(3).ok())
+        );
         assert_eq!(k.stop_of("uss/plant/line1/stop"), Ok(None));
         assert!(k.stop_of("uss/plant/line1/drive/32/stop").is_err());
         assert!(k.stop_of("uss/plant/line2/stop").is_err());
@@ -367,11 +378,19 @@ mod tests {
     fn a_query_with_wildcards_names_each_drive_it_intersects_under_its_concrete_key() {
         let k = Keys::new("uss/plant", "line1");
         let keys = |query: &str| -> Vec<String> {
-            k.params_named(query, ParamKey::Read, &[1, 2, 5])
-                .unwrap()
-                .into_iter()
-                .map(|n| n.key)
-                .collect()
+            k.params_named(
+                query,
+                ParamKey::Read,
+                &[
+                    Address::new(1).unwrap(),
+                    Address::new(2).unwrap(),
+                    Address::new(5).unwrap(),
+                ],
+            )
+            .unwrap()
+            .into_iter()
+            .map(|n| n.key)
+            .collect()
         };
         assert_eq!(
             keys("**/line1/drive/1/param/P1082"),
@@ -391,16 +410,24 @@ mod tests {
             "a concrete key is itself"
         );
         let named = k
-            .params_named("**/drive/2/param/r0947[3]", ParamKey::Read, &[1, 2])
+            .params_named(
+                "**/drive/2/param/r0947[3]",
+                ParamKey::Read,
+                &[Address::new(1).unwrap(), Address::new(2).unwrap()],
+            )
             .unwrap();
         assert_eq!(
             (named[0].drive, named[0].param.to_string()),
-            (2, "r0947[3]".to_owned())
+            (Address::new(2).unwrap(), "r0947[3]".to_owned())
         );
         let err = |query: &str| {
-            k.params_named(query, ParamKey::Read, &[1, 2])
-                .unwrap_err()
-                .kind
+            k.params_named(
+                query,
+                ParamKey::Read,
+                &[Address::new(1).unwrap(), Address::new(2).unwrap()],
+            )
+            .unwrap_err()
+            .kind
         };
         assert_eq!(err("**/line1/drive/1/param/*"), BadKey::ParamWildcard);
         assert_eq!(
@@ -417,15 +444,27 @@ mod tests {
     #[test]
     fn a_stop_with_wildcards_stops_what_it_intersects() {
         let k = Keys::new("uss/plant", "line1");
-        let named = |q: &str| k.stops_named(q, &[1, 2]).unwrap();
-        let one = |d: u8| StopTarget::Drives(vec![(d, format!("uss/plant/line1/drive/{d}/stop"))]);
+        let named = |q: &str| {
+            k.stops_named(q, &[Address::new(1).unwrap(), Address::new(2).unwrap()])
+                .unwrap()
+        };
+        let one = |d: u8| {
+            let d = Address::new(d).unwrap();
+            StopTarget::Drives(vec![(d, format!("uss/plant/line1/drive/{d}/stop"))])
+        };
         assert_eq!(named("**/line1/drive/2/stop"), one(2));
         assert_eq!(named("uss/plant/line1/drive/1/stop"), one(1));
         assert_eq!(
             named("uss/*/line1/drive/*/stop"),
             StopTarget::Drives(vec![
-                (1, "uss/plant/line1/drive/1/stop".into()),
-                (2, "uss/plant/line1/drive/2/stop".into())
+                (
+                    Address::new(1).unwrap(),
+                    "uss/plant/line1/drive/1/stop".into()
+                ),
+                (
+                    Address::new(2).unwrap(),
+                    "uss/plant/line1/drive/2/stop".into()
+                )
             ])
         );
         // `**/stop` reaches the bus's own stop too: every drive, one broadcast.
@@ -436,7 +475,13 @@ mod tests {
                 "{bus}"
             );
         }
-        assert!(k.stops_named("**/line2/drive/1/stop", &[1, 2]).is_err());
+        assert!(
+            k.stops_named(
+                "**/line2/drive/1/stop",
+                &[Address::new(1).unwrap(), Address::new(2).unwrap()]
+            )
+            .is_err()
+        );
     }
 
     #[test]
@@ -456,13 +501,17 @@ mod tests {
                 named[0].key.as_str()
             ),
             (
-                2,
+                Address::new(2).unwrap(),
                 "P1121".to_owned(),
                 "uss/set/param/line1/drive/2/set/P1121"
             )
         );
         let wild = k
-            .params_named("**/line1/drive/2/set/P1121", ParamKey::Write, &[1, 2])
+            .params_named(
+                "**/line1/drive/2/set/P1121",
+                ParamKey::Write,
+                &[Address::new(1).unwrap(), Address::new(2).unwrap()],
+            )
             .unwrap();
         assert_eq!(wild[0].key, "uss/set/param/line1/drive/2/set/P1121");
         assert!(
@@ -482,9 +531,12 @@ mod tests {
         assert_eq!(who.as_deref(), Some("hmi-1"));
         assert_eq!(
             peer.output_of("uss/plant/line1/as/hmi-1/drive/3/out"),
-            Some(3)
+            Address::new(3).ok()
         );
-        assert_eq!(peer.control(3), "uss/plant/line1/as/hmi-1/drive/3/control");
+        assert_eq!(
+            peer.control(Address::new(3).unwrap()),
+            "uss/plant/line1/as/hmi-1/drive/3/control"
+        );
         let (who, peer) = k.sender("uss/plant/line1/as/hmi-1/stop").unwrap();
         assert_eq!(who.as_deref(), Some("hmi-1"));
         assert_eq!(peer.stop_of("uss/plant/line1/as/hmi-1/stop"), Ok(None));
@@ -495,13 +547,16 @@ mod tests {
             .params_named(
                 "**/line1/as/eng/drive/2/set/P1121",
                 ParamKey::Write,
-                &[1, 2],
+                &[Address::new(1).unwrap(), Address::new(2).unwrap()],
             )
             .unwrap();
         assert_eq!(named[0].key, "uss/plant/line1/as/eng/drive/2/set/P1121");
         // No name: the keys themselves.
         let (who, peer) = k.sender("uss/plant/line1/drive/3/param/P1082").unwrap();
-        assert_eq!((who, peer.input(3)), (None, k.input(3)));
+        assert_eq!(
+            (who, peer.input(Address::new(3).unwrap())),
+            (None, k.input(Address::new(3).unwrap()))
+        );
         // A wildcard for the name names nobody.
         for bad in [
             "uss/plant/line1/as/*/drive/1/set/P1121",
@@ -524,9 +579,9 @@ mod tests {
             let _ = k.param_of(&format!("uss/p/b/drive/{tail}"), ParamKey::Read);
             let _ = k.stop_of(&format!("uss/p/b/drive/{tail}"));
             let _ = k.output_of(&format!("uss/p/b/drive/{tail}"));
-            let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Read, &[1, 2]);
-            let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Write, &[1, 2]);
-            let _ = k.stops_named(&format!("**/b/drive/{tail}"), &[1, 2]);
+            let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Read, &[Address::new(1).unwrap(), Address::new(2).unwrap()]);
+            let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Write, &[Address::new(1).unwrap(), Address::new(2).unwrap()]);
+            let _ = k.stops_named(&format!("**/b/drive/{tail}"), &[Address::new(1).unwrap(), Address::new(2).unwrap()]);
             let _ = k.sender(&format!("uss/p/b/as/{tail}"));
         }
     }

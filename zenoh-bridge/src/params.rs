@@ -15,7 +15,7 @@ use crate::policy::Right;
 use core::time::Duration;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use uss_client::{Bus, ParamError, WriteOptions};
+use uss_client::{Address, Bus, ParamError, WriteOptions};
 use zenoh::bytes::Encoding;
 use zenoh::query::Query;
 use zenoh::{Session, Wait};
@@ -74,7 +74,7 @@ fn answer(
     query: &Query,
     rules: Rules<'_>,
     peer: &Peer,
-    drive: u8,
+    drive: Address,
     param: uss_client::uss_protocol::ParamRef,
 ) -> Result<String, String> {
     let payload = query
@@ -95,7 +95,7 @@ fn answer(
         rules.gate.count(peer, right, WRITES_REFUSED);
         return Err(WRITES_REFUSED.to_owned());
     }
-    rules.gate.check(peer, right, Some(drive))?;
+    rules.gate.check(peer, right, Some(drive.get()))?;
     let bus = bus.map_err(Clone::clone)?;
     // The texts of `ussctl param read/write` for the same failures.
     let failed = |e: ParamError| match e {
@@ -105,7 +105,7 @@ fn answer(
     let value = match payload {
         None => ParamReply::new(
             name,
-            drive,
+            drive.get(),
             &bus.read_param(drive, param).map_err(failed)?,
             None,
         ),
@@ -136,7 +136,7 @@ fn answer(
             let written = bus
                 .write_param(drive, param, &text, options)
                 .map_err(failed)?;
-            ParamReply::new(name, drive, &written, Some(options.eeprom))
+            ParamReply::new(name, drive.get(), &written, Some(options.eeprom))
         }
     };
     serde_json::to_string(&value).map_err(|e| e.to_string())

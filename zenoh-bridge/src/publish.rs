@@ -174,7 +174,7 @@ impl Publisher<'_> {
             .filter(|r| *r > 0.0)
             .map(|r| Duration::from_secs_f64(1.0 / r));
         for d in &mut self.drives {
-            if due & (1 << d.watch.address()) == 0 {
+            if due & (1 << d.watch.address().get()) == 0 {
                 continue;
             }
             let look = d.watch.snapshot();
@@ -191,7 +191,13 @@ impl Publisher<'_> {
                 put(
                     self.session,
                     &d.key,
-                    &Input::new(&self.o.bus, d.watch.address(), &image, &look.info, stale),
+                    &Input::new(
+                        &self.o.bus,
+                        d.watch.address().get(),
+                        &image,
+                        &look.info,
+                        stale,
+                    ),
                 );
                 d.last = Some((image, stale));
                 d.sent_at = Some(Instant::now());

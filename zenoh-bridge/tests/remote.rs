@@ -25,6 +25,7 @@ use serde_json::Value;
 use std::process::Command;
 use std::time::{Duration, Instant};
 use uss_client::{ControlState, DriveWatch, LatchReason, PzdInput};
+use uss_integration_tests::addr;
 use uss_integration_tests::{BusSpec, ChildProc, Ussd, assert_report};
 
 /// `zenoh-bridge/examples/read_param.py` in the namespace reads `key`: P1082 = 50.0 Hz (over
@@ -456,7 +457,7 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     let bus = ussd.bus.clone();
     let prefix = format!("uss/c{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
-    let watch = ussd.bus().watch(1).unwrap();
+    let watch = ussd.bus().watch(addr(1)).unwrap();
 
     // By default a remote controller is told no, and the drive keeps its safe command.
     let (mut bridge_proc, config) = bridge(&ns, &bus, &prefix, &[]);
@@ -664,7 +665,7 @@ fn a_remote_client_controls_a_drive_of_a_full_line_at_9600_baud() {
     let bus = ussd.bus.clone();
     let prefix = format!("uss/f{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/20");
-    let watch = ussd.bus().watch(20).unwrap();
+    let watch = ussd.bus().watch(addr(20)).unwrap();
     let pki = Pki::new("full", "uss-rt test CA", &ns.here());
     ns.use_tls(Some(pki.client("controller")));
     let (_bridge, config) = bridge_tls(&ns, &bus, &prefix, &["--allow-control"], &pki);
@@ -770,7 +771,7 @@ fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_
     let bus = ussd.bus.clone();
     let prefix = format!("uss/m{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
-    let watch = ussd.bus().watch(1).unwrap();
+    let watch = ussd.bus().watch(addr(1)).unwrap();
     let pki = Pki::new("mtls", "uss-rt test CA", &ns.here());
     let (mut bridge_proc, config) = bridge_tls(&ns, &bus, &prefix, &["--allow-control"], &pki);
     let other = Pki::new("other", "another CA", &ns.here());
@@ -818,7 +819,7 @@ fn a_drive_under_remote_control_takes_no_parameter_writes_from_the_network() {
     let bus = ussd.bus.clone();
     let prefix = format!("uss/w{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
-    let watch = ussd.bus().watch(1).unwrap();
+    let watch = ussd.bus().watch(addr(1)).unwrap();
     let pki = Pki::new("held", "uss-rt test CA", &ns.here());
     let (_bridge, config) = bridge_tls(
         &ns,
@@ -846,7 +847,7 @@ fn a_drive_under_remote_control_takes_no_parameter_writes_from_the_network() {
         "{err}"
     );
     assert_eq!(
-        ussd.bus().read(1, 1121, None),
+        ussd.bus().read(addr(1), uss_integration_tests::param(1121)),
         Ok(uss_client::Value::from_f32(10.0)),
         "P1121 unchanged"
     );
@@ -927,7 +928,10 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
     let bus = ussd.bus.clone();
     let prefix = format!("uss/p{}", std::process::id());
     let drive = |d: u8| format!("{prefix}/{bus}/drive/{d}");
-    let (watch1, watch2) = (ussd.bus().watch(1).unwrap(), ussd.bus().watch(2).unwrap());
+    let (watch1, watch2) = (
+        ussd.bus().watch(addr(1)).unwrap(),
+        ussd.bus().watch(addr(2)).unwrap(),
+    );
     let pki = Pki::new("policy", "uss-rt test CA", &ns.here());
     let policy = pki.dir.join("policy.toml");
     std::fs::write(
@@ -979,7 +983,7 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
         "{err}"
     );
     assert_eq!(
-        ussd.bus().read(1, 1121, None),
+        ussd.bus().read(addr(1), uss_integration_tests::param(1121)),
         Ok(uss_client::Value::from_f32(9.0))
     );
 
@@ -1024,7 +1028,7 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
 /// its samples are refused with the right it lacks and the drive does not move; it reads but
 /// does not write; under a listed name (another's) nothing of it reaches the bridge.
 fn a_peer_without_rights_is_refused(ns: &Netns, ussd: &Ussd, drive: &str) {
-    let watch = ussd.bus().watch(1).unwrap();
+    let watch = ussd.bus().watch(addr(1)).unwrap();
     // A valid certificate without the control right: its samples are refused with the right
     // it lacks, and the drive does not move.
     answers_over_tls(ns, drive);
@@ -1050,7 +1054,7 @@ fn a_peer_without_rights_is_refused(ns: &Netns, ussd: &Ussd, drive: &str) {
         "{err}"
     );
     assert_eq!(
-        ussd.bus().read(1, 1121, None),
+        ussd.bus().read(addr(1), uss_integration_tests::param(1121)),
         Ok(uss_client::Value::from_f32(10.0))
     );
     // Under the controller's name, the viewer's samples and queries never reach the bridge:
@@ -1085,7 +1089,7 @@ fn a_peer_without_rights_is_refused(ns: &Netns, ussd: &Ussd, drive: &str) {
     let i = watch.latest();
     assert!(latched(&i) && reason(&i) == LatchReason::Startup, "{i:?}");
     assert_eq!(
-        ussd.bus().read(1, 1121, None),
+        ussd.bus().read(addr(1), uss_integration_tests::param(1121)),
         Ok(uss_client::Value::from_f32(10.0))
     );
 }
@@ -1101,7 +1105,7 @@ fn under_user_password_an_access_policy_grants_rights_per_user() {
     let bus = ussd.bus.clone();
     let prefix = format!("uss/u{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
-    let watch = ussd.bus().watch(1).unwrap();
+    let watch = ussd.bus().watch(addr(1)).unwrap();
     let dir = std::env::temp_dir().join(format!("uss-users-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let dictionary = dir.join("users.txt");

@@ -20,6 +20,7 @@ use std::process::{Child, Command, ExitCode, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
+use uss_benches::{addr, param};
 use uss_client::{Bus, ClientError, ControlOptions, DriveState, ParamError, Value, state_of};
 
 const DRIVES: u8 = 8;
@@ -169,7 +170,7 @@ struct Counts {
 /// and the drive is re-armed and run again.
 fn controller(bus: &Bus, stop: &AtomicBool, counts: &Counts) -> Result<(), String> {
     let c = bus
-        .control(1, ControlOptions::default())
+        .control(addr(1), ControlOptions::default())
         .map_err(|e| e.to_string())?;
     let run = |c: &uss_client::Controller| -> Result<(), String> {
         c.rearm().map_err(|e| e.to_string())?;
@@ -218,7 +219,7 @@ fn writer(bus: &Bus, stop: &AtomicBool, counts: &Counts) {
         let value = Value::from_f32(1.0 + (k % 200) as f32 * 0.5);
         k += 1;
         counts.param_requests.fetch_add(2, Ordering::Relaxed);
-        match bus.write(drive, 1120, None, value, false) {
+        match bus.write(addr(drive), param(1120), value, false) {
             Ok(v) if v == value => held[usize::from(drive)] = Some(value),
             Ok(v) => {
                 counts.mismatches.fetch_add(1, Ordering::Relaxed);
@@ -230,7 +231,7 @@ fn writer(bus: &Bus, stop: &AtomicBool, counts: &Counts) {
                 count_failure(counts, &e);
             }
         }
-        match (bus.read(drive, 1120, None), held[usize::from(drive)]) {
+        match (bus.read(addr(drive), param(1120)), held[usize::from(drive)]) {
             (Ok(v), Some(h)) if v != h => {
                 counts.mismatches.fetch_add(1, Ordering::Relaxed);
                 eprintln!("  writer: drive {drive} P1120 reads {v:X?}, written {h:X?}");
@@ -248,7 +249,7 @@ fn fault_reader(bus: &Bus, stop: &AtomicBool, counts: &Counts) {
         let drive = 1 + k % DRIVES;
         k = k.wrapping_add(1);
         counts.param_requests.fetch_add(1, Ordering::Relaxed);
-        if let Err(e) = bus.faults(drive) {
+        if let Err(e) = bus.faults(addr(drive)) {
             count_failure(counts, &e);
         }
     }

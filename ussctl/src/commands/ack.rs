@@ -3,9 +3,10 @@
 use super::common::control;
 use crate::report::DriveReport;
 use crate::{Failure, Output};
+use uss_client::Address;
 use uss_client::{Bus, ClientError, DriveState};
 
-pub(crate) fn ack(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {
+pub(crate) fn ack(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
     let c = control(bus, drive)?;
     if c.inputs().state() != DriveState::Fault {
         out.note(&format!(

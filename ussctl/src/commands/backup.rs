@@ -16,6 +16,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;
+use uss_client::Address;
 use uss_client::uss_catalogue::{Catalogue, Change, Param};
 use uss_client::uss_protocol::{ErrorNumber, ParamRef, Pnu, Prefix, Subindex};
 use uss_client::{Bus, DriveError, DriveFamily, ParamError, ParamTask, Value, WriteOptions};
@@ -63,7 +64,7 @@ fn progress(len: usize, what: &str) -> ProgressBar {
 /// Reads `params` of `drive` in requests of up to 39; one result each, in order.
 fn read_all(
     bus: &Bus,
-    drive: u8,
+    drive: Address,
     params: &[ParamRef],
     what: &str,
 ) -> Vec<Result<Value, ParamError>> {
@@ -93,7 +94,7 @@ const fn not_on_drive(e: &ParamError) -> bool {
 /// of the path (offline, ussd gone) fails it all.
 fn read_settings(
     bus: &Bus,
-    drive: u8,
+    drive: Address,
     catalogue: &'static Catalogue,
 ) -> Result<(Settings, Vec<String>), Failure> {
     let all = settings(catalogue);
@@ -126,7 +127,7 @@ fn read_settings(
 pub(crate) fn backup(
     bus: &Bus,
     out: &Output,
-    drive: u8,
+    drive: Address,
     output: Option<&Path>,
 ) -> Result<(), Failure> {
     let family = bus.family(drive);
@@ -161,7 +162,7 @@ pub(crate) fn backup(
         family: catalogue.family.clone(),
         drive_family: Some(family.name().to_owned()),
         bus: bus.name().to_owned(),
-        drive,
+        drive: drive.get(),
         firmware,
         taken: now_utc(),
         not_on_drive: missing,
@@ -209,7 +210,7 @@ fn load(path: &Path, catalogue: &'static Catalogue) -> Result<(BackupFile, Vec<E
 
 /// The catalogue whose settings a drive of `family` has (`catalogue/data/<family>.toml`); a
 /// generic slave has none, and nothing uss-rt could back up or check.
-fn settings_catalogue(drive: u8, family: &str) -> Result<&'static Catalogue, Failure> {
+fn settings_catalogue(drive: Address, family: &str) -> Result<&'static Catalogue, Failure> {
     Catalogue::of_family(family)
         .filter(|c| !c.param.is_empty())
         .ok_or_else(|| Failure::Family {
@@ -222,7 +223,7 @@ fn settings_catalogue(drive: u8, family: &str) -> Result<&'static Catalogue, Fai
 }
 
 /// A restore goes to a drive of the backup's family only (nothing written otherwise).
-fn check_family(drive: u8, family: DriveFamily, file: &BackupFile) -> Result<(), Failure> {
+fn check_family(drive: Address, family: DriveFamily, file: &BackupFile) -> Result<(), Failure> {
     match file.drive_family.as_deref() {
         Some(theirs) if theirs != family.name() => Err(Failure::Family {
             drive,
@@ -239,7 +240,7 @@ fn check_family(drive: u8, family: DriveFamily, file: &BackupFile) -> Result<(),
 /// Guarded parameters (command or setpoint source, COM link, ...) are restored only with
 /// --unsafe, and then before anything is written: never a restore cut short half way.
 fn refuse_guarded(
-    drive: u8,
+    drive: Address,
     family: DriveFamily,
     differing: &[(Entry, Option<Value>)],
 ) -> Result<(), Failure> {
@@ -270,7 +271,7 @@ fn refuse_guarded(
 
 /// What a restore was asked to do.
 pub(crate) struct Restore<'a> {
-    pub drive: u8,
+    pub drive: Address,
     pub file: &'a Path,
     pub dry_run: bool,
     /// EEPROM, forced, guarded parameters too (`--eeprom`, `--force`, `--unsafe`).
@@ -325,8 +326,8 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
             report.cut_short("Ctrl-C", &steps[i..]);
             break;
         }
-        let (pnu, index, value) = step.target();
-        match bus.write_with(drive, pnu, index, value, options) {
+        let (param, value) = step.target();
+        match bus.write_with(drive, param, value, options) {
             Ok(held) => {
                 if let Step::Restore(e) = step {
                     report.written(e, held);
@@ -367,13 +368,13 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
 /// catalogue's `access_level` and `commissioning`).
 fn order(
     bus: &Bus,
-    drive: u8,
+    drive: Address,
     catalogue: &Catalogue,
     differing: &[(Entry, Option<Value>)],
 ) -> Vec<Step> {
     let now = |p: Option<ParamRef>| {
         p.map_or(0, |p| {
-            bus.read(drive, p.pnu.get(), None)
+            bus.read(drive, ParamRef { index: None, ..p })
                 .map_or(0, |v| v.as_u32() as u16)
         })
     };
@@ -426,10 +427,10 @@ pub(crate) enum Step {
 }
 
 impl Step {
-    fn target(&self) -> (u16, Option<u8>, Value) {
+    fn target(&self) -> (ParamRef, Value) {
         match self {
-            Self::Restore(e) => (e.param.pnu.get(), e.param.index.map(Subindex::get), e.value),
-            Self::Helper(p, v) => (p.pnu.get(), None, Value::Word(*v)),
+            Self::Restore(e) => (e.param, e.value),
+            Self::Helper(p, v) => (ParamRef { index: None, ..*p }, Value::Word(*v)),
         }
     }
 
@@ -442,10 +443,12 @@ impl Step {
 }
 
 /// `param diff DRIVE (FILE | DRIVE)`.
-pub(crate) fn diff(bus: &Bus, out: &Output, drive: u8, other: &str) -> Result<(), Failure> {
+pub(crate) fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Result<(), Failure> {
     let catalogue = settings_catalogue(drive, bus.family(drive).name())?;
     let mut report = DiffReport::new(bus.name(), drive, other);
     if let Ok(second) = other.parse::<u8>() {
+        // A number names a drive (a file named so is written ./17).
+        let second = Address::new(second).map_err(|e| Failure::Usage(e.to_string()))?;
         let (a, _) = read_settings(bus, drive, catalogue)?;
         let (b, _) = read_settings(bus, second, catalogue)?;
         let theirs: BTreeMap<_, _> = b.iter().map(|(r, _, v)| ((r.pnu, r.index), *v)).collect();

@@ -6,11 +6,11 @@ use crate::{Failure, Output, catch_signals, stopped};
 use core::time::Duration;
 use std::path::Path;
 use std::time::Instant;
-use uss_client::{Bus, Catalogue};
+use uss_client::{Address, Bus, Catalogue};
 
 /// What `capture` was asked for.
 pub(crate) struct Options<'a> {
-    pub drive: Option<u8>,
+    pub drive: Option<Address>,
     pub level: Level,
     pub duration: Option<f64>,
     pub count: Option<u64>,
@@ -23,7 +23,7 @@ const POLL: Duration = Duration::from_millis(10);
 /// What the decoder shows each drive's telegrams with: its reference frequency (setpoints and
 /// actual values in Hz) and its family's catalogue (parameter names and units).
 struct DriveFacts {
-    drives: Vec<(u8, Option<f32>, Option<&'static Catalogue>)>,
+    drives: Vec<(Address, Option<f32>, Option<&'static Catalogue>)>,
 }
 
 impl DriveFacts {
@@ -42,7 +42,7 @@ impl DriveFacts {
     fn reference_hz(&self, address: u8) -> Option<f32> {
         self.drives
             .iter()
-            .find(|d| d.0 == address)
+            .find(|d| d.0.get() == address)
             .and_then(|d| d.1)
     }
 
@@ -50,7 +50,7 @@ impl DriveFacts {
     fn catalogue(&self, address: u8) -> Option<&'static Catalogue> {
         self.drives
             .iter()
-            .find(|d| d.0 == address)
+            .find(|d| d.0.get() == address)
             .map_or(Some(Catalogue::micromaster4()), |d| d.2)
     }
 }
@@ -114,7 +114,7 @@ pub(crate) fn capture(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Fa
         }
         for r in records
             .iter()
-            .filter(|r| o.drive.is_none_or(|a| r.address == a))
+            .filter(|r| o.drive.is_none_or(|a| r.address == a.get()))
         {
             if done(shown) {
                 break;

@@ -3,6 +3,7 @@
 
 use crate::Failure;
 use core::time::Duration;
+use uss_client::Address;
 use uss_client::{Bus, ControlOptions, Controller, PzdInput};
 
 /// How long a state change may take in the drive before ussctl gives up; the bus adds the
@@ -32,11 +33,11 @@ pub(crate) fn healthy(bus: &Bus) -> Result<(), Failure> {
 }
 
 /// Takes control of `drive`, explaining a refusal.
-pub(crate) fn control(bus: &Bus, drive: u8) -> Result<Controller, Failure> {
+pub(crate) fn control(bus: &Bus, drive: Address) -> Result<Controller, Failure> {
     Ok(bus.control(drive, ControlOptions::default())?)
 }
 
-pub(crate) const fn faulted(drive: u8, i: &PzdInput) -> Failure {
+pub(crate) const fn faulted(drive: Address, i: &PzdInput) -> Failure {
     Failure::Faulted {
         drive,
         zsw1: i.zsw1,

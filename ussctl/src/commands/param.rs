@@ -3,13 +3,13 @@
 use crate::cli::{self, Kind, ParamRef};
 use crate::report::{FaultsReport, ParamReport};
 use crate::{Failure, Output};
-use uss_client::uss_protocol::Subindex;
+use uss_client::Address;
 use uss_client::{Bus, ParamError, ParamValue, WriteOptions};
 
 pub(crate) fn read(
     bus: &Bus,
     out: &Output,
-    drive: u8,
+    drive: Address,
     param: ParamRef,
     kind: Option<Kind>,
 ) -> Result<(), Failure> {
@@ -24,7 +24,7 @@ pub(crate) fn read(
         // The type the user says, as the drive sent it.
         Some(kind) => ParamValue {
             param,
-            raw: bus.read_ref(drive, param).map_err(failed)?,
+            raw: bus.read(drive, param).map_err(failed)?,
             data_type: kind.data_type(),
             info: None,
         },
@@ -35,8 +35,13 @@ pub(crate) fn read(
 use std::fmt::Write as _;
 
 /// `param describe DRIVE PARAM`: what the drive says the parameter is, and the catalogue.
-pub(crate) fn describe(bus: &Bus, out: &Output, drive: u8, param: ParamRef) -> Result<(), Failure> {
-    let pnu = param.pnu.get();
+pub(crate) fn describe(
+    bus: &Bus,
+    out: &Output,
+    drive: Address,
+    param: ParamRef,
+) -> Result<(), Failure> {
+    let pnu = param.pnu;
     let drive_says = bus
         .drive_describes(drive, pnu)
         .map_err(|source| Failure::Param {
@@ -47,7 +52,7 @@ pub(crate) fn describe(bus: &Bus, out: &Output, drive: u8, param: ParamRef) -> R
     let entry = bus.catalogue_entry(drive, pnu);
     let report = DescribeReport {
         bus: bus.name().to_owned(),
-        drive,
+        drive: drive.get(),
         param: entry.map_or_else(|| param.to_string(), |p| p.id.to_string()),
         family: bus.family(drive).name(),
         drive_type: format!("{drive_says:?}"),
@@ -128,7 +133,7 @@ impl DescribeReport {
 
 /// What `param write` was asked to do.
 pub(crate) struct Write<'a> {
-    pub drive: u8,
+    pub drive: Address,
     pub param: ParamRef,
     pub value: &'a str,
     pub eeprom: bool,
@@ -159,11 +164,10 @@ pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failur
             .map_err(failed)?,
         Some(kind) => {
             let (value, _) = cli::parse_value(w.value, Some(kind)).map_err(Failure::Usage)?;
-            let index = param.index.map(Subindex::get);
             ParamValue {
                 param,
                 raw: bus
-                    .write_with(drive, param.pnu.get(), index, value, options)
+                    .write_with(drive, param, value, options)
                     .map_err(failed)?,
                 data_type: kind.data_type(),
                 info: None,
@@ -175,7 +179,7 @@ pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failur
     out.show(&report, ParamReport::human)
 }
 
-pub(crate) fn faults(bus: &Bus, out: &Output, drive: u8) -> Result<(), Failure> {
+pub(crate) fn faults(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
     let report = bus.fault_report(drive).map_err(|source| Failure::Param {
         drive,
         param: "r0947".to_owned(),

@@ -5,6 +5,7 @@ use crate::report::DriveReport;
 use crate::{Failure, Output, catch_signals, stopped};
 use core::time::Duration;
 use std::time::Instant;
+use uss_client::Address;
 use uss_client::{Bus, ClientError, Controller, DriveState};
 
 /// How long `run` waits for a drive that stopped answering before it gives up (longer than
@@ -49,7 +50,7 @@ struct Absence {
 
 impl Absence {
     /// Takes whether the drive answers now; the failure when it stayed away too long.
-    fn note(&mut self, out: &Output, drive: u8, online: bool) -> Option<Failure> {
+    fn note(&mut self, out: &Output, drive: Address, online: bool) -> Option<Failure> {
         match (online, self.since) {
             (false, None) => {
                 out.note(&format!(
@@ -80,7 +81,7 @@ impl Absence {
 pub(crate) fn run_drive(
     bus: &Bus,
     out: &Output,
-    drive: u8,
+    drive: Address,
     hz: f32,
     duration: Option<f64>,
 ) -> Result<(), Failure> {

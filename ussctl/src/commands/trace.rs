@@ -14,11 +14,11 @@ use serde::Serialize;
 use std::collections::VecDeque;
 use std::path::Path;
 use uss_client::uss_protocol::{Setpoint, Zsw1};
-use uss_client::{Bus, ClientError, DriveWatch, PzdInput, monotonic_ns, state_name};
+use uss_client::{Address, Bus, ClientError, DriveWatch, PzdInput, monotonic_ns, state_name};
 
 /// What `trace` was asked for.
 pub(crate) struct Options<'a> {
-    pub drives: &'a [u8],
+    pub drives: &'a [Address],
     pub duration: Duration,
     pub trigger: Option<Trigger>,
     pub pre: Duration,
@@ -155,7 +155,7 @@ impl Traced {
         };
         self.last = Some((image, note));
         let at = At {
-            drive: self.watch.address(),
+            drive: self.watch.address().get(),
             reference_hz: look.info.reference_hz,
             ns: at_ns,
         };
@@ -326,7 +326,7 @@ pub(crate) fn trace(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Fail
             if o.drives.len() == 1 { "" } else { "s" },
             o.drives
                 .iter()
-                .map(u8::to_string)
+                .map(Address::to_string)
                 .collect::<Vec<_>>()
                 .join(", ")
         );
@@ -337,7 +337,7 @@ pub(crate) fn trace(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Fail
         _ => 0.0,
     };
     let summary = Summary {
-        drives: o.drives.to_vec(),
+        drives: o.drives.iter().map(|a| a.get()).collect(),
         rows: rows.len(),
         seconds,
         missed: rows.iter().map(|r| r.missed).sum(),

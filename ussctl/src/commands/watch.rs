@@ -4,12 +4,12 @@ use crate::report::WatchLine;
 use crate::{Failure, Output, catch_signals, stopped};
 use core::time::Duration;
 use std::time::Instant;
-use uss_client::{Bus, ClientError};
+use uss_client::{Address, Bus, ClientError};
 
 pub(crate) fn watch(
     bus: &Bus,
     out: &Output,
-    only: &[u8],
+    only: &[Address],
     interval_ms: u64,
     count: Option<u64>,
 ) -> Result<(), Failure> {

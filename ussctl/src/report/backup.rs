@@ -5,7 +5,7 @@ use serde::Serialize;
 use std::fmt::Write as _;
 use uss_client::uss_catalogue::Param;
 use uss_client::uss_protocol::ParamRef;
-use uss_client::{ParamError, Value};
+use uss_client::{Address, ParamError, Value};
 
 /// One value of a restore: what the drive had, what the file says, what happened.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
@@ -37,10 +37,10 @@ pub struct RestoreReport {
 }
 
 impl RestoreReport {
-    pub fn new(bus: &str, drive: u8, file: &std::path::Path, dry_run: bool) -> Self {
+    pub fn new(bus: &str, drive: Address, file: &std::path::Path, dry_run: bool) -> Self {
         Self {
             bus: bus.to_owned(),
-            drive,
+            drive: drive.get(),
             file: file.display().to_string(),
             dry_run,
             equal: 0,
@@ -213,10 +213,10 @@ pub struct DiffReport {
 }
 
 impl DiffReport {
-    pub fn new(bus: &str, drive: u8, other: &str) -> Self {
+    pub fn new(bus: &str, drive: Address, other: &str) -> Self {
         Self {
             bus: bus.to_owned(),
-            drive,
+            drive: drive.get(),
             other: other.to_owned(),
             same: 0,
             lines: Vec::new(),

@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use uss_client::uss_catalogue::Bits;
 use uss_client::uss_protocol::Subindex;
 use uss_client::{
-    FaultReport, ParamValue, PzdInput, Setpoint, StopCommand, Typed, Value, zsw1_flags,
+    Address, FaultReport, ParamValue, PzdInput, Setpoint, StopCommand, Typed, Value, zsw1_flags,
 };
 
 /// One drive in one round of `watch`.
@@ -33,14 +33,14 @@ pub struct WatchLine {
 }
 
 impl WatchLine {
-    pub fn new(t: f64, drive: u8, i: &PzdInput, reference_hz: f32) -> Self {
+    pub fn new(t: f64, drive: Address, i: &PzdInput, reference_hz: f32) -> Self {
         let online = i.online != 0;
         let extra_words = usize::from(i.word_count)
             .saturating_sub(2)
             .min(i.extra.len());
         Self {
             t,
-            drive,
+            drive: drive.get(),
             online,
             state: shown_state(i.known, i.online, i.zsw1),
             zsw1: i.zsw1,
@@ -109,7 +109,7 @@ pub struct ParamReport {
 }
 
 impl ParamReport {
-    pub fn new(bus: &str, drive: u8, v: &ParamValue) -> Self {
+    pub fn new(bus: &str, drive: Address, v: &ParamValue) -> Self {
         let bits = match v.info.and_then(|p| p.bits) {
             Some(Bits::ZSW1) => zsw1_flags(v.raw.as_u32() as u16),
             Some(Bits::STW1) => stw1_bits(v.raw.as_u32() as u16),
@@ -117,7 +117,7 @@ impl ParamReport {
         };
         Self {
             bus: bus.to_owned(),
-            drive,
+            drive: drive.get(),
             param: v.param.to_string(),
             pnu: v.param.pnu.get(),
             index: v.param.index.map(Subindex::get),
@@ -227,10 +227,10 @@ pub struct WarningEntry {
 }
 
 impl FaultsReport {
-    pub fn new(bus: &str, drive: u8, r: &FaultReport) -> Self {
+    pub fn new(bus: &str, drive: Address, r: &FaultReport) -> Self {
         Self {
             bus: bus.to_owned(),
-            drive,
+            drive: drive.get(),
             codes_param: r.codes.to_string(),
             values_param: r.values.map(|p| p.to_string()),
             warnings_param: r.warnings_from.map(|p| p.to_string()),
@@ -330,10 +330,10 @@ impl StopReport {
         }
     }
 
-    pub fn push(&mut self, drive: u8, i: &PzdInput) {
+    pub fn push(&mut self, drive: Address, i: &PzdInput) {
         let online = i.online != 0;
         self.drives.push(StoppedDrive {
-            drive,
+            drive: drive.get(),
             online,
             state: shown_state(i.known, i.online, i.zsw1),
             zsw1: i.zsw1,
@@ -345,10 +345,10 @@ impl StopReport {
     }
 
     /// Drives ussd took the command for whose images this process cannot read (`why`).
-    pub fn unconfirmed(&mut self, drives: &[u8], why: &uss_client::ClientError) {
+    pub fn unconfirmed(&mut self, drives: &[Address], why: &uss_client::ClientError) {
         for &drive in drives {
             self.drives.push(StoppedDrive {
-                drive,
+                drive: drive.get(),
                 online: false,
                 state: "not read",
                 zsw1: 0,
@@ -408,11 +408,11 @@ pub struct DriveReport {
 }
 
 impl DriveReport {
-    pub fn new(bus: &str, action: &'static str, i: &PzdInput, drive: u8, ref_hz: f32) -> Self {
+    pub fn new(bus: &str, action: &'static str, i: &PzdInput, drive: Address, ref_hz: f32) -> Self {
         let online = i.online != 0;
         Self {
             bus: bus.to_owned(),
-            drive,
+            drive: drive.get(),
             action,
             online,
             state: shown_state(i.known, i.online, i.zsw1),

@@ -1,5 +1,7 @@
 use super::*;
-use uss_client::{BusStatus, DriveDiag, Monitoring, ParamValue, PzdInput, StopCommand, Value};
+use uss_client::{
+    Address, BusStatus, DriveDiag, Monitoring, ParamValue, PzdInput, StopCommand, Value,
+};
 use uss_shm_types::DriveCounters;
 use uss_shm_types::DriveInfo;
 use uss_shm_types::diag::LastFailure;
@@ -111,7 +113,7 @@ fn parameters_show_in_their_type_and_unit() {
         data_type: uss_client::DataType::Float,
         info,
     };
-    let p = ParamReport::new("b0", 1, &v);
+    let p = ParamReport::new("b0", Address::new(1).unwrap(), &v);
     assert_eq!(p.human(), "drive 1 P1082 = 50.00 Hz  (Max. frequency)");
     assert_eq!(
         serde_json::to_value(&p).unwrap(),
@@ -125,7 +127,7 @@ fn parameters_show_in_their_type_and_unit() {
         data_type: uss_client::DataType::U16,
         info: uss_client::Catalogue::micromaster4().param(52),
     };
-    let mut p = ParamReport::new("b0", 1, &zsw1);
+    let mut p = ParamReport::new("b0", Address::new(1).unwrap(), &zsw1);
     assert!(
         p.human().starts_with(
             "drive 1 r0052 = 0xFB31  (CO/BO: Act. status word 1): at-setpoint, control-requested"
@@ -182,7 +184,7 @@ fn faults_list_recorded_codes_with_texts_values_and_warnings() {
             text: Some("Current limit"),
         }]),
     };
-    let f = FaultsReport::new("b", 2, &report);
+    let f = FaultsReport::new("b", Address::new(2).unwrap(), &report);
     assert_eq!(
         f.human(),
         "drive 2 fault buffer r0947, newest first:\n  0: F0070 CB setpoint fault (fault value r0949 = 3) at 2026-11-22 20:31:05\n  1: F0999\nactive warnings (r2110):\n  A0501 Current limit\n"
@@ -195,7 +197,7 @@ fn faults_list_recorded_codes_with_texts_values_and_warnings() {
     assert_eq!(v["warnings"][0]["code"], "A0501");
     let none = FaultsReport::new(
         "b",
-        2,
+        Address::new(2).unwrap(),
         &uss_client::FaultReport {
             codes: "r0947".parse().unwrap(),
             values: None,
@@ -212,7 +214,7 @@ fn faults_list_recorded_codes_with_texts_values_and_warnings() {
 fn watch_lines_carry_the_extra_words_in_use() {
     let mut i = PzdInput::from_words(&[0xFB31, 0, 5, 6], 9, 0, 2_000_000).unwrap();
     (i.online, i.known) = (1, 1);
-    let w = WatchLine::new(0.5, 4, &i, 50.0);
+    let w = WatchLine::new(0.5, Address::new(4).unwrap(), &i, 50.0);
     assert_eq!(
         (w.state, w.extra.as_slice(), w.period_ms),
         ("S2", &[5, 6][..], 2.0)

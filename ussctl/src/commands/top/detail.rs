@@ -8,7 +8,7 @@ use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant;
 use uss_client::uss_protocol::{ParamTask, Pnu, Subindex};
-use uss_client::{Bus, FaultReport};
+use uss_client::{Address, Bus, FaultReport};
 
 /// How often the selected drive's counters are read again (8 reads in one request).
 const PERIOD: Duration = Duration::from_secs(3);
@@ -33,7 +33,7 @@ const COM_LINK: u8 = 1;
 
 /// One read of a drive.
 pub(crate) struct Detail {
-    pub drive: u8,
+    pub drive: Address,
     pub at: Instant,
     /// r2024..r2031, each read or why not.
     pub counters: Vec<Result<u16, String>>,
@@ -44,7 +44,7 @@ pub(crate) struct Detail {
 /// A wish: which drive, and whether its fault buffer too.
 struct Wish {
     bus: String,
-    drive: u8,
+    drive: Address,
     faults: bool,
 }
 
@@ -58,7 +58,7 @@ pub(crate) struct Reader {
 }
 
 struct Asked {
-    drive: u8,
+    drive: Address,
     at: Instant,
     faults_at: Instant,
     bits: u16,
@@ -83,7 +83,7 @@ impl Reader {
     /// Asks for `drive` of `bus` unless it was asked for within [`PERIOD`]; its fault buffer
     /// too when the drive is newly selected, its fault or warning bit (`bits` of ZSW1) changed,
     /// or after [`FAULTS_PERIOD`].
-    pub(crate) fn want(&self, bus: &str, drive: u8, bits: u16) {
+    pub(crate) fn want(&self, bus: &str, drive: Address, bits: u16) {
         let mut asked = self.asked.lock().unwrap_or_else(PoisonError::into_inner);
         let now = Instant::now();
         let (due, faults) = match asked.get(bus) {
@@ -159,7 +159,7 @@ fn serve(wanted: &Receiver<Wish>, done: &Mutex<HashMap<String, Detail>>) {
     }
 }
 
-fn read(bus: &Bus, drive: u8, faults: bool) -> Detail {
+fn read(bus: &Bus, drive: Address, faults: bool) -> Detail {
     let tasks: Vec<ParamTask> = COUNTERS
         .iter()
         .filter_map(|&(pnu, _)| {

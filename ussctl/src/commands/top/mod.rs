@@ -17,7 +17,7 @@ use model::Screen;
 use ratatui::crossterm::event::{self, Event, KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use std::io::IsTerminal as _;
 use std::time::Instant;
-use uss_client::StopCommand;
+use uss_client::{Address, StopCommand};
 
 /// How often the screen's data is read.
 const REFRESH: Duration = Duration::from_millis(200);
@@ -29,7 +29,7 @@ const KEY_WAIT: Duration = Duration::from_millis(50);
 pub(crate) struct Pending {
     pub command: StopCommand,
     /// None: every drive of the bus.
-    pub drive: Option<u8>,
+    pub drive: Option<Address>,
 }
 
 impl Pending {

@@ -8,7 +8,7 @@ use core::time::Duration;
 use std::collections::HashMap;
 use std::time::Instant;
 use uss_client::uss_protocol::Zsw1;
-use uss_client::{Bus, BusStatus, DriveDiag, DriveWatch, Health, PzdInput, Setpoint};
+use uss_client::{Address, Bus, BusStatus, DriveDiag, DriveWatch, Health, PzdInput, Setpoint};
 
 /// How often a bus without ussd is tried again.
 const RECONNECT: Duration = Duration::from_secs(1);
@@ -17,6 +17,8 @@ pub(crate) const MARKED_FOR: Duration = Duration::from_secs(2);
 
 /// A drive as last read: ussd's diagnostics and the input image.
 pub(crate) struct DriveView {
+    /// As ussd lists it (the same as `diag.address`).
+    pub address: Address,
     pub diag: DriveDiag,
     pub row: DriveRow,
     /// The setpoint the last poll sent, Hz (None before an image was read).
@@ -82,8 +84,8 @@ impl Screen {
         }
     }
 
-    pub(crate) fn selected_drive(&self) -> Option<u8> {
-        self.drives.get(self.selected).map(|d| d.diag.address)
+    pub(crate) fn selected_drive(&self) -> Option<Address> {
+        self.drives.get(self.selected).map(|d| d.address)
     }
 
     pub(crate) fn select(&mut self, step: isize) {
@@ -158,7 +160,7 @@ impl Screen {
             && let Some(d) = self.drives.get(self.selected)
         {
             let bits = d.diag.last_zsw1 & (Zsw1::FAULT | Zsw1::WARNING).bits();
-            details.want(&self.name, d.diag.address, bits);
+            details.want(&self.name, d.address, bits);
         }
     }
 
@@ -280,6 +282,7 @@ fn read(
             row.state = "stale";
         }
         drives.push(DriveView {
+            address: a,
             diag,
             row,
             set_hz,

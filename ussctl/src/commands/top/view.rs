@@ -332,7 +332,7 @@ fn own_view(screen: &Screen, drive: u8) -> Vec<Line<'static>> {
     let Some(d) = screen
         .detail
         .as_ref()
-        .filter(|d: &&Detail| d.drive == drive)
+        .filter(|d: &&Detail| d.drive.get() == drive)
     else {
         return vec![Line::styled(
             "drive's own counters (r2024..r2031) and fault buffer: reading...",
