@@ -3,11 +3,11 @@
 //! access level, when it can be changed; and the texts of fault and warning numbers.
 //!
 //! The catalogue is data: one TOML file per drive family (`data/*.toml`), compiled in and read at
-//! first use. [`DataType`] turns the words of the PKW channel into typed values and back, refusing
+//! first use. [`Values`] turns the words of the PKW channel into typed values and back, refusing
 //! what does not fit the type before it reaches the bus.
 //!
 //! ```
-//! use uss_catalogue::{Catalogue, DataType};
+//! use uss_catalogue::{Catalogue, DataType, Values as _};
 //! use uss_protocol::Value;
 //!
 //! let p1082 = Catalogue::micromaster4().param(1082).unwrap();
@@ -22,17 +22,9 @@ use serde::Deserialize;
 use std::sync::LazyLock;
 use uss_protocol::{ParamRef, Prefix, Value};
 
-/// The PROFIdrive data types of the parameters these drives have, with their type codes (the
-/// value of descriptive element 1, USS.md section 6).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize)]
-pub enum DataType {
-    I16,
-    I32,
-    U16,
-    U32,
-    /// IEEE-754 single precision in a double word.
-    Float,
-}
+/// The PROFIdrive data types of the parameters (the codec's: its type codes are the value of
+/// descriptive element 1, USS.md section 6); [`Values`] reads and writes values of them.
+pub use uss_protocol::DataType;
 
 /// A value of a parameter's own type.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -73,48 +65,30 @@ pub enum ValueError {
     NotWhole { text: String, data_type: DataType },
 }
 
-impl DataType {
-    /// The PROFIdrive type code.
-    pub const fn code(self) -> u16 {
-        match self {
-            Self::I16 => 3,
-            Self::I32 => 4,
-            Self::U16 => 6,
-            Self::U32 => 7,
-            Self::Float => 8,
-        }
-    }
-
-    /// The type of a PROFIdrive type code (descriptive element 1), if it is one of these.
-    pub const fn from_code(code: u16) -> Option<Self> {
-        match code {
-            3 => Some(Self::I16),
-            4 => Some(Self::I32),
-            6 => Some(Self::U16),
-            7 => Some(Self::U32),
-            8 => Some(Self::Float),
-            _ => None,
-        }
-    }
-
-    /// Whether the value travels as a double word.
-    pub const fn is_dword(self) -> bool {
-        matches!(self, Self::I32 | Self::U32 | Self::Float)
-    }
-
-    const fn range(self) -> &'static str {
-        match self {
-            Self::I16 => "-32768..=32767",
-            Self::I32 => "-2147483648..=2147483647",
-            Self::U16 => "0..=65535",
-            Self::U32 => "0..=4294967295",
-            Self::Float => "a finite single-precision number",
-        }
-    }
-
+/// Values of a [`DataType`]: what the PKW channel carried read as it, and text written as it.
+pub trait Values {
     /// The value the PKW channel carried, read as this type (a word of a dword type, or a
     /// dword of a word type, is read from its low bits).
-    pub fn decode(self, v: Value) -> Typed {
+    fn decode(self, v: Value) -> Typed;
+
+    /// A value written as text (`45`, `45.5`, `-3`, `0x1F`), as this type's word or double
+    /// word; what does not fit the type is refused here, before the bus.
+    fn parse(self, text: &str) -> Result<Value, ValueError>;
+}
+
+/// The values a type holds, as an error says them.
+const fn range(t: DataType) -> &'static str {
+    match t {
+        DataType::I16 => "-32768..=32767",
+        DataType::I32 => "-2147483648..=2147483647",
+        DataType::U16 => "0..=65535",
+        DataType::U32 => "0..=4294967295",
+        DataType::Float => "a finite single-precision number",
+    }
+}
+
+impl Values for DataType {
+    fn decode(self, v: Value) -> Typed {
         let raw = v.as_u32();
         match self {
             Self::I16 => Typed::I16(raw as u16 as i16),
@@ -125,14 +99,12 @@ impl DataType {
         }
     }
 
-    /// A value written as text (`45`, `45.5`, `-3`, `0x1F`), as this type's word or double word;
-    /// what does not fit the type is refused here, before the bus.
-    pub fn parse(self, text: &str) -> Result<Value, ValueError> {
+    fn parse(self, text: &str) -> Result<Value, ValueError> {
         let t = text.trim();
         let out_of_range = || ValueError::OutOfRange {
             text: t.to_owned(),
             data_type: self,
-            range: self.range(),
+            range: range(self),
         };
         if self == Self::Float {
             let f: f32 = t
@@ -170,18 +142,6 @@ impl DataType {
             Self::U32 | Self::Float => u32::try_from(n).map(Value::Dword),
         }
         .map_err(|_| out_of_range())
-    }
-}
-
-impl fmt::Display for DataType {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Self::I16 => "I16",
-            Self::I32 => "I32",
-            Self::U16 => "U16",
-            Self::U32 => "U32",
-            Self::Float => "float",
-        })
     }
 }
 

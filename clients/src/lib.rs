@@ -83,7 +83,7 @@ pub use error::{ClientError, Latch, ParamError};
 pub use link::{Health, monotonic_ns};
 pub use params::WriteOptions;
 pub use typed::{Fault, FaultReport, FaultTime, ParamValue, Warning};
-pub use uss_catalogue::{Catalogue, DataType, Typed};
+pub use uss_catalogue::{Catalogue, DataType, Typed, Values};
 pub use uss_protocol::{
     Address, DriveState, ParamRef, ParamTask, Pnu, Setpoint, Stw1, Subindex, Value, Zsw1,
 };

@@ -9,7 +9,7 @@ use crate::{Bus, ParamError, WriteOptions};
 use core::fmt;
 use std::collections::HashMap;
 use std::sync::{Mutex, PoisonError};
-use uss_catalogue::{Catalogue, DataType, Param, Typed};
+use uss_catalogue::{Catalogue, DataType, Param, Typed, Values as _};
 use uss_protocol::{Address, ParamRef, ParamTask, Pnu, Subindex, Value};
 use uss_shm_types::DriveFamily;
 

@@ -30,39 +30,27 @@
 
 use uss_protocol::{ErrorNumber, ParamTask, PkwMode, Pnu, ReplyKind, Storage, Subindex, Value};
 
-/// Data type of a parameter; descriptive element 1 carries its PROFIdrive code (USS.md section 6).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DataType {
-    U16,
-    I16,
-    U32,
-    I32,
-    Float,
+/// Data type of a parameter: the codec's; descriptive element 1 carries its PROFIdrive code
+/// (USS.md section 6).
+pub use uss_protocol::DataType;
+
+/// How the table stores and compares values of a [`DataType`].
+trait Raw {
+    /// The bits a raw value of this type occupies; word types are stored zero-extended.
+    fn mask(self) -> u32;
+    /// A raw value as the number it stands for (exact for every type).
+    fn number(self, raw: u32) -> f64;
+    /// A limit as this type sees it: floats compare in single precision, integers exactly.
+    fn limit(self, limit: f64) -> f64;
+    /// A number encoded as a raw value of this type (saturating for integers).
+    fn raw(self, number: f64) -> u32;
 }
 
-impl DataType {
-    /// The PROFIdrive data type code (descriptive element 1).
-    pub const fn code(self) -> u16 {
-        match self {
-            Self::U16 => 6,
-            Self::I16 => 3,
-            Self::U32 => 7,
-            Self::I32 => 4,
-            Self::Float => 8,
-        }
-    }
-
-    /// Whether values of this type travel as a double word (AK 3/8/11/13, replies 2/5).
-    pub const fn is_dword(self) -> bool {
-        !matches!(self, Self::U16 | Self::I16)
-    }
-
-    /// The bits a raw value of this type occupies; word types are stored zero-extended.
-    const fn mask(self) -> u32 {
+impl Raw for DataType {
+    fn mask(self) -> u32 {
         if self.is_dword() { u32::MAX } else { 0xFFFF }
     }
 
-    /// A raw value as the number it stands for (exact for every type).
     fn number(self, raw: u32) -> f64 {
         match self {
             Self::U16 => f64::from(raw as u16),
@@ -73,7 +61,6 @@ impl DataType {
         }
     }
 
-    /// A limit as this type sees it: floats compare in single precision, integers exactly.
     fn limit(self, limit: f64) -> f64 {
         match self {
             Self::Float => f64::from(limit as f32),
@@ -81,7 +68,6 @@ impl DataType {
         }
     }
 
-    /// A number encoded as a raw value of this type (saturating for integers).
     fn raw(self, number: f64) -> u32 {
         match self {
             Self::U16 => u32::from(number as u16),

@@ -14,6 +14,7 @@
 #![cfg_attr(not(test), no_std)]
 
 pub mod adr;
+pub mod data_type;
 pub mod framer;
 pub mod notation;
 pub mod pkw;
@@ -24,6 +25,7 @@ pub mod telegram;
 pub mod timing;
 
 pub use adr::{Address, AddressError, Adr};
+pub use data_type::DataType;
 pub use framer::{FrameError, Framer, FramerConfig, LineError};
 pub use notation::{NotationError, ParamRef, Prefix};
 pub use pkw::{

@@ -147,14 +147,49 @@ impl Value {
     }
 }
 
-/// Where a change is stored.
+/// Where a change is stored (USS.md section 6: the write tasks' RAM and RAM + EEPROM codes).
+/// Its byte, [`Storage::code`], is the `storage` byte of the shared-memory contract's items.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[repr(u8)]
 pub enum Storage {
     /// RAM only: lost at the next power cycle.
     #[default]
-    Ram,
+    Ram = 0,
     /// RAM and EEPROM: survives a power cycle; the drive takes longer (busy replies).
-    RamAndEeprom,
+    RamAndEeprom = 1,
+}
+
+impl Storage {
+    /// Both, in code order.
+    pub const ALL: &[Self] = &[Self::Ram, Self::RamAndEeprom];
+
+    /// Its byte.
+    pub const fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// The storage of byte `code`, if it is one.
+    pub const fn of_code(code: u8) -> Option<Self> {
+        match code {
+            0 => Some(Self::Ram),
+            1 => Some(Self::RamAndEeprom),
+            _ => None,
+        }
+    }
+
+    /// A short human-readable name.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Ram => "RAM",
+            Self::RamAndEeprom => "RAM + EEPROM",
+        }
+    }
+}
+
+impl From<Storage> for u8 {
+    fn from(storage: Storage) -> Self {
+        storage.code()
+    }
 }
 
 /// A task the master puts into the PKW channel (USS.md section 6, task IDs).

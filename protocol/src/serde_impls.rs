@@ -4,7 +4,7 @@
 //! integer and range checked here, so a too large value gets the same message as a slightly too
 //! large one; a value of another type is "not an integer: USS addresses are 0..=31".
 
-use crate::{Address, Baud, PkwMode, PzdCount};
+use crate::{Address, Baud, DataType, PkwMode, PzdCount};
 use core::fmt;
 use serde::de::Error as _;
 use serde::de::Visitor;
@@ -42,6 +42,26 @@ const ADDRESSES: &str = "USS addresses are 0..=31";
 const BAUDS: &str = "baud rates are 300..=12000000 (USS.md section 2 names 300 to 187500)";
 const PZD_WORDS: &str = "PZD words (P2012) are 0..=16";
 const PKW_LENGTHS: &str = "the PKW length (P2013) is 0, 3, 4 or 127 (variable)";
+
+/// A data type by the name a parameter list writes (`Float`, `U16`, ...).
+impl<'de> Deserialize<'de> for DataType {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Name;
+        impl Visitor<'_> for Name {
+            type Value = DataType;
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str("a data type: I16, I32, U16, U32 or Float")
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<DataType, E> {
+                DataType::ALL
+                    .into_iter()
+                    .find(|t| t.name() == v)
+                    .ok_or_else(|| E::unknown_variant(v, &["I16", "I32", "U16", "U32", "Float"]))
+            }
+        }
+        d.deserialize_str(Name)
+    }
+}
 
 impl<'de> Deserialize<'de> for Address {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {

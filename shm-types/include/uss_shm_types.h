@@ -809,31 +809,6 @@ typedef uint8_t UssTaskCode;
 #endif // __cplusplus
 
 /**
- * Where a change is stored; the `storage` byte of [`ParamItem`] (USS.md section 6).
- */
-enum UssStorage
-#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
-  : uint8_t
-#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
- {
-  /**
-   * RAM only: lost at the next power cycle.
-   */
-  USS_STORAGE_RAM = 0,
-  /**
-   * RAM and EEPROM: survives a power cycle; the drive takes longer (busy replies).
-   */
-  USS_STORAGE_RAM_AND_EEPROM = 1,
-};
-#ifndef __cplusplus
-#if __STDC_VERSION__ >= 202311L
-typedef enum UssStorage UssStorage;
-#else
-typedef uint8_t UssStorage;
-#endif // __STDC_VERSION__ >= 202311L
-#endif // __cplusplus
-
-/**
  * Why ussd refused a request or an item before it reached the bus; the `error` byte of
  * [`ParamResponse`] (whole request) and the `refusal` byte of [`ParamResult`] (one item).
  */
@@ -991,6 +966,32 @@ enum UssOutcome
 typedef enum UssOutcome UssOutcome;
 #else
 typedef uint8_t UssOutcome;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Where a change is stored (USS.md section 6: the write tasks' RAM and RAM + EEPROM codes).
+ * Its byte, [`Storage::code`], is the `storage` byte of the shared-memory contract's items.
+ */
+enum UssStorage
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * RAM only: lost at the next power cycle.
+   */
+  USS_STORAGE_RAM = 0,
+  /**
+   * RAM and EEPROM: survives a power cycle; the drive takes longer (busy replies).
+   */
+  USS_STORAGE_RAM_AND_EEPROM = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssStorage UssStorage;
+#else
+typedef uint8_t UssStorage;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 

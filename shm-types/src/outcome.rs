@@ -112,10 +112,6 @@ pub enum ResultError {
 impl From<&ParamTask> for ParamItem {
     /// The item that asks for `task`; [`ParamTask::None`] is the empty item (refused if sent).
     fn from(task: &ParamTask) -> Self {
-        let storage = |s: uss_protocol::Storage| match s {
-            uss_protocol::Storage::Ram => Storage::Ram,
-            uss_protocol::Storage::RamAndEeprom => Storage::RamAndEeprom,
-        };
         let change = |array: bool, value: Value| match (array, value.is_dword()) {
             (false, false) => TaskCode::WriteWord,
             (false, true) => TaskCode::WriteDword,
@@ -129,7 +125,7 @@ impl From<&ParamTask> for ParamItem {
                 pnu,
                 value,
                 storage: s,
-            } => (change(false, value), pnu, 0, value.as_u32(), storage(s)),
+            } => (change(false, value), pnu, 0, value.as_u32(), s),
             ParamTask::ReadDescription { pnu, element } => {
                 let index = element.get();
                 (TaskCode::ReadDescription, pnu, index, 0, Storage::Ram)
@@ -142,13 +138,7 @@ impl From<&ParamTask> for ParamItem {
                 index,
                 value,
                 storage: s,
-            } => (
-                change(true, value),
-                pnu,
-                index.get(),
-                value.as_u32(),
-                storage(s),
-            ),
+            } => (change(true, value), pnu, index.get(), value.as_u32(), s),
             ParamTask::ReadArrayLen { pnu } => {
                 (TaskCode::ReadElementCount, pnu, 0, 0, Storage::Ram)
             }
@@ -165,10 +155,7 @@ impl TryFrom<&ParamItem> for ParamTask {
     /// within 16 bits, no value and RAM storage with a read).
     fn try_from(item: &ParamItem) -> Result<Self, RequestError> {
         let code = item.task().map_err(|_| RequestError::BadTask)?;
-        let storage = match item.storage().map_err(|_| RequestError::BadStorage)? {
-            Storage::Ram => uss_protocol::Storage::Ram,
-            Storage::RamAndEeprom => uss_protocol::Storage::RamAndEeprom,
-        };
+        let storage = item.storage().map_err(|_| RequestError::BadStorage)?;
         let index = u8::try_from(item.index)
             .ok()
             .filter(|&i| u16::from(i) <= MAX_SUBINDEX)

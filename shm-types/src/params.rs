@@ -40,15 +40,9 @@ code_table! {
     }
 }
 
-code_table! {
-    /// Where a change is stored; the `storage` byte of [`ParamItem`] (USS.md section 6).
-    pub enum Storage {
-        /// RAM only: lost at the next power cycle.
-        Ram = 0 => "RAM",
-        /// RAM and EEPROM: survives a power cycle; the drive takes longer (busy replies).
-        RamAndEeprom = 1 => "RAM + EEPROM",
-    }
-}
+/// Where a change is stored: the codec's type; its byte is the `storage` byte of
+/// [`ParamItem`].
+pub use uss_protocol::Storage;
 
 code_table! {
     /// Why ussd refused a request or an item before it reached the bus; the `error` byte of
@@ -286,7 +280,10 @@ impl ParamItem {
     }
 
     pub fn storage(&self) -> Result<Storage, UnknownCode> {
-        Storage::try_from(self.storage)
+        Storage::of_code(self.storage).ok_or(UnknownCode {
+            table: "Storage",
+            code: self.storage,
+        })
     }
 }
 

@@ -91,6 +91,34 @@ fn code_tables_of(source: &str, names: &mut Vec<String>) -> String {
     out
 }
 
+/// The codec's enum `name` (in `protocol/src/<file>`), which the contract uses as it is, doc
+/// comments and all, for cbindgen: from its doc comment to its closing brace, without
+/// `#[default]`. Adds `name` to `names`.
+fn codec_enum(file: &str, name: &str, names: &mut Vec<String>) -> String {
+    let path = crate_dir().join("../protocol/src").join(file);
+    let source = std::fs::read_to_string(&path).unwrap();
+    let lines: Vec<&str> = source.lines().collect();
+    let at = lines
+        .iter()
+        .position(|l| *l == format!("pub enum {name} {{"))
+        .expect("the codec defines the enum");
+    let start = (0..at)
+        .rev()
+        .take_while(|&i| lines[i].starts_with("///") || lines[i].starts_with("#["))
+        .last()
+        .unwrap_or(at);
+    let end = at + lines[at..].iter().position(|l| *l == "}").expect("closes");
+    names.push(name.to_owned());
+    let mut out = String::new();
+    for l in &lines[start..=end] {
+        if l.trim() != "#[default]" && !l.starts_with("#[derive") {
+            out.push_str(l);
+            out.push('\n');
+        }
+    }
+    out
+}
+
 /// Text cbindgen cannot produce from the crate (it skips string constants): the iceoryx2 type
 /// names and the service name patterns, in the header's comment style.
 fn strings_section() -> String {
@@ -329,10 +357,11 @@ fn generate_header() -> String {
         .collect();
     files.sort();
     let mut table_names = Vec::new();
-    let tables: String = files
+    let mut tables: String = files
         .iter()
         .map(|f| code_tables_of(&std::fs::read_to_string(f).unwrap(), &mut table_names))
         .collect();
+    tables.push_str(&codec_enum("pkw.rs", "Storage", &mut table_names));
     let tables_file = scratch("code-tables").join("code_tables.rs");
     std::fs::write(&tables_file, tables).unwrap();
 

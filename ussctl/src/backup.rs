@@ -22,7 +22,7 @@
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use uss_client::Value;
-use uss_client::uss_catalogue::{Catalogue, DataType, Param};
+use uss_client::uss_catalogue::{Catalogue, DataType, Param, Values as _};
 use uss_client::uss_protocol::{ParamRef, Prefix, Subindex};
 
 /// The file format this ussctl writes and reads.
