@@ -9,9 +9,9 @@
 use crate::family::{
     G110, G120, G120_IDENTIFICATION, G120_ROLES, MICROMASTER4_ROLES, Roles, SIMOREG, SIMOREG_ROLES,
 };
-use crate::params::{DriveContext, MICROMASTER4, ParamSet, ParamTable};
+use crate::params::{MICROMASTER4, ParamSet, ParamTable};
 use core::time::Duration;
-use uss_protocol::pkw::{ErrorNumber, ParamReply, ParamTask, PkwError, Pnu, ReplyKind, Value};
+use uss_protocol::pkw::{ErrorNumber, Value};
 use uss_protocol::telegram::{Layout, MAX_PKW_WORDS, MAX_PZD_WORDS, Telegram, encode};
 use uss_protocol::{Address, Adr, FrameError, LineError, Setpoint, Stw1, Zsw1};
 
@@ -20,6 +20,8 @@ use uss_protocol::{Address, Adr, FrameError, LineError, Setpoint, Stw1, Zsw1};
 pub const FAULT_TELEGRAM_OFF: u16 = 72;
 /// Setpoint and actual value within this many Hz set ZSW1 bit 8.
 const AT_SETPOINT_TOLERANCE_HZ: f32 = 0.5;
+
+mod pkw;
 
 /// How a simulated drive is set up.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -549,142 +551,6 @@ impl Drive {
         }
     }
 
-    fn handle_pkw(&mut self, request: &[u16], out: &mut [u16; MAX_PKW_WORDS]) -> usize {
-        let same =
-            self.pkw.request_len == request.len() && self.pkw.request[..request.len()] == *request;
-        if !same {
-            self.start_task(request);
-        }
-        let layout = self.config.layout;
-        if self.pkw.busy_left > 0 {
-            self.pkw.busy_left -= 1;
-            out.copy_from_slice(&self.pkw.busy_reply);
-            return if layout.pkw == uss_protocol::PkwMode::Variable {
-                3
-            } else {
-                layout.pkw.request_words()
-            };
-        }
-        out.copy_from_slice(&self.pkw.reply);
-        self.pkw.reply_len
-    }
-
-    /// Executes a new task once; repeats of it get the stored reply (USS.md section 6).
-    fn start_task(&mut self, request: &[u16]) {
-        self.pkw.request[..request.len()].copy_from_slice(request);
-        self.pkw.request_len = request.len();
-        let raw_pnu = Pnu::from_parts(request[0] & 0x07FF, (request[1] >> 8) as u8)
-            .unwrap_or(Pnu::from_u16(0));
-        let subindex = (request[1] & 0xFF) as u8;
-        let (task, kind) = match ParamTask::decode(request) {
-            Ok(task) if task != ParamTask::None => match self.config.personality {
-                Personality::Micromaster4
-                | Personality::G110
-                | Personality::G120
-                | Personality::Simoreg => {
-                    let ctx = DriveContext {
-                        running: self.state.is_running(),
-                    };
-                    (
-                        Some(task),
-                        self.params.execute(&task, self.config.layout.pkw, ctx),
-                    )
-                }
-                Personality::Generic { fragile } => {
-                    let kind = self.generic_task(&task);
-                    if fragile && kind == ReplyKind::Error(ErrorNumber::IllegalPnu) {
-                        self.dead = true;
-                    }
-                    (Some(task), kind)
-                }
-            },
-            Ok(task) => (Some(task), ReplyKind::NotYet),
-            Err(e) => (None, ReplyKind::Error(self.decode_error(e))),
-        };
-        let reply = match task {
-            Some(ParamTask::None) => ParamReply::NOT_YET,
-            _ => ParamReply {
-                pnu: task.and_then(|t| t.pnu()).unwrap_or(raw_pnu),
-                subindex: task.map_or(subindex, |t| t.subindex()),
-                kind,
-            },
-        };
-        let mode = self.config.layout.pkw;
-        let mut words = [0u16; MAX_PKW_WORDS];
-        self.pkw.reply_len = reply.encode(mode, &mut words).unwrap_or_else(|_| {
-            let narrow = ParamReply {
-                kind: ReplyKind::Error(ErrorNumber::ChannelTooNarrow),
-                ..reply
-            };
-            narrow.encode(mode, &mut words).unwrap_or(0)
-        });
-        self.pkw.reply = words;
-        let busy = ParamReply {
-            kind: ReplyKind::NotYet,
-            ..reply
-        };
-        let mut busy_words = [0u16; MAX_PKW_WORDS];
-        // A "not yet" reply is a word reply: it fits every mode with a channel.
-        let _ = busy.encode(mode, &mut busy_words);
-        self.pkw.busy_reply = busy_words;
-        self.pkw.busy_left = match task {
-            Some(ParamTask::None) | None => 0,
-            Some(t) if t.is_write() && is_eeprom(&t) => self.config.eeprom_busy_telegrams,
-            Some(_) => self.config.task_busy_telegrams,
-        };
-    }
-
-    /// A generic slave's answer: a value of [`GENERIC_PARAMS`] read or changed, error 0 to
-    /// anything else (another parameter, a description, an array).
-    fn generic_task(&mut self, task: &ParamTask) -> ReplyKind {
-        let reply = |v: Value| match v {
-            Value::Word(w) => ReplyKind::Word(w),
-            Value::Dword(d) => ReplyKind::Dword(d),
-        };
-        let slot = |pnu: Pnu| {
-            GENERIC_PARAMS
-                .iter()
-                .position(|p| Pnu::from_u16(p.0) == pnu)
-        };
-        match *task {
-            ParamTask::Read { pnu } => match slot(pnu) {
-                Some(i) => reply(self.generic[i]),
-                None => ReplyKind::Error(ErrorNumber::IllegalPnu),
-            },
-            ParamTask::Write { pnu, value, .. } => match slot(pnu) {
-                Some(i) if !GENERIC_PARAMS[i].2 => {
-                    ReplyKind::Error(ErrorNumber::ValueNotChangeable)
-                }
-                Some(i)
-                    if core::mem::discriminant(&value)
-                        == core::mem::discriminant(&self.generic[i]) =>
-                {
-                    self.generic[i] = value;
-                    reply(value)
-                }
-                Some(_) => ReplyKind::Error(ErrorNumber::WrongDataType),
-                None => ReplyKind::Error(ErrorNumber::IllegalPnu),
-            },
-            _ => ReplyKind::Error(ErrorNumber::IllegalPnu),
-        }
-    }
-
-    /// Whether a fragile generic slave stopped answering.
-    pub const fn is_dead(&self) -> bool {
-        self.dead
-    }
-
-    fn decode_error(&self, e: PkwError) -> ErrorNumber {
-        match e {
-            PkwError::DwordOverThreeWords => self.config.dword_over_three_words,
-            PkwError::Subindex(_) => ErrorNumber::FaultySubindex,
-            PkwError::PnuPart(_) => ErrorNumber::IllegalPnu,
-            PkwError::UnsupportedTask(_) | PkwError::NoChannel | PkwError::Words(_) => {
-                ErrorNumber::TaskNotImplemented
-            }
-        }
-    }
-
     /// Whether the drive takes its commands from USS (P0700 = 5 on a MICROMASTER 4, p0700 = 6
     /// on a G120; a family without a command-source parameter and a generic slave always do).
     fn takes_commands(&self) -> bool {
@@ -889,19 +755,6 @@ impl Drive {
                 .set_internal(first + i as u16, index, u32::from(value));
         }
     }
-}
-
-fn is_eeprom(task: &ParamTask) -> bool {
-    matches!(
-        task,
-        ParamTask::Write {
-            storage: uss_protocol::Storage::RamAndEeprom,
-            ..
-        } | ParamTask::WriteArray {
-            storage: uss_protocol::Storage::RamAndEeprom,
-            ..
-        }
-    )
 }
 
 /// A trip's time as r0948 holds it, in the format of the real-time clock P2115 (low byte
