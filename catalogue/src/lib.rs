@@ -261,7 +261,11 @@ impl Param {
 
     /// The value as it is shown: `50.00 Hz`, `5`, `0xFB31`.
     pub fn show(&self, v: Value) -> String {
-        let typed = self.data_type.decode(v);
+        self.show_typed(v, self.data_type.decode(v))
+    }
+
+    /// [`Param::show`] of `v` already decoded as `typed` (its [`Values::decode`]).
+    pub fn show_typed(&self, v: Value, typed: Typed) -> String {
         let shown = if self.bits.is_some() {
             format!("{:#06X}", v.as_u32() as u16)
         } else {

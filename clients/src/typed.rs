@@ -77,9 +77,14 @@ impl ParamValue {
 
     /// The value as shown: `50.00 Hz`, `5`, `0xFB31` (a status or control word).
     pub fn shown(&self) -> String {
+        self.shown_typed(self.typed())
+    }
+
+    /// [`ParamValue::shown`], the value already in its own type ([`ParamValue::typed`]).
+    pub fn shown_typed(&self, typed: Typed) -> String {
         match self.info {
-            Some(p) => p.show(self.raw),
-            None => self.typed().to_string(),
+            Some(p) => p.show_typed(self.raw, typed),
+            None => typed.to_string(),
         }
     }
 }

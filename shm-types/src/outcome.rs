@@ -13,6 +13,9 @@ use crate::codes::UnknownCode;
 use crate::params::{
     MAX_SUBINDEX, Outcome, ParamItem, ParamResult, RequestError, Storage, TaskCode,
 };
+
+// The contract's index limit is the codec's: `Subindex::new` is its one check.
+const _: () = assert!(MAX_SUBINDEX == Subindex::MAX as u16);
 use uss_protocol::{ErrorNumber, ParamReply, ParamTask, Pnu, ReplyKind, Subindex, Value};
 
 /// What the drive answered to a task it carried out.
@@ -158,7 +161,6 @@ impl TryFrom<&ParamItem> for ParamTask {
         let storage = item.storage().map_err(|_| RequestError::BadStorage)?;
         let index = u8::try_from(item.index)
             .ok()
-            .filter(|&i| u16::from(i) <= MAX_SUBINDEX)
             .and_then(|i| Subindex::new(i).ok())
             .ok_or(RequestError::BadSubindex)?;
         let pnu = Pnu::from_u16(item.pnu);

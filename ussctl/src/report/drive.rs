@@ -110,6 +110,7 @@ pub struct ParamReport {
 
 impl ParamReport {
     pub fn new(bus: &str, drive: Address, v: &ParamValue) -> Self {
+        let typed = v.typed();
         let bits = match v.info.and_then(|p| p.bits) {
             Some(Bits::ZSW1) => zsw1_flags(v.raw.as_u32() as u16),
             Some(Bits::STW1) => stw1_bits(v.raw.as_u32() as u16),
@@ -129,10 +130,10 @@ impl ParamReport {
                 Value::Word(w) => format!("{w:#06X}"),
                 Value::Dword(d) => format!("{d:#010X}"),
             },
-            value: v.typed(),
+            value: typed,
             bits,
             eeprom: None,
-            shown: v.shown(),
+            shown: v.shown_typed(typed),
         }
     }
 
