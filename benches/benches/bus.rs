@@ -22,7 +22,7 @@
 
 use std::fmt::Write;
 use std::time::{Duration, Instant};
-use uss_benches::{Parts, percentiles_us};
+use uss_benches::{Parts, engine_config, percentiles_us};
 use uss_drive_sim::{DriveConfig, SimBus, VirtualWire};
 use uss_master::config::Config;
 use uss_master::daemon::rt::{RtRequest, apply_to_current_thread};
@@ -30,36 +30,13 @@ use uss_master::daemon::runtime::{self, RunOptions};
 use uss_master::engine::clock::SPIN_BEFORE_DEADLINE;
 use uss_master::engine::control::Control;
 use uss_master::engine::stats::{FreshTiming, Published};
-use uss_master::{
-    DriveSetup, Engine, EngineConfig, MonotonicClock, SimTransport, Stats, VirtualClock,
-};
+use uss_master::{DriveSetup, Engine, MonotonicClock, SimTransport, Stats, VirtualClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Timing};
 
 /// The S7-1200 library's documented minimum call interval per exchange at 19200 baud (USS.md
 /// section 8).
 const S7_1200_AT_19200_MS: f64 = 68.2;
-
-/// The benchmarks' bus: ussd's defaults but a 500 ms probe and one failed poll to go offline.
-fn engine_config(timing: Timing, drives: Vec<DriveSetup>, capture: bool) -> EngineConfig {
-    EngineConfig {
-        timing,
-        response_timeout: Duration::from_millis(20),
-        retries: 2,
-        offline_after: 1,
-        offline_probe: Duration::from_millis(500),
-        cycle_time: None,
-        param_timeout: Duration::from_secs(2),
-        echo: false,
-        mailbox_depth: 16,
-        publish_every: Duration::from_millis(100),
-        param_priority: false,
-        safety_first: true,
-        rx_latency: Duration::ZERO,
-        capture,
-        drives,
-    }
-}
 
 /// Runs one engine for `exchanges` exchanges with four drives in real time; returns its stats
 /// and the real-time mode its thread got.

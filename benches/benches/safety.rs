@@ -22,7 +22,7 @@
 use rand::{Rng, SeedableRng};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
-use uss_benches::Parts;
+use uss_benches::{Parts, engine_config};
 use uss_drive_sim::{DriveConfig, SimBus, VirtualWire};
 use uss_master::{
     Clock, DriveSetup, Engine, EngineConfig, EngineHandle, SimTransport, VirtualClock,
@@ -64,21 +64,8 @@ impl Bus {
             drives.push(DriveSetup::new(addr(a), layout));
         }
         let config = EngineConfig {
-            timing,
-            response_timeout: Duration::from_millis(20),
-            retries: 2,
-            offline_after: 1,
-            offline_probe: Duration::from_millis(500),
-            cycle_time: None,
-            param_timeout: Duration::from_secs(2),
-            echo: false,
-            mailbox_depth: 16,
-            publish_every: Duration::from_millis(100),
-            param_priority: false,
             safety_first,
-            rx_latency: Duration::ZERO,
-            capture: true,
-            drives,
+            ..engine_config(timing, drives, true)
         };
         let transport = SimTransport::new(VirtualWire::new(sim, timing));
         let (engine, handle, _events) = Engine::new(config, transport, VirtualClock::new());

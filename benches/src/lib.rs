@@ -135,3 +135,28 @@ pub fn addr(a: u8) -> uss_client::Address {
 pub fn param(pnu: u16) -> uss_client::ParamRef {
     uss_client::ParamRef::p(pnu)
 }
+
+/// The benchmarks' bus: ussd's defaults but a 500 ms probe and one failed poll to go offline.
+pub fn engine_config(
+    timing: uss_protocol::Timing,
+    drives: Vec<uss_master::DriveSetup>,
+    capture: bool,
+) -> uss_master::EngineConfig {
+    uss_master::EngineConfig {
+        timing,
+        response_timeout: core::time::Duration::from_millis(20),
+        retries: 2,
+        offline_after: 1,
+        offline_probe: core::time::Duration::from_millis(500),
+        cycle_time: None,
+        param_timeout: core::time::Duration::from_secs(2),
+        echo: false,
+        mailbox_depth: 16,
+        publish_every: core::time::Duration::from_millis(100),
+        param_priority: false,
+        safety_first: true,
+        rx_latency: core::time::Duration::ZERO,
+        capture,
+        drives,
+    }
+}

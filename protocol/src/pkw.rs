@@ -176,14 +176,6 @@ impl Storage {
             _ => None,
         }
     }
-
-    /// A short human-readable name.
-    pub const fn name(self) -> &'static str {
-        match self {
-            Self::Ram => "RAM",
-            Self::RamAndEeprom => "RAM + EEPROM",
-        }
-    }
 }
 
 impl From<Storage> for u8 {

@@ -12,7 +12,7 @@ use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use uss_client::{Address, Bus, ClientError, ParamRef, Subindex};
+use uss_client::{Address, Bus, ClientError, ParamRef};
 
 /// Drive `a` of a test's bus (the tests name their drives 1..=31).
 pub fn addr(a: impl TestAddress) -> Address {
@@ -51,7 +51,7 @@ pub fn param(pnu: u16) -> ParamRef {
 
 /// Element `index` of parameter `pnu`.
 pub fn param_at(pnu: u16, index: u8) -> ParamRef {
-    ParamRef::p(pnu).at(Subindex::new(index).expect("a test's index is 0..=254"))
+    ParamRef::numbered(pnu, Some(index)).expect("a test's index is 0..=254")
 }
 
 /// Builds (if needed) and returns the path of a workspace binary. Integration tests only get

@@ -333,20 +333,11 @@ pub fn baud_list(s: &str) -> Result<BaudList, String> {
 
 /// Addresses for `scan`: `0-31`, or a comma-separated list.
 pub fn address_list(s: &str) -> Result<AddressList, String> {
-    use uss_client::uss_protocol::Address;
-    let number = |t: &str| {
-        t.trim()
-            .parse::<u8>()
-            .ok()
-            .and_then(|a| Address::new(a).ok())
-            .ok_or_else(|| format!("{t:?} is not a drive address 0..=31"))
-    };
+    let number = |t: &str| address(t.trim());
     if let Some((from, to)) = s.split_once('-') {
-        let (from, to) = (number(from)?, number(to)?);
+        let range = number(from)?..=number(to)?;
         Ok(AddressList(
-            (from.get()..=to.get())
-                .filter_map(|a| Address::new(a).ok())
-                .collect(),
+            Address::all().filter(|a| range.contains(a)).collect(),
         ))
     } else {
         s.split(',')
@@ -356,7 +347,6 @@ pub fn address_list(s: &str) -> Result<AddressList, String> {
     }
 }
 
-/// Parses a parameter reference for clap, naming what was written.
 /// A drive's address, 0..=31 (USS.md section 3), checked where it enters.
 pub fn address(s: &str) -> Result<Address, String> {
     let n: u8 = s
@@ -365,6 +355,7 @@ pub fn address(s: &str) -> Result<Address, String> {
     Address::new(n).map_err(|e| e.to_string())
 }
 
+/// Parses a parameter reference for clap, naming what was written.
 pub fn param_ref(s: &str) -> Result<ParamRef, String> {
     s.parse().map_err(|e| format!("{s:?}: {e}"))
 }

@@ -107,7 +107,7 @@ fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent,
         StopTarget::Bus(_) => gate.check(&peer, Right::Stop, None)?,
         StopTarget::Drives(named) => {
             for (drive, _) in named {
-                gate.check(&peer, Right::Stop, Some(drive.get()))?;
+                gate.check(&peer, Right::Stop, Some(*drive))?;
             }
         }
     }
@@ -247,7 +247,7 @@ pub fn serve_stops(
 /// refused).
 #[derive(Debug, Default)]
 pub struct Held {
-    holders: Mutex<HashMap<u8, Holder>>,
+    holders: Mutex<HashMap<Address, Holder>>,
 }
 
 /// Who the bridge holds a drive for.
@@ -265,7 +265,7 @@ impl Held {
         self.holders
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .get(&drive.get())
+            .get(&drive)
             .cloned()
     }
 
@@ -275,8 +275,8 @@ impl Held {
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         match holder {
-            Some(h) => holders.insert(drive.get(), h),
-            None => holders.remove(&drive.get()),
+            Some(h) => holders.insert(drive, h),
+            None => holders.remove(&drive),
         };
     }
 }
@@ -353,9 +353,9 @@ struct Dispatcher<'a> {
     bus: Option<Bus>,
     /// When ussd is tried again while it is not running.
     next_open: Instant,
-    drives: HashMap<u8, (Sender<FromPeer>, std::thread::JoinHandle<()>)>,
+    drives: HashMap<Address, (Sender<FromPeer>, std::thread::JoinHandle<()>)>,
     /// Samples this dispatcher refused, per drive.
-    refused: HashMap<u8, u64>,
+    refused: HashMap<Address, u64>,
 }
 
 impl Dispatcher<'_> {
@@ -373,7 +373,7 @@ impl Dispatcher<'_> {
         let sender = parsed.as_ref().ok().map(|o| o.from.clone());
         let who = peer.to_string();
         if let Err(why) = self.hand_on(drive, parsed, peer) {
-            let refused = self.refused.entry(drive.get()).or_default();
+            let refused = self.refused.entry(drive).or_default();
             *refused += 1;
             let mut report = ControlReport::new(self.name, drive.get());
             report.state = "refused";
@@ -390,7 +390,7 @@ impl Dispatcher<'_> {
             self.gate.count(&peer, Right::Control, CONTROL_REFUSED);
             return Err(CONTROL_REFUSED.to_owned());
         }
-        self.gate.check(&peer, Right::Control, Some(drive.get()))?;
+        self.gate.check(&peer, Right::Control, Some(drive))?;
         if self.bus.is_none() && Instant::now() >= self.next_open {
             self.next_open = Instant::now() + Duration::from_millis(250);
             self.bus = Bus::open_as(self.name, "uss-zenoh-control").ok();
@@ -399,7 +399,7 @@ impl Dispatcher<'_> {
             .bus
             .as_ref()
             .ok_or_else(|| format!("ussd is not running on {}: nothing was sent", self.name))?;
-        if !self.drives.contains_key(&drive.get()) {
+        if !self.drives.contains_key(&drive) {
             let known = bus.drives();
             if !known.contains(&drive) {
                 return Err(format!(
@@ -420,9 +420,9 @@ impl Dispatcher<'_> {
                     control_drive(&session, &name, &keys, drive, &rx, &held, &stop_flag);
                 })
                 .map_err(|e| format!("cannot start the control thread of drive {drive}: {e}"))?;
-            self.drives.insert(drive.get(), (tx, thread));
+            self.drives.insert(drive, (tx, thread));
         }
-        let Some((tx, _)) = self.drives.get(&drive.get()) else {
+        let Some((tx, _)) = self.drives.get(&drive) else {
             return Err("no control thread".to_owned());
         };
         match tx.try_send((sample, peer)) {
@@ -432,7 +432,7 @@ impl Dispatcher<'_> {
             )),
             Err(TrySendError::Disconnected(_)) => {
                 // The thread could not reach ussd: the next sample starts another.
-                self.drives.remove(&drive.get());
+                self.drives.remove(&drive);
                 Err(format!(
                     "ussd is not running on {}: nothing was sent",
                     self.name

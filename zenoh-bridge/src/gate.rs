@@ -10,6 +10,7 @@ use std::collections::HashMap;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
+use uss_client::Address;
 
 /// Who sent a message, as far as the bridge can tell.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -86,11 +87,16 @@ impl Gate {
     /// Whether `peer` may do `right` on `drive` (`None`: the whole bus); without a policy, every
     /// authenticated peer may (the bridge's flags decide). A refusal is counted and logged,
     /// and its text names the right.
-    pub fn check(&self, peer: &Peer, right: Right, drive: Option<u8>) -> Result<(), String> {
+    pub fn check(&self, peer: &Peer, right: Right, drive: Option<Address>) -> Result<(), String> {
         let Some((policy, _)) = &self.policy else {
             return Ok(());
         };
-        if policy.allows(peer.verified_name(), right, &self.bus, drive) {
+        if policy.allows(
+            peer.verified_name(),
+            right,
+            &self.bus,
+            drive.map(Address::get),
+        ) {
             return Ok(());
         }
         let what = drive.map_or_else(
@@ -163,8 +169,13 @@ mod tests {
         let gate = Gate::new("line1", Some((policy, Names::Certificates)));
         let ctl = gate.peer(Some("ctl".to_owned()));
         assert_eq!(ctl.vouched, Some("certificate"));
-        assert_eq!(gate.check(&ctl, Right::Control, Some(1)), Ok(()));
-        let no = gate.check(&ctl, Right::Control, Some(2)).unwrap_err();
+        assert_eq!(
+            gate.check(&ctl, Right::Control, Address::new(1).ok()),
+            Ok(())
+        );
+        let no = gate
+            .check(&ctl, Right::Control, Address::new(2).ok())
+            .unwrap_err();
         assert!(
             no.contains("\"ctl\" (certificate) has not the right `control` on drive 2 of line1"),
             "{no}"
@@ -172,8 +183,13 @@ mod tests {
         // An unlisted name, or none, gets the default rights only.
         let viewer = gate.peer(Some("viewer".to_owned()));
         assert_eq!(viewer.vouched, None);
-        assert_eq!(gate.check(&viewer, Right::Stop, Some(2)), Ok(()));
-        let no = gate.check(&viewer, Right::Write, Some(2)).unwrap_err();
+        assert_eq!(
+            gate.check(&viewer, Right::Stop, Address::new(2).ok()),
+            Ok(())
+        );
+        let no = gate
+            .check(&viewer, Right::Write, Address::new(2).ok())
+            .unwrap_err();
         assert!(
             no.contains("(a name nothing vouches for)") && no.contains("`write`"),
             "{no}"
@@ -196,7 +212,7 @@ mod tests {
         // Without a policy the bridge's flags decide, not the gate.
         let open = Gate::new("line1", None);
         assert_eq!(
-            open.check(&open.peer(None), Right::Control, Some(1)),
+            open.check(&open.peer(None), Right::Control, Address::new(1).ok()),
             Ok(())
         );
         assert_eq!(open.peer(Some("ctl".to_owned())).vouched, None);

@@ -335,32 +335,24 @@ fn address(text: &str) -> Option<Address> {
 mod tests {
     use super::*;
 
+    fn addr(a: u8) -> Address {
+        Address::new(a).unwrap()
+    }
+
     #[test]
     fn keys_follow_the_readme_table_and_parameter_keys_read_back() {
         let k = Keys::new("uss/plant/", "line1");
-        assert_eq!(
-            k.input(Address::new(3).unwrap()),
-            "uss/plant/line1/drive/3/in"
-        );
+        assert_eq!(k.input(addr(3)), "uss/plant/line1/drive/3/in");
         assert_eq!(k.params(), "uss/plant/line1/drive/*/param/*");
         assert_eq!(k.alive(), "uss/plant/line1/alive");
         let (drive, param) = k
             .param_of("uss/plant/line1/drive/3/param/r0947[2]", ParamKey::Read)
             .unwrap();
-        assert_eq!(
-            (drive, param.to_string().as_str()),
-            (Address::new(3).unwrap(), "r0947[2]")
-        );
-        assert_eq!(
-            k.output_of("uss/plant/line1/drive/3/out"),
-            Address::new(3).ok()
-        );
+        assert_eq!((drive, param.to_string().as_str()), (addr(3), "r0947[2]"));
+        assert_eq!(k.output_of("uss/plant/line1/drive/3/out"), Some(addr(3)));
         assert_eq!(k.output_of("uss/plant/line1/drive/32/out"), None);
         assert_eq!(k.output_of("uss/plant/line1/drive/3/in"), None);
-        assert_eq!(
-            k.stop_of("uss/plant/line1/drive/3/stop"),
-            Ok(Address::new(3).ok())
-        );
+        assert_eq!(k.stop_of("uss/plant/line1/drive/3/stop"), Ok(Some(addr(3))));
         assert_eq!(k.stop_of("uss/plant/line1/stop"), Ok(None));
         assert!(k.stop_of("uss/plant/line1/drive/32/stop").is_err());
         assert!(k.stop_of("uss/plant/line2/stop").is_err());
@@ -378,19 +370,11 @@ mod tests {
     fn a_query_with_wildcards_names_each_drive_it_intersects_under_its_concrete_key() {
         let k = Keys::new("uss/plant", "line1");
         let keys = |query: &str| -> Vec<String> {
-            k.params_named(
-                query,
-                ParamKey::Read,
-                &[
-                    Address::new(1).unwrap(),
-                    Address::new(2).unwrap(),
-                    Address::new(5).unwrap(),
-                ],
-            )
-            .unwrap()
-            .into_iter()
-            .map(|n| n.key)
-            .collect()
+            k.params_named(query, ParamKey::Read, &[addr(1), addr(2), addr(5)])
+                .unwrap()
+                .into_iter()
+                .map(|n| n.key)
+                .collect()
         };
         assert_eq!(
             keys("**/line1/drive/1/param/P1082"),
@@ -413,21 +397,17 @@ mod tests {
             .params_named(
                 "**/drive/2/param/r0947[3]",
                 ParamKey::Read,
-                &[Address::new(1).unwrap(), Address::new(2).unwrap()],
+                &[addr(1), addr(2)],
             )
             .unwrap();
         assert_eq!(
             (named[0].drive, named[0].param.to_string()),
-            (Address::new(2).unwrap(), "r0947[3]".to_owned())
+            (addr(2), "r0947[3]".to_owned())
         );
         let err = |query: &str| {
-            k.params_named(
-                query,
-                ParamKey::Read,
-                &[Address::new(1).unwrap(), Address::new(2).unwrap()],
-            )
-            .unwrap_err()
-            .kind
+            k.params_named(query, ParamKey::Read, &[addr(1), addr(2)])
+                .unwrap_err()
+                .kind
         };
         assert_eq!(err("**/line1/drive/1/param/*"), BadKey::ParamWildcard);
         assert_eq!(
@@ -444,12 +424,9 @@ mod tests {
     #[test]
     fn a_stop_with_wildcards_stops_what_it_intersects() {
         let k = Keys::new("uss/plant", "line1");
-        let named = |q: &str| {
-            k.stops_named(q, &[Address::new(1).unwrap(), Address::new(2).unwrap()])
-                .unwrap()
-        };
+        let named = |q: &str| k.stops_named(q, &[addr(1), addr(2)]).unwrap();
         let one = |d: u8| {
-            let d = Address::new(d).unwrap();
+            let d = addr(d);
             StopTarget::Drives(vec![(d, format!("uss/plant/line1/drive/{d}/stop"))])
         };
         assert_eq!(named("**/line1/drive/2/stop"), one(2));
@@ -457,14 +434,8 @@ mod tests {
         assert_eq!(
             named("uss/*/line1/drive/*/stop"),
             StopTarget::Drives(vec![
-                (
-                    Address::new(1).unwrap(),
-                    "uss/plant/line1/drive/1/stop".into()
-                ),
-                (
-                    Address::new(2).unwrap(),
-                    "uss/plant/line1/drive/2/stop".into()
-                )
+                (addr(1), "uss/plant/line1/drive/1/stop".into()),
+                (addr(2), "uss/plant/line1/drive/2/stop".into())
             ])
         );
         // `**/stop` reaches the bus's own stop too: every drive, one broadcast.
@@ -476,11 +447,8 @@ mod tests {
             );
         }
         assert!(
-            k.stops_named(
-                "**/line2/drive/1/stop",
-                &[Address::new(1).unwrap(), Address::new(2).unwrap()]
-            )
-            .is_err()
+            k.stops_named("**/line2/drive/1/stop", &[addr(1), addr(2)])
+                .is_err()
         );
     }
 
@@ -501,7 +469,7 @@ mod tests {
                 named[0].key.as_str()
             ),
             (
-                Address::new(2).unwrap(),
+                addr(2),
                 "P1121".to_owned(),
                 "uss/set/param/line1/drive/2/set/P1121"
             )
@@ -510,7 +478,7 @@ mod tests {
             .params_named(
                 "**/line1/drive/2/set/P1121",
                 ParamKey::Write,
-                &[Address::new(1).unwrap(), Address::new(2).unwrap()],
+                &[addr(1), addr(2)],
             )
             .unwrap();
         assert_eq!(wild[0].key, "uss/set/param/line1/drive/2/set/P1121");
@@ -531,10 +499,10 @@ mod tests {
         assert_eq!(who.as_deref(), Some("hmi-1"));
         assert_eq!(
             peer.output_of("uss/plant/line1/as/hmi-1/drive/3/out"),
-            Address::new(3).ok()
+            Some(addr(3))
         );
         assert_eq!(
-            peer.control(Address::new(3).unwrap()),
+            peer.control(addr(3)),
             "uss/plant/line1/as/hmi-1/drive/3/control"
         );
         let (who, peer) = k.sender("uss/plant/line1/as/hmi-1/stop").unwrap();
@@ -547,16 +515,13 @@ mod tests {
             .params_named(
                 "**/line1/as/eng/drive/2/set/P1121",
                 ParamKey::Write,
-                &[Address::new(1).unwrap(), Address::new(2).unwrap()],
+                &[addr(1), addr(2)],
             )
             .unwrap();
         assert_eq!(named[0].key, "uss/plant/line1/as/eng/drive/2/set/P1121");
         // No name: the keys themselves.
         let (who, peer) = k.sender("uss/plant/line1/drive/3/param/P1082").unwrap();
-        assert_eq!(
-            (who, peer.input(Address::new(3).unwrap())),
-            (None, k.input(Address::new(3).unwrap()))
-        );
+        assert_eq!((who, peer.input(addr(3))), (None, k.input(addr(3))));
         // A wildcard for the name names nobody.
         for bad in [
             "uss/plant/line1/as/*/drive/1/set/P1121",
@@ -579,9 +544,9 @@ mod tests {
             let _ = k.param_of(&format!("uss/p/b/drive/{tail}"), ParamKey::Read);
             let _ = k.stop_of(&format!("uss/p/b/drive/{tail}"));
             let _ = k.output_of(&format!("uss/p/b/drive/{tail}"));
-            let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Read, &[Address::new(1).unwrap(), Address::new(2).unwrap()]);
-            let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Write, &[Address::new(1).unwrap(), Address::new(2).unwrap()]);
-            let _ = k.stops_named(&format!("**/b/drive/{tail}"), &[Address::new(1).unwrap(), Address::new(2).unwrap()]);
+            let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Read, &[addr(1), addr(2)]);
+            let _ = k.params_named(&format!("**/b/drive/{tail}"), ParamKey::Write, &[addr(1), addr(2)]);
+            let _ = k.stops_named(&format!("**/b/drive/{tail}"), &[addr(1), addr(2)]);
             let _ = k.sender(&format!("uss/p/b/as/{tail}"));
         }
     }

@@ -95,7 +95,7 @@ fn answer(
         rules.gate.count(peer, right, WRITES_REFUSED);
         return Err(WRITES_REFUSED.to_owned());
     }
-    rules.gate.check(peer, right, Some(drive.get()))?;
+    rules.gate.check(peer, right, Some(drive))?;
     let bus = bus.map_err(Clone::clone)?;
     // The texts of `ussctl param read/write` for the same failures.
     let failed = |e: ParamError| match e {

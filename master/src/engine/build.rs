@@ -2,7 +2,6 @@
 //! ussd's start, the statistics before the first poll, and everything the engine and its
 //! handle share.
 
-use super::stats::DriveHistograms;
 use super::{
     Arc, AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Bridge, BusCounters, BusTiming,
     CANCEL_QUEUE, Clock, Drive, DriveCells, DriveSetup, Duration, Engine, EngineConfig,
@@ -53,23 +52,15 @@ pub(super) fn snapshot(
     drives: &[Drive],
     timing: &BusTiming,
 ) -> Stats {
+    let (drive_histograms, update_period) = drives.iter().map(|d| d.timing.totals()).unzip();
     Stats {
         at,
         bus,
         line,
         drives: drives.iter().map(Drive::status).collect(),
         histograms: timing.totals(),
-        update_period: drives
-            .iter()
-            .map(|d| d.timing.update_period.total.clone())
-            .collect(),
-        drive_histograms: drives
-            .iter()
-            .map(|d| DriveHistograms {
-                exchange: d.timing.exchange.total.clone(),
-                response_delay: d.timing.response_delay.total.clone(),
-            })
-            .collect(),
+        drive_histograms,
+        update_period,
     }
 }
 

@@ -9,9 +9,10 @@
 use super::control::Gate;
 use super::jobs::Mailbox;
 use super::reference::Reference;
-use super::stats::{DriveStatus, LastFailure, Recorded, set_control};
+use super::stats::{DriveHistograms, DriveStatus, LastFailure, Recorded, set_control};
 use super::{DriveSetup, Event, monitoring};
 use core::time::Duration;
+use hdrhistogram::Histogram;
 use uss_protocol::{Address, DriveState, Zsw1};
 use uss_shm_types::{DriveCounters, Monitoring};
 
@@ -159,6 +160,38 @@ pub(super) struct DriveTiming {
     pub update_period: Recorded,
 }
 
+impl DriveTiming {
+    fn new() -> Self {
+        Self {
+            exchange: Recorded::drive(),
+            response_delay: Recorded::drive(),
+            update_period: Recorded::bus(),
+        }
+    }
+
+    /// Everything recorded, as published: the drive's histograms and its update period.
+    pub fn totals(&self) -> (DriveHistograms, Histogram<u64>) {
+        let histograms = DriveHistograms {
+            exchange: self.exchange.total.clone(),
+            response_delay: self.response_delay.total.clone(),
+        };
+        (histograms, self.update_period.total.clone())
+    }
+
+    /// Hands what was recorded since the last hand-over to the published copy's empty
+    /// histograms of this drive ([`Recorded::hand_over`]).
+    pub fn hand_over(
+        &mut self,
+        histograms: &mut DriveHistograms,
+        update_period: &mut Histogram<u64>,
+    ) {
+        self.exchange.hand_over(&mut histograms.exchange);
+        self.response_delay
+            .hand_over(&mut histograms.response_delay);
+        self.update_period.hand_over(update_period);
+    }
+}
+
 impl Drive {
     /// A drive with its gate as it starts, unknown, before its first poll.
     pub fn new(setup: DriveSetup, gate: Gate, mailbox_depth: usize, shortest: Duration) -> Self {
@@ -180,11 +213,7 @@ impl Drive {
             period: Duration::ZERO,
             stale_after: Duration::ZERO,
             overrides_seen: [0; 3],
-            timing: DriveTiming {
-                exchange: Recorded::drive(),
-                response_delay: Recorded::drive(),
-                update_period: Recorded::bus(),
-            },
+            timing: DriveTiming::new(),
         }
     }
 

@@ -864,11 +864,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
         if let Some(pending) = pending {
             self.timing.hand_over(&mut pending.histograms);
-            for (slot, d) in self.drives.iter_mut().enumerate() {
-                let (t, p) = (&mut d.timing, &mut pending.drive_histograms[slot]);
-                t.exchange.hand_over(&mut p.exchange);
-                t.response_delay.hand_over(&mut p.response_delay);
-                t.update_period.hand_over(&mut pending.update_period[slot]);
+            let per_drive = pending
+                .drive_histograms
+                .iter_mut()
+                .zip(&mut pending.update_period);
+            for (d, (histograms, update_period)) in self.drives.iter_mut().zip(per_drive) {
+                d.timing.hand_over(histograms, update_period);
             }
         }
         self.last_publish = now;
