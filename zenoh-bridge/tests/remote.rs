@@ -8,6 +8,7 @@
 //! `uss-zenoh-client run` re-arms and runs a drive, and taking the veth link down trips it
 //! (safe command, latched) within the watchdog time; the link back up does not restart it, only a
 //! new run does; an operator's stop from either side and a killed bridge latch it too.
+//! A bridge paused at the hand-over still takes the run's release when it resumes.
 //!
 //! A bridge that moves motors or writes runs on mutual TLS (certificates made by the test with
 //! openssl as the README shows): on plain TCP it refuses to start, and a client without a
@@ -805,6 +806,49 @@ fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_
         out.contains("re-armed") && out.contains("and released"),
         "{out}"
     );
+    bridge_proc.kill();
+    let _ = std::fs::remove_file(config);
+}
+
+/// A bridge that stalls while a remote run hands its drive back (a starved CPU, a paused
+/// process) still takes the hand-over when it resumes, and the run says so: the release is sent
+/// again until the bridge confirms it, for several seconds, not for a single handshake time.
+#[test]
+fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() {
+    let Some(ns) = Netns::create() else { return };
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus.clone();
+    let prefix = format!("uss/h{}", std::process::id());
+    let drive = format!("{prefix}/{bus}/drive/1");
+    let watch = ussd.bus().watch(addr(1)).unwrap();
+    let (mut bridge_proc, config) = bridge(
+        &ns,
+        &bus,
+        &prefix,
+        &["--allow-control", "--insecure-network"],
+    );
+    answers(&ns, &[], &drive);
+    let mut run = ns.client(&["run", &drive, "--hz", "5", "--for", "0.5"]);
+    run.says("re-armed");
+    // The run ends and hands the drive back while the bridge is paused for 4 s.
+    let signal = |name: &str| {
+        let ok = Command::new("kill")
+            .args([name, &bridge_proc.pid().to_string()])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok, "kill {name}");
+    };
+    signal("-STOP");
+    std::thread::sleep(Duration::from_secs(4));
+    signal("-CONT");
+    let (status, out, err) = run.finish();
+    assert!(status.success(), "{err}");
+    assert!(out.contains("and released"), "{out}");
+    // Its watchdog stopped the drive meanwhile (the bridge was silent); nothing restarts it.
+    let i = watch.latest();
+    assert!(latched(&i), "{i:?}");
+    assert_eq!(i.sent_stw1 & 0x0401, 0x0400, "OFF1 with bit 10 set");
     bridge_proc.kill();
     let _ = std::fs::remove_file(config);
 }
