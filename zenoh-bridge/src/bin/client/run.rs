@@ -30,6 +30,12 @@ const BLIND_AFTER: Duration = Duration::from_secs(1);
 pub const ARM_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long the drive may take to ramp down at the end.
 const STOP_TIMEOUT: Duration = Duration::from_secs(30);
+/// How long the bridge may take to confirm the hand-over, beyond the drive's handshake time: a
+/// bridge on a starved CPU or paused for a moment still takes it when it resumes.
+const RELEASE_TIMEOUT: Duration = Duration::from_secs(8);
+/// How often the release goes out again until the bridge confirms it: one that was lost or
+/// came while the bridge was busy is not the last word (a second one is harmless).
+const RELEASE_AGAIN: Duration = Duration::from_millis(250);
 /// STW1 of the run: ON with everything enabled.
 const RUN: u16 = 0x047F;
 /// STW1 of OFF1: the re-arming stop, and the stop at the end.
@@ -338,10 +344,15 @@ impl Remote<'_> {
         if let Some(session) = self.session.as_mut() {
             session.release(uss_client::monotonic_ns());
         }
-        self.send(r#""release":true"#)?;
-        // The bridge says when it handed the drive back.
-        let deadline = Instant::now() + self.handshake() + Duration::from_secs(1);
+        // The bridge says when it handed the drive back; until then the release goes out again.
+        let deadline = Instant::now() + self.handshake() + RELEASE_TIMEOUT;
+        let mut sent = None::<Instant>;
         loop {
+            if sent.is_none_or(|at| at.elapsed() >= RELEASE_AGAIN) {
+                self.send(r#""release":true"#)?;
+                sent = Some(Instant::now());
+            }
+            std::thread::sleep(Duration::from_millis(5));
             self.look();
             if self
                 .report
@@ -353,7 +364,6 @@ impl Remote<'_> {
             if Instant::now() >= deadline {
                 return Ok("not confirmed released (its watchdog stops it all the same)");
             }
-            std::thread::sleep(Duration::from_millis(5));
         }
     }
 }
