@@ -410,6 +410,32 @@ fn a_refresher_does_not_keep_a_drive_live_for_a_program_that_stopped_calling() {
     refresher.stop().unwrap();
 }
 
+/// A drive with a short watchdog (15 ms; ussd's default is 100 ms): a call that waits for the
+/// drive refreshes within that time (every quarter of the drive's watchdog time, at most every
+/// 20 ms), so the wait itself never trips it.
+#[test]
+fn a_waiting_call_keeps_a_drive_with_a_short_watchdog_live() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "watchdog_ms = 15")]);
+    let bus = ussd.bus();
+    quick_ramps(&bus, 1);
+    let c = bus.control(addr(1), ControlOptions::default()).unwrap();
+    c.enable().unwrap();
+    c.run_hz(10.0).unwrap();
+    c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
+        .unwrap();
+    // The program waits inside its own call for half a second: a timeout, not a trip.
+    let waited = c.wait_for(Duration::from_millis(500), "nothing", |_| false);
+    assert!(
+        matches!(waited, Err(ClientError::WaitTimeout { .. })),
+        "{waited:?}"
+    );
+    assert!(c.check().unwrap().is_live());
+    let d = bus.diag(addr(1)).unwrap();
+    assert_eq!(d.counters.watchdog_trips, 0, "{:?}", d.counters);
+    c.stop().unwrap();
+}
+
 #[test]
 fn a_clean_release_is_not_a_trip_and_a_sigkill_is() {
     let _serial = serial();
