@@ -20,8 +20,10 @@ use uss_shm_types::{
     Step, Words,
 };
 
-/// A refresh period that suits ussd's default watchdog of 100 ms (`watchdog_ms`).
-pub const DEFAULT_REFRESH: Duration = Duration::from_millis(20);
+/// The longest refresh period: 20 ms, which suits ussd's default watchdog of 100 ms
+/// (`watchdog_ms`). A controller of a drive with a shorter watchdog refreshes more often
+/// ([`Controller::refresh_period`]).
+pub const DEFAULT_REFRESH: Duration = Duration::from_nanos(uss_shm_types::MAX_REFRESH_NS);
 /// The least a call waits for ussd to take an OFF1 before passing an ON ([`Controller::rearm`],
 /// or an ON right after [`Controller::enable`]), and for a release on drop. The wait is the
 /// drive's own ([`DriveWatch::handshake`]): ussd's freshness limit for it, which on a full slow
@@ -282,8 +284,8 @@ fn open_port(link: &Link, services: &Services, address: Address) -> Result<Port,
 ///   [`ClientError::NotArmed`].
 ///
 /// **Watchdog: the program's own calls.** Every setter publishes; between changes call
-/// [`Controller::keepalive`] at least once per watchdog time (every [`DEFAULT_REFRESH`] suits
-/// the default) from the control loop itself. A call after a longer gap (the process was
+/// [`Controller::keepalive`] at least once per watchdog time (every
+/// [`Controller::refresh_period`] suits any) from the control loop itself. A call after a longer gap (the process was
 /// paused, the loop blocked) fails with [`ClientError::Stalled`] and every ON does until
 /// [`Controller::rearm`]: a gap is a trip, not a fresh start. [`Controller::spawn_refresher`]
 /// fills shorter gaps from a thread for tools, but stops refreshing once the program has not
@@ -554,7 +556,7 @@ impl Controller {
     }
 
     /// Waits until `done` holds for the drive's input image, refreshing every
-    /// [`DEFAULT_REFRESH`] meanwhile (the program waits inside its own call). Fails with
+    /// [`Controller::refresh_period`] meanwhile (the program waits inside its own call). Fails with
     /// [`ClientError::Tripped`] as soon as the drive latches.
     pub fn wait_for(
         &self,
@@ -585,6 +587,7 @@ impl Controller {
         let watch = &self.shared.watch;
         let first = watch.latest().sequence;
         let mut refreshed = start;
+        let every = self.refresh_period();
         loop {
             let latest = self.check()?;
             if done(&latest) {
@@ -594,7 +597,7 @@ impl Controller {
             if start.elapsed() >= timeout {
                 return Err(watch.timed_out(timeout, wanted, first, &latest));
             }
-            if refreshed.elapsed() >= DEFAULT_REFRESH {
+            if refreshed.elapsed() >= every {
                 self.keepalive()?;
                 refreshed = Instant::now();
             }
@@ -613,13 +616,14 @@ impl Controller {
         })
     }
 
-    /// Refreshes from a thread every `period` until the returned [`Refresher`] is dropped or
-    /// stopped, for tools whose loop calls less often than `period` but within the watchdog
-    /// time: it stops refreshing when the program has not called for longer than the drive's
-    /// watchdog time (a blocked or deadlocked loop trips the drive like a dead one), and while
-    /// the drive shows a latch this controller has not acknowledged (the next call of the
-    /// program reports it).
+    /// Refreshes from a thread every `period` (or every [`Controller::refresh_period`] when
+    /// that is shorter) until the returned [`Refresher`] is dropped or stopped, for tools whose
+    /// loop calls less often than `period` but within the watchdog time: it stops refreshing
+    /// when the program has not called for longer than the drive's watchdog time (a blocked or
+    /// deadlocked loop trips the drive like a dead one), and while the drive shows a latch this
+    /// controller has not acknowledged (the next call of the program reports it).
     pub fn spawn_refresher(&self, period: Duration) -> Refresher {
+        let period = period.min(self.refresh_period());
         let shared = Arc::clone(&self.shared);
         let stop = Arc::new((Mutex::new(false), Condvar::new()));
         let thread = {
@@ -630,6 +634,13 @@ impl Controller {
             stop,
             thread: Some(thread),
         }
+    }
+
+    /// How often this controller refreshes while the program waits inside one of its calls:
+    /// a quarter of the drive's watchdog time, at most [`DEFAULT_REFRESH`] (20 ms). A control
+    /// loop that calls at least this often never comes near the watchdog.
+    pub fn refresh_period(&self) -> Duration {
+        Duration::from_nanos(self.shared.state().session.refresh_ns())
     }
 
     /// Hands the drive back cleanly: ussd sends its safe command, latched, and shows it

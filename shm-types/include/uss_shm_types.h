@@ -304,6 +304,12 @@
 #define USS_REARM_STW1 1150
 
 /**
+ * The longest a controller goes between two samples while its program waits inside its own
+ * call, or its refresher fills a gap: 20 ms, a fifth of ussd's default watchdog (100 ms).
+ */
+#define USS_MAX_REFRESH_NS 20000000
+
+/**
  * Which way a captured telegram went; the `direction` byte of [`TelegramRecord`].
  */
 enum UssDirection

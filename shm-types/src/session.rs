@@ -36,6 +36,24 @@ pub const REARM_STW1: u16 = 0x047E;
 // Written out for the C header (cbindgen does not evaluate calls); the same word as OFF1's.
 const _: () = assert!(REARM_STW1 == crate::control::StopCommand::Off1.stw1());
 
+/// The longest a controller goes between two samples while its program waits inside its own
+/// call, or its refresher fills a gap: 20 ms, a fifth of ussd's default watchdog (100 ms).
+pub const MAX_REFRESH_NS: u64 = 20_000_000;
+
+/// How often a controller refreshes a drive whose watchdog time is `watchdog_ns`: a quarter of
+/// it, at most [`MAX_REFRESH_NS`], never 0. A wait never comes near the watchdog, however short
+/// the drive's is (`watchdog_ms` may be as short as 1 ms).
+pub const fn refresh_ns(watchdog_ns: u64) -> u64 {
+    let quarter = watchdog_ns / 4;
+    if quarter == 0 {
+        1
+    } else if quarter < MAX_REFRESH_NS {
+        quarter
+    } else {
+        MAX_REFRESH_NS
+    }
+}
+
 /// What a session needs to know of its drive and controller.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SessionSetup {
@@ -170,6 +188,12 @@ impl Session {
     /// The drive's PZD length.
     pub const fn pzd(&self) -> usize {
         self.setup.pzd
+    }
+
+    /// How often this controller refreshes while its program waits inside its own call, or
+    /// its refresher fills a gap ([`refresh_ns`] of the drive's watchdog time).
+    pub const fn refresh_ns(&self) -> u64 {
+        refresh_ns(self.setup.watchdog_ns)
     }
 
     /// Whether a call at `now_ns` may go on, and what `image` means for it: released, stalled

@@ -6,6 +6,7 @@
 //!   controller re-arms it (OFF1, then ON), and `ussctl run` reports the trip and fails;
 //! - a sample the drive would misread is refused at the poll that takes it, latched, named;
 //! - a clean release is "released", a SIGKILL is a watchdog trip: counted apart;
+//! - a call that waits for a drive with a short watchdog (15 ms) refreshes within it;
 //! - `ussctl stop/coast/quick-stop` (one drive or `--all`) override a running controller;
 //! - after an operator's stop a jogging controller re-arms nothing; only its stop does, and only
 //!   one that names the latch (a stop republished from before it, as a refresher would, or one

@@ -323,3 +323,23 @@ fn a_re_arm_sends_off1_with_every_other_word_zero() {
         (READY, 0, 2)
     );
 }
+
+#[test]
+fn a_controller_refreshes_every_quarter_watchdog_at_most_every_20_ms() {
+    let cases = [
+        // (watchdog, refresh)
+        (100 * MS, 20 * MS),
+        (60_000 * MS, 20 * MS),
+        (80 * MS, 20 * MS),
+        (40 * MS, 10 * MS),
+        (15 * MS, 3_750_000),
+        (MS, 250_000),
+        (3, 1),
+        (0, 1),
+    ];
+    for (watchdog_ns, refresh) in cases {
+        assert_eq!(super::refresh_ns(watchdog_ns), refresh, "{watchdog_ns} ns");
+    }
+    // The session's own: its drive's watchdog is 100 ms.
+    assert_eq!(Play::running().s.refresh_ns(), 20 * MS);
+}

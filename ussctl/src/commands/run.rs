@@ -150,7 +150,7 @@ pub(crate) fn run_drive(
             ));
             last_note = Instant::now();
         }
-        std::thread::sleep(Duration::from_millis(10));
+        std::thread::sleep(c.refresh_period().min(Duration::from_millis(10)));
     };
     // Stop whatever happened: OFF1, and make sure the drive received it before leaving it
     // to the watchdog (whose safe command is OFF1 by default too).

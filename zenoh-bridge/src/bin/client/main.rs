@@ -95,7 +95,8 @@ enum Command {
         /// Stop after this many seconds (default: at Ctrl-C).
         #[arg(long = "for", value_name = "SECONDS")]
         for_s: Option<f64>,
-        /// Milliseconds between samples; keep it well inside the drive's watchdog time.
+        /// Milliseconds between samples, at most (a quarter of the drive's watchdog time when
+        /// that is shorter).
         #[arg(long, default_value_t = 20)]
         period: u64,
     },

@@ -123,9 +123,17 @@ impl Remote<'_> {
         {
             let _ = say(&format!("{}: {e}", self.drive));
         }
-        std::thread::sleep(self.period);
+        std::thread::sleep(self.every());
         self.look();
         Ok(())
+    }
+
+    /// The period between samples: `--period`, or the session's refresh period when the
+    /// drive's watchdog is short enough to need it sooner.
+    fn every(&self) -> Duration {
+        self.session.as_ref().map_or(self.period, |s| {
+            self.period.min(Duration::from_nanos(s.refresh_ns()))
+        })
     }
 
     /// The session, made from the first image: the drive's PZD length and watchdog time.
@@ -242,7 +250,7 @@ impl Remote<'_> {
                     drive: self.drive.to_owned(),
                 });
             }
-            std::thread::sleep(self.period);
+            std::thread::sleep(self.every());
             self.look();
         }
         self.start_session();
@@ -255,7 +263,7 @@ impl Remote<'_> {
             self.send_sample(&sample)?;
         }
         loop {
-            std::thread::sleep(self.period);
+            std::thread::sleep(self.every());
             self.look();
             let image = self.image.as_ref().map(input_of).unwrap_or_default();
             if let Some(session) = self.session.as_mut() {
