@@ -1105,6 +1105,79 @@ fn backup_change_restore_and_diff_shows_nothing() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A restore cut short by Ctrl-C after it raised the access level (P0003) and entered quick
+/// commissioning (P0010 = 1) on the way puts both back to what the drive had before it stops:
+/// the drive is not left in commissioning (where it would not run). The report says so, and
+/// says what was not written.
+#[test]
+fn a_restore_cut_short_by_ctrl_c_leaves_quick_commissioning_and_puts_the_access_level_back() {
+    let _serial = serial();
+    // Drive 3 answers every parameter task after 5 "busy" replies, and the reads below take
+    // turns with the restore's writes: the Ctrl-C comes with most of the writes still to do.
+    let ussd = Ussd::start_with("busy = 5");
+    let bus = ussd.bus();
+    let dir = std::env::temp_dir().join(format!("uss-cut-{}", ussd.bus));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("drive3.toml");
+    let path = file.to_str().unwrap();
+    let (code, _, err) = ussd.ussctl_said(&["param", "backup", "3", "-o", path]);
+    assert_eq!(code, Some(0), "{err}");
+    // Settings to put back: an expert one (level 3), commissioning ones and plain ones.
+    let w = |pnu, v| bus.write(addr(3), param(pnu), v, false).unwrap();
+    w(3, Value::Word(3));
+    w(10, Value::Word(1));
+    w(310, Value::from_f32(60.0));
+    w(10, Value::Word(0));
+    w(1082, Value::from_f32(45.0));
+    w(1080, Value::from_f32(5.0));
+    w(1120, Value::from_f32(2.5));
+    w(1121, Value::from_f32(2.5));
+    w(3, Value::Word(1));
+
+    let mut restore = Command::new(binary("ussctl", "ussctl"))
+        .args(["--bus", &ussd.bus, "param", "restore", "3", path])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Ctrl-C once the drive is in quick commissioning.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while bus.read(addr(3), param(10)) != Ok(Value::Word(1)) {
+        assert!(
+            Instant::now() < deadline,
+            "the restore never entered commissioning"
+        );
+        assert!(restore.try_wait().unwrap().is_none(), "the restore ended");
+    }
+    let pid = nix::unistd::Pid::from_raw(i32::try_from(restore.id()).unwrap());
+    nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGINT).unwrap();
+    let out = restore.wait_with_output().unwrap();
+    let (said, err) = (text(&out.stdout), text(&out.stderr));
+    assert_eq!(out.status.code(), Some(1), "incomplete: {said}{err}");
+    assert!(said.contains("cut short: Ctrl-C; not written: "), "{said}");
+    assert_eq!(
+        bus.read(addr(3), param(10)),
+        Ok(Value::Word(0)),
+        "commissioning left: {said}"
+    );
+    assert_eq!(
+        bus.read(addr(3), param(3)),
+        Ok(Value::Word(1)),
+        "access level back: {said}"
+    );
+    assert!(
+        said.contains("P0010      1 -> 0: put back after Ctrl-C")
+            && said.contains("P0003      3 -> 1: put back after Ctrl-C"),
+        "{said}"
+    );
+    // Run again, it completes the rest.
+    let (code, said, err) = ussd.ussctl_said(&["param", "restore", "3", path]);
+    assert_eq!(code, Some(0), "{said}{err}");
+    let (_, said, _) = ussd.ussctl_said(&["param", "diff", "3", path]);
+    assert!(said.contains(": no differences"), "{said}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Backup files that do not fit are refused before anything is written, naming line and field.
 fn files_that_do_not_fit_are_refused(ussd: &Ussd, dir: &std::path::Path, saved: &str) {
     let bus = ussd.bus();
