@@ -1112,9 +1112,9 @@ fn backup_change_restore_and_diff_shows_nothing() {
 #[test]
 fn a_restore_cut_short_by_ctrl_c_leaves_quick_commissioning_and_puts_the_access_level_back() {
     let _serial = serial();
-    // Drive 3 answers every parameter task after 5 "busy" replies, and the reads below take
+    // Drive 3 answers every parameter task after 2 "busy" replies, and the reads below take
     // turns with the restore's writes: the Ctrl-C comes with most of the writes still to do.
-    let ussd = Ussd::start_with("busy = 5");
+    let ussd = Ussd::start_with("busy = 2");
     let bus = ussd.bus();
     let dir = std::env::temp_dir().join(format!("uss-cut-{}", ussd.bus));
     std::fs::create_dir_all(&dir).unwrap();
@@ -1132,10 +1132,15 @@ fn a_restore_cut_short_by_ctrl_c_leaves_quick_commissioning_and_puts_the_access_
     w(1080, Value::from_f32(5.0));
     w(1120, Value::from_f32(2.5));
     w(1121, Value::from_f32(2.5));
+    // P0719 (level 3) is guarded: deliberately, and the restore with --unsafe.
+    let guarded = bus.write_with(addr(3), param(719), Value::Word(11), deliberate());
+    guarded.unwrap();
     w(3, Value::Word(1));
 
     let mut restore = Command::new(binary("ussctl", "ussctl"))
-        .args(["--bus", &ussd.bus, "param", "restore", "3", path])
+        .args([
+            "--bus", &ussd.bus, "param", "restore", "3", path, "--unsafe",
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -1171,7 +1176,7 @@ fn a_restore_cut_short_by_ctrl_c_leaves_quick_commissioning_and_puts_the_access_
         "{said}"
     );
     // Run again, it completes the rest.
-    let (code, said, err) = ussd.ussctl_said(&["param", "restore", "3", path]);
+    let (code, said, err) = ussd.ussctl_said(&["param", "restore", "3", path, "--unsafe"]);
     assert_eq!(code, Some(0), "{said}{err}");
     let (_, said, _) = ussd.ussctl_said(&["param", "diff", "3", path]);
     assert!(said.contains(": no differences"), "{said}");

@@ -6,7 +6,8 @@
 //! parameter needs it; P0010 = 1 around parameters that only quick commissioning may change; the
 //! file's P0010 and P0003 last), checks each written value against the drive's answer, and
 //! reports what the drive refused. Cut short (drive offline, ussd gone, Ctrl-C), it says which
-//! values were written and which not; run again, it completes the rest.
+//! values were written and which not; run again, it completes the rest. A Ctrl-C first puts
+//! back quick commissioning and the access level it raised, to what the drive had.
 
 use super::common::firmware_version;
 use crate::backup::{BackupFile, Entry, Number, Saved, now_utc};
@@ -319,11 +320,16 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     }
     catch_signals()?;
     let options = r.options;
-    let steps = order(bus, drive, catalogue, &differing);
+    let Plan { steps, raised } = order(bus, drive, catalogue, &differing);
     let bar = progress(steps.len(), &format!("writing drive {drive}"));
     for (i, step) in steps.iter().enumerate() {
         if stopped() {
             report.cut_short("Ctrl-C", &steps[i..]);
+            // The drive is not left in quick commissioning or at a raised access level.
+            for r in raised.iter().rev().filter(|r| r.pending(&steps[..i])) {
+                let put = bus.write_with(drive, r.param, Value::Word(r.was), options);
+                report.put_back(r.param, r.to, r.was, put.err().as_ref());
+            }
             break;
         }
         let (param, value) = step.target();
@@ -363,6 +369,33 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     }
 }
 
+/// The writes of a restore, and what it raised on the way.
+struct Plan {
+    steps: Vec<Step>,
+    /// The access level and quick commissioning, in the order they are raised.
+    raised: Vec<Raised>,
+}
+
+/// P0003 or P0010 set on the way, and what the drive had before.
+struct Raised {
+    /// Where it is raised in the plan.
+    at: usize,
+    param: ParamRef,
+    to: u16,
+    was: u16,
+}
+
+impl Raised {
+    /// Raised by the steps `done` and not set again after: to be put back when the restore is
+    /// cut short there.
+    fn pending(&self, done: &[Step]) -> bool {
+        done.len() > self.at
+            && !done[self.at + 1..]
+                .iter()
+                .any(|s| s.target().0.pnu == self.param.pnu)
+    }
+}
+
 /// The writes of a restore, in a safe order: access level first, quick commissioning around
 /// what needs it, the file's P0010 and then P0003 last (where the family has them: its
 /// catalogue's `access_level` and `commissioning`).
@@ -371,7 +404,7 @@ fn order(
     drive: Address,
     catalogue: &Catalogue,
     differing: &[(Entry, Option<Value>)],
-) -> Vec<Step> {
+) -> Plan {
     let now = |p: Option<ParamRef>| {
         p.map_or(0, |p| {
             bus.read(drive, ParamRef { index: None, ..p })
@@ -396,11 +429,25 @@ fn order(
         last.iter().any(|(e, _)| Some(e.param.pnu.get()) == p0003),
     );
     let mut steps: Vec<Step> = Vec::new();
+    let mut raised = Vec::new();
+    let mut helper = |steps: &mut Vec<Step>, param: ParamRef, to: u16, was: u16| {
+        let param = ParamRef {
+            index: None,
+            ..param
+        };
+        raised.push(Raised {
+            at: steps.len(),
+            param,
+            to,
+            was,
+        });
+        steps.push(Step::Helper(param, to));
+    };
     if let (Some(p), Some(n)) = (access, raise) {
-        steps.push(Step::Helper(p, n));
+        helper(&mut steps, p, n, level_now);
     }
     if let (true, Some(p)) = (commissioning, commissioning_param) {
-        steps.push(Step::Helper(p, 1));
+        helper(&mut steps, p, 1, commissioning_now);
     }
     steps.extend(body.iter().map(|(e, _)| Step::Restore(*e)));
     // Quick commissioning left and the access level put back: to the file's values (P0010
@@ -414,7 +461,7 @@ fn order(
     if let (Some(p), Some(_), false) = (access, raise, p0003_in_file) {
         steps.push(Step::Helper(p, level_now));
     }
-    steps
+    Plan { steps, raised }
 }
 
 /// One write of a restore.
@@ -487,4 +534,48 @@ pub(crate) fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Resu
         }
     }
     out.show(&report, DiffReport::human)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Raised, Step};
+    use uss_client::uss_protocol::ParamRef;
+
+    /// Cut short after `i` steps of "P0003 := 3, P0010 := 1, P0010 := 0, P0003 := 1", a Ctrl-C
+    /// puts back what was raised and not yet set again.
+    #[test]
+    fn a_cut_puts_back_what_was_raised_and_not_set_again() {
+        let (p3, p10) = (ParamRef::p(3), ParamRef::p(10));
+        let steps = [
+            Step::Helper(p3, 3),
+            Step::Helper(p10, 1),
+            Step::Helper(p10, 0),
+            Step::Helper(p3, 1),
+        ];
+        let raised = [
+            Raised {
+                at: 0,
+                param: p3,
+                to: 3,
+                was: 1,
+            },
+            Raised {
+                at: 1,
+                param: p10,
+                to: 1,
+                was: 0,
+            },
+        ];
+        let put_back = |i: usize| -> Vec<u16> {
+            raised
+                .iter()
+                .filter(|r| r.pending(&steps[..i]))
+                .map(|r| r.param.pnu.get())
+                .collect()
+        };
+        let expected: [&[u16]; 5] = [&[], &[3], &[3, 10], &[3], &[]];
+        for (i, want) in expected.iter().enumerate() {
+            assert_eq!(put_back(i), *want, "cut after {i} steps");
+        }
+    }
 }

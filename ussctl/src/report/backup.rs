@@ -121,6 +121,20 @@ impl RestoreReport {
         self.refused += 1;
     }
 
+    /// `param`, raised to `to` on the way, written back to `was` (the drive's value before the
+    /// restore) after a Ctrl-C, or not (`error`).
+    pub fn put_back(&mut self, param: ParamRef, to: u16, was: u16, error: Option<&ParamError>) {
+        self.lines.push(RestoreLine {
+            param: param.to_string(),
+            was: Some(to.to_string()),
+            wanted: was.to_string(),
+            result: error.map_or_else(
+                || "put back after Ctrl-C".to_owned(),
+                |e| format!("not put back after Ctrl-C: {e}"),
+            ),
+        });
+    }
+
     /// Stopped before `rest` was written.
     pub fn cut_short(&mut self, why: &str, rest: &[crate::commands::backup::Step]) {
         self.cut_short = Some(format!(
