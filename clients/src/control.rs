@@ -285,13 +285,13 @@ fn open_port(link: &Link, services: &Services, address: Address) -> Result<Port,
 ///
 /// **Watchdog: the program's own calls.** Every setter publishes; between changes call
 /// [`Controller::keepalive`] at least once per watchdog time (every
-/// [`Controller::refresh_period`] suits any) from the control loop itself. A call after a longer gap (the process was
-/// paused, the loop blocked) fails with [`ClientError::Stalled`] and every ON does until
-/// [`Controller::rearm`]: a gap is a trip, not a fresh start. [`Controller::spawn_refresher`]
-/// fills shorter gaps from a thread for tools, but stops refreshing once the program has not
-/// called for longer than the watchdog time. Dropping the controller (or
-/// [`Controller::release`]) hands the drive back cleanly: ussd sends the safe command and shows
-/// the drive "released", which is not a watchdog trip.
+/// [`Controller::refresh_period`] suits any) from the control loop itself. A call after a
+/// longer gap (the process was paused, the loop blocked) fails with [`ClientError::Stalled`]
+/// and every ON does until [`Controller::rearm`]: a gap is a trip, not a fresh start.
+/// [`Controller::spawn_refresher`] fills shorter gaps from a thread for tools, but stops
+/// refreshing once the program has not called for longer than the watchdog time. Dropping the
+/// controller (or [`Controller::release`]) hands the drive back cleanly: ussd sends the safe
+/// command and shows the drive "released", which is not a watchdog trip.
 ///
 /// Every sample keeps STW1 bit 10 ("control by PLC") set, carries exactly the drive's PZD
 /// length, this process's id, a `CLOCK_MONOTONIC` time stamp, a new sequence number and the
@@ -556,8 +556,8 @@ impl Controller {
     }
 
     /// Waits until `done` holds for the drive's input image, refreshing every
-    /// [`Controller::refresh_period`] meanwhile (the program waits inside its own call). Fails with
-    /// [`ClientError::Tripped`] as soon as the drive latches.
+    /// [`Controller::refresh_period`] meanwhile (the program waits inside its own call). Fails
+    /// with [`ClientError::Tripped`] as soon as the drive latches.
     pub fn wait_for(
         &self,
         timeout: Duration,
