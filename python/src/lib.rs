@@ -110,6 +110,8 @@ impl Bus {
         info.set_item("pkw_words", diag.info.pkw_words)?;
         info.set_item("pzd_words", diag.info.pzd_words)?;
         info.set_item("weight", diag.info.weight)?;
+        let family = uss_client::DriveFamily::try_from(diag.info.family);
+        info.set_item("family", family.map_or("unknown", |f| f.name()))?;
         let c = &diag.counters;
         let counters = PyDict::new(py);
         for (name, value) in [

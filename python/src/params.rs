@@ -7,7 +7,9 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use uss_client::uss_protocol::{ParamRef, Prefix};
-use uss_client::{Address, Catalogue, DataType, ParamValue, Typed, Value, WriteOptions};
+use uss_client::{
+    Address, Catalogue, DataType, DriveFamily, ParamValue, Typed, Value, WriteOptions,
+};
 
 fn raw(v: Value) -> (u32, bool) {
     match v {
@@ -201,16 +203,33 @@ fn parse_param(text: &str) -> PyResult<(u16, Option<u8>, &'static str)> {
     Ok((p.pnu.get(), p.index.map(uss_client::Subindex::get), prefix))
 }
 
-/// The catalogue's text of fault `number` (F0072 -> 72).
-#[pyfunction]
-fn fault_text(number: u16) -> Option<&'static str> {
-    Catalogue::micromaster4().fault(number)
+/// The built-in catalogue of drive family `family` (its configuration name, as `diag()`'s
+/// `info["family"]` says it); `None` for a `generic` slave, whose texts nobody knows.
+fn family_catalogue(family: &str) -> PyResult<Option<&'static Catalogue>> {
+    let known = DriveFamily::ALL.iter().map(|f| f.name());
+    if !known.clone().any(|name| name == family) {
+        return Err(PyValueError::new_err(format!(
+            "{family:?} is not a drive family: give one of {}",
+            known.collect::<Vec<_>>().join(", ")
+        )));
+    }
+    Ok(Catalogue::of_family(family))
 }
 
-/// The catalogue's text of warning `number` (A0501 -> 501).
+/// The text of fault `number` (F0072 -> 72) in the catalogue of drive family `family`; `None`
+/// where the family's catalogue has none (a number means different faults in different
+/// families).
 #[pyfunction]
-fn warning_text(number: u16) -> Option<&'static str> {
-    Catalogue::micromaster4().warning(number)
+#[pyo3(signature = (number, family = "micromaster4"))]
+fn fault_text(number: u16, family: &str) -> PyResult<Option<&'static str>> {
+    Ok(family_catalogue(family)?.and_then(|c| c.fault(number)))
+}
+
+/// The text of warning `number` (A0501 -> 501) in the catalogue of drive family `family`.
+#[pyfunction]
+#[pyo3(signature = (number, family = "micromaster4"))]
+fn warning_text(number: u16, family: &str) -> PyResult<Option<&'static str>> {
+    Ok(family_catalogue(family)?.and_then(|c| c.warning(number)))
 }
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

@@ -186,6 +186,7 @@ def test_a_drive_without_a_controller_is_latched_with_its_safe_command(bus):
     diag = bus.diag(1)
     assert (diag["info"]["pzd_words"], diag["counters"]["latches"]) == (2, 1)
     assert (diag["info"]["reference_hz"], diag["info"]["watchdog_ms"]) == (50.0, 100)
+    assert diag["info"]["family"] == "micromaster4"
 
 
 def test_python_stops_a_drive_another_process_runs_and_the_stop_latches(bus):

@@ -100,3 +100,14 @@ def test_parameters_are_parsed_in_the_manuals_notation_by_the_rust_code():
     with pytest.raises(ValueError, match="write a parameter as P1082"):
         uss_rt.parse_param("Q12")
     assert uss_rt.fault_text(72) == "USS (COM link) setpoint fault"
+    # A fault number is read in its drive family's catalogue: F0004 of a MICROMASTER is not a
+    # SIMOREG's, whose texts this catalogue does not have.
+    assert uss_rt.fault_text(4, family="micromaster4") == "Inverter overtemperature"
+    assert uss_rt.fault_text(4, family="g110") == "Inverter overtemperature"
+    assert uss_rt.fault_text(4, family="simoreg") is None
+    assert uss_rt.fault_text(4, family="g120") is None
+    assert uss_rt.fault_text(4, family="generic") is None
+    assert uss_rt.warning_text(501) == uss_rt.warning_text(501, "micromaster4") is not None
+    assert uss_rt.warning_text(501, "g120") is None
+    with pytest.raises(ValueError, match="is not a drive family: give one of micromaster4, g110"):
+        uss_rt.fault_text(4, family="mm4")

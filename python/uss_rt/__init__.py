@@ -474,7 +474,7 @@ class Bus:
 
     def diag(self, address: int) -> dict:
         """Drive ``address``'s diagnostics as ussd last published them: ``info``
-        (``reference_hz``, ``watchdog_ms``, ``pzd_words``, ...), ``counters`` (``latches``,
+        (``reference_hz``, ``watchdog_ms``, ``pzd_words``, ``family``, ...), ``counters`` (``latches``,
         ``watchdog_trips``, ...), its control and monitoring."""
         _check_address(address)
         d = self._open().diag(address)

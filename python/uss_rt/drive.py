@@ -20,14 +20,18 @@ def parse_param(text: str):
     return _native.parse_param(text)
 
 
-def fault_text(number: int):
-    """The text of fault ``number`` (F0072 -> 72), or None."""
-    return _native.fault_text(number)
+def fault_text(number: int, family: str = "micromaster4"):
+    """The text of fault ``number`` (F0072 -> 72) for a drive of ``family`` (``micromaster4``,
+    ``g110``, ``g120``, ``simoreg``, ``generic``: a drive's ``diag(address)["info"]["family"]``),
+    or None where that family's catalogue has none: a number means different faults in
+    different families. Raises :class:`ValueError` for another family name."""
+    return _native.fault_text(number, family)
 
 
-def warning_text(number: int):
-    """The text of warning ``number`` (A0501 -> 501), or None."""
-    return _native.warning_text(number)
+def warning_text(number: int, family: str = "micromaster4"):
+    """The text of warning ``number`` (A0501 -> 501) for a drive of ``family``, as
+    :func:`fault_text`."""
+    return _native.warning_text(number, family)
 
 
 class Value:
