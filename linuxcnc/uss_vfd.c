@@ -313,9 +313,18 @@ int main(int argc, char **argv) {
 
   while (!done) {
     step(&v, p);
-    /* In step with the bus: the next exchange with the drive, at most 50 ms (well inside the
-     * default 100 ms watchdog, which this loop's own command feeds). */
-    if (v.bus == NULL || ussrt_wait_exchange(v.bus, v.address, 50) != USSRT_STATUS_OK) {
+    /* In step with the bus: the next exchange with the drive, at most the controller's refresh
+     * period (a quarter of the drive's watchdog time, at most 20 ms), so this loop's own
+     * command feeds the watchdog whatever its length and however slow the line. A timeout is
+     * that bound; any other failure (no ussd) waits 20 ms before the next try. */
+    uint32_t period_us = 20000;
+    if (v.c != NULL) {
+      (void)ussrt_control_refresh_period(v.c, &period_us);
+    }
+    uint32_t wait_ms = period_us < 2000 ? 1 : period_us / 1000;
+    UssrtStatus s = v.bus == NULL ? USSRT_STATUS_NOT_RUNNING
+                                  : ussrt_wait_exchange(v.bus, v.address, wait_ms);
+    if (s != USSRT_STATUS_OK && s != USSRT_STATUS_TIMEOUT) {
       struct timespec pause = {0, 20 * 1000 * 1000};
       nanosleep(&pause, NULL);
     }

@@ -442,6 +442,17 @@ enum UssrtStatus ussrt_control_check(const struct UssrtController *controller,
 enum UssrtStatus ussrt_control_keepalive(const struct UssrtController *controller);
 
 /**
+ * How often this controller's loop should call at least, in microseconds, into `*period_us`:
+ * a quarter of the drive's watchdog time, at most 20 ms (`USS_MAX_REFRESH_NS`), the period the
+ * library's own waits refresh at. A loop that calls this often never comes near the watchdog.
+ *
+ * # Safety
+ * `controller` is a live handle; `period_us` points to writable memory for one `uint32_t`.
+ */
+enum UssrtStatus ussrt_control_refresh_period(const struct UssrtController *controller,
+                                              uint32_t *period_us);
+
+/**
  * OFF1 with everything else enabled (STW1 0x047E): S1 -> S2; stops a running drive along its
  * ramp. The first stop of a new controller re-arms the latch the drive showed at open.
  *

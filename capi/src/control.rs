@@ -155,6 +155,24 @@ pub unsafe extern "C" fn ussrt_control_keepalive(
     with(controller, |c| Ok(c.keepalive()?))
 }
 
+/// How often this controller's loop should call at least, in microseconds, into `*period_us`:
+/// a quarter of the drive's watchdog time, at most 20 ms (`USS_MAX_REFRESH_NS`), the period the
+/// library's own waits refresh at. A loop that calls this often never comes near the watchdog.
+///
+/// # Safety
+/// `controller` is a live handle; `period_us` points to writable memory for one `uint32_t`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_refresh_period(
+    controller: *const UssrtController,
+    period_us: *mut u32,
+) -> UssrtStatus {
+    with(controller, |c| {
+        let period_us = out(period_us, "period_us")?;
+        *period_us = u32::try_from(c.refresh_period().as_micros()).unwrap_or(u32::MAX);
+        Ok(())
+    })
+}
+
 /// OFF1 with everything else enabled (STW1 0x047E): S1 -> S2; stops a running drive along its
 /// ramp. The first stop of a new controller re-arms the latch the drive showed at open.
 ///

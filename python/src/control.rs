@@ -56,8 +56,9 @@ impl Controller {
     }
 }
 
-/// Takes exclusive control of drive `address`; a refresher thread (every 20 ms) fills the gaps
-/// between the program's own calls while they come within the watchdog time.
+/// Takes exclusive control of drive `address`; a refresher thread (every quarter of the drive's
+/// watchdog time, at most every 20 ms) fills the gaps between the program's own calls while they
+/// come within the watchdog time.
 #[pyfunction]
 pub(crate) fn control(
     py: Python<'_>,

@@ -105,6 +105,11 @@ int main(int argc, char **argv) {
   EXPECT(ussrt_control_set_words(c, bad, 2) == USSRT_STATUS_INVALID_SAMPLE, "bit 10 clear");
   EXPECT(ussrt_control_set_words(c, bad, 1) == USSRT_STATUS_INVALID_SAMPLE, "one word");
   OK(ussrt_control_keepalive(c));
+  /* The loop's period: a quarter of the 100 ms watchdog, at most 20 ms. */
+  uint32_t period_us = 0;
+  OK(ussrt_control_refresh_period(c, &period_us));
+  EXPECT(period_us == 20000, "refresh period %u us", period_us);
+  EXPECT(ussrt_control_refresh_period(c, NULL) == USSRT_STATUS_INVALID_ARGUMENT, "NULL period");
 
   /* An operator's coast: the next call is the latch, with its reason and command. */
   OK(ussrt_stop_drive(bus, 1, 2));
