@@ -506,6 +506,9 @@ impl Remote<'_> {
         }
         if out.release {
             self.release();
+            // Said to this sender even when the bridge held nothing for it (a restarted bridge,
+            // a release sent again): the drive is not held for it.
+            self.report.state = "released";
             return Ok(());
         }
         if self.controller.is_none() {

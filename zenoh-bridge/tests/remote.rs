@@ -841,6 +841,8 @@ fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() 
     };
     signal("-STOP");
     std::thread::sleep(Duration::from_secs(4));
+    // The run still waits for the hand-over (it did not end before the pause).
+    assert!(run.child.try_wait().unwrap().is_none(), "the run ended");
     signal("-CONT");
     let (status, out, err) = run.finish();
     assert!(status.success(), "{err}");

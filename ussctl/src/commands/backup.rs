@@ -322,18 +322,22 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     let options = r.options;
     let Plan { steps, raised } = order(bus, drive, catalogue, &differing);
     let bar = progress(steps.len(), &format!("writing drive {drive}"));
+    // Whether the drive took each step so far.
+    let mut written = Vec::with_capacity(steps.len());
     for (i, step) in steps.iter().enumerate() {
         if stopped() {
             report.cut_short("Ctrl-C", &steps[i..]);
             // The drive is not left in quick commissioning or at a raised access level.
-            for r in raised.iter().rev().filter(|r| r.pending(&steps[..i])) {
+            for r in raised.iter().rev().filter(|r| r.pending(&steps, &written)) {
                 let put = bus.write_with(drive, r.param, Value::Word(r.was), options);
                 report.put_back(r.param, r.to, r.was, put.err().as_ref());
             }
             break;
         }
         let (param, value) = step.target();
-        match bus.write_with(drive, param, value, options) {
+        let result = bus.write_with(drive, param, value, options);
+        written.push(result.is_ok());
+        match result {
             Ok(held) => {
                 if let Step::Restore(e) = step {
                     report.written(e, held);
@@ -386,13 +390,15 @@ struct Raised {
 }
 
 impl Raised {
-    /// Raised by the steps `done` and not set again after: to be put back when the restore is
-    /// cut short there.
-    fn pending(&self, done: &[Step]) -> bool {
-        done.len() > self.at
-            && !done[self.at + 1..]
+    /// Raised by the first `written.len()` steps (`written`: whether the drive took each) and
+    /// not set again after: to be put back when the restore is cut short there.
+    fn pending(&self, steps: &[Step], written: &[bool]) -> bool {
+        written.get(self.at) == Some(&true)
+            && !steps
                 .iter()
-                .any(|s| s.target().0.pnu == self.param.pnu)
+                .zip(written)
+                .skip(self.at + 1)
+                .any(|(s, &w)| w && s.target().0.pnu == self.param.pnu)
     }
 }
 
@@ -405,20 +411,28 @@ fn order(
     catalogue: &Catalogue,
     differing: &[(Entry, Option<Value>)],
 ) -> Plan {
+    // What the drive has now; `None` where the family has no such parameter or the read failed:
+    // what it could not read, the restore does not raise (what needs it is refused, and said).
     let now = |p: Option<ParamRef>| {
-        p.map_or(0, |p| {
-            bus.read(drive, ParamRef { index: None, ..p })
-                .map_or(0, |v| v.as_u32() as u16)
-        })
+        let p = p?;
+        let v = bus.read(drive, ParamRef { index: None, ..p }).ok()?;
+        Some(v.as_u32() as u16)
     };
     let (access, commissioning_param) = (catalogue.access_level, catalogue.commissioning);
     let (level_now, commissioning_now) = (now(access), now(commissioning_param));
     let needed = differing.iter().map(|(e, _)| u16::from(e.info.level)).max();
-    let raise = access.and(needed.filter(|&n| n > level_now));
-    let commissioning = commissioning_param.is_some()
-        && differing
+    let raise = match (access, level_now, needed) {
+        (Some(p), Some(level), Some(n)) if n > level => Some((p, n, level)),
+        _ => None,
+    };
+    // Quick commissioning (P0010 = 1) around what only it may change, unless the drive is in it.
+    let commissioning = match (commissioning_param, commissioning_now) {
+        (Some(p), Some(was)) if was != 1 => differing
             .iter()
-            .any(|(e, _)| e.info.change == Change::Commissioning);
+            .any(|(e, _)| e.info.change == Change::Commissioning)
+            .then_some((p, was)),
+        _ => None,
+    };
     let number = |p: Option<ParamRef>| p.map(|p| p.pnu.get());
     let (p0003, p0010) = (number(access), number(commissioning_param));
     let (last, body): (Vec<_>, Vec<_>) = differing
@@ -443,23 +457,23 @@ fn order(
         });
         steps.push(Step::Helper(param, to));
     };
-    if let (Some(p), Some(n)) = (access, raise) {
-        helper(&mut steps, p, n, level_now);
+    if let Some((p, n, level)) = raise {
+        helper(&mut steps, p, n, level);
     }
-    if let (true, Some(p)) = (commissioning, commissioning_param) {
-        helper(&mut steps, p, 1, commissioning_now);
+    if let Some((p, was)) = commissioning {
+        helper(&mut steps, p, 1, was);
     }
     steps.extend(body.iter().map(|(e, _)| Step::Restore(*e)));
     // Quick commissioning left and the access level put back: to the file's values (P0010
     // before P0003, which leaving commissioning may need), or to what the drive had.
-    if let (true, false, Some(p)) = (commissioning, p0010_in_file, commissioning_param) {
-        steps.push(Step::Helper(p, commissioning_now));
+    if let (Some((p, was)), false) = (commissioning, p0010_in_file) {
+        steps.push(Step::Helper(p, was));
     }
     let mut last = last;
     last.sort_by_key(|(e, _)| std::cmp::Reverse(e.param.pnu));
     steps.extend(last.iter().map(|(e, _)| Step::Restore(*e)));
-    if let (Some(p), Some(_), false) = (access, raise, p0003_in_file) {
-        steps.push(Step::Helper(p, level_now));
+    if let (Some((p, _, level)), false) = (raise, p0003_in_file) {
+        steps.push(Step::Helper(p, level));
     }
     Plan { steps, raised }
 }
@@ -542,7 +556,7 @@ mod tests {
     use uss_client::uss_protocol::ParamRef;
 
     /// Cut short after `i` steps of "P0003 := 3, P0010 := 1, P0010 := 0, P0003 := 1", a Ctrl-C
-    /// puts back what was raised and not yet set again.
+    /// puts back what the drive took raised and did not take set again.
     #[test]
     fn a_cut_puts_back_what_was_raised_and_not_set_again() {
         let (p3, p10) = (ParamRef::p(3), ParamRef::p(10));
@@ -566,16 +580,21 @@ mod tests {
                 was: 0,
             },
         ];
-        let put_back = |i: usize| -> Vec<u16> {
+        let put_back = |written: &[bool]| -> Vec<u16> {
             raised
                 .iter()
-                .filter(|r| r.pending(&steps[..i]))
+                .filter(|r| r.pending(&steps, written))
                 .map(|r| r.param.pnu.get())
                 .collect()
         };
+        let all = [true; 4];
         let expected: [&[u16]; 5] = [&[], &[3], &[3, 10], &[3], &[]];
         for (i, want) in expected.iter().enumerate() {
-            assert_eq!(put_back(i), *want, "cut after {i} steps");
+            assert_eq!(put_back(&all[..i]), *want, "cut after {i} steps");
         }
+        // What the drive refused to raise is not put back; what it refused to set again is.
+        assert_eq!(put_back(&[false, true]), [10]);
+        assert_eq!(put_back(&[true, true, false]), [3, 10]);
+        assert_eq!(put_back(&[true, true, true, false]), [3]);
     }
 }

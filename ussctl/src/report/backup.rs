@@ -13,7 +13,9 @@ pub struct RestoreLine {
     pub param: String,
     pub was: Option<String>,
     pub wanted: String,
-    /// "planned", "written", "refused: ...", "not written".
+    /// "planned", "written", "refused: ...", "not written"; for the access level and quick
+    /// commissioning a restore cut short by Ctrl-C had raised: "put back after Ctrl-C" (`was` the
+    /// raised value, `wanted` the drive's before the restore) or "not put back after Ctrl-C: ...".
     pub result: String,
 }
 

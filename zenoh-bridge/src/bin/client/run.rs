@@ -57,6 +57,9 @@ struct Remote<'a> {
     image: Option<serde_json::Value>,
     seen_at: Instant,
     report: Option<serde_json::Value>,
+    /// Whether a report said the bridge handed the drive back on this client's release (seen
+    /// as it arrived: a later report of another sender does not hide it).
+    released: bool,
     /// The client rules, once the first image said the drive's PZD length and watchdog.
     session: Option<Session>,
     hz: f32,
@@ -178,6 +181,10 @@ impl Remote<'_> {
         }
         while let Ok(Some(s)) = self.reports.try_recv() {
             self.report = serde_json::from_slice(&s.payload().to_bytes()).ok();
+            self.released |= self
+                .report
+                .as_ref()
+                .is_some_and(|r| r["state"] == "released" && r["sender"] == self.from.as_str());
         }
     }
 
@@ -362,11 +369,7 @@ impl Remote<'_> {
             }
             std::thread::sleep(Duration::from_millis(5));
             self.look();
-            if self
-                .report
-                .as_ref()
-                .is_some_and(|r| r["state"] == "released")
-            {
+            if self.released {
                 return Ok("released");
             }
             if Instant::now() >= deadline {
@@ -416,6 +419,7 @@ pub fn run(
         image: None,
         seen_at: Instant::now(),
         report: None,
+        released: false,
         session: None,
         hz: 0.0,
     };
