@@ -93,6 +93,8 @@ typedef struct {
   int was_reset;
   int was_comm;
   int complained;
+  /* The controller's refresh period (ussrt_control_refresh_period), us; 20 ms without one. */
+  uint32_t refresh_us;
 } vfd_t;
 
 static void say(vfd_t *v, const char *what, UssrtStatus s) {
@@ -107,6 +109,7 @@ static void say(vfd_t *v, const char *what, UssrtStatus s) {
 static void disconnect(vfd_t *v) {
   ussrt_control_close(v->c);
   v->c = NULL;
+  v->refresh_us = 20000;
   ussrt_bus_close(v->bus);
   v->bus = NULL;
 }
@@ -128,6 +131,7 @@ static int connect(vfd_t *v, pins_t *p) {
       (*p->error_count)++;
       return -1;
     }
+    (void)ussrt_control_refresh_period(v->c, &v->refresh_us);
     /* A new controller: the drive runs only after spindle-on was seen low. */
     v->need_low = 1;
     v->need_fall = 0;
@@ -240,7 +244,7 @@ static void step(vfd_t *v, pins_t *p) {
 }
 
 int main(int argc, char **argv) {
-  vfd_t v = {.name = "uss_vfd", .bus_name = NULL, .address = 0xFF};
+  vfd_t v = {.name = "uss_vfd", .bus_name = NULL, .address = 0xFF, .refresh_us = 20000};
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "--bus") && i + 1 < argc) {
       v.bus_name = argv[++i];
@@ -317,11 +321,7 @@ int main(int argc, char **argv) {
      * period (a quarter of the drive's watchdog time, at most 20 ms), so this loop's own
      * command feeds the watchdog whatever its length and however slow the line. A timeout is
      * that bound; any other failure (no ussd) waits 20 ms before the next try. */
-    uint32_t period_us = 20000;
-    if (v.c != NULL) {
-      (void)ussrt_control_refresh_period(v.c, &period_us);
-    }
-    uint32_t wait_ms = period_us < 2000 ? 1 : period_us / 1000;
+    uint32_t wait_ms = v.refresh_us < 2000 ? 1 : v.refresh_us / 1000;
     UssrtStatus s = v.bus == NULL ? USSRT_STATUS_NOT_RUNNING
                                   : ussrt_wait_exchange(v.bus, v.address, wait_ms);
     if (s != USSRT_STATUS_OK && s != USSRT_STATUS_TIMEOUT) {

@@ -320,7 +320,7 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     }
     catch_signals()?;
     let options = r.options;
-    let Plan { steps, raised } = order(bus, drive, catalogue, &differing);
+    let steps = order(bus, drive, catalogue, &differing);
     let bar = progress(steps.len(), &format!("writing drive {drive}"));
     // Whether the drive took each step so far.
     let mut written = Vec::with_capacity(steps.len());
@@ -328,9 +328,9 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
         if stopped() {
             report.cut_short("Ctrl-C", &steps[i..]);
             // The drive is not left in quick commissioning or at a raised access level.
-            for r in raised.iter().rev().filter(|r| r.pending(&steps, &written)) {
-                let put = bus.write_with(drive, r.param, Value::Word(r.was), options);
-                report.put_back(r.param, r.to, r.was, put.err().as_ref());
+            for (param, to, was) in still_raised(&steps, &written) {
+                let put = bus.write_with(drive, param, Value::Word(was), options);
+                report.put_back(param, to, was, put.err().as_ref());
             }
             break;
         }
@@ -353,7 +353,12 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
             }
             Err(e @ ParamError::Drive(_)) => match step {
                 Step::Restore(entry) => report.refuse(entry, &e),
-                Step::Helper(pnu, v) => report.helper_refused(*pnu, *v, &e),
+                Step::Helper(pnu, v)
+                | Step::Raise {
+                    param: pnu, to: v, ..
+                } => {
+                    report.helper_refused(*pnu, *v, &e);
+                }
             },
             Err(e) => {
                 report.cut_short(&e.to_string(), &steps[i..]);
@@ -373,33 +378,26 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     }
 }
 
-/// The writes of a restore, and what it raised on the way.
-struct Plan {
-    steps: Vec<Step>,
-    /// The access level and quick commissioning, in the order they are raised.
-    raised: Vec<Raised>,
-}
-
-/// P0003 or P0010 set on the way, and what the drive had before.
-struct Raised {
-    /// Where it is raised in the plan.
-    at: usize,
-    param: ParamRef,
-    to: u16,
-    was: u16,
-}
-
-impl Raised {
-    /// Raised by the first `written.len()` steps (`written`: whether the drive took each) and
-    /// not set again after: to be put back when the restore is cut short there.
-    fn pending(&self, steps: &[Step], written: &[bool]) -> bool {
-        written.get(self.at) == Some(&true)
-            && !steps
-                .iter()
-                .zip(written)
-                .skip(self.at + 1)
-                .any(|(s, &w)| w && s.target().0.pnu == self.param.pnu)
-    }
+/// What a restore cut short after the first `written.len()` steps (`written`: whether the
+/// drive took each) puts back, last raised first: each [`Step::Raise`] the drive took whose
+/// parameter it did not take set again after, as (parameter, raised to, value before).
+fn still_raised<'a>(
+    steps: &'a [Step],
+    written: &'a [bool],
+) -> impl Iterator<Item = (ParamRef, u16, u16)> + 'a {
+    let done = move || steps.iter().zip(written);
+    done()
+        .enumerate()
+        .rev()
+        .filter_map(move |(at, (step, &took))| {
+            let Step::Raise { param, to, was } = *step else {
+                return None;
+            };
+            let set_again = done()
+                .skip(at + 1)
+                .any(|(s, &w)| w && s.target().0.pnu == param.pnu);
+            (took && !set_again).then_some((param, to, was))
+        })
 }
 
 /// The writes of a restore, in a safe order: access level first, quick commissioning around
@@ -410,7 +408,7 @@ fn order(
     drive: Address,
     catalogue: &Catalogue,
     differing: &[(Entry, Option<Value>)],
-) -> Plan {
+) -> Vec<Step> {
     // What the drive has now; `None` where the family has no such parameter or the read failed:
     // what it could not read, the restore does not raise (what needs it is refused, and said).
     let now = |p: Option<ParamRef>| {
@@ -442,26 +440,21 @@ fn order(
         last.iter().any(|(e, _)| Some(e.param.pnu.get()) == p0010),
         last.iter().any(|(e, _)| Some(e.param.pnu.get()) == p0003),
     );
+    let whole = |p: ParamRef| ParamRef { index: None, ..p };
     let mut steps: Vec<Step> = Vec::new();
-    let mut raised = Vec::new();
-    let mut helper = |steps: &mut Vec<Step>, param: ParamRef, to: u16, was: u16| {
-        let param = ParamRef {
-            index: None,
-            ..param
-        };
-        raised.push(Raised {
-            at: steps.len(),
-            param,
-            to,
-            was,
-        });
-        steps.push(Step::Helper(param, to));
-    };
     if let Some((p, n, level)) = raise {
-        helper(&mut steps, p, n, level);
+        steps.push(Step::Raise {
+            param: whole(p),
+            to: n,
+            was: level,
+        });
     }
     if let Some((p, was)) = commissioning {
-        helper(&mut steps, p, 1, was);
+        steps.push(Step::Raise {
+            param: whole(p),
+            to: 1,
+            was,
+        });
     }
     steps.extend(body.iter().map(|(e, _)| Step::Restore(*e)));
     // Quick commissioning left and the access level put back: to the file's values (P0010
@@ -475,7 +468,7 @@ fn order(
     if let (Some((p, _, level)), false) = (raise, p0003_in_file) {
         steps.push(Step::Helper(p, level));
     }
-    Plan { steps, raised }
+    steps
 }
 
 /// One write of a restore.
@@ -483,22 +476,33 @@ fn order(
 pub(crate) enum Step {
     /// A value of the file.
     Restore(Entry),
-    /// P0003 or P0010 set on the way (access level, quick commissioning).
+    /// P0003 or P0010 set on the way back (access level, quick commissioning).
     Helper(ParamRef, u16),
+    /// P0003 or P0010 raised on the way to `to`, from `was`: put back when the restore is cut
+    /// short by Ctrl-C.
+    Raise { param: ParamRef, to: u16, was: u16 },
 }
 
 impl Step {
     fn target(&self) -> (ParamRef, Value) {
         match self {
             Self::Restore(e) => (e.param, e.value),
-            Self::Helper(p, v) => (ParamRef { index: None, ..*p }, Value::Word(*v)),
+            Self::Helper(p, v)
+            | Self::Raise {
+                param: p, to: v, ..
+            } => (ParamRef { index: None, ..*p }, Value::Word(*v)),
         }
     }
 
     pub(crate) fn name(&self) -> String {
         match self {
             Self::Restore(e) => e.param.to_string(),
-            Self::Helper(p, v) => format!("{p} := {v} (on the way)"),
+            Self::Helper(p, v)
+            | Self::Raise {
+                param: p, to: v, ..
+            } => {
+                format!("{p} := {v} (on the way)")
+            }
         }
     }
 }
@@ -552,49 +556,47 @@ pub(crate) fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Resu
 
 #[cfg(test)]
 mod tests {
-    use super::{Raised, Step};
+    use super::{Step, still_raised};
     use uss_client::uss_protocol::ParamRef;
 
     /// Cut short after `i` steps of "P0003 := 3, P0010 := 1, P0010 := 0, P0003 := 1", a Ctrl-C
-    /// puts back what the drive took raised and did not take set again.
+    /// puts back what the drive took raised and did not take set again, last raised first.
     #[test]
     fn a_cut_puts_back_what_was_raised_and_not_set_again() {
         let (p3, p10) = (ParamRef::p(3), ParamRef::p(10));
         let steps = [
-            Step::Helper(p3, 3),
-            Step::Helper(p10, 1),
-            Step::Helper(p10, 0),
-            Step::Helper(p3, 1),
-        ];
-        let raised = [
-            Raised {
-                at: 0,
+            Step::Raise {
                 param: p3,
                 to: 3,
                 was: 1,
             },
-            Raised {
-                at: 1,
+            Step::Raise {
                 param: p10,
                 to: 1,
                 was: 0,
             },
+            Step::Helper(p10, 0),
+            Step::Helper(p3, 1),
         ];
-        let put_back = |written: &[bool]| -> Vec<u16> {
-            raised
-                .iter()
-                .filter(|r| r.pending(&steps, written))
-                .map(|r| r.param.pnu.get())
+        let put_back = |written: &[bool]| -> Vec<(u16, u16, u16)> {
+            still_raised(&steps, written)
+                .map(|(p, to, was)| (p.pnu.get(), to, was))
                 .collect()
         };
         let all = [true; 4];
-        let expected: [&[u16]; 5] = [&[], &[3], &[3, 10], &[3], &[]];
+        let expected: [&[(u16, u16, u16)]; 5] = [
+            &[],
+            &[(3, 3, 1)],
+            &[(10, 1, 0), (3, 3, 1)],
+            &[(3, 3, 1)],
+            &[],
+        ];
         for (i, want) in expected.iter().enumerate() {
             assert_eq!(put_back(&all[..i]), *want, "cut after {i} steps");
         }
         // What the drive refused to raise is not put back; what it refused to set again is.
-        assert_eq!(put_back(&[false, true]), [10]);
-        assert_eq!(put_back(&[true, true, false]), [3, 10]);
-        assert_eq!(put_back(&[true, true, true, false]), [3]);
+        assert_eq!(put_back(&[false, true]), [(10, 1, 0)]);
+        assert_eq!(put_back(&[true, true, false]), [(10, 1, 0), (3, 3, 1)]);
+        assert_eq!(put_back(&[true, true, true, false]), [(3, 3, 1)]);
     }
 }

@@ -107,6 +107,8 @@ pub(crate) fn run_drive(
     let mut peak = 0.0f32;
     let mut last_note = Instant::now();
     let mut absence = Absence::default();
+    // Well inside the drive's watchdog time, however short it is.
+    let period = c.refresh_period().min(Duration::from_millis(10));
     let failure = loop {
         // The loop's own call refreshes the drive: a stalled ussctl trips it, as a dead one.
         let i = match c.keepalive().and_then(|()| c.check()) {
@@ -150,7 +152,7 @@ pub(crate) fn run_drive(
             ));
             last_note = Instant::now();
         }
-        std::thread::sleep(c.refresh_period().min(Duration::from_millis(10)));
+        std::thread::sleep(period);
     };
     // Stop whatever happened: OFF1, and make sure the drive received it before leaving it
     // to the watchdog (whose safe command is OFF1 by default too).
