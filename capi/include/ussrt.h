@@ -550,6 +550,13 @@ enum UssrtStatus ussrt_control_wait_state(const struct UssrtController *controll
 const char *ussrt_last_error(void);
 
 /**
+ * The name of status code `status` in snake case (`"ok"`, `"tripped"`, `"not_armed"`, ...;
+ * `"unknown"` for a code this library does not have), for logs: the same word as the Rust
+ * client's error and the Python exception. Static; never NULL.
+ */
+const char *ussrt_status_name(int32_t status);
+
+/**
  * Copies the details of the calling thread's last failure into `*info` (the caller's
  * memory). Returns `USSRT_STATUS_INVALID_ARGUMENT` for a NULL `info` and leaves the last
  * error as it was.

@@ -292,6 +292,77 @@ pub extern "C" fn ussrt_last_error() -> *const c_char {
     LAST.with(|l| l.borrow().message.as_ptr())
 }
 
+impl UssrtStatus {
+    /// Every status, in code order.
+    const ALL: [Self; 23] = [
+        Self::Ok,
+        Self::InvalidArgument,
+        Self::NotRunning,
+        Self::UnknownDrive,
+        Self::UssdGone,
+        Self::UssdStopped,
+        Self::LineDown,
+        Self::Controlled,
+        Self::Tripped,
+        Self::NotArmed,
+        Self::Stalled,
+        Self::InvalidSample,
+        Self::Released,
+        Self::Timeout,
+        Self::DriveError,
+        Self::Refused,
+        Self::PathFailed,
+        Self::Value,
+        Self::NoProcessData,
+        Self::Incompatible,
+        Self::Ipc,
+        Self::Internal,
+        Self::NotControllable,
+    ];
+
+    /// The status's name in snake case: the same word as the Rust client's error variant and
+    /// the Python exception class (`Tripped`, `tripped`).
+    const fn name(self) -> &'static CStr {
+        match self {
+            Self::Ok => c"ok",
+            Self::InvalidArgument => c"invalid_argument",
+            Self::NotRunning => c"not_running",
+            Self::UnknownDrive => c"unknown_drive",
+            Self::UssdGone => c"ussd_gone",
+            Self::UssdStopped => c"ussd_stopped",
+            Self::LineDown => c"line_down",
+            Self::Controlled => c"controlled",
+            Self::Tripped => c"tripped",
+            Self::NotArmed => c"not_armed",
+            Self::Stalled => c"stalled",
+            Self::InvalidSample => c"invalid_sample",
+            Self::Released => c"released",
+            Self::Timeout => c"timeout",
+            Self::DriveError => c"drive_error",
+            Self::Refused => c"refused",
+            Self::PathFailed => c"path_failed",
+            Self::Value => c"value",
+            Self::NoProcessData => c"no_process_data",
+            Self::Incompatible => c"incompatible",
+            Self::Ipc => c"ipc",
+            Self::Internal => c"internal",
+            Self::NotControllable => c"not_controllable",
+        }
+    }
+}
+
+/// The name of status code `status` in snake case (`"ok"`, `"tripped"`, `"not_armed"`, ...;
+/// `"unknown"` for a code this library does not have), for logs: the same word as the Rust
+/// client's error and the Python exception. Static; never NULL.
+#[unsafe(no_mangle)]
+pub extern "C" fn ussrt_status_name(status: i32) -> *const c_char {
+    UssrtStatus::ALL
+        .iter()
+        .find(|s| **s as i32 == status)
+        .map_or(c"unknown", |s| s.name())
+        .as_ptr()
+}
+
 /// Copies the details of the calling thread's last failure into `*info` (the caller's
 /// memory). Returns `USSRT_STATUS_INVALID_ARGUMENT` for a NULL `info` and leaves the last
 /// error as it was.
@@ -334,6 +405,22 @@ mod tests {
         assert_eq!(last().0.status, UssrtStatus::InvalidArgument);
         assert_eq!(guard(|| Ok(())), UssrtStatus::Ok);
         assert_eq!(last(), (UssrtErrorInfo::of(UssrtStatus::Ok), String::new()));
+    }
+
+    #[test]
+    fn every_status_has_its_name_in_code_order() {
+        for (code, status) in UssrtStatus::ALL.iter().enumerate() {
+            assert_eq!(*status as usize, code);
+            // SAFETY: a static NUL-terminated name.
+            let name = unsafe { CStr::from_ptr(ussrt_status_name(code as i32)) };
+            assert_eq!(name, status.name());
+        }
+        // SAFETY: as above.
+        let tripped = unsafe { CStr::from_ptr(ussrt_status_name(8)) };
+        assert_eq!(tripped, c"tripped");
+        // SAFETY: as above.
+        let unknown = unsafe { CStr::from_ptr(ussrt_status_name(99)) };
+        assert_eq!(unknown, c"unknown");
     }
 
     #[test]

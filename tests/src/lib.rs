@@ -111,6 +111,75 @@ pub fn binary(package: &str, name: &str) -> PathBuf {
     path
 }
 
+/// The workspace's root directory.
+pub fn root() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+/// `target/<profile>` of the running test.
+fn target_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    exe.parent().and_then(std::path::Path::parent).unwrap().to_path_buf()
+}
+
+/// Where C programs of the tests link libussrt from: `libussrt.so` and its soname
+/// `libussrt.so.0`, as capi/install.sh lays them out.
+pub fn libussrt_dir() -> PathBuf {
+    target_dir().join("ussrt-lib")
+}
+
+/// Builds libussrt (once per test binary) and compiles `source` (relative to the workspace)
+/// with `compiler` and the flags `extra` against it, warnings as errors; the executable.
+pub fn c_program(compiler: &str, source: &str, extra: &[&str]) -> PathBuf {
+    static BUILT: std::sync::Mutex<bool> = std::sync::Mutex::new(false);
+    let mut built = BUILT.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let target = target_dir();
+    if !*built {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut cmd = Command::new(cargo);
+        cmd.args(["build", "--quiet", "-p", "uss-rt-c", "--lib"]);
+        if target.file_name().is_some_and(|p| p == "release") {
+            cmd.arg("--release");
+        }
+        assert!(cmd.status().unwrap().success(), "cargo build -p uss-rt-c");
+        let lib = libussrt_dir();
+        std::fs::create_dir_all(&lib).unwrap();
+        for name in ["libussrt.so", "libussrt.so.0"] {
+            let _ = std::fs::remove_file(lib.join(name));
+            std::os::unix::fs::symlink(target.join("libussrt.so"), lib.join(name)).unwrap();
+        }
+        *built = true;
+    }
+    let source = root().join(source);
+    let exe = target.join(format!(
+        "capi-{}-{}",
+        source.file_stem().unwrap().to_string_lossy(),
+        source.extension().unwrap().to_string_lossy()
+    ));
+    let out = Command::new(compiler)
+        .args(["-Wall", "-Wextra", "-Werror", "-O1"])
+        .args(extra)
+        .arg("-I")
+        .arg(root().join("capi/include"))
+        .arg("-I")
+        .arg(root().join("shm-types/include"))
+        .arg(&source)
+        .arg("-o")
+        .arg(&exe)
+        .arg(format!("-L{}", libussrt_dir().display()))
+        .arg(format!("-Wl,-rpath,{}", libussrt_dir().display()))
+        .args(["-lussrt", "-lm", "-lpthread"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{compiler} {}:\n{}",
+        source.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    exe
+}
+
 /// Stops a child the way an operator would (SIGTERM, so ussd shuts down cleanly and sends its
 /// safe commands), waits up to 5 s, then kills it; the child is reaped either way.
 pub fn terminate(child: &mut Child) {

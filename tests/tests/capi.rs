@@ -17,71 +17,8 @@ fn serial() -> MutexGuard<'static, ()> {
     LOCK.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
-fn root() -> &'static Path {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
-}
-
-/// `target/<profile>` of this test.
-fn target_dir() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    exe.parent().and_then(Path::parent).unwrap().to_path_buf()
-}
-
-/// Where the test links libussrt from: `libussrt.so` and its soname `libussrt.so.0`.
-fn libdir() -> PathBuf {
-    target_dir().join("ussrt-lib")
-}
-
-/// Builds libussrt (once per test binary) and compiles `source` with `compiler` against it.
 fn compile(compiler: &str, source: &str, extra: &[&str]) -> PathBuf {
-    static BUILT: Mutex<bool> = Mutex::new(false);
-    let mut built = BUILT.lock().unwrap_or_else(PoisonError::into_inner);
-    let target = target_dir();
-    if !*built {
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let mut cmd = Command::new(cargo);
-        cmd.args(["build", "--quiet", "-p", "uss-rt-c", "--lib"]);
-        if target.file_name().is_some_and(|p| p == "release") {
-            cmd.arg("--release");
-        }
-        assert!(cmd.status().unwrap().success(), "cargo build -p uss-rt-c");
-        // The library's soname, as capi/install.sh lays it out.
-        let lib = libdir();
-        std::fs::create_dir_all(&lib).unwrap();
-        for name in ["libussrt.so", "libussrt.so.0"] {
-            let _ = std::fs::remove_file(lib.join(name));
-            std::os::unix::fs::symlink(target.join("libussrt.so"), lib.join(name)).unwrap();
-        }
-        *built = true;
-    }
-    let source = root().join(source);
-    let exe = target.join(format!(
-        "capi-{}-{}",
-        source.file_stem().unwrap().to_string_lossy(),
-        source.extension().unwrap().to_string_lossy()
-    ));
-    let out = Command::new(compiler)
-        .args(["-Wall", "-Wextra", "-Werror", "-O1"])
-        .args(extra)
-        .arg("-I")
-        .arg(root().join("capi/include"))
-        .arg("-I")
-        .arg(root().join("shm-types/include"))
-        .arg(&source)
-        .arg("-o")
-        .arg(&exe)
-        .arg(format!("-L{}", libdir().display()))
-        .arg(format!("-Wl,-rpath,{}", libdir().display()))
-        .args(["-lussrt", "-lm"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{compiler} {}:\n{}",
-        source.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    exe
+    uss_integration_tests::c_program(compiler, source, extra)
 }
 
 fn run(exe: &Path, args: &[&str]) -> Output {

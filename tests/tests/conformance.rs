@@ -1,0 +1,376 @@
+//! The safety conformance suite (docs/SAFETY.md): each rule's scenario, written once, run
+//! against every front-end that can break it, with real processes and signals. A front-end is a
+//! program driven line by line (open, keepalive, run, rearm, a second thread's call, ...): the
+//! Rust client (`uss-conformance-rust`), the C ABI (`capi/tests/c/conformance.c`), the C++
+//! wrapper (`conformance.cpp`) and the Python module (`python/tests/conformance_driver.py`).
+//! The harness starts ussd, the programs, kills and pauses them, acts as the operator, and
+//! reads what the drive got from its input image.
+//!
+//! `ussctl`, the `LinuxCNC` component and the Zenoh client are no scriptable libraries: their
+//! scenarios live beside them (docs/SAFETY.md names each), and
+//! `every_rule_has_a_scenario_for_every_front_end` fails when a cell of the rule table names no
+//! test that exists.
+#![allow(clippy::unwrap_used)]
+
+use std::collections::VecDeque;
+use std::io::{BufRead as _, BufReader, Write as _};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+use uss_client::{Bus, PzdInput, StopCommand};
+use uss_integration_tests::{Ussd, addr, binary, c_program, root};
+
+/// One ussd at a time: each runs a paced bus thread, and the machine may have two cores.
+fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+const RUN: u16 = 0x047F;
+const OFF1: u16 = 0x047E;
+const OFF2: u16 = 0x047C;
+
+/// A front-end under test.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FrontEnd {
+    Rust,
+    C,
+    Cpp,
+    Python,
+}
+
+impl FrontEnd {
+    fn command(self) -> Command {
+        match self {
+            Self::Rust => Command::new(binary("uss-integration-tests", "uss-conformance-rust")),
+            Self::C => Command::new(c_program(
+                "cc",
+                "capi/tests/c/conformance.c",
+                &["-std=c11"],
+            )),
+            Self::Cpp => Command::new(c_program(
+                "c++",
+                "capi/tests/c/conformance.cpp",
+                &["-std=c++17"],
+            )),
+            Self::Python => {
+                python_here();
+                let mut c = Command::new("python3");
+                c.arg(root().join("python/tests/conformance_driver.py"));
+                c
+            }
+        }
+    }
+}
+
+/// Whether the Python module is installed; it must be where `USS_REQUIRE_PYTHON` is set
+/// (`.ci/run` installs it before the tests).
+fn python_here() {
+    let here = Command::new("python3")
+        .args(["-c", "import uss_rt"])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        here,
+        "the Python module uss_rt is not installed: python3 -m pip install ./python"
+    );
+}
+
+/// What a command came to: `Ok`, or the error's kind (`tripped`, ...) and message.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Reply {
+    Ok,
+    Err(String, String),
+}
+
+impl Reply {
+    fn parse(line: &str) -> Self {
+        match line.strip_prefix("err ") {
+            None if line == "ok" => Self::Ok,
+            None => panic!("not a reply: {line:?}"),
+            Some(rest) => {
+                let (kind, message) = rest.split_once(' ').unwrap_or((rest, ""));
+                Self::Err(kind.to_owned(), message.to_owned())
+            }
+        }
+    }
+
+    fn kind(&self) -> &str {
+        match self {
+            Self::Ok => "ok",
+            Self::Err(kind, _) => kind,
+        }
+    }
+}
+
+/// A front-end's program, its stdout read by a thread.
+struct Program {
+    front: FrontEnd,
+    child: Child,
+    lines: Receiver<String>,
+    /// Lines read that were not asked for yet (a thread's answer while the main one waits).
+    held: VecDeque<String>,
+}
+
+impl Program {
+    fn start(front: FrontEnd) -> Self {
+        let mut child = front
+            .command()
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .unwrap();
+        let out = BufReader::new(child.stdout.take().unwrap());
+        let (tx, lines) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in out.lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        Self {
+            front,
+            child,
+            lines,
+            held: VecDeque::new(),
+        }
+    }
+
+    fn tell(&mut self, line: &str) {
+        let stdin = self.child.stdin.as_mut().unwrap();
+        writeln!(stdin, "{line}").unwrap();
+        stdin.flush().unwrap();
+    }
+
+    /// The next answer tagged `tag` (`<<` the main thread's, `<&` another thread's).
+    fn answer(&mut self, tag: &str) -> Reply {
+        let prefix = format!("{tag} ");
+        if let Some(i) = self.held.iter().position(|l| l.starts_with(&prefix)) {
+            let line = self.held.remove(i).unwrap();
+            return Reply::parse(&line[prefix.len()..]);
+        }
+        let deadline = Instant::now() + Duration::from_secs(30);
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(line) if line.starts_with(&prefix) => {
+                    return Reply::parse(&line[prefix.len()..]);
+                }
+                Ok(line) => self.held.push_back(line),
+                Err(RecvTimeoutError::Timeout) => panic!("{:?}: no {tag} answer", self.front),
+                Err(RecvTimeoutError::Disconnected) => {
+                    panic!("{:?} ended before its {tag} answer", self.front)
+                }
+            }
+        }
+    }
+
+    /// Runs `command` on the program's main thread; its answer.
+    fn call(&mut self, command: &str) -> Reply {
+        self.tell(command);
+        self.answer("<<")
+    }
+
+    /// Runs `command` on the program's main thread; it must succeed.
+    fn ok(&mut self, command: &str) {
+        assert_eq!(self.call(command), Reply::Ok, "{:?}: {command}", self.front);
+    }
+
+    /// Starts `command` on a thread of its own; [`Program::answer`]`("<&")` gives its answer.
+    fn spawn(&mut self, command: &str) {
+        self.tell(&format!("&{command}"));
+    }
+
+    fn signal(&self, signal: nix::sys::signal::Signal) {
+        let pid = nix::unistd::Pid::from_raw(i32::try_from(self.child.id()).unwrap());
+        nix::sys::signal::kill(pid, signal).unwrap();
+    }
+
+    /// SIGKILL: nothing of the program runs on the way out.
+    fn kill(&mut self) {
+        self.child.kill().unwrap();
+        self.child.wait().unwrap();
+    }
+
+    /// `exit`: the program hands its drive back and ends.
+    fn exit(mut self) {
+        self.tell("exit");
+        assert!(self.child.wait().unwrap().success(), "{:?} exit", self.front);
+    }
+}
+
+impl Drop for Program {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The drive's input image, once `done` holds for it (at most 5 s).
+fn image_until(bus: &Bus, drive: u8, what: &str, done: impl Fn(&PzdInput) -> bool) -> PzdInput {
+    bus.watch(addr(drive))
+        .unwrap()
+        .wait_for(Duration::from_secs(5), what, |i| done(i))
+        .unwrap()
+}
+
+/// The image after every poll for `span`: none may be `bad`.
+fn never(bus: &Bus, drive: u8, span: Duration, what: &str, bad: impl Fn(&PzdInput) -> bool) {
+    let watch = bus.watch(addr(drive)).unwrap();
+    let end = Instant::now() + span;
+    while Instant::now() < end {
+        let i = watch.latest();
+        assert!(!bad(&i), "{what}: {i:?}");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+fn opened(front: FrontEnd, ussd: &Ussd, drive: u8) -> Program {
+    let mut p = Program::start(front);
+    p.ok(&format!("open {} {drive}", ussd.bus));
+    p
+}
+
+/// LATCH-OPEN: a program that opens a drive latched at ussd's start, refreshes it and runs it
+/// does not run the motor: its ON is `tripped` and the drive keeps its safe command until the
+/// program's explicit re-arm.
+fn opening_is_no_rearm(front: FrontEnd) {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let mut p = opened(front, &ussd, 1);
+    for _ in 0..5 {
+        p.ok("keepalive");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    p.ok("enable");
+    assert_eq!(p.call("run 10").kind(), "tripped", "{front:?}");
+    never(&bus, 1, Duration::from_millis(300), "ON after open", |i| {
+        i.sent_stw1 == RUN || i.is_live()
+    });
+    assert_eq!(bus.watch(addr(1)).unwrap().latest().latch_reason_name(), "ussd started");
+    // The deliberate act.
+    p.ok("rearm");
+    p.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    p.exit();
+}
+
+/// LATCH-RECONNECT: an operator's stop of a running drive survives its controller's exit and a
+/// new program that opens, refreshes and runs it.
+fn an_operators_stop_survives_a_reconnect(front: FrontEnd) {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let mut first = opened(front, &ussd, 1);
+    first.ok("rearm");
+    first.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    bus.stop_drive(addr(1), StopCommand::Off2).unwrap();
+    bus.wait_stopped(addr(1), StopCommand::Off2, None).unwrap();
+    first.exit();
+    let mut second = opened(front, &ussd, 1);
+    for _ in 0..5 {
+        second.ok("keepalive");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(second.call("run 10").kind(), "tripped", "{front:?}");
+    never(&bus, 1, Duration::from_millis(300), "the coast undone", |i| {
+        i.sent_stw1 != OFF2
+    });
+    assert_eq!(bus.watch(addr(1)).unwrap().latest().latch_reason_name(), "operator stop");
+    second.exit();
+}
+
+/// REPLACED: a controller killed while its drive runs and replaced by a new program within the
+/// drive's watchdog time is a trip ("controller replaced"): the drive stops, and the new program
+/// must re-arm it.
+fn a_replaced_controller_is_a_trip(front: FrontEnd) {
+    let _serial = serial();
+    // A watchdog long enough that the replacement comes well within it.
+    let ussd = Ussd::start("", &[(1, "watchdog_ms = 2000")]);
+    let bus = ussd.bus();
+    let mut first = opened(front, &ussd, 1);
+    first.ok("rearm");
+    first.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    let mut second = Program::start(front);
+    first.kill();
+    second.ok(&format!("open {} 1", ussd.bus));
+    let refused = second.call("run 20");
+    let image = image_until(&bus, 1, "a latch", |i| !i.is_live());
+    assert_eq!(image.latch_reason_name(), "controller replaced", "{front:?}");
+    assert_eq!(image.sent_stw1, OFF1, "{front:?}");
+    // Whether the run came before or after ussd showed the trip, it ran nothing.
+    if refused != Reply::Ok {
+        assert_eq!(refused.kind(), "tripped", "{front:?}");
+    }
+    assert_eq!(second.call("run 20").kind(), "tripped", "{front:?}");
+    second.ok("rearm");
+    second.ok("run 20");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    second.exit();
+}
+
+/// STOP-NOWAIT: a stop from one thread of a program is not held back by a long call of another
+/// thread on the same handle (here a wait for a state that does not come).
+fn a_stop_never_waits_for_another_thread(front: FrontEnd) {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let mut p = opened(front, &ussd, 1);
+    p.ok("rearm");
+    p.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    // S3 does not come while the drive runs (S4) or coasts (S1): the wait lasts its 4 s.
+    p.spawn("wait_state 3 4000");
+    std::thread::sleep(Duration::from_millis(300));
+    assert_eq!(p.call("coast"), Reply::Ok, "{front:?}");
+    // The coast answered while the other thread still waits, and it is on the wire.
+    assert!(
+        !p.held.iter().any(|l| l.starts_with("<& ")),
+        "{front:?}: the coast waited for the other thread: {:?}",
+        p.held
+    );
+    image_until(&bus, 1, "OFF2 on the wire", |i| i.sent_stw1 == OFF2);
+    // A timeout: `timeout` in C, `wait_timeout` in Rust and Python.
+    let waited = p.answer("<&");
+    assert!(waited.kind().ends_with("timeout"), "{front:?}: {waited:?}");
+    p.exit();
+}
+
+macro_rules! front_ends {
+    ($($scenario:ident),* $(,)?) => {
+        $(
+            mod $scenario {
+                use super::FrontEnd;
+                #[test]
+                fn rust() {
+                    super::$scenario(FrontEnd::Rust);
+                }
+                #[test]
+                fn c() {
+                    super::$scenario(FrontEnd::C);
+                }
+                #[test]
+                fn cpp() {
+                    super::$scenario(FrontEnd::Cpp);
+                }
+                #[test]
+                fn python() {
+                    super::$scenario(FrontEnd::Python);
+                }
+            }
+        )*
+    };
+}
+
+front_ends!(
+    opening_is_no_rearm,
+    an_operators_stop_survives_a_reconnect,
+    a_replaced_controller_is_a_trip,
+    a_stop_never_waits_for_another_thread,
+);
