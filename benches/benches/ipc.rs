@@ -38,6 +38,7 @@ use uss_client::{
 use uss_master::config::Config;
 use uss_master::daemon::ipc::{IpcNode, RtBridge};
 use uss_master::daemon::rt::{RtRequest, apply_to_current_thread};
+use uss_master::engine::control::ControllerId;
 use uss_master::engine::image::DriveImages;
 use uss_master::{
     Bridge, Clock, DriveStatus, Engine, EngineHandle, MonotonicClock, Rx, SimTransport, Stats,
@@ -172,7 +173,11 @@ struct Stamping {
 }
 
 impl Bridge for Stamping {
-    fn take_sample(&mut self, slot: usize, images: &DriveImages) -> Option<PzdOutput> {
+    fn take_sample(
+        &mut self,
+        slot: usize,
+        images: &DriveImages,
+    ) -> Option<(PzdOutput, ControllerId)> {
         self.inner.take_sample(slot, images)
     }
 
@@ -951,7 +956,7 @@ fn control(name: &str, duration: Duration, period: Duration) -> String {
                     let drive = bus
                         .control(addr(address), ControlOptions::words(2))
                         .expect("control the drive");
-                    drive.enable().expect("publish");
+                    drive.rearm().expect("re-arm");
                     let mut rng = SmallRng::seed_from_u64(u64::from(address));
                     let mut published = Vec::with_capacity(CAPACITY);
                     let end = Instant::now() + duration;

@@ -149,7 +149,9 @@ typedef struct UssrtBus UssrtBus;
 
 /**
  * The one controller of a drive (opaque): made by [`ussrt_control_open`], owned by the caller
- * until [`ussrt_control_close`]. Usable from several threads (calls take turns).
+ * until [`ussrt_control_close`]. Usable from several threads at once: a call never waits for
+ * another thread's call on the same handle (a stop goes out while another thread waits for a
+ * state).
  */
 typedef struct UssrtController UssrtController;
 
@@ -380,8 +382,9 @@ enum UssrtStatus ussrt_stop_all(const struct UssrtBus *bus, uint8_t command, uin
 
 /**
  * Takes exclusive control of drive `address` (`CONTROLLED` while another process holds it)
- * and writes the handle to `*controller`. The drive stays latched (ussd latched it at its
- * start) until [`ussrt_control_rearm`] or a first stop ([`ussrt_control_enable`]).
+ * and writes the handle to `*controller`. Opening re-arms nothing: the drive stays latched
+ * (ussd's start, an operator's stop, an earlier controller's trip) until this program calls
+ * [`ussrt_control_rearm`]; an ON before that fails with `TRIPPED`.
  *
  * # Safety
  * `bus` is a live handle; `controller` points to writable memory for one pointer.
@@ -454,7 +457,7 @@ enum UssrtStatus ussrt_control_refresh_period(const struct UssrtController *cont
 
 /**
  * OFF1 with everything else enabled (STW1 0x047E): S1 -> S2; stops a running drive along its
- * ramp. The first stop of a new controller re-arms the latch the drive showed at open.
+ * ramp. It re-arms nothing: a latched drive needs [`ussrt_control_rearm`].
  *
  * # Safety
  * `controller` is a live handle.
@@ -463,7 +466,8 @@ enum UssrtStatus ussrt_control_enable(const struct UssrtController *controller);
 
 /**
  * ON (STW1 0x047F) with a setpoint in Hz of the drive's reference frequency (negative: the
- * other way). `NOT_ARMED` on a latched drive this controller has not re-armed.
+ * other way). `TRIPPED` on a latched drive this program has not re-armed
+ * ([`ussrt_control_rearm`]).
  *
  * # Safety
  * `controller` is a live handle.

@@ -1,28 +1,40 @@
 //! Exclusive control of a drive: the Rust `Controller`, whose session (`uss_shm_types::session`)
-//! decides every sample. The same rules as in Rust and Python: latched until re-armed (a stop,
-//! then ON), only the program's own calls refresh the watchdog, a gap in them is a trip.
+//! decides every sample. The same rules as in Rust and Python: latched until the program's
+//! explicit re-arm, only the program's own calls refresh the watchdog, a gap in them is a trip.
+//! A handle is shared by the program's threads without a lock held through a call, so a stop
+//! never waits behind another thread's wait (docs/SAFETY.md, STOP-NOWAIT).
 
 use crate::bus::{UssrtBus, UssrtDrive};
 use crate::error::{Failure, UssrtStatus, arg, drive, guard, out};
 use core::time::Duration;
-use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, PoisonError};
 use uss_client::{ControlOptions, Controller, DriveState, Setpoint};
 
 /// The one controller of a drive (opaque): made by [`ussrt_control_open`], owned by the caller
-/// until [`ussrt_control_close`]. Usable from several threads (calls take turns).
+/// until [`ussrt_control_close`]. Usable from several threads at once: a call never waits for
+/// another thread's call on the same handle (a stop goes out while another thread waits for a
+/// state).
 #[derive(Debug)]
 pub struct UssrtController {
-    /// `None` once released.
-    controller: Mutex<Option<Controller>>,
+    /// `None` once released. Held only to take a reference, never through a call.
+    controller: Mutex<Option<Arc<Controller>>>,
     bus: String,
     address: u8,
 }
 
 impl UssrtController {
-    fn lock(&self) -> MutexGuard<'_, Option<Controller>> {
-        self.controller
+    /// The controller, or `RELEASED`.
+    fn controller(&self) -> Result<Arc<Controller>, Failure> {
+        let held = self
+            .controller
             .lock()
-            .unwrap_or_else(PoisonError::into_inner)
+            .unwrap_or_else(PoisonError::into_inner);
+        held.clone().ok_or_else(|| {
+            Failure::Client(uss_client::ClientError::Released {
+                bus: self.bus.clone(),
+                address: self.address,
+            })
+        })
     }
 }
 
@@ -32,21 +44,15 @@ fn with(
     f: impl FnOnce(&Controller) -> Result<(), Failure>,
 ) -> UssrtStatus {
     guard(|| {
-        let c = arg(c, "controller")?;
-        let held = c.lock();
-        let controller = held.as_ref().ok_or_else(|| {
-            Failure::Client(uss_client::ClientError::Released {
-                bus: c.bus.clone(),
-                address: c.address,
-            })
-        })?;
-        f(controller)
+        let controller = arg(c, "controller")?.controller()?;
+        f(&controller)
     })
 }
 
 /// Takes exclusive control of drive `address` (`CONTROLLED` while another process holds it)
-/// and writes the handle to `*controller`. The drive stays latched (ussd latched it at its
-/// start) until [`ussrt_control_rearm`] or a first stop ([`ussrt_control_enable`]).
+/// and writes the handle to `*controller`. Opening re-arms nothing: the drive stays latched
+/// (ussd's start, an operator's stop, an earlier controller's trip) until this program calls
+/// [`ussrt_control_rearm`]; an ON before that fails with `TRIPPED`.
 ///
 /// # Safety
 /// `bus` is a live handle; `controller` points to writable memory for one pointer.
@@ -63,7 +69,7 @@ pub unsafe extern "C" fn ussrt_control_open(
             .bus
             .control(drive(address)?, ControlOptions::default())?;
         *controller = Box::into_raw(Box::new(UssrtController {
-            controller: Mutex::new(Some(c)),
+            controller: Mutex::new(Some(Arc::new(c))),
             bus: bus.bus.name().to_owned(),
             address,
         }));
@@ -94,9 +100,16 @@ pub unsafe extern "C" fn ussrt_control_close(controller: *mut UssrtController) {
 pub unsafe extern "C" fn ussrt_control_release(controller: *const UssrtController) -> UssrtStatus {
     guard(|| {
         let c = arg(controller, "controller")?;
-        let taken = c.lock().take();
+        let taken = c
+            .controller
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take();
         match taken {
-            Some(controller) => controller.release().map(|_| ()).map_err(Failure::from),
+            Some(controller) => controller
+                .release_shared()
+                .map(|_| ())
+                .map_err(Failure::from),
             None => Ok(()),
         }
     })
@@ -174,7 +187,7 @@ pub unsafe extern "C" fn ussrt_control_refresh_period(
 }
 
 /// OFF1 with everything else enabled (STW1 0x047E): S1 -> S2; stops a running drive along its
-/// ramp. The first stop of a new controller re-arms the latch the drive showed at open.
+/// ramp. It re-arms nothing: a latched drive needs [`ussrt_control_rearm`].
 ///
 /// # Safety
 /// `controller` is a live handle.
@@ -184,7 +197,8 @@ pub unsafe extern "C" fn ussrt_control_enable(controller: *const UssrtController
 }
 
 /// ON (STW1 0x047F) with a setpoint in Hz of the drive's reference frequency (negative: the
-/// other way). `NOT_ARMED` on a latched drive this controller has not re-armed.
+/// other way). `TRIPPED` on a latched drive this program has not re-armed
+/// ([`ussrt_control_rearm`]).
 ///
 /// # Safety
 /// `controller` is a live handle.

@@ -51,8 +51,10 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     // Hz are scaled by the drive's P2000 as ussd publishes it.
     let reference_hz = c.inputs().info().reference_hz;
 
-    // S1 -> S2 -> S4 (USS.md section 7). `wait_for_state` refreshes while it waits.
-    c.enable()?;
+    // S1 -> S2 -> S4 (USS.md section 7). `wait_for_state` refreshes while it waits. Opening
+    // re-arms nothing: the explicit re-arm (OFF1 naming ussd's start-up latch) is this
+    // program's deliberate act.
+    c.rearm()?;
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))?;
     c.run_hz(0.0)?;
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(2))?;

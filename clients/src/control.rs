@@ -38,9 +38,6 @@ pub struct ControlOptions {
     /// is configured (P2012), which every sample must carry anyway; a different number is
     /// refused here before it could be refused by ussd.
     pub words: Option<usize>,
-    /// A relay of a remote controller (the Zenoh bridge): opening the drive acknowledges no
-    /// latch, so only a stop after [`Controller::acknowledge_latch`] re-arms it.
-    pub relay: bool,
 }
 
 impl ControlOptions {
@@ -48,14 +45,6 @@ impl ControlOptions {
     pub fn words(words: usize) -> Self {
         Self {
             words: Some(words),
-            ..Self::default()
-        }
-    }
-
-    /// A relay of a remote controller: see [`ControlOptions::relay`](field@Self::relay).
-    pub fn relay() -> Self {
-        Self {
-            relay: true,
             ..Self::default()
         }
     }
@@ -198,12 +187,16 @@ impl Shared {
         }
     }
 
-    /// Publishes a release and waits (at most `timeout`) until ussd took it, so the publisher
-    /// can go: iceoryx2 drops samples not yet received with their publisher.
+    /// Publishes a release and waits (at most the drive's handshake time) until ussd took it,
+    /// so the publisher can go: iceoryx2 drops samples not yet received with their publisher.
+    /// Once released, nothing more is published: a second call returns at once.
     fn release(&self) -> Result<PzdInput, ClientError> {
+        let mut state = self.state();
+        if state.session.is_released() {
+            return Ok(self.watch.latest());
+        }
         // Nobody to hand the drive to: the watchdog of a new ussd is not involved either.
         let services = self.link.check()?;
-        let mut state = self.state();
         self.follow(&mut state, &services)?;
         let sample = state.session.release(monotonic_ns());
         state
@@ -270,18 +263,22 @@ fn open_port(link: &Link, services: &Services, address: Address) -> Result<Port,
 /// **Latched until re-armed.** ussd passes this controller's words to the drive only while the
 /// drive is *live*. It starts *latched* (ussd's start), and latches again when this
 /// controller stops publishing within the drive's watchdog time (100 ms by default: it froze,
-/// hung or died), when a sample would be misread by the drive, when an operator stops the
-/// drive from another process (`ussctl stop/coast/quick-stop`), or when the bus line comes
-/// back. A latched drive gets its safe command (OFF1 unless configured otherwise) until this
-/// controller re-arms it the PROFIdrive way: a stop that names the latch, then ON.
+/// hung or died), when another controller takes its place without a release in between, when a
+/// sample would be misread by the drive, when an operator stops the drive from another process
+/// (`ussctl stop/coast/quick-stop`), or when the bus line comes back. A latched drive gets its
+/// safe command (OFF1 unless configured otherwise) until a controller re-arms it the PROFIdrive
+/// way: a stop that names the latch, then ON.
 ///
-/// - A new controller re-arms with its first OFF1: [`Controller::enable`] (or
-///   [`Controller::rearm`]), then [`Controller::run_hz`] and friends.
-/// - A latch after that is news: the next call fails with [`ClientError::Tripped`] (when and
-///   why), and so does every call until [`Controller::rearm`] acknowledges it. A frozen
-///   controller that resumes, or its refresher, never restarts the motor by itself.
-/// - An ON while latched, before an OFF1 of this controller re-armed the drive, fails with
-///   [`ClientError::NotArmed`].
+/// - **Only [`Controller::rearm`] re-arms.** Opening acknowledges no latch: the latch the drive
+///   shows then (ussd's start, an operator's stop, an earlier controller's trip or release) is
+///   news like any later one. Opening, reconnecting, [`Controller::keepalive`],
+///   [`Controller::enable`] and a refresher never re-arm; the program's explicit
+///   [`Controller::rearm`] is the one deliberate act, then [`Controller::run_hz`] and friends.
+/// - A latch this controller has not acknowledged fails every ON with
+///   [`ClientError::Tripped`] (when and why) until [`Controller::rearm`] acknowledges it. A
+///   frozen controller that resumes, or its refresher, never restarts the motor by itself.
+/// - A stop ([`Controller::stop`], [`Controller::coast`], [`Controller::quick_stop`]) always goes
+///   out, latched or not; it re-arms nothing this controller did not acknowledge.
 ///
 /// **Watchdog: the program's own calls.** Every setter publishes; between changes call
 /// [`Controller::keepalive`] at least once per watchdog time (every
@@ -299,7 +296,6 @@ fn open_port(link: &Link, services: &Services, address: Address) -> Result<Port,
 /// ([`ClientError::InvalidSample`]).
 pub struct Controller {
     shared: Arc<Shared>,
-    released: bool,
 }
 
 impl core::fmt::Debug for Controller {
@@ -348,11 +344,7 @@ impl Controller {
             // predecessor's last sequence number.
             first_sequence: monotonic_ns(),
         };
-        let session = if options.relay {
-            Session::relay(setup)
-        } else {
-            Session::new(setup, &watch.latest())
-        };
+        let session = Session::new(setup);
         Ok(Self {
             shared: Arc::new(Shared {
                 link: Arc::clone(bus.link()),
@@ -361,7 +353,6 @@ impl Controller {
                 bus: bus.name().to_owned(),
                 address,
             }),
-            released: false,
         })
     }
 
@@ -448,8 +439,8 @@ impl Controller {
     }
 
     /// STW1 0x047E (OFF1, everything else enabled): S1 -> S2 (ready to switch on). Also
-    /// stops a running drive along its ramp, like [`Controller::stop`], and re-arms a latched
-    /// drive whose latch this controller knows (its first OFF1 after the latch).
+    /// stops a running drive along its ramp, like [`Controller::stop`]. It re-arms nothing by
+    /// itself: a latched drive needs [`Controller::rearm`].
     pub fn enable(&self) -> Result<(), ClientError> {
         self.command(Stw1::READY)
     }
@@ -647,8 +638,15 @@ impl Controller {
     /// "released" (not a watchdog trip). Waits until ussd took the release (at most the
     /// drive's handshake time) and returns the image that says so. Dropping a controller does
     /// the same, ignoring errors.
-    pub fn release(mut self) -> Result<PzdInput, ClientError> {
-        self.released = true;
+    pub fn release(self) -> Result<PzdInput, ClientError> {
+        self.shared.release()
+    }
+
+    /// [`Controller::release`] for a controller shared between threads (the C ABI's and the
+    /// Python module's handles): every later call, of any thread, fails with
+    /// [`ClientError::Released`]; a call waiting in another thread ends with it at its next
+    /// refresh.
+    pub fn release_shared(&self) -> Result<PzdInput, ClientError> {
         self.shared.release()
     }
 
@@ -659,11 +657,9 @@ impl Controller {
 
 impl Drop for Controller {
     fn drop(&mut self) {
-        if !self.released {
-            // A drive that stays unreachable (ussd gone) ends the wait at the timeout; the
-            // watchdog then covers it, as it covers a crash.
-            let _ = self.shared.release();
-        }
+        // Nothing when released already. A drive that stays unreachable (ussd gone) ends the
+        // wait at the timeout; the watchdog then covers it, as it covers a crash.
+        let _ = self.shared.release();
     }
 }
 

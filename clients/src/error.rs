@@ -64,6 +64,10 @@ impl fmt::Display for Latch {
             LatchReason::Paused => f.write_str(
                 "ussd could not look for longer than the drive's watchdog time (paused, suspended or starved)",
             ),
+            LatchReason::Replaced => write!(
+                f,
+                "another controller (process {pid}) took the place of the one it ran under, with no release in between"
+            ),
         }
     }
 }

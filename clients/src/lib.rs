@@ -21,7 +21,9 @@
 //! // Every call refreshes the drive's watchdog; a loop calls at least once per watchdog time
 //! // (drive.keepalive() between changes).
 //! let drive = bus.control(one, ControlOptions::default())?;
-//! drive.enable()?; // OFF1: arms the drive (ussd latched it at start), S1 -> S2
+//! // Opening re-arms nothing: ussd latched the drive at its start, and only the program's
+//! // explicit re-arm (OFF1 naming the latch) lets an ON through. S1 -> S2.
+//! drive.rearm()?;
 //! drive.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(1))?;
 //! drive.run_hz(0.5 * max_hz)?; // S2 -> S4
 //! drive.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(1))?;

@@ -6,24 +6,30 @@ use crate::errors;
 use crate::{NativeBus, duration, image_dict};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use uss_client::{
     ClientError, ControlOptions, Controller as RustController, DEFAULT_REFRESH, Refresher,
 };
 
-/// The one controller of a drive.
+/// The one controller of a drive. Its threads call it at once: no lock is held through a call,
+/// so a stop never waits behind another thread's wait (docs/SAFETY.md, STOP-NOWAIT).
 #[pyclass(frozen, module = "uss_rt._native")]
 pub(crate) struct Controller {
-    /// `None` once released.
-    inner: Mutex<Option<(RustController, Refresher)>>,
+    /// `None` once released; held only to take a reference, never through a call.
+    inner: Mutex<Option<(Arc<RustController>, Refresher)>>,
     bus: String,
     address: u8,
     pzd: usize,
 }
 
 impl Controller {
-    fn held(&self) -> MutexGuard<'_, Option<(RustController, Refresher)>> {
+    fn held(&self) -> MutexGuard<'_, Option<(Arc<RustController>, Refresher)>> {
         self.inner.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The controller, unless released.
+    fn controller(&self) -> Option<Arc<RustController>> {
+        self.held().as_ref().map(|(c, _)| Arc::clone(c))
     }
 
     /// Runs `f` on the controller without the GIL; a released controller is an error.
@@ -32,15 +38,13 @@ impl Controller {
         py: Python<'_>,
         f: impl FnOnce(&RustController) -> Result<R, ClientError> + Send,
     ) -> PyResult<R> {
-        let result = py.detach(|| {
-            let held = self.held();
-            match held.as_ref() {
-                Some((c, _)) => f(c),
-                None => Err(ClientError::Released {
-                    bus: self.bus.clone(),
-                    address: self.address,
-                }),
-            }
+        let controller = self.controller();
+        let result = py.detach(|| match controller {
+            Some(c) => f(&c),
+            None => Err(ClientError::Released {
+                bus: self.bus.clone(),
+                address: self.address,
+            }),
         });
         result.map_err(|e| errors::client(py, e))
     }
@@ -72,7 +76,7 @@ pub(crate) fn control(
     let refresher = c.spawn_refresher(DEFAULT_REFRESH);
     let pzd = c.words().len();
     Ok(Controller {
-        inner: Mutex::new(Some((c, refresher))),
+        inner: Mutex::new(Some((Arc::new(c), refresher))),
         bus: rust_bus.name().to_owned(),
         address,
         pzd,
@@ -94,10 +98,7 @@ impl Controller {
 
     /// The words this controller sends (STW1 first); empty once released.
     fn words(&self) -> Vec<u16> {
-        self.held()
-            .as_ref()
-            .map(|(c, _)| c.words())
-            .unwrap_or_default()
+        self.controller().map(|c| c.words()).unwrap_or_default()
     }
 
     /// The reference frequency P2000 ussd publishes now.
@@ -108,9 +109,8 @@ impl Controller {
 
     /// The drive's input image.
     fn inputs<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let held = self.held();
-        match held.as_ref() {
-            Some((c, _)) => self.image(py, c),
+        match self.controller() {
+            Some(c) => self.image(py, &c),
             None => Err(errors::client(
                 py,
                 ClientError::Released {
@@ -229,7 +229,7 @@ impl Controller {
         };
         let released = py.detach(|| {
             let _ = refresher.stop();
-            c.release().map(|_| ())
+            c.release_shared().map(|_| ())
         });
         released.map_err(|e| errors::client(py, e))
     }

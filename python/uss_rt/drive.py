@@ -137,7 +137,8 @@ class Controller:
         self._c.keepalive()
 
     def enable(self):
-        """OFF1 (STW1 0x047E): S1 -> S2; the first stop of a new controller re-arms the drive."""
+        """OFF1 (STW1 0x047E): S1 -> S2; stops a running drive. It re-arms nothing: a latched
+        drive needs :meth:`rearm`."""
         self._c.enable()
 
     def rearm(self) -> dict:

@@ -19,20 +19,20 @@
  * as IOX2_TYPE_NAME.
  */
 #define USS_BLACKBOARD_KEY_TYPE_NAME "UssBlackboardKey"
-#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV7"
-#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV7"
-#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV7"
-#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV7"
-#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV7"
-#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV7"
-#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV7"
-#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV7"
-#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV7"
-#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV7"
-#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV7"
-#define USS_TELEGRAM_RECORD_TYPE_NAME "UssTelegramRecordV7"
-#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV7"
-#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV7"
+#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV8"
+#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV8"
+#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV8"
+#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV8"
+#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV8"
+#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV8"
+#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV8"
+#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV8"
+#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV8"
+#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV8"
+#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV8"
+#define USS_TELEGRAM_RECORD_TYPE_NAME "UssTelegramRecordV8"
+#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV8"
+#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV8"
 
 /*
  * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; %016llx = the
@@ -119,7 +119,7 @@
  * The layout version of every payload type in this crate. Bump it with any change to a type's
  * fields, sizes or code tables, together with the type names' `V<n>` suffix.
  */
-#define USS_LAYOUT_VERSION 7
+#define USS_LAYOUT_VERSION 8
 
 /**
  * Longest bus name.
@@ -407,6 +407,12 @@ enum UssLatchReason
    * SIGSTOP, a suspended machine, a starved CPU): nothing it held from before is fresh.
    */
   USS_LATCH_REASON_PAUSED = 8,
+  /**
+   * Another controller's sample arrived while the drive was live under its controller,
+   * with no release in between (a controller killed and replaced within the watchdog
+   * time, a crash-restart loop): the new controller must re-arm.
+   */
+  USS_LATCH_REASON_REPLACED = 9,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -1075,7 +1081,7 @@ typedef struct UssPzdOutput {
    */
   uint64_t latch_id;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV8";
 #endif
 } UssPzdOutput;
 
@@ -1190,7 +1196,7 @@ typedef struct UssPzdInput {
    */
   uint64_t stale_after_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV8";
 #endif
 } UssPzdInput;
 
@@ -1235,7 +1241,7 @@ typedef struct UssDriveInfo {
   uint8_t family;
   uint8_t reserved[2];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV8";
 #endif
 } UssDriveInfo;
 
@@ -1305,8 +1311,13 @@ typedef struct UssDriveCounters {
    * Operator stop commands applied to the drive.
    */
   uint64_t overrides;
+  /**
+   * Times another controller's sample arrived while the drive was live under its
+   * controller, with no release in between (a controller replaced: a trip).
+   */
+  uint64_t replacements;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV8";
 #endif
 } UssDriveCounters;
 
@@ -1425,7 +1436,7 @@ typedef struct UssDriveDiag {
   uint32_t monitoring_min_ms;
   uint32_t reserved3;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV8";
 #endif
 } UssDriveDiag;
 
@@ -1566,7 +1577,7 @@ typedef struct UssBusStatus {
    */
   uint64_t broadcasts;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV8";
 #endif
 } UssBusStatus;
 
@@ -1596,7 +1607,7 @@ typedef struct UssParamItem {
    */
   uint32_t value;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV8";
 #endif
 } UssParamItem;
 /**
@@ -1627,7 +1638,7 @@ typedef struct UssParamRequest {
   uint8_t reserved;
   struct UssParamItem items[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV8";
 #endif
 } UssParamRequest;
 
@@ -1667,7 +1678,7 @@ typedef struct UssParamResult {
    */
   uint64_t on_wire_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV8";
 #endif
 } UssParamResult;
 
@@ -1703,7 +1714,7 @@ typedef struct UssParamResponse {
   uint32_t reserved;
   struct UssParamResult results[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV8";
 #endif
 } UssParamResponse;
 
@@ -1753,7 +1764,7 @@ typedef struct UssHeartbeat {
    */
   int32_t line_errno;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV8";
 #endif
 } UssHeartbeat;
 
@@ -1810,7 +1821,7 @@ typedef struct UssTelegramRecord {
   uint64_t end_ns;
   uint8_t bytes[USS_CAPTURE_BYTES];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssTelegramRecordV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssTelegramRecordV8";
 #endif
 } UssTelegramRecord;
 
@@ -1832,7 +1843,7 @@ typedef struct UssOperatorRequest {
   uint8_t command;
   uint8_t reserved[2];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV8";
 #endif
 } UssOperatorRequest;
 
@@ -1858,7 +1869,7 @@ typedef struct UssOperatorResponse {
    */
   uint32_t drives;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV7";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV8";
 #endif
 } UssOperatorResponse;
 

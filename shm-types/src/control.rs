@@ -53,6 +53,10 @@ code_table! {
         /// ussd itself could not look for longer than the drive's watchdog time (paused by
         /// SIGSTOP, a suspended machine, a starved CPU): nothing it held from before is fresh.
         Paused = 8 => "ussd paused",
+        /// Another controller's sample arrived while the drive was live under its controller,
+        /// with no release in between (a controller killed and replaced within the watchdog
+        /// time, a crash-restart loop): the new controller must re-arm.
+        Replaced = 9 => "controller replaced",
     }
 }
 
@@ -148,6 +152,17 @@ impl StopCommand {
         }
     }
 
+    /// The command stop word `stw1` carries out, the strongest of its bits (OFF2 over OFF3 over
+    /// OFF1, as [`crate::pzd::stop_strength`]); `None` for a word that runs the motor.
+    pub const fn of_stw1(stw1: u16) -> Option<Self> {
+        match crate::pzd::stop_strength(stw1) {
+            3 => Some(Self::Off2),
+            2 => Some(Self::Off3),
+            1 => Some(Self::Off1),
+            _ => None,
+        }
+    }
+
     /// The command a byte carries, `None` for [`NO_STOP_COMMAND`] (or a byte no command has).
     pub fn of_code(code: u8) -> Option<Self> {
         Self::try_from(code).ok()
@@ -166,7 +181,7 @@ impl StopCommand {
 /// An operator's stop command for one drive or every drive of a bus, from any process.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorRequestV7")]
+#[type_name("UssOperatorRequestV8")]
 pub struct OperatorRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -185,7 +200,7 @@ pub const OPERATOR_RESPONSE_BYTES: usize = 12;
 /// The one answer to an [`OperatorRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorResponseV7")]
+#[type_name("UssOperatorResponseV8")]
 pub struct OperatorResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

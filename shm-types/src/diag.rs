@@ -93,7 +93,7 @@ code_table! {
 /// USS.md section 7) plus timeouts and retries.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveDiagV7")]
+#[type_name("UssDriveDiagV8")]
 pub struct DriveDiag {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -160,7 +160,7 @@ pub struct DriveDiag {
 /// told it again (a controller scales Hz with `reference_hz`, sends exactly `pzd_words`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveInfoV7")]
+#[type_name("UssDriveInfoV8")]
 pub struct DriveInfo {
     /// The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
     /// frequency (USS.md section 7). The drive's own value once ussd has read it, until then
@@ -206,7 +206,7 @@ impl DriveInfo {
 /// published (USS.md section 4, "Receive errors to detect and count").
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssDriveCountersV7")]
+#[type_name("UssDriveCountersV8")]
 pub struct DriveCounters {
     /// Telegrams sent to the drive (retries included).
     pub requests: u64,
@@ -245,6 +245,9 @@ pub struct DriveCounters {
     pub releases: u64,
     /// Operator stop commands applied to the drive.
     pub overrides: u64,
+    /// Times another controller's sample arrived while the drive was live under its
+    /// controller, with no release in between (a controller replaced: a trip).
+    pub replacements: u64,
 }
 
 impl From<&FrameError> for LastFailure {
@@ -265,7 +268,7 @@ impl From<&FrameError> for LastFailure {
 
 impl DriveCounters {
     /// Every counter by its field name, in field order (for tools that show or export them).
-    pub const fn named(&self) -> [(&'static str, u64); 24] {
+    pub const fn named(&self) -> [(&'static str, u64); 25] {
         [
             ("requests", self.requests),
             ("good", self.good),
@@ -291,6 +294,7 @@ impl DriveCounters {
             ("rejected_outputs", self.rejected_outputs),
             ("releases", self.releases),
             ("overrides", self.overrides),
+            ("replacements", self.replacements),
         ]
     }
 
@@ -319,7 +323,7 @@ impl DriveCounters {
 /// The state of the bus as a whole.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssBusStatusV7")]
+#[type_name("UssBusStatusV8")]
 pub struct BusStatus {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -463,6 +467,7 @@ impl DriveDiag {
                 rejected_outputs: 0,
                 releases: 0,
                 overrides: 0,
+                replacements: 0,
             },
             exchange_ns: [0; 4],
             response_delay_ns: [0; 4],

@@ -38,7 +38,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdOutput",
-        type_name: "UssPzdOutputV7",
+        type_name: "UssPzdOutputV8",
         size: 72,
         align: 8,
         fields: &[
@@ -57,7 +57,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdInput",
-        type_name: "UssPzdInputV7",
+        type_name: "UssPzdInputV8",
         size: 120,
         align: 8,
         fields: &[
@@ -89,7 +89,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveInfo",
-        type_name: "UssDriveInfoV7",
+        type_name: "UssDriveInfoV8",
         size: 16,
         align: 4,
         fields: &[
@@ -106,8 +106,8 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveCounters",
-        type_name: "UssDriveCountersV7",
-        size: 192,
+        type_name: "UssDriveCountersV8",
+        size: 200,
         align: 8,
         fields: &[
             f("requests", 0, 8),
@@ -134,12 +134,13 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("rejected_outputs", 168, 8),
             f("releases", 176, 8),
             f("overrides", 184, 8),
+            f("replacements", 192, 8),
         ],
     },
     TypeLayout {
         name: "DriveDiag",
-        type_name: "UssDriveDiagV7",
-        size: 352,
+        type_name: "UssDriveDiagV8",
+        size: 360,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -163,18 +164,18 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("last_good_ns", 40, 8),
             f("latched_since_ns", 48, 8),
             f("info", 56, 16),
-            f("counters", 72, 192),
-            f("exchange_ns", 264, 32),
-            f("response_delay_ns", 296, 32),
-            f("period_ns", 328, 8),
-            f("stale_after_ns", 336, 8),
-            f("monitoring_min_ms", 344, 4),
-            f("reserved3", 348, 4),
+            f("counters", 72, 200),
+            f("exchange_ns", 272, 32),
+            f("response_delay_ns", 304, 32),
+            f("period_ns", 336, 8),
+            f("stale_after_ns", 344, 8),
+            f("monitoring_min_ms", 352, 4),
+            f("reserved3", 356, 4),
         ],
     },
     TypeLayout {
         name: "BusStatus",
-        type_name: "UssBusStatusV7",
+        type_name: "UssBusStatusV8",
         size: 368,
         align: 8,
         fields: &[
@@ -217,7 +218,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamItem",
-        type_name: "UssParamItemV7",
+        type_name: "UssParamItemV8",
         size: 12,
         align: 4,
         fields: &[
@@ -231,7 +232,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamRequest",
-        type_name: "UssParamRequestV7",
+        type_name: "UssParamRequestV8",
         size: 476,
         align: 4,
         fields: &[
@@ -245,7 +246,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResult",
-        type_name: "UssParamResultV7",
+        type_name: "UssParamResultV8",
         size: 24,
         align: 8,
         fields: &[
@@ -261,7 +262,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResponse",
-        type_name: "UssParamResponseV7",
+        type_name: "UssParamResponseV8",
         size: 952,
         align: 8,
         fields: &[
@@ -277,7 +278,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "Heartbeat",
-        type_name: "UssHeartbeatV7",
+        type_name: "UssHeartbeatV8",
         size: 56,
         align: 8,
         fields: &[
@@ -296,7 +297,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "TelegramRecord",
-        type_name: "UssTelegramRecordV7",
+        type_name: "UssTelegramRecordV8",
         size: 304,
         align: 8,
         fields: &[
@@ -317,7 +318,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorRequest",
-        type_name: "UssOperatorRequestV7",
+        type_name: "UssOperatorRequestV8",
         size: 8,
         align: 4,
         fields: &[
@@ -329,7 +330,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorResponse",
-        type_name: "UssOperatorResponseV7",
+        type_name: "UssOperatorResponseV8",
         size: 12,
         align: 4,
         fields: &[

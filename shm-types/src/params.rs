@@ -150,7 +150,7 @@ impl TaskCode {
 /// One parameter access.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamItemV7")]
+#[type_name("UssParamItemV8")]
 pub struct ParamItem {
     /// A [`TaskCode`].
     pub task: u8,
@@ -168,7 +168,7 @@ pub struct ParamItem {
 /// A request for up to 39 parameter accesses on one drive.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamRequestV7")]
+#[type_name("UssParamRequestV8")]
 pub struct ParamRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -185,7 +185,7 @@ pub struct ParamRequest {
 /// The result of one item.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResultV7")]
+#[type_name("UssParamResultV8")]
 pub struct ParamResult {
     /// An [`Outcome`] code.
     pub outcome: u8,
@@ -209,7 +209,7 @@ pub struct ParamResult {
 /// The one response to a [`ParamRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResponseV7")]
+#[type_name("UssParamResponseV8")]
 pub struct ParamResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -4,23 +4,31 @@
 //! controller is thin I/O around it: the Rust `uss_client::Controller` (and through it the C
 //! ABI, the Python module and the `LinuxCNC` component), the Zenoh bridge and the Zenoh client.
 //!
-//! The rules (docs/ARCHITECTURE.md, "Failure model"; ussd's side is `uss_master`'s `Gate`):
+//! The rules (docs/SAFETY.md; ussd's side is `uss_master`'s `Gate`):
 //! - **Latch identity.** The input image names the drive's current latch (`latch_id`). Every
 //!   sample names the latch this controller acknowledged; ussd re-arms a latched drive only
 //!   with a stop that names its current latch. A latch the controller did not acknowledge is
-//!   news: every call fails with [`SessionError::Tripped`] and nothing is published, by a
+//!   news: every ON fails with [`SessionError::Tripped`] and nothing is published, by a
 //!   refresher neither, until [`Session::rearm`] acknowledges it.
+//! - **Only an explicit re-arm clears a latch** (SAFETY.md LATCH-OPEN). A session opens
+//!   acknowledging nothing: the latch its drive shows then (ussd's start, an operator's stop, a
+//!   trip of an earlier controller) is news like any other. Opening, reconnecting, a keepalive,
+//!   a refresher or a relay's first sample never re-arm; [`Session::rearm`], called by the
+//!   program after the latch was there to see, is the one deliberate act (IEC 60204-1: a reset
+//!   never restarts a machine by itself; `PLCopen` `SF_EmergencyStop`: a restart of the
+//!   controller is not a reset).
 //! - **Re-arm: a stop, then ON.** [`Session::rearm`] acknowledges the latch the image shows and
 //!   publishes OFF1 naming it (every other word 0); [`Session::rearmed`] says when ussd took it.
 //!   An ON asked of a latched drive waits for that ([`Step::AwaitRearm`]) when a re-arming stop
-//!   is out, and fails with [`SessionError::NotArmed`] when none is. A controller that opens a
-//!   drive acknowledges the latch it shows then (its first stop re-arms it).
+//!   is out, and fails with [`SessionError::NotArmed`] when none is.
+//! - **A stop always goes out** (SAFETY.md STOP-ANYWHERE): OFF1, OFF2 or OFF3 is published
+//!   whatever the drive shows and whatever happened (news, a stall); it names the latch this
+//!   controller acknowledged, so it re-arms nothing it did not acknowledge.
 //! - **The watchdog watches the program.** Only the program's own calls refresh the drive:
 //!   [`Session::refresh`] (for a background refresher kept for tools) publishes only while the
 //!   program called within the drive's watchdog time, and a call that comes after a longer gap
 //!   (a paused process, a stalled thread) is a trip, not a fresh start: it fails with
-//!   [`SessionError::Stalled`] and every ON does until [`Session::rearm`]. A stop is always
-//!   published: a safe command is sendable whatever happened.
+//!   [`SessionError::Stalled`] and every ON does until [`Session::rearm`].
 //! - **Every sample is one ussd takes:** the drive's PZD length, STW1 bit 10, a new sequence
 //!   number; words ussd would refuse fail with [`SessionError::Invalid`] before they are sent.
 //! - **Release** hands the drive back; nothing is published after it.
@@ -143,31 +151,21 @@ pub struct Session {
 }
 
 impl Session {
-    /// A controller that opened the drive when it showed `image`: it sends OFF1 (every other
-    /// word 0) and acknowledges the latch the image shows.
-    pub fn new(setup: SessionSetup, image: &PzdInput) -> Self {
+    /// A controller that opened its drive: it sends OFF1 (every other word 0) and acknowledges
+    /// no latch, so whatever latch the drive shows is news until [`Session::rearm`]. A relay of
+    /// a remote controller (the Zenoh bridge) acknowledges the latch its remote controller
+    /// names instead ([`Session::acknowledge`]).
+    pub fn new(setup: SessionSetup) -> Self {
         Self {
             setup,
             words: stop_words(setup.pzd),
             sequence: setup.first_sequence,
-            acknowledged: image.latch().unwrap_or(0),
+            acknowledged: 0,
             rearming: false,
             last_call_ns: None,
             stalled: None,
             released: false,
         }
-    }
-
-    /// A relay of a remote controller (the Zenoh bridge): it acknowledges no latch until the
-    /// remote controller names one ([`Session::acknowledge`]).
-    pub fn relay(setup: SessionSetup) -> Self {
-        Self::new(
-            setup,
-            &PzdInput {
-                control: crate::control::ControlState::Live.code(),
-                ..PzdInput::EMPTY
-            },
-        )
     }
 
     /// The words this controller sends.
@@ -225,27 +223,23 @@ impl Session {
             self.stalled = Some(gap_ns);
         }
         self.last_call_ns = Some(now_ns);
-        self.news(image)?;
         let mut next = self.words;
         change(&mut next);
         let sample = self.sample(now_ns, &next)?;
-        let on = self.setup.pzd > 0 && !is_stop(next.stw1());
-        if let Some(gap_ns) = self.stalled.filter(|_| on) {
+        if !self.is_on(&next) {
+            // A stop goes out whatever happened; it names the acknowledged latch, so it
+            // re-arms the drive only when that is the latch the drive shows.
+            self.rearming = image.latch().is_some_and(|id| id == self.acknowledged);
+            return Ok(Step::Publish(self.commit(next, sample)));
+        }
+        self.news(image)?;
+        if let Some(gap_ns) = self.stalled {
             return Err(self.stall(gap_ns));
         }
         match image.latch() {
-            Some(latch_id) if on => {
-                if self.rearming {
-                    Ok(Step::AwaitRearm)
-                } else {
-                    Err(SessionError::NotArmed { latch_id })
-                }
-            }
-            latch => {
-                // A stop while latched re-arms the drive (it names the acknowledged latch).
-                self.rearming = latch.is_some();
-                Ok(Step::Publish(self.commit(next, sample)))
-            }
+            Some(_) if self.rearming => Ok(Step::AwaitRearm),
+            Some(latch_id) => Err(SessionError::NotArmed { latch_id }),
+            None => Ok(Step::Publish(self.commit(next, sample))),
         }
     }
 
@@ -257,8 +251,7 @@ impl Session {
             return None;
         }
         // A latched drive gets only the re-arming stop again, never an ON.
-        let on = self.setup.pzd > 0 && !is_stop(self.words.stw1());
-        if on && image.latch().is_some() {
+        if self.is_on(&self.words) && image.latch().is_some() {
             return None;
         }
         let words = self.words;
@@ -335,6 +328,11 @@ impl Session {
     /// Whether this session has released the drive.
     pub const fn is_released(&self) -> bool {
         self.released
+    }
+
+    /// Whether `words` run the drive: anything but a stop (a jog word runs it too).
+    fn is_on(&self, words: &Words) -> bool {
+        self.setup.pzd > 0 && !is_stop(words.stw1())
     }
 
     fn news(&self, image: &PzdInput) -> Result<(), SessionError> {

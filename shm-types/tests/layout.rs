@@ -61,6 +61,7 @@ fn actual_layouts() -> Vec<Actual> {
             requests, good, rejected, timeouts, retries, failed_polls, missing_stx, start_pause,
             bad_lge, bcc, residual, length, wrong_address, parity, framing, overrun, echo,
             pkw_busy, jobs_done, watchdog_trips, latches, rejected_outputs, releases, overrides,
+            replacements,
         ]),
         actual!(DriveDiag = DriveDiag::new(0), [
             version, consecutive_failed_polls, last_zsw1, last_hiw, address, online, no_reply,

@@ -119,7 +119,10 @@ pub fn root() -> PathBuf {
 /// `target/<profile>` of the running test.
 fn target_dir() -> PathBuf {
     let exe = std::env::current_exe().unwrap();
-    exe.parent().and_then(std::path::Path::parent).unwrap().to_path_buf()
+    exe.parent()
+        .and_then(std::path::Path::parent)
+        .unwrap()
+        .to_path_buf()
 }
 
 /// Where C programs of the tests link libussrt from: `libussrt.so` and its soname
@@ -132,7 +135,9 @@ pub fn libussrt_dir() -> PathBuf {
 /// with `compiler` and the flags `extra` against it, warnings as errors; the executable.
 pub fn c_program(compiler: &str, source: &str, extra: &[&str]) -> PathBuf {
     static BUILT: std::sync::Mutex<bool> = std::sync::Mutex::new(false);
-    let mut built = BUILT.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let mut built = BUILT
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let target = target_dir();
     if !*built {
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());

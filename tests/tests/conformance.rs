@@ -44,11 +44,7 @@ impl FrontEnd {
     fn command(self) -> Command {
         match self {
             Self::Rust => Command::new(binary("uss-integration-tests", "uss-conformance-rust")),
-            Self::C => Command::new(c_program(
-                "cc",
-                "capi/tests/c/conformance.c",
-                &["-std=c11"],
-            )),
+            Self::C => Command::new(c_program("cc", "capi/tests/c/conformance.c", &["-std=c11"])),
             Self::Cpp => Command::new(c_program(
                 "c++",
                 "capi/tests/c/conformance.cpp",
@@ -198,7 +194,11 @@ impl Program {
     /// `exit`: the program hands its drive back and ends.
     fn exit(mut self) {
         self.tell("exit");
-        assert!(self.child.wait().unwrap().success(), "{:?} exit", self.front);
+        assert!(
+            self.child.wait().unwrap().success(),
+            "{:?} exit",
+            self.front
+        );
     }
 }
 
@@ -251,7 +251,10 @@ fn opening_is_no_rearm(front: FrontEnd) {
     never(&bus, 1, Duration::from_millis(300), "ON after open", |i| {
         i.sent_stw1 == RUN || i.is_live()
     });
-    assert_eq!(bus.watch(addr(1)).unwrap().latest().latch_reason_name(), "ussd started");
+    assert_eq!(
+        bus.watch(addr(1)).unwrap().latest().latch_reason_name(),
+        "ussd started"
+    );
     // The deliberate act.
     p.ok("rearm");
     p.ok("run 10");
@@ -278,10 +281,17 @@ fn an_operators_stop_survives_a_reconnect(front: FrontEnd) {
         std::thread::sleep(Duration::from_millis(20));
     }
     assert_eq!(second.call("run 10").kind(), "tripped", "{front:?}");
-    never(&bus, 1, Duration::from_millis(300), "the coast undone", |i| {
-        i.sent_stw1 != OFF2
-    });
-    assert_eq!(bus.watch(addr(1)).unwrap().latest().latch_reason_name(), "operator stop");
+    never(
+        &bus,
+        1,
+        Duration::from_millis(300),
+        "the coast undone",
+        |i| i.sent_stw1 != OFF2,
+    );
+    assert_eq!(
+        bus.watch(addr(1)).unwrap().latest().latch_reason_name(),
+        "operator stop"
+    );
     second.exit();
 }
 
@@ -302,8 +312,24 @@ fn a_replaced_controller_is_a_trip(front: FrontEnd) {
     second.ok(&format!("open {} 1", ussd.bus));
     let refused = second.call("run 20");
     let image = image_until(&bus, 1, "a latch", |i| !i.is_live());
-    assert_eq!(image.latch_reason_name(), "controller replaced", "{front:?}");
+    assert_eq!(
+        image.latch_reason_name(),
+        "controller replaced",
+        "{front:?}"
+    );
     assert_eq!(image.sent_stw1, OFF1, "{front:?}");
+    // The diagnostics follow within their publication period.
+    let deadline = Instant::now() + Duration::from_secs(2);
+    let mut counters = bus.diag(addr(1)).unwrap().counters;
+    while counters.replacements == 0 && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(10));
+        counters = bus.diag(addr(1)).unwrap().counters;
+    }
+    assert_eq!(
+        (counters.replacements, counters.watchdog_trips),
+        (1, 0),
+        "{front:?}"
+    );
     // Whether the run came before or after ussd showed the trip, it ran nothing.
     if refused != Reply::Ok {
         assert_eq!(refused.kind(), "tripped", "{front:?}");
@@ -342,6 +368,63 @@ fn a_stop_never_waits_for_another_thread(front: FrontEnd) {
     p.exit();
 }
 
+/// WATCHDOG-GAP: a program paused (SIGSTOP) longer than the drive's watchdog time trips its
+/// drive, and when it resumes (SIGCONT) nothing it or its library does restarts the motor: its
+/// next ON is `tripped` or `stalled`, until its explicit re-arm.
+fn a_paused_program_trips_and_does_not_resume(front: FrontEnd) {
+    use nix::sys::signal::Signal;
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let mut p = opened(front, &ussd, 1);
+    p.ok("rearm");
+    p.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    p.signal(Signal::SIGSTOP);
+    let image = image_until(&bus, 1, "the trip", |i| !i.is_live());
+    std::thread::sleep(Duration::from_millis(300));
+    p.signal(Signal::SIGCONT);
+    assert_eq!(image.latch_reason_name(), "controller stale", "{front:?}");
+    let resumed = p.call("run 10");
+    assert!(
+        matches!(resumed.kind(), "tripped" | "stalled"),
+        "{front:?}: {resumed:?}"
+    );
+    never(
+        &bus,
+        1,
+        Duration::from_millis(300),
+        "ON after the pause",
+        |i| i.sent_stw1 == RUN || i.is_live(),
+    );
+    p.ok("rearm");
+    p.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    p.exit();
+}
+
+/// DEAD-CLIENT: a program killed (SIGKILL) while its drive runs trips it within the watchdog
+/// time: the drive gets its safe command, latched, counted as a watchdog trip.
+fn a_killed_program_trips_its_drive(front: FrontEnd) {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let mut p = opened(front, &ussd, 1);
+    p.ok("rearm");
+    p.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    p.kill();
+    let image = image_until(&bus, 1, "the trip", |i| !i.is_live() && i.sent_stw1 == OFF1);
+    assert_eq!(image.latch_reason_name(), "controller stale", "{front:?}");
+    never(
+        &bus,
+        1,
+        Duration::from_millis(300),
+        "ON after the kill",
+        |i| i.sent_stw1 == RUN || i.is_live(),
+    );
+}
+
 macro_rules! front_ends {
     ($($scenario:ident),* $(,)?) => {
         $(
@@ -373,4 +456,6 @@ front_ends!(
     an_operators_stop_survives_a_reconnect,
     a_replaced_controller_is_a_trip,
     a_stop_never_waits_for_another_thread,
+    a_paused_program_trips_and_does_not_resume,
+    a_killed_program_trips_its_drive,
 );

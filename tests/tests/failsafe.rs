@@ -173,10 +173,10 @@ fn frozen_controller_trips_once_and_the_drive_stays_stopped_when_it_resumes() {
     assert_eq!(d.latch_reason, LatchReason::Stale.code());
     assert!(logged(&ussd, "drive 1: controller stale"), "{}", ussd.log());
 
-    // Only a deliberate re-arm runs it again: OFF1, then ON.
+    // Only a deliberate re-arm runs it again: opening is none (the ON is the trip's news).
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
-    assert!(matches!(c.run_hz(10.0), Err(ClientError::NotArmed { .. })));
-    c.enable().unwrap();
+    assert!(matches!(c.run_hz(10.0), Err(ClientError::Tripped { .. })));
+    c.rearm().unwrap();
     c.run_hz(10.0).unwrap();
     let again = c
         .wait_for(Duration::from_secs(5), "10 Hz", |i| hz(i) >= 9.9)
@@ -386,7 +386,7 @@ fn a_refresher_does_not_keep_a_drive_live_for_a_program_that_stopped_calling() {
     quick_ramps(&bus, 1);
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     let refresher = c.spawn_refresher(Duration::from_millis(20));
-    c.enable().unwrap();
+    c.rearm().unwrap();
     c.run_hz(10.0).unwrap();
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
         .unwrap();
@@ -421,7 +421,7 @@ fn a_waiting_call_keeps_a_drive_with_a_short_watchdog_live() {
     let bus = ussd.bus();
     quick_ramps(&bus, 1);
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
-    c.enable().unwrap();
+    c.rearm().unwrap();
     c.run_hz(10.0).unwrap();
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
         .unwrap();
@@ -464,7 +464,7 @@ fn a_clean_release_is_not_a_trip_and_a_sigkill_is() {
 
     // A controller of this process that is dropped: released too, the drive confirmed it.
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
-    c.enable().unwrap();
+    c.rearm().unwrap();
     c.wait_for(Duration::from_secs(2), "live", PzdInput::is_live)
         .unwrap();
     let released = c.release().unwrap();
@@ -542,7 +542,7 @@ fn ussctl_stop_coast_and_quick_stop_override_a_running_controller_and_latch() {
     // The latency of the override: the API call -> the first reply to a telegram carrying it.
     let c = bus.control(addr(3), ControlOptions::default()).unwrap();
     let _refresh = c.spawn_refresher(Duration::from_millis(20));
-    c.enable().unwrap();
+    c.rearm().unwrap();
     c.run_hz(20.0).unwrap();
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
         .unwrap();
@@ -701,7 +701,7 @@ fn parameter_writes_to_a_controlled_drive_need_force_or_the_controlling_process(
 
     // The controlling process writes through its own handles.
     let own = bus.control(addr(2), ControlOptions::default()).unwrap();
-    own.enable().unwrap();
+    own.rearm().unwrap();
     assert_eq!(bus.write(addr(2), param(1121), stretch, false), Ok(stretch));
     drop(own);
 
@@ -754,7 +754,7 @@ fn hz_are_scaled_by_the_reference_frequency_the_drive_uses() {
     // 25 Hz of the drive's 50 Hz is 50 %.
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     assert_eq!(c.inputs().info().reference_hz, 50.0);
-    c.enable().unwrap();
+    c.rearm().unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
     c.run_hz(25.0).unwrap();

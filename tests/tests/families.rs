@@ -286,14 +286,15 @@ fn each_family_runs_faults_control_parameters_and_backup_against_its_personality
         println!("families: {what}: {}", out.lines().nth(1).unwrap_or(""));
         assert!(out.contains(&format!("0: {}", c.shown)), "{what}: {out}");
 
-        // Control: acknowledged, re-armed, run at 20 % and stopped.
+        // Control: re-armed (the fault acknowledge reaches only a live drive), acknowledged,
+        // run at 20 % and stopped.
         let control = bus
             .control(addr(d), uss_client::ControlOptions::default())
             .unwrap();
+        control.rearm().unwrap();
         control
             .acknowledge_fault(Duration::from_secs(2))
             .unwrap_or_else(|e| panic!("{what}: {e:?}"));
-        control.enable().unwrap();
         control.run_percent(20.0).unwrap();
         control
             .wait_for(Duration::from_secs(5), "running", |i| {
@@ -382,7 +383,7 @@ fn a_g120_reference_speed_is_read_with_its_pole_pairs_and_unverified_without() {
     let control = bus
         .control(addr(3), uss_client::ControlOptions::default())
         .unwrap();
-    control.enable().unwrap();
+    control.rearm().unwrap();
     control.run_hz(30.0).unwrap();
     assert_eq!(control.words()[1], 0x2000);
     control

@@ -533,7 +533,7 @@ fn a_second_controller_is_refused_with_the_controlling_process_id() {
 
     // This process controls drive 2: a second handle here, and ussctl, are refused.
     let first = bus.control(addr(2), ControlOptions::default()).unwrap();
-    first.enable().unwrap();
+    first.rearm().unwrap();
     let refused = bus.control(addr(2), ControlOptions::default()).unwrap_err();
     assert!(
         matches!(refused, ClientError::Controlled { address: 2, pid: Some(pid), .. } if pid == me as i32),
@@ -589,7 +589,7 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
         .unwrap();
 
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
-    c.enable().unwrap();
+    c.rearm().unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
     c.run_hz(25.0).unwrap();
@@ -666,7 +666,7 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
         .unwrap();
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     assert_eq!(c.inputs().info().reference_hz, 60.0);
-    c.enable().unwrap();
+    c.rearm().unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
     c.run_hz(30.0).unwrap();
@@ -983,7 +983,7 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
     assert_ne!(bus.watch(addr(3)).unwrap().state(), DriveState::Fault);
     // The acknowledged drive runs again.
     let c = bus.control(addr(3), ControlOptions::default()).unwrap();
-    c.enable().unwrap();
+    c.rearm().unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
     c.run_percent(10.0).unwrap();

@@ -512,11 +512,11 @@ impl Remote<'_> {
             return Ok(());
         }
         if self.controller.is_none() {
-            // A relay's session acknowledges no latch by opening the drive: only a remote
-            // controller's stop that names the latch re-arms it.
+            // A session acknowledges no latch by opening the drive: only a remote controller's
+            // stop that names the latch re-arms it.
             let c = self
                 .bus
-                .control(self.drive, ControlOptions::relay())
+                .control(self.drive, ControlOptions::default())
                 .map_err(|e| e.to_string())?;
             self.controller = Some(c);
             self.active = Some(Instant::now());

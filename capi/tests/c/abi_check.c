@@ -95,7 +95,10 @@ int main(int argc, char **argv) {
   UssrtController *c = NULL, *second = NULL;
   OK(ussrt_control_open(bus, 1, &c));
   EXPECT(ussrt_control_open(bus, 1, &second) == USSRT_STATUS_CONTROLLED, "one controller");
-  EXPECT(ussrt_control_run_hz(c, 10.0f) == USSRT_STATUS_NOT_ARMED, "ON before a stop");
+  /* Opening re-arms nothing: a keepalive and a stop go out, an ON is the start-up latch. */
+  OK(ussrt_control_keepalive(c));
+  OK(ussrt_control_enable(c));
+  EXPECT(ussrt_control_run_hz(c, 10.0f) == USSRT_STATUS_TRIPPED, "ON before the re-arm");
   EXPECT(info().latch_reason == USS_LATCH_REASON_STARTUP, "why: %u", info().latch_reason);
   OK(ussrt_control_rearm(c, &d));
   EXPECT(d.live == 1, "re-armed");

@@ -10,6 +10,9 @@
 //!   suspended machine, a starved CPU): a gap in time is a trip, not a fresh start,
 //! - a sample arrives that the drive would misread (wrong layout version or flags, a word
 //!   count other than the drive's PZD length, STW1 bit 10 clear: [`PzdOutput::validate`]),
+//! - another controller's sample arrives while the drive is live under its controller, with no
+//!   release in between (a controller killed and replaced within the watchdog time, a restart
+//!   loop): [`LatchReason::Replaced`], counted; the new controller must re-arm,
 //! - the controller releases the drive cleanly,
 //! - an operator stops it from any process,
 //! - an ON arrives while the drive's own telegram monitoring is required but not verified.
@@ -33,6 +36,19 @@
 use core::time::Duration;
 use uss_protocol::telegram::MAX_PZD_WORDS;
 use uss_shm_types::{LatchReason, OutputSample, PzdOutput, Rejection, StopCommand};
+
+/// Which controller published a sample: the unique id iceoryx2 gives its publisher port (a new
+/// port, so a new controller process, has a new one whatever its sample says of itself); for a
+/// sample handed over inside ussd's process, the pid it names.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
+pub struct ControllerId(pub u128);
+
+impl ControllerId {
+    /// The id of a sample handed over in-process: the controller pid it names.
+    pub fn named_in(sample: &PzdOutput) -> Self {
+        Self(u128::from(sample.controller_pid))
+    }
+}
 
 /// An operator's stop command as the bus thread takes it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -80,6 +96,8 @@ pub struct ControlCounters {
     pub latches: u64,
     /// A live controller went stale (not a release).
     pub watchdog_trips: u64,
+    /// Another controller's sample arrived while the drive was live under its controller.
+    pub replacements: u64,
     /// Samples refused before the wire.
     pub rejected_outputs: u64,
     pub releases: u64,
@@ -110,6 +128,8 @@ pub struct Poll<'a> {
     pub gap: Duration,
     /// The controller's newest sample since the previous poll, if any.
     pub sample: Option<&'a PzdOutput>,
+    /// Who published `sample`.
+    pub from: ControllerId,
     /// An operator's stop command that arrived since the previous poll.
     pub operator: Option<Operator>,
     /// Whether an ON may reach the drive (false: its telegram monitoring is required and not
@@ -131,6 +151,8 @@ pub struct Gate {
     /// When a sample with a new sequence last arrived.
     refreshed_at: Duration,
     controller_pid: u32,
+    /// The controller whose re-arm made the drive live: while live, only its samples are taken.
+    owner: Option<ControllerId>,
     rejection: Rejection,
     counters: ControlCounters,
 }
@@ -155,6 +177,7 @@ impl Gate {
             last_sequence: None,
             refreshed_at: now,
             controller_pid: 0,
+            owner: None,
             rejection: Rejection::None,
             counters: ControlCounters {
                 latches: 1,
@@ -277,6 +300,18 @@ impl Gate {
     /// Takes a new sample.
     fn take(&mut self, sample: &PzdOutput, poll: Poll<'_>) -> Option<Transition> {
         let pid = sample.controller_pid;
+        if self.control == Control::Live && self.owner != Some(poll.from) {
+            // Another controller while the drive runs under one: whatever it sends (an ON, a
+            // stop, a release), it takes nothing over without seeing a latch first.
+            self.counters.replacements += 1;
+            return Some(self.latch_with(
+                LatchReason::Replaced,
+                self.setup.safe,
+                poll.now,
+                pid,
+                Rejection::None,
+            ));
+        }
         match sample.validate(self.setup.pzd) {
             Err(rejection) => {
                 self.counters.rejected_outputs += 1;
@@ -327,7 +362,20 @@ impl Gate {
                     Control::Latched(latch) if stop && sample.latch_id == latch.id => {
                         self.words = words;
                         self.control = Control::Live;
+                        self.owner = Some(poll.from);
                         Some(Transition::Rearmed { pid })
+                    }
+                    Control::Latched(mut latch) if stop => {
+                        // A stop of a controller that does not re-arm still reaches the drive
+                        // when it stops harder than the latch's command (a coast over OFF1): a
+                        // safe command is sendable from anywhere. The latch stays the same.
+                        if let Some(harder) = StopCommand::of_stw1(words[0])
+                            .filter(|c| c.strength() > latch.command.strength())
+                        {
+                            latch.command = harder;
+                            self.control = Control::Latched(latch);
+                        }
+                        None
                     }
                     Control::Latched(_) => None,
                 }
@@ -414,6 +462,8 @@ mod tests {
     struct Play {
         gate: Gate,
         seq: u64,
+        /// Who publishes the samples: the controller of pid 42 unless a test changes it.
+        from: ControllerId,
     }
 
     impl Play {
@@ -422,6 +472,7 @@ mod tests {
             let mut p = Self {
                 gate: Gate::new(setup(), ms(0)),
                 seq: 0,
+                from: ControllerId(42),
             };
             p.poll(0, None, None);
             p
@@ -453,6 +504,7 @@ mod tests {
                     now: ms(t),
                     gap: Duration::ZERO,
                     sample: sample.as_ref(),
+                    from: self.from,
                     operator: op.map(|command| Operator { command, pid: 7 }),
                     on_allowed,
                 },
@@ -476,6 +528,12 @@ mod tests {
             self.seq += 1;
             let s = sample(self.seq, words).naming(id);
             self.poll(t, Some(s), None)
+        }
+
+        /// A fresh sample of another controller (`from`), which saw the image as it is.
+        fn send_from(&mut self, from: u128, t: u64, words: &[u16]) -> Step {
+            self.from = ControllerId(from);
+            self.send(t, words)
         }
 
         /// The current latch's id (0 while live).
@@ -557,7 +615,7 @@ mod tests {
     #[rustfmt::skip]
     #[test]
     fn decision_table() {
-        use LatchReason::{Override, Rejected, Released, Stale, Startup};
+        use LatchReason::{Override, Rejected, Released, Replaced, Stale, Startup};
         type Case = (&'static str, fn() -> Play, fn(&mut Play) -> Step, [u16; 2], Option<LatchReason>);
         let cases: &[Case] = &[
             // Latched at start-up.
@@ -600,6 +658,17 @@ mod tests {
             ("start, OFF1 naming no latch: no re-arm", Play::new, |p| p.send_naming(1, &[READY, 0], 0), [READY, 0], Some(Startup)),
             ("stale, OFF1 naming no latch (the refresher's, before the trip): no re-arm", tripped, |p| p.send_naming(300, &[READY, 0], 0), [READY, 0], Some(Stale)),
             ("running, OFF1 with an override at the same poll: no re-arm", Play::running, |p| with(p, 10, &[READY, 0], Some(StopCommand::Off2), true), [COAST, 0], Some(Override)),
+            // Another controller while live: a trip, whatever it sends.
+            ("running, ON of another controller: replaced", Play::running, |p| p.send_from(43, 10, &[RUN, 0x3000]), [READY, 0], Some(Replaced)),
+            ("running, OFF1 of another controller: replaced", Play::running, |p| p.send_from(43, 10, &[READY, 0]), [READY, 0], Some(Replaced)),
+            ("running, a release of another controller: replaced", Play::running, |p| { p.from = ControllerId(43); release(p) }, [READY, 0], Some(Replaced)),
+            ("running, the same controller's ON: its words", Play::running, |p| p.send_from(42, 10, &[RUN, 0x3000]), [RUN, 0x3000], None),
+            ("stale, another controller's OFF1 naming the trip re-arms (it saw the latch)", tripped, |p| p.send_from(43, 300, &[READY, 0]), [READY, 0], None),
+            ("released, another controller's OFF1 naming it re-arms", || { let mut p = Play::running(); release(&mut p); p }, |p| p.send_from(43, 20, &[READY, 0]), [READY, 0], None),
+            // A controller's harder stop reaches a latched drive without re-arming it.
+            ("start, a coast naming no latch: OFF2 goes out, still latched", Play::new, |p| p.send_naming(1, &[COAST, 0], 0), [COAST, 0], Some(Startup)),
+            ("stale, a quick stop naming no latch: OFF3 goes out, still latched", tripped, |p| p.send_naming(300, &[QUICK, 0], 0), [QUICK, 0], Some(Stale)),
+            ("coasted, OFF1 naming no latch does not weaken the coast", coasted, |p| p.send_naming(20, &[READY, 0], 0), [COAST, 0], Some(Override)),
         ];
         for (name, start, event, words, reason) in cases {
             let mut p = start();
@@ -633,6 +702,35 @@ mod tests {
         assert_eq!(p.send(2020, &[RUN, 0x2000]).words, [RUN, 0x2000]);
         let c = p.gate.counters();
         assert_eq!((c.latches, c.watchdog_trips, c.releases), (2, 1, 0));
+    }
+
+    #[test]
+    fn a_controller_replaced_while_live_latches_once_and_the_new_one_must_re_arm() {
+        let mut p = Play::running();
+        // The old controller was killed; the new one publishes ON at once, within the
+        // watchdog time.
+        let step = p.send_from(43, 10, &[RUN, 0x2000]);
+        assert_eq!(step.words, [READY, 0]);
+        let (reason, command, _) = latched(step.change);
+        assert_eq!(
+            (reason, command),
+            (LatchReason::Replaced, StopCommand::Off1)
+        );
+        assert_eq!(p.gate.counters().replacements, 1);
+        // Its ONs run nothing, and are no new latch.
+        assert_eq!(p.send_naming(20, &[RUN, 0x2000], 0).change, None);
+        assert_eq!(p.reason(), Some(LatchReason::Replaced));
+        // Its re-arm (naming the latch it saw) makes it the drive's controller.
+        assert_eq!(
+            p.send(30, &[READY, 0]).change,
+            Some(Transition::Rearmed { pid: 42 })
+        );
+        assert_eq!(p.send(40, &[RUN, 0x2000]).words, [RUN, 0x2000]);
+        // Now the old one's samples are another controller's.
+        let step = p.send_from(42, 50, &[RUN, 0x2000]);
+        assert_eq!(latched(step.change).0, LatchReason::Replaced);
+        let c = p.gate.counters();
+        assert_eq!((c.replacements, c.watchdog_trips, c.latches), (2, 0, 3));
     }
 
     #[test]
@@ -695,6 +793,7 @@ mod tests {
                 now: ms(1),
                 gap: Duration::ZERO,
                 sample: None,
+                from: ControllerId(42),
                 operator: None,
                 on_allowed: true,
             },
@@ -710,6 +809,7 @@ mod tests {
                 now: ms(10),
                 gap: ms(gap),
                 sample,
+                from: ControllerId(42),
                 operator: None,
                 on_allowed: true,
             }
@@ -737,6 +837,7 @@ mod tests {
                 now: ms(1000),
                 gap: Duration::ZERO,
                 sample: Some(s),
+                from: ControllerId(42),
                 operator: None,
                 on_allowed: true,
             }

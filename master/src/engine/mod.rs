@@ -34,7 +34,7 @@ pub use turns::LOOK_STEP;
 
 use crate::engine::clock::Clock;
 use crate::engine::control::{
-    Control, Gate, GateSetup, Latch, Operator, Poll, Transition, latch_id_of,
+    Control, ControllerId, Gate, GateSetup, Latch, Operator, Poll, Transition, latch_id_of,
 };
 use crate::engine::image::DriveImages;
 use crate::engine::jobs::{Encoded, Job, JobResult, Requester};
@@ -251,8 +251,13 @@ pub enum Event {
 /// not allocate, block or log.
 pub trait Bridge {
     /// Before the drive in `slot` is polled: the controller's newest sample since the last
-    /// call, as it arrived. The engine's [`Gate`] validates and decides; the bridge only carries.
-    fn take_sample(&mut self, slot: usize, images: &DriveImages) -> Option<PzdOutput>;
+    /// call, as it arrived, and who published it. The engine's [`Gate`] validates and decides;
+    /// the bridge only carries.
+    fn take_sample(
+        &mut self,
+        slot: usize,
+        images: &DriveImages,
+    ) -> Option<(PzdOutput, ControllerId)>;
     /// After every poll of the drive, good or failed: publish its input image and state.
     fn after_poll(&mut self, slot: usize, images: &DriveImages, status: &DriveStatus);
     /// After a pass through the circulating list.
@@ -267,8 +272,11 @@ pub trait Bridge {
 pub struct LocalBridge;
 
 impl Bridge for LocalBridge {
-    fn take_sample(&mut self, _: usize, images: &DriveImages) -> Option<PzdOutput> {
-        images.output.take()
+    fn take_sample(&mut self, _: usize, images: &DriveImages) -> Option<(PzdOutput, ControllerId)> {
+        images
+            .output
+            .take()
+            .map(|s| (s, ControllerId::named_in(&s)))
     }
     fn after_poll(&mut self, _: usize, _: &DriveImages, _: &DriveStatus) {}
     fn cycle_completed(&mut self) {}
@@ -771,7 +779,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let change = d.gate.observe(Poll {
             now,
             gap,
-            sample: sample.as_ref(),
+            sample: sample.as_ref().map(|(s, _)| s),
+            from: sample.map(|(_, from)| from).unwrap_or_default(),
             operator,
             on_allowed,
         });

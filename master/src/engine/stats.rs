@@ -64,6 +64,7 @@ pub fn set_control(counters: &mut DriveCounters, c: &ControlCounters) {
     counters.rejected_outputs = c.rejected_outputs;
     counters.releases = c.releases;
     counters.overrides = c.overrides;
+    counters.replacements = c.replacements;
 }
 
 /// The state of one drive as the master sees it.

@@ -58,7 +58,8 @@ fn out(r: Result<Step, SessionError>) -> Out {
 }
 
 impl Play {
-    /// A controller that opened the drive latched at start (L1) at t = 0.
+    /// A controller that opened the drive latched at start (L1) at t = 0: it acknowledged
+    /// nothing.
     fn opened() -> Self {
         let setup = SessionSetup {
             pzd: 2,
@@ -67,7 +68,7 @@ impl Play {
             first_sequence: 500,
         };
         Self {
-            s: Session::new(setup, &latched(L1)),
+            s: Session::new(setup),
             image: latched(L1),
             now: 0,
         }
@@ -76,7 +77,7 @@ impl Play {
     /// Re-armed (its OFF1 taken, the image live) and running: ON at 10 ms.
     fn running() -> Self {
         let mut p = Self::opened();
-        assert_eq!(p.stw1(READY), Out::Sent(READY, L1));
+        assert_eq!(p.rearm(), Out::Sent(READY, L1));
         p.image = live();
         p.at(10);
         assert_eq!(p.run(), Out::Sent(RUN, L1));
@@ -147,18 +148,25 @@ fn stalled(gap_ms: u64) -> Out {
 fn decision_table() {
     type Case = (&'static str, fn() -> Play, fn(&mut Play) -> Out, Out);
     let cases: &[Case] = &[
-        // Opened while latched at ussd's start (L1).
-        ("opened: OFF1 re-arms, naming the latch it saw", Play::opened, |p| p.stw1(READY), Out::Sent(READY, L1)),
-        ("opened: OFF2 re-arms too", Play::opened, |p| p.stw1(COAST), Out::Sent(COAST, L1)),
-        ("opened: ON before any stop is not armed", Play::opened, Play::run, Out::Err(SessionError::NotArmed { latch_id: L1 })),
-        ("opened: jog before any stop is not armed", Play::opened, |p| p.stw1(READY | 0x0100), Out::Err(SessionError::NotArmed { latch_id: L1 })),
-        ("opened: ON after its OFF1, before ussd took it, waits", Play::opened, |p| { p.stw1(READY); p.run() }, Out::Await),
-        ("opened: ON once the image is live goes out", Play::opened, |p| { p.stw1(READY); p.show(live()).run() }, Out::Sent(RUN, L1)),
-        ("opened: a new latch before the re-arm is news", Play::opened, |p| { p.stw1(READY); p.show(latched(L2)).run() }, tripped(L2)),
+        // Opened while latched at ussd's start (L1): only the explicit re-arm acknowledges it.
+        ("opened: a keepalive goes out naming no latch (no re-arm)", Play::opened, |p| p.call(|_| {}), Out::Sent(READY, 0)),
+        ("opened: OFF1 goes out naming no latch (no re-arm)", Play::opened, |p| p.stw1(READY), Out::Sent(READY, 0)),
+        ("opened: OFF2 goes out naming no latch", Play::opened, |p| p.stw1(COAST), Out::Sent(COAST, 0)),
+        ("opened: ON is news", Play::opened, Play::run, tripped(L1)),
+        ("opened: keepalives, then ON: still news", Play::opened, |p| { p.call(|_| {}); p.at(20).call(|_| {}); p.at(40).run() }, tripped(L1)),
+        ("opened: OFF1, then ON: still news", Play::opened, |p| { p.stw1(READY); p.at(20).run() }, tripped(L1)),
+        ("opened: jog is news", Play::opened, |p| p.stw1(READY | 0x0100), tripped(L1)),
+        ("opened: the refresher does not repeat a stop over news", Play::opened, |p| { p.stw1(READY); p.at(20).refresh() }, Out::Nothing),
+        ("opened: the re-arm names the latch it sees", Play::opened, Play::rearm, Out::Sent(READY, L1)),
+        ("opened: ON after the re-arm, before ussd took it, waits", Play::opened, |p| { p.rearm(); p.run() }, Out::Await),
+        ("opened: ON once the image is live goes out", Play::opened, |p| { p.rearm(); p.show(live()).run() }, Out::Sent(RUN, L1)),
+        ("opened: a new latch before the re-arm is taken is news", Play::opened, |p| { p.rearm(); p.show(latched(L2)).run() }, tripped(L2)),
+        ("opened: after the re-arm, OFF1 names the latch too", Play::opened, |p| { p.rearm(); p.stw1(READY) }, Out::Sent(READY, L1)),
         ("opened: bit 10 clear is refused before the wire", Play::opened, |p| p.stw1(0x007E), Out::Err(SessionError::Invalid(Rejection::NoPlcControl))),
         ("opened: three words for two are refused", Play::opened, |p| p.call(|w| w.count = 3), Out::Err(SessionError::Invalid(Rejection::WordCount))),
         ("opened: no refresh before the program's first call", Play::opened, Play::refresh, Out::Nothing),
-        ("opened: the refresher repeats the re-arming OFF1", Play::opened, |p| { p.stw1(READY); p.at(20).refresh() }, Out::Sent(READY, L1)),
+        ("opened: the refresher repeats the re-arming OFF1", Play::opened, |p| { p.rearm(); p.at(20).refresh() }, Out::Sent(READY, L1)),
+        ("opened live (an earlier controller's drive): ON goes out, ussd judges whose it is", Play::opened, |p| p.show(live()).run(), Out::Sent(RUN, 0)),
         // Live and running.
         ("running: ON again", Play::running, |p| p.at(30).run(), Out::Sent(RUN, L1)),
         ("running: a refresh 90 ms after the last call", Play::running, |p| p.at(100).refresh(), Out::Sent(RUN, L1)),
@@ -169,7 +177,9 @@ fn decision_table() {
         ("running: after a gap the refresher sends nothing", Play::running, |p| { p.at(160).stw1(READY); p.at(170).refresh() }, Out::Nothing),
         ("running: after a gap, re-armed, ON goes out", Play::running, |p| { p.at(160).run(); p.at(170).rearm(); p.at(180).run() }, Out::Sent(RUN, L1)),
         ("running: an operator's coast (L2) is news for ON", Play::running, |p| p.at(20).show(latched(L2)).run(), tripped(L2)),
-        ("running: ... and for a stop", Play::running, |p| p.at(20).show(latched(L2)).stw1(READY), tripped(L2)),
+        ("running: ... not for a stop, which goes out naming the old latch (no re-arm)", Play::running, |p| p.at(20).show(latched(L2)).stw1(READY), Out::Sent(READY, L1)),
+        ("running: ... a coast goes out too", Play::running, |p| p.at(20).show(latched(L2)).stw1(COAST), Out::Sent(COAST, L1)),
+        ("running: ... and ON after that stop is still news", Play::running, |p| { p.at(20).show(latched(L2)).stw1(READY); p.at(30).run() }, tripped(L2)),
         ("running: ... and the refresher sends nothing", Play::running, |p| p.at(20).show(latched(L2)).refresh(), Out::Nothing),
         ("running: re-arm names the new latch", Play::running, |p| p.at(20).show(latched(L2)).rearm(), Out::Sent(READY, L2)),
         ("running: released, a call fails", Play::running, |p| { p.s.release(p.now); p.run() }, Out::Err(SessionError::Released)),
@@ -200,7 +210,7 @@ fn a_relay_re_arms_only_the_latch_the_drive_shows() {
             shown: L2
         })
     );
-    assert_eq!(p.stw1(READY), tripped(L2));
+    assert_eq!(p.run(), tripped(L2));
     // Naming L2 acknowledges it; the relay's stop then re-arms, naming L2.
     assert_eq!(p.s.acknowledge(p.now, &p.image, L2), Ok(()));
     assert_eq!(p.stw1(READY), Out::Sent(READY, L2));
@@ -216,7 +226,7 @@ fn a_relay_re_arms_only_the_latch_the_drive_shows() {
 }
 
 #[test]
-fn a_relay_opens_the_drive_acknowledging_no_latch() {
+fn a_relay_re_arms_only_after_its_remote_controller_names_the_latch() {
     let setup = SessionSetup {
         pzd: 2,
         pid: 7,
@@ -224,13 +234,14 @@ fn a_relay_opens_the_drive_acknowledging_no_latch() {
         first_sequence: 0,
     };
     let mut p = Play {
-        s: Session::relay(setup),
+        s: Session::new(setup),
         image: latched(L1),
         now: 0,
     };
-    // A remote stop that names no latch re-arms nothing: nothing is published.
-    assert_eq!(p.stw1(READY), tripped(L1));
+    // A remote stop that names no latch goes out and re-arms nothing.
+    assert_eq!(p.stw1(READY), Out::Sent(READY, 0));
     assert_eq!(p.refresh(), Out::Nothing);
+    assert_eq!(p.run(), tripped(L1));
     assert_eq!(p.s.acknowledge(p.now, &p.image, L1), Ok(()));
     assert_eq!(p.stw1(READY), Out::Sent(READY, L1));
 }
@@ -279,9 +290,7 @@ fn check_reports_news_and_a_stall_without_counting_as_a_call() {
 #[test]
 fn every_sample_has_a_new_sequence_the_pid_and_the_time() {
     let mut p = Play::opened();
-    let Ok(Step::Publish(first)) = p.s.publish(3, &p.image, |_| {}) else {
-        panic!()
-    };
+    let first = p.s.rearm(3, &p.image).unwrap();
     let refreshed = p.s.refresh(4, &p.image).unwrap();
     let release = p.s.release(5);
     assert_eq!(
@@ -298,6 +307,10 @@ fn every_sample_has_a_new_sequence_the_pid_and_the_time() {
     );
     assert_eq!(release.flags, crate::OUTPUT_RELEASE);
     assert_eq!(release.latch_id, L1);
+    // A session that never re-armed acknowledged no latch.
+    let mut p = Play::opened();
+    p.call(|_| {});
+    assert_eq!(p.s.release(6).latch_id, 0);
     // The sequence wraps past 0, which ussd reads as "never written".
     let setup = SessionSetup {
         pzd: 2,
@@ -305,7 +318,7 @@ fn every_sample_has_a_new_sequence_the_pid_and_the_time() {
         watchdog_ns: WATCHDOG,
         first_sequence: u64::MAX,
     };
-    let mut s = Session::new(setup, &latched(L1));
+    let mut s = Session::new(setup);
     let Ok(Step::Publish(w)) = s.publish(1, &latched(L1), |_| {}) else {
         panic!()
     };

@@ -53,11 +53,12 @@ fn call(c: &Controller, words: &[&str]) -> Result<(), ClientError> {
         "rearm" => c.rearm().map(|_| ()),
         "check" => c.check().map(|_| ()),
         "run" => c.run_hz(arg(1).parse().unwrap()),
-        "wait_state" => c.wait_for_state(
-            state(arg(1)).unwrap(),
-            Duration::from_millis(arg(2).parse().unwrap()),
-        )
-        .map(|_| ()),
+        "wait_state" => c
+            .wait_for_state(
+                state(arg(1)).unwrap(),
+                Duration::from_millis(arg(2).parse().unwrap()),
+            )
+            .map(|_| ()),
         other => panic!("unknown command {other:?}"),
     }
 }

@@ -13,6 +13,9 @@ pub(crate) fn ack(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure
             "drive {drive} shows no fault; acknowledging anyway"
         ));
     }
+    // The edge reaches only a live drive: the operator's `ack` re-arms it first (OFF1 naming
+    // its latch: a stop, never an ON), and hands it back latched ("released") when it ends.
+    c.rearm()?;
     // The edge takes two exchanges, the drive's answer a third: the drive's handshake time
     // each (31 drives at 9600 baud poll each drive only every 1.3 s).
     c.acknowledge_fault(c.inputs().handshake())?;

@@ -12,7 +12,8 @@ use uss_client::{Bus, ClientError, Controller, DriveState};
 /// an offline probe interval, 0.5 s by default, with room to spare).
 const OFFLINE_GRACE: Duration = Duration::from_secs(3);
 
-/// Arms the drive (OFF1: S1 -> S2, or it stays in S2..S4) and runs it (S2 -> S3 -> S4).
+/// Re-arms the drive (OFF1 naming its latch: S1 -> S2, or it stays in S2..S4) and runs it
+/// (S2 -> S3 -> S4).
 fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
     let drive = c.address();
     let first = c.inputs().latest();
@@ -25,7 +26,9 @@ fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
     if uss_client::state_of(&first) == DriveState::Fault {
         return Err(faulted(drive, &first));
     }
-    c.enable()?;
+    // `ussctl run` is the operator's deliberate command: it re-arms whatever latch the drive
+    // shows (ussd's start, an operator's stop, a trip), the one act that may (docs/SAFETY.md).
+    c.rearm()?;
     c.wait_for(state_timeout(c), "S2 (ready to switch on)", |i| {
         i.online != 0
             && matches!(

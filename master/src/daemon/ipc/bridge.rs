@@ -7,6 +7,7 @@
 use super::status::ControlView;
 use super::{IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, fail, text};
 use crate::engine::Bridge;
+use crate::engine::control::ControllerId;
 use crate::engine::image::DriveImages;
 use crate::engine::stats::DriveStatus;
 use iceoryx2::port::notifier::Notifier;
@@ -114,13 +115,17 @@ impl core::fmt::Debug for RtBridge {
 }
 
 impl Bridge for RtBridge {
-    fn take_sample(&mut self, slot: usize, _: &DriveImages) -> Option<PzdOutput> {
+    fn take_sample(&mut self, slot: usize, _: &DriveImages) -> Option<(PzdOutput, ControllerId)> {
         let d = self.drives.get(slot)?;
         // Buffer 1 with safe overflow: at most the latest sample is waiting. It goes to the
-        // engine as it arrived; the engine's gate checks it.
+        // engine as it arrived, with its publisher's id (iceoryx2's, not what the sample says
+        // of itself); the engine's gate checks it.
         let mut latest = None;
         while let Ok(Some(sample)) = d.subscriber.receive() {
-            latest = Some(*sample);
+            latest = Some((
+                *sample,
+                ControllerId(sample.header().publisher_id().value()),
+            ));
         }
         latest
     }

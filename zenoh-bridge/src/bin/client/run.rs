@@ -152,7 +152,7 @@ impl Remote<'_> {
             watchdog_ns: watchdog_ms.saturating_mul(1_000_000),
             first_sequence: 0,
         };
-        self.session = Some(Session::new(setup, &input_of(image)));
+        self.session = Some(Session::new(setup));
     }
 
     /// The failure a session's refusal ends the run with.
