@@ -279,6 +279,9 @@ fn command_hint(error: CommandError) -> &'static str {
         CommandError::UnknownDrive => ": the address is not in ussd's configuration",
         CommandError::Shutdown => ": ussd is stopping; every drive gets its safe command",
         CommandError::Version => ": rebuild this program against the running ussd's uss-shm-types",
+        CommandError::TooManyConnections => {
+            ": this process holds too many connections to ussd's stop socket at once; close the idle ones (the stop of another process goes through)"
+        }
         CommandError::Ok | CommandError::BadCommand => "",
     }
 }

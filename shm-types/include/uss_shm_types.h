@@ -560,6 +560,11 @@ enum UssCommandError
    * ussd is shutting down (every drive gets its safe command anyway).
    */
   USS_COMMAND_ERROR_SHUTDOWN = 4,
+  /**
+   * The requesting process holds more connections to the stop socket at once than ussd
+   * serves per process: this one was refused at once (the others are served).
+   */
+  USS_COMMAND_ERROR_TOO_MANY_CONNECTIONS = 5,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

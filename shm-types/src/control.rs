@@ -128,6 +128,9 @@ code_table! {
         Version = 3 => "layout version mismatch",
         /// ussd is shutting down (every drive gets its safe command anyway).
         Shutdown = 4 => "shut down",
+        /// The requesting process holds more connections to the stop socket at once than ussd
+        /// serves per process: this one was refused at once (the others are served).
+        TooManyConnections = 5 => "too many connections from this process",
     }
 }
 

@@ -561,6 +561,68 @@ fn ussctl_stop_coast_and_quick_stop_override_a_running_controller_and_latch() {
     ));
 }
 
+/// STOP-ANYWHERE through the stop socket (issue 32): 64 connections that say nothing (8
+/// processes of 8, each made again the moment ussd closes it) and a process that opens more than
+/// its share hold nobody back: an operator's coast from another process is sent and confirmed
+/// while they wait. (With the stop socket served one connection at a time, each waited for up to
+/// 200 ms, `ussctl coast` failed after 2 s and the drive ran on.)
+#[test]
+fn idle_stop_connections_do_not_delay_an_operators_coast() {
+    use std::io::Read as _;
+    use std::os::unix::net::UnixStream;
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, ""), (2, ""), (3, "")]);
+    let bus = ussd.bus();
+    quick_ramps(&bus, 1);
+    let mut running = run(&ussd, 1, "20");
+    let path = names::stop_socket(&BusName::new(&ussd.bus).unwrap());
+    let holders: Vec<ChildProc> = (0..8)
+        .map(|_| {
+            let mut command = std::process::Command::new(uss_integration_tests::binary(
+                "uss-integration-tests",
+                "uss-idle-connections",
+            ));
+            command.arg(&path).arg("8");
+            let mut holder = ChildProc::spawn("uss-idle-connections".into(), command);
+            holder.says("holding 8");
+            holder
+        })
+        .collect();
+    // This process takes its share of idle connections too.
+    let mine: Vec<UnixStream> = (0..8)
+        .map(|_| UnixStream::connect(&path).unwrap())
+        .collect();
+
+    let asked = Instant::now();
+    let mut coast = ussd.ussctl(&["coast", "1"]);
+    let (status, out, err) = coast.finish();
+    let took = asked.elapsed();
+    assert!(status.success(), "{out}{err}");
+    assert!(out.contains("drive 1: OFF2 sent (STW1 0x047C)"), "{out}");
+    let i = bus.watch(addr(1)).unwrap().latest();
+    assert_eq!(
+        (i.sent_stw1, i.latch_reason),
+        (OFF2, LatchReason::Override.code())
+    );
+    println!(
+        "failsafe: ussctl coast with 64 idle stop connections (and 8 of this process): sent and \
+         confirmed in {:.1} ms",
+        took.as_secs_f64() * 1e3
+    );
+    let (code, err) = ended(&mut running, Duration::from_secs(3));
+    assert_eq!(code, Some(1), "{err}");
+    // One more than its share: refused at once, named.
+    let mut ninth = UnixStream::connect(&path).unwrap();
+    let mut answer = [0u8; uss_shm_types::OPERATOR_RESPONSE_BYTES];
+    ninth.read_exact(&mut answer).unwrap();
+    let refused = uss_shm_types::OperatorResponse::from_bytes(&answer).unwrap();
+    assert_eq!(
+        refused.error(),
+        Ok(uss_shm_types::CommandError::TooManyConnections)
+    );
+    drop((holders, mine));
+}
+
 /// The gate's re-arm rule with a real ussd and a foreign controller: after an operator's stop,
 /// a controller that keeps jogging (JOG1/JOG2 have STW1 bit 0 clear, like a stop) re-arms
 /// nothing and no jog word goes out; only its stop (OFF1) re-arms, and only its ON after that
