@@ -115,7 +115,7 @@ fn send_stop(
         if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) {
             ClientError::ipc(
                 "waiting for ussd's answer to a stop command",
-                format!("no answer within {COMMAND_TIMEOUT:?}"),
+                format!("{} {COMMAND_TIMEOUT:?}", crate::error::NO_ANSWER),
             )
         } else {
             ClientError::ipc("a stop command on ussd's stop socket", e)

@@ -466,9 +466,14 @@ fn refusal_hint(error: RequestError) -> &'static str {
     }
 }
 
+/// The start of an IPC failure's detail when ussd did not answer in time.
+pub(crate) const NO_ANSWER: &str = "no answer within";
+
 /// What to do about a failed iceoryx2 call, by what iceoryx2 said.
 fn ipc_hint(detail: &str) -> &'static str {
-    if detail.contains("ExceedsMax") {
+    if detail.starts_with(NO_ANSWER) {
+        "ussd took the connection but did not answer: it hangs or is paused (`ussctl status` says whether its heartbeat goes on); if it is gone, only the drive's own telegram monitoring stops the drive"
+    } else if detail.contains("ExceedsMax") {
         "the bus's services admit no more ports of this kind (too many clients at once): close some; stops take their own path and are never refused for this"
     } else {
         "run ussd and this program as the same user (or root), or in ussd's access_group: iceoryx2 keeps its state in /dev/shm/uss-rt"

@@ -4,24 +4,37 @@
 //! (64 `ussctl watch` processes use up what the services admit) and never depends on the
 //! heartbeat (a housekeeping thread that cannot publish). The bus thread sends the stop in its
 //! next telegram (`crate::engine::turns`); the answer says which drives got it.
+//!
+//! **Nobody delays a stop** (docs/SAFETY.md, STOP-ANYWHERE). The thread waits on every
+//! connection at once (poll(2)) and answers each request the moment its bytes are in: a
+//! connection that says nothing holds no other back, it is closed after [`REQUEST_WITHIN`]. A
+//! process may hold [`MAX_PER_PROCESS`] connections at once (its further ones are refused at
+//! once, with [`CommandError::TooManyConnections`]), and the thread [`MAX_CONNECTIONS`] in all
+//! (beyond, the oldest idle one is closed for the new one), so whatever the processes of the
+//! access group do, a stop of another process is taken in microseconds.
 
 use crate::engine::EngineHandle;
-use std::io::{Read as _, Write as _};
+use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+use std::io::{ErrorKind, Read as _, Write as _};
+use std::os::fd::AsFd as _;
 use std::os::unix::fs::PermissionsExt as _;
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use uss_protocol::Address;
 use uss_shm_types::{
     ALL_DRIVES, CommandError, OPERATOR_REQUEST_BYTES, OperatorRequest, OperatorResponse,
 };
 
-/// How long a connection may take to send its request: a client that connects and says
-/// nothing holds the next stop back at most this long.
+/// How long a connection may take to send its request before it is closed.
 const REQUEST_WITHIN: Duration = Duration::from_millis(200);
+/// Connections one process may hold at once.
+pub const MAX_PER_PROCESS: usize = 8;
+/// Connections served at once.
+pub const MAX_CONNECTIONS: usize = 256;
 
 /// The bus's stop socket and the thread that serves it.
 #[derive(Debug)]
@@ -43,6 +56,7 @@ impl StopSocket {
         }
         let _ = std::fs::remove_file(path);
         let listener = UnixListener::bind(path)?;
+        listener.set_nonblocking(true)?;
         // The root directory decides who may reach it (owner only, or the access group).
         std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))?;
         let stop = Arc::new(AtomicBool::new(false));
@@ -51,13 +65,9 @@ impl StopSocket {
             std::thread::Builder::new()
                 .name(format!("uss-{bus}-stop"))
                 .spawn(move || {
-                    for stream in listener.incoming() {
-                        if stop.load(Ordering::Acquire) {
-                            break;
-                        }
-                        if let Ok(stream) = stream {
-                            answer(stream, &handle);
-                        }
+                    let mut served = Connections::default();
+                    while !stop.load(Ordering::Acquire) {
+                        served.turn(&listener, &handle);
                     }
                 })?
         };
@@ -72,7 +82,7 @@ impl StopSocket {
 impl Drop for StopSocket {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Release);
-        // Wakes the thread from its accept.
+        // Wakes the thread from its poll.
         let _ = UnixStream::connect(&self.path);
         if let Some(t) = self.thread.take() {
             let _ = t.join();
@@ -81,21 +91,135 @@ impl Drop for StopSocket {
     }
 }
 
-/// Reads one request from `stream`, hands it to the bus thread, answers.
-fn answer(mut stream: UnixStream, handle: &EngineHandle) {
-    let _ = stream.set_read_timeout(Some(REQUEST_WITHIN));
-    let _ = stream.set_write_timeout(Some(REQUEST_WITHIN));
-    let mut bytes = [0u8; OPERATOR_REQUEST_BYTES];
-    if stream.read_exact(&mut bytes).is_err() {
-        return;
+/// A connection whose request is not complete yet.
+#[derive(Debug)]
+struct Connection {
+    stream: UnixStream,
+    /// The peer process (`SO_PEERCRED`: the kernel's word, not the peer's), 0 if unknown.
+    pid: u32,
+    bytes: [u8; OPERATOR_REQUEST_BYTES],
+    got: usize,
+    /// When it is closed unanswered.
+    deadline: Instant,
+}
+
+/// The connections the stop thread waits on.
+#[derive(Debug, Default)]
+struct Connections {
+    open: Vec<Connection>,
+}
+
+impl Connections {
+    /// One wait on the listener and every connection (at most until the nearest deadline), then
+    /// what it brought: new connections taken, complete requests answered, late ones closed.
+    fn turn(&mut self, listener: &UnixListener, handle: &EngineHandle) {
+        let now = Instant::now();
+        let wait = self
+            .open
+            .iter()
+            .map(|c| c.deadline.saturating_duration_since(now))
+            .min()
+            .unwrap_or(Duration::from_secs(1));
+        let ready: Vec<bool> = {
+            let mut fds = Vec::with_capacity(self.open.len() + 1);
+            fds.push(PollFd::new(listener.as_fd(), PollFlags::POLLIN));
+            fds.extend(
+                self.open
+                    .iter()
+                    .map(|c| PollFd::new(c.stream.as_fd(), PollFlags::POLLIN)),
+            );
+            let timeout =
+                PollTimeout::try_from(wait.as_millis().max(1)).unwrap_or(PollTimeout::MAX);
+            if poll(&mut fds, timeout).is_err() {
+                // EINTR: look again.
+                return;
+            }
+            fds.iter()
+                .map(|f| f.revents().is_some_and(|r| !r.is_empty()))
+                .collect()
+        };
+        // Requests first: a connection that has its bytes in is answered before new ones come.
+        let mut flags = ready.iter().skip(1).copied();
+        self.open.retain_mut(|c| {
+            let readable = flags.next().unwrap_or(false);
+            !(readable && c.read(handle)) && c.deadline > Instant::now()
+        });
+        if ready.first().copied().unwrap_or(false) {
+            self.accept(listener, handle);
+        }
     }
-    let pid = nix::sys::socket::getsockopt(&stream, nix::sys::socket::sockopt::PeerCredentials)
-        .map_or(0, |c| u32::try_from(c.pid()).unwrap_or(0));
-    let response = match OperatorRequest::from_bytes(&bytes) {
-        Some(request) => decide(request, handle, pid),
-        None => OperatorResponse::refused(0, CommandError::Version),
-    };
-    let _ = stream.write_all(&response.to_bytes());
+
+    /// Takes every connection waiting on `listener`; a request already in is answered at once.
+    fn accept(&mut self, listener: &UnixListener, handle: &EngineHandle) {
+        loop {
+            let stream = match listener.accept() {
+                Ok((s, _)) => s,
+                Err(e) if e.kind() == ErrorKind::WouldBlock => return,
+                // ECONNABORTED, EMFILE, ...: the next turn tries again.
+                Err(_) => return,
+            };
+            let pid =
+                nix::sys::socket::getsockopt(&stream, nix::sys::socket::sockopt::PeerCredentials)
+                    .map_or(0, |c| u32::try_from(c.pid()).unwrap_or(0));
+            if stream.set_nonblocking(true).is_err() {
+                continue;
+            }
+            let mut c = Connection {
+                stream,
+                pid,
+                bytes: [0; OPERATOR_REQUEST_BYTES],
+                got: 0,
+                deadline: Instant::now() + REQUEST_WITHIN,
+            };
+            let held = self.open.iter().filter(|o| o.pid == pid).count();
+            if pid != 0 && held >= MAX_PER_PROCESS {
+                c.answer(OperatorResponse::refused(
+                    0,
+                    CommandError::TooManyConnections,
+                ));
+                continue;
+            }
+            if c.read(handle) {
+                continue;
+            }
+            if self.open.len() >= MAX_CONNECTIONS {
+                // The oldest idle one goes: it has had the longest to say something.
+                self.open.remove(0);
+            }
+            self.open.push(c);
+        }
+    }
+}
+
+impl Connection {
+    /// Reads what arrived; once the request is complete (or the peer went) answers it and
+    /// returns true: the connection is done.
+    fn read(&mut self, handle: &EngineHandle) -> bool {
+        loop {
+            match self.stream.read(&mut self.bytes[self.got..]) {
+                Ok(0) => return true,
+                Ok(n) => {
+                    self.got += n;
+                    if self.got == OPERATOR_REQUEST_BYTES {
+                        let response = match OperatorRequest::from_bytes(&self.bytes) {
+                            Some(request) => decide(request, handle, self.pid),
+                            None => OperatorResponse::refused(0, CommandError::Version),
+                        };
+                        self.answer(response);
+                        return true;
+                    }
+                }
+                Err(e) if e.kind() == ErrorKind::WouldBlock => return false,
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(_) => return true,
+            }
+        }
+    }
+
+    /// Sends `response` (a few bytes: the socket's buffer takes them at once).
+    fn answer(&mut self, response: OperatorResponse) {
+        let _ = self.stream.write_all(&response.to_bytes());
+    }
 }
 
 /// The answer to `request` from process `pid`: the stop handed to the bus thread, or why not.
