@@ -403,3 +403,51 @@ fn a_g120_reference_speed_is_read_with_its_pole_pairs_and_unverified_without() {
         ussd.log()
     );
 }
+
+/// Issue 32, item 5: guards compare the value a drive would hold, and a drive without a
+/// catalogue takes no write it was not told is safe. A G120's p2040 written as -0.0 (a float:
+/// the guard compared the raw word with 0) switched its telegram monitoring off; NaN is no
+/// setting at all; every write to a `family = "generic"` drive went through unguarded (a
+/// MICROMASTER configured as generic was made uncontrollable by P0700 = 2).
+#[test]
+fn guards_compare_values_and_a_drive_without_a_catalogue_takes_only_listed_writes() {
+    use uss_client::{ParamError, Value, WriteOptions};
+    let ussd = Ussd::start(
+        "",
+        &[
+            (3, "family = \"g120\"\nsim = { family = \"g120\" }"),
+            (4, "family = \"generic\""),
+        ],
+    );
+    let bus = ussd.bus();
+    let refused = |r: &Result<Value, ParamError>| matches!(r, Err(ParamError::Refused { .. }));
+    let p2040 = param(2040);
+    // Access level 3: the drive itself takes p2040 (level 2).
+    bus.write(addr(3), param(3), Value::Word(3), false).unwrap();
+    for off in [0.0f32, -0.0] {
+        let r = bus.write(addr(3), p2040, Value::from_f32(off), false);
+        assert!(refused(&r), "p2040 = {off:?}: {r:?}");
+    }
+    let r = bus.write(addr(3), p2040, Value::from_f32(f32::NAN), false);
+    assert!(refused(&r), "NaN: {r:?}");
+    let unsafe_write = WriteOptions {
+        unsafe_write: true,
+        ..WriteOptions::default()
+    };
+    let r = bus.write_with(addr(3), p2040, Value::from_f32(f32::NAN), unsafe_write);
+    assert!(refused(&r), "NaN, even --unsafe: {r:?}");
+    assert_eq!(
+        bus.write(addr(3), p2040, Value::from_f32(100.0), false),
+        Ok(Value::from_f32(100.0))
+    );
+    // No catalogue: nothing is written without --unsafe unless the drive table lists it.
+    let r = bus.write(addr(4), param(700), Value::Word(2), false);
+    assert!(refused(&r), "generic P0700: {r:?}");
+    assert!(
+        bus.write_with(addr(4), param(1120), Value::from_f32(2.0), unsafe_write)
+            .is_ok()
+    );
+    // The drive still holds its monitoring.
+    let held = bus.read(addr(3), p2040).unwrap();
+    assert_eq!(held, Value::from_f32(100.0));
+}
