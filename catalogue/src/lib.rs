@@ -306,6 +306,23 @@ pub struct Guard {
     /// Only a change to 0 is guarded (switching telegram monitoring off).
     #[serde(default)]
     pub zero_only: bool,
+    /// Only changes to these values are guarded (P0010 = 30, the factory setting mode); empty:
+    /// every value.
+    #[serde(default)]
+    pub values: Vec<u32>,
+    /// Where the entry comes from: the manual (title, order number, edition, section or page)
+    /// that says what the parameter does.
+    pub source: String,
+}
+
+impl Guard {
+    /// Whether a change to `value` (as the parameter's type reads it) is guarded.
+    // Exact: 0 and the listed values are whole numbers a drive holds exactly.
+    #[allow(clippy::float_cmp)]
+    fn covers(&self, value: f64) -> bool {
+        (!self.zero_only || value == 0.0)
+            && (self.values.is_empty() || self.values.iter().any(|v| f64::from(*v) == value))
+    }
 }
 
 /// Where a family keeps its faults and warnings: what a fault report reads.
@@ -430,12 +447,34 @@ impl Catalogue {
             .any(|l| l.pnu == param.pnu && l.index == param.index)
     }
 
-    /// Why writing `value` to parameter `pnu` can take the drive away from ussd, if it can.
+    /// Why writing `value` (the raw word or double word of the task) to parameter `pnu` can
+    /// take the drive away from ussd, if it can. The value is compared as the parameter's type
+    /// reads it: a float's -0.0 is 0, so it switches monitoring off like 0 does.
     pub fn guard(&self, pnu: u16, value: u32) -> Option<&str> {
+        let decoded = self.decoded(pnu, value);
         self.guard
             .iter()
-            .find(|g| g.id.pnu.get() == pnu && (!g.zero_only || value == 0))
+            .find(|g| g.id.pnu.get() == pnu && g.covers(decoded))
             .map(|g| g.why.as_str())
+    }
+
+    /// Whether `value` (the raw double word) can be no setting of parameter `pnu` at all: NaN
+    /// or an infinity for a float parameter. ussd refuses it, `--unsafe` or not.
+    pub fn is_impossible(&self, pnu: u16, value: u32) -> bool {
+        self.param(pnu)
+            .is_some_and(|p| p.data_type == DataType::Float && !f32::from_bits(value).is_finite())
+    }
+
+    /// `value` as parameter `pnu` holds it: decoded by its type where the catalogue knows it,
+    /// the raw number otherwise.
+    fn decoded(&self, pnu: u16, value: u32) -> f64 {
+        self.param(pnu).map_or(f64::from(value), |p| {
+            match p.data_type.decode(Value::Dword(value)) {
+                // A subnormal float is no setting a drive keeps: it reads as 0 (flushed).
+                Typed::Float(f) if f.is_subnormal() => 0.0,
+                typed => typed.as_f64(),
+            }
+        })
     }
 
     /// Reads a catalogue file: every entry checked, numbers unique and sorted.

@@ -141,12 +141,74 @@ fn guarded_parameters_are_marked_per_family_and_monitoring_only_when_switched_of
     assert!(mm4.guard(2014, 0).unwrap().contains("monitoring off"));
     let g120 = Catalogue::of_family("g120").unwrap();
     assert!(g120.guard(2021, 5).unwrap().contains("address"));
-    assert!(g120.guard(2040, 0).is_some() && g120.guard(2040, 100).is_none());
+    assert!(g120.guard(2040, 0).is_some() && g120.guard(2040, 100.0f32.to_bits()).is_none());
     assert!(Catalogue::of_family("generic").is_none());
     let simoreg = Catalogue::of_family("simoreg").unwrap();
     assert!(simoreg.guard(782, 3).is_some() && simoreg.guard(303, 100).is_none());
     // Guarded by number: the BICO sources need no typed entry.
     assert!(mm4.param(840).is_none() && mm4.guard(840, 0).is_some());
+}
+
+/// Issue 32: a guard compares what the drive would hold, not the raw bits.
+#[test]
+fn a_guard_compares_the_value_as_its_type_reads_it() {
+    let g120 = Catalogue::g120();
+    // p2040 is a float: -0.0 (0x8000_0000) switches monitoring off like 0 does, and a
+    // subnormal float reads as 0 too; 100 ms does not.
+    for off in [0.0f32, -0.0, f32::from_bits(1), f32::from_bits(0x8000_0001)] {
+        assert!(g120.guard(2040, off.to_bits()).is_some(), "{off:e}");
+    }
+    assert_eq!(g120.guard(2040, 100.0f32.to_bits()), None);
+    // Only the listed values: p0010 = 30 (parameter reset mode), not 1 (quick commissioning).
+    assert!(g120.guard(10, 30).is_some());
+    assert_eq!(g120.guard(10, 1), None);
+    assert!(Catalogue::micromaster4().guard(10, 30).is_some());
+    assert_eq!(Catalogue::micromaster4().guard(10, 0), None);
+    // NaN and infinities are no setting of a float parameter; a word parameter has no NaN.
+    for bits in [
+        f32::NAN.to_bits(),
+        f32::INFINITY.to_bits(),
+        f32::NEG_INFINITY.to_bits(),
+    ] {
+        assert!(g120.is_impossible(2040, bits), "{bits:#x}");
+    }
+    assert!(!g120.is_impossible(2040, 100.0f32.to_bits()));
+    assert!(!Catalogue::micromaster4().is_impossible(2014, 0xFFFF));
+}
+
+/// Issue 32: every family's guarded list names the parameters that take a drive out of reach
+/// or reset its monitoring, each with the manual it comes from.
+#[test]
+fn each_guard_cites_its_source_and_the_lists_are_complete() {
+    let pnus = |c: &Catalogue| c.guard.iter().map(|g| g.id.pnu.get()).collect::<Vec<_>>();
+    for c in [
+        Catalogue::micromaster4(),
+        Catalogue::g120(),
+        Catalogue::simoreg(),
+    ] {
+        for g in &c.guard {
+            assert!(
+                g.source.len() > 10,
+                "{}: {} cites no source",
+                c.family,
+                g.id
+            );
+        }
+    }
+    let mm4 = pnus(Catalogue::micromaster4());
+    for pnu in [
+        10, 700, 719, 810, 811, 840, 844, 848, 927, 970, 1000, 1070, 2010, 2011, 2012, 2013, 2014,
+        3900,
+    ] {
+        assert!(mm4.contains(&pnu), "MM4 P{pnu:04} unguarded");
+    }
+    let g120 = pnus(Catalogue::g120());
+    for pnu in [
+        10, 15, 700, 810, 811, 840, 844, 848, 854, 927, 970, 1000, 1070, 2020, 2021, 2030, 2040,
+        3900,
+    ] {
+        assert!(g120.contains(&pnu), "G120 p{pnu:04} unguarded");
+    }
 }
 
 #[test]

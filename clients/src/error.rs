@@ -456,6 +456,13 @@ fn refusal_hint(error: RequestError) -> &'static str {
              reset); write it deliberately with --unsafe (WriteOptions::unsafe_write): ussd \
              logs it"
         }
+        RequestError::Unlisted => {
+            ": ussd has no catalogue of this drive's family (or its drive table's `writable` \
+             list does not name the parameter), so it cannot tell whether the write takes the \
+             drive away from it; list the parameters safe to write in `writable`, or write it \
+             deliberately with --unsafe (WriteOptions::unsafe_write): ussd logs it"
+        }
+        RequestError::ImpossibleValue => ": a float parameter holds finite numbers only",
         RequestError::LineDown => {
             ": the bus line is down; ussd reopens it, retry once `ussctl status` shows it up"
         }

@@ -907,6 +907,16 @@ enum UssRequestError
    * catalogue marks it), without [`REQUEST_UNSAFE`]; `item` names it.
    */
   USS_REQUEST_ERROR_GUARDED = 17,
+  /**
+   * A write to a drive without a catalogue (`family = "generic"`), or to a parameter its
+   * `writable` list does not name, without [`REQUEST_UNSAFE`]; `item` names it.
+   */
+  USS_REQUEST_ERROR_UNLISTED = 18,
+  /**
+   * A value no parameter of its type holds (NaN or an infinity for a float), refused
+   * with [`REQUEST_UNSAFE`] too; `item` names it.
+   */
+  USS_REQUEST_ERROR_IMPOSSIBLE_VALUE = 19,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

@@ -87,6 +87,12 @@ code_table! {
         /// A write of a parameter that can take the drive away from ussd (the family's
         /// catalogue marks it), without [`REQUEST_UNSAFE`]; `item` names it.
         Guarded = 17 => "guarded parameter: takes the drive away from ussd",
+        /// A write to a drive without a catalogue (`family = "generic"`), or to a parameter its
+        /// `writable` list does not name, without [`REQUEST_UNSAFE`]; `item` names it.
+        Unlisted = 18 => "not listed as writable",
+        /// A value no parameter of its type holds (NaN or an infinity for a float), refused
+        /// with [`REQUEST_UNSAFE`] too; `item` names it.
+        ImpossibleValue = 19 => "no value of this parameter (NaN or an infinity)",
     }
 }
 

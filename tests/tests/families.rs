@@ -417,10 +417,20 @@ fn guards_compare_values_and_a_drive_without_a_catalogue_takes_only_listed_write
         &[
             (3, "family = \"g120\"\nsim = { family = \"g120\" }"),
             (4, "family = \"generic\""),
+            (5, "family = \"generic\"\nwritable = [\"P1120\", \"P1121\"]"),
         ],
     );
     let bus = ussd.bus();
     let refused = |r: &Result<Value, ParamError>| matches!(r, Err(ParamError::Refused { .. }));
+    let unlisted = |r: &Result<Value, ParamError>| {
+        matches!(
+            r,
+            Err(ParamError::Refused {
+                error: uss_client::RequestError::Unlisted,
+                item: Some(0)
+            })
+        )
+    };
     let p2040 = param(2040);
     // Access level 3: the drive itself takes p2040 (level 2).
     bus.write(addr(3), param(3), Value::Word(3), false).unwrap();
@@ -442,7 +452,13 @@ fn guards_compare_values_and_a_drive_without_a_catalogue_takes_only_listed_write
     );
     // No catalogue: nothing is written without --unsafe unless the drive table lists it.
     let r = bus.write(addr(4), param(700), Value::Word(2), false);
-    assert!(refused(&r), "generic P0700: {r:?}");
+    assert!(unlisted(&r), "generic P0700: {r:?}");
+    let r = bus.write(addr(5), param(700), Value::Word(2), false);
+    assert!(unlisted(&r), "generic P0700, unlisted: {r:?}");
+    assert_eq!(
+        bus.write(addr(5), param(1120), Value::from_f32(2.0), false),
+        Ok(Value::from_f32(2.0))
+    );
     assert!(
         bus.write_with(addr(4), param(1120), Value::from_f32(2.0), unsafe_write)
             .is_ok()

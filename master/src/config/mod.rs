@@ -298,6 +298,12 @@ pub struct DriveEntry {
     /// telegram. `false` for S110 and G120 firmware 4, which ignore them: they get their own.
     #[serde(default = "yes")]
     pub broadcast: bool,
+    /// The parameters a write may change without `--unsafe` (`"P1120"`: every element,
+    /// `"P2014.1"`: that one). A drive without a catalogue (`family = "generic"`) takes no
+    /// write without it; for a family with a catalogue it narrows what the catalogue allows
+    /// (its guarded parameters stay guarded). Unset: the family's catalogue decides.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub writable: Option<Vec<ParamName>>,
     /// Only on the simulated bus: the simulated drive's options (uss-sim's drive keys).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sim: Option<SimOptions>,
@@ -306,6 +312,13 @@ pub struct DriveEntry {
 impl DriveEntry {
     pub fn layout(&self) -> Layout {
         Layout::new(self.pkw, self.pzd)
+    }
+
+    /// The parameters `writable` names, as checked by the rules (`None`: unset).
+    pub fn writable(&self) -> Option<Vec<uss_protocol::ParamRef>> {
+        self.writable
+            .as_ref()
+            .map(|names| names.iter().filter_map(ParamName::param).collect())
     }
 
     /// The telegram-off time parameter: as written, else the family's.

@@ -245,6 +245,27 @@ impl Rules<'_> {
                 return;
             }
         }
+        for name in drive.writable.iter().flatten() {
+            match &name.parsed {
+                Err(e) => {
+                    let problem = format!(
+                        "names {:?}, which is not a parameter: {e}; list them as the manual \
+                         writes them, e.g. [\"P1120\", \"P1121\"]",
+                        String::from(name.clone())
+                    );
+                    self.fail("writable", &problem);
+                    return;
+                }
+                Ok(None) => {
+                    self.fail(
+                        "writable",
+                        "names \"\": list parameters as the manual writes them, e.g. [\"P1120\"]",
+                    );
+                    return;
+                }
+                Ok(Some(_)) => {}
+            }
+        }
         if drive.require_monitoring {
             let missing = if monitoring.param().is_none() {
                 "needs monitoring_param (e.g. \"P2014.1\"): ussd cannot verify a monitoring it \

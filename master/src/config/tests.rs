@@ -504,7 +504,7 @@ fn unknown_keys_are_named_with_their_table_in_every_table() {
             "bus.toml:7:1: bus \"bus0\" drive 3: unknown key `colour`: a [[bus.drive]] table \
              takes address, pkw, pzd, weight, reference_hz, family, reference_param, \
              pole_pairs, watchdog_ms, safe_command, params_writable, monitoring_param, monitoring_max_ms, \
-             require_monitoring, broadcast, sim"
+             require_monitoring, broadcast, writable, sim"
                 .to_owned(),
             Some("bus[0].drive[0].colour".to_owned())
         )

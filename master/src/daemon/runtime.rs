@@ -395,7 +395,12 @@ fn spawn<T: Transport + Send + 'static>(
     };
     let ipc = crate::daemon::ipc::create(&bus.name, &config.drives, clock.origin())?;
     let (mut engine, handle, events) = Engine::with_bridge(config, transport, clock, ipc.rt);
-    let params = ipc.params;
+    let mut params = ipc.params;
+    for d in &bus.drives {
+        if let Some(writable) = d.writable() {
+            params.limit_writes(d.address, writable);
+        }
+    }
     let params_handle = handle.clone();
     let params_thread = std::thread::Builder::new()
         .name(format!("uss-{}-params", bus.name))

@@ -21,7 +21,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::request_response::PortFactory as RequestResponseFactory;
 use std::time::Instant;
 use uss_catalogue::Catalogue;
-use uss_protocol::{Address, ParamTask};
+use uss_protocol::{Address, ParamRef, ParamTask};
 use uss_shm_types::names;
 use uss_shm_types::{Instance, Outcome, ParamRequest, ParamResponse, ParamResult, RequestError};
 
@@ -37,7 +37,13 @@ pub(super) fn create(
 ) -> Result<ParamServer, IpcError> {
     let guards = setups
         .iter()
-        .map(|d| (d.address, Catalogue::of_family(d.family.name())))
+        .map(|d| {
+            let rules = WriteRules {
+                catalogue: Catalogue::of_family(d.family.name()),
+                writable: None,
+            };
+            (d.address, rules)
+        })
         .collect();
     let (params, server) = serve(node, bus, &names::params(bus), attributes, "parameter")?;
     let answers = node
@@ -148,9 +154,51 @@ pub struct ParamServer {
     next_dead_check: Instant,
     /// The requesting processes, watched by the bus thread before each job leaves a mailbox.
     watches: super::watches::Watches,
-    /// Each drive's family catalogue, which marks the parameters whose change takes the drive
-    /// away from ussd (none for a family uss-rt has no catalogue of).
-    guards: Vec<(Address, Option<&'static Catalogue>)>,
+    /// What each drive takes without `--unsafe`.
+    guards: Vec<(Address, WriteRules)>,
+}
+
+/// What a drive takes without `--unsafe`: what its family's catalogue does not guard (a family
+/// uss-rt has no catalogue of takes nothing), narrowed to its `writable` list where it has one.
+#[derive(Debug, Clone)]
+struct WriteRules {
+    catalogue: Option<&'static Catalogue>,
+    writable: Option<Vec<ParamRef>>,
+}
+
+/// Why a write is refused before the bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Refused<'a> {
+    /// No value the parameter can hold (NaN, an infinity): refused, `--unsafe` or not.
+    Impossible,
+    /// Neither a catalogue nor the drive's `writable` list says it is safe.
+    Unlisted,
+    /// Its catalogue guards it, for this reason.
+    Guarded(&'a str),
+}
+
+impl WriteRules {
+    /// Why writing `value` (the raw word or double word) to `pnu` (element `index`) is refused
+    /// without `--unsafe`, if it is.
+    fn refuse(&self, pnu: u16, index: Option<u8>, value: u32) -> Option<Refused<'static>> {
+        if let Some(c) = self.catalogue {
+            if c.is_impossible(pnu, value) {
+                return Some(Refused::Impossible);
+            }
+            if let Some(why) = c.guard(pnu, value) {
+                return Some(Refused::Guarded(why));
+            }
+        }
+        let listed = |list: &[ParamRef]| {
+            list.iter()
+                .any(|p| p.pnu.get() == pnu && p.index.is_none_or(|i| Some(i.get()) == index))
+        };
+        match (&self.writable, self.catalogue) {
+            (Some(list), _) if !listed(list) => Some(Refused::Unlisted),
+            (None, None) => Some(Refused::Unlisted),
+            _ => None,
+        }
+    }
 }
 
 /// Who is behind a request and who controls a drive, from iceoryx2's own records (the node
@@ -427,45 +475,64 @@ impl ParamServer {
         Some(response)
     }
 
-    /// A write of a parameter that can take the drive away from ussd (its family's catalogue
-    /// marks it) is refused unless the request is marked unsafe
-    /// ([`uss_shm_types::REQUEST_UNSAFE`]); an unsafe one is logged with its process.
+    /// A write the drive's rules do not take without `--unsafe` ([`WriteRules`]) is refused
+    /// unless the request is marked unsafe ([`uss_shm_types::REQUEST_UNSAFE`]); an unsafe one
+    /// is logged with its process. A value no parameter of its type holds (NaN) is refused
+    /// either way.
     fn refuse_guarded(&self, active: &Active, checked: &Checked<'_>) -> Option<ParamResponse> {
         let Checked {
             request,
             address,
             tasks,
         } = *checked;
-        let catalogue = self
+        let rules = self
             .guards
             .iter()
             .find(|(a, _)| *a == address)
-            .and_then(|(_, c)| *c)?;
+            .map(|(_, r)| r)?;
         for (i, task) in tasks.iter().enumerate() {
-            let Some((pnu, value)) = written(task) else {
+            let Some((pnu, index, value)) = written(task) else {
                 continue;
             };
-            let Some(why) = catalogue.guard(pnu, value) else {
+            let Some(refused) = rules.refuse(pnu, index, value) else {
                 continue;
             };
-            if !request.is_unsafe() {
-                return Some(ParamResponse::refused(
-                    request.address,
-                    uss_shm_types::Refusal {
-                        error: RequestError::Guarded,
-                        item: u8::try_from(i).ok(),
-                    },
-                ));
-            }
-            let pid = self.identities.param_client(active.origin()).unwrap_or(0);
-            tracing::warn!(
-                bus = self.bus,
-                drive = address.get(),
-                pid,
-                "drive {address}: P{pnu:04} written as {value} with --unsafe by process {pid}: {why}"
-            );
+            let error = match refused {
+                Refused::Impossible => RequestError::ImpossibleValue,
+                _ if request.is_unsafe() => {
+                    let pid = self.identities.param_client(active.origin()).unwrap_or(0);
+                    let why = match refused {
+                        Refused::Guarded(why) => why,
+                        _ => "not listed as writable (no catalogue, or the drive's writable list)",
+                    };
+                    tracing::warn!(
+                        bus = self.bus,
+                        drive = address.get(),
+                        pid,
+                        "drive {address}: P{pnu:04} written as {value:#x} with --unsafe by process {pid}: {why}"
+                    );
+                    continue;
+                }
+                Refused::Unlisted => RequestError::Unlisted,
+                Refused::Guarded(_) => RequestError::Guarded,
+            };
+            return Some(ParamResponse::refused(
+                request.address,
+                uss_shm_types::Refusal {
+                    error,
+                    item: u8::try_from(i).ok(),
+                },
+            ));
         }
         None
+    }
+
+    /// Narrows what drive `address` takes without `--unsafe` to `writable` (its configuration's
+    /// `writable` list).
+    pub fn limit_writes(&mut self, address: Address, writable: Vec<ParamRef>) {
+        if let Some((_, rules)) = self.guards.iter_mut().find(|(a, _)| *a == address) {
+            rules.writable = Some(writable);
+        }
     }
 
     fn route(&mut self, r: &JobResult, handle: &EngineHandle) {
@@ -531,11 +598,13 @@ struct Checked<'a> {
 }
 
 /// The parameter number and value a task writes, if it writes.
-fn written(task: &ParamTask) -> Option<(u16, u32)> {
+/// The parameter, element and raw value a task writes, if it writes.
+fn written(task: &ParamTask) -> Option<(u16, Option<u8>, u32)> {
     match *task {
-        ParamTask::Write { pnu, value, .. } | ParamTask::WriteArray { pnu, value, .. } => {
-            Some((pnu.get(), value.as_u32()))
-        }
+        ParamTask::Write { pnu, value, .. } => Some((pnu.get(), None, value.as_u32())),
+        ParamTask::WriteArray {
+            pnu, index, value, ..
+        } => Some((pnu.get(), Some(index.get()), value.as_u32())),
         _ => None,
     }
 }
