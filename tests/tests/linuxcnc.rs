@@ -55,6 +55,21 @@ fn build() -> PathBuf {
     target.join("release/uss_vfd")
 }
 
+/// One halrun at a time: LinuxCNC runs one RTAPI session per machine.
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// The HAL file of a test: the component on drive 1 of `bus`.
+fn hal_text(component: &Path, bus: &str) -> String {
+    format!(
+        "loadusr -Wn uss_vfd {} --bus {bus} --drive 1\nsetp uss_vfd.rpm-at-reference 1500\n\
+         setp uss_vfd.tolerance 0.02\nwaitusr uss_vfd\n",
+        component.display()
+    )
+}
+
 /// A `halrun` session of this test: RTAPI as an unprivileged user (`rtapi_app` refuses root), its
 /// socket in a directory of the test.
 struct Hal {
@@ -171,6 +186,7 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
     if !linuxcnc_here() {
         return;
     }
+    let _serial = serial();
     let component = build();
     let mut ussd = Ussd::start("", &[(1, "")]);
     let bus = ussd.bus();
@@ -181,16 +197,7 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
     }
     let dir = std::env::temp_dir();
     let hal_file = dir.join(format!("uss_vfd-{}.hal", std::process::id()));
-    std::fs::write(
-        &hal_file,
-        format!(
-            "loadusr -Wn uss_vfd {} --bus {} --drive 1\nsetp uss_vfd.rpm-at-reference 1500\n\
-             setp uss_vfd.tolerance 0.02\nwaitusr uss_vfd\n",
-            component.display(),
-            ussd.bus
-        ),
-    )
-    .unwrap();
+    std::fs::write(&hal_file, hal_text(&component, &ussd.bus)).unwrap();
     let hal = Hal::start(
         &hal_file,
         dir.join(format!("halrun-{}.log", std::process::id())),
@@ -256,4 +263,53 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
     let log = hal.stop();
     let _ = std::fs::remove_file(&hal_file);
     println!("{log}");
+}
+
+/// Issue 32, item 3: an operator's coast of an idle spindle (spindle-on low) holds: the
+/// component re-armed the drive whenever spindle-on was low and the drive latched, so the coast
+/// was undone within 50 ms (OFF1 instead of OFF2) and the next M3 ran the motor. The coast holds
+/// until spindle-on rises, the deliberate re-arm.
+#[test]
+fn an_operators_coast_of_an_idle_spindle_holds_until_spindle_on_rises() {
+    if !linuxcnc_here() {
+        return;
+    }
+    let _serial = serial();
+    let component = build();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let dir = std::env::temp_dir();
+    let hal_file = dir.join(format!("uss_vfd-idle-{}.hal", std::process::id()));
+    std::fs::write(&hal_file, hal_text(&component, &ussd.bus)).unwrap();
+    let hal = Hal::start(
+        &hal_file,
+        dir.join(format!("halrun-idle-{}.log", std::process::id())),
+    );
+    let s = Duration::from_secs(10);
+    hal.until("comm-ok", s, |h| h.get("comm-ok") == "TRUE");
+    // Run once and stop: the drive is live under the component, the spindle idle.
+    hal.set("speed-command", "600");
+    hal.set("spindle-on", "1");
+    hal.until("running", s, |h| h.get("at-speed") == "TRUE");
+    hal.set("spindle-on", "0");
+    hal.until("stopped", s, |h| h.float("spindle-speed-fb").abs() < 1.0);
+    // The operator coasts the idle drive from another process.
+    bus.stop_drive(addr(1), StopCommand::Off2).unwrap();
+    bus.wait_stopped(addr(1), StopCommand::Off2, None).unwrap();
+    let watch = bus.watch(addr(1)).unwrap();
+    let held = Instant::now() + Duration::from_millis(1000);
+    while Instant::now() < held {
+        let i = watch.latest();
+        assert!(
+            !i.is_live() && i.sent_stw1 == 0x047C,
+            "the coast was undone while idle: {i:?}"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(hal.get("latched"), "TRUE");
+    // M3: the rising edge re-arms and runs.
+    hal.set("spindle-on", "1");
+    hal.until("running after M3", s, |h| h.get("at-speed") == "TRUE");
+    let _ = hal.stop();
+    let _ = std::fs::remove_file(&hal_file);
 }
