@@ -5,20 +5,38 @@
  *   loadusr -Wn uss_vfd uss_vfd --bus line1 --drive 3
  *
  * It is a controller of libussrt (the C ABI of the uss-rt client), so the drive follows the
- * rules every uss-rt controller follows: it runs only on a live, deliberate command; a latch
- * (an operator's stop, a trip of this component, a restarted ussd) holds until spindle-on goes
- * from high to low (the re-arming OFF1: latched while idle, it must be switched on and off) and
- * then high again (ON); at start spindle-on must be seen low first; the watchdog is fed by this
- * component's own loop, one command per exchange.
+ * rules every uss-rt controller follows (docs/SAFETY.md) and adds none of its own: it runs only
+ * on a live, deliberate command. A latch (ussd's start, an operator's stop, a trip, a restarted
+ * ussd) holds, idle or running, until spindle-on rises (low -> high, M3) after the latch was
+ * seen: that edge is the deliberate re-arm (OFF1 naming the latch), and the drive runs. A
+ * spindle-on that was high when the latch came must go low and high again; at start it must be
+ * seen low first. Nothing else re-arms: not spindle-on low, not an idle loop, not a reconnect.
+ *
+ * The watchdog is fed by this component's own loop, one command per exchange, and only while
+ * LinuxCNC's servo thread proves it is alive: watchdog-in must change at least once per drive
+ * watchdog time (watchdog_ms of ussd's configuration), as hostmot2's watchdog and charge pumps
+ * expect, e.g. from siggen's clock in the servo thread:
+ *
+ *   loadrt siggen
+ *   addf siggen.0.update servo-thread
+ *   setp siggen.0.frequency 100
+ *   net uss-watchdog siggen.0.clock => uss_vfd.watchdog-in
+ *
+ * No change within the watchdog time (the servo thread stopped, LinuxCNC hangs) and the
+ * component stops refreshing: ussd trips the drive (controller stale), and it stays latched
+ * until spindle-on rises again. watchdog-in is sampled every millisecond: it must not change
+ * faster than every 2 ms (siggen at up to 250 Hz).
  *
  * Pins (NAME is --name, default uss_vfd):
  *   NAME.speed-command       float in   spindle speed in rpm (the sign gives the direction when
  *                                       neither spindle-fwd nor spindle-rev is set)
- *   NAME.spindle-on          bit   in   run; a latch needs it low, then high, to run again
+ *   NAME.spindle-on          bit   in   run; after a latch, its rising edge re-arms and runs
  *   NAME.spindle-fwd         bit   in   forward
  *   NAME.spindle-rev         bit   in   reverse
  *   NAME.enable              bit   in   must be high for the drive to run (low: OFF1)
  *   NAME.err-reset           bit   in   a rising edge acknowledges a drive fault
+ *   NAME.watchdog-in         bit   in   toggled by the servo thread, at least once per
+ *                                       watchdog time: the proof that LinuxCNC is alive
  *   NAME.at-speed            bit   out  running within tolerance of the command
  *   NAME.spindle-speed-fb    float out  actual speed in rpm
  *   NAME.spindle-speed-fb-hz float out  actual frequency in Hz
@@ -26,6 +44,7 @@
  *   NAME.fault               bit   out  the drive reports a fault (ZSW1 bit 3)
  *   NAME.fault-code          s32   out  the drive's newest fault number (r0947[0], F0072 -> 72)
  *   NAME.latched             bit   out  ussd holds the drive stopped until it is re-armed
+ *   NAME.watchdog-ok         bit   out  watchdog-in changed within the watchdog time
  *   NAME.comm-ok             bit   out  ussd serves the bus and the drive answers
  *   NAME.error-count         s32   out  failed calls and lost contacts since the start
  *   NAME.state               s32   out  PROFIdrive state: 1..4 for S1..S4, 6 fault, 0 not ready
@@ -52,6 +71,7 @@ typedef struct {
   hal_bit_t *spindle_rev;
   hal_bit_t *enable;
   hal_bit_t *err_reset;
+  hal_bit_t *watchdog_in;
   hal_bit_t *at_speed;
   hal_float_t *speed_fb;
   hal_float_t *speed_fb_hz;
@@ -59,6 +79,7 @@ typedef struct {
   hal_bit_t *fault;
   hal_s32_t *fault_code;
   hal_bit_t *latched;
+  hal_bit_t *watchdog_ok;
   hal_bit_t *comm_ok;
   hal_s32_t *error_count;
   hal_s32_t *state;
@@ -84,10 +105,9 @@ typedef struct {
   uint8_t address;
   UssrtBus *bus;
   UssrtController *c;
-  /* The start needs spindle-on low before the drive may run (the re-arming OFF1). */
-  int need_low;
-  /* A latch needs spindle-on to go from high to low (the deliberate re-arm) before it runs. */
-  int need_fall;
+  /* A latch was seen (or none can be ruled out: the start, a new controller): the drive runs
+   * only after spindle-on rises, which re-arms it. */
+  int latched;
   int was_on;
   int was_fault;
   int was_reset;
@@ -95,7 +115,27 @@ typedef struct {
   int complained;
   /* The controller's refresh period (ussrt_control_refresh_period), us; 20 ms without one. */
   uint32_t refresh_us;
+  /* The drive's watchdog time, ms (100 until ussd says). */
+  uint32_t watchdog_ms;
+  /* watchdog-in as last sampled, and when it last changed (CLOCK_MONOTONIC, ms). */
+  int watchdog_was;
+  double watchdog_at;
 } vfd_t;
+
+static double now_ms(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec * 1e3 + (double)t.tv_nsec / 1e6;
+}
+
+/* Samples watchdog-in. */
+static void sample_watchdog(vfd_t *v, pins_t *p) {
+  int in = *p->watchdog_in != 0;
+  if (in != v->watchdog_was) {
+    v->watchdog_was = in;
+    v->watchdog_at = now_ms();
+  }
+}
 
 static void say(vfd_t *v, const char *what, UssrtStatus s) {
   /* One line per kind of failure in a row, not one per loop. */
@@ -132,9 +172,8 @@ static int connect(vfd_t *v, pins_t *p) {
       return -1;
     }
     (void)ussrt_control_refresh_period(v->c, &v->refresh_us);
-    /* A new controller: the drive runs only after spindle-on was seen low. */
-    v->need_low = 1;
-    v->need_fall = 0;
+    /* A new controller re-arms nothing: the drive runs only after spindle-on rises. */
+    v->latched = 1;
   }
   return 0;
 }
@@ -158,6 +197,7 @@ static void step(vfd_t *v, pins_t *p) {
     outputs_off(p);
     return;
   }
+  if (d.watchdog_ms > 0) v->watchdog_ms = d.watchdog_ms;
   int comm = !d.stale && d.image.online;
   if (v->was_comm && !comm) (*p->error_count)++;
   v->was_comm = comm;
@@ -178,35 +218,44 @@ static void step(vfd_t *v, pins_t *p) {
   }
   v->was_fault = *p->fault;
 
-  /* The command: stopped unless on, enabled and re-armed. */
   double command = *p->speed_command;
   int reverse = (*p->spindle_rev && !*p->spindle_fwd) ||
                 (!*p->spindle_fwd && !*p->spindle_rev && command < 0);
   double hz = fabs(command) / (rpm_per_hz > 0 ? rpm_per_hz : 1.0) * (reverse ? -1 : 1);
   *p->frequency_command = hz;
   int on = *p->spindle_on;
-  int fell = v->was_on && !on;
+  int rose = on && !v->was_on;
   v->was_on = on;
   int run = on && *p->enable;
-  if (v->need_fall) {
-    /* Latched: nothing is sent until spindle-on falls, which re-arms (OFF1 naming the latch). */
-    s = USSRT_STATUS_OK;
-    if (fell) {
-      s = ussrt_control_rearm(v->c, NULL);
-      if (s == USSRT_STATUS_OK) v->need_fall = v->need_low = 0;
+
+  /* LinuxCNC's servo thread is alive, or this component sends nothing at all: ussd's watchdog
+   * then trips the drive as it trips a dead controller. */
+  *p->watchdog_ok = now_ms() - v->watchdog_at <= (double)v->watchdog_ms;
+  if (!*p->watchdog_ok) {
+    v->latched = 1;
+    if (v->complained != -1) {
+      fprintf(stderr, "%s: watchdog-in has not changed within %u ms (the drive's watchdog): "
+              "not refreshing the drive; is the servo thread running?\n", v->name,
+              (unsigned)v->watchdog_ms);
+      v->complained = -1;
     }
-  } else if (!on) {
-    if (v->need_low || !d.live) {
-      /* spindle-on low at the start: the re-arming OFF1 of ussd's start-up latch. */
-      s = ussrt_control_rearm(v->c, NULL);
-      if (s == USSRT_STATUS_OK) v->need_low = 0;
-    } else {
-      s = ussrt_control_stop(v->c);
-    }
-  } else if (v->need_low || !run) {
-    s = ussrt_control_stop(v->c);
+    *p->latched = 1;
+    *p->at_speed = 0;
+    return;
+  }
+  /* A latch seen in the image is one the next rising edge re-arms. */
+  if (!d.live) v->latched = 1;
+
+  if (v->latched && rose) {
+    /* The deliberate re-arm: spindle-on rose after the latch was seen. */
+    s = ussrt_control_rearm(v->c, NULL);
+    if (s == USSRT_STATUS_OK) v->latched = 0;
   } else {
-    s = ussrt_control_run_hz(v->c, (float)hz);
+    s = USSRT_STATUS_OK;
+  }
+  if (s == USSRT_STATUS_OK) {
+    /* Latched, off or disabled: OFF1 (a stop always goes out; it re-arms nothing). */
+    s = (!v->latched && run) ? ussrt_control_run_hz(v->c, (float)hz) : ussrt_control_stop(v->c);
   }
   if (*p->err_reset && !v->was_reset && s == USSRT_STATUS_OK) {
     s = ussrt_control_acknowledge_fault(v->c, 1000);
@@ -220,8 +269,8 @@ static void step(vfd_t *v, pins_t *p) {
   case USSRT_STATUS_TRIPPED:
   case USSRT_STATUS_NOT_ARMED:
   case USSRT_STATUS_STALLED:
-    /* Latched: nothing runs the drive until spindle-on falls (re-arm), then rises (ON). */
-    v->need_fall = 1;
+    /* Latched: nothing runs the drive until spindle-on rises again. */
+    v->latched = 1;
     say(v, "latched", s);
     break;
   case USSRT_STATUS_RELEASED:
@@ -236,7 +285,7 @@ static void step(vfd_t *v, pins_t *p) {
   }
   UssrtDrive now;
   if (ussrt_drive_read(v->bus, v->address, &now) == USSRT_STATUS_OK) d = now;
-  *p->latched = !d.live || v->need_low || v->need_fall;
+  *p->latched = !d.live || v->latched;
   double want = fabs(command);
   double got = fabs(*p->speed_fb);
   *p->at_speed = comm && !*p->latched && run && d.state == 4 && want > 0 &&
@@ -244,7 +293,14 @@ static void step(vfd_t *v, pins_t *p) {
 }
 
 int main(int argc, char **argv) {
-  vfd_t v = {.name = "uss_vfd", .bus_name = NULL, .address = 0xFF, .refresh_us = 20000};
+  /* was_on = 1: spindle-on must be seen low before its first rise runs the drive. */
+  vfd_t v = {.name = "uss_vfd",
+             .bus_name = NULL,
+             .address = 0xFF,
+             .refresh_us = 20000,
+             .watchdog_ms = 100,
+             .latched = 1,
+             .was_on = 1};
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "--bus") && i + 1 < argc) {
       v.bus_name = argv[++i];
@@ -285,6 +341,7 @@ int main(int argc, char **argv) {
     r |= hal_pin_bit_newf(HAL_IN, &p->spindle_rev, comp, "%s.spindle-rev", n);
     r |= hal_pin_bit_newf(HAL_IN, &p->enable, comp, "%s.enable", n);
     r |= hal_pin_bit_newf(HAL_IN, &p->err_reset, comp, "%s.err-reset", n);
+    r |= hal_pin_bit_newf(HAL_IN, &p->watchdog_in, comp, "%s.watchdog-in", n);
     r |= hal_pin_bit_newf(HAL_OUT, &p->at_speed, comp, "%s.at-speed", n);
     r |= hal_pin_float_newf(HAL_OUT, &p->speed_fb, comp, "%s.spindle-speed-fb", n);
     r |= hal_pin_float_newf(HAL_OUT, &p->speed_fb_hz, comp, "%s.spindle-speed-fb-hz", n);
@@ -292,6 +349,7 @@ int main(int argc, char **argv) {
     r |= hal_pin_bit_newf(HAL_OUT, &p->fault, comp, "%s.fault", n);
     r |= hal_pin_s32_newf(HAL_OUT, &p->fault_code, comp, "%s.fault-code", n);
     r |= hal_pin_bit_newf(HAL_OUT, &p->latched, comp, "%s.latched", n);
+    r |= hal_pin_bit_newf(HAL_OUT, &p->watchdog_ok, comp, "%s.watchdog-ok", n);
     r |= hal_pin_bit_newf(HAL_OUT, &p->comm_ok, comp, "%s.comm-ok", n);
     r |= hal_pin_s32_newf(HAL_OUT, &p->error_count, comp, "%s.error-count", n);
     r |= hal_pin_s32_newf(HAL_OUT, &p->state, comp, "%s.state", n);
@@ -304,29 +362,36 @@ int main(int argc, char **argv) {
     return 1;
   }
   *p->speed_command = 0;
-  *p->spindle_on = *p->spindle_fwd = *p->spindle_rev = *p->err_reset = 0;
+  *p->spindle_on = *p->spindle_fwd = *p->spindle_rev = *p->err_reset = *p->watchdog_in = 0;
   *p->enable = 1;
-  *p->at_speed = *p->fault = *p->comm_ok = 0;
+  *p->at_speed = *p->fault = *p->comm_ok = *p->watchdog_ok = 0;
   *p->latched = 1;
   *p->speed_fb = *p->speed_fb_hz = *p->frequency_command = 0;
   *p->fault_code = *p->error_count = *p->state = 0;
   p->rpm_at_reference = 1500.0; /* a 4-pole motor at 50 Hz */
   p->tolerance = 0.02;
-  v.need_low = 1;
+  v.watchdog_at = now_ms() - 1e9; /* no change seen yet */
   hal_ready(comp);
 
   while (!done) {
     step(&v, p);
     /* In step with the bus: the next exchange with the drive, at most the controller's refresh
      * period (a quarter of the drive's watchdog time, at most 20 ms), so this loop's own
-     * command feeds the watchdog whatever its length and however slow the line. A timeout is
-     * that bound; any other failure (no ussd) waits 20 ms before the next try. */
+     * command feeds the watchdog whatever its length and however slow the line; waited for in
+     * 1 ms slices, watchdog-in sampled in each. Any failure but a timeout (no ussd) waits
+     * 20 ms before the next try. */
     uint32_t wait_ms = v.refresh_us < 2000 ? 1 : v.refresh_us / 1000;
-    UssrtStatus s = v.bus == NULL ? USSRT_STATUS_NOT_RUNNING
-                                  : ussrt_wait_exchange(v.bus, v.address, wait_ms);
+    UssrtStatus s = USSRT_STATUS_TIMEOUT;
+    for (uint32_t waited = 0; waited < wait_ms && s == USSRT_STATUS_TIMEOUT && !done; waited++) {
+      s = v.bus == NULL ? USSRT_STATUS_NOT_RUNNING : ussrt_wait_exchange(v.bus, v.address, 1);
+      sample_watchdog(&v, p);
+    }
     if (s != USSRT_STATUS_OK && s != USSRT_STATUS_TIMEOUT) {
-      struct timespec pause = {0, 20 * 1000 * 1000};
-      nanosleep(&pause, NULL);
+      for (int i = 0; i < 20 && !done; i++) {
+        struct timespec pause = {0, 1000 * 1000};
+        nanosleep(&pause, NULL);
+        sample_watchdog(&v, p);
+      }
     }
   }
   disconnect(&v); /* hands the drive back: ussd sends its safe command, "released" */

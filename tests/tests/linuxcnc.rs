@@ -1,7 +1,9 @@
 //! The `LinuxCNC` HAL component `uss_vfd` (`linuxcnc/uss_vfd.c`, on `libussrt`) in a real `halrun`
-//! against a real ussd and simulated drive, pins set and read with `halcmd`: spindle on ->
-//! at-speed, a speed change, off; an operator's stop -> latched, and the drive does not run
-//! again until spindle-on is cycled; ussd killed -> comm-ok false.
+//! against a real ussd and simulated drive, pins set and read with `halcmd`, its watchdog-in fed
+//! by siggen in a servo thread: latched at start while idle; spindle on (its rise re-arms) ->
+//! at-speed, a speed change, off; an operator's stop -> latched, high or low, until spindle-on
+//! rises again; the servo thread stopped -> the component stops refreshing, the drive trips and
+//! stays latched until a spindle-on cycle; ussd killed -> comm-ok false.
 //!
 //! Needs Debian's linuxcnc-uspace and linuxcnc-uspace-dev (`halrun`, `halcmd`, hal.h) and root;
 //! without them the test says it is skipped, unless `USS_REQUIRE_LINUXCNC` is set (`.ci/run`
@@ -58,14 +60,20 @@ fn build() -> PathBuf {
 /// One halrun at a time: LinuxCNC runs one RTAPI session per machine.
 fn serial() -> std::sync::MutexGuard<'static, ()> {
     static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    LOCK.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    LOCK.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
-/// The HAL file of a test: the component on drive 1 of `bus`.
+/// The HAL file of a test: the component on drive 1 of `bus`, its watchdog-in fed by siggen's
+/// clock in a servo thread (1 ms), as the README shows.
 fn hal_text(component: &Path, bus: &str) -> String {
     format!(
-        "loadusr -Wn uss_vfd {} --bus {bus} --drive 1\nsetp uss_vfd.rpm-at-reference 1500\n\
-         setp uss_vfd.tolerance 0.02\nwaitusr uss_vfd\n",
+        "loadrt threads name1=servo-thread period1=1000000\nloadrt siggen\n\
+         addf siggen.0.update servo-thread\nsetp siggen.0.frequency 100\n\
+         loadusr -Wn uss_vfd {} --bus {bus} --drive 1\n\
+         net uss-watchdog siggen.0.clock => uss_vfd.watchdog-in\n\
+         setp uss_vfd.rpm-at-reference 1500\nsetp uss_vfd.tolerance 0.02\nstart\n\
+         waitusr uss_vfd\n",
         component.display()
     )
 }
@@ -182,7 +190,7 @@ impl Drop for Hal {
 }
 
 #[test]
-fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
+fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_rises() {
     if !linuxcnc_here() {
         return;
     }
@@ -203,11 +211,23 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
         dir.join(format!("halrun-{}.log", std::process::id())),
     );
     let s = Duration::from_secs(10);
+    let watch = bus.watch(addr(1)).unwrap();
+    // Holds the drive latched with `stw1` for `ms`, whatever the component does.
+    let holds = |what: &str, stw1: u16, ms: u64| {
+        let end = Instant::now() + Duration::from_millis(ms);
+        while Instant::now() < end {
+            let i = watch.latest();
+            assert!(!i.is_live() && i.sent_stw1 == stw1, "{what}: {i:?}");
+            assert_eq!(hal.get("latched"), "TRUE", "{what}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
 
-    // Spindle on at 600 rpm (20 Hz of the 50 Hz reference): at speed.
     hal.until("comm-ok", s, |h| h.get("comm-ok") == "TRUE");
-    // spindle-on low at start re-arms ussd's start-up latch (within a poll or so).
-    hal.until("re-armed at start", s, |h| h.get("latched") == "FALSE");
+    hal.until("watchdog-ok", s, |h| h.get("watchdog-ok") == "TRUE");
+    // ussd's start-up latch holds while spindle-on is low: idle is no re-arm.
+    holds("idle at start", 0x047E, 500);
+    // Spindle on at 600 rpm (20 Hz of the 50 Hz reference): its rise re-arms, at speed.
     hal.set("speed-command", "600");
     hal.set("spindle-on", "1");
     hal.until("at speed (600 rpm)", s, |h| h.get("at-speed") == "TRUE");
@@ -219,36 +239,46 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_is_cycled() {
     hal.until("at speed (900 rpm)", s, |h| {
         h.get("at-speed") == "TRUE" && (h.float("spindle-speed-fb") - 900.0).abs() < 18.0
     });
-    // Off: the drive ramps down (OFF1).
+    // Off: the drive ramps down (OFF1): the component's own stop, no latch.
     hal.set("spindle-on", "0");
     hal.until("stopped", s, |h| h.float("spindle-speed-fb").abs() < 1.0);
     assert_eq!(hal.get("at-speed"), "FALSE");
-    assert_eq!(bus.watch(addr(1)).unwrap().latest().sent_stw1, 0x047E);
+    assert_eq!(hal.get("latched"), "FALSE");
+    assert_eq!(watch.latest().sent_stw1, 0x047E);
 
     // On again, then an operator's stop from another process: latched, not restarted while
-    // spindle-on stays high.
+    // spindle-on stays high, nor when it goes low.
     hal.set("spindle-on", "1");
     hal.until("at speed again", s, |h| h.get("at-speed") == "TRUE");
     bus.stop_drive(addr(1), StopCommand::Off1).unwrap();
     hal.until("latched", s, |h| h.get("latched") == "TRUE");
     assert_eq!(hal.get("at-speed"), "FALSE");
-    let watch = bus.watch(addr(1)).unwrap();
-    let held = Instant::now() + Duration::from_millis(1500);
-    while Instant::now() < held {
-        let i = watch.latest();
-        assert!(
-            !i.is_live() && i.sent_stw1 == 0x047E,
-            "restarted by itself: {i:?}"
-        );
-        assert_eq!(hal.get("latched"), "TRUE");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    holds("spindle-on held high", 0x047E, 1500);
     hal.until("stopped by the operator", s, |h| {
         h.float("spindle-speed-fb").abs() < 1.0
     });
-    // Cycled: low re-arms (OFF1 naming the latch), high runs.
     hal.set("spindle-on", "0");
-    hal.until("re-armed", s, |h| h.get("latched") == "FALSE");
+    holds("spindle-on low after the stop", 0x047E, 500);
+    // Its rise re-arms (OFF1 naming the latch) and runs.
+    hal.set("spindle-on", "1");
+    hal.until("running after the rise", s, |h| h.get("at-speed") == "TRUE");
+
+    // LinuxCNC's servo thread stops: watchdog-in stops changing, the component stops
+    // refreshing and ussd trips the drive (controller stale).
+    hal.halcmd(&["stop"]);
+    hal.until("watchdog-ok false", s, |h| h.get("watchdog-ok") == "FALSE");
+    let tripped = watch
+        .wait_for(Duration::from_secs(2), "the trip", |i| !i.is_live())
+        .unwrap();
+    assert_eq!(tripped.latch_reason_name(), "controller stale");
+    assert_eq!(hal.get("latched"), "TRUE");
+    // The thread runs again: still latched while spindle-on stays high; a cycle runs it.
+    hal.halcmd(&["start"]);
+    hal.until("watchdog-ok again", s, |h| h.get("watchdog-ok") == "TRUE");
+    holds("servo thread back, spindle-on high", 0x047E, 500);
+    hal.set("spindle-on", "0");
+    hal.until("spindle-on low seen", s, |h| h.get("latched") == "TRUE");
+    std::thread::sleep(Duration::from_millis(100));
     hal.set("spindle-on", "1");
     hal.until("running after the cycle", s, |h| {
         h.get("at-speed") == "TRUE"
@@ -287,6 +317,7 @@ fn an_operators_coast_of_an_idle_spindle_holds_until_spindle_on_rises() {
     );
     let s = Duration::from_secs(10);
     hal.until("comm-ok", s, |h| h.get("comm-ok") == "TRUE");
+    hal.until("watchdog-ok", s, |h| h.get("watchdog-ok") == "TRUE");
     // Run once and stop: the drive is live under the component, the spindle idle.
     hal.set("speed-command", "600");
     hal.set("spindle-on", "1");
