@@ -124,6 +124,7 @@ struct Metrics {
     telegrams: Family<TelegramLabels, Counter>,
     retries: Family<DriveLabels, Counter>,
     watchdog_trips: Family<DriveLabels, Counter>,
+    replacements: Family<DriveLabels, Counter>,
     latches: Family<DriveLabels, Counter>,
     refused_samples: Family<DriveLabels, Counter>,
     overrides: Family<DriveLabels, Counter>,
@@ -146,6 +147,7 @@ impl Metrics {
             telegrams: Family::default(),
             retries: Family::default(),
             watchdog_trips: Family::default(),
+            replacements: Family::default(),
             latches: Family::default(),
             refused_samples: Family::default(),
             overrides: Family::default(),
@@ -215,6 +217,11 @@ impl Metrics {
             "uss_watchdog_trips",
             "Times the controller did not refresh within its watchdog time",
             self.watchdog_trips,
+        );
+        r.register(
+            "uss_controller_replacements",
+            "Times another controller took the place of the one a live drive ran under, without a release (a trip)",
+            self.replacements,
         );
         r.register(
             "uss_latches",
@@ -295,6 +302,9 @@ impl Metrics {
         self.watchdog_trips
             .get_or_create(&labels)
             .inc_by(c.watchdog_trips);
+        self.replacements
+            .get_or_create(&labels)
+            .inc_by(c.replacements);
         self.latches.get_or_create(&labels).inc_by(c.latches);
         self.refused_samples
             .get_or_create(&labels)

@@ -112,21 +112,8 @@ impl Bus {
         info.set_item("weight", diag.info.weight)?;
         let family = uss_client::DriveFamily::try_from(diag.info.family);
         info.set_item("family", family.map_or("unknown", |f| f.name()))?;
-        let c = &diag.counters;
         let counters = PyDict::new(py);
-        for (name, value) in [
-            ("requests", c.requests),
-            ("good", c.good),
-            ("timeouts", c.timeouts),
-            ("retries", c.retries),
-            ("failed_polls", c.failed_polls),
-            ("latches", c.latches),
-            ("watchdog_trips", c.watchdog_trips),
-            ("rejected_outputs", c.rejected_outputs),
-            ("releases", c.releases),
-            ("overrides", c.overrides),
-            ("jobs_done", c.jobs_done),
-        ] {
+        for (name, value) in diag.counters.named() {
             counters.set_item(name, value)?;
         }
         let d = PyDict::new(py);

@@ -267,8 +267,11 @@ impl From<&FrameError> for LastFailure {
 }
 
 impl DriveCounters {
+    /// How many counters [`DriveCounters::named`] gives.
+    pub const COUNT: usize = 25;
+
     /// Every counter by its field name, in field order (for tools that show or export them).
-    pub const fn named(&self) -> [(&'static str, u64); 25] {
+    pub const fn named(&self) -> [(&'static str, u64); Self::COUNT] {
         [
             ("requests", self.requests),
             ("good", self.good),

@@ -18,7 +18,8 @@ fn fragile_pump() -> SimProcess {
     ])
 }
 
-/// The fragile pump as drive 1 (`family = "generic"`) of a ussd of its own, and its bus.
+/// The fragile pump as drive 1 (`family = "generic"`, its P2 listed as `writable`) of a ussd
+/// of its own, and its bus.
 fn generic_pump_bus() -> (SimProcess, Ussd, uss_client::Bus) {
     let sim = fragile_pump();
     let mut ussd = Ussd::launch(
@@ -26,7 +27,8 @@ fn generic_pump_bus() -> (SimProcess, Ussd, uss_client::Bus) {
             suffix: "",
             device: &sim.path,
             keys: "baud = 19200",
-            drives: &[(1, "pzd = 6\nfamily = \"generic\"")],
+            // Its one writable word is listed: a drive without a catalogue takes no other.
+            drives: &[(1, "pzd = 6\nfamily = \"generic\"\nwritable = [\"P2\"]")],
         }],
         &[],
     );

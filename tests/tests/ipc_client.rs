@@ -626,10 +626,16 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
             ErrorNumber::NotInThisState
         )))
     );
-    // The controller learns of the trip at its next call, and every call fails so until it
-    // re-arms the drive.
-    assert!(matches!(c.stop(), Err(ClientError::Tripped { .. })), "told");
-    assert!(matches!(c.refresh(), Err(ClientError::Tripped { .. })));
+    // The controller learns of the trip at its next ON, and every ON fails so until it re-arms
+    // the drive (a keepalive of the ON words too); a stop still goes out, and re-arms nothing.
+    assert!(
+        matches!(c.refresh(), Err(ClientError::Tripped { .. })),
+        "told"
+    );
+    assert!(matches!(c.run_hz(25.0), Err(ClientError::Tripped { .. })));
+    c.stop().unwrap();
+    assert!(matches!(c.run_hz(25.0), Err(ClientError::Tripped { .. })));
+    assert!(!c.inputs().latest().is_live());
     let live = c.rearm().unwrap();
     assert!(live.is_live());
     assert_eq!(c.words()[0], 0x047E);

@@ -458,6 +458,8 @@ fn put_report(session: &Session, key: &str, report: &ControlReport<'_>) {
 /// One drive under remote control.
 struct Remote<'a> {
     session: &'a Session,
+    /// The drives the bridge holds, for the parameter server's write rule.
+    held: &'a Held,
     bus: Bus,
     /// The drive's inputs, for the latch the report shows.
     watch: Option<DriveWatch>,
@@ -486,11 +488,17 @@ impl Remote<'_> {
         let out = sample.map_err(|e| e.to_string())?;
         self.report.sender = Some(out.from.clone());
         self.report.peer = Some(peer.to_string());
-        let verified = peer.verified_name().map(str::to_owned);
-        // The holder is its `from` and, where Zenoh checked it, its certificate: a peer that
-        // sends another's `from` is another sender.
-        let holds =
-            self.report.holder.as_ref() == Some(&out.from) && self.holder_verified == verified;
+        // Only a verified name controls (the bridge starts with --allow-control only under a
+        // policy that grants `control` by name, and its gate let this peer through for that).
+        let Some(verified) = peer.verified_name().map(str::to_owned) else {
+            return Err(format!(
+                "refused: {peer} is no verified name: remote control rests on certificates (or users) the policy names"
+            ));
+        };
+        // The holder is its certificate and its `from` (one process of it): another
+        // certificate's sample, or another process of the same one, is another sender.
+        let holds = self.report.holder.as_ref() == Some(&out.from)
+            && self.holder_verified.as_deref() == Some(verified.as_str());
         if let Some(holder) = self.report.holder.as_ref().filter(|_| !holds) {
             return Err(format!(
                 "drive {} is controlled remotely by {holder:?} until it releases it or falls \
@@ -511,6 +519,15 @@ impl Remote<'_> {
             self.report.state = "released";
             return Ok(());
         }
+        // From here on the drive is held for this sender, before any call that may wait (the
+        // controller's opening, a re-arm's handshake): no write of another peer slips in.
+        self.held.set(
+            self.drive,
+            Some(Holder {
+                from: out.from.clone(),
+                verified: Some(verified.clone()),
+            }),
+        );
         if self.controller.is_none() {
             // A session acknowledges no latch by opening the drive: only a remote controller's
             // stop that names the latch re-arms it.
@@ -538,6 +555,12 @@ impl Remote<'_> {
                 self.drive
             ));
         }
+        // A latched drive takes from the network only a sample that names its latch: one sent
+        // before the latch, or by a controller that never saw it, is reported and not passed on
+        // (a remote stop that must reach the drive anyway is the `.../stop` query's).
+        if image.latch().is_some_and(|id| out.rearm != Some(id)) {
+            return Err(latched(self.name, self.drive, &image));
+        }
         // The remote controller acknowledges the latch it names (the session checks that the
         // drive shows it); then its stop re-arms the drive and its ON runs it, as the session
         // decides for every controller.
@@ -553,7 +576,7 @@ impl Remote<'_> {
                 self.report.seq = Some(out.seq);
                 self.report.holder = Some(out.from);
                 self.report.holder_peer = self.report.peer.clone();
-                self.holder_verified = verified;
+                self.holder_verified = Some(verified);
                 Ok(())
             }
             Err(
@@ -644,6 +667,7 @@ fn control_drive(
     });
     let mut remote = Remote {
         session,
+        held,
         watch: bus.watch(drive).ok(),
         bus,
         name,

@@ -55,12 +55,14 @@ struct Cli {
     /// Let remote controllers run the drives: a sample on .../drive/<addr>/out is passed on
     /// through the drive's local controller, which the bridge holds while samples arrive. The
     /// drive's watchdog sees the remote controller itself: no fresh sample within its watchdog
-    /// time, and the drive gets its safe command, latched until the remote re-arms it.
+    /// time, and the drive gets its safe command, latched until the remote re-arms it. Needs
+    /// --policy granting `control` by name: remote control rests on verified identities only.
     #[arg(long)]
     allow_control: bool,
-    /// Allow --allow-control and --allow-writes on links that do not authenticate who reaches
-    /// the bridge (plain TCP, multicast scouting): anyone who can reach its port may then run
-    /// the drives or change their parameters. For a lab network only; said at start.
+    /// Allow --allow-writes on links that do not authenticate who reaches the bridge (plain
+    /// TCP, multicast scouting): anyone who can reach its port may then change the drives'
+    /// parameters. For a lab network only; said at start. Remote control never runs so: it
+    /// needs a policy, which needs authenticated links.
     #[arg(long)]
     insecure_network: bool,
     /// Who may do what: a TOML file granting rights (read, stop, write, control) per
@@ -112,6 +114,36 @@ enum StartError {
     PolicyNeedsAuth(&'static str),
     #[error("--policy: Zenoh refused the access control made of it: {0}")]
     PolicyConfig(zenoh::Error),
+    /// Remote control rests on verified identities only.
+    #[error(
+        "--allow-control {0}: remote control rests on verified identities only; give --policy a [[grant]] with rights = [\"control\"] and the certificates' common names (or users) in `who` (README, \"Who may do what\")"
+    )]
+    ControlNotByName(&'static str),
+}
+
+/// Whether `policy` lets remote control rest on verified identities: it grants `control` by
+/// name, and not to every authenticated peer.
+fn control_by_name(policy: Option<&policy::Policy>) -> Result<(), StartError> {
+    let Some(p) = policy else {
+        return Err(StartError::ControlNotByName(
+            "needs --policy naming who may control",
+        ));
+    };
+    if p.default.contains(&policy::Right::Control) {
+        return Err(StartError::ControlNotByName(
+            "with a policy that grants `control` by `default` (to every authenticated peer, named by nothing)",
+        ));
+    }
+    if !p
+        .grant
+        .iter()
+        .any(|g| g.rights.contains(&policy::Right::Control) && !g.who.is_empty())
+    {
+        return Err(StartError::ControlNotByName(
+            "with a policy that grants `control` to nobody",
+        ));
+    }
+    Ok(())
 }
 
 /// What the bridge lets remote peers do: run drives, change parameters.
@@ -199,22 +231,24 @@ fn secured_config(cli: &Cli, prefix: &str) -> Result<Secured, StartError> {
         }
         None => None,
     };
-    if let (Some(what), security::Links::Open(why)) = (remote_rights(cli), &links) {
-        if !cli.insecure_network {
-            return Err(StartError::Unauthenticated {
-                what,
-                why: why.clone(),
-            });
-        }
+    let open = match (remote_rights(cli), &links) {
+        (Some(what), security::Links::Open(why)) => Some((what, why.clone())),
+        _ => None,
+    };
+    if let Some((what, why)) = open.as_ref().filter(|_| !cli.insecure_network) {
+        return Err(StartError::Unauthenticated {
+            what: what.clone(),
+            why: why.clone(),
+        });
+    }
+    if cli.allow_control {
+        control_by_name(policy.as_ref().map(|(p, _)| p))?;
+    }
+    if let Some((what, why)) = open {
         eprintln!(
             "uss-zenoh: --insecure-network: {what} on links that do not authenticate ({}): \
-             anyone who reaches this bridge may {}",
+             anyone who reaches this bridge may change the drives' parameters",
             why.join("; "),
-            if cli.allow_control {
-                "run the drives"
-            } else {
-                "change the drives' parameters"
-            }
         );
     }
     Ok((config, links, policy))
@@ -329,5 +363,30 @@ fn main() -> ExitCode {
             eprintln!("uss-zenoh: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn policy(text: &str) -> policy::Policy {
+        policy::Policy::parse(text, &["line1".to_owned()]).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// Issue 32, item 6: remote control rests on verified identities only.
+    #[test]
+    fn remote_control_needs_a_policy_that_grants_it_by_name() {
+        let refused = |p: Option<&policy::Policy>| match control_by_name(p) {
+            Err(e) => e.to_string(),
+            Ok(()) => String::new(),
+        };
+        assert!(refused(None).contains("needs --policy naming who may control"));
+        let by_default = policy("default = [\"read\", \"stop\", \"control\"]\n");
+        assert!(refused(Some(&by_default)).contains("by `default`"));
+        let nobody = policy("[[grant]]\nwho = [\"eng\"]\nrights = [\"write\"]\n");
+        assert!(refused(Some(&nobody)).contains("to nobody"));
+        let named = policy("[[grant]]\nwho = [\"hmi-1\"]\nrights = [\"control\"]\n");
+        assert_eq!(refused(Some(&named)), "");
     }
 }

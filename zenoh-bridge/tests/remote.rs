@@ -89,9 +89,11 @@ fn watch_alive(ns: &Netns, key: &str, options: &[&str]) -> ChildProc {
     alive
 }
 
-/// Puts `payload` on the drive's `out` key from the other side and returns the rest of the
-/// bridge's control report that says `expect`.
-fn put_sample(ns: &Netns, drive: &str, payload: &str, expect: &str) -> String {
+/// Puts `payload` on the drive's `out` key from the other side, under the key of peer `name`
+/// (`<prefix>/<bus>/as/<name>/drive/...`, as a named controller sends: the bridge judges it by
+/// that name's rights; a listed certificate's put under another key Zenoh's access control
+/// drops), and returns the rest of the bridge's control report that says `expect`.
+fn put_sample(ns: &Netns, drive: &str, name: &str, payload: &str, expect: &str) -> String {
     let mut reports = ns.client(&[
         "sub",
         &format!("{drive}/control"),
@@ -103,7 +105,10 @@ fn put_sample(ns: &Netns, drive: &str, payload: &str, expect: &str) -> String {
     // Put until the report comes: the subscriber may not be there for the first one (every
     // refusal changes the report, so each put brings one).
     let done = std::sync::atomic::AtomicBool::new(false);
-    let key = format!("{drive}/out");
+    let key = format!(
+        "{}/out",
+        drive.replace("/drive/", &format!("/as/{name}/drive/"))
+    );
     let report = std::thread::scope(|scope| {
         scope.spawn(|| {
             for _ in 0..20 {
@@ -477,7 +482,14 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     // the drive.
     let pki = Pki::new("control", "uss-rt test CA", &ns.here());
     ns.use_tls(Some(pki.client("controller")));
-    let (mut bridge_proc, _) = bridge_tls(&ns, &bus, &prefix, &["--allow-control"], &pki);
+    let policy = pki.control_policy(&["controller"]);
+    let (mut bridge_proc, _) = bridge_tls(
+        &ns,
+        &bus,
+        &prefix,
+        &["--allow-control", "--policy", &policy],
+        &pki,
+    );
     answers_over_tls(&ns, &drive);
     let mut run = ns.client(&["run", &drive, "--hz", "10"]);
     run.says("re-armed");
@@ -494,6 +506,7 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     let report = put_sample(
         &ns,
         &drive,
+        "controller",
         r#"{"v":1,"from":"late","seq":1,"stw1":1150,"hz":0.0}"#,
         "is latched",
     );
@@ -518,7 +531,7 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     operator_stops_latch(&ns, &ussd, &drive);
 
     // A sample the bridge cannot read is refused, reported, and not passed on.
-    let report = put_sample(&ns, &drive, "run fast", "not a sample");
+    let report = put_sample(&ns, &drive, "controller", "run fast", "not a sample");
     assert!(report.contains("send e.g."), "{report}");
 
     // A bridge that dies is a stale controller: latched within the watchdog time.
@@ -618,10 +631,13 @@ fn operator_stops_latch(ns: &Netns, ussd: &Ussd, drive: &str) {
     // An operator's stop from the remote side latches the drive; the remote run is told.
     let mut run = ns.client(&["run", drive, "--hz", "10"]);
     run.says("re-armed");
-    // While it controls the drive, another sender is refused.
+    // While it controls the drive, another sender is refused, another process of the same
+    // certificate (its own `from`) too (a peer the policy does not grant control:
+    // `a_peer_without_rights_is_refused`).
     let report = put_sample(
         ns,
         drive,
+        "controller",
         r#"{"v":1,"from":"intruder","seq":9999999999999999999,"stw1":1151,"hz":40.0}"#,
         "controlled remotely by",
     );
@@ -669,7 +685,14 @@ fn a_remote_client_controls_a_drive_of_a_full_line_at_9600_baud() {
     let watch = ussd.bus().watch(addr(20)).unwrap();
     let pki = Pki::new("full", "uss-rt test CA", &ns.here());
     ns.use_tls(Some(pki.client("controller")));
-    let (_bridge, config) = bridge_tls(&ns, &bus, &prefix, &["--allow-control"], &pki);
+    let policy = pki.control_policy(&["controller"]);
+    let (_bridge, config) = bridge_tls(
+        &ns,
+        &bus,
+        &prefix,
+        &["--allow-control", "--policy", &policy],
+        &pki,
+    );
     answers_over_tls(&ns, &drive);
 
     let (ok, out, err) = ns.call(&["run", &drive, "--hz", "10", "--for", "3"]);
@@ -696,7 +719,7 @@ fn a_remote_client_controls_a_drive_of_a_full_line_at_9600_baud() {
 }
 
 #[test]
-fn a_bridge_that_moves_motors_or_writes_refuses_plain_tcp_unless_told_it_is_a_lab() {
+fn a_bridge_that_moves_motors_or_writes_refuses_plain_tcp_and_control_needs_a_policy() {
     for rights in [
         &["--allow-control"][..],
         &["--allow-writes"],
@@ -716,15 +739,28 @@ fn a_bridge_that_moves_motors_or_writes_refuses_plain_tcp_unless_told_it_is_a_la
             "{err}"
         );
     }
-    // Read-only it runs on plain TCP; in a lab, --insecure-network lets control through and
-    // says what it means.
+    // Remote control never runs unauthenticated: it needs a policy that names who may control,
+    // which needs authenticated links, so --insecure-network does not let it through.
+    let out = Command::new(netns::BRIDGE)
+        .args(["--bus", "uss-nobus", "--listen", "tcp/127.0.0.1:0"])
+        .args(["--allow-control", "--insecure-network"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.code() == Some(1)
+            && err.contains("--allow-control needs --policy naming who may control")
+            && err.contains("remote control rests on verified identities only"),
+        "{err}"
+    );
+    // In a lab, --insecure-network lets writes through and says what it means.
     let mut command = Command::new(netns::BRIDGE);
     command.args([
         "--bus",
         "uss-nobus",
         "--listen",
         "tcp/127.0.0.1:0",
-        "--allow-control",
+        "--allow-writes",
         "--insecure-network",
     ]);
     let mut lab = ChildProc::spawn("uss-zenoh --insecure-network".into(), command);
@@ -759,8 +795,8 @@ fn a_bridge_that_moves_motors_or_writes_refuses_plain_tcp_unless_told_it_is_a_la
     lab.kill();
     let err = lab.stderr();
     assert!(
-        err.contains("--insecure-network: --allow-control on links that do not authenticate")
-            && err.contains("anyone who reaches this bridge may run the drives"),
+        err.contains("--insecure-network: --allow-writes on links that do not authenticate")
+            && err.contains("anyone who reaches this bridge may change the drives' parameters"),
         "{err}"
     );
 }
@@ -774,7 +810,14 @@ fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_
     let drive = format!("{prefix}/{bus}/drive/1");
     let watch = ussd.bus().watch(addr(1)).unwrap();
     let pki = Pki::new("mtls", "uss-rt test CA", &ns.here());
-    let (mut bridge_proc, config) = bridge_tls(&ns, &bus, &prefix, &["--allow-control"], &pki);
+    let policy = pki.control_policy(&["controller"]);
+    let (mut bridge_proc, config) = bridge_tls(
+        &ns,
+        &bus,
+        &prefix,
+        &["--allow-control", "--policy", &policy],
+        &pki,
+    );
     let other = Pki::new("other", "another CA", &ns.here());
     let strangers = [
         ("no certificate (plain TCP)", None),
@@ -801,7 +844,10 @@ fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_
     ns.use_tls(Some(pki.client("controller")));
     answers_over_tls(&ns, &drive);
     let (ok, out, err) = ns.call(&["run", &drive, "--hz", "5", "--for", "1"]);
-    assert!(ok, "{err}");
+    if !ok {
+        bridge_proc.kill();
+        panic!("{out}{err}\nbridge: {}", bridge_proc.stderr());
+    }
     assert!(
         out.contains("re-armed") && out.contains("and released"),
         "{out}"
@@ -821,13 +867,17 @@ fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() 
     let prefix = format!("uss/h{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
     let watch = ussd.bus().watch(addr(1)).unwrap();
-    let (mut bridge_proc, config) = bridge(
+    let pki = Pki::new("stall", "uss-rt test CA", &ns.here());
+    ns.use_tls(Some(pki.client("controller")));
+    let policy = pki.control_policy(&["controller"]);
+    let (mut bridge_proc, config) = bridge_tls(
         &ns,
         &bus,
         &prefix,
-        &["--allow-control", "--insecure-network"],
+        &["--allow-control", "--policy", &policy],
+        &pki,
     );
-    answers(&ns, &[], &drive);
+    answers_over_tls(&ns, &drive);
     let mut run = ns.client(&["run", &drive, "--hz", "5", "--for", "0.5"]);
     run.says("re-armed");
     // The run ends and hands the drive back while the bridge is paused for 4 s.
@@ -867,11 +917,24 @@ fn a_drive_under_remote_control_takes_no_parameter_writes_from_the_network() {
     let drive = format!("{prefix}/{bus}/drive/1");
     let watch = ussd.bus().watch(addr(1)).unwrap();
     let pki = Pki::new("held", "uss-rt test CA", &ns.here());
+    // The controller runs drive 1; the engineer may write parameters.
+    let policy = pki.dir.join("held-policy.toml");
+    std::fs::write(
+        &policy,
+        "[[grant]]\nwho = [\"controller\"]\nrights = [\"control\"]\n\n\
+         [[grant]]\nwho = [\"engineer\"]\nrights = [\"write\"]\n",
+    )
+    .unwrap();
     let (_bridge, config) = bridge_tls(
         &ns,
         &bus,
         &prefix,
-        &["--allow-control", "--allow-writes"],
+        &[
+            "--allow-control",
+            "--allow-writes",
+            "--policy",
+            policy.to_str().unwrap(),
+        ],
         &pki,
     );
     ns.use_tls(Some(pki.client("controller")));
@@ -982,7 +1045,7 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
     let policy = pki.dir.join("policy.toml");
     std::fs::write(
         &policy,
-        "default = [\"read\", \"stop\"]\n\n[[grant]]\nwho = [\"controller\"]\nrights = [\"control\", \"write\"]\ndrives = [1]\n\n[[grant]]\nwho = [\"engineer\"]\nrights = [\"write\"]\n",
+        "default = [\"read\", \"stop\"]\n\n[[grant]]\nwho = [\"controller\"]\nrights = [\"control\", \"write\"]\ndrives = [1]\n\n[[grant]]\nwho = [\"engineer\"]\nrights = [\"write\"]\n\n[[grant]]\nwho = [\"second\"]\nrights = [\"control\"]\ndrives = [1]\n",
     )
     .unwrap();
     let (mut bridge_proc, config) = bridge_tls(
@@ -1019,6 +1082,21 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
     let mut run = ns.client(&["run", &drive(1), "--hz", "10"]);
     run.says("re-armed");
     wait_image(&watch1, Duration::from_secs(10), "live", |i| !latched(i));
+    // Another certificate granted control too does not take the drive over by sending the
+    // holder's `from` (every peer reads it on .../control): the holder is its verified name.
+    let (ok, out, err) = ns.call(&["sub", &format!("{}/control", drive(1))]);
+    assert!(ok, "{err}");
+    let holder = json(&out)["holder"].as_str().unwrap_or_default().to_owned();
+    assert!(!holder.is_empty(), "{out}");
+    ns.use_tls(Some(pki.client("second")));
+    let forged = format!(r#"{{"v":1,"from":{holder:?},"seq":999999999,"stw1":1151,"hz":45.0}}"#);
+    let report = put_sample(&ns, &drive(1), "second", &forged, "controlled remotely by");
+    assert!(report.contains("nothing of"), "{report}");
+    assert!(
+        hz(&watch1.latest()) < 20.0,
+        "the forged 45 Hz reached the drive"
+    );
+    ns.use_tls(Some(controller.clone()));
     // While it runs the drive, its own certificate writes to it; the engineer's does not.
     let (ok, out, err) = ns.call(&["get", &param, "--value", "9"]);
     assert!(ok && json(&out)["value"].as_f64() == Some(9.0), "{err}");

@@ -5,8 +5,8 @@ use super::status::{BusReport, ControlReport, last_failure};
 use serde::Serialize;
 use std::fmt::Write as _;
 use uss_client::{BusStatus, DriveDiag, StopCommand};
-use uss_shm_types::DriveInfo;
 use uss_shm_types::diag::NEVER;
+use uss_shm_types::{DriveCounters, DriveInfo};
 
 /// `stats`: the bus and every counter of every drive.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
@@ -81,15 +81,18 @@ pub struct DriveStats {
     pub timing: DriveTiming,
     /// The same, in the contract's order, for people.
     #[serde(skip)]
-    ordered: [(&'static str, u64); 28],
+    ordered: [(&'static str, u64); ORDERED],
 }
+
+/// The counters and the four values after them.
+const ORDERED: usize = DriveCounters::COUNT + 4;
 
 /// Every counter of a drive, in the order of the contract (USS.md section 7's list plus
 /// timeouts, retries and parameter jobs).
-pub(super) fn counters(d: &DriveDiag) -> [(&'static str, u64); 28] {
-    let mut all = [("", 0); 28];
-    all[..24].copy_from_slice(&d.counters.named());
-    all[24..].copy_from_slice(&[
+pub(super) fn counters(d: &DriveDiag) -> [(&'static str, u64); ORDERED] {
+    let mut all = [("", 0); ORDERED];
+    all[..DriveCounters::COUNT].copy_from_slice(&d.counters.named());
+    all[DriveCounters::COUNT..].copy_from_slice(&[
         ("since_ns", d.since_ns),
         ("last_good_ns", d.last_good_ns),
         ("last_zsw1", u64::from(d.last_zsw1)),

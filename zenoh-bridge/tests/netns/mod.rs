@@ -152,6 +152,22 @@ impl Pki {
     pub fn path(&self, file: &str) -> String {
         self.dir.join(file).display().to_string()
     }
+
+    /// An access policy granting `control` to the certificates `who` (and `read`, `stop` to
+    /// every peer of the CA): what `--allow-control` needs. Its path.
+    pub fn control_policy(&self, who: &[&str]) -> String {
+        let path = self.dir.join("control-policy.toml");
+        let names: Vec<String> = who.iter().map(|w| format!("{w:?}")).collect();
+        std::fs::write(
+            &path,
+            format!(
+                "default = [\"read\", \"stop\"]\n\n[[grant]]\nwho = [{}]\nrights = [\"control\"]\n",
+                names.join(", ")
+            ),
+        )
+        .unwrap();
+        path.display().to_string()
+    }
 }
 
 impl Drop for Pki {

@@ -49,6 +49,10 @@ struct Remote<'a> {
     drive: &'a str,
     /// Who sends: `<host>:<pid>`.
     from: String,
+    /// How the bridge names this client in its reports (`peer`, `holder_peer`): the name it
+    /// sends under and what vouches for it, or that it names none. Every peer reads `from` in
+    /// the reports, so a report is this client's only when both match.
+    peer: String,
     publisher: Publisher<'a>,
     images: Subscriber<FifoChannelHandler<Sample>>,
     reports: Subscriber<FifoChannelHandler<Sample>>,
@@ -184,7 +188,7 @@ impl Remote<'_> {
             self.released |= self
                 .report
                 .as_ref()
-                .is_some_and(|r| r["state"] == "released" && r["sender"] == self.from.as_str());
+                .is_some_and(|r| r["state"] == "released" && self.is_me(r, "sender", "peer"));
         }
     }
 
@@ -227,7 +231,7 @@ impl Remote<'_> {
     fn refusal(&self) -> Option<String> {
         self.report
             .as_ref()
-            .filter(|r| r["state"] == "refused" && r["sender"] == self.from.as_str())
+            .filter(|r| r["state"] == "refused" && self.is_me(r, "sender", "peer"))
             .map(|r| r["error"].as_str().unwrap_or("refused").to_owned())
     }
 
@@ -235,14 +239,22 @@ impl Remote<'_> {
     fn held_by_another(&self) -> bool {
         self.report
             .as_ref()
-            .is_some_and(|r| r["holder"].is_string() && r["holder"] != self.from.as_str())
+            .is_some_and(|r| r["holder"].is_string() && !self.is_me(r, "holder", "holder_peer"))
+    }
+
+    /// Whether report `r`'s `sender_field` (and its `peer_field`) is this client.
+    fn is_me(&self, r: &serde_json::Value, sender_field: &str, peer_field: &str) -> bool {
+        r[sender_field] == self.from.as_str()
+            && r[peer_field]
+                .as_str()
+                .is_some_and(|p| p.starts_with(self.peer.as_str()))
     }
 
     /// Whether the bridge holds the drive for this client.
     fn holds(&self) -> bool {
         self.report
             .as_ref()
-            .is_some_and(|r| r["holder"] == self.from.as_str())
+            .is_some_and(|r| self.is_me(r, "holder", "holder_peer"))
     }
 
     /// OFF1 until the drive is live (ussd took the OFF1). A latched drive's OFF1 names the
@@ -402,9 +414,15 @@ pub fn run(
             .map_err(on(format!("{drive}/{what}")))
     };
     let host = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+    // The bridge shows a named sender as `"<name>" (...)`, one without a name as this.
+    let peer = out.split_once("/as/").map_or_else(
+        || "a peer that did not name itself".to_owned(),
+        |(_, rest)| format!("{:?}", rest.split('/').next().unwrap_or_default()),
+    );
     let mut remote = Remote {
         drive,
         from: format!("{}:{}", host.trim(), std::process::id()),
+        peer,
         publisher: session
             .declare_publisher(out.to_owned())
             .encoding(Encoding::APPLICATION_JSON)
