@@ -57,7 +57,7 @@ fn build() -> PathBuf {
     target.join("release/uss_vfd")
 }
 
-/// One halrun at a time: LinuxCNC runs one RTAPI session per machine.
+/// One halrun at a time: `LinuxCNC` runs one RTAPI session per machine.
 fn serial() -> std::sync::MutexGuard<'static, ()> {
     static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
     LOCK.lock()
@@ -328,7 +328,7 @@ fn an_operators_coast_of_an_idle_spindle_holds_until_spindle_on_rises() {
     bus.stop_drive(addr(1), StopCommand::Off2).unwrap();
     bus.wait_stopped(addr(1), StopCommand::Off2, None).unwrap();
     let watch = bus.watch(addr(1)).unwrap();
-    let held = Instant::now() + Duration::from_millis(1000);
+    let held = Instant::now() + Duration::from_secs(1);
     while Instant::now() < held {
         let i = watch.latest();
         assert!(

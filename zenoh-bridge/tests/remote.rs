@@ -1082,20 +1082,7 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
     let mut run = ns.client(&["run", &drive(1), "--hz", "10"]);
     run.says("re-armed");
     wait_image(&watch1, Duration::from_secs(10), "live", |i| !latched(i));
-    // Another certificate granted control too does not take the drive over by sending the
-    // holder's `from` (every peer reads it on .../control): the holder is its verified name.
-    let (ok, out, err) = ns.call(&["sub", &format!("{}/control", drive(1))]);
-    assert!(ok, "{err}");
-    let holder = json(&out)["holder"].as_str().unwrap_or_default().to_owned();
-    assert!(!holder.is_empty(), "{out}");
-    ns.use_tls(Some(pki.client("second")));
-    let forged = format!(r#"{{"v":1,"from":{holder:?},"seq":999999999,"stw1":1151,"hz":45.0}}"#);
-    let report = put_sample(&ns, &drive(1), "second", &forged, "controlled remotely by");
-    assert!(report.contains("nothing of"), "{report}");
-    assert!(
-        hz(&watch1.latest()) < 20.0,
-        "the forged 45 Hz reached the drive"
-    );
+    a_forged_from_is_another_sender(&ns, &pki, &drive(1), &watch1);
     ns.use_tls(Some(controller.clone()));
     // While it runs the drive, its own certificate writes to it; the engineer's does not.
     let (ok, out, err) = ns.call(&["get", &param, "--value", "9"]);
@@ -1146,6 +1133,23 @@ fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
         "{said}"
     );
     let _ = std::fs::remove_file(config);
+}
+
+/// Another certificate granted control too does not take a drive over by sending its holder's
+/// `from` (every peer reads it on `.../control`): the holder is its verified name.
+fn a_forged_from_is_another_sender(ns: &Netns, pki: &Pki, drive: &str, watch: &DriveWatch) {
+    let (ok, out, err) = ns.call(&["sub", &format!("{drive}/control")]);
+    assert!(ok, "{err}");
+    let holder = json(&out)["holder"].as_str().unwrap_or_default().to_owned();
+    assert!(!holder.is_empty(), "{out}");
+    ns.use_tls(Some(pki.client("second")));
+    let forged = format!(r#"{{"v":1,"from":{holder:?},"seq":999999999,"stw1":1151,"hz":45.0}}"#);
+    let report = put_sample(ns, drive, "second", &forged, "controlled remotely by");
+    assert!(report.contains("nothing of"), "{report}");
+    assert!(
+        hz(&watch.latest()) < 20.0,
+        "the forged 45 Hz reached the drive"
+    );
 }
 
 /// A peer with a valid certificate but only the default rights (the policy does not list it):
