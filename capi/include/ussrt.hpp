@@ -131,6 +131,10 @@ public:
   void acknowledge_fault(uint32_t timeout_ms) {
     check(ussrt_control_acknowledge_fault(c_, timeout_ms));
   }
+  /// Sends `count` PZD words as they are (STW1 first); INVALID_SAMPLE for words ussd refuses.
+  void set_words(const uint16_t *words, size_t count) {
+    check(ussrt_control_set_words(c_, words, count));
+  }
   /// Waits for S1..S4 (1..4), refreshing the watchdog meanwhile.
   void wait_state(uint8_t state, uint32_t timeout_ms) {
     check(ussrt_control_wait_state(c_, state, timeout_ms));

@@ -32,7 +32,10 @@ def answer(tag: str, error):
         if error is None:
             print(f"{tag} ok", flush=True)
         else:
-            kind = re.sub(r"(?<!^)(?=[A-Z])", "_", type(error).__name__).lower()
+            # Words the client refuses are a ValueError in Python (the Rust client's
+            # InvalidSample, C's INVALID_SAMPLE).
+            name = "InvalidSample" if isinstance(error, ValueError) else type(error).__name__
+            kind = re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower()
             message = str(error).replace("\n", " ")
             print(f"{tag} err {kind} {message}", flush=True)
 
@@ -43,6 +46,8 @@ def call(words):
         getattr(drive, cmd)()
     elif cmd == "run":
         drive.run_hz(float(args[0]))
+    elif cmd == "set_words":
+        drive.set_words([int(w, 0) for w in args])
     elif cmd == "wait_state":
         wanted = STATES[int(args[0])]
         drive.wait_for(lambda i: i["online"] and wanted(i["zsw1"]), int(args[1]) / 1000.0)
@@ -54,7 +59,7 @@ def run(tag: str, words):
     try:
         call(words)
         answer(tag, None)
-    except uss_rt.UssError as e:
+    except (uss_rt.UssError, ValueError) as e:
         answer(tag, e)
 
 

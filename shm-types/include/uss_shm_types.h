@@ -1335,6 +1335,10 @@ typedef struct UssDriveCounters {
   static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV8";
 #endif
 } UssDriveCounters;
+/**
+ * How many counters [`DriveCounters::named`] gives.
+ */
+#define UssDriveCounters_COUNT 25
 
 /**
  * The master's view of one drive, mirroring what the drive keeps itself (r2024..r2031,

@@ -63,7 +63,7 @@ pub const fn refresh_ns(watchdog_ns: u64) -> u64 {
 }
 
 /// What a session needs to know of its drive and controller.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct SessionSetup {
     /// PZD words the drive exchanges (P2012); every sample carries exactly these.
     pub pzd: usize,
@@ -78,7 +78,7 @@ pub struct SessionSetup {
 }
 
 /// The words a controller sends: STW1 first, `count` of them in use.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Words {
     pub words: [u16; MAX_PZD_WORDS],
     pub count: usize,
@@ -134,7 +134,7 @@ pub enum SessionError {
 }
 
 /// The client side of one drive's control. See the module documentation.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct Session {
     setup: SessionSetup,
     words: Words,

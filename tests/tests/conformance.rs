@@ -425,6 +425,36 @@ fn a_killed_program_trips_its_drive(front: FrontEnd) {
     );
 }
 
+/// STW1-VALID: words ussd would refuse and latch the drive for (STW1 bit 10 clear, another
+/// word count) are refused before the wire, in every language: nothing of them reaches ussd,
+/// and no telegram without bit 10 goes out.
+fn words_ussd_would_refuse_never_leave_the_program(front: FrontEnd) {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let mut p = opened(front, &ussd, 1);
+    p.ok("rearm");
+    p.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    for words in ["0x007F 0x2000", "0x047F", "0x047F 0x2000 0x0000"] {
+        let refused = p.call(&format!("set_words {words}"));
+        assert_eq!(
+            refused.kind(),
+            "invalid_sample",
+            "{front:?} {words}: {refused:?}"
+        );
+    }
+    // Nothing reached ussd: no telegram without bit 10, no sample it had to reject.
+    never(
+        &bus,
+        1,
+        Duration::from_millis(300),
+        "a refused word on the wire",
+        |i| i.sent_stw1 & 0x0400 == 0 || i.latch_reason_name() == "sample rejected",
+    );
+    p.exit();
+}
+
 macro_rules! front_ends {
     ($($scenario:ident),* $(,)?) => {
         $(
@@ -458,4 +488,94 @@ front_ends!(
     a_stop_never_waits_for_another_thread,
     a_paused_program_trips_and_does_not_resume,
     a_killed_program_trips_its_drive,
+    words_ussd_would_refuse_never_leave_the_program,
 );
+
+/// docs/SAFETY.md is executable: every rule of its rule list has a row in its table of
+/// scenarios, and every cell names tests that exist (a scenario of this file that runs per
+/// front-end) or says `n/a:` with its reason. A rule added without its scenarios, a test renamed
+/// or removed, fails here.
+#[test]
+fn every_rule_has_a_scenario_for_every_front_end() {
+    const FRONT_ENDS: [&str; 7] = [
+        "Rust",
+        "C",
+        "C++",
+        "Python",
+        "ussctl",
+        "LinuxCNC",
+        "Zenoh client",
+    ];
+    let spec = std::fs::read_to_string(root().join("docs/SAFETY.md")).unwrap();
+    let section = |title: &str| -> Vec<Vec<String>> {
+        let start = spec
+            .find(title)
+            .unwrap_or_else(|| panic!("docs/SAFETY.md has no {title:?}"));
+        spec[start..]
+            .lines()
+            .skip(1)
+            .skip_while(|l| !l.starts_with('|'))
+            .take_while(|l| l.starts_with('|'))
+            .map(|l| {
+                l.trim_matches('|')
+                    .split('|')
+                    .map(|c| c.trim().to_owned())
+                    .collect()
+            })
+            .collect()
+    };
+    let rules: Vec<String> = section("## Rules")
+        .iter()
+        .skip(2)
+        .map(|row| row[0].trim_matches('`').to_owned())
+        .collect();
+    assert!(rules.len() >= 10, "{rules:?}");
+    let table = section("## Scenarios per front-end");
+    assert_eq!(table[0][1..], FRONT_ENDS, "the table's front-ends");
+    let this = std::fs::read_to_string(root().join("tests/tests/conformance.rs")).unwrap();
+    let per_front_end = &this[this.find("\nfront_ends!(").unwrap()..];
+    let mut covered = Vec::new();
+    for row in &table[2..] {
+        let rule = row[0].trim_matches('`');
+        assert!(
+            rules.iter().any(|r| r == rule),
+            "{rule}: not in the rule list"
+        );
+        assert_eq!(row.len(), 8, "{rule}: one cell per front-end");
+        for (front, cell) in FRONT_ENDS.iter().zip(&row[1..]) {
+            if let Some(reason) = cell.strip_prefix("n/a:") {
+                assert!(
+                    reason.trim().len() > 10,
+                    "{rule}, {front}: n/a needs its reason"
+                );
+                continue;
+            }
+            for reference in cell.split("<br>") {
+                let reference = reference.trim().trim_matches('`');
+                let (path, name) = reference
+                    .rsplit_once("::")
+                    .unwrap_or_else(|| panic!("{rule}, {front}: {reference:?} is no file::test"));
+                let source = std::fs::read_to_string(root().join(path))
+                    .unwrap_or_else(|e| panic!("{rule}, {front}: {path}: {e}"));
+                assert!(
+                    source.contains(&format!("fn {name}("))
+                        || source.contains(&format!("def {name}(")),
+                    "{rule}, {front}: {path} has no test {name}"
+                );
+                if path == "tests/tests/conformance.rs" {
+                    assert!(
+                        per_front_end.contains(&format!("    {name},")),
+                        "{rule}, {front}: {name} does not run per front-end (front_ends!)"
+                    );
+                }
+            }
+        }
+        covered.push(rule.to_owned());
+    }
+    for rule in &rules {
+        assert!(
+            covered.contains(rule),
+            "{rule}: no scenarios in docs/SAFETY.md"
+        );
+    }
+}

@@ -482,6 +482,46 @@ fn a_clean_release_is_not_a_trip_and_a_sigkill_is() {
     );
 }
 
+/// REPLACED with `ussctl` (issue 32): `ussctl run`, SIGKILL, and at once another `ussctl run`
+/// of the same drive, well within its watchdog time. The drive never stopped and no trip was
+/// counted; a crash-restart loop went unseen. Now the second run's re-arm meets the trip its own
+/// first sample caused ("controller replaced", counted): it stops the drive and says so, and
+/// only a run after that (which re-arms the trip it saw) runs the drive again.
+#[test]
+fn a_killed_ussctl_run_replaced_at_once_is_a_trip() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "watchdog_ms = 2000")]);
+    let bus = ussd.bus();
+    quick_ramps(&bus, 1);
+    let mut first = run(&ussd, 1, "20");
+    first_image(&bus, 1, Duration::from_secs(5), |i| hz(i) >= 19.9);
+    first.kill();
+    let mut second = ussd.ussctl(&["run", "1", "--hz", "40"]);
+    let (status, out, err) = second.finish();
+    assert_eq!(status.code(), Some(1), "{out}{err}");
+    assert!(
+        err.contains("took the place of the one it ran under"),
+        "{err}"
+    );
+    let i = bus.watch(addr(1)).unwrap().latest();
+    assert_eq!(
+        (i.latch_reason, i.sent_stw1),
+        (LatchReason::Replaced.code(), OFF1),
+        "{i:?}"
+    );
+    let d = diag_when(&bus, 1, |d| d.counters.replacements == 1);
+    assert_eq!(
+        d.counters.watchdog_trips, 0,
+        "no stale trip: replaced first"
+    );
+    // The operator runs it again: that run re-arms the trip it saw.
+    let mut third = run(&ussd, 1, "10");
+    first_image(&bus, 1, Duration::from_secs(5), |i| {
+        i.is_live() && i.sent_stw1 == 0x047F
+    });
+    third.kill();
+}
+
 /// Runs drives with `ussctl run`, gives the operator's `command` with `ussctl ARGS`, and checks
 /// the STW1 that went out, the latch, and that each controller failed with the override.
 fn operator_overrides(ussd: &Ussd, drives: &[u8], args: &[&str], stw1: u16, name: &str) {

@@ -298,7 +298,7 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_rises() {
 /// Issue 32, item 3: an operator's coast of an idle spindle (spindle-on low) holds: the
 /// component re-armed the drive whenever spindle-on was low and the drive latched, so the coast
 /// was undone within 50 ms (OFF1 instead of OFF2) and the next M3 ran the motor. The coast holds
-/// until spindle-on rises, the deliberate re-arm.
+/// until spindle-on rises, the deliberate re-arm. Then the component killed: a stale trip.
 #[test]
 fn an_operators_coast_of_an_idle_spindle_holds_until_spindle_on_rises() {
     if !linuxcnc_here() {
@@ -341,6 +341,24 @@ fn an_operators_coast_of_an_idle_spindle_holds_until_spindle_on_rises() {
     // M3: the rising edge re-arms and runs.
     hal.set("spindle-on", "1");
     hal.until("running after M3", s, |h| h.get("at-speed") == "TRUE");
+    // The component killed (SIGKILL) while the spindle runs: nothing of it refreshes the drive,
+    // ussd trips it within its watchdog time (controller stale).
+    let killed = Command::new("pkill")
+        .args([
+            "-KILL",
+            "-f",
+            &format!("uss_vfd --bus {} --drive 1", ussd.bus),
+        ])
+        .status()
+        .unwrap();
+    assert!(killed.success(), "pkill uss_vfd");
+    let tripped = watch
+        .wait_for(Duration::from_secs(2), "the trip", |i| !i.is_live())
+        .unwrap();
+    assert_eq!(
+        (tripped.latch_reason_name(), tripped.sent_stw1),
+        ("controller stale", 0x047E)
+    );
     let _ = hal.stop();
     let _ = std::fs::remove_file(&hal_file);
 }

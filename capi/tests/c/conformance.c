@@ -53,6 +53,17 @@ static UssrtStatus call(char *words) {
   if (!strcmp(cmd, "wait_state") && a1 != NULL && a2 != NULL) {
     return ussrt_control_wait_state(controller, (uint8_t)atoi(a1), (uint32_t)atol(a2));
   }
+  if (!strcmp(cmd, "set_words")) {
+    /* Words in order: the first two taken above, the rest after them. */
+    uint16_t w[16];
+    size_t n = 0;
+    if (a1 != NULL) w[n++] = (uint16_t)strtoul(a1, NULL, 0);
+    if (a2 != NULL) w[n++] = (uint16_t)strtoul(a2, NULL, 0);
+    for (const char *a; n < 16 && (a = strtok_r(NULL, " \n", &save)) != NULL;) {
+      w[n++] = (uint16_t)strtoul(a, NULL, 0);
+    }
+    return ussrt_control_set_words(controller, w, n);
+  }
   if (!strcmp(cmd, "release")) return ussrt_control_release(controller);
   fprintf(stderr, "conformance: unknown command %s\n", cmd);
   exit(2);

@@ -55,6 +55,11 @@ void call(ussrt::Controller &c, const std::string &line, const char *tag) {
       unsigned state = 0, ms = 0;
       words >> state >> ms;
       c.wait_state(static_cast<uint8_t>(state), ms);
+    } else if (cmd == "set_words") {
+      std::vector<uint16_t> w;
+      std::string word;
+      while (words >> word) w.push_back(static_cast<uint16_t>(std::stoul(word, nullptr, 0)));
+      c.set_words(w.data(), w.size());
     } else if (cmd == "release") {
       c.release();
     } else {

@@ -38,16 +38,14 @@ use uss_protocol::telegram::MAX_PZD_WORDS;
 use uss_shm_types::{LatchReason, OutputSample, PzdOutput, Rejection, StopCommand};
 
 /// Which controller published a sample: the unique id iceoryx2 gives its publisher port (a new
-/// port, so a new controller process, has a new one whatever its sample says of itself); for a
-/// sample handed over inside ussd's process, the pid it names.
+/// port, so a new controller process, has a new one whatever its sample says of itself).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
 pub struct ControllerId(pub u128);
 
 impl ControllerId {
-    /// The id of a sample handed over in-process: the controller pid it names.
-    pub fn named_in(sample: &PzdOutput) -> Self {
-        Self(u128::from(sample.controller_pid))
-    }
+    /// Every sample handed over inside ussd's process (`EngineHandle::publish_sample`: tests,
+    /// benchmarks) comes from this one controller.
+    pub const IN_PROCESS: Self = Self(0);
 }
 
 /// An operator's stop command as the bus thread takes it.
@@ -59,7 +57,7 @@ pub struct Operator {
 }
 
 /// Why, since when and with what a drive is latched.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Latch {
     pub reason: LatchReason,
     /// What the drive gets.
@@ -74,7 +72,7 @@ pub struct Latch {
 }
 
 /// The drive's control as published.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Control {
     Live,
     Latched(Latch),
@@ -90,7 +88,7 @@ pub enum Transition {
 }
 
 /// Counters of one drive's control, mirrored into its diagnostics.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
 pub struct ControlCounters {
     /// Latches since start (the start-up latch counts 1).
     pub latches: u64,
@@ -105,7 +103,7 @@ pub struct ControlCounters {
 }
 
 /// What a gate needs to know of its drive.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct GateSetup {
     /// PZD words the drive exchanges (P2012).
     pub pzd: usize,
@@ -138,7 +136,7 @@ pub struct Poll<'a> {
 }
 
 /// The control of one drive. See the module documentation.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct Gate {
     setup: GateSetup,
     control: Control,

@@ -273,10 +273,7 @@ pub struct LocalBridge;
 
 impl Bridge for LocalBridge {
     fn take_sample(&mut self, _: usize, images: &DriveImages) -> Option<(PzdOutput, ControllerId)> {
-        images
-            .output
-            .take()
-            .map(|s| (s, ControllerId::named_in(&s)))
+        images.output.take().map(|s| (s, ControllerId::IN_PROCESS))
     }
     fn after_poll(&mut self, _: usize, _: &DriveImages, _: &DriveStatus) {}
     fn cycle_completed(&mut self) {}

@@ -53,6 +53,13 @@ fn call(c: &Controller, words: &[&str]) -> Result<(), ClientError> {
         "rearm" => c.rearm().map(|_| ()),
         "check" => c.check().map(|_| ()),
         "run" => c.run_hz(arg(1).parse().unwrap()),
+        "set_words" => {
+            let words: Vec<u16> = words[1..]
+                .iter()
+                .map(|w| u16::from_str_radix(w.trim_start_matches("0x"), 16).unwrap())
+                .collect();
+            c.set_words(&words)
+        }
         "wait_state" => c
             .wait_for_state(
                 state(arg(1)).unwrap(),
