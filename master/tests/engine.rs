@@ -1159,10 +1159,13 @@ fn a_failed_line_ends_every_job_and_the_restored_line_latches_every_drive() {
             .any(|e| matches!(e, Event::LineDown { .. }))
     );
 
-    engine.restore(Unpluggable {
-        inner: wire(2),
-        unplugged: false,
-    });
+    engine.restore(
+        Unpluggable {
+            inner: wire(2),
+            unplugged: false,
+        },
+        Duration::ZERO,
+    );
     for _ in 0..20 {
         handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
         engine.poll_next().unwrap();
@@ -1187,6 +1190,61 @@ fn a_failed_line_ends_every_job_and_the_restored_line_latches_every_drive() {
     );
     assert!(events.try_iter().any(|e| matches!(e, Event::LineUp { .. })));
     assert_eq!(handle.submit(read(12, 2, 1082)), Ok(()));
+}
+
+/// Issue 32, item 7: the receive latency of a line is the device's as opened now, not as it was
+/// at start. A line whose replies come 5 ms past the 20 ms limit (an adapter that holds bytes,
+/// or a device absent at start that got 0 ms for the life of the process) answers nothing on
+/// time with no allowance; restored on a device whose latency was read again (10 ms), the same
+/// replies are taken.
+#[test]
+fn a_restored_line_takes_the_receive_latency_of_the_device_opened_again() {
+    let late_wire = |seed| {
+        let mut bus = SimBus::new(seed);
+        bus.add(DriveConfig::new(addr(1), layout(PkwMode::Four, 2)))
+            .unwrap();
+        bus.faults_mut(addr(1))
+            .unwrap()
+            .set_probability(Fault::Late, 1.0);
+        Unpluggable {
+            inner: SimTransport::new(VirtualWire::new(bus, timing())),
+            unplugged: false,
+        }
+    };
+    let config = EngineConfig {
+        timing: timing(),
+        response_timeout: ms(20),
+        retries: 1,
+        offline_after: 1,
+        offline_probe: ms(50),
+        cycle_time: None,
+        param_timeout: ms(2000),
+        echo: false,
+        mailbox_depth: 16,
+        publish_every: ms(100),
+        param_priority: false,
+        safety_first: true,
+        rx_latency: Duration::ZERO,
+        capture: false,
+        drives: vec![DriveSetup::new(addr(1), layout(PkwMode::Four, 2))],
+    };
+    let (mut engine, _handle, _events) = Engine::new(config, late_wire(1), VirtualClock::new());
+    for _ in 0..10 {
+        engine.poll_next().unwrap();
+    }
+    let before = engine.stats().drive(addr(1)).unwrap().counters;
+    assert_eq!(before.good, 0, "late replies taken without an allowance");
+    assert!(before.timeouts > 0);
+    engine.transport_mut().unplugged = true;
+    let error = engine.poll_next().unwrap_err();
+    engine.line_down(&error);
+    engine.restore(late_wire(2), ms(10));
+    for _ in 0..10 {
+        engine.poll_next().unwrap();
+    }
+    let after = engine.stats().drive(addr(1)).unwrap();
+    assert!(after.online, "the late replies are taken now");
+    assert!(after.counters.good >= 5, "{:?}", after.counters);
 }
 
 #[test]

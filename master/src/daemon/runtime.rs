@@ -233,7 +233,8 @@ struct Spawned {
 /// a stop now and then.
 struct Reopen<T> {
     ask: Sender<Option<T>>,
-    reopened: Receiver<T>,
+    /// The transport and its receive latency.
+    reopened: Receiver<(T, Duration)>,
 }
 
 /// Runs `engine` until it is stopped; when its line fails, releases the device and waits (line
@@ -260,8 +261,8 @@ fn run_bus<T: Transport, C: crate::engine::clock::Clock, B: crate::engine::Bridg
             }
             handle.note_progress();
             match reopen.reopened.recv_timeout(crate::engine::IDLE_STEP) {
-                Ok(transport) => {
-                    engine.restore(transport);
+                Ok((transport, rx_latency)) => {
+                    engine.restore(transport, rx_latency);
                     break;
                 }
                 Err(RecvTimeoutError::Timeout) => {}
@@ -275,8 +276,16 @@ fn run_bus<T: Transport, C: crate::engine::clock::Clock, B: crate::engine::Bridg
 const REOPEN_FIRST: Duration = Duration::from_millis(100);
 const REOPEN_MAX: Duration = Duration::from_secs(5);
 
-/// Opens a bus's device again: the transport and a report for the log, or why not.
-type Opener<T> = Box<dyn FnMut() -> Result<(T, String), String> + Send>;
+/// A device opened again: its transport, a report for the log, and the receive latency of the
+/// device as it is now (detected on every open: a replug may bring another adapter).
+struct Reopened<T> {
+    transport: T,
+    report: String,
+    rx_latency: Duration,
+}
+
+/// Opens a bus's device again, or says why not.
+type Opener<T> = Box<dyn FnMut() -> Result<Reopened<T>, String> + Send>;
 
 /// The line thread of a serial bus: on each ask, closes what held the device, reopens `device`
 /// by its configured path with backoff until it opens (or the bus stops) and hands the
@@ -288,7 +297,7 @@ fn spawn_line<T: Send + 'static>(
     mut open: Opener<T>,
     handle: EngineHandle,
     asks: Receiver<Option<T>>,
-    reopened: Sender<T>,
+    reopened: Sender<(T, Duration)>,
 ) -> std::io::Result<JoinHandle<()>> {
     let name = bus.name.clone();
     std::thread::Builder::new()
@@ -323,7 +332,7 @@ fn reopen_with_backoff<T>(
     device: &Path,
     open: &mut Opener<T>,
     handle: &EngineHandle,
-) -> Option<T> {
+) -> Option<(T, Duration)> {
     let started = std::time::Instant::now();
     let mut delay = REOPEN_FIRST;
     let mut attempts = 0u32;
@@ -334,7 +343,11 @@ fn reopen_with_backoff<T>(
         attempts += 1;
         handle.note_reopen_attempt();
         match open() {
-            Ok((transport, report)) => {
+            Ok(Reopened {
+                transport,
+                report,
+                rx_latency,
+            }) => {
                 tracing::info!(
                     bus,
                     device = %device.display(),
@@ -342,7 +355,7 @@ fn reopen_with_backoff<T>(
                     down_s = started.elapsed().as_secs_f64(),
                     "line reopened after {attempts} attempts: {report}"
                 );
-                return Some(transport);
+                return Some((transport, rx_latency));
             }
             Err(e) => {
                 // The first failure, then one line a minute or so: the status has the count.
@@ -522,10 +535,17 @@ fn open_and_spawn(
             // After the open: a granted ASYNC_LOW_LATENCY lowers an FTDI latency timer.
             let rx_latency = rx_latency(bus, path);
             let device = path.clone();
+            let reopened_bus = bus.clone();
             let open: Opener<Line<SerialTransport>> = Box::new(move || {
-                SerialTransport::open(&device, &serial)
-                    .map(|(t, report)| (Line::Open(t), report.to_string()))
-                    .map_err(|e| e.to_string())
+                let (t, report) =
+                    SerialTransport::open(&device, &serial).map_err(|e| e.to_string())?;
+                Ok(Reopened {
+                    transport: Line::Open(t),
+                    report: report.to_string(),
+                    // Read again: the device absent at start, or replugged into another
+                    // adapter, is not what it was.
+                    rx_latency: self::rx_latency(&reopened_bus, &device),
+                })
             });
             spawn(bus, t, options, go, Some((path.clone(), open)), rx_latency)
         }
@@ -739,7 +759,11 @@ mod tests {
                 }
                 opened.fetch_add(1, Ordering::Relaxed);
                 let next = Arc::new(AtomicBool::new(true));
-                Ok((Line::Open(Held { open: next }), "opened".into()))
+                Ok(Reopened {
+                    transport: Line::Open(Held { open: next }),
+                    report: "opened".into(),
+                    rx_latency: Duration::ZERO,
+                })
             })
         };
         let (ask, asks) = bounded(1);

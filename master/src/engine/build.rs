@@ -67,7 +67,7 @@ pub(super) fn snapshot(
 /// What the poll periods of `cfg`'s bus depend on. One attempt at worst: the request, the
 /// drive's response timeout and the longest reply at its maximum residual time (USS.md
 /// section 4), for the bus's largest telegrams.
-fn period_setup(cfg: &EngineConfig) -> PeriodSetup {
+pub(super) fn period_setup(cfg: &EngineConfig) -> PeriodSetup {
     let request = cfg
         .drives
         .iter()

@@ -2,8 +2,8 @@
 //! every drive latches ([`LatchReason::LineRestored`]) and is probed at once.
 
 use super::{
-    Bridge, Clock, Duration, Engine, Event, LatchReason, LineFailure, Ordering, PathError,
-    Transition, Transport, TransportError, latch_id_of,
+    Bridge, Clock, Duration, Engine, Event, Framer, FramerConfig, LatchReason, LineFailure,
+    Ordering, PathError, Transition, Transport, TransportError, latch_id_of,
 };
 
 impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
@@ -32,13 +32,21 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.publish();
     }
 
-    /// The line is back on `transport`: every drive latches ([`LatchReason::LineRestored`])
-    /// and is probed at once, coming online with its first good reply. A drive that ran before
-    /// runs again only when its controller re-arms it (OFF1, then ON).
-    pub fn restore(&mut self, transport: T) {
+    /// The line is back on `transport`, whose device hands received bytes over up to
+    /// `rx_latency` late (read again at every open: a replug may bring another adapter): every
+    /// drive latches ([`LatchReason::LineRestored`]) and is probed at once, coming online with
+    /// its first good reply. A drive that ran before runs again only when its controller
+    /// re-arms it (OFF1, then ON).
+    pub fn restore(&mut self, transport: T, rx_latency: Duration) {
         self.snapshot.take();
         let now = self.clock.now();
         self.transport = transport;
+        if rx_latency != self.cfg.rx_latency {
+            self.cfg.rx_latency = rx_latency;
+            self.framer = Framer::new(FramerConfig::with_latency(self.cfg.timing, rx_latency));
+            self.periods
+                .set_attempt(super::build::period_setup(&self.cfg).attempt);
+        }
         self.framer.reset();
         self.line_free_at = now;
         // The line was down: no gap of the engine's, every drive latches below anyway.

@@ -73,6 +73,14 @@ impl Periods {
         }
     }
 
+    /// A new worst case of one attempt (the line came back on a device with another receive
+    /// latency).
+    pub fn set_attempt(&mut self, attempt: Duration) {
+        let tries = (self.poll.as_nanos() / self.attempt.as_nanos().max(1)).max(1);
+        self.poll = attempt * u32::try_from(tries).unwrap_or(1);
+        self.attempt = attempt;
+    }
+
     /// The shortest telegram-off time (P2014) that does not trip drive `slot` between two of
     /// its polls: the longest time between them with every exchange of the circulating list at
     /// its worst case (doubled by `param_priority`, at least a fixed cycle time); rounded up to
