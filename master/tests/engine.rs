@@ -1387,3 +1387,83 @@ fn efficiency_is_at_most_one_whatever_fails_on_the_line() {
         assert!(e.is_some_and(|e| e > 0.0 && e <= 1.0), "{what}: {e:?}");
     }
 }
+
+/// A clock that loses `pause` once, inside a precise sleep: ussd stopped (SIGSTOP, a suspended
+/// machine) while it waited for the start pause before a telegram.
+#[derive(Debug, Default)]
+struct PausingClock {
+    now: Duration,
+    pause: Option<Duration>,
+}
+
+impl uss_master::Clock for PausingClock {
+    fn now(&self) -> Duration {
+        self.now
+    }
+
+    fn sleep_until(&mut self, t: Duration) {
+        self.now = self.now.max(t);
+    }
+
+    fn sleep_until_precise(&mut self, t: Duration) {
+        self.sleep_until(t);
+        if let Some(p) = self.pause.take() {
+            self.now += p;
+        }
+    }
+}
+
+/// Issue 32, item 7: the words of a telegram are decided when it leaves, not before its start
+/// pause. ussd paused for 2 s while it waited for the start pause of a running drive's
+/// telegram sent the ON decided before the pause, with the controller's sample long stale; the
+/// drive now gets its safe command, latched as "ussd paused".
+#[test]
+fn a_pause_of_ussd_during_the_start_pause_is_seen_before_the_telegram_leaves() {
+    let config = EngineConfig {
+        timing: timing(),
+        response_timeout: ms(20),
+        retries: 0,
+        offline_after: 1,
+        offline_probe: ms(500),
+        cycle_time: None,
+        param_timeout: ms(2000),
+        echo: false,
+        mailbox_depth: 16,
+        publish_every: ms(100),
+        param_priority: false,
+        safety_first: true,
+        rx_latency: Duration::ZERO,
+        capture: false,
+        drives: vec![DriveSetup::new(addr(1), layout(PkwMode::Four, 2))],
+    };
+    let mut bus = SimBus::new(1);
+    bus.add(DriveConfig::new(addr(1), layout(PkwMode::Four, 2)))
+        .unwrap();
+    let wire = SimTransport::new(VirtualWire::new(bus, timing()));
+    let (mut engine, handle, _events) = Engine::new(config, wire, PausingClock::default());
+    let sent_stw1 = |e: &Engine<SimTransport, PausingClock>| {
+        e.transport().wire().bus().drive(addr(1)).unwrap().stw1()
+    };
+    for _ in 0..10 {
+        handle.set_output(addr(1), &[0x047E, 0]).unwrap();
+        engine.poll_next().unwrap();
+    }
+    for _ in 0..10 {
+        handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
+        engine.poll_next().unwrap();
+    }
+    assert_eq!(sent_stw1(&engine), Stw1::RUN);
+    // The controller's fresh ON, then ussd stops for 2 s inside the start pause.
+    handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
+    engine.clock_mut().pause = Some(ms(2000));
+    engine.poll_next().unwrap();
+    assert_eq!(sent_stw1(&engine), Stw1::READY, "the pre-pause ON went out");
+    assert!(
+        matches!(
+            engine.stats().drive(addr(1)).unwrap().control,
+            Control::Latched(l) if l.reason == LatchReason::Paused
+        ),
+        "{:?}",
+        engine.stats().drive(addr(1)).unwrap().control
+    );
+}
