@@ -3,9 +3,9 @@
 //! the echo of a 2-wire adapter, and what a good or failed poll changes.
 
 use super::{
-    Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, FrameError, LastFailure,
-    MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, ParamReply, PathError, ReplyKind,
-    Transport, TransportError, Words, encode,
+    Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, FrameError, LOOK_STEP,
+    LastFailure, MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, ParamReply, PathError,
+    ReplyKind, Transport, TransportError, Words, encode,
 };
 
 /// How one attempt ended.
@@ -40,18 +40,14 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             self.deliver(r);
         }
         self.check_own_reads(slot);
-        let mut output = [0u16; MAX_PZD_WORDS];
-        let len = self.drives[slot].setup.layout.pzd.get();
         let mut last = LastFailure::NoResponse;
         for attempt in 0..=self.cfg.retries {
             if attempt > 0 {
                 self.drives[slot].counters.retries += 1;
                 self.serve_out_of_turn(Some(slot))?;
             }
-            let now = self.clock.now();
-            self.output(slot, now, &mut output);
             let begin = self.line_free_at;
-            match self.attempt(slot, &output[..len], true)? {
+            match self.attempt(slot, None, true)? {
                 Attempt::Reply { words, mut timing } => {
                     timing.first_attempt = attempt == 0;
                     self.on_reply(slot, &words, begin, timing);
@@ -201,12 +197,13 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
     }
 
-    /// One telegram to the drive in `slot` and its reply. `with_task` puts the pending PKW task
-    /// in (not for the shutdown telegrams).
+    /// One telegram to the drive in `slot` and its reply: its PZD words `pzd`, or (`None`) the
+    /// words its gate decides ([`Engine::output`]). `with_task` puts the pending PKW task in (not
+    /// for the shutdown telegrams).
     pub(super) fn attempt(
         &mut self,
         slot: usize,
-        pzd: &[u16],
+        pzd: Option<&[u16]>,
         with_task: bool,
     ) -> Result<Attempt, TransportError> {
         self.shared.progress.fetch_add(1, Ordering::Relaxed);
@@ -222,8 +219,18 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .current_words()
             .filter(|_| with_task);
         let carries_task = task_words.is_some();
-        let pkw = task_words.unwrap_or(&none[..setup.layout.pkw.request_words()]);
-        let Ok(n) = encode(&mut self.tx, Adr::to(setup.address), pkw, pzd) else {
+        let mut pkw = [0u16; MAX_PKW_WORDS];
+        let pkw_len = setup.layout.pkw.request_words();
+        pkw[..pkw_len].copy_from_slice(task_words.unwrap_or(&none[..pkw_len]));
+        let len = setup.layout.pzd.get();
+        let mut words = [0u16; MAX_PZD_WORDS];
+        match pzd {
+            Some(w) => words[..w.len()].copy_from_slice(w),
+            None => self.output(slot, self.clock.now(), &mut words),
+        }
+        let pzd_len = pzd.map_or(len, <[u16]>::len);
+        let (pkw, words_now) = (&pkw[..pkw_len], words);
+        let Some(mut n) = self.encode_request(setup, pkw, &words_now[..pzd_len]) else {
             return Ok(Attempt::Failed(LastFailure::Length));
         };
         if let Some(seen) = self.last_reply_seen.take() {
@@ -231,9 +238,20 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             self.timing.work.record(ready.saturating_sub(seen));
         }
         // The start pause, then a clean input buffer, then our telegram (USS.md section 4).
-        self.clock
-            .sleep_until_precise(self.line_free_at + self.cfg.timing.start_pause());
+        let planned = self.line_free_at + self.cfg.timing.start_pause();
+        let wake = planned.max(self.clock.now());
+        self.clock.sleep_until_precise(planned);
         let send_at = self.clock.now();
+        if pzd.is_none() && send_at.saturating_sub(wake) > LOOK_STEP {
+            // ussd did not run while it waited (SIGSTOP, a suspended machine, a starved CPU): what
+            // was decided before is decided again now, with the gap seen, before it leaves.
+            self.look();
+            self.output(slot, send_at, &mut words);
+            let Some(again) = self.encode_request(setup, pkw, &words[..pzd_len]) else {
+                return Ok(Attempt::Failed(LastFailure::Length));
+            };
+            n = again;
+        }
         if let Some(done) = self.last_reply_done.take() {
             self.timing.turnaround.record(send_at.saturating_sub(done));
         }
@@ -262,6 +280,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         };
         self.capture.reply_end(&setup, outcome, self.clock.now());
         Ok(attempt)
+    }
+
+    /// Encodes a request to the drive of `setup` into the transmit buffer: its length, `None`
+    /// when it does not fit.
+    fn encode_request(&mut self, setup: DriveSetup, pkw: &[u16], pzd: &[u16]) -> Option<usize> {
+        encode(&mut self.tx, Adr::to(setup.address), pkw, pzd).ok()
     }
 
     /// Receives until a valid reply from the right drive, or a failure.

@@ -564,7 +564,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             output[0] = command.stw1();
             let len = setup.layout.pzd.get();
             let begin = self.line_free_at;
-            match self.attempt(slot, &output[..len], false)? {
+            match self.attempt(slot, Some(&output[..len]), false)? {
                 Attempt::Reply { words, timing } => self.on_reply(slot, &words, begin, timing),
                 Attempt::Failed(f) => self.drives[slot].attempt_failed(f),
             }
