@@ -111,7 +111,8 @@ pub const HOW: &str = "configure mutual TLS (tls/ endpoints; transport.link.tls:
 root_ca_certificate, listen_certificate and listen_private_key, connect_certificate and \
 connect_private_key, enable_mtls: true; scouting.multicast.enabled: false) or user/password \
 authentication (transport.auth.usrpwd: dictionary_file, user, password) in --zenoh-config (README, \
-\"Securing the network\"), or start with --insecure-network in a lab";
+\"Securing the network\"), or start with --insecure-network in a lab (parameter writes only: \
+remote control needs a policy that names who may control)";
 
 #[cfg(test)]
 mod tests {
