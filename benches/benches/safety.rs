@@ -340,6 +340,46 @@ fn through_ussd() {
         &format!("[[bus]]\nname = \"{bus_name}\"\ndevice = \"sim\"\nbaud = 9600\n{drives}"),
     );
     let bus = uss_benches::open_bus(&bus_name);
+    let plain = stops_through_ussd(&bus, &bus_name);
+    // 64 connections to the stop socket that say nothing: 8 processes of 8, each connection
+    // made again as soon as ussd closes it (issue 32: they held a stop back 2 s and more).
+    let holder = uss_benches::release_binary("uss-integration-tests", "uss-idle-connections");
+    let socket = uss_shm_types::names::stop_socket(
+        &uss_shm_types::BusName::new(&bus_name).expect("bus name"),
+    );
+    let holders: Vec<uss_benches::Child> = (0..8)
+        .map(|_| {
+            let mut child = std::process::Command::new(&holder)
+                .arg(&socket)
+                .arg("8")
+                .stdout(std::process::Stdio::piped())
+                .spawn()
+                .expect("uss-idle-connections");
+            let mut said = String::new();
+            let out = child.stdout.take().expect("its stdout");
+            std::io::BufRead::read_line(&mut std::io::BufReader::new(out), &mut said)
+                .expect("holding 8");
+            assert!(said.starts_with("holding 8"), "{said}");
+            uss_benches::Child { child, file: None }
+        })
+        .collect();
+    let idle = stops_through_ussd(&bus, &bus_name);
+    drop(holders);
+    let ratio = idle.quantiles()[1] / plain.quantiles()[1];
+    println!(
+        "== through ussd: 31 simulated drives at 9600 baud, uss_client::stop -> first telegram with \
+         the stop word (ussd's capture), 30 stops: {}",
+        plain.show()
+    );
+    println!(
+        "== the same with 64 idle connections to the stop socket (8 processes of 8): {}; p99 {ratio:.2}x",
+        idle.show()
+    );
+}
+
+/// 30 stops of a running drive through ussd's stop socket, each at a random moment of the cycle:
+/// from the API call to the first telegram that carries the stop (ussd's capture).
+fn stops_through_ussd(bus: &uss_client::Bus, bus_name: &str) -> Figures {
     let k = 16u8;
     let watch = bus.watch(addr(k)).expect("watch");
     watch
@@ -365,7 +405,7 @@ fn through_ussd() {
         }
         let _ = capture.take();
         let asked = uss_client::monotonic_ns();
-        uss_client::stop(&bus_name, Some(addr(k)), StopCommand::Off1).expect("stop");
+        uss_client::stop(bus_name, Some(addr(k)), StopCommand::Off1).expect("stop");
         let deadline = Instant::now() + Duration::from_secs(5);
         let at = 'found: loop {
             for r in capture.take().expect("capture") {
@@ -380,16 +420,10 @@ fn through_ussd() {
         drop(c);
     }
     let status = bus.status().expect("status");
-    let exchange_ms = status.mean_exchange_ns as f64 / 1e6;
-    let f = Figures {
+    Figures {
         ms: out,
-        exchange_ms,
-    };
-    println!(
-        "== through ussd: 31 simulated drives at 9600 baud, uss_client::stop -> first telegram with \
-         the stop word (ussd's capture), 30 stops: {}",
-        f.show()
-    );
+        exchange_ms: status.mean_exchange_ns as f64 / 1e6,
+    }
 }
 
 fn main() {
