@@ -460,8 +460,15 @@ mod delivery_tests {
         // then (characters due while the thread slept, on a loaded machine, come together), the
         // second in one burst 10 ms after the first half ended.
         let (last, first) = d.inner().writes.split_last().unwrap();
-        assert_eq!(first.iter().map(|w| w.1.len()).sum::<usize>(), 3, "{first:?}");
-        assert!(first.iter().all(|w| w.0 < Duration::from_millis(13)), "{first:?}");
+        assert_eq!(
+            first.iter().map(|w| w.1.len()).sum::<usize>(),
+            3,
+            "{first:?}"
+        );
+        assert!(
+            first.iter().all(|w| w.0 < Duration::from_millis(13)),
+            "{first:?}"
+        );
         assert_eq!(last.1.len(), 3);
         assert!(last.0 >= Duration::from_millis(13));
 

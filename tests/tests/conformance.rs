@@ -455,6 +455,45 @@ fn words_ussd_would_refuse_never_leave_the_program(front: FrontEnd) {
     p.exit();
 }
 
+/// STOP-ANYWHERE while ussd's heartbeat is late (found by the adversarial review): a
+/// controller's own coast while ussd is paused (SIGSTOP, 0.7 s: its heartbeat says "gone") was
+/// refused with `ussd_gone` and its ON words kept, so the program's next keepalives republished
+/// ON when ussd came back within the drive's watchdog time. The coast goes out whatever the
+/// heartbeat says, and the words stay a stop.
+fn a_stop_goes_out_while_ussds_heartbeat_is_late(front: FrontEnd) {
+    use nix::sys::signal::{Signal, kill};
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "watchdog_ms = 2000")]);
+    let bus = ussd.bus();
+    let mut p = opened(front, &ussd, 1);
+    p.ok("rearm");
+    p.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    let pid = nix::unistd::Pid::from_raw(i32::try_from(ussd.child.id()).unwrap());
+    kill(pid, Signal::SIGSTOP).unwrap();
+    std::thread::sleep(Duration::from_millis(700));
+    let coasted = p.call("coast");
+    kill(pid, Signal::SIGCONT).unwrap();
+    assert!(
+        matches!(coasted.kind(), "ok" | "ussd_gone"),
+        "{front:?}: {coasted:?}"
+    );
+    // The program goes on with its loop.
+    for _ in 0..10 {
+        let _ = p.call("keepalive");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    image_until(&bus, 1, "the coast on the wire", |i| i.sent_stw1 == OFF2);
+    never(
+        &bus,
+        1,
+        Duration::from_millis(300),
+        "ON after the coast",
+        |i| i.sent_stw1 == RUN,
+    );
+    p.exit();
+}
+
 macro_rules! front_ends {
     ($($scenario:ident),* $(,)?) => {
         $(
@@ -489,6 +528,7 @@ front_ends!(
     a_paused_program_trips_and_does_not_resume,
     a_killed_program_trips_its_drive,
     words_ussd_would_refuse_never_leave_the_program,
+    a_stop_goes_out_while_ussds_heartbeat_is_late,
 );
 
 /// docs/SAFETY.md is executable: every rule of its rule list has a row in its table of
