@@ -482,6 +482,58 @@ fn a_clean_release_is_not_a_trip_and_a_sigkill_is() {
     );
 }
 
+/// STOP-NOWAIT against a flood from many processes (found by the adversarial review): 40
+/// processes of 8 idle connections (320, more than the 256 ussd serves at once; the bound per
+/// process does not stop a flood that forks) made ussd close the oldest connection for each new
+/// one, and a stop whose bytes came a few ms after its connect was lost (49 of 50 with 5 ms).
+/// Now the process holding the most gives up one; a client's stop is answered.
+#[test]
+fn a_flood_of_idle_connections_from_many_processes_loses_no_stop() {
+    use std::io::{Read as _, Write as _};
+    use std::os::unix::net::UnixStream;
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let path = names::stop_socket(&BusName::new(&ussd.bus).unwrap());
+    let holders: Vec<ChildProc> = (0..40)
+        .map(|_| {
+            let mut command = std::process::Command::new(uss_integration_tests::binary(
+                "uss-integration-tests",
+                "uss-idle-connections",
+            ));
+            command.arg(&path).arg("8");
+            let mut holder = ChildProc::spawn("uss-idle-connections".into(), command);
+            holder.says("holding 8");
+            holder
+        })
+        .collect();
+    for i in 0..20 {
+        let mut stream = UnixStream::connect(&path).unwrap();
+        stream
+            .set_read_timeout(Some(Duration::from_secs(2)))
+            .unwrap();
+        // A client that takes a moment between its connect and its bytes (a loaded machine).
+        std::thread::sleep(Duration::from_millis(5));
+        let request = uss_shm_types::OperatorRequest::new(2, StopCommand::Off1);
+        stream
+            .write_all(&request.to_bytes())
+            .unwrap_or_else(|e| panic!("stop {i}: {e}"));
+        let mut answer = [0u8; uss_shm_types::OPERATOR_RESPONSE_BYTES];
+        stream
+            .read_exact(&mut answer)
+            .unwrap_or_else(|e| panic!("stop {i}: no answer: {e}"));
+        let response = uss_shm_types::OperatorResponse::from_bytes(&answer).unwrap();
+        assert_eq!(
+            response.error(),
+            Ok(uss_shm_types::CommandError::Ok),
+            "stop {i}"
+        );
+    }
+    let mut coast = ussd.ussctl(&["coast", "1"]);
+    let (status, out, err) = coast.finish();
+    assert!(status.success(), "{out}{err}");
+    drop(holders);
+}
+
 /// REPLACED with `ussctl` (issue 32): `ussctl run`, SIGKILL, and at once another `ussctl run`
 /// of the same drive, well within its watchdog time. The drive never stopped and no trip was
 /// counted; a crash-restart loop went unseen. Now the second run's re-arm meets the trip its own
