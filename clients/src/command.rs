@@ -92,6 +92,11 @@ pub fn stop(
     send_stop(&name, address.map_or(ALL_DRIVES, Address::get), command)
 }
 
+/// Connections to the stop socket a stop tries when ussd closes one without an answer (a flood
+/// of idle connections made it make room): a stop is answered or fails for a reason, never lost
+/// quietly.
+const STOP_TRIES: usize = 3;
+
 /// One request on bus `bus`'s stop socket and its answer.
 fn send_stop(
     bus: &uss_shm_types::BusName,
@@ -101,38 +106,26 @@ fn send_stop(
     // Who may reach ussd: the root's access rules, said as for every other path.
     crate::open::iceoryx_config(bus.as_str())?;
     let path = names::stop_socket(bus);
-    let not_running = || ClientError::NotRunning {
-        bus: bus.as_str().to_owned(),
-    };
-    let mut stream = match UnixStream::connect(&path) {
-        Ok(s) => s,
-        Err(e) if matches!(e.kind(), ErrorKind::NotFound | ErrorKind::ConnectionRefused) => {
-            return Err(not_running());
+    let mut tries = 0;
+    let bytes = loop {
+        tries += 1;
+        match stop_once(bus, &path, OperatorRequest::new(address, command)) {
+            Ok(bytes) => break bytes,
+            // Closed before it answered: ussd made room for another connection, or it ended
+            // (then the next connect says it is not running).
+            Err(Closed) if tries < STOP_TRIES => {}
+            Err(Closed) => {
+                return Err(ClientError::ipc(
+                    "a stop command on ussd's stop socket",
+                    format!(
+                        "ussd closed the connection without an answer {STOP_TRIES} times: it serves \
+                         too many connections at once (idle ones of other processes)"
+                    ),
+                ));
+            }
+            Err(Failed(e)) => return Err(e),
         }
-        Err(e) => return Err(ClientError::ipc("connecting to ussd's stop socket", e)),
     };
-    let failed = |e: std::io::Error| {
-        if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) {
-            ClientError::ipc(
-                "waiting for ussd's answer to a stop command",
-                format!("{} {COMMAND_TIMEOUT:?}", crate::error::NO_ANSWER),
-            )
-        } else {
-            ClientError::ipc("a stop command on ussd's stop socket", e)
-        }
-    };
-    stream
-        .set_read_timeout(Some(COMMAND_TIMEOUT))
-        .and_then(|()| stream.set_write_timeout(Some(COMMAND_TIMEOUT)))
-        .and_then(|()| stream.write_all(&OperatorRequest::new(address, command).to_bytes()))
-        .map_err(failed)?;
-    let mut bytes = [0u8; OPERATOR_RESPONSE_BYTES];
-    match stream.read_exact(&mut bytes) {
-        Ok(()) => {}
-        // ussd ended between taking the connection and answering.
-        Err(e) if e.kind() == ErrorKind::UnexpectedEof => return Err(not_running()),
-        Err(e) => return Err(failed(e)),
-    }
     let response = OperatorResponse::from_bytes(&bytes)
         .ok_or_else(|| ClientError::ipc("ussd's answer to a stop command", "bad length"))?;
     uss_shm_types::check_version(response.version)?;
@@ -144,4 +137,50 @@ fn send_stop(
         }),
         Err(e) => Err(uss_shm_types::ContractError::from(e).into()),
     }
+}
+
+/// Why one try on the stop socket did not bring an answer.
+enum StopTry {
+    /// ussd closed (or reset) the connection before it answered.
+    Closed,
+    Failed(ClientError),
+}
+use StopTry::{Closed, Failed};
+
+/// One connection to the stop socket at `path`: `request` written, the answer's bytes read.
+fn stop_once(
+    bus: &uss_shm_types::BusName,
+    path: &std::path::Path,
+    request: OperatorRequest,
+) -> Result<[u8; OPERATOR_RESPONSE_BYTES], StopTry> {
+    let mut stream = match UnixStream::connect(path) {
+        Ok(s) => s,
+        Err(e) if matches!(e.kind(), ErrorKind::NotFound | ErrorKind::ConnectionRefused) => {
+            return Err(Failed(ClientError::NotRunning {
+                bus: bus.as_str().to_owned(),
+            }));
+        }
+        Err(e) => {
+            return Err(Failed(ClientError::ipc(
+                "connecting to ussd's stop socket",
+                e,
+            )));
+        }
+    };
+    let failed = |e: std::io::Error| match e.kind() {
+        ErrorKind::UnexpectedEof | ErrorKind::ConnectionReset | ErrorKind::BrokenPipe => Closed,
+        ErrorKind::WouldBlock | ErrorKind::TimedOut => Failed(ClientError::ipc(
+            "waiting for ussd's answer to a stop command",
+            format!("{} {COMMAND_TIMEOUT:?}", crate::error::NO_ANSWER),
+        )),
+        _ => Failed(ClientError::ipc("a stop command on ussd's stop socket", e)),
+    };
+    stream
+        .set_read_timeout(Some(COMMAND_TIMEOUT))
+        .and_then(|()| stream.set_write_timeout(Some(COMMAND_TIMEOUT)))
+        .and_then(|()| stream.write_all(&request.to_bytes()))
+        .map_err(failed)?;
+    let mut bytes = [0u8; OPERATOR_RESPONSE_BYTES];
+    stream.read_exact(&mut bytes).map_err(failed)?;
+    Ok(bytes)
 }

@@ -119,19 +119,39 @@ impl Shared {
     /// A call of the program that changes the words with `change` (or only refreshes them), as
     /// the session decides. An ON right after a re-arming stop waits (at most the drive's
     /// handshake time, repeating the stop) until ussd took the stop and the drive is live.
+    ///
+    /// A stop goes out whatever ussd's heartbeat says: a ussd paused, starved or late with its
+    /// heartbeat takes it when it looks again, and the controller's words are that stop from
+    /// now on, so no later keepalive repeats the ON before it (docs/SAFETY.md, STOP-ANYWHERE).
+    /// The call still fails with what the heartbeat says.
     fn publish(&self, change: impl Fn(&mut Words)) -> Result<(), ClientError> {
         let start = Instant::now();
         loop {
-            let services = self.link.check()?;
+            let link = self.link.check();
             let mut state = self.state();
-            self.follow(&mut state, &services)?;
+            let stops = {
+                let mut next = *state.session.words();
+                change(&mut next);
+                state.session.pzd() == 0 || uss_shm_types::pzd::is_stop(next.stw1())
+            };
+            let unsure = match link {
+                Ok(services) => {
+                    self.follow(&mut state, &services)?;
+                    None
+                }
+                Err(e) if stops => Some(e),
+                Err(e) => return Err(e),
+            };
             let input = self.watch.latest();
             let step = state
                 .session
                 .publish(monotonic_ns(), &input, &change)
                 .map_err(|e| self.error(e, &input))?;
             let sample = match step {
-                Step::Publish(sample) => return Self::send(&mut state, sample),
+                Step::Publish(sample) => {
+                    Self::send(&mut state, sample)?;
+                    return unsure.map_or(Ok(()), Err);
+                }
                 Step::AwaitRearm if start.elapsed() < handshake(&input) => {
                     // The program waits inside its call: the stop goes on being refreshed.
                     match state.session.publish(monotonic_ns(), &input, |_| {}) {

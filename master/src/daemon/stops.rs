@@ -10,8 +10,8 @@
 //! connection that says nothing holds no other back, it is closed after [`REQUEST_WITHIN`]. A
 //! process may hold [`MAX_PER_PROCESS`] connections at once (its further ones are refused at
 //! once, with [`CommandError::TooManyConnections`]), and the thread [`MAX_CONNECTIONS`] in all
-//! (beyond, the oldest idle one is closed for the new one), so whatever the processes of the
-//! access group do, a stop of another process is taken in microseconds.
+//! (beyond, the process that holds the most gives up its oldest for the new one), so whatever
+//! the processes of the access group do, a stop of another process is taken in microseconds.
 
 use crate::engine::EngineHandle;
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
@@ -35,6 +35,8 @@ const REQUEST_WITHIN: Duration = Duration::from_millis(200);
 pub const MAX_PER_PROCESS: usize = 8;
 /// Connections served at once.
 pub const MAX_CONNECTIONS: usize = 256;
+/// Connections taken per wait, before the thread looks at the requests of those it holds.
+const ACCEPT_PER_TURN: usize = 32;
 
 /// The bus's stop socket and the thread that serves it.
 #[derive(Debug)]
@@ -149,9 +151,11 @@ impl Connections {
         }
     }
 
-    /// Takes every connection waiting on `listener`; a request already in is answered at once.
+    /// Takes the connections waiting on `listener`, at most [`ACCEPT_PER_TURN`] (a flood that
+    /// reconnects as fast as it is closed must not keep the thread from the requests it holds);
+    /// a request already in is answered at once.
     fn accept(&mut self, listener: &UnixListener, handle: &EngineHandle) {
-        loop {
+        for _ in 0..ACCEPT_PER_TURN {
             let stream = match listener.accept() {
                 Ok((s, _)) => s,
                 Err(e) if e.kind() == ErrorKind::WouldBlock => return,
@@ -183,10 +187,25 @@ impl Connections {
                 continue;
             }
             if self.open.len() >= MAX_CONNECTIONS {
-                // The oldest idle one goes: it has had the longest to say something.
-                self.open.remove(0);
+                self.evict();
             }
             self.open.push(c);
+        }
+    }
+}
+
+impl Connections {
+    /// Makes room for one connection: the process that holds the most gives up its oldest, so
+    /// a process with one connection (an operator's stop on its way) is the last to lose it,
+    /// however many processes a flood of idle connections forks.
+    fn evict(&mut self) {
+        let mut held: std::collections::HashMap<u32, usize> = std::collections::HashMap::new();
+        for c in &self.open {
+            *held.entry(c.pid).or_default() += 1;
+        }
+        let heaviest = held.into_iter().max_by_key(|&(_, n)| n).map(|(pid, _)| pid);
+        if let Some(i) = self.open.iter().position(|c| Some(c.pid) == heaviest) {
+            self.open.remove(i);
         }
     }
 }
