@@ -131,7 +131,7 @@ pub enum ClientError {
     /// or hangs. Images are stale (they show the drives offline). The bus reconnects by itself
     /// when a ussd serves it again.
     #[error(
-        "ussd on {bus} is gone (no heartbeat for {:.2} s{}): the drives are not polled; only their own telegram monitoring stops them. Restart ussd (systemctl restart ussd)",
+        "ussd on {bus} is gone (no heartbeat for {:.2} s{}): the drives are not polled; only their own telegram monitoring stops them. If its process is gone, restart ussd (systemctl restart ussd); a paused or starved one goes on by itself",
         silent_for.as_secs_f64(), Pid(*.pid)
     )]
     UssdGone {

@@ -271,7 +271,8 @@ class UssdGone(UssError):
         was = f"; it was process {pid}" if pid else ""
         super().__init__(
             f"ussd on {bus} is gone (no heartbeat for {silent_for:.2f} s{was}): the drives are "
-            "not polled; only their own telegram monitoring stops them. Restart ussd"
+            "not polled; only their own telegram monitoring stops them. If its process is gone, "
+            "restart ussd; a paused or starved one goes on by itself"
         )
 
 
