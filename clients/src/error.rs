@@ -66,7 +66,7 @@ impl fmt::Display for Latch {
             ),
             LatchReason::Replaced => write!(
                 f,
-                "another controller (process {pid}) took the place of the one it ran under, with no release in between"
+                "its controller was replaced: process {pid} published while the drive ran under another controller, with no release in between (a killed controller's successor, or a restart loop)"
             ),
         }
     }

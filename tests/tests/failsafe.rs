@@ -552,7 +552,7 @@ fn a_killed_ussctl_run_replaced_at_once_is_a_trip() {
     let (status, out, err) = second.finish();
     assert_eq!(status.code(), Some(1), "{out}{err}");
     assert!(
-        err.contains("took the place of the one it ran under"),
+        err.contains("its controller was replaced: process"),
         "{err}"
     );
     let i = bus.watch(addr(1)).unwrap().latest();
