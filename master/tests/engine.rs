@@ -1058,6 +1058,31 @@ fn bad_requests_are_refused_with_a_reason() {
     );
 }
 
+/// A line of `drives` (PKW 4, PZD 2) at the tests' timing, failing over after one poll of
+/// `retries` retries, offline drives probed every `probe`.
+fn line_config(drives: &[u8], retries: u8, probe: Duration) -> EngineConfig {
+    EngineConfig {
+        timing: timing(),
+        response_timeout: ms(20),
+        retries,
+        offline_after: 1,
+        offline_probe: probe,
+        cycle_time: None,
+        param_timeout: ms(2000),
+        echo: false,
+        mailbox_depth: 16,
+        publish_every: ms(100),
+        param_priority: false,
+        safety_first: true,
+        rx_latency: Duration::ZERO,
+        capture: false,
+        drives: drives
+            .iter()
+            .map(|&a| DriveSetup::new(addr(a), layout(PkwMode::Four, 2)))
+            .collect(),
+    }
+}
+
 /// The simulated line, failing on demand: a serial device being unplugged.
 struct Unpluggable {
     inner: SimTransport,
@@ -1091,26 +1116,7 @@ impl uss_master::Transport for Unpluggable {
 
 #[test]
 fn a_failed_line_ends_every_job_and_the_restored_line_latches_every_drive() {
-    let config = EngineConfig {
-        timing: timing(),
-        response_timeout: ms(20),
-        retries: 2,
-        offline_after: 1,
-        offline_probe: ms(500),
-        cycle_time: None,
-        param_timeout: ms(2000),
-        echo: false,
-        mailbox_depth: 16,
-        publish_every: ms(100),
-        param_priority: false,
-        safety_first: true,
-        rx_latency: Duration::ZERO,
-        capture: false,
-        drives: vec![
-            DriveSetup::new(addr(1), layout(PkwMode::Four, 2)),
-            DriveSetup::new(addr(2), layout(PkwMode::Four, 2)),
-        ],
-    };
+    let config = line_config(&[1, 2], 2, ms(500));
     let wire = |seed| {
         let mut bus = SimBus::new(seed);
         for a in [1, 2] {
@@ -1211,23 +1217,7 @@ fn a_restored_line_takes_the_receive_latency_of_the_device_opened_again() {
             unplugged: false,
         }
     };
-    let config = EngineConfig {
-        timing: timing(),
-        response_timeout: ms(20),
-        retries: 1,
-        offline_after: 1,
-        offline_probe: ms(50),
-        cycle_time: None,
-        param_timeout: ms(2000),
-        echo: false,
-        mailbox_depth: 16,
-        publish_every: ms(100),
-        param_priority: false,
-        safety_first: true,
-        rx_latency: Duration::ZERO,
-        capture: false,
-        drives: vec![DriveSetup::new(addr(1), layout(PkwMode::Four, 2))],
-    };
+    let config = line_config(&[1], 1, ms(50));
     let (mut engine, _handle, _events) = Engine::new(config, late_wire(1), VirtualClock::new());
     for _ in 0..10 {
         engine.poll_next().unwrap();
@@ -1419,23 +1409,7 @@ impl uss_master::Clock for PausingClock {
 /// drive now gets its safe command, latched as "ussd paused".
 #[test]
 fn a_pause_of_ussd_during_the_start_pause_is_seen_before_the_telegram_leaves() {
-    let config = EngineConfig {
-        timing: timing(),
-        response_timeout: ms(20),
-        retries: 0,
-        offline_after: 1,
-        offline_probe: ms(500),
-        cycle_time: None,
-        param_timeout: ms(2000),
-        echo: false,
-        mailbox_depth: 16,
-        publish_every: ms(100),
-        param_priority: false,
-        safety_first: true,
-        rx_latency: Duration::ZERO,
-        capture: false,
-        drives: vec![DriveSetup::new(addr(1), layout(PkwMode::Four, 2))],
-    };
+    let config = line_config(&[1], 0, ms(500));
     let mut bus = SimBus::new(1);
     bus.add(DriveConfig::new(addr(1), layout(PkwMode::Four, 2)))
         .unwrap();

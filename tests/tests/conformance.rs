@@ -228,6 +228,13 @@ fn never(bus: &Bus, drive: u8, span: Duration, what: &str, bad: impl Fn(&PzdInpu
     }
 }
 
+/// The program's deliberate re-arm and an ON at 10 Hz, until drive 1 gets it.
+fn runs(p: &mut Program, bus: &Bus) {
+    p.ok("rearm");
+    p.ok("run 10");
+    image_until(bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+}
+
 fn opened(front: FrontEnd, ussd: &Ussd, drive: u8) -> Program {
     let mut p = Program::start(front);
     p.ok(&format!("open {} {drive}", ussd.bus));
@@ -256,9 +263,7 @@ fn opening_is_no_rearm(front: FrontEnd) {
         "ussd started"
     );
     // The deliberate act.
-    p.ok("rearm");
-    p.ok("run 10");
-    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    runs(&mut p, &bus);
     p.exit();
 }
 
@@ -269,9 +274,7 @@ fn an_operators_stop_survives_a_reconnect(front: FrontEnd) {
     let ussd = Ussd::start("", &[(1, "")]);
     let bus = ussd.bus();
     let mut first = opened(front, &ussd, 1);
-    first.ok("rearm");
-    first.ok("run 10");
-    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    runs(&mut first, &bus);
     bus.stop_drive(addr(1), StopCommand::Off2).unwrap();
     bus.wait_stopped(addr(1), StopCommand::Off2, None).unwrap();
     first.exit();
@@ -304,9 +307,7 @@ fn a_replaced_controller_is_a_trip(front: FrontEnd) {
     let ussd = Ussd::start("", &[(1, "watchdog_ms = 2000")]);
     let bus = ussd.bus();
     let mut first = opened(front, &ussd, 1);
-    first.ok("rearm");
-    first.ok("run 10");
-    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    runs(&mut first, &bus);
     let mut second = Program::start(front);
     first.kill();
     second.ok(&format!("open {} 1", ussd.bus));
@@ -348,9 +349,7 @@ fn a_stop_never_waits_for_another_thread(front: FrontEnd) {
     let ussd = Ussd::start("", &[(1, "")]);
     let bus = ussd.bus();
     let mut p = opened(front, &ussd, 1);
-    p.ok("rearm");
-    p.ok("run 10");
-    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    runs(&mut p, &bus);
     // S3 does not come while the drive runs (S4) or coasts (S1): the wait lasts its 4 s.
     p.spawn("wait_state 3 4000");
     std::thread::sleep(Duration::from_millis(300));
@@ -377,9 +376,7 @@ fn a_paused_program_trips_and_does_not_resume(front: FrontEnd) {
     let ussd = Ussd::start("", &[(1, "")]);
     let bus = ussd.bus();
     let mut p = opened(front, &ussd, 1);
-    p.ok("rearm");
-    p.ok("run 10");
-    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    runs(&mut p, &bus);
     p.signal(Signal::SIGSTOP);
     let image = image_until(&bus, 1, "the trip", |i| !i.is_live());
     std::thread::sleep(Duration::from_millis(300));
@@ -397,9 +394,7 @@ fn a_paused_program_trips_and_does_not_resume(front: FrontEnd) {
         "ON after the pause",
         |i| i.sent_stw1 == RUN || i.is_live(),
     );
-    p.ok("rearm");
-    p.ok("run 10");
-    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    runs(&mut p, &bus);
     p.exit();
 }
 
@@ -410,9 +405,7 @@ fn a_killed_program_trips_its_drive(front: FrontEnd) {
     let ussd = Ussd::start("", &[(1, "")]);
     let bus = ussd.bus();
     let mut p = opened(front, &ussd, 1);
-    p.ok("rearm");
-    p.ok("run 10");
-    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    runs(&mut p, &bus);
     p.kill();
     let image = image_until(&bus, 1, "the trip", |i| !i.is_live() && i.sent_stw1 == OFF1);
     assert_eq!(image.latch_reason_name(), "controller stale", "{front:?}");
@@ -433,9 +426,7 @@ fn words_ussd_would_refuse_never_leave_the_program(front: FrontEnd) {
     let ussd = Ussd::start("", &[(1, "")]);
     let bus = ussd.bus();
     let mut p = opened(front, &ussd, 1);
-    p.ok("rearm");
-    p.ok("run 10");
-    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    runs(&mut p, &bus);
     for words in ["0x007F 0x2000", "0x047F", "0x047F 0x2000 0x0000"] {
         let refused = p.call(&format!("set_words {words}"));
         assert_eq!(
@@ -466,9 +457,7 @@ fn a_stop_goes_out_while_ussds_heartbeat_is_late(front: FrontEnd) {
     let ussd = Ussd::start("", &[(1, "watchdog_ms = 2000")]);
     let bus = ussd.bus();
     let mut p = opened(front, &ussd, 1);
-    p.ok("rearm");
-    p.ok("run 10");
-    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    runs(&mut p, &bus);
     let pid = nix::unistd::Pid::from_raw(i32::try_from(ussd.child.id()).unwrap());
     kill(pid, Signal::SIGSTOP).unwrap();
     std::thread::sleep(Duration::from_millis(700));

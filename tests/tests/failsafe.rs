@@ -101,6 +101,23 @@ fn first_image(bus: &Bus, a: u8, timeout: Duration, done: impl Fn(&PzdInput) -> 
     }
 }
 
+/// `processes` processes of `uss-idle-connections`, each holding 8 connections to the Unix
+/// socket `path` that say nothing (made again as soon as they are closed).
+fn idle_connections(path: &std::path::Path, processes: usize) -> Vec<ChildProc> {
+    (0..processes)
+        .map(|_| {
+            let mut command = std::process::Command::new(uss_integration_tests::binary(
+                "uss-integration-tests",
+                "uss-idle-connections",
+            ));
+            command.arg(path).arg("8");
+            let mut holder = ChildProc::spawn("uss-idle-connections".into(), command);
+            holder.says("holding 8");
+            holder
+        })
+        .collect()
+}
+
 /// The drive's diagnostics once `done` accepts them (republished every 100 ms).
 fn diag_when(
     bus: &Bus,
@@ -494,18 +511,7 @@ fn a_flood_of_idle_connections_from_many_processes_loses_no_stop() {
     let _serial = serial();
     let ussd = Ussd::start("", &[(1, ""), (2, "")]);
     let path = names::stop_socket(&BusName::new(&ussd.bus).unwrap());
-    let holders: Vec<ChildProc> = (0..34)
-        .map(|_| {
-            let mut command = std::process::Command::new(uss_integration_tests::binary(
-                "uss-integration-tests",
-                "uss-idle-connections",
-            ));
-            command.arg(&path).arg("8");
-            let mut holder = ChildProc::spawn("uss-idle-connections".into(), command);
-            holder.says("holding 8");
-            holder
-        })
-        .collect();
+    let holders = idle_connections(&path, 34);
     for i in 0..20 {
         let mut stream = UnixStream::connect(&path).unwrap();
         stream
@@ -668,18 +674,7 @@ fn idle_stop_connections_do_not_delay_an_operators_coast() {
     quick_ramps(&bus, 1);
     let mut running = run(&ussd, 1, "20");
     let path = names::stop_socket(&BusName::new(&ussd.bus).unwrap());
-    let holders: Vec<ChildProc> = (0..8)
-        .map(|_| {
-            let mut command = std::process::Command::new(uss_integration_tests::binary(
-                "uss-integration-tests",
-                "uss-idle-connections",
-            ));
-            command.arg(&path).arg("8");
-            let mut holder = ChildProc::spawn("uss-idle-connections".into(), command);
-            holder.says("holding 8");
-            holder
-        })
-        .collect();
+    let holders = idle_connections(&path, 8);
     // This process takes its share of idle connections too.
     let mine: Vec<UnixStream> = (0..8)
         .map(|_| UnixStream::connect(&path).unwrap())

@@ -89,6 +89,24 @@ fn watch_alive(ns: &Netns, key: &str, options: &[&str]) -> ChildProc {
     alive
 }
 
+/// uss-zenoh for `bus` over mutual TLS with `--allow-control`, under a policy that grants
+/// `control` to the certificate `controller` (what `--allow-control` needs).
+fn controlling_bridge(
+    ns: &Netns,
+    bus: &str,
+    prefix: &str,
+    pki: &Pki,
+) -> (ChildProc, std::path::PathBuf) {
+    let policy = pki.control_policy(&["controller"]);
+    bridge_tls(
+        ns,
+        bus,
+        prefix,
+        &["--allow-control", "--policy", &policy],
+        pki,
+    )
+}
+
 /// Puts `payload` on the drive's `out` key from the other side, under the key of peer `name`
 /// (`<prefix>/<bus>/as/<name>/drive/...`, as a named controller sends: the bridge judges it by
 /// that name's rights; a listed certificate's put under another key Zenoh's access control
@@ -482,14 +500,7 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     // the drive.
     let pki = Pki::new("control", "uss-rt test CA", &ns.here());
     ns.use_tls(Some(pki.client("controller")));
-    let policy = pki.control_policy(&["controller"]);
-    let (mut bridge_proc, _) = bridge_tls(
-        &ns,
-        &bus,
-        &prefix,
-        &["--allow-control", "--policy", &policy],
-        &pki,
-    );
+    let (mut bridge_proc, _) = controlling_bridge(&ns, &bus, &prefix, &pki);
     answers_over_tls(&ns, &drive);
     let mut run = ns.client(&["run", &drive, "--hz", "10"]);
     run.says("re-armed");
@@ -685,14 +696,7 @@ fn a_remote_client_controls_a_drive_of_a_full_line_at_9600_baud() {
     let watch = ussd.bus().watch(addr(20)).unwrap();
     let pki = Pki::new("full", "uss-rt test CA", &ns.here());
     ns.use_tls(Some(pki.client("controller")));
-    let policy = pki.control_policy(&["controller"]);
-    let (_bridge, config) = bridge_tls(
-        &ns,
-        &bus,
-        &prefix,
-        &["--allow-control", "--policy", &policy],
-        &pki,
-    );
+    let (_bridge, config) = controlling_bridge(&ns, &bus, &prefix, &pki);
     answers_over_tls(&ns, &drive);
 
     let (ok, out, err) = ns.call(&["run", &drive, "--hz", "10", "--for", "3"]);
@@ -810,14 +814,7 @@ fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_
     let drive = format!("{prefix}/{bus}/drive/1");
     let watch = ussd.bus().watch(addr(1)).unwrap();
     let pki = Pki::new("mtls", "uss-rt test CA", &ns.here());
-    let policy = pki.control_policy(&["controller"]);
-    let (mut bridge_proc, config) = bridge_tls(
-        &ns,
-        &bus,
-        &prefix,
-        &["--allow-control", "--policy", &policy],
-        &pki,
-    );
+    let (mut bridge_proc, config) = controlling_bridge(&ns, &bus, &prefix, &pki);
     let other = Pki::new("other", "another CA", &ns.here());
     let strangers = [
         ("no certificate (plain TCP)", None),
@@ -869,14 +866,7 @@ fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() 
     let watch = ussd.bus().watch(addr(1)).unwrap();
     let pki = Pki::new("stall", "uss-rt test CA", &ns.here());
     ns.use_tls(Some(pki.client("controller")));
-    let policy = pki.control_policy(&["controller"]);
-    let (mut bridge_proc, config) = bridge_tls(
-        &ns,
-        &bus,
-        &prefix,
-        &["--allow-control", "--policy", &policy],
-        &pki,
-    );
+    let (mut bridge_proc, config) = controlling_bridge(&ns, &bus, &prefix, &pki);
     answers_over_tls(&ns, &drive);
     let mut run = ns.client(&["run", &drive, "--hz", "5", "--for", "0.5"]);
     run.says("re-armed");
