@@ -357,7 +357,7 @@ fn log_event(bus: &BusConfig, event: &Event) {
                 bus = bus.name,
                 at_s = at.as_secs_f64(),
                 down_s = down_for.as_secs_f64(),
-                "line back after {:.1} s: every drive latched until its controller re-arms it (OFF1, then ON)",
+                "line back after {:.1} s: every drive latched until a controller re-arms it (its explicit rearm: OFF1 naming the latch, then ON)",
                 down_for.as_secs_f64()
             );
         }

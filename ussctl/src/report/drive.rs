@@ -379,7 +379,7 @@ impl StopReport {
             }
             let _ = writeln!(
                 out,
-                "drive {}: {} sent (STW1 {:#06X}), {what}; now {} (ZSW1 {:#06X}); {} until its controller re-arms it (OFF1, then ON)",
+                "drive {}: {} sent (STW1 {:#06X}), {what}; now {} (ZSW1 {:#06X}); {} until a controller re-arms it (its explicit rearm, `ussctl run`)",
                 d.drive,
                 d.control.command.unwrap_or(self.command),
                 d.sent_stw1,

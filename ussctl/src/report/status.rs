@@ -332,7 +332,7 @@ impl StatusReport {
         }
         if self.drives.iter().any(|d| d.control.state == "latched") {
             out.push_str(
-                "latched: the drive gets the stop command shown until its controller re-arms it (OFF1, then ON)\n",
+                "latched: the drive gets the stop command shown until a controller re-arms it (its explicit rearm, `ussctl run`)\n",
             );
         }
         out
