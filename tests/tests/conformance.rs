@@ -483,6 +483,39 @@ fn a_stop_goes_out_while_ussds_heartbeat_is_late(front: FrontEnd) {
     p.exit();
 }
 
+/// STOP-NOWAIT without losing the stop (found by the review of issue 32): with no lock held
+/// through a call, an ON of one thread that waits for ussd to take the re-arm of another, and a
+/// coast of a third: the coast names the acknowledged latch, so ussd takes it as the re-arm, and
+/// the waiting ON then saw the drive live and ran it. The waiting ON is dropped instead
+/// (`superseded`): the stop is the program's later word. 31 drives at 9600 baud, so the re-arm
+/// takes a telegram or two.
+fn an_on_waiting_for_the_re_arm_never_undoes_a_later_stop(front: FrontEnd) {
+    let _serial = serial();
+    let drives: Vec<(u8, &str)> = (1..=31).map(|a| (a, "")).collect();
+    let ussd = Ussd::start("baud = 9600", &drives);
+    let bus = ussd.bus();
+    let mut p = opened(front, &ussd, 1);
+    p.spawn("rearm");
+    std::thread::sleep(Duration::from_millis(5));
+    p.spawn("run 10");
+    std::thread::sleep(Duration::from_millis(5));
+    p.ok("coast");
+    never(
+        &bus,
+        1,
+        Duration::from_millis(1500),
+        "ON after the coast",
+        |i| i.sent_stw1 == RUN,
+    );
+    let (first, second) = (p.answer("<&"), p.answer("<&"));
+    let kinds = [first.kind(), second.kind()];
+    assert!(
+        !kinds.contains(&"ok") || kinds.iter().any(|k| ["superseded", "tripped"].contains(k)),
+        "{front:?}: {first:?} {second:?}"
+    );
+    p.exit();
+}
+
 macro_rules! front_ends {
     ($($scenario:ident),* $(,)?) => {
         $(
@@ -518,6 +551,7 @@ front_ends!(
     a_killed_program_trips_its_drive,
     words_ussd_would_refuse_never_leave_the_program,
     a_stop_goes_out_while_ussds_heartbeat_is_late,
+    an_on_waiting_for_the_re_arm_never_undoes_a_later_stop,
 );
 
 /// docs/SAFETY.md is executable: every rule of its rule list has a row in its table of
