@@ -13,8 +13,8 @@
  * seen low first. Nothing else re-arms: not spindle-on low, not an idle loop, not a reconnect.
  *
  * The watchdog is fed by this component's own loop, one command per exchange, and only while
- * LinuxCNC's servo thread proves it is alive: watchdog-in must change at least once per drive
- * watchdog time (watchdog_ms of ussd's configuration), as hostmot2's watchdog and charge pumps
+ * LinuxCNC's servo thread proves it is alive: watchdog-in must change at least once per half
+ * the drive's watchdog time (watchdog_ms of ussd's configuration), as hostmot2's watchdog and charge pumps
  * expect, e.g. from siggen's clock in the servo thread:
  *
  *   loadrt siggen
@@ -22,10 +22,10 @@
  *   setp siggen.0.frequency 100
  *   net uss-watchdog siggen.0.clock => uss_vfd.watchdog-in
  *
- * No change within the watchdog time (the servo thread stopped, LinuxCNC hangs) and the
- * component stops refreshing: ussd trips the drive (controller stale), and it stays latched
- * until spindle-on rises again. watchdog-in is sampled every millisecond: it must not change
- * faster than every 2 ms (siggen at up to 250 Hz).
+ * No change within half the watchdog time (the servo thread stopped, LinuxCNC hangs) and the
+ * component sends OFF1 once and stops refreshing: ussd trips the drive (controller stale), and
+ * it stays latched until spindle-on rises again (with enable high). watchdog-in is sampled every
+ * millisecond: it must not change faster than every 2 ms (siggen at up to 250 Hz).
  *
  * Pins (NAME is --name, default uss_vfd):
  *   NAME.speed-command       float in   spindle speed in rpm (the sign gives the direction when
@@ -35,8 +35,8 @@
  *   NAME.spindle-rev         bit   in   reverse
  *   NAME.enable              bit   in   must be high for the drive to run (low: OFF1)
  *   NAME.err-reset           bit   in   a rising edge acknowledges a drive fault
- *   NAME.watchdog-in         bit   in   toggled by the servo thread, at least once per
- *                                       watchdog time: the proof that LinuxCNC is alive
+ *   NAME.watchdog-in         bit   in   toggled by the servo thread, at least once per half
+ *                                       the watchdog time: the proof that LinuxCNC is alive
  *   NAME.at-speed            bit   out  running within tolerance of the command
  *   NAME.spindle-speed-fb    float out  actual speed in rpm
  *   NAME.spindle-speed-fb-hz float out  actual frequency in Hz
@@ -44,7 +44,7 @@
  *   NAME.fault               bit   out  the drive reports a fault (ZSW1 bit 3)
  *   NAME.fault-code          s32   out  the drive's newest fault number (r0947[0], F0072 -> 72)
  *   NAME.latched             bit   out  ussd holds the drive stopped until it is re-armed
- *   NAME.watchdog-ok         bit   out  watchdog-in changed within the watchdog time
+ *   NAME.watchdog-ok         bit   out  watchdog-in changed within half the watchdog time
  *   NAME.comm-ok             bit   out  ussd serves the bus and the drive answers
  *   NAME.error-count         s32   out  failed calls and lost contacts since the start
  *   NAME.state               s32   out  PROFIdrive state: 1..4 for S1..S4, 6 fault, 0 not ready
@@ -228,15 +228,17 @@ static void step(vfd_t *v, pins_t *p) {
   v->was_on = on;
   int run = on && *p->enable;
 
-  /* LinuxCNC's servo thread is alive, or this component sends nothing at all: ussd's watchdog
-   * then trips the drive as it trips a dead controller. */
-  *p->watchdog_ok = now_ms() - v->watchdog_at <= (double)v->watchdog_ms;
+  /* LinuxCNC's servo thread is alive, or this component stops the drive once (OFF1: a stop
+   * always goes out) and then sends nothing at all: ussd's watchdog trips it as it trips a dead
+   * controller. Half the drive's watchdog time without a change is enough to say so. */
+  *p->watchdog_ok = now_ms() - v->watchdog_at <= (double)v->watchdog_ms / 2;
   if (!*p->watchdog_ok) {
+    if (!v->latched) (void)ussrt_control_stop(v->c);
     v->latched = 1;
     if (v->complained != -1) {
-      fprintf(stderr, "%s: watchdog-in has not changed within %u ms (the drive's watchdog): "
-              "not refreshing the drive; is the servo thread running?\n", v->name,
-              (unsigned)v->watchdog_ms);
+      fprintf(stderr, "%s: watchdog-in has not changed within %u ms (half the drive's "
+              "watchdog): the drive stopped, not refreshing it; is the servo thread running?\n",
+              v->name, (unsigned)(v->watchdog_ms / 2));
       v->complained = -1;
     }
     *p->latched = 1;
@@ -246,8 +248,9 @@ static void step(vfd_t *v, pins_t *p) {
   /* A latch seen in the image is one the next rising edge re-arms. */
   if (!d.live) v->latched = 1;
 
-  if (v->latched && rose) {
-    /* The deliberate re-arm: spindle-on rose after the latch was seen. */
+  if (v->latched && rose && *p->enable) {
+    /* The deliberate re-arm: spindle-on rose after the latch was seen, with enable high (a
+     * rise while enable is low re-arms nothing: enable going high later starts no spindle). */
     s = ussrt_control_rearm(v->c, NULL);
     if (s == USSRT_STATUS_OK) v->latched = 0;
   } else {

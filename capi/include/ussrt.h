@@ -82,7 +82,7 @@ typedef enum UssrtStatus {
    */
   USSRT_STATUS_TRIPPED = 8,
   /**
-   * An ON for a latched drive no stop of this controller re-armed: stop (OFF1) first.
+   * An ON for a latched drive this controller has not re-armed: `ussrt_control_rearm` first.
    */
   USSRT_STATUS_NOT_ARMED = 9,
   /**
@@ -139,6 +139,11 @@ typedef enum UssrtStatus {
    * is not obeyed.
    */
   USSRT_STATUS_NOT_CONTROLLABLE = 22,
+  /**
+   * An ON that waited for ussd to take the re-arm was dropped: a stop of this program
+   * (another thread's call) came meanwhile.
+   */
+  USSRT_STATUS_SUPERSEDED = 23,
 } UssrtStatus;
 
 /**

@@ -32,7 +32,7 @@ pub enum UssrtStatus {
     /// The drive latched since this controller last acknowledged a latch: re-arm it
     /// ([`UssrtErrorInfo`] says why).
     Tripped = 8,
-    /// An ON for a latched drive no stop of this controller re-armed: stop (OFF1) first.
+    /// An ON for a latched drive this controller has not re-armed: `ussrt_control_rearm` first.
     NotArmed = 9,
     /// This program made no call for longer than the drive's watchdog time: a trip; re-arm.
     Stalled = 10,
@@ -62,6 +62,9 @@ pub enum UssrtStatus {
     /// The drive does not take its commands from this link (ZSW1 bit 9 = 0): a stop ussd sent
     /// is not obeyed.
     NotControllable = 22,
+    /// An ON that waited for ussd to take the re-arm was dropped: a stop of this program
+    /// (another thread's call) came meanwhile.
+    Superseded = 23,
 }
 
 /// Details of the calling thread's last failure, beyond its status and message.
@@ -162,6 +165,7 @@ fn client_info(e: &ClientError) -> UssrtErrorInfo {
         ClientError::NoProcessData { .. } => S::NoProcessData,
         ClientError::CommandRefused { .. } => S::Refused,
         ClientError::NotControllable { .. } => S::NotControllable,
+        ClientError::Superseded { .. } => S::Superseded,
         _ => S::Ipc,
     };
     UssrtErrorInfo::of(status)
@@ -294,7 +298,7 @@ pub extern "C" fn ussrt_last_error() -> *const c_char {
 
 impl UssrtStatus {
     /// Every status, in code order.
-    const ALL: [Self; 23] = [
+    const ALL: [Self; 24] = [
         Self::Ok,
         Self::InvalidArgument,
         Self::NotRunning,
@@ -318,6 +322,7 @@ impl UssrtStatus {
         Self::Ipc,
         Self::Internal,
         Self::NotControllable,
+        Self::Superseded,
     ];
 
     /// The status's name in snake case: the same word as the Rust client's error variant and
@@ -347,6 +352,7 @@ impl UssrtStatus {
             Self::Ipc => c"ipc",
             Self::Internal => c"internal",
             Self::NotControllable => c"not_controllable",
+            Self::Superseded => c"superseded",
         }
     }
 }

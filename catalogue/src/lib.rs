@@ -303,7 +303,8 @@ pub struct Guard {
     pub id: ParamRef,
     /// What a change does, in a few words (for the refusal and the log).
     pub why: String,
-    /// Only a change to 0 is guarded (switching telegram monitoring off).
+    /// Only a change to 0 (or below: no time at all) is guarded (switching telegram
+    /// monitoring off).
     #[serde(default)]
     pub zero_only: bool,
     /// Only changes to these values are guarded (P0010 = 30, the factory setting mode); empty:
@@ -320,7 +321,7 @@ impl Guard {
     // Exact: 0 and the listed values are whole numbers a drive holds exactly.
     #[allow(clippy::float_cmp)]
     fn covers(&self, value: f64) -> bool {
-        (!self.zero_only || value == 0.0)
+        (!self.zero_only || value <= 0.0)
             && (self.values.is_empty() || self.values.iter().any(|v| f64::from(*v) == value))
     }
 }

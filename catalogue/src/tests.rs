@@ -155,7 +155,13 @@ fn a_guard_compares_the_value_as_its_type_reads_it() {
     let g120 = Catalogue::g120();
     // p2040 is a float: -0.0 (0x8000_0000) switches monitoring off like 0 does, and a
     // subnormal float reads as 0 too; 100 ms does not.
-    for off in [0.0f32, -0.0, f32::from_bits(1), f32::from_bits(0x8000_0001)] {
+    for off in [
+        0.0f32,
+        -0.0,
+        f32::from_bits(1),
+        f32::from_bits(0x8000_0001),
+        -1.0,
+    ] {
         assert!(g120.guard(2040, off.to_bits()).is_some(), "{off:e}");
     }
     assert_eq!(g120.guard(2040, 100.0f32.to_bits()), None);

@@ -123,17 +123,22 @@ impl Shared {
     /// A stop goes out whatever ussd's heartbeat says: a ussd paused, starved or late with its
     /// heartbeat takes it when it looks again, and the controller's words are that stop from
     /// now on, so no later keepalive repeats the ON before it (docs/SAFETY.md, STOP-ANYWHERE).
-    /// The call still fails with what the heartbeat says.
+    /// The call still fails with what the heartbeat says. An ON that waits for the re-arm is
+    /// dropped ([`ClientError::Superseded`]) when another thread's stop comes meanwhile: that
+    /// stop is the program's later word.
     fn publish(&self, change: impl Fn(&mut Words)) -> Result<(), ClientError> {
         let start = Instant::now();
+        let mut stops_seen = None;
         loop {
             let link = self.link.check();
             let mut state = self.state();
-            let stops = {
-                let mut next = *state.session.words();
-                change(&mut next);
-                state.session.pzd() == 0 || uss_shm_types::pzd::is_stop(next.stw1())
-            };
+            let stops = state.session.stops_with(&change);
+            if stops_seen.is_some_and(|n| n != state.session.stops()) {
+                return Err(ClientError::Superseded {
+                    bus: self.bus.clone(),
+                    address: self.address.get(),
+                });
+            }
             let unsure = match link {
                 Ok(services) => {
                     self.follow(&mut state, &services)?;
@@ -153,12 +158,15 @@ impl Shared {
                     return unsure.map_or(Ok(()), Err);
                 }
                 Step::AwaitRearm if start.elapsed() < handshake(&input) => {
-                    // The program waits inside its call: the stop goes on being refreshed.
-                    match state.session.publish(monotonic_ns(), &input, |_| {}) {
+                    // The program waits inside its call: the stop goes on being refreshed
+                    // (a stop of this call's own, not another thread's).
+                    let repeated = match state.session.publish(monotonic_ns(), &input, |_| {}) {
                         Ok(Step::Publish(repeated)) => repeated,
                         Ok(Step::AwaitRearm) => continue,
                         Err(e) => return Err(self.error(e, &input)),
-                    }
+                    };
+                    stops_seen = Some(state.session.stops());
+                    repeated
                 }
                 Step::AwaitRearm => {
                     return Err(ClientError::latched(
@@ -210,14 +218,17 @@ impl Shared {
     /// Publishes a release and waits (at most the drive's handshake time) until ussd took it,
     /// so the publisher can go: iceoryx2 drops samples not yet received with their publisher.
     /// Once released, nothing more is published: a second call returns at once.
+    /// Sent whatever ussd's heartbeat says, like a stop: a ussd paused or starved takes it
+    /// when it looks again (the call then fails with what the heartbeat says).
     fn release(&self) -> Result<PzdInput, ClientError> {
         let mut state = self.state();
         if state.session.is_released() {
             return Ok(self.watch.latest());
         }
-        // Nobody to hand the drive to: the watchdog of a new ussd is not involved either.
-        let services = self.link.check()?;
-        self.follow(&mut state, &services)?;
+        let link = self.link.check();
+        if let Ok(services) = &link {
+            self.follow(&mut state, services)?;
+        }
         let sample = state.session.release(monotonic_ns());
         state
             .port
@@ -225,6 +236,7 @@ impl Shared {
             .send_copy(sample)
             .map_err(|e| ClientError::ipc("publishing the release", e))?;
         drop(state);
+        link?;
         self.watch
             .wait_polled("release taken", |i| i.taken_sequence == sample.sequence)
     }
@@ -659,7 +671,7 @@ impl Controller {
     /// drive's handshake time) and returns the image that says so. Dropping a controller does
     /// the same, ignoring errors.
     pub fn release(self) -> Result<PzdInput, ClientError> {
-        self.shared.release()
+        self.release_shared()
     }
 
     /// [`Controller::release`] for a controller shared between threads (the C ABI's and the

@@ -171,8 +171,8 @@ pub enum ClientError {
         timeout: Duration,
     },
     /// The drive latched since this controller last looked: a trip (it stopped publishing in
-    /// time, ussd refused a sample), an operator's stop, the line coming back. Every call fails
-    /// so until [`crate::Controller::rearm`] acknowledges it.
+    /// time, ussd refused a sample), an operator's stop, the line coming back, ussd's start. Every
+    /// ON fails so until [`crate::Controller::rearm`] acknowledges it (a stop goes out).
     #[error(
         "drive {address} on {bus} latched {:.2} s ago: {latch}; it gets {} until its controller re-arms it (OFF1, then ON: Controller::rearm)",
         latch.ago.as_secs_f64(), latch.command_name()
@@ -182,9 +182,10 @@ pub enum ClientError {
         address: u8,
         latch: Latch,
     },
-    /// An ON for a latched drive that no OFF1 of this controller has re-armed.
+    /// An ON for a latched drive this controller has not re-armed (a relay's remote did not name
+    /// the latch; ussd did not take a re-arm within the drive's handshake time).
     #[error(
-        "drive {address} on {bus} is latched ({latch}, {:.2} s ago) and gets {}: send OFF1 first (Controller::enable or Controller::rearm), then ON",
+        "drive {address} on {bus} is latched ({latch}, {:.2} s ago) and gets {}: re-arm it (Controller::rearm), then ON",
         latch.ago.as_secs_f64(), latch.command_name()
     )]
     NotArmed {
@@ -272,6 +273,12 @@ pub enum ClientError {
         command: String,
         zsw1: u16,
     },
+    /// An ON that waited for ussd to take the re-arm was dropped: a stop of this program
+    /// (another thread's call) came meanwhile, and it is the program's later word.
+    #[error(
+        "drive {address} on {bus}: a stop of this program came while this ON waited for the re-arm: the ON was dropped, the drive keeps the stop"
+    )]
+    Superseded { bus: String, address: u8 },
 }
 
 fn command_hint(error: CommandError) -> &'static str {

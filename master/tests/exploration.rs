@@ -71,6 +71,8 @@ struct World {
     rearmed: Vec<u64>,
     /// The latch the drive's current live period began by re-arming.
     live_from: Option<u64>,
+    /// Whether an ON reached the wire on the way here (the search must reach one).
+    ran: bool,
 }
 
 fn image_of(gate: &Gate) -> PzdInput {
@@ -108,6 +110,7 @@ impl World {
             image,
             rearmed: Vec::new(),
             live_from: None,
+            ran: false,
         }
     }
 
@@ -206,6 +209,9 @@ impl World {
         if out[0] & 0x0400 == 0 {
             return Err(format!("a telegram without STW1 bit 10: {:#06x}", out[0]));
         }
+        if !is_stop(out[0]) {
+            self.ran = true;
+        }
         if !is_stop(out[0]) && !self.live_from.is_some_and(|l| self.rearmed.contains(&l)) {
             return Err(format!(
                 "ON {:#06x} on the wire in a live period that began with latch {:?}, which no explicit re-arm acknowledged ({:?})",
@@ -232,8 +238,7 @@ fn no_on_reaches_the_wire_after_a_latch_without_an_explicit_re_arm_after_it() {
                 let w = world
                     .after(event)
                     .unwrap_or_else(|broken| panic!("{broken}\nafter {steps:?}"));
-                on_seen |= w.live_from.is_some()
-                    && w.gate.control() == uss_master::engine::control::Control::Live;
+                on_seen |= w.ran;
                 if seen.insert(w.clone()) {
                     next.push((w, steps));
                 }
@@ -246,11 +251,8 @@ fn no_on_reaches_the_wire_after_a_latch_without_an_explicit_re_arm_after_it() {
         );
         level = next;
     }
-    // The search reaches what it must: a drive made live by its controller's re-arm.
-    assert!(
-        on_seen,
-        "no sequence re-armed the drive: the model is broken"
-    );
+    // The search reaches what it must: an ON on the wire after its controller's re-arm.
+    assert!(on_seen, "no sequence ran the drive: the model is broken");
     println!(
         "exploration: every sequence of {} events to depth {DEPTH}: {} distinct states, no invariant broken",
         EVENTS.len(),

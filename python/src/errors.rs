@@ -105,6 +105,7 @@ pub(crate) fn client(py: Python<'_>, e: ClientError) -> PyErr {
             raise(py, "WaitTimeout", (message,))
         }
         ClientError::NotControllable { .. } => raise(py, "NotControllable", (message,)),
+        ClientError::Superseded { .. } => raise(py, "Superseded", (message,)),
         _ => raise(py, "UssError", (message,)),
     }
 }

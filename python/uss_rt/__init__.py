@@ -50,6 +50,7 @@ __all__ = [
     "ParamTimeout",
     "ParamValue",
     "NotControllable",
+    "Superseded",
     "Refused",
     "Rejection",
     "RequestError",
@@ -235,6 +236,11 @@ class NotControllable(UssError):
     9 = 0: its command source is elsewhere); it ignores it, stops included."""
 
 
+class Superseded(UssError):
+    """An ON that waited for ussd to take the re-arm was dropped: a stop of this program (another
+    thread's call) came meanwhile, and the drive keeps it."""
+
+
 class Refused(UssError):
     """ussd refused the request (or one item) before the bus; ``error`` is a RequestError."""
 
@@ -356,7 +362,7 @@ class Tripped(UssError):
 
 
 class NotArmed(Tripped):
-    """An ON for a latched drive before this controller's stop re-armed it: stop first."""
+    """An ON for a latched drive this controller has not re-armed: call rearm() first."""
 
 
 class Stalled(Tripped):

@@ -10,7 +10,7 @@
 //!   with a stop that names its current latch. A latch the controller did not acknowledge is
 //!   news: every ON fails with [`SessionError::Tripped`] and nothing is published, by a
 //!   refresher neither, until [`Session::rearm`] acknowledges it.
-//! - **Only an explicit re-arm clears a latch** (SAFETY.md LATCH-OPEN). A session opens
+//! - **Only an explicit re-arm clears a latch** (SAFETY.md REARM). A session opens
 //!   acknowledging nothing: the latch its drive shows then (ussd's start, an operator's stop, a
 //!   trip of an earlier controller) is news like any other. Opening, reconnecting, a keepalive,
 //!   a refresher or a relay's first sample never re-arm; [`Session::rearm`], called by the
@@ -114,7 +114,7 @@ pub enum SessionError {
     #[error("the drive latched (latch {latch_id}): re-arm it (OFF1, then ON)")]
     Tripped { latch_id: u64 },
     /// An ON for a latched drive that no re-arming stop of this controller has been sent to.
-    #[error("the drive is latched (latch {latch_id}): send OFF1 first, then ON")]
+    #[error("the drive is latched (latch {latch_id}): re-arm it (Session::rearm), then ON")]
     NotArmed { latch_id: u64 },
     /// The program made no call for longer than the drive's watchdog time: a trip.
     #[error(
@@ -147,6 +147,9 @@ pub struct Session {
     last_call_ns: Option<u64>,
     /// The gap that tripped this session, until a re-arm.
     stalled: Option<u64>,
+    /// Stops committed so far: an ON that waits for a re-arm (another thread's call) is
+    /// dropped when a stop came meanwhile ([`Session::stops`]).
+    stops: u64,
     released: bool,
 }
 
@@ -164,6 +167,7 @@ impl Session {
             rearming: false,
             last_call_ns: None,
             stalled: None,
+            stops: 0,
             released: false,
         }
     }
@@ -230,6 +234,7 @@ impl Session {
             // A stop goes out whatever happened; it names the acknowledged latch, so it
             // re-arms the drive only when that is the latch the drive shows.
             self.rearming = image.latch().is_some_and(|id| id == self.acknowledged);
+            self.stops += 1;
             return Ok(Step::Publish(self.commit(next, sample)));
         }
         self.news(image)?;
@@ -241,6 +246,19 @@ impl Session {
             Some(latch_id) => Err(SessionError::NotArmed { latch_id }),
             None => Ok(Step::Publish(self.commit(next, sample))),
         }
+    }
+
+    /// Whether a call that changes the words with `change` asks for a stop (OFF1, OFF2, OFF3,
+    /// or a drive without PZD): what always goes out, whatever ussd's heartbeat says.
+    pub fn stops_with(&self, change: impl FnOnce(&mut Words)) -> bool {
+        let mut next = self.words;
+        change(&mut next);
+        !self.is_on(&next)
+    }
+
+    /// How many stops this session committed (a count, only ever growing).
+    pub const fn stops(&self) -> u64 {
+        self.stops
     }
 
     /// What a background refresher publishes at `now_ns`: the current words again, only while
@@ -274,6 +292,7 @@ impl Session {
         let next = stop_words(self.setup.pzd);
         let sample = self.sample(now_ns, &next)?;
         self.rearming = image.latch().is_some();
+        self.stops += 1;
         Ok(self.commit(next, sample))
     }
 

@@ -135,10 +135,18 @@ pub fn libussrt_dir() -> PathBuf {
 /// with `compiler` and the flags `extra` against it, warnings as errors; the executable.
 pub fn c_program(compiler: &str, source: &str, extra: &[&str]) -> PathBuf {
     static BUILT: std::sync::Mutex<bool> = std::sync::Mutex::new(false);
+    static COMPILED: std::sync::Mutex<Vec<(String, PathBuf)>> = std::sync::Mutex::new(Vec::new());
     let mut built = BUILT
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
     let target = target_dir();
+    let mut programs = COMPILED
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some((_, exe)) = programs.iter().find(|(s, _)| s == source) {
+        // Once per test binary: a program of a running test is not replaced under it.
+        return exe.clone();
+    }
     if !*built {
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let mut cmd = Command::new(cargo);
@@ -155,6 +163,7 @@ pub fn c_program(compiler: &str, source: &str, extra: &[&str]) -> PathBuf {
         }
         *built = true;
     }
+    let source_name = source.to_owned();
     let source = root().join(source);
     let exe = target.join(format!(
         "capi-{}-{}",
@@ -182,6 +191,7 @@ pub fn c_program(compiler: &str, source: &str, extra: &[&str]) -> PathBuf {
         source.display(),
         String::from_utf8_lossy(&out.stderr)
     );
+    programs.push((source_name, exe.clone()));
     exe
 }
 

@@ -60,8 +60,8 @@ impl FrontEnd {
     }
 }
 
-/// Whether the Python module is installed; it must be where `USS_REQUIRE_PYTHON` is set
-/// (`.ci/run` installs it before the tests).
+/// Whether the Python module is installed: the Python scenarios need it (`.ci/run` installs it
+/// before the tests; outside CI they test whatever `uss_rt` is installed).
 fn python_here() {
     let here = Command::new("python3")
         .args(["-c", "import uss_rt"])
@@ -241,7 +241,7 @@ fn opened(front: FrontEnd, ussd: &Ussd, drive: u8) -> Program {
     p
 }
 
-/// LATCH-OPEN: a program that opens a drive latched at ussd's start, refreshes it and runs it
+/// REARM (opening is none): a program that opens a drive latched at ussd's start, refreshes it and runs it
 /// does not run the motor: its ON is `tripped` and the drive keeps its safe command until the
 /// program's explicit re-arm.
 fn opening_is_no_rearm(front: FrontEnd) {
@@ -267,7 +267,7 @@ fn opening_is_no_rearm(front: FrontEnd) {
     p.exit();
 }
 
-/// LATCH-RECONNECT: an operator's stop of a running drive survives its controller's exit and a
+/// REARM (reconnecting is none): an operator's stop of a running drive survives its controller's exit and a
 /// new program that opens, refreshes and runs it.
 fn an_operators_stop_survives_a_reconnect(front: FrontEnd) {
     let _serial = serial();
@@ -367,7 +367,7 @@ fn a_stop_never_waits_for_another_thread(front: FrontEnd) {
     p.exit();
 }
 
-/// WATCHDOG-GAP: a program paused (SIGSTOP) longer than the drive's watchdog time trips its
+/// WATCHDOG (a gap is a trip): a program paused (SIGSTOP) longer than the drive's watchdog time trips its
 /// drive, and when it resumes (SIGCONT) nothing it or its library does restarts the motor: its
 /// next ON is `tripped` or `stalled`, until its explicit re-arm.
 fn a_paused_program_trips_and_does_not_resume(front: FrontEnd) {
@@ -398,7 +398,7 @@ fn a_paused_program_trips_and_does_not_resume(front: FrontEnd) {
     p.exit();
 }
 
-/// DEAD-CLIENT: a program killed (SIGKILL) while its drive runs trips it within the watchdog
+/// DEAD: a program killed (SIGKILL) while its drive runs trips it within the watchdog
 /// time: the drive gets its safe command, latched, counted as a watchdog trip.
 fn a_killed_program_trips_its_drive(front: FrontEnd) {
     let _serial = serial();

@@ -519,13 +519,14 @@ impl Remote<'_> {
             self.report.state = "released";
             return Ok(());
         }
-        // From here on the drive is held for this sender, before any call that may wait (the
-        // controller's opening, a re-arm's handshake): no write of another peer slips in.
+        // From here on the drive is held, before any call that may wait (the controller's
+        // opening, a re-arm's handshake): no peer's write slips in, this sender's neither until
+        // its sample is taken (no verified holder: every write is refused meanwhile).
         self.held.set(
             self.drive,
             Some(Holder {
                 from: out.from.clone(),
-                verified: Some(verified.clone()),
+                verified: None,
             }),
         );
         if self.controller.is_none() {

@@ -132,9 +132,16 @@ impl Connections {
             );
             let timeout =
                 PollTimeout::try_from(wait.as_millis().max(1)).unwrap_or(PollTimeout::MAX);
-            if poll(&mut fds, timeout).is_err() {
-                // EINTR: look again.
-                return;
+            match poll(&mut fds, timeout) {
+                Ok(_) => {}
+                // A signal: look again.
+                Err(nix::errno::Errno::EINTR) => return,
+                Err(e) => {
+                    // Not expected (EINVAL, ENOMEM): said, and no busy loop meanwhile.
+                    tracing::warn!("the stop socket's poll failed: {e}; trying again");
+                    std::thread::sleep(Duration::from_millis(10));
+                    return;
+                }
             }
             fds.iter()
                 .map(|f| f.revents().is_some_and(|r| !r.is_empty()))
@@ -144,7 +151,15 @@ impl Connections {
         let mut flags = ready.iter().skip(1).copied();
         self.open.retain_mut(|c| {
             let readable = flags.next().unwrap_or(false);
-            !(readable && c.read(handle)) && c.deadline > Instant::now()
+            if readable && c.read(handle) {
+                return false;
+            }
+            if c.deadline <= Instant::now() {
+                // A last look before it is closed: bytes that came since the poll are answered.
+                let _ = c.read(handle);
+                return false;
+            }
+            true
         });
         if ready.first().copied().unwrap_or(false) {
             self.accept(listener, handle);
@@ -175,15 +190,16 @@ impl Connections {
                 got: 0,
                 deadline: Instant::now() + REQUEST_WITHIN,
             };
+            // A request already in is answered, whoever sent it: a stop costs nothing.
+            if c.read(handle) {
+                continue;
+            }
             let held = self.open.iter().filter(|o| o.pid == pid).count();
             if pid != 0 && held >= MAX_PER_PROCESS {
                 c.answer(OperatorResponse::refused(
                     0,
                     CommandError::TooManyConnections,
                 ));
-                continue;
-            }
-            if c.read(handle) {
                 continue;
             }
             if self.open.len() >= MAX_CONNECTIONS {
@@ -195,16 +211,23 @@ impl Connections {
 }
 
 impl Connections {
-    /// Makes room for one connection: the process that holds the most gives up its oldest, so
-    /// a process with one connection (an operator's stop on its way) is the last to lose it,
-    /// however many processes a flood of idle connections forks.
+    /// Makes room for one connection: the oldest connection of the processes that hold the
+    /// most goes, so a process with one connection (an operator's stop on its way) is the last
+    /// to lose it, however many processes a flood of idle connections forks, and of equals the
+    /// one that had the longest to say something.
     fn evict(&mut self) {
         let mut held: std::collections::HashMap<u32, usize> = std::collections::HashMap::new();
         for c in &self.open {
             *held.entry(c.pid).or_default() += 1;
         }
-        let heaviest = held.into_iter().max_by_key(|&(_, n)| n).map(|(pid, _)| pid);
-        if let Some(i) = self.open.iter().position(|c| Some(c.pid) == heaviest) {
+        // `open` is in arrival order: of equal counts the first (oldest) wins.
+        let victim = self
+            .open
+            .iter()
+            .enumerate()
+            .max_by_key(|&(i, c)| (held.get(&c.pid).copied(), core::cmp::Reverse(i)))
+            .map(|(i, _)| i);
+        if let Some(i) = victim {
             self.open.remove(i);
         }
     }

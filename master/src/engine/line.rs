@@ -44,8 +44,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         if rx_latency != self.cfg.rx_latency {
             self.cfg.rx_latency = rx_latency;
             self.framer = Framer::new(FramerConfig::with_latency(self.cfg.timing, rx_latency));
-            self.periods
-                .set_attempt(super::build::period_setup(&self.cfg).attempt);
+            let attempt = super::build::period_setup(&self.cfg).attempt;
+            self.periods.set_attempt(attempt);
+            // What one attempt explains of a gap between looks grows with it (build.rs).
+            self.look_lag = attempt + super::LOOK_STEP * 2;
         }
         self.framer.reset();
         self.line_free_at = now;

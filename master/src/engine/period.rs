@@ -79,6 +79,11 @@ impl Periods {
         let tries = (self.poll.as_nanos() / self.attempt.as_nanos().max(1)).max(1);
         self.poll = attempt * u32::try_from(tries).unwrap_or(1);
         self.attempt = attempt;
+        if !self.measured {
+            // Still the guess from the worst attempt (no cycle measured yet).
+            let guess = attempt * self.list_len;
+            self.cycle = self.fixed.map_or(guess, |f| f.max(guess));
+        }
     }
 
     /// The shortest telegram-off time (P2014) that does not trip drive `slot` between two of

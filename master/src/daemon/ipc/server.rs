@@ -597,7 +597,6 @@ struct Checked<'a> {
     tasks: &'a [ParamTask],
 }
 
-/// The parameter number and value a task writes, if it writes.
 /// The parameter, element and raw value a task writes, if it writes.
 fn written(task: &ParamTask) -> Option<(u16, Option<u8>, u32)> {
     match *task {
