@@ -18,6 +18,12 @@
 //!    clock, the bus thread's CPU per exchange with 4 and 31 drives (the simulated drives'
 //!    share included; it is the same for every engine), to compare two builds of the engine.
 //!
+//! 7. The fresh-task rule's cost (`fresh`): a drive answers a repeated task from its stored
+//!    reply, so the same read twice in a row needs a telegram without a task between (issue
+//!    33). Exchanges on the bus per parameter read, for a client reading one parameter back to
+//!    back against one alternating two parameters (never separated), with `param_priority` off
+//!    and on, on the virtual clock.
+//!
 //! The bus threads run `SCHED_FIFO` where the machine allows (root here); the mode is printed.
 
 use std::fmt::Write;
@@ -30,13 +36,32 @@ use uss_master::daemon::runtime::{self, RunOptions};
 use uss_master::engine::clock::SPIN_BEFORE_DEADLINE;
 use uss_master::engine::control::Control;
 use uss_master::engine::stats::{FreshTiming, Published};
-use uss_master::{DriveSetup, Engine, MonotonicClock, SimTransport, Stats, VirtualClock};
+use uss_master::{DriveSetup, Engine, Job, MonotonicClock, SimTransport, Stats, VirtualClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
-use uss_protocol::{Address, Baud, Timing};
+use uss_protocol::{Address, Baud, ParamTask, Pnu, Timing};
 
 /// The S7-1200 library's documented minimum call interval per exchange at 19200 baud (USS.md
 /// section 8).
 const S7_1200_AT_19200_MS: f64 = 68.2;
+
+/// `drives` simulated drives (addresses 1..) with PKW 4 + `pzd` words at `baud`: the virtual
+/// wire to them, their setups for the engine, and the timing.
+fn simulated_drives(drives: u8, baud: u32, pzd: usize) -> (SimTransport, Vec<DriveSetup>, Timing) {
+    let timing = Timing::new(Baud::new(baud).expect("benchmark baud"));
+    let layout = Layout::new(PkwMode::Four, PzdCount::new(pzd).expect("pzd"));
+    let mut bus = SimBus::new(1);
+    let mut setups = Vec::new();
+    for a in 1..=drives {
+        let address = Address::new(a).expect("address");
+        bus.add(DriveConfig::new(address, layout)).expect("unique");
+        setups.push(DriveSetup::new(address, layout));
+    }
+    (
+        SimTransport::new(VirtualWire::new(bus, timing)),
+        setups,
+        timing,
+    )
+}
 
 /// Runs one engine for `exchanges` exchanges with four drives in real time; returns its stats
 /// and the real-time mode its thread got.
@@ -55,17 +80,8 @@ fn run_engine_spinning(
     spin: Duration,
     capture: bool,
 ) -> (Stats, &'static str, Duration) {
-    let timing = Timing::new(Baud::new(baud).expect("benchmark baud"));
-    let layout = Layout::new(PkwMode::Four, PzdCount::new(pzd).expect("pzd"));
-    let mut bus = SimBus::new(1);
-    let mut drives = Vec::new();
-    for a in 1..=4 {
-        let address = Address::new(a).expect("address");
-        bus.add(DriveConfig::new(address, layout)).expect("unique");
-        drives.push(DriveSetup::new(address, layout));
-    }
+    let (transport, drives, timing) = simulated_drives(4, baud, pzd);
     let config = engine_config(timing, drives, capture);
-    let transport = SimTransport::new(VirtualWire::new(bus, timing));
     std::thread::spawn(move || {
         let report = apply_to_current_thread(&RtRequest {
             cpu: Some(1),
@@ -470,17 +486,8 @@ fn master_work() {
 /// One engine with `drives` simulated drives on the virtual clock: its thread's CPU per
 /// exchange over `exchanges` of them, in us.
 fn virtual_run(drives: u8, exchanges: u32) -> f64 {
-    let timing = Timing::new(Baud::new(19_200).expect("benchmark baud"));
-    let layout = Layout::new(PkwMode::Four, PzdCount::new(2).expect("pzd"));
-    let mut bus = SimBus::new(1);
-    let mut setups = Vec::new();
-    for a in 1..=drives {
-        let address = Address::new(a).expect("address");
-        bus.add(DriveConfig::new(address, layout)).expect("unique");
-        setups.push(DriveSetup::new(address, layout));
-    }
+    let (transport, setups, timing) = simulated_drives(drives, 19_200, 2);
     let config = engine_config(timing, setups, false);
-    let transport = SimTransport::new(VirtualWire::new(bus, timing));
     let (mut engine, _handle, events) = Engine::new(config, transport, VirtualClock::new());
     for _ in 0..2000 {
         engine.poll_next().expect("virtual wire never fails");
@@ -492,6 +499,57 @@ fn virtual_run(drives: u8, exchanges: u32) -> f64 {
     }
     let cpu = thread_cpu().saturating_sub(start);
     cpu.as_secs_f64() * 1e6 / f64::from(exchanges)
+}
+
+/// Exchanges on the bus per read for a client that reads back to back (one read at a time, the
+/// next submitted as soon as the last one's result is in) from drive 1 of 4: the same
+/// parameter each time (`same`) or two in turn.
+fn exchanges_per_read(param_priority: bool, same: bool, reads: u64) -> f64 {
+    let (transport, setups, timing) = simulated_drives(4, 19_200, 2);
+    let mut config = engine_config(timing, setups, false);
+    config.param_priority = param_priority;
+    let (mut engine, handle, events) = Engine::new(config, transport, VirtualClock::new());
+    let drive = Address::new(1).expect("address");
+    for _ in 0..100 {
+        engine.poll_next().expect("virtual wire never fails");
+        while events.try_recv().is_ok() {}
+    }
+    let start = engine.counters().exchanges;
+    for id in 0..reads {
+        let pnu = if same || id % 2 == 0 { 1082 } else { 1080 };
+        let task = ParamTask::read(Pnu::from_u16(pnu), None);
+        handle
+            .submit(Job {
+                id,
+                address: drive,
+                task,
+            })
+            .expect("submitted");
+        let result = loop {
+            engine.poll_next().expect("virtual wire never fails");
+            while events.try_recv().is_ok() {}
+            if let Some(r) = handle.recv_result(Duration::ZERO) {
+                break r;
+            }
+        };
+        assert!(matches!(result.outcome, Ok(Ok(_))), "{result:?}");
+    }
+    (engine.counters().exchanges - start) as f64 / reads as f64
+}
+
+fn fresh_task_cost() {
+    println!(
+        "== the fresh-task rule's cost: exchanges on the bus per parameter read, one client reading drive 1 of 4 back to back, PKW 4 + PZD 2 at 19200 baud, 2000 reads each"
+    );
+    for priority in [false, true] {
+        let same = exchanges_per_read(priority, true, 2000);
+        let other = exchanges_per_read(priority, false, 2000);
+        println!(
+            "   param_priority = {priority:5}: the same parameter {same:.2}, two in turn {other:.2} exchanges per read: the rule costs {:.2} exchanges per repeated read ({:.2}x)",
+            same - other,
+            same / other
+        );
+    }
 }
 
 fn main() {
@@ -514,5 +572,8 @@ fn main() {
     }
     if wanted("work") {
         master_work();
+    }
+    if wanted("fresh") {
+        fresh_task_cost();
     }
 }

@@ -4,8 +4,8 @@
 
 use super::{
     Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, FrameError, LOOK_STEP,
-    LastFailure, MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, ParamReply, PathError,
-    ReplyKind, Transport, TransportError, Words, encode,
+    LastFailure, MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, Outgoing, ParamReply,
+    PathError, ReplyKind, Transport, TransportError, Words, encode,
 };
 
 /// How one attempt ended.
@@ -208,20 +208,25 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     ) -> Result<Attempt, TransportError> {
         self.shared.progress.fetch_add(1, Ordering::Relaxed);
         let setup = self.drives[slot].setup;
-        // The task's words were encoded once when it was accepted; without a task the channel
-        // carries zeros ("no task").
-        let none = [0u16; MAX_PKW_WORDS];
+        // The task's words were encoded once when it was accepted; without a task (or before
+        // one, to make it new to the drive) the channel carries zeros ("no task").
         if with_task {
             self.drop_jobs_of_the_dead(slot);
         }
-        let task_words = self.drives[slot]
-            .mailbox
-            .current_words()
-            .filter(|_| with_task);
-        let carries_task = task_words.is_some();
-        let mut pkw = [0u16; MAX_PKW_WORDS];
+        let outgoing = if with_task {
+            self.drives[slot].mailbox.outgoing()
+        } else {
+            Outgoing::Idle
+        };
         let pkw_len = setup.layout.pkw.request_words();
-        pkw[..pkw_len].copy_from_slice(task_words.unwrap_or(&none[..pkw_len]));
+        let mut pkw = [0u16; MAX_PKW_WORDS];
+        let carries_task = match outgoing {
+            Outgoing::Task(words) => {
+                pkw[..pkw_len].copy_from_slice(words);
+                true
+            }
+            Outgoing::Idle | Outgoing::Separator => false,
+        };
         let len = setup.layout.pzd.get();
         let mut words = [0u16; MAX_PZD_WORDS];
         match pzd {
@@ -260,9 +265,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let request_end = self.transport.send(&self.tx[..n], send_at)?;
         self.capture
             .request(&setup, &self.tx[..n], carries_task, (send_at, request_end));
-        if carries_task {
-            self.drives[slot].mailbox.sent(send_at);
-        }
+        self.drives[slot]
+            .mailbox
+            .on_sent(pkw, carries_task, send_at);
         self.drives[slot].counters.requests += 1;
         self.bus.exchanges += 1;
         self.framer.line_busy_until(request_end);
@@ -278,6 +283,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             Attempt::Reply { .. } => LastFailure::None,
             Attempt::Failed(f) => *f,
         };
+        self.drives[slot]
+            .mailbox
+            .answered(outcome == LastFailure::None);
         self.capture.reply_end(&setup, outcome, self.clock.now());
         Ok(attempt)
     }

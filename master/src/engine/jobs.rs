@@ -81,10 +81,38 @@ struct Active {
 
 /// One drive's FIFO of jobs: one task on the wire at a time, repeated in every telegram until
 /// its matching reply arrives (USS.md section 6). Fixed capacity, allocated once.
+///
+/// The fresh-task rule: a drive takes a task as new only when its PKW area changes, and
+/// answers a repeat from its stored reply. So a task goes out for the first time only to a
+/// drive known not to hold the same words already (the same read a moment ago, ussd's own read
+/// of it, a timed-out job, another ussd before a restart); otherwise a telegram without a task
+/// (AK 0, a "separator") goes first, and the task follows once the drive answered that.
 #[derive(Debug)]
 pub struct Mailbox {
     queue: VecDeque<Active>,
     capacity: usize,
+    /// The PKW words of the last telegram the drive answered (so it holds them), or `None`
+    /// when that is not known: at start, and after a telegram with other words went
+    /// unanswered (it may or may not have arrived).
+    held: Option<Encoded>,
+    /// The PKW words of the telegram on the wire, and whether they were the current task's.
+    in_flight: Option<(Encoded, bool)>,
+    /// Whether the last answered telegram carried the current task: only its reply answers it.
+    answered_task: bool,
+    /// Separator telegrams sent (the fresh-task rule's cost).
+    separators: u64,
+}
+
+/// What the next telegram to a drive carries in its PKW area.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outgoing<'a> {
+    /// No task: the channel carries zeros.
+    Idle,
+    /// No task yet: the drive may hold the current task's words, so zeros go first to make
+    /// the task new to it (the fresh-task rule).
+    Separator,
+    /// The current task's words.
+    Task(&'a [u16]),
 }
 
 impl Mailbox {
@@ -92,7 +120,64 @@ impl Mailbox {
         Self {
             queue: VecDeque::with_capacity(capacity),
             capacity,
+            held: None,
+            in_flight: None,
+            answered_task: false,
+            separators: 0,
         }
+    }
+
+    /// What the next telegram carries: the current task when it is on the wire already (the
+    /// handshake repeats it) or when the drive is known to hold other words; a separator when
+    /// the drive may hold the task's words; nothing without a task.
+    pub fn outgoing(&self) -> Outgoing<'_> {
+        let Some(front) = self.queue.front() else {
+            return Outgoing::Idle;
+        };
+        let words = front.pkw.words();
+        let other = self.held.as_ref().is_some_and(|h| h.words() != words);
+        if front.first_sent.is_some() || other {
+            Outgoing::Task(words)
+        } else {
+            Outgoing::Separator
+        }
+    }
+
+    /// Records the PKW words `pkw` of a telegram sent at `now` (`task`: they are the current
+    /// task's, see [`Mailbox::outgoing`]). Follow with [`Mailbox::answered`].
+    pub fn on_sent(&mut self, pkw: &[u16], task: bool, now: Duration) {
+        let mut words = [0; MAX_PKW_WORDS];
+        let len = pkw.len().min(MAX_PKW_WORDS);
+        words[..len].copy_from_slice(&pkw[..len]);
+        let encoded = Encoded {
+            words,
+            len: len as u8,
+        };
+        self.in_flight = Some((encoded, task));
+        if task {
+            self.sent(now);
+        } else if !self.queue.is_empty() {
+            self.separators += 1;
+        }
+    }
+
+    /// Whether the drive answered the telegram on the wire (a good reply from it: it holds
+    /// that telegram's words) or not (it holds them or the ones before).
+    pub fn answered(&mut self, reply: bool) {
+        let Some((words, task)) = self.in_flight.take() else {
+            return;
+        };
+        self.answered_task = reply && task;
+        if reply {
+            self.held = Some(words);
+        } else if self.held != Some(words) {
+            self.held = None;
+        }
+    }
+
+    /// Separator telegrams sent so far (see [`Mailbox`]).
+    pub const fn separators(&self) -> u64 {
+        self.separators
     }
 
     /// Queues a job with its encoded PKW words; gives it back when the mailbox is full.
@@ -155,7 +240,7 @@ impl Mailbox {
     }
 
     /// Records that the current task went out at `now`.
-    pub fn sent(&mut self, now: Duration) {
+    fn sent(&mut self, now: Duration) {
         if let Some(a) = self.queue.front_mut() {
             a.first_sent.get_or_insert(now);
             a.telegrams += 1;
@@ -163,10 +248,11 @@ impl Mailbox {
     }
 
     /// Checks a reply against the current task. Returns the finished job when the reply
-    /// matches; a busy reply (AK 0) or another task's reply leaves the job in place.
+    /// matches; a busy reply (AK 0), another task's reply, or any reply to a telegram that did
+    /// not carry the task (a separator's, a stored one) leaves the job in place.
     pub fn on_reply(&mut self, reply: &ParamReply, now: Duration) -> Option<JobResult> {
         let active = self.queue.front()?;
-        if !reply.answers(&active.job.task) {
+        if !self.answered_task || !reply.answers(&active.job.task) {
             return None;
         }
         self.finish(Ok(Answer::of_reply(reply)), now)
@@ -202,6 +288,7 @@ impl Mailbox {
     /// Ends the current job with `outcome`.
     pub fn finish(&mut self, outcome: ItemOutcome, now: Duration) -> Option<JobResult> {
         let a = self.queue.pop_front()?;
+        self.answered_task = false;
         Some(JobResult {
             job: a.job,
             outcome,
@@ -218,6 +305,43 @@ mod tests {
     use super::*;
     use uss_protocol::{ErrorNumber, Pnu, Storage, Value};
     use uss_shm_types::DriveError;
+
+    /// A mailbox whose drive answered a telegram without a task.
+    fn known_idle(capacity: usize) -> Mailbox {
+        let mut m = Mailbox::new(capacity);
+        m.on_sent(&[0; 4], false, Duration::ZERO);
+        m.answered(true);
+        m
+    }
+
+    /// One telegram carrying the current task, answered.
+    fn send(m: &mut Mailbox, now: Duration) {
+        let Outgoing::Task(words) = m.outgoing() else {
+            panic!("no task to send: {:?}", m.outgoing());
+        };
+        let words = words.to_vec();
+        m.on_sent(&words, true, now);
+        m.answered(true);
+    }
+
+    /// One telegram as the engine sends it: the outgoing task's words, or zeros; answered or not.
+    fn telegram(m: &mut Mailbox, now: Duration, answered: bool) -> Outgoing<'static> {
+        let out = m.outgoing();
+        let (words, kind) = match out {
+            Outgoing::Task(w) => (w.to_vec(), Outgoing::Task(&[])),
+            other => (
+                vec![0; 4],
+                if other == Outgoing::Idle {
+                    Outgoing::Idle
+                } else {
+                    Outgoing::Separator
+                },
+            ),
+        };
+        m.on_sent(&words, kind == Outgoing::Task(&[]), now);
+        m.answered(answered);
+        kind
+    }
 
     fn words(job: &Job) -> Encoded {
         Encoded::new(&job.task, PkwMode::Four).unwrap()
@@ -242,11 +366,11 @@ mod tests {
 
     #[test]
     fn one_task_at_a_time_in_fifo_order() {
-        let mut m = Mailbox::new(4);
+        let mut m = known_idle(4);
         m.push(job(1, 700), words(&job(1, 700))).unwrap();
         m.push(job(2, 1000), words(&job(2, 1000))).unwrap();
         assert_eq!(m.current(), Some(&job(1, 700).task));
-        m.sent(Duration::from_millis(1));
+        send(&mut m, Duration::from_millis(1));
         assert!(
             m.on_reply(&reply(1, 1000, 5), Duration::from_millis(2))
                 .is_none(),
@@ -257,7 +381,7 @@ mod tests {
                 .is_none(),
             "busy"
         );
-        m.sent(Duration::from_millis(3));
+        send(&mut m, Duration::from_millis(3));
         let r = m
             .on_reply(&reply(1, 700, 5), Duration::from_millis(4))
             .unwrap();
@@ -271,12 +395,12 @@ mod tests {
 
     #[test]
     fn cancel_takes_out_what_has_not_gone_out_and_keeps_the_job_on_the_wire() {
-        let mut m = Mailbox::new(8);
+        let mut m = known_idle(8);
         for id in 1..=5 {
             m.push(job(id, 700), words(&job(id, 700))).unwrap();
         }
         m.push(job(50, 700), words(&job(50, 700))).unwrap();
-        m.sent(Duration::from_millis(1)); // job 1 is on the wire
+        send(&mut m, Duration::from_millis(1)); // job 1 is on the wire
         let cancelled: Vec<u64> = std::iter::from_fn(|| m.cancel(1..6))
             .map(|r| r.job.id)
             .collect();
@@ -298,14 +422,14 @@ mod tests {
 
     #[test]
     fn a_dead_requesters_jobs_are_dropped_before_the_wire_and_the_one_on_it_stays() {
-        let mut m = Mailbox::new(8);
+        let mut m = known_idle(8);
         let dead = Requester(3);
         m.push_for(job(1, 700), words(&job(1, 700)), dead).unwrap();
         m.push_for(job(2, 700), words(&job(2, 700)), dead).unwrap();
         m.push_for(job(3, 700), words(&job(3, 700)), Requester(4))
             .unwrap();
         m.push(job(4, 700), words(&job(4, 700))).unwrap();
-        m.sent(Duration::from_millis(1)); // job 1 is on the wire
+        send(&mut m, Duration::from_millis(1)); // job 1 is on the wire
         let gone = |r: Requester| r == dead;
         assert!(
             m.drop_unsent_if(gone).is_none(),
@@ -325,21 +449,74 @@ mod tests {
     }
 
     #[test]
+    fn an_identical_task_follows_a_separator_so_the_drive_takes_it_as_new() {
+        let ms = Duration::from_millis;
+        let mut m = known_idle(4);
+        for id in 1..=2 {
+            m.push(job(id, 24), words(&job(id, 24))).unwrap();
+        }
+        assert_eq!(telegram(&mut m, ms(1), true), Outgoing::Task(&[]));
+        assert_eq!(m.on_reply(&reply(1, 24, 7), ms(1)).unwrap().job.id, 1);
+        // Job 2 has job 1's words: the drive holds them and would answer from its store.
+        assert_eq!(telegram(&mut m, ms(2), true), Outgoing::Separator);
+        assert!(
+            m.on_reply(&reply(1, 24, 7), ms(2)).is_none(),
+            "a reply to a telegram without the task does not answer it"
+        );
+        assert_eq!(telegram(&mut m, ms(3), true), Outgoing::Task(&[]));
+        let r = m.on_reply(&reply(1, 24, 9), ms(3)).unwrap();
+        assert_eq!((r.job.id, r.telegrams), (2, 1));
+        assert_eq!(m.separators(), 1);
+        // Without a task the channel idles; a different task needs no separator.
+        assert_eq!(telegram(&mut m, ms(4), true), Outgoing::Idle);
+        m.push(job(3, 24), words(&job(3, 24))).unwrap();
+        assert_eq!(telegram(&mut m, ms(5), true), Outgoing::Task(&[]));
+        assert_eq!(m.separators(), 1);
+    }
+
+    #[test]
+    fn a_drive_whose_pkw_area_is_not_known_gets_a_separator_until_one_is_answered() {
+        let ms = Duration::from_millis;
+        // At start nothing is known: another master may have left the same task there.
+        let mut m = Mailbox::new(4);
+        m.push(job(1, 700), words(&job(1, 700))).unwrap();
+        assert_eq!(telegram(&mut m, ms(1), false), Outgoing::Separator);
+        assert_eq!(telegram(&mut m, ms(2), true), Outgoing::Separator);
+        assert_eq!(telegram(&mut m, ms(3), false), Outgoing::Task(&[]));
+        // Its reply lost: the handshake repeats the task, which the drive may hold or not.
+        assert_eq!(telegram(&mut m, ms(4), true), Outgoing::Task(&[]));
+        m.on_reply(&reply(1, 700, 1), ms(4)).unwrap();
+        // Job 1 timed out after its telegram went unanswered: the drive may hold it, or not.
+        m.push(job(2, 700), words(&job(2, 700))).unwrap();
+        assert_eq!(telegram(&mut m, ms(5), false), Outgoing::Separator);
+        m.push(job(3, 1000), words(&job(3, 1000))).unwrap();
+        assert_eq!(telegram(&mut m, ms(6), true), Outgoing::Separator);
+        assert_eq!(telegram(&mut m, ms(7), false), Outgoing::Task(&[]));
+        let r = m.expire(ms(1), ms(9)).unwrap();
+        assert_eq!(r.job.id, 2);
+        // The drive holds zeros or job 2's words: either differs from job 3's, but "not known"
+        // is kept simple (it only happens after a lost reply) and costs one separator.
+        assert_eq!(telegram(&mut m, ms(10), true), Outgoing::Separator);
+        assert_eq!(telegram(&mut m, ms(11), true), Outgoing::Task(&[]));
+        assert_eq!(m.on_reply(&reply(1, 1000, 2), ms(11)).unwrap().job.id, 3);
+    }
+
+    #[test]
     fn full_mailbox_gives_the_job_back() {
-        let mut m = Mailbox::new(1);
+        let mut m = known_idle(1);
         m.push(job(1, 700), words(&job(1, 700))).unwrap();
         assert_eq!(m.push(job(2, 700), words(&job(2, 700))), Err(job(2, 700)));
     }
 
     #[test]
     fn job_expires_only_after_reaching_the_wire() {
-        let mut m = Mailbox::new(2);
+        let mut m = known_idle(2);
         m.push(job(1, 700), words(&job(1, 700))).unwrap();
         assert!(
             m.expire(Duration::from_millis(10), Duration::from_secs(5))
                 .is_none()
         );
-        m.sent(Duration::from_secs(5));
+        send(&mut m, Duration::from_secs(5));
         assert!(
             m.expire(Duration::from_millis(10), Duration::from_millis(5010))
                 .is_none()
@@ -361,14 +538,18 @@ mod tests {
                 storage: Storage::Ram,
             },
         };
-        let mut m = Mailbox::new(2);
+        let mut m = known_idle(2);
         m.push(write, words(&write)).unwrap();
+        send(&mut m, Duration::ZERO);
         let r = m.on_reply(&reply(7, 1082, 5), Duration::ZERO).unwrap();
         assert_eq!(
             r.outcome,
             Ok(Err(DriveError::Refused(ErrorNumber::WrongDataType)))
         );
         m.push(write, words(&write)).unwrap();
+        // The same write again: a separator first.
+        assert_eq!(telegram(&mut m, Duration::ZERO, true), Outgoing::Separator);
+        send(&mut m, Duration::ZERO);
         let r = m.on_reply(&reply(8, 1082, 0), Duration::ZERO).unwrap();
         assert_eq!(r.outcome, Ok(Err(DriveError::NoChangeRights)));
     }

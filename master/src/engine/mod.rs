@@ -37,7 +37,7 @@ use crate::engine::control::{
     Control, ControllerId, Gate, GateSetup, Latch, Operator, Poll, Transition, latch_id_of,
 };
 use crate::engine::image::DriveImages;
-use crate::engine::jobs::{Encoded, Job, JobResult, Requester};
+use crate::engine::jobs::{Encoded, Job, JobResult, Outgoing, Requester};
 use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
 use crate::engine::period::{PeriodSetup, Periods};
 use crate::engine::stats::{
