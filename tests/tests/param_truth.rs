@@ -61,3 +61,73 @@ fn identical_reads_back_to_back_are_each_a_fresh_read() {
         assert_eq!(seen.len(), 3, "two reads got one stored reply");
     }
 }
+
+/// An array parameter named without an index is not element 0 in disguise: a write is refused
+/// naming the elements (before, `param write 1 P2014 300` set P2014[0], the BOP link, and said
+/// "P2014 := 300 ms"), a read reads every element, and a client's request is refused by ussd
+/// whichever front-end sent it.
+#[test]
+fn an_array_parameter_without_an_index_is_refused_or_read_whole() {
+    let (_sim, ussd) = one_drive(&[]);
+    let bus = ussd.bus();
+    // P2014 is an expert parameter (access level 3).
+    let (status, out, err) = ussd.ussctl(&["param", "write", "1", "P0003", "3"]).finish();
+    assert!(status.success(), "{out}{err}");
+    let before: Vec<u32> = bus
+        .batch(addr(1), &[read(2014, Some(0)), read(2014, Some(1))])
+        .iter()
+        .map(|r| word(*r.as_ref().unwrap()))
+        .collect();
+    let (status, out, err) = ussd
+        .ussctl(&["param", "write", "1", "P2014", "300"])
+        .finish();
+    println!("param_truth: ussctl param write 1 P2014 300: {status}\n{out}{err}");
+    assert!(!status.success(), "{out}");
+    assert!(
+        err.contains("P2014[0]") && err.contains("P2014[1]") && err.contains("COM link"),
+        "the refusal names the elements: {err}"
+    );
+    let after: Vec<u32> = bus
+        .batch(addr(1), &[read(2014, Some(0)), read(2014, Some(1))])
+        .iter()
+        .map(|r| word(*r.as_ref().unwrap()))
+        .collect();
+    assert_eq!(before, after, "nothing was written");
+    // The element asked for is written, and said so.
+    let (status, out, err) = ussd
+        .ussctl(&["param", "write", "1", "P2014[1]", "300"])
+        .finish();
+    assert!(status.success(), "{out}{err}");
+    assert!(out.contains("P2014[1] := 300 ms"), "{out}");
+    // A read without an index reads them all.
+    let (status, out, err) = ussd.ussctl(&["param", "read", "1", "r0947"]).finish();
+    println!("param_truth: ussctl param read 1 r0947:\n{out}{err}");
+    assert!(status.success(), "{out}{err}");
+    for i in 0..8 {
+        assert!(
+            out.contains(&format!("r0947[{i}] = ")),
+            "element {i}: {out}"
+        );
+    }
+    let (status, out, err) = ussd
+        .ussctl(&["--json", "param", "read", "1", "P2014"])
+        .finish();
+    assert!(status.success(), "{out}{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(lines.len(), 2, "{out}");
+    for line in &lines {
+        uss_integration_tests::assert_report("ussctl/param", line);
+    }
+    assert!(lines[1].contains("300"), "{out}");
+    // Any front-end: ussd itself refuses the request.
+    let refused = bus.batch(addr(1), &[read(2014, None)]);
+    println!("param_truth: a client's read of P2014 without an index: {refused:?}");
+    assert!(
+        matches!(
+            &refused[0],
+            Err(uss_client::ParamError::Refused { error, .. })
+                if error.to_string().contains("index")
+        ),
+        "{refused:?}"
+    );
+}
