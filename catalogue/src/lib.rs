@@ -206,9 +206,15 @@ pub struct Param {
     pub data_type: DataType,
     #[serde(default)]
     pub unit: String,
-    /// Elements of an indexed parameter; 0 = not indexed.
+    /// Elements of an indexed parameter; 0 = not indexed. Such a parameter is always named
+    /// with its element (`P2014[1]`): without one a drive takes element 0, which is rarely what
+    /// was meant, so uss-rt refuses it.
     #[serde(default)]
     pub array: u16,
+    /// What each element is (`COM link (RS485)`), where the elements differ in meaning; empty,
+    /// or one per element.
+    #[serde(default)]
+    pub elements: Vec<String>,
     /// User access level (P0003) needed: 1 standard, 2 extended, 3 expert, 4 service.
     pub level: u8,
     pub change: Change,
@@ -257,6 +263,26 @@ impl Param {
     /// Whether the parameter can be written at all.
     pub fn is_writable(&self) -> bool {
         self.change != Change::ReadOnly
+    }
+
+    /// Whether it is an array: named with an element only.
+    pub const fn is_array(&self) -> bool {
+        self.array > 0
+    }
+
+    /// Its elements as a user names them: `P2014[0] (BOP link (RS232)) or P2014[1] (COM link
+    /// (RS485))`, or `r0947[0] .. r0947[7]` where they are alike.
+    pub fn elements_named(&self) -> String {
+        let at = |i: u16| format!("{}[{i}]", self.id);
+        if self.elements.is_empty() {
+            return format!("{} .. {}", at(0), at(self.array.saturating_sub(1)));
+        }
+        self.elements
+            .iter()
+            .zip(0..)
+            .map(|(what, i)| format!("{} ({what})", at(i)))
+            .collect::<Vec<_>>()
+            .join(" or ")
     }
 
     /// The value as it is shown: `50.00 Hz`, `5`, `0xFB31`.
@@ -505,6 +531,14 @@ impl Catalogue {
                 return Err(error(format!(
                     "{}: an r parameter is read-only and a P parameter is not",
                     p.id
+                )));
+            }
+            if !p.elements.is_empty() && p.elements.len() != usize::from(p.array) {
+                return Err(error(format!(
+                    "{}: {} elements named for an array of {}",
+                    p.id,
+                    p.elements.len(),
+                    p.array
                 )));
             }
         }

@@ -17,6 +17,28 @@ fn the_built_in_catalogue_reads_and_finds_by_number() {
 }
 
 #[test]
+fn an_array_names_its_elements() {
+    let c = Catalogue::micromaster4();
+    let p2014 = c.param(2014).unwrap();
+    assert!(p2014.is_array());
+    assert_eq!(
+        p2014.elements_named(),
+        "P2014[0] (BOP link, RS232) or P2014[1] (COM link, RS485)"
+    );
+    assert_eq!(
+        c.param(947).unwrap().elements_named(),
+        "r0947[0] .. r0947[7]"
+    );
+    assert!(!c.param(1082).unwrap().is_array());
+    let wrong = "family = \"x\"\nparam = [{ id = \"P0001\", name = \"a\", type = \"U16\", array = 2, elements = [\"one\"], level = 1, change = \"always\" }]";
+    let e = Catalogue::parse(wrong, "wrong.toml").unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "wrong.toml: P0001: 1 elements named for an array of 2"
+    );
+}
+
+#[test]
 fn values_show_in_their_type_and_unit() {
     let c = Catalogue::micromaster4();
     assert_eq!(

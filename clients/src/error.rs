@@ -470,6 +470,10 @@ fn refusal_hint(error: RequestError) -> &'static str {
              deliberately with --unsafe (WriteOptions::unsafe_write): ussd logs it"
         }
         RequestError::ImpossibleValue => ": a float parameter holds finite numbers only",
+        RequestError::IndexRequired => {
+            ": name the element, as in P2014[1] or P2014.1 (`ussctl param describe` says how \
+             many there are)"
+        }
         RequestError::LineDown => {
             ": the bus line is down; ussd reopens it, retry once `ussctl status` shows it up"
         }

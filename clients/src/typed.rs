@@ -195,13 +195,16 @@ impl Bus {
     }
 
     /// Reads a parameter as its own type (`P1082 = 50.00 Hz`). A `generic` slave's value is
-    /// typed by its reply alone: a word unsigned 16 bits, a double word unsigned 32.
+    /// typed by its reply alone: a word unsigned 16 bits, a double word unsigned 32. An array
+    /// parameter is read by its element (`r0947[2]`); without one it is refused
+    /// ([`ParamError::Value`], naming the elements): [`Bus::read_elements`] reads them all.
     pub fn read_param(&self, address: Address, param: ParamRef) -> Result<ParamValue, ParamError> {
         let family = self.family(address);
         if family == DriveFamily::Generic {
             return self.read_by_value(address, param);
         }
         let (data_type, info) = self.describe_as(address, param.pnu, family)?;
+        unindexed(param, info)?;
         let raw = self.read(address, param)?;
         Ok(ParamValue {
             param: shown_as(param, info),
@@ -209,6 +212,47 @@ impl Bus {
             data_type,
             info,
         })
+    }
+
+    /// Reads a parameter as its own type, every element of an array parameter named without
+    /// one (up to 39 per request), or the one element or plain parameter named.
+    pub fn read_elements(
+        &self,
+        address: Address,
+        param: ParamRef,
+    ) -> Result<Vec<ParamValue>, ParamError> {
+        let family = self.family(address);
+        let info = if family == DriveFamily::Generic {
+            None
+        } else {
+            Some(self.describe_as(address, param.pnu, family)?)
+        };
+        let Some((data_type, Some(p))) = info.filter(|_| param.index.is_none()) else {
+            return self.read_param(address, param).map(|v| vec![v]);
+        };
+        if !p.is_array() {
+            return self.read_param(address, param).map(|v| vec![v]);
+        }
+        let elements: Vec<ParamRef> = (0..p.array.min(255))
+            .map(|i| ParamRef::numbered(param.pnu.get(), Some(i as u8)))
+            .collect::<Result<_, _>>()
+            .map_err(|e| ParamError::Unexpected(e.to_string()))?;
+        let mut values = Vec::with_capacity(elements.len());
+        for chunk in elements.chunks(uss_shm_types::MAX_PARAM_ITEMS) {
+            let tasks: Vec<ParamTask> = chunk
+                .iter()
+                .map(|e| ParamTask::read(e.pnu, e.index))
+                .collect();
+            for (element, raw) in chunk.iter().zip(self.batch(address, &tasks)) {
+                values.push(ParamValue {
+                    param: shown_as(*element, Some(p)),
+                    raw: raw?,
+                    data_type,
+                    info: Some(p),
+                });
+            }
+        }
+        Ok(values)
     }
 
     /// A parameter read by its value alone, typed by the reply (a generic slave's).
@@ -240,6 +284,7 @@ impl Bus {
             self.describe_as(address, param.pnu, family)?
         };
         let shown = shown_as(param, info);
+        unindexed(param, info)?;
         if info.is_some_and(|p| !p.is_writable()) {
             return Err(ParamError::Value {
                 param: shown.to_string(),
@@ -257,6 +302,22 @@ impl Bus {
             data_type,
             info,
         })
+    }
+}
+
+/// An array parameter named without its element is refused before the bus, naming its
+/// elements: a drive would take element 0, rarely what was meant (ussd refuses it too).
+fn unindexed(param: ParamRef, info: Option<&Param>) -> Result<(), ParamError> {
+    match info {
+        Some(p) if p.is_array() && param.index.is_none() => Err(ParamError::Value {
+            param: p.id.to_string(),
+            problem: format!(
+                "an array of {} elements: name one, {}",
+                p.array,
+                p.elements_named()
+            ),
+        }),
+        _ => Ok(()),
     }
 }
 

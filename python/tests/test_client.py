@@ -235,6 +235,15 @@ def test_parameters_read_in_the_manuals_notation_as_their_own_type(bus):
     assert uss_rt.parse_param("r0947.3") == (947, 3, "r")
     with pytest.raises(ValueError, match="write a parameter as P1082"):
         uss_rt.parse_param("Q12")
+    # An array is named with its element: alone it would mean element 0 (the BOP link).
+    with pytest.raises(ValueError, match=r"P2014: an array of 2 elements: name one, P2014\[0\]"):
+        uss_rt.read(bus, 1, "P2014")
+    with pytest.raises(ValueError, match=r"P2014\[1\] \(COM link, RS485\)"):
+        uss_rt.write(bus, 1, "P2014", 300)
+    # ussd itself refuses it, whatever the client sends.
+    with pytest.raises(uss_rt.Refused, match="name the element") as refused:
+        uss_rt.read_param(bus, 1, 2014)
+    assert refused.value.error == uss_rt.RequestError.INDEX_REQUIRED
 
 
 def test_writes_convert_to_the_parameters_type_and_refuse_what_does_not_fit(bus):

@@ -257,6 +257,8 @@ class Refused(UssError):
         RequestError.GUARDED: "the parameter takes the drive away from ussd (command or "
         "setpoint source, COM link, telegram monitoring off, factory reset): write with "
         "unsafe=True if it is deliberate",
+        RequestError.INDEX_REQUIRED: "an array parameter: name the element, as in "
+        "P2014[1] (element 0 of P2010..P2014 is the BOP link, not ussd's COM link)",
     }
 
     def __init__(self, error: int, item=None):

@@ -917,6 +917,11 @@ enum UssRequestError
    * with [`REQUEST_UNSAFE`] too; `item` names it.
    */
   USS_REQUEST_ERROR_IMPOSSIBLE_VALUE = 19,
+  /**
+   * An array parameter (the family's catalogue says so) named without its element: a
+   * drive would take element 0, rarely what was meant; `item` names it.
+   */
+  USS_REQUEST_ERROR_INDEX_REQUIRED = 20,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

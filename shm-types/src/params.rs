@@ -93,6 +93,9 @@ code_table! {
         /// A value no parameter of its type holds (NaN or an infinity for a float), refused
         /// with [`REQUEST_UNSAFE`] too; `item` names it.
         ImpossibleValue = 19 => "no value of this parameter (NaN or an infinity)",
+        /// An array parameter (the family's catalogue says so) named without its element: a
+        /// drive would take element 0, rarely what was meant; `item` names it.
+        IndexRequired = 20 => "array parameter without an index",
     }
 }
 

@@ -179,12 +179,14 @@ pub struct Target {
 
 #[derive(Debug, Subcommand)]
 pub enum ParamCommand {
-    /// Read a parameter or an array element, e.g. `P1082`, `r0021`, `P0947[3]`, `r0947.3`.
+    /// Read a parameter or an array element, e.g. `P1082`, `r0021`, `P0947[3]`, `r0947.3`; an
+    /// array without an index is read whole, a line per element.
     Read {
         /// The drive's address on the bus, 0..=31.
         #[arg(value_parser = address)]
         drive: Address,
-        /// The parameter as the manuals write it: P1082, p1082, r0021, 1082, P0947[3], r0947.3.
+        /// The parameter as the manuals write it: P1082, p1082, r0021, 1082, P0947[3], r0947.3
+        /// (an array without an index: every element).
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
         /// How to show the value (default: the parameter's own type, from the catalogue or the
@@ -202,12 +204,14 @@ pub enum ParamCommand {
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
     },
-    /// Write VALUE to a parameter or an array element.
+    /// Write VALUE to a parameter or an array element; an array is written by its element only
+    /// (P2014[1]), never by its name alone.
     Write {
         /// The drive's address on the bus, 0..=31.
         #[arg(value_parser = address)]
         drive: Address,
-        /// The parameter as the manuals write it: P1082, p1082, r0021, 1082, P0947[3], r0947.3.
+        /// The parameter as the manuals write it: P1082, p1082, 1082, P2014[1], P2014.1 (an
+        /// array by its element only).
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
         /// A number: decimal, 0x hex, negative, or with a decimal point (converted to the

@@ -18,18 +18,22 @@ pub(crate) fn read(
         param: param.to_string(),
         source,
     };
-    let v = match kind {
-        // The parameter's own type (catalogue, or asked from the drive).
-        None => bus.read_param(drive, param).map_err(failed)?,
+    let values = match kind {
+        // The parameter's own type (catalogue, or asked from the drive); an array named
+        // without an element is read whole, a line per element.
+        None => bus.read_elements(drive, param).map_err(failed)?,
         // The type the user says, as the drive sent it.
-        Some(kind) => ParamValue {
+        Some(kind) => vec![ParamValue {
             param,
             raw: bus.read(drive, param).map_err(failed)?,
             data_type: kind.data_type(),
             info: None,
-        },
+        }],
     };
-    out.show(&ParamReport::new(bus.name(), drive, &v), ParamReport::human)
+    for v in &values {
+        out.show(&ParamReport::new(bus.name(), drive, v), ParamReport::human)?;
+    }
+    Ok(())
 }
 
 use std::fmt::Write as _;

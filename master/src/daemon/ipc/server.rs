@@ -350,7 +350,8 @@ impl ParamServer {
             tasks: &items,
         };
         if let Some(refusal) = self
-            .refuse_controlled(&active, &checked)
+            .refuse_unindexed(&checked)
+            .or_else(|| self.refuse_controlled(&active, &checked))
             .or_else(|| self.refuse_guarded(&active, &checked))
         {
             let _ = active.send_copy(refusal);
@@ -475,6 +476,37 @@ impl ParamServer {
         Some(response)
     }
 
+    /// An array parameter (its family's catalogue says so) named without its element is
+    /// refused, read or write, from every front-end: a drive would take element 0, and a user
+    /// who wrote `P2014` rarely meant the BOP link's.
+    fn refuse_unindexed(&self, checked: &Checked<'_>) -> Option<ParamResponse> {
+        let catalogue = self.rules(checked.address)?.catalogue?;
+        let item = checked.tasks.iter().position(|task| {
+            let unindexed = match *task {
+                ParamTask::Read { pnu } | ParamTask::Write { pnu, .. } => Some(pnu),
+                _ => None,
+            };
+            unindexed
+                .and_then(|pnu| catalogue.param(pnu.get()))
+                .is_some_and(uss_catalogue::Param::is_array)
+        })?;
+        Some(ParamResponse::refused(
+            checked.request.address,
+            uss_shm_types::Refusal {
+                error: RequestError::IndexRequired,
+                item: u8::try_from(item).ok(),
+            },
+        ))
+    }
+
+    /// The rules of drive `address`.
+    fn rules(&self, address: Address) -> Option<&WriteRules> {
+        self.guards
+            .iter()
+            .find(|(a, _)| *a == address)
+            .map(|(_, r)| r)
+    }
+
     /// A write the drive's rules do not take without `--unsafe` ([`WriteRules`]) is refused
     /// unless the request is marked unsafe ([`uss_shm_types::REQUEST_UNSAFE`]); an unsafe one
     /// is logged with its process. A value no parameter of its type holds (NaN) is refused
@@ -485,11 +517,7 @@ impl ParamServer {
             address,
             tasks,
         } = *checked;
-        let rules = self
-            .guards
-            .iter()
-            .find(|(a, _)| *a == address)
-            .map(|(_, r)| r)?;
+        let rules = self.rules(address)?;
         for (i, task) in tasks.iter().enumerate() {
             let Some((pnu, index, value)) = written(task) else {
                 continue;
