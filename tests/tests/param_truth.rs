@@ -3,6 +3,7 @@
 //! that was not so, and checks what is told now.
 #![allow(clippy::unwrap_used)]
 
+use std::time::Duration;
 use uss_integration_tests::{SimProcess, Ussd, addr, read};
 use uss_protocol::Value;
 
@@ -130,4 +131,58 @@ fn an_array_parameter_without_an_index_is_refused_or_read_whole() {
         ),
         "{refused:?}"
     );
+}
+
+/// A write whose task reached the drive but whose answer did not come back is not reported as
+/// not done: a slow EEPROM (the job timed out while the drive answered "busy") and a drive
+/// unplugged while it was busy both leave the value in the drive, which a read shows. The
+/// result says the value may be applied and how to check.
+#[test]
+fn a_write_that_reached_the_drive_is_reported_as_may_be_applied() {
+    // An EEPROM that answers "busy" for 500 telegrams, against a 50 ms parameter timeout.
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "1:eeprom-busy=500"]);
+    let ussd = Ussd::start_on(
+        &sim.path,
+        "baud = 115200\nparam_timeout_ms = 50",
+        &[(1, "")],
+    );
+    let (status, out, err) = ussd
+        .ussctl(&["param", "write", "1", "P1120", "7.5", "--eeprom"])
+        .finish();
+    println!("param_truth: a slow EEPROM write: {status}\n{out}{err}");
+    assert!(
+        err.contains("may have been applied") && err.contains("ussctl param read 1 P1120"),
+        "the result says the value may be applied and how to check: {out}{err}"
+    );
+    let (_, out, _) = ussd.ussctl(&["param", "read", "1", "P1120"]).finish();
+    assert!(out.contains("P1120 = 7.50 s"), "the drive holds it: {out}");
+    drop(ussd);
+    drop(sim);
+    // A drive unplugged while its EEPROM is busy with the write: offline, and the value is in.
+    let sim = SimProcess::start(&[
+        "--baud",
+        "115200",
+        "--drive",
+        "1:eeprom-busy=1000000,unplug=4000..6000",
+    ]);
+    let ussd = Ussd::start_on(
+        &sim.path,
+        "baud = 115200\nparam_timeout_ms = 20000",
+        &[(1, "")],
+    );
+    let (status, out, err) = ussd
+        .ussctl(&["param", "write", "1", "P1121", "8.5", "--eeprom"])
+        .finish();
+    println!("param_truth: an EEPROM write cut by an unplug: {status}\n{out}{err}");
+    assert!(
+        err.contains("may have been applied") && err.contains("ussctl param read 1 P1121"),
+        "{out}{err}"
+    );
+    let bus = ussd.bus();
+    bus.watch(addr(1))
+        .unwrap()
+        .wait_for(Duration::from_secs(10), "back online", |i| i.online != 0)
+        .unwrap();
+    let (_, out, _) = ussd.ussctl(&["param", "read", "1", "P1121"]).finish();
+    assert!(out.contains("P1121 = 8.50 s"), "the drive holds it: {out}");
 }
