@@ -144,6 +144,11 @@ typedef enum UssrtStatus {
    * (another thread's call) came meanwhile.
    */
   USSRT_STATUS_SUPERSEDED = 23,
+  /**
+   * A parameter write reached the drive but its answer did not come back (timeout, offline,
+   * line down, ussd shut down): the drive may hold the new value, or not; read it back.
+   */
+  USSRT_STATUS_MAYBE_APPLIED = 24,
 } UssrtStatus;
 
 /**

@@ -65,6 +65,9 @@ pub enum UssrtStatus {
     /// An ON that waited for ussd to take the re-arm was dropped: a stop of this program
     /// (another thread's call) came meanwhile.
     Superseded = 23,
+    /// A parameter write reached the drive but its answer did not come back (timeout, offline,
+    /// line down, ussd shut down): the drive may hold the new value, or not; read it back.
+    MaybeApplied = 24,
 }
 
 /// Details of the calling thread's last failure, beyond its status and message.
@@ -181,6 +184,7 @@ fn param_info(e: &ParamError) -> UssrtErrorInfo {
             },
             ..UssrtErrorInfo::of(S::DriveError)
         },
+        ParamError::MaybeApplied { .. } => UssrtErrorInfo::of(S::MaybeApplied),
         ParamError::Path(PathError::Timeout) | ParamError::NoAnswer(_) => {
             UssrtErrorInfo::of(S::Timeout)
         }
@@ -298,7 +302,7 @@ pub extern "C" fn ussrt_last_error() -> *const c_char {
 
 impl UssrtStatus {
     /// Every status, in code order.
-    const ALL: [Self; 24] = [
+    const ALL: [Self; 25] = [
         Self::Ok,
         Self::InvalidArgument,
         Self::NotRunning,
@@ -323,6 +327,7 @@ impl UssrtStatus {
         Self::Internal,
         Self::NotControllable,
         Self::Superseded,
+        Self::MaybeApplied,
     ];
 
     /// The status's name in snake case: the same word as the Rust client's error variant and
@@ -353,6 +358,7 @@ impl UssrtStatus {
             Self::Internal => c"internal",
             Self::NotControllable => c"not_controllable",
             Self::Superseded => c"superseded",
+            Self::MaybeApplied => c"maybe_applied",
         }
     }
 }

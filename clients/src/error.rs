@@ -391,6 +391,15 @@ pub enum ParamError {
     /// is [`ParamError::Refused`].
     #[error(transparent)]
     Path(#[from] PathError),
+    /// A write whose task reached the drive (`telegrams` telegrams carried it) but whose
+    /// answer did not come back (`failure`: timeout, drive offline, line down, ussd shut
+    /// down): the drive may hold the new value, or not. Read the parameter back to see which.
+    #[error(
+        "the write may have been applied: the drive received it ({telegrams} telegram{}) but its answer did not come back ({}); read the parameter back to see what the drive holds",
+        if *.telegrams == 1 { "" } else { "s" },
+        lost(*.failure)
+    )]
+    MaybeApplied { failure: PathError, telegrams: u32 },
     /// A value that does not fit the parameter (its type, or a read-only parameter), refused
     /// before the bus.
     #[error("{param}: {problem}")]
@@ -423,6 +432,17 @@ pub enum ParamError {
         "unexpected answer from ussd ({0}): check that ussd and this program are the same uss-rt version"
     )]
     Unexpected(String),
+}
+
+/// Why an answer did not come back, in a few words.
+const fn lost(failure: PathError) -> &'static str {
+    match failure {
+        PathError::Timeout => "no matching reply within ussd's parameter timeout",
+        PathError::DriveOffline => "the drive went offline",
+        PathError::LineDown => "the bus line went down",
+        PathError::Shutdown => "ussd shut down",
+        PathError::MailboxFull | PathError::Cancelled | PathError::Refused(_) => "the task ended",
+    }
 }
 
 struct Item(Option<u8>);

@@ -42,6 +42,29 @@ pub fn item_result(result: &ParamResult) -> Result<Value, ParamError> {
     }
 }
 
+/// The rule for a write that did not end with the drive's answer: when its task reached the
+/// drive (`telegrams` > 0) and then the answer was lost (a timeout, the drive or the line
+/// going down, ussd shutting down), the drive may hold the new value: that is
+/// [`ParamError::MaybeApplied`], never "not done". A read, or a task that never left, stays as
+/// it is.
+pub fn write_outcome(
+    task: &ParamTask,
+    result: Result<Value, ParamError>,
+    telegrams: u32,
+) -> Result<Value, ParamError> {
+    match result {
+        Err(ParamError::Path(
+            failure @ (PathError::Timeout
+            | PathError::DriveOffline
+            | PathError::LineDown
+            | PathError::Shutdown),
+        )) if task.is_write() && telegrams > 0 => {
+            Err(ParamError::MaybeApplied { failure, telegrams })
+        }
+        other => other,
+    }
+}
+
 /// The results of a whole response to a request of `count` items for drive `address`.
 pub fn response_results(
     response: &ParamResponse,
@@ -223,7 +246,13 @@ impl Bus {
         })?;
         request.flags |= flags;
         let response = self.send_request(&request)?;
-        response_results(&response, address, items.len())
+        let results = response_results(&response, address, items.len())?;
+        Ok(results
+            .into_iter()
+            .zip(tasks)
+            .zip(response.results())
+            .map(|((result, task), raw)| write_outcome(task, result, raw.telegrams))
+            .collect())
     }
 
     /// Sends a request as it is (no checks on this side) and returns ussd's one response:

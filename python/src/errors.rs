@@ -5,7 +5,7 @@ use pyo3::BoundObject as _;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
-use uss_client::uss_shm_types::{DriveError, PathError, RequestError, StopCommand};
+use uss_client::uss_shm_types::{DriveError, ParamResult, PathError, RequestError, StopCommand};
 use uss_client::{Address, ClientError, Latch, ParamError};
 
 /// `uss_rt.<class>(*args)` as the error to raise (a `RuntimeError` if the module is broken).
@@ -147,6 +147,15 @@ pub(crate) fn param(py: Python<'_>, bus: &uss_client::Bus, address: u8, e: Param
             ),
         ),
         ParamError::Value { .. } => PyValueError::new_err(message),
+        ParamError::MaybeApplied { failure, telegrams } => raise(
+            py,
+            "MaybeApplied",
+            (
+                ParamResult::of(&Err(failure), 0, 0).outcome,
+                telegrams,
+                message,
+            ),
+        ),
         ParamError::Client(c) => client(py, c),
         _ => raise(py, "UssError", (message,)),
     }

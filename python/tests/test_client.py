@@ -417,6 +417,28 @@ def test_a_monitor_sees_a_killed_ussd_gone_within_a_second_and_follows_its_resta
 
 
 
+def test_a_write_that_reached_the_drive_but_lost_its_answer_may_be_applied(tmp_path):
+    """A slow EEPROM answers "busy" past ussd's parameter timeout: the write reached the drive,
+    so it is not "not done" but MaybeApplied, and a read shows the drive holds it."""
+    daemon = Ussd(
+        tmp_path,
+        bus=f"{BUS}-eeprom",
+        drives=[(1, 'sim = { eeprom-busy = 500 }')],
+        keys="param_timeout_ms = 50",
+    )
+    try:
+        daemon.wait_for_services()
+        with uss_rt.open_bus(f"{BUS}-eeprom") as bus:
+            wait_for_input(bus, 1, lambda i: i["online"] == 1)
+            with pytest.raises(uss_rt.MaybeApplied, match="may have been applied") as lost:
+                uss_rt.write(bus, 1, "P1120", 7.5, eeprom=True)
+            assert lost.value.outcome == uss_rt.Outcome.TIMEOUT and lost.value.telegrams > 0
+            assert isinstance(lost.value, uss_rt.ParamFailed)
+            assert uss_rt.read(bus, 1, "P1120").value == 7.5
+    finally:
+        assert daemon.stop() == 0, daemon.output()
+
+
 def test_each_family_reads_its_own_parameters_and_fault_buffer(tmp_path):
     """A G120 and a SIMOREG through Python: parameters typed by their family's catalogue, the
     telegram-off trip read where the family keeps faults; a generic slave has no fault buffer."""

@@ -51,6 +51,7 @@ __all__ = [
     "ParamValue",
     "NotControllable",
     "Superseded",
+    "MaybeApplied",
     "Refused",
     "Rejection",
     "RequestError",
@@ -333,6 +334,16 @@ class ParamFailed(UssError):
         hint = self._HINTS.get(self.outcome, "unexpected answer from ussd: check that ussd "
                                "and this module are the same uss-rt version")
         super().__init__(f"parameter task ended with {_name(self.outcome)}: {hint}")
+
+
+class MaybeApplied(ParamFailed):
+    """A write reached the drive (``telegrams`` telegrams carried it) but its answer did not
+    come back (``outcome``: timeout, drive offline, line down, shutdown): the drive may hold the
+    new value, or not. Read the parameter back to see which."""
+
+    def __init__(self, outcome: int, telegrams: int, message: str):
+        UssError.__init__(self, message)
+        self.outcome, self.telegrams = _code(Outcome, outcome), telegrams
 
 
 class Controlled(UssError):

@@ -156,6 +156,28 @@ fn a_write_that_reached_the_drive_is_reported_as_may_be_applied() {
     );
     let (_, out, _) = ussd.ussctl(&["param", "read", "1", "P1120"]).finish();
     assert!(out.contains("P1120 = 7.50 s"), "the drive holds it: {out}");
+    // The client library says so to every front-end; a read that timed out is a timeout.
+    let bus = ussd.bus();
+    let eeprom = uss_client::WriteOptions {
+        eeprom: true,
+        ..Default::default()
+    };
+    let written = bus.write_with(
+        addr(1),
+        uss_client::ParamRef::p(1120),
+        Value::from_f32(2.5),
+        eeprom,
+    );
+    assert!(
+        matches!(
+            written,
+            Err(uss_client::ParamError::MaybeApplied {
+                failure: uss_client::uss_shm_types::PathError::Timeout,
+                telegrams: 1..,
+            })
+        ),
+        "{written:?}"
+    );
     drop(ussd);
     drop(sim);
     // A drive unplugged while its EEPROM is busy with the write: offline, and the value is in.

@@ -19,6 +19,14 @@ pub(crate) enum Failure {
         param: String,
         source: ParamError,
     },
+    /// A write whose task reached the drive but whose answer did not come back: the value
+    /// may be applied; says how to check.
+    #[error("drive {drive} {param}: {source}: `ussctl param read {drive} {param}`")]
+    MaybeApplied {
+        drive: Address,
+        param: String,
+        source: ParamError,
+    },
     /// A value that does not fit the parameter, refused before the bus.
     #[error("drive {drive} {source}")]
     Value { drive: Address, source: ParamError },

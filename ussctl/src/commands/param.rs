@@ -155,6 +155,11 @@ pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failur
     let (drive, param) = (w.drive, w.param);
     let failed = |source| match source {
         ParamError::Value { .. } => Failure::Value { drive, source },
+        ParamError::MaybeApplied { .. } => Failure::MaybeApplied {
+            drive,
+            param: param.to_string(),
+            source,
+        },
         source => Failure::Param {
             drive,
             param: param.to_string(),
