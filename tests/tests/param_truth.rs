@@ -3,8 +3,11 @@
 //! that was not so, and checks what is told now.
 #![allow(clippy::unwrap_used)]
 
-use std::time::Duration;
-use uss_integration_tests::{SimProcess, Ussd, addr, read};
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use std::time::{Duration, Instant};
+use uss_client::ParamError;
+use uss_integration_tests::{ChildProc, SimProcess, Ussd, addr, param, read};
 use uss_protocol::Value;
 
 /// One drive over a pty at 115200 baud.
@@ -207,4 +210,137 @@ fn a_write_that_reached_the_drive_is_reported_as_may_be_applied() {
         .unwrap();
     let (_, out, _) = ussd.ussctl(&["param", "read", "1", "P1121"]).finish();
     assert!(out.contains("P1121 = 8.50 s"), "the drive holds it: {out}");
+}
+
+/// Drive 1 with settings that differ from its backup in `dir`: an expert one (level 3, so the
+/// restore raises the access level P0003 on the way), a commissioning one (so it enters quick
+/// commissioning, P0010 = 1) and plain ones. Returns the backup's path.
+fn changed_since_backup(ussd: &Ussd, dir: &std::path::Path) -> String {
+    std::fs::create_dir_all(dir).unwrap();
+    let path = dir.join("drive1.toml").to_str().unwrap().to_owned();
+    let (status, out, err) = ussd.ussctl(&["param", "backup", "1", "-o", &path]).finish();
+    assert!(status.success(), "{out}{err}");
+    let bus = ussd.bus();
+    let w = |pnu, v| bus.write(addr(1), param(pnu), v, false).unwrap();
+    w(3, Value::Word(3));
+    w(10, Value::Word(1));
+    w(310, Value::from_f32(60.0));
+    w(10, Value::Word(0));
+    w(1082, Value::from_f32(45.0));
+    w(1080, Value::from_f32(5.0));
+    w(1120, Value::from_f32(2.5));
+    w(1121, Value::from_f32(2.5));
+    // P0719 (level 3) is guarded: written deliberately, and the restores run with --unsafe.
+    let deliberate = uss_client::WriteOptions {
+        unsafe_write: true,
+        ..Default::default()
+    };
+    bus.write_with(addr(1), param(719), Value::Word(11), deliberate)
+        .unwrap();
+    w(3, Value::Word(1));
+    path
+}
+
+/// Starts `ussctl param restore 1 PATH ARGS` and returns once the drive is in quick
+/// commissioning (P0010 = 1), which the restore entered on the way.
+fn restore_until_raised(ussd: &Ussd, path: &str, args: &[&str]) -> ChildProc {
+    let mut all = vec!["param", "restore", "1", path, "--unsafe"];
+    all.extend_from_slice(args);
+    let mut restore = ussd.ussctl(&all);
+    let bus = ussd.bus();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while bus.read(addr(1), param(10)) != Ok(Value::Word(1)) {
+        assert!(Instant::now() < deadline, "the restore never raised P0010");
+        assert!(
+            restore.child.try_wait().unwrap().is_none(),
+            "the restore ended: {:?}",
+            restore.finish()
+        );
+    }
+    restore
+}
+
+/// P0010 and P0003 of drive 1, once ussd (a restarted one too) has it online.
+fn raised_now(ussd: &Ussd) -> (Result<Value, ParamError>, Result<Value, ParamError>) {
+    let bus = ussd.bus();
+    bus.watch(addr(1))
+        .unwrap()
+        .wait_for(Duration::from_secs(20), "online", |i| i.online != 0)
+        .unwrap();
+    (bus.read(addr(1), param(10)), bus.read(addr(1), param(3)))
+}
+
+/// A restore cut short by the drive going offline, or by ussd killed, after it raised the
+/// access level and entered quick commissioning puts both back once the drive answers again
+/// (within its bound), and the report says so: the drive is not left where it will not run.
+#[test]
+fn a_restore_cut_short_by_anything_puts_back_what_it_raised() {
+    // Every parameter task is answered after 10 "busy" replies: the restore takes a while.
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "1:busy=10"]);
+    let sim_pid = Pid::from_raw(i32::try_from(sim.child.id()).unwrap());
+    let mut ussd = Ussd::start_on(&sim.path, "baud = 115200", &[(1, "")]);
+    let dir = std::env::temp_dir().join(format!("uss-putback-{}", ussd.bus));
+    let path = changed_since_backup(&ussd, &dir);
+
+    // 1. The drive stops answering (its process stopped) for 3 s.
+    let mut restore = restore_until_raised(&ussd, &path, &[]);
+    kill(sim_pid, Signal::SIGSTOP).unwrap();
+    std::thread::sleep(Duration::from_secs(3));
+    kill(sim_pid, Signal::SIGCONT).unwrap();
+    let (status, out, err) = restore.finish();
+    println!("param_truth: a restore cut short by the drive offline: {status}\n{out}{err}");
+    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
+    assert!(out.contains("cut short: "), "{out}");
+    assert_eq!(
+        raised_now(&ussd),
+        (Ok(Value::Word(0)), Ok(Value::Word(1))),
+        "{out}"
+    );
+    assert!(
+        out.contains("P0010      1 -> 0: put back after")
+            && out.contains("P0003      3 -> 1: put back after"),
+        "{out}"
+    );
+
+    // 2. ussd killed and started again 2 s later.
+    let (status, _, err) = changed_since_restore(&ussd);
+    assert!(status.success(), "{err}");
+    let mut restore = restore_until_raised(&ussd, &path, &[]);
+    ussd.kill();
+    std::thread::sleep(Duration::from_secs(2));
+    ussd.restart();
+    let (status, out, err) = restore.finish();
+    println!("param_truth: a restore cut short by ussd killed: {status}\n{out}{err}");
+    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
+    assert_eq!(
+        raised_now(&ussd),
+        (Ok(Value::Word(0)), Ok(Value::Word(1))),
+        "{out}"
+    );
+    assert!(
+        out.contains("P0010      1 -> 0: put back after")
+            && out.contains("P0003      3 -> 1: put back after"),
+        "{out}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Changes drive 1 again after a restore (P0310 needs quick commissioning again, P1120 is a
+/// plain one); returns how the last write went as ussctl says it.
+fn changed_since_restore(ussd: &Ussd) -> (std::process::ExitStatus, String, String) {
+    let bus = ussd.bus();
+    let w = |pnu, v| bus.write(addr(1), param(pnu), v, false).unwrap();
+    w(3, Value::Word(3));
+    w(10, Value::Word(1));
+    w(310, Value::from_f32(55.0));
+    w(10, Value::Word(0));
+    let deliberate = uss_client::WriteOptions {
+        unsafe_write: true,
+        ..Default::default()
+    };
+    bus.write_with(addr(1), param(719), Value::Word(11), deliberate)
+        .unwrap();
+    w(3, Value::Word(1));
+    ussd.ussctl(&["param", "write", "1", "P1120", "3.5"])
+        .finish()
 }
