@@ -434,6 +434,20 @@ pub enum ParamError {
     Unexpected(String),
 }
 
+impl ParamError {
+    /// For the result of a write: whether the drive may hold the new value although no
+    /// answer said so. [`ParamError::MaybeApplied`] (the task went out, its answer was lost),
+    /// and a request ussd took but did not answer ([`ParamError::NoAnswer`],
+    /// [`ParamError::Dropped`]: it may have put the task on the wire before it stopped). Every
+    /// other error proves the drive did not take it (it refused it, or it never left).
+    pub const fn may_be_applied(&self) -> bool {
+        matches!(
+            self,
+            Self::MaybeApplied { .. } | Self::NoAnswer(_) | Self::Dropped
+        )
+    }
+}
+
 /// Why an answer did not come back, in a few words.
 const fn lost(failure: PathError) -> &'static str {
     match failure {

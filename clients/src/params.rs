@@ -20,7 +20,7 @@ pub struct WriteOptions {
     pub force: bool,
     /// Write even a parameter that can take the drive away from ussd (the family's catalogue
     /// marks them: command or setpoint source, COM link, telegram monitoring off, factory
-    /// reset). ussd logs it; the value is read back and verified.
+    /// reset). ussd logs it; the value is read back and verified (when the read-back is answered).
     pub unsafe_write: bool,
 }
 
@@ -171,7 +171,11 @@ impl Bus {
             .pop()
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))?;
         if options.unsafe_write {
-            let held = self.read(address, param)?;
+            // The drive's answer confirmed the write: a read-back that does not come back
+            // (the drive went offline meanwhile) does not make it undone.
+            let Ok(held) = self.read(address, param) else {
+                return Ok(written);
+            };
             if held != written {
                 return Err(ParamError::Unexpected(format!(
                     "{param} was written as {written:?} but the drive holds {held:?}"

@@ -181,6 +181,34 @@ fn a_write_that_reached_the_drive_is_reported_as_may_be_applied() {
         ),
         "{written:?}"
     );
+    // A restore lists such a write as unknown, not as not written, and is incomplete.
+    let dir = std::env::temp_dir().join(format!("uss-maybe-{}", ussd.bus));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("drive1.toml").to_str().unwrap().to_owned();
+    let (status, out, err) = ussd.ussctl(&["param", "backup", "1", "-o", &path]).finish();
+    assert!(status.success(), "{out}{err}");
+    bus.write(addr(1), param(1121), Value::from_f32(4.5), false)
+        .unwrap();
+    let (status, out, err) = ussd
+        .ussctl(&["param", "restore", "1", &path, "--eeprom"])
+        .finish();
+    println!("param_truth: a restore whose EEPROM write timed out: {status}\n{out}{err}");
+    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
+    assert!(
+        out.contains("P1121      4.50 s -> ")
+            && out.contains(": unknown: the write may have been applied")
+            && out.contains("1 unknown (read them back)"),
+        "{out}"
+    );
+    // It did reach the drive; once more, as JSON.
+    bus.write(addr(1), param(1121), Value::from_f32(4.5), false)
+        .unwrap();
+    let (_, json, _) = ussd
+        .ussctl(&["--json", "param", "restore", "1", &path, "--eeprom"])
+        .finish();
+    uss_integration_tests::assert_report("ussctl/restore", json.trim());
+    assert!(json.contains("\"unknown\":1"), "{json}");
+    let _ = std::fs::remove_dir_all(&dir);
     drop(ussd);
     drop(sim);
     // A drive unplugged while its EEPROM is busy with the write: offline, and the value is in.
@@ -322,6 +350,29 @@ fn a_restore_cut_short_by_anything_puts_back_what_it_raised() {
             && out.contains("P0003      3 -> 1: put back after"),
         "{out}"
     );
+
+    // 3. ussd killed and not back within --put-back-within: the report names what is left
+    //    raised and the command that puts it back; that command does.
+    let (status, _, err) = changed_since_restore(&ussd);
+    assert!(status.success(), "{err}");
+    let mut restore = restore_until_raised(&ussd, &path, &["--put-back-within", "2s"]);
+    ussd.kill();
+    let (status, out, err) = restore.finish();
+    println!("param_truth: a restore cut short by ussd gone for good: {status}\n{out}{err}");
+    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
+    let command = format!("ussctl --bus {} param write 1 P0010 0", ussd.bus);
+    assert!(
+        out.contains(&format!(
+            "left raised: P0010 = 1: the drive stays in quick commissioning and will not run; put it back with `{command}`"
+        )) && out.contains("left raised: P0003 = 3: the access level stays raised"),
+        "{out}"
+    );
+    ussd.restart();
+    ussd.open_when_running("");
+    assert_eq!(raised_now(&ussd).0, Ok(Value::Word(1)), "left raised");
+    let (status, out, err) = ussd.ussctl(&["param", "write", "1", "P0010", "0"]).finish();
+    assert!(status.success(), "{out}{err}");
+    assert_eq!(raised_now(&ussd).0, Ok(Value::Word(0)), "put back by hand");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

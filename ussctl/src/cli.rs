@@ -3,6 +3,9 @@
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use uss_client::{Address, Value};
 
+/// The bus `--bus` names when it is not given.
+pub const DEFAULT_BUS: &str = "bus0";
+
 #[derive(Debug, Parser)]
 #[command(
     name = "ussctl",
@@ -12,7 +15,7 @@ use uss_client::{Address, Value};
 )]
 pub struct Cli {
     /// The bus, as named in ussd's configuration.
-    #[arg(long, global = true, default_value = "bus0")]
+    #[arg(long, global = true, default_value = DEFAULT_BUS)]
     pub bus: String,
     /// Machine-readable output: one JSON document (`watch`: one per line).
     #[arg(long, global = true)]
@@ -262,9 +265,16 @@ pub enum ParamCommand {
         #[arg(long)]
         force: bool,
         /// Write guarded parameters too (command or setpoint source, COM link, ...): without
-        /// it they are refused and named, the rest written. ussd logs each.
+        /// it a restore that would change one is refused before anything is written, naming
+        /// them. ussd logs each.
         #[arg(long = "unsafe")]
         unsafe_write: bool,
+        /// A restore cut short (Ctrl-C, the drive offline, ussd gone) puts back the access
+        /// level and quick commissioning it raised on the way, waiting up to this long for
+        /// the drive to answer again; what it cannot put back it names, with the command that
+        /// does it.
+        #[arg(long, value_name = "DURATION", default_value = "30s", value_parser = duration)]
+        put_back_within: core::time::Duration,
     },
     /// Compare a drive's settings with a backup file, or with another drive (an address).
     Diff {

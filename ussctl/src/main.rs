@@ -39,6 +39,11 @@ pub(crate) fn stopped() -> bool {
     STOP.load(Ordering::Relaxed)
 }
 
+/// Takes a SIGINT/SIGTERM as seen: [`stopped`] says whether another one comes after.
+pub(crate) fn take_stop() -> bool {
+    STOP.swap(false, Ordering::Relaxed)
+}
+
 pub(crate) use failure::Failure;
 
 fn main() -> ExitCode {
@@ -239,11 +244,13 @@ fn run_param(bus: &Bus, out: &Output, command: &ParamCommand) -> Result<(), Fail
             dry_run,
             force,
             unsafe_write,
+            put_back_within,
         } => {
             let restore = commands::backup::Restore {
                 drive: *drive,
                 file,
                 dry_run: *dry_run,
+                put_back_within: *put_back_within,
                 options: uss_client::WriteOptions {
                     eeprom: *eeprom,
                     force: *force,

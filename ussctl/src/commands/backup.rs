@@ -12,11 +12,11 @@
 use super::common::firmware_version;
 use crate::backup::{BackupFile, Entry, Number, Saved, now_utc};
 use crate::report::{DiffLine, DiffReport, RestoreReport};
-use crate::{Failure, Output, catch_signals, stopped};
+use crate::{Failure, Output, catch_signals, stopped, take_stop};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 use uss_client::Address;
 use uss_client::uss_catalogue::{Catalogue, Change, Param};
 use uss_client::uss_protocol::{ErrorNumber, ParamRef, Pnu, Prefix, Subindex};
@@ -275,6 +275,9 @@ pub(crate) struct Restore<'a> {
     pub drive: Address,
     pub file: &'a Path,
     pub dry_run: bool,
+    /// How long a restore cut short waits for the drive to put back what it raised
+    /// (`--put-back-within`).
+    pub put_back_within: Duration,
     /// EEPROM, forced, guarded parameters too (`--eeprom`, `--force`, `--unsafe`).
     pub options: WriteOptions,
 }
@@ -322,21 +325,22 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     let options = r.options;
     let steps = order(bus, drive, catalogue, &differing);
     let bar = progress(steps.len(), &format!("writing drive {drive}"));
-    // Whether the drive took each step so far.
-    let mut written = Vec::with_capacity(steps.len());
+    // What the drive did with each step so far.
+    let mut took = Vec::with_capacity(steps.len());
+    let mut cut = None;
     for (i, step) in steps.iter().enumerate() {
         if stopped() {
             report.cut_short("Ctrl-C", &steps[i..]);
-            // The drive is not left in quick commissioning or at a raised access level.
-            for (param, to, was) in still_raised(&steps, &written) {
-                let put = bus.write_with(drive, param, Value::Word(was), options);
-                report.put_back(param, to, was, put.err().as_ref());
-            }
+            cut = Some("Ctrl-C");
             break;
         }
         let (param, value) = step.target();
         let result = bus.write_with(drive, param, value, options);
-        written.push(result.is_ok());
+        took.push(match &result {
+            Ok(_) => Took::Yes,
+            Err(e) if e.may_be_applied() => Took::Maybe,
+            Err(_) => Took::No,
+        });
         match result {
             Ok(held) => {
                 if let Step::Restore(e) = step {
@@ -351,23 +355,29 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
                     source: ParamError::Controlled { address, pid },
                 });
             }
-            Err(e @ ParamError::Drive(_)) => match step {
-                Step::Restore(entry) => report.refuse(entry, &e),
-                Step::Helper(pnu, v)
-                | Step::Raise {
-                    param: pnu, to: v, ..
-                } => {
-                    report.helper_refused(*pnu, *v, &e);
-                }
-            },
+            Err(e @ ParamError::Drive(_)) => report.refuse_step(step, &e),
+            // The task went out and its answer was lost: the drive may hold the value. The
+            // next write finds out whether the drive is still there.
+            Err(e @ ParamError::MaybeApplied { .. }) => report.unknown(step, &e),
             Err(e) => {
-                report.cut_short(&e.to_string(), &steps[i..]);
+                if e.may_be_applied() {
+                    report.unknown(step, &e);
+                    report.cut_short(&e.to_string(), &steps[i + 1..]);
+                } else {
+                    report.cut_short(&e.to_string(), &steps[i..]);
+                }
+                cut = Some("the cut");
                 break;
             }
         }
         bar.inc(1);
     }
     bar.finish_and_clear();
+    if let Some(why) = cut {
+        // The drive is not left in quick commissioning or at a raised access level.
+        let raised: Vec<_> = still_raised(&steps, &took).collect();
+        put_back(bus, drive, catalogue, &raised, r, why, &mut report);
+    }
     report.seconds = start.elapsed().as_secs_f64();
     let complete = report.is_complete();
     out.show(&report, RestoreReport::human)?;
@@ -378,26 +388,88 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     }
 }
 
-/// What a restore cut short after the first `written.len()` steps (`written`: whether the
-/// drive took each) puts back, last raised first: each [`Step::Raise`] the drive took whose
-/// parameter it did not take set again after, as (parameter, raised to, value before).
-fn still_raised<'a>(
+/// What the drive did with a step of a restore.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Took {
+    /// It answered that it holds the value.
+    Yes,
+    /// It refused it, or the write never reached it.
+    No,
+    /// The write reached it and the answer was lost ([`ParamError::may_be_applied`]).
+    Maybe,
+}
+
+/// What a restore cut short after the first `took.len()` steps puts back, last raised first:
+/// each [`Step::Raise`] the drive took, or may have taken, whose parameter it did not
+/// (certainly) take set again after, as (parameter, raised to, value before). Putting back a
+/// value the drive may already hold again is harmless.
+pub(crate) fn still_raised<'a>(
     steps: &'a [Step],
-    written: &'a [bool],
+    took: &'a [Took],
 ) -> impl Iterator<Item = (ParamRef, u16, u16)> + 'a {
-    let done = move || steps.iter().zip(written);
+    let done = move || steps.iter().zip(took);
     done()
         .enumerate()
         .rev()
-        .filter_map(move |(at, (step, &took))| {
+        .filter_map(move |(at, (step, &t))| {
             let Step::Raise { param, to, was } = *step else {
                 return None;
             };
             let set_again = done()
                 .skip(at + 1)
-                .any(|(s, &w)| w && s.target().0.pnu == param.pnu);
-            (took && !set_again).then_some((param, to, was))
+                .any(|(s, &w)| w == Took::Yes && s.target().0.pnu == param.pnu);
+            (t != Took::No && !set_again).then_some((param, to, was))
         })
+}
+
+/// Puts back what a restore cut short (by `why`) had `raised`, last raised first: each is
+/// written until the drive takes it or refuses it, or `r.put_back_within` has passed since
+/// the cut (a drive offline or a ussd gone may come back meanwhile), or a second Ctrl-C says
+/// to leave it. The report names what is left raised and the command that puts it back.
+fn put_back(
+    bus: &Bus,
+    drive: Address,
+    catalogue: &Catalogue,
+    raised: &[(ParamRef, u16, u16)],
+    r: &Restore<'_>,
+    why: &str,
+    report: &mut RestoreReport,
+) {
+    // A Ctrl-C that cut the restore is seen; another one leaves the rest raised.
+    take_stop();
+    let deadline = Instant::now() + r.put_back_within;
+    let mut said = false;
+    for &(param, to, was) in raised {
+        let result = loop {
+            let error = match bus.write_with(drive, param, Value::Word(was), r.options) {
+                Ok(_) => break Ok(()),
+                Err(e @ ParamError::Drive(_)) => break Err(e),
+                Err(e) => e,
+            };
+            if stopped() || Instant::now() >= deadline {
+                break Err(error);
+            }
+            if !said {
+                said = true;
+                let what: Vec<String> = raised
+                    .iter()
+                    .map(|(p, _, was)| format!("{p} := {was}"))
+                    .collect();
+                eprintln!(
+                    "ussctl: drive {drive}: {error}\nussctl: putting back what the restore raised ({}) once the drive answers again (up to {:.0} s; Ctrl-C to leave it)",
+                    what.join(", "),
+                    r.put_back_within.as_secs_f64()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        };
+        let meaning = if catalogue.commissioning.map(|p| p.pnu) == Some(param.pnu) {
+            "the drive stays in quick commissioning and will not run"
+        } else {
+            "the access level stays raised"
+        };
+        report.put_back(param, to, was, why, result.err().as_ref(), meaning);
+    }
 }
 
 /// The writes of a restore, in a safe order: access level first, quick commissioning around
@@ -478,8 +550,8 @@ pub(crate) enum Step {
     Restore(Entry),
     /// P0003 or P0010 set on the way back (access level, quick commissioning).
     Helper(ParamRef, u16),
-    /// P0003 or P0010 raised on the way to `to`, from `was`: put back when the restore is cut
-    /// short by Ctrl-C.
+    /// P0003 or P0010 raised on the way to `to`, from `was`: put back however the restore is
+    /// cut short.
     Raise { param: ParamRef, to: u16, was: u16 },
 }
 
@@ -556,7 +628,7 @@ pub(crate) fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Resu
 
 #[cfg(test)]
 mod tests {
-    use super::{Step, still_raised};
+    use super::{Step, Took, still_raised};
     use uss_client::uss_protocol::ParamRef;
 
     /// Cut short after `i` steps of "P0003 := 3, P0010 := 1, P0010 := 0, P0003 := 1", a Ctrl-C
@@ -578,12 +650,13 @@ mod tests {
             Step::Helper(p10, 0),
             Step::Helper(p3, 1),
         ];
-        let put_back = |written: &[bool]| -> Vec<(u16, u16, u16)> {
-            still_raised(&steps, written)
+        let put_back = |took: &[Took]| -> Vec<(u16, u16, u16)> {
+            still_raised(&steps, took)
                 .map(|(p, to, was)| (p.pnu.get(), to, was))
                 .collect()
         };
-        let all = [true; 4];
+        let (yes, no, maybe) = (Took::Yes, Took::No, Took::Maybe);
+        let all = [yes; 4];
         let expected: [&[(u16, u16, u16)]; 5] = [
             &[],
             &[(3, 3, 1)],
@@ -595,8 +668,12 @@ mod tests {
             assert_eq!(put_back(&all[..i]), *want, "cut after {i} steps");
         }
         // What the drive refused to raise is not put back; what it refused to set again is.
-        assert_eq!(put_back(&[false, true]), [(10, 1, 0)]);
-        assert_eq!(put_back(&[true, true, false]), [(10, 1, 0), (3, 3, 1)]);
-        assert_eq!(put_back(&[true, true, true, false]), [(3, 3, 1)]);
+        assert_eq!(put_back(&[no, yes]), [(10, 1, 0)]);
+        assert_eq!(put_back(&[yes, yes, no]), [(10, 1, 0), (3, 3, 1)]);
+        assert_eq!(put_back(&[yes, yes, yes, no]), [(3, 3, 1)]);
+        // What may have been raised is put back; what may have been set again is put back too.
+        assert_eq!(put_back(&[yes, maybe]), [(10, 1, 0), (3, 3, 1)]);
+        assert_eq!(put_back(&[yes, yes, maybe]), [(10, 1, 0), (3, 3, 1)]);
+        assert_eq!(put_back(&[yes, yes, yes, maybe]), [(3, 3, 1)]);
     }
 }

@@ -1,6 +1,7 @@
 //! `param restore` and `param diff`.
 
 use crate::backup::Entry;
+use crate::commands::backup::Step;
 use serde::Serialize;
 use std::fmt::Write as _;
 use uss_client::uss_catalogue::Param;
@@ -13,9 +14,11 @@ pub struct RestoreLine {
     pub param: String,
     pub was: Option<String>,
     pub wanted: String,
-    /// "planned", "written", "refused: ...", "not written"; for the access level and quick
-    /// commissioning a restore cut short by Ctrl-C had raised: "put back after Ctrl-C" (`was` the
-    /// raised value, `wanted` the drive's before the restore) or "not put back after Ctrl-C: ...".
+    /// "planned", "written", "refused: ...", "unknown: ..." (the write reached the drive and
+    /// its answer was lost: the drive may hold the value), "not written"; for the access level
+    /// and quick commissioning a restore cut short had raised: "put back after Ctrl-C" or "put
+    /// back after the cut" (`was` the raised value, `wanted` the drive's before the restore),
+    /// or "LEFT RAISED: ..." with why and the command that puts it back.
     pub result: String,
 }
 
@@ -30,10 +33,15 @@ pub struct RestoreReport {
     pub equal: usize,
     pub written: usize,
     pub refused: usize,
+    /// Writes that reached the drive whose answer was lost: the drive may hold the value.
+    pub unknown: usize,
     /// COM-link settings that differ but are kept (baud rate, address, PZD/PKW length).
     pub kept: usize,
     /// Why the restore stopped early (null: it ran to the end).
     pub cut_short: Option<String>,
+    /// What a restore cut short raised on the way and could not put back, each with what it
+    /// means and the command that puts it back (empty: nothing is left raised).
+    pub left_raised: Vec<String>,
     pub lines: Vec<RestoreLine>,
     pub seconds: f64,
 }
@@ -48,8 +56,10 @@ impl RestoreReport {
             equal: 0,
             written: 0,
             refused: 0,
+            unknown: 0,
             kept: 0,
             cut_short: None,
+            left_raised: Vec::new(),
             lines: Vec::new(),
             seconds: 0.0,
         }
@@ -107,49 +117,96 @@ impl RestoreReport {
         self.refused += 1;
     }
 
-    /// The drive refused a value set on the way (access level, quick commissioning).
-    pub fn helper_refused(
-        &mut self,
-        param: uss_client::uss_protocol::ParamRef,
-        value: u16,
-        error: &ParamError,
-    ) {
-        self.lines.push(RestoreLine {
-            param: param.to_string(),
-            was: None,
-            wanted: value.to_string(),
-            result: format!("refused on the way: {error}"),
-        });
-        self.refused += 1;
+    /// The drive refused a step's value.
+    pub fn refuse_step(&mut self, step: &Step, error: &ParamError) {
+        match step {
+            Step::Restore(e) => self.refuse(e, error),
+            Step::Helper(param, value)
+            | Step::Raise {
+                param, to: value, ..
+            } => {
+                self.lines.push(RestoreLine {
+                    param: param.to_string(),
+                    was: None,
+                    wanted: value.to_string(),
+                    result: format!("refused on the way: {error}"),
+                });
+                self.refused += 1;
+            }
+        }
+    }
+
+    /// A step's write reached the drive and its answer was lost: the drive may hold it.
+    pub fn unknown(&mut self, step: &Step, error: &ParamError) {
+        let result = format!("unknown: {error}");
+        match step {
+            Step::Restore(e) => self.line(e).result = result,
+            Step::Helper(param, value)
+            | Step::Raise {
+                param, to: value, ..
+            } => self.lines.push(RestoreLine {
+                param: param.to_string(),
+                was: None,
+                wanted: value.to_string(),
+                result: format!("{result} (on the way)"),
+            }),
+        }
+        self.unknown += 1;
     }
 
     /// `param`, raised to `to` on the way, written back to `was` (the drive's value before the
-    /// restore) after a Ctrl-C, or not (`error`).
-    pub fn put_back(&mut self, param: ParamRef, to: u16, was: u16, error: Option<&ParamError>) {
+    /// restore) after the restore was cut short by `why`, or not (`error`; `meaning`: what
+    /// being left raised means for the drive).
+    pub fn put_back(
+        &mut self,
+        param: ParamRef,
+        to: u16,
+        was: u16,
+        why: &str,
+        error: Option<&ParamError>,
+        meaning: &str,
+    ) {
+        let command = format!(
+            "ussctl{} param write {} {param} {was}",
+            if self.bus == crate::cli::DEFAULT_BUS {
+                String::new()
+            } else {
+                format!(" --bus {}", self.bus)
+            },
+            self.drive
+        );
+        let result = match error {
+            None => format!("put back after {why}"),
+            Some(e) => {
+                self.left_raised.push(format!(
+                    "{param} = {to}: {meaning}; put it back with `{command}`"
+                ));
+                format!("LEFT RAISED: {e}")
+            }
+        };
         self.lines.push(RestoreLine {
             param: param.to_string(),
             was: Some(to.to_string()),
             wanted: was.to_string(),
-            result: error.map_or_else(
-                || "put back after Ctrl-C".to_owned(),
-                |e| format!("not put back after Ctrl-C: {e}"),
-            ),
+            result,
         });
     }
 
     /// Stopped before `rest` was written.
-    pub fn cut_short(&mut self, why: &str, rest: &[crate::commands::backup::Step]) {
+    pub fn cut_short(&mut self, why: &str, rest: &[Step]) {
+        for step in rest {
+            if let Step::Restore(e) = step {
+                self.line(e).result = "not written".into();
+            }
+        }
         self.cut_short = Some(format!(
             "{why}; not written: {}",
-            rest.iter()
-                .map(crate::commands::backup::Step::name)
-                .collect::<Vec<_>>()
-                .join(", ")
+            rest.iter().map(Step::name).collect::<Vec<_>>().join(", ")
         ));
     }
 
     pub fn is_complete(&self) -> bool {
-        self.refused == 0 && self.cut_short.is_none()
+        self.refused == 0 && self.unknown == 0 && self.cut_short.is_none()
     }
 
     pub fn human(&self) -> String {
@@ -167,7 +224,16 @@ impl RestoreReport {
         let what = if self.dry_run {
             format!("would write {}", self.lines.len() - self.kept)
         } else {
-            format!("wrote {}, refused {}", self.written, self.refused)
+            format!(
+                "wrote {}, refused {}{}",
+                self.written,
+                self.refused,
+                if self.unknown == 0 {
+                    String::new()
+                } else {
+                    format!(", {} unknown (read them back)", self.unknown)
+                }
+            )
         };
         let _ = writeln!(
             out,
@@ -184,6 +250,9 @@ impl RestoreReport {
         );
         if let Some(why) = &self.cut_short {
             let _ = writeln!(out, "cut short: {why}");
+        }
+        for left in &self.left_raised {
+            let _ = writeln!(out, "left raised: {left}");
         }
         out
     }
