@@ -395,3 +395,101 @@ fn changed_since_restore(ussd: &Ussd) -> (std::process::ExitStatus, String, Stri
     ussd.ussctl(&["param", "write", "1", "P1120", "3.5"])
         .finish()
 }
+
+/// `ussctl param` shows and takes values as they are: a type named with `--type` does not
+/// turn -1 into 65535 or a float into 0; a whole number is taken however it is written; hex
+/// is the bits of any type; what the drive holds is shown in its type's precision; -0.0
+/// survives a backup and its restore; `param diff` refuses another family and says by its exit
+/// status whether there are differences.
+#[test]
+fn values_are_shown_and_taken_as_they_are() {
+    let ussd = Ussd::start(
+        "",
+        &[
+            (1, ""),
+            (2, "family = \"g120\"\nsim = { family = \"g120\" }"),
+        ],
+    );
+    let bus = ussd.bus();
+    let run = |args: &[&str]| {
+        let (status, out, err) = ussd.ussctl(args).finish();
+        println!(
+            "param_truth: ussctl {}: {status}\n{out}{err}",
+            args.join(" ")
+        );
+        (status.code(), out, err)
+    };
+    let raw = |p: uss_client::ParamRef| bus.read(addr(1), p).unwrap();
+    let p2014 = uss_integration_tests::param_at(2014, 0);
+    // Expert level: P2014 is a level 3 parameter.
+    bus.write(addr(1), param(3), Value::Word(3), false).unwrap();
+    // 1. A type named does not make -1 a U16, nor a float a word.
+    let before = raw(p2014);
+    let (code, _, err) = run(&[
+        "param", "write", "1", "P2014[0]", "--type", "word", "--", "-1",
+    ]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("0..=65535"), "{err}");
+    assert_eq!(raw(p2014), before, "nothing written");
+    let (code, out, err) = run(&["param", "read", "1", "P2000", "--type", "word"]);
+    assert_eq!(code, Some(1), "{out}{err}");
+    assert!(err.contains("Float"), "{err}");
+    let (code, out, err) = run(&["param", "read", "1", "P2014[0]", "--type", "word"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.starts_with("drive 1 P2014[0] = "), "{out}");
+    // 2. A whole number however written; not a fraction.
+    let (code, out, err) = run(&["param", "write", "1", "P2014[0]", "300.0"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("P2014[0] := 300 ms"), "{out}");
+    let (code, out, err) = run(&["param", "write", "1", "P2014[0]", "1e3"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("P2014[0] := 1000 ms"), "{out}");
+    let (code, _, err) = run(&["param", "write", "1", "P2014[0]", "2.5"]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("not a whole number"), "{err}");
+    // 3. Hex is the bits of a float too, as the help says.
+    let (code, out, err) = run(&["param", "write", "1", "P1120", "0x41200000"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("P1120 := 10.00 s"), "{out}");
+    // 4. What the drive holds, in its type's precision.
+    let (code, out, err) = run(&["param", "write", "1", "P1120", "0.001"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("P1120 := 0.001 s"), "{out}");
+    let (_, out, _) = run(&["param", "read", "1", "P1120"]);
+    assert!(out.contains("P1120 = 0.001 s"), "{out}");
+    let (_, out, _) = run(&["param", "write", "1", "P1121", "12.345678"]);
+    assert!(out.contains("P1121 := 12.345678 s"), "{out}");
+    // 5. -0.0 is kept by a backup and put back by its restore; diff sees it.
+    let dir = std::env::temp_dir().join(format!("uss-values-{}", ussd.bus));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("drive1.toml").to_str().unwrap().to_owned();
+    let (code, _, err) = run(&["param", "write", "1", "P1080", "-0.0"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(raw(param(1080)), Value::Dword(0x8000_0000));
+    let (code, _, err) = run(&["param", "backup", "1", "-o", &path]);
+    assert_eq!(code, Some(0), "{err}");
+    let (code, _, err) = run(&["param", "write", "1", "P1080", "0"]);
+    assert_eq!(code, Some(0), "{err}");
+    let (code, out, _) = run(&["param", "diff", "1", &path]);
+    assert!(out.contains("P1080"), "diff sees +0 against -0: {out}");
+    assert_eq!(code, Some(1), "differences: a script sees them: {out}");
+    let (code, out, err) = run(&["param", "restore", "1", &path]);
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert_eq!(raw(param(1080)), Value::Dword(0x8000_0000), "-0.0 restored");
+    let (code, out, _) = run(&["param", "diff", "1", &path]);
+    assert_eq!(code, Some(0), "no differences: {out}");
+    // 6. Another family's drive or backup is not compared value by value.
+    let (code, out, err) = run(&["param", "diff", "2", &path]);
+    assert_eq!(code, Some(1), "{out}{err}");
+    assert!(
+        err.contains("micromaster4") && err.contains("g120"),
+        "{err}"
+    );
+    let (code, out, err) = run(&["param", "diff", "1", "2"]);
+    assert_eq!(code, Some(1), "{out}{err}");
+    assert!(
+        err.contains("micromaster4") && err.contains("g120"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
