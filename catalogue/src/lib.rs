@@ -106,34 +106,42 @@ impl Values for DataType {
             data_type: self,
             range: range(self),
         };
+        let not_a_number = || ValueError::NotANumber { text: t.to_owned() };
+        // Hex is the bits of the type: `0xFFFF` is -1 for an I16, `0x41200000` 10.0 for a float.
+        if let Some(hex) = t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+            let bits = u32::from_str_radix(hex, 16).map_err(|_| not_a_number())?;
+            return match self {
+                Self::I16 | Self::U16 => u16::try_from(bits)
+                    .map(Value::Word)
+                    .map_err(|_| out_of_range()),
+                Self::I32 | Self::U32 => Ok(Value::Dword(bits)),
+                Self::Float if f32::from_bits(bits).is_finite() => Ok(Value::Dword(bits)),
+                Self::Float => Err(out_of_range()),
+            };
+        }
         if self == Self::Float {
-            let f: f32 = t
-                .parse()
-                .map_err(|_| ValueError::NotANumber { text: t.to_owned() })?;
+            let f: f32 = t.parse().map_err(|_| not_a_number())?;
             return if f.is_finite() {
                 Ok(Value::from_f32(f))
             } else {
                 Err(out_of_range())
             };
         }
-        let hex = t
-            .strip_prefix("0x")
-            .or_else(|| t.strip_prefix("0X"))
-            .map(|h| i64::from_str_radix(h, 16));
-        let n = match hex {
-            Some(parsed) => parsed.map_err(|_| ValueError::NotANumber { text: t.to_owned() })?,
-            None => match t.parse::<i64>() {
-                Ok(n) => n,
-                Err(_) if t.parse::<f64>().is_ok() => {
-                    return Err(ValueError::NotWhole {
-                        text: t.to_owned(),
-                        data_type: self,
-                    });
-                }
-                Err(_) => {
-                    return Err(ValueError::NotANumber { text: t.to_owned() });
-                }
-            },
+        // A whole number however it is written: `300`, `300.0`, `1e3`.
+        let n = if let Ok(n) = t.parse::<i64>() {
+            n
+        } else {
+            let f: f64 = t.parse().map_err(|_| not_a_number())?;
+            if !f.is_finite() || f.fract() != 0.0 {
+                return Err(ValueError::NotWhole {
+                    text: t.to_owned(),
+                    data_type: self,
+                });
+            }
+            if f.abs() > 1e18 {
+                return Err(out_of_range());
+            }
+            f as i64
         };
         match self {
             Self::I16 => i16::try_from(n).map(|v| Value::Word(v as u16)),
@@ -159,14 +167,27 @@ impl Typed {
 }
 
 impl fmt::Display for Typed {
-    /// Floats with two decimals (as the operator panels show them), integers as they are.
+    /// Integers as they are; floats with two decimals as the operator panels show them
+    /// (`50.00`), or with as many as it takes to read back as the very value the drive holds
+    /// (`0.001`, `12.345678`; `-0.00` keeps its sign).
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Self::I16(v) => write!(f, "{v}"),
             Self::I32(v) => write!(f, "{v}"),
             Self::U16(v) => write!(f, "{v}"),
             Self::U32(v) => write!(f, "{v}"),
-            Self::Float(v) => write!(f, "{v:.2}"),
+            Self::Float(v) => {
+                let two = format!("{v:.2}");
+                if two
+                    .parse::<f32>()
+                    .is_ok_and(|back| back.to_bits() == v.to_bits())
+                {
+                    f.write_str(&two)
+                } else {
+                    // The shortest text that reads back as `v` (Rust's `{}` of an f32).
+                    write!(f, "{v}")
+                }
+            }
         }
     }
 }

@@ -75,6 +75,39 @@ fn text_becomes_the_parameters_own_type_or_is_refused_before_the_bus() {
     );
     assert!(DataType::Float.parse("inf").is_err());
     assert!(DataType::I16.parse("40000").is_err());
+    // A whole number however written; hex is the type's bits.
+    assert_eq!(DataType::U16.parse("300.0"), Ok(Value::Word(300)));
+    assert_eq!(DataType::U16.parse("1e3"), Ok(Value::Word(1000)));
+    assert_eq!(
+        DataType::I32.parse("-2e3"),
+        Ok(Value::Dword(-2000i32 as u32))
+    );
+    assert!(DataType::U16.parse("-1").is_err());
+    assert!(DataType::U16.parse("1e5").is_err());
+    assert!(DataType::U16.parse("1e300").is_err());
+    assert_eq!(DataType::I16.parse("0xFFFF"), Ok(Value::Word(0xFFFF)));
+    assert!(DataType::U16.parse("0x10000").is_err());
+    assert_eq!(
+        DataType::Float.parse("0x41200000"),
+        Ok(Value::from_f32(10.0))
+    );
+    assert!(DataType::Float.parse("0x7F800000").is_err());
+    assert_eq!(DataType::Float.parse("-0.0"), Ok(Value::Dword(0x8000_0000)));
+}
+
+#[test]
+fn a_float_shows_the_very_value_the_drive_holds() {
+    let shown = |f: f32| Typed::Float(f).to_string();
+    assert_eq!(shown(50.0), "50.00");
+    assert_eq!(shown(0.1), "0.10");
+    assert_eq!(shown(0.001), "0.001");
+    assert_eq!(shown(12.345_678), "12.345678");
+    assert_eq!(shown(-0.0), "-0.00");
+    let c = Catalogue::micromaster4();
+    assert_eq!(
+        c.param(1120).unwrap().show(Value::from_f32(0.001)),
+        "0.001 s"
+    );
 }
 
 #[test]
@@ -131,6 +164,13 @@ mod properties {
             prop_assert_eq!(back(DataType::I32, i32v.to_string()), Typed::I32(i32v));
             prop_assert_eq!(back(DataType::U32, u32v.to_string()), Typed::U32(u32v));
             prop_assert_eq!(back(DataType::Float, f.to_string()), Typed::Float(f));
+            // What is shown is what the drive holds: it reads back to the same bits.
+            let shown = Typed::Float(f).to_string();
+            prop_assert_eq!(shown.parse::<f32>().map(f32::to_bits), Ok(f.to_bits()));
+            prop_assert_eq!(
+                DataType::Float.parse(&format!("{:#010x}", f.to_bits())),
+                Ok(Value::Dword(f.to_bits()))
+            );
         }
 
         #[test]

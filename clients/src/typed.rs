@@ -188,6 +188,38 @@ impl Bus {
         })
     }
 
+    /// The type a caller names for parameter `param` of drive `address` (`ussctl --type`).
+    /// Where the parameter's own type is known (its family's catalogue, or the drive's own
+    /// description) that one applies, and a named type of another kind (a word for a float, a
+    /// double word for a word) is refused ([`ParamError::Value`]): it would show or write
+    /// other than what the drive holds. `None`: the type is not known (a generic slave, a
+    /// drive that does not describe the parameter), so the named one applies.
+    pub fn named_type(
+        &self,
+        address: Address,
+        param: ParamRef,
+        named: DataType,
+    ) -> Result<Option<DataType>, ParamError> {
+        let kind = |t: DataType| match t {
+            DataType::I16 | DataType::U16 => "word",
+            DataType::I32 | DataType::U32 => "double word",
+            DataType::Float => "float",
+        };
+        match self.describe(address, param.pnu) {
+            Ok((own, _)) if kind(own) == kind(named) => Ok(Some(own)),
+            Ok((own, info)) => Err(ParamError::Value {
+                param: shown_as(param, info).to_string(),
+                problem: format!(
+                    "its type is {own:?} (a {}), not a {}: drop --type, it is read and written as its own",
+                    kind(own),
+                    kind(named)
+                ),
+            }),
+            Err(ParamError::Drive(_) | ParamError::Value { .. }) => Ok(None),
+            Err(e) => Err(e),
+        }
+    }
+
     /// The catalogue entry for parameter `pnu` of drive `address`, where its family has one.
     pub fn catalogue_entry(&self, address: Address, pnu: Pnu) -> Option<&'static Param> {
         self.catalogue_of(self.family(address))

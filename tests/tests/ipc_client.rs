@@ -818,10 +818,17 @@ fn ussctl_reads_and_writes_parameters_in_their_own_type_and_unit() {
         read(&["1", "r0947[0]"]),
         "drive 1 r0947[0] = 0  (CO: Last fault code)\n"
     );
+    // A type named for a parameter whose type is known: the same kind, or refused (its bits
+    // are in --json's "raw" and "hex").
     assert_eq!(
-        read(&["1", "1082", "--type", "dword"]),
-        "drive 1 P1082 = 1112014848\n",
-        "--type overrides"
+        read(&["1", "1082", "--type", "float"]),
+        "drive 1 P1082 = 50.00 Hz  (Max. frequency)\n"
+    );
+    let out = ussd.ussctl(&["param", "read", "1", "1082", "--type", "dword"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(
+        text(&out.stderr),
+        "ussctl: drive 1 P1082: its type is Float (a float), not a double word: drop --type, it is read and written as its own\n"
     );
     let out = ussd.ussctl(&["--json", "param", "read", "1", "r0947.2"]);
     assert_eq!(
@@ -865,11 +872,11 @@ fn ussctl_reads_and_writes_parameters_in_their_own_type_and_unit() {
         assert_eq!(out.status.code(), Some(1));
         assert_eq!(text(&out.stderr), said);
     }
-    // --type sends what it says; the drive judges it (a word to a float parameter: error 5).
+    // --type of another kind than the parameter's known type is refused before the bus.
     let out = ussd.ussctl(&["param", "write", "2", "1120", "3", "--type", "word"]);
     assert_eq!(out.status.code(), Some(1));
     assert!(
-        text(&out.stderr).contains("error 5: wrong data type"),
+        text(&out.stderr).contains("its type is Float (a float), not a word"),
         "{}",
         text(&out.stderr)
     );
@@ -1051,7 +1058,7 @@ fn backup_change_restore_and_diff_shows_nothing() {
     w(10, Value::Word(0));
     w(3, Value::Word(1));
     let (code, said, _) = run(&["param", "diff", "1", path]);
-    assert_eq!(code, Some(0));
+    assert_eq!(code, Some(1), "differences: {said}");
     assert!(
         said.contains("P0310      drive 1: 60.00 Hz")
             && said.contains("P1082      drive 1: 45.00 Hz")
@@ -1243,7 +1250,7 @@ fn another_drive_keeps_its_com_link(ussd: &Ussd, path: &str) {
     assert_eq!(
         said,
         "  P2011[1]   drive 1: 1              drive 2: 2              (USS address)\n\
-         drive 1 and drive 2: 1 differences, 23 values the same\n"
+         drive 1 and drive 2: 1 difference, 23 values the same\n"
     );
     let (code, said, err) = run(&["param", "restore", "2", path]);
     assert_eq!(code, Some(0), "{said}{err}");

@@ -7,6 +7,11 @@ use uss_integration_tests::{Ussd, assert_report, binary};
 
 /// Runs `ussctl --bus <bus> --json <args>` to its end: its stdout, which must be a success.
 fn json(ussd: &Ussd, args: &[&str]) -> String {
+    json_exiting(ussd, args, 0)
+}
+
+/// [`json`] of a command that exits with `code` (`param diff` with differences: 1).
+fn json_exiting(ussd: &Ussd, args: &[&str], code: i32) -> String {
     let out = Command::new(binary("ussctl", "ussctl"))
         .args(["--bus", &ussd.bus, "--json"])
         .args(args)
@@ -14,7 +19,7 @@ fn json(ussd: &Ussd, args: &[&str]) -> String {
         .expect("ussctl runs");
     let text = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
-        out.status.success(),
+        out.status.code() == Some(code),
         "ussctl --json {}: {text}{}",
         args.join(" "),
         String::from_utf8_lossy(&out.stderr)
@@ -50,7 +55,11 @@ fn every_json_output_carries_its_version_and_matches_its_shipped_schema() {
         &json(&ussd, &["param", "describe", "1", "P1082"]),
     );
     every_line("faults", &json(&ussd, &["faults", "1"]));
-    every_line("diff", &json(&ussd, &["param", "diff", "1", "2"]));
+    // Drive 2's P1121 differs: diff says so by its exit status too.
+    every_line(
+        "diff",
+        &json_exiting(&ussd, &["param", "diff", "1", "2"], 1),
+    );
     let backup = std::env::temp_dir().join(format!("uss-json-{}.toml", std::process::id()));
     let file = backup.to_str().unwrap();
     json(&ussd, &["param", "backup", "1", "-o", file]);

@@ -192,8 +192,9 @@ pub enum ParamCommand {
         /// (an array without an index: every element).
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
-        /// How to show the value (default: the parameter's own type, from the catalogue or the
-        /// drive's description).
+        /// How to show the value of a parameter whose type neither the catalogue nor the
+        /// drive describes. A parameter whose type is known is always shown as that type (a
+        /// named type of another kind is refused).
         #[arg(long = "type", value_enum)]
         kind: Option<Kind>,
     },
@@ -217,15 +218,17 @@ pub enum ParamCommand {
         /// array by its element only).
         #[arg(value_name = "PARAM", value_parser = param_ref)]
         param: ParamRef,
-        /// A number: decimal, 0x hex, negative, or with a decimal point (converted to the
-        /// parameter's type).
+        /// A number, converted to the parameter's type: decimal (-3, 45.5, 1e3; a whole number
+        /// however written for an integer type) or 0x hex, the type's bits (0x41200000 is 10.0
+        /// for a float).
         #[arg(allow_negative_numbers = true)]
         value: String,
         /// Store in EEPROM as well as RAM (survives a power cycle).
         #[arg(long)]
         eeprom: bool,
-        /// The type to send (default: the parameter's own type, from the catalogue or the
-        /// drive's description; VALUE is converted to it and refused when it does not fit).
+        /// The type to send to a parameter whose type neither the catalogue nor the drive
+        /// describes. Otherwise VALUE is converted to the parameter's own type and refused
+        /// when it does not fit (a named type of another kind is refused too).
         #[arg(long = "type", value_enum)]
         kind: Option<Kind>,
         /// Write even though another process controls the drive (a deliberate act).

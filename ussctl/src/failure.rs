@@ -78,6 +78,9 @@ pub(crate) enum Failure {
     /// which; running it again completes what can be.
     #[error("drive {drive}: the restore is incomplete (see above); run it again to complete it")]
     Incomplete { drive: Address },
+    /// `param diff` found differences (listed above): a script sees them in the exit status.
+    #[error("drive {drive}: {differ} value{} differ{} (see above)", if *.differ == 1 { "" } else { "s" }, if *.differ == 1 { "s" } else { "" })]
+    Differ { drive: Address, differ: usize },
     /// A backup or restore of a drive whose family has no parameter catalogue in uss-rt, or a
     /// restore of another family's backup.
     #[error("drive {drive}: {problem}")]

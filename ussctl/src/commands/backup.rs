@@ -223,14 +223,23 @@ fn settings_catalogue(drive: Address, family: &str) -> Result<&'static Catalogue
         })
 }
 
-/// A restore goes to a drive of the backup's family only (nothing written otherwise).
-fn check_family(drive: Address, family: DriveFamily, file: &BackupFile) -> Result<(), Failure> {
-    match file.drive_family.as_deref() {
+/// A restore goes to a drive of the backup's family only (nothing written otherwise), and
+/// `diff` compares a drive with its own family's values only: the same number means another
+/// thing in another family (MM4 P1082 in Hz, a G120's p1082 in rpm). `done`: what is not done
+/// ("restored (nothing was written)", "compared"), of `what` ("the backup is of a").
+fn check_family(
+    drive: Address,
+    family: DriveFamily,
+    theirs: Option<&str>,
+    what: &str,
+    done: &str,
+) -> Result<(), Failure> {
+    match theirs {
         Some(theirs) if theirs != family.name() => Err(Failure::Family {
             drive,
             problem: format!(
-                "the backup is of a {theirs} drive, this drive is configured as {}: values of \
-                 another family are not restored (nothing was written)",
+                "{what} {theirs} drive, this drive is configured as {}: values of another \
+                 family are not {done}",
                 family.name()
             ),
         }),
@@ -288,7 +297,13 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     let family = bus.family(drive);
     let catalogue = settings_catalogue(drive, family.name())?;
     let (file, entries) = load(r.file, catalogue)?;
-    check_family(drive, family, &file)?;
+    check_family(
+        drive,
+        family,
+        file.drive_family.as_deref(),
+        "the backup is of a",
+        "restored (nothing was written)",
+    )?;
     let start = Instant::now();
     let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
     let now = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
@@ -324,6 +339,31 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     catch_signals()?;
     let options = r.options;
     let steps = order(bus, drive, catalogue, &differing);
+    let (took, cut) = write_steps(bus, drive, &steps, options, &mut report)?;
+    if let Some(why) = cut {
+        // The drive is not left in quick commissioning or at a raised access level.
+        let raised: Vec<_> = still_raised(&steps, &took).collect();
+        put_back(bus, drive, catalogue, &raised, r, why, &mut report);
+    }
+    report.seconds = start.elapsed().as_secs_f64();
+    let complete = report.is_complete();
+    out.show(&report, RestoreReport::human)?;
+    if complete {
+        Ok(())
+    } else {
+        Err(Failure::Incomplete { drive })
+    }
+}
+
+/// Writes the steps of a restore in order, each reported. Returns what the drive did with each
+/// step written and, when the restore was cut short, why (for the report's "put back after").
+fn write_steps(
+    bus: &Bus,
+    drive: Address,
+    steps: &[Step],
+    options: WriteOptions,
+    report: &mut RestoreReport,
+) -> Result<(Vec<Took>, Option<&'static str>), Failure> {
     let bar = progress(steps.len(), &format!("writing drive {drive}"));
     // What the drive did with each step so far.
     let mut took = Vec::with_capacity(steps.len());
@@ -373,19 +413,7 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
         bar.inc(1);
     }
     bar.finish_and_clear();
-    if let Some(why) = cut {
-        // The drive is not left in quick commissioning or at a raised access level.
-        let raised: Vec<_> = still_raised(&steps, &took).collect();
-        put_back(bus, drive, catalogue, &raised, r, why, &mut report);
-    }
-    report.seconds = start.elapsed().as_secs_f64();
-    let complete = report.is_complete();
-    out.show(&report, RestoreReport::human)?;
-    if complete {
-        Ok(())
-    } else {
-        Err(Failure::Incomplete { drive })
-    }
+    Ok((took, cut))
 }
 
 /// What the drive did with a step of a restore.
@@ -580,12 +608,21 @@ impl Step {
 }
 
 /// `param diff DRIVE (FILE | DRIVE)`.
+/// Exits nonzero ([`Failure::Differ`]) when there are differences, as `diff(1)` does.
 pub(crate) fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Result<(), Failure> {
-    let catalogue = settings_catalogue(drive, bus.family(drive).name())?;
+    let family = bus.family(drive);
+    let catalogue = settings_catalogue(drive, family.name())?;
     let mut report = DiffReport::new(bus.name(), drive, other);
     if let Ok(second) = other.parse::<u8>() {
         // A number names a drive (a file named so is written ./17).
         let second = Address::new(second).map_err(|e| Failure::Usage(e.to_string()))?;
+        check_family(
+            drive,
+            family,
+            Some(bus.family(second).name()),
+            &format!("drive {second} is a"),
+            "compared",
+        )?;
         let (a, _) = read_settings(bus, drive, catalogue)?;
         let (b, _) = read_settings(bus, second, catalogue)?;
         let theirs: BTreeMap<_, _> = b.iter().map(|(r, _, v)| ((r.pnu, r.index), *v)).collect();
@@ -598,7 +635,14 @@ pub(crate) fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Resu
             }
         }
     } else {
-        let (_, entries) = load(Path::new(other), catalogue)?;
+        let (file, entries) = load(Path::new(other), catalogue)?;
+        check_family(
+            drive,
+            family,
+            file.drive_family.as_deref(),
+            "the backup is of a",
+            "compared",
+        )?;
         let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
         let now = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
         for (e, current) in entries.iter().zip(now) {
@@ -623,7 +667,11 @@ pub(crate) fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Resu
             }
         }
     }
-    out.show(&report, DiffReport::human)
+    out.show(&report, DiffReport::human)?;
+    match report.lines.len() {
+        0 => Ok(()),
+        differ => Err(Failure::Differ { drive, differ }),
+    }
 }
 
 #[cfg(test)]

@@ -18,7 +18,15 @@ pub(crate) fn read(
         param: param.to_string(),
         source,
     };
-    let values = match kind {
+    // A type named for a parameter whose own type is known: the same kind, or refused.
+    let unknown = match kind {
+        Some(kind) => bus
+            .named_type(drive, param, kind.data_type())
+            .map_err(|source| Failure::Value { drive, source })?
+            .is_none(),
+        None => false,
+    };
+    let values = match kind.filter(|_| unknown) {
         // The parameter's own type (catalogue, or asked from the drive); an array named
         // without an element is read whole, a line per element.
         None => bus.read_elements(drive, param).map_err(failed)?,
@@ -166,7 +174,14 @@ pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failur
             source,
         },
     };
-    let now = match w.kind {
+    let unknown = match w.kind {
+        Some(kind) => bus
+            .named_type(drive, param, kind.data_type())
+            .map_err(|source| Failure::Value { drive, source })?
+            .is_none(),
+        None => false,
+    };
+    let now = match w.kind.filter(|_| unknown) {
         // Converted to the parameter's own type; what does not fit is refused before the bus.
         None => bus
             .write_param(drive, param, w.value, options)

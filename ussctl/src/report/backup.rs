@@ -334,10 +334,12 @@ impl DiffReport {
         }
         let _ = writeln!(
             out,
-            "drive {} and {other}: {} differences, {} values the same",
+            "drive {} and {other}: {} difference{}, {} value{} the same",
             self.drive,
             self.lines.len(),
-            self.same
+            if self.lines.len() == 1 { "" } else { "s" },
+            self.same,
+            if self.same == 1 { "" } else { "s" },
         );
         out
     }
