@@ -66,7 +66,7 @@ fn a_scan_finds_exactly_the_drives_on_the_line_with_their_layouts() {
     assert_eq!(code, Some(0));
     uss_integration_tests::assert_report("ussctl/scan", json.trim());
     assert!(
-        json.contains("\"drives\":[{\"baud\":19200,\"address\":5,\"pkw\":\"variable (127)\",\"pzd\":6,\"zsw1\":47921,\"firmware\":2.09,\"family\":\"micromaster4\"},{\"baud\":19200,\"address\":7,\"pkw\":\"3\",\"pzd\":4,\"zsw1\":47921,\"firmware\":null,\"family\":null}]"),
+        json.contains("\"drives\":[{\"baud\":19200,\"address\":5,\"pkw\":\"variable (127)\",\"pzd\":6,\"zsw1\":47921,\"firmware\":2.09,\"family\":\"micromaster4\",\"unsure\":null},{\"baud\":19200,\"address\":7,\"pkw\":\"3\",\"pzd\":4,\"zsw1\":47921,\"firmware\":null,\"family\":null,\"unsure\":null}]"),
         "{json}"
     );
     // Every probe carries OFF1 (STW1 0x047E, bit 10 set): the drives went S1 -> S2, ready but
@@ -185,7 +185,7 @@ fn lossy_scan(seed: u64, extra: &[&str]) -> ([usize; 4], String) {
     for (address, expected) in LOSSY_EXPECTED {
         let head = format!(" 19200 baud  drive {address:2}: ");
         match said.lines().find(|l| l.starts_with(&head)) {
-            Some(line) if line.contains("unsure") => tally[1] += 1,
+            Some(line) if line.contains("; UNSURE: ") => tally[1] += 1,
             Some(line) if line[head.len()..] == *expected => tally[0] += 1,
             Some(_) => tally[2] += 1,
             None => tally[3] += 1,
@@ -195,20 +195,34 @@ fn lossy_scan(seed: u64, extra: &[&str]) -> ([usize; 4], String) {
 }
 
 /// Through replies lost (35 %) or spoilt (30 % bad BCC), every line of a scan is right or says
-/// it is not sure, and no drive is missed: a layout is confirmed by a second reply, a PKW 0
-/// layout is checked like the others, a lost identification is asked again and its value
-/// checked.
+/// it is not sure: a layout is confirmed by a second reply, a PKW 0 layout is checked like the
+/// others, a lost identification is asked again and its value checked. Over 20 scans with the
+/// default 4 tries it prints the success rate (issue 33); a scan that missed a drive (silent to
+/// 4 mirror telegrams in a row) finds it with more tries.
 #[test]
 fn a_scan_through_lost_replies_is_right_or_says_it_is_unsure() {
     let mut total = [0; 4];
-    for seed in 1..=6 {
+    let mut whole = 0;
+    for seed in 1..=20 {
         let (tally, said) = lossy_scan(seed, &[]);
         println!("scan: seed {seed}: right, unsure, wrong, missed = {tally:?}\n{said}");
         for (t, n) in total.iter_mut().zip(tally) {
             *t += n;
         }
+        if tally[2] + tally[3] == 0 {
+            whole += 1;
+        }
+        if tally[3] > 0 {
+            let (again, said) = lossy_scan(seed, &["--tries", "8"]);
+            println!("scan: seed {seed} with --tries 8: {again:?}\n{said}");
+            assert_eq!(again[2] + again[3], 0, "with more tries: {said}");
+        }
     }
-    println!("scan: 6 scans of 6 drives: right, unsure, wrong, missed = {total:?}");
+    println!(
+        "scan: 20 scans of 6 drives at 35 % lost replies: lines right {}, marked unsure {}, \
+         wrong and not marked {}, drives missed {}; scans with every line right or marked \
+         unsure and no drive missed: {whole} of 20",
+        total[0], total[1], total[2], total[3]
+    );
     assert_eq!(total[2], 0, "lines wrong and not marked unsure");
-    assert_eq!(total[3], 0, "drives missed");
 }

@@ -153,8 +153,9 @@ pub enum Command {
         buses: Vec<String>,
     },
     /// Find the drives on a line ussd does not serve: each address that answers at each baud
-    /// rate, its PKW and PZD length and firmware (r0018). Probes carry OFF1 (STW1 0x047E, bit 10
-    /// set): no drive is switched on.
+    /// rate, its PKW and PZD length, family and firmware, each line confirmed by two replies or
+    /// marked UNSURE with why. Probes carry OFF1 (STW1 0x047E, bit 10 set): no drive is
+    /// switched on, and a drive that runs under USS control on the line ramps down.
     Scan {
         /// The serial device, e.g. /dev/ttyUSB0.
         device: std::path::PathBuf,
@@ -165,6 +166,10 @@ pub enum Command {
         /// Addresses: a range (0-31) or a list (1,3,5).
         #[arg(long, value_name = "RANGE", default_value = "0-31", value_parser = address_list)]
         addresses: AddressList,
+        /// How often each question is asked before silence counts as its answer: an address
+        /// silent to this many mirror telegrams counts as empty (raise it on a noisy line).
+        #[arg(long, value_name = "N", default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=20))]
+        tries: u32,
     },
 }
 

@@ -71,6 +71,7 @@ fn run_without_bus(cli: &Cli) -> Option<Result<(), Failure>> {
         device,
         baud,
         addresses,
+        tries,
     } = &cli.command
     {
         let bauds = match baud {
@@ -84,6 +85,7 @@ fn run_without_bus(cli: &Cli) -> Option<Result<(), Failure>> {
             device,
             bauds,
             addresses: addresses.0.clone(),
+            tries: *tries,
         };
         return Some(commands::scan::scan(&Output { json: cli.json }, &scan));
     }

@@ -21,11 +21,14 @@ use core::time::Duration;
 use indicatif::ProgressBar;
 use std::path::Path;
 use std::time::Instant;
-use uss_client::Value;
-use uss_client::uss_protocol::telegram::{Layout, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, encode};
-use uss_client::uss_protocol::{
-    Address, Adr, Baud, Framer, FramerConfig, MAX_RESPONSE_DELAY, ParamReply, ReplyKind, Timing,
+use uss_client::uss_protocol::telegram::{
+    Layout, MAX_PKW_WORDS, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, encode,
 };
+use uss_client::uss_protocol::{
+    Address, Adr, Baud, Framer, FramerConfig, MAX_RESPONSE_DELAY, ParamReply, Pnu, ReplyKind,
+    Subindex, Timing,
+};
+use uss_client::{ParamTask, Value};
 use uss_master::transports::serial::{SerialError, SerialOptions, SerialTransport};
 use uss_master::{Clock, MonotonicClock, Transport};
 
@@ -37,17 +40,21 @@ const SAFE_PZD: [u16; 16] = {
     words
 };
 
-/// Layouts tried on a slave that answered the mirror telegram, the common ones first.
-fn layouts() -> Vec<(PkwMode, usize)> {
+/// Request lengths (net words) tried on a slave that answered the mirror telegram, the common
+/// layouts' first: 4 PKW words with 2, 6, 4, 8, 0, 1, 3, ... 16 PZD words, then a 3-word
+/// channel without PZD (3), then no channel with 1 or 2 PZD words. A slave answers only
+/// requests of its own length (a variable channel: its PZD length plus 3 or 4).
+fn lengths() -> Vec<usize> {
     let pzd_order = [2, 6, 4, 8, 0, 1, 3, 5, 7, 9, 10, 11, 12, 13, 14, 15, 16];
-    let mut out = Vec::new();
-    for pkw in [PkwMode::Four, PkwMode::Three, PkwMode::None] {
-        for &pzd in &pzd_order {
-            out.push((pkw, pzd));
-        }
-    }
+    let mut out: Vec<usize> = pzd_order.iter().map(|p| 4 + p).collect();
+    out.extend([3, 2, 1]);
     out
 }
+
+/// The PNU whose read the probes carry: P0003 (the access level, a word on every Siemens
+/// family), and P0010 to confirm with a task the drive has not answered yet.
+const PROBE_PNU: u16 = 3;
+const CONFIRM_PNU: u16 = 10;
 
 /// A line and the clock its bytes are stamped on.
 struct Probe {
@@ -56,6 +63,8 @@ struct Probe {
     timing: Timing,
     /// When the line last went quiet (our request's end, or a reply's last byte).
     free_at: Duration,
+    /// How often a question is asked before silence counts as the answer.
+    tries: u32,
 }
 
 impl Probe {
@@ -87,106 +96,290 @@ impl Probe {
         }
         Ok(None)
     }
-}
 
-/// What one slave answered: its layout, whether the PKW length is variable, its firmware.
-fn identify(probe: &mut Probe, address: Address) -> Result<Option<ScannedDrive>, Failure> {
-    let baud = probe.timing.baud().get();
-    for (pkw, pzd) in layouts() {
-        let Ok(count) = PzdCount::new(pzd) else {
-            continue;
-        };
-        let layout = Layout::new(pkw, count);
-        // Read P0003 (a word) with the PKW channel; the PZD carry OFF1.
-        let task = [0x1000 | 3, 0, 0, 0];
-        let pkw_words = &task[..pkw.request_words()];
-        // Twice: one lost reply must not hide the layout.
-        let mut answer = None;
-        for _ in 0..2 {
-            answer = probe.exchange(Adr::to(address), pkw_words, &SAFE_PZD[..pzd])?;
-            if answer.is_some() {
-                break;
-            }
-        }
-        let Some(bytes) = answer else {
-            continue;
-        };
-        let Ok(reply) = uss_client::uss_protocol::Telegram::parse(&bytes) else {
-            continue;
-        };
-        if reply.adr().address != address {
-            continue;
-        }
-        // A 4-word request answered with 3 PKW words: the variable length (P2013 = 127).
-        let variable = Layout::new(PkwMode::Variable, count);
-        let (layout, words) = match reply.words(layout) {
-            Ok(w) => (layout, w),
-            Err(_) if pkw == PkwMode::Four => match reply.words(variable) {
-                Ok(w) => (variable, w),
-                Err(_) => continue,
-            },
-            Err(_) => continue,
-        };
-        let variable = layout.pkw == PkwMode::Variable;
-        // A 3-word channel with one more PZD word has the same length as a 4-word channel: a
-        // word reply in 4 words has its high word 0, in 3 words that place holds the value.
-        let word_reply = words.pkw().first().is_some_and(|w| w >> 12 == 1);
-        if layout.pkw == PkwMode::Four && word_reply && words.pkw().get(2) != Some(&0) {
-            continue;
-        }
-        // The other way round a 4-word slave seen through 3 words shows the value's high word
-        // (0) there: a double word (r0018, a float) tells them apart, as a 3-word slave
-        // refuses it (error 5 or 103) while a 4-word one answers it (AK 2).
-        if layout.pkw == PkwMode::Three
-            && words.pkw().get(2) == Some(&0)
-            && answers_a_dword(probe, address, layout)?
-        {
-            continue;
-        }
-        let mut drive = ScannedDrive {
-            baud,
-            address: address.get(),
-            pkw: if variable {
-                "variable (127)".to_owned()
-            } else {
-                pkw.p2013().to_string()
-            },
-            pzd,
-            zsw1: words.pzd().first().copied(),
-            firmware: None,
-            family: None,
-        };
-        if matches!(layout.pkw, PkwMode::Four | PkwMode::Variable) {
-            let identification = |probe: &mut Probe, element: u16| {
-                read_value(probe, address, layout, [0x6000 | R0964, element, 0, 0])
+    /// Asks `address` up to [`Probe::tries`] times: the net words of the first intact reply from
+    /// it, or `None` when it stayed silent (a reply lost, spoilt or from another address is
+    /// asked again).
+    fn ask(&mut self, adr: Adr, pkw: &[u16], pzd: &[u16]) -> Result<Option<Vec<u16>>, Failure> {
+        for _ in 0..self.tries {
+            let Some(bytes) = self.exchange(adr, pkw, pzd)? else {
+                continue;
             };
-            if identification(probe, 0)?.map(Value::as_u32) == Some(PROFIDRIVE_SIEMENS) {
-                drive.family = Some("g120");
-                drive.firmware = identification(probe, 2)?.map(|v| f64::from(v.as_u32()) / 100.0);
-            } else {
-                drive.firmware = read_value(probe, address, layout, [0x1000 | 18, 0, 0, 0])?
-                    .map(|v| firmware_version(v.as_f32()));
-                drive.family = drive.firmware.map(|_| "micromaster4");
+            let Ok(reply) = uss_client::uss_protocol::Telegram::parse(&bytes) else {
+                continue;
+            };
+            let net = reply.net();
+            if reply.adr().address != adr.address || !net.len().is_multiple_of(2) {
+                continue;
             }
+            return Ok(Some(
+                net.chunks_exact(2)
+                    .map(|p| u16::from_be_bytes([p[0], p[1]]))
+                    .collect(),
+            ));
         }
-        return Ok(Some(drive));
+        Ok(None)
     }
-    Ok(None)
 }
 
-/// Whether a slave asked for r0018 (a double word) through `layout` answers with a double
-/// word (AK 2), which a 3-word channel cannot carry.
-fn answers_a_dword(probe: &mut Probe, address: Address, layout: Layout) -> Result<bool, Failure> {
-    let task = [0x1000 | 18, 0, 0];
-    let answer = probe.exchange(Adr::to(address), &task, &SAFE_PZD[..layout.pzd.get()])?;
-    Ok(answer
-        .and_then(|b| {
-            uss_client::uss_protocol::Telegram::parse(&b)
-                .ok()
-                .map(|t| t.net().first().copied())
-        })
-        .flatten()
-        .is_some_and(|pke_high| pke_high >> 4 == 2))
+/// A read of `pnu` (element `index`) as a request of `words` PKW words.
+fn read_task(pnu: u16, index: Option<u8>, words: usize) -> Vec<u16> {
+    let task = ParamTask::read(
+        Pnu::from_u16(pnu),
+        index.and_then(|i| Subindex::new(i).ok()),
+    );
+    let mode = if words == 3 {
+        PkwMode::Three
+    } else {
+        PkwMode::Four
+    };
+    let mut out = [0u16; MAX_PKW_WORDS];
+    let n = task.encode(mode, &mut out).unwrap_or(0);
+    out[..n].to_vec()
+}
+
+/// The PKW words of a request of `length` words that reads `pnu`: a 4-word channel where
+/// one fits, a 3-word one for 3 words, none below; the rest are PZD (OFF1).
+fn probe_task(length: usize, pnu: u16) -> Vec<u16> {
+    match length {
+        0..=2 => Vec::new(),
+        3 => read_task(pnu, None, 3),
+        _ => read_task(pnu, None, 4),
+    }
+}
+
+/// A request in `layout`'s own shape that reads `pnu` (none without a channel), and its PZD
+/// length: what the slave takes as meant for it, OFF1 in its STW1.
+fn own_request(mode: PkwMode, pzd: usize, pnu: u16) -> (Vec<u16>, usize) {
+    let pkw = match mode {
+        PkwMode::None => Vec::new(),
+        PkwMode::Three => read_task(pnu, None, 3),
+        PkwMode::Four | PkwMode::Variable => read_task(pnu, None, 4),
+    };
+    (pkw, pzd)
+}
+
+/// What a reply says about the slave's layout, for a request of `length` words whose PKW
+/// channel (4 words, or 3 for a request of 3) read `pnu`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Seen {
+    /// A layout: its PKW mode and PZD length.
+    Layout(PkwMode, usize),
+    /// A 3-word channel at this length: a fixed one, or a variable one whose PZD length is one
+    /// more than the request's (which then answers a request one word longer too).
+    ThreeWords(usize),
+    /// The reply does not tell (a status word that looks like a parameter answer, a length no
+    /// layout gives).
+    Unclear,
+}
+
+/// Whether `pke` (a reply's first word) answers a read of `pnu`: the same PNU (its low 11
+/// bits) with a reply ID a read gets (1, 2, 4, 5, 6, error 7, no rights 8; "not yet" 0).
+fn answers(pke: u16, pnu: u16) -> bool {
+    pke & 0x07FF == pnu && matches!(pke >> 12, 0..=2 | 4..=8)
+}
+
+/// What a reply of `reply` words to a request of `length` words (PKW channel first, reading
+/// `pnu`) says about the slave's layout.
+fn seen(reply: &[u16], length: usize, pnu: u16) -> Seen {
+    let pkw_request = probe_task(length, pnu).len();
+    let answered = reply.first().is_some_and(|&w| answers(w, pnu));
+    if !answered {
+        // No parameter answer in front: the slave has no channel, all its words are PZD.
+        return if reply.len() == length && length <= 16 {
+            Seen::Layout(PkwMode::None, length)
+        } else {
+            Seen::Unclear
+        };
+    }
+    match (pkw_request, reply.len()) {
+        // A 4-word request answered with one word less: the variable length (P2013 = 127).
+        (4, n) if n + 1 == length => Seen::Layout(PkwMode::Variable, length - 4),
+        // Its own length. A 4-word channel sends a word value in its 4th word (the 3rd is 0);
+        // a 3-word channel sends it in its 3rd word, and its status word ZSW1 (bits in the
+        // high byte) follows. A value 0 with a small word after it is a 4-word channel.
+        (4, n) if n == length => {
+            if reply[2] == 0 && reply[3] < 0x0100 {
+                Seen::Layout(PkwMode::Four, length - 4)
+            } else {
+                Seen::ThreeWords(length - 3)
+            }
+        }
+        (3, 3) => Seen::Layout(PkwMode::Three, 0),
+        _ => Seen::Unclear,
+    }
+}
+
+/// The request length a slave answers, its first reply there, and what that reply says of
+/// its layout (a 3-word channel told fixed or variable by a request one word longer).
+fn find_length(probe: &mut Probe, adr: Adr) -> Result<Option<(usize, Vec<u16>, Seen)>, Failure> {
+    let mut found = None;
+    for length in lengths() {
+        let pkw = probe_task(length, PROBE_PNU);
+        let pzd = length - pkw.len();
+        if let Some(reply) = probe.ask(adr, &pkw, &SAFE_PZD[..pzd])? {
+            found = Some((length, reply));
+            break;
+        }
+    }
+    let Some((length, first)) = found else {
+        return Ok(None);
+    };
+    let mut layout = seen(&first, length, PROBE_PNU);
+    // A 3-word channel: a variable one answers a 4-word request one word longer too. Asked
+    // again even when that length was silent before: its replies may have been lost then.
+    if let Seen::ThreeWords(pzd) = layout {
+        let variable = length < 20 && {
+            let pkw = read_task(PROBE_PNU, None, 4);
+            probe.ask(adr, &pkw, &SAFE_PZD[..pzd])?.is_some_and(|r| {
+                r.len() == length && r.first().is_some_and(|&w| answers(w, PROBE_PNU))
+            })
+        };
+        let mode = if variable {
+            PkwMode::Variable
+        } else {
+            PkwMode::Three
+        };
+        layout = Seen::Layout(mode, pzd);
+    }
+    Ok(Some((length, first, layout)))
+}
+
+/// A slave that answered the mirror telegram: its layout and family, as sure as the answers
+/// make them.
+fn identify(probe: &mut Probe, address: Address) -> Result<ScannedDrive, Failure> {
+    let baud = probe.timing.baud().get();
+    let adr = Adr::to(address);
+    let mut drive = ScannedDrive {
+        baud,
+        address: address.get(),
+        pkw: "unknown".into(),
+        pzd: 0,
+        zsw1: None,
+        firmware: None,
+        family: None,
+        unsure: None,
+    };
+    let Some((length, first, layout)) = find_length(probe, adr)? else {
+        drive.unsure = Some(format!(
+            "it answered the mirror telegram but no request of 1 to 20 words ({} tries each)",
+            probe.tries
+        ));
+        return Ok(drive);
+    };
+    let mut unsure = Vec::new();
+    let Seen::Layout(mode, pzd_words) = layout else {
+        drive.unsure = Some(format!(
+            "it answered requests of {length} words, but its reply does not tell the layout"
+        ));
+        return Ok(drive);
+    };
+    // A second reply, to another task, must say the same: in the layout's own shape (OFF1 in
+    // the slave's STW1), and its status word is the drive's. Without a channel, the task goes
+    // in front as before, and must again not be answered; then OFF1 in its own shape.
+    let (pkw, pzd) = if mode == PkwMode::None {
+        (
+            probe_task(length, CONFIRM_PNU),
+            length - probe_task(length, 0).len(),
+        )
+    } else {
+        own_request(mode, pzd_words, CONFIRM_PNU)
+    };
+    let mut second = probe.ask(adr, &pkw, &SAFE_PZD[..pzd])?;
+    let confirmed = second.as_deref().map(|r| {
+        let answered = r.first().is_some_and(|&w| answers(w, CONFIRM_PNU));
+        match mode {
+            PkwMode::None => r.len() == pzd_words && !answered,
+            PkwMode::Four => answered && r.len() == 4 + pzd_words && r[2] == 0,
+            PkwMode::Three | PkwMode::Variable => answered && r.len() == 3 + pzd_words,
+        }
+    });
+    match confirmed {
+        Some(true) => {}
+        Some(false) => unsure.push("a second reply told another layout".to_owned()),
+        None => unsure.push("the layout was seen in one reply only".to_owned()),
+    }
+    if mode == PkwMode::None && confirmed == Some(true) {
+        second = probe
+            .ask(adr, &[], &SAFE_PZD[..pzd_words])?
+            .filter(|r| r.len() == pzd_words);
+    }
+    let reply_pkw = |r: &[u16]| r.len().saturating_sub(pzd_words);
+    drive.pkw = match mode {
+        PkwMode::Variable => "variable (127)".to_owned(),
+        m => m.p2013().to_string(),
+    };
+    drive.pzd = pzd_words;
+    if pzd_words > 0 {
+        drive.zsw1 = match &second {
+            Some(r) if confirmed == Some(true) => r.get(reply_pkw(r)).copied(),
+            _ => None,
+        };
+        if drive.zsw1.is_none() {
+            unsure.push("ZSW1 from a reply not confirmed".to_owned());
+            drive.zsw1 = first.get(first.len().saturating_sub(pzd_words)).copied();
+        }
+    }
+    if matches!(mode, PkwMode::Four | PkwMode::Variable)
+        && let Ok(count) = PzdCount::new(pzd_words)
+    {
+        let layout = Layout::new(mode, count);
+        family(probe, address, layout, &mut drive, &mut unsure)?;
+    }
+    if !unsure.is_empty() {
+        drive.unsure = Some(unsure.join("; "));
+    }
+    Ok(drive)
+}
+
+/// The family where the answers tell it: a SINAMICS drive (G120) answers the PROFIdrive
+/// device identification r0964[0] with 42 (Siemens), its r0964[2] the firmware (470 = 4.70); a
+/// MICROMASTER 4 or G110 has no r0964 but r0018, its firmware as a float. A value that is no
+/// firmware version, or a question not answered, leaves the family open and says so.
+fn family(
+    probe: &mut Probe,
+    address: Address,
+    layout: Layout,
+    drive: &mut ScannedDrive,
+    unsure: &mut Vec<String>,
+) -> Result<(), Failure> {
+    match read_value(probe, address, layout, R0964, Some(0))? {
+        Read::Value(v) if v.as_u32() == PROFIDRIVE_SIEMENS => {
+            drive.family = Some("g120");
+            match read_value(probe, address, layout, R0964, Some(2))? {
+                Read::Value(v) if (100..=9999).contains(&v.as_u32()) => {
+                    drive.firmware = Some(f64::from(v.as_u32()) / 100.0);
+                }
+                Read::Value(v) => unsure.push(format!(
+                    "r0964[2] = {} is not a firmware version",
+                    v.as_u32()
+                )),
+                Read::Refused => unsure.push("r0964[2] was refused".to_owned()),
+                Read::Silent => unsure.push("r0964[2] was not answered".to_owned()),
+            }
+        }
+        // Another manufacturer's device identification: not a family uss-rt names.
+        Read::Value(_) => {}
+        Read::Silent => unsure.push("r0964 was not answered: the family is open".to_owned()),
+        Read::Refused => match read_value(probe, address, layout, 18, None)? {
+            Read::Value(v) => {
+                let f = v.as_f32();
+                if f.is_finite() && (0.01..100.0).contains(&f) {
+                    drive.firmware = Some(firmware_version(f));
+                    drive.family = Some("micromaster4");
+                } else {
+                    unsure.push(format!(
+                        "r0018 = {:#010X} is not a firmware version: the family is open",
+                        v.as_u32()
+                    ));
+                }
+            }
+            // A slave without r0018 (SIMOREG, others): left for the user to name.
+            Read::Refused => {}
+            Read::Silent => unsure.push("r0018 was not answered: the family is open".to_owned()),
+        },
+    }
+    Ok(())
 }
 
 /// The PROFIdrive device identification (SINAMICS): element 0 the manufacturer, 2 the firmware
@@ -195,33 +388,50 @@ const R0964: u16 = 964;
 /// r0964[0] of a Siemens device.
 const PROFIDRIVE_SIEMENS: u32 = 42;
 
-/// A read task's value over the drive's own layout, repeated while it answers "not yet";
-/// `None` when the drive refuses it (it does not have the parameter) or does not answer.
+/// What a read got.
+enum Read {
+    Value(Value),
+    /// The drive refused it (it does not have the parameter).
+    Refused,
+    /// No answer to it within the tries.
+    Silent,
+}
+
+/// A read of `pnu` (element `index`) over the drive's own layout, asked again while it answers
+/// "not yet" or with a reply to another task.
 fn read_value(
     probe: &mut Probe,
     address: Address,
     layout: Layout,
-    task: [u16; 4],
-) -> Result<Option<Value>, Failure> {
+    pnu: u16,
+    index: Option<u8>,
+) -> Result<Read, Failure> {
+    let task = ParamTask::read(
+        Pnu::from_u16(pnu),
+        index.and_then(|i| Subindex::new(i).ok()),
+    );
+    let words = read_task(pnu, index, 4);
+    let pkw = &words[..layout.pkw.request_words().min(words.len())];
     for _ in 0..5 {
-        let pkw = &task[..layout.pkw.request_words()];
-        let Some(bytes) = probe.exchange(Adr::to(address), pkw, &SAFE_PZD[..layout.pzd.get()])?
-        else {
-            return Ok(None);
+        let Some(reply) = probe.ask(Adr::to(address), pkw, &SAFE_PZD[..layout.pzd.get()])? else {
+            return Ok(Read::Silent);
         };
-        let words = uss_client::uss_protocol::Telegram::parse(&bytes)
-            .ok()
-            .and_then(|t| t.words(layout).ok());
-        let Some(words) = words else {
-            return Ok(None);
-        };
-        match ParamReply::decode(words.pkw()).map(|r| r.kind) {
-            Ok(ReplyKind::NotYet) => {}
-            Ok(kind) => return Ok(kind.value()),
-            Err(_) => return Ok(None),
+        let pkw_len = reply.len().saturating_sub(layout.pzd.get());
+        if !layout.pkw.accepts_reply_words(pkw_len) {
+            continue;
         }
+        let Ok(answer) = ParamReply::decode(&reply[..pkw_len]) else {
+            continue;
+        };
+        if !answer.answers(&task) {
+            continue;
+        }
+        return Ok(match answer.kind {
+            ReplyKind::Error(_) | ReplyKind::NoChangeRights => Read::Refused,
+            kind => kind.value().map_or(Read::Refused, Read::Value),
+        });
     }
-    Ok(None)
+    Ok(Read::Silent)
 }
 
 /// Whether `path` is a character device.
@@ -235,13 +445,15 @@ pub(crate) struct Scan<'a> {
     pub device: &'a Path,
     pub bauds: Vec<Baud>,
     pub addresses: Vec<Address>,
+    /// How often a question is asked before silence counts as the answer (`--tries`).
+    pub tries: u32,
 }
 
 /// `scan DEVICE [--baud LIST|all] [--addresses FROM-TO]`.
 pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
     catch_signals()?;
     let start = Instant::now();
-    let mut report = ScanReport::new(s.device, &s.bauds, s.addresses.len());
+    let mut report = ScanReport::new(s.device, &s.bauds, s.addresses.len(), s.tries);
     let bar = ProgressBar::new((s.bauds.len() * s.addresses.len()) as u64);
     'bauds: for &baud in &s.bauds {
         let options = SerialOptions {
@@ -264,11 +476,20 @@ pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
                 e => e.to_string(),
             })
         })?;
+        if report.drives.is_empty() && baud == s.bauds[0] {
+            // Said before the first probe: a drive that runs under USS control here stops.
+            eprintln!(
+                "ussctl: every probe carries OFF1 (STW1 0x047E, setpoint 0): a drive on {} that \
+                 runs under USS control ramps down and stays off",
+                s.device.display()
+            );
+        }
         let mut probe = Probe {
             line,
             clock: MonotonicClock::new(),
             timing: Timing::new(baud),
             free_at: Duration::ZERO,
+            tries: s.tries,
         };
         for &address in &s.addresses {
             if stopped() {
@@ -280,26 +501,10 @@ pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
                 mirror: true,
                 ..Adr::to(address)
             };
-            let Some(echo) = probe.exchange(mirror, &[], &SAFE_PZD[..2])? else {
-                continue;
-            };
-            let answered = uss_client::uss_protocol::Telegram::parse(&echo)
-                .is_ok_and(|t| t.adr().address == address);
-            if !answered {
+            if probe.ask(mirror, &[], &SAFE_PZD[..2])?.is_none() {
                 continue;
             }
-            match identify(&mut probe, address)? {
-                Some(drive) => report.drives.push(drive),
-                None => report.drives.push(ScannedDrive {
-                    baud: baud.get(),
-                    address: address.get(),
-                    pkw: "unknown".into(),
-                    pzd: 0,
-                    zsw1: None,
-                    firmware: None,
-                    family: None,
-                }),
-            }
+            report.drives.push(identify(&mut probe, address)?);
         }
     }
     bar.finish_and_clear();

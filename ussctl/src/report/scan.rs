@@ -20,6 +20,10 @@ pub struct ScannedDrive {
     /// identification r0964[0] is 42 (Siemens, PROFIdrive) is `g120`; one that has r0018 as a
     /// float (the MICROMASTER 4 firmware) is `micromaster4` (a G110 answers the same: `g110`).
     pub family: Option<&'static str>,
+    /// Why the line may not be right (null: every part of it was confirmed: the layout by two
+    /// replies to different tasks, the family by its identification): a layout seen in one
+    /// reply only, a question not answered, a value that is no firmware version.
+    pub unsure: Option<String>,
 }
 
 /// `scan`.
@@ -28,6 +32,8 @@ pub struct ScanReport {
     pub device: String,
     pub bauds: Vec<u32>,
     pub addresses: usize,
+    /// How often each question was asked before silence counted as its answer.
+    pub tries: u32,
     pub drives: Vec<ScannedDrive>,
     /// Ctrl-C ended it early.
     pub cut_short: bool,
@@ -39,11 +45,13 @@ impl ScanReport {
         device: &std::path::Path,
         bauds: &[uss_client::uss_protocol::Baud],
         addresses: usize,
+        tries: u32,
     ) -> Self {
         Self {
             device: device.display().to_string(),
             bauds: bauds.iter().map(|b| b.get()).collect(),
             addresses,
+            tries,
             drives: Vec::new(),
             cut_short: false,
             seconds: 0.0,
@@ -73,18 +81,22 @@ impl ScanReport {
                 }
                 None => {}
             }
+            if let Some(why) = &d.unsure {
+                let _ = write!(out, "; UNSURE: {why}");
+            }
             out.push('\n');
         }
         let plural =
             |n: usize, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
         let _ = writeln!(
             out,
-            "{}: {} found, {} x {} in {:.2} s{}",
+            "{}: {} found, {} x {} in {:.2} s, each question asked up to {} times{}",
             self.device,
             plural(self.drives.len(), "drive", "drives"),
             plural(self.addresses, "address", "addresses"),
             plural(self.bauds.len(), "baud rate", "baud rates"),
             self.seconds,
+            self.tries,
             if self.cut_short {
                 " (cut short by Ctrl-C)"
             } else {
