@@ -92,6 +92,15 @@ fn text_becomes_the_parameters_own_type_or_is_refused_before_the_bus() {
         Ok(Value::from_f32(10.0))
     );
     assert!(DataType::Float.parse("0x7F800000").is_err());
+    // Too small for a float: the drive would hold 0, so it is refused like too large.
+    assert_eq!(
+        DataType::Float.parse("1e-50").unwrap_err().to_string(),
+        "1e-50 does not fit Float (a single-precision number: 0, or 1.4e-45 to 3.4e38 in size)"
+    );
+    assert!(DataType::Float.parse("-1e-50").is_err());
+    assert!(DataType::Float.parse("1e40").is_err());
+    assert_eq!(DataType::Float.parse("1e-45"), Ok(Value::Dword(1)));
+    assert_eq!(DataType::Float.parse("0e-50"), Ok(Value::Dword(0)));
     assert_eq!(DataType::Float.parse("-0.0"), Ok(Value::Dword(0x8000_0000)));
 }
 

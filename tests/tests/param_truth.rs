@@ -154,8 +154,9 @@ fn a_write_that_reached_the_drive_is_reported_as_may_be_applied() {
         .finish();
     println!("param_truth: a slow EEPROM write: {status}\n{out}{err}");
     assert!(
-        err.contains("may have been applied") && err.contains("ussctl param read 1 P1120"),
-        "the result says the value may be applied and how to check: {out}{err}"
+        err.contains("may have been applied")
+            && err.contains(&format!("`ussctl --bus {} param read 1 P1120`", ussd.bus)),
+        "the result says the value may be applied and how to check (on its bus): {out}{err}"
     );
     let (_, out, _) = ussd.ussctl(&["param", "read", "1", "P1120"]).finish();
     assert!(out.contains("P1120 = 7.50 s"), "the drive holds it: {out}");
@@ -479,17 +480,114 @@ fn values_are_shown_and_taken_as_they_are() {
     let (code, out, _) = run(&["param", "diff", "1", &path]);
     assert_eq!(code, Some(0), "no differences: {out}");
     // 6. Another family's drive or backup is not compared value by value.
+    // A refusal is not a difference: like diff(1), 2 for trouble.
     let (code, out, err) = run(&["param", "diff", "2", &path]);
-    assert_eq!(code, Some(1), "{out}{err}");
+    assert_eq!(code, Some(2), "{out}{err}");
     assert!(
         err.contains("values of another family are neither restored nor compared"),
         "{err}"
     );
     let (code, out, err) = run(&["param", "diff", "1", "2"]);
-    assert_eq!(code, Some(1), "{out}{err}");
+    assert_eq!(code, Some(2), "{out}{err}");
     assert!(
         err.contains("micromaster4") && err.contains("g120"),
         "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A restore hung up (SIGHUP: an ssh session or terminal closed) puts back what it raised like
+/// any other ending, and says which signal cut it; a second Ctrl-C, even one that came while a
+/// write was waiting for an offline drive, leaves at once and names what is left raised.
+#[test]
+fn a_restore_hung_up_or_interrupted_twice_puts_back_or_names_what_it_raised() {
+    // Every parameter task is answered after 10 "busy" replies; a silent drive goes offline
+    // only after 50 failed polls (so a write waits for it a while).
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "1:busy=10"]);
+    let sim_pid = Pid::from_raw(i32::try_from(sim.child.id()).unwrap());
+    let ussd = Ussd::start_on(&sim.path, "baud = 115200\noffline_after = 50", &[(1, "")]);
+    let dir = std::env::temp_dir().join(format!("uss-hup-{}", ussd.bus));
+    let path = changed_since_backup(&ussd, &dir);
+
+    // 1. SIGHUP.
+    let mut restore = restore_until_raised(&ussd, &path, &[]);
+    kill(Pid::from_raw(restore.pid() as i32), Signal::SIGHUP).unwrap();
+    let (status, out, err) = restore.finish();
+    println!("param_truth: a restore hung up: {status}\n{out}{err}");
+    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
+    assert!(out.contains("cut short: SIGHUP; not written: "), "{out}");
+    assert_eq!(
+        raised_now(&ussd),
+        (Ok(Value::Word(0)), Ok(Value::Word(1))),
+        "{out}"
+    );
+    assert!(
+        out.contains("P0010      1 -> 0: put back after SIGHUP")
+            && out.contains("P0003      3 -> 1: put back after SIGHUP"),
+        "{out}"
+    );
+
+    // 2. The drive stops answering; Ctrl-C twice while the write waits for it.
+    let (status, _, err) = changed_since_restore(&ussd);
+    assert!(status.success(), "{err}");
+    let mut restore = restore_until_raised(&ussd, &path, &[]);
+    let ussctl = Pid::from_raw(restore.pid() as i32);
+    kill(sim_pid, Signal::SIGSTOP).unwrap();
+    std::thread::sleep(Duration::from_millis(100));
+    kill(ussctl, Signal::SIGINT).unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    kill(ussctl, Signal::SIGINT).unwrap();
+    let (status, out, err) = restore.finish();
+    kill(sim_pid, Signal::SIGCONT).unwrap();
+    println!("param_truth: a restore interrupted twice: {status}\n{out}{err}");
+    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
+    assert!(out.contains("cut short: Ctrl-C"), "{out}");
+    assert!(
+        out.contains("P0010      1 -> 0: LEFT RAISED: ")
+            && out.contains("(a second Ctrl-C: not waited for)")
+            && out.contains("left raised: P0010 = 1: the drive stays in quick commissioning"),
+        "{out}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A restore whose every write goes unanswered (an EEPROM busy past the parameter timeout) does
+/// not end silent about quick commissioning: the report says where P0010 and P0003 stand (put
+/// back, checked by reading them) or names them as left raised.
+#[test]
+fn a_restore_whose_writes_go_unanswered_says_where_it_left_the_drive() {
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "1"]);
+    let ussd = Ussd::start_on(&sim.path, "baud = 115200", &[(1, "")]);
+    let dir = std::env::temp_dir().join(format!("uss-unanswered-{}", ussd.bus));
+    let path = changed_since_backup(&ussd, &dir);
+    drop(ussd);
+    drop(sim);
+    // The same drive's settings, now behind an EEPROM that answers "busy" for 500 telegrams.
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "1:eeprom-busy=500"]);
+    let ussd = Ussd::start_on(
+        &sim.path,
+        "baud = 115200\nparam_timeout_ms = 50",
+        &[(1, "")],
+    );
+    let _ = changed_since_backup(&ussd, &dir.join("again"));
+    let (status, out, err) = ussd
+        .ussctl(&["param", "restore", "1", &path, "--unsafe", "--eeprom"])
+        .finish();
+    println!("param_truth: a restore whose writes go unanswered: {status}\n{out}{err}");
+    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
+    assert!(
+        out.contains(": unknown: the write may have been applied"),
+        "{out}"
+    );
+    assert_eq!(
+        raised_now(&ussd),
+        (Ok(Value::Word(0)), Ok(Value::Word(1))),
+        "{out}"
+    );
+    assert!(
+        out.contains("P0010      1 -> 0: put back (read back) after an unanswered write")
+            && out.contains("P0003      3 -> 1: put back (read back) after an unanswered write"),
+        "{out}"
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

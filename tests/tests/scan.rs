@@ -226,3 +226,21 @@ fn a_scan_through_lost_replies_is_right_or_says_it_is_unsure() {
     );
     assert_eq!(total[2], 0, "lines wrong and not marked unsure");
 }
+
+/// A drive whose every reply has a bad BCC answered: it is not reported as absent, but as a
+/// line that says what was heard.
+#[test]
+fn a_drive_heard_only_garbled_is_an_unsure_line_not_an_empty_address() {
+    let sim = SimProcess::start(&["--baud", "19200", "--drive", "5:bcc=1.0"]);
+    let (code, said, err) = ussctl(&["scan", &sim.path, "--baud", "19200", "--addresses", "4-6"]);
+    assert_eq!(code, Some(0), "{err}");
+    let line = said
+        .lines()
+        .find(|l| l.starts_with(" 19200 baud  drive  5: "))
+        .unwrap_or_else(|| panic!("drive 5 missing: {said}"));
+    assert!(
+        line.contains("; UNSURE: something answered at this address, but never intact"),
+        "{said}"
+    );
+    assert!(said.contains(": 1 drive found"), "{said}");
+}

@@ -393,6 +393,24 @@ mod tests {
         assert_eq!(m.current_words(), Some(words(&job(2, 1000)).words()));
     }
 
+    /// A drive that never answers the separator in front of a task: the job still ends with a
+    /// timeout within the limit, its task never sent (not done).
+    #[test]
+    fn a_job_behind_unanswered_separators_times_out_unsent() {
+        let mut m = Mailbox::new(4);
+        m.push(job(1, 700), words(&job(1, 700))).unwrap();
+        let ms = Duration::from_millis;
+        for t in 1..=5 {
+            assert_eq!(telegram(&mut m, ms(t * 10), false), Outgoing::Separator);
+            assert!(m.expire(ms(100), ms(t * 10)).is_none(), "not yet at {t}");
+        }
+        let r = m.expire(ms(100), ms(111)).unwrap();
+        assert_eq!(
+            (r.job.id, r.outcome, r.telegrams),
+            (1, Err(PathError::Timeout), 0)
+        );
+    }
+
     #[test]
     fn cancel_takes_out_what_has_not_gone_out_and_keeps_the_job_on_the_wire() {
         let mut m = known_idle(8);
