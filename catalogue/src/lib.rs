@@ -83,7 +83,7 @@ const fn range(t: DataType) -> &'static str {
         DataType::I32 => "-2147483648..=2147483647",
         DataType::U16 => "0..=65535",
         DataType::U32 => "0..=4294967295",
-        DataType::Float => "a finite single-precision number",
+        DataType::Float => "a single-precision number: 0, or 1.4e-45 to 3.4e38 in size",
     }
 }
 
@@ -121,7 +121,10 @@ impl Values for DataType {
         }
         if self == Self::Float {
             let f: f32 = t.parse().map_err(|_| not_a_number())?;
-            return if f.is_finite() {
+            // Too large is infinite; too small is 0 although the text is not: neither is what
+            // was written.
+            let lost = f == 0.0 && t.parse::<f64>().is_ok_and(|x| x != 0.0);
+            return if f.is_finite() && !lost {
                 Ok(Value::from_f32(f))
             } else {
                 Err(out_of_range())

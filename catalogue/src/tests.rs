@@ -95,7 +95,7 @@ fn text_becomes_the_parameters_own_type_or_is_refused_before_the_bus() {
     // Too small for a float: the drive would hold 0, so it is refused like too large.
     assert_eq!(
         DataType::Float.parse("1e-50").unwrap_err().to_string(),
-        "1e-50 does not fit Float (a single-precision number: 0, or 1.4e-45 to 3.4e38 in size)"
+        "1e-50 does not fit float (a single-precision number: 0, or 1.4e-45 to 3.4e38 in size)"
     );
     assert!(DataType::Float.parse("-1e-50").is_err());
     assert!(DataType::Float.parse("1e40").is_err());

@@ -267,8 +267,8 @@ def test_writes_convert_to_the_parameters_type_and_refuse_what_does_not_fit(bus)
     # parameter would hold 0), as the same text is.
     held = uss_rt.write(bus, 2, "P1120", -0.0)
     assert (held.raw, repr(held)) == (0x80000000, "P1120 = -0.00 s")
-    assert uss_rt.write(bus, 2, "P0927", 3.0, unsafe=True).value == 3
-    with pytest.raises(ValueError, match="does not fit Float"):
+    assert uss_rt.write(bus, 2, "P0700", 5.0, unsafe=True).value == 5
+    with pytest.raises(ValueError, match="does not fit float"):
         uss_rt.write(bus, 2, "P1120", 1e-50)
     uss_rt.write(bus, 2, "P1120", 3)
     assert uss_rt.drive.fault_text(72) == "USS (COM link) setpoint fault"

@@ -75,10 +75,9 @@ def _value_text(value) -> str:
     """A number or text as the text the parameter's type is parsed from."""
     if isinstance(value, bool):
         raise ValueError(f"{value} is not a number")
-    if isinstance(value, float) and value.is_integer():
-        # 3.0 fits an integer parameter as 3 does; a float parameter reads "3" as 3.0.
-        return str(int(value))
     if isinstance(value, float):
+        # The shortest text that reads back as this float: -0.0 keeps its sign, 3.0 is taken
+        # by an integer parameter as 3 (the parsing is uss_client's, as for every front-end).
         return repr(value)
     return str(value)
 

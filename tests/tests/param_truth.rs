@@ -229,7 +229,8 @@ fn a_write_that_reached_the_drive_is_reported_as_may_be_applied() {
         .finish();
     println!("param_truth: an EEPROM write cut by an unplug: {status}\n{out}{err}");
     assert!(
-        err.contains("may have been applied") && err.contains("ussctl param read 1 P1121"),
+        err.contains("may have been applied")
+            && err.contains(&format!("`ussctl --bus {} param read 1 P1121`", ussd.bus)),
         "{out}{err}"
     );
     let bus = ussd.bus();

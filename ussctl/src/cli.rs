@@ -6,6 +6,16 @@ use uss_client::{Address, Value};
 /// The bus `--bus` names when it is not given.
 pub const DEFAULT_BUS: &str = "bus0";
 
+/// The ussctl command line that runs `rest` on `bus`, for a message: `ussctl param read 1
+/// P1120`, with `--bus NAME` when it is not the default one.
+pub fn command_line(bus: &str, rest: &str) -> String {
+    if bus == DEFAULT_BUS {
+        format!("ussctl {rest}")
+    } else {
+        format!("ussctl --bus {bus} {rest}")
+    }
+}
+
 #[derive(Debug, Parser)]
 #[command(
     name = "ussctl",
@@ -284,7 +294,9 @@ pub enum ParamCommand {
         #[arg(long, value_name = "DURATION", default_value = "30s", value_parser = duration)]
         put_back_within: core::time::Duration,
     },
-    /// Compare a drive's settings with a backup file, or with another drive (an address).
+    /// Compare a drive's settings with a backup file, or with another drive (an address) of
+    /// the same family. Exits 0 when they are the same, 1 when they differ, 2 when they cannot
+    /// be compared (as diff(1)).
     Diff {
         /// The drive's address on the bus, 0..=31.
         #[arg(value_parser = address)]

@@ -21,11 +21,13 @@ pub(crate) enum Failure {
     },
     /// A write whose task reached the drive but whose answer did not come back: the value
     /// may be applied; says how to check.
-    #[error("drive {drive} {param}: {source}: `ussctl param read {drive} {param}`")]
+    #[error("drive {drive} {param}: {source}: `{check}`")]
     MaybeApplied {
         drive: Address,
         param: String,
-        source: ParamError,
+        source: Box<ParamError>,
+        /// The command that reads it back (on its bus).
+        check: String,
     },
     /// A value that does not fit the parameter, refused before the bus.
     #[error("drive {drive} {source}")]

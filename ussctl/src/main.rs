@@ -19,29 +19,57 @@ use core::time::Duration;
 use serde::Serialize;
 use std::io::Write as _;
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, LazyLock};
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicI32, AtomicUsize, Ordering};
 use uss_client::{Bus, StopCommand};
 
-/// Set by SIGINT/SIGTERM once [`catch_signals`] ran.
-static STOP: LazyLock<Arc<AtomicBool>> = LazyLock::new(|| Arc::new(AtomicBool::new(false)));
+/// SIGINT, SIGTERM and SIGHUP (a closed terminal or ssh session) received once
+/// [`catch_signals`] ran, and the last of them.
+static SIGNALS: AtomicUsize = AtomicUsize::new(0);
+static LAST_SIGNAL: AtomicI32 = AtomicI32::new(0);
 
-/// `watch` and `run` end cleanly on SIGINT/SIGTERM (`run` stops the drive first).
+/// `watch`, `run`, `restore`, ... end cleanly on SIGINT, SIGTERM or SIGHUP (`run` stops the
+/// drive first, `restore` puts back what it raised): a thread counts them.
 pub(crate) fn catch_signals() -> Result<(), Failure> {
-    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(signal, Arc::clone(&STOP))
-            .map_err(|source| Failure::Signal { signal, source })?;
-    }
-    Ok(())
+    static CAUGHT: OnceLock<Result<(), String>> = OnceLock::new();
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let caught = CAUGHT.get_or_init(|| {
+        let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP])
+            .map_err(|e| e.to_string())?;
+        std::thread::Builder::new()
+            .name("signals".into())
+            .spawn(move || {
+                for signal in signals.forever() {
+                    LAST_SIGNAL.store(signal, Ordering::Relaxed);
+                    SIGNALS.fetch_add(1, Ordering::Relaxed);
+                }
+            })
+            .map(drop)
+            .map_err(|e| e.to_string())
+    });
+    caught.clone().map_err(|e| Failure::Signal {
+        signal: SIGINT,
+        source: std::io::Error::other(e),
+    })
 }
 
+/// Whether a SIGINT, SIGTERM or SIGHUP came.
 pub(crate) fn stopped() -> bool {
-    STOP.load(Ordering::Relaxed)
+    signals() > 0
 }
 
-/// Takes a SIGINT/SIGTERM as seen: [`stopped`] says whether another one comes after.
-pub(crate) fn take_stop() -> bool {
-    STOP.swap(false, Ordering::Relaxed)
+/// How many SIGINT, SIGTERM and SIGHUP came.
+pub(crate) fn signals() -> usize {
+    SIGNALS.load(Ordering::Relaxed)
+}
+
+/// The last signal that came, as a report names it: "Ctrl-C", "SIGTERM", "SIGHUP".
+pub(crate) fn signal_name() -> &'static str {
+    match LAST_SIGNAL.load(Ordering::Relaxed) {
+        signal_hook::consts::SIGTERM => "SIGTERM",
+        signal_hook::consts::SIGHUP => "SIGHUP",
+        _ => "Ctrl-C",
+    }
 }
 
 pub(crate) use failure::Failure;
@@ -55,7 +83,13 @@ fn main() -> ExitCode {
         Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("ussctl: {e}");
-            ExitCode::FAILURE
+            // `param diff`, like diff(1): 1 for differences, 2 for trouble.
+            let diff = matches!(&cli.command, Command::Param(ParamCommand::Diff { .. }));
+            if diff && !matches!(e, Failure::Differ { .. }) {
+                ExitCode::from(2)
+            } else {
+                ExitCode::FAILURE
+            }
         }
     }
 }

@@ -75,6 +75,10 @@ struct Active {
     job: Job,
     pkw: Encoded,
     requester: Requester,
+    /// When the master began on it at the front: its first separator or, without one, its
+    /// first telegram. The parameter timeout counts from here, so a drive that never answers
+    /// a separator ends the job too.
+    started: Option<Duration>,
     first_sent: Option<Duration>,
     telegrams: u32,
 }
@@ -156,7 +160,8 @@ impl Mailbox {
         self.in_flight = Some((encoded, task));
         if task {
             self.sent(now);
-        } else if !self.queue.is_empty() {
+        } else if let Some(front) = self.queue.front_mut() {
+            front.started.get_or_insert(now);
             self.separators += 1;
         }
     }
@@ -195,6 +200,7 @@ impl Mailbox {
             job,
             pkw,
             requester,
+            started: None,
             first_sent: None,
             telegrams: 0,
         });
@@ -242,6 +248,7 @@ impl Mailbox {
     /// Records that the current task went out at `now`.
     fn sent(&mut self, now: Duration) {
         if let Some(a) = self.queue.front_mut() {
+            a.started.get_or_insert(now);
             a.first_sent.get_or_insert(now);
             a.telegrams += 1;
         }
@@ -258,9 +265,10 @@ impl Mailbox {
         self.finish(Ok(Answer::of_reply(reply)), now)
     }
 
-    /// Ends the current job with a timeout when it has been on the wire longer than `limit`.
+    /// Ends the current job with a timeout when the master began on it (its separator, or its
+    /// first telegram) longer than `limit` ago.
     pub fn expire(&mut self, limit: Duration, now: Duration) -> Option<JobResult> {
-        let first = self.queue.front()?.first_sent?;
+        let first = self.queue.front()?.started?;
         if now.saturating_sub(first) > limit {
             self.finish(Err(PathError::Timeout), now)
         } else {

@@ -12,7 +12,7 @@
 use super::common::firmware_version;
 use crate::backup::{BackupFile, Entry, Number, Saved, now_utc};
 use crate::report::{DiffLine, DiffReport, RestoreReport};
-use crate::{Failure, Output, catch_signals, stopped, take_stop};
+use crate::{Failure, Output, catch_signals, signal_name, signals, stopped};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -340,9 +340,15 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     let options = r.options;
     let steps = order(bus, drive, catalogue, &differing);
     let (took, cut) = write_steps(bus, drive, &steps, options, &mut report)?;
-    if let Some(why) = cut {
-        // The drive is not left in quick commissioning or at a raised access level.
-        let raised: Vec<_> = still_raised(&steps, &took).collect();
+    // However it ended (cut short, or a write back the drive did not confirm), the drive is
+    // not left in quick commissioning or at a raised access level.
+    let raised: Vec<_> = still_raised(&steps, &took).collect();
+    if !raised.is_empty() {
+        let why = cut.unwrap_or(if took.contains(&Took::Maybe) {
+            "an unanswered write"
+        } else {
+            "a refused write"
+        });
         put_back(bus, drive, catalogue, &raised, r, why, &mut report);
     }
     report.seconds = start.elapsed().as_secs_f64();
@@ -370,8 +376,8 @@ fn write_steps(
     let mut cut = None;
     for (i, step) in steps.iter().enumerate() {
         if stopped() {
-            report.cut_short("Ctrl-C", &steps[i..]);
-            cut = Some("Ctrl-C");
+            report.cut_short(signal_name(), &steps[i..]);
+            cut = Some(signal_name());
             break;
         }
         let (param, value) = step.target();
@@ -400,13 +406,19 @@ fn write_steps(
             // next write finds out whether the drive is still there.
             Err(e @ ParamError::MaybeApplied { .. }) => report.unknown(step, &e),
             Err(e) => {
+                // A signal that came while the write waited is why the restore ends.
+                let why = if stopped() {
+                    signal_name().to_owned()
+                } else {
+                    e.to_string()
+                };
                 if e.may_be_applied() {
                     report.unknown(step, &e);
-                    report.cut_short(&e.to_string(), &steps[i + 1..]);
+                    report.cut_short(&why, &steps[i + 1..]);
                 } else {
-                    report.cut_short(&e.to_string(), &steps[i..]);
+                    report.cut_short(&why, &steps[i..]);
                 }
-                cut = Some("the cut");
+                cut = Some(if stopped() { signal_name() } else { "the cut" });
                 break;
             }
         }
@@ -451,9 +463,11 @@ pub(crate) fn still_raised<'a>(
 }
 
 /// Puts back what a restore cut short (by `why`) had `raised`, last raised first: each is
-/// written until the drive takes it or refuses it, or `r.put_back_within` has passed since
-/// the cut (a drive offline or a ussd gone may come back meanwhile), or a second Ctrl-C says
-/// to leave it. The report names what is left raised and the command that puts it back.
+/// written until the drive takes it, or (its answer lost) a read shows the drive holds it, or
+/// the drive refuses it, or `r.put_back_within` has passed since the cut (a drive offline or a
+/// ussd gone may come back meanwhile), or a signal says to leave it (a second one when a
+/// signal cut the restore, even one that came while a write waited). The report names what
+/// is left raised and the command that puts it back.
 fn put_back(
     bus: &Bus,
     drive: Address,
@@ -463,19 +477,32 @@ fn put_back(
     why: &str,
     report: &mut RestoreReport,
 ) {
-    // A Ctrl-C that cut the restore is seen; another one leaves the rest raised.
-    take_stop();
     let deadline = Instant::now() + r.put_back_within;
+    // Signals up to here cut the restore; the next one (at most the second) leaves.
+    let leave_at = (signals() + 1).min(2);
     let mut said = false;
     for &(param, to, was) in raised {
+        let mut read_back = false;
         let result = loop {
             let error = match bus.write_with(drive, param, Value::Word(was), r.options) {
                 Ok(_) => break Ok(()),
-                Err(e @ ParamError::Drive(_)) => break Err(e),
+                Err(e @ ParamError::Drive(_)) => break Err(e.to_string()),
                 Err(e) => e,
             };
-            if stopped() || Instant::now() >= deadline {
-                break Err(error);
+            // The answer lost: what does the drive hold?
+            if bus.read(drive, param) == Ok(Value::Word(was)) {
+                read_back = true;
+                break Ok(());
+            }
+            if signals() >= leave_at {
+                break Err(format!(
+                    "{error} ({}{}: not waited for)",
+                    if leave_at == 2 { "a second " } else { "" },
+                    signal_name()
+                ));
+            }
+            if Instant::now() >= deadline {
+                break Err(error.to_string());
             }
             if !said {
                 said = true;
@@ -491,12 +518,13 @@ fn put_back(
             }
             std::thread::sleep(Duration::from_millis(200));
         };
+        let result = result.map(|()| read_back);
         let meaning = if catalogue.commissioning.map(|p| p.pnu) == Some(param.pnu) {
             "the drive stays in quick commissioning and will not run"
         } else {
             "the access level stays raised"
         };
-        report.put_back(param, to, was, why, result.err().as_ref(), meaning);
+        report.put_back(param, to, was, why, result, meaning);
     }
 }
 

@@ -166,7 +166,8 @@ pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failur
         ParamError::MaybeApplied { .. } => Failure::MaybeApplied {
             drive,
             param: param.to_string(),
-            source,
+            source: Box::new(source),
+            check: cli::command_line(bus.name(), &format!("param read {drive} {param}")),
         },
         source => Failure::Param {
             drive,

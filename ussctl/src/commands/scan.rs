@@ -65,6 +65,9 @@ struct Probe {
     free_at: Duration,
     /// How often a question is asked before silence counts as the answer.
     tries: u32,
+    /// Exchanges since [`Probe::heard_garbled`] was last taken that brought bytes but no
+    /// intact telegram (a bad BCC, a garbled or cut reply).
+    garbled: u32,
 }
 
 impl Probe {
@@ -87,14 +90,27 @@ impl Probe {
         // once it has started, its characters may take as long as the longest telegram.
         let mut deadline = end + MAX_RESPONSE_DELAY + Duration::from_millis(5);
         let longest = self.timing.telegram(MAX_TELEGRAM_BYTES.saturating_sub(4));
+        let mut heard = false;
         while let Some(rx) = self.line.recv(deadline, &mut self.clock).map_err(io)? {
+            heard = true;
             deadline = deadline.max(rx.at + longest);
             self.free_at = rx.at;
             if let Some(done) = framer.push(rx.byte, rx.at) {
+                if done.is_err() {
+                    self.garbled += 1;
+                }
                 return Ok(done.ok().map(|t| t.as_bytes().to_vec()));
             }
         }
+        if heard {
+            self.garbled += 1;
+        }
         Ok(None)
+    }
+
+    /// How many exchanges brought bytes but no intact telegram since the last call.
+    fn heard_garbled(&mut self) -> u32 {
+        core::mem::take(&mut self.garbled)
     }
 
     /// Asks `address` up to [`Probe::tries`] times: the net words of the first intact reply from
@@ -250,16 +266,7 @@ fn find_length(probe: &mut Probe, adr: Adr) -> Result<Option<(usize, Vec<u16>, S
 fn identify(probe: &mut Probe, address: Address) -> Result<ScannedDrive, Failure> {
     let baud = probe.timing.baud().get();
     let adr = Adr::to(address);
-    let mut drive = ScannedDrive {
-        baud,
-        address: address.get(),
-        pkw: "unknown".into(),
-        pzd: 0,
-        zsw1: None,
-        firmware: None,
-        family: None,
-        unsure: None,
-    };
+    let mut drive = ScannedDrive::unknown(baud, address.get());
     let Some((length, first, layout)) = find_length(probe, adr)? else {
         drive.unsure = Some(format!(
             "it answered the mirror telegram but no request of 1 to 20 words ({} tries each)",
@@ -490,6 +497,7 @@ pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
             timing: Timing::new(baud),
             free_at: Duration::ZERO,
             tries: s.tries,
+            garbled: 0,
         };
         for &address in &s.addresses {
             if stopped() {
@@ -501,7 +509,21 @@ pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
                 mirror: true,
                 ..Adr::to(address)
             };
+            probe.heard_garbled();
             if probe.ask(mirror, &[], &SAFE_PZD[..2])?.is_none() {
+                // Something answered, never intact: not an empty address.
+                let garbled = probe.heard_garbled();
+                if garbled > 0 {
+                    report.drives.push(ScannedDrive {
+                        unsure: Some(format!(
+                            "something answered at this address, but never intact ({garbled} \
+                             of {} mirror telegrams answered garbled: a bad BCC, noise, or a \
+                             slave at another baud rate)",
+                            probe.tries
+                        )),
+                        ..ScannedDrive::unknown(baud.get(), address.get())
+                    });
+                }
                 continue;
             }
             report.drives.push(identify(&mut probe, address)?);

@@ -155,29 +155,26 @@ impl RestoreReport {
     }
 
     /// `param`, raised to `to` on the way, written back to `was` (the drive's value before the
-    /// restore) after the restore was cut short by `why`, or not (`error`; `meaning`: what
-    /// being left raised means for the drive).
+    /// restore) after the restore was cut short by `why`: `Ok(read_back)` (whether a read
+    /// showed it, the write's answer lost), or not (`Err`; `meaning`: what being left raised
+    /// means for the drive).
     pub fn put_back(
         &mut self,
         param: ParamRef,
         to: u16,
         was: u16,
         why: &str,
-        error: Option<&ParamError>,
+        result: Result<bool, String>,
         meaning: &str,
     ) {
-        let command = format!(
-            "ussctl{} param write {} {param} {was}",
-            if self.bus == crate::cli::DEFAULT_BUS {
-                String::new()
-            } else {
-                format!(" --bus {}", self.bus)
-            },
-            self.drive
+        let command = crate::cli::command_line(
+            &self.bus,
+            &format!("param write {} {param} {was}", self.drive),
         );
-        let result = match error {
-            None => format!("put back after {why}"),
-            Some(e) => {
+        let result = match result {
+            Ok(false) => format!("put back after {why}"),
+            Ok(true) => format!("put back (read back) after {why}"),
+            Err(e) => {
                 self.left_raised.push(format!(
                     "{param} = {to}: {meaning}; put it back with `{command}`"
                 ));

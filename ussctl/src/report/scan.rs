@@ -26,6 +26,22 @@ pub struct ScannedDrive {
     pub unsure: Option<String>,
 }
 
+impl ScannedDrive {
+    /// A slave at `address` whose layout is not known (yet).
+    pub fn unknown(baud: u32, address: u8) -> Self {
+        Self {
+            baud,
+            address,
+            pkw: "unknown".into(),
+            pzd: 0,
+            zsw1: None,
+            firmware: None,
+            family: None,
+            unsure: None,
+        }
+    }
+}
+
 /// `scan`.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct ScanReport {
