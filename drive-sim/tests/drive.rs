@@ -538,3 +538,51 @@ fn a_generic_slave_answers_its_own_parameters_and_a_fragile_one_dies_of_any_othe
     assert!(d.is_dead());
     assert!(send(&mut d, &[0, 0, 0, 0], &[0x047E, 0], ms(20)).is_none());
 }
+
+/// A reversal (+20 Hz to -20 Hz, P1120 = 2 s, P1121 = 10 s, P1082 = 50 Hz) ramps down with
+/// P1121 (5 Hz/s) while |f| falls towards zero, and up with P1120 (25 Hz/s) on the other side,
+/// as a MICROMASTER's ramp-function generator does.
+#[test]
+fn a_reversal_ramps_down_with_p1121_until_zero_then_up_with_p1120() {
+    let mut d = drive(PkwMode::Four);
+    d.params_mut().set_internal(1120, 0, 2.0f32.to_bits());
+    d.params_mut().set_internal(1121, 0, 10.0f32.to_bits());
+    // 0x199A = 40 % of P2000 (50 Hz) = 20 Hz, reached at 25 Hz/s after 0.8 s.
+    let mut t = run_to(&mut d, 0x199A, ms(1000));
+    assert!(
+        (d.frequency_hz() - 20.0).abs() < 0.01,
+        "{}",
+        d.frequency_hz()
+    );
+    let minus = (-0x199A_i16) as u16;
+    for _ in 0..100 {
+        t += ms(10);
+        control(&mut d, 0x047F, minus, t);
+    }
+    // 1 s down at 5 Hz/s: 15 Hz (with P1120's 25 Hz/s it would be past zero at -5 Hz).
+    assert!(
+        (d.frequency_hz() - 15.0).abs() < 0.1,
+        "{}",
+        d.frequency_hz()
+    );
+    for _ in 0..300 {
+        t += ms(10);
+        control(&mut d, 0x047F, minus, t);
+    }
+    // 3 s more reach zero at 5 Hz/s, and -20 Hz 0.8 s after zero at 25 Hz/s.
+    assert!(
+        (d.frequency_hz() + 20.0).abs() < 0.01,
+        "{}",
+        d.frequency_hz()
+    );
+}
+
+/// A refused task whose PNU field holds 2000..2047 without the page bit (PKE 0x27DD: AK 2,
+/// P2013 written as it is not encoded) is answered with its PNU bits echoed, as every reply
+/// does (USS.md section 6): PKE 0x77DD, error 0 (illegal PNU).
+#[test]
+fn a_refused_task_echoes_its_pnu_bits_even_when_they_name_no_parameter() {
+    let mut d = drive(PkwMode::Four);
+    let (pkw, _) = send(&mut d, &[0x27DD, 0x0000, 0, 5], &[0x047E, 0], ms(0)).unwrap();
+    assert_eq!(pkw, vec![0x77DD, 0x0000, 0, 0]);
+}
