@@ -621,12 +621,17 @@ impl Drive {
             // STW1 bit 4 = 0 sets the ramp-function generator's output to zero at once.
             self.frequency_hz = 0.0;
         }
-        let target = self.target_hz(max);
+        let mut target = self.target_hz(max);
+        let f = self.frequency_hz;
+        // Away from zero is ramping up (P1120); towards zero, a reversal included, is ramping
+        // down (P1121) until zero, where the other side begins.
+        let reversing = f != 0.0 && target != 0.0 && target.signum() != f.signum();
+        if reversing {
+            target = 0.0;
+        }
         let ramp_time = match self.state {
             State::SwitchingOff(Stop::Off3) => self.ramp_time(self.roles().off3),
-            _ if target.abs() > self.frequency_hz.abs() => {
-                self.ramp_time(Some(self.roles().ramp_up))
-            }
+            _ if target.abs() > f.abs() => self.ramp_time(Some(self.roles().ramp_up)),
             _ => self.ramp_time(Some(self.roles().ramp_down)),
         };
         // A ramp time too short to matter (down to the smallest float) ends the ramp in one

@@ -565,11 +565,11 @@ fn a_reversal_ramps_down_with_p1121_until_zero_then_up_with_p1120() {
         "{}",
         d.frequency_hz()
     );
-    for _ in 0..300 {
+    for _ in 0..400 {
         t += ms(10);
         control(&mut d, 0x047F, minus, t);
     }
-    // 3 s more reach zero at 5 Hz/s, and -20 Hz 0.8 s after zero at 25 Hz/s.
+    // 3 s more reach zero at 5 Hz/s, and -20 Hz 0.8 s after zero at 25 Hz/s (4 s in all).
     assert!(
         (d.frequency_hz() + 20.0).abs() < 0.01,
         "{}",

@@ -70,6 +70,7 @@ impl Drive {
         };
         let mode = self.config.layout.pkw;
         let mut words = [0u16; MAX_PKW_WORDS];
+        let undecodable = task.is_none();
         self.pkw.reply_len = reply.encode(mode, &mut words).unwrap_or_else(|_| {
             let narrow = ParamReply {
                 kind: ReplyKind::Error(ErrorNumber::ChannelTooNarrow),
@@ -77,6 +78,12 @@ impl Drive {
             };
             narrow.encode(mode, &mut words).unwrap_or(0)
         });
+        if undecodable {
+            // A task that names no parameter (a PNU field of 2000..2047 without the page bit)
+            // is refused with its PNU bits as they came, as every reply echoes them.
+            words[0] = (words[0] & 0xF800) | (request[0] & 0x07FF);
+            words[1] = (words[1] & 0x00FF) | (request[1] & 0xFF00);
+        }
         self.pkw.reply = words;
         let busy = ParamReply {
             kind: ReplyKind::NotYet,
