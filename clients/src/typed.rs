@@ -189,11 +189,12 @@ impl Bus {
     }
 
     /// The type a caller names for parameter `param` of drive `address` (`ussctl --type`).
-    /// Where the parameter's own type is known (its family's catalogue, or the drive's own
-    /// description) that one applies, and a named type of another kind (a word for a float, a
-    /// double word for a word) is refused ([`ParamError::Value`]): it would show or write
-    /// other than what the drive holds. `None`: the type is not known (a generic slave, a
-    /// drive that does not describe the parameter), so the named one applies.
+    /// Where the parameter's own type is known (its family's catalogue, or a description the
+    /// drive gave this `Bus` before) that one applies, and a named type of another kind (a word
+    /// for a float, a double word for a word) is refused ([`ParamError::Value`]): it would show
+    /// or write other than what the drive holds. `None`: the type is not known here (a generic
+    /// slave, a parameter no catalogue lists), so the named one applies; the drive is not asked
+    /// (a caller that names the type sends one task).
     pub fn named_type(
         &self,
         address: Address,
@@ -205,9 +206,15 @@ impl Bus {
             DataType::I32 | DataType::U32 => "double word",
             DataType::Float => "float",
         };
-        match self.describe(address, param.pnu) {
-            Ok((own, _)) if kind(own) == kind(named) => Ok(Some(own)),
-            Ok((own, info)) => Err(ParamError::Value {
+        let pnu = param.pnu.get();
+        let known = match self.catalogue_entry(address, param.pnu) {
+            Some(p) => Some((p.data_type, Some(p))),
+            None => self.described.get(address.get(), pnu).map(|t| (t, None)),
+        };
+        match known {
+            None => Ok(None),
+            Some((own, _)) if kind(own) == kind(named) => Ok(Some(own)),
+            Some((own, info)) => Err(ParamError::Value {
                 param: shown_as(param, info).to_string(),
                 problem: format!(
                     "its type is {own:?} (a {}), not a {}: drop --type, it is read and written as its own",
@@ -215,8 +222,6 @@ impl Bus {
                     kind(named)
                 ),
             }),
-            Err(ParamError::Drive(_) | ParamError::Value { .. }) => Ok(None),
-            Err(e) => Err(e),
         }
     }
 

@@ -819,11 +819,18 @@ fn ussctl_reads_and_writes_parameters_in_their_own_type_and_unit() {
         "drive 1 r0947[0] = 0  (CO: Last fault code)\n"
     );
     // A type named for a parameter whose type is known: the same kind, or refused (its bits
-    // are in --json's "raw" and "hex").
+    // are in --json's "raw" and "hex"). Told the type, ussctl sends one task: the read.
+    let bus = ussd.bus();
+    let jobs_done = || {
+        std::thread::sleep(Duration::from_millis(300));
+        bus.diag(addr(1)).unwrap().counters.jobs_done
+    };
+    let before = jobs_done();
     assert_eq!(
         read(&["1", "1082", "--type", "float"]),
         "drive 1 P1082 = 50.00 Hz  (Max. frequency)\n"
     );
+    assert_eq!(jobs_done() - before, 1, "one task");
     let out = ussd.ussctl(&["param", "read", "1", "1082", "--type", "dword"]);
     assert_eq!(out.status.code(), Some(1));
     assert_eq!(
