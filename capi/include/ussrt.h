@@ -267,6 +267,38 @@ typedef struct UssrtValue {
 } UssrtValue;
 
 /**
+ * One item of a batch ([`ussrt_param_batch`]): a read (`write` 0) or a write of `value` (a
+ * double word when `dword` != 0, else a word) of parameter number `pnu`, element `index` (or
+ * `USSRT_NO_INDEX`).
+ */
+typedef struct UssrtParamItem {
+  uint16_t pnu;
+  uint8_t write;
+  uint8_t dword;
+  int32_t index;
+  uint32_t value;
+} UssrtParamItem;
+
+/**
+ * What one item of a batch ended with: `status` `USSRT_STATUS_OK` with the word or double
+ * word the drive answered, or the item's own failure (`DRIVE_ERROR` with the drive's error
+ * number in `drive_error`, `MAYBE_APPLIED`, `TIMEOUT`, ...).
+ */
+typedef struct UssrtParamResult {
+  enum UssrtStatus status;
+  /**
+   * The drive's error number with `DRIVE_ERROR`, else 0xFFFF.
+   */
+  uint16_t drive_error;
+  /**
+   * 1: a double word.
+   */
+  uint8_t is_dword;
+  uint8_t reserved;
+  uint32_t value;
+} UssrtParamResult;
+
+/**
  * One recorded fault.
  */
 typedef struct UssrtFault {
@@ -642,6 +674,25 @@ enum UssrtStatus ussrt_param_write_raw(const struct UssrtBus *bus,
                                        uint8_t dword,
                                        uint32_t flags,
                                        uint32_t *held);
+
+/**
+ * Runs up to 39 items of drive `address` in one request, one after the other with no other
+ * client's task between them (Rust's `Bus::batch`): `results[i]` gets what `items[i]` ended
+ * with. Returns `USSRT_STATUS_OK` when ussd answered the request (each item's own status is in
+ * its result), or the failure of the request as a whole (then no result is written). `flags`:
+ * `USSRT_WRITE_EEPROM` (writes to RAM and EEPROM), `USSRT_WRITE_FORCE`; a guarded parameter is
+ * written with `ussrt_param_write_raw` and `USSRT_WRITE_UNSAFE` only.
+ *
+ * # Safety
+ * `bus` is a live handle; `items` readable memory for `count` items; `results` writable
+ * memory for `count` results.
+ */
+enum UssrtStatus ussrt_param_batch(const struct UssrtBus *bus,
+                                   uint8_t address,
+                                   const struct UssrtParamItem *items,
+                                   uintptr_t count,
+                                   uint32_t flags,
+                                   struct UssrtParamResult *results);
 
 /**
  * Reads the drive's fault buffer with fault values and texts, and its active warnings, in one

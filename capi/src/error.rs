@@ -174,7 +174,7 @@ fn client_info(e: &ClientError) -> UssrtErrorInfo {
     UssrtErrorInfo::of(status)
 }
 
-fn param_info(e: &ParamError) -> UssrtErrorInfo {
+pub(crate) fn param_info(e: &ParamError) -> UssrtErrorInfo {
     use UssrtStatus as S;
     match e {
         ParamError::Drive(d) => UssrtErrorInfo {

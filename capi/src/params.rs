@@ -2,7 +2,7 @@
 //! and the fault report.
 
 use crate::bus::UssrtBus;
-use crate::error::{Failure, UssrtStatus, arg, drive, guard, out, text};
+use crate::error::{Failure, UssrtStatus, arg, drive, guard, out, param_info, text};
 use core::ffi::c_char;
 use uss_client::uss_protocol::ParamRef;
 #[cfg(test)]
@@ -266,6 +266,130 @@ pub unsafe extern "C" fn ussrt_param_write_raw(
         // SAFETY: NULL or the caller's memory (as documented).
         if let Some(held) = unsafe { held.as_mut() } {
             *held = raw_of(answered).0;
+        }
+        Ok(())
+    })
+}
+
+/// One item of a batch ([`ussrt_param_batch`]): a read (`write` 0) or a write of `value` (a
+/// double word when `dword` != 0, else a word) of parameter number `pnu`, element `index` (or
+/// `USSRT_NO_INDEX`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct UssrtParamItem {
+    pub pnu: u16,
+    pub write: u8,
+    pub dword: u8,
+    pub index: i32,
+    pub value: u32,
+}
+
+/// What one item of a batch ended with: `status` `USSRT_STATUS_OK` with the word or double
+/// word the drive answered, or the item's own failure (`DRIVE_ERROR` with the drive's error
+/// number in `drive_error`, `MAYBE_APPLIED`, `TIMEOUT`, ...).
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct UssrtParamResult {
+    pub status: UssrtStatus,
+    /// The drive's error number with `DRIVE_ERROR`, else 0xFFFF.
+    pub drive_error: u16,
+    /// 1: a double word.
+    pub is_dword: u8,
+    pub reserved: u8,
+    pub value: u32,
+}
+
+/// Runs up to 39 items of drive `address` in one request, one after the other with no other
+/// client's task between them (Rust's `Bus::batch`): `results[i]` gets what `items[i]` ended
+/// with. Returns `USSRT_STATUS_OK` when ussd answered the request (each item's own status is in
+/// its result), or the failure of the request as a whole (then no result is written). `flags`:
+/// `USSRT_WRITE_EEPROM` (writes to RAM and EEPROM), `USSRT_WRITE_FORCE`; a guarded parameter is
+/// written with `ussrt_param_write_raw` and `USSRT_WRITE_UNSAFE` only.
+///
+/// # Safety
+/// `bus` is a live handle; `items` readable memory for `count` items; `results` writable
+/// memory for `count` results.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_batch(
+    bus: *const UssrtBus,
+    address: u8,
+    items: *const UssrtParamItem,
+    count: usize,
+    flags: u32,
+    results: *mut UssrtParamResult,
+) -> UssrtStatus {
+    guard(|| {
+        use uss_client::ParamTask;
+        use uss_client::uss_protocol::Storage;
+        let bus = arg(bus, "bus")?;
+        let max = uss_client::uss_shm_types::MAX_PARAM_ITEMS;
+        if count == 0 || count > max {
+            return Err(Failure::Argument(format!(
+                "a batch has 1 to {max} items, not {count}"
+            )));
+        }
+        if flags & USSRT_WRITE_UNSAFE != 0 {
+            return Err(Failure::Argument(
+                "USSRT_WRITE_UNSAFE is not taken by a batch: write a guarded parameter with ussrt_param_write_raw".into(),
+            ));
+        }
+        let options = options(flags)?;
+        arg(items, "items")?;
+        out(results, "results")?;
+        // SAFETY: non-NULL (checked) and `count` items long (as documented).
+        let items = unsafe { core::slice::from_raw_parts(items, count) };
+        let storage = if options.eeprom {
+            Storage::RamAndEeprom
+        } else {
+            Storage::Ram
+        };
+        let tasks = items
+            .iter()
+            .map(|i| {
+                let p = param_at(i.pnu, i.index)?;
+                Ok(if i.write == 0 {
+                    ParamTask::read(p.pnu, p.index)
+                } else {
+                    let value = if i.dword != 0 {
+                        Value::Dword(i.value)
+                    } else {
+                        Value::Word(u16::try_from(i.value).map_err(|_| {
+                            Failure::Argument(format!(
+                                "{} does not fit a word (0..=65535)",
+                                i.value
+                            ))
+                        })?)
+                    };
+                    ParamTask::write(p.pnu, p.index, value, storage)
+                })
+            })
+            .collect::<Result<Vec<_>, Failure>>()?;
+        let answered = bus.bus.try_batch(drive(address)?, &tasks, options.force)?;
+        // SAFETY: non-NULL (checked) and `count` results long (as documented).
+        let results = unsafe { core::slice::from_raw_parts_mut(results, count) };
+        for (slot, result) in results.iter_mut().zip(answered) {
+            *slot = match result {
+                Ok(v) => {
+                    let (value, is_dword) = raw_of(v);
+                    UssrtParamResult {
+                        status: UssrtStatus::Ok,
+                        drive_error: 0xFFFF,
+                        is_dword,
+                        reserved: 0,
+                        value,
+                    }
+                }
+                Err(e) => {
+                    let info = param_info(&e);
+                    UssrtParamResult {
+                        status: info.status,
+                        drive_error: info.drive_error,
+                        is_dword: 0,
+                        reserved: 0,
+                        value: 0,
+                    }
+                }
+            };
         }
         Ok(())
     })

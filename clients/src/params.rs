@@ -218,15 +218,27 @@ impl Bus {
         items: &[ParamTask],
         force: bool,
     ) -> Vec<Result<Value, ParamError>> {
+        match self.try_batch(address, items, force) {
+            Ok(results) => results,
+            Err(e) => vec![Err(e); items.len()],
+        }
+    }
+
+    /// [`Bus::batch_with`] that tells a failure of the request as a whole (ussd refused it,
+    /// did not answer, is not running: `Err`) from the items' own results (`Ok`, one per task,
+    /// in order): for front-ends that report the two apart (Python's and C's batch).
+    pub fn try_batch(
+        &self,
+        address: Address,
+        items: &[ParamTask],
+        force: bool,
+    ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
         let flags = if force {
             uss_shm_types::REQUEST_FORCE
         } else {
             0
         };
-        match self.request(address, items, flags) {
-            Ok(results) => results,
-            Err(e) => vec![Err(e); items.len()],
-        }
+        self.request(address, items, flags)
     }
 
     fn one(&self, address: Address, item: ParamTask) -> Result<Value, ParamError> {

@@ -53,6 +53,77 @@ fn read_param(
         .map_err(|e| errors::param(py, &bus, address, e))
 }
 
+/// Up to 39 raw items of drive `address` in one request, run one after the other with no
+/// other client's task between them (as Rust's `Bus::batch`): each `(pnu, index)` reads,
+/// `(pnu, index, value, is_dword)` writes (RAM; `eeprom` for RAM and EEPROM, `force` while
+/// another process controls the drive). One entry per item, in order: `(value, is_dword)`, or
+/// the exception that item ended with (not raised). A failure of the request as a whole
+/// (ussd refused it, did not answer) is raised.
+#[pyfunction]
+#[pyo3(signature = (bus, address, items, eeprom=false, force=false, timeout=7.5))]
+fn batch(
+    py: Python<'_>,
+    bus: &Bound<'_, NativeBus>,
+    address: u8,
+    items: Vec<(u16, Option<u16>, Option<u32>, bool)>,
+    eeprom: bool,
+    force: bool,
+    timeout: f64,
+) -> PyResult<Vec<Py<PyAny>>> {
+    use uss_client::ParamTask;
+    use uss_client::uss_protocol::Storage;
+    let drive = errors::drive(py, address)?;
+    let storage = if eeprom {
+        Storage::RamAndEeprom
+    } else {
+        Storage::Ram
+    };
+    let tasks = items
+        .into_iter()
+        .map(|(pnu, index, value, is_dword)| {
+            let p = param_at(pnu, index)?;
+            Ok(match value {
+                None => ParamTask::read(p.pnu, p.index),
+                Some(v) => {
+                    let value = if is_dword {
+                        Value::Dword(v)
+                    } else {
+                        Value::Word(u16::try_from(v).map_err(|_| {
+                            PyValueError::new_err(format!(
+                                "{v} does not fit a word (0..=65535): pass is_dword=True"
+                            ))
+                        })?)
+                    };
+                    ParamTask::write(p.pnu, p.index, value, storage)
+                }
+            })
+        })
+        .collect::<PyResult<Vec<_>>>()?;
+    if tasks.is_empty() || tasks.len() > uss_client::uss_shm_types::MAX_PARAM_ITEMS {
+        return Err(PyValueError::new_err(format!(
+            "a batch has 1 to {} items, not {}",
+            uss_client::uss_shm_types::MAX_PARAM_ITEMS,
+            tasks.len()
+        )));
+    }
+    let bus = bus
+        .get()
+        .inner
+        .with_answer_timeout(Some(duration(timeout)?));
+    let results = py
+        .detach(|| bus.try_batch(drive, &tasks, force))
+        .map_err(|e| errors::param(py, &bus, address, e))?;
+    results
+        .into_iter()
+        .map(|r| match r {
+            Ok(v) => Ok(raw(v).into_pyobject(py)?.into_any().unbind()),
+            Err(e) => Ok(errors::param(py, &bus, address, e)
+                .into_value(py)
+                .into_any()),
+        })
+        .collect()
+}
+
 fn type_name(t: DataType) -> &'static str {
     match t {
         DataType::I16 => "I16",
@@ -234,6 +305,7 @@ fn warning_text(number: u16, family: &str) -> PyResult<Option<&'static str>> {
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_param, m)?)?;
+    m.add_function(wrap_pyfunction!(batch, m)?)?;
     m.add_function(wrap_pyfunction!(read, m)?)?;
     m.add_function(wrap_pyfunction!(write, m)?)?;
     m.add_function(wrap_pyfunction!(fault_report, m)?)?;

@@ -8,6 +8,7 @@ to use that one instead.
 
 import os
 import signal
+import struct
 import subprocess
 import time
 from pathlib import Path
@@ -244,6 +245,25 @@ def test_parameters_read_in_the_manuals_notation_as_their_own_type(bus):
     with pytest.raises(uss_rt.Refused, match="name the element") as refused:
         uss_rt.read_param(bus, 1, 2014)
     assert refused.value.error == uss_rt.RequestError.INDEX_REQUIRED
+
+
+def test_a_batch_of_chosen_items_goes_in_one_request_with_a_result_each(bus):
+    ten = struct.unpack("<I", struct.pack("<f", 10.0))[0]
+    results = uss_rt.batch(bus, 2, [
+        (1082, None),              # read P1082
+        (1120, None, ten, True),   # write P1120 := 10.0 (a float: its bits as a double word)
+        (9999, None),              # no such parameter: this item fails, the others go on
+        (947, 0),                  # read r0947[0]
+    ])
+    assert len(results) == 4
+    assert results[0].as_float() == 50.0
+    assert results[1].as_float() == 10.0
+    assert isinstance(results[2], uss_rt.DriveError) and results[2].number == 0
+    assert results[3] == 0 and not results[3].is_dword
+    with pytest.raises(ValueError, match="1 to 39 items"):
+        uss_rt.batch(bus, 2, [(1082, None)] * 40)
+    with pytest.raises(ValueError, match="does not fit a word"):
+        uss_rt.batch(bus, 2, [(1120, None, 70000, False)])
 
 
 def test_writes_convert_to_the_parameters_type_and_refuse_what_does_not_fit(bus):

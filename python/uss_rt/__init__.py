@@ -67,6 +67,7 @@ __all__ = [
     "UssdStopped",
     "Value",
     "WaitTimeout",
+    "batch",
     "control",
     "fault_report",
     "fault_text",
@@ -570,6 +571,34 @@ def read_param(bus: Bus, address: int, pnu: int, index=None, timeout: float = 7.
     if not 0 <= pnu <= 0xFFFF:
         raise ValueError(f"PNU {pnu} is out of range 0..=65535")
     return ParamValue(*_native.read_param(bus._open(), address, pnu, index, timeout))
+
+
+def batch(bus: Bus, address: int, items, eeprom: bool = False, force: bool = False,
+          timeout: float = 7.5) -> list:
+    """Up to 39 raw parameter items of drive ``address`` in one request, run one after the
+    other with no other client's task between them (Rust's ``Bus::batch``, C's
+    ``ussrt_param_batch``). Each item is ``(pnu, index)`` (a read; ``index`` None for none) or
+    ``(pnu, index, value, is_dword)`` (a write of the raw word or double word to RAM, with
+    ``eeprom`` to RAM and EEPROM, with ``force`` while another process controls the drive).
+
+    Returns one entry per item, in order: a :class:`ParamValue`, or the exception that item
+    ended with (not raised: :class:`DriveError`, :class:`MaybeApplied`, ...). A failure of the
+    request as a whole (:class:`Refused`, :class:`NoAnswer`, ...) is raised."""
+    _check_address(address)
+    raw = []
+    for item in items:
+        if len(item) == 2:
+            pnu, index = item
+            raw.append((pnu, index, None, False))
+        elif len(item) == 4:
+            pnu, index, value, is_dword = item
+            raw.append((pnu, index, int(value), bool(is_dword)))
+        else:
+            raise ValueError(f"{item!r}: an item is (pnu, index) or (pnu, index, value, is_dword)")
+        if not 0 <= pnu <= 0xFFFF:
+            raise ValueError(f"PNU {pnu} is out of range 0..=65535")
+    results = _native.batch(bus._open(), address, raw, eeprom, force, timeout)
+    return [r if isinstance(r, BaseException) else ParamValue(*r) for r in results]
 
 
 def fault_report(bus: Bus, address: int) -> dict:

@@ -86,6 +86,29 @@ int main(int argc, char **argv) {
   OK(ussrt_param_write(bus, 1, "P1121", "0.5", 0, NULL));
   EXPECT(ussrt_param_write(bus, 1, "P1120", "1", 8, NULL) == USSRT_STATUS_INVALID_ARGUMENT,
          "flags");
+  /* A batch of chosen items: one request, a result each; an item's failure is its own. */
+  const UssrtParamItem items[4] = {
+      {.pnu = 1082, .index = USSRT_NO_INDEX},
+      {.pnu = 1121, .write = 1, .dword = 1, .index = USSRT_NO_INDEX, .value = 0x3F000000},
+      {.pnu = 1999, .index = USSRT_NO_INDEX},
+      {.pnu = 947, .index = 0},
+  };
+  UssrtParamResult results[4];
+  OK(ussrt_param_batch(bus, 1, items, 4, 0, results));
+  EXPECT(results[0].status == USSRT_STATUS_OK && results[0].value == 0x42480000 &&
+             results[0].is_dword,
+         "P1082 %#x", results[0].value);
+  EXPECT(results[1].status == USSRT_STATUS_OK && results[1].value == 0x3F000000, "P1121 := 0.5");
+  EXPECT(results[2].status == USSRT_STATUS_DRIVE_ERROR && results[2].drive_error == 0,
+         "P1999: %d %u", results[2].status, results[2].drive_error);
+  EXPECT(results[3].status == USSRT_STATUS_OK && !results[3].is_dword, "r0947[0]");
+  EXPECT(ussrt_param_batch(bus, 1, items, 0, 0, results) == USSRT_STATUS_INVALID_ARGUMENT,
+         "an empty batch");
+  EXPECT(ussrt_param_batch(bus, 1, items, 40, 0, results) == USSRT_STATUS_INVALID_ARGUMENT,
+         "40 items");
+  EXPECT(ussrt_param_batch(bus, 1, items, 4, USSRT_WRITE_UNSAFE, results) ==
+             USSRT_STATUS_INVALID_ARGUMENT,
+         "unsafe");
   UssrtFaultReport faults;
   OK(ussrt_fault_report(bus, 1, &faults));
   EXPECT(faults.fault_count <= 8, "faults %u", faults.fault_count);
