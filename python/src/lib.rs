@@ -305,6 +305,12 @@ fn code_tables(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     Ok(tables)
 }
 
+/// What the drive's USS error number `number` (reply 7) means, as the codec says it.
+#[pyfunction]
+fn drive_error_text(number: u16) -> &'static str {
+    uss_client::uss_protocol::ErrorNumber::from_number(number).description()
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("LAYOUT_VERSION", uss_client::uss_shm_types::LAYOUT_VERSION)?;
@@ -316,6 +322,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(stop_all, m)?)?;
     m.add_function(wrap_pyfunction!(wait_stopped, m)?)?;
     m.add_function(wrap_pyfunction!(code_tables, m)?)?;
+    m.add_function(wrap_pyfunction!(drive_error_text, m)?)?;
     m.add_function(wrap_pyfunction!(control::control, m)?)?;
     params::register(m)?;
     Ok(())

@@ -74,6 +74,8 @@ def test_errors_carry_their_codes_and_say_what_to_do():
     e = uss_rt.DriveError(2)
     assert e.number == 2
     assert str(e) == "the drive refused the task with error 2: limit exceeded"
+    assert str(uss_rt.DriveError(204)).endswith("error 204: access level too low")
+    assert str(uss_rt.DriveError(999)).endswith("error 999: unknown error number")
     e = uss_rt.Refused(uss_rt.RequestError.WRITES_DISABLED, 0)
     assert (e.error, e.item) == (uss_rt.RequestError.WRITES_DISABLED, 0)
     assert "params_writable = false" in str(e)

@@ -136,28 +136,6 @@ def _name(code) -> str:
     return code.name.lower().replace("_", " ") if isinstance(code, enum.Enum) else str(code)
 
 
-# The drive's error numbers with reply 7 (USS.md section 6).
-_DRIVE_ERRORS = {
-    0: "illegal parameter number",
-    1: "value cannot be changed",
-    2: "limit exceeded",
-    3: "faulty subindex",
-    4: "not an array",
-    5: "wrong data type",
-    6: "setting not allowed",
-    7: "descriptive element cannot be changed",
-    11: "no master control",
-    12: "keyword missing",
-    17: "not possible in this operating state",
-    101: "parameter deactivated",
-    102: "channel too narrow",
-    103: "double word over a 3-word parameter channel",
-    104: "illegal value",
-    106: "task not implemented",
-    200: "modified minimum exceeded",
-    201: "modified maximum exceeded",
-    204: "access level too low",
-}
 
 # -------------------------------------------------------------------------------------------
 # Errors (raised by the native module, built here)
@@ -207,7 +185,7 @@ class DriveError(UssError):
 
     def __init__(self, number: int):
         self.number = number
-        meaning = _DRIVE_ERRORS.get(number, "unknown error number")
+        meaning = _native.drive_error_text(number)  # the codec's words (USS.md section 6)
         super().__init__(f"the drive refused the task with error {number}: {meaning}")
 
 
