@@ -350,7 +350,7 @@ fn client_killed_mid_request_leaves_ussd_serving_and_its_node_is_cleaned_up() {
         .ussctl(&["param", "read", "1", "2000", "--type", "float"])
         .finish();
     assert!(out.0.success(), "{}", out.2);
-    assert_eq!(out.1, "drive 1 P2000 = 50.00\n");
+    assert_eq!(out.1, "drive 1 P2000 = 50.00 Hz  (Reference frequency)\n");
     let polling = bus.status().unwrap();
     std::thread::sleep(Duration::from_millis(500));
     let later = bus.status().unwrap();
