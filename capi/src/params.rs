@@ -114,6 +114,17 @@ fn raw_of(v: Value) -> (u32, u8) {
     }
 }
 
+/// A raw value to write: a double word (`dword` != 0), or a word (a value above 0xFFFF is
+/// refused).
+fn raw_value(value: u32, dword: u8) -> Result<Value, Failure> {
+    if dword != 0 {
+        return Ok(Value::Dword(value));
+    }
+    u16::try_from(value)
+        .map(Value::Word)
+        .map_err(|_| Failure::Argument(format!("{value} does not fit a word (0..=65535)")))
+}
+
 fn param_ref(param: *const c_char) -> Result<ParamRef, Failure> {
     let text = text(param, "param")?;
     text.parse::<ParamRef>()
@@ -250,13 +261,7 @@ pub unsafe extern "C" fn ussrt_param_write_raw(
 ) -> UssrtStatus {
     guard(|| {
         let bus = arg(bus, "bus")?;
-        let value = if dword != 0 {
-            Value::Dword(value)
-        } else {
-            Value::Word(u16::try_from(value).map_err(|_| {
-                Failure::Argument(format!("{value} does not fit a word (0..=65535)"))
-            })?)
-        };
+        let value = raw_value(value, dword)?;
         let answered = bus.bus.write_with(
             drive(address)?,
             param_at(pnu, index)?,
@@ -350,17 +355,7 @@ pub unsafe extern "C" fn ussrt_param_batch(
                 Ok(if i.write == 0 {
                     ParamTask::read(p.pnu, p.index)
                 } else {
-                    let value = if i.dword != 0 {
-                        Value::Dword(i.value)
-                    } else {
-                        Value::Word(u16::try_from(i.value).map_err(|_| {
-                            Failure::Argument(format!(
-                                "{} does not fit a word (0..=65535)",
-                                i.value
-                            ))
-                        })?)
-                    };
-                    ParamTask::write(p.pnu, p.index, value, storage)
+                    ParamTask::write(p.pnu, p.index, raw_value(i.value, i.dword)?, storage)
                 })
             })
             .collect::<Result<Vec<_>, Failure>>()?;

@@ -603,6 +603,30 @@ impl Drop for ChildProc {
 }
 
 /// A read of `pnu`, or of its element `index` (0..=254), as the protocol's task.
+/// Changes the settings of drive `address` so that restoring a backup taken before raises the
+/// access level on the way (P0719: level 3, and guarded, so it is written deliberately here and
+/// restored with --unsafe) and enters quick commissioning (P0310 := `p0310` Hz), with plain
+/// ones besides (P1082, P1080, P1120, P1121). It leaves P0003 = 1 and P0010 = 0.
+pub fn change_what_a_restore_raises(bus: &Bus, address: u8, p0310: f32) {
+    use uss_protocol::Value;
+    let w = |pnu, v| bus.write(addr(address), param(pnu), v, false).unwrap();
+    w(3, Value::Word(3));
+    w(10, Value::Word(1));
+    w(310, Value::from_f32(p0310));
+    w(10, Value::Word(0));
+    w(1082, Value::from_f32(45.0));
+    w(1080, Value::from_f32(5.0));
+    w(1120, Value::from_f32(2.5));
+    w(1121, Value::from_f32(2.5));
+    let deliberate = uss_client::WriteOptions {
+        unsafe_write: true,
+        ..Default::default()
+    };
+    bus.write_with(addr(address), param(719), Value::Word(11), deliberate)
+        .unwrap();
+    w(3, Value::Word(1));
+}
+
 pub fn read(pnu: u16, index: Option<u8>) -> uss_protocol::ParamTask {
     let index = index.map(|i| uss_protocol::Subindex::new(i).expect("a subindex 0..=254"));
     uss_protocol::ParamTask::read(uss_protocol::Pnu::from_u16(pnu), index)

@@ -1143,19 +1143,7 @@ fn a_restore_cut_short_by_ctrl_c_leaves_quick_commissioning_and_puts_the_access_
     let (code, _, err) = ussd.ussctl_said(&["param", "backup", "3", "-o", path]);
     assert_eq!(code, Some(0), "{err}");
     // Settings to put back: an expert one (level 3), commissioning ones and plain ones.
-    let w = |pnu, v| bus.write(addr(3), param(pnu), v, false).unwrap();
-    w(3, Value::Word(3));
-    w(10, Value::Word(1));
-    w(310, Value::from_f32(60.0));
-    w(10, Value::Word(0));
-    w(1082, Value::from_f32(45.0));
-    w(1080, Value::from_f32(5.0));
-    w(1120, Value::from_f32(2.5));
-    w(1121, Value::from_f32(2.5));
-    // P0719 (level 3) is guarded: deliberately, and the restore with --unsafe.
-    let guarded = bus.write_with(addr(3), param(719), Value::Word(11), deliberate());
-    guarded.unwrap();
-    w(3, Value::Word(1));
+    uss_integration_tests::change_what_a_restore_raises(&bus, 3, 60.0);
 
     let mut restore = Command::new(binary("ussctl", "ussctl"))
         .args([

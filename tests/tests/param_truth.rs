@@ -250,24 +250,7 @@ fn changed_since_backup(ussd: &Ussd, dir: &std::path::Path) -> String {
     let path = dir.join("drive1.toml").to_str().unwrap().to_owned();
     let (status, out, err) = ussd.ussctl(&["param", "backup", "1", "-o", &path]).finish();
     assert!(status.success(), "{out}{err}");
-    let bus = ussd.bus();
-    let w = |pnu, v| bus.write(addr(1), param(pnu), v, false).unwrap();
-    w(3, Value::Word(3));
-    w(10, Value::Word(1));
-    w(310, Value::from_f32(60.0));
-    w(10, Value::Word(0));
-    w(1082, Value::from_f32(45.0));
-    w(1080, Value::from_f32(5.0));
-    w(1120, Value::from_f32(2.5));
-    w(1121, Value::from_f32(2.5));
-    // P0719 (level 3) is guarded: written deliberately, and the restores run with --unsafe.
-    let deliberate = uss_client::WriteOptions {
-        unsafe_write: true,
-        ..Default::default()
-    };
-    bus.write_with(addr(1), param(719), Value::Word(11), deliberate)
-        .unwrap();
-    w(3, Value::Word(1));
+    uss_integration_tests::change_what_a_restore_raises(&ussd.bus(), 1, 60.0);
     path
 }
 
@@ -300,6 +283,27 @@ fn raised_now(ussd: &Ussd) -> (Result<Value, ParamError>, Result<Value, ParamErr
     (bus.read(addr(1), param(10)), bus.read(addr(1), param(3)))
 }
 
+/// A restore that ended (`ended`: its exit status, stdout, stderr) incomplete, exit 1, with
+/// P0010 and P0003 back where they were and its report saying "put back {how}" for each.
+fn assert_both_put_back(
+    ussd: &Ussd,
+    ended: &(std::process::ExitStatus, String, String),
+    how: &str,
+) {
+    let (status, out, err) = ended;
+    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
+    assert_eq!(
+        raised_now(ussd),
+        (Ok(Value::Word(0)), Ok(Value::Word(1))),
+        "{out}"
+    );
+    assert!(
+        out.contains(&format!("P0010      1 -> 0: put back {how}"))
+            && out.contains(&format!("P0003      3 -> 1: put back {how}")),
+        "{out}"
+    );
+}
+
 /// A restore cut short by the drive going offline, or by ussd killed, after it raised the
 /// access level and entered quick commissioning puts both back once the drive answers again
 /// (within its bound), and the report says so: the drive is not left where it will not run.
@@ -317,20 +321,11 @@ fn a_restore_cut_short_by_anything_puts_back_what_it_raised() {
     kill(sim_pid, Signal::SIGSTOP).unwrap();
     std::thread::sleep(Duration::from_secs(3));
     kill(sim_pid, Signal::SIGCONT).unwrap();
-    let (status, out, err) = restore.finish();
+    let ended = restore.finish();
+    let (status, out, err) = &ended;
     println!("param_truth: a restore cut short by the drive offline: {status}\n{out}{err}");
-    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
     assert!(out.contains("cut short: "), "{out}");
-    assert_eq!(
-        raised_now(&ussd),
-        (Ok(Value::Word(0)), Ok(Value::Word(1))),
-        "{out}"
-    );
-    assert!(
-        out.contains("P0010      1 -> 0: put back after")
-            && out.contains("P0003      3 -> 1: put back after"),
-        "{out}"
-    );
+    assert_both_put_back(&ussd, &ended, "after");
 
     // 2. ussd killed and started again 2 s later.
     let (status, _, err) = changed_since_restore(&ussd);
@@ -339,19 +334,10 @@ fn a_restore_cut_short_by_anything_puts_back_what_it_raised() {
     ussd.kill();
     std::thread::sleep(Duration::from_secs(2));
     ussd.restart();
-    let (status, out, err) = restore.finish();
+    let ended = restore.finish();
+    let (status, out, err) = &ended;
     println!("param_truth: a restore cut short by ussd killed: {status}\n{out}{err}");
-    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
-    assert_eq!(
-        raised_now(&ussd),
-        (Ok(Value::Word(0)), Ok(Value::Word(1))),
-        "{out}"
-    );
-    assert!(
-        out.contains("P0010      1 -> 0: put back after")
-            && out.contains("P0003      3 -> 1: put back after"),
-        "{out}"
-    );
+    assert_both_put_back(&ussd, &ended, "after");
 
     // 3. ussd killed and not back within --put-back-within: the report names what is left
     //    raised and the command that puts it back; that command does.
@@ -378,22 +364,10 @@ fn a_restore_cut_short_by_anything_puts_back_what_it_raised() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Changes drive 1 again after a restore (P0310 needs quick commissioning again, P1120 is a
-/// plain one); returns how the last write went as ussctl says it.
+/// Changes drive 1 again after a restore (P0310 to another value than before, so quick
+/// commissioning is needed again), then P1120 with ussctl; returns how that write went.
 fn changed_since_restore(ussd: &Ussd) -> (std::process::ExitStatus, String, String) {
-    let bus = ussd.bus();
-    let w = |pnu, v| bus.write(addr(1), param(pnu), v, false).unwrap();
-    w(3, Value::Word(3));
-    w(10, Value::Word(1));
-    w(310, Value::from_f32(55.0));
-    w(10, Value::Word(0));
-    let deliberate = uss_client::WriteOptions {
-        unsafe_write: true,
-        ..Default::default()
-    };
-    bus.write_with(addr(1), param(719), Value::Word(11), deliberate)
-        .unwrap();
-    w(3, Value::Word(1));
+    uss_integration_tests::change_what_a_restore_raises(&ussd.bus(), 1, 55.0);
     ussd.ussctl(&["param", "write", "1", "P1120", "3.5"])
         .finish()
 }
@@ -513,20 +487,11 @@ fn a_restore_hung_up_or_interrupted_twice_puts_back_or_names_what_it_raised() {
     // 1. SIGHUP.
     let mut restore = restore_until_raised(&ussd, &path, &[]);
     kill(Pid::from_raw(restore.pid() as i32), Signal::SIGHUP).unwrap();
-    let (status, out, err) = restore.finish();
+    let ended = restore.finish();
+    let (status, out, err) = &ended;
     println!("param_truth: a restore hung up: {status}\n{out}{err}");
-    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
     assert!(out.contains("cut short: SIGHUP; not written: "), "{out}");
-    assert_eq!(
-        raised_now(&ussd),
-        (Ok(Value::Word(0)), Ok(Value::Word(1))),
-        "{out}"
-    );
-    assert!(
-        out.contains("P0010      1 -> 0: put back after SIGHUP")
-            && out.contains("P0003      3 -> 1: put back after SIGHUP"),
-        "{out}"
-    );
+    assert_both_put_back(&ussd, &ended, "after SIGHUP");
 
     // 2. The drive stops answering; Ctrl-C twice while the write waits for it.
     let (status, _, err) = changed_since_restore(&ussd);
@@ -571,24 +536,15 @@ fn a_restore_whose_writes_go_unanswered_says_where_it_left_the_drive() {
         &[(1, "")],
     );
     let _ = changed_since_backup(&ussd, &dir.join("again"));
-    let (status, out, err) = ussd
+    let ended = ussd
         .ussctl(&["param", "restore", "1", &path, "--unsafe", "--eeprom"])
         .finish();
+    let (status, out, err) = &ended;
     println!("param_truth: a restore whose writes go unanswered: {status}\n{out}{err}");
-    assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
     assert!(
         out.contains(": unknown: the write may have been applied"),
         "{out}"
     );
-    assert_eq!(
-        raised_now(&ussd),
-        (Ok(Value::Word(0)), Ok(Value::Word(1))),
-        "{out}"
-    );
-    assert!(
-        out.contains("P0010      1 -> 0: put back (read back) after an unanswered write")
-            && out.contains("P0003      3 -> 1: put back (read back) after an unanswered write"),
-        "{out}"
-    );
+    assert_both_put_back(&ussd, &ended, "(read back) after an unanswered write");
     let _ = std::fs::remove_dir_all(&dir);
 }

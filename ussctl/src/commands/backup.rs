@@ -407,18 +407,15 @@ fn write_steps(
             Err(e @ ParamError::MaybeApplied { .. }) => report.unknown(step, &e),
             Err(e) => {
                 // A signal that came while the write waited is why the restore ends.
-                let why = if stopped() {
-                    signal_name().to_owned()
-                } else {
-                    e.to_string()
-                };
+                let signal = stopped().then(signal_name);
+                let why = signal.map_or_else(|| e.to_string(), str::to_owned);
                 if e.may_be_applied() {
                     report.unknown(step, &e);
                     report.cut_short(&why, &steps[i + 1..]);
                 } else {
                     report.cut_short(&why, &steps[i..]);
                 }
-                cut = Some(if stopped() { signal_name() } else { "the cut" });
+                cut = Some(signal.unwrap_or("the cut"));
                 break;
             }
         }

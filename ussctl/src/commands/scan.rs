@@ -138,41 +138,26 @@ impl Probe {
     }
 }
 
-/// A read of `pnu` (element `index`) as a request of `words` PKW words.
-fn read_task(pnu: u16, index: Option<u8>, words: usize) -> Vec<u16> {
+/// The PKW words of a request that reads `pnu` (element `index`) in a channel of `mode`
+/// (none without a channel; 4 words for a variable one).
+fn read_words(mode: PkwMode, pnu: u16, index: Option<u8>) -> Vec<u16> {
     let task = ParamTask::read(
         Pnu::from_u16(pnu),
         index.and_then(|i| Subindex::new(i).ok()),
     );
-    let mode = if words == 3 {
-        PkwMode::Three
-    } else {
-        PkwMode::Four
-    };
     let mut out = [0u16; MAX_PKW_WORDS];
     let n = task.encode(mode, &mut out).unwrap_or(0);
     out[..n].to_vec()
 }
 
-/// The PKW words of a request of `length` words that reads `pnu`: a 4-word channel where
-/// one fits, a 3-word one for 3 words, none below; the rest are PZD (OFF1).
-fn probe_task(length: usize, pnu: u16) -> Vec<u16> {
+/// The channel a probe of `length` words carries a read in: 4 words where they fit, 3 for a
+/// request of 3, none below; the rest are PZD (OFF1).
+const fn probe_mode(length: usize) -> PkwMode {
     match length {
-        0..=2 => Vec::new(),
-        3 => read_task(pnu, None, 3),
-        _ => read_task(pnu, None, 4),
+        0..=2 => PkwMode::None,
+        3 => PkwMode::Three,
+        _ => PkwMode::Four,
     }
-}
-
-/// A request in `layout`'s own shape that reads `pnu` (none without a channel), and its PZD
-/// length: what the slave takes as meant for it, OFF1 in its STW1.
-fn own_request(mode: PkwMode, pzd: usize, pnu: u16) -> (Vec<u16>, usize) {
-    let pkw = match mode {
-        PkwMode::None => Vec::new(),
-        PkwMode::Three => read_task(pnu, None, 3),
-        PkwMode::Four | PkwMode::Variable => read_task(pnu, None, 4),
-    };
-    (pkw, pzd)
 }
 
 /// What a reply says about the slave's layout, for a request of `length` words whose PKW
@@ -198,7 +183,7 @@ fn answers(pke: u16, pnu: u16) -> bool {
 /// What a reply of `reply` words to a request of `length` words (PKW channel first, reading
 /// `pnu`) says about the slave's layout.
 fn seen(reply: &[u16], length: usize, pnu: u16) -> Seen {
-    let pkw_request = probe_task(length, pnu).len();
+    let pkw_request = probe_mode(length).request_words();
     let answered = reply.first().is_some_and(|&w| answers(w, pnu));
     if !answered {
         // No parameter answer in front: the slave has no channel, all its words are PZD.
@@ -231,7 +216,7 @@ fn seen(reply: &[u16], length: usize, pnu: u16) -> Seen {
 fn find_length(probe: &mut Probe, adr: Adr) -> Result<Option<(usize, Vec<u16>, Seen)>, Failure> {
     let mut found = None;
     for length in lengths() {
-        let pkw = probe_task(length, PROBE_PNU);
+        let pkw = read_words(probe_mode(length), PROBE_PNU, None);
         let pzd = length - pkw.len();
         if let Some(reply) = probe.ask(adr, &pkw, &SAFE_PZD[..pzd])? {
             found = Some((length, reply));
@@ -246,7 +231,7 @@ fn find_length(probe: &mut Probe, adr: Adr) -> Result<Option<(usize, Vec<u16>, S
     // again even when that length was silent before: its replies may have been lost then.
     if let Seen::ThreeWords(pzd) = layout {
         let variable = length < 20 && {
-            let pkw = read_task(PROBE_PNU, None, 4);
+            let pkw = read_words(PkwMode::Four, PROBE_PNU, None);
             probe.ask(adr, &pkw, &SAFE_PZD[..pzd])?.is_some_and(|r| {
                 r.len() == length && r.first().is_some_and(|&w| answers(w, PROBE_PNU))
             })
@@ -284,13 +269,16 @@ fn identify(probe: &mut Probe, address: Address) -> Result<ScannedDrive, Failure
     // A second reply, to another task, must say the same: in the layout's own shape (OFF1 in
     // the slave's STW1), and its status word is the drive's. Without a channel, the task goes
     // in front as before, and must again not be answered; then OFF1 in its own shape.
-    let (pkw, pzd) = if mode == PkwMode::None {
-        (
-            probe_task(length, CONFIRM_PNU),
-            length - probe_task(length, 0).len(),
-        )
+    let shape = if mode == PkwMode::None {
+        probe_mode(length)
     } else {
-        own_request(mode, pzd_words, CONFIRM_PNU)
+        mode
+    };
+    let pkw = read_words(shape, CONFIRM_PNU, None);
+    let pzd = if mode == PkwMode::None {
+        length - pkw.len()
+    } else {
+        pzd_words
     };
     let mut second = probe.ask(adr, &pkw, &SAFE_PZD[..pzd])?;
     let confirmed = second.as_deref().map(|r| {
@@ -417,10 +405,9 @@ fn read_value(
         Pnu::from_u16(pnu),
         index.and_then(|i| Subindex::new(i).ok()),
     );
-    let words = read_task(pnu, index, 4);
-    let pkw = &words[..layout.pkw.request_words().min(words.len())];
+    let pkw = read_words(layout.pkw, pnu, index);
     for _ in 0..5 {
-        let Some(reply) = probe.ask(Adr::to(address), pkw, &SAFE_PZD[..layout.pzd.get()])? else {
+        let Some(reply) = probe.ask(Adr::to(address), &pkw, &SAFE_PZD[..layout.pzd.get()])? else {
             return Ok(Read::Silent);
         };
         let pkw_len = reply.len().saturating_sub(layout.pzd.get());

@@ -119,28 +119,29 @@ impl RestoreReport {
 
     /// The drive refused a step's value.
     pub fn refuse_step(&mut self, step: &Step, error: &ParamError) {
-        match step {
-            Step::Restore(e) => self.refuse(e, error),
-            Step::Helper(param, value)
-            | Step::Raise {
-                param, to: value, ..
-            } => {
-                self.lines.push(RestoreLine {
-                    param: param.to_string(),
-                    was: None,
-                    wanted: value.to_string(),
-                    result: format!("refused on the way: {error}"),
-                });
-                self.refused += 1;
-            }
-        }
+        self.step_result(
+            step,
+            format!("refused: {error}"),
+            format!("refused on the way: {error}"),
+        );
+        self.refused += 1;
     }
 
     /// A step's write reached the drive and its answer was lost: the drive may hold it.
     pub fn unknown(&mut self, step: &Step, error: &ParamError) {
-        let result = format!("unknown: {error}");
+        self.step_result(
+            step,
+            format!("unknown: {error}"),
+            format!("unknown: {error} (on the way)"),
+        );
+        self.unknown += 1;
+    }
+
+    /// What became of `step`: a value of the file gets `of_file` on its line, a value set on
+    /// the way (access level, quick commissioning) a line of its own saying `on_the_way`.
+    fn step_result(&mut self, step: &Step, of_file: String, on_the_way: String) {
         match step {
-            Step::Restore(e) => self.line(e).result = result,
+            Step::Restore(e) => self.line(e).result = of_file,
             Step::Helper(param, value)
             | Step::Raise {
                 param, to: value, ..
@@ -148,10 +149,9 @@ impl RestoreReport {
                 param: param.to_string(),
                 was: None,
                 wanted: value.to_string(),
-                result: format!("{result} (on the way)"),
+                result: on_the_way,
             }),
         }
-        self.unknown += 1;
     }
 
     /// `param`, raised to `to` on the way, written back to `was` (the drive's value before the
