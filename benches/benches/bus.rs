@@ -8,7 +8,8 @@
 //!    for PKW 4 + PZD 8 at 19200 the speed-up over the S7-1200 library's 68.2 ms per exchange.
 //! 2. Master turnaround (reply complete -> next request written) against the start pause the
 //!    protocol demands anyway (117 us at 187500 baud).
-//! 3. Scale: 8 simulated buses x 31 drives in one process, CPU use and peak memory.
+//! 3. Scale: 8 simulated buses x 31 drives in one ussd process: the daemon's own benchmark,
+//!    `cargo bench -p uss-master --bench scale`.
 //! 4. Telegram capture: the bus thread's cost with every telegram captured, against without.
 //! 5. Publishing the statistics (every 50 ms, for ussctl stats, the exporter, the status
 //!    service): what the bus thread spends per publication handing its timing over, against
@@ -26,17 +27,14 @@
 //!
 //! The bus threads run `SCHED_FIFO` where the machine allows (root here); the mode is printed.
 
-use std::fmt::Write;
 use std::time::{Duration, Instant};
 use uss_benches::{Parts, engine_config, percentiles_us};
-use uss_drive_sim::{DriveConfig, SimBus, VirtualWire};
-use uss_master::config::Config;
-use uss_master::daemon::rt::{RtRequest, apply_to_current_thread};
-use uss_master::daemon::runtime::{self, RunOptions};
-use uss_master::engine::clock::SPIN_BEFORE_DEADLINE;
-use uss_master::engine::control::Control;
-use uss_master::engine::stats::{FreshTiming, Published};
-use uss_master::{DriveSetup, Engine, Job, MonotonicClock, SimTransport, Stats, VirtualClock};
+use uss_drive_sim::{DriveConfig, SimBus, SimTransport, VirtualWire};
+use uss_engine::clock::SPIN_BEFORE_DEADLINE;
+use uss_engine::control::Control;
+use uss_engine::rt::{RtRequest, apply_to_current_thread};
+use uss_engine::stats::{FreshTiming, Published};
+use uss_engine::{DriveSetup, Engine, Job, MonotonicClock, Stats, VirtualClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, ParamTask, Pnu, Timing};
 
@@ -229,103 +227,6 @@ fn turnaround() {
     println!(
         "   response delay seen by the master: {}",
         percentiles_us(&stats.histograms.response_delay)
-    );
-}
-
-/// (user, system) CPU seconds of this process so far.
-fn cpu_seconds() -> (f64, f64) {
-    let usage = nix::sys::resource::getrusage(nix::sys::resource::UsageWho::RUSAGE_SELF)
-        .expect("getrusage");
-    let t = |tv: nix::sys::time::TimeVal| tv.tv_sec() as f64 + tv.tv_usec() as f64 / 1e6;
-    (t(usage.user_time()), t(usage.system_time()))
-}
-fn peak_rss_kib() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1).and_then(|v| v.parse().ok()))
-        })
-        .unwrap_or(0)
-}
-
-fn scale() {
-    let mut toml = String::new();
-    for b in 0..8 {
-        let _ = write!(
-            toml,
-            "[[bus]]\nname = \"scale{}b{b}\"\ndevice = \"sim\"\nbaud = 115200\n\n",
-            std::process::id()
-        );
-        for a in 1..=31 {
-            let _ = write!(toml, "[[bus.drive]]\naddress = {a}\n\n");
-        }
-    }
-    let config = Config::parse(&toml, "scale.toml").expect("scale configuration");
-    let rss_before = peak_rss_kib();
-    let cpu_before = cpu_seconds();
-    let started = Instant::now();
-    let buses = runtime::start(
-        &config.buses,
-        RunOptions {
-            require_rt: false,
-            summary_every: Duration::from_secs(3600),
-        },
-    )
-    .expect("start 8 buses");
-    std::thread::sleep(Duration::from_secs(10));
-    let stats: Vec<Stats> = buses.iter().map(|b| b.handle.stats()).collect();
-    let report = &buses[0].rt_report;
-    let mode = format!(
-        "{}: SCHED_FIFO {}, memory {}",
-        report.mode(),
-        report
-            .priority
-            .map_or("not obtained".to_owned(), |p| format!("priority {p}")),
-        if report.memory_locked {
-            "locked"
-        } else {
-            "not locked"
-        }
-    );
-    let wall = started.elapsed().as_secs_f64();
-    let (user, system) = cpu_seconds();
-    let (user, system) = (user - cpu_before.0, system - cpu_before.1);
-    let cpu = user + system;
-    for b in buses {
-        b.stop().expect("clean stop");
-    }
-    let exchanges: u64 = stats.iter().map(|s| s.bus.exchanges).sum();
-    let errors: u64 = stats
-        .iter()
-        .flat_map(|s| s.drives.iter())
-        .map(|d| d.counters.rejected)
-        .sum();
-    let online = stats
-        .iter()
-        .flat_map(|s| s.drives.iter())
-        .filter(|d| d.online)
-        .count();
-    let eff: Vec<String> = stats
-        .iter()
-        .map(|s| format!("{:.3}", s.bus.efficiency().unwrap_or(0.0)))
-        .collect();
-    println!(
-        "== scale: 8 simulated buses x 31 drives at 115200 baud in one process, {wall:.1} s [{mode}]"
-    );
-    println!(
-        "   {exchanges} exchanges ({:.0}/s), {online}/248 drives online, {errors} errors; efficiency per bus {}",
-        exchanges as f64 / wall,
-        eff.join(" ")
-    );
-    println!(
-        "   CPU {cpu:.2} s (user {user:.2} s, system {system:.2} s) in {wall:.1} s = {:.1} % of one core ({:.1} % per bus, {:.1} us per exchange); peak RSS {:.1} MiB (was {:.1} MiB before the buses)",
-        cpu / wall * 100.0,
-        cpu / wall * 100.0 / 8.0,
-        cpu / exchanges.max(1) as f64 * 1e6,
-        peak_rss_kib() as f64 / 1024.0,
-        rss_before as f64 / 1024.0
     );
 }
 
@@ -560,9 +461,6 @@ fn main() {
     }
     if wanted("turnaround") {
         turnaround();
-    }
-    if wanted("scale") {
-        scale();
     }
     if wanted("capture") {
         capture_cost();

@@ -23,10 +23,8 @@ use rand::{Rng, SeedableRng};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 use uss_benches::{Parts, engine_config};
-use uss_drive_sim::{DriveConfig, SimBus, VirtualWire};
-use uss_master::{
-    Clock, DriveSetup, Engine, EngineConfig, EngineHandle, SimTransport, VirtualClock,
-};
+use uss_drive_sim::{DriveConfig, SimBus, SimTransport, VirtualWire};
+use uss_engine::{Clock, DriveSetup, Engine, EngineConfig, EngineHandle, VirtualClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Timing};
 use uss_shm_types::{StopCommand, TelegramRecord};

@@ -139,10 +139,10 @@ pub fn param(pnu: u16) -> uss_client::ParamRef {
 /// The benchmarks' bus: ussd's defaults but a 500 ms probe and one failed poll to go offline.
 pub fn engine_config(
     timing: uss_protocol::Timing,
-    drives: Vec<uss_master::DriveSetup>,
+    drives: Vec<uss_engine::DriveSetup>,
     capture: bool,
-) -> uss_master::EngineConfig {
-    uss_master::EngineConfig {
+) -> uss_engine::EngineConfig {
+    uss_engine::EngineConfig {
         timing,
         response_timeout: core::time::Duration::from_millis(20),
         retries: 2,

@@ -20,10 +20,14 @@ pub mod options;
 pub mod params;
 pub mod serve;
 pub mod spec;
+#[cfg(feature = "transport")]
+pub mod transport;
 pub mod wire;
 
 pub use bus::{BusError, SimBus, Slot};
 pub use drive::{Counters, Drive, DriveConfig, State, Stop};
 pub use fault::{Fault, FaultPlan, Reply};
 pub use options::SimOptions;
+#[cfg(feature = "transport")]
+pub use transport::SimTransport;
 pub use wire::{RxByte, VirtualWire};

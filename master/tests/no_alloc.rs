@@ -11,10 +11,8 @@ use common::allocations;
 
 use crossbeam_channel::Receiver;
 use std::time::Duration;
-use uss_drive_sim::{DriveConfig, Fault, SimBus, VirtualWire};
-use uss_master::{
-    DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, SimTransport, VirtualClock,
-};
+use uss_drive_sim::{DriveConfig, Fault, SimBus, SimTransport, VirtualWire};
+use uss_engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, VirtualClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, ParamTask, Pnu, Storage, Timing, Value};
 use uss_shm_types::{PzdOutput, StopCommand};
@@ -125,7 +123,7 @@ fn bus_loop_allocates_nothing_per_exchange() {
     let captured = std::cell::Cell::new(0u64);
     // Every other job names a watched requester (this process, alive): the bus thread checks
     // it before the job leaves the mailbox.
-    let me = uss_master::engine::requesters::pidfd_of(std::process::id()).unwrap();
+    let me = uss_engine::requesters::pidfd_of(std::process::id()).unwrap();
     let requester = handle
         .watch_requester(std::os::fd::AsFd::as_fd(&me))
         .unwrap();
@@ -171,7 +169,7 @@ fn bus_loop_allocates_nothing_per_exchange() {
     let stats = engine.stats();
     assert_eq!(allocations, 0, "allocations during 5000 polls");
     // The run really covered the paths it claims to.
-    let total = |f: fn(&uss_master::DriveCounters) -> u64| {
+    let total = |f: fn(&uss_engine::DriveCounters) -> u64| {
         stats.drives.iter().map(|d| f(&d.counters)).sum::<u64>()
     };
     assert!(stats.bus.exchanges > 5000);

@@ -11,11 +11,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use uss_drive_sim::serve::{Pty, serve};
 use uss_drive_sim::{DriveConfig, SimBus};
-use uss_master::engine::clock::{Clock, MonotonicClock};
-use uss_master::engine::transport::Transport;
-use uss_master::transports::serial::{SerialOptions, SerialTransport};
+use uss_engine::clock::{Clock, MonotonicClock};
+use uss_engine::transport::Transport;
 use uss_protocol::telegram::{Layout, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, encode};
 use uss_protocol::{Address, Adr, Baud, Framer, FramerConfig, Timing};
+use uss_serial::{SerialOptions, SerialTransport};
 
 /// The simulator enforces the start pause; a pty moves bytes instantly, so wait generously.
 const PAUSE: Duration = Duration::from_millis(1);
@@ -39,7 +39,7 @@ fn a_thousand_exchanges_over_a_pty_allocate_nothing() {
         let options = SerialOptions {
             baud: timing.baud(),
             kernel_rs485: false,
-            rs485_settings: uss_master::transports::serial::Rs485Wanted::default(),
+            rs485_settings: uss_serial::Rs485Wanted::default(),
             low_latency: true,
             rx_latency: core::time::Duration::ZERO,
         };

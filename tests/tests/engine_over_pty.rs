@@ -4,13 +4,13 @@
 #![allow(clippy::unwrap_used)]
 
 use std::time::{Duration, Instant};
+use uss_engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Job, MonotonicClock};
 use uss_integration_tests::SimProcess;
-use uss_master::transports::serial::{SerialOptions, SerialTransport};
-use uss_master::{DriveSetup, Engine, EngineConfig, EngineHandle, Job, MonotonicClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{
     Address, Baud, DriveState, ParamTask, Pnu, Setpoint, Storage, Stw1, Timing, Value, Zsw1,
 };
+use uss_serial::{SerialOptions, SerialTransport};
 use uss_shm_types::{Answer, DriveError, ItemOutcome as Outcome};
 
 fn addr(a: u8) -> Address {
@@ -48,7 +48,7 @@ fn control(handle: &EngineHandle, words: [u16; 2], d: Duration) {
     }
 }
 
-type BusThread = std::thread::JoinHandle<Result<(), uss_master::TransportError>>;
+type BusThread = std::thread::JoinHandle<Result<(), uss_engine::TransportError>>;
 
 /// The engine on the serial transport to `path`, running in its own thread.
 fn start_engine(path: &str) -> (EngineHandle, BusThread) {
@@ -56,7 +56,7 @@ fn start_engine(path: &str) -> (EngineHandle, BusThread) {
     let options = SerialOptions {
         baud,
         kernel_rs485: false,
-        rs485_settings: uss_master::transports::serial::Rs485Wanted::default(),
+        rs485_settings: uss_serial::Rs485Wanted::default(),
         low_latency: true,
         rx_latency: core::time::Duration::ZERO,
     };

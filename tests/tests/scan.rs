@@ -6,7 +6,7 @@
 
 use std::process::Command;
 use uss_integration_tests::{SimProcess, binary};
-use uss_master::transports::serial::{SerialOptions, SerialTransport};
+use uss_serial::{SerialOptions, SerialTransport};
 
 fn ussctl(args: &[&str]) -> (Option<i32>, String, String) {
     let out = Command::new(binary("ussctl", "ussctl"))
@@ -99,7 +99,7 @@ fn a_device_that_is_missing_not_a_tty_or_busy_is_a_clear_error() {
     let options = SerialOptions {
         baud: uss_client::uss_protocol::Baud::new(9600).unwrap(),
         kernel_rs485: false,
-        rs485_settings: uss_master::transports::serial::Rs485Wanted::default(),
+        rs485_settings: uss_serial::Rs485Wanted::default(),
         low_latency: false,
         rx_latency: core::time::Duration::ZERO,
     };

@@ -342,8 +342,8 @@ impl DriveEntry {
     }
 
     /// The unit of the reference parameter: rpm when `pole_pairs` are given, else Hz.
-    pub fn reference_unit(&self) -> crate::engine::reference::ReferenceUnit {
-        use crate::engine::reference::ReferenceUnit;
+    pub fn reference_unit(&self) -> uss_engine::reference::ReferenceUnit {
+        use uss_engine::reference::ReferenceUnit;
         self.pole_pairs
             .map_or(ReferenceUnit::Hz, |pole_pairs| ReferenceUnit::Rpm {
                 pole_pairs,

@@ -422,7 +422,7 @@ fn telegram_monitoring_is_checked_as_configured() {
 
 #[test]
 fn a_g120_reference_speed_is_read_only_with_its_pole_pairs() {
-    use crate::engine::reference::ReferenceUnit;
+    use uss_engine::reference::ReferenceUnit;
     let d = |line: &str| parse(&drive_key(line)).buses[0].drives[0].clone();
     let unverified = d("family = \"g120\"");
     assert_eq!(unverified.reference_param().param(), None);

@@ -4,13 +4,13 @@
 
 use crate::config::{BusConfig, DriveEntry, ParamName};
 use crate::daemon::ipc::StatusPublisher;
-use crate::engine::control::Latch;
-use crate::engine::reference::Reference;
-use crate::engine::stats::Stats;
-use crate::engine::{EngineHandle, Event};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, RecvTimeoutError};
 use std::thread::JoinHandle;
+use uss_engine::control::Latch;
+use uss_engine::reference::Reference;
+use uss_engine::stats::Stats;
+use uss_engine::{EngineHandle, Event};
 use uss_protocol::Address;
 use uss_shm_types::{LatchReason, Monitoring, Rejection};
 

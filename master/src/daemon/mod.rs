@@ -4,7 +4,7 @@
 pub mod access;
 pub mod housekeeping;
 pub mod ipc;
-pub mod rt;
+pub mod line;
 pub mod runtime;
 pub mod stops;
 pub mod summary;

@@ -6,29 +6,29 @@
 //! parameter and line threads spawned first; only then do the bus threads pin, raise their
 //! priority, prefault and lock memory. The housekeeping threads are spawned after that (they
 //! need each bus's real-time report): safe because memory is locked only where no limit applies
-//! (memlock unlimited or `CAP_IPC_LOCK`, [`crate::daemon::rt`]), so a later thread or mapping
+//! (memlock unlimited or `CAP_IPC_LOCK`, [`uss_engine::rt`]), so a later thread or mapping
 //! cannot fail on it.
 
 use crate::config::{BusConfig, Cpu, Device, Rs485Mode};
 use crate::config::{Rs485Delay, RxLatencyMs};
 use crate::daemon::ipc::StatusPublisher;
-use crate::daemon::rt::{RtReport, RtRequest, apply_to_current_thread};
-use crate::engine::clock::MonotonicClock;
-use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
-use crate::engine::transport::{Line, Transport, TransportError};
-use crate::engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event};
-use crate::transports::latency::{self, RxLatency, Source};
-use crate::transports::serial::{Rs485Wanted, SerialError, SerialOptions, SerialTransport};
-#[cfg(feature = "sim")]
-use crate::transports::sim::SimTransport;
+use crate::daemon::line::Line;
 use core::time::Duration;
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, bounded};
 use std::path::{Path, PathBuf};
 use std::thread::JoinHandle;
 use thiserror::Error;
 #[cfg(feature = "sim")]
-use uss_drive_sim::{BusError, SimBus, VirtualWire};
+use uss_drive_sim::{BusError, SimBus, SimTransport, VirtualWire};
+use uss_engine::monitoring::{MonitoringSetup, WatchedParam};
+use uss_engine::rt::{RtReport, RtRequest, apply_to_current_thread};
+use uss_engine::{
+    DriveSetup, Engine, EngineConfig, EngineHandle, Event, MonotonicClock, Transport,
+    TransportError,
+};
 use uss_protocol::Timing;
+use uss_serial::latency::{self, RxLatency, Source};
+use uss_serial::{Rs485Wanted, SerialError, SerialOptions, SerialTransport};
 
 /// Parameter jobs each drive can hold.
 const MAILBOX_DEPTH: usize = 64;
@@ -235,12 +235,14 @@ struct Reopen<T> {
     ask: Sender<Option<T>>,
     /// The transport and its receive latency.
     reopened: Receiver<(T, Duration)>,
+    /// Gives up the failed line's device ([`Line::release`]).
+    release: fn(&mut T) -> Option<T>,
 }
 
 /// Runs `engine` until it is stopped; when its line fails, releases the device and waits (line
 /// down, allocating nothing) for a reopened transport and resumes. Without `reopen` a failed
 /// line ends the bus.
-fn run_bus<T: Transport, C: crate::engine::clock::Clock, B: crate::engine::Bridge>(
+fn run_bus<T: Transport, C: uss_engine::clock::Clock, B: uss_engine::Bridge>(
     engine: &mut Engine<T, C, B>,
     handle: &EngineHandle,
     reopen: Option<&Reopen<T>>,
@@ -254,13 +256,15 @@ fn run_bus<T: Transport, C: crate::engine::clock::Clock, B: crate::engine::Bridg
         };
         // The old descriptor goes first: while it is open the device's exclusive lock refuses
         // the reopen, and a USB adapter's minor stays taken.
-        let _ = reopen.ask.try_send(engine.transport_mut().release());
+        let _ = reopen
+            .ask
+            .try_send((reopen.release)(engine.transport_mut()));
         loop {
             if handle.is_stopped() {
                 return engine.shutdown();
             }
             handle.note_progress();
-            match reopen.reopened.recv_timeout(crate::engine::IDLE_STEP) {
+            match reopen.reopened.recv_timeout(uss_engine::IDLE_STEP) {
                 Ok((transport, rx_latency)) => {
                     engine.restore(transport, rx_latency);
                     break;
@@ -286,6 +290,15 @@ struct Reopened<T> {
 
 /// Opens a bus's device again, or says why not.
 type Opener<T> = Box<dyn FnMut() -> Result<Reopened<T>, String> + Send>;
+
+/// How a failed line of a serial bus is given up and opened again.
+struct Reopening<T> {
+    /// The configured path, reopened by name (a replugged adapter).
+    device: PathBuf,
+    open: Opener<T>,
+    /// Gives up the failed line's device ([`Line::release`]).
+    release: fn(&mut T) -> Option<T>,
+}
 
 /// The line thread of a serial bus: on each ask, closes what held the device, reopens `device`
 /// by its configured path with backoff until it opens (or the bus stops) and hands the
@@ -398,7 +411,7 @@ fn spawn<T: Transport + Send + 'static>(
     transport: T,
     options: RunOptions,
     go: &Receiver<()>,
-    line: Option<(PathBuf, Opener<T>)>,
+    line: Option<Reopening<T>>,
     rx_latency: Duration,
 ) -> Result<Spawned, StartError> {
     let clock = MonotonicClock::new();
@@ -436,12 +449,21 @@ fn spawn<T: Transport + Send + 'static>(
         source,
     };
     let (reopen, line_thread) = match line {
-        Some((device, open)) => {
+        Some(Reopening {
+            device,
+            open,
+            release,
+        }) => {
             let (ask, asks) = bounded(1);
             let (give, reopened) = bounded(1);
             let thread =
                 spawn_line(bus, device, open, handle.clone(), asks, give).map_err(spawn_error)?;
-            (Some(Reopen { ask, reopened }), Some(thread))
+            let reopen = Reopen {
+                ask,
+                reopened,
+                release,
+            };
+            (Some(reopen), Some(thread))
         }
         None => (None, None),
     };
@@ -547,7 +569,12 @@ fn open_and_spawn(
                     rx_latency: self::rx_latency(&reopened_bus, &device),
                 })
             });
-            spawn(bus, t, options, go, Some((path.clone(), open)), rx_latency)
+            let line = Reopening {
+                device: path.clone(),
+                open,
+                release: Line::release,
+            };
+            spawn(bus, t, options, go, Some(line), rx_latency)
         }
     }
 }
@@ -698,10 +725,10 @@ fn warn_unverified_references(bus: &BusConfig) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::engine::clock::Clock;
-    use crate::engine::transport::Rx;
     use std::sync::Arc;
     use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+    use uss_engine::clock::Clock;
+    use uss_engine::transport::Rx;
 
     /// A device whose writes fail and whose close is observed: while it is open, it holds the
     /// device's exclusive lock, as a serial port does.
@@ -779,7 +806,11 @@ mod tests {
         .unwrap();
         let bus_handle = handle.clone();
         let thread = std::thread::spawn(move || {
-            let reopen = Reopen { ask, reopened };
+            let reopen = Reopen {
+                ask,
+                reopened,
+                release: Line::take,
+            };
             run_bus(&mut engine, &bus_handle, Some(&reopen))
         });
         let deadline = std::time::Instant::now() + Duration::from_secs(10);

@@ -3,7 +3,7 @@
 //! thread of its own. A stop never waits behind parameter requests, never needs an iceoryx2 port
 //! (64 `ussctl watch` processes use up what the services admit) and never depends on the
 //! heartbeat (a housekeeping thread that cannot publish). The bus thread sends the stop in its
-//! next telegram (`crate::engine::turns`); the answer says which drives got it.
+//! next telegram (`uss_engine::turns`); the answer says which drives got it.
 //!
 //! **Nobody delays a stop** (docs/SAFETY.md, STOP-ANYWHERE). The thread waits on every
 //! connection at once (poll(2)) and answers each request the moment its bytes are in: a
@@ -13,7 +13,6 @@
 //! (beyond, the process that holds the most gives up its oldest for the new one), so whatever
 //! the processes of the access group do, a stop of another process is taken in microseconds.
 
-use crate::engine::EngineHandle;
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use std::io::{ErrorKind, Read as _, Write as _};
 use std::os::fd::AsFd as _;
@@ -24,6 +23,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use uss_engine::EngineHandle;
 use uss_protocol::Address;
 use uss_shm_types::{
     ALL_DRIVES, CommandError, OPERATOR_REQUEST_BYTES, OperatorRequest, OperatorResponse,

@@ -3,10 +3,10 @@
 //! state, online flag, last ZSW1 and actual value, and telegram counters.
 
 use crate::config::BusConfig;
-use crate::engine::control::Control;
-use crate::engine::stats::{DriveCounters, DriveStatus, Stats};
 use core::fmt::Write;
 use core::time::Duration;
+use uss_engine::control::Control;
+use uss_engine::stats::{DriveCounters, DriveStatus, Stats};
 use uss_protocol::{DriveState, Setpoint, Zsw1};
 
 fn errors(c: &DriveCounters) -> u64 {
@@ -74,7 +74,7 @@ pub fn render(bus: &BusConfig, rt_mode: &str, stats: &Stats, previous: Option<&S
             c.wrong_address,
             c.parity,
             match d.last_failure {
-                crate::engine::stats::LastFailure::None => "-",
+                uss_engine::stats::LastFailure::None => "-",
                 f => f.name(),
             },
             control_note(d),

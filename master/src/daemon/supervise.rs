@@ -3,7 +3,7 @@
 //!
 //! ussd says `READY=1` once every bus thread runs, `STOPPING=1` when it stops, and, when the
 //! unit sets `WatchdogSec=`, `WATCHDOG=1` every half watchdog period, but only while no bus
-//! thread hangs: a bus thread whose progress counter ([`crate::engine::EngineHandle::progress`])
+//! thread hangs: a bus thread whose progress counter ([`uss_engine::EngineHandle::progress`])
 //! has not moved for its [`stall_bound`] is hung (stuck in a system call of a wedged serial
 //! driver, or a bug), and without keep-alives systemd kills and restarts ussd. The drives of a
 //! hung bus are not polled: their own telegram monitoring (P2014) stops them meanwhile.
@@ -21,13 +21,13 @@ use uss_protocol::telegram::MAX_NET_BYTES;
 /// single step (one attempt: a request and a reply of the longest telegram, the response
 /// timeout and its margin, two start pauses; on a serial line also the longest a write may wait
 /// before it counts as a line failure, which the line thread then reopens), at least one
-/// second. Idle waits are cut into steps of [`crate::engine::IDLE_STEP`], so they never come
+/// second. Idle waits are cut into steps of [`uss_engine::IDLE_STEP`], so they never come
 /// near it.
 pub fn stall_bound(bus: &BusConfig) -> Duration {
     let timing = Timing::new(bus.baud);
     let write_stall = match bus.device {
         Device::Sim => Duration::ZERO,
-        Device::Serial(_) => crate::transports::serial::write_stall(timing),
+        Device::Serial(_) => uss_serial::write_stall(timing),
     };
     let attempt = timing.telegram(MAX_NET_BYTES) * 2
         + timing.start_pause() * 2
@@ -308,7 +308,7 @@ mod tests {
             device: Device::Serial("/dev/ttyUSB0".into()),
             ..bus(9600)
         };
-        let write_stall = crate::transports::serial::write_stall(Timing::new(serial.baud));
+        let write_stall = uss_serial::write_stall(Timing::new(serial.baud));
         assert!(stall_bound(&serial) > write_stall * 2, "{write_stall:?}");
     }
 

@@ -52,10 +52,10 @@ static GLOBAL: Counting = Counting;
 )]
 pub fn engine_config(
     timing: uss_protocol::Timing,
-    drives: Vec<uss_master::DriveSetup>,
-) -> uss_master::EngineConfig {
+    drives: Vec<uss_engine::DriveSetup>,
+) -> uss_engine::EngineConfig {
     use std::time::Duration;
-    uss_master::EngineConfig {
+    uss_engine::EngineConfig {
         timing,
         response_timeout: Duration::from_millis(20),
         retries: 2,

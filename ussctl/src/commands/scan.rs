@@ -29,8 +29,8 @@ use uss_client::uss_protocol::{
     Subindex, Timing,
 };
 use uss_client::{ParamTask, Value};
-use uss_master::transports::serial::{SerialError, SerialOptions, SerialTransport};
-use uss_master::{Clock, MonotonicClock, Transport};
+use uss_engine::{Clock, MonotonicClock, Transport};
+use uss_serial::{SerialError, SerialOptions, SerialTransport};
 
 /// The PZD of every probe: OFF1 (STW1 0x047E, bit 10 "control by PLC" set) with a zero setpoint
 /// and zero further words, the first `pzd` of them.
@@ -76,7 +76,7 @@ impl Probe {
         let mut buf = [0u8; MAX_TELEGRAM_BYTES];
         let n = encode(&mut buf, adr, pkw, pzd)
             .map_err(|e| Failure::Usage(format!("cannot build a probe telegram: {e}")))?;
-        let io = |e: uss_master::TransportError| Failure::Usage(format!("the line failed: {e}"));
+        let io = |e: uss_engine::TransportError| Failure::Usage(format!("the line failed: {e}"));
         // The start pause after whatever the line carried last (USS.md section 4).
         self.clock
             .sleep_until_precise(self.free_at + self.timing.start_pause());
@@ -453,7 +453,7 @@ pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
         let options = SerialOptions {
             baud,
             kernel_rs485: false,
-            rs485_settings: uss_master::transports::serial::Rs485Wanted::default(),
+            rs485_settings: uss_serial::Rs485Wanted::default(),
             low_latency: true,
             rx_latency: core::time::Duration::ZERO,
         };

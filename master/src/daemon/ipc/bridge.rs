@@ -6,15 +6,15 @@
 
 use super::status::ControlView;
 use super::{IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, fail, text};
-use crate::engine::Bridge;
-use crate::engine::control::ControllerId;
-use crate::engine::image::DriveImages;
-use crate::engine::stats::DriveStatus;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::writer::{EntryHandleMut, Writer};
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
+use uss_engine::Bridge;
+use uss_engine::control::ControllerId;
+use uss_engine::image::DriveImages;
+use uss_engine::stats::DriveStatus;
 use uss_protocol::Address;
 use uss_shm_types::names;
 use uss_shm_types::{BlackboardKey, Instance, PzdInput, PzdOutput, StopCommand};

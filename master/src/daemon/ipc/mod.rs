@@ -26,11 +26,11 @@ pub use bridge::RtBridge;
 pub use server::ParamServer;
 pub use status::StatusPublisher;
 
-use crate::engine::DriveSetup;
 use core::time::Duration;
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use thiserror::Error;
+use uss_engine::DriveSetup;
 use uss_protocol::Address;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{BusName, Generation, Instance, LAYOUT_VERSION};

@@ -8,8 +8,6 @@
 
 use super::bridge::OutService;
 use super::{IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, as_ns, fail, pid_of, text};
-use crate::engine::EngineHandle;
-use crate::engine::jobs::{Job, JobResult, Requester};
 use core::time::Duration;
 use iceoryx2::active_request::ActiveRequest;
 use iceoryx2::identifiers::UniqueNodeId;
@@ -21,6 +19,8 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::request_response::PortFactory as RequestResponseFactory;
 use std::time::Instant;
 use uss_catalogue::Catalogue;
+use uss_engine::EngineHandle;
+use uss_engine::jobs::{Job, JobResult, Requester};
 use uss_protocol::{Address, ParamRef, ParamTask};
 use uss_shm_types::names;
 use uss_shm_types::{Instance, Outcome, ParamRequest, ParamResponse, ParamResult, RequestError};
@@ -33,7 +33,7 @@ pub(super) fn create(
     bus: &Instance,
     attributes: &AttributeSpecifier,
     (outs, requests): (Vec<(Address, OutService)>, Listener<Svc>),
-    setups: &[crate::engine::DriveSetup],
+    setups: &[uss_engine::DriveSetup],
 ) -> Result<ParamServer, IpcError> {
     let guards = setups
         .iter()

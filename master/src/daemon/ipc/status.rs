@@ -5,14 +5,14 @@
 use super::{
     IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, as_ns, fail, monotonic_ns, pid_of, text,
 };
-use crate::engine::DriveSetup;
-use crate::engine::control::Control;
-use crate::engine::stats::{DriveStatus, LineFailure, Stats};
 use core::time::Duration;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::writer::{EntryHandleMut, Writer};
 use iceoryx2::prelude::*;
+use uss_engine::DriveSetup;
+use uss_engine::control::Control;
+use uss_engine::stats::{DriveStatus, LineFailure, Stats};
 use uss_protocol::Address;
 use uss_shm_types::names::{self, LAYOUT_VERSION_ATTRIBUTE};
 use uss_shm_types::{

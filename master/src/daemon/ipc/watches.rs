@@ -1,15 +1,15 @@
 //! The processes behind parameter requests, watched so the bus thread can end a dead client's
-//! jobs before they leave the mailbox (`crate::engine::requesters`): one pidfd per client node,
+//! jobs before they leave the mailbox (`uss_engine::requesters`): one pidfd per client node,
 //! opened at its first request and kept while it lives (a client that asks again costs no
 //! lookup), closed once it has no request pending and has ended, or when the table is needed
 //! for another client.
 
-use crate::engine::EngineHandle;
-use crate::engine::jobs::Requester;
-use crate::engine::requesters::pidfd_of;
 use iceoryx2::identifiers::UniqueNodeId;
 use std::collections::HashMap;
 use std::os::fd::{AsFd, OwnedFd};
+use uss_engine::EngineHandle;
+use uss_engine::jobs::Requester;
+use uss_engine::requesters::pidfd_of;
 
 /// One watched client process.
 #[derive(Debug)]

@@ -2,9 +2,9 @@
 //! USS.md section 7), plus timing histograms. Everything is allocated when the engine starts;
 //! counting and recording never allocate.
 
-use crate::engine::control::{Control, ControlCounters};
-use crate::engine::reference::Reference;
-use crate::engine::transport::TransportError;
+use crate::control::{Control, ControlCounters};
+use crate::reference::Reference;
+use crate::transport::TransportError;
 use core::time::Duration;
 use hdrhistogram::Histogram;
 use uss_protocol::Address;
@@ -86,7 +86,7 @@ pub struct DriveStatus {
     pub last_zsw1: u16,
     pub last_hiw: u16,
     pub last_good: Option<Duration>,
-    /// Live (the controller's words go out) or latched, and why (`crate::engine::control`).
+    /// Live (the controller's words go out) or latched, and why (`crate::control`).
     pub control: Control,
     /// The last refused sample's rejection.
     pub rejection: Rejection,
@@ -102,11 +102,11 @@ pub struct DriveStatus {
     /// The drive's reference frequency as read from it.
     pub reference: Reference,
     /// How often the drive is polled now, and after how long its image is stale
-    /// (`crate::engine::period`); set before each [`crate::engine::Bridge::after_poll`].
+    /// (`crate::period`); set before each [`crate::Bridge::after_poll`].
     pub period: Duration,
     pub stale_after: Duration,
     /// The shortest telegram-off time that does not trip the drive between two of its polls
-    /// (`crate::engine::period::Periods::shortest_monitoring`).
+    /// (`crate::period::Periods::shortest_monitoring`).
     pub monitoring_min: Duration,
     pub counters: DriveCounters,
 }

@@ -10,7 +10,7 @@ impl EngineHandle {
     /// Publishes the PZD words the drive should get (STW1, setpoint, ...) as an in-process
     /// controller (an engine built with [`Engine::new`]). Every call refreshes the watchdog: a
     /// controller must publish at least once per watchdog time. Like every sample, it reaches
-    /// the drive only while the drive is live (see [`crate::engine::control`]); it names the
+    /// the drive only while the drive is live (see [`crate::control`]); it names the
     /// latch the drive shows now, so a stop given here re-arms it (the caller sends it knowing
     /// the drive's state: this is no refresher).
     pub fn set_output(&self, address: Address, words: &[u16]) -> Result<(), SubmitError> {
@@ -101,7 +101,7 @@ impl EngineHandle {
     pub fn input(
         &self,
         address: Address,
-    ) -> Result<(Option<crate::engine::image::Words>, bool), SubmitError> {
+    ) -> Result<(Option<crate::image::Words>, bool), SubmitError> {
         let slot = self.shared.slot(address)?;
         let image = &self.shared.drives[slot].images;
         let words = image
@@ -154,7 +154,7 @@ impl EngineHandle {
         })
     }
 
-    /// Watches the process of `pidfd` ([`crate::engine::requesters::pidfd_of`]) for the jobs
+    /// Watches the process of `pidfd` ([`crate::requesters::pidfd_of`]) for the jobs
     /// submitted with the returned requester; `None` when the table is full. Keep the fd open
     /// until [`EngineHandle::forget_requester`], and call that only when none of its jobs is
     /// left (every one has its result).
@@ -176,7 +176,7 @@ impl EngineHandle {
 
     /// Every telegram the bus thread sent and received, when the engine captures
     /// ([`crate::EngineConfig::capture`]); whoever takes them must keep up (the channel holds
-    /// [`crate::engine::CAPTURE_QUEUE`] records; more are lost, which their `sequence` shows).
+    /// [`crate::CAPTURE_QUEUE`] records; more are lost, which their `sequence` shows).
     pub fn captures(&self) -> &crossbeam_channel::Receiver<uss_shm_types::TelegramRecord> {
         &self.captures
     }

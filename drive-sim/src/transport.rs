@@ -1,12 +1,15 @@
-//! The in-process virtual wire of `uss-drive-sim` as a transport: ussd's built-in simulated bus
-//! (`device = "sim"`) and the engine's tests and benchmarks.
+//! The in-process virtual wire as the engine's transport (feature `transport`): ussd's built-in
+//! simulated bus (`device = "sim"`) and the engine's tests and benchmarks.
 
-use crate::engine::clock::Clock;
-use crate::engine::transport::{Rx, Transport, TransportError};
 use core::time::Duration;
-use uss_drive_sim::VirtualWire;
+use uss_engine::{Clock, Rx, Transport, TransportError};
 
-/// The in-process virtual wire to simulated drives: bytes take their real wire time.
+use crate::VirtualWire;
+
+/// The in-process virtual wire to simulated drives: bytes take their real wire time. A drive
+/// moves its model (ramps, telegram monitoring) up to the time of each telegram it hears, before
+/// it answers; a drive nobody addresses stands still until it is addressed again, which no
+/// master can tell apart from one that moved all along.
 #[derive(Debug)]
 pub struct SimTransport {
     wire: VirtualWire,
@@ -56,9 +59,5 @@ impl Transport for SimTransport {
                 Ok(None)
             }
         }
-    }
-
-    fn idle(&mut self, now: Duration) {
-        self.wire.advance(now);
     }
 }

@@ -4,7 +4,7 @@
 //! 8250/16550 UART raises its interrupt at its FIFO trigger level, or after four character
 //! times of silence; other USB-serial chips (CH340, `cp210x`, PL2303) send a packet per USB
 //! frame (1 ms); a pseudo-terminal delivers at once. ussd widens its timing allowances by this
-//! much (`rx_latency_ms`, [`crate::engine::EngineConfig::rx_latency`]).
+//! much (`rx_latency_ms`, `uss_engine::EngineConfig::rx_latency`).
 
 use core::fmt;
 use core::time::Duration;

@@ -15,7 +15,7 @@
 //!    long-lived client) -> ussd's `ParamServer` -> the drive's mailbox -> PKW exchange -> back,
 //!    against the bare exchange on the wire. See [`parameter_round_trip`].
 //!
-//! `cargo bench -p uss-benches --bench ipc -- input` runs only part 1 (`output`, `params`: the
+//! `cargo bench -p uss-master --bench ipc -- input` runs only part 1 (`output`, `params`: the
 //! others).
 
 use hdrhistogram::Histogram;
@@ -35,15 +35,17 @@ use uss_client::{
     Bus, ControlOptions, CycleEvent, ParamItem, ParamRequest, ParamTask, Pnu, PzdInput, Setpoint,
     Value,
 };
+use uss_drive_sim::SimTransport;
+use uss_engine::control::ControllerId;
+use uss_engine::image::DriveImages;
+use uss_engine::rt::{RtRequest, apply_to_current_thread};
+use uss_engine::{
+    Bridge, Clock, DriveStatus, Engine, EngineHandle, MonotonicClock, Rx, Stats, Transport,
+    TransportError,
+};
 use uss_master::config::Config;
 use uss_master::daemon::ipc::{IpcNode, RtBridge};
-use uss_master::daemon::rt::{RtRequest, apply_to_current_thread};
-use uss_master::engine::control::ControllerId;
-use uss_master::engine::image::DriveImages;
-use uss_master::{
-    Bridge, Clock, DriveStatus, Engine, EngineHandle, MonotonicClock, Rx, SimTransport, Stats,
-    Transport, TransportError, daemon::runtime,
-};
+use uss_master::daemon::runtime;
 use uss_protocol::{Layout, Telegram};
 use uss_shm_types::names::EVENT_ID_MAX;
 use uss_shm_types::service::Ipc;
@@ -156,10 +158,6 @@ impl Transport for Recording {
         clock: &mut impl Clock,
     ) -> Result<Option<Rx>, TransportError> {
         self.inner.recv(deadline, clock)
-    }
-
-    fn idle(&mut self, now: Duration) {
-        self.inner.idle(now);
     }
 }
 
@@ -377,7 +375,7 @@ fn failures(stats: &Stats) -> String {
     )
 }
 
-fn mode(report: &uss_master::daemon::rt::RtReport) -> String {
+fn mode(report: &uss_engine::rt::RtReport) -> String {
     match (report.priority, report.cpu) {
         (Some(p), Some(cpu)) => format!("SCHED_FIFO {p} on CPU {cpu}"),
         _ => format!("best-effort: {}", report.summary()),

@@ -8,7 +8,7 @@
 //! its requester's slot ([`Requester`]). The bus thread's check is one `poll` with a zero
 //! timeout: no allocation, no blocking.
 
-use crate::engine::jobs::Requester;
+use crate::jobs::Requester;
 use core::sync::atomic::{AtomicI32, Ordering};
 use std::os::fd::{AsRawFd, BorrowedFd, RawFd};
 

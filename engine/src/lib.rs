@@ -1,4 +1,8 @@
-//! The bus engine: the circulating list on one line (USS.md sections 4 to 6).
+//! The bus engine: the circulating list on one line (USS.md sections 4 to 6), with no I/O of its
+//! own. Its seams are two traits it owns: [`Transport`] (the bytes: `uss-serial`'s serial line,
+//! the simulator's virtual wire in `uss-drive-sim`) and [`Clock`] (monotonic, or virtual for
+//! tests and benchmarks). The daemon (`uss-master`) runs engines in real-time threads
+//! ([`rt`]) and serves their clients.
 //!
 //! One [`Engine`] owns one [`Transport`] and runs in one thread. Each step polls the next drive of
 //! the circulating list: it waits out the start pause, flushes stale input, sends the drive's
@@ -8,6 +12,11 @@
 //! reply. After start-up nothing here allocates, blocks on a client or logs: clients reach the
 //! engine through lock-free process images and bounded channels ([`EngineHandle`]), and events go
 //! to a housekeeping thread over a bounded channel, dropped and counted when it lags.
+//!
+//! The parts: PKW mailboxes ([`jobs`]), diagnostics ([`stats`]), the decision of which PZD words
+//! go to a drive ([`control`]), the check of the drive's own telegram monitoring
+//! ([`monitoring`]) and reference frequency ([`reference`]), lock-free process images
+//! ([`image`]).
 
 pub mod clock;
 pub mod control;
@@ -17,6 +26,7 @@ pub mod monitoring;
 pub mod period;
 pub mod reference;
 pub mod requesters;
+pub mod rt;
 pub mod stats;
 pub mod transport;
 
@@ -32,18 +42,20 @@ mod line;
 mod turns;
 pub use turns::LOOK_STEP;
 
-use crate::engine::clock::Clock;
-use crate::engine::control::{
+pub use clock::{Clock, MonotonicClock, VirtualClock};
+pub use jobs::{Job, JobResult};
+pub use monitoring::{MonitoringSetup, WatchedParam};
+pub use reference::Reference;
+pub use stats::{DriveCounters, DriveStatus, LastFailure, Stats};
+pub use transport::{Rx, Transport, TransportError};
+
+use crate::control::{
     Control, ControllerId, Gate, GateSetup, Latch, Operator, Poll, Transition, latch_id_of,
 };
-use crate::engine::image::DriveImages;
-use crate::engine::jobs::{Encoded, Job, JobResult, Outgoing, Requester};
-use crate::engine::monitoring::{MonitoringSetup, WatchedParam};
-use crate::engine::period::{PeriodSetup, Periods};
-use crate::engine::stats::{
-    BusCounters, BusTiming, DriveStatus, LastFailure, LineFailure, LineStatus, Published, Stats,
-};
-use crate::engine::transport::{Transport, TransportError};
+use crate::image::DriveImages;
+use crate::jobs::{Encoded, Outgoing, Requester};
+use crate::period::{PeriodSetup, Periods};
+use crate::stats::{BusCounters, BusTiming, LineFailure, LineStatus, Published};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
@@ -383,7 +395,7 @@ struct Shared {
     reopen_attempts: AtomicU32,
     /// Counts the bus thread's steps: every telegram attempt, every poll, every
     /// [`IDLE_STEP`] of an idle wait, every wait for a reopened line. A counter that stops
-    /// means the bus thread hangs (see `crate::daemon::supervise`).
+    /// means the bus thread hangs (see the daemon's supervisor, `uss-master`'s `daemon::supervise`).
     progress: AtomicU64,
     outstanding: AtomicUsize,
     capacity: usize,
@@ -720,7 +732,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .map(|d| d.link.next_probe)
             .min()
             .unwrap_or(now);
-        self.transport.idle(now);
         self.idle_until(next)?;
         Ok(None)
     }
@@ -754,7 +765,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 self.cycle_start = now;
             }
             Some(cycle) => {
-                self.transport.idle(now);
                 self.cycle_start += cycle;
                 self.idle_until(self.cycle_start)?;
             }
@@ -806,7 +816,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     }
 
     /// The PZD to send now, as the drive's [`Gate`] decides from the controller's newest
-    /// sample, operator commands and the telegram-monitoring rule (`crate::engine::control`);
+    /// sample, operator commands and the telegram-monitoring rule (`crate::control`);
     /// the drive is no longer due out of turn.
     fn output(&mut self, slot: usize, now: Duration, out: &mut [u16; MAX_PZD_WORDS]) {
         self.observe(slot, now, Duration::ZERO);

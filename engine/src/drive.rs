@@ -20,7 +20,7 @@ use uss_shm_types::{DriveCounters, Monitoring};
 #[derive(Debug)]
 pub(super) struct Drive {
     pub setup: DriveSetup,
-    /// Decides the words that go out (`crate::engine::control`).
+    /// Decides the words that go out (`crate::control`).
     pub gate: Gate,
     pub mailbox: Mailbox,
     pub link: Link,
@@ -44,7 +44,7 @@ pub(super) struct Drive {
     /// (`Periods::shortest_monitoring`).
     pub shortest_monitoring: Duration,
     /// How often it is polled, and after how long its image is stale, as of its last poll
-    /// (`crate::engine::period`).
+    /// (`crate::period`).
     pub period: Duration,
     pub stale_after: Duration,
     /// Operator commands already taken: OFF1, OFF2, OFF3.

@@ -1,16 +1,16 @@
 //! The bus engine on a virtual clock against the simulator's virtual wire: every timing rule and
 //! failure path of USS.md sections 4 to 6, driven by the simulator's fault injector. Runs in
 //! milliseconds, deterministically.
-#![cfg(feature = "sim")]
 #![allow(clippy::unwrap_used)]
 
 use crossbeam_channel::Receiver;
 use std::time::Duration;
+use uss_drive_sim::SimTransport;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, State, VirtualWire};
-use uss_master::engine::control::Control;
-use uss_master::{
+use uss_engine::control::Control;
+use uss_engine::{
     DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, LastFailure, Reference,
-    SimTransport, SubmitError, VirtualClock,
+    SubmitError, VirtualClock,
 };
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{
@@ -109,7 +109,7 @@ fn bench(drives: &[(u8, PkwMode)]) -> Bench {
 
 impl Bench {
     fn now(&self) -> Duration {
-        uss_master::Clock::now(self.engine.clock())
+        uss_engine::Clock::now(self.engine.clock())
     }
 
     /// Polls for `d` of bus time, refreshing `outputs` before every poll like a live controller.
@@ -136,7 +136,7 @@ impl Bench {
             .unwrap()
     }
 
-    fn status(&self, a: u8) -> uss_master::DriveStatus {
+    fn status(&self, a: u8) -> uss_engine::DriveStatus {
         *self.engine.stats().drive(addr(a)).unwrap()
     }
 
@@ -163,7 +163,7 @@ impl Bench {
     }
 
     /// Polls until `count` results arrived (or 60 s of bus time pass).
-    fn results(&mut self, count: usize) -> Vec<uss_master::JobResult> {
+    fn results(&mut self, count: usize) -> Vec<uss_engine::JobResult> {
         let mut out = Vec::new();
         let until = self.now() + Duration::from_secs(60);
         while out.len() < count && self.now() < until {
@@ -358,7 +358,7 @@ fn late_reply_is_not_matched_to_the_next_request() {
     assert!(b.engine.stats().histograms.response_delay.max() < ms(20).as_nanos() as u64);
 }
 
-fn one_fault(fault: Fault) -> uss_master::DriveStatus {
+fn one_fault(fault: Fault) -> uss_engine::DriveStatus {
     let mut b = bench(&[(1, PkwMode::Four)]);
     b.faults(1).script([Some(fault)]);
     for _ in 0..3 {
@@ -1091,8 +1091,8 @@ struct Unpluggable {
     unplugged: bool,
 }
 
-impl uss_master::Transport for Unpluggable {
-    fn flush_input(&mut self, now: Duration) -> Result<(), uss_master::TransportError> {
+impl uss_engine::Transport for Unpluggable {
+    fn flush_input(&mut self, now: Duration) -> Result<(), uss_engine::TransportError> {
         self.inner.flush_input(now)
     }
 
@@ -1100,9 +1100,9 @@ impl uss_master::Transport for Unpluggable {
         &mut self,
         bytes: &[u8],
         now: Duration,
-    ) -> Result<Duration, uss_master::TransportError> {
+    ) -> Result<Duration, uss_engine::TransportError> {
         if self.unplugged {
-            return Err(uss_master::TransportError::Closed);
+            return Err(uss_engine::TransportError::Closed);
         }
         self.inner.send(bytes, now)
     }
@@ -1110,8 +1110,8 @@ impl uss_master::Transport for Unpluggable {
     fn recv(
         &mut self,
         deadline: Duration,
-        clock: &mut impl uss_master::Clock,
-    ) -> Result<Option<uss_master::Rx>, uss_master::TransportError> {
+        clock: &mut impl uss_engine::Clock,
+    ) -> Result<Option<uss_engine::Rx>, uss_engine::TransportError> {
         self.inner.recv(deadline, clock)
     }
 }
@@ -1388,7 +1388,7 @@ struct PausingClock {
     pause: Option<Duration>,
 }
 
-impl uss_master::Clock for PausingClock {
+impl uss_engine::Clock for PausingClock {
     fn now(&self) -> Duration {
         self.now
     }

@@ -35,7 +35,7 @@ use super::{
     Adr, Bridge, Clock, Duration, Engine, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, STOPS, Transport,
     TransportError, encode,
 };
-use crate::engine::control::Transition;
+use crate::control::Transition;
 use uss_shm_types::StopCommand;
 use uss_shm_types::pzd::stop_strength;
 

@@ -18,7 +18,7 @@
 
 use std::collections::HashSet;
 use std::time::Duration;
-use uss_master::engine::control::{ControllerId, Gate, GateSetup, Operator, Poll};
+use uss_engine::control::{ControllerId, Gate, GateSetup, Operator, Poll};
 use uss_shm_types::control::ControlState;
 use uss_shm_types::pzd::{MAX_PZD_WORDS, is_stop};
 use uss_shm_types::{PzdInput, PzdOutput, Session, SessionSetup, Step, StopCommand};
@@ -76,7 +76,7 @@ struct World {
 }
 
 fn image_of(gate: &Gate) -> PzdInput {
-    use uss_master::engine::control::Control;
+    use uss_engine::control::Control;
     match gate.control() {
         Control::Live => PzdInput {
             control: ControlState::Live.code(),
@@ -182,7 +182,7 @@ impl World {
 
     /// The bus thread's look and telegram, and the invariants on what went out.
     fn poll(&mut self) -> Result<(), String> {
-        use uss_master::engine::control::Control;
+        use uss_engine::control::Control;
         let before = self.gate.control();
         let (sample, from) = self.pending.take().unzip();
         let mut out = [0u16; MAX_PZD_WORDS];

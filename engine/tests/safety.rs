@@ -10,13 +10,13 @@
 //! - a ussd paused past the watchdog time (SIGSTOP, a suspended machine) latches on resuming
 //!   instead of sending the pre-pause ON, and a sample older than the watchdog is not fresh;
 //! - an offline drive probed once a minute gets an operator's stop in the next telegram.
-#![cfg(feature = "sim")]
 #![allow(clippy::unwrap_used)]
 
 use std::time::Duration;
+use uss_drive_sim::SimTransport;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, VirtualWire};
-use uss_master::engine::control::Control;
-use uss_master::{DriveSetup, Engine, EngineConfig, EngineHandle, SimTransport, VirtualClock};
+use uss_engine::control::Control;
+use uss_engine::{DriveSetup, Engine, EngineConfig, EngineHandle, VirtualClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, Stw1, Timing};
 use uss_shm_types::{LatchReason, PzdOutput, StopCommand};
@@ -96,7 +96,7 @@ fn bench_of(
 
 impl Bench {
     fn now(&self) -> Duration {
-        uss_master::Clock::now(self.engine.clock())
+        uss_engine::Clock::now(self.engine.clock())
     }
 
     /// One telegram on the wire (with its reply); the drive polled.

@@ -1,10 +1,10 @@
 use super::*;
-use crate::engine::clock::{MonotonicClock, VirtualClock};
 use proptest::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 use uss_drive_sim::serve::{Port, Pty, serve};
 use uss_drive_sim::{DriveConfig, SimBus};
+use uss_engine::{MonotonicClock, VirtualClock};
 use uss_protocol::telegram::{Layout, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, encode};
 use uss_protocol::{Address, Adr, DriveState, Framer, FramerConfig, Zsw1};
 

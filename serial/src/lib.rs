@@ -8,9 +8,7 @@
 //! timestamps it once and hands it out byte by byte: nothing allocates after `open`, because
 //! `send` and `recv` run in the real-time thread.
 
-use crate::engine::clock::Clock;
-use crate::engine::transport::{Rx, Transport, TransportError};
-use crate::transports::rate::ReadBack;
+use crate::rate::ReadBack;
 use core::fmt;
 use core::ops::RangeInclusive;
 use core::time::Duration;
@@ -27,7 +25,11 @@ use serialport::{DataBits, FlowControl, Parity, StopBits, TTYPort};
 use std::os::fd::{AsRawFd, BorrowedFd};
 use std::path::{Path, PathBuf};
 use thiserror::Error;
+use uss_engine::{Clock, Rx, Transport, TransportError};
 use uss_protocol::{Baud, LineError, Timing};
+
+pub mod latency;
+pub mod rate;
 
 /// Raw bytes one `read` takes: a whole 256-byte telegram fits even with every byte escaped.
 const READ_CHUNK: usize = 1024;
@@ -204,7 +206,7 @@ pub enum SerialError {
     #[error("cannot use {}: {off}", .path.display())]
     RateOff {
         path: PathBuf,
-        off: crate::transports::rate::RateOff,
+        off: crate::rate::RateOff,
     },
     #[error(
         "cannot open {}: kernel RS485 mode requested but the driver refused TIOCSRS485 ({errno:?}): use rs485 = \"auto\" for adapters that switch direction themselves",
@@ -377,6 +379,13 @@ impl SerialTransport {
         Self::open_with(path, options, read_back_rate)
     }
 
+    /// Drops output not yet sent (`tcflush(TCOFLUSH)`), for a line that failed: nothing queued
+    /// for it is still wanted, and a tty closed with output queued waits for it to drain (30 s
+    /// by default). Errors are of no interest on a line that failed.
+    pub fn discard_output(&mut self) {
+        let _ = termios::tcflush(self.fd(), FlushArg::TCOFLUSH);
+    }
+
     /// [`SerialTransport::open`] with the rate read back by `probe` (an injection point for
     /// tests: the real one asks the driver, and nothing of a pseudo-terminal).
     pub fn open_with(
@@ -418,7 +427,7 @@ impl SerialTransport {
                 errno,
             })?;
         if let Some(read_back) = rate {
-            crate::transports::rate::obtained(options.baud.get(), read_back).map_err(|off| {
+            crate::rate::obtained(options.baud.get(), read_back).map_err(|off| {
                 SerialError::RateOff {
                     path: path.to_owned(),
                     off,
@@ -607,11 +616,6 @@ impl Transport for SerialTransport {
         self.handed = 0;
         self.unmark = Unmark::Plain;
         Ok(())
-    }
-
-    /// `tcflush(TCOFLUSH)`: errors are of no interest on a line that failed.
-    fn discard_output(&mut self) {
-        let _ = termios::tcflush(self.fd(), FlushArg::TCOFLUSH);
     }
 
     /// Writes every byte and returns when the last character leaves the UART: `now` plus their
