@@ -43,9 +43,12 @@
 
 /**
  * What a call came to. `USSRT_STATUS_OK` is 0; every other code has a message
- * ([`ussrt_last_error`]).
+ * (`ussrt_last_error`).
  */
 typedef enum UssrtStatus {
+  /**
+   * Success.
+   */
   USSRT_STATUS_OK = 0,
   /**
    * A NULL pointer, a bus name or address that cannot exist, a parameter that is not
@@ -78,7 +81,7 @@ typedef enum UssrtStatus {
   USSRT_STATUS_CONTROLLED = 7,
   /**
    * The drive latched since this controller last acknowledged a latch: re-arm it
-   * ([`UssrtErrorInfo`] says why).
+   * (`UssrtErrorInfo` says why).
    */
   USSRT_STATUS_TRIPPED = 8,
   /**
@@ -102,7 +105,7 @@ typedef enum UssrtStatus {
    */
   USSRT_STATUS_TIMEOUT = 13,
   /**
-   * The drive refused the parameter task ([`UssrtErrorInfo::drive_error`]: its number).
+   * The drive refused the parameter task (`UssrtErrorInfo::drive_error`: its number).
    */
   USSRT_STATUS_DRIVE_ERROR = 14,
   /**

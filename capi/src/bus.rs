@@ -1,7 +1,8 @@
 //! A bus: open and close it, watch a drive, wait for its next exchange, stop drives as an
 //! operator.
 
-use crate::error::{Failure, UssrtStatus, arg, drive, guard, out, text};
+use crate::UssrtStatus;
+use crate::error::{Failure, arg, drive, guard, out, text};
 use core::ffi::c_char;
 use core::time::Duration;
 use std::collections::HashMap;

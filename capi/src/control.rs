@@ -4,8 +4,9 @@
 //! A handle is shared by the program's threads without a lock held through a call, so a stop
 //! never waits behind another thread's wait (docs/SAFETY.md, STOP-NOWAIT).
 
+use crate::UssrtStatus;
 use crate::bus::{UssrtBus, UssrtDrive};
-use crate::error::{Failure, UssrtStatus, arg, drive, guard, out};
+use crate::error::{Failure, arg, drive, guard, out};
 use core::time::Duration;
 use std::sync::{Arc, Mutex, PoisonError};
 use uss_client::{ControlOptions, Controller, DriveState, Setpoint};

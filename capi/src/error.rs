@@ -1,74 +1,13 @@
 //! Status codes, the calling thread's last error, and the guard every exported function runs
 //! its body in (no panic crosses the boundary).
 
+use crate::UssrtStatus;
 use core::ffi::{CStr, c_char};
 use std::cell::RefCell;
 use std::ffi::CString;
 use std::panic::{AssertUnwindSafe, catch_unwind};
-use uss_client::uss_shm_types::{DriveError, PathError, StopCommand};
+use uss_client::uss_shm_types::{DriveError, StopCommand};
 use uss_client::{Address, ClientError, Latch, ParamError};
-
-/// What a call came to. `USSRT_STATUS_OK` is 0; every other code has a message
-/// ([`ussrt_last_error`]).
-#[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum UssrtStatus {
-    Ok = 0,
-    /// A NULL pointer, a bus name or address that cannot exist, a parameter that is not
-    /// written the manuals' way, a value of another type.
-    InvalidArgument = 1,
-    /// No ussd serves this bus.
-    NotRunning = 2,
-    /// ussd does not poll this drive.
-    UnknownDrive = 3,
-    /// ussd's heartbeat stopped: it died or hangs. Images are stale.
-    UssdGone = 4,
-    /// ussd stopped cleanly.
-    UssdStopped = 5,
-    /// ussd runs, but the bus line is down.
-    LineDown = 6,
-    /// Another process controls the drive.
-    Controlled = 7,
-    /// The drive latched since this controller last acknowledged a latch: re-arm it
-    /// ([`UssrtErrorInfo`] says why).
-    Tripped = 8,
-    /// An ON for a latched drive this controller has not re-armed: `ussrt_control_rearm` first.
-    NotArmed = 9,
-    /// This program made no call for longer than the drive's watchdog time: a trip; re-arm.
-    Stalled = 10,
-    /// Words ussd would refuse (word count, STW1 bit 10): nothing was sent.
-    InvalidSample = 11,
-    /// This controller released the drive.
-    Released = 12,
-    /// A wait, a parameter task or ussd's answer did not end in time.
-    Timeout = 13,
-    /// The drive refused the parameter task ([`UssrtErrorInfo::drive_error`]: its number).
-    DriveError = 14,
-    /// ussd refused the request before the bus (write protection, a controlled drive, ...).
-    Refused = 15,
-    /// The task did not reach the drive or its answer did not come back (offline, line down,
-    /// shutdown, cancelled).
-    PathFailed = 16,
-    /// A value that does not fit the parameter, refused before the bus.
-    Value = 17,
-    /// The drive exchanges no process data (pzd = 0).
-    NoProcessData = 18,
-    /// ussd speaks another layout version.
-    Incompatible = 19,
-    /// The shared memory failed otherwise (permissions, resources).
-    Ipc = 20,
-    /// A defect in this library (a caught panic); the message says where.
-    Internal = 21,
-    /// The drive does not take its commands from this link (ZSW1 bit 9 = 0): a stop ussd sent
-    /// is not obeyed.
-    NotControllable = 22,
-    /// An ON that waited for ussd to take the re-arm was dropped: a stop of this program
-    /// (another thread's call) came meanwhile.
-    Superseded = 23,
-    /// A parameter write reached the drive but its answer did not come back (timeout, offline,
-    /// line down, ussd shut down): the drive may hold the new value, or not; read it back.
-    MaybeApplied = 24,
-}
 
 /// Details of the calling thread's last failure, beyond its status and message.
 #[repr(C)]
@@ -144,57 +83,23 @@ impl From<ParamError> for Failure {
 }
 
 fn client_info(e: &ClientError) -> UssrtErrorInfo {
-    use UssrtStatus as S;
-    let status = match e {
-        ClientError::Name(_) => S::InvalidArgument,
-        ClientError::NotRunning { .. } => S::NotRunning,
-        ClientError::UnknownDrive { .. } => S::UnknownDrive,
-        ClientError::Controlled { .. } => S::Controlled,
-        ClientError::Incompatible { .. } | ClientError::Contract(_) => S::Incompatible,
-        ClientError::UssdGone { .. } => S::UssdGone,
-        ClientError::UssdStopped { .. } => S::UssdStopped,
-        ClientError::LineDown { .. } => S::LineDown,
-        ClientError::Stale { .. } | ClientError::WaitTimeout { .. } => S::Timeout,
-        ClientError::Tripped { latch, .. } => {
-            return UssrtErrorInfo::of(S::Tripped).with_latch(latch);
+    let info = UssrtErrorInfo::of(UssrtStatus::of(e.kind().status()));
+    match e {
+        ClientError::Tripped { latch, .. } | ClientError::NotArmed { latch, .. } => {
+            info.with_latch(latch)
         }
-        ClientError::NotArmed { latch, .. } => {
-            return UssrtErrorInfo::of(S::NotArmed).with_latch(latch);
-        }
-        ClientError::Stalled { .. } => S::Stalled,
-        ClientError::InvalidSample { .. } | ClientError::PzdWords { .. } => S::InvalidSample,
-        ClientError::NotTheLatch { .. } => S::Tripped,
-        ClientError::Released { .. } => S::Released,
-        ClientError::NoProcessData { .. } => S::NoProcessData,
-        ClientError::CommandRefused { .. } => S::Refused,
-        ClientError::NotControllable { .. } => S::NotControllable,
-        ClientError::Superseded { .. } => S::Superseded,
-        _ => S::Ipc,
-    };
-    UssrtErrorInfo::of(status)
+        _ => info,
+    }
 }
 
 pub(crate) fn param_info(e: &ParamError) -> UssrtErrorInfo {
-    use UssrtStatus as S;
     match e {
-        ParamError::Drive(d) => UssrtErrorInfo {
-            drive_error: match d {
-                DriveError::Refused(p) => p.number(),
-                DriveError::NoChangeRights => NO_DRIVE_ERROR,
-            },
-            ..UssrtErrorInfo::of(S::DriveError)
-        },
-        ParamError::MaybeApplied { .. } => UssrtErrorInfo::of(S::MaybeApplied),
-        ParamError::Path(PathError::Timeout) | ParamError::NoAnswer(_) => {
-            UssrtErrorInfo::of(S::Timeout)
-        }
-        ParamError::Path(PathError::Refused(_))
-        | ParamError::Refused { .. }
-        | ParamError::Controlled { .. } => UssrtErrorInfo::of(S::Refused),
-        ParamError::Path(_) | ParamError::Dropped => UssrtErrorInfo::of(S::PathFailed),
-        ParamError::Value { .. } => UssrtErrorInfo::of(S::Value),
         ParamError::Client(c) => client_info(c),
-        _ => UssrtErrorInfo::of(S::Incompatible),
+        ParamError::Drive(DriveError::Refused(p)) => UssrtErrorInfo {
+            drive_error: p.number(),
+            ..UssrtErrorInfo::of(UssrtStatus::DriveError)
+        },
+        _ => UssrtErrorInfo::of(UssrtStatus::of(e.kind().status())),
     }
 }
 
@@ -298,69 +203,6 @@ pub(crate) fn text<'a>(ptr: *const c_char, what: &str) -> Result<&'a str, Failur
 #[unsafe(no_mangle)]
 pub extern "C" fn ussrt_last_error() -> *const c_char {
     LAST.with(|l| l.borrow().message.as_ptr())
-}
-
-impl UssrtStatus {
-    /// Every status, in code order.
-    const ALL: [Self; 25] = [
-        Self::Ok,
-        Self::InvalidArgument,
-        Self::NotRunning,
-        Self::UnknownDrive,
-        Self::UssdGone,
-        Self::UssdStopped,
-        Self::LineDown,
-        Self::Controlled,
-        Self::Tripped,
-        Self::NotArmed,
-        Self::Stalled,
-        Self::InvalidSample,
-        Self::Released,
-        Self::Timeout,
-        Self::DriveError,
-        Self::Refused,
-        Self::PathFailed,
-        Self::Value,
-        Self::NoProcessData,
-        Self::Incompatible,
-        Self::Ipc,
-        Self::Internal,
-        Self::NotControllable,
-        Self::Superseded,
-        Self::MaybeApplied,
-    ];
-
-    /// The status's name in snake case: the same word as the Rust client's error variant and
-    /// the Python exception class (`Tripped`, `tripped`).
-    const fn name(self) -> &'static CStr {
-        match self {
-            Self::Ok => c"ok",
-            Self::InvalidArgument => c"invalid_argument",
-            Self::NotRunning => c"not_running",
-            Self::UnknownDrive => c"unknown_drive",
-            Self::UssdGone => c"ussd_gone",
-            Self::UssdStopped => c"ussd_stopped",
-            Self::LineDown => c"line_down",
-            Self::Controlled => c"controlled",
-            Self::Tripped => c"tripped",
-            Self::NotArmed => c"not_armed",
-            Self::Stalled => c"stalled",
-            Self::InvalidSample => c"invalid_sample",
-            Self::Released => c"released",
-            Self::Timeout => c"timeout",
-            Self::DriveError => c"drive_error",
-            Self::Refused => c"refused",
-            Self::PathFailed => c"path_failed",
-            Self::Value => c"value",
-            Self::NoProcessData => c"no_process_data",
-            Self::Incompatible => c"incompatible",
-            Self::Ipc => c"ipc",
-            Self::Internal => c"internal",
-            Self::NotControllable => c"not_controllable",
-            Self::Superseded => c"superseded",
-            Self::MaybeApplied => c"maybe_applied",
-        }
-    }
 }
 
 /// The name of status code `status` in snake case (`"ok"`, `"tripped"`, `"not_armed"`, ...;

@@ -1,8 +1,9 @@
 //! Parameters: in the manuals' notation as their own type (`P1082` = `50.00 Hz`), as raw words,
 //! and the fault report.
 
+use crate::UssrtStatus;
 use crate::bus::UssrtBus;
-use crate::error::{Failure, UssrtStatus, arg, drive, guard, out, param_info, text};
+use crate::error::{Failure, arg, drive, guard, out, param_info, text};
 use core::ffi::c_char;
 use uss_client::uss_protocol::ParamRef;
 #[cfg(test)]

@@ -1,179 +1,200 @@
-//! The Rust client's errors as the exception classes of `uss_rt` (defined in Python, so their
-//! constructors, attributes and messages stay what scripts already catch).
+//! The Rust client's errors as `uss_rt`'s exceptions. The class is the code table's
+//! (`uss_client::kinds`, generated into `uss_rt/_errors.py`), the message is the error's own
+//! text; what it is about (bus, address, latch, outcome, ...) goes along as attributes.
 
 use pyo3::BoundObject as _;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyTuple;
-use uss_client::uss_shm_types::{DriveError, ParamResult, PathError, RequestError, StopCommand};
-use uss_client::{Address, ClientError, Latch, ParamError};
+use pyo3::types::PyDict;
+use uss_client::uss_shm_types::{
+    DriveError, ItemOutcome, LatchReason, ParamResult, PathError, RequestError, StopCommand,
+};
+use uss_client::{Address, ClientError, ErrorKind, Latch, ParamError};
 
-/// `uss_rt.<class>(*args)` as the error to raise (a `RuntimeError` if the module is broken).
-fn raise<'py>(
-    py: Python<'py>,
-    class: &str,
-    args: impl IntoPyObject<'py, Target = PyTuple>,
-) -> PyErr {
-    let made = args.into_pyobject(py).map_err(Into::into).and_then(|args| {
-        let args = args.into_bound();
-        py.import("uss_rt")
-            .and_then(|m| m.getattr(class))
-            .and_then(|c| c.call1(args))
-    });
+/// An attribute of an exception: its name and its value, already a Python object.
+type Detail<'py> = (&'static str, Bound<'py, PyAny>);
+
+/// `uss_rt.<kind's class>(message, **details)` as the error to raise (`ValueError` for an
+/// argument; a `RuntimeError` if the module is broken).
+fn raise(py: Python<'_>, kind: ErrorKind, message: String, details: Vec<Detail<'_>>) -> PyErr {
+    let class = kind.python_class();
+    if class == "ValueError" || class.is_empty() {
+        return PyValueError::new_err(message);
+    }
+    let made = (|| {
+        let kwargs = PyDict::new(py);
+        for (name, value) in details {
+            kwargs.set_item(name, value)?;
+        }
+        py.import("uss_rt")?
+            .getattr(class)?
+            .call((message,), Some(&kwargs))
+    })();
     match made {
         Ok(exception) => PyErr::from_value(exception),
         Err(e) => e,
     }
 }
 
-fn seconds(d: core::time::Duration) -> f64 {
-    d.as_secs_f64()
+/// A value as a Python object (for the attributes).
+fn obj<'py>(py: Python<'py>, value: impl IntoPyObject<'py>) -> Bound<'py, PyAny> {
+    value
+        .into_pyobject(py)
+        .map_or_else(|_| py.None().into_bound(py), |v| v.into_any().into_bound())
 }
 
-fn latched(py: Python<'_>, class: &str, address: u8, latch: &Latch, message: String) -> PyErr {
-    raise(
-        py,
-        class,
+/// Member `code` of the module's code table `table` (`LatchReason`, `Outcome`, ...), or the bare
+/// number if the table has none.
+fn member<'py>(py: Python<'py>, table: &str, code: u8) -> Bound<'py, PyAny> {
+    py.import("uss_rt")
+        .and_then(|m| m.getattr(table))
+        .and_then(|t| t.call1((code,)))
+        .unwrap_or_else(|_| obj(py, code))
+}
+
+fn latch_details<'py>(
+    py: Python<'py>,
+    address: u8,
+    latch: &Latch,
+    message: &str,
+) -> Vec<Detail<'py>> {
+    vec![
+        ("address", obj(py, address)),
+        ("reason", member(py, "LatchReason", latch.reason.code())),
         (
-            address,
-            latch.reason.code(),
-            StopCommand::code_of(latch.command),
-            latch.by_pid,
-            message,
+            "command",
+            member(py, "StopCommand", StopCommand::code_of(latch.command)),
         ),
-    )
+        ("by_pid", obj(py, latch.by_pid)),
+        ("detail", obj(py, message)),
+    ]
 }
 
-/// A client error as the matching `uss_rt` exception.
 /// A drive address from Python, checked where it enters: 0..=31, or the client's address
 /// error.
 pub(crate) fn drive(py: Python<'_>, address: u8) -> PyResult<Address> {
     Address::new(address).map_err(|e| client(py, ClientError::from(e)))
 }
 
+/// A client error as the matching `uss_rt` exception.
 pub(crate) fn client(py: Python<'_>, e: ClientError) -> PyErr {
-    let message = e.to_string();
-    match e {
-        ClientError::Name(_) => PyValueError::new_err(message),
-        ClientError::NotRunning { bus } => raise(py, "NotRunning", (bus,)),
+    let (kind, message) = (e.kind(), e.to_string());
+    let details = match e {
+        ClientError::NotRunning { bus } => vec![("bus", obj(py, bus))],
         ClientError::UnknownDrive {
             bus,
             address,
             known,
-        } => raise(
-            py,
-            "UnknownDrive",
+        } => vec![
+            ("bus", obj(py, bus)),
+            ("address", obj(py, address)),
             (
-                bus,
-                address,
-                known.iter().map(|&a| u32::from(a)).collect::<Vec<u32>>(),
+                "known",
+                obj(py, known.iter().map(|&a| u32::from(a)).collect::<Vec<_>>()),
             ),
-        ),
+        ],
         ClientError::Controlled { bus, address, .. } => {
-            raise(py, "Controlled", (bus, address, message))
+            vec![("bus", obj(py, bus)), ("address", obj(py, address))]
         }
-        ClientError::Incompatible { bus, service } => raise(py, "Incompatible", (bus, service)),
+        ClientError::Incompatible { bus, service } => {
+            vec![("bus", obj(py, bus)), ("service", obj(py, service))]
+        }
         ClientError::UssdGone {
             bus,
             pid,
             silent_for,
-        } => raise(py, "UssdGone", (bus, pid, seconds(silent_for))),
-        ClientError::UssdStopped { bus, pid, ago } => {
-            raise(py, "UssdStopped", (bus, pid, seconds(ago)))
-        }
+        } => vec![
+            ("bus", obj(py, bus)),
+            ("pid", obj(py, pid)),
+            ("silent_for", obj(py, silent_for.as_secs_f64())),
+        ],
+        ClientError::UssdStopped { bus, pid, ago } => vec![
+            ("bus", obj(py, bus)),
+            ("pid", obj(py, pid)),
+            ("ago", obj(py, ago.as_secs_f64())),
+        ],
         ClientError::LineDown {
             bus,
             fault,
             down_for,
-        } => raise(py, "LineDown", (bus, fault, seconds(down_for))),
-        ClientError::Tripped { address, latch, .. } => {
-            latched(py, "Tripped", address, &latch, message)
+        } => vec![
+            ("bus", obj(py, bus)),
+            ("fault", obj(py, fault)),
+            ("down_for", obj(py, down_for.as_secs_f64())),
+        ],
+        ClientError::Tripped { address, latch, .. }
+        | ClientError::NotArmed { address, latch, .. } => {
+            latch_details(py, address, &latch, &message)
         }
-        ClientError::NotArmed { address, latch, .. } => {
-            latched(py, "NotArmed", address, &latch, message)
-        }
-        ClientError::Stalled { address, gap, .. } => {
-            raise(py, "Stalled", (address, seconds(gap), message))
-        }
-        ClientError::CommandRefused { bus, error } => {
-            raise(py, "CommandRefused", (bus, error.code()))
-        }
-        ClientError::InvalidSample { .. } | ClientError::PzdWords { .. } => {
-            PyValueError::new_err(message)
-        }
-        ClientError::Stale { .. } | ClientError::WaitTimeout { .. } => {
-            raise(py, "WaitTimeout", (message,))
-        }
-        ClientError::NotControllable { .. } => raise(py, "NotControllable", (message,)),
-        ClientError::Superseded { .. } => raise(py, "Superseded", (message,)),
-        _ => raise(py, "UssError", (message,)),
-    }
+        ClientError::Stalled { address, gap, .. } => vec![
+            ("address", obj(py, address)),
+            ("gap", obj(py, gap.as_secs_f64())),
+            ("by_pid", obj(py, 0u32)),
+            ("detail", obj(py, &message)),
+            (
+                "reason",
+                member(py, "LatchReason", LatchReason::Stale.code()),
+            ),
+            (
+                "command",
+                member(
+                    py,
+                    "StopCommand",
+                    StopCommand::code_of(Some(StopCommand::Off1)),
+                ),
+            ),
+        ],
+        ClientError::CommandRefused { bus, error } => vec![
+            ("bus", obj(py, bus)),
+            ("error", member(py, "CommandError", error.code())),
+        ],
+        _ => Vec::new(),
+    };
+    raise(py, kind, message, details)
+}
+
+/// How an item ended, as `uss_rt.Outcome`'s code.
+fn outcome(ended: &ItemOutcome) -> u8 {
+    ParamResult::of(ended, 0, 0).outcome
 }
 
 /// A parameter error as the matching `uss_rt` exception; `bus` and `address` name an unknown
 /// drive.
 pub(crate) fn param(py: Python<'_>, bus: &uss_client::Bus, address: u8, e: ParamError) -> PyErr {
-    let message = e.to_string();
-    // The codes of `uss_rt.Outcome` for the path failures.
-    let failed = |outcome: u8| raise(py, "ParamFailed", (outcome,));
-    match e {
-        ParamError::Drive(DriveError::Refused(p)) => raise(py, "DriveError", (p.number(),)),
-        ParamError::Drive(DriveError::NoChangeRights) => failed(5),
-        ParamError::Path(PathError::Timeout) => raise(py, "ParamTimeout", ()),
-        ParamError::Path(PathError::DriveOffline) => failed(7),
-        ParamError::Path(PathError::MailboxFull) => failed(8),
-        ParamError::Path(PathError::Shutdown) => failed(9),
-        ParamError::Path(PathError::LineDown) => failed(11),
-        ParamError::Path(PathError::Cancelled) => failed(12),
-        ParamError::Path(PathError::Refused(error)) => refused(py, bus, address, error, None),
-        ParamError::Refused { error, item } => refused(py, bus, address, error, item),
-        ParamError::Controlled { .. } => {
-            raise(py, "Refused", (RequestError::Controlled.code(), None::<u8>))
+    let (kind, message) = (e.kind(), e.to_string());
+    let refused = |error: RequestError, item: Option<u8>| {
+        vec![
+            ("error", member(py, "RequestError", error.code())),
+            ("item", obj(py, item)),
+        ]
+    };
+    let details = match e {
+        ParamError::Drive(DriveError::Refused(p)) => vec![("number", obj(py, p.number()))],
+        ParamError::Drive(d) => vec![("outcome", member(py, "Outcome", outcome(&Ok(Err(d)))))],
+        ParamError::Path(PathError::Refused(RequestError::UnknownDrive))
+        | ParamError::Refused {
+            error: RequestError::UnknownDrive,
+            ..
+        } => {
+            let known = bus.drives().iter().map(|a| a.get()).collect();
+            let unknown = ClientError::UnknownDrive {
+                bus: bus.name().to_owned(),
+                address,
+                known,
+            };
+            return client(py, unknown);
         }
-        ParamError::NoAnswer(timeout) => raise(
-            py,
-            "NoAnswer",
-            (
-                bus.name().to_owned(),
-                format!("did not answer within {} s", seconds(timeout)),
-            ),
-        ),
-        ParamError::Dropped => raise(
-            py,
-            "NoAnswer",
-            (
-                bus.name().to_owned(),
-                "dropped the request without answering".to_owned(),
-            ),
-        ),
-        ParamError::Value { .. } => PyValueError::new_err(message),
-        ParamError::MaybeApplied { failure, telegrams } => raise(
-            py,
-            "MaybeApplied",
-            (
-                ParamResult::of(&Err(failure), 0, 0).outcome,
-                telegrams,
-                message,
-            ),
-        ),
-        ParamError::Client(c) => client(py, c),
-        _ => raise(py, "UssError", (message,)),
-    }
-}
-
-fn refused(
-    py: Python<'_>,
-    bus: &uss_client::Bus,
-    address: u8,
-    error: RequestError,
-    item: Option<u8>,
-) -> PyErr {
-    if error == RequestError::UnknownDrive {
-        return raise(
-            py,
-            "UnknownDrive",
-            (bus.name().to_owned(), address, crate::widen(&bus.drives())),
-        );
-    }
-    raise(py, "Refused", (error.code(), item))
+        ParamError::Path(PathError::Refused(error)) => refused(error, None),
+        ParamError::Refused { error, item } => refused(error, item),
+        ParamError::Controlled { .. } => refused(RequestError::Controlled, None),
+        ParamError::Path(path) => vec![("outcome", member(py, "Outcome", outcome(&Err(path))))],
+        ParamError::NoAnswer(_) | ParamError::Dropped => vec![("bus", obj(py, bus.name()))],
+        ParamError::MaybeApplied { failure, telegrams } => vec![
+            ("outcome", member(py, "Outcome", outcome(&Err(failure)))),
+            ("telegrams", obj(py, telegrams)),
+        ],
+        ParamError::Client(c) => return client(py, c),
+        _ => Vec::new(),
+    };
+    raise(py, kind, message, details)
 }

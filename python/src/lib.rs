@@ -237,7 +237,7 @@ fn stop_all(py: Python<'_>, bus: &Bound<'_, Bus>, command: u8) -> PyResult<Vec<u
 }
 
 /// Addresses as a Python list of ints (`PyO3` makes a `Vec<u8>` `bytes`).
-pub(crate) fn widen(addresses: &[uss_client::Address]) -> Vec<u32> {
+fn widen(addresses: &[uss_client::Address]) -> Vec<u32> {
     addresses.iter().map(|a| u32::from(a.get())).collect()
 }
 
@@ -305,12 +305,6 @@ fn code_tables(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     Ok(tables)
 }
 
-/// What the drive's USS error number `number` (reply 7) means, as the codec says it.
-#[pyfunction]
-fn drive_error_text(number: u16) -> &'static str {
-    uss_client::uss_protocol::ErrorNumber::from_number(number).description()
-}
-
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("LAYOUT_VERSION", uss_client::uss_shm_types::LAYOUT_VERSION)?;
@@ -322,7 +316,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(stop_all, m)?)?;
     m.add_function(wrap_pyfunction!(wait_stopped, m)?)?;
     m.add_function(wrap_pyfunction!(code_tables, m)?)?;
-    m.add_function(wrap_pyfunction!(drive_error_text, m)?)?;
     m.add_function(wrap_pyfunction!(control::control, m)?)?;
     params::register(m)?;
     Ok(())

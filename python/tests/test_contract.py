@@ -70,27 +70,19 @@ def test_float_values_decode_from_their_ieee754_bits_and_words_are_not_floats():
         word.as_float()
 
 
-def test_errors_carry_their_codes_and_say_what_to_do():
-    e = uss_rt.DriveError(2)
-    assert e.number == 2
-    assert str(e) == "the drive refused the task with error 2: limit exceeded"
-    assert str(uss_rt.DriveError(204)).endswith("error 204: access level too low")
-    assert str(uss_rt.DriveError(999)).endswith("error 999: unknown error number")
-    e = uss_rt.Refused(uss_rt.RequestError.WRITES_DISABLED, 0)
-    assert (e.error, e.item) == (uss_rt.RequestError.WRITES_DISABLED, 0)
-    assert "params_writable = false" in str(e)
-    assert uss_rt.Refused(200).error == 200  # a code this module does not know stays a number
-    assert isinstance(uss_rt.ParamTimeout(), TimeoutError)
-    assert isinstance(uss_rt.NoAnswer("bus0", "did not answer"), TimeoutError)
-    assert str(uss_rt.NotRunning("bus0")).startswith("ussd is not running on bus0: start it")
-    tripped = uss_rt.Tripped(1, uss_rt.LatchReason.OVERRIDE, uss_rt.StopCommand.OFF2, 4711)
-    assert (tripped.reason, tripped.command, tripped.by_pid) == (5, 2, 4711)
-    assert str(tripped) == (
-        "drive 1 is latched (override): it gets OFF2; re-arm it with rearm() (OFF1, then ON)"
-    )
-    stalled = uss_rt.Stalled(1, 0.4, "no call for 0.400 s")
-    assert isinstance(stalled, uss_rt.Tripped) and stalled.gap == 0.4
-    assert str(stalled) == "no call for 0.400 s"
+def test_errors_are_the_code_tables_classes_with_the_rust_message_and_their_details():
+    # The classes are generated from the Rust client's code table (clients/src/kinds.rs).
+    for name in uss_rt._errors.__all__:
+        assert issubclass(getattr(uss_rt, name), uss_rt.UssError), name
+    assert issubclass(uss_rt.ParamTimeout, TimeoutError)
+    assert issubclass(uss_rt.NoAnswer, TimeoutError)
+    assert issubclass(uss_rt.WaitTimeout, TimeoutError)
+    assert issubclass(uss_rt.NotArmed, uss_rt.Tripped)
+    assert issubclass(uss_rt.Stalled, uss_rt.Tripped)
+    assert issubclass(uss_rt.MaybeApplied, uss_rt.ParamFailed)
+    # The native module raises each with the Rust client's message and what it is about.
+    e = uss_rt.Refused("ussd refused the request", error=uss_rt.RequestError.BUSY, item=None)
+    assert (str(e), e.error, e.item) == ("ussd refused the request", uss_rt.RequestError.BUSY, None)
 
 
 def test_parameters_are_parsed_in_the_manuals_notation_by_the_rust_code():

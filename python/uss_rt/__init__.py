@@ -12,61 +12,41 @@ code tables, exception classes, parameter values::
     uss_rt.stop_drive(bus, 1, uss_rt.StopCommand.OFF2)   # coast drive 1, whoever controls it
 
 Every call that waits (a parameter request, a stop, a re-arm, a wait for the drive) releases
-the GIL meanwhile. Errors are exceptions derived from :class:`UssError`; each message says what
-to do next.
+the GIL meanwhile. Errors are exceptions derived from :class:`UssError` (``_errors.py``, generated
+from the Rust client's code table); each message is the Rust client's, and says what to do next.
 """
 
 import enum
 import struct
 
-from . import _native
+from . import _errors, _native
+from ._errors import *  # noqa: F403  the exceptions, generated from the Rust client's code table
 
-__all__ = [
+__all__ = _errors.__all__ + [
     "ALL_DRIVES",
     "Bus",
     "BusStatus",
     "BusState",
     "CommandError",
-    "CommandRefused",
     "ControlState",
-    "Controlled",
     "Controller",
     "Direction",
-    "DriveError",
     "Health",
-    "Incompatible",
     "LAYOUT_VERSION",
     "LastFailure",
     "LatchReason",
-    "LineDown",
     "LineFault",
     "LineState",
     "Monitoring",
-    "NoAnswer",
-    "NotArmed",
-    "NotRunning",
     "Outcome",
-    "ParamFailed",
-    "ParamTimeout",
     "ParamValue",
-    "NotControllable",
-    "Superseded",
-    "MaybeApplied",
-    "Refused",
     "Rejection",
     "RequestError",
     "RtMode",
-    "Stalled",
     "StopCommand",
     "Storage",
     "TaskCode",
-    "Tripped",
-    "UnknownDrive",
-    "UssError",
-    "UssdGone",
-    "UssdStopped",
     "Value",
-    "WaitTimeout",
     "batch",
     "control",
     "fault_report",
@@ -130,247 +110,6 @@ def _code(table, value: int):
         return table(value)
     except ValueError:
         return value
-
-
-def _name(code) -> str:
-    return code.name.lower().replace("_", " ") if isinstance(code, enum.Enum) else str(code)
-
-
-
-# -------------------------------------------------------------------------------------------
-# Errors (raised by the native module, built here)
-# -------------------------------------------------------------------------------------------
-
-
-class UssError(Exception):
-    """Anything this module reports; the message says what to do."""
-
-
-class NotRunning(UssError):
-    """ussd's services for the bus do not exist."""
-
-    def __init__(self, bus: str):
-        self.bus = bus
-        super().__init__(
-            f"ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`)"
-        )
-
-
-class UnknownDrive(UssError):
-    """ussd runs the bus, but does not poll this drive."""
-
-    def __init__(self, bus: str, address: int, known):
-        self.bus, self.address, self.known = bus, address, list(known)
-        polled = ", ".join(str(a) for a in self.known) or "no drives"
-        super().__init__(
-            f"drive {address} is not on {bus} (ussd polls {polled} there): use one of those "
-            "or add it to ussd's configuration"
-        )
-
-
-class Incompatible(UssError):
-    """ussd speaks another layout of the payload types."""
-
-    def __init__(self, bus: str, service: str, detail: str = ""):
-        self.bus, self.service = bus, service
-        more = f" ({detail})" if detail else ""
-        super().__init__(
-            f"ussd on {bus} speaks another layout version ({service}{more}): use the uss_rt "
-            "module of the running ussd's uss-rt version"
-        )
-
-
-class DriveError(UssError):
-    """The drive refused the task (reply 7) with USS error ``number``."""
-
-    def __init__(self, number: int):
-        self.number = number
-        meaning = _native.drive_error_text(number)  # the codec's words (USS.md section 6)
-        super().__init__(f"the drive refused the task with error {number}: {meaning}")
-
-
-class ParamTimeout(UssError, TimeoutError):
-    """The drive gave no matching reply within ussd's parameter timeout."""
-
-    def __init__(self):
-        super().__init__(
-            "no matching reply within ussd's parameter timeout: check the drive's PKW length "
-            "(P2013); raise param_timeout_ms for slow EEPROM writes"
-        )
-
-
-class NoAnswer(UssError, TimeoutError):
-    """ussd did not answer the request in time, or dropped it (it stopped)."""
-
-    def __init__(self, bus: str, detail: str):
-        self.bus = bus
-        super().__init__(f"ussd on {bus} {detail}: check that it runs (`ussctl status`)")
-
-
-class WaitTimeout(UssError, TimeoutError):
-    """A drive did not get where it was asked to in time."""
-
-
-class NotControllable(UssError):
-    """ussd sent a command, but the drive does not take its commands from this link (ZSW1 bit
-    9 = 0: its command source is elsewhere); it ignores it, stops included."""
-
-
-class Superseded(UssError):
-    """An ON that waited for ussd to take the re-arm was dropped: a stop of this program (another
-    thread's call) came meanwhile, and the drive keeps it."""
-
-
-class Refused(UssError):
-    """ussd refused the request (or one item) before the bus; ``error`` is a RequestError."""
-
-    _HINTS = {
-        RequestError.WRITES_DISABLED: "ussd's configuration sets params_writable = false for "
-        "this drive",
-        RequestError.BUSY: "too many parameter jobs outstanding: retry once results arrived",
-        RequestError.SHUTDOWN: "ussd is shutting down",
-        RequestError.VERSION: "ussd speaks another layout version: use the uss_rt module of "
-        "the running ussd's uss-rt version",
-        RequestError.NO_PARAMETER_CHANNEL: "the drive has no parameter channel (PKW length 0)",
-        RequestError.CONTROLLED: "another process controls the drive: write with force=True "
-        "if it is deliberate",
-        RequestError.GUARDED: "the parameter takes the drive away from ussd (command or "
-        "setpoint source, COM link, telegram monitoring off, factory reset): write with "
-        "unsafe=True if it is deliberate",
-        RequestError.INDEX_REQUIRED: "an array parameter: name the element, as in "
-        "P2014[1] (element 0 of P2010..P2014 is the BOP link, not ussd's COM link)",
-    }
-
-    def __init__(self, error: int, item=None):
-        self.error, self.item = _code(RequestError, error), item
-        which = f" (item {item + 1})" if item is not None else ""
-        hint = self._HINTS.get(self.error)
-        super().__init__(
-            f"ussd refused the request{which} before the bus: {_name(self.error)}"
-            + (f": {hint}" if hint else "")
-        )
-
-
-class UssdGone(UssError):
-    """No heartbeat from ussd for 0.5 s: it died or hangs."""
-
-    def __init__(self, bus: str, pid: int, silent_for: float):
-        self.bus, self.pid, self.silent_for = bus, pid, silent_for
-        was = f"; it was process {pid}" if pid else ""
-        super().__init__(
-            f"ussd on {bus} is gone (no heartbeat for {silent_for:.2f} s{was}): the drives are "
-            "not polled; only their own telegram monitoring stops them. If its process is gone, "
-            "restart ussd; a paused or starved one goes on by itself"
-        )
-
-
-class UssdStopped(UssError):
-    """ussd said it stops (a clean exit)."""
-
-    def __init__(self, bus: str, pid: int, ago: float):
-        self.bus, self.pid = bus, pid
-        super().__init__(
-            f"ussd on {bus} stopped {ago:.2f} s ago; it was process {pid}: start it again; "
-            "this module reconnects by itself"
-        )
-
-
-class LineDown(UssError):
-    """ussd runs, but the bus line is down."""
-
-    def __init__(self, bus: str, fault: str, down_for: float):
-        self.bus, self.fault = bus, fault
-        super().__init__(
-            f"bus {bus}: line down ({fault}) for {down_for:.2f} s: ussd reopens the device; "
-            "check the adapter and cable"
-        )
-
-
-class CommandRefused(UssError):
-    """ussd refused an operator stop command; ``error`` is a :class:`CommandError`."""
-
-    def __init__(self, bus: str, error: int):
-        self.bus, self.error = bus, _code(CommandError, error)
-        super().__init__(f"ussd on {bus} refused the stop command: {_name(self.error)}")
-
-
-class ParamFailed(UssError):
-    """An item ended without a value for another reason; ``outcome`` is an Outcome."""
-
-    _HINTS = {
-        Outcome.NO_CHANGE_RIGHTS: "the drive grants no parameter change rights over USS (P0927)",
-        Outcome.DRIVE_OFFLINE: "the drive is offline: check `ussctl status`, its wiring, "
-        "address and baud rate",
-        Outcome.MAILBOX_FULL: "ussd's parameter queue for the drive is full: retry once "
-        "earlier requests finished",
-        Outcome.SHUTDOWN: "ussd shut down before the task finished: retry once ussd runs again",
-        Outcome.LINE_DOWN: "the bus line went down before the task finished: retry once it is up",
-        Outcome.CANCELLED: "the task was cancelled before it reached the drive",
-    }
-
-    def __init__(self, outcome: int):
-        self.outcome = _code(Outcome, outcome)
-        hint = self._HINTS.get(self.outcome, "unexpected answer from ussd: check that ussd "
-                               "and this module are the same uss-rt version")
-        super().__init__(f"parameter task ended with {_name(self.outcome)}: {hint}")
-
-
-class MaybeApplied(ParamFailed):
-    """A write reached the drive (``telegrams`` telegrams carried it) but its answer did not
-    come back (``outcome``: timeout, drive offline, line down, shutdown): the drive may hold the
-    new value, or not. Read the parameter back to see which."""
-
-    def __init__(self, outcome: int, telegrams: int, message: str):
-        UssError.__init__(self, message)
-        self.outcome, self.telegrams = _code(Outcome, outcome), telegrams
-
-
-class Controlled(UssError):
-    """The drive already has a controller (another process, or another controller here)."""
-
-    def __init__(self, bus: str, address: int, detail: str = ""):
-        self.bus, self.address, self.detail = bus, address, detail
-        super().__init__(
-            f"drive {address} on {bus} is controlled by another process: stop that controller "
-            "first, or stop the drive with stop_drive (an operator's stop works whoever controls "
-            f"it){': ' + detail if detail else ''}"
-        )
-
-
-class Tripped(UssError):
-    """ussd latched the drive since this controller last acknowledged a latch (stale
-    controller, rejected sample, operator stop, restart): it gets its stop command until
-    :meth:`Controller.rearm`. ``reason`` is a :class:`LatchReason`, ``command`` a
-    :class:`StopCommand`, ``by_pid`` the process behind it, ``detail`` when and why."""
-
-    def __init__(self, address: int, reason: int, command: int, by_pid: int = 0, detail=""):
-        self.address, self.by_pid, self.detail = address, by_pid, detail
-        self.reason = _code(LatchReason, reason)
-        self.command = _code(StopCommand, command)
-        super().__init__(
-            f"drive {address} is latched ({_name(self.reason)}): it gets "
-            f"{_name(self.command).upper()}; re-arm it with rearm() (OFF1, then ON)"
-        )
-
-
-class NotArmed(Tripped):
-    """An ON for a latched drive this controller has not re-armed: call rearm() first."""
-
-
-class Stalled(Tripped):
-    """This program made no call for longer than the drive's watchdog time (it was paused,
-    its loop blocked): a trip, not a fresh start. Re-arm with :meth:`Controller.rearm`."""
-
-    def __init__(self, address: int, gap: float, detail: str = ""):
-        self.gap = gap
-        UssError.__init__(self, detail)
-        self.address, self.by_pid, self.detail = address, 0, detail
-        self.reason, self.command = LatchReason.STALE, StopCommand.OFF1
-
-
-# -------------------------------------------------------------------------------------------
-# The bus
-# -------------------------------------------------------------------------------------------
 
 
 class ParamValue(int):
