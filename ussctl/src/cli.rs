@@ -1,7 +1,9 @@
 //! ussctl's command line: subcommands, and parsing of parameter references and values.
 
-use clap::{Args, Parser, Subcommand, ValueEnum};
-use uss_client::{Address, Value};
+use crate::commands::{self, stop::Target};
+use crate::{Failure, Output};
+use clap::{Parser, Subcommand, ValueEnum};
+use uss_client::{Address, Bus, Value};
 
 /// The bus `--bus` names when it is not given.
 pub const DEFAULT_BUS: &str = "bus0";
@@ -44,32 +46,12 @@ pub enum Command {
     /// Hz are scaled by each drive's reference frequency P2000 as ussd's configuration gives it.
     Status,
     /// Live input images, until Ctrl-C or --count rounds.
-    Watch {
-        /// Only these drives (default: all).
-        #[arg(value_parser = address)]
-        drives: Vec<Address>,
-        /// Milliseconds between rounds.
-        #[arg(long, default_value_t = 500, value_name = "MS")]
-        interval: u64,
-        /// Stop after this many rounds.
-        #[arg(long, value_name = "N")]
-        count: Option<u64>,
-    },
+    Watch(commands::watch::Watch),
     /// Read or write a parameter.
     #[command(subcommand)]
     Param(ParamCommand),
     /// Take control of a drive, run it at a frequency, stop it at the end (OFF1).
-    Run {
-        /// The drive's address on the bus, 0..=31.
-        #[arg(value_parser = address)]
-        drive: Address,
-        /// Frequency in Hz; negative runs the other way.
-        #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
-        hz: f32,
-        /// Run this many seconds, then stop (default: until Ctrl-C).
-        #[arg(long = "for", value_name = "SECONDS")]
-        duration: Option<f64>,
-    },
+    Run(commands::run::Run),
     /// Stop a drive along its ramp (OFF1), whoever controls it; latched until its controller
     /// re-arms it.
     Stop(Target),
@@ -78,19 +60,11 @@ pub enum Command {
     /// Quick-stop a drive (OFF3: along the OFF3 ramp), whoever controls it; latched.
     QuickStop(Target),
     /// Acknowledge a drive's fault (rising edge of STW1 bit 7).
-    Ack {
-        /// The drive's address on the bus, 0..=31.
-        #[arg(value_parser = address)]
-        drive: Address,
-    },
+    Ack(commands::ack::Ack),
     /// The drive's fault buffer with its fault values, newest first, and its active warnings,
     /// where its family keeps them (MICROMASTER 4: r0947, r0949, r2110; G120: r0945, r0949,
     /// r2122; SIMOREG: r947, r949).
-    Faults {
-        /// The drive's address on the bus, 0..=31.
-        #[arg(value_parser = address)]
-        drive: Address,
-    },
+    Faults(commands::param::Faults),
     /// Bus statistics and every drive's counters.
     Stats,
     /// Print a completion script for SHELL (bash, zsh, fish, elvish, powershell).
@@ -109,201 +83,57 @@ pub enum Command {
     },
     /// Every telegram of the bus as ussd sends and receives it, decoded; optionally written to a
     /// pcapng file for Wireshark (tools/wireshark/uss.lua decodes it).
-    Capture {
-        /// Only this drive's telegrams.
-        #[arg(long, value_name = "ADDRESS", value_parser = address)]
-        drive: Option<Address>,
-        /// raw: the bytes; frame: STX, LGE, ADR, PKW, PZD, BCC; app: parameter tasks and
-        /// replies, control and status words, setpoints and actual values.
-        #[arg(long, value_enum, default_value = "app")]
-        level: crate::decode::Level,
-        /// Capture this many seconds (default: until Ctrl-C).
-        #[arg(long = "for", value_name = "SECONDS")]
-        duration: Option<f64>,
-        /// Stop after this many telegrams.
-        #[arg(long, value_name = "N")]
-        count: Option<u64>,
-        /// Also write the telegrams to this pcapng file.
-        #[arg(short = 'o', long = "output", value_name = "FILE")]
-        output: Option<std::path::PathBuf>,
-    },
+    Capture(commands::capture::Capture),
     /// Record every input image of some drives at bus rate (actual and set Hz, ZSW1, state,
     /// age) to CSV, optionally from a trigger on, and plot speed against setpoint over time with
     /// state changes and faults marked.
-    Trace {
-        /// The drives to record (addresses 0..=31).
-        #[arg(required = true, value_parser = address)]
-        drives: Vec<Address>,
-        /// How long to record (after the trigger, when there is one): 10, 10s, 2.5s or 500ms.
-        #[arg(long = "for", value_name = "DURATION", default_value = "10s", value_parser = duration)]
-        duration: core::time::Duration,
-        /// Start recording when this becomes true on a traced drive: `fault` (ZSW1 bit 3),
-        /// `zsw1-bit=N` (bit N set), `hz>F` or `hz<F` (actual frequency). A condition already
-        /// true when the trace starts fires once it has been false.
-        #[arg(long, value_name = "CONDITION", value_parser = trigger)]
-        trigger: Option<Trigger>,
-        /// Keep this much from before the trigger (time 0 is the trigger).
-        #[arg(long, value_name = "DURATION", value_parser = duration, requires = "trigger")]
-        pre: Option<core::time::Duration>,
-        /// Give up when the trigger has not fired after this long (default: wait until Ctrl-C).
-        #[arg(long, value_name = "DURATION", value_parser = duration, requires = "trigger")]
-        wait: Option<core::time::Duration>,
-        /// Write the CSV to FILE (default: stdout).
-        #[arg(short = 'o', long = "output", value_name = "FILE")]
-        output: Option<std::path::PathBuf>,
-        /// Render the trace to FILE: .svg or .png.
-        #[arg(long, value_name = "FILE")]
-        plot: Option<std::path::PathBuf>,
-    },
+    Trace(commands::trace::Trace),
     /// A live monitor: per bus a status bar, the drives (changes and errors marked), the selected
     /// drive's counters, timing and fault buffer, and keys for the safe stops (s OFF1, c OFF2,
     /// x OFF3; S C X for every drive), each confirmed with y. Needs a terminal.
-    Top {
-        /// More buses to monitor beside --bus; tab switches between them.
-        buses: Vec<String>,
-    },
+    Top(commands::top::Top),
     /// Find the drives on a line ussd does not serve: each address that answers at each baud
     /// rate, its PKW and PZD length, family and firmware, each line confirmed by two replies or
     /// marked UNSURE with why. Probes carry OFF1 (STW1 0x047E, bit 10 set): no drive is
     /// switched on, and a drive that runs under USS control on the line ramps down.
-    Scan {
-        /// The serial device, e.g. /dev/ttyUSB0.
-        device: std::path::PathBuf,
-        /// Baud rates: a list (9600,19200), or `all` (the 13 of USS.md section 2); default the
-        /// eight of MICROMASTER's P2010 (1200 to 115200).
-        #[arg(long, value_name = "LIST|all", value_parser = baud_list)]
-        baud: Option<BaudList>,
-        /// Addresses: a range (0-31) or a list (1,3,5).
-        #[arg(long, value_name = "RANGE", default_value = "0-31", value_parser = address_list)]
-        addresses: AddressList,
-        /// How often each question is asked before silence counts as its answer: an address
-        /// silent to this many mirror telegrams counts as empty (raise it on a noisy line).
-        #[arg(long, value_name = "N", default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=20))]
-        tries: u32,
-    },
-}
-
-/// The drive a stop command is for, or every drive of the bus.
-#[derive(Debug, Clone, Copy, Args)]
-#[group(required = true, multiple = false)]
-pub struct Target {
-    /// The drive's address.
-    #[arg(value_parser = address)]
-    pub drive: Option<Address>,
-    /// Every drive of the bus.
-    #[arg(long)]
-    pub all: bool,
+    Scan(commands::scan::Scan),
 }
 
 #[derive(Debug, Subcommand)]
 pub enum ParamCommand {
     /// Read a parameter or an array element, e.g. `P1082`, `r0021`, `P0947[3]`, `r0947.3`; an
     /// array without an index is read whole, a line per element.
-    Read {
-        /// The drive's address on the bus, 0..=31.
-        #[arg(value_parser = address)]
-        drive: Address,
-        /// The parameter as the manuals write it: P1082, p1082, r0021, 1082, P0947[3], r0947.3
-        /// (an array without an index: every element).
-        #[arg(value_name = "PARAM", value_parser = param_ref)]
-        param: ParamRef,
-        /// How to show the value of a parameter whose type neither the catalogue nor the
-        /// drive describes. A parameter whose type is known is always shown as that type (a
-        /// named type of another kind is refused).
-        #[arg(long = "type", value_enum)]
-        kind: Option<Kind>,
-    },
+    Read(commands::param::Read),
     /// What a parameter is: what the drive itself says (its data type, descriptive element
     /// 1) and the catalogue's entry for its family, if any.
-    Describe {
-        /// The drive's address on the bus, 0..=31.
-        #[arg(value_parser = address)]
-        drive: Address,
-        /// The parameter as the manuals write it: P1082, p1082, r0021, 1082.
-        #[arg(value_name = "PARAM", value_parser = param_ref)]
-        param: ParamRef,
-    },
+    Describe(commands::param::Describe),
     /// Write VALUE to a parameter or an array element; an array is written by its element only
     /// (P2014[1]), never by its name alone.
-    Write {
-        /// The drive's address on the bus, 0..=31.
-        #[arg(value_parser = address)]
-        drive: Address,
-        /// The parameter as the manuals write it: P1082, p1082, 1082, P2014[1], P2014.1 (an
-        /// array by its element only).
-        #[arg(value_name = "PARAM", value_parser = param_ref)]
-        param: ParamRef,
-        /// A number, converted to the parameter's type: decimal (-3, 45.5, 1e3; a whole number
-        /// however written for an integer type) or 0x hex, the type's bits (0x41200000 is 10.0
-        /// for a float).
-        #[arg(allow_negative_numbers = true)]
-        value: String,
-        /// Store in EEPROM as well as RAM (survives a power cycle).
-        #[arg(long)]
-        eeprom: bool,
-        /// The type to send to a parameter whose type neither the catalogue nor the drive
-        /// describes. Otherwise VALUE is converted to the parameter's own type and refused
-        /// when it does not fit (a named type of another kind is refused too).
-        #[arg(long = "type", value_enum)]
-        kind: Option<Kind>,
-        /// Write even though another process controls the drive (a deliberate act).
-        #[arg(long)]
-        force: bool,
-        /// Write even a parameter that takes the drive away from ussd: its command or setpoint
-        /// source, its COM link, telegram monitoring off, a factory reset (the family's
-        /// catalogue marks them). ussd logs it; the value is read back and verified.
-        #[arg(long = "unsafe")]
-        unsafe_write: bool,
-    },
+    Write(commands::param::Write),
     /// Save every settable parameter of a drive (the catalogue's, array elements included) to
     /// a TOML file (stdout without -o).
-    Backup {
-        /// The drive's address on the bus, 0..=31.
-        #[arg(value_parser = address)]
-        drive: Address,
-        /// Write the backup to FILE instead of stdout.
-        #[arg(short, long, value_name = "FILE")]
-        output: Option<std::path::PathBuf>,
-    },
+    Backup(commands::backup::Backup),
     /// Write a backup to a drive: only what differs, in a safe order, each value checked
     /// against the drive's answer. Refused while another process controls the drive.
-    Restore {
-        /// The drive's address on the bus, 0..=31.
-        #[arg(value_parser = address)]
-        drive: Address,
-        /// The backup file (written by `param backup`).
-        file: std::path::PathBuf,
-        /// Store in EEPROM as well as RAM (survives a power cycle).
-        #[arg(long)]
-        eeprom: bool,
-        /// Show what would be written; write nothing.
-        #[arg(long)]
-        dry_run: bool,
-        /// Write even though another process controls the drive (a deliberate act).
-        #[arg(long)]
-        force: bool,
-        /// Write guarded parameters too (command or setpoint source, COM link, ...): without
-        /// it a restore that would change one is refused before anything is written, naming
-        /// them. ussd logs each.
-        #[arg(long = "unsafe")]
-        unsafe_write: bool,
-        /// A restore cut short (Ctrl-C, the drive offline, ussd gone) puts back the access
-        /// level and quick commissioning it raised on the way, waiting up to this long for
-        /// the drive to answer again; what it cannot put back it names, with the command that
-        /// does it.
-        #[arg(long, value_name = "DURATION", default_value = "30s", value_parser = duration)]
-        put_back_within: core::time::Duration,
-    },
+    Restore(commands::backup::Restore),
     /// Compare a drive's settings with a backup file, or with another drive (an address) of
     /// the same family. Exits 0 when they are the same, 1 when they differ, 2 when they cannot
     /// be compared (as diff(1)).
-    Diff {
-        /// The drive's address on the bus, 0..=31.
-        #[arg(value_parser = address)]
-        drive: Address,
-        /// A backup file, or the address of another drive on the bus.
-        other: String,
-    },
+    Diff(commands::backup::Diff),
+}
+
+impl ParamCommand {
+    /// Runs `param ...` on `bus`.
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        match self {
+            Self::Read(c) => c.run(bus, out),
+            Self::Describe(c) => c.run(bus, out),
+            Self::Write(c) => c.run(bus, out),
+            Self::Backup(c) => c.run(bus, out),
+            Self::Restore(c) => c.run(bus, out),
+            Self::Diff(c) => c.run(bus, out),
+        }
+    }
 }
 
 impl Kind {
@@ -565,20 +395,15 @@ mod tests {
         .unwrap();
         assert_eq!(cli.bus, "b1");
         match cli.command {
-            Command::Param(ParamCommand::Write {
-                drive,
-                param,
-                value,
-                eeprom,
-                kind,
-                force,
-                unsafe_write,
-            }) => {
-                assert!(!unsafe_write);
-                let index = param.index.map(Subindex::get);
-                assert_eq!((drive.get(), param.pnu.get(), index), (3, 1120, Some(0)));
+            Command::Param(ParamCommand::Write(w)) => {
+                assert!(!w.guarded);
+                let index = w.param.index.map(Subindex::get);
                 assert_eq!(
-                    (value.as_str(), eeprom, kind, force),
+                    (w.drive.get(), w.param.pnu.get(), index),
+                    (3, 1120, Some(0))
+                );
+                assert_eq!(
+                    (w.value.as_str(), w.eeprom, w.kind, w.force),
                     ("-2.5", true, None, false)
                 );
             }
@@ -610,8 +435,8 @@ mod tests {
         assert!(cli.json);
         assert!(matches!(
             cli.command,
-            Command::Run { drive, hz, duration: Some(d), .. }
-                if drive.get() == 5 && hz == -10.0 && d == 2.0
+            Command::Run(ref r)
+                if r.drive.get() == 5 && r.hz == -10.0 && r.duration == Some(2.0)
         ));
         assert!(Cli::try_parse_from(["ussctl", "param", "read", "1", "99999"]).is_err());
     }
@@ -647,8 +472,11 @@ mod tests {
         .unwrap();
         assert!(matches!(
             cli.command,
-            Command::Trace { ref drives, trigger: Some(Trigger::Fault), pre: Some(p), duration, .. }
-                if drives.iter().map(|a| a.get()).eq([1, 3]) && p == Duration::from_secs(2) && duration == Duration::from_secs(10)
+            Command::Trace(ref t)
+                if t.drives.iter().map(|a| a.get()).eq([1, 3])
+                    && t.trigger == Some(Trigger::Fault)
+                    && t.pre == Some(Duration::from_secs(2))
+                    && t.duration == Duration::from_secs(10)
         ));
         assert!(Cli::try_parse_from(["ussctl", "trace"]).is_err(), "a drive");
         assert!(

@@ -84,7 +84,7 @@ fn main() -> ExitCode {
         Err(e) => {
             eprintln!("ussctl: {e}");
             // `param diff`, like diff(1): 1 for differences, 2 for trouble.
-            let diff = matches!(&cli.command, Command::Param(ParamCommand::Diff { .. }));
+            let diff = matches!(&cli.command, Command::Param(ParamCommand::Diff(_)));
             if diff && !matches!(e, Failure::Differ { .. }) {
                 ExitCode::from(2)
             } else {
@@ -94,43 +94,14 @@ fn main() -> ExitCode {
     }
 }
 
-/// MICROMASTER's P2010 settings 4..=12: the rates `scan` tries by default.
-const SCAN_BAUDS: [u32; 8] = [1200, 2400, 4800, 9600, 19200, 38400, 57600, 115_200];
-
 /// The commands that need no bus: completions and the man page (generated from this command
-/// line's own definition) and `scan` (a line ussd does not serve).
+/// line's own definition), `scan` (a line ussd does not serve) and `top` (which waits for a
+/// ussd that is not there yet, and follows one that goes).
 fn run_without_bus(cli: &Cli) -> Option<Result<(), Failure>> {
-    // `scan` works on a line ussd does not serve: no bus to open.
-    if let Command::Scan {
-        device,
-        baud,
-        addresses,
-        tries,
-    } = &cli.command
-    {
-        let bauds = match baud {
-            Some(list) => list.0.clone(),
-            None => SCAN_BAUDS
-                .iter()
-                .filter_map(|&b| uss_client::uss_protocol::Baud::new(b).ok())
-                .collect(),
-        };
-        let scan = commands::scan::Scan {
-            device,
-            bauds,
-            addresses: addresses.0.clone(),
-            tries: *tries,
-        };
-        return Some(commands::scan::scan(&Output { json: cli.json }, &scan));
-    }
-    // Generated from this command line's own definition; no bus needed.
+    let out = Output { json: cli.json };
     match &cli.command {
-        // `top` waits for a ussd that is not there yet, and follows one that goes.
-        Command::Top { buses } => {
-            let mut all = vec![cli.bus.clone()];
-            all.extend(buses.iter().filter(|b| **b != cli.bus).cloned());
-            Some(commands::top::top(&all))
-        }
+        Command::Scan(scan) => Some(scan.run(&out)),
+        Command::Top(top) => Some(top.run(&cli.bus)),
         Command::Completions { shell } => {
             let mut command = <Cli as clap::CommandFactory>::command();
             let mut out = Vec::new();
@@ -155,15 +126,13 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     if let Some(done) = run_without_bus(cli) {
         return done;
     }
+    let out = Output { json: cli.json };
     // A stop goes out before anything else, on its own path: it needs no open bus.
-    let stop = match &cli.command {
-        Command::Stop(target) => Some((*target, StopCommand::Off1)),
-        Command::Coast(target) => Some((*target, StopCommand::Off2)),
-        Command::QuickStop(target) => Some((*target, StopCommand::Off3)),
-        _ => None,
-    };
-    if let Some((target, command)) = stop {
-        return commands::stop::stop(&cli.bus, &Output { json: cli.json }, target, command);
+    match &cli.command {
+        Command::Stop(target) => return target.run(&cli.bus, &out, StopCommand::Off1),
+        Command::Coast(target) => return target.run(&cli.bus, &out, StopCommand::Off2),
+        Command::QuickStop(target) => return target.run(&cli.bus, &out, StopCommand::Off3),
+        _ => {}
     }
     let mut bus = Bus::open_as(&cli.bus, "ussctl")?;
     if let Some(t) = cli.timeout {
@@ -175,127 +144,26 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             })?;
         bus.set_answer_timeout(Some(t));
     }
-    let out = Output { json: cli.json };
     match &cli.command {
         Command::Status => commands::status::status(&bus, &out),
-        Command::Watch {
-            drives,
-            interval,
-            count,
-        } => commands::watch::watch(&bus, &out, drives, *interval, *count),
-        Command::Capture {
-            drive,
-            level,
-            duration,
-            count,
-            output,
-        } => {
-            let capture = commands::capture::Options {
-                drive: *drive,
-                level: *level,
-                duration: *duration,
-                count: *count,
-                output: output.as_deref(),
-            };
-            commands::capture::capture(&bus, &out, &capture)
-        }
-        Command::Trace {
-            drives,
-            duration,
-            trigger,
-            pre,
-            wait,
-            output,
-            plot,
-        } => {
-            let trace = commands::trace::Options {
-                drives,
-                duration: *duration,
-                trigger: *trigger,
-                pre: pre.unwrap_or_default(),
-                wait: *wait,
-                output: output.as_deref(),
-                plot: plot.as_deref(),
-            };
-            commands::trace::trace(&bus, &out, &trace)
-        }
-        Command::Param(command) => run_param(&bus, &out, command),
-        Command::Run {
-            drive,
-            hz,
-            duration,
-        } => commands::run::run_drive(&bus, &out, *drive, *hz, *duration),
-        Command::Ack { drive } => commands::ack::ack(&bus, &out, *drive),
-        Command::Faults { drive } => commands::param::faults(&bus, &out, *drive),
         Command::Stats => commands::status::stats(&bus, &out),
-        Command::Scan { .. }
+        Command::Watch(c) => c.run(&bus, &out),
+        Command::Capture(c) => c.run(&bus, &out),
+        Command::Trace(c) => c.run(&bus, &out),
+        Command::Param(c) => c.run(&bus, &out),
+        Command::Run(c) => c.run(&bus, &out),
+        Command::Ack(c) => c.run(&bus, &out),
+        Command::Faults(c) => c.run(&bus, &out),
+        Command::Scan(_)
         | Command::Completions { .. }
         | Command::Man
         | Command::Schema { .. }
-        | Command::Top { .. }
+        | Command::Top(_)
         | Command::Stop(_)
         | Command::Coast(_)
         | Command::QuickStop(_) => {
             unreachable!("handled before the bus is opened")
         }
-    }
-}
-
-/// `param ...`: parameter access, backup, restore, diff.
-fn run_param(bus: &Bus, out: &Output, command: &ParamCommand) -> Result<(), Failure> {
-    match command {
-        ParamCommand::Read { drive, param, kind } => {
-            commands::param::read(bus, out, *drive, *param, *kind)
-        }
-        ParamCommand::Describe { drive, param } => {
-            commands::param::describe(bus, out, *drive, *param)
-        }
-        ParamCommand::Write {
-            drive,
-            param,
-            value,
-            eeprom,
-            kind,
-            force,
-            unsafe_write,
-        } => {
-            let write = commands::param::Write {
-                drive: *drive,
-                param: *param,
-                value,
-                eeprom: *eeprom,
-                kind: *kind,
-                force: *force,
-                guarded: *unsafe_write,
-            };
-            commands::param::write(bus, out, &write)
-        }
-        ParamCommand::Backup { drive, output } => {
-            commands::backup::backup(bus, out, *drive, output.as_deref())
-        }
-        ParamCommand::Restore {
-            drive,
-            file,
-            eeprom,
-            dry_run,
-            force,
-            unsafe_write,
-            put_back_within,
-        } => {
-            let restore = commands::backup::Restore {
-                drive: *drive,
-                file,
-                dry_run: *dry_run,
-                put_back_within: *put_back_within,
-                options: uss_client::WriteOptions {
-                    eeprom: *eeprom,
-                    force: *force,
-                    unsafe_write: *unsafe_write,
-                },
-            };
-            commands::backup::restore(bus, out, &restore)
-        }
-        ParamCommand::Diff { drive, other } => commands::backup::diff(bus, out, *drive, other),
     }
 }
 

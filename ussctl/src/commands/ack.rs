@@ -1,12 +1,27 @@
 //! `ack`: acknowledges a drive's fault.
 
 use super::common::control;
+use crate::cli::address;
 use crate::report::DriveReport;
 use crate::{Failure, Output};
 use uss_client::Address;
 use uss_client::{Bus, ClientError, DriveState};
 
-pub(crate) fn ack(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
+/// `ack`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Ack {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
+    drive: Address,
+}
+
+impl Ack {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        ack(bus, out, self.drive)
+    }
+}
+
+fn ack(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
     let c = control(bus, drive)?;
     if c.inputs().state() != DriveState::Fault {
         out.note(&format!(

@@ -11,11 +11,12 @@
 
 use super::common::firmware_version;
 use crate::backup::{BackupFile, Entry, Number, Saved, now_utc};
+use crate::cli::{address, duration};
 use crate::report::{DiffLine, DiffReport, RestoreReport};
 use crate::{Failure, Output, catch_signals, signal_name, signals, stopped};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use uss_client::Address;
 use uss_client::uss_catalogue::{Catalogue, Change, Param};
@@ -124,13 +125,41 @@ fn read_settings(
     Ok((values, missing))
 }
 
-/// `param backup DRIVE [-o FILE]`.
-pub(crate) fn backup(
-    bus: &Bus,
-    out: &Output,
+/// `param backup`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Backup {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
     drive: Address,
-    output: Option<&Path>,
-) -> Result<(), Failure> {
+    /// Write the backup to FILE instead of stdout.
+    #[arg(short, long, value_name = "FILE")]
+    output: Option<PathBuf>,
+}
+
+impl Backup {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        backup(bus, out, self.drive, self.output.as_deref())
+    }
+}
+
+/// `param diff`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Diff {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
+    drive: Address,
+    /// A backup file, or the address of another drive on the bus.
+    other: String,
+}
+
+impl Diff {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        diff(bus, out, self.drive, &self.other)
+    }
+}
+
+/// `param backup DRIVE [-o FILE]`.
+fn backup(bus: &Bus, out: &Output, drive: Address, output: Option<&Path>) -> Result<(), Failure> {
     let family = bus.family(drive);
     let catalogue = settings_catalogue(drive, family.name())?;
     let start = Instant::now();
@@ -279,24 +308,61 @@ fn refuse_guarded(
     }
 }
 
-/// What a restore was asked to do.
-pub(crate) struct Restore<'a> {
-    pub drive: Address,
-    pub file: &'a Path,
-    pub dry_run: bool,
-    /// How long a restore cut short waits for the drive to put back what it raised
-    /// (`--put-back-within`).
-    pub put_back_within: Duration,
-    /// EEPROM, forced, guarded parameters too (`--eeprom`, `--force`, `--unsafe`).
-    pub options: WriteOptions,
+/// `param restore`'s arguments.
+#[derive(Debug, clap::Args)]
+#[allow(
+    clippy::struct_excessive_bools,
+    reason = "four independent switches of the command line"
+)]
+pub struct Restore {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
+    drive: Address,
+    /// The backup file (written by `param backup`).
+    file: PathBuf,
+    /// Store in EEPROM as well as RAM (survives a power cycle).
+    #[arg(long)]
+    eeprom: bool,
+    /// Show what would be written; write nothing.
+    #[arg(long)]
+    dry_run: bool,
+    /// Write even though another process controls the drive (a deliberate act).
+    #[arg(long)]
+    force: bool,
+    /// Write guarded parameters too (command or setpoint source, COM link, ...): without
+    /// it a restore that would change one is refused before anything is written, naming
+    /// them. ussd logs each.
+    #[arg(long = "unsafe")]
+    unsafe_write: bool,
+    /// A restore cut short (Ctrl-C, the drive offline, ussd gone) puts back the access
+    /// level and quick commissioning it raised on the way, waiting up to this long for
+    /// the drive to answer again; what it cannot put back it names, with the command that
+    /// does it.
+    #[arg(long, value_name = "DURATION", default_value = "30s", value_parser = duration)]
+    put_back_within: Duration,
 }
 
-/// `param restore DRIVE FILE [--eeprom] [--dry-run] [--force] [--unsafe]`.
-pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Failure> {
+impl Restore {
+    /// EEPROM, forced, guarded parameters too (`--eeprom`, `--force`, `--unsafe`).
+    const fn options(&self) -> WriteOptions {
+        WriteOptions {
+            eeprom: self.eeprom,
+            force: self.force,
+            unsafe_write: self.unsafe_write,
+        }
+    }
+
+    /// `param restore DRIVE FILE [--eeprom] [--dry-run] [--force] [--unsafe]`.
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        restore(bus, out, self)
+    }
+}
+
+fn restore(bus: &Bus, out: &Output, r: &Restore) -> Result<(), Failure> {
     let drive = r.drive;
     let family = bus.family(drive);
     let catalogue = settings_catalogue(drive, family.name())?;
-    let (file, entries) = load(r.file, catalogue)?;
+    let (file, entries) = load(&r.file, catalogue)?;
     check_family(
         drive,
         family,
@@ -307,7 +373,7 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
     let start = Instant::now();
     let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
     let now = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
-    let mut report = RestoreReport::new(bus.name(), drive, r.file, r.dry_run);
+    let mut report = RestoreReport::new(bus.name(), drive, &r.file, r.dry_run);
     let mut differing = Vec::new();
     for (e, current) in entries.iter().zip(&now) {
         match current {
@@ -333,11 +399,11 @@ pub(crate) fn restore(bus: &Bus, out: &Output, r: &Restore<'_>) -> Result<(), Fa
         report.seconds = start.elapsed().as_secs_f64();
         return out.show(&report, RestoreReport::human);
     }
-    if !r.options.unsafe_write {
+    if !r.unsafe_write {
         refuse_guarded(drive, family, &differing)?;
     }
     catch_signals()?;
-    let options = r.options;
+    let options = r.options();
     let steps = order(bus, drive, catalogue, &differing);
     let (took, cut) = write_steps(bus, drive, &steps, options, &mut report)?;
     // However it ended (cut short, or a write back the drive did not confirm), the drive is
@@ -470,7 +536,7 @@ fn put_back(
     drive: Address,
     catalogue: &Catalogue,
     raised: &[(ParamRef, u16, u16)],
-    r: &Restore<'_>,
+    r: &Restore,
     why: &str,
     report: &mut RestoreReport,
 ) {
@@ -481,7 +547,7 @@ fn put_back(
     for &(param, to, was) in raised {
         let mut read_back = false;
         let result = loop {
-            let error = match bus.write_with(drive, param, Value::Word(was), r.options) {
+            let error = match bus.write_with(drive, param, Value::Word(was), r.options()) {
                 Ok(_) => break Ok(()),
                 Err(e @ ParamError::Drive(_)) => break Err(e.to_string()),
                 Err(e) => e,
@@ -634,7 +700,7 @@ impl Step {
 
 /// `param diff DRIVE (FILE | DRIVE)`.
 /// Exits nonzero ([`Failure::Differ`]) when there are differences, as `diff(1)` does.
-pub(crate) fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Result<(), Failure> {
+fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Result<(), Failure> {
     let family = bus.family(drive);
     let catalogue = settings_catalogue(drive, family.name())?;
     let mut report = DiffReport::new(bus.name(), drive, other);

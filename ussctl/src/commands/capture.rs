@@ -1,20 +1,33 @@
 //! `capture`: every telegram of the bus, decoded, until Ctrl-C, a time or a count; optionally
 //! written to a pcapng file.
 
+use crate::cli::address;
 use crate::decode::{Decoder, Level};
 use crate::{Failure, Output, catch_signals, stopped};
 use core::time::Duration;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 use uss_client::{Address, Bus, Catalogue};
 
-/// What `capture` was asked for.
-pub(crate) struct Options<'a> {
-    pub drive: Option<Address>,
-    pub level: Level,
-    pub duration: Option<f64>,
-    pub count: Option<u64>,
-    pub output: Option<&'a Path>,
+/// `capture`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Capture {
+    /// Only this drive's telegrams.
+    #[arg(long, value_name = "ADDRESS", value_parser = address)]
+    drive: Option<Address>,
+    /// raw: the bytes; frame: STX, LGE, ADR, PKW, PZD, BCC; app: parameter tasks and
+    /// replies, control and status words, setpoints and actual values.
+    #[arg(long, value_enum, default_value = "app")]
+    level: Level,
+    /// Capture this many seconds (default: until Ctrl-C).
+    #[arg(long = "for", value_name = "SECONDS")]
+    duration: Option<f64>,
+    /// Stop after this many telegrams.
+    #[arg(long, value_name = "N")]
+    count: Option<u64>,
+    /// Also write the telegrams to this pcapng file.
+    #[arg(short = 'o', long = "output", value_name = "FILE")]
+    output: Option<PathBuf>,
 }
 
 /// How often the capture looks for new records.
@@ -55,7 +68,13 @@ impl DriveFacts {
     }
 }
 
-pub(crate) fn capture(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Failure> {
+impl Capture {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        capture(bus, out, self)
+    }
+}
+
+fn capture(bus: &Bus, out: &Output, o: &Capture) -> Result<(), Failure> {
     let duration = o
         .duration
         .map(|s| {
@@ -75,7 +94,7 @@ pub(crate) fn capture(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Fa
         level: o.level,
     };
     let mut capture = bus.capture()?;
-    let mut pcap = match o.output {
+    let mut pcap = match o.output.as_deref() {
         Some(path) => {
             let file = std::fs::File::create(path).map_err(|source| Failure::File {
                 path: path.display().to_string(),

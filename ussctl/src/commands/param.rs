@@ -1,12 +1,66 @@
 //! `param read`, `param write`, `faults`: parameters through ussd.
 
-use crate::cli::{self, Kind, ParamRef};
+use crate::cli::{self, Kind, ParamRef, address, param_ref};
 use crate::report::{FaultsReport, ParamReport};
 use crate::{Failure, Output};
 use uss_client::Address;
 use uss_client::{Bus, ParamError, ParamValue, WriteOptions};
 
-pub(crate) fn read(
+/// `param read`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Read {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
+    drive: Address,
+    /// The parameter as the manuals write it: P1082, p1082, r0021, 1082, P0947[3], r0947.3
+    /// (an array without an index: every element).
+    #[arg(value_name = "PARAM", value_parser = param_ref)]
+    param: ParamRef,
+    /// How to show the value of a parameter whose type neither the catalogue nor the
+    /// drive describes. A parameter whose type is known is always shown as that type (a
+    /// named type of another kind is refused).
+    #[arg(long = "type", value_enum)]
+    kind: Option<Kind>,
+}
+
+impl Read {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        read(bus, out, self.drive, self.param, self.kind)
+    }
+}
+
+/// `param describe`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Describe {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
+    drive: Address,
+    /// The parameter as the manuals write it: P1082, p1082, r0021, 1082.
+    #[arg(value_name = "PARAM", value_parser = param_ref)]
+    param: ParamRef,
+}
+
+impl Describe {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        describe(bus, out, self.drive, self.param)
+    }
+}
+
+/// `faults`' arguments.
+#[derive(Debug, clap::Args)]
+pub struct Faults {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
+    drive: Address,
+}
+
+impl Faults {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        faults(bus, out, self.drive)
+    }
+}
+
+fn read(
     bus: &Bus,
     out: &Output,
     drive: Address,
@@ -47,12 +101,7 @@ pub(crate) fn read(
 use std::fmt::Write as _;
 
 /// `param describe DRIVE PARAM`: what the drive says the parameter is, and the catalogue.
-pub(crate) fn describe(
-    bus: &Bus,
-    out: &Output,
-    drive: Address,
-    param: ParamRef,
-) -> Result<(), Failure> {
+fn describe(bus: &Bus, out: &Output, drive: Address, param: ParamRef) -> Result<(), Failure> {
     let pnu = param.pnu;
     let drive_says = bus
         .drive_describes(drive, pnu)
@@ -143,18 +192,46 @@ impl DescribeReport {
     }
 }
 
-/// What `param write` was asked to do.
-pub(crate) struct Write<'a> {
-    pub drive: Address,
-    pub param: ParamRef,
-    pub value: &'a str,
-    pub eeprom: bool,
-    pub kind: Option<Kind>,
-    pub force: bool,
-    pub guarded: bool,
+/// `param write`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Write {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
+    pub(crate) drive: Address,
+    /// The parameter as the manuals write it: P1082, p1082, 1082, P2014[1], P2014.1 (an
+    /// array by its element only).
+    #[arg(value_name = "PARAM", value_parser = param_ref)]
+    pub(crate) param: ParamRef,
+    /// A number, converted to the parameter's type: decimal (-3, 45.5, 1e3; a whole number
+    /// however written for an integer type) or 0x hex, the type's bits (0x41200000 is 10.0
+    /// for a float).
+    #[arg(allow_negative_numbers = true)]
+    pub(crate) value: String,
+    /// Store in EEPROM as well as RAM (survives a power cycle).
+    #[arg(long)]
+    pub(crate) eeprom: bool,
+    /// The type to send to a parameter whose type neither the catalogue nor the drive
+    /// describes. Otherwise VALUE is converted to the parameter's own type and refused
+    /// when it does not fit (a named type of another kind is refused too).
+    #[arg(long = "type", value_enum)]
+    pub(crate) kind: Option<Kind>,
+    /// Write even though another process controls the drive (a deliberate act).
+    #[arg(long)]
+    pub(crate) force: bool,
+    /// Write even a parameter that takes the drive away from ussd: its command or setpoint
+    /// source, its COM link, telegram monitoring off, a factory reset (the family's
+    /// catalogue marks them). ussd logs it; the value is read back and verified.
+    #[arg(long = "unsafe")]
+    pub(crate) guarded: bool,
 }
 
-pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failure> {
+impl Write {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        write(bus, out, self)
+    }
+}
+
+fn write(bus: &Bus, out: &Output, w: &Write) -> Result<(), Failure> {
     let options = WriteOptions {
         eeprom: w.eeprom,
         force: w.force,
@@ -185,10 +262,10 @@ pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failur
     let now = match w.kind.filter(|_| unknown) {
         // Converted to the parameter's own type; what does not fit is refused before the bus.
         None => bus
-            .write_param(drive, param, w.value, options)
+            .write_param(drive, param, &w.value, options)
             .map_err(failed)?,
         Some(kind) => {
-            let (value, _) = cli::parse_value(w.value, Some(kind)).map_err(Failure::Usage)?;
+            let (value, _) = cli::parse_value(&w.value, Some(kind)).map_err(Failure::Usage)?;
             ParamValue {
                 param,
                 raw: bus
@@ -204,7 +281,7 @@ pub(crate) fn write(bus: &Bus, out: &Output, w: &Write<'_>) -> Result<(), Failur
     out.show(&report, ParamReport::human)
 }
 
-pub(crate) fn faults(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
+fn faults(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
     let report = bus.fault_report(drive).map_err(|source| Failure::Param {
         drive,
         param: "r0947".to_owned(),

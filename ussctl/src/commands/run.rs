@@ -81,7 +81,27 @@ impl Absence {
     }
 }
 
-pub(crate) fn run_drive(
+/// `run`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Run {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = crate::cli::address)]
+    pub(crate) drive: Address,
+    /// Frequency in Hz; negative runs the other way.
+    #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
+    pub(crate) hz: f32,
+    /// Run this many seconds, then stop (default: until Ctrl-C).
+    #[arg(long = "for", value_name = "SECONDS")]
+    pub(crate) duration: Option<f64>,
+}
+
+impl Run {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        run_drive(bus, out, self.drive, self.hz, self.duration)
+    }
+}
+
+fn run_drive(
     bus: &Bus,
     out: &Output,
     drive: Address,

@@ -15,11 +15,12 @@
 //! (`simoreg`, `generic`).
 
 use super::common::firmware_version;
+use crate::cli::{AddressList, BaudList, address_list, baud_list};
 use crate::report::{ScanReport, ScannedDrive};
 use crate::{Failure, Output, catch_signals, stopped};
 use core::time::Duration;
 use indicatif::ProgressBar;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 use uss_client::uss_protocol::telegram::{
     Layout, MAX_PKW_WORDS, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, encode,
@@ -434,22 +435,53 @@ fn is_tty(path: &Path) -> bool {
     std::fs::metadata(path).is_ok_and(|m| m.file_type().is_char_device())
 }
 
-/// What `scan` was asked to do.
-pub(crate) struct Scan<'a> {
-    pub device: &'a Path,
-    pub bauds: Vec<Baud>,
-    pub addresses: Vec<Address>,
-    /// How often a question is asked before silence counts as the answer (`--tries`).
-    pub tries: u32,
+/// MICROMASTER's P2010 settings 4..=12: the rates `scan` tries by default.
+const SCAN_BAUDS: [u32; 8] = [1200, 2400, 4800, 9600, 19200, 38400, 57600, 115_200];
+
+/// `scan`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Scan {
+    /// The serial device, e.g. /dev/ttyUSB0.
+    device: PathBuf,
+    /// Baud rates: a list (9600,19200), or `all` (the 13 of USS.md section 2); default the
+    /// eight of MICROMASTER's P2010 (1200 to 115200).
+    #[arg(long, value_name = "LIST|all", value_parser = baud_list)]
+    baud: Option<BaudList>,
+    /// Addresses: a range (0-31) or a list (1,3,5).
+    #[arg(long, value_name = "RANGE", default_value = "0-31", value_parser = address_list)]
+    addresses: AddressList,
+    /// How often each question is asked before silence counts as its answer: an address
+    /// silent to this many mirror telegrams counts as empty (raise it on a noisy line).
+    #[arg(long, value_name = "N", default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=20))]
+    tries: u32,
 }
 
-/// `scan DEVICE [--baud LIST|all] [--addresses FROM-TO]`.
-pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
+impl Scan {
+    /// `scan DEVICE [--baud LIST|all] [--addresses FROM-TO] [--tries N]`: no bus, no ussd.
+    pub(crate) fn run(&self, out: &Output) -> Result<(), Failure> {
+        let bauds = match &self.baud {
+            Some(list) => list.0.clone(),
+            None => SCAN_BAUDS
+                .iter()
+                .filter_map(|&b| Baud::new(b).ok())
+                .collect(),
+        };
+        scan(out, &self.device, &bauds, &self.addresses.0, self.tries)
+    }
+}
+
+fn scan(
+    out: &Output,
+    device: &Path,
+    bauds: &[Baud],
+    addresses: &[Address],
+    tries: u32,
+) -> Result<(), Failure> {
     catch_signals()?;
     let start = Instant::now();
-    let mut report = ScanReport::new(s.device, &s.bauds, s.addresses.len(), s.tries);
-    let bar = ProgressBar::new((s.bauds.len() * s.addresses.len()) as u64);
-    'bauds: for &baud in &s.bauds {
+    let mut report = ScanReport::new(device, bauds, addresses.len(), tries);
+    let bar = ProgressBar::new((bauds.len() * addresses.len()) as u64);
+    'bauds: for &baud in bauds {
         let options = SerialOptions {
             baud,
             kernel_rs485: false,
@@ -457,25 +489,25 @@ pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
             low_latency: true,
             rx_latency: core::time::Duration::ZERO,
         };
-        let (line, _) = SerialTransport::open(s.device, &options).map_err(|e| {
+        let (line, _) = SerialTransport::open(device, &options).map_err(|e| {
             Failure::Usage(match e {
                 SerialError::Busy { .. } => format!(
                     "{e}: is ussd serving this line? scan only a line nobody else uses (stop \
                      that bus first)"
                 ),
-                SerialError::Open { .. } if !is_tty(s.device) => format!(
+                SerialError::Open { .. } if !is_tty(device) => format!(
                     "cannot open {0}: {0} is not a serial device (not a tty)",
-                    s.device.display()
+                    device.display()
                 ),
                 e => e.to_string(),
             })
         })?;
-        if report.drives.is_empty() && baud == s.bauds[0] {
+        if report.drives.is_empty() && baud == bauds[0] {
             // Said before the first probe: a drive that runs under USS control here stops.
             eprintln!(
                 "ussctl: every probe carries OFF1 (STW1 0x047E, setpoint 0): a drive on {} that \
                  runs under USS control ramps down and stays off",
-                s.device.display()
+                device.display()
             );
         }
         let mut probe = Probe {
@@ -483,10 +515,10 @@ pub(crate) fn scan(out: &Output, s: &Scan<'_>) -> Result<(), Failure> {
             clock: MonotonicClock::new(),
             timing: Timing::new(baud),
             free_at: Duration::ZERO,
-            tries: s.tries,
+            tries,
             garbled: 0,
         };
-        for &address in &s.addresses {
+        for &address in addresses {
             if stopped() {
                 report.cut_short = true;
                 break 'bauds;

@@ -6,25 +6,42 @@
 //! state changed. An image the trace was too late to see is counted in the next row's
 //! `missed`, never invented.
 
-use crate::cli::Trigger;
+use crate::cli::{Trigger, address, duration, trigger};
 use crate::{Failure, Output, catch_signals, stopped};
 use core::fmt::Write as _;
 use core::time::Duration;
 use serde::Serialize;
 use std::collections::VecDeque;
-use std::path::Path;
+use std::path::PathBuf;
 use uss_client::uss_protocol::{Setpoint, Zsw1};
 use uss_client::{Address, Bus, ClientError, DriveWatch, PzdInput, monotonic_ns, state_name};
 
-/// What `trace` was asked for.
-pub(crate) struct Options<'a> {
-    pub drives: &'a [Address],
-    pub duration: Duration,
-    pub trigger: Option<Trigger>,
-    pub pre: Duration,
-    pub wait: Option<Duration>,
-    pub output: Option<&'a Path>,
-    pub plot: Option<&'a Path>,
+/// `trace`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Trace {
+    /// The drives to record (addresses 0..=31).
+    #[arg(required = true, value_parser = address)]
+    pub(crate) drives: Vec<Address>,
+    /// How long to record (after the trigger, when there is one): 10, 10s, 2.5s or 500ms.
+    #[arg(long = "for", value_name = "DURATION", default_value = "10s", value_parser = duration)]
+    pub(crate) duration: Duration,
+    /// Start recording when this becomes true on a traced drive: `fault` (ZSW1 bit 3),
+    /// `zsw1-bit=N` (bit N set), `hz>F` or `hz<F` (actual frequency). A condition already
+    /// true when the trace starts fires once it has been false.
+    #[arg(long, value_name = "CONDITION", value_parser = trigger)]
+    pub(crate) trigger: Option<Trigger>,
+    /// Keep this much from before the trigger (time 0 is the trigger).
+    #[arg(long, value_name = "DURATION", value_parser = duration, requires = "trigger")]
+    pub(crate) pre: Option<Duration>,
+    /// Give up when the trigger has not fired after this long (default: wait until Ctrl-C).
+    #[arg(long, value_name = "DURATION", value_parser = duration, requires = "trigger")]
+    pub(crate) wait: Option<Duration>,
+    /// Write the CSV to FILE (default: stdout).
+    #[arg(short = 'o', long = "output", value_name = "FILE")]
+    pub(crate) output: Option<PathBuf>,
+    /// Render the trace to FILE: .svg or .png.
+    #[arg(long, value_name = "FILE")]
+    pub(crate) plot: Option<PathBuf>,
 }
 
 /// The longest the trace sleeps without looking at the images (an exchange event may be
@@ -171,7 +188,7 @@ pub(crate) struct Recording {
 }
 
 /// Records until `duration` after the trigger (or the start), or Ctrl-C.
-fn record(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<Recording, Failure> {
+fn record(bus: &Bus, out: &Output, o: &Trace) -> Result<Recording, Failure> {
     let mut traced = o
         .drives
         .iter()
@@ -237,7 +254,7 @@ fn record(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<Recording, Failure
         }
         if fired.is_none() {
             // Before the trigger only --pre is kept.
-            let keep_from = monotonic_ns().saturating_sub(nanos(o.pre));
+            let keep_from = monotonic_ns().saturating_sub(nanos(o.pre.unwrap_or_default()));
             while rows.front().is_some_and(|r| r.at_ns < keep_from) {
                 rows.pop_front();
             }
@@ -295,8 +312,14 @@ impl Summary {
     }
 }
 
-pub(crate) fn trace(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Failure> {
-    if let Some(plot) = o.plot {
+impl Trace {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        trace(bus, out, self)
+    }
+}
+
+fn trace(bus: &Bus, out: &Output, o: &Trace) -> Result<(), Failure> {
+    if let Some(plot) = o.plot.as_deref() {
         crate::plot::Format::of(plot)?;
     }
     let recording = record(bus, out, o)?;
@@ -311,7 +334,7 @@ pub(crate) fn trace(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Fail
             .flush()
             .map_err(|e| Failure::Csv(csv::Error::from(e)))?;
     }
-    if let Some(path) = o.output {
+    if let Some(path) = o.output.as_deref() {
         std::fs::write(path, &csv).map_err(|source| Failure::File {
             path: path.display().to_string(),
             source,
@@ -319,7 +342,7 @@ pub(crate) fn trace(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Fail
     } else {
         crate::write_out(&String::from_utf8_lossy(&csv))?;
     }
-    if let Some(path) = o.plot {
+    if let Some(path) = o.plot.as_deref() {
         let title = format!(
             "bus {}: drive{} {}",
             bus.name(),
@@ -343,8 +366,8 @@ pub(crate) fn trace(bus: &Bus, out: &Output, o: &Options<'_>) -> Result<(), Fail
         missed: rows.iter().map(|r| r.missed).sum(),
         trigger: o.trigger.map(|t| t.to_string()),
         interrupted: recording.interrupted,
-        csv: o.output.map(|p| p.display().to_string()),
-        plot: o.plot.map(|p| p.display().to_string()),
+        csv: o.output.as_ref().map(|p| p.display().to_string()),
+        plot: o.plot.as_ref().map(|p| p.display().to_string()),
     };
     if o.output.is_some() {
         out.show(&summary, Summary::human)

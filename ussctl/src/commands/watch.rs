@@ -1,12 +1,33 @@
 //! `watch`: the drives' images, one line per drive and round, until Ctrl-C or a count.
 
+use crate::cli::address;
 use crate::report::WatchLine;
 use crate::{Failure, Output, catch_signals, stopped};
 use core::time::Duration;
 use std::time::Instant;
 use uss_client::{Address, Bus, ClientError};
 
-pub(crate) fn watch(
+/// `watch`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Watch {
+    /// Only these drives (default: all).
+    #[arg(value_parser = address)]
+    drives: Vec<Address>,
+    /// Milliseconds between rounds.
+    #[arg(long, default_value_t = 500, value_name = "MS")]
+    interval: u64,
+    /// Stop after this many rounds.
+    #[arg(long, value_name = "N")]
+    count: Option<u64>,
+}
+
+impl Watch {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        watch(bus, out, &self.drives, self.interval, self.count)
+    }
+}
+
+fn watch(
     bus: &Bus,
     out: &Output,
     only: &[Address],

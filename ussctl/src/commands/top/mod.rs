@@ -126,7 +126,23 @@ impl App {
     }
 }
 
-pub(crate) fn top(buses: &[String]) -> Result<(), Failure> {
+/// `top`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Top {
+    /// More buses to monitor beside --bus; tab switches between them.
+    buses: Vec<String>,
+}
+
+impl Top {
+    /// Monitors `bus` (`--bus`) and the others named.
+    pub(crate) fn run(&self, bus: &str) -> Result<(), Failure> {
+        let mut all = vec![bus.to_owned()];
+        all.extend(self.buses.iter().filter(|b| *b != bus).cloned());
+        top(&all)
+    }
+}
+
+fn top(buses: &[String]) -> Result<(), Failure> {
     if !std::io::stdout().is_terminal() {
         return Err(Failure::Usage(
             "top draws on a terminal; for a script use `ussctl status` or `ussctl --json status`"
