@@ -21,6 +21,7 @@ use core::fmt;
 use serde::Deserialize;
 use std::sync::LazyLock;
 use uss_protocol::{ParamRef, Prefix, Value};
+use uss_shm_types::DriveFamily;
 
 /// The PROFIdrive data types of the parameters (the codec's: its type codes are the value of
 /// descriptive element 1, USS.md section 6); [`Values`] reads and writes values of them.
@@ -427,6 +428,21 @@ pub struct Catalogue {
     pub link: Vec<ParamRef>,
     /// The fault buffer and warnings; none: uss-rt knows no fault buffer of the family.
     pub faults: Option<FaultBuffers>,
+    /// The drive's telegram-off time in ms on the USS link ussd talks over (MM4 P2014[1], G120
+    /// p2040): ussd reads it when the drive comes online and checks it; none: not known, the
+    /// configuration names it (`monitoring_param`).
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub monitoring: Option<ParamRef>,
+    /// The fault a telegram-off trip records (F0072 on MM4, F01910 on G120).
+    #[serde(default)]
+    pub telegram_off_fault: Option<u16>,
+    /// The reference frequency in Hz that 0x4000 of the setpoint stands for (MM4 P2000).
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub reference: Option<ParamRef>,
+    /// The reference speed in rpm that 0x4000 stands for, where the reference is a speed (G120
+    /// p2000): read when the motor's pole pairs are configured.
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub reference_speed: Option<ParamRef>,
     #[serde(default)]
     pub param: Vec<Param>,
     #[serde(default)]
@@ -480,15 +496,37 @@ impl Catalogue {
         &SIMOREG_CATALOGUE
     }
 
-    /// The built-in catalogue of a family by its configuration name (`micromaster4`, `g110`,
-    /// `g120`, `simoreg`); `None` for a `generic` slave.
-    pub fn of_family(family: &str) -> Option<&'static Self> {
+    /// The built-in catalogue of a family; `None` for a `generic` slave.
+    pub fn of(family: DriveFamily) -> Option<&'static Self> {
         match family {
-            "micromaster4" | "g110" => Some(Self::micromaster4()),
-            "g120" => Some(Self::g120()),
-            "simoreg" => Some(Self::simoreg()),
-            _ => None,
+            DriveFamily::Micromaster4 | DriveFamily::G110 => Some(Self::micromaster4()),
+            DriveFamily::G120 => Some(Self::g120()),
+            DriveFamily::Simoreg => Some(Self::simoreg()),
+            DriveFamily::Generic => None,
         }
+    }
+
+    /// The family named `name` as the configuration writes it (`micromaster4`, `g110`,
+    /// `g120`, `simoreg`, `generic`).
+    pub fn family_named(name: &str) -> Option<DriveFamily> {
+        DriveFamily::ALL.iter().copied().find(|f| f.name() == name)
+    }
+
+    /// Fault `number` as the family's manuals write it: F0072 (MM4), F01910 (SINAMICS).
+    pub fn fault_name(&self, number: u16) -> String {
+        let digits = self.faults.as_ref().map_or(4, |f| f.digits);
+        format!("F{number:0w$}", w = usize::from(digits))
+    }
+
+    /// What a drive of this family says to set its telegram-off time: "P2014[1]", and the
+    /// fault its expiry records where known: "P2014[1] (F0072)"; `None` when uss-rt does not
+    /// know the family's parameter.
+    pub fn monitoring_name(&self) -> Option<String> {
+        let param = self.monitoring?;
+        Some(match self.telegram_off_fault {
+            Some(fault) => format!("{param} ({})", self.fault_name(fault)),
+            None => param.to_string(),
+        })
     }
 
     /// Whether `param` (number and index) is a setting of the line ussd talks over.

@@ -204,17 +204,20 @@ mod properties {
 
 #[test]
 fn guarded_parameters_are_marked_per_family_and_monitoring_only_when_switched_off() {
-    let mm4 = Catalogue::of_family("micromaster4").unwrap();
-    assert!(core::ptr::eq(mm4, Catalogue::of_family("g110").unwrap()));
+    let mm4 = Catalogue::of(DriveFamily::Micromaster4).unwrap();
+    assert!(core::ptr::eq(
+        mm4,
+        Catalogue::of(DriveFamily::G110).unwrap()
+    ));
     assert!(mm4.guard(700, 2).unwrap().starts_with("command source"));
     assert_eq!(mm4.guard(1120, 0), None, "a ramp time is not guarded");
     assert_eq!(mm4.guard(2014, 100), None, "monitoring set is fine");
     assert!(mm4.guard(2014, 0).unwrap().contains("monitoring off"));
-    let g120 = Catalogue::of_family("g120").unwrap();
+    let g120 = Catalogue::of(DriveFamily::G120).unwrap();
     assert!(g120.guard(2021, 5).unwrap().contains("address"));
     assert!(g120.guard(2040, 0).is_some() && g120.guard(2040, 100.0f32.to_bits()).is_none());
-    assert!(Catalogue::of_family("generic").is_none());
-    let simoreg = Catalogue::of_family("simoreg").unwrap();
+    assert!(Catalogue::of(DriveFamily::Generic).is_none());
+    let simoreg = Catalogue::of(DriveFamily::Simoreg).unwrap();
     assert!(simoreg.guard(782, 3).is_some() && simoreg.guard(303, 100).is_none());
     // Guarded by number: the BICO sources need no typed entry.
     assert!(mm4.param(840).is_none() && mm4.guard(840, 0).is_some());
@@ -291,7 +294,7 @@ fn each_guard_cites_its_source_and_the_lists_are_complete() {
 #[test]
 fn each_family_says_where_its_faults_and_its_link_are() {
     let faults = |family: &str| {
-        let f = Catalogue::of_family(family)
+        let f = Catalogue::of(Catalogue::family_named(family).unwrap())
             .unwrap()
             .faults
             .clone()
@@ -310,4 +313,49 @@ fn each_family_says_where_its_faults_and_its_link_are() {
     assert!(Catalogue::g120().is_link(at("p2021")));
     assert_eq!(mm4.access_level.map(|p| p.pnu.get()), Some(3));
     assert_eq!(Catalogue::simoreg().access_level, None);
+}
+
+/// The roles ussd and its tools read a drive by, typed in from the manuals (not from the
+/// profiles): the telegram-off time of the USS link and the fault its expiry records, the
+/// reference. MM4: P2014 index 1 = the COM link (MM420 Reference Manual A1 3.3), F0072 "USS
+/// (COM link) setpoint fault", P2000 reference frequency in Hz; G120 (CU240 list manual):
+/// p2040 fieldbus monitoring time, F01910 setpoint timeout, p2000 reference speed in rpm;
+/// SIMOREG: uss-rt knows none of them (its telegram failure time is not in a stored copy).
+#[test]
+fn each_family_names_its_monitoring_fault_and_reference_as_its_manual_does() {
+    let roles = |family: DriveFamily| {
+        let c = Catalogue::of(family).unwrap();
+        let name = |p: Option<uss_protocol::ParamRef>| p.map(|p| p.to_string());
+        (
+            name(c.monitoring),
+            c.telegram_off_fault,
+            name(c.reference),
+            name(c.reference_speed),
+        )
+    };
+    let mm4 = (
+        Some("P2014[1]".into()),
+        Some(72),
+        Some("P2000".into()),
+        None,
+    );
+    assert_eq!(roles(DriveFamily::Micromaster4), mm4);
+    assert_eq!(roles(DriveFamily::G110), mm4);
+    assert_eq!(
+        roles(DriveFamily::G120),
+        (Some("p2040".into()), Some(1910), None, Some("p2000".into()))
+    );
+    assert_eq!(roles(DriveFamily::Simoreg), (None, None, None, None));
+    let named = |family| Catalogue::of(family).unwrap().monitoring_name();
+    assert_eq!(
+        named(DriveFamily::G110).as_deref(),
+        Some("P2014[1] (F0072)")
+    );
+    assert_eq!(named(DriveFamily::G120).as_deref(), Some("p2040 (F01910)"));
+    assert_eq!(named(DriveFamily::Simoreg), None);
+    assert!(Catalogue::of(DriveFamily::Generic).is_none());
+    for family in DriveFamily::ALL {
+        assert_eq!(Catalogue::family_named(family.name()), Some(*family));
+    }
+    assert_eq!(Catalogue::family_named("MICROMASTER"), None);
 }

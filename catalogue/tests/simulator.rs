@@ -4,8 +4,32 @@
 //! catalogue gives, limits.
 
 use uss_catalogue::{Catalogue, Change, DataType};
+use uss_drive_sim::drive::Personality;
 use uss_drive_sim::family::{G110, G120, SIMOREG};
 use uss_drive_sim::params::{Change as SimChange, MICROMASTER4, ParamSet};
+use uss_protocol::ParamRef;
+
+/// The simulated drive monitors the telegram-off time, records the fault and scales by the
+/// reference its family's profile names.
+#[test]
+fn every_simulated_family_plays_the_roles_its_profile_names() {
+    let at = |p: Option<ParamRef>| {
+        p.map(|p| (p.pnu.get(), p.index.map_or(0, uss_protocol::Subindex::get)))
+    };
+    for (personality, c) in [
+        (Personality::Micromaster4, Catalogue::micromaster4()),
+        (Personality::G110, Catalogue::micromaster4()),
+        (Personality::G120, Catalogue::g120()),
+        (Personality::Simoreg, Catalogue::simoreg()),
+    ] {
+        let roles = personality.roles();
+        assert_eq!(roles.monitoring, at(c.monitoring), "{personality:?}");
+        let fault = c.telegram_off_fault.unwrap_or(roles.telegram_off_fault);
+        assert_eq!(roles.telegram_off_fault, fault, "{personality:?}");
+        let reference = c.reference.or(c.reference_speed).map(|p| p.pnu.get());
+        assert_eq!(roles.reference, reference, "{personality:?}");
+    }
+}
 
 #[test]
 fn every_simulated_parameter_is_in_the_catalogue_as_the_simulator_has_it() {

@@ -124,7 +124,7 @@ impl Bus {
     fn catalogue_of(&self, family: DriveFamily) -> Option<&'static Catalogue> {
         let catalogue = self.described.catalogue;
         if core::ptr::eq(catalogue, Catalogue::micromaster4()) {
-            Catalogue::of_family(family.name())
+            Catalogue::of(family)
         } else {
             Some(catalogue)
         }

@@ -277,14 +277,14 @@ fn parse_param(text: &str) -> PyResult<(u16, Option<u8>, &'static str)> {
 /// The built-in catalogue of drive family `family` (its configuration name, as `diag()`'s
 /// `info["family"]` says it); `None` for a `generic` slave, whose texts nobody knows.
 fn family_catalogue(family: &str) -> PyResult<Option<&'static Catalogue>> {
-    let known = DriveFamily::ALL.iter().map(|f| f.name());
-    if !known.clone().any(|name| name == family) {
+    let Some(family) = Catalogue::family_named(family) else {
+        let known = DriveFamily::ALL.iter().map(|f| f.name());
         return Err(PyValueError::new_err(format!(
             "{family:?} is not a drive family: give one of {}",
             known.collect::<Vec<_>>().join(", ")
         )));
-    }
-    Ok(Catalogue::of_family(family))
+    };
+    Ok(Catalogue::of(family))
 }
 
 /// The text of fault `number` (F0072 -> 72) in the catalogue of drive family `family`; `None`

@@ -170,7 +170,7 @@ fn a_telegram_off_time_shorter_than_the_poll_period_is_reported_with_the_safe_va
     let (_, out, err) = status.finish();
     assert!(
         out.contains(&format!(
-            "warning: drive 20: telegram monitoring is 100 ms, shorter than the time between two polls of it on this bus (up to {safe} ms)"
+            "warning: drive 20: telegram monitoring is 100 ms, shorter than the time between two polls of it on this bus (up to {safe} ms): it trips (F0072) between polls; set P2014[1] to at least {safe} ms"
         )),
         "{out}{err}"
     );

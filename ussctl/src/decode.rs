@@ -454,7 +454,7 @@ mod tests {
             .decode(&reply, 0.25)
             .human()
         };
-        let g120 = shown(Catalogue::of_family("g120"));
+        let g120 = shown(Catalogue::of(uss_client::DriveFamily::G120));
         assert!(g120.contains("p1082 = 1500.00 rpm |"), "{g120}");
         let generic = shown(None);
         assert!(

@@ -200,16 +200,6 @@ impl ParamName {
     pub fn param(&self) -> Option<ParamRef> {
         self.parsed.ok().flatten()
     }
-
-    /// `monitoring_param`'s default: P2014.1 (MICROMASTER 4, COM link).
-    pub fn p2014_1() -> Self {
-        Self::from("P2014.1".to_owned())
-    }
-
-    /// `reference_param`'s default: P2000 (MICROMASTER 4 / G110, Hz).
-    pub fn p2000() -> Self {
-        Self::from("P2000".to_owned())
-    }
 }
 
 /// `"sim"` or a path; whether the path is usable is a rule ([`super::rules`]).

@@ -41,6 +41,7 @@ use uss_drive_sim::spec::DriveSpec;
 /// Without the simulated bus (`sim` feature off) a `sim` table is read only to be refused.
 #[cfg(not(feature = "sim"))]
 type SimOptions = toml::Table;
+use uss_catalogue::Catalogue;
 use uss_protocol::{Address, Baud, Layout, PkwMode, PzdCount};
 use uss_shm_types::StopCommand;
 
@@ -93,63 +94,54 @@ pub enum Rs485Rts {
     LowWhileSending,
 }
 
-/// What kind of USS slave a drive is: which parameters ussd reads of its own when it comes
-/// online (telegram monitoring, reference frequency), which catalogue clients consult, and
-/// how they read parameters. `generic`: nothing is read unasked, parameters are read by value
-/// alone (never a description), every safety rule still holds.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Family {
-    #[default]
-    Micromaster4,
-    G110,
-    G120,
-    Simoreg,
-    Generic,
+/// What kind of USS slave a drive is: the contract's code table, one type from this file to the
+/// catalogue lookup. Its profile (`Catalogue::of`: `catalogue/data/<family>.toml`) says which
+/// parameters ussd reads of its own when the drive comes online (telegram monitoring, the
+/// reference), which catalogue clients consult, and how they read parameters. `generic`: no
+/// profile; nothing is read unasked, parameters are read by value alone (never a
+/// description), every safety rule still holds.
+pub use uss_shm_types::DriveFamily as Family;
+
+/// A family as the file writes it: its name (`micromaster4`, `g110`, `g120`, `simoreg`,
+/// `generic`).
+mod family_name {
+    use super::Family;
+    use serde::{Deserialize, Deserializer, Serializer, de::Error as _};
+
+    #[allow(
+        clippy::trivially_copy_pass_by_ref,
+        reason = "serde's `with` passes the field by reference"
+    )]
+    pub fn serialize<S: Serializer>(family: &Family, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(family.name())
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Family, D::Error> {
+        let name = String::deserialize(d)?;
+        uss_catalogue::Catalogue::family_named(&name).ok_or_else(|| {
+            let known: Vec<String> = Family::ALL
+                .iter()
+                .map(|f| format!("`{}`", f.name()))
+                .collect();
+            D::Error::custom(format!(
+                "unknown variant `{name}`, expected one of {}",
+                known.join(", ")
+            ))
+        })
+    }
 }
 
-impl Family {
-    /// The drive's telegram-off time parameter as far as uss-rt knows it (`""`: not known;
-    /// the user names it with `monitoring_param`): P2014.1 on MICROMASTER 4 and G110 (which
-    /// share the MM4 parameter numbers; index 1 = the COM link), p2040 on G120 (fieldbus
-    /// monitoring time, USS on the CU240 included).
-    pub const fn monitoring_param(self) -> &'static str {
-        match self {
-            Self::Micromaster4 | Self::G110 => "P2014.1",
-            Self::G120 => "p2040",
-            Self::Simoreg | Self::Generic => "",
-        }
-    }
+const fn default_family() -> Family {
+    Family::Micromaster4
+}
 
-    /// The reference frequency parameter in Hz (`""`: none known in Hz): P2000 on
-    /// MICROMASTER 4 and G110. A G120's p2000 is a speed in rpm: ussd reads it only when the
-    /// drive's `pole_pairs` are configured ([`DriveEntry::reference_param`]).
-    pub const fn reference_param(self) -> &'static str {
-        match self {
-            Self::Micromaster4 | Self::G110 => "P2000",
-            Self::G120 | Self::Simoreg | Self::Generic => "",
-        }
-    }
-
-    /// The reference speed parameter in rpm, where the family has one (G120: p2000).
-    pub const fn reference_speed_param(self) -> &'static str {
-        match self {
-            Self::G120 => "p2000",
-            Self::Micromaster4 | Self::G110 | Self::Simoreg | Self::Generic => "",
-        }
-    }
-
-    /// The contract's code.
-    pub const fn code(self) -> uss_shm_types::DriveFamily {
-        use uss_shm_types::DriveFamily as F;
-        match self {
-            Self::Micromaster4 => F::Micromaster4,
-            Self::G110 => F::G110,
-            Self::G120 => F::G120,
-            Self::Simoreg => F::Simoreg,
-            Self::Generic => F::Generic,
-        }
-    }
+/// A parameter of a family's profile as the configuration names one (`""`: none).
+fn profile_param(
+    family: Family,
+    role: impl Fn(&Catalogue) -> Option<uss_protocol::ParamRef>,
+) -> ParamName {
+    let param = Catalogue::of(family).and_then(role);
+    ParamName::from(param.map_or_else(String::new, |p| p.to_string()))
 }
 
 /// What a drive gets when its controller is gone or stopped refreshing within its watchdog time
@@ -266,11 +258,11 @@ pub struct DriveEntry {
     #[serde(default)]
     pub reference_hz: ReferenceHz,
     /// What kind of slave it is ([`Family`]).
-    #[serde(default)]
+    #[serde(default = "default_family", with = "family_name")]
     pub family: Family,
     /// The drive's reference frequency in Hz, read when it comes online; the drive's value is
     /// published (clients scale Hz by it) and a difference from `reference_hz` is reported.
-    /// Unset: the family's ([`Family::reference_param`]), filled in as the file is read.
+    /// Unset: the family profile's, filled in as the file is read.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference_param: Option<ParamName>,
     /// The motor's pole pairs (1..=32) for a drive whose reference is a speed (G120: p2000 in
@@ -286,7 +278,7 @@ pub struct DriveEntry {
     #[serde(default = "yes")]
     pub params_writable: bool,
     /// Read when the drive comes online; a telegram-off time above `monitoring_max_ms` is
-    /// reported as too long. Unset: the family's ([`Family::monitoring_param`]).
+    /// reported as too long. Unset: the family profile's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub monitoring_param: Option<ParamName>,
     #[serde(default)]
@@ -325,19 +317,18 @@ impl DriveEntry {
     pub fn monitoring_param(&self) -> ParamName {
         self.monitoring_param
             .clone()
-            .unwrap_or_else(|| ParamName::from(self.family.monitoring_param().to_owned()))
+            .unwrap_or_else(|| profile_param(self.family, |c| c.monitoring))
     }
 
     /// The reference parameter: as written, else the family's (a G120's p2000 in rpm when its
     /// `pole_pairs` are given).
     pub fn reference_param(&self) -> ParamName {
         self.reference_param.clone().unwrap_or_else(|| {
-            let family = if self.pole_pairs.is_some() {
-                self.family.reference_speed_param()
+            if self.pole_pairs.is_some() {
+                profile_param(self.family, |c| c.reference_speed)
             } else {
-                self.family.reference_param()
-            };
-            ParamName::from(family.to_owned())
+                profile_param(self.family, |c| c.reference)
+            }
         })
     }
 

@@ -287,7 +287,9 @@ impl Rules<'_> {
             ),
             Some(_)
                 if drive.reference_param.is_none()
-                    && drive.family.reference_speed_param().is_empty() =>
+                    && uss_catalogue::Catalogue::of(drive.family)
+                        .and_then(|c| c.reference_speed)
+                        .is_none() =>
             {
                 self.fail(
                     "pole_pairs",

@@ -7,6 +7,7 @@ use crate::daemon::ipc::StatusPublisher;
 use core::time::Duration;
 use crossbeam_channel::{Receiver, RecvTimeoutError};
 use std::thread::JoinHandle;
+use uss_catalogue::Catalogue;
 use uss_engine::control::Latch;
 use uss_engine::reference::Reference;
 use uss_engine::stats::Stats;
@@ -100,7 +101,7 @@ fn log_shortest_monitoring(bus: &BusConfig, stats: &Stats) {
     if let Some(d) = stats.drives.iter().max_by_key(|d| d.monitoring_min) {
         tracing::info!(
             bus = bus.name,
-            "drives are polled at worst every {} ms (drive {}): a telegram-off time (P2014.1, p2040) below that trips a drive between polls",
+            "drives are polled at worst every {} ms (drive {}): a telegram-off time below that trips a drive between polls",
             d.monitoring_min.as_millis(),
             d.address
         );
@@ -174,6 +175,14 @@ fn param_name(
         .map_or_else(|| otherwise.to_owned(), |p| p.to_string())
 }
 
+/// The family profile of drive `address` (none for a generic slave).
+fn profile(bus: &BusConfig, address: Address) -> Option<&'static Catalogue> {
+    bus.drives
+        .iter()
+        .find(|d| d.address == address)
+        .and_then(|d| Catalogue::of(d.family))
+}
+
 fn log_monitoring(
     bus: &BusConfig,
     address: Address,
@@ -187,6 +196,14 @@ fn log_monitoring(
         DriveEntry::monitoring_param,
         "the monitoring parameter",
     );
+    // The fault a trip records and the parameter, as the drive's family profile names them.
+    let family = profile(bus, address);
+    let fault = family
+        .and_then(|c| c.telegram_off_fault.map(|f| c.fault_name(f)))
+        .unwrap_or_else(|| "its telegram-off fault".to_owned());
+    let profile = family
+        .and_then(Catalogue::monitoring_name)
+        .unwrap_or_else(|| "none".to_owned());
     let (drive, at_s, bus) = (address.get(), at.as_secs_f64(), bus.name.as_str());
     match state {
         Monitoring::On => tracing::info!(
@@ -205,7 +222,7 @@ fn log_monitoring(
             bus,
             drive,
             at_s,
-            "drive {address}: telegram monitoring {param} = {ms} ms is shorter than the time between two polls of it on this bus (up to {shortest_ms} ms): it trips (F0072) between polls; set {param} to at least {shortest_ms} ms, or poll it more often (weight, fewer drives, a faster baud rate)"
+            "drive {address}: telegram monitoring {param} = {ms} ms is shorter than the time between two polls of it on this bus (up to {shortest_ms} ms): it trips ({fault}) between polls; set {param} to at least {shortest_ms} ms, or poll it more often (weight, fewer drives, a faster baud rate)"
         ),
         Monitoring::TooLong => tracing::warn!(
             bus,
@@ -217,7 +234,7 @@ fn log_monitoring(
             bus,
             drive,
             at_s,
-            "drive {address}: telegram monitoring {other} ({param}): check monitoring_param for this drive family (P2014.1 on MICROMASTER 4, p2040 on G120)"
+            "drive {address}: telegram monitoring {other} ({param}): check monitoring_param for this drive (its family profile names {profile})"
         ),
     }
 }

@@ -110,7 +110,7 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
                 reference_param: d.reference_param().param().map(WatchedParam::from),
                 reference_unit: d.reference_unit(),
                 broadcast: d.broadcast,
-                family: d.family.code(),
+                family: d.family,
             })
             .collect(),
     }
@@ -709,8 +709,8 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
 /// scaled by `reference_hz` as configured, which nothing checks against the drive.
 fn warn_unverified_references(bus: &BusConfig) {
     for d in &bus.drives {
-        let speed = d.family.reference_speed_param();
-        if !speed.is_empty() && d.reference_param().param().is_none() {
+        let speed = uss_catalogue::Catalogue::of(d.family).and_then(|c| c.reference_speed);
+        if let Some(speed) = speed.filter(|_| d.reference_param().param().is_none()) {
             tracing::warn!(
                 bus = %bus.name,
                 drive = d.address.get(),

@@ -161,7 +161,7 @@ impl Diff {
 /// `param backup DRIVE [-o FILE]`.
 fn backup(bus: &Bus, out: &Output, drive: Address, output: Option<&Path>) -> Result<(), Failure> {
     let family = bus.family(drive);
-    let catalogue = settings_catalogue(drive, family.name())?;
+    let catalogue = settings_catalogue(drive, family)?;
     let start = Instant::now();
     let r0018 = ParamRef {
         prefix: Prefix::R,
@@ -240,8 +240,8 @@ fn load(path: &Path, catalogue: &'static Catalogue) -> Result<(BackupFile, Vec<E
 
 /// The catalogue whose settings a drive of `family` has (`catalogue/data/<family>.toml`); a
 /// generic slave has none, and nothing uss-rt could back up or check.
-fn settings_catalogue(drive: Address, family: &str) -> Result<&'static Catalogue, Failure> {
-    Catalogue::of_family(family)
+fn settings_catalogue(drive: Address, family: DriveFamily) -> Result<&'static Catalogue, Failure> {
+    Catalogue::of(family)
         .filter(|c| !c.param.is_empty())
         .ok_or_else(|| Failure::Family {
             drive,
@@ -283,7 +283,7 @@ fn refuse_guarded(
     family: DriveFamily,
     differing: &[(Entry, Option<Value>)],
 ) -> Result<(), Failure> {
-    let Some(catalogue) = Catalogue::of_family(family.name()) else {
+    let Some(catalogue) = Catalogue::of(family) else {
         return Ok(());
     };
     let guarded: Vec<(&Entry, &str)> = differing
@@ -361,7 +361,7 @@ impl Restore {
 fn restore(bus: &Bus, out: &Output, r: &Restore) -> Result<(), Failure> {
     let drive = r.drive;
     let family = bus.family(drive);
-    let catalogue = settings_catalogue(drive, family.name())?;
+    let catalogue = settings_catalogue(drive, family)?;
     let (file, entries) = load(&r.file, catalogue)?;
     check_family(
         drive,
@@ -702,7 +702,7 @@ impl Step {
 /// Exits nonzero ([`Failure::Differ`]) when there are differences, as `diff(1)` does.
 fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Result<(), Failure> {
     let family = bus.family(drive);
-    let catalogue = settings_catalogue(drive, family.name())?;
+    let catalogue = settings_catalogue(drive, family)?;
     let mut report = DiffReport::new(bus.name(), drive, other);
     if let Ok(second) = other.parse::<u8>() {
         // A number names a drive (a file named so is written ./17).

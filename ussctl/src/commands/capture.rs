@@ -46,7 +46,7 @@ impl DriveFacts {
             .into_iter()
             .map(|a| {
                 let reference = bus.watch(a).ok().map(|w| w.info().reference_hz);
-                (a, reference, Catalogue::of_family(bus.family(a).name()))
+                (a, reference, Catalogue::of(bus.family(a)))
             })
             .collect();
         Self { drives }

@@ -204,6 +204,9 @@ pub struct DriveRow {
     pub takes_commands: bool,
     #[serde(skip)]
     pzd_words: u8,
+    /// The drive's family profile (none for a generic slave).
+    #[serde(skip)]
+    profile: Option<&'static uss_client::Catalogue>,
 }
 
 impl DriveRow {
@@ -232,6 +235,9 @@ impl DriveRow {
             takes_commands: uss_client::Zsw1::from_bits_retain(d.last_zsw1)
                 .contains(uss_client::Zsw1::CONTROL_REQUESTED),
             pzd_words: d.info.pzd_words,
+            profile: uss_client::DriveFamily::try_from(d.info.family)
+                .ok()
+                .and_then(uss_client::Catalogue::of),
         }
     }
 
@@ -245,16 +251,25 @@ impl DriveRow {
         })
     }
 
-    /// Whether the drive's own telegram monitoring deserves a warning.
+    /// Whether the drive's own telegram monitoring deserves a warning; the parameter and the
+    /// fault are its family profile's.
     fn monitoring_warning(&self) -> Option<String> {
+        let param = self
+            .profile
+            .and_then(|c| c.monitoring)
+            .map_or_else(|| "its telegram-off time".to_owned(), |p| p.to_string());
+        let fault = self
+            .profile
+            .and_then(|c| c.telegram_off_fault.map(|f| c.fault_name(f)))
+            .unwrap_or_else(|| "its telegram-off fault".to_owned());
         match self.monitoring {
             "on" | "not read yet" | "not checked" => None,
             "off" => Some(format!(
-                "drive {}: telegram monitoring is OFF: if ussd or its line dies, nothing stops this drive; set its telegram-off time (MICROMASTER 4: P2014.1, G120: p2040), e.g. 100 ms",
+                "drive {}: telegram monitoring is OFF: if ussd or its line dies, nothing stops this drive; set {param}, e.g. to 100 ms",
                 self.address
             )),
             "shorter than the poll period" => Some(format!(
-                "drive {}: telegram monitoring is {} ms, shorter than the time between two polls of it on this bus (up to {} ms): it trips (F0072) between polls; set P2014.1 (G120: p2040) to at least {} ms, or poll it more often",
+                "drive {}: telegram monitoring is {} ms, shorter than the time between two polls of it on this bus (up to {} ms): it trips ({fault}) between polls; set {param} to at least {} ms, or poll it more often",
                 self.address, self.monitoring_ms, self.monitoring_min_ms, self.monitoring_min_ms
             )),
             "longer than the limit" => Some(format!(

@@ -39,7 +39,7 @@ pub(super) fn create(
         .iter()
         .map(|d| {
             let rules = WriteRules {
-                catalogue: Catalogue::of_family(d.family.name()),
+                catalogue: Catalogue::of(d.family),
                 writable: None,
             };
             (d.address, rules)
