@@ -247,6 +247,33 @@ fn simulated_drive_takes_address_and_layout_from_the_entry_and_faults_from_sim()
     assert_eq!(sim.config.response_delay, Duration::from_micros(2500));
 }
 
+/// A simulated drive is of its entry's family unless its `sim` options name another: a G120
+/// entry on a simulated bus is a simulated G120 (it used to be a MICROMASTER 4 unless
+/// `sim = { family = "g120" }` said so too).
+#[test]
+fn a_simulated_drive_is_of_its_entrys_family() {
+    use uss_drive_sim::drive::Personality;
+    let personality = |keys: &str| {
+        let c = parse(&drive_key(keys));
+        c.buses[0].drives[0].sim_spec().unwrap().config.personality
+    };
+    assert_eq!(personality(""), Personality::Micromaster4);
+    assert_eq!(personality("family = \"g110\""), Personality::G110);
+    assert_eq!(personality("family = \"g120\""), Personality::G120);
+    assert_eq!(personality("family = \"simoreg\""), Personality::Simoreg);
+    let generic = |fragile| Personality::Generic { fragile };
+    assert_eq!(personality("family = \"generic\""), generic(false));
+    assert_eq!(
+        personality("family = \"generic\"\nsim.fragile = true"),
+        generic(true)
+    );
+    // Named otherwise in `sim`, the simulator plays that (a test bench of a mismatch).
+    assert_eq!(
+        personality("family = \"g120\"\nsim.family = \"micromaster4\""),
+        Personality::Micromaster4
+    );
+}
+
 #[test]
 fn embedded_default_round_trips_through_to_toml() {
     let c = Config::embedded_default();
