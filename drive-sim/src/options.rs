@@ -68,7 +68,8 @@ pub struct SimOptions {
     /// `false`: the drive ignores broadcasts, as S110 and G120 firmware 4 do.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub broadcast: Option<bool>,
-    /// The slave's personality: `micromaster4` (the default), `g110`, `g120`, `simoreg`, or
+    /// The slave's personality: `micromaster4` (the default; on ussd's simulated bus, the drive
+    /// entry's `family`), `g110`, `g120`, `simoreg`, or
     /// `generic` (a USS slave of no known family: three parameters of its own, error 0 to the
     /// rest).
     #[serde(skip_serializing_if = "Option::is_none")]

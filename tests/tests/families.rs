@@ -418,8 +418,15 @@ fn guards_compare_values_and_a_drive_without_a_catalogue_takes_only_listed_write
         "",
         &[
             (3, "family = \"g120\"\nsim = { family = \"g120\" }"),
-            (4, "family = \"generic\""),
-            (5, "family = \"generic\"\nwritable = [\"P1120\", \"P1121\"]"),
+            // MICROMASTERs configured as generic: the simulator plays what `sim` names.
+            (
+                4,
+                "family = \"generic\"\nsim = { family = \"micromaster4\" }",
+            ),
+            (
+                5,
+                "family = \"generic\"\nwritable = [\"P1120\", \"P1121\"]\nsim = { family = \"micromaster4\" }",
+            ),
         ],
     );
     let bus = ussd.bus();

@@ -345,7 +345,11 @@ impl DriveEntry {
     /// `[bus.drive.sim]` options; the error says which option is wrong (checked as read).
     #[cfg(feature = "sim")]
     pub fn sim_spec(&self) -> Result<DriveSpec, String> {
-        let options = self.sim.clone().unwrap_or_default();
+        let mut options = self.sim.clone().unwrap_or_default();
+        // The simulated drive is of the entry's family unless its options name another.
+        options
+            .family
+            .get_or_insert_with(|| self.family.name().to_owned());
         DriveSpec::new(self.address, self.layout(), &options)
     }
 }
