@@ -436,6 +436,13 @@ pub struct Catalogue {
     /// The fault a telegram-off trip records (F0072 on MM4, F01910 on G120).
     #[serde(default)]
     pub telegram_off_fault: Option<u16>,
+    /// The command source and its setting that takes commands from the USS link ussd talks over
+    /// (MM4 P0700 = 5, G120 p0700 = 6): a drive whose ZSW1 bit 9 says it does not take them is
+    /// told to set it.
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub command_source: Option<ParamRef>,
+    #[serde(default)]
+    pub command_source_uss: Option<u32>,
     /// The reference frequency in Hz that 0x4000 of the setpoint stands for (MM4 P2000).
     #[serde(default, deserialize_with = "some_param_id")]
     pub reference: Option<ParamRef>,
@@ -527,6 +534,15 @@ impl Catalogue {
             Some(fault) => format!("{param} ({})", self.fault_name(fault)),
             None => param.to_string(),
         })
+    }
+
+    /// The setting that makes a drive of this family take its commands from the USS link:
+    /// "P0700 = 5"; `None` when uss-rt does not know it.
+    pub fn command_source_setting(&self) -> Option<String> {
+        Some(format!(
+            "{} = {}",
+            self.command_source?, self.command_source_uss?
+        ))
     }
 
     /// Whether `param` (number and index) is a setting of the line ussd talks over.

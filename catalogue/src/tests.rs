@@ -353,6 +353,13 @@ fn each_family_names_its_monitoring_fault_and_reference_as_its_manual_does() {
     );
     assert_eq!(named(DriveFamily::G120).as_deref(), Some("p2040 (F01910)"));
     assert_eq!(named(DriveFamily::Simoreg), None);
+    let source = |family| Catalogue::of(family).unwrap().command_source_setting();
+    assert_eq!(
+        source(DriveFamily::Micromaster4).as_deref(),
+        Some("P0700 = 5")
+    );
+    assert_eq!(source(DriveFamily::G120).as_deref(), Some("p0700 = 6"));
+    assert_eq!(source(DriveFamily::Simoreg), None);
     assert!(Catalogue::of(DriveFamily::Generic).is_none());
     for family in DriveFamily::ALL {
         assert_eq!(Catalogue::family_named(family.name()), Some(*family));

@@ -28,6 +28,11 @@ fn every_simulated_family_plays_the_roles_its_profile_names() {
         assert_eq!(roles.telegram_off_fault, fault, "{personality:?}");
         let reference = c.reference.or(c.reference_speed).map(|p| p.pnu.get());
         assert_eq!(roles.reference, reference, "{personality:?}");
+        let source = c
+            .command_source
+            .map(|p| p.pnu.get())
+            .zip(c.command_source_uss);
+        assert_eq!(roles.command_source, source, "{personality:?}");
     }
 }
 

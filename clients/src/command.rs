@@ -68,6 +68,8 @@ impl Bus {
                 address: address.get(),
                 command: command.to_string(),
                 zsw1: last.zsw1,
+                setting: uss_catalogue::Catalogue::of(self.family(address))
+                    .and_then(uss_catalogue::Catalogue::command_source_setting),
             });
         }
         Ok(last)

@@ -265,13 +265,17 @@ pub enum ClientError {
     /// ZSW1 bit 9 ("control requested") is 0, its command source is elsewhere. It ignores
     /// the command, stops included.
     #[error(
-        "drive {address} on {bus} got {command} from ussd but does not take its commands from this link (ZSW1 {zsw1:#06X}, bit 9 control requested = 0): stop it where it takes its commands; its command source (P0700 on MICROMASTER 4) is not USS"
+        "drive {address} on {bus} got {command} from ussd but does not take its commands from this link (ZSW1 {zsw1:#06X}, bit 9 control requested = 0): stop it where it takes its commands; its command source is not USS{}",
+        setting.as_ref().map(|s| format!(" ({s} is)")).unwrap_or_default()
     )]
     NotControllable {
         bus: String,
         address: u8,
         command: String,
         zsw1: u16,
+        /// The setting that takes commands from USS, as the drive's family profile names it
+        /// ("P0700 = 5"), where known.
+        setting: Option<String>,
     },
     /// An ON that waited for ussd to take the re-arm was dropped: a stop of this program
     /// (another thread's call) came meanwhile, and it is the program's later word.

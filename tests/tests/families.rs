@@ -120,7 +120,19 @@ fn a_write_that_takes_the_drive_from_ussd_needs_unsafe_and_the_drive_then_shows_
         ussd.log()
     );
     let said = ussd.log_line("does not take its commands", Duration::from_secs(2));
-    assert!(said.is_some(), "{}", ussd.log());
+    // Each names the setting that gives the drive back, from its family's profile.
+    assert!(
+        said.as_deref()
+            .is_some_and(|l| l.contains("(P0700 = 5 takes them from USS)")),
+        "{}",
+        ussd.log()
+    );
+    let (_, status_out, _) = ussd.ussctl(&["status"]).finish();
+    assert!(
+        status_out.contains("NOT CONTROLLABLE")
+            && status_out.contains("(P0700 = 5 takes them from USS)"),
+        "{status_out}"
+    );
     let mut coast = ussd.ussctl(&["coast", "1"]);
     let (status, out, err) = coast.finish();
     println!("families: ussctl coast 1: {status} {out}{err}");
@@ -129,6 +141,10 @@ fn a_write_that_takes_the_drive_from_ussd_needs_unsafe_and_the_drive_then_shows_
         "a coast the drive ignores is not confirmed: {out}{err}"
     );
     assert!(err.contains("does not take its commands"), "{err}");
+    assert!(
+        err.contains("its command source is not USS (P0700 = 5 is)"),
+        "{err}"
+    );
 }
 
 #[test]

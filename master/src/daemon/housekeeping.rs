@@ -314,11 +314,15 @@ fn log_commands(bus: &BusConfig, address: Address, at: Duration, taken: bool) {
             "drive {address} takes its commands from this link again (ZSW1 bit 9 = 1)"
         );
     } else {
+        let source = profile(bus, address)
+            .and_then(Catalogue::command_source_setting)
+            .map(|s| format!(" ({s} takes them from USS)"))
+            .unwrap_or_default();
         tracing::warn!(
             bus = bus.name,
             drive,
             at_s,
-            "drive {address} does not take its commands from this link (ZSW1 bit 9, control requested, is 0): it ignores ussd's control words, stops included; its command source is elsewhere (P0700 = 5 on MICROMASTER 4 takes them from USS on the COM link): stop it where it takes its commands"
+            "drive {address} does not take its commands from this link (ZSW1 bit 9, control requested, is 0): it ignores ussd's control words, stops included; its command source is elsewhere{source}: stop it where it takes its commands"
         );
     }
 }

@@ -245,8 +245,9 @@ impl DriveRow {
     fn commands_warning(&self) -> Option<String> {
         (self.online && !self.takes_commands && d_has_pzd(self)).then(|| {
             format!(
-                "drive {}: NOT CONTROLLABLE: it does not take its commands from this link (ZSW1 bit 9, control requested, is 0): it ignores ussd's control words, stops included; its command source is elsewhere (P0700 = 5 on MICROMASTER 4 takes them from USS)",
-                self.address
+                "drive {}: NOT CONTROLLABLE: it does not take its commands from this link (ZSW1 bit 9, control requested, is 0): it ignores ussd's control words, stops included; its command source is elsewhere{}",
+                self.address,
+                command_source_hint(self.profile)
             )
         })
     }
@@ -286,6 +287,15 @@ impl DriveRow {
 
 /// Whether the drive's images carry a ZSW1 at all (PZD words configured): a drive without
 /// process data has no control word to take.
+/// What makes a drive of `profile`'s family take its commands from USS: "(P0700 = 5 takes
+/// them from USS)", or nothing where uss-rt does not know it.
+fn command_source_hint(profile: Option<&uss_client::Catalogue>) -> String {
+    profile
+        .and_then(uss_client::Catalogue::command_source_setting)
+        .map(|s| format!(" ({s} takes them from USS)"))
+        .unwrap_or_default()
+}
+
 fn d_has_pzd(d: &DriveRow) -> bool {
     d.pzd_words > 0
 }
