@@ -302,6 +302,12 @@ fn code_tables(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
         RtMode,
         Direction,
     );
+    // The control word each stop command sends (USS.md section 7), as the contract says it.
+    let stop_words = PyDict::new(py);
+    for command in t::StopCommand::ALL {
+        stop_words.set_item(command.code(), command.stw1())?;
+    }
+    tables.set_item("STOP_STW1", stop_words)?;
     Ok(tables)
 }
 

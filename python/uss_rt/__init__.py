@@ -100,8 +100,8 @@ BusState = _table("BusState", "What ussd says of its bus.")
 RtMode = _table("RtMode", "The scheduling ussd's bus thread obtained.")
 Direction = _table("Direction", "Which way a captured telegram went.")
 
-STOP_STW1 = {StopCommand.OFF1: 0x047E, StopCommand.OFF2: 0x047C, StopCommand.OFF3: 0x047A}
-"""The control word of each stop command (USS.md section 7); bit 10 set."""
+STOP_STW1 = {StopCommand(code): stw1 for code, stw1 in _TABLES["STOP_STW1"].items()}
+"""The control word of each stop command (USS.md section 7), the contract's; bit 10 set."""
 
 
 def _code(table, value: int):
