@@ -241,6 +241,17 @@ impl Bus {
             return self.read_by_value(address, param);
         }
         let (data_type, info) = self.describe_as(address, param.pnu, family)?;
+        self.read_described(address, param, data_type, info)
+    }
+
+    /// Reads a parameter whose type (and catalogue entry) the caller already found.
+    fn read_described(
+        &self,
+        address: Address,
+        param: ParamRef,
+        data_type: DataType,
+        info: Option<&'static Param>,
+    ) -> Result<ParamValue, ParamError> {
         unindexed(param, info)?;
         let raw = self.read(address, param)?;
         Ok(ParamValue {
@@ -259,17 +270,16 @@ impl Bus {
         param: ParamRef,
     ) -> Result<Vec<ParamValue>, ParamError> {
         let family = self.family(address);
-        let info = if family == DriveFamily::Generic {
-            None
-        } else {
-            Some(self.describe_as(address, param.pnu, family)?)
-        };
-        let Some((data_type, Some(p))) = info.filter(|_| param.index.is_none()) else {
-            return self.read_param(address, param).map(|v| vec![v]);
-        };
-        if !p.is_array() {
-            return self.read_param(address, param).map(|v| vec![v]);
+        if family == DriveFamily::Generic {
+            return self.read_by_value(address, param).map(|v| vec![v]);
         }
+        // Described once: the type and entry found here are the ones read with.
+        let (data_type, info) = self.describe_as(address, param.pnu, family)?;
+        let Some(p) = info.filter(|p| param.index.is_none() && p.is_array()) else {
+            return self
+                .read_described(address, param, data_type, info)
+                .map(|v| vec![v]);
+        };
         let elements: Vec<ParamRef> = (0..p.array.min(255))
             .map(|i| ParamRef::numbered(param.pnu.get(), Some(i as u8)))
             .collect::<Result<_, _>>()

@@ -267,7 +267,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .request(&setup, &self.tx[..n], carries_task, (send_at, request_end));
         self.drives[slot]
             .mailbox
-            .on_sent(pkw, carries_task, send_at);
+            .on_sent(pkw_len, carries_task, send_at);
         self.drives[slot].counters.requests += 1;
         self.bus.exchanges += 1;
         self.framer.line_busy_until(request_end);

@@ -55,6 +55,18 @@ impl Encoded {
     pub fn words(&self) -> &[u16] {
         &self.words[..usize::from(self.len)]
     }
+
+    /// `len` words of zeros: a telegram's parameter channel without a task.
+    const fn zeros(len: usize) -> Self {
+        Self {
+            words: [0; MAX_PKW_WORDS],
+            len: if len < MAX_PKW_WORDS {
+                len as u8
+            } else {
+                MAX_PKW_WORDS as u8
+            },
+        }
+    }
 }
 
 /// A finished job.
@@ -147,17 +159,15 @@ impl Mailbox {
         }
     }
 
-    /// Records the PKW words `pkw` of a telegram sent at `now` (`task`: they are the current
-    /// task's, see [`Mailbox::outgoing`]). Follow with [`Mailbox::answered`].
-    pub fn on_sent(&mut self, pkw: &[u16], task: bool, now: Duration) {
-        let mut words = [0; MAX_PKW_WORDS];
-        let len = pkw.len().min(MAX_PKW_WORDS);
-        words[..len].copy_from_slice(&pkw[..len]);
-        let encoded = Encoded {
-            words,
-            len: len as u8,
+    /// Records a telegram sent at `now` with `pkw_len` PKW words: the current task's
+    /// (`task`, see [`Mailbox::outgoing`]: its words as encoded when it was accepted), or
+    /// zeros. Follow with [`Mailbox::answered`].
+    pub fn on_sent(&mut self, pkw_len: usize, task: bool, now: Duration) {
+        let sent = match self.queue.front() {
+            Some(front) if task => front.pkw,
+            _ => Encoded::zeros(pkw_len),
         };
-        self.in_flight = Some((encoded, task));
+        self.in_flight = Some((sent, task));
         if task {
             self.sent(now);
         } else if let Some(front) = self.queue.front_mut() {
@@ -317,7 +327,7 @@ mod tests {
     /// A mailbox whose drive answered a telegram without a task.
     fn known_idle(capacity: usize) -> Mailbox {
         let mut m = Mailbox::new(capacity);
-        m.on_sent(&[0; 4], false, Duration::ZERO);
+        m.on_sent(4, false, Duration::ZERO);
         m.answered(true);
         m
     }
@@ -327,8 +337,8 @@ mod tests {
         let Outgoing::Task(words) = m.outgoing() else {
             panic!("no task to send: {:?}", m.outgoing());
         };
-        let words = words.to_vec();
-        m.on_sent(&words, true, now);
+        let len = words.len();
+        m.on_sent(len, true, now);
         m.answered(true);
     }
 
@@ -346,7 +356,7 @@ mod tests {
                 },
             ),
         };
-        m.on_sent(&words, kind == Outgoing::Task(&[]), now);
+        m.on_sent(words.len(), kind == Outgoing::Task(&[]), now);
         m.answered(answered);
         kind
     }

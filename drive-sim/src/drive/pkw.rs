@@ -32,9 +32,6 @@ impl Drive {
     pub(super) fn start_task(&mut self, request: &[u16]) {
         self.pkw.request[..request.len()].copy_from_slice(request);
         self.pkw.request_len = request.len();
-        let raw_pnu = Pnu::from_parts(request[0] & 0x07FF, (request[1] >> 8) as u8)
-            .unwrap_or(Pnu::from_u16(0));
-        let subindex = (request[1] & 0xFF) as u8;
         let (task, kind) = match ParamTask::decode(request) {
             Ok(task) if task != ParamTask::None => match self.config.personality {
                 Personality::Micromaster4
@@ -62,9 +59,16 @@ impl Drive {
         };
         let reply = match task {
             Some(ParamTask::None) => ParamReply::NOT_YET,
-            _ => ParamReply {
-                pnu: task.and_then(|t| t.pnu()).unwrap_or(raw_pnu),
-                subindex: task.map_or(subindex, |t| t.subindex()),
+            Some(t) => ParamReply {
+                pnu: t.pnu().unwrap_or(Pnu::from_u16(0)),
+                subindex: t.subindex(),
+                kind,
+            },
+            // Undecodable: its PNU and index as the request words carry them.
+            None => ParamReply {
+                pnu: Pnu::from_parts(request[0] & 0x07FF, (request[1] >> 8) as u8)
+                    .unwrap_or(Pnu::from_u16(0)),
+                subindex: (request[1] & 0xFF) as u8,
                 kind,
             },
         };
@@ -85,19 +89,21 @@ impl Drive {
             words[1] = (words[1] & 0x00FF) | (request[1] & 0xFF00);
         }
         self.pkw.reply = words;
-        let busy = ParamReply {
-            kind: ReplyKind::NotYet,
-            ..reply
-        };
-        let mut busy_words = [0u16; MAX_PKW_WORDS];
-        // A "not yet" reply is a word reply: it fits every mode with a channel.
-        let _ = busy.encode(mode, &mut busy_words);
-        self.pkw.busy_reply = busy_words;
         self.pkw.busy_left = match task {
             Some(ParamTask::None) | None => 0,
             Some(t) if t.is_write() && is_eeprom(&t) => self.config.eeprom_busy_telegrams,
             Some(_) => self.config.task_busy_telegrams,
         };
+        if self.pkw.busy_left > 0 {
+            let busy = ParamReply {
+                kind: ReplyKind::NotYet,
+                ..reply
+            };
+            let mut busy_words = [0u16; MAX_PKW_WORDS];
+            // A "not yet" reply is a word reply: it fits every mode with a channel.
+            let _ = busy.encode(mode, &mut busy_words);
+            self.pkw.busy_reply = busy_words;
+        }
     }
 
     /// A generic slave's answer: a value of [`GENERIC_PARAMS`] read or changed, error 0 to
