@@ -83,8 +83,8 @@ impl Personality {
         }
     }
 
-    /// The parameters its drive model uses.
-    pub const fn roles(self) -> &'static Roles {
+    /// The parameters its drive model uses (its family profile's roles, read once).
+    pub fn roles(self) -> &'static Roles {
         match self {
             Self::Micromaster4 | Self::G110 | Self::Generic { .. } => &MICROMASTER4_ROLES,
             Self::G120 => &G120_ROLES,
@@ -564,7 +564,7 @@ impl Drive {
     }
 
     /// The parameters this drive's model uses.
-    const fn roles(&self) -> &'static Roles {
+    fn roles(&self) -> &'static Roles {
         self.config.personality.roles()
     }
 

@@ -9,10 +9,14 @@
 //! out or plays it as "a parameter of this kind", and the catalogue does not list it: clients
 //! then learn its type from the drive's own description (AK 4), as they would on a real drive.
 
+use std::sync::LazyLock;
+use uss_catalogue::Catalogue;
+use uss_protocol::{ParamRef, Subindex};
+
 use crate::params::{
     Change, Consulted, DataType, P0003, P0010, P0700, P0970, P1000, P1080, P1082, P1120, P1121,
-    P1135, P2000, P2011, P2012, P2013, P2014, ParamDef, ParamSet, R0018, R0021, R0052, R0054,
-    R0947, R0948, R0949, R2024, U16_MAX,
+    P1135, P2000, P2011, P2012, P2013, ParamDef, ParamSet, R0018, R0021, R0052, R0054, R0947,
+    R0948, R0949, R2024, U16_MAX,
 };
 
 /// Where a family keeps its fault buffer: `len` elements of fault codes and of fault values,
@@ -27,7 +31,10 @@ pub struct FaultBuffer {
     pub per_trip: u8,
 }
 
-/// The parameters a family's drive model reads and writes itself.
+/// The parameters a family's drive model reads and writes itself. Those its family profile
+/// names (`uss-catalogue`: the command source, the telegram monitoring and its fault, the
+/// reference) come from the profile ([`Roles::with_profile`]); the simulator keeps only the
+/// others.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Roles {
     /// The command source and the value that selects this USS link (P0700 = 5 on MM4); `None`:
@@ -67,12 +74,38 @@ pub struct Roles {
     pub telegram_off_fault: u16,
 }
 
+impl Roles {
+    /// These roles with what `profile` names: its command source, its telegram monitoring and
+    /// the fault its expiry records, its reference (in Hz, or the speed in rpm).
+    #[must_use]
+    pub fn with_profile(self, profile: &Catalogue) -> Self {
+        let at = |p: ParamRef| (p.pnu.get(), p.index.map_or(0, Subindex::get));
+        Self {
+            command_source: profile
+                .command_source
+                .map(|p| p.pnu.get())
+                .zip(profile.command_source_uss)
+                .or(self.command_source),
+            monitoring: profile.monitoring.map(at).or(self.monitoring),
+            reference: profile
+                .reference
+                .or(profile.reference_speed)
+                .map(|p| p.pnu.get())
+                .or(self.reference),
+            telegram_off_fault: profile
+                .telegram_off_fault
+                .unwrap_or(self.telegram_off_fault),
+            ..self
+        }
+    }
+}
+
 /// Index 1 of the MM4's USS parameters: the COM link (RS485).
 const COM_LINK: u8 = 1;
 
-/// MICROMASTER 420/430/440.
-pub const MICROMASTER4_ROLES: Roles = Roles {
-    command_source: Some((P0700, 5)),
+/// MICROMASTER 420/430/440: the simulator's own roles; the rest are its profile's.
+const MICROMASTER4_OWN: Roles = Roles {
+    command_source: None,
     setpoint_source: Some((P1000, 5)),
     min: Some(P1080),
     max: Some(P1082),
@@ -80,8 +113,8 @@ pub const MICROMASTER4_ROLES: Roles = Roles {
     ramp_down: P1121,
     off3: Some(P1135),
     time_unit: 1.0,
-    reference: Some(P2000),
-    monitoring: Some((P2014, COM_LINK)),
+    reference: None,
+    monitoring: None,
     address: Some((P2011, COM_LINK)),
     pzd: Some((P2012, COM_LINK)),
     pkw: Some((P2013, COM_LINK)),
@@ -96,8 +129,12 @@ pub const MICROMASTER4_ROLES: Roles = Roles {
         per_trip: 2,
     },
     diagnostics: Some((R2024, COM_LINK)),
-    telegram_off_fault: 72,
+    telegram_off_fault: 0,
 };
+
+/// MICROMASTER 420/430/440 (and G110), with what its profile names.
+pub static MICROMASTER4_ROLES: LazyLock<Roles> =
+    LazyLock::new(|| MICROMASTER4_OWN.with_profile(Catalogue::micromaster4()));
 
 /// A list of `N` parameters copied from `list` with r0018 (the firmware version) set to
 /// `firmware`.
@@ -285,8 +322,9 @@ pub static G120: ParamSet = ParamSet::new(
 /// date are the simulator's own).
 pub const G120_IDENTIFICATION: [u16; 7] = [42, 0, 470, 2016, 1801, 1, 0];
 
-pub const G120_ROLES: Roles = Roles {
-    command_source: Some((P0700, G120_FIELDBUS)),
+/// The G120's own roles; the rest are its profile's.
+const G120_OWN: Roles = Roles {
+    command_source: None,
     setpoint_source: Some((P1000, G120_FIELDBUS)),
     min: Some(P1080),
     max: Some(P1082),
@@ -294,8 +332,8 @@ pub const G120_ROLES: Roles = Roles {
     ramp_down: P1121,
     off3: Some(P1135),
     time_unit: 1.0,
-    reference: Some(P2000),
-    monitoring: Some((P2040, 0)),
+    reference: None,
+    monitoring: None,
     address: Some((P2021, 0)),
     pzd: Some((P2022, 0)),
     pkw: Some((P2023, 0)),
@@ -310,8 +348,11 @@ pub const G120_ROLES: Roles = Roles {
         per_trip: 8,
     },
     diagnostics: None,
-    telegram_off_fault: 1910,
+    telegram_off_fault: 0,
 };
+
+/// SINAMICS G120 (CU240 over USS), with what its profile names.
+pub static G120_ROLES: LazyLock<Roles> = LazyLock::new(|| G120_OWN.with_profile(Catalogue::g120()));
 
 const P303: u16 = 303;
 const P304: u16 = 304;
@@ -359,7 +400,9 @@ pub static SIMOREG: ParamSet = ParamSet::new(
     },
 );
 
-pub const SIMOREG_ROLES: Roles = Roles {
+/// The SIMOREG's roles: its profile names none of them (the telegram failure on G-SST1 is
+/// F011 in its operating instructions; the simulator's own).
+const SIMOREG_OWN: Roles = Roles {
     command_source: None,
     setpoint_source: None,
     min: None,
@@ -386,3 +429,7 @@ pub const SIMOREG_ROLES: Roles = Roles {
     diagnostics: None,
     telegram_off_fault: 11,
 };
+
+/// SIMOREG DC-Master 6RA70, with what its profile names.
+pub static SIMOREG_ROLES: LazyLock<Roles> =
+    LazyLock::new(|| SIMOREG_OWN.with_profile(Catalogue::simoreg()));
