@@ -410,7 +410,7 @@ pub enum ParamError {
     Value { param: String, problem: String },
     /// A write to a drive another process controls, not marked deliberate (force).
     #[error(
-        "drive {address} is controlled by process {pid}: a parameter write from another process is refused; stop that controller first, or force the write if it is deliberate (ussctl param write --force)"
+        "drive {address} is controlled by process {pid}: a parameter write from another process is refused; stop that controller first, or force the write if it is deliberate (ussctl param write --force, Python force=True, C USSRT_WRITE_FORCE, Rust WriteOptions::force)"
     )]
     Controlled { address: u8, pid: u32 },
     /// ussd refused the request (or this item) before the bus.
@@ -494,18 +494,20 @@ fn refusal_hint(error: RequestError) -> &'static str {
             ": the drive has a 3-word parameter channel; write a word, or configure pkw = 4"
         }
         RequestError::Controlled => {
-            ": another process controls the drive; force the write if it is deliberate"
+            ": another process controls the drive; force the write if it is deliberate \
+             (ussctl --force, Python force=True, C USSRT_WRITE_FORCE, Rust WriteOptions::force)"
         }
         RequestError::Guarded => {
             " (its command or setpoint source, COM link, telegram monitoring off or a factory \
-             reset); write it deliberately with --unsafe (WriteOptions::unsafe_write): ussd \
-             logs it"
+             reset); write it deliberately as unsafe (ussctl --unsafe, Python unsafe=True, C \
+             USSRT_WRITE_UNSAFE, Rust WriteOptions::unsafe_write): ussd logs it"
         }
         RequestError::Unlisted => {
             ": ussd has no catalogue of this drive's family (or its drive table's `writable` \
              list does not name the parameter), so it cannot tell whether the write takes the \
              drive away from it; list the parameters safe to write in `writable`, or write it \
-             deliberately with --unsafe (WriteOptions::unsafe_write): ussd logs it"
+             deliberately as unsafe (ussctl --unsafe, Python unsafe=True, C \
+             USSRT_WRITE_UNSAFE, Rust WriteOptions::unsafe_write): ussd logs it"
         }
         RequestError::ImpossibleValue => ": a float parameter holds finite numbers only",
         RequestError::IndexRequired => {

@@ -11,7 +11,7 @@
 //! generated`; the test fails while either file says anything else.
 
 use crate::error::{ClientError, ParamError};
-use uss_shm_types::{DriveError, PathError};
+use uss_shm_types::{ContractError, DriveError, PathError};
 
 macro_rules! statuses {
     ($( $(#[doc = $doc:literal])+ $name:ident = $code:literal, $snake:literal; )+) => {
@@ -190,10 +190,10 @@ kinds! {
     Refused => Refused, "Refused"("UssError");
     /// ussd refused an operator stop command; `error` is a `CommandError`.
     CommandRefused => Refused, "CommandRefused"("UssError");
-    /// The drive grants no parameter change rights over this link (reply 8).
-    NoChangeRights => DriveError, "ParamFailed"("UssError");
     /// An item ended without a value for another reason; `outcome` is an `Outcome`.
     ParamFailed => PathFailed, "ParamFailed"("UssError");
+    /// The drive grants no parameter change rights over this link (reply 8).
+    NoChangeRights => DriveError, "ParamFailed"("UssError");
     /// A value that does not fit the parameter, refused before the bus.
     Value => Value, "ValueError"("");
     /// The drive exchanges no process data (pzd = 0): there is nothing to control.
@@ -224,7 +224,10 @@ impl ClientError {
             Self::NotRunning { .. } => K::NotRunning,
             Self::UnknownDrive { .. } => K::UnknownDrive,
             Self::Controlled { .. } => K::Controlled,
-            Self::Incompatible { .. } | Self::Contract(_) => K::Incompatible,
+            Self::Incompatible { .. }
+            | Self::Contract(ContractError::Version { .. } | ContractError::Code(_)) => {
+                K::Incompatible
+            }
             Self::Access { .. } | Self::Ipc { .. } => K::Ipc,
             Self::UssdGone { .. } => K::UssdGone,
             Self::UssdStopped { .. } => K::UssdStopped,
@@ -234,7 +237,10 @@ impl ClientError {
             Self::NotArmed { .. } => K::NotArmed,
             Self::Stalled { .. } => K::Stalled,
             Self::Released { .. } => K::Released,
-            Self::InvalidSample { .. } | Self::PzdWords { .. } => K::InvalidSample,
+            // Too many words for a drive is the caller's sample, not another layout.
+            Self::InvalidSample { .. }
+            | Self::PzdWords { .. }
+            | Self::Contract(ContractError::PzdWords(_)) => K::InvalidSample,
             Self::NoProcessData { .. } => K::NoProcessData,
             Self::CommandRefused { .. } => K::CommandRefused,
             Self::NotControllable { .. } => K::NotControllable,
@@ -268,6 +274,18 @@ impl ParamError {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn too_many_words_are_the_callers_sample_and_another_layout_is_incompatible() {
+        let words = ClientError::Contract(ContractError::PzdWords(17));
+        assert_eq!(words.kind(), ErrorKind::InvalidSample);
+        assert_eq!(words.kind().status(), Status::InvalidSample);
+        let layout = ClientError::Contract(ContractError::Version {
+            expected: 1,
+            found: 2,
+        });
+        assert_eq!(layout.kind(), ErrorKind::Incompatible);
+    }
 
     #[test]
     fn statuses_are_numbered_in_order_and_every_one_but_ok_is_some_kind() {

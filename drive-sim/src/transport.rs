@@ -6,10 +6,10 @@ use uss_engine::{Clock, Rx, Transport, TransportError};
 
 use crate::VirtualWire;
 
-/// The in-process virtual wire to simulated drives: bytes take their real wire time. A drive
-/// moves its model (ramps, telegram monitoring) up to the time of each telegram it hears, before
-/// it answers; a drive nobody addresses stands still until it is addressed again, which no
-/// master can tell apart from one that moved all along.
+/// The in-process virtual wire to simulated drives: bytes take their real wire time. Every
+/// request moves every drive's model (ramps, telegram monitoring) up to its time
+/// ([`VirtualWire::transmit`]), the addressed drive before it answers: the engine needs to tell
+/// the wire nothing more while it waits.
 #[derive(Debug)]
 pub struct SimTransport {
     wire: VirtualWire,

@@ -144,6 +144,14 @@ pub(crate) fn client(py: Python<'_>, e: ClientError) -> PyErr {
                 ),
             ),
         ],
+        // A latch named that is not the drive's: a Tripped without one to name.
+        ClientError::NotTheLatch { address, .. } => vec![
+            ("address", obj(py, address)),
+            ("reason", py.None().into_bound(py)),
+            ("command", py.None().into_bound(py)),
+            ("by_pid", obj(py, 0u32)),
+            ("detail", obj(py, &message)),
+        ],
         ClientError::CommandRefused { bus, error } => vec![
             ("bus", obj(py, bus)),
             ("error", member(py, "CommandError", error.code())),

@@ -82,7 +82,7 @@ class CommandRefused(UssError):
 
 
 class ParamFailed(UssError):
-    """The drive grants no parameter change rights over this link (reply 8)."""
+    """An item ended without a value for another reason; `outcome` is an `Outcome`."""
 
 
 class NoProcessData(UssError):

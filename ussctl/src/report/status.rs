@@ -285,8 +285,6 @@ impl DriveRow {
     }
 }
 
-/// Whether the drive's images carry a ZSW1 at all (PZD words configured): a drive without
-/// process data has no control word to take.
 /// What makes a drive of `profile`'s family take its commands from USS: "(P0700 = 5 takes
 /// them from USS)", or nothing where uss-rt does not know it.
 fn command_source_hint(profile: Option<&uss_client::Catalogue>) -> String {
@@ -296,6 +294,8 @@ fn command_source_hint(profile: Option<&uss_client::Catalogue>) -> String {
         .unwrap_or_default()
 }
 
+/// Whether the drive's images carry a ZSW1 at all (PZD words configured): a drive without
+/// process data has no control word to take.
 fn d_has_pzd(d: &DriveRow) -> bool {
     d.pzd_words > 0
 }
