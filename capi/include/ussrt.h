@@ -417,6 +417,23 @@ enum UssrtStatus ussrt_wait_exchange(const struct UssrtBus *bus,
 enum UssrtStatus ussrt_stop_drive(const struct UssrtBus *bus, uint8_t address, uint8_t command);
 
 /**
+ * Waits until drive `address` got a stop command at least as strong as `command` (1 OFF1, 2
+ * OFF2, 3 OFF3) from an operator: its image shows the override and the control word that went
+ * out. `timeout_ms` 0 waits the drive's own time (its turn in the circulating list, or its next
+ * probe while offline, and the poll). On success `*drive` (may be NULL) gets the drive as it
+ * is then. `NOT_CONTROLLABLE` when the drive does not take its commands from this link (the
+ * stop went out but is not obeyed); `TIMEOUT` when it was not seen in time.
+ *
+ * # Safety
+ * `bus` is a live handle; `drive` is NULL or points to writable memory for one `UssrtDrive`.
+ */
+enum UssrtStatus ussrt_wait_stopped(const struct UssrtBus *bus,
+                                    uint8_t address,
+                                    uint8_t command,
+                                    uint32_t timeout_ms,
+                                    struct UssrtDrive *drive_out);
+
+/**
  * An operator's stop of every drive of the bus (see [`ussrt_stop_drive`]); `*drives` (may be
  * NULL) gets the drives it reached as a bit mask.
  *

@@ -228,6 +228,37 @@ pub unsafe extern "C" fn ussrt_stop_drive(
     })
 }
 
+/// Waits until drive `address` got a stop command at least as strong as `command` (1 OFF1, 2
+/// OFF2, 3 OFF3) from an operator: its image shows the override and the control word that went
+/// out. `timeout_ms` 0 waits the drive's own time (its turn in the circulating list, or its next
+/// probe while offline, and the poll). On success `*drive` (may be NULL) gets the drive as it
+/// is then. `NOT_CONTROLLABLE` when the drive does not take its commands from this link (the
+/// stop went out but is not obeyed); `TIMEOUT` when it was not seen in time.
+///
+/// # Safety
+/// `bus` is a live handle; `drive` is NULL or points to writable memory for one `UssrtDrive`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_wait_stopped(
+    bus: *const UssrtBus,
+    address: u8,
+    command: u8,
+    timeout_ms: u32,
+    drive_out: *mut UssrtDrive,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let address = drive(address)?;
+        let timeout = (timeout_ms > 0).then(|| Duration::from_millis(u64::from(timeout_ms)));
+        bus.bus
+            .wait_stopped(address, stop_command(command)?, timeout)?;
+        // SAFETY: NULL or the caller's memory for one UssrtDrive (as documented).
+        if let Some(out) = unsafe { drive_out.as_mut() } {
+            *out = UssrtDrive::of(&bus.bus.watch(address)?);
+        }
+        Ok(())
+    })
+}
+
 /// An operator's stop of every drive of the bus (see [`ussrt_stop_drive`]); `*drives` (may be
 /// NULL) gets the drives it reached as a bit mask.
 ///

@@ -175,6 +175,16 @@ int main(int argc, char **argv) {
   uint32_t reached = 0;
   OK(ussrt_stop_all(bus, 3, &reached));
   EXPECT(reached == 0x6, "stop all: %#x", reached);
+  /* The stop confirmed as the drive's image shows it: the override and the word that went out. */
+  UssrtDrive stopped;
+  OK(ussrt_wait_stopped(bus, 1, 3, 0, &stopped));
+  EXPECT(stopped.image.sent_stw1 == 0x047A && stopped.live == 0, "quick stop confirmed: %#x",
+         stopped.image.sent_stw1);
+  EXPECT(stopped.image.latch_reason == USS_LATCH_REASON_OVERRIDE, "override %u",
+         stopped.image.latch_reason);
+  OK(ussrt_wait_stopped(bus, 2, 1, 2000, NULL)); /* OFF3 is at least as strong as OFF1 */
+  EXPECT(ussrt_wait_stopped(bus, 1, 9, 0, NULL) == USSRT_STATUS_INVALID_ARGUMENT,
+         "stop command 9");
   ussrt_bus_close(bus);
   ussrt_bus_close(NULL);
   printf("abi_check: all %d checks passed (libussrt %s)\n", checks, ussrt_version());
