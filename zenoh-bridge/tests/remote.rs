@@ -531,7 +531,7 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
 
     // Only a new, deliberate run re-arms it.
     let (ok, out, err) = ns.call(&["run", &drive, "--hz", "5", "--for", "1"]);
-    assert!(ok, "{err}");
+    assert!(ok, "{out}{err}");
     assert!(
         out.contains("re-armed") && out.contains("and released"),
         "{out}"

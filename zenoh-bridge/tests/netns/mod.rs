@@ -283,9 +283,13 @@ impl Netns {
         ip(&["link", "set", &self.host_if, if up { "up" } else { "down" }]).unwrap();
     }
 
-    /// Runs the client to its end: (success, stdout, stderr).
+    /// Runs the client to its end: (success, stdout, stderr). A failure that said nothing
+    /// (a signal) is named by its exit status.
     pub fn call(&self, args: &[&str]) -> (bool, String, String) {
-        let (status, out, err) = self.client(args).finish();
+        let (status, out, mut err) = self.client(args).finish();
+        if !status.success() && err.trim().is_empty() {
+            err = format!("the client ended with {status} and said nothing");
+        }
         (status.success(), out, err)
     }
 }
