@@ -118,12 +118,8 @@ fn raw_of(v: Value) -> (u32, u8) {
 /// A raw value to write: a double word (`dword` != 0), or a word (a value above 0xFFFF is
 /// refused).
 fn raw_value(value: u32, dword: u8) -> Result<Value, Failure> {
-    if dword != 0 {
-        return Ok(Value::Dword(value));
-    }
-    u16::try_from(value)
-        .map(Value::Word)
-        .map_err(|_| Failure::Argument(format!("{value} does not fit a word (0..=65535)")))
+    Value::from_raw(value, dword != 0)
+        .ok_or_else(|| Failure::Argument(format!("{value} does not fit a word (0..=65535)")))
 }
 
 fn param_ref(param: *const c_char) -> Result<ParamRef, Failure> {
@@ -326,7 +322,6 @@ pub unsafe extern "C" fn ussrt_param_batch(
 ) -> UssrtStatus {
     guard(|| {
         use uss_client::ParamTask;
-        use uss_client::uss_protocol::Storage;
         let bus = arg(bus, "bus")?;
         let max = uss_client::uss_shm_types::MAX_PARAM_ITEMS;
         if count == 0 || count > max {
@@ -344,11 +339,7 @@ pub unsafe extern "C" fn ussrt_param_batch(
         out(results, "results")?;
         // SAFETY: non-NULL (checked) and `count` items long (as documented).
         let items = unsafe { core::slice::from_raw_parts(items, count) };
-        let storage = if options.eeprom {
-            Storage::RamAndEeprom
-        } else {
-            Storage::Ram
-        };
+        let storage = options.storage();
         let tasks = items
             .iter()
             .map(|i| {

@@ -530,10 +530,16 @@ impl Catalogue {
     /// know the family's parameter.
     pub fn monitoring_name(&self) -> Option<String> {
         let param = self.monitoring?;
-        Some(match self.telegram_off_fault {
-            Some(fault) => format!("{param} ({})", self.fault_name(fault)),
+        Some(match self.telegram_off_fault_name() {
+            Some(fault) => format!("{param} ({fault})"),
             None => param.to_string(),
         })
+    }
+
+    /// The fault a telegram-off trip records, as the family's manuals write it ("F0072"),
+    /// where known.
+    pub fn telegram_off_fault_name(&self) -> Option<String> {
+        self.telegram_off_fault.map(|f| self.fault_name(f))
     }
 
     /// The setting that makes a drive of this family take its commands from the USS link:

@@ -24,6 +24,17 @@ pub struct WriteOptions {
     pub unsafe_write: bool,
 }
 
+impl WriteOptions {
+    /// Where a write with these options is stored: RAM, or RAM and EEPROM.
+    pub const fn storage(self) -> Storage {
+        if self.eeprom {
+            Storage::RamAndEeprom
+        } else {
+            Storage::Ram
+        }
+    }
+}
+
 /// The fault buffer: r0947, 8 elements, newest fault first (MICROMASTER).
 pub const FAULT_BUFFER_PNU: u16 = 947;
 /// Elements of [`FAULT_BUFFER_PNU`].
@@ -153,12 +164,7 @@ impl Bus {
         value: Value,
         options: WriteOptions,
     ) -> Result<Value, ParamError> {
-        let storage = if options.eeprom {
-            Storage::RamAndEeprom
-        } else {
-            Storage::Ram
-        };
-        let task = ParamTask::write(param.pnu, param.index, value, storage);
+        let task = ParamTask::write(param.pnu, param.index, value, options.storage());
         let mut flags = 0;
         if options.force {
             flags |= uss_shm_types::REQUEST_FORCE;

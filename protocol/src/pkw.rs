@@ -145,6 +145,18 @@ impl Value {
     pub const fn is_dword(self) -> bool {
         matches!(self, Self::Dword(_))
     }
+
+    /// A raw value as a front-end's caller gives one: a double word (`dword`), or a word;
+    /// `None` for a word above 0xFFFF.
+    pub const fn from_raw(raw: u32, dword: bool) -> Option<Self> {
+        if dword {
+            Some(Self::Dword(raw))
+        } else if raw <= u16::MAX as u32 {
+            Some(Self::Word(raw as u16))
+        } else {
+            None
+        }
+    }
 }
 
 /// Where a change is stored (USS.md section 6: the write tasks' RAM and RAM + EEPROM codes).

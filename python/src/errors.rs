@@ -9,7 +9,7 @@ use pyo3::types::PyDict;
 use uss_client::uss_shm_types::{
     DriveError, ItemOutcome, LatchReason, ParamResult, PathError, RequestError, StopCommand,
 };
-use uss_client::{Address, ClientError, ErrorKind, Latch, ParamError};
+use uss_client::{Address, ClientError, ErrorKind, ParamError};
 
 /// An attribute of an exception: its name and its value, already a Python object.
 type Detail<'py> = (&'static str, Bound<'py, PyAny>);
@@ -52,20 +52,20 @@ fn member<'py>(py: Python<'py>, table: &str, code: u8) -> Bound<'py, PyAny> {
         .unwrap_or_else(|_| obj(py, code))
 }
 
-fn latch_details<'py>(
+/// What every `Tripped` carries: its drive, why it is latched and what it gets (table members,
+/// or `None` where the error does not say), the process behind it and the message.
+fn latched<'py>(
     py: Python<'py>,
     address: u8,
-    latch: &Latch,
+    (reason, command): (Bound<'py, PyAny>, Bound<'py, PyAny>),
+    by_pid: u32,
     message: &str,
 ) -> Vec<Detail<'py>> {
     vec![
         ("address", obj(py, address)),
-        ("reason", member(py, "LatchReason", latch.reason.code())),
-        (
-            "command",
-            member(py, "StopCommand", StopCommand::code_of(latch.command)),
-        ),
-        ("by_pid", obj(py, latch.by_pid)),
+        ("reason", reason),
+        ("command", command),
+        ("by_pid", obj(py, by_pid)),
         ("detail", obj(py, message)),
     ]
 }
@@ -124,34 +124,23 @@ pub(crate) fn client(py: Python<'_>, e: ClientError) -> PyErr {
         ],
         ClientError::Tripped { address, latch, .. }
         | ClientError::NotArmed { address, latch, .. } => {
-            latch_details(py, address, &latch, &message)
+            let reason = member(py, "LatchReason", latch.reason.code());
+            let command = member(py, "StopCommand", StopCommand::code_of(latch.command));
+            latched(py, address, (reason, command), latch.by_pid, &message)
         }
-        ClientError::Stalled { address, gap, .. } => vec![
-            ("address", obj(py, address)),
-            ("gap", obj(py, gap.as_secs_f64())),
-            ("by_pid", obj(py, 0u32)),
-            ("detail", obj(py, &message)),
-            (
-                "reason",
-                member(py, "LatchReason", LatchReason::Stale.code()),
-            ),
-            (
-                "command",
-                member(
-                    py,
-                    "StopCommand",
-                    StopCommand::code_of(Some(StopCommand::Off1)),
-                ),
-            ),
-        ],
+        ClientError::Stalled { address, gap, .. } => {
+            let reason = member(py, "LatchReason", LatchReason::Stale.code());
+            let off1 = StopCommand::code_of(Some(StopCommand::Off1));
+            let command = member(py, "StopCommand", off1);
+            let mut details = latched(py, address, (reason, command), 0, &message);
+            details.push(("gap", obj(py, gap.as_secs_f64())));
+            details
+        }
         // A latch named that is not the drive's: a Tripped without one to name.
-        ClientError::NotTheLatch { address, .. } => vec![
-            ("address", obj(py, address)),
-            ("reason", py.None().into_bound(py)),
-            ("command", py.None().into_bound(py)),
-            ("by_pid", obj(py, 0u32)),
-            ("detail", obj(py, &message)),
-        ],
+        ClientError::NotTheLatch { address, .. } => {
+            let none = || py.None().into_bound(py);
+            latched(py, address, (none(), none()), 0, &message)
+        }
         ClientError::CommandRefused { bus, error } => vec![
             ("bus", obj(py, bus)),
             ("error", member(py, "CommandError", error.code())),

@@ -71,13 +71,12 @@ fn batch(
     timeout: f64,
 ) -> PyResult<Vec<Py<PyAny>>> {
     use uss_client::ParamTask;
-    use uss_client::uss_protocol::Storage;
     let drive = errors::drive(py, address)?;
-    let storage = if eeprom {
-        Storage::RamAndEeprom
-    } else {
-        Storage::Ram
-    };
+    let storage = uss_client::WriteOptions {
+        eeprom,
+        ..uss_client::WriteOptions::default()
+    }
+    .storage();
     let tasks = items
         .into_iter()
         .map(|(pnu, index, value, is_dword)| {
@@ -85,15 +84,11 @@ fn batch(
             Ok(match value {
                 None => ParamTask::read(p.pnu, p.index),
                 Some(v) => {
-                    let value = if is_dword {
-                        Value::Dword(v)
-                    } else {
-                        Value::Word(u16::try_from(v).map_err(|_| {
-                            PyValueError::new_err(format!(
-                                "{v} does not fit a word (0..=65535): pass is_dword=True"
-                            ))
-                        })?)
-                    };
+                    let value = Value::from_raw(v, is_dword).ok_or_else(|| {
+                        PyValueError::new_err(format!(
+                            "{v} does not fit a word (0..=65535): pass is_dword=True"
+                        ))
+                    })?;
                     ParamTask::write(p.pnu, p.index, value, storage)
                 }
             })

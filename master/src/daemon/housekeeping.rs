@@ -199,7 +199,7 @@ fn log_monitoring(
     // The fault a trip records and the parameter, as the drive's family profile names them.
     let family = profile(bus, address);
     let fault = family
-        .and_then(|c| c.telegram_off_fault.map(|f| c.fault_name(f)))
+        .and_then(Catalogue::telegram_off_fault_name)
         .unwrap_or_else(|| "its telegram-off fault".to_owned());
     let profile = family
         .and_then(Catalogue::monitoring_name)

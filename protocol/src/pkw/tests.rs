@@ -283,3 +283,14 @@ fn reply_matching_checks_family_pnu_and_index() {
     assert!(!r(4, 947, 0).answers(&len));
     assert!(!ParamReply::NOT_YET.answers(&ParamTask::None));
 }
+
+#[test]
+fn a_raw_value_is_a_dword_when_asked_and_a_word_only_when_it_fits() {
+    assert_eq!(
+        Value::from_raw(0x4248_0000, true),
+        Some(Value::Dword(0x4248_0000))
+    );
+    assert_eq!(Value::from_raw(7, true), Some(Value::Dword(7)));
+    assert_eq!(Value::from_raw(0xFFFF, false), Some(Value::Word(0xFFFF)));
+    assert_eq!(Value::from_raw(0x1_0000, false), None);
+}

@@ -261,7 +261,7 @@ impl DriveRow {
             .map_or_else(|| "its telegram-off time".to_owned(), |p| p.to_string());
         let fault = self
             .profile
-            .and_then(|c| c.telegram_off_fault.map(|f| c.fault_name(f)))
+            .and_then(uss_client::Catalogue::telegram_off_fault_name)
             .unwrap_or_else(|| "its telegram-off fault".to_owned());
         match self.monitoring {
             "on" | "not read yet" | "not checked" => None,
