@@ -467,6 +467,40 @@ def test_a_write_that_reached_the_drive_but_lost_its_answer_may_be_applied(tmp_p
         assert daemon.stop() == 0, daemon.output()
 
 
+def test_a_stalled_program_is_told_the_stop_its_drive_got(tmp_path):
+    """A program that made no call for longer than the watchdog is told Stalled, with the stop
+    ussd sends a stale drive: the drive's configured safe command (OFF3 here), not OFF1."""
+    daemon = Ussd(
+        tmp_path,
+        bus=f"{BUS}-stall",
+        drives=[(1, 'safe_command = "off3"\nwatchdog_ms = 100')],
+    )
+    try:
+        daemon.wait_for_services()
+        with uss_rt.open_bus(f"{BUS}-stall") as bus:
+            wait_for_input(bus, 1, lambda i: i["online"] == 1)
+            drive = uss_rt.control(bus, 1)
+            drive.rearm()
+            drive.run_hz(5)
+            # ussd paused (shorter than its heartbeat's 500 ms) sees no gap yet and latches
+            # nothing: the program's next call, 250 ms after its last, finds the gap itself.
+            daemon.process.send_signal(signal.SIGSTOP)
+            try:
+                time.sleep(0.25)
+                with pytest.raises(uss_rt.Stalled, match="OFF3") as stalled:
+                    drive.run_hz(5)
+            finally:
+                daemon.process.send_signal(signal.SIGCONT)
+            assert stalled.value.command == uss_rt.StopCommand.OFF3
+            assert stalled.value.reason == uss_rt.LatchReason.STALE
+            # ussd, resumed, latches the drive with the same stop.
+            image = wait_for_input(bus, 1, lambda i: i["control"] == uss_rt.ControlState.LATCHED)
+            assert image["latch_command"] == uss_rt.StopCommand.OFF3
+            drive.release()
+    finally:
+        assert daemon.stop() == 0, daemon.output()
+
+
 def test_each_family_reads_its_own_parameters_and_fault_buffer(tmp_path):
     """A G120 and a SIMOREG through Python: parameters typed by their family's catalogue, the
     telegram-off trip read where the family keeps faults; a generic slave has no fault buffer."""
