@@ -216,7 +216,8 @@ typedef struct UssrtErrorInfo {
   /**
    * With `TRIPPED` and `NOT_ARMED`: why the drive is latched (a `UssLatchReason` code of
    * `uss_shm_types.h`), what it gets meanwhile (a `UssStopCommand` code), and why a sample
-   * was refused (a `UssRejection` code); 0 otherwise.
+   * was refused (a `UssRejection` code); with `STALLED`: the reason "controller stale" and
+   * the drive's safe command; 0 otherwise.
    */
   uint8_t latch_reason;
   uint8_t latch_command;

@@ -6,7 +6,7 @@ use core::ffi::{CStr, c_char};
 use std::cell::RefCell;
 use std::ffi::CString;
 use std::panic::{AssertUnwindSafe, catch_unwind};
-use uss_client::uss_shm_types::{DriveError, StopCommand};
+use uss_client::uss_shm_types::{DriveError, LatchReason, StopCommand};
 use uss_client::{Address, ClientError, Latch, ParamError};
 
 /// Details of the calling thread's last failure, beyond its status and message.
@@ -17,7 +17,8 @@ pub struct UssrtErrorInfo {
     pub status: UssrtStatus,
     /// With `TRIPPED` and `NOT_ARMED`: why the drive is latched (a `UssLatchReason` code of
     /// `uss_shm_types.h`), what it gets meanwhile (a `UssStopCommand` code), and why a sample
-    /// was refused (a `UssRejection` code); 0 otherwise.
+    /// was refused (a `UssRejection` code); with `STALLED`: the reason "controller stale" and
+    /// the drive's safe command; 0 otherwise.
     pub latch_reason: u8,
     pub latch_command: u8,
     pub rejection: u8,
@@ -88,6 +89,12 @@ fn client_info(e: &ClientError) -> UssrtErrorInfo {
         ClientError::Tripped { latch, .. } | ClientError::NotArmed { latch, .. } => {
             info.with_latch(latch)
         }
+        // A trip the program found itself: stale, with the drive's safe command.
+        ClientError::Stalled { command, .. } => UssrtErrorInfo {
+            latch_reason: LatchReason::Stale.code(),
+            latch_command: StopCommand::code_of(*command),
+            ..info
+        },
         _ => info,
     }
 }

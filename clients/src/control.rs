@@ -100,6 +100,8 @@ impl Shared {
                 address,
                 gap: Duration::from_nanos(gap_ns),
                 watchdog: Duration::from_nanos(watchdog_ns),
+                // The stop ussd sends a drive whose controller went stale.
+                command: self.watch.info().safe_command().ok(),
             },
             SessionError::Invalid(rejection) => ClientError::InvalidSample {
                 bus,

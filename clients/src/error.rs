@@ -194,17 +194,19 @@ pub enum ClientError {
         latch: Latch,
     },
     /// The program made no call for longer than the drive's watchdog time (a paused process, a
-    /// blocked loop): a trip, not a fresh start. ussd latches the drive (or has); every ON fails
-    /// until [`crate::Controller::rearm`].
+    /// blocked loop): a trip, not a fresh start. ussd latches the drive (or has) with its safe
+    /// command, `command` (the drive's `DriveInfo::safe_command`; `None` if ussd has not
+    /// described the drive); every ON fails until [`crate::Controller::rearm`].
     #[error(
-        "drive {address} on {bus}: this controller made no call for {:.3} s, longer than the drive's watchdog ({:.3} s): that is a trip; re-arm it (OFF1, then ON: Controller::rearm)",
-        gap.as_secs_f64(), watchdog.as_secs_f64()
+        "drive {address} on {bus}: this controller made no call for {:.3} s, longer than the drive's watchdog ({:.3} s): that is a trip, and ussd stops the drive with {}; re-arm it (OFF1, then ON: Controller::rearm)",
+        gap.as_secs_f64(), watchdog.as_secs_f64(), command.map_or("its safe command", StopCommand::name)
     )]
     Stalled {
         bus: String,
         address: u8,
         gap: Duration,
         watchdog: Duration,
+        command: Option<StopCommand>,
     },
     /// A relay named a latch the drive does not show now.
     #[error(

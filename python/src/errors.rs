@@ -128,10 +128,15 @@ pub(crate) fn client(py: Python<'_>, e: ClientError) -> PyErr {
             let command = member(py, "StopCommand", StopCommand::code_of(latch.command));
             latched(py, address, (reason, command), latch.by_pid, &message)
         }
-        ClientError::Stalled { address, gap, .. } => {
+        ClientError::Stalled {
+            address,
+            gap,
+            command,
+            ..
+        } => {
+            // The drive's own safe command: what ussd stops a stale controller's drive with.
             let reason = member(py, "LatchReason", LatchReason::Stale.code());
-            let off1 = StopCommand::code_of(Some(StopCommand::Off1));
-            let command = member(py, "StopCommand", off1);
+            let command = member(py, "StopCommand", StopCommand::code_of(command));
             let mut details = latched(py, address, (reason, command), 0, &message);
             details.push(("gap", obj(py, gap.as_secs_f64())));
             details

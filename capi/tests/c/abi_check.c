@@ -160,6 +160,10 @@ int main(int argc, char **argv) {
   sleep_ms(300);
   s = ussrt_control_run_hz(c, 10.0f);
   EXPECT(s == USSRT_STATUS_TRIPPED || s == USSRT_STATUS_STALLED, "a gap trips: %d", (int)s);
+  /* Found by ussd or by the program itself: a stale latch with the drive's safe command. */
+  EXPECT(info().latch_reason == USS_LATCH_REASON_STALE, "stale %u", info().latch_reason);
+  EXPECT(info().latch_command == USS_STOP_COMMAND_OFF1, "its safe command %u",
+         info().latch_command);
   OK(ussrt_drive_read(bus, 1, &d));
   EXPECT(d.live == 0 && d.image.latch_reason == USS_LATCH_REASON_STALE, "stale latch");
   OK(ussrt_control_rearm(c, NULL));
