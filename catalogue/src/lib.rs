@@ -248,6 +248,13 @@ pub struct Param {
     pub eeprom: bool,
     pub min: Option<f64>,
     pub max: Option<f64>,
+    /// The factory setting, in the parameter's unit (every element of an array), where the
+    /// list gives one the simulator plays.
+    pub default: Option<f64>,
+    /// The only settings the drive takes (an enumeration with gaps, P0700: 0, 1, 2, 4, 5, 6);
+    /// empty: any value within the limits.
+    #[serde(default)]
+    pub values: Vec<u32>,
     pub bits: Option<Bits>,
     /// Writing it starts something (a factory reset, an identification run): a command, not a
     /// setting; never saved in or restored from a backup.
@@ -614,6 +621,27 @@ impl Catalogue {
             if settable != p.is_writable() {
                 return Err(error(format!(
                     "{}: an r parameter is read-only and a P parameter is not",
+                    p.id
+                )));
+            }
+            let within = |x: f64| p.min.is_none_or(|m| x >= m) && p.max.is_none_or(|m| x <= m);
+            if let Some(x) = p.default.filter(|&x| !within(x)) {
+                return Err(error(format!(
+                    "{}: default {x} lies outside its limits",
+                    p.id
+                )));
+            }
+            if let Some(x) = p.values.iter().find(|&&x| !within(f64::from(x))) {
+                return Err(error(format!(
+                    "{}: setting {x} lies outside its limits",
+                    p.id
+                )));
+            }
+            if !p.values.is_empty()
+                && (p.data_type == DataType::Float || p.values.windows(2).any(|w| w[0] >= w[1]))
+            {
+                return Err(error(format!(
+                    "{}: settings are whole numbers, unique and sorted",
                     p.id
                 )));
             }

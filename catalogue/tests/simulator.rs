@@ -1,7 +1,9 @@
-//! The simulator's parameter sets and the catalogues agree, family by family: every parameter a
-//! simulated drive has is in its family's catalogue with the same prefix, data type (PROFIdrive
-//! code), array size, change class, access level and, for settable parameters whose limits the
-//! catalogue gives, limits.
+//! The simulator's parameter sets are made from the profiles (`ParamSet::of_profile`); this
+//! checks the conversion, family by family: every parameter a simulated drive has is in its
+//! family's catalogue with the same prefix, data type (PROFIdrive code), array size, change
+//! class, access level and limits, and every parameter of the catalogue is in the simulator's
+//! set. The values themselves are checked against the manuals, typed in, by the simulator's own
+//! tests (`drive-sim/src/params/tests.rs`) and `catalogue/src/tests.rs`.
 
 use uss_catalogue::{Catalogue, Change, DataType};
 use uss_drive_sim::drive::Personality;
@@ -79,5 +81,12 @@ fn agree(c: &Catalogue, set: &ParamSet) {
                 def.name
             );
         }
+        assert_eq!(def.allowed, p.values.as_slice(), "{}: settings", def.name);
     }
+    assert_eq!(
+        set.definitions().len(),
+        c.param.len(),
+        "{}: every parameter of the profile is simulated",
+        set.family
+    );
 }

@@ -74,7 +74,7 @@ pub enum Personality {
 impl Personality {
     /// The parameter set the drive keeps (a generic slave's model runs on a MICROMASTER 4's,
     /// which it never shows).
-    pub const fn param_set(self) -> &'static ParamSet {
+    pub fn param_set(self) -> &'static ParamSet {
         match self {
             Self::Micromaster4 | Self::Generic { .. } => &MICROMASTER4,
             Self::G110 => &G110,

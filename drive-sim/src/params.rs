@@ -1,8 +1,10 @@
 //! The parameter table of the simulated drive on the parameter channel (USS.md section 6).
 //!
-//! A [`ParamSet`] is one family's list of parameters with their numbers, names, types, limits
-//! and change rules, laid out at compile time: [`MICROMASTER4`] (its list is [`DEFINITIONS`]),
-//! and the others in [`crate::family`]. [`ParamTable`] holds a RAM and an EEPROM value for every
+//! A [`ParamSet`] is one family's list of parameters with their numbers, names, types, limits,
+//! settings, factory settings and change rules, made from its family profile (`uss-catalogue`'s
+//! data file, [`ParamSet::of_profile`]) once, before any drive runs: [`MICROMASTER4`], and the
+//! others in [`crate::family`]. The simulator adds only what makes the unit (its firmware
+//! version) and the parameters its table consults that the profile does not name ([`Own`]). [`ParamTable`] holds a RAM and an EEPROM value for every
 //! element of every parameter of its set and executes PKW tasks against them. Storage is sized
 //! at compile time ([`MAX_SLOTS`]), so the table never touches
 //! the heap: [`ParamTable::execute`], [`ParamTable::get`], [`ParamTable::get_f32`] and
@@ -28,6 +30,8 @@
 //! Read tasks (AK 1, 4, 6, 9) run steps 1, 2 and 7 only: reading needs no change rights and no
 //! access level. Every refused task leaves the table as it was.
 
+use std::sync::LazyLock;
+use uss_catalogue::Catalogue;
 use uss_protocol::{ErrorNumber, ParamTask, PkwMode, Pnu, ReplyKind, Storage, Subindex, Value};
 
 /// Data type of a parameter: the codec's; descriptive element 1 carries its PROFIdrive code
@@ -145,6 +149,7 @@ impl ParamDef {
         Ok(())
     }
 
+    #[cfg(test)]
     pub(crate) const fn new(
         pnu: u16,
         name: &'static str,
@@ -166,29 +171,10 @@ impl ParamDef {
         }
     }
 
+    #[cfg(test)]
     pub(crate) const fn limits(mut self, min: f64, max: f64) -> Self {
         self.min = min;
         self.max = max;
-        self
-    }
-
-    pub(crate) const fn settings(mut self, allowed: &'static [u32]) -> Self {
-        self.allowed = allowed;
-        self
-    }
-
-    pub(crate) const fn default_raw(mut self, raw: u32) -> Self {
-        self.default = raw;
-        self
-    }
-
-    pub(crate) const fn default_f32(mut self, value: f32) -> Self {
-        self.default = value.to_bits();
-        self
-    }
-
-    pub(crate) const fn array(mut self, elements: u8) -> Self {
-        self.elements = elements;
         self
     }
 }
@@ -207,6 +193,7 @@ pub const R0947: u16 = 947;
 pub const R0948: u16 = 948;
 pub const R0949: u16 = 949;
 pub const P0970: u16 = 970;
+pub const P0971: u16 = 971;
 pub const P1000: u16 = 1000;
 pub const P1058: u16 = 1058;
 pub const P1080: u16 = 1080;
@@ -237,167 +224,94 @@ pub const P0927_USS_COM: u32 = 1 << 3;
 /// (index 0 is the BOP link).
 pub const COM_LINK: u8 = 1;
 
-/// Frequencies, Hz.
-const FREQ_MAX: f64 = 650.0;
-/// Ramp times, seconds.
-const TIME_MAX: f64 = 650.0;
-pub(crate) const U16_MAX: f64 = 65535.0;
+/// The whole range of a data type: the limits of a parameter whose profile gives none.
+fn type_range(ty: DataType) -> (f64, f64) {
+    match ty {
+        DataType::U16 => (0.0, 65535.0),
+        DataType::I16 => (-32768.0, 32767.0),
+        DataType::U32 => (0.0, 4_294_967_295.0),
+        DataType::I32 => (-2_147_483_648.0, 2_147_483_647.0),
+        DataType::Float => (-f64::from(f32::MAX), f64::from(f32::MAX)),
+    }
+}
 
-/// The MM4 parameter list this drive keeps. P0310 is the one "C" parameter besides P0970: it
-/// shows the quick-commissioning rule (P0010 = 1) that P0970's factory-setting rule
-/// (P0010 = 30) replaces.
-const DEFS: &[ParamDef] = {
-    use Change::{Always, Commissioning, NotRunning, ReadOnly};
-    use DataType::{Float, U16};
-    &[
-        ParamDef::new(P0003, "P0003 User access level", U16, Always, 1)
-            .limits(0.0, 4.0)
-            .default_raw(1),
-        ParamDef::new(P0010, "P0010 Commissioning parameter", U16, NotRunning, 1)
-            .limits(0.0, 30.0)
-            .settings(&[0, 1, 30]),
-        ParamDef::new(R0018, "r0018 Firmware version", Float, ReadOnly, 1)
-            .limits(0.0, 99.99)
-            .default_f32(2.09),
-        ParamDef::new(R0021, "r0021 CO: Act. frequency", Float, ReadOnly, 2)
-            .limits(-FREQ_MAX, FREQ_MAX),
-        ParamDef::new(R0052, "r0052 CO/BO: Act. status word 1", U16, ReadOnly, 2)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(R0054, "r0054 CO/BO: Act. control word 1", U16, ReadOnly, 3)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(
-            P0310,
-            "P0310 Rated motor frequency",
-            Float,
-            Commissioning,
-            1,
-        )
-        .limits(12.0, FREQ_MAX)
-        .default_f32(50.0),
-        ParamDef::new(
-            P0700,
-            "P0700 Selection of command source",
-            U16,
-            NotRunning,
-            1,
-        )
-        .limits(0.0, 6.0)
-        .settings(&[0, 1, 2, 4, 5, 6])
-        .default_raw(5),
-        ParamDef::new(
-            P0719,
-            "P0719 Selection of cmd. & freq. setp.",
-            U16,
-            NotRunning,
-            3,
-        )
-        .limits(0.0, 66.0),
-        ParamDef::new(P0927, "P0927 Parameter changeable via", U16, Always, 2)
-            .limits(0.0, 15.0)
-            .default_raw(15),
-        ParamDef::new(R0947, "r0947 CO: Last fault code", U16, ReadOnly, 2)
-            .limits(0.0, U16_MAX)
-            .array(8),
-        // Three words per trip (seconds + minutes, hours + days, month + year: P2115's format).
-        ParamDef::new(R0948, "r0948 Fault time", U16, ReadOnly, 3)
-            .limits(0.0, U16_MAX)
-            .array(12),
-        ParamDef::new(R0949, "r0949 CO: Fault value", U16, ReadOnly, 3)
-            .limits(0.0, U16_MAX)
-            .array(8),
-        ParamDef::new(P0970, "P0970 Factory reset", U16, Commissioning, 1).limits(0.0, 1.0),
-        ParamDef::new(
-            P1000,
-            "P1000 Selection of frequency setpoint",
-            U16,
-            NotRunning,
-            1,
-        )
-        .limits(0.0, 77.0)
-        .settings(&[
-            0, 1, 2, 3, 5, 7, 10, 11, 12, 13, 15, 17, 20, 21, 22, 23, 25, 27, 30, 31, 32, 33, 35,
-            37, 50, 51, 52, 53, 55, 57, 70, 71, 72, 73, 75, 77,
-        ])
-        .default_raw(5),
-        ParamDef::new(P1058, "P1058 JOG frequency right", Float, Always, 2)
-            .limits(0.0, FREQ_MAX)
-            .default_f32(5.0),
-        ParamDef::new(P1080, "P1080 Min. frequency", Float, Always, 1).limits(0.0, FREQ_MAX),
-        ParamDef::new(P1082, "P1082 Max. frequency", Float, NotRunning, 1)
-            .limits(0.0, FREQ_MAX)
-            .default_f32(50.0),
-        ParamDef::new(P1120, "P1120 Ramp-up time", Float, Always, 1)
-            .limits(0.0, TIME_MAX)
-            .default_f32(10.0),
-        ParamDef::new(P1121, "P1121 Ramp-down time", Float, Always, 1)
-            .limits(0.0, TIME_MAX)
-            .default_f32(10.0),
-        ParamDef::new(P1135, "P1135 OFF3 ramp-down time", Float, Always, 2)
-            .limits(0.0, TIME_MAX)
-            .default_f32(5.0),
-        ParamDef::new(P2000, "P2000 Reference frequency", Float, NotRunning, 2)
-            .limits(1.0, FREQ_MAX)
-            .default_f32(50.0),
-        ParamDef::new(P2010, "P2010 USS baud rate", U16, Always, 2)
-            .array(2)
-            .limits(3.0, 12.0)
-            .settings(&[3, 4, 5, 6, 7, 8, 9, 12])
-            .default_raw(6),
-        ParamDef::new(P2011, "P2011 USS address", U16, Always, 2)
-            .array(2)
-            .limits(0.0, 31.0),
-        // MM4 allows 8 words; the simulator also plays S110-class drives with up to 16.
-        ParamDef::new(P2012, "P2012 USS PZD length", U16, Always, 3)
-            .array(2)
-            .limits(0.0, 16.0)
-            .default_raw(2),
-        ParamDef::new(P2013, "P2013 USS PKW length", U16, Always, 3)
-            .array(2)
-            .limits(0.0, 127.0)
-            .settings(&[0, 3, 4, 127])
-            .default_raw(127),
-        ParamDef::new(P2014, "P2014 USS telegram off time", U16, Always, 3)
-            .array(2)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(R2024, "r2024 USS error-free telegrams", U16, ReadOnly, 3)
-            .array(2)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(R2025, "r2025 USS rejected telegrams", U16, ReadOnly, 3)
-            .array(2)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(R2026, "r2026 USS character frame error", U16, ReadOnly, 3)
-            .array(2)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(R2027, "r2027 USS overrun error", U16, ReadOnly, 3)
-            .array(2)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(R2028, "r2028 USS parity error", U16, ReadOnly, 3)
-            .array(2)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(R2029, "r2029 USS start not identified", U16, ReadOnly, 3)
-            .array(2)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(R2030, "r2030 USS BCC error", U16, ReadOnly, 3)
-            .array(2)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(R2031, "r2031 USS length error", U16, ReadOnly, 3)
-            .array(2)
-            .limits(0.0, U16_MAX),
-        ParamDef::new(R2110, "r2110 CO: Warning number", U16, ReadOnly, 2)
-            .array(4)
-            .limits(0.0, U16_MAX),
-    ]
-};
+impl ParamDef {
+    /// The definition a family profile (`uss-catalogue`) gives: number, name as the manual writes
+    /// it (`P1082 Max. frequency`), type, array size, change rule, access level, limits (the
+    /// type's whole range where the profile gives none), settings and factory setting. Without
+    /// a factory setting in the profile the parameter starts at the value nearest 0 its limits
+    /// and settings allow: the simulator's start, not a claim about the drive. Made once per
+    /// family, before any drive runs (its texts live as long as the program).
+    pub fn of_profile(p: &uss_catalogue::Param) -> Self {
+        let ty = p.data_type;
+        let (lo, hi) = type_range(ty);
+        let (min, max) = (p.min.unwrap_or(lo), p.max.unwrap_or(hi));
+        let allowed: &'static [u32] = Box::leak(p.values.clone().into_boxed_slice());
+        let mut default = ty.raw(p.default.unwrap_or(0.0).clamp(min, max));
+        if !allowed.is_empty() && !allowed.contains(&default) {
+            default = allowed[0];
+        }
+        let change = match p.change {
+            uss_catalogue::Change::ReadOnly => Change::ReadOnly,
+            uss_catalogue::Change::Always => Change::Always,
+            uss_catalogue::Change::NotRunning => Change::NotRunning,
+            uss_catalogue::Change::Commissioning => Change::Commissioning,
+        };
+        Self {
+            pnu: p.number(),
+            name: Box::leak(format!("{} {}", p.id, p.name).into_boxed_str()),
+            ty,
+            elements: u8::try_from(p.array).unwrap_or(u8::MAX),
+            min,
+            max,
+            allowed,
+            default,
+            change,
+            level: p.level,
+        }
+    }
+}
 
-/// The MICROMASTER 4 definitions, sorted by PNU.
-pub static DEFINITIONS: &[ParamDef] = DEFS;
-/// The same, for constant evaluation (the G110's list is made from it).
-pub(crate) const DEFINITIONS_CONST: &[ParamDef] = DEFS;
-/// How many parameters the MICROMASTER 4 list has.
-pub(crate) const DEFS_LEN: usize = DEFS.len();
+/// What a family's simulated drive adds to its profile: the parameters its table consults that
+/// the profile does not name (change rights, factory reset), and the values that make it this
+/// unit (its firmware version).
+#[derive(Debug, Clone, Copy)]
+pub struct Own {
+    pub change_rights: Option<(u16, u32)>,
+    pub factory_reset: Option<u16>,
+    /// The transfer of every setting from RAM to EEPROM (P0971).
+    pub save: Option<u16>,
+    /// (PNU, raw value): start values of this unit that its profile does not give.
+    pub start: &'static [(u16, u32)],
+}
+
+impl ParamSet {
+    /// The set a family's profile lists, with what the simulator adds (`own`). Made once per
+    /// family (the sets are statics), before a drive runs.
+    ///
+    /// # Panics
+    /// If the profile lists more than [`MAX_DEFS`] parameters or [`MAX_SLOTS`] values, or lacks
+    /// a parameter the table consults (the built-in profiles are tested).
+    pub fn of_profile(family: &'static str, profile: &uss_catalogue::Catalogue, own: Own) -> Self {
+        let mut defs: Vec<ParamDef> = profile.param.iter().map(ParamDef::of_profile).collect();
+        for &(pnu, raw) in own.start {
+            if let Some(def) = defs.iter_mut().find(|d| d.pnu == pnu) {
+                def.default = raw;
+            }
+        }
+        let consulted = Consulted {
+            access_level: profile.access_level.map(|p| p.pnu.get()),
+            commissioning: profile.commissioning.map(|p| p.pnu.get()),
+            change_rights: own.change_rights,
+            factory_reset: own.factory_reset,
+            save: own.save,
+        };
+        Self::new(family, Vec::leak(defs), consulted)
+    }
+}
 
 /// Most parameters one family's set lists.
-pub const MAX_DEFS: usize = 48;
+pub const MAX_DEFS: usize = 96;
 /// Most values (one per plain parameter, one per array element) one family's set stores.
 pub const MAX_SLOTS: usize = 320;
 
@@ -413,9 +327,12 @@ pub struct Consulted {
     pub change_rights: Option<(u16, u32)>,
     /// The factory reset (P0970): writing 1 puts every setting back to its default.
     pub factory_reset: Option<u16>,
+    /// The transfer to EEPROM (P0971): writing 1 stores every setting's RAM value in EEPROM;
+    /// the parameter then reads 0 again (the transfer is done).
+    pub save: Option<u16>,
 }
 
-/// One family's parameter list, laid out at compile time: where each parameter's values sit,
+/// One family's parameter list, laid out once: where each parameter's values sit,
 /// their defaults, and the slots of the parameters the table consults.
 #[derive(Debug)]
 pub struct ParamSet {
@@ -428,10 +345,11 @@ pub struct ParamSet {
     commissioning: Option<usize>,
     change_rights: Option<(usize, u32)>,
     factory_reset: Option<usize>,
+    save: Option<usize>,
 }
 
-/// The slot of a plain parameter of `defs`. A PNU missing from the list is a compile-time
-/// error (the panic happens during constant evaluation), never a run-time one.
+/// The slot of a plain parameter of `defs`. A PNU missing from the list panics when the set is
+/// made (each built-in set is made by the tests).
 const fn slot_of(defs: &[ParamDef], offsets: &[usize; MAX_DEFS], pnu: u16) -> usize {
     let mut i = 0;
     while i < defs.len() {
@@ -455,7 +373,7 @@ const fn slot_of_opt(
 }
 
 impl ParamSet {
-    /// Lays `defs` out (sorted by PNU, checked at compile time) and finds what it consults.
+    /// Lays `defs` out (sorted by PNU, checked) and finds what it consults.
     pub const fn new(
         family: &'static str,
         defs: &'static [ParamDef],
@@ -500,6 +418,7 @@ impl ParamSet {
             commissioning: slot_of_opt(defs, &offsets, consulted.commissioning),
             change_rights,
             factory_reset: slot_of_opt(defs, &offsets, consulted.factory_reset),
+            save: slot_of_opt(defs, &offsets, consulted.save),
         }
     }
 
@@ -556,14 +475,28 @@ impl Eq for ParamSet {}
 
 /// MICROMASTER 420/430/440: P0003 access level, P0010 commissioning, P0927 bit 3 (USS on the
 /// COM link), P0970 factory reset.
-pub static MICROMASTER4: ParamSet = ParamSet::new("micromaster4", DEFS, MM4_CONSULTED);
+/// Its parameters are its profile's (`catalogue/data/micromaster4.toml`), firmware 2.09.
+pub static MICROMASTER4: LazyLock<ParamSet> = LazyLock::new(|| {
+    ParamSet::of_profile(
+        "micromaster4",
+        Catalogue::micromaster4(),
+        Own {
+            start: &[(R0018, MM4_FIRMWARE)],
+            ..MM4_OWN
+        },
+    )
+});
 
-/// What a MICROMASTER 4's table (and a G110's, which shares its numbers) consults.
-pub(crate) const MM4_CONSULTED: Consulted = Consulted {
-    access_level: Some(P0003),
-    commissioning: Some(P0010),
+/// r0018 of the simulated MICROMASTER 4: firmware 2.09.
+const MM4_FIRMWARE: u32 = 2.09f32.to_bits();
+
+/// What a MICROMASTER 4's table (and a G110's, which shares its numbers) consults besides its
+/// profile's access level and commissioning parameter: P0927 bit 3, the P0970 reset.
+pub(crate) const MM4_OWN: Own = Own {
     change_rights: Some((P0927, P0927_USS_COM)),
     factory_reset: Some(P0970),
+    save: Some(P0971),
+    start: &[],
 };
 
 /// P0010 settings: quick commissioning, factory setting.
@@ -765,6 +698,10 @@ impl ParamTable {
         if Some(at) == self.set.factory_reset && raw == 1 {
             self.factory_reset(storage);
         }
+        if Some(at) == self.set.save && raw == 1 {
+            self.save_all();
+            return Ok(raw);
+        }
         Ok(self.ram[at])
     }
 
@@ -806,6 +743,23 @@ impl ParamTable {
             if storage == Storage::RamAndEeprom {
                 self.eeprom[range.clone()].copy_from_slice(&set.defaults[range]);
             }
+        }
+    }
+
+    /// P0971 = 1: every changeable parameter's RAM value into EEPROM, and P0971 back to 0 (the
+    /// transfer is done when the reply goes out).
+    fn save_all(&mut self) {
+        let set = self.set;
+        for (n, def) in set.defs.iter().enumerate() {
+            if def.is_read_only() {
+                continue;
+            }
+            let range = set.offsets[n]..set.offsets[n] + def.slots();
+            self.eeprom[range.clone()].copy_from_slice(&self.ram[range]);
+        }
+        if let Some(at) = set.save {
+            self.ram[at] = set.defaults[at];
+            self.eeprom[at] = set.defaults[at];
         }
     }
 

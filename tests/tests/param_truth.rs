@@ -548,3 +548,37 @@ fn a_restore_whose_writes_go_unanswered_says_where_it_left_the_drive() {
     assert_both_put_back(&ussd, &ended, "(read back) after an unanswered write");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A commissioning engineer's quick commissioning of an MM4 through ussctl (issue 34.5): the
+/// simulated drive has the motor data, the output values and P0971 its family profile lists
+/// (before, each was "illegal PNU"). P0010 = 1 opens the motor data, P0971 = 1 keeps them over
+/// a power cycle.
+#[test]
+fn a_quick_commissioning_through_ussctl_reaches_every_parameter_it_names() {
+    let (_sim, ussd) = one_drive(&[]);
+    let step = |args: &[&str]| {
+        let (status, out, err) = ussd.ussctl(args).finish();
+        println!("param_truth: ussctl {}: {out}{err}", args.join(" "));
+        assert!(status.success(), "ussctl {args:?}: {out}{err}");
+        out
+    };
+    step(&["param", "write", "1", "P0003", "3"]);
+    step(&["param", "write", "1", "P0010", "1"]);
+    for (p, v) in [
+        ("P0100", "1"),
+        ("P0304", "400"),
+        ("P0305", "1.9"),
+        ("P0307", "0.75"),
+        ("P0311", "1395"),
+    ] {
+        step(&["param", "write", "1", p, v]);
+    }
+    step(&["param", "write", "1", "P0010", "0"]);
+    step(&["param", "write", "1", "P1300", "2"]);
+    step(&["param", "write", "1", "P0971", "1"]);
+    assert!(step(&["param", "read", "1", "P0304"]).contains("400 V"));
+    assert!(step(&["param", "read", "1", "P0305"]).contains("1.90 A"));
+    for r in ["r0025", "r0026", "r0027"] {
+        step(&["param", "read", "1", r]);
+    }
+}

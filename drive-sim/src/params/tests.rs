@@ -94,7 +94,7 @@ fn expert() -> ParamTable {
 
 #[test]
 fn definitions_are_sorted_unique_and_their_defaults_are_valid() {
-    for pair in DEFINITIONS.windows(2) {
+    for pair in MICROMASTER4.definitions().windows(2) {
         assert!(
             pair[0].pnu < pair[1].pnu,
             "{} before {}",
@@ -102,7 +102,7 @@ fn definitions_are_sorted_unique_and_their_defaults_are_valid() {
             pair[1].name
         );
     }
-    for def in DEFINITIONS {
+    for def in MICROMASTER4.definitions() {
         let number = &def.name[1..5];
         assert_eq!(number.parse::<u16>().unwrap(), def.pnu, "{}", def.name);
         let prefix = if def.is_read_only() { 'r' } else { 'P' };
@@ -305,7 +305,8 @@ fn descriptive_elements_give_type_elements_access_and_limits() {
     assert_eq!(d(&mut t, P2010, 8), dword(12));
     assert_eq!(d(&mut t, R0947, 2), word(8));
     assert_eq!(d(&mut t, R0947, 4), word(1));
-    assert_eq!(d(&mut t, R0021, 7), dword(0xC422_8000)); // -650.0
+    // An r parameter whose list gives no limits describes its type's whole range.
+    assert_eq!(d(&mut t, R0021, 7), dword((-f32::MAX).to_bits()));
 }
 
 #[test]
@@ -561,10 +562,17 @@ fn value_not_among_the_settings_is_error_104() {
         write(&mut t, P0700, Value::Word(3)),
         err(ErrorNumber::IllegalValue)
     );
+    // P0010 takes what the MM420 list names: 0, 1, 2, 29, 30.
     assert_eq!(
-        write(&mut t, P0010, Value::Word(2)),
+        write(&mut t, P0010, Value::Word(3)),
         err(ErrorNumber::IllegalValue)
     );
+    for setting in [2, 29, 0] {
+        assert_eq!(
+            write(&mut t, P0010, Value::Word(setting)),
+            ReplyKind::Word(setting)
+        );
+    }
     assert_eq!(
         write(&mut t, P1000, Value::Word(4)),
         err(ErrorNumber::IllegalValue)
@@ -788,13 +796,13 @@ fn get_f32_decodes_by_type() {
     t.set_internal(R0052, 0, 0xFB34);
     assert_eq!(t.get_f32(R0052, 0), Some(64_308.0));
     assert_eq!(t.get_f32(P1082, 1), None);
-    assert_eq!(t.get_f32(4, 0), None);
+    assert_eq!(t.get_f32(5, 0), None);
 }
 
 #[test]
 fn get_is_none_for_unknown_pnu_or_index() {
     let t = ParamTable::new();
-    assert_eq!(t.get(4, 0), None);
+    assert_eq!(t.get(5, 0), None);
     assert_eq!(t.get(P0700, 1), None);
     assert_eq!(t.get(P2010, 2), None);
     assert_eq!(t.get(R0947, 8), None);
@@ -819,7 +827,7 @@ fn set_internal_bypasses_every_check_in_ram_only() {
     );
     // Ignored silently for what does not exist.
     let before = t.clone();
-    t.set_internal(4, 0, 1);
+    t.set_internal(5, 0, 1);
     t.set_internal(R0947, 8, 1);
     assert_eq!(t, before);
     t.power_cycle();
@@ -844,7 +852,7 @@ fn set_commissioned_survives_power_cycle_but_not_for_read_only() {
 
 fn any_task() -> impl Strategy<Value = ParamTask> {
     let pnus = prop_oneof![
-        4 => (0..DEFINITIONS.len()).prop_map(|n| DEFINITIONS[n].pnu),
+        4 => (0..MICROMASTER4.definitions().len()).prop_map(|n| MICROMASTER4.definitions()[n].pnu),
         1 => any::<u16>(),
     ];
     let index = prop_oneof![3 => 0u8..9, 1 => 0u8..=Subindex::MAX];
@@ -915,7 +923,7 @@ proptest! {
                 let index = if matches!(task, ParamTask::WriteArray { .. }) { task.subindex() } else { 0 };
                 prop_assert_eq!(t.get(p.get(), index), Some(echo.as_u32()));
             }
-            for def in DEFINITIONS.iter().filter(|d| !d.is_read_only()) {
+            for def in MICROMASTER4.definitions().iter().filter(|d| !d.is_read_only()) {
                 for i in 0..def.slots() as u8 {
                     let raw = t.get(def.pnu, i).unwrap();
                     prop_assert_eq!(def.check_value(raw), Ok(()), "{} = {:#x}", def.name, raw);
@@ -923,4 +931,48 @@ proptest! {
             }
         }
     }
+}
+
+/// A commissioning master's quick commissioning of an MM420 (parameter list 6SE6400-5BA00-0BP0,
+/// typed in here, not read from the profile): P0010 = 1 opens the "C" motor data P0100, P0304,
+/// P0305, P0307, P0310, P0311; P1300 is "CT"; r0025, r0026, r0027 are the output voltage, the
+/// DC-link voltage and the output current (floats); P0971 = 1 stores RAM in EEPROM and reads 0
+/// again.
+#[test]
+fn a_quick_commissioning_writes_the_motor_data_and_saves_it() {
+    let mut t = expert();
+    assert_eq!(
+        write(&mut t, 304, Value::Word(400)),
+        err(ErrorNumber::NotInThisState),
+        "P0304 outside quick commissioning"
+    );
+    assert_eq!(write(&mut t, P0010, Value::Word(1)), ReplyKind::Word(1));
+    assert_eq!(write(&mut t, 100, Value::Word(1)), ReplyKind::Word(1));
+    assert_eq!(write(&mut t, 304, Value::Word(400)), ReplyKind::Word(400));
+    assert_eq!(
+        write(&mut t, 304, Value::Word(9)),
+        err(ErrorNumber::LimitExceeded),
+        "P0304 10..2000 V"
+    );
+    for (pnu, value) in [(305, 1.9f32), (307, 0.75), (310, 50.0)] {
+        assert_eq!(
+            write_f32(&mut t, pnu, value),
+            ReplyKind::Dword(value.to_bits()),
+            "P{pnu:04}"
+        );
+    }
+    assert_eq!(write(&mut t, 311, Value::Word(1395)), ReplyKind::Word(1395));
+    assert_eq!(write(&mut t, 1300, Value::Word(2)), ReplyKind::Word(2));
+    assert_eq!(write(&mut t, P0010, Value::Word(0)), ReplyKind::Word(0));
+    for r in [25, 26, 27] {
+        assert_eq!(read(&mut t, r), ReplyKind::Dword(0), "r{r:04} is a float");
+    }
+    // Kept only in RAM until P0971 = 1.
+    assert_eq!(write(&mut t, P0971, Value::Word(1)), ReplyKind::Word(1));
+    assert_eq!(read(&mut t, P0971), ReplyKind::Word(0));
+    t.power_cycle();
+    assert_eq!(t.get(304, 0), Some(400));
+    assert_eq!(t.get(311, 0), Some(1395));
+    assert_eq!(t.get(1300, 0), Some(2));
+    assert_eq!(t.get_f32(305, 0), Some(1.9));
 }
