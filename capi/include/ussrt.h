@@ -155,6 +155,25 @@ typedef enum UssrtStatus {
 } UssrtStatus;
 
 /**
+ * Jog directions of [`ussrt_control_jog`] (STW1 bit 8 right, bit 9 left).
+ */
+enum UssrtJog
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  USSRT_JOG_RIGHT = 1,
+  USSRT_JOG_LEFT = 2,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssrtJog UssrtJog;
+#else
+typedef uint8_t UssrtJog;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
  * An open bus (opaque): made by [`ussrt_bus_open`], owned by the caller until
  * [`ussrt_bus_close`]. Usable from several threads at once.
  */
@@ -385,6 +404,33 @@ void ussrt_bus_close(struct UssrtBus *bus);
 enum UssrtStatus ussrt_bus_drives(const struct UssrtBus *bus, uint32_t *drives);
 
 /**
+ * Whether ussd serves the bus now: `OK`, or why not (`USSD_GONE`, `USSD_STOPPED`,
+ * `LINE_DOWN`, with the message saying since when).
+ *
+ * # Safety
+ * `bus` is a live handle.
+ */
+enum UssrtStatus ussrt_bus_health(const struct UssrtBus *bus);
+
+/**
+ * Reads the bus's status as ussd publishes it (`UssBusStatus` of `uss_shm_types.h`: counters,
+ * line state, exchange times, the bus thread's scheduling) into `*status`.
+ *
+ * # Safety
+ * `bus` is a live handle; `status` points to writable memory for one `UssBusStatus`.
+ */
+enum UssrtStatus ussrt_bus_status(const struct UssrtBus *bus, UssBusStatus *status);
+
+/**
+ * Reads drive `address`'s diagnostics as ussd publishes them (`UssDriveDiag`: its counters,
+ * its configuration `info`, its link) into `*diag`.
+ *
+ * # Safety
+ * `bus` is a live handle; `diag` points to writable memory for one `UssDriveDiag`.
+ */
+enum UssrtStatus ussrt_drive_diag(const struct UssrtBus *bus, uint8_t address, UssDriveDiag *diag);
+
+/**
  * Reads drive `address`'s latest input image and what it means into `*drive`. Never blocks on
  * ussd; a stale image (ussd gone, stopped, line down) is returned with `stale = 1` and the
  * status `OK`: the caller decides.
@@ -538,6 +584,24 @@ enum UssrtStatus ussrt_control_enable(const struct UssrtController *controller);
 enum UssrtStatus ussrt_control_run_hz(const struct UssrtController *controller, float hz);
 
 /**
+ * A new setpoint in Hz, the control word as it is: a running drive follows it, a stopped one
+ * stays stopped.
+ *
+ * # Safety
+ * `controller` is a live handle.
+ */
+enum UssrtStatus ussrt_control_set_hz(const struct UssrtController *controller, float hz);
+
+/**
+ * Jogs (`USSRT_JOG_RIGHT` or `USSRT_JOG_LEFT`) at the drive's jog frequency (P1058/P1059)
+ * while the calls keep coming; [`ussrt_control_stop`] ends it.
+ *
+ * # Safety
+ * `controller` is a live handle.
+ */
+enum UssrtStatus ussrt_control_jog(const struct UssrtController *controller, uint8_t direction);
+
+/**
  * ON with a setpoint in % of the reference (-200..+199.99).
  *
  * # Safety
@@ -646,6 +710,23 @@ enum UssrtStatus ussrt_param_read(const struct UssrtBus *bus,
                                   uint8_t address,
                                   const char *param,
                                   struct UssrtValue *value);
+
+/**
+ * Reads every element of an array parameter named without one (`"r0947"`: all 8), or the one
+ * element or plain parameter named, each as its own type, into `values[0..]`; `*count` gets
+ * how many. `INVALID_ARGUMENT` when `capacity` is smaller than the parameter's elements
+ * (`*count` then says how many it has; nothing is read).
+ *
+ * # Safety
+ * `bus` is a live handle; `param` a NUL-terminated string; `values` writable memory for
+ * `capacity` `UssrtValue`s; `count` writable memory for one `size_t`.
+ */
+enum UssrtStatus ussrt_param_read_elements(const struct UssrtBus *bus,
+                                           uint8_t address,
+                                           const char *param,
+                                           struct UssrtValue *values,
+                                           uintptr_t capacity,
+                                           uintptr_t *count);
 
 /**
  * Writes `text` (`"45"`, `"2.5"`, `"0x1F"`) to `param`, converted to the parameter's own type;

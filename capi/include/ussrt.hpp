@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <stdexcept>
 #include <string>
+#include <vector>
 #include <utility>
 
 #include "ussrt.h"
@@ -66,6 +67,20 @@ public:
     check(ussrt_drive_read(bus_, address, &d));
     return d;
   }
+  /// Throws USSD_GONE, USSD_STOPPED or LINE_DOWN unless ussd serves the bus now.
+  void health() const { check(ussrt_bus_health(bus_)); }
+  /// The bus's status as ussd publishes it (counters, line state, exchange times).
+  UssBusStatus status() const {
+    UssBusStatus s;
+    check(ussrt_bus_status(bus_, &s));
+    return s;
+  }
+  /// The drive's diagnostics as ussd publishes them (counters, configuration, link).
+  UssDriveDiag diag(uint8_t address) const {
+    UssDriveDiag d;
+    check(ussrt_drive_diag(bus_, address, &d));
+    return d;
+  }
   /// Waits for the drive's next exchange (throws TIMEOUT after timeout_ms).
   void wait_exchange(uint8_t address, uint32_t timeout_ms) const {
     check(ussrt_wait_exchange(bus_, address, timeout_ms));
@@ -75,6 +90,21 @@ public:
     UssrtValue v;
     check(ussrt_param_read(bus_, address, param.c_str(), &v));
     return v;
+  }
+  /// Every element of an array parameter named without one ("r0947"), or the one named.
+  std::vector<UssrtValue> read_elements(uint8_t address, const std::string &param) const {
+    std::vector<UssrtValue> values(1);
+    size_t count = 0;
+    UssrtStatus s = ussrt_param_read_elements(bus_, address, param.c_str(), values.data(),
+                                              values.size(), &count);
+    if (s == USSRT_STATUS_INVALID_ARGUMENT && count > values.size()) {
+      values.resize(count);
+      s = ussrt_param_read_elements(bus_, address, param.c_str(), values.data(), values.size(),
+                                    &count);
+    }
+    check(s);
+    values.resize(count);
+    return values;
   }
   /// Writes text converted to the parameter's type; returns what the drive holds.
   UssrtValue write(uint8_t address, const std::string &param, const std::string &value,
@@ -124,6 +154,10 @@ public:
   void enable() { check(ussrt_control_enable(c_)); }
   void run_hz(float hz) { check(ussrt_control_run_hz(c_, hz)); }
   void run_percent(float percent) { check(ussrt_control_run_percent(c_, percent)); }
+  /// A new setpoint, the control word as it is.
+  void set_hz(float hz) { check(ussrt_control_set_hz(c_, hz)); }
+  /// Jogs while the calls keep coming; stop() ends it.
+  void jog(UssrtJog direction) { check(ussrt_control_jog(c_, static_cast<uint8_t>(direction))); }
   void stop() { check(ussrt_control_stop(c_)); }
   void coast() { check(ussrt_control_coast(c_)); }
   void quick_stop() { check(ussrt_control_quick_stop(c_)); }

@@ -8,7 +8,7 @@ use core::time::Duration;
 use std::collections::HashMap;
 use std::sync::{Mutex, PoisonError};
 use std::time::Instant;
-use uss_client::{Bus, CycleEvent, CycleListener, DriveState, DriveWatch, PzdInput, StopCommand};
+use uss_client::{Bus, CycleEvent, CycleListener, DriveWatch, PzdInput, StopCommand};
 
 /// An open bus (opaque): made by [`ussrt_bus_open`], owned by the caller until
 /// [`ussrt_bus_close`]. Usable from several threads at once.
@@ -44,18 +44,6 @@ pub struct UssrtDrive {
     pub watchdog_ms: u32,
 }
 
-fn state_code(state: DriveState) -> u8 {
-    match state {
-        DriveState::SwitchingOnInhibited => 1,
-        DriveState::ReadyToSwitchOn => 2,
-        DriveState::ReadyForOperation => 3,
-        DriveState::OperationEnabled => 4,
-        DriveState::SwitchingOff => 5,
-        DriveState::Fault => 6,
-        DriveState::NotReady => 0,
-    }
-}
-
 impl UssrtDrive {
     pub(crate) fn of(watch: &DriveWatch) -> Self {
         let look = watch.snapshot();
@@ -64,7 +52,7 @@ impl UssrtDrive {
             image,
             stale: u8::from(look.problem.is_some()),
             live: u8::from(image.is_live()),
-            state: state_code(uss_client::state_of(&image)),
+            state: uss_client::state_of(&image).code(),
             reserved: 0,
             actual_hz: uss_client::Setpoint::from_word(image.hiw).hz(look.info.reference_hz),
             reference_hz: look.info.reference_hz,
@@ -145,6 +133,59 @@ pub unsafe extern "C" fn ussrt_bus_drives(bus: *const UssrtBus, drives: *mut u32
             .drives()
             .iter()
             .fold(0u32, |m, &a| m | 1u32 << a.get());
+        Ok(())
+    })
+}
+
+/// Whether ussd serves the bus now: `OK`, or why not (`USSD_GONE`, `USSD_STOPPED`,
+/// `LINE_DOWN`, with the message saying since when).
+///
+/// # Safety
+/// `bus` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_bus_health(bus: *const UssrtBus) -> UssrtStatus {
+    guard(|| {
+        let bus = &arg(bus, "bus")?.bus;
+        match bus.health().error(bus.name()) {
+            Some(e) => Err(e.into()),
+            None => Ok(()),
+        }
+    })
+}
+
+/// Reads the bus's status as ussd publishes it (`UssBusStatus` of `uss_shm_types.h`: counters,
+/// line state, exchange times, the bus thread's scheduling) into `*status`.
+///
+/// # Safety
+/// `bus` is a live handle; `status` points to writable memory for one `UssBusStatus`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_bus_status(
+    bus: *const UssrtBus,
+    status: *mut uss_client::BusStatus,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let status = out(status, "status")?;
+        *status = bus.bus.status()?;
+        Ok(())
+    })
+}
+
+/// Reads drive `address`'s diagnostics as ussd publishes them (`UssDriveDiag`: its counters,
+/// its configuration `info`, its link) into `*diag`.
+///
+/// # Safety
+/// `bus` is a live handle; `diag` points to writable memory for one `UssDriveDiag`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_drive_diag(
+    bus: *const UssrtBus,
+    address: u8,
+    diag: *mut uss_client::DriveDiag,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let diag = out(diag, "diag")?;
+        *diag = bus.bus.diag(drive(address)?)?;
         Ok(())
     })
 }

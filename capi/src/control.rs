@@ -9,7 +9,7 @@ use crate::bus::{UssrtBus, UssrtDrive};
 use crate::error::{Failure, arg, drive, guard, out};
 use core::time::Duration;
 use std::sync::{Arc, Mutex, PoisonError};
-use uss_client::{ControlOptions, Controller, DriveState, Setpoint};
+use uss_client::{ControlOptions, Controller, DriveState};
 
 /// The one controller of a drive (opaque): made by [`ussrt_control_open`], owned by the caller
 /// until [`ussrt_control_close`]. Usable from several threads at once: a call never waits for
@@ -36,6 +36,17 @@ impl UssrtController {
                 address: self.address,
             })
         })
+    }
+}
+
+/// `x` when it is a finite number of `unit`; `INVALID_ARGUMENT` otherwise.
+fn finite(x: f32, unit: &str) -> Result<f32, Failure> {
+    if x.is_finite() {
+        Ok(x)
+    } else {
+        Err(Failure::Argument(format!(
+            "{x} {unit} is not a finite number"
+        )))
     }
 }
 
@@ -208,11 +219,51 @@ pub unsafe extern "C" fn ussrt_control_run_hz(
     controller: *const UssrtController,
     hz: f32,
 ) -> UssrtStatus {
+    with(controller, |c| Ok(c.run_hz(finite(hz, "Hz")?)?))
+}
+
+/// A new setpoint in Hz, the control word as it is: a running drive follows it, a stopped one
+/// stays stopped.
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_set_hz(
+    controller: *const UssrtController,
+    hz: f32,
+) -> UssrtStatus {
+    with(controller, |c| Ok(c.set_hz(finite(hz, "Hz")?)?))
+}
+
+/// Jog directions of [`ussrt_control_jog`] (STW1 bit 8 right, bit 9 left).
+#[repr(u8)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UssrtJog {
+    Right = 1,
+    Left = 2,
+}
+
+/// Jogs (`USSRT_JOG_RIGHT` or `USSRT_JOG_LEFT`) at the drive's jog frequency (P1058/P1059)
+/// while the calls keep coming; [`ussrt_control_stop`] ends it.
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_jog(
+    controller: *const UssrtController,
+    direction: u8,
+) -> UssrtStatus {
     with(controller, |c| {
-        if !hz.is_finite() {
-            return Err(Failure::Argument(format!("{hz} Hz is not a finite number")));
-        }
-        Ok(c.run_hz(hz)?)
+        let direction = match direction {
+            d if d == UssrtJog::Right as u8 => uss_client::Jog::Right,
+            d if d == UssrtJog::Left as u8 => uss_client::Jog::Left,
+            other => {
+                return Err(Failure::Argument(format!(
+                    "{other} is no jog direction: USSRT_JOG_RIGHT (1) or USSRT_JOG_LEFT (2)"
+                )));
+            }
+        };
+        Ok(c.jog(direction)?)
     })
 }
 
@@ -225,14 +276,7 @@ pub unsafe extern "C" fn ussrt_control_run_percent(
     controller: *const UssrtController,
     percent: f32,
 ) -> UssrtStatus {
-    with(controller, |c| {
-        if !percent.is_finite() {
-            return Err(Failure::Argument(format!(
-                "{percent} % is not a finite number"
-            )));
-        }
-        Ok(c.run_setpoint(Setpoint::from_percent(percent))?)
-    })
+    with(controller, |c| Ok(c.run_percent(finite(percent, "%")?)?))
 }
 
 /// OFF1: ramp down, then S2 (STW1 0x047E).
@@ -330,17 +374,9 @@ pub unsafe extern "C" fn ussrt_control_wait_state(
     timeout_ms: u32,
 ) -> UssrtStatus {
     with(controller, |c| {
-        let wanted = match state {
-            1 => DriveState::SwitchingOnInhibited,
-            2 => DriveState::ReadyToSwitchOn,
-            3 => DriveState::ReadyForOperation,
-            4 => DriveState::OperationEnabled,
-            other => {
-                return Err(Failure::Argument(format!(
-                    "state {other}: wait for 1..4 (S1..S4)"
-                )));
-            }
-        };
+        let wanted = DriveState::of_code(state)
+            .filter(|s| (1..=4).contains(&s.code()))
+            .ok_or_else(|| Failure::Argument(format!("state {state}: wait for 1..4 (S1..S4)")))?;
         c.wait_for_state(wanted, Duration::from_millis(u64::from(timeout_ms)))?;
         Ok(())
     })

@@ -179,6 +179,51 @@ pub unsafe extern "C" fn ussrt_param_read(
     })
 }
 
+/// Reads every element of an array parameter named without one (`"r0947"`: all 8), or the one
+/// element or plain parameter named, each as its own type, into `values[0..]`; `*count` gets
+/// how many. `INVALID_ARGUMENT` when `capacity` is smaller than the parameter's elements
+/// (`*count` then says how many it has; nothing is read).
+///
+/// # Safety
+/// `bus` is a live handle; `param` a NUL-terminated string; `values` writable memory for
+/// `capacity` `UssrtValue`s; `count` writable memory for one `size_t`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_read_elements(
+    bus: *const UssrtBus,
+    address: u8,
+    param: *const c_char,
+    values: *mut UssrtValue,
+    capacity: usize,
+    count: *mut usize,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let count = out(count, "count")?;
+        let param = param_ref(param)?;
+        let drive = drive(address)?;
+        // An array the catalogue knows is read whole; anything else is one value.
+        let needed = match bus.bus.catalogue_entry(drive, param.pnu) {
+            Some(p) if param.index.is_none() && p.is_array() => usize::from(p.array),
+            _ => 1,
+        };
+        *count = needed;
+        if capacity < needed {
+            return Err(Failure::Argument(format!(
+                "{param} has {needed} elements: give room for them (capacity {capacity})"
+            )));
+        }
+        out(values, "values")?;
+        let read = bus.bus.read_elements(drive, param)?;
+        // SAFETY: non-NULL (checked) and `capacity` values long (as documented).
+        let values = unsafe { core::slice::from_raw_parts_mut(values, capacity) };
+        for (slot, v) in values.iter_mut().zip(&read) {
+            *slot = value_of(v);
+        }
+        *count = read.len();
+        Ok(())
+    })
+}
+
 /// Writes `text` (`"45"`, `"2.5"`, `"0x1F"`) to `param`, converted to the parameter's own type;
 /// what does not fit, or a read-only parameter, is refused before the bus (`VALUE`). `flags`:
 /// `USSRT_WRITE_EEPROM`, `USSRT_WRITE_FORCE`, `USSRT_WRITE_UNSAFE`. `*held` (may be NULL) gets the value the drive

@@ -43,10 +43,17 @@ fn config() -> cbindgen::Config {
         ..cbindgen::Config::default()
     };
     c.enumeration.rename_variants = cbindgen::RenameRule::QualifiedScreamingSnakeCase;
-    c.export.rename = [("PzdInput".to_owned(), "UssPzdInput".to_owned())]
-        .into_iter()
-        .collect();
-    c.export.exclude = vec!["PzdInput".into()];
+    // The contract's types are uss_shm_types.h's.
+    c.export.rename = [
+        ("PzdInput".to_owned(), "UssPzdInput".to_owned()),
+        ("BusStatus".to_owned(), "UssBusStatus".to_owned()),
+        ("DriveDiag".to_owned(), "UssDriveDiag".to_owned()),
+    ]
+    .into_iter()
+    .collect();
+    c.export.exclude = vec!["PzdInput".into(), "BusStatus".into(), "DriveDiag".into()];
+    // Taken as a plain byte (a C caller may pass any value), named for C all the same.
+    c.export.include = vec!["UssrtJog".into()];
     c
 }
 

@@ -502,6 +502,13 @@ impl Controller {
         })
     }
 
+    /// Changes only the setpoint, in Hz of the drive's reference frequency as ussd publishes it
+    /// (STW1 stays as it is: a running drive follows it, a stopped one stays stopped).
+    pub fn set_hz(&self, hz: f32) -> Result<(), ClientError> {
+        let reference_hz = self.shared.watch.info().reference_hz;
+        self.set_setpoint(Setpoint::from_hz(hz, reference_hz))
+    }
+
     /// Changes only the setpoint (STW1 stays as it is).
     pub fn set_setpoint(&self, setpoint: Setpoint) -> Result<(), ClientError> {
         self.shared.publish(|w| set_word(w, 1, setpoint.word()))

@@ -123,6 +123,35 @@ impl DriveState {
             Self::NotReady => "not ready",
         }
     }
+
+    /// Every state, by [`DriveState::code`].
+    pub const ALL: [Self; 7] = [
+        Self::NotReady,
+        Self::SwitchingOnInhibited,
+        Self::ReadyToSwitchOn,
+        Self::ReadyForOperation,
+        Self::OperationEnabled,
+        Self::SwitchingOff,
+        Self::Fault,
+    ];
+
+    /// The number every front-end gives the state: 1..5 for S1..S5, 6 fault, 0 not ready.
+    pub const fn code(self) -> u8 {
+        match self {
+            Self::NotReady => 0,
+            Self::SwitchingOnInhibited => 1,
+            Self::ReadyToSwitchOn => 2,
+            Self::ReadyForOperation => 3,
+            Self::OperationEnabled => 4,
+            Self::SwitchingOff => 5,
+            Self::Fault => 6,
+        }
+    }
+
+    /// The state numbered `code` ([`DriveState::code`]).
+    pub fn of_code(code: u8) -> Option<Self> {
+        Self::ALL.get(usize::from(code)).copied()
+    }
 }
 
 /// A main setpoint (HSW) or main actual value (HIW): signed 16 bit, 0x4000 = 100 % of the

@@ -11,9 +11,10 @@ use uss_client::{
     ClientError, ControlOptions, Controller as RustController, DEFAULT_REFRESH, Refresher,
 };
 
-/// The one controller of a drive. Its threads call it at once: no lock is held through a call,
-/// so a stop never waits behind another thread's wait (docs/SAFETY.md, STOP-NOWAIT).
-#[pyclass(frozen, module = "uss_rt._native")]
+/// The one controller of a drive: `uss_rt.Controller` is this class with the images' codes as
+/// enums. Its threads call it at once: no lock is held through a call, so a stop never waits
+/// behind another thread's wait (docs/SAFETY.md, STOP-NOWAIT).
+#[pyclass(frozen, subclass, module = "uss_rt._native")]
 pub(crate) struct Controller {
     /// `None` once released; held only to take a reference, never through a call.
     inner: Mutex<Option<(Arc<RustController>, Refresher)>>,
@@ -60,31 +61,34 @@ impl Controller {
     }
 }
 
-/// Takes exclusive control of drive `address`; a refresher thread (every quarter of the drive's
-/// watchdog time, at most every 20 ms) fills the gaps between the program's own calls while they
-/// come within the watchdog time.
-#[pyfunction]
-pub(crate) fn control(
-    py: Python<'_>,
-    bus: &Bound<'_, NativeBus>,
-    address: u8,
-) -> PyResult<Controller> {
-    let rust_bus = &bus.get().inner;
-    let drive = errors::drive(py, address)?;
-    let opened = py.detach(|| rust_bus.control(drive, ControlOptions::default()));
-    let c = opened.map_err(|e| errors::client(py, e))?;
-    let refresher = c.spawn_refresher(DEFAULT_REFRESH);
-    let pzd = c.words().len();
-    Ok(Controller {
-        inner: Mutex::new(Some((Arc::new(c), refresher))),
-        bus: rust_bus.name().to_owned(),
-        address,
-        pzd,
-    })
-}
-
 #[pymethods]
 impl Controller {
+    /// Takes exclusive control of drive `address`; a refresher thread (every quarter of the
+    /// drive's watchdog time, at most every 20 ms) fills the gaps between the program's own
+    /// calls while they come within the watchdog time.
+    #[new]
+    #[pyo3(signature = (bus, address, *_args, **_kwargs))]
+    fn new(
+        py: Python<'_>,
+        bus: &Bound<'_, NativeBus>,
+        address: u8,
+        _args: &Bound<'_, pyo3::types::PyTuple>,
+        _kwargs: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        let rust_bus = &bus.get().inner;
+        let drive = errors::drive(py, address)?;
+        let opened = py.detach(|| rust_bus.control(drive, ControlOptions::default()));
+        let c = opened.map_err(|e| errors::client(py, e))?;
+        let refresher = c.spawn_refresher(DEFAULT_REFRESH);
+        let pzd = c.words().len();
+        Ok(Self {
+            inner: Mutex::new(Some((Arc::new(c), refresher))),
+            bus: rust_bus.name().to_owned(),
+            address,
+            pzd,
+        })
+    }
+
     #[getter]
     fn address(&self) -> u8 {
         self.address
@@ -101,7 +105,8 @@ impl Controller {
         self.controller().map(|c| c.words()).unwrap_or_default()
     }
 
-    /// The reference frequency P2000 ussd publishes now.
+    /// The reference frequency P2000 ussd publishes now (0x4000 = 100 %): the drive's own value
+    /// once ussd has read it, until then the configuration's `reference_hz`.
     #[getter]
     fn reference_hz(&self, py: Python<'_>) -> PyResult<f32> {
         self.with(py, |c| Ok(c.inputs().info().reference_hz))
@@ -133,42 +138,77 @@ impl Controller {
         self.inputs(py)
     }
 
-    /// The program's refresh: the current words again.
+    /// The control loop's refresh: the current words again.
     fn keepalive(&self, py: Python<'_>) -> PyResult<()> {
         self.with(py, RustController::keepalive)
     }
 
+    /// OFF1 (STW1 0x047E): S1 -> S2; stops a running drive. It re-arms nothing: a latched drive
+    /// needs `rearm`.
     fn enable(&self, py: Python<'_>) -> PyResult<()> {
         self.with(py, RustController::enable)
     }
 
+    /// ON (STW1 0x047F) with a setpoint in Hz, scaled by the reference frequency P2000 that
+    /// ussd publishes (`reference_hz`).
     fn run_hz(&self, py: Python<'_>, hz: f32) -> PyResult<()> {
-        if !hz.is_finite() {
-            return Err(pyo3::exceptions::PyValueError::new_err(format!(
-                "{hz} Hz is not a finite number"
-            )));
-        }
+        let hz = finite(hz, "Hz")?;
         self.with(py, |c| c.run_hz(hz))
     }
 
+    /// ON with a setpoint in % of the reference frequency (-200 .. +199.99).
+    fn run_percent(&self, py: Python<'_>, percent: f32) -> PyResult<()> {
+        let percent = finite(percent, "%")?;
+        self.with(py, |c| c.run_percent(percent))
+    }
+
+    /// A new setpoint in Hz, the control word as it is: a running drive follows it, a stopped
+    /// one stays stopped.
+    fn set_hz(&self, py: Python<'_>, hz: f32) -> PyResult<()> {
+        let hz = finite(hz, "Hz")?;
+        self.with(py, |c| c.set_hz(hz))
+    }
+
+    /// Jogs (STW1 bit 8 `"right"`, bit 9 `"left"`) at the drive's jog frequency (P1058/P1059)
+    /// while the calls keep coming; `stop` ends it.
+    #[pyo3(signature = (direction = "right"))]
+    fn jog(&self, py: Python<'_>, direction: &str) -> PyResult<()> {
+        let direction = match direction {
+            "right" => uss_client::Jog::Right,
+            "left" => uss_client::Jog::Left,
+            other => {
+                return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                    "{other:?} is no jog direction: \"right\" or \"left\""
+                )));
+            }
+        };
+        self.with(py, |c| c.jog(direction))
+    }
+
+    /// OFF1: ramp down, then S2.
     fn stop(&self, py: Python<'_>) -> PyResult<()> {
         self.with(py, RustController::stop)
     }
 
+    /// OFF2: pulses off at once, the motor coasts.
     fn coast(&self, py: Python<'_>) -> PyResult<()> {
         self.with(py, RustController::coast)
     }
 
+    /// OFF3: the quick-stop ramp.
     fn quick_stop(&self, py: Python<'_>) -> PyResult<()> {
         self.with(py, RustController::quick_stop)
     }
 
-    fn reverse(&self, py: Python<'_>, reverse: bool) -> PyResult<()> {
+    /// Sets or clears the reverse bit (STW1 bit 11).
+    #[pyo3(signature = (reverse = None))]
+    fn reverse(&self, py: Python<'_>, reverse: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+        let reverse = reverse.map_or(Ok(true), Bound::is_truthy)?;
         self.with(py, |c| c.reverse(reverse))
     }
 
-    /// A rising edge of STW1 bit 7 until the drive received it (at most `timeout` s; `None`:
-    /// the drive's handshake time), then OFF1.
+    /// Acknowledges a fault: a rising edge of STW1 bit 7 until the drive received it (at most
+    /// `timeout` s; `None`: the drive's handshake time, `handshake()`), then OFF1.
     #[pyo3(signature = (timeout=None))]
     fn acknowledge(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<()> {
         let timeout = timeout.map(duration).transpose()?;
@@ -177,12 +217,14 @@ impl Controller {
         })
     }
 
-    /// How long a call waits for what the drive's next poll brings, s (ussd's freshness limit
-    /// for the drive, at least 1 s).
+    /// How long a call waits for what the drive's next poll brings, s: ussd's freshness limit
+    /// for the drive (its turn in the circulating list and the poll with its retries), at least
+    /// 1 s. A full line at 9600 baud polls each drive only every 1.3 s.
     fn handshake(&self, py: Python<'_>) -> PyResult<f64> {
         self.with(py, |c| Ok(c.inputs().handshake().as_secs_f64()))
     }
 
+    /// Sends the PZD `words` as they are (STW1 first, bit 10 set, the drive's length).
     #[allow(clippy::needless_pass_by_value)] // PyO3 extracts a Python list as a Vec
     fn set_words(&self, py: Python<'_>, words: Vec<u16>) -> PyResult<()> {
         self.with(py, |c| c.set_words(&words))
@@ -220,8 +262,8 @@ impl Controller {
         image_dict(py, address, &waited?, "running")
     }
 
-    /// Hands the drive back: ussd sends its safe command, "released" (not a trip). Later calls
-    /// raise; a second release does nothing.
+    /// Hands the drive back cleanly: ussd sends its safe command and shows it "released", which
+    /// is not a watchdog trip. Later calls raise; a second release does nothing.
     fn release(&self, py: Python<'_>) -> PyResult<()> {
         let taken = self.held().take();
         let Some((c, refresher)) = taken else {
@@ -234,6 +276,35 @@ impl Controller {
         released.map_err(|e| errors::client(py, e))
     }
 
+    /// Waits until the drive shows PROFIdrive state `state` (1..4 for S1..S4, 6 fault),
+    /// refreshing the watchdog meanwhile; raises Tripped as soon as the drive latches,
+    /// `WaitTimeout` after `timeout` s. The image that showed it.
+    fn wait_for_state<'py>(
+        &self,
+        py: Python<'py>,
+        state: u8,
+        timeout: f64,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let wanted = drive_state(state)?;
+        let timeout = duration(timeout)?;
+        let image = self.with(py, |c| c.wait_for_state(wanted, timeout))?;
+        image_dict(py, self.address, &image, "running")
+    }
+
+    fn __enter__(slf: Py<Self>) -> Py<Self> {
+        slf
+    }
+
+    fn __exit__(
+        &self,
+        py: Python<'_>,
+        _kind: &Bound<'_, PyAny>,
+        _value: &Bound<'_, PyAny>,
+        _trace: &Bound<'_, PyAny>,
+    ) -> PyResult<()> {
+        self.release(py)
+    }
+
     fn __repr__(&self) -> String {
         let stw1 = self.words().first().copied().unwrap_or(0);
         format!(
@@ -241,4 +312,27 @@ impl Controller {
             self.bus, self.address
         )
     }
+}
+
+/// `x` when it is a finite number of `unit`; a `ValueError` otherwise.
+fn finite(x: f32, unit: &str) -> PyResult<f32> {
+    if x.is_finite() {
+        Ok(x)
+    } else {
+        Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "{x} {unit} is not a finite number"
+        )))
+    }
+}
+
+/// A PROFIdrive state by its number (`DriveState::code`: 1..4 for S1..S4, 6 fault), as every
+/// front-end numbers it.
+fn drive_state(code: u8) -> PyResult<uss_client::DriveState> {
+    uss_client::DriveState::of_code(code)
+        .filter(|s| s.code() != 0)
+        .ok_or_else(|| {
+            pyo3::exceptions::PyValueError::new_err(format!(
+                "{code} is no drive state: 1..4 for S1..S4, 5 switching off, 6 fault"
+            ))
+        })
 }

@@ -264,6 +264,28 @@ fn wait_stopped<'py>(
     image_dict(py, address, &image, state)
 }
 
+/// Waits (at most `timeout` s, without the GIL) for `count` more exchanges with drive
+/// `address`, so a loop runs in step with the bus; the image after them. Raises `WaitTimeout`
+/// when they do not come, `UssdGone`, `UssdStopped` or `LineDown` when ussd does not poll.
+#[pyfunction]
+#[pyo3(signature = (bus, address, count=1, timeout=1.0))]
+fn wait_exchange<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, Bus>,
+    address: u8,
+    count: u64,
+    timeout: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    let timeout = duration(timeout)?;
+    let bus = bus.get();
+    let drive = errors::drive(py, address)?;
+    // A watch of its own: the bus's are not held through a wait (another thread's read).
+    let image = py
+        .detach(|| bus.inner.watch(drive)?.wait_exchanges(count, timeout))
+        .map_err(|e| errors::client(py, e))?;
+    image_dict(py, address, &image, "running")
+}
+
 pub(crate) fn duration(seconds: f64) -> PyResult<Duration> {
     Duration::try_from_secs_f64(seconds)
         .map_err(|_| PyValueError::new_err(format!("{seconds}: give a number of seconds >= 0")))
@@ -321,8 +343,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(stop_drive, m)?)?;
     m.add_function(wrap_pyfunction!(stop_all, m)?)?;
     m.add_function(wrap_pyfunction!(wait_stopped, m)?)?;
+    m.add_function(wrap_pyfunction!(wait_exchange, m)?)?;
     m.add_function(wrap_pyfunction!(code_tables, m)?)?;
-    m.add_function(wrap_pyfunction!(control::control, m)?)?;
     params::register(m)?;
     Ok(())
 }

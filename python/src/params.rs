@@ -174,6 +174,41 @@ fn read<'py>(
     })
 }
 
+/// Reads every element of an array parameter named without one (r0947: all 8), or the one
+/// element or plain parameter named, each as its own type.
+#[pyfunction]
+#[pyo3(signature = (bus, address, param, timeout=7.5))]
+fn read_elements<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+    param: &str,
+    timeout: f64,
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    let (bus, drive, param) = answering(py, bus, address, param, timeout)?;
+    let values = py
+        .detach(|| bus.read_elements(drive, param))
+        .map_err(|e| errors::param(py, &bus, address, e))?;
+    values.iter().map(|v| value_dict(py, v)).collect()
+}
+
+/// The bus answering within `timeout` s, the drive and the parameter a call names.
+fn answering(
+    py: Python<'_>,
+    bus: &Bound<'_, NativeBus>,
+    address: u8,
+    param: &str,
+    timeout: f64,
+) -> PyResult<(uss_client::Bus, Address, ParamRef)> {
+    let param = param_ref(param)?;
+    let drive = errors::drive(py, address)?;
+    let bus = bus
+        .get()
+        .inner
+        .with_answer_timeout(Some(duration(timeout)?));
+    Ok((bus, drive, param))
+}
+
 /// A typed parameter call `f` of `param`, answered within `timeout` s, without the GIL.
 fn typed<'py>(
     py: Python<'py>,
@@ -184,12 +219,7 @@ fn typed<'py>(
     f: impl FnOnce(&uss_client::Bus, Address, ParamRef) -> Result<ParamValue, uss_client::ParamError>
     + Send,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let param = param_ref(param)?;
-    let drive = errors::drive(py, address)?;
-    let bus = bus
-        .get()
-        .inner
-        .with_answer_timeout(Some(duration(timeout)?));
+    let (bus, drive, param) = answering(py, bus, address, param, timeout)?;
     let value = py
         .detach(|| f(&bus, drive, param))
         .map_err(|e| errors::param(py, &bus, address, e))?;
@@ -302,6 +332,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_param, m)?)?;
     m.add_function(wrap_pyfunction!(batch, m)?)?;
     m.add_function(wrap_pyfunction!(read, m)?)?;
+    m.add_function(wrap_pyfunction!(read_elements, m)?)?;
     m.add_function(wrap_pyfunction!(write, m)?)?;
     m.add_function(wrap_pyfunction!(fault_report, m)?)?;
     m.add_function(wrap_pyfunction!(parse_param, m)?)?;

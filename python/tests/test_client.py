@@ -322,6 +322,44 @@ def test_python_takes_control_runs_stops_and_releases_a_drive(bus):
     uss_rt.control(bus, 1).release()  # free again
 
 
+def test_python_has_the_calls_rust_and_c_have(bus):
+    """run_percent, set_hz, jog, reverse, wait_for_state and wait_exchange, as in Rust and C."""
+    uss_rt.write(bus, 1, "P1120", 0.5)
+    uss_rt.write(bus, 1, "P1121", 0.5)
+    with uss_rt.control(bus, 1) as c:
+        assert isinstance(c, uss_rt.Controller) and c.address == 1 and c.bus is bus
+        c.rearm()
+        c.enable()
+        assert c.wait_for_state(2)["control"] == uss_rt.ControlState.LIVE
+        c.run_percent(25)
+        c.wait_for(lambda i: i["hiw"] == 0x1000, what="25 %")
+        c.set_hz(10)  # the setpoint only: the drive keeps running
+        image = c.wait_for(lambda i: abs(i["hiw"] - 0x0CCD) <= 1, what="10 Hz")
+        assert image["sent_stw1"] == 0x047F
+        c.reverse()
+        c.wait_for(lambda i: i["sent_stw1"] == 0x0C7F, what="reversed")
+        c.reverse(0)
+        c.stop()
+        c.wait_for_state(2)
+        c.set_hz(20)  # a stopped drive stays stopped
+        after = uss_rt.wait_exchange(bus, 1, count=2)
+        assert after["sent_stw1"] == 0x047E and after["hiw"] == 0
+        c.jog("right")
+        c.wait_for(lambda i: i["sent_stw1"] == 0x057E, what="jog right")
+        c.stop()
+        with pytest.raises(ValueError, match="no jog direction"):
+            c.jog("up")
+        with pytest.raises(ValueError, match="no drive state"):
+            c.wait_for_state(9)
+        with pytest.raises(ValueError, match="not a finite number"):
+            c.run_percent(float("nan"))
+    with pytest.raises(uss_rt.WaitTimeout):
+        uss_rt.wait_exchange(bus, 1, count=1000, timeout=0.05)
+    faults = uss_rt.read_elements(bus, 1, "r0947")
+    assert len(faults) == 8 and repr(faults[7]).startswith("r0947[7] = ")
+    assert [float(v) for v in uss_rt.read_elements(bus, 1, "P1082")] == [50.0]
+
+
 def test_an_operators_stop_after_the_controllers_own_stop_stays_latched(bus):
     """Issue 20, as a new user tried it: the controller's own OFF1, then an operator's coast
     from another process. The refresher must not republish the OFF1 over the coast (that

@@ -55,10 +55,12 @@ __all__ = _errors.__all__ + [
     "parse_param",
     "read",
     "read_input",
+    "read_elements",
     "read_param",
     "stop_all",
     "stop_drive",
     "wait_stopped",
+    "wait_exchange",
     "warning_text",
     "write",
 ]
@@ -354,6 +356,13 @@ def wait_stopped(bus: Bus, address: int, command=StopCommand.OFF1, timeout=None)
     )
 
 
+def wait_exchange(bus: Bus, address: int, count: int = 1, timeout: float = 1.0) -> dict:
+    """Waits for ``count`` more exchanges with drive ``address`` (a loop in step with the
+    bus); the image after them. :class:`WaitTimeout` when they do not come in ``timeout`` s."""
+    _check_address(address)
+    return _image(_native.wait_exchange(bus._open(), address, count, timeout))
+
+
 # Parameters in the manuals' notation and exclusive control.
 from .drive import (  # noqa: E402
     Controller,
@@ -362,6 +371,7 @@ from .drive import (  # noqa: E402
     fault_text,
     parse_param,
     read,
+    read_elements,
     warning_text,
     write,
 )

@@ -6,8 +6,9 @@
   bus. What a parameter is comes from the Rust catalogue (``uss-catalogue``), or from the
   drive's own description for a parameter it does not know.
 - :func:`control`: the drive's one controller, on the client rules every language shares
-  (``uss_shm_types::session`` in Rust): ``rearm``, ``enable``, ``run_hz``, ``stop``,
-  ``coast``, ``quick_stop``, ``acknowledge``, ``keepalive``, ``release``.
+  (``uss_shm_types::session`` in Rust): ``rearm``, ``enable``, ``run_hz``, ``run_percent``,
+  ``set_hz``, ``jog``, ``stop``, ``coast``, ``quick_stop``, ``acknowledge``, ``keepalive``,
+  ``wait_for_state``, ``release``.
 """
 
 import uss_rt as _u
@@ -88,6 +89,13 @@ def read(bus, address: int, param: str, timeout: float = 7.5) -> Value:
     return Value(_native.read(bus._open(), address, param, timeout))
 
 
+def read_elements(bus, address: int, param: str, timeout: float = 7.5) -> list:
+    """Every element of an array parameter named without one (``r0947``: all 8), or the one
+    element or plain parameter named, each as its own type."""
+    _u._check_address(address)
+    return [Value(v) for v in _native.read_elements(bus._open(), address, param, timeout)]
+
+
 def write(bus, address: int, param: str, value, eeprom: bool = False, force: bool = False,
           timeout: float = 7.5, unsafe: bool = False) -> Value:
     """Writes ``value`` (a number or text) to ``param`` of drive ``address``, converted to the
@@ -102,7 +110,7 @@ def write(bus, address: int, param: str, value, eeprom: bool = False, force: boo
     return Value(fields)
 
 
-class Controller:
+class Controller(_native.Controller):
     """The one controller of a drive: its words go to the drive while it is live; ussd
     latches it (its safe command) when this controller stops calling within the drive's
     watchdog time, sends a bad sample, or an operator stops it, and every call then raises
@@ -114,78 +122,32 @@ class Controller:
     that blocks or pauses for longer trips its drive, and its next call raises
     :class:`Stalled` or :class:`Tripped`: a trip, not a fresh start. Leaving a ``with`` block
     (or :meth:`release`) hands the drive back cleanly ("released", not a trip).
+
+    The commands (``run_hz``, ``run_percent``, ``set_hz``, ``jog``, ``stop``, ``coast``,
+    ``quick_stop``, ``reverse``, ``acknowledge``, ``set_words``, ``keepalive``, ``enable``,
+    ``release``) are the native class's, documented there; the images are dicts with enums.
     """
 
-    def __init__(self, bus, address: int):
+    def __new__(cls, bus, address: int):
         _u._check_address(address)
-        self.bus, self.address = bus, address
-        self._c = _native.control(bus._open(), address)
-        self.words_count = self._c.words_count
+        return super().__new__(cls, bus._open(), address)
+
+    def __init__(self, bus, address: int):
+        self.bus = bus
 
     def inputs(self) -> dict:
         """The drive's input image (:func:`uss_rt.read_input`)."""
-        return _u._image(self._c.inputs())
+        return _u._image(super().inputs())
 
     def check(self) -> dict:
         """The drive's input image; raises :class:`Tripped` for a latch this controller has
         not acknowledged (a read: it does not refresh the watchdog)."""
-        return _u._image(self._c.check())
-
-    def keepalive(self):
-        """The control loop's refresh: the current words again."""
-        self._c.keepalive()
-
-    def enable(self):
-        """OFF1 (STW1 0x047E): S1 -> S2; stops a running drive. It re-arms nothing: a latched
-        drive needs :meth:`rearm`."""
-        self._c.enable()
+        return _u._image(super().check())
 
     def rearm(self) -> dict:
         """Acknowledges the latch (a trip, an operator's stop, ussd's start) and re-arms: OFF1
         naming it, then waits until ussd passes this controller's words again."""
-        return _u._image(self._c.rearm())
-
-    @property
-    def reference_hz(self) -> float:
-        """The reference frequency P2000 ussd publishes now (0x4000 = 100 %): the drive's own
-        value once ussd has read it, until then the configuration's ``reference_hz``."""
-        return self._c.reference_hz
-
-    def run_hz(self, hz: float):
-        """ON (STW1 0x047F) with a setpoint in Hz, scaled by the reference frequency P2000 that
-        ussd publishes (:attr:`reference_hz`)."""
-        self._c.run_hz(float(hz))
-
-    def stop(self):
-        """OFF1: ramp down, then S2."""
-        self._c.stop()
-
-    def coast(self):
-        """OFF2: pulses off at once, the motor coasts."""
-        self._c.coast()
-
-    def quick_stop(self):
-        """OFF3: the quick-stop ramp."""
-        self._c.quick_stop()
-
-    def reverse(self, reverse: bool = True):
-        """Sets or clears the reverse bit (STW1 bit 11)."""
-        self._c.reverse(bool(reverse))
-
-    def acknowledge(self, timeout=None):
-        """Acknowledges a fault: a rising edge of STW1 bit 7 until the drive received it (at
-        most ``timeout`` s; None: the drive's handshake time, :meth:`handshake`), then OFF1."""
-        self._c.acknowledge(timeout)
-
-    def handshake(self) -> float:
-        """How long a call waits for what the drive's next poll brings, s: ussd's freshness
-        limit for the drive (its turn in the circulating list and the poll with its retries),
-        at least 1 s. A full line at 9600 baud polls each drive only every 1.3 s."""
-        return self._c.handshake()
-
-    def set_words(self, words):
-        """Sends the PZD ``words`` as they are (STW1 first, bit 10 set, the drive's length)."""
-        self._c.set_words(list(words))
+        return _u._image(super().rearm())
 
     def wait_for(self, predicate, timeout=None, what: str = "the drive") -> dict:
         """Waits until ``predicate(image)`` holds, refreshing the watchdog meanwhile (this
@@ -194,21 +156,14 @@ class Controller:
         :meth:`handshake` time for the bus to carry the command and the answer)."""
         if timeout is None:
             timeout = 3.0 + self.handshake()
-        return _u._image(self._c.wait_for(lambda raw: predicate(_u._image(raw)), timeout, what))
+        return _u._image(super().wait_for(lambda raw: predicate(_u._image(raw)), timeout, what))
 
-    def release(self):
-        """Hands the drive back cleanly: ussd sends its safe command and shows it "released",
-        which is not a watchdog trip."""
-        self._c.release()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *_):
-        self.release()
-
-    def __repr__(self):
-        return repr(self._c)
+    def wait_for_state(self, state: int, timeout=None) -> dict:
+        """Waits until the drive shows state ``state`` (1..4 for S1..S4, 6 fault), as
+        :meth:`wait_for` does."""
+        if timeout is None:
+            timeout = 3.0 + self.handshake()
+        return _u._image(super().wait_for_state(state, timeout))
 
 
 def control(bus, address: int) -> Controller:

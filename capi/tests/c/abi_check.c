@@ -67,6 +67,19 @@ int main(int argc, char **argv) {
   EXPECT(d.image.latch_id != 0 && d.state == 2 && d.image.sent_stw1 == 0x047E, "S2, OFF1");
   EXPECT(d.reference_hz == 50.0f && d.watchdog_ms == 100, "info %f %u", d.reference_hz,
          d.watchdog_ms);
+  /* The bus and drive as ussd publishes them (uss_shm_types.h). */
+  OK(ussrt_bus_health(bus));
+  UssBusStatus status;
+  OK(ussrt_bus_status(bus, &status));
+  EXPECT(status.version == USS_LAYOUT_VERSION && status.drive_count == 2 && status.running == 1 &&
+             status.good > 0,
+         "bus status: %u drives, %llu good", status.drive_count, (unsigned long long)status.good);
+  EXPECT(ussrt_bus_status(bus, NULL) == USSRT_STATUS_INVALID_ARGUMENT, "NULL status");
+  UssDriveDiag diag;
+  OK(ussrt_drive_diag(bus, 1, &diag));
+  EXPECT(diag.info.pzd_words == 2 && diag.info.watchdog_ms == 100, "diag info %u %u",
+         diag.info.pzd_words, diag.info.watchdog_ms);
+  EXPECT(ussrt_drive_diag(bus, 9, &diag) == USSRT_STATUS_UNKNOWN_DRIVE, "diag of drive 9");
 
   /* Parameters. */
   OK(ussrt_param_read(bus, 1, "P1082", &v));
@@ -109,6 +122,18 @@ int main(int argc, char **argv) {
   EXPECT(ussrt_param_batch(bus, 1, items, 4, USSRT_WRITE_UNSAFE, results) ==
              USSRT_STATUS_INVALID_ARGUMENT,
          "unsafe");
+  /* Every element of an array parameter named without one. */
+  UssrtValue elements[8];
+  size_t element_count = 0;
+  OK(ussrt_param_read_elements(bus, 1, "r0947", elements, 8, &element_count));
+  EXPECT(element_count == 8 && strncmp(elements[7].text, "r0947[7] = ", 11) == 0, "%zu: %s",
+         element_count, elements[7].text);
+  EXPECT(ussrt_param_read_elements(bus, 1, "r0947", elements, 4, &element_count) ==
+                 USSRT_STATUS_INVALID_ARGUMENT &&
+             element_count == 8,
+         "room for 4 of 8: %zu", element_count);
+  OK(ussrt_param_read_elements(bus, 1, "P1082", elements, 1, &element_count));
+  EXPECT(element_count == 1 && elements[0].value == 50.0, "one plain parameter");
   UssrtFaultReport faults;
   OK(ussrt_fault_report(bus, 1, &faults));
   EXPECT(faults.fault_count <= 8, "faults %u", faults.fault_count);
@@ -125,6 +150,24 @@ int main(int argc, char **argv) {
   EXPECT(info().latch_reason == USS_LATCH_REASON_STARTUP, "why: %u", info().latch_reason);
   OK(ussrt_control_rearm(c, &d));
   EXPECT(d.live == 1, "re-armed");
+  OK(ussrt_control_run_hz(c, 10.0f));
+  OK(ussrt_control_wait_state(c, 4, 5000));
+  /* A new setpoint keeps the control word; a jog is STW1 bit 8 or 9 on OFF1's word. */
+  OK(ussrt_control_set_hz(c, 5.0f));
+  OK(ussrt_wait_exchange(bus, 1, 2000));
+  OK(ussrt_wait_exchange(bus, 1, 2000));
+  OK(ussrt_drive_read(bus, 1, &d));
+  EXPECT(d.image.sent_stw1 == 0x047F, "still ON: %#x", d.image.sent_stw1);
+  EXPECT(ussrt_control_set_hz(c, 1.0f / 0.0f) == USSRT_STATUS_INVALID_ARGUMENT, "inf Hz");
+  EXPECT(ussrt_control_jog(c, 3) == USSRT_STATUS_INVALID_ARGUMENT, "jog 3");
+  OK(ussrt_control_stop(c));
+  OK(ussrt_control_wait_state(c, 2, 5000));
+  OK(ussrt_control_jog(c, USSRT_JOG_LEFT));
+  OK(ussrt_wait_exchange(bus, 1, 2000));
+  OK(ussrt_wait_exchange(bus, 1, 2000));
+  OK(ussrt_drive_read(bus, 1, &d));
+  EXPECT(d.image.sent_stw1 == 0x067E, "jog left: %#x", d.image.sent_stw1);
+  OK(ussrt_control_stop(c));
   OK(ussrt_control_run_hz(c, 10.0f));
   OK(ussrt_control_wait_state(c, 4, 5000));
   const uint16_t bad[2] = {0x007F, 0};
