@@ -175,6 +175,49 @@ fn check_config_prints_the_effective_configuration_or_names_the_bad_line() {
     }
 }
 
+/// A device that exists but is no tty (a directory, /dev/null) is refused by `--check-config`
+/// and by `--config` with the file, line and field; a device that is not there yet is a warning
+/// said as one, and the configuration passes (issue 35).
+#[test]
+fn check_config_refuses_a_device_that_is_no_tty_and_warns_of_one_not_there_yet() {
+    let with_device = |name: &str, device: &str| {
+        config_file(
+            name,
+            &format!(
+                "[[bus]]\nname = \"b\"\ndevice = \"{device}\"\n\n[[bus.drive]]\naddress = 7\n"
+            ),
+        )
+    };
+    for (device, what) in [("/tmp", "is a directory"), ("/dev/null", "mem class")] {
+        let file = with_device("notty", device);
+        for flag in ["--check-config", "--config"] {
+            let out = ussd().arg(flag).arg(&file).output().unwrap();
+            let err = String::from_utf8_lossy(&out.stderr);
+            println!("ussd {flag} with device {device}: {err}");
+            assert_eq!(out.status.code(), Some(2), "{flag} {device}: {err}");
+            assert!(
+                err.contains(&format!(
+                    "{}:3:10: bus \"b\": device = \"{device}\"",
+                    file.display()
+                )) && err.contains(what)
+                    && err.contains("not a serial device"),
+                "{flag} {device}: {err}"
+            );
+        }
+        let _ = std::fs::remove_file(file);
+    }
+    let later = with_device("later", "/dev/ttyUSB-uss-not-plugged-in");
+    let out = ussd().arg("--check-config").arg(&later).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("ussd: warning: ")
+            && err.contains("device /dev/ttyUSB-uss-not-plugged-in does not exist now"),
+        "{err}"
+    );
+    let _ = std::fs::remove_file(later);
+}
+
 #[test]
 fn require_rt_is_fatal_exactly_when_real_time_is_incomplete() {
     // Its own bus name: another test runs the embedded default's bus0 at the same time.

@@ -119,6 +119,9 @@ fn main() -> ExitCode {
     if let Some(path) = &cli.check_config {
         return match Config::load(path) {
             Ok(config) => {
+                for warning in config.warnings() {
+                    eprintln!("ussd: warning: {}: {warning}", path.display());
+                }
                 // A reader that went away early (`ussd --check-config F | head`) is no error.
                 let _ = std::io::stdout().write_all(config.to_toml().as_bytes());
                 ExitCode::SUCCESS

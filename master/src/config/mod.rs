@@ -418,6 +418,27 @@ impl Config {
         }
     }
 
+    /// What will not stop ussd but a user should know before it runs: each serial device that
+    /// does not exist now (a USB adapter plugged in later: the line starts down).
+    pub fn warnings(&self) -> Vec<String> {
+        self.buses
+            .iter()
+            .filter_map(|bus| match &bus.device {
+                Device::Serial(path)
+                    if rules::SerialPath::of(path) == rules::SerialPath::Absent =>
+                {
+                    Some(format!(
+                        "bus {}: device {} does not exist now: ussd starts this bus line down \
+                         and opens it when it appears",
+                        bus.name,
+                        path.display()
+                    ))
+                }
+                _ => None,
+            })
+            .collect()
+    }
+
     /// The effective configuration with every default filled in, as TOML that [`Config::parse`]
     /// accepts again (for `ussd --check-config`), after a comment on each serial device: a
     /// character device, something else, or not there now (ussd then opens it when it
@@ -439,15 +460,17 @@ impl Config {
 
 /// What is at a serial device's path now.
 fn device_note(path: &Path) -> String {
-    use std::os::unix::fs::FileTypeExt as _;
     let shown = path.display();
-    match std::fs::metadata(path) {
-        Ok(m) if m.file_type().is_char_device() => format!("{shown} is a character device"),
-        Ok(_) => format!("{shown} is not a character device: a serial adapter or pty is one"),
-        Err(_) => format!(
-            "{shown} does not exist now: ussd starts this bus line down and opens it when it \
-             appears"
+    match rules::SerialPath::of(path) {
+        rules::SerialPath::Tty => format!("{shown} is a serial device (a tty)"),
+        rules::SerialPath::Absent => format!(
+            "warning: {shown} does not exist now: ussd starts this bus line down and opens it \
+             when it appears"
         ),
+        rules::SerialPath::Unknown => {
+            format!("{shown} exists; this machine does not say whether it is a tty")
+        }
+        rules::SerialPath::NotATty(what) => format!("{shown} is {what}"),
     }
 }
 

@@ -34,11 +34,11 @@ fn drive_key(line: &str) -> String {
     format!("[[bus]]\nname = \"bus0\"\ndevice = \"sim\"\n\n[[bus.drive]]\naddress = 3\n{line}\n")
 }
 
-/// A serial bus on /dev/null with `bus_line` as line 4 and a drive at address 3 with
+/// A serial bus on /dev/ptmx (a tty every Linux with ptys has) with `bus_line` as line 4 and a drive at address 3 with
 /// `drive_line` as line 7.
 fn serial(bus_line: &str, drive_line: &str) -> String {
     format!(
-        "[[bus]]\nname = \"bus1\"\ndevice = \"/dev/null\"\n{bus_line}\n\n[[bus.drive]]\n\
+        "[[bus]]\nname = \"bus1\"\ndevice = \"/dev/ptmx\"\n{bus_line}\n\n[[bus.drive]]\n\
          address = 3\n{drive_line}\n"
     )
 }
@@ -92,7 +92,7 @@ pzd = 0
 
 [[bus]]
 name = "serial"
-device = "/dev/null"
+device = "/dev/ptmx"
 baud = 250000
 nonstandard_baud = true
 rs485 = "auto"
@@ -209,7 +209,7 @@ fn every_key_is_read_as_written() {
     let d = &sim.drives[1];
     assert_eq!((d.layout().pkw, d.layout().pzd.get()), (PkwMode::None, 0));
 
-    assert_eq!(serial.device, Device::Serial(PathBuf::from("/dev/null")));
+    assert_eq!(serial.device, Device::Serial(PathBuf::from("/dev/ptmx")));
     assert_eq!(
         (serial.baud.get(), serial.rs485),
         (250_000, Rs485Mode::Auto)
@@ -298,11 +298,11 @@ fn to_toml_writes_every_default_and_what_a_serial_device_is() {
     assert_eq!(
         parse(&serial("", "")).to_toml(),
         r#"# ussd configuration: the effective settings, every default filled in
-# bus bus1: /dev/null is a character device
+# bus bus1: /dev/ptmx is a serial device (a tty)
 
 [[bus]]
 name = "bus1"
-device = "/dev/null"
+device = "/dev/ptmx"
 baud = 115200
 nonstandard_baud = false
 rs485 = "none"
@@ -335,17 +335,20 @@ require_monitoring = false
 broadcast = true
 "#
     );
-    let later = serial("", "").replace("/dev/null", "/dev/uss-nothing-here");
-    assert!(parse(&later).to_toml().contains(
-        "# bus bus1: /dev/uss-nothing-here does not exist now: ussd starts this bus line \
-             down and opens it when it appears\n"
+    let later = serial("", "").replace("/dev/ptmx", "/dev/uss-nothing-here");
+    let later = parse(&later);
+    assert!(later.to_toml().contains(
+        "# bus bus1: warning: /dev/uss-nothing-here does not exist now: ussd starts this bus \
+         line down and opens it when it appears\n"
     ));
-    let regular = std::env::temp_dir().join(format!("uss-config-file-{}", std::process::id()));
-    std::fs::write(&regular, "").unwrap();
-    let text = serial("", "").replace("/dev/null", regular.to_str().unwrap());
-    let toml = parse(&text).to_toml();
-    std::fs::remove_file(&regular).unwrap();
-    assert!(toml.contains("is not a character device"), "{toml}");
+    assert_eq!(
+        later.warnings(),
+        [
+            "bus bus1: device /dev/uss-nothing-here does not exist now: ussd starts this bus line \
+          down and opens it when it appears"
+        ]
+    );
+    assert!(parse(&serial("", "")).warnings().is_empty());
     // The simulated bus gets its seed written.
     assert!(parse(&bus_key("")).to_toml().contains("\nseed = 1\n"));
 }
@@ -748,9 +751,9 @@ fn two_buses_on_one_device_are_refused_even_under_two_names() {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let link = dir.join("usb-FTDI_FT1ABCDE-if00-port0");
-    std::os::unix::fs::symlink("/dev/null", &link).unwrap();
+    std::os::unix::fs::symlink("/dev/ptmx", &link).unwrap();
     let text = format!(
-        "[[bus]]\nname = \"a\"\ndevice = \"/dev/null\"\n[[bus.drive]]\naddress = 1\n\n\
+        "[[bus]]\nname = \"a\"\ndevice = \"/dev/ptmx\"\n[[bus.drive]]\naddress = 1\n\n\
          [[bus]]\nname = \"b\"\ndevice = \"{}\"\n[[bus.drive]]\naddress = 2\n",
         link.display()
     );
@@ -1013,7 +1016,7 @@ fn sim_and_seed_are_refused_on_a_serial_bus() {
         )
     );
     // Also when the serial device is absent (it may appear later).
-    let text = serial("", "sim.delay = 1").replace("/dev/null", "/dev/ttyXYZ");
+    let text = serial("", "sim.delay = 1").replace("/dev/ptmx", "/dev/ttyXYZ");
     assert!(
         error(&text)
             .to_string()
@@ -1265,7 +1268,7 @@ const PIECES: &[&str] = &[
     "name = \"bus0\"",
     "name = \"b a d\"",
     "device = \"sim\"",
-    "device = \"/dev/null\"",
+    "device = \"/dev/ptmx\"",
     "device = \"relative/tty\"",
     "address = 3",
     "address = 3",
@@ -1411,4 +1414,33 @@ proptest::proptest! {
             }
         }
     }
+}
+
+/// A device that exists but no serial line runs over (a directory, a file, /dev/null) is refused
+/// with the file, line and field, at `--check-config` and at start alike (issue 35).
+#[test]
+fn a_device_that_is_no_tty_is_refused_naming_file_line_and_field() {
+    let regular = std::env::temp_dir().join(format!("uss-config-file-{}", std::process::id()));
+    std::fs::write(&regular, "").unwrap();
+    let cases = [
+        ("/tmp", "is a directory".to_owned()),
+        (
+            "/dev/null",
+            "is a character device of the kernel's mem class".to_owned(),
+        ),
+        (regular.to_str().unwrap(), "is a regular file".to_owned()),
+    ];
+    for (device, what) in &cases {
+        let (message, path) = refused(&serial("", "").replace("/dev/ptmx", device));
+        assert_eq!(
+            message,
+            format!(
+                "bus.toml:3:10: bus \"bus1\": device = \"{device}\" {what}, not a serial device \
+                 (a serial adapter's tty such as /dev/ttyUSB0, or a pty): {}",
+                rules::DEVICES
+            )
+        );
+        assert_eq!(path.as_deref(), Some("bus[0].device"));
+    }
+    std::fs::remove_file(&regular).unwrap();
 }
