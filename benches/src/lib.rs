@@ -37,6 +37,12 @@ impl Parts {
     }
 }
 
+/// Whether to run short (`USS_BENCH_SHORT=1`): a few rounds of each part, to show the
+/// benchmark still runs from a fresh clone (CI does that); its figures mean nothing.
+pub fn short() -> bool {
+    std::env::var_os("USS_BENCH_SHORT").is_some_and(|v| v == "1")
+}
+
 /// The workspace's target directory.
 pub fn target_dir() -> std::path::PathBuf {
     std::env::var_os("CARGO_TARGET_DIR").map_or_else(

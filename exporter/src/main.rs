@@ -13,7 +13,7 @@ use prometheus_client::registry::{Registry, Unit};
 use std::io::Write as _;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicU64;
-use uss_client::uss_shm_types::{BusStatus, DriveDiag, EXCHANGE_BUCKETS_NS, LineState};
+use uss_client::uss_shm_types::{BusStatus, DriveDiag, EXCHANGE_BUCKETS_NS};
 use uss_client::{Bus, ControlState, Health};
 
 #[derive(Debug, Parser)]
@@ -29,6 +29,9 @@ struct Cli {
     /// Where to listen; loopback unless you mean otherwise.
     #[arg(long, value_name = "ADDR:PORT", default_value = "127.0.0.1:9781")]
     listen: String,
+    /// Print the man page (roff) and exit.
+    #[arg(long)]
+    man: bool,
 }
 
 /// What the exporter remembers of a bus between scrapes.
@@ -248,13 +251,11 @@ impl Metrics {
     fn bus(&self, labels: &BusLabels, s: &BusStatus) {
         self.line_up
             .get_or_create(labels)
-            .set(i64::from(s.line_state != LineState::Down.code()));
+            .set(i64::from(!s.is_line_down()));
         self.exchanges.get_or_create(labels).inc_by(s.exchanges);
         self.cycles.get_or_create(labels).inc_by(s.cycles);
-        if s.efficiency_ppm > 0 {
-            self.efficiency
-                .get_or_create(labels)
-                .set(f64::from(s.efficiency_ppm) / 1e6);
+        if let Some(efficiency) = s.efficiency() {
+            self.efficiency.get_or_create(labels).set(efficiency);
         }
     }
 
@@ -433,6 +434,19 @@ fn classic(openmetrics: &str) -> String {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if cli.man {
+        let mut page = Vec::new();
+        let rendered = clap_mangen::Man::new(<Cli as clap::CommandFactory>::command())
+            .render(&mut page)
+            .and_then(|()| std::io::stdout().write_all(&page));
+        return match rendered {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("uss-exporter: {e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     let server = match tiny_http::Server::http(&cli.listen) {
         Ok(s) => s,
         Err(e) => {

@@ -1,0 +1,78 @@
+#!/usr/bin/env bash
+# The Debian packages in DIR (deploy/debian/build.sh) as a user meets them: lintian finds no
+# error; apt-get installs them; the unit verifies; the installed ussd checks and runs its
+# configuration (the built-in simulated bus) and the installed ussctl reads a parameter from it;
+# the C example builds with pkg-config against libussrt-dev and runs a drive; the Python wheel
+# installs into a fresh venv and reads a parameter; removal leaves nothing but the conffile.
+#
+#   .ci/packages.sh target/debian
+set -euo pipefail
+dir=$1
+work=$(mktemp -d)
+ussd_pid=
+cleanup() {
+  [ -n "$ussd_pid" ] && kill "$ussd_pid" 2>/dev/null || true
+  rm -rf "$work"
+}
+trap cleanup EXIT
+
+ls -l "$dir"/*.deb
+lintian --fail-on error --tag-display-limit 0 "$dir"/*.deb | tee "$work/lintian"
+
+DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$(realpath "$dir")"/*.deb >/dev/null
+for p in uss-rt libussrt0 libussrt-dev; do
+  dpkg-query -L "$p" >"$work/$p.files"
+done
+getent group uss >/dev/null && getent passwd uss >/dev/null
+systemd-analyze verify /lib/systemd/system/ussd.service
+# Installed, not enabled: the user enables it.
+[ "$(systemctl is-enabled ussd 2>/dev/null || true)" != enabled ]
+ussd --check-config /etc/uss-rt/ussd.toml >/dev/null
+man -w ussd ussctl uss-sim uss-exporter >/dev/null
+
+# The installed ussd on its configuration (without --require-rt: real time is the machine's).
+/usr/bin/ussd --config /etc/uss-rt/ussd.toml >"$work/ussd.log" 2>&1 &
+ussd_pid=$!
+for _ in $(seq 100); do
+  /usr/bin/ussctl --bus sim param read 1 P1082 >"$work/read" 2>/dev/null && break
+  sleep 0.1
+done
+grep -q "P1082 = 50.00 Hz" "$work/read" || {
+  cat "$work/read" "$work/ussd.log"
+  exit 1
+}
+echo "installed ussd and ussctl: $(cat "$work/read")"
+
+# C against the installed library, found by pkg-config alone.
+# shellcheck disable=SC2046 # pkg-config's words are separate arguments
+cc -std=c11 capi/examples/run_drive.c $(pkg-config --cflags --libs ussrt) -o "$work/run_drive"
+"$work/run_drive" sim 2 5 1 | tee "$work/c"
+grep -q "stopped (OFF1, S2) and released" "$work/c"
+
+# The Python module as an abi3 wheel in a fresh venv (no Rust there).
+python3 -m pip wheel --quiet --no-deps ./python -w "$work/wheel"
+ls "$work"/wheel/*-abi3-*.whl
+python3 -m venv "$work/venv"
+"$work/venv/bin/pip" install --quiet "$work"/wheel/*.whl
+"$work/venv/bin/python" -c '
+import uss_rt
+print("wheel in a venv:", uss_rt.read(uss_rt.open_bus("sim"), 1, "P1082"))
+' | tee "$work/py"
+grep -q "P1082 = 50.00 Hz" "$work/py"
+
+kill "$ussd_pid"
+wait "$ussd_pid" || true
+ussd_pid=
+
+# Removal (not purge) leaves the conffile only.
+DEBIAN_FRONTEND=noninteractive apt-get remove -y -qq uss-rt libussrt0 libussrt-dev >/dev/null
+left=$(cat "$work"/*.files | sort -u | while read -r f; do
+  if [ -e "$f" ] && [ ! -d "$f" ]; then echo "$f"; fi
+done)
+[ "$left" = /etc/uss-rt/ussd.toml ] || {
+  echo "left after removal: $left" >&2
+  exit 1
+}
+DEBIAN_FRONTEND=noninteractive apt-get purge -y -qq uss-rt >/dev/null
+[ ! -e /etc/uss-rt/ussd.toml ]
+echo "packages: lintian $(grep -c '^E:' "$work/lintian" || true) errors, $(grep -c '^W:' "$work/lintian" || true) warnings; installed, ran, removed"
