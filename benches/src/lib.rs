@@ -51,14 +51,25 @@ pub fn target_dir() -> std::path::PathBuf {
     )
 }
 
-/// Builds `bin` of `package` in release and returns its path.
+/// Builds `bin` of `package` in release (or in the profile `USS_BENCH_PROFILE` names: CI's
+/// short runs take the `lib` profile its other steps built) and returns its path.
 pub fn release_binary(package: &str, bin: &str) -> std::path::PathBuf {
+    let profile = std::env::var("USS_BENCH_PROFILE").unwrap_or_else(|_| "release".to_owned());
     let status = std::process::Command::new(env!("CARGO"))
-        .args(["build", "--quiet", "--release", "-p", package, "--bin", bin])
+        .args([
+            "build",
+            "--quiet",
+            "--profile",
+            &profile,
+            "-p",
+            package,
+            "--bin",
+            bin,
+        ])
         .status()
         .unwrap_or_else(|e| panic!("cargo build {bin}: {e}"));
     assert!(status.success(), "building {bin}");
-    target_dir().join("release").join(bin)
+    target_dir().join(profile).join(bin)
 }
 
 /// A child process killed (and its configuration file removed) when dropped.

@@ -218,6 +218,52 @@ fn check_config_refuses_a_device_that_is_no_tty_and_warns_of_one_not_there_yet()
     let _ = std::fs::remove_file(later);
 }
 
+/// `ussd --qualify` measures as the bus thread runs (the configuration's priority and CPU),
+/// gives a verdict at the bus's rate with the USS rules at every fast rate, checks what breaks a
+/// deployment, and draws the histogram; its exit code is the verdict (0 holds, 1 does not).
+#[test]
+fn qualify_measures_like_the_bus_thread_and_gives_a_verdict_with_its_fixes() {
+    let config = config_file(
+        "qualify",
+        "[[bus]]\nname = \"q\"\ndevice = \"sim\"\nbaud = 187500\ncpu = 0\npriority = 70\n\n\
+         [[bus.drive]]\naddress = 1\n",
+    );
+    let plot = std::env::temp_dir().join(format!("qualify-{}.svg", std::process::id()));
+    let out = ussd()
+        .args(["--qualify", "--seconds", "1", "--plot"])
+        .arg(&plot)
+        .arg("--config")
+        .arg(&config)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    println!("{text}");
+    assert!(
+        matches!(out.status.code(), Some(0 | 1)),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for expected in [
+        "bus q (187500 baud): 1 s of wake-ups every 1000 us at SCHED_FIFO 70, CPU 0",
+        "wake-up latency: p50 ",
+        "start pause (2 tz)",
+        "* 187500    117.3 us: ",
+        "  verdict: ",
+        "bus q is the built-in simulated bus: no adapter to check",
+    ] {
+        assert!(text.contains(expected), "{expected:?} in\n{text}");
+    }
+    let holds = text.contains("this machine holds bus q's timing");
+    assert_eq!(out.status.code() == Some(0), holds, "{text}");
+    let svg = std::fs::read_to_string(&plot).unwrap();
+    assert!(
+        svg.starts_with("<svg") && svg.contains("start pause at 187500 baud: 117 us"),
+        "{svg}"
+    );
+    let _ = std::fs::remove_file(&plot);
+    let _ = std::fs::remove_file(&config);
+}
+
 #[test]
 fn require_rt_is_fatal_exactly_when_real_time_is_incomplete() {
     // Its own bus name: another test runs the embedded default's bus0 at the same time.

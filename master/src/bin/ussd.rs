@@ -40,6 +40,18 @@ struct Cli {
     /// Stop after this many seconds (default: until SIGINT/SIGTERM).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
+    /// Measure whether this machine holds the bus timing, then exit: wake-ups every 1 ms as each
+    /// bus thread would run them (its CPU, real-time priority, memory lock), the latency held
+    /// against USS's start pause, residual time and a 31-drive cycle at each baud rate, and what
+    /// usually breaks a deployment, with how to fix it. Exits 1 when a bus's timing does not hold.
+    #[arg(long, conflicts_with = "check_config")]
+    qualify: bool,
+    /// With --qualify: seconds to measure.
+    #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
+    seconds: f64,
+    /// With --qualify: an SVG picture of the latency histogram and each bus's start pause.
+    #[arg(long, value_name = "FILE.svg", requires = "qualify")]
+    plot: Option<PathBuf>,
     /// Print a completion script for SHELL (bash, zsh, fish, elvish, powershell) and exit.
     #[arg(long, value_name = "SHELL", exclusive = true)]
     completions: Option<clap_complete::Shell>,
@@ -132,6 +144,9 @@ fn main() -> ExitCode {
             }
         };
     }
+    if cli.qualify {
+        return qualify(&cli);
+    }
     // The log never blocks a thread that logs: a worker writes stdout, and lines that do not
     // fit its buffer while stdout is stuck (a full pipe, a stalled journald) are dropped and
     // counted, so the heartbeat and the stops go on (issue 21).
@@ -186,6 +201,56 @@ fn embedded_default(_bus: &str) -> Result<Config, Failure> {
          embedded default: give --config FILE"
             .to_owned(),
     ))
+}
+
+/// `--qualify`: measure, report each bus, plot; exit 1 when a bus's timing does not hold.
+fn qualify(cli: &Cli) -> ExitCode {
+    use uss_master::daemon::qualify;
+    let config = match &cli.config {
+        Some(path) => Config::load(path).map_err(Failure::from),
+        None => embedded_default(&cli.bus),
+    };
+    let config = match config {
+        Ok(c) => c,
+        Err(failure) => {
+            eprintln!("ussd: {failure}");
+            return ExitCode::from(failure.exit_code());
+        }
+    };
+    let duration = match seconds("seconds", cli.seconds) {
+        Ok(d) => d,
+        Err(e) => {
+            eprintln!("ussd: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    println!(
+        "ussd --qualify: measuring for {:.0} s (what cyclictest -m -i 1000 measures, at each bus's \
+         priority and CPU)...",
+        duration.as_secs_f64()
+    );
+    let measured = qualify::measure(&config, duration);
+    let mut holds = true;
+    for (m, bus) in measured.iter().zip(&config.buses) {
+        let checks = qualify::checks(bus);
+        print!("{}", qualify::report(m, &checks, duration.as_secs_f64()));
+        holds &= qualify::AtRate::of(m.baud.get(), m.latency.max() as f64 / 1e3)
+            .is_some_and(|at| at.holds());
+    }
+    if let Some(path) = &cli.plot {
+        match qualify::plot(path, &measured) {
+            Ok(()) => println!("plot: {}", path.display()),
+            Err(e) => {
+                eprintln!("ussd: the plot: {e}");
+                return ExitCode::FAILURE;
+            }
+        }
+    }
+    if holds {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    }
 }
 
 fn run(cli: &Cli) -> Result<(), Failure> {

@@ -28,6 +28,7 @@ mod rules;
 
 pub use errors::ConfigError;
 pub use keys::*;
+pub use rules::SerialPath;
 
 use core::fmt::Write as _;
 use errors::Reporter;

@@ -5,6 +5,7 @@ pub mod access;
 pub mod housekeeping;
 pub mod ipc;
 pub mod line;
+pub mod qualify;
 pub mod runtime;
 pub mod stops;
 pub mod summary;
