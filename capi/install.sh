@@ -24,8 +24,15 @@ install -m 0644 capi/include/ussrt.h capi/include/ussrt.hpp \
   shm-types/include/uss_shm_types.h "$prefix/include/"
 sed -e "s|@PREFIX@|$prefix|" -e "s|@VERSION@|$version|" capi/ussrt.pc.in \
   >"$prefix/lib/pkgconfig/ussrt.pc"
-# A system directory: let the dynamic linker know (ldconfig needs root; elsewhere it is moot).
-if [ "$(id -u)" = 0 ] && command -v ldconfig >/dev/null; then
-  ldconfig "$prefix/lib" 2>/dev/null || true
-fi
 echo "libussrt $version installed in $prefix (pkg-config: ussrt)"
+# A directory the loader searches: refresh its cache (as root). Any other prefix stays out of
+# the system's cache (`ldconfig DIR` would add it): its programs name it themselves.
+case "$prefix" in
+  /usr | /usr/local)
+    if [ "$(id -u)" = 0 ] && command -v ldconfig >/dev/null; then ldconfig; fi
+    ;;
+  *)
+    echo "run its programs with LD_LIBRARY_PATH=$prefix/lib, and build them with" \
+      "PKG_CONFIG_PATH=$prefix/lib/pkgconfig (or install the libussrt0 and libussrt-dev packages)"
+    ;;
+esac

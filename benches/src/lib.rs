@@ -52,7 +52,7 @@ pub fn target_dir() -> std::path::PathBuf {
 }
 
 /// Builds `bin` of `package` in release (or in the profile `USS_BENCH_PROFILE` names: CI's
-/// short runs take the `lib` profile its other steps built) and returns its path.
+/// short runs take the `dev` profile its tests built) and returns its path.
 pub fn release_binary(package: &str, bin: &str) -> std::path::PathBuf {
     let profile = std::env::var("USS_BENCH_PROFILE").unwrap_or_else(|_| "release".to_owned());
     let status = std::process::Command::new(env!("CARGO"))
@@ -69,7 +69,13 @@ pub fn release_binary(package: &str, bin: &str) -> std::path::PathBuf {
         .status()
         .unwrap_or_else(|e| panic!("cargo build {bin}: {e}"));
     assert!(status.success(), "building {bin}");
-    target_dir().join(profile).join(bin)
+    // Cargo keeps the dev profile's output in `debug`.
+    let dir = if profile == "dev" {
+        "debug"
+    } else {
+        profile.as_str()
+    };
+    target_dir().join(dir).join(bin)
 }
 
 /// A child process killed (and its configuration file removed) when dropped.

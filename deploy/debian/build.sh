@@ -8,7 +8,7 @@
 #   libussrt-dev  its headers, static library, link and pkg-config file
 #
 #   deploy/debian/build.sh            # release binaries (what a machine runs)
-#   deploy/debian/build.sh lib        # another cargo profile (CI: the one its tests built)
+#   deploy/debian/build.sh dev        # another cargo profile (CI: the debug binaries its tests built)
 #
 # The C library is always built with the `lib` profile: a Rust panic must unwind to the C
 # boundary, never abort the program that loaded it.
@@ -24,7 +24,8 @@ version=$(sed -n 's/^version = "\(.*\)"$/\1/p' Cargo.toml | head -n 1)
 cargo build --quiet --profile "$profile" --bins -p uss-master -p ussctl -p uss-drive-sim \
   -p uss-exporter
 cargo build --quiet --profile lib -p uss-rt-c --lib
-built=$target/$profile
+# Cargo keeps the dev profile's output in `debug`.
+built=$target/$([ "$profile" = dev ] && echo debug || echo "$profile")
 
 rm -rf "$stage"
 mkdir -p "$stage/bin" "$stage/man" "$stage/completions" "$stage/lib"
