@@ -80,6 +80,9 @@ fn ussd_polls_a_pty_bus_with_faults_and_its_summary_tells_the_truth() {
     );
     assert!(stdout.contains("drive 3 online"), "{stdout}");
     assert!(stdout.contains("bus line1: 57600 baud"), "{stdout}");
+    // A pty carries replies faster than its baud rate: the wire timed nothing, so no
+    // efficiency is claimed (issue 35: it printed "efficiency 0.000 of wire floor").
+    assert!(!stdout.contains("of wire floor"), "{stdout}");
     let d1 = final_line(&stdout, 1);
     let d2 = final_line(&stdout, 2);
     let d3 = final_line(&stdout, 3);
