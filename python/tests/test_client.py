@@ -353,6 +353,14 @@ def test_python_has_the_calls_rust_and_c_have(bus):
             c.wait_for_state(9)
         with pytest.raises(ValueError, match="not a finite number"):
             c.run_percent(float("nan"))
+        # A setpoint beyond what the word carries (-200 % .. +199.99 % of P2000) is refused,
+        # not sent as full scale: run_hz(5000) for run_hz(50) must not run the drive at 100 Hz.
+        before = uss_rt.read_input(bus, 1)["sent_stw1"]
+        for call in (lambda: c.run_hz(5000), lambda: c.set_hz(-1e30), lambda: c.run_percent(250)):
+            with pytest.raises(ValueError, match="beyond the setpoint's range"):
+                call()
+        after = uss_rt.wait_exchange(bus, 1, count=2)
+        assert after["sent_stw1"] == before and after["hiw"] == 0
     with pytest.raises(uss_rt.WaitTimeout):
         uss_rt.wait_exchange(bus, 1, count=1000, timeout=0.05)
     faults = uss_rt.read_elements(bus, 1, "r0947")

@@ -159,6 +159,9 @@ int main(int argc, char **argv) {
   OK(ussrt_drive_read(bus, 1, &d));
   EXPECT(d.image.sent_stw1 == 0x047F, "still ON: %#x", d.image.sent_stw1);
   EXPECT(ussrt_control_set_hz(c, 1.0f / 0.0f) == USSRT_STATUS_INVALID_ARGUMENT, "inf Hz");
+  /* Beyond the setpoint word's -200 % .. +199.99 %: refused, not sent as full scale. */
+  EXPECT(ussrt_control_set_hz(c, 5000.0f) == USSRT_STATUS_INVALID_ARGUMENT, "5000 Hz");
+  EXPECT(ussrt_control_run_percent(c, -250.0f) == USSRT_STATUS_INVALID_ARGUMENT, "-250 %");
   EXPECT(ussrt_control_jog(c, 3) == USSRT_STATUS_INVALID_ARGUMENT, "jog 3");
   OK(ussrt_control_stop(c));
   OK(ussrt_control_wait_state(c, 2, 5000));
