@@ -482,8 +482,10 @@ impl Controller {
     /// STW1 0x047F with a setpoint in % of the reference (0x4000 = 100 %, -200..+199.99 %):
     /// S2 -> S3 -> S4, running. A negative setpoint runs the other way (signed HSW, USS.md
     /// section 7); a drive may block negative setpoints by its own parameters.
+    /// A setpoint beyond that range (or not a number) is refused with
+    /// [`ClientError::SetpointOutOfRange`], never sent as full scale.
     pub fn run_percent(&self, percent: f32) -> Result<(), ClientError> {
-        self.run_setpoint(Setpoint::from_percent(percent))
+        self.run_setpoint(self.setpoint(percent, 100.0, "%")?)
     }
 
     /// Like [`Controller::run_percent`], in Hz: scaled by the drive's reference frequency
@@ -491,7 +493,29 @@ impl Controller {
     /// show the same Hz for the same setpoint.
     pub fn run_hz(&self, hz: f32) -> Result<(), ClientError> {
         let reference_hz = self.shared.watch.info().reference_hz;
-        self.run_setpoint(Setpoint::from_hz(hz, reference_hz))
+        self.run_setpoint(self.setpoint(hz, reference_hz, "Hz")?)
+    }
+
+    /// The setpoint of `value` in a unit of which `full` is 100 %, or why the word cannot carry it.
+    fn setpoint(&self, value: f32, full: f32, unit: &str) -> Result<Setpoint, ClientError> {
+        Setpoint::try_from_percent(value / full * 100.0).ok_or_else(|| {
+            let (low, high) = (Setpoint::from_raw(i16::MIN), Setpoint::from_raw(i16::MAX));
+            let reference = if unit == "Hz" {
+                format!(" of P2000 = {full:.2} Hz")
+            } else {
+                String::new()
+            };
+            ClientError::SetpointOutOfRange {
+                bus: self.shared.bus.clone(),
+                address: self.shared.address.get(),
+                asked: format!("{value} {unit}"),
+                range: format!(
+                    "{:.2} .. {:.2} {unit} (-200 % .. +199.99 %{reference})",
+                    low.percent() * full / 100.0,
+                    high.percent() * full / 100.0,
+                ),
+            }
+        })
     }
 
     /// STW1 0x047F with a raw setpoint.
@@ -506,7 +530,7 @@ impl Controller {
     /// (STW1 stays as it is: a running drive follows it, a stopped one stays stopped).
     pub fn set_hz(&self, hz: f32) -> Result<(), ClientError> {
         let reference_hz = self.shared.watch.info().reference_hz;
-        self.set_setpoint(Setpoint::from_hz(hz, reference_hz))
+        self.set_setpoint(self.setpoint(hz, reference_hz, "Hz")?)
     }
 
     /// Changes only the setpoint (STW1 stays as it is).

@@ -222,6 +222,17 @@ pub enum ClientError {
     /// The controller handed the drive back: take control again for more.
     #[error("drive {address} on {bus}: this controller released the drive; take control again")]
     Released { bus: String, address: u8 },
+    /// A setpoint the word cannot carry (-200 % .. +199.99 % of the reference frequency, or not
+    /// a number): refused, never sent as full scale.
+    #[error(
+        "drive {address} on {bus}: {asked} is beyond the setpoint's range, {range}; nothing was sent"
+    )]
+    SetpointOutOfRange {
+        bus: String,
+        address: u8,
+        asked: String,
+        range: String,
+    },
     /// Words ussd would refuse (and latch the drive for).
     #[error(
         "drive {address} on {bus}: ussd would refuse these words ({rejection}); nothing was sent"

@@ -220,7 +220,10 @@ impl ClientError {
     pub const fn kind(&self) -> ErrorKind {
         use ErrorKind as K;
         match self {
-            Self::Name(_) | Self::Address(_) => K::InvalidArgument,
+            // The caller's argument: a name, an address, a setpoint beyond the word.
+            Self::Name(_) | Self::Address(_) | Self::SetpointOutOfRange { .. } => {
+                K::InvalidArgument
+            }
             Self::NotRunning { .. } => K::NotRunning,
             Self::UnknownDrive { .. } => K::UnknownDrive,
             Self::Controlled { .. } => K::Controlled,

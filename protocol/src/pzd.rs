@@ -187,6 +187,14 @@ impl Setpoint {
         ))
     }
 
+    /// The setpoint of `percent`, or `None` when the word cannot carry it: not a finite number,
+    /// or outside -200 % .. +199.99 % (where [`Setpoint::from_percent`] would saturate).
+    pub fn try_from_percent(percent: f32) -> Option<Self> {
+        let raw = (percent * f32::from(Self::FULL_SCALE) / 100.0).round();
+        (raw.is_finite() && raw >= f32::from(i16::MIN) && raw <= f32::from(i16::MAX))
+            .then_some(Self(raw as i16))
+    }
+
     pub fn percent(self) -> f32 {
         f32::from(self.0) * 100.0 / f32::from(Self::FULL_SCALE)
     }
@@ -194,6 +202,11 @@ impl Setpoint {
     /// A frequency given the reference frequency P2000 in Hz; saturates like [`Setpoint::from_percent`].
     pub fn from_hz(hz: f32, reference_hz: f32) -> Self {
         Self::from_percent(hz / reference_hz * 100.0)
+    }
+
+    /// [`Setpoint::try_from_percent`] of `hz` at the reference frequency `reference_hz`.
+    pub fn try_from_hz(hz: f32, reference_hz: f32) -> Option<Self> {
+        Self::try_from_percent(hz / reference_hz * 100.0)
     }
 
     /// `f = HSW / 0x4000 x P2000`.
@@ -212,6 +225,32 @@ fn round_saturating(x: f32) -> i16 {
 #[allow(clippy::float_cmp)] // the values asserted are exactly representable
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_setpoint_beyond_the_word_is_none_not_full_scale() {
+        assert_eq!(
+            Setpoint::try_from_percent(100.0),
+            Some(Setpoint::from_raw(0x4000))
+        );
+        assert_eq!(
+            Setpoint::try_from_percent(-200.0),
+            Some(Setpoint::from_raw(i16::MIN))
+        );
+        assert_eq!(
+            Setpoint::try_from_percent(199.99),
+            Some(Setpoint::from_raw(32766))
+        );
+        let top = Setpoint::from_raw(i16::MAX);
+        assert_eq!(Setpoint::try_from_percent(top.percent()), Some(top));
+        for beyond in [200.0, -200.01, 1e30, f32::NAN, f32::INFINITY] {
+            assert_eq!(Setpoint::try_from_percent(beyond), None, "{beyond}");
+        }
+        assert_eq!(Setpoint::try_from_hz(5000.0, 50.0), None);
+        assert_eq!(
+            Setpoint::try_from_hz(25.0, 50.0),
+            Some(Setpoint::from_raw(0x2000))
+        );
+    }
 
     #[test]
     fn common_control_words() {

@@ -355,7 +355,7 @@ def test_python_has_the_calls_rust_and_c_have(bus):
             c.run_percent(float("nan"))
         # A setpoint beyond what the word carries (-200 % .. +199.99 % of P2000) is refused,
         # not sent as full scale: run_hz(5000) for run_hz(50) must not run the drive at 100 Hz.
-        before = uss_rt.read_input(bus, 1)["sent_stw1"]
+        before = c.wait_for(lambda i: i["sent_stw1"] == 0x047E, what="OFF1")["sent_stw1"]
         for call in (lambda: c.run_hz(5000), lambda: c.set_hz(-1e30), lambda: c.run_percent(250)):
             with pytest.raises(ValueError, match="beyond the setpoint's range"):
                 call()

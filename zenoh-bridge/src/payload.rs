@@ -321,7 +321,12 @@ impl Out {
         words[0] = stw1;
         match (self.hz, pzd) {
             (Some(hz), 1) if hz != 0.0 => return Err(SampleError::NoSetpoint),
-            (Some(hz), 2..) => words[1] = Setpoint::from_hz(hz, reference_hz).word(),
+            (Some(hz), 2..) => {
+                // Refused, never sent as full scale.
+                words[1] = Setpoint::try_from_hz(hz, reference_hz)
+                    .ok_or(SampleError::HzOutOfRange { hz, reference_hz })?
+                    .word();
+            }
             _ => {}
         }
         Ok(words)
@@ -348,6 +353,10 @@ pub enum SampleError {
     HzNotFinite,
     #[error("the drive exchanges only STW1 (pzd = 1): no setpoint")]
     NoSetpoint,
+    #[error(
+        "hz {hz} is beyond the setpoint's range: -200 % .. +199.99 % of P2000 = {reference_hz:.2} Hz"
+    )]
+    HzOutOfRange { hz: f32, reference_hz: f32 },
 }
 
 /// `<prefix>/<bus>/drive/<addr>/control`: what the bridge does with a remote controller's
@@ -545,6 +554,12 @@ mod tests {
         assert_eq!(out.pzd(2, 50.0).unwrap(), [0x047F, 0x2000]);
         assert_eq!(out.pzd(4, 50.0).unwrap(), [0x047F, 0x2000, 0, 0]);
         assert!(out.pzd(1, 50.0).is_err());
+        // Beyond the word's -200 % .. +199.99 %: refused, not sent as full scale.
+        let out = Out::parse(br#"{"v":1,"from":"t","seq":8,"stw1":1151,"hz":5000.0}"#).unwrap();
+        assert!(matches!(
+            out.pzd(2, 50.0),
+            Err(SampleError::HzOutOfRange { .. })
+        ));
         let out =
             Out::parse(br#"{"v":1,"from":"t","seq":8,"words":[1150,0,5],"rearm":12}"#).unwrap();
         assert_eq!(out.pzd(2, 50.0).unwrap(), [0x047E, 0, 5]);

@@ -161,7 +161,7 @@ int main(int argc, char **argv) {
   EXPECT(ussrt_control_set_hz(c, 1.0f / 0.0f) == USSRT_STATUS_INVALID_ARGUMENT, "inf Hz");
   /* Beyond the setpoint word's -200 % .. +199.99 %: refused, not sent as full scale. */
   EXPECT(ussrt_control_set_hz(c, 5000.0f) == USSRT_STATUS_INVALID_ARGUMENT, "5000 Hz");
-  EXPECT(ussrt_control_run_percent(c, -250.0f) == USSRT_STATUS_INVALID_ARGUMENT, "-250 %");
+  EXPECT(ussrt_control_run_percent(c, -250.0f) == USSRT_STATUS_INVALID_ARGUMENT, "-250 percent");
   EXPECT(ussrt_control_jog(c, 3) == USSRT_STATUS_INVALID_ARGUMENT, "jog 3");
   OK(ussrt_control_stop(c));
   OK(ussrt_control_wait_state(c, 2, 5000));
