@@ -230,8 +230,18 @@ fn qualify(cli: &Cli) -> ExitCode {
         duration.as_secs_f64()
     );
     let measured = qualify::measure(&config, duration);
-    let mut holds = true;
-    for (m, bus) in measured.iter().zip(&config.buses) {
+    let mut holds = measured.len() == config.buses.len();
+    if !holds {
+        eprintln!(
+            "ussd: a measuring thread could not run: only {} of {} buses measured",
+            measured.len(),
+            config.buses.len()
+        );
+    }
+    for m in &measured {
+        let Some(bus) = config.buses.iter().find(|b| b.name == m.bus) else {
+            continue;
+        };
         let checks = qualify::checks(bus);
         print!("{}", qualify::report(m, &checks, duration.as_secs_f64()));
         holds &= qualify::AtRate::of(m.baud.get(), m.latency.max() as f64 / 1e3)

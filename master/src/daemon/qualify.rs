@@ -73,7 +73,7 @@ impl Measured {
 }
 
 /// Measures every bus of `config` at once, each in a thread of its bus's scheduling, for
-/// `duration`.
+/// `duration`; a bus whose thread could not run is missing from the result (the caller says so).
 pub fn measure(config: &Config, duration: Duration) -> Vec<Measured> {
     let threads: Vec<_> = config
         .buses
@@ -126,11 +126,11 @@ fn wake_ups(duration: Duration) -> Histogram<u64> {
         let late = now().saturating_sub(next);
         let _ = h.record(late.max(1));
         next += interval;
-        // A wake-up so late that the next ones are past already: take up from now, as
-        // cyclictest does, rather than firing a burst.
+        // A wake-up so late that the next ones are past already: step over them on the same
+        // grid, as cyclictest does, rather than firing a burst.
         let current = now();
-        if next <= current {
-            next = current + interval;
+        while next <= current {
+            next += interval;
         }
     }
     h
