@@ -28,7 +28,9 @@ systemd-analyze verify /lib/systemd/system/ussd.service
 # Installed, not enabled: the user enables it.
 [ "$(systemctl is-enabled ussd 2>/dev/null || true)" != enabled ]
 ussd --check-config /etc/uss-rt/ussd.toml >/dev/null
-man -w ussd ussctl uss-sim uss-exporter >/dev/null
+for page in ussd ussctl uss-sim uss-exporter; do
+  [ -s "/usr/share/man/man1/$page.1.gz" ]
+done
 
 # The installed ussd on its configuration (without --require-rt: real time is the machine's).
 /usr/bin/ussd --config /etc/uss-rt/ussd.toml >"$work/ussd.log" 2>&1 &
