@@ -39,17 +39,6 @@ impl UssrtController {
     }
 }
 
-/// `x` when it is a finite number of `unit`; `INVALID_ARGUMENT` otherwise.
-fn finite(x: f32, unit: &str) -> Result<f32, Failure> {
-    if x.is_finite() {
-        Ok(x)
-    } else {
-        Err(Failure::Argument(format!(
-            "{x} {unit} is not a finite number"
-        )))
-    }
-}
-
 /// Runs `f` on the controller behind `c`, or fails with `RELEASED`.
 fn with(
     c: *const UssrtController,
@@ -219,7 +208,7 @@ pub unsafe extern "C" fn ussrt_control_run_hz(
     controller: *const UssrtController,
     hz: f32,
 ) -> UssrtStatus {
-    with(controller, |c| Ok(c.run_hz(finite(hz, "Hz")?)?))
+    with(controller, |c| Ok(c.run_hz(hz)?))
 }
 
 /// A new setpoint in Hz, the control word as it is: a running drive follows it, a stopped one
@@ -232,7 +221,7 @@ pub unsafe extern "C" fn ussrt_control_set_hz(
     controller: *const UssrtController,
     hz: f32,
 ) -> UssrtStatus {
-    with(controller, |c| Ok(c.set_hz(finite(hz, "Hz")?)?))
+    with(controller, |c| Ok(c.set_hz(hz)?))
 }
 
 /// Jog directions of [`ussrt_control_jog`] (STW1 bit 8 right, bit 9 left).
@@ -276,7 +265,7 @@ pub unsafe extern "C" fn ussrt_control_run_percent(
     controller: *const UssrtController,
     percent: f32,
 ) -> UssrtStatus {
-    with(controller, |c| Ok(c.run_percent(finite(percent, "%")?)?))
+    with(controller, |c| Ok(c.run_percent(percent)?))
 }
 
 /// OFF1: ramp down, then S2 (STW1 0x047E).

@@ -201,11 +201,7 @@ pub unsafe extern "C" fn ussrt_param_read_elements(
         let count = out(count, "count")?;
         let param = param_ref(param)?;
         let drive = drive(address)?;
-        // An array the catalogue knows is read whole; anything else is one value.
-        let needed = match bus.bus.catalogue_entry(drive, param.pnu) {
-            Some(p) if param.index.is_none() && p.is_array() => usize::from(p.array),
-            _ => 1,
-        };
+        let needed = bus.bus.element_count(drive, param);
         *count = needed;
         if capacity < needed {
             return Err(Failure::Argument(format!(

@@ -482,8 +482,8 @@ impl Controller {
     /// STW1 0x047F with a setpoint in % of the reference (0x4000 = 100 %, -200..+199.99 %):
     /// S2 -> S3 -> S4, running. A negative setpoint runs the other way (signed HSW, USS.md
     /// section 7); a drive may block negative setpoints by its own parameters.
-    /// A setpoint beyond that range (or not a number) is refused with
-    /// [`ClientError::SetpointOutOfRange`], never sent as full scale.
+    /// A setpoint beyond that range, or not a finite number, is refused with
+    /// [`ClientError::InvalidSetpoint`], never sent as full scale.
     pub fn run_percent(&self, percent: f32) -> Result<(), ClientError> {
         self.run_setpoint(self.setpoint(percent, 100.0, "%")?)
     }
@@ -496,24 +496,30 @@ impl Controller {
         self.run_setpoint(self.setpoint(hz, reference_hz, "Hz")?)
     }
 
-    /// The setpoint of `value` in a unit of which `full` is 100 %, or why the word cannot carry it.
+    /// The setpoint of `value` in a unit of which `full` is 100 %, or why the word cannot carry
+    /// it: every front-end's one check of a setpoint it is given.
     fn setpoint(&self, value: f32, full: f32, unit: &str) -> Result<Setpoint, ClientError> {
         Setpoint::try_from_percent(value / full * 100.0).ok_or_else(|| {
-            let (low, high) = (Setpoint::from_raw(i16::MIN), Setpoint::from_raw(i16::MAX));
-            let reference = if unit == "Hz" {
-                format!(" of P2000 = {full:.2} Hz")
+            let problem = if value.is_finite() {
+                let (low, high) = (Setpoint::from_raw(i16::MIN), Setpoint::from_raw(i16::MAX));
+                let reference = if unit == "Hz" {
+                    format!(" of P2000 = {full:.2} Hz")
+                } else {
+                    String::new()
+                };
+                format!(
+                    "is beyond the setpoint's range, {:.2} .. {:.2} {unit} (-200 % .. +199.99 %{reference})",
+                    low.percent() * full / 100.0,
+                    high.percent() * full / 100.0,
+                )
             } else {
-                String::new()
+                "is not a finite number".to_owned()
             };
-            ClientError::SetpointOutOfRange {
+            ClientError::InvalidSetpoint {
                 bus: self.shared.bus.clone(),
                 address: self.shared.address.get(),
                 asked: format!("{value} {unit}"),
-                range: format!(
-                    "{:.2} .. {:.2} {unit} (-200 % .. +199.99 %{reference})",
-                    low.percent() * full / 100.0,
-                    high.percent() * full / 100.0,
-                ),
+                problem,
             }
         })
     }

@@ -222,16 +222,14 @@ pub enum ClientError {
     /// The controller handed the drive back: take control again for more.
     #[error("drive {address} on {bus}: this controller released the drive; take control again")]
     Released { bus: String, address: u8 },
-    /// A setpoint the word cannot carry (-200 % .. +199.99 % of the reference frequency, or not
-    /// a number): refused, never sent as full scale.
-    #[error(
-        "drive {address} on {bus}: {asked} is beyond the setpoint's range, {range}; nothing was sent"
-    )]
-    SetpointOutOfRange {
+    /// A setpoint the word cannot carry (not a finite number, or beyond -200 % .. +199.99 % of
+    /// the reference frequency): refused, never sent as full scale. `problem` says which.
+    #[error("drive {address} on {bus}: {asked} {problem}; nothing was sent")]
+    InvalidSetpoint {
         bus: String,
         address: u8,
         asked: String,
-        range: String,
+        problem: String,
     },
     /// Words ussd would refuse (and latch the drive for).
     #[error(

@@ -221,9 +221,7 @@ impl ClientError {
         use ErrorKind as K;
         match self {
             // The caller's argument: a name, an address, a setpoint beyond the word.
-            Self::Name(_) | Self::Address(_) | Self::SetpointOutOfRange { .. } => {
-                K::InvalidArgument
-            }
+            Self::Name(_) | Self::Address(_) | Self::InvalidSetpoint { .. } => K::InvalidArgument,
             Self::NotRunning { .. } => K::NotRunning,
             Self::UnknownDrive { .. } => K::UnknownDrive,
             Self::Controlled { .. } => K::Controlled,

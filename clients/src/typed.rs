@@ -225,6 +225,13 @@ impl Bus {
         }
     }
 
+    /// How many values [`Bus::read_elements`] gives for `param` of drive `address`: every
+    /// element of an array parameter its catalogue knows, named without one; else 1.
+    pub fn element_count(&self, address: Address, param: ParamRef) -> usize {
+        whole_array(param, self.catalogue_entry(address, param.pnu))
+            .map_or(1, |(_, count)| usize::from(count))
+    }
+
     /// The catalogue entry for parameter `pnu` of drive `address`, where its family has one.
     pub fn catalogue_entry(&self, address: Address, pnu: Pnu) -> Option<&'static Param> {
         self.catalogue_of(self.family(address))
@@ -275,13 +282,13 @@ impl Bus {
         }
         // Described once: the type and entry found here are the ones read with.
         let (data_type, info) = self.describe_as(address, param.pnu, family)?;
-        let Some(p) = info.filter(|p| param.index.is_none() && p.is_array()) else {
+        let Some((p, count)) = whole_array(param, info) else {
             return self
                 .read_described(address, param, data_type, info)
                 .map(|v| vec![v]);
         };
-        let elements: Vec<ParamRef> = (0..p.array.min(255))
-            .map(|i| ParamRef::numbered(param.pnu.get(), Some(i as u8)))
+        let elements: Vec<ParamRef> = (0..count)
+            .map(|i| ParamRef::numbered(param.pnu.get(), Some(i)))
             .collect::<Result<_, _>>()
             .map_err(|e| ParamError::Unexpected(e.to_string()))?;
         let mut values = Vec::with_capacity(elements.len());
@@ -576,6 +583,14 @@ impl Bus {
             warnings,
         })
     }
+}
+
+/// `entry` and its element count (at most 255, an IND subindex) when `param` names an array
+/// parameter whole: [`Bus::read_elements`] reads its every element.
+fn whole_array(param: ParamRef, entry: Option<&'static Param>) -> Option<(&'static Param, u8)> {
+    entry
+        .filter(|p| param.index.is_none() && p.is_array())
+        .map(|p| (p, u8::try_from(p.array).unwrap_or(u8::MAX)))
 }
 
 #[cfg(test)]

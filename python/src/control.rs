@@ -152,20 +152,17 @@ impl Controller {
     /// ON (STW1 0x047F) with a setpoint in Hz, scaled by the reference frequency P2000 that
     /// ussd publishes (`reference_hz`).
     fn run_hz(&self, py: Python<'_>, hz: f32) -> PyResult<()> {
-        let hz = finite(hz, "Hz")?;
         self.with(py, |c| c.run_hz(hz))
     }
 
     /// ON with a setpoint in % of the reference frequency (-200 .. +199.99).
     fn run_percent(&self, py: Python<'_>, percent: f32) -> PyResult<()> {
-        let percent = finite(percent, "%")?;
         self.with(py, |c| c.run_percent(percent))
     }
 
     /// A new setpoint in Hz, the control word as it is: a running drive follows it, a stopped
     /// one stays stopped.
     fn set_hz(&self, py: Python<'_>, hz: f32) -> PyResult<()> {
-        let hz = finite(hz, "Hz")?;
         self.with(py, |c| c.set_hz(hz))
     }
 
@@ -311,17 +308,6 @@ impl Controller {
             "Controller(bus='{}', drive={}, stw1={stw1:#06x})",
             self.bus, self.address
         )
-    }
-}
-
-/// `x` when it is a finite number of `unit`; a `ValueError` otherwise.
-fn finite(x: f32, unit: &str) -> PyResult<f32> {
-    if x.is_finite() {
-        Ok(x)
-    } else {
-        Err(pyo3::exceptions::PyValueError::new_err(format!(
-            "{x} {unit} is not a finite number"
-        )))
     }
 }
 

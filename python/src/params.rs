@@ -185,28 +185,30 @@ fn read_elements<'py>(
     param: &str,
     timeout: f64,
 ) -> PyResult<Vec<Bound<'py, PyDict>>> {
-    let (bus, drive, param) = answering(py, bus, address, param, timeout)?;
-    let values = py
-        .detach(|| bus.read_elements(drive, param))
-        .map_err(|e| errors::param(py, &bus, address, e))?;
+    let values = answered(py, bus, address, param, timeout, |bus, drive, param| {
+        bus.read_elements(drive, param)
+    })?;
     values.iter().map(|v| value_dict(py, v)).collect()
 }
 
-/// The bus answering within `timeout` s, the drive and the parameter a call names.
-fn answering(
+/// A parameter call `f` of `param` (its bus answering within `timeout` s), made without the GIL;
+/// its error as the matching `uss_rt` exception.
+fn answered<T: Send>(
     py: Python<'_>,
     bus: &Bound<'_, NativeBus>,
     address: u8,
     param: &str,
     timeout: f64,
-) -> PyResult<(uss_client::Bus, Address, ParamRef)> {
+    f: impl FnOnce(&uss_client::Bus, Address, ParamRef) -> Result<T, uss_client::ParamError> + Send,
+) -> PyResult<T> {
     let param = param_ref(param)?;
     let drive = errors::drive(py, address)?;
     let bus = bus
         .get()
         .inner
         .with_answer_timeout(Some(duration(timeout)?));
-    Ok((bus, drive, param))
+    py.detach(|| f(&bus, drive, param))
+        .map_err(|e| errors::param(py, &bus, address, e))
 }
 
 /// A typed parameter call `f` of `param`, answered within `timeout` s, without the GIL.
@@ -219,11 +221,7 @@ fn typed<'py>(
     f: impl FnOnce(&uss_client::Bus, Address, ParamRef) -> Result<ParamValue, uss_client::ParamError>
     + Send,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let (bus, drive, param) = answering(py, bus, address, param, timeout)?;
-    let value = py
-        .detach(|| f(&bus, drive, param))
-        .map_err(|e| errors::param(py, &bus, address, e))?;
-    value_dict(py, &value)
+    value_dict(py, &answered(py, bus, address, param, timeout, f)?)
 }
 
 /// Writes `text` to `param`, converted to the parameter's own type; the value the drive holds.

@@ -154,16 +154,17 @@ class Controller(_native.Controller):
         program waits inside its own call); raises :class:`Tripped` as soon as the drive
         latches, :class:`WaitTimeout` after ``timeout`` s (None: 3 s for the drive and its
         :meth:`handshake` time for the bus to carry the command and the answer)."""
-        if timeout is None:
-            timeout = 3.0 + self.handshake()
+        timeout = self._wait_time(timeout)
         return _u._image(super().wait_for(lambda raw: predicate(_u._image(raw)), timeout, what))
 
     def wait_for_state(self, state: int, timeout=None) -> dict:
         """Waits until the drive shows state ``state`` (1..4 for S1..S4, 6 fault), as
         :meth:`wait_for` does."""
-        if timeout is None:
-            timeout = 3.0 + self.handshake()
-        return _u._image(super().wait_for_state(state, timeout))
+        return _u._image(super().wait_for_state(state, self._wait_time(timeout)))
+
+    def _wait_time(self, timeout) -> float:
+        """A wait's ``timeout``; None: 3 s for the drive and its handshake time for the bus."""
+        return 3.0 + self.handshake() if timeout is None else timeout
 
 
 def control(bus, address: int) -> Controller:

@@ -244,8 +244,7 @@ fn qualify(cli: &Cli) -> ExitCode {
         };
         let checks = qualify::checks(bus);
         print!("{}", qualify::report(m, &checks, duration.as_secs_f64()));
-        holds &= qualify::AtRate::of(m.baud.get(), m.latency.max() as f64 / 1e3)
-            .is_some_and(|at| at.holds());
+        holds &= m.at_own_rate().is_some_and(|at| at.holds());
     }
     if let Some(path) = &cli.plot {
         match qualify::plot(path, &measured) {

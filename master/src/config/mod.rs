@@ -429,8 +429,7 @@ impl Config {
                     if rules::SerialPath::of(path) == rules::SerialPath::Absent =>
                 {
                     Some(format!(
-                        "bus {}: device {} does not exist now: ussd starts this bus line down \
-                         and opens it when it appears",
+                        "bus {}: device {} {ABSENT}",
                         bus.name,
                         path.display()
                     ))
@@ -459,15 +458,17 @@ impl Config {
     }
 }
 
+/// What ussd does with a serial device that is not there: `--check-config`'s warning and the
+/// effective configuration's comment say it alike.
+const ABSENT: &str =
+    "does not exist now: ussd starts this bus line down and opens it when it appears";
+
 /// What is at a serial device's path now.
 fn device_note(path: &Path) -> String {
     let shown = path.display();
     match rules::SerialPath::of(path) {
         rules::SerialPath::Tty => format!("{shown} is a serial device (a tty)"),
-        rules::SerialPath::Absent => format!(
-            "warning: {shown} does not exist now: ussd starts this bus line down and opens it \
-             when it appears"
-        ),
+        rules::SerialPath::Absent => format!("warning: {shown} {ABSENT}"),
         rules::SerialPath::Unknown => {
             format!("{shown} exists; this machine does not say whether it is a tty")
         }

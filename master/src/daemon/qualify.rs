@@ -70,6 +70,11 @@ impl Measured {
     fn max_us(&self) -> f64 {
         self.latency.max() as f64 / 1e3
     }
+
+    /// USS's timing at the bus's own rate against the worst wake-up: the verdict.
+    pub fn at_own_rate(&self) -> Option<AtRate> {
+        AtRate::of(self.baud.get(), self.max_us())
+    }
 }
 
 /// Measures every bus of `config` at once, each in a thread of its bus's scheduling, for
@@ -489,7 +494,7 @@ fn rates(t: &mut String, m: &Measured) {
 /// The verdict at the bus's own rate, and what to do when it does not hold.
 fn verdict(t: &mut String, m: &Measured) {
     let max = m.max_us();
-    let _ = match AtRate::of(m.baud.get(), max) {
+    let _ = match m.at_own_rate() {
         Some(at) if at.holds() && m.report.is_full_rt() => writeln!(
             t,
             "  verdict: this machine holds bus {}'s timing at {} baud (start pause margin {:.0} us)",
