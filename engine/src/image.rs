@@ -161,12 +161,22 @@ mod tests {
 
     #[test]
     fn readers_never_see_a_torn_write() {
+        use std::sync::atomic::{AtomicU64, Ordering};
         let c = Arc::new(WordCell::default());
+        // Reads made so far: the writer goes on until the reader has read while it wrote (on
+        // a busy machine the reader may not run before 20000 writes are done; it failed so
+        // once in CI), up to a bound so a reader that never reads still ends the test.
+        let reads = Arc::new(AtomicU64::new(0));
         let writer = {
-            let c = Arc::clone(&c);
+            let (c, reads) = (Arc::clone(&c), Arc::clone(&reads));
             std::thread::spawn(move || {
-                for i in 0..20_000u16 {
+                let mut i = 0u16;
+                for n in 0..10_000_000u32 {
+                    if n >= 20_000 && reads.load(Ordering::Relaxed) >= 100 {
+                        break;
+                    }
                     c.write(&[i; 16], u64::from(i), u64::from(i));
+                    i = i.wrapping_add(1);
                 }
             })
         };
@@ -176,6 +186,7 @@ mod tests {
                 assert!(w.words.iter().all(|x| *x == w.words[0]), "torn: {w:?}");
                 assert_eq!(u64::from(w.words[0]), w.number);
                 seen += 1;
+                reads.store(seen, Ordering::Relaxed);
             }
         }
         writer.join().unwrap();
