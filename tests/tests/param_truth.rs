@@ -569,15 +569,20 @@ fn a_quick_commissioning_through_ussctl_reaches_every_parameter_it_names() {
         ("P0304", "400"),
         ("P0305", "1.9"),
         ("P0307", "0.75"),
+        ("P0308", "0.82"),
         ("P0311", "1395"),
+        ("P0335", "0"),
     ] {
         step(&["param", "write", "1", p, v]);
     }
     step(&["param", "write", "1", "P0010", "0"]);
     step(&["param", "write", "1", "P1300", "2"]);
+    step(&["param", "write", "1", "P0340", "1"]);
+    step(&["param", "write", "1", "P0640", "120"]);
     step(&["param", "write", "1", "P0971", "1"]);
     assert!(step(&["param", "read", "1", "P0304"]).contains("400 V"));
     assert!(step(&["param", "read", "1", "P0305"]).contains("1.90 A"));
+    assert!(step(&["param", "read", "1", "P0640"]).contains("120"));
     for r in ["r0025", "r0026", "r0027"] {
         step(&["param", "read", "1", r]);
     }

@@ -976,3 +976,40 @@ fn a_quick_commissioning_writes_the_motor_data_and_saves_it() {
     assert_eq!(t.get(1300, 0), Some(2));
     assert_eq!(t.get_f32(305, 0), Some(1.9));
 }
+
+/// The rest of an MM4's quick commissioning (parameter list 6SE6400-5BA00-0BP0, typed in here,
+/// not read from the profile): P0308 rated motor cosPhi (float 0.000..1.000, "C"), P0335 motor
+/// cooling ("CT"), P0340 calculation of the motor parameters ("T"), P0640 motor overload factor
+/// (float 10.0..400.0 %, factory setting 150.0, changeable at any time).
+#[test]
+fn the_motor_data_of_quick_commissioning_are_all_there() {
+    let mut t = expert();
+    assert_eq!(
+        write_f32(&mut t, 308, 0.8),
+        err(ErrorNumber::NotInThisState),
+        "P0308 outside quick commissioning"
+    );
+    assert_eq!(t.get_f32(640, 0), Some(150.0), "P0640's factory setting");
+    assert_eq!(write(&mut t, P0010, Value::Word(1)), ReplyKind::Word(1));
+    assert_eq!(
+        write_f32(&mut t, 308, 0.82),
+        ReplyKind::Dword(0.82f32.to_bits())
+    );
+    assert_eq!(
+        write_f32(&mut t, 308, 1.5),
+        err(ErrorNumber::LimitExceeded),
+        "P0308 0.000..1.000"
+    );
+    assert_eq!(write(&mut t, 335, Value::Word(1)), ReplyKind::Word(1));
+    assert_eq!(write(&mut t, P0010, Value::Word(0)), ReplyKind::Word(0));
+    assert_eq!(write(&mut t, 340, Value::Word(1)), ReplyKind::Word(1));
+    assert_eq!(
+        write_f32(&mut t, 640, 5.0),
+        err(ErrorNumber::LimitExceeded),
+        "P0640 10.0..400.0 %"
+    );
+    assert_eq!(
+        write_f32(&mut t, 640, 120.0),
+        ReplyKind::Dword(120f32.to_bits())
+    );
+}
