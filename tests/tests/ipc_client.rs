@@ -1031,7 +1031,7 @@ fn backup_change_restore_and_diff_shows_nothing() {
     // The simulated drive has every parameter its family's profile lists (the settings a
     // backup keeps: no actual values, no commands such as P0970 and P0971).
     assert!(
-        said.starts_with("drive 1: 32 parameters (38 values) saved to ")
+        said.starts_with("drive 1: 35 parameters (41 values) saved to ")
             && !said.contains("not on this drive"),
         "{said}"
     );
@@ -1068,13 +1068,13 @@ fn backup_change_restore_and_diff_shows_nothing() {
     assert!(
         said.contains("P0310      drive 1: 60.00 Hz")
             && said.contains("P1082      drive 1: 45.00 Hz")
-            && said.ends_with("4 differences, 34 values the same\n"),
+            && said.ends_with("4 differences, 37 values the same\n"),
         "{said}"
     );
     let (code, said, _) = run(&["param", "restore", "1", path, "--dry-run"]);
     assert_eq!(code, Some(0));
     assert!(
-        said.contains("would write 4; 34 already as in the file"),
+        said.contains("would write 4; 37 already as in the file"),
         "{said}"
     );
     assert_eq!(p1082(), Ok(45.0), "a dry run writes nothing");
@@ -1100,13 +1100,13 @@ fn backup_change_restore_and_diff_shows_nothing() {
     assert_eq!(code, Some(0), "{said}{err}");
     assert!(said.contains("P0719      11 -> 0: written"), "{said}");
     assert!(
-        said.contains("wrote 4, refused 0; 34 already as in the file"),
+        said.contains("wrote 4, refused 0; 37 already as in the file"),
         "{said}"
     );
     let (_, said, _) = run(&["param", "diff", "1", path]);
     assert!(said.starts_with("drive 1 and "), "{said}");
     assert!(
-        said.ends_with(": no differences (38 values compared)\n"),
+        said.ends_with(": no differences (41 values compared)\n"),
         "{said}"
     );
     assert_eq!(
@@ -1244,7 +1244,7 @@ fn another_drive_keeps_its_com_link(ussd: &Ussd, path: &str) {
     assert_eq!(
         said,
         "  P2011[1]   drive 1: 1              drive 2: 2              (USS address)\n\
-         drive 1 and drive 2: 1 difference, 37 values the same\n"
+         drive 1 and drive 2: 1 difference, 40 values the same\n"
     );
     let (code, said, err) = run(&["param", "restore", "2", path]);
     assert_eq!(code, Some(0), "{said}{err}");
@@ -1253,7 +1253,7 @@ fn another_drive_keeps_its_com_link(ussd: &Ussd, path: &str) {
         "{said}"
     );
     assert!(
-        said.contains("wrote 0, refused 0; 37 already as in the file, 1 COM-link settings kept"),
+        said.contains("wrote 0, refused 0; 40 already as in the file, 1 COM-link settings kept"),
         "{said}"
     );
     assert_eq!(bus.read(addr(2), param_at(2011, 1)), Ok(Value::Word(2)));
