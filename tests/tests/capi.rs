@@ -1,6 +1,6 @@
 //! The C ABI (`libussrt`, crate `uss-rt-c`) from real C and C++ programs against a real ussd:
 //! the C example and the C++ example (RAII wrapper) of `capi/examples` run a drive as the
-//! README shows, and `capi/tests/c/abi_check.c` goes through every kind of call: statuses and
+//! guide shows, and `capi/tests/c/abi_check.c` goes through every kind of call: statuses and
 //! messages, the latch as an error code with its reason, the drive's error number, a stall of
 //! the program, a release.
 #![allow(clippy::unwrap_used)]

@@ -39,7 +39,7 @@ fn linuxcnc_here() -> bool {
     here
 }
 
-/// Builds the component the way the README says: `make -C linuxcnc`.
+/// Builds the component the way the guide says: `make -C linuxcnc`.
 fn build() -> PathBuf {
     let out = Command::new("make")
         .args(["-C", "linuxcnc", "--no-print-directory"])
@@ -65,7 +65,7 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
 }
 
 /// The HAL file of a test: the component on drive 1 of `bus`, its watchdog-in fed by siggen's
-/// clock in a servo thread (1 ms), as the README shows.
+/// clock in a servo thread (1 ms), as the guide shows.
 fn hal_text(component: &Path, bus: &str) -> String {
     format!(
         "loadrt threads name1=servo-thread period1=1000000\nloadrt siggen\n\

@@ -357,7 +357,7 @@ fn the_deploy_files_fit_this_ussd() {
     );
 }
 
-/// README "Access": a process of another user cannot connect, and is told why.
+/// guide "Access": a process of another user cannot connect, and is told why.
 #[test]
 fn a_process_of_another_user_cannot_connect_and_is_told_why() {
     // SAFETY: geteuid has no preconditions and cannot fail.
@@ -462,7 +462,7 @@ impl Drop for Ussctl {
     }
 }
 
-/// README "Access": with `access_group`, processes of other users in that group monitor and
+/// guide "Access": with `access_group`, processes of other users in that group monitor and
 /// control drives (`ussctl status`, `ussctl run`); a user outside it is refused and told to
 /// join the group; ussd made its root directory the group's, mode 2770.
 #[test]

@@ -26,8 +26,8 @@ pub fn command_line(bus: &str, rest: &str) -> String {
     after_help = "Examples:\n  ussctl status\n  ussctl param read 1 1082\n  ussctl param write 1 1120 2.0\n  ussctl run 1 --hz 25 --for 10\n  ussctl --json status"
 )]
 pub struct Cli {
-    /// The bus, as named in ussd's configuration.
-    #[arg(long, global = true, default_value = DEFAULT_BUS)]
+    /// The bus, as named in ussd's configuration (a shell that works on one bus sets `USS_BUS`).
+    #[arg(long, global = true, env = "USS_BUS", default_value = DEFAULT_BUS)]
     pub bus: String,
     /// Machine-readable output: one JSON document (`watch`: one per line).
     #[arg(long, global = true)]

@@ -14,7 +14,7 @@
 //!
 //! 4. `tls`: the cost of mutual TLS: the input latency (as in 1) and the parameter round trip
 //!    (as in 2) through a bridge on plain TCP and through one on mutual TLS (certificates made
-//!    with openssl as the README shows), one after the other in the same run.
+//!    with openssl as the guide shows), one after the other in the same run.
 //!
 //! Needs root for the namespaces (it says SKIPPED otherwise). `cargo bench -p uss-zenoh --bench
 //! remote -- latency` runs one part.

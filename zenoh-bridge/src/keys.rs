@@ -1,4 +1,4 @@
-//! The Zenoh key expressions of a bus (the README's table), and reading a parameter query's
+//! The Zenoh key expressions of a bus (the guide's table), and reading a parameter query's
 //! key back into a drive and a parameter.
 
 use uss_client::uss_protocol::ParamRef;

@@ -1,6 +1,6 @@
 //! `uss-zenoh`: the buses a ussd runs, on the network through Zenoh. A separate process (its
 //! crash never touches ussd or a bus thread) that reads ussd's services like any local client
-//! and maps them to Zenoh key expressions (README, "Beyond one host"): status, input images,
+//! and maps them to Zenoh key expressions (guide, "Beyond one host"): status, input images,
 //! diagnostics and descriptions as JSON, liveliness tokens for the bridge and for each bus ussd
 //! serves, a queryable for parameters, read-only unless `--allow-writes`, operator stops from
 //! anywhere, and remote control only with `--allow-control`.
@@ -66,7 +66,7 @@ struct Cli {
     #[arg(long)]
     insecure_network: bool,
     /// Who may do what: a TOML file granting rights (read, stop, write, control) per
-    /// certificate common name, bus and drive (README, "Who may do what"). Zenoh's access
+    /// certificate common name, bus and drive (guide, "Who may do what"). Zenoh's access
     /// control binds each listed name to its certificate and subscriptions to `read`; the
     /// bridge checks every put and query and answers a refusal with the missing right. Needs
     /// mutual TLS or user/password authentication (then the names are users).
@@ -116,7 +116,7 @@ enum StartError {
     PolicyConfig(zenoh::Error),
     /// Remote control rests on verified identities only.
     #[error(
-        "--allow-control {0}: remote control rests on verified identities only; give --policy a [[grant]] with rights = [\"control\"] and the certificates' common names (or users) in `who` (README, \"Who may do what\")"
+        "--allow-control {0}: remote control rests on verified identities only; give --policy a [[grant]] with rights = [\"control\"] and the certificates' common names (or users) in `who` (guide, \"Who may do what\")"
     )]
     ControlNotByName(&'static str),
 }

@@ -1,4 +1,4 @@
-//! Who may do what through the bridge (README, "Who may do what"): an access policy that maps
+//! Who may do what through the bridge (guide, "Who may do what"): an access policy that maps
 //! peers' names (their certificates' common names under mutual TLS, their users under
 //! user/password authentication: [`Names`]) to rights per bus and drive.
 //!

@@ -1,4 +1,4 @@
-//! Whether the bridge's Zenoh links authenticate who reaches it (README, "Securing the network").
+//! Whether the bridge's Zenoh links authenticate who reaches it (guide, "Securing the network").
 //!
 //! A bridge that lets remote peers run a motor (`--allow-control`) or change a parameter
 //! (`--allow-writes`) must know who they are. Zenoh authenticates the two ends of a link with
@@ -110,7 +110,7 @@ pub fn links(config: &Config) -> Links {
 pub const HOW: &str = "configure mutual TLS (tls/ endpoints; transport.link.tls: \
 root_ca_certificate, listen_certificate and listen_private_key, connect_certificate and \
 connect_private_key, enable_mtls: true; scouting.multicast.enabled: false) or user/password \
-authentication (transport.auth.usrpwd: dictionary_file, user, password) in --zenoh-config (README, \
+authentication (transport.auth.usrpwd: dictionary_file, user, password) in --zenoh-config (guide, \
 \"Securing the network\"), or start with --insecure-network in a lab (parameter writes only: \
 remote control needs a policy that names who may control)";
 

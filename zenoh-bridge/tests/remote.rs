@@ -11,7 +11,7 @@
 //! A bridge paused at the hand-over still takes the run's release when it resumes.
 //!
 //! A bridge that moves motors or writes runs on mutual TLS (certificates made by the test with
-//! openssl as the README shows): on plain TCP it refuses to start, and a client without a
+//! openssl as the guide shows): on plain TCP it refuses to start, and a client without a
 //! certificate, or with one of another CA, does not get in (and the drive does not move).
 //!
 //! Creating namespaces needs root; without it the test says it is skipped. CI runs as root and
@@ -238,7 +238,7 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
     let engineer = pki.client("engineer");
     ns.use_tls(Some(engineer.clone()));
     let (mut bridge_proc, _) = bridge_tls(&ns, &bus, &prefix, &["--allow-writes"], &pki);
-    // The README's Python example over mutual TLS too.
+    // The guide's Python example over mutual TLS too.
     answers_over_tls(&ns, &key("drive/1"));
     python_reads_p1082(&ns, &key("drive/1/param/P1082"), Some(&engineer));
     let deadline = Instant::now() + Duration::from_secs(15);
@@ -372,7 +372,7 @@ fn parameters_read_and_writes_refused(ns: &Netns, key: &dyn Fn(&str) -> String) 
         (Some("P1082"), Some("Hz"))
     );
     assert_eq!(p["shown"].as_str(), Some("50.00 Hz"));
-    // The same from Python (eclipse-zenoh, the README's example), in the other namespace too.
+    // The same from Python (eclipse-zenoh, the guide's example), in the other namespace too.
     python_reads_p1082(ns, &key("drive/1/param/P1082"), None);
     // A write is refused by default, with a reply that says why; a bad key says why too.
     let (ok, _, err) = ns.call(&["get", &key("drive/1/param/P1082"), "--value", "45"]);
@@ -420,7 +420,7 @@ fn reason(i: &PzdInput) -> LatchReason {
     LatchReason::try_from(i.latch_reason).unwrap()
 }
 
-/// The README's two hosts through a router: the bridge and the remote client each connect to a
+/// The guide's two hosts through a router: the bridge and the remote client each connect to a
 /// Zenoh router (here eclipse-zenoh's, `examples/router.py`, in place of `zenohd`), neither to
 /// the other.
 #[test]
@@ -430,7 +430,7 @@ fn a_remote_client_reaches_the_bridge_through_a_router() {
         return;
     }
     let ussd = Ussd::start("", &[(1, "")]);
-    // The README's router, over mutual TLS: the router, the bridge and the client each show a
+    // The guide's router, over mutual TLS: the router, the bridge and the client each show a
     // certificate of the plant's CA.
     let pki = Pki::new("router", "uss-rt test CA", &ns.here());
     let (cert, key) = pki.server("router", &ns.here());

@@ -1,6 +1,6 @@
 //! `soak`: ussd for a long time on a faulty simulated bus, with a controller running a drive
 //! and a client writing and reading back parameters; prints what happened. Not part of
-//! `cargo test` (it runs for minutes); run it as README "Soak" says:
+//! `cargo test` (it runs for minutes); run it as guide "Soak" says:
 //!
 //! ```sh
 //! cargo build --release -p uss-master --bin ussd && cargo run --release -p uss-benches --bin soak -- --minutes 10

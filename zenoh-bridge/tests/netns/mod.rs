@@ -46,7 +46,7 @@ impl ClientTls {
     }
 }
 
-/// Certificates made with openssl exactly as the README shows: a CA, the bridge's certificate
+/// Certificates made with openssl exactly as the guide shows: a CA, the bridge's certificate
 /// (for the namespace's near address), and clients' certificates by common name.
 pub struct Pki {
     pub dir: PathBuf,

@@ -41,7 +41,7 @@ struct Cli {
     /// A drive on the bus, repeatable: ADDR or ADDR:key=value,... with keys pkw, pzd, delay,
     /// jitter, eeprom-busy, busy, p2014, p2000, dword-error, drop, bcc, byte, truncate, late,
     /// wrong-addr, noise, late-by, unplug, hang, broadcast, family (micromaster4, g110, g120,
-    /// simoreg, generic), fragile (see the README).
+    /// simoreg, generic), fragile (see the guide, "Running `uss-sim`").
     #[arg(long = "drive", value_name = "ADDR[:key=value,...]")]
     drives: Vec<DriveSpec>,
     /// With --pty: imitate a USB adapter's latency timer or a UART's FIFO trigger: bytes toward
