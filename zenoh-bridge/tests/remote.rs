@@ -859,7 +859,7 @@ fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_
 #[test]
 fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, "")]);
+    let ussd = Ussd::start("", &[(1, "sim = { p2014 = 100 }")]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/h{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
@@ -891,6 +891,38 @@ fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() 
     let i = watch.latest();
     assert!(latched(&i), "{i:?}");
     assert_eq!(i.sent_stw1 & 0x0401, 0x0400, "OFF1 with bit 10 set");
+
+    // A drive in fault is not run: the client names the fault, says how to clear it and sends
+    // nothing (it said "re-armed; running towards 5 Hz" and went on). ussd paused past the
+    // drive's telegram-off time (P2014 = 100 ms) trips it with F0072.
+    let ussd_pid = ussd.child.id().to_string();
+    let kill_ussd = |name: &str| {
+        let ok = Command::new("kill")
+            .args([name, &ussd_pid])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok, "kill {name} ussd");
+    };
+    kill_ussd("-STOP");
+    std::thread::sleep(Duration::from_millis(500));
+    kill_ussd("-CONT");
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while watch.latest().zsw1 & 0x0008 == 0 {
+        assert!(std::time::Instant::now() < deadline, "{:?}", watch.latest());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let before = watch.latest();
+    let (status, out, err) = ns.client(&["run", &drive, "--hz", "5", "--for", "0.5"]).finish();
+    println!("remote: run of a faulted drive: {status}\n{out}{err}");
+    assert!(!status.success(), "{out}");
+    assert!(!out.contains("re-armed"), "{out}");
+    assert!(
+        err.contains("is in fault (ZSW1 0x") && err.contains("ussctl ack 1"),
+        "{err}"
+    );
+    let i = watch.latest();
+    assert!(latched(&i) && i.latch_id == before.latch_id, "{i:?}");
     bridge_proc.kill();
     let _ = std::fs::remove_file(config);
 }
