@@ -209,7 +209,13 @@ fn drive_row<'a>(screen: &Screen, d: &'a DriveView) -> Row<'a> {
             0 => "off".to_owned(),
             ms => format!("{ms} ms"),
         }),
-        Cell::from(r.controller_pid.map_or_else(String::new, |p| p.to_string())),
+        // The process whose words go out: none while the drive is latched (its last
+        // controller may have released it, died or been stopped).
+        Cell::from(
+            r.controller_pid
+                .filter(|_| r.control.state == "live")
+                .map_or_else(String::new, |p| p.to_string()),
+        ),
     ];
     Row::new(cells)
 }
