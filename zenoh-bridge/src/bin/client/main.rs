@@ -48,6 +48,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Print the manual page (roff, for man).
+    Man,
     /// Print each sample on KEY (e.g. uss/site/bus0/drive/1/in) as one line of JSON.
     Sub {
         key: String,
@@ -173,6 +175,17 @@ pub enum Failure {
     NoImage { drive: String },
     #[error("the bridge refused the OFF1: {0}")]
     ArmRefused(String),
+    #[error(
+        "{drive} is in fault (ZSW1 {zsw1:#06X}): it does not run until the fault is \
+         acknowledged; read why with `uss-zenoh-client get {drive}/param/r0947[0]` (the fault \
+         number; F0072: its telegrams stopped), then acknowledge it where the drive is (`ussctl \
+         ack {address}`) and run it again; this client sends nothing more"
+    )]
+    Faulted {
+        drive: String,
+        address: String,
+        zsw1: u16,
+    },
     #[error(
         "{drive} was not re-armed within {:?} (control {control:?}, latch {latch:?}); is the \
          bridge running with --allow-control?",
@@ -536,12 +549,27 @@ fn command(session: &zenoh::Session, cli: &Cli, name: Option<&str>) -> Result<()
                 }
             }
         }
+        // Printed by main before a session opens.
+        Command::Man => {}
     }
     Ok(())
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if matches!(cli.command, Command::Man) {
+        let mut page = Vec::new();
+        let printed = clap_mangen::Man::new(<Cli as clap::CommandFactory>::command())
+            .render(&mut page)
+            .and_then(|()| std::io::Write::write_all(&mut std::io::stdout(), &page));
+        return match printed {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("uss-zenoh-client: {e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     match run(&cli) {
         Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,
         Err(e) => {

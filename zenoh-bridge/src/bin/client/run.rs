@@ -227,6 +227,24 @@ impl Remote<'_> {
             .unwrap_or_default()
     }
 
+    /// [`Failure::Faulted`] while the drive's image shows a fault (ZSW1 bit 3).
+    fn not_faulted(&self) -> Result<(), Failure> {
+        if self.field("state") != "fault" {
+            return Ok(());
+        }
+        let zsw1 = self
+            .image
+            .as_ref()
+            .and_then(|i| i["zsw1"].as_u64())
+            .and_then(|z| u16::try_from(z).ok())
+            .unwrap_or_default();
+        Err(Failure::Faulted {
+            drive: self.drive.to_owned(),
+            address: self.drive.rsplit('/').next().unwrap_or_default().to_owned(),
+            zsw1,
+        })
+    }
+
     /// The bridge's reason for refusing this client's last sample, if it refused it.
     fn refusal(&self) -> Option<String> {
         self.report
@@ -272,6 +290,8 @@ impl Remote<'_> {
             std::thread::sleep(self.every());
             self.look();
         }
+        // A drive in fault does not run whatever it is sent: say so, and send nothing.
+        self.not_faulted()?;
         self.start_session();
         deadline = deadline.max(start + self.handshake() * 2);
         let image = self.image.as_ref().map(input_of).unwrap_or_default();
@@ -328,6 +348,7 @@ impl Remote<'_> {
         self.hz = hz;
         loop {
             self.step(RUN).map_err(|e| self.failure(e, start))?;
+            self.not_faulted()?;
             if !self.live() && self.field("control") == "latched" {
                 return Err(Failure::Latched {
                     drive: self.drive.to_owned(),
