@@ -221,3 +221,38 @@ fn watch_lines_carry_the_extra_words_in_use() {
     );
     assert!(w.human().contains("PZD3.. 0x0005 0x0006"), "{}", w.human());
 }
+
+/// An OFF3 asked of a drive that coasts (OFF2) keeps its OFF2: the line says the OFF2 it sends
+/// and what that does, not "it stops quickly" (issue 35: read in the guide's quick-stop --all).
+#[test]
+fn a_stop_report_says_what_the_stop_it_sent_does() {
+    let coasting = PzdInput {
+        online: 1,
+        known: 1,
+        zsw1: 0xBB60,
+        sent_stw1: 0x047C,
+        latch_reason: uss_client::LatchReason::Override.code(),
+        latch_command: StopCommand::Off2.code(),
+        ..PzdInput::EMPTY
+    };
+    let ramping = PzdInput {
+        latch_command: StopCommand::Off3.code(),
+        sent_stw1: 0x047A,
+        zsw1: 0xBB50,
+        ..coasting
+    };
+    let mut report = StopReport::new("bus0", StopCommand::Off3);
+    report.push(Address::new(1).unwrap(), &coasting);
+    report.push(Address::new(2).unwrap(), &ramping);
+    let said = report.human();
+    assert!(
+        said.contains(
+            "drive 1: OFF2 sent (STW1 0x047C), it coasts: its OFF2 stays, stronger than the OFF3 asked; now S1"
+        ),
+        "{said}"
+    );
+    assert!(
+        said.contains("drive 2: OFF3 sent (STW1 0x047A), it stops quickly; now S1"),
+        "{said}"
+    );
+}
