@@ -362,11 +362,6 @@ impl StopReport {
     }
 
     pub fn human(&self) -> String {
-        let what = match self.command {
-            "OFF2" => "it coasts",
-            "OFF3" => "it stops quickly",
-            _ => "it ramps down",
-        };
         let mut out = String::new();
         for d in &self.drives {
             if let Some(why) = &d.unconfirmed_because {
@@ -377,11 +372,22 @@ impl StopReport {
                 );
                 continue;
             }
+            // What the drive gets: a stronger stop it had stays (OFF2 over OFF3 over OFF1).
+            let sent = d.control.command.unwrap_or(self.command);
+            let what = match sent {
+                "OFF2" => "it coasts",
+                "OFF3" => "it stops quickly",
+                _ => "it ramps down",
+            };
+            let kept = if sent == self.command {
+                String::new()
+            } else {
+                format!(": its {sent} stays, stronger than the {} asked", self.command)
+            };
             let _ = writeln!(
                 out,
-                "drive {}: {} sent (STW1 {:#06X}), {what}; now {} (ZSW1 {:#06X}); {} until a controller re-arms it (its explicit rearm, `ussctl run`)",
+                "drive {}: {sent} sent (STW1 {:#06X}), {what}{kept}; now {} (ZSW1 {:#06X}); {} until a controller re-arms it (its explicit rearm, `ussctl run`)",
                 d.drive,
-                d.control.command.unwrap_or(self.command),
                 d.sent_stw1,
                 d.state,
                 d.zsw1,
