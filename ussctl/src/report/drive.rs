@@ -382,16 +382,15 @@ impl StopReport {
             let kept = if sent == self.command {
                 String::new()
             } else {
-                format!(": its {sent} stays, stronger than the {} asked", self.command)
+                format!(
+                    ": its {sent} stays, stronger than the {} asked",
+                    self.command
+                )
             };
             let _ = writeln!(
                 out,
                 "drive {}: {sent} sent (STW1 {:#06X}), {what}{kept}; now {} (ZSW1 {:#06X}); {} until a controller re-arms it (its explicit rearm, `ussctl run`)",
-                d.drive,
-                d.sent_stw1,
-                d.state,
-                d.zsw1,
-                d.control.state,
+                d.drive, d.sent_stw1, d.state, d.zsw1, d.control.state,
             );
         }
         out
