@@ -18,7 +18,10 @@ use uss_protocol::{Baud, Timing};
 
 /// Characters on the wire per exchange: request and reply of PKW 4, PZD 2 (16 each).
 const CHARS_PER_EXCHANGE: u64 = 32;
-const MEASURED: Duration = Duration::from_secs(4);
+/// How long each case is measured (a short run: a tenth of it).
+fn measured() -> Duration {
+    Duration::from_millis(uss_benches::rounds(4000, 400))
+}
 
 struct Case {
     per_s: f64,
@@ -52,26 +55,26 @@ fn measure(baud: u32, tick_ms: u32, rx_latency_ms: f64, echo: bool) -> Case {
         ),
     );
     let bus = open_bus(&name);
-    std::thread::sleep(Duration::from_secs(1));
+    std::thread::sleep(Duration::from_millis(uss_benches::rounds(1000, 300)));
     let before = bus.status().expect("status");
-    std::thread::sleep(MEASURED);
+    std::thread::sleep(measured());
     let after = bus.status().expect("status");
     let exchanges = after.exchanges - before.exchanges;
     let good = after.good - before.good;
     let timing = Timing::new(Baud::new(baud).expect("baud"));
     let busy = timing.chars(CHARS_PER_EXCHANGE).as_secs_f64() * good as f64;
     Case {
-        per_s: good as f64 / MEASURED.as_secs_f64(),
+        per_s: good as f64 / measured().as_secs_f64(),
         failed: exchanges - good,
         exchanges,
-        efficiency: busy / MEASURED.as_secs_f64(),
+        efficiency: busy / measured().as_secs_f64(),
     }
 }
 
 fn main() {
     println!(
-        "== adapters: 2 drives on a pty, {} s each; efficiency = share of the line's time carrying telegrams",
-        MEASURED.as_secs()
+        "== adapters: 2 drives on a pty, {:.1} s each; efficiency = share of the line's time carrying telegrams",
+        measured().as_secs_f64()
     );
     println!(
         "{:>7} {:>9} {:>8} | {:>10} {:>14} {:>6} {:>9}",

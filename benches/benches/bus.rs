@@ -141,7 +141,7 @@ fn efficiency() {
     println!("   baud    layout        mean exchange   wire floor   efficiency (floor / achieved)");
     for pzd in [2, 8] {
         for baud in [19200, 115_200, 187_500] {
-            let count = if baud == 19200 { 150 } else { 1500 };
+            let count = uss_benches::rounds(if baud == 19200 { 150 } else { 1500 }, 20);
             let (stats, mode) = run_engine(baud, pzd, count);
             let eff = stats.bus.efficiency().unwrap_or(0.0);
             let mean_ns = stats.bus.exchange_ns as f64 / stats.bus.good.max(1) as f64;
@@ -173,7 +173,8 @@ fn turnaround() {
     );
     let mut spun = None;
     for spin in [Duration::ZERO, SPIN_BEFORE_DEADLINE] {
-        let (stats, mode, cpu) = run_engine_spinning(baud, 2, 5000, spin, false);
+        let (stats, mode, cpu) =
+            run_engine_spinning(baud, 2, uss_benches::rounds(5000, 50), spin, false);
         let h = &stats.histograms.turnaround;
         let n = stats.bus.exchanges.max(1);
         println!(
@@ -240,7 +241,13 @@ fn capture_cost() {
     );
     let mut runs = Vec::new();
     for capture in [false, true] {
-        let (stats, mode, cpu) = run_engine_spinning(baud, 2, 5000, SPIN_BEFORE_DEADLINE, capture);
+        let (stats, mode, cpu) = run_engine_spinning(
+            baud,
+            2,
+            uss_benches::rounds(5000, 50),
+            SPIN_BEFORE_DEADLINE,
+            capture,
+        );
         let h = &stats.histograms.work;
         let n = stats.bus.exchanges.max(1);
         let per_exchange_us = cpu.as_secs_f64() * 1e6 / n as f64;
@@ -334,7 +341,7 @@ fn publish_cost() {
         let stats = busy_stats(drives);
         let mut copy = stats.clone();
         let mut before = Vec::new();
-        for _ in 0..300 {
+        for _ in 0..uss_benches::rounds(300, 10) {
             let t = Instant::now();
             copy_all(&mut copy, &stats);
             before.push(t.elapsed().as_secs_f64() * 1e6);
@@ -342,7 +349,7 @@ fn publish_cost() {
         let mut published = Published::new(&stats);
         let mut fresh = FreshTiming::new(usize::from(drives));
         let (mut now, mut merge) = (Vec::new(), Vec::new());
-        for _ in 0..300 {
+        for _ in 0..uss_benches::rounds(300, 10) {
             // 50 ms of a busy bus: one exchange per drive and some.
             for (i, d) in fresh.drive_histograms.iter_mut().enumerate() {
                 d.exchange.saturating_record(2_000_000 + i as u64);
@@ -375,7 +382,8 @@ fn master_work() {
         "== master work per exchange on the virtual clock, PKW 4 + PZD 2 at 19200 baud: bus thread CPU, median of 5 runs of 20000 exchanges"
     );
     for drives in [4u8, 31] {
-        let mut runs: Vec<f64> = (0..5).map(|_| virtual_run(drives, 20_000)).collect();
+        let exchanges = u32::try_from(uss_benches::rounds(20_000, 200)).expect("rounds");
+        let mut runs: Vec<f64> = (0..5).map(|_| virtual_run(drives, exchanges)).collect();
         runs.sort_by(f64::total_cmp);
         println!(
             "   {drives:2} drives: {:.2} us per exchange (runs from {:.2} to {:.2})",
@@ -443,8 +451,9 @@ fn fresh_task_cost() {
         "== the fresh-task rule's cost: exchanges on the bus per parameter read, one client reading drive 1 of 4 back to back, PKW 4 + PZD 2 at 19200 baud, 2000 reads each"
     );
     for priority in [false, true] {
-        let same = exchanges_per_read(priority, true, 2000);
-        let other = exchanges_per_read(priority, false, 2000);
+        let reads = uss_benches::rounds(2000, 50);
+        let same = exchanges_per_read(priority, true, reads);
+        let other = exchanges_per_read(priority, false, reads);
         println!(
             "   param_priority = {priority:5}: the same parameter {same:.2}, two in turn {other:.2} exchanges per read: the rule costs {:.2} exchanges per repeated read ({:.2}x)",
             same - other,

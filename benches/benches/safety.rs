@@ -33,9 +33,16 @@ type Sim = Engine<SimTransport, VirtualClock>;
 
 const RUN: [u16; 2] = [0x047F, 0x2000];
 const OFF1: [u16; 2] = [0x047E, 0];
-const STOPS: usize = 100;
-const TRIPS: usize = 60;
-const STOP_ALLS: usize = 60;
+/// Stops, trips and stops of every drive per row ([`uss_benches::rounds`]: fewer in a short run).
+fn stops() -> usize {
+    usize::try_from(uss_benches::rounds(100, 5)).expect("rounds")
+}
+fn trips() -> usize {
+    usize::try_from(uss_benches::rounds(60, 3)).expect("rounds")
+}
+fn stop_alls() -> usize {
+    usize::try_from(uss_benches::rounds(60, 3)).expect("rounds")
+}
 const WATCHDOG: Duration = Duration::from_millis(100);
 
 fn addr(a: u8) -> Address {
@@ -198,7 +205,7 @@ fn stop_latencies(n: u8, baud: u32, safety_first: bool, rng: &mut impl Rng) -> F
     let k = n / 2 + 1;
     let mut out = Vec::new();
     let mut exchange_ms = 0.0;
-    for _ in 0..STOPS {
+    for _ in 0..stops() {
         let mut bus = Bus::new(n, baud, safety_first);
         bus.warm(&[k]);
         let words = bus.words(&[k]);
@@ -225,7 +232,7 @@ fn trip_latencies(n: u8, baud: u32, safety_first: bool, rng: &mut impl Rng) -> F
     let k = n / 2 + 1;
     let mut out = Vec::new();
     let mut exchange_ms = 0.0;
-    for _ in 0..TRIPS {
+    for _ in 0..trips() {
         let mut bus = Bus::new(n, baud, safety_first);
         bus.warm(&[k]);
         let words = bus.words(&[k]);
@@ -261,7 +268,7 @@ fn stop_all_latencies(n: u8, baud: u32, safety_first: bool, rng: &mut impl Rng) 
     let all: Vec<u8> = (1..=n).collect();
     let mut out = Vec::new();
     let mut exchange_ms = 0.0;
-    for _ in 0..STOP_ALLS {
+    for _ in 0..stop_alls() {
         let mut bus = Bus::new(n, baud, safety_first);
         bus.warm(&all);
         let words = bus.words(&all);
@@ -286,9 +293,12 @@ fn stop_all_latencies(n: u8, baud: u32, safety_first: bool, rng: &mut impl Rng) 
 
 fn matrix() {
     println!(
-        "== safety on the virtual clock (PKW 4 + PZD 2, drives answer after 1 ms; {STOPS} stops, \
-         {TRIPS} trips, {STOP_ALLS} stops of every drive per row; p50 / p99 / max in exchanges \
-         of the bus and in ms)"
+        "== safety on the virtual clock (PKW 4 + PZD 2, drives answer after 1 ms; {} stops, \
+         {} trips, {} stops of every drive per row; p50 / p99 / max in exchanges \
+         of the bus and in ms)",
+        stops(),
+        trips(),
+        stop_alls()
     );
     let mut rng = rand::rngs::SmallRng::seed_from_u64(21);
     for n in [4u8, 16, 31] {
@@ -386,7 +396,7 @@ fn stops_through_ussd(bus: &uss_client::Bus, bus_name: &str) -> Figures {
     let mut capture = bus.capture().expect("capture");
     let mut rng = rand::rngs::SmallRng::seed_from_u64(7);
     let mut out = Vec::new();
-    for _ in 0..30 {
+    for _ in 0..uss_benches::rounds(30, 3) {
         let c = bus
             .control(addr(k), uss_client::ControlOptions::default())
             .expect("control");

@@ -43,6 +43,17 @@ pub fn short() -> bool {
     std::env::var_os("USS_BENCH_SHORT").is_some_and(|v| v == "1")
 }
 
+/// How many rounds (exchanges, samples, repetitions) a benchmark part takes: `full`, or in
+/// [`short`] mode a twentieth of them and at least `least` (enough to run every line of the
+/// part; the figures then mean nothing).
+pub fn rounds(full: u64, least: u64) -> u64 {
+    if short() {
+        (full / 20).max(least)
+    } else {
+        full
+    }
+}
+
 /// The workspace's target directory.
 pub fn target_dir() -> std::path::PathBuf {
     std::env::var_os("CARGO_TARGET_DIR").map_or_else(

@@ -71,13 +71,26 @@ const CLIENT_PRIORITY: u8 = 70;
 
 /// Part 1 measures its four variants in rounds, each variant for a second per round in turn,
 /// so a change in the machine's background load affects ours and raw alike.
-const ROUNDS: usize = 8;
-const ROUND_SECS: f64 = 1.0;
+/// A short run (`USS_BENCH_SHORT=1`, CI: it still runs from a fresh clone) takes 2 rounds of
+/// 0.2 s and 1 s of the other parts; its figures mean nothing.
+fn short() -> bool {
+    std::env::var_os("USS_BENCH_SHORT").is_some_and(|v| v == "1")
+}
+fn rounds() -> usize {
+    if short() { 2 } else { 8 }
+}
+fn round_secs() -> f64 {
+    if short() { 0.2 } else { 1.0 }
+}
 /// How long a paused writer sleeps before it looks at its flag again.
 const NAP: Duration = Duration::from_millis(1);
 /// Seconds the other parts measure.
-const OUTPUT_SECS: f64 = 6.0;
-const PARAM_SECS: f64 = 6.0;
+fn output_secs() -> f64 {
+    if short() { 1.0 } else { 6.0 }
+}
+fn param_secs() -> f64 {
+    if short() { 1.0 } else { 6.0 }
+}
 
 /// The drive whose images part 1 watches (the only one on its bus) and whose parameters part 3
 /// reads.
@@ -587,7 +600,7 @@ const VARIANTS: [(&str, bool); 4] = [
 /// `clock_nanosleep` wake-up for the last character; on a serial line the tty's latency).
 ///
 /// Both writers exist throughout; the one not measured is paused (it naps in 1 ms steps), and
-/// the variants take turns in [`ROUNDS`] rounds, ours and raw in alternating order.
+/// the variants take turns in [`rounds`] rounds, ours and raw in alternating order.
 fn input_path() {
     let name = format!("ipcin{}", std::process::id());
     let drive =
@@ -599,7 +612,7 @@ fn input_path() {
     let prefix = format!("uss-bench-{}", std::process::id());
     let writer = RawWriter::start(&prefix, period);
     let mut runs: [Vec<Vec<String>>; 4] = Default::default();
-    for round in 0..ROUNDS {
+    for round in 0..rounds() {
         for pair in [[0, 1], [2, 3]] {
             for v in if round % 2 == 0 {
                 pair
@@ -610,16 +623,18 @@ fn input_path() {
                 bus.pause(!ours);
                 writer.pause(ours);
                 let target = if ours { &name } else { &prefix };
-                runs[v].push(run_client(role, target, ROUND_SECS, Duration::ZERO));
+                runs[v].push(run_client(role, target, round_secs(), Duration::ZERO));
             }
         }
     }
     let raw_mode = writer.stop();
     let finished = bus.stop();
     println!(
-        "== input path: reply -> input image seen by a client process (1 drive, PKW 0 + PZD 2 at 187500 baud, 0.1 ms response delay: one image every {:.3} ms; {}-byte PzdInput; {ROUNDS} rounds of {ROUND_SECS} s per variant) [bus thread {}; raw writer {raw_mode}]",
+        "== input path: reply -> input image seen by a client process (1 drive, PKW 0 + PZD 2 at 187500 baud, 0.1 ms response delay: one image every {:.3} ms; {}-byte PzdInput; {} rounds of {} s per variant) [bus thread {}; raw writer {raw_mode}]",
         period.as_secs_f64() * 1e3,
         size_of::<PzdInput>(),
+        rounds(),
+        round_secs(),
         finished.mode
     );
     println!("   bus: {}", failures(&finished.stats));
@@ -686,7 +701,10 @@ fn report_input(kind: &str, ours: &[Vec<String>], raw: &[Vec<String>], handed: &
 /// is k: the controller's publish, `RtBridge::before_poll` taking the sample when that drive's
 /// turn comes, and the start pause before the telegram.
 fn output_path(bus: &BusUnderTest, period: Duration) -> Vec<[u64; 3]> {
-    rows::<3>(&run_client("control", &bus.name, OUTPUT_SECS, period), "O ")
+    rows::<3>(
+        &run_client("control", &bus.name, output_secs(), period),
+        "O ",
+    )
 }
 
 fn report_output(published: &[[u64; 3]], finished: &Finished) {
@@ -755,7 +773,7 @@ fn report_output(published: &[[u64; 3]], finished: &Finished) {
 /// noticing it (it polls, 50 us doubling to 2 ms). The bare exchange is the engine's own
 /// histogram: line free -> reply complete, the same PKW 4 + PZD 2 exchange.
 fn parameter_round_trip(bus: &BusUnderTest, period: Duration) -> Vec<[u64; 3]> {
-    rows::<3>(&run_client("params", &bus.name, PARAM_SECS, period), "P ")
+    rows::<3>(&run_client("params", &bus.name, param_secs(), period), "P ")
 }
 
 fn report_params(answered: &[[u64; 3]], finished: &Finished, option: &str) {

@@ -53,7 +53,9 @@ fn scale() {
         },
     )
     .expect("start 8 buses");
-    std::thread::sleep(Duration::from_secs(10));
+    // A short run (USS_BENCH_SHORT=1, CI: it still runs from a fresh clone) takes a second.
+    let short = std::env::var_os("USS_BENCH_SHORT").is_some_and(|v| v == "1");
+    std::thread::sleep(Duration::from_secs(if short { 1 } else { 10 }));
     let stats: Vec<Stats> = buses.iter().map(|b| b.handle.stats()).collect();
     let report = &buses[0].rt_report;
     let mode = format!(

@@ -35,8 +35,15 @@ use uss_benches::{Parts, percentiles_us};
 use uss_integration_tests::addr;
 use uss_integration_tests::{Ussd, monotonic_ns};
 
-/// How long each measurement runs.
-const SECONDS: u64 = 10;
+/// How long each measurement runs, s (a short run: 1).
+fn seconds() -> u64 {
+    uss_benches::rounds(10, 1)
+}
+
+/// Parameter reads per measurement (a short run: 10).
+fn reads() -> usize {
+    usize::try_from(uss_benches::rounds(200, 10)).expect("reads")
+}
 
 fn histogram() -> Histogram<u64> {
     Histogram::new_with_bounds(1, 60_000_000_000, 3).unwrap()
@@ -85,7 +92,10 @@ fn local_latency(bus: &str, drives: &[u8], stop: &AtomicBool) -> Histogram<u64> 
 }
 
 fn latency(ns: &Netns) {
-    println!("1. input latency, reply -> image seen (4 drives, 115200 baud, {SECONDS} s)");
+    println!(
+        "1. input latency, reply -> image seen (4 drives, 115200 baud, {} s)",
+        seconds()
+    );
     let ussd = four_drives();
     let prefix = prefix();
     let (_bridge, config) = bridge(ns, &ussd.bus, &prefix, &[]);
@@ -95,7 +105,7 @@ fn latency(ns: &Netns) {
         std::thread::spawn(move || local_latency(&bus, &[1, 2, 3, 4], &stop))
     };
     let key = format!("{prefix}/{}/drive/*/in", ussd.bus);
-    let remote = remote_latency(ns, &key, SECONDS);
+    let remote = remote_latency(ns, &key, seconds());
     stop.store(true, Ordering::Relaxed);
     let local = local.join().unwrap();
     println!("   local iceoryx2  {}", percentiles_us(&local));
@@ -111,10 +121,10 @@ fn latency(ns: &Netns) {
 }
 
 fn params(ns: &Netns) {
-    const READS: usize = 200;
     const WARM_UP: usize = 5;
     println!(
-        "2. parameter read round trip, P1082 ({READS} reads each, the first {WARM_UP} not counted)"
+        "2. parameter read round trip, P1082 ({} reads each, the first {WARM_UP} not counted)",
+        reads()
     );
     let ussd = four_drives();
     let prefix = prefix();
@@ -122,7 +132,7 @@ fn params(ns: &Netns) {
     let bus = uss_client::Bus::open(&ussd.bus).unwrap();
     let param = "P1082".parse().unwrap();
     let mut local = histogram();
-    for n in 0..READS {
+    for n in 0..reads() {
         let t = Instant::now();
         bus.read_param(addr(1), param).unwrap();
         if n >= WARM_UP {
@@ -130,7 +140,7 @@ fn params(ns: &Netns) {
         }
     }
     let key = format!("{prefix}/{}/drive/1/param/P1082", ussd.bus);
-    let remote = remote_reads(ns, &key, READS, WARM_UP);
+    let remote = remote_reads(ns, &key, reads(), WARM_UP);
     println!("   local Bus::read_param  {}", percentiles_us(&local));
     println!("   remote Zenoh query     {}", percentiles_us(&remote));
     println!(
@@ -182,11 +192,12 @@ fn remote_reads(ns: &Netns, key: &str, reads: usize, warm_up: usize) -> Histogra
 }
 
 fn tls(ns: &Netns) {
-    const READS: usize = 200;
     const WARM_UP: usize = 5;
     println!(
-        "4. mutual TLS vs plain TCP: input latency (4 drives, 115200 baud, {SECONDS} s each) and \
-         P1082 round trip ({READS} reads each)"
+        "4. mutual TLS vs plain TCP: input latency (4 drives, 115200 baud, {} s each) and \
+         P1082 round trip ({} reads each)",
+        seconds(),
+        reads()
     );
     let ussd = four_drives();
     let prefix = prefix();
@@ -202,8 +213,8 @@ fn tls(ns: &Netns) {
             ns.use_tls(None);
             bridge(ns, &ussd.bus, &prefix, &[])
         };
-        let latency = remote_latency(ns, &inputs, SECONDS);
-        let reads = remote_reads(ns, &param, READS, WARM_UP);
+        let latency = remote_latency(ns, &inputs, seconds());
+        let reads = remote_reads(ns, &param, reads(), WARM_UP);
         bridge_proc.kill();
         let _ = std::fs::remove_file(config);
         measured.push((
@@ -349,7 +360,7 @@ fn throughput(ns: &Netns) {
             delay_ms: "0.02",
         },
     ];
-    let seconds = SECONDS / 2;
+    let seconds = (seconds() / 2).max(1);
     println!(
         "3. throughput: images per second one bridge carries to a remote subscriber ({seconds} s each)"
     );
@@ -384,6 +395,11 @@ fn throughput(ns: &Netns) {
 fn main() {
     let parts = Parts::from_args();
     let Some(ns) = Netns::create() else {
+        // Where a network namespace is required (CI), not measuring is a failure.
+        assert!(
+            std::env::var_os("USS_REQUIRE_NETNS").is_none(),
+            "USS_REQUIRE_NETNS is set and no network namespace could be made"
+        );
         println!("SKIPPED: the remote benchmark needs root for its network namespace");
         return;
     };
