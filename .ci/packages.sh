@@ -3,7 +3,9 @@
 # error; apt-get installs them; the unit verifies; the installed ussd checks and runs its
 # configuration (the built-in simulated bus) and the installed ussctl reads a parameter from it;
 # the C example builds with pkg-config against libussrt-dev and runs a drive; the Python wheel
-# installs into a fresh venv and reads a parameter; removal leaves nothing but the conffile.
+# installs into a fresh venv and reads a parameter; the installed bridge answers the installed
+# Zenoh client; the installed uss_vfd loads in a halrun by name and sees its drive; removal
+# leaves nothing but the conffile.
 #
 #   .ci/packages.sh target/debian
 set -euo pipefail
@@ -20,7 +22,8 @@ ls -l "$dir"/*.deb
 lintian --fail-on error --tag-display-limit 0 "$dir"/*.deb | tee "$work/lintian"
 
 DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$(realpath "$dir")"/*.deb >/dev/null
-for p in uss-rt libussrt0 libussrt-dev; do
+packages="uss-rt libussrt0 libussrt-dev uss-rt-zenoh uss-rt-linuxcnc"
+for p in $packages; do
   dpkg-query -L "$p" >"$work/$p.files"
 done
 getent group uss >/dev/null && getent passwd uss >/dev/null
@@ -28,7 +31,7 @@ systemd-analyze verify /lib/systemd/system/ussd.service
 # Installed, not enabled: the user enables it.
 [ "$(systemctl is-enabled ussd 2>/dev/null || true)" != enabled ]
 ussd --check-config /etc/uss-rt/ussd.toml >/dev/null
-for page in ussd ussctl uss-sim uss-exporter; do
+for page in ussd ussctl uss-sim uss-exporter uss-zenoh uss-zenoh-client uss_vfd; do
   [ -s "/usr/share/man/man1/$page.1.gz" ]
 done
 
@@ -62,12 +65,44 @@ print("wheel in a venv:", uss_rt.read(uss_rt.open_bus("sim"), 1, "P1082"))
 ' | tee "$work/py"
 grep -q "P1082 = 50.00 Hz" "$work/py"
 
+# The bridge and its client, as installed: a parameter read over Zenoh on loopback.
+/usr/bin/uss-zenoh --bus sim --prefix uss/ci --listen tcp/127.0.0.1:17447 >"$work/zenoh.log" 2>&1 &
+zenoh_pid=$!
+for _ in $(seq 50); do
+  /usr/bin/uss-zenoh-client --connect tcp/127.0.0.1:17447 get uss/ci/sim/drive/1/param/P1082 \
+    >"$work/zenoh" 2>&1 && break
+  sleep 0.2
+done
+kill "$zenoh_pid"
+wait "$zenoh_pid" || true
+grep -q "P1082" "$work/zenoh" && grep -q "50" "$work/zenoh" || {
+  cat "$work/zenoh" "$work/zenoh.log"
+  exit 1
+}
+echo "installed uss-zenoh and uss-zenoh-client: $(head -c 200 "$work/zenoh")"
+
+# The LinuxCNC component, as installed: halrun loads it by name from PATH (RTAPI as an
+# unprivileged user: rtapi_app refuses root) and it sees drive 1 of the installed ussd.
+printf 'loadusr -Wn uss_vfd uss_vfd --bus sim --drive 1\nloadusr -w sleep 1\nshow pin uss_vfd.comm-ok\n' \
+  >"$work/vfd.hal"
+RTAPI_UID=65534 RTAPI_FIFO_PATH="$work/rtapi-fifo" halrun -U >/dev/null 2>&1 || true
+RTAPI_UID=65534 RTAPI_FIFO_PATH="$work/rtapi-fifo" halrun "$work/vfd.hal" >"$work/hal" 2>&1 || {
+  cat "$work/hal"
+  exit 1
+}
+grep -Eq "TRUE +uss_vfd.comm-ok" "$work/hal" || {
+  cat "$work/hal"
+  exit 1
+}
+echo "installed uss_vfd in halrun: $(grep uss_vfd.comm-ok "$work/hal" | tr -s ' ')"
+
 kill "$ussd_pid"
 wait "$ussd_pid" || true
 ussd_pid=
 
 # Removal (not purge) leaves the conffile only.
-DEBIAN_FRONTEND=noninteractive apt-get remove -y -qq uss-rt libussrt0 libussrt-dev >/dev/null
+# shellcheck disable=SC2086 # one word per package
+DEBIAN_FRONTEND=noninteractive apt-get remove -y -qq $packages >/dev/null
 left=$(cat "$work"/*.files | sort -u | while read -r f; do
   if [ -e "$f" ] && [ ! -d "$f" ]; then echo "$f"; fi
 done)

@@ -6,6 +6,9 @@
 #                 pages and bash completions, the system user and group uss
 #   libussrt0     the C library by its soname
 #   libussrt-dev  its headers, static library, link and pkg-config file
+#   uss-rt-zenoh  uss-zenoh and uss-zenoh-client, their man pages, the Python examples
+#   uss-rt-linuxcnc  uss_vfd, the LinuxCNC HAL component (`make -C linuxcnc`: needs LinuxCNC's
+#                 headers, Debian's linuxcnc-uspace-dev; skipped, and said, without them)
 #
 #   deploy/debian/build.sh            # release binaries (what a machine runs)
 #   deploy/debian/build.sh dev        # another cargo profile (CI: the debug binaries its tests built)
@@ -22,14 +25,14 @@ tuple=$(gcc -print-multiarch)
 version=$(sed -n 's/^version = "\(.*\)"$/\1/p' Cargo.toml | head -n 1)
 
 cargo build --quiet --profile "$profile" --bins -p uss-master -p ussctl -p uss-drive-sim \
-  -p uss-exporter
+  -p uss-exporter -p uss-zenoh
 cargo build --quiet --profile lib -p uss-rt-c --lib
 # Cargo keeps the dev profile's output in `debug`.
 built=$target/$([ "$profile" = dev ] && echo debug || echo "$profile")
 
 rm -rf "$stage"
-mkdir -p "$stage/bin" "$stage/man" "$stage/completions" "$stage/lib"
-for bin in ussd ussctl uss-sim uss-exporter; do
+mkdir -p "$stage/bin" "$stage/man" "$stage/man-zenoh" "$stage/completions" "$stage/lib"
+for bin in ussd ussctl uss-sim uss-exporter uss-zenoh uss-zenoh-client; do
   install -m 0755 "$built/$bin" "$stage/bin/$bin"
   strip --strip-unneeded "$stage/bin/$bin"
 done
@@ -39,6 +42,9 @@ done
 "$stage/bin/uss-sim" --man >"$stage/man/uss-sim.1"
 "$stage/bin/uss-exporter" --man >"$stage/man/uss-exporter.1"
 gzip -9n "$stage"/man/*.1
+"$stage/bin/uss-zenoh" --man >"$stage/man-zenoh/uss-zenoh.1"
+"$stage/bin/uss-zenoh-client" man >"$stage/man-zenoh/uss-zenoh-client.1"
+gzip -9n "$stage"/man-zenoh/*.1
 "$stage/bin/ussd" --completions bash >"$stage/completions/ussd"
 "$stage/bin/ussctl" completions bash >"$stage/completions/ussctl"
 "$stage/bin/uss-sim" --completions bash >"$stage/completions/uss-sim"
@@ -52,6 +58,19 @@ install -m 0644 "$target/lib/libussrt.a" "$stage/lib/libussrt.a"
 sed -e "s|@PREFIX@|/usr|" -e "s|@VERSION@|$version|" \
   -e "s|^libdir=.*|libdir=\${prefix}/lib/$tuple|" capi/ussrt.pc.in >"$stage/lib/ussrt.pc"
 
+# The LinuxCNC component, linked statically against libussrt (the `lib` profile above).
+linuxcnc=
+if [ -e "${LINUXCNC_INCLUDE:-/usr/include/linuxcnc}/hal.h" ]; then
+  make --quiet -C linuxcnc
+  install -m 0755 "$target/release/uss_vfd" "$stage/bin/uss_vfd"
+  strip --strip-unneeded "$stage/bin/uss_vfd"
+  mkdir -p "$stage/man-linuxcnc"
+  gzip -9n <linuxcnc/uss_vfd.1 >"$stage/man-linuxcnc/uss_vfd.1.gz"
+  linuxcnc=yes
+else
+  echo "uss-rt-linuxcnc: skipped: LinuxCNC's headers are not installed (apt-get install linuxcnc-uspace-dev)" >&2
+fi
+
 out=$target/debian
 rm -rf "$out"
 # cargo-deb warns of every staged source (they are not target/release/ paths): that is meant.
@@ -59,13 +78,16 @@ deb() { cargo deb --no-build --no-strip -o "$out/" "$@" 2> >(grep -v "does not m
 deb -p uss-master
 deb --multiarch=same -p uss-rt-c
 deb --multiarch=same -p uss-rt-c --variant dev
+deb -p uss-zenoh
+[ -z "$linuxcnc" ] || deb -p uss-rt-c --variant linuxcnc
 
 # What cargo-deb does not write for a library package: its shlibs file (programs built against
 # it depend on libussrt0), its own dependencies (dpkg-shlibdeps, as cargo-deb does for
 # programs), and the exact version libussrt-dev needs.
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
-for deb_file in "$out"/libussrt0_*.deb "$out"/libussrt-dev_*.deb; do
+for deb_file in "$out"/libussrt0_*.deb "$out"/libussrt-dev_*.deb "$out"/uss-rt-linuxcnc_*.deb; do
+  [ -e "$deb_file" ] || continue
   rm -rf "$tmp/pkg"
   dpkg-deb -R "$deb_file" "$tmp/pkg"
   full=$(sed -n 's/^Version: //p' "$tmp/pkg/DEBIAN/control")
@@ -78,7 +100,7 @@ for deb_file in "$out"/libussrt0_*.deb "$out"/libussrt-dev_*.deb; do
       sed -n 's/^shlibs:Depends=//p')
     sed -i "s/^Depends:.*/Depends: $needs/" "$tmp/pkg/DEBIAN/control"
   else
-    # The variant inherits the library's ldconfig trigger; only the library needs it.
+    # A variant inherits the library's ldconfig trigger; only the library needs it.
     rm -f "$tmp/pkg/DEBIAN/triggers"
   fi
   dpkg-deb --root-owner-group -Zxz --build "$tmp/pkg" "$deb_file" >/dev/null

@@ -34,6 +34,15 @@ fn every_binary_prints_completions_a_man_page_and_help() {
         let help = run(package, name, &["--help"]);
         assert!(help.lines().count() > 5, "{name}: {help}");
     }
+    // The programs of the uss-rt-zenoh package and the exporter have their man pages too.
+    for (package, name, args) in [
+        ("uss-zenoh", "uss-zenoh", ["--man"]),
+        ("uss-zenoh", "uss-zenoh-client", ["man"]),
+        ("uss-exporter", "uss-exporter", ["--man"]),
+    ] {
+        let man = run(package, name, &args);
+        assert!(man.contains(&format!(".TH {name} 1")), "{name}: {man}");
+    }
     let zsh = run("ussctl", "ussctl", &["completions", "zsh"]);
     assert!(zsh.contains("#compdef ussctl"), "{zsh}");
     // Every subcommand of ussctl names what it does.

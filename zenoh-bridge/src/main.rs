@@ -28,6 +28,8 @@ use zenoh::{Config, Wait};
     version,
     about = "Bridge the buses a ussd runs to Zenoh: status, inputs, diagnostics, liveliness and parameters (read-only unless --allow-writes)"
 )]
+// A command line's switches are independent flags.
+#[allow(clippy::struct_excessive_bools)]
 struct Cli {
     /// A bus to bridge, as named in ussd's configuration; repeat for more.
     #[arg(long = "bus", value_name = "NAME", default_value = "bus0")]
@@ -72,6 +74,9 @@ struct Cli {
     /// mutual TLS or user/password authentication (then the names are users).
     #[arg(long, value_name = "FILE")]
     policy: Option<PathBuf>,
+    /// Print the man page (roff) and exit.
+    #[arg(long)]
+    man: bool,
 }
 
 /// Why the bridge did not start. Zenoh's errors are boxed trait objects (not `Error` sources
@@ -356,6 +361,9 @@ fn run(cli: &Cli) -> Result<(), StartError> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if cli.man {
+        return print_man::<Cli>("uss-zenoh");
+    }
     uss_client::quiet_iceoryx2_logs();
     match run(&cli) {
         Ok(()) => ExitCode::SUCCESS,
@@ -364,6 +372,21 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// Prints the man page of command line `C` (roff, for man).
+fn print_man<C: clap::CommandFactory>(program: &str) -> ExitCode {
+    let mut page = Vec::new();
+    let printed = clap_mangen::Man::new(C::command())
+        .render(&mut page)
+        .and_then(|()| std::io::Write::write_all(&mut std::io::stdout(), &page));
+    printed.map_or_else(
+        |e| {
+            eprintln!("{program}: {e}");
+            ExitCode::FAILURE
+        },
+        |()| ExitCode::SUCCESS,
+    )
 }
 
 #[cfg(test)]

@@ -913,7 +913,9 @@ fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() 
         std::thread::sleep(Duration::from_millis(10));
     }
     let before = watch.latest();
-    let (status, out, err) = ns.client(&["run", &drive, "--hz", "5", "--for", "0.5"]).finish();
+    let (status, out, err) = ns
+        .client(&["run", &drive, "--hz", "5", "--for", "0.5"])
+        .finish();
     println!("remote: run of a faulted drive: {status}\n{out}{err}");
     assert!(!status.success(), "{out}");
     assert!(!out.contains("re-armed"), "{out}");
