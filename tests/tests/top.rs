@@ -173,9 +173,10 @@ fn top_shows_the_bus_stops_drives_when_confirmed_and_follows_ussd() {
     );
     // The run has ended: its process controls nothing now, and the row no longer names it
     // (it kept the last controller's process id for good).
-    tmux.wait("drive 1 latched by the operator, without a controller", |s| {
-        row(s, 1).contains("latched: operator stop, OFF1") && !row(s, 1).contains(&run_pid)
-    });
+    tmux.wait(
+        "drive 1 latched by the operator, without a controller",
+        |s| row(s, 1).contains("latched: operator stop, OFF1") && !row(s, 1).contains(&run_pid),
+    );
     // The coast key on the selected drive 2.
     tmux.keys(&["c"]);
     tmux.wait_for("Coast (OFF2, pulses off at once) drive 2?");
