@@ -119,7 +119,9 @@ fn run_drive(
     start_running(bus, &c, hz)?;
     let ref_hz = c.inputs().info().reference_hz;
     out.note(&format!(
-        "drive {drive}: running towards {hz} Hz (reference {ref_hz} Hz); {}",
+        "drive {drive}: running towards {hz} Hz (reference {ref_hz} Hz) on {}; {}",
+        // The bus by name: it may come from USS_BUS, which a shell keeps out of sight.
+        bus.name(),
         match duration {
             Some(d) => format!("stopping after {d:?}"),
             None => "Ctrl-C stops it".to_owned(),

@@ -367,8 +367,8 @@ impl StopReport {
             if let Some(why) = &d.unconfirmed_because {
                 let _ = writeln!(
                     out,
-                    "drive {}: {} taken by ussd, sent in its next telegram, latched until its controller re-arms it; not confirmed here: {why}",
-                    d.drive, self.command
+                    "drive {}: {} taken by ussd on {}, sent in its next telegram, latched until its controller re-arms it; not confirmed here: {why}",
+                    d.drive, self.command, self.bus
                 );
                 continue;
             }
@@ -389,8 +389,8 @@ impl StopReport {
             };
             let _ = writeln!(
                 out,
-                "drive {}: {sent} sent (STW1 {:#06X}), {what}{kept}; now {} (ZSW1 {:#06X}); {} until a controller re-arms it (its explicit rearm, `ussctl run`)",
-                d.drive, d.sent_stw1, d.state, d.zsw1, d.control.state,
+                "drive {}: {sent} sent (STW1 {:#06X}) on {}, {what}{kept}; now {} (ZSW1 {:#06X}); {} until a controller re-arms it (its explicit rearm, `ussctl run`)",
+                d.drive, d.sent_stw1, self.bus, d.state, d.zsw1, d.control.state,
             );
         }
         out

@@ -247,12 +247,12 @@ fn a_stop_report_says_what_the_stop_it_sent_does() {
     let said = report.human();
     assert!(
         said.contains(
-            "drive 1: OFF2 sent (STW1 0x047C), it coasts: its OFF2 stays, stronger than the OFF3 asked; now S1"
+            "drive 1: OFF2 sent (STW1 0x047C) on bus0, it coasts: its OFF2 stays, stronger than the OFF3 asked; now S1"
         ),
         "{said}"
     );
     assert!(
-        said.contains("drive 2: OFF3 sent (STW1 0x047A), it stops quickly; now S1"),
+        said.contains("drive 2: OFF3 sent (STW1 0x047A) on bus0, it stops quickly; now S1"),
         "{said}"
     );
 }
