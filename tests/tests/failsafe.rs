@@ -1058,3 +1058,41 @@ fn a_paused_ussd_latches_its_running_drive_on_resuming_over_a_pty() {
     }
     assert!(logged(&ussd, "ussd paused"), "{}", ussd.log());
 }
+
+/// An operator's stop that comes while `ussctl run` starts (after the run was asked for, before
+/// it re-armed the drive) is not undone by that run: a run re-arms only latches older than
+/// itself. Found by the adversarial run of issue 35: a coast 30 to 80 ms after `ussctl run`
+/// was started was re-armed over by it, and the drive ran for the run's whole time.
+#[test]
+fn a_stop_while_a_run_starts_is_not_undone_by_it() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let watch = ussd.bus().watch(addr(1)).unwrap();
+    for after_ms in [40, 70] {
+        let mut run = ussd.ussctl(&["run", "1", "--hz", "8", "--for", "2"]);
+        std::thread::sleep(Duration::from_millis(after_ms));
+        let (status, out, err) = ussd.ussctl(&["coast", "1"]).finish();
+        assert!(status.success(), "{out}{err}");
+        let coasted = watch.latest();
+        assert_eq!(coasted.latch_reason, LatchReason::Override.code(), "{out}");
+        // From the coast on, nothing but stops reaches the drive: either the run saw the
+        // coast before its re-arm and refused, or it was running and the coast tripped it.
+        let deadline = Instant::now() + Duration::from_millis(1500);
+        while Instant::now() < deadline {
+            let i = watch.latest();
+            assert_eq!(
+                i.sent_stw1 & 0x0001,
+                0,
+                "{after_ms} ms: an ON went out after the operator's coast: {i:?}"
+            );
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let (status, out, err) = run.finish();
+        println!("failsafe: a coast {after_ms} ms into a run: {status}\n{out}{err}");
+        assert!(
+            !status.success(),
+            "the run ended as if nothing stopped it: {out}{err}"
+        );
+        assert!(err.contains("an operator sent OFF2 from process"), "{err}");
+    }
+}
