@@ -446,6 +446,14 @@ impl Controller {
     /// drive is live again. Then an ON ([`Controller::run_hz`], ...) reaches the drive. The
     /// drive itself may need [`Controller::acknowledge_fault`] too.
     pub fn rearm(&self) -> Result<PzdInput, ClientError> {
+        self.rearm_asked_at(monotonic_ns())
+    }
+
+    /// [`Controller::rearm`] for a re-arm asked for at `asked_ns` (`CLOCK_MONOTONIC`, e.g.
+    /// when a program that re-arms once it is set up was started): a latch that began after
+    /// that moment (an operator's stop while the program was starting) is not re-armed, the
+    /// drive stays stopped, and the error is [`ClientError::Tripped`] naming it.
+    pub fn rearm_asked_at(&self, asked_ns: u64) -> Result<PzdInput, ClientError> {
         {
             let services = self.shared.link.check()?;
             let mut state = self.shared.state();
@@ -453,7 +461,7 @@ impl Controller {
             let input = self.shared.watch.latest();
             let sample = state
                 .session
-                .rearm(monotonic_ns(), &input)
+                .rearm_asked_at(monotonic_ns(), &input, asked_ns)
                 .map_err(|e| self.shared.error(e, &input))?;
             Shared::send(&mut state, sample)?;
         }

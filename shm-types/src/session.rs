@@ -296,6 +296,23 @@ impl Session {
         Ok(self.commit(next, sample))
     }
 
+    /// Like [`Session::rearm`], for a re-arm asked for at `asked_ns` (`CLOCK_MONOTONIC`; a
+    /// program that started at that moment and re-arms once it is set up, `ussctl run`): a
+    /// latch that began after it (an operator's stop while the program was starting) is not
+    /// acknowledged: [`SessionError::Tripped`], and nothing is sent. A latch's id is the
+    /// moment it began.
+    pub fn rearm_asked_at(
+        &mut self,
+        now_ns: u64,
+        image: &PzdInput,
+        asked_ns: u64,
+    ) -> Result<PzdOutput, SessionError> {
+        if let Some(latch_id) = image.latch().filter(|&id| id > asked_ns) {
+            return Err(SessionError::Tripped { latch_id });
+        }
+        self.rearm(now_ns, image)
+    }
+
     /// For a relay (the Zenoh bridge): acknowledges latch `named`, which the remote controller
     /// names in its sample at `now_ns`, only when `image` shows it as the drive's current latch.
     /// Like a local [`Session::rearm`] it clears a stall and counts as a call; the relay's stop

@@ -72,6 +72,10 @@ const CALLS: &[(&str, &str, &str)] = &[
 /// `Controller` calls that are Rust's alone, and why.
 const RUST_ONLY: &[(&str, &str)] = &[
     (
+        "rearm_asked_at",
+        "for a program that re-arms once it has started up (ussctl run): C, Python and LinuxCNC re-arm when called, and rearm() is rearm_asked_at(now) for them",
+    ),
+    (
         "address",
         "an accessor: C and Python keep the address they opened with",
     ),

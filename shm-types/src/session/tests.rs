@@ -356,3 +356,37 @@ fn a_controller_refreshes_every_quarter_watchdog_at_most_every_20_ms() {
     // The session's own: its drive's watchdog is 100 ms.
     assert_eq!(Play::running().s.refresh_ns(), 20 * MS);
 }
+
+/// A re-arm asked for before a latch began does not acknowledge it (an operator's stop while a
+/// program was starting): it is news, nothing is sent; one asked for after it re-arms.
+#[test]
+fn a_rearm_asked_before_a_latch_does_not_acknowledge_it() {
+    let mut s = Session::new(SessionSetup {
+        pzd: 2,
+        pid: 7,
+        watchdog_ns: WATCHDOG,
+        first_sequence: 500,
+    });
+    let latched_at = 5_000_000_000;
+    let image = PzdInput {
+        online: 1,
+        control: ControlState::Latched.code(),
+        latch_reason: LatchReason::Override.code(),
+        latch_id: latched_at,
+        ..PzdInput::EMPTY
+    };
+    assert_eq!(
+        s.rearm_asked_at(latched_at + 10, &image, latched_at - 1),
+        Err(SessionError::Tripped {
+            latch_id: latched_at
+        })
+    );
+    assert_eq!(s.stops(), 0, "nothing was sent");
+    let out = s
+        .rearm_asked_at(latched_at + 20, &image, latched_at + 1)
+        .unwrap();
+    assert_eq!(
+        out.latch_id, latched_at,
+        "the stop names the latch it re-arms"
+    );
+}
