@@ -34,15 +34,10 @@ fn every_binary_prints_completions_a_man_page_and_help() {
         let help = run(package, name, &["--help"]);
         assert!(help.lines().count() > 5, "{name}: {help}");
     }
-    // The programs of the uss-rt-zenoh package and the exporter have their man pages too.
-    for (package, name, args) in [
-        ("uss-zenoh", "uss-zenoh", ["--man"]),
-        ("uss-zenoh", "uss-zenoh-client", ["man"]),
-        ("uss-exporter", "uss-exporter", ["--man"]),
-    ] {
-        let man = run(package, name, &args);
-        assert!(man.contains(&format!(".TH {name} 1")), "{name}: {man}");
-    }
+    // The exporter has its man page too (uss-zenoh's and uss-zenoh-client's are checked where
+    // their package is installed: .ci/packages.sh).
+    let man = run("uss-exporter", "uss-exporter", &["--man"]);
+    assert!(man.contains(".TH uss-exporter 1"), "{man}");
     let zsh = run("ussctl", "ussctl", &["completions", "zsh"]);
     assert!(zsh.contains("#compdef ussctl"), "{zsh}");
     // Every subcommand of ussctl names what it does.
