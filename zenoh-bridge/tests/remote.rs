@@ -871,19 +871,19 @@ fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() 
     let mut run = ns.client(&["run", &drive, "--hz", "5", "--for", "0.5"]);
     run.says("re-armed");
     // The run ends and hands the drive back while the bridge is paused for 4 s.
-    let signal = |name: &str| {
+    let signal = |name: &str, pid: u32| {
         let ok = Command::new("kill")
-            .args([name, &bridge_proc.pid().to_string()])
+            .args([name, &pid.to_string()])
             .status()
             .unwrap()
             .success();
-        assert!(ok, "kill {name}");
+        assert!(ok, "kill {name} {pid}");
     };
-    signal("-STOP");
+    signal("-STOP", bridge_proc.pid());
     std::thread::sleep(Duration::from_secs(4));
     // The run still waits for the hand-over (it did not end before the pause).
     assert!(run.child.try_wait().unwrap().is_none(), "the run ended");
-    signal("-CONT");
+    signal("-CONT", bridge_proc.pid());
     let (status, out, err) = run.finish();
     assert!(status.success(), "{err}");
     assert!(out.contains("and released"), "{out}");
@@ -895,18 +895,9 @@ fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() 
     // A drive in fault is not run: the client names the fault, says how to clear it and sends
     // nothing (it said "re-armed; running towards 5 Hz" and went on). ussd paused past the
     // drive's telegram-off time (P2014 = 100 ms) trips it with F0072.
-    let ussd_pid = ussd.child.id().to_string();
-    let kill_ussd = |name: &str| {
-        let ok = Command::new("kill")
-            .args([name, &ussd_pid])
-            .status()
-            .unwrap()
-            .success();
-        assert!(ok, "kill {name} ussd");
-    };
-    kill_ussd("-STOP");
+    signal("-STOP", ussd.child.id());
     std::thread::sleep(Duration::from_millis(500));
-    kill_ussd("-CONT");
+    signal("-CONT", ussd.child.id());
     let deadline = std::time::Instant::now() + Duration::from_secs(5);
     while watch.latest().zsw1 & 0x0008 == 0 {
         assert!(std::time::Instant::now() < deadline, "{:?}", watch.latest());
