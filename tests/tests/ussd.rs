@@ -568,3 +568,38 @@ fn a_second_ussd_on_a_served_bus_says_who_serves_it() {
     let (status, text, _) = first.ussctl(&["status"]).finish();
     assert!(status.success(), "{text}");
 }
+
+/// Rule 3: a ussd that does not poll (paused: SIGSTOP, as a suspended machine or a starved CPU
+/// would) is not shown as a healthy bus: `ussctl status` and `stats`, in the table and in
+/// `--json`, show no drive online and fail with what the heartbeat says. (Right after it
+/// resumes, its last diagnostics are older than their limit: the report's unit tests show those
+/// rows stale.)
+#[test]
+fn a_paused_ussd_shows_no_drive_online() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    let ussd = uss_integration_tests::Ussd::start("", &[(1, ""), (2, "")]);
+    let (status, out, _) = ussd.ussctl(&["status"]).finish();
+    assert!(status.success(), "{out}");
+    let pid = Pid::from_raw(i32::try_from(ussd.child.id()).unwrap());
+    kill(pid, Signal::SIGSTOP).unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(600));
+    let mut shown = Vec::new();
+    for args in [
+        &["status"][..],
+        &["--json", "status"],
+        &["stats"],
+        &["--json", "stats"],
+    ] {
+        shown.push((args, ussd.ussctl(args).finish()));
+    }
+    kill(pid, Signal::SIGCONT).unwrap();
+    for (args, (status, out, err)) in shown {
+        assert_eq!(status.code(), Some(1), "{args:?}: {out}{err}");
+        assert!(err.contains("is gone (no heartbeat"), "{args:?}: {err}");
+        assert!(
+            !out.contains(" yes ") && !out.contains("\"online\":true"),
+            "{args:?}: {out}"
+        );
+    }
+}

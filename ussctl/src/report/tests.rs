@@ -256,3 +256,39 @@ fn a_stop_report_says_what_the_stop_it_sent_does() {
         "{said}"
     );
 }
+
+/// Rule 3: diagnostics older than ussd's own limit for them (a ussd that was paused and has not
+/// polled since it resumed, a stalled bus thread) are not the drive as it is: the row says
+/// stale, not online, and not the state it last saw (the adversarial run saw `status` show the
+/// pre-pause "online, S4" right after ussd resumed).
+#[test]
+fn a_drive_whose_poll_is_overdue_shows_stale_not_online() {
+    let overdue = DriveDiag {
+        last_good_ns: 1,
+        stale_after_ns: 50_000_000,
+        ..diag()
+    };
+    let report = StatusReport {
+        bus: BusReport::new("b0", &BusStatus::EMPTY),
+        drives: vec![DriveRow::new(&overdue)],
+    };
+    let v = serde_json::to_value(&report).unwrap();
+    let d = &v["drives"][0];
+    assert_eq!(
+        (&d["online"], &d["stale"], &d["state"]),
+        (
+            &serde_json::json!(false),
+            &serde_json::json!(true),
+            &serde_json::json!("stale")
+        ),
+        "{d}"
+    );
+    let text = report.human();
+    assert!(text.contains("   3  no      stale "), "{text}");
+    let stats = serde_json::to_value(DriveStats::new(&overdue, 0)).unwrap();
+    assert_eq!(
+        (&stats["online"], &stats["stale"]),
+        (&serde_json::json!(false), &serde_json::json!(true)),
+        "{stats}"
+    );
+}
