@@ -172,7 +172,9 @@ pub unsafe extern "C" fn ussrt_bus_status(
 }
 
 /// Reads drive `address`'s diagnostics as ussd publishes them (`UssDriveDiag`: its counters,
-/// its configuration `info`, its link) into `*diag`.
+/// its configuration `info`, its link) into `*diag`. Diagnostics older than ussd's limit for
+/// them (`stale_after_ns` after `last_good_ns`: a paused ussd, a stalled bus thread) come with
+/// `online = 0`: they are not the drive as it is.
 ///
 /// # Safety
 /// `bus` is a live handle; `diag` points to writable memory for one `UssDriveDiag`.
@@ -185,7 +187,11 @@ pub unsafe extern "C" fn ussrt_drive_diag(
     guard(|| {
         let bus = arg(bus, "bus")?;
         let diag = out(diag, "diag")?;
-        *diag = bus.bus.diag(drive(address)?)?;
+        let mut read = bus.bus.diag(drive(address)?)?;
+        if read.is_overdue(uss_client::monotonic_ns()) {
+            read.online = 0;
+        }
+        *diag = read;
         Ok(())
     })
 }

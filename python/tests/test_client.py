@@ -535,6 +535,9 @@ def test_a_stalled_program_is_told_the_stop_its_drive_got(tmp_path):
                 time.sleep(0.25)
                 with pytest.raises(uss_rt.Stalled, match="OFF3") as stalled:
                     drive.run_hz(5)
+                # Rule 3: the paused ussd's diagnostics are older than their limit: stale.
+                diag = bus.diag(1)
+                assert (diag["stale"], diag["online"]) == (True, False), diag
             finally:
                 daemon.process.send_signal(signal.SIGCONT)
             assert stalled.value.command == uss_rt.StopCommand.OFF3

@@ -215,7 +215,9 @@ class Bus:
     def diag(self, address: int) -> dict:
         """Drive ``address``'s diagnostics as ussd last published them: ``info``
         (``reference_hz``, ``watchdog_ms``, ``pzd_words``, ``family``, ...), ``counters`` (``latches``,
-        ``watchdog_trips``, ...), its control and monitoring."""
+        ``watchdog_trips``, ...), its control and monitoring. ``stale`` is True (and ``online``
+        False) when they are older than ussd's limit for them (a paused ussd, a stalled bus
+        thread): the rest is the drive as it was, not as it is."""
         _check_address(address)
         d = self._open().diag(address)
         d["control"] = _code(ControlState, d["control"])

@@ -9,7 +9,10 @@ use uss_client::Bus;
 pub(crate) fn status(bus: &Bus, out: &Output) -> Result<(), Failure> {
     let report = StatusReport {
         bus: BusReport::new(bus.name(), &bus.status()?),
-        drives: diags(bus)?.iter().map(DriveRow::new).collect(),
+        drives: diags(bus)?
+            .iter()
+            .map(|d| DriveRow::new(d, uss_client::monotonic_ns()))
+            .collect(),
     };
     out.show(&report, StatusReport::human)?;
     healthy(bus)
@@ -22,7 +25,7 @@ pub(crate) fn stats(bus: &Bus, out: &Output) -> Result<(), Failure> {
         timing: TimingReport::of(&status),
         drives: diags(bus)?
             .iter()
-            .map(|d| DriveStats::new(d, status.timestamp_ns))
+            .map(|d| DriveStats::new(d, uss_client::monotonic_ns()))
             .collect(),
     };
     out.show(&report, StatsReport::human)?;

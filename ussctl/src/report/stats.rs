@@ -66,12 +66,16 @@ pub(super) fn timing_row(name: &str, q: [f64; 4]) -> String {
 #[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct DriveStats {
     pub address: u8,
+    /// Answering, as ussd's fresh diagnostics say (false while they are stale).
     pub online: bool,
+    /// The diagnostics are older than ussd's limit for them (a paused ussd, a stalled bus
+    /// thread): the rest is the drive as it was, not as it is.
+    pub stale: bool,
     pub no_reply: bool,
     pub control: ControlReport,
     pub last_error: &'static str,
     pub consecutive_failed_polls: u32,
-    /// ms since the last good reply, by the bus status's clock; null: never.
+    /// ms since the last good reply when ussctl read it; null: never.
     pub last_good_ms_ago: Option<f64>,
     /// What ussd knows of the drive from its configuration.
     pub info: InfoReport,
@@ -149,10 +153,13 @@ impl InfoReport {
 }
 
 impl DriveStats {
+    /// The figures of `d` as read at `now_ns` (`CLOCK_MONOTONIC`).
     pub fn new(d: &DriveDiag, now_ns: u64) -> Self {
+        let stale = d.is_overdue(now_ns);
         Self {
             address: d.address,
-            online: d.online != 0,
+            online: d.online != 0 && !stale,
+            stale,
             no_reply: d.no_reply != 0,
             control: ControlReport::of_diag(d),
             last_error: last_failure(d),
@@ -188,7 +195,11 @@ impl StatsReport {
                 out,
                 "drive {}: {}, last error {}",
                 d.address,
-                if d.online { "online" } else { "offline" },
+                match (d.stale, d.online) {
+                    (true, _) => "STALE (diagnostics older than their limit)",
+                    (false, true) => "online",
+                    (false, false) => "offline",
+                },
                 d.last_error
             );
             if let Some(ms) = d.last_good_ms_ago {

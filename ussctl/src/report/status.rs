@@ -173,7 +173,11 @@ impl BusReport {
 #[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct DriveRow {
     pub address: u8,
+    /// Answering, as ussd's fresh diagnostics say (false while they are stale).
     pub online: bool,
+    /// The diagnostics are older than ussd's limit for them (`stale_after_ms`: a paused ussd,
+    /// a stalled bus thread): the rest of the row is the drive as it was, not as it is.
+    pub stale: bool,
     /// S1..S4, "fault", "not ready"; "offline" while the drive does not answer.
     pub state: &'static str,
     pub zsw1: u16,
@@ -210,12 +214,19 @@ pub struct DriveRow {
 }
 
 impl DriveRow {
-    pub fn new(d: &DriveDiag) -> Self {
-        let online = d.online != 0;
+    /// The row of `d` as read at `now_ns` (`CLOCK_MONOTONIC`): stale where its poll is overdue.
+    pub fn new(d: &DriveDiag, now_ns: u64) -> Self {
+        let stale = d.is_overdue(now_ns);
+        let online = d.online != 0 && !stale;
         Self {
             address: d.address,
             online,
-            state: shown_state(d.known, d.online, d.last_zsw1),
+            stale,
+            state: if stale {
+                "stale"
+            } else {
+                shown_state(d.known, d.online, d.last_zsw1)
+            },
             zsw1: d.last_zsw1,
             zsw1_hex: format!("{:#06X}", d.last_zsw1),
             flags: zsw1_flags(d.last_zsw1),

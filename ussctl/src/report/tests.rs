@@ -34,7 +34,7 @@ fn diag() -> DriveDiag {
 fn status_json_has_one_object_per_drive_with_decoded_zsw1() {
     let report = StatusReport {
         bus: BusReport::new("b0", &BusStatus::EMPTY),
-        drives: vec![DriveRow::new(&diag())],
+        drives: vec![DriveRow::new(&diag(), 0)],
     };
     let v = serde_json::to_value(&report).unwrap();
     assert_eq!(v["bus"]["bus"], "b0");
@@ -68,11 +68,14 @@ fn status_json_has_one_object_per_drive_with_decoded_zsw1() {
 
 #[test]
 fn a_drive_without_telegram_monitoring_is_warned_about() {
-    let off = DriveRow::new(&DriveDiag {
-        monitoring: Monitoring::Off.code(),
-        control: uss_client::ControlState::Live.code(),
-        ..diag()
-    });
+    let off = DriveRow::new(
+        &DriveDiag {
+            monitoring: Monitoring::Off.code(),
+            control: uss_client::ControlState::Live.code(),
+            ..diag()
+        },
+        0,
+    );
     let report = StatusReport {
         bus: BusReport::new("b0", &BusStatus::EMPTY),
         drives: vec![off],
@@ -87,20 +90,26 @@ fn a_drive_without_telegram_monitoring_is_warned_about() {
 
 #[test]
 fn a_drive_is_unknown_until_its_first_poll_decided() {
-    let d = DriveRow::new(&DriveDiag {
-        known: 0,
-        online: 0,
-        ..diag()
-    });
+    let d = DriveRow::new(
+        &DriveDiag {
+            known: 0,
+            online: 0,
+            ..diag()
+        },
+        0,
+    );
     assert_eq!(d.state, "unknown");
 }
 
 #[test]
 fn offline_drives_show_offline_not_a_stale_state() {
-    let d = DriveRow::new(&DriveDiag {
-        online: 0,
-        ..diag()
-    });
+    let d = DriveRow::new(
+        &DriveDiag {
+            online: 0,
+            ..diag()
+        },
+        0,
+    );
     assert_eq!((d.online, d.state), (false, "offline"));
 }
 
@@ -270,7 +279,7 @@ fn a_drive_whose_poll_is_overdue_shows_stale_not_online() {
     };
     let report = StatusReport {
         bus: BusReport::new("b0", &BusStatus::EMPTY),
-        drives: vec![DriveRow::new(&overdue)],
+        drives: vec![DriveRow::new(&overdue, 1_000_000_000)],
     };
     let v = serde_json::to_value(&report).unwrap();
     let d = &v["drives"][0];
@@ -285,7 +294,7 @@ fn a_drive_whose_poll_is_overdue_shows_stale_not_online() {
     );
     let text = report.human();
     assert!(text.contains("   3  no      stale "), "{text}");
-    let stats = serde_json::to_value(DriveStats::new(&overdue, 0)).unwrap();
+    let stats = serde_json::to_value(DriveStats::new(&overdue, 1_000_000_000)).unwrap();
     assert_eq!(
         (&stats["online"], &stats["stale"]),
         (&serde_json::json!(false), &serde_json::json!(true)),

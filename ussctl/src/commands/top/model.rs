@@ -276,9 +276,10 @@ fn read(
             || ControlReport::of_diag(&diag),
             |i| ControlReport::of_input(&i),
         );
-        let mut row = DriveRow::new(&diag);
+        let mut row = DriveRow::new(&diag, uss_client::monotonic_ns());
         if overdue {
             row.online = false;
+            row.stale = true;
             row.state = "stale";
         }
         drives.push(DriveView {
