@@ -574,6 +574,14 @@ mod tests {
         p
     }
 
+    /// Live, its controller's own coast (OFF2) at 3 ms; `QUICK` for its quick stop (OFF3).
+    fn own_stop(stw1: u16) -> Play {
+        let mut p = Play::running();
+        p.send(3, &[stw1, 0]);
+        assert_eq!(p.gate.control(), Control::Live);
+        p
+    }
+
     /// Latched at start, then coasted by an operator at 10 ms: the start-up latch's id is an
     /// earlier one.
     fn coasted_at_start() -> (Play, u64) {
@@ -639,6 +647,14 @@ mod tests {
             ("live, operator OFF3 beats a fresh ON", Play::running, |p| with(p, 10, &[RUN, 0x3000], Some(StopCommand::Off3), true), [QUICK, 0], Some(Override)),
             ("live, ON with required monitoring off", Play::running, |p| with(p, 10, &[RUN, 0x2000], None, false), [READY, 0], Some(LatchReason::MonitoringOff)),
             ("live, OFF1 with monitoring off still goes out", Play::running, |p| with(p, 10, &[READY, 0], None, false), [READY, 0], None),
+            // A latch never weakens the stop a live controller sends itself (found by the
+            // adversarial run: `ussctl ack` and every release handed an OFF2 back as OFF1).
+            ("live, own coast, release: OFF2 stays", || own_stop(COAST), release, [COAST, 0], Some(Released)),
+            ("live, own coast, nothing new beyond the watchdog: OFF2 stays", || own_stop(COAST), |p| p.poll(104, None, None), [COAST, 0], Some(Stale)),
+            ("live, own quick stop, rejected sample: OFF3 stays", || own_stop(QUICK), |p| p.send(10, &[0x0000, 0]), [QUICK, 0], Some(Rejected)),
+            ("live, own coast, another controller: OFF2 stays", || own_stop(COAST), |p| p.send_from(43, 10, &[RUN, 0x3000]), [COAST, 0], Some(Replaced)),
+            ("live, own coast, operator OFF1: OFF2 stays", || own_stop(COAST), |p| p.poll(10, None, Some(StopCommand::Off1)), [COAST, 0], Some(Override)),
+            ("live, own quick stop, operator OFF2: OFF2", || own_stop(QUICK), |p| p.poll(10, None, Some(StopCommand::Off2)), [COAST, 0], Some(Override)),
             // Latched after a trip or an override.
             ("stale, the frozen controller resumes with ON: latched", tripped, |p| p.send(300, &[RUN, 0x2000]), [READY, 0], Some(Stale)),
             ("stale, OFF1 re-arms", tripped, |p| p.send(300, &[READY, 0]), [READY, 0], None),

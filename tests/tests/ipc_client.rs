@@ -15,7 +15,7 @@ use uss_client::DriveError;
 use uss_client::uss_protocol::ErrorNumber;
 use uss_client::{
     Bus, Catalogue, ClientError, ControlOptions, CycleEvent, DataType, DriveState, LatchReason,
-    ParamError, ParamItem, ParamRequest, RequestError, Typed, Value,
+    ParamError, ParamItem, ParamRequest, RequestError, StopCommand, Typed, Value,
 };
 use uss_integration_tests::{addr, param, param_at};
 use uss_integration_tests::{binary, read, terminate};
@@ -1257,4 +1257,29 @@ fn another_drive_keeps_its_com_link(ussd: &Ussd, path: &str) {
         "{said}"
     );
     assert_eq!(bus.read(addr(2), param_at(2011, 1)), Ok(Value::Word(2)));
+}
+
+/// `ussctl ack` after an operator's coast keeps the coast: the drive is handed back latched with
+/// OFF2, not OFF1 (the adversarial run saw `ack` lower an operator's OFF2 silently: its re-arm
+/// sent OFF1 and its release latched the drive with the safe command OFF1). A latch never weakens
+/// the stop a controller sends itself.
+#[test]
+fn an_operators_coast_stays_through_ussctl_ack() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+    let out = ussd.ussctl(&["coast", "1"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let out = ussd.ussctl(&["ack", "1"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let said = text(&out.stdout);
+    assert!(said.contains("its OFF2 stays"), "{said}");
+    let watch = bus.watch(addr(1)).unwrap();
+    let i = watch.latest();
+    assert!(!i.is_live(), "{i:?}");
+    assert_eq!(
+        (i.latch_command, i.sent_stw1),
+        (StopCommand::Off2.code(), 0x047C),
+        "{i:?}"
+    );
 }
