@@ -587,15 +587,19 @@ impl Controller {
 
     /// Acknowledges a fault with a rising edge of STW1 bit 7: sends 0x04FE until the drive
     /// received it (two exchanges, at most `timeout`), then 0x047E. The drive then shows S1
-    /// (switching-on inhibited) or S2; [`Controller::enable`] continues from there.
+    /// (switching-on inhibited) or S2; [`Controller::enable`] continues from there. A coast or
+    /// quick stop the controller sends stays through it (0x04FC then 0x047C; 0x04FA then
+    /// 0x047A): an acknowledgement never weakens a stop, and is never an ON.
     pub fn acknowledge_fault(&self, timeout: Duration) -> Result<(), ClientError> {
-        self.command(Stw1::ACK_FAULT)?;
+        self.shared
+            .publish(|w| w.words[0] = (held_stop(w.words[0]) | Stw1::FAULT_ACK).bits())?;
         let waited = self.wait_for(timeout, "fault acknowledge sent", {
             let start = self.inputs().latest().sequence;
             move |i| i.sequence >= start + 2
         });
-        // Back to 0x047E whatever happened: the next acknowledge needs the falling edge.
-        self.command(Stw1::READY)?;
+        // Back to the stop whatever happened: the next acknowledge needs the falling edge.
+        self.shared
+            .publish(|w| w.words[0] = held_stop(w.words[0]).bits())?;
         waited.map(|_| ())
     }
 
@@ -742,6 +746,17 @@ impl Drop for Controller {
     }
 }
 
+/// The stop control word `stw1` keeps through a fault acknowledgement: its coast (OFF2) or
+/// quick stop (OFF3), else OFF1.
+fn held_stop(stw1: u16) -> Stw1 {
+    use uss_shm_types::StopCommand;
+    match StopCommand::of_stw1(stw1) {
+        Some(StopCommand::Off2) => Stw1::COAST,
+        Some(StopCommand::Off3) => Stw1::QUICK_STOP,
+        _ => Stw1::READY,
+    }
+}
+
 /// `stw1` with the reverse bit of `previous`.
 fn with_direction(stw1: Stw1, previous: u16) -> Stw1 {
     stw1 | (Stw1::from_bits_retain(previous) & Stw1::REVERSE)
@@ -846,6 +861,28 @@ mod tests {
         }
         assert_eq!((Stw1::READY | Stw1::JOG_RIGHT).bits(), 0x057E);
         assert_eq!((Stw1::READY | Stw1::JOG_LEFT).bits(), 0x067E);
+    }
+
+    #[test]
+    fn a_fault_acknowledgement_keeps_a_coast_or_quick_stop_and_is_never_an_on() {
+        for (words, held) in [
+            (0x047C, 0x047C),
+            (0x047A, 0x047A),
+            (0x0478, 0x047C),
+            (0x047E, 0x047E),
+            (0x047F, 0x047E),
+            (0x0C7F, 0x047E),
+            (0x057E, 0x047E),
+        ] {
+            assert_eq!(held_stop(words).bits(), held, "{words:#06X}");
+            let ack = (held_stop(words) | Stw1::FAULT_ACK).bits();
+            assert_eq!(ack, held | 0x0080, "{words:#06X}");
+            assert_eq!(
+                held_stop(ack).bits(),
+                held,
+                "{words:#06X}: back from the edge"
+            );
+        }
     }
 
     #[test]

@@ -381,6 +381,22 @@ impl Gate {
         }
     }
 
+    /// The stop a latch made now sends for `command`: the stronger of it and the stop the drive
+    /// gets already (its latch's, or a live controller's own OFF2 or OFF3). A latch never
+    /// weakens a stop: a controller that coasts and then releases, goes stale or is replaced
+    /// leaves its drive coasting.
+    pub fn stop_for(&self, command: StopCommand) -> StopCommand {
+        let current = match self.control {
+            Control::Latched(l) => Some(l.command),
+            Control::Live if self.setup.pzd > 0 => StopCommand::of_stw1(self.words[0]),
+            Control::Live => None,
+        };
+        match current {
+            Some(c) if c.strength() > command.strength() => c,
+            _ => command,
+        }
+    }
+
     fn latch_with(
         &mut self,
         reason: LatchReason,
@@ -389,10 +405,7 @@ impl Gate {
         by_pid: u32,
         rejection: Rejection,
     ) -> Transition {
-        let command = match self.control {
-            Control::Latched(l) if l.command.strength() > command.strength() => l.command,
-            _ => command,
-        };
+        let command = self.stop_for(command);
         let id = latch_id(&self.setup, now, self.last_id);
         let latch = Latch {
             reason,

@@ -50,7 +50,7 @@ pub use stats::{DriveCounters, DriveStatus, LastFailure, Stats};
 pub use transport::{Rx, Transport, TransportError};
 
 use crate::control::{
-    Control, ControllerId, Gate, GateSetup, Latch, Operator, Poll, Transition, latch_id_of,
+    ControllerId, Gate, GateSetup, Latch, Operator, Poll, Transition, latch_id_of,
 };
 use crate::image::DriveImages;
 use crate::jobs::{Encoded, Outgoing, Requester};
@@ -567,11 +567,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         }
         for slot in 0..self.drives.len() {
             let setup = self.drives[slot].setup;
-            // The safe command, or the stronger command a latched drive already gets.
-            let command = match self.drives[slot].gate.control() {
-                Control::Latched(latch) => latch.command,
-                Control::Live => setup.safe,
-            };
+            // The safe command, or the stronger stop the drive already gets.
+            let command = self.drives[slot].gate.stop_for(setup.safe);
             let mut output = [0u16; MAX_PZD_WORDS];
             output[0] = command.stw1();
             let len = setup.layout.pzd.get();

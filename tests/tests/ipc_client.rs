@@ -909,7 +909,7 @@ fn ussctl_prints_status_as_json_and_reads_and_writes_parameters() {
     for a in 1..=3 {
         assert!(
             json.contains(&format!(
-                "{{\"address\":{a},\"online\":true,\"state\":\"S2\","
+                "{{\"address\":{a},\"online\":true,\"stale\":false,\"state\":\"S2\","
             )),
             "{json}"
         );

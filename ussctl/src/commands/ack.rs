@@ -5,7 +5,7 @@ use crate::cli::address;
 use crate::report::DriveReport;
 use crate::{Failure, Output};
 use uss_client::Address;
-use uss_client::{Bus, ClientError, DriveState};
+use uss_client::{Bus, ClientError, DriveState, StopCommand};
 
 /// `ack`'s arguments.
 #[derive(Debug, clap::Args)]
@@ -29,8 +29,20 @@ fn ack(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
         ));
     }
     // The edge reaches only a live drive: the operator's `ack` re-arms it first (OFF1 naming
-    // its latch: a stop, never an ON), and hands it back latched ("released") when it ends.
+    // its latch: a stop, never an ON), and hands it back latched ("released") when it ends. A
+    // coast or quick stop it was latched with stays: sent again at once, kept through the edge
+    // and by the latch of the release.
+    let before = c.inputs().latest();
+    let held = (!before.is_live())
+        .then(|| StopCommand::of_code(before.latch_command))
+        .flatten()
+        .filter(|s| s.strength() > StopCommand::Off1.strength());
     c.rearm()?;
+    match held {
+        Some(StopCommand::Off2) => c.coast()?,
+        Some(StopCommand::Off3) => c.quick_stop()?,
+        _ => {}
+    }
     // The edge takes two exchanges, the drive's answer a third: the drive's handshake time
     // each (31 drives at 9600 baud poll each drive only every 1.3 s).
     c.acknowledge_fault(c.inputs().handshake())?;
@@ -41,7 +53,7 @@ fn ack(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
         Err(ClientError::WaitTimeout { .. }) => return Err(Failure::FaultPersists { drive }),
         Err(e) => return Err(e.into()),
     };
-    out.show(
+    let shown = out.show(
         &DriveReport::new(
             bus.name(),
             "ack",
@@ -50,5 +62,12 @@ fn ack(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
             c.inputs().info().reference_hz,
         ),
         DriveReport::human,
-    )
+    );
+    if let Some(stop) = held {
+        out.note(&format!(
+            "drive {drive}: its {} stays: it is handed back latched with it, not with the OFF1 a release sends",
+            stop.name()
+        ));
+    }
+    shown
 }
