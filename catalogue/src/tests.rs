@@ -23,7 +23,7 @@ fn an_array_names_its_elements() {
     assert!(p2014.is_array());
     assert_eq!(
         p2014.elements_named(),
-        "P2014[0] (BOP link, RS232) or P2014[1] (COM link, RS485)"
+        "P2014[0] (COM link, RS485) or P2014[1] (BOP link, RS232)"
     );
     assert_eq!(
         c.param(947).unwrap().elements_named(),
@@ -309,7 +309,7 @@ fn each_family_says_where_its_faults_and_its_link_are() {
     assert_eq!(faults("simoreg"), ("r0947".into(), Some("r0949".into()), 8));
     let mm4 = Catalogue::micromaster4();
     let at = |s: &str| s.parse::<uss_protocol::ParamRef>().unwrap();
-    assert!(mm4.is_link(at("P2011[1]")) && !mm4.is_link(at("P2011[0]")));
+    assert!(mm4.is_link(at("P2011[0]")) && !mm4.is_link(at("P2011[1]")));
     assert!(Catalogue::g120().is_link(at("p2021")));
     assert_eq!(mm4.access_level.map(|p| p.pnu.get()), Some(3));
     assert_eq!(Catalogue::simoreg().access_level, None);
@@ -317,8 +317,11 @@ fn each_family_says_where_its_faults_and_its_link_are() {
 
 /// The roles ussd and its tools read a drive by, typed in from the manuals (not from the
 /// profiles): the telegram-off time of the USS link and the fault its expiry records, the
-/// reference. MM4: P2014 index 1 = the COM link (MM420 Reference Manual A1 3.3), F0072 "USS
-/// (COM link) setpoint fault", P2000 reference frequency in Hz; G120 (CU240 list manual):
+/// reference. MM4: index 0 of the USS parameters is the COM link (RS485), index 1 the BOP link
+/// (MM420 Parameter List 6SE6400-5BA00-0BP0 04/02 p.84, P2012: "P2012[0] : Serial interface COM
+/// link, P2012[1] : Serial interface BOP link"; MM440 Parameter List 01/06 p.197, P2013 the same;
+/// CU240S OI 10/2007 6.6.4 p.183: "Index[0] for USS on RS485, Index[1] for USS on RS232"),
+/// F0072 "USS (COM link) setpoint fault", P2000 reference frequency in Hz; G120 (CU240 list manual):
 /// p2040 fieldbus monitoring time, F01910 setpoint timeout, p2000 reference speed in rpm;
 /// SIMOREG: uss-rt knows none of them (its telegram failure time is not in a stored copy).
 #[test]
@@ -334,7 +337,7 @@ fn each_family_names_its_monitoring_fault_and_reference_as_its_manual_does() {
         )
     };
     let mm4 = (
-        Some("P2014[1]".into()),
+        Some("P2014[0]".into()),
         Some(72),
         Some("P2000".into()),
         None,
@@ -349,7 +352,7 @@ fn each_family_names_its_monitoring_fault_and_reference_as_its_manual_does() {
     let named = |family| Catalogue::of(family).unwrap().monitoring_name();
     assert_eq!(
         named(DriveFamily::G110).as_deref(),
-        Some("P2014[1] (F0072)")
+        Some("P2014[0] (F0072)")
     );
     assert_eq!(named(DriveFamily::G120).as_deref(), Some("p2040 (F01910)"));
     assert_eq!(named(DriveFamily::Simoreg), None);
