@@ -232,8 +232,8 @@ pub struct Param {
     #[serde(default)]
     pub unit: String,
     /// Elements of an indexed parameter; 0 = not indexed. Such a parameter is always named
-    /// with its element (`P2014[1]`): without one a drive takes element 0, which is rarely what
-    /// was meant, so uss-rt refuses it.
+    /// with its element (`P2014[0]`): without one a drive takes element 0, which may not be the
+    /// one meant, so uss-rt refuses it.
     #[serde(default)]
     pub array: u16,
     /// What each element is (`COM link (RS485)`), where the elements differ in meaning; empty,
@@ -302,8 +302,8 @@ impl Param {
         self.array > 0
     }
 
-    /// Its elements as a user names them: `P2014[0] (BOP link (RS232)) or P2014[1] (COM link
-    /// (RS485))`, or `r0947[0] .. r0947[7]` where they are alike.
+    /// Its elements as a user names them: `P2014[0] (COM link, RS485) or P2014[1] (BOP link,
+    /// RS232)`, or `r0947[0] .. r0947[7]` where they are alike.
     pub fn elements_named(&self) -> String {
         let at = |i: u16| format!("{}[{i}]", self.id);
         if self.elements.is_empty() {
@@ -435,7 +435,7 @@ pub struct Catalogue {
     pub link: Vec<ParamRef>,
     /// The fault buffer and warnings; none: uss-rt knows no fault buffer of the family.
     pub faults: Option<FaultBuffers>,
-    /// The drive's telegram-off time in ms on the USS link ussd talks over (MM4 P2014[1], G120
+    /// The drive's telegram-off time in ms on the USS link ussd talks over (MM4 P2014[0], G120
     /// p2040): ussd reads it when the drive comes online and checks it; none: not known, the
     /// configuration names it (`monitoring_param`).
     #[serde(default, deserialize_with = "some_param_id")]
@@ -532,8 +532,8 @@ impl Catalogue {
         format!("F{number:0w$}", w = usize::from(digits))
     }
 
-    /// What a drive of this family says to set its telegram-off time: "P2014[1]", and the
-    /// fault its expiry records where known: "P2014[1] (F0072)"; `None` when uss-rt does not
+    /// What a drive of this family says to set its telegram-off time: "P2014[0]", and the
+    /// fault its expiry records where known: "P2014[0] (F0072)"; `None` when uss-rt does not
     /// know the family's parameter.
     pub fn monitoring_name(&self) -> Option<String> {
         let param = self.monitoring?;

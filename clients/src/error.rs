@@ -522,7 +522,7 @@ fn refusal_hint(error: RequestError) -> &'static str {
         }
         RequestError::ImpossibleValue => ": a float parameter holds finite numbers only",
         RequestError::IndexRequired => {
-            ": name the element, as in P2014[1] or P2014.1 (`ussctl param describe` says how \
+            ": name the element, as in P2014[0] or P2014.0 (`ussctl param describe` says how \
              many there are)"
         }
         RequestError::LineDown => {

@@ -15,8 +15,8 @@ use uss_catalogue::Catalogue;
 use uss_protocol::{ParamRef, Subindex};
 
 use crate::params::{
-    MM4_OWN, Own, P0970, P1000, P1080, P1082, P1120, P1121, P1135, P2011, P2012, P2013, ParamSet,
-    R0018, R0021, R0052, R0054, R0947, R0948, R0949, R2024,
+    COM_LINK, MM4_OWN, Own, P0970, P1000, P1080, P1082, P1120, P1121, P1135, P2011, P2012, P2013,
+    ParamSet, R0018, R0021, R0052, R0054, R0947, R0948, R0949, R2024,
 };
 
 /// Where a family keeps its fault buffer: `len` elements of fault codes and of fault values,
@@ -54,7 +54,7 @@ pub struct Roles {
     /// The reference that 0x4000 of the setpoint stands for (P2000 Hz on MM4, p2000 rpm on
     /// G120); `None`: a fixed reference (the simulator's `ref=`), with no parameter.
     pub reference: Option<u16>,
-    /// Telegram monitoring (P2014[1] in ms on MM4, p2040 in ms as a float on G120); `None`: a
+    /// Telegram monitoring (P2014[0] in ms on MM4, p2040 in ms as a float on G120); `None`: a
     /// fixed time (the simulator's `p2014=`), with no parameter.
     pub monitoring: Option<(u16, u8)>,
     /// The link's address, PZD count and PKW count, with their index.
@@ -99,9 +99,6 @@ impl Roles {
         }
     }
 }
-
-/// Index 1 of the MM4's USS parameters: the COM link (RS485).
-const COM_LINK: u8 = 1;
 
 /// MICROMASTER 420/430/440: the simulator's own roles; the rest are its profile's.
 const MICROMASTER4_OWN: Roles = Roles {

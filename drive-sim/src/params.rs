@@ -221,8 +221,8 @@ pub const R2110: u16 = 2110;
 pub const P0927_USS_COM: u32 = 1 << 3;
 
 /// Array index of the COM link in the USS settings P2010..P2014 and diagnostics r2024..r2031
-/// (index 0 is the BOP link).
-pub const COM_LINK: u8 = 1;
+/// (index 1 is the BOP link: MM420 Parameter List 04/02 p.84, P2012).
+pub const COM_LINK: u8 = 0;
 
 /// The whole range of a data type: the limits of a parameter whose profile gives none.
 fn type_range(ty: DataType) -> (f64, f64) {

@@ -527,7 +527,7 @@ fn a_generic_slave_answers_its_own_parameters_and_a_fragile_one_dies_of_any_othe
     assert_eq!(pkw, vec![0x2000 | 3, 0, 0, 12_345]);
     let (pkw, _) = send(&mut d, &[0x2000 | 2, 0, 0, 700], &[0x047E, 0], ms(20)).unwrap();
     assert_eq!(pkw, vec![0x1000 | 2, 0, 0, 700]);
-    // P2014 index 1 (an array read) and P1's description are unknown here: error 0.
+    // P2014 index 0 (an array read) and P1's description are unknown here: error 0.
     // (P2014 is PNU part 14 with the page bit in IND.)
     let (pkw, _) = send(&mut d, &[0x6000 | 14, 0x8001, 0, 0], &[0x047E, 0], ms(30)).unwrap();
     assert_eq!(pkw, vec![0x7000 | 14, 0x8001, 0, 0]);

@@ -108,7 +108,7 @@ pub struct DriveSetup {
 
 impl DriveSetup {
     /// A drive with the defaults of ussd's configuration: weight 1, OFF1, 100 ms watchdog,
-    /// writable, MICROMASTER telegram monitoring (P2014.1, checked, not required).
+    /// writable, MICROMASTER telegram monitoring (P2014.0, checked, not required).
     pub fn new(address: Address, layout: Layout) -> Self {
         Self {
             address,

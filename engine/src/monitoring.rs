@@ -1,5 +1,5 @@
 //! The drive's own telegram monitoring (USS.md section 5): P2014 on MICROMASTER 4 / G110 /
-//! CU240S (index 1 = the RS485 COM link), p2040 on G120 / S110. When ussd or its line dies,
+//! CU240S (index 0 = the RS485 COM link), p2040 on G120 / S110. When ussd or its line dies,
 //! nothing else stops a running motor: the drive trips (F0070..F0072) only if this time is set.
 //! ussd reads it whenever a drive comes online, and again whenever a parameter access through
 //! it reads or writes that parameter, and says what it found ([`Monitoring`]). The reads ussd
@@ -69,7 +69,7 @@ pub struct MonitoringSetup {
 }
 
 impl MonitoringSetup {
-    /// MICROMASTER 4 / G110 / CU240S: P2014 index 1 (COM link), at most 1 s, not required.
+    /// MICROMASTER 4 / G110 / CU240S: P2014 index 0 (COM link), at most 1 s, not required.
     pub fn micromaster() -> Self {
         Self {
             // 2014 is a valid PNU and 1 a valid subindex.

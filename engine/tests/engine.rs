@@ -812,7 +812,7 @@ fn an_operator_stop_overrides_the_controller_at_the_next_poll_and_latches() {
 
 #[test]
 fn the_drives_telegram_monitoring_is_read_when_it_comes_online() {
-    // P2014.1 = 0 on the simulated drive: monitoring off.
+    // P2014.0 = 0 on the simulated drive: monitoring off.
     let mut b = bench(&[(1, PkwMode::Four)]);
     b.run_for(ms(200), &[]);
     assert_eq!(b.status(1).monitoring, Monitoring::Off);

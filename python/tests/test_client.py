@@ -236,10 +236,10 @@ def test_parameters_read_in_the_manuals_notation_as_their_own_type(bus):
     assert uss_rt.parse_param("r0947.3") == (947, 3, "r")
     with pytest.raises(ValueError, match="write a parameter as P1082"):
         uss_rt.parse_param("Q12")
-    # An array is named with its element: alone it would mean element 0 (the BOP link).
+    # An array is named with its element: alone it would mean element 0, maybe not the one meant.
     with pytest.raises(ValueError, match=r"P2014: an array of 2 elements: name one, P2014\[0\]"):
         uss_rt.read(bus, 1, "P2014")
-    with pytest.raises(ValueError, match=r"P2014\[1\] \(COM link, RS485\)"):
+    with pytest.raises(ValueError, match=r"P2014\[0\] \(COM link, RS485\)"):
         uss_rt.write(bus, 1, "P2014", 300)
     # ussd itself refuses it, whatever the client sends.
     with pytest.raises(uss_rt.Refused, match="name the element") as refused:

@@ -937,7 +937,7 @@ fn a_drive_without_telegram_monitoring_is_reported_and_refused_on_when_required(
         (Monitoring::On.code(), 100)
     );
     assert!(
-        logged(&ussd, "drive 1: telegram monitoring is OFF (P2014[1] = 0)"),
+        logged(&ussd, "drive 1: telegram monitoring is OFF (P2014[0] = 0)"),
         "{}",
         ussd.log()
     );

@@ -127,7 +127,7 @@ fn a_stop_of_every_drive_on_the_full_line_is_one_broadcast_and_confirmed_by_each
     assert!(status.out_of_turn >= 30, "{status:?}");
 }
 
-/// A drive whose telegram monitoring (P2014.1) is shorter than the time between two polls of it
+/// A drive whose telegram monitoring (P2014.0) is shorter than the time between two polls of it
 /// trips between polls: ussd says so at start, in its log when it reads the value, and in
 /// `ussctl status`, with the smallest value that does not trip.
 #[test]
@@ -170,7 +170,7 @@ fn a_telegram_off_time_shorter_than_the_poll_period_is_reported_with_the_safe_va
     let (_, out, err) = status.finish();
     assert!(
         out.contains(&format!(
-            "warning: drive 20: telegram monitoring is 100 ms, shorter than the time between two polls of it on this bus (up to {safe} ms): it trips (F0072) between polls; set P2014[1] to at least {safe} ms"
+            "warning: drive 20: telegram monitoring is 100 ms, shorter than the time between two polls of it on this bus (up to {safe} ms): it trips (F0072) between polls; set P2014[0] to at least {safe} ms"
         )),
         "{out}{err}"
     );

@@ -1041,8 +1041,8 @@ fn backup_change_restore_and_diff_shows_nothing() {
         "family = \"MICROMASTER 4 / SINAMICS G110\"",
         "firmware = 2.09",
         "P1082 = 50.0",
-        "P2013 = [127, 4]",
-        "P2011 = [0, 1]",
+        "P2013 = [4, 127]",
+        "P2011 = [1, 0]",
         "P0003 = 1",
     ] {
         assert!(saved.lines().any(|l| l == line), "{line}: {saved}");
@@ -1226,7 +1226,7 @@ fn files_that_do_not_fit_are_refused(ussd: &Ussd, dir: &std::path::Path, saved: 
         err.contains("P9999: not a parameter of MICROMASTER 4"),
         "{err}"
     );
-    let err = refused("array.toml", "P2013 = [127, 4]", "P2013 = 127");
+    let err = refused("array.toml", "P2013 = [4, 127]", "P2013 = 127");
     assert!(
         err.contains("P2013: P2013 takes a list of 2 values"),
         "{err}"
@@ -1243,20 +1243,20 @@ fn another_drive_keeps_its_com_link(ussd: &Ussd, path: &str) {
     let (_, said, _) = run(&["param", "diff", "1", "2"]);
     assert_eq!(
         said,
-        "  P2011[1]   drive 1: 1              drive 2: 2              (USS address)\n\
+        "  P2011[0]   drive 1: 1              drive 2: 2              (USS address)\n\
          drive 1 and drive 2: 1 difference, 40 values the same\n"
     );
     let (code, said, err) = run(&["param", "restore", "2", path]);
     assert_eq!(code, Some(0), "{said}{err}");
     assert!(
-        said.contains("P2011[1]   2 -> 1: kept: the COM link ussd talks over"),
+        said.contains("P2011[0]   2 -> 1: kept: the COM link ussd talks over"),
         "{said}"
     );
     assert!(
         said.contains("wrote 0, refused 0; 40 already as in the file, 1 COM-link settings kept"),
         "{said}"
     );
-    assert_eq!(bus.read(addr(2), param_at(2011, 1)), Ok(Value::Word(2)));
+    assert_eq!(bus.read(addr(2), param_at(2011, 0)), Ok(Value::Word(2)));
 }
 
 /// `ussctl ack` after an operator's coast keeps the coast: the drive is handed back latched with

@@ -26,7 +26,7 @@ fn word(v: Value) -> u32 {
     }
 }
 
-/// r2024[1] counts the telegrams the drive received on its COM link: every read of it that
+/// r2024[0] counts the telegrams the drive received on its COM link: every read of it that
 /// the drive executes gives a new value. Identical tasks one after another are each executed,
 /// not answered from the drive's stored reply (USS.md section 6: a slave takes a task as new
 /// only when the PKW area changes).
@@ -40,7 +40,7 @@ fn identical_reads_back_to_back_are_each_a_fresh_read() {
         .iter()
         .map(|r| word(*r.as_ref().unwrap()))
         .collect();
-    println!("param_truth: five reads of r2024[1] in one request: {values:?}");
+    println!("param_truth: five reads of r2024[0] in one request: {values:?}");
     assert!(
         values.windows(2).all(|w| w[0] < w[1]),
         "a read answered from the drive's stored reply: {values:?}"
@@ -48,7 +48,7 @@ fn identical_reads_back_to_back_are_each_a_fresh_read() {
     // Three commissioning engineers at once, each with ussctl, several times over.
     for round in 0..2 {
         let mut readers: Vec<_> = (0..3)
-            .map(|_| ussd.ussctl(&["--json", "param", "read", "1", "r2024[1]"]))
+            .map(|_| ussd.ussctl(&["--json", "param", "read", "1", "r2024[0]"]))
             .collect();
         let mut seen: Vec<u64> = readers
             .iter_mut()
@@ -59,7 +59,7 @@ fn identical_reads_back_to_back_are_each_a_fresh_read() {
                 json["value"].as_u64().unwrap()
             })
             .collect();
-        println!("param_truth: round {round}, three ussctl reads of r2024[1]: {seen:?}");
+        println!("param_truth: round {round}, three ussctl reads of r2024[0]: {seen:?}");
         seen.sort_unstable();
         seen.dedup();
         assert_eq!(seen.len(), 3, "two reads got one stored reply");
@@ -67,8 +67,8 @@ fn identical_reads_back_to_back_are_each_a_fresh_read() {
 }
 
 /// An array parameter named without an index is not element 0 in disguise: a write is refused
-/// naming the elements (before, `param write 1 P2014 300` set P2014[0], the BOP link, and said
-/// "P2014 := 300 ms"), a read reads every element, and a client's request is refused by ussd
+/// naming the elements (before, `param write 1 P2014 300` set P2014[0] and said "P2014 := 300
+/// ms", which element never shown), a read reads every element, and a client's request is refused by ussd
 /// whichever front-end sent it.
 #[test]
 fn an_array_parameter_without_an_index_is_refused_or_read_whole() {
@@ -99,10 +99,10 @@ fn an_array_parameter_without_an_index_is_refused_or_read_whole() {
     assert_eq!(before, after, "nothing was written");
     // The element asked for is written, and said so.
     let (status, out, err) = ussd
-        .ussctl(&["param", "write", "1", "P2014[1]", "300"])
+        .ussctl(&["param", "write", "1", "P2014[0]", "300"])
         .finish();
     assert!(status.success(), "{out}{err}");
-    assert!(out.contains("P2014[1] := 300 ms"), "{out}");
+    assert!(out.contains("P2014[0] := 300 ms"), "{out}");
     // A read without an index reads them all.
     let (status, out, err) = ussd.ussctl(&["param", "read", "1", "r0947"]).finish();
     println!("param_truth: ussctl param read 1 r0947:\n{out}{err}");

@@ -108,7 +108,7 @@ pub enum ParamCommand {
     /// 1) and the catalogue's entry for its family, if any.
     Describe(commands::param::Describe),
     /// Write VALUE to a parameter or an array element; an array is written by its element only
-    /// (P2014[1]), never by its name alone.
+    /// (P2014[0]), never by its name alone.
     Write(commands::param::Write),
     /// Save every settable parameter of a drive (the catalogue's, array elements included) to
     /// a TOML file (stdout without -o).

@@ -127,8 +127,8 @@ fn new_table_holds_factory_defaults() {
     assert_eq!(t.get(P1082, 0), Some(0x4248_0000));
     assert_eq!(t.get(P2010, 0), Some(6));
     assert_eq!(t.get(P2010, 1), Some(6));
-    assert_eq!(t.get(P2012, 1), Some(2));
-    assert_eq!(t.get(P2013, 1), Some(127));
+    assert_eq!(t.get(P2012, COM_LINK), Some(2));
+    assert_eq!(t.get(P2013, COM_LINK), Some(127));
     assert_eq!(t.get(R0018, 0), Some(2.09f32.to_bits()));
     assert_eq!(t.get(R0947, 7), Some(0));
     assert_eq!(ParamTable::default(), t);
@@ -251,9 +251,9 @@ fn array_elements_read_write_and_count() {
         write_at(&mut t, P2011, COM_LINK, Value::Word(17)),
         ReplyKind::ArrayWord(17)
     );
-    assert_eq!(read_at(&mut t, P2011, 1), ReplyKind::ArrayWord(17));
-    assert_eq!(read_at(&mut t, P2011, 0), ReplyKind::ArrayWord(0));
-    assert_eq!(t.get(P2011, 1), Some(17));
+    assert_eq!(read_at(&mut t, P2011, 0), ReplyKind::ArrayWord(17));
+    assert_eq!(read_at(&mut t, P2011, 1), ReplyKind::ArrayWord(0));
+    assert_eq!(t.get(P2011, 0), Some(17));
     t.set_internal(R0947, 7, 0x0055);
     assert_eq!(read_at(&mut t, R0947, 7), ReplyKind::ArrayWord(0x0055));
 }
@@ -818,7 +818,7 @@ fn set_internal_bypasses_every_check_in_ram_only() {
     t.set_internal(P1082, 0, 700.0f32.to_bits()); // beyond the limit: no check
     t.set_internal(P0700, 0, 0x0001_0003); // word type keeps the low word
     assert_eq!(read(&mut t, R0052), ReplyKind::Word(0xFB34));
-    assert_eq!(read_at(&mut t, R2024, 1), ReplyKind::ArrayWord(42));
+    assert_eq!(read_at(&mut t, R2024, COM_LINK), ReplyKind::ArrayWord(42));
     assert_eq!(read(&mut t, P1082), ReplyKind::Dword(0x442F_0000));
     assert_eq!(t.get(P0700, 0), Some(3));
     assert_eq!(
@@ -841,11 +841,11 @@ fn set_commissioned_survives_power_cycle_but_not_for_read_only() {
     t.set_commissioned(P2010, COM_LINK, 0x0001_0008);
     t.set_commissioned(R2025, COM_LINK, 9);
     t.set_commissioned(4, 0, 9);
-    assert_eq!(t.get(R2025, 1), Some(0));
+    assert_eq!(t.get(R2025, COM_LINK), Some(0));
     t.power_cycle();
-    assert_eq!(t.get(P2011, 1), Some(5));
-    assert_eq!(t.get(P2010, 1), Some(8));
-    assert_eq!(t.get(R2025, 1), Some(0));
+    assert_eq!(t.get(P2011, COM_LINK), Some(5));
+    assert_eq!(t.get(P2010, COM_LINK), Some(8));
+    assert_eq!(t.get(R2025, COM_LINK), Some(0));
 }
 
 // --- Robustness ---

@@ -166,7 +166,7 @@ impl Cpu {
 
 /// A drive parameter ussd reads itself, as the manuals write it (and as the file wrote it);
 /// `""`: not read. `monitoring_param`: the drive's own telegram-off time (USS.md section 5;
-/// MICROMASTER 4 / G110 / CU240S: P2014, index 1 = the RS485 COM link). `reference_param`: the
+/// MICROMASTER 4 / G110 / CU240S: P2014, index 0 = the RS485 COM link). `reference_param`: the
 /// reference frequency in Hz (P2000). What is not a parameter is refused by the rules, with its
 /// error.
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]

@@ -292,7 +292,7 @@ pub struct DriveEntry {
     #[serde(default = "yes")]
     pub broadcast: bool,
     /// The parameters a write may change without `--unsafe` (`"P1120"`: every element,
-    /// `"P2014.1"`: that one). A drive without a catalogue (`family = "generic"`) takes no
+    /// `"P2014.0"`: that one). A drive without a catalogue (`family = "generic"`) takes no
     /// write without it; for a family with a catalogue it narrows what the catalogue allows
     /// (its guarded parameters stay guarded). Unset: the family's catalogue decides.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -357,7 +357,7 @@ impl DriveEntry {
 
 /// What `ussd` runs with no arguments: one simulated bus at 115200 baud with four drives, the
 /// third with a variable-length PKW, each watching its telegrams as we recommend real drives
-/// to (P2014.1 = 100 ms, USS.md section 5).
+/// to (P2014.0 = 100 ms, USS.md section 5).
 #[cfg(feature = "sim")]
 const EMBEDDED_DEFAULT: &str = r#"
 [[bus]]

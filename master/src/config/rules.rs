@@ -297,7 +297,7 @@ impl Rules<'_> {
             (
                 "monitoring_param",
                 &monitoring,
-                "name the drive's telegram-off time as the manual writes it, e.g. \"P2014.1\" \
+                "name the drive's telegram-off time as the manual writes it, e.g. \"P2014.0\" \
                  (MICROMASTER 4, COM link) or \"p2040\" (G120), or \"\" for no check",
             ),
             (
@@ -337,7 +337,7 @@ impl Rules<'_> {
         }
         if drive.require_monitoring {
             let missing = if monitoring.param().is_none() {
-                "needs monitoring_param (e.g. \"P2014.1\"): ussd cannot verify a monitoring it \
+                "needs monitoring_param (e.g. \"P2014.0\"): ussd cannot verify a monitoring it \
                  does not read"
             } else if drive.pkw == PkwMode::None {
                 "needs a parameter channel (pkw = 3, 4 or 127) to read the drive's telegram \

@@ -130,7 +130,7 @@ fn embedded_default_is_one_simulated_bus_with_four_drives() {
             telegram_off_time_ms: 100,
             ..DriveConfig::new(d.address, d.layout())
         };
-        assert_eq!(sim.config, recommended, "P2014.1 = 100 ms");
+        assert_eq!(sim.config, recommended, "P2014.0 = 100 ms");
         assert_eq!(sim.faults.probability(Fault::DropReply), 0.0);
     }
 }
@@ -160,7 +160,7 @@ fn missing_keys_get_their_documented_defaults() {
     assert!(d.params_writable);
     assert_eq!(
         d.monitoring_param().param().map(|p| p.to_string()),
-        Some("P2014[1]".into())
+        Some("P2014[0]".into())
     );
     assert_eq!(
         (d.monitoring_max_ms.get(), d.require_monitoring),
@@ -329,7 +329,7 @@ reference_param = "P2000"
 watchdog_ms = 100.0
 safe_command = "off1"
 params_writable = true
-monitoring_param = "P2014[1]"
+monitoring_param = "P2014[0]"
 monitoring_max_ms = 1000.0
 require_monitoring = false
 broadcast = true
@@ -503,7 +503,7 @@ fn a_monitoring_that_cannot_be_verified_cannot_be_required() {
             "bus.toml:7:20: bus \"bus0\" drive 3: monitoring_param = \"P20x4\" is not a \
              parameter: write a parameter as P1082, p1082, r0021 or 1082, an element as P0947[3] \
              or r0947.3; name the drive's telegram-off time as the manual writes it, e.g. \
-             \"P2014.1\" (MICROMASTER 4, COM link) or \"p2040\" (G120), or \"\" for no check"
+             \"P2014.0\" (MICROMASTER 4, COM link) or \"p2040\" (G120), or \"\" for no check"
                 .to_owned(),
             Some("bus[0].drive[0].monitoring_param".to_owned())
         )
@@ -514,7 +514,7 @@ fn a_monitoring_that_cannot_be_verified_cannot_be_required() {
         )),
         (
             "bus.toml:8:22: bus \"bus0\" drive 3: require_monitoring = true needs \
-             monitoring_param (e.g. \"P2014.1\"): ussd cannot verify a monitoring it does not read"
+             monitoring_param (e.g. \"P2014.0\"): ussd cannot verify a monitoring it does not read"
                 .to_owned(),
             Some("bus[0].drive[0].require_monitoring".to_owned())
         )
@@ -820,13 +820,13 @@ fn a_family_decides_what_ussd_reads_unasked_and_an_unknown_one_is_refused_with_t
     };
     assert_eq!(
         read(&d("")),
-        (Some("P2014[1]".into()), Some("P2000".into()))
+        (Some("P2014[0]".into()), Some("P2000".into()))
     );
     assert_eq!(read(&d("family = \"generic\"")), (None, None));
     assert_eq!(read(&d("family = \"g120\"")), (Some("p2040".into()), None));
     assert_eq!(
         read(&d("family = \"g110\"")),
-        (Some("P2014[1]".into()), Some("P2000".into()))
+        (Some("P2014[0]".into()), Some("P2000".into()))
     );
     assert_eq!(read(&d("family = \"simoreg\"")), (None, None));
     // What is written wins over the family's.
@@ -1292,7 +1292,7 @@ const PIECES: &[&str] = &[
     "reference_hz = 60",
     "safe_command = \"off3\"",
     "safe_command = \"stop\"",
-    "monitoring_param = \"P2014.1\"",
+    "monitoring_param = \"P2014.0\"",
     "monitoring_param = \"Q1\"",
     "monitoring_param = \"\"",
     "require_monitoring = true",

@@ -161,7 +161,7 @@ fn log_latch(bus: &BusConfig, address: Address, latch: &Latch, rejection: Reject
     }
 }
 
-/// The parameter a drive's key names, as the manuals write it (`P2014[1]`), or `otherwise`.
+/// The parameter a drive's key names, as the manuals write it (`P2014[0]`), or `otherwise`.
 fn param_name(
     bus: &BusConfig,
     address: Address,

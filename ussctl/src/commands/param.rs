@@ -198,7 +198,7 @@ pub struct Write {
     /// The drive's address on the bus, 0..=31.
     #[arg(value_parser = address)]
     pub(crate) drive: Address,
-    /// The parameter as the manuals write it: P1082, p1082, 1082, P2014[1], P2014.1 (an
+    /// The parameter as the manuals write it: P1082, p1082, 1082, P2014[0], P2014.0 (an
     /// array by its element only).
     #[arg(value_name = "PARAM", value_parser = param_ref)]
     pub(crate) param: ParamRef,

@@ -477,8 +477,8 @@ impl ParamServer {
     }
 
     /// An array parameter (its family's catalogue says so) named without its element is
-    /// refused, read or write, from every front-end: a drive would take element 0, and a user
-    /// who wrote `P2014` rarely meant the BOP link's.
+    /// refused, read or write, from every front-end: a drive would take element 0, which may not
+    /// be the element the user meant (`P1000`'s data sets, `P2014`'s two links).
     fn refuse_unindexed(&self, checked: &Checked<'_>) -> Option<ParamResponse> {
         let catalogue = self.rules(checked.address)?.catalogue?;
         let item = checked.tasks.iter().position(|task| {

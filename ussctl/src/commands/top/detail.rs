@@ -28,8 +28,9 @@ pub(crate) const COUNTERS: [(u16, &str); 8] = [
     (2031, "length"),
 ];
 
-/// Index of the COM link (RS485) in r2024..r2031; index 0 is the BOP link.
-const COM_LINK: u8 = 1;
+/// Index of the COM link (RS485) in r2024..r2031; index 1 is the BOP link (MM420 Parameter
+/// List 04/02 p.84).
+const COM_LINK: u8 = 0;
 
 /// One read of a drive.
 pub(crate) struct Detail {
