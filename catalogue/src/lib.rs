@@ -260,6 +260,10 @@ pub struct Param {
     /// setting; never saved in or restored from a backup.
     #[serde(default)]
     pub action: bool,
+    /// The stored page of the manufacturer's list this entry was checked against (list, issue,
+    /// page); none: not checked against a stored copy yet.
+    #[serde(default)]
+    pub source: Option<String>,
 }
 
 const fn yes() -> bool {
