@@ -370,108 +370,47 @@ fn each_family_names_its_monitoring_fault_and_reference_as_its_manual_does() {
     assert_eq!(Catalogue::family_named("MICROMASTER"), None);
 }
 
+/// An entry as a stored page of a Siemens list shows it: (id, type, unit, elements, level,
+/// change, min, max, default, the page).
+type PageEntry = (
+    &'static str,
+    DataType,
+    &'static str,
+    u16,
+    u8,
+    Change,
+    Option<f64>,
+    Option<f64>,
+    Option<f64>,
+    &'static str,
+);
+
 /// Entries of the MM4 profile checked against a stored page of a Siemens parameter list, their
-/// fields typed in from that page (not from the profile): each such entry cites the page.
-/// PL420 = MICROMASTER 420 Parameter List 6SE6400-5BA00-0BP0 04/02, PL440 = MICROMASTER 440
-/// Parameter List 6SE6400-5BB00-0BP0 01/06, RM420 = MICROMASTER 420 Reference Manual A1.
+/// fields typed in from that page (not from the profile). PL420 = MICROMASTER 420 Parameter
+/// List 6SE6400-5BA00-0BP0 04/02, PL440 = MICROMASTER 440 Parameter List 6SE6400-5BB00-0BP0
+/// 01/06.
+#[rustfmt::skip]
+const MM4_PAGES: &[PageEntry] = &[
+    // PL420 p.84: "P2012[2] USS PZD length Min: 0 CStat: CUT Datatype: U16 Def: 2 Max: 4 Level 3"
+    // (MM420); PL440 p.196: Max 8 (the family's largest).
+    ("P2012", DataType::U16, "", 2, 3, Change::Always, Some(0.0), Some(8.0), Some(2.0), "PL440 p.196"),
+    // PL440 p.197: "P2013[2] USS PKW length Min: 0 CStat: CUT Datatype: U16 Def: 127 Max: 127 Level 3".
+    ("P2013", DataType::U16, "", 2, 3, Change::Always, Some(0.0), Some(127.0), Some(127.0), "PL440 p.197"),
+    // PL440 p.201: r2024[2], r2025[2], U16, level 3, index 0 COM link, 1 BOP link.
+    ("r2024", DataType::U16, "", 2, 3, Change::ReadOnly, None, None, None, "PL440 p.201"),
+    ("r2025", DataType::U16, "", 2, 3, Change::ReadOnly, None, None, None, "PL440 p.201"),
+    // PL440 p.107: "r0948[12] CO: Fault time", U16, level 3.
+    ("r0948", DataType::U16, "", 12, 3, Change::ReadOnly, None, None, None, "PL440 p.107"),
+    // PL440 p.127: "P1080[3] Min. frequency", Float, Hz, 0.00..650.00, level 1, CUT (indexed by
+    // drive data set on MM440; uss-rt reads element 0, the first).
+    ("P1080", DataType::Float, "Hz", 0, 1, Change::Always, Some(0.0), Some(650.0), None, "PL440 p.127"),
+];
+
+/// Each entry of [`MM4_PAGES`] is in the profile as its page shows it, and cites the page.
 #[test]
 fn mm4_entries_checked_against_a_stored_list_page_match_it_and_cite_it() {
     let c = Catalogue::micromaster4();
-    // (id, type, unit, elements, level, change, min, max, default, page)
-    #[allow(clippy::type_complexity)]
-    let typed: &[(
-        &str,
-        DataType,
-        &str,
-        u16,
-        u8,
-        Change,
-        Option<f64>,
-        Option<f64>,
-        Option<f64>,
-        &str,
-    )] = &[
-        // PL420 p.84: "P2012[2] USS PZD length Min: 0 CStat: CUT Datatype: U16 Def: 2 Max: 4
-        // Level 3" (MM420); PL440 p.196: Max 8 (the family's largest).
-        (
-            "P2012",
-            DataType::U16,
-            "",
-            2,
-            3,
-            Change::Always,
-            Some(0.0),
-            Some(8.0),
-            Some(2.0),
-            "PL440 p.196",
-        ),
-        // PL440 p.197: "P2013[2] USS PKW length Min: 0 CStat: CUT Datatype: U16 Def: 127 Max: 127 Level 3".
-        (
-            "P2013",
-            DataType::U16,
-            "",
-            2,
-            3,
-            Change::Always,
-            Some(0.0),
-            Some(127.0),
-            Some(127.0),
-            "PL440 p.197",
-        ),
-        // PL440 p.201: r2024[2], r2025[2], U16, level 3, index 0 COM link, 1 BOP link.
-        (
-            "r2024",
-            DataType::U16,
-            "",
-            2,
-            3,
-            Change::ReadOnly,
-            None,
-            None,
-            None,
-            "PL440 p.201",
-        ),
-        (
-            "r2025",
-            DataType::U16,
-            "",
-            2,
-            3,
-            Change::ReadOnly,
-            None,
-            None,
-            None,
-            "PL440 p.201",
-        ),
-        // PL440 p.107: "r0948[12] CO: Fault time", U16, level 3.
-        (
-            "r0948",
-            DataType::U16,
-            "",
-            12,
-            3,
-            Change::ReadOnly,
-            None,
-            None,
-            None,
-            "PL440 p.107",
-        ),
-        // PL440 p.127: "P1080[3] Min. frequency", Float, Hz, 0.00..650.00, level 1, CUT
-        // (indexed by drive data set on MM440; uss-rt reads element 0, the first).
-        (
-            "P1080",
-            DataType::Float,
-            "Hz",
-            0,
-            1,
-            Change::Always,
-            Some(0.0),
-            Some(650.0),
-            None,
-            "PL440 p.127",
-        ),
-    ];
-    for &(id, ty, unit, array, level, change, min, max, default, page) in typed {
+    for &(id, ty, unit, array, level, change, min, max, default, page) in MM4_PAGES {
         let p = c
             .param(id.parse::<uss_protocol::ParamRef>().unwrap().pnu.get())
             .unwrap();
@@ -494,7 +433,7 @@ fn mm4_entries_checked_against_a_stored_list_page_match_it_and_cite_it() {
     // Every citation names a document the profile's header lists.
     let cited: Vec<&Param> = c.param.iter().filter(|p| p.source.is_some()).collect();
     for p in &cited {
-        let s = p.source.as_deref().unwrap();
+        let s = p.source.as_deref().unwrap_or_default();
         assert!(
             ["PL420 p.", "PL440 p.", "RM420 p."]
                 .iter()
