@@ -548,6 +548,36 @@ mod tests {
         }
     }
 
+    /// A stop's reply says the stop the drive gets, which is the stronger one it kept where it
+    /// had one: OFF3 asked of a coasting drive leaves it coasting (OFF2), as `ussctl` says (the
+    /// adversarial run saw the reply name only the OFF3 asked).
+    #[test]
+    fn a_stop_reply_says_the_stronger_stop_a_drive_kept() {
+        let coasting = PzdInput {
+            sent_stw1: 0x047C,
+            latch_command: StopCommand::Off2.code(),
+            ..PzdInput::EMPTY
+        };
+        let reply = StopReply::new("b", 1, StopCommand::Off3, Ok(coasting));
+        let json = serde_json::to_value(&reply).unwrap();
+        assert_eq!(
+            (&json["command"], &json["sent"]),
+            (&serde_json::json!("OFF3"), &serde_json::json!("OFF2")),
+            "{json}"
+        );
+        let stopping = PzdInput {
+            sent_stw1: 0x047A,
+            ..coasting
+        };
+        let json = serde_json::to_value(StopReply::new("b", 1, StopCommand::Off3, Ok(stopping)));
+        assert_eq!(json.unwrap()["sent"], "OFF3");
+        let unconfirmed = StopReply::new("b", 1, StopCommand::Off3, Err("gone".into()));
+        assert_eq!(
+            serde_json::to_value(unconfirmed).unwrap()["sent"],
+            serde_json::Value::Null
+        );
+    }
+
     #[test]
     fn a_sample_says_stw1_and_hz_or_words() {
         let out = Out::parse(br#"{"v":1,"from":"t","seq":7,"stw1":1151,"hz":25.0}"#).unwrap();
