@@ -400,8 +400,12 @@ pub struct StopReply<'a> {
     pub v: u32,
     pub bus: &'a str,
     pub drive: u8,
-    /// `OFF1`, `OFF2`, `OFF3`.
+    /// The stop asked: `OFF1`, `OFF2`, `OFF3`.
     pub command: &'static str,
+    /// The stop the drive gets, from the control word that went out: the one asked, or the
+    /// stronger one it kept (OFF2 over OFF3 over OFF1: OFF3 asked of a coasting drive leaves it
+    /// coasting); null when not confirmed.
+    pub sent: Option<&'static str>,
     /// Whether the drive's image showed the command within the bridge's wait.
     pub confirmed: bool,
     /// Why it was not confirmed.
@@ -426,6 +430,9 @@ impl<'a> StopReply<'a> {
             bus,
             drive,
             command: command.name(),
+            sent: i
+                .and_then(|i| StopCommand::of_stw1(i.sent_stw1))
+                .map(StopCommand::name),
             confirmed: i.is_some(),
             stw1: i.map(|i| i.sent_stw1),
             control: i.map(PzdInput::control_name),
