@@ -215,3 +215,48 @@ fn top_without_ussd_says_so_and_keeps_trying() {
     tmux.keys(&["q"]);
     tmux.wait_for("EXITED 0");
 }
+
+/// A `top` whose terminal goes away (its tmux server killed, an ssh connection lost) ends: it
+/// does not spin on the dead terminal, and it does not ignore SIGTERM (the adversarial run
+/// found it at 62-90 % CPU, deaf to SIGTERM, after its terminal was gone).
+#[test]
+fn top_ends_when_its_terminal_goes_away() {
+    let ussctl = binary("ussctl", "ussctl");
+    let bus = format!("top-hangup-{}", std::process::id());
+    let Some(tmux) = Tmux::start("hangup", &format!("{} --bus {bus} top", ussctl.display())) else {
+        return;
+    };
+    tmux.wait_for("trying again every second");
+    let pids = || {
+        let out = Command::new("pgrep")
+            .args(["-f", "--", &format!("--bus {bus} top")])
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&out.stdout)
+            .split_whitespace()
+            .filter_map(|p| p.parse::<i32>().ok())
+            .filter(|&p| {
+                std::fs::read_to_string(format!("/proc/{p}/comm"))
+                    .is_ok_and(|c| c.trim() == "ussctl")
+            })
+            .collect::<Vec<_>>()
+    };
+    let top = pids();
+    assert_eq!(top.len(), 1, "{top:?}");
+    tmux.run(&["kill-server"]);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while !pids().is_empty() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let left = pids();
+    for &p in &left {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(p),
+            nix::sys::signal::Signal::SIGKILL,
+        );
+    }
+    assert!(
+        left.is_empty(),
+        "top still runs 5 s after its terminal went: {left:?}"
+    );
+}
