@@ -163,7 +163,48 @@ fn top(buses: &[String]) -> Result<(), Failure> {
     outcome
 }
 
+/// What came on the terminal within a wait.
+enum Keys {
+    /// A key (or more) to read.
+    Ready,
+    /// Nothing, or a signal (the loop looks at it).
+    Nothing,
+    /// The terminal went away (hang-up: its window closed, its ssh connection lost).
+    Gone,
+}
+
+/// Waits up to `wait` for input on the terminal `tty` with poll(2): crossterm's own wait spins
+/// on a hung-up terminal and never returns, so `top` would outlive its terminal, deaf to
+/// SIGTERM.
+fn keys(tty: std::os::fd::BorrowedFd<'_>, wait: Duration) -> Keys {
+    use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+    let ms = u16::try_from(wait.as_millis()).unwrap_or(u16::MAX);
+    let mut fds = [PollFd::new(tty, PollFlags::POLLIN)];
+    match poll(&mut fds, PollTimeout::from(ms)) {
+        Ok(0) | Err(nix::errno::Errno::EINTR) => Keys::Nothing,
+        Err(_) => Keys::Gone,
+        Ok(_) => {
+            let seen = fds[0].revents().unwrap_or(PollFlags::empty());
+            if seen.intersects(PollFlags::POLLHUP | PollFlags::POLLERR | PollFlags::POLLNVAL) {
+                Keys::Gone
+            } else {
+                Keys::Ready
+            }
+        }
+    }
+}
+
 fn run(terminal: &mut ratatui::DefaultTerminal, app: &mut App) -> Result<(), Failure> {
+    use std::os::fd::AsFd as _;
+    // The terminal crossterm reads keys from: standard input where it is one, else /dev/tty.
+    let dev_tty;
+    let stdin = std::io::stdin();
+    let tty = if stdin.is_terminal() {
+        stdin.as_fd()
+    } else {
+        dev_tty = std::fs::File::open("/dev/tty").map_err(Failure::Output)?;
+        dev_tty.as_fd()
+    };
     let mut next_refresh = Instant::now();
     while !stopped() {
         if Instant::now() >= next_refresh {
@@ -176,7 +217,12 @@ fn run(terminal: &mut ratatui::DefaultTerminal, app: &mut App) -> Result<(), Fai
         terminal
             .draw(|frame| view::draw(frame, app))
             .map_err(Failure::Output)?;
-        if event::poll(KEY_WAIT).map_err(Failure::Output)? {
+        let ready = match keys(tty, KEY_WAIT) {
+            Keys::Gone => break,
+            Keys::Nothing => false,
+            Keys::Ready => event::poll(Duration::ZERO).map_err(Failure::Output)?,
+        };
+        if ready {
             // A resize needs nothing but the next frame, drawn at once.
             if let Event::Key(key) = event::read().map_err(Failure::Output)?
                 && !app.key(key)
