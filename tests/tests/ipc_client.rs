@@ -1270,8 +1270,38 @@ fn an_operators_coast_stays_through_ussctl_ack() {
     let bus = ussd.bus();
     let out = ussd.ussctl(&["coast", "1"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
+    // Every image of drive 1 while the ack runs: what each poll sent. No OFF1 (0x047E), not even
+    // for the re-arm, so an ack killed at any moment leaves the drive coasting (the second
+    // adversarial run killed one between its re-arm and its coast and the OFF2 was gone).
+    let done = std::sync::Arc::new(AtomicBool::new(false));
+    let seen = std::thread::spawn({
+        let (bus, done) = (ussd.bus(), done.clone());
+        move || {
+            let watch = bus.watch(addr(1)).unwrap();
+            let mut sent = Vec::new();
+            while !done.load(Ordering::Relaxed) {
+                let i = watch.latest();
+                if sent.last() != Some(&(i.sequence, i.sent_stw1)) {
+                    sent.push((i.sequence, i.sent_stw1));
+                }
+                std::thread::sleep(Duration::from_micros(500));
+            }
+            sent
+        }
+    });
     let out = ussd.ussctl(&["ack", "1"]);
+    std::thread::sleep(Duration::from_millis(100));
+    done.store(true, Ordering::Relaxed);
+    let sent = seen.join().unwrap();
     assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(
+        sent.iter().all(|&(_, stw1)| stw1 & 0x0002 == 0),
+        "a poll without OFF2 during the ack: {sent:04X?}"
+    );
+    assert!(
+        sent.iter().any(|&(_, stw1)| stw1 == 0x04FC),
+        "no edge: {sent:04X?}"
+    );
     let said = text(&out.stdout);
     assert!(said.contains("its OFF2 stays"), "{said}");
     let watch = bus.watch(addr(1)).unwrap();
