@@ -645,7 +645,8 @@ enum UssrtStatus ussrt_control_reverse(const struct UssrtController *controller,
 
 /**
  * Acknowledges a drive fault (a rising edge of STW1 bit 7, at most `timeout_ms` for the drive
- * to receive it), then OFF1.
+ * to receive it), then OFF1; a coast or quick stop the controller sends stays (0x04FC then
+ * 0x047C, 0x04FA then 0x047A): never an ON.
  *
  * # Safety
  * `controller` is a live handle.

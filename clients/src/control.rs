@@ -454,14 +454,27 @@ impl Controller {
     /// that moment (an operator's stop while the program was starting) is not re-armed, the
     /// drive stays stopped, and the error is [`ClientError::Tripped`] naming it.
     pub fn rearm_asked_at(&self, asked_ns: u64) -> Result<PzdInput, ClientError> {
+        self.rearm_by(|session, now, input| session.rearm_asked_at(now, input, asked_ns))
+    }
+
+    /// Like [`Controller::rearm`], with the stop the drive is latched with as the re-arming
+    /// words (`Session::rearm_keeping_stop`): a coast or quick stop stays on the wire, so a
+    /// program that only acknowledges a fault and lets go (`ussctl ack`) never weakens it, even
+    /// when it dies halfway. An ON from S1 needs [`Controller::stop`] (OFF1) first.
+    pub fn rearm_keeping_stop(&self) -> Result<PzdInput, ClientError> {
+        self.rearm_by(Session::rearm_keeping_stop)
+    }
+
+    fn rearm_by(
+        &self,
+        rearm: impl FnOnce(&mut Session, u64, &PzdInput) -> Result<PzdOutput, SessionError>,
+    ) -> Result<PzdInput, ClientError> {
         {
             let services = self.shared.link.check()?;
             let mut state = self.shared.state();
             self.shared.follow(&mut state, &services)?;
             let input = self.shared.watch.latest();
-            let sample = state
-                .session
-                .rearm_asked_at(monotonic_ns(), &input, asked_ns)
+            let sample = rearm(&mut state.session, monotonic_ns(), &input)
                 .map_err(|e| self.shared.error(e, &input))?;
             Shared::send(&mut state, sample)?;
         }

@@ -205,7 +205,8 @@ impl Controller {
     }
 
     /// Acknowledges a fault: a rising edge of STW1 bit 7 until the drive received it (at most
-    /// `timeout` s; `None`: the drive's handshake time, `handshake()`), then OFF1.
+    /// `timeout` s; `None`: the drive's handshake time, `handshake()`), then OFF1; a coast or
+    /// quick stop the controller sends stays (0x04FC then 0x047C, 0x04FA then 0x047A).
     #[pyo3(signature = (timeout=None))]
     fn acknowledge(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<()> {
         let timeout = timeout.map(duration).transpose()?;

@@ -281,6 +281,32 @@ impl Session {
     /// Acknowledges the latch `image` shows (if any) and re-arms: OFF1 naming it, every other
     /// word 0. Clears a stall. Wait with [`Session::rearmed`] before an ON.
     pub fn rearm(&mut self, now_ns: u64, image: &PzdInput) -> Result<PzdOutput, SessionError> {
+        self.rearm_with(now_ns, image, REARM_STW1)
+    }
+
+    /// Like [`Session::rearm`], with the stop the latch `image` shows as the re-arming words:
+    /// a drive latched with OFF2 (coast) or OFF3 (quick stop) keeps it on the wire, live under
+    /// this session, so a program that only acknowledges a fault and lets go never weakens it
+    /// (and dying meanwhile leaves it: a latch keeps a live controller's own stop). From S1 an
+    /// ON then needs OFF1 first ([`Session::rearm`] gives it).
+    pub fn rearm_keeping_stop(
+        &mut self,
+        now_ns: u64,
+        image: &PzdInput,
+    ) -> Result<PzdOutput, SessionError> {
+        let stw1 = image
+            .latch()
+            .and_then(|_| crate::control::StopCommand::of_code(image.latch_command))
+            .map_or(REARM_STW1, crate::control::StopCommand::stw1);
+        self.rearm_with(now_ns, image, stw1)
+    }
+
+    fn rearm_with(
+        &mut self,
+        now_ns: u64,
+        image: &PzdInput,
+        stw1: u16,
+    ) -> Result<PzdOutput, SessionError> {
         if self.released {
             return Err(SessionError::Released);
         }
@@ -289,7 +315,10 @@ impl Session {
         }
         self.stalled = None;
         self.last_call_ns = Some(now_ns);
-        let next = stop_words(self.setup.pzd);
+        let mut next = stop_words(self.setup.pzd);
+        if next.count > 0 {
+            next.words[0] = stw1;
+        }
         let sample = self.sample(now_ns, &next)?;
         self.rearming = image.latch().is_some();
         self.stops += 1;

@@ -76,6 +76,10 @@ const RUST_ONLY: &[(&str, &str)] = &[
         "for a program that re-arms once it has started up (ussctl run): C, Python and LinuxCNC re-arm when called, and rearm() is rearm_asked_at(now) for them",
     ),
     (
+        "rearm_keeping_stop",
+        "for ussctl ack, which only acknowledges a fault and lets go: a program of C, Python or LinuxCNC that acknowledges keeps its own coast through acknowledge_fault, and its re-arm is the one that leads to an ON (OFF1 first)",
+    ),
+    (
         "address",
         "an accessor: C and Python keep the address they opened with",
     ),

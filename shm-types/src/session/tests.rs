@@ -2,7 +2,7 @@
 #![allow(clippy::unwrap_used)]
 
 use super::*;
-use crate::control::{ControlState, LatchReason};
+use crate::control::{ControlState, LatchReason, StopCommand};
 
 const READY: u16 = 0x047E;
 const RUN: u16 = 0x047F;
@@ -389,4 +389,35 @@ fn a_rearm_asked_before_a_latch_does_not_acknowledge_it() {
         out.latch_id, latched_at,
         "the stop names the latch it re-arms"
     );
+}
+
+/// A re-arm that keeps the stop sends the latch's own command naming it: OFF2 for a coast,
+/// OFF3 for a quick stop, OFF1 otherwise; a plain re-arm sends OFF1.
+#[test]
+fn a_rearm_keeping_the_stop_sends_the_latchs_own_command() {
+    let latched_at = 5_000_000_000;
+    for (command, stw1) in [
+        (StopCommand::Off2, 0x047C),
+        (StopCommand::Off3, 0x047A),
+        (StopCommand::Off1, 0x047E),
+    ] {
+        let mut s = Session::new(SessionSetup {
+            pzd: 2,
+            pid: 7,
+            watchdog_ns: WATCHDOG,
+            first_sequence: 500,
+        });
+        let image = PzdInput {
+            online: 1,
+            control: ControlState::Latched.code(),
+            latch_reason: LatchReason::Override.code(),
+            latch_command: command.code(),
+            latch_id: latched_at,
+            ..PzdInput::EMPTY
+        };
+        let out = s.rearm_keeping_stop(latched_at + 10, &image).unwrap();
+        assert_eq!((out.stw1, out.latch_id), (stw1, latched_at), "{command:?}");
+        let plain = s.rearm(latched_at + 20, &image).unwrap();
+        assert_eq!(plain.stw1, 0x047E, "{command:?}");
+    }
 }

@@ -28,21 +28,17 @@ fn ack(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
             "drive {drive} shows no fault; acknowledging anyway"
         ));
     }
-    // The edge reaches only a live drive: the operator's `ack` re-arms it first (OFF1 naming
-    // its latch: a stop, never an ON), and hands it back latched ("released") when it ends. A
-    // coast or quick stop it was latched with stays: sent again at once, kept through the edge
-    // and by the latch of the release.
+    // The edge reaches only a live drive: the operator's `ack` re-arms it first with the stop
+    // it is latched with (naming its latch: a stop, never an ON), and hands it back latched
+    // ("released") when it ends. A coast or quick stop stays on the wire throughout: in the
+    // re-arm, through the edge and in the latch of the release (or of a trip, should ussctl
+    // die halfway).
     let before = c.inputs().latest();
     let held = (!before.is_live())
         .then(|| StopCommand::of_code(before.latch_command))
         .flatten()
         .filter(|s| s.strength() > StopCommand::Off1.strength());
-    c.rearm()?;
-    match held {
-        Some(StopCommand::Off2) => c.coast()?,
-        Some(StopCommand::Off3) => c.quick_stop()?,
-        _ => {}
-    }
+    c.rearm_keeping_stop()?;
     // The edge takes two exchanges, the drive's answer a third: the drive's handshake time
     // each (31 drives at 9600 baud poll each drive only every 1.3 s).
     c.acknowledge_fault(c.inputs().handshake())?;
