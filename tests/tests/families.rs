@@ -119,6 +119,21 @@ fn a_write_that_takes_the_drive_from_ussd_needs_unsafe_and_the_drive_then_shows_
         "the unsafe write is logged: {}",
         ussd.log()
     );
+    // The log names the element asked for, and says what was asked, not that it was written
+    // (ussd logs it before the drive answers; found by the second adversarial run: it said
+    // "P2014 written" for P2014[1] and for a write the drive refused).
+    let (status, out, err) = ussd.ussctl(&["param", "write", "1", "P0003", "3"]).finish();
+    assert!(status.success(), "{out}{err}");
+    let mut bop = ussd.ussctl(&["param", "write", "1", "P2011[1]", "3", "--unsafe"]);
+    let (status, out, err) = bop.finish();
+    assert!(status.success(), "{out}{err}");
+    let line = ussd
+        .log_line("P2011", Duration::from_secs(2))
+        .unwrap_or_default();
+    assert!(
+        line.contains("drive 1: P2011[1] := 3 asked with --unsafe by process"),
+        "{line}"
+    );
     let said = ussd.log_line("does not take its commands", Duration::from_secs(2));
     // Each names the setting that gives the drive back, from its family's profile.
     assert!(
