@@ -519,9 +519,10 @@ impl ParamServer {
         } = *checked;
         let rules = self.rules(address)?;
         for (i, task) in tasks.iter().enumerate() {
-            let Some((pnu, index, value)) = written(task) else {
+            let Some((pnu, index, asked)) = written(task) else {
                 continue;
             };
+            let value = asked.as_u32();
             let Some(refused) = rules.refuse(pnu, index, value) else {
                 continue;
             };
@@ -533,11 +534,18 @@ impl ParamServer {
                         Refused::Guarded(why) => why,
                         _ => "not listed as writable (no catalogue, or the drive's writable list)",
                     };
+                    // Logged as asked, before the drive answers: the element, and the value
+                    // in the parameter's own type where the family's catalogue knows it.
+                    let element = index.map(|i| format!("[{i}]")).unwrap_or_default();
+                    let shown = rules
+                        .catalogue
+                        .and_then(|c| c.param(pnu))
+                        .map_or_else(|| format!("{value:#x}"), |p| p.show(asked));
                     tracing::warn!(
                         bus = self.bus,
                         drive = address.get(),
                         pid,
-                        "drive {address}: P{pnu:04} written as {value:#x} with --unsafe by process {pid}: {why}"
+                        "drive {address}: P{pnu:04}{element} := {shown} asked with --unsafe by process {pid} (guarded: {why})"
                     );
                     continue;
                 }
@@ -626,12 +634,12 @@ struct Checked<'a> {
 }
 
 /// The parameter, element and raw value a task writes, if it writes.
-fn written(task: &ParamTask) -> Option<(u16, Option<u8>, u32)> {
+fn written(task: &ParamTask) -> Option<(u16, Option<u8>, uss_protocol::Value)> {
     match *task {
-        ParamTask::Write { pnu, value, .. } => Some((pnu.get(), None, value.as_u32())),
+        ParamTask::Write { pnu, value, .. } => Some((pnu.get(), None, value)),
         ParamTask::WriteArray {
             pnu, index, value, ..
-        } => Some((pnu.get(), Some(index.get()), value.as_u32())),
+        } => Some((pnu.get(), Some(index.get()), value)),
         _ => None,
     }
 }
