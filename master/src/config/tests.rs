@@ -1444,3 +1444,29 @@ fn a_device_that_is_no_tty_is_refused_naming_file_line_and_field() {
     }
     std::fs::remove_file(&regular).unwrap();
 }
+
+/// A configuration written for the old profile (this guide said `P2014.1` until the parameter
+/// lists were read: index 1 is the BOP link, RS232) names the telegram monitoring of another
+/// interface than the COM link ussd talks over: refused, naming both elements, so ussd never
+/// verifies the wrong one.
+#[test]
+fn a_monitoring_param_naming_another_link_of_the_family_is_refused() {
+    assert_eq!(
+        refused(&drive_key("monitoring_param = \"P2014.1\"")),
+        (
+            "bus.toml:7:20: bus \"bus0\" drive 3: monitoring_param = \"P2014.1\" names \
+             P2014[1] (BOP link, RS232), not the telegram-off time of the link ussd talks \
+             over: P2014[0] (COM link, RS485); write \"P2014[0]\", or leave the key out"
+                .to_owned(),
+            Some("bus[0].drive[0].monitoring_param".to_owned())
+        )
+    );
+    // The family's own element, written out, is taken.
+    assert_eq!(
+        parse(&drive_key("monitoring_param = \"P2014.0\"")).buses[0].drives[0]
+            .monitoring_param()
+            .param()
+            .map(|p| p.to_string()),
+        Some("P2014[0]".into())
+    );
+}
