@@ -314,6 +314,10 @@ impl Rules<'_> {
                 return;
             }
         }
+        if let Some(problem) = another_link(drive.family, monitoring.param()) {
+            self.fail("monitoring_param", &problem);
+            return;
+        }
         for name in drive.writable.iter().flatten() {
             match &name.parsed {
                 Err(e) => {
@@ -384,3 +388,30 @@ impl Rules<'_> {
 
 const ONLY_ON_SIM: &str =
     "is only allowed with device = \"sim\": the drives on a serial bus are real";
+
+/// Why `given` is not the telegram-off time of the link ussd talks over, where the family's
+/// profile names that time and `given` is another element of the same parameter (a
+/// MICROMASTER 4's P2014[1], the BOP link, for its P2014[0], the COM link).
+fn another_link(family: super::Family, given: Option<uss_protocol::ParamRef>) -> Option<String> {
+    let given = given?;
+    let profile = uss_catalogue::Catalogue::of(family)?;
+    let own = profile
+        .monitoring
+        .filter(|own| own.pnu == given.pnu && own.index != given.index)?;
+    let named = |r: uss_protocol::ParamRef| {
+        let element = r.index.and_then(|i| {
+            profile
+                .param(r.pnu.get())?
+                .elements
+                .get(usize::from(i.get()))
+                .cloned()
+        });
+        element.map_or_else(|| r.to_string(), |e| format!("{r} ({e})"))
+    };
+    Some(format!(
+        "names {}, not the telegram-off time of the link ussd talks over: {}; write \"{own}\", \
+         or leave the key out",
+        named(given),
+        named(own)
+    ))
+}
