@@ -1443,3 +1443,30 @@ fn a_pause_of_ussd_during_the_start_pause_is_seen_before_the_telegram_leaves() {
         engine.stats().drive(addr(1)).unwrap().control
     );
 }
+
+/// A latch and a re-arm reach the published statistics (what `ussctl status`, the exporter
+/// and every front-end's diagnostics read) with the poll that carried them, not at the next
+/// periodic publication: a stop is not shown as a live drive for up to `publish_every` more
+/// (the second adversarial run saw `status` say "live" for 60-120 ms after ussd had latched).
+#[test]
+fn a_latch_and_a_rearm_are_published_with_the_poll_that_carried_them() {
+    // Periodic publication practically never: only what a change publishes shows.
+    let mut b = bench_with(
+        &[(1, PkwMode::Four)],
+        |_| {},
+        |c| c.publish_every = Duration::from_secs(3600),
+        false,
+    );
+    b.run_for(ms(50), &[(1, [0x047E, 0])]);
+    let control = |b: &Bench| b.handle.stats().drive(addr(1)).map(|d| d.control);
+    assert_eq!(control(&b), Some(Control::Live), "the re-arm from start-up");
+    b.handle
+        .stop_drive(Some(addr(1)), StopCommand::Off2, 7)
+        .unwrap();
+    b.engine.poll_next().unwrap();
+    assert!(
+        matches!(control(&b), Some(Control::Latched(l)) if l.reason == LatchReason::Override),
+        "{:?}",
+        control(&b)
+    );
+}
