@@ -183,6 +183,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             last_reply_seen: None,
             cycle_start: now,
             last_publish: now,
+            control_changed: false,
             jobs: jobs_rx,
             cancels: cancels_rx,
             results: results_tx,

@@ -462,6 +462,9 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     last_reply_seen: Option<Duration>,
     cycle_start: Duration,
     last_publish: Duration,
+    /// A drive latched or was re-armed since the last publication: the next one comes at the
+    /// end of this step, so what clients read shows it with the poll that carried it.
+    control_changed: bool,
     jobs: Receiver<(Job, Encoded, Requester)>,
     cancels: Receiver<core::ops::Range<u64>>,
     results: Sender<JobResult>,
@@ -796,6 +799,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .latch_id
             .store(latch_id_of(d.gate.control()), Ordering::Release);
         let address = d.setup.address;
+        self.control_changed |= change.is_some();
         match change {
             Some(Transition::Latched { latch, rejection }) => self.emit(Event::Latched {
                 address,
@@ -856,7 +860,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
 
     fn publish_if_due(&mut self) {
         let now = self.clock.now();
-        if now.saturating_sub(self.last_publish) >= self.cfg.publish_every {
+        if self.control_changed || now.saturating_sub(self.last_publish) >= self.cfg.publish_every {
             self.publish();
         }
     }
@@ -866,8 +870,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     fn publish(&mut self) {
         let now = self.clock.now();
         let Ok(mut shared) = self.shared.stats.try_lock() else {
+            // A reader holds them: a change is published at the next step.
             return;
         };
+        self.control_changed = false;
         let (stats, pending) = shared.hand_over();
         stats.at = now;
         stats.bus = self.bus;

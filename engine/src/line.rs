@@ -59,6 +59,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             let d = &mut self.drives[slot];
             d.link.next_probe = now;
             let change = d.gate.latch(LatchReason::LineRestored, now);
+            self.control_changed = true;
             let address = d.setup.address;
             self.shared.drives[slot]
                 .images

@@ -47,11 +47,20 @@ pub(super) fn spawn(
             let mut progress = (handle.progress(), start);
             let mut next_summary = start + every;
             let mut next_status = start;
+            // A latch or re-arm not published yet: when it happened (bus time). It is published
+            // as soon as the engine's statistics hold it, not at the next period, so a stop is
+            // not shown as a live drive for up to STATUS_EVERY more.
+            let mut control_changed: Option<Duration> = None;
             loop {
                 let next = next_summary.min(next_status);
                 let wait = next.saturating_duration_since(std::time::Instant::now());
                 match events.recv_timeout(wait.min(CAPTURE_EVERY)) {
-                    Ok(event) => log_event(&bus, &event),
+                    Ok(event) => {
+                        if let Some(at) = control_change(&event) {
+                            control_changed = Some(control_changed.map_or(at, |c| c.min(at)));
+                        }
+                        log_event(&bus, &event);
+                    }
                     Err(RecvTimeoutError::Timeout) => {}
                     Err(RecvTimeoutError::Disconnected) => break,
                 }
@@ -68,6 +77,15 @@ pub(super) fn spawn(
                     progress = (handle.progress(), now);
                 }
                 let hangs = now.duration_since(progress.1) >= stall_bound;
+                if let Some(at) = control_changed
+                    && !hangs
+                {
+                    let stats = handle.stats();
+                    if stats.at >= at {
+                        publisher.publish(&stats, true, handle.reopen_attempts());
+                        control_changed = None;
+                    }
+                }
                 if now >= next_status {
                     if !hangs {
                         publisher.publish(&handle.stats(), true, handle.reopen_attempts());
@@ -93,6 +111,15 @@ pub(super) fn spawn(
                 crate::daemon::summary::render(&bus, mode, &stats, None).trim_end()
             );
         })
+}
+
+/// When `event` changed a drive's control (a latch, a re-arm), on the bus's clock.
+fn control_change(event: &Event) -> Option<Duration> {
+    match event {
+        Event::Latched { latch, .. } => Some(latch.since),
+        Event::Rearmed { at, .. } => Some(*at),
+        _ => None,
+    }
 }
 
 /// At start: the shortest telegram-off time that does not trip a drive between two of its
