@@ -36,7 +36,7 @@ fn identical_reads_back_to_back_are_each_a_fresh_read() {
     let bus = ussd.bus();
     // One request of five identical items: they go out one after the other.
     let values: Vec<u32> = bus
-        .batch(addr(1), &[read(2024, Some(1)); 5])
+        .batch(addr(1), &[read(2024, Some(0)); 5])
         .iter()
         .map(|r| word(*r.as_ref().unwrap()))
         .collect();
@@ -122,7 +122,7 @@ fn an_array_parameter_without_an_index_is_refused_or_read_whole() {
     for line in &lines {
         uss_integration_tests::assert_report("ussctl/param", line);
     }
-    assert!(lines[1].contains("300"), "{out}");
+    assert!(lines[0].contains("300"), "{out}");
     // Any front-end: ussd itself refuses the request.
     let refused = bus.batch(addr(1), &[read(2014, None)]);
     println!("param_truth: a client's read of P2014 without an index: {refused:?}");
