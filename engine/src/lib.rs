@@ -196,7 +196,8 @@ pub enum Event {
         latch: Latch,
         rejection: Rejection,
     },
-    /// The controller sent OFF1 after the latch: its words go to the drive again.
+    /// The controller sent a stop naming the latch (OFF1, or the latch's own stop): its words
+    /// go to the drive again.
     Rearmed {
         address: Address,
         at: Duration,

@@ -335,9 +335,10 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         std::thread::sleep(Duration::from_millis(20));
     }
     tracing::info!(
-        "stopping: pending parameter jobs end with 'shutdown', each drive gets its safe command once"
+        "stopping: pending parameter jobs end with 'shutdown', each drive gets its safe command (or the stronger stop it has) once"
     );
-    notifier.stopping("stopping: each drive gets its safe command once");
+    notifier
+        .stopping("stopping: each drive gets its safe command (or the stronger stop it has) once");
     let mut failed = Vec::new();
     for b in buses {
         let name = b.name.clone();

@@ -389,7 +389,7 @@ fn log_event(bus: &BusConfig, event: &Event) {
                 drive = address.get(),
                 at_s = at.as_secs_f64(),
                 pid,
-                "drive {address}: re-armed by process {pid} (OFF1 after the latch): its controller's words go out again"
+                "drive {address}: re-armed by process {pid} (a stop naming the latch): its controller's words go out again"
             );
         }
         Event::Monitoring { .. } | Event::Reference { .. } => log_own_read(bus, event),
