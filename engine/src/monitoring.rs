@@ -72,10 +72,10 @@ impl MonitoringSetup {
     /// MICROMASTER 4 / G110 / CU240S: P2014 index 0 (COM link), at most 1 s, not required.
     pub fn micromaster() -> Self {
         Self {
-            // 2014 is a valid PNU and 1 a valid subindex.
+            // 2014 is a valid PNU and 0 a valid subindex.
             param: Some(WatchedParam {
                 pnu: Pnu::from_u16(2014),
-                index: Subindex::new(1).ok(),
+                index: Subindex::new(0).ok(),
             }),
             max: Duration::from_secs(1),
             required: false,
@@ -277,21 +277,22 @@ mod tests {
     }
 
     #[test]
-    fn the_check_reads_index_1_of_p2014_and_recognises_writes_to_it() {
+    fn the_check_reads_index_0_of_p2014_and_recognises_writes_to_it() {
         let setup = mm();
         let pnu = Pnu::from_u16(2014);
-        let one = Subindex::new(1).unwrap();
-        assert_eq!(setup.task(), Some(ParamTask::ReadArray { pnu, index: one }));
+        // Index 0 is the COM link (MM420 Parameter List 04/02 p.84), index 1 the BOP link.
+        let com = Subindex::new(0).unwrap();
+        assert_eq!(setup.task(), Some(ParamTask::ReadArray { pnu, index: com }));
         let write = ParamTask::WriteArray {
             pnu,
-            index: one,
+            index: com,
             value: Value::Word(0),
             storage: Storage::Ram,
         };
         assert!(setup.concerns(&write));
         let other_index = ParamTask::ReadArray {
             pnu,
-            index: Subindex::new(0).unwrap(),
+            index: Subindex::new(1).unwrap(),
         };
         assert!(!setup.concerns(&other_index));
         assert!(!setup.concerns(&ParamTask::Read { pnu }));

@@ -836,7 +836,7 @@ fn the_drives_telegram_monitoring_is_read_when_it_comes_online() {
             storage: Storage::Ram,
         },
     };
-    b.handle.submit(write(4, 2014, 1, 100)).unwrap();
+    b.handle.submit(write(4, 2014, 0, 100)).unwrap();
     let refused = b.results(1);
     assert_eq!(
         refused[0].outcome,
@@ -857,7 +857,7 @@ fn the_drives_telegram_monitoring_is_read_when_it_comes_online() {
         },
     };
     b.handle.submit(access_level).unwrap();
-    b.handle.submit(write(6, 2014, 1, 100)).unwrap();
+    b.handle.submit(write(6, 2014, 0, 100)).unwrap();
     let results = b.results(2);
     assert_eq!(
         results.len(),
