@@ -188,7 +188,7 @@ pub unsafe extern "C" fn ussrt_drive_diag(
         let bus = arg(bus, "bus")?;
         let diag = out(diag, "diag")?;
         let mut read = bus.bus.diag(drive(address)?)?;
-        if read.is_overdue(uss_client::monotonic_ns()) {
+        if !read.is_online_at(uss_client::monotonic_ns()) {
             read.online = 0;
         }
         *diag = read;

@@ -265,11 +265,13 @@ impl Metrics {
             drive: d.address.to_string(),
         };
         let c = &d.counters;
-        let overdue = d.is_overdue(uss_client::monotonic_ns());
+        let now = uss_client::monotonic_ns();
         self.online
             .get_or_create(&labels)
-            .set(i64::from(d.online != 0 && !overdue));
-        self.stale.get_or_create(&labels).set(i64::from(overdue));
+            .set(i64::from(d.is_online_at(now)));
+        self.stale
+            .get_or_create(&labels)
+            .set(i64::from(d.is_overdue(now)));
         self.period
             .get_or_create(&labels)
             .set(d.period_ns as f64 / 1e9);

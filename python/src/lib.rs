@@ -119,9 +119,9 @@ impl Bus {
         let d = PyDict::new(py);
         d.set_item("address", address)?;
         // Rule 3: diagnostics older than ussd's limit for them are not the drive as it is.
-        let stale = diag.is_overdue(uss_client::monotonic_ns());
-        d.set_item("online", diag.online != 0 && !stale)?;
-        d.set_item("stale", stale)?;
+        let now = uss_client::monotonic_ns();
+        d.set_item("online", diag.is_online_at(now))?;
+        d.set_item("stale", diag.is_overdue(now))?;
         d.set_item("control", diag.control)?;
         d.set_item("latch_reason", diag.latch_reason)?;
         d.set_item("monitoring", diag.monitoring)?;

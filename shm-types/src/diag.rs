@@ -487,6 +487,12 @@ impl DriveDiag {
         crate::pzd::overdue(self.online, self.last_good_ns, self.stale_after_ns, now_ns)
     }
 
+    /// Whether the drive answers as these diagnostics say at `now_ns`: online, and not overdue
+    /// (stale diagnostics are not the drive as it is, so they never show it online).
+    pub const fn is_online_at(&self, now_ns: u64) -> bool {
+        self.online != 0 && !self.is_overdue(now_ns)
+    }
+
     pub fn last_failure(&self) -> Result<LastFailure, UnknownCode> {
         LastFailure::try_from(self.last_failure)
     }

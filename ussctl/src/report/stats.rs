@@ -155,11 +155,10 @@ impl InfoReport {
 impl DriveStats {
     /// The figures of `d` as read at `now_ns` (`CLOCK_MONOTONIC`).
     pub fn new(d: &DriveDiag, now_ns: u64) -> Self {
-        let stale = d.is_overdue(now_ns);
         Self {
             address: d.address,
-            online: d.online != 0 && !stale,
-            stale,
+            online: d.is_online_at(now_ns),
+            stale: d.is_overdue(now_ns),
             no_reply: d.no_reply != 0,
             control: ControlReport::of_diag(d),
             last_error: last_failure(d),

@@ -217,7 +217,7 @@ impl DriveRow {
     /// The row of `d` as read at `now_ns` (`CLOCK_MONOTONIC`): stale where its poll is overdue.
     pub fn new(d: &DriveDiag, now_ns: u64) -> Self {
         let stale = d.is_overdue(now_ns);
-        let online = d.online != 0 && !stale;
+        let online = d.is_online_at(now_ns);
         Self {
             address: d.address,
             online,
