@@ -763,11 +763,8 @@ impl Drop for Controller {
 /// quick stop (OFF3), else OFF1.
 fn held_stop(stw1: u16) -> Stw1 {
     use uss_shm_types::StopCommand;
-    match StopCommand::of_stw1(stw1) {
-        Some(StopCommand::Off2) => Stw1::COAST,
-        Some(StopCommand::Off3) => Stw1::QUICK_STOP,
-        _ => Stw1::READY,
-    }
+    let stop = StopCommand::of_stw1(stw1).unwrap_or(StopCommand::Off1);
+    Stw1::from_bits_retain(stop.stw1())
 }
 
 /// `stw1` with the reverse bit of `previous`.

@@ -161,7 +161,7 @@ impl Session {
     pub fn new(setup: SessionSetup) -> Self {
         Self {
             setup,
-            words: stop_words(setup.pzd),
+            words: stop_words(setup.pzd, REARM_STW1),
             sequence: setup.first_sequence,
             acknowledged: 0,
             rearming: false,
@@ -315,10 +315,7 @@ impl Session {
         }
         self.stalled = None;
         self.last_call_ns = Some(now_ns);
-        let mut next = stop_words(self.setup.pzd);
-        if next.count > 0 {
-            next.words[0] = stw1;
-        }
+        let next = stop_words(self.setup.pzd, stw1);
         let sample = self.sample(now_ns, &next)?;
         self.rearming = image.latch().is_some();
         self.stops += 1;
@@ -445,11 +442,11 @@ impl Session {
     }
 }
 
-/// OFF1 and every other of `pzd` words 0: nothing of the words before a latch (a setpoint,
-/// STW2, a second setpoint) goes out again with a re-arm.
-fn stop_words(pzd: usize) -> Words {
+/// The stop `stw1` and every other of `pzd` words 0: nothing of the words before a latch (a
+/// setpoint, STW2, a second setpoint) goes out again with a re-arm.
+fn stop_words(pzd: usize, stw1: u16) -> Words {
     let mut words = [0; MAX_PZD_WORDS];
-    words[0] = REARM_STW1;
+    words[0] = stw1;
     Words {
         words,
         count: pzd.min(MAX_PZD_WORDS),
