@@ -203,15 +203,22 @@ fn top_shows_the_bus_stops_drives_when_confirmed_and_follows_ussd() {
     tmux.wait_for("EXITED 0");
 }
 
-#[test]
-fn top_without_ussd_says_so_and_keeps_trying() {
+/// `top` in a tmux of its own (`name`) on a bus no ussd serves, once it says it keeps trying;
+/// `None` where tmux does not run (and need not). Also the bus's name.
+fn top_without_ussd(name: &str) -> Option<(Tmux, String)> {
     let ussctl = binary("ussctl", "ussctl");
-    let bus = format!("top-none-{}", std::process::id());
-    let Some(tmux) = Tmux::start("none", &format!("{} --bus {bus} top", ussctl.display())) else {
-        return;
-    };
+    let bus = format!("top-{name}-{}", std::process::id());
+    let tmux = Tmux::start(name, &format!("{} --bus {bus} top", ussctl.display()))?;
     tmux.wait_for(&format!("NO USSD: ussd is not running on {bus}"));
     tmux.wait_for("trying again every second");
+    Some((tmux, bus))
+}
+
+#[test]
+fn top_without_ussd_says_so_and_keeps_trying() {
+    let Some((tmux, _)) = top_without_ussd("none") else {
+        return;
+    };
     tmux.keys(&["q"]);
     tmux.wait_for("EXITED 0");
 }
@@ -221,12 +228,9 @@ fn top_without_ussd_says_so_and_keeps_trying() {
 /// found it at 62-90 % CPU, deaf to SIGTERM, after its terminal was gone).
 #[test]
 fn top_ends_when_its_terminal_goes_away() {
-    let ussctl = binary("ussctl", "ussctl");
-    let bus = format!("top-hangup-{}", std::process::id());
-    let Some(tmux) = Tmux::start("hangup", &format!("{} --bus {bus} top", ussctl.display())) else {
+    let Some((tmux, bus)) = top_without_ussd("hangup") else {
         return;
     };
-    tmux.wait_for("trying again every second");
     let pids = || {
         let out = Command::new("pgrep")
             .args(["-f", "--", &format!("--bus {bus} top")])
