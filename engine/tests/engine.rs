@@ -1381,11 +1381,13 @@ fn efficiency_is_at_most_one_whatever_fails_on_the_line() {
 }
 
 /// A clock that loses `pause` once, inside a precise sleep: ussd stopped (SIGSTOP, a suspended
-/// machine) while it waited for the start pause before a telegram.
+/// machine) while it waited for the start pause before a telegram; or `pause_in_wait` once,
+/// inside an ordinary sleep: ussd stopped while it waited for a reply.
 #[derive(Debug, Default)]
 struct PausingClock {
     now: Duration,
     pause: Option<Duration>,
+    pause_in_wait: Option<Duration>,
 }
 
 impl uss_engine::Clock for PausingClock {
@@ -1395,10 +1397,13 @@ impl uss_engine::Clock for PausingClock {
 
     fn sleep_until(&mut self, t: Duration) {
         self.now = self.now.max(t);
+        if let Some(p) = self.pause_in_wait.take() {
+            self.now += p;
+        }
     }
 
     fn sleep_until_precise(&mut self, t: Duration) {
-        self.sleep_until(t);
+        self.now = self.now.max(t);
         if let Some(p) = self.pause.take() {
             self.now += p;
         }
@@ -1441,6 +1446,76 @@ fn a_pause_of_ussd_during_the_start_pause_is_seen_before_the_telegram_leaves() {
         ),
         "{:?}",
         engine.stats().drive(addr(1)).unwrap().control
+    );
+}
+
+/// Records the control state every image is published with.
+struct RecordingBridge(std::sync::Arc<std::sync::Mutex<Vec<Control>>>);
+
+impl uss_engine::Bridge for RecordingBridge {
+    fn take_sample(
+        &mut self,
+        slot: usize,
+        images: &uss_engine::image::DriveImages,
+    ) -> Option<(PzdOutput, uss_engine::control::ControllerId)> {
+        uss_engine::LocalBridge.take_sample(slot, images)
+    }
+    fn after_poll(
+        &mut self,
+        _: usize,
+        _: &uss_engine::image::DriveImages,
+        s: &uss_engine::DriveStatus,
+    ) {
+        self.0.lock().unwrap().push(s.control);
+    }
+    fn cycle_completed(&mut self) {}
+    fn job_done(&mut self) {}
+}
+
+/// Rule 3 (the third adversarial run): ussd paused past the watchdog while it waited for a
+/// reply. On resuming, the reply of the exchange that straddled the pause is there at once; the
+/// image it makes must already say the drive is latched ("ussd paused"), not show a live drive
+/// for one more exchange (20-50 ms on a real bus) until the next look judges the gap.
+#[test]
+fn a_pause_of_ussd_during_a_reply_is_judged_before_the_reply_is_published() {
+    let config = line_config(&[1], 0, ms(500));
+    let mut bus = SimBus::new(1);
+    bus.add(DriveConfig::new(addr(1), layout(PkwMode::Four, 2)))
+        .unwrap();
+    let wire = SimTransport::new(VirtualWire::new(bus, timing()));
+    let published = std::sync::Arc::default();
+    let (mut engine, handle, _events) = Engine::with_bridge(
+        config,
+        wire,
+        PausingClock::default(),
+        RecordingBridge(std::sync::Arc::clone(&published)),
+    );
+    for _ in 0..10 {
+        handle.set_output(addr(1), &[0x047E, 0]).unwrap();
+        engine.poll_next().unwrap();
+    }
+    for _ in 0..10 {
+        handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
+        engine.poll_next().unwrap();
+    }
+    assert_eq!(published.lock().unwrap().last(), Some(&Control::Live));
+    // The controller's fresh ON goes out, then ussd stops for 2 s while the reply arrives.
+    handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
+    engine.clock_mut().pause_in_wait = Some(ms(2000));
+    let good = |e: &Engine<SimTransport, PausingClock, RecordingBridge>| {
+        e.stats().drive(addr(1)).unwrap().counters.good
+    };
+    let before = good(&engine);
+    engine.poll_next().unwrap();
+    assert_eq!(
+        good(&engine),
+        before + 1,
+        "the straddling exchange was answered"
+    );
+    let last = *published.lock().unwrap().last().unwrap();
+    assert!(
+        matches!(last, Control::Latched(l) if l.reason == LatchReason::Paused),
+        "the image after the pause was published as {last:?}"
     );
 }
 
