@@ -1035,6 +1035,9 @@ fn a_paused_ussd_latches_its_running_drive_on_resuming_over_a_pty() {
     until(&mut raw, &|i| hz(i) >= 19.9);
     let ussd_pid = Pid::from_raw(i32::try_from(ussd.child.id()).unwrap());
     kill(ussd_pid, Signal::SIGSTOP).unwrap();
+    // The last image before the pause (read once ussd has surely stopped).
+    std::thread::sleep(Duration::from_millis(20));
+    let before_pause = raw.watch.latest().sequence;
     // The controller goes on publishing "run" for the whole pause, straight to the service.
     let paused = Instant::now();
     while paused.elapsed() < Duration::from_millis(800) {
@@ -1042,7 +1045,21 @@ fn a_paused_ussd_latches_its_running_drive_on_resuming_over_a_pty() {
         std::thread::sleep(Duration::from_millis(10));
     }
     kill(ussd_pid, Signal::SIGCONT).unwrap();
-    let i = until(&mut raw, &|i| !i.is_live());
+    // Rule 3: no image made after the pause shows the drive live, not even the one of the
+    // exchange that straddled it (the third adversarial run saw it live for 20-50 ms).
+    let resumed = Instant::now();
+    let i = loop {
+        let i = raw.watch.latest();
+        if i.sequence > before_pause && !i.is_live() {
+            break i;
+        }
+        assert!(
+            i.sequence <= before_pause,
+            "an image after the pause shows the drive live: {i:?}"
+        );
+        assert!(resumed.elapsed() < Duration::from_secs(5), "still {i:?}");
+        std::thread::sleep(Duration::from_micros(200));
+    };
     assert_eq!(i.latch_reason, LatchReason::Paused.code(), "{i:?}");
     assert_eq!(i.sent_stw1, OFF1, "{i:?}");
     // The drive stays stopped while the controller goes on sending "run".
