@@ -279,6 +279,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         } else {
             self.receive_reply(setup, n, request_end)?
         };
+        if pzd.is_none() && self.clock.now().saturating_sub(self.last_look) > self.look_lag {
+            // ussd did not run while it waited for the reply (SIGSTOP, a suspended machine, a
+            // starved CPU): the gap is judged now, so the image this exchange makes already
+            // says what it means (rule 3), not one exchange later.
+            self.look();
+        }
         let outcome = match &attempt {
             Attempt::Reply { .. } => LastFailure::None,
             Attempt::Failed(f) => *f,

@@ -29,7 +29,9 @@
 //! A look also measures the engine's own continuity: the time since the previous look beyond
 //! what one attempt and one idle step explain is a gap (ussd paused by SIGSTOP, a suspended
 //! machine, a starved CPU), and a gap longer than a drive's watchdog time latches it
-//! (`LatchReason::Paused`).
+//! (`LatchReason::Paused`). An attempt whose start pause or reply wait took longer than one
+//! attempt explains looks again at once (`engine::exchange`), so the telegram after a pause
+//! carries the latch and the image of the exchange that straddled it says so.
 
 use super::{
     Adr, Bridge, Clock, Duration, Engine, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, STOPS, Transport,
