@@ -46,6 +46,8 @@ def call(words):
         getattr(drive, cmd)()
     elif cmd == "run":
         drive.run_hz(float(args[0]))
+    elif cmd == "acknowledge":
+        drive.acknowledge(int(args[0]) / 1000.0)
     elif cmd == "set_words":
         drive.set_words([int(w, 0) for w in args])
     elif cmd == "wait_state":

@@ -30,6 +30,8 @@ fn serial() -> MutexGuard<'static, ()> {
 const RUN: u16 = 0x047F;
 const OFF1: u16 = 0x047E;
 const OFF2: u16 = 0x047C;
+/// OFF2 with the fault-acknowledge bit: the edge of an acknowledgement that keeps a coast.
+const OFF2_ACK: u16 = 0x04FC;
 
 /// A front-end under test.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -516,6 +518,51 @@ fn an_on_waiting_for_the_re_arm_never_undoes_a_later_stop(front: FrontEnd) {
     p.exit();
 }
 
+/// LATCH (a latch never weakens a stop): a program's own coast stays the drive's stop through
+/// its fault acknowledgement (the edge goes out as OFF2 with bit 7, never as OFF1 or ON) and
+/// through its death (SIGKILL: the drive latches stale and keeps OFF2, not its safe command
+/// OFF1). Found by the adversarial run of issue 34's fourth session (`Gate::stop_for`,
+/// `Controller::acknowledge_fault`).
+fn a_programs_own_coast_stays_through_its_acknowledgement_and_its_death(front: FrontEnd) {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let mut p = opened(front, &ussd, 1);
+    runs(&mut p, &bus);
+    p.ok("coast");
+    image_until(&bus, 1, "OFF2 on the wire", |i| i.sent_stw1 == OFF2);
+    p.spawn("acknowledge 2000");
+    let watch = bus.watch(addr(1)).unwrap();
+    let mut edge = false;
+    let end = Instant::now() + Duration::from_millis(400);
+    while Instant::now() < end {
+        let i = watch.latest();
+        assert!(
+            matches!(i.sent_stw1, OFF2 | OFF2_ACK),
+            "{front:?}: during the acknowledgement the drive got {:#06x}: {i:?}",
+            i.sent_stw1
+        );
+        edge |= i.sent_stw1 == OFF2_ACK;
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(p.answer("<&"), Reply::Ok, "{front:?}: the acknowledgement");
+    assert!(edge, "{front:?}: no acknowledgement edge on the wire");
+    p.kill();
+    let image = image_until(&bus, 1, "the trip", |i| !i.is_live());
+    assert_eq!(image.latch_reason_name(), "controller stale", "{front:?}");
+    assert_eq!(
+        image.sent_stw1, OFF2,
+        "{front:?}: the latch weakened the coast"
+    );
+    never(
+        &bus,
+        1,
+        Duration::from_millis(300),
+        "the coast weakened after the kill",
+        |i| i.sent_stw1 != OFF2,
+    );
+}
+
 macro_rules! front_ends {
     ($($scenario:ident),* $(,)?) => {
         $(
@@ -552,6 +599,7 @@ front_ends!(
     words_ussd_would_refuse_never_leave_the_program,
     a_stop_goes_out_while_ussds_heartbeat_is_late,
     an_on_waiting_for_the_re_arm_never_undoes_a_later_stop,
+    a_programs_own_coast_stays_through_its_acknowledgement_and_its_death,
 );
 
 /// docs/SAFETY.md is executable: every rule of its rule list has a row in its table of

@@ -50,6 +50,9 @@ static UssrtStatus call(char *words) {
     return ussrt_control_check(controller, &d);
   }
   if (!strcmp(cmd, "run") && a1 != NULL) return ussrt_control_run_hz(controller, strtof(a1, NULL));
+  if (!strcmp(cmd, "acknowledge") && a1 != NULL) {
+    return ussrt_control_acknowledge_fault(controller, (uint32_t)atol(a1));
+  }
   if (!strcmp(cmd, "wait_state") && a1 != NULL && a2 != NULL) {
     return ussrt_control_wait_state(controller, (uint8_t)atoi(a1), (uint32_t)atol(a2));
   }

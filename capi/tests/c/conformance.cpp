@@ -51,6 +51,10 @@ void call(ussrt::Controller &c, const std::string &line, const char *tag) {
       float hz = 0;
       words >> hz;
       c.run_hz(hz);
+    } else if (cmd == "acknowledge") {
+      unsigned ms = 0;
+      words >> ms;
+      c.acknowledge_fault(ms);
     } else if (cmd == "wait_state") {
       unsigned state = 0, ms = 0;
       words >> state >> ms;

@@ -53,6 +53,7 @@ fn call(c: &Controller, words: &[&str]) -> Result<(), ClientError> {
         "rearm" => c.rearm().map(|_| ()),
         "check" => c.check().map(|_| ()),
         "run" => c.run_hz(arg(1).parse().unwrap()),
+        "acknowledge" => c.acknowledge_fault(Duration::from_millis(arg(1).parse().unwrap())),
         "set_words" => {
             let words: Vec<u16> = words[1..]
                 .iter()
