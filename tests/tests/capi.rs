@@ -41,6 +41,63 @@ fn every_kind_of_call_of_the_c_abi_against_a_real_ussd() {
     println!("{stdout}");
 }
 
+/// Rule 3 from C: while ussd is paused (SIGSTOP) longer than a drive's limit, the drive's
+/// diagnostics read through `ussrt_drive_diag` never say online (`online = 0`, or
+/// `USSD_GONE` once ussd's heartbeat is late), and online again once it runs.
+#[test]
+fn c_diagnostics_of_a_paused_ussd_say_the_drive_is_not_online() {
+    use nix::sys::signal::{Signal, kill};
+    use std::io::{BufRead as _, BufReader, Write as _};
+    use std::process::Stdio;
+    let exe = compile("cc", "capi/tests/c/diag_online.c", &["-std=c11"]);
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    ussd.bus()
+        .watch(addr(1))
+        .unwrap()
+        .wait_for(std::time::Duration::from_secs(5), "online", |i| {
+            i.online == 1
+        })
+        .unwrap();
+    let mut program = Command::new(&exe)
+        .arg(&ussd.bus)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = program.stdin.take().unwrap();
+    let mut stdout = BufReader::new(program.stdout.take().unwrap()).lines();
+    let mut ask = || {
+        writeln!(stdin, "diag").unwrap();
+        stdin.flush().unwrap();
+        stdout.next().unwrap().unwrap()
+    };
+    // The diagnostics are published every 100 ms: give the first one time to come.
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert_eq!(ask(), "online 1");
+    let pid = nix::unistd::Pid::from_raw(i32::try_from(ussd.child.id()).unwrap());
+    kill(pid, Signal::SIGSTOP).unwrap();
+    // Beyond the drive's freshness limit (100 ms here), within ussd's heartbeat limit (500 ms).
+    std::thread::sleep(std::time::Duration::from_millis(250));
+    let stale = ask();
+    // Beyond both.
+    std::thread::sleep(std::time::Duration::from_millis(450));
+    let paused = ask();
+    kill(pid, Signal::SIGCONT).unwrap();
+    assert_eq!(stale, "online 0", "{}", ussd.log());
+    // Either answer is true: ussd's late heartbeat says it is gone, or the diagnostics say
+    // the drive is not online; "online 1" would be a healthy picture that is not true.
+    assert!(
+        ["online 0", "err ussd_gone"].contains(&paused.as_str()),
+        "{paused}: {}",
+        ussd.log()
+    );
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert_eq!(ask(), "online 1");
+    drop(stdin);
+    assert!(program.wait().unwrap().success());
+}
+
 #[test]
 fn the_c_and_cpp_examples_run_a_drive_as_the_readme_shows() {
     let c = compile("cc", "capi/examples/run_drive.c", &["-std=c11"]);
