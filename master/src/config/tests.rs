@@ -1470,3 +1470,30 @@ fn a_monitoring_param_naming_another_link_of_the_family_is_refused() {
         Some("P2014[0]".into())
     );
 }
+
+/// A drive of a family is configured for no more PZD words than the family's USS PZD length
+/// parameter allows (MM4 P2012[0]: at most 8, PL440 p.196; G120 p2022: at most 8): a drive told
+/// otherwise answers no telegram of ussd's length. The protocol's 16 stay open to a `generic`
+/// slave.
+#[test]
+fn more_pzd_words_than_the_family_takes_are_refused() {
+    assert_eq!(
+        refused(&drive_key("pzd = 9")),
+        (
+            "bus.toml:7:7: bus \"bus0\" drive 3: pzd = 9 is more than a MICROMASTER 4 / \
+             SINAMICS G110 takes: its USS PZD length P2012[0] is at most 8; give family = \
+             \"generic\" for another slave"
+                .to_owned(),
+            Some("bus[0].drive[0].pzd".to_owned())
+        )
+    );
+    let g120 = refused(&drive_key("family = \"g120\"\npzd = 12")).0;
+    assert!(g120.contains("pzd = 12 is more than") && g120.contains("p2022 is at most 8"));
+    for ok in [
+        "pzd = 8",
+        "family = \"generic\"\npzd = 16",
+        "family = \"simoreg\"\npzd = 16",
+    ] {
+        parse(&drive_key(ok));
+    }
+}
