@@ -444,6 +444,10 @@ pub struct Catalogue {
     /// configuration names it (`monitoring_param`).
     #[serde(default, deserialize_with = "some_param_id")]
     pub monitoring: Option<ParamRef>,
+    /// The number of PZD words of the USS link ussd talks over (MM4 P2012[0], G120 p2022): its
+    /// maximum is the most a drive of the family takes ([`Catalogue::max_pzd`]).
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub pzd_length: Option<ParamRef>,
     /// The fault a telegram-off trip records (F0072 on MM4, F01910 on G120).
     #[serde(default)]
     pub telegram_off_fault: Option<u16>,
@@ -620,6 +624,14 @@ impl Catalogue {
         sorted(c.param.iter().map(Param::number).collect(), "parameter")?;
         sorted(c.fault.iter().map(|m| m.number).collect(), "fault")?;
         sorted(c.warning.iter().map(|m| m.number).collect(), "warning")?;
+        if let Some(r) = c.pzd_length
+            && c.param(r.pnu.get()).and_then(|p| p.max).is_none()
+        {
+            return Err(error(format!(
+                "pzd_length names {r}, which has no entry with a max: the most PZD words a \
+                 drive of the family takes is its max"
+            )));
+        }
         for p in &c.param {
             let settable = p.id.prefix != Prefix::R;
             if settable != p.is_writable() {
@@ -659,6 +671,15 @@ impl Catalogue {
             }
         }
         Ok(c)
+    }
+
+    /// The most PZD words a drive of the family takes on the USS link ussd talks over: the
+    /// maximum of its PZD length parameter; `None` where the profile names none (the protocol's
+    /// 16 then).
+    pub fn max_pzd(&self) -> Option<(ParamRef, usize)> {
+        let r = self.pzd_length?;
+        let max = self.param(r.pnu.get())?.max?;
+        Some((r, max as usize))
     }
 
     /// The parameter with number `pnu`.

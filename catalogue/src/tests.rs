@@ -154,6 +154,15 @@ fn a_broken_catalogue_file_is_refused_naming_what_is_wrong() {
         { id = \"P0003\", name = \"a\", type = \"U61\", level = 1, change = \"always\" },\n]\n";
     let e = Catalogue::parse(typo, "x.toml").unwrap_err();
     assert!(e.to_string().contains("U61"), "{e}");
+    let no_max = "family = \"x\"\npzd_length = \"P2012[0]\"\nparam = [\n\
+        { id = \"P2012\", name = \"a\", type = \"U16\", array = 2, level = 3, change = \"always\" },\n]\n";
+    let e = Catalogue::parse(no_max, "x.toml").unwrap_err();
+    assert!(e.to_string().contains("pzd_length names P2012[0]"), "{e}");
+    // The built-in profiles say how many PZD words their drives take.
+    let max = |c: &Catalogue| c.max_pzd().map(|(p, n)| (p.to_string(), n));
+    assert_eq!(max(Catalogue::micromaster4()), Some(("P2012[0]".into(), 8)));
+    assert_eq!(max(Catalogue::g120()), Some(("p2022".into(), 8)));
+    assert_eq!(max(Catalogue::simoreg()), None);
 }
 
 mod properties {

@@ -15,7 +15,7 @@ use uss_catalogue::Catalogue;
 use uss_protocol::{ParamRef, Subindex};
 
 use crate::params::{
-    COM_LINK, MM4_OWN, Own, P0970, P1000, P1080, P1082, P1120, P1121, P1135, P2011, P2012, P2013,
+    COM_LINK, MM4_OWN, Own, P0970, P1000, P1080, P1082, P1120, P1121, P1135, P2011, P2013,
     ParamSet, R0018, R0021, R0052, R0054, R0947, R0948, R0949, R2024,
 };
 
@@ -76,7 +76,7 @@ pub struct Roles {
 
 impl Roles {
     /// These roles with what `profile` names: its command source, its telegram monitoring and
-    /// the fault its expiry records, its reference (in Hz, or the speed in rpm).
+    /// the fault its expiry records, its PZD length, its reference (in Hz, or the speed in rpm).
     #[must_use]
     pub fn with_profile(self, profile: &Catalogue) -> Self {
         let at = |p: ParamRef| (p.pnu.get(), p.index.map_or(0, Subindex::get));
@@ -87,6 +87,7 @@ impl Roles {
                 .zip(profile.command_source_uss)
                 .or(self.command_source),
             monitoring: profile.monitoring.map(at).or(self.monitoring),
+            pzd: profile.pzd_length.map(at).or(self.pzd),
             reference: profile
                 .reference
                 .or(profile.reference_speed)
@@ -113,7 +114,7 @@ const MICROMASTER4_OWN: Roles = Roles {
     reference: None,
     monitoring: None,
     address: Some((P2011, COM_LINK)),
-    pzd: Some((P2012, COM_LINK)),
+    pzd: None,
     pkw: Some((P2013, COM_LINK)),
     actual: Some(R0021),
     status: Some(R0052),
@@ -152,7 +153,6 @@ pub static G110: LazyLock<ParamSet> = LazyLock::new(|| {
 const G120_FIELDBUS: u32 = 6;
 const R0945: u16 = 945;
 const P2021: u16 = 2021;
-const P2022: u16 = 2022;
 const P2023: u16 = 2023;
 
 /// SINAMICS G120 with a CU240 on RS485 (its profile `catalogue/data/g120.toml`): speeds in
@@ -189,7 +189,7 @@ const G120_OWN: Roles = Roles {
     reference: None,
     monitoring: None,
     address: Some((P2021, 0)),
-    pzd: Some((P2022, 0)),
+    pzd: None,
     pkw: Some((P2023, 0)),
     actual: Some(R0021),
     status: Some(R0052),

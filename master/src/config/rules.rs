@@ -318,6 +318,10 @@ impl Rules<'_> {
             self.fail("monitoring_param", &problem);
             return;
         }
+        if let Some(problem) = too_many_pzd(drive.family, drive.pzd.get()) {
+            self.fail("pzd", &problem);
+            return;
+        }
         for name in drive.writable.iter().flatten() {
             match &name.parsed {
                 Err(e) => {
@@ -388,6 +392,21 @@ impl Rules<'_> {
 
 const ONLY_ON_SIM: &str =
     "is only allowed with device = \"sim\": the drives on a serial bus are real";
+
+/// Why `pzd` words are more than a drive of `family` takes: its profile's PZD length parameter
+/// (MM4 P2012[0], G120 p2022) allows fewer.
+fn too_many_pzd(family: super::Family, pzd: usize) -> Option<String> {
+    let profile = uss_catalogue::Catalogue::of(family)?;
+    let (param, max) = profile.max_pzd().filter(|&(_, max)| pzd > max)?;
+    let name = profile
+        .param(param.pnu.get())
+        .map_or("", |p| p.name.as_str());
+    Some(format!(
+        "is more than a {} takes: its {name} {param} is at most {max}; give family = \
+         \"generic\" for another slave",
+        profile.family
+    ))
+}
 
 /// Why `given` is not the telegram-off time of the link ussd talks over, where the family's
 /// profile names that time and `given` is another element of the same parameter (a

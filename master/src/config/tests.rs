@@ -101,6 +101,7 @@ rs485 = "auto"
 address = 7
 pkw = 3
 pzd = 16
+family = "generic"
 safe_command = "off2"
 "#;
 
@@ -888,7 +889,7 @@ fn layout_keys_are_checked_by_their_types() {
         )
     );
     assert_eq!(
-        parse(&drive_key("pzd = 16")).buses[0].drives[0]
+        parse(&drive_key("family = \"generic\"\npzd = 16")).buses[0].drives[0]
             .layout()
             .pzd
             .get(),
