@@ -436,6 +436,20 @@ mod tests {
         .human()
     }
 
+    /// A faulted drive's ZSW1 says "fault" once: the state, not the state and its bit again
+    /// (the capture showed 0xBB38 as "fault fault").
+    #[test]
+    fn a_fault_is_named_once() {
+        let reply = record(
+            Direction::Reply,
+            LastFailure::None,
+            &telegram(&[0, 0, 0, 0], &[0xBB38, 0]),
+        );
+        let shown = line(Level::App, &reply);
+        assert!(shown.contains("ZSW1 0xBB38 fault "), "{shown}");
+        assert_eq!(shown.matches("fault").count(), 1, "{shown}");
+    }
+
     #[test]
     fn a_drive_of_another_family_is_shown_with_its_own_catalogue() {
         // p1082 of a G120 is a speed in rpm; of a generic slave, a number.
