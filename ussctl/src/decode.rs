@@ -132,8 +132,10 @@ impl Decoder<'_> {
         let word1_bits = match word1 {
             Some(w) if request => crate::report::stw1_bits(w),
             Some(w) => {
-                let mut bits = vec![state_name(w)];
-                bits.extend(zsw1_flags(w));
+                let state = state_name(w);
+                let mut bits = vec![state];
+                // The fault bit is the state "fault" already.
+                bits.extend(zsw1_flags(w).into_iter().filter(|&f| f != state));
                 bits
             }
             None => Vec::new(),
