@@ -102,7 +102,8 @@ enum Command {
         #[arg(long, default_value_t = 20)]
         period: u64,
     },
-    /// Put VALUE on KEY once, e.g. a sample of your own on uss/site/bus0/drive/1/out.
+    /// Put VALUE on KEY once, e.g. a sample of your own on uss/site/bus0/drive/1/out (under
+    /// your name, as --as says, unless KEY names a peer).
     Put { key: String, value: String },
     /// An operator's stop of the drive KEY (e.g. uss/site/bus0/drive/1), or of every drive of a
     /// bus (uss/site/bus0): OFF1 unless --coast (OFF2) or --quick (OFF3).
@@ -397,11 +398,13 @@ fn own_name(cli: &Cli, config: &Config) -> Result<Option<String>, Failure> {
 }
 
 /// `key` (a drive's `.../drive/<addr>/...`, or a bus's key) under the sender's name: `as/<name>`
-/// goes before the last `/drive/`, or at the end of a bus's key.
+/// goes before the last `/drive/`, or at the end of a bus's key; a key that names a peer
+/// already (`.../as/<name>/...`) stays as written.
 fn named_key(key: &str, name: Option<&str>) -> String {
     let key = key.trim_end_matches('/');
     match (name, key.rfind("/drive/")) {
         (None, _) => key.to_owned(),
+        _ if key.contains("/as/") => key.to_owned(),
         (Some(n), Some(at)) => format!("{}/as/{n}{}", &key[..at], &key[at..]),
         (Some(n), None) => format!("{key}/as/{n}"),
     }
@@ -497,7 +500,11 @@ fn command(session: &zenoh::Session, cli: &Cli, name: Option<&str>) -> Result<()
             for_s.map(seconds).transpose()?,
             *period,
         )?,
-        Command::Put { key, value } => session.put(key, value.clone()).wait().map_err(on(key))?,
+        Command::Put { key, value } => {
+            // A sample of one's own goes under one's name, as `run`'s and `stop`'s do.
+            let key = named_key(key, name);
+            session.put(&key, value.clone()).wait().map_err(on(&key))?;
+        }
         Command::Stop { key, coast, quick } => {
             let command = match (coast, quick) {
                 (true, _) => "off2",
@@ -602,6 +609,11 @@ mod tests {
         assert_eq!(
             named_key("uss/p/line1/drive/1", None),
             "uss/p/line1/drive/1"
+        );
+        // Written out already (another peer's name, to be refused by the bridge): as written.
+        assert_eq!(
+            named_key("uss/p/line1/as/other/drive/1/out", n),
+            "uss/p/line1/as/other/drive/1/out"
         );
     }
 }
