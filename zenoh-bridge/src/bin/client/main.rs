@@ -410,6 +410,10 @@ fn named_key(key: &str, name: Option<&str>) -> String {
     }
 }
 
+fn put(session: &zenoh::Session, key: &str, value: &str) -> Result<(), Failure> {
+    session.put(key, value.to_owned()).wait().map_err(on(key))
+}
+
 fn run(cli: &Cli) -> Result<(), Failure> {
     let config = config(cli)?;
     let name = own_name(cli, &config)?;
@@ -500,11 +504,8 @@ fn command(session: &zenoh::Session, cli: &Cli, name: Option<&str>) -> Result<()
             for_s.map(seconds).transpose()?,
             *period,
         )?,
-        Command::Put { key, value } => {
-            // A sample of one's own goes under one's name, as `run`'s and `stop`'s do.
-            let key = named_key(key, name);
-            session.put(&key, value.clone()).wait().map_err(on(&key))?;
-        }
+        // A sample of one's own goes under one's name, as `run`'s and `stop`'s do.
+        Command::Put { key, value } => put(session, &named_key(key, name), value)?,
         Command::Stop { key, coast, quick } => {
             let command = match (coast, quick) {
                 (true, _) => "off2",
