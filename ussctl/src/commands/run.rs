@@ -186,7 +186,6 @@ fn run_drive(
     if let Some(f) = failure {
         return Err(f);
     }
-    let mut report = DriveReport::new(bus.name(), "run", &last, drive, ref_hz);
-    report.peak_hz = Some(peak);
+    let report = DriveReport::new(bus.name(), "run", &last, drive, ref_hz).with_peak(peak);
     out.show(&report, DriveReport::human)
 }

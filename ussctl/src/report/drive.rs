@@ -428,6 +428,18 @@ impl DriveReport {
         }
     }
 
+    /// `run`'s report with the highest frequency seen while it ran (`peak`), or the one it
+    /// ends at where that is higher: the drive ramps on until it gets the stop.
+    #[must_use]
+    pub fn with_peak(mut self, peak: f32) -> Self {
+        self.peak_hz = Some(if self.actual_hz.abs() > peak.abs() {
+            self.actual_hz
+        } else {
+            peak
+        });
+        self
+    }
+
     pub fn human(&self) -> String {
         let what = match self.action {
             "run" => "ran; OFF1 sent, it ramps down",

@@ -301,3 +301,23 @@ fn a_drive_whose_poll_is_overdue_shows_stale_not_online() {
         "{stats}"
     );
 }
+
+/// `run`'s last line never shows a peak below the frequency it shows as "now" (it said "now
+/// 18.22 Hz, peak 17.84 Hz": the drive went on ramping between the last reading of the loop and
+/// the stop's confirmation).
+#[test]
+fn a_runs_peak_is_at_least_its_last_frequency() {
+    let last = PzdInput {
+        online: 1,
+        known: 1,
+        zsw1: 0xBB37,
+        hiw: 0x2000,
+        ..PzdInput::default()
+    };
+    let report =
+        DriveReport::new("b0", "run", &last, Address::new(1).unwrap(), 50.0).with_peak(17.84);
+    assert_eq!((report.actual_hz, report.peak_hz), (25.0, Some(25.0)));
+    let report =
+        DriveReport::new("b0", "run", &last, Address::new(1).unwrap(), 50.0).with_peak(-30.0);
+    assert_eq!(report.peak_hz, Some(-30.0));
+}
