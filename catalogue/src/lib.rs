@@ -276,6 +276,27 @@ fn param_id<'de, D: serde::Deserializer<'de>>(d: D) -> Result<ParamRef, D::Error
         .map_err(|e| serde::de::Error::custom(format_args!("{text:?}: {e}")))
 }
 
+fn families<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<DriveFamily>, D::Error> {
+    Vec::<String>::deserialize(d)?
+        .iter()
+        .map(|name| {
+            Catalogue::family_named(name)
+                .filter(|&f| f != DriveFamily::Generic)
+                .ok_or_else(|| {
+                    serde::de::Error::custom(format!(
+                        "families: {name:?} is no family of the contract's DriveFamily (add its \
+                         line there first): {}",
+                        DriveFamily::ALL
+                            .iter()
+                            .map(|f| f.name())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ))
+                })
+        })
+        .collect()
+}
+
 fn some_param_id<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<ParamRef>, D::Error> {
     param_id(d).map(Some)
 }
@@ -427,6 +448,10 @@ const fn four() -> u8 {
 #[serde(deny_unknown_fields)]
 pub struct Catalogue {
     pub family: String,
+    /// The families this profile is for, as the configuration names them (`micromaster4`,
+    /// `g110`): the contract's codes it serves.
+    #[serde(default, deserialize_with = "families")]
+    pub families: Vec<DriveFamily>,
     /// The user access level a change may need raised (P0003), if the family has one.
     #[serde(default, deserialize_with = "some_param_id")]
     pub access_level: Option<ParamRef>,
@@ -483,49 +508,45 @@ pub struct CatalogueError {
     pub message: String,
 }
 
-const MICROMASTER4: &str = include_str!("../data/micromaster4.toml");
-const G120: &str = include_str!("../data/g120.toml");
-const SIMOREG: &str = include_str!("../data/simoreg.toml");
+include!(concat!(env!("OUT_DIR"), "/profiles.rs"));
 
-static MM4: LazyLock<Catalogue> = LazyLock::new(|| {
-    Catalogue::parse(MICROMASTER4, "data/micromaster4.toml")
-        .unwrap_or_else(|e| unreachable!("the built-in catalogue is valid (tested): {e}"))
+/// Every built-in profile (`catalogue/data/*.toml`, compiled in by `build.rs`), read at first use.
+static PROFILES: LazyLock<Vec<Catalogue>> = LazyLock::new(|| {
+    PROFILE_FILES
+        .iter()
+        .map(|(origin, text)| {
+            Catalogue::parse(text, origin)
+                .unwrap_or_else(|e| unreachable!("the built-in catalogue is valid (tested): {e}"))
+        })
+        .collect()
 });
 
-static G120_CATALOGUE: LazyLock<Catalogue> = LazyLock::new(|| {
-    Catalogue::parse(G120, "data/g120.toml")
-        .unwrap_or_else(|e| unreachable!("the built-in catalogue is valid (tested): {e}"))
-});
-
-static SIMOREG_CATALOGUE: LazyLock<Catalogue> = LazyLock::new(|| {
-    Catalogue::parse(SIMOREG, "data/simoreg.toml")
-        .unwrap_or_else(|e| unreachable!("the built-in catalogue is valid (tested): {e}"))
-});
+/// The built-in profile of `family`, which a family with a profile has (tested).
+fn built_in(family: DriveFamily) -> &'static Catalogue {
+    Catalogue::of(family)
+        .unwrap_or_else(|| unreachable!("{} has a built-in profile (tested)", family.name()))
+}
 
 impl Catalogue {
     /// MICROMASTER 420/430/440 and SINAMICS G110.
     pub fn micromaster4() -> &'static Self {
-        &MM4
+        built_in(DriveFamily::Micromaster4)
     }
 
     /// SINAMICS G120 with a CU240 over USS.
     pub fn g120() -> &'static Self {
-        &G120_CATALOGUE
+        built_in(DriveFamily::G120)
     }
 
     /// SIMOREG DC-Master 6RA70.
     pub fn simoreg() -> &'static Self {
-        &SIMOREG_CATALOGUE
+        built_in(DriveFamily::Simoreg)
     }
 
-    /// The built-in catalogue of a family; `None` for a `generic` slave.
+    /// The built-in catalogue of a family: the profile whose `families` name it; `None` for a
+    /// `generic` slave.
     pub fn of(family: DriveFamily) -> Option<&'static Self> {
-        match family {
-            DriveFamily::Micromaster4 | DriveFamily::G110 => Some(Self::micromaster4()),
-            DriveFamily::G120 => Some(Self::g120()),
-            DriveFamily::Simoreg => Some(Self::simoreg()),
-            DriveFamily::Generic => None,
-        }
+        PROFILES.iter().find(|c| c.families.contains(&family))
     }
 
     /// The family named `name` as the configuration writes it (`micromaster4`, `g110`,

@@ -457,3 +457,27 @@ fn mm4_entries_checked_against_a_stored_list_page_match_it_and_cite_it() {
         c.param.len()
     );
 }
+
+/// A family is one data file: every family of the contract but `generic` has exactly one
+/// built-in profile (the file that names it in `families`), every file in `catalogue/data`
+/// serves a family, and a file naming a family the contract lacks is refused.
+#[test]
+fn every_family_has_exactly_one_profile_file_and_every_file_a_family() {
+    for &family in DriveFamily::ALL {
+        let serving = PROFILES
+            .iter()
+            .filter(|c| c.families.contains(&family))
+            .count();
+        let expected = usize::from(family != DriveFamily::Generic);
+        assert_eq!(serving, expected, "{}", family.name());
+    }
+    assert_eq!(PROFILES.len(), PROFILE_FILES.len());
+    for (c, (origin, _)) in PROFILES.iter().zip(PROFILE_FILES) {
+        assert!(!c.families.is_empty(), "{origin} serves no family");
+    }
+    let unknown = "family = \"x\"\nfamilies = [\"g130\"]\n";
+    let e = Catalogue::parse(unknown, "x.toml").unwrap_err();
+    assert!(e.to_string().contains("\"g130\" is no family"), "{e}");
+    let generic = "family = \"x\"\nfamilies = [\"generic\"]\n";
+    assert!(Catalogue::parse(generic, "x.toml").is_err());
+}
