@@ -483,6 +483,11 @@ pub struct Catalogue {
     pub command_source: Option<ParamRef>,
     #[serde(default)]
     pub command_source_uss: Option<u32>,
+    /// The behaviour the simulator plays a drive of this profile with (`micromaster4`, `g120`,
+    /// `simoreg`: the ramp, link and fault-buffer parameters its model uses beyond the roles
+    /// named here, `uss_drive_sim::family::Behaviour`); none: a MICROMASTER 4's.
+    #[serde(default)]
+    pub simulator: Option<String>,
     /// The reference frequency in Hz that 0x4000 of the setpoint stands for (MM4 P2000).
     #[serde(default, deserialize_with = "some_param_id")]
     pub reference: Option<ParamRef>,

@@ -7,9 +7,17 @@
 
 use uss_catalogue::{Catalogue, Change, DataType};
 use uss_drive_sim::drive::Personality;
-use uss_drive_sim::family::{G110, G120, SIMOREG};
-use uss_drive_sim::params::{Change as SimChange, MICROMASTER4, ParamSet};
+use uss_drive_sim::family::{Behaviour, param_set};
+use uss_drive_sim::params::{Change as SimChange, ParamSet};
 use uss_protocol::ParamRef;
+use uss_shm_types::DriveFamily;
+
+/// Every family with a profile, with it: what the simulator plays.
+fn families() -> impl Iterator<Item = (DriveFamily, &'static Catalogue)> {
+    DriveFamily::ALL
+        .iter()
+        .filter_map(|&f| Some((f, Catalogue::of(f)?)))
+}
 
 /// The simulated drive monitors the telegram-off time, records the fault and scales by the
 /// reference its family's profile names.
@@ -18,12 +26,17 @@ fn every_simulated_family_plays_the_roles_its_profile_names() {
     let at = |p: Option<ParamRef>| {
         p.map(|p| (p.pnu.get(), p.index.map_or(0, uss_protocol::Subindex::get)))
     };
-    for (personality, c) in [
-        (Personality::Micromaster4, Catalogue::micromaster4()),
-        (Personality::G110, Catalogue::micromaster4()),
-        (Personality::G120, Catalogue::g120()),
-        (Personality::Simoreg, Catalogue::simoreg()),
-    ] {
+    assert_eq!(families().count(), 4, "micromaster4, g110, g120, simoreg");
+    for (family, c) in families() {
+        let personality = Personality::Drive(family);
+        // The profile names a behaviour the simulator has.
+        let named = c.simulator.as_deref().and_then(Behaviour::named);
+        assert!(
+            named.is_some(),
+            "{}: simulator = {:?}",
+            c.family,
+            c.simulator
+        );
         let roles = personality.roles();
         assert_eq!(roles.monitoring, at(c.monitoring), "{personality:?}");
         let fault = c.telegram_off_fault.unwrap_or(roles.telegram_off_fault);
@@ -40,14 +53,8 @@ fn every_simulated_family_plays_the_roles_its_profile_names() {
 
 #[test]
 fn every_simulated_parameter_is_in_the_catalogue_as_the_simulator_has_it() {
-    let families: [(&Catalogue, &ParamSet); 4] = [
-        (Catalogue::micromaster4(), &MICROMASTER4),
-        (Catalogue::micromaster4(), &G110),
-        (Catalogue::g120(), &G120),
-        (Catalogue::simoreg(), &SIMOREG),
-    ];
-    for (c, set) in families {
-        agree(c, set);
+    for (family, c) in families() {
+        agree(c, param_set(family));
     }
 }
 

@@ -6,14 +6,13 @@
 //! answers into a caller buffer. Nothing here allocates after construction, so the simulator can
 //! run inside the master's real-time thread in tests.
 
-use crate::family::{
-    G110, G120, G120_IDENTIFICATION, G120_ROLES, MICROMASTER4_ROLES, Roles, SIMOREG, SIMOREG_ROLES,
-};
-use crate::params::{MICROMASTER4, ParamSet, ParamTable};
+use crate::family::Roles;
+use crate::params::{ParamSet, ParamTable};
 use core::time::Duration;
 use uss_protocol::pkw::{ErrorNumber, Value};
 use uss_protocol::telegram::{Layout, MAX_PKW_WORDS, MAX_PZD_WORDS, Telegram, encode};
 use uss_protocol::{Address, Adr, FrameError, LineError, Setpoint, Stw1, Zsw1};
+use uss_shm_types::DriveFamily;
 
 /// Fault code of "USS (COM link) setpoint fault", a MICROMASTER 4's telegram-off trip (USS.md
 /// section 5; other families: [`Roles::telegram_off_fault`]).
@@ -53,17 +52,11 @@ pub struct DriveConfig {
 
 /// What kind of USS slave is simulated: its parameters, and how it takes a task it does not
 /// know.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Personality {
-    /// A MICROMASTER 4-like drive ([`crate::params`]).
-    #[default]
-    Micromaster4,
-    /// A SINAMICS G110: the MICROMASTER 4 numbers, its own firmware version.
-    G110,
-    /// A SINAMICS G120 with a CU240 on USS: speeds in rpm, p2040 monitoring, r0945 faults.
-    G120,
-    /// A SIMOREG DC-Master 6RA70 ([`crate::family::SIMOREG`]).
-    Simoreg,
+    /// A drive of a family with a built-in profile (`catalogue/data/*.toml`): its parameters
+    /// are its profile's, its behaviour the one its profile names ([`crate::family::Behaviour`]).
+    Drive(DriveFamily),
     /// A USS slave that is not a drive of a known family (a pump controller, say): the state
     /// machine and PZD as any USS slave, but only [`GENERIC_PARAMS`] as parameters (values,
     /// no descriptions) and error 0 (illegal parameter number) to the rest. `fragile`: a task
@@ -71,25 +64,39 @@ pub enum Personality {
     Generic { fragile: bool },
 }
 
+impl Default for Personality {
+    fn default() -> Self {
+        Self::MICROMASTER4
+    }
+}
+
 impl Personality {
+    /// A MICROMASTER 4-like drive.
+    pub const MICROMASTER4: Self = Self::Drive(DriveFamily::Micromaster4);
+    /// A SINAMICS G110: the MICROMASTER 4 numbers, its own firmware version.
+    pub const G110: Self = Self::Drive(DriveFamily::G110);
+    /// A SINAMICS G120 with a CU240 on USS: speeds in rpm, p2040 monitoring, r0945 faults.
+    pub const G120: Self = Self::Drive(DriveFamily::G120);
+    /// A SIMOREG DC-Master 6RA70.
+    pub const SIMOREG: Self = Self::Drive(DriveFamily::Simoreg);
+
+    /// The family it plays: `generic` for a generic slave.
+    pub const fn family(self) -> DriveFamily {
+        match self {
+            Self::Drive(family) => family,
+            Self::Generic { .. } => DriveFamily::Generic,
+        }
+    }
+
     /// The parameter set the drive keeps (a generic slave's model runs on a MICROMASTER 4's,
     /// which it never shows).
     pub fn param_set(self) -> &'static ParamSet {
-        match self {
-            Self::Micromaster4 | Self::Generic { .. } => &MICROMASTER4,
-            Self::G110 => &G110,
-            Self::G120 => &G120,
-            Self::Simoreg => &SIMOREG,
-        }
+        crate::family::param_set(self.family())
     }
 
     /// The parameters its drive model uses (its family profile's roles, read once).
     pub fn roles(self) -> &'static Roles {
-        match self {
-            Self::Micromaster4 | Self::G110 | Self::Generic { .. } => &MICROMASTER4_ROLES,
-            Self::G120 => &G120_ROLES,
-            Self::Simoreg => &SIMOREG_ROLES,
-        }
+        crate::family::roles(self.family())
     }
 }
 
@@ -116,7 +123,7 @@ impl DriveConfig {
             telegram_off_time_ms: 0,
             reference_hz: 50.0,
             takes_broadcasts: true,
-            personality: Personality::Micromaster4,
+            personality: Personality::MICROMASTER4,
         }
     }
 }
@@ -255,10 +262,9 @@ impl Drive {
                 params.set_commissioned(pnu, index, value);
             }
         }
-        if personality == Personality::G120 {
-            for (i, word) in G120_IDENTIFICATION.into_iter().enumerate() {
-                params.set_internal(964, i as u8, u32::from(word));
-            }
+        let identification = crate::family::Behaviour::of(personality.family()).identification();
+        for (i, &word) in identification.iter().enumerate() {
+            params.set_internal(964, i as u8, u32::from(word));
         }
         let mut drive = Self {
             config,
@@ -556,7 +562,7 @@ impl Drive {
     fn takes_commands(&self) -> bool {
         match self.config.personality {
             Personality::Generic { .. } => true,
-            _ => self
+            Personality::Drive(_) => self
                 .roles()
                 .command_source
                 .is_none_or(|(pnu, uss)| self.param_u32(pnu) == uss),

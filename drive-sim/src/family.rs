@@ -13,6 +13,7 @@
 use std::sync::LazyLock;
 use uss_catalogue::Catalogue;
 use uss_protocol::{ParamRef, Subindex};
+use uss_shm_types::DriveFamily;
 
 use crate::params::{
     COM_LINK, MM4_OWN, Own, P0970, P1000, P1080, P1082, P1120, P1121, P1135, P2011, P2013,
@@ -130,24 +131,11 @@ const MICROMASTER4_OWN: Roles = Roles {
     telegram_off_fault: 0,
 };
 
-/// MICROMASTER 420/430/440 (and G110), with what its profile names.
-pub static MICROMASTER4_ROLES: LazyLock<Roles> =
-    LazyLock::new(|| MICROMASTER4_OWN.with_profile(Catalogue::micromaster4()));
-
 /// r0018 of the simulated G110: firmware 1.18.
 const G110_FIRMWARE: u32 = 1.18f32.to_bits();
 
-/// SINAMICS G110: the MICROMASTER 4 parameter numbers (its list shares them), firmware 1.18.
-pub static G110: LazyLock<ParamSet> = LazyLock::new(|| {
-    ParamSet::of_profile(
-        "g110",
-        Catalogue::micromaster4(),
-        Own {
-            start: &[(R0018, G110_FIRMWARE)],
-            ..MM4_OWN
-        },
-    )
-});
+/// r0018 of the simulated MICROMASTER 4: firmware 2.09.
+const MM4_FIRMWARE: u32 = 2.09f32.to_bits();
 
 /// p0700 = 6 and p1000 = 6: commands and speed setpoint from the fieldbus (the CU240's USS).
 const G120_FIELDBUS: u32 = 6;
@@ -155,22 +143,16 @@ const R0945: u16 = 945;
 const P2021: u16 = 2021;
 const P2023: u16 = 2023;
 
-/// SINAMICS G120 with a CU240 on RS485 (its profile `catalogue/data/g120.toml`): speeds in
-/// rpm (p2000 is the reference speed), the fieldbus settings p2020..p2023 with p2030 = 1 (USS),
-/// monitoring p2040 in ms (a float), and the fault buffer r0945 (fault codes) / r0949 (fault
-/// values), 8 fault cases of 8 faults; firmware 4.7 (r0018 = 4070000).
-pub static G120: LazyLock<ParamSet> = LazyLock::new(|| {
-    ParamSet::of_profile(
-        "g120",
-        Catalogue::g120(),
-        Own {
-            change_rights: None,
-            factory_reset: Some(P0970),
-            save: None,
-            start: &[(R0018, 4_070_000)],
-        },
-    )
-});
+/// What a SINAMICS G120's table consults besides its profile (speeds in rpm, p2000 the
+/// reference speed, fieldbus p2020..p2023 with p2030 = 1 USS, monitoring p2040 in ms as a float,
+/// fault buffer r0945 / r0949 with 8 fault cases of 8 faults): the p0970 reset; firmware 4.7
+/// (r0018 = 4070000).
+const G120_OWN_PARAMS: Own = Own {
+    change_rights: None,
+    factory_reset: Some(P0970),
+    save: None,
+    start: &[(R0018, 4_070_000)],
+};
 
 /// The G120's device identification r0964 as the simulator reports it (device type and firmware
 /// date are the simulator's own).
@@ -205,9 +187,6 @@ const G120_OWN: Roles = Roles {
     telegram_off_fault: 0,
 };
 
-/// SINAMICS G120 (CU240 over USS), with what its profile names.
-pub static G120_ROLES: LazyLock<Roles> = LazyLock::new(|| G120_OWN.with_profile(Catalogue::g120()));
-
 const P303: u16 = 303;
 const P304: u16 = 304;
 const P782: u16 = 782;
@@ -219,19 +198,13 @@ const R949: u16 = 949;
 /// of the first USS interface (P782: 0, 3, 4 or 127), and the fault memory r947 with the fault
 /// values r949 (8 faults per fault case). Its speed setpoint is a share of the rated speed
 /// (0x4000 = 100 %); it has no command-source parameter and no telegram monitoring parameter
-/// the simulator plays.
-pub static SIMOREG: LazyLock<ParamSet> = LazyLock::new(|| {
-    ParamSet::of_profile(
-        "simoreg",
-        Catalogue::simoreg(),
-        Own {
-            change_rights: None,
-            factory_reset: None,
-            save: None,
-            start: &[],
-        },
-    )
-});
+/// the simulator plays. Its table consults nothing besides its profile.
+const SIMOREG_OWN_PARAMS: Own = Own {
+    change_rights: None,
+    factory_reset: None,
+    save: None,
+    start: &[],
+};
 
 /// The SIMOREG's roles: its profile names none of them (the telegram failure on G-SST1 is
 /// F011 in its operating instructions; the simulator's own).
@@ -263,6 +236,123 @@ const SIMOREG_OWN: Roles = Roles {
     telegram_off_fault: 11,
 };
 
-/// SIMOREG DC-Master 6RA70, with what its profile names.
-pub static SIMOREG_ROLES: LazyLock<Roles> =
-    LazyLock::new(|| SIMOREG_OWN.with_profile(Catalogue::simoreg()));
+/// How the simulator plays a family's drive beyond its profile: the roles the profile does not
+/// name, the parameters its table consults, what makes the unit (its firmware). A family's
+/// profile names the behaviour it is played with (`simulator = "g120"`), so a family added as a
+/// data file is simulated without code; the G110 shares the MICROMASTER 4's profile and differs
+/// in its firmware alone.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Behaviour {
+    Micromaster4,
+    G110,
+    G120,
+    Simoreg,
+}
+
+impl Behaviour {
+    /// The behaviour a profile's `simulator` names.
+    #[must_use]
+    pub fn named(name: &str) -> Option<Self> {
+        Some(match name {
+            "micromaster4" => Self::Micromaster4,
+            "g110" => Self::G110,
+            "g120" => Self::G120,
+            "simoreg" => Self::Simoreg,
+            _ => return None,
+        })
+    }
+
+    /// The behaviour `family`'s drive is played with: its profile's `simulator` (the G110: its
+    /// own firmware on the MICROMASTER 4's profile).
+    #[must_use]
+    pub fn of(family: DriveFamily) -> Self {
+        if family == DriveFamily::G110 {
+            return Self::G110;
+        }
+        Catalogue::of(family)
+            .and_then(|c| c.simulator.as_deref())
+            .and_then(Self::named)
+            .unwrap_or(Self::Micromaster4)
+    }
+
+    fn own_params(self) -> Own {
+        match self {
+            Self::Micromaster4 => Own {
+                start: &[(R0018, MM4_FIRMWARE)],
+                ..MM4_OWN
+            },
+            Self::G110 => Own {
+                start: &[(R0018, G110_FIRMWARE)],
+                ..MM4_OWN
+            },
+            Self::G120 => G120_OWN_PARAMS,
+            Self::Simoreg => SIMOREG_OWN_PARAMS,
+        }
+    }
+
+    const fn own_roles(self) -> Roles {
+        match self {
+            Self::Micromaster4 | Self::G110 => MICROMASTER4_OWN,
+            Self::G120 => G120_OWN,
+            Self::Simoreg => SIMOREG_OWN,
+        }
+    }
+
+    /// What the drive reports of itself beyond its parameters' start values: the G120's device
+    /// identification r0964 (element, word).
+    #[must_use]
+    pub fn identification(self) -> &'static [u16] {
+        match self {
+            Self::G120 => &G120_IDENTIFICATION,
+            _ => &[],
+        }
+    }
+}
+
+/// A family the simulator plays: its parameter set and roles, made from its profile once.
+struct Simulated {
+    family: DriveFamily,
+    params: ParamSet,
+    roles: Roles,
+}
+
+/// Every family with a profile, made before any drive runs (at the first drive).
+static SIMULATED: LazyLock<Vec<Simulated>> = LazyLock::new(|| {
+    DriveFamily::ALL
+        .iter()
+        .filter_map(|&family| {
+            let profile = Catalogue::of(family)?;
+            let behaviour = Behaviour::of(family);
+            Some(Simulated {
+                family,
+                params: ParamSet::of_profile(family.name(), profile, behaviour.own_params()),
+                roles: behaviour.own_roles().with_profile(profile),
+            })
+        })
+        .collect()
+});
+
+fn simulated(family: DriveFamily) -> &'static Simulated {
+    SIMULATED
+        .iter()
+        .find(|s| s.family == family)
+        .or_else(|| {
+            SIMULATED
+                .iter()
+                .find(|s| s.family == DriveFamily::Micromaster4)
+        })
+        .unwrap_or_else(|| unreachable!("the MICROMASTER 4 has a built-in profile (tested)"))
+}
+
+/// The parameter set of `family`'s simulated drive (a family without a profile, `generic`:
+/// the MICROMASTER 4's, which a generic slave's model runs on and never shows).
+#[must_use]
+pub fn param_set(family: DriveFamily) -> &'static ParamSet {
+    &simulated(family).params
+}
+
+/// The parameters `family`'s drive model uses (its profile's roles, and its behaviour's).
+#[must_use]
+pub fn roles(family: DriveFamily) -> &'static Roles {
+    &simulated(family).roles
+}

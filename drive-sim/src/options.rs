@@ -81,6 +81,32 @@ pub struct SimOptions {
 }
 
 impl SimOptions {
+    /// The slave these options name: a drive of their `family` (a MICROMASTER 4 without one),
+    /// or a generic slave, fragile or not.
+    fn personality(&self) -> Result<Personality, String> {
+        Ok(match (self.family.as_deref(), self.fragile) {
+            (Some("generic"), fragile) => Personality::Generic {
+                fragile: fragile.unwrap_or(false),
+            },
+            (_, Some(_)) => {
+                return Err("fragile=...: only a family=generic slave can be fragile".to_owned());
+            }
+            (None, None) => Personality::MICROMASTER4,
+            (Some(name), None) => Personality::Drive(
+                uss_catalogue::Catalogue::family_named(name).ok_or_else(|| {
+                    format!(
+                        "family={name}: the simulator has the families {}",
+                        uss_shm_types::DriveFamily::ALL
+                            .iter()
+                            .map(|f| f.name())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    )
+                })?,
+            ),
+        })
+    }
+
     /// Sets these options on a drive and its fault plan; what is wrong, if anything, in the
     /// words of the key (`"delay=-1: a time in milliseconds, 0..=3600000"`).
     pub fn apply(&self, config: &mut DriveConfig, faults: &mut FaultPlan) -> Result<(), String> {
@@ -139,34 +165,9 @@ impl SimOptions {
         if let Some(takes) = self.broadcast {
             config.takes_broadcasts = takes;
         }
-        config.personality = match (self.family.as_deref(), self.fragile) {
-            (Some("generic"), fragile) => Personality::Generic {
-                fragile: fragile.unwrap_or(false),
-            },
-            (_, Some(_)) => {
-                return Err("fragile=...: only a family=generic slave can be fragile".to_owned());
-            }
-            (None | Some("micromaster4"), None) => Personality::Micromaster4,
-            (Some("g110"), None) => Personality::G110,
-            (Some("g120"), None) => Personality::G120,
-            (Some("simoreg"), None) => Personality::Simoreg,
-            (Some(other), None) => {
-                return Err(format!(
-                    "family={other}: the simulator has the families micromaster4, g110, g120, \
-                     simoreg and generic"
-                ));
-            }
-        };
-        let (range, unit, default) = match config.personality {
-            Personality::G120 => (6.0..=210_000.0, "rpm (the reference speed)", 1500.0),
-            Personality::Simoreg => (1.0..=1000.0, "(100 % of the setpoint)", 100.0),
-            _ => (
-                1.0..=650.0,
-                "Hz (the reference frequency)",
-                config.reference_hz,
-            ),
-        };
-        config.reference_hz = default;
+        config.personality = self.personality()?;
+        let (range, unit, default) = reference_of(config.personality, config.reference_hz);
+        config.reference_hz = default as f32;
         if let Some(value) = self.p2000 {
             if !range.contains(&value) {
                 return Err(format!(
@@ -178,6 +179,34 @@ impl SimOptions {
             config.reference_hz = value as f32;
         }
         Ok(())
+    }
+}
+
+/// The reference a drive of `personality` scales its setpoint by: the limits, unit and factory
+/// setting of its family profile's reference parameter (`default`: a generic slave's); a family
+/// without one (SIMOREG) scales 0x4000 to 100 % of its setpoint.
+fn reference_of(
+    personality: Personality,
+    default: f32,
+) -> (core::ops::RangeInclusive<f64>, &'static str, f64) {
+    let profile = uss_catalogue::Catalogue::of(personality.family());
+    let reference = profile.and_then(|c| {
+        let (param, unit) = match (c.reference, c.reference_speed) {
+            (Some(p), _) => (p, "Hz (the reference frequency)"),
+            (None, Some(p)) => (p, "rpm (the reference speed)"),
+            (None, None) => return None,
+        };
+        let p = c.param(param.pnu.get())?;
+        Some((p.min?..=p.max?, unit, p.default?))
+    });
+    match (personality, reference) {
+        (Personality::Drive(_), Some(found)) => found,
+        (Personality::Drive(_), None) => (1.0..=1000.0, "(100 % of the setpoint)", 100.0),
+        (Personality::Generic { .. }, _) => (
+            1.0..=650.0,
+            "Hz (the reference frequency)",
+            f64::from(default),
+        ),
     }
 }
 

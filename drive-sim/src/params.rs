@@ -30,8 +30,6 @@
 //! Read tasks (AK 1, 4, 6, 9) run steps 1, 2 and 7 only: reading needs no change rights and no
 //! access level. Every refused task leaves the table as it was.
 
-use std::sync::LazyLock;
-use uss_catalogue::Catalogue;
 use uss_protocol::{ErrorNumber, ParamTask, PkwMode, Pnu, ReplyKind, Storage, Subindex, Value};
 
 /// Data type of a parameter: the codec's; descriptive element 1 carries its PROFIdrive code
@@ -473,23 +471,6 @@ impl PartialEq for ParamSet {
 
 impl Eq for ParamSet {}
 
-/// MICROMASTER 420/430/440: P0003 access level, P0010 commissioning, P0927 bit 3 (USS on the
-/// COM link), P0970 factory reset.
-/// Its parameters are its profile's (`catalogue/data/micromaster4.toml`), firmware 2.09.
-pub static MICROMASTER4: LazyLock<ParamSet> = LazyLock::new(|| {
-    ParamSet::of_profile(
-        "micromaster4",
-        Catalogue::micromaster4(),
-        Own {
-            start: &[(R0018, MM4_FIRMWARE)],
-            ..MM4_OWN
-        },
-    )
-});
-
-/// r0018 of the simulated MICROMASTER 4: firmware 2.09.
-const MM4_FIRMWARE: u32 = 2.09f32.to_bits();
-
 /// What a MICROMASTER 4's table (and a G110's, which shares its numbers) consults besides its
 /// profile's access level and commissioning parameter: P0927 bit 3, the P0970 reset.
 pub(crate) const MM4_OWN: Own = Own {
@@ -576,7 +557,9 @@ fn describe(def: &ParamDef, element: Subindex, pkw: PkwMode) -> Result<ReplyKind
 impl ParamTable {
     /// A MICROMASTER 4 with factory defaults in RAM and EEPROM.
     pub fn new() -> Self {
-        Self::of(&MICROMASTER4)
+        Self::of(crate::family::param_set(
+            uss_shm_types::DriveFamily::Micromaster4,
+        ))
     }
 
     /// A drive of `set`'s family with factory defaults in RAM and EEPROM.

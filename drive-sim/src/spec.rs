@@ -123,14 +123,14 @@ mod tests {
         let d: DriveSpec = "4:family=generic,fragile=true,pzd=6".parse().unwrap();
         assert_eq!(d.config.personality, Personality::Generic { fragile: true });
         let d: DriveSpec = "4".parse().unwrap();
-        assert_eq!(d.config.personality, Personality::Micromaster4);
+        assert_eq!(d.config.personality, Personality::MICROMASTER4);
         assert_eq!(
             "4:fragile=true".parse::<DriveSpec>().unwrap_err().problem,
             "fragile=...: only a family=generic slave can be fragile"
         );
         assert_eq!(
             "4:family=g150".parse::<DriveSpec>().unwrap_err().problem,
-            "family=g150: the simulator has the families micromaster4, g110, g120, simoreg and \
+            "family=g150: the simulator has the families micromaster4, g110, g120, simoreg, \
              generic"
         );
     }

@@ -23,7 +23,7 @@ fn drive(personality: Personality, p2014: u16) -> Drive {
             match personality {
                 Personality::G110 => "g110",
                 Personality::G120 => "g120",
-                Personality::Simoreg => "simoreg",
+                Personality::SIMOREG => "simoreg",
                 _ => "micromaster4",
             }
             .to_owned(),
@@ -138,7 +138,7 @@ fn a_g120_with_its_commands_elsewhere_says_so_in_zsw1_bit_9() {
 
 #[test]
 fn a_simoreg_ramps_with_p303_in_10_ms_and_keeps_its_faults_in_r947() {
-    let mut d = drive(Personality::Simoreg, 0);
+    let mut d = drive(Personality::SIMOREG, 0);
     // P303 = 1000 x 10 ms = 10 s from 0 to 100 %: 50 % (the setpoint) after 5 s.
     let t = run(&mut d, 5);
     assert!(

@@ -34,10 +34,7 @@ impl Drive {
         self.pkw.request_len = request.len();
         let (task, kind) = match ParamTask::decode(request) {
             Ok(task) if task != ParamTask::None => match self.config.personality {
-                Personality::Micromaster4
-                | Personality::G110
-                | Personality::G120
-                | Personality::Simoreg => {
+                Personality::Drive(_) => {
                     let ctx = DriveContext {
                         running: self.state.is_running(),
                     };

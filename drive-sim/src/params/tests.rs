@@ -2,6 +2,11 @@ use super::*;
 use proptest::prelude::*;
 use uss_protocol::ParamReply;
 
+/// The simulated MICROMASTER 4's parameter set.
+fn mm4() -> &'static ParamSet {
+    crate::family::param_set(uss_shm_types::DriveFamily::Micromaster4)
+}
+
 const STOPPED: DriveContext = DriveContext { running: false };
 const RUNNING: DriveContext = DriveContext { running: true };
 
@@ -94,7 +99,7 @@ fn expert() -> ParamTable {
 
 #[test]
 fn definitions_are_sorted_unique_and_their_defaults_are_valid() {
-    for pair in MICROMASTER4.definitions().windows(2) {
+    for pair in mm4().definitions().windows(2) {
         assert!(
             pair[0].pnu < pair[1].pnu,
             "{} before {}",
@@ -102,7 +107,7 @@ fn definitions_are_sorted_unique_and_their_defaults_are_valid() {
             pair[1].name
         );
     }
-    for def in MICROMASTER4.definitions() {
+    for def in mm4().definitions() {
         let number = &def.name[1..5];
         assert_eq!(number.parse::<u16>().unwrap(), def.pnu, "{}", def.name);
         let prefix = if def.is_read_only() { 'r' } else { 'P' };
@@ -852,7 +857,7 @@ fn set_commissioned_survives_power_cycle_but_not_for_read_only() {
 
 fn any_task() -> impl Strategy<Value = ParamTask> {
     let pnus = prop_oneof![
-        4 => (0..MICROMASTER4.definitions().len()).prop_map(|n| MICROMASTER4.definitions()[n].pnu),
+        4 => (0..mm4().definitions().len()).prop_map(|n| mm4().definitions()[n].pnu),
         1 => any::<u16>(),
     ];
     let index = prop_oneof![3 => 0u8..9, 1 => 0u8..=Subindex::MAX];
@@ -923,7 +928,7 @@ proptest! {
                 let index = if matches!(task, ParamTask::WriteArray { .. }) { task.subindex() } else { 0 };
                 prop_assert_eq!(t.get(p.get(), index), Some(echo.as_u32()));
             }
-            for def in MICROMASTER4.definitions().iter().filter(|d| !d.is_read_only()) {
+            for def in mm4().definitions().iter().filter(|d| !d.is_read_only()) {
                 for i in 0..def.slots() as u8 {
                     let raw = t.get(def.pnu, i).unwrap();
                     prop_assert_eq!(def.check_value(raw), Ok(()), "{} = {:#x}", def.name, raw);

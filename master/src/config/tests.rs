@@ -258,10 +258,10 @@ fn a_simulated_drive_is_of_its_entrys_family() {
         let c = parse(&drive_key(keys));
         c.buses[0].drives[0].sim_spec().unwrap().config.personality
     };
-    assert_eq!(personality(""), Personality::Micromaster4);
+    assert_eq!(personality(""), Personality::MICROMASTER4);
     assert_eq!(personality("family = \"g110\""), Personality::G110);
     assert_eq!(personality("family = \"g120\""), Personality::G120);
-    assert_eq!(personality("family = \"simoreg\""), Personality::Simoreg);
+    assert_eq!(personality("family = \"simoreg\""), Personality::SIMOREG);
     let generic = |fragile| Personality::Generic { fragile };
     assert_eq!(personality("family = \"generic\""), generic(false));
     assert_eq!(
@@ -271,7 +271,7 @@ fn a_simulated_drive_is_of_its_entrys_family() {
     // Named otherwise in `sim`, the simulator plays that (a test bench of a mismatch).
     assert_eq!(
         personality("family = \"g120\"\nsim.family = \"micromaster4\""),
-        Personality::Micromaster4
+        Personality::MICROMASTER4
     );
 }
 
