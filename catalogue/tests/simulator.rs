@@ -26,7 +26,7 @@ fn every_simulated_family_plays_the_roles_its_profile_names() {
     let at = |p: Option<ParamRef>| {
         p.map(|p| (p.pnu.get(), p.index.map_or(0, uss_protocol::Subindex::get)))
     };
-    assert_eq!(families().count(), 4, "micromaster4, g110, g120, simoreg");
+    assert!(families().count() >= 4, "micromaster4, g110, g120, simoreg");
     for (family, c) in families() {
         let personality = Personality::Drive(family);
         // The profile names a behaviour the simulator has.
