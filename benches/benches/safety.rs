@@ -348,7 +348,7 @@ fn through_ussd() {
         &format!("[[bus]]\nname = \"{bus_name}\"\ndevice = \"sim\"\nbaud = 9600\n{drives}"),
     );
     let bus = uss_benches::open_bus(&bus_name);
-    let plain = stops_through_ussd(&bus, &bus_name);
+    let (plain, diag_lag) = stops_through_ussd(&bus, &bus_name);
     // 64 connections to the stop socket that say nothing: 8 processes of 8, each connection
     // made again as soon as ussd closes it (issue 32: they held a stop back 2 s and more).
     let holder = uss_benches::release_binary("uss-integration-tests", "uss-idle-connections");
@@ -371,7 +371,7 @@ fn through_ussd() {
             uss_benches::Child { child, file: None }
         })
         .collect();
-    let idle = stops_through_ussd(&bus, &bus_name);
+    let (idle, _) = stops_through_ussd(&bus, &bus_name);
     drop(holders);
     let ratio = idle.quantiles()[1] / plain.quantiles()[1];
     println!(
@@ -383,11 +383,16 @@ fn through_ussd() {
         "== the same with 64 idle connections to the stop socket (8 processes of 8): {}; p99 {ratio:.2}x",
         idle.show()
     );
+    println!(
+        "== the latch in the diagnostics after the image shows it (the plain stops): {}",
+        diag_lag.show()
+    );
 }
 
 /// 30 stops of a running drive through ussd's stop socket, each at a random moment of the cycle:
-/// from the API call to the first telegram that carries the stop (ussd's capture).
-fn stops_through_ussd(bus: &uss_client::Bus, bus_name: &str) -> Figures {
+/// from the API call to the first telegram that carries the stop (ussd's capture); and how long
+/// after the drive's image the diagnostics showed the latch.
+fn stops_through_ussd(bus: &uss_client::Bus, bus_name: &str) -> (Figures, Figures) {
     let k = 16u8;
     let watch = bus.watch(addr(k)).expect("watch");
     watch
@@ -395,7 +400,7 @@ fn stops_through_ussd(bus: &uss_client::Bus, bus_name: &str) -> Figures {
         .expect("drive 16 polled");
     let mut capture = bus.capture().expect("capture");
     let mut rng = rand::rngs::SmallRng::seed_from_u64(7);
-    let mut out = Vec::new();
+    let (mut out, mut diag_lags) = (Vec::new(), Vec::new());
     for _ in 0..uss_benches::rounds(30, 3) {
         let c = bus
             .control(addr(k), uss_client::ControlOptions::default())
@@ -425,13 +430,32 @@ fn stops_through_ussd(bus: &uss_client::Bus, bus_name: &str) -> Figures {
             std::thread::sleep(Duration::from_millis(2));
         };
         out.push(at.saturating_sub(asked) as f64 / 1e6);
+        // Then what a client reads: from the image showing the latch to the diagnostics
+        // (`ussctl status`, Python `diag()`, C `ussrt_drive_diag`) showing it.
+        let until = |latched: &dyn Fn() -> bool| loop {
+            if latched() {
+                break Instant::now();
+            }
+            assert!(Instant::now() < deadline, "no latch shown");
+            std::thread::sleep(Duration::from_micros(200));
+        };
+        let image = until(&|| !watch.latest().is_live());
+        let diag = until(&|| !bus.diag(addr(k)).expect("diag").is_live());
+        diag_lags.push(diag.saturating_duration_since(image).as_secs_f64() * 1e3);
         drop(c);
     }
     let status = bus.status().expect("status");
-    Figures {
-        ms: out,
-        exchange_ms: status.mean_exchange_ns as f64 / 1e6,
-    }
+    let exchange_ms = status.mean_exchange_ns as f64 / 1e6;
+    (
+        Figures {
+            ms: out,
+            exchange_ms,
+        },
+        Figures {
+            ms: diag_lags,
+            exchange_ms,
+        },
+    )
 }
 
 fn main() {

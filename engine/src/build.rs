@@ -144,6 +144,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             drives: cfg.drives.iter().map(|_| DriveCells::default()).collect(),
             stop_all: Overrides::default(),
             stats: Mutex::new(Published::new(&stats)),
+            published_ns: AtomicU64::new(0),
             stop: AtomicBool::new(false),
             line_down: AtomicBool::new(false),
             reopen_attempts: AtomicU32::new(0),

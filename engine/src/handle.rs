@@ -199,6 +199,12 @@ impl EngineHandle {
             .clone()
     }
 
+    /// When the statistics [`EngineHandle::stats`] returns were published (bus clock), read
+    /// without taking them: a thread that waits for a change polls this, not `stats`.
+    pub fn published_at(&self) -> Duration {
+        Duration::from_nanos(self.shared.published_ns.load(Ordering::Acquire))
+    }
+
     /// Asks the engine to stop after its current exchange.
     pub fn stop(&self) {
         self.shared.stop.store(true, Ordering::Release);

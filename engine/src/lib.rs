@@ -389,6 +389,9 @@ struct Shared {
     /// (`engine::turns`) besides each drive's own override.
     stop_all: Overrides,
     stats: Mutex<Published>,
+    /// When the statistics were last published (bus clock, ns): read without their lock, so a
+    /// reader waiting for a change does not hold back the publication it waits for.
+    published_ns: AtomicU64,
     stop: AtomicBool,
     /// Set by the bus thread while its line is down.
     line_down: AtomicBool,
@@ -877,6 +880,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.control_changed = false;
         let (stats, pending) = shared.hand_over();
         stats.at = now;
+        self.shared.published_ns.store(
+            u64::try_from(now.as_nanos()).unwrap_or(u64::MAX),
+            Ordering::Release,
+        );
         stats.bus = self.bus;
         stats.line = self.line;
         for (status, d) in stats.drives.iter_mut().zip(&self.drives) {

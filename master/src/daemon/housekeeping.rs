@@ -24,6 +24,11 @@ pub(super) const STATUS_EVERY: Duration =
 /// captures about 700 telegrams per second, so a take holds at most a few dozen.
 const CAPTURE_EVERY: Duration = Duration::from_millis(10);
 
+/// How often the engine's statistics are looked at while a latch or re-arm waits to be
+/// published: the engine publishes them at the end of the exchange that made the change, and
+/// the diagnostics must not show a live drive for long after its image shows the latch.
+const CHANGE_EVERY: Duration = Duration::from_millis(1);
+
 /// Logs events as they come, publishes status and diagnostics every [`STATUS_EVERY`], and logs
 /// the summary every `every`; logs the final summary when the engine has stopped. While the bus
 /// thread hangs (no progress for its [`crate::daemon::supervise::stall_bound`]) it publishes nothing:
@@ -54,7 +59,12 @@ pub(super) fn spawn(
             loop {
                 let next = next_summary.min(next_status);
                 let wait = next.saturating_duration_since(std::time::Instant::now());
-                match events.recv_timeout(wait.min(CAPTURE_EVERY)) {
+                let every = if control_changed.is_some() {
+                    CHANGE_EVERY
+                } else {
+                    CAPTURE_EVERY
+                };
+                match events.recv_timeout(wait.min(every)) {
                     Ok(event) => {
                         if let Some(at) = control_change(&event) {
                             control_changed = Some(control_changed.map_or(at, |c| c.min(at)));
@@ -77,8 +87,11 @@ pub(super) fn spawn(
                     progress = (handle.progress(), now);
                 }
                 let hangs = now.duration_since(progress.1) >= stall_bound;
+                // Waited for without the statistics' lock, which would hold back the engine's
+                // publication of them (it skips a publication while a reader holds them).
                 if let Some(at) = control_changed
                     && !hangs
+                    && handle.published_at() >= at
                 {
                     let stats = handle.stats();
                     if stats.at >= at {
