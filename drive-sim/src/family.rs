@@ -6,9 +6,10 @@
 //! [`ParamSet::of_profile`]): numbers, names, types, limits, settings, factory settings and
 //! change rules are written there once. This file adds only behaviour: the roles its profile
 //! does not name, the parameters its table consults besides the profile's access level and
-//! commissioning parameter, and what makes the unit (its firmware version). What a family's
-//! profile does not list, the simulated drive does not have: clients learn such a parameter's
-//! type from a real drive's own description (AK 4).
+//! commissioning parameter, and what makes the unit (its firmware version), as a [`Behaviour`]
+//! the profile names (`simulator = "g120"`): a family added as a data file is played without
+//! code of its own. What a family's profile does not list, the simulated drive does not have:
+//! clients learn such a parameter's type from a real drive's own description (AK 4).
 
 use std::sync::LazyLock;
 use uss_catalogue::Catalogue;

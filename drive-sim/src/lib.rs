@@ -2,8 +2,9 @@
 //! (see `docs/USS.md`).
 //!
 //! - [`drive`]: one drive: PROFIdrive state machine, ramp, PKW handshake, telegram monitoring.
-//! - [`family`]: the families it plays (MICROMASTER 4, G110, G120, SIMOREG): their parameter
-//!   sets and the parameters the drive model uses.
+//! - [`family`]: the families it plays (every family with a profile: MICROMASTER 4, G110, G120,
+//!   SIMOREG): their parameter sets, the parameters the drive model uses, and the behaviour each
+//!   profile names.
 //! - [`params`]: its parameter table with limits, types, arrays, RAM vs EEPROM and error numbers.
 //! - [`bus`]: drives at addresses 0..=31 on one bus, who answers what.
 //! - [`fault`]: the fault injector (dropped, corrupted, truncated, late, misaddressed replies,

@@ -2,8 +2,8 @@
 //!
 //! A [`ParamSet`] is one family's list of parameters with their numbers, names, types, limits,
 //! settings, factory settings and change rules, made from its family profile (`uss-catalogue`'s
-//! data file, [`ParamSet::of_profile`]) once, before any drive runs: [`MICROMASTER4`], and the
-//! others in [`crate::family`]. The simulator adds only what makes the unit (its firmware
+//! data file, [`ParamSet::of_profile`]) once, before any drive runs, for every family with a
+//! profile ([`crate::family::param_set`]). The simulator adds only what makes the unit (its firmware
 //! version) and the parameters its table consults that the profile does not name ([`Own`]). [`ParamTable`] holds a RAM and an EEPROM value for every
 //! element of every parameter of its set and executes PKW tasks against them. Storage is sized
 //! at compile time ([`MAX_SLOTS`]), so the table never touches
