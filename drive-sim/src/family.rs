@@ -56,7 +56,7 @@ pub struct Roles {
     /// The reference that 0x4000 of the setpoint stands for (P2000 Hz on MM4, p2000 rpm on
     /// G120); `None`: a fixed reference (the simulator's `ref=`), with no parameter.
     pub reference: Option<u16>,
-    /// Telegram monitoring (P2014[0] in ms on MM4, p2040 in ms as a float on G120); `None`: a
+    /// Telegram monitoring (P2014\[0\] in ms on MM4, p2040 in ms as a float on G120); `None`: a
     /// fixed time (the simulator's `p2014=`), with no parameter.
     pub monitoring: Option<(u16, u8)>,
     /// The link's address, PZD count and PKW count, with their index.
