@@ -521,8 +521,8 @@ fn an_on_waiting_for_the_re_arm_never_undoes_a_later_stop(front: FrontEnd) {
 /// LATCH (a latch never weakens a stop): a program's own coast stays the drive's stop through
 /// its fault acknowledgement (the edge goes out as OFF2 with bit 7, never as OFF1 or ON) and
 /// through its death (SIGKILL: the drive latches stale and keeps OFF2, not its safe command
-/// OFF1). Found by the adversarial run of issue 34's fourth session (`Gate::stop_for`,
-/// `Controller::acknowledge_fault`).
+/// OFF1). The rules are `Gate::stop_for` and `Controller::acknowledge_fault`, fixed after an
+/// adversarial run; this scenario gives each scriptable front-end its own test of them.
 fn a_programs_own_coast_stays_through_its_acknowledgement_and_its_death(front: FrontEnd) {
     let _serial = serial();
     let ussd = Ussd::start("", &[(1, "")]);
