@@ -1410,29 +1410,40 @@ impl uss_engine::Clock for PausingClock {
     }
 }
 
+/// Drive 1 alone on a line (PKW 4, PZD 2), failing over after one poll without retries.
+fn one_drive_line() -> (EngineConfig, SimTransport) {
+    let mut bus = SimBus::new(1);
+    bus.add(DriveConfig::new(addr(1), layout(PkwMode::Four, 2)))
+        .unwrap();
+    let wire = SimTransport::new(VirtualWire::new(bus, timing()));
+    (line_config(&[1], 0, ms(500)), wire)
+}
+
+/// Drive 1 re-armed by its controller's OFF1 (ten polls), then running on its ON (ten more).
+fn run_drive_1<B: uss_engine::Bridge>(
+    engine: &mut Engine<SimTransport, PausingClock, B>,
+    handle: &EngineHandle,
+) {
+    for words in [[0x047E, 0], [0x047F, 0x2000]] {
+        for _ in 0..10 {
+            handle.set_output(addr(1), &words).unwrap();
+            engine.poll_next().unwrap();
+        }
+    }
+}
+
 /// Issue 32, item 7: the words of a telegram are decided when it leaves, not before its start
 /// pause. ussd paused for 2 s while it waited for the start pause of a running drive's
 /// telegram sent the ON decided before the pause, with the controller's sample long stale; the
 /// drive now gets its safe command, latched as "ussd paused".
 #[test]
 fn a_pause_of_ussd_during_the_start_pause_is_seen_before_the_telegram_leaves() {
-    let config = line_config(&[1], 0, ms(500));
-    let mut bus = SimBus::new(1);
-    bus.add(DriveConfig::new(addr(1), layout(PkwMode::Four, 2)))
-        .unwrap();
-    let wire = SimTransport::new(VirtualWire::new(bus, timing()));
+    let (config, wire) = one_drive_line();
     let (mut engine, handle, _events) = Engine::new(config, wire, PausingClock::default());
     let sent_stw1 = |e: &Engine<SimTransport, PausingClock>| {
         e.transport().wire().bus().drive(addr(1)).unwrap().stw1()
     };
-    for _ in 0..10 {
-        handle.set_output(addr(1), &[0x047E, 0]).unwrap();
-        engine.poll_next().unwrap();
-    }
-    for _ in 0..10 {
-        handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
-        engine.poll_next().unwrap();
-    }
+    run_drive_1(&mut engine, &handle);
     assert_eq!(sent_stw1(&engine), Stw1::RUN);
     // The controller's fresh ON, then ussd stops for 2 s inside the start pause.
     handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
@@ -1478,11 +1489,7 @@ impl uss_engine::Bridge for RecordingBridge {
 /// for one more exchange (20-50 ms on a real bus) until the next look judges the gap.
 #[test]
 fn a_pause_of_ussd_during_a_reply_is_judged_before_the_reply_is_published() {
-    let config = line_config(&[1], 0, ms(500));
-    let mut bus = SimBus::new(1);
-    bus.add(DriveConfig::new(addr(1), layout(PkwMode::Four, 2)))
-        .unwrap();
-    let wire = SimTransport::new(VirtualWire::new(bus, timing()));
+    let (config, wire) = one_drive_line();
     let published = std::sync::Arc::default();
     let (mut engine, handle, _events) = Engine::with_bridge(
         config,
@@ -1490,14 +1497,7 @@ fn a_pause_of_ussd_during_a_reply_is_judged_before_the_reply_is_published() {
         PausingClock::default(),
         RecordingBridge(std::sync::Arc::clone(&published)),
     );
-    for _ in 0..10 {
-        handle.set_output(addr(1), &[0x047E, 0]).unwrap();
-        engine.poll_next().unwrap();
-    }
-    for _ in 0..10 {
-        handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
-        engine.poll_next().unwrap();
-    }
+    run_drive_1(&mut engine, &handle);
     assert_eq!(published.lock().unwrap().last(), Some(&Control::Live));
     // The controller's fresh ON goes out, then ussd stops for 2 s while the reply arrives.
     handle.set_output(addr(1), &[0x047F, 0x2000]).unwrap();
