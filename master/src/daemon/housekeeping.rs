@@ -93,11 +93,9 @@ pub(super) fn spawn(
                     && !hangs
                     && handle.published_at() >= at
                 {
-                    let stats = handle.stats();
-                    if stats.at >= at {
-                        publisher.publish(&stats, true, handle.reopen_attempts());
-                        control_changed = None;
-                    }
+                    // The statistics now are at least that publication (it only moves on).
+                    publisher.publish(&handle.stats(), true, handle.reopen_attempts());
+                    control_changed = None;
                 }
                 if now >= next_status {
                     if !hangs {
