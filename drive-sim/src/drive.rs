@@ -262,7 +262,7 @@ impl Drive {
                 params.set_commissioned(pnu, index, value);
             }
         }
-        let identification = crate::family::Behaviour::of(personality.family()).identification();
+        let identification = crate::family::behaviour(personality.family()).identification();
         for (i, &word) in identification.iter().enumerate() {
             params.set_internal(964, i as u8, u32::from(word));
         }

@@ -313,6 +313,7 @@ impl Behaviour {
 /// A family the simulator plays: its parameter set and roles, made from its profile once.
 struct Simulated {
     family: DriveFamily,
+    behaviour: Behaviour,
     params: ParamSet,
     roles: Roles,
 }
@@ -326,6 +327,7 @@ static SIMULATED: LazyLock<Vec<Simulated>> = LazyLock::new(|| {
             let behaviour = Behaviour::of(family);
             Some(Simulated {
                 family,
+                behaviour,
                 params: ParamSet::of_profile(family.name(), profile, behaviour.own_params()),
                 roles: behaviour.own_roles().with_profile(profile),
             })
@@ -350,6 +352,12 @@ fn simulated(family: DriveFamily) -> &'static Simulated {
 #[must_use]
 pub fn param_set(family: DriveFamily) -> &'static ParamSet {
     &simulated(family).params
+}
+
+/// The behaviour `family`'s drive is played with (a generic slave's: a MICROMASTER 4's).
+#[must_use]
+pub fn behaviour(family: DriveFamily) -> Behaviour {
+    simulated(family).behaviour
 }
 
 /// The parameters `family`'s drive model uses (its profile's roles, and its behaviour's).
