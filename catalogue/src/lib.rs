@@ -286,11 +286,7 @@ fn families<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<DriveFamily>, 
                     serde::de::Error::custom(format!(
                         "families: {name:?} is no family of the contract's DriveFamily (add its \
                          line there first): {}",
-                        DriveFamily::ALL
-                            .iter()
-                            .map(|f| f.name())
-                            .collect::<Vec<_>>()
-                            .join(", ")
+                        Catalogue::family_names()
                     ))
                 })
         })
@@ -558,6 +554,13 @@ impl Catalogue {
     /// `g120`, `simoreg`, `generic`).
     pub fn family_named(name: &str) -> Option<DriveFamily> {
         DriveFamily::ALL.iter().copied().find(|f| f.name() == name)
+    }
+
+    /// Every family's name as the configuration writes it, for a message: "micromaster4, g110,
+    /// g120, simoreg, generic".
+    pub fn family_names() -> String {
+        let names: Vec<&str> = DriveFamily::ALL.iter().map(|f| f.name()).collect();
+        names.join(", ")
     }
 
     /// Fault `number` as the family's manuals write it: F0072 (MM4), F01910 (SINAMICS).

@@ -96,11 +96,7 @@ impl SimOptions {
                 uss_catalogue::Catalogue::family_named(name).ok_or_else(|| {
                     format!(
                         "family={name}: the simulator has the families {}",
-                        uss_shm_types::DriveFamily::ALL
-                            .iter()
-                            .map(|f| f.name())
-                            .collect::<Vec<_>>()
-                            .join(", ")
+                        uss_catalogue::Catalogue::family_names()
                     )
                 })?,
             ),

@@ -7,9 +7,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use uss_client::uss_protocol::{ParamRef, Prefix};
-use uss_client::{
-    Address, Catalogue, DataType, DriveFamily, ParamValue, Typed, Value, WriteOptions,
-};
+use uss_client::{Address, Catalogue, DataType, ParamValue, Typed, Value, WriteOptions};
 
 fn raw(v: Value) -> (u32, bool) {
     match v {
@@ -301,10 +299,9 @@ fn parse_param(text: &str) -> PyResult<(u16, Option<u8>, &'static str)> {
 /// `info["family"]` says it); `None` for a `generic` slave, whose texts nobody knows.
 fn family_catalogue(family: &str) -> PyResult<Option<&'static Catalogue>> {
     let Some(family) = Catalogue::family_named(family) else {
-        let known = DriveFamily::ALL.iter().map(|f| f.name());
         return Err(PyValueError::new_err(format!(
             "{family:?} is not a drive family: give one of {}",
-            known.collect::<Vec<_>>().join(", ")
+            Catalogue::family_names()
         )));
     };
     Ok(Catalogue::of(family))
