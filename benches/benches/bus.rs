@@ -144,8 +144,8 @@ fn efficiency() {
             let count = uss_benches::rounds(if baud == 19200 { 150 } else { 1500 }, 20);
             let (stats, mode) = run_engine(baud, pzd, count);
             let eff = stats.bus.efficiency().unwrap_or(0.0);
-            let mean_ns = stats.bus.exchange_ns as f64 / stats.bus.good.max(1) as f64;
-            let floor_ns = stats.bus.wire_floor_ns as f64 / stats.bus.good.max(1) as f64;
+            let mean_ns = stats.bus.timed_exchange_ns as f64 / stats.bus.good.max(1) as f64;
+            let floor_ns = stats.bus.timed_wire_floor_ns as f64 / stats.bus.good.max(1) as f64;
             println!(
                 "  {baud:6}  PKW 4 + PZD {pzd}   {:9.3} ms   {:9.3} ms   {eff:.4}   [{mode}, {} exchanges]",
                 mean_ns / 1e6,
@@ -187,7 +187,7 @@ fn turnaround() {
         );
         // Where the rest of the efficiency goes: the turnarounds above their median, i.e.
         // the machine's scheduling stalls (the tail), against the mean exchange.
-        let mean_exchange = stats.bus.exchange_ns as f64 / stats.bus.good.max(1) as f64;
+        let mean_exchange = stats.bus.timed_exchange_ns as f64 / stats.bus.good.max(1) as f64;
         let tail = h.mean() - h.value_at_quantile(0.5) as f64;
         println!(
             "              mean turnaround {:.1} us vs median {:.1} us (max {:.1} ms): the tail costs {:.4} of efficiency, so with every turnaround at its median it would be {:.4}",

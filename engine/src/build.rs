@@ -3,11 +3,11 @@
 //! handle share.
 
 use super::{
-    Arc, AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Bridge, BusCounters, BusTiming,
-    CANCEL_QUEUE, Clock, Drive, DriveCells, DriveSetup, Duration, Engine, EngineConfig,
-    EngineHandle, Event, Framer, FramerConfig, Gate, GateSetup, LOOK_STEP, LineStatus, LocalBridge,
-    MAX_TELEGRAM_BYTES, Mutex, Overrides, PeriodSetup, Periods, Published, Receiver, Shared, Stats,
-    Transport, bounded, capture, requesters,
+    Arc, AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Bridge, BusStatus, BusTiming, CANCEL_QUEUE,
+    Clock, Drive, DriveCells, DriveSetup, Duration, Engine, EngineConfig, EngineHandle, Event,
+    Framer, FramerConfig, Gate, GateSetup, LOOK_STEP, LineStatus, LocalBridge, MAX_TELEGRAM_BYTES,
+    Mutex, Overrides, PeriodSetup, Periods, Published, Receiver, Shared, Stats, Transport, bounded,
+    capture, requesters,
 };
 
 /// Builds the circulating list: each drive `weight` times, spread over the cycle (USS.md
@@ -47,7 +47,7 @@ fn gates(drives: &[DriveSetup], clock_origin: Duration, now: Duration) -> Vec<Ga
 /// with everything recorded (allocates: the bus thread publishes with [`Published::hand_over`]).
 pub(super) fn snapshot(
     at: Duration,
-    bus: BusCounters,
+    bus: &BusStatus,
     line: LineStatus,
     drives: &[Drive],
     timing: &BusTiming,
@@ -55,7 +55,7 @@ pub(super) fn snapshot(
     let (drive_histograms, update_period) = drives.iter().map(|d| d.timing.totals()).unzip();
     Stats {
         at,
-        bus,
+        bus: *bus,
         line,
         drives: drives.iter().map(Drive::status).collect(),
         histograms: timing.totals(),
@@ -133,7 +133,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let timing = BusTiming::new();
         let stats = snapshot(
             now,
-            BusCounters::default(),
+            &BusStatus::EMPTY,
             LineStatus::default(),
             &drives,
             &timing,
@@ -190,7 +190,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             results: results_tx,
             events: events_tx,
             capture,
-            bus: BusCounters::default(),
+            bus: BusStatus::EMPTY,
             line: LineStatus::default(),
             timing,
             snapshot: std::cell::OnceCell::new(),

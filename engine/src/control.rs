@@ -673,7 +673,7 @@ mod tests {
             ("stale, OFF1 re-arms", tripped, |p| p.send(300, &[READY, 0]), [READY, 0], None),
             ("stale, jog right does not re-arm", tripped, |p| p.send(300, &[0x057E, 0]), [READY, 0], Some(Stale)),
             ("stale, jog left does not re-arm", tripped, |p| p.send(300, &[0x067E, 0]), [READY, 0], Some(Stale)),
-            ("stale, garbage does not re-arm", tripped, |p| foreign(p, 210, |s| { s.version = 9; s.stw1 = READY; }), [READY, 0], Some(Rejected)),
+            ("stale, garbage does not re-arm", tripped, |p| foreign(p, 210, |s| { s.version = uss_shm_types::LAYOUT_VERSION + 1; s.stw1 = READY; }), [READY, 0], Some(Rejected)),
             ("stale, a release keeps the trip's reason", tripped, release, [READY, 0], Some(Stale)),
             ("coasted, operator OFF1: OFF2 stays", coasted, |p| p.poll(20, None, Some(StopCommand::Off1)), [COAST, 0], Some(Override)),
             ("coasted, ON: latched", coasted, |p| p.send(20, &[RUN, 0x2000]), [COAST, 0], Some(Override)),

@@ -142,8 +142,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         // sender's backlog). It says nothing of efficiency, which is at most 1 by definition.
         let bus = &mut self.bus;
         if exchange >= floor {
-            bus.exchange_ns += u64::try_from(exchange.as_nanos()).unwrap_or(u64::MAX);
-            bus.wire_floor_ns += u64::try_from(floor.as_nanos()).unwrap_or(u64::MAX);
+            bus.timed_exchange_ns += u64::try_from(exchange.as_nanos()).unwrap_or(u64::MAX);
+            bus.timed_wire_floor_ns += u64::try_from(floor.as_nanos()).unwrap_or(u64::MAX);
             bus.timed += 1;
         } else {
             bus.untimed += 1;

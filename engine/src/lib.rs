@@ -55,7 +55,7 @@ use crate::control::{
 use crate::image::DriveImages;
 use crate::jobs::{Encoded, Outgoing, Requester};
 use crate::period::{PeriodSetup, Periods};
-use crate::stats::{BusCounters, BusTiming, LineFailure, LineStatus, Published};
+use crate::stats::{BusTiming, LineFailure, LineStatus, Published};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
@@ -67,7 +67,7 @@ use uss_protocol::{
     Timing, Words, encode,
 };
 use uss_shm_types::{
-    ItemOutcome, LatchReason, Monitoring, PathError, PzdOutput, Rejection, StopCommand,
+    BusStatus, ItemOutcome, LatchReason, Monitoring, PathError, PzdOutput, Rejection, StopCommand,
 };
 
 /// Job ids with this bit are ussd's own (telegram monitoring, reference frequency); clients use
@@ -474,7 +474,7 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     results: Sender<JobResult>,
     events: Sender<Event>,
     capture: capture::Capture,
-    bus: BusCounters,
+    bus: BusStatus,
     line: LineStatus,
     /// The bus's timing; each drive's is in its record.
     timing: BusTiming,
@@ -503,7 +503,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     }
 
     /// The bus's counters now (cheap: no snapshot).
-    pub fn counters(&self) -> &BusCounters {
+    pub fn counters(&self) -> &BusStatus {
         &self.bus
     }
 
@@ -515,7 +515,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.snapshot.get_or_init(|| {
             build::snapshot(
                 self.clock.now(),
-                self.bus,
+                &self.bus,
                 self.line,
                 &self.drives,
                 &self.timing,

@@ -8,8 +8,8 @@ use crate::transport::TransportError;
 use core::time::Duration;
 use hdrhistogram::Histogram;
 use uss_protocol::Address;
+use uss_shm_types::{BusStatus, Monitoring, Rejection};
 pub use uss_shm_types::{DriveCounters, LastFailure};
-use uss_shm_types::{Monitoring, Rejection};
 
 /// Why a bus line stopped carrying telegrams.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -141,55 +141,10 @@ impl DriveStatus {
     }
 }
 
-/// Bus-wide counters.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct BusCounters {
-    /// Exchanges attempted (retries included).
-    pub exchanges: u64,
-    pub good: u64,
-    /// Completed passes through the circulating list.
-    pub cycles: u64,
-    /// Cycles that took longer than the configured fixed cycle time.
-    pub cycle_overruns: u64,
-    /// Events the housekeeping thread could not take in time.
-    pub events_dropped: u64,
-    /// Job results that found their channel full. The channel holds every job that can be
-    /// outstanding, so this stays 0; it is counted rather than assumed.
-    pub results_lost: u64,
-    pub jobs_accepted: u64,
-    pub jobs_finished: u64,
-    /// Jobs of clients that died, taken out before they reached the wire.
-    pub jobs_cancelled: u64,
-    /// Sum over good first attempts of the time from line free to reply complete, in ns.
-    pub exchange_ns: u64,
-    /// Sum over the same exchanges of their wire-time floor (USS.md section 4): start pause,
-    /// request and reply characters, and the drive's actual response delay, in ns.
-    pub wire_floor_ns: u64,
-    /// Polls out of turn ([`uss_shm_types::BusStatus::out_of_turn`]).
-    pub out_of_turn: u64,
-    /// Broadcast telegrams sent ([`uss_shm_types::BusStatus::broadcasts`]).
-    pub broadcasts: u64,
-    /// Good first attempts timed by the wire (in `exchange_ns` and `wire_floor_ns`), and those
-    /// faster than their characters take at the baud rate (a pty, a buffer's backlog).
-    pub timed: u64,
-    pub untimed: u64,
-}
-
-impl BusCounters {
-    /// Wire-time floor over achieved exchange time (1.0 = the master adds nothing), at most 1:
-    /// over the exchanges timed by the wire, and only while at most 1 in 100 were not (a line
-    /// that carries replies faster than its baud rate, a pty, is not measured by it: none).
-    pub fn efficiency(&self) -> Option<f64> {
-        let wire_timed = self.untimed.saturating_mul(100) <= self.timed + self.untimed;
-        (self.exchange_ns > 0 && wire_timed)
-            .then(|| self.wire_floor_ns as f64 / self.exchange_ns as f64)
-    }
-}
-
 /// Timing histograms in nanoseconds, to two significant figures (1 %, about 4000 counters
 /// each). The bus thread never copies them to publish them: it records into a [`FreshTiming`] as
 /// well and hands that over whole ([`Published`]). Exact sums for efficiency live in
-/// [`BusCounters`].
+/// [`Stats::bus`].
 #[derive(Debug, Clone)]
 pub struct BusHistograms {
     /// End of our request to the start of the reply's STX (the slave's response delay).
@@ -330,7 +285,10 @@ impl Default for BusHistograms {
 pub struct Stats {
     /// Bus clock time of this snapshot.
     pub at: Duration,
-    pub bus: BusCounters,
+    /// The bus's counters, in the contract's own type: the engine counts into the fields it
+    /// owns (exchanges, jobs, cycles, timing sums, ...), the publisher adds the rest (its time,
+    /// the line, the quantiles, the bus thread's real-time mode) and publishes it as it is.
+    pub bus: BusStatus,
     pub line: LineStatus,
     pub drives: Vec<DriveStatus>,
     pub histograms: BusHistograms,
@@ -368,7 +326,7 @@ impl Stats {
         let drive_histograms = drives.iter().map(|_| DriveHistograms::new()).collect();
         Self {
             at: Duration::ZERO,
-            bus: BusCounters::default(),
+            bus: BusStatus::EMPTY,
             line: LineStatus::default(),
             drives,
             histograms: BusHistograms::new(),

@@ -197,7 +197,7 @@ fn polls_in_list_order_at_the_wire_floor() {
         h.max()
     );
     let bus = b.engine.stats().bus;
-    let mean = bus.exchange_ns / bus.good;
+    let mean = bus.timed_exchange_ns / bus.good;
     assert!(
         mean.abs_diff(floor) < 1_000,
         "mean exchange {mean} ns, floor {floor} ns"

@@ -801,7 +801,7 @@ fn report_params(answered: &[[u64; 3]], finished: &Finished, option: &str) {
     );
     println!(
         "   (wire floor of an exchange, USS.md section 4: {:.3} ms mean)",
-        b.wire_floor_ns as f64 / b.good.max(1) as f64 / 1e6
+        b.timed_wire_floor_ns as f64 / b.good.max(1) as f64 / 1e6
     );
     let r = |q: f64, of: u64| round_trip.value_at_quantile(q) as f64 / of as f64;
     println!(

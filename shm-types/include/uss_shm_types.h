@@ -19,20 +19,20 @@
  * as IOX2_TYPE_NAME.
  */
 #define USS_BLACKBOARD_KEY_TYPE_NAME "UssBlackboardKey"
-#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV8"
-#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV8"
-#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV8"
-#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV8"
-#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV8"
-#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV8"
-#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV8"
-#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV8"
-#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV8"
-#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV8"
-#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV8"
-#define USS_TELEGRAM_RECORD_TYPE_NAME "UssTelegramRecordV8"
-#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV8"
-#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV8"
+#define USS_PZD_OUTPUT_TYPE_NAME "UssPzdOutputV9"
+#define USS_PZD_INPUT_TYPE_NAME "UssPzdInputV9"
+#define USS_DRIVE_INFO_TYPE_NAME "UssDriveInfoV9"
+#define USS_DRIVE_COUNTERS_TYPE_NAME "UssDriveCountersV9"
+#define USS_DRIVE_DIAG_TYPE_NAME "UssDriveDiagV9"
+#define USS_BUS_STATUS_TYPE_NAME "UssBusStatusV9"
+#define USS_PARAM_ITEM_TYPE_NAME "UssParamItemV9"
+#define USS_PARAM_REQUEST_TYPE_NAME "UssParamRequestV9"
+#define USS_PARAM_RESULT_TYPE_NAME "UssParamResultV9"
+#define USS_PARAM_RESPONSE_TYPE_NAME "UssParamResponseV9"
+#define USS_HEARTBEAT_TYPE_NAME "UssHeartbeatV9"
+#define USS_TELEGRAM_RECORD_TYPE_NAME "UssTelegramRecordV9"
+#define USS_OPERATOR_REQUEST_TYPE_NAME "UssOperatorRequestV9"
+#define USS_OPERATOR_RESPONSE_TYPE_NAME "UssOperatorResponseV9"
 
 /*
  * Service names (snprintf patterns; %s = bus name, 1 to 32 of [A-Za-z0-9_-]; %016llx = the
@@ -119,7 +119,7 @@
  * The layout version of every payload type in this crate. Bump it with any change to a type's
  * fields, sizes or code tables, together with the type names' `V<n>` suffix.
  */
-#define USS_LAYOUT_VERSION 8
+#define USS_LAYOUT_VERSION 9
 
 /**
  * Longest bus name.
@@ -1101,7 +1101,7 @@ typedef struct UssPzdOutput {
    */
   uint64_t latch_id;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdOutputV9";
 #endif
 } UssPzdOutput;
 
@@ -1216,7 +1216,7 @@ typedef struct UssPzdInput {
    */
   uint64_t stale_after_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssPzdInputV9";
 #endif
 } UssPzdInput;
 
@@ -1261,7 +1261,7 @@ typedef struct UssDriveInfo {
   uint8_t family;
   uint8_t reserved[2];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV9";
 #endif
 } UssDriveInfo;
 
@@ -1337,7 +1337,7 @@ typedef struct UssDriveCounters {
    */
   uint64_t replacements;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveCountersV9";
 #endif
 } UssDriveCounters;
 /**
@@ -1460,7 +1460,7 @@ typedef struct UssDriveDiag {
   uint32_t monitoring_min_ms;
   uint32_t reserved3;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssDriveDiagV9";
 #endif
 } UssDriveDiag;
 
@@ -1493,7 +1493,8 @@ typedef struct UssBusStatus {
    */
   uint8_t running;
   /**
-   * Wire-time floor over achieved exchange time (USS.md section 4) x 1e6; 0 = not measured.
+   * Wire-time floor over achieved exchange time (USS.md section 4) x 1e6; 0 = not measured
+   * ([`BusStatus::efficiency`], from the `timed` sums).
    */
   uint32_t efficiency_ppm;
   /**
@@ -1600,8 +1601,24 @@ typedef struct UssBusStatus {
    * that take broadcasts.
    */
   uint64_t broadcasts;
+  /**
+   * Good first attempts timed by the wire (in `timed_exchange_ns` and
+   * `timed_wire_floor_ns`), and those faster than their characters take at the baud rate (a
+   * pty, a buffer's backlog).
+   */
+  uint64_t timed;
+  uint64_t untimed;
+  /**
+   * Exact sum over the `timed` exchanges of the time from line free to reply complete, ns.
+   */
+  uint64_t timed_exchange_ns;
+  /**
+   * Exact sum over the same exchanges of their wire-time floor (USS.md section 4): start
+   * pause, request and reply characters, and the drive's actual response delay, ns.
+   */
+  uint64_t timed_wire_floor_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssBusStatusV9";
 #endif
 } UssBusStatus;
 
@@ -1631,7 +1648,7 @@ typedef struct UssParamItem {
    */
   uint32_t value;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamItemV9";
 #endif
 } UssParamItem;
 /**
@@ -1662,7 +1679,7 @@ typedef struct UssParamRequest {
   uint8_t reserved;
   struct UssParamItem items[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamRequestV9";
 #endif
 } UssParamRequest;
 
@@ -1702,7 +1719,7 @@ typedef struct UssParamResult {
    */
   uint64_t on_wire_ns;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResultV9";
 #endif
 } UssParamResult;
 
@@ -1738,7 +1755,7 @@ typedef struct UssParamResponse {
   uint32_t reserved;
   struct UssParamResult results[USS_MAX_PARAM_ITEMS];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssParamResponseV9";
 #endif
 } UssParamResponse;
 
@@ -1788,7 +1805,7 @@ typedef struct UssHeartbeat {
    */
   int32_t line_errno;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssHeartbeatV9";
 #endif
 } UssHeartbeat;
 
@@ -1845,7 +1862,7 @@ typedef struct UssTelegramRecord {
   uint64_t end_ns;
   uint8_t bytes[USS_CAPTURE_BYTES];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssTelegramRecordV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssTelegramRecordV9";
 #endif
 } UssTelegramRecord;
 
@@ -1867,7 +1884,7 @@ typedef struct UssOperatorRequest {
   uint8_t command;
   uint8_t reserved[2];
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorRequestV9";
 #endif
 } UssOperatorRequest;
 
@@ -1893,7 +1910,7 @@ typedef struct UssOperatorResponse {
    */
   uint32_t drives;
 #ifdef __cplusplus
-  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV8";
+  static constexpr const char *IOX2_TYPE_NAME = "UssOperatorResponseV9";
 #endif
 } UssOperatorResponse;
 

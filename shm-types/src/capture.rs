@@ -34,7 +34,7 @@ pub const CAPTURE_TASK: u8 = 1 << 1;
 /// One captured telegram.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssTelegramRecordV8")]
+#[type_name("UssTelegramRecordV9")]
 pub struct TelegramRecord {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -184,7 +184,7 @@ impl StopCommand {
 /// An operator's stop command for one drive or every drive of a bus, from any process.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorRequestV8")]
+#[type_name("UssOperatorRequestV9")]
 pub struct OperatorRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -203,7 +203,7 @@ pub const OPERATOR_RESPONSE_BYTES: usize = 12;
 /// The one answer to an [`OperatorRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorResponseV8")]
+#[type_name("UssOperatorResponseV9")]
 pub struct OperatorResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -93,7 +93,7 @@ code_table! {
 /// USS.md section 7) plus timeouts and retries.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveDiagV8")]
+#[type_name("UssDriveDiagV9")]
 pub struct DriveDiag {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -160,7 +160,7 @@ pub struct DriveDiag {
 /// told it again (a controller scales Hz with `reference_hz`, sends exactly `pzd_words`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveInfoV8")]
+#[type_name("UssDriveInfoV9")]
 pub struct DriveInfo {
     /// The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
     /// frequency (USS.md section 7). The drive's own value once ussd has read it, until then
@@ -206,7 +206,7 @@ impl DriveInfo {
 /// published (USS.md section 4, "Receive errors to detect and count").
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssDriveCountersV8")]
+#[type_name("UssDriveCountersV9")]
 pub struct DriveCounters {
     /// Telegrams sent to the drive (retries included).
     pub requests: u64,
@@ -326,7 +326,7 @@ impl DriveCounters {
 /// The state of the bus as a whole.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssBusStatusV8")]
+#[type_name("UssBusStatusV9")]
 pub struct BusStatus {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -340,7 +340,8 @@ pub struct BusStatus {
     pub drive_count: u8,
     /// 1 while the engine runs; 0 once it stopped.
     pub running: u8,
-    /// Wire-time floor over achieved exchange time (USS.md section 4) x 1e6; 0 = not measured.
+    /// Wire-time floor over achieved exchange time (USS.md section 4) x 1e6; 0 = not measured
+    /// ([`BusStatus::efficiency`], from the `timed` sums).
     pub efficiency_ppm: u32,
     /// Exchanges attempted (retries included).
     pub exchanges: u64,
@@ -398,6 +399,16 @@ pub struct BusStatus {
     /// Broadcast telegrams sent: a stop of every drive, one per telegram shape of the drives
     /// that take broadcasts.
     pub broadcasts: u64,
+    /// Good first attempts timed by the wire (in `timed_exchange_ns` and
+    /// `timed_wire_floor_ns`), and those faster than their characters take at the baud rate (a
+    /// pty, a buffer's backlog).
+    pub timed: u64,
+    pub untimed: u64,
+    /// Exact sum over the `timed` exchanges of the time from line free to reply complete, ns.
+    pub timed_exchange_ns: u64,
+    /// Exact sum over the same exchanges of their wire-time floor (USS.md section 4): start
+    /// pause, request and reply characters, and the drive's actual response delay, ns.
+    pub timed_wire_floor_ns: u64,
 }
 
 /// Buckets of [`BusStatus::exchange_le`].
@@ -557,15 +568,29 @@ impl BusStatus {
         exchange_le: [0; EXCHANGE_BUCKETS],
         out_of_turn: 0,
         broadcasts: 0,
+        timed: 0,
+        untimed: 0,
+        timed_exchange_ns: 0,
+        timed_wire_floor_ns: 0,
     };
 
     pub fn rt_mode(&self) -> Result<RtMode, UnknownCode> {
         RtMode::try_from(self.rt_mode)
     }
 
-    /// Wire-time floor over achieved exchange time, if measured.
+    /// Wire-time floor over achieved exchange time (1.0 = the master adds nothing), at most 1:
+    /// over the exchanges timed by the wire, and only while at most 1 in 100 were not (a line
+    /// that carries replies faster than its baud rate, a pty, is not measured by it: none).
+    /// `efficiency_ppm` carries the same figure for readers without floating point.
     pub fn efficiency(&self) -> Option<f64> {
-        (self.efficiency_ppm > 0).then(|| f64::from(self.efficiency_ppm) / 1e6)
+        let wire_timed = self.untimed.saturating_mul(100) <= self.timed + self.untimed;
+        (self.timed_exchange_ns > 0 && wire_timed)
+            .then(|| self.timed_wire_floor_ns as f64 / self.timed_exchange_ns as f64)
+    }
+
+    /// [`BusStatus::efficiency`] x 1e6, 0 = not measured (`efficiency_ppm`).
+    pub fn efficiency_ppm(&self) -> u32 {
+        self.efficiency().map_or(0, |e| (e * 1e6) as u32)
     }
 
     /// Whether the bus line is down.
@@ -627,8 +652,14 @@ mod tests {
         let mut s = BusStatus::EMPTY;
         assert_eq!(s.efficiency(), None);
         assert_eq!((s.rt_mode(), s.rt_cpu), (Ok(RtMode::BestEffort), -1));
-        s.efficiency_ppm = 850_000;
+        (s.timed, s.timed_exchange_ns, s.timed_wire_floor_ns) = (99, 2_000_000, 1_700_000);
         assert_eq!(s.efficiency(), Some(0.85));
+        assert_eq!(s.efficiency_ppm(), 850_000);
+        // 1 in 100 faster than the wire (a buffer's backlog) still measures; 2 in 100 do not.
+        s.untimed = 1;
+        assert_eq!(s.efficiency(), Some(0.85));
+        s.untimed = 2;
+        assert_eq!((s.efficiency(), s.efficiency_ppm()), (None, 0));
         s.rt_mode = 2;
         assert!(s.rt_mode().is_err());
     }

@@ -28,7 +28,7 @@ code_table! {
 /// One heartbeat.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssHeartbeatV8")]
+#[type_name("UssHeartbeatV9")]
 pub struct Heartbeat {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -38,7 +38,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdOutput",
-        type_name: "UssPzdOutputV8",
+        type_name: "UssPzdOutputV9",
         size: 72,
         align: 8,
         fields: &[
@@ -57,7 +57,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "PzdInput",
-        type_name: "UssPzdInputV8",
+        type_name: "UssPzdInputV9",
         size: 120,
         align: 8,
         fields: &[
@@ -89,7 +89,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveInfo",
-        type_name: "UssDriveInfoV8",
+        type_name: "UssDriveInfoV9",
         size: 16,
         align: 4,
         fields: &[
@@ -106,7 +106,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveCounters",
-        type_name: "UssDriveCountersV8",
+        type_name: "UssDriveCountersV9",
         size: 200,
         align: 8,
         fields: &[
@@ -139,7 +139,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "DriveDiag",
-        type_name: "UssDriveDiagV8",
+        type_name: "UssDriveDiagV9",
         size: 360,
         align: 8,
         fields: &[
@@ -175,8 +175,8 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "BusStatus",
-        type_name: "UssBusStatusV8",
-        size: 368,
+        type_name: "UssBusStatusV9",
+        size: 400,
         align: 8,
         fields: &[
             f("version", 0, 4),
@@ -214,11 +214,15 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("exchange_le", 256, 96),
             f("out_of_turn", 352, 8),
             f("broadcasts", 360, 8),
+            f("timed", 368, 8),
+            f("untimed", 376, 8),
+            f("timed_exchange_ns", 384, 8),
+            f("timed_wire_floor_ns", 392, 8),
         ],
     },
     TypeLayout {
         name: "ParamItem",
-        type_name: "UssParamItemV8",
+        type_name: "UssParamItemV9",
         size: 12,
         align: 4,
         fields: &[
@@ -232,7 +236,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamRequest",
-        type_name: "UssParamRequestV8",
+        type_name: "UssParamRequestV9",
         size: 476,
         align: 4,
         fields: &[
@@ -246,7 +250,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResult",
-        type_name: "UssParamResultV8",
+        type_name: "UssParamResultV9",
         size: 24,
         align: 8,
         fields: &[
@@ -262,7 +266,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "ParamResponse",
-        type_name: "UssParamResponseV8",
+        type_name: "UssParamResponseV9",
         size: 952,
         align: 8,
         fields: &[
@@ -278,7 +282,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "Heartbeat",
-        type_name: "UssHeartbeatV8",
+        type_name: "UssHeartbeatV9",
         size: 56,
         align: 8,
         fields: &[
@@ -297,7 +301,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "TelegramRecord",
-        type_name: "UssTelegramRecordV8",
+        type_name: "UssTelegramRecordV9",
         size: 304,
         align: 8,
         fields: &[
@@ -318,7 +322,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorRequest",
-        type_name: "UssOperatorRequestV8",
+        type_name: "UssOperatorRequestV9",
         size: 8,
         align: 4,
         fields: &[
@@ -330,7 +334,7 @@ pub const LAYOUTS: &[TypeLayout] = &[
     },
     TypeLayout {
         name: "OperatorResponse",
-        type_name: "UssOperatorResponseV8",
+        type_name: "UssOperatorResponseV9",
         size: 12,
         align: 4,
         fields: &[

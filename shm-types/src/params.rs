@@ -159,7 +159,7 @@ impl TaskCode {
 /// One parameter access.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamItemV8")]
+#[type_name("UssParamItemV9")]
 pub struct ParamItem {
     /// A [`TaskCode`].
     pub task: u8,
@@ -177,7 +177,7 @@ pub struct ParamItem {
 /// A request for up to 39 parameter accesses on one drive.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamRequestV8")]
+#[type_name("UssParamRequestV9")]
 pub struct ParamRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -194,7 +194,7 @@ pub struct ParamRequest {
 /// The result of one item.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResultV8")]
+#[type_name("UssParamResultV9")]
 pub struct ParamResult {
     /// An [`Outcome`] code.
     pub outcome: u8,
@@ -218,7 +218,7 @@ pub struct ParamResult {
 /// The one response to a [`ParamRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResponseV8")]
+#[type_name("UssParamResponseV9")]
 pub struct ParamResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

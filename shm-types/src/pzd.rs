@@ -59,7 +59,7 @@ pub const fn stop_strength(stw1: u16) -> u8 {
 /// drive would misread is refused and latches the drive too.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdOutputV8")]
+#[type_name("UssPzdOutputV9")]
 pub struct PzdOutput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -103,7 +103,7 @@ pub enum OutputSample {
 /// of the drive, good or failed.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdInputV8")]
+#[type_name("UssPzdInputV9")]
 pub struct PzdInput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

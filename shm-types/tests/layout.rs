@@ -77,7 +77,7 @@ fn actual_layouts() -> Vec<Actual> {
             reserved, line_errno, line_down_since_ns, line_downs, reopen_attempts, reserved2,
             jobs_cancelled, exchange_ns, response_delay_ns, turnaround_ns, exchange_count,
             exchange_sum_ns, exchange_le, out_of_turn,
-            broadcasts,
+            broadcasts, timed, untimed, timed_exchange_ns, timed_wire_floor_ns,
         ]),
         actual!(ParamItem = ParamItem::EMPTY, [task, storage, pnu, index, reserved, value]),
         actual!(ParamRequest = ParamRequest {

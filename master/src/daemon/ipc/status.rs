@@ -325,22 +325,14 @@ impl StatusPublisher {
 
     fn publish_status(&self, stats: &Stats, running: bool, reopen_attempts: u32) {
         let ns = |d: Duration| self.origin_ns.saturating_add(as_ns(d));
-        let b = &stats.bus;
+        // The engine's own counters are the contract's; this adds what only ussd knows.
         self.status.update_with_copy(BusStatus {
             rt_cpu: self.rt_cpu,
             rt_mode: self.rt.code(),
             rt_priority: self.rt_priority,
             drive_count: stats.drives.len() as u8,
             running: u8::from(running),
-            efficiency_ppm: b.efficiency().map_or(0, |e| (e * 1e6) as u32),
-            exchanges: b.exchanges,
-            good: b.good,
-            cycles: b.cycles,
-            cycle_overruns: b.cycle_overruns,
-            events_dropped: b.events_dropped,
-            results_lost: b.results_lost,
-            jobs_accepted: b.jobs_accepted,
-            jobs_finished: b.jobs_finished,
+            efficiency_ppm: stats.bus.efficiency_ppm(),
             mean_exchange_ns: stats.histograms.exchange.mean() as u64,
             bus_clock_ns: as_ns(stats.at),
             timestamp_ns: ns(stats.at),
@@ -355,7 +347,6 @@ impl StatusPublisher {
             line_down_since_ns: stats.line.down.map_or(0, |(since, _)| ns(since)),
             line_downs: stats.line.downs,
             reopen_attempts,
-            jobs_cancelled: b.jobs_cancelled,
             exchange_ns: quantiles(&stats.histograms.exchange),
             response_delay_ns: quantiles(&stats.histograms.response_delay),
             turnaround_ns: quantiles(&stats.histograms.turnaround),
@@ -364,9 +355,7 @@ impl StatusPublisher {
                 * stats.histograms.exchange.len() as f64) as u64,
             exchange_le: uss_shm_types::EXCHANGE_BUCKETS_NS
                 .map(|le| stats.histograms.exchange.count_between(0, le)),
-            out_of_turn: b.out_of_turn,
-            broadcasts: b.broadcasts,
-            ..BusStatus::EMPTY
+            ..stats.bus
         });
     }
 
