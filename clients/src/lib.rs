@@ -76,6 +76,8 @@ mod open;
 pub mod params;
 mod request;
 mod typed;
+#[cfg(feature = "view")]
+pub mod view;
 mod watch;
 
 pub use bus::{Bus, DEFAULT_NODE_NAME};

@@ -82,16 +82,18 @@ impl Bus {
         widen(&self.inner.drives())
     }
 
-    /// The bus status as ussd last published it, as a dict.
+    /// The bus status as ussd last published it, as a dict: the client's view of it (the fields
+    /// of `ussctl status --json`'s `bus`), with the contract's layout `version` and `line_down`.
     fn status<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let s = self.inner.status().map_err(|e| errors::client(py, e))?;
-        let d = PyDict::new(py);
+        let view = uss_client::view::BusView::new(self.inner.name(), &s);
+        let json =
+            serde_json::to_string(&view).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let d = py
+            .import("json")?
+            .call_method1("loads", (json,))?
+            .cast_into::<PyDict>()?;
         d.set_item("version", s.version)?;
-        d.set_item("drive_count", s.drive_count)?;
-        d.set_item("running", s.running)?;
-        d.set_item("exchanges", s.exchanges)?;
-        d.set_item("cycles", s.cycles)?;
-        d.set_item("rt_mode", s.rt_mode)?;
         d.set_item("line_down", s.is_line_down())?;
         Ok(d)
     }

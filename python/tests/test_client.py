@@ -123,7 +123,15 @@ def test_bus_lists_the_polled_drives_and_runs(bus):
     status = bus.status()
     assert status.version == uss_rt.LAYOUT_VERSION
     assert status.drive_count == len(DRIVES)
-    assert status.running == 1
+    assert status.running is True
+    # The client's one view of the bus, as `ussctl status --json` shows it: words, not codes.
+    assert (status.bus, status.line, status.line_error) == (bus.name, "up", None)
+    assert status.rt_mode in ("realtime", "best effort") and status.line_down is False
+    assert status.exchanges >= status.good and status.jobs_cancelled == 0
+    deadline = time.monotonic() + 5
+    while bus.status().good == 0:
+        assert time.monotonic() < deadline, "no good exchange counted"
+        time.sleep(0.01)
 
 
 def test_input_image_is_online_in_s2_and_its_sequence_increases(bus):

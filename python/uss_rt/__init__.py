@@ -153,8 +153,11 @@ class Health:
 
 
 class BusStatus:
-    """The bus status as ussd last published it: ``version``, ``drive_count``, ``running``,
-    ``exchanges``, ``cycles``, ``rt_mode``, ``line_down``."""
+    """The bus status as ussd last published it: the fields of ``ussctl status --json``'s
+    ``bus`` (``bus``, ``running``, ``rt_mode`` "realtime" or "best effort", ``drive_count``,
+    ``cycles``, ``exchanges``, ``good``, the job counters, ``mean_exchange_us``, ``efficiency``,
+    ``line`` "up" or "down" and ``line_error``, ...; docs/schema/ussctl/status.json), plus the
+    contract's ``version`` and ``line_down``."""
 
     def __init__(self, fields: dict):
         self.__dict__.update(fields)

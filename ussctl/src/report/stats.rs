@@ -1,7 +1,7 @@
 //! `status --stats` and `status --timing`: counters, timing and what ussd knows of each
 //! drive.
 
-use super::status::{BusReport, ControlReport, last_failure};
+use super::status::{BusLine, BusReport, ControlReport, last_failure};
 use serde::Serialize;
 use std::fmt::Write as _;
 use uss_client::{BusStatus, DriveDiag, StopCommand};

@@ -3,10 +3,8 @@
 use super::shown_state;
 use serde::Serialize;
 use std::fmt::Write as _;
-use uss_client::{
-    BusStatus, DriveDiag, LatchReason, Monitoring, PzdInput, Setpoint, StopCommand, zsw1_flags,
-};
-use uss_shm_types::diag::{LastFailure, RtMode};
+use uss_client::{DriveDiag, LatchReason, Monitoring, PzdInput, Setpoint, StopCommand, zsw1_flags};
+use uss_shm_types::diag::LastFailure;
 
 /// Whether a drive is live or latched, and why (`uss_shm_types::control`).
 #[derive(Debug, Clone, Serialize, schemars::JsonSchema)]
@@ -69,70 +67,17 @@ impl ControlReport {
     }
 }
 
-/// The bus as a whole.
-#[derive(Debug, Serialize, schemars::JsonSchema)]
-pub struct BusReport {
-    pub bus: String,
-    pub running: bool,
-    pub rt_mode: &'static str,
-    /// -1: not pinned.
-    pub rt_cpu: i32,
-    pub rt_priority: u8,
-    pub drive_count: u8,
-    pub cycles: u64,
-    pub exchanges: u64,
-    pub good: u64,
-    pub cycle_overruns: u64,
-    pub events_dropped: u64,
-    pub results_lost: u64,
-    pub jobs_accepted: u64,
-    pub jobs_finished: u64,
-    pub mean_exchange_us: f64,
-    /// Wire-time floor over achieved exchange time; null until measured.
-    pub efficiency: Option<f64>,
-    /// "up" or "down".
-    pub line: &'static str,
-    /// Why the line is down; null while up.
-    pub line_error: Option<String>,
-    /// Attempts to reopen a line that is down.
-    pub reopen_attempts: u32,
-    /// Times the line went down since ussd started.
-    pub line_downs: u64,
-    /// Polls out of turn: a stop, a trip or a re-arm sent before the circulating list went on.
-    pub out_of_turn: u64,
-    /// Broadcast telegrams: stops of every drive.
-    pub broadcasts: u64,
+/// The bus as a whole: the client's one view of it ([`uss_client::view::BusView`]), as Python
+/// shows it too.
+pub use uss_client::view::BusView as BusReport;
+
+/// The bus's line in `status` and `top`.
+pub trait BusLine {
+    fn human(&self) -> String;
 }
 
-impl BusReport {
-    pub fn new(bus: &str, s: &BusStatus) -> Self {
-        Self {
-            bus: bus.to_owned(),
-            running: s.running != 0,
-            rt_mode: RtMode::try_from(s.rt_mode).map_or("unknown", RtMode::name),
-            rt_cpu: s.rt_cpu,
-            rt_priority: s.rt_priority,
-            drive_count: s.drive_count,
-            cycles: s.cycles,
-            exchanges: s.exchanges,
-            good: s.good,
-            cycle_overruns: s.cycle_overruns,
-            events_dropped: s.events_dropped,
-            results_lost: s.results_lost,
-            jobs_accepted: s.jobs_accepted,
-            jobs_finished: s.jobs_finished,
-            mean_exchange_us: s.mean_exchange_ns as f64 / 1e3,
-            efficiency: s.efficiency(),
-            line: if s.is_line_down() { "down" } else { "up" },
-            line_error: s.line_fault_text(),
-            reopen_attempts: s.reopen_attempts,
-            line_downs: s.line_downs,
-            out_of_turn: s.out_of_turn,
-            broadcasts: s.broadcasts,
-        }
-    }
-
-    pub fn human(&self) -> String {
+impl BusLine for BusReport {
+    fn human(&self) -> String {
         let mut out = format!(
             "bus {}: {}, {}{}, {} drives, {} cycles, {} exchanges ({} good), mean exchange {:.0} us",
             self.bus,
