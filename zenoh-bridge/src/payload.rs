@@ -3,6 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 use uss_client::uss_shm_types::diag::RtMode;
+use uss_client::view::BusView;
 use uss_client::{
     BusStatus, DriveDiag, DriveInfo, Health, ParamValue, PzdInput, Setpoint, StopCommand, Typed,
     state_name,
@@ -46,6 +47,11 @@ pub struct Status<'a> {
     pub efficiency: Option<f64>,
     pub mean_exchange_us: Option<f64>,
     pub line_up: Option<bool>,
+    /// The bus status as `ussctl status --json` and Python show it (the client's one view,
+    /// `uss_client::view::BusView`): every counter, the line's error, the real-time mode; null
+    /// before ussd published one. The fields above are v1's own, the same figures.
+    #[serde(rename = "bus_status")]
+    pub view: Option<BusView>,
     /// Puts and queries the bridge refused on this bus since it started, per missing right
     /// (its access policy, or control and writes not allowed).
     pub refused: crate::gate::Refused,
@@ -76,6 +82,7 @@ impl<'a> Status<'a> {
             efficiency: status.and_then(BusStatus::efficiency),
             mean_exchange_us: status.map(|s| s.mean_exchange_ns as f64 / 1e3),
             line_up: status.map(|s| !s.is_line_down()),
+            view: status.map(|s| BusView::new(bus, s)),
             refused: crate::gate::Refused::default(),
             published_unix_ns: unix_ns(),
         }

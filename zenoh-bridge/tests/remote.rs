@@ -317,6 +317,15 @@ fn inputs_arrive(ns: &Netns, key: &dyn Fn(&str) -> String) {
         (status["ussd"].as_str(), status["stale"].as_bool()),
         (Some("running"), Some(false))
     );
+    // The client's one view of the bus, as ussctl and Python show it.
+    assert_eq!(
+        (
+            status["bus_status"]["line"].as_str(),
+            status["bus_status"]["drive_count"].as_u64()
+        ),
+        (Some("up"), status["drives"].as_u64())
+    );
+    assert!(status["bus_status"]["good"].as_u64() > Some(0), "{status}");
     let (ok, out, err) = ns.call(&["sub", &key("drive/2/info")]);
     assert!(ok, "{err}");
     assert_report("zenoh/info", out.trim());
