@@ -478,6 +478,28 @@ impl<'a> ControlReport<'a> {
 mod tests {
     use super::*;
 
+    /// Rule 3 at the bridge: diagnostics whose drive's last good reply is older than ussd's
+    /// limit for it (a paused ussd, a stalled bus thread) are not the drive as it is, even
+    /// while ussd's heartbeat still counts as serving (it may for up to its own, longer limit).
+    #[test]
+    fn overdue_diagnostics_say_stale_and_not_online_while_ussd_still_counts_as_serving() {
+        let now = uss_client::monotonic_ns();
+        let d = DriveDiag {
+            online: 1,
+            last_good_ns: now - 2_000_000_000,
+            stale_after_ns: 250_000_000,
+            ..DriveDiag::new(1)
+        };
+        let p = Diag::new("b0", &d, false);
+        assert_eq!((p.online, p.stale), (false, true));
+        let fresh = DriveDiag {
+            last_good_ns: uss_client::monotonic_ns(),
+            ..d
+        };
+        let p = Diag::new("b0", &fresh, false);
+        assert_eq!((p.online, p.stale), (true, false));
+    }
+
     /// The schema of a payload of type `T`, for `what`: as the bridge writes it (`write`), or
     /// as it reads it (a remote controller's sample).
     fn schema<T: schemars::JsonSchema>(what: &str, write: bool) -> schemars::Schema {

@@ -196,6 +196,8 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
 
     parameters_read_and_writes_refused(&ns, &key);
 
+    diagnostics_of_a_paused_ussd_say_stale(&ns, &ussd, &key("drive/1/diag"));
+
     // ussd killed: the bus's token goes, the last image comes once more, marked stale.
     let mut alive = watch_alive(&ns, &key("alive"), &[]);
     let mut inputs = ns.client(&[
@@ -278,6 +280,66 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
         killed.elapsed().as_secs_f64() * 1e3
     );
     let _ = std::fs::remove_file(config);
+}
+
+/// ussd paused (a stalled process): a diagnostics put of the drive at `key` published past the
+/// drive's freshness limit says it is stale and not online (rule 3), also in the time before
+/// ussd's heartbeat stops counting as serving (its limit, `GONE_AFTER_NS`, is longer; after
+/// it, the bridge puts no diagnostics). The pause is timed so that the bridge's next put (one a
+/// second) falls in the middle of that window.
+fn diagnostics_of_a_paused_ussd_say_stale(ns: &Netns, ussd: &Ussd, key: &str) {
+    let limit_ns = ussd.bus().diag(addr(1)).unwrap().stale_after_ns;
+    let gone_ns = uss_client::uss_shm_types::names::GONE_AFTER_NS;
+    println!(
+        "remote: drive 1's diagnostics are stale after {limit_ns} ns, ussd gone after {gone_ns} ns"
+    );
+    assert!(limit_ns + 200_000_000 < gone_ns, "no window to test in");
+    let unix_ns = || {
+        let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH);
+        u64::try_from(t.unwrap().as_nanos()).unwrap()
+    };
+    let signal = |name: &str| {
+        let pid = ussd.child.id().to_string();
+        assert!(
+            Command::new("kill")
+                .args([name, &pid])
+                .status()
+                .unwrap()
+                .success()
+        );
+    };
+    let mut diags = ns.client(&["sub", key, "--count", "100000", "--timeout", "30"]);
+    diags.says("\"online\":true");
+    let put = json(&diags.says(""))["published_unix_ns"].as_u64().unwrap();
+    // The next put comes a second after this one: pause so that it lands mid-window.
+    let pause_at = put + 1_000_000_000 - u64::midpoint(limit_ns, gone_ns);
+    std::thread::sleep(Duration::from_nanos(pause_at.saturating_sub(unix_ns())));
+    let paused = unix_ns();
+    signal("-STOP");
+    std::thread::sleep(Duration::from_millis(1500));
+    signal("-CONT");
+    let resumed = unix_ns();
+    let mut in_the_window = 0;
+    loop {
+        let line = diags.says("");
+        let d = json(&line);
+        let published = d["published_unix_ns"].as_u64().unwrap();
+        if published > resumed {
+            break;
+        }
+        if published > paused + limit_ns + 20_000_000 {
+            assert_eq!(
+                (d["online"].as_bool(), d["stale"].as_bool()),
+                (Some(false), Some(true)),
+                "a diagnostics put {} ms into a pause of ussd: {line}",
+                (published - paused) / 1_000_000
+            );
+            in_the_window += 1;
+        }
+    }
+    diags.kill();
+    println!("remote: {in_the_window} diagnostics put(s) of a paused ussd past the limit");
+    assert!(in_the_window >= 1, "no diagnostics put in the window");
 }
 
 /// Every new image of drive 1 as JSON version 1, the status, drive 2's description.
