@@ -173,6 +173,9 @@ pub struct Diag<'a> {
     pub v: u32,
     pub bus: &'a str,
     pub drive: u8,
+    /// True when this is not the drive as it is now: ussd not serving, or the diagnostics
+    /// older than ussd's limit for them (a paused ussd, a stalled bus thread); then `online`
+    /// is false and the rest is the drive as it was.
     pub stale: bool,
     pub online: bool,
     pub counters: serde_json::Map<String, serde_json::Value>,
@@ -183,14 +186,18 @@ pub struct Diag<'a> {
 }
 
 impl<'a> Diag<'a> {
-    pub fn new(bus: &'a str, d: &DriveDiag, stale: bool) -> Self {
+    /// The payload of `d` as read now; `not_serving`: ussd's heartbeat says it does not serve
+    /// the bus. Stale diagnostics never show the drive online (rule 3), by their own age too:
+    /// ussd may be paused for up to its heartbeat's limit before it stops counting as serving.
+    pub fn new(bus: &'a str, d: &DriveDiag, not_serving: bool) -> Self {
         let us = |q: [u64; 4]| q.map(|n| n as f64 / 1e3);
+        let now = uss_client::monotonic_ns();
         Self {
             v: VERSION,
             bus,
             drive: d.address,
-            stale,
-            online: d.online != 0 && !stale,
+            stale: not_serving || d.is_overdue(now),
+            online: d.is_online_at(now) && !not_serving,
             counters: d
                 .counters
                 .named()
