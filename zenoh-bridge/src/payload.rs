@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 use uss_client::uss_shm_types::diag::RtMode;
-use uss_client::view::BusView;
+use uss_client::view::{BusView, DriveView};
 use uss_client::{
     BusStatus, DriveDiag, DriveInfo, Health, ParamValue, PzdInput, Setpoint, StopCommand, Typed,
     state_name,
@@ -182,6 +182,11 @@ pub struct Diag<'a> {
     /// Exchange time and response delay, µs: p50, p99, p99.9, max.
     pub exchange_us: [f64; 4],
     pub response_delay_us: [f64; 4],
+    /// The drive as `ussctl status --json` shows it (the client's one view,
+    /// `uss_client::view::DriveView`): state, ZSW1 and its flags, actual frequency, control
+    /// (live or latched, why), monitoring, poll period, judged by the diagnostics' own age.
+    #[serde(rename = "drive_status")]
+    pub view: DriveView,
     pub published_unix_ns: u64,
 }
 
@@ -206,6 +211,7 @@ impl<'a> Diag<'a> {
                 .collect(),
             exchange_us: us(d.exchange_ns),
             response_delay_us: us(d.response_delay_ns),
+            view: DriveView::new(d, now),
             published_unix_ns: unix_ns(),
         }
     }
@@ -499,6 +505,10 @@ mod tests {
         };
         let p = Diag::new("b0", &d, false);
         assert_eq!((p.online, p.stale), (false, true));
+        assert_eq!(
+            (p.view.online, p.view.stale, p.view.state),
+            (false, true, "stale")
+        );
         let fresh = DriveDiag {
             last_good_ns: uss_client::monotonic_ns(),
             ..d

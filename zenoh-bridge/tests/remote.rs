@@ -328,8 +328,15 @@ fn diagnostics_of_a_paused_ussd_say_stale(ns: &Netns, ussd: &Ussd, key: &str) {
             break;
         }
         if published > paused + limit_ns + 20_000_000 {
+            let view = &d["drive_status"];
             assert_eq!(
                 (d["online"].as_bool(), d["stale"].as_bool()),
+                (Some(false), Some(true)),
+                "a diagnostics put {} ms into a pause of ussd: {line}",
+                (published - paused) / 1_000_000
+            );
+            assert_eq!(
+                (view["online"].as_bool(), view["stale"].as_bool()),
                 (Some(false), Some(true)),
                 "a diagnostics put {} ms into a pause of ussd: {line}",
                 (published - paused) / 1_000_000
@@ -395,6 +402,17 @@ fn inputs_arrive(ns: &Netns, key: &dyn Fn(&str) -> String) {
     let (ok, out, err) = ns.call(&["sub", &key("drive/2/diag")]);
     assert!(ok, "{err}");
     assert_report("zenoh/diag", out.trim());
+    // The client's one view of the drive, as ussctl status --json shows it.
+    let view = &json(&out)["drive_status"];
+    assert_eq!(
+        (
+            view["address"].as_u64(),
+            view["online"].as_bool(),
+            view["state"].as_str()
+        ),
+        (Some(2), Some(true), Some("S2")),
+        "{out}"
+    );
 }
 
 /// `uss-zenoh-client ARGS | head -1`: the reader goes away after one line, and the client

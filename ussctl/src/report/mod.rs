@@ -1,17 +1,9 @@
 //! What ussctl prints: one report type per answer, shown as a table or text for people and
 //! as JSON (`--json`) for machines. The JSON field names are part of ussctl's interface.
 
-use uss_client::state_name;
-
 /// S1..S4, "fault", "not ready" from ZSW1; "offline" while the drive does not answer (its last
 /// ZSW1 is history then); "unknown" until ussd's first poll decided.
-fn shown_state(known: u8, online: u8, zsw1: u16) -> &'static str {
-    match (known, online) {
-        (0, _) => "unknown",
-        (_, 0) => "offline",
-        _ => state_name(zsw1),
-    }
-}
+use uss_client::view::shown_state;
 
 mod backup;
 mod drive;
