@@ -1,7 +1,10 @@
-//! One serializable view of what ussd publishes (feature `view`): the bus status as every
-//! front-end that speaks JSON or a dynamic language shows it (`ussctl status --json`, Python's
-//! `Bus.status()`), with codes turned into words and nanoseconds into microseconds, built in one
-//! place from the contract's `#[repr(C)]` [`BusStatus`].
+//! One serializable view of what ussd publishes (feature `view`): the bus ([`BusView`]) and each
+//! drive ([`DriveView`], [`ControlView`]) as every front-end that speaks JSON or a dynamic
+//! language shows them (`ussctl status --json` and `top`, the Zenoh bridge's `status` and `diag`
+//! payloads, Python's `Bus.status()`), with codes turned into words and nanoseconds into
+//! microseconds, built in one place from the contract's `#[repr(C)]` [`BusStatus`] and
+//! [`DriveDiag`]. A drive's view is judged at the time it is read: diagnostics older than
+//! ussd's limit for them say `stale` and never show the drive online (rule 3).
 
 use crate::{DriveDiag, LatchReason, Monitoring, PzdInput, Setpoint, StopCommand, zsw1_flags};
 use serde::Serialize;
