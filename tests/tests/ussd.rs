@@ -133,6 +133,10 @@ fn ussd_without_arguments_runs_the_embedded_simulated_bus() {
         stdout.contains(&format!("bus {bus}: 115200 baud")),
         "{stdout}"
     );
+    // A live summary every second for 2.5 s, and the final one: not a summary at every wake-up
+    // of the housekeeping thread (since 2bfcf5b it logged one every 10 ms after the first).
+    let summaries = stdout.matches(&format!("bus {bus}: 115200 baud")).count();
+    assert!(summaries <= 4, "{summaries} summaries in 2.5 s:\n{stdout}");
     for a in 1..=4 {
         let line = final_line(&stdout, a);
         assert!(
