@@ -59,12 +59,14 @@ pub(super) fn spawn(
             loop {
                 let next = next_summary.min(next_status);
                 let wait = next.saturating_duration_since(std::time::Instant::now());
-                let every = if control_changed.is_some() {
+                // How long to wait at most: not `every`, the summary's period, which this
+                // once shadowed (a summary every wake-up after the first, 2bfcf5b).
+                let poll = if control_changed.is_some() {
                     CHANGE_EVERY
                 } else {
                     CAPTURE_EVERY
                 };
-                match events.recv_timeout(wait.min(every)) {
+                match events.recv_timeout(wait.min(poll)) {
                     Ok(event) => {
                         if let Some(at) = control_change(&event) {
                             control_changed = Some(control_changed.map_or(at, |c| c.min(at)));
