@@ -1519,6 +1519,29 @@ fn a_pause_of_ussd_during_a_reply_is_judged_before_the_reply_is_published() {
     );
 }
 
+/// Rule 3 (the fourth adversarial run): a pause of ussd does not stretch the drives' freshness
+/// limit. The cycle that held the pause measured the stall, not the bus; fed into the smoothed
+/// cycle time, a 3 s pause raised a drive's `stale_after` from 105 ms to 1.6 s, so a second
+/// stall soon after went unseen by every front-end for that long.
+#[test]
+fn a_pause_of_ussd_does_not_stretch_the_drives_freshness_limit() {
+    let (config, wire) = one_drive_line();
+    let (mut engine, handle, _events) = Engine::new(config, wire, PausingClock::default());
+    run_drive_1(&mut engine, &handle);
+    let limit =
+        |e: &Engine<SimTransport, PausingClock>| e.stats().drive(addr(1)).unwrap().stale_after;
+    let before = limit(&engine);
+    engine.clock_mut().pause_in_wait = Some(ms(2000));
+    for _ in 0..3 {
+        engine.poll_next().unwrap();
+        let after = limit(&engine);
+        assert!(
+            after <= before + before / 4,
+            "a 2 s pause stretched the limit from {before:?} to {after:?}"
+        );
+    }
+}
+
 /// A latch and a re-arm reach the published statistics (what `ussctl status`, the exporter
 /// and every front-end's diagnostics read) with the poll that carried them, not at the next
 /// periodic publication: a stop is not shown as a live drive for up to `publish_every` more
