@@ -183,6 +183,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             last_reply_done: None,
             last_reply_seen: None,
             cycle_start: now,
+            cycle_stall: Duration::ZERO,
             last_publish: now,
             control_changed: false,
             jobs: jobs_rx,

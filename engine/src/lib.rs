@@ -465,6 +465,10 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     /// When the engine saw the last good reply complete (on its clock, after waking).
     last_reply_seen: Option<Duration>,
     cycle_start: Duration,
+    /// The stall the looks of this cycle judged (time beyond `look_lag` between two looks: ussd
+    /// paused, the bus thread starved): left out of the cycle time the periods learn from, so a
+    /// pause does not stretch every drive's freshness limit.
+    cycle_stall: Duration,
     last_publish: Duration,
     /// A drive latched or was re-armed since the last publication: the next one comes at the
     /// end of this step, so what clients read shows it with the poll that carried it.
@@ -759,7 +763,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.bridge.cycle_completed();
         let now = self.clock.now();
         let took = now.saturating_sub(self.cycle_start);
-        self.periods.cycle_done(took);
+        self.periods
+            .cycle_done(took.saturating_sub(core::mem::take(&mut self.cycle_stall)));
         self.bus.cycles += 1;
         self.timing.cycle.record(took);
         match self.cfg.cycle_time {

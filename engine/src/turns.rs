@@ -56,6 +56,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .saturating_sub(self.last_look)
             .saturating_sub(self.look_lag);
         self.last_look = now;
+        self.cycle_stall += gap;
         for slot in 0..self.drives.len() {
             let change = self.observe(slot, now, gap);
             if self.drives[slot].setup.layout.pzd.get() == 0 {

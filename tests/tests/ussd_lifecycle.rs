@@ -293,3 +293,47 @@ fn a_stop_is_never_refused_for_resources_with_64_watchers() {
         (0x047C, uss_client::LatchReason::Override.code())
     );
 }
+
+/// Rule 3 (the fourth adversarial run): a second stall of ussd soon after a first reads stale
+/// within the drive's own limit. The first pause used to stretch every drive's freshness limit
+/// (the cycle that held it went into the cycle time: 105 ms became 1.6 s after a 3 s pause),
+/// and C, Python and `ussctl watch` showed the drive online 121-450 ms into the second.
+#[test]
+fn a_second_pause_of_ussd_soon_after_a_first_reads_stale_within_the_drives_limit() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    let _serial = serial();
+    let ussd = Ussd::start("", DRIVES);
+    let bus = ussd.bus();
+    let watch = bus.watch(addr(1)).unwrap();
+    watch
+        .wait_for(Duration::from_secs(5), "online", |i| i.online == 1)
+        .unwrap();
+    let limit = Duration::from_nanos(watch.latest().stale_after_ns);
+    let pid = Pid::from_raw(i32::try_from(ussd.child.id()).unwrap());
+    let gone = Duration::from_nanos(uss_client::uss_shm_types::names::GONE_AFTER_NS);
+    // Read past the drive's limit, before ussd's heartbeat says it is gone.
+    let look_after = limit + Duration::from_millis(100);
+    assert!(look_after < gone, "limit {limit:?}: no time to look in");
+    kill(pid, Signal::SIGSTOP).unwrap();
+    std::thread::sleep(Duration::from_secs(2));
+    kill(pid, Signal::SIGCONT).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(3);
+    while watch.read().is_err() {
+        assert!(Instant::now() < deadline, "{:?}", watch.read());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    std::thread::sleep(Duration::from_millis(30));
+    kill(pid, Signal::SIGSTOP).unwrap();
+    std::thread::sleep(look_after);
+    let read = watch.read();
+    let published = watch.latest().stale_after_ns;
+    kill(pid, Signal::SIGCONT).unwrap();
+    println!(
+        "lifecycle: limit {limit:?} before the first pause, {published} ns after it; read {look_after:?} into the second: {read:?}"
+    );
+    assert!(
+        matches!(read, Err(ClientError::Stale { .. })),
+        "{look_after:?} into a second pause (drive's limit {limit:?}): {read:?}"
+    );
+}
