@@ -208,13 +208,26 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
         "--timeout",
         "30",
     ]);
+    let mut diags = ns.client(&[
+        "sub",
+        &key("drive/1/diag"),
+        "--count",
+        "100000",
+        "--timeout",
+        "30",
+    ]);
     inputs.says("\"stale\":false");
+    diags.says("\"stale\":false");
     let killed = Instant::now();
     ussd.kill();
     alive.says(&format!("- {}", key("alive")));
     let withdrawn = killed.elapsed();
     let stale = inputs.says("\"stale\":true");
     assert!(stale.contains("\"online\":false"), "{stale}");
+    // The diagnostics too (rule 3): their last put must not stand as a live drive.
+    let stale = diags.says("\"stale\":true");
+    assert!(stale.contains("\"online\":false"), "{stale}");
+    diags.kill();
     println!(
         "liveliness of the bus withdrawn {:.0} ms after ussd was killed",
         withdrawn.as_secs_f64() * 1e3
