@@ -10,7 +10,7 @@ use serde::Serialize;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-use uss_client::{Bus, CycleEvent, DriveWatch, Health, PzdInput};
+use uss_client::{Bus, CycleEvent, DriveDiag, DriveWatch, Health, PzdInput};
 use zenoh::bytes::Encoding;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::{Session, Wait};
@@ -61,6 +61,10 @@ struct Drive {
     last: Option<(PzdInput, bool)>,
     sent_at: Option<Instant>,
     key: String,
+    /// The diagnostics last read: while ussd does not answer for them (gone, stopped, paused
+    /// past its heartbeat's limit), they go out again marked stale, so a remote reader's last
+    /// put never stands as a live drive (rule 3).
+    last_diag: Option<DriveDiag>,
 }
 
 /// One bus's state between rounds.
@@ -110,6 +114,7 @@ impl Publisher<'_> {
                     last: None,
                     sent_at: None,
                     key: self.o.keys.input(a),
+                    last_diag: None,
                 });
             }
         }
@@ -212,17 +217,21 @@ impl Publisher<'_> {
             return;
         }
         let Some(bus) = &self.bus else { return };
-        for d in &self.drives {
+        for d in &mut self.drives {
             let a = d.watch.address();
-            let Ok(diag) = bus.diag(a) else { continue };
+            let read = bus.diag(a).ok();
+            if read.is_some() {
+                d.last_diag = read;
+            }
+            let Some(diag) = d.last_diag else { continue };
             if diag_due {
                 put(
                     self.session,
                     &self.o.keys.diag(a),
-                    &Diag::new(&self.o.bus, &diag, !self.serving),
+                    &Diag::new(&self.o.bus, &diag, !self.serving || read.is_none()),
                 );
             }
-            if info_due {
+            if info_due && read.is_some() {
                 put(
                     self.session,
                     &self.o.keys.info(a),
