@@ -198,6 +198,8 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
 
     diagnostics_of_a_paused_ussd_say_stale(&ns, &ussd, &key("drive/1/diag"));
 
+    sub_for_writes_each_sample_as_it_comes(&ns, &key("drive/2/info"));
+
     // ussd killed: the bus's token goes, the last image comes once more, marked stale.
     let mut alive = watch_alive(&ns, &key("alive"), &[]);
     let mut inputs = ns.client(&[
@@ -295,10 +297,25 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
     let _ = std::fs::remove_file(config);
 }
 
+/// `sub --for` writes each sample as it comes, not when its output buffer fills or it ends (the
+/// fourth adversarial run: a pipe's reader got the bridge's "stale" 3 s late). `key` is a
+/// drive's info, a short line every 5 s, which used to come only at the end.
+fn sub_for_writes_each_sample_as_it_comes(ns: &Netns, key: &str) {
+    let mut held = ns.client(&["sub", key, "--for", "30", "--count", "9"]);
+    held.says("reference_hz");
+    // A sub that wrote it only on its way out has ended by now.
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(
+        held.child.try_wait().unwrap().is_none(),
+        "the line came only when sub ended"
+    );
+    held.kill();
+}
+
 /// ussd paused (a stalled process): a diagnostics put of the drive at `key` published past the
 /// drive's freshness limit says it is stale and not online (rule 3), also in the time before
 /// ussd's heartbeat stops counting as serving (its limit, `GONE_AFTER_NS`, is longer; after
-/// it, the bridge puts no diagnostics). The pause is timed so that the bridge's next put (one a
+/// it, the bridge puts the last diagnostics again, marked stale). The pause is timed so that the bridge's next put (one a
 /// second) falls in the middle of that window.
 fn diagnostics_of_a_paused_ussd_say_stale(ns: &Netns, ussd: &Ussd, key: &str) {
     let limit_ns = ussd.bus().diag(addr(1)).unwrap().stale_after_ns;
