@@ -343,9 +343,9 @@ fn subscribe(
                 }
                 let payload = s.payload().try_to_string().unwrap_or_default();
                 writeln!(out, "{payload}").map_err(stdout_failed)?;
-                if !open_ended {
-                    out.flush().map_err(stdout_failed)?;
-                }
+                // Each sample as it comes, --for or not: a reader of a pipe must see a stale
+                // or gone ussd when the bridge says so, not when a buffer fills.
+                out.flush().map_err(stdout_failed)?;
             }
             _ if open_ended => break,
             _ => {
