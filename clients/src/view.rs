@@ -237,6 +237,16 @@ impl DriveView {
                 .and_then(crate::Catalogue::of),
         }
     }
+
+    /// The view marked stale (and not online) when `stale` says what the diagnostics cannot
+    /// know of themselves: ussd no longer serves the bus, the drive's image is overdue.
+    #[must_use]
+    pub fn stale_when(mut self, stale: bool) -> Self {
+        if stale {
+            (self.online, self.stale, self.state) = (false, true, "stale");
+        }
+        self
+    }
 }
 
 #[cfg(test)]

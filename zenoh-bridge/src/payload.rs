@@ -196,13 +196,13 @@ impl<'a> Diag<'a> {
     /// ussd may be paused for up to its heartbeat's limit before it stops counting as serving.
     pub fn new(bus: &'a str, d: &DriveDiag, not_serving: bool) -> Self {
         let us = |q: [u64; 4]| q.map(|n| n as f64 / 1e3);
-        let now = uss_client::monotonic_ns();
+        let view = DriveView::new(d, uss_client::monotonic_ns()).stale_when(not_serving);
         Self {
             v: VERSION,
             bus,
             drive: d.address,
-            stale: not_serving || d.is_overdue(now),
-            online: d.is_online_at(now) && !not_serving,
+            stale: view.stale,
+            online: view.online,
             counters: d
                 .counters
                 .named()
@@ -211,7 +211,7 @@ impl<'a> Diag<'a> {
                 .collect(),
             exchange_us: us(d.exchange_ns),
             response_delay_us: us(d.response_delay_ns),
-            view: DriveView::new(d, now),
+            view,
             published_unix_ns: unix_ns(),
         }
     }
@@ -515,6 +515,13 @@ mod tests {
         };
         let p = Diag::new("b0", &fresh, false);
         assert_eq!((p.online, p.stale), (true, false));
+        // Fresh, but ussd no longer serves the bus: the payload and its view say stale alike.
+        let p = Diag::new("b0", &fresh, true);
+        assert_eq!((p.online, p.stale), (false, true));
+        assert_eq!(
+            (p.view.online, p.view.stale, p.view.state),
+            (false, true, "stale")
+        );
     }
 
     /// The schema of a payload of type `T`, for `what`: as the bridge writes it (`write`), or

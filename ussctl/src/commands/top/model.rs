@@ -276,12 +276,7 @@ fn read(
             || ControlReport::of_diag(&diag),
             |i| ControlReport::of_input(&i),
         );
-        let mut row = DriveRow::new(&diag, uss_client::monotonic_ns());
-        if overdue {
-            row.online = false;
-            row.stale = true;
-            row.state = "stale";
-        }
+        let row = DriveRow::new(&diag, uss_client::monotonic_ns()).stale_when(overdue);
         drives.push(DriveView {
             address: a,
             diag,
