@@ -297,6 +297,16 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
     let _ = std::fs::remove_file(config);
 }
 
+/// `kill -STOP` / `kill -CONT` (`name`) to process `pid`.
+fn signal(name: &str, pid: u32) {
+    let ok = Command::new("kill")
+        .args([name, &pid.to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok, "kill {name} {pid}");
+}
+
 /// `sub --for` writes each sample as it comes, not when its output buffer fills or it ends (the
 /// fourth adversarial run: a pipe's reader got the bridge's "stale" 3 s late). `key` is a
 /// drive's info, a short line every 5 s, which used to come only at the end.
@@ -328,16 +338,7 @@ fn diagnostics_of_a_paused_ussd_say_stale(ns: &Netns, ussd: &Ussd, key: &str) {
         let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH);
         u64::try_from(t.unwrap().as_nanos()).unwrap()
     };
-    let signal = |name: &str| {
-        let pid = ussd.child.id().to_string();
-        assert!(
-            Command::new("kill")
-                .args([name, &pid])
-                .status()
-                .unwrap()
-                .success()
-        );
-    };
+    let signal = |name: &str| signal(name, ussd.child.id());
     let mut diags = ns.client(&["sub", key, "--count", "100000", "--timeout", "30"]);
     diags.says("\"online\":true");
     let put = json(&diags.says(""))["published_unix_ns"].as_u64().unwrap();
@@ -990,14 +991,6 @@ fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() 
     let mut run = ns.client(&["run", &drive, "--hz", "5", "--for", "0.5"]);
     run.says("re-armed");
     // The run ends and hands the drive back while the bridge is paused for 4 s.
-    let signal = |name: &str, pid: u32| {
-        let ok = Command::new("kill")
-            .args([name, &pid.to_string()])
-            .status()
-            .unwrap()
-            .success();
-        assert!(ok, "kill {name} {pid}");
-    };
     signal("-STOP", bridge_proc.pid());
     std::thread::sleep(Duration::from_secs(4));
     // The run still waits for the hand-over (it did not end before the pause).
