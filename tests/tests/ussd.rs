@@ -607,3 +607,86 @@ fn a_paused_ussd_shows_no_drive_online() {
         );
     }
 }
+
+/// The role [`a_dead_node_child`] plays: set to the root it makes its node in.
+const NODE_CHILD_ROOT: &str = "USSD_TEST_NODE_CHILD_ROOT";
+
+/// Child of [`ussd_logs_only_the_dead_nodes_it_removed_and_names_what_it_cannot_remove`] (does
+/// nothing in a test run): an iceoryx2 node of uss-rt in the root it is given, until killed.
+#[test]
+fn a_dead_node_child() {
+    use iceoryx2::prelude::*;
+    let Some(root) = std::env::var_os(NODE_CHILD_ROOT) else {
+        return;
+    };
+    // SAFETY: this process has no other thread that reads the environment yet.
+    unsafe { std::env::set_var(uss_shm_types::service::ROOT_ENV, root) };
+    let node = NodeBuilder::new()
+        .name(&NodeName::new("orphan").unwrap())
+        .config(&uss_shm_types::service::config().unwrap())
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<uss_shm_types::service::Ipc>()
+        .unwrap();
+    println!("READY {}", node.id().value());
+    loop {
+        std::thread::sleep(std::time::Duration::from_secs(1));
+    }
+}
+
+/// A client killed while iceoryx2 made or dropped its node leaves a node monitor whose details
+/// are gone. iceoryx2 0.10 "cleans" such a node against its global configuration, not ours: it
+/// counts it cleaned on every call and removes nothing. ussd said "cleaned up after dead client
+/// processes" for it once a second, for ever (23 such leftovers on a test machine, 6 of this
+/// kind). ussd says what it really removed, and names a leftover once.
+#[test]
+fn ussd_logs_only_the_dead_nodes_it_removed_and_names_what_it_cannot_remove() {
+    use std::io::BufRead as _;
+    let root = std::path::PathBuf::from(format!("/dev/shm/uss-test-orphan-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    // Two dead nodes: one iceoryx2 can clean, one whose details are gone.
+    let mut ids = Vec::new();
+    for _ in 0..2 {
+        let mut child = Command::new(std::env::current_exe().unwrap())
+            .args([
+                "a_dead_node_child",
+                "--exact",
+                "--nocapture",
+                "--test-threads=1",
+            ])
+            .env(NODE_CHILD_ROOT, &root)
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
+        let mut line = String::new();
+        while !line.contains("READY ") {
+            line.clear();
+            assert_ne!(out.read_line(&mut line).unwrap(), 0, "the child ended");
+        }
+        ids.push(line[line.find("READY ").unwrap() + 6..].trim().to_owned());
+        child.kill().unwrap();
+        child.wait().unwrap();
+    }
+    let details = root.join("nodes").join(&ids[1]);
+    assert!(details.is_dir(), "{} is not there", details.display());
+    std::fs::remove_dir_all(&details).unwrap();
+
+    let bus = format!("orphans{}", std::process::id());
+    let out = ussd()
+        .args(["--bus", &bus, "--summary-every", "10", "--duration", "3.5"])
+        .env(uss_shm_types::service::ROOT_ENV, &root)
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_dir_all(&root);
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(out.status.success(), "{stdout}");
+    let cleaned: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.contains("cleaned up after dead client processes"))
+        .collect();
+    // The node iceoryx2 can clean went when ussd's node was made, before the first look.
+    assert!(cleaned.is_empty(), "{stdout}");
+    let named: Vec<&str> = stdout.lines().filter(|l| l.contains(&ids[1])).collect();
+    assert_eq!(named.len(), 1, "{stdout}");
+    assert!(named[0].contains("could not remove"), "{}", named[0]);
+}
