@@ -304,6 +304,8 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     let mut progress = Progress::new(&bounds, &limits, &counts(&buses), started);
     let mut line_failed = false;
     let mut next_cleanup = Duration::from_secs(1);
+    // Dead nodes that cleaning left: each is named once.
+    let mut left_behind = std::collections::HashSet::new();
     let mut next_status = Duration::from_secs(5);
     while !stop.load(Ordering::Relaxed) && duration.is_none_or(|d| started.elapsed() < d) {
         if let Some(b) = buses.iter().find(|b| b.has_failed()) {
@@ -322,10 +324,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         if started.elapsed() >= next_cleanup {
             next_cleanup += Duration::from_secs(1);
             for b in &buses {
-                let n = b.cleanup_dead_nodes();
-                if n > 0 {
-                    tracing::info!(bus = %b.name, nodes = n, "cleaned up after dead client processes");
-                }
+                report_cleanup(&b.name, b.cleanup_dead_nodes(), &mut left_behind);
             }
         }
         if started.elapsed() >= next_status {
@@ -413,4 +412,40 @@ fn status_line(buses: &[RunningBus]) -> String {
         })
         .collect();
     parts.join("; ")
+}
+
+/// Logs what a look for dead client nodes removed, and each node it could not remove once
+/// (`left_behind`: the ones named already).
+fn report_cleanup(
+    bus: &str,
+    cleanup: uss_master::daemon::runtime::Cleanup,
+    left_behind: &mut std::collections::HashSet<u128>,
+) {
+    if cleanup.removed > 0 {
+        tracing::info!(
+            bus,
+            nodes = cleanup.removed,
+            "cleaned up after dead client processes"
+        );
+    }
+    for (id, pid) in cleanup.left {
+        if !left_behind.insert(id) {
+            continue;
+        }
+        match pid {
+            // iceoryx2 makes a node's monitor first and removes it last.
+            None => tracing::warn!(
+                bus,
+                node = id,
+                "could not remove the node a dead client process left half made or half dropped (no details, no ports): remove {}/nodes/*{id}* while no uss-rt process runs",
+                uss_shm_types::service::root().display()
+            ),
+            Some(pid) => tracing::warn!(
+                bus,
+                node = id,
+                pid,
+                "could not remove the node of dead process {pid}: its ports stay in the bus's services (a process of another user, whose files ussd may not remove?)"
+            ),
+        }
+    }
 }

@@ -138,6 +138,16 @@ pub fn sim_transport(bus: &BusConfig) -> Result<SimTransport, StartError> {
     Ok(SimTransport::new(wire))
 }
 
+/// What one look for dead client nodes did ([`RunningBus::cleanup_dead_nodes`]).
+#[derive(Debug, Default, PartialEq, Eq)]
+pub struct Cleanup {
+    /// Dead nodes removed.
+    pub removed: usize,
+    /// The dead nodes still there after the cleanup: id, and the process id of the process that
+    /// made it (none: its details are gone).
+    pub left: Vec<(u128, Option<i32>)>,
+}
+
 /// A running bus.
 #[derive(Debug)]
 pub struct RunningBus {
@@ -162,10 +172,38 @@ pub struct RunningBus {
 }
 
 impl RunningBus {
-    /// Removes what dead client processes left behind (ports, nodes); returns how many nodes.
-    /// A dead controller's drive has already got its safe command through the watchdog.
-    pub fn cleanup_dead_nodes(&self) -> u64 {
-        self.node.try_cleanup_dead_nodes().cleanups
+    /// Removes what dead client processes left behind (ports, nodes), and says what it really
+    /// removed: iceoryx2 0.10 counts a dead node whose details are gone as cleaned on every
+    /// call, though it looks for its monitor in its global configuration, not ours, and removes
+    /// nothing. A dead controller's drive has already got its safe command through the watchdog.
+    pub fn cleanup_dead_nodes(&self) -> Cleanup {
+        let before = self.dead_nodes();
+        if before.is_empty() {
+            return Cleanup::default();
+        }
+        let _ = self.node.try_cleanup_dead_nodes();
+        let left = self.dead_nodes();
+        Cleanup {
+            removed: before
+                .iter()
+                .filter(|(id, _)| !left.iter().any(|(l, _)| l == id))
+                .count(),
+            left,
+        }
+    }
+
+    /// The dead nodes below this node's root: id, and the process id its details name.
+    fn dead_nodes(&self) -> Vec<(u128, Option<i32>)> {
+        use iceoryx2::node::NodeView as _;
+        let mut dead = Vec::new();
+        let _ = crate::daemon::ipc::IpcNode::list(self.node.config(), |state| {
+            if let iceoryx2::prelude::NodeState::Dead(view) = state {
+                let pid = view.details().as_ref().map(|d| d.process_id().value());
+                dead.push((view.id().value(), pid));
+            }
+            iceoryx2::prelude::CallbackProgression::Continue
+        });
+        dead
     }
 
     /// Whether the bus thread has ended without being asked to (it cannot go on: a simulated
