@@ -1,17 +1,17 @@
 //! `status` and `stats`: the bus and its drives, once.
 
 use super::common::{diags, healthy};
-use crate::report::{BusReport, DriveRow, DriveStats, StatsReport, StatusReport, TimingReport};
+use crate::report::{BusView, DriveStats, DriveView, StatsReport, StatusReport, TimingReport};
 use crate::{Failure, Output};
 use uss_client::Bus;
 
 /// `status`: the table; with the line down, the table and then the failure (exit 1).
 pub(crate) fn status(bus: &Bus, out: &Output) -> Result<(), Failure> {
     let report = StatusReport {
-        bus: BusReport::new(bus.name(), &bus.status()?),
+        bus: BusView::new(bus.name(), &bus.status()?),
         drives: diags(bus)?
             .iter()
-            .map(|d| DriveRow::new(d, uss_client::monotonic_ns()))
+            .map(|d| DriveView::new(d, uss_client::monotonic_ns()))
             .collect(),
     };
     out.show(&report, StatusReport::human)?;
@@ -21,7 +21,7 @@ pub(crate) fn status(bus: &Bus, out: &Output) -> Result<(), Failure> {
 pub(crate) fn stats(bus: &Bus, out: &Output) -> Result<(), Failure> {
     let status = bus.status()?;
     let report = StatsReport {
-        bus: BusReport::new(bus.name(), &status),
+        bus: BusView::new(bus.name(), &status),
         timing: TimingReport::of(&status),
         drives: diags(bus)?
             .iter()

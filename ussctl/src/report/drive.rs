@@ -1,7 +1,7 @@
 //! One drive: `watch` lines, parameters, faults, operator stops, `run` and `ack`.
 
 use super::shown_state;
-use super::status::ControlReport;
+use super::status::ControlView;
 use serde::Serialize;
 use std::fmt::Write as _;
 use uss_client::uss_catalogue::Bits;
@@ -25,7 +25,7 @@ pub struct WatchLine {
     pub sequence: u64,
     /// The drive's update period (time between its last two good replies), ms.
     pub period_ms: f64,
-    pub control: ControlReport,
+    pub control: ControlView,
     /// STW1 of the telegram that brought this reply.
     pub sent_stw1: u16,
     /// PZD3.. as the drive sent them.
@@ -48,7 +48,7 @@ impl WatchLine {
             actual_hz: Setpoint::from_word(i.hiw).hz(reference_hz),
             sequence: i.sequence,
             period_ms: i.age_ns as f64 / 1e6,
-            control: ControlReport::of_input(i),
+            control: ControlView::of_input(i),
             sent_stw1: i.sent_stw1,
             extra: i.extra[..extra_words].to_vec(),
         }
@@ -315,7 +315,7 @@ pub struct StoppedDrive {
     pub zsw1: u16,
     /// STW1 of the telegram the image came with: the command that went out.
     pub sent_stw1: u16,
-    pub control: ControlReport,
+    pub control: ControlView,
     /// Whether the drive's image showed the command; when not, why this process could not
     /// read it (the command stands: ussd took it).
     pub confirmed: bool,
@@ -339,7 +339,7 @@ impl StopReport {
             state: shown_state(i.known, i.online, i.zsw1),
             zsw1: i.zsw1,
             sent_stw1: i.sent_stw1,
-            control: ControlReport::of_input(i),
+            control: ControlView::of_input(i),
             confirmed: true,
             unconfirmed_because: None,
         });
@@ -354,7 +354,7 @@ impl StopReport {
                 state: "not read",
                 zsw1: 0,
                 sent_stw1: 0,
-                control: ControlReport::of_input(&PzdInput::EMPTY),
+                control: ControlView::of_input(&PzdInput::EMPTY),
                 confirmed: false,
                 unconfirmed_because: Some(why.to_string()),
             });

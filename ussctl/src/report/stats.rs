@@ -1,7 +1,7 @@
 //! `status --stats` and `status --timing`: counters, timing and what ussd knows of each
 //! drive.
 
-use super::status::{BusLine, BusReport, ControlReport, last_failure};
+use super::status::{BusLine, BusView, ControlView, last_failure};
 use serde::Serialize;
 use std::fmt::Write as _;
 use uss_client::{BusStatus, DriveDiag, StopCommand};
@@ -11,7 +11,7 @@ use uss_shm_types::{DriveCounters, DriveInfo};
 /// `stats`: the bus and every counter of every drive.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct StatsReport {
-    pub bus: BusReport,
+    pub bus: BusView,
     /// The bus's timing, µs: p50, p99, p99.9, max.
     pub timing: TimingReport,
     pub drives: Vec<DriveStats>,
@@ -72,7 +72,7 @@ pub struct DriveStats {
     /// thread): the rest is the drive as it was, not as it is.
     pub stale: bool,
     pub no_reply: bool,
-    pub control: ControlReport,
+    pub control: ControlView,
     pub last_error: &'static str,
     pub consecutive_failed_polls: u32,
     /// ms since the last good reply when ussctl read it; null: never.
@@ -160,7 +160,7 @@ impl DriveStats {
             online: d.is_online_at(now_ns),
             stale: d.is_overdue(now_ns),
             no_reply: d.no_reply != 0,
-            control: ControlReport::of_diag(d),
+            control: ControlView::of_diag(d),
             last_error: last_failure(d),
             consecutive_failed_polls: d.consecutive_failed_polls,
             last_good_ms_ago: (d.last_good_ns != NEVER)

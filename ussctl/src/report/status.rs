@@ -3,19 +3,16 @@
 use serde::Serialize;
 use std::fmt::Write as _;
 
-/// Whether a drive is live or latched, and why: the client's one view of it.
-pub use uss_client::view::ControlView as ControlReport;
-
-/// The bus as a whole: the client's one view of it ([`uss_client::view::BusView`]), as Python
-/// shows it too.
-pub use uss_client::view::BusView as BusReport;
+/// The client's one view of the bus, of a drive and of its control (`uss_client::view`), as
+/// Python and the bridge show them too; ussctl adds only its human lines and warnings.
+pub use uss_client::view::{BusView, ControlView, DriveView};
 
 /// The bus's line in `status` and `top`.
 pub trait BusLine {
     fn human(&self) -> String;
 }
 
-impl BusLine for BusReport {
+impl BusLine for BusView {
     fn human(&self) -> String {
         let mut out = format!(
             "bus {}: {}, {}{}, {} drives, {} cycles, {} exchanges ({} good), mean exchange {:.0} us",
@@ -53,8 +50,6 @@ impl BusLine for BusReport {
     }
 }
 
-/// One drive in `status`: the client's one view of it, as the bridge's diagnostics show it too.
-pub use uss_client::view::DriveView as DriveRow;
 pub(super) use uss_client::view::last_failure;
 
 /// What `status` warns of a drive.
@@ -63,7 +58,7 @@ trait DriveWarnings {
     fn monitoring_warning(&self) -> Option<String>;
 }
 
-impl DriveWarnings for DriveRow {
+impl DriveWarnings for DriveView {
     /// A drive that answers but does not take its commands from this link.
     fn commands_warning(&self) -> Option<String> {
         (self.online && !self.takes_commands && d_has_pzd(self)).then(|| {
@@ -119,15 +114,15 @@ fn command_source_hint(profile: Option<&uss_client::Catalogue>) -> String {
 
 /// Whether the drive's images carry a ZSW1 at all (PZD words configured): a drive without
 /// process data has no control word to take.
-fn d_has_pzd(d: &DriveRow) -> bool {
+fn d_has_pzd(d: &DriveView) -> bool {
     d.pzd_words > 0
 }
 
 /// `status`.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct StatusReport {
-    pub bus: BusReport,
-    pub drives: Vec<DriveRow>,
+    pub bus: BusView,
+    pub drives: Vec<DriveView>,
 }
 
 impl StatusReport {
@@ -168,10 +163,10 @@ impl StatusReport {
                 d.flags.join(",")
             );
         }
-        for warning in self.drives.iter().filter_map(DriveRow::commands_warning) {
+        for warning in self.drives.iter().filter_map(DriveView::commands_warning) {
             let _ = writeln!(out, "warning: {warning}");
         }
-        for warning in self.drives.iter().filter_map(DriveRow::monitoring_warning) {
+        for warning in self.drives.iter().filter_map(DriveView::monitoring_warning) {
             let _ = writeln!(out, "warning: {warning}");
         }
         if self.drives.iter().any(|d| d.control.state == "latched") {

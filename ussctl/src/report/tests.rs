@@ -33,8 +33,8 @@ fn diag() -> DriveDiag {
 #[test]
 fn status_json_has_one_object_per_drive_with_decoded_zsw1() {
     let report = StatusReport {
-        bus: BusReport::new("b0", &BusStatus::EMPTY),
-        drives: vec![DriveRow::new(&diag(), 0)],
+        bus: BusView::new("b0", &BusStatus::EMPTY),
+        drives: vec![DriveView::new(&diag(), 0)],
     };
     let v = serde_json::to_value(&report).unwrap();
     assert_eq!(v["bus"]["bus"], "b0");
@@ -68,7 +68,7 @@ fn status_json_has_one_object_per_drive_with_decoded_zsw1() {
 
 #[test]
 fn a_drive_without_telegram_monitoring_is_warned_about() {
-    let off = DriveRow::new(
+    let off = DriveView::new(
         &DriveDiag {
             monitoring: Monitoring::Off.code(),
             control: uss_client::ControlState::Live.code(),
@@ -77,7 +77,7 @@ fn a_drive_without_telegram_monitoring_is_warned_about() {
         0,
     );
     let report = StatusReport {
-        bus: BusReport::new("b0", &BusStatus::EMPTY),
+        bus: BusView::new("b0", &BusStatus::EMPTY),
         drives: vec![off],
     };
     let text = report.human();
@@ -90,7 +90,7 @@ fn a_drive_without_telegram_monitoring_is_warned_about() {
 
 #[test]
 fn a_drive_is_unknown_until_its_first_poll_decided() {
-    let d = DriveRow::new(
+    let d = DriveView::new(
         &DriveDiag {
             known: 0,
             online: 0,
@@ -103,7 +103,7 @@ fn a_drive_is_unknown_until_its_first_poll_decided() {
 
 #[test]
 fn offline_drives_show_offline_not_a_stale_state() {
-    let d = DriveRow::new(
+    let d = DriveView::new(
         &DriveDiag {
             online: 0,
             ..diag()
@@ -278,8 +278,8 @@ fn a_drive_whose_poll_is_overdue_shows_stale_not_online() {
         ..diag()
     };
     let report = StatusReport {
-        bus: BusReport::new("b0", &BusStatus::EMPTY),
-        drives: vec![DriveRow::new(&overdue, 1_000_000_000)],
+        bus: BusView::new("b0", &BusStatus::EMPTY),
+        drives: vec![DriveView::new(&overdue, 1_000_000_000)],
     };
     let v = serde_json::to_value(&report).unwrap();
     let d = &v["drives"][0];

@@ -3,7 +3,7 @@
 
 use super::Pending;
 use super::detail::{Detail, Reader};
-use crate::report::{BusReport, ControlReport, DriveRow};
+use crate::report::{BusView, ControlView, DriveView};
 use core::time::Duration;
 use std::collections::HashMap;
 use std::time::Instant;
@@ -16,15 +16,15 @@ const RECONNECT: Duration = Duration::from_secs(1);
 pub(crate) const MARKED_FOR: Duration = Duration::from_secs(2);
 
 /// A drive as last read: ussd's diagnostics and the input image.
-pub(crate) struct DriveView {
+pub(crate) struct TopDrive {
     /// As ussd lists it (the same as `diag.address`).
     pub address: Address,
     pub diag: DriveDiag,
-    pub row: DriveRow,
+    pub row: DriveView,
     /// The setpoint the last poll sent, Hz (None before an image was read).
     pub set_hz: Option<f32>,
     /// The image's control, with the operator's process behind an override.
-    pub control: ControlReport,
+    pub control: ControlView,
 }
 
 /// The columns whose changes are marked.
@@ -49,8 +49,8 @@ pub(crate) struct Screen {
     watches: Vec<DriveWatch>,
     pub health: Option<Health>,
     pub status: Option<BusStatus>,
-    pub report: Option<BusReport>,
-    pub drives: Vec<DriveView>,
+    pub report: Option<BusView>,
+    pub drives: Vec<TopDrive>,
     /// Exchanges per second and cycle time (ms), from the last two status publications.
     pub rates: Option<(f64, f64)>,
     last_counts: Option<(u64, u64, u64)>,
@@ -136,7 +136,7 @@ impl Screen {
             Ok((status, drives)) => {
                 self.read_error = None;
                 self.rate(&status);
-                self.report = Some(BusReport::new(&self.name, &status));
+                self.report = Some(BusView::new(&self.name, &status));
                 self.status = Some(status);
                 self.mark(&drives);
                 self.drives = drives;
@@ -184,7 +184,7 @@ impl Screen {
     }
 
     /// Notes which shown values changed since the last read.
-    fn mark(&mut self, drives: &[DriveView]) {
+    fn mark(&mut self, drives: &[TopDrive]) {
         let now = Instant::now();
         for d in drives {
             let r = &d.row;
@@ -245,7 +245,7 @@ impl Screen {
 fn read(
     bus: &Bus,
     watches: &mut Vec<DriveWatch>,
-) -> Result<(BusStatus, Vec<DriveView>), uss_client::ClientError> {
+) -> Result<(BusStatus, Vec<TopDrive>), uss_client::ClientError> {
     let status = bus.status()?;
     let addresses = bus.drives();
     if watches
@@ -273,11 +273,11 @@ fn read(
         let image: Option<PzdInput> = look.map(|l| l.image);
         let set_hz = image.map(|i| Setpoint::from_word(i.sent_setpoint).hz(diag.info.reference_hz));
         let control = image.map_or_else(
-            || ControlReport::of_diag(&diag),
-            |i| ControlReport::of_input(&i),
+            || ControlView::of_diag(&diag),
+            |i| ControlView::of_input(&i),
         );
-        let row = DriveRow::new(&diag, uss_client::monotonic_ns()).stale_when(overdue);
-        drives.push(DriveView {
+        let row = DriveView::new(&diag, uss_client::monotonic_ns()).stale_when(overdue);
+        drives.push(TopDrive {
             address: a,
             diag,
             row,

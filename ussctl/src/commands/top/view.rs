@@ -2,7 +2,7 @@
 
 use super::App;
 use super::detail::{COUNTERS, Detail};
-use super::model::{Col, DriveView, Screen};
+use super::model::{Col, Screen, TopDrive};
 use ratatui::Frame;
 use ratatui::layout::{Constraint, Layout, Rect};
 use ratatui::style::{Color, Modifier, Style};
@@ -153,7 +153,7 @@ fn marked(screen: &Screen, drive: u8, col: Col, normal: Style) -> Style {
     }
 }
 
-fn drive_row<'a>(screen: &Screen, d: &'a DriveView) -> Row<'a> {
+fn drive_row<'a>(screen: &Screen, d: &'a TopDrive) -> Row<'a> {
     let r = &d.row;
     let a = r.address;
     let state_style = match r.state {
