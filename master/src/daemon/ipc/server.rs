@@ -348,9 +348,10 @@ impl ParamServer {
             request: &request,
             address,
             tasks: &items,
+            rules: self.rules(address),
         };
-        if let Some(refusal) = self
-            .refuse_unindexed(&checked)
+        if let Some(refusal) = checked
+            .refuse_unindexed()
             .or_else(|| self.refuse_controlled(&active, &checked))
             .or_else(|| self.refuse_guarded(&active, &checked))
         {
@@ -456,6 +457,7 @@ impl ParamServer {
             request,
             address,
             tasks,
+            ..
         } = *checked;
         if !tasks.iter().any(ParamTask::is_write) || request.is_forced() {
             return None;
@@ -476,29 +478,6 @@ impl ParamServer {
         Some(response)
     }
 
-    /// An array parameter (its family's catalogue says so) named without its element is
-    /// refused, read or write, from every front-end: a drive would take element 0, which may not
-    /// be the element the user meant (`P1000`'s data sets, `P2014`'s two links).
-    fn refuse_unindexed(&self, checked: &Checked<'_>) -> Option<ParamResponse> {
-        let catalogue = self.rules(checked.address)?.catalogue?;
-        let item = checked.tasks.iter().position(|task| {
-            let unindexed = match *task {
-                ParamTask::Read { pnu } | ParamTask::Write { pnu, .. } => Some(pnu),
-                _ => None,
-            };
-            unindexed
-                .and_then(|pnu| catalogue.param(pnu.get()))
-                .is_some_and(uss_catalogue::Param::is_array)
-        })?;
-        Some(ParamResponse::refused(
-            checked.request.address,
-            uss_shm_types::Refusal {
-                error: RequestError::IndexRequired,
-                item: u8::try_from(item).ok(),
-            },
-        ))
-    }
-
     /// The rules of drive `address`.
     fn rules(&self, address: Address) -> Option<&WriteRules> {
         self.guards
@@ -516,8 +495,9 @@ impl ParamServer {
             request,
             address,
             tasks,
+            rules,
         } = *checked;
-        let rules = self.rules(address)?;
+        let rules = rules?;
         for (i, task) in tasks.iter().enumerate() {
             let Some((pnu, index, asked)) = written(task) else {
                 continue;
@@ -625,12 +605,39 @@ impl ParamServer {
     }
 }
 
-/// A request ussd has checked: its drive and the tasks its items ask for.
+/// A request ussd has checked: its drive, the tasks its items ask for, and the drive's write
+/// rules (found once for the request).
 #[derive(Clone, Copy)]
 struct Checked<'a> {
     request: &'a ParamRequest,
     address: Address,
     tasks: &'a [ParamTask],
+    rules: Option<&'a WriteRules>,
+}
+
+impl Checked<'_> {
+    /// An array parameter (its family's catalogue says so) named without its element is
+    /// refused, read or write, from every front-end: a drive would take element 0, which may not
+    /// be the element the user meant (`P1000`'s data sets, `P2014`'s two links).
+    fn refuse_unindexed(&self) -> Option<ParamResponse> {
+        let catalogue = self.rules?.catalogue?;
+        let item = self.tasks.iter().position(|task| {
+            let unindexed = match *task {
+                ParamTask::Read { pnu } | ParamTask::Write { pnu, .. } => Some(pnu),
+                _ => None,
+            };
+            unindexed
+                .and_then(|pnu| catalogue.param(pnu.get()))
+                .is_some_and(uss_catalogue::Param::is_array)
+        })?;
+        Some(ParamResponse::refused(
+            self.request.address,
+            uss_shm_types::Refusal {
+                error: RequestError::IndexRequired,
+                item: u8::try_from(item).ok(),
+            },
+        ))
+    }
 }
 
 /// The parameter, element and raw value a task writes, if it writes.
