@@ -7,8 +7,7 @@ use crate::{Bus, ClientError, ParamError};
 use uss_protocol::{ParamRef, ParamTask, Pnu, Storage, Subindex, Value};
 use uss_shm_types::names;
 use uss_shm_types::{
-    Address, MAX_PARAM_ITEMS, ParamItem, ParamRequest, ParamResponse, ParamResult, PathError,
-    RequestError,
+    Address, MAX_PARAM_ITEMS, ParamRequest, ParamResponse, ParamResult, PathError, RequestError,
 };
 
 /// How [`Bus::write_with`] writes.
@@ -261,14 +260,14 @@ impl Bus {
         flags: u8,
     ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
         // The one conversion from the protocol's tasks to the contract's items.
-        let items: Vec<ParamItem> = tasks.iter().map(ParamItem::from).collect();
-        let mut request = ParamRequest::new(address, &items).map_err(|r| ParamError::Refused {
-            error: r.error,
-            item: r.item,
-        })?;
+        let mut request =
+            ParamRequest::of_tasks(address, tasks).map_err(|r| ParamError::Refused {
+                error: r.error,
+                item: r.item,
+            })?;
         request.flags |= flags;
         let response = self.send_request(&request)?;
-        let results = response_results(&response, address, items.len())?;
+        let results = response_results(&response, address, tasks.len())?;
         Ok(results
             .into_iter()
             .zip(tasks)
@@ -282,8 +281,9 @@ impl Bus {
     /// ussd does not answer within the answer timeout ([`Bus::set_answer_timeout`]).
     pub fn send_request(&self, request: &ParamRequest) -> Result<ParamResponse, ParamError> {
         let services = self.link().check()?;
-        let name = names::params(&services.instance);
-        let client = crate::request::client(self.link(), &services, &services.params, &name)?;
+        let client = crate::request::client(self.link(), &services, &services.params, || {
+            names::params(&services.instance)
+        })?;
         let timeout = self.answer_timeout(usize::from(request.count).min(MAX_PARAM_ITEMS));
         match crate::request::round_trip(client, *request, timeout)? {
             Ok(response) => Ok(response),
@@ -300,7 +300,7 @@ impl Bus {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use uss_shm_types::{DriveError, Outcome};
+    use uss_shm_types::{DriveError, Outcome, ParamItem};
 
     fn result(outcome: Outcome, value: u32, dword: bool) -> ParamResult {
         ParamResult {

@@ -124,13 +124,13 @@ pub(crate) enum NoAnswer {
     Timeout,
 }
 
-/// The client of service `name` kept in `cell` (one of `services`'), opened on first use,
-/// with the generation's request and answer events.
+/// The client of service `name` kept in `cell` (one of `services`'), opened on first use
+/// (only then is its name made), with the generation's request and answer events.
 pub(crate) fn client<'a, Req, Resp>(
     link: &Link,
     services: &'a Services,
     cell: &'a OnceLock<Requester<Req, Resp>>,
-    name: &ServiceName,
+    name: impl FnOnce() -> ServiceName,
 ) -> Result<&'a Requester<Req, Resp>, ClientError>
 where
     Req: Debug + ZeroCopySend + Copy,
@@ -139,6 +139,7 @@ where
     if let Some(client) = cell.get() {
         return Ok(client);
     }
+    let name = &name();
     let bus = link.name.as_str();
     let service = opened(
         link.node

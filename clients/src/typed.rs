@@ -13,21 +13,13 @@ use uss_catalogue::{Catalogue, DataType, Param, Typed, Values as _};
 use uss_protocol::{Address, ParamRef, ParamTask, Pnu, Subindex, Value};
 use uss_shm_types::DriveFamily;
 
-/// The catalogue a [`Bus`] consults, and the data types drives described, by (address, PNU),
-/// for parameters it does not know.
-#[derive(Debug)]
+/// The catalogue a [`Bus`] was given ([`Bus::with_catalogue`]; none: each drive's family's
+/// own), and the data types drives described, by (address, PNU), for parameters it does not
+/// know.
+#[derive(Debug, Default)]
 pub(crate) struct Described {
-    catalogue: &'static Catalogue,
+    catalogue: Option<&'static Catalogue>,
     types: Mutex<HashMap<(u8, u16), DataType>>,
-}
-
-impl Default for Described {
-    fn default() -> Self {
-        Self {
-            catalogue: Catalogue::micromaster4(),
-            types: Mutex::default(),
-        }
-    }
 }
 
 impl Described {
@@ -102,7 +94,7 @@ impl Bus {
     #[must_use]
     pub fn with_catalogue(mut self, catalogue: &'static Catalogue) -> Self {
         self.described = std::sync::Arc::new(Described {
-            catalogue,
+            catalogue: Some(catalogue),
             types: Mutex::default(),
         });
         self
@@ -122,12 +114,7 @@ impl Bus {
     /// given with [`Bus::with_catalogue`]; none for a `generic` slave. What a catalogue does
     /// not list, the drive describes itself.
     fn catalogue_of(&self, family: DriveFamily) -> Option<&'static Catalogue> {
-        let catalogue = self.described.catalogue;
-        if core::ptr::eq(catalogue, Catalogue::micromaster4()) {
-            Catalogue::of(family)
-        } else {
-            Some(catalogue)
-        }
+        self.described.catalogue.or_else(|| Catalogue::of(family))
     }
 
     /// What parameter `pnu` of drive `address` is: the catalogue's entry, or the type the drive
@@ -190,31 +177,32 @@ impl Bus {
 
     /// The type a caller names for parameter `param` of drive `address` (`ussctl --type`).
     /// Where the parameter's own type is known (its family's catalogue, or a description the
-    /// drive gave this `Bus` before) that one applies, and a named type of another kind (a word
-    /// for a float, a double word for a word) is refused ([`ParamError::Value`]): it would show
-    /// or write other than what the drive holds. `None`: the type is not known here (a generic
-    /// slave, a parameter no catalogue lists), so the named one applies; the drive is not asked
-    /// (a caller that names the type sends one task).
+    /// drive gave this `Bus` before) that one applies, with its catalogue entry, to read with
+    /// ([`Bus::read_elements_described`]) or write with ([`Bus::write_param_described`]), and a
+    /// named type of another kind (a word for a float, a double word for a word) is refused
+    /// ([`ParamError::Value`]): it would show or write other than what the drive holds. `None`:
+    /// the type is not known here (a generic slave, a parameter no catalogue lists), so the
+    /// named one applies; the drive is not asked (a caller that names the type sends one task).
     pub fn named_type(
         &self,
         address: Address,
         param: ParamRef,
         named: DataType,
-    ) -> Result<Option<DataType>, ParamError> {
+    ) -> Result<Option<(DataType, Option<&'static Param>)>, ParamError> {
         let kind = |t: DataType| match t {
             DataType::I16 | DataType::U16 => "word",
             DataType::I32 | DataType::U32 => "double word",
             DataType::Float => "float",
         };
-        let pnu = param.pnu.get();
         let known = match self.catalogue_entry(address, param.pnu) {
             Some(p) => Some((p.data_type, Some(p))),
-            None => self.described.get(address.get(), pnu).map(|t| (t, None)),
+            None => self
+                .described
+                .get(address.get(), param.pnu.get())
+                .map(|t| (t, None)),
         };
         match known {
-            None => Ok(None),
-            Some((own, _)) if kind(own) == kind(named) => Ok(Some(own)),
-            Some((own, info)) => Err(ParamError::Value {
+            Some((own, info)) if kind(own) != kind(named) => Err(ParamError::Value {
                 param: shown_as(param, info).to_string(),
                 problem: format!(
                     "its type is {own:?} (a {}), not a {}: drop --type, it is read and written as its own",
@@ -222,6 +210,7 @@ impl Bus {
                     kind(named)
                 ),
             }),
+            known => Ok(known),
         }
     }
 
@@ -280,15 +269,31 @@ impl Bus {
         if family == DriveFamily::Generic {
             return self.read_by_value(address, param).map(|v| vec![v]);
         }
-        // Described once: the type and entry found here are the ones read with.
-        let (data_type, info) = self.describe_as(address, param.pnu, family)?;
+        let described = self.describe_as(address, param.pnu, family)?;
+        self.read_elements_described(address, param, described)
+    }
+
+    /// [`Bus::read_elements`] with the type and entry the caller found already
+    /// ([`Bus::describe`], [`Bus::named_type`]): they are the ones read with, not looked up again.
+    pub fn read_elements_described(
+        &self,
+        address: Address,
+        param: ParamRef,
+        (data_type, info): (DataType, Option<&'static Param>),
+    ) -> Result<Vec<ParamValue>, ParamError> {
         let Some((p, count)) = whole_array(param, info) else {
             return self
                 .read_described(address, param, data_type, info)
                 .map(|v| vec![v]);
         };
+        let whole = shown_as(param, Some(p));
         let elements: Vec<ParamRef> = (0..count)
-            .map(|i| ParamRef::numbered(param.pnu.get(), Some(i)))
+            .map(|i| {
+                Subindex::new(i).map(|index| ParamRef {
+                    index: Some(index),
+                    ..whole
+                })
+            })
             .collect::<Result<_, _>>()
             .map_err(|e| ParamError::Unexpected(e.to_string()))?;
         let mut values = Vec::with_capacity(elements.len());
@@ -297,9 +302,9 @@ impl Bus {
                 .iter()
                 .map(|e| ParamTask::read(e.pnu, e.index))
                 .collect();
-            for (element, raw) in chunk.iter().zip(self.batch(address, &tasks)) {
+            for (&element, raw) in chunk.iter().zip(self.batch(address, &tasks)) {
                 values.push(ParamValue {
-                    param: shown_as(*element, Some(p)),
+                    param: element,
                     raw: raw?,
                     data_type,
                     info: Some(p),
@@ -331,12 +336,25 @@ impl Bus {
         options: WriteOptions,
     ) -> Result<ParamValue, ParamError> {
         let family = self.family(address);
-        let (data_type, info) = if family == DriveFamily::Generic {
+        let described = if family == DriveFamily::Generic {
             // The width of what it holds now says what to write.
             (self.read_by_value(address, param)?.data_type, None)
         } else {
             self.describe_as(address, param.pnu, family)?
         };
+        self.write_param_described(address, param, text, options, described)
+    }
+
+    /// [`Bus::write_param`] with the type and entry the caller found already
+    /// ([`Bus::describe`], [`Bus::named_type`]): they are the ones written with.
+    pub fn write_param_described(
+        &self,
+        address: Address,
+        param: ParamRef,
+        text: &str,
+        options: WriteOptions,
+        (data_type, info): (DataType, Option<&'static Param>),
+    ) -> Result<ParamValue, ParamError> {
         let shown = shown_as(param, info);
         unindexed(param, info)?;
         if info.is_some_and(|p| !p.is_writable()) {

@@ -299,11 +299,27 @@ impl ParamItem {
 impl ParamRequest {
     /// A request for `items` on drive `address`.
     pub fn new(address: Address, items: &[ParamItem]) -> Result<Self, Refusal> {
+        Self::of(address, items, |item| *item)
+    }
+
+    /// A request of `tasks`, each put in its item's place by the one conversion
+    /// ([`ParamItem::from`]), with no list of items between.
+    pub fn of_tasks(address: Address, tasks: &[ParamTask]) -> Result<Self, Refusal> {
+        Self::of(address, tasks, |task| ParamItem::from(task))
+    }
+
+    fn of<T>(
+        address: Address,
+        items: &[T],
+        item: impl Fn(&T) -> ParamItem,
+    ) -> Result<Self, Refusal> {
         if items.is_empty() || items.len() > MAX_PARAM_ITEMS {
             return Err(Refusal::request(RequestError::BadCount));
         }
         let mut all = [ParamItem::EMPTY; MAX_PARAM_ITEMS];
-        all[..items.len()].copy_from_slice(items);
+        for (slot, one) in all.iter_mut().zip(items) {
+            *slot = item(one);
+        }
         Ok(Self {
             version: LAYOUT_VERSION,
             address: address.get(),

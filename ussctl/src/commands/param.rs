@@ -72,25 +72,26 @@ fn read(
         param: param.to_string(),
         source,
     };
-    // A type named for a parameter whose own type is known: the same kind, or refused.
-    let unknown = match kind {
-        Some(kind) => bus
-            .named_type(drive, param, kind.data_type())
-            .map_err(|source| Failure::Value { drive, source })?
-            .is_none(),
-        None => false,
-    };
-    let values = match kind.filter(|_| unknown) {
+    let values = match kind {
         // The parameter's own type (catalogue, or asked from the drive); an array named
         // without an element is read whole, a line per element.
         None => bus.read_elements(drive, param).map_err(failed)?,
-        // The type the user says, as the drive sent it.
-        Some(kind) => vec![ParamValue {
-            param,
-            raw: bus.read(drive, param).map_err(failed)?,
-            data_type: kind.data_type(),
-            info: None,
-        }],
+        // A type named for a parameter whose own type is known: the same kind, read as its own
+        // (found once), or refused; else the type the user says, as the drive sent it.
+        Some(kind) => match bus
+            .named_type(drive, param, kind.data_type())
+            .map_err(|source| Failure::Value { drive, source })?
+        {
+            Some(own) => bus
+                .read_elements_described(drive, param, own)
+                .map_err(failed)?,
+            None => vec![ParamValue {
+                param,
+                raw: bus.read(drive, param).map_err(failed)?,
+                data_type: kind.data_type(),
+                info: None,
+            }],
+        },
     };
     for v in &values {
         out.show(&ParamReport::new(bus.name(), drive, v), ParamReport::human)?;
@@ -252,19 +253,24 @@ fn write(bus: &Bus, out: &Output, w: &Write) -> Result<(), Failure> {
             source,
         },
     };
-    let unknown = match w.kind {
+    // A type named for a parameter whose own type is known: the same kind, written as its own
+    // (found once), or refused.
+    let own = match w.kind {
         Some(kind) => bus
             .named_type(drive, param, kind.data_type())
-            .map_err(|source| Failure::Value { drive, source })?
-            .is_none(),
-        None => false,
+            .map_err(|source| Failure::Value { drive, source })?,
+        None => None,
     };
-    let now = match w.kind.filter(|_| unknown) {
+    let now = match (w.kind, own) {
         // Converted to the parameter's own type; what does not fit is refused before the bus.
-        None => bus
+        (None, _) => bus
             .write_param(drive, param, &w.value, options)
             .map_err(failed)?,
-        Some(kind) => {
+        (Some(_), Some(own)) => bus
+            .write_param_described(drive, param, &w.value, options, own)
+            .map_err(failed)?,
+        // The type the user says, for a parameter whose own is not known here.
+        (Some(kind), None) => {
             let (value, _) = cli::parse_value(&w.value, Some(kind)).map_err(Failure::Usage)?;
             ParamValue {
                 param,
