@@ -251,7 +251,8 @@ impl Framer {
             self.state = State::Garbage;
             return Some(Err(FrameError::Bcc { expected, actual }));
         }
-        Some(Telegram::parse(&self.buf[..total]).map_err(|_| FrameError::BadLge(self.buf[1])))
+        // STX (`start`), LGE (above), the length and the BCC are checked: the telegram as is.
+        Some(Ok(Telegram::checked_by_framer(&self.buf[..total])))
     }
 }
 

@@ -246,6 +246,13 @@ impl<'a> Telegram<'a> {
         Ok(Self { bytes })
     }
 
+    /// A telegram the receive framer took whole and checked as the bytes came (STX, LGE in
+    /// range, its length, BCC): not checked a second time.
+    pub(crate) fn checked_by_framer(bytes: &'a [u8]) -> Self {
+        debug_assert_eq!(Self::parse(bytes), Ok(Self { bytes }));
+        Self { bytes }
+    }
+
     /// The whole telegram, STX through BCC.
     pub fn as_bytes(&self) -> &'a [u8] {
         self.bytes
