@@ -501,6 +501,17 @@ pub struct Catalogue {
     pub guard: Vec<Guard>,
 }
 
+/// What a write of one value to one parameter means to ussd ([`Catalogue::judge_write`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WriteJudgement<'a> {
+    /// The parameter's entry, where the catalogue lists it.
+    pub entry: Option<&'a Param>,
+    /// No setting of the parameter at all (NaN or an infinity for a float).
+    pub impossible: bool,
+    /// Why it can take the drive away from ussd, if it can.
+    pub guard: Option<&'a str>,
+}
+
 /// A catalogue file that cannot be read.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{origin}: {message}")]
@@ -603,33 +614,44 @@ impl Catalogue {
     }
 
     /// Why writing `value` (the raw word or double word of the task) to parameter `pnu` can
-    /// take the drive away from ussd, if it can. The value is compared as the parameter's type
-    /// reads it: a float's -0.0 is 0, so it switches monitoring off like 0 does.
-    pub fn guard(&self, pnu: u16, value: u32) -> Option<&str> {
-        let decoded = self.decoded(pnu, value);
-        self.guard
-            .iter()
-            .find(|g| g.id.pnu.get() == pnu && g.covers(decoded))
-            .map(|g| g.why.as_str())
+    /// take the drive away from ussd, if it can ([`Catalogue::judge_write`]).
+    pub fn guard(&self, pnu: u16, value: Value) -> Option<&str> {
+        self.judge_write(pnu, value).guard
     }
 
-    /// Whether `value` (the raw double word) can be no setting of parameter `pnu` at all: NaN
-    /// or an infinity for a float parameter. ussd refuses it, `--unsafe` or not.
-    pub fn is_impossible(&self, pnu: u16, value: u32) -> bool {
-        self.param(pnu)
-            .is_some_and(|p| p.data_type == DataType::Float && !f32::from_bits(value).is_finite())
+    /// Whether `value` can be no setting of parameter `pnu` at all
+    /// ([`Catalogue::judge_write`]).
+    pub fn is_impossible(&self, pnu: u16, value: Value) -> bool {
+        self.judge_write(pnu, value).impossible
     }
 
-    /// `value` as parameter `pnu` holds it: decoded by its type where the catalogue knows it,
-    /// the raw number otherwise.
-    fn decoded(&self, pnu: u16, value: u32) -> f64 {
-        self.param(pnu).map_or(f64::from(value), |p| {
-            match p.data_type.decode(Value::Dword(value)) {
+    /// What writing `value` (the raw word or double word of the task) to parameter `pnu` means
+    /// to ussd, the parameter looked up once: whether it can be no setting at all (NaN or an
+    /// infinity for a float parameter: refused, `--unsafe` or not), and why it can take the
+    /// drive away from ussd, if it can. The value is compared as the parameter's type reads
+    /// it: a float's -0.0 is 0, so it switches monitoring off like 0 does.
+    pub fn judge_write(&self, pnu: u16, value: Value) -> WriteJudgement<'_> {
+        let entry = self.param(pnu);
+        // As the parameter holds it: decoded by its type where the catalogue knows it, the
+        // raw number otherwise.
+        let decoded = entry.map_or(f64::from(value.as_u32()), |p| {
+            match p.data_type.decode(value) {
                 // A subnormal float is no setting a drive keeps: it reads as 0 (flushed).
                 Typed::Float(f) if f.is_subnormal() => 0.0,
                 typed => typed.as_f64(),
             }
-        })
+        });
+        WriteJudgement {
+            entry,
+            impossible: entry.is_some_and(|p| {
+                p.data_type == DataType::Float && !f32::from_bits(value.as_u32()).is_finite()
+            }),
+            guard: self
+                .guard
+                .iter()
+                .find(|g| g.id.pnu.get() == pnu && g.covers(decoded))
+                .map(|g| g.why.as_str()),
+        }
     }
 
     /// Reads a catalogue file: every entry checked, numbers unique and sorted.

@@ -218,18 +218,44 @@ fn guarded_parameters_are_marked_per_family_and_monitoring_only_when_switched_of
         mm4,
         Catalogue::of(DriveFamily::G110).unwrap()
     ));
-    assert!(mm4.guard(700, 2).unwrap().starts_with("command source"));
-    assert_eq!(mm4.guard(1120, 0), None, "a ramp time is not guarded");
-    assert_eq!(mm4.guard(2014, 100), None, "monitoring set is fine");
-    assert!(mm4.guard(2014, 0).unwrap().contains("monitoring off"));
+    assert!(
+        mm4.guard(700, Value::Word(2))
+            .unwrap()
+            .starts_with("command source")
+    );
+    assert_eq!(
+        mm4.guard(1120, Value::Word(0)),
+        None,
+        "a ramp time is not guarded"
+    );
+    assert_eq!(
+        mm4.guard(2014, Value::Word(100)),
+        None,
+        "monitoring set is fine"
+    );
+    assert!(
+        mm4.guard(2014, Value::Word(0))
+            .unwrap()
+            .contains("monitoring off")
+    );
     let g120 = Catalogue::of(DriveFamily::G120).unwrap();
-    assert!(g120.guard(2021, 5).unwrap().contains("address"));
-    assert!(g120.guard(2040, 0).is_some() && g120.guard(2040, 100.0f32.to_bits()).is_none());
+    assert!(
+        g120.guard(2021, Value::Word(5))
+            .unwrap()
+            .contains("address")
+    );
+    assert!(
+        g120.guard(2040, Value::Word(0)).is_some()
+            && g120.guard(2040, Value::Dword(100.0f32.to_bits())).is_none()
+    );
     assert!(Catalogue::of(DriveFamily::Generic).is_none());
     let simoreg = Catalogue::of(DriveFamily::Simoreg).unwrap();
-    assert!(simoreg.guard(782, 3).is_some() && simoreg.guard(303, 100).is_none());
+    assert!(
+        simoreg.guard(782, Value::Word(3)).is_some()
+            && simoreg.guard(303, Value::Word(100)).is_none()
+    );
     // Guarded by number: the BICO sources need no typed entry.
-    assert!(mm4.param(840).is_none() && mm4.guard(840, 0).is_some());
+    assert!(mm4.param(840).is_none() && mm4.guard(840, Value::Word(0)).is_some());
 }
 
 /// Issue 32: a guard compares what the drive would hold, not the raw bits.
@@ -245,24 +271,37 @@ fn a_guard_compares_the_value_as_its_type_reads_it() {
         f32::from_bits(0x8000_0001),
         -1.0,
     ] {
-        assert!(g120.guard(2040, off.to_bits()).is_some(), "{off:e}");
+        assert!(
+            g120.guard(2040, Value::Dword(off.to_bits())).is_some(),
+            "{off:e}"
+        );
     }
-    assert_eq!(g120.guard(2040, 100.0f32.to_bits()), None);
+    assert_eq!(g120.guard(2040, Value::Dword(100.0f32.to_bits())), None);
     // Only the listed values: p0010 = 30 (parameter reset mode), not 1 (quick commissioning).
-    assert!(g120.guard(10, 30).is_some());
-    assert_eq!(g120.guard(10, 1), None);
-    assert!(Catalogue::micromaster4().guard(10, 30).is_some());
-    assert_eq!(Catalogue::micromaster4().guard(10, 0), None);
+    assert!(g120.guard(10, Value::Word(30)).is_some());
+    assert_eq!(g120.guard(10, Value::Word(1)), None);
+    assert!(
+        Catalogue::micromaster4()
+            .guard(10, Value::Word(30))
+            .is_some()
+    );
+    assert_eq!(Catalogue::micromaster4().guard(10, Value::Word(0)), None);
     // NaN and infinities are no setting of a float parameter; a word parameter has no NaN.
     for bits in [
         f32::NAN.to_bits(),
         f32::INFINITY.to_bits(),
         f32::NEG_INFINITY.to_bits(),
     ] {
-        assert!(g120.is_impossible(2040, bits), "{bits:#x}");
+        assert!(g120.is_impossible(2040, Value::Dword(bits)), "{bits:#x}");
     }
-    assert!(!g120.is_impossible(2040, 100.0f32.to_bits()));
-    assert!(!Catalogue::micromaster4().is_impossible(2014, 0xFFFF));
+    assert!(!g120.is_impossible(2040, Value::Dword(100.0f32.to_bits())));
+    assert!(!Catalogue::micromaster4().is_impossible(2014, Value::Word(0xFFFF)));
+    // One look: the entry comes with the judgement (ussd shows the value by it in its audit).
+    let judged = g120.judge_write(2040, Value::Dword(0));
+    assert!(judged.guard.is_some() && !judged.impossible);
+    assert_eq!(judged.entry.map(|p| p.id.to_string()), Some("p2040".into()));
+    let unlisted = Catalogue::micromaster4().judge_write(840, Value::Word(0));
+    assert!(unlisted.entry.is_none() && unlisted.guard.is_some());
 }
 
 /// Issue 32: every family's guarded list names the parameters that take a drive out of reach

@@ -290,7 +290,7 @@ fn refuse_guarded(
         .iter()
         .filter_map(|(e, _)| {
             catalogue
-                .guard(e.param.pnu.get(), e.value.as_u32())
+                .guard(e.param.pnu.get(), e.value)
                 .map(|why| (e, why))
         })
         .collect();

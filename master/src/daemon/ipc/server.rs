@@ -179,25 +179,35 @@ enum Refused<'a> {
 
 impl WriteRules {
     /// Why writing `value` (the raw word or double word) to `pnu` (element `index`) is refused
-    /// without `--unsafe`, if it is.
-    fn refuse(&self, pnu: u16, index: Option<u8>, value: u32) -> Option<Refused<'static>> {
-        if let Some(c) = self.catalogue {
-            if c.is_impossible(pnu, value) {
-                return Some(Refused::Impossible);
-            }
-            if let Some(why) = c.guard(pnu, value) {
-                return Some(Refused::Guarded(why));
-            }
+    /// without `--unsafe`, if it is, with the catalogue's entry for the parameter (found once).
+    fn refuse(
+        &self,
+        pnu: u16,
+        index: Option<u8>,
+        value: uss_protocol::Value,
+    ) -> (
+        Option<Refused<'static>>,
+        Option<&'static uss_catalogue::Param>,
+    ) {
+        let judged = self.catalogue.map(|c| c.judge_write(pnu, value));
+        let entry = judged.and_then(|j| j.entry);
+        match judged {
+            Some(j) if j.impossible => return (Some(Refused::Impossible), entry),
+            Some(uss_catalogue::WriteJudgement {
+                guard: Some(why), ..
+            }) => return (Some(Refused::Guarded(why)), entry),
+            _ => {}
         }
         let listed = |list: &[ParamRef]| {
             list.iter()
                 .any(|p| p.pnu.get() == pnu && p.index.is_none_or(|i| Some(i.get()) == index))
         };
-        match (&self.writable, self.catalogue) {
+        let refused = match (&self.writable, self.catalogue) {
             (Some(list), _) if !listed(list) => Some(Refused::Unlisted),
             (None, None) => Some(Refused::Unlisted),
             _ => None,
-        }
+        };
+        (refused, entry)
     }
 }
 
@@ -359,7 +369,7 @@ impl ParamServer {
             self.answered = true;
             return;
         }
-        let mut response = ParamResponse::new(address.get());
+        let mut response = ParamResponse::new(request.address);
         response.count = items.len() as u8;
         let first_id = self.next_id;
         self.next_id += items.len() as u64;
@@ -502,8 +512,7 @@ impl ParamServer {
             let Some((pnu, index, asked)) = written(task) else {
                 continue;
             };
-            let value = asked.as_u32();
-            let Some(refused) = rules.refuse(pnu, index, value) else {
+            let (Some(refused), entry) = rules.refuse(pnu, index, asked) else {
                 continue;
             };
             let error = match refused {
@@ -517,10 +526,8 @@ impl ParamServer {
                     // Logged as asked, before the drive answers: the element, and the value
                     // in the parameter's own type where the family's catalogue knows it.
                     let element = index.map(|i| format!("[{i}]")).unwrap_or_default();
-                    let shown = rules
-                        .catalogue
-                        .and_then(|c| c.param(pnu))
-                        .map_or_else(|| format!("{value:#x}"), |p| p.show(asked));
+                    let shown =
+                        entry.map_or_else(|| format!("{:#x}", asked.as_u32()), |p| p.show(asked));
                     tracing::warn!(
                         bus = self.bus,
                         drive = address.get(),
