@@ -7,7 +7,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use uss_client::uss_shm_types::{
-    DriveError, ItemOutcome, LatchReason, ParamResult, PathError, RequestError, StopCommand,
+    DriveError, ItemOutcome, LatchReason, Outcome, PathError, RequestError, StopCommand,
 };
 use uss_client::{Address, ClientError, ErrorKind, ParamError};
 
@@ -157,7 +157,7 @@ pub(crate) fn client(py: Python<'_>, e: ClientError) -> PyErr {
 
 /// How an item ended, as `uss_rt.Outcome`'s code.
 fn outcome(ended: &ItemOutcome) -> u8 {
-    ParamResult::of(ended, 0, 0).outcome
+    Outcome::of(ended).code()
 }
 
 /// A parameter error as the matching `uss_rt` exception; `bus` and `address` name an unknown

@@ -224,29 +224,7 @@ impl ParamResult {
     /// The result of an item that ended in `outcome`, carried by `telegrams` telegrams over
     /// `on_wire_ns` (0 if it never reached the wire).
     pub fn of(outcome: &ItemOutcome, telegrams: u32, on_wire_ns: u64) -> Self {
-        let (code, value, drive_error, refusal) = match *outcome {
-            Ok(Ok(Answer::Value(v))) => (Outcome::Value, Some(v), 0, RequestError::Ok),
-            Ok(Ok(Answer::ElementCount(n))) => (
-                Outcome::ElementCount,
-                Some(Value::Word(n)),
-                0,
-                RequestError::Ok,
-            ),
-            Ok(Ok(Answer::Description(v))) => (Outcome::Description, Some(v), 0, RequestError::Ok),
-            Ok(Err(DriveError::Refused(e))) => {
-                (Outcome::DriveError, None, e.number(), RequestError::Ok)
-            }
-            Ok(Err(DriveError::NoChangeRights)) => {
-                (Outcome::NoChangeRights, None, 0, RequestError::Ok)
-            }
-            Err(PathError::Refused(e)) => (Outcome::Refused, None, 0, e),
-            Err(PathError::Timeout) => (Outcome::Timeout, None, 0, RequestError::Ok),
-            Err(PathError::DriveOffline) => (Outcome::DriveOffline, None, 0, RequestError::Ok),
-            Err(PathError::MailboxFull) => (Outcome::MailboxFull, None, 0, RequestError::Ok),
-            Err(PathError::Shutdown) => (Outcome::Shutdown, None, 0, RequestError::Ok),
-            Err(PathError::LineDown) => (Outcome::LineDown, None, 0, RequestError::Ok),
-            Err(PathError::Cancelled) => (Outcome::Cancelled, None, 0, RequestError::Ok),
-        };
+        let (code, value, drive_error, refusal) = parts(outcome);
         Self {
             outcome: code.code(),
             value_is_dword: u8::from(value.is_some_and(Value::is_dword)),
@@ -284,5 +262,38 @@ impl ParamResult {
             Outcome::LineDown => Err(PathError::LineDown),
             Outcome::Cancelled => Err(PathError::Cancelled),
         })
+    }
+}
+
+/// An item's end in the result's terms: its outcome code, the value it carries, the drive's
+/// error number and ussd's refusal.
+fn parts(outcome: &ItemOutcome) -> (Outcome, Option<Value>, u16, RequestError) {
+    match *outcome {
+        Ok(Ok(Answer::Value(v))) => (Outcome::Value, Some(v), 0, RequestError::Ok),
+        Ok(Ok(Answer::ElementCount(n))) => (
+            Outcome::ElementCount,
+            Some(Value::Word(n)),
+            0,
+            RequestError::Ok,
+        ),
+        Ok(Ok(Answer::Description(v))) => (Outcome::Description, Some(v), 0, RequestError::Ok),
+        Ok(Err(DriveError::Refused(e))) => {
+            (Outcome::DriveError, None, e.number(), RequestError::Ok)
+        }
+        Ok(Err(DriveError::NoChangeRights)) => (Outcome::NoChangeRights, None, 0, RequestError::Ok),
+        Err(PathError::Refused(e)) => (Outcome::Refused, None, 0, e),
+        Err(PathError::Timeout) => (Outcome::Timeout, None, 0, RequestError::Ok),
+        Err(PathError::DriveOffline) => (Outcome::DriveOffline, None, 0, RequestError::Ok),
+        Err(PathError::MailboxFull) => (Outcome::MailboxFull, None, 0, RequestError::Ok),
+        Err(PathError::Shutdown) => (Outcome::Shutdown, None, 0, RequestError::Ok),
+        Err(PathError::LineDown) => (Outcome::LineDown, None, 0, RequestError::Ok),
+        Err(PathError::Cancelled) => (Outcome::Cancelled, None, 0, RequestError::Ok),
+    }
+}
+
+impl Outcome {
+    /// How an item that ended so is coded ([`ParamResult::of`] without the result around it).
+    pub fn of(outcome: &ItemOutcome) -> Self {
+        parts(outcome).0
     }
 }

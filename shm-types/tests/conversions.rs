@@ -109,6 +109,8 @@ proptest! {
         let r = ParamResult::of(&o, telegrams, on_wire_ns);
         prop_assert_eq!(r.outcome_of(), Ok(o));
         prop_assert_eq!((r.telegrams, r.on_wire_ns), (telegrams, on_wire_ns));
+        // The code alone, without the result around it, is the result's.
+        prop_assert_eq!(uss_shm_types::Outcome::of(&o).code(), r.outcome);
     }
 
     #[test]
