@@ -619,12 +619,6 @@ impl Catalogue {
         self.judge_write(pnu, value).guard
     }
 
-    /// Whether `value` can be no setting of parameter `pnu` at all
-    /// ([`Catalogue::judge_write`]).
-    pub fn is_impossible(&self, pnu: u16, value: Value) -> bool {
-        self.judge_write(pnu, value).impossible
-    }
-
     /// What writing `value` (the raw word or double word of the task) to parameter `pnu` means
     /// to ussd, the parameter looked up once: whether it can be no setting at all (NaN or an
     /// infinity for a float parameter: refused, `--unsafe` or not), and why it can take the
