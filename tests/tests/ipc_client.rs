@@ -398,6 +398,61 @@ fn a_batch_of_39_reads_gets_39_results_in_order() {
         })));
 }
 
+/// A batch is taken whole or not at all. An adversarial run sent six 39-item batches at once to
+/// one drive (234 jobs for its mailbox of 64): the second ran items 1..25 and failed 26..39
+/// with "queue full", so a batch of writes could end half applied. Each batch now ends all
+/// answered, or refused as a whole (busy) with nothing of it run. A request for a drive ussd
+/// does not serve is refused as a whole too, and every front-end hears "unknown drive" (C said
+/// "refused": only Python mapped it).
+#[test]
+fn a_batch_runs_whole_or_is_refused_whole_and_an_unknown_drive_is_named() {
+    let _serial = serial();
+    let ussd = Ussd::start();
+    let bus = ussd.bus();
+    let items = vec![read(1082, None); 39];
+    let batches: Vec<_> = std::thread::scope(|s| {
+        let threads: Vec<_> = (0..6)
+            .map(|_| {
+                let (bus, items) = (&bus, &items);
+                s.spawn(move || bus.try_batch(addr(1), items, false))
+            })
+            .collect();
+        threads.into_iter().map(|t| t.join().unwrap()).collect()
+    });
+    let mut whole = 0;
+    for (k, batch) in batches.iter().enumerate() {
+        match batch {
+            Ok(results) => {
+                assert!(
+                    results.iter().all(|r| *r == Ok(Value::from_f32(50.0))),
+                    "batch {k} ran in part: {results:?}"
+                );
+                whole += 1;
+            }
+            Err(e) => assert_eq!(
+                *e,
+                ParamError::Refused {
+                    error: RequestError::Busy,
+                    item: None
+                },
+                "batch {k}"
+            ),
+        }
+    }
+    assert!(whole >= 1, "{batches:?}");
+    let unknown = bus.read(addr(9), param(1082));
+    assert!(
+        matches!(
+            unknown,
+            Err(ParamError::Client(ClientError::UnknownDrive {
+                address: 9,
+                ..
+            }))
+        ),
+        "{unknown:?}"
+    );
+}
+
 #[test]
 fn twelve_threads_sharing_one_bus_take_turns_and_every_request_is_answered() {
     let _serial = serial();
