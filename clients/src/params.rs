@@ -209,9 +209,12 @@ impl Bus {
             .collect()
     }
 
-    /// Runs up to 39 tasks on drive `address` in one request; one result per task, in order.
-    /// A failure of the request as a whole (ussd refused it, did not answer, is not running)
-    /// is reported for every task.
+    /// Runs up to 39 tasks on drive `address` in one request, one after the other with no
+    /// other client's task between them; one result per task, in order. A request runs whole
+    /// or not at all: ussd refuses it as a whole when the drive's queue has no room for every
+    /// task ([`uss_shm_types::RequestError::Busy`]), or for an item it cannot take (named). A
+    /// failure of the request as a whole (ussd refused it, did not answer, is not running) is
+    /// reported for every task.
     pub fn batch(&self, address: Address, items: &[ParamTask]) -> Vec<Result<Value, ParamError>> {
         self.batch_with(address, items, false)
     }
@@ -267,7 +270,14 @@ impl Bus {
             })?;
         request.flags |= flags;
         let response = self.send_request(&request)?;
-        let results = response_results(&response, address, tasks.len())?;
+        let results = match response_results(&response, address, tasks.len()) {
+            // Every front-end hears it as the drive unknown, with the drives ussd serves.
+            Err(ParamError::Refused {
+                error: RequestError::UnknownDrive,
+                ..
+            }) => return Err(self.unknown_drive(address).into()),
+            other => other?,
+        };
         Ok(results
             .into_iter()
             .zip(tasks)

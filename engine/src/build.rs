@@ -3,11 +3,11 @@
 //! handle share.
 
 use super::{
-    Arc, AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Bridge, BusStatus, BusTiming, CANCEL_QUEUE,
-    Clock, Drive, DriveCells, DriveSetup, Duration, Engine, EngineConfig, EngineHandle, Event,
-    Framer, FramerConfig, Gate, GateSetup, LOOK_STEP, LineStatus, LocalBridge, MAX_TELEGRAM_BYTES,
-    Mutex, Overrides, PeriodSetup, Periods, Published, Receiver, Shared, Stats, Transport, bounded,
-    capture, requesters,
+    Arc, AtomicBool, AtomicU32, AtomicU64, Bridge, BusStatus, BusTiming, CANCEL_QUEUE, Clock,
+    Drive, DriveCells, DriveSetup, Duration, Engine, EngineConfig, EngineHandle, Event, Framer,
+    FramerConfig, Gate, GateSetup, LOOK_STEP, LineStatus, LocalBridge, MAX_TELEGRAM_BYTES, Mutex,
+    OWN_READS, Overrides, PeriodSetup, Periods, Published, Receiver, Shared, Stats, Transport,
+    bounded, capture, requesters,
 };
 
 /// Builds the circulating list: each drive `weight` times, spread over the cycle (USS.md
@@ -114,6 +114,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         for (i, d) in cfg.drives.iter().enumerate() {
             slot_of[d.address.get() as usize] = Some(i as u8);
         }
+        // Every client's job of every drive at once: neither channel is ever full.
         let capacity = (cfg.mailbox_depth * cfg.drives.len()).max(1);
         let now = clock.now();
         let gates = gates(&cfg.drives, clock.monotonic_origin(), now);
@@ -127,7 +128,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .enumerate()
             .map(|(slot, (&setup, gate))| {
                 let shortest = periods.shortest_monitoring(slot);
-                Drive::new(setup, gate, cfg.mailbox_depth, shortest)
+                Drive::new(setup, gate, cfg.mailbox_depth + OWN_READS, shortest)
             })
             .collect();
         let timing = BusTiming::new();
@@ -149,12 +150,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             line_down: AtomicBool::new(false),
             reopen_attempts: AtomicU32::new(0),
             progress: AtomicU64::new(0),
-            outstanding: AtomicUsize::new(0),
             requesters: requesters::Requesters::default(),
-            capacity,
+            mailbox_depth: cfg.mailbox_depth,
         });
-        // Outstanding jobs never exceed `capacity`, so neither channel can be full when the
-        // engine sends: no result is ever lost.
+        // Clients' jobs never exceed `capacity` (each drive's mailbox depth), so neither
+        // channel can be full when the engine sends: no result is ever lost.
         let (jobs_tx, jobs_rx) = bounded(capacity);
         let (cancels_tx, cancels_rx) = bounded(CANCEL_QUEUE);
         let (results_tx, results_rx) = bounded(capacity);

@@ -2,8 +2,8 @@
 //! operator stops, statistics, stop; lock-free or bounded, never waiting on the bus thread.
 
 use super::{
-    Address, DriveSetup, Duration, Encoded, EngineHandle, INTERNAL_JOB, Job, JobResult, Ordering,
-    PzdOutput, Requester, Stats, StopCommand, SubmitError, stop_index,
+    Address, DriveSetup, Duration, Encoded, EngineHandle, INTERNAL_JOB, Job, JobResult,
+    MAX_PARAM_ITEMS, Ordering, PzdOutput, Requester, Stats, StopCommand, SubmitError, stop_index,
 };
 
 impl EngineHandle {
@@ -121,37 +121,61 @@ impl EngineHandle {
     /// the bus thread ends it with [`uss_shm_types::PathError::Cancelled`] instead of sending
     /// it when the requester has died by the time the job would leave the mailbox.
     pub fn submit_for(&self, job: Job, requester: Requester) -> Result<(), SubmitError> {
+        self.submit_all_for(job.address, job.id, &[job.task], requester)
+            .map_err(|(_, e)| e)
+    }
+
+    /// Queues the tasks of one request for drive `address` as jobs `first_id`, `first_id + 1`,
+    /// ..., all or none: each is checked first, then room for all of them is taken in the
+    /// drive's mailbox at once, so a request is never run in part for want of room (it is
+    /// refused whole, [`SubmitError::Busy`]). Once accepted, each ends in exactly one
+    /// [`JobResult`]. The error names the task it is about (none: the request as a whole).
+    pub fn submit_all_for(
+        &self,
+        address: Address,
+        first_id: u64,
+        tasks: &[uss_protocol::ParamTask],
+        requester: Requester,
+    ) -> Result<(), (Option<usize>, SubmitError)> {
+        let whole = |e| (None, e);
         if self.shared.stop.load(Ordering::Acquire) {
-            return Err(SubmitError::Stopped);
-        }
-        if job.id & INTERNAL_JOB != 0 {
-            return Err(SubmitError::ReservedJobId(job.id));
+            return Err(whole(SubmitError::Stopped));
         }
         if self.shared.line_down.load(Ordering::Acquire) {
-            return Err(SubmitError::LineDown);
+            return Err(whole(SubmitError::LineDown));
         }
-        let slot = self.shared.slot(job.address)?;
+        let slot = self.shared.slot(address).map_err(whole)?;
         let setup = &self.shared.setups[slot];
-        if job.task.is_write() && !setup.params_writable {
-            return Err(SubmitError::WritesDisabled(job.address));
+        if tasks.len() > MAX_PARAM_ITEMS {
+            return Err(whole(SubmitError::TooMany(tasks.len())));
         }
-        // The one check that the task fits the drive's channel, and its words for every
-        // telegram that will carry it.
-        let pkw = Encoded::new(&job.task, setup.layout.pkw).map_err(|error| SubmitError::Pkw {
-            address: job.address,
-            error,
-        })?;
-        let cap = self.shared.capacity;
-        self.shared
-            .outstanding
+        // Each task checked and encoded once, on the stack (a caller may be a real-time thread).
+        let job = |i: usize, task| Job {
+            id: first_id.wrapping_add(i as u64),
+            address,
+            task,
+        };
+        let mut words = [None; MAX_PARAM_ITEMS];
+        for (i, (&task, w)) in tasks.iter().zip(&mut words).enumerate() {
+            *w = Some(checked(setup, &job(i, task)).map_err(|e| (Some(i), e))?);
+        }
+        // Room for every task at once, or for none.
+        let depth = self.shared.mailbox_depth;
+        let queued = &self.shared.drives[slot].queued;
+        queued
             .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
-                (n < cap).then_some(n + 1)
+                (n + tasks.len() <= depth).then_some(n + tasks.len())
             })
-            .map_err(|_| SubmitError::Busy(cap))?;
-        self.jobs.try_send((job, pkw, requester)).map_err(|_| {
-            self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
-            SubmitError::Stopped
-        })
+            .map_err(|_| whole(SubmitError::Busy(depth)))?;
+        for (i, (&task, pkw)) in tasks.iter().zip(words.into_iter().flatten()).enumerate() {
+            // The channel holds every drive's full mailbox: it fails only when the bus thread
+            // is gone, and then nothing of the request runs.
+            if self.jobs.try_send((job(i, task), pkw, requester)).is_err() {
+                queued.fetch_sub(tasks.len() - i, Ordering::AcqRel);
+                return Err(whole(SubmitError::Stopped));
+            }
+        }
+        Ok(())
     }
 
     /// Watches the process of `pidfd` ([`crate::requesters::pidfd_of`]) for the jobs
@@ -184,7 +208,12 @@ impl EngineHandle {
     /// The next finished job, waiting at most `timeout`.
     pub fn recv_result(&self, timeout: Duration) -> Option<JobResult> {
         let r = self.results.recv_timeout(timeout).ok()?;
-        self.shared.outstanding.fetch_sub(1, Ordering::AcqRel);
+        // Only clients' jobs come here (ussd's own reads end in the bus thread).
+        if let Ok(slot) = self.shared.slot(r.job.address) {
+            self.shared.drives[slot]
+                .queued
+                .fetch_sub(1, Ordering::AcqRel);
+        }
         Some(r)
     }
 
@@ -243,4 +272,19 @@ impl EngineHandle {
     pub fn drives(&self) -> &[DriveSetup] {
         &self.shared.setups
     }
+}
+
+/// Checks `job` for drive `setup` and encodes its words: the one check that the task fits
+/// the drive's channel, and its words for every telegram that will carry it.
+fn checked(setup: &DriveSetup, job: &Job) -> Result<Encoded, SubmitError> {
+    if job.id & INTERNAL_JOB != 0 {
+        return Err(SubmitError::ReservedJobId(job.id));
+    }
+    if job.task.is_write() && !setup.params_writable {
+        return Err(SubmitError::WritesDisabled(job.address));
+    }
+    Encoded::new(&job.task, setup.layout.pkw).map_err(|error| SubmitError::Pkw {
+        address: job.address,
+        error,
+    })
 }

@@ -35,6 +35,7 @@ mod capture;
 mod drive;
 pub use capture::CAPTURE_QUEUE;
 use drive::Drive;
+use uss_shm_types::MAX_PARAM_ITEMS;
 mod exchange;
 use exchange::Attempt;
 mod handle;
@@ -73,6 +74,9 @@ use uss_shm_types::{
 /// Job ids with this bit are ussd's own (telegram monitoring, reference frequency); clients use
 /// the rest.
 pub const INTERNAL_JOB: u64 = 1 << 63;
+/// ussd's own reads a drive's mailbox may hold besides its clients' jobs: the telegram
+/// monitoring and the reference (`monitoring::check_own_reads`).
+pub const OWN_READS: usize = 2;
 
 /// One drive as the engine polls it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -308,7 +312,9 @@ pub enum SubmitError {
         given: usize,
         allowed: usize,
     },
-    #[error("too many parameter jobs outstanding ({0}): wait for results first")]
+    #[error(
+        "the drive's parameter queue has no room for every task of the request (it holds {0}): nothing of it was queued; retry once earlier requests finished"
+    )]
     Busy(usize),
     #[error("the bus engine has stopped")]
     Stopped,
@@ -316,6 +322,8 @@ pub enum SubmitError {
     ReservedJobId(u64),
     #[error("the bus line is down: ussd reopens it; retry once it is back")]
     LineDown,
+    #[error("{0} tasks in one request: at most {MAX_PARAM_ITEMS}")]
+    TooMany(usize),
 }
 
 impl From<&SubmitError> for uss_shm_types::RequestError {
@@ -337,6 +345,7 @@ impl From<&SubmitError> for uss_shm_types::RequestError {
             SubmitError::Stopped => Told::Shutdown,
             SubmitError::ReservedJobId(_) => Told::BadTask,
             SubmitError::LineDown => Told::LineDown,
+            SubmitError::TooMany(_) => Told::BadCount,
         }
     }
 }
@@ -373,6 +382,9 @@ const fn stop_index(command: StopCommand) -> usize {
 /// sample handed in, its operator stops. The bus thread's own record of it is [`Drive`].
 #[derive(Debug, Default)]
 struct DriveCells {
+    /// Clients' jobs of the drive submitted whose results were not taken yet: at most the
+    /// mailbox depth, so a client's job always finds room in the mailbox.
+    queued: AtomicUsize,
     images: DriveImages,
     output_number: AtomicU64,
     overrides: Overrides,
@@ -401,8 +413,9 @@ struct Shared {
     /// [`IDLE_STEP`] of an idle wait, every wait for a reopened line. A counter that stops
     /// means the bus thread hangs (see the daemon's supervisor, `uss-master`'s `daemon::supervise`).
     progress: AtomicU64,
-    outstanding: AtomicUsize,
-    capacity: usize,
+    /// Clients' jobs each drive's mailbox takes ([`EngineConfig::mailbox_depth`]); it holds
+    /// [`OWN_READS`] more for ussd's own reads.
+    mailbox_depth: usize,
     /// The processes behind parameter jobs, checked before each job leaves its mailbox.
     requesters: requesters::Requesters,
 }

@@ -1568,3 +1568,46 @@ fn a_latch_and_a_rearm_are_published_with_the_poll_that_carried_them() {
         control(&b)
     );
 }
+
+/// A request is queued whole or not at all (an adversarial run found a 39-item batch run in
+/// part when its drive's mailbox filled): with room for 4 jobs, 3 tasks are taken, the next 3
+/// are refused as a whole and none of them runs; once the first results are taken, there is
+/// room again. An item the drive cannot take refuses its request naming the item.
+#[test]
+fn a_request_is_queued_whole_or_refused_whole() {
+    let mut b = bench_with(
+        &[(1, PkwMode::Four), (2, PkwMode::None)],
+        |_| {},
+        |c| c.mailbox_depth = 4,
+        false,
+    );
+    b.run_for(ms(1000), &[]);
+    let tasks = [read(0, 1, 1082).task; 3];
+    let none = uss_engine::jobs::Requester::NONE;
+    assert_eq!(b.handle.submit_all_for(addr(1), 10, &tasks, none), Ok(()));
+    assert_eq!(
+        b.handle.submit_all_for(addr(1), 20, &tasks, none),
+        Err((None, SubmitError::Busy(4)))
+    );
+    // A drive without a parameter channel: the first item it cannot take is named.
+    assert!(matches!(
+        b.handle.submit_all_for(addr(2), 30, &tasks, none),
+        Err((Some(0), SubmitError::Pkw { .. }))
+    ));
+    let mut ended = Vec::new();
+    while ended.len() < 3 {
+        b.engine.poll_next().unwrap();
+        while let Some(r) = b.handle.recv_result(Duration::ZERO) {
+            ended.push(r.job.id);
+        }
+    }
+    for _ in 0..20 {
+        b.engine.poll_next().unwrap();
+        assert!(
+            b.handle.recv_result(Duration::ZERO).is_none(),
+            "a refused job ran"
+        );
+    }
+    assert_eq!(ended, [10, 11, 12]);
+    assert_eq!(b.handle.submit_all_for(addr(1), 40, &tasks, none), Ok(()));
+}

@@ -160,9 +160,8 @@ fn outcome(ended: &ItemOutcome) -> u8 {
     Outcome::of(ended).code()
 }
 
-/// A parameter error as the matching `uss_rt` exception; `bus` and `address` name an unknown
-/// drive.
-pub(crate) fn param(py: Python<'_>, bus: &uss_client::Bus, address: u8, e: ParamError) -> PyErr {
+/// A parameter error as the matching `uss_rt` exception (`bus` named in its details).
+pub(crate) fn param(py: Python<'_>, bus: &uss_client::Bus, e: ParamError) -> PyErr {
     let (kind, message) = (e.kind(), e.to_string());
     let refused = |error: RequestError, item: Option<u8>| {
         vec![
@@ -173,19 +172,6 @@ pub(crate) fn param(py: Python<'_>, bus: &uss_client::Bus, address: u8, e: Param
     let details = match e {
         ParamError::Drive(DriveError::Refused(p)) => vec![("number", obj(py, p.number()))],
         ParamError::Drive(d) => vec![("outcome", member(py, "Outcome", outcome(&Ok(Err(d)))))],
-        ParamError::Path(PathError::Refused(RequestError::UnknownDrive))
-        | ParamError::Refused {
-            error: RequestError::UnknownDrive,
-            ..
-        } => {
-            let known = bus.drives().iter().map(|a| a.get()).collect();
-            let unknown = ClientError::UnknownDrive {
-                bus: bus.name().to_owned(),
-                address,
-                known,
-            };
-            return client(py, unknown);
-        }
         ParamError::Path(PathError::Refused(error)) => refused(error, None),
         ParamError::Refused { error, item } => refused(error, item),
         ParamError::Controlled { .. } => refused(RequestError::Controlled, None),

@@ -48,7 +48,7 @@ fn read_param(
         .with_answer_timeout(Some(duration(timeout)?));
     py.detach(|| bus.read(drive, param))
         .map(raw)
-        .map_err(|e| errors::param(py, &bus, address, e))
+        .map_err(|e| errors::param(py, &bus, e))
 }
 
 /// Up to 39 raw items of drive `address` in one request, run one after the other with no
@@ -105,14 +105,12 @@ fn batch(
         .with_answer_timeout(Some(duration(timeout)?));
     let results = py
         .detach(|| bus.try_batch(drive, &tasks, force))
-        .map_err(|e| errors::param(py, &bus, address, e))?;
+        .map_err(|e| errors::param(py, &bus, e))?;
     results
         .into_iter()
         .map(|r| match r {
             Ok(v) => Ok(raw(v).into_pyobject(py)?.into_any().unbind()),
-            Err(e) => Ok(errors::param(py, &bus, address, e)
-                .into_value(py)
-                .into_any()),
+            Err(e) => Ok(errors::param(py, &bus, e).into_value(py).into_any()),
         })
         .collect()
 }
@@ -206,7 +204,7 @@ fn answered<T: Send>(
         .inner
         .with_answer_timeout(Some(duration(timeout)?));
     py.detach(|| f(&bus, drive, param))
-        .map_err(|e| errors::param(py, &bus, address, e))
+        .map_err(|e| errors::param(py, &bus, e))
 }
 
 /// A typed parameter call `f` of `param`, answered within `timeout` s, without the GIL.
@@ -260,7 +258,7 @@ fn fault_report<'py>(
     let drive = errors::drive(py, address)?;
     let report = py
         .detach(|| bus.fault_report(drive))
-        .map_err(|e| errors::param(py, bus, address, e))?;
+        .map_err(|e| errors::param(py, bus, e))?;
     let faults = pyo3::types::PyList::empty(py);
     for f in &report.faults {
         let d = PyDict::new(py);

@@ -487,19 +487,23 @@ fn bad_requests_are_answered_with_errors() {
     let ussd = Ussd::start();
     let bus = ussd.bus();
 
-    // A drive ussd does not poll.
+    // A drive ussd does not poll: refused as a whole, and named so, with the drives it polls.
     assert_eq!(
         bus.read(addr(9), param(1082)),
-        Err(ParamError::Refused {
-            error: RequestError::UnknownDrive,
-            item: None
-        })
+        Err(ParamError::Client(ClientError::UnknownDrive {
+            bus: bus.name().to_owned(),
+            address: 9,
+            known: vec![1, 2, 3]
+        }))
     );
     let out = ussd.ussctl(&["param", "read", "9", "1082"]);
     assert_eq!(out.status.code(), Some(1));
     assert_eq!(
         text(&out.stderr),
-        "ussctl: drive 9 P1082: ussd refused the request before the bus: unknown drive: the address is not in ussd's configuration\n"
+        format!(
+            "ussctl: drive 9 P1082: drive 9 is not on {} (ussd polls drives 1, 2, 3 there): use one of those or add it to ussd's configuration\n",
+            bus.name()
+        )
     );
 
     // Malformed requests, sent as they are: each gets exactly one refusal.

@@ -453,9 +453,9 @@ fn killed_client_queued_eeprom_writes_are_cancelled_not_sent() {
     );
 }
 
-/// A dead client's work dies with it, every time (issue 20): four requests of 39 EEPROM writes
-/// of P1120 (each a value of its own) from a client killed (SIGKILL) right after ussd accepted them
-/// (the 64 its queue for the drive takes).
+/// A dead client's work dies with it, every time (issue 20): four requests of 32 EEPROM writes
+/// of P1120 (each a value of its own) from a client killed (SIGKILL) right after ussd accepted
+/// two of them (the 64 its queue for the drive takes; the other two are refused whole).
 /// Over 12 runs, the capture of every telegram shows no write first sent after the client was
 /// gone (a margin of 5 ms for the job whose check passed just before): ussd checks the
 /// requester before each job leaves the mailbox, not every 100 ms. At most the job on the wire
@@ -473,7 +473,7 @@ fn a_dead_clients_writes_never_leave_the_mailbox_after_its_death() {
         let before = bus.status().unwrap();
         let mut child = child(&ussd, "eeprom-burst", &format!("1,{run}"));
         child.says("QUEUED");
-        // ussd queues 64 jobs per drive; the items beyond are refused at once (busy).
+        // ussd queues 64 jobs per drive; a request beyond is refused whole at once (busy).
         wait_status(&bus, Duration::from_secs(10), "64 jobs accepted", |s| {
             s.jobs_accepted >= before.jobs_accepted + 64
         });
@@ -979,9 +979,11 @@ fn eeprom_burst(bus: &str, a: u8, run: u32) {
         for request in 0..4u16 {
             let bus = &bus;
             s.spawn(move || {
-                let items: Vec<_> = (0..39u16)
+                // Two requests of 32 fill the drive's queue (64); the other two are refused
+                // whole (busy), as ussd takes a request whole or not at all.
+                let items: Vec<_> = (0..32u16)
                     .map(|k| {
-                        let n = (run * 156) as f32 + f32::from(request * 39 + k);
+                        let n = (run * 128) as f32 + f32::from(request * 32 + k);
                         write(1120, Value::from_f32(1.0 + n / 64.0), true)
                     })
                     .collect();

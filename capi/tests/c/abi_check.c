@@ -92,6 +92,11 @@ int main(int argc, char **argv) {
   EXPECT(ussrt_param_read(bus, 1, "P1999", &v) == USSRT_STATUS_DRIVE_ERROR, "P1999");
   EXPECT(info().drive_error == 0, "error 0: illegal PNU, got %u", info().drive_error);
   EXPECT(ussrt_param_read(bus, 1, "Q12", &v) == USSRT_STATUS_INVALID_ARGUMENT, "notation");
+  /* A drive ussd does not poll: the same status as its diagnostics, not "refused". */
+  EXPECT(ussrt_param_read(bus, 9, "P0003", &v) == USSRT_STATUS_UNKNOWN_DRIVE, "P0003 of drive 9");
+  EXPECT(ussrt_param_read_raw(bus, 9, 3, USSRT_NO_INDEX, &raw, &dword) ==
+             USSRT_STATUS_UNKNOWN_DRIVE,
+         "raw P0003 of drive 9");
   EXPECT(ussrt_param_write(bus, 2, "P0700", "70000", 0, &v) == USSRT_STATUS_VALUE, "70000");
   EXPECT(strstr(ussrt_last_error(), "70000 does not fit") != NULL, "says why");
   OK(ussrt_param_write(bus, 1, "P1120", "0.5", 0, &v));

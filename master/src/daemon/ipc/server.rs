@@ -20,7 +20,7 @@ use iceoryx2::service::port_factory::request_response::PortFactory as RequestRes
 use std::time::Instant;
 use uss_catalogue::Catalogue;
 use uss_engine::EngineHandle;
-use uss_engine::jobs::{Job, JobResult, Requester};
+use uss_engine::jobs::{JobResult, Requester};
 use uss_protocol::{Address, ParamRef, ParamTask};
 use uss_shm_types::names;
 use uss_shm_types::{Instance, Outcome, ParamRequest, ParamResponse, ParamResult, RequestError};
@@ -373,7 +373,6 @@ impl ParamServer {
         response.count = items.len() as u8;
         let first_id = self.next_id;
         self.next_id += items.len() as u64;
-        let mut remaining = 0;
         // The node is cheap to find; its process (a walk over every node) only at its first
         // request: the bus thread checks that process before each job leaves the mailbox.
         let client = self.identities.param_client_node(active.origin());
@@ -381,43 +380,42 @@ impl ParamServer {
             let identities = &self.identities;
             self.watches.request(node, || identities.pid(&node), handle)
         });
-        for (i, &task) in items.iter().enumerate() {
-            let job = Job {
-                id: first_id + i as u64,
-                address,
-                task,
-            };
-            let submitted = handle
-                .submit_for(job, requester)
-                .map_err(|e| RequestError::from(&e));
-            match submitted {
-                Ok(()) => remaining += 1,
-                Err(e) => response.results[i] = ParamResult::refused(e),
-            }
-        }
-        tracing::debug!(
-            bus = self.bus,
-            drive = address.get(),
-            first_job = first_id,
-            "drive {address}: parameter request of {} item(s) accepted as jobs {first_id}..{}, {} refused",
-            items.len(),
-            first_id + items.len() as u64,
-            items.len() - remaining
-        );
-        if remaining == 0 {
-            let _ = active.send_copy(response);
+        // All or nothing: a request is never run in part (its drive's queue too full for all
+        // of it, an item the drive cannot take).
+        if let Err((item, e)) = handle.submit_all_for(address, first_id, &items, requester) {
+            tracing::debug!(
+                bus = self.bus,
+                drive = address.get(),
+                "drive {address}: parameter request of {} item(s) refused: {e}",
+                items.len()
+            );
+            let _ = active.send_copy(ParamResponse::refused(
+                request.address,
+                uss_shm_types::Refusal {
+                    error: RequestError::from(&e),
+                    item: item.and_then(|i| u8::try_from(i).ok()),
+                },
+            ));
             self.answered = true;
             if let Some(node) = client {
                 self.watches.answered(node, handle);
             }
             return;
         }
+        tracing::debug!(
+            bus = self.bus,
+            drive = address.get(),
+            first_job = first_id,
+            "drive {address}: parameter request of {} item(s) accepted as jobs {first_id}..{}",
+            items.len(),
+            first_id + items.len() as u64,
+        );
         self.pending.push(Pending {
             active,
             response,
             first_id,
             count: items.len() as u64,
-            remaining,
+            remaining: items.len(),
             client,
             pid: 0,
             cancelled: false,
