@@ -858,7 +858,8 @@ enum UssRequestError
    */
   USS_REQUEST_ERROR_WRITES_DISABLED = 5,
   /**
-   * Too many parameter jobs outstanding; retry after results arrived.
+   * The drive's parameter queue has no room for every item of the request: nothing of
+   * it was queued (a request runs whole or not at all); retry after results arrived.
    */
   USS_REQUEST_ERROR_BUSY = 6,
   /**

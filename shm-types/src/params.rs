@@ -61,8 +61,9 @@ code_table! {
         ValueType = 4 => "value does not match the task",
         /// Parameter writes are disabled for this drive (`params_writable = false`).
         WritesDisabled = 5 => "writes disabled",
-        /// Too many parameter jobs outstanding; retry after results arrived.
-        Busy = 6 => "engine busy",
+        /// The drive's parameter queue has no room for every item of the request: nothing of
+        /// it was queued (a request runs whole or not at all); retry after results arrived.
+        Busy = 6 => "the drive's parameter queue has no room for the whole request",
         /// ussd is shutting down.
         Shutdown = 7 => "shut down",
         /// The request's `version` is not [`LAYOUT_VERSION`].

@@ -144,6 +144,8 @@ fn a_write_that_takes_the_drive_from_ussd_needs_unsafe_and_the_drive_then_shows_
         line.contains("drive 1: P2011[1] := 3 asked with --unsafe by process"),
         "{line}"
     );
+    // And what went out as it went (a type may read a value other than the one meant).
+    assert!(line.contains("; sent as the word 0x3)"), "{line}");
     let said = ussd.log_line("does not take its commands", Duration::from_secs(2));
     // Each names the setting that gives the drive back, from its family's profile.
     assert!(
@@ -496,6 +498,17 @@ fn guards_compare_values_and_a_drive_without_a_catalogue_takes_only_listed_write
     };
     let r = bus.write_with(addr(3), p2040, Value::from_f32(f32::NAN), unsafe_write);
     assert!(refused(&r), "NaN, even --unsafe: {r:?}");
+    // With --unsafe it goes out, audited as the family writes the parameter (p2040, not P2040),
+    // with what went out; 100 ms below gives the monitoring back.
+    let r = bus.write_with(addr(3), p2040, Value::from_f32(-0.0), unsafe_write);
+    assert!(r.is_ok(), "-0.0 --unsafe: {r:?}");
+    let line = ussd
+        .log_line("drive 3: p2040", Duration::from_secs(2))
+        .unwrap_or_default();
+    assert!(
+        line.contains(":= -0.00") && line.contains("sent as the double word 0x80000000)"),
+        "{line}"
+    );
     assert_eq!(
         bus.write(addr(3), p2040, Value::from_f32(100.0), false),
         Ok(Value::from_f32(100.0))

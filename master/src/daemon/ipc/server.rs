@@ -521,16 +521,26 @@ impl ParamServer {
                         Refused::Guarded(why) => why,
                         _ => "not listed as writable (no catalogue, or the drive's writable list)",
                     };
-                    // Logged as asked, before the drive answers: the element, and the value
-                    // in the parameter's own type where the family's catalogue knows it.
+                    // Logged as asked, before the drive answers: the parameter as its family
+                    // writes it, the element, the value in the parameter's own type where the
+                    // catalogue knows it, and the word or double word sent (the type may read
+                    // a value other than the one a client meant: a double word to a word).
                     let element = index.map(|i| format!("[{i}]")).unwrap_or_default();
-                    let shown =
-                        entry.map_or_else(|| format!("{:#x}", asked.as_u32()), |p| p.show(asked));
+                    let (id, shown) = entry.map_or_else(
+                        || (format!("P{pnu:04}"), format!("{:#x}", asked.as_u32())),
+                        |p| (p.id.to_string(), p.show(asked)),
+                    );
+                    let width = if asked.is_dword() {
+                        "double word"
+                    } else {
+                        "word"
+                    };
                     tracing::warn!(
                         bus = self.bus,
                         drive = address.get(),
                         pid,
-                        "drive {address}: P{pnu:04}{element} := {shown} asked with --unsafe by process {pid} (guarded: {why})"
+                        "drive {address}: {id}{element} := {shown} asked with --unsafe by process {pid} (guarded: {why}; sent as the {width} {:#x})",
+                        asked.as_u32()
                     );
                     continue;
                 }
