@@ -224,6 +224,43 @@ mod tests {
     use super::*;
     use uss_protocol::Storage;
 
+    /// ussd's own read of a parameter is queued once. A drive that went offline with its own
+    /// reads queued has them due again (they ended "offline"), a probe while it is away queues
+    /// them, and its coming back marks them due once more: each was queued a second time while
+    /// the first still waited, so the mailbox held more than the `OWN_READS` it keeps for
+    /// them, and a client's full queue met "mailbox full" (found by a review).
+    #[test]
+    fn an_own_read_already_queued_is_not_queued_again() {
+        let setup = DriveSetup::new(
+            uss_protocol::Address::new(1).unwrap(),
+            uss_protocol::Layout::new(PkwMode::Four, uss_protocol::PzdCount::new(2).unwrap()),
+        );
+        let gate = crate::control::Gate::new(
+            crate::control::GateSetup {
+                pzd: 2,
+                safe: setup.safe,
+                watchdog: setup.watchdog,
+                clock_origin: Duration::ZERO,
+            },
+            Duration::ZERO,
+        );
+        let mut d = Drive::new(setup, gate, crate::OWN_READS, Duration::from_millis(10));
+        let monitoring = setup.monitoring.param;
+        assert!(
+            !queue_own_read(&mut d, monitoring, MONITORING_READ),
+            "queued"
+        );
+        // Due again while it waits: it is queued already, so it is not due any more.
+        assert!(!queue_own_read(&mut d, monitoring, MONITORING_READ));
+        assert_eq!(d.mailbox.len(), 1);
+        assert!(!queue_own_read(
+            &mut d,
+            setup.reference_read(),
+            REFERENCE_READ
+        ));
+        assert_eq!(d.mailbox.len(), 2, "each own read once: OWN_READS");
+    }
+
     fn mm() -> MonitoringSetup {
         MonitoringSetup::micromaster()
     }

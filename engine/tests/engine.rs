@@ -1611,3 +1611,61 @@ fn a_request_is_queued_whole_or_refused_whole() {
     assert_eq!(ended, [10, 11, 12]);
     assert_eq!(b.handle.submit_all_for(addr(1), 40, &tasks, none), Ok(()));
 }
+
+/// A client finds the room ussd promised it when a drive comes back: ussd's own reads take
+/// only the `OWN_READS` the mailbox keeps for them (a drive that goes offline with its own
+/// reads queued and comes back marked them due at each step, and one was queued twice: the
+/// unit test `an_own_read_already_queued_is_not_queued_again`). With room for 4 client jobs,
+/// 4 submitted at each of the first polls after it is back all run.
+#[test]
+fn own_reads_are_queued_once_and_a_client_finds_its_room_when_the_drive_comes_back() {
+    let mut b = bench_with(
+        &[(1, PkwMode::Four)],
+        |_| {},
+        |c| c.mailbox_depth = 4,
+        false,
+    );
+    b.run_for(ms(1000), &[]);
+    let online = |b: &Bench| b.handle.input(addr(1)).unwrap().1;
+    let silent = |b: &mut Bench, on: bool| {
+        b.faults(1)
+            .set_probability(Fault::DropReply, if on { 1.0 } else { 0.0 });
+    };
+    // Offline, back, and offline again at once: the own reads queued as it came back end with
+    // "offline" (due again), a probe while it is away queues them, and coming back marks them
+    // due once more.
+    for _ in 0..2 {
+        silent(&mut b, true);
+        while online(&b) {
+            b.engine.poll_next().unwrap();
+        }
+        b.run_for(ms(1200), &[]);
+        silent(&mut b, false);
+        while !online(&b) {
+            b.engine.poll_next().unwrap();
+        }
+        b.engine.poll_next().unwrap();
+    }
+    for polls in 0..4 {
+        let first = 100 + 10 * polls;
+        let tasks = [read(0, 1, 1082).task; 4];
+        let none = uss_engine::jobs::Requester::NONE;
+        assert_eq!(
+            b.handle.submit_all_for(addr(1), first, &tasks, none),
+            Ok(())
+        );
+        let mut results = Vec::new();
+        while results.len() < 4 {
+            b.engine.poll_next().unwrap();
+            while let Some(r) = b.handle.recv_result(Duration::ZERO) {
+                results.push(r.outcome);
+            }
+        }
+        assert!(
+            results
+                .iter()
+                .all(|o| *o == Ok(Ok(Answer::Value(Value::from_f32(50.0))))),
+            "{polls} polls after coming back: {results:?}"
+        );
+    }
+}
