@@ -195,6 +195,11 @@ impl Mailbox {
         self.separators
     }
 
+    /// Whether a job with id `id` is queued (on the wire or waiting).
+    pub fn holds(&self, id: u64) -> bool {
+        self.queue.iter().any(|a| a.job.id == id)
+    }
+
     /// Queues a job with its encoded PKW words; gives it back when the mailbox is full.
     pub fn push(&mut self, job: Job, pkw: Encoded) -> Result<(), Job> {
         self.push_for(job, pkw, Requester::NONE)

@@ -205,6 +205,11 @@ fn queue_own_read(d: &mut Drive, param: Option<WatchedParam>, tag: u64) -> bool 
     let Ok(pkw) = Encoded::new(&task, d.setup.layout.pkw) else {
         return false;
     };
+    // Queued already (due again before it ran: the drive went and came back): once is enough,
+    // and the mailbox keeps room for one of each (`OWN_READS`).
+    if d.mailbox.holds(job.id) {
+        return false;
+    }
     d.mailbox.push(job, pkw).is_err()
 }
 
