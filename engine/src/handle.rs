@@ -3,8 +3,10 @@
 
 use super::{
     Address, DriveSetup, Duration, Encoded, EngineHandle, INTERNAL_JOB, Job, JobResult,
-    MAX_PARAM_ITEMS, Ordering, PzdOutput, Requester, Stats, StopCommand, SubmitError, stop_index,
+    MAX_PARAM_ITEMS, Ordering, PzdOutput, Requester, Stats, StopCommand, stop_index,
 };
+use thiserror::Error;
+use uss_protocol::PkwError;
 
 impl EngineHandle {
     /// Publishes the PZD words the drive should get (STW1, setpoint, ...) as an in-process
@@ -130,6 +132,8 @@ impl EngineHandle {
     /// drive's mailbox at once, so a request is never run in part for want of room (it is
     /// refused whole, [`SubmitError::Busy`]). Once accepted, each ends in exactly one
     /// [`JobResult`]. The error names the task it is about (none: the request as a whole).
+    /// No other task of the drive comes between a request's tasks as long as one thread
+    /// submits (ussd's parameter server does).
     pub fn submit_all_for(
         &self,
         address: Address,
@@ -146,8 +150,14 @@ impl EngineHandle {
         }
         let slot = self.shared.slot(address).map_err(whole)?;
         let setup = &self.shared.setups[slot];
-        if tasks.len() > MAX_PARAM_ITEMS {
-            return Err(whole(SubmitError::TooMany(tasks.len())));
+        // A request the drive's queue could never hold whole is no "busy": it is refused as such.
+        let depth = self.shared.mailbox_depth;
+        let most = MAX_PARAM_ITEMS.min(depth);
+        if tasks.is_empty() || tasks.len() > most {
+            return Err(whole(SubmitError::TooMany {
+                given: tasks.len(),
+                most,
+            }));
         }
         // Each task checked and encoded once, on the stack (a caller may be a real-time thread).
         let job = |i: usize, task| Job {
@@ -160,7 +170,6 @@ impl EngineHandle {
             *w = Some(checked(setup, &job(i, task)).map_err(|e| (Some(i), e))?);
         }
         // Room for every task at once, or for none.
-        let depth = self.shared.mailbox_depth;
         let queued = &self.shared.drives[slot].queued;
         queued
             .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
@@ -287,4 +296,57 @@ fn checked(setup: &DriveSetup, job: &Job) -> Result<Encoded, SubmitError> {
         address: job.address,
         error,
     })
+}
+
+/// A request the handle refuses before it reaches the bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Error)]
+pub enum SubmitError {
+    #[error("no drive {0} on this bus")]
+    UnknownDrive(Address),
+    #[error("parameter writes are disabled for drive {0} (params_writable = false)")]
+    WritesDisabled(Address),
+    #[error("drive {address}: {error}")]
+    Pkw { address: Address, error: PkwError },
+    #[error("drive {address} exchanges {allowed} PZD words, {given} given")]
+    PzdWords {
+        address: Address,
+        given: usize,
+        allowed: usize,
+    },
+    #[error(
+        "the drive's parameter queue has no room for every task of the request (it holds {0}): nothing of it was queued; retry once earlier requests finished"
+    )]
+    Busy(usize),
+    #[error("the bus engine has stopped")]
+    Stopped,
+    #[error("job id {0:#x} is reserved for ussd's own jobs")]
+    ReservedJobId(u64),
+    #[error("the bus line is down: ussd reopens it; retry once it is back")]
+    LineDown,
+    #[error("a request of {given} tasks: the drive's queue takes 1 to {most} at once")]
+    TooMany { given: usize, most: usize },
+}
+
+impl From<&SubmitError> for uss_shm_types::RequestError {
+    /// What a client is told of a job the engine would not take (the contract's codes; the
+    /// engine's error keeps the detail for ussd's log).
+    fn from(e: &SubmitError) -> Self {
+        use uss_shm_types::RequestError as Told;
+        match e {
+            SubmitError::UnknownDrive(_) => Told::UnknownDrive,
+            SubmitError::WritesDisabled(_) => Told::WritesDisabled,
+            SubmitError::Pkw { error, .. } => match error {
+                PkwError::NoChannel => Told::NoParameterChannel,
+                PkwError::DwordOverThreeWords => Told::DwordOverThreeWords,
+                PkwError::Subindex(_) => Told::BadSubindex,
+                _ => Told::ValueType,
+            },
+            SubmitError::PzdWords { .. } => Told::ValueType,
+            SubmitError::Busy(_) => Told::Busy,
+            SubmitError::Stopped => Told::Shutdown,
+            SubmitError::ReservedJobId(_) => Told::BadTask,
+            SubmitError::LineDown => Told::LineDown,
+            SubmitError::TooMany { .. } => Told::BadCount,
+        }
+    }
 }

@@ -39,6 +39,7 @@ use uss_shm_types::MAX_PARAM_ITEMS;
 mod exchange;
 use exchange::Attempt;
 mod handle;
+pub use handle::SubmitError;
 mod line;
 mod turns;
 pub use turns::LOOK_STEP;
@@ -61,11 +62,11 @@ use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
-use thiserror::Error;
+
 use uss_protocol::telegram::{MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, MAX_TELEGRAM_BYTES};
 use uss_protocol::{
-    Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, PkwError, ReplyKind,
-    Timing, Words, encode,
+    Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, ReplyKind, Timing, Words,
+    encode,
 };
 use uss_shm_types::{
     BusStatus, ItemOutcome, LatchReason, Monitoring, PathError, PzdOutput, Rejection, StopCommand,
@@ -158,7 +159,9 @@ pub struct EngineConfig {
     pub param_timeout: Duration,
     /// Discard the echo of our own bytes (2-wire adapters, USS.md section 9).
     pub echo: bool,
-    /// Parameter jobs each drive can hold.
+    /// Clients' parameter jobs each drive can hold (its mailbox holds [`OWN_READS`] more for
+    /// ussd's own reads); a request is taken whole, so a larger one than this is refused. ussd:
+    /// 64, above a request's 39 items.
     pub mailbox_depth: usize,
     /// How often statistics are published to other threads.
     pub publish_every: Duration,
@@ -295,59 +298,6 @@ impl Bridge for LocalBridge {
     fn after_poll(&mut self, _: usize, _: &DriveImages, _: &DriveStatus) {}
     fn cycle_completed(&mut self) {}
     fn job_done(&mut self) {}
-}
-
-/// A request the handle refuses before it reaches the bus.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Error)]
-pub enum SubmitError {
-    #[error("no drive {0} on this bus")]
-    UnknownDrive(Address),
-    #[error("parameter writes are disabled for drive {0} (params_writable = false)")]
-    WritesDisabled(Address),
-    #[error("drive {address}: {error}")]
-    Pkw { address: Address, error: PkwError },
-    #[error("drive {address} exchanges {allowed} PZD words, {given} given")]
-    PzdWords {
-        address: Address,
-        given: usize,
-        allowed: usize,
-    },
-    #[error(
-        "the drive's parameter queue has no room for every task of the request (it holds {0}): nothing of it was queued; retry once earlier requests finished"
-    )]
-    Busy(usize),
-    #[error("the bus engine has stopped")]
-    Stopped,
-    #[error("job id {0:#x} is reserved for ussd's own jobs")]
-    ReservedJobId(u64),
-    #[error("the bus line is down: ussd reopens it; retry once it is back")]
-    LineDown,
-    #[error("{0} tasks in one request: at most {MAX_PARAM_ITEMS}")]
-    TooMany(usize),
-}
-
-impl From<&SubmitError> for uss_shm_types::RequestError {
-    /// What a client is told of a job the engine would not take (the contract's codes; the
-    /// engine's error keeps the detail for ussd's log).
-    fn from(e: &SubmitError) -> Self {
-        use uss_shm_types::RequestError as Told;
-        match e {
-            SubmitError::UnknownDrive(_) => Told::UnknownDrive,
-            SubmitError::WritesDisabled(_) => Told::WritesDisabled,
-            SubmitError::Pkw { error, .. } => match error {
-                PkwError::NoChannel => Told::NoParameterChannel,
-                PkwError::DwordOverThreeWords => Told::DwordOverThreeWords,
-                PkwError::Subindex(_) => Told::BadSubindex,
-                _ => Told::ValueType,
-            },
-            SubmitError::PzdWords { .. } => Told::ValueType,
-            SubmitError::Busy(_) => Told::Busy,
-            SubmitError::Stopped => Told::Shutdown,
-            SubmitError::ReservedJobId(_) => Told::BadTask,
-            SubmitError::LineDown => Told::LineDown,
-            SubmitError::TooMany(_) => Told::BadCount,
-        }
-    }
 }
 
 /// How many cancellations can wait for the bus thread.
@@ -629,6 +579,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             } else if self.drives[slot].link.known && !self.drives[slot].link.online {
                 Some(PathError::DriveOffline)
             } else {
+                // Not expected: the handle took room for every client's job, and ussd's own
+                // reads have theirs (`OWN_READS`); kept so a job is still ended, never lost.
                 self.drives[slot]
                     .mailbox
                     .push_for(job, pkw, requester)
@@ -694,8 +646,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         if let Some(slot) = slot {
             self.drives[slot].counters.jobs_done += 1;
         }
-        // Cannot be full: outstanding jobs are capped at the channel's capacity; disconnected
-        // only when the parameter bridge is gone. Either way the result is lost, and counted.
+        // Cannot be full: clients' jobs are capped per drive (the handle's room in each
+        // mailbox), and the channel holds every drive's; disconnected only when the parameter
+        // bridge is gone. Either way the result is lost, and counted.
         match self.results.try_send(result) {
             Ok(()) => self.bridge.job_done(),
             Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {

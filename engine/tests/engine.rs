@@ -1589,6 +1589,15 @@ fn a_request_is_queued_whole_or_refused_whole() {
         b.handle.submit_all_for(addr(1), 20, &tasks, none),
         Err((None, SubmitError::Busy(4)))
     );
+    // A request the queue could never hold whole, or none: refused as such, not "busy".
+    assert_eq!(
+        b.handle.submit_all_for(addr(1), 50, &[tasks[0]; 5], none),
+        Err((None, SubmitError::TooMany { given: 5, most: 4 }))
+    );
+    assert_eq!(
+        b.handle.submit_all_for(addr(1), 50, &[], none),
+        Err((None, SubmitError::TooMany { given: 0, most: 4 }))
+    );
     // A drive without a parameter channel: the first item it cannot take is named.
     assert!(matches!(
         b.handle.submit_all_for(addr(2), 30, &tasks, none),

@@ -304,8 +304,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     let mut progress = Progress::new(&bounds, &limits, &counts(&buses), started);
     let mut line_failed = false;
     let mut next_cleanup = Duration::from_secs(1);
-    // Dead nodes that cleaning left: each is named once.
-    let mut left_behind = std::collections::HashSet::new();
+    let mut left_behind = LeftBehind::default();
     let mut next_status = Duration::from_secs(5);
     while !stop.load(Ordering::Relaxed) && duration.is_none_or(|d| started.elapsed() < d) {
         if let Some(b) = buses.iter().find(|b| b.has_failed()) {
@@ -323,8 +322,9 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         notifier.keep_alive(now, progress.healthy());
         if started.elapsed() >= next_cleanup {
             next_cleanup += Duration::from_secs(1);
-            for b in &buses {
-                report_cleanup(&b.name, b.cleanup_dead_nodes(), &mut left_behind);
+            // One root for every bus of this process: the first bus looks for them all.
+            if let Some(b) = buses.first() {
+                left_behind.report(&b.cleanup_dead_nodes());
             }
         }
         if started.elapsed() >= next_status {
@@ -414,38 +414,45 @@ fn status_line(buses: &[RunningBus]) -> String {
     parts.join("; ")
 }
 
-/// Logs what a look for dead client nodes removed, and each node it could not remove once
-/// (`left_behind`: the ones named already).
-fn report_cleanup(
-    bus: &str,
-    cleanup: uss_master::daemon::runtime::Cleanup,
-    left_behind: &mut std::collections::HashSet<u128>,
-) {
-    if cleanup.removed > 0 {
-        tracing::info!(
-            bus,
-            nodes = cleanup.removed,
-            "cleaned up after dead client processes"
-        );
-    }
-    for (id, pid) in cleanup.left {
-        if !left_behind.insert(id) {
-            continue;
+/// The dead client nodes a cleanup left, from one look to the next.
+#[derive(Default)]
+struct LeftBehind {
+    /// Left by the last look.
+    last: std::collections::HashSet<u128>,
+    /// Named in the log already (those still left).
+    named: std::collections::HashSet<u128>,
+}
+
+impl LeftBehind {
+    /// Logs what a look for dead client nodes removed, and names once each node left on two
+    /// looks in a row (on one, another process may have been cleaning it just then).
+    fn report(&mut self, cleanup: &uss_master::daemon::runtime::Cleanup) {
+        if cleanup.removed > 0 {
+            tracing::info!(
+                nodes = cleanup.removed,
+                "cleaned up after dead client processes"
+            );
         }
-        match pid {
-            // iceoryx2 makes a node's monitor first and removes it last.
-            None => tracing::warn!(
-                bus,
-                node = id,
-                "could not remove the node a dead client process left half made or half dropped (no details, no ports): remove {}/nodes/*{id}* while no uss-rt process runs",
-                uss_shm_types::service::root().display()
-            ),
-            Some(pid) => tracing::warn!(
-                bus,
-                node = id,
-                pid,
-                "could not remove the node of dead process {pid}: its ports stay in the bus's services (a process of another user, whose files ussd may not remove?)"
-            ),
+        let now: std::collections::HashSet<u128> = cleanup.left.iter().map(|&(id, _)| id).collect();
+        for &(id, pid) in &cleanup.left {
+            if !self.last.contains(&id) || !self.named.insert(id) {
+                continue;
+            }
+            match pid {
+                // iceoryx2 makes a node's monitor first and removes it last.
+                None => tracing::warn!(
+                    node = id,
+                    "could not remove the node a dead client process left half made or half dropped (no details, no ports): remove {}/nodes/*{id}* while no uss-rt process runs",
+                    uss_shm_types::service::root().display()
+                ),
+                Some(pid) => tracing::warn!(
+                    node = id,
+                    pid,
+                    "could not remove the node of dead process {pid}: its ports stay in the bus's services (a process of another user, whose files ussd may not remove?)"
+                ),
+            }
         }
+        self.named.retain(|id| now.contains(id));
+        self.last = now;
     }
 }

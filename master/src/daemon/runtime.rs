@@ -176,13 +176,19 @@ impl RunningBus {
     /// removed: iceoryx2 0.10 counts a dead node whose details are gone as cleaned on every
     /// call, though it looks for its monitor in its global configuration, not ours, and removes
     /// nothing. A dead controller's drive has already got its safe command through the watchdog.
+    /// Every bus of a ussd shares one root, so one bus's look serves them all.
     pub fn cleanup_dead_nodes(&self) -> Cleanup {
-        let before = self.dead_nodes();
+        let Some(before) = self.dead_nodes() else {
+            return Cleanup::default();
+        };
         if before.is_empty() {
             return Cleanup::default();
         }
         let _ = self.node.try_cleanup_dead_nodes();
-        let left = self.dead_nodes();
+        // A look that failed says nothing: nothing counts as removed.
+        let Some(left) = self.dead_nodes() else {
+            return Cleanup::default();
+        };
         Cleanup {
             removed: before
                 .iter()
@@ -192,18 +198,20 @@ impl RunningBus {
         }
     }
 
-    /// The dead nodes below this node's root: id, and the process id its details name.
-    fn dead_nodes(&self) -> Vec<(u128, Option<i32>)> {
+    /// The dead nodes below this node's root: id, and the process id its details name; `None`
+    /// when they cannot be listed.
+    fn dead_nodes(&self) -> Option<Vec<(u128, Option<i32>)>> {
         use iceoryx2::node::NodeView as _;
         let mut dead = Vec::new();
-        let _ = crate::daemon::ipc::IpcNode::list(self.node.config(), |state| {
+        crate::daemon::ipc::IpcNode::list(self.node.config(), |state| {
             if let iceoryx2::prelude::NodeState::Dead(view) = state {
                 let pid = view.details().as_ref().map(|d| d.process_id().value());
                 dead.push((view.id().value(), pid));
             }
             iceoryx2::prelude::CallbackProgression::Continue
-        });
-        dead
+        })
+        .ok()?;
+        Some(dead)
     }
 
     /// Whether the bus thread has ended without being asked to (it cannot go on: a simulated
