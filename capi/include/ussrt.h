@@ -782,8 +782,8 @@ enum UssrtStatus ussrt_param_write_raw(const struct UssrtBus *bus,
 
 /**
  * Runs up to 39 items of drive `address` in one request, one after the other with no other
- * client's task between them (Rust's `Bus::batch`): `results[i]` gets what `items[i]` ended
- * with. Returns `USSRT_STATUS_OK` when ussd answered the request (each item's own status is in
+ * client's task between them, whole or not at all (Rust's `Bus::batch`): `results[i]` gets
+ * what `items[i]` ended with. Returns `USSRT_STATUS_OK` when ussd answered the request (each item's own status is in
  * its result), or the failure of the request as a whole (then no result is written). `flags`:
  * `USSRT_WRITE_EEPROM` (writes to RAM and EEPROM), `USSRT_WRITE_FORCE`; a guarded parameter is
  * written with `ussrt_param_write_raw` and `USSRT_WRITE_UNSAFE` only.

@@ -402,8 +402,8 @@ pub enum ParamError {
     #[error(transparent)]
     Drive(#[from] DriveError),
     /// The task did not get to the drive or its answer did not come back (timeout, offline,
-    /// line down, ussd shut down, cancelled, queue full). An item ussd refused before the bus
-    /// is [`ParamError::Refused`].
+    /// line down, ussd shut down, cancelled). A request ussd refused before the bus (as a whole,
+    /// or for an item it names) is [`ParamError::Refused`].
     #[error(transparent)]
     Path(#[from] PathError),
     /// A write whose task reached the drive (`telegrams` telegrams carried it) but whose

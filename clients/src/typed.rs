@@ -89,8 +89,9 @@ impl fmt::Display for ParamValue {
 }
 
 impl Bus {
-    /// Consults `catalogue` instead of the built-in one (MICROMASTER 4 / G110), e.g. for
-    /// another drive family; parameters it does not know are described by the drives.
+    /// Consults `catalogue` for every drive of this bus, instead of each drive's family's own
+    /// (`catalogue/data/<family>.toml`), generic slaves included; parameters it does not know
+    /// are described by the drives.
     #[must_use]
     pub fn with_catalogue(mut self, catalogue: &'static Catalogue) -> Self {
         self.described = std::sync::Arc::new(Described {
@@ -109,10 +110,10 @@ impl Bus {
             .unwrap_or(DriveFamily::Micromaster4)
     }
 
-    /// The catalogue that applies to a drive of `family`: the family's built-in one
-    /// (`catalogue/data/<family>.toml`; a G110 shares the MICROMASTER 4's numbers), or the one
-    /// given with [`Bus::with_catalogue`]; none for a `generic` slave. What a catalogue does
-    /// not list, the drive describes itself.
+    /// The catalogue that applies to a drive of `family`: the one given with
+    /// [`Bus::with_catalogue`], or else the family's built-in one
+    /// (`catalogue/data/<family>.toml`; a G110 shares the MICROMASTER 4's numbers; none for a
+    /// `generic` slave). What a catalogue does not list, the drive describes itself.
     fn catalogue_of(&self, family: DriveFamily) -> Option<&'static Catalogue> {
         self.described.catalogue.or_else(|| Catalogue::of(family))
     }
@@ -288,12 +289,7 @@ impl Bus {
         };
         let whole = shown_as(param, Some(p));
         let elements: Vec<ParamRef> = (0..count)
-            .map(|i| {
-                Subindex::new(i).map(|index| ParamRef {
-                    index: Some(index),
-                    ..whole
-                })
-            })
+            .map(|i| Subindex::new(i).map(|index| whole.at(index)))
             .collect::<Result<_, _>>()
             .map_err(|e| ParamError::Unexpected(e.to_string()))?;
         let mut values = Vec::with_capacity(elements.len());

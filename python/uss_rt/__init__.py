@@ -300,8 +300,8 @@ def read_param(bus: Bus, address: int, pnu: int, index=None, timeout: float = 7.
 def batch(bus: Bus, address: int, items, eeprom: bool = False, force: bool = False,
           timeout: float = 7.5) -> list:
     """Up to 39 raw parameter items of drive ``address`` in one request, run one after the
-    other with no other client's task between them (Rust's ``Bus::batch``, C's
-    ``ussrt_param_batch``). Each item is ``(pnu, index)`` (a read; ``index`` None for none) or
+    other with no other client's task between them, whole or not at all (Rust's
+    ``Bus::batch``, C's ``ussrt_param_batch``). Each item is ``(pnu, index)`` (a read; ``index`` None for none) or
     ``(pnu, index, value, is_dword)`` (a write of the raw word or double word to RAM, with
     ``eeprom`` to RAM and EEPROM, with ``force`` while another process controls the drive).
 

@@ -84,7 +84,8 @@ pub enum PathError {
     /// The drive was or went offline before the item completed.
     #[error("the drive is offline: check `ussctl status`, its wiring, address and baud rate")]
     DriveOffline,
-    /// The drive's parameter queue in ussd was full.
+    /// The drive's parameter queue in ussd was full. Not expected since a request is taken
+    /// whole or refused whole ([`crate::RequestError::Busy`]); kept in the contract's codes.
     #[error("ussd's parameter queue for the drive is full: retry once earlier requests finished")]
     MailboxFull,
     /// ussd stopped before the item completed.
