@@ -145,7 +145,7 @@ pub struct Cleanup {
     pub removed: usize,
     /// The dead nodes still there after the cleanup: id, and the process id of the process that
     /// made it (none: its details are gone).
-    pub left: Vec<(u128, Option<i32>)>,
+    pub left: Vec<(u128, Option<u32>)>,
 }
 
 /// A running bus.
@@ -200,18 +200,15 @@ impl RunningBus {
 
     /// The dead nodes below this node's root: id, and the process id its details name; `None`
     /// when they cannot be listed.
-    fn dead_nodes(&self) -> Option<Vec<(u128, Option<i32>)>> {
-        use iceoryx2::node::NodeView as _;
-        let mut dead = Vec::new();
-        crate::daemon::ipc::IpcNode::list(self.node.config(), |state| {
-            if let iceoryx2::prelude::NodeState::Dead(view) = state {
-                let pid = view.details().as_ref().map(|d| d.process_id().value());
-                dead.push((view.id().value(), pid));
-            }
-            iceoryx2::prelude::CallbackProgression::Continue
-        })
-        .ok()?;
-        Some(dead)
+    fn dead_nodes(&self) -> Option<Vec<(u128, Option<u32>)>> {
+        let nodes = crate::daemon::ipc::listed_nodes(self.node.config())?;
+        Some(
+            nodes
+                .into_iter()
+                .filter(|&(_, dead, _)| dead)
+                .map(|(id, _, pid)| (id.value(), (pid != 0).then_some(pid)))
+                .collect(),
+        )
     }
 
     /// Whether the bus thread has ended without being asked to (it cannot go on: a simulated

@@ -27,7 +27,8 @@ pub use server::ParamServer;
 pub use status::StatusPublisher;
 
 use core::time::Duration;
-use iceoryx2::node::NodeView;
+use iceoryx2::identifiers::UniqueNodeId;
+use iceoryx2::node::{NodeDetails, NodeView};
 use iceoryx2::prelude::*;
 use thiserror::Error;
 use uss_engine::DriveSetup;
@@ -115,6 +116,28 @@ pub(crate) fn pid_of(
 }
 
 /// Formats any iceoryx2 error for an [`IpcError`].
+/// Every node iceoryx2 lists below `config`'s root: its id, whether it is dead (its process is
+/// gone), and its process id where known (0: not). A node that is not listed at all died and was
+/// cleaned up already (by ussd's periodic cleanup or by any other process that opened a node
+/// since). `None` when the list cannot be read.
+pub(crate) fn listed_nodes(config: &Config) -> Option<Vec<(UniqueNodeId, bool, u32)>> {
+    fn pid(details: Option<&NodeDetails>) -> u32 {
+        details
+            .and_then(|d| u32::try_from(d.process_id().value()).ok())
+            .unwrap_or(0)
+    }
+    let mut nodes = Vec::new();
+    let listed = Node::<Svc>::list(config, |state| {
+        nodes.push(match &state {
+            NodeState::Alive(view) => (*view.id(), false, pid(view.details().as_ref())),
+            NodeState::Dead(view) => (*view.id(), true, pid(view.details().as_ref())),
+            NodeState::Inaccessible(id) | NodeState::Undefined(id) => (*id, false, 0),
+        });
+        CallbackProgression::Continue
+    });
+    listed.ok().map(|()| nodes)
+}
+
 pub(crate) fn text(e: impl core::fmt::Debug) -> String {
     format!("{e:?}")
 }

@@ -11,7 +11,6 @@ use super::{IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, as_ns, fail, pid_of,
 use core::time::Duration;
 use iceoryx2::active_request::ActiveRequest;
 use iceoryx2::identifiers::UniqueNodeId;
-use iceoryx2::node::{NodeDetails, NodeView};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::server::Server;
@@ -246,26 +245,9 @@ impl Identities {
         node
     }
 
-    /// Every node iceoryx2 lists: whether it is dead (its process is gone), and its process id
-    /// where known. A node that is not listed at all died and was cleaned up already (by
-    /// ussd's periodic cleanup or by any other process that opened a node since). `None` when
-    /// the list cannot be read.
+    /// Every node iceoryx2 lists ([`super::listed_nodes`]).
     fn nodes(&self) -> Option<Vec<(UniqueNodeId, bool, u32)>> {
-        fn pid(details: Option<&NodeDetails>) -> u32 {
-            details
-                .and_then(|d| u32::try_from(d.process_id().value()).ok())
-                .unwrap_or(0)
-        }
-        let mut nodes = Vec::new();
-        let listed = Node::<Svc>::list(&self.config, |state| {
-            nodes.push(match &state {
-                NodeState::Alive(view) => (*view.id(), false, pid(view.details().as_ref())),
-                NodeState::Dead(view) => (*view.id(), true, pid(view.details().as_ref())),
-                NodeState::Inaccessible(id) | NodeState::Undefined(id) => (*id, false, 0),
-            });
-            CallbackProgression::Continue
-        });
-        listed.ok().map(|()| nodes)
+        super::listed_nodes(&self.config)
     }
 
     /// The live process that holds the drive's `out` publisher (its controller), if any.
