@@ -114,7 +114,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         for (i, d) in cfg.drives.iter().enumerate() {
             slot_of[d.address.get() as usize] = Some(i as u8);
         }
-        // Every client's job of every drive at once: neither channel is ever full.
         let capacity = (cfg.mailbox_depth * cfg.drives.len()).max(1);
         let now = clock.now();
         let gates = gates(&cfg.drives, clock.monotonic_origin(), now);

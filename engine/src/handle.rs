@@ -2,11 +2,12 @@
 //! operator stops, statistics, stop; lock-free or bounded, never waiting on the bus thread.
 
 use super::{
-    Address, DriveSetup, Duration, Encoded, EngineHandle, INTERNAL_JOB, Job, JobResult,
-    MAX_PARAM_ITEMS, Ordering, PzdOutput, Requester, Stats, StopCommand, stop_index,
+    Address, DriveSetup, Duration, Encoded, EngineHandle, INTERNAL_JOB, Job, JobResult, Ordering,
+    PzdOutput, Requester, Stats, StopCommand, stop_index,
 };
 use thiserror::Error;
 use uss_protocol::PkwError;
+use uss_shm_types::MAX_PARAM_ITEMS;
 
 impl EngineHandle {
     /// Publishes the PZD words the drive should get (STW1, setpoint, ...) as an in-process
@@ -159,15 +160,16 @@ impl EngineHandle {
                 most,
             }));
         }
-        // Each task checked and encoded once, on the stack (a caller may be a real-time thread).
-        let job = |i: usize, task| Job {
-            id: first_id.wrapping_add(i as u64),
-            address,
-            task,
-        };
-        let mut words = [None; MAX_PARAM_ITEMS];
-        for (i, (&task, w)) in tasks.iter().zip(&mut words).enumerate() {
-            *w = Some(checked(setup, &job(i, task)).map_err(|e| (Some(i), e))?);
+        // Each job made, checked and encoded once, on the stack (a caller may be a real-time
+        // thread).
+        let mut jobs = [None; MAX_PARAM_ITEMS];
+        for (i, (&task, slot)) in tasks.iter().zip(&mut jobs).enumerate() {
+            let job = Job {
+                id: first_id.wrapping_add(i as u64),
+                address,
+                task,
+            };
+            *slot = Some((job, checked(setup, &job).map_err(|e| (Some(i), e))?));
         }
         // Room for every task at once, or for none.
         let queued = &self.shared.drives[slot].queued;
@@ -176,10 +178,10 @@ impl EngineHandle {
                 (n + tasks.len() <= depth).then_some(n + tasks.len())
             })
             .map_err(|_| whole(SubmitError::Busy(depth)))?;
-        for (i, (&task, pkw)) in tasks.iter().zip(words.into_iter().flatten()).enumerate() {
+        for (i, (job, pkw)) in jobs.into_iter().flatten().enumerate() {
             // The channel holds every drive's full mailbox: it fails only when the bus thread
             // is gone, and then nothing of the request runs.
-            if self.jobs.try_send((job(i, task), pkw, requester)).is_err() {
+            if self.jobs.try_send((job, pkw, requester)).is_err() {
                 queued.fetch_sub(tasks.len() - i, Ordering::AcqRel);
                 return Err(whole(SubmitError::Stopped));
             }

@@ -35,7 +35,6 @@ mod capture;
 mod drive;
 pub use capture::CAPTURE_QUEUE;
 use drive::Drive;
-use uss_shm_types::MAX_PARAM_ITEMS;
 mod exchange;
 use exchange::Attempt;
 mod handle;
@@ -62,7 +61,6 @@ use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
-
 use uss_protocol::telegram::{MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, MAX_TELEGRAM_BYTES};
 use uss_protocol::{
     Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, ReplyKind, Timing, Words,

@@ -323,8 +323,8 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         if started.elapsed() >= next_cleanup {
             next_cleanup += Duration::from_secs(1);
             // One root for every bus of this process: the first bus looks for them all.
-            if let Some(b) = buses.first() {
-                left_behind.report(&b.cleanup_dead_nodes());
+            if let Some(cleanup) = buses.first().and_then(RunningBus::cleanup_dead_nodes) {
+                left_behind.report(&cleanup);
             }
         }
         if started.elapsed() >= next_status {

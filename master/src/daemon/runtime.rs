@@ -176,26 +176,22 @@ impl RunningBus {
     /// removed: iceoryx2 0.10 counts a dead node whose details are gone as cleaned on every
     /// call, though it looks for its monitor in its global configuration, not ours, and removes
     /// nothing. A dead controller's drive has already got its safe command through the watchdog.
-    /// Every bus of a ussd shares one root, so one bus's look serves them all.
-    pub fn cleanup_dead_nodes(&self) -> Cleanup {
-        let Some(before) = self.dead_nodes() else {
-            return Cleanup::default();
-        };
+    /// Every bus of a ussd shares one root, so one bus's look serves them all. `None`: the
+    /// nodes could not be listed, so this look says nothing.
+    pub fn cleanup_dead_nodes(&self) -> Option<Cleanup> {
+        let before = self.dead_nodes()?;
         if before.is_empty() {
-            return Cleanup::default();
+            return Some(Cleanup::default());
         }
         let _ = self.node.try_cleanup_dead_nodes();
-        // A look that failed says nothing: nothing counts as removed.
-        let Some(left) = self.dead_nodes() else {
-            return Cleanup::default();
-        };
-        Cleanup {
+        let left = self.dead_nodes()?;
+        Some(Cleanup {
             removed: before
                 .iter()
                 .filter(|(id, _)| !left.iter().any(|(l, _)| l == id))
                 .count(),
             left,
-        }
+        })
     }
 
     /// The dead nodes below this node's root: id, and the process id its details name; `None`

@@ -351,8 +351,6 @@ impl ParamServer {
             self.answered = true;
             return;
         }
-        let mut response = ParamResponse::new(request.address);
-        response.count = items.len() as u8;
         let first_id = self.next_id;
         self.next_id += items.len() as u64;
         // The node is cheap to find; its process (a walk over every node) only at its first
@@ -392,6 +390,8 @@ impl ParamServer {
             items.len(),
             first_id + items.len() as u64,
         );
+        let mut response = ParamResponse::new(request.address);
+        response.count = items.len() as u8;
         self.pending.push(Pending {
             active,
             response,
