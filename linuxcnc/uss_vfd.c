@@ -109,6 +109,10 @@ typedef struct {
    * only after spindle-on rises, which re-arms it. */
   int latched;
   int was_on;
+  /* When spindle-on was last read low (CLOCK_MONOTONIC ns): its rise came after, so a re-arm
+   * by the rise is asked for no earlier than this, and a stop that began since is not
+   * re-armed by it (the loop reads the pin only every refresh period). */
+  uint64_t low_seen_ns;
   int was_fault;
   int was_reset;
   int was_comm;
@@ -223,7 +227,9 @@ static void step(vfd_t *v, pins_t *p) {
                 (!*p->spindle_fwd && !*p->spindle_rev && command < 0);
   double hz = fabs(command) / (rpm_per_hz > 0 ? rpm_per_hz : 1.0) * (reverse ? -1 : 1);
   *p->frequency_command = hz;
+  const uint64_t read_at = ussrt_monotonic_ns();
   int on = *p->spindle_on;
+  if (!on) v->low_seen_ns = read_at;
   int rose = on && !v->was_on;
   v->was_on = on;
   int run = on && *p->enable;
@@ -250,8 +256,10 @@ static void step(vfd_t *v, pins_t *p) {
 
   if (v->latched && rose && *p->enable) {
     /* The deliberate re-arm: spindle-on rose after the latch was seen, with enable high (a
-     * rise while enable is low re-arms nothing: enable going high later starts no spindle). */
-    s = ussrt_control_rearm(v->c, NULL);
+     * rise while enable is low re-arms nothing: enable going high later starts no spindle).
+     * It carries the rise's time: a stop that came after the pin was last seen low (an
+     * operator's coast right after M3) is not re-armed, and waits for the next rise. */
+    s = ussrt_control_rearm_at(v->c, v->low_seen_ns, NULL);
     if (s == USSRT_STATUS_OK) v->latched = 0;
   } else {
     s = USSRT_STATUS_OK;
@@ -288,7 +296,8 @@ static void step(vfd_t *v, pins_t *p) {
   }
   UssrtDrive now;
   if (ussrt_drive_read(v->bus, v->address, &now) == USSRT_STATUS_OK) d = now;
-  *p->latched = !d.live || v->latched;
+  /* A stale image (ussd gone or stopped, the line down) is no live drive either. */
+  *p->latched = !d.live || v->latched || !comm;
   double want = fabs(command);
   double got = fabs(*p->speed_fb);
   *p->at_speed = comm && !*p->latched && run && d.state == 4 && want > 0 &&

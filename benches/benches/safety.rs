@@ -405,7 +405,7 @@ fn stops_through_ussd(bus: &uss_client::Bus, bus_name: &str) -> (Figures, Figure
         let c = bus
             .control(addr(k), uss_client::ControlOptions::default())
             .expect("control");
-        c.rearm().expect("re-arm");
+        c.rearm(uss_client::monotonic_ns()).expect("re-arm");
         // Running: the ON went out (at the drive's turn), then a random moment of the cycle.
         while watch.latest().sent_stw1 != RUN[0] {
             c.run_hz(5.0).expect("run");

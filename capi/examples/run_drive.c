@@ -68,7 +68,10 @@ int main(int argc, char **argv) {
   s = ussrt_control_open(bus, address, &c);
   if (s != USSRT_STATUS_OK) return failed("control", s);
   int rc = 0;
-  s = ussrt_control_rearm(c, &d);
+  /* The re-arm was asked for when this program started: a stop while it starts stays. */
+  uint64_t started_ns = 0;
+  s = ussrt_process_start_ns(&started_ns);
+  if (s == USSRT_STATUS_OK) s = ussrt_control_rearm_at(c, started_ns, &d);
   if (s != USSRT_STATUS_OK) {
     rc = failed("rearm", s);
     goto done;

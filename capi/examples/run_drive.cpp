@@ -23,7 +23,8 @@ int main(int argc, char **argv) {
     ussrt::Bus bus(argv[1]);
     std::printf("%s\n", bus.read(address, "P1082").text);
     ussrt::Controller drive(bus, address);
-    drive.rearm();
+    // The re-arm was asked for when this program started: a stop while it starts stays.
+    drive.rearm(ussrt::process_start_ns());
     std::printf("drive %u: re-armed; running towards %.1f Hz\n", address, hz);
     const auto start = std::chrono::steady_clock::now();
     bool reached = false;

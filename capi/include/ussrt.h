@@ -85,7 +85,7 @@ typedef enum UssrtStatus {
    */
   USSRT_STATUS_TRIPPED = 8,
   /**
-   * An ON for a latched drive this controller has not re-armed: `ussrt_control_rearm` first.
+   * An ON for a latched drive this controller has not re-armed: `ussrt_control_rearm_at` first.
    */
   USSRT_STATUS_NOT_ARMED = 9,
   /**
@@ -495,7 +495,7 @@ enum UssrtStatus ussrt_stop_all(const struct UssrtBus *bus, uint8_t command, uin
  * Takes exclusive control of drive `address` (`CONTROLLED` while another process holds it)
  * and writes the handle to `*controller`. Opening re-arms nothing: the drive stays latched
  * (ussd's start, an operator's stop, an earlier controller's trip) until this program calls
- * [`ussrt_control_rearm`]; an ON before that fails with `TRIPPED`.
+ * [`ussrt_control_rearm_at`]; an ON before that fails with `TRIPPED`.
  *
  * # Safety
  * `bus` is a live handle; `controller` points to writable memory for one pointer.
@@ -529,11 +529,33 @@ enum UssrtStatus ussrt_control_release(const struct UssrtController *controller)
  * controller's words again. Then an ON reaches the drive. `*drive` (may be NULL) gets the
  * drive as it is then.
  *
+ * `asked_ns` (`CLOCK_MONOTONIC` ns) is when the deliberate act that asked for the re-arm
+ * happened: [`ussrt_process_start_ns`] for a program that re-arms once it is set up, the time
+ * a pin was last seen low before its rise (`uss_vfd`), [`ussrt_monotonic_ns`] taken when the
+ * program decided. A latch that began after it (an operator's stop between the ask and the
+ * call) is not re-armed: `TRIPPED`, nothing is sent, the stop stays (docs/SAFETY.md, REARM).
+ *
  * # Safety
  * `controller` is a live handle; `drive` is NULL or writable memory for one `UssrtDrive`.
  */
-enum UssrtStatus ussrt_control_rearm(const struct UssrtController *controller,
-                                     struct UssrtDrive *drive);
+enum UssrtStatus ussrt_control_rearm_at(const struct UssrtController *controller,
+                                        uint64_t asked_ns,
+                                        struct UssrtDrive *drive);
+
+/**
+ * `CLOCK_MONOTONIC` now, ns: the clock of every `*_ns` field and of a re-arm's `asked_ns`.
+ */
+uint64_t ussrt_monotonic_ns(void);
+
+/**
+ * When this process started, `CLOCK_MONOTONIC` ns (the kernel's start time, rounded down to
+ * its 10 ms tick), into `*started_ns`: the `asked_ns` of a program that re-arms once it is set
+ * up, so a stop while it starts is not re-armed by it. `IPC` when `/proc` cannot tell.
+ *
+ * # Safety
+ * `started_ns` points to writable memory for one `uint64_t`.
+ */
+enum UssrtStatus ussrt_process_start_ns(uint64_t *started_ns);
 
 /**
  * The drive as this controller sees it, into `*drive`; `TRIPPED` when it latched since this
@@ -568,7 +590,7 @@ enum UssrtStatus ussrt_control_refresh_period(const struct UssrtController *cont
 
 /**
  * OFF1 with everything else enabled (STW1 0x047E): S1 -> S2; stops a running drive along its
- * ramp. It re-arms nothing: a latched drive needs [`ussrt_control_rearm`].
+ * ramp. It re-arms nothing: a latched drive needs [`ussrt_control_rearm_at`].
  *
  * # Safety
  * `controller` is a live handle.
@@ -578,7 +600,7 @@ enum UssrtStatus ussrt_control_enable(const struct UssrtController *controller);
 /**
  * ON (STW1 0x047F) with a setpoint in Hz of the drive's reference frequency (negative: the
  * other way). `TRIPPED` on a latched drive this program has not re-armed
- * ([`ussrt_control_rearm`]).
+ * ([`ussrt_control_rearm_at`]).
  *
  * # Safety
  * `controller` is a live handle.

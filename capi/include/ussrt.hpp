@@ -3,7 +3,7 @@
  *
  *   ussrt::Bus bus("line1");                  // throws ussrt::Error (NOT_RUNNING, ...)
  *   ussrt::Controller drive(bus, 3);          // exclusive control; released when it goes
- *   drive.rearm();                            // OFF1 naming the latch, then ON may follow
+ *   drive.rearm(ussrt::process_start_ns());   // OFF1 naming a latch older than the ask, then ON
  *   drive.run_hz(25.0f);
  *   for (;;) { bus.wait_exchange(3, 500); drive.keepalive(); ... }
  *
@@ -44,6 +44,17 @@ inline void check(UssrtStatus status) {
   if (status != USSRT_STATUS_OK) {
     throw Error(status, ussrt_last_error());
   }
+}
+
+/// CLOCK_MONOTONIC now, ns: the clock of a re-arm's asked_ns.
+inline uint64_t monotonic_ns() noexcept { return ussrt_monotonic_ns(); }
+
+/// When this process started (CLOCK_MONOTONIC ns, rounded down to 10 ms): the asked_ns of a
+/// program that re-arms once it is set up.
+inline uint64_t process_start_ns() {
+  uint64_t started = 0;
+  check(ussrt_process_start_ns(&started));
+  return started;
 }
 
 /// An open bus; closed when it goes.
@@ -139,9 +150,11 @@ public:
   }
 
   /// Acknowledges the latch and re-arms (OFF1 naming it); waits until the drive is live.
-  UssrtDrive rearm() {
+  /// asked_ns: when the deliberate act behind it happened (process_start_ns(), monotonic_ns()
+  /// at the operator's button): a latch that began after it is not re-armed (TRIPPED).
+  UssrtDrive rearm(uint64_t asked_ns) {
     UssrtDrive d;
-    check(ussrt_control_rearm(c_, &d));
+    check(ussrt_control_rearm_at(c_, asked_ns, &d));
     return d;
   }
   /// The drive; throws TRIPPED when it latched since this controller acknowledged a latch.

@@ -53,7 +53,7 @@ fn with(
 /// Takes exclusive control of drive `address` (`CONTROLLED` while another process holds it)
 /// and writes the handle to `*controller`. Opening re-arms nothing: the drive stays latched
 /// (ussd's start, an operator's stop, an earlier controller's trip) until this program calls
-/// [`ussrt_control_rearm`]; an ON before that fails with `TRIPPED`.
+/// [`ussrt_control_rearm_at`]; an ON before that fails with `TRIPPED`.
 ///
 /// # Safety
 /// `bus` is a live handle; `controller` points to writable memory for one pointer.
@@ -121,19 +121,52 @@ pub unsafe extern "C" fn ussrt_control_release(controller: *const UssrtControlle
 /// controller's words again. Then an ON reaches the drive. `*drive` (may be NULL) gets the
 /// drive as it is then.
 ///
+/// `asked_ns` (`CLOCK_MONOTONIC` ns) is when the deliberate act that asked for the re-arm
+/// happened: [`ussrt_process_start_ns`] for a program that re-arms once it is set up, the time
+/// a pin was last seen low before its rise (`uss_vfd`), [`ussrt_monotonic_ns`] taken when the
+/// program decided. A latch that began after it (an operator's stop between the ask and the
+/// call) is not re-armed: `TRIPPED`, nothing is sent, the stop stays (docs/SAFETY.md, REARM).
+///
 /// # Safety
 /// `controller` is a live handle; `drive` is NULL or writable memory for one `UssrtDrive`.
 #[unsafe(no_mangle)]
-pub unsafe extern "C" fn ussrt_control_rearm(
+pub unsafe extern "C" fn ussrt_control_rearm_at(
     controller: *const UssrtController,
+    asked_ns: u64,
     drive: *mut UssrtDrive,
 ) -> UssrtStatus {
     with(controller, |c| {
-        c.rearm()?;
+        c.rearm(asked_ns)?;
         // SAFETY: NULL or the caller's memory (as documented).
         if let Some(drive) = unsafe { drive.as_mut() } {
             *drive = UssrtDrive::of(c.inputs());
         }
+        Ok(())
+    })
+}
+
+/// `CLOCK_MONOTONIC` now, ns: the clock of every `*_ns` field and of a re-arm's `asked_ns`.
+#[unsafe(no_mangle)]
+pub extern "C" fn ussrt_monotonic_ns() -> u64 {
+    uss_client::monotonic_ns()
+}
+
+/// When this process started, `CLOCK_MONOTONIC` ns (the kernel's start time, rounded down to
+/// its 10 ms tick), into `*started_ns`: the `asked_ns` of a program that re-arms once it is set
+/// up, so a stop while it starts is not re-armed by it. `IPC` when `/proc` cannot tell.
+///
+/// # Safety
+/// `started_ns` points to writable memory for one `uint64_t`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_process_start_ns(started_ns: *mut u64) -> UssrtStatus {
+    guard(|| {
+        let started_ns = out(started_ns, "started_ns")?;
+        *started_ns = uss_client::process_start_ns().map_err(|e| {
+            Failure::Client(uss_client::ClientError::Ipc {
+                what: "reading when this process started (/proc/self/stat)".to_owned(),
+                detail: e.to_string(),
+            })
+        })?;
         Ok(())
     })
 }
@@ -188,7 +221,7 @@ pub unsafe extern "C" fn ussrt_control_refresh_period(
 }
 
 /// OFF1 with everything else enabled (STW1 0x047E): S1 -> S2; stops a running drive along its
-/// ramp. It re-arms nothing: a latched drive needs [`ussrt_control_rearm`].
+/// ramp. It re-arms nothing: a latched drive needs [`ussrt_control_rearm_at`].
 ///
 /// # Safety
 /// `controller` is a live handle.
@@ -199,7 +232,7 @@ pub unsafe extern "C" fn ussrt_control_enable(controller: *const UssrtController
 
 /// ON (STW1 0x047F) with a setpoint in Hz of the drive's reference frequency (negative: the
 /// other way). `TRIPPED` on a latched drive this program has not re-armed
-/// ([`ussrt_control_rearm`]).
+/// ([`ussrt_control_rearm_at`]).
 ///
 /// # Safety
 /// `controller` is a live handle.

@@ -29,7 +29,7 @@ pub enum UssrtStatus {
     /// The drive latched since this controller last acknowledged a latch: re-arm it
     /// (`UssrtErrorInfo` says why).
     Tripped = 8,
-    /// An ON for a latched drive this controller has not re-armed: `ussrt_control_rearm` first.
+    /// An ON for a latched drive this controller has not re-armed: `ussrt_control_rearm_at` first.
     NotArmed = 9,
     /// This program made no call for longer than the drive's watchdog time: a trip; re-arm.
     Stalled = 10,

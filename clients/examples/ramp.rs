@@ -53,8 +53,8 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
 
     // S1 -> S2 -> S4 (USS.md section 7). `wait_for_state` refreshes while it waits. Opening
     // re-arms nothing: the explicit re-arm (OFF1 naming ussd's start-up latch) is this
-    // program's deliberate act.
-    c.rearm()?;
+    // program's deliberate act, asked for when it started: a stop while it starts up stays.
+    c.rearm(uss_client::process_start_ns()?)?;
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))?;
     c.run_hz(0.0)?;
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(2))?;

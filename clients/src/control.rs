@@ -445,24 +445,23 @@ impl Controller {
     /// 0x047E, setpoint and every further word 0) and waits until ussd has taken it and the
     /// drive is live again. Then an ON ([`Controller::run_hz`], ...) reaches the drive. The
     /// drive itself may need [`Controller::acknowledge_fault`] too.
-    pub fn rearm(&self) -> Result<PzdInput, ClientError> {
-        self.rearm_asked_at(monotonic_ns())
-    }
-
-    /// [`Controller::rearm`] for a re-arm asked for at `asked_ns` (`CLOCK_MONOTONIC`, e.g.
-    /// when a program that re-arms once it is set up was started): a latch that began after
-    /// that moment (an operator's stop while the program was starting) is not re-armed, the
-    /// drive stays stopped, and the error is [`ClientError::Tripped`] naming it.
-    pub fn rearm_asked_at(&self, asked_ns: u64) -> Result<PzdInput, ClientError> {
-        self.rearm_by(|session, now, input| session.rearm_asked_at(now, input, asked_ns))
+    ///
+    /// `asked_ns` (`CLOCK_MONOTONIC`) is when the deliberate act that asked for the re-arm
+    /// happened: [`crate::process_start_ns`] for a program that re-arms once it is set up,
+    /// the moment an operator pressed a button or a pin rose, [`crate::monotonic_ns`] taken when
+    /// the program decided to re-arm. A latch that began after that moment (an operator's stop
+    /// while the program was starting) is not re-armed, the drive stays stopped, and the error
+    /// is [`ClientError::Tripped`] naming it (docs/SAFETY.md, REARM).
+    pub fn rearm(&self, asked_ns: u64) -> Result<PzdInput, ClientError> {
+        self.rearm_by(|session, now, input| session.rearm(now, input, asked_ns))
     }
 
     /// Like [`Controller::rearm`], with the stop the drive is latched with as the re-arming
     /// words (`Session::rearm_keeping_stop`): a coast or quick stop stays on the wire, so a
     /// program that only acknowledges a fault and lets go (`ussctl ack`) never weakens it, even
     /// when it dies halfway. An ON from S1 needs [`Controller::stop`] (OFF1) first.
-    pub fn rearm_keeping_stop(&self) -> Result<PzdInput, ClientError> {
-        self.rearm_by(Session::rearm_keeping_stop)
+    pub fn rearm_keeping_stop(&self, asked_ns: u64) -> Result<PzdInput, ClientError> {
+        self.rearm_by(|session, now, input| session.rearm_keeping_stop(now, input, asked_ns))
     }
 
     fn rearm_by(
@@ -631,14 +630,16 @@ impl Controller {
     }
 
     /// For a relay of a remote controller (the Zenoh bridge): acknowledges latch `named`, the
-    /// latch the remote controller names, only while the drive shows it
-    /// ([`ClientError::NotTheLatch`] else). The relay's next stop then re-arms the drive.
-    pub fn acknowledge_latch(&self, named: u64) -> Result<(), ClientError> {
+    /// latch the remote controller names for a re-arm it asked for at `asked_ns` (its command's
+    /// own time on this host's `CLOCK_MONOTONIC`), only while the drive shows it
+    /// ([`ClientError::NotTheLatch`] else) and it began before `asked_ns`
+    /// ([`ClientError::Tripped`] else). The relay's next stop then re-arms the drive.
+    pub fn acknowledge_latch(&self, named: u64, asked_ns: u64) -> Result<(), ClientError> {
         let mut state = self.shared.state();
         let input = self.shared.watch.latest();
         state
             .session
-            .acknowledge(monotonic_ns(), &input, named)
+            .acknowledge(monotonic_ns(), &input, named, asked_ns)
             .map_err(|e| self.shared.error(e, &input))
     }
 

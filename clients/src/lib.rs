@@ -22,8 +22,9 @@
 //! // (drive.keepalive() between changes).
 //! let drive = bus.control(one, ControlOptions::default())?;
 //! // Opening re-arms nothing: ussd latched the drive at its start, and only the program's
-//! // explicit re-arm (OFF1 naming the latch) lets an ON through. S1 -> S2.
-//! drive.rearm()?;
+//! // explicit re-arm (OFF1 naming the latch) lets an ON through. S1 -> S2. A re-arm carries
+//! // when it was asked for (here: this program's start), and re-arms no stop that came after.
+//! drive.rearm(uss_client::process_start_ns()?)?;
 //! drive.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(1))?;
 //! drive.run_hz(0.5 * max_hz)?; // S2 -> S4
 //! drive.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(1))?;
@@ -32,7 +33,8 @@
 //!     // Frozen too long, an operator's stop, ...: the drive is latched until re-armed.
 //!     Err(uss_client::ClientError::Tripped { latch, .. }) => {
 //!         eprintln!("tripped: {latch}");
-//!         drive.rearm()?; // OFF1, acknowledged; an ON may follow
+//!         // OFF1, acknowledged; an ON may follow. Asked for now, by this program's decision.
+//!         drive.rearm(uss_client::monotonic_ns())?;
 //!     }
 //!     other => other?,
 //! }
@@ -86,7 +88,7 @@ pub use command::stop;
 pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, HANDSHAKE_TIMEOUT, Jog, Refresher};
 pub use error::{ClientError, Latch, ParamError};
 pub use kinds::ErrorKind;
-pub use link::{Health, monotonic_ns};
+pub use link::{Health, monotonic_ns, process_start_ns};
 pub use params::WriteOptions;
 pub use typed::{Fault, FaultReport, FaultTime, ParamValue, Warning};
 pub use uss_catalogue::{Catalogue, DataType, Typed, Values};

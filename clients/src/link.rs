@@ -118,6 +118,51 @@ pub fn monotonic_ns() -> u64 {
     })
 }
 
+/// When this process started, `CLOCK_MONOTONIC` ns: the moment of the deliberate act behind a
+/// program that re-arms once it is set up (`ussctl run`, a Python script started to run a
+/// drive), to pass to [`crate::Controller::rearm`]. A stop that lands while the program starts
+/// (its libraries load, it opens the bus) is then not re-armed by it (SAFETY.md REARM).
+///
+/// The kernel's own start time (`/proc/self/stat`, field 22, clock ticks since boot on
+/// `CLOCK_BOOTTIME`) moved onto `CLOCK_MONOTONIC`. It is rounded down to its tick (10 ms), so it
+/// is never later than the start: a stop just before the start is not re-armed either.
+pub fn process_start_ns() -> std::io::Result<u64> {
+    let stat = std::fs::read_to_string("/proc/self/stat")?;
+    let ticks = start_ticks(&stat).ok_or_else(|| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("/proc/self/stat has no start time: {stat:?}"),
+        )
+    })?;
+    let per_second = nix::unistd::sysconf(nix::unistd::SysconfVar::CLK_TCK)
+        .ok()
+        .flatten()
+        .and_then(|t| u64::try_from(t).ok())
+        .filter(|&t| t > 0)
+        .unwrap_or(100);
+    let started_boot = u128::from(ticks) * 1_000_000_000 / u128::from(per_second);
+    let clock = |id| {
+        nix::time::clock_gettime(id)
+            .map(|t| {
+                u128::try_from(t.tv_sec()).unwrap_or(0) * 1_000_000_000
+                    + u128::try_from(t.tv_nsec()).unwrap_or(0)
+            })
+            .map_err(std::io::Error::from)
+    };
+    let mono = clock(nix::time::ClockId::CLOCK_MONOTONIC)?;
+    let boot = clock(nix::time::ClockId::CLOCK_BOOTTIME)?;
+    // CLOCK_BOOTTIME runs ahead of CLOCK_MONOTONIC by the time the machine was suspended.
+    let started = started_boot.saturating_sub(boot.saturating_sub(mono));
+    Ok(u64::try_from(started).unwrap_or(u64::MAX))
+}
+
+/// Field 22 of a `/proc/PID/stat` line (`starttime`), counted after the command's closing
+/// parenthesis (the command itself may hold spaces and parentheses).
+fn start_ticks(stat: &str) -> Option<u64> {
+    let (_, after) = stat.rsplit_once(')')?;
+    after.split_whitespace().nth(19)?.parse().ok()
+}
+
 /// The bus-wide services of one ussd instance.
 pub(crate) struct Services {
     pub(crate) instance: Instance,
@@ -384,5 +429,28 @@ mod tests {
         );
         assert!(Health::of(&beat(BusState::LineDown, t), t).is_serving());
         assert!(!Health::of(&beat(BusState::Running, t), late).is_serving());
+    }
+
+    #[test]
+    fn the_start_time_is_field_22_after_the_command_whatever_it_holds() {
+        let line = "4242 (a) b (c)) S 1 4242 4242 0 -1 4194560 100 0 0 0 1 2 0 0 20 0 1 0 987654 1000 10 18446744073709551615";
+        assert_eq!(start_ticks(line), Some(987_654));
+        assert_eq!(start_ticks("4242 (cut) S 1 2"), None);
+        assert_eq!(start_ticks("no parenthesis"), None);
+    }
+
+    #[test]
+    fn this_process_started_before_now_and_after_boot() {
+        let started = process_start_ns().unwrap();
+        let now = monotonic_ns();
+        assert!(started <= now, "{started} > {now}");
+        // A child started now starts later than this test process did.
+        let child = std::process::Command::new("sh")
+            .args(["-c", "cat /proc/self/stat"])
+            .output()
+            .unwrap();
+        let ticks = start_ticks(&String::from_utf8_lossy(&child.stdout)).unwrap();
+        let own = start_ticks(&std::fs::read_to_string("/proc/self/stat").unwrap()).unwrap();
+        assert!(ticks >= own);
     }
 }

@@ -5,15 +5,17 @@
 //! its depth and state count are printed by the test itself.
 //!
 //! Events: a controller opens (a new one replaces the one before without a release, as a
-//! killed process's successor does), keepalive, run, re-arm, stop, release, a refresher's turn,
+//! killed process's successor does), keepalive, run, the deliberate act that asks for a re-arm
+//! (its time travels with the re-arm), re-arm, stop, release, a refresher's turn,
 //! an operator's coast, a gap in time longer than the watchdog, and a poll of the bus thread
 //! (which takes the newest sample and operator command and publishes the image the clients
 //! read). After every step:
 //! - no telegram without STW1 bit 10;
 //! - no ON (a word that runs the motor) on the wire unless the live period it belongs to began
-//!   by re-arming a latch that an explicit re-arm call acknowledged while the image showed it:
-//!   so opening, reconnecting, a keepalive, a refresher, a stop never re-arm, and an operator's
-//!   stop is never undone by any of them.
+//!   by re-arming a latch that an explicit re-arm call acknowledged while the image showed it,
+//!   asked for after that latch was made: so opening, reconnecting, a keepalive, a refresher, a
+//!   stop never re-arm, an operator's stop is never undone by any of them, and a stop that lands
+//!   between the ask and the re-arm call wins.
 #![allow(clippy::unwrap_used)]
 
 use std::collections::HashSet;
@@ -32,6 +34,9 @@ enum Event {
     Open,
     Keepalive,
     Run,
+    /// The deliberate act that asks for a re-arm (a program's start, a pin's edge): its time
+    /// travels with the re-arm call that follows.
+    Ask,
     Rearm,
     Stop,
     Release,
@@ -41,10 +46,11 @@ enum Event {
     Poll,
 }
 
-const EVENTS: [Event; 10] = [
+const EVENTS: [Event; 11] = [
     Event::Open,
     Event::Keepalive,
     Event::Run,
+    Event::Ask,
     Event::Rearm,
     Event::Stop,
     Event::Release,
@@ -67,7 +73,12 @@ struct World {
     operator: Option<StopCommand>,
     /// What the clients read: the image of the last poll.
     image: PzdInput,
-    /// Latch ids an explicit re-arm call acknowledged while the image showed them.
+    /// When the last deliberate act asked for a re-arm, and the newest latch made by then.
+    asked: Option<(u64, u64)>,
+    /// The newest latch id ussd made so far (0: none).
+    newest_latch: u64,
+    /// Latch ids an explicit re-arm call acknowledged while the image showed them, asked for
+    /// after they began.
     rearmed: Vec<u64>,
     /// The latch the drive's current live period began by re-arming.
     live_from: Option<u64>,
@@ -108,6 +119,8 @@ impl World {
             pending: None,
             operator: None,
             image,
+            asked: None,
+            newest_latch: image.latch_id,
             rearmed: Vec::new(),
             live_from: None,
             ran: false,
@@ -149,12 +162,22 @@ impl World {
                 words.words[1] = 0x2000;
             }),
             Event::Stop => w.publish(|words| words.words[0] = OFF1),
+            Event::Ask => {
+                // Time goes on around the act: every latch so far began before it, every latch
+                // after it begins later.
+                w.now_ms += 1;
+                w.asked = Some((w.now_ns(), w.newest_latch));
+                w.now_ms += 1;
+            }
             Event::Rearm => {
                 if let Some((s, id)) = w.session.as_mut()
-                    && let Ok(sample) = s.rearm(now, &image)
+                    && let Some((asked_ns, newest_then)) = w.asked
+                    && let Ok(sample) = s.rearm(now, &image, asked_ns)
                 {
                     w.pending = Some((sample, *id));
-                    if let Some(latch) = image.latch() {
+                    // The oracle is the order of events, not the clock: only a latch made by
+                    // the time of the ask may be re-armed by it.
+                    if let Some(latch) = image.latch().filter(|&l| l <= newest_then) {
                         w.rearmed.push(latch);
                         w.rearmed.sort_unstable();
                         w.rearmed.dedup();
@@ -206,6 +229,7 @@ impl World {
             _ => {}
         }
         self.image = image_of(&self.gate);
+        self.newest_latch = self.newest_latch.max(self.image.latch_id);
         if out[0] & 0x0400 == 0 {
             return Err(format!("a telegram without STW1 bit 10: {:#06x}", out[0]));
         }

@@ -972,7 +972,7 @@ fn control(name: &str, duration: Duration, period: Duration) -> String {
                     let drive = bus
                         .control(addr(address), ControlOptions::words(2))
                         .expect("control the drive");
-                    drive.rearm().expect("re-arm");
+                    drive.rearm(uss_client::monotonic_ns()).expect("re-arm");
                     let mut rng = SmallRng::seed_from_u64(u64::from(address));
                     let mut published = Vec::with_capacity(CAPACITY);
                     let end = Instant::now() + duration;

@@ -133,8 +133,10 @@ impl Controller {
     }
 
     /// Acknowledges the latch and re-arms: OFF1 naming it, then waits until the drive is live.
-    fn rearm<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        self.with(py, |c| c.rearm().map(|_| ()))?;
+    /// `asked_ns` (`CLOCK_MONOTONIC`, `time.monotonic_ns()`): when the deliberate act behind
+    /// it happened; a latch that began after it is not re-armed (`Tripped`).
+    fn rearm<'py>(&self, py: Python<'py>, asked_ns: u64) -> PyResult<Bound<'py, PyDict>> {
+        self.with(py, |c| c.rearm(asked_ns).map(|_| ()))?;
         self.inputs(py)
     }
 

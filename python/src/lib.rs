@@ -172,6 +172,13 @@ pub(crate) fn image_dict<'py>(
     Ok(d)
 }
 
+/// When this process started, `CLOCK_MONOTONIC` ns (the kernel's start time, rounded down to
+/// its 10 ms tick): what a script that re-arms once it is set up passes to `rearm`.
+#[pyfunction]
+fn process_start_ns() -> PyResult<u64> {
+    uss_client::process_start_ns().map_err(pyo3::exceptions::PyOSError::new_err)
+}
+
 /// Opens bus `name` of a running ussd as node `node_name` (waits at most 0.5 s for its
 /// heartbeat, without the GIL).
 #[pyfunction]
@@ -344,6 +351,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Bus>()?;
     m.add_class::<control::Controller>()?;
     m.add_function(wrap_pyfunction!(open_bus, m)?)?;
+    m.add_function(wrap_pyfunction!(process_start_ns, m)?)?;
     m.add_function(wrap_pyfunction!(read_input, m)?)?;
     m.add_function(wrap_pyfunction!(stop_drive, m)?)?;
     m.add_function(wrap_pyfunction!(stop_all, m)?)?;

@@ -3,7 +3,7 @@ docs/SAFETY.md): a controller of ``uss_rt`` driven line by line from stdin, so t
 same scenario against every language with real processes and signals.
 
 The same protocol as the C driver (capi/tests/c/conformance.c): a command per line (``open BUS
-ADDRESS``, ``keepalive``, ``run HZ``, ``rearm``, ...; ``&`` first: on a thread of its own),
+ADDRESS``, ``keepalive``, ``run HZ``, ``rearm [MS]``, ...; ``&`` first: on a thread of its own),
 answered by ``<< ok`` or ``<< err KIND MESSAGE`` (``<&`` for a thread's), KIND being the
 exception's class name in snake case (``Tripped`` -> ``tripped``).
 """
@@ -11,6 +11,7 @@ exception's class name in snake case (``Tripped`` -> ``tripped``).
 import re
 import sys
 import threading
+import time
 
 import uss_rt
 
@@ -42,8 +43,14 @@ def answer(tag: str, error):
 
 def call(words):
     cmd, args = words[0], words[1:]
-    if cmd in ("keepalive", "enable", "stop", "coast", "quick_stop", "rearm", "check", "release"):
+    if cmd in ("keepalive", "enable", "stop", "coast", "quick_stop", "check", "release"):
         getattr(drive, cmd)()
+    elif cmd == "rearm":
+        # Asked for when the line arrives; ``rearm MS`` calls MS later (a program that re-arms
+        # once it is set up): a stop meanwhile is not re-armed.
+        asked = time.monotonic_ns()
+        time.sleep(int(args[0]) / 1000.0 if args else 0)
+        drive.rearm(asked)
     elif cmd == "run":
         drive.run_hz(float(args[0]))
     elif cmd == "acknowledge":

@@ -309,7 +309,7 @@ def test_python_takes_control_runs_stops_and_releases_a_drive(bus):
         assert repr(c) == f"Controller(bus='{BUS}', drive=1, stw1=0x047e)"
         with pytest.raises(uss_rt.Controlled, match="drive 1 on .* is controlled by process"):
             uss_rt.control(bus, 1)
-        c.rearm()  # ussd latched the drive at start: OFF1 re-arms it
+        c.rearm(time.monotonic_ns())  # ussd latched the drive at start: OFF1 re-arms it
         c.enable()
         c.wait_for(lambda i: i["zsw1"] & 0x7F == 0x31, what="S2")
         assert c.reference_hz == 50.0  # the drive's P2000, as ussd publishes it now
@@ -324,7 +324,7 @@ def test_python_takes_control_runs_stops_and_releases_a_drive(bus):
         uss_rt.wait_stopped(bus, 1, uss_rt.StopCommand.OFF2)
         with pytest.raises(uss_rt.Tripped, match="drive 1 on .* latched"):
             c.run_hz(10)
-        assert c.rearm()["control"] == uss_rt.ControlState.LIVE
+        assert c.rearm(time.monotonic_ns())["control"] == uss_rt.ControlState.LIVE
     released = wait_for_input(bus, 1, lambda i: i["latch_reason"] == uss_rt.LatchReason.RELEASED)
     assert released["sent_stw1"] == 0x047E
     uss_rt.control(bus, 1).release()  # free again
@@ -336,7 +336,7 @@ def test_python_has_the_calls_rust_and_c_have(bus):
     uss_rt.write(bus, 1, "P1121", 0.5)
     with uss_rt.control(bus, 1) as c:
         assert isinstance(c, uss_rt.Controller) and c.address == 1 and c.bus is bus
-        c.rearm()
+        c.rearm(time.monotonic_ns())
         c.enable()
         assert c.wait_for_state(2)["control"] == uss_rt.ControlState.LIVE
         c.run_percent(25)
@@ -381,7 +381,7 @@ def test_an_operators_stop_after_the_controllers_own_stop_stays_latched(bus):
     from another process. The refresher must not republish the OFF1 over the coast (that
     re-armed the operator's stop), so the next ON raises Tripped and never reaches the wire."""
     with uss_rt.control(bus, 1) as drive:
-        drive.rearm()
+        drive.rearm(time.monotonic_ns())
         for _ in range(25):  # the control loop: ON at 10 Hz for half a second
             drive.run_hz(10)
             time.sleep(0.02)
@@ -400,7 +400,7 @@ def test_an_operators_stop_after_the_controllers_own_stop_stays_latched(bus):
             drive.run_hz(10)
         time.sleep(0.1)
         assert uss_rt.read_input(bus, 1)["sent_stw1"] == 0x047C
-        drive.rearm()  # the deliberate re-arm: OFF1, then ON may run the drive again
+        drive.rearm(time.monotonic_ns())  # the deliberate re-arm: OFF1, then ON may run the drive again
 
 
 def test_a_python_program_that_stops_calling_trips_its_drive_and_its_next_call_says_so(bus):
@@ -408,7 +408,7 @@ def test_a_python_program_that_stops_calling_trips_its_drive_and_its_next_call_s
     run_hz and then made no call for 0.5 s (five watchdog times) no longer keeps its drive
     live through the refresher thread; its next call is the trip."""
     with uss_rt.control(bus, 2) as drive:
-        drive.rearm()
+        drive.rearm(time.monotonic_ns())
         drive.run_hz(10)
         drive.wait_for(lambda i: i["sent_stw1"] == 0x047F, what="ON on the wire")
         time.sleep(0.5)
@@ -418,7 +418,7 @@ def test_a_python_program_that_stops_calling_trips_its_drive_and_its_next_call_s
         assert image["sent_stw1"] == 0x047E
         with pytest.raises(uss_rt.Tripped):
             drive.run_hz(10)
-        drive.rearm()  # the deliberate re-arm runs it again
+        drive.rearm(time.monotonic_ns())  # the deliberate re-arm runs it again
         drive.run_hz(10)
         drive.wait_for(lambda i: i["sent_stw1"] == 0x047F, what="ON on the wire")
         drive.stop()
@@ -439,7 +439,7 @@ def test_calls_that_wait_release_the_gil(bus):
     spinner.start()
     try:
         with uss_rt.control(bus, 1) as drive:
-            drive.rearm()
+            drive.rearm(time.monotonic_ns())
             before = counter[0]
             with pytest.raises(uss_rt.WaitTimeout):
                 drive.wait_for(lambda i: False, timeout=0.3, what="never")
@@ -468,7 +468,7 @@ def test_a_monitor_sees_a_killed_ussd_gone_within_a_second_and_follows_its_resta
     with uss_rt.open_bus(BUS + "k") as bus:
         wait_for_input(bus, 1, lambda i: i["online"] == 1 and i["sequence"] > 0)
         drive = uss_rt.control(bus, 2)
-        drive.rearm()
+        drive.rearm(time.monotonic_ns())
         killed = time.monotonic()
         daemon.process.kill()
         daemon.process.wait()
@@ -492,7 +492,7 @@ def test_a_monitor_sees_a_killed_ussd_gone_within_a_second_and_follows_its_resta
             # The new ussd latched every drive: the controller's next call is that news.
             with pytest.raises(uss_rt.Tripped):
                 drive.run_hz(10)
-            drive.rearm()
+            drive.rearm(time.monotonic_ns())
             drive.release()
         finally:
             assert restarted.stop() == 0, restarted.output()
@@ -534,7 +534,7 @@ def test_a_stalled_program_is_told_the_stop_its_drive_got(tmp_path):
         with uss_rt.open_bus(f"{BUS}-stall") as bus:
             wait_for_input(bus, 1, lambda i: i["online"] == 1)
             drive = uss_rt.control(bus, 1)
-            drive.rearm()
+            drive.rearm(time.monotonic_ns())
             drive.run_hz(5)
             # ussd paused (shorter than its heartbeat's 500 ms) sees no gap yet and latches
             # nothing: the program's next call, 250 ms after its last, finds the gap itself.

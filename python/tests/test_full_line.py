@@ -5,6 +5,7 @@ re-arm failed with "ussd did not update the inputs ... for 1s"."""
 
 import os
 import subprocess
+import time
 
 import pytest
 
@@ -46,7 +47,7 @@ def test_a_python_controller_runs_and_stops_drive_21(line):
     _, bus = line
     with uss_rt.control(bus, 21) as drive:
         assert drive.handshake() >= 2.5
-        drive.rearm()
+        drive.rearm(time.monotonic_ns())
         drive.run_hz(10)
         image = drive.wait_for(lambda i: i["sent_stw1"] == 0x047F and i["zsw1"] & 0x4 != 0,
                                what="S4")
@@ -60,7 +61,7 @@ def test_a_python_controller_runs_and_stops_drive_21(line):
 def test_an_operator_stop_of_a_drive_python_runs_is_confirmed_and_trips_the_controller(line):
     _, bus = line
     with uss_rt.control(bus, 22) as drive:
-        drive.rearm()
+        drive.rearm(time.monotonic_ns())
         drive.run_hz(10)
         drive.wait_for(lambda i: i["sent_stw1"] == 0x047F, what="ON sent")
         stop = subprocess.run([ussctl_binary(), "--bus", BUS, "stop", "22"],

@@ -53,6 +53,7 @@ __all__ = _errors.__all__ + [
     "fault_text",
     "open_bus",
     "parse_param",
+    "process_start_ns",
     "read",
     "read_input",
     "read_elements",
@@ -366,6 +367,13 @@ def wait_exchange(bus: Bus, address: int, count: int = 1, timeout: float = 1.0) 
     bus); the image after them. :class:`WaitTimeout` when they do not come in ``timeout`` s."""
     _check_address(address)
     return _image(_native.wait_exchange(bus._open(), address, count, timeout))
+
+
+def process_start_ns() -> int:
+    """When this process started, ``CLOCK_MONOTONIC`` ns (the kernel's start time, rounded down
+    to its 10 ms tick): what a script that re-arms once it is set up passes to
+    :meth:`Controller.rearm`, so a stop while it starts (imports, opening the bus) stays."""
+    return _native.process_start_ns()
 
 
 # Parameters in the manuals' notation and exclusive control.

@@ -144,10 +144,16 @@ class Controller(_native.Controller):
         not acknowledged (a read: it does not refresh the watchdog)."""
         return _u._image(super().check())
 
-    def rearm(self) -> dict:
+    def rearm(self, asked_ns: int) -> dict:
         """Acknowledges the latch (a trip, an operator's stop, ussd's start) and re-arms: OFF1
-        naming it, then waits until ussd passes this controller's words again."""
-        return _u._image(super().rearm())
+        naming it, then waits until ussd passes this controller's words again.
+
+        ``asked_ns`` is when the deliberate act that asked for the re-arm happened, on
+        ``CLOCK_MONOTONIC`` (``time.monotonic_ns()`` on Linux): :func:`uss_rt.process_start_ns`
+        for a script that re-arms once it is set up, ``time.monotonic_ns()`` taken when an
+        operator pressed the button. A latch that began after it (an operator's stop while the
+        script was starting) is not re-armed: :class:`Tripped`, and the stop stays."""
+        return _u._image(super().rearm(asked_ns))
 
     def wait_for(self, predicate, timeout=None, what: str = "the drive") -> dict:
         """Waits until ``predicate(image)`` holds, refreshing the watchdog meanwhile (this

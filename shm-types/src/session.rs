@@ -17,6 +17,10 @@
 //!   program after the latch was there to see, is the one deliberate act (IEC 60204-1: a reset
 //!   never restarts a machine by itself; `PLCopen` `SF_EmergencyStop`: a restart of the
 //!   controller is not a reset).
+//! - **A re-arm carries the time it was asked.** Every re-arm ([`Session::rearm`], a relay's
+//!   [`Session::acknowledge`]) names the moment of the deliberate act behind it (a program's
+//!   start, a pin's edge, a remote command) and never clears a latch that began after it: a
+//!   stop that lands between the ask and the re-arm wins.
 //! - **Re-arm: a stop, then ON.** [`Session::rearm`] acknowledges the latch the image shows and
 //!   publishes OFF1 naming it (every other word 0); [`Session::rearmed`] says when ussd took it.
 //!   An ON asked of a latched drive waits for that ([`Step::AwaitRearm`]) when a re-arming stop
@@ -280,8 +284,22 @@ impl Session {
 
     /// Acknowledges the latch `image` shows (if any) and re-arms: OFF1 naming it, every other
     /// word 0. Clears a stall. Wait with [`Session::rearmed`] before an ON.
-    pub fn rearm(&mut self, now_ns: u64, image: &PzdInput) -> Result<PzdOutput, SessionError> {
-        self.rearm_with(now_ns, image, REARM_STW1)
+    ///
+    /// `asked_ns` is when the deliberate act that asked for the re-arm happened, in the clock of
+    /// the image's latch ids (`CLOCK_MONOTONIC` of ussd's host): a program's start for one that
+    /// re-arms once it is set up (`ussctl run`), the edge of a pin (`uss_vfd`'s spindle-on), the
+    /// remote command's own time (translated by the relay's client), the moment of the call for
+    /// a program that re-arms as soon as it decides to. A latch that began after it (an
+    /// operator's stop between the ask and the re-arm) is not acknowledged:
+    /// [`SessionError::Tripped`], nothing is sent, and the stop stays (SAFETY.md REARM). A latch's
+    /// id is the moment it began.
+    pub fn rearm(
+        &mut self,
+        now_ns: u64,
+        image: &PzdInput,
+        asked_ns: u64,
+    ) -> Result<PzdOutput, SessionError> {
+        self.rearm_with(now_ns, image, asked_ns, REARM_STW1)
     }
 
     /// Like [`Session::rearm`], with the stop the latch `image` shows as the re-arming words:
@@ -293,23 +311,26 @@ impl Session {
         &mut self,
         now_ns: u64,
         image: &PzdInput,
+        asked_ns: u64,
     ) -> Result<PzdOutput, SessionError> {
         let stw1 = image
             .latch()
             .and_then(|_| crate::control::StopCommand::of_code(image.latch_command))
             .map_or(REARM_STW1, crate::control::StopCommand::stw1);
-        self.rearm_with(now_ns, image, stw1)
+        self.rearm_with(now_ns, image, asked_ns, stw1)
     }
 
     fn rearm_with(
         &mut self,
         now_ns: u64,
         image: &PzdInput,
+        asked_ns: u64,
         stw1: u16,
     ) -> Result<PzdOutput, SessionError> {
         if self.released {
             return Err(SessionError::Released);
         }
+        began_before(image, asked_ns)?;
         if let Some(latch_id) = image.latch() {
             self.acknowledged = latch_id;
         }
@@ -322,38 +343,25 @@ impl Session {
         Ok(self.commit(next, sample))
     }
 
-    /// Like [`Session::rearm`], for a re-arm asked for at `asked_ns` (`CLOCK_MONOTONIC`; a
-    /// program that started at that moment and re-arms once it is set up, `ussctl run`): a
-    /// latch that began after it (an operator's stop while the program was starting) is not
-    /// acknowledged: [`SessionError::Tripped`], and nothing is sent. A latch's id is the
-    /// moment it began.
-    pub fn rearm_asked_at(
-        &mut self,
-        now_ns: u64,
-        image: &PzdInput,
-        asked_ns: u64,
-    ) -> Result<PzdOutput, SessionError> {
-        if let Some(latch_id) = image.latch().filter(|&id| id > asked_ns) {
-            return Err(SessionError::Tripped { latch_id });
-        }
-        self.rearm(now_ns, image)
-    }
-
     /// For a relay (the Zenoh bridge): acknowledges latch `named`, which the remote controller
-    /// names in its sample at `now_ns`, only when `image` shows it as the drive's current latch.
-    /// Like a local [`Session::rearm`] it clears a stall and counts as a call; the relay's stop
-    /// then re-arms the drive.
+    /// names in its sample at `now_ns` for a re-arm it asked for at `asked_ns` (the remote
+    /// command's own time, in the clock of the image's latch ids), only when `image` shows it as
+    /// the drive's current latch and it began before `asked_ns` ([`SessionError::Tripped`]
+    /// else, as [`Session::rearm`]). Like a local [`Session::rearm`] it clears a stall and
+    /// counts as a call; the relay's stop then re-arms the drive.
     pub fn acknowledge(
         &mut self,
         now_ns: u64,
         image: &PzdInput,
         named: u64,
+        asked_ns: u64,
     ) -> Result<(), SessionError> {
         if self.released {
             return Err(SessionError::Released);
         }
         match image.latch() {
             Some(shown) if shown == named => {
+                began_before(image, asked_ns)?;
                 if self.acknowledged != named {
                     self.acknowledged = named;
                     self.rearming = false;
@@ -439,6 +447,15 @@ impl Session {
         self.words = words;
         self.sequence = sample.sequence;
         sample
+    }
+}
+
+/// Whether the latch `image` shows (if any) began before `asked_ns`, the moment the re-arm was
+/// asked for: a latch that began after it is news the re-arm must not clear.
+fn began_before(image: &PzdInput, asked_ns: u64) -> Result<(), SessionError> {
+    match image.latch() {
+        Some(latch_id) if latch_id > asked_ns => Err(SessionError::Tripped { latch_id }),
+        _ => Ok(()),
     }
 }
 

@@ -300,6 +300,56 @@ fn an_operators_stop_survives_a_reconnect(front: FrontEnd) {
     second.exit();
 }
 
+/// REARM (a stop between the ask and the re-arm wins): the program is asked to re-arm and makes
+/// the call [`ASK_WINDOW`] later, as a program that re-arms once it is set up (`rearm MS`: the
+/// ask is when the line arrives). An operator's coast that lands anywhere in that window (swept
+/// from its start to two thirds of it) is not re-armed: the call is `tripped`, the coast stays on
+/// the wire. With no stop in between, the same call re-arms and an ON runs.
+fn a_stop_between_the_ask_and_the_rearm_wins(front: FrontEnd) {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let watch = bus.watch(addr(1)).unwrap();
+    let mut p = opened(front, &ussd, 1);
+    let window = ASK_WINDOW.as_millis();
+    for offset in [0, window / 3, 2 * window / 3] {
+        let before = watch.latest().latch_id;
+        p.tell(&format!("rearm {window}"));
+        let asked = Instant::now();
+        std::thread::sleep(Duration::from_millis(u64::try_from(offset).unwrap()));
+        bus.stop_drive(addr(1), StopCommand::Off2).unwrap();
+        image_until(&bus, 1, "the coast's latch", |i| i.latch_id > before);
+        let landed = asked.elapsed();
+        let reply = p.answer("<<");
+        // A coast that landed only after the call (a starved machine) came after the re-arm:
+        // then the re-arm may stand. Inside the window it never does.
+        if landed < ASK_WINDOW {
+            assert_eq!(
+                reply.kind(),
+                "tripped",
+                "{front:?}: a coast {offset} ms into the window (landed after {landed:?}) was re-armed: {reply:?}"
+            );
+        }
+        assert_eq!(p.call("run 10").kind(), "tripped", "{front:?}");
+        never(
+            &bus,
+            1,
+            Duration::from_millis(150),
+            "the coast undone",
+            |i| i.sent_stw1 != OFF2 || i.is_live(),
+        );
+    }
+    // Nothing in between: the deliberate act re-arms.
+    p.ok(&format!("rearm {window}"));
+    p.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    p.exit();
+}
+
+/// The time between the ask and the re-arm call in [`a_stop_between_the_ask_and_the_rearm_wins`]:
+/// below the drive's watchdog (100 ms), so the program's silence in it is no stall.
+const ASK_WINDOW: Duration = Duration::from_millis(90);
+
 /// REPLACED: a controller killed while its drive runs and replaced by a new program within the
 /// drive's watchdog time is a trip ("controller replaced"): the drive stops, and the new program
 /// must re-arm it.
@@ -592,6 +642,7 @@ macro_rules! front_ends {
 front_ends!(
     opening_is_no_rearm,
     an_operators_stop_survives_a_reconnect,
+    a_stop_between_the_ask_and_the_rearm_wins,
     a_replaced_controller_is_a_trip,
     a_stop_never_waits_for_another_thread,
     a_paused_program_trips_and_does_not_resume,

@@ -131,7 +131,7 @@ fn exporter_serves_metrics_that_promtool_accepts_and_follows_a_restarted_ussd() 
         .control(uss_integration_tests::addr(1), ControlOptions::default())
         .unwrap();
     let refresh = c.spawn_refresher(Duration::from_millis(20));
-    c.rearm().unwrap();
+    c.rearm(uss_client::monotonic_ns()).unwrap();
     drop(refresh);
     c.release().unwrap();
     client

@@ -336,7 +336,7 @@ fn each_family_runs_faults_control_parameters_and_backup_against_its_personality
         let control = bus
             .control(addr(d), uss_client::ControlOptions::default())
             .unwrap();
-        control.rearm().unwrap();
+        control.rearm(uss_client::monotonic_ns()).unwrap();
         control
             .acknowledge_fault(Duration::from_secs(2))
             .unwrap_or_else(|e| panic!("{what}: {e:?}"));
@@ -428,7 +428,7 @@ fn a_g120_reference_speed_is_read_with_its_pole_pairs_and_unverified_without() {
     let control = bus
         .control(addr(3), uss_client::ControlOptions::default())
         .unwrap();
-    control.rearm().unwrap();
+    control.rearm(uss_client::monotonic_ns()).unwrap();
     control.run_hz(30.0).unwrap();
     assert_eq!(control.words()[1], 0x2000);
     control

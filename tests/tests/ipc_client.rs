@@ -592,7 +592,7 @@ fn a_second_controller_is_refused_with_the_controlling_process_id() {
 
     // This process controls drive 2: a second handle here, and ussctl, are refused.
     let first = bus.control(addr(2), ControlOptions::default()).unwrap();
-    first.rearm().unwrap();
+    first.rearm(uss_client::monotonic_ns()).unwrap();
     let refused = bus.control(addr(2), ControlOptions::default()).unwrap_err();
     assert!(
         matches!(refused, ClientError::Controlled { address: 2, pid: Some(pid), .. } if pid == me as i32),
@@ -648,7 +648,7 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
         .unwrap();
 
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
-    c.rearm().unwrap();
+    c.rearm(uss_client::monotonic_ns()).unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
     c.run_hz(25.0).unwrap();
@@ -695,7 +695,7 @@ fn controller_runs_a_drive_to_s4_and_sees_the_actual_value_rise() {
     c.stop().unwrap();
     assert!(matches!(c.run_hz(25.0), Err(ClientError::Tripped { .. })));
     assert!(!c.inputs().latest().is_live());
-    let live = c.rearm().unwrap();
+    let live = c.rearm(uss_client::monotonic_ns()).unwrap();
     assert!(live.is_live());
     assert_eq!(c.words()[0], 0x047E);
 }
@@ -731,7 +731,7 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
         .unwrap();
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     assert_eq!(c.inputs().info().reference_hz, 60.0);
-    c.rearm().unwrap();
+    c.rearm(uss_client::monotonic_ns()).unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
     c.run_hz(30.0).unwrap();
@@ -1062,7 +1062,7 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
     assert_ne!(bus.watch(addr(3)).unwrap().state(), DriveState::Fault);
     // The acknowledged drive runs again.
     let c = bus.control(addr(3), ControlOptions::default()).unwrap();
-    c.rearm().unwrap();
+    c.rearm(uss_client::monotonic_ns()).unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(2))
         .unwrap();
     c.run_percent(10.0).unwrap();

@@ -88,7 +88,7 @@ fn client_controls_and_parameterises_a_drive_through_ussd_over_a_pty() {
 
     // Exclusive control: run to S4 at 25 Hz, see the actual value.
     let controller = bus.control(addr(1), ControlOptions::default()).unwrap();
-    controller.rearm().unwrap();
+    controller.rearm(uss_client::monotonic_ns()).unwrap();
     controller.run_hz(25.0).unwrap();
     controller
         .wait_for_state(DriveState::OperationEnabled, Duration::from_secs(10))

@@ -249,7 +249,7 @@ fn killed_controller_trips_the_watchdog_within_its_time_and_the_drive_can_be_tak
          {gone:?} more; watchdog trips counted by ussd: {}",
         diag.counters.watchdog_trips
     );
-    c.rearm().unwrap();
+    c.rearm(uss_client::monotonic_ns()).unwrap();
     c.wait_for_state(DriveState::ReadyToSwitchOn, Duration::from_secs(5))
         .unwrap();
     c.run_hz(10.0).unwrap();

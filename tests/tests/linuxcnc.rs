@@ -362,3 +362,72 @@ fn an_operators_coast_of_an_idle_spindle_holds_until_spindle_on_rises() {
     let _ = hal.stop();
     let _ = std::fs::remove_file(&hal_file);
 }
+
+/// REARM (the rise carries its time): an operator's coast that lands right after M3 (spindle-on
+/// rose, the component's loop has not read it yet, or is re-arming) is not re-armed by that
+/// rise, swept across two of the component's loop periods (20 ms each, on a line of eight
+/// drives), most often in the first few ms where the old component re-armed it; once the coast is in
+/// the image, the drive is never live again until spindle-on rises anew. A stale image (ussd
+/// stopped by SIGTERM) reads `latched` TRUE.
+#[test]
+fn an_operators_coast_right_after_m3_is_not_re_armed_by_its_rise() {
+    if !linuxcnc_here() {
+        return;
+    }
+    let _serial = serial();
+    let component = build();
+    // Eight drives: the component's loop, in step with drive 1's exchanges, runs every 20 ms (its
+    // refresh period), as on a full line; a stop still goes out in the next telegram.
+    let drives: Vec<(u8, &str)> = (1..=8).map(|a| (a, "")).collect();
+    let mut ussd = Ussd::start("", &drives);
+    let bus = ussd.bus();
+    let dir = std::env::temp_dir();
+    let hal_file = dir.join(format!("uss_vfd-m3-{}.hal", std::process::id()));
+    std::fs::write(&hal_file, hal_text(&component, &ussd.bus)).unwrap();
+    let hal = Hal::start(
+        &hal_file,
+        dir.join(format!("halrun-m3-{}.log", std::process::id())),
+    );
+    let s = Duration::from_secs(10);
+    hal.until("comm-ok", s, |h| h.get("comm-ok") == "TRUE");
+    hal.until("watchdog-ok", s, |h| h.get("watchdog-ok") == "TRUE");
+    hal.set("speed-command", "600");
+    let watch = bus.watch(addr(1)).unwrap();
+    let mut rearmed = Vec::new();
+    for offset_ms in [0, 0, 0, 0, 2, 4, 6, 8, 10, 20, 30, 40] {
+        let before = watch.latest().latch_id;
+        hal.set("spindle-on", "1");
+        std::thread::sleep(Duration::from_millis(offset_ms));
+        bus.stop_drive(addr(1), StopCommand::Off2).unwrap();
+        let coast = watch
+            .wait_for(Duration::from_secs(2), "the coast", |i| i.latch_id > before)
+            .unwrap();
+        let held = Instant::now() + Duration::from_millis(600);
+        while Instant::now() < held {
+            let i = watch.latest();
+            if i.is_live() || i.sent_stw1 != 0x047C {
+                rearmed.push((offset_ms, i.latch_id == coast.latch_id));
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(hal.get("latched"), "TRUE", "coast {offset_ms} ms after M3");
+        hal.set("spindle-on", "0");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(
+        rearmed.is_empty(),
+        "a coast right after M3 was undone (offset ms, by the rise): {rearmed:?}"
+    );
+    // The next rise is the deliberate act: it re-arms and runs.
+    hal.set("spindle-on", "1");
+    hal.until("running after a new M3", s, |h| h.get("at-speed") == "TRUE");
+    // ussd stopped (SIGTERM): the image goes stale, and nothing says the drive is live.
+    ussd.terminate();
+    hal.until("comm-ok FALSE", s, |h| h.get("comm-ok") == "FALSE");
+    hal.until("latched while ussd is stopped", s, |h| {
+        h.get("latched") == "TRUE"
+    });
+    let _ = hal.stop();
+    let _ = std::fs::remove_file(&hal_file);
+}

@@ -40,7 +40,13 @@ const CALLS: &[(&str, &str, &str)] = &[
     ("control", "ussrt_control_open", "control"),
     ("check", "ussrt_control_check", "check"),
     ("keepalive", "ussrt_control_keepalive", "keepalive"),
-    ("rearm", "ussrt_control_rearm", "rearm"),
+    ("rearm", "ussrt_control_rearm_at", "rearm"),
+    // When a re-arm was asked for: the program's start.
+    (
+        "process_start_ns",
+        "ussrt_process_start_ns",
+        "process_start_ns",
+    ),
     ("enable", "ussrt_control_enable", "enable"),
     ("run_hz", "ussrt_control_run_hz", "run_hz"),
     ("run_percent", "ussrt_control_run_percent", "run_percent"),
@@ -71,10 +77,6 @@ const CALLS: &[(&str, &str, &str)] = &[
 
 /// `Controller` calls that are Rust's alone, and why.
 const RUST_ONLY: &[(&str, &str)] = &[
-    (
-        "rearm_asked_at",
-        "for a program that re-arms once it has started up (ussctl run): C, Python and LinuxCNC re-arm when called, and rearm() is rearm_asked_at(now) for them",
-    ),
     (
         "rearm_keeping_stop",
         "for ussctl ack, which only acknowledges a fault and lets go: a program of C, Python or LinuxCNC that acknowledges keeps its own coast through acknowledge_fault, and its re-arm is the one that leads to an ON (OFF1 first)",
@@ -138,6 +140,10 @@ const C_ONLY: &[(&str, &str)] = &[
     ("ussrt_last_error_info", "C's error details"),
     ("ussrt_status_name", "a status code's name"),
     ("ussrt_version", "the library's version"),
+    (
+        "ussrt_monotonic_ns",
+        "CLOCK_MONOTONIC now, a re-arm's asked_ns: Rust has uss_client::monotonic_ns, Python time.monotonic_ns (the same clock)",
+    ),
 ];
 
 fn read(path: &str) -> String {

@@ -122,7 +122,7 @@ fn a_restarted_ussd_starts_beside_clients_of_the_old_one_and_they_reconnect() {
     let listener = bus.cycle_listener().unwrap();
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
     let _refresh = c.spawn_refresher(Duration::from_millis(20));
-    c.rearm().unwrap();
+    c.rearm(uss_client::monotonic_ns()).unwrap();
     c.run_hz(10.0).unwrap();
     c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
         .unwrap();
@@ -174,7 +174,7 @@ fn a_restarted_ussd_starts_beside_clients_of_the_old_one_and_they_reconnect() {
             (i.sent_stw1, state_of(&i) == DriveState::OperationEnabled),
             (0x047E, false)
         );
-        c.rearm().unwrap();
+        c.rearm(uss_client::monotonic_ns()).unwrap();
         c.run_hz(10.0).unwrap();
         c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
             .unwrap();

@@ -99,6 +99,9 @@ pub(crate) enum Failure {
     /// A value on the command line that clap cannot check by itself.
     #[error("{0}")]
     Usage(String),
+    /// When this ussctl started, which a re-arm carries, cannot be read.
+    #[error("cannot tell when this ussctl started (/proc/self/stat): {0}; nothing was re-armed")]
+    StartTime(std::io::Error),
     #[error("cannot install a handler of signal {signal}: {source}")]
     Signal { signal: i32, source: std::io::Error },
     #[error("cannot write JSON: {0}")]

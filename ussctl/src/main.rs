@@ -74,17 +74,15 @@ pub(crate) fn signal_name() -> &'static str {
 
 pub(crate) use failure::Failure;
 
-/// When this ussctl was asked to act (`CLOCK_MONOTONIC` at its start): `run` re-arms only the
-/// latches older than that, never an operator's stop that came while it was starting.
-static ASKED_NS: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
-
-/// [`ASKED_NS`], or now if it was not set.
-pub(crate) fn asked_ns() -> u64 {
-    *ASKED_NS.get_or_init(uss_client::monotonic_ns)
+/// When this ussctl was asked to act: the moment its process started (`CLOCK_MONOTONIC`, the
+/// kernel's start time, not `main()`'s: loading and start-up take milliseconds, tens of them on
+/// a loaded machine). `run` and `ack` re-arm only the latches older than that, never an
+/// operator's stop that came while it was starting (docs/SAFETY.md, REARM).
+pub(crate) fn asked_ns() -> Result<u64, Failure> {
+    uss_client::process_start_ns().map_err(Failure::StartTime)
 }
 
 fn main() -> ExitCode {
-    let _ = asked_ns();
     let cli = Cli::parse();
     // iceoryx2 reports every refused open at warning level with a debug dump; ussctl explains
     // errors itself. IOX2_LOG_LEVEL still overrides.

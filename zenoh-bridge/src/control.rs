@@ -566,8 +566,20 @@ impl Remote<'_> {
         // drive shows it); then its stop re-arms the drive and its ON runs it, as the session
         // decides for every controller.
         let named = out.rearm.filter(|&id| id != 0 && !image.is_live());
+        // A re-arm carries when it was asked for: a latch that began after it is not its to
+        // clear (an operator's stop that came while the remote started).
+        let named = match (named, out.asked_ns) {
+            (Some(_), None) => {
+                return Err(format!(
+                    "drive {} on {}: a re-arm (rearm) carries asked_ns, when it was asked for on \
+                     this bridge's clock (the images' monotonic_ns): nothing was re-armed",
+                    self.drive, self.name
+                ));
+            }
+            (named, asked) => named.zip(asked),
+        };
         let sent = named
-            .map_or(Ok(()), |id| c.acknowledge_latch(id))
+            .map_or(Ok(()), |(id, asked)| c.acknowledge_latch(id, asked))
             .and_then(|()| c.set_words(&words));
         match sent {
             Ok(()) => {
@@ -634,7 +646,8 @@ fn latched(bus: &str, drive: Address, image: &PzdInput) -> String {
     let latch = uss_client::Latch::of(image);
     format!(
         "drive {drive} on {bus} is latched ({latch}) and gets {}: nothing was sent; re-arm it \
-         with a stop naming the latch ({{\"stw1\":1150,\"rearm\":{}}}), then ON",
+         with a stop naming the latch and when it was asked for \
+         ({{\"stw1\":1150,\"rearm\":{},\"asked_ns\":...}}), then ON",
         latch.command_name(),
         image.latch_id
     )

@@ -133,6 +133,11 @@ pub struct Input<'a> {
     /// How long ago the reply arrived, ms, when the bridge published it.
     pub reply_ms_ago: f64,
     pub published_unix_ns: u64,
+    /// The bridge's host's `CLOCK_MONOTONIC` ns when it published this image: the clock of
+    /// `latch_id` (a latch's id is the moment it began). A remote controller learns from it
+    /// where that clock stands against its own (at least this much ahead: the image took time
+    /// to arrive) and says in `asked_ns` of a re-arm, in this clock, when it was asked for.
+    pub monotonic_ns: u64,
 }
 
 impl<'a> Input<'a> {
@@ -163,6 +168,7 @@ impl<'a> Input<'a> {
             age_ms: i.age_ns as f64 / 1e6,
             reply_ms_ago: now.saturating_sub(i.timestamp_ns) as f64 / 1e6,
             published_unix_ns: unix_ns(),
+            monotonic_ns: now,
         }
     }
 }
@@ -313,6 +319,12 @@ pub struct Out {
     /// by an OFF1 that names its current latch (so a sample sent before the latch, delivered
     /// late, or one that never saw it, re-arms nothing).
     pub rearm: Option<u64>,
+    /// With `rearm`, and needed by it: when the deliberate act that asked for the re-arm
+    /// happened (the remote program's start, an operator's button), on the bridge's clock (the
+    /// images' `monotonic_ns`; a remote converts its own time with the offset they show, taken
+    /// so that it errs early). A latch that began after it is not re-armed (docs/SAFETY.md,
+    /// REARM): a stop that lands between the ask and the re-arm wins.
+    pub asked_ns: Option<u64>,
 }
 
 impl Out {

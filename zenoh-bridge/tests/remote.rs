@@ -1428,3 +1428,107 @@ fn under_user_password_an_access_policy_grants_rights_per_user() {
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_file(config);
 }
+
+/// REARM across the network (issue 45): an operator's coast that lands while a remote
+/// `uss-zenoh-client run` starts (connecting, its first image on the way), swept from 0 to
+/// 80 ms after its start, is not re-armed by it: the run refuses ("stopped after this run was
+/// started") and the drive is never live again after the coast; through a real bridge over
+/// mutual TLS under a policy. A run with no stop meanwhile re-arms and runs. A sample that
+/// names the latch without `asked_ns`, or with an `asked_ns` before the latch, re-arms nothing.
+#[test]
+fn a_stop_while_a_remote_run_starts_is_not_re_armed_by_it() {
+    let Some(ns) = Netns::create() else { return };
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus.clone();
+    let prefix = format!("uss/r{}", std::process::id());
+    let drive = format!("{prefix}/{bus}/drive/1");
+    let watch = ussd.bus().watch(addr(1)).unwrap();
+    let pki = Pki::new("rearm", "uss-rt test CA", &ns.here());
+    ns.use_tls(Some(pki.client("controller")));
+    let (mut bridge_proc, config) = controlling_bridge(&ns, &bus, &prefix, &pki);
+    answers_over_tls(&ns, &drive);
+    let rearmed = coasts_while_runs_start(&ns, &ussd, &drive, &[0, 5, 10, 20, 40, 80]);
+    assert!(
+        rearmed.is_empty(),
+        "a coast while the remote run started was re-armed by it (ms after its start, latch): {rearmed:?}"
+    );
+    // A named re-arm without its time, or asked for before the latch began, re-arms nothing.
+    let latch = watch.latest().latch_id;
+    for payload in [
+        format!(r#"{{"v":1,"from":"t","seq":1,"stw1":1150,"hz":0.0,"rearm":{latch}}}"#),
+        format!(
+            r#"{{"v":1,"from":"t","seq":2,"stw1":1150,"hz":0.0,"rearm":{latch},"asked_ns":{}}}"#,
+            latch - 1
+        ),
+    ] {
+        let report = put_sample(&ns, &drive, "controller", &payload, "\"state\":\"refused\"");
+        assert!(report.contains("nothing was"), "{payload}: {report}");
+        std::thread::sleep(Duration::from_millis(200));
+        assert!(latched(&watch.latest()), "{payload}");
+    }
+    // Past a slow link (a bridge that publishes 2 images a second): the first image a run
+    // sees may come 500 ms after its start, and shows a coast made meanwhile.
+    bridge_proc.kill();
+    let _ = std::fs::remove_file(config);
+    let policy = pki.control_policy(&["controller"]);
+    let (mut bridge_proc, config) = bridge_tls(
+        &ns,
+        &bus,
+        &prefix,
+        &["--allow-control", "--policy", &policy, "--max-rate", "2"],
+        &pki,
+    );
+    answers_over_tls(&ns, &drive);
+    let rearmed = coasts_while_runs_start(&ns, &ussd, &drive, &[100, 200, 300]);
+    assert!(
+        rearmed.is_empty(),
+        "past a slow link, a coast while the remote run started was re-armed by it: {rearmed:?}"
+    );
+    // The deliberate act with nothing in between: it re-arms and runs.
+    let (ok, out, err) = ns.call(&["run", &drive, "--hz", "5", "--for", "1"]);
+    assert!(ok && out.contains("re-armed"), "{out}{err}");
+    bridge_proc.kill();
+    let _ = std::fs::remove_file(config);
+}
+
+/// For each offset: starts `uss-zenoh-client run` on `drive` (drive 1 of `ussd`), coasts the
+/// drive that many ms after, and sees whether the drive is live again after the coast within
+/// 2.5 s; the run must fail, saying why. The (offset, latch) of each coast that was undone.
+fn coasts_while_runs_start(
+    ns: &Netns,
+    ussd: &Ussd,
+    drive: &str,
+    offsets: &[u64],
+) -> Vec<(u64, u64)> {
+    let watch = ussd.bus().watch(addr(1)).unwrap();
+    let mut rearmed = Vec::new();
+    for &offset_ms in offsets {
+        let before = watch.latest().latch_id;
+        let mut run = ns.client(&["run", drive, "--hz", "10", "--for", "1"]);
+        std::thread::sleep(Duration::from_millis(offset_ms));
+        ussd.bus()
+            .stop_drive(addr(1), uss_client::StopCommand::Off2)
+            .unwrap();
+        let (coast, _) = wait_image(&watch, Duration::from_secs(3), "the coast", |i| {
+            i.latch_id > before
+        });
+        let end = Instant::now() + Duration::from_millis(2500);
+        while Instant::now() < end {
+            let i = watch.latest();
+            if !latched(&i) {
+                rearmed.push((offset_ms, coast.latch_id));
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let (status, out, err) = run.finish();
+        assert!(!status.success(), "coast {offset_ms} ms in: {out}{err}");
+        assert!(
+            // Refused by the client (the coast came after its start, or during its re-arm) or
+            // by the bridge (its re-arm named a latch older than the coast): the operator's stop.
+            err.contains("operator"),
+            "coast {offset_ms} ms in: {err}"
+        );
+    }
+    rearmed
+}

@@ -173,7 +173,8 @@ fn controller(bus: &Bus, stop: &AtomicBool, counts: &Counts) -> Result<(), Strin
         .control(addr(1), ControlOptions::default())
         .map_err(|e| e.to_string())?;
     let run = |c: &uss_client::Controller| -> Result<(), String> {
-        c.rearm().map_err(|e| e.to_string())?;
+        c.rearm(uss_client::monotonic_ns())
+            .map_err(|e| e.to_string())?;
         c.run_hz(10.0).map_err(|e| e.to_string())?;
         c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(10))
             .map_err(|e| e.to_string())?;

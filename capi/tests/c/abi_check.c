@@ -153,7 +153,11 @@ int main(int argc, char **argv) {
   OK(ussrt_control_enable(c));
   EXPECT(ussrt_control_run_hz(c, 10.0f) == USSRT_STATUS_TRIPPED, "ON before the re-arm");
   EXPECT(info().latch_reason == USS_LATCH_REASON_STARTUP, "why: %u", info().latch_reason);
-  OK(ussrt_control_rearm(c, &d));
+  uint64_t started = 0;
+  OK(ussrt_process_start_ns(&started));
+  EXPECT(started > 0 && started <= ussrt_monotonic_ns(), "started %llu", (unsigned long long)started);
+  EXPECT(ussrt_process_start_ns(NULL) == USSRT_STATUS_INVALID_ARGUMENT, "NULL start");
+  OK(ussrt_control_rearm_at(c, started, &d));
   EXPECT(d.live == 1, "re-armed");
   OK(ussrt_control_run_hz(c, 10.0f));
   OK(ussrt_control_wait_state(c, 4, 5000));
@@ -189,6 +193,7 @@ int main(int argc, char **argv) {
   EXPECT(ussrt_control_refresh_period(c, NULL) == USSRT_STATUS_INVALID_ARGUMENT, "NULL period");
 
   /* An operator's coast: the next call is the latch, with its reason and command. */
+  const uint64_t before_coast = ussrt_monotonic_ns();
   OK(ussrt_stop_drive(bus, 1, 2));
   UssrtStatus s;
   do {
@@ -204,7 +209,12 @@ int main(int argc, char **argv) {
   EXPECT(ussrt_control_check(c, &d) == USSRT_STATUS_TRIPPED && d.image.sent_stw1 == 0x047C,
          "still coasting: %#x", d.image.sent_stw1);
   EXPECT(ussrt_stop_drive(bus, 1, 7) == USSRT_STATUS_INVALID_ARGUMENT, "stop command 7");
-  OK(ussrt_control_rearm(c, NULL));
+  /* A re-arm asked for before the coast does not clear it: TRIPPED, the coast stays. */
+  EXPECT(ussrt_control_rearm_at(c, before_coast, NULL) == USSRT_STATUS_TRIPPED,
+         "a re-arm asked before the coast");
+  EXPECT(ussrt_control_check(c, &d) == USSRT_STATUS_TRIPPED && d.image.sent_stw1 == 0x047C,
+         "still coasting after it: %#x", d.image.sent_stw1);
+  OK(ussrt_control_rearm_at(c, ussrt_monotonic_ns(), NULL));
   OK(ussrt_control_run_hz(c, 10.0f));
 
   /* A stall of this program: no call for 3 watchdog times is a trip, not a fresh start. */
@@ -217,7 +227,7 @@ int main(int argc, char **argv) {
          info().latch_command);
   OK(ussrt_drive_read(bus, 1, &d));
   EXPECT(d.live == 0 && d.image.latch_reason == USS_LATCH_REASON_STALE, "stale latch");
-  OK(ussrt_control_rearm(c, NULL));
+  OK(ussrt_control_rearm_at(c, ussrt_monotonic_ns(), NULL));
   OK(ussrt_control_stop(c));
   OK(ussrt_control_release(c));
   EXPECT(ussrt_control_run_hz(c, 1.0f) == USSRT_STATUS_RELEASED, "released");

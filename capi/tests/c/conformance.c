@@ -3,7 +3,7 @@
  * a controller of libussrt driven line by line from stdin, so the suite runs the same scenario
  * against every language with real processes and signals.
  *
- * Each line is a command (open BUS ADDRESS, keepalive, run HZ, rearm, ...); a line that starts
+ * Each line is a command (open BUS ADDRESS, keepalive, run HZ, rearm [MS], ...); a line that starts
  * with '&' runs on a thread of its own (a second thread of the same program, on the same
  * handle). Every command is answered by one line: "<< ok" or "<< err KIND MESSAGE" ("<&" for a
  * thread's), KIND being ussrt_status_name of the status.
@@ -14,6 +14,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "ussrt.h"
 
@@ -44,7 +45,17 @@ static UssrtStatus call(char *words) {
   if (!strcmp(cmd, "stop")) return ussrt_control_stop(controller);
   if (!strcmp(cmd, "coast")) return ussrt_control_coast(controller);
   if (!strcmp(cmd, "quick_stop")) return ussrt_control_quick_stop(controller);
-  if (!strcmp(cmd, "rearm")) return ussrt_control_rearm(controller, NULL);
+  if (!strcmp(cmd, "rearm")) {
+    /* Asked for when the line arrives; "rearm MS" calls MS later (a program that re-arms once
+     * it is set up): a stop meanwhile is not re-armed. */
+    uint64_t asked = ussrt_monotonic_ns();
+    if (a1 != NULL) {
+      long ms = atol(a1);
+      struct timespec t = {.tv_sec = ms / 1000, .tv_nsec = (ms % 1000) * 1000000L};
+      nanosleep(&t, NULL);
+    }
+    return ussrt_control_rearm_at(controller, asked, NULL);
+  }
   if (!strcmp(cmd, "check")) {
     UssrtDrive d;
     return ussrt_control_check(controller, &d);

@@ -2,6 +2,7 @@
 // docs/SAFETY.md): a controller of the RAII wrapper ussrt.hpp driven line by line from stdin.
 // The same protocol as conformance.c: a command per line ('&' first: on a thread of its own),
 // answered by "<< ok" or "<< err KIND MESSAGE" ("<&" for a thread's).
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <iostream>
@@ -44,7 +45,12 @@ void call(ussrt::Controller &c, const std::string &line, const char *tag) {
     } else if (cmd == "quick_stop") {
       c.quick_stop();
     } else if (cmd == "rearm") {
-      c.rearm();
+      // Asked for when the line arrives; "rearm MS" calls MS later.
+      const uint64_t asked = ussrt::monotonic_ns();
+      unsigned ms = 0;
+      words >> ms;
+      std::this_thread::sleep_for(std::chrono::milliseconds(ms));
+      c.rearm(asked);
     } else if (cmd == "check") {
       c.check_drive();
     } else if (cmd == "run") {

@@ -58,8 +58,8 @@ fn out(r: Result<Step, SessionError>) -> Out {
 }
 
 impl Play {
-    /// A controller that opened the drive latched at start (L1) at t = 0: it acknowledged
-    /// nothing.
+    /// A controller that opened the drive latched at start (L1, at 1 us) at t = 1 ms: it
+    /// acknowledged nothing.
     fn opened() -> Self {
         let setup = SessionSetup {
             pzd: 2,
@@ -70,7 +70,7 @@ impl Play {
         Self {
             s: Session::new(setup),
             image: latched(L1),
-            now: 0,
+            now: MS,
         }
     }
 
@@ -115,9 +115,10 @@ impl Play {
             .map_or(Out::Nothing, |s| Out::Sent(s.stw1, s.latch_id))
     }
 
+    /// The program's re-arm, asked for at the moment of the call.
     fn rearm(&mut self) -> Out {
         self.s
-            .rearm(self.now, &self.image)
+            .rearm(self.now, &self.image, self.now)
             .map_or_else(Out::Err, |s| Out::Sent(s.stw1, s.latch_id))
     }
 }
@@ -204,7 +205,7 @@ fn a_relay_re_arms_only_the_latch_the_drive_shows() {
     p.at(20).show(latched(L2));
     // The remote controller names L1 (the latch it saw before): not the drive's latch now.
     assert_eq!(
-        p.s.acknowledge(p.now, &p.image, L1),
+        p.s.acknowledge(p.now, &p.image, L1, p.now),
         Err(SessionError::NotTheLatch {
             named: L1,
             shown: L2
@@ -212,12 +213,12 @@ fn a_relay_re_arms_only_the_latch_the_drive_shows() {
     );
     assert_eq!(p.run(), tripped(L2));
     // Naming L2 acknowledges it; the relay's stop then re-arms, naming L2.
-    assert_eq!(p.s.acknowledge(p.now, &p.image, L2), Ok(()));
+    assert_eq!(p.s.acknowledge(p.now, &p.image, L2, p.now), Ok(()));
     assert_eq!(p.stw1(READY), Out::Sent(READY, L2));
     // Naming a latch while the drive is live acknowledges nothing.
     p.show(live());
     assert_eq!(
-        p.s.acknowledge(p.now, &p.image, L2),
+        p.s.acknowledge(p.now, &p.image, L2, p.now),
         Err(SessionError::NotTheLatch {
             named: L2,
             shown: 0
@@ -236,13 +237,13 @@ fn a_relay_re_arms_only_after_its_remote_controller_names_the_latch() {
     let mut p = Play {
         s: Session::new(setup),
         image: latched(L1),
-        now: 0,
+        now: MS,
     };
     // A remote stop that names no latch goes out and re-arms nothing.
     assert_eq!(p.stw1(READY), Out::Sent(READY, 0));
     assert_eq!(p.refresh(), Out::Nothing);
     assert_eq!(p.run(), tripped(L1));
-    assert_eq!(p.s.acknowledge(p.now, &p.image, L1), Ok(()));
+    assert_eq!(p.s.acknowledge(p.now, &p.image, L1, p.now), Ok(()));
     assert_eq!(p.stw1(READY), Out::Sent(READY, L1));
 }
 
@@ -252,7 +253,7 @@ fn a_relays_named_re_arm_after_a_silence_is_a_fresh_call() {
     // later: its stop re-arms and its ON runs, the silence before is not held against it.
     let mut p = Play::running();
     p.at(650).show(latched(L2));
-    assert_eq!(p.s.acknowledge(p.now, &p.image, L2), Ok(()));
+    assert_eq!(p.s.acknowledge(p.now, &p.image, L2, p.now), Ok(()));
     assert_eq!(p.stw1(READY), Out::Sent(READY, L2));
     p.at(670).show(live());
     assert_eq!(p.run(), Out::Sent(RUN, L2));
@@ -290,7 +291,7 @@ fn check_reports_news_and_a_stall_without_counting_as_a_call() {
 #[test]
 fn every_sample_has_a_new_sequence_the_pid_and_the_time() {
     let mut p = Play::opened();
-    let first = p.s.rearm(3, &p.image).unwrap();
+    let first = p.s.rearm(3, &p.image, MS).unwrap();
     let refreshed = p.s.refresh(4, &p.image).unwrap();
     let release = p.s.release(5);
     assert_eq!(
@@ -330,7 +331,7 @@ fn a_re_arm_sends_off1_with_every_other_word_zero() {
     let mut p = Play::running();
     p.at(20).call(|w| w.words[1] = 0x1234);
     p.show(latched(L2));
-    let sample = p.s.rearm(p.now, &p.image).unwrap();
+    let sample = p.s.rearm(p.now, &p.image, p.now).unwrap();
     assert_eq!(
         (sample.stw1, sample.setpoint, sample.word_count),
         (READY, 0, 2)
@@ -376,15 +377,13 @@ fn a_rearm_asked_before_a_latch_does_not_acknowledge_it() {
         ..PzdInput::EMPTY
     };
     assert_eq!(
-        s.rearm_asked_at(latched_at + 10, &image, latched_at - 1),
+        s.rearm(latched_at + 10, &image, latched_at - 1),
         Err(SessionError::Tripped {
             latch_id: latched_at
         })
     );
     assert_eq!(s.stops(), 0, "nothing was sent");
-    let out = s
-        .rearm_asked_at(latched_at + 20, &image, latched_at + 1)
-        .unwrap();
+    let out = s.rearm(latched_at + 20, &image, latched_at + 1).unwrap();
     assert_eq!(
         out.latch_id, latched_at,
         "the stop names the latch it re-arms"
@@ -415,9 +414,34 @@ fn a_rearm_keeping_the_stop_sends_the_latchs_own_command() {
             latch_id: latched_at,
             ..PzdInput::EMPTY
         };
-        let out = s.rearm_keeping_stop(latched_at + 10, &image).unwrap();
+        assert_eq!(
+            s.rearm_keeping_stop(latched_at + 10, &image, latched_at - 1),
+            Err(SessionError::Tripped {
+                latch_id: latched_at
+            }),
+            "{command:?}: a latch after the ask"
+        );
+        let out = s
+            .rearm_keeping_stop(latched_at + 10, &image, latched_at)
+            .unwrap();
         assert_eq!((out.stw1, out.latch_id), (stw1, latched_at), "{command:?}");
-        let plain = s.rearm(latched_at + 20, &image).unwrap();
+        let plain = s.rearm(latched_at + 20, &image, latched_at).unwrap();
         assert_eq!(plain.stw1, 0x047E, "{command:?}");
     }
+}
+
+/// A relay acknowledges a latch its remote names only when the remote's command was asked
+/// after the latch began: a remote that started, then saw an operator's coast in its first
+/// image, re-arms nothing (issue 45, the Zenoh client).
+#[test]
+fn a_relay_acknowledges_no_latch_that_began_after_its_remotes_command() {
+    let mut p = Play::running();
+    p.at(20).show(latched(L2));
+    assert_eq!(
+        p.s.acknowledge(p.now, &p.image, L2, L2 - 1),
+        Err(SessionError::Tripped { latch_id: L2 })
+    );
+    assert_eq!(p.run(), tripped(L2), "nothing was acknowledged");
+    assert_eq!(p.s.acknowledge(p.now, &p.image, L2, L2), Ok(()));
+    assert_eq!(p.stw1(READY), Out::Sent(READY, L2));
 }

@@ -2,7 +2,7 @@
 //! docs/SAFETY.md): a controller of `uss_client` driven line by line from stdin, so the suite
 //! runs the same scenario against every language with real processes and signals.
 //!
-//! Each line is a command (`open BUS ADDRESS`, `keepalive`, `run HZ`, `rearm`, ...); a line that
+//! Each line is a command (`open BUS ADDRESS`, `keepalive`, `run HZ`, `rearm [MS]`, ...); a line that
 //! starts with `&` runs on a thread of its own (a second thread of the same program). Every
 //! command is answered by one line: `<< ok` or `<< err KIND MESSAGE` (`<&` for a thread's),
 //! where KIND is the error's name in snake case (`tripped`, `not_armed`, `stalled`, ...), the
@@ -50,7 +50,13 @@ fn call(c: &Controller, words: &[&str]) -> Result<(), ClientError> {
         "stop" => c.stop(),
         "coast" => c.coast(),
         "quick_stop" => c.quick_stop(),
-        "rearm" => c.rearm().map(|_| ()),
+        // The re-arm is asked for when the line arrives; `rearm MS` makes the call MS later (a
+        // program that re-arms once it is set up): a stop meanwhile is not re-armed.
+        "rearm" => {
+            let asked = uss_client::monotonic_ns();
+            std::thread::sleep(Duration::from_millis(arg(1).parse().unwrap_or(0)));
+            c.rearm(asked).map(|_| ())
+        }
         "check" => c.check().map(|_| ()),
         "run" => c.run_hz(arg(1).parse().unwrap()),
         "acknowledge" => c.acknowledge_fault(Duration::from_millis(arg(1).parse().unwrap())),

@@ -38,7 +38,7 @@ fn ack(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
         .then(|| StopCommand::of_code(before.latch_command))
         .flatten()
         .filter(|s| s.strength() > StopCommand::Off1.strength());
-    c.rearm_keeping_stop()?;
+    c.rearm_keeping_stop(crate::asked_ns()?)?;
     // The edge takes two exchanges, the drive's answer a third: the drive's handshake time
     // each (31 drives at 9600 baud poll each drive only every 1.3 s).
     c.acknowledge_fault(c.inputs().handshake())?;

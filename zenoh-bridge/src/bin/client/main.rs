@@ -177,6 +177,14 @@ pub enum Failure {
     #[error("the bridge refused the OFF1: {0}")]
     ArmRefused(String),
     #[error(
+        "{drive} was stopped after this run was started ({reason}): a re-arm clears only a \
+         latch that began before it was asked for, so nothing was re-armed; run it again if \
+         the stop is over"
+    )]
+    StoppedWhileStarting { drive: String, reason: String },
+    #[error("cannot tell when this client started (/proc/self/stat): {0}; nothing was sent")]
+    StartTime(std::io::Error),
+    #[error(
         "{drive} is in fault (ZSW1 {zsw1:#06X}): it does not run until the fault is \
          acknowledged; read why with `uss-zenoh-client get {drive}/param/r0947[0]` (the fault \
          number; F0072: its telegrams stopped), then acknowledge it where the drive is (`ussctl \

@@ -67,6 +67,12 @@ struct Remote<'a> {
     /// The client rules, once the first image said the drive's PZD length and watchdog.
     session: Option<Session>,
     hz: f32,
+    /// When this run was asked for: its process's start, on this host's `CLOCK_MONOTONIC`.
+    asked_ns: u64,
+    /// How far the bridge's clock (the images' `monotonic_ns`, the clock of latch ids) is
+    /// ahead of this host's at least: the largest of `monotonic_ns - received at` over the
+    /// images (each image took time to arrive, so each errs low).
+    ahead_ns: Option<i128>,
 }
 
 /// The part of an image the client rules look at: live or latched, and which latch.
@@ -88,11 +94,24 @@ impl Remote<'_> {
     /// names.
     fn send_sample(&mut self, sample: &PzdOutput) -> Result<(), Failure> {
         let hz = if sample.stw1 == RUN { self.hz } else { 0.0 };
-        let body = match sample.latch_id {
-            0 => format!("\"stw1\":{},\"hz\":{hz:?}", sample.stw1),
-            id => format!("\"stw1\":{},\"hz\":{hz:?},\"rearm\":{id}", sample.stw1),
+        // A sample naming a latch says when its re-arm was asked for; the session names one
+        // only once the bridge's clock is known (`arm`).
+        let body = match (sample.latch_id, self.asked_on_bridge()) {
+            (id, Some(asked)) if id != 0 => format!(
+                "\"stw1\":{},\"hz\":{hz:?},\"rearm\":{id},\"asked_ns\":{asked}",
+                sample.stw1
+            ),
+            _ => format!("\"stw1\":{},\"hz\":{hz:?}", sample.stw1),
         };
         self.send(&body)
+    }
+
+    /// When this run was asked for, on the bridge's clock, erring early (an image's transit
+    /// makes the offset look smaller than it is): a latch that began after the run started is
+    /// never taken for one before it.
+    fn asked_on_bridge(&self) -> Option<u64> {
+        let ahead = self.ahead_ns?;
+        u64::try_from((i128::from(self.asked_ns) + ahead).max(0)).ok()
     }
 
     fn send(&mut self, body: &str) -> Result<(), Failure> {
@@ -179,6 +198,10 @@ impl Remote<'_> {
             if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&s.payload().to_bytes()) {
                 if v["stale"] == false {
                     self.seen_at = Instant::now();
+                }
+                if let Some(theirs) = v["monotonic_ns"].as_u64() {
+                    let ahead = i128::from(theirs) - i128::from(uss_client::monotonic_ns());
+                    self.ahead_ns = Some(self.ahead_ns.map_or(ahead, |a| a.max(ahead)));
                 }
                 self.image = Some(v);
             }
@@ -295,20 +318,35 @@ impl Remote<'_> {
         self.start_session();
         deadline = deadline.max(start + self.handshake() * 2);
         let image = self.image.as_ref().map(input_of).unwrap_or_default();
+        // The re-arm was asked for when this run started: a stop that came since (an operator's
+        // coast while it connected) is news it does not clear.
+        let asked = self.asked_on_bridge().ok_or_else(|| {
+            Failure::ArmRefused(
+                "the bridge's images carry no clock (monotonic_ns: an older uss-zenoh), so no \
+                 re-arm can say when it was asked for: nothing was re-armed"
+                    .to_owned(),
+            )
+        })?;
         if let Some(session) = self.session.as_mut() {
             let sample = session
-                .rearm(uss_client::monotonic_ns(), &image)
-                .map_err(|e| Failure::ArmRefused(e.to_string()))?;
+                .rearm(uss_client::monotonic_ns(), &image, asked)
+                .map_err(|e| match e {
+                    SessionError::Tripped { .. } => Failure::StoppedWhileStarting {
+                        drive: self.drive.to_owned(),
+                        reason: self.field("latch_reason").to_owned(),
+                    },
+                    e => Failure::ArmRefused(e.to_string()),
+                })?;
             self.send_sample(&sample)?;
         }
         loop {
             std::thread::sleep(self.every());
             self.look();
             let image = self.image.as_ref().map(input_of).unwrap_or_default();
-            if let Some(session) = self.session.as_mut() {
-                session
-                    .rearmed(&image)
-                    .map_err(|e| Failure::ArmRefused(e.to_string()))?;
+            // A new latch during the re-arm (an operator's stop) ends it: the drive latched.
+            let rearmed = self.session.as_mut().map(|s| s.rearmed(&image));
+            if let Some(Err(e)) = rearmed {
+                return Err(self.failure(e, start));
             }
             let refused = self.refusal();
             if let Some(why) = refused.as_ref().filter(|_| !self.held_by_another()) {
@@ -422,6 +460,7 @@ pub fn run(
     duration: Option<Duration>,
     period_ms: u64,
 ) -> Result<(), Failure> {
+    let asked_ns = uss_client::process_start_ns().map_err(Failure::StartTime)?;
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, Arc::clone(&stop))
@@ -461,6 +500,8 @@ pub fn run(
         released: false,
         session: None,
         hz: 0.0,
+        asked_ns,
+        ahead_ns: None,
     };
     remote.arm(&stop)?;
     let _ = say(&format!(
