@@ -15,7 +15,8 @@
 //! number of exchanges. p50 / p99 / max in exchanges (of the bus's median exchange) and in ms.
 //! 4. Through a real ussd (31 simulated drives at 9600 baud), the same stop latency with the
 //!    IPC: `uss_client::stop` from this process to the first telegram with the stop word, as
-//!    ussd's telegram capture timestamps it.
+//!    ussd's telegram capture timestamps it; alone, beside 64 idle connections to the stop
+//!    socket, and beside 40 processes that connect to it and close in a tight loop.
 //!
 //! `cargo bench -p uss-benches --bench safety` (`-- matrix` or `-- ussd` for one part).
 
@@ -351,29 +352,24 @@ fn through_ussd() {
     let (plain, diag_lag) = stops_through_ussd(&bus, &bus_name);
     // 64 connections to the stop socket that say nothing: 8 processes of 8, each connection
     // made again as soon as ussd closes it (issue 32: they held a stop back 2 s and more).
-    let holder = uss_benches::release_binary("uss-integration-tests", "uss-idle-connections");
     let socket = uss_shm_types::names::stop_socket(
         &uss_shm_types::BusName::new(&bus_name).expect("bus name"),
     );
-    let holders: Vec<uss_benches::Child> = (0..8)
-        .map(|_| {
-            let mut child = std::process::Command::new(&holder)
-                .arg(&socket)
-                .arg("8")
-                .stdout(std::process::Stdio::piped())
-                .spawn()
-                .expect("uss-idle-connections");
-            let mut said = String::new();
-            let out = child.stdout.take().expect("its stdout");
-            std::io::BufRead::read_line(&mut std::io::BufReader::new(out), &mut said)
-                .expect("holding 8");
-            assert!(said.starts_with("holding 8"), "{said}");
-            uss_benches::Child { child, file: None }
-        })
-        .collect();
+    let holders = stop_socket_users(
+        "uss-idle-connections",
+        &[socket.as_os_str(), "8".as_ref()],
+        "holding 8",
+        8,
+    );
     let (idle, _) = stops_through_ussd(&bus, &bus_name);
     drop(holders);
+    // 40 processes connecting to the stop socket and closing at once, in a tight loop (issue
+    // 45: they held a stop back up to 2.45 s).
+    let storm = stop_socket_users("uss-stop-flood", &[socket.as_os_str()], "flooding", 40);
+    let (flood, _) = stops_through_ussd(&bus, &bus_name);
+    drop(storm);
     let ratio = idle.quantiles()[1] / plain.quantiles()[1];
+    let flood_ratio = flood.quantiles()[1] / plain.quantiles()[1];
     println!(
         "== through ussd: 31 simulated drives at 9600 baud, uss_client::stop -> first telegram with \
          the stop word (ussd's capture), 30 stops: {}",
@@ -384,9 +380,38 @@ fn through_ussd() {
         idle.show()
     );
     println!(
+        "== the same beside 40 processes flooding the stop socket with connections: {}; p99 {flood_ratio:.2}x",
+        flood.show()
+    );
+    println!(
         "== the latch in the diagnostics after the image shows it (the plain stops): {}",
         diag_lag.show()
     );
+}
+
+/// `n` runs of `uss-integration-tests`'s `binary` with `args` (the stop socket's path first),
+/// each once its first line said `ready`; killed when dropped.
+fn stop_socket_users(
+    binary: &str,
+    args: &[&std::ffi::OsStr],
+    ready: &str,
+    n: usize,
+) -> Vec<uss_benches::Child> {
+    let path = uss_benches::release_binary("uss-integration-tests", binary);
+    (0..n)
+        .map(|_| {
+            let mut child = std::process::Command::new(&path)
+                .args(args)
+                .stdout(std::process::Stdio::piped())
+                .spawn()
+                .expect(binary);
+            let mut said = String::new();
+            let out = child.stdout.take().expect("its stdout");
+            std::io::BufRead::read_line(&mut std::io::BufReader::new(out), &mut said).expect(ready);
+            assert!(said.starts_with(ready), "{binary}: {said}");
+            uss_benches::Child { child, file: None }
+        })
+        .collect()
 }
 
 /// 30 stops of a running drive through ussd's stop socket, each at a random moment of the cycle:

@@ -130,7 +130,7 @@ fn send_stop(
     };
     let response = OperatorResponse::from_bytes(&bytes)
         .ok_or_else(|| ClientError::ipc("ussd's answer to a stop command", "bad length"))?;
-    uss_shm_types::check_version(response.version)?;
+    response.check_version()?;
     match response.error() {
         Ok(CommandError::Ok) => Ok(response.addresses().collect()),
         Ok(error) => Err(ClientError::CommandRefused {

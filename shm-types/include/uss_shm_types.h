@@ -101,6 +101,14 @@
 #define USS_OPERATOR_REQUEST_BYTES 8
 
 /**
+ * The first layout version whose stop socket spoke these bytes. They are frozen since (the
+ * request's 8 bytes, the answer's 12, the [`StopCommand`] codes 1..=3), so a stop is sendable
+ * across versions: ussd takes the stop of an older or newer client, and answers in the
+ * request's own version.
+ */
+#define USS_STOP_BYTES_SINCE 7
+
+/**
  * Bytes of an [`OperatorResponse`] on the stop socket.
  */
 #define USS_OPERATOR_RESPONSE_BYTES 12
@@ -553,7 +561,7 @@ enum UssCommandError
    */
   USS_COMMAND_ERROR_BAD_COMMAND = 2,
   /**
-   * The request's `version` is not [`LAYOUT_VERSION`].
+   * The request speaks a version before the stop socket's bytes ([`STOP_BYTES_SINCE`]).
    */
   USS_COMMAND_ERROR_VERSION = 3,
   /**

@@ -12,7 +12,7 @@
 //! of the bus, accepted from any process and overriding the drive's controller.
 
 use crate::codes::{UnknownCode, code_table};
-use crate::{LAYOUT_VERSION, check_version};
+use crate::{ContractError, LAYOUT_VERSION};
 use iceoryx2::prelude::ZeroCopySend;
 
 /// `address` of an [`OperatorRequest`] for every drive of the bus.
@@ -124,7 +124,7 @@ code_table! {
         UnknownDrive = 1 => "unknown drive",
         /// `command` is not OFF1, OFF2 or OFF3.
         BadCommand = 2 => "not a stop command",
-        /// The request's `version` is not [`LAYOUT_VERSION`].
+        /// The request speaks a version before the stop socket's bytes ([`STOP_BYTES_SINCE`]).
         Version = 3 => "layout version mismatch",
         /// ussd is shutting down (every drive gets its safe command anyway).
         Shutdown = 4 => "shut down",
@@ -197,6 +197,11 @@ pub struct OperatorRequest {
 
 /// Bytes of an [`OperatorRequest`] on the stop socket.
 pub const OPERATOR_REQUEST_BYTES: usize = 8;
+/// The first layout version whose stop socket spoke these bytes. They are frozen since (the
+/// request's 8 bytes, the answer's 12, the [`StopCommand`] codes 1..=3), so a stop is sendable
+/// across versions: ussd takes the stop of an older or newer client, and answers in the
+/// request's own version.
+pub const STOP_BYTES_SINCE: u32 = 7;
 /// Bytes of an [`OperatorResponse`] on the stop socket.
 pub const OPERATOR_RESPONSE_BYTES: usize = 12;
 
@@ -248,9 +253,12 @@ impl OperatorRequest {
         })
     }
 
-    /// Checks version and command; returns the command.
+    /// Checks version (any since [`STOP_BYTES_SINCE`]: a stop is a stop) and command; returns
+    /// the command.
     pub fn validate(&self) -> Result<StopCommand, CommandError> {
-        check_version(self.version).map_err(|_| CommandError::Version)?;
+        if self.version < STOP_BYTES_SINCE {
+            return Err(CommandError::Version);
+        }
         StopCommand::try_from(self.command).map_err(|_| CommandError::BadCommand)
     }
 }
@@ -275,6 +283,26 @@ impl OperatorResponse {
             command,
             reserved: [0; 2],
             drives: 0,
+        }
+    }
+
+    /// This answer in `version`, the request's own (since [`STOP_BYTES_SINCE`] the bytes are
+    /// the same), so a client of another version reads it as its own.
+    #[must_use]
+    pub const fn in_version(self, version: u32) -> Self {
+        Self { version, ..self }
+    }
+
+    /// Whether this answer speaks the stop socket's bytes (any version since
+    /// [`STOP_BYTES_SINCE`]).
+    pub fn check_version(&self) -> Result<(), ContractError> {
+        if self.version >= STOP_BYTES_SINCE {
+            Ok(())
+        } else {
+            Err(ContractError::Version {
+                expected: LAYOUT_VERSION,
+                found: self.version,
+            })
         }
     }
 
@@ -384,6 +412,23 @@ mod tests {
         assert_eq!(r.validate(), Err(CommandError::BadCommand));
         r.version = 1;
         assert_eq!(r.validate(), Err(CommandError::Version));
+        // A stop of an older (or newer) client since the stop socket's bytes were frozen stops.
+        for version in [STOP_BYTES_SINCE, LAYOUT_VERSION - 1, LAYOUT_VERSION + 1] {
+            let r = OperatorRequest {
+                version,
+                ..OperatorRequest::new(3, StopCommand::Off2)
+            };
+            assert_eq!(r.validate(), Ok(StopCommand::Off2), "version {version}");
+        }
+        let answer = OperatorResponse::done(StopCommand::Off2, 1 << 3).in_version(8);
+        assert_eq!(answer.version, 8);
+        assert!(answer.check_version().is_ok());
+        assert!(
+            answer
+                .in_version(STOP_BYTES_SINCE - 1)
+                .check_version()
+                .is_err()
+        );
     }
 
     #[test]

@@ -12,6 +12,16 @@
 //! once, with [`CommandError::TooManyConnections`]), and the thread [`MAX_CONNECTIONS`] in all
 //! (beyond, the process that holds the most gives up its oldest for the new one), so whatever
 //! the processes of the access group do, a stop of another process is taken in microseconds.
+//!
+//! **A storm of connections** (processes that connect and close in a tight loop) queues no stop
+//! behind it (issue 45: one such process held a stop back 98 to 333 ms, forty up to 2.45 s):
+//! the kernel queues only [`BACKLOG`] connections for the thread, so a connection beyond waits
+//! in connect(2) behind at most one of each other waiting thread, not behind thousands, and the
+//! storm's processes sleep there instead of taking the CPU.
+//!
+//! **A stop is sendable across versions**: a request of any layout version since the stop
+//! socket's bytes were frozen ([`uss_shm_types::STOP_BYTES_SINCE`]) stops, answered in its own
+//! version.
 
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use std::io::{ErrorKind, Read as _, Write as _};
@@ -35,6 +45,8 @@ const REQUEST_WITHIN: Duration = Duration::from_millis(200);
 pub const MAX_PER_PROCESS: usize = 8;
 /// Connections served at once.
 pub const MAX_CONNECTIONS: usize = 256;
+/// Connections the kernel queues for the thread to take: see [`bind`].
+const BACKLOG: i32 = 16;
 /// Connections taken per wait, before the thread looks at the requests of those it holds.
 const ACCEPT_PER_TURN: usize = 32;
 
@@ -57,7 +69,7 @@ impl StopSocket {
             ));
         }
         let _ = std::fs::remove_file(path);
-        let listener = UnixListener::bind(path)?;
+        let listener = bind(path)?;
         listener.set_nonblocking(true)?;
         // The root directory decides who may reach it (owner only, or the access group).
         std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))?;
@@ -79,6 +91,24 @@ impl StopSocket {
             thread: Some(thread),
         })
     }
+}
+
+/// A listening socket at `path` whose queue of connections not yet taken is [`BACKLOG`] long.
+/// A connection beyond it waits in connect(2), in the kernel's order of arrival, behind at most
+/// one connection of each other waiting thread, and a process that connects in a tight loop
+/// sleeps there instead of spinning; not behind the thousands a storm puts in a long queue
+/// (`SOMAXCONN`, 4096, what `UnixListener::bind` asks for).
+fn bind(path: &Path) -> std::io::Result<UnixListener> {
+    use nix::sys::socket::{AddressFamily, Backlog, SockFlag, SockType, UnixAddr, listen, socket};
+    let fd = socket(
+        AddressFamily::Unix,
+        SockType::Stream,
+        SockFlag::SOCK_CLOEXEC,
+        None,
+    )?;
+    nix::sys::socket::bind(std::os::fd::AsRawFd::as_raw_fd(&fd), &UnixAddr::new(path)?)?;
+    listen(&fd, Backlog::new(BACKLOG).map_err(std::io::Error::from)?)?;
+    Ok(UnixListener::from(fd))
 }
 
 impl Drop for StopSocket {
@@ -244,7 +274,9 @@ impl Connection {
                     self.got += n;
                     if self.got == OPERATOR_REQUEST_BYTES {
                         let response = match OperatorRequest::from_bytes(&self.bytes) {
-                            Some(request) => decide(request, handle, self.pid),
+                            Some(request) => {
+                                decide(request, handle, self.pid).in_version(request.version)
+                            }
                             None => OperatorResponse::refused(0, CommandError::Version),
                         };
                         self.answer(response);

@@ -118,13 +118,21 @@ impl Bridge for RtBridge {
     fn take_sample(&mut self, slot: usize, _: &DriveImages) -> Option<(PzdOutput, ControllerId)> {
         let d = self.drives.get(slot)?;
         // Buffer 1 with safe overflow: at most the latest sample is waiting. It goes to the
-        // engine as it arrived, with its publisher's id (iceoryx2's, not what the sample says
-        // of itself); the engine's gate checks it.
+        // engine as it arrived, with its publisher's id and process (iceoryx2's, from the
+        // header its port wrote: not what the sample says of itself, `controller_pid`, which a
+        // program may fill with any number); the engine's gate checks it.
         let mut latest = None;
         while let Ok(Some(sample)) = d.subscriber.receive() {
+            let header = sample.header();
+            let pid = iceoryx2::prelude::PayloadHeader::node_id(header)
+                .pid::<Svc>()
+                .map_or(0, |p| u32::try_from(p.value()).unwrap_or(0));
             latest = Some((
-                *sample,
-                ControllerId(sample.header().publisher_id().value()),
+                PzdOutput {
+                    controller_pid: pid,
+                    ..*sample
+                },
+                ControllerId(header.publisher_id().value()),
             ));
         }
         latest
