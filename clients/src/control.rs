@@ -453,7 +453,7 @@ impl Controller {
     /// while the program was starting) is not re-armed, the drive stays stopped, and the error
     /// is [`ClientError::Tripped`] naming it (docs/SAFETY.md, REARM).
     pub fn rearm(&self, asked_ns: u64) -> Result<PzdInput, ClientError> {
-        self.rearm_by(|session, now, input| session.rearm(now, input, asked_ns))
+        self.rearm_by(asked_ns, Session::rearm)
     }
 
     /// Like [`Controller::rearm`], with the stop the drive is latched with as the re-arming
@@ -461,19 +461,31 @@ impl Controller {
     /// program that only acknowledges a fault and lets go (`ussctl ack`) never weakens it, even
     /// when it dies halfway. An ON from S1 needs [`Controller::stop`] (OFF1) first.
     pub fn rearm_keeping_stop(&self, asked_ns: u64) -> Result<PzdInput, ClientError> {
-        self.rearm_by(|session, now, input| session.rearm_keeping_stop(now, input, asked_ns))
+        self.rearm_by(asked_ns, Session::rearm_keeping_stop)
     }
 
+    /// A re-arm by `rearm` for `asked_ns`, a moment of this process's clock, moved onto
+    /// ussd's (the clock of the latch ids) by the freshest time stamp of ussd's seen (the
+    /// drive's image, the heartbeat): a program in a time namespace of its own, whose clock
+    /// runs ahead, re-arms no stop that came after its ask either.
     fn rearm_by(
         &self,
-        rearm: impl FnOnce(&mut Session, u64, &PzdInput) -> Result<PzdOutput, SessionError>,
+        asked_ns: u64,
+        rearm: impl FnOnce(&mut Session, u64, &PzdInput, u64) -> Result<PzdOutput, SessionError>,
     ) -> Result<PzdInput, ClientError> {
         {
             let services = self.shared.link.check()?;
+            let (beat_ns, beat_read_ns) = self.shared.link.ussd_clock();
             let mut state = self.shared.state();
             self.shared.follow(&mut state, &services)?;
             let input = self.shared.watch.latest();
-            let sample = rearm(&mut state.session, monotonic_ns(), &input)
+            let now = monotonic_ns();
+            // Each errs early (the image was read just now, the heartbeat when the link last
+            // looked): the later of the two is the closer.
+            let asked = uss_shm_types::on_latch_clock(asked_ns, input.timestamp_ns, now).max(
+                uss_shm_types::on_latch_clock(asked_ns, beat_ns, beat_read_ns),
+            );
+            let sample = rearm(&mut state.session, now, &input, asked)
                 .map_err(|e| self.shared.error(e, &input))?;
             Shared::send(&mut state, sample)?;
         }

@@ -355,6 +355,15 @@ impl Link {
         }
     }
 
+    /// The newest heartbeat's time stamp (ussd's `CLOCK_MONOTONIC`) and when this process read
+    /// it (its own): what moves a moment of this process onto ussd's clock
+    /// (`uss_shm_types::on_latch_clock`).
+    pub(crate) fn ussd_clock(&self) -> (u64, u64) {
+        let _ = self.current();
+        let state = self.state();
+        (state.last.timestamp_ns, state.checked_ns)
+    }
+
     /// What the heartbeat says now.
     pub(crate) fn health(&self) -> Health {
         self.current().0

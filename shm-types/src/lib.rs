@@ -72,7 +72,9 @@ pub use pzd::{
     EXTRA_PZD_WORDS, MAX_PZD_WORDS, MIN_HANDSHAKE_NS, OUTPUT_RELEASE, OutputSample, PzdInput,
     PzdOutput,
 };
-pub use session::{MAX_REFRESH_NS, Session, SessionError, SessionSetup, Step, Words, refresh_ns};
+pub use session::{
+    MAX_REFRESH_NS, Session, SessionError, SessionSetup, Step, Words, on_latch_clock, refresh_ns,
+};
 
 /// The layout version of every payload type in this crate. Bump it with any change to a type's
 /// fields, sizes or code tables, together with the type names' `V<n>` suffix.

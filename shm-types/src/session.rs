@@ -450,6 +450,24 @@ impl Session {
     }
 }
 
+/// `asked_ns`, a moment on this program's clock, on the clock of the latch ids (ussd's host's
+/// `CLOCK_MONOTONIC`, which a program in another time namespace, or on another host, does not
+/// share), reckoned from `seen_ns`, a time stamp of that clock (an image's, a heartbeat's)
+/// that this program read at `seen_at_ns` on its own. It errs early: the stamp was made before
+/// it was read, so a latch that began after the ask is never taken for one before it; the
+/// price is a re-arm refused for a latch that began less than the stamp's age before the ask.
+pub const fn on_latch_clock(asked_ns: u64, seen_ns: u64, seen_at_ns: u64) -> u64 {
+    let ahead = seen_ns as i128 - seen_at_ns as i128;
+    let asked = asked_ns as i128 + ahead;
+    if asked <= 0 {
+        0
+    } else if asked >= u64::MAX as i128 {
+        u64::MAX
+    } else {
+        asked as u64
+    }
+}
+
 /// Whether the latch `image` shows (if any) began before `asked_ns`, the moment the re-arm was
 /// asked for: a latch that began after it is news the re-arm must not clear.
 fn began_before(image: &PzdInput, asked_ns: u64) -> Result<(), SessionError> {

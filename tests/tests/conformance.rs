@@ -42,7 +42,32 @@ enum FrontEnd {
     Python,
 }
 
+/// Runs a program in a time namespace of its own whose `CLOCK_MONOTONIC` is `ahead_ns` ahead of
+/// the host's (a container's can be): unshare(2) `CLONE_NEWTIME`, the offset written, then the
+/// program in a child that lives in it.
+const TIME_NAMESPACE: &str = "import ctypes, os, sys
+libc = ctypes.CDLL(None, use_errno=True)
+if libc.unshare(0x80) != 0:
+    raise OSError(ctypes.get_errno(), 'unshare(CLONE_NEWTIME)')
+with open('/proc/self/timens_offsets', 'w') as f:
+    f.write('monotonic 0 %s' % sys.argv[1])
+pid = os.fork()
+if pid == 0:
+    os.execvp(sys.argv[2], sys.argv[2:])
+sys.exit(os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]))
+";
+
 impl FrontEnd {
+    /// The front-end's program in a time namespace whose clock runs `ahead_ns` ahead.
+    fn command_ahead(self, ahead_ns: u64) -> Command {
+        let inner = self.command();
+        let mut c = Command::new("python3");
+        c.args(["-c", TIME_NAMESPACE, &ahead_ns.to_string()])
+            .arg(inner.get_program())
+            .args(inner.get_args());
+        c
+    }
+
     fn command(self) -> Command {
         match self {
             Self::Rust => Command::new(binary("uss-integration-tests", "uss-conformance-rust")),
@@ -113,8 +138,11 @@ struct Program {
 
 impl Program {
     fn start(front: FrontEnd) -> Self {
-        let mut child = front
-            .command()
+        Self::start_with(front, front.command())
+    }
+
+    fn start_with(front: FrontEnd, mut command: Command) -> Self {
+        let mut child = command
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
@@ -341,6 +369,45 @@ fn a_stop_between_the_ask_and_the_rearm_wins(front: FrontEnd) {
     }
     // Nothing in between: the deliberate act re-arms.
     p.ok(&format!("rearm {window}"));
+    p.ok("run 10");
+    image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
+    p.exit();
+}
+
+/// REARM on another clock (issue 45's adversarial run): a program in a time namespace whose
+/// clock runs 80 ms ahead of ussd's (a container's can: ussd's images still look fresh) asks for
+/// a re-arm, and an operator's coast lands after the ask: not re-armed. Its `asked_ns` is on its
+/// own clock, 80 ms later than ussd's latch ids; the client library moves it onto ussd's clock
+/// by the freshest stamp of ussd's it saw. Before, 5 of 5 such coasts were re-armed.
+fn a_program_whose_clock_runs_ahead_re_arms_no_later_stop(front: FrontEnd) {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let bus = ussd.bus();
+    let watch = bus.watch(addr(1)).unwrap();
+    let mut p = Program::start_with(front, front.command_ahead(80_000_000));
+    p.ok(&format!("open {} 1", ussd.bus));
+    for offset in [0, 10, 20] {
+        let before = watch.latest().latch_id;
+        p.tell("rearm 40");
+        std::thread::sleep(Duration::from_millis(offset));
+        bus.stop_drive(addr(1), StopCommand::Off2).unwrap();
+        image_until(&bus, 1, "the coast's latch", |i| i.latch_id > before);
+        let reply = p.answer("<<");
+        assert_eq!(
+            reply.kind(),
+            "tripped",
+            "{front:?}: a coast {offset} ms after the ask of a program 80 ms ahead was re-armed: {reply:?}"
+        );
+        never(
+            &bus,
+            1,
+            Duration::from_millis(100),
+            "the coast undone",
+            |i| i.sent_stw1 != OFF2 || i.is_live(),
+        );
+    }
+    // Nothing in between: its re-arm goes through.
+    p.ok("rearm 40");
     p.ok("run 10");
     image_until(&bus, 1, "ON on the wire", |i| i.sent_stw1 == RUN);
     p.exit();
@@ -643,6 +710,7 @@ front_ends!(
     opening_is_no_rearm,
     an_operators_stop_survives_a_reconnect,
     a_stop_between_the_ask_and_the_rearm_wins,
+    a_program_whose_clock_runs_ahead_re_arms_no_later_stop,
     a_replaced_controller_is_a_trip,
     a_stop_never_waits_for_another_thread,
     a_paused_program_trips_and_does_not_resume,

@@ -445,3 +445,34 @@ fn a_relay_acknowledges_no_latch_that_began_after_its_remotes_command() {
     assert_eq!(p.s.acknowledge(p.now, &p.image, L2, L2), Ok(()));
     assert_eq!(p.stw1(READY), Out::Sent(READY, L2));
 }
+
+/// A program's moment moved onto the latches' clock errs early, whichever clock runs ahead.
+#[test]
+fn an_ask_on_another_clock_is_moved_onto_the_latches_clock_erring_early() {
+    // Same clock: a stamp 3 ms old makes the ask 3 ms earlier.
+    assert_eq!(super::on_latch_clock(100 * MS, 97 * MS, 100 * MS), 97 * MS);
+    // This program's clock 80 ms ahead of ussd's (a time namespace): its ask of 180 ms is
+    // ussd's 100 ms, less the stamp's age (2 ms).
+    assert_eq!(super::on_latch_clock(180 * MS, 98 * MS, 180 * MS), 98 * MS);
+    // 80 ms behind.
+    assert_eq!(super::on_latch_clock(20 * MS, 98 * MS, 20 * MS), 98 * MS);
+    // Never below 0, never wrapped.
+    assert_eq!(super::on_latch_clock(MS, 0, 5 * MS), 0);
+    assert_eq!(super::on_latch_clock(u64::MAX, u64::MAX, 0), u64::MAX);
+    // A coast ussd latched at its 101 ms, after a program 80 ms ahead asked at its 180 ms
+    // (ussd's 100 ms): refused; taken on the program's own clock it would have passed.
+    let mut p = Play::running();
+    p.show(latched(101 * MS));
+    assert_eq!(
+        p.s.rearm(
+            p.now,
+            &p.image,
+            super::on_latch_clock(180 * MS, 98 * MS, 180 * MS)
+        ),
+        Err(SessionError::Tripped { latch_id: 101 * MS })
+    );
+    assert!(
+        p.s.rearm(p.now, &p.image, 180 * MS).is_ok(),
+        "on its own clock"
+    );
+}

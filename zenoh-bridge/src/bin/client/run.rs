@@ -69,10 +69,10 @@ struct Remote<'a> {
     hz: f32,
     /// When this run was asked for: its process's start, on this host's `CLOCK_MONOTONIC`.
     asked_ns: u64,
-    /// How far the bridge's clock (the images' `monotonic_ns`, the clock of latch ids) is
-    /// ahead of this host's at least: the largest of `monotonic_ns - received at` over the
-    /// images (each image took time to arrive, so each errs low).
-    ahead_ns: Option<i128>,
+    /// The image whose `monotonic_ns` (the bridge's clock, that of the latch ids) was furthest
+    /// ahead of this host's clock when it arrived: that stamp and when (each image took time
+    /// to arrive, so each errs low, and the furthest ahead is the closest).
+    bridge_clock: Option<(u64, u64)>,
 }
 
 /// The part of an image the client rules look at: live or latched, and which latch.
@@ -110,8 +110,12 @@ impl Remote<'_> {
     /// makes the offset look smaller than it is): a latch that began after the run started is
     /// never taken for one before it.
     fn asked_on_bridge(&self) -> Option<u64> {
-        let ahead = self.ahead_ns?;
-        u64::try_from((i128::from(self.asked_ns) + ahead).max(0)).ok()
+        let (theirs, at) = self.bridge_clock?;
+        Some(uss_client::uss_shm_types::on_latch_clock(
+            self.asked_ns,
+            theirs,
+            at,
+        ))
     }
 
     fn send(&mut self, body: &str) -> Result<(), Failure> {
@@ -200,8 +204,14 @@ impl Remote<'_> {
                     self.seen_at = Instant::now();
                 }
                 if let Some(theirs) = v["monotonic_ns"].as_u64() {
-                    let ahead = i128::from(theirs) - i128::from(uss_client::monotonic_ns());
-                    self.ahead_ns = Some(self.ahead_ns.map_or(ahead, |a| a.max(ahead)));
+                    let at = uss_client::monotonic_ns();
+                    let ahead = |(t, a): (u64, u64)| i128::from(t) - i128::from(a);
+                    if self
+                        .bridge_clock
+                        .is_none_or(|b| ahead((theirs, at)) > ahead(b))
+                    {
+                        self.bridge_clock = Some((theirs, at));
+                    }
                 }
                 self.image = Some(v);
             }
@@ -501,7 +511,7 @@ pub fn run(
         session: None,
         hz: 0.0,
         asked_ns,
-        ahead_ns: None,
+        bridge_clock: None,
     };
     remote.arm(&stop)?;
     let _ = say(&format!(
