@@ -8,11 +8,11 @@ use crate::{Bus, ClientError};
 use core::time::Duration;
 use std::io::{ErrorKind, Read as _, Write as _};
 use std::os::unix::net::UnixStream;
-use uss_shm_types::names;
 use uss_shm_types::{
     ALL_DRIVES, Address, CommandError, LatchReason, OPERATOR_RESPONSE_BYTES, OperatorRequest,
     OperatorResponse, PzdInput, StopCommand,
 };
+use uss_shm_types::{StopBoard, names};
 
 /// How long ussd may take to answer an operator command.
 const COMMAND_TIMEOUT: Duration = Duration::from_secs(2);
@@ -149,13 +149,84 @@ enum StopTry {
 }
 use StopTry::{Closed, Failed};
 
+/// A connection to the stop socket at `path`. When its queue is full (a storm of connections
+/// of other processes: connect(2) would wait behind them), `request` goes onto the bus's stop
+/// board first, which no queue holds back, and then the connection is waited for as always
+/// (its answer, and the process it names).
+fn connect(
+    bus: &uss_shm_types::BusName,
+    path: &std::path::Path,
+    request: OperatorRequest,
+) -> std::io::Result<UnixStream> {
+    use nix::sys::socket::{AddressFamily, SockFlag, SockType, UnixAddr, socket};
+    let fd = socket(
+        AddressFamily::Unix,
+        SockType::Stream,
+        SockFlag::SOCK_NONBLOCK | SockFlag::SOCK_CLOEXEC,
+        None,
+    )?;
+    let at_once =
+        nix::sys::socket::connect(std::os::fd::AsRawFd::as_raw_fd(&fd), &UnixAddr::new(path)?);
+    match at_once {
+        Ok(()) => {
+            let stream = UnixStream::from(fd);
+            stream.set_nonblocking(false)?;
+            Ok(stream)
+        }
+        Err(nix::errno::Errno::EAGAIN) => {
+            // A board that cannot be reached changes nothing: the socket still takes the stop.
+            let _ = post_to_board(bus, request);
+            UnixStream::connect(path)
+        }
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Adds `request` to bus `bus`'s stop board (`uss_shm_types::StopBoard`): one atomic add to
+/// its counter in the mapped file.
+fn post_to_board(bus: &uss_shm_types::BusName, request: OperatorRequest) -> std::io::Result<()> {
+    use nix::sys::mman::{MapFlags, ProtFlags, mmap, munmap};
+    use std::sync::atomic::{AtomicU32, Ordering};
+    let invalid = |what: &str| std::io::Error::new(ErrorKind::InvalidInput, what.to_owned());
+    let command = request.validate().map_err(|_| invalid("not a stop"))?;
+    let at = StopBoard::offset(request.address, command).ok_or_else(|| invalid("no such drive"))?;
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(names::stop_board(bus))?;
+    if file.metadata()?.len() < StopBoard::BYTES as u64 {
+        return Err(invalid("the stop board is shorter than its layout"));
+    }
+    let len = core::num::NonZeroUsize::new(StopBoard::BYTES).ok_or_else(|| invalid("empty"))?;
+    // SAFETY: a new shared mapping of the board's first BYTES bytes (the file is at least that
+    // long, checked above); it aliases nothing of this process and is unmapped below.
+    let map = unsafe {
+        mmap(
+            None,
+            len,
+            ProtFlags::PROT_READ | ProtFlags::PROT_WRITE,
+            MapFlags::MAP_SHARED,
+            &file,
+            0,
+        )
+    }?;
+    // SAFETY: `at + 4 <= BYTES` and `at` is a multiple of 4, so counter `at / 4` of the
+    // page-aligned mapping is in bounds and aligned for `AtomicU32` (a `u32`'s layout); every process
+    // touches these bytes only atomically (ussd reads them with pread).
+    let counter = unsafe { &*map.as_ptr().cast::<AtomicU32>().add(at / 4) };
+    counter.fetch_add(1, Ordering::SeqCst);
+    // SAFETY: the mapping made above, of `len` bytes; `counter` is not used after this.
+    unsafe { munmap(map, len.get()) }?;
+    Ok(())
+}
+
 /// One connection to the stop socket at `path`: `request` written, the answer's bytes read.
 fn stop_once(
     bus: &uss_shm_types::BusName,
     path: &std::path::Path,
     request: OperatorRequest,
 ) -> Result<[u8; OPERATOR_RESPONSE_BYTES], StopTry> {
-    let mut stream = match UnixStream::connect(path) {
+    let mut stream = match connect(bus, path, request) {
         Ok(s) => s,
         Err(e) if matches!(e.kind(), ErrorKind::NotFound | ErrorKind::ConnectionRefused) => {
             return Err(Failed(ClientError::NotRunning {

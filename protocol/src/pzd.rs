@@ -190,9 +190,16 @@ impl Setpoint {
     /// The setpoint of `percent`, or `None` when the word cannot carry it: not a finite number,
     /// or outside -200 % .. +199.99 % (where [`Setpoint::from_percent`] would saturate).
     pub fn try_from_percent(percent: f32) -> Option<Self> {
-        let raw = (percent * f32::from(Self::FULL_SCALE) / 100.0).round();
-        (raw.is_finite() && raw >= f32::from(i16::MIN) && raw <= f32::from(i16::MAX))
-            .then_some(Self(raw as i16))
+        let scaled = percent * f32::from(Self::FULL_SCALE) / 100.0;
+        // Rounded half away from zero as `round_saturating` does (`f32::round` is std's, and
+        // this crate builds without it): `as` truncates toward zero, so a value in
+        // (-32769, 32768) lands in i16's range; NaN and infinities compare false.
+        let r = if scaled >= 0.0 {
+            scaled + 0.5
+        } else {
+            scaled - 0.5
+        };
+        (r > -32769.0 && r < 32768.0).then_some(Self(r as i16))
     }
 
     pub fn percent(self) -> f32 {

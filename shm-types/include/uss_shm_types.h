@@ -114,6 +114,13 @@
 #define USS_OPERATOR_RESPONSE_BYTES 12
 
 /**
+ * Rows: one per address 0..=31 and one for every drive.
+ */
+#define USS_StopBoard_ROWS 33
+
+
+
+/**
  * `last_good_ns` of a drive that never replied.
  */
 #define USS_NEVER UINT64_MAX
@@ -1035,6 +1042,18 @@ typedef enum UssStorage UssStorage;
 typedef uint8_t UssStorage;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
+
+/**
+ * The stop board ([`crate::names::stop_board`]): a stop that no queue can hold back. A
+ * request the stop socket cannot take at once (its queue of connections is full: a storm of
+ * connections of other processes) is added here too: the counter of its drive (or of
+ * [`ALL_DRIVES`], the last row) and command grows by one (an atomic add in the mapped file),
+ * and ussd's stop thread, which reads the board at least every millisecond, stops the drive as
+ * for the request; the request on the socket follows as usual and names its process. Rows
+ * 0..=31 are drive addresses, row 32 is every drive; in each, OFF1, OFF2, OFF3; each counter a
+ * native-endian `u32`.
+ */
+typedef struct USS_StopBoard USS_StopBoard;
 
 /**
  * The key type of every ussd blackboard. Keys are compared byte for byte; C, C++ and Python

@@ -221,6 +221,53 @@ pub struct OperatorResponse {
     pub drives: u32,
 }
 
+/// The stop board ([`crate::names::stop_board`]): a stop that no queue can hold back. A
+/// request the stop socket cannot take at once (its queue of connections is full: a storm of
+/// connections of other processes) is added here too: the counter of its drive (or of
+/// [`ALL_DRIVES`], the last row) and command grows by one (an atomic add in the mapped file),
+/// and ussd's stop thread, which reads the board at least every millisecond, stops the drive as
+/// for the request; the request on the socket follows as usual and names its process. Rows
+/// 0..=31 are drive addresses, row 32 is every drive; in each, OFF1, OFF2, OFF3; each counter a
+/// native-endian `u32`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StopBoard;
+
+impl StopBoard {
+    /// Rows: one per address 0..=31 and one for every drive.
+    pub const ROWS: usize = 33;
+    /// Bytes of the file.
+    pub const BYTES: usize = Self::ROWS * 3 * 4;
+
+    /// The byte offset of the counter of `command` for `address` (or [`ALL_DRIVES`]); `None`
+    /// for another address.
+    pub const fn offset(address: u8, command: StopCommand) -> Option<usize> {
+        let row = match address {
+            ALL_DRIVES => Self::ROWS - 1,
+            a if (a as usize) < Self::ROWS - 1 => a as usize,
+            _ => return None,
+        };
+        let column = match command {
+            StopCommand::Off1 => 0,
+            StopCommand::Off2 => 1,
+            StopCommand::Off3 => 2,
+        };
+        Some((row * 3 + column) * 4)
+    }
+
+    /// The request a counter at byte `offset` stands for.
+    pub fn request_at(offset: usize) -> Option<OperatorRequest> {
+        let word = offset / 4;
+        let (row, column) = (word / 3, word % 3);
+        let address = match row {
+            r if r == Self::ROWS - 1 => ALL_DRIVES,
+            r if r < Self::ROWS - 1 => u8::try_from(r).ok()?,
+            _ => return None,
+        };
+        let command = [StopCommand::Off1, StopCommand::Off2, StopCommand::Off3][column];
+        Some(OperatorRequest::new(address, command))
+    }
+}
+
 impl OperatorRequest {
     /// A request for `command` on drive `address` (or [`ALL_DRIVES`]).
     pub const fn new(address: u8, command: StopCommand) -> Self {
@@ -420,6 +467,19 @@ mod tests {
             };
             assert_eq!(r.validate(), Ok(StopCommand::Off2), "version {version}");
         }
+        // Every counter of the stop board stands for its own request, and back.
+        for address in (0..32).chain([ALL_DRIVES]) {
+            for command in [StopCommand::Off1, StopCommand::Off2, StopCommand::Off3] {
+                let at = StopBoard::offset(address, command).unwrap();
+                assert!(at + 4 <= StopBoard::BYTES);
+                assert_eq!(
+                    StopBoard::request_at(at),
+                    Some(OperatorRequest::new(address, command))
+                );
+            }
+        }
+        assert_eq!(StopBoard::offset(32, StopCommand::Off1), None);
+        assert_eq!(StopBoard::request_at(StopBoard::BYTES), None);
         let answer = OperatorResponse::done(StopCommand::Off2, 1 << 3).in_version(8);
         assert_eq!(answer.version, 8);
         assert!(answer.check_version().is_ok());

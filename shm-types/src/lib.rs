@@ -55,7 +55,7 @@ pub use codes::{ContractError, UnknownCode, screaming_snake};
 pub use control::{
     ALL_DRIVES, CommandError, ControlState, LatchReason, Monitoring, NO_STOP_COMMAND,
     OPERATOR_REQUEST_BYTES, OPERATOR_RESPONSE_BYTES, OperatorRequest, OperatorResponse, Rejection,
-    STOP_BYTES_SINCE, StopCommand,
+    STOP_BYTES_SINCE, StopBoard, StopCommand,
 };
 pub use diag::{
     BusStatus, DriveCounters, DriveDiag, DriveFamily, DriveInfo, EXCHANGE_BUCKETS,

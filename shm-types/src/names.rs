@@ -236,6 +236,13 @@ pub fn stop_socket(bus: &BusName) -> std::path::PathBuf {
     crate::service::root().join(format!("{}.stop", bus.as_str()))
 }
 
+/// Bus `bus`'s stop board ([`crate::StopBoard`]): a file below the service root (its access
+/// rules hold) where a process adds a stop without a queue, when the stop socket's queue is
+/// full (a storm of connections of other processes).
+pub fn stop_board(bus: &BusName) -> std::path::PathBuf {
+    crate::service::root().join(format!("{}.stops", bus.as_str()))
+}
+
 /// Every telegram of the bus, as ussd's bus thread sent and received it.
 pub fn capture(i: &Instance) -> ServiceName {
     i.service("capture")

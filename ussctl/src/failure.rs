@@ -99,6 +99,16 @@ pub(crate) enum Failure {
     /// A value on the command line that clap cannot check by itself.
     #[error("{0}")]
     Usage(String),
+    /// The drive latched after this ussctl was started (or within the 10 ms before, which the
+    /// kernel's start time cannot tell apart): its re-arm clears only an older latch.
+    #[error(
+        "drive {drive} on {bus} was stopped while this ussctl started ({latch}): a run re-arms only a stop older than itself (its start is known to 10 ms), so it re-armed nothing; run it again if the stop is over"
+    )]
+    StoppedWhileStarting {
+        drive: Address,
+        bus: String,
+        latch: Latch,
+    },
     /// When this ussctl started, which a re-arm carries, cannot be read.
     #[error("cannot tell when this ussctl started (/proc/self/stat): {0}; nothing was re-armed")]
     StartTime(std::io::Error),

@@ -710,6 +710,7 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             .and_then(|name| {
                 super::stops::StopSocket::serve(
                     &uss_shm_types::names::stop_socket(&name),
+                    &uss_shm_types::names::stop_board(&name),
                     &s.bus.name,
                     s.handle.clone(),
                 )

@@ -36,7 +36,7 @@ use std::time::{Duration, Instant};
 use uss_engine::EngineHandle;
 use uss_protocol::Address;
 use uss_shm_types::{
-    ALL_DRIVES, CommandError, OPERATOR_REQUEST_BYTES, OperatorRequest, OperatorResponse,
+    ALL_DRIVES, CommandError, OPERATOR_REQUEST_BYTES, OperatorRequest, OperatorResponse, StopBoard,
 };
 
 /// How long a connection may take to send its request before it is closed.
@@ -45,6 +45,8 @@ const REQUEST_WITHIN: Duration = Duration::from_millis(200);
 pub const MAX_PER_PROCESS: usize = 8;
 /// Connections served at once.
 pub const MAX_CONNECTIONS: usize = 256;
+/// The longest the thread waits before it looks at the stop board again.
+const BOARD_EVERY: Duration = Duration::from_millis(1);
 /// Connections the kernel queues for the thread to take: see [`bind`].
 const BACKLOG: i32 = 16;
 /// Connections taken per wait, before the thread looks at the requests of those it holds.
@@ -54,6 +56,7 @@ const ACCEPT_PER_TURN: usize = 32;
 #[derive(Debug)]
 pub struct StopSocket {
     path: PathBuf,
+    board: PathBuf,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
 }
@@ -61,7 +64,14 @@ pub struct StopSocket {
 impl StopSocket {
     /// Binds `path` (replacing a socket a dead ussd left; refusing one a live ussd serves) and
     /// serves it for the engine behind `handle`.
-    pub fn serve(path: &Path, bus: &str, handle: EngineHandle) -> std::io::Result<Self> {
+    /// Also makes the bus's stop board at `board` ([`Board`]), read at every turn and at least
+    /// every [`BOARD_EVERY`].
+    pub fn serve(
+        path: &Path,
+        board: &Path,
+        bus: &str,
+        handle: EngineHandle,
+    ) -> std::io::Result<Self> {
         if UnixStream::connect(path).is_ok() {
             return Err(std::io::Error::new(
                 std::io::ErrorKind::AddrInUse,
@@ -73,6 +83,8 @@ impl StopSocket {
         listener.set_nonblocking(true)?;
         // The root directory decides who may reach it (owner only, or the access group).
         std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))?;
+        let board_path = board.to_owned();
+        let mut board = Board::create(board)?;
         let stop = Arc::new(AtomicBool::new(false));
         let thread = {
             let stop = Arc::clone(&stop);
@@ -81,12 +93,14 @@ impl StopSocket {
                 .spawn(move || {
                     let mut served = Connections::default();
                     while !stop.load(Ordering::Acquire) {
+                        board.look(&handle);
                         served.turn(&listener, &handle);
                     }
                 })?
         };
         Ok(Self {
             path: path.to_owned(),
+            board: board_path,
             stop,
             thread: Some(thread),
         })
@@ -120,6 +134,56 @@ impl Drop for StopSocket {
             let _ = t.join();
         }
         let _ = std::fs::remove_file(&self.path);
+        let _ = std::fs::remove_file(&self.board);
+    }
+}
+
+/// The bus's stop board (`uss_shm_types::StopBoard`): a stop a client adds when the socket's
+/// queue is full. Read with pread(2), not mapped: a process of the access group that truncates
+/// the file makes a read short (nothing new), never a fault in ussd.
+#[derive(Debug)]
+struct Board {
+    file: std::fs::File,
+    /// The counters as last read.
+    seen: [u8; StopBoard::BYTES],
+}
+
+impl Board {
+    /// A new board at `path` (one a dead ussd left is replaced), every counter 0.
+    fn create(path: &Path) -> std::io::Result<Self> {
+        let _ = std::fs::remove_file(path);
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create_new(true)
+            .open(path)?;
+        file.set_len(StopBoard::BYTES as u64)?;
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))?;
+        Ok(Self {
+            file,
+            seen: [0; StopBoard::BYTES],
+        })
+    }
+
+    /// Hands every stop added since the last look to the bus thread (a counter that changed: a
+    /// torn read makes one look changed at worst, and a stop too many is a stop).
+    fn look(&mut self, handle: &EngineHandle) {
+        let mut now = [0u8; StopBoard::BYTES];
+        let Ok(n) = std::os::unix::fs::FileExt::read_at(&self.file, &mut now, 0) else {
+            return;
+        };
+        if n != StopBoard::BYTES || now == self.seen {
+            return;
+        }
+        for at in (0..StopBoard::BYTES).step_by(4) {
+            if now[at..at + 4] != self.seen[at..at + 4]
+                && let Some(request) = StopBoard::request_at(at)
+            {
+                // Who added it is not known here: its request on the socket names it.
+                let _ = decide(request, handle, 0);
+            }
+        }
+        self.seen = now;
     }
 }
 
@@ -151,7 +215,8 @@ impl Connections {
             .iter()
             .map(|c| c.deadline.saturating_duration_since(now))
             .min()
-            .unwrap_or(Duration::from_secs(1));
+            .unwrap_or(BOARD_EVERY)
+            .min(BOARD_EVERY);
         let ready: Vec<bool> = {
             let mut fds = Vec::with_capacity(self.open.len() + 1);
             fds.push(PollFd::new(listener.as_fd(), PollFlags::POLLIN));
