@@ -1234,19 +1234,10 @@ fn stop_delays(ussd: &Ussd) -> (f64, f64, Vec<f64>) {
 /// adversarial run by 98 to 333 ms.
 #[test]
 fn a_storm_of_connections_to_the_stop_socket_does_not_delay_another_processs_stop() {
-    let _serial = serial();
-    let ussd = Ussd::start("", &[(1, "")]);
-    let path = names::stop_socket(&BusName::new(&ussd.bus).unwrap());
-    let storm = flooders(&path, 40);
-    let (median, worst, delays) = stop_delays(&ussd);
-    drop(storm);
-    println!(
-        "failsafe: 20 stops beside 40 processes flooding the stop socket: from the call to the \
-         latch median {median:.2}, worst {worst:.2} exchanges"
-    );
-    assert!(
-        median <= 1.5 && worst <= 4.0,
-        "a storm of connections delayed a stop: median {median:.2}, worst {worst:.2} exchanges ({delays:?})"
+    stops_beside(
+        "40 processes flooding the stop socket",
+        |path| flooders(path, 40),
+        (1.5, 4.0),
     );
 }
 
@@ -1259,25 +1250,40 @@ fn a_storm_of_connections_to_the_stop_socket_does_not_delay_another_processs_sto
 /// (the stop thread, busy with the storm, reads the board between its turns).
 #[test]
 fn a_storm_of_idle_connections_from_many_processes_does_not_delay_a_stop() {
+    stops_beside(
+        "400 processes holding an idle stop connection each",
+        |path| {
+            stop_socket_users(
+                "uss-idle-connections",
+                &[path.as_os_str(), "400".as_ref(), "--processes".as_ref()],
+                "holding 400",
+                1,
+            )
+        },
+        (2.5, 5.0),
+    );
+}
+
+/// [`stop_delays`] of a ussd of one drive beside `storm` (the processes it starts on the stop
+/// socket's path, ended after): the median and the worst at most `bounds`.
+fn stops_beside(
+    what: &str,
+    storm: impl FnOnce(&std::path::Path) -> Vec<ChildProc>,
+    (median_at_most, worst_at_most): (f64, f64),
+) {
     let _serial = serial();
     let ussd = Ussd::start("", &[(1, "")]);
     let path = names::stop_socket(&BusName::new(&ussd.bus).unwrap());
-    let mut command = std::process::Command::new(uss_integration_tests::binary(
-        "uss-integration-tests",
-        "uss-stop-flood",
-    ));
-    command.arg(&path).args(["--idle", "400"]);
-    let mut storm = ChildProc::spawn("uss-stop-flood --idle".into(), command);
-    storm.says("holding 400");
+    let storm = storm(&path);
     let (median, worst, delays) = stop_delays(&ussd);
-    storm.kill();
+    drop(storm);
     println!(
-        "failsafe: 20 stops beside 400 processes holding an idle stop connection each: from the \
-         call to the latch median {median:.2}, worst {worst:.2} exchanges"
+        "failsafe: 20 stops beside {what}: from the call to the latch median {median:.2}, worst \
+         {worst:.2} exchanges"
     );
     assert!(
-        median <= 2.5 && worst <= 5.0,
-        "idle connections of many processes delayed a stop: median {median:.2}, worst {worst:.2} exchanges ({delays:?})"
+        median <= median_at_most && worst <= worst_at_most,
+        "{what} delayed a stop: median {median:.2}, worst {worst:.2} exchanges ({delays:?})"
     );
 }
 
