@@ -17,7 +17,8 @@
 //! behind it (issue 45: one such process held a stop back 98 to 333 ms, forty up to 2.45 s):
 //! the kernel queues only [`BACKLOG`] connections for the thread, so a connection beyond waits
 //! in connect(2) behind at most one of each other waiting thread, not behind thousands, and the
-//! storm's processes sleep there instead of taking the CPU.
+//! storm's processes sleep there instead of taking the CPU. When that queue is full, a client
+//! adds its stop to the bus's stop board too ([`Board`]), which no queue holds back.
 //!
 //! **A stop is sendable across versions**: a request of any layout version since the stop
 //! socket's bytes were frozen ([`uss_shm_types::STOP_BYTES_SINCE`]) stops, answered in its own
@@ -56,7 +57,6 @@ const ACCEPT_PER_TURN: usize = 32;
 #[derive(Debug)]
 pub struct StopSocket {
     path: PathBuf,
-    board: PathBuf,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
 }
@@ -83,7 +83,6 @@ impl StopSocket {
         listener.set_nonblocking(true)?;
         // The root directory decides who may reach it (owner only, or the access group).
         std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))?;
-        let board_path = board.to_owned();
         let mut board = Board::create(board)?;
         let stop = Arc::new(AtomicBool::new(false));
         let thread = {
@@ -100,7 +99,6 @@ impl StopSocket {
         };
         Ok(Self {
             path: path.to_owned(),
-            board: board_path,
             stop,
             thread: Some(thread),
         })
@@ -134,7 +132,6 @@ impl Drop for StopSocket {
             let _ = t.join();
         }
         let _ = std::fs::remove_file(&self.path);
-        let _ = std::fs::remove_file(&self.board);
     }
 }
 
@@ -144,8 +141,16 @@ impl Drop for StopSocket {
 #[derive(Debug)]
 struct Board {
     file: std::fs::File,
+    /// Removed when the board goes (with its thread).
+    path: PathBuf,
     /// The counters as last read.
     seen: [u8; StopBoard::BYTES],
+}
+
+impl Drop for Board {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
 }
 
 impl Board {
@@ -161,6 +166,7 @@ impl Board {
         std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o660))?;
         Ok(Self {
             file,
+            path: path.to_owned(),
             seen: [0; StopBoard::BYTES],
         })
     }
