@@ -39,8 +39,8 @@
  *                                       the watchdog time: the proof that LinuxCNC is alive
  *   NAME.at-speed            bit   out  running within tolerance of the command
  *   NAME.spindle-speed-fb    float out  actual speed in rpm
- *   NAME.spindle-speed-fb-hz float out  actual frequency in Hz
- *   NAME.frequency-command   float out  the commanded frequency in Hz
+ *   NAME.spindle-speed-fb-hz float out  actual frequency in Hz (NaN while ussd reads the reference)
+ *   NAME.frequency-command   float out  the commanded frequency in Hz (NaN likewise)
  *   NAME.fault               bit   out  the drive reports a fault (ZSW1 bit 3)
  *   NAME.fault-code          s32   out  the drive's newest fault number (r0947[0], F0072 -> 72)
  *   NAME.latched             bit   out  ussd holds the drive stopped until it is re-armed
@@ -49,7 +49,8 @@
  *   NAME.error-count         s32   out  failed calls and lost contacts since the start
  *   NAME.state               s32   out  PROFIdrive state: 1..4 for S1..S4, 6 fault, 0 not ready
  * Parameters:
- *   NAME.rpm-at-reference    float rw   rpm at the drive's reference frequency (P2000)
+ *   NAME.rpm-at-reference    float rw   rpm at 100 % of the reference (P2000): the command is
+ *                                       sent in percent of it, whatever the reference is
  *   NAME.tolerance           float rw   at-speed tolerance, a fraction of the command (0.02)
  */
 #define _POSIX_C_SOURCE 200809L
@@ -208,10 +209,13 @@ static void step(vfd_t *v, pins_t *p) {
   *p->comm_ok = comm;
   *p->state = d.state;
   *p->fault = d.state == 6;
-  double reference = d.reference_hz > 0 ? d.reference_hz : 50.0;
-  double rpm_per_hz = p->rpm_at_reference / reference;
+  /* The speed in percent of the reference (0x4000 = 100 %, the drive's own scale): rpm-at-
+   * reference is 100 %, so no Hz are needed to command or show rpm. Hz are shown only while
+   * ussd knows the reference (NaN while it reads it again after a reset or a restart). */
+  double full_rpm = p->rpm_at_reference > 0 ? p->rpm_at_reference : 1.0;
+  double reference = d.reference_hz > 0 ? d.reference_hz : NAN;
   *p->speed_fb_hz = d.actual_hz;
-  *p->speed_fb = d.actual_hz * rpm_per_hz;
+  *p->speed_fb = (int16_t)d.image.hiw / 16384.0 * full_rpm;
 
   /* The drive's newest fault number, read once per fault. */
   if (*p->fault && !v->was_fault) {
@@ -225,8 +229,8 @@ static void step(vfd_t *v, pins_t *p) {
   double command = *p->speed_command;
   int reverse = (*p->spindle_rev && !*p->spindle_fwd) ||
                 (!*p->spindle_fwd && !*p->spindle_rev && command < 0);
-  double hz = fabs(command) / (rpm_per_hz > 0 ? rpm_per_hz : 1.0) * (reverse ? -1 : 1);
-  *p->frequency_command = hz;
+  double percent = fabs(command) / full_rpm * 100.0 * (reverse ? -1 : 1);
+  *p->frequency_command = percent * reference / 100.0;
   const uint64_t read_at = ussrt_monotonic_ns();
   int on = *p->spindle_on;
   if (!on) v->low_seen_ns = read_at;
@@ -266,7 +270,7 @@ static void step(vfd_t *v, pins_t *p) {
   }
   if (s == USSRT_STATUS_OK) {
     /* Latched, off or disabled: OFF1 (a stop always goes out; it re-arms nothing). */
-    s = (!v->latched && run) ? ussrt_control_run_hz(v->c, (float)hz) : ussrt_control_stop(v->c);
+    s = (!v->latched && run) ? ussrt_control_run_percent(v->c, (float)percent) : ussrt_control_stop(v->c);
   }
   if (*p->err_reset && !v->was_reset && s == USSRT_STATUS_OK) {
     s = ussrt_control_acknowledge_fault(v->c, 1000);

@@ -152,6 +152,11 @@ typedef enum UssrtStatus {
    * line down, ussd shut down): the drive may hold the new value, or not; read it back.
    */
   USSRT_STATUS_MAYBE_APPLIED = 24,
+  /**
+   * A setpoint in Hz while ussd reads the drive's reference frequency again (it came
+   * online, was reset or commissioned): nothing was sent; wait, or give percent.
+   */
+  USSRT_STATUS_REFERENCE_UNKNOWN = 25,
 } UssrtStatus;
 
 /**

@@ -36,9 +36,11 @@ pub struct UssrtDrive {
     /// The PROFIdrive state from ZSW1: 1..4 for S1..S4, 6 fault, 0 not ready.
     pub state: u8,
     pub reserved: u8,
-    /// HIW in Hz of the drive's reference frequency.
+    /// HIW in Hz of the drive's reference frequency; NaN while ussd reads the reference again.
     pub actual_hz: f32,
-    /// The reference frequency (P2000) every Hz is scaled by, as ussd publishes it.
+    /// The reference frequency (P2000) every Hz is scaled by, as ussd publishes it; 0 while
+    /// ussd reads it again (the drive came online, was reset or commissioned): then
+    /// `ussrt_control_run_hz` fails with `USSRT_STATUS_REFERENCE_UNKNOWN`.
     pub reference_hz: f32,
     /// The drive's watchdog time: a controller calls at least this often.
     pub watchdog_ms: u32,
@@ -54,7 +56,9 @@ impl UssrtDrive {
             live: u8::from(image.is_live()),
             state: uss_client::state_of(&image).code(),
             reserved: 0,
-            actual_hz: uss_client::Setpoint::from_word(image.hiw).hz(look.info.reference_hz),
+            actual_hz: look.info.reference().map_or(f32::NAN, |r| {
+                uss_client::Setpoint::from_word(image.hiw).hz(r)
+            }),
             reference_hz: look.info.reference_hz,
             watchdog_ms: look.info.watchdog_ms,
         }

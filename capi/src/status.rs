@@ -65,11 +65,14 @@ pub enum UssrtStatus {
     /// A parameter write reached the drive but its answer did not come back (timeout, offline,
     /// line down, ussd shut down): the drive may hold the new value, or not; read it back.
     MaybeApplied = 24,
+    /// A setpoint in Hz, while ussd reads the drive's reference frequency (again: it came
+    /// online, was reset or commissioned): nothing was sent; wait for it, or give percent.
+    ReferenceUnknown = 25,
 }
 
 impl UssrtStatus {
     /// Every status, in code order.
-    pub(crate) const ALL: [Self; 25] = [
+    pub(crate) const ALL: [Self; 26] = [
         Self::Ok,
         Self::InvalidArgument,
         Self::NotRunning,
@@ -95,6 +98,7 @@ impl UssrtStatus {
         Self::NotControllable,
         Self::Superseded,
         Self::MaybeApplied,
+        Self::ReferenceUnknown,
     ];
 
     /// The code of the table's `status`.
@@ -125,6 +129,7 @@ impl UssrtStatus {
             Status::NotControllable => Self::NotControllable,
             Status::Superseded => Self::Superseded,
             Status::MaybeApplied => Self::MaybeApplied,
+            Status::ReferenceUnknown => Self::ReferenceUnknown,
         }
     }
 
@@ -156,6 +161,7 @@ impl UssrtStatus {
             Self::NotControllable => c"not_controllable",
             Self::Superseded => c"superseded",
             Self::MaybeApplied => c"maybe_applied",
+            Self::ReferenceUnknown => c"reference_unknown",
         }
     }
 }

@@ -458,6 +458,11 @@ pub struct Catalogue {
     /// length of the USS link): a restore keeps the drive's own values.
     #[serde(default, deserialize_with = "param_ids")]
     pub link: Vec<ParamRef>,
+    /// The parameters whose write may change any setting of the drive, its reference and its
+    /// telegram monitoring included (MM4 P0010, P0970, P3900): after a write of one, ussd reads
+    /// what it knows of the drive again and uses none of it until then. At most four.
+    #[serde(default, deserialize_with = "param_ids")]
+    pub rereads_after: Vec<ParamRef>,
     /// The fault buffer and warnings; none: uss-rt knows no fault buffer of the family.
     pub faults: Option<FaultBuffers>,
     /// The drive's telegram-off time in ms on the USS link ussd talks over (MM4 P2014[0], G120

@@ -523,9 +523,30 @@ impl Controller {
     /// Like [`Controller::run_percent`], in Hz: scaled by the drive's reference frequency
     /// P2000 as ussd publishes it ([`DriveWatch::info`]), so a controller and every monitor
     /// show the same Hz for the same setpoint.
+    /// While ussd reads the reference again (the drive came online, was reset or
+    /// commissioned) it is not known, and a setpoint in Hz is refused with
+    /// [`ClientError::ReferenceUnknown`]: nothing is scaled with the old one.
     pub fn run_hz(&self, hz: f32) -> Result<(), ClientError> {
-        let reference_hz = self.shared.watch.info().reference_hz;
-        self.run_setpoint(self.setpoint(hz, reference_hz, "Hz")?)
+        self.run_setpoint(self.hz_setpoint(hz)?)
+    }
+
+    /// The setpoint of `hz`, scaled by the drive's reference frequency as ussd publishes it, or
+    /// why it cannot be scaled now (0 Hz is 0 in any scale).
+    fn hz_setpoint(&self, hz: f32) -> Result<Setpoint, ClientError> {
+        if hz == 0.0 {
+            return Ok(Setpoint::from_raw(0));
+        }
+        let reference =
+            self.shared
+                .watch
+                .info()
+                .reference()
+                .ok_or_else(|| ClientError::ReferenceUnknown {
+                    bus: self.shared.bus.clone(),
+                    address: self.shared.address.get(),
+                    asked: format!("{hz} Hz"),
+                })?;
+        self.setpoint(hz, reference, "Hz")
     }
 
     /// The setpoint of `value` in a unit of which `full` is 100 %, or why the word cannot carry
@@ -567,8 +588,7 @@ impl Controller {
     /// Changes only the setpoint, in Hz of the drive's reference frequency as ussd publishes it
     /// (STW1 stays as it is: a running drive follows it, a stopped one stays stopped).
     pub fn set_hz(&self, hz: f32) -> Result<(), ClientError> {
-        let reference_hz = self.shared.watch.info().reference_hz;
-        self.set_setpoint(self.setpoint(hz, reference_hz, "Hz")?)
+        self.set_setpoint(self.hz_setpoint(hz)?)
     }
 
     /// Changes only the setpoint (STW1 stays as it is).

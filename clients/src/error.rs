@@ -68,6 +68,9 @@ impl fmt::Display for Latch {
                 f,
                 "its controller was replaced: process {pid} published while the drive ran under another controller, with no release in between (a killed controller's successor, or a restart loop)"
             ),
+            LatchReason::ReferenceChanged => f.write_str(
+                "the drive's reference frequency (P2000) changed while this controller held it (a reset, a commissioning, a power cycle): its setpoint was scaled with the old one; scale again and re-arm",
+            ),
         }
     }
 }
@@ -230,6 +233,17 @@ pub enum ClientError {
         address: u8,
         asked: String,
         problem: String,
+    },
+    /// A setpoint in Hz while the drive's reference frequency is not known: ussd reads it
+    /// again (the drive came online, was reset or commissioned) and scales nothing with the
+    /// old one. Nothing was sent.
+    #[error(
+        "drive {address} on {bus}: {asked} not sent: ussd is reading the drive's reference frequency (P2000) again (it came online, was reset or commissioned); try again in a moment, or give the setpoint in percent"
+    )]
+    ReferenceUnknown {
+        bus: String,
+        address: u8,
+        asked: String,
     },
     /// Words ussd would refuse (and latch the drive for).
     #[error(

@@ -105,6 +105,9 @@ statuses! {
     /// A parameter write reached the drive but its answer did not come back (timeout, offline,
     /// line down, ussd shut down): the drive may hold the new value, or not; read it back.
     MaybeApplied = 24, "maybe_applied";
+    /// A setpoint in Hz, while ussd reads the drive's reference frequency (again: it came
+    /// online, was reset or commissioned): nothing was sent; wait for it, or give percent.
+    ReferenceUnknown = 25, "reference_unknown";
 }
 
 macro_rules! kinds {
@@ -213,6 +216,9 @@ kinds! {
     /// A write reached the drive (`telegrams` telegrams carried it) but its answer did not
     /// come back (`outcome`): the drive may hold the new value, or not. Read it back.
     MaybeApplied => MaybeApplied, "MaybeApplied"("ParamFailed");
+    /// A setpoint in Hz while ussd reads the drive's reference frequency again (it came
+    /// online, was reset or commissioned): nothing was sent; wait, or give percent.
+    ReferenceUnknown => ReferenceUnknown, "ReferenceUnknown"("UssError");
 }
 
 impl ClientError {
@@ -246,6 +252,7 @@ impl ClientError {
             Self::CommandRefused { .. } => K::CommandRefused,
             Self::NotControllable { .. } => K::NotControllable,
             Self::Superseded { .. } => K::Superseded,
+            Self::ReferenceUnknown { .. } => K::ReferenceUnknown,
         }
     }
 }

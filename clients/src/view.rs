@@ -217,7 +217,10 @@ impl DriveView {
             zsw1_hex: format!("{:#06X}", d.last_zsw1),
             flags: zsw1_flags(d.last_zsw1),
             hiw: d.last_hiw,
-            actual_hz: Setpoint::from_word(d.last_hiw).hz(d.info.reference_hz),
+            actual_hz: d
+                .info
+                .reference()
+                .map_or(f32::NAN, |r| Setpoint::from_word(d.last_hiw).hz(r)),
             good: d.counters.good,
             rejected: d.counters.rejected,
             timeouts: d.counters.timeouts,

@@ -16,11 +16,13 @@ use uss_shm_types::{Address, BlackboardKey, DriveDiag, DriveInfo, Generation, Pz
 /// How often the `wait_*` helpers look at the input image.
 pub(crate) const POLL: Duration = Duration::from_millis(1);
 
-/// The input image entry of one ussd generation, and what that ussd says of the drive.
+/// The input image entry of one ussd generation, and its diagnostics entry of the drive, which
+/// says what that ussd knows of it ([`DriveInfo`]: its reference frequency is read again
+/// whenever it can have changed, so it is read with every image).
 struct Port {
     generation: Generation,
     entry: EntryHandle<Ipc, BlackboardKey, PzdInput>,
-    info: DriveInfo,
+    diag: EntryHandle<Ipc, BlackboardKey, DriveDiag>,
 }
 
 /// One look at a drive ([`DriveWatch::snapshot`]).
@@ -80,16 +82,14 @@ fn open_port(link: &Link, services: &Services, address: Address) -> Result<Port,
         unknown_drive(bus, address.get()),
     )?;
     let entry = entry(&service, bus, &name, BlackboardKey::IMAGE)?;
-    let info = services
+    let diag = services
         .diag
         .entry::<DriveDiag>(&BlackboardKey::drive(address))
-        .map_err(|_| unknown_drive(bus, address.get())())?
-        .get()
-        .info;
+        .map_err(|_| unknown_drive(bus, address.get())())?;
     Ok(Port {
         generation: services.generation(),
         entry,
-        info,
+        diag,
     })
 }
 
@@ -101,7 +101,7 @@ impl DriveWatch {
             other => other,
         })?;
         let last = *port.entry.get();
-        let info = port.info;
+        let info = port.diag.get().info;
         Ok(Self {
             link: Arc::clone(bus.link()),
             address,
@@ -128,7 +128,11 @@ impl DriveWatch {
             if state.port.as_ref().map(|p| p.generation) != Some(services.generation()) {
                 state.port = open_port(&self.link, &services, self.address).ok();
             }
-            if let Some((last, info)) = state.port.as_ref().map(|p| (*p.entry.get(), p.info)) {
+            if let Some((last, info)) = state
+                .port
+                .as_ref()
+                .map(|p| (*p.entry.get(), p.diag.get().info))
+            {
                 state.last = last;
                 state.info = info;
             }
@@ -209,10 +213,13 @@ impl DriveWatch {
     }
 
     /// The main actual value HIW in Hz, scaled by the drive's reference frequency P2000 as
-    /// ussd publishes it ([`DriveInfo::reference_hz`]: the drive's own value once read).
+    /// ussd publishes it ([`DriveInfo::reference_hz`]: the drive's own value once read); NaN
+    /// while ussd reads the reference again (no Hz are known then).
     pub fn actual_hz(&self) -> f32 {
         let s = self.snapshot();
-        Setpoint::from_word(s.image.hiw).hz(s.info.reference_hz)
+        s.info
+            .reference()
+            .map_or(f32::NAN, |r| Setpoint::from_word(s.image.hiw).hz(r))
     }
 
     /// The main actual value HIW in % of the reference.
@@ -226,6 +233,14 @@ impl DriveWatch {
     /// [`crate::HANDSHAKE_TIMEOUT`]. 31 drives at 9600 baud poll each drive only every 1.3 s.
     pub fn handshake(&self) -> Duration {
         Duration::from_nanos(self.latest().handshake_ns())
+    }
+
+    /// How long to wait for ussd to read the drive's reference again (after it came online,
+    /// was reset or commissioned) before a setpoint in Hz can be scaled: its two own reads
+    /// (monitoring, then reference) each take a poll to ask and one to answer, so four of the
+    /// drive's handshake times.
+    pub fn reference_wait(&self) -> Duration {
+        self.handshake() * 4
     }
 
     /// Waits until `done` holds for the input image (looking every millisecond) and returns

@@ -7,6 +7,8 @@ use crate::fault::{FaultPlan, Reply};
 use core::time::Duration;
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use thiserror::Error;
 use uss_protocol::telegram::MAX_TELEGRAM_BYTES;
 use uss_protocol::{Address, FrameError, Telegram};
@@ -16,6 +18,16 @@ use uss_protocol::{Address, FrameError, Telegram};
 pub struct Slot {
     pub drive: Drive,
     pub faults: FaultPlan,
+    /// Switched off until then by a power cycle ([`SimBus::power_cycle`]): it hears and answers
+    /// nothing, and comes back from its EEPROM.
+    pub off_until: Option<Duration>,
+}
+
+impl Slot {
+    /// Whether it hears the line at `now`: plugged in and powered.
+    fn hears(&self, now: Duration) -> bool {
+        !self.faults.is_unplugged(now) && self.off_until.is_none()
+    }
 }
 
 /// A bus that cannot be built as asked.
@@ -32,6 +44,9 @@ pub struct SimBus {
     rng: SmallRng,
     /// Telegrams addressed to no drive on the bus.
     pub unanswered: u64,
+    /// Set from outside (uss-sim's SIGUSR1): every drive is power-cycled at the next
+    /// [`SimBus::advance`], off for `power_off`.
+    power_switch: Option<(Arc<AtomicBool>, Duration)>,
 }
 
 impl SimBus {
@@ -40,6 +55,7 @@ impl SimBus {
             slots: Default::default(),
             rng: SmallRng::seed_from_u64(seed),
             unanswered: 0,
+            power_switch: None,
         }
     }
 
@@ -52,6 +68,7 @@ impl SimBus {
         *slot = Some(Box::new(Slot {
             drive: Drive::new(config),
             faults: FaultPlan::new(),
+            off_until: None,
         }));
         Ok(())
     }
@@ -86,9 +103,34 @@ impl SimBus {
         self.slots.iter().flatten().map(|s| &s.drive)
     }
 
-    /// Moves every drive's model to `now`.
-    pub fn advance(&mut self, now: Duration) {
+    /// A power cycle of every drive (the cabinet's supply switched off and on): each is off
+    /// for `off` from `now`, answering nothing, then starts again with its RAM from EEPROM, in
+    /// S1, its counters cleared ([`Drive::power_cycle`]).
+    pub fn power_cycle(&mut self, now: Duration, off: Duration) {
         for slot in self.slots.iter_mut().flatten() {
+            slot.off_until = Some(now + off);
+        }
+    }
+
+    /// `flag` set (by a signal handler) power-cycles every drive at the next
+    /// [`SimBus::advance`], off for `off`; the flag is cleared then.
+    pub fn power_switch(&mut self, flag: Arc<AtomicBool>, off: Duration) {
+        self.power_switch = Some((flag, off));
+    }
+
+    /// Moves every drive's model to `now`; a drive switched off comes back when its time is up.
+    pub fn advance(&mut self, now: Duration) {
+        if let Some((flag, off)) = &self.power_switch
+            && flag.swap(false, Ordering::Relaxed)
+        {
+            let off = *off;
+            self.power_cycle(now, off);
+        }
+        for slot in self.slots.iter_mut().flatten() {
+            if slot.off_until.is_some_and(|until| now >= until) {
+                slot.off_until = None;
+                slot.drive.power_cycle();
+            }
             slot.drive.advance(now);
         }
     }
@@ -96,7 +138,7 @@ impl SimBus {
     /// A receive error on the line: every plugged-in drive hears it and counts it.
     pub fn on_error(&mut self, error: &FrameError, now: Duration) {
         for slot in self.slots.iter_mut().flatten() {
-            if !slot.faults.is_unplugged(now) {
+            if slot.hears(now) {
                 slot.drive.count_error(error);
             }
         }
@@ -107,7 +149,7 @@ impl SimBus {
         let adr = telegram.adr();
         if adr.broadcast {
             for slot in self.slots.iter_mut().flatten() {
-                if !slot.faults.is_unplugged(now) {
+                if slot.hears(now) {
                     slot.drive.receive_broadcast(telegram, now);
                 }
             }
@@ -117,7 +159,7 @@ impl SimBus {
             self.unanswered += 1;
             return None;
         };
-        if slot.faults.is_unplugged(now) {
+        if !slot.hears(now) {
             return None;
         }
         let config = slot.drive.config();

@@ -36,10 +36,15 @@ pub(super) struct Drive {
     pub monitoring_ms: u32,
     /// Its reference frequency as read from it.
     pub reference: Reference,
-    /// The telegram-monitoring parameter should be read (the drive came online).
+    /// The last reference frequency read from it, Hz, kept while it is read again: a value
+    /// that comes back different latches a drive under a controller (`crate::picture`).
+    pub last_reference: Option<f32>,
+    /// The telegram-monitoring parameter should be read (`crate::picture` says when).
     pub monitoring_due: bool,
-    /// The reference-frequency parameter should be read (the drive came online).
+    /// The reference-frequency parameter should be read.
     pub reference_due: bool,
+    /// Its good replies when its background reads were last due (`crate::picture`).
+    pub refreshed_at: u64,
     /// The shortest telegram-off time that does not trip the drive between two of its polls
     /// (`Periods::shortest_monitoring`).
     pub shortest_monitoring: Duration,
@@ -207,8 +212,10 @@ impl Drive {
             monitoring: monitoring::initial_monitoring(&setup),
             monitoring_ms: 0,
             reference: Reference::initial(&setup),
+            last_reference: None,
             monitoring_due: false,
             reference_due: false,
+            refreshed_at: 0,
             shortest_monitoring: shortest,
             period: Duration::ZERO,
             stale_after: Duration::ZERO,

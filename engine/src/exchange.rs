@@ -39,6 +39,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         {
             self.deliver(r);
         }
+        self.refresh_picture(slot);
         self.check_own_reads(slot);
         let mut last = LastFailure::NoResponse;
         for attempt in 0..=self.cfg.retries {
@@ -88,6 +89,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let d = &mut self.drives[slot];
         d.counters.good += 1;
         let good = d.counters.good;
+        // A whole poll that failed: the drive may have restarted in between.
+        let missed = d.link.consecutive_failed_polls > 0;
         let (since_last, came_back) = d.link.good(timing.done);
         if let Some(period) = since_last {
             d.timing.update_period.record(period);
@@ -110,8 +113,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 address,
                 at: timing.done,
             });
-            // A drive that comes online may have been replaced or reset: read its monitoring
-            // and its reference frequency.
+            // A drive that comes online may have been replaced, reset or power-cycled: what
+            // ussd knew of it is unknown until read again.
+            self.forget_picture(slot, false);
+        } else if missed {
             self.drives[slot].monitoring_due = true;
             self.drives[slot].reference_due = true;
         }

@@ -24,6 +24,7 @@ pub mod image;
 pub mod jobs;
 pub mod monitoring;
 pub mod period;
+pub mod picture;
 pub mod reference;
 pub mod requesters;
 pub mod rt;
@@ -100,6 +101,10 @@ pub struct DriveSetup {
     pub reference_param: Option<WatchedParam>,
     /// What unit `reference_param` is in, and how it becomes Hz.
     pub reference_unit: reference::ReferenceUnit,
+    /// The parameters whose write may change every setting (commissioning, factory reset):
+    /// after one, the reference and the monitoring are unknown until read again
+    /// ([`picture`]).
+    pub rereads_after: picture::Rereads,
     /// The drive takes broadcasts (ADR bit 5): a stop of every drive reaches it in one
     /// broadcast telegram (`engine::turns`). S110 and G120 firmware 4 do not.
     pub broadcast: bool,
@@ -124,6 +129,7 @@ impl DriveSetup {
             reference_hz: 50.0,
             reference_param: Some(reference::P2000),
             reference_unit: reference::ReferenceUnit::Hz,
+            rereads_after: picture::Rereads::MICROMASTER,
             broadcast: true,
             family: uss_shm_types::DriveFamily::Micromaster4,
         }
@@ -637,6 +643,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         {
             self.on_reference_result(slot, &result);
         }
+        if let Some(slot) = slot {
+            self.on_reread_write(slot, &result);
+        }
         if result.job.id & INTERNAL_JOB != 0 {
             return; // ussd's own read: nobody waits for it
         }
@@ -787,6 +796,27 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             None => {}
         }
         change
+    }
+
+    /// Latches drive `slot` from outside a poll (the line came back, its reference changed
+    /// under its controller): the same rules as a latch at a poll; its next telegram carries
+    /// the stop, out of turn (`Engine::look`).
+    fn latch_now(&mut self, slot: usize, reason: LatchReason, now: Duration) {
+        let d = &mut self.drives[slot];
+        let change = d.gate.latch(reason, now);
+        self.control_changed = true;
+        let address = d.setup.address;
+        self.shared.drives[slot]
+            .images
+            .latch_id
+            .store(latch_id_of(d.gate.control()), Ordering::Release);
+        if let Transition::Latched { latch, rejection } = change {
+            self.emit(Event::Latched {
+                address,
+                latch,
+                rejection,
+            });
+        }
     }
 
     /// The PZD to send now, as the drive's [`Gate`] decides from the controller's newest

@@ -3,7 +3,7 @@
 
 use super::{
     Bridge, Clock, Duration, Engine, Event, Framer, FramerConfig, LatchReason, LineFailure,
-    Ordering, PathError, Transition, Transport, TransportError, latch_id_of,
+    Ordering, PathError, Transport, TransportError,
 };
 
 impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
@@ -56,22 +56,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.last_reply_done = None;
         self.last_reply_seen = None;
         for slot in 0..self.drives.len() {
-            let d = &mut self.drives[slot];
-            d.link.next_probe = now;
-            let change = d.gate.latch(LatchReason::LineRestored, now);
-            self.control_changed = true;
-            let address = d.setup.address;
-            self.shared.drives[slot]
-                .images
-                .latch_id
-                .store(latch_id_of(d.gate.control()), Ordering::Release);
-            if let Transition::Latched { latch, rejection } = change {
-                self.emit(Event::Latched {
-                    address,
-                    latch,
-                    rejection,
-                });
-            }
+            self.drives[slot].link.next_probe = now;
+            self.latch_now(slot, LatchReason::LineRestored, now);
         }
         let down_for = self
             .line

@@ -4,7 +4,9 @@
 //! ussd publishes; the configuration's `reference_hz` gives it, but the drive scales by its own
 //! P2000. ussd reads P2000 whenever a drive comes online (and whenever a parameter access
 //! through it reads or writes it) and publishes the drive's value, so `run_hz` and every tool
-//! use the frequency the drive uses; the housekeeping thread says when the two differ.
+//! use the frequency the drive uses; the housekeeping thread says when the two differ. It is read
+//! again whenever it can have changed ([`super::picture`]), and while it is not known no Hz are
+//! scaled with it ([`Reference::scale`]).
 
 use super::clock::Clock;
 use super::jobs::JobResult;
@@ -12,7 +14,7 @@ use super::monitoring::WatchedParam;
 use super::transport::Transport;
 use super::{Bridge, DriveSetup, Engine, Event, INTERNAL_JOB};
 use uss_protocol::{Pnu, Value};
-use uss_shm_types::{Answer, PathError};
+use uss_shm_types::Answer;
 
 /// P2000, the reference frequency of MICROMASTER 4 / G110 / CU240S.
 pub const P2000: WatchedParam = WatchedParam {
@@ -24,7 +26,7 @@ pub const P2000: WatchedParam = WatchedParam {
 const MAX_HZ: f32 = 650.0;
 
 /// Within this many Hz the drive's reference agrees with the configuration.
-const AGREES_WITHIN_HZ: f32 = 0.005;
+pub(super) const AGREES_WITHIN_HZ: f32 = 0.005;
 
 /// The unit of a drive's reference parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -52,7 +54,7 @@ impl ReferenceUnit {
 pub enum Reference {
     /// Not read: no `reference_param`, or a PKW channel that cannot carry a float.
     NotChecked,
-    /// Not read yet.
+    /// Not read yet, or being read again (it can have changed): no Hz are scaled with it.
     Unknown,
     /// The drive's value, Hz.
     Read(f32),
@@ -78,11 +80,14 @@ impl Reference {
         }
     }
 
-    /// The reference clients scale by: the drive's, once read, else the configured one.
-    pub fn hz(self, configured: f32) -> f32 {
+    /// The reference clients scale Hz by: the drive's, once read; the configured one where it
+    /// is not read (`reference_param = ""`) or the drive refused it (warned as unverified);
+    /// none while it is [`Reference::Unknown`].
+    pub fn scale(self, configured: f32) -> Option<f32> {
         match self {
-            Self::Read(hz) => hz,
-            _ => configured,
+            Self::Read(hz) => Some(hz),
+            Self::NotChecked | Self::Unreadable => Some(configured),
+            Self::Unknown => None,
         }
     }
 
@@ -105,21 +110,27 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// A result that says what the drive's reference frequency is (ussd's own read, or a
     /// client's read or write of that parameter).
     pub(super) fn on_reference_result(&mut self, slot: usize, result: &JobResult) {
+        let own = result.job.id & INTERNAL_JOB != 0;
         let reference = match result.outcome {
             Ok(Ok(Answer::Value(v))) => Reference::of(v, self.drives[slot].setup.reference_unit),
             // A refused write leaves the parameter as it was.
             _ if result.job.task.is_write() => return,
-            Ok(Err(_)) | Err(PathError::Timeout) => Reference::Unreadable,
+            Ok(Err(_)) => Reference::Unreadable,
             Ok(Ok(_)) => return,
-            // The drive is gone or ussd stops: read again when it is back.
+            // ussd's own read got no answer, the drive is gone or ussd stops: still unknown,
+            // read again (a client's read that timed out says nothing of the drive).
             Err(_) => {
-                if result.job.id & INTERNAL_JOB != 0 {
+                if own {
                     self.drives[slot].reference_due = true;
                 }
                 return;
             }
         };
         let d = &mut self.drives[slot];
+        let before = d.last_reference;
+        if let Reference::Read(hz) = reference {
+            d.last_reference = Some(hz);
+        }
         if d.reference == reference {
             return;
         }
@@ -132,6 +143,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             reference,
             configured_hz: setup.reference_hz,
         });
+        if let (Some(before), Reference::Read(hz)) = (before, reference) {
+            self.on_reference_changed(slot, before, hz);
+        }
     }
 }
 
@@ -183,16 +197,14 @@ mod tests {
     }
 
     #[test]
-    fn clients_scale_by_the_drive_value_once_read() {
-        assert_eq!(Reference::Read(50.0).hz(60.0), 50.0);
-        for unread in [
-            Reference::NotChecked,
-            Reference::Unknown,
-            Reference::Unreadable,
-        ] {
-            assert_eq!(unread.hz(60.0), 60.0);
+    fn clients_scale_by_the_drive_value_once_read_and_never_while_unknown() {
+        assert_eq!(Reference::Read(50.0).scale(60.0), Some(50.0));
+        for unread in [Reference::NotChecked, Reference::Unreadable] {
+            assert_eq!(unread.scale(60.0), Some(60.0));
             assert!(!unread.differs_from(60.0));
         }
+        assert_eq!(Reference::Unknown.scale(60.0), None);
+        assert!(!Reference::Unknown.differs_from(60.0));
         assert!(Reference::Read(50.0).differs_from(60.0));
         assert!(!Reference::Read(60.001).differs_from(60.0));
     }

@@ -883,7 +883,7 @@ fn the_drives_reference_frequency_is_read_when_it_comes_online() {
     );
     b.run_for(ms(1000), &[]);
     assert_eq!(b.status(1).reference, Reference::Read(60.0));
-    assert_eq!(b.status(1).reference.hz(50.0), 60.0);
+    assert_eq!(b.status(1).reference.scale(50.0), Some(60.0));
     assert!(b.status(1).reference.differs_from(50.0));
     // Three PKW words cannot carry the float; drive 3 is not asked.
     assert_eq!(b.status(2).reference, Reference::NotChecked);
@@ -1677,4 +1677,176 @@ fn own_reads_are_queued_once_and_a_client_finds_its_room_when_the_drive_comes_ba
             "{polls} polls after coming back: {results:?}"
         );
     }
+}
+
+impl Bench {
+    /// Writes of drive 1 (PNU, value; RAM) as a client sends them, one after another, each
+    /// taken by the drive.
+    fn writes_done(&mut self, writes: &[(u16, Value)]) {
+        for (id, &(pnu, value)) in (1..).zip(writes) {
+            let job = Job {
+                id,
+                address: addr(1),
+                task: ParamTask::Write {
+                    pnu: Pnu::from_u16(pnu),
+                    value,
+                    storage: Storage::Ram,
+                },
+            };
+            self.handle.submit(job).unwrap();
+        }
+        let results = self.results(writes.len());
+        assert!(
+            results.len() == writes.len() && results.iter().all(|r| matches!(r.outcome, Ok(Ok(_)))),
+            "{results:?}"
+        );
+    }
+}
+
+/// After `param write P2000 60`, a factory reset (P0010 = 30, P0970 = 1) puts P2000 back to
+/// 50 Hz and P2014 to 0 (issue 46): ussd knew only what it read when the drive came online and
+/// scaled every Hz with 60 Hz. Now the reset's write makes both unknown at once (no Hz is
+/// scaled with the old value), ussd reads them again, and says so.
+#[test]
+#[allow(clippy::float_cmp)] // the values asserted are exactly representable
+fn a_factory_reset_makes_what_ussd_knows_unknown_until_it_is_read_again() {
+    let mut b = bench_with(
+        &[(1, PkwMode::Four)],
+        |d| {
+            d.reference_hz = 60.0;
+            d.telegram_off_time_ms = 500;
+        },
+        |_| {},
+        false,
+    );
+    b.run_for(ms(500), &[]);
+    assert_eq!(b.status(1).reference, Reference::Read(60.0));
+    assert_eq!(b.status(1).monitoring, Monitoring::On);
+    b.events();
+    b.writes_done(&[(10, Value::Word(30)), (970, Value::Word(1))]);
+    // The reset's result is in: nothing of the old picture is used any more.
+    assert_eq!(b.status(1).reference, Reference::Unknown);
+    assert_eq!(b.status(1).reference.scale(50.0), None);
+    b.run_for(ms(200), &[]);
+    assert_eq!(
+        b.status(1).reference,
+        Reference::Read(50.0),
+        "P2000's default"
+    );
+    assert_eq!(b.status(1).monitoring, Monitoring::Off, "P2014's default");
+    let said: Vec<Event> = b
+        .events()
+        .into_iter()
+        .filter(|e| matches!(e, Event::Reference { .. } | Event::Monitoring { .. }))
+        .collect();
+    assert!(
+        matches!(
+            said[..],
+            [
+                Event::Reference {
+                    reference: Reference::Unknown,
+                    ..
+                },
+                ..
+            ]
+        ),
+        "{said:?}"
+    );
+    assert!(said.iter().any(|e| matches!(
+        e,
+        Event::Monitoring {
+            state: Monitoring::Off,
+            ..
+        }
+    )));
+    assert!(said.iter().any(|e| matches!(
+        e,
+        Event::Reference {
+            reference: Reference::Read(50.0),
+            ..
+        }
+    )));
+}
+
+/// P2000 changed where ussd cannot see it (the drive's own panel) while a controller runs the
+/// drive with a setpoint it scaled by the old value: the background reads find it within
+/// `REFRESH_POLLS` polls, and the drive latches with its own reason (issue 46).
+#[test]
+fn a_reference_changed_under_a_running_controller_latches_it() {
+    let mut b = running();
+    assert_eq!(b.status(1).reference, Reference::Read(50.0));
+    b.engine
+        .transport_mut()
+        .wire_mut()
+        .bus_mut()
+        .drive_mut(addr(1))
+        .unwrap()
+        .params_mut()
+        .set_internal(2000, 0, 60.0f32.to_bits());
+    let good_before = b.status(1).counters.good;
+    let mut latched_after = None;
+    let until = b.now() + Duration::from_secs(10);
+    while latched_after.is_none() && b.now() < until {
+        b.run_for(ms(10), &[(1, [0x047F, 0x2000])]);
+        if latch_reason(&b, 1).is_some() {
+            latched_after = Some(b.status(1).counters.good - good_before);
+        }
+    }
+    let polls = latched_after.expect("latched");
+    assert!(
+        polls <= uss_engine::picture::REFRESH_POLLS + 4,
+        "found after {polls} polls"
+    );
+    assert_eq!(latch_reason(&b, 1), Some(LatchReason::ReferenceChanged));
+    assert_eq!(b.status(1).reference, Reference::Read(60.0));
+    b.run_for(ms(50), &[(1, [0x047F, 0x2000])]);
+    assert_eq!(b.sim_drive(1).stw1(), Stw1::READY, "the safe command");
+}
+
+/// A power cycle brings the drive back with its EEPROM's values and in S1: a P2000 written to
+/// RAM only is gone. ussd forgets what it knew when the drive comes back, reads it again, and
+/// a controller that held the drive latches (its setpoint was scaled by the RAM value).
+#[test]
+#[allow(clippy::float_cmp)] // the values asserted are exactly representable
+fn a_power_cycled_drive_is_read_again_and_its_controller_latched() {
+    // Probed often enough that the bench's controller, which publishes before each poll, stays
+    // fresh while the drive is away.
+    let mut b = bench_with(
+        &[(1, PkwMode::Four)],
+        |_| {},
+        |c| c.offline_probe = ms(20),
+        false,
+    );
+    b.run_for(ms(50), &[(1, [0x047E, 0])]);
+    assert_eq!(latch_reason(&b, 1), None, "armed, stopped");
+    // P2000 = 60 Hz in RAM (the EEPROM keeps 50), read by ussd through a client's write (P2000
+    // changes only while the motor stands still).
+    b.writes_done(&[(3, Value::Word(3)), (2000, Value::from_f32(60.0))]);
+    assert_eq!(b.status(1).reference, Reference::Read(60.0));
+    assert_eq!(
+        latch_reason(&b, 1),
+        Some(LatchReason::ReferenceChanged),
+        "a write of P2000 under a live controller latches it too"
+    );
+    // Re-armed and running on the 60 Hz scale.
+    b.run_for(ms(50), &[(1, [0x047E, 0])]);
+    b.run_for(ms(300), &[(1, [0x047F, 0x2000])]);
+    assert_eq!(latch_reason(&b, 1), None);
+    assert_eq!(b.sim_drive(1).state(), State::OperationEnabled);
+    // Power off for 300 ms, then back from EEPROM.
+    let now = b.now();
+    b.faults(1).unplug(now, Some(ms(300)));
+    b.run_for(ms(100), &[(1, [0x047F, 0x2000])]);
+    assert!(!b.status(1).online);
+    b.engine
+        .transport_mut()
+        .wire_mut()
+        .bus_mut()
+        .drive_mut(addr(1))
+        .unwrap()
+        .power_cycle();
+    b.run_for(ms(1000), &[(1, [0x047F, 0x2000])]);
+    assert!(b.status(1).online);
+    assert_eq!(b.status(1).reference, Reference::Read(50.0));
+    assert_eq!(latch_reason(&b, 1), Some(LatchReason::ReferenceChanged));
 }

@@ -106,7 +106,8 @@ impl Controller {
     }
 
     /// The reference frequency P2000 ussd publishes now (0x4000 = 100 %): the drive's own value
-    /// once ussd has read it, until then the configuration's `reference_hz`.
+    /// once ussd has read it; 0.0 while ussd reads it (again: the drive came online, was reset
+    /// or commissioned), when `run_hz` raises `ReferenceUnknown`.
     #[getter]
     fn reference_hz(&self, py: Python<'_>) -> PyResult<f32> {
         self.with(py, |c| Ok(c.inputs().info().reference_hz))

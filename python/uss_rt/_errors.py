@@ -112,6 +112,11 @@ class MaybeApplied(ParamFailed):
     come back (`outcome`): the drive may hold the new value, or not. Read it back."""
 
 
+class ReferenceUnknown(UssError):
+    """A setpoint in Hz while ussd reads the drive's reference frequency again (it came
+    online, was reset or commissioned): nothing was sent; wait, or give percent."""
+
+
 __all__ = [
     "UssError",
     "NotRunning",
@@ -137,4 +142,5 @@ __all__ = [
     "NotControllable",
     "Superseded",
     "MaybeApplied",
+    "ReferenceUnknown",
 ]

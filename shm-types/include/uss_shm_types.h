@@ -428,6 +428,13 @@ enum UssLatchReason
    * time, a crash-restart loop): the new controller must re-arm.
    */
   USS_LATCH_REASON_REPLACED = 9,
+  /**
+   * The drive's reference frequency (P2000 / p2000) changed while a controller held it
+   * (a factory reset, a quick commissioning, a power cycle back to the EEPROM's value):
+   * the controller's setpoint was scaled with the old one, so the drive would run at a
+   * speed nobody commanded. The controller re-arms after it scaled again.
+   */
+  USS_LATCH_REASON_REFERENCE_CHANGED = 10,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -1255,8 +1262,10 @@ typedef struct UssPzdInput {
 typedef struct UssDriveInfo {
   /**
    * The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
-   * frequency (USS.md section 7). The drive's own value once ussd has read it, until then
-   * (or when it is not read) the configuration's `reference_hz`.
+   * frequency (USS.md section 7). The drive's own value once ussd has read it; the
+   * configuration's `reference_hz` where it is not read; [`DriveInfo::REFERENCE_NOT_KNOWN`]
+   * (0) while ussd reads it (again: the drive came online, was reset or commissioned):
+   * then no Hz can be scaled ([`DriveInfo::reference`]).
    */
   float reference_hz;
   /**
@@ -1292,6 +1301,10 @@ typedef struct UssDriveInfo {
   static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV9";
 #endif
 } UssDriveInfo;
+/**
+ * `reference_hz` while the drive's reference is not known.
+ */
+#define UssDriveInfo_REFERENCE_NOT_KNOWN 0.0
 
 /**
  * What ussd counts for one drive: the engine counts into this type and the same value is

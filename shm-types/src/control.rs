@@ -57,6 +57,11 @@ code_table! {
         /// with no release in between (a controller killed and replaced within the watchdog
         /// time, a crash-restart loop): the new controller must re-arm.
         Replaced = 9 => "controller replaced",
+        /// The drive's reference frequency (P2000 / p2000) changed while a controller held it
+        /// (a factory reset, a quick commissioning, a power cycle back to the EEPROM's value):
+        /// the controller's setpoint was scaled with the old one, so the drive would run at a
+        /// speed nobody commanded. The controller re-arms after it scaled again.
+        ReferenceChanged = 10 => "reference changed",
     }
 }
 

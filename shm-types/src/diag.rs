@@ -163,8 +163,10 @@ pub struct DriveDiag {
 #[type_name("UssDriveInfoV9")]
 pub struct DriveInfo {
     /// The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
-    /// frequency (USS.md section 7). The drive's own value once ussd has read it, until then
-    /// (or when it is not read) the configuration's `reference_hz`.
+    /// frequency (USS.md section 7). The drive's own value once ussd has read it; the
+    /// configuration's `reference_hz` where it is not read; [`DriveInfo::REFERENCE_NOT_KNOWN`]
+    /// (0) while ussd reads it (again: the drive came online, was reset or commissioned):
+    /// then no Hz can be scaled ([`DriveInfo::reference`]).
     pub reference_hz: f32,
     /// The controller watchdog, ms: a controller that does not refresh within it trips the drive.
     pub watchdog_ms: u32,
@@ -184,6 +186,14 @@ pub struct DriveInfo {
 }
 
 impl DriveInfo {
+    /// `reference_hz` while the drive's reference is not known.
+    pub const REFERENCE_NOT_KNOWN: f32 = 0.0;
+
+    /// The reference frequency Hz are scaled by, Hz; none while it is not known.
+    pub fn reference(&self) -> Option<f32> {
+        Some(self.reference_hz).filter(|hz| hz.is_finite() && *hz > 0.0)
+    }
+
     /// A drive ussd has not described (all zero but the version-independent defaults).
     pub const UNKNOWN: Self = Self {
         reference_hz: 0.0,

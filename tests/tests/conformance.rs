@@ -19,7 +19,7 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 use uss_client::{Bus, PzdInput, StopCommand};
-use uss_integration_tests::{Ussd, addr, binary, c_program, root};
+use uss_integration_tests::{SimProcess, Ussd, addr, binary, c_program, param, root};
 
 /// One ussd at a time: each runs a paced bus thread, and the machine may have two cores.
 fn serial() -> MutexGuard<'static, ()> {
@@ -680,6 +680,61 @@ fn a_programs_own_coast_stays_through_its_acknowledgement_and_its_death(front: F
     );
 }
 
+/// SCALE (no drive runs at a speed nobody commanded): the program runs the drive at 30 Hz by
+/// its P2000 of 60 Hz (written to RAM only), and the drive is power-cycled: it comes back with
+/// its EEPROM's 50 Hz. ussd reads the reference again when the drive answers and latches it
+/// ("reference changed"): the program's setpoint was 50 % of 60 Hz and would run the motor at
+/// 25 Hz. Its next ON is `tripped`; after its re-arm the same 30 Hz are scaled by 50 Hz. The
+/// watchdog is long, so the power cycle is all that can latch the drive.
+fn a_changed_reference_stops_the_program_and_its_hz_are_scaled_anew(front: FrontEnd) {
+    let _serial = serial();
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "1", "--power-off-ms", "300"]);
+    let ussd = Ussd::start_on(&sim.path, "baud = 115200", &[(1, "watchdog_ms = 5000")]);
+    let bus = ussd.bus();
+    bus.write(addr(1), param(3), uss_protocol::Value::Word(3), false)
+        .unwrap();
+    bus.write(
+        addr(1),
+        param(2000),
+        uss_protocol::Value::from_f32(60.0),
+        false,
+    )
+    .unwrap();
+    let mut p = opened(front, &ussd, 1);
+    p.ok("rearm");
+    p.ok("run 30");
+    let half = 0x2000;
+    image_until(&bus, 1, "30 Hz of 60 on the wire", |i| {
+        i.sent_stw1 == RUN && i.sent_setpoint == half
+    });
+    let pid = nix::unistd::Pid::from_raw(i32::try_from(sim.child.id()).unwrap());
+    nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGUSR1).unwrap();
+    let latched = image_until(&bus, 1, "the latch", |i| !i.is_live());
+    assert_eq!(
+        latched.latch_reason_name(),
+        "reference changed",
+        "{front:?}"
+    );
+    assert_eq!(p.call("run 30").kind(), "tripped", "{front:?}");
+    never(
+        &bus,
+        1,
+        Duration::from_millis(200),
+        "an ON after the change",
+        |i| i.sent_stw1 == RUN,
+    );
+    p.ok("rearm");
+    p.ok("run 30");
+    // 30 of 50 Hz: 60 % of 0x4000.
+    let scaled = uss_client::Setpoint::try_from_hz(30.0, 50.0)
+        .unwrap()
+        .word();
+    image_until(&bus, 1, "30 Hz of 50 on the wire", |i| {
+        i.sent_stw1 == RUN && i.sent_setpoint == scaled
+    });
+    p.exit();
+}
+
 macro_rules! front_ends {
     ($($scenario:ident),* $(,)?) => {
         $(
@@ -719,6 +774,7 @@ front_ends!(
     a_stop_goes_out_while_ussds_heartbeat_is_late,
     an_on_waiting_for_the_re_arm_never_undoes_a_later_stop,
     a_programs_own_coast_stays_through_its_acknowledgement_and_its_death,
+    a_changed_reference_stops_the_program_and_its_hz_are_scaled_anew,
 );
 
 /// docs/SAFETY.md is executable: every rule of its rule list has a row in its table of

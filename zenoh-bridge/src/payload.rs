@@ -122,9 +122,11 @@ pub struct Input<'a> {
     pub state: &'static str,
     pub zsw1: u16,
     pub hiw: u16,
-    pub actual_hz: f32,
-    /// The setpoint and control word the poll sent.
-    pub setpoint_hz: f32,
+    /// HIW in Hz; null while ussd reads the drive's reference frequency again (the drive came
+    /// online, was reset or commissioned): no Hz are known then.
+    pub actual_hz: Option<f32>,
+    /// The setpoint and control word the poll sent (the setpoint in Hz, null likewise).
+    pub setpoint_hz: Option<f32>,
     pub stw1: u16,
     /// PZD3.. as the drive sent them.
     pub words: &'a [u16],
@@ -142,7 +144,7 @@ pub struct Input<'a> {
 
 impl<'a> Input<'a> {
     pub fn new(bus: &'a str, drive: u8, i: &'a PzdInput, info: &DriveInfo, stale: bool) -> Self {
-        let reference_hz = info.reference_hz;
+        let reference_hz = info.reference();
         let extra = usize::from(i.word_count.saturating_sub(2)).min(i.extra.len());
         let now = uss_client::monotonic_ns();
         Self {
@@ -161,8 +163,8 @@ impl<'a> Input<'a> {
             state: state_name(i.zsw1),
             zsw1: i.zsw1,
             hiw: i.hiw,
-            actual_hz: Setpoint::from_word(i.hiw).hz(reference_hz),
-            setpoint_hz: Setpoint::from_word(i.sent_setpoint).hz(reference_hz),
+            actual_hz: reference_hz.map(|r| Setpoint::from_word(i.hiw).hz(r)),
+            setpoint_hz: reference_hz.map(|r| Setpoint::from_word(i.sent_setpoint).hz(r)),
             stw1: i.sent_stw1,
             words: &i.extra[..extra],
             age_ms: i.age_ns as f64 / 1e6,
@@ -353,7 +355,11 @@ impl Out {
         words[0] = stw1;
         match (self.hz, pzd) {
             (Some(hz), 1) if hz != 0.0 => return Err(SampleError::NoSetpoint),
-            (Some(hz), 2..) => {
+            // 0 Hz is 0 in any scale: a stop needs no reference.
+            (Some(hz), 2..) if hz != 0.0 && (reference_hz <= 0.0 || !reference_hz.is_finite()) => {
+                return Err(SampleError::ReferenceUnknown);
+            }
+            (Some(hz), 2..) if hz != 0.0 => {
                 // Refused, never sent as full scale.
                 words[1] = Setpoint::try_from_hz(hz, reference_hz)
                     .ok_or(SampleError::HzOutOfRange { hz, reference_hz })?
@@ -389,6 +395,10 @@ pub enum SampleError {
         "hz {hz} is beyond the setpoint's range: -200 % .. +199.99 % of P2000 = {reference_hz:.2} Hz"
     )]
     HzOutOfRange { hz: f32, reference_hz: f32 },
+    #[error(
+        "hz not sent: ussd is reading the drive's reference frequency (P2000) again (it came online, was reset or commissioned); send again in a moment"
+    )]
+    ReferenceUnknown,
 }
 
 /// `<prefix>/<bus>/drive/<addr>/control`: what the bridge does with a remote controller's
@@ -648,6 +658,31 @@ mod tests {
             serde_json::to_value(unconfirmed).unwrap()["sent"],
             serde_json::Value::Null
         );
+    }
+
+    /// SCALE: while ussd reads the drive's reference again (the images say `actual_hz`: null,
+    /// the drive's info 0 Hz) a remote's Hz are not scaled by anything: refused, named; a stop
+    /// (0 Hz, the same word in any scale) still goes.
+    #[test]
+    fn hz_are_refused_while_the_reference_is_being_read_and_a_stop_goes() {
+        let run = Out::parse(br#"{"v":1,"from":"t","seq":7,"stw1":1151,"hz":25.0}"#).unwrap();
+        let unknown = uss_client::DriveInfo::REFERENCE_NOT_KNOWN;
+        assert!(matches!(
+            run.pzd(2, unknown),
+            Err(SampleError::ReferenceUnknown)
+        ));
+        let stop = Out::parse(br#"{"v":1,"from":"t","seq":8,"stw1":1150,"hz":0.0}"#).unwrap();
+        assert_eq!(stop.pzd(2, unknown).unwrap(), [0x047E, 0]);
+        let image = PzdInput {
+            hiw: 0x2000,
+            ..PzdInput::default()
+        };
+        let info = uss_client::DriveInfo {
+            reference_hz: unknown,
+            ..uss_client::DriveInfo::UNKNOWN
+        };
+        let shown = Input::new("b", 1, &image, &info, false);
+        assert_eq!((shown.actual_hz, shown.setpoint_hz), (None, None));
     }
 
     #[test]

@@ -314,6 +314,12 @@ fn log_reference(
             at_s,
             "drive {address}: reference frequency {param} = {hz} Hz, as configured"
         ),
+        Reference::Unknown => tracing::info!(
+            bus,
+            drive,
+            at_s,
+            "drive {address}: a reset or commissioning write took effect: its reference frequency {param} and telegram monitoring are read again; Hz setpoints are refused until then"
+        ),
         _ => tracing::warn!(
             bus,
             drive,

@@ -109,6 +109,11 @@ pub fn engine_config(bus: &BusConfig) -> EngineConfig {
                 reference_hz: d.reference_hz.get(),
                 reference_param: d.reference_param().param().map(WatchedParam::from),
                 reference_unit: d.reference_unit(),
+                rereads_after: uss_engine::picture::Rereads::of(
+                    uss_catalogue::Catalogue::of(d.family)
+                        .into_iter()
+                        .flat_map(|c| c.rereads_after.iter().map(|p| p.pnu)),
+                ),
                 broadcast: d.broadcast,
                 family: d.family,
             })

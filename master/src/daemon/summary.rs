@@ -44,7 +44,11 @@ pub fn render(bus: &BusConfig, rt_mode: &str, stats: &Stats, previous: Option<&S
     for (d, entry) in stats.drives.iter().zip(&bus.drives) {
         let c = &d.counters;
         let z = Zsw1::from_bits_retain(d.last_zsw1);
-        let hz = Setpoint::from_word(d.last_hiw).hz(d.reference.hz(entry.reference_hz.get()));
+        // While the reference is being read again no Hz are known: NaN, printed as such.
+        let hz = d
+            .reference
+            .scale(entry.reference_hz.get())
+            .map_or(f32::NAN, |r| Setpoint::from_word(d.last_hiw).hz(r));
         let prev = previous
             .and_then(|p| p.drive(d.address))
             .map(|p| p.counters);

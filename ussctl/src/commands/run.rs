@@ -46,6 +46,12 @@ fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
                     | DriveState::OperationEnabled
             )
     })?;
+    // A drive that just came online, was reset or commissioned has its reference read again:
+    // ussd scales no Hz with the old one, so wait for it (a poll or two).
+    let until = Instant::now() + c.inputs().reference_wait();
+    while c.inputs().info().reference().is_none() && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(5));
+    }
     c.run_hz(hz)?;
     c.wait_for_state(DriveState::OperationEnabled, state_timeout(c))?;
     Ok(())
@@ -125,9 +131,13 @@ fn run_drive(
     let c = control(bus, drive)?;
     catch_signals()?;
     start_running(bus, &c, hz)?;
-    let ref_hz = c.inputs().info().reference_hz;
+    let reference = c
+        .inputs()
+        .info()
+        .reference()
+        .map_or_else(|| "being read again".to_owned(), |r| format!("{r} Hz"));
     out.note(&format!(
-        "drive {drive}: running towards {hz} Hz (reference {ref_hz} Hz) on {}; {}",
+        "drive {drive}: running towards {hz} Hz (reference {reference}) on {}; {}",
         // The bus by name: it may come from USS_BUS, which a shell keeps out of sight.
         bus.name(),
         match duration {
@@ -193,6 +203,7 @@ fn run_drive(
     if let Some(f) = failure {
         return Err(f);
     }
+    let ref_hz = c.inputs().info().reference_hz;
     let report = DriveReport::new(bus.name(), "run", &last, drive, ref_hz).with_peak(peak);
     out.show(&report, DriveReport::human)
 }

@@ -45,7 +45,12 @@ impl WatchLine {
             state: shown_state(i.known, i.online, i.zsw1),
             zsw1: i.zsw1,
             hiw: i.hiw,
-            actual_hz: Setpoint::from_word(i.hiw).hz(reference_hz),
+            // No Hz while ussd reads the reference again (0): NaN, not a speed of 0.
+            actual_hz: if reference_hz > 0.0 {
+                Setpoint::from_word(i.hiw).hz(reference_hz)
+            } else {
+                f32::NAN
+            },
             sequence: i.sequence,
             period_ms: i.age_ns as f64 / 1e6,
             control: ControlView::of_input(i),
@@ -423,7 +428,11 @@ impl DriveReport {
             online,
             state: shown_state(i.known, i.online, i.zsw1),
             zsw1: i.zsw1,
-            actual_hz: Setpoint::from_word(i.hiw).hz(ref_hz),
+            actual_hz: if ref_hz > 0.0 {
+                Setpoint::from_word(i.hiw).hz(ref_hz)
+            } else {
+                f32::NAN
+            },
             peak_hz: None,
         }
     }

@@ -108,7 +108,8 @@ pub(super) fn counters(d: &DriveDiag) -> [(&'static str, u64); ORDERED] {
 /// What ussd knows of a drive from its configuration.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct InfoReport {
-    /// P2000: the frequency of a setpoint or actual value of 0x4000 (100 %).
+    /// P2000: the frequency of a setpoint or actual value of 0x4000 (100 %); 0 while ussd reads
+    /// it again (the drive came online, was reset or commissioned): no Hz are known then.
     pub reference_hz: f32,
     pub pzd_words: u8,
     /// P2013: 0, 3, 4, or 127 (variable).
@@ -135,9 +136,13 @@ impl InfoReport {
 
     pub fn human(&self) -> String {
         format!(
-            "reference {} Hz, PZD {}, PKW {}, watchdog {} ms, safe command {}, weight {}, \
+            "reference {}, PZD {}, PKW {}, watchdog {} ms, safe command {}, weight {}, \
              parameters {}",
-            self.reference_hz,
+            if self.reference_hz > 0.0 {
+                format!("{} Hz", self.reference_hz)
+            } else {
+                "not known (being read)".to_owned()
+            },
             self.pzd_words,
             self.pkw,
             self.watchdog_ms,

@@ -65,6 +65,10 @@ struct Cli {
     /// Stop after this many seconds (default: until SIGINT/SIGTERM; the demo runs 8 s).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
+    /// SIGUSR1 power-cycles every drive: off (silent) for this many milliseconds, then back
+    /// with its EEPROM's values, in S1, its counters cleared.
+    #[arg(long, value_name = "MS", default_value_t = 2000)]
+    power_off_ms: u64,
     /// Print a completion script for SHELL (bash, zsh, fish, elvish, powershell) and exit.
     #[arg(long, value_name = "SHELL", exclusive = true)]
     completions: Option<clap_complete::Shell>,
@@ -169,6 +173,10 @@ fn run(cli: Cli) -> Result<(), Failure> {
         }
     }
     let stop = stop_on_signals().map_err(Failure::Signals)?;
+    let power = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(signal_hook::consts::SIGUSR1, Arc::clone(&power))
+        .map_err(Failure::Signals)?;
+    bus.power_switch(power, Duration::from_millis(cli.power_off_ms));
     let duration = cli.duration.map(Duration::from_secs_f64);
     if cli.demo {
         return demo::run(

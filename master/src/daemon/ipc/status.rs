@@ -307,9 +307,13 @@ impl StatusPublisher {
                 since_ns: ns(d.since),
                 last_good_ns: d.last_good.map_or(uss_shm_types::diag::NEVER, ns),
                 latched_since_ns: control.since_ns,
-                // Clients scale Hz by the drive's own reference once it was read.
+                // Clients scale Hz by the drive's own reference once it was read, and by none
+                // while it is read again.
                 info: DriveInfo {
-                    reference_hz: d.reference.hz(info.reference_hz),
+                    reference_hz: d
+                        .reference
+                        .scale(info.reference_hz)
+                        .unwrap_or(DriveInfo::REFERENCE_NOT_KNOWN),
                     ..info
                 },
                 counters: d.counters,

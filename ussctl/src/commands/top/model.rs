@@ -271,7 +271,10 @@ fn read(
             .as_ref()
             .is_some_and(|l| matches!(l.problem, Some(uss_client::ClientError::Stale { .. })));
         let image: Option<PzdInput> = look.map(|l| l.image);
-        let set_hz = image.map(|i| Setpoint::from_word(i.sent_setpoint).hz(diag.info.reference_hz));
+        let set_hz = image.and_then(|i| {
+            let reference = diag.info.reference()?;
+            Some(Setpoint::from_word(i.sent_setpoint).hz(reference))
+        });
         let control = image.map_or_else(
             || ControlView::of_diag(&diag),
             |i| ControlView::of_input(&i),

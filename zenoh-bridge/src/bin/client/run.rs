@@ -253,11 +253,20 @@ impl Remote<'_> {
             .is_some_and(|i| i["control"] == "live" && i["stale"] == false && i["online"] == true)
     }
 
+    /// HIW in Hz; NaN while ussd reads the drive's reference again (the image says null).
     fn actual_hz(&self) -> f64 {
         self.image
             .as_ref()
             .and_then(|i| i["actual_hz"].as_f64())
-            .unwrap_or_default()
+            .unwrap_or(f64::NAN)
+    }
+
+    /// Whether the image says what the drive's reference is (Hz can be scaled): not while ussd
+    /// reads it again after the drive came online, was reset or commissioned.
+    fn reference_known(&self) -> bool {
+        self.image
+            .as_ref()
+            .is_some_and(|i| i["actual_hz"].is_number())
     }
 
     /// [`Failure::Faulted`] while the drive's image shows a fault (ZSW1 bit 3).
@@ -393,6 +402,14 @@ impl Remote<'_> {
     ) -> Result<(), Failure> {
         let start = Instant::now();
         let mut last_note = start;
+        // A drive that just came online, was reset or commissioned has its reference read
+        // again: the bridge scales no Hz until then, so the re-arming stop goes on meanwhile
+        // (its two own reads take up to four of the drive's handshake times, as
+        // `DriveWatch::reference_wait` says).
+        let deadline = start + self.handshake() * 4;
+        while !self.reference_known() && Instant::now() < deadline {
+            self.step(OFF1).map_err(|e| self.failure(e, start))?;
+        }
         self.hz = hz;
         loop {
             self.step(RUN).map_err(|e| self.failure(e, start))?;
