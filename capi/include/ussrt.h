@@ -153,8 +153,8 @@ typedef enum UssrtStatus {
    */
   USSRT_STATUS_MAYBE_APPLIED = 24,
   /**
-   * A setpoint in Hz while ussd reads the drive's reference frequency again (it came
-   * online, was reset or commissioned): nothing was sent; wait, or give percent.
+   * A setpoint in Hz, while ussd reads the drive's reference frequency (again: it came
+   * online, was reset or commissioned): nothing was sent; wait for it, or give percent.
    */
   USSRT_STATUS_REFERENCE_UNKNOWN = 25,
 } UssrtStatus;
@@ -216,11 +216,13 @@ typedef struct UssrtDrive {
   uint8_t state;
   uint8_t reserved;
   /**
-   * HIW in Hz of the drive's reference frequency.
+   * HIW in Hz of the drive's reference frequency; NaN while ussd reads the reference again.
    */
   float actual_hz;
   /**
-   * The reference frequency (P2000) every Hz is scaled by, as ussd publishes it.
+   * The reference frequency (P2000) every Hz is scaled by, as ussd publishes it; 0 while
+   * ussd reads it again (the drive came online, was reset or commissioned): then
+   * `ussrt_control_run_hz` fails with `USSRT_STATUS_REFERENCE_UNKNOWN`.
    */
   float reference_hz;
   /**
@@ -774,6 +776,18 @@ enum UssrtStatus ussrt_param_write(const struct UssrtBus *bus,
                                    const char *value_text,
                                    uint32_t flags,
                                    struct UssrtValue *held);
+
+/**
+ * Copies every setting of drive `address` from RAM to ROM (P0971 on MICROMASTER 4, p0971 on
+ * SINAMICS G120) and returns once the drive is done: what it holds survives a power cycle.
+ * The access level the copy needs is raised and put back, in EEPROM too. A G120 stores no
+ * single value in EEPROM (`USSRT_WRITE_EEPROM` is `REFUSED` there): write to RAM, then call
+ * this. `REFUSED` for a family without a known copy (generic, SIMOREG).
+ *
+ * # Safety
+ * `bus` is a live handle.
+ */
+enum UssrtStatus ussrt_param_save(const struct UssrtBus *bus, uint8_t address);
 
 /**
  * Reads parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as the raw word or

@@ -252,6 +252,23 @@ pub unsafe extern "C" fn ussrt_param_write(
     })
 }
 
+/// Copies every setting of drive `address` from RAM to ROM (P0971 on MICROMASTER 4, p0971 on
+/// SINAMICS G120) and returns once the drive is done: what it holds survives a power cycle.
+/// The access level the copy needs is raised and put back, in EEPROM too. A G120 stores no
+/// single value in EEPROM (`USSRT_WRITE_EEPROM` is `REFUSED` there): write to RAM, then call
+/// this. `REFUSED` for a family without a known copy (generic, SIMOREG).
+///
+/// # Safety
+/// `bus` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_save(bus: *const UssrtBus, address: u8) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        bus.bus.save_to_rom(drive(address)?)?;
+        Ok(())
+    })
+}
+
 /// Reads parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as the raw word or
 /// double word the drive sends: `*value`, and `*is_dword` (may be NULL).
 ///

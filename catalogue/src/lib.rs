@@ -463,6 +463,23 @@ pub struct Catalogue {
     /// what it knows of the drive again and uses none of it until then. At most four.
     #[serde(default, deserialize_with = "param_ids")]
     pub rereads_after: Vec<ParamRef>,
+    /// The "copy RAM to ROM" of the family (MM4 P0971, G120 p0971): 1 stores every setting's
+    /// RAM value in EEPROM, and it reads 0 again when done; none: not known.
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub save: Option<ParamRef>,
+    /// Whether the drive takes the task codes that store one value in RAM and EEPROM (11..14,
+    /// MICROMASTER 4 OI 10/06 table 3-19; CU240S OI 11/2006 table 8-10). SINAMICS G120 with a
+    /// CU2x0-2 lists only 0..9 (Fieldbus Function Manual 06/2012 6SL3097-4AB10-0BP4, table
+    /// 9-45): it stores settings permanently only by `save`.
+    #[serde(default = "takes_eeprom_tasks")]
+    pub eeprom_tasks: bool,
+    /// The factory reset (MM4 P0970, G120 p0970): 1 puts every setting back to its factory
+    /// value, once the commissioning parameter is at `factory_setting`; it reads 0 when done.
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub factory_reset: Option<ParamRef>,
+    /// The commissioning parameter's value that unlocks the factory reset (30 on MM4 and G120).
+    #[serde(default)]
+    pub factory_setting: Option<u16>,
     /// The fault buffer and warnings; none: uss-rt knows no fault buffer of the family.
     pub faults: Option<FaultBuffers>,
     /// The drive's telegram-off time in ms on the USS link ussd talks over (MM4 P2014[0], G120
@@ -504,6 +521,11 @@ pub struct Catalogue {
     pub warning: Vec<Message>,
     #[serde(default)]
     pub guard: Vec<Guard>,
+}
+
+/// A family takes the EEPROM task codes unless its profile says otherwise.
+const fn takes_eeprom_tasks() -> bool {
+    true
 }
 
 /// What a write of one value to one parameter means to ussd ([`Catalogue::judge_write`]).

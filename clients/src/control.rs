@@ -536,16 +536,16 @@ impl Controller {
         if hz == 0.0 {
             return Ok(Setpoint::from_raw(0));
         }
-        let reference =
-            self.shared
-                .watch
-                .info()
-                .reference()
-                .ok_or_else(|| ClientError::ReferenceUnknown {
-                    bus: self.shared.bus.clone(),
-                    address: self.shared.address.get(),
-                    asked: format!("{hz} Hz"),
-                })?;
+        let Some(reference) = self.shared.watch.info().reference() else {
+            // A latch (a changed reference latches the drive) is the stronger news: nothing
+            // would be sent either way, and the program must re-arm before it runs again.
+            self.check()?;
+            return Err(ClientError::ReferenceUnknown {
+                bus: self.shared.bus.clone(),
+                address: self.shared.address.get(),
+                asked: format!("{hz} Hz"),
+            });
+        };
         self.setpoint(hz, reference, "Hz")
     }
 

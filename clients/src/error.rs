@@ -461,6 +461,14 @@ pub enum ParamError {
         "unexpected answer from ussd ({0}): check that ussd and this program are the same uss-rt version"
     )]
     Unexpected(String),
+    /// What was asked has no parameter on this drive's family that uss-rt knows (a copy of RAM
+    /// to ROM on a generic slave or a SIMOREG): nothing was sent.
+    #[error("drive {address} ({family}): {what}; nothing was sent")]
+    NotOnFamily {
+        address: u8,
+        family: &'static str,
+        what: &'static str,
+    },
 }
 
 impl ParamError {
@@ -541,6 +549,11 @@ fn refusal_hint(error: RequestError) -> &'static str {
         }
         RequestError::LineDown => {
             ": the bus line is down; ussd reopens it, retry once `ussctl status` shows it up"
+        }
+        RequestError::NoEepromTask => {
+            " (its task table has no EEPROM writes, SINAMICS G120): write it to RAM, then copy \
+             RAM to ROM, which makes every setting permanent (ussctl param save, Rust \
+             Bus::save_to_rom, Python save_to_rom, C ussrt_param_save)"
         }
         RequestError::Ok
         | RequestError::PnuOutOfRange

@@ -264,9 +264,10 @@ impl ParamError {
         match self {
             Self::Drive(DriveError::Refused(_)) => K::DriveError,
             Self::Path(PathError::Timeout) => K::ParamTimeout,
-            Self::Path(PathError::Refused(_)) | Self::Refused { .. } | Self::Controlled { .. } => {
-                K::Refused
-            }
+            Self::Path(PathError::Refused(_))
+            | Self::Refused { .. }
+            | Self::Controlled { .. }
+            | Self::NotOnFamily { .. } => K::Refused,
             Self::Drive(DriveError::NoChangeRights) => K::NoChangeRights,
             Self::Path(_) => K::ParamFailed,
             Self::MaybeApplied { .. } => K::MaybeApplied,

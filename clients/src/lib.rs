@@ -59,6 +59,7 @@
 //!   overriding the controller.
 //! - Parameters ([`Bus::read`], [`Bus::write`], [`Bus::batch`], [`Bus::faults`]): typed
 //!   [`Value`]s and [`ParamError`]s (USS.md section 6).
+//! - Commissioning ([`commissioning`]): the copy of RAM to ROM ([`Bus::save_to_rom`]).
 //!
 //! Errors say what happened and what to do ([`ClientError`], [`ParamError`]).
 //!
@@ -70,6 +71,7 @@
 mod bus;
 mod capture;
 mod command;
+pub mod commissioning;
 mod control;
 mod error;
 pub mod kinds;
@@ -85,6 +87,7 @@ mod watch;
 pub use bus::{Bus, DEFAULT_NODE_NAME};
 pub use capture::Capture;
 pub use command::stop;
+pub use commissioning::{Reset, Saved};
 pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, HANDSHAKE_TIMEOUT, Jog, Refresher};
 pub use error::{ClientError, Latch, ParamError};
 pub use kinds::ErrorKind;

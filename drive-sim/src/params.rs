@@ -302,7 +302,8 @@ impl ParamSet {
             commissioning: profile.commissioning.map(|p| p.pnu.get()),
             change_rights: own.change_rights,
             factory_reset: own.factory_reset,
-            save: own.save,
+            save: profile.save.map(|p| p.pnu.get()).or(own.save),
+            eeprom_tasks: profile.eeprom_tasks,
         };
         Self::new(family, Vec::leak(defs), consulted)
     }
@@ -328,6 +329,9 @@ pub struct Consulted {
     /// The transfer to EEPROM (P0971): writing 1 stores every setting's RAM value in EEPROM;
     /// the parameter then reads 0 again (the transfer is done).
     pub save: Option<u16>,
+    /// Whether it takes the task codes that store one value in RAM and EEPROM (11..14); a
+    /// G120 refuses them (error 106, task not implemented).
+    pub eeprom_tasks: bool,
 }
 
 /// One family's parameter list, laid out once: where each parameter's values sit,
@@ -344,6 +348,7 @@ pub struct ParamSet {
     change_rights: Option<(usize, u32)>,
     factory_reset: Option<usize>,
     save: Option<usize>,
+    eeprom_tasks: bool,
 }
 
 /// The slot of a plain parameter of `defs`. A PNU missing from the list panics when the set is
@@ -417,6 +422,7 @@ impl ParamSet {
             change_rights,
             factory_reset: slot_of_opt(defs, &offsets, consulted.factory_reset),
             save: slot_of_opt(defs, &offsets, consulted.save),
+            eeprom_tasks: consulted.eeprom_tasks,
         }
     }
 
@@ -595,6 +601,22 @@ impl ParamTable {
     ) -> Result<ReplyKind, ReplyKind> {
         if pkw == PkwMode::None && *task != ParamTask::None {
             return Err(refuse(ErrorNumber::ChannelTooNarrow));
+        }
+        // A family without the EEPROM task codes (a G120's CU2x0-2: 0..9 only) does not know
+        // them: task not implemented.
+        if !self.set.eeprom_tasks
+            && matches!(
+                *task,
+                ParamTask::Write {
+                    storage: Storage::RamAndEeprom,
+                    ..
+                } | ParamTask::WriteArray {
+                    storage: Storage::RamAndEeprom,
+                    ..
+                }
+            )
+        {
+            return Err(refuse(ErrorNumber::TaskNotImplemented));
         }
         match *task {
             ParamTask::None => Ok(ReplyKind::NotYet),

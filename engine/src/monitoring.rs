@@ -154,6 +154,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         d.monitoring = state;
         d.monitoring_ms = ms;
         if changed {
+            // Published at once, as a latch is: `require_monitoring` judges by it.
+            self.control_changed = true;
             let address = d.setup.address;
             let at = self.clock.now();
             let shortest_ms = u32::try_from(d.shortest_monitoring.as_millis()).unwrap_or(u32::MAX);

@@ -117,32 +117,43 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     }
 
     /// A finished job of the drive in `slot` that wrote a parameter which may change every
-    /// setting: what ussd knows of the drive is read again.
+    /// setting: what ussd knows of the drive is read again, now and once more
+    /// [`AFTER_RESET_POLLS`] polls later (a drive may answer the write before its reset or
+    /// calculation has finished). Only a refusal leaves it: a write whose answer was lost may
+    /// have been taken.
     pub(super) fn on_reread_write(&mut self, slot: usize, result: &JobResult) {
         if result.job.task.is_write()
-            && matches!(result.outcome, Ok(Ok(_)))
+            && !matches!(result.outcome, Ok(Err(_)))
             && self.drives[slot]
                 .setup
                 .rereads_after
                 .written_by(&result.job.task)
         {
             self.forget_picture(slot, true);
+            let d = &mut self.drives[slot];
+            d.refreshed_at = d
+                .counters
+                .good
+                .saturating_sub(REFRESH_POLLS - AFTER_RESET_POLLS);
         }
     }
 
-    /// The drive's reference came back as `hz`, `before` the one last read: a controller that
-    /// holds the drive scaled its setpoint with the old one, and the drive latches.
-    pub(super) fn on_reference_changed(&mut self, slot: usize, before: f32, hz: f32) {
-        let d = &mut self.drives[slot];
-        if (hz - before).abs() <= super::reference::AGREES_WITHIN_HZ
-            || !matches!(d.gate.control(), super::control::Control::Live)
-        {
+    /// The drive's reference came back as `now` (`Some(hz)`, or `None`: no longer readable as a
+    /// frequency), `before` the one last read: a controller scaled its setpoint with the old
+    /// one, or will re-arm on a picture of it, so the drive latches (again, with a new latch a
+    /// re-arm asked before the change cannot name), whether a controller holds it or not.
+    pub(super) fn on_reference_changed(&mut self, slot: usize, before: f32, now: Option<f32>) {
+        if now.is_some_and(|hz| (hz - before).abs() <= super::reference::AGREES_WITHIN_HZ) {
             return;
         }
         let now = self.clock.now();
         self.latch_now(slot, LatchReason::ReferenceChanged, now);
     }
 }
+
+/// Polls after a reset or commissioning write until what ussd knows of the drive is read a
+/// second time.
+pub const AFTER_RESET_POLLS: u64 = 16;
 
 #[cfg(test)]
 mod tests {

@@ -128,6 +128,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         };
         let d = &mut self.drives[slot];
         let before = d.last_reference;
+        // A reference read before and now not a frequency (refused, or out of range): not
+        // known, never the configured value in its place.
+        let reference = match reference {
+            Reference::Unreadable if before.is_some() => Reference::Unknown,
+            other => other,
+        };
         if let Reference::Read(hz) = reference {
             d.last_reference = Some(hz);
         }
@@ -137,14 +143,20 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         d.reference = reference;
         let setup = d.setup;
         let at = self.clock.now();
+        // Published at once, as a latch is: clients scale by it.
+        self.control_changed = true;
         self.emit(Event::Reference {
             address: setup.address,
             at,
             reference,
             configured_hz: setup.reference_hz,
         });
-        if let (Some(before), Reference::Read(hz)) = (before, reference) {
-            self.on_reference_changed(slot, before, hz);
+        if let Some(before) = before {
+            match reference {
+                Reference::Read(hz) => self.on_reference_changed(slot, before, Some(hz)),
+                Reference::Unknown => self.on_reference_changed(slot, before, None),
+                _ => {}
+            }
         }
     }
 }

@@ -1680,6 +1680,18 @@ fn own_reads_are_queued_once_and_a_client_finds_its_room_when_the_drive_comes_ba
 }
 
 impl Bench {
+    /// Drive 1's P2000 changed where ussd cannot see it (its own panel): RAM only.
+    fn set_p2000(&mut self, hz: f32) {
+        self.engine
+            .transport_mut()
+            .wire_mut()
+            .bus_mut()
+            .drive_mut(addr(1))
+            .unwrap()
+            .params_mut()
+            .set_internal(2000, 0, hz.to_bits());
+    }
+
     /// Writes of drive 1 (PNU, value; RAM) as a client sends them, one after another, each
     /// taken by the drive.
     fn writes_done(&mut self, writes: &[(u16, Value)]) {
@@ -1775,14 +1787,7 @@ fn a_factory_reset_makes_what_ussd_knows_unknown_until_it_is_read_again() {
 fn a_reference_changed_under_a_running_controller_latches_it() {
     let mut b = running();
     assert_eq!(b.status(1).reference, Reference::Read(50.0));
-    b.engine
-        .transport_mut()
-        .wire_mut()
-        .bus_mut()
-        .drive_mut(addr(1))
-        .unwrap()
-        .params_mut()
-        .set_internal(2000, 0, 60.0f32.to_bits());
+    b.set_p2000(60.0);
     let good_before = b.status(1).counters.good;
     let mut latched_after = None;
     let until = b.now() + Duration::from_secs(10);
@@ -1849,4 +1854,44 @@ fn a_power_cycled_drive_is_read_again_and_its_controller_latched() {
     assert!(b.status(1).online);
     assert_eq!(b.status(1).reference, Reference::Read(50.0));
     assert_eq!(latch_reason(&b, 1), Some(LatchReason::ReferenceChanged));
+}
+
+/// A reference that changes while the drive is latched (here: latched since ussd's start, no
+/// controller yet) latches it again with a new id: a re-arm asked before the change cannot
+/// name it, so no controller runs the drive on a picture of the old reference (found by the
+/// review of issue 46). A reference no longer readable as a frequency is not known, never the
+/// configured value in its place, and latches too.
+#[test]
+fn a_reference_that_changes_or_goes_unreadable_while_latched_latches_again() {
+    let mut b = bench(&[(1, PkwMode::Four)]);
+    b.run_for(ms(200), &[]);
+    assert_eq!(latch_reason(&b, 1), Some(LatchReason::Startup));
+    let startup = match b.status(1).control {
+        Control::Latched(l) => l.id,
+        Control::Live => unreachable!(),
+    };
+    b.set_p2000(60.0);
+    let until = b.now() + Duration::from_secs(10);
+    while latch_reason(&b, 1) != Some(LatchReason::ReferenceChanged) && b.now() < until {
+        b.run_for(ms(20), &[]);
+    }
+    let changed = match b.status(1).control {
+        Control::Latched(l) => l,
+        Control::Live => unreachable!(),
+    };
+    assert_eq!(changed.reason, LatchReason::ReferenceChanged);
+    assert!(changed.id > startup, "a new latch");
+    assert_eq!(b.status(1).reference, Reference::Read(60.0));
+    // 7000 Hz is no reference frequency: not known now (no Hz), and latched again.
+    b.set_p2000(7000.0);
+    let until = b.now() + Duration::from_secs(10);
+    while b.status(1).reference != Reference::Unknown && b.now() < until {
+        b.run_for(ms(20), &[]);
+    }
+    assert_eq!(b.status(1).reference.scale(50.0), None);
+    let again = match b.status(1).control {
+        Control::Latched(l) => l.id,
+        Control::Live => unreachable!(),
+    };
+    assert!(again > changed.id, "latched again");
 }

@@ -245,6 +245,30 @@ fn write<'py>(
     })
 }
 
+/// Copies every setting of the drive from RAM to ROM (P0971 / p0971): `{"param": "P0971",
+/// "raised": "P0003 1 -> 3 -> 1" or None}`.
+#[pyfunction]
+fn save_to_rom<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+) -> PyResult<Bound<'py, PyDict>> {
+    let bus = &bus.get().inner;
+    let drive = errors::drive(py, address)?;
+    let saved = py
+        .detach(|| bus.save_to_rom(drive))
+        .map_err(|e| errors::param(py, bus, e))?;
+    let d = PyDict::new(py);
+    d.set_item("param", saved.param.to_string())?;
+    d.set_item(
+        "raised",
+        saved
+            .raised
+            .map(|(p, to, was)| format!("{p} {was} -> {to} -> {was}")),
+    )?;
+    Ok(d)
+}
+
 /// The fault buffer with values, times and texts, and the active warnings, where the drive's
 /// family keeps them: `{"codes": "r0947", "values": "r0949", "warnings_from": "r2110",
 /// "faults": [...], "warnings": [...] or None}`.
@@ -328,6 +352,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_elements, m)?)?;
     m.add_function(wrap_pyfunction!(write, m)?)?;
     m.add_function(wrap_pyfunction!(fault_report, m)?)?;
+    m.add_function(wrap_pyfunction!(save_to_rom, m)?)?;
     m.add_function(wrap_pyfunction!(parse_param, m)?)?;
     m.add_function(wrap_pyfunction!(fault_text, m)?)?;
     m.add_function(wrap_pyfunction!(warning_text, m)?)?;

@@ -302,6 +302,15 @@ def test_writes_convert_to_the_parameters_type_and_refuse_what_does_not_fit(bus)
     assert uss_rt.drive.fault_text(72) == "USS (COM link) setpoint fault"
 
 
+def test_a_copy_of_ram_to_rom_raises_the_access_level_for_it_and_puts_it_back(bus):
+    # P0971 is level 3 on a MICROMASTER 4; the drive is at level 1.
+    assert uss_rt.read_param(bus, 2, 3) == 1
+    saved = uss_rt.save_to_rom(bus, 2)
+    assert saved == {"param": "P0971", "raised": "P0003 1 -> 3 -> 1"}
+    assert uss_rt.read_param(bus, 2, 3) == 1
+    assert uss_rt.read_param(bus, 2, 971) == 0, "done"
+
+
 def test_python_takes_control_runs_stops_and_releases_a_drive(bus):
     uss_rt.write(bus, 1, "P1120", 0.5)
     uss_rt.write(bus, 1, "P1121", 0.5)

@@ -30,6 +30,14 @@ def line(tmp_path_factory):
                     break
                 __import__("time").sleep(0.01)
             assert image["online"] == 1, f"drive {address}: {image}\n{daemon.output()}"
+        # ... and ussd read the reference frequency of the drives run here (its own reads take
+        # a few of the line's 1.3 s cycles; until then a setpoint in Hz is refused).
+        for address in (21, 22):
+            for _ in range(3000):
+                if bus.diag(address)["info"]["reference_hz"] > 0:
+                    break
+                time.sleep(0.01)
+            assert bus.diag(address)["info"]["reference_hz"] > 0, f"drive {address}"
         yield daemon, bus
     daemon.stop()
 

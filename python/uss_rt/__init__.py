@@ -58,6 +58,7 @@ __all__ = _errors.__all__ + [
     "read_input",
     "read_elements",
     "read_param",
+    "save_to_rom",
     "stop_all",
     "stop_drive",
     "wait_stopped",
@@ -334,6 +335,17 @@ def fault_report(bus: Bus, address: int) -> dict:
     "warnings": [(number, text), ...] or None}``. A generic slave has none: ValueError."""
     _check_address(address)
     return _native.fault_report(bus._open(), address)
+
+
+def save_to_rom(bus: Bus, address: int) -> dict:
+    """Copies every setting of drive ``address`` from RAM to ROM (MICROMASTER 4 P0971, G120
+    p0971) and returns once the drive is done: what it holds now survives a power cycle. The
+    access level the copy needs is raised and put back, in EEPROM too. A G120 stores no single
+    value in EEPROM (``write(..., eeprom=True)`` raises :class:`Refused`): write to RAM, then
+    call this. ``{"param": "P0971", "raised": "P0003 1 -> 3 -> 1" or None}``; a family without
+    a known copy (generic, SIMOREG): :class:`Refused`."""
+    _check_address(address)
+    return _native.save_to_rom(bus._open(), address)
 
 
 def stop_drive(bus: Bus, address: int, command=StopCommand.OFF1, timeout: float = 2.0):

@@ -945,6 +945,11 @@ enum UssRequestError
    * drive would take element 0, rarely what was meant; `item` names it.
    */
   USS_REQUEST_ERROR_INDEX_REQUIRED = 20,
+  /**
+   * A write to RAM and EEPROM (task codes 11..14) to a drive whose family has no such
+   * tasks (SINAMICS G120): write to RAM, then copy RAM to ROM (p0971); `item` names it.
+   */
+  USS_REQUEST_ERROR_NO_EEPROM_TASK = 21,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

@@ -97,6 +97,9 @@ code_table! {
         /// An array parameter (the family's catalogue says so) named without its element: a
         /// drive would take element 0, rarely what was meant; `item` names it.
         IndexRequired = 20 => "array parameter without an index",
+        /// A write to RAM and EEPROM (task codes 11..14) to a drive whose family has no such
+        /// tasks (SINAMICS G120): write to RAM, then copy RAM to ROM (p0971); `item` names it.
+        NoEepromTask = 21 => "the drive stores no single value in EEPROM",
     }
 }
 

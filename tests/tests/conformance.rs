@@ -613,6 +613,15 @@ fn an_on_waiting_for_the_re_arm_never_undoes_a_later_stop(front: FrontEnd) {
     let drives: Vec<(u8, &str)> = (1..=31).map(|a| (a, "")).collect();
     let ussd = Ussd::start("baud = 9600", &drives);
     let bus = ussd.bus();
+    // Until ussd has read drive 1's reference frequency (its own reads take a few of the
+    // line's 1.3 s cycles) an ON in Hz is refused as `reference_unknown`: wait for it, so the
+    // ON below waits for the re-arm alone.
+    let watch = bus.watch(addr(1)).unwrap();
+    let until = Instant::now() + Duration::from_secs(20);
+    while watch.info().reference().is_none() {
+        assert!(Instant::now() < until, "drive 1's reference never read");
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let mut p = opened(front, &ussd, 1);
     p.spawn("rearm");
     std::thread::sleep(Duration::from_millis(5));

@@ -499,11 +499,15 @@ fn a_dead_clients_writes_never_leave_the_mailbox_after_its_death() {
                 .all(|w| w[1].sequence == w[0].sequence + 1),
             "run {run}: capture records were lost"
         );
-        // Each write task's first telegram (its PKE, IND, PWE1, PWE2 words are its own).
+        // Each write task's first telegram (its PKE, IND, PWE1, PWE2 words are its own); the
+        // client's are of P1120 (PKE bits 0..10): ussd's own background reads of the drive's
+        // reference and monitoring (every 256 polls) are no work of the dead client's.
+        let of_p1120 = |bytes: &[u8]| u16::from_be_bytes([bytes[3], bytes[4]]) & 0x07FF == 1120;
         let mut first_sent = std::collections::HashMap::<[u8; 8], u64>::new();
         for r in records.iter().filter(|r| {
             r.direction == uss_client::uss_shm_types::Direction::Request.code()
                 && r.flags & uss_client::uss_shm_types::CAPTURE_TASK != 0
+                && of_p1120(&r.bytes)
         }) {
             let mut task = [0u8; 8];
             task.copy_from_slice(&r.bytes[3..11]);

@@ -64,6 +64,7 @@ fn every_json_output_carries_its_version_and_matches_its_shipped_schema() {
     let file = backup.to_str().unwrap();
     json(&ussd, &["param", "backup", "1", "-o", file]);
     every_line("restore", &json(&ussd, &["param", "restore", "2", file]));
+    every_line("save", &json(&ussd, &["param", "save", "2"]));
     let _ = std::fs::remove_file(&backup);
     every_line(
         "drive",

@@ -32,6 +32,8 @@ const CALLS: &[(&str, &str, &str)] = &[
     ("write_with", "ussrt_param_write_raw", "write"),
     ("try_batch", "ussrt_param_batch", "batch"),
     ("fault_report", "ussrt_fault_report", "fault_report"),
+    // Commissioning.
+    ("save_to_rom", "ussrt_param_save", "save_to_rom"),
     // An operator's stops.
     ("stop_drive", "ussrt_stop_drive", "stop_drive"),
     ("stop_all", "ussrt_stop_all", "stop_all"),

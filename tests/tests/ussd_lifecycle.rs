@@ -175,6 +175,11 @@ fn a_restarted_ussd_starts_beside_clients_of_the_old_one_and_they_reconnect() {
             (0x047E, false)
         );
         c.rearm(uss_client::monotonic_ns()).unwrap();
+        // The restarted ussd reads the drive's reference first: no Hz until then.
+        let until = Instant::now() + c.inputs().reference_wait();
+        while c.inputs().info().reference().is_none() && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(5));
+        }
         c.run_hz(10.0).unwrap();
         c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
             .unwrap();

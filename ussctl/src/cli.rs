@@ -75,7 +75,7 @@ pub enum Command {
     /// Print the manual page (roff, for man).
     Man,
     /// Print the JSON Schema of a --json report (status, stats, watch, param, describe, faults,
-    /// drive, stop, scan, capture, trace, restore, diff), or list them; the same files are in
+    /// drive, stop, scan, capture, trace, restore, diff, save, reset), or list them; the same files are in
     /// docs/schema/ussctl/.
     Schema {
         /// The report; without it, the list.
@@ -110,6 +110,14 @@ pub enum ParamCommand {
     /// Write VALUE to a parameter or an array element; an array is written by its element only
     /// (P2014[0]), never by its name alone.
     Write(commands::param::Write),
+    /// Copy every setting of a drive from RAM to ROM (P0971 on MICROMASTER 4, p0971 on
+    /// SINAMICS G120), so that what it holds now survives a power cycle; the access level it
+    /// needs is raised and put back.
+    Save(commands::param::Save),
+    /// Put every setting of a drive back to its factory value as its manual gives it (P0010 =
+    /// 30, then P0970 = 1), wait until it is done and until ussd has read the drive again
+    /// (its reference and telegram monitoring), and say what it read. Needs --unsafe.
+    FactoryReset(commands::param::FactoryReset),
     /// Save every settable parameter of a drive (the catalogue's, array elements included) to
     /// a TOML file (stdout without -o).
     Backup(commands::backup::Backup),
@@ -129,6 +137,8 @@ impl ParamCommand {
             Self::Read(c) => c.run(bus, out),
             Self::Describe(c) => c.run(bus, out),
             Self::Write(c) => c.run(bus, out),
+            Self::Save(c) => c.run(bus, out),
+            Self::FactoryReset(c) => c.run(bus, out),
             Self::Backup(c) => c.run(bus, out),
             Self::Restore(c) => c.run(bus, out),
             Self::Diff(c) => c.run(bus, out),

@@ -9,8 +9,8 @@ use crate::commands::param::DescribeReport;
 use crate::commands::trace::Summary;
 use crate::decode::CaptureLine;
 use crate::report::{
-    DiffReport, DriveReport, FaultsReport, ParamReport, RestoreReport, ScanReport, StatsReport,
-    StatusReport, StopReport, WatchLine,
+    DiffReport, DriveReport, FaultsReport, ParamReport, ResetReport, RestoreReport, SaveReport,
+    ScanReport, StatsReport, StatusReport, StopReport, WatchLine,
 };
 use schemars::{JsonSchema, Schema};
 use serde::Serialize;
@@ -84,6 +84,11 @@ pub(crate) fn schemas() -> Vec<(&'static str, Schema)> {
             schema::<RestoreReport>("ussctl --json param restore"),
         ),
         ("diff", schema::<DiffReport>("ussctl --json param diff")),
+        ("save", schema::<SaveReport>("ussctl --json param save")),
+        (
+            "reset",
+            schema::<ResetReport>("ussctl --json param factory-reset"),
+        ),
     ]
 }
 

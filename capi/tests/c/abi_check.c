@@ -143,6 +143,11 @@ int main(int argc, char **argv) {
   OK(ussrt_fault_report(bus, 1, &faults));
   EXPECT(faults.fault_count <= 8, "faults %u", faults.fault_count);
   EXPECT(faults.codes_pnu == 947, "a MICROMASTER 4 keeps its faults in r0947: %u", faults.codes_pnu);
+  /* Copy RAM to ROM (P0971, level 3): the access level is raised for it and put back. */
+  OK(ussrt_param_save(bus, 1));
+  UssrtValue level;
+  OK(ussrt_param_read(bus, 1, "P0003", &level));
+  EXPECT(level.value == 1, "P0003 put back: %g", level.value);
 
   /* Control: the same rules as Rust and Python. */
   UssrtController *c = NULL, *second = NULL;

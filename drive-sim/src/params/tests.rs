@@ -1018,3 +1018,33 @@ fn the_motor_data_of_quick_commissioning_are_all_there() {
         ReplyKind::Dword(120f32.to_bits())
     );
 }
+
+/// A G120 (CU2x0-2) has no task codes that store one value in EEPROM (Fieldbus Function Manual
+/// 06/2012, table 9-45: 0..8): it refuses them, task not implemented (error 106), and changes
+/// nothing. Its settings become permanent by p0971 = 1, which reads 0 again once done; a
+/// power cycle then keeps them (issue 46: the simulator took what the drive refuses).
+#[test]
+fn a_g120_refuses_eeprom_tasks_and_saves_every_setting_by_p0971() {
+    let g120 = crate::family::param_set(uss_shm_types::DriveFamily::G120);
+    let mut t = ParamTable::of(g120);
+    let before = t.get(P1120, 0);
+    assert_eq!(
+        write_eeprom(&mut t, P1120, Value::from_f32(9.0)),
+        err(ErrorNumber::TaskNotImplemented)
+    );
+    assert_eq!(t.get(P1120, 0), before, "nothing changed");
+    assert_eq!(
+        write_f32(&mut t, P1120, 9.0),
+        ReplyKind::Dword(9.0f32.to_bits())
+    );
+    assert_eq!(write(&mut t, 971, Value::Word(1)), ReplyKind::Word(1));
+    assert_eq!(read(&mut t, 971), ReplyKind::Word(0), "the save is done");
+    t.power_cycle();
+    assert_eq!(t.get(P1120, 0), Some(9.0f32.to_bits()), "kept by p0971");
+    // A MICROMASTER 4 takes them.
+    let mut mm = ParamTable::new();
+    assert_eq!(
+        write_eeprom(&mut mm, P1121, Value::from_f32(3.0)),
+        ReplyKind::Dword(3.0f32.to_bits())
+    );
+}

@@ -126,11 +126,14 @@ pub(super) fn spawn(
         })
 }
 
-/// When `event` changed a drive's control (a latch, a re-arm), on the bus's clock.
+/// When `event` changed a drive's control (a latch, a re-arm) or what clients scale and judge
+/// it by (its reference, its telegram monitoring), on the bus's clock.
 fn control_change(event: &Event) -> Option<Duration> {
     match event {
         Event::Latched { latch, .. } => Some(latch.since),
-        Event::Rearmed { at, .. } => Some(*at),
+        Event::Rearmed { at, .. } | Event::Reference { at, .. } | Event::Monitoring { at, .. } => {
+            Some(*at)
+        }
         _ => None,
     }
 }
@@ -318,7 +321,7 @@ fn log_reference(
             bus,
             drive,
             at_s,
-            "drive {address}: a reset or commissioning write took effect: its reference frequency {param} and telegram monitoring are read again; Hz setpoints are refused until then"
+            "drive {address}: its reference frequency {param} is not known now (a reset or commissioning write took effect, or the drive no longer gives it as a frequency): it and the telegram monitoring are read again; Hz setpoints are refused until then"
         ),
         _ => tracing::warn!(
             bus,

@@ -320,7 +320,10 @@ pub struct Restore {
     drive: Address,
     /// The backup file (written by `param backup`).
     file: PathBuf,
-    /// Store in EEPROM as well as RAM (survives a power cycle).
+    /// Make the drive's settings permanent once the file's values are in RAM: every setting
+    /// is copied from RAM to ROM (P0971, p0971), so the EEPROM holds the file's values whatever
+    /// it held before; the access level and quick commissioning raised on the way are put back
+    /// first and stay as they were.
     #[arg(long)]
     eeprom: bool,
     /// Show what would be written; write nothing.
@@ -343,10 +346,12 @@ pub struct Restore {
 }
 
 impl Restore {
-    /// EEPROM, forced, guarded parameters too (`--eeprom`, `--force`, `--unsafe`).
+    /// Forced, guarded parameters too (`--force`, `--unsafe`). Every write goes to RAM: with
+    /// `--eeprom` the copy of RAM to ROM at the end stores them, and only them with what the
+    /// drive held, never a raise of the way.
     const fn options(&self) -> WriteOptions {
         WriteOptions {
-            eeprom: self.eeprom,
+            eeprom: false,
             force: self.force,
             unsafe_write: self.unsafe_write,
         }
@@ -395,9 +400,24 @@ fn restore(bus: &Bus, out: &Output, r: &Restore) -> Result<(), Failure> {
     for (e, was) in &differing {
         report.plan(e, *was);
     }
-    if r.dry_run || differing.is_empty() {
+    if r.dry_run {
         report.seconds = start.elapsed().as_secs_f64();
         return out.show(&report, RestoreReport::human);
+    }
+    if differing.is_empty() {
+        // RAM is as the file says; the EEPROM may not be (a value written there since).
+        if r.eeprom {
+            catch_signals()?;
+            store(bus, drive, &mut report);
+        }
+        report.seconds = start.elapsed().as_secs_f64();
+        let complete = report.is_complete();
+        out.show(&report, RestoreReport::human)?;
+        return if complete {
+            Ok(())
+        } else {
+            Err(Failure::Incomplete { drive })
+        };
     }
     if !r.unsafe_write {
         refuse_guarded(drive, family, &differing)?;
@@ -417,6 +437,16 @@ fn restore(bus: &Bus, out: &Output, r: &Restore) -> Result<(), Failure> {
         });
         put_back(bus, drive, catalogue, &raised, r, why, &mut report);
     }
+    if r.eeprom {
+        if report.is_complete() {
+            store(bus, drive, &mut report);
+        } else {
+            report.stored = Some(
+                "not stored: the restore did not complete, so the EEPROM keeps what it held"
+                    .to_owned(),
+            );
+        }
+    }
     report.seconds = start.elapsed().as_secs_f64();
     let complete = report.is_complete();
     out.show(&report, RestoreReport::human)?;
@@ -425,6 +455,17 @@ fn restore(bus: &Bus, out: &Output, r: &Restore) -> Result<(), Failure> {
     } else {
         Err(Failure::Incomplete { drive })
     }
+}
+
+/// Makes what RAM holds permanent after a restore: the copy of RAM to ROM, said in the report.
+fn store(bus: &Bus, drive: Address, report: &mut RestoreReport) {
+    report.stored = Some(match bus.save_to_rom(drive) {
+        Ok(saved) => format!(
+            "copied RAM to ROM ({} := 1): every setting survives a power cycle",
+            saved.param
+        ),
+        Err(e) => format!("not stored: {e}"),
+    });
 }
 
 /// Writes the steps of a restore in order, each reported. Returns what the drive did with each

@@ -1,7 +1,7 @@
 //! `param read`, `param write`, `faults`: parameters through ussd.
 
 use crate::cli::{self, Kind, ParamRef, address, param_ref};
-use crate::report::{FaultsReport, ParamReport};
+use crate::report::{FaultsReport, ParamReport, ResetReport, SaveReport};
 use crate::{Failure, Output};
 use uss_client::Address;
 use uss_client::{Bus, ParamError, ParamValue, WriteOptions};
@@ -208,7 +208,8 @@ pub struct Write {
     /// for a float).
     #[arg(allow_negative_numbers = true)]
     pub(crate) value: String,
-    /// Store in EEPROM as well as RAM (survives a power cycle).
+    /// Store in EEPROM as well as RAM (survives a power cycle). A SINAMICS G120 stores no
+    /// single value so (ussd refuses it): write to RAM, then `param save`.
     #[arg(long)]
     pub(crate) eeprom: bool,
     /// The type to send to a parameter whose type neither the catalogue nor the drive
@@ -285,6 +286,70 @@ fn write(bus: &Bus, out: &Output, w: &Write) -> Result<(), Failure> {
     let mut report = ParamReport::new(bus.name(), drive, &now);
     report.eeprom = Some(w.eeprom);
     out.show(&report, ParamReport::human)
+}
+
+/// `param save`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct Save {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
+    drive: Address,
+}
+
+impl Save {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        let drive = self.drive;
+        // Ctrl-C does not cut the copy between its raise of the access level and its put-back.
+        crate::catch_signals()?;
+        let saved = bus.save_to_rom(drive).map_err(|source| Failure::Param {
+            drive,
+            param: "copy RAM to ROM".to_owned(),
+            source,
+        })?;
+        out.show(
+            &SaveReport::new(bus.name(), drive, &saved),
+            SaveReport::human,
+        )
+    }
+}
+
+/// `param factory-reset`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct FactoryReset {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
+    drive: Address,
+    /// Required: the reset takes the drive's command source, COM link and telegram monitoring
+    /// back to their factory values (ussd logs it).
+    #[arg(long = "unsafe")]
+    unsafe_write: bool,
+    /// Reset even though another process controls the drive (a deliberate act).
+    #[arg(long)]
+    force: bool,
+}
+
+impl FactoryReset {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        let drive = self.drive;
+        if !self.unsafe_write {
+            return Err(Failure::Usage(format!(
+                "drive {drive}: a factory reset puts every setting back to its factory value, the command source, the COM link and the telegram monitoring included; give --unsafe to do it deliberately (nothing was written)"
+            )));
+        }
+        // Ctrl-C does not cut the reset between P0010 = 30 and its end.
+        crate::catch_signals()?;
+        let reset = bus
+            .factory_reset(drive, self.force)
+            .map_err(|source| Failure::Param {
+                drive,
+                param: "factory reset".to_owned(),
+                source,
+            })?;
+        out.show(
+            &ResetReport::new(bus.name(), drive, &reset),
+            ResetReport::human,
+        )
+    }
 }
 
 fn faults(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {

@@ -42,6 +42,9 @@ pub struct RestoreReport {
     /// What a restore cut short raised on the way and could not put back, each with what it
     /// means and the command that puts it back (empty: nothing is left raised).
     pub left_raised: Vec<String>,
+    /// With `--eeprom`: how the values were made permanent once all were in RAM ("copied RAM
+    /// to ROM (P0971)"), or why not ("not stored: ..."); null without `--eeprom`.
+    pub stored: Option<String>,
     pub lines: Vec<RestoreLine>,
     pub seconds: f64,
 }
@@ -60,6 +63,7 @@ impl RestoreReport {
             kept: 0,
             cut_short: None,
             left_raised: Vec::new(),
+            stored: None,
             lines: Vec::new(),
             seconds: 0.0,
         }
@@ -203,7 +207,13 @@ impl RestoreReport {
     }
 
     pub fn is_complete(&self) -> bool {
-        self.refused == 0 && self.unknown == 0 && self.cut_short.is_none()
+        self.refused == 0
+            && self.unknown == 0
+            && self.cut_short.is_none()
+            && self
+                .stored
+                .as_ref()
+                .is_none_or(|s| !s.starts_with("not stored"))
     }
 
     pub fn human(&self) -> String {
@@ -250,6 +260,9 @@ impl RestoreReport {
         }
         for left in &self.left_raised {
             let _ = writeln!(out, "left raised: {left}");
+        }
+        if let Some(stored) = &self.stored {
+            let _ = writeln!(out, "EEPROM: {stored}");
         }
         out
     }
@@ -339,5 +352,95 @@ impl DiffReport {
             if self.same == 1 { "" } else { "s" },
         );
         out
+    }
+}
+
+/// `param save`: the copy of RAM to ROM.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct SaveReport {
+    pub bus: String,
+    pub drive: u8,
+    /// The parameter that made the copy ("P0971", "p0971").
+    pub param: String,
+    /// The access level raised for the copy and put back, RAM and EEPROM alike
+    /// ("P0003 3 -> 1"); null when none was needed.
+    pub raised: Option<String>,
+}
+
+impl SaveReport {
+    pub fn new(bus: &str, drive: Address, saved: &uss_client::Saved) -> Self {
+        Self {
+            bus: bus.to_owned(),
+            drive: drive.get(),
+            param: saved.param.to_string(),
+            raised: saved
+                .raised
+                .map(|(p, to, was)| format!("{p} {was} -> {to} -> {was}")),
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let raised = self
+            .raised
+            .as_ref()
+            .map(|r| format!("; access level raised for it and put back ({r})"))
+            .unwrap_or_default();
+        format!(
+            "drive {}: copied RAM to ROM ({} := 1): every setting survives a power cycle{raised}\n",
+            self.drive, self.param
+        )
+    }
+}
+
+/// `param factory-reset`: the reset, and what ussd read of the drive after it.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct ResetReport {
+    pub bus: String,
+    pub drive: u8,
+    /// The writes, in order ("P0010 := 30", "P0970 := 1").
+    pub writes: Vec<String>,
+    /// From the first write until the drive said it was done.
+    pub seconds: f64,
+    /// The reference frequency ussd scales Hz by now, read again; null when ussd had not read
+    /// it yet.
+    pub reference_hz: Option<f32>,
+    /// The telegram monitoring ussd read again: "on", "off", "too long", ...
+    pub monitoring: String,
+    pub monitoring_ms: u32,
+}
+
+impl ResetReport {
+    pub fn new(bus: &str, drive: Address, reset: &uss_client::Reset) -> Self {
+        let (commissioning, setting) = reset.unlocked_by;
+        Self {
+            bus: bus.to_owned(),
+            drive: drive.get(),
+            writes: vec![
+                format!("{commissioning} := {setting}"),
+                format!("{} := 1", reset.param),
+            ],
+            seconds: reset.took.as_secs_f64(),
+            reference_hz: reset.reference_hz,
+            monitoring: reset.monitoring.to_string(),
+            monitoring_ms: reset.monitoring_ms,
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let reference = self.reference_hz.map_or_else(
+            || "its reference is still being read (Hz are refused until then)".to_owned(),
+            |hz| format!("reference {hz} Hz"),
+        );
+        let monitoring = match self.monitoring.as_str() {
+            "off" => "telegram monitoring OFF: if ussd or its line dies, nothing stops this drive; set it before running it (USS.md section 5)".to_owned(),
+            "on" => format!("telegram monitoring on ({} ms)", self.monitoring_ms),
+            other => format!("telegram monitoring {other} ({} ms)", self.monitoring_ms),
+        };
+        format!(
+            "drive {}: factory reset ({}) done in {:.2} s; every setting is its factory value (in RAM; `param save` stores it)\n  ussd read it again: {reference}, {monitoring}\n",
+            self.drive,
+            self.writes.join(", "),
+            self.seconds
+        )
     }
 }

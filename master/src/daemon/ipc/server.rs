@@ -344,6 +344,7 @@ impl ParamServer {
         };
         if let Some(refusal) = checked
             .refuse_unindexed()
+            .or_else(|| checked.refuse_eeprom_task())
             .or_else(|| self.refuse_controlled(&active, &checked))
             .or_else(|| self.refuse_guarded(&active, &checked))
         {
@@ -631,6 +632,38 @@ impl Checked<'_> {
             self.request.address,
             uss_shm_types::Refusal {
                 error: RequestError::IndexRequired,
+                item: u8::try_from(item).ok(),
+            },
+        ))
+    }
+}
+
+impl Checked<'_> {
+    /// A write that stores one value in EEPROM (task codes 11..14) to a drive whose family has
+    /// no such tasks (a G120's CU2x0-2: its settings become permanent only by its "copy RAM to
+    /// ROM", p0971) is refused before the bus, from every front-end: the drive would refuse it
+    /// (error 106), and a user who asked for a permanent value must learn how to get one.
+    fn refuse_eeprom_task(&self) -> Option<ParamResponse> {
+        let catalogue = self.rules?.catalogue?;
+        if catalogue.eeprom_tasks {
+            return None;
+        }
+        let item = self.tasks.iter().position(|task| {
+            matches!(
+                *task,
+                ParamTask::Write {
+                    storage: uss_protocol::Storage::RamAndEeprom,
+                    ..
+                } | ParamTask::WriteArray {
+                    storage: uss_protocol::Storage::RamAndEeprom,
+                    ..
+                }
+            )
+        })?;
+        Some(ParamResponse::refused(
+            self.request.address,
+            uss_shm_types::Refusal {
+                error: RequestError::NoEepromTask,
                 item: u8::try_from(item).ok(),
             },
         ))

@@ -1,0 +1,189 @@
+//! Commissioning as STARTER does it (issue 46), with real processes: ussd over a pty to
+//! `uss-sim`, `ussctl` as the service engineer types it, and the simulator's power cycle
+//! (SIGUSR1: off for a moment, then back with RAM from EEPROM) as the proof of what is
+//! permanent.
+#![allow(clippy::unwrap_used)]
+
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use std::time::{Duration, Instant};
+use uss_client::{ParamRef, Value};
+use uss_integration_tests::{SimProcess, Ussd, addr, change_what_a_restore_raises, param};
+
+/// `ussctl ARGS` to its end: whether it succeeded, and its stdout and stderr together.
+fn ussctl(ussd: &Ussd, args: &[&str]) -> (bool, String) {
+    let (status, out, err) = ussd.ussctl(args).finish();
+    (status.success(), format!("{out}{err}"))
+}
+
+/// Power-cycles every drive of `sim` (300 ms off) and waits until drive `address` answers
+/// again after it.
+fn power_cycle(sim: &SimProcess, ussd: &Ussd, address: u8) {
+    let pid = Pid::from_raw(i32::try_from(sim.child.id()).unwrap());
+    let watch = ussd.bus().watch(addr(address)).unwrap();
+    kill(pid, Signal::SIGUSR1).unwrap();
+    let until = Instant::now() + Duration::from_secs(10);
+    while watch.latest().online != 0 {
+        assert!(Instant::now() < until, "the drive never went off");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    watch
+        .wait_for(Duration::from_secs(10), "back online", |i| i.online != 0)
+        .unwrap();
+}
+
+fn read(ussd: &Ussd, address: u8, p: ParamRef) -> Value {
+    ussd.bus().read(addr(address), p).unwrap()
+}
+
+/// A MICROMASTER 4 at address 3 and a G120 at 5, over one pty.
+fn drives() -> (SimProcess, Ussd) {
+    let sim = SimProcess::start(&[
+        "--baud",
+        "115200",
+        "--drive",
+        "3",
+        "--drive",
+        "5:family=g120",
+        "--power-off-ms",
+        "300",
+    ]);
+    let ussd = Ussd::start_on(
+        &sim.path,
+        "baud = 115200",
+        &[(3, ""), (5, "family = \"g120\"")],
+    );
+    (sim, ussd)
+}
+
+/// The issue's session: P1120 = 9 s written to EEPROM, a backup restored to RAM, then
+/// restored with --eeprom: it said "wrote 0 ... already as in the file" and the drive came back
+/// from a power cycle with 9 s. Its raises were stored as well (`P0003 := 2 (RAM and
+/// EEPROM)`). Now --eeprom copies RAM to ROM once the file is in RAM: after a power cycle every
+/// value is the file's, and the access level and commissioning state are the drive's own.
+#[test]
+fn a_restore_with_eeprom_leaves_the_eeprom_equal_to_the_file_and_no_raise_permanent() {
+    let (sim, ussd) = drives();
+    let dir = std::env::temp_dir().join(format!("uss-commissioning-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("bk3.toml");
+    let file = file.to_str().unwrap();
+    let (ok, out) = ussctl(&ussd, &["param", "backup", "3", "-o", file]);
+    assert!(ok, "{out}");
+    let (ok, out) = ussctl(&ussd, &["param", "write", "3", "P1120", "9", "--eeprom"]);
+    assert!(ok, "{out}");
+    let (ok, out) = ussctl(&ussd, &["param", "restore", "3", file]);
+    assert!(ok, "{out}");
+    // RAM holds the file now; the EEPROM still 9 s. A restore with --eeprom that finds RAM
+    // as in the file stores it all the same.
+    let (ok, out) = ussctl(&ussd, &["param", "restore", "3", file, "--eeprom"]);
+    assert!(ok, "{out}");
+    assert!(
+        out.contains("EEPROM: copied RAM to ROM (P0971 := 1)"),
+        "{out}"
+    );
+    power_cycle(&sim, &ussd, 3);
+    assert_eq!(
+        read(&ussd, 3, param(1120)),
+        Value::from_f32(10.0),
+        "the file's"
+    );
+
+    // A restore that raises the access level and enters quick commissioning on the way:
+    // neither raise outlives it, in RAM or in EEPROM.
+    change_what_a_restore_raises(&ussd.bus(), 3, 60.0);
+    let (ok, out) = ussctl(
+        &ussd,
+        &["param", "restore", "3", file, "--eeprom", "--unsafe"],
+    );
+    assert!(ok, "{out}");
+    assert!(out.contains("EEPROM: copied RAM to ROM"), "{out}");
+    power_cycle(&sim, &ussd, 3);
+    assert_eq!(read(&ussd, 3, param(3)), Value::Word(1), "P0003 as it was");
+    assert_eq!(read(&ussd, 3, param(10)), Value::Word(0), "P0010 as it was");
+    assert_eq!(
+        read(&ussd, 3, param(310)),
+        Value::from_f32(50.0),
+        "the file's"
+    );
+    assert_eq!(
+        read(&ussd, 3, param(1082)),
+        Value::from_f32(50.0),
+        "the file's"
+    );
+    let (same, out) = ussctl(&ussd, &["param", "diff", "3", file]);
+    assert!(same, "after the power cycle the drive is the file:\n{out}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A G120 (CU2x0-2) has no task that stores one value in EEPROM; `--eeprom` sent 11..14 and
+/// the simulator took them. ussd refuses such a write before the bus and says how to store
+/// settings on a G120; `param save` (p0971 = 1) stores them, as a power cycle shows.
+#[test]
+fn a_g120_stores_its_settings_by_copying_ram_to_rom() {
+    let (sim, ussd) = drives();
+    let (ok, out) = ussctl(&ussd, &["param", "write", "5", "p1120", "9", "--eeprom"]);
+    assert!(!ok, "{out}");
+    assert!(
+        out.contains("the drive stores no single value in EEPROM") && out.contains("param save"),
+        "{out}"
+    );
+    assert_eq!(
+        read(&ussd, 5, param(1120)),
+        Value::from_f32(10.0),
+        "nothing sent"
+    );
+    let (ok, out) = ussctl(&ussd, &["param", "write", "5", "p1120", "9"]);
+    assert!(ok, "{out}");
+    let (ok, out) = ussctl(&ussd, &["param", "save", "5"]);
+    assert!(ok, "{out}");
+    assert!(out.contains("copied RAM to ROM (p0971 := 1)"), "{out}");
+    // A RAM-only change after the save is lost at the power cycle; the saved one is kept.
+    let (ok, out) = ussctl(&ussd, &["param", "write", "5", "p1121", "7"]);
+    assert!(ok, "{out}");
+    power_cycle(&sim, &ussd, 5);
+    assert_eq!(read(&ussd, 5, param(1120)), Value::from_f32(9.0), "saved");
+    assert_eq!(
+        read(&ussd, 5, param(1121)),
+        Value::from_f32(10.0),
+        "RAM only: lost"
+    );
+    // The MICROMASTER 4 beside it takes a write to EEPROM.
+    let (ok, out) = ussctl(&ussd, &["param", "write", "3", "P1121", "7", "--eeprom"]);
+    assert!(ok, "{out}");
+}
+
+/// The guided factory reset: refused without --unsafe (nothing written); with it, P0010 = 30
+/// then P0970 = 1, waited for, and what ussd read of the drive afterwards is said: the
+/// reference back to the factory's 50 Hz (it was 60), the telegram monitoring that the reset
+/// switched off (it was 500 ms). A run then scales by the new reference.
+#[test]
+fn a_guided_factory_reset_says_what_ussd_read_of_the_drive_after_it() {
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "4:p2014=500,p2000=60"]);
+    let ussd = Ussd::start_on(&sim.path, "baud = 115200", &[(4, "")]);
+    ussd.log_line("telegram monitoring on", Duration::from_secs(5))
+        .expect("monitoring read at start");
+    let (ok, out) = ussctl(&ussd, &["param", "factory-reset", "4"]);
+    assert!(!ok && out.contains("give --unsafe"), "{out}");
+    assert_eq!(
+        read(&ussd, 4, param(2000)),
+        Value::from_f32(60.0),
+        "nothing written"
+    );
+    let (ok, out) = ussctl(&ussd, &["param", "factory-reset", "4", "--unsafe"]);
+    assert!(ok, "{out}");
+    assert!(
+        out.contains("factory reset (P0010 := 30, P0970 := 1) done")
+            && out.contains("reference 50 Hz")
+            && out.contains("telegram monitoring OFF"),
+        "{out}"
+    );
+    assert_eq!(
+        read(&ussd, 4, param(10)),
+        Value::Word(0),
+        "out of factory setting mode"
+    );
+    let (ok, out) = ussctl(&ussd, &["run", "4", "--hz", "30", "--for", "0.3"]);
+    assert!(ok, "{out}");
+    assert!(out.contains("(reference 50 Hz)"), "{out}");
+}
