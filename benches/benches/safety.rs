@@ -431,6 +431,10 @@ fn stops_through_ussd(bus: &uss_client::Bus, bus_name: &str) -> (Figures, Figure
             .control(addr(k), uss_client::ControlOptions::default())
             .expect("control");
         c.rearm(uss_client::monotonic_ns()).expect("re-arm");
+        // ussd scales no Hz before it has read the drive's reference.
+        watch
+            .wait_for_reference(Duration::from_secs(20))
+            .expect("reference read");
         // Running: the ON went out (at the drive's turn), then a random moment of the cycle.
         while watch.latest().sent_stw1 != RUN[0] {
             c.run_hz(5.0).expect("run");

@@ -48,8 +48,8 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let bus = Bus::open_as(&bus_name, "ramp-example")?;
     let events = bus.cycle_listener()?;
     let c = bus.control(drive, ControlOptions::default())?;
-    // Hz are scaled by the drive's P2000 as ussd publishes it.
-    let reference_hz = c.inputs().info().reference_hz;
+    // Hz are scaled by the drive's P2000 as ussd publishes it, once it has read it.
+    let reference_hz = c.inputs().wait_for_reference(c.inputs().reference_wait())?;
 
     // S1 -> S2 -> S4 (USS.md section 7). `wait_for_state` refreshes while it waits. Opening
     // re-arms nothing: the explicit re-arm (OFF1 naming ussd's start-up latch) is this

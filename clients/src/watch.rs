@@ -243,6 +243,28 @@ impl DriveWatch {
         self.handshake() * 4
     }
 
+    /// Waits (looking every millisecond, at most `timeout`) until ussd knows the drive's
+    /// reference frequency, and returns it: after ussd's start, a drive coming online, a reset
+    /// or commissioning write it reads it again, and no Hz are scaled until then.
+    /// [`ClientError::ReferenceUnknown`] when it is still not known after `timeout`
+    /// ([`DriveWatch::reference_wait`] is the drive's own bound).
+    pub fn wait_for_reference(&self, timeout: Duration) -> Result<f32, ClientError> {
+        let until = std::time::Instant::now() + timeout;
+        loop {
+            if let Some(hz) = self.info().reference() {
+                return Ok(hz);
+            }
+            if std::time::Instant::now() >= until {
+                return Err(ClientError::ReferenceUnknown {
+                    bus: self.link.name.as_str().to_owned(),
+                    address: self.address.get(),
+                    asked: "a setpoint in Hz".to_owned(),
+                });
+            }
+            std::thread::sleep(POLL);
+        }
+    }
+
     /// Waits until `done` holds for the input image (looking every millisecond) and returns
     /// that image; after `timeout`, fails with [`ClientError::WaitTimeout`] naming `wanted`.
     pub fn wait_for(

@@ -175,6 +175,11 @@ fn controller(bus: &Bus, stop: &AtomicBool, counts: &Counts) -> Result<(), Strin
     let run = |c: &uss_client::Controller| -> Result<(), String> {
         c.rearm(uss_client::monotonic_ns())
             .map_err(|e| e.to_string())?;
+        // Read again after a blip offline: no Hz before it is known.
+        let inputs = c.inputs();
+        inputs
+            .wait_for_reference(inputs.reference_wait())
+            .map_err(|e| e.to_string())?;
         c.run_hz(10.0).map_err(|e| e.to_string())?;
         c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(10))
             .map_err(|e| e.to_string())?;

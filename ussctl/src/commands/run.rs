@@ -48,10 +48,8 @@ fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
     })?;
     // A drive that just came online, was reset or commissioned has its reference read again:
     // ussd scales no Hz with the old one, so wait for it (a poll or two).
-    let until = Instant::now() + c.inputs().reference_wait();
-    while c.inputs().info().reference().is_none() && Instant::now() < until {
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    let inputs = c.inputs();
+    inputs.wait_for_reference(inputs.reference_wait())?;
     c.run_hz(hz)?;
     c.wait_for_state(DriveState::OperationEnabled, state_timeout(c))?;
     Ok(())
