@@ -32,6 +32,14 @@ pub struct Saved {
     pub raised: Option<(ParamRef, u16, u16)>,
 }
 
+impl Saved {
+    /// The raise as every front-end shows it: "P0003 1 -> 3 -> 1"; none when none was needed.
+    pub fn raised_text(&self) -> Option<String> {
+        self.raised
+            .map(|(p, to, was)| format!("{p} {was} -> {to} -> {was}"))
+    }
+}
+
 /// How long a factory reset may take before the drive says it is done (its reset parameter
 /// reads 0 again; a drive that restarts for it answers nothing meanwhile).
 pub const RESET_WAIT: Duration = Duration::from_secs(60);

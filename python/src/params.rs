@@ -260,12 +260,7 @@ fn save_to_rom<'py>(
         .map_err(|e| errors::param(py, bus, e))?;
     let d = PyDict::new(py);
     d.set_item("param", saved.param.to_string())?;
-    d.set_item(
-        "raised",
-        saved
-            .raised
-            .map(|(p, to, was)| format!("{p} {was} -> {to} -> {was}")),
-    )?;
+    d.set_item("raised", saved.raised_text())?;
     Ok(d)
 }
 

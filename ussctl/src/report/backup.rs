@@ -373,9 +373,7 @@ impl SaveReport {
             bus: bus.to_owned(),
             drive: drive.get(),
             param: saved.param.to_string(),
-            raised: saved
-                .raised
-                .map(|(p, to, was)| format!("{p} {was} -> {to} -> {was}")),
+            raised: saved.raised_text(),
         }
     }
 
