@@ -790,6 +790,46 @@ enum UssrtStatus ussrt_param_write(const struct UssrtBus *bus,
 enum UssrtStatus ussrt_param_save(const struct UssrtBus *bus, uint8_t address);
 
 /**
+ * Puts every setting of drive `address` back to its factory value as its manual gives it
+ * (MICROMASTER 4 and G120: P0010 = 30, then P0970 = 1), and returns once the drive is done
+ * and ussd has read again what it scales and judges the drive by (its reference: a
+ * `ussrt_control_run_hz` is `REFERENCE_UNKNOWN` until then). The writes are deliberate (ussd
+ * logs them as unsafe: the command source, the COM link and the telegram monitoring go back to
+ * their defaults); `flags` 0 or `USSRT_WRITE_FORCE` (while another process controls the
+ * drive). RAM only: `ussrt_param_save` stores it. `REFUSED` for a family without a known
+ * reset.
+ *
+ * # Safety
+ * `bus` is a live handle.
+ */
+enum UssrtStatus ussrt_param_factory_reset(const struct UssrtBus *bus,
+                                           uint8_t address,
+                                           uint32_t flags);
+
+/**
+ * Quick commissioning as the drive's manual gives it: P0010 = 1, then `count` motor values
+ * (`params[i]` written as the manuals do, `"P0304"`; `values[i]` as text in its own unit,
+ * `"400"`), in order, then P3900 = `end` (3: the motor model only; 2: and the I/O back to
+ * factory values; 1: and every other setting, the command source, the COM link and the
+ * telegram monitoring included), and returns once the drive is done and ussd has read it
+ * again. A value the drive refuses is `DRIVE_ERROR` with the drive out of quick
+ * commissioning (P0010 back to 0) and the access level put back; values written before stay
+ * in RAM. `flags` 0 or `USSRT_WRITE_FORCE`. `REFUSED` for a family without a known quick
+ * commissioning.
+ *
+ * # Safety
+ * `bus` is a live handle; `params` and `values` arrays of `count` NUL-terminated strings
+ * (NULL when `count` is 0).
+ */
+enum UssrtStatus ussrt_param_quick_commission(const struct UssrtBus *bus,
+                                              uint8_t address,
+                                              const char *const *params,
+                                              const char *const *values,
+                                              uintptr_t count,
+                                              uint16_t end,
+                                              uint32_t flags);
+
+/**
  * Reads parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as the raw word or
  * double word the drive sends: `*value`, and `*is_dword` (may be NULL).
  *

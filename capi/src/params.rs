@@ -269,6 +269,86 @@ pub unsafe extern "C" fn ussrt_param_save(bus: *const UssrtBus, address: u8) -> 
     })
 }
 
+/// Only `USSRT_WRITE_FORCE` (act while another process controls the drive): the commissioning
+/// calls write RAM only, and every write of theirs is deliberate already.
+fn force_only(flags: u32) -> Result<bool, Failure> {
+    if flags & !USSRT_WRITE_FORCE != 0 {
+        return Err(Failure::Argument(format!(
+            "flags {flags:#x}: only USSRT_WRITE_FORCE is defined here"
+        )));
+    }
+    Ok(flags & USSRT_WRITE_FORCE != 0)
+}
+
+/// Puts every setting of drive `address` back to its factory value as its manual gives it
+/// (MICROMASTER 4 and G120: P0010 = 30, then P0970 = 1), and returns once the drive is done
+/// and ussd has read again what it scales and judges the drive by (its reference: a
+/// `ussrt_control_run_hz` is `REFERENCE_UNKNOWN` until then). The writes are deliberate (ussd
+/// logs them as unsafe: the command source, the COM link and the telegram monitoring go back to
+/// their defaults); `flags` 0 or `USSRT_WRITE_FORCE` (while another process controls the
+/// drive). RAM only: `ussrt_param_save` stores it. `REFUSED` for a family without a known
+/// reset.
+///
+/// # Safety
+/// `bus` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_factory_reset(
+    bus: *const UssrtBus,
+    address: u8,
+    flags: u32,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        bus.bus.factory_reset(drive(address)?, force_only(flags)?)?;
+        Ok(())
+    })
+}
+
+/// Quick commissioning as the drive's manual gives it: P0010 = 1, then `count` motor values
+/// (`params[i]` written as the manuals do, `"P0304"`; `values[i]` as text in its own unit,
+/// `"400"`), in order, then P3900 = `end` (3: the motor model only; 2: and the I/O back to
+/// factory values; 1: and every other setting, the command source, the COM link and the
+/// telegram monitoring included), and returns once the drive is done and ussd has read it
+/// again. A value the drive refuses is `DRIVE_ERROR` with the drive out of quick
+/// commissioning (P0010 back to 0) and the access level put back; values written before stay
+/// in RAM. `flags` 0 or `USSRT_WRITE_FORCE`. `REFUSED` for a family without a known quick
+/// commissioning.
+///
+/// # Safety
+/// `bus` is a live handle; `params` and `values` arrays of `count` NUL-terminated strings
+/// (NULL when `count` is 0).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_quick_commission(
+    bus: *const UssrtBus,
+    address: u8,
+    params: *const *const c_char,
+    values: *const *const c_char,
+    count: usize,
+    end: u16,
+    flags: u32,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let force = force_only(flags)?;
+        let mut motor = Vec::with_capacity(count);
+        if count > 0 {
+            if params.is_null() || values.is_null() {
+                return Err(Failure::Argument(
+                    "params and values: NULL with a count above 0".to_owned(),
+                ));
+            }
+            for i in 0..count {
+                // SAFETY: the caller's arrays of `count` pointers (as documented).
+                let (p, v) = unsafe { (*params.add(i), *values.add(i)) };
+                motor.push((param_ref(p)?, text(v, "values[i]")?));
+            }
+        }
+        bus.bus
+            .quick_commission(drive(address)?, &motor, end, force)?;
+        Ok(())
+    })
+}
+
 /// Reads parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as the raw word or
 /// double word the drive sends: `*value`, and `*is_dword` (may be NULL).
 ///

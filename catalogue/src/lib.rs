@@ -480,6 +480,16 @@ pub struct Catalogue {
     /// The commissioning parameter's value that unlocks the factory reset (30 on MM4 and G120).
     #[serde(default)]
     pub factory_setting: Option<u16>,
+    /// The end of quick commissioning (MM4 P3900, G120 p3900): written while the commissioning
+    /// parameter is 1, it calculates the motor model from the motor data written before, takes
+    /// the drive out of quick commissioning, and reads 0 when done (the commissioning parameter
+    /// too). Its values: 1 also puts every setting outside quick commissioning back to its
+    /// factory value (MICROMASTER 440 Parameter List 6SE6400-5BB00-0BP0, P3900: it "performs
+    /// the calculations ... and resets all other parameters not included in the quick
+    /// commissioning to factory settings"), 2 those of the I/O, 3 only calculates (2 and 3 not
+    /// reached in a stored copy of the list: as the MM4 lists are known to give them).
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub quick_commissioning: Option<ParamRef>,
     /// The fault buffer and warnings; none: uss-rt knows no fault buffer of the family.
     pub faults: Option<FaultBuffers>,
     /// The drive's telegram-off time in ms on the USS link ussd talks over (MM4 P2014[0], G120

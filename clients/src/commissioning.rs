@@ -1,6 +1,7 @@
 //! Commissioning calls a service engineer makes with STARTER (issue 46), in the
 //! client library so that every front-end makes them the same way: the copy of RAM to ROM
-//! ([`Bus::save_to_rom`]) and the guided factory reset ([`Bus::factory_reset`]).
+//! ([`Bus::save_to_rom`]), the guided factory reset ([`Bus::factory_reset`]) and quick
+//! commissioning ([`Bus::quick_commission`]).
 //!
 //! A drive keeps a parameter written over USS in RAM unless the write asks for EEPROM as well
 //! (task codes 11..14 on MICROMASTER 4). A SINAMICS G120 (CU2x0-2) has no such task codes: its
@@ -35,9 +36,13 @@ pub struct Saved {
 impl Saved {
     /// The raise as every front-end shows it: "P0003 1 -> 3 -> 1"; none when none was needed.
     pub fn raised_text(&self) -> Option<String> {
-        self.raised
-            .map(|(p, to, was)| format!("{p} {was} -> {to} -> {was}"))
+        raised_text(self.raised)
     }
+}
+
+/// A raise of the access level as every front-end shows it: "P0003 1 -> 3 -> 1".
+fn raised_text(raised: Option<(ParamRef, u16, u16)>) -> Option<String> {
+    raised.map(|(p, to, was)| format!("{p} {was} -> {to} -> {was}"))
 }
 
 /// How long a factory reset may take before the drive says it is done (its reset parameter
@@ -59,6 +64,67 @@ pub struct Reset {
     /// The drive's telegram monitoring as ussd read it again, and its time in ms.
     pub monitoring: Monitoring,
     pub monitoring_ms: u32,
+}
+
+/// How long the end of quick commissioning may take before the drive says it is done (a
+/// MICROMASTER 4 calculates its motor model in seconds; it shows "busy" meanwhile).
+pub const QUICK_WAIT: Duration = Duration::from_secs(60);
+
+/// What ussd read of a drive again after a write that may have changed every setting.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Picture {
+    reference_hz: Option<f32>,
+    monitoring: Monitoring,
+    monitoring_ms: u32,
+}
+
+/// What a quick commissioning did, and what ussd read of the drive after it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Commissioned {
+    /// The commissioning parameter set to 1 for it, and back to 0 by the drive (P0010).
+    pub commissioning: ParamRef,
+    /// The end of quick commissioning and the value written (P3900, 3).
+    pub end: (ParamRef, u16),
+    /// The motor data written, each as the drive holds it now ("400 V").
+    pub written: Vec<(ParamRef, String)>,
+    /// The access level raised for it and put back in RAM: (its parameter, raised to, put
+    /// back to).
+    pub raised: Option<(ParamRef, u16, u16)>,
+    /// From the first write until the drive said it was done.
+    pub took: Duration,
+    /// The reference frequency ussd scales Hz by now, read again; none when ussd did not have
+    /// it within the drive's [`crate::DriveWatch::reference_wait`].
+    pub reference_hz: Option<f32>,
+    /// The drive's telegram monitoring as ussd read it again, and its time in ms.
+    pub monitoring: Monitoring,
+    pub monitoring_ms: u32,
+}
+
+impl Commissioned {
+    /// The raise as every front-end shows it: "P0003 1 -> 3 -> 1"; none when none was needed.
+    pub fn raised_text(&self) -> Option<String> {
+        raised_text(self.raised)
+    }
+
+    /// The writes in order, as every front-end shows them: "P0010 := 1", "P0304 := 400 V",
+    /// ..., "P3900 := 3".
+    pub fn writes(&self) -> Vec<String> {
+        let mut writes = vec![format!("{} := 1", self.commissioning)];
+        writes.extend(self.written.iter().map(|(p, v)| format!("{p} := {v}")));
+        writes.push(format!("{} := {}", self.end.0, self.end.1));
+        writes
+    }
+}
+
+impl Reset {
+    /// The writes in order, as every front-end shows them: "P0010 := 30", "P0970 := 1".
+    pub fn writes(&self) -> Vec<String> {
+        let (commissioning, setting) = self.unlocked_by;
+        vec![
+            format!("{commissioning} := {setting}"),
+            format!("{} := 1", self.param),
+        ]
+    }
 }
 
 /// A parameter as a whole (its index dropped): the plain parameters the commissioning calls
@@ -90,17 +156,7 @@ impl Bus {
             });
         };
         let catalogue = catalogue.ok_or(ParamError::Dropped)?;
-        let needed = catalogue.param(save.pnu.get()).map(|p| u16::from(p.level));
-        let raise = match (catalogue.access_level.map(whole), needed) {
-            (Some(level), Some(needed)) => {
-                let now = self.read_u16(address, level)?;
-                (needed > now).then_some((level, needed, now))
-            }
-            _ => None,
-        };
-        if let Some((level, to, _)) = raise {
-            self.write(address, level, Value::Word(to), false)?;
-        }
+        let raise = self.raise_for(address, catalogue, [save], WriteOptions::default())?;
         let saved = self.copy_ram_to_rom(address, save);
         if saved.is_err() {
             // A copy whose answer was lost may still be storing: let it end (bounded) before
@@ -199,28 +255,27 @@ impl Bus {
                 return Err(e);
             }
         }
-        let until = start + RESET_WAIT;
-        loop {
-            match self.read_u16(address, reset) {
-                Ok(0) => break,
-                Ok(_) | Err(_) if Instant::now() < until => std::thread::sleep(SAVE_POLL),
-                Ok(v) => {
-                    return Err(ParamError::Value {
-                        param: reset.to_string(),
-                        problem: format!(
-                            "still {v} after {} s: the drive has not finished its reset",
-                            RESET_WAIT.as_secs()
-                        ),
-                    });
-                }
-                Err(e) => return Err(e),
-            }
-        }
+        self.wait_zero(address, &[reset], RESET_WAIT)?;
         let took = start.elapsed();
+        let picture = self.read_again(address)?;
+        Ok(Reset {
+            unlocked_by: (commissioning, setting),
+            param: reset,
+            took,
+            reference_hz: picture.reference_hz,
+            monitoring: picture.monitoring,
+            monitoring_ms: picture.monitoring_ms,
+        })
+    }
+
+    /// Waits until ussd has read drive `address` again after a write that may have changed
+    /// every setting (a reset, the end of quick commissioning), and returns what it read. ussd
+    /// reads the drive again once the write took effect (and when it comes back, had it
+    /// restarted): this waits for diagnostics published after now (a reply of the drive after
+    /// then) that show a known reference and monitoring, for at most
+    /// [`crate::DriveWatch::reference_wait`].
+    fn read_again(&self, address: Address) -> Result<Picture, ParamError> {
         let done_ns = crate::monotonic_ns();
-        // ussd reads the drive again once the reset's write took effect (and when it comes
-        // back, had it restarted): wait for diagnostics published after the drive said it was
-        // done (a reply of it after then), which show what ussd read.
         let until = Instant::now() + self.watch(address)?.reference_wait();
         loop {
             let read = self
@@ -231,10 +286,7 @@ impl Bus {
             let reference = read.and_then(|d| d.info.reference());
             let known = reference.is_some() && monitoring.is_some_and(|m| m != Monitoring::Unknown);
             if known || Instant::now() >= until {
-                return Ok(Reset {
-                    unlocked_by: (commissioning, setting),
-                    param: reset,
-                    took,
+                return Ok(Picture {
                     reference_hz: reference,
                     monitoring: monitoring.unwrap_or(Monitoring::Unknown),
                     monitoring_ms: read.map_or(0, |d| d.monitoring_ms),
@@ -242,6 +294,170 @@ impl Bus {
             }
             std::thread::sleep(SAVE_POLL);
         }
+    }
+
+    /// Quick commissioning as the drive's manual gives it (MICROMASTER 4: P0010 = 1, the motor
+    /// data, then P3900; MICROMASTER 440 Parameter List 6SE6400-5BB00-0BP0, P3900): raises the
+    /// access level where a value written needs it, sets the commissioning parameter to 1,
+    /// writes `motor` in the order given (text in the parameter's own type and unit, checked
+    /// as [`Bus::write_param`] checks it), then writes `end` to the end of quick commissioning
+    /// (3: calculate the motor model only; 2: and put the I/O back to factory values; 1: and
+    /// every setting outside quick commissioning, the command source, the COM link and the
+    /// telegram monitoring included), waits until the drive says it is done (the commissioning
+    /// parameter and the end read 0 again, within [`QUICK_WAIT`]), puts the access level back
+    /// in RAM, and waits until ussd has read the drive's reference and monitoring again.
+    ///
+    /// Every write is deliberate (ussd logs it as unsafe: the end of quick commissioning is a
+    /// guarded write); `force` writes while another process controls the drive. Nothing is
+    /// copied to ROM here ([`Bus::save_to_rom`] does). A write the drive refuses (a value
+    /// outside its limits, error 2) ends the call: the drive leaves quick commissioning
+    /// without a calculation (the commissioning parameter back to 0), the level is put back,
+    /// and the error is returned; values written before stay in RAM.
+    ///
+    /// # Errors
+    /// [`ParamError::NotOnFamily`] for a family without a known quick commissioning;
+    /// [`ParamError::Value`] for an `end` outside 1..=3 (nothing written); the drive's or the
+    /// path's error otherwise.
+    pub fn quick_commission(
+        &self,
+        address: Address,
+        motor: &[(ParamRef, &str)],
+        end: u16,
+        force: bool,
+    ) -> Result<Commissioned, ParamError> {
+        let family = self.family(address);
+        let catalogue = Catalogue::of(family);
+        let known =
+            catalogue.and_then(|c| Some((whole(c.quick_commissioning?), whole(c.commissioning?))));
+        let (Some(catalogue), Some((quick, commissioning))) = (catalogue, known) else {
+            return Err(ParamError::NotOnFamily {
+                address: address.get(),
+                family: family.name(),
+                what: "uss-rt knows no quick commissioning for this family",
+            });
+        };
+        if !(1..=3).contains(&end) {
+            return Err(ParamError::Value {
+                param: quick.to_string(),
+                problem: format!(
+                    "{end}: the end of quick commissioning is 1 (and factory values for every \
+                     other setting), 2 (and for the I/O) or 3 (the motor model only); nothing \
+                     was written"
+                ),
+            });
+        }
+        let deliberate = WriteOptions {
+            eeprom: false,
+            force,
+            unsafe_write: true,
+        };
+        let start = Instant::now();
+        let params = motor.iter().map(|(p, _)| *p).chain([quick, commissioning]);
+        let raise = self.raise_for(address, catalogue, params, deliberate)?;
+        let put_back_level = || {
+            if let Some((level, _, was)) = raise {
+                let back = WriteOptions {
+                    force: true,
+                    ..deliberate
+                };
+                let _ = self.write_with(address, level, Value::Word(was), back);
+            }
+        };
+        let mut written = Vec::with_capacity(motor.len());
+        let steps = self
+            .write_with(address, commissioning, Value::Word(1), deliberate)
+            .map(|_| ())
+            .and_then(|()| {
+                for (param, text) in motor {
+                    let now = self.write_param(address, *param, text, deliberate)?;
+                    written.push((now.param, now.shown()));
+                }
+                Ok(())
+            });
+        if let Err(e) = steps {
+            // Out of quick commissioning without a calculation, where the drive got into it.
+            let _ = self.write_with(address, commissioning, Value::Word(0), deliberate);
+            put_back_level();
+            return Err(e);
+        }
+        let ended = match self.write_with(address, quick, Value::Word(end), deliberate) {
+            Ok(_) => Ok(()),
+            // The drive may be calculating: it is asked below whether it is done.
+            Err(e) if e.may_be_applied() => Ok(()),
+            Err(e) => {
+                let _ = self.write_with(address, commissioning, Value::Word(0), deliberate);
+                Err(e)
+            }
+        }
+        .and_then(|()| self.wait_zero(address, &[quick, commissioning], QUICK_WAIT));
+        put_back_level();
+        ended?;
+        let took = start.elapsed();
+        let picture = self.read_again(address)?;
+        Ok(Commissioned {
+            commissioning,
+            end: (quick, end),
+            written,
+            raised: raise,
+            took,
+            reference_hz: picture.reference_hz,
+            monitoring: picture.monitoring,
+            monitoring_ms: picture.monitoring_ms,
+        })
+    }
+
+    /// Raises the access level of drive `address` (its family's P0003) to the highest that
+    /// `params` need by `catalogue`, where the drive's is lower, writing it with `options`:
+    /// (the level's parameter, raised to, was), to be put back; none when no raise was needed.
+    fn raise_for(
+        &self,
+        address: Address,
+        catalogue: &Catalogue,
+        params: impl IntoIterator<Item = ParamRef>,
+        options: WriteOptions,
+    ) -> Result<Option<(ParamRef, u16, u16)>, ParamError> {
+        let needed = params
+            .into_iter()
+            .filter_map(|p| catalogue.param(p.pnu.get()).map(|p| u16::from(p.level)))
+            .max();
+        let (Some(level), Some(needed)) = (catalogue.access_level.map(whole), needed) else {
+            return Ok(None);
+        };
+        let now = self.read_u16(address, level)?;
+        if needed <= now {
+            return Ok(None);
+        }
+        self.write_with(address, level, Value::Word(needed), options)?;
+        Ok(Some((level, needed, now)))
+    }
+
+    /// Waits (up to `wait`) until every parameter of `params` reads 0: the drive is done.
+    fn wait_zero(
+        &self,
+        address: Address,
+        params: &[ParamRef],
+        wait: Duration,
+    ) -> Result<(), ParamError> {
+        let until = Instant::now() + wait;
+        for &param in params {
+            loop {
+                match self.read_u16(address, param) {
+                    Ok(0) => break,
+                    Ok(_) | Err(_) if Instant::now() < until => std::thread::sleep(SAVE_POLL),
+                    Ok(v) => {
+                        return Err(ParamError::Value {
+                            param: param.to_string(),
+                            problem: format!(
+                                "still {v} after {} s: the drive has not finished",
+                                wait.as_secs()
+                            ),
+                        });
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Waits (up to [`SAVE_WAIT`]) until `save` reads 0: a copy whose answer was lost has ended.

@@ -59,7 +59,8 @@
 //!   overriding the controller.
 //! - Parameters ([`Bus::read`], [`Bus::write`], [`Bus::batch`], [`Bus::faults`]): typed
 //!   [`Value`]s and [`ParamError`]s (USS.md section 6).
-//! - Commissioning ([`commissioning`]): the copy of RAM to ROM ([`Bus::save_to_rom`]).
+//! - Commissioning ([`commissioning`]): the copy of RAM to ROM ([`Bus::save_to_rom`]), the
+//!   factory reset ([`Bus::factory_reset`]), quick commissioning ([`Bus::quick_commission`]).
 //!
 //! Errors say what happened and what to do ([`ClientError`], [`ParamError`]).
 //!
@@ -87,7 +88,7 @@ mod watch;
 pub use bus::{Bus, DEFAULT_NODE_NAME};
 pub use capture::Capture;
 pub use command::stop;
-pub use commissioning::{Reset, Saved};
+pub use commissioning::{Commissioned, Reset, Saved};
 pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, HANDSHAKE_TIMEOUT, Jog, Refresher};
 pub use error::{ClientError, Latch, ParamError};
 pub use kinds::ErrorKind;

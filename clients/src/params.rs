@@ -155,7 +155,9 @@ impl Bus {
     /// the drive (a deliberate act, e.g. during commissioning; ussd logs nothing extra, the
     /// controller is not told); `unsafe_write` writes even a parameter that can take the drive
     /// away from ussd (ussd logs it), and reads it back: a drive that holds something else is
-    /// [`ParamError::Unexpected`].
+    /// [`ParamError::Unexpected`]. A command (the catalogue's `action`: a factory reset, the end
+    /// of quick commissioning) is not read back: what it reads after is its progress, not a
+    /// setting.
     pub fn write_with(
         &self,
         address: Address,
@@ -175,7 +177,10 @@ impl Bus {
             .request(address, &[task], flags)?
             .pop()
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))?;
-        if options.unsafe_write {
+        let command = self
+            .catalogue_entry(address, param.pnu)
+            .is_some_and(|p| p.action);
+        if options.unsafe_write && !command {
             // The drive's answer confirmed the write: a read-back that does not come back
             // (the drive went offline meanwhile) does not make it undone.
             let Ok(held) = self.read(address, param) else {

@@ -518,6 +518,7 @@ impl Drive {
         let on = s.contains(Stw1::ON);
         let off2 = !s.contains(Stw1::NO_OFF2);
         let off3 = !s.contains(Stw1::NO_OFF3);
+        let commissioning = self.params.in_commissioning();
         for _ in 0..4 {
             let next = match self.state {
                 State::Fault => State::Fault,
@@ -527,7 +528,7 @@ impl Drive {
                 State::ReadyToSwitchOn | State::ReadyForOperation if off3 => {
                     State::SwitchingOnInhibited
                 }
-                State::ReadyToSwitchOn if on => State::ReadyForOperation,
+                State::ReadyToSwitchOn if on && !commissioning => State::ReadyForOperation,
                 State::ReadyToSwitchOn => State::ReadyToSwitchOn,
                 State::ReadyForOperation if !on => State::ReadyToSwitchOn,
                 State::ReadyForOperation if s.contains(Stw1::ENABLE_OPERATION) => {

@@ -303,6 +303,7 @@ impl ParamSet {
             change_rights: own.change_rights,
             factory_reset: own.factory_reset,
             save: profile.save.map(|p| p.pnu.get()).or(own.save),
+            quick_end: profile.quick_commissioning.map(|p| p.pnu.get()),
             eeprom_tasks: profile.eeprom_tasks,
         };
         Self::new(family, Vec::leak(defs), consulted)
@@ -329,6 +330,9 @@ pub struct Consulted {
     /// The transfer to EEPROM (P0971): writing 1 stores every setting's RAM value in EEPROM;
     /// the parameter then reads 0 again (the transfer is done).
     pub save: Option<u16>,
+    /// The end of quick commissioning (P3900): 1..=3 written at P0010 = 1 ends it (see
+    /// `ParamTable::end_quick_commissioning`).
+    pub quick_end: Option<u16>,
     /// Whether it takes the task codes that store one value in RAM and EEPROM (11..14); a
     /// G120 refuses them (error 106, task not implemented).
     pub eeprom_tasks: bool,
@@ -348,6 +352,7 @@ pub struct ParamSet {
     change_rights: Option<(usize, u32)>,
     factory_reset: Option<usize>,
     save: Option<usize>,
+    quick_end: Option<usize>,
     eeprom_tasks: bool,
 }
 
@@ -422,6 +427,7 @@ impl ParamSet {
             change_rights,
             factory_reset: slot_of_opt(defs, &offsets, consulted.factory_reset),
             save: slot_of_opt(defs, &offsets, consulted.save),
+            quick_end: slot_of_opt(defs, &offsets, consulted.quick_end),
             eeprom_tasks: consulted.eeprom_tasks,
         }
     }
@@ -707,6 +713,10 @@ impl ParamTable {
             self.save_all();
             return Ok(raw);
         }
+        if Some(at) == self.set.quick_end && raw != 0 {
+            self.end_quick_commissioning(raw, storage);
+            return Ok(raw);
+        }
         Ok(self.ram[at])
     }
 
@@ -751,6 +761,32 @@ impl ParamTable {
         }
     }
 
+    /// P3900 = 1, 2 or 3 at P0010 = 1 (MICROMASTER 440 Parameter List 6SE6400-5BB00-0BP0,
+    /// P3900: it "performs the calculations ... and resets all other parameters not included
+    /// in the quick commissioning to factory settings"): with 1, every changeable parameter
+    /// outside quick commissioning (not "C") goes back to its default; 2 and 3 keep them (the
+    /// simulator has no I/O for 2 to reset). The motor model is not calculated: the simulated
+    /// drive has none. Then P0010 and P3900 read 0 again: quick commissioning is over (the
+    /// reply goes out when the calculation is done).
+    fn end_quick_commissioning(&mut self, end: u32, storage: Storage) {
+        let set = self.set;
+        if end == 1 {
+            for (n, def) in set.defs.iter().enumerate() {
+                if def.is_read_only() || def.change == Change::Commissioning {
+                    continue;
+                }
+                let range = set.offsets[n]..set.offsets[n] + def.slots();
+                self.ram[range.clone()].copy_from_slice(&set.defaults[range.clone()]);
+                if storage == Storage::RamAndEeprom {
+                    self.eeprom[range.clone()].copy_from_slice(&set.defaults[range]);
+                }
+            }
+        }
+        for at in [set.commissioning, set.quick_end].into_iter().flatten() {
+            self.ram[at] = 0;
+        }
+    }
+
     /// P0971 = 1: every changeable parameter's RAM value into EEPROM, and P0971 back to 0 (the
     /// transfer is done when the reply goes out).
     fn save_all(&mut self) {
@@ -766,6 +802,15 @@ impl ParamTable {
             self.ram[at] = set.defaults[at];
             self.eeprom[at] = set.defaults[at];
         }
+    }
+
+    /// Whether the commissioning parameter (P0010) is set: a drive being commissioned or reset
+    /// does not switch on. Inferred, not reached in a stored copy of the lists: P0010 itself
+    /// "can only be changed in quick commissioning "C" or ready "T" but not in operation "U""
+    /// (CU240S OI Compact 04/2006 A5E00766042B AA p.2-5), and a drive whose motor data are
+    /// being written has no motor model to run with.
+    pub fn in_commissioning(&self) -> bool {
+        self.set.commissioning.is_some_and(|at| self.ram[at] != 0)
     }
 
     /// Raw value of an element as stored in RAM (None for an unknown PNU or index out of range).

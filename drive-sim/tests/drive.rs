@@ -586,3 +586,31 @@ fn a_refused_task_echoes_its_pnu_bits_even_when_they_name_no_parameter() {
     let (pkw, _) = send(&mut d, &[0x27DD, 0x0000, 0, 5], &[0x047E, 0], ms(0)).unwrap();
     assert_eq!(pkw, vec![0x77DD, 0x0000, 0, 0]);
 }
+
+/// A drive being commissioned (P0010 = 1) does not switch on (`ParamTable::in_commissioning`):
+/// it stays ready to switch on until P0010 is 0 again, here by the end of quick commissioning
+/// (P3900 = 3), which also sets P3900 back to 0.
+#[test]
+fn a_drive_in_quick_commissioning_does_not_switch_on_until_p3900_ends_it() {
+    let mut d = drive(PkwMode::Four);
+    d.params_mut().set_internal(10, 0, 1);
+    run_to(&mut d, 0x2000, ms(500));
+    assert_eq!(d.state(), State::ReadyToSwitchOn);
+    assert_eq!(d.frequency_hz(), 0.0);
+    // The end of quick commissioning, as the PKW channel writes it (a word, RAM).
+    let task = uss_protocol::ParamTask::Write {
+        pnu: uss_protocol::Pnu::new(3900).unwrap(),
+        value: uss_protocol::Value::Word(3),
+        storage: uss_protocol::Storage::Ram,
+    };
+    let outcome = d.params_mut().execute(
+        &task,
+        PkwMode::Four,
+        uss_drive_sim::params::DriveContext::default(),
+    );
+    assert_eq!(outcome, ReplyKind::Word(3), "taken");
+    assert_eq!(d.params().get(10, 0), Some(0), "out of quick commissioning");
+    assert_eq!(d.params().get(3900, 0), Some(0), "the calculation is done");
+    run_to(&mut d, 0x2000, ms(500));
+    assert!(d.state().is_running(), "{:?}", d.state());
+}

@@ -245,6 +245,89 @@ fn write<'py>(
     })
 }
 
+/// A call `f` on drive `address` of `bus`, without the GIL, its error raised as Python's.
+fn on_drive<T: Send>(
+    py: Python<'_>,
+    bus: &Bound<'_, NativeBus>,
+    address: u8,
+    f: impl FnOnce(&uss_client::Bus, Address) -> Result<T, uss_client::ParamError> + Send,
+) -> PyResult<T> {
+    let bus = &bus.get().inner;
+    let drive = errors::drive(py, address)?;
+    py.detach(|| f(bus, drive))
+        .map_err(|e| errors::param(py, bus, e))
+}
+
+/// What ussd read of a drive again after a reset or a quick commissioning, into `d`.
+fn read_again(
+    d: &Bound<'_, PyDict>,
+    reference_hz: Option<f32>,
+    monitoring: uss_client::Monitoring,
+    monitoring_ms: u32,
+) -> PyResult<()> {
+    d.set_item("reference_hz", reference_hz)?;
+    d.set_item("monitoring", monitoring.to_string())?;
+    d.set_item("monitoring_ms", monitoring_ms)
+}
+
+/// Puts every setting of the drive back to its factory value (P0010 = 30, P0970 = 1), waits
+/// for it and for ussd's new reading: `{"writes": ["P0010 := 30", "P0970 := 1"], "seconds",
+/// "reference_hz" (None: not read yet), "monitoring", "monitoring_ms"}`.
+#[pyfunction]
+#[pyo3(signature = (bus, address, force=false))]
+fn factory_reset<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+    force: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let reset = on_drive(py, bus, address, |bus, drive| {
+        bus.factory_reset(drive, force)
+    })?;
+    let d = PyDict::new(py);
+    d.set_item("writes", reset.writes())?;
+    d.set_item("seconds", reset.took.as_secs_f64())?;
+    read_again(
+        &d,
+        reset.reference_hz,
+        reset.monitoring,
+        reset.monitoring_ms,
+    )?;
+    Ok(d)
+}
+
+/// Quick commissioning: P0010 = 1, `motor` as `(param, text)` in order, then P3900 = `end`,
+/// waited for: `{"writes": [...], "raised", "seconds", "reference_hz", "monitoring",
+/// "monitoring_ms"}`.
+#[pyfunction]
+#[pyo3(signature = (bus, address, motor, end=3, force=false))]
+#[allow(
+    clippy::needless_pass_by_value,
+    reason = "pyo3 extracts the list by value"
+)]
+fn quick_commission<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+    motor: Vec<(String, String)>,
+    end: u16,
+    force: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let motor = motor
+        .iter()
+        .map(|(p, v)| Ok((param_ref(p)?, v.as_str())))
+        .collect::<PyResult<Vec<_>>>()?;
+    let done = on_drive(py, bus, address, |bus, drive| {
+        bus.quick_commission(drive, &motor, end, force)
+    })?;
+    let d = PyDict::new(py);
+    d.set_item("writes", done.writes())?;
+    d.set_item("raised", done.raised_text())?;
+    d.set_item("seconds", done.took.as_secs_f64())?;
+    read_again(&d, done.reference_hz, done.monitoring, done.monitoring_ms)?;
+    Ok(d)
+}
+
 /// Copies every setting of the drive from RAM to ROM (P0971 / p0971): `{"param": "P0971",
 /// "raised": "P0003 1 -> 3 -> 1" or None}`.
 #[pyfunction]
@@ -253,11 +336,7 @@ fn save_to_rom<'py>(
     bus: &Bound<'py, NativeBus>,
     address: u8,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let bus = &bus.get().inner;
-    let drive = errors::drive(py, address)?;
-    let saved = py
-        .detach(|| bus.save_to_rom(drive))
-        .map_err(|e| errors::param(py, bus, e))?;
+    let saved = on_drive(py, bus, address, uss_client::Bus::save_to_rom)?;
     let d = PyDict::new(py);
     d.set_item("param", saved.param.to_string())?;
     d.set_item("raised", saved.raised_text())?;
@@ -273,11 +352,7 @@ fn fault_report<'py>(
     bus: &Bound<'py, NativeBus>,
     address: u8,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let bus = &bus.get().inner;
-    let drive = errors::drive(py, address)?;
-    let report = py
-        .detach(|| bus.fault_report(drive))
-        .map_err(|e| errors::param(py, bus, e))?;
+    let report = on_drive(py, bus, address, uss_client::Bus::fault_report)?;
     let faults = pyo3::types::PyList::empty(py);
     for f in &report.faults {
         let d = PyDict::new(py);
@@ -348,6 +423,8 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(write, m)?)?;
     m.add_function(wrap_pyfunction!(fault_report, m)?)?;
     m.add_function(wrap_pyfunction!(save_to_rom, m)?)?;
+    m.add_function(wrap_pyfunction!(factory_reset, m)?)?;
+    m.add_function(wrap_pyfunction!(quick_commission, m)?)?;
     m.add_function(wrap_pyfunction!(parse_param, m)?)?;
     m.add_function(wrap_pyfunction!(fault_text, m)?)?;
     m.add_function(wrap_pyfunction!(warning_text, m)?)?;

@@ -604,3 +604,35 @@ def test_sigterm_stops_ussd_and_clients_are_told(ussd):
     with pytest.raises((uss_rt.NotRunning, uss_rt.UssdGone)):
         uss_rt.open_bus(BUS)
 
+
+
+def test_quick_commissioning_and_a_factory_reset_wait_for_the_drive_and_ussd(tmp_path):
+    """The guided commissioning calls from Python (issue 46): a value the drive refuses ends
+    quick commissioning with the drive out of it (P0010 back to 0) and the level put back; the
+    rating plate then goes in, P3900 = 3 keeps every other setting (P2000 60 Hz), the level
+    raised for P0308 is put back. A factory reset brings the reference back to 50 Hz, read again
+    by ussd before the call returns."""
+    bus_name = f"{BUS}-commissioning"
+    daemon = Ussd(tmp_path, bus=bus_name, drives=[(4, "sim = { p2000 = 60 }")])
+    try:
+        daemon.wait_for_services()
+        with uss_rt.open_bus(bus_name) as bus:
+            wait_for_input(bus, 4, lambda i: i["online"] == 1)
+            with pytest.raises(uss_rt.DriveError):
+                uss_rt.quick_commission(bus, 4, [("P0308", "0.8"), ("P2000", "0.5")])
+            assert uss_rt.read_param(bus, 4, 10) == 0, "out of quick commissioning"
+            assert uss_rt.read_param(bus, 4, 3) == 1, "the level put back"
+            plate = {"P0304": 400, "P0305": 1.9, "P0308": 0.82, "P0310": 50, "P0311": 1395}
+            done = uss_rt.quick_commission(bus, 4, plate)
+            assert done["writes"][:3] == ["P0010 := 1", "P0304 := 400 V", "P0305 := 1.90 A"]
+            assert done["writes"][-1] == "P3900 := 3"
+            assert done["raised"] == "P0003 1 -> 2 -> 1"
+            assert done["reference_hz"] == 60.0
+            assert uss_rt.read(bus, 4, "P0311").value == 1395
+            assert [uss_rt.read_param(bus, 4, p) for p in (10, 3900, 3)] == [0, 0, 1]
+            reset = uss_rt.factory_reset(bus, 4)
+            assert reset["writes"] == ["P0010 := 30", "P0970 := 1"]
+            assert reset["reference_hz"] == 50.0
+            assert uss_rt.read(bus, 4, "P2000").value == 50.0
+    finally:
+        assert daemon.stop() == 0, daemon.output()

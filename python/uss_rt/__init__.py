@@ -49,6 +49,7 @@ __all__ = _errors.__all__ + [
     "Value",
     "batch",
     "control",
+    "factory_reset",
     "fault_report",
     "fault_text",
     "open_bus",
@@ -58,6 +59,7 @@ __all__ = _errors.__all__ + [
     "read_input",
     "read_elements",
     "read_param",
+    "quick_commission",
     "save_to_rom",
     "stop_all",
     "stop_drive",
@@ -346,6 +348,35 @@ def save_to_rom(bus: Bus, address: int) -> dict:
     a known copy (generic, SIMOREG): :class:`Refused`."""
     _check_address(address)
     return _native.save_to_rom(bus._open(), address)
+
+
+def factory_reset(bus: Bus, address: int, force: bool = False) -> dict:
+    """Puts every setting of drive ``address`` back to its factory value as its manual gives it
+    (MICROMASTER 4 and G120: P0010 = 30, then P0970 = 1), waits until the drive is done and
+    until ussd has read again what it scales and judges the drive by, and says what it read:
+    ``{"writes": ["P0010 := 30", "P0970 := 1"], "seconds": 0.04, "reference_hz": 50.0 (None:
+    still being read), "monitoring": "off", "monitoring_ms": 0}``. The writes are deliberate
+    (ussd logs them as unsafe: the command source, the COM link and the telegram monitoring go
+    back to their defaults); ``force`` resets while another process controls the drive. RAM
+    only: :func:`save_to_rom` stores it. A family without a known reset: :class:`Refused`."""
+    _check_address(address)
+    return _native.factory_reset(bus._open(), address, force)
+
+
+def quick_commission(bus: Bus, address: int, motor, end: int = 3, force: bool = False) -> dict:
+    """Quick commissioning as the drive's manual gives it: P0010 = 1, the motor data ``motor``
+    (``[("P0304", "400"), ("P0305", "1.9"), ...]`` or a dict, in the parameters' own units,
+    written in order), then P3900 = ``end`` (3: the motor model only; 2: and the I/O back to
+    factory values; 1: and every other setting, the command source, the COM link and the
+    telegram monitoring included). Waits until the drive is done and ussd has read it again:
+    ``{"writes": ["P0010 := 1", "P0304 := 400 V", ..., "P3900 := 3"], "raised": "P0003 1 ->
+    2 -> 1" or None, "seconds", "reference_hz", "monitoring", "monitoring_ms"}``. A value the
+    drive refuses raises (:class:`Refused`) with the drive out of quick commissioning (P0010
+    back to 0) and the access level put back; values written before stay in RAM."""
+    _check_address(address)
+    items = motor.items() if isinstance(motor, dict) else motor
+    pairs = [(str(p), str(v)) for p, v in items]
+    return _native.quick_commission(bus._open(), address, pairs, end, force)
 
 
 def stop_drive(bus: Bus, address: int, command=StopCommand.OFF1, timeout: float = 2.0):

@@ -187,3 +187,108 @@ fn a_guided_factory_reset_says_what_ussd_read_of_the_drive_after_it() {
     assert!(ok, "{out}");
     assert!(out.contains("(reference 50 Hz)"), "{out}");
 }
+
+/// Guided quick commissioning (item 4): refused without --unsafe; a motor value outside the
+/// drive's limits ends it with the drive out of quick commissioning (P0010 back to 0) and the
+/// access level back; then P0010 = 1, the rating plate in the order given (P0308 needs level
+/// 2: raised and put back), P3900 = 3, waited for: the motor data stay, every other setting
+/// too (P2000 still 60 Hz), and P0010 and P3900 read 0. With P3900 = 1 every setting outside
+/// quick commissioning is the factory's again: ussd reads the reference anew (50 Hz) and says
+/// that the telegram monitoring went off.
+#[test]
+fn a_guided_quick_commissioning_writes_the_motor_data_and_waits_for_the_drive() {
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "4:p2014=500,p2000=60"]);
+    let ussd = Ussd::start_on(&sim.path, "baud = 115200", &[(4, "")]);
+    ussd.log_line("telegram monitoring on", Duration::from_secs(5))
+        .expect("monitoring read at start");
+    let plate = [
+        "--set",
+        "P0304=400",
+        "--set",
+        "P0305=1.9",
+        "--set",
+        "P0307=0.75",
+        "--set",
+        "P0308=0.82",
+        "--set",
+        "P0310=50",
+        "--set",
+        "P0311=1395",
+    ];
+    let quick = |extra: &[&str]| {
+        let mut args = vec!["param", "quick-commission", "4"];
+        args.extend_from_slice(&plate);
+        args.extend_from_slice(extra);
+        ussctl(&ussd, &args)
+    };
+    let factory = read(&ussd, 4, param(304));
+    let (ok, out) = quick(&[]);
+    assert!(!ok && out.contains("give --unsafe"), "{out}");
+    assert_eq!(read(&ussd, 4, param(304)), factory, "nothing written");
+    assert_eq!(read(&ussd, 4, param(10)), Value::Word(0), "nothing written");
+
+    let (ok, out) = ussctl(
+        &ussd,
+        &[
+            "param",
+            "quick-commission",
+            "4",
+            "--set",
+            "P0308=0.8",
+            "--set",
+            "P0305=20000",
+            "--unsafe",
+        ],
+    );
+    assert!(!ok, "{out}");
+    assert_eq!(
+        read(&ussd, 4, param(10)),
+        Value::Word(0),
+        "out of quick commissioning: {out}"
+    );
+    assert_eq!(
+        read(&ussd, 4, param(3)),
+        Value::Word(1),
+        "the level put back: {out}"
+    );
+
+    let (ok, out) = quick(&["--unsafe"]);
+    assert!(ok, "{out}");
+    assert!(
+        out.contains("quick commissioning done")
+            && out.contains("P0010 := 1, P0304 := 400 V, P0305 := 1.90 A")
+            && out.contains("P3900 := 3")
+            && out.contains("P0003 1 -> 2 -> 1")
+            && out.contains("reference 60 Hz, telegram monitoring on (500 ms)"),
+        "{out}"
+    );
+    assert_eq!(read(&ussd, 4, param(304)), Value::Word(400));
+    assert_eq!(read(&ussd, 4, param(311)), Value::Word(1395));
+    for (p, want) in [(10, 0), (3900, 0), (3, 1)] {
+        assert_eq!(
+            read(&ussd, 4, param(p)),
+            Value::Word(want),
+            "P{p:04}: {out}"
+        );
+    }
+    assert_eq!(read(&ussd, 4, param(2000)), Value::from_f32(60.0), "kept");
+
+    let (ok, out) = quick(&["--end", "1", "--unsafe"]);
+    assert!(ok, "{out}");
+    assert!(
+        out.contains("P3900 := 1")
+            && out.contains("reference 50 Hz")
+            && out.contains("telegram monitoring OFF"),
+        "{out}"
+    );
+    assert_eq!(
+        read(&ussd, 4, param(304)),
+        Value::Word(400),
+        "motor data kept"
+    );
+    assert_eq!(
+        read(&ussd, 4, param(2000)),
+        Value::from_f32(50.0),
+        "factory's"
+    );
+}

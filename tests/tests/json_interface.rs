@@ -65,6 +65,20 @@ fn every_json_output_carries_its_version_and_matches_its_shipped_schema() {
     json(&ussd, &["param", "backup", "1", "-o", file]);
     every_line("restore", &json(&ussd, &["param", "restore", "2", file]));
     every_line("save", &json(&ussd, &["param", "save", "2"]));
+    every_line(
+        "quick",
+        &json(
+            &ussd,
+            &[
+                "param",
+                "quick-commission",
+                "2",
+                "--set",
+                "P0304=400",
+                "--unsafe",
+            ],
+        ),
+    );
     let _ = std::fs::remove_file(&backup);
     every_line(
         "drive",

@@ -34,6 +34,16 @@ const CALLS: &[(&str, &str, &str)] = &[
     ("fault_report", "ussrt_fault_report", "fault_report"),
     // Commissioning.
     ("save_to_rom", "ussrt_param_save", "save_to_rom"),
+    (
+        "factory_reset",
+        "ussrt_param_factory_reset",
+        "factory_reset",
+    ),
+    (
+        "quick_commission",
+        "ussrt_param_quick_commission",
+        "quick_commission",
+    ),
     // An operator's stops.
     ("stop_drive", "ussrt_stop_drive", "stop_drive"),
     ("stop_all", "ussrt_stop_all", "stop_all"),

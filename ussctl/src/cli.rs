@@ -118,6 +118,10 @@ pub enum ParamCommand {
     /// 30, then P0970 = 1), wait until it is done and until ussd has read the drive again
     /// (its reference and telegram monitoring), and say what it read. Needs --unsafe.
     FactoryReset(commands::param::FactoryReset),
+    /// Quick commissioning as the drive's manual gives it: P0010 = 1, the motor data given
+    /// with --set, then P3900 (3: the motor model only); waits until the drive is done and
+    /// ussd has read it again, and says what it read. Needs --unsafe.
+    QuickCommission(commands::param::QuickCommission),
     /// Save every settable parameter of a drive (the catalogue's, array elements included) to
     /// a TOML file (stdout without -o).
     Backup(commands::backup::Backup),
@@ -139,6 +143,7 @@ impl ParamCommand {
             Self::Write(c) => c.run(bus, out),
             Self::Save(c) => c.run(bus, out),
             Self::FactoryReset(c) => c.run(bus, out),
+            Self::QuickCommission(c) => c.run(bus, out),
             Self::Backup(c) => c.run(bus, out),
             Self::Restore(c) => c.run(bus, out),
             Self::Diff(c) => c.run(bus, out),

@@ -9,8 +9,8 @@ use crate::commands::param::DescribeReport;
 use crate::commands::trace::Summary;
 use crate::decode::CaptureLine;
 use crate::report::{
-    DiffReport, DriveReport, FaultsReport, ParamReport, ResetReport, RestoreReport, SaveReport,
-    ScanReport, StatsReport, StatusReport, StopReport, WatchLine,
+    DiffReport, DriveReport, FaultsReport, ParamReport, QuickReport, ResetReport, RestoreReport,
+    SaveReport, ScanReport, StatsReport, StatusReport, StopReport, WatchLine,
 };
 use schemars::{JsonSchema, Schema};
 use serde::Serialize;
@@ -88,6 +88,10 @@ pub(crate) fn schemas() -> Vec<(&'static str, Schema)> {
         (
             "reset",
             schema::<ResetReport>("ussctl --json param factory-reset"),
+        ),
+        (
+            "quick",
+            schema::<QuickReport>("ussctl --json param quick-commission"),
         ),
     ]
 }

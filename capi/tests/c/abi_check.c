@@ -255,6 +255,31 @@ int main(int argc, char **argv) {
   OK(ussrt_wait_stopped(bus, 2, 1, 2000, NULL)); /* OFF3 is at least as strong as OFF1 */
   EXPECT(ussrt_wait_stopped(bus, 1, 9, 0, NULL) == USSRT_STATUS_INVALID_ARGUMENT,
          "stop command 9");
+  /* Guided commissioning: a value the drive refuses leaves quick commissioning (P0010 back to
+     0); the rating plate then goes in and P3900 = 3 ends it; a factory reset brings P0304 back. */
+  const char *params[] = {"P0304", "P0305"};
+  const char *beyond[] = {"400", "20000"};
+  const char *plate[] = {"400", "1.9"};
+  EXPECT(ussrt_param_quick_commission(bus, 2, params, beyond, 2, 3, 0) != USSRT_STATUS_OK,
+         "P0305 = 20000 A is beyond its limits");
+  OK(ussrt_param_read(bus, 2, "P0010", &v));
+  EXPECT(v.value == 0, "out of quick commissioning: %g", v.value);
+  EXPECT(ussrt_param_quick_commission(bus, 2, params, plate, 2, 7, 0) == USSRT_STATUS_VALUE,
+         "P3900 = 7");
+  EXPECT(ussrt_param_quick_commission(bus, 2, NULL, NULL, 2, 3, 0) ==
+             USSRT_STATUS_INVALID_ARGUMENT,
+         "NULL arrays");
+  OK(ussrt_param_quick_commission(bus, 2, params, plate, 2, 3, USSRT_WRITE_FORCE));
+  OK(ussrt_param_read(bus, 2, "P0304", &v));
+  EXPECT(v.value == 400, "P0304 %g", v.value);
+  OK(ussrt_param_read(bus, 2, "P3900", &v));
+  EXPECT(v.value == 0, "P3900 done: %g", v.value);
+  EXPECT(ussrt_param_factory_reset(bus, 2, USSRT_WRITE_EEPROM) == USSRT_STATUS_INVALID_ARGUMENT,
+         "a reset takes only USSRT_WRITE_FORCE");
+  OK(ussrt_param_factory_reset(bus, 2, USSRT_WRITE_FORCE));
+  OK(ussrt_param_read(bus, 2, "P0304", &v));
+  EXPECT(v.value != 400, "factory's P0304 again: %g", v.value);
+
   ussrt_bus_close(bus);
   ussrt_bus_close(NULL);
   printf("abi_check: all %d checks passed (libussrt %s)\n", checks, ussrt_version());

@@ -1,7 +1,7 @@
 //! `param read`, `param write`, `faults`: parameters through ussd.
 
 use crate::cli::{self, Kind, ParamRef, address, param_ref};
-use crate::report::{FaultsReport, ParamReport, ResetReport, SaveReport};
+use crate::report::{FaultsReport, ParamReport, QuickReport, ResetReport, SaveReport};
 use crate::{Failure, Output};
 use uss_client::Address;
 use uss_client::{Bus, ParamError, ParamValue, WriteOptions};
@@ -348,6 +348,71 @@ impl FactoryReset {
         out.show(
             &ResetReport::new(bus.name(), drive, &reset),
             ResetReport::human,
+        )
+    }
+}
+
+/// `param quick-commission`'s arguments.
+#[derive(Debug, clap::Args)]
+pub struct QuickCommission {
+    /// The drive's address on the bus, 0..=31.
+    #[arg(value_parser = address)]
+    drive: Address,
+    /// A motor value from its rating plate, PARAM=VALUE in the parameter's own unit, written
+    /// in the order given (e.g. --set P0304=400 --set P0305=1.9 --set P0307=0.75 --set
+    /// P0310=50 --set P0311=1395).
+    #[arg(long = "set", value_name = "PARAM=VALUE", value_parser = param_value)]
+    set: Vec<(ParamRef, String)>,
+    /// The end of quick commissioning (P3900): 3 calculates the motor model only; 2 also puts
+    /// the I/O back to factory values; 1 also every other setting, the command source, the COM
+    /// link and the telegram monitoring included.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=3))]
+    end: u16,
+    /// Required: the end of quick commissioning is a guarded write (1 takes the drive off
+    /// this link; every end recalculates the motor model). ussd logs it.
+    #[arg(long = "unsafe")]
+    unsafe_write: bool,
+    /// Commission even though another process controls the drive (a deliberate act).
+    #[arg(long)]
+    force: bool,
+}
+
+/// `P0304=400`: a parameter and the text of its value.
+fn param_value(s: &str) -> Result<(ParamRef, String), String> {
+    let (param, value) = s
+        .split_once('=')
+        .ok_or_else(|| format!("{s}: give PARAM=VALUE, e.g. P0304=400"))?;
+    let param = param_ref(param.trim())?;
+    Ok((param, value.trim().to_owned()))
+}
+
+impl QuickCommission {
+    pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
+        let drive = self.drive;
+        if !self.unsafe_write {
+            return Err(Failure::Usage(format!(
+                "drive {drive}: the end of quick commissioning (P3900 = {}) recalculates the motor model{}; give --unsafe to do it deliberately (nothing was written)",
+                self.end,
+                if self.end == 1 {
+                    " and puts every other setting back to its factory value, the command source, the COM link and the telegram monitoring included"
+                } else {
+                    ""
+                }
+            )));
+        }
+        // Ctrl-C does not cut it between P0010 = 1 and its end.
+        crate::catch_signals()?;
+        let motor: Vec<(ParamRef, &str)> = self.set.iter().map(|(p, v)| (*p, v.as_str())).collect();
+        let done = bus
+            .quick_commission(drive, &motor, self.end, self.force)
+            .map_err(|source| Failure::Param {
+                drive,
+                param: "quick commissioning".to_owned(),
+                source,
+            })?;
+        out.show(
+            &QuickReport::new(bus.name(), drive, &done),
+            QuickReport::human,
         )
     }
 }

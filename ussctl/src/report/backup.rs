@@ -409,14 +409,10 @@ pub struct ResetReport {
 
 impl ResetReport {
     pub fn new(bus: &str, drive: Address, reset: &uss_client::Reset) -> Self {
-        let (commissioning, setting) = reset.unlocked_by;
         Self {
             bus: bus.to_owned(),
             drive: drive.get(),
-            writes: vec![
-                format!("{commissioning} := {setting}"),
-                format!("{} := 1", reset.param),
-            ],
+            writes: reset.writes(),
             seconds: reset.took.as_secs_f64(),
             reference_hz: reset.reference_hz,
             monitoring: reset.monitoring.to_string(),
@@ -425,20 +421,77 @@ impl ResetReport {
     }
 
     pub fn human(&self) -> String {
-        let reference = self.reference_hz.map_or_else(
-            || "its reference is still being read (Hz are refused until then)".to_owned(),
-            |hz| format!("reference {hz} Hz"),
-        );
-        let monitoring = match self.monitoring.as_str() {
-            "off" => "telegram monitoring OFF: if ussd or its line dies, nothing stops this drive; set it before running it (USS.md section 5)".to_owned(),
-            "on" => format!("telegram monitoring on ({} ms)", self.monitoring_ms),
-            other => format!("telegram monitoring {other} ({} ms)", self.monitoring_ms),
-        };
         format!(
-            "drive {}: factory reset ({}) done in {:.2} s; every setting is its factory value (in RAM; `param save` stores it)\n  ussd read it again: {reference}, {monitoring}\n",
+            "drive {}: factory reset ({}) done in {:.2} s; every setting is its factory value (in RAM; `param save` stores it)\n  ussd read it again: {}\n",
             self.drive,
             self.writes.join(", "),
-            self.seconds
+            self.seconds,
+            read_again(self.reference_hz, &self.monitoring, self.monitoring_ms)
+        )
+    }
+}
+
+/// What ussd read of a drive again after a reset or a quick commissioning, as a reader acts on
+/// it: "reference 50 Hz, telegram monitoring on (500 ms)".
+fn read_again(reference_hz: Option<f32>, monitoring: &str, monitoring_ms: u32) -> String {
+    let reference = reference_hz.map_or_else(
+        || "its reference is still being read (Hz are refused until then)".to_owned(),
+        |hz| format!("reference {hz} Hz"),
+    );
+    let monitoring = match monitoring {
+        "off" => "telegram monitoring OFF: if ussd or its line dies, nothing stops this drive; set it before running it (USS.md section 5)".to_owned(),
+        "on" => format!("telegram monitoring on ({monitoring_ms} ms)"),
+        other => format!("telegram monitoring {other} ({monitoring_ms} ms)"),
+    };
+    format!("{reference}, {monitoring}")
+}
+
+/// `param quick-commission`: the writes in order, and what ussd read of the drive after them.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct QuickReport {
+    pub bus: String,
+    pub drive: u8,
+    /// The writes, in order ("P0010 := 1", "P0304 := 400 V", ..., "P3900 := 3").
+    pub writes: Vec<String>,
+    /// The access level raised for it and put back in RAM ("P0003 1 -> 3 -> 1"); null when
+    /// none was needed.
+    pub raised: Option<String>,
+    /// From the first write until the drive said it was done.
+    pub seconds: f64,
+    /// The reference frequency ussd scales Hz by now, read again; null when ussd had not read
+    /// it yet.
+    pub reference_hz: Option<f32>,
+    /// The telegram monitoring ussd read again: "on", "off", "too long", ...
+    pub monitoring: String,
+    pub monitoring_ms: u32,
+}
+
+impl QuickReport {
+    pub fn new(bus: &str, drive: Address, done: &uss_client::Commissioned) -> Self {
+        Self {
+            bus: bus.to_owned(),
+            drive: drive.get(),
+            writes: done.writes(),
+            raised: done.raised_text(),
+            seconds: done.took.as_secs_f64(),
+            reference_hz: done.reference_hz,
+            monitoring: done.monitoring.to_string(),
+            monitoring_ms: done.monitoring_ms,
+        }
+    }
+
+    pub fn human(&self) -> String {
+        let raised = self
+            .raised
+            .as_ref()
+            .map(|r| format!("; access level raised for it and put back ({r})"))
+            .unwrap_or_default();
+        format!(
+            "drive {}: quick commissioning done in {:.2} s ({}){raised}; the drive is out of quick commissioning (in RAM; `param save` stores it)\n  ussd read it again: {}\n",
+            self.drive,
+            self.seconds,
+            self.writes.join(", "),
+            read_again(self.reference_hz, &self.monitoring, self.monitoring_ms)
         )
     }
 }
