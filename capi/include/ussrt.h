@@ -830,6 +830,40 @@ enum UssrtStatus ussrt_param_quick_commission(const struct UssrtBus *bus,
                                               uint32_t flags);
 
 /**
+ * Uploads every setting of drive `address` as STARTER does (each setting of its family's
+ * catalogue with every element the drive has, its data sets included, and its firmware) into
+ * `text` as the backup file's TOML, NUL-terminated: what `ussctl param backup` writes and
+ * `ussctl param restore` reads. `*length` gets the text's length without the NUL; a
+ * `capacity` below it is `INVALID_ARGUMENT` (nothing written: call again with room for
+ * `*length + 1`). `REFUSED` for a generic slave.
+ *
+ * # Safety
+ * `bus` is a live handle; `text` writable memory for `capacity` bytes (NULL when `capacity`
+ * is 0); `length` writable memory for one `size_t`.
+ */
+enum UssrtStatus ussrt_param_backup(const struct UssrtBus *bus,
+                                    uint8_t address,
+                                    char *text,
+                                    uintptr_t capacity,
+                                    uintptr_t *length);
+
+/**
+ * Compares drive `address` with the backup file `backup_text` (its TOML, NUL-terminated, as
+ * `ussrt_param_backup` gives it): `*differ` gets the elements that differ, `*same` (may be
+ * NULL) those that are the same. A file that fails its checks (another family, a value
+ * outside its limits, ...) is `VALUE` with the line in `ussrt_last_error`.
+ *
+ * # Safety
+ * `bus` is a live handle; `backup_text` a NUL-terminated string; `differ` writable memory for
+ * one `size_t`; `same` NULL or writable memory for one `size_t`.
+ */
+enum UssrtStatus ussrt_param_diff(const struct UssrtBus *bus,
+                                  uint8_t address,
+                                  const char *backup_text,
+                                  uintptr_t *differ,
+                                  uintptr_t *same);
+
+/**
  * Reads parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as the raw word or
  * double word the drive sends: `*value`, and `*is_dword` (may be NULL).
  *

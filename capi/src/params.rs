@@ -349,6 +349,78 @@ pub unsafe extern "C" fn ussrt_param_quick_commission(
     })
 }
 
+/// Uploads every setting of drive `address` as STARTER does (each setting of its family's
+/// catalogue with every element the drive has, its data sets included, and its firmware) into
+/// `text` as the backup file's TOML, NUL-terminated: what `ussctl param backup` writes and
+/// `ussctl param restore` reads. `*length` gets the text's length without the NUL; a
+/// `capacity` below it is `INVALID_ARGUMENT` (nothing written: call again with room for
+/// `*length + 1`). `REFUSED` for a generic slave.
+///
+/// # Safety
+/// `bus` is a live handle; `text` writable memory for `capacity` bytes (NULL when `capacity`
+/// is 0); `length` writable memory for one `size_t`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_backup(
+    bus: *const UssrtBus,
+    address: u8,
+    text: *mut c_char,
+    capacity: usize,
+    length: *mut usize,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let length = out(length, "length")?;
+        let upload = bus.bus.upload(drive(address)?, &mut |_, _| {})?;
+        let file = upload.file.to_text();
+        *length = file.len();
+        if capacity <= file.len() || text.is_null() {
+            return Err(Failure::Argument(format!(
+                "the backup is {} bytes: give room for {} (capacity {capacity})",
+                file.len(),
+                file.len() + 1
+            )));
+        }
+        // SAFETY: non-NULL (checked) and `capacity` bytes long (as documented), more than the
+        // text and its NUL.
+        let room = unsafe { core::slice::from_raw_parts_mut(text.cast::<u8>(), capacity) };
+        room[..file.len()].copy_from_slice(file.as_bytes());
+        room[file.len()] = 0;
+        Ok(())
+    })
+}
+
+/// Compares drive `address` with the backup file `backup_text` (its TOML, NUL-terminated, as
+/// `ussrt_param_backup` gives it): `*differ` gets the elements that differ, `*same` (may be
+/// NULL) those that are the same. A file that fails its checks (another family, a value
+/// outside its limits, ...) is `VALUE` with the line in `ussrt_last_error`.
+///
+/// # Safety
+/// `bus` is a live handle; `backup_text` a NUL-terminated string; `differ` writable memory for
+/// one `size_t`; `same` NULL or writable memory for one `size_t`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_diff(
+    bus: *const UssrtBus,
+    address: u8,
+    backup_text: *const c_char,
+    differ: *mut usize,
+    same: *mut usize,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let file = text(backup_text, "backup_text")?;
+        let differ = out(differ, "differ")?;
+        let diff = bus
+            .bus
+            .diff_file(drive(address)?, file, "backup_text", &mut |_, _| {})?;
+        *differ = diff.differ.len();
+        // SAFETY: NULL or the caller's memory (as documented).
+        if let Some(same) = unsafe { same.as_mut() } {
+            *same = diff.same;
+        }
+        Ok(())
+    })
+}
+
 /// Reads parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as the raw word or
 /// double word the drive sends: `*value`, and `*is_dword` (may be NULL).
 ///

@@ -260,6 +260,14 @@ pub struct Param {
     /// setting; never saved in or restored from a backup.
     #[serde(default)]
     pub action: bool,
+    /// Elements by data set on the drives that have them (MICROMASTER 440: three command data
+    /// sets for the command and setpoint sources, three drive data sets for limits and ramps;
+    /// 0 = none). Unlike an array, the parameter is named without an element: a drive takes a
+    /// plain task as element 0, the first data set, and a drive without data sets (an MM420 may
+    /// have fewer) answers it alone. A backup asks each drive how many elements it has
+    /// (descriptive element 2, AK 4) and saves them all.
+    #[serde(default)]
+    pub data_sets: u8,
     /// The stored page of the manufacturer's list this entry was checked against (list, issue,
     /// page); none: not checked against a stored copy yet.
     #[serde(default)]
@@ -316,6 +324,14 @@ impl Param {
     /// Whether the parameter can be written at all.
     pub fn is_writable(&self) -> bool {
         self.change != Change::ReadOnly
+    }
+
+    /// Whether it is a setting a backup saves and a restore writes: changeable, not a command
+    /// (`action`), and kept over a power cycle (`eeprom`): the commissioning parameter (P0010)
+    /// and the parameter filter (P0004) are the drive's state, not settings, so a backup taken
+    /// during quick commissioning does not put the drive back into it.
+    pub fn is_setting(&self) -> bool {
+        self.is_writable() && !self.action && self.eeprom
     }
 
     /// Whether it is an array: named with an element only.

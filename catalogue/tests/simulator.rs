@@ -69,7 +69,13 @@ fn agree(c: &Catalogue, set: &ParamSet) {
             "{}: type",
             def.name
         );
-        assert_eq!(u16::from(def.elements), p.array, "{}: array", def.name);
+        // A data-set parameter is an array to the simulated MM440 that has the data sets.
+        assert_eq!(
+            u16::from(def.elements),
+            p.array.max(u16::from(p.data_sets)),
+            "{}: array",
+            def.name
+        );
         assert_eq!(def.level, p.level, "{}: access level", def.name);
         let change = match def.change {
             SimChange::ReadOnly => Change::ReadOnly,

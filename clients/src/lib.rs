@@ -69,6 +69,8 @@
 //! Applications that explain errors themselves call [`quiet_iceoryx2_logs`] first, as `ussctl`
 //! does, to keep iceoryx2's warnings out of their log.
 
+#[cfg(feature = "backup")]
+pub mod backup;
 mod bus;
 mod capture;
 mod command;
@@ -94,7 +96,7 @@ pub use error::{ClientError, Latch, ParamError};
 pub use kinds::ErrorKind;
 pub use link::{Health, monotonic_ns, process_start_ns};
 pub use params::WriteOptions;
-pub use typed::{Fault, FaultReport, FaultTime, ParamValue, Warning};
+pub use typed::{Description, Fault, FaultReport, FaultTime, ParamValue, Warning};
 pub use uss_catalogue::{Catalogue, DataType, Typed, Values};
 pub use uss_protocol::{
     Address, DriveState, ParamRef, ParamTask, Pnu, Setpoint, Stw1, Subindex, Value, Zsw1,

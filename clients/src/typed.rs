@@ -51,6 +51,20 @@ pub struct ParamValue {
     pub info: Option<&'static Param>,
 }
 
+/// What a drive says of one of its parameters ([`Bus::drive_description`]); `None` where it
+/// does not say.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Description {
+    pub data_type: DataType,
+    /// Its elements (descriptive element 2): 0 for a plain parameter, its data sets or array
+    /// otherwise.
+    pub elements: Option<u16>,
+    pub read_only: Option<bool>,
+    /// Its limits, in its own unit (descriptive elements 7 and 8).
+    pub min: Option<f64>,
+    pub max: Option<f64>,
+}
+
 impl ParamValue {
     /// The value in its own type.
     pub fn typed(&self) -> Typed {
@@ -157,6 +171,54 @@ impl Bus {
             return Err(never_described(address, pnu));
         }
         self.ask_description(address, pnu)
+    }
+
+    /// What drive `address` says parameter `pnu` is, by the PROFIdrive descriptive elements
+    /// (AK 4, USS.md section 6) in one request: 1 its data type, 2 its number of elements, 4
+    /// whether it is read-only, 7 and 8 its limits (in its own type). An element the drive
+    /// does not give (a limit over a 3-word channel is error 102) is `None`. A `generic`
+    /// slave is not asked.
+    ///
+    /// # Errors
+    /// The drive's refusal of element 1 (it does not have the parameter), or the path's.
+    pub fn drive_description(&self, address: Address, pnu: Pnu) -> Result<Description, ParamError> {
+        if self.family(address) == DriveFamily::Generic {
+            return Err(never_described(address, pnu));
+        }
+        let tasks: Vec<ParamTask> = [1, 2, 4, 7, 8]
+            .into_iter()
+            .filter_map(|e| Subindex::new(e).ok())
+            .map(|element| ParamTask::ReadDescription { pnu, element })
+            .collect();
+        let mut got = self.batch(address, &tasks).into_iter();
+        let code = got
+            .next()
+            .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))?;
+        let data_type = DataType::from_code(code.as_u32() as u16).ok_or_else(|| {
+            ParamError::Unexpected(format!(
+                "drive {address} describes P{:04} with data type {}, which uss-rt does not read",
+                pnu.get(),
+                code.as_u32()
+            ))
+        })?;
+        let mut next = || got.next().and_then(Result::ok).map(Value::as_u32);
+        let elements = next().map(|n| u16::try_from(n).unwrap_or(u16::MAX));
+        let read_only = next().map(|r| r != 0);
+        let limit = |raw: u32| match data_type {
+            DataType::Float => f64::from(f32::from_bits(raw)),
+            DataType::I16 => f64::from(raw as u16 as i16),
+            DataType::U16 => f64::from(raw as u16),
+            DataType::I32 => f64::from(raw as i32),
+            DataType::U32 => f64::from(raw),
+        };
+        let (min, max) = (next().map(limit), next().map(limit));
+        Ok(Description {
+            data_type,
+            elements,
+            read_only,
+            min,
+            max,
+        })
     }
 
     /// Asks the drive for descriptive element 1 of `pnu`, its data type.

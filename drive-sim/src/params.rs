@@ -259,7 +259,8 @@ impl ParamDef {
             pnu: p.number(),
             name: Box::leak(format!("{} {}", p.id, p.name).into_boxed_str()),
             ty,
-            elements: u8::try_from(p.array).unwrap_or(u8::MAX),
+            // A data-set parameter is an array to the drive that has the data sets.
+            elements: u8::try_from(p.array).unwrap_or(u8::MAX).max(p.data_sets),
             min,
             max,
             allowed,
@@ -304,6 +305,13 @@ impl ParamSet {
             factory_reset: own.factory_reset,
             save: profile.save.map(|p| p.pnu.get()).or(own.save),
             quick_end: profile.quick_commissioning.map(|p| p.pnu.get()),
+            link: Vec::leak(
+                profile
+                    .link
+                    .iter()
+                    .map(|p| (p.pnu.get(), p.index.map_or(0, Subindex::get)))
+                    .collect(),
+            ),
             eeprom_tasks: profile.eeprom_tasks,
         };
         Self::new(family, Vec::leak(defs), consulted)
@@ -333,6 +341,10 @@ pub struct Consulted {
     /// The end of quick commissioning (P3900): 1..=3 written at P0010 = 1 ends it (see
     /// `ParamTable::end_quick_commissioning`).
     pub quick_end: Option<u16>,
+    /// The settings of the link the drive answers on (its profile's `link`: baud rate,
+    /// address, PZD and PKW length), as (PNU, element): kept by a reset (see
+    /// `ParamTable::factory_reset`).
+    pub link: &'static [(u16, u8)],
     /// Whether it takes the task codes that store one value in RAM and EEPROM (11..14); a
     /// G120 refuses them (error 106, task not implemented).
     pub eeprom_tasks: bool,
@@ -353,6 +365,7 @@ pub struct ParamSet {
     factory_reset: Option<usize>,
     save: Option<usize>,
     quick_end: Option<usize>,
+    link: &'static [(u16, u8)],
     eeprom_tasks: bool,
 }
 
@@ -428,6 +441,7 @@ impl ParamSet {
             factory_reset: slot_of_opt(defs, &offsets, consulted.factory_reset),
             save: slot_of_opt(defs, &offsets, consulted.save),
             quick_end: slot_of_opt(defs, &offsets, consulted.quick_end),
+            link: consulted.link,
             eeprom_tasks: consulted.eeprom_tasks,
         }
     }
@@ -747,7 +761,12 @@ impl ParamTable {
     /// P0970 = 1: every changeable parameter back to its default, in RAM and, when the task
     /// stored to EEPROM, in EEPROM. That includes P0970 and P0010 themselves (both default 0).
     /// Read-only parameters are actual values and diagnostics, not settings: they are kept.
+    /// So are the settings of the link the drive answers on (`Consulted::link`): a simulated
+    /// drive goes on answering at its address with its telegram, and shows the settings it
+    /// answers with. Whether a real drive keeps them is the simulator's choice, not a manual's:
+    /// no stored page says.
     fn factory_reset(&mut self, storage: Storage) {
+        let kept = self.link_settings();
         let set = self.set;
         for (n, def) in set.defs.iter().enumerate() {
             if def.is_read_only() {
@@ -757,6 +776,29 @@ impl ParamTable {
             self.ram[range.clone()].copy_from_slice(&set.defaults[range.clone()]);
             if storage == Storage::RamAndEeprom {
                 self.eeprom[range.clone()].copy_from_slice(&set.defaults[range]);
+            }
+        }
+        self.keep_link_settings(kept, storage);
+    }
+
+    /// The values of the link settings (`Consulted::link`), in RAM and EEPROM, to be kept.
+    fn link_settings(&self) -> [Option<(usize, u32, u32)>; 8] {
+        let mut out = [None; 8];
+        for (slot, &(pnu, index)) in out.iter_mut().zip(self.set.link) {
+            *slot = self
+                .set
+                .slot(pnu, index)
+                .map(|(_, at)| (at, self.ram[at], self.eeprom[at]));
+        }
+        out
+    }
+
+    /// Puts the link settings `kept` back after a reset.
+    fn keep_link_settings(&mut self, kept: [Option<(usize, u32, u32)>; 8], storage: Storage) {
+        for (at, ram, eeprom) in kept.into_iter().flatten() {
+            self.ram[at] = ram;
+            if storage == Storage::RamAndEeprom {
+                self.eeprom[at] = eeprom;
             }
         }
     }
@@ -770,6 +812,7 @@ impl ParamTable {
     /// reply goes out when the calculation is done).
     fn end_quick_commissioning(&mut self, end: u32, storage: Storage) {
         let set = self.set;
+        let kept = self.link_settings();
         if end == 1 {
             for (n, def) in set.defs.iter().enumerate() {
                 if def.is_read_only() || def.change == Change::Commissioning {
@@ -781,6 +824,7 @@ impl ParamTable {
                     self.eeprom[range.clone()].copy_from_slice(&set.defaults[range]);
                 }
             }
+            self.keep_link_settings(kept, storage);
         }
         for at in [set.commissioning, set.quick_end].into_iter().flatten() {
             self.ram[at] = 0;

@@ -328,6 +328,50 @@ fn quick_commission<'py>(
     Ok(d)
 }
 
+/// Every setting of the drive as the backup file's TOML (`Bus::upload`).
+#[pyfunction]
+fn backup(py: Python<'_>, bus: &Bound<'_, NativeBus>, address: u8) -> PyResult<String> {
+    let upload = on_drive(py, bus, address, |bus, drive| {
+        bus.upload(drive, &mut |_, _| {})
+    })?;
+    Ok(upload.file.to_text())
+}
+
+/// The drive compared with a backup file's TOML (`other` a str) or another drive (an int):
+/// `{"same": n, "differ": [{"param", "name", "drive", "other"}], "ignored": [...]}`.
+#[pyfunction]
+fn diff<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+    other: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let compared = if let Ok(text) = other.extract::<String>() {
+        on_drive(py, bus, address, |bus, drive| {
+            bus.diff_file(drive, &text, "backup", &mut |_, _| {})
+        })?
+    } else {
+        let second = errors::drive(py, other.extract::<u8>()?)?;
+        on_drive(py, bus, address, |bus, drive| {
+            bus.diff_drives(drive, second, &mut |_, _| {})
+        })?
+    };
+    let lines = pyo3::types::PyList::empty(py);
+    for d in &compared.differ {
+        let line = PyDict::new(py);
+        line.set_item("param", d.param.to_string())?;
+        line.set_item("name", d.info.name.as_str())?;
+        line.set_item("drive", d.drive.map(|v| d.info.show(v)))?;
+        line.set_item("other", d.other.map(|v| d.info.show(v)))?;
+        lines.append(line)?;
+    }
+    let out = PyDict::new(py);
+    out.set_item("same", compared.same)?;
+    out.set_item("differ", lines)?;
+    out.set_item("ignored", compared.ignored)?;
+    Ok(out)
+}
+
 /// Copies every setting of the drive from RAM to ROM (P0971 / p0971): `{"param": "P0971",
 /// "raised": "P0003 1 -> 3 -> 1" or None}`.
 #[pyfunction]
@@ -424,6 +468,8 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(fault_report, m)?)?;
     m.add_function(wrap_pyfunction!(save_to_rom, m)?)?;
     m.add_function(wrap_pyfunction!(factory_reset, m)?)?;
+    m.add_function(wrap_pyfunction!(backup, m)?)?;
+    m.add_function(wrap_pyfunction!(diff, m)?)?;
     m.add_function(wrap_pyfunction!(quick_commission, m)?)?;
     m.add_function(wrap_pyfunction!(parse_param, m)?)?;
     m.add_function(wrap_pyfunction!(fault_text, m)?)?;

@@ -311,6 +311,22 @@ def test_a_copy_of_ram_to_rom_raises_the_access_level_for_it_and_puts_it_back(bu
     assert uss_rt.read_param(bus, 2, 971) == 0, "done"
 
 
+def test_a_backup_holds_every_data_set_and_compares_with_the_drive_and_another(bus):
+    text = uss_rt.backup(bus, 1)
+    assert text.startswith("# uss-rt parameter backup (format 1)")
+    assert "P1120 = [" in text and "firmware = 2.09" in text and "P0010" not in text
+    same = uss_rt.diff(bus, 1, text)
+    assert same["differ"] == [] and same["same"] > 40, same
+    other = uss_rt.diff(bus, 1, 2)
+    assert {"param": "P2011[0]", "name": "USS address", "drive": "1", "other": "2"} in other[
+        "differ"
+    ], other
+    bad = text.replace("P0003 = 1", "P0003 = 1.5", 1)
+    line = bad.splitlines().index("P0003 = 1.5") + 1
+    with pytest.raises(ValueError, match=f"backup:{line}: P0003: 1.5 is not a whole number"):
+        uss_rt.diff(bus, 1, bad)
+
+
 def test_python_takes_control_runs_stops_and_releases_a_drive(bus):
     uss_rt.write(bus, 1, "P1120", 0.5)
     uss_rt.write(bus, 1, "P1121", 0.5)

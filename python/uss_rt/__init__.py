@@ -47,8 +47,10 @@ __all__ = _errors.__all__ + [
     "Storage",
     "TaskCode",
     "Value",
+    "backup",
     "batch",
     "control",
+    "diff",
     "factory_reset",
     "fault_report",
     "fault_text",
@@ -348,6 +350,29 @@ def save_to_rom(bus: Bus, address: int) -> dict:
     a known copy (generic, SIMOREG): :class:`Refused`."""
     _check_address(address)
     return _native.save_to_rom(bus._open(), address)
+
+
+def backup(bus: Bus, address: int) -> str:
+    """Every setting of drive ``address`` as STARTER uploads it: each setting of its family's
+    catalogue with every element the drive has (its data sets included) and its firmware, as
+    the backup file's TOML text (what ``ussctl param backup`` writes and ``ussctl param
+    restore`` reads). The drive's state (P0010, P0004) and commands are left out. A generic
+    slave: :class:`Refused`."""
+    _check_address(address)
+    return _native.backup(bus._open(), address)
+
+
+def diff(bus: Bus, address: int, other) -> dict:
+    """Compares drive ``address`` with ``other``: a backup file's TOML text (a str, as
+    :func:`backup` gives it) or another drive of the same family (an int). ``{"same": 51,
+    "differ": [{"param": "P1120[2]", "name": "Ramp-up time", "drive": "2.50 s", "other":
+    "10.00 s"}], "ignored": []}`` (``drive``/``other`` None where that side does not have it).
+    A file that fails its checks (another family or firmware's values, a value beyond its
+    limits) raises ValueError naming its line."""
+    _check_address(address)
+    if isinstance(other, int):
+        _check_address(other)
+    return _native.diff(bus._open(), address, other)
 
 
 def factory_reset(bus: Bus, address: int, force: bool = False) -> dict:

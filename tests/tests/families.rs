@@ -208,8 +208,9 @@ fn a_backup_records_its_family_and_is_restored_to_that_family_only() {
     assert!(status.success(), "{out}{err}");
     assert_eq!(
         out,
-        "drive 1 P1082 (micromaster4): the drive describes it as Float\ncatalogue: Max. \
-         frequency, Float, Hz, access level 1\n"
+        "drive 1 P1082 (micromaster4): the drive describes it as Float, 3 elements, limits \
+         0..=650\ncatalogue: Max. frequency, Float, Hz, one per data set (3 on a MICROMASTER \
+         440), access level 1, changed not while running, limits 0..=650, factory setting 50\n"
     );
     let (status, _, err) = ussd.ussctl(&["param", "describe", "3", "P1"]).finish();
     assert!(

@@ -1070,6 +1070,28 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
         .unwrap();
 }
 
+/// A MICROMASTER 4's upload: its identity, every data set and array element, no command and
+/// none of the drive's state.
+fn an_upload_holds_every_setting(saved: &str) {
+    for line in [
+        "format = 1",
+        "family = \"MICROMASTER 4 / SINAMICS G110\"",
+        "firmware = 2.09",
+        "P1082 = [50.0, 50.0, 50.0]",
+        "P0700 = [5, 5, 5]",
+        "P2013 = [4, 127]",
+        "P2011 = [1, 0]",
+        "P0003 = 1",
+    ] {
+        assert!(saved.lines().any(|l| l == line), "{line}: {saved}");
+    }
+    assert!(!saved.contains("P0970"), "a command is not a setting");
+    assert!(
+        !saved.contains("P0010") && !saved.contains("P0004"),
+        "the drive's state is not a setting: {saved}"
+    );
+}
+
 /// Backup -> change -> restore -> diff shows nothing: the restore writes only what differs, in a
 /// safe order (it raises the access level for an expert parameter and enters quick
 /// commissioning for a commissioning parameter, then puts both back), and a file that does not
@@ -1088,32 +1110,26 @@ fn backup_change_restore_and_diff_shows_nothing() {
     let (code, said, err) = run(&["param", "backup", "1", "-o", path]);
     assert_eq!(code, Some(0), "{err}");
     // The simulated drive has every parameter its family's profile lists (the settings a
-    // backup keeps: no actual values, no commands such as P0970 and P0971).
+    // backup keeps: no actual values, no commands such as P0970 and P0971, not the drive's
+    // state P0010 and P0004), each data set of a data-set parameter (an MM440 has three of
+    // P0700, P1000, P1080, P1082, P1120, P1121: the drive says so) and each array element.
     assert!(
-        said.starts_with("drive 1: 35 parameters (41 values) saved to ")
+        said.starts_with("drive 1: 33 parameters (51 values) saved to ")
             && !said.contains("not on this drive"),
         "{said}"
     );
     let saved = std::fs::read_to_string(&file).unwrap();
-    for line in [
-        "format = 1",
-        "family = \"MICROMASTER 4 / SINAMICS G110\"",
-        "firmware = 2.09",
-        "P1082 = 50.0",
-        "P2013 = [4, 127]",
-        "P2011 = [1, 0]",
-        "P0003 = 1",
-    ] {
-        assert!(saved.lines().any(|l| l == line), "{line}: {saved}");
-    }
-    assert!(!saved.contains("P0970"), "a command is not a setting");
+    an_upload_holds_every_setting(&saved);
 
     // Change four settings: a plain one, a float, an expert one (level 3) and a commissioning
     // one (P0010 = 1 needed); put the access level back to 1.
     let w = |pnu, v| bus.write(addr(1), param(pnu), v, false).unwrap();
     let p1082 = || bus.read_f32(addr(1), param(1082));
     w(1082, Value::from_f32(45.0));
-    w(1120, Value::from_f32(2.5));
+    // The third drive data set's ramp-up time.
+    let third = uss_client::uss_protocol::Subindex::new(2).unwrap();
+    bus.write(addr(1), param(1120).at(third), Value::from_f32(2.5), false)
+        .unwrap();
     w(3, Value::Word(3));
     // P0719 (command and setpoint source) is guarded: deliberately.
     let guarded = bus.write_with(addr(1), param(719), Value::Word(11), deliberate());
@@ -1126,14 +1142,15 @@ fn backup_change_restore_and_diff_shows_nothing() {
     assert_eq!(code, Some(1), "differences: {said}");
     assert!(
         said.contains("P0310      drive 1: 60.00 Hz")
-            && said.contains("P1082      drive 1: 45.00 Hz")
-            && said.ends_with("4 differences, 37 values the same\n"),
+            && said.contains("P1082[0]   drive 1: 45.00 Hz")
+            && said.contains("P1120[2]   drive 1: 2.50 s")
+            && said.ends_with("4 differences, 47 values the same\n"),
         "{said}"
     );
     let (code, said, _) = run(&["param", "restore", "1", path, "--dry-run"]);
     assert_eq!(code, Some(0));
     assert!(
-        said.contains("would write 4; 37 already as in the file"),
+        said.contains("would write 4; 47 already as in the file"),
         "{said}"
     );
     assert_eq!(p1082(), Ok(45.0), "a dry run writes nothing");
@@ -1159,13 +1176,13 @@ fn backup_change_restore_and_diff_shows_nothing() {
     assert_eq!(code, Some(0), "{said}{err}");
     assert!(said.contains("P0719      11 -> 0: written"), "{said}");
     assert!(
-        said.contains("wrote 4, refused 0; 37 already as in the file"),
+        said.contains("wrote 4, refused 0; 47 already as in the file"),
         "{said}"
     );
     let (_, said, _) = run(&["param", "diff", "1", path]);
     assert!(said.starts_with("drive 1 and "), "{said}");
     assert!(
-        said.ends_with(": no differences (41 values compared)\n"),
+        said.ends_with(": no differences (51 values compared)\n"),
         "{said}"
     );
     assert_eq!(
@@ -1270,7 +1287,11 @@ fn files_that_do_not_fit_are_refused(ussd: &Ussd, dir: &std::path::Path, saved: 
         err.contains("the backup is of a SINAMICS G120 drive"),
         "{err}"
     );
-    let err = refused("range.toml", "P1082 = 50.0", "P1082 = 700.0");
+    let err = refused(
+        "range.toml",
+        "P1082 = [50.0, 50.0, 50.0]",
+        "P1082 = [700.0, 50.0, 50.0]",
+    );
     assert!(
         err.contains(&format!(
             ":{}: P1082: 700 is outside the drive's limits 0..=650; nothing was written",
@@ -1290,6 +1311,36 @@ fn files_that_do_not_fit_are_refused(ussd: &Ussd, dir: &std::path::Path, saved: 
         err.contains("P2013: P2013 takes a list of 2 values"),
         "{err}"
     );
+    // A backup of other firmware is refused, naming both, unless asked for deliberately.
+    let err = refused("firmware.toml", "firmware = 2.09", "firmware = 2.1");
+    assert!(
+        err.contains("the backup was taken from firmware 2.1 and the drive has 2.09")
+            && err.contains("nothing was written"),
+        "{err}"
+    );
+    let (code, said, err) = run(&[
+        "param",
+        "restore",
+        "1",
+        dir.join("firmware.toml").to_str().unwrap(),
+        "--other-firmware",
+    ]);
+    assert_eq!(code, Some(0), "{said}{err}");
+    // A backup taken before uss-rt left the drive's state out holds P0010: during quick
+    // commissioning, 1. It is not restored (the drive would not run), and said so.
+    let old = dir.join("old.toml");
+    std::fs::write(
+        &old,
+        saved.replacen("P0003 = 1\n", "P0003 = 1\nP0010 = 1\n", 1),
+    )
+    .unwrap();
+    let (code, said, err) = run(&["param", "restore", "1", old.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{said}{err}");
+    assert!(
+        said.contains("not restored: P0010 (the drive's state"),
+        "{said}"
+    );
+    assert_eq!(bus.read(addr(1), param(10)), Ok(Value::Word(0)));
     assert_eq!(bus.read(addr(1), param(3)), Ok(Value::Word(1)));
 }
 
@@ -1303,7 +1354,7 @@ fn another_drive_keeps_its_com_link(ussd: &Ussd, path: &str) {
     assert_eq!(
         said,
         "  P2011[0]   drive 1: 1              drive 2: 2              (USS address)\n\
-         drive 1 and drive 2: 1 difference, 40 values the same\n"
+         drive 1 and drive 2: 1 difference, 50 values the same\n"
     );
     let (code, said, err) = run(&["param", "restore", "2", path]);
     assert_eq!(code, Some(0), "{said}{err}");
@@ -1312,7 +1363,7 @@ fn another_drive_keeps_its_com_link(ussd: &Ussd, path: &str) {
         "{said}"
     );
     assert!(
-        said.contains("wrote 0, refused 0; 40 already as in the file, 1 COM-link settings kept"),
+        said.contains("wrote 0, refused 0; 50 already as in the file, 1 COM-link settings kept"),
         "{said}"
     );
     assert_eq!(bus.read(addr(2), param_at(2011, 0)), Ok(Value::Word(2)));

@@ -34,6 +34,8 @@ const CALLS: &[(&str, &str, &str)] = &[
     ("fault_report", "ussrt_fault_report", "fault_report"),
     // Commissioning.
     ("save_to_rom", "ussrt_param_save", "save_to_rom"),
+    ("upload", "ussrt_param_backup", "backup"),
+    ("diff_file", "ussrt_param_diff", "diff"),
     (
         "factory_reset",
         "ussrt_param_factory_reset",

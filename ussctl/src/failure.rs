@@ -75,7 +75,7 @@ pub(crate) enum Failure {
     },
     /// A backup file that fails its checks: nothing was written.
     #[error("{0}; nothing was written")]
-    Backup(#[from] crate::backup::FileError),
+    Backup(#[from] uss_client::backup::FileError),
     /// A restore that did not write everything (refused values, or cut short): the report says
     /// which; running it again completes what can be.
     #[error("drive {drive}: the restore is incomplete (see above); run it again to complete it")]

@@ -3,7 +3,6 @@
 //! `--json` for machines. Errors go to stderr, say what to do, and exit with 1 (2 for usage
 //! errors).
 
-mod backup;
 mod cli;
 mod commands;
 mod decode;

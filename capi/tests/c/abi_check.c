@@ -149,6 +149,24 @@ int main(int argc, char **argv) {
   OK(ussrt_param_read(bus, 1, "P0003", &level));
   EXPECT(level.value == 1, "P0003 put back: %g", level.value);
 
+  /* A backup (the upload's TOML) and a comparison of the drive with it. */
+  size_t length = 0;
+  EXPECT(ussrt_param_backup(bus, 1, NULL, 0, &length) == USSRT_STATUS_INVALID_ARGUMENT &&
+             length > 100,
+         "the room a backup needs: %zu", length);
+  char *backup = malloc(length + 1);
+  OK(ussrt_param_backup(bus, 1, backup, length + 1, &length));
+  EXPECT(strncmp(backup, "# uss-rt parameter backup", 25) == 0 && strlen(backup) == length,
+         "%.40s", backup);
+  size_t differ = 99, same = 0;
+  OK(ussrt_param_diff(bus, 1, backup, &differ, &same));
+  EXPECT(differ == 0 && same > 40, "differ %zu same %zu", differ, same);
+  OK(ussrt_param_diff(bus, 2, backup, &differ, NULL));
+  EXPECT(differ >= 1, "drive 2 differs at least in its address: %zu", differ);
+  free(backup);
+  EXPECT(ussrt_param_diff(bus, 1, "format = 7", &differ, NULL) == USSRT_STATUS_VALUE,
+         "a file that fails its checks");
+
   /* Control: the same rules as Rust and Python. */
   UssrtController *c = NULL, *second = NULL;
   OK(ussrt_control_open(bus, 1, &c));

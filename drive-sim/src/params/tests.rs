@@ -281,13 +281,21 @@ fn array_index_beyond_the_elements_is_error_3() {
 #[test]
 fn array_task_on_a_plain_parameter_is_error_4() {
     let mut t = ParamTable::new();
-    assert_eq!(read_at(&mut t, P0700, 0), err(ErrorNumber::NotAnArray));
-    assert_eq!(array_len(&mut t, P1082), err(ErrorNumber::NotAnArray));
+    assert_eq!(read_at(&mut t, P0927, 0), err(ErrorNumber::NotAnArray));
+    assert_eq!(array_len(&mut t, P2000), err(ErrorNumber::NotAnArray));
     assert_eq!(
-        write_at(&mut t, P0700, 0, Value::Word(2)),
+        write_at(&mut t, P0927, 0, Value::Word(2)),
         err(ErrorNumber::NotAnArray)
     );
-    assert_eq!(t.get(P0700, 0), Some(5));
+    assert_eq!(t.get(P0927, 0), Some(15));
+    // A data-set parameter (P1120: one per drive data set) takes both: a plain task is its
+    // element 0, the first data set.
+    assert_eq!(array_len(&mut t, P1120), ReplyKind::ElementCount(3));
+    assert_eq!(read(&mut t, P1120), ReplyKind::Dword(10.0f32.to_bits()));
+    assert_eq!(
+        read_at(&mut t, P1120, 0),
+        ReplyKind::ArrayDword(10.0f32.to_bits())
+    );
 }
 
 // --- Descriptive elements ---
@@ -299,7 +307,8 @@ fn descriptive_elements_give_type_elements_access_and_limits() {
     let word = |w| ReplyKind::Description(Value::Word(w));
     let dword = |d| ReplyKind::Description(Value::Dword(d));
     assert_eq!(d(&mut t, P1082, 1), word(8));
-    assert_eq!(d(&mut t, P1082, 2), word(0));
+    assert_eq!(d(&mut t, P1082, 2), word(3), "one per drive data set");
+    assert_eq!(d(&mut t, P2000, 2), word(0), "not indexed");
     assert_eq!(d(&mut t, P1082, 4), word(0));
     assert_eq!(d(&mut t, P1082, 7), dword(0x0000_0000));
     assert_eq!(d(&mut t, P1082, 8), dword(0x4422_8000)); // 650.0
@@ -751,6 +760,12 @@ fn factory_reset_via_p0010_30_and_p0970_1() {
         write_at_eeprom(&mut t, P2011, 1, Value::Word(12)),
         ReplyKind::ArrayWord(12)
     );
+    // The COM link's address (index 0) is the link the drive answers on: kept by the reset;
+    // the BOP link's (index 1) is not.
+    assert_eq!(
+        write_at_eeprom(&mut t, P2011, 0, Value::Word(7)),
+        ReplyKind::ArrayWord(7)
+    );
     t.set_internal(R0947, 0, 0x0046);
     assert_eq!(write(&mut t, P0010, Value::Word(30)), ReplyKind::Word(30));
     // A RAM-only reset: the factory values now, the stored ones after a power cycle.
@@ -760,6 +775,7 @@ fn factory_reset_via_p0010_30_and_p0970_1() {
     assert_eq!(t.get(P0003, 0), Some(1));
     assert_eq!(t.get(P1082, 0), Some(0x4248_0000));
     assert_eq!(t.get(P2011, 1), Some(0));
+    assert_eq!(t.get(P2011, 0), Some(7), "the link it answers on is kept");
     assert_eq!(
         t.get(R0947, 0),
         Some(0x0046),
@@ -775,6 +791,8 @@ fn factory_reset_via_p0010_30_and_p0970_1() {
         ReplyKind::Word(0)
     );
     t.power_cycle();
+    assert_eq!(t.get(P2011, 0), Some(7), "kept in EEPROM too");
+    t.set_commissioned(P2011, 0, 0);
     assert_eq!(t, ParamTable::new());
 }
 
@@ -800,7 +818,7 @@ fn get_f32_decodes_by_type() {
     assert_eq!(t.get_f32(R0021, 0), Some(-12.5));
     t.set_internal(R0052, 0, 0xFB34);
     assert_eq!(t.get_f32(R0052, 0), Some(64_308.0));
-    assert_eq!(t.get_f32(P1082, 1), None);
+    assert_eq!(t.get_f32(P2000, 1), None);
     assert_eq!(t.get_f32(5, 0), None);
 }
 
@@ -808,7 +826,7 @@ fn get_f32_decodes_by_type() {
 fn get_is_none_for_unknown_pnu_or_index() {
     let t = ParamTable::new();
     assert_eq!(t.get(5, 0), None);
-    assert_eq!(t.get(P0700, 1), None);
+    assert_eq!(t.get(P0700, 3), None);
     assert_eq!(t.get(P2010, 2), None);
     assert_eq!(t.get(R0947, 8), None);
     assert_eq!(t.get(R0947, 255), None);

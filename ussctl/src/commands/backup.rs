@@ -1,66 +1,52 @@
 //! `param backup`, `param restore`, `param diff`: a drive's settings saved, put back, compared.
 //!
-//! A backup reads every settable parameter of the catalogue (array elements included; commands
-//! such as the factory reset left out) in requests of up to 39 reads. A restore reads the drive,
-//! writes only what differs, in a safe order (the access level P0003 raised first when a
-//! parameter needs it; P0010 = 1 around parameters that only quick commissioning may change; the
-//! file's P0010 and P0003 last), checks each written value against the drive's answer, and
-//! reports what the drive refused. Cut short (drive offline, ussd gone, Ctrl-C), it says which
-//! values were written and which not; run again, it completes the rest. A Ctrl-C first puts
-//! back quick commissioning and the access level it raised, to what the drive had.
+//! A backup is the client library's upload (`Bus::upload`: every setting of the catalogue with
+//! every element the drive has, its data sets included; the drive's state and commands such as
+//! the factory reset left out). A restore reads the drive, writes only what differs, in a safe
+//! order (the access level P0003 raised first when a parameter needs it; P0010 = 1 around
+//! parameters that only quick commissioning may change; the file's P0003 last), checks each
+//! written value against the drive's answer, and reports what the drive refused. Cut short
+//! (drive offline, ussd gone, Ctrl-C), it says which values were written and which not; run
+//! again, it completes the rest. A Ctrl-C first puts back quick commissioning and the access
+//! level it raised, to what the drive had.
 
-use super::common::firmware_version;
-use crate::backup::{BackupFile, Entry, Number, Saved, now_utc};
 use crate::cli::{address, duration};
 use crate::report::{DiffLine, DiffReport, RestoreReport};
 use crate::{Failure, Output, catch_signals, signal_name, signals, stopped};
 use indicatif::{ProgressBar, ProgressStyle};
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use uss_client::Address;
-use uss_client::uss_catalogue::{Catalogue, Change, Param};
-use uss_client::uss_protocol::{ErrorNumber, ParamRef, Pnu, Prefix, Subindex};
-use uss_client::{Bus, DriveError, DriveFamily, ParamError, ParamTask, Value, WriteOptions};
+use uss_client::backup::{self, BackupFile, Diff as Compared, Entry, Loaded, not_on_drive};
+use uss_client::uss_catalogue::{Catalogue, Change};
+use uss_client::uss_protocol::ParamRef;
+use uss_client::{Bus, DriveFamily, ParamError, Value, WriteOptions};
 
-/// Reads per request (the PROFIdrive multi-parameter limit).
-const PER_REQUEST: usize = 39;
-
-/// A drive's settings: each element with its catalogue entry and value.
-type Settings = Vec<(ParamRef, &'static Param, Value)>;
-
-/// The elements of the catalogue's settable parameters, in catalogue order.
-fn settings(catalogue: &'static Catalogue) -> Vec<(ParamRef, &'static Param)> {
-    let mut out = Vec::new();
-    for p in catalogue
-        .param
-        .iter()
-        .filter(|p| p.is_writable() && !p.action)
-    {
-        let id = ParamRef {
-            prefix: Prefix::P,
-            ..p.id
-        };
-        if p.array == 0 {
-            out.push((id, p));
-        } else {
-            for i in 0..p.array {
-                if let Some(i) = u8::try_from(i).ok().and_then(|i| Subindex::new(i).ok()) {
-                    out.push((id.at(i), p));
-                }
-            }
+/// A library error of a backup, restore or diff of `drive`, as ussctl reports it: another
+/// family or firmware (or none uss-rt knows) is said as such; anything else names `what`.
+fn failed(drive: Address, what: &str) -> impl Fn(ParamError) -> Failure + '_ {
+    move |e| match e {
+        ParamError::NotOnFamily { family, what, .. } => Failure::Family {
+            drive,
+            problem: format!("it is a {family} drive: {what}"),
+        },
+        ParamError::Value { param, problem } if param == "family" || param == "firmware" => {
+            Failure::Family { drive, problem }
         }
+        source => Failure::Param {
+            drive,
+            param: what.to_owned(),
+            source,
+        },
     }
-    out
 }
 
-/// A bar on stderr while a terminal watches (nothing otherwise).
-fn progress(len: usize, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len as u64).with_message(what.to_owned());
-    if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len}") {
-        bar.set_style(style.progress_chars("=> "));
+/// A progress callback for the library's reads: a bar on stderr while a terminal watches.
+fn bar_of(bar: &ProgressBar) -> impl FnMut(usize, usize) + '_ {
+    |done, of| {
+        bar.set_length(of as u64);
+        bar.set_position(done as u64);
     }
-    bar
 }
 
 /// Reads `params` of `drive` in requests of up to 39; one result each, in order.
@@ -71,58 +57,18 @@ fn read_all(
     what: &str,
 ) -> Vec<Result<Value, ParamError>> {
     let bar = progress(params.len(), what);
-    let mut out = Vec::with_capacity(params.len());
-    for chunk in params.chunks(PER_REQUEST) {
-        let tasks: Vec<ParamTask> = chunk
-            .iter()
-            .map(|p| ParamTask::read(p.pnu, p.index))
-            .collect();
-        out.extend(bus.batch(drive, &tasks));
-        bar.inc(chunk.len() as u64);
-    }
+    let out = bus.read_entries(drive, params, &mut bar_of(&bar));
     bar.finish_and_clear();
     out
 }
 
-/// Whether a read failed because the drive does not have the parameter.
-const fn not_on_drive(e: &ParamError) -> bool {
-    matches!(
-        e,
-        ParamError::Drive(DriveError::Refused(ErrorNumber::IllegalPnu))
-    )
-}
-
-/// The drive's settings: each element's value, and the parameters it does not have. A failure
-/// of the path (offline, ussd gone) fails it all.
-fn read_settings(
-    bus: &Bus,
-    drive: Address,
-    catalogue: &'static Catalogue,
-) -> Result<(Settings, Vec<String>), Failure> {
-    let all = settings(catalogue);
-    let refs: Vec<ParamRef> = all.iter().map(|(r, _)| *r).collect();
-    let results = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
-    let mut values = Vec::new();
-    let mut missing = Vec::new();
-    for ((param, info), r) in all.into_iter().zip(results) {
-        match r {
-            Ok(v) => values.push((param, info, v)),
-            Err(e) if not_on_drive(&e) => {
-                let id = info.id.to_string();
-                if missing.last() != Some(&id) {
-                    missing.push(id);
-                }
-            }
-            Err(source) => {
-                return Err(Failure::Param {
-                    drive,
-                    param: param.to_string(),
-                    source,
-                });
-            }
-        }
+/// A bar on stderr while a terminal watches (nothing otherwise).
+fn progress(len: usize, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len as u64).with_message(what.to_owned());
+    if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len}") {
+        bar.set_style(style.progress_chars("=> "));
     }
-    Ok((values, missing))
+    bar
 }
 
 /// `param backup`'s arguments.
@@ -160,44 +106,14 @@ impl Diff {
 
 /// `param backup DRIVE [-o FILE]`.
 fn backup(bus: &Bus, out: &Output, drive: Address, output: Option<&Path>) -> Result<(), Failure> {
-    let family = bus.family(drive);
-    let catalogue = settings_catalogue(drive, family)?;
     let start = Instant::now();
-    let r0018 = ParamRef {
-        prefix: Prefix::R,
-        ..ParamRef::new(Pnu::from_u16(18))
-    };
-    // The firmware version where the family has r0018 as MICROMASTER 4 shows it (a float).
-    let firmware = catalogue
-        .param(18)
-        .filter(|p| p.data_type == uss_client::uss_catalogue::DataType::Float)
-        .and_then(|_| bus.read_param(drive, r0018).ok())
-        .map(|v| firmware_version(v.typed().as_f64() as f32));
-    let (values, missing) = read_settings(bus, drive, catalogue)?;
-    let mut param: BTreeMap<String, Saved> = BTreeMap::new();
-    for (r, info, v) in &values {
-        let n = Number::of(info.data_type, *v);
-        let key = info.id.to_string();
-        if r.index.is_some() {
-            match param.entry(key).or_insert_with(|| Saved::Many(Vec::new())) {
-                Saved::Many(list) => list.push(n),
-                Saved::One(_) => {}
-            }
-        } else {
-            param.insert(key, Saved::One(n));
-        }
-    }
-    let file = BackupFile {
-        format: crate::backup::FORMAT,
-        family: catalogue.family.clone(),
-        drive_family: Some(family.name().to_owned()),
-        bus: bus.name().to_owned(),
-        drive: drive.get(),
-        firmware,
-        taken: now_utc(),
-        not_on_drive: missing,
-        param,
-    };
+    let bar = progress(0, &format!("reading drive {drive}"));
+    let upload = bus
+        .upload(drive, &mut bar_of(&bar))
+        .map_err(failed(drive, "backup"));
+    bar.finish_and_clear();
+    let upload = upload?;
+    let file = &upload.file;
     let text = file.to_text();
     match output {
         None => {
@@ -211,7 +127,7 @@ fn backup(bus: &Bus, out: &Output, drive: Address, output: Option<&Path>) -> Res
             out.note(&format!(
                 "drive {drive}: {} parameters ({} values) saved to {} in {:.2} s{}",
                 file.param.len(),
-                values.len(),
+                upload.values,
                 path.display(),
                 start.elapsed().as_secs_f64(),
                 if file.not_on_drive.is_empty() {
@@ -226,7 +142,7 @@ fn backup(bus: &Bus, out: &Output, drive: Address, output: Option<&Path>) -> Res
 }
 
 /// Reads and checks a backup file against the catalogue of the drive's family.
-fn load(path: &Path, catalogue: &'static Catalogue) -> Result<(BackupFile, Vec<Entry>), Failure> {
+fn load(path: &Path, catalogue: &'static Catalogue) -> Result<Loaded, Failure> {
     let text = std::fs::read_to_string(path).map_err(|source| Failure::File {
         path: path.display().to_string(),
         source,
@@ -236,44 +152,6 @@ fn load(path: &Path, catalogue: &'static Catalogue) -> Result<(BackupFile, Vec<E
         &path.display().to_string(),
         catalogue,
     )?)
-}
-
-/// The catalogue whose settings a drive of `family` has (`catalogue/data/<family>.toml`); a
-/// generic slave has none, and nothing uss-rt could back up or check.
-fn settings_catalogue(drive: Address, family: DriveFamily) -> Result<&'static Catalogue, Failure> {
-    Catalogue::of(family)
-        .filter(|c| !c.param.is_empty())
-        .ok_or_else(|| Failure::Family {
-            drive,
-            problem: format!(
-                "it is a {family} drive: uss-rt has no catalogue of its settings to back up or \
-                 restore (read and write its parameters by number)"
-            ),
-        })
-}
-
-/// A restore goes to a drive of the backup's family only (nothing written otherwise), and
-/// `diff` compares a drive with its own family's values only: the same number means another
-/// thing in another family (MM4 P1082 in Hz, a G120's p1082 in rpm). `done`: what is not done
-/// ("restored (nothing was written)", "compared"), of `what` ("the backup is of a").
-fn check_family(
-    drive: Address,
-    family: DriveFamily,
-    theirs: Option<&str>,
-    what: &str,
-    done: &str,
-) -> Result<(), Failure> {
-    match theirs {
-        Some(theirs) if theirs != family.name() => Err(Failure::Family {
-            drive,
-            problem: format!(
-                "{what} {theirs} drive, this drive is configured as {}: values of another \
-                 family are not {done}",
-                family.name()
-            ),
-        }),
-        _ => Ok(()),
-    }
 }
 
 /// Guarded parameters (command or setpoint source, COM link, ...) are restored only with
@@ -332,6 +210,10 @@ pub struct Restore {
     /// Write even though another process controls the drive (a deliberate act).
     #[arg(long)]
     force: bool,
+    /// Restore a backup taken from another firmware (r0018) all the same: without it such a
+    /// restore is refused before anything is written, naming both.
+    #[arg(long)]
+    other_firmware: bool,
     /// Write guarded parameters too (command or setpoint source, COM link, ...): without
     /// it a restore that would change one is refused before anything is written, naming
     /// them. ussd logs each.
@@ -366,19 +248,25 @@ impl Restore {
 fn restore(bus: &Bus, out: &Output, r: &Restore) -> Result<(), Failure> {
     let drive = r.drive;
     let family = bus.family(drive);
-    let catalogue = settings_catalogue(drive, family)?;
-    let (file, entries) = load(&r.file, catalogue)?;
-    check_family(
-        drive,
+    let catalogue = backup::settings_catalogue(drive, family).map_err(failed(drive, "restore"))?;
+    let Loaded {
+        file,
+        entries,
+        ignored,
+    } = load(&r.file, catalogue)?;
+    backup::check_family(
         family,
         file.drive_family.as_deref(),
         "the backup is of a",
         "restored (nothing was written)",
-    )?;
+    )
+    .and_then(|()| file.check_firmware(bus.firmware(drive), r.other_firmware))
+    .map_err(failed(drive, "restore"))?;
     let start = Instant::now();
     let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
     let now = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
     let mut report = RestoreReport::new(bus.name(), drive, &r.file, r.dry_run);
+    report.ignored = ignored;
     let mut differing = Vec::new();
     for (e, current) in entries.iter().zip(&now) {
         match current {
@@ -742,63 +630,30 @@ impl Step {
 /// `param diff DRIVE (FILE | DRIVE)`.
 /// Exits nonzero ([`Failure::Differ`]) when there are differences, as `diff(1)` does.
 fn diff(bus: &Bus, out: &Output, drive: Address, other: &str) -> Result<(), Failure> {
-    let family = bus.family(drive);
-    let catalogue = settings_catalogue(drive, family)?;
     let mut report = DiffReport::new(bus.name(), drive, other);
-    if let Ok(second) = other.parse::<u8>() {
+    let bar = progress(0, &format!("reading drive {drive}"));
+    let compared = if let Ok(second) = other.parse::<u8>() {
         // A number names a drive (a file named so is written ./17).
         let second = Address::new(second).map_err(|e| Failure::Usage(e.to_string()))?;
-        check_family(
-            drive,
-            family,
-            Some(bus.family(second).name()),
-            &format!("drive {second} is a"),
-            "compared",
-        )?;
-        let (a, _) = read_settings(bus, drive, catalogue)?;
-        let (b, _) = read_settings(bus, second, catalogue)?;
-        let theirs: BTreeMap<_, _> = b.iter().map(|(r, _, v)| ((r.pnu, r.index), *v)).collect();
-        for (r, info, v) in &a {
-            match theirs.get(&(r.pnu, r.index)) {
-                Some(w) if w == v => report.same += 1,
-                w => report
-                    .lines
-                    .push(DiffLine::new(*r, info, Some(*v), w.copied())),
-            }
-        }
+        bus.diff_drives(drive, second, &mut bar_of(&bar))
     } else {
-        let (file, entries) = load(Path::new(other), catalogue)?;
-        check_family(
-            drive,
-            family,
-            file.drive_family.as_deref(),
-            "the backup is of a",
-            "compared",
-        )?;
-        let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
-        let now = read_all(bus, drive, &refs, &format!("reading drive {drive}"));
-        for (e, current) in entries.iter().zip(now) {
-            match current {
-                Ok(v) if v == e.value => report.same += 1,
-                Ok(v) => report
-                    .lines
-                    .push(DiffLine::new(e.param, e.info, Some(v), Some(e.value))),
-                // The drive refused the read (e.g. it does not have the parameter).
-                Err(ParamError::Drive(_)) => {
-                    report
-                        .lines
-                        .push(DiffLine::new(e.param, e.info, None, Some(e.value)));
-                }
-                Err(source) => {
-                    return Err(Failure::Param {
-                        drive,
-                        param: e.param.to_string(),
-                        source,
-                    });
-                }
-            }
-        }
-    }
+        let catalogue =
+            backup::settings_catalogue(drive, bus.family(drive)).map_err(failed(drive, "diff"))?;
+        let loaded = load(Path::new(other), catalogue)?;
+        bus.diff_loaded(drive, &loaded, &mut bar_of(&bar))
+    };
+    bar.finish_and_clear();
+    let Compared {
+        same,
+        differ,
+        ignored,
+    } = compared.map_err(failed(drive, "diff"))?;
+    report.same = same;
+    report.ignored = ignored;
+    report.lines = differ
+        .iter()
+        .map(|d| DiffLine::new(d.param, d.info, d.drive, d.other))
+        .collect();
     out.show(&report, DiffReport::human)?;
     match report.lines.len() {
         0 => Ok(()),

@@ -105,7 +105,7 @@ use std::fmt::Write as _;
 fn describe(bus: &Bus, out: &Output, drive: Address, param: ParamRef) -> Result<(), Failure> {
     let pnu = param.pnu;
     let drive_says = bus
-        .drive_describes(drive, pnu)
+        .drive_description(drive, pnu)
         .map_err(|source| Failure::Param {
             drive,
             param: param.to_string(),
@@ -117,14 +117,23 @@ fn describe(bus: &Bus, out: &Output, drive: Address, param: ParamRef) -> Result<
         drive: drive.get(),
         param: entry.map_or_else(|| param.to_string(), |p| p.id.to_string()),
         family: bus.family(drive).name(),
-        drive_type: format!("{drive_says:?}"),
+        drive_type: format!("{:?}", drive_says.data_type),
+        drive_elements: drive_says.elements,
+        drive_read_only: drive_says.read_only,
+        drive_min: drive_says.min,
+        drive_max: drive_says.max,
         catalogue: entry.map(|p| CatalogueEntry {
             name: p.name.clone(),
             data_type: format!("{:?}", p.data_type),
             unit: p.unit.clone(),
             array: p.array,
+            data_sets: p.data_sets,
             level: p.level,
-            agrees: p.data_type == drive_says,
+            change: change_rule(p.change),
+            min: p.min,
+            max: p.max,
+            default: p.default,
+            agrees: p.data_type == drive_says.data_type,
         }),
     };
     out.show(&report, DescribeReport::human)
@@ -139,6 +148,14 @@ pub(crate) struct DescribeReport {
     family: &'static str,
     /// The data type the drive describes (descriptive element 1).
     drive_type: String,
+    /// Its elements as the drive describes them (element 2: 0 plain); null: not said.
+    drive_elements: Option<u16>,
+    /// Whether the drive says it is read-only (element 4); null: not said.
+    drive_read_only: Option<bool>,
+    /// Its limits as the drive describes them (elements 7 and 8); null: not said (a 3-word
+    /// parameter channel cannot carry them).
+    drive_min: Option<f64>,
+    drive_max: Option<f64>,
     /// The catalogue's entry of the drive's family; null when it has none.
     catalogue: Option<CatalogueEntry>,
 }
@@ -149,15 +166,55 @@ struct CatalogueEntry {
     data_type: String,
     unit: String,
     array: u16,
+    /// Elements by data set on the drives that have them (0: none).
+    data_sets: u8,
     level: u8,
+    /// When it may be changed: "any time", "not while running", "in quick commissioning
+    /// (P0010 = 1)", "never (read-only)".
+    change: &'static str,
+    min: Option<f64>,
+    max: Option<f64>,
+    /// The factory setting, where the catalogue knows it.
+    default: Option<f64>,
     /// Whether the catalogue's data type is the drive's.
     agrees: bool,
 }
 
+/// A change rule as a reader acts on it.
+const fn change_rule(change: uss_client::uss_catalogue::Change) -> &'static str {
+    use uss_client::uss_catalogue::Change;
+    match change {
+        Change::Always => "any time",
+        Change::NotRunning => "not while running",
+        Change::Commissioning => "in quick commissioning (P0010 = 1)",
+        Change::ReadOnly => "never (read-only)",
+    }
+}
+
+/// `min..=max`, or "?" for a side not known.
+fn limits(min: Option<f64>, max: Option<f64>) -> String {
+    let side = |v: Option<f64>| v.map_or_else(|| "?".to_owned(), |v| v.to_string());
+    format!("{}..={}", side(min), side(max))
+}
+
 impl DescribeReport {
     fn human(&self) -> String {
+        let elements = match self.drive_elements {
+            Some(0) | None => String::new(),
+            Some(n) => format!(", {n} elements"),
+        };
+        let limits_said = if self.drive_min.is_some() || self.drive_max.is_some() {
+            format!(", limits {}", limits(self.drive_min, self.drive_max))
+        } else {
+            String::new()
+        };
+        let read_only = if self.drive_read_only == Some(true) {
+            ", read-only"
+        } else {
+            ""
+        };
         let mut out = format!(
-            "drive {} {} ({}): the drive describes it as {}\n",
+            "drive {} {} ({}): the drive describes it as {}{elements}{limits_said}{read_only}\n",
             self.drive, self.param, self.family, self.drive_type
         );
         match &self.catalogue {
@@ -172,12 +229,26 @@ impl DescribeReport {
                 } else {
                     format!(", {}", c.unit)
                 };
+                let array = if c.data_sets > 0 {
+                    format!(
+                        "{array}, one per data set ({} on a MICROMASTER 440)",
+                        c.data_sets
+                    )
+                } else {
+                    array
+                };
+                let default = c
+                    .default
+                    .map(|d| format!(", factory setting {d}"))
+                    .unwrap_or_default();
                 let _ = writeln!(
                     out,
-                    "catalogue: {}, {}{unit}{array}, access level {}{}",
+                    "catalogue: {}, {}{unit}{array}, access level {}, changed {}, limits {}{default}{}",
                     c.name,
                     c.data_type,
                     c.level,
+                    c.change,
+                    limits(c.min, c.max),
                     if c.agrees {
                         ""
                     } else {

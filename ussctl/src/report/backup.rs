@@ -1,9 +1,9 @@
 //! `param restore` and `param diff`.
 
-use crate::backup::Entry;
 use crate::commands::backup::Step;
 use serde::Serialize;
 use std::fmt::Write as _;
+use uss_client::backup::Entry;
 use uss_client::uss_catalogue::Param;
 use uss_client::uss_protocol::ParamRef;
 use uss_client::{Address, ParamError, Value};
@@ -45,6 +45,9 @@ pub struct RestoreReport {
     /// With `--eeprom`: how the values were made permanent once all were in RAM ("copied RAM
     /// to ROM (P0971)"), or why not ("not stored: ..."); null without `--eeprom`.
     pub stored: Option<String>,
+    /// What the file holds that is the drive's state, not a setting (P0010, P0004, in backups
+    /// taken before uss-rt left them out): not restored.
+    pub ignored: Vec<String>,
     pub lines: Vec<RestoreLine>,
     pub seconds: f64,
 }
@@ -64,6 +67,7 @@ impl RestoreReport {
             cut_short: None,
             left_raised: Vec::new(),
             stored: None,
+            ignored: Vec::new(),
             lines: Vec::new(),
             seconds: 0.0,
         }
@@ -264,6 +268,7 @@ impl RestoreReport {
         if let Some(stored) = &self.stored {
             let _ = writeln!(out, "EEPROM: {stored}");
         }
+        out.push_str(&ignored_line(&self.ignored, "restored"));
         out
     }
 }
@@ -304,6 +309,9 @@ pub struct DiffReport {
     pub other: String,
     /// Values that are the same.
     pub same: usize,
+    /// What the file holds that is the drive's state, not a setting (P0010, P0004): not
+    /// compared.
+    pub ignored: Vec<String>,
     pub lines: Vec<DiffLine>,
 }
 
@@ -314,6 +322,7 @@ impl DiffReport {
             drive: drive.get(),
             other: other.to_owned(),
             same: 0,
+            ignored: Vec::new(),
             lines: Vec::new(),
         }
     }
@@ -324,9 +333,10 @@ impl DiffReport {
         } else {
             self.other.clone()
         };
+        let ignored = ignored_line(&self.ignored, "compared");
         if self.lines.is_empty() {
             return format!(
-                "drive {} and {other}: no differences ({} values compared)\n",
+                "drive {} and {other}: no differences ({} values compared)\n{ignored}",
                 self.drive, self.same
             );
         }
@@ -351,8 +361,21 @@ impl DiffReport {
             self.same,
             if self.same == 1 { "" } else { "s" },
         );
+        out.push_str(&ignored);
         out
     }
+}
+
+/// The line that names what a file holds that is not a setting, and what is not `done` with
+/// it; empty when there is none.
+fn ignored_line(ignored: &[String], done: &str) -> String {
+    if ignored.is_empty() {
+        return String::new();
+    }
+    format!(
+        "not {done}: {} (the drive's state, not a setting: a backup no longer holds it)\n",
+        ignored.join(", ")
+    )
 }
 
 /// `param save`: the copy of RAM to ROM.
