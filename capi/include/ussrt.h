@@ -42,6 +42,31 @@
 #define USSRT_NO_INDEX -1
 
 /**
+ * `flags` bit of a restore: copy RAM to ROM once every value is in RAM.
+ */
+#define USSRT_RESTORE_EEPROM 1
+
+/**
+ * `flags` bit of a restore: write even while another process controls the drive.
+ */
+#define USSRT_RESTORE_FORCE 2
+
+/**
+ * `flags` bit of a restore: write guarded parameters too (command or setpoint source, ...).
+ */
+#define USSRT_RESTORE_UNSAFE 4
+
+/**
+ * `flags` bit of a restore: write nothing, say what would be written.
+ */
+#define USSRT_RESTORE_DRY_RUN 8
+
+/**
+ * `flags` bit of a restore: restore a backup of other firmware all the same.
+ */
+#define USSRT_RESTORE_OTHER_FIRMWARE 16
+
+/**
  * What a call came to. `USSRT_STATUS_OK` is 0; every other code has a message
  * (`ussrt_last_error`).
  */
@@ -295,6 +320,35 @@ typedef struct UssrtValue {
    */
   char unit[16];
 } UssrtValue;
+
+/**
+ * What a restore did (`ussrt_param_restore`).
+ */
+typedef struct UssrtRestore {
+  /**
+   * 1: every value written (and stored, with `USSRT_RESTORE_EEPROM`); 0: run it again to
+   * complete it.
+   */
+  uint8_t complete;
+  /**
+   * What a restore cut short raised on the way and could not put back (the access level,
+   * quick commissioning): 0 normally; see `ussctl param restore` for which.
+   */
+  uint8_t left_raised;
+  /**
+   * 1 with `USSRT_RESTORE_EEPROM` when RAM was copied to ROM.
+   */
+  uint8_t stored;
+  /**
+   * Values the drive already held, written, refused, unknown (the answer lost: the drive
+   * may hold it), and link settings kept (address, baud rate, PZD/PKW length).
+   */
+  uint32_t equal;
+  uint32_t written;
+  uint32_t refused;
+  uint32_t unknown;
+  uint32_t kept;
+} UssrtRestore;
 
 /**
  * One item of a batch ([`ussrt_param_batch`]): a read (`write` 0) or a write of `value` (a
@@ -862,6 +916,28 @@ enum UssrtStatus ussrt_param_diff(const struct UssrtBus *bus,
                                   const char *backup_text,
                                   uintptr_t *differ,
                                   uintptr_t *same);
+
+/**
+ * Writes the backup file `backup_text` (its TOML, NUL-terminated, as `ussrt_param_backup`
+ * gives it) to drive `address` as STARTER downloads it: the whole file checked first
+ * (family, firmware, every value), then only what differs, in a safe order (the access level
+ * raised and quick commissioning entered where needed, and put back), each value checked
+ * against the drive's answer; the COM link ussd talks over is kept. `flags`:
+ * `USSRT_RESTORE_EEPROM`, `USSRT_RESTORE_FORCE`, `USSRT_RESTORE_UNSAFE`,
+ * `USSRT_RESTORE_DRY_RUN`, `USSRT_RESTORE_OTHER_FIRMWARE`. `*result` says what it did; an
+ * incomplete restore is `OK` with `complete` 0. Nothing written: `REFUSED` (a guarded
+ * parameter without `USSRT_RESTORE_UNSAFE`, another controller, another family), `VALUE` (a
+ * file that fails its checks, other firmware).
+ *
+ * # Safety
+ * `bus` is a live handle; `backup_text` a NUL-terminated string; `result` writable memory for
+ * one `UssrtRestore`.
+ */
+enum UssrtStatus ussrt_param_restore(const struct UssrtBus *bus,
+                                     uint8_t address,
+                                     const char *backup_text,
+                                     uint32_t flags,
+                                     struct UssrtRestore *result);
 
 /**
  * Reads parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as the raw word or

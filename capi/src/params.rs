@@ -421,6 +421,113 @@ pub unsafe extern "C" fn ussrt_param_diff(
     })
 }
 
+/// `flags` bit of a restore: copy RAM to ROM once every value is in RAM.
+pub const USSRT_RESTORE_EEPROM: u32 = 1;
+/// `flags` bit of a restore: write even while another process controls the drive.
+pub const USSRT_RESTORE_FORCE: u32 = 2;
+/// `flags` bit of a restore: write guarded parameters too (command or setpoint source, ...).
+pub const USSRT_RESTORE_UNSAFE: u32 = 4;
+/// `flags` bit of a restore: write nothing, say what would be written.
+pub const USSRT_RESTORE_DRY_RUN: u32 = 8;
+/// `flags` bit of a restore: restore a backup of other firmware all the same.
+pub const USSRT_RESTORE_OTHER_FIRMWARE: u32 = 16;
+
+/// What a restore did (`ussrt_param_restore`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default)]
+pub struct UssrtRestore {
+    /// 1: every value written (and stored, with `USSRT_RESTORE_EEPROM`); 0: run it again to
+    /// complete it.
+    pub complete: u8,
+    /// What a restore cut short raised on the way and could not put back (the access level,
+    /// quick commissioning): 0 normally; see `ussctl param restore` for which.
+    pub left_raised: u8,
+    /// 1 with `USSRT_RESTORE_EEPROM` when RAM was copied to ROM.
+    pub stored: u8,
+    /// Values the drive already held, written, refused, unknown (the answer lost: the drive
+    /// may hold it), and link settings kept (address, baud rate, PZD/PKW length).
+    pub equal: u32,
+    pub written: u32,
+    pub refused: u32,
+    pub unknown: u32,
+    pub kept: u32,
+}
+
+/// Writes the backup file `backup_text` (its TOML, NUL-terminated, as `ussrt_param_backup`
+/// gives it) to drive `address` as STARTER downloads it: the whole file checked first
+/// (family, firmware, every value), then only what differs, in a safe order (the access level
+/// raised and quick commissioning entered where needed, and put back), each value checked
+/// against the drive's answer; the COM link ussd talks over is kept. `flags`:
+/// `USSRT_RESTORE_EEPROM`, `USSRT_RESTORE_FORCE`, `USSRT_RESTORE_UNSAFE`,
+/// `USSRT_RESTORE_DRY_RUN`, `USSRT_RESTORE_OTHER_FIRMWARE`. `*result` says what it did; an
+/// incomplete restore is `OK` with `complete` 0. Nothing written: `REFUSED` (a guarded
+/// parameter without `USSRT_RESTORE_UNSAFE`, another controller, another family), `VALUE` (a
+/// file that fails its checks, other firmware).
+///
+/// # Safety
+/// `bus` is a live handle; `backup_text` a NUL-terminated string; `result` writable memory for
+/// one `UssrtRestore`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_restore(
+    bus: *const UssrtBus,
+    address: u8,
+    backup_text: *const c_char,
+    flags: u32,
+    result: *mut UssrtRestore,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let file = text(backup_text, "backup_text")?;
+        let result = out(result, "result")?;
+        let known = USSRT_RESTORE_EEPROM
+            | USSRT_RESTORE_FORCE
+            | USSRT_RESTORE_UNSAFE
+            | USSRT_RESTORE_DRY_RUN
+            | USSRT_RESTORE_OTHER_FIRMWARE;
+        if flags & !known != 0 {
+            return Err(Failure::Argument(format!(
+                "flags {flags:#x}: only the USSRT_RESTORE_ flags are defined"
+            )));
+        }
+        let options = uss_client::restore::RestoreOptions {
+            eeprom: flags & USSRT_RESTORE_EEPROM != 0,
+            dry_run: flags & USSRT_RESTORE_DRY_RUN != 0,
+            force: flags & USSRT_RESTORE_FORCE != 0,
+            unsafe_write: flags & USSRT_RESTORE_UNSAFE != 0,
+            other_firmware: flags & USSRT_RESTORE_OTHER_FIRMWARE != 0,
+            ..Default::default()
+        };
+        let drive = drive(address)?;
+        let catalogue = uss_client::backup::settings_catalogue(drive, bus.bus.family(drive))?;
+        let loaded = uss_client::backup::BackupFile::parse(file, "backup_text", catalogue)
+            .map_err(uss_client::ParamError::from)?;
+        let done = bus.bus.restore(
+            drive,
+            &loaded,
+            options,
+            &uss_client::restore::NeverCancelled,
+            &mut |_, _| {},
+            &mut |_| {},
+        )?;
+        let count = |n: usize| u32::try_from(n).unwrap_or(u32::MAX);
+        *result = UssrtRestore {
+            complete: u8::from(done.is_complete()),
+            left_raised: u8::try_from(done.left_raised.len()).unwrap_or(u8::MAX),
+            stored: u8::from(
+                done.stored
+                    .as_ref()
+                    .is_some_and(|s| !s.starts_with("not stored")),
+            ),
+            equal: count(done.equal),
+            written: count(done.written),
+            refused: count(done.refused),
+            unknown: count(done.unknown),
+            kept: count(done.kept),
+        };
+        Ok(())
+    })
+}
+
 /// Reads parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as the raw word or
 /// double word the drive sends: `*value`, and `*is_dword` (may be NULL).
 ///

@@ -461,6 +461,12 @@ pub enum ParamError {
         "unexpected answer from ussd ({0}): check that ussd and this program are the same uss-rt version"
     )]
     Unexpected(String),
+    /// A restore would change guarded parameters (command or setpoint source, COM link, ...)
+    /// and was not asked as unsafe: nothing was written.
+    #[error(
+        "the backup changes {params}, which can take the drive away from ussd ({why}); nothing was written: restore it deliberately as unsafe (ussctl param restore --unsafe, Python unsafe=True, Rust RestoreOptions::unsafe_write)"
+    )]
+    Guarded { params: String, why: String },
     /// What was asked has no parameter on this drive's family that uss-rt knows (a copy of RAM
     /// to ROM on a generic slave or a SIMOREG): nothing was sent.
     #[error("drive {address} ({family}): {what}; nothing was sent")]

@@ -267,6 +267,7 @@ impl ParamError {
             Self::Path(PathError::Refused(_))
             | Self::Refused { .. }
             | Self::Controlled { .. }
+            | Self::Guarded { .. }
             | Self::NotOnFamily { .. } => K::Refused,
             Self::Drive(DriveError::NoChangeRights) => K::NoChangeRights,
             Self::Path(_) => K::ParamFailed,

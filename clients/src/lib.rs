@@ -82,6 +82,8 @@ mod link;
 mod open;
 pub mod params;
 mod request;
+#[cfg(feature = "backup")]
+pub mod restore;
 mod typed;
 #[cfg(feature = "view")]
 pub mod view;

@@ -372,6 +372,96 @@ fn diff<'py>(
     Ok(out)
 }
 
+/// Ctrl-C of the Python program as the library's cancel of a restore: the restore runs
+/// without the GIL and asks Python between its writes whether a signal came.
+#[derive(Default)]
+struct Interrupted(std::sync::atomic::AtomicUsize);
+
+impl uss_client::restore::Cancel for Interrupted {
+    fn asked(&self) -> usize {
+        use std::sync::atomic::Ordering;
+        if Python::attach(|py| py.check_signals().is_err()) {
+            self.0.fetch_add(1, Ordering::Relaxed);
+        }
+        self.0.load(Ordering::Relaxed)
+    }
+
+    fn why(&self) -> &'static str {
+        "Ctrl-C"
+    }
+}
+
+/// Writes a backup file's TOML to the drive (`Bus::restore`): the report as a dict.
+#[pyfunction]
+#[pyo3(signature = (bus, address, text, eeprom=false, dry_run=false, force=false, unsafe_write=false, other_firmware=false, put_back_within=30.0))]
+#[allow(
+    clippy::too_many_arguments,
+    clippy::fn_params_excessive_bools,
+    reason = "the Python call's own keyword arguments"
+)]
+fn restore<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+    text: &str,
+    eeprom: bool,
+    dry_run: bool,
+    force: bool,
+    unsafe_write: bool,
+    other_firmware: bool,
+    put_back_within: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    let options = uss_client::restore::RestoreOptions {
+        eeprom,
+        dry_run,
+        force,
+        unsafe_write,
+        other_firmware,
+        put_back_within: duration(put_back_within)?,
+    };
+    let cancel = Interrupted::default();
+    let done = on_drive(py, bus, address, |bus, drive| {
+        let catalogue = uss_client::backup::settings_catalogue(drive, bus.family(drive))?;
+        let loaded = uss_client::backup::BackupFile::parse(text, "backup", catalogue)?;
+        bus.restore(
+            drive,
+            &loaded,
+            options,
+            &cancel,
+            &mut |_, _| {},
+            &mut |_| {},
+        )
+    })?;
+    let lines = pyo3::types::PyList::empty(py);
+    for l in &done.lines {
+        let line = PyDict::new(py);
+        line.set_item("param", &l.param)?;
+        line.set_item("was", &l.was)?;
+        line.set_item("wanted", &l.wanted)?;
+        line.set_item("result", &l.result)?;
+        lines.append(line)?;
+    }
+    let left: Vec<(String, u16, u16, &str)> = done
+        .left_raised
+        .iter()
+        .map(|l| (l.param.to_string(), l.to, l.was, l.meaning))
+        .collect();
+    let d = PyDict::new(py);
+    d.set_item("complete", done.is_complete())?;
+    d.set_item("equal", done.equal)?;
+    d.set_item("written", done.written)?;
+    d.set_item("refused", done.refused)?;
+    d.set_item("unknown", done.unknown)?;
+    d.set_item("kept", done.kept)?;
+    d.set_item("cut_short", &done.cut_short)?;
+    d.set_item("left_raised", left)?;
+    d.set_item("stored", &done.stored)?;
+    d.set_item("ignored", &done.ignored)?;
+    d.set_item("lines", lines)?;
+    d.set_item("seconds", done.took.as_secs_f64())?;
+    Ok(d)
+}
+
 /// Copies every setting of the drive from RAM to ROM (P0971 / p0971): `{"param": "P0971",
 /// "raised": "P0003 1 -> 3 -> 1" or None}`.
 #[pyfunction]
@@ -470,6 +560,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(factory_reset, m)?)?;
     m.add_function(wrap_pyfunction!(backup, m)?)?;
     m.add_function(wrap_pyfunction!(diff, m)?)?;
+    m.add_function(wrap_pyfunction!(restore, m)?)?;
     m.add_function(wrap_pyfunction!(quick_commission, m)?)?;
     m.add_function(wrap_pyfunction!(parse_param, m)?)?;
     m.add_function(wrap_pyfunction!(fault_text, m)?)?;

@@ -646,9 +646,22 @@ def test_quick_commissioning_and_a_factory_reset_wait_for_the_drive_and_ussd(tmp
             assert done["reference_hz"] == 60.0
             assert uss_rt.read(bus, 4, "P0311").value == 1395
             assert [uss_rt.read_param(bus, 4, p) for p in (10, 3900, 3)] == [0, 0, 1]
+            text = uss_rt.backup(bus, 4)
             reset = uss_rt.factory_reset(bus, 4)
             assert reset["writes"] == ["P0010 := 30", "P0970 := 1"]
             assert reset["reference_hz"] == 50.0
             assert uss_rt.read(bus, 4, "P2000").value == 50.0
+            # The backup restored onto the reset drive: the rating plate (quick commissioning
+            # entered around it and left) and P2000 back; the drive equals its backup.
+            plan = uss_rt.restore(bus, 4, text, dry_run=True)
+            assert plan["written"] == 0 and "P0304" in [l["param"] for l in plan["lines"]]
+            with pytest.raises(uss_rt.Refused, match="deliberately as unsafe"):
+                uss_rt.restore(bus, 4, text.replace("P0700 = [5, 5, 5]", "P0700 = [2, 5, 5]"))
+            done = uss_rt.restore(bus, 4, text)
+            # P0304, P0305, P0308, P0311 (P0310 is the factory 50 Hz) and P2000.
+            assert done["complete"] and done["refused"] == 0 and done["written"] == 5, done
+            assert uss_rt.diff(bus, 4, text)["differ"] == []
+            assert uss_rt.read(bus, 4, "P2000").value == 60.0
+            assert [uss_rt.read_param(bus, 4, p) for p in (10, 3)] == [0, 1]
     finally:
         assert daemon.stop() == 0, daemon.output()

@@ -62,6 +62,7 @@ __all__ = _errors.__all__ + [
     "read_elements",
     "read_param",
     "quick_commission",
+    "restore",
     "save_to_rom",
     "stop_all",
     "stop_drive",
@@ -373,6 +374,43 @@ def diff(bus: Bus, address: int, other) -> dict:
     if isinstance(other, int):
         _check_address(other)
     return _native.diff(bus._open(), address, other)
+
+
+def restore(
+    bus: Bus,
+    address: int,
+    text: str,
+    eeprom: bool = False,
+    dry_run: bool = False,
+    force: bool = False,
+    unsafe: bool = False,
+    other_firmware: bool = False,
+    put_back_within: float = 30.0,
+) -> dict:
+    """Writes a backup (the TOML text :func:`backup` gives) to drive ``address`` as STARTER
+    downloads it: the whole file checked first (family, firmware, every value; a guarded
+    parameter such as the command source only with ``unsafe``), then only what differs, in a
+    safe order (the access level raised and quick commissioning entered where needed, and put
+    back), each value checked against the drive's answer; the COM link ussd talks over is kept.
+    ``eeprom`` copies RAM to ROM once every value is in RAM. Ctrl-C cuts it short between two
+    writes and it puts back what it raised (Ctrl-C again leaves that). Returns the report:
+    ``{"complete": True, "equal", "written", "refused", "unknown", "kept", "cut_short",
+    "left_raised": [(param, raised_to, was, meaning)], "stored", "ignored", "lines": [{"param",
+    "was", "wanted", "result"}], "seconds"}``; an incomplete restore is not raised: run it
+    again to complete it. Nothing written: :class:`Refused` (guarded, another controller,
+    another family), ValueError (a file that fails its checks, other firmware)."""
+    _check_address(address)
+    return _native.restore(
+        bus._open(),
+        address,
+        text,
+        eeprom,
+        dry_run,
+        force,
+        unsafe,
+        other_firmware,
+        put_back_within,
+    )
 
 
 def factory_reset(bus: Bus, address: int, force: bool = False) -> dict:

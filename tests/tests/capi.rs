@@ -122,6 +122,14 @@ fn the_c_and_cpp_examples_run_a_drive_as_the_readme_shows() {
             ussd.bus
         )
     );
+    // The C program's release is ussd's latch from when ussd took it: the C++ program starts
+    // after it (its re-arm, asked at its start, clears only a latch older than that).
+    bus.watch(addr(1))
+        .unwrap()
+        .wait_for(std::time::Duration::from_secs(5), "released", |i| {
+            i.latch_reason == uss_client::LatchReason::Released.code()
+        })
+        .unwrap();
     let out = run(&cpp, &[&ussd.bus, "1", "10", "1"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert_eq!(

@@ -197,7 +197,7 @@ fn a_write_that_reached_the_drive_is_reported_as_may_be_applied() {
     println!("param_truth: a restore whose copy to ROM timed out: {status}\n{out}{err}");
     assert_eq!(status.code(), Some(1), "incomplete: {out}{err}");
     assert!(
-        out.contains("P1121      4.50 s -> 10.00 s: written")
+        out.contains("P1121[0]   4.50 s -> 10.00 s: written")
             && out.contains("EEPROM: not stored: ")
             && out.contains("may have been applied"),
         "{out}"

@@ -163,6 +163,18 @@ int main(int argc, char **argv) {
   EXPECT(differ == 0 && same > 40, "differ %zu same %zu", differ, same);
   OK(ussrt_param_diff(bus, 2, backup, &differ, NULL));
   EXPECT(differ >= 1, "drive 2 differs at least in its address: %zu", differ);
+  /* Drive 1's backup restored to drive 2: a dry run writes nothing; then what differs goes
+     in (its own address kept), and drive 2 equals drive 1 but for that. */
+  UssrtRestore restored;
+  OK(ussrt_param_restore(bus, 2, backup, USSRT_RESTORE_DRY_RUN, &restored));
+  EXPECT(restored.written == 0 && restored.kept == 1, "dry run: %u written", restored.written);
+  OK(ussrt_param_restore(bus, 2, backup, USSRT_RESTORE_UNSAFE, &restored));
+  EXPECT(restored.complete == 1 && restored.kept == 1 && restored.refused == 0,
+         "complete %u kept %u refused %u", restored.complete, restored.kept, restored.refused);
+  OK(ussrt_param_diff(bus, 2, backup, &differ, NULL));
+  EXPECT(differ == 1, "only the address differs now: %zu", differ);
+  EXPECT(ussrt_param_restore(bus, 2, backup, 64, &restored) == USSRT_STATUS_INVALID_ARGUMENT,
+         "flag 64");
   free(backup);
   EXPECT(ussrt_param_diff(bus, 1, "format = 7", &differ, NULL) == USSRT_STATUS_VALUE,
          "a file that fails its checks");

@@ -1,12 +1,11 @@
 //! `param restore` and `param diff`.
 
-use crate::commands::backup::Step;
 use serde::Serialize;
 use std::fmt::Write as _;
-use uss_client::backup::Entry;
+use uss_client::restore::Restored;
 use uss_client::uss_catalogue::Param;
 use uss_client::uss_protocol::ParamRef;
-use uss_client::{Address, ParamError, Value};
+use uss_client::{Address, Value};
 
 /// One value of a restore: what the drive had, what the file says, what happened.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
@@ -53,171 +52,54 @@ pub struct RestoreReport {
 }
 
 impl RestoreReport {
-    pub fn new(bus: &str, drive: Address, file: &std::path::Path, dry_run: bool) -> Self {
+    /// The report of `done`, a restore of `file` to `drive` on `bus`.
+    pub fn new(
+        bus: &str,
+        drive: Address,
+        file: &std::path::Path,
+        dry_run: bool,
+        done: &Restored,
+    ) -> Self {
+        let left_raised = done
+            .left_raised
+            .iter()
+            .map(|l| {
+                let command = crate::cli::command_line(
+                    bus,
+                    &format!("param write {drive} {} {}", l.param, l.was),
+                );
+                format!(
+                    "{} = {}: {}; put it back with `{command}`",
+                    l.param, l.to, l.meaning
+                )
+            })
+            .collect();
         Self {
             bus: bus.to_owned(),
             drive: drive.get(),
             file: file.display().to_string(),
             dry_run,
-            equal: 0,
-            written: 0,
-            refused: 0,
-            unknown: 0,
-            kept: 0,
-            cut_short: None,
-            left_raised: Vec::new(),
-            stored: None,
-            ignored: Vec::new(),
-            lines: Vec::new(),
-            seconds: 0.0,
+            equal: done.equal,
+            written: done.written,
+            refused: done.refused,
+            unknown: done.unknown,
+            kept: done.kept,
+            cut_short: done.cut_short.clone(),
+            left_raised,
+            stored: done.stored.clone(),
+            ignored: done.ignored.clone(),
+            lines: done
+                .lines
+                .iter()
+                .map(|l| RestoreLine {
+                    param: l.param.clone(),
+                    was: l.was.clone(),
+                    wanted: l.wanted.clone(),
+                    result: l.result.clone(),
+                })
+                .collect(),
+            seconds: done.took.as_secs_f64(),
         }
-    }
-
-    fn line(&mut self, e: &Entry) -> &mut RestoreLine {
-        let name = e.param.to_string();
-        if let Some(i) = self.lines.iter().position(|l| l.param == name) {
-            return &mut self.lines[i];
-        }
-        self.lines.push(RestoreLine {
-            param: name,
-            was: None,
-            wanted: e.info.show(e.value),
-            result: "not written".into(),
-        });
-        let last = self.lines.len() - 1;
-        &mut self.lines[last]
-    }
-
-    /// A differing value, to be written.
-    pub fn plan(&mut self, e: &Entry, was: Option<Value>) {
-        let line = self.line(e);
-        line.was = was.map(|v| e.info.show(v));
-        line.result = "planned".into();
-    }
-
-    /// A setting of the line ussd talks over that differs: kept.
-    pub fn keep_link(&mut self, e: &Entry, held: Value) {
-        let line = self.line(e);
-        line.was = Some(e.info.show(held));
-        line.result = "kept: the COM link ussd talks over (change it at the drive)".into();
-        self.kept += 1;
-    }
-
-    /// Written; the drive holds `held` now (checked against the file's value).
-    pub fn written(&mut self, e: &Entry, held: Value) {
-        let ok = held == e.value;
-        let line = self.line(e);
-        line.result = if ok {
-            "written".into()
-        } else {
-            format!("written, but the drive holds {}", e.info.show(held))
-        };
-        if ok {
-            self.written += 1;
-        } else {
-            self.refused += 1;
-        }
-    }
-
-    /// The drive refused the value (or does not have the parameter).
-    pub fn refuse(&mut self, e: &Entry, error: &ParamError) {
-        self.line(e).result = format!("refused: {error}");
-        self.refused += 1;
-    }
-
-    /// The drive refused a step's value.
-    pub fn refuse_step(&mut self, step: &Step, error: &ParamError) {
-        self.step_result(
-            step,
-            format!("refused: {error}"),
-            format!("refused on the way: {error}"),
-        );
-        self.refused += 1;
-    }
-
-    /// A step's write reached the drive and its answer was lost: the drive may hold it.
-    pub fn unknown(&mut self, step: &Step, error: &ParamError) {
-        self.step_result(
-            step,
-            format!("unknown: {error}"),
-            format!("unknown: {error} (on the way)"),
-        );
-        self.unknown += 1;
-    }
-
-    /// What became of `step`: a value of the file gets `of_file` on its line, a value set on
-    /// the way (access level, quick commissioning) a line of its own saying `on_the_way`.
-    fn step_result(&mut self, step: &Step, of_file: String, on_the_way: String) {
-        match step {
-            Step::Restore(e) => self.line(e).result = of_file,
-            Step::Helper(param, value)
-            | Step::Raise {
-                param, to: value, ..
-            } => self.lines.push(RestoreLine {
-                param: param.to_string(),
-                was: None,
-                wanted: value.to_string(),
-                result: on_the_way,
-            }),
-        }
-    }
-
-    /// `param`, raised to `to` on the way, written back to `was` (the drive's value before the
-    /// restore) after the restore was cut short by `why`: `Ok(read_back)` (whether a read
-    /// showed it, the write's answer lost), or not (`Err`; `meaning`: what being left raised
-    /// means for the drive).
-    pub fn put_back(
-        &mut self,
-        param: ParamRef,
-        to: u16,
-        was: u16,
-        why: &str,
-        result: Result<bool, String>,
-        meaning: &str,
-    ) {
-        let command = crate::cli::command_line(
-            &self.bus,
-            &format!("param write {} {param} {was}", self.drive),
-        );
-        let result = match result {
-            Ok(false) => format!("put back after {why}"),
-            Ok(true) => format!("put back (read back) after {why}"),
-            Err(e) => {
-                self.left_raised.push(format!(
-                    "{param} = {to}: {meaning}; put it back with `{command}`"
-                ));
-                format!("LEFT RAISED: {e}")
-            }
-        };
-        self.lines.push(RestoreLine {
-            param: param.to_string(),
-            was: Some(to.to_string()),
-            wanted: was.to_string(),
-            result,
-        });
-    }
-
-    /// Stopped before `rest` was written.
-    pub fn cut_short(&mut self, why: &str, rest: &[Step]) {
-        for step in rest {
-            if let Step::Restore(e) = step {
-                self.line(e).result = "not written".into();
-            }
-        }
-        self.cut_short = Some(format!(
-            "{why}; not written: {}",
-            rest.iter().map(Step::name).collect::<Vec<_>>().join(", ")
-        ));
-    }
-
-    pub fn is_complete(&self) -> bool {
-        self.refused == 0
-            && self.unknown == 0
-            && self.cut_short.is_none()
-            && self
-                .stored
-                .as_ref()
-                .is_none_or(|s| !s.starts_with("not stored"))
     }
 
     pub fn human(&self) -> String {
