@@ -849,9 +849,9 @@ enum UssrtStatus ussrt_param_save(const struct UssrtBus *bus, uint8_t address);
  * and ussd has read again what it scales and judges the drive by (its reference: a
  * `ussrt_control_run_hz` is `REFERENCE_UNKNOWN` until then). The writes are deliberate (ussd
  * logs them as unsafe: the command source, the COM link and the telegram monitoring go back to
- * their defaults); `flags` 0 or `USSRT_WRITE_FORCE` (while another process controls the
- * drive). RAM only: `ussrt_param_save` stores it. `REFUSED` for a family without a known
- * reset.
+ * their defaults): only with `USSRT_WRITE_UNSAFE` in `flags` (`REFUSED` without it, nothing
+ * written), and `USSRT_WRITE_FORCE` while another process controls the drive. RAM only:
+ * `ussrt_param_save` stores it. `REFUSED` for a family without a known reset.
  *
  * # Safety
  * `bus` is a live handle.
@@ -868,8 +868,10 @@ enum UssrtStatus ussrt_param_factory_reset(const struct UssrtBus *bus,
  * telegram monitoring included), and returns once the drive is done and ussd has read it
  * again. A value the drive refuses is `DRIVE_ERROR` with the drive out of quick
  * commissioning (P0010 back to 0) and the access level put back; values written before stay
- * in RAM. `flags` 0 or `USSRT_WRITE_FORCE`. `REFUSED` for a family without a known quick
- * commissioning.
+ * in RAM. The end of quick commissioning is a guarded write: only with `USSRT_WRITE_UNSAFE` in
+ * `flags` (`REFUSED` without it, nothing written); the motor values are written as any write
+ * (a guarded one among them is `REFUSED`); `USSRT_WRITE_FORCE` while another process controls
+ * the drive. `REFUSED` for a family without a known quick commissioning.
  *
  * # Safety
  * `bus` is a live handle; `params` and `values` arrays of `count` NUL-terminated strings

@@ -269,15 +269,16 @@ pub unsafe extern "C" fn ussrt_param_save(bus: *const UssrtBus, address: u8) -> 
     })
 }
 
-/// Only `USSRT_WRITE_FORCE` (act while another process controls the drive): the commissioning
-/// calls write RAM only, and every write of theirs is deliberate already.
-fn force_only(flags: u32) -> Result<bool, Failure> {
-    if flags & !USSRT_WRITE_FORCE != 0 {
+/// A commissioning call's `flags`: `USSRT_WRITE_UNSAFE` (required: the call's guarded write is
+/// asked for deliberately) and `USSRT_WRITE_FORCE` (while another process controls the drive);
+/// the calls write RAM only, so `USSRT_WRITE_EEPROM` is refused.
+fn commissioning(flags: u32) -> Result<WriteOptions, Failure> {
+    if flags & !(USSRT_WRITE_FORCE | USSRT_WRITE_UNSAFE) != 0 {
         return Err(Failure::Argument(format!(
-            "flags {flags:#x}: only USSRT_WRITE_FORCE is defined here"
+            "flags {flags:#x}: only USSRT_WRITE_UNSAFE and USSRT_WRITE_FORCE are defined here"
         )));
     }
-    Ok(flags & USSRT_WRITE_FORCE != 0)
+    options(flags)
 }
 
 /// Puts every setting of drive `address` back to its factory value as its manual gives it
@@ -285,9 +286,9 @@ fn force_only(flags: u32) -> Result<bool, Failure> {
 /// and ussd has read again what it scales and judges the drive by (its reference: a
 /// `ussrt_control_run_hz` is `REFERENCE_UNKNOWN` until then). The writes are deliberate (ussd
 /// logs them as unsafe: the command source, the COM link and the telegram monitoring go back to
-/// their defaults); `flags` 0 or `USSRT_WRITE_FORCE` (while another process controls the
-/// drive). RAM only: `ussrt_param_save` stores it. `REFUSED` for a family without a known
-/// reset.
+/// their defaults): only with `USSRT_WRITE_UNSAFE` in `flags` (`REFUSED` without it, nothing
+/// written), and `USSRT_WRITE_FORCE` while another process controls the drive. RAM only:
+/// `ussrt_param_save` stores it. `REFUSED` for a family without a known reset.
 ///
 /// # Safety
 /// `bus` is a live handle.
@@ -299,7 +300,8 @@ pub unsafe extern "C" fn ussrt_param_factory_reset(
 ) -> UssrtStatus {
     guard(|| {
         let bus = arg(bus, "bus")?;
-        bus.bus.factory_reset(drive(address)?, force_only(flags)?)?;
+        bus.bus
+            .factory_reset(drive(address)?, commissioning(flags)?)?;
         Ok(())
     })
 }
@@ -311,8 +313,10 @@ pub unsafe extern "C" fn ussrt_param_factory_reset(
 /// telegram monitoring included), and returns once the drive is done and ussd has read it
 /// again. A value the drive refuses is `DRIVE_ERROR` with the drive out of quick
 /// commissioning (P0010 back to 0) and the access level put back; values written before stay
-/// in RAM. `flags` 0 or `USSRT_WRITE_FORCE`. `REFUSED` for a family without a known quick
-/// commissioning.
+/// in RAM. The end of quick commissioning is a guarded write: only with `USSRT_WRITE_UNSAFE` in
+/// `flags` (`REFUSED` without it, nothing written); the motor values are written as any write
+/// (a guarded one among them is `REFUSED`); `USSRT_WRITE_FORCE` while another process controls
+/// the drive. `REFUSED` for a family without a known quick commissioning.
 ///
 /// # Safety
 /// `bus` is a live handle; `params` and `values` arrays of `count` NUL-terminated strings
@@ -329,7 +333,7 @@ pub unsafe extern "C" fn ussrt_param_quick_commission(
 ) -> UssrtStatus {
     guard(|| {
         let bus = arg(bus, "bus")?;
-        let force = force_only(flags)?;
+        let options = commissioning(flags)?;
         let mut motor = Vec::with_capacity(count);
         if count > 0 {
             if params.is_null() || values.is_null() {
@@ -344,7 +348,7 @@ pub unsafe extern "C" fn ussrt_param_quick_commission(
             }
         }
         bus.bus
-            .quick_commission(drive(address)?, &motor, end, force)?;
+            .quick_commission(drive(address)?, &motor, end, options)?;
         Ok(())
     })
 }

@@ -434,15 +434,25 @@ pub fn check_family(
 
 impl Bus {
     /// The firmware of drive `address` as its r0018 reads it (MICROMASTER 4: a float, 2.09;
-    /// G120: its number); none where its family's catalogue has no r0018 or the read fails.
-    pub fn firmware(&self, address: Address) -> Option<Number> {
-        let catalogue = Catalogue::of(self.family(address))?;
-        let r0018 = catalogue.param(18)?;
-        let v = self.read(address, r0018.id).ok()?;
-        Some(match r0018.data_type {
+    /// G120: its number); none where its family's catalogue has no r0018 or the drive refuses
+    /// it (it does not have it).
+    ///
+    /// # Errors
+    /// A failure of the path: the firmware is not known, which is not "none" (a backup and a
+    /// restore are checked by it).
+    pub fn firmware(&self, address: Address) -> Result<Option<Number>, ParamError> {
+        let Some(r0018) = Catalogue::of(self.family(address)).and_then(|c| c.param(18)) else {
+            return Ok(None);
+        };
+        let v = match self.read(address, r0018.id) {
+            Ok(v) => v,
+            Err(ParamError::Drive(_)) => return Ok(None),
+            Err(e) => return Err(e),
+        };
+        Ok(Some(match r0018.data_type {
             DataType::Float => Number::of(DataType::Float, v),
             t => Number::Int(t.decode(v).as_f64() as i64),
-        })
+        }))
     }
 
     /// Reads `params` of drive `address` in requests of up to 39; one result each, in order.
@@ -571,7 +581,7 @@ impl Bus {
     ) -> Result<Upload, ParamError> {
         let family = self.family(address);
         let catalogue = settings_catalogue(address, family)?;
-        let firmware = self.firmware(address);
+        let firmware = self.firmware(address)?;
         let (values, missing) = self.settings(address, catalogue, progress)?;
         let mut param: BTreeMap<String, Saved> = BTreeMap::new();
         for (r, info, v) in &values {

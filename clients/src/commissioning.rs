@@ -127,6 +127,37 @@ impl Reset {
     }
 }
 
+/// A put-back of the drive's own value after a commissioning call: whoever took control
+/// meanwhile (forced), and as unsafe (putting back P0010 = 30 is a guarded value of its own;
+/// ussd logs it).
+const fn forced() -> WriteOptions {
+    WriteOptions {
+        eeprom: false,
+        force: true,
+        unsafe_write: true,
+    }
+}
+
+/// `e`, the error a commissioning call ends with, and whether its clean-up (`param` put back to
+/// `was`) went through: `e` itself when it did, else an error that says both, so that a drive
+/// left in quick commissioning or at a raised level is never unsaid.
+fn and_cleanup(
+    e: ParamError,
+    back: Result<Value, ParamError>,
+    param: ParamRef,
+    was: u16,
+) -> ParamError {
+    match back {
+        Ok(_) => e,
+        Err(b) => ParamError::Value {
+            param: param.to_string(),
+            problem: format!(
+                "{e}; and it was not surely put back to {was} ({b}): read it, and write {was}"
+            ),
+        },
+    }
+}
+
 /// A parameter as a whole (its index dropped): the plain parameters the commissioning calls
 /// write.
 const fn whole(p: ParamRef) -> ParamRef {
@@ -211,15 +242,21 @@ impl Bus {
     /// waits until the drive says it is done (the reset parameter reads 0 again, within
     /// [`RESET_WAIT`]; a drive that restarts for it is waited for), and then until ussd has
     /// read again what it scales and judges the drive by (its reference and its telegram
-    /// monitoring, `crate::DriveWatch::reference_wait`). The writes are deliberate (ussd logs
-    /// them as unsafe: the reset takes the command source, the COM link and the monitoring back
-    /// to their defaults); `force` writes while another process controls the drive. Only RAM
-    /// and what the drive itself stores are changed: nothing of it is copied to ROM here.
+    /// monitoring, `crate::DriveWatch::reference_wait`). The reset takes the command source,
+    /// the COM link and the monitoring back to their defaults: it is done only when asked as
+    /// unsafe (`options.unsafe_write`; ussd logs the writes), and `options.force` does it while
+    /// another process controls the drive. Only RAM and what the drive itself stores are
+    /// changed: nothing of it is copied to ROM here (`options.eeprom` is not used).
     ///
     /// # Errors
+    /// [`ParamError::Guarded`] without `unsafe_write` (nothing written);
     /// [`ParamError::NotOnFamily`] for a family without a known reset; the drive's or the
     /// path's error otherwise.
-    pub fn factory_reset(&self, address: Address, force: bool) -> Result<Reset, ParamError> {
+    pub fn factory_reset(
+        &self,
+        address: Address,
+        options: WriteOptions,
+    ) -> Result<Reset, ParamError> {
         let family = self.family(address);
         let catalogue = Catalogue::of(family);
         let known = catalogue.and_then(|c| {
@@ -236,10 +273,17 @@ impl Bus {
                 what: "uss-rt knows no factory reset for this family",
             });
         };
+        if !options.unsafe_write {
+            return Err(ParamError::Guarded {
+                params: format!("{commissioning} = {setting}, {reset} = 1"),
+                why: "a factory reset takes the command source, the COM link and the telegram \
+                      monitoring back to their factory values"
+                    .to_owned(),
+            });
+        }
         let deliberate = WriteOptions {
             eeprom: false,
-            force,
-            unsafe_write: true,
+            ..options
         };
         let start = Instant::now();
         let was = self.read_u16(address, commissioning)?;
@@ -251,8 +295,8 @@ impl Bus {
             Err(e) => {
                 // Refused (the drive runs, a level too low): not left in factory-setting mode,
                 // where it would not run.
-                let _ = self.write_with(address, commissioning, Value::Word(was), deliberate);
-                return Err(e);
+                let back = self.write_with(address, commissioning, Value::Word(was), forced());
+                return Err(and_cleanup(e, back, commissioning, was));
             }
         }
         self.wait_zero(address, &[reset], RESET_WAIT)?;
@@ -307,23 +351,27 @@ impl Bus {
     /// parameter and the end read 0 again, within [`QUICK_WAIT`]), puts the access level back
     /// in RAM, and waits until ussd has read the drive's reference and monitoring again.
     ///
-    /// Every write is deliberate (ussd logs it as unsafe: the end of quick commissioning is a
-    /// guarded write); `force` writes while another process controls the drive. Nothing is
-    /// copied to ROM here ([`Bus::save_to_rom`] does). A write the drive refuses (a value
-    /// outside its limits, error 2) ends the call: the drive leaves quick commissioning
-    /// without a calculation (the commissioning parameter back to 0), the level is put back,
-    /// and the error is returned; values written before stay in RAM.
+    /// The end of quick commissioning is a guarded write: the call is made only when asked as
+    /// unsafe (`options.unsafe_write`; ussd logs that write). The motor data are written as any
+    /// write is, so a guarded parameter among them (the command source, the telegram
+    /// monitoring off) is refused by ussd: write it on its own, deliberately. `options.force`
+    /// writes while another process controls the drive. Nothing is copied to ROM here
+    /// ([`Bus::save_to_rom`] does). A write the drive refuses (a value outside its limits,
+    /// error 2) ends the call: the drive leaves quick commissioning without a calculation (the
+    /// commissioning parameter back to 0), the level is put back, and the error is returned;
+    /// values written before stay in RAM. A clean-up that does not go through is said in the
+    /// error ([`ParamError::Value`], naming what to write).
     ///
     /// # Errors
-    /// [`ParamError::NotOnFamily`] for a family without a known quick commissioning;
-    /// [`ParamError::Value`] for an `end` outside 1..=3 (nothing written); the drive's or the
-    /// path's error otherwise.
+    /// [`ParamError::Guarded`] without `unsafe_write`, [`ParamError::Value`] for an `end`
+    /// outside 1..=3 (nothing written in both); [`ParamError::NotOnFamily`] for a family
+    /// without a known quick commissioning; the drive's or the path's error otherwise.
     pub fn quick_commission(
         &self,
         address: Address,
         motor: &[(ParamRef, &str)],
         end: u16,
-        force: bool,
+        options: WriteOptions,
     ) -> Result<Commissioned, ParamError> {
         let family = self.family(address);
         let catalogue = Catalogue::of(family);
@@ -346,52 +394,72 @@ impl Bus {
                 ),
             });
         }
+        if !options.unsafe_write {
+            return Err(ParamError::Guarded {
+                params: format!("{quick} = {end}"),
+                why: "the end of quick commissioning recalculates the motor model (1: and puts \
+                      every other setting, the command source and the COM link included, back \
+                      to its factory value)"
+                    .to_owned(),
+            });
+        }
+        // The motor data and the commissioning parameter as any write of them: a guarded one
+        // among them (the command source, ...) is refused by ussd, not slipped in.
+        let plain = WriteOptions {
+            eeprom: false,
+            unsafe_write: false,
+            ..options
+        };
         let deliberate = WriteOptions {
             eeprom: false,
-            force,
-            unsafe_write: true,
+            ..options
         };
         let start = Instant::now();
         let params = motor.iter().map(|(p, _)| *p).chain([quick, commissioning]);
-        let raise = self.raise_for(address, catalogue, params, deliberate)?;
-        let put_back_level = || {
-            if let Some((level, _, was)) = raise {
-                let back = WriteOptions {
-                    force: true,
-                    ..deliberate
-                };
-                let _ = self.write_with(address, level, Value::Word(was), back);
+        let raise = self.raise_for(address, catalogue, params, plain)?;
+        let put_back_level = |e: Option<ParamError>| -> Result<(), ParamError> {
+            let Some((level, to, was)) = raise else {
+                return e.map_or(Ok(()), Err);
+            };
+            let back = self.write_with(address, level, Value::Word(was), forced());
+            match (e, back) {
+                (None, Ok(_)) => Ok(()),
+                (Some(e), back) => Err(and_cleanup(e, back, level, was)),
+                (None, Err(b)) => Err(ParamError::Value {
+                    param: level.to_string(),
+                    problem: format!(
+                        "raised to {to} for quick commissioning and not surely put back to \
+                         {was} ({b}): read it, and write {was}"
+                    ),
+                }),
             }
         };
         let mut written = Vec::with_capacity(motor.len());
         let steps = self
-            .write_with(address, commissioning, Value::Word(1), deliberate)
+            .write_with(address, commissioning, Value::Word(1), plain)
             .map(|_| ())
             .and_then(|()| {
                 for (param, text) in motor {
-                    let now = self.write_param(address, *param, text, deliberate)?;
+                    let now = self.write_param(address, *param, text, plain)?;
                     written.push((now.param, now.shown()));
                 }
                 Ok(())
             });
-        if let Err(e) = steps {
-            // Out of quick commissioning without a calculation, where the drive got into it.
-            let _ = self.write_with(address, commissioning, Value::Word(0), deliberate);
-            put_back_level();
-            return Err(e);
-        }
-        let ended = match self.write_with(address, quick, Value::Word(end), deliberate) {
-            Ok(_) => Ok(()),
-            // The drive may be calculating: it is asked below whether it is done.
-            Err(e) if e.may_be_applied() => Ok(()),
-            Err(e) => {
-                let _ = self.write_with(address, commissioning, Value::Word(0), deliberate);
-                Err(e)
+        // Out of quick commissioning without a calculation where a write failed.
+        let leave = |e: ParamError| {
+            let back = self.write_with(address, commissioning, Value::Word(0), forced());
+            and_cleanup(e, back, commissioning, 0)
+        };
+        let ended = steps.map_err(leave).and_then(|()| {
+            match self.write_with(address, quick, Value::Word(end), deliberate) {
+                Ok(_) => Ok(()),
+                // The drive may be calculating: it is asked below whether it is done.
+                Err(e) if e.may_be_applied() => Ok(()),
+                Err(e) => Err(leave(e)),
             }
-        }
-        .and_then(|()| self.wait_zero(address, &[quick, commissioning], QUICK_WAIT));
-        put_back_level();
-        ended?;
+            .and_then(|()| self.wait_zero(address, &[quick, commissioning], QUICK_WAIT))
+        });
+        put_back_level(ended.err())?;
         let took = start.elapsed();
         let picture = self.read_again(address)?;
         Ok(Commissioned {
@@ -427,7 +495,14 @@ impl Bus {
         if needed <= now {
             return Ok(None);
         }
-        self.write_with(address, level, Value::Word(needed), options)?;
+        if let Err(e) = self.write_with(address, level, Value::Word(needed), options) {
+            // Its answer lost, the drive may hold the raised level: put back, said if not.
+            if e.may_be_applied() {
+                let back = self.write_with(address, level, Value::Word(now), forced());
+                return Err(and_cleanup(e, back, level, now));
+            }
+            return Err(e);
+        }
         Ok(Some((level, needed, now)))
     }
 

@@ -461,10 +461,11 @@ pub enum ParamError {
         "unexpected answer from ussd ({0}): check that ussd and this program are the same uss-rt version"
     )]
     Unexpected(String),
-    /// A restore would change guarded parameters (command or setpoint source, COM link, ...)
-    /// and was not asked as unsafe: nothing was written.
+    /// A commissioning call (a restore, a factory reset, the end of quick commissioning) would
+    /// change guarded parameters (command or setpoint source, COM link, ...) and was not asked
+    /// as unsafe: nothing was written.
     #[error(
-        "the backup changes {params}, which can take the drive away from ussd ({why}); nothing was written: restore it deliberately as unsafe (ussctl param restore --unsafe, Python unsafe=True, Rust RestoreOptions::unsafe_write)"
+        "it changes {params}, which can take the drive away from ussd ({why}); nothing was written: do it deliberately as unsafe (ussctl --unsafe, Python unsafe=True, C USSRT_WRITE_UNSAFE or USSRT_RESTORE_UNSAFE, Rust unsafe_write)"
     )]
     Guarded { params: String, why: String },
     /// What was asked has no parameter on this drive's family that uss-rt knows (a copy of RAM

@@ -346,7 +346,7 @@ impl Bus {
             "the backup is of a",
             "restored (nothing was written)",
         )?;
-        file.check_firmware(self.firmware(address), options.other_firmware)?;
+        file.check_firmware(self.firmware(address)?, options.other_firmware)?;
         let start = Instant::now();
         let refs: Vec<ParamRef> = entries.iter().map(|e| e.param).collect();
         let now = self.read_entries(address, &refs, progress);
@@ -508,12 +508,14 @@ impl Bus {
         for &(param, to, was) in raised {
             let mut read_back = false;
             let result = loop {
-                let error = match self.write_with(
-                    put.address,
-                    param,
-                    Value::Word(was),
-                    put.options.writes(),
-                ) {
+                // The drive's own value back, whoever took control meanwhile (forced), and
+                // as unsafe (P0010 = 30 is a guarded value of its own; ussd logs it).
+                let back = WriteOptions {
+                    eeprom: false,
+                    force: true,
+                    unsafe_write: true,
+                };
+                let error = match self.write_with(put.address, param, Value::Word(was), back) {
                     Ok(_) => break Ok(()),
                     Err(e @ ParamError::Drive(_)) => break Err(e.to_string()),
                     Err(e) => e,

@@ -274,15 +274,21 @@ fn read_again(
 /// for it and for ussd's new reading: `{"writes": ["P0010 := 30", "P0970 := 1"], "seconds",
 /// "reference_hz" (None: not read yet), "monitoring", "monitoring_ms"}`.
 #[pyfunction]
-#[pyo3(signature = (bus, address, force=false))]
+#[pyo3(signature = (bus, address, unsafe_write=false, force=false))]
 fn factory_reset<'py>(
     py: Python<'py>,
     bus: &Bound<'py, NativeBus>,
     address: u8,
+    unsafe_write: bool,
     force: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let options = WriteOptions {
+        eeprom: false,
+        force,
+        unsafe_write,
+    };
     let reset = on_drive(py, bus, address, |bus, drive| {
-        bus.factory_reset(drive, force)
+        bus.factory_reset(drive, options)
     })?;
     let d = PyDict::new(py);
     d.set_item("writes", reset.writes())?;
@@ -300,7 +306,7 @@ fn factory_reset<'py>(
 /// waited for: `{"writes": [...], "raised", "seconds", "reference_hz", "monitoring",
 /// "monitoring_ms"}`.
 #[pyfunction]
-#[pyo3(signature = (bus, address, motor, end=3, force=false))]
+#[pyo3(signature = (bus, address, motor, end=3, unsafe_write=false, force=false))]
 #[allow(
     clippy::needless_pass_by_value,
     reason = "pyo3 extracts the list by value"
@@ -311,14 +317,20 @@ fn quick_commission<'py>(
     address: u8,
     motor: Vec<(String, String)>,
     end: u16,
+    unsafe_write: bool,
     force: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let options = WriteOptions {
+        eeprom: false,
+        force,
+        unsafe_write,
+    };
     let motor = motor
         .iter()
         .map(|(p, v)| Ok((param_ref(p)?, v.as_str())))
         .collect::<PyResult<Vec<_>>>()?;
     let done = on_drive(py, bus, address, |bus, drive| {
-        bus.quick_commission(drive, &motor, end, force)
+        bus.quick_commission(drive, &motor, end, options)
     })?;
     let d = PyDict::new(py);
     d.set_item("writes", done.writes())?;
@@ -432,6 +444,13 @@ fn restore<'py>(
             &mut |_| {},
         )
     })?;
+    if uss_client::restore::Cancel::asked(&cancel) > 0 {
+        // What the restore raised is put back: the program stops as Ctrl-C asked.
+        return Err(pyo3::exceptions::PyKeyboardInterrupt::new_err(format!(
+            "the restore of drive {address} was cut short: {}",
+            done.cut_short.as_deref().unwrap_or("Ctrl-C")
+        )));
+    }
     let lines = pyo3::types::PyList::empty(py);
     for l in &done.lines {
         let line = PyDict::new(py);

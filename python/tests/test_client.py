@@ -629,17 +629,28 @@ def test_quick_commissioning_and_a_factory_reset_wait_for_the_drive_and_ussd(tmp
     raised for P0308 is put back. A factory reset brings the reference back to 50 Hz, read again
     by ussd before the call returns."""
     bus_name = f"{BUS}-commissioning"
-    daemon = Ussd(tmp_path, bus=bus_name, drives=[(4, "sim = { p2000 = 60 }")])
+    daemon = Ussd(tmp_path, bus=bus_name, drives=[(4, "sim = { p2000 = 60, p2014 = 500 }")])
     try:
         daemon.wait_for_services()
         with uss_rt.open_bus(bus_name) as bus:
             wait_for_input(bus, 4, lambda i: i["online"] == 1)
+            # The end of quick commissioning is guarded: asked as unsafe, or nothing is written;
+            # a guarded motor value (telegram monitoring off) is refused even then.
+            with pytest.raises(uss_rt.Refused, match="deliberately as unsafe"):
+                uss_rt.quick_commission(bus, 4, [("P0304", "400")])
+            assert uss_rt.read_param(bus, 4, 304) != 400
+            with pytest.raises(uss_rt.Refused, match="guarded parameter"):
+                uss_rt.quick_commission(bus, 4, [("P2014[0]", "0")], unsafe=True)
+            assert uss_rt.read(bus, 4, "P2014[0]").value != 0
+            assert uss_rt.read_param(bus, 4, 10) == 0, "out of quick commissioning"
             with pytest.raises(uss_rt.DriveError):
-                uss_rt.quick_commission(bus, 4, [("P0308", "0.8"), ("P2000", "0.5")])
+                uss_rt.quick_commission(
+                    bus, 4, [("P0308", "0.8"), ("P2000", "0.5")], unsafe=True
+                )
             assert uss_rt.read_param(bus, 4, 10) == 0, "out of quick commissioning"
             assert uss_rt.read_param(bus, 4, 3) == 1, "the level put back"
             plate = {"P0304": 400, "P0305": 1.9, "P0308": 0.82, "P0310": 50, "P0311": 1395}
-            done = uss_rt.quick_commission(bus, 4, plate)
+            done = uss_rt.quick_commission(bus, 4, plate, unsafe=True)
             assert done["writes"][:3] == ["P0010 := 1", "P0304 := 400 V", "P0305 := 1.90 A"]
             assert done["writes"][-1] == "P3900 := 3"
             assert done["raised"] == "P0003 1 -> 2 -> 1"
@@ -647,7 +658,9 @@ def test_quick_commissioning_and_a_factory_reset_wait_for_the_drive_and_ussd(tmp
             assert uss_rt.read(bus, 4, "P0311").value == 1395
             assert [uss_rt.read_param(bus, 4, p) for p in (10, 3900, 3)] == [0, 0, 1]
             text = uss_rt.backup(bus, 4)
-            reset = uss_rt.factory_reset(bus, 4)
+            with pytest.raises(uss_rt.Refused, match="deliberately as unsafe"):
+                uss_rt.factory_reset(bus, 4)
+            reset = uss_rt.factory_reset(bus, 4, unsafe=True)
             assert reset["writes"] == ["P0010 := 30", "P0970 := 1"]
             assert reset["reference_hz"] == 50.0
             assert uss_rt.read(bus, 4, "P2000").value == 50.0
@@ -658,8 +671,10 @@ def test_quick_commissioning_and_a_factory_reset_wait_for_the_drive_and_ussd(tmp
             with pytest.raises(uss_rt.Refused, match="deliberately as unsafe"):
                 uss_rt.restore(bus, 4, text.replace("P0700 = [5, 5, 5]", "P0700 = [2, 5, 5]"))
             done = uss_rt.restore(bus, 4, text)
-            # P0304, P0305, P0308, P0311 (P0310 is the factory 50 Hz) and P2000.
-            assert done["complete"] and done["refused"] == 0 and done["written"] == 5, done
+            # P0304, P0305, P0308, P0311 (P0310 is the factory 50 Hz), P2000 and the telegram
+            # monitoring P2014[0] the reset had switched off.
+            assert done["complete"] and done["refused"] == 0 and done["written"] == 6, done
+            assert uss_rt.read(bus, 4, "P2014[0]").value == 500
             assert uss_rt.diff(bus, 4, text)["differ"] == []
             assert uss_rt.read(bus, 4, "P2000").value == 60.0
             assert [uss_rt.read_param(bus, 4, p) for p in (10, 3)] == [0, 1]

@@ -392,8 +392,9 @@ def restore(
     parameter such as the command source only with ``unsafe``), then only what differs, in a
     safe order (the access level raised and quick commissioning entered where needed, and put
     back), each value checked against the drive's answer; the COM link ussd talks over is kept.
-    ``eeprom`` copies RAM to ROM once every value is in RAM. Ctrl-C cuts it short between two
-    writes and it puts back what it raised (Ctrl-C again leaves that). Returns the report:
+    ``eeprom`` copies RAM to ROM once every value is in RAM. Ctrl-C (in the main thread) cuts
+    it short between two writes: it puts back what it raised (Ctrl-C again leaves that) and
+    then raises KeyboardInterrupt. Returns the report:
     ``{"complete": True, "equal", "written", "refused", "unknown", "kept", "cut_short",
     "left_raised": [(param, raised_to, was, meaning)], "stored", "ignored", "lines": [{"param",
     "was", "wanted", "result"}], "seconds"}``; an incomplete restore is not raised: run it
@@ -413,20 +414,23 @@ def restore(
     )
 
 
-def factory_reset(bus: Bus, address: int, force: bool = False) -> dict:
+def factory_reset(bus: Bus, address: int, unsafe: bool = False, force: bool = False) -> dict:
     """Puts every setting of drive ``address`` back to its factory value as its manual gives it
     (MICROMASTER 4 and G120: P0010 = 30, then P0970 = 1), waits until the drive is done and
     until ussd has read again what it scales and judges the drive by, and says what it read:
     ``{"writes": ["P0010 := 30", "P0970 := 1"], "seconds": 0.04, "reference_hz": 50.0 (None:
-    still being read), "monitoring": "off", "monitoring_ms": 0}``. The writes are deliberate
-    (ussd logs them as unsafe: the command source, the COM link and the telegram monitoring go
-    back to their defaults); ``force`` resets while another process controls the drive. RAM
-    only: :func:`save_to_rom` stores it. A family without a known reset: :class:`Refused`."""
+    still being read), "monitoring": "off", "monitoring_ms": 0}``. The reset takes the command
+    source, the COM link and the telegram monitoring back to their defaults: only with
+    ``unsafe=True`` (:class:`Refused` without it, nothing written; ussd logs the writes);
+    ``force`` resets while another process controls the drive. RAM only: :func:`save_to_rom`
+    stores it. A family without a known reset: :class:`Refused`."""
     _check_address(address)
-    return _native.factory_reset(bus._open(), address, force)
+    return _native.factory_reset(bus._open(), address, unsafe, force)
 
 
-def quick_commission(bus: Bus, address: int, motor, end: int = 3, force: bool = False) -> dict:
+def quick_commission(
+    bus: Bus, address: int, motor, end: int = 3, unsafe: bool = False, force: bool = False
+) -> dict:
     """Quick commissioning as the drive's manual gives it: P0010 = 1, the motor data ``motor``
     (``[("P0304", "400"), ("P0305", "1.9"), ...]`` or a dict, in the parameters' own units,
     written in order), then P3900 = ``end`` (3: the motor model only; 2: and the I/O back to
@@ -434,12 +438,15 @@ def quick_commission(bus: Bus, address: int, motor, end: int = 3, force: bool = 
     telegram monitoring included). Waits until the drive is done and ussd has read it again:
     ``{"writes": ["P0010 := 1", "P0304 := 400 V", ..., "P3900 := 3"], "raised": "P0003 1 ->
     2 -> 1" or None, "seconds", "reference_hz", "monitoring", "monitoring_ms"}``. A value the
-    drive refuses raises (:class:`Refused`) with the drive out of quick commissioning (P0010
-    back to 0) and the access level put back; values written before stay in RAM."""
+    drive refuses raises (:class:`DriveError`) with the drive out of quick commissioning (P0010
+    back to 0) and the access level put back; values written before stay in RAM. The end of
+    quick commissioning is a guarded write: only with ``unsafe=True`` (:class:`Refused`
+    without it, nothing written); the motor values are written as any write is (a guarded one
+    among them is :class:`Refused`)."""
     _check_address(address)
     items = motor.items() if isinstance(motor, dict) else motor
     pairs = [(str(p), str(v)) for p, v in items]
-    return _native.quick_commission(bus._open(), address, pairs, end, force)
+    return _native.quick_commission(bus._open(), address, pairs, end, unsafe, force)
 
 
 def stop_drive(bus: Bus, address: int, command=StopCommand.OFF1, timeout: float = 2.0):

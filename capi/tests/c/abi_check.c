@@ -290,23 +290,30 @@ int main(int argc, char **argv) {
   const char *params[] = {"P0304", "P0305"};
   const char *beyond[] = {"400", "20000"};
   const char *plate[] = {"400", "1.9"};
-  EXPECT(ussrt_param_quick_commission(bus, 2, params, beyond, 2, 3, 0) != USSRT_STATUS_OK,
+  EXPECT(ussrt_param_quick_commission(bus, 2, params, plate, 2, 3, 0) == USSRT_STATUS_REFUSED,
+         "the end of quick commissioning only as unsafe");
+  EXPECT(ussrt_param_quick_commission(bus, 2, params, beyond, 2, 3, USSRT_WRITE_UNSAFE) !=
+             USSRT_STATUS_OK,
          "P0305 = 20000 A is beyond its limits");
   OK(ussrt_param_read(bus, 2, "P0010", &v));
   EXPECT(v.value == 0, "out of quick commissioning: %g", v.value);
-  EXPECT(ussrt_param_quick_commission(bus, 2, params, plate, 2, 7, 0) == USSRT_STATUS_VALUE,
+  EXPECT(ussrt_param_quick_commission(bus, 2, params, plate, 2, 7, USSRT_WRITE_UNSAFE) ==
+             USSRT_STATUS_VALUE,
          "P3900 = 7");
-  EXPECT(ussrt_param_quick_commission(bus, 2, NULL, NULL, 2, 3, 0) ==
+  EXPECT(ussrt_param_quick_commission(bus, 2, NULL, NULL, 2, 3, USSRT_WRITE_UNSAFE) ==
              USSRT_STATUS_INVALID_ARGUMENT,
          "NULL arrays");
-  OK(ussrt_param_quick_commission(bus, 2, params, plate, 2, 3, USSRT_WRITE_FORCE));
+  OK(ussrt_param_quick_commission(bus, 2, params, plate, 2, 3,
+                                  USSRT_WRITE_UNSAFE | USSRT_WRITE_FORCE));
   OK(ussrt_param_read(bus, 2, "P0304", &v));
   EXPECT(v.value == 400, "P0304 %g", v.value);
   OK(ussrt_param_read(bus, 2, "P3900", &v));
   EXPECT(v.value == 0, "P3900 done: %g", v.value);
   EXPECT(ussrt_param_factory_reset(bus, 2, USSRT_WRITE_EEPROM) == USSRT_STATUS_INVALID_ARGUMENT,
-         "a reset takes only USSRT_WRITE_FORCE");
-  OK(ussrt_param_factory_reset(bus, 2, USSRT_WRITE_FORCE));
+         "a reset takes only USSRT_WRITE_UNSAFE and USSRT_WRITE_FORCE");
+  EXPECT(ussrt_param_factory_reset(bus, 2, USSRT_WRITE_FORCE) == USSRT_STATUS_REFUSED,
+         "a reset only as unsafe");
+  OK(ussrt_param_factory_reset(bus, 2, USSRT_WRITE_UNSAFE | USSRT_WRITE_FORCE));
   OK(ussrt_param_read(bus, 2, "P0304", &v));
   EXPECT(v.value != 400, "factory's P0304 again: %g", v.value);
 

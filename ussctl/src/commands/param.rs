@@ -410,7 +410,14 @@ impl FactoryReset {
         // Ctrl-C does not cut the reset between P0010 = 30 and its end.
         crate::catch_signals()?;
         let reset = bus
-            .factory_reset(drive, self.force)
+            .factory_reset(
+                drive,
+                WriteOptions {
+                    eeprom: false,
+                    force: self.force,
+                    unsafe_write: self.unsafe_write,
+                },
+            )
             .map_err(|source| Failure::Param {
                 drive,
                 param: "factory reset".to_owned(),
@@ -475,7 +482,16 @@ impl QuickCommission {
         crate::catch_signals()?;
         let motor: Vec<(ParamRef, &str)> = self.set.iter().map(|(p, v)| (*p, v.as_str())).collect();
         let done = bus
-            .quick_commission(drive, &motor, self.end, self.force)
+            .quick_commission(
+                drive,
+                &motor,
+                self.end,
+                WriteOptions {
+                    eeprom: false,
+                    force: self.force,
+                    unsafe_write: self.unsafe_write,
+                },
+            )
             .map_err(|source| Failure::Param {
                 drive,
                 param: "quick commissioning".to_owned(),
