@@ -357,8 +357,9 @@ pub unsafe extern "C" fn ussrt_param_quick_commission(
 /// catalogue with every element the drive has, its data sets included, and its firmware) into
 /// `text` as the backup file's TOML, NUL-terminated: what `ussctl param backup` writes and
 /// `ussctl param restore` reads. `*length` gets the text's length without the NUL; a
-/// `capacity` below it is `INVALID_ARGUMENT` (nothing written: call again with room for
-/// `*length + 1`). `REFUSED` for a generic slave.
+/// `capacity` of at most `*length` is `INVALID_ARGUMENT` (nothing written: call again with
+/// room for `*length + 1`; each call uploads anew, so give room to spare). `REFUSED` for a
+/// generic slave.
 ///
 /// # Safety
 /// `bus` is a live handle; `text` writable memory for `capacity` bytes (NULL when `capacity`
@@ -465,8 +466,8 @@ pub struct UssrtRestore {
 /// `USSRT_RESTORE_EEPROM`, `USSRT_RESTORE_FORCE`, `USSRT_RESTORE_UNSAFE`,
 /// `USSRT_RESTORE_DRY_RUN`, `USSRT_RESTORE_OTHER_FIRMWARE`. `*result` says what it did; an
 /// incomplete restore is `OK` with `complete` 0. Nothing written: `REFUSED` (a guarded
-/// parameter without `USSRT_RESTORE_UNSAFE`, another controller, another family), `VALUE` (a
-/// file that fails its checks, other firmware).
+/// parameter without `USSRT_RESTORE_UNSAFE`, another controller, a generic slave), `VALUE` (a
+/// file that fails its checks, another family or firmware).
 ///
 /// # Safety
 /// `bus` is a live handle; `backup_text` a NUL-terminated string; `result` writable memory for

@@ -362,7 +362,11 @@ impl Bus {
                 // would cut the drive off the bus in the middle of the restore.
                 Ok(v) if catalogue.is_link(e.param) => report.keep_link(e, v),
                 Ok(v) => differing.push((*e, Some(v))),
-                Err(err) if not_on_drive(&err) => report.refuse(e, &err),
+                // A parameter the drive does not have, or a data set it does not have (a
+                // MICROMASTER 440's backup on a drive with fewer): refused, said, the rest goes on.
+                Err(err) if not_on_drive(&err) || no_such_element(e, &err) => {
+                    report.refuse(e, &err);
+                }
                 Err(err) => return Err(err),
             }
         }
@@ -633,6 +637,19 @@ impl Bus {
         }
         steps
     }
+}
+
+/// Whether reading element `e` failed because the drive has no such element (error 3 faulty
+/// subindex, 4 not an array) where it is a later data set or array element.
+fn no_such_element(e: &Entry, err: &ParamError) -> bool {
+    use uss_protocol::ErrorNumber;
+    e.param.index.is_some_and(|i| i.get() > 0)
+        && matches!(
+            err,
+            ParamError::Drive(crate::DriveError::Refused(
+                ErrorNumber::FaultySubindex | ErrorNumber::NotAnArray
+            ))
+        )
 }
 
 /// What a put-back needs of its restore.

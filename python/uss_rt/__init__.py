@@ -398,8 +398,8 @@ def restore(
     ``{"complete": True, "equal", "written", "refused", "unknown", "kept", "cut_short",
     "left_raised": [(param, raised_to, was, meaning)], "stored", "ignored", "lines": [{"param",
     "was", "wanted", "result"}], "seconds"}``; an incomplete restore is not raised: run it
-    again to complete it. Nothing written: :class:`Refused` (guarded, another controller,
-    another family), ValueError (a file that fails its checks, other firmware)."""
+    again to complete it. Nothing written: :class:`Refused` (guarded, another controller, a
+    generic slave), ValueError (a file that fails its checks, another family or firmware)."""
     _check_address(address)
     return _native.restore(
         bus._open(),

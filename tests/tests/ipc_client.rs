@@ -1311,6 +1311,24 @@ fn files_that_do_not_fit_are_refused(ussd: &Ussd, dir: &std::path::Path, saved: 
         err.contains("P2013: P2013 takes a list of 2 values"),
         "{err}"
     );
+    // A data set the drive does not have (a MICROMASTER 440's backup on a drive with fewer):
+    // that element is refused and said, the rest is restored; the restore is incomplete.
+    let more = dir.join("more.toml");
+    std::fs::write(
+        &more,
+        saved.replacen(
+            "P1120 = [10.0, 10.0, 10.0]",
+            "P1120 = [10.0, 10.0, 10.0, 10.0]",
+            1,
+        ),
+    )
+    .unwrap();
+    let (code, said, err) = run(&["param", "restore", "1", more.to_str().unwrap()]);
+    assert_eq!(code, Some(1), "{said}{err}");
+    assert!(
+        said.contains("P1120[3]") && said.contains("refused: ") && said.contains("refused 1"),
+        "{said}{err}"
+    );
     // A backup of other firmware is refused, naming both, unless asked for deliberately.
     let err = refused("firmware.toml", "firmware = 2.09", "firmware = 2.1");
     assert!(
