@@ -123,13 +123,16 @@ fn the_c_and_cpp_examples_run_a_drive_as_the_readme_shows() {
         )
     );
     // The C program's release is ussd's latch from when ussd took it: the C++ program starts
-    // after it (its re-arm, asked at its start, clears only a latch older than that).
+    // after it (its re-arm, asked at its start, clears only a latch older than that), and
+    // after the next clock tick, since the kernel's start time of a process is rounded down to
+    // its tick (10 ms, `process_start_ns`).
     bus.watch(addr(1))
         .unwrap()
         .wait_for(std::time::Duration::from_secs(5), "released", |i| {
             i.latch_reason == uss_client::LatchReason::Released.code()
         })
         .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(30));
     let out = run(&cpp, &[&ussd.bus, "1", "10", "1"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert_eq!(
