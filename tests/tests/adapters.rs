@@ -129,7 +129,15 @@ fn a_reply_handed_over_in_two_halves_within_the_latency_is_whole() {
     let f = run(&["--split-reply", "2"], "rx_latency_ms = 5", 2);
     assert!(f.held(), "{} failed exchanges of {}", f.failed, f.exchanges);
     assert!(f.exchanges > 100, "{} exchanges", f.exchanges);
-    // Allowing no latency, the same replies break at the split (residual time).
+    // Allowing no latency, the same replies break at the split (residual time). On a loaded
+    // machine ussd may now and then read late enough to find both halves already there (one
+    // of 21 on a CI run): nearly every one fails, not each.
     let strict = run(&["--split-reply", "2"], "rx_latency_ms = 0.001", 2);
-    assert_eq!(strict.failed, strict.exchanges, "every split reply fails");
+    assert!(strict.exchanges >= 10, "{} exchanges", strict.exchanges);
+    assert!(
+        strict.failed * 10 >= strict.exchanges * 9,
+        "split replies taken whole: {} of {} failed",
+        strict.failed,
+        strict.exchanges
+    );
 }
