@@ -463,14 +463,25 @@ impl Bus {
         params: &[ParamRef],
         progress: &mut dyn FnMut(usize, usize),
     ) -> Vec<Result<Value, ParamError>> {
-        let mut out = Vec::with_capacity(params.len());
-        for chunk in params.chunks(PER_REQUEST) {
-            let tasks: Vec<ParamTask> = chunk
-                .iter()
-                .map(|p| ParamTask::read(p.pnu, p.index))
-                .collect();
-            out.extend(self.batch(address, &tasks));
-            progress(out.len(), params.len());
+        let tasks: Vec<ParamTask> = params
+            .iter()
+            .map(|p| ParamTask::read(p.pnu, p.index))
+            .collect();
+        self.batch_all(address, &tasks, progress)
+    }
+
+    /// Runs `tasks` on drive `address` in requests of up to 39; one result each, in order.
+    /// `progress` is told (done, of) after each request.
+    fn batch_all(
+        &self,
+        address: Address,
+        tasks: &[ParamTask],
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Vec<Result<Value, ParamError>> {
+        let mut out = Vec::with_capacity(tasks.len());
+        for chunk in tasks.chunks(PER_REQUEST) {
+            out.extend(self.batch(address, chunk));
+            progress(out.len(), tasks.len());
         }
         out
     }
@@ -488,24 +499,21 @@ impl Bus {
         params: &[&'static Param],
     ) -> Result<Vec<u16>, ParamError> {
         let element = Subindex::new(2).map_err(|e| ParamError::Unexpected(e.to_string()))?;
-        let mut out = Vec::with_capacity(params.len());
-        for chunk in params.chunks(PER_REQUEST) {
-            let tasks: Vec<ParamTask> = chunk
-                .iter()
-                .map(|p| ParamTask::ReadDescription {
-                    pnu: Pnu::from_u16(p.number()),
-                    element,
-                })
-                .collect();
-            for r in self.batch(address, &tasks) {
-                out.push(match r {
-                    Ok(v) => u16::try_from(v.as_u32()).unwrap_or(0).min(255),
-                    Err(ParamError::Drive(_)) => 0,
-                    Err(e) => return Err(e),
-                });
-            }
-        }
-        Ok(out)
+        let tasks: Vec<ParamTask> = params
+            .iter()
+            .map(|p| ParamTask::ReadDescription {
+                pnu: Pnu::from_u16(p.number()),
+                element,
+            })
+            .collect();
+        self.batch_all(address, &tasks, &mut |_, _| {})
+            .into_iter()
+            .map(|r| match r {
+                Ok(v) => Ok(u16::try_from(v.as_u32()).unwrap_or(0).min(255)),
+                Err(ParamError::Drive(_)) => Ok(0),
+                Err(e) => Err(e),
+            })
+            .collect()
     }
 
     /// The settings of drive `address` by `catalogue` (each [`Param::is_setting`]): every

@@ -58,24 +58,24 @@ pub struct Reset {
     pub param: ParamRef,
     /// From the first write to the drive saying it is done.
     pub took: Duration,
-    /// The reference frequency ussd scales Hz by now, read again after the reset; none when
-    /// ussd did not have it within the drive's [`crate::DriveWatch::reference_wait`].
-    pub reference_hz: Option<f32>,
-    /// The drive's telegram monitoring as ussd read it again, and its time in ms.
-    pub monitoring: Monitoring,
-    pub monitoring_ms: u32,
+    /// What ussd read of the drive again after the reset.
+    pub picture: Picture,
 }
 
 /// How long the end of quick commissioning may take before the drive says it is done (a
 /// MICROMASTER 4 calculates its motor model in seconds; it shows "busy" meanwhile).
 pub const QUICK_WAIT: Duration = Duration::from_secs(60);
 
-/// What ussd read of a drive again after a write that may have changed every setting.
+/// What ussd read of a drive again after a write that may have changed every setting (a
+/// factory reset, the end of quick commissioning).
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Picture {
-    reference_hz: Option<f32>,
-    monitoring: Monitoring,
-    monitoring_ms: u32,
+pub struct Picture {
+    /// The reference frequency ussd scales Hz by now; none when ussd did not have it within
+    /// the drive's [`crate::DriveWatch::reference_wait`].
+    pub reference_hz: Option<f32>,
+    /// The drive's telegram monitoring as ussd read it, and its time in ms.
+    pub monitoring: Monitoring,
+    pub monitoring_ms: u32,
 }
 
 /// What a quick commissioning did, and what ussd read of the drive after it.
@@ -92,12 +92,8 @@ pub struct Commissioned {
     pub raised: Option<(ParamRef, u16, u16)>,
     /// From the first write until the drive said it was done.
     pub took: Duration,
-    /// The reference frequency ussd scales Hz by now, read again; none when ussd did not have
-    /// it within the drive's [`crate::DriveWatch::reference_wait`].
-    pub reference_hz: Option<f32>,
-    /// The drive's telegram monitoring as ussd read it again, and its time in ms.
-    pub monitoring: Monitoring,
-    pub monitoring_ms: u32,
+    /// What ussd read of the drive again after it.
+    pub picture: Picture,
 }
 
 impl Commissioned {
@@ -192,7 +188,7 @@ impl Bus {
         if saved.is_err() {
             // A copy whose answer was lost may still be storing: let it end (bounded) before
             // the level is put back, or the copy would store the raised level after it.
-            self.wait_saved(address, save);
+            let _ = self.wait_zero(address, &[save], SAVE_WAIT);
         }
         let Some((level, _, was)) = raise else {
             return saved.map(|()| Saved {
@@ -306,9 +302,7 @@ impl Bus {
             unlocked_by: (commissioning, setting),
             param: reset,
             took,
-            reference_hz: picture.reference_hz,
-            monitoring: picture.monitoring,
-            monitoring_ms: picture.monitoring_ms,
+            picture,
         })
     }
 
@@ -468,9 +462,7 @@ impl Bus {
             written,
             raised: raise,
             took,
-            reference_hz: picture.reference_hz,
-            monitoring: picture.monitoring,
-            monitoring_ms: picture.monitoring_ms,
+            picture,
         })
     }
 
@@ -533,14 +525,6 @@ impl Bus {
             }
         }
         Ok(())
-    }
-
-    /// Waits (up to [`SAVE_WAIT`]) until `save` reads 0: a copy whose answer was lost has ended.
-    fn wait_saved(&self, address: Address, save: ParamRef) {
-        let until = Instant::now() + SAVE_WAIT;
-        while self.read_u16(address, save) != Ok(0) && Instant::now() < until {
-            std::thread::sleep(SAVE_POLL);
-        }
     }
 
     /// Writes 1 to `save` and waits until it reads 0 again: the drive is done.

@@ -92,7 +92,7 @@ mod watch;
 pub use bus::{Bus, DEFAULT_NODE_NAME};
 pub use capture::Capture;
 pub use command::stop;
-pub use commissioning::{Commissioned, Reset, Saved};
+pub use commissioning::{Commissioned, Picture, Reset, Saved};
 pub use control::{ControlOptions, Controller, DEFAULT_REFRESH, HANDSHAKE_TIMEOUT, Jog, Refresher};
 pub use error::{ClientError, Latch, ParamError};
 pub use kinds::ErrorKind;

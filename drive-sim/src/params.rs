@@ -766,39 +766,28 @@ impl ParamTable {
     /// answers with. Whether a real drive keeps them is the simulator's choice, not a manual's:
     /// no stored page says.
     fn factory_reset(&mut self, storage: Storage) {
-        let kept = self.link_settings();
+        self.reset_to_defaults(storage, |_| false);
+    }
+
+    /// Every changeable parameter but those `kept` back to its default, in RAM and, with
+    /// `storage` RAM and EEPROM, in EEPROM; the settings of the link the drive answers on
+    /// (`Consulted::link`) are kept, element by element.
+    fn reset_to_defaults(&mut self, storage: Storage, kept: impl Fn(&ParamDef) -> bool) {
         let set = self.set;
         for (n, def) in set.defs.iter().enumerate() {
-            if def.is_read_only() {
+            if def.is_read_only() || kept(def) {
                 continue;
             }
-            let range = set.offsets[n]..set.offsets[n] + def.slots();
-            self.ram[range.clone()].copy_from_slice(&set.defaults[range.clone()]);
-            if storage == Storage::RamAndEeprom {
-                self.eeprom[range.clone()].copy_from_slice(&set.defaults[range]);
-            }
-        }
-        self.keep_link_settings(kept, storage);
-    }
-
-    /// The values of the link settings (`Consulted::link`), in RAM and EEPROM, to be kept.
-    fn link_settings(&self) -> [Option<(usize, u32, u32)>; 8] {
-        let mut out = [None; 8];
-        for (slot, &(pnu, index)) in out.iter_mut().zip(self.set.link) {
-            *slot = self
-                .set
-                .slot(pnu, index)
-                .map(|(_, at)| (at, self.ram[at], self.eeprom[at]));
-        }
-        out
-    }
-
-    /// Puts the link settings `kept` back after a reset.
-    fn keep_link_settings(&mut self, kept: [Option<(usize, u32, u32)>; 8], storage: Storage) {
-        for (at, ram, eeprom) in kept.into_iter().flatten() {
-            self.ram[at] = ram;
-            if storage == Storage::RamAndEeprom {
-                self.eeprom[at] = eeprom;
+            for k in 0..def.slots() {
+                let index = u8::try_from(k).unwrap_or(u8::MAX);
+                if set.link.contains(&(def.pnu, index)) {
+                    continue;
+                }
+                let at = set.offsets[n] + k;
+                self.ram[at] = set.defaults[at];
+                if storage == Storage::RamAndEeprom {
+                    self.eeprom[at] = set.defaults[at];
+                }
             }
         }
     }
@@ -811,21 +800,10 @@ impl ParamTable {
     /// drive has none. Then P0010 and P3900 read 0 again: quick commissioning is over (the
     /// reply goes out when the calculation is done).
     fn end_quick_commissioning(&mut self, end: u32, storage: Storage) {
-        let set = self.set;
-        let kept = self.link_settings();
         if end == 1 {
-            for (n, def) in set.defs.iter().enumerate() {
-                if def.is_read_only() || def.change == Change::Commissioning {
-                    continue;
-                }
-                let range = set.offsets[n]..set.offsets[n] + def.slots();
-                self.ram[range.clone()].copy_from_slice(&set.defaults[range.clone()]);
-                if storage == Storage::RamAndEeprom {
-                    self.eeprom[range.clone()].copy_from_slice(&set.defaults[range]);
-                }
-            }
-            self.keep_link_settings(kept, storage);
+            self.reset_to_defaults(storage, |def| def.change == Change::Commissioning);
         }
+        let set = self.set;
         for at in [set.commissioning, set.quick_end].into_iter().flatten() {
             self.ram[at] = 0;
         }

@@ -259,15 +259,10 @@ fn on_drive<T: Send>(
 }
 
 /// What ussd read of a drive again after a reset or a quick commissioning, into `d`.
-fn read_again(
-    d: &Bound<'_, PyDict>,
-    reference_hz: Option<f32>,
-    monitoring: uss_client::Monitoring,
-    monitoring_ms: u32,
-) -> PyResult<()> {
-    d.set_item("reference_hz", reference_hz)?;
-    d.set_item("monitoring", monitoring.to_string())?;
-    d.set_item("monitoring_ms", monitoring_ms)
+fn read_again(d: &Bound<'_, PyDict>, picture: &uss_client::Picture) -> PyResult<()> {
+    d.set_item("reference_hz", picture.reference_hz)?;
+    d.set_item("monitoring", picture.monitoring.to_string())?;
+    d.set_item("monitoring_ms", picture.monitoring_ms)
 }
 
 /// Puts every setting of the drive back to its factory value (P0010 = 30, P0970 = 1), waits
@@ -293,12 +288,7 @@ fn factory_reset<'py>(
     let d = PyDict::new(py);
     d.set_item("writes", reset.writes())?;
     d.set_item("seconds", reset.took.as_secs_f64())?;
-    read_again(
-        &d,
-        reset.reference_hz,
-        reset.monitoring,
-        reset.monitoring_ms,
-    )?;
+    read_again(&d, &reset.picture)?;
     Ok(d)
 }
 
@@ -336,7 +326,7 @@ fn quick_commission<'py>(
     d.set_item("writes", done.writes())?;
     d.set_item("raised", done.raised_text())?;
     d.set_item("seconds", done.took.as_secs_f64())?;
-    read_again(&d, done.reference_hz, done.monitoring, done.monitoring_ms)?;
+    read_again(&d, &done.picture)?;
     Ok(d)
 }
 

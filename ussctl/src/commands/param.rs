@@ -402,31 +402,45 @@ pub struct FactoryReset {
 impl FactoryReset {
     pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
         let drive = self.drive;
-        if !self.unsafe_write {
-            return Err(Failure::Usage(format!(
-                "drive {drive}: a factory reset puts every setting back to its factory value, the command source, the COM link and the telegram monitoring included; give --unsafe to do it deliberately (nothing was written)"
-            )));
-        }
         // Ctrl-C does not cut the reset between P0010 = 30 and its end.
         crate::catch_signals()?;
         let reset = bus
-            .factory_reset(
-                drive,
-                WriteOptions {
-                    eeprom: false,
-                    force: self.force,
-                    unsafe_write: self.unsafe_write,
-                },
-            )
-            .map_err(|source| Failure::Param {
-                drive,
-                param: "factory reset".to_owned(),
-                source,
-            })?;
+            .factory_reset(drive, deliberate(self.force, self.unsafe_write))
+            .map_err(commissioning_failed(drive, "factory reset", || {
+                format!(
+                    "drive {drive}: a factory reset puts every setting back to its factory value, the command source, the COM link and the telegram monitoring included; give --unsafe to do it deliberately (nothing was written)"
+                )
+            }))?;
         out.show(
             &ResetReport::new(bus.name(), drive, &reset),
             ResetReport::human,
         )
+    }
+}
+
+/// A commissioning call's writes, RAM only: `--force`, and `--unsafe` for its guarded write.
+const fn deliberate(force: bool, unsafe_write: bool) -> WriteOptions {
+    WriteOptions {
+        eeprom: false,
+        force,
+        unsafe_write,
+    }
+}
+
+/// A commissioning call's error as ussctl reports it: the library's refusal of the guarded
+/// write without --unsafe as a usage error that says `without_unsafe`; the rest naming `what`.
+fn commissioning_failed<'a>(
+    drive: Address,
+    what: &'a str,
+    without_unsafe: impl FnOnce() -> String + 'a,
+) -> impl FnOnce(ParamError) -> Failure + 'a {
+    move |source| match source {
+        ParamError::Guarded { .. } => Failure::Usage(without_unsafe()),
+        source => Failure::Param {
+            drive,
+            param: what.to_owned(),
+            source,
+        },
     }
 }
 
@@ -467,17 +481,6 @@ fn param_value(s: &str) -> Result<(ParamRef, String), String> {
 impl QuickCommission {
     pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
         let drive = self.drive;
-        if !self.unsafe_write {
-            return Err(Failure::Usage(format!(
-                "drive {drive}: the end of quick commissioning (P3900 = {}) recalculates the motor model{}; give --unsafe to do it deliberately (nothing was written)",
-                self.end,
-                if self.end == 1 {
-                    " and puts every other setting back to its factory value, the command source, the COM link and the telegram monitoring included"
-                } else {
-                    ""
-                }
-            )));
-        }
         // Ctrl-C does not cut it between P0010 = 1 and its end.
         crate::catch_signals()?;
         let motor: Vec<(ParamRef, &str)> = self.set.iter().map(|(p, v)| (*p, v.as_str())).collect();
@@ -486,17 +489,19 @@ impl QuickCommission {
                 drive,
                 &motor,
                 self.end,
-                WriteOptions {
-                    eeprom: false,
-                    force: self.force,
-                    unsafe_write: self.unsafe_write,
-                },
+                deliberate(self.force, self.unsafe_write),
             )
-            .map_err(|source| Failure::Param {
-                drive,
-                param: "quick commissioning".to_owned(),
-                source,
-            })?;
+            .map_err(commissioning_failed(drive, "quick commissioning", || {
+                format!(
+                    "drive {drive}: the end of quick commissioning (P3900 = {}) recalculates the motor model{}; give --unsafe to do it deliberately (nothing was written)",
+                    self.end,
+                    if self.end == 1 {
+                        " and puts every other setting back to its factory value, the command source, the COM link and the telegram monitoring included"
+                    } else {
+                        ""
+                    }
+                )
+            }))?;
         out.show(
             &QuickReport::new(bus.name(), drive, &done),
             QuickReport::human,

@@ -319,9 +319,9 @@ impl ResetReport {
             drive: drive.get(),
             writes: reset.writes(),
             seconds: reset.took.as_secs_f64(),
-            reference_hz: reset.reference_hz,
-            monitoring: reset.monitoring.to_string(),
-            monitoring_ms: reset.monitoring_ms,
+            reference_hz: reset.picture.reference_hz,
+            monitoring: reset.picture.monitoring.to_string(),
+            monitoring_ms: reset.picture.monitoring_ms,
         }
     }
 
@@ -379,9 +379,9 @@ impl QuickReport {
             writes: done.writes(),
             raised: done.raised_text(),
             seconds: done.took.as_secs_f64(),
-            reference_hz: done.reference_hz,
-            monitoring: done.monitoring.to_string(),
-            monitoring_ms: done.monitoring_ms,
+            reference_hz: done.picture.reference_hz,
+            monitoring: done.picture.monitoring.to_string(),
+            monitoring_ms: done.picture.monitoring_ms,
         }
     }
 
