@@ -41,6 +41,12 @@ impl Bus {
     /// returns that image. `timeout` `None` waits the drive's own time for it
     /// ([`crate::DriveWatch::handshake`]: its turn in the circulating list, or its next probe
     /// while offline, and the poll).
+    ///
+    /// A stop sent before this call is what it confirms: where the drive shows such a latch
+    /// already (an older operator's stop, as strong), the image is one of a poll that began
+    /// after the call, which took the stop (ussd takes an operator's stop at the drive's next
+    /// poll and latches it anew): the latch it returns is that stop's, not an older one, and a
+    /// re-arm asked after it returns re-arms it.
     pub fn wait_stopped(
         &self,
         address: Address,
@@ -49,12 +55,21 @@ impl Bus {
     ) -> Result<PzdInput, ClientError> {
         let watch = self.watch(address)?;
         let wanted = format!("{command} applied");
-        let shown = |i: &PzdInput| {
+        let applied = |i: &PzdInput| {
             i.latch_reason == LatchReason::Override.code()
                 && StopCommand::of_code(i.latch_command).is_some_and(|got| {
                     got.strength() >= command.strength() && got.stw1() == i.sent_stw1
                 })
         };
+        // The image after the next one is of a poll that began after the newest image seen
+        // here was published, so after this call: one poll may have been under way.
+        let before = watch.latest();
+        let fresh_from = if applied(&before) {
+            before.sequence + 2
+        } else {
+            0
+        };
+        let shown = |i: &PzdInput| applied(i) && i.sequence >= fresh_from;
         let last = match timeout {
             Some(timeout) => watch.wait_for(timeout, &wanted, shown),
             None => watch.wait_polled(&wanted, shown),

@@ -860,6 +860,44 @@ fn a_republished_stop_never_re_arms_an_operator_stop() {
     }
 }
 
+/// A stop's confirmation is of that stop, not of an older one (seen on CI: the guide's `ussctl
+/// quick-stop --all`, then `ussctl ack 1`, refused "latched 0.06 s ago"): a drive already latched
+/// by an operator's coast shows a stop as strong as a quick stop before ussd has taken the new
+/// one, and ussd latches it anew at the drive's next poll. `wait_stopped` returns the image of a
+/// poll after the call, whose latch is the new stop's, so a re-arm asked after it returned finds
+/// the latch older than itself.
+#[test]
+fn a_stops_confirmation_shows_that_stop_not_an_older_one() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let bus = ussd.bus();
+    for round in 0..5 {
+        bus.stop_drive(addr(1), StopCommand::Off2).unwrap();
+        bus.wait_stopped(addr(1), StopCommand::Off2, None).unwrap();
+        let asked = monotonic_ns();
+        let weaker = if round % 2 == 0 {
+            StopCommand::Off3
+        } else {
+            StopCommand::Off1
+        };
+        if round < 3 {
+            bus.stop_drive(addr(1), weaker).unwrap();
+        } else {
+            bus.stop_all(weaker).unwrap();
+        }
+        let shown = bus.wait_stopped(addr(1), weaker, None).unwrap();
+        assert!(
+            shown.latch_id >= asked,
+            "round {round}: {weaker} confirmed by the latch before it ({} ns earlier): {shown:?}",
+            asked - shown.latch_id
+        );
+        assert_eq!(shown.sent_stw1, OFF2, "round {round}: the coast stays");
+    }
+    let c = bus.control(addr(1), ControlOptions::default()).unwrap();
+    c.rearm_keeping_stop(monotonic_ns()).unwrap();
+    assert_eq!(c.inputs().latest().sent_stw1, OFF2);
+}
+
 #[test]
 fn parameter_writes_to_a_controlled_drive_need_force_or_the_controlling_process() {
     let _serial = serial();

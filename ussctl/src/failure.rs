@@ -102,9 +102,11 @@ pub(crate) enum Failure {
     /// The drive latched after this ussctl was started (or within the 10 ms before, which the
     /// kernel's start time cannot tell apart): its re-arm clears only an older latch.
     #[error(
-        "drive {drive} on {bus} was stopped while this ussctl started ({latch}): a run re-arms only a stop older than itself (its start is known to 10 ms), so it re-armed nothing; run it again if the stop is over"
+        "drive {drive} on {bus} was stopped while this ussctl started ({latch}): `ussctl {command}` re-arms only a stop older than itself (its start is known to 10 ms), so it re-armed nothing; run it again if the stop is over"
     )]
     StoppedWhileStarting {
+        /// The command that would have re-armed the drive (`run`, `ack`).
+        command: &'static str,
         drive: Address,
         bus: String,
         latch: Latch,

@@ -1,6 +1,6 @@
 //! `ack`: acknowledges a drive's fault.
 
-use super::common::control;
+use super::common::{control, rearm_failed};
 use crate::cli::address;
 use crate::report::DriveReport;
 use crate::{Failure, Output};
@@ -38,7 +38,8 @@ fn ack(bus: &Bus, out: &Output, drive: Address) -> Result<(), Failure> {
         .then(|| StopCommand::of_code(before.latch_command))
         .flatten()
         .filter(|s| s.strength() > StopCommand::Off1.strength());
-    c.rearm_keeping_stop(crate::asked_ns()?)?;
+    c.rearm_keeping_stop(crate::asked_ns()?)
+        .map_err(rearm_failed("ack", bus, drive))?;
     // The edge takes two exchanges, the drive's answer a third: the drive's handshake time
     // each (31 drives at 9600 baud poll each drive only every 1.3 s).
     c.acknowledge_fault(c.inputs().handshake())?;

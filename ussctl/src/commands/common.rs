@@ -33,6 +33,24 @@ pub(crate) fn healthy(bus: &Bus) -> Result<(), Failure> {
 }
 
 /// Takes control of `drive`, explaining a refusal.
+/// The failure of a re-arm by `ussctl command` (`run`, `ack`), which carries the command's start:
+/// a latch that began after it (or within its 10 ms) is said as a stop while it started.
+pub(crate) fn rearm_failed(
+    command: &'static str,
+    bus: &Bus,
+    drive: Address,
+) -> impl FnOnce(uss_client::ClientError) -> Failure {
+    move |e| match e {
+        uss_client::ClientError::Tripped { latch, .. } => Failure::StoppedWhileStarting {
+            command,
+            drive,
+            bus: bus.name().to_owned(),
+            latch,
+        },
+        e => e.into(),
+    }
+}
+
 pub(crate) fn control(bus: &Bus, drive: Address) -> Result<Controller, Failure> {
     Ok(bus.control(drive, ControlOptions::default())?)
 }

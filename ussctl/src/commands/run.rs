@@ -29,14 +29,8 @@ fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
     // `ussctl run` is the operator's deliberate command: it re-arms whatever latch the drive
     // showed when it was asked for (ussd's start, an operator's stop, a trip), the one act
     // that may (docs/SAFETY.md); a stop that came while it was starting wins.
-    c.rearm(crate::asked_ns()?).map_err(|e| match e {
-        ClientError::Tripped { latch, .. } => Failure::StoppedWhileStarting {
-            drive,
-            bus: bus.name().to_owned(),
-            latch,
-        },
-        e => e.into(),
-    })?;
+    c.rearm(crate::asked_ns()?)
+        .map_err(super::common::rearm_failed("run", bus, drive))?;
     c.wait_for(state_timeout(c), "S2 (ready to switch on)", |i| {
         i.online != 0
             && matches!(
