@@ -182,6 +182,11 @@ typedef enum UssrtStatus {
    * online, was reset or commissioned): nothing was sent; wait for it, or give percent.
    */
   USSRT_STATUS_REFERENCE_UNKNOWN = 25,
+  /**
+   * The serial device of a line ussd does not serve cannot be used (a scan): missing, busy,
+   * not a tty, no permission, or it failed.
+   */
+  USSRT_STATUS_DEVICE = 26,
 } UssrtStatus;
 
 /**
@@ -429,6 +434,73 @@ typedef struct UssrtFaultReport {
    */
   uint16_t warnings[8];
 } UssrtFaultReport;
+
+/**
+ * What a drive says one of its parameters is (`ussrt_param_describe`): its PROFIdrive
+ * descriptive elements.
+ */
+typedef struct UssrtDescription {
+  /**
+   * Its data type, as PROFIdrive codes it (descriptive element 1): 3 Integer16, 4
+   * Integer32, 6 Unsigned16, 7 Unsigned32, 8 FloatingPoint.
+   */
+  uint8_t data_type;
+  /**
+   * 1: `elements` is said (descriptive element 2): 0 a plain parameter, else its data sets
+   * or array elements.
+   */
+  uint8_t has_elements;
+  uint16_t elements;
+  /**
+   * 1 read-only, 0 settable (descriptive element 4); 255: not said.
+   */
+  uint8_t read_only;
+  /**
+   * 1: `min` / `max` are said (descriptive elements 7 and 8; a 3-word channel cannot carry
+   * them), in the parameter's own unit.
+   */
+  uint8_t has_min;
+  uint8_t has_max;
+  uint8_t reserved;
+  double min;
+  double max;
+} UssrtDescription;
+
+/**
+ * A slave `ussrt_scan` found.
+ */
+typedef struct UssrtScanned {
+  uint32_t baud;
+  uint8_t address;
+  /**
+   * Its parameter channel as P2013 says it: 0, 3, 4, 127 (variable); 255: not known (it
+   * answered the mirror telegram, no layout).
+   */
+  uint8_t pkw;
+  /**
+   * Its PZD length (P2012).
+   */
+  uint8_t pzd;
+  /**
+   * 1: `zsw1` is the status word it answered with.
+   */
+  uint8_t has_zsw1;
+  uint16_t zsw1;
+  /**
+   * Its firmware times 100 (209: 2.09); 0: not told.
+   */
+  uint16_t firmware;
+  /**
+   * The family to configure, as `UssDriveFamily` codes it (a G110 answers as a
+   * MICROMASTER 4); 255: not told (SIMOREG, a generic slave: name it yourself).
+   */
+  uint8_t family;
+  /**
+   * 1: every part of it confirmed (the layout by two replies to different tasks, the family
+   * by its identification); 0: unsure (`ussctl scan` says why).
+   */
+  uint8_t sure;
+} UssrtScanned;
 
 #ifdef __cplusplus
 extern "C" {
@@ -1003,6 +1075,48 @@ enum UssrtStatus ussrt_param_batch(const struct UssrtBus *bus,
 enum UssrtStatus ussrt_fault_report(const struct UssrtBus *bus,
                                     uint8_t address,
                                     struct UssrtFaultReport *report);
+
+/**
+ * What drive `address` says `param` (the manuals' notation, `"P1120"`) is, by its PROFIdrive
+ * descriptive elements in one request (data type, elements, read-only, limits), into
+ * `*description`. A parameter the drive does not have: `DRIVE_ERROR` (its number); a generic
+ * slave is never asked: `VALUE`.
+ *
+ * # Safety
+ * `bus` is a live handle; `param` a NUL-terminated string; `description` writable memory for
+ * one `UssrtDescription`.
+ */
+enum UssrtStatus ussrt_param_describe(const struct UssrtBus *bus,
+                                      uint8_t address,
+                                      const char *param,
+                                      struct UssrtDescription *description);
+
+/**
+ * Scans the serial line `device` (a line ussd does not serve: no bus, no ussd): at each of the
+ * `baud_count` rates `bauds` (NULL and 0: MICROMASTER's P2010 rates 1200..115200), each of the
+ * `address_count` addresses (NULL and 0: 0..31) is asked by a mirror telegram, and each slave
+ * that answers is identified into `found` (up to `capacity`); `*count` gets how many were
+ * found, by rate and then address (`capacity` of rates times addresses always suffices; less
+ * than `*count` is `INVALID_ARGUMENT`, the first `capacity` written). A silent address is
+ * asked `tries` times (1..20). Every probe carries OFF1 (STW1 0x047E, setpoint 0): a drive
+ * that runs under USS control on that line ramps down and stays off. A line that cannot be
+ * used (missing, busy, not a tty, no permission, failed): `DEVICE`. It takes a while (32
+ * addresses at 8 rates: about half a minute on an empty line) and cannot be cut short.
+ *
+ * # Safety
+ * `device` a NUL-terminated string; `bauds` `baud_count` values and `addresses`
+ * `address_count` values (NULL when 0); `found` writable memory for `capacity` entries (NULL
+ * when 0); `count` writable memory for one `size_t`.
+ */
+enum UssrtStatus ussrt_scan(const char *device,
+                            const uint32_t *bauds,
+                            uintptr_t baud_count,
+                            const uint8_t *addresses,
+                            uintptr_t address_count,
+                            uint32_t tries,
+                            struct UssrtScanned *found,
+                            uintptr_t capacity,
+                            uintptr_t *count);
 
 #ifdef __cplusplus
 }  // extern "C"

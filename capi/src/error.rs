@@ -66,6 +66,13 @@ pub(crate) enum Failure {
     Argument(String),
     Client(ClientError),
     Param(ParamError),
+    Scan(uss_client::scan::ScanError),
+}
+
+impl From<uss_client::scan::ScanError> for Failure {
+    fn from(e: uss_client::scan::ScanError) -> Self {
+        Self::Scan(e)
+    }
 }
 
 impl From<ClientError> for Failure {
@@ -116,6 +123,7 @@ impl Failure {
             Self::Argument(_) => UssrtErrorInfo::of(UssrtStatus::InvalidArgument),
             Self::Client(e) => client_info(e),
             Self::Param(e) => param_info(e),
+            Self::Scan(e) => UssrtErrorInfo::of(UssrtStatus::of(e.kind().status())),
         }
     }
 
@@ -124,6 +132,7 @@ impl Failure {
             Self::Argument(m) => m.clone(),
             Self::Client(e) => e.to_string(),
             Self::Param(e) => e.to_string(),
+            Self::Scan(e) => e.to_string(),
         }
     }
 }

@@ -19,12 +19,14 @@ mod bus;
 mod control;
 mod error;
 mod params;
+mod scan;
 mod status;
 
 pub use bus::{UssrtBus, UssrtDrive};
 pub use control::UssrtController;
 pub use error::{UssrtErrorInfo, ussrt_last_error, ussrt_last_error_info};
-pub use params::{UssrtFault, UssrtFaultReport, UssrtValue};
+pub use params::{UssrtDescription, UssrtFault, UssrtFaultReport, UssrtValue};
+pub use scan::UssrtScanned;
 pub use status::UssrtStatus;
 
 /// The version of this library, e.g. `"0.1.0"`: a static string, never freed.

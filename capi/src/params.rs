@@ -791,3 +791,61 @@ mod tests {
         assert!(options(USSRT_WRITE_UNSAFE).is_ok_and(|o| o.unsafe_write));
     }
 }
+
+/// What a drive says one of its parameters is (`ussrt_param_describe`): its PROFIdrive
+/// descriptive elements.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default)]
+pub struct UssrtDescription {
+    /// Its data type, as PROFIdrive codes it (descriptive element 1): 3 Integer16, 4
+    /// Integer32, 6 Unsigned16, 7 Unsigned32, 8 `FloatingPoint`.
+    pub data_type: u8,
+    /// 1: `elements` is said (descriptive element 2): 0 a plain parameter, else its data sets
+    /// or array elements.
+    pub has_elements: u8,
+    pub elements: u16,
+    /// 1 read-only, 0 settable (descriptive element 4); 255: not said.
+    pub read_only: u8,
+    /// 1: `min` / `max` are said (descriptive elements 7 and 8; a 3-word channel cannot carry
+    /// them), in the parameter's own unit.
+    pub has_min: u8,
+    pub has_max: u8,
+    pub reserved: u8,
+    pub min: f64,
+    pub max: f64,
+}
+
+/// What drive `address` says `param` (the manuals' notation, `"P1120"`) is, by its PROFIdrive
+/// descriptive elements in one request (data type, elements, read-only, limits), into
+/// `*description`. A parameter the drive does not have: `DRIVE_ERROR` (its number); a generic
+/// slave is never asked: `VALUE`.
+///
+/// # Safety
+/// `bus` is a live handle; `param` a NUL-terminated string; `description` writable memory for
+/// one `UssrtDescription`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_describe(
+    bus: *const UssrtBus,
+    address: u8,
+    param: *const c_char,
+    description: *mut UssrtDescription,
+) -> UssrtStatus {
+    guard(|| {
+        let bus = arg(bus, "bus")?;
+        let param = param_ref(param)?;
+        let description = out(description, "description")?;
+        let said = bus.bus.drive_description(drive(address)?, param.pnu)?;
+        *description = UssrtDescription {
+            data_type: u8::try_from(said.data_type.code()).unwrap_or(u8::MAX),
+            has_elements: u8::from(said.elements.is_some()),
+            elements: said.elements.unwrap_or(0),
+            read_only: said.read_only.map_or(u8::MAX, u8::from),
+            has_min: u8::from(said.min.is_some()),
+            has_max: u8::from(said.max.is_some()),
+            reserved: 0,
+            min: said.min.unwrap_or(0.0),
+            max: said.max.unwrap_or(0.0),
+        };
+        Ok(())
+    })
+}

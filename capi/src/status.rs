@@ -68,11 +68,14 @@ pub enum UssrtStatus {
     /// A setpoint in Hz, while ussd reads the drive's reference frequency (again: it came
     /// online, was reset or commissioned): nothing was sent; wait for it, or give percent.
     ReferenceUnknown = 25,
+    /// The serial device of a line ussd does not serve cannot be used (a scan): missing, busy,
+    /// not a tty, no permission, or it failed.
+    Device = 26,
 }
 
 impl UssrtStatus {
     /// Every status, in code order.
-    pub(crate) const ALL: [Self; 26] = [
+    pub(crate) const ALL: [Self; 27] = [
         Self::Ok,
         Self::InvalidArgument,
         Self::NotRunning,
@@ -99,6 +102,7 @@ impl UssrtStatus {
         Self::Superseded,
         Self::MaybeApplied,
         Self::ReferenceUnknown,
+        Self::Device,
     ];
 
     /// The code of the table's `status`.
@@ -130,6 +134,7 @@ impl UssrtStatus {
             Status::Superseded => Self::Superseded,
             Status::MaybeApplied => Self::MaybeApplied,
             Status::ReferenceUnknown => Self::ReferenceUnknown,
+            Status::Device => Self::Device,
         }
     }
 
@@ -162,6 +167,7 @@ impl UssrtStatus {
             Self::Superseded => c"superseded",
             Self::MaybeApplied => c"maybe_applied",
             Self::ReferenceUnknown => c"reference_unknown",
+            Self::Device => c"device",
         }
     }
 }

@@ -210,6 +210,18 @@ pub enum Change {
     ReadOnly,
 }
 
+impl Change {
+    /// The rule in words, as ussctl and the bindings say it ("not while running").
+    pub const fn words(self) -> &'static str {
+        match self {
+            Self::Always => "any time",
+            Self::NotRunning => "not while running",
+            Self::Commissioning => "in quick commissioning (P0010 = 1)",
+            Self::ReadOnly => "never (read-only)",
+        }
+    }
+}
+
 /// A control or status word whose bits have names.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize)]
 pub enum Bits {

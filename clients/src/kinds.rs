@@ -108,6 +108,9 @@ statuses! {
     /// A setpoint in Hz, while ussd reads the drive's reference frequency (again: it came
     /// online, was reset or commissioned): nothing was sent; wait for it, or give percent.
     ReferenceUnknown = 25, "reference_unknown";
+    /// The serial device of a line ussd does not serve cannot be used (a scan): missing, busy,
+    /// not a tty, no permission, or it failed.
+    Device = 26, "device";
 }
 
 macro_rules! kinds {
@@ -219,6 +222,9 @@ kinds! {
     /// A setpoint in Hz while ussd reads the drive's reference frequency again (it came
     /// online, was reset or commissioned): nothing was sent; wait, or give percent.
     ReferenceUnknown => ReferenceUnknown, "ReferenceUnknown"("UssError");
+    /// A serial device a scan cannot use (missing, busy, not a tty, no permission) or that
+    /// failed while it ran.
+    Device => Device, "DeviceError"("UssError, OSError");
 }
 
 impl ClientError {
@@ -277,6 +283,19 @@ impl ParamError {
             Self::Value { .. } => K::Value,
             Self::Client(c) => c.kind(),
             Self::Unexpected(_) => K::Incompatible,
+        }
+    }
+}
+
+#[cfg(feature = "scan")]
+impl crate::scan::ScanError {
+    /// The kind of this error (its C status, its Python exception).
+    pub const fn kind(&self) -> ErrorKind {
+        use crate::scan::ScanError as E;
+        match self {
+            E::Busy(_) | E::NotATty(_) | E::Open(_) | E::Line(_) => ErrorKind::Device,
+            E::Options(_) => ErrorKind::InvalidArgument,
+            E::Telegram(_) => ErrorKind::Internal,
         }
     }
 }

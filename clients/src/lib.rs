@@ -60,7 +60,9 @@
 //! - Parameters ([`Bus::read`], [`Bus::write`], [`Bus::batch`], [`Bus::faults`]): typed
 //!   [`Value`]s and [`ParamError`]s (USS.md section 6).
 //! - Commissioning ([`commissioning`]): the copy of RAM to ROM ([`Bus::save_to_rom`]), the
-//!   factory reset ([`Bus::factory_reset`]), quick commissioning ([`Bus::quick_commission`]).
+//!   factory reset ([`Bus::factory_reset`]), quick commissioning ([`Bus::quick_commission`]);
+//!   with the `backup` feature the upload, diff and download (`backup`, `restore`); with the
+//!   `scan` feature the scan of a line ussd does not serve (`scan`).
 //!
 //! Errors say what happened and what to do ([`ClientError`], [`ParamError`]).
 //!
@@ -72,6 +74,7 @@
 #[cfg(feature = "backup")]
 pub mod backup;
 mod bus;
+pub mod cancel;
 mod capture;
 mod command;
 pub mod commissioning;
@@ -84,6 +87,8 @@ pub mod params;
 mod request;
 #[cfg(feature = "backup")]
 pub mod restore;
+#[cfg(feature = "scan")]
+pub mod scan;
 mod typed;
 #[cfg(feature = "view")]
 pub mod view;

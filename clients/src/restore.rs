@@ -13,56 +13,12 @@
 use crate::backup::{Entry, Loaded, check_family, not_on_drive, settings_catalogue};
 use crate::{Bus, ParamError, WriteOptions};
 use core::time::Duration;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 use uss_catalogue::{Catalogue, Change};
 use uss_protocol::{ParamRef, Value};
 use uss_shm_types::Address;
 
-/// The caller's way to cut a restore short: asked once, the restore writes no further value
-/// and puts back what it raised; asked again, it leaves what it could not put back yet.
-pub trait Cancel {
-    /// How many times the caller asked to stop (0: not yet).
-    fn asked(&self) -> usize;
-    /// Why, as the report says it ("Ctrl-C", "SIGTERM", "cancelled").
-    fn why(&self) -> &'static str;
-}
-
-/// A restore nobody cuts short (but the drive or ussd).
-#[derive(Debug, Clone, Copy, Default)]
-pub struct NeverCancelled;
-
-impl Cancel for NeverCancelled {
-    fn asked(&self) -> usize {
-        0
-    }
-
-    fn why(&self) -> &'static str {
-        "cancelled"
-    }
-}
-
-/// A cancel handle another thread (a GUI's button, a signal handler) asks with.
-#[derive(Debug, Clone, Default)]
-pub struct CancelHandle(Arc<AtomicUsize>);
-
-impl CancelHandle {
-    /// Asks the restore to stop (again: to leave what it puts back).
-    pub fn cancel(&self) {
-        self.0.fetch_add(1, Ordering::Relaxed);
-    }
-}
-
-impl Cancel for CancelHandle {
-    fn asked(&self) -> usize {
-        self.0.load(Ordering::Relaxed)
-    }
-
-    fn why(&self) -> &'static str {
-        "cancelled"
-    }
-}
+pub use crate::cancel::{Cancel, CancelHandle, NeverCancelled};
 
 /// How a restore goes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

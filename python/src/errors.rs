@@ -36,6 +36,11 @@ fn raise(py: Python<'_>, kind: ErrorKind, message: String, details: Vec<Detail<'
     }
 }
 
+/// A scan's error (its line): `DeviceError` (an `OSError` too), with the device's words.
+pub(crate) fn scan(py: Python<'_>, e: &uss_client::scan::ScanError) -> PyErr {
+    raise(py, e.kind(), e.to_string(), Vec::new())
+}
+
 /// A value as a Python object (for the attributes).
 fn obj<'py>(py: Python<'py>, value: impl IntoPyObject<'py>) -> Bound<'py, PyAny> {
     value

@@ -374,12 +374,12 @@ fn diff<'py>(
     Ok(out)
 }
 
-/// Ctrl-C of the Python program as the library's cancel of a restore: the restore runs
-/// without the GIL and asks Python between its writes whether a signal came.
+/// Ctrl-C of the Python program as the library's cancel of a restore or a scan: the call runs
+/// without the GIL and asks Python between its steps whether a signal came.
 #[derive(Default)]
 struct Interrupted(std::sync::atomic::AtomicUsize);
 
-impl uss_client::restore::Cancel for Interrupted {
+impl uss_client::cancel::Cancel for Interrupted {
     fn asked(&self) -> usize {
         use std::sync::atomic::Ordering;
         if Python::attach(|py| py.check_signals().is_err()) {
@@ -434,7 +434,7 @@ fn restore<'py>(
             &mut |_| {},
         )
     })?;
-    if uss_client::restore::Cancel::asked(&cancel) > 0 {
+    if uss_client::cancel::Cancel::asked(&cancel) > 0 {
         // What the restore raised is put back: the program stops as Ctrl-C asked.
         return Err(pyo3::exceptions::PyKeyboardInterrupt::new_err(format!(
             "the restore of drive {address} was cut short: {}",
@@ -558,7 +558,128 @@ fn warning_text(number: u16, family: &str) -> PyResult<Option<&'static str>> {
     Ok(family_catalogue(family)?.and_then(|c| c.warning(number)))
 }
 
+/// What drive `address` says `param` is (descriptive elements 1, 2, 4, 7, 8:
+/// `Bus::drive_description`) beside what the family's catalogue says: `{"param", "family",
+/// "drive": {"data_type", "elements", "read_only", "min", "max"}, "catalogue": None or
+/// {"name", "data_type", "unit", "array", "data_sets", "level", "change", "min", "max",
+/// "default", "agrees"}}`.
+#[pyfunction]
+#[pyo3(signature = (bus, address, param, timeout=7.5))]
+fn describe<'py>(
+    py: Python<'py>,
+    bus: &Bound<'py, NativeBus>,
+    address: u8,
+    param: &str,
+    timeout: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    let (said, entry, family) = answered(py, bus, address, param, timeout, |bus, drive, p| {
+        let said = bus.drive_description(drive, p.pnu)?;
+        Ok((said, bus.catalogue_entry(drive, p.pnu), bus.family(drive)))
+    })?;
+    let drive = PyDict::new(py);
+    drive.set_item("data_type", format!("{:?}", said.data_type))?;
+    drive.set_item("elements", said.elements)?;
+    drive.set_item("read_only", said.read_only)?;
+    drive.set_item("min", said.min)?;
+    drive.set_item("max", said.max)?;
+    let d = PyDict::new(py);
+    d.set_item(
+        "param",
+        entry.map_or_else(|| param.to_owned(), |p| p.id.to_string()),
+    )?;
+    d.set_item("family", family.name())?;
+    d.set_item("drive", drive)?;
+    match entry {
+        None => d.set_item("catalogue", py.None())?,
+        Some(p) => {
+            let c = PyDict::new(py);
+            c.set_item("name", &p.name)?;
+            c.set_item("data_type", format!("{:?}", p.data_type))?;
+            c.set_item("unit", &p.unit)?;
+            c.set_item("array", p.array)?;
+            c.set_item("data_sets", p.data_sets)?;
+            c.set_item("level", p.level)?;
+            c.set_item("change", p.change.words())?;
+            c.set_item("min", p.min)?;
+            c.set_item("max", p.max)?;
+            c.set_item("default", p.default)?;
+            c.set_item("agrees", p.data_type == said.data_type)?;
+            d.set_item("catalogue", c)?;
+        }
+    }
+    Ok(d)
+}
+
+/// Scans a line ussd does not serve (`uss_client::scan::scan`): every probe carries OFF1. Runs
+/// without the GIL; Ctrl-C ends it after the address under way and raises `KeyboardInterrupt`.
+#[pyfunction]
+#[pyo3(signature = (device, bauds=None, addresses=None, tries=4))]
+#[allow(
+    clippy::needless_pass_by_value,
+    reason = "pyo3 extracts the path by value (a str or an os.PathLike)"
+)]
+fn scan(
+    py: Python<'_>,
+    device: std::path::PathBuf,
+    bauds: Option<Vec<u32>>,
+    addresses: Option<Vec<u8>>,
+    tries: u32,
+) -> PyResult<Bound<'_, PyDict>> {
+    use uss_client::scan::ScanOptions;
+    let mut options = ScanOptions {
+        tries,
+        ..ScanOptions::default()
+    };
+    if let Some(bauds) = bauds {
+        options.bauds = bauds
+            .into_iter()
+            .map(uss_client::uss_protocol::Baud::new)
+            .collect::<Result<_, _>>()
+            .map_err(|e| pyo3::exceptions::PyValueError::new_err(e.to_string()))?;
+    }
+    if let Some(addresses) = addresses {
+        options.addresses = addresses
+            .into_iter()
+            .map(|a| errors::drive(py, a))
+            .collect::<PyResult<_>>()?;
+    }
+    let cancel = Interrupted::default();
+    let scanned = py
+        .detach(|| uss_client::scan::scan(&device, &options, &cancel, &mut |_, _| {}, &mut |_| {}))
+        .map_err(|e| errors::scan(py, &e))?;
+    if scanned.cut_short {
+        return Err(pyo3::exceptions::PyKeyboardInterrupt::new_err(format!(
+            "the scan of {} was cut short after {} drives",
+            device.display(),
+            scanned.drives.len()
+        )));
+    }
+    let drives = pyo3::types::PyList::empty(py);
+    for f in &scanned.drives {
+        let d = PyDict::new(py);
+        d.set_item("baud", f.baud.get())?;
+        d.set_item("address", f.address.get())?;
+        d.set_item(
+            "pkw",
+            f.pkw
+                .map(uss_client::uss_protocol::telegram::PkwMode::p2013),
+        )?;
+        d.set_item("pzd", f.pzd)?;
+        d.set_item("zsw1", f.zsw1)?;
+        d.set_item("firmware", f.firmware)?;
+        d.set_item("family", f.family.map(uss_client::DriveFamily::name))?;
+        d.set_item("unsure", &f.unsure)?;
+        drives.append(d)?;
+    }
+    let out = PyDict::new(py);
+    out.set_item("drives", drives)?;
+    out.set_item("seconds", scanned.took.as_secs_f64())?;
+    Ok(out)
+}
+
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(scan, m)?)?;
+    m.add_function(wrap_pyfunction!(describe, m)?)?;
     m.add_function(wrap_pyfunction!(read_param, m)?)?;
     m.add_function(wrap_pyfunction!(batch, m)?)?;
     m.add_function(wrap_pyfunction!(read, m)?)?;

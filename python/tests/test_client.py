@@ -311,6 +311,18 @@ def test_a_copy_of_ram_to_rom_raises_the_access_level_for_it_and_puts_it_back(bu
     assert uss_rt.read_param(bus, 2, 971) == 0, "done"
 
 
+def test_describe_says_what_the_drive_says_beside_the_catalogue(bus):
+    d = uss_rt.describe(bus, 1, "P1120")
+    assert (d["param"], d["family"]) == ("P1120", "micromaster4")
+    assert d["drive"]["data_type"] == "Float" and d["drive"]["read_only"] is False, d
+    assert d["drive"]["elements"] == 3 and d["drive"]["max"] > d["drive"]["min"], d
+    c = d["catalogue"]
+    assert (c["name"], c["unit"], c["data_sets"], c["agrees"]) == ("Ramp-up time", "s", 3, True), c
+    assert c["change"] == "any time"
+    with pytest.raises(uss_rt.DriveError):
+        uss_rt.describe(bus, 1, "P0999")
+
+
 def test_a_backup_holds_every_data_set_and_compares_with_the_drive_and_another(bus):
     text = uss_rt.backup(bus, 1)
     assert text.startswith("# uss-rt parameter backup (format 1)")

@@ -50,6 +50,7 @@ __all__ = _errors.__all__ + [
     "backup",
     "batch",
     "control",
+    "describe",
     "diff",
     "factory_reset",
     "fault_report",
@@ -64,6 +65,7 @@ __all__ = _errors.__all__ + [
     "quick_commission",
     "restore",
     "save_to_rom",
+    "scan",
     "stop_all",
     "stop_drive",
     "wait_stopped",
@@ -374,6 +376,32 @@ def diff(bus: Bus, address: int, other) -> dict:
     if isinstance(other, int):
         _check_address(other)
     return _native.diff(bus._open(), address, other)
+
+
+def describe(bus: Bus, address: int, param: str, timeout: float = 7.5) -> dict:
+    """What drive ``address`` says ``param`` (the manuals' notation, ``"P1120"``) is, by its
+    PROFIdrive descriptive elements (data type, elements, read-only, limits), beside what the
+    family's catalogue says (name, unit, data sets, access level, when it can be changed,
+    limits, factory setting, and whether its type agrees): ``{"param", "family", "drive":
+    {"data_type", "elements", "read_only", "min", "max"}, "catalogue": None or {...}}``. A
+    value the drive does not give (limits over a 3-word channel) is None. A parameter the drive
+    does not have: :class:`DriveError`; a generic slave is never asked: ValueError."""
+    _check_address(address)
+    return _native.describe(bus._open(), address, param, timeout)
+
+
+def scan(device: str, bauds=None, addresses=None, tries: int = 4) -> dict:
+    """Which drives answer on ``device``, a serial line ussd does not serve (no bus, no ussd):
+    at each baud rate (``bauds``, default MICROMASTER's P2010 rates 1200..115200) each address
+    (``addresses``, default 0..31) is asked by a mirror telegram, and each slave that answers
+    is identified: ``{"drives": [{"baud": 19200, "address": 3, "pkw": 4 (0, 3, 4, 127, or None:
+    not known), "pzd": 2, "zsw1": 0xBB31, "firmware": 2.09, "family": "micromaster4" or None,
+    "unsure": None or why the line may not be right}], "seconds"}``. Every probe carries OFF1
+    (STW1 0x047E, setpoint 0): a drive that runs under USS control there ramps down and stays
+    off. A silent address is asked ``tries`` times (1..20). Ctrl-C (in the main thread) ends it
+    after the address under way with KeyboardInterrupt. A line that cannot be used (missing,
+    busy, not a tty, no permission): :class:`DeviceError` (an ``OSError`` too)."""
+    return _native.scan(device, bauds, addresses, tries)
 
 
 def restore(

@@ -117,6 +117,11 @@ class ReferenceUnknown(UssError):
     online, was reset or commissioned): nothing was sent; wait, or give percent."""
 
 
+class DeviceError(UssError, OSError):
+    """A serial device a scan cannot use (missing, busy, not a tty, no permission) or that
+    failed while it ran."""
+
+
 __all__ = [
     "UssError",
     "NotRunning",
@@ -143,4 +148,5 @@ __all__ = [
     "Superseded",
     "MaybeApplied",
     "ReferenceUnknown",
+    "DeviceError",
 ]

@@ -41,6 +41,25 @@ fn every_kind_of_call_of_the_c_abi_against_a_real_ussd() {
     println!("{stdout}");
 }
 
+/// `ussrt_scan` from C against `uss-sim` over a pty (issue 46, item 5): the library's scan,
+/// the one `ussctl scan` and `uss_rt.scan` give.
+#[test]
+fn a_c_program_scans_a_line_ussd_does_not_serve() {
+    let exe = compile("cc", "capi/tests/c/scan_check.c", &["-std=c11"]);
+    let sim = uss_integration_tests::SimProcess::start(&[
+        "--baud",
+        "19200",
+        "--drive",
+        "3:pkw=4,pzd=2",
+        "--drive",
+        "5:pkw=127,pzd=6,family=g120",
+    ]);
+    let out = run(&exe, &[&sim.path]);
+    let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
+    assert!(out.status.success(), "{stdout}{stderr}");
+    assert!(stdout.starts_with("scan_check: all "), "{stdout}");
+}
+
 /// Rule 3 from C: while ussd is paused (SIGSTOP) longer than a drive's limit, the drive's
 /// diagnostics read through `ussrt_drive_diag` never say online (`online = 0`, or
 /// `USSD_GONE` once ussd's heartbeat is late), and online again once it runs.

@@ -485,7 +485,10 @@ fn a_refresher_does_not_keep_a_drive_live_for_a_program_that_stopped_calling() {
 
 /// A drive with a short watchdog (18 ms; ussd's default is 100 ms): a call that waits for the
 /// drive refreshes within that time (every quarter of the drive's watchdog time, at most every
-/// 20 ms), so the wait itself never trips it.
+/// 20 ms), so the wait itself never trips it. A process the machine does not run for longer
+/// than the watchdog is stalled all the same (a loaded CI machine once held this one 21.6 ms):
+/// such a trip is taken for what it is and the wait is tried again, up to three times; a wait
+/// that refreshes too seldom (every 20 ms, as before the fix) trips in every one.
 #[test]
 fn a_waiting_call_keeps_a_drive_with_a_short_watchdog_live() {
     let _serial = serial();
@@ -493,19 +496,27 @@ fn a_waiting_call_keeps_a_drive_with_a_short_watchdog_live() {
     let bus = ussd.bus();
     quick_ramps(&bus, 1);
     let c = bus.control(addr(1), ControlOptions::default()).unwrap();
-    c.rearm(uss_client::monotonic_ns()).unwrap();
-    c.run_hz(10.0).unwrap();
-    c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
-        .unwrap();
-    // The program waits inside its own call for half a second: a timeout, not a trip.
-    let waited = c.wait_for(Duration::from_millis(500), "nothing", |_| false);
-    assert!(
-        matches!(waited, Err(ClientError::WaitTimeout { .. })),
-        "{waited:?}"
-    );
-    assert!(c.check().unwrap().is_live());
-    let d = bus.diag(addr(1)).unwrap();
-    assert_eq!(d.counters.watchdog_trips, 0, "{:?}", d.counters);
+    let mut stalls = Vec::new();
+    for _ in 0..3 {
+        let trips = bus.diag(addr(1)).unwrap().counters.watchdog_trips;
+        c.rearm(uss_client::monotonic_ns()).unwrap();
+        c.run_hz(10.0).unwrap();
+        c.wait_for_state(DriveState::OperationEnabled, Duration::from_secs(5))
+            .unwrap();
+        // The program waits inside its own call for half a second: a timeout, not a trip.
+        match c.wait_for(Duration::from_millis(500), "nothing", |_| false) {
+            Err(ClientError::WaitTimeout { .. }) => {
+                assert!(c.check().unwrap().is_live());
+                let d = bus.diag(addr(1)).unwrap();
+                assert_eq!(d.counters.watchdog_trips, trips, "{:?}", d.counters);
+                println!("failsafe: a 500 ms wait on an 18 ms watchdog, stalls before: {stalls:?}");
+                return;
+            }
+            Err(ClientError::Stalled { gap, .. }) => stalls.push(gap),
+            other => panic!("{other:?}"),
+        }
+    }
+    panic!("every wait stalled its drive (gaps {stalls:?}): it refreshes too seldom");
 }
 
 #[test]

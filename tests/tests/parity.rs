@@ -32,6 +32,7 @@ const CALLS: &[(&str, &str, &str)] = &[
     ("write_with", "ussrt_param_write_raw", "write"),
     ("try_batch", "ussrt_param_batch", "batch"),
     ("fault_report", "ussrt_fault_report", "fault_report"),
+    ("drive_description", "ussrt_param_describe", "describe"),
     // Commissioning.
     ("save_to_rom", "ussrt_param_save", "save_to_rom"),
     ("upload", "ussrt_param_backup", "backup"),
@@ -47,6 +48,7 @@ const CALLS: &[(&str, &str, &str)] = &[
         "ussrt_param_quick_commission",
         "quick_commission",
     ),
+    ("scan", "ussrt_scan", "scan"),
     // An operator's stops.
     ("stop_drive", "ussrt_stop_drive", "stop_drive"),
     ("stop_all", "ussrt_stop_all", "stop_all"),

@@ -136,6 +136,33 @@ fn a_scan_tells_a_g120_by_its_device_identification_and_leaves_an_unknown_slave_
     );
 }
 
+/// Two generic slaves of the same telegram length (10 words): PKW 4 with PZD 6 and PKW 3 with PZD
+/// 7. The first answers the P0003 probe with a double word (a generic slave's own parameter),
+/// which only a 4-word channel carries: it was reported as "PKW 3, PZD 7, ZSW1 0x0000" with no
+/// UNSURE mark (issue 46, item 6).
+#[test]
+fn a_generic_slave_whose_answer_is_a_double_word_has_a_4_word_channel() {
+    let sim = SimProcess::start(&[
+        "--baud",
+        "19200",
+        "--drive",
+        "4:pkw=4,pzd=6,family=generic",
+        "--drive",
+        "6:pkw=3,pzd=7,family=generic",
+    ]);
+    let (code, said, err) = ussctl(&["scan", &sim.path, "--baud", "19200", "--addresses", "3-7"]);
+    assert_eq!(code, Some(0), "{err}");
+    let lines: Vec<&str> = said.lines().collect();
+    assert_eq!(
+        lines[..2],
+        [
+            " 19200 baud  drive  4: PKW 4, PZD 6, ZSW1 0xBB31 (S2)",
+            " 19200 baud  drive  6: PKW 3, PZD 7, ZSW1 0xBB31 (S2)",
+        ],
+        "{said}"
+    );
+}
+
 /// What a sure line says of each drive of [`LOSSY_LINE`].
 const LOSSY_EXPECTED: [(u8, &str); 6] = [
     (

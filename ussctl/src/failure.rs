@@ -76,6 +76,9 @@ pub(crate) enum Failure {
     /// A backup file that fails its checks: nothing was written.
     #[error("{0}; nothing was written")]
     Backup(#[from] uss_client::backup::FileError),
+    /// A scan's line (missing, busy, not a tty, failed).
+    #[error(transparent)]
+    Scan(#[from] uss_client::scan::ScanError),
     /// A restore that did not write everything (refused values, or cut short): the report says
     /// which; running it again completes what can be.
     #[error("drive {drive}: the restore is incomplete (see above); run it again to complete it")]

@@ -62,6 +62,20 @@ pub(crate) fn signals() -> usize {
     SIGNALS.load(Ordering::Relaxed)
 }
 
+/// ussctl's signals (SIGINT, SIGTERM, SIGHUP) as the library's cancel of a long call (a
+/// restore, a scan).
+pub(crate) struct Signals;
+
+impl uss_client::cancel::Cancel for Signals {
+    fn asked(&self) -> usize {
+        signals()
+    }
+
+    fn why(&self) -> &'static str {
+        signal_name()
+    }
+}
+
 /// The last signal that came, as a report names it: "Ctrl-C", "SIGTERM", "SIGHUP".
 pub(crate) fn signal_name() -> &'static str {
     match LAST_SIGNAL.load(Ordering::Relaxed) {

@@ -52,7 +52,7 @@ type Logged = HashMap<(Option<String>, Right), (Option<Instant>, u64)>;
 pub struct Gate {
     bus: String,
     policy: Option<(Policy, Names)>,
-    refused: [AtomicU64; 4],
+    refused: [AtomicU64; 5],
     logged: Mutex<Logged>,
 }
 
@@ -63,6 +63,7 @@ pub struct Refused {
     pub stop: u64,
     pub write: u64,
     pub control: u64,
+    pub commission: u64,
 }
 
 impl Gate {
@@ -151,6 +152,7 @@ impl Gate {
             stop: n(Right::Stop),
             write: n(Right::Write),
             control: n(Right::Control),
+            commission: n(Right::Commission),
         }
     }
 }

@@ -98,6 +98,21 @@ impl Keys {
         format!("{}/drive/*/set/*", self.base)
     }
 
+    /// The queryables of every drive's commissioning (`crate::commission`): a parameter's
+    /// description, a backup, a diff, a restore, the copy of RAM to ROM.
+    pub fn commissioning(&self) -> Vec<String> {
+        ["describe/*", "backup", "diff", "restore", "save"]
+            .iter()
+            .map(|what| format!("{}/drive/*/{what}", self.base))
+            .collect()
+    }
+
+    /// What follows `<base>/drive/` in `key` (`3/backup`), if it is a drive's key of this bus.
+    pub fn drive_rest<'k>(&self, key: &'k str) -> Option<&'k str> {
+        key.strip_prefix(self.base.as_str())?
+            .strip_prefix("/drive/")
+    }
+
     /// The same layout under a peer's name (`<prefix>/<bus>/as/<name>/drive/...`), where a peer
     /// that names itself sends: under an access policy Zenoh lets only the peer whose
     /// certificate's common name is `name` send there (for every name the policy lists), so the

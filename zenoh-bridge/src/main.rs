@@ -5,6 +5,7 @@
 //! serves, a queryable for parameters, read-only unless `--allow-writes`, operator stops from
 //! anywhere, and remote control only with `--allow-control`.
 
+mod commission;
 mod control;
 mod gate;
 mod keys;
@@ -208,6 +209,53 @@ type Secured = (
 /// One of a bus's threads: publisher, stops, control, parameters.
 type Job = Box<dyn FnOnce(&zenoh::Session, &publish::Options, &Arc<AtomicBool>) + Send>;
 
+/// The threads of one bus: its publisher, its stops (on the queryable declared before), remote
+/// control, parameters and commissioning, with the bridge's flags (`--allow-writes`,
+/// `--allow-control`).
+fn bus_jobs(
+    stops: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>,
+    w: bool,
+    c: bool,
+) -> [(&'static str, Job); 5] {
+    // The drives the bridge holds for remote controllers: no parameter writes to them.
+    let held = Arc::new(control::Held::default());
+    let (held_params, held_commission) = (Arc::clone(&held), Arc::clone(&held));
+    [
+        ("publish", Box::new(publish::run)),
+        (
+            "stops",
+            Box::new(move |_, o, st| {
+                control::serve_stops(&stops, &o.bus, &o.keys, &o.gate, st);
+            }),
+        ),
+        (
+            "control",
+            Box::new(move |s, o, st| {
+                control::serve_control(s, &o.bus, &o.keys, c, &o.gate, &held, st);
+            }),
+        ),
+        ("params", queries(w, held_params, params::serve)),
+        ("commission", queries(w, held_commission, commission::serve)),
+    ]
+}
+
+/// A thread that answers queries with `serve` (parameters, commissioning) under the bridge's
+/// `--allow-writes` (`w`) and the drives it holds for remote controllers.
+fn queries(
+    w: bool,
+    held: Arc<control::Held>,
+    serve: fn(&zenoh::Session, &str, &keys::Keys, params::Rules<'_>, &Arc<AtomicBool>),
+) -> Job {
+    Box::new(move |s, o, st| {
+        let rules = params::Rules {
+            allow_writes: w,
+            held: &held,
+            gate: &o.gate,
+        };
+        serve(s, &o.bus, &o.keys, rules, st);
+    })
+}
+
 const fn allowed(yes: bool) -> &'static str {
     if yes { "allowed" } else { "refused" }
 }
@@ -291,10 +339,6 @@ fn run(cli: &Cli) -> Result<(), StartError> {
             max_rate: cli.max_rate,
             gate: Arc::new(gate::Gate::new(bus, policy.clone())),
         };
-        let (w, c) = (cli.allow_writes, cli.allow_control);
-        // The drives the bridge holds for remote controllers: no parameter writes to them.
-        let held = Arc::new(control::Held::default());
-        let held_too = Arc::clone(&held);
         // Declared before anything else runs: without it the bridge does not run.
         let stops = session
             .declare_queryable(options.keys.stops())
@@ -303,32 +347,7 @@ fn run(cli: &Cli) -> Result<(), StartError> {
                 key: options.keys.stops(),
                 error,
             })?;
-        let jobs: [(&str, Job); 4] = [
-            ("publish", Box::new(publish::run)),
-            (
-                "stops",
-                Box::new(move |_, o, st| {
-                    control::serve_stops(&stops, &o.bus, &o.keys, &o.gate, st);
-                }),
-            ),
-            (
-                "control",
-                Box::new(move |s, o, st| {
-                    control::serve_control(s, &o.bus, &o.keys, c, &o.gate, &held, st);
-                }),
-            ),
-            (
-                "params",
-                Box::new(move |s, o, st| {
-                    let rules = params::Rules {
-                        allow_writes: w,
-                        held: &held_too,
-                        gate: &o.gate,
-                    };
-                    params::serve(s, &o.bus, &o.keys, rules, st);
-                }),
-            ),
-        ];
+        let jobs = bus_jobs(stops, cli.allow_writes, cli.allow_control);
         for (what, job) in jobs {
             let (s, st, o) = (session.clone(), Arc::clone(&stop), options.clone());
             let thread = std::thread::Builder::new()

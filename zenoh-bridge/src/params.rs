@@ -160,62 +160,104 @@ const QUEUE: usize = 256;
 /// `.../drive/<addr>/param/<P>`, writes on `.../drive/<addr>/set/<P>`, each also under a peer's
 /// name (`.../as/<name>/drive/...`), checked against the bus's access policy.
 pub fn serve(session: &Session, name: &str, keys: &Keys, rules: Rules<'_>, stop: &Arc<AtomicBool>) {
-    let (tx, rx) = crossbeam_channel::bounded::<(Query, ParamKey)>(QUEUE);
-    let mut queryables = Vec::new();
     // Queries of peers that do not name themselves, and of those that do (.../as/<name>/...).
-    for (key, which) in [
-        (keys.params(), ParamKey::Read),
-        (keys.writes(), ParamKey::Write),
-        (keys.named().params(), ParamKey::Read),
-        (keys.named().writes(), ParamKey::Write),
-    ] {
-        let tx = tx.clone();
-        // Zenoh's callback never blocks: a full queue, or a thread that has ended, is an
-        // answer too, so every query ends in one.
-        let declared = session
-            .declare_queryable(&key)
-            .callback(move |q| match tx.try_send((q, which)) {
-                Ok(()) => {}
-                Err(crossbeam_channel::TrySendError::Full((q, _))) => reply(
-                    &q,
-                    Err(format!(
-                        "the bridge is {QUEUE} parameter queries behind: ask again"
-                    )),
-                ),
-                Err(crossbeam_channel::TrySendError::Disconnected((q, _))) => {
-                    reply(
+    let queued = Queued::declare(
+        session,
+        vec![
+            (keys.params(), ParamKey::Read),
+            (keys.writes(), ParamKey::Write),
+            (keys.named().params(), ParamKey::Read),
+            (keys.named().writes(), ParamKey::Write),
+        ],
+        QUEUE,
+        "parameter queries",
+    );
+    if let Some(queued) = queued {
+        queued.serve(
+            name,
+            "uss-zenoh-params",
+            stop,
+            |bus, query, which| match answers(bus, keys, name, query, rules, which) {
+                Ok(list) => {
+                    for (key, answer) in list {
+                        reply_as(query, &key, answer);
+                    }
+                }
+                Err(text) => reply(query, Err(text)),
+            },
+        );
+    }
+}
+
+/// Queries on some keys, queued for one thread of the bridge (`T` says which key each came on),
+/// with the queryables that take them. Zenoh's callback never blocks: a full queue, or a
+/// thread that has ended, is an answer too, so every query ends in one.
+pub struct Queued<T> {
+    rx: crossbeam_channel::Receiver<(Query, T)>,
+    _queryables: Vec<zenoh::query::Queryable<()>>,
+}
+
+impl<T: Copy + Send + Sync + 'static> Queued<T> {
+    /// Declares a queryable on each key, queueing up to `queue` queries (`what` says which
+    /// in the answer of a full queue); `None` when one cannot be declared (said on stderr).
+    pub fn declare(
+        session: &Session,
+        keys: Vec<(String, T)>,
+        queue: usize,
+        what: &'static str,
+    ) -> Option<Self> {
+        let (tx, rx) = crossbeam_channel::bounded::<(Query, T)>(queue);
+        let mut queryables = Vec::new();
+        for (key, tag) in keys {
+            let tx = tx.clone();
+            let declared = session
+                .declare_queryable(&key)
+                .callback(move |q| match tx.try_send((q, tag)) {
+                    Ok(()) => {}
+                    Err(crossbeam_channel::TrySendError::Full((q, _))) => reply(
+                        &q,
+                        Err(format!("the bridge is {queue} {what} behind: ask again")),
+                    ),
+                    Err(crossbeam_channel::TrySendError::Disconnected((q, _))) => reply(
                         &q,
                         Err("the bridge is stopping: nothing was done".to_owned()),
-                    );
+                    ),
+                })
+                .wait();
+            match declared {
+                Ok(q) => queryables.push(q),
+                Err(e) => {
+                    eprintln!("uss-zenoh: cannot declare the queryable {key}: {e}");
+                    return None;
                 }
-            })
-            .wait();
-        match declared {
-            Ok(q) => queryables.push(q),
-            Err(e) => {
-                eprintln!("uss-zenoh: cannot declare the queryable {key}: {e}");
-                return;
             }
         }
+        Some(Self {
+            rx,
+            _queryables: queryables,
+        })
     }
-    drop(tx);
-    let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
-    while !stop.load(Ordering::Relaxed) {
-        let (query, which) = match rx.recv_timeout(Duration::from_millis(100)) {
-            Ok(q) => q,
-            Err(crossbeam_channel::RecvTimeoutError::Timeout) => continue,
-            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
-        };
-        if bus.is_err() {
-            bus = Bus::open_as(name, "uss-zenoh-params").map_err(|e| e.to_string());
-        }
-        match answers(bus.as_ref(), keys, name, &query, rules, which) {
-            Ok(list) => {
-                for (key, answer) in list {
-                    reply_as(&query, &key, answer);
-                }
+
+    /// Answers each query with `answer` until `stop`, on bus `name` (opened as `node` when a
+    /// query comes and it is not open yet: ussd may start after the bridge).
+    pub fn serve(
+        &self,
+        name: &str,
+        node: &str,
+        stop: &Arc<AtomicBool>,
+        mut answer: impl FnMut(Result<&Bus, &String>, &Query, T),
+    ) {
+        let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
+        while !stop.load(Ordering::Relaxed) {
+            let (query, tag) = match self.rx.recv_timeout(Duration::from_millis(100)) {
+                Ok(q) => q,
+                Err(crossbeam_channel::RecvTimeoutError::Timeout) => continue,
+                Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
+            };
+            if bus.is_err() {
+                bus = Bus::open_as(name, node).map_err(|e| e.to_string());
             }
-            Err(text) => reply(&query, Err(text)),
+            answer(bus.as_ref(), &query, tag);
         }
     }
 }

@@ -298,6 +298,108 @@ impl<'a> ParamReply<'a> {
     }
 }
 
+/// The reply to `.../drive/<addr>/describe/<P>`: what the drive says the parameter is (its
+/// PROFIdrive descriptive elements), beside what the family's catalogue says.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct DescribeReply<'a> {
+    pub v: u32,
+    pub bus: &'a str,
+    pub drive: u8,
+    /// As the catalogue writes it: `P1120`.
+    pub param: String,
+    pub family: &'static str,
+    /// The drive's data type (descriptive element 1).
+    pub data_type: String,
+    /// Its elements (element 2: 0 a plain parameter); null: not said.
+    pub elements: Option<u16>,
+    /// Whether the drive says it is read-only (element 4); null: not said.
+    pub read_only: Option<bool>,
+    /// Its limits (elements 7 and 8); null: not said (a 3-word channel cannot carry them).
+    pub min: Option<f64>,
+    pub max: Option<f64>,
+    /// The catalogue's name, unit, when it can be changed and factory setting; null where the
+    /// catalogue has no entry.
+    pub name: Option<&'static str>,
+    pub unit: Option<&'static str>,
+    pub change: Option<&'static str>,
+    pub default: Option<f64>,
+}
+
+/// One value a diff found different: as the drive and the other side (a backup, another
+/// drive) hold it, shown in its unit; null where that side does not have it.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct Differs {
+    pub param: String,
+    pub name: &'static str,
+    pub drive: Option<String>,
+    pub other: Option<String>,
+}
+
+/// The reply to `.../drive/<addr>/diff`: the drive compared with the backup file (or drive)
+/// the query's payload names.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct DiffReply<'a> {
+    pub v: u32,
+    pub bus: &'a str,
+    pub drive: u8,
+    /// The values that are the same.
+    pub same: usize,
+    pub differ: Vec<Differs>,
+    /// What the file holds that is not compared (the drive's state: P0010, P0004).
+    pub ignored: Vec<String>,
+}
+
+/// One value of a restore: what the drive held, what the file wants, what became of it.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct Restored {
+    pub param: String,
+    /// Null: the drive's value could not be read.
+    pub was: Option<String>,
+    pub wanted: String,
+    pub result: String,
+}
+
+/// The reply to `.../drive/<addr>/restore`: what the download did (the report of `ussctl
+/// param restore`).
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct RestoreReply<'a> {
+    pub v: u32,
+    pub bus: &'a str,
+    pub drive: u8,
+    /// Every value of the file is on the drive (and stored, with `eeprom`); false: ask again
+    /// to complete it (`cut_short` says why it ended).
+    pub complete: bool,
+    pub dry_run: bool,
+    pub equal: usize,
+    pub written: usize,
+    pub refused: usize,
+    /// Writes whose answer was lost: the drive may hold the value.
+    pub unknown: usize,
+    /// Link settings kept (address, baud rate, PZD/PKW length).
+    pub kept: usize,
+    pub cut_short: Option<String>,
+    /// What a restore cut short raised and could not put back (the access level, quick
+    /// commissioning), in words.
+    pub left_raised: Vec<String>,
+    /// With `eeprom`: whether RAM was copied to ROM, in words.
+    pub stored: Option<String>,
+    pub ignored: Vec<String>,
+    pub lines: Vec<Restored>,
+    pub seconds: f64,
+}
+
+/// The reply to `.../drive/<addr>/save`: the copy of RAM to ROM.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct SaveReply<'a> {
+    pub v: u32,
+    pub bus: &'a str,
+    pub drive: u8,
+    /// The parameter that copied (`P0971`).
+    pub param: String,
+    /// The access level raised for it and put back (`P0003 1 -> 3 -> 1`); null: none needed.
+    pub raised: Option<String>,
+}
+
 /// `<prefix>/<bus>/drive/<addr>/out`: one sample of a remote controller (only with
 /// `--allow-control`). Either `stw1` (with `hz`, the setpoint in Hz of the drive's reference
 /// frequency; further PZD words 0) or `words` (every PZD word, STW1 first), or `release`.
@@ -592,6 +694,22 @@ mod tests {
                     "A reply on <prefix>/<bus>/drive/<addr>/param/<P> or .../set/<P>",
                     true,
                 ),
+            ),
+            (
+                "describe",
+                schema::<DescribeReply<'_>>("<prefix>/<bus>/drive/<addr>/describe/<P>", true),
+            ),
+            (
+                "diff",
+                schema::<DiffReply<'_>>("<prefix>/<bus>/drive/<addr>/diff", true),
+            ),
+            (
+                "restore",
+                schema::<RestoreReply<'_>>("<prefix>/<bus>/drive/<addr>/restore", true),
+            ),
+            (
+                "save",
+                schema::<SaveReply<'_>>("<prefix>/<bus>/drive/<addr>/save", true),
             ),
             (
                 "stop",

@@ -12,9 +12,12 @@
 //! drives = [1, 2]                      # optional: every drive
 //! ```
 //!
-//! Rights: `read` (status, images, diagnostics, liveliness, parameter reads), `stop` (operator
-//! stops), `write` (parameter writes, through `.../drive/<addr>/set/<P>`), `control` (samples on
-//! `.../drive/<addr>/out`). A peer gets `default` and every grant naming it.
+//! Rights: `read` (status, images, diagnostics, liveliness, parameter reads, and the
+//! commissioning reads: a parameter's description, a backup, a diff), `stop` (operator stops),
+//! `write` (parameter writes, through `.../drive/<addr>/set/<P>`), `commission` (a restore of a
+//! backup and the copy of RAM to ROM, through `.../drive/<addr>/restore` and `.../save`),
+//! `control` (samples on `.../drive/<addr>/out`). A peer gets `default` and every grant naming
+//! it.
 //!
 //! Two checks make it. **Zenoh's access control** (`access_control` of the session's
 //! configuration, made here) knows the common name of the certificate each link authenticated:
@@ -39,6 +42,7 @@ pub enum Right {
     Stop,
     Write,
     Control,
+    Commission,
 }
 
 impl Right {
@@ -49,6 +53,7 @@ impl Right {
             Self::Stop => "stop",
             Self::Write => "write",
             Self::Control => "control",
+            Self::Commission => "commission",
         }
     }
 }
@@ -179,7 +184,9 @@ impl Policy {
                 ));
             }
             if g.rights.is_empty() {
-                return Err(format!("{at}: give it rights: read, stop, write, control"));
+                return Err(format!(
+                    "{at}: give it rights: read, stop, write, control, commission"
+                ));
             }
             if let Some(bus) = g.bus.as_ref().filter(|b| !buses.contains(b)) {
                 return Err(format!(
@@ -228,6 +235,11 @@ impl Policy {
                 vec![
                     format!("{base}/drive/*/param/*"),
                     format!("{base}/drive/*/set/*"),
+                    format!("{base}/drive/*/describe/*"),
+                    format!("{base}/drive/*/backup"),
+                    format!("{base}/drive/*/diff"),
+                    format!("{base}/drive/*/restore"),
+                    format!("{base}/drive/*/save"),
                     format!("{base}/drive/*/stop"),
                     format!("{base}/stop"),
                 ],

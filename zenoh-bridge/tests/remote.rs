@@ -1532,3 +1532,169 @@ fn coasts_while_runs_start(
     }
     rearmed
 }
+
+/// Commissioning across the network (issue 46, item 5), as the client library does it: under an
+/// access policy over mutual TLS, any authenticated peer describes a parameter, takes a backup
+/// and diffs it; only the peer granted `commission` restores it (and copies RAM to ROM); a
+/// backup that changes a guarded parameter (the command source) is refused to it as well,
+/// since nothing guarded is written from across the network; a drive under remote control
+/// takes no restore from another peer.
+#[test]
+fn commissioning_over_the_network_follows_the_policy_and_never_writes_a_guarded_value() {
+    let Some(ns) = Netns::create() else { return };
+    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let bus = ussd.bus.clone();
+    let prefix = format!("uss/c{}", std::process::id());
+    let drive = |d: u8| format!("{prefix}/{bus}/drive/{d}");
+    let pki = Pki::new("commission", "uss-rt test CA", &ns.here());
+    let policy = pki.dir.join("policy.toml");
+    std::fs::write(
+        &policy,
+        "default = [\"read\", \"stop\"]\n\n[[grant]]\nwho = [\"engineer\"]\nrights = [\"commission\"]\n",
+    )
+    .unwrap();
+    let (mut bridge_proc, config) = bridge_tls(
+        &ns,
+        &bus,
+        &prefix,
+        &["--allow-writes", "--policy", policy.to_str().unwrap()],
+        &pki,
+    );
+    ns.use_tls(Some(pki.client("viewer")));
+    let (backup, file) = describe_and_back_up(&ns, &drive(1), &pki.dir);
+    let diff = |ns: &Netns| {
+        let (ok, out, err) = ns.call(&[
+            "get",
+            &format!("{}/diff", drive(1)),
+            "--file",
+            file.to_str().unwrap(),
+            "--timeout",
+            "60",
+        ]);
+        assert!(ok, "{err}");
+        json(&out)
+    };
+    let d = diff(&ns);
+    assert!(
+        d["same"].as_u64() > Some(30) && d["differ"].as_array().is_some_and(Vec::is_empty),
+        "{d}"
+    );
+    // Drive 1's ramp changed here: the diff says so; the viewer may not restore it.
+    ussd.bus()
+        .write(
+            addr(1),
+            uss_integration_tests::param(1120),
+            uss_client::Value::from_f32(9.0),
+            false,
+        )
+        .unwrap();
+    let d = diff(&ns);
+    assert_eq!(d["differ"][0]["param"].as_str(), Some("P1120[0]"), "{d}");
+    let restore = |ns: &Netns, file: &std::path::Path| {
+        ns.call(&[
+            "get",
+            &format!("{}/restore", drive(1)),
+            "--file",
+            file.to_str().unwrap(),
+            "--timeout",
+            "60",
+        ])
+    };
+    let (ok, _, err) = restore(&ns, &file);
+    assert!(
+        !ok && err.contains("has not the right `commission` on drive 1"),
+        "{err}"
+    );
+    // The engineer restores it: P1120 is the file's again.
+    ns.use_tls(Some(pki.client("engineer")));
+    let (ok, out, err) = restore(&ns, &file);
+    assert!(ok, "{err}");
+    let r = json(&out);
+    assert_eq!(
+        (r["complete"].as_bool(), r["written"].as_u64()),
+        (Some(true), Some(1)),
+        "{out}"
+    );
+    assert_ne!(
+        ussd.bus()
+            .read(addr(1), uss_integration_tests::param(1120))
+            .unwrap(),
+        uss_client::Value::from_f32(9.0)
+    );
+    // A backup that changes the command source is refused to it too, nothing written.
+    let guarded = pki.dir.join("guarded.toml");
+    let changed = change_value(&backup, "P0700", "1");
+    std::fs::write(&guarded, changed).unwrap();
+    let (ok, _, err) = restore(&ns, &guarded);
+    assert!(
+        !ok && err.contains("P0700") && err.contains("nothing was written"),
+        "{err}"
+    );
+    // The copy of RAM to ROM.
+    let (ok, out, err) = ns.call(&["get", &format!("{}/save", drive(1)), "--timeout", "30"]);
+    assert!(ok, "{err}");
+    assert_eq!(json(&out)["param"].as_str(), Some("P0971"), "{out}");
+    bridge_proc.kill();
+    let said = bridge_proc.stderr();
+    assert!(
+        said.contains("\"viewer\" (a name nothing vouches for) has not the right `commission`"),
+        "{said}"
+    );
+    let _ = std::fs::remove_file(config);
+}
+
+/// What the drive says P1120 is (beside the catalogue), and a backup of it, saved in `dir`: its
+/// text and file.
+fn describe_and_back_up(
+    ns: &Netns,
+    drive: &str,
+    dir: &std::path::Path,
+) -> (String, std::path::PathBuf) {
+    // What the drive says P1120 is, beside the catalogue.
+    let (ok, out, err) = ns.call(&["get", &format!("{drive}/describe/P1120")]);
+    assert!(ok, "{err}");
+    let d = json(&out);
+    assert_eq!(
+        (
+            d["param"].as_str(),
+            d["data_type"].as_str(),
+            d["read_only"].as_bool()
+        ),
+        (Some("P1120"), Some("float"), Some(false)),
+        "{out}"
+    );
+    assert!(d["max"].as_f64() > d["min"].as_f64(), "{out}");
+    // A backup, and its diff against the drive: nothing differs.
+    let (ok, backup, err) = ns.call(&["get", &format!("{drive}/backup"), "--timeout", "60"]);
+    assert!(ok && backup.contains("P1120"), "{err}{backup}");
+    let file = dir.join("drive1.toml");
+    std::fs::write(&file, &backup).unwrap();
+    (backup, file)
+}
+
+/// `backup` with the first line of `param` given `value` instead (`P0700 = [2, 2, 2]` ->
+/// `P0700 = [1, 2, 2]`, or `P0700 = 2` -> `P0700 = 1`).
+fn change_value(backup: &str, param: &str, value: &str) -> String {
+    let mut done = false;
+    backup
+        .lines()
+        .map(|l| {
+            if !done && l.trim_start().starts_with(&format!("{param} ")) {
+                done = true;
+                let (head, tail) = l.split_once('=').unwrap();
+                let tail = tail.trim();
+                let new = if let Some(list) = tail.strip_prefix('[') {
+                    let rest = list.split_once(',').map_or("]", |(_, r)| r);
+                    format!("[{value},{rest}")
+                } else {
+                    value.to_owned()
+                };
+                format!("{head}= {new}")
+            } else {
+                l.to_owned()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+        + "\n"
+}

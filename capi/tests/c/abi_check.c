@@ -285,6 +285,20 @@ int main(int argc, char **argv) {
   OK(ussrt_wait_stopped(bus, 2, 1, 2000, NULL)); /* OFF3 is at least as strong as OFF1 */
   EXPECT(ussrt_wait_stopped(bus, 1, 9, 0, NULL) == USSRT_STATUS_INVALID_ARGUMENT,
          "stop command 9");
+  /* What the drive says a parameter is: P1120 (ramp-up time) a settable float with limits; a
+     parameter it does not have is its refusal. */
+  UssrtDescription described;
+  OK(ussrt_param_describe(bus, 2, "P1120", &described));
+  EXPECT(described.data_type == 8 && described.read_only == 0, "P1120: type %u read-only %u",
+         described.data_type, described.read_only);
+  EXPECT(described.has_elements && described.has_min && described.has_max &&
+             described.max > described.min,
+         "P1120: elements %u limits %g..%g", described.elements, described.min, described.max);
+  EXPECT(ussrt_param_describe(bus, 2, "P0999", &described) == USSRT_STATUS_DRIVE_ERROR,
+         "P0999 described");
+  EXPECT(info().drive_error == 0, "error 0 (no such parameter): %u", info().drive_error);
+  EXPECT(ussrt_param_describe(bus, 2, "P1120", NULL) == USSRT_STATUS_INVALID_ARGUMENT,
+         "NULL description");
   /* Guided commissioning: a value the drive refuses leaves quick commissioning (P0010 back to
      0); the rating plate then goes in and P3900 = 3 ends it; a factory reset brings P0304 back. */
   const char *params[] = {"P0304", "P0305"};

@@ -12,13 +12,13 @@
 
 use crate::cli::{address, duration};
 use crate::report::{DiffLine, DiffReport, RestoreReport};
-use crate::{Failure, Output, catch_signals, signal_name, signals};
+use crate::{Failure, Output, Signals, catch_signals};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use uss_client::Address;
 use uss_client::backup::{self, BackupFile, Diff as Compared, Loaded};
-use uss_client::restore::{Cancel, RestoreOptions};
+use uss_client::restore::RestoreOptions;
 use uss_client::uss_catalogue::Catalogue;
 use uss_client::{Bus, ParamError};
 
@@ -198,19 +198,6 @@ impl Restore {
     /// `param restore DRIVE FILE [--eeprom] [--dry-run] [--force] [--unsafe]`.
     pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
         restore(bus, out, self)
-    }
-}
-
-/// ussctl's signals (SIGINT, SIGTERM, SIGHUP) as the library's cancel of a restore.
-struct Signals;
-
-impl Cancel for Signals {
-    fn asked(&self) -> usize {
-        signals()
-    }
-
-    fn why(&self) -> &'static str {
-        signal_name()
     }
 }
 

@@ -62,11 +62,6 @@ pub(crate) const fn faulted(drive: Address, i: &PzdInput) -> Failure {
     }
 }
 
-/// The firmware version r0018 as the drive shows it, to two decimals (2.09, not 2.0899999).
-pub(crate) fn firmware_version(r0018: f32) -> f64 {
-    (f64::from(r0018) * 100.0).round() / 100.0
-}
-
 /// Sends OFF1 and waits until the drive has answered two more exchanges, so it has received it.
 pub(crate) fn stop_confirmed(c: &Controller) -> Result<PzdInput, Failure> {
     c.stop()?;

@@ -129,7 +129,7 @@ fn describe(bus: &Bus, out: &Output, drive: Address, param: ParamRef) -> Result<
             array: p.array,
             data_sets: p.data_sets,
             level: p.level,
-            change: change_rule(p.change),
+            change: p.change.words(),
             min: p.min,
             max: p.max,
             default: p.default,
@@ -178,17 +178,6 @@ struct CatalogueEntry {
     default: Option<f64>,
     /// Whether the catalogue's data type is the drive's.
     agrees: bool,
-}
-
-/// A change rule as a reader acts on it.
-const fn change_rule(change: uss_client::uss_catalogue::Change) -> &'static str {
-    use uss_client::uss_catalogue::Change;
-    match change {
-        Change::Always => "any time",
-        Change::NotRunning => "not while running",
-        Change::Commissioning => "in quick commissioning (P0010 = 1)",
-        Change::ReadOnly => "never (read-only)",
-    }
 }
 
 /// `min..=max`, or "?" for a side not known.

@@ -26,18 +26,22 @@ pub struct ScannedDrive {
     pub unsure: Option<String>,
 }
 
-impl ScannedDrive {
-    /// A slave at `address` whose layout is not known (yet).
-    pub fn unknown(baud: u32, address: u8) -> Self {
+impl From<&uss_client::scan::Found> for ScannedDrive {
+    fn from(found: &uss_client::scan::Found) -> Self {
+        use uss_client::uss_protocol::telegram::PkwMode;
         Self {
-            baud,
-            address,
-            pkw: "unknown".into(),
-            pzd: 0,
-            zsw1: None,
-            firmware: None,
-            family: None,
-            unsure: None,
+            baud: found.baud.get(),
+            address: found.address.get(),
+            pkw: match found.pkw {
+                None => "unknown".into(),
+                Some(PkwMode::Variable) => "variable (127)".into(),
+                Some(mode) => mode.p2013().to_string(),
+            },
+            pzd: found.pzd,
+            zsw1: found.zsw1,
+            firmware: found.firmware,
+            family: found.family.map(uss_client::DriveFamily::name),
+            unsure: found.unsure.clone(),
         }
     }
 }

@@ -69,12 +69,16 @@ enum Command {
         stamp: bool,
     },
     /// Query KEY (e.g. uss/site/bus0/drive/1/param/P1082); with --value, write that value (through
-    /// the parameter's write key, .../set/P1082).
+    /// the parameter's write key, .../set/P1082); with --file, send a file (a backup for
+    /// .../drive/<addr>/diff and .../restore).
     Get {
         key: String,
         /// The value to write (the query's payload), e.g. 45.0.
         #[arg(long)]
         value: Option<String>,
+        /// Send this file's text as the query's payload (a backup file).
+        #[arg(long, value_name = "FILE", conflicts_with = "value")]
+        file: Option<std::path::PathBuf>,
         /// Seconds to wait for the answer.
         #[arg(long, default_value_t = 10.0)]
         timeout: f64,
@@ -155,6 +159,12 @@ pub enum Failure {
     /// An error reply: the bridge's own words.
     #[error("{0}")]
     Replied(String),
+    /// `--file` cannot be read.
+    #[error("--file {}: {error}", .path.display())]
+    File {
+        path: std::path::PathBuf,
+        error: std::io::Error,
+    },
     #[error("{0}: no uss-zenoh answers this key")]
     NoAnswer(String),
     #[error("{key}: nothing within {seconds} s")]
@@ -437,13 +447,35 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     done
 }
 
+/// A query's payload: `--file`'s text (sent to the key as given), or `--value` (sent to a
+/// parameter's write key: the bool says so).
+fn payload_of(
+    value: Option<&str>,
+    file: Option<&std::path::Path>,
+) -> Result<(Option<String>, bool), Failure> {
+    match file {
+        Some(path) => std::fs::read_to_string(path)
+            .map(|t| (Some(t), false))
+            .map_err(|error| Failure::File {
+                path: path.to_owned(),
+                error,
+            }),
+        None => Ok((value.map(str::to_owned), true)),
+    }
+}
+
 /// `get KEY [--value V]`: a read, or a write through the parameter's write key
 /// (`.../set/P1082`: the key an access policy's `write` right covers), `repeat` times.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the command's own arguments, one each"
+)]
 fn get(
     session: &zenoh::Session,
     key: &str,
     name: Option<&str>,
     value: Option<&str>,
+    to_write_key: bool,
     timeout: f64,
     repeat: u32,
     timed: bool,
@@ -451,7 +483,9 @@ fn get(
     // The last `/param/` is the parameter's (a prefix may hold the word too).
     let key = &named_key(key, name);
     let key = match (value, key.rfind("/param/")) {
-        (Some(_), Some(at)) => format!("{}/set/{}", &key[..at], &key[at + "/param/".len()..]),
+        (Some(_), Some(at)) if to_write_key => {
+            format!("{}/set/{}", &key[..at], &key[at + "/param/".len()..])
+        }
         _ => key.to_owned(),
     };
     let key = &key;
@@ -467,6 +501,10 @@ fn get(
     Ok(())
 }
 
+#[allow(
+    clippy::too_many_lines,
+    reason = "the dispatch of the subcommands: one arm each, each a call"
+)]
 fn command(session: &zenoh::Session, cli: &Cli, name: Option<&str>) -> Result<(), Failure> {
     let start = Instant::now();
     match &cli.command {
@@ -487,18 +525,23 @@ fn command(session: &zenoh::Session, cli: &Cli, name: Option<&str>) -> Result<()
         Command::Get {
             key,
             value,
+            file,
             timeout,
             repeat,
             timed,
-        } => get(
-            session,
-            key,
-            name,
-            value.as_deref(),
-            *timeout,
-            *repeat,
-            *timed,
-        )?,
+        } => {
+            let (payload, rewrite) = payload_of(value.as_deref(), file.as_deref())?;
+            get(
+                session,
+                key,
+                name,
+                payload.as_deref(),
+                rewrite,
+                *timeout,
+                *repeat,
+                *timed,
+            )?;
+        }
         Command::Run {
             drive,
             hz,
