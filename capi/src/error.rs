@@ -67,6 +67,8 @@ pub(crate) enum Failure {
     Client(ClientError),
     Param(ParamError),
     Scan(uss_client::scan::ScanError),
+    /// A drive's refusal and what to do about it (`Bus::refusal_hint`), said after its words.
+    Hinted(ParamError, String),
 }
 
 impl From<uss_client::scan::ScanError> for Failure {
@@ -122,7 +124,7 @@ impl Failure {
         match self {
             Self::Argument(_) => UssrtErrorInfo::of(UssrtStatus::InvalidArgument),
             Self::Client(e) => client_info(e),
-            Self::Param(e) => param_info(e),
+            Self::Param(e) | Self::Hinted(e, _) => param_info(e),
             Self::Scan(e) => UssrtErrorInfo::of(UssrtStatus::of(e.kind().status())),
         }
     }
@@ -133,6 +135,7 @@ impl Failure {
             Self::Client(e) => e.to_string(),
             Self::Param(e) => e.to_string(),
             Self::Scan(e) => e.to_string(),
+            Self::Hinted(e, hint) => format!("{e}: {hint}"),
         }
     }
 }

@@ -241,9 +241,14 @@ pub unsafe extern "C" fn ussrt_param_write(
         let bus = arg(bus, "bus")?;
         let param = param_ref(param)?;
         let value_text = text(value_text, "value_text")?;
+        let address = drive(address)?;
         let written = bus
             .bus
-            .write_param(drive(address)?, param, value_text, options(flags)?)?;
+            .write_param(address, param, value_text, options(flags)?)
+            .map_err(|e| match bus.bus.refusal_hint(address, param, &e) {
+                Some(hint) => Failure::Hinted(e, hint),
+                None => e.into(),
+            })?;
         // SAFETY: NULL or the caller's memory (as documented).
         if let Some(held) = unsafe { held.as_mut() } {
             *held = value_of(&written);

@@ -32,6 +32,8 @@ pub struct Bus {
     /// Data types the drives described (AK 4) for parameters the catalogue does not know,
     /// shared with the views of [`Bus::with_answer_timeout`].
     pub(crate) described: Arc<crate::typed::Described>,
+    /// When this handle last sent each drive a stop ([`Bus::wait_stopped`]).
+    pub(crate) stops_sent: Arc<crate::command::StopsSent>,
 }
 
 impl core::fmt::Debug for Bus {
@@ -65,6 +67,7 @@ impl Bus {
             .map_err(|e| ClientError::ipc("creating the iceoryx2 node", e))?;
         Ok(Bus {
             described: Arc::default(),
+            stops_sent: Arc::default(),
             link: Arc::new(Link::open(name, node)?),
             answer_timeout: None,
         })
@@ -100,6 +103,7 @@ impl Bus {
             link: Arc::clone(&self.link),
             answer_timeout: timeout,
             described: Arc::clone(&self.described),
+            stops_sent: Arc::clone(&self.stops_sent),
         }
     }
 

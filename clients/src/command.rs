@@ -14,6 +14,45 @@ use uss_shm_types::{
 };
 use uss_shm_types::{StopBoard, names};
 
+/// When this bus handle last sent each drive a stop (`CLOCK_MONOTONIC` ns, 0: never), for
+/// [`Bus::wait_stopped`] to confirm that stop.
+#[derive(Debug, Default)]
+pub(crate) struct StopsSent([std::sync::atomic::AtomicU64; 32]);
+
+impl StopsSent {
+    /// A stop goes out now to `address` (`None`: every drive).
+    fn mark(&self, address: Option<Address>) {
+        use std::sync::atomic::Ordering;
+        let now = crate::monotonic_ns();
+        match address {
+            Some(a) => self.0[usize::from(a.get())].store(now, Ordering::Relaxed),
+            None => self.0.iter().for_each(|t| t.store(now, Ordering::Relaxed)),
+        }
+    }
+
+    fn get(&self, address: Address) -> u64 {
+        self.0[usize::from(address.get())].load(std::sync::atomic::Ordering::Relaxed)
+    }
+}
+
+/// `sent_ns`, a moment of this process's clock, on ussd's (the clock of the latch ids), as a
+/// lower bound for the latch a stop sent then makes, by ussd's heartbeat `(its time stamp, when
+/// this process read it)`: the same moment when the two clocks are one (the heartbeat read
+/// within a second of its stamp), else moved by the offset the heartbeat shows (a process in a
+/// time namespace of its own), which errs early by the heartbeat's age at most. 0 stays 0 (any
+/// latch).
+fn on_ussd_clock(sent_ns: u64, (beat_ns, read_ns): (u64, u64)) -> u64 {
+    if sent_ns == 0 {
+        return 0;
+    }
+    let behind = i128::from(read_ns) - i128::from(beat_ns);
+    if (0..=1_000_000_000).contains(&behind) {
+        sent_ns
+    } else {
+        uss_shm_types::on_latch_clock(sent_ns, beat_ns, read_ns)
+    }
+}
+
 /// How long ussd may take to answer an operator command.
 const COMMAND_TIMEOUT: Duration = Duration::from_secs(2);
 
@@ -22,6 +61,7 @@ impl Bus {
     /// controls it. Returns once ussd has handed the command to the bus thread, which sends it
     /// in its next telegram; [`Bus::wait_stopped`] waits until the drive's image shows it.
     pub fn stop_drive(&self, address: Address, command: StopCommand) -> Result<(), ClientError> {
+        self.stops_sent.mark(Some(address));
         match self.operator(address.get(), command) {
             Err(ClientError::CommandRefused {
                 error: CommandError::UnknownDrive,
@@ -33,6 +73,7 @@ impl Bus {
 
     /// Stops every drive of the bus with `command`; returns their addresses.
     pub fn stop_all(&self, command: StopCommand) -> Result<Vec<Address>, ClientError> {
+        self.stops_sent.mark(None);
         self.operator(ALL_DRIVES, command)
     }
 
@@ -42,34 +83,41 @@ impl Bus {
     /// ([`crate::DriveWatch::handshake`]: its turn in the circulating list, or its next probe
     /// while offline, and the poll).
     ///
-    /// A stop sent before this call is what it confirms: where the drive shows such a latch
-    /// already (an older operator's stop, as strong), the image is one of a poll that began
-    /// after the call, which took the stop (ussd takes an operator's stop at the drive's next
-    /// poll and latches it anew): the latch it returns is that stop's, not an older one, and a
-    /// re-arm asked after it returns re-arms it.
+    /// After a stop of this bus handle ([`Bus::stop_drive`], [`Bus::stop_all`]) it is that
+    /// stop it confirms, as [`Bus::wait_stopped_since`] with the moment it was sent: a drive
+    /// that showed an as strong stop of an older latch already (ussd latches the new stop anew
+    /// at the drive's next poll) is waited for until it shows the new one.
     pub fn wait_stopped(
         &self,
         address: Address,
         command: StopCommand,
         timeout: Option<Duration>,
     ) -> Result<PzdInput, ClientError> {
+        let sent = self.stops_sent.get(address);
+        self.wait_stopped_since(address, command, sent, timeout)
+    }
+
+    /// [`Bus::wait_stopped`] for a stop sent at `sent_ns` ([`crate::monotonic_ns`] taken just
+    /// before it was sent, 0 for any): the image's latch must have begun at or after it, so
+    /// it is that stop's (or a later one's), never an older latch that shows as strong a stop.
+    /// For a stop sent without this handle (`uss_client::stop`, another process).
+    pub fn wait_stopped_since(
+        &self,
+        address: Address,
+        command: StopCommand,
+        sent_ns: u64,
+        timeout: Option<Duration>,
+    ) -> Result<PzdInput, ClientError> {
         let watch = self.watch(address)?;
         let wanted = format!("{command} applied");
-        let applied = |i: &PzdInput| {
+        let since = on_ussd_clock(sent_ns, self.link().ussd_clock());
+        let shown = |i: &PzdInput| {
             i.latch_reason == LatchReason::Override.code()
+                && i.latch_id >= since
                 && StopCommand::of_code(i.latch_command).is_some_and(|got| {
                     got.strength() >= command.strength() && got.stw1() == i.sent_stw1
                 })
         };
-        // The image after the next one is of a poll that began after the newest image seen
-        // here was published, so after this call: one poll may have been under way.
-        let before = watch.latest();
-        let fresh_from = if applied(&before) {
-            before.sequence + 2
-        } else {
-            0
-        };
-        let shown = |i: &PzdInput| applied(i) && i.sequence >= fresh_from;
         let last = match timeout {
             Some(timeout) => watch.wait_for(timeout, &wanted, shown),
             None => watch.wait_polled(&wanted, shown),

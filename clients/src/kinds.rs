@@ -190,7 +190,9 @@ kinds! {
     Dropped => PathFailed, "NoAnswer"("UssError, TimeoutError");
     /// A drive did not get where it was asked to in time, or its inputs stopped coming.
     WaitTimeout => Timeout, "WaitTimeout"("UssError, TimeoutError");
-    /// The drive refused the task (reply 7) with USS error `number`.
+    /// The drive refused the task (reply 7) with USS error `number`; `hint` says what to do
+    /// where the number and the family's catalogue tell it (the access level, quick
+    /// commissioning, the limits), else None.
     DriveError => DriveError, "DriveError"("UssError");
     /// ussd refused the request (or one item) before the bus; `error` is a `RequestError`.
     Refused => Refused, "Refused"("UssError");

@@ -132,6 +132,79 @@ impl Bus {
         self.described.catalogue.or_else(|| Catalogue::of(family))
     }
 
+    /// What to do about a drive's refusal `e` of a write of `param` to drive `address`, in the
+    /// words every front-end adds to the error's own (ussctl, Python, C, the bridge), where the
+    /// number and the family's catalogue tell it; `None` for any other error. The numbers, as
+    /// the MICROMASTER 4 lists them (PROFIBUS Optional Board OI 6SE6400-5AK00-0BP0, table 3-5,
+    /// p. 27; the same in the CU240S/CU240E OI 03/2009, tables 5-73 and 5-81, pp. 158 and 180):
+    /// 2 "minimum/maximum not reached/exceeded", 17 "request cannot be processed due to
+    /// operating state", 200/201 the modified minimum/maximum, 204 "available access
+    /// authorization does not cover modification of parameters" (a SINAMICS G120 gives them in
+    /// hex: 0x02, 0x11, 0xC8/0xC9, 0xCC).
+    pub fn refusal_hint(
+        &self,
+        address: Address,
+        param: ParamRef,
+        e: &ParamError,
+    ) -> Option<String> {
+        let ParamError::Drive(uss_shm_types::DriveError::Refused(number)) = e else {
+            return None;
+        };
+        let catalogue = self.catalogue_of(self.family(address));
+        let entry = catalogue.and_then(|c| c.param(param.pnu.get()));
+        let id = entry.map_or_else(|| param.to_string(), |p| p.id.to_string());
+        let limits = entry
+            .filter(|p| p.min.is_some() || p.max.is_some())
+            .map(|p| {
+                let side = |v: Option<f64>| v.map_or_else(|| "?".to_owned(), |v| v.to_string());
+                format!(
+                    " (the catalogue: {}..={} {})",
+                    side(p.min),
+                    side(p.max),
+                    p.unit
+                )
+            })
+            .unwrap_or_default();
+        let describe =
+            format!("`ussctl param describe {address} {id}` asks the drive for its limits");
+        match number.number() {
+            2 => Some(format!(
+                "the value is beyond {id}'s limits{limits}: {describe}"
+            )),
+            200 | 201 => Some(format!(
+                "the value is beyond a limit another setting puts on {id} now (a maximum frequency \
+                 bounds the minimum, ...): {describe}"
+            )),
+            204 => {
+                let level = entry.map(|p| p.level)?;
+                let raise = catalogue.and_then(|c| c.access_level)?;
+                Some(format!(
+                    "{id} needs access level {level} ({raise} = {level}); the drive's is lower: \
+                     write {raise} = {level} first (`ussctl param write {address} {raise} {level}`), \
+                     and put it back after"
+                ))
+            }
+            17 => {
+                let entry = entry?;
+                match entry.change {
+                    uss_catalogue::Change::Commissioning => {
+                        let p = catalogue.and_then(|c| c.commissioning)?;
+                        Some(format!(
+                            "{id} can be changed in quick commissioning only ({p} = 1): \
+                             `ussctl param quick-commission {address} --set {id}=VALUE --unsafe` \
+                             enters it, writes and ends it"
+                        ))
+                    }
+                    uss_catalogue::Change::NotRunning => Some(format!(
+                        "{id} cannot be changed while the motor runs: stop the drive first"
+                    )),
+                    _ => None,
+                }
+            }
+            _ => None,
+        }
+    }
+
     /// What parameter `pnu` of drive `address` is: the catalogue's entry, or the type the drive
     /// describes (asked once per drive and parameter). A `generic` slave is never asked: it
     /// may not know descriptions (some firmware stops answering), so this is refused.

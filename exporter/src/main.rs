@@ -14,7 +14,7 @@ use std::io::Write as _;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicU64;
 use uss_client::uss_shm_types::{BusStatus, DriveDiag, EXCHANGE_BUCKETS_NS};
-use uss_client::{Bus, ControlState, Health};
+use uss_client::{Bus, ControlState, DriveState, Health, Zsw1};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -70,6 +70,13 @@ struct DriveLabels {
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct StateLabels {
+    bus: String,
+    drive: String,
+    state: &'static str,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 struct TelegramLabels {
     bus: String,
     drive: String,
@@ -112,6 +119,30 @@ impl EncodeMetric for CountedHistogram {
     }
 }
 
+/// What each drive's status word ZSW1 says: its state, fault and warning.
+fn register_state(
+    r: &mut Registry,
+    state: Family<StateLabels, Gauge>,
+    fault: Family<DriveLabels, Gauge>,
+    warning: Family<DriveLabels, Gauge>,
+) {
+    r.register(
+        "uss_drive_state",
+        "1 for the PROFIdrive state the drive's status word ZSW1 shows (S1..S4, fault, not ready); unknown while it is offline, its reply stale or it has no process data",
+        state,
+    );
+    r.register(
+        "uss_drive_fault",
+        "1 while the drive's ZSW1 shows a fault (bit 3: `ussctl faults` names it), 0 without; -1 while not known (offline, stale, no process data)",
+        fault,
+    );
+    r.register(
+        "uss_drive_warning",
+        "1 while the drive's ZSW1 shows a warning (bit 7: `ussctl faults` names it), 0 without; -1 while not known (offline, stale, no process data)",
+        warning,
+    );
+}
+
 /// The metric families of one scrape.
 struct Metrics {
     ussd_up: Family<BusLabels, Gauge>,
@@ -124,6 +155,9 @@ struct Metrics {
     stale: Family<DriveLabels, Gauge>,
     period: Family<DriveLabels, Gauge<f64, AtomicU64>>,
     latched: Family<DriveLabels, Gauge>,
+    state: Family<StateLabels, Gauge>,
+    fault: Family<DriveLabels, Gauge>,
+    warning: Family<DriveLabels, Gauge>,
     telegrams: Family<TelegramLabels, Counter>,
     retries: Family<DriveLabels, Counter>,
     watchdog_trips: Family<DriveLabels, Counter>,
@@ -147,6 +181,9 @@ impl Metrics {
             stale: Family::default(),
             period: Family::default(),
             latched: Family::default(),
+            state: Family::default(),
+            fault: Family::default(),
+            warning: Family::default(),
             telegrams: Family::default(),
             retries: Family::default(),
             watchdog_trips: Family::default(),
@@ -206,6 +243,7 @@ impl Metrics {
             "1 while the drive gets its safe command until its controller re-arms",
             self.latched,
         );
+        register_state(r, self.state, self.fault, self.warning);
         r.register(
             "uss_telegrams",
             "Replies by result: good, or why the attempt failed",
@@ -259,13 +297,37 @@ impl Metrics {
         }
     }
 
-    fn drive(&self, bus: &str, d: &DriveDiag) {
+    fn drive(&self, bus: &str, d: &DriveDiag, pzd_words: u8) {
         let labels = DriveLabels {
             bus: bus.to_owned(),
             drive: d.address.to_string(),
         };
         let c = &d.counters;
         let now = uss_client::monotonic_ns();
+        // What ZSW1 says, only while it is the drive's word of now: a stale or offline drive's
+        // last word is no picture of it.
+        let zsw1 = (pzd_words > 0 && d.is_online_at(now) && !d.is_overdue(now))
+            .then(|| Zsw1::from_bits_retain(d.last_zsw1));
+        let shown = zsw1.map(DriveState::from_zsw1);
+        for state in DriveState::ALL {
+            self.state
+                .get_or_create(&StateLabels {
+                    bus: bus.to_owned(),
+                    drive: labels.drive.clone(),
+                    state: state.short_name(),
+                })
+                .set(i64::from(shown == Some(state)));
+        }
+        self.state
+            .get_or_create(&StateLabels {
+                bus: bus.to_owned(),
+                drive: labels.drive.clone(),
+                state: "unknown",
+            })
+            .set(i64::from(shown.is_none()));
+        let bit = |b: Zsw1| zsw1.map_or(-1, |z| i64::from(z.contains(b)));
+        self.fault.get_or_create(&labels).set(bit(Zsw1::FAULT));
+        self.warning.get_or_create(&labels).set(bit(Zsw1::WARNING));
         self.online
             .get_or_create(&labels)
             .set(i64::from(d.is_online_at(now)));
@@ -346,10 +408,14 @@ fn scrape(buses: &mut [Exported]) -> String {
             Health::Stopped { .. } | Health::Gone { .. } => None,
         };
         let status = pid.and_then(|_| bus.status().ok());
-        let diags: Vec<DriveDiag> = bus
+        // Each drive's diagnostics, with its PZD length (whether its ZSW1 says anything).
+        let diags: Vec<(DriveDiag, u8)> = bus
             .drives()
             .into_iter()
-            .filter_map(|a| bus.diag(a).ok())
+            .filter_map(|a| {
+                let pzd_words = bus.watch(a).map_or(0, |w| w.info().pzd_words);
+                bus.diag(a).ok().map(|d| (d, pzd_words))
+            })
             .collect();
         if let (Some(pid), Some(before)) = (pid, e.pid)
             && pid != before
@@ -368,8 +434,8 @@ fn scrape(buses: &mut [Exported]) -> String {
             continue;
         };
         metrics.bus(&labels, &status);
-        for d in &diags {
-            metrics.drive(&name, d);
+        for (d, pzd_words) in &diags {
+            metrics.drive(&name, d, *pzd_words);
         }
         histograms.push((name, exchange_histogram(&status)));
     }

@@ -167,7 +167,32 @@ fn outcome(ended: &ItemOutcome) -> u8 {
 
 /// A parameter error as the matching `uss_rt` exception (`bus` named in its details).
 pub(crate) fn param(py: Python<'_>, bus: &uss_client::Bus, e: ParamError) -> PyErr {
-    let (kind, message) = (e.kind(), e.to_string());
+    param_hinted(py, bus, e, None)
+}
+
+/// [`param`] of an access to `param` of drive `address`: a refusal with what to do about it
+/// (`Bus::refusal_hint`) says it after its own words, and as the attribute `hint`.
+pub(crate) fn param_of(
+    py: Python<'_>,
+    bus: &uss_client::Bus,
+    address: Address,
+    param: uss_client::ParamRef,
+    e: ParamError,
+) -> PyErr {
+    let hint = bus.refusal_hint(address, param, &e);
+    param_hinted(py, bus, e, hint)
+}
+
+fn param_hinted(
+    py: Python<'_>,
+    bus: &uss_client::Bus,
+    e: ParamError,
+    hint: Option<String>,
+) -> PyErr {
+    let (kind, mut message) = (e.kind(), e.to_string());
+    if let Some(h) = &hint {
+        message = format!("{message}: {h}");
+    }
     let refused = |error: RequestError, item: Option<u8>| {
         vec![
             ("error", member(py, "RequestError", error.code())),
@@ -175,7 +200,9 @@ pub(crate) fn param(py: Python<'_>, bus: &uss_client::Bus, e: ParamError) -> PyE
         ]
     };
     let details = match e {
-        ParamError::Drive(DriveError::Refused(p)) => vec![("number", obj(py, p.number()))],
+        ParamError::Drive(DriveError::Refused(p)) => {
+            vec![("number", obj(py, p.number())), ("hint", obj(py, hint))]
+        }
         ParamError::Drive(d) => vec![("outcome", member(py, "Outcome", outcome(&Ok(Err(d)))))],
         ParamError::Path(PathError::Refused(error)) => refused(error, None),
         ParamError::Refused { error, item } => refused(error, item),

@@ -204,7 +204,7 @@ fn answered<T: Send>(
         .inner
         .with_answer_timeout(Some(duration(timeout)?));
     py.detach(|| f(&bus, drive, param))
-        .map_err(|e| errors::param(py, &bus, e))
+        .map_err(|e| errors::param_of(py, &bus, drive, param, e))
 }
 
 /// A typed parameter call `f` of `param`, answered within `timeout` s, without the GIL.

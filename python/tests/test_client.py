@@ -311,6 +311,14 @@ def test_a_copy_of_ram_to_rom_raises_the_access_level_for_it_and_puts_it_back(bu
     assert uss_rt.read_param(bus, 2, 971) == 0, "done"
 
 
+def test_a_refusal_for_the_access_level_says_which_level_to_raise_to(bus):
+    with pytest.raises(uss_rt.DriveError) as e:
+        uss_rt.write(bus, 2, "P2014[0]", 200)
+    assert e.value.number == 204
+    assert "P2014 needs access level 3 (P0003 = 3)" in e.value.hint, e.value.hint
+    assert e.value.hint in str(e.value)
+
+
 def test_describe_says_what_the_drive_says_beside_the_catalogue(bus):
     d = uss_rt.describe(bus, 1, "P1120")
     assert (d["param"], d["family"]) == ("P1120", "micromaster4")

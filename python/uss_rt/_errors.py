@@ -70,7 +70,9 @@ class WaitTimeout(UssError, TimeoutError):
 
 
 class DriveError(UssError):
-    """The drive refused the task (reply 7) with USS error `number`."""
+    """The drive refused the task (reply 7) with USS error `number`; `hint` says what to do
+    where the number and the family's catalogue tell it (the access level, quick
+    commissioning, the limits), else None."""
 
 
 class Refused(UssError):

@@ -380,3 +380,31 @@ fn a_backup_of_each_family_restored_onto_a_factory_reset_drive_leaves_it_equal()
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A drive's refusal says what to do (issue 46, item 6; the guide's own fixes failed with it,
+/// issue 47): P2014 is level 3 on a MICROMASTER 4 whose P0003 is 1 (error 204: raise P0003
+/// first), and P0304 changes in quick commissioning only (error 17: P0010 = 1 first). From
+/// ussctl and, with the same words, from Python's exception.
+#[test]
+fn a_refused_write_says_the_access_level_or_quick_commissioning_it_needs() {
+    let ussd = Ussd::start("", &[(1, "")]);
+    let (ok, said) = ussctl(&ussd, &["param", "write", "1", "P2014[0]", "200"]);
+    assert!(!ok, "{said}");
+    assert!(
+        said.contains("error 204: access level too low: P2014 needs access level 3 (P0003 = 3)")
+            && said.contains("`ussctl param write 1 P0003 3`"),
+        "{said}"
+    );
+    let (ok, said) = ussctl(&ussd, &["param", "write", "1", "P0304", "400"]);
+    assert!(!ok, "{said}");
+    assert!(
+        said.contains("error 17: not possible in this operating state: P0304 can be changed in quick commissioning only (P0010 = 1)")
+            && said.contains("`ussctl param quick-commission 1 --set P0304=VALUE --unsafe`"),
+        "{said}"
+    );
+    // The way the hint says: P0003 = 3, then the write goes in.
+    assert!(ussctl(&ussd, &["param", "write", "1", "P0003", "3"]).0);
+    let (ok, said) = ussctl(&ussd, &["param", "write", "1", "P2014[0]", "200"]);
+    assert!(ok, "{said}");
+    assert!(ussctl(&ussd, &["param", "write", "1", "P0003", "1"]).0);
+}

@@ -70,7 +70,16 @@ fn exporter_serves_metrics_that_promtool_accepts_and_follows_a_restarted_ussd() 
     // Drive 2 loses a tenth of its replies; a poll fails only when three exchanges in a row are
     // lost (1 in 1000), and with offline_after = 5 the drive stays online through one such poll, so
     // "online" below is a fact about the exporter, not a bet on the random drops.
-    let mut ussd = Ussd::start("offline_after = 5", &[(1, ""), (2, "sim = { drop = 0.1 }")]);
+    // Drive 3 watches its telegrams (100 ms) and is unplugged for half a second: it trips
+    // (F0072) and answers again in fault.
+    let mut ussd = Ussd::start(
+        "offline_after = 5",
+        &[
+            (1, ""),
+            (2, "sim = { drop = 0.1 }"),
+            (3, "sim = { p2014 = 100, unplug = \"300..800\" }"),
+        ],
+    );
     let bus = ussd.bus.clone();
     let mut command = Command::new(binary("uss-exporter", "uss-exporter"));
     command.args(["--bus", &bus, "--listen", "127.0.0.1:0"]);
@@ -100,6 +109,7 @@ fn exporter_serves_metrics_that_promtool_accepts_and_follows_a_restarted_ussd() 
         );
     }
     assert!(s[&format!("uss_retries_total{{bus=\"{bus}\",drive=\"2\"}}")] > 0.0);
+    states_and_faults(&addr, &bus, &s);
     // The exchange-time histogram: cumulative buckets, +Inf is the count, the sum plausible.
     let bucket =
         |le: &str| s[&format!("uss_exchange_duration_seconds_bucket{{bus=\"{bus}\",le=\"{le}\"}}")];
@@ -152,6 +162,33 @@ fn exporter_serves_metrics_that_promtool_accepts_and_follows_a_restarted_ussd() 
     let s = wait_for(&addr, "the restarted ussd", |s| up(s) == Some(1.0));
     assert_eq!(s[&format!("uss_ussd_restarts_total{{bus=\"{bus}\"}}")], 1.0);
     exporter.kill();
+}
+
+/// Each drive's state from its ZSW1: drive 1 in S2, without fault or warning; drive 3 in the
+/// fault its telegram monitoring tripped (issue 46, item 6: no state or fault metrics).
+fn states_and_faults(addr: &str, bus: &str, s: &HashMap<String, f64>) {
+    let state = |s: &HashMap<String, f64>, drive: &str, state: &str| {
+        s.get(&format!(
+            "uss_drive_state{{bus=\"{bus}\",drive=\"{drive}\",state=\"{state}\"}}"
+        ))
+        .copied()
+    };
+    assert_eq!(state(s, "1", "S2"), Some(1.0), "{s:?}");
+    assert_eq!(state(s, "1", "S4"), Some(0.0));
+    assert_eq!(state(s, "1", "unknown"), Some(0.0));
+    assert_eq!(
+        s[&format!("uss_drive_fault{{bus=\"{bus}\",drive=\"1\"}}")],
+        0.0
+    );
+    assert_eq!(
+        s[&format!("uss_drive_warning{{bus=\"{bus}\",drive=\"1\"}}")],
+        0.0
+    );
+    let s = wait_for(addr, "drive 3's fault", |s| {
+        state(s, "3", "fault") == Some(1.0)
+            && s.get(&format!("uss_drive_fault{{bus=\"{bus}\",drive=\"3\"}}")) == Some(&1.0)
+    });
+    assert_eq!(state(&s, "3", "S2"), Some(0.0));
 }
 
 /// `promtool check metrics` on the classic text format. Without promtool the check says so;

@@ -874,9 +874,9 @@ fn a_republished_stop_never_re_arms_an_operator_stop() {
 /// A stop's confirmation is of that stop, not of an older one (seen on CI: the guide's `ussctl
 /// quick-stop --all`, then `ussctl ack 1`, refused "latched 0.06 s ago"): a drive already latched
 /// by an operator's coast shows a stop as strong as a quick stop before ussd has taken the new
-/// one, and ussd latches it anew at the drive's next poll. `wait_stopped` returns the image of a
-/// poll after the call, whose latch is the new stop's, so a re-arm asked after it returned finds
-/// the latch older than itself.
+/// one, and ussd latches it anew at the drive's next poll. `wait_stopped` after this handle's
+/// stop returns an image whose latch began when the stop was sent or later: the new stop's, so a
+/// re-arm asked after it returned finds the latch older than itself.
 #[test]
 fn a_stops_confirmation_shows_that_stop_not_an_older_one() {
     let _serial = serial();
@@ -1016,6 +1016,37 @@ fn hz_are_scaled_by_the_reference_frequency_the_drive_uses() {
     let mut stats = ussd.ussctl(&["stats"]);
     let (_, out, _) = stats.finish();
     assert!(out.contains("reference 50 Hz,"), "{out}");
+}
+
+/// `ussctl run --percent` (issue 46, item 6: `run` took Hz only, which a drive whose reference
+/// is a speed, a G120's p2000 in rpm, does not): the setpoint is the percentage of the drive's
+/// own reference, sent as it is (20 % is 0x0CCC), with no reference frequency needed.
+#[test]
+fn ussctl_runs_a_drive_at_a_percentage_of_its_reference() {
+    let _serial = serial();
+    let ussd = Ussd::start("", &[(1, "")]);
+    quick_ramps(&ussd.bus(), 1);
+    let watch = ussd.bus().watch(addr(1)).unwrap();
+    let (status, out, err) = ussd
+        .ussctl(&["run", "1", "--percent", "20", "--for", "1.5"])
+        .finish();
+    let out = format!("{out}{err}");
+    assert!(status.success(), "{out}");
+    assert!(
+        out.contains("drive 1: running towards 20 % of its reference (50 Hz)"),
+        "{out}"
+    );
+    assert!(out.contains("drive 1: ran; OFF1 sent"), "{out}");
+    let peak: f32 = out
+        .split("peak ")
+        .nth(1)
+        .and_then(|p| p.split(" Hz").next())
+        .and_then(|p| p.trim().parse().ok())
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!((9.0..=10.5).contains(&peak), "20 % of 50 Hz: {out}");
+    let (status, _, err) = ussd.ussctl(&["run", "1"]).finish();
+    assert!(!status.success() && err.contains("--hz"), "{err}");
+    drop(watch);
 }
 
 #[test]

@@ -451,7 +451,7 @@ mod tests {
         assert!(matches!(
             cli.command,
             Command::Run(ref r)
-                if r.drive.get() == 5 && r.hz == -10.0 && r.duration == Some(2.0)
+                if r.drive.get() == 5 && r.hz == Some(-10.0) && r.duration == Some(2.0)
         ));
         assert!(Cli::try_parse_from(["ussctl", "param", "read", "1", "99999"]).is_err());
     }

@@ -19,6 +19,15 @@ pub(crate) enum Failure {
         param: String,
         source: ParamError,
     },
+    /// A write the drive refused, with what to do (`Bus::refusal_hint`: the access level, quick
+    /// commissioning, the limits).
+    #[error("drive {drive} {param}: {source}: {hint}")]
+    Refused {
+        drive: Address,
+        param: String,
+        source: Box<ParamError>,
+        hint: String,
+    },
     /// A write whose task reached the drive but whose answer did not come back: the value
     /// may be applied; says how to check.
     #[error("drive {drive} {param}: {source}: `{check}`")]

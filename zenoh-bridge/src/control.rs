@@ -88,9 +88,10 @@ fn stop_command(payload: Option<&str>) -> Result<StopCommand, String> {
     }
 }
 
-/// What a stop query sent: the command, and what it named (the drives it went to, and the keys
-/// their replies go out under).
-type Sent = (StopCommand, StopTarget, Vec<Address>);
+/// What a stop query sent: the command, what it named (the drives it went to, and the keys
+/// their replies go out under), and when it was sent (`CLOCK_MONOTONIC` ns: the latch that
+/// confirms it began then or later).
+type Sent = (StopCommand, StopTarget, Vec<Address>, u64);
 
 /// Sends the stop a query asks for, or says why not.
 fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent, String> {
@@ -117,6 +118,7 @@ fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent,
         .transpose()
         .map_err(|_| "the stop command is not text: send off1, off2 or off3".to_owned())?;
     let command = stop_command(payload.as_deref())?;
+    let sent_ns = uss_client::monotonic_ns();
     let drives = match &target {
         StopTarget::Drives(named) => {
             let mut sent = Vec::new();
@@ -128,14 +130,19 @@ fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent,
         }
         StopTarget::Bus(_) => bus.stop_all(command).map_err(|e| e.to_string())?,
     };
-    Ok((command, target, drives))
+    Ok((command, target, drives, sent_ns))
 }
 
 /// The reply to a stop that went out: each drive's image once it shows the command, within
 /// [`STOP_TIMEOUT`] or the longest handshake time of the drives (at most
 /// [`STOP_TIMEOUT_MAX`]) for all of them; a drive that does not show it in time is marked
 /// unconfirmed ([`stop_json`]).
-fn confirm_stop<'a>(name: &'a str, command: StopCommand, drives: &[Address]) -> Vec<StopReply<'a>> {
+fn confirm_stop<'a>(
+    name: &'a str,
+    command: StopCommand,
+    drives: &[Address],
+    sent_ns: u64,
+) -> Vec<StopReply<'a>> {
     let bus = Bus::open_as(name, "uss-zenoh-stop").ok();
     let wait = bus.as_ref().map_or(STOP_TIMEOUT, |b| {
         drives
@@ -153,7 +160,7 @@ fn confirm_stop<'a>(name: &'a str, command: StopCommand, drives: &[Address]) -> 
                 .as_ref()
                 .ok_or_else(|| format!("ussd is not running on {name}"))
                 .and_then(|b| {
-                    b.wait_stopped(drive, command, Some(left))
+                    b.wait_stopped_since(drive, command, sent_ns, Some(left))
                         .map_err(|e| e.to_string())
                 });
             StopReply::new(name, drive.get(), command, shown)
@@ -204,7 +211,7 @@ pub fn serve_stops(
             .map_err(Clone::clone)
             .and_then(|b| send_stop(b, keys, gate, &query));
         match sent {
-            Ok((command, target, drives)) => {
+            Ok((command, target, drives, sent_ns)) => {
                 if confirming.load(Ordering::Relaxed) >= MAX_CONFIRMING {
                     // Each confirmation holds a reader of ussd's services: a flood of stops must
                     // not take them from ussctl and the controllers. The stop went out.
@@ -225,7 +232,7 @@ pub fn serve_stops(
                 let confirmed = std::thread::Builder::new()
                     .name("stop-reply".to_owned())
                     .spawn(move || {
-                        let replies = confirm_stop(&name, command, &drives);
+                        let replies = confirm_stop(&name, command, &drives, sent_ns);
                         reply_stops(&query, &target, &replies);
                         confirming.fetch_sub(1, Ordering::Relaxed);
                     });

@@ -98,9 +98,10 @@ fn answer(
     rules.gate.check(peer, right, Some(drive))?;
     let bus = bus.map_err(Clone::clone)?;
     // The texts of `ussctl param read/write` for the same failures.
-    let failed = |e: ParamError| match e {
-        ParamError::Value { .. } => format!("drive {drive} {e}"),
-        e => format!("drive {drive} {param}: {e}"),
+    let failed = |e: ParamError| match (&e, bus.refusal_hint(drive, param, &e)) {
+        (ParamError::Value { .. }, _) => format!("drive {drive} {e}"),
+        (_, Some(hint)) => format!("drive {drive} {param}: {e}: {hint}"),
+        (_, None) => format!("drive {drive} {param}: {e}"),
     };
     let value = match payload {
         None => ParamReply::new(

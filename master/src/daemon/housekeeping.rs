@@ -452,16 +452,7 @@ fn log_event(bus: &BusConfig, event: &Event) {
             at,
             from,
             to,
-        } => {
-            let from = from.map_or("unknown", uss_protocol::DriveState::short_name);
-            tracing::debug!(
-                bus = bus.name,
-                drive = address.get(),
-                at_s = at.as_secs_f64(),
-                "drive {address}: {from} -> {}",
-                to.short_name()
-            );
-        }
+        } => log_state(bus, address, at, from, to),
         Event::CycleOverrun { at, took } => {
             tracing::warn!(
                 bus = bus.name,
@@ -470,5 +461,44 @@ fn log_event(bus: &BusConfig, event: &Event) {
                 "cycle took longer than cycle_time"
             );
         }
+    }
+}
+
+/// A drive's change of state: a fault (the drive's own trip) as a warning with what to do,
+/// its end as information, the rest at debug level.
+fn log_state(
+    bus: &BusConfig,
+    address: uss_protocol::Address,
+    at: core::time::Duration,
+    from: Option<uss_protocol::DriveState>,
+    to: uss_protocol::DriveState,
+) {
+    use uss_protocol::DriveState;
+    let was = from.map_or("unknown", DriveState::short_name);
+    if to == DriveState::Fault {
+        // A trip of the drive itself (its telegram monitoring F0072, an overcurrent): said
+        // where an operator looks, with what to do.
+        tracing::warn!(
+            bus = bus.name,
+            drive = address.get(),
+            at_s = at.as_secs_f64(),
+            "drive {address}: FAULT ({was} -> fault): the drive tripped; `ussctl faults {address}` names the fault, `ussctl ack {address}` acknowledges it once its cause is gone"
+        );
+    } else if from == Some(DriveState::Fault) {
+        tracing::info!(
+            bus = bus.name,
+            drive = address.get(),
+            at_s = at.as_secs_f64(),
+            "drive {address}: fault cleared (now {})",
+            to.short_name()
+        );
+    } else {
+        tracing::debug!(
+            bus = bus.name,
+            drive = address.get(),
+            at_s = at.as_secs_f64(),
+            "drive {address}: {was} -> {}",
+            to.short_name()
+        );
     }
 }

@@ -308,10 +308,18 @@ fn write(bus: &Bus, out: &Output, w: &Write) -> Result<(), Failure> {
             source: Box::new(source),
             check: cli::command_line(bus.name(), &format!("param read {drive} {param}")),
         },
-        source => Failure::Param {
-            drive,
-            param: param.to_string(),
-            source,
+        source => match bus.refusal_hint(drive, param, &source) {
+            Some(hint) => Failure::Refused {
+                drive,
+                param: param.to_string(),
+                source: Box::new(source),
+                hint,
+            },
+            None => Failure::Param {
+                drive,
+                param: param.to_string(),
+                source,
+            },
         },
     };
     // A type named for a parameter whose own type is known: the same kind, written as its own

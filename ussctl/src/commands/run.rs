@@ -14,7 +14,7 @@ const OFFLINE_GRACE: Duration = Duration::from_secs(3);
 
 /// Re-arms the drive (OFF1 naming its latch: S1 -> S2, or it stays in S2..S4) and runs it
 /// (S2 -> S3 -> S4).
-fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
+fn start_running(bus: &Bus, c: &Controller, speed: Speed) -> Result<(), Failure> {
     let drive = c.address();
     let first = c.inputs().latest();
     if first.online == 0 {
@@ -40,11 +40,16 @@ fn start_running(bus: &Bus, c: &Controller, hz: f32) -> Result<(), Failure> {
                     | DriveState::OperationEnabled
             )
     })?;
-    // A drive that just came online, was reset or commissioned has its reference read again:
-    // ussd scales no Hz with the old one, so wait for it (a poll or two).
-    let inputs = c.inputs();
-    inputs.wait_for_reference(inputs.reference_wait())?;
-    c.run_hz(hz)?;
+    match speed {
+        Speed::Hz(hz) => {
+            // A drive that just came online, was reset or commissioned has its reference read
+            // again: ussd scales no Hz with the old one, so wait for it (a poll or two).
+            let inputs = c.inputs();
+            inputs.wait_for_reference(inputs.reference_wait())?;
+            c.run_hz(hz)?;
+        }
+        Speed::Percent(p) => c.run_percent(p)?,
+    }
     c.wait_for_state(DriveState::OperationEnabled, state_timeout(c))?;
     Ok(())
 }
@@ -94,16 +99,39 @@ pub struct Run {
     #[arg(value_parser = crate::cli::address)]
     pub(crate) drive: Address,
     /// Frequency in Hz; negative runs the other way.
-    #[arg(long, allow_negative_numbers = true, value_name = "HZ")]
-    pub(crate) hz: f32,
+    #[arg(
+        long,
+        allow_negative_numbers = true,
+        value_name = "HZ",
+        required_unless_present = "percent",
+        conflicts_with = "percent"
+    )]
+    pub(crate) hz: Option<f32>,
+    /// The setpoint in % of the drive's reference (P2000, p2000: 100 % is its reference
+    /// frequency or speed; a G120's is in rpm); negative runs the other way.
+    #[arg(long, allow_negative_numbers = true, value_name = "PERCENT")]
+    pub(crate) percent: Option<f32>,
     /// Run this many seconds, then stop (default: until Ctrl-C).
     #[arg(long = "for", value_name = "SECONDS")]
     pub(crate) duration: Option<f64>,
 }
 
+/// What `run` runs towards.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Speed {
+    Hz(f32),
+    /// % of the drive's reference: no reference frequency needed.
+    Percent(f32),
+}
+
 impl Run {
     pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
-        run_drive(bus, out, self.drive, self.hz, self.duration)
+        let speed = match (self.hz, self.percent) {
+            (_, Some(p)) => Speed::Percent(p),
+            (Some(hz), None) => Speed::Hz(hz),
+            (None, None) => return Err(Failure::Usage("give --hz or --percent".to_owned())),
+        };
+        run_drive(bus, out, self.drive, speed, self.duration)
     }
 }
 
@@ -111,7 +139,7 @@ fn run_drive(
     bus: &Bus,
     out: &Output,
     drive: Address,
-    hz: f32,
+    speed: Speed,
     duration: Option<f64>,
 ) -> Result<(), Failure> {
     let duration = duration
@@ -122,14 +150,18 @@ fn run_drive(
         .transpose()?;
     let c = control(bus, drive)?;
     catch_signals()?;
-    start_running(bus, &c, hz)?;
+    start_running(bus, &c, speed)?;
     let reference = c
         .inputs()
         .info()
         .reference()
         .map_or_else(|| "being read again".to_owned(), |r| format!("{r} Hz"));
+    let towards = match speed {
+        Speed::Hz(hz) => format!("{hz} Hz (reference {reference})"),
+        Speed::Percent(p) => format!("{p} % of its reference ({reference})"),
+    };
     out.note(&format!(
-        "drive {drive}: running towards {hz} Hz (reference {reference}) on {}; {}",
+        "drive {drive}: running towards {towards} on {}; {}",
         // The bus by name: it may come from USS_BUS, which a shell keeps out of sight.
         bus.name(),
         match duration {

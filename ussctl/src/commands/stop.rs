@@ -36,6 +36,9 @@ impl Target {
 /// as ussd says the drive's next poll may take. Where this process cannot read the images (the
 /// services admit no more readers), the stop stands and the report says it is unconfirmed.
 fn stop(bus_name: &str, out: &Output, target: Target, command: StopCommand) -> Result<(), Failure> {
+    // The latch that confirms the stop began when it was sent, or later: not an older one of
+    // an as strong stop.
+    let sent = uss_client::monotonic_ns();
     let drives = uss_client::stop(bus_name, target.drive, command)?;
     let mut report = StopReport::new(bus_name, command);
     let bus = match Bus::open_as(bus_name, "ussctl") {
@@ -48,7 +51,7 @@ fn stop(bus_name: &str, out: &Output, target: Target, command: StopCommand) -> R
     };
     if let Some(bus) = bus {
         for drive in drives {
-            match bus.wait_stopped(drive, command, None) {
+            match bus.wait_stopped_since(drive, command, sent, None) {
                 Ok(last) => report.push(drive, &last),
                 Err(e @ ClientError::Ipc { .. }) => report.unconfirmed(&[drive], &e),
                 Err(source) => {
