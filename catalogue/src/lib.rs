@@ -467,6 +467,23 @@ const fn four() -> u8 {
     4
 }
 
+/// `p` as manuals that write `digits` digits write it: its letter, its number with at least
+/// `digits` digits, its element (`P303`, `r947[2]` with 3; `P1082`, `r0947[2]` with 4, as
+/// [`ParamRef`]'s own text).
+pub fn notation(p: ParamRef, digits: u8) -> String {
+    let text = p.to_string();
+    let width = usize::from(digits);
+    if width >= 4 {
+        return text;
+    }
+    // The letter, the four digits the protocol writes, the rest (`[2]`).
+    let (letter, rest) = text.split_at(1);
+    let count = rest.chars().take_while(char::is_ascii_digit).count();
+    let (number, tail) = rest.split_at(count);
+    let trimmed = number.trim_start_matches('0');
+    format!("{letter}{trimmed:0>width$}{tail}")
+}
+
 /// The catalogue of one drive family.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -520,6 +537,12 @@ pub struct Catalogue {
     pub quick_commissioning: Option<ParamRef>,
     /// The fault buffer and warnings; none: uss-rt knows no fault buffer of the family.
     pub faults: Option<FaultBuffers>,
+    /// Digits of a parameter number as the family's manuals write it: 4 (`P0003`, `r0947`) on
+    /// MICROMASTER and SINAMICS, 3 on SIMOREG (`P303`, `r947`: OI 6RX1700-0AD76, "No
+    /// parameterization enable (P927)", "Key parameter P051 incorrect" p. 7-23, "was > P151"
+    /// p. 12-8). See [`Catalogue::notation`].
+    #[serde(default = "four")]
+    pub param_digits: u8,
     /// The drive's telegram-off time in ms on the USS link ussd talks over (MM4 P2014[0], G120
     /// p2040): ussd reads it when the drive comes online and checks it; none: not known, the
     /// configuration names it (`monitoring_param`).
@@ -793,6 +816,11 @@ impl Catalogue {
     }
 
     /// The parameter with number `pnu`.
+    /// `p` as the family's manuals write it ([`notation`] with [`Catalogue::param_digits`]).
+    pub fn notation(&self, p: ParamRef) -> String {
+        notation(p, self.param_digits)
+    }
+
     pub fn param(&self, pnu: u16) -> Option<&Param> {
         self.param
             .binary_search_by_key(&pnu, Param::number)

@@ -49,6 +49,9 @@ pub struct ParamValue {
     pub data_type: DataType,
     /// The catalogue's entry; `None`: the drive described the type itself.
     pub info: Option<&'static Param>,
+    /// Digits of a parameter number as the family's manuals write it: 4 (`P1082`), 3 on
+    /// SIMOREG (`P303`); [`ParamValue::id`].
+    pub digits: u8,
 }
 
 /// What a drive says of one of its parameters ([`Bus::drive_description`]); `None` where it
@@ -66,6 +69,11 @@ pub struct Description {
 }
 
 impl ParamValue {
+    /// The parameter as the family's manuals write it: `P1082`, `r0947[2]`; `P303` on SIMOREG.
+    pub fn id(&self) -> String {
+        uss_catalogue::notation(self.param, self.digits)
+    }
+
     /// The value in its own type.
     pub fn typed(&self) -> Typed {
         self.data_type.decode(self.raw)
@@ -98,7 +106,7 @@ impl ParamValue {
 impl fmt::Display for ParamValue {
     /// `P1082 = 50.00 Hz`.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{} = {}", self.param, self.shown())
+        write!(f, "{} = {}", self.id(), self.shown())
     }
 }
 
@@ -132,6 +140,18 @@ impl Bus {
         self.described.catalogue.or_else(|| Catalogue::of(family))
     }
 
+    /// Digits of a parameter number as the manuals of drive `address`'s family write it: 4
+    /// (`P1082`), 3 on SIMOREG (`P303`).
+    pub fn param_digits(&self, address: Address) -> u8 {
+        self.catalogue_of(self.family(address))
+            .map_or(4, |c| c.param_digits)
+    }
+
+    /// `p` as the manuals of drive `address`'s family write it (`P303` on SIMOREG).
+    pub fn notation(&self, address: Address, p: ParamRef) -> String {
+        uss_catalogue::notation(p, self.param_digits(address))
+    }
+
     /// What to do about a drive's refusal `e` of a write of `param` to drive `address`, in the
     /// words every front-end adds to the error's own (ussctl, Python, C, the bridge), where the
     /// number and the family's catalogue tell it; `None` for any other error. The numbers, as
@@ -152,7 +172,7 @@ impl Bus {
         };
         let catalogue = self.catalogue_of(self.family(address));
         let entry = catalogue.and_then(|c| c.param(param.pnu.get()));
-        let id = entry.map_or_else(|| param.to_string(), |p| p.id.to_string());
+        let id = self.notation(address, entry.map_or(param, |p| p.id));
         let limits = entry
             .filter(|p| p.min.is_some() || p.max.is_some())
             .map(|p| {
@@ -177,7 +197,7 @@ impl Bus {
             )),
             204 => {
                 let level = entry.map(|p| p.level)?;
-                let raise = catalogue.and_then(|c| c.access_level)?;
+                let raise = self.notation(address, catalogue.and_then(|c| c.access_level)?);
                 Some(format!(
                     "{id} needs access level {level} ({raise} = {level}); the drive's is lower: \
                      write {raise} = {level} first (`ussctl param write {address} {raise} {level}`), \
@@ -188,7 +208,7 @@ impl Bus {
                 let entry = entry?;
                 match entry.change {
                     uss_catalogue::Change::Commissioning => {
-                        let p = catalogue.and_then(|c| c.commissioning)?;
+                        let p = self.notation(address, catalogue.and_then(|c| c.commissioning)?);
                         Some(format!(
                             "{id} can be changed in quick commissioning only ({p} = 1): \
                              `ussctl param quick-commission {address} --set {id}=VALUE --unsafe` \
@@ -391,6 +411,7 @@ impl Bus {
             raw,
             data_type,
             info,
+            digits: self.param_digits(address),
         })
     }
 
@@ -439,6 +460,7 @@ impl Bus {
                     raw: raw?,
                     data_type,
                     info: Some(p),
+                    digits: self.param_digits(address),
                 });
             }
         }
@@ -453,6 +475,7 @@ impl Bus {
             raw,
             data_type: by_reply(raw),
             info: None,
+            digits: self.param_digits(address),
         })
     }
 
@@ -490,12 +513,12 @@ impl Bus {
         unindexed(param, info)?;
         if info.is_some_and(|p| !p.is_writable()) {
             return Err(ParamError::Value {
-                param: shown.to_string(),
+                param: self.notation(address, shown),
                 problem: "read-only: a monitoring (r) parameter cannot be written".to_owned(),
             });
         }
         let value = data_type.parse(text).map_err(|e| ParamError::Value {
-            param: shown.to_string(),
+            param: self.notation(address, shown),
             problem: e.to_string(),
         })?;
         let raw = self.write_with(address, param, value, options)?;
@@ -504,6 +527,7 @@ impl Bus {
             raw,
             data_type,
             info,
+            digits: self.param_digits(address),
         })
     }
 }
@@ -620,6 +644,13 @@ pub struct Warning {
     pub text: Option<&'static str>,
 }
 
+impl FaultReport {
+    /// `p` as the family's manuals write it (`r947` on SIMOREG, `r0947` on MICROMASTER 4).
+    pub fn notation(&self, p: ParamRef) -> String {
+        uss_catalogue::notation(p, self.param_digits)
+    }
+}
+
 /// The drive's fault buffer and active warnings, read in one request.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FaultReport {
@@ -631,6 +662,9 @@ pub struct FaultReport {
     /// Digits of a fault or warning number as the family's manuals write it: 4 (F0072), 5 on
     /// SINAMICS (F01910).
     pub digits: u8,
+    /// Digits of a parameter number as the family's manuals write it (`r947` on SIMOREG):
+    /// [`FaultReport::notation`].
+    pub param_digits: u8,
     /// Recorded faults, newest first (empty slots left out).
     pub faults: Vec<Fault>,
     /// Active warnings; `None` when the drive (or its family) has none.
@@ -728,6 +762,7 @@ impl Bus {
             values: b.values,
             warnings_from: b.warnings,
             digits: b.digits,
+            param_digits: self.param_digits(address),
             faults,
             warnings,
         })

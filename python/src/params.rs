@@ -130,7 +130,7 @@ fn type_name(t: DataType) -> &'static str {
 fn value_dict<'py>(py: Python<'py>, v: &ParamValue) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     let (raw, is_dword) = raw(v.raw);
-    d.set_item("param", v.param.to_string())?;
+    d.set_item("param", v.id())?;
     d.set_item("raw", raw)?;
     d.set_item("is_dword", is_dword)?;
     d.set_item("data_type", type_name(v.data_type))?;
@@ -507,9 +507,12 @@ fn fault_report<'py>(
         faults.append(d)?;
     }
     let d = PyDict::new(py);
-    d.set_item("codes", report.codes.to_string())?;
-    d.set_item("values", report.values.map(|p| p.to_string()))?;
-    d.set_item("warnings_from", report.warnings_from.map(|p| p.to_string()))?;
+    d.set_item("codes", report.notation(report.codes))?;
+    d.set_item("values", report.values.map(|p| report.notation(p)))?;
+    d.set_item(
+        "warnings_from",
+        report.warnings_from.map(|p| report.notation(p)),
+    )?;
     d.set_item("faults", faults)?;
     let warnings = report
         .warnings

@@ -619,13 +619,14 @@ def test_each_family_reads_its_own_parameters_and_fault_buffer(tmp_path):
     try:
         daemon.wait_for_services()
         with uss_rt.open_bus(f"{BUS}-families") as bus:
-            for address, codes, number in [(3, "r0945", 1910), (4, "r0947", 11)]:
+            # A SIMOREG's manuals write three digits (P303, r947: OI 6RX1700-0AD76).
+            for address, codes, number in [(3, "r0945", 1910), (4, "r947", 11)]:
                 wait_for_input(bus, address, lambda i: i["online"] == 1 and i["zsw1"] & 0x0008)
                 report = uss_rt.fault_report(bus, address)
                 assert report["codes"] == codes
                 assert report["faults"][0]["number"] == number
             assert repr(uss_rt.read(bus, 3, "p1121")) == "p1121 = 10.00 s"
-            assert repr(uss_rt.read(bus, 4, "P303")) == "P0303 = 1000 x 0.01 s"
+            assert repr(uss_rt.read(bus, 4, "P303")) == "P303 = 1000 x 0.01 s"
             with pytest.raises(ValueError, match="no fault buffer uss-rt knows"):
                 uss_rt.fault_report(bus, 5)
     finally:

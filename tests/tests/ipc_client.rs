@@ -712,6 +712,16 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
         "",
     );
     let bus = ussd.bus();
+    // ussd reads each drive's reference (P2000) when it comes online: until then it is not
+    // known (0), and a run in Hz waits for it as here (seen on a loaded CI run).
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while [1, 2]
+        .iter()
+        .any(|&a| bus.diag(addr(a)).unwrap().info.reference().is_none())
+    {
+        assert!(Instant::now() < deadline, "ussd never read the references");
+        std::thread::sleep(Duration::from_millis(10));
+    }
     let info = bus.diag(addr(1)).unwrap().info;
     assert_eq!(
         (
@@ -1026,6 +1036,7 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
             values: Some("r0949".parse().unwrap()),
             warnings_from: Some("r2110".parse().unwrap()),
             digits: 4,
+            param_digits: 4,
             faults: vec![uss_client::Fault {
                 slot: 0,
                 number: 72,

@@ -286,7 +286,7 @@ impl<'a> ParamReply<'a> {
             v: VERSION,
             bus,
             drive,
-            param: p.param.to_string(),
+            param: p.id(),
             value: p.typed(),
             raw: p.raw.as_u32(),
             data_type: p.data_type.to_string(),

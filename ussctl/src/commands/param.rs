@@ -90,6 +90,7 @@ fn read(
                 raw: bus.read(drive, param).map_err(failed)?,
                 data_type: kind.data_type(),
                 info: None,
+                digits: bus.param_digits(drive),
             }],
         },
     };
@@ -348,6 +349,7 @@ fn write(bus: &Bus, out: &Output, w: &Write) -> Result<(), Failure> {
                     .map_err(failed)?,
                 data_type: kind.data_type(),
                 info: None,
+                digits: bus.param_digits(drive),
             }
         }
     };

@@ -124,7 +124,7 @@ impl ParamReport {
         Self {
             bus: bus.to_owned(),
             drive: drive.get(),
-            param: v.param.to_string(),
+            param: v.id(),
             pnu: v.param.pnu.get(),
             index: v.param.index.map(Subindex::get),
             name: v.name(),
@@ -237,9 +237,9 @@ impl FaultsReport {
         Self {
             bus: bus.to_owned(),
             drive: drive.get(),
-            codes_param: r.codes.to_string(),
-            values_param: r.values.map(|p| p.to_string()),
-            warnings_param: r.warnings_from.map(|p| p.to_string()),
+            codes_param: r.notation(r.codes),
+            values_param: r.values.map(|p| r.notation(p)),
+            warnings_param: r.warnings_from.map(|p| r.notation(p)),
             faults: r
                 .faults
                 .iter()

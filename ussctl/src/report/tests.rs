@@ -121,6 +121,7 @@ fn parameters_show_in_their_type_and_unit() {
         raw: Value::Dword(0x4248_0000),
         data_type: uss_client::DataType::Float,
         info,
+        digits: 4,
     };
     let p = ParamReport::new("b0", Address::new(1).unwrap(), &v);
     assert_eq!(p.human(), "drive 1 P1082 = 50.00 Hz  (Max. frequency)");
@@ -135,6 +136,7 @@ fn parameters_show_in_their_type_and_unit() {
         raw: Value::Word(0xFB31),
         data_type: uss_client::DataType::U16,
         info: uss_client::Catalogue::micromaster4().param(52),
+        digits: 4,
     };
     let mut p = ParamReport::new("b0", Address::new(1).unwrap(), &zsw1);
     assert!(
@@ -170,6 +172,7 @@ fn faults_list_recorded_codes_with_texts_values_and_warnings() {
         values: Some("r0949".parse().unwrap()),
         warnings_from: Some("r2110".parse().unwrap()),
         digits: 4,
+        param_digits: 4,
         faults: vec![
             uss_client::Fault {
                 slot: 0,
@@ -212,6 +215,7 @@ fn faults_list_recorded_codes_with_texts_values_and_warnings() {
             values: None,
             warnings_from: None,
             digits: 4,
+            param_digits: 4,
             faults: Vec::new(),
             warnings: None,
         },
