@@ -69,7 +69,9 @@ impl RestoreOptions {
 }
 
 /// One value of a restore: what the drive had, what the file says, what happened.
+// With `view`, the report line of every front-end (`ussctl --json`, the Zenoh bridge).
 #[derive(Debug, Clone, PartialEq, Eq)]
+#[cfg_attr(feature = "view", derive(serde::Serialize, schemars::JsonSchema))]
 pub struct RestoreLine {
     pub param: String,
     pub was: Option<String>,
@@ -78,7 +80,7 @@ pub struct RestoreLine {
     /// its answer was lost: the drive may hold the value), "not written"; for the access level
     /// and quick commissioning a restore cut short had raised: "put back after Ctrl-C" or "put
     /// back after the cut" (`was` the raised value, `wanted` the drive's before the restore),
-    /// or "LEFT RAISED: ..." with why.
+    /// or "LEFT RAISED: ..." with why and the command that puts it back.
     pub result: String,
 }
 

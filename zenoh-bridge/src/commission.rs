@@ -24,9 +24,7 @@ use crate::control::Held;
 use crate::gate::Peer;
 use crate::keys::{Keys, has_wildcards};
 use crate::params::{Queued, WRITES_REFUSED, reply};
-use crate::payload::{
-    DescribeReply, DiffReply, Differs, RestoreReply, Restored, SaveReply, VERSION,
-};
+use crate::payload::{DescribeReply, DiffReply, Differs, RestoreReply, SaveReply, VERSION};
 use crate::policy::Right;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -70,10 +68,7 @@ fn ask_of(keys: &Keys, key: &str) -> Result<(Address, Ask), String> {
     let (drive, what) = rest
         .split_once('/')
         .ok_or_else(|| format!("{key}: .../drive/<addr>/<backup|diff|restore|save|describe/P>"))?;
-    let address = drive
-        .parse::<u8>()
-        .ok()
-        .and_then(|a| Address::new(a).ok())
+    let address = crate::keys::address(drive)
         .ok_or_else(|| format!("{key}: {drive:?} is not a drive address 0..=31"))?;
     let ask = match what {
         "backup" => Ask::Backup,
@@ -257,16 +252,7 @@ fn restore<'a>(
             .collect(),
         stored: done.stored.clone(),
         ignored: done.ignored.clone(),
-        lines: done
-            .lines
-            .iter()
-            .map(|l| Restored {
-                param: l.param.clone(),
-                was: l.was.clone(),
-                wanted: l.wanted.clone(),
-                result: l.result.clone(),
-            })
-            .collect(),
+        lines: done.lines.clone(),
         seconds: done.took.as_secs_f64(),
     })
 }
@@ -274,10 +260,7 @@ fn restore<'a>(
 /// A restore or copy of a drive this bridge holds for a remote controller, asked by another
 /// peer than that controller's verified name: refused.
 fn held_by_another(held: &Held, peer: &Peer, drive: Address) -> Result<(), String> {
-    match held
-        .holder(drive)
-        .filter(|h| h.verified.is_none() || h.verified.as_deref() != peer.verified_name())
-    {
+    match held.held_from(drive, peer) {
         Some(holder) => Err(format!(
             "drive {drive}: the drive runs under remote control by {:?} through this bridge: \
              commissioning from the network is refused until it releases the drive, but from \

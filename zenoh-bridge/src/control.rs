@@ -276,6 +276,14 @@ impl Held {
             .cloned()
     }
 
+    /// Who holds `drive` for a remote controller other than `peer`: a controller that named no
+    /// verified identity, or another one than `peer`'s. Such a holder's drive takes no
+    /// parameter write or commissioning from `peer`.
+    pub fn held_from(&self, drive: Address, peer: &crate::gate::Peer) -> Option<Holder> {
+        self.holder(drive)
+            .filter(|h| h.verified.is_none() || h.verified.as_deref() != peer.verified_name())
+    }
+
     fn set(&self, drive: Address, holder: Option<Holder>) {
         let mut holders = self
             .holders

@@ -342,7 +342,7 @@ pub enum BadKey {
 }
 
 /// A drive address 0..=31 as a key writes it.
-fn address(text: &str) -> Option<Address> {
+pub fn address(text: &str) -> Option<Address> {
     Address::new(text.parse::<u8>().ok()?).ok()
 }
 

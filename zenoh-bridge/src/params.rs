@@ -110,11 +110,7 @@ fn answer(
             &bus.read_param(drive, param).map_err(failed)?,
             None,
         ),
-        Some(_)
-            if let Some(holder) = rules.held.holder(drive).filter(|h| {
-                h.verified.is_none() || h.verified.as_deref() != peer.verified_name()
-            }) =>
-        {
+        Some(_) if let Some(holder) = rules.held.held_from(drive, peer) => {
             return Err(format!(
                 "drive {drive} {param}: the drive runs under remote control by {:?} through \
                  this bridge: parameter writes from the network are refused until it releases \

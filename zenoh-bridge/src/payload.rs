@@ -349,16 +349,6 @@ pub struct DiffReply<'a> {
     pub ignored: Vec<String>,
 }
 
-/// One value of a restore: what the drive held, what the file wants, what became of it.
-#[derive(Debug, Serialize, schemars::JsonSchema)]
-pub struct Restored {
-    pub param: String,
-    /// Null: the drive's value could not be read.
-    pub was: Option<String>,
-    pub wanted: String,
-    pub result: String,
-}
-
 /// The reply to `.../drive/<addr>/restore`: what the download did (the report of `ussctl
 /// param restore`).
 #[derive(Debug, Serialize, schemars::JsonSchema)]
@@ -384,7 +374,7 @@ pub struct RestoreReply<'a> {
     /// With `eeprom`: whether RAM was copied to ROM, in words.
     pub stored: Option<String>,
     pub ignored: Vec<String>,
-    pub lines: Vec<Restored>,
+    pub lines: Vec<uss_client::restore::RestoreLine>,
     pub seconds: f64,
 }
 

@@ -2,24 +2,10 @@
 
 use serde::Serialize;
 use std::fmt::Write as _;
-use uss_client::restore::Restored;
+use uss_client::restore::{RestoreLine, Restored};
 use uss_client::uss_catalogue::Param;
 use uss_client::uss_protocol::ParamRef;
 use uss_client::{Address, Value};
-
-/// One value of a restore: what the drive had, what the file says, what happened.
-#[derive(Debug, Serialize, schemars::JsonSchema)]
-pub struct RestoreLine {
-    pub param: String,
-    pub was: Option<String>,
-    pub wanted: String,
-    /// "planned", "written", "refused: ...", "unknown: ..." (the write reached the drive and
-    /// its answer was lost: the drive may hold the value), "not written"; for the access level
-    /// and quick commissioning a restore cut short had raised: "put back after Ctrl-C" or "put
-    /// back after the cut" (`was` the raised value, `wanted` the drive's before the restore),
-    /// or "LEFT RAISED: ..." with why and the command that puts it back.
-    pub result: String,
-}
 
 /// `param restore`.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
@@ -88,16 +74,7 @@ impl RestoreReport {
             left_raised,
             stored: done.stored.clone(),
             ignored: done.ignored.clone(),
-            lines: done
-                .lines
-                .iter()
-                .map(|l| RestoreLine {
-                    param: l.param.clone(),
-                    was: l.was.clone(),
-                    wanted: l.wanted.clone(),
-                    result: l.result.clone(),
-                })
-                .collect(),
+            lines: done.lines.clone(),
             seconds: done.took.as_secs_f64(),
         }
     }
