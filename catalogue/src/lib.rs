@@ -447,6 +447,12 @@ pub struct FaultBuffers {
     /// faults (r0948).
     #[serde(default, deserialize_with = "some_param_id")]
     pub times: Option<ParamRef>,
+    /// When each fault came, as the SINAMICS system runtime r2114: its milliseconds of the
+    /// day (r0948) and its days (r2130), one element per element of `codes`.
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub received_ms: Option<ParamRef>,
+    #[serde(default, deserialize_with = "some_param_id")]
+    pub received_days: Option<ParamRef>,
     /// Elements of `codes` (and `values`) a report reads.
     pub len: u8,
     /// Faults per trip (fault case), for the times.

@@ -620,6 +620,23 @@ impl core::fmt::Display for FaultTime {
     }
 }
 
+/// When a SINAMICS fault came: the drive's system runtime r2114 then, in days (r2130) and
+/// milliseconds of the day (r0948).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Runtime {
+    pub days: u16,
+    pub ms: u32,
+}
+
+/// `day 3 04:05:06.789`: the runtime's day count and the time of that day.
+impl core::fmt::Display for Runtime {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let ms = self.ms;
+        let (h, m, s, milli) = (ms / 3_600_000, ms / 60_000 % 60, ms / 1000 % 60, ms % 1000);
+        write!(f, "day {} {h:02}:{m:02}:{s:02}.{milli:03}", self.days)
+    }
+}
+
 /// One recorded fault: where it sits in the fault buffer, its number, its fault value and text.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Fault {
@@ -630,8 +647,11 @@ pub struct Fault {
     /// The fault value (r0949) of the same element, its 32 bits as the drive sent them (a
     /// G120's is signed: `as i32`); `None` when the drive has none.
     pub value: Option<u32>,
-    /// r0948 of its trip; `None` when the drive has no r0948 or left it 0.
+    /// r0948 of its trip (MICROMASTER 4); `None` when the drive has no such r0948 or left
+    /// it 0.
     pub time: Option<FaultTime>,
+    /// The runtime it came at (SINAMICS r2130/r0948); `None` where the family has none.
+    pub received: Option<Runtime>,
     /// The catalogue's text.
     pub text: Option<&'static str>,
 }
@@ -642,6 +662,15 @@ pub struct Warning {
     /// A0501 -> 501.
     pub number: u16,
     pub text: Option<&'static str>,
+}
+
+impl Fault {
+    /// When it came, as the drive keeps it: a MICROMASTER 4's trip time, a SINAMICS runtime.
+    pub fn when(&self) -> Option<String> {
+        self.time
+            .map(|t| t.to_string())
+            .or_else(|| self.received.map(|r| r.to_string()))
+    }
 }
 
 impl FaultReport {
@@ -698,9 +727,11 @@ impl Bus {
             (b.values, b.len),
             (b.warnings, b.warnings_len),
             (b.times, times_len),
+            (b.received_ms, b.len),
+            (b.received_days, b.len),
         ];
         let mut tasks = Vec::new();
-        let mut counts = [0usize; 4];
+        let mut counts = [0usize; 6];
         for (k, (param, n)) in parts.into_iter().enumerate() {
             if let Some(p) = param {
                 let before = tasks.len();
@@ -708,10 +739,22 @@ impl Bus {
                 counts[k] = tasks.len() - before;
             }
         }
-        let results = self.batch(address, &tasks);
+        // Up to 40 elements (a G120's codes, values, alarms and two time parameters): more
+        // than one request carries.
+        let results: Vec<_> = tasks
+            .chunks(uss_shm_types::MAX_PARAM_ITEMS)
+            .flat_map(|chunk| self.batch(address, chunk))
+            .collect();
         let (codes, rest) = results.split_at(counts[0].min(results.len()));
         let (values, rest) = rest.split_at(counts[1].min(rest.len()));
-        let (warnings, times) = rest.split_at(counts[2].min(rest.len()));
+        let (warnings, rest) = rest.split_at(counts[2].min(rest.len()));
+        let (times, rest) = rest.split_at(counts[3].min(rest.len()));
+        let (received_ms, received_days) = rest.split_at(counts[4].min(rest.len()));
+        let received = |slot: usize| {
+            let ms = received_ms.get(slot)?.as_ref().ok()?.as_u32();
+            let days = received_days.get(slot)?.as_ref().ok()?.as_u32() as u16;
+            Some(Runtime { days, ms })
+        };
         let word = |r: &Result<Value, ParamError>| r.clone().map(|v| v.as_u32() as u16);
         let mut faults = Vec::new();
         for (slot, code) in codes.iter().enumerate() {
@@ -735,6 +778,7 @@ impl Bus {
                         .and_then(|r| r.as_ref().ok())
                         .map(|v| v.as_u32()),
                     time,
+                    received: received(slot),
                     text: catalogue.and_then(|c| c.fault(number)),
                 });
             }
@@ -779,7 +823,15 @@ fn whole_array(param: ParamRef, entry: Option<&'static Param>) -> Option<(&'stat
 
 #[cfg(test)]
 mod tests {
-    use super::FaultTime;
+    use super::{FaultTime, Runtime};
+
+    #[test]
+    fn a_sinamics_fault_time_is_its_runtime_day_and_time_of_day() {
+        let shown = |days, ms| Runtime { days, ms }.to_string();
+        assert_eq!(shown(0, 0), "day 0 00:00:00.000");
+        assert_eq!(shown(3, 14_706_789), "day 3 04:05:06.789");
+        assert_eq!(shown(65_535, 86_399_999), "day 65535 23:59:59.999");
+    }
 
     #[test]
     fn fault_times_show_a_set_clock_a_clock_never_set_or_their_words() {

@@ -344,10 +344,17 @@ impl Drive {
                 (f.codes, f.per_trip, f.len),
                 (f.values, f.per_trip, f.len),
                 (0, 0, 0),
+                (0, 0, 0),
+                (0, 0, 0),
             ];
             if let Some(times) = f.times {
                 // Three time words per trip.
                 buffers[2] = (times, 3, f.len / f.per_trip * 3);
+            }
+            if let Some((ms, days)) = f.received {
+                // One runtime per fault, shifted with the codes.
+                buffers[3] = (ms, f.per_trip, f.len);
+                buffers[4] = (days, f.per_trip, f.len);
             }
             for (pnu, per_trip, len) in buffers.into_iter().filter(|b| b.2 > 0) {
                 for i in (per_trip..len).rev() {
@@ -360,6 +367,7 @@ impl Drive {
             }
             self.params.set_internal(f.codes, 0, u32::from(code));
             self.params.set_internal(f.values, 0, u32::from(value));
+            self.stamp_received(0);
             if let Some(times) = f.times {
                 for (i, word) in fault_time(self.last_tick.unwrap_or_default())
                     .into_iter()
@@ -371,9 +379,22 @@ impl Drive {
         } else if self.params.get(f.codes, 1) == Some(0) && self.fault != Some(code) {
             self.params.set_internal(f.codes, 1, u32::from(code));
             self.params.set_internal(f.values, 1, u32::from(value));
+            self.stamp_received(1);
         }
         self.fault = Some(code);
         self.publish();
+    }
+
+    /// On SINAMICS, the fault buffer's element `slot` gets the system runtime r2114 (here the
+    /// time since the simulator started): its milliseconds of the day (r0948) and days (r2130).
+    fn stamp_received(&mut self, slot: u8) {
+        if let Some((ms, days)) = self.roles().faults.received {
+            let t = self.last_tick.unwrap_or_default().as_millis();
+            let (of_day, day) = (t % 86_400_000, t / 86_400_000);
+            self.params.set_internal(ms, slot, of_day as u32);
+            self.params
+                .set_internal(days, slot, day.min(u128::from(u16::MAX)) as u32);
+        }
     }
 
     /// A simulated power cycle: RAM parameters come back from EEPROM, the drive starts in S1

@@ -23,12 +23,14 @@ use crate::params::{
 
 /// Where a family keeps its fault buffer: `len` elements of fault codes and of fault values,
 /// `per_trip` faults per trip (newest trip first), and on MICROMASTER 4 three time words per
-/// trip in r0948.
+/// trip in r0948; on SINAMICS the system runtime each fault came at, one element per fault
+/// (`received`: its milliseconds r0948 and days r2130).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FaultBuffer {
     pub codes: u16,
     pub values: u16,
     pub times: Option<u16>,
+    pub received: Option<(u16, u16)>,
     pub len: u8,
     pub per_trip: u8,
 }
@@ -125,6 +127,7 @@ const MICROMASTER4_OWN: Roles = Roles {
         codes: R0947,
         values: R0949,
         times: Some(R0948),
+        received: None,
         len: 8,
         per_trip: 2,
     },
@@ -141,6 +144,8 @@ const MM4_FIRMWARE: u32 = 2.09f32.to_bits();
 /// p0700 = 6 and p1000 = 6: commands and speed setpoint from the fieldbus (the CU240's USS).
 const G120_FIELDBUS: u32 = 6;
 const R0945: u16 = 945;
+/// The day count of each fault's time on SINAMICS (r0948 its milliseconds).
+const R2130: u16 = 2130;
 const P2021: u16 = 2021;
 const P2023: u16 = 2023;
 
@@ -181,6 +186,7 @@ const G120_OWN: Roles = Roles {
         codes: R0945,
         values: R0949,
         times: None,
+        received: Some((R0948, R2130)),
         len: 64,
         per_trip: 8,
     },
@@ -230,6 +236,7 @@ const SIMOREG_OWN: Roles = Roles {
         codes: R947,
         values: R949,
         times: None,
+        received: None,
         len: 64,
         per_trip: 8,
     },

@@ -321,7 +321,7 @@ impl ParamSet {
 /// Most parameters one family's set lists.
 pub const MAX_DEFS: usize = 96;
 /// Most values (one per plain parameter, one per array element) one family's set stores.
-pub const MAX_SLOTS: usize = 320;
+pub const MAX_SLOTS: usize = 512;
 
 /// The parameters a family's table consults itself; `None` where the family has none (its
 /// check is then skipped).

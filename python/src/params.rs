@@ -502,7 +502,7 @@ fn fault_report<'py>(
         d.set_item("slot", f.slot)?;
         d.set_item("number", f.number)?;
         d.set_item("value", f.value)?;
-        d.set_item("time", f.time.map(|t| t.to_string()))?;
+        d.set_item("time", f.when())?;
         d.set_item("text", f.text)?;
         faults.append(d)?;
     }

@@ -63,38 +63,88 @@ fn every_terminal_session_of_the_guide_prints_what_it_says() {
         if !text.contains("```console") {
             continue;
         }
-        // One chapter after the other, each on a fresh bus: the simulated bus ussd runs with no
-        // configuration (master/src/config/mod.rs, EMBEDDED_DEFAULT), under this test's own
-        // bus name.
-        let monitored = "sim = { p2014 = 100 }";
-        let ussd = needs_ussd(&text).then(|| {
-            Ussd::start(
-                "",
-                &[
-                    (1, monitored),
-                    (2, monitored),
-                    (3, "pkw = 127\nsim = { p2014 = 100 }"),
-                    (4, monitored),
-                ],
-            )
-        });
-        let cases = trycmd::TestCases::new();
-        cases
-            .register_bins(bins.clone())
-            .env(
-                "USS_BUS",
-                ussd.as_ref().map_or("guide-nobody", |u| u.bus.as_str()),
-            )
-            .timeout(std::time::Duration::from_secs(60))
-            .case(guide().join("src").join(&name));
-        if let Some(u) = &ussd {
-            cases.insert_var("[BUS]", u.bus.clone()).unwrap();
+        // A drive of the guide's bus trips (F0072) when ussd sends it nothing for 100 ms. A
+        // kernel without preemption (PREEMPT_NONE, as on CI's virtual machines) can hold even
+        // ussd's real-time thread that long while processes start and end around it: the
+        // drives then truly trip, the session rightly differs, and it runs once more on a
+        // fresh bus. A session that differs without a trip fails at once.
+        let first = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            session(&name, &text, &bins);
+        }));
+        match first {
+            Ok(()) => {}
+            Err(_) if STALLED.with(std::cell::Cell::take) => {
+                eprintln!(
+                    "{name}: ussd was held past the drives' 100 ms telegram monitoring and they \
+                     tripped (see ussd's log above); running the chapter once more"
+                );
+                session(&name, &text, &bins);
+            }
+            Err(e) => std::panic::resume_unwind(e),
         }
-        drop(cases);
         ran += 1;
     }
     assert!(ran >= 3, "the guide's terminal sessions: {ran} chapters");
     let _ = std::fs::remove_dir_all(&work);
+}
+
+thread_local! {
+    /// Whether the last [`session`]'s ussd logged a drive's trip.
+    static STALLED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs one chapter's terminal sessions. Each chapter gets a fresh bus: the simulated bus ussd
+/// runs with no configuration (`master/src/config/mod.rs`, `EMBEDDED_DEFAULT`), under this test's
+/// own bus name.
+fn session(name: &str, text: &str, bins: &[(&str, PathBuf)]) {
+    let monitored = "sim = { p2014 = 100 }";
+    let ussd = needs_ussd(text).then(|| {
+        Ussd::start(
+            "",
+            &[
+                (1, monitored),
+                (2, monitored),
+                (3, "pkw = 127\nsim = { p2014 = 100 }"),
+                (4, monitored),
+            ],
+        )
+    });
+    // A session begins once ussd knows every drive's reference, as it does moments after its
+    // start: before, `status` rightly shows NaN Hz.
+    if let Some(u) = &ussd {
+        let bus = u.bus_named("");
+        for a in 1..=4 {
+            bus.watch(uss_integration_tests::addr(a))
+                .unwrap()
+                .wait_for_reference(std::time::Duration::from_secs(20))
+                .unwrap();
+        }
+    }
+    let cases = trycmd::TestCases::new();
+    cases
+        .register_bins(bins.iter().map(|(n, p)| (*n, p.clone())))
+        .env(
+            "USS_BUS",
+            ussd.as_ref().map_or("guide-nobody", |u| u.bus.as_str()),
+        )
+        .timeout(std::time::Duration::from_secs(60))
+        .case(guide().join("src").join(name));
+    if let Some(u) = &ussd {
+        cases.insert_var("[BUS]", u.bus.clone()).unwrap();
+    }
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| drop(cases)));
+    if let Err(e) = result {
+        let tripped = ussd.as_ref().is_some_and(|u| {
+            let log = u.log();
+            let tripped = log.contains("the drive tripped");
+            if tripped {
+                eprintln!("ussd's log:\n{log}");
+            }
+            tripped
+        });
+        STALLED.with(|s| s.set(tripped));
+        std::panic::resume_unwind(e);
+    }
 }
 
 /// A heading's id as mdBook makes it (and GitHub, for these texts): lower case, spaces to `-`,

@@ -1042,6 +1042,7 @@ fn fault_buffer_names_the_fault_and_ussctl_acknowledges_it() {
                 number: 72,
                 value: Some(0),
                 time,
+                received: None,
                 text: Some("USS (COM link) setpoint fault")
             }],
             warnings: Some(Vec::new()),

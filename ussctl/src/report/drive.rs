@@ -216,10 +216,11 @@ pub struct FaultEntry {
     pub code: String,
     /// The fault value (r0949, its 32 bits unsigned); null when the drive has none.
     pub value: Option<u32>,
-    /// r0948 of its trip as shown (`2026-11-22 20:31:05`, or `day 3 04:05:06` from a drive
-    /// clock never set); null when the drive has no r0948 or left it empty.
+    /// When it came as shown: a MICROMASTER 4's r0948 of its trip (`2026-11-22 20:31:05`, or
+    /// `day 3 04:05:06` from a drive clock never set), a SINAMICS runtime r2130/r0948 (`day 3
+    /// 04:05:06.789`); null when the drive has none or left it empty.
     pub time: Option<String>,
-    /// r0948's three words as read.
+    /// A MICROMASTER 4's r0948: its three words as read.
     pub time_words: Option<[u16; 3]>,
     pub text: Option<&'static str>,
 }
@@ -248,7 +249,7 @@ impl FaultsReport {
                     number: f.number,
                     code: format!("F{:0w$}", f.number, w = usize::from(r.digits)),
                     value: f.value,
-                    time: f.time.map(|t| t.to_string()),
+                    time: f.when(),
                     time_words: f.time.map(|t| t.words),
                     text: f.text,
                 })

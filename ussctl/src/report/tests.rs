@@ -181,6 +181,7 @@ fn faults_list_recorded_codes_with_texts_values_and_warnings() {
                 time: Some(uss_client::FaultTime {
                     words: [5 | 31 << 8, 20 | 22 << 8, 11 | 26 << 8],
                 }),
+                received: None,
                 text: Some("CB setpoint fault"),
             },
             uss_client::Fault {
@@ -188,6 +189,7 @@ fn faults_list_recorded_codes_with_texts_values_and_warnings() {
                 number: 999,
                 value: None,
                 time: None,
+                received: None,
                 text: None,
             },
         ],

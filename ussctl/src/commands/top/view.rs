@@ -366,8 +366,9 @@ fn own_view(screen: &Screen, drive: u8) -> Vec<Line<'static>> {
                 .iter()
                 .take(4)
                 .map(|f| {
-                    let time = f.time.map_or_else(String::new, |t| format!(" at {t}"));
-                    format!("F{:04} {}{time}", f.number, f.text.unwrap_or(""))
+                    let time = f.when().map_or_else(String::new, |t| format!(" at {t}"));
+                    let digits = usize::from(report.digits);
+                    format!("F{:0digits$} {}{time}", f.number, f.text.unwrap_or(""))
                 })
                 .collect();
             let warnings = report.warnings.as_ref().map_or_else(
