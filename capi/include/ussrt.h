@@ -442,7 +442,7 @@ typedef struct UssrtFaultReport {
 typedef struct UssrtDescription {
   /**
    * Its data type, as PROFIdrive codes it (descriptive element 1): 3 Integer16, 4
-   * Integer32, 6 Unsigned16, 7 Unsigned32, 8 FloatingPoint.
+   * Integer32, 6 Unsigned16, 7 Unsigned32, 8 `FloatingPoint`.
    */
   uint8_t data_type;
   /**
@@ -765,6 +765,16 @@ enum UssrtStatus ussrt_control_jog(const struct UssrtController *controller, uin
  * `controller` is a live handle.
  */
 enum UssrtStatus ussrt_control_run_percent(const struct UssrtController *controller, float percent);
+
+/**
+ * ON with a setpoint in rpm of the drive's reference speed (a G120's p2000, read with
+ * `pole_pairs` in its configuration): `USSRT_STATUS_INVALID_ARGUMENT` for a drive with no
+ * reference speed, `USSRT_STATUS_REFERENCE_UNKNOWN` while ussd reads it again; nothing sent.
+ *
+ * # Safety
+ * `controller` is a live handle.
+ */
+enum UssrtStatus ussrt_control_run_rpm(const struct UssrtController *controller, float rpm);
 
 /**
  * OFF1: ramp down, then S2 (STW1 0x047E).

@@ -301,6 +301,20 @@ pub unsafe extern "C" fn ussrt_control_run_percent(
     with(controller, |c| Ok(c.run_percent(percent)?))
 }
 
+/// ON with a setpoint in rpm of the drive's reference speed (a G120's p2000, read with
+/// `pole_pairs` in its configuration): `USSRT_STATUS_INVALID_ARGUMENT` for a drive with no
+/// reference speed, `USSRT_STATUS_REFERENCE_UNKNOWN` while ussd reads it again; nothing sent.
+///
+/// # Safety
+/// `controller` is a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_control_run_rpm(
+    controller: *const UssrtController,
+    rpm: f32,
+) -> UssrtStatus {
+    with(controller, |c| Ok(c.run_rpm(rpm)?))
+}
+
 /// OFF1: ramp down, then S2 (STW1 0x047E).
 ///
 /// # Safety

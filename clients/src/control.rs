@@ -530,23 +530,63 @@ impl Controller {
         self.run_setpoint(self.hz_setpoint(hz)?)
     }
 
+    /// Like [`Controller::run_percent`], in rpm: scaled by the drive's reference speed (a
+    /// G120's p2000, [`DriveInfo::reference_rpm`]), which ussd reads with the motor's
+    /// `pole_pairs` from the drive's configuration. A drive whose reference is a frequency
+    /// (MICROMASTER 4's P2000), or a G120 configured without `pole_pairs`, has no reference
+    /// speed ussd knows: refused with [`ClientError::InvalidSetpoint`]; while ussd reads it
+    /// again, [`ClientError::ReferenceUnknown`]. Nothing is sent either way.
+    ///
+    /// [`DriveInfo::reference_rpm`]: uss_shm_types::diag::DriveInfo::reference_rpm
+    pub fn run_rpm(&self, rpm: f32) -> Result<(), ClientError> {
+        self.run_setpoint(self.rpm_setpoint(rpm)?)
+    }
+
+    /// The setpoint of `rpm`, scaled by the drive's reference speed, or why it cannot be.
+    fn rpm_setpoint(&self, rpm: f32) -> Result<Setpoint, ClientError> {
+        let info = self.shared.watch.info();
+        if info.pole_pairs == 0 {
+            return Err(ClientError::InvalidSetpoint {
+                bus: self.shared.bus.clone(),
+                address: self.shared.address.get(),
+                asked: format!("{rpm} rpm"),
+                problem: "cannot be scaled: ussd knows no reference speed of this drive (its \
+                          reference is a frequency; a G120's p2000 in rpm is read with \
+                          `pole_pairs` in its configuration); give the setpoint in Hz or %"
+                    .to_owned(),
+            });
+        }
+        self.scaled(rpm, info.reference_rpm(), "rpm")
+    }
+
     /// The setpoint of `hz`, scaled by the drive's reference frequency as ussd publishes it, or
     /// why it cannot be scaled now (0 Hz is 0 in any scale).
     fn hz_setpoint(&self, hz: f32) -> Result<Setpoint, ClientError> {
-        if hz == 0.0 {
+        self.scaled(hz, self.shared.watch.info().reference(), "Hz")
+    }
+
+    /// The setpoint of `value` in `unit` of `reference` (100 %), or why it cannot be scaled now
+    /// (0 is 0 in any scale).
+    fn scaled(
+        &self,
+        value: f32,
+        reference: Option<f32>,
+        unit: &str,
+    ) -> Result<Setpoint, ClientError> {
+        if value == 0.0 {
             return Ok(Setpoint::from_raw(0));
         }
-        let Some(reference) = self.shared.watch.info().reference() else {
+        let Some(reference) = reference else {
             // A latch (a changed reference latches the drive) is the stronger news: nothing
             // would be sent either way, and the program must re-arm before it runs again.
             self.check()?;
             return Err(ClientError::ReferenceUnknown {
                 bus: self.shared.bus.clone(),
                 address: self.shared.address.get(),
-                asked: format!("{hz} Hz"),
+                asked: format!("{value} {unit}"),
             });
         };
-        self.setpoint(hz, reference, "Hz")
+        self.setpoint(value, reference, unit)
     }
 
     /// The setpoint of `value` in a unit of which `full` is 100 %, or why the word cannot carry
@@ -557,6 +597,8 @@ impl Controller {
                 let (low, high) = (Setpoint::from_raw(i16::MIN), Setpoint::from_raw(i16::MAX));
                 let reference = if unit == "Hz" {
                     format!(" of P2000 = {full:.2} Hz")
+                } else if unit == "rpm" {
+                    format!(" of p2000 = {full:.0} rpm")
                 } else {
                     String::new()
                 };

@@ -163,6 +163,13 @@ impl Controller {
         self.with(py, |c| c.run_percent(percent))
     }
 
+    /// ON with a setpoint in rpm of the drive's reference speed (a G120's p2000, read with
+    /// `pole_pairs` in its configuration); a drive with no reference speed raises
+    /// `ValueError`, nothing sent.
+    fn run_rpm(&self, py: Python<'_>, rpm: f32) -> PyResult<()> {
+        self.with(py, |c| c.run_rpm(rpm))
+    }
+
     /// A new setpoint in Hz, the control word as it is: a running drive follows it, a stopped
     /// one stays stopped.
     fn set_hz(&self, py: Python<'_>, hz: f32) -> PyResult<()> {

@@ -412,6 +412,9 @@ def test_python_has_the_calls_rust_and_c_have(bus):
         for call in (lambda: c.run_hz(5000), lambda: c.set_hz(-1e30), lambda: c.run_percent(250)):
             with pytest.raises(ValueError, match="beyond the setpoint's range"):
                 call()
+        # A MICROMASTER's reference is a frequency: no speed to scale rpm by, nothing sent.
+        with pytest.raises(ValueError, match="cannot be scaled: ussd knows no reference speed"):
+            c.run_rpm(1500)
         after = uss_rt.wait_exchange(bus, 1, count=2)
         assert after["sent_stw1"] == before and after["hiw"] == 0
     with pytest.raises(uss_rt.WaitTimeout):

@@ -7,8 +7,8 @@
   drive's own description for a parameter it does not know.
 - :func:`control`: the drive's one controller, on the client rules every language shares
   (``uss_shm_types::session`` in Rust): ``rearm``, ``enable``, ``run_hz``, ``run_percent``,
-  ``set_hz``, ``jog``, ``stop``, ``coast``, ``quick_stop``, ``acknowledge``, ``keepalive``,
-  ``wait_for_state``, ``release``.
+  ``run_rpm``, ``set_hz``, ``jog``, ``stop``, ``coast``, ``quick_stop``, ``acknowledge``,
+  ``keepalive``, ``wait_for_state``, ``release``.
 """
 
 import uss_rt as _u
@@ -123,7 +123,7 @@ class Controller(_native.Controller):
     :class:`Stalled` or :class:`Tripped`: a trip, not a fresh start. Leaving a ``with`` block
     (or :meth:`release`) hands the drive back cleanly ("released", not a trip).
 
-    The commands (``run_hz``, ``run_percent``, ``set_hz``, ``jog``, ``stop``, ``coast``,
+    The commands (``run_hz``, ``run_percent``, ``run_rpm``, ``set_hz``, ``jog``, ``stop``, ``coast``,
     ``quick_stop``, ``reverse``, ``acknowledge``, ``set_words``, ``keepalive``, ``enable``,
     ``release``) are the native class's, documented there; the images are dicts with enums.
     """

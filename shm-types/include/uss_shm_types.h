@@ -1301,7 +1301,13 @@ typedef struct UssDriveInfo {
    * A [`DriveFamily`] code.
    */
   uint8_t family;
-  uint8_t reserved[2];
+  /**
+   * The motor's pole pairs ussd made the drive's reference speed Hz with (a G120's p2000 in
+   * rpm, `pole_pairs` in its configuration): [`DriveInfo::reference_rpm`]; 0 where the
+   * reference is a frequency (MICROMASTER 4's P2000) or no speed is read.
+   */
+  uint8_t pole_pairs;
+  uint8_t reserved[1];
 #ifdef __cplusplus
   static constexpr const char *IOX2_TYPE_NAME = "UssDriveInfoV9";
 #endif

@@ -182,7 +182,11 @@ pub struct DriveInfo {
     pub weight: u8,
     /// A [`DriveFamily`] code.
     pub family: u8,
-    pub reserved: [u8; 2],
+    /// The motor's pole pairs ussd made the drive's reference speed Hz with (a G120's p2000 in
+    /// rpm, `pole_pairs` in its configuration): [`DriveInfo::reference_rpm`]; 0 where the
+    /// reference is a frequency (MICROMASTER 4's P2000) or no speed is read.
+    pub pole_pairs: u8,
+    pub reserved: [u8; 1],
 }
 
 impl DriveInfo {
@@ -192,6 +196,17 @@ impl DriveInfo {
     /// The reference frequency Hz are scaled by, Hz; none while it is not known.
     pub fn reference(&self) -> Option<f32> {
         Some(self.reference_hz).filter(|hz| hz.is_finite() && *hz > 0.0)
+    }
+
+    /// The reference speed a setpoint in rpm is scaled by (0x4000 = 100 %: a G120's p2000),
+    /// rpm: `reference_hz x 60 / pole_pairs`; none where the reference is no speed or while it
+    /// is not known.
+    pub fn reference_rpm(&self) -> Option<f32> {
+        let pole_pairs = f32::from(self.pole_pairs);
+        (self.pole_pairs > 0)
+            .then(|| self.reference())
+            .flatten()
+            .map(|hz| hz * 60.0 / pole_pairs)
     }
 
     /// A drive ussd has not described (all zero but the version-independent defaults).
@@ -204,7 +219,8 @@ impl DriveInfo {
         pzd_words: 0,
         weight: 0,
         family: DriveFamily::Micromaster4.code(),
-        reserved: [0; 2],
+        pole_pairs: 0,
+        reserved: [0; 1],
     };
 
     pub fn safe_command(&self) -> Result<StopCommand, UnknownCode> {

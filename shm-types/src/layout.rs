@@ -101,7 +101,8 @@ pub const LAYOUTS: &[TypeLayout] = &[
             f("pzd_words", 11, 1),
             f("weight", 12, 1),
             f("family", 13, 1),
-            f("reserved", 14, 2),
+            f("pole_pairs", 14, 1),
+            f("reserved", 15, 1),
         ],
     },
     TypeLayout {

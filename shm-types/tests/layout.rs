@@ -55,7 +55,7 @@ fn actual_layouts() -> Vec<Actual> {
         ]),
         actual!(DriveInfo = DriveInfo::UNKNOWN, [
             reference_hz, watchdog_ms, safe_command, params_writable, pkw_words, pzd_words,
-            weight, family, reserved,
+            weight, family, pole_pairs, reserved,
         ]),
         actual!(DriveCounters = DriveCounters::default(), [
             requests, good, rejected, timeouts, retries, failed_polls, missing_stx, start_pause,

@@ -537,8 +537,46 @@ fn a_g120_reference_speed_is_read_with_its_pole_pairs_and_unverified_without() {
     control
         .wait_for(Duration::from_secs(5), "running", |i| i.hiw > 0)
         .unwrap();
+    // In rpm of p2000 (issue 46, item 6: `run` on a G120 took Hz only): 450 rpm is a quarter
+    // of 1800, the setpoint 0x1000; `ussctl run --rpm` says the reference speed it scales by.
+    assert_eq!(watch.info().reference_rpm(), Some(1800.0));
+    control.run_rpm(450.0).unwrap();
+    assert_eq!(control.words()[1], 0x1000);
+    assert!(matches!(
+        control.run_rpm(-3700.0),
+        Err(uss_client::ClientError::InvalidSetpoint { .. })
+    ));
     control.stop().unwrap();
     control.release().unwrap();
+    let (status, out, err) = ussd
+        .ussctl(&["run", "3", "--rpm", "900", "--for", "0.5"])
+        .finish();
+    assert!(status.success(), "{out}{err}");
+    assert!(
+        out.contains("running towards 900 rpm (reference speed 1800 rpm, 60 Hz)"),
+        "{out}"
+    );
+    // Without its pole pairs ussd knows no reference speed: an rpm setpoint is refused and
+    // nothing sent, in the library and in ussctl (which hands the drive back latched).
+    let (status, _, err) = ussd.ussctl(&["run", "4", "--rpm", "900"]).finish();
+    assert!(
+        !status.success() && err.contains("knows no reference speed"),
+        "{err}"
+    );
+    let four = bus
+        .control(addr(4), uss_client::ControlOptions::default())
+        .unwrap();
+    four.rearm(uss_client::monotonic_ns()).unwrap();
+    let before = four.words();
+    let refused = four.run_rpm(900.0).unwrap_err();
+    assert!(
+        refused
+            .to_string()
+            .contains("900 rpm cannot be scaled: ussd knows no reference speed"),
+        "{refused}"
+    );
+    assert_eq!(four.words(), before, "nothing sent");
+    four.release().unwrap();
     // Without its pole pairs nothing checks reference_hz against the drive: ussd says so.
     assert_eq!(bus.watch(addr(4)).unwrap().info().reference_hz, 50.0);
     assert!(

@@ -67,6 +67,7 @@ const CALLS: &[(&str, &str, &str)] = &[
     ("enable", "ussrt_control_enable", "enable"),
     ("run_hz", "ussrt_control_run_hz", "run_hz"),
     ("run_percent", "ussrt_control_run_percent", "run_percent"),
+    ("run_rpm", "ussrt_control_run_rpm", "run_rpm"),
     ("set_hz", "ussrt_control_set_hz", "set_hz"),
     ("stop", "ussrt_control_stop", "stop"),
     ("coast", "ussrt_control_coast", "coast"),

@@ -206,6 +206,8 @@ int main(int argc, char **argv) {
   /* Beyond the setpoint word's -200 % .. +199.99 %: refused, not sent as full scale. */
   EXPECT(ussrt_control_set_hz(c, 5000.0f) == USSRT_STATUS_INVALID_ARGUMENT, "5000 Hz");
   EXPECT(ussrt_control_run_percent(c, -250.0f) == USSRT_STATUS_INVALID_ARGUMENT, "-250 percent");
+  /* A MICROMASTER's reference is a frequency: an rpm setpoint has nothing to scale by. */
+  EXPECT(ussrt_control_run_rpm(c, 1500.0f) == USSRT_STATUS_INVALID_ARGUMENT, "1500 rpm on MM4");
   EXPECT(ussrt_control_jog(c, 3) == USSRT_STATUS_INVALID_ARGUMENT, "jog 3");
   OK(ussrt_control_stop(c));
   OK(ussrt_control_wait_state(c, 2, 5000));

@@ -41,12 +41,17 @@ fn start_running(bus: &Bus, c: &Controller, speed: Speed) -> Result<(), Failure>
             )
     })?;
     match speed {
-        Speed::Hz(hz) => {
+        Speed::Hz(_) | Speed::Rpm(_) => {
             // A drive that just came online, was reset or commissioned has its reference read
-            // again: ussd scales no Hz with the old one, so wait for it (a poll or two).
+            // again: ussd scales nothing with the old one, so wait for it (a poll or two).
             let inputs = c.inputs();
-            inputs.wait_for_reference(inputs.reference_wait())?;
-            c.run_hz(hz)?;
+            if inputs.info().pole_pairs > 0 || matches!(speed, Speed::Hz(_)) {
+                inputs.wait_for_reference(inputs.reference_wait())?;
+            }
+            match speed {
+                Speed::Rpm(rpm) => c.run_rpm(rpm)?,
+                _ => c.run_hz(speed.value())?,
+            }
         }
         Speed::Percent(p) => c.run_percent(p)?,
     }
@@ -103,10 +108,19 @@ pub struct Run {
         long,
         allow_negative_numbers = true,
         value_name = "HZ",
-        required_unless_present = "percent",
-        conflicts_with = "percent"
+        required_unless_present_any = ["percent", "rpm"],
+        conflicts_with_all = ["percent", "rpm"]
     )]
     pub(crate) hz: Option<f32>,
+    /// Speed in rpm of the drive's reference speed (a G120's p2000, which ussd reads with
+    /// `pole_pairs` in the drive's configuration); negative runs the other way.
+    #[arg(
+        long,
+        allow_negative_numbers = true,
+        value_name = "RPM",
+        conflicts_with = "percent"
+    )]
+    pub(crate) rpm: Option<f32>,
     /// The setpoint in % of the drive's reference (P2000, p2000: 100 % is its reference
     /// frequency or speed; a G120's is in rpm); negative runs the other way.
     #[arg(long, allow_negative_numbers = true, value_name = "PERCENT")]
@@ -122,14 +136,27 @@ enum Speed {
     Hz(f32),
     /// % of the drive's reference: no reference frequency needed.
     Percent(f32),
+    /// rpm of the drive's reference speed.
+    Rpm(f32),
+}
+
+impl Speed {
+    const fn value(self) -> f32 {
+        match self {
+            Self::Hz(v) | Self::Percent(v) | Self::Rpm(v) => v,
+        }
+    }
 }
 
 impl Run {
     pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
-        let speed = match (self.hz, self.percent) {
-            (_, Some(p)) => Speed::Percent(p),
-            (Some(hz), None) => Speed::Hz(hz),
-            (None, None) => return Err(Failure::Usage("give --hz or --percent".to_owned())),
+        let speed = match (self.hz, self.percent, self.rpm) {
+            (_, Some(p), _) => Speed::Percent(p),
+            (_, None, Some(rpm)) => Speed::Rpm(rpm),
+            (Some(hz), None, None) => Speed::Hz(hz),
+            (None, None, None) => {
+                return Err(Failure::Usage("give --hz, --rpm or --percent".to_owned()));
+            }
         };
         run_drive(bus, out, self.drive, speed, self.duration)
     }
@@ -159,6 +186,14 @@ fn run_drive(
     let towards = match speed {
         Speed::Hz(hz) => format!("{hz} Hz (reference {reference})"),
         Speed::Percent(p) => format!("{p} % of its reference ({reference})"),
+        Speed::Rpm(rpm) => {
+            let speed = c
+                .inputs()
+                .info()
+                .reference_rpm()
+                .map_or_else(|| "being read again".to_owned(), |r| format!("{r:.0} rpm"));
+            format!("{rpm} rpm (reference speed {speed}, {reference})")
+        }
     };
     out.note(&format!(
         "drive {drive}: running towards {towards} on {}; {}",

@@ -242,6 +242,10 @@ fn info(d: &DriveSetup) -> DriveInfo {
         pzd_words: d.layout.pzd.get() as u8,
         weight: d.weight,
         family: d.family.code(),
+        pole_pairs: match d.reference_unit {
+            uss_engine::reference::ReferenceUnit::Rpm { pole_pairs } => pole_pairs,
+            uss_engine::reference::ReferenceUnit::Hz => 0,
+        },
         ..DriveInfo::UNKNOWN
     }
 }
