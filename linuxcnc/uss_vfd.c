@@ -38,8 +38,8 @@
  *   NAME.watchdog-in         bit   in   toggled by the servo thread, at least once per half
  *                                       the watchdog time: the proof that LinuxCNC is alive
  *   NAME.at-speed            bit   out  running within tolerance of the command
- *   NAME.spindle-speed-fb    float out  actual speed in rpm
- *   NAME.spindle-speed-fb-hz float out  actual frequency in Hz (NaN while ussd reads the reference)
+ *   NAME.spindle-speed-fb    float out  actual speed in rpm (NaN while ussd reads the reference)
+ *   NAME.spindle-speed-fb-hz float out  actual frequency in Hz (NaN likewise)
  *   NAME.frequency-command   float out  the commanded frequency in Hz (NaN likewise)
  *   NAME.fault               bit   out  the drive reports a fault (ZSW1 bit 3)
  *   NAME.fault-code          s32   out  the drive's newest fault number (r0947[0], F0072 -> 72)
@@ -49,8 +49,12 @@
  *   NAME.error-count         s32   out  failed calls and lost contacts since the start
  *   NAME.state               s32   out  PROFIdrive state: 1..4 for S1..S4, 6 fault, 0 not ready
  * Parameters:
- *   NAME.rpm-at-reference    float rw   rpm at 100 % of the reference (P2000): the command is
- *                                       sent in percent of it, whatever the reference is
+ *   NAME.rpm-per-hz          float rw   spindle rpm per Hz of the motor's frequency (the motor's
+ *                                       poles and the gearing: 30 for a 4-pole motor direct, 1500
+ *                                       rpm at 50 Hz); the command goes out in Hz, scaled by the
+ *                                       drive's reference P2000 as ussd reads it: a changed P2000
+ *                                       changes no speed, and no setpoint goes out while ussd
+ *                                       reads it again
  *   NAME.tolerance           float rw   at-speed tolerance, a fraction of the command (0.02)
  */
 #define _POSIX_C_SOURCE 200809L
@@ -84,7 +88,7 @@ typedef struct {
   hal_bit_t *comm_ok;
   hal_s32_t *error_count;
   hal_s32_t *state;
-  hal_float_t rpm_at_reference;
+  hal_float_t rpm_per_hz;
   hal_float_t tolerance;
 } pins_t;
 
@@ -209,13 +213,14 @@ static void step(vfd_t *v, pins_t *p) {
   *p->comm_ok = comm;
   *p->state = d.state;
   *p->fault = d.state == 6;
-  /* The speed in percent of the reference (0x4000 = 100 %, the drive's own scale): rpm-at-
-   * reference is 100 %, so no Hz are needed to command or show rpm. Hz are shown only while
-   * ussd knows the reference (NaN while it reads it again after a reset or a restart). */
-  double full_rpm = p->rpm_at_reference > 0 ? p->rpm_at_reference : 1.0;
-  double reference = d.reference_hz > 0 ? d.reference_hz : NAN;
+  /* rpm are Hz at the motor times rpm-per-hz, a constant of the machine; Hz are scaled by the
+   * drive's reference P2000 as ussd reads it (libussrt), never by a number of this file: a
+   * P2000 changed at the drive (found by issue 46's sweep: 60 Hz for 50 ran the spindle 20 %
+   * fast and showed it at the command) changes no speed. While ussd reads the reference again
+   * (a reset, a restart, the drive back online) the feedback is NaN and no setpoint goes out. */
+  double rpm_per_hz = p->rpm_per_hz > 0 ? p->rpm_per_hz : 1.0;
   *p->speed_fb_hz = d.actual_hz;
-  *p->speed_fb = (int16_t)d.image.hiw / 16384.0 * full_rpm;
+  *p->speed_fb = d.actual_hz * rpm_per_hz;
 
   /* The drive's newest fault number, read once per fault. */
   if (*p->fault && !v->was_fault) {
@@ -229,8 +234,8 @@ static void step(vfd_t *v, pins_t *p) {
   double command = *p->speed_command;
   int reverse = (*p->spindle_rev && !*p->spindle_fwd) ||
                 (!*p->spindle_fwd && !*p->spindle_rev && command < 0);
-  double percent = fabs(command) / full_rpm * 100.0 * (reverse ? -1 : 1);
-  *p->frequency_command = percent * reference / 100.0;
+  double hz = fabs(command) / rpm_per_hz * (reverse ? -1 : 1);
+  *p->frequency_command = hz;
   const uint64_t read_at = ussrt_monotonic_ns();
   int on = *p->spindle_on;
   if (!on) v->low_seen_ns = read_at;
@@ -270,7 +275,10 @@ static void step(vfd_t *v, pins_t *p) {
   }
   if (s == USSRT_STATUS_OK) {
     /* Latched, off or disabled: OFF1 (a stop always goes out; it re-arms nothing). */
-    s = (!v->latched && run) ? ussrt_control_run_percent(v->c, (float)percent) : ussrt_control_stop(v->c);
+    s = (!v->latched && run) ? ussrt_control_run_hz(v->c, (float)hz) : ussrt_control_stop(v->c);
+    /* The reference is being read again: nothing is scaled with the old one, so stop (OFF1, no
+     * latch) until it is known; the live spindle-on runs the drive again then. */
+    if (s == USSRT_STATUS_REFERENCE_UNKNOWN) s = ussrt_control_stop(v->c);
   }
   if (*p->err_reset && !v->was_reset && s == USSRT_STATUS_OK) {
     s = ussrt_control_acknowledge_fault(v->c, 1000);
@@ -369,7 +377,7 @@ int main(int argc, char **argv) {
     r |= hal_pin_bit_newf(HAL_OUT, &p->comm_ok, comp, "%s.comm-ok", n);
     r |= hal_pin_s32_newf(HAL_OUT, &p->error_count, comp, "%s.error-count", n);
     r |= hal_pin_s32_newf(HAL_OUT, &p->state, comp, "%s.state", n);
-    r |= hal_param_float_newf(HAL_RW, &p->rpm_at_reference, comp, "%s.rpm-at-reference", n);
+    r |= hal_param_float_newf(HAL_RW, &p->rpm_per_hz, comp, "%s.rpm-per-hz", n);
     r |= hal_param_float_newf(HAL_RW, &p->tolerance, comp, "%s.tolerance", n);
   }
   if (r) {
@@ -384,7 +392,7 @@ int main(int argc, char **argv) {
   *p->latched = 1;
   *p->speed_fb = *p->speed_fb_hz = *p->frequency_command = 0;
   *p->fault_code = *p->error_count = *p->state = 0;
-  p->rpm_at_reference = 1500.0; /* a 4-pole motor at 50 Hz */
+  p->rpm_per_hz = 30.0; /* a 4-pole motor direct: 1500 rpm at 50 Hz */
   p->tolerance = 0.02;
   v.watchdog_at = now_ms() - 1e9; /* no change seen yet */
   hal_ready(comp);

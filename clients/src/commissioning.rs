@@ -487,7 +487,15 @@ impl Bus {
         if needed <= now {
             return Ok(None);
         }
-        if let Err(e) = self.write_with(address, level, Value::Word(needed), options) {
+        // ussd puts it back should this process die before it does.
+        let raised = self.write_raising(
+            address,
+            level,
+            Value::Word(needed),
+            Value::Word(now),
+            options,
+        );
+        if let Err(e) = raised {
             // Its answer lost, the drive may hold the raised level: put back, said if not.
             if e.may_be_applied() {
                 let back = self.write_with(address, level, Value::Word(now), forced());

@@ -260,6 +260,51 @@ impl Bus {
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
     }
 
+    /// Writes `param` := `value` on the way of a longer task (a restore's access level or
+    /// quick commissioning), and leaves ussd the write `param` := `back` to run should this
+    /// process die before it writes `param` again ([`uss_shm_types::REQUEST_PUT_BACK`]): a
+    /// process killed halfway leaves no drive raised.
+    pub(crate) fn write_raising(
+        &self,
+        address: Address,
+        param: ParamRef,
+        value: Value,
+        back: Value,
+        options: WriteOptions,
+    ) -> Result<Value, ParamError> {
+        let task = |v| ParamTask::write(param.pnu, param.index, v, options.storage());
+        let mut flags = uss_shm_types::REQUEST_PUT_BACK;
+        if options.force {
+            flags |= uss_shm_types::REQUEST_FORCE;
+        }
+        if options.unsafe_write {
+            flags |= uss_shm_types::REQUEST_UNSAFE;
+        }
+        let tasks = [task(value), task(back)];
+        let mut request =
+            ParamRequest::of_tasks(address, &tasks).map_err(|r| ParamError::Refused {
+                error: r.error,
+                item: r.item,
+            })?;
+        request.flags |= flags;
+        let response = self.send_request(&request)?;
+        // Answered for the raise alone: the put-back waits in ussd.
+        let results = match response_results(&response, address, 1) {
+            Err(ParamError::Refused {
+                error: RequestError::UnknownDrive,
+                ..
+            }) => return Err(self.unknown_drive(address).into()),
+            other => other?,
+        };
+        results
+            .into_iter()
+            .zip(&tasks)
+            .zip(response.results())
+            .map(|((result, task), raw)| write_outcome(task, result, raw.telegrams))
+            .next()
+            .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
+    }
+
     /// Sends one request and waits for its one response.
     fn request(
         &self,

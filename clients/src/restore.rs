@@ -415,7 +415,13 @@ impl Bus {
                 break;
             }
             let (param, value) = step.target();
-            let result = self.write_with(address, param, value, options.writes());
+            let result = match *step {
+                // ussd puts a raise back should this process die before it does.
+                Step::Raise { was, .. } => {
+                    self.write_raising(address, param, value, Value::Word(was), options.writes())
+                }
+                _ => self.write_with(address, param, value, options.writes()),
+            };
             took.push(match &result {
                 Ok(_) => Took::Yes,
                 Err(e) if e.may_be_applied() => Took::Maybe,

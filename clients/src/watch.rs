@@ -128,11 +128,10 @@ impl DriveWatch {
             if state.port.as_ref().map(|p| p.generation) != Some(services.generation()) {
                 state.port = open_port(&self.link, &services, self.address).ok();
             }
-            if let Some((last, info)) = state
-                .port
-                .as_ref()
-                .map(|p| (*p.entry.get(), p.diag.get().info))
-            {
+            if let Some((last, info)) = state.port.as_ref().map(|p| {
+                let last = *p.entry.get();
+                (last, p.diag.get().info_for(&last))
+            }) {
                 state.last = last;
                 state.info = info;
             }

@@ -155,8 +155,6 @@ pub struct Gate {
     counters: ControlCounters,
 }
 
-const STW1_ON: u16 = uss_shm_types::pzd::STW1_ON;
-
 impl Gate {
     /// A gate latched by ussd's start: the drive gets its safe command until a controller arms it.
     pub fn new(setup: GateSetup, now: Duration) -> Self {
@@ -341,12 +339,15 @@ impl Gate {
                 }
             }
             Ok(OutputSample::Words { words, .. }) => {
-                let on = self.setup.pzd > 0 && words[0] & STW1_ON != 0;
+                // A word that runs the motor: ON, or a jog (bit 8 or 9 on an OFF1 word; found
+                // by issue 46's adversarial sweep: required monitoring refused ON only, and a
+                // jog went out to a drive whose monitoring was off).
+                let runs = self.setup.pzd > 0 && uss_shm_types::pzd::stop_strength(words[0]) == 0;
                 // A stop re-arms (OFF1, OFF2, OFF3); a jog word has bit 0 clear too, but runs.
                 // (Without PZD every word is 0: a stop.)
                 let stop = self.setup.pzd == 0 || uss_shm_types::pzd::is_stop(words[0]);
                 match self.control {
-                    Control::Live if on && !poll.on_allowed => Some(self.latch_with(
+                    Control::Live if runs && !poll.on_allowed => Some(self.latch_with(
                         LatchReason::MonitoringOff,
                         self.setup.safe,
                         poll.now,
@@ -660,6 +661,8 @@ mod tests {
             ("live, operator OFF3 beats a fresh ON", Play::running, |p| with(p, 10, &[RUN, 0x3000], Some(StopCommand::Off3), true), [QUICK, 0], Some(Override)),
             ("live, ON with required monitoring off", Play::running, |p| with(p, 10, &[RUN, 0x2000], None, false), [READY, 0], Some(LatchReason::MonitoringOff)),
             ("live, OFF1 with monitoring off still goes out", Play::running, |p| with(p, 10, &[READY, 0], None, false), [READY, 0], None),
+            ("live, jog with required monitoring off", Play::running, |p| with(p, 10, &[0x057E, 0], None, false), [READY, 0], Some(LatchReason::MonitoringOff)),
+            ("live, coast with a jog bit and monitoring off still goes out", Play::running, |p| with(p, 10, &[0x057C, 0], None, false), [0x057C, 0], None),
             // A latch never weakens the stop a live controller sends itself (found by the
             // adversarial run: `ussctl ack` and every release handed an OFF2 back as OFF1).
             ("live, own coast, release: OFF2 stays", || own_stop(COAST), release, [COAST, 0], Some(Released)),

@@ -36,6 +36,11 @@ pub(super) struct Drive {
     pub monitoring_ms: u32,
     /// Its reference frequency as read from it.
     pub reference: Reference,
+    /// Counts (mod 256) every change of what ussd knows of it that clients scale by: its
+    /// reference forgotten (it came online, was reset or commissioned) or read anew. Published
+    /// with the input image at once and with the diagnostics' description later
+    /// (`uss_shm_types::DriveDiag::info_for`): a description of another count is not it.
+    pub picture: u8,
     /// The last reference frequency read from it, Hz, kept while it is read again: a value
     /// that comes back different latches a drive under a controller (`crate::picture`).
     pub last_reference: Option<f32>,
@@ -212,6 +217,7 @@ impl Drive {
             monitoring: monitoring::initial_monitoring(&setup),
             monitoring_ms: 0,
             reference: Reference::initial(&setup),
+            picture: 0,
             last_reference: None,
             monitoring_due: false,
             reference_due: false,
@@ -278,6 +284,7 @@ impl Drive {
             monitoring: self.monitoring,
             monitoring_ms: self.monitoring_ms,
             reference: self.reference,
+            picture: self.picture,
             period: self.period,
             stale_after: self.stale_after,
             monitoring_min: self.shortest_monitoring,

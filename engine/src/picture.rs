@@ -93,6 +93,10 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         if d.setup.reference_read().is_some() {
             d.reference = super::Reference::Unknown;
         }
+        // Whatever it was, a description published before now is not the drive: the input
+        // image carries the new count at this very poll, and the diagnostics follow at once.
+        d.picture = d.picture.wrapping_add(1);
+        self.control_changed = true;
         if say && was != d.reference {
             let (address, configured_hz) = (d.setup.address, d.setup.reference_hz);
             let at = self.clock.now();

@@ -141,6 +141,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             return;
         }
         d.reference = reference;
+        d.picture = d.picture.wrapping_add(1);
         let setup = d.setup;
         let at = self.clock.now();
         // Published at once, as a latch is: clients scale by it.

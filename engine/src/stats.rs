@@ -101,6 +101,8 @@ pub struct DriveStatus {
     pub monitoring_ms: u32,
     /// The drive's reference frequency as read from it.
     pub reference: Reference,
+    /// The count of changes of what ussd knows of the drive (`crate::drive`'s `picture`).
+    pub picture: u8,
     /// How often the drive is polled now, and after how long its image is stale
     /// (`crate::period`); set before each [`crate::Bridge::after_poll`].
     pub period: Duration,
@@ -133,6 +135,7 @@ impl DriveStatus {
             monitoring: Monitoring::Unknown,
             monitoring_ms: 0,
             reference: Reference::Unknown,
+            picture: 0,
             period: Duration::ZERO,
             stale_after: Duration::ZERO,
             monitoring_min: Duration::ZERO,

@@ -266,9 +266,18 @@
 #define USS_REQUEST_UNSAFE 2
 
 /**
+ * `flags` bit of a [`ParamRequest`]: its last item is not run now. It is the write that puts
+ * back what the items before it raise on the way (a restore's access level P0003 and quick
+ * commissioning P0010, RAM only), which ussd runs itself should the requesting process die
+ * before it writes that element again: a restore killed halfway leaves no drive in quick
+ * commissioning at a raised access level. The response answers the items before it.
+ */
+#define USS_REQUEST_PUT_BACK 4
+
+/**
  * Every `flags` bit this layout defines.
  */
-#define USS_REQUEST_FLAGS (USS_REQUEST_FORCE | USS_REQUEST_UNSAFE)
+#define USS_REQUEST_FLAGS ((USS_REQUEST_FORCE | USS_REQUEST_UNSAFE) | USS_REQUEST_PUT_BACK)
 
 /**
  * Most PZD words a drive exchanges (USS.md section 3: 0..16, fixed per slave).
@@ -1229,7 +1238,13 @@ typedef struct UssPzdInput {
    * 1 once the drive's first poll decided `online` (answered or not); 0: unknown yet.
    */
   uint8_t known;
-  uint8_t reserved;
+  /**
+   * Counts (mod 256) the changes of what ussd knows of the drive that clients scale by (its
+   * reference forgotten when it came online, was reset or commissioned, or read anew), as
+   * of this image. A description ([`crate::DriveDiag::info_for`]) of another count is not
+   * this drive's: its reference is not known then.
+   */
+  uint8_t picture;
   /**
    * `sequence` of the controller's latest sample ussd has taken for this drive (0 = none):
    * a controller knows from it that ussd has seen a sample (a release, an OFF1).
@@ -1459,7 +1474,12 @@ typedef struct UssDriveDiag {
    * 1 once the drive's first poll decided `online`; 0: unknown yet.
    */
   uint8_t known;
-  uint8_t reserved[2];
+  /**
+   * The count of changes of what ussd knows of the drive ([`crate::PzdInput::picture`])
+   * `info` describes.
+   */
+  uint8_t picture;
+  uint8_t reserved[1];
   /**
    * The telegram-off time read from the drive, ms (0 = off or not read).
    */

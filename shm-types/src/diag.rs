@@ -124,7 +124,10 @@ pub struct DriveDiag {
     pub monitoring: u8,
     /// 1 once the drive's first poll decided `online`; 0: unknown yet.
     pub known: u8,
-    pub reserved: [u8; 2],
+    /// The count of changes of what ussd knows of the drive ([`crate::PzdInput::picture`])
+    /// `info` describes.
+    pub picture: u8,
+    pub reserved: [u8; 1],
     /// The telegram-off time read from the drive, ms (0 = off or not read).
     pub monitoring_ms: u32,
     /// The process id in the controller's latest sample; 0 if no controller published yet.
@@ -458,6 +461,22 @@ pub const EXCHANGE_BUCKETS_NS: [u64; EXCHANGE_BUCKETS] = [
 ];
 
 impl DriveDiag {
+    /// What ussd says of the drive, for `image`: its description, but with no reference known
+    /// when it describes another state of the drive than the image shows (the drive came
+    /// back online, was reset or commissioned, or its reference was read anew, after it was
+    /// published): the image is published at once, the description moments later, and nothing
+    /// is to be scaled with the reference of before.
+    pub fn info_for(&self, image: &crate::PzdInput) -> DriveInfo {
+        if self.picture == image.picture {
+            self.info
+        } else {
+            DriveInfo {
+                reference_hz: DriveInfo::REFERENCE_NOT_KNOWN,
+                ..self.info
+            }
+        }
+    }
+
     /// A drive nothing is known about yet.
     pub const fn new(address: u8) -> Self {
         Self {
@@ -475,7 +494,8 @@ impl DriveDiag {
             rejection: Rejection::None.code(),
             monitoring: Monitoring::Unknown.code(),
             known: 0,
-            reserved: [0; 2],
+            picture: 0,
+            reserved: [0; 1],
             monitoring_ms: 0,
             controller_pid: 0,
             since_ns: 0,

@@ -66,7 +66,7 @@ pub use names::{Address, BlackboardKey, BusName, Generation, Instance, NameError
 pub use outcome::{Answer, DriveError, ItemOutcome, PathError, ResultError};
 pub use params::{
     MAX_PARAM_ITEMS, Outcome, ParamItem, ParamRequest, ParamResponse, ParamResult, REQUEST_FORCE,
-    REQUEST_UNSAFE, Refusal, RequestError, Storage, TaskCode,
+    REQUEST_PUT_BACK, REQUEST_UNSAFE, Refusal, RequestError, Storage, TaskCode,
 };
 pub use pzd::{
     EXTRA_PZD_WORDS, MAX_PZD_WORDS, MIN_HANDSHAKE_NS, OUTPUT_RELEASE, OutputSample, PzdInput,

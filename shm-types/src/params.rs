@@ -110,8 +110,14 @@ pub const REQUEST_FORCE: u8 = 0x01;
 /// ussd (its command or setpoint source, its COM link, its telegram monitoring off, a factory
 /// reset; the family's catalogue marks them), e.g. `ussctl param write --unsafe`. Logged.
 pub const REQUEST_UNSAFE: u8 = 0x02;
+/// `flags` bit of a [`ParamRequest`]: its last item is not run now. It is the write that puts
+/// back what the items before it raise on the way (a restore's access level P0003 and quick
+/// commissioning P0010, RAM only), which ussd runs itself should the requesting process die
+/// before it writes that element again: a restore killed halfway leaves no drive in quick
+/// commissioning at a raised access level. The response answers the items before it.
+pub const REQUEST_PUT_BACK: u8 = 0x04;
 /// Every `flags` bit this layout defines.
-pub const REQUEST_FLAGS: u8 = REQUEST_FORCE | REQUEST_UNSAFE;
+pub const REQUEST_FLAGS: u8 = REQUEST_FORCE | REQUEST_UNSAFE | REQUEST_PUT_BACK;
 
 code_table! {
     /// How one item ended; the `outcome` byte of [`ParamResult`]. Every item of an accepted
@@ -357,11 +363,15 @@ impl ParamRequest {
         if !(1..=MAX_PARAM_ITEMS).contains(&count) {
             return Err(Refusal::request(RequestError::BadCount));
         }
-        let tasks = self.items[..count]
+        let tasks: Vec<ParamTask> = self.items[..count]
             .iter()
             .enumerate()
             .map(|(i, item)| ParamTask::try_from(item).map_err(|e| Refusal::item(e, i)))
             .collect::<Result<_, _>>()?;
+        // A put-back follows what it puts back, and is a write.
+        if self.flags & REQUEST_PUT_BACK != 0 && (count < 2 || !tasks[count - 1].is_write()) {
+            return Err(Refusal::request(RequestError::BadFlags));
+        }
         Ok((address, tasks))
     }
 }
@@ -452,6 +462,25 @@ mod tests {
         assert_eq!(back, items);
         assert_eq!(items[1].task(), Ok(TaskCode::WriteWord));
         assert_eq!(items[1].storage(), Ok(Storage::RamAndEeprom));
+    }
+
+    #[test]
+    fn a_put_back_is_a_write_after_what_it_puts_back() {
+        let raise = ParamItem::new(TaskCode::WriteWord, 3, 0, 3, Storage::Ram);
+        let back = ParamItem::new(TaskCode::WriteWord, 3, 0, 1, Storage::Ram);
+        let with = |items: &[ParamItem]| {
+            let mut r = ParamRequest::new(drive(1), items).unwrap();
+            r.flags = REQUEST_PUT_BACK;
+            r.validate().map(|(_, tasks)| tasks.len())
+        };
+        assert_eq!(with(&[raise, back]), Ok(2));
+        let refused = Err(Refusal::request(RequestError::BadFlags));
+        assert_eq!(with(&[raise]), refused, "nothing to put back");
+        assert_eq!(
+            with(&[raise, ParamItem::read(3)]),
+            refused,
+            "a read puts nothing back"
+        );
     }
 
     #[test]

@@ -146,7 +146,11 @@ pub struct PzdInput {
     pub rejection: u8,
     /// 1 once the drive's first poll decided `online` (answered or not); 0: unknown yet.
     pub known: u8,
-    pub reserved: u8,
+    /// Counts (mod 256) the changes of what ussd knows of the drive that clients scale by (its
+    /// reference forgotten when it came online, was reset or commissioned, or read anew), as
+    /// of this image. A description ([`crate::DriveDiag::info_for`]) of another count is not
+    /// this drive's: its reference is not known then.
+    pub picture: u8,
     /// `sequence` of the controller's latest sample ussd has taken for this drive (0 = none):
     /// a controller knows from it that ussd has seen a sample (a release, an OFF1).
     pub taken_sequence: u64,
@@ -345,7 +349,7 @@ impl PzdInput {
         latch_command: crate::control::NO_STOP_COMMAND,
         rejection: Rejection::None.code(),
         known: 0,
-        reserved: 0,
+        picture: 0,
         taken_sequence: 0,
         latch_id: 0,
         period_ns: 0,

@@ -50,7 +50,7 @@ fn actual_layouts() -> Vec<Actual> {
         actual!(PzdInput = PzdInput::EMPTY, [
             version, online, control, word_count, latch_reason, sequence, timestamp_ns,
             age_ns, zsw1, hiw, extra, sent_stw1, sent_setpoint, latches, latched_since_ns,
-            latched_by_pid, latch_command, rejection, known, reserved, taken_sequence, latch_id,
+            latched_by_pid, latch_command, rejection, known, picture, taken_sequence, latch_id,
             period_ns, stale_after_ns,
         ]),
         actual!(DriveInfo = DriveInfo::UNKNOWN, [
@@ -66,7 +66,7 @@ fn actual_layouts() -> Vec<Actual> {
         actual!(DriveDiag = DriveDiag::new(0), [
             version, consecutive_failed_polls, last_zsw1, last_hiw, address, online, no_reply,
             control, last_failure, latch_reason, latch_command, rejection, monitoring, known,
-            reserved, monitoring_ms, controller_pid, since_ns, last_good_ns, latched_since_ns,
+            picture, reserved, monitoring_ms, controller_pid, since_ns, last_good_ns, latched_since_ns,
             info, counters, exchange_ns, response_delay_ns, period_ns, stale_after_ns,
             monitoring_min_ms, reserved3,
         ]),

@@ -72,7 +72,7 @@ fn hal_text(component: &Path, bus: &str) -> String {
          addf siggen.0.update servo-thread\nsetp siggen.0.frequency 100\n\
          loadusr -Wn uss_vfd {} --bus {bus} --drive 1\n\
          net uss-watchdog siggen.0.clock => uss_vfd.watchdog-in\n\
-         setp uss_vfd.rpm-at-reference 1500\nsetp uss_vfd.tolerance 0.02\nstart\n\
+         setp uss_vfd.rpm-per-hz 30\nsetp uss_vfd.tolerance 0.02\nstart\n\
          waitusr uss_vfd\n",
         component.display()
     )
@@ -189,6 +189,29 @@ impl Drop for Hal {
     }
 }
 
+/// A halrun session of the component on drive 1 of a fresh ussd, with the HAL file the guide
+/// shows (`what` names its files), once the component talks to ussd and sees the servo thread:
+/// `None` where `LinuxCNC` is not installed. Dropped in reverse: the session, then ussd.
+fn session(what: &str) -> Option<(std::sync::MutexGuard<'static, ()>, Ussd, Hal, PathBuf)> {
+    if !linuxcnc_here() {
+        return None;
+    }
+    let serial = serial();
+    let component = build();
+    let ussd = Ussd::start("", &[(1, "")]);
+    let dir = std::env::temp_dir();
+    let hal_file = dir.join(format!("uss_vfd-{what}-{}.hal", std::process::id()));
+    std::fs::write(&hal_file, hal_text(&component, &ussd.bus)).unwrap();
+    let hal = Hal::start(
+        &hal_file,
+        dir.join(format!("halrun-{what}-{}.log", std::process::id())),
+    );
+    let s = Duration::from_secs(10);
+    hal.until("comm-ok", s, |h| h.get("comm-ok") == "TRUE");
+    hal.until("watchdog-ok", s, |h| h.get("watchdog-ok") == "TRUE");
+    Some((serial, ussd, hal, hal_file))
+}
+
 #[test]
 fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_rises() {
     if !linuxcnc_here() {
@@ -301,23 +324,11 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_rises() {
 /// until spindle-on rises, the deliberate re-arm. Then the component killed: a stale trip.
 #[test]
 fn an_operators_coast_of_an_idle_spindle_holds_until_spindle_on_rises() {
-    if !linuxcnc_here() {
+    let Some((_serial, ussd, hal, hal_file)) = session("idle") else {
         return;
-    }
-    let _serial = serial();
-    let component = build();
-    let ussd = Ussd::start("", &[(1, "")]);
+    };
     let bus = ussd.bus();
-    let dir = std::env::temp_dir();
-    let hal_file = dir.join(format!("uss_vfd-idle-{}.hal", std::process::id()));
-    std::fs::write(&hal_file, hal_text(&component, &ussd.bus)).unwrap();
-    let hal = Hal::start(
-        &hal_file,
-        dir.join(format!("halrun-idle-{}.log", std::process::id())),
-    );
     let s = Duration::from_secs(10);
-    hal.until("comm-ok", s, |h| h.get("comm-ok") == "TRUE");
-    hal.until("watchdog-ok", s, |h| h.get("watchdog-ok") == "TRUE");
     // Run once and stop: the drive is live under the component, the spindle idle.
     hal.set("speed-command", "600");
     hal.set("spindle-on", "1");
@@ -428,6 +439,69 @@ fn an_operators_coast_right_after_m3_is_not_re_armed_by_its_rise() {
     hal.until("latched while ussd is stopped", s, |h| {
         h.get("latched") == "TRUE"
     });
+    let _ = hal.stop();
+    let _ = std::fs::remove_file(&hal_file);
+}
+
+/// SCALE (issue 46's adversarial sweep, break 3): the component sent its command in percent of
+/// the reference (`rpm-at-reference` was 100 %). P2000 changed at the drive from 50 to 60 Hz
+/// (and its maximum raised so nothing capped it) between two M3s: the latch held until the
+/// rise, as it should, but then the spindle ran at 60 Hz for a 1500 rpm command while the pins
+/// showed 1500 rpm and at-speed: 20 % fast, and hidden. rpm are now Hz times `rpm-per-hz` (the
+/// machine's constant) and the Hz are scaled by the reference ussd reads: the same 1500 rpm is
+/// 50 Hz at either reference, and the feedback is the drive's own.
+#[test]
+fn a_changed_reference_changes_no_spindle_speed() {
+    let Some((_serial, ussd, hal, hal_file)) = session("scale") else {
+        return;
+    };
+    let bus = ussd.bus();
+    let write = |p: &str, v: &str| {
+        bus.write_param(
+            addr(1),
+            p.parse().unwrap(),
+            v,
+            WriteOptions {
+                force: true,
+                ..WriteOptions::default()
+            },
+        )
+        .unwrap_or_else(|e| panic!("{p} := {v}: {e}"));
+    };
+    for p in ["P1120", "P1121"] {
+        write(p, "1");
+    }
+    let s = Duration::from_secs(10);
+    let watch = bus.watch(addr(1)).unwrap();
+    let at_1500 = |what: &str| {
+        hal.set("speed-command", "1500");
+        hal.set("spindle-on", "1");
+        hal.until(what, s, |h| h.get("at-speed") == "TRUE");
+        // The drive's own actual frequency, not the component's: 1500 rpm is 50 Hz.
+        let hz = watch.actual_hz();
+        assert!((hz - 50.0).abs() < 1.0, "{what}: the drive runs at {hz} Hz");
+        assert!(
+            (hal.float("frequency-command") - 50.0).abs() < 1e-3,
+            "{what}"
+        );
+        assert!(
+            (hal.float("spindle-speed-fb") - 1500.0).abs() < 30.0,
+            "{what}"
+        );
+        hal.set("spindle-on", "0");
+        hal.until("stopped", s, |h| h.float("spindle-speed-fb").abs() < 1.0);
+    };
+    at_1500("at speed, P2000 = 50 Hz");
+    // P2000 to 60 Hz, the maximum with it, from another process: the drive latches
+    // (reference changed) until spindle-on rises.
+    write("P0003", "3");
+    write("P1082[0]", "60");
+    write("P2000", "60");
+    hal.until("latched by the reference change", s, |h| {
+        h.get("latched") == "TRUE"
+    });
+    assert_eq!(watch.wait_for_reference(s), Ok(60.0));
+    at_1500("at speed, P2000 = 60 Hz");
     let _ = hal.stop();
     let _ = std::fs::remove_file(&hal_file);
 }

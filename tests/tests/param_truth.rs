@@ -363,6 +363,70 @@ fn a_restore_cut_short_by_anything_puts_back_what_it_raised() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Issue 46's adversarial sweep (break 4): a restore killed with SIGKILL while the drive was in
+/// quick commissioning left it there (P0010 = 1: it will not run) at a raised access level, from
+/// ussctl, Python, C and the Zenoh bridge alike (one library): ussd cancelled the dead client's
+/// queued writes and nothing put the raises back. Each raise now leaves ussd its put-back
+/// (`REQUEST_PUT_BACK`), which ussd runs itself when the process dies first, and logs.
+#[test]
+fn a_restore_killed_halfway_has_ussd_put_back_what_it_raised() {
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "1:busy=10"]);
+    let ussd = Ussd::start_on(&sim.path, "baud = 115200", &[(1, "")]);
+    let dir = std::env::temp_dir().join(format!("uss-killed-{}", ussd.bus));
+    let path = changed_since_backup(&ussd, &dir);
+    let mut restore = restore_until_raised(&ussd, &path, &[]);
+    restore.child.kill().unwrap();
+    restore.child.wait().unwrap();
+    let killed = Instant::now();
+    let bus = ussd.bus();
+    let until = killed + Duration::from_secs(10);
+    while raised_now(&ussd) != (Ok(Value::Word(0)), Ok(Value::Word(1))) && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(
+        raised_now(&ussd),
+        (Ok(Value::Word(0)), Ok(Value::Word(1))),
+        "P0010 and P0003 put back: {}",
+        ussd.log()
+    );
+    println!(
+        "param_truth: a restore killed in quick commissioning: put back {:.0} ms after SIGKILL",
+        killed.elapsed().as_secs_f64() * 1000.0
+    );
+    for shown in ["P0010 := 0", "P0003 := 1"] {
+        assert!(
+            ussd.log_line(
+                &format!("ussd put it back, {shown}"),
+                Duration::from_secs(2)
+            )
+            .is_some(),
+            "{}",
+            ussd.log()
+        );
+    }
+    // A restore that ends by itself leaves nothing for ussd to put back.
+    let (status, out, err) = ussd
+        .ussctl(&["param", "restore", "1", &path, "--unsafe"])
+        .finish();
+    assert!(status.success(), "{out}{err}");
+    let before = ussd.log().matches("ussd put it back").count();
+    let (status, out, err) = changed_since_restore(&ussd);
+    assert!(status.success(), "{out}{err}");
+    let (status, out, err) = ussd
+        .ussctl(&["param", "restore", "1", &path, "--unsafe"])
+        .finish();
+    assert!(status.success(), "{out}{err}");
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(
+        ussd.log().matches("ussd put it back").count(),
+        before,
+        "{}",
+        ussd.log()
+    );
+    assert_eq!(bus.read(addr(1), param(10)), Ok(Value::Word(0)));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Changes drive 1 again after a restore (P0310 to another value than before, so quick
 /// commissioning is needed again), then P1120 with ussctl; returns how that write went.
 fn changed_since_restore(ussd: &Ussd) -> (std::process::ExitStatus, String, String) {

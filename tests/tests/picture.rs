@@ -139,3 +139,66 @@ fn a_power_cycle_under_a_running_controller_is_read_again_and_stops_it() {
         ussd.log()
     );
 }
+
+/// The adversarial sweep of issue 46 (break 1): for about 50 ms after a drive came back online,
+/// clients were shown its old reference as known. The input image (online again) is published
+/// at once, the description with the reference only with the next status publication, so the
+/// C sampler read `ref=60.00 actual_hz=19.999` and Python's `set_hz(20)` was scaled with a
+/// reference ussd was about to read again. A description published for an earlier state of
+/// the drive (`DriveDiag::info_for`: another picture count than the image's) now knows no
+/// reference: from the first image that shows the drive back, until ussd has read it anew.
+#[test]
+fn a_drive_back_online_has_no_reference_until_it_is_read_again() {
+    let (sim, ussd) = drive_4(&[]);
+    let bus = ussd.bus();
+    let watch = bus.watch(uss_integration_tests::addr(4)).unwrap();
+    assert_eq!(watch.wait_for_reference(Duration::from_secs(5)), Ok(50.0));
+    let control = bus
+        .control(
+            uss_integration_tests::addr(4),
+            uss_client::ControlOptions::default(),
+        )
+        .unwrap();
+    control.rearm(uss_client::monotonic_ns()).unwrap();
+    // The drive falls silent for 0.3 s (its process stopped): ussd takes it offline.
+    let pid = Pid::from_raw(i32::try_from(sim.child.id()).unwrap());
+    kill(pid, Signal::SIGSTOP).unwrap();
+    let until = Instant::now() + Duration::from_secs(5);
+    while watch.latest().online != 0 && Instant::now() < until {
+        control.keepalive().ok();
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(watch.latest().online, 0, "offline while silent");
+    std::thread::sleep(Duration::from_millis(300));
+    kill(pid, Signal::SIGCONT).unwrap();
+    // The first look that shows it online again: no reference, and no setpoint in Hz.
+    let first = loop {
+        let s = watch.snapshot();
+        if s.image.online != 0 || Instant::now() > until {
+            break s;
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    };
+    assert_ne!(first.image.online, 0, "the drive came back online");
+    assert_eq!(
+        first.info.reference(),
+        None,
+        "shown as known at the comeback, before ussd read it again"
+    );
+    assert!(
+        matches!(
+            control.set_hz(20.0),
+            Err(uss_client::ClientError::ReferenceUnknown { .. }
+                | uss_client::ClientError::Tripped { .. })
+        ),
+        "a setpoint in Hz at the comeback"
+    );
+    let back = Instant::now();
+    assert_eq!(watch.wait_for_reference(Duration::from_secs(5)), Ok(50.0));
+    println!(
+        "picture: drive 4 back online, its reference read again and shown {:.1} ms later",
+        back.elapsed().as_secs_f64() * 1000.0
+    );
+    drop(control);
+    drop(sim);
+}

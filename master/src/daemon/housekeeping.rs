@@ -131,9 +131,12 @@ pub(super) fn spawn(
 fn control_change(event: &Event) -> Option<Duration> {
     match event {
         Event::Latched { latch, .. } => Some(latch.since),
-        Event::Rearmed { at, .. } | Event::Reference { at, .. } | Event::Monitoring { at, .. } => {
-            Some(*at)
-        }
+        // A drive that came online has its picture forgotten: clients take no reference until
+        // the diagnostics describe it anew (`DriveDiag::info_for`), so publish them at once.
+        Event::Rearmed { at, .. }
+        | Event::Reference { at, .. }
+        | Event::Monitoring { at, .. }
+        | Event::DriveOnline { at, .. } => Some(*at),
         _ => None,
     }
 }

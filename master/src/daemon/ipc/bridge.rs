@@ -168,6 +168,7 @@ impl Bridge for RtBridge {
         };
         image.online = u8::from(status.online);
         image.known = u8::from(status.known);
+        image.picture = status.picture;
         let c = ControlView::of(status, origin);
         image.control = c.state.code();
         image.latch_reason = c.reason.code();

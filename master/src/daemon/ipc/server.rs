@@ -68,9 +68,11 @@ pub(super) fn create(
             outs,
         },
         pending: Vec::new(),
+        put_backs: Vec::new(),
         bus: bus.bus.as_str().to_owned(),
         next_id: 1,
         next_dead_check: Instant::now(),
+        next_put_back_check: Instant::now(),
         watches: super::watches::Watches::default(),
         guards,
     })
@@ -129,6 +131,47 @@ struct Pending {
     cancelled: bool,
 }
 
+/// What a client raised on the way ([`uss_shm_types::REQUEST_PUT_BACK`]) and the write that
+/// puts it back, which ussd runs should the client die before it writes that element again.
+struct PutBack {
+    client: UniqueNodeId,
+    /// Its process id, once looked up (0: not yet).
+    pid: u32,
+    address: Address,
+    task: ParamTask,
+    /// The write as its family writes it (`P0010 := 0`), for the log.
+    shown: String,
+    /// The job of the client's own later write of the element: when it succeeds the put-back
+    /// is the client's, and this one is dropped; when it fails or is cancelled, it stands.
+    superseded_by: Option<u64>,
+    /// The job ussd put it back with (the client died).
+    running: Option<u64>,
+}
+
+impl PutBack {
+    /// Whether `task` writes the element this puts back.
+    fn is_of(&self, address: Address, task: &ParamTask) -> bool {
+        let key = |t: &ParamTask| match *t {
+            ParamTask::Write { pnu, .. } => Some((pnu, None)),
+            ParamTask::WriteArray { pnu, index, .. } => Some((pnu, Some(index))),
+            _ => None,
+        };
+        self.address == address && key(task).is_some() && key(task) == key(&self.task)
+    }
+}
+
+/// `task` (a write) as its family writes it: `P0010 := 0`, `P2014[0] := 500`.
+fn shown_write(task: &ParamTask, rules: Option<&WriteRules>) -> String {
+    let Some((pnu, index, value)) = written(task) else {
+        return String::new();
+    };
+    let element = index.map(|i| format!("[{i}]")).unwrap_or_default();
+    match rules.and_then(|r| r.catalogue).and_then(|c| c.param(pnu)) {
+        Some(p) => format!("{}{element} := {}", p.id, p.show(value)),
+        None => format!("P{pnu:04}{element} := {:#x}", value.as_u32()),
+    }
+}
+
 /// How often pending requests are checked for dead clients: within this of a client's death
 /// its jobs that have not reached the wire are cancelled.
 const DEAD_CLIENT_CHECK: Duration = Duration::from_millis(100);
@@ -147,10 +190,13 @@ pub struct ParamServer {
     answered: bool,
     identities: Identities,
     pending: Vec<Pending>,
+    /// What clients raised on the way, to put back should they die first.
+    put_backs: Vec<PutBack>,
     /// The bus, for log events.
     bus: String,
     next_id: u64,
     next_dead_check: Instant,
+    next_put_back_check: Instant,
     /// The requesting processes, watched by the bus thread before each job leaves a mailbox.
     watches: super::watches::Watches,
     /// What each drive takes without `--unsafe`.
@@ -312,6 +358,7 @@ impl ParamServer {
         }
         self.notify_answered();
         self.cancel_for_dead_clients(handle);
+        self.put_back_for_dead_clients(handle);
         if self.requests.timed_wait(|_| {}, wait).is_err() {
             // The event is broken (it never is in practice): keep serving by polling.
             std::thread::sleep(wait.min(Duration::from_millis(1)));
@@ -327,7 +374,7 @@ impl ParamServer {
     fn accept(&mut self, active: Active, handle: &EngineHandle) {
         let request = *active.payload();
         // Checked once, first: the rules below read the tasks, never the raw items.
-        let (address, items) = match request.validate() {
+        let (address, mut items) = match request.validate() {
             Ok(ok) => ok,
             Err(refusal) => {
                 // A client that died meanwhile cannot be answered; nothing else to do.
@@ -352,6 +399,11 @@ impl ParamServer {
             self.answered = true;
             return;
         }
+        // Checked with the rest (its guards, its drive's controller), run only should the client
+        // die first.
+        let put_back = (request.flags & uss_shm_types::REQUEST_PUT_BACK != 0)
+            .then(|| items.pop())
+            .flatten();
         let first_id = self.next_id;
         self.next_id += items.len() as u64;
         // The node is cheap to find; its process (a walk over every node) only at its first
@@ -391,6 +443,9 @@ impl ParamServer {
             items.len(),
             first_id + items.len() as u64,
         );
+        if let Some(node) = client {
+            self.keep_put_back(node, address, first_id, &items, put_back);
+        }
         let mut response = ParamResponse::new(request.address);
         response.count = items.len() as u8;
         self.pending.push(Pending {
@@ -436,6 +491,115 @@ impl ParamServer {
                     jobs = p.remaining,
                     "client process {pid} died: its parameter jobs that have not reached the wire are cancelled"
                 );
+            }
+        }
+    }
+
+    /// Keeps `put_back` (the write that undoes what this request of `client` raises), or marks
+    /// what the request's writes (jobs from `first_id`) put back themselves. A client that
+    /// raises an element twice keeps the first put-back: the value before either.
+    fn keep_put_back(
+        &mut self,
+        client: UniqueNodeId,
+        address: Address,
+        first_id: u64,
+        items: &[ParamTask],
+        put_back: Option<ParamTask>,
+    ) {
+        let Some(task) = put_back else {
+            for p in self.put_backs.iter_mut().filter(|p| p.client == client) {
+                if let Some(i) = items.iter().position(|t| p.is_of(address, t)) {
+                    p.superseded_by = Some(first_id + i as u64);
+                }
+            }
+            return;
+        };
+        let kept = PutBack {
+            client,
+            pid: 0,
+            address,
+            task,
+            shown: shown_write(&task, self.rules(address)),
+            superseded_by: None,
+            running: None,
+        };
+        if !self
+            .put_backs
+            .iter()
+            .any(|p| p.client == client && p.is_of(address, &task))
+        {
+            self.put_backs.push(kept);
+        }
+    }
+
+    /// A finished job that puts back a raise: the client's own (its put-back is done, unless
+    /// the write failed) or ussd's for a dead client (logged).
+    fn put_back_ended(&mut self, r: &JobResult) {
+        let id = r.job.id;
+        let ok = matches!(r.outcome, Ok(Ok(_)));
+        let bus = self.bus.as_str();
+        self.put_backs.retain_mut(|p| {
+            if p.running == Some(id) {
+                let (what, drive, pid) = (&p.shown, p.address.get(), p.pid);
+                let died = format!(
+                    "drive {drive}: client process {pid} died with a parameter raised on the way (a restore cut short)"
+                );
+                if ok {
+                    tracing::warn!(bus, drive, pid, "{died}: ussd put it back, {what}");
+                } else {
+                    let outcome = r.outcome;
+                    tracing::error!(
+                        bus,
+                        drive,
+                        pid,
+                        "{died}: putting it back, {what}, failed ({outcome:?}); set it by hand"
+                    );
+                }
+                return false;
+            }
+            if p.superseded_by == Some(id) {
+                p.superseded_by = None;
+                return !ok;
+            }
+            true
+        });
+    }
+
+    /// Runs the put-backs of clients that died (every [`DEAD_CLIENT_CHECK`] while there are
+    /// any): each as ussd's own job, after the dead client's pending jobs were cancelled.
+    fn put_back_for_dead_clients(&mut self, handle: &EngineHandle) {
+        if self.put_backs.iter().all(|p| p.running.is_some()) {
+            return;
+        }
+        if Instant::now() < self.next_put_back_check {
+            return;
+        }
+        self.next_put_back_check = Instant::now() + DEAD_CLIENT_CHECK;
+        let Some(nodes) = self.identities.nodes() else {
+            return;
+        };
+        // Last raised first: the access level goes back after quick commissioning ends.
+        for p in self
+            .put_backs
+            .iter_mut()
+            .rev()
+            .filter(|p| p.running.is_none())
+        {
+            if let Some(&(_, dead, pid)) = nodes.iter().find(|(node, _, _)| *node == p.client) {
+                if pid != 0 {
+                    p.pid = pid;
+                }
+                if !dead {
+                    continue;
+                }
+            }
+            let id = self.next_id;
+            if handle
+                .submit_all_for(p.address, id, &[p.task], Requester::NONE)
+                .is_ok()
+            {
+                self.next_id += 1;
+                p.running = Some(id);
             }
         }
     }
@@ -551,6 +715,7 @@ impl ParamServer {
 
     fn route(&mut self, r: &JobResult, handle: &EngineHandle) {
         let id = r.job.id;
+        self.put_back_ended(r);
         let Some(at) = self
             .pending
             .iter()

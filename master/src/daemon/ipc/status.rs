@@ -307,6 +307,7 @@ impl StatusPublisher {
                 rejection: d.rejection.code(),
                 monitoring: d.monitoring.code(),
                 monitoring_ms: d.monitoring_ms,
+                picture: d.picture,
                 controller_pid: d.controller_pid,
                 since_ns: ns(d.since),
                 last_good_ns: d.last_good.map_or(uss_shm_types::diag::NEVER, ns),
