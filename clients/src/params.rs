@@ -294,6 +294,11 @@ impl Bus {
                 error: RequestError::UnknownDrive,
                 ..
             }) => return Err(self.unknown_drive(address).into()),
+            // A ussd older than the put-back: the raise alone, put back by this process only.
+            Err(ParamError::Refused {
+                error: RequestError::BadFlags,
+                ..
+            }) => return self.write_with(address, param, value, options),
             other => other?,
         };
         results

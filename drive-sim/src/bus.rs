@@ -98,6 +98,13 @@ impl SimBus {
         self.slots.iter().flatten().any(|s| s.faults.hangs(now))
     }
 
+    /// Every drive set up for a line at `baud` ([`Drive::commission_line`]).
+    pub fn commission_line(&mut self, baud: uss_protocol::Baud) {
+        for s in self.slots.iter_mut().flatten() {
+            s.drive.commission_line(baud);
+        }
+    }
+
     /// Every drive on the bus, by ascending address.
     pub fn drives(&self) -> impl Iterator<Item = &Drive> {
         self.slots.iter().flatten().map(|s| &s.drive)

@@ -385,6 +385,16 @@ impl Drive {
         self.publish();
     }
 
+    /// The drive set up for the line it is on: its baud rate setting (MM4's P2010[0], a
+    /// G120's p2020) names the line's rate, as commissioned, where its list has a value for it.
+    pub fn commission_line(&mut self, baud: uss_protocol::Baud) {
+        if let Some((pnu, index, coding)) = self.roles().baud
+            && let Some(value) = coding.of(baud)
+        {
+            self.params.set_commissioned(pnu, index, u32::from(value));
+        }
+    }
+
     /// On SINAMICS, the fault buffer's element `slot` gets the system runtime r2114 (here the
     /// time since the simulator started): its milliseconds of the day (r0948) and days (r2130).
     fn stamp_received(&mut self, slot: u8) {

@@ -17,9 +17,28 @@ use uss_protocol::{ParamRef, Subindex};
 use uss_shm_types::DriveFamily;
 
 use crate::params::{
-    COM_LINK, MM4_OWN, Own, P0970, P1000, P1080, P1082, P1120, P1121, P1135, P2011, P2013,
+    COM_LINK, MM4_OWN, Own, P0970, P1000, P1080, P1082, P1120, P1121, P1135, P2010, P2011, P2013,
     ParamSet, R0018, R0021, R0052, R0054, R0947, R0948, R0949, R2024,
 };
+
+/// How a family's link setting names a baud rate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BaudCoding {
+    /// MICROMASTER 4 / G110 P2010: 3 = 1200 ... 9 = 57600 (USS.md section 2).
+    P2010,
+    /// SINAMICS G120 p2020: 6 = 9600 ... 12 = 115200.
+    P2020,
+}
+
+impl BaudCoding {
+    /// The setting for `baud`, where the family's list names one.
+    pub const fn of(self, baud: uss_protocol::Baud) -> Option<u16> {
+        match self {
+            Self::P2010 => baud.p2010(),
+            Self::P2020 => baud.p2020(),
+        }
+    }
+}
 
 /// Where a family keeps its fault buffer: `len` elements of fault codes and of fault values,
 /// `per_trip` faults per trip (newest trip first), and on MICROMASTER 4 three time words per
@@ -61,6 +80,9 @@ pub struct Roles {
     /// Telegram monitoring (P2014\[0\] in ms on MM4, p2040 in ms as a float on G120); `None`: a
     /// fixed time (the simulator's `p2014=`), with no parameter.
     pub monitoring: Option<(u16, u8)>,
+    /// The link's baud rate setting with its index, and its value for a line's rate (MM4's
+    /// P2010[0], a G120's p2020), where the family has one.
+    pub baud: Option<(u16, u8, BaudCoding)>,
     /// The link's address, PZD count and PKW count, with their index.
     pub address: Option<(u16, u8)>,
     pub pzd: Option<(u16, u8)>,
@@ -117,6 +139,7 @@ const MICROMASTER4_OWN: Roles = Roles {
     time_unit: 1.0,
     reference: None,
     monitoring: None,
+    baud: Some((P2010, COM_LINK, BaudCoding::P2010)),
     address: Some((P2011, COM_LINK)),
     pzd: None,
     pkw: Some((P2013, COM_LINK)),
@@ -146,6 +169,7 @@ const G120_FIELDBUS: u32 = 6;
 const R0945: u16 = 945;
 /// The day count of each fault's time on SINAMICS (r0948 its milliseconds).
 const R2130: u16 = 2130;
+const P2020: u16 = 2020;
 const P2021: u16 = 2021;
 const P2023: u16 = 2023;
 
@@ -176,6 +200,7 @@ const G120_OWN: Roles = Roles {
     time_unit: 1.0,
     reference: None,
     monitoring: None,
+    baud: Some((P2020, 0, BaudCoding::P2020)),
     address: Some((P2021, 0)),
     pzd: None,
     pkw: Some((P2023, 0)),
@@ -226,6 +251,7 @@ const SIMOREG_OWN: Roles = Roles {
     time_unit: 0.01,
     reference: None,
     monitoring: None,
+    baud: None,
     address: None,
     pzd: None,
     pkw: Some((P782, 0)),

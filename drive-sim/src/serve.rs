@@ -165,6 +165,8 @@ pub fn serve(
 ) -> io::Result<()> {
     let mut framer = Framer::new(FramerConfig::strict(timing));
     let mut buf = [0u8; 512];
+    // The drives' baud rate settings name the line's rate.
+    bus.commission_line(timing.baud());
     while !stop.load(Ordering::Relaxed) {
         if bus.hangs(start.elapsed()) {
             // The injected hang: read nothing, answer nothing, until stopped.

@@ -37,7 +37,9 @@ pub struct VirtualWire {
 }
 
 impl VirtualWire {
-    pub fn new(bus: SimBus, timing: Timing) -> Self {
+    pub fn new(mut bus: SimBus, timing: Timing) -> Self {
+        // The drives' baud rate settings name the line's rate.
+        bus.commission_line(timing.baud());
         Self {
             bus,
             timing,

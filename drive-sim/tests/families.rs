@@ -168,3 +168,27 @@ fn a_g110_has_the_micromaster_numbers_and_its_own_firmware() {
     d.trip(2);
     assert_eq!(read(&mut d, 947, Some(0), ms(0)), ReplyKind::ArrayWord(2));
 }
+
+/// Issue 46, item 6: the simulator read P2010/p2020 as 9600 baud on a 19200 line. A drive is
+/// commissioned for the line it is on: MM4's P2010[0] (USS.md section 2: 7 = 19200) and a G120's
+/// p2020 (CU230P-2 OI 01/2011 p.120: 12 = 115200) name the line's rate, across a power cycle;
+/// where its list names no value for the rate, the setting stays its default.
+#[test]
+fn a_drive_commissioned_for_its_line_names_the_lines_baud_rate() {
+    let baud = |b| uss_protocol::Baud::new(b).unwrap();
+    let mut mm4 = drive(Personality::MICROMASTER4, 0);
+    mm4.commission_line(baud(19200));
+    assert_eq!(mm4.params().get(2010, 0), Some(7));
+    mm4.power_cycle();
+    assert_eq!(mm4.params().get(2010, 0), Some(7), "kept in EEPROM");
+    let mut g120 = drive(Personality::G120, 0);
+    g120.commission_line(baud(115_200));
+    assert_eq!(g120.params().get(2020, 0), Some(12));
+    let mut fast = drive(Personality::MICROMASTER4, 0);
+    fast.commission_line(baud(115_200));
+    assert_eq!(
+        fast.params().get(2010, 0),
+        Some(6),
+        "no MM4 value for 115200: the default"
+    );
+}

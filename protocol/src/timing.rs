@@ -63,6 +63,22 @@ impl Baud {
             _ => None,
         }
     }
+
+    /// The drive setting p2020 (SINAMICS G120's fieldbus baud rate) for this rate, where one
+    /// is defined: 6 = 9600 ... 12 = 115200 (CU230P-2 OI 01/2011, p2020, p.120; V20 OI 07/2012
+    /// p.111).
+    pub const fn p2020(self) -> Option<u16> {
+        match self.0 {
+            9600 => Some(6),
+            19200 => Some(7),
+            38400 => Some(8),
+            57600 => Some(9),
+            76800 => Some(10),
+            93750 => Some(11),
+            115_200 => Some(12),
+            _ => None,
+        }
+    }
 }
 
 impl core::fmt::Display for Baud {
@@ -223,5 +239,8 @@ mod tests {
         assert_eq!(Baud::new(9600).unwrap().p2010(), Some(6));
         assert_eq!(Baud::new(57600).unwrap().p2010(), Some(9));
         assert_eq!(Baud::new(115_200).unwrap().p2010(), None);
+        assert_eq!(Baud::new(19200).unwrap().p2020(), Some(7));
+        assert_eq!(Baud::new(115_200).unwrap().p2020(), Some(12));
+        assert_eq!(Baud::new(4800).unwrap().p2020(), None);
     }
 }
