@@ -488,11 +488,11 @@ impl Bus {
             return Ok(None);
         }
         // ussd puts it back should this process die before it does.
-        let raised = self.write_raising(
+        let raised = self.write_putting_back(
             address,
             level,
             Value::Word(needed),
-            Value::Word(now),
+            Some(Value::Word(now)),
             options,
         );
         if let Err(e) = raised {

@@ -165,7 +165,23 @@ impl Bus {
         value: Value,
         options: WriteOptions,
     ) -> Result<Value, ParamError> {
-        let task = ParamTask::write(param.pnu, param.index, value, options.storage());
+        self.write_putting_back(address, param, value, None, options)
+    }
+
+    /// [`Bus::write_with`], leaving ussd the write `param` := `back` (when there is one) to run
+    /// should this process die before it writes `param` again
+    /// ([`uss_shm_types::REQUEST_PUT_BACK`]): a restore's access level or quick commissioning,
+    /// raised on the way, is not left raised by a process killed halfway. A ussd older than
+    /// the put-back refuses it: the write then goes alone, put back by this process only.
+    pub(crate) fn write_putting_back(
+        &self,
+        address: Address,
+        param: ParamRef,
+        value: Value,
+        back: Option<Value>,
+        options: WriteOptions,
+    ) -> Result<Value, ParamError> {
+        let task = |v| ParamTask::write(param.pnu, param.index, v, options.storage());
         let mut flags = 0;
         if options.force {
             flags |= uss_shm_types::REQUEST_FORCE;
@@ -173,10 +189,22 @@ impl Bus {
         if options.unsafe_write {
             flags |= uss_shm_types::REQUEST_UNSAFE;
         }
-        let written = self
-            .request(address, &[task], flags)?
-            .pop()
-            .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))?;
+        let mut tasks = vec![task(value)];
+        if let Some(back) = back {
+            tasks.push(task(back));
+            flags |= uss_shm_types::REQUEST_PUT_BACK;
+        }
+        let written = match self.request_answered(address, &tasks, 1, flags) {
+            Err(ParamError::Refused {
+                error: RequestError::BadFlags,
+                ..
+            }) if back.is_some() => {
+                return self.write_putting_back(address, param, value, None, options);
+            }
+            other => other?,
+        }
+        .pop()
+        .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))?;
         let command = self
             .catalogue_entry(address, param.pnu)
             .is_some_and(|p| p.action);
@@ -260,61 +288,23 @@ impl Bus {
             .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
     }
 
-    /// Writes `param` := `value` on the way of a longer task (a restore's access level or
-    /// quick commissioning), and leaves ussd the write `param` := `back` to run should this
-    /// process die before it writes `param` again ([`uss_shm_types::REQUEST_PUT_BACK`]): a
-    /// process killed halfway leaves no drive raised.
-    pub(crate) fn write_raising(
-        &self,
-        address: Address,
-        param: ParamRef,
-        value: Value,
-        back: Value,
-        options: WriteOptions,
-    ) -> Result<Value, ParamError> {
-        let task = |v| ParamTask::write(param.pnu, param.index, v, options.storage());
-        let mut flags = uss_shm_types::REQUEST_PUT_BACK;
-        if options.force {
-            flags |= uss_shm_types::REQUEST_FORCE;
-        }
-        if options.unsafe_write {
-            flags |= uss_shm_types::REQUEST_UNSAFE;
-        }
-        let tasks = [task(value), task(back)];
-        let mut request =
-            ParamRequest::of_tasks(address, &tasks).map_err(|r| ParamError::Refused {
-                error: r.error,
-                item: r.item,
-            })?;
-        request.flags |= flags;
-        let response = self.send_request(&request)?;
-        // Answered for the raise alone: the put-back waits in ussd.
-        let results = match response_results(&response, address, 1) {
-            Err(ParamError::Refused {
-                error: RequestError::UnknownDrive,
-                ..
-            }) => return Err(self.unknown_drive(address).into()),
-            // A ussd older than the put-back: the raise alone, put back by this process only.
-            Err(ParamError::Refused {
-                error: RequestError::BadFlags,
-                ..
-            }) => return self.write_with(address, param, value, options),
-            other => other?,
-        };
-        results
-            .into_iter()
-            .zip(&tasks)
-            .zip(response.results())
-            .map(|((result, task), raw)| write_outcome(task, result, raw.telegrams))
-            .next()
-            .unwrap_or_else(|| Err(ParamError::Unexpected("no result".into())))
-    }
-
     /// Sends one request and waits for its one response.
     fn request(
         &self,
         address: Address,
         tasks: &[ParamTask],
+        flags: u8,
+    ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
+        self.request_answered(address, tasks, tasks.len(), flags)
+    }
+
+    /// [`Bus::request`] whose response answers the first `answered` of `tasks` (the rest
+    /// wait in ussd: [`uss_shm_types::REQUEST_PUT_BACK`]).
+    fn request_answered(
+        &self,
+        address: Address,
+        tasks: &[ParamTask],
+        answered: usize,
         flags: u8,
     ) -> Result<Vec<Result<Value, ParamError>>, ParamError> {
         // The one conversion from the protocol's tasks to the contract's items.
@@ -325,7 +315,7 @@ impl Bus {
             })?;
         request.flags |= flags;
         let response = self.send_request(&request)?;
-        let results = match response_results(&response, address, tasks.len()) {
+        let results = match response_results(&response, address, answered) {
             // Every front-end hears it as the drive unknown, with the drives ussd serves.
             Err(ParamError::Refused {
                 error: RequestError::UnknownDrive,

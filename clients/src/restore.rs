@@ -417,9 +417,13 @@ impl Bus {
             let (param, value) = step.target();
             let result = match *step {
                 // ussd puts a raise back should this process die before it does.
-                Step::Raise { was, .. } => {
-                    self.write_raising(address, param, value, Value::Word(was), options.writes())
-                }
+                Step::Raise { was, .. } => self.write_putting_back(
+                    address,
+                    param,
+                    value,
+                    Some(Value::Word(was)),
+                    options.writes(),
+                ),
                 _ => self.write_with(address, param, value, options.writes()),
             };
             took.push(match &result {

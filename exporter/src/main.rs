@@ -309,22 +309,19 @@ impl Metrics {
         let zsw1 = (pzd_words > 0 && d.is_online_at(now) && !d.is_overdue(now))
             .then(|| Zsw1::from_bits_retain(d.last_zsw1));
         let shown = zsw1.map(DriveState::from_zsw1);
-        for state in DriveState::ALL {
+        let states = DriveState::ALL
+            .into_iter()
+            .map(|s| (s.short_name(), shown == Some(s)))
+            .chain([("unknown", shown.is_none())]);
+        for (state, is) in states {
             self.state
                 .get_or_create(&StateLabels {
                     bus: bus.to_owned(),
                     drive: labels.drive.clone(),
-                    state: state.short_name(),
+                    state,
                 })
-                .set(i64::from(shown == Some(state)));
+                .set(i64::from(is));
         }
-        self.state
-            .get_or_create(&StateLabels {
-                bus: bus.to_owned(),
-                drive: labels.drive.clone(),
-                state: "unknown",
-            })
-            .set(i64::from(shown.is_none()));
         let bit = |b: Zsw1| zsw1.map_or(-1, |z| i64::from(z.contains(b)));
         self.fault.get_or_create(&labels).set(bit(Zsw1::FAULT));
         self.warning.get_or_create(&labels).set(bit(Zsw1::WARNING));

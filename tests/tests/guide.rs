@@ -68,19 +68,18 @@ fn every_terminal_session_of_the_guide_prints_what_it_says() {
         // ussd's real-time thread that long while processes start and end around it: the
         // drives then truly trip, the session rightly differs, and it runs once more on a
         // fresh bus. A session that differs without a trip fails at once.
-        let first = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            session(&name, &text, &bins);
-        }));
-        match first {
+        match session(&name, &text, &bins) {
             Ok(()) => {}
-            Err(_) if STALLED.with(std::cell::Cell::take) => {
+            Err(Failed { tripped: true, .. }) => {
                 eprintln!(
                     "{name}: ussd was held past the drives' 100 ms telegram monitoring and they \
                      tripped (see ussd's log above); running the chapter once more"
                 );
-                session(&name, &text, &bins);
+                if let Err(again) = session(&name, &text, &bins) {
+                    std::panic::resume_unwind(again.panic);
+                }
             }
-            Err(e) => std::panic::resume_unwind(e),
+            Err(f) => std::panic::resume_unwind(f.panic),
         }
         ran += 1;
     }
@@ -88,15 +87,17 @@ fn every_terminal_session_of_the_guide_prints_what_it_says() {
     let _ = std::fs::remove_dir_all(&work);
 }
 
-thread_local! {
-    /// Whether the last [`session`]'s ussd logged a drive's trip.
-    static STALLED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+/// A chapter whose sessions differed: the test's panic, and whether ussd's log shows its
+/// drives tripped meanwhile.
+struct Failed {
+    panic: Box<dyn std::any::Any + Send>,
+    tripped: bool,
 }
 
 /// Runs one chapter's terminal sessions. Each chapter gets a fresh bus: the simulated bus ussd
 /// runs with no configuration (`master/src/config/mod.rs`, `EMBEDDED_DEFAULT`), under this test's
 /// own bus name.
-fn session(name: &str, text: &str, bins: &[(&str, PathBuf)]) {
+fn session(name: &str, text: &str, bins: &[(&str, PathBuf)]) -> Result<(), Failed> {
     let monitored = "sim = { p2014 = 100 }";
     let ussd = needs_ussd(text).then(|| {
         Ussd::start(
@@ -132,8 +133,7 @@ fn session(name: &str, text: &str, bins: &[(&str, PathBuf)]) {
     if let Some(u) = &ussd {
         cases.insert_var("[BUS]", u.bus.clone()).unwrap();
     }
-    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| drop(cases)));
-    if let Err(e) = result {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| drop(cases))).map_err(|panic| {
         let tripped = ussd.as_ref().is_some_and(|u| {
             let log = u.log();
             let tripped = log.contains("the drive tripped");
@@ -142,9 +142,8 @@ fn session(name: &str, text: &str, bins: &[(&str, PathBuf)]) {
             }
             tripped
         });
-        STALLED.with(|s| s.set(tripped));
-        std::panic::resume_unwind(e);
-    }
+        Failed { panic, tripped }
+    })
 }
 
 /// A heading's id as mdBook makes it (and GitHub, for these texts): lower case, spaces to `-`,

@@ -40,19 +40,15 @@ fn start_running(bus: &Bus, c: &Controller, speed: Speed) -> Result<(), Failure>
                     | DriveState::OperationEnabled
             )
     })?;
+    if !matches!(speed, Speed::Percent(_)) {
+        // A drive that just came online, was reset or commissioned has its reference read
+        // again: ussd scales nothing with the old one, so wait for it (a poll or two).
+        let inputs = c.inputs();
+        inputs.wait_for_reference(inputs.reference_wait())?;
+    }
     match speed {
-        Speed::Hz(_) | Speed::Rpm(_) => {
-            // A drive that just came online, was reset or commissioned has its reference read
-            // again: ussd scales nothing with the old one, so wait for it (a poll or two).
-            let inputs = c.inputs();
-            if inputs.info().pole_pairs > 0 || matches!(speed, Speed::Hz(_)) {
-                inputs.wait_for_reference(inputs.reference_wait())?;
-            }
-            match speed {
-                Speed::Rpm(rpm) => c.run_rpm(rpm)?,
-                _ => c.run_hz(speed.value())?,
-            }
-        }
+        Speed::Hz(hz) => c.run_hz(hz)?,
+        Speed::Rpm(rpm) => c.run_rpm(rpm)?,
         Speed::Percent(p) => c.run_percent(p)?,
     }
     c.wait_for_state(DriveState::OperationEnabled, state_timeout(c))?;
@@ -138,14 +134,6 @@ enum Speed {
     Percent(f32),
     /// rpm of the drive's reference speed.
     Rpm(f32),
-}
-
-impl Speed {
-    const fn value(self) -> f32 {
-        match self {
-            Self::Hz(v) | Self::Percent(v) | Self::Rpm(v) => v,
-        }
-    }
 }
 
 impl Run {

@@ -72,7 +72,6 @@ pub(super) fn create(
         bus: bus.bus.as_str().to_owned(),
         next_id: 1,
         next_dead_check: Instant::now(),
-        next_put_back_check: Instant::now(),
         watches: super::watches::Watches::default(),
         guards,
     })
@@ -172,6 +171,23 @@ fn shown_write(task: &ParamTask, rules: Option<&WriteRules>) -> String {
     }
 }
 
+/// A node iceoryx2 lists: its id, whether it is dead, its process (0: not known).
+type Node = (UniqueNodeId, bool, u32);
+
+/// Whether `client` died by iceoryx2's `nodes` (marked dead, or no longer listed); its process
+/// id is noted in `pid` while it is listed with one.
+fn died(nodes: &[Node], client: UniqueNodeId, pid: &mut u32) -> bool {
+    match nodes.iter().find(|(node, _, _)| *node == client) {
+        Some(&(_, dead, listed)) => {
+            if listed != 0 {
+                *pid = listed;
+            }
+            dead
+        }
+        None => true,
+    }
+}
+
 /// How often pending requests are checked for dead clients: within this of a client's death
 /// its jobs that have not reached the wire are cancelled.
 const DEAD_CLIENT_CHECK: Duration = Duration::from_millis(100);
@@ -196,7 +212,6 @@ pub struct ParamServer {
     bus: String,
     next_id: u64,
     next_dead_check: Instant,
-    next_put_back_check: Instant,
     /// The requesting processes, watched by the bus thread before each job leaves a mailbox.
     watches: super::watches::Watches,
     /// What each drive takes without `--unsafe`.
@@ -357,8 +372,7 @@ impl ParamServer {
             self.accept(active, handle);
         }
         self.notify_answered();
-        self.cancel_for_dead_clients(handle);
-        self.put_back_for_dead_clients(handle);
+        self.check_dead_clients(handle);
         if self.requests.timed_wait(|_| {}, wait).is_err() {
             // The event is broken (it never is in practice): keep serving by polling.
             std::thread::sleep(wait.min(Duration::from_millis(1)));
@@ -460,28 +474,32 @@ impl ParamServer {
         });
     }
 
-    /// Cancels the jobs of requests whose client died that have not reached the wire (every
-    /// [`DEAD_CLIENT_CHECK`] while requests are pending). The one on the wire completes; every
-    /// job still ends in exactly one result, which nobody receives.
-    fn cancel_for_dead_clients(&mut self, handle: &EngineHandle) {
-        if self.pending.iter().all(|p| p.cancelled) || Instant::now() < self.next_dead_check {
+    /// Every [`DEAD_CLIENT_CHECK`] while requests are pending or raises are kept, one look at
+    /// iceoryx2's nodes: the jobs of dead clients are cancelled, then their raises put back.
+    fn check_dead_clients(&mut self, handle: &EngineHandle) {
+        let idle = self.pending.iter().all(|p| p.cancelled)
+            && self.put_backs.iter().all(|p| p.running.is_some());
+        if idle || Instant::now() < self.next_dead_check {
             return;
         }
         self.next_dead_check = Instant::now() + DEAD_CLIENT_CHECK;
         let Some(nodes) = self.identities.nodes() else {
             return;
         };
+        self.cancel_for_dead_clients(&nodes, handle);
+        self.put_back_for_dead_clients(&nodes, handle);
+    }
+
+    /// Cancels the jobs of requests whose client died that have not reached the wire. The one
+    /// on the wire completes; every job still ends in exactly one result, which nobody
+    /// receives.
+    fn cancel_for_dead_clients(&mut self, nodes: &[Node], handle: &EngineHandle) {
         for p in self.pending.iter_mut().filter(|p| !p.cancelled) {
             let Some(client) = p.client else {
                 continue;
             };
-            if let Some(&(_, dead, pid)) = nodes.iter().find(|(node, _, _)| *node == client) {
-                if pid != 0 {
-                    p.pid = pid;
-                }
-                if !dead {
-                    continue;
-                }
+            if !died(nodes, client, &mut p.pid) {
+                continue;
             }
             let pid = p.pid;
             if handle.cancel(p.first_id..p.first_id + p.count) {
@@ -565,19 +583,9 @@ impl ParamServer {
         });
     }
 
-    /// Runs the put-backs of clients that died (every [`DEAD_CLIENT_CHECK`] while there are
-    /// any): each as ussd's own job, after the dead client's pending jobs were cancelled.
-    fn put_back_for_dead_clients(&mut self, handle: &EngineHandle) {
-        if self.put_backs.iter().all(|p| p.running.is_some()) {
-            return;
-        }
-        if Instant::now() < self.next_put_back_check {
-            return;
-        }
-        self.next_put_back_check = Instant::now() + DEAD_CLIENT_CHECK;
-        let Some(nodes) = self.identities.nodes() else {
-            return;
-        };
+    /// Runs the put-backs of clients that died, each as ussd's own job, after the dead
+    /// client's pending jobs were cancelled.
+    fn put_back_for_dead_clients(&mut self, nodes: &[Node], handle: &EngineHandle) {
         // Last raised first: the access level goes back after quick commissioning ends.
         for p in self
             .put_backs
@@ -585,13 +593,8 @@ impl ParamServer {
             .rev()
             .filter(|p| p.running.is_none())
         {
-            if let Some(&(_, dead, pid)) = nodes.iter().find(|(node, _, _)| *node == p.client) {
-                if pid != 0 {
-                    p.pid = pid;
-                }
-                if !dead {
-                    continue;
-                }
+            if !died(nodes, p.client, &mut p.pid) {
+                continue;
             }
             let id = self.next_id;
             if handle
