@@ -215,6 +215,12 @@ typedef uint8_t UssrtJog;
 typedef struct UssrtBus UssrtBus;
 
 /**
+ * A cancel another thread or a signal handler cuts a restore short with
+ * (`ussrt_param_restore_cancellable`, `ussrt_cancel`).
+ */
+typedef struct UssrtCancel UssrtCancel;
+
+/**
  * The one controller of a drive (opaque): made by [`ussrt_control_open`], owned by the caller
  * until [`ussrt_control_close`]. Usable from several threads at once: a call never waits for
  * another thread's call on the same handle (a stop goes out while another thread waits for a
@@ -300,7 +306,8 @@ typedef struct UssrtErrorInfo {
  */
 typedef struct UssrtValue {
   /**
-   * The value in its own type: a float parameter's float, an integer's integer (exact).
+   * The value in its own type and unit: a float parameter's float, an integer's integer
+   * (exact), a fixed-point parameter's steps in its unit (SIMOREG P303's raw 1000 is 10.0 s).
    */
   double value;
   /**
@@ -1023,6 +1030,49 @@ enum UssrtStatus ussrt_param_restore(const struct UssrtBus *bus,
                                      const char *backup_text,
                                      uint32_t flags,
                                      struct UssrtRestore *result);
+
+/**
+ * Makes a cancel (`*cancel`), not asked yet; free it with `ussrt_cancel_free`.
+ *
+ * # Safety
+ * `cancel` is writable memory for one pointer.
+ */
+enum UssrtStatus ussrt_cancel_new(struct UssrtCancel **cancel);
+
+/**
+ * Asks the call that was given `cancel` to stop between its steps: a restore writes no
+ * further value and puts back what it raised (asked again: it leaves what it could not put
+ * back yet). One atomic add, nothing else: safe from a signal handler (SIGINT, SIGTERM) and
+ * from any thread. `INVALID_ARGUMENT` for NULL.
+ *
+ * # Safety
+ * `cancel` is NULL or a live cancel.
+ */
+enum UssrtStatus ussrt_cancel(const struct UssrtCancel *cancel);
+
+/**
+ * Frees a cancel (NULL: nothing); no call may be using it.
+ *
+ * # Safety
+ * `cancel` is NULL or made by `ussrt_cancel_new` and freed once.
+ */
+void ussrt_cancel_free(struct UssrtCancel *cancel);
+
+/**
+ * `ussrt_param_restore`, cut short when `cancel` (NULL: never) is asked
+ * (`ussrt_cancel`, from another thread or a signal handler): no further value is written,
+ * what the restore raised is put back, and it returns `OK` with `complete` 0 (and
+ * `left_raised` what it could not put back, when asked twice).
+ *
+ * # Safety
+ * As `ussrt_param_restore`; `cancel` NULL or a live cancel for the whole call.
+ */
+enum UssrtStatus ussrt_param_restore_cancellable(const struct UssrtBus *bus,
+                                                 uint8_t address,
+                                                 const char *backup_text,
+                                                 uint32_t flags,
+                                                 const struct UssrtCancel *cancel,
+                                                 struct UssrtRestore *result);
 
 /**
  * Reads parameter number `pnu` (element `index`, or `USSRT_NO_INDEX`) as the raw word or

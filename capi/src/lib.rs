@@ -25,7 +25,7 @@ mod status;
 pub use bus::{UssrtBus, UssrtDrive};
 pub use control::UssrtController;
 pub use error::{UssrtErrorInfo, ussrt_last_error, ussrt_last_error_info};
-pub use params::{UssrtDescription, UssrtFault, UssrtFaultReport, UssrtValue};
+pub use params::{UssrtCancel, UssrtDescription, UssrtFault, UssrtFaultReport, UssrtValue};
 pub use scan::UssrtScanned;
 pub use status::UssrtStatus;
 

@@ -24,7 +24,8 @@ pub const USSRT_NO_INDEX: i32 = -1;
 #[repr(C)]
 #[derive(Debug, Clone, Copy)]
 pub struct UssrtValue {
-    /// The value in its own type: a float parameter's float, an integer's integer (exact).
+    /// The value in its own type and unit: a float parameter's float, an integer's integer
+    /// (exact), a fixed-point parameter's steps in its unit (SIMOREG P303's raw 1000 is 10.0 s).
     pub value: f64,
     /// The word or double word the drive sent.
     pub raw: u32,
@@ -86,13 +87,8 @@ fn copy_text(buf: &mut [c_char], s: &str) {
 }
 
 fn value_of(v: &ParamValue) -> UssrtValue {
-    let (value, is_float) = match v.typed() {
-        Typed::I16(x) => (f64::from(x), 0),
-        Typed::I32(x) => (f64::from(x), 0),
-        Typed::U16(x) => (f64::from(x), 0),
-        Typed::U32(x) => (f64::from(x), 0),
-        Typed::Float(x) => (f64::from(x), 1),
-    };
+    let is_float = u8::from(matches!(v.typed(), Typed::Float(_)));
+    let value = v.value().as_f64();
     let (raw, is_dword) = raw_of(v.raw);
     let mut out = UssrtValue {
         value,
@@ -485,7 +481,80 @@ pub unsafe extern "C" fn ussrt_param_restore(
     flags: u32,
     result: *mut UssrtRestore,
 ) -> UssrtStatus {
+    // SAFETY: the caller's arguments as documented; no cancel.
+    unsafe {
+        ussrt_param_restore_cancellable(bus, address, backup_text, flags, core::ptr::null(), result)
+    }
+}
+
+/// A cancel another thread or a signal handler cuts a restore short with
+/// (`ussrt_param_restore_cancellable`, `ussrt_cancel`).
+#[derive(Debug, Default)]
+pub struct UssrtCancel(uss_client::cancel::CancelHandle);
+
+/// Makes a cancel (`*cancel`), not asked yet; free it with `ussrt_cancel_free`.
+///
+/// # Safety
+/// `cancel` is writable memory for one pointer.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_cancel_new(cancel: *mut *mut UssrtCancel) -> UssrtStatus {
     guard(|| {
+        let cancel = out(cancel, "cancel")?;
+        *cancel = Box::into_raw(Box::default());
+        Ok(())
+    })
+}
+
+/// Asks the call that was given `cancel` to stop between its steps: a restore writes no
+/// further value and puts back what it raised (asked again: it leaves what it could not put
+/// back yet). One atomic add, nothing else: safe from a signal handler (SIGINT, SIGTERM) and
+/// from any thread. `INVALID_ARGUMENT` for NULL.
+///
+/// # Safety
+/// `cancel` is NULL or a live cancel.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_cancel(cancel: *const UssrtCancel) -> UssrtStatus {
+    // SAFETY: NULL or live (as documented); no guard: nothing here allocates or unwinds.
+    match unsafe { cancel.as_ref() } {
+        Some(c) => {
+            c.0.cancel();
+            UssrtStatus::Ok
+        }
+        None => UssrtStatus::InvalidArgument,
+    }
+}
+
+/// Frees a cancel (NULL: nothing); no call may be using it.
+///
+/// # Safety
+/// `cancel` is NULL or made by `ussrt_cancel_new` and freed once.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_cancel_free(cancel: *mut UssrtCancel) {
+    if !cancel.is_null() {
+        // SAFETY: made by `Box::into_raw` in `ussrt_cancel_new`, freed once.
+        drop(unsafe { Box::from_raw(cancel) });
+    }
+}
+
+/// `ussrt_param_restore`, cut short when `cancel` (NULL: never) is asked
+/// (`ussrt_cancel`, from another thread or a signal handler): no further value is written,
+/// what the restore raised is put back, and it returns `OK` with `complete` 0 (and
+/// `left_raised` what it could not put back, when asked twice).
+///
+/// # Safety
+/// As `ussrt_param_restore`; `cancel` NULL or a live cancel for the whole call.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_restore_cancellable(
+    bus: *const UssrtBus,
+    address: u8,
+    backup_text: *const c_char,
+    flags: u32,
+    cancel: *const UssrtCancel,
+    result: *mut UssrtRestore,
+) -> UssrtStatus {
+    guard(|| {
+        // SAFETY: NULL or live for the call (as documented).
+        let cancel = unsafe { cancel.as_ref() };
         let bus = arg(bus, "bus")?;
         let file = text(backup_text, "backup_text")?;
         let result = out(result, "result")?;
@@ -511,11 +580,12 @@ pub unsafe extern "C" fn ussrt_param_restore(
         let catalogue = uss_client::backup::settings_catalogue(drive, bus.bus.family(drive))?;
         let loaded = uss_client::backup::BackupFile::parse(file, "backup_text", catalogue)
             .map_err(uss_client::ParamError::from)?;
+        let never = uss_client::cancel::CancelHandle::default();
         let done = bus.bus.restore(
             drive,
             &loaded,
             options,
-            &uss_client::restore::NeverCancelled,
+            cancel.map_or(&never, |c| &c.0),
             &mut |_, _| {},
             &mut |_| {},
         )?;

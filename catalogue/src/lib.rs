@@ -64,6 +64,21 @@ pub enum ValueError {
     },
     #[error("{text} is not a whole number, and {data_type} holds only whole numbers")]
     NotWhole { text: String, data_type: DataType },
+    /// A fixed-point parameter holds whole steps only (SIMOREG P303: 0.01 s).
+    #[error("{text} is not a whole number of steps of {step} {unit}")]
+    NotAStep {
+        text: String,
+        /// The step as the catalogue writes it (`0.01`).
+        step: String,
+        unit: String,
+    },
+    #[error("{text} {unit} in steps of {step} {unit} does not fit {data_type}")]
+    StepsOutOfRange {
+        text: String,
+        data_type: DataType,
+        step: String,
+        unit: String,
+    },
 }
 
 /// Values of a [`DataType`]: what the PKW channel carried read as it, and text written as it.
@@ -157,6 +172,42 @@ impl Values for DataType {
     }
 }
 
+/// A value as a client is given it, in the parameter's unit: a whole number, or a real one (a
+/// float parameter's, widened as it is; a fixed-point parameter's in its unit). It serializes
+/// as the plain number.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Quantity {
+    Whole(i64),
+    Real(f64),
+}
+
+impl Quantity {
+    /// The value of a parameter without a unit step: as its type holds it.
+    pub fn of(typed: Typed) -> Self {
+        match typed {
+            Typed::Float(f) => Self::Real(f64::from(f)),
+            t => Self::Whole(t.as_f64() as i64),
+        }
+    }
+
+    /// As a number.
+    pub fn as_f64(self) -> f64 {
+        match self {
+            Self::Whole(n) => n as f64,
+            Self::Real(x) => x,
+        }
+    }
+}
+
+impl serde::Serialize for Quantity {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match *self {
+            Self::Whole(n) => s.serialize_i64(n),
+            Self::Real(x) => s.serialize_f64(x),
+        }
+    }
+}
+
 impl Typed {
     /// The value as a number (for JSON and comparisons).
     pub fn as_f64(self) -> f64 {
@@ -243,6 +294,11 @@ pub struct Param {
     pub data_type: DataType,
     #[serde(default)]
     pub unit: String,
+    /// A fixed-point value: the word counts steps of this many `unit` (SIMOREG P303 counts
+    /// 0.01 s: 1000 is 10.00 s). Its limits and default are in `unit`; it is shown, written
+    /// and saved in `unit` too.
+    #[serde(default)]
+    pub scale: Option<f64>,
     /// Elements of an indexed parameter; 0 = not indexed. Such a parameter is always named
     /// with its element (`P2014[0]`): without one a drive takes element 0, which may not be the
     /// one meant, so uss-rt refuses it.
@@ -366,7 +422,7 @@ impl Param {
             .join(" or ")
     }
 
-    /// The value as it is shown: `50.00 Hz`, `5`, `0xFB31`.
+    /// The value as it is shown: `50.00 Hz`, `5`, `0xFB31`, `10.00 s` (a fixed-point value).
     pub fn show(&self, v: Value) -> String {
         self.show_typed(v, self.data_type.decode(v))
     }
@@ -375,6 +431,8 @@ impl Param {
     pub fn show_typed(&self, v: Value, typed: Typed) -> String {
         let shown = if self.bits.is_some() {
             format!("{:#06X}", v.as_u32() as u16)
+        } else if let Some(step) = self.scale {
+            format!("{:.*}", step_decimals(step), typed.as_f64() * step)
         } else {
             typed.to_string()
         };
@@ -387,9 +445,75 @@ impl Param {
 
     /// Whether `v` lies within the drive's limits the catalogue knows (none known: it does).
     pub fn within_limits(&self, v: Value) -> bool {
-        let x = self.data_type.decode(v).as_f64();
+        let x = self.in_unit(self.data_type.decode(v));
         self.min.is_none_or(|m| x >= m - 1e-9) && self.max.is_none_or(|m| x <= m + 1e-9)
     }
+
+    /// The value in the parameter's unit: its type's number, times the step of a fixed-point
+    /// parameter (SIMOREG P303's raw 1000 is 10.0 s).
+    pub fn in_unit(&self, typed: Typed) -> f64 {
+        typed.as_f64() * self.scale.unwrap_or(1.0)
+    }
+
+    /// The value in the parameter's unit as a client is given it: a fixed-point parameter's
+    /// steps as a number of its unit (`10.0` for P303's 1000, `0.07` for 7, exactly to the
+    /// step's digits), every other value as its type holds it.
+    pub fn quantity(&self, typed: Typed) -> Quantity {
+        match self.scale {
+            Some(step) => {
+                let x = self.in_unit(typed);
+                Quantity::Real(format!("{x:.*}", step_decimals(step)).parse().unwrap_or(x))
+            }
+            None => Quantity::of(typed),
+        }
+    }
+
+    /// A value written as text in the parameter's unit, as `data_type` (the drive's type of
+    /// it, where it described one) holds it: a fixed-point parameter takes whole steps
+    /// (`5.5` s is 550 of P303's 0.01 s; `5.555` is refused); hex is the raw word either way.
+    pub fn parse_as(&self, data_type: DataType, text: &str) -> Result<Value, ValueError> {
+        let t = text.trim();
+        let Some(step) = self
+            .scale
+            .filter(|_| !t.starts_with("0x") && !t.starts_with("0X"))
+        else {
+            return data_type.parse(t);
+        };
+        let x: f64 = t
+            .parse()
+            .map_err(|_| ValueError::NotANumber { text: t.to_owned() })?;
+        let steps = (x / step).round();
+        if !x.is_finite() || (steps * step - x).abs() > step * 1e-6 {
+            return Err(ValueError::NotAStep {
+                text: t.to_owned(),
+                step: step.to_string(),
+                unit: self.unit.clone(),
+            });
+        }
+        data_type
+            .parse(&format!("{steps}"))
+            .map_err(|_| ValueError::StepsOutOfRange {
+                text: t.to_owned(),
+                data_type,
+                step: step.to_string(),
+                unit: self.unit.clone(),
+            })
+    }
+
+    /// [`Param::parse_as`] as the catalogue types the parameter.
+    pub fn parse(&self, text: &str) -> Result<Value, ValueError> {
+        self.parse_as(self.data_type, text)
+    }
+}
+
+/// Decimals that show a step exactly: 2 for 0.01, 1 for 0.5, 0 for 1.
+pub fn step_decimals(step: f64) -> usize {
+    (0..6)
+        .find(|&d| {
+            let x = step * 10f64.powi(d as i32);
+            (x - x.round()).abs() < 1e-9
+        })
+        .unwrap_or(6)
 }
 
 /// A fault or warning number with its text.
@@ -776,6 +900,18 @@ impl Catalogue {
             if settable != p.is_writable() {
                 return Err(error(format!(
                     "{}: an r parameter is read-only and a P parameter is not",
+                    p.id
+                )));
+            }
+            if let Some(step) = p.scale
+                && (step.is_nan()
+                    || step <= 0.0
+                    || p.data_type == DataType::Float
+                    || p.bits.is_some())
+            {
+                return Err(error(format!(
+                    "{}: scale {step}: a fixed-point parameter is a word or double word of whole \
+                     steps greater than 0",
                     p.id
                 )));
             }

@@ -120,6 +120,41 @@ fn a_float_shows_the_very_value_the_drive_holds() {
 }
 
 #[test]
+fn a_fixed_point_parameter_is_shown_written_and_bounded_in_its_unit() {
+    // SIMOREG P303 counts 0.01 s (OI 6RX1700-0AD76): 1000 is 10.00 s.
+    let p303 = Catalogue::simoreg().param(303).unwrap();
+    assert_eq!(p303.show(Value::Word(1000)), "10.00 s");
+    assert_eq!(p303.show(Value::Word(7)), "0.07 s");
+    assert_eq!(p303.parse("5.5"), Ok(Value::Word(550)));
+    assert_eq!(p303.parse(" 0.07 "), Ok(Value::Word(7)));
+    assert_eq!(p303.parse("650"), Ok(Value::Word(65000)));
+    // Hex is the word itself.
+    assert_eq!(p303.parse("0x3E8"), Ok(Value::Word(1000)));
+    assert!(matches!(
+        p303.parse("5.555"),
+        Err(ValueError::NotAStep { ref step, .. }) if step == "0.01"
+    ));
+    let too_long = p303.parse("700").unwrap_err().to_string();
+    assert!(too_long.contains("does not fit U16"), "{too_long}");
+    assert!(matches!(
+        p303.parse("ten"),
+        Err(ValueError::NotANumber { .. })
+    ));
+    assert!(p303.within_limits(Value::Word(65000)) && !p303.within_limits(Value::Word(0)));
+    assert_eq!(p303.quantity(Typed::U16(550)), Quantity::Real(5.5));
+    assert_eq!(p303.quantity(Typed::U16(7)), Quantity::Real(0.07));
+    // A parameter without a scale is as its type holds it.
+    let p1120 = Catalogue::micromaster4().param(1120).unwrap();
+    assert_eq!(p1120.quantity(Typed::Float(2.5)), Quantity::Real(2.5));
+    let p0003 = Catalogue::micromaster4().param(3).unwrap();
+    assert_eq!(p0003.quantity(Typed::U16(3)), Quantity::Whole(3));
+    assert_eq!(p1120.parse("2.5"), Ok(Value::from_f32(2.5)));
+    let bad = "family = \"x\"\nparam = [ { id = \"P0001\", name = \"n\", type = \"Float\", scale = 0.1, level = 1, change = \"always\" } ]\n";
+    let e = Catalogue::parse(bad, "f").unwrap_err().to_string();
+    assert!(e.contains("scale 0.1"), "{e}");
+}
+
+#[test]
 fn limits_and_type_codes() {
     let p2000 = Catalogue::micromaster4().param(2000).unwrap();
     assert!(p2000.within_limits(Value::from_f32(50.0)));

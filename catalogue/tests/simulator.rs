@@ -87,9 +87,12 @@ fn agree(c: &Catalogue, set: &ParamSet) {
         // The simulator names its parameters as the manual does: "P1082 Max. frequency".
         assert_eq!(def.name, format!("{} {}", p.id, p.name), "name");
         if p.is_writable() && (p.min, p.max) != (None, None) {
+            // The drive holds steps of a fixed-point parameter; the catalogue says its unit.
+            let step = p.scale.unwrap_or(1.0);
+            let in_unit = |x: f64| (x * step * 1e6).round() / 1e6;
             assert_eq!(
                 (p.min, p.max),
-                (Some(def.min), Some(def.max)),
+                (Some(in_unit(def.min)), Some(in_unit(def.max))),
                 "{}: limits",
                 def.name
             );

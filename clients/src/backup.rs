@@ -87,6 +87,20 @@ pub struct Entry {
 }
 
 impl Number {
+    /// The value of a parameter the catalogue lists, in its unit (a fixed-point parameter's
+    /// steps as a number of its unit: SIMOREG P303's 1000 is `10.0` s).
+    pub fn of_param(info: &Param, v: Value) -> Self {
+        match info.scale {
+            Some(step) => {
+                let x = info.in_unit(info.data_type.decode(v));
+                // The digits of the step, so 0.07 s is written 0.07 and reads back as 7 steps.
+                let shown = format!("{:.*}", uss_catalogue::step_decimals(step), x);
+                Self::Float(shown.parse().unwrap_or(x))
+            }
+            None => Self::of(info.data_type, v),
+        }
+    }
+
     /// The value as the parameter's own type stores it.
     pub fn of(data_type: DataType, v: Value) -> Self {
         match data_type.decode(v) {
@@ -279,10 +293,18 @@ fn elements(key: &str, saved: &Saved, info: &'static Param) -> Result<Vec<Entry>
     };
     let mut out = Vec::with_capacity(values.len());
     for (i, n) in values.into_iter().enumerate() {
-        let value = info
-            .data_type
-            .parse(&n.text())
-            .map_err(|e| format!("{key}: {e}"))?;
+        if let (Some(step), Number::Int(steps)) = (info.scale, n) {
+            // Backups before the unit held the steps as a whole number: P303 = 1000 was 10 s.
+            return Err(format!(
+                "{key}: {steps} has no decimal point; {} is saved in {unit} with one (older \
+                 backups held its steps of {step} {unit}: {steps} steps are {:.*} {unit})",
+                info.id,
+                uss_catalogue::step_decimals(step),
+                steps as f64 * step,
+                unit = info.unit,
+            ));
+        }
+        let value = info.parse(&n.text()).map_err(|e| format!("{key}: {e}"))?;
         if !info.within_limits(value) {
             return Err(format!(
                 "{key}: {} is outside the drive's limits {}..={}",
@@ -593,7 +615,7 @@ impl Bus {
         let (values, missing) = self.settings(address, catalogue, progress)?;
         let mut param: BTreeMap<String, Saved> = BTreeMap::new();
         for (r, info, v) in &values {
-            let n = Number::of(info.data_type, *v);
+            let n = Number::of_param(info, *v);
             let key = info.id.to_string();
             if r.index.is_some() {
                 match param.entry(key).or_insert_with(|| Saved::Many(Vec::new())) {
@@ -735,6 +757,29 @@ mod tests {
             not_on_drive: vec!["P0004".into()],
             param,
         }
+    }
+
+    #[test]
+    fn a_fixed_point_setting_is_saved_in_its_unit_and_a_whole_number_is_refused() {
+        // SIMOREG P303 counts 0.01 s: saved as seconds, never as the bare steps.
+        let simoreg = Catalogue::simoreg();
+        let p303 = simoreg.param(303).unwrap();
+        let n = Number::of_param(p303, Value::Word(7));
+        assert_eq!(n, Number::Float(0.07));
+        let mut param = BTreeMap::new();
+        param.insert("P303".into(), Saved::One(n));
+        let mut f = file(param);
+        f.family.clone_from(&simoreg.family);
+        let text = f.to_text();
+        assert!(text.contains("P303 = 0.07"), "{text}");
+        let loaded = BackupFile::parse(&text, "f", simoreg).unwrap();
+        assert_eq!(loaded.entries[0].value, Value::Word(7));
+        let old = text.replace("P303 = 0.07", "P303 = 1000");
+        let e = BackupFile::parse(&old, "f", simoreg).unwrap_err();
+        assert!(
+            e.message.contains("no decimal point") && e.message.contains("10.00 s"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -104,7 +104,7 @@ pub use kinds::ErrorKind;
 pub use link::{Health, monotonic_ns, process_start_ns};
 pub use params::WriteOptions;
 pub use typed::{Description, Fault, FaultReport, FaultTime, ParamValue, Runtime, Warning};
-pub use uss_catalogue::{Catalogue, DataType, Typed, Values};
+pub use uss_catalogue::{Catalogue, DataType, Quantity, Typed, Values};
 pub use uss_protocol::{
     Address, DriveState, ParamRef, ParamTask, Pnu, Setpoint, Stw1, Subindex, Value, Zsw1,
 };

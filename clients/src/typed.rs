@@ -79,6 +79,14 @@ impl ParamValue {
         self.data_type.decode(self.raw)
     }
 
+    /// The value in its unit, as a client is given it: [`ParamValue::typed`], but a fixed-point
+    /// parameter's steps as a number of its unit (SIMOREG P303's raw 1000 is 10.0 s).
+    pub fn value(&self) -> uss_catalogue::Quantity {
+        let typed = self.typed();
+        self.info
+            .map_or_else(|| uss_catalogue::Quantity::of(typed), |p| p.quantity(typed))
+    }
+
     /// The unit (`Hz`, `s`, ...), empty when it has none or is not known.
     pub fn unit(&self) -> &'static str {
         self.info.map_or("", |p| p.unit.as_str())
@@ -268,7 +276,8 @@ impl Bus {
 
     /// What drive `address` says parameter `pnu` is, by the PROFIdrive descriptive elements
     /// (AK 4, USS.md section 6) in one request: 1 its data type, 2 its number of elements, 4
-    /// whether it is read-only, 7 and 8 its limits (in its own type). An element the drive
+    /// whether it is read-only, 7 and 8 its limits (in its own type and unit: a fixed-point
+    /// parameter's steps times its step, SIMOREG P303's 65000 is 650 s). An element the drive
     /// does not give (a limit over a 3-word channel is error 102) is `None`. A `generic`
     /// slave is not asked.
     ///
@@ -304,6 +313,13 @@ impl Bus {
             DataType::I32 => f64::from(raw as i32),
             DataType::U32 => f64::from(raw),
         };
+        // A fixed-point parameter's limits are steps to the drive: in its unit to a client.
+        let step = self
+            .catalogue_of(self.family(address))
+            .and_then(|c| c.param(pnu.get()))
+            .and_then(|p| p.scale)
+            .unwrap_or(1.0);
+        let limit = |raw: u32| limit(raw) * step;
         let (min, max) = (next().map(limit), next().map(limit));
         Ok(Description {
             data_type,
@@ -517,10 +533,12 @@ impl Bus {
                 problem: "read-only: a monitoring (r) parameter cannot be written".to_owned(),
             });
         }
-        let value = data_type.parse(text).map_err(|e| ParamError::Value {
-            param: self.notation(address, shown),
-            problem: e.to_string(),
-        })?;
+        let value = info
+            .map_or_else(|| data_type.parse(text), |p| p.parse_as(data_type, text))
+            .map_err(|e| ParamError::Value {
+                param: self.notation(address, shown),
+                problem: e.to_string(),
+            })?;
         let raw = self.write_with(address, param, value, options)?;
         Ok(ParamValue {
             param: shown,

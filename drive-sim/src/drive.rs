@@ -773,11 +773,23 @@ impl Drive {
         self.params.get(pnu, 0).unwrap_or(0)
     }
 
-    /// Mirrors the model into its read-only parameters r0021, r0052, r0054.
+    /// Mirrors the model into its read-only parameters r0002, r0021, r0026, r0052, r0054.
     fn publish(&mut self) {
         let z = self.zsw1();
         let roles = self.roles();
+        let state = match self.state {
+            _ if self.params.in_commissioning() => 0,
+            State::Fault => 2,
+            State::OperationEnabled => 4,
+            State::SwitchingOff(_) => 5,
+            _ => 1,
+        };
+        let dc_link = roles.dc_link.map_or(0.0, |(_, rated)| {
+            core::f32::consts::SQRT_2 * self.param_u32(rated) as f32
+        });
         for (param, value) in [
+            (roles.drive_state, state),
+            (roles.dc_link.map(|(r, _)| r), dc_link.to_bits()),
             (roles.actual, self.frequency_hz.to_bits()),
             (roles.status, u32::from(z.bits())),
             (roles.control, u32::from(self.stw1.bits())),

@@ -18,7 +18,7 @@ use uss_shm_types::DriveFamily;
 
 use crate::params::{
     COM_LINK, MM4_OWN, Own, P0970, P1000, P1080, P1082, P1120, P1121, P1135, P2010, P2011, P2013,
-    ParamSet, R0018, R0021, R0052, R0054, R0947, R0948, R0949, R2024,
+    ParamSet, R0002, R0018, R0021, R0026, R0052, R0054, R0208, R0947, R0948, R0949, R2024,
 };
 
 /// How a family's link setting names a baud rate.
@@ -89,6 +89,14 @@ pub struct Roles {
     pub pkw: Option<(u16, u8)>,
     /// Actual value, status word 1 and control word 1 as parameters (r0021, r0052, r0054).
     pub actual: Option<u16>,
+    /// The drive's state as a number (MM4 r0002: 0 commissioning mode, P0010 not 0; 1 ready; 2
+    /// fault active; 4 running; 5 stopping, ramping down. The values as the MM440 parameter
+    /// list 6SE6400-5BB00-0BP0 gives r0002; not reached in a stored copy: inferred).
+    pub drive_state: Option<u16>,
+    /// The DC-link voltage and the rated voltage it is made from (MM4 r0026 from r0208): a
+    /// powered unit's DC link charges to the supply's peak, sqrt(2) times its rated voltage
+    /// (the simulator's supply is the rated one).
+    pub dc_link: Option<(u16, u16)>,
     pub status: Option<u16>,
     pub control: Option<u16>,
     pub faults: FaultBuffer,
@@ -144,6 +152,8 @@ const MICROMASTER4_OWN: Roles = Roles {
     pzd: None,
     pkw: Some((P2013, COM_LINK)),
     actual: Some(R0021),
+    drive_state: Some(R0002),
+    dc_link: Some((R0026, R0208)),
     status: Some(R0052),
     control: Some(R0054),
     faults: FaultBuffer {
@@ -205,6 +215,8 @@ const G120_OWN: Roles = Roles {
     pzd: None,
     pkw: Some((P2023, 0)),
     actual: Some(R0021),
+    drive_state: None,
+    dc_link: None,
     status: Some(R0052),
     control: Some(R0054),
     faults: FaultBuffer {
@@ -256,6 +268,8 @@ const SIMOREG_OWN: Roles = Roles {
     pzd: None,
     pkw: Some((P782, 0)),
     actual: None,
+    drive_state: None,
+    dc_link: None,
     status: None,
     control: None,
     faults: FaultBuffer {
@@ -312,11 +326,13 @@ impl Behaviour {
     fn own_params(self) -> Own {
         match self {
             Self::Micromaster4 => Own {
-                start: &[(R0018, MM4_FIRMWARE)],
+                // A 400 V unit (MM440 6SE6440-2UD..: 380..480 V 3AC).
+                start: &[(R0018, MM4_FIRMWARE), (R0208, 400)],
                 ..MM4_OWN
             },
             Self::G110 => Own {
-                start: &[(R0018, G110_FIRMWARE)],
+                // A 230 V unit (G110: 200..240 V 1AC).
+                start: &[(R0018, G110_FIRMWARE), (R0208, 230)],
                 ..MM4_OWN
             },
             Self::G120 => G120_OWN_PARAMS,

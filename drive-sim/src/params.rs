@@ -179,6 +179,12 @@ impl ParamDef {
 
 pub const R0018: u16 = 18;
 pub const R0021: u16 = 21;
+/// Drive state (MM4).
+pub const R0002: u16 = 2;
+/// DC-link voltage (MM4).
+pub const R0026: u16 = 26;
+/// Rated inverter voltage (MM4).
+pub const R0208: u16 = 208;
 pub const R0052: u16 = 52;
 pub const R0054: u16 = 54;
 pub const P0003: u16 = 3;
@@ -243,9 +249,11 @@ impl ParamDef {
     pub fn of_profile(p: &uss_catalogue::Param) -> Self {
         let ty = p.data_type;
         let (lo, hi) = type_range(ty);
-        let (min, max) = (p.min.unwrap_or(lo), p.max.unwrap_or(hi));
+        // A fixed-point parameter's limits and default are in its unit; the drive holds steps.
+        let steps = |x: f64| p.scale.map_or(x, |step| (x / step).round());
+        let (min, max) = (p.min.map_or(lo, steps), p.max.map_or(hi, steps));
         let allowed: &'static [u32] = Box::leak(p.values.clone().into_boxed_slice());
-        let mut default = ty.raw(p.default.unwrap_or(0.0).clamp(min, max));
+        let mut default = ty.raw(p.default.map_or(0.0, steps).clamp(min, max));
         if !allowed.is_empty() && !allowed.contains(&default) {
             default = allowed[0];
         }

@@ -192,3 +192,44 @@ fn a_drive_commissioned_for_its_line_names_the_lines_baud_rate() {
         "no MM4 value for 115200: the default"
     );
 }
+
+/// Issue 46, item 6: the simulator read r0002 = 0 (commissioning mode) and r0026 = 0 V on a
+/// powered drive. r0002 says the state (0 commissioning, 1 ready, 2 fault, 4 running, 5
+/// stopping), r0026 the DC link of a powered 400 V unit (sqrt(2) x r0208).
+#[test]
+fn a_micromaster_says_its_drive_state_and_dc_link_voltage() {
+    let mut d = drive(Personality::MICROMASTER4, 0);
+    let state = |d: &mut Drive, t| read(d, 2, None, t);
+    assert_eq!(state(&mut d, ms(0)), ReplyKind::Word(1), "ready");
+    assert_eq!(read(&mut d, 208, None, ms(0)), ReplyKind::Dword(400));
+    assert!(
+        matches!(read(&mut d, 26, None, ms(0)), ReplyKind::Dword(v) if (f32::from_bits(v) - 565.7).abs() < 0.1),
+        "{:?}",
+        read(&mut d, 26, None, ms(0))
+    );
+    let t = run(&mut d, 1);
+    let r0002 = ParamTask::read(Pnu::from_u16(2), None);
+    // Read while ON is still sent (`read` sends OFF1).
+    assert_eq!(
+        send(&mut d, r0002, 0x047F, 0x2000, t).0,
+        ReplyKind::Word(4),
+        "running"
+    );
+    // OFF1 (the reply to the telegram that carries it still says the state before it).
+    state(&mut d, t + ms(10));
+    assert_eq!(state(&mut d, t + ms(20)), ReplyKind::Word(5), "stopping");
+    d.trip(2);
+    assert_eq!(state(&mut d, t + ms(30)), ReplyKind::Word(2), "fault");
+    let mut d = drive(Personality::MICROMASTER4, 0);
+    let level = ParamTask::write(Pnu::from_u16(3), None, Value::Word(3), Storage::Ram);
+    assert_eq!(send(&mut d, level, 0x047E, 0, ms(0)).0, ReplyKind::Word(3));
+    let quick = ParamTask::write(Pnu::from_u16(10), None, Value::Word(1), Storage::Ram);
+    assert_eq!(send(&mut d, quick, 0x047E, 0, ms(10)).0, ReplyKind::Word(1));
+    assert_eq!(
+        state(&mut d, ms(20)),
+        ReplyKind::Word(0),
+        "commissioning mode"
+    );
+    let mut g110 = drive(Personality::G110, 0);
+    assert_eq!(read(&mut g110, 208, None, ms(0)), ReplyKind::Dword(230));
+}

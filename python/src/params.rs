@@ -7,7 +7,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use uss_client::uss_protocol::{ParamRef, Prefix};
-use uss_client::{Address, Catalogue, DataType, ParamValue, Typed, Value, WriteOptions};
+use uss_client::{Address, Catalogue, DataType, ParamValue, Quantity, Value, WriteOptions};
 
 fn raw(v: Value) -> (u32, bool) {
     match v {
@@ -134,12 +134,9 @@ fn value_dict<'py>(py: Python<'py>, v: &ParamValue) -> PyResult<Bound<'py, PyDic
     d.set_item("raw", raw)?;
     d.set_item("is_dword", is_dword)?;
     d.set_item("data_type", type_name(v.data_type))?;
-    match v.typed() {
-        Typed::Float(x) => d.set_item("value", f64::from(x))?,
-        Typed::I16(x) => d.set_item("value", x)?,
-        Typed::I32(x) => d.set_item("value", x)?,
-        Typed::U16(x) => d.set_item("value", x)?,
-        Typed::U32(x) => d.set_item("value", x)?,
+    match v.value() {
+        Quantity::Real(x) => d.set_item("value", x)?,
+        Quantity::Whole(n) => d.set_item("value", n)?,
     }
     d.set_item("unit", v.unit())?;
     d.set_item("name", v.name())?;

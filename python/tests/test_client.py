@@ -629,7 +629,13 @@ def test_each_family_reads_its_own_parameters_and_fault_buffer(tmp_path):
                 assert report["codes"] == codes
                 assert report["faults"][0]["number"] == number
             assert repr(uss_rt.read(bus, 3, "p1121")) == "p1121 = 10.00 s"
-            assert repr(uss_rt.read(bus, 4, "P303")) == "P303 = 1000 x 0.01 s"
+            # P303 counts 0.01 s (OI 6RX1700-0AD76): shown, read and written in seconds.
+            p303 = uss_rt.read(bus, 4, "P303")
+            assert repr(p303) == "P303 = 10.00 s"
+            assert (p303.value, p303.raw) == (10.0, 1000)
+            assert uss_rt.write(bus, 4, "P303", 5.5).raw == 550
+            with pytest.raises(ValueError, match="whole number of steps of 0.01 s"):
+                uss_rt.write(bus, 4, "P303", "5.555")
             with pytest.raises(ValueError, match="no fault buffer uss-rt knows"):
                 uss_rt.fault_report(bus, 5)
     finally:

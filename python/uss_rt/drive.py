@@ -36,8 +36,9 @@ def warning_text(number: int, family: str = "micromaster4"):
 
 
 class Value:
-    """A parameter value in its own type: ``value`` (float or int), ``raw`` (the word or
-    double word), ``data_type``, ``unit`` and ``name``. ``repr`` is ``P1082 = 50.00 Hz``."""
+    """A parameter value in its own type and unit: ``value`` (float or int; a fixed-point
+    parameter's as a float of its unit, SIMOREG P303's raw 1000 is 10.0 s), ``raw`` (the word
+    or double word), ``data_type``, ``unit`` and ``name``. ``repr`` is ``P1082 = 50.00 Hz``."""
 
     def __init__(self, fields: dict):
         self.param = fields["param"]

@@ -333,10 +333,24 @@ fn a_backup_of_each_family_restored_onto_a_factory_reset_drive_leaves_it_equal()
         (3, "P1120[2]", "2.5"),
         (3, "P1082", "45"),
         (5, "p1120", "3.5"),
-        (6, "P303", "550"),
+        (6, "P303", "5.5"),
     ] {
-        ok(&["param", "write", &d.to_string(), p, v]);
+        let out = ok(&["param", "write", &d.to_string(), p, v]);
+        if d == 6 {
+            // P303 counts 0.01 s (OI 6RX1700-0AD76): written and shown in seconds.
+            assert!(out.contains("P303 := 5.50 s"), "{out}");
+        }
     }
+    let described = ok(&["param", "describe", "6", "P303"]);
+    assert!(
+        described.contains("drive 6 P303 (simoreg)") && described.contains("limits 0.01..=650"),
+        "the drive's limits in s, as its manuals write it: {described}"
+    );
+    let (refused, out) = ussctl(&ussd, &["param", "write", "6", "P303", "5.555"]);
+    assert!(
+        !refused && out.contains("not a whole number of steps of 0.01 s"),
+        "{out}"
+    );
     for d in [3, 5, 6] {
         ok(&["param", "backup", &d.to_string(), "-o", &file(d)]);
     }
@@ -349,7 +363,7 @@ fn a_backup_of_each_family_restored_onto_a_factory_reset_drive_leaves_it_equal()
     for d in ["3", "5"] {
         ok(&["param", "factory-reset", d, "--unsafe"]);
     }
-    ok(&["param", "write", "6", "P303", "1000"]);
+    ok(&["param", "write", "6", "P303", "10"]);
     let (same, out) = ussctl(&ussd, &["param", "diff", "3", &file(3)]);
     assert!(
         !same && out.contains("P1120[2]"),

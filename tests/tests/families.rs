@@ -279,7 +279,8 @@ const CASES: [FamilyCase; 4] = [
         drive: 4,
         family: "simoreg",
         setting: "P303",
-        changed: "250",
+        // In its unit: P303 counts 0.01 s (OI 6RX1700-0AD76), so 2.5 s is 250 steps.
+        changed: "2.5",
         telegram_off_fault: 11,
         // Its manuals write three digits (OI 6RX1700-0AD76: P051, P927, P151).
         codes: "r947",

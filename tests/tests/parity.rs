@@ -152,6 +152,16 @@ const C_ONLY: &[(&str, &str)] = &[
     ),
     ("ussrt_control_close", "frees the handle"),
     (
+        "ussrt_param_restore_cancellable",
+        "restore with a cancel: Rust's restore takes a Cancel (CancelHandle), Python's is cut short by Ctrl-C",
+    ),
+    (
+        "ussrt_cancel",
+        "asks a cancel, from a signal handler too: Rust's CancelHandle::cancel, Python's Ctrl-C",
+    ),
+    ("ussrt_cancel_new", "makes the cancel handle"),
+    ("ussrt_cancel_free", "frees the cancel handle"),
+    (
         "ussrt_last_error",
         "C's error message (Rust and Python return errors)",
     ),

@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 use uss_client::uss_shm_types::diag::RtMode;
 use uss_client::view::{BusView, DriveView};
 use uss_client::{
-    BusStatus, DriveDiag, DriveInfo, Health, ParamValue, PzdInput, Setpoint, StopCommand, Typed,
+    BusStatus, DriveDiag, DriveInfo, Health, ParamValue, PzdInput, Quantity, Setpoint, StopCommand,
     state_name,
 };
 
@@ -266,9 +266,10 @@ pub struct ParamReply<'a> {
     pub drive: u8,
     /// As the catalogue writes it: `P1082`, `r0947[2]`.
     pub param: String,
-    /// The number, in the parameter's own type.
+    /// The number, in the parameter's own type and unit (a fixed-point parameter, SIMOREG P303,
+    /// as a float of its unit: raw 1000 is 10.0 s).
     #[schemars(with = "f64")]
-    pub value: Typed,
+    pub value: Quantity,
     /// The word or double word on the wire.
     pub raw: u32,
     pub data_type: String,
@@ -287,7 +288,7 @@ impl<'a> ParamReply<'a> {
             bus,
             drive,
             param: p.id(),
-            value: p.typed(),
+            value: p.value(),
             raw: p.raw.as_u32(),
             data_type: p.data_type.to_string(),
             unit: p.unit(),

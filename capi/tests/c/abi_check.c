@@ -168,6 +168,20 @@ int main(int argc, char **argv) {
   UssrtRestore restored;
   OK(ussrt_param_restore(bus, 2, backup, USSRT_RESTORE_DRY_RUN, &restored));
   EXPECT(restored.written == 0 && restored.kept == 1, "dry run: %u written", restored.written);
+  /* A restore cut short by its cancel (asked here before it starts, as a signal handler or
+     another thread would): nothing written, not complete, nothing left raised. */
+  UssrtCancel *cancel = NULL;
+  OK(ussrt_cancel_new(&cancel));
+  OK(ussrt_cancel(cancel));
+  EXPECT(ussrt_cancel(NULL) == USSRT_STATUS_INVALID_ARGUMENT, "cancel NULL");
+  OK(ussrt_param_restore_cancellable(bus, 2, backup, USSRT_RESTORE_UNSAFE, cancel, &restored));
+  EXPECT(restored.complete == 0 && restored.written == 0 && restored.left_raised == 0,
+         "cancelled: complete %u written %u left raised %u", restored.complete, restored.written,
+         restored.left_raised);
+  ussrt_cancel_free(cancel);
+  ussrt_cancel_free(NULL);
+  OK(ussrt_param_diff(bus, 2, backup, &differ, NULL));
+  EXPECT(differ > 1, "the cancelled restore wrote nothing: %zu differ", differ);
   OK(ussrt_param_restore(bus, 2, backup, USSRT_RESTORE_UNSAFE, &restored));
   EXPECT(restored.complete == 1 && restored.kept == 1 && restored.refused == 0,
          "complete %u kept %u refused %u", restored.complete, restored.kept, restored.refused);

@@ -116,7 +116,7 @@ fn describe(bus: &Bus, out: &Output, drive: Address, param: ParamRef) -> Result<
     let report = DescribeReport {
         bus: bus.name().to_owned(),
         drive: drive.get(),
-        param: entry.map_or_else(|| param.to_string(), |p| p.id.to_string()),
+        param: bus.notation(drive, entry.map_or(param, |p| p.id)),
         family: bus.family(drive).name(),
         drive_type: format!("{:?}", drive_says.data_type),
         drive_elements: drive_says.elements,

@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use uss_client::uss_catalogue::Bits;
 use uss_client::uss_protocol::Subindex;
 use uss_client::{
-    Address, FaultReport, ParamValue, PzdInput, Setpoint, StopCommand, Typed, Value, zsw1_flags,
+    Address, FaultReport, ParamValue, PzdInput, Quantity, Setpoint, StopCommand, Value, zsw1_flags,
 };
 
 /// One drive in one round of `watch`.
@@ -99,9 +99,10 @@ pub struct ParamReport {
     pub unit: &'static str,
     pub raw: u32,
     pub hex: String,
-    /// The value in its type: a float for float, an integer otherwise.
+    /// The value in its type and unit: a float for float and for a fixed-point parameter in
+    /// its unit (SIMOREG P303: raw 1000 is 10.0 s), an integer otherwise.
     #[schemars(with = "f64")]
-    pub value: Typed,
+    pub value: Quantity,
     /// A status or control word's set bits by name (r0052, r0054).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub bits: Vec<&'static str>,
@@ -135,7 +136,7 @@ impl ParamReport {
                 Value::Word(w) => format!("{w:#06X}"),
                 Value::Dword(d) => format!("{d:#010X}"),
             },
-            value: typed,
+            value: v.value(),
             bits,
             eeprom: None,
             shown: v.shown_typed(typed),
