@@ -553,6 +553,133 @@ fn members_of_the_access_group_use_the_services_as_their_own_users_and_others_ar
     let _ = std::fs::remove_file(&config);
 }
 
+/// `exe` (a ussd every user may run) with `config` on shared-memory root `root`, as user `uid`
+/// of group `gid`, its output piped.
+fn ussd_as(
+    uid: u32,
+    gid: u32,
+    exe: &std::path::Path,
+    config: &std::path::Path,
+    root: &std::path::Path,
+) -> std::process::Child {
+    Command::new("setpriv")
+        .args([
+            &format!("--reuid={uid}"),
+            &format!("--regid={gid}"),
+            &format!("--groups={gid}"),
+        ])
+        .arg(exe)
+        .arg("--config")
+        .arg(config)
+        .env(uss_shm_types::service::ROOT_ENV, root)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("setpriv (util-linux)")
+}
+
+/// Issue 47, item 2: a ussd run as root (the first-bus chapter's `ussd`) beside a service's
+/// ussd of another user with `access_group` made the shared-memory root root's, mode 0700: the
+/// service's clients lost it, its restart failed and its stop panicked. A ussd never changes
+/// what a running ussd owns: it refuses first, naming the running one, and the service, its
+/// root and its clients go on untouched.
+#[test]
+fn a_second_ussd_of_another_user_leaves_a_running_one_and_its_clients_untouched() {
+    use std::os::unix::fs::{MetadataExt as _, PermissionsExt as _};
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    if unsafe { nix::libc::geteuid() } != 0 {
+        println!("skipped: running ussd as another user needs root");
+        return;
+    }
+    let pid = std::process::id();
+    let group = TestGroup::new(format!("usss{}", pid % 1_000_000));
+    let root = std::path::PathBuf::from(format!("/dev/shm/uss-rt-second-{pid}"));
+    let bus = format!("svc{pid}");
+    let config = config_file(
+        "service",
+        &format!(
+            "access_group = \"{}\"\n\n[[bus]]\nname = \"{bus}\"\ndevice = \"sim\"\n\n\
+             [[bus.drive]]\naddress = 1\n",
+            group.name
+        ),
+    );
+    std::fs::set_permissions(&config, std::fs::Permissions::from_mode(0o644)).unwrap();
+    // The service's ussd, as a user of its own in the group (as the package runs it as `uss`).
+    let exe = std::env::temp_dir().join(format!("ussd-service-{pid}"));
+    std::fs::copy(binary("uss-master", "ussd"), &exe).unwrap();
+    std::fs::set_permissions(&exe, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let service_user = 63_000 + pid % 1000;
+    let service = ussd_as(service_user, group.gid, &exe, &config, &root);
+    let ussctl = Ussctl::new(&bus, &root);
+    let member = (64_000 + pid % 1000, group.gid.to_string());
+    let online = || {
+        let out = ussctl.run_as(member.0, &member.1, &["status"]);
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        (out.status.success() && text.contains("   1  yes"), text)
+    };
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    while !online().0 {
+        assert!(std::time::Instant::now() < deadline, "{}", online().1);
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    let owner = |m: &std::fs::Metadata| (m.uid(), m.gid(), m.mode() & 0o7777);
+    let before = owner(&std::fs::metadata(&root).unwrap());
+    assert_eq!(before, (service_user, group.gid, 0o2770));
+    // Root's ussd of its own bus, without access_group, as the first-bus chapter runs it.
+    let second = ussd()
+        .args(["--bus", &format!("own{pid}"), "--duration", "2"])
+        .env(uss_shm_types::service::ROOT_ENV, &root)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert_eq!(second.status.code(), Some(1), "{err}");
+    let named = format!(
+        "is in use by ussd process {} (user {service_user}, bus {bus})",
+        service.id()
+    );
+    assert!(
+        err.contains(&named) && err.contains("nothing was changed"),
+        "{err}"
+    );
+    assert_eq!(owner(&std::fs::metadata(&root).unwrap()), before);
+    // Root's ussd of the service's own bus: served, said before anything is made.
+    let third = ussd()
+        .args(["--bus", &bus, "--duration", "2"])
+        .env(uss_shm_types::service::ROOT_ENV, &root)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&third.stderr);
+    assert!(
+        err.contains(&format!(
+            "bus {bus} is already served by ussd process {}",
+            service.id()
+        )),
+        "{err}"
+    );
+    assert!(!String::from_utf8_lossy(&third.stdout).contains("shared memory in"));
+    assert_eq!(owner(&std::fs::metadata(&root).unwrap()), before);
+    // The service's clients never noticed; it stops cleanly.
+    let (still, text) = online();
+    assert!(
+        still,
+        "a member's ussctl status after the second ussd: {text}"
+    );
+    let _ = nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(service.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    );
+    let out = service.wait_with_output().unwrap();
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success() && !log.contains("panicked"), "{log}");
+    let _ = std::fs::remove_dir_all(&root);
+    let _ = std::fs::remove_file(&config);
+    let _ = std::fs::remove_file(&exe);
+}
+
 #[test]
 fn a_second_ussd_on_a_served_bus_says_who_serves_it() {
     let mut first = uss_integration_tests::Ussd::start("", &[(1, "")]);
@@ -568,6 +695,9 @@ fn a_second_ussd_on_a_served_bus_says_who_serves_it() {
     );
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert_eq!(err.matches(&said).count(), 1, "{err}");
+    // Refused before it made or said anything (issue 47: it logged its shared-memory line).
+    let log = String::from_utf8_lossy(&out.stdout);
+    assert!(!log.contains("shared memory in"), "{log}");
     assert!(first.is_running());
     let (status, text, _) = first.ussctl(&["status"]).finish();
     assert!(status.success(), "{text}");

@@ -278,8 +278,22 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         .transpose()
         .map_err(Failure::Usage)?;
     let stop = stop_on_signals().map_err(Failure::Signals)?;
+    // A bus another ussd serves is refused before anything is made or said; a root other
+    // ussd processes use keeps who may use it.
+    let running = uss_master::daemon::access::running();
+    if let Some(r) = running
+        .iter()
+        .find(|r| config.buses.iter().any(|b| b.name.as_str() == r.bus))
+    {
+        return Err(Failure::Start(runtime::StartError::Ipc(
+            uss_master::daemon::ipc::IpcError::Served {
+                bus: r.bus.clone(),
+                pid: Some(r.pid),
+            },
+        )));
+    }
     // Who may use the services, before any exists.
-    let access = uss_master::daemon::access::prepare(config.access_group.as_deref())?;
+    let access = uss_master::daemon::access::prepare(config.access_group.as_deref(), &running)?;
     tracing::info!("{access}");
     let buses = runtime::start(&config.buses, options)?;
     for b in &buses {

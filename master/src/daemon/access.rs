@@ -59,6 +59,100 @@ pub enum AccessError {
         owner: String,
         me: String,
     },
+    /// A running ussd uses the root as it is: this one would change who may use its services.
+    #[error(
+        "{} is in use by {running}, {now}; this ussd (user {me}) would make it {wanted} and cut \
+         that ussd's clients off: nothing was changed. Run this ussd as {owner} with the same \
+         access_group, give it its own root ({}), or stop that ussd first",
+        path.display(),
+        uss_shm_types::service::ROOT_ENV,
+        me = .users.0,
+        owner = .users.1
+    )]
+    InUse {
+        path: PathBuf,
+        /// `ussd process 812 (user uss, bus sim)`, the running ones named.
+        running: String,
+        /// Who may use it now: `user uss, group uss, mode 2770`.
+        now: String,
+        wanted: String,
+        /// This ussd's user and the root's owner.
+        users: Box<(String, String)>,
+    },
+}
+
+/// A ussd that runs on the root now: its process, its user and its bus.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Running {
+    pub pid: u32,
+    pub uid: Option<u32>,
+    pub bus: String,
+}
+
+impl core::fmt::Display for Running {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "ussd process {}", self.pid)?;
+        match self.uid {
+            Some(uid) => write!(f, " (user {}, bus {})", user_name(uid), self.bus),
+            None => write!(f, " (bus {})", self.bus),
+        }
+    }
+}
+
+/// Every ussd that runs on the shared-memory root now (its live iceoryx2 node `ussd-<bus>`),
+/// other than this process; empty when there is no root yet or it cannot be read.
+pub fn running() -> Vec<Running> {
+    use iceoryx2::node::NodeView as _;
+    use iceoryx2::prelude::*;
+    let Some(config) = uss_shm_types::service::config() else {
+        return Vec::new();
+    };
+    if !uss_shm_types::service::root().is_dir() {
+        return Vec::new();
+    }
+    let me = std::process::id();
+    let mut found = Vec::new();
+    let _ = Node::<uss_shm_types::service::IpcThreadsafe>::list(&config, |state| {
+        if let NodeState::Alive(view) = &state
+            && let Some(details) = view.details().as_ref()
+            && let Some(bus) = details.name().as_str().strip_prefix("ussd-")
+            && let Ok(pid) = u32::try_from(details.process_id().value())
+            && pid != me
+        {
+            found.push(Running {
+                pid,
+                uid: uid_of(pid),
+                bus: bus.to_owned(),
+            });
+        }
+        CallbackProgression::Continue
+    });
+    found
+}
+
+/// The real user of process `pid` (`/proc/<pid>/status`).
+fn uid_of(pid: u32) -> Option<u32> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("Uid:"))?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
+/// `user uss, group uss, mode 2770`.
+fn who_may(uid: u32, gid: u32, mode: u32) -> String {
+    let group = Group::from_gid(Gid::from_raw(gid))
+        .ok()
+        .flatten()
+        .map_or_else(|| gid.to_string(), |g| g.name);
+    format!(
+        "user {}, group {group}, mode {:o}",
+        user_name(uid),
+        mode & 0o7777
+    )
 }
 
 fn user_name(uid: u32) -> String {
@@ -87,8 +181,10 @@ fn group(access_group: &str) -> Result<(String, u32), AccessError> {
 
 /// Makes the root directory (when it is not there) and gives it the owner, group and mode the
 /// configuration asks for: ussd's user, `access_group`'s group with mode 2770, or mode 0700.
-/// Refuses a root that is a link or a file, or another user's (unless ussd runs as root).
-pub fn prepare(access_group: Option<&str>) -> Result<Access, AccessError> {
+/// Refuses a root that is a link or a file, or another user's (unless ussd runs as root), and
+/// changes nothing of a root that `running` ussd processes use ([`running`]): a root in use
+/// that is not already as asked is refused, naming them.
+pub fn prepare(access_group: Option<&str>, running: &[Running]) -> Result<Access, AccessError> {
     let path = uss_shm_types::service::root();
     let io = |what, path: &PathBuf| {
         let path = path.clone();
@@ -101,6 +197,25 @@ pub fn prepare(access_group: Option<&str>) -> Result<Access, AccessError> {
         }
         Ok(meta) => {
             let me = geteuid();
+            let (mode, gid) = match &group {
+                Some((_, gid)) => (0o2770, *gid),
+                None => (0o700, meta.gid()),
+            };
+            let as_asked =
+                meta.uid() == me.as_raw() && meta.gid() == gid && meta.mode() & 0o7777 == mode;
+            if !running.is_empty() && !as_asked {
+                return Err(AccessError::InUse {
+                    running: running
+                        .iter()
+                        .map(ToString::to_string)
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                    now: who_may(meta.uid(), meta.gid(), meta.mode()),
+                    wanted: who_may(me.as_raw(), gid, mode),
+                    users: Box::new((user_name(me.as_raw()), user_name(meta.uid()))),
+                    path,
+                });
+            }
             if meta.uid() != me.as_raw() {
                 if !me.is_root() {
                     return Err(AccessError::Foreign {
