@@ -36,6 +36,16 @@ ussd --check-config /etc/uss-rt/ussd.toml >/dev/null
 for page in ussd ussctl uss-sim uss-exporter uss-zenoh uss-zenoh-client uss_vfd; do
   [ -s "/usr/share/man/man1/$page.1.gz" ]
 done
+# The installed README's links to the guide, the documents and the schemas lead to installed
+# files (issue 47: it linked to a guide that was not installed).
+doc=/usr/share/doc/uss-rt
+grep -o '](docs/[^)#]*' "$doc/README.md" | sed 's/^](//' | sort -u | while read -r link; do
+  [ -e "$doc/$link" ] || {
+    echo "the installed README links to $link, which is not in $doc" >&2
+    exit 1
+  }
+done
+[ -s "$doc/docs/guide/src/SUMMARY.md" ] && [ -s "$doc/docs/schema/ussctl/status.json" ]
 
 # The installed ussd on its configuration (without --require-rt: real time is the machine's).
 /usr/bin/ussd --config /etc/uss-rt/ussd.toml >"$work/ussd.log" 2>&1 &

@@ -406,3 +406,69 @@ fn mdbook_builds_the_guide() {
     }
     let _ = std::fs::remove_dir_all(&out_dir);
 }
+
+/// Issue 47, item 3: troubleshooting named keys that do not exist (`rt_priority`, `rt_cpu`,
+/// `require_rt`). Every snake-case word the guide or the README writes in backticks on a line
+/// about the configuration (configuration, config, a `.toml`, `[[bus`, a key, a unit) is a key
+/// that ussd's configuration takes: the keys of `ussd --check-config`'s effective configuration
+/// of a file that sets every optional one.
+#[test]
+fn every_configuration_key_the_guide_names_is_one_ussd_takes() {
+    let file = std::env::temp_dir().join(format!("uss-guide-keys-{}.toml", std::process::id()));
+    std::fs::write(
+        &file,
+        "access_group = \"root\"\n\n[[bus]]\nname = \"keys\"\ndevice = \"sim\"\n\
+         rx_latency_ms = 1.0\nseed = 7\ncpu = 0\n\n[[bus.drive]]\naddress = 1\n\
+         family = \"g120\"\npole_pairs = 2\nwritable = [\"p1120\"]\nsim = { delay = 2 }\n",
+    )
+    .unwrap();
+    let out = Command::new(binary("uss-master", "ussd"))
+        .arg("--check-config")
+        .arg(&file)
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_file(&file);
+    let effective = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(out.status.success(), "{effective}");
+    let mut keys: BTreeSet<String> = effective
+        .lines()
+        .filter_map(|l| l.split_once(" = ").map(|(k, _)| k.trim().to_owned()))
+        .filter(|k| !k.starts_with('#'))
+        .collect();
+    // Its tables.
+    keys.extend(["bus", "drive", "sim"].map(str::to_owned));
+    assert!(
+        keys.contains("cpu") && keys.contains("pole_pairs"),
+        "{keys:?}"
+    );
+    let about_config = ["configuration", "config", ".toml", "[[bus", " key", " unit"];
+    let mut texts: Vec<(String, String)> = chapters().into_iter().collect();
+    texts.push((
+        "README.md".to_owned(),
+        std::fs::read_to_string(root().join("README.md")).unwrap(),
+    ));
+    let mut unknown = Vec::new();
+    for (name, text) in &texts {
+        for (n, line) in text.lines().enumerate() {
+            let lower = line.to_lowercase();
+            if !about_config.iter().any(|w| lower.contains(w)) {
+                continue;
+            }
+            for word in line.split('`').skip(1).step_by(2) {
+                let snake = word.contains('_')
+                    && word
+                        .chars()
+                        .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+                    && word.starts_with(|c: char| c.is_ascii_lowercase());
+                if snake && !keys.contains(word) {
+                    unknown.push(format!("{name}:{}: `{word}`", n + 1));
+                }
+            }
+        }
+    }
+    assert!(
+        unknown.is_empty(),
+        "named beside the configuration, not a key ussd takes ({keys:?}):\n{}",
+        unknown.join("\n")
+    );
+}

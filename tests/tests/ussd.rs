@@ -329,6 +329,35 @@ fn the_deploy_files_fit_this_ussd() {
         "{effective}"
     );
 
+    // What the deploy files cite is where they say: the installed guide's files (the package
+    // installs docs/ as /usr/share/doc/uss-rt/docs/), and the README's headings (issue 47:
+    // they cited README sections that were gone).
+    let readme = std::fs::read_to_string(deploy.join("../README.md")).unwrap();
+    for name in ["ussd.service", "ussd.toml.example", "debian/ussd.toml"] {
+        let text = std::fs::read_to_string(deploy.join(name)).unwrap();
+        for cited in text.split("/usr/share/doc/uss-rt/").skip(1) {
+            let path: String = cited
+                .chars()
+                .take_while(|c| !c.is_whitespace() && !matches!(c, ')' | ',' | ';'))
+                .collect();
+            let path = path.trim_end_matches('.');
+            // docs/ from the checkout's docs/, the example from deploy/.
+            assert!(
+                deploy.join("..").join(path).exists() || deploy.join(path).exists(),
+                "deploy/{name} cites /usr/share/doc/uss-rt/{path}, which the package does not install"
+            );
+        }
+        for cited in text.split("README \"").skip(1) {
+            let heading = cited.split('"').next().unwrap();
+            assert!(
+                readme
+                    .lines()
+                    .any(|l| l.trim_start_matches('#').trim() == heading),
+                "deploy/{name} cites README \"{heading}\", which README.md does not have"
+            );
+        }
+    }
+
     let unit = std::fs::read_to_string(deploy.join("ussd.service")).unwrap();
     let key = |k: &str| {
         unit.lines()
