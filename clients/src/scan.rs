@@ -111,6 +111,8 @@ pub struct Scanned {
     /// The caller's [`Cancel`] ended it before the last address.
     pub cut_short: bool,
     pub took: Duration,
+    /// The rates it asked at: the options', or one of them on a pseudo-terminal.
+    pub bauds: Vec<Baud>,
 }
 
 /// Why a scan could not run. Every failure is of the line: the device named, what to do.
@@ -157,11 +159,24 @@ pub fn scan(
         )));
     }
     let start = Instant::now();
-    let total = options.bauds.len() * options.addresses.len();
+    let mut bauds = options.bauds.as_slice();
+    if bauds.len() > 1 && is_pseudo_terminal(device) {
+        // A pty (uss-sim --pty, a socat or ser2net line) takes any rate and a slave behind it
+        // answers at each: every drive would be found at every rate, each after its timeouts.
+        let at = bauds.iter().position(|b| b.get() == 19_200).unwrap_or(0);
+        bauds = &bauds[at..=at];
+        notice(&format!(
+            "{} is a pseudo-terminal: it carries every baud rate alike (a slave behind it answers \
+             at each), so the scan asks at {} baud only (--baud chooses the rate)",
+            device.display(),
+            bauds[0].get()
+        ));
+    }
+    let total = bauds.len() * options.addresses.len();
     let mut done = 0;
     let mut found = Vec::new();
     let mut cut_short = false;
-    'bauds: for (n, &baud) in options.bauds.iter().enumerate() {
+    'bauds: for (n, &baud) in bauds.iter().enumerate() {
         let line = open(device, baud)?;
         if n == 0 {
             // Said before the first probe: a drive that runs under USS control here stops.
@@ -195,6 +210,16 @@ pub fn scan(
         drives: found,
         cut_short,
         took: start.elapsed(),
+        bauds: bauds.to_vec(),
+    })
+}
+
+/// Whether `device` is the slave side of a pseudo-terminal (Unix98: character device majors
+/// 136 to 143, Documentation/admin-guide/devices.txt).
+fn is_pseudo_terminal(device: &Path) -> bool {
+    use std::os::unix::fs::{FileTypeExt as _, MetadataExt as _};
+    std::fs::metadata(device).is_ok_and(|m| {
+        m.file_type().is_char_device() && (136..=143).contains(&nix::sys::stat::major(m.rdev()))
     })
 }
 

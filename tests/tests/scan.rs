@@ -271,3 +271,21 @@ fn a_drive_heard_only_garbled_is_an_unsure_line_not_an_empty_address() {
     );
     assert!(said.contains(": 1 drive found"), "{said}");
 }
+
+/// Issue 47, item 3: a scan of a pty without `--baud` ran 35 s silently and reported each drive
+/// at every rate. A pseudo-terminal carries every rate alike: the scan asks at one and says so.
+#[test]
+fn a_scan_of_a_pseudo_terminal_asks_at_one_rate_and_says_why() {
+    let sim = SimProcess::start(&["--baud", "19200", "--drive", "3"]);
+    let (code, said, err) = ussctl(&["scan", &sim.path, "--addresses", "2-4"]);
+    assert_eq!(code, Some(0), "{said}{err}");
+    assert!(
+        err.contains("is a pseudo-terminal: it carries every baud rate alike")
+            && err.contains("asks at 19200 baud only"),
+        "{err}"
+    );
+    let found: Vec<&str> = said.lines().filter(|l| l.contains("drive  3:")).collect();
+    assert_eq!(found.len(), 1, "drive 3 once, at 19200 baud: {said}");
+    assert!(found[0].starts_with(" 19200 baud"), "{said}");
+    assert!(said.contains("3 addresses x 1 baud rate"), "{said}");
+}

@@ -135,6 +135,40 @@ mod tests {
         ("scouting/multicast/enabled", "false"),
     ];
 
+    /// Issue 47, item 3: the guide's router recipe failed as written (a bridge.json5 without
+    /// `listen` gets Zenoh's plain-TCP default listener). Every bridge configuration the
+    /// network chapter shows, with the `--connect` of its router recipe, authenticates by
+    /// mutual TLS.
+    #[test]
+    fn every_bridge_configuration_of_the_guide_authenticates_with_its_connect_too() {
+        let chapter = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../docs/guide/src/network.md"
+        ))
+        .unwrap();
+        let blocks: Vec<&str> = chapter
+            .split("```json5\n")
+            .skip(1)
+            .filter_map(|b| b.split("```").next())
+            .collect();
+        assert!(
+            blocks.len() >= 2,
+            "the network chapter's bridge.json5 files"
+        );
+        for text in blocks {
+            let mut c = Config::from_json5(text).unwrap_or_else(|e| panic!("{e}: {text}"));
+            assert_eq!(links(&c), Links::MutualTls, "{text}");
+            c.insert_json5("connect/endpoints", r#"["tls/10.0.0.1:7447"]"#)
+                .unwrap();
+            assert_eq!(links(&c), Links::MutualTls, "with --connect: {text}");
+        }
+        // The recipe's warning holds: without `listen`, the default listener is refused.
+        let mut bare = config(&MTLS[1..]);
+        bare.insert_json5("connect/endpoints", r#"["tls/10.0.0.1:7447"]"#)
+            .unwrap();
+        assert!(matches!(links(&bare), Links::Open(why) if why.join(" ").contains("tcp/[::]:0")));
+    }
+
     #[test]
     fn mutual_tls_on_every_endpoint_without_multicast_authenticates() {
         assert_eq!(links(&config(&MTLS)), Links::MutualTls);

@@ -43,13 +43,17 @@ impl Scan {
             &self.device,
             &options,
             &Signals,
-            &mut |done, _| bar.set_position(done as u64),
+            &mut |done, total| {
+                // One rate only on a pseudo-terminal: the library says how many there are.
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            },
             &mut |notice| eprintln!("ussctl: {notice}"),
         )?;
         bar.finish_and_clear();
         let mut report = ScanReport::new(
             &self.device,
-            &options.bauds,
+            &scanned.bauds,
             options.addresses.len(),
             self.tries,
         );
