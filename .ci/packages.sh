@@ -95,10 +95,11 @@ echo "installed uss-zenoh and uss-zenoh-client: $(head -c 200 "$work/zenoh")"
 
 # The LinuxCNC component, as installed: halrun loads it by name from PATH (RTAPI as an
 # unprivileged user: rtapi_app refuses root) and it sees drive 1 of the installed ussd.
-printf 'loadusr -Wn uss_vfd uss_vfd --bus sim --drive 1\nloadusr -w sleep 1\nshow pin uss_vfd.comm-ok\n' \
+# The shipped example for halrun alone (its own servo thread), as the guide runs it.
+printf 'source /usr/share/doc/uss-rt-linuxcnc/examples/uss_vfd.hal\nloadusr -w sleep 1\nshow pin uss_vfd.comm-ok\n' \
   >"$work/vfd.hal"
 RTAPI_UID=65534 RTAPI_FIFO_PATH="$work/rtapi-fifo" halrun -U >/dev/null 2>&1 || true
-RTAPI_UID=65534 RTAPI_FIFO_PATH="$work/rtapi-fifo" halrun "$work/vfd.hal" >"$work/hal" 2>&1 || {
+USS_BUS=sim USS_DRIVE=1 RTAPI_UID=65534 RTAPI_FIFO_PATH="$work/rtapi-fifo" halrun "$work/vfd.hal" >"$work/hal" 2>&1 || {
   cat "$work/hal"
   exit 1
 }

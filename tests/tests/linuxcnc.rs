@@ -64,17 +64,13 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
-/// The HAL file of a test: the component on drive 1 of `bus`, its watchdog-in fed by siggen's
-/// clock in a servo thread (1 ms), as the guide shows.
-fn hal_text(component: &Path, bus: &str) -> String {
+/// The HAL file of a test: the guide's `linuxcnc/examples/uss_vfd.hal` as shipped (a servo
+/// thread of 1 ms, siggen's clock on the component's watchdog-in), on drive 1 of the bus
+/// [`Hal::start`] names, and the test's own tolerance; halrun stays until the component ends.
+fn hal_text() -> String {
     format!(
-        "loadrt threads name1=servo-thread period1=1000000\nloadrt siggen\n\
-         addf siggen.0.update servo-thread\nsetp siggen.0.frequency 100\n\
-         loadusr -Wn uss_vfd {} --bus {bus} --drive 1\n\
-         net uss-watchdog siggen.0.clock => uss_vfd.watchdog-in\n\
-         setp uss_vfd.rpm-per-hz 30\nsetp uss_vfd.tolerance 0.02\nstart\n\
-         waitusr uss_vfd\n",
-        component.display()
+        "source {}\nsetp uss_vfd.tolerance 0.02\nwaitusr uss_vfd\n",
+        root().join("linuxcnc/examples/uss_vfd.hal").display()
     )
 }
 
@@ -87,11 +83,20 @@ struct Hal {
 }
 
 impl Hal {
-    fn start(hal_file: &Path, log: PathBuf) -> Hal {
+    /// `hal_file` in halrun, the component found on `PATH` as a machine finds it, on drive 1
+    /// of `bus` (`USS_BUS`, `USS_DRIVE` of the shipped HAL file).
+    fn start(hal_file: &Path, log: PathBuf, (component, bus): (&Path, &str)) -> Hal {
         let fifo = std::env::temp_dir().join(format!("rtapi-fifo-{}", std::process::id()));
+        let path = std::env::var("PATH").unwrap_or_default();
         let env = vec![
             ("RTAPI_UID".to_owned(), "65534".to_owned()),
             ("RTAPI_FIFO_PATH".to_owned(), fifo.display().to_string()),
+            ("USS_BUS".to_owned(), bus.to_owned()),
+            ("USS_DRIVE".to_owned(), "1".to_owned()),
+            (
+                "PATH".to_owned(),
+                format!("{}:{path}", component.parent().unwrap().display()),
+            ),
         ];
         // A session a crashed run may have left.
         let _ = Command::new("halrun").arg("-U").envs(env.clone()).output();
@@ -201,10 +206,11 @@ fn session(what: &str) -> Option<(std::sync::MutexGuard<'static, ()>, Ussd, Hal,
     let ussd = Ussd::start("", &[(1, "")]);
     let dir = std::env::temp_dir();
     let hal_file = dir.join(format!("uss_vfd-{what}-{}.hal", std::process::id()));
-    std::fs::write(&hal_file, hal_text(&component, &ussd.bus)).unwrap();
+    std::fs::write(&hal_file, hal_text()).unwrap();
     let hal = Hal::start(
         &hal_file,
         dir.join(format!("halrun-{what}-{}.log", std::process::id())),
+        (&component, &ussd.bus),
     );
     let s = Duration::from_secs(10);
     hal.until("comm-ok", s, |h| h.get("comm-ok") == "TRUE");
@@ -228,10 +234,11 @@ fn a_spindle_runs_through_halrun_and_stops_latch_until_spindle_on_rises() {
     }
     let dir = std::env::temp_dir();
     let hal_file = dir.join(format!("uss_vfd-{}.hal", std::process::id()));
-    std::fs::write(&hal_file, hal_text(&component, &ussd.bus)).unwrap();
+    std::fs::write(&hal_file, hal_text()).unwrap();
     let hal = Hal::start(
         &hal_file,
         dir.join(format!("halrun-{}.log", std::process::id())),
+        (&component, &ussd.bus),
     );
     let s = Duration::from_secs(10);
     let watch = bus.watch(addr(1)).unwrap();
@@ -394,10 +401,11 @@ fn an_operators_coast_right_after_m3_is_not_re_armed_by_its_rise() {
     let bus = ussd.bus();
     let dir = std::env::temp_dir();
     let hal_file = dir.join(format!("uss_vfd-m3-{}.hal", std::process::id()));
-    std::fs::write(&hal_file, hal_text(&component, &ussd.bus)).unwrap();
+    std::fs::write(&hal_file, hal_text()).unwrap();
     let hal = Hal::start(
         &hal_file,
         dir.join(format!("halrun-m3-{}.log", std::process::id())),
+        (&component, &ussd.bus),
     );
     let s = Duration::from_secs(10);
     hal.until("comm-ok", s, |h| h.get("comm-ok") == "TRUE");
@@ -504,4 +512,32 @@ fn a_changed_reference_changes_no_spindle_speed() {
     at_1500("at speed, P2000 = 60 Hz");
     let _ = hal.stop();
     let _ = std::fs::remove_file(&hal_file);
+}
+
+/// Issue 47, item 3: the guide's HAL snippet failed in halrun ("thread 'servo-thread' not
+/// found"). The guide shows the machine configuration's lines as `linuxcnc/examples/machine.hal`
+/// ships them, and the file for halrun alone, which the tests above run, makes its own thread.
+#[test]
+fn the_guides_hal_lines_are_the_shipped_files() {
+    let lines = |text: &str| -> Vec<String> {
+        text.lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty() && !l.starts_with('#'))
+            .map(|l| l.split_whitespace().collect::<Vec<_>>().join(" "))
+            .collect()
+    };
+    let guide = std::fs::read_to_string(root().join("docs/guide/src/linuxcnc.md")).unwrap();
+    let block = guide
+        .split("```text\n")
+        .nth(1)
+        .and_then(|b| b.split("```").next())
+        .unwrap();
+    let machine = std::fs::read_to_string(root().join("linuxcnc/examples/machine.hal")).unwrap();
+    assert_eq!(lines(block), lines(&machine), "docs/guide/src/linuxcnc.md");
+    let alone = std::fs::read_to_string(root().join("linuxcnc/examples/uss_vfd.hal")).unwrap();
+    assert!(
+        lines(&alone)[0].starts_with("loadrt threads name1=servo-thread"),
+        "{alone}"
+    );
+    assert!(guide.contains("halrun -I linuxcnc/examples/uss_vfd.hal"));
 }
