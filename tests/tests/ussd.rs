@@ -305,6 +305,58 @@ fn require_rt_is_fatal_exactly_when_real_time_is_incomplete() {
     }
 }
 
+/// Issue 47, item 4: a `--require-rt` failure printed about 900 characters three times, nested,
+/// after a "final" summary of a bus that never ran. As a user without real-time rights
+/// (setpriv), it is said once on stderr (and once in the log, a file of its own here), each
+/// failed step on a line of its own with what to do, and no bus summary follows.
+#[test]
+fn a_require_rt_failure_is_said_once_with_what_to_do_and_no_summary() {
+    use std::os::unix::fs::PermissionsExt as _;
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    if unsafe { nix::libc::geteuid() } != 0 {
+        println!("skipped: running ussd as a user without real-time rights needs root");
+        return;
+    }
+    let pid = std::process::id();
+    let exe = std::env::temp_dir().join(format!("ussd-rt-{pid}"));
+    std::fs::copy(binary("uss-master", "ussd"), &exe).unwrap();
+    std::fs::set_permissions(&exe, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let root = format!("/dev/shm/uss-rt-rt-{pid}");
+    let out = Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+        .arg(&exe)
+        .args([
+            "--bus",
+            &format!("rtn{pid}"),
+            "--require-rt",
+            "--duration",
+            "2",
+        ])
+        .env(uss_shm_types::service::ROOT_ENV, &root)
+        .output()
+        .expect("setpriv (util-linux)");
+    let _ = std::fs::remove_file(&exe);
+    let _ = std::fs::remove_dir_all(&root);
+    let (log, err) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(out.status.code(), Some(1), "{log}{err}");
+    assert_eq!(err.matches("--require-rt given").count(), 1, "{err}");
+    assert!(
+        err.contains("so nothing was polled:\n  SCHED_FIFO failed (EPERM"),
+        "{err}"
+    );
+    assert!(
+        err.contains("\n  run ussd as the packaged unit does"),
+        "{err}"
+    );
+    assert!(
+        !log.contains("final") && !log.contains("running best effort"),
+        "no summary of a bus that never ran: {log}"
+    );
+}
+
 /// `deploy/`: the example configuration is valid, and the unit's `ExecStart` options are ones
 /// ussd takes (run here with a simulated bus in place of the example's adapter).
 #[test]
@@ -582,6 +634,24 @@ fn members_of_the_access_group_use_the_services_as_their_own_users_and_others_ar
     let _ = std::fs::remove_file(&config);
 }
 
+/// A child killed and reaped should the test fail before it ends it.
+struct Reaped(Option<std::process::Child>);
+
+impl Reaped {
+    fn id(&self) -> u32 {
+        self.0.as_ref().map_or(0, std::process::Child::id)
+    }
+}
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.0.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
 /// `exe` (a ussd every user may run) with `config` on shared-memory root `root`, as user `uid`
 /// of group `gid`, its output piped.
 fn ussd_as(
@@ -638,7 +708,7 @@ fn a_second_ussd_of_another_user_leaves_a_running_one_and_its_clients_untouched(
     std::fs::copy(binary("uss-master", "ussd"), &exe).unwrap();
     std::fs::set_permissions(&exe, std::fs::Permissions::from_mode(0o755)).unwrap();
     let service_user = 63_000 + pid % 1000;
-    let service = ussd_as(service_user, group.gid, &exe, &config, &root);
+    let mut service = Reaped(Some(ussd_as(service_user, group.gid, &exe, &config, &root)));
     let ussctl = Ussctl::new(&bus, &root);
     let member = (64_000 + pid % 1000, group.gid.to_string());
     let online = || {
@@ -697,7 +767,7 @@ fn a_second_ussd_of_another_user_leaves_a_running_one_and_its_clients_untouched(
         nix::unistd::Pid::from_raw(service.id() as i32),
         nix::sys::signal::Signal::SIGTERM,
     );
-    let out = service.wait_with_output().unwrap();
+    let out = service.0.take().unwrap().wait_with_output().unwrap();
     let log = format!(
         "{}{}",
         String::from_utf8_lossy(&out.stdout),

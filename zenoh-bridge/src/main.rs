@@ -14,6 +14,7 @@ mod payload;
 mod policy;
 mod publish;
 mod security;
+mod text;
 
 use clap::Parser;
 use std::io::Write as _;
@@ -96,7 +97,11 @@ enum StartError {
     MaxRate(f64),
     #[error("cannot handle signal {signal}: {source}")]
     Signal { signal: i32, source: std::io::Error },
-    #[error("cannot open the Zenoh session: {0}")]
+    #[error(
+        "cannot open the Zenoh session: {}{}",
+        text::plain(.0),
+        text::session_hint(&.0.to_string())
+    )]
     Session(zenoh::Error),
     #[error("liveliness token {key}: {error}")]
     Token { key: String, error: zenoh::Error },

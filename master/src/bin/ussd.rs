@@ -167,7 +167,11 @@ fn main() -> ExitCode {
     let code = match run(&cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(failure) => {
-            tracing::error!("{failure}");
+            // Once where the log and the errors go to one place (a terminal, the journal):
+            // the log has it for a log file of its own, stderr for the one who ran it.
+            if !stdout_is_stderr() {
+                tracing::error!("{failure}");
+            }
             eprintln!("ussd: {failure}");
             ExitCode::from(failure.exit_code())
         }
@@ -260,6 +264,18 @@ fn qualify(cli: &Cli) -> ExitCode {
     } else {
         ExitCode::FAILURE
     }
+}
+
+/// Whether standard output and standard error are the same file (a terminal, one pipe).
+fn stdout_is_stderr() -> bool {
+    use std::os::fd::AsFd as _;
+    let id = |fd: std::os::fd::BorrowedFd<'_>| {
+        nix::sys::stat::fstat(fd)
+            .ok()
+            .map(|s| (s.st_dev, s.st_ino, s.st_rdev))
+    };
+    let (out, err) = (id(std::io::stdout().as_fd()), id(std::io::stderr().as_fd()));
+    out.is_some() && out == err
 }
 
 fn run(cli: &Cli) -> Result<(), Failure> {

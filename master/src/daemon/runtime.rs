@@ -65,7 +65,12 @@ pub enum StartError {
     #[cfg(not(feature = "sim"))]
     #[error("bus {bus}: this ussd was built without the simulated bus (the `sim` feature)")]
     NoSim { bus: String },
-    #[error("bus {bus}: real-time set-up incomplete and --require-rt given: {summary}")]
+    /// `summary`: each failed step on a line of its own.
+    #[error(
+        "bus {bus}: real-time set-up incomplete and --require-rt given, so nothing was polled:{summary}\n  \
+         run ussd as the packaged unit does (LimitRTPRIO=95, LimitMEMLOCK=infinity), or without \
+         --require-rt to run best effort; `ussd --qualify` measures what this machine holds"
+    )]
     RealTime { bus: String, summary: String },
     #[error(transparent)]
     Ipc(#[from] crate::daemon::ipc::IpcError),
@@ -679,23 +684,30 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
         let Ok(rt_report) = s.reports.recv() else {
             failure.get_or_insert(StartError::RealTime {
                 bus: s.bus.name.clone(),
-                summary: "the bus thread ended before its real-time set-up".into(),
+                summary: "\n  the bus thread ended before its real-time set-up".into(),
             });
             abandon(vec![s], bounded(0).0);
             continue;
         };
-        warn_unverified_references(&s.bus);
         if rt_report.is_full_rt() {
             tracing::info!(bus = %s.bus.name, mode = rt_report.mode(), "{}", rt_report.summary());
+        } else if options.require_rt {
+            // Its thread polled nothing: no warning that it runs, no summary of it; the
+            // failure says what failed, once.
+            failure.get_or_insert(StartError::RealTime {
+                bus: s.bus.name.clone(),
+                summary: rt_report
+                    .failures
+                    .iter()
+                    .map(|f| format!("\n  {f}"))
+                    .collect(),
+            });
+            abandon(vec![s], bounded(0).0);
+            continue;
         } else {
             tracing::warn!(bus = %s.bus.name, mode = rt_report.mode(), "real-time set-up incomplete, running best effort: {}", rt_report.summary());
-            if options.require_rt {
-                failure.get_or_insert(StartError::RealTime {
-                    bus: s.bus.name.clone(),
-                    summary: rt_report.summary(),
-                });
-            }
         }
+        warn_unverified_references(&s.bus);
         let mut status = s.status;
         status.set_rt(rt_report.is_full_rt(), rt_report.cpu, rt_report.priority);
         let housekeeping = super::housekeeping::spawn(

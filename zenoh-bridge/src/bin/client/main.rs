@@ -4,6 +4,8 @@
 //! the bridge from the other side of a network boundary.
 
 mod run;
+#[path = "../../text.rs"]
+mod text;
 
 use clap::{Parser, Subcommand};
 use core::time::Duration;
@@ -145,7 +147,11 @@ pub enum Failure {
         endpoints: Vec<String>,
         error: zenoh::Error,
     },
-    #[error("cannot open the Zenoh session: {0}")]
+    #[error(
+        "cannot open the Zenoh session: {}{}",
+        text::plain(.0),
+        text::session_hint(&.0.to_string())
+    )]
     Session(zenoh::Error),
     #[error("--cert/--key/--ca: {0}")]
     Tls(zenoh::Error),
@@ -165,7 +171,11 @@ pub enum Failure {
         path: std::path::PathBuf,
         error: std::io::Error,
     },
-    #[error("{0}: no uss-zenoh answers this key")]
+    #[error(
+        "{0}: no uss-zenoh answers this key: no bridge serves it (check the prefix and the bus \
+         with `uss-zenoh-client ... alive <prefix>/<bus>/alive`), or the bridge's access policy does \
+         not let this client ask it (the bridge counts the refusal in its status's `refused`)"
+    )]
     NoAnswer(String),
     #[error("{key}: nothing within {seconds} s")]
     Nothing { key: String, seconds: f64 },
