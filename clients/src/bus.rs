@@ -123,13 +123,9 @@ impl Bus {
         let (health, services) = self.link.current();
         match (health, services) {
             (Health::Running { .. } | Health::LineDown { .. }, Some(s)) => Ok(s.status()),
-            (health, _) => {
-                Err(health
-                    .error(self.name())
-                    .unwrap_or_else(|| ClientError::NotRunning {
-                        bus: self.name().to_owned(),
-                    }))
-            }
+            (health, _) => Err(health
+                .error(self.name())
+                .unwrap_or_else(|| ClientError::not_running(self.name().to_owned()))),
         }
     }
 

@@ -42,9 +42,7 @@ impl Capture {
                 .open_with_attributes(&layout_verifier()?),
             bus_name,
             &name,
-            || ClientError::NotRunning {
-                bus: bus_name.to_owned(),
-            },
+            || ClientError::not_running(bus_name.to_owned()),
         )?;
         let subscriber = service.subscriber_builder().create().map_err(|e| {
             ClientError::ipc(

@@ -292,9 +292,7 @@ fn stop_once(
     let mut stream = match connect(bus, path, request) {
         Ok(s) => s,
         Err(e) if matches!(e.kind(), ErrorKind::NotFound | ErrorKind::ConnectionRefused) => {
-            return Err(Failed(ClientError::NotRunning {
-                bus: bus.as_str().to_owned(),
-            }));
+            return Err(Failed(ClientError::not_running(bus.as_str().to_owned())));
         }
         Err(e) => {
             return Err(Failed(ClientError::ipc(

@@ -85,9 +85,10 @@ pub enum ClientError {
     /// A drive address outside 0..=31.
     #[error(transparent)]
     Address(#[from] uss_protocol::AddressError),
-    /// ussd's services for this bus do not exist.
-    #[error("ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`)")]
-    NotRunning { bus: String },
+    /// ussd's services for this bus do not exist; `served`: the buses ussd serves on this
+    /// machine now (as far as this process may see them), which the message names.
+    #[error("ussd is not running on {bus}{}", Served(.served))]
+    NotRunning { bus: String, served: Vec<String> },
     /// ussd runs the bus, but not this drive.
     #[error("drive {address} is not on {bus} ({}): use one of those or add it to ussd's configuration", Known(.known))]
     UnknownDrive {
@@ -583,6 +584,45 @@ fn ipc_hint(detail: &str) -> &'static str {
     }
 }
 
+/// `: start it with ...`, or `; on this machine ussd serves sim: ...`.
+struct Served<'a>(&'a [String]);
+
+impl core::fmt::Display for Served<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self.0 {
+            [] => f.write_str(
+                ": start it with `ussd` (or `ussd --config FILE`; the package's service: \
+                 `systemctl start ussd`)",
+            ),
+            [one] => write!(
+                f,
+                "; on this machine ussd serves {one}: name it (ussctl --bus {one})"
+            ),
+            [first, rest @ ..] => {
+                let mut all: Vec<&str> = vec![first.as_str()];
+                all.extend(rest.iter().map(String::as_str));
+                let last = all.pop().unwrap_or_default();
+                write!(
+                    f,
+                    "; on this machine ussd serves {} and {last}: name one of those (ussctl --bus \
+                     {first})",
+                    all.join(", ")
+                )
+            }
+        }
+    }
+}
+
+impl ClientError {
+    /// [`ClientError::NotRunning`] of `bus`, naming the buses ussd serves on this machine.
+    pub fn not_running(bus: impl Into<String>) -> Self {
+        Self::NotRunning {
+            bus: bus.into(),
+            served: crate::link::served_buses(),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -614,11 +654,24 @@ mod tests {
     }
 
     #[test]
-    fn not_running_says_how_to_start_ussd() {
-        let e = ClientError::NotRunning { bus: "bus0".into() };
+    fn not_running_says_how_to_start_ussd_or_which_buses_it_serves() {
+        let e = ClientError::NotRunning {
+            bus: "bus0".into(),
+            served: Vec::new(),
+        };
         assert_eq!(
             e.to_string(),
-            "ussd is not running on bus0: start it with `ussd` (or `ussd --config FILE`)"
+            "ussd is not running on bus0: start it with `ussd` (or `ussd --config FILE`; the \
+             package's service: `systemctl start ussd`)"
+        );
+        let e = ClientError::NotRunning {
+            bus: "bus0".into(),
+            served: vec!["sim".into(), "line1".into()],
+        };
+        assert_eq!(
+            e.to_string(),
+            "ussd is not running on bus0; on this machine ussd serves sim and line1: name one of \
+             those (ussctl --bus sim)"
         );
     }
 

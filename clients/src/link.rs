@@ -99,6 +99,29 @@ impl Health {
 }
 
 /// A line fault in words.
+/// The buses ussd serves on this machine now: its live nodes (`ussd-<bus>`) under the
+/// shared-memory root, as far as this process may see them; sorted.
+pub(crate) fn served_buses() -> Vec<String> {
+    use iceoryx2::node::{NodeState, NodeView as _};
+    use iceoryx2::prelude::CallbackProgression;
+    let Some(config) = uss_shm_types::service::config() else {
+        return Vec::new();
+    };
+    let mut buses = Vec::new();
+    let _ = Node::<Ipc>::list(&config, |state| {
+        if let NodeState::Alive(view) = &state
+            && let Some(details) = view.details().as_ref()
+            && let Some(bus) = details.name().as_str().strip_prefix("ussd-")
+        {
+            buses.push(bus.to_owned());
+        }
+        CallbackProgression::Continue
+    });
+    buses.sort();
+    buses.dedup();
+    buses
+}
+
 fn fault_text(fault: LineFault, errno: i32) -> String {
     match fault {
         LineFault::Io => format!(
@@ -177,9 +200,7 @@ pub(crate) struct Services {
 impl Services {
     fn open(node: &Node<Ipc>, instance: Instance) -> Result<Self, ClientError> {
         let bus = instance.bus.as_str();
-        let not_running = || ClientError::NotRunning {
-            bus: bus.to_owned(),
-        };
+        let not_running = || ClientError::not_running(bus.to_owned());
         let verifier = layout_verifier()?;
         let status_name = names::status(&instance);
         let status_service = opened(
@@ -249,7 +270,7 @@ impl Link {
     /// then opens the generation it names.
     pub(crate) fn open(name: BusName, node: Node<Ipc>) -> Result<Self, ClientError> {
         let bus = name.as_str().to_owned();
-        let not_running = || ClientError::NotRunning { bus: bus.clone() };
+        let not_running = || ClientError::not_running(bus.clone());
         let heartbeat_name = names::heartbeat(&name);
         let service = opened(
             node.service_builder(&heartbeat_name)
@@ -345,13 +366,9 @@ impl Link {
     pub(crate) fn services(&self) -> Result<Arc<Services>, ClientError> {
         match self.current() {
             (_, Some(s)) => Ok(s),
-            (health, None) => {
-                Err(health
-                    .error(self.name.as_str())
-                    .unwrap_or_else(|| ClientError::NotRunning {
-                        bus: self.name.as_str().to_owned(),
-                    }))
-            }
+            (health, None) => Err(health
+                .error(self.name.as_str())
+                .unwrap_or_else(|| ClientError::not_running(self.name.as_str().to_owned()))),
         }
     }
 
@@ -375,9 +392,7 @@ impl Link {
         if let Some(e) = health.error(self.name.as_str()) {
             return Err(e);
         }
-        services.ok_or_else(|| ClientError::NotRunning {
-            bus: self.name.as_str().to_owned(),
-        })
+        services.ok_or_else(|| ClientError::not_running(self.name.as_str().to_owned()))
     }
 }
 

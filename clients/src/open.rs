@@ -28,9 +28,7 @@ pub(crate) fn iceoryx_config(bus: &str) -> Result<iceoryx2::config::Config, Clie
     use std::os::unix::fs::MetadataExt as _;
     let root = uss_shm_types::service::root();
     let Ok(meta) = std::fs::metadata(&root) else {
-        return Err(ClientError::NotRunning {
-            bus: bus.to_owned(),
-        });
+        return Err(ClientError::not_running(bus.to_owned()));
     };
     if access(
         &root,

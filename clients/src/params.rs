@@ -342,10 +342,9 @@ impl Bus {
         let timeout = self.answer_timeout(usize::from(request.count).min(MAX_PARAM_ITEMS));
         match crate::request::round_trip(client, *request, timeout)? {
             Ok(response) => Ok(response),
-            Err(NoAnswer::NotRunning) => Err(ClientError::NotRunning {
-                bus: self.name().to_owned(),
+            Err(NoAnswer::NotRunning) => {
+                Err(ClientError::not_running(self.name().to_owned()).into())
             }
-            .into()),
             Err(NoAnswer::Dropped) => Err(ParamError::Dropped),
             Err(NoAnswer::Timeout) => Err(ParamError::NoAnswer(timeout)),
         }

@@ -148,9 +148,7 @@ where
             .open_with_attributes(&layout_verifier()?),
         bus,
         name,
-        || ClientError::NotRunning {
-            bus: bus.to_owned(),
-        },
+        || ClientError::not_running(bus.to_owned()),
     )?;
     let client = service
         .client_builder()

@@ -412,9 +412,7 @@ fn open_listener(link: &Link, services: &Services) -> Result<Listener<Ipc>, Clie
             .open_with_attributes(&layout_verifier()?),
         bus,
         &name,
-        || ClientError::NotRunning {
-            bus: bus.to_owned(),
-        },
+        || ClientError::not_running(bus.to_owned()),
     )?;
     service
         .listener_builder()

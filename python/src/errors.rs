@@ -85,7 +85,9 @@ pub(crate) fn drive(py: Python<'_>, address: u8) -> PyResult<Address> {
 pub(crate) fn client(py: Python<'_>, e: ClientError) -> PyErr {
     let (kind, message) = (e.kind(), e.to_string());
     let details = match e {
-        ClientError::NotRunning { bus } => vec![("bus", obj(py, bus))],
+        ClientError::NotRunning { bus, served } => {
+            vec![("bus", obj(py, bus)), ("served", obj(py, served))]
+        }
         ClientError::UnknownDrive {
             bus,
             address,

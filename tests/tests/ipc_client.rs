@@ -231,22 +231,60 @@ fn client_reads_inputs_status_diagnostics_and_cycle_events() {
     ));
 }
 
+/// A bus nobody serves: the client says how to start ussd, or (issue 47, item 4: the package's
+/// bus is `sim`, ussctl's default `bus0`) which buses ussd serves on this machine. Each case on a
+/// shared-memory root of its own, so other tests' ussd processes are not in the list.
 #[test]
-fn client_without_ussd_is_told_how_to_start_it() {
-    let bus = format!("absent{}", std::process::id());
-    assert_eq!(
-        Bus::open(&bus).unwrap_err().to_string(),
-        format!("ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`)")
+fn client_without_ussd_is_told_how_to_start_it_or_which_buses_are_served() {
+    let pid = std::process::id();
+    let bus = format!("absent{pid}");
+    assert!(
+        Bus::open(&bus)
+            .unwrap_err()
+            .to_string()
+            .starts_with(&format!("ussd is not running on {bus}"))
     );
-    let out = Command::new(binary("ussctl", "ussctl"))
-        .args(["--bus", &bus, "status"])
-        .output()
-        .unwrap();
+    let root = format!("/dev/shm/uss-rt-absent-{pid}");
+    let ussctl = |args: &[&str]| {
+        Command::new(binary("ussctl", "ussctl"))
+            .args(args)
+            .env(uss_shm_types::service::ROOT_ENV, &root)
+            .output()
+            .unwrap()
+    };
+    let out = ussctl(&["--bus", &bus, "status"]);
     assert_eq!(out.status.code(), Some(1));
     assert_eq!(
         text(&out.stderr),
         format!(
-            "ussctl: ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`)\n"
+            "ussctl: ussd is not running on {bus}: start it with `ussd` (or `ussd --config FILE`; \
+             the package's service: `systemctl start ussd`)\n"
+        )
+    );
+    let served = format!("here{pid}");
+    let mut ussd = Command::new(binary("uss-master", "ussd"))
+        .args(["--bus", &served, "--duration", "20"])
+        .env(uss_shm_types::service::ROOT_ENV, &root)
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    let said = loop {
+        let out = ussctl(&["--bus", &bus, "status"]);
+        let said = text(&out.stderr);
+        if said.contains("ussd serves") || std::time::Instant::now() > deadline {
+            break said;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
+    let _ = ussd.kill();
+    let _ = ussd.wait();
+    let _ = std::fs::remove_dir_all(&root);
+    assert_eq!(
+        said,
+        format!(
+            "ussctl: ussd is not running on {bus}; on this machine ussd serves {served}: name it \
+             (ussctl --bus {served})\n"
         )
     );
 }

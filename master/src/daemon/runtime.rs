@@ -15,6 +15,7 @@ use crate::daemon::ipc::StatusPublisher;
 use crate::daemon::line::Line;
 use core::time::Duration;
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, bounded};
+use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::thread::JoinHandle;
 use thiserror::Error;
@@ -696,11 +697,10 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             // failure says what failed, once.
             failure.get_or_insert(StartError::RealTime {
                 bus: s.bus.name.clone(),
-                summary: rt_report
-                    .failures
-                    .iter()
-                    .map(|f| format!("\n  {f}"))
-                    .collect(),
+                summary: rt_report.failures.iter().fold(String::new(), |mut all, f| {
+                    let _ = write!(all, "\n  {f}");
+                    all
+                }),
             });
             abandon(vec![s], bounded(0).0);
             continue;
