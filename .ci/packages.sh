@@ -29,9 +29,12 @@ for p in $packages; do
   dpkg-query -L "$p" >"$work/$p.files"
 done
 getent group uss >/dev/null && getent passwd uss >/dev/null
-systemd-analyze verify /lib/systemd/system/ussd.service
-# Installed, not enabled: the user enables it.
-[ "$(systemctl is-enabled ussd 2>/dev/null || true)" != enabled ]
+systemd-analyze verify /lib/systemd/system/ussd.service /lib/systemd/system/uss-exporter.service \
+  /lib/systemd/system/uss-zenoh.service
+# Installed, not enabled: the user enables them.
+for unit in ussd uss-exporter uss-zenoh; do
+  [ "$(systemctl is-enabled "$unit" 2>/dev/null || true)" != enabled ]
+done
 ussd --check-config /etc/uss-rt/ussd.toml >/dev/null
 for page in ussd ussctl uss-sim uss-exporter uss-zenoh uss-zenoh-client uss_vfd; do
   [ -s "/usr/share/man/man1/$page.1.gz" ]

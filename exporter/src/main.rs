@@ -14,7 +14,7 @@ use std::io::Write as _;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicU64;
 use uss_client::uss_shm_types::{BusStatus, DriveDiag, EXCHANGE_BUCKETS_NS};
-use uss_client::{Bus, ControlState, DriveState, Health, Zsw1};
+use uss_client::{Bus, ControlState, DriveState, Health, Monitoring, Zsw1};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -155,6 +155,8 @@ struct Metrics {
     stale: Family<DriveLabels, Gauge>,
     period: Family<DriveLabels, Gauge<f64, AtomicU64>>,
     latched: Family<DriveLabels, Gauge>,
+    monitoring_ok: Family<DriveLabels, Gauge>,
+    monitoring_seconds: Family<DriveLabels, Gauge<f64, AtomicU64>>,
     state: Family<StateLabels, Gauge>,
     fault: Family<DriveLabels, Gauge>,
     warning: Family<DriveLabels, Gauge>,
@@ -181,6 +183,8 @@ impl Metrics {
             stale: Family::default(),
             period: Family::default(),
             latched: Family::default(),
+            monitoring_ok: Family::default(),
+            monitoring_seconds: Family::default(),
             state: Family::default(),
             fault: Family::default(),
             warning: Family::default(),
@@ -242,6 +246,16 @@ impl Metrics {
             "uss_drive_latched",
             "1 while the drive gets its safe command until its controller re-arms",
             self.latched,
+        );
+        r.register(
+            "uss_drive_monitoring_ok",
+            "1 while the drive's own telegram monitoring (P2014[0], p2040) is on within its limits, 0 while it is off, too long, too short or unreadable (nothing stops the drive when ussd or its line dies), -1 not read yet or not checked",
+            self.monitoring_ok,
+        );
+        r.register(
+            "uss_drive_monitoring_seconds",
+            "The drive's telegram-off time as ussd read it (0: off or not read)",
+            self.monitoring_seconds,
         );
         register_state(r, self.state, self.fault, self.warning);
         r.register(
@@ -323,6 +337,15 @@ impl Metrics {
                 .set(i64::from(is));
         }
         let bit = |b: Zsw1| zsw1.map_or(-1, |z| i64::from(z.contains(b)));
+        let monitoring = match d.monitoring() {
+            Ok(Monitoring::On) => 1,
+            Ok(Monitoring::Unknown | Monitoring::NotChecked) | Err(_) => -1,
+            Ok(_) => 0,
+        };
+        self.monitoring_ok.get_or_create(&labels).set(monitoring);
+        self.monitoring_seconds
+            .get_or_create(&labels)
+            .set(f64::from(d.monitoring_ms) / 1000.0);
         self.fault.get_or_create(&labels).set(bit(Zsw1::FAULT));
         self.warning.get_or_create(&labels).set(bit(Zsw1::WARNING));
         self.online

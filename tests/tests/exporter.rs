@@ -153,7 +153,14 @@ fn exporter_serves_metrics_that_promtool_accepts_and_follows_a_restarted_ussd() 
     });
     assert_eq!(drive1(&s, "uss_refused_samples_total"), Some(0.0));
 
-    promtool(&scrape(&addr, false));
+    let body = scrape(&addr, false);
+    promtool(&body);
+    shipped_monitoring_names_only_these(&body);
+    // Drive 3's own telegram monitoring as ussd read it: 100 ms.
+    assert_eq!(
+        s[&format!("uss_drive_monitoring_seconds{{bus=\"{bus}\",drive=\"3\"}}")],
+        0.1
+    );
 
     // ussd killed: the exporter keeps serving and says so; restarted: it counts the restart.
     ussd.kill();
@@ -189,6 +196,70 @@ fn states_and_faults(addr: &str, bus: &str, s: &HashMap<String, f64>) {
             && s.get(&format!("uss_drive_fault{{bus=\"{bus}\",drive=\"3\"}}")) == Some(&1.0)
     });
     assert_eq!(state(&s, "3", "S2"), Some(0.0));
+}
+
+/// Issue 47, item 6: the Prometheus scrape configuration, alert rules and Grafana dashboard
+/// uss-rt ships (`deploy/prometheus`, `deploy/grafana`): promtool takes the configuration and
+/// passes the rules' own tests, and every metric they name is one this exporter serves (`body`,
+/// a real scrape).
+fn shipped_monitoring_names_only_these(body: &str) {
+    let served: std::collections::BTreeSet<&str> = body
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.is_empty())
+        .filter_map(|l| l.split(['{', ' ']).next())
+        .collect();
+    let deploy = uss_integration_tests::root().join("deploy");
+    let mut named = std::collections::BTreeMap::new();
+    for file in [
+        "prometheus/uss-rt-alerts.yml",
+        "prometheus/uss-rt-alerts.test.yml",
+        "grafana/uss-rt-dashboard.json",
+    ] {
+        let text = std::fs::read_to_string(deploy.join(file)).unwrap();
+        for (at, _) in text.match_indices("uss_") {
+            let name: String = text[at..]
+                .chars()
+                .take_while(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || *c == '_')
+                .collect();
+            // Words of the texts that are no metric: uss_vfd, the uss-rt names.
+            if name.len() > 6 {
+                named.entry(name).or_insert(file);
+            }
+        }
+    }
+    assert!(named.len() >= 10, "{named:?}");
+    let unknown: Vec<String> = named
+        .iter()
+        .filter(|(name, _)| !served.contains(name.as_str()))
+        .map(|(name, file)| format!("{file}: {name}"))
+        .collect();
+    assert!(
+        unknown.is_empty(),
+        "named in deploy/, not served by uss-exporter: {unknown:?}\nserved: {served:?}"
+    );
+    for args in [
+        &["check", "config", "prometheus.yml"][..],
+        &["test", "rules", "uss-rt-alerts.test.yml"],
+    ] {
+        let out = match Command::new("promtool")
+            .args(args)
+            .current_dir(deploy.join("prometheus"))
+            .output()
+        {
+            Ok(out) => out,
+            Err(e) if std::env::var_os("USS_REQUIRE_PROMTOOL").is_none() => {
+                println!("SKIPPED promtool {args:?}: promtool does not run ({e})");
+                return;
+            }
+            Err(e) => panic!("promtool does not run ({e}) but USS_REQUIRE_PROMTOOL is set"),
+        };
+        assert!(
+            out.status.success(),
+            "promtool {args:?}: {}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
 }
 
 /// `promtool check metrics` on the classic text format. Without promtool the check says so;

@@ -410,6 +410,35 @@ fn the_deploy_files_fit_this_ussd() {
         }
     }
 
+    // The other units' programs take the options their ExecStart gives (clap refuses an
+    // unknown one before --help).
+    for (unit, package, program) in [
+        ("uss-exporter.service", "uss-exporter", "uss-exporter"),
+        ("uss-zenoh.service", "uss-zenoh", "uss-zenoh"),
+    ] {
+        let text = std::fs::read_to_string(deploy.join(unit)).unwrap();
+        let exec = text
+            .lines()
+            .find_map(|l| l.strip_prefix("ExecStart="))
+            .unwrap_or_else(|| panic!("no ExecStart= in {unit}"));
+        let mut args = exec.split_whitespace();
+        assert_eq!(
+            args.next(),
+            Some(format!("/usr/bin/{program}").as_str()),
+            "{unit}"
+        );
+        let out = Command::new(binary(package, program))
+            .args(args)
+            .arg("--help")
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "deploy/{unit}: {exec}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+
     let unit = std::fs::read_to_string(deploy.join("ussd.service")).unwrap();
     let key = |k: &str| {
         unit.lines()

@@ -155,7 +155,13 @@ mod tests {
             blocks.len() >= 2,
             "the network chapter's bridge.json5 files"
         );
-        for text in blocks {
+        // ... and the example the package installs beside uss-zenoh.service.
+        let example = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/examples/bridge.json5"
+        ))
+        .unwrap();
+        for text in blocks.into_iter().chain([example.as_str()]) {
             let mut c = Config::from_json5(text).unwrap_or_else(|e| panic!("{e}: {text}"));
             assert_eq!(links(&c), Links::MutualTls, "{text}");
             c.insert_json5("connect/endpoints", r#"["tls/10.0.0.1:7447"]"#)
