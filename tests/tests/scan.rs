@@ -289,3 +289,51 @@ fn a_scan_of_a_pseudo_terminal_asks_at_one_rate_and_says_why() {
     assert!(found[0].starts_with(" 19200 baud"), "{said}");
     assert!(said.contains("3 addresses x 1 baud rate"), "{said}");
 }
+
+/// Issue 47, item 6: a scan's drives as ready-to-paste `[[bus.drive]]` TOML, which ussd's
+/// configuration takes as it is (`ussd --check-config`), with the layouts found.
+#[test]
+fn a_scan_prints_the_drives_as_a_configuration_ussd_takes() {
+    let sim = SimProcess::start(&[
+        "--baud",
+        "19200",
+        "--drive",
+        "3:pkw=4,pzd=2",
+        "--drive",
+        "5:pkw=127,pzd=6",
+        "--drive",
+        "7:pkw=3,pzd=4",
+    ]);
+    let (code, toml, err) = ussctl(&[
+        "scan",
+        &sim.path,
+        "--baud",
+        "19200",
+        "--addresses",
+        "2-8",
+        "--toml",
+    ]);
+    assert_eq!(code, Some(0), "{toml}{err}");
+    for entry in [
+        "[[bus]]\nname = \"line1\"",
+        "baud = 19200",
+        "[[bus.drive]]\naddress = 3\npkw = 4\npzd = 2\nfamily = \"micromaster4\"",
+        "[[bus.drive]]\naddress = 5\npkw = 127\npzd = 6",
+        "[[bus.drive]]\naddress = 7\npkw = 3\npzd = 4\n# family = ?",
+    ] {
+        assert!(toml.contains(entry), "{entry:?} in\n{toml}");
+    }
+    let file = std::env::temp_dir().join(format!("uss-scan-{}.toml", std::process::id()));
+    std::fs::write(&file, &toml).unwrap();
+    let out = Command::new(binary("uss-master", "ussd"))
+        .arg("--check-config")
+        .arg(&file)
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_file(&file);
+    assert!(
+        out.status.success(),
+        "{toml}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

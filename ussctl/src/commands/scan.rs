@@ -24,6 +24,10 @@ pub struct Scan {
     /// silent to this many mirror telegrams counts as empty (raise it on a noisy line).
     #[arg(long, value_name = "N", default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=20))]
     tries: u32,
+    /// Print the drives found as ussd's configuration takes them (`[[bus]]`, `[[bus.drive]]`),
+    /// ready to paste into ussd.toml.
+    #[arg(long, conflicts_with = "json")]
+    toml: bool,
 }
 
 impl Scan {
@@ -60,6 +64,10 @@ impl Scan {
         report.drives = scanned.drives.iter().map(ScannedDrive::from).collect();
         report.cut_short = scanned.cut_short;
         report.seconds = scanned.took.as_secs_f64();
+        if self.toml {
+            print!("{}", report.toml());
+            return Ok(());
+        }
         out.show(&report, ScanReport::human)
     }
 }

@@ -78,6 +78,58 @@ impl ScanReport {
         }
     }
 
+    /// The drives found as ussd's configuration takes them, ready to paste: a `[[bus]]` per
+    /// rate with the drives that answered at it, each as a `[[bus.drive]]` with its layout and
+    /// family; what the scan could not tell is a comment to fill in, and an UNSURE line says why.
+    pub fn toml(&self) -> String {
+        let mut out = format!(
+            "# ussctl scan {}: {} found; check each entry, then `ussd --check-config FILE`\n",
+            self.device,
+            match self.drives.len() {
+                1 => "1 drive".to_owned(),
+                n => format!("{n} drives"),
+            }
+        );
+        let mut rates: Vec<u32> = self.drives.iter().map(|d| d.baud).collect();
+        rates.dedup();
+        for (n, baud) in rates.iter().enumerate() {
+            let _ = write!(
+                out,
+                "\n[[bus]]\nname = \"line{}\"\ndevice = \"{}\"\nbaud = {baud}\n",
+                n + 1,
+                self.device
+            );
+            for d in self.drives.iter().filter(|d| d.baud == *baud) {
+                let _ = write!(out, "\n[[bus.drive]]\naddress = {}\n", d.address);
+                match d.pkw.as_str() {
+                    "variable (127)" => out.push_str("pkw = 127\n"),
+                    "unknown" => {
+                        out.push_str("# pkw = ?  the scan could not tell: 0, 3, 4 or 127\n");
+                    }
+                    n => {
+                        let _ = writeln!(out, "pkw = {n}");
+                    }
+                }
+                let _ = writeln!(out, "pzd = {}", d.pzd);
+                match d.family {
+                    Some(f @ "micromaster4") => {
+                        let _ = writeln!(out, "family = \"{f}\"   # or \"g110\" for a G110");
+                    }
+                    Some(f) => {
+                        let _ = writeln!(out, "family = \"{f}\"");
+                    }
+                    None => out.push_str(
+                        "# family = ?  not told by the drive: micromaster4, g110, g120, simoreg or generic\n",
+                    ),
+                }
+                if let Some(why) = &d.unsure {
+                    let _ = writeln!(out, "# UNSURE: {why}");
+                }
+            }
+        }
+        out
+    }
+
     pub fn human(&self) -> String {
         let mut out = String::new();
         for d in &self.drives {
