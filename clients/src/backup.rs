@@ -186,9 +186,21 @@ impl BackupFile {
         }
         let mut entries = Vec::new();
         let mut ignored = Vec::new();
+        // Each parameter once, however it is written (P303, P0303, p303): of two keys of one
+        // parameter the file would mean the one TOML read last, whichever that is.
+        let mut keys: BTreeMap<u16, &str> = BTreeMap::new();
         for (key, saved) in &file.param {
             let at = line_of(text, key);
             let param: ParamRef = key.parse().map_err(|e| fail(at, format!("{key}: {e}")))?;
+            if let Some(first) = keys.insert(param.pnu.get(), key) {
+                return Err(fail(
+                    at,
+                    format!(
+                        "{key}: {first} names the same parameter: keep one of them (nothing was \
+                         restored or compared)"
+                    ),
+                ));
+            }
             let info = catalogue.param(param.pnu.get()).ok_or_else(|| {
                 fail(
                     at,
@@ -757,6 +769,26 @@ mod tests {
             not_on_drive: vec!["P0004".into()],
             param,
         }
+    }
+
+    /// The sweep of issue 46: `P303 = 5.0` beside `P0303 = 10.0` was taken (the key TOML read
+    /// last won) and the report said both written.
+    #[test]
+    fn a_parameter_named_twice_is_refused_naming_both() {
+        let mut param = BTreeMap::new();
+        param.insert("P1082".into(), Saved::One(Number::Float(45.0)));
+        param.insert("P01082".into(), Saved::One(Number::Float(50.0)));
+        let text = file(param).to_text();
+        let e = BackupFile::parse(&text, "f", Catalogue::micromaster4()).unwrap_err();
+        assert!(
+            e.message.contains("names the same parameter") && e.line.is_some(),
+            "{e}"
+        );
+        let mut param = BTreeMap::new();
+        param.insert("P0003".into(), Saved::One(Number::Int(1)));
+        param.insert("P3".into(), Saved::One(Number::Int(3)));
+        let text = file(param).to_text();
+        assert!(BackupFile::parse(&text, "f", Catalogue::micromaster4()).is_err());
     }
 
     #[test]

@@ -13,7 +13,7 @@ use crate::{Bus, ParamError};
 use core::time::Duration;
 use std::time::Instant;
 use uss_catalogue::Catalogue;
-use uss_protocol::{ParamRef, Value};
+use uss_protocol::{ParamRef, Storage, Value};
 use uss_shm_types::{Address, Monitoring};
 
 /// How long a copy of RAM to ROM may take before the drive says it is done (its parameter
@@ -183,7 +183,19 @@ impl Bus {
             });
         };
         let catalogue = catalogue.ok_or(ParamError::Dropped)?;
-        let raise = self.raise_for(address, catalogue, [save], WriteOptions::default())?;
+        // A copy stores the raised level too: put back by ussd, should this process die
+        // after it, in EEPROM as well where the family has the task (a G120 has none).
+        let back_to = if catalogue.eeprom_tasks {
+            Storage::RamAndEeprom
+        } else {
+            Storage::Ram
+        };
+        let raise = self.raise_for(
+            address,
+            catalogue,
+            [save],
+            (WriteOptions::default(), back_to),
+        )?;
         let saved = self.copy_ram_to_rom(address, save);
         if saved.is_err() {
             // A copy whose answer was lost may still be storing: let it end (bounded) before
@@ -283,7 +295,15 @@ impl Bus {
         };
         let start = Instant::now();
         let was = self.read_u16(address, commissioning)?;
-        self.write_with(address, commissioning, Value::Word(setting), deliberate)?;
+        // ussd puts the commissioning parameter back should this process die before the
+        // reset (which leaves it 0 itself).
+        self.write_putting_back(
+            address,
+            commissioning,
+            Value::Word(setting),
+            Some((Value::Word(was), Storage::Ram)),
+            deliberate,
+        )?;
         match self.write_with(address, reset, Value::Word(1), deliberate) {
             // The drive may answer with the reset's own 0, or restart before it answers.
             Ok(_) => {}
@@ -296,6 +316,10 @@ impl Bus {
             }
         }
         self.wait_zero(address, &[reset], RESET_WAIT)?;
+        // The reset left the commissioning parameter at its factory value: written as it
+        // reads, so ussd holds no put-back of it for when this process ends.
+        let after = self.read_u16(address, commissioning)?;
+        self.write_with(address, commissioning, Value::Word(after), forced())?;
         let took = start.elapsed();
         let picture = self.read_again(address)?;
         Ok(Reset {
@@ -410,7 +434,7 @@ impl Bus {
         };
         let start = Instant::now();
         let params = motor.iter().map(|(p, _)| *p).chain([quick, commissioning]);
-        let raise = self.raise_for(address, catalogue, params, plain)?;
+        let raise = self.raise_for(address, catalogue, params, (plain, Storage::Ram))?;
         let put_back_level = |e: Option<ParamError>| -> Result<(), ParamError> {
             let Some((level, to, was)) = raise else {
                 return e.map_or(Ok(()), Err);
@@ -429,16 +453,8 @@ impl Bus {
             }
         };
         let mut written = Vec::with_capacity(motor.len());
-        let steps = self
-            .write_with(address, commissioning, Value::Word(1), plain)
-            .map(|_| ())
-            .and_then(|()| {
-                for (param, text) in motor {
-                    let now = self.write_param(address, *param, text, plain)?;
-                    written.push((now.param, now.shown()));
-                }
-                Ok(())
-            });
+        let steps =
+            self.enter_quick_commissioning(address, commissioning, motor, plain, &mut written);
         // Out of quick commissioning without a calculation where a write failed.
         let leave = |e: ParamError| {
             let back = self.write_with(address, commissioning, Value::Word(0), forced());
@@ -452,6 +468,12 @@ impl Bus {
                 Err(e) => Err(leave(e)),
             }
             .and_then(|()| self.wait_zero(address, &[quick, commissioning], QUICK_WAIT))
+            // The drive left quick commissioning itself: written as it reads, so ussd holds
+            // no put-back of it for when this process ends.
+            .and_then(|()| {
+                self.write_with(address, commissioning, Value::Word(0), forced())
+                    .map(|_| ())
+            })
         });
         put_back_level(ended.err())?;
         let took = start.elapsed();
@@ -466,15 +488,42 @@ impl Bus {
         })
     }
 
+    /// Enters quick commissioning (`commissioning` := 1; ussd takes the drive out of it again
+    /// should this process die in it) and writes `motor` in order, each written value noted in
+    /// `written`.
+    fn enter_quick_commissioning(
+        &self,
+        address: Address,
+        commissioning: ParamRef,
+        motor: &[(ParamRef, &str)],
+        options: WriteOptions,
+        written: &mut Vec<(ParamRef, String)>,
+    ) -> Result<(), ParamError> {
+        self.write_putting_back(
+            address,
+            commissioning,
+            Value::Word(1),
+            Some((Value::Word(0), Storage::Ram)),
+            options,
+        )?;
+        for (param, text) in motor {
+            let now = self.write_param(address, *param, text, options)?;
+            written.push((now.param, now.shown()));
+        }
+        Ok(())
+    }
+
     /// Raises the access level of drive `address` (its family's P0003) to the highest that
     /// `params` need by `catalogue`, where the drive's is lower, writing it with `options`:
     /// (the level's parameter, raised to, was), to be put back; none when no raise was needed.
+    /// ussd holds the put-back, in RAM or, where the raised level may reach the EEPROM (a copy
+    /// of RAM to ROM), in RAM and EEPROM (`back_to`), should this process die first.
     fn raise_for(
         &self,
         address: Address,
         catalogue: &Catalogue,
         params: impl IntoIterator<Item = ParamRef>,
-        options: WriteOptions,
+        (options, back_to): (WriteOptions, Storage),
     ) -> Result<Option<(ParamRef, u16, u16)>, ParamError> {
         let needed = params
             .into_iter()
@@ -492,7 +541,7 @@ impl Bus {
             address,
             level,
             Value::Word(needed),
-            Some(Value::Word(now)),
+            Some((Value::Word(now), back_to)),
             options,
         );
         if let Err(e) = raised {

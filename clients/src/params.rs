@@ -168,8 +168,9 @@ impl Bus {
         self.write_putting_back(address, param, value, None, options)
     }
 
-    /// [`Bus::write_with`], leaving ussd the write `param` := `back` (when there is one) to run
-    /// should this process die before it writes `param` again
+    /// [`Bus::write_with`], leaving ussd the write `param` := `back` (when there is one: the
+    /// value and where it goes, RAM or RAM and EEPROM) to run should this process die before
+    /// it writes `param` again
     /// ([`uss_shm_types::REQUEST_PUT_BACK`]): a restore's access level or quick commissioning,
     /// raised on the way, is not left raised by a process killed halfway. A ussd older than
     /// the put-back refuses it: the write then goes alone, put back by this process only.
@@ -178,10 +179,10 @@ impl Bus {
         address: Address,
         param: ParamRef,
         value: Value,
-        back: Option<Value>,
+        back: Option<(Value, Storage)>,
         options: WriteOptions,
     ) -> Result<Value, ParamError> {
-        let task = |v| ParamTask::write(param.pnu, param.index, v, options.storage());
+        let task = |v, storage| ParamTask::write(param.pnu, param.index, v, storage);
         let mut flags = 0;
         if options.force {
             flags |= uss_shm_types::REQUEST_FORCE;
@@ -189,9 +190,9 @@ impl Bus {
         if options.unsafe_write {
             flags |= uss_shm_types::REQUEST_UNSAFE;
         }
-        let mut tasks = vec![task(value)];
-        if let Some(back) = back {
-            tasks.push(task(back));
+        let mut tasks = vec![task(value, options.storage())];
+        if let Some((back, storage)) = back {
+            tasks.push(task(back, storage));
             flags |= uss_shm_types::REQUEST_PUT_BACK;
         }
         let written = match self.request_answered(address, &tasks, 1, flags) {

@@ -421,7 +421,7 @@ impl Bus {
                     address,
                     param,
                     value,
-                    Some(Value::Word(was)),
+                    Some((Value::Word(was), options.writes().storage())),
                     options.writes(),
                 ),
                 _ => self.write_with(address, param, value, options.writes()),

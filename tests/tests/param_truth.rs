@@ -427,6 +427,47 @@ fn a_restore_killed_halfway_has_ussd_put_back_what_it_raised() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Issue 46's second sweep: a restore killed while its drive was offline (its `ussctl` waiting
+/// to put back once the drive answers) lost its put-back: ussd tried once, at once, and gave
+/// up ("failed (Err(DriveOffline)); set it by hand"), leaving P0010 = 1. ussd now goes on
+/// trying while the drive does not answer, as long as the client would have (30 s).
+#[test]
+fn a_restore_killed_while_its_drive_is_offline_is_put_back_when_it_answers() {
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "1:busy=10"]);
+    let ussd = Ussd::start_on(&sim.path, "baud = 115200", &[(1, "")]);
+    let dir = std::env::temp_dir().join(format!("uss-offline-{}", ussd.bus));
+    let path = changed_since_backup(&ussd, &dir);
+    let mut restore = restore_until_raised(&ussd, &path, &[]);
+    let sim_pid = Pid::from_raw(i32::try_from(sim.child.id()).unwrap());
+    let watch = ussd.bus().watch(addr(1)).unwrap();
+    kill(sim_pid, Signal::SIGSTOP).unwrap();
+    watch
+        .wait_for(Duration::from_secs(10), "offline", |i| i.online == 0)
+        .unwrap();
+    restore.child.kill().unwrap();
+    restore.child.wait().unwrap();
+    // Offline for a while after the client died: ussd's first tries find no drive.
+    std::thread::sleep(Duration::from_millis(1500));
+    kill(sim_pid, Signal::SIGCONT).unwrap();
+    let back = Instant::now();
+    let until = back + Duration::from_secs(15);
+    while raised_now(&ussd) != (Ok(Value::Word(0)), Ok(Value::Word(1))) && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(
+        raised_now(&ussd),
+        (Ok(Value::Word(0)), Ok(Value::Word(1))),
+        "P0010 and P0003 put back once the drive answers: {}",
+        ussd.log()
+    );
+    println!(
+        "param_truth: put back {:.0} ms after the drive answered again",
+        back.elapsed().as_secs_f64() * 1000.0
+    );
+    assert!(!ussd.log().contains("set it by hand"), "{}", ussd.log());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Changes drive 1 again after a restore (P0310 to another value than before, so quick
 /// commissioning is needed again), then P1120 with ussctl; returns how that write went.
 fn changed_since_restore(ussd: &Ussd) -> (std::process::ExitStatus, String, String) {

@@ -21,6 +21,7 @@ use uss_catalogue::Catalogue;
 use uss_engine::EngineHandle;
 use uss_engine::jobs::{JobResult, Requester};
 use uss_protocol::{Address, ParamRef, ParamTask};
+use uss_shm_types::PathError;
 use uss_shm_types::names;
 use uss_shm_types::{Instance, Outcome, ParamRequest, ParamResponse, ParamResult, RequestError};
 
@@ -145,7 +146,14 @@ struct PutBack {
     superseded_by: Option<u64>,
     /// The job ussd put it back with (the client died).
     running: Option<u64>,
+    /// When ussd first tried to put it back: a drive that does not answer (offline, the line
+    /// down) is tried again until [`PUT_BACK_WITHIN`] after it, as the client would have.
+    first_try: Option<std::time::Instant>,
 }
+
+/// How long ussd goes on putting back a dead client's raise on a drive that does not answer:
+/// as long as the client itself would have (its restore's `put_back_within`, 30 s).
+const PUT_BACK_WITHIN: Duration = Duration::from_secs(30);
 
 impl PutBack {
     /// Whether `task` writes the element this puts back.
@@ -540,6 +548,7 @@ impl ParamServer {
             shown: shown_write(&task, self.rules(address)),
             superseded_by: None,
             running: None,
+            first_try: None,
         };
         if !self
             .put_backs
@@ -559,8 +568,18 @@ impl ParamServer {
         self.put_backs.retain_mut(|p| {
             if p.running == Some(id) {
                 let (what, drive, pid) = (&p.shown, p.address.get(), p.pid);
+                // The drive did not answer: tried again (by the next check) while there is
+                // time; a drive's refusal is its answer.
+                let unanswered = matches!(
+                    r.outcome,
+                    Err(PathError::DriveOffline | PathError::Timeout | PathError::LineDown)
+                );
+                if unanswered && p.first_try.is_some_and(|t| t.elapsed() < PUT_BACK_WITHIN) {
+                    p.running = None;
+                    return true;
+                }
                 let died = format!(
-                    "drive {drive}: client process {pid} died with a parameter raised on the way (a restore cut short)"
+                    "drive {drive}: client process {pid} died with a parameter raised on the way (a restore or commissioning cut short)"
                 );
                 if ok {
                     tracing::warn!(bus, drive, pid, "{died}: ussd put it back, {what}");
@@ -596,6 +615,8 @@ impl ParamServer {
             if !died(nodes, p.client, &mut p.pid) {
                 continue;
             }
+            // Tried at each check until the drive takes it (or the time is up).
+            p.first_try.get_or_insert_with(std::time::Instant::now);
             let id = self.next_id;
             if handle
                 .submit_all_for(p.address, id, &[p.task], Requester::NONE)
