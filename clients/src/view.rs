@@ -26,6 +26,34 @@ pub fn last_failure(d: &DriveDiag) -> &'static str {
     LastFailure::try_from(d.last_failure).map_or("unknown", LastFailure::name)
 }
 
+/// The bus and its drives as `ussctl status --json` shows them (without its `"v"`), and
+/// Python's `Bus.status()`: read once, each drive's view judged when it was read.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct StatusView {
+    pub bus: BusView,
+    pub drives: Vec<DriveView>,
+}
+
+impl StatusView {
+    /// Reads the bus status and every drive's diagnostics of `bus`.
+    ///
+    /// # Errors
+    /// What reading the status or a drive's diagnostics gives (ussd gone, ...).
+    pub fn of(bus: &crate::Bus) -> Result<Self, crate::ClientError> {
+        let status = bus.status()?;
+        let drives = bus
+            .drives()
+            .into_iter()
+            .map(|a| bus.diag(a))
+            .collect::<Result<Vec<_>, _>>()?;
+        let now = crate::monotonic_ns();
+        Ok(Self {
+            bus: BusView::new(bus.name(), &status),
+            drives: drives.iter().map(|d| DriveView::new(d, now)).collect(),
+        })
+    }
+}
+
 /// The bus as a whole.
 #[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
 pub struct BusView {

@@ -85,8 +85,11 @@ impl Bus {
     /// The bus status as ussd last published it, as a dict: the client's view of it (the fields
     /// of `ussctl status --json`'s `bus`), with the contract's layout `version` and `line_down`.
     fn status<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        // `ussctl status --json`'s view of the bus and its drives, and the contract's version
+        // and line state of the same status.
         let s = self.inner.status().map_err(|e| errors::client(py, e))?;
-        let view = uss_client::view::BusView::new(self.inner.name(), &s);
+        let view =
+            uss_client::view::StatusView::of(&self.inner).map_err(|e| errors::client(py, e))?;
         let json =
             serde_json::to_string(&view).map_err(|e| PyValueError::new_err(e.to_string()))?;
         let d = py

@@ -128,6 +128,10 @@ def test_bus_lists_the_polled_drives_and_runs(bus):
     assert (status.bus, status.line, status.line_error) == (bus.name, "up", None)
     assert status.rt_mode in ("realtime", "best effort") and status.line_down is False
     assert status.exchanges >= status.good and status.jobs_cancelled == 0
+    # ... and as that JSON is read (issue 47: it had no drives and could not be subscripted).
+    assert status["bus"]["bus"] == bus.name and set(status.keys()) == {"bus", "drives"}
+    assert [d["address"] for d in status["drives"]] == list(DRIVES)
+    assert all("online" in d and "control" in d for d in status.drives)
     deadline = time.monotonic() + 5
     while bus.status().good == 0:
         assert time.monotonic() < deadline, "no good exchange counted"

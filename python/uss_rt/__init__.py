@@ -162,17 +162,29 @@ class Health:
 
 
 class BusStatus:
-    """The bus status as ussd last published it: the fields of ``ussctl status --json``'s
-    ``bus`` (``bus``, ``running``, ``rt_mode`` "realtime" or "best effort", ``drive_count``,
-    ``cycles``, ``exchanges``, ``good``, the job counters, ``mean_exchange_us``, ``efficiency``,
-    ``line`` "up" or "down" and ``line_error``, ...; docs/schema/ussctl/status.json), plus the
-    contract's ``version`` and ``line_down``."""
+    """The bus and its drives as ``ussctl status --json`` shows them
+    (docs/schema/ussctl/status.json): ``status["bus"]`` and ``status["drives"]`` (one dict per
+    drive: ``address``, ``online``, ``state``, ``zsw1_hex``, ``actual_hz``, ``control``, ...),
+    as in that JSON. The bus's fields are attributes too (``bus``, ``running``, ``rt_mode``
+    "realtime" or "best effort", ``drive_count``, ``cycles``, ``exchanges``, ``good``, the job
+    counters, ``mean_exchange_us``, ``efficiency``, ``line`` "up" or "down" and
+    ``line_error``, ...), with ``drives``, the contract's ``version`` and ``line_down``."""
 
     def __init__(self, fields: dict):
-        self.__dict__.update(fields)
+        self._json = {"bus": fields["bus"], "drives": fields["drives"]}
+        self.__dict__.update(fields["bus"])
+        self.drives = fields["drives"]
+        self.version = fields["version"]
+        self.line_down = fields["line_down"]
+
+    def __getitem__(self, key):
+        return self._json[key]
+
+    def keys(self):
+        return self._json.keys()
 
     def __repr__(self):
-        return f"BusStatus({self.__dict__})"
+        return f"BusStatus({self._json})"
 
 
 class Bus:

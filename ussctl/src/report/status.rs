@@ -1,6 +1,5 @@
 //! `status`: the bus and its drives, each drive's control (live or latched, why).
 
-use serde::Serialize;
 use std::fmt::Write as _;
 
 /// The client's one view of the bus, of a drive and of its control (`uss_client::view`), as
@@ -118,15 +117,16 @@ fn d_has_pzd(d: &DriveView) -> bool {
     d.pzd_words > 0
 }
 
-/// `status`.
-#[derive(Debug, Serialize, schemars::JsonSchema)]
-pub struct StatusReport {
-    pub bus: BusView,
-    pub drives: Vec<DriveView>,
+/// `status`: the client's one view of the bus and its drives.
+pub use uss_client::view::StatusView as StatusReport;
+
+/// `status`'s lines.
+pub trait StatusLines {
+    fn human(&self) -> String;
 }
 
-impl StatusReport {
-    pub fn human(&self) -> String {
+impl StatusLines for StatusReport {
+    fn human(&self) -> String {
         let mut out = self.bus.human();
         out.push('\n');
         let _ = writeln!(
