@@ -195,6 +195,84 @@ pub fn c_program(compiler: &str, source: &str, extra: &[&str]) -> PathBuf {
     exe
 }
 
+/// `python3` with the Python module `uss_rt` of this checkout on its path: built once (maturin,
+/// through pip, as `pip install ./python` builds it) into `target/python-module`, and again
+/// only when a source it is made of is newer, so a fresh clone's `cargo test --workspace`
+/// needs nothing installed first and a module installed in the system is never the one
+/// tested. Test binaries running at once build it once (a file lock).
+///
+/// # Panics
+/// When pip cannot build it (its output is in the message).
+pub fn python() -> Command {
+    static BUILT: OnceLock<PathBuf> = OnceLock::new();
+    let site = BUILT.get_or_init(|| {
+        let site = root().join("target/python-module");
+        std::fs::create_dir_all(&site).unwrap();
+        let lock = std::fs::File::create(root().join("target/python-module.lock")).unwrap();
+        let _held = nix::fcntl::Flock::lock(lock, nix::fcntl::FlockArg::LockExclusive)
+            .map_err(|(_, e)| e)
+            .expect("lock target/python-module.lock");
+        let stamp = site.join(".built");
+        let built = std::fs::metadata(&stamp).and_then(|m| m.modified()).ok();
+        let sources = [
+            "python/src",
+            "python/uss_rt",
+            "python/Cargo.toml",
+            "python/pyproject.toml",
+            "clients/src",
+            "catalogue/src",
+            "catalogue/data",
+            "shm-types/src",
+            "protocol/src",
+        ];
+        let newest = sources.iter().filter_map(|s| newest(&root().join(s))).max();
+        if built.is_none() || newest > built {
+            let out = Command::new("python3")
+                .args(["-m", "pip", "install", "--quiet", "--upgrade", "--no-deps"])
+                .args(["--disable-pip-version-check", "--root-user-action=ignore"])
+                .arg("--target")
+                .arg(&site)
+                .arg(root().join("python"))
+                .output()
+                .expect("python3 -m pip (CPython with pip)");
+            assert!(
+                out.status.success(),
+                "building the Python module uss_rt (python3 -m pip install --target {} ./python):\n{}{}",
+                site.display(),
+                String::from_utf8_lossy(&out.stdout),
+                String::from_utf8_lossy(&out.stderr)
+            );
+            std::fs::write(&stamp, b"").unwrap();
+        }
+        site
+    });
+    let mut c = Command::new("python3");
+    let path = std::env::var_os("PYTHONPATH").map_or_else(
+        || site.clone().into_os_string(),
+        |p| {
+            let mut all = site.clone().into_os_string();
+            all.push(":");
+            all.push(p);
+            all
+        },
+    );
+    c.env("PYTHONPATH", path);
+    c
+}
+
+/// The newest modification time of a file at or below `path`.
+fn newest(path: &std::path::Path) -> Option<std::time::SystemTime> {
+    let meta = std::fs::metadata(path).ok()?;
+    if !meta.is_dir() {
+        return meta.modified().ok();
+    }
+    std::fs::read_dir(path)
+        .ok()?
+        .filter_map(Result::ok)
+        .filter_map(|e| newest(&e.path()))
+        .max()
+}
+
 /// Stops a child the way an operator would (SIGTERM, so ussd shuts down cleanly and sends its
 /// safe commands), waits up to 5 s, then kills it; the child is reaped either way.
 pub fn terminate(child: &mut Child) {

@@ -65,6 +65,13 @@ impl FrontEnd {
         c.args(["-c", TIME_NAMESPACE, &ahead_ns.to_string()])
             .arg(inner.get_program())
             .args(inner.get_args());
+        // The inner program's environment (Python's module path) reaches it through this one.
+        for (key, value) in inner.get_envs() {
+            match value {
+                Some(v) => c.env(key, v),
+                None => c.env_remove(key),
+            };
+        }
         c
     }
 
@@ -78,26 +85,12 @@ impl FrontEnd {
                 &["-std=c++17"],
             )),
             Self::Python => {
-                python_here();
-                let mut c = Command::new("python3");
+                let mut c = uss_integration_tests::python();
                 c.arg(root().join("python/tests/conformance_driver.py"));
                 c
             }
         }
     }
-}
-
-/// Whether the Python module is installed: the Python scenarios need it (`.ci/run` installs it
-/// before the tests; outside CI they test whatever `uss_rt` is installed).
-fn python_here() {
-    let here = Command::new("python3")
-        .args(["-c", "import uss_rt"])
-        .status()
-        .is_ok_and(|s| s.success());
-    assert!(
-        here,
-        "the Python module uss_rt is not installed: python3 -m pip install ./python"
-    );
 }
 
 /// What a command came to: `Ok`, or the error's kind (`tripped`, ...) and message.
