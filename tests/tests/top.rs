@@ -28,13 +28,18 @@ impl Tmux {
 
     /// Starts `command` in a 200 x 50 terminal; the pane stays after it ends and says how.
     fn start(name: &str, command: &str) -> Option<Tmux> {
+        Self::start_sized(name, command, 200)
+    }
+
+    /// [`Tmux::start`] in a terminal `width` columns wide.
+    fn start_sized(name: &str, command: &str, width: u16) -> Option<Tmux> {
         let tmux = Tmux {
             socket: format!("uss-top-{}-{name}", std::process::id()),
         };
         let shell = format!("{command}; echo \"EXITED $?\"; sleep 600");
         let started = Command::new("tmux")
             .args(["-L", &tmux.socket, "new-session", "-d", "-s", "top"])
-            .args(["-x", "200", "-y", "50", &shell])
+            .args(["-x", &width.to_string(), "-y", "50", &shell])
             .status();
         match started {
             Ok(s) if s.success() => Some(tmux),
@@ -263,4 +268,26 @@ fn top_ends_when_its_terminal_goes_away() {
         left.is_empty(),
         "top still runs 5 s after its terminal went: {left:?}"
     );
+}
+
+/// Issue 47, item 5: at 80 columns (a default terminal) the table dropped the address and
+/// state columns and clipped values (good `2063` for 20630). It fits 80 columns as top and
+/// htop do: the drive, whether it answers, its control and state first, each value whole.
+#[test]
+fn top_fits_80_columns_with_the_drive_and_its_state() {
+    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let ussctl = binary("ussctl", "ussctl");
+    let command = format!("{} --bus {} top", ussctl.display(), ussd.bus);
+    let Some(tmux) = Tmux::start_sized("narrow", &command, 80) else {
+        return;
+    };
+    let screen = tmux.wait("the table's header", |s| {
+        s.contains("addr") && s.contains("state")
+    });
+    for title in ["addr", "online", "control", "state", "actual Hz"] {
+        assert!(screen.contains(title), "{title}:\n{screen}");
+    }
+    let one = row(&screen, 1);
+    assert!(one.contains("yes") && one.contains("S2"), "{one}\n{screen}");
+    assert!(screen.lines().all(|l| l.chars().count() <= 80), "{screen}");
 }

@@ -47,6 +47,9 @@ fn watch(
     let start = Instant::now();
     let interval = Duration::from_millis(interval_ms.max(1));
     let mut round = 0;
+    // What keeps the bus from being watched now (ussd gone, stopped, its line down), said once
+    // when it begins: watch goes on, as top does, and follows a restarted ussd.
+    let mut away: Option<String> = None;
     while !stopped() && count.is_none_or(|n| round < n) {
         if round > 0 {
             sleep_unless_stopped(interval);
@@ -55,19 +58,45 @@ fn watch(
             }
         }
         let t = start.elapsed().as_secs_f64();
+        let mut now_away = None;
         for w in &watches {
-            // A stale picture is never shown as fresh: ussd gone, stopped or its line down ends
-            // it; a drive whose poll is overdue (a stalled bus thread) shows as stale.
-            let (image, stale) = match w.read() {
-                Ok(image) => (image, false),
-                Err(ClientError::Stale { .. }) => (w.latest(), true),
+            // A stale picture is never shown as fresh: a drive whose poll is overdue (a stalled
+            // bus thread) shows as stale; with ussd gone, stopped or its line down, every drive
+            // shows offline with why, until ussd serves the bus again.
+            let (image, state) = match w.read() {
+                Ok(image) => (image, None),
+                Err(ClientError::Stale { .. }) => (w.latest(), Some("stale")),
+                Err(e @ ClientError::UssdGone { .. }) => {
+                    now_away = Some(e.to_string());
+                    (w.latest(), Some("ussd gone"))
+                }
+                Err(e @ ClientError::UssdStopped { .. }) => {
+                    now_away = Some(e.to_string());
+                    (w.latest(), Some("ussd stopped"))
+                }
+                Err(e @ ClientError::LineDown { .. }) => {
+                    now_away = Some(e.to_string());
+                    (w.latest(), Some("line down"))
+                }
                 Err(e) => return Err(e.into()),
             };
             let mut line = WatchLine::new(t, w.address(), &image, w.info().reference_hz);
-            if stale {
-                line.state = "stale";
+            if let Some(state) = state {
+                line.state = state;
+                line.online &= state == "stale";
             }
             out.show(&line, WatchLine::human)?;
+        }
+        match (&away, now_away) {
+            (None, Some(why)) => {
+                eprintln!("ussctl: {why}: watching on until ussd serves the bus again");
+                away = Some(why);
+            }
+            (Some(_), None) => {
+                eprintln!("ussctl: ussd serves bus {} again", bus.name());
+                away = None;
+            }
+            _ => {}
         }
         round += 1;
     }

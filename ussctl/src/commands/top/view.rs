@@ -153,7 +153,8 @@ fn marked(screen: &Screen, drive: u8, col: Col, normal: Style) -> Style {
     }
 }
 
-fn drive_row<'a>(screen: &Screen, d: &'a TopDrive) -> Row<'a> {
+/// Drive `d`'s row, its cells of the columns `shown`.
+fn drive_row<'a>(screen: &Screen, d: &'a TopDrive, shown: &[usize]) -> Row<'a> {
     let r = &d.row;
     let a = r.address;
     let state_style = match r.state {
@@ -182,7 +183,7 @@ fn drive_row<'a>(screen: &Screen, d: &'a TopDrive) -> Row<'a> {
         Cell::from(r.flags.join(",")),
         Cell::from(format!("{:8.2}", r.actual_hz)),
         Cell::from(d.set_hz.map_or_else(String::new, |hz| format!("{hz:8.2}"))),
-        Cell::from(format!("{:>9}", r.good)),
+        Cell::from(format!("{:>10}", r.good)),
         Cell::from(format!("{:>8}", r.rejected)).style(marked(
             screen,
             a,
@@ -217,51 +218,75 @@ fn drive_row<'a>(screen: &Screen, d: &'a TopDrive) -> Row<'a> {
                 .map_or_else(String::new, |p| p.to_string()),
         ),
     ];
-    Row::new(cells)
+    Row::new(
+        cells
+            .into_iter()
+            .enumerate()
+            .filter(|(c, _)| shown.contains(c))
+            .map(|(_, cell)| cell),
+    )
+}
+
+/// The table's columns in the order shown: title and width (0: the flags, which get what the
+/// others leave).
+const COLUMNS: [(&str, u16); 14] = [
+    ("addr", 4),
+    ("online", 6),
+    ("control", 30),
+    ("state", 9),
+    ("ZSW1", 6),
+    ("flags", 0),
+    ("actual Hz", 9),
+    ("set Hz", 8),
+    ("good", 10),
+    ("rejected", 8),
+    ("timeouts", 8),
+    ("last error", 17),
+    ("watchdog", 8),
+    ("controller", 10),
+];
+
+/// The order columns get room in, as a narrow terminal shows them (top and htop fit 80
+/// columns the same way): which drive, whether it answers and what it does first, the
+/// counters after; the flags take only what is left.
+const ROOM_ORDER: [usize; 14] = [0, 1, 3, 2, 6, 7, 4, 8, 10, 9, 11, 13, 12, 5];
+
+/// The columns that fit `width` (the table's inside: borders and the selection mark off), in
+/// the order shown, each whole: a value is never cut.
+fn fitting(width: u16) -> Vec<usize> {
+    let mut left = width;
+    let mut shown = Vec::new();
+    for &c in &ROOM_ORDER {
+        let need = COLUMNS[c].1 + 1;
+        if COLUMNS[c].1 == 0 || need <= left {
+            left = left.saturating_sub(need);
+            shown.push(c);
+        }
+    }
+    shown.sort_unstable();
+    shown
 }
 
 fn draw_table(frame: &mut Frame<'_>, screen: &Screen, area: Rect) {
-    let header = Row::new([
-        "addr",
-        "online",
-        "control",
-        "state",
-        "ZSW1",
-        "flags",
-        "actual Hz",
-        "set Hz",
-        "good",
-        "rejected",
-        "timeouts",
-        "last error",
-        "watchdog",
-        "controller",
-    ])
-    .style(Style::new().add_modifier(Modifier::BOLD | Modifier::UNDERLINED));
-    let widths = [
-        Constraint::Length(4),
-        Constraint::Length(6),
-        Constraint::Length(30),
-        Constraint::Length(9),
-        Constraint::Length(6),
-        // The flags get what the fixed columns leave (nothing on a narrow terminal).
-        Constraint::Fill(1),
-        Constraint::Length(9),
-        Constraint::Length(8),
-        Constraint::Length(9),
-        Constraint::Length(8),
-        Constraint::Length(8),
-        Constraint::Length(17),
-        Constraint::Length(8),
-        Constraint::Length(10),
-    ];
+    // Borders and the selection mark ("> ").
+    let shown = fitting(area.width.saturating_sub(4));
+    let header = Row::new(shown.iter().map(|&c| COLUMNS[c].0))
+        .style(Style::new().add_modifier(Modifier::BOLD | Modifier::UNDERLINED));
+    let widths: Vec<Constraint> = shown
+        .iter()
+        .map(|&c| match COLUMNS[c].1 {
+            0 => Constraint::Fill(1),
+            w => Constraint::Length(w),
+        })
+        .collect();
     let mut title = format!(" drives of bus {} ", screen.name);
     let mut style = Style::new();
     if stale(screen) {
         title.push_str("- STALE: the last picture ussd gave, not the bus now ");
         style = DIM;
     }
-    let table = Table::new(screen.drives.iter().map(|d| drive_row(screen, d)), widths)
+    let rows = screen.drives.iter().map(|d| drive_row(screen, d, &shown));
+    let table = Table::new(rows, widths)
         .header(header)
         .style(style)
         .block(Block::bordered().title(title))
@@ -428,4 +453,32 @@ fn key_line<'a>(app: &'a App, screen: &Screen) -> Paragraph<'a> {
         DIM,
     ));
     Paragraph::new(lines)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 47, item 5: at 80 columns the table dropped the address and state columns and
+    /// clipped numbers. Columns get room in order of need, each whole.
+    #[test]
+    fn a_narrow_terminal_keeps_the_drive_its_state_and_control_whole() {
+        let names = |w: u16| fitting(w).iter().map(|&c| COLUMNS[c].0).collect::<Vec<_>>();
+        // 80 columns less the borders and the selection mark.
+        assert_eq!(
+            names(76),
+            [
+                "addr",
+                "online",
+                "control",
+                "state",
+                "flags",
+                "actual Hz",
+                "set Hz"
+            ]
+        );
+        let all: u16 = COLUMNS.iter().map(|c| c.1 + 1).sum();
+        assert_eq!(names(all).len(), COLUMNS.len());
+        assert_eq!(names(0), ["flags"]);
+    }
 }
