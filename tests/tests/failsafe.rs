@@ -985,7 +985,8 @@ fn hz_are_scaled_by_the_reference_frequency_the_drive_uses() {
         ],
     );
     let bus = ussd.bus();
-    let read = diag_when(&bus, 1, |d| d.info.reference_hz != 60.0);
+    // A reference not read yet is no reference (0): wait for the drive's.
+    let read = diag_when(&bus, 1, |d| d.info.reference().is_some_and(|r| r != 60.0));
     assert_eq!(read.info.reference_hz, 50.0, "the drive's P2000");
     assert!(
         logged(
@@ -998,7 +999,8 @@ fn hz_are_scaled_by_the_reference_frequency_the_drive_uses() {
     );
     // Drive 2 agrees with the configuration; drive 3's is not read.
     std::thread::sleep(Duration::from_millis(500));
-    assert_eq!(bus.diag(addr(2)).unwrap().info.reference_hz, 60.0);
+    let two = diag_when(&bus, 2, |d| d.info.reference().is_some());
+    assert_eq!(two.info.reference_hz, 60.0);
     assert_eq!(bus.diag(addr(3)).unwrap().info.reference_hz, 60.0);
     let log = ussd.log();
     assert!(!log.contains("drive 2: reference"), "{log}");
