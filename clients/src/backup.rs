@@ -91,12 +91,11 @@ impl Number {
     /// steps as a number of its unit: SIMOREG P303's 1000 is `10.0` s).
     pub fn of_param(info: &Param, v: Value) -> Self {
         match info.scale {
-            Some(step) => {
-                let x = info.in_unit(info.data_type.decode(v));
-                // The digits of the step, so 0.07 s is written 0.07 and reads back as 7 steps.
-                let shown = format!("{:.*}", uss_catalogue::step_decimals(step), x);
-                Self::Float(shown.parse().unwrap_or(x))
-            }
+            // The catalogue's one reading of a fixed-point value, exact to its step's digits.
+            Some(_) => match info.quantity(info.data_type.decode(v)) {
+                uss_catalogue::Quantity::Real(x) => Self::Float(x),
+                uss_catalogue::Quantity::Whole(n) => Self::Int(n),
+            },
             None => Self::of(info.data_type, v),
         }
     }
