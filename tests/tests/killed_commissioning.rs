@@ -44,20 +44,27 @@ fn word(ussd: &Ussd, pnu: u16) -> Option<u32> {
 
 /// Runs `ussctl ARGS` and kills it (SIGKILL) as soon as drive 1's `pnu` reads `value`; the
 /// time of the kill.
-fn kill_when(ussd: &Ussd, args: &[&str], (pnu, value): (u16, u32)) -> Instant {
+fn kill_when(ussd: &Ussd, args: &[&str], watched: (u16, u32)) -> Instant {
+    match try_kill_when(ussd, args, watched) {
+        Ok(at) => at,
+        Err(ended) => panic!("the call ended first: {ended}"),
+    }
+}
+
+/// As [`kill_when`], or how the call ended when it ended before `pnu` was seen at `value` (a
+/// window of a few telegrams can pass between two reads of a loaded machine).
+fn try_kill_when(ussd: &Ussd, args: &[&str], (pnu, value): (u16, u32)) -> Result<Instant, String> {
     let mut call = ussd.ussctl(args);
     let deadline = Instant::now() + Duration::from_secs(30);
     while word(ussd, pnu) != Some(value) {
         assert!(Instant::now() < deadline, "P{pnu:04} never read {value}");
-        assert!(
-            call.child.try_wait().unwrap().is_none(),
-            "the call ended first: {:?}",
-            call.finish()
-        );
+        if call.child.try_wait().unwrap().is_some() {
+            return Err(format!("{:?}", call.finish()));
+        }
     }
     call.child.kill().unwrap();
     call.child.wait().unwrap();
-    Instant::now()
+    Ok(Instant::now())
 }
 
 /// Waits up to 10 s until drive 1's `pnu` reads `value`.
@@ -160,10 +167,20 @@ fn a_copy_to_rom_killed_after_it_leaves_no_raised_level_in_eeprom() {
     let (sim, ussd) = slow_drive(25);
     let bus = ussd.bus();
     let sim_pid = Pid::from_raw(i32::try_from(sim.child.id()).unwrap());
-    let mut hit = 0;
-    for after_ms in (0..=240).step_by(30) {
+    let (mut hit, mut killed, mut ended) = (0, 0, Vec::new());
+    // Nine kills at moments 30 ms apart; a copy that ends before its raise is seen (the window
+    // is a few telegrams: a loaded CI machine can read past it) is checked all the same, and
+    // tried again.
+    for attempt in 0..18 {
+        if killed == 9 {
+            break;
+        }
+        let after_ms = 30 * killed;
         assert_eq!(word(&ussd, 3), Some(1), "the drive's own level");
-        kill_when(&ussd, &["param", "save", "1"], (3, 3));
+        match try_kill_when(&ussd, &["param", "save", "1"], (3, 3)) {
+            Ok(_) => killed += 1,
+            Err(how) => ended.push(format!("attempt {attempt}: {how}")),
+        }
         std::thread::sleep(Duration::from_millis(after_ms));
         assert!(until_reads(&ussd, 3, 1), "P0003 in RAM: {}", ussd.log());
         // Whatever the EEPROM holds comes back with the power.
@@ -182,7 +199,11 @@ fn a_copy_to_rom_killed_after_it_leaves_no_raised_level_in_eeprom() {
             "after a power cycle, killed {after_ms} ms after the raise: {}",
             ussd.log()
         );
-        hit += usize::from(ussd.log().contains("ussd put it back, P0003 := 1"));
+        hit = ussd.log().matches("ussd put it back, P0003 := 1").count();
     }
-    println!("killed_commissioning: {hit} of 9 copies put back by ussd");
+    assert!(killed > 0, "no copy was killed halfway: {ended:?}");
+    println!(
+        "killed_commissioning: {killed} copies killed ({} ended first), {hit} put back by ussd",
+        ended.len()
+    );
 }

@@ -32,6 +32,13 @@ use uss_integration_tests::{BusSpec, ChildProc, Ussd, assert_report};
 /// `zenoh-bridge/examples/read_param.py` in the namespace reads `key`: P1082 = 50.0 Hz (over
 /// mutual TLS with `tls`). Without the `eclipse-zenoh` package it says it is skipped, unless
 /// `USS_REQUIRE_PY_ZENOH` is set (CI).
+/// The controller watchdog of the drives here: a remote run's samples cross a namespace link,
+/// a bridge and two Zenoh sessions, on a machine that runs the other tests at once; at the
+/// default 100 ms a loaded 2-core CI machine tripped runs "controller stale" that were meant to
+/// end otherwise (an operator's stop, a hand-over). The trips these tests are about come from
+/// the watchdog all the same, at this time.
+const WATCHDOG: &str = "watchdog_ms = 500";
+
 fn python_reads_p1082(ns: &Netns, key: &str, tls: Option<&netns::ClientTls>) {
     if !python_has_zenoh("the Python client") {
         return;
@@ -186,7 +193,7 @@ fn json(line: &str) -> Value {
 #[test]
 fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
     let Some(ns) = Netns::create() else { return };
-    let mut ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let mut ussd = Ussd::start("", &[(1, WATCHDOG), (2, WATCHDOG)]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/t{}", std::process::id());
     let key = |rest: &str| format!("{prefix}/{bus}/{rest}");
@@ -242,7 +249,7 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
         suffix: "",
         device: "sim",
         keys: "",
-        drives: &[(1, ""), (2, ""), (5, "")],
+        drives: &[(1, WATCHDOG), (2, WATCHDOG), (5, WATCHDOG)],
     }]);
     let (ok, out, err) = ns.call(&["sub", &key("drive/5/in")]);
     assert!(ok, "{err}");
@@ -549,7 +556,7 @@ fn a_remote_client_reaches_the_bridge_through_a_router() {
     if !python_has_zenoh("the router test") {
         return;
     }
-    let ussd = Ussd::start("", &[(1, "")]);
+    let ussd = Ussd::start("", &[(1, WATCHDOG)]);
     // The guide's router, over mutual TLS: the router, the bridge and the client each show a
     // certificate of the plant's CA.
     let pki = Pki::new("router", "uss-rt test CA", &ns.here());
@@ -600,7 +607,7 @@ fn a_remote_client_reaches_the_bridge_through_a_router() {
 #[test]
 fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let ussd = Ussd::start("", &[(1, WATCHDOG), (2, WATCHDOG)]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/c{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
@@ -697,7 +704,7 @@ fn link_down_trips_and_latches(
     watch: &DriveWatch,
     mut run: ChildProc,
 ) -> std::path::PathBuf {
-    // The network goes: no fresh sample within the watchdog time (100 ms) trips the drive.
+    // The network goes: no fresh sample within the watchdog time (500 ms) trips the drive.
     // A watcher on the remote side with the same lease (a session expires on its own lease).
     let lease = std::env::temp_dir().join(format!("uss-zenoh-lease-{}.json5", ns.name));
     std::fs::write(
@@ -716,10 +723,10 @@ fn link_down_trips_and_latches(
     assert_eq!(reason(&tripped), LatchReason::Stale);
     assert_eq!(tripped.sent_stw1 & 0x0401, 0x0400, "OFF1 with bit 10 set");
     println!(
-        "drive latched {:.0} ms after the link went down (watchdog 100 ms)",
+        "drive latched {:.0} ms after the link went down (watchdog 500 ms)",
         after.as_secs_f64() * 1e3
     );
-    assert!(after < Duration::from_secs(1), "{after:?}");
+    assert!(after < Duration::from_millis(1500), "{after:?}");
     // The remote run, blind, gives up and sends nothing more.
     let (status, _, err) = run.finish();
     assert!(!status.success());
@@ -811,7 +818,7 @@ fn operator_stops_latch(ns: &Netns, ussd: &Ussd, drive: &str) {
 #[test]
 fn a_remote_client_controls_a_drive_of_a_full_line_at_9600_baud() {
     let Some(ns) = Netns::create() else { return };
-    let drives: Vec<(u8, &str)> = (1..=31).map(|a| (a, "")).collect();
+    let drives: Vec<(u8, &str)> = (1..=31).map(|a| (a, WATCHDOG)).collect();
     let ussd = Ussd::start("baud = 9600", &drives);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/f{}", std::process::id());
@@ -931,7 +938,7 @@ fn a_bridge_that_moves_motors_or_writes_refuses_plain_tcp_and_control_needs_a_po
 #[test]
 fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_in() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, "")]);
+    let ussd = Ussd::start("", &[(1, WATCHDOG)]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/m{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
@@ -982,7 +989,7 @@ fn over_mutual_tls_a_client_without_a_certificate_or_of_another_ca_does_not_get_
 #[test]
 fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, "sim = { p2014 = 100 }")]);
+    let ussd = Ussd::start("", &[(1, "watchdog_ms = 500\nsim = { p2014 = 100 }")]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/h{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
@@ -1041,7 +1048,7 @@ fn a_remote_run_hands_its_drive_back_to_a_bridge_that_stalls_at_the_hand_over() 
 #[test]
 fn a_drive_under_remote_control_takes_no_parameter_writes_from_the_network() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, "")]);
+    let ussd = Ussd::start("", &[(1, WATCHDOG)]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/w{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
@@ -1114,7 +1121,7 @@ fn a_drive_under_remote_control_takes_no_parameter_writes_from_the_network() {
 #[test]
 fn a_query_with_wildcards_is_answered_under_each_concrete_key() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let ussd = Ussd::start("", &[(1, WATCHDOG), (2, WATCHDOG)]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/k{}", std::process::id());
     let (_bridge, config) = bridge(&ns, &bus, &prefix, &[]);
@@ -1163,7 +1170,7 @@ fn a_query_with_wildcards_is_answered_under_each_concrete_key() {
 #[test]
 fn an_access_policy_grants_control_writes_and_stops_per_certificate() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let ussd = Ussd::start("", &[(1, WATCHDOG), (2, WATCHDOG)]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/p{}", std::process::id());
     let drive = |d: u8| format!("{prefix}/{bus}/drive/{d}");
@@ -1362,7 +1369,7 @@ fn a_peer_without_rights_is_refused(ns: &Netns, ussd: &Ussd, drive: &str) {
 #[test]
 fn under_user_password_an_access_policy_grants_rights_per_user() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, "")]);
+    let ussd = Ussd::start("", &[(1, WATCHDOG)]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/u{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
@@ -1444,7 +1451,7 @@ fn under_user_password_an_access_policy_grants_rights_per_user() {
 #[test]
 fn a_stop_while_a_remote_run_starts_is_not_re_armed_by_it() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, "")]);
+    let ussd = Ussd::start("", &[(1, WATCHDOG)]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/r{}", std::process::id());
     let drive = format!("{prefix}/{bus}/drive/1");
@@ -1548,7 +1555,7 @@ fn coasts_while_runs_start(
 #[test]
 fn commissioning_over_the_network_follows_the_policy_and_never_writes_a_guarded_value() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    let ussd = Ussd::start("", &[(1, WATCHDOG), (2, WATCHDOG)]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/c{}", std::process::id());
     let drive = |d: u8| format!("{prefix}/{bus}/drive/{d}");
