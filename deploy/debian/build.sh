@@ -24,12 +24,23 @@ stage=$target/deb-assets
 tuple=$(gcc -print-multiarch)
 version=$(sed -n 's/^version = "\(.*\)"$/\1/p' Cargo.toml | head -n 1)
 
-cargo build --quiet --profile "$profile" --bins -p uss-master -p ussctl -p uss-drive-sim \
+# Long work says what it does: a line per step, and on a terminal cargo's own progress bar
+# (in a pipe or a log, cargo stays quiet: its bar would be a line per crate).
+quiet=$([ -t 2 ] || echo --quiet)
+step() { echo "build.sh: $*" >&2; }
+
+step "building ussd, ussctl, uss-sim, uss-exporter and uss-zenoh ($profile profile; the first" \
+  "release build takes about 15 minutes on 2 cores, later ones a fraction of that)"
+# shellcheck disable=SC2086 # an empty $quiet is no argument
+cargo build $quiet --profile "$profile" --bins -p uss-master -p ussctl -p uss-drive-sim \
   -p uss-exporter -p uss-zenoh
-cargo build --quiet --profile lib -p uss-rt-c --lib
+step "building the C library (lib profile)"
+# shellcheck disable=SC2086
+cargo build $quiet --profile lib -p uss-rt-c --lib
 # Cargo keeps the dev profile's output in `debug`.
 built=$target/$([ "$profile" = dev ] && echo debug || echo "$profile")
 
+step "staging the binaries, man pages and completions"
 rm -rf "$stage"
 mkdir -p "$stage/bin" "$stage/man" "$stage/man-zenoh" "$stage/completions" "$stage/lib"
 for bin in ussd ussctl uss-sim uss-exporter uss-zenoh uss-zenoh-client; do
@@ -61,6 +72,7 @@ sed -e "s|@PREFIX@|/usr|" -e "s|@VERSION@|$version|" \
 # The LinuxCNC component, linked statically against libussrt (the `lib` profile above).
 linuxcnc=
 if [ -e "${LINUXCNC_INCLUDE:-/usr/include/linuxcnc}/hal.h" ]; then
+  step "building uss_vfd, the LinuxCNC component"
   make --quiet -C linuxcnc
   install -m 0755 "$target/release/uss_vfd" "$stage/bin/uss_vfd"
   strip --strip-unneeded "$stage/bin/uss_vfd"
@@ -71,6 +83,7 @@ else
   echo "uss-rt-linuxcnc: skipped: LinuxCNC's headers are not installed (apt-get install linuxcnc-uspace-dev)" >&2
 fi
 
+step "packaging into $target/debian with cargo-deb"
 out=$target/debian
 rm -rf "$out"
 # cargo-deb warns of every staged source (they are not target/release/ paths): that is meant.

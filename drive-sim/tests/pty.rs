@@ -187,6 +187,46 @@ fn sigterm_stops_the_simulator_with_a_summary() {
     assert!(out.contains("good 1 rejected 0"), "{out}");
 }
 
+/// `--link PATH` (issue 47: the guide's scan runs on `./line`): the pty is reached by the link,
+/// a stale link of a killed uss-sim is replaced, another file is refused untouched, and the link
+/// goes with uss-sim.
+#[test]
+fn a_link_reaches_the_pty_and_goes_with_the_simulator() {
+    let dir = std::env::temp_dir().join(format!("uss-sim-link-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let link = dir.join("line");
+    // A link left behind by a uss-sim killed with SIGKILL.
+    std::os::unix::fs::symlink("/dev/pts/nonexistent", &link).unwrap();
+    let link_arg = link.to_str().unwrap();
+    let mut sim = Sim::start(&["--link", link_arg, "--drive", "1"]);
+    assert_eq!(
+        std::fs::read_link(&link).unwrap().to_str(),
+        Some(sim.path.as_str())
+    );
+    let mut port = open(link_arg);
+    assert!(exchange(&mut port, 1, &[0, 0, 0, 0], &[0x047E, 0]).is_some());
+    drop(port);
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(sim.child.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    )
+    .unwrap();
+    assert!(sim.child.wait().unwrap().success());
+    assert!(std::fs::symlink_metadata(&link).is_err(), "the link stayed");
+    // A file of someone else's is no link to replace.
+    std::fs::write(&link, "mine").unwrap();
+    let out = Command::new(SIM)
+        .args(["--pty", "--link", link_arg, "--drive", "1"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("exists and is no symbolic link"), "{err}");
+    assert_eq!(std::fs::read_to_string(&link).unwrap(), "mine");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn bad_command_lines_exit_non_zero_with_a_clear_error() {
     let run = |args: &[&str]| {

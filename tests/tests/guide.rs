@@ -121,6 +121,19 @@ fn session(name: &str, text: &str, bins: &[(&str, PathBuf)]) -> Result<(), Faile
                 .unwrap();
         }
     }
+    // A line the chapter starts in a terminal of its own (`uss-sim --pty --link line ...`, for
+    // the scan) runs as written, in the sessions' directory, while they run.
+    let _line = text
+        .lines()
+        .find(|l| l.starts_with("uss-sim --pty --link "))
+        .map(|l| {
+            let uss_sim = &bins.iter().find(|(n, _)| *n == "uss-sim").unwrap().1;
+            let mut command = Command::new(uss_sim);
+            command.args(l.split_whitespace().skip(1));
+            let mut sim = uss_integration_tests::ChildProc::spawn(l.to_owned(), command);
+            sim.says("link line -> ");
+            sim
+        });
     let cases = trycmd::TestCases::new();
     cases
         .register_bins(bins.iter().map(|(n, p)| (*n, p.clone())))

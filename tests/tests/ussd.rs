@@ -262,13 +262,46 @@ fn qualify_measures_like_the_bus_thread_and_gives_a_verdict_with_its_fixes() {
     }
     let holds = text.contains("this machine holds bus q's timing");
     assert_eq!(out.status.code() == Some(0), holds, "{text}");
+    // In a pipe, no progress bar (issue 47, item 5: it shows on a terminal only).
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("measuring"), "{err}");
     let svg = std::fs::read_to_string(&plot).unwrap();
     assert!(
-        svg.starts_with("<svg") && svg.contains("start pause at 187500 baud: 117 us"),
+        svg.starts_with("<svg")
+            && svg.contains("start pause at 187500 baud: 117 us")
+            && svg.contains("wake-up latency (us, log scale)"),
         "{svg}"
     );
     let _ = std::fs::remove_file(&plot);
     let _ = std::fs::remove_file(&config);
+}
+
+/// Issue 47, item 5: `--qualify` ran a minute silent. On a terminal (script(1) gives it one) it
+/// shows how far it is, and clears the bar before its report.
+#[test]
+fn qualify_shows_its_progress_on_a_terminal() {
+    let config = config_file(
+        "qualify-tty",
+        "[[bus]]\nname = \"qt\"\ndevice = \"sim\"\n\n[[bus.drive]]\naddress = 1\n",
+    );
+    let command = format!(
+        "{} --qualify --seconds 2 --config {}",
+        binary("uss-master", "ussd").display(),
+        config.display()
+    );
+    let out = std::process::Command::new("script")
+        .args(["-qec", &command, "/dev/null"])
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_file(&config);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("measuring ") && text.contains(" of 2 s"),
+        "{text}"
+    );
+    // The report comes after the bar is cleared (an erase-line), not on its line.
+    let report = text.find("bus qt (").unwrap_or_else(|| panic!("{text}"));
+    assert!(text[..report].ends_with("\x1b[2K"), "{text}");
 }
 
 #[test]

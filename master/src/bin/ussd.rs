@@ -233,7 +233,7 @@ fn qualify(cli: &Cli) -> ExitCode {
          priority and CPU)...",
         duration.as_secs_f64()
     );
-    let measured = qualify::measure(&config, duration);
+    let measured = measuring(&config, duration);
     let mut holds = measured.len() == config.buses.len();
     if !holds {
         eprintln!(
@@ -264,6 +264,40 @@ fn qualify(cli: &Cli) -> ExitCode {
     } else {
         ExitCode::FAILURE
     }
+}
+
+/// [`qualify::measure`], with a progress bar on standard error while it runs when that is a
+/// terminal (a minute of silence looks hung); nothing in a pipe or a log.
+fn measuring(config: &Config, duration: Duration) -> Vec<uss_master::daemon::qualify::Measured> {
+    use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+    use std::io::IsTerminal as _;
+    if !std::io::stderr().is_terminal() {
+        return uss_master::daemon::qualify::measure(config, duration);
+    }
+    let bar = ProgressBar::with_draw_target(
+        Some(u64::try_from(duration.as_millis()).unwrap_or(u64::MAX)),
+        ProgressDrawTarget::stderr(),
+    );
+    bar.set_style(
+        ProgressStyle::with_template("measuring {bar:40} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let started = Instant::now();
+    std::thread::scope(|scope| {
+        let measuring = scope.spawn(|| uss_master::daemon::qualify::measure(config, duration));
+        while !measuring.is_finished() {
+            let done = started.elapsed().min(duration);
+            bar.set_position(u64::try_from(done.as_millis()).unwrap_or(u64::MAX));
+            bar.set_message(format!(
+                "{:.0} of {:.0} s",
+                done.as_secs_f64(),
+                duration.as_secs_f64()
+            ));
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        bar.finish_and_clear();
+        measuring.join().unwrap_or_default()
+    })
 }
 
 /// Whether standard output and standard error are the same file (a terminal, one pipe).

@@ -521,8 +521,23 @@ fn verdict(t: &mut String, m: &Measured) {
     };
 }
 
-/// Draws the histograms (count per 1 µs-wide bin on a log scale, up to the worst) and each bus's
-/// start pause at its rate into an SVG file.
+/// Bins of the plot: each 10 % wider than the one before, from 1 µs (a linear axis of 1 µs bins
+/// squeezed the wake-ups, most within tens of µs, against zero beside a start pause of
+/// milliseconds). Each item: the bin's upper end (µs) and its wake-ups.
+fn log_bins(latency: &Histogram<u64>) -> impl Iterator<Item = (f64, u64)> + '_ {
+    latency
+        .iter_log(1000, 1.1)
+        .filter(|v| v.count_since_last_iteration() > 0)
+        .map(|v| {
+            (
+                (v.value_iterated_to() as f64 / 1e3).max(1.0),
+                v.count_since_last_iteration(),
+            )
+        })
+}
+
+/// Draws the histograms (wake-ups per bin, bins 10 % wide from 1 µs, both axes logarithmic,
+/// up to the worst) and each bus's start pause at its rate into an SVG file.
 pub fn plot(path: &Path, measured: &[Measured]) -> Result<(), String> {
     use plotters::prelude::*;
     static FONTS: std::sync::Once = std::sync::Once::new();
@@ -541,16 +556,12 @@ pub fn plot(path: &Path, measured: &[Measured]) -> Result<(), String> {
     let max_us = measured
         .iter()
         .map(|m| m.max_us().max(pause_us(m)))
-        .fold(1.0, f64::max)
-        * 1.1;
+        .fold(10.0, f64::max)
+        * 1.5;
     // The count axis up to the next power of ten above the fullest bin.
     let fullest = measured
         .iter()
-        .flat_map(|m| {
-            m.latency
-                .iter_linear(1000)
-                .map(|v| v.count_since_last_iteration())
-        })
+        .flat_map(|m| log_bins(&m.latency).map(|(_, n)| n))
         .max()
         .unwrap_or(1);
     let top = 10u64.pow(fullest.max(1).ilog10() + 1);
@@ -559,28 +570,20 @@ pub fn plot(path: &Path, measured: &[Measured]) -> Result<(), String> {
         .margin(20)
         .x_label_area_size(50)
         .y_label_area_size(70)
-        .build_cartesian_2d(0.0..max_us, (1u64..top).log_scale())
+        .build_cartesian_2d((1.0..max_us).log_scale(), (1u64..top).log_scale())
         .map_err(|e| failed(&e))?;
     chart
         .configure_mesh()
-        .x_desc("wake-up latency (us)")
-        .y_desc("wake-ups")
+        .x_desc("wake-up latency (us, log scale)")
+        .x_label_formatter(&|us| format!("{us:.0}"))
+        .y_desc("wake-ups per bin (bins 10 % wide)")
         .label_style(("sans-serif", 16))
         .draw()
         .map_err(|e| failed(&e))?;
     let colours = [BLUE, RED, GREEN, MAGENTA];
     for (i, m) in measured.iter().enumerate() {
         let colour = colours[i % colours.len()];
-        let bins = m
-            .latency
-            .iter_linear(1000)
-            .filter(|v| v.count_since_last_iteration() > 0)
-            .map(|v| {
-                (
-                    v.value_iterated_to() as f64 / 1e3,
-                    v.count_since_last_iteration(),
-                )
-            });
+        let bins = log_bins(&m.latency);
         chart
             .draw_series(bins.map(|(x, n)| Circle::new((x, n), 2, colour.filled())))
             .map_err(|e| failed(&e))?
@@ -641,5 +644,23 @@ mod tests {
         // A full line at 9600 baud takes over a second: 150 us more per exchange is nothing.
         let slow = AtRate::of(9600, 150.0).unwrap();
         assert!(slow.holds() && slow.cycle_growth < 0.01, "{slow:?}");
+    }
+
+    /// Issue 47, item 5: the plot's bins are 10 % wide from 1 µs, so wake-ups of a few µs and a
+    /// stall of milliseconds both stand apart (a linear axis of 1 µs bins put them at zero);
+    /// every wake-up is in one bin.
+    #[test]
+    fn the_plot_bins_keep_every_wake_up_apart_on_a_log_axis() {
+        let mut h = Histogram::<u64>::new_with_bounds(1, 10_000_000_000, 3).unwrap();
+        h.record_n(3_000, 1000).unwrap();
+        h.record_n(50_000, 10).unwrap();
+        h.record(4_000_000).unwrap();
+        let bins: Vec<_> = log_bins(&h).collect();
+        assert_eq!(bins.iter().map(|b| b.1).sum::<u64>(), 1011, "{bins:?}");
+        assert_eq!(bins.len(), 3, "{bins:?}");
+        let ends: Vec<f64> = bins.iter().map(|b| b.0).collect();
+        assert!((3.0..3.4).contains(&ends[0]), "{ends:?}");
+        assert!((50.0..55.1).contains(&ends[1]), "{ends:?}");
+        assert!((4000.0..4400.1).contains(&ends[2]), "{ends:?}");
     }
 }

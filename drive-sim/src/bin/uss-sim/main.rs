@@ -44,6 +44,11 @@ struct Cli {
     /// simoreg, generic), fragile (see the guide, "Running `uss-sim`").
     #[arg(long = "drive", value_name = "ADDR[:key=value,...]")]
     drives: Vec<DriveSpec>,
+    /// With --pty: also reach the pseudo-terminal by PATH, a symbolic link made to it (as socat's
+    /// `link=`; a link a killed uss-sim left is replaced, any other file refused) and removed
+    /// when uss-sim stops.
+    #[arg(long, value_name = "PATH", requires = "pty")]
+    link: Option<PathBuf>,
     /// With --pty: imitate a USB adapter's latency timer or a UART's FIFO trigger: bytes toward
     /// the master take their wire time and are handed over together every MS milliseconds.
     #[arg(long, value_name = "MS", requires = "pty", value_parser = parse_ms)]
@@ -134,6 +139,8 @@ pub enum Failure {
     },
     #[error("cannot create a pseudo-terminal: {0}")]
     Pty(nix::Error),
+    #[error("--link {}: {why}", .path.display())]
+    Link { path: PathBuf, why: String },
     #[error("serving stopped: {0}")]
     Serve(std::io::Error),
     /// The demo's own master could not build a telegram.
@@ -203,7 +210,15 @@ fn run(cli: Cli) -> Result<(), Failure> {
         serve_until_stopped(&mut port, &mut bus, timing, start, &stop)
     } else {
         let mut pty = Pty::open().map_err(Failure::Pty)?;
+        let link = cli
+            .link
+            .as_deref()
+            .map(|path| Link::make(path, pty.path()))
+            .transpose()?;
         announce(&format!("PTY {}", pty.path().display()), &bus, timing);
+        if let Some(link) = &link {
+            println!("link {} -> {}", link.path.display(), pty.path().display());
+        }
         let delivery = Delivery {
             tick: cli.rx_tick,
             split: cli.split_reply,
@@ -220,6 +235,48 @@ fn run(cli: Cli) -> Result<(), Failure> {
     };
     print_summary(&bus);
     result
+}
+
+/// `--link`: a symbolic link to the pseudo-terminal, removed when uss-sim stops (dropped).
+struct Link {
+    path: PathBuf,
+    to: PathBuf,
+}
+
+impl Link {
+    fn make(path: &std::path::Path, to: &std::path::Path) -> Result<Self, Failure> {
+        let refused = |why: String| Failure::Link {
+            path: path.to_owned(),
+            why,
+        };
+        match std::fs::symlink_metadata(path) {
+            // A link left by a uss-sim that was killed: its pty is gone or another's.
+            Ok(m) if m.file_type().is_symlink() => {
+                std::fs::remove_file(path).map_err(|e| refused(e.to_string()))?;
+            }
+            Ok(_) => {
+                return Err(refused(
+                    "exists and is no symbolic link: uss-sim replaces only a link".to_owned(),
+                ));
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(refused(e.to_string())),
+        }
+        std::os::unix::fs::symlink(to, path).map_err(|e| refused(e.to_string()))?;
+        Ok(Self {
+            path: path.to_owned(),
+            to: to.to_owned(),
+        })
+    }
+}
+
+impl Drop for Link {
+    fn drop(&mut self) {
+        // Only while it is still this uss-sim's (another may have replaced it since).
+        if std::fs::read_link(&self.path).is_ok_and(|to| to == self.to) {
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
 }
 
 /// An imitated adapter hands bytes over on time only if nothing else runs first: ask for
