@@ -14,7 +14,7 @@ work=$(mktemp -d)
 ussd_pid=
 cleanup() {
   [ -n "$ussd_pid" ] && kill "$ussd_pid" 2>/dev/null || true
-  rm -rf "$work"
+  rm -rf "$work" "${fifo:-}"
 }
 trap cleanup EXIT
 
@@ -101,8 +101,10 @@ echo "installed uss-zenoh and uss-zenoh-client: $(head -c 200 "$work/zenoh")"
 # The shipped example for halrun alone (its own servo thread), as the guide runs it.
 printf 'source /usr/share/doc/uss-rt-linuxcnc/examples/uss_vfd.hal\nloadusr -w sleep 1\nshow pin uss_vfd.comm-ok\n' \
   >"$work/vfd.hal"
-RTAPI_UID=65534 RTAPI_FIFO_PATH="$work/rtapi-fifo" halrun -U >/dev/null 2>&1 || true
-USS_BUS=sim USS_DRIVE=1 RTAPI_UID=65534 RTAPI_FIFO_PATH="$work/rtapi-fifo" halrun "$work/vfd.hal" >"$work/hal" 2>&1 || {
+# rtapi_app, as that user, makes its socket at RTAPI_FIFO_PATH: in /tmp, not in $work (root's, 0700).
+fifo=${TMPDIR:-/tmp}/rtapi-fifo-packages-$$
+RTAPI_UID=65534 RTAPI_FIFO_PATH="$fifo" halrun -U >/dev/null 2>&1 || true
+USS_BUS=sim USS_DRIVE=1 RTAPI_UID=65534 RTAPI_FIFO_PATH="$fifo" halrun "$work/vfd.hal" >"$work/hal" 2>&1 || {
   cat "$work/hal"
   exit 1
 }

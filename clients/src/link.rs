@@ -102,21 +102,10 @@ impl Health {
 /// The buses ussd serves on this machine now: its live nodes (`ussd-<bus>`) under the
 /// shared-memory root, as far as this process may see them; sorted.
 pub(crate) fn served_buses() -> Vec<String> {
-    use iceoryx2::node::{NodeState, NodeView as _};
-    use iceoryx2::prelude::CallbackProgression;
-    let Some(config) = uss_shm_types::service::config() else {
-        return Vec::new();
-    };
-    let mut buses = Vec::new();
-    let _ = Node::<Ipc>::list(&config, |state| {
-        if let NodeState::Alive(view) = &state
-            && let Some(details) = view.details().as_ref()
-            && let Some(bus) = details.name().as_str().strip_prefix("ussd-")
-        {
-            buses.push(bus.to_owned());
-        }
-        CallbackProgression::Continue
-    });
+    let mut buses: Vec<String> = uss_shm_types::names::live_ussds()
+        .into_iter()
+        .map(|u| u.bus)
+        .collect();
     buses.sort();
     buses.dedup();
     buses

@@ -285,6 +285,44 @@ pub fn ussd_node(bus: &BusName) -> NodeName {
     NodeName::new(&format!("ussd-{bus}")).expect("bus names make valid node names")
 }
 
+/// A ussd alive on this machine's shared-memory root: the bus its node (`ussd-<bus>`) serves
+/// and its process.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LiveUssd {
+    pub bus: String,
+    pub pid: u32,
+}
+
+/// Every ussd alive on the shared-memory root now (its live iceoryx2 node, [`ussd_node`]), as
+/// far as this process may see them; empty without a root or one it cannot read. The one walk
+/// of the nodes that ussd (is a bus or the root in use?) and the clients (which buses are
+/// served?) share.
+pub fn live_ussds() -> Vec<LiveUssd> {
+    use iceoryx2::node::{NodeState, NodeView as _};
+    use iceoryx2::prelude::{CallbackProgression, Node};
+    let Some(config) = crate::service::config() else {
+        return Vec::new();
+    };
+    if !crate::service::root().is_dir() {
+        return Vec::new();
+    }
+    let mut found = Vec::new();
+    let _ = Node::<crate::service::IpcThreadsafe>::list(&config, |state| {
+        if let NodeState::Alive(view) = &state
+            && let Some(details) = view.details().as_ref()
+            && let Some(bus) = details.name().as_str().strip_prefix("ussd-")
+            && let Ok(pid) = u32::try_from(details.process_id().value())
+        {
+            found.push(LiveUssd {
+                bus: bus.to_owned(),
+                pid,
+            });
+        }
+        CallbackProgression::Continue
+    });
+    found
+}
+
 fn service(name: &str) -> ServiceName {
     // Built from a validated bus name (at most 32 of [A-Za-z0-9_-]) and an address of at most
     // two digits: never empty, never "iox2://"-prefixed, far below the 255-character limit.

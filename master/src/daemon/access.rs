@@ -102,32 +102,16 @@ impl core::fmt::Display for Running {
 /// Every ussd that runs on the shared-memory root now (its live iceoryx2 node `ussd-<bus>`),
 /// other than this process; empty when there is no root yet or it cannot be read.
 pub fn running() -> Vec<Running> {
-    use iceoryx2::node::NodeView as _;
-    use iceoryx2::prelude::*;
-    let Some(config) = uss_shm_types::service::config() else {
-        return Vec::new();
-    };
-    if !uss_shm_types::service::root().is_dir() {
-        return Vec::new();
-    }
     let me = std::process::id();
-    let mut found = Vec::new();
-    let _ = Node::<uss_shm_types::service::IpcThreadsafe>::list(&config, |state| {
-        if let NodeState::Alive(view) = &state
-            && let Some(details) = view.details().as_ref()
-            && let Some(bus) = details.name().as_str().strip_prefix("ussd-")
-            && let Ok(pid) = u32::try_from(details.process_id().value())
-            && pid != me
-        {
-            found.push(Running {
-                pid,
-                uid: uid_of(pid),
-                bus: bus.to_owned(),
-            });
-        }
-        CallbackProgression::Continue
-    });
-    found
+    uss_shm_types::names::live_ussds()
+        .into_iter()
+        .filter(|u| u.pid != me)
+        .map(|u| Running {
+            pid: u.pid,
+            uid: uid_of(u.pid),
+            bus: u.bus,
+        })
+        .collect()
 }
 
 /// The real user of process `pid` (`/proc/<pid>/status`).
