@@ -241,6 +241,11 @@ struct State {
     current: Option<Arc<Services>>,
     /// When the heartbeat subscriber was last read.
     checked_ns: u64,
+    /// When (this process's clock) `last`'s time stamp last changed: a heartbeat that stops
+    /// changing is a ussd gone whatever the two clocks say (a program whose clock runs behind
+    /// ussd's, in a time namespace of its own, saw every stamp in its future, aged 0: issue
+    /// 47's sweep showed it a paused ussd's drives online and fresh).
+    changed_ns: u64,
 }
 
 /// See the module documentation.
@@ -301,6 +306,7 @@ impl Link {
                 last: first,
                 current: None,
                 checked_ns: monotonic_ns(),
+                changed_ns: monotonic_ns(),
             }),
         };
         if let Some(e) = Health::of(&first, monotonic_ns()).error(&bus)
@@ -335,10 +341,20 @@ impl Link {
         if now.saturating_sub(state.checked_ns) >= CHECK_EVERY_NS {
             state.checked_ns = now;
             if let Some(beat) = newest(&self.heartbeat) {
+                if beat.timestamp_ns != state.last.timestamp_ns {
+                    state.changed_ns = now;
+                }
                 state.last = beat;
             }
         }
-        let health = Health::of(&state.last, now);
+        let mut health = Health::of(&state.last, now);
+        if health.is_serving() && now.saturating_sub(state.changed_ns) > GONE_AFTER_NS {
+            // Silent by this process's own clock (its `ago` of `changed_ns`).
+            health = Health::Gone {
+                pid: state.last.pid,
+                last_ns: state.changed_ns,
+            };
+        }
         if !health.is_serving() {
             return (health, None);
         }

@@ -214,6 +214,28 @@ fn a_link_reaches_the_pty_and_goes_with_the_simulator() {
     .unwrap();
     assert!(sim.child.wait().unwrap().success());
     assert!(std::fs::symlink_metadata(&link).is_err(), "the link stayed");
+    // A link of a live pty (another uss-sim's, a terminal's) or to anything else is not
+    // replaced.
+    for to in ["/dev/pts/ptmx", "/etc/hostname"] {
+        std::os::unix::fs::symlink(to, &link).unwrap();
+        let out = Command::new(SIM)
+            .args([
+                "--pty",
+                "--link",
+                link_arg,
+                "--drive",
+                "1",
+                "--duration",
+                "1",
+            ])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{to}: {err}");
+        assert!(err.contains("uss-sim replaces only such a link"), "{err}");
+        assert_eq!(std::fs::read_link(&link).unwrap().to_str(), Some(to));
+        std::fs::remove_file(&link).unwrap();
+    }
     // A file of someone else's is no link to replace.
     std::fs::write(&link, "mine").unwrap();
     let out = Command::new(SIM)

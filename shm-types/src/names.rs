@@ -293,8 +293,8 @@ pub struct LiveUssd {
     pub pid: u32,
 }
 
-/// Every ussd alive on the shared-memory root now (its live iceoryx2 node, [`ussd_node`]), as
-/// far as this process may see them; empty without a root or one it cannot read. The one walk
+/// Every ussd alive on the shared-memory root now (its live iceoryx2 node, [`ussd_node`], of a
+/// process that runs ussd), as far as this process may see them; empty without a root or one it cannot read. The one walk
 /// of the nodes that ussd (is a bus or the root in use?) and the clients (which buses are
 /// served?) share.
 pub fn live_ussds() -> Vec<LiveUssd> {
@@ -312,6 +312,7 @@ pub fn live_ussds() -> Vec<LiveUssd> {
             && let Some(details) = view.details().as_ref()
             && let Some(bus) = details.name().as_str().strip_prefix("ussd-")
             && let Ok(pid) = u32::try_from(details.process_id().value())
+            && !names_another_program(pid)
         {
             found.push(LiveUssd {
                 bus: bus.to_owned(),
@@ -321,6 +322,14 @@ pub fn live_ussds() -> Vec<LiveUssd> {
         CallbackProgression::Continue
     });
     found
+}
+
+/// Whether process `pid` is visible here and runs a program other than ussd: a node name is
+/// what a process says of itself (a client may call its node `ussd-<bus>`), the program the
+/// kernel shows is not. A process not visible (another PID namespace sharing the root) is
+/// taken at its node's word.
+fn names_another_program(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/comm")).is_ok_and(|comm| comm.trim_end() != "ussd")
 }
 
 fn service(name: &str) -> ServiceName {

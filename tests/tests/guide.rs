@@ -123,9 +123,11 @@ fn session(name: &str, text: &str, bins: &[(&str, PathBuf)]) -> Result<(), Faile
     }
     // A line the chapter starts in a terminal of its own (`uss-sim --pty --link line ...`, for
     // the scan) runs as written, in the sessions' directory, while they run.
+    // (Killed with SIGKILL after the chapter, it leaves its link: removed here.)
+    let _ = std::fs::remove_file("line");
     let _line = text
         .lines()
-        .find(|l| l.starts_with("uss-sim --pty --link "))
+        .find(|l| l.starts_with("uss-sim --pty --link ") && text.contains("$ ussctl scan line"))
         .map(|l| {
             let uss_sim = &bins.iter().find(|(n, _)| *n == "uss-sim").unwrap().1;
             let mut command = Command::new(uss_sim);

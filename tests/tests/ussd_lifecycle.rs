@@ -356,3 +356,47 @@ fn a_second_pause_of_ussd_soon_after_a_first_reads_stale_within_the_drives_limit
         "{look_after:?} into a second pause (drive's limit {limit:?}): {read:?}"
     );
 }
+
+/// Issue 47's sweep (STALE-IMAGE): a client whose clock runs behind ussd's (a time namespace of
+/// its own, `unshare -T`) saw every heartbeat in its future, aged 0: with ussd paused it went on
+/// showing the drives online and fresh. A heartbeat that stops changing is ussd gone by the
+/// client's own clock, whatever the clocks say.
+#[test]
+fn a_client_whose_clock_runs_behind_sees_a_paused_ussd_gone() {
+    use nix::sys::signal::{Signal, kill};
+    // A time namespace needs root and a kernel of 5.6 or later.
+    let probe = std::process::Command::new("unshare")
+        .args(["-T", "--monotonic", "-100", "--fork", "true"])
+        .output();
+    if !probe.is_ok_and(|o| o.status.success()) {
+        println!("skipped: no time namespace here (unshare -T needs root and Linux 5.6)");
+        return;
+    }
+    let ussd = uss_integration_tests::Ussd::start("", &[(1, "")]);
+    let mut command = std::process::Command::new("unshare");
+    command
+        .args(["-T", "--monotonic", "-100", "--fork", "--kill-child"])
+        .arg(uss_integration_tests::binary("ussctl", "ussctl"))
+        .args(["--bus", &ussd.bus, "watch", "--interval", "100", "1"]);
+    let mut watch = uss_integration_tests::ChildProc::spawn("watch, 100 s behind".into(), command);
+    watch.says("drive  1");
+    let pid = nix::unistd::Pid::from_raw(i32::try_from(ussd.child.id()).unwrap());
+    kill(pid, Signal::SIGSTOP).unwrap();
+    let paused = Instant::now();
+    // Ended after 5 s whatever it said: a watch that never says "ussd gone" fails below.
+    let watcher = nix::unistd::Pid::from_raw(i32::try_from(watch.pid()).unwrap());
+    let ender = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_secs(5));
+        let _ = kill(watcher, Signal::SIGTERM);
+    });
+    watch.says("ussd gone");
+    let after = paused.elapsed();
+    kill(pid, Signal::SIGCONT).unwrap();
+    println!(
+        "a watch 100 s behind saw ussd gone {:.0} ms after its pause",
+        after.as_secs_f64() * 1e3
+    );
+    assert!(after < Duration::from_secs(2), "{after:?}");
+    let _ = kill(watcher, Signal::SIGTERM);
+    ender.join().unwrap();
+}

@@ -330,6 +330,8 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     let stop = stop_on_signals().map_err(Failure::Signals)?;
     // A bus another ussd serves is refused before anything is made or said; a root other
     // ussd processes use keeps who may use it.
+    // Held until this ussd's nodes exist: a ussd starting beside it waits, then sees them.
+    let start_lock = uss_master::daemon::access::StartLock::take()?;
     let running = uss_master::daemon::access::running();
     if let Some(r) = running
         .iter()
@@ -346,6 +348,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     let access = uss_master::daemon::access::prepare(config.access_group.as_deref(), &running)?;
     tracing::info!("{access}");
     let buses = runtime::start(&config.buses, options)?;
+    drop(start_lock);
     for b in &buses {
         tracing::info!(bus = %b.name, drives = b.handle.drives().len(), "polling");
     }

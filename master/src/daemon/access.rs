@@ -59,6 +59,23 @@ pub enum AccessError {
         owner: String,
         me: String,
     },
+    /// An existing directory that is no uss-rt root (a shared directory such as /dev/shm, one
+    /// inside a running ussd's root, any directory with files of others): ussd changes the
+    /// owner and mode of its root, and must never do that to a directory it does not own.
+    #[error(
+        "{} is not a shared-memory root of uss-rt ({why}): ussd would change who may use it;          nothing was changed. Name a new or empty directory of its own in {}",
+        path.display(),
+        uss_shm_types::service::ROOT_ENV
+    )]
+    NotARoot { path: PathBuf, why: String },
+    /// Another ussd is starting on the same root this moment and did not finish in time.
+    #[error(
+        "another ussd is starting on {} (it holds {}) and did not finish within {} s: nothing          was changed; try again, or look for a ussd hanging at its start",
+        path.display(),
+        lock.display(),
+        START_LOCK_WAIT.as_secs()
+    )]
+    Starting { path: PathBuf, lock: PathBuf },
     /// A running ussd uses the root as it is: this one would change who may use its services.
     #[error(
         "{} is in use by {running}, {now}; this ussd (user {me}) would make it {wanted} and cut \
@@ -112,6 +129,104 @@ pub fn running() -> Vec<Running> {
             bus: u.bus,
         })
         .collect()
+}
+
+/// How long a ussd waits for another one that starts on the same root ([`StartLock`]).
+pub const START_LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Held from before ussd looks for running ussds until its own nodes exist: two ussds started
+/// at one moment on an empty root each saw none and each made the root as it asked, the last
+/// one winning (the sweep of issue 47: the group ussd's members were cut off). An exclusive
+/// `flock` on `<root>.lock` beside the root: the second waits for the first's nodes, then sees
+/// them. The lock is the file's, not its contents': any user may take it on a file it can read.
+#[derive(Debug)]
+pub struct StartLock {
+    _file: std::fs::File,
+}
+
+impl StartLock {
+    /// Waits up to [`START_LOCK_WAIT`] for the root's start lock.
+    ///
+    /// # Errors
+    /// [`AccessError::Starting`] when another ussd holds it that long; [`AccessError::Io`] when
+    /// the lock file cannot be made or opened.
+    pub fn take() -> Result<Self, AccessError> {
+        use std::os::fd::AsRawFd as _;
+        use std::os::unix::fs::OpenOptionsExt as _;
+        let root = uss_shm_types::service::root();
+        let mut lock = root.clone().into_os_string();
+        lock.push(".lock");
+        let lock = PathBuf::from(lock);
+        let io = |what| {
+            let path = lock.clone();
+            move |source| AccessError::Io { path, what, source }
+        };
+        if let Some(parent) = lock.parent() {
+            std::fs::create_dir_all(parent).map_err(io("mkdir"))?;
+        }
+        // Another user's lock file is opened to read: flock needs no more.
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .mode(0o644)
+            .custom_flags(nix::libc::O_NOFOLLOW)
+            .open(&lock)
+            .or_else(|_| {
+                std::fs::OpenOptions::new()
+                    .read(true)
+                    .custom_flags(nix::libc::O_NOFOLLOW)
+                    .open(&lock)
+            })
+            .map_err(io("open"))?;
+        let until = std::time::Instant::now() + START_LOCK_WAIT;
+        loop {
+            // SAFETY: flock on a descriptor this function owns; no memory is handed over.
+            let r = unsafe {
+                nix::libc::flock(file.as_raw_fd(), nix::libc::LOCK_EX | nix::libc::LOCK_NB)
+            };
+            if r == 0 {
+                return Ok(Self { _file: file });
+            }
+            let e = std::io::Error::last_os_error();
+            if e.raw_os_error() != Some(nix::libc::EWOULDBLOCK) {
+                return Err(io("flock")(e));
+            }
+            if std::time::Instant::now() > until {
+                return Err(AccessError::Starting { path: root, lock });
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+    }
+}
+
+/// Why an existing directory is no uss-rt root, or `None` when it is one: empty, or holding
+/// only what iceoryx2 (`nodes`, `services`, `iox2_*`) and ussd's stop boards (`*.stop`,
+/// `*.stops`) make there, and writable by no one else.
+fn not_a_root(path: &std::path::Path, meta: &std::fs::Metadata) -> Option<String> {
+    if meta.mode() & 0o002 != 0 {
+        return Some(format!(
+            "everybody may write to it (mode {:o}): a shared directory such as /dev/shm holds              roots, it is none",
+            meta.mode() & 0o7777
+        ));
+    }
+    let ours = |name: &str| {
+        matches!(name, "nodes" | "services")
+            || name.starts_with("iox2_")
+            || std::path::Path::new(name)
+                .extension()
+                .is_some_and(|e| e == "stop" || e == "stops")
+    };
+    let entries = match std::fs::read_dir(path) {
+        Ok(entries) => entries,
+        Err(e) => return Some(format!("cannot list it: {e}")),
+    };
+    entries
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .find(|name| !ours(name))
+        .map(|name| format!("it holds {name:?}, which neither iceoryx2 nor ussd makes there"))
 }
 
 /// The real user of process `pid` (`/proc/<pid>/status`).
@@ -187,6 +302,9 @@ pub fn prepare(access_group: Option<&str>, running: &[Running]) -> Result<Access
             };
             let as_asked =
                 meta.uid() == me.as_raw() && meta.gid() == gid && meta.mode() & 0o7777 == mode;
+            if !as_asked && let Some(why) = not_a_root(&path, &meta) {
+                return Err(AccessError::NotARoot { path, why });
+            }
             if !running.is_empty() && !as_asked {
                 return Err(AccessError::InUse {
                     running: running

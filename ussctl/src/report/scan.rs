@@ -118,8 +118,12 @@ impl ScanReport {
                     Some(f) => {
                         let _ = writeln!(out, "family = \"{f}\"");
                     }
+                    // Not told: the family that assumes nothing (read by value alone, no
+                    // reference or monitoring read, no catalogue's guards), never ussd's
+                    // default micromaster4 by omission.
                     None => out.push_str(
-                        "# family = ?  not told by the drive: micromaster4, g110, g120, simoreg or generic\n",
+                        "family = \"generic\"   # not told by the drive: name its family \
+                         (micromaster4, g110, g120, simoreg) to use its catalogue\n",
                     ),
                 }
                 if let Some(why) = &d.unsure {

@@ -250,8 +250,21 @@ impl Link {
             why,
         };
         match std::fs::symlink_metadata(path) {
-            // A link left by a uss-sim that was killed: its pty is gone or another's.
+            // A link left by a uss-sim that was killed: this user's, to a pty that is gone.
+            // Any other link (another user's, a device's udev link, a live pty's) is not
+            // uss-sim's to replace.
             Ok(m) if m.file_type().is_symlink() => {
+                use std::os::unix::fs::MetadataExt as _;
+                let to = std::fs::read_link(path).map_err(|e| refused(e.to_string()))?;
+                // SAFETY: geteuid has no preconditions and cannot fail.
+                let mine = m.uid() == unsafe { nix::libc::geteuid() };
+                if !mine || !to.starts_with("/dev/pts/") || to.exists() {
+                    return Err(refused(format!(
+                        "is a link to {} that is not a pseudo-terminal gone with a uss-sim of \
+                         this user: uss-sim replaces only such a link",
+                        to.display()
+                    )));
+                }
                 std::fs::remove_file(path).map_err(|e| refused(e.to_string()))?;
             }
             Ok(_) => {

@@ -251,16 +251,25 @@ const COLUMNS: [(&str, u16); 14] = [
 /// counters after; the flags take only what is left.
 const ROOM_ORDER: [usize; 14] = [0, 1, 3, 2, 6, 7, 4, 8, 10, 9, 11, 13, 12, 5];
 
+/// The control column's narrowest: "latched" and a space. Below its full width it is cut at
+/// the end, its state word first (`latched: ...`): a latched drive never looks like one that
+/// runs (issue 47's sweep: under 57 columns the column was dropped for narrower ones).
+const CONTROL_MIN: u16 = 8;
+
 /// The columns that fit `width` (the table's inside: borders and the selection mark off), in
-/// the order shown, each whole: a value is never cut.
-fn fitting(width: u16) -> Vec<usize> {
+/// the order shown, each with its width: each value whole but the control's text, which is
+/// narrowed rather than left out.
+fn fitting(width: u16) -> Vec<(usize, u16)> {
     let mut left = width;
     let mut shown = Vec::new();
     for &c in &ROOM_ORDER {
-        let need = COLUMNS[c].1 + 1;
-        if COLUMNS[c].1 == 0 || need <= left {
-            left = left.saturating_sub(need);
-            shown.push(c);
+        let full = COLUMNS[c].1;
+        if full == 0 || full < left {
+            left = left.saturating_sub(full + 1);
+            shown.push((c, full));
+        } else if c == 2 && left > CONTROL_MIN {
+            shown.push((c, left - 1));
+            left = 0;
         }
     }
     shown.sort_unstable();
@@ -269,12 +278,13 @@ fn fitting(width: u16) -> Vec<usize> {
 
 fn draw_table(frame: &mut Frame<'_>, screen: &Screen, area: Rect) {
     // Borders and the selection mark ("> ").
-    let shown = fitting(area.width.saturating_sub(4));
+    let fit = fitting(area.width.saturating_sub(4));
+    let shown: Vec<usize> = fit.iter().map(|&(c, _)| c).collect();
     let header = Row::new(shown.iter().map(|&c| COLUMNS[c].0))
         .style(Style::new().add_modifier(Modifier::BOLD | Modifier::UNDERLINED));
-    let widths: Vec<Constraint> = shown
+    let widths: Vec<Constraint> = fit
         .iter()
-        .map(|&c| match COLUMNS[c].1 {
+        .map(|&(_, w)| match w {
             0 => Constraint::Fill(1),
             w => Constraint::Length(w),
         })
@@ -463,7 +473,12 @@ mod tests {
     /// clipped numbers. Columns get room in order of need, each whole.
     #[test]
     fn a_narrow_terminal_keeps_the_drive_its_state_and_control_whole() {
-        let names = |w: u16| fitting(w).iter().map(|&c| COLUMNS[c].0).collect::<Vec<_>>();
+        let names = |w: u16| {
+            fitting(w)
+                .iter()
+                .map(|&(c, _)| COLUMNS[c].0)
+                .collect::<Vec<_>>()
+        };
         // 80 columns less the borders and the selection mark.
         assert_eq!(
             names(76),
@@ -480,5 +495,17 @@ mod tests {
         let all: u16 = COLUMNS.iter().map(|c| c.1 + 1).sum();
         assert_eq!(names(all).len(), COLUMNS.len());
         assert_eq!(names(0), ["flags"]);
+        // Narrower than the control's full width (issue 47's sweep: below 57 columns it was
+        // dropped, a latched drive then showed nothing of its latch): narrowed, never dropped.
+        for inside in [52, 40, 36, 31] {
+            let fit = fitting(inside);
+            let control = fit.iter().find(|&&(c, _)| c == 2);
+            assert!(
+                control.is_some_and(|&(_, w)| w >= CONTROL_MIN),
+                "{inside}: {fit:?}"
+            );
+            let used: u16 = fit.iter().map(|&(_, w)| w + 1).sum();
+            assert!(used <= inside + 1, "{inside}: {fit:?}");
+        }
     }
 }
