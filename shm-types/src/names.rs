@@ -324,12 +324,13 @@ pub fn live_ussds() -> Vec<LiveUssd> {
     found
 }
 
-/// Whether process `pid` is visible here and runs a program other than ussd: a node name is
+/// Whether process `pid` is visible here and runs a program other than ussd (its name, as the
+/// kernel keeps it, begins `ussd`: a copy renamed `ussd-test` is one): a node name is
 /// what a process says of itself (a client may call its node `ussd-<bus>`), the program the
 /// kernel shows is not. A process not visible (another PID namespace sharing the root) is
 /// taken at its node's word.
 fn names_another_program(pid: u32) -> bool {
-    std::fs::read_to_string(format!("/proc/{pid}/comm")).is_ok_and(|comm| comm.trim_end() != "ussd")
+    std::fs::read_to_string(format!("/proc/{pid}/comm")).is_ok_and(|comm| !comm.starts_with("ussd"))
 }
 
 fn service(name: &str) -> ServiceName {

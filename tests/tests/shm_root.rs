@@ -123,7 +123,7 @@ fn a_directory_that_is_no_uss_rt_root_is_never_changed() {
     std::fs::write(data.join("notes.txt"), "mine").unwrap();
     std::fs::set_permissions(&data, std::fs::Permissions::from_mode(0o755)).unwrap();
     for (dir, said, was) in [
-        (&shared, "everybody may write to it", 0o1777),
+        (&shared, "a shared directory (mode 1777, sticky)", 0o1777),
         (&data, "it holds \"notes.txt\"", 0o755),
     ] {
         let out = ussd(dir)

@@ -63,14 +63,14 @@ pub enum AccessError {
     /// inside a running ussd's root, any directory with files of others): ussd changes the
     /// owner and mode of its root, and must never do that to a directory it does not own.
     #[error(
-        "{} is not a shared-memory root of uss-rt ({why}): ussd would change who may use it;          nothing was changed. Name a new or empty directory of its own in {}",
+        "{} is not a shared-memory root of uss-rt ({why}): ussd would change who may use it; nothing was changed. Name a new or empty directory of its own in {}",
         path.display(),
         uss_shm_types::service::ROOT_ENV
     )]
     NotARoot { path: PathBuf, why: String },
     /// Another ussd is starting on the same root this moment and did not finish in time.
     #[error(
-        "another ussd is starting on {} (it holds {}) and did not finish within {} s: nothing          was changed; try again, or look for a ussd hanging at its start",
+        "another ussd is starting on {} (it holds {}) and did not finish within {} s: nothing was changed; try again, or look for a ussd hanging at its start",
         path.display(),
         lock.display(),
         START_LOCK_WAIT.as_secs()
@@ -205,9 +205,9 @@ impl StartLock {
 /// only what iceoryx2 (`nodes`, `services`, `iox2_*`) and ussd's stop boards (`*.stop`,
 /// `*.stops`) make there, and writable by no one else.
 fn not_a_root(path: &std::path::Path, meta: &std::fs::Metadata) -> Option<String> {
-    if meta.mode() & 0o002 != 0 {
+    if meta.mode() & 0o1000 != 0 {
         return Some(format!(
-            "everybody may write to it (mode {:o}): a shared directory such as /dev/shm holds              roots, it is none",
+            "a shared directory (mode {:o}, sticky) such as /dev/shm holds roots, it is none",
             meta.mode() & 0o7777
         ));
     }
@@ -218,15 +218,28 @@ fn not_a_root(path: &std::path::Path, meta: &std::fs::Metadata) -> Option<String
                 .extension()
                 .is_some_and(|e| e == "stop" || e == "stops")
     };
-    let entries = match std::fs::read_dir(path) {
-        Ok(entries) => entries,
+    let names: Vec<String> = match std::fs::read_dir(path) {
+        Ok(entries) => entries
+            .filter_map(Result::ok)
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .collect(),
         Err(e) => return Some(format!("cannot list it: {e}")),
     };
-    entries
-        .filter_map(Result::ok)
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .find(|name| !ours(name))
-        .map(|name| format!("it holds {name:?}, which neither iceoryx2 nor ussd makes there"))
+    if let Some(name) = names.iter().find(|n| !ours(n)) {
+        return Some(format!(
+            "it holds {name:?}, which neither iceoryx2 nor ussd makes there"
+        ));
+    }
+    // iceoryx2's files without its two directories: a directory inside a root (its services).
+    let has = |n: &str| names.iter().any(|m| m == n);
+    if !names.is_empty() && !(has("nodes") || has("services")) {
+        return Some(
+            "it holds iceoryx2's files but neither a nodes nor a services directory: the inside of \
+             another root"
+                .to_owned(),
+        );
+    }
+    None
 }
 
 /// The real user of process `pid` (`/proc/<pid>/status`).
