@@ -232,7 +232,7 @@ fn not_a_root(path: &std::path::Path, meta: &std::fs::Metadata) -> Option<String
     }
     // iceoryx2's files without its two directories: a directory inside a root (its services).
     let has = |n: &str| names.iter().any(|m| m == n);
-    if !names.is_empty() && !(has("nodes") || has("services")) {
+    if !(names.is_empty() || has("nodes") || has("services")) {
         return Some(
             "it holds iceoryx2's files but neither a nodes nor a services directory: the inside of \
              another root"
