@@ -302,11 +302,14 @@ impl Link {
             name,
             node,
             heartbeat,
-            state: Mutex::new(State {
-                last: first,
-                current: None,
-                checked_ns: monotonic_ns(),
-                changed_ns: monotonic_ns(),
+            state: Mutex::new({
+                let now = monotonic_ns();
+                State {
+                    last: first,
+                    current: None,
+                    checked_ns: now,
+                    changed_ns: now,
+                }
             }),
         };
         if let Some(e) = Health::of(&first, monotonic_ns()).error(&bus)

@@ -279,10 +279,13 @@ pub const ANSWER_SENT: usize = 0;
 /// How often ussd looks for requests that came without a [`REQUEST_SENT`] event, ns.
 pub const REQUEST_POLL_NS: u64 = 2_000_000;
 
+/// What the name of ussd's node for a bus begins with ([`ussd_node`], [`live_ussds`]).
+const USSD_NODE_PREFIX: &str = "ussd-";
+
 /// The name of ussd's node for a bus, as `Node::list` shows it.
 pub fn ussd_node(bus: &BusName) -> NodeName {
     // At most 5 + 32 characters of [A-Za-z0-9_-]: within NodeName's 128-character limit.
-    NodeName::new(&format!("ussd-{bus}")).expect("bus names make valid node names")
+    NodeName::new(&format!("{USSD_NODE_PREFIX}{bus}")).expect("bus names make valid node names")
 }
 
 /// A ussd alive on this machine's shared-memory root: the bus its node (`ussd-<bus>`) serves
@@ -294,9 +297,9 @@ pub struct LiveUssd {
 }
 
 /// Every ussd alive on the shared-memory root now (its live iceoryx2 node, [`ussd_node`], of a
-/// process that runs ussd), as far as this process may see them; empty without a root or one it cannot read. The one walk
-/// of the nodes that ussd (is a bus or the root in use?) and the clients (which buses are
-/// served?) share.
+/// process that runs ussd), as far as this process may see them; empty without a root or one
+/// it cannot read. The one walk of the nodes that ussd (is a bus or the root in use?) and the
+/// clients (which buses are served?) share.
 pub fn live_ussds() -> Vec<LiveUssd> {
     use iceoryx2::node::{NodeState, NodeView as _};
     use iceoryx2::prelude::{CallbackProgression, Node};
@@ -310,7 +313,7 @@ pub fn live_ussds() -> Vec<LiveUssd> {
     let _ = Node::<crate::service::IpcThreadsafe>::list(&config, |state| {
         if let NodeState::Alive(view) = &state
             && let Some(details) = view.details().as_ref()
-            && let Some(bus) = details.name().as_str().strip_prefix("ussd-")
+            && let Some(bus) = details.name().as_str().strip_prefix(USSD_NODE_PREFIX)
             && let Ok(pid) = u32::try_from(details.process_id().value())
             && !names_another_program(pid)
         {
@@ -324,11 +327,12 @@ pub fn live_ussds() -> Vec<LiveUssd> {
     found
 }
 
-/// Whether process `pid` is visible here and runs a program other than ussd (its name, as the
-/// kernel keeps it, begins `ussd`: a copy renamed `ussd-test` is one): a node name is
-/// what a process says of itself (a client may call its node `ussd-<bus>`), the program the
-/// kernel shows is not. A process not visible (another PID namespace sharing the root) is
-/// taken at its node's word.
+/// Whether process `pid` is visible here and runs a program other than ussd, by the name the
+/// kernel keeps for it (`/proc/PID/comm`, which begins `ussd` for ussd and a copy renamed
+/// `ussd-test`). A node name is any string a client passes (`open_bus(..., node_name=...)`);
+/// the program's name is not, unless the program renames itself (`prctl`), which no client
+/// library call does. A process not visible (another PID namespace sharing the root) is taken
+/// at its node's word.
 fn names_another_program(pid: u32) -> bool {
     std::fs::read_to_string(format!("/proc/{pid}/comm")).is_ok_and(|comm| !comm.starts_with("ussd"))
 }

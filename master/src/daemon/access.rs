@@ -59,9 +59,9 @@ pub enum AccessError {
         owner: String,
         me: String,
     },
-    /// An existing directory that is no uss-rt root (a shared directory such as /dev/shm, one
-    /// inside a running ussd's root, any directory with files of others): ussd changes the
-    /// owner and mode of its root, and must never do that to a directory it does not own.
+    /// An existing directory that is no uss-rt root (a sticky shared directory such as
+    /// /dev/shm, one inside a running ussd's root, any directory with files of others): ussd
+    /// changes the owner and mode of its root, and must never do that to another directory.
     #[error(
         "{} is not a shared-memory root of uss-rt ({why}): ussd would change who may use it; nothing was changed. Name a new or empty directory of its own in {}",
         path.display(),
@@ -201,9 +201,10 @@ impl StartLock {
     }
 }
 
-/// Why an existing directory is no uss-rt root, or `None` when it is one: empty, or holding
-/// only what iceoryx2 (`nodes`, `services`, `iox2_*`) and ussd's stop boards (`*.stop`,
-/// `*.stops`) make there, and writable by no one else.
+/// Why an existing directory is no uss-rt root, or `None` when it is one: not a sticky shared
+/// directory (/dev/shm, /tmp), and empty or holding only what iceoryx2 (`nodes`, `services`,
+/// `iox2_*`, with one of the two directories) and ussd's stop boards (`*.stop`, `*.stops`)
+/// make there.
 fn not_a_root(path: &std::path::Path, meta: &std::fs::Metadata) -> Option<String> {
     if meta.mode() & 0o1000 != 0 {
         return Some(format!(

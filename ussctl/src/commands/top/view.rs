@@ -251,6 +251,9 @@ const COLUMNS: [(&str, u16); 14] = [
 /// counters after; the flags take only what is left.
 const ROOM_ORDER: [usize; 14] = [0, 1, 3, 2, 6, 7, 4, 8, 10, 9, 11, 13, 12, 5];
 
+/// The control column's index in [`COLUMNS`].
+const CONTROL: usize = 2;
+
 /// The control column's narrowest: "latched" and a space. Below its full width it is cut at
 /// the end, its state word first (`latched: ...`): a latched drive never looks like one that
 /// runs (issue 47's sweep: under 57 columns the column was dropped for narrower ones).
@@ -267,7 +270,7 @@ fn fitting(width: u16) -> Vec<(usize, u16)> {
         if full == 0 || full < left {
             left = left.saturating_sub(full + 1);
             shown.push((c, full));
-        } else if c == 2 && left > CONTROL_MIN {
+        } else if c == CONTROL && left > CONTROL_MIN {
             shown.push((c, left - 1));
             left = 0;
         }
@@ -499,7 +502,7 @@ mod tests {
         // dropped, a latched drive then showed nothing of its latch): narrowed, never dropped.
         for inside in [52, 40, 36, 31] {
             let fit = fitting(inside);
-            let control = fit.iter().find(|&&(c, _)| c == 2);
+            let control = fit.iter().find(|&&(c, _)| c == CONTROL);
             assert!(
                 control.is_some_and(|&(_, w)| w >= CONTROL_MIN),
                 "{inside}: {fit:?}"
