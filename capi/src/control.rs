@@ -1,4 +1,4 @@
-//! Exclusive control of a drive: the Rust `Controller`, whose session (`uss_shm_types::session`)
+//! Exclusive control of a drive: the Rust `Controller`, whose session (`uss_control::session`)
 //! decides every sample. The same rules as in Rust and Python: latched until the program's
 //! explicit re-arm, only the program's own calls refresh the watchdog, a gap in them is a trip.
 //! A handle is shared by the program's threads without a lock held through a call, so a stop

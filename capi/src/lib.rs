@@ -1,6 +1,6 @@
 //! The C ABI of the uss-rt client (`libussrt.so`, `libussrt.a`, `include/ussrt.h`): C and C++
 //! programs reach ussd through the Rust client library itself, so the heartbeat, generation,
-//! latch and request rules are the same code as in Rust (`uss_shm_types::session` decides what
+//! latch and request rules are the same code as in Rust (`uss_control::session` decides what
 //! a controller publishes), not a fifth copy.
 //!
 //! Conventions every function follows (the header says them again):

@@ -20,8 +20,8 @@
 use core::fmt;
 use serde::Deserialize;
 use std::sync::LazyLock;
+use uss_control::DriveFamily;
 use uss_protocol::{ParamRef, Prefix, Value};
-use uss_shm_types::DriveFamily;
 
 /// The PROFIdrive data types of the parameters (the codec's: its type codes are the value of
 /// descriptive element 1, USS.md section 6); [`Values`] reads and writes values of them.

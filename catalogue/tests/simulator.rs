@@ -6,11 +6,11 @@
 //! tests (`drive-sim/src/params/tests.rs`) and `catalogue/src/tests.rs`.
 
 use uss_catalogue::{Catalogue, Change, DataType};
+use uss_control::DriveFamily;
 use uss_drive_sim::drive::Personality;
 use uss_drive_sim::family::{Behaviour, param_set};
 use uss_drive_sim::params::{Change as SimChange, ParamSet};
 use uss_protocol::ParamRef;
-use uss_shm_types::DriveFamily;
 
 /// Every family with a profile, with it: what the simulator plays.
 fn families() -> impl Iterator<Item = (DriveFamily, &'static Catalogue)> {

@@ -1,6 +1,6 @@
 //! [`Controller`]: the one handle that writes a drive's output image (STW1, setpoint, further
 //! PZD words), with helpers that follow the PROFIdrive state machine (USS.md section 7), and
-//! the client rules of `uss_shm_types::session` surfaced as typed errors.
+//! the client rules of `uss_control::session` surfaced as typed errors.
 
 use crate::link::{Link, Services};
 use crate::open::{Ipc, layout_verifier, opened, unknown_drive};
@@ -16,8 +16,8 @@ use std::time::Instant;
 use uss_protocol::{DriveState, Setpoint, Stw1};
 use uss_shm_types::names;
 use uss_shm_types::{
-    Address, Generation, MAX_PZD_WORDS, PzdInput, PzdOutput, Session, SessionError, SessionSetup,
-    Step, Words,
+    Address, Generation, MAX_PZD_WORDS, PzdInput, PzdOutput, Sample, Session, SessionError,
+    SessionSetup, Step, Words,
 };
 
 /// The longest refresh period: 20 ms, which suits ussd's default watchdog of 100 ms
@@ -64,7 +64,7 @@ struct Port {
 }
 
 /// The controller's own state, shared with a [`Refresher`] thread: its publisher and the
-/// [`Session`] that decides what it publishes (`uss_shm_types::session`, the one place of the
+/// [`Session`] that decides what it publishes (`uss_control::session`, the one place of the
 /// client rules).
 struct State {
     port: Port,
@@ -193,11 +193,11 @@ impl Shared {
         Ok(())
     }
 
-    fn send(state: &mut State, sample: PzdOutput) -> Result<(), ClientError> {
+    fn send(state: &mut State, sample: Sample) -> Result<(), ClientError> {
         state
             .port
             .publisher
-            .send_copy(sample)
+            .send_copy(PzdOutput::from(sample))
             .map(|_| ())
             .map_err(|e| ClientError::ipc("publishing the output image", e))
     }
@@ -235,7 +235,7 @@ impl Shared {
         state
             .port
             .publisher
-            .send_copy(sample)
+            .send_copy(PzdOutput::from(sample))
             .map_err(|e| ClientError::ipc("publishing the release", e))?;
         drop(state);
         link?;
@@ -291,7 +291,7 @@ fn open_port(link: &Link, services: &Services, address: Address) -> Result<Port,
 
 /// Exclusive control of one drive: the only writer of its output image. Obtained from
 /// [`Bus::control`]; a second controller for the same drive is refused while this one lives.
-/// What it publishes is decided by a [`Session`] (`uss_shm_types::session`): the client rules,
+/// What it publishes is decided by a [`Session`] (`uss_control::session`): the client rules,
 /// written once for every language.
 ///
 /// **Latched until re-armed.** ussd passes this controller's words to the drive only while the
@@ -471,7 +471,7 @@ impl Controller {
     fn rearm_by(
         &self,
         asked_ns: u64,
-        rearm: impl FnOnce(&mut Session, u64, &PzdInput, u64) -> Result<PzdOutput, SessionError>,
+        rearm: impl FnOnce(&mut Session, u64, &PzdInput, u64) -> Result<Sample, SessionError>,
     ) -> Result<PzdInput, ClientError> {
         {
             let services = self.shared.link.check()?;

@@ -132,12 +132,13 @@ impl Bus {
     }
 
     /// What kind of slave ussd says drive `address` is (its configured `family`); a drive
-    /// ussd does not describe counts as a MICROMASTER 4.
+    /// ussd does not describe counts as a MICROMASTER 4 (ussd's default family), and a family
+    /// code this build does not know (a newer ussd's) as generic, which assumes nothing
+    /// ([`DriveFamily::of_code`]).
     pub fn family(&self, address: Address) -> DriveFamily {
-        self.diag(address)
-            .ok()
-            .and_then(|d| DriveFamily::try_from(d.info.family).ok())
-            .unwrap_or(DriveFamily::Micromaster4)
+        self.diag(address).map_or(DriveFamily::Micromaster4, |d| {
+            DriveFamily::of_code(d.info.family)
+        })
     }
 
     /// The catalogue that applies to a drive of `family`: the one given with

@@ -9,10 +9,10 @@
 use crate::family::Roles;
 use crate::params::{ParamSet, ParamTable};
 use core::time::Duration;
+use uss_control::DriveFamily;
 use uss_protocol::pkw::{ErrorNumber, Value};
 use uss_protocol::telegram::{Layout, MAX_PKW_WORDS, MAX_PZD_WORDS, Telegram, encode};
 use uss_protocol::{Address, Adr, FrameError, LineError, Setpoint, Stw1, Zsw1};
-use uss_shm_types::DriveFamily;
 
 /// Fault code of "USS (COM link) setpoint fault", a MICROMASTER 4's telegram-off trip (USS.md
 /// section 5; other families: [`Roles::telegram_off_fault`]).

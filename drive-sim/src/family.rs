@@ -13,8 +13,8 @@
 
 use std::sync::LazyLock;
 use uss_catalogue::Catalogue;
+use uss_control::DriveFamily;
 use uss_protocol::{ParamRef, Subindex};
-use uss_shm_types::DriveFamily;
 
 use crate::params::{
     COM_LINK, MM4_OWN, Own, P0970, P1000, P1080, P1082, P1120, P1121, P1135, P2010, P2011, P2013,

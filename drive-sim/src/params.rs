@@ -592,7 +592,7 @@ impl ParamTable {
     /// A MICROMASTER 4 with factory defaults in RAM and EEPROM.
     pub fn new() -> Self {
         Self::of(crate::family::param_set(
-            uss_shm_types::DriveFamily::Micromaster4,
+            uss_control::DriveFamily::Micromaster4,
         ))
     }
 

@@ -765,10 +765,12 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let operator = self.take_override(slot);
         let d = &mut self.drives[slot];
         let on_allowed = d.setup.monitoring.allows_on(d.monitoring);
+        // What the contract could read of the sample, in the rules' terms.
+        let received = sample.as_ref().map(|(s, _)| s.received());
         let change = d.gate.observe(Poll {
             now,
             gap,
-            sample: sample.as_ref().map(|(s, _)| s),
+            sample: received.as_ref(),
             from: sample.map(|(_, from)| from).unwrap_or_default(),
             operator,
             on_allowed,

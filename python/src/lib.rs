@@ -1,6 +1,6 @@
 //! `uss_rt._native`: the Rust client of uss-rt (`uss-client`) for Python. The heartbeat,
 //! generation, latch and request rules are the Rust code itself (a controller's samples are
-//! decided by `uss_shm_types::session`), not a Python copy; `uss_rt/__init__.py` gives it the
+//! decided by `uss_control::session`), not a Python copy; `uss_rt/__init__.py` gives it the
 //! documented Python API (enums, exception classes, `Value`). Every call that waits (a
 //! parameter request, a re-arm, a wait for the drive) releases the GIL meanwhile.
 

@@ -6,7 +6,7 @@
   bus. What a parameter is comes from the Rust catalogue (``uss-catalogue``), or from the
   drive's own description for a parameter it does not know.
 - :func:`control`: the drive's one controller, on the client rules every language shares
-  (``uss_shm_types::session`` in Rust): ``rearm``, ``enable``, ``run_hz``, ``run_percent``,
+  (``uss_control::session`` in Rust): ``rearm``, ``enable``, ``run_hz``, ``run_percent``,
   ``run_rpm``, ``set_hz``, ``jog``, ``stop``, ``coast``, ``quick_stop``, ``acknowledge``,
   ``keepalive``, ``wait_for_state``, ``release``.
 """

@@ -90,12 +90,6 @@
 #define USS_ALL_DRIVES UINT8_MAX
 
 /**
- * The byte of a stop command field that carries none ([`StopCommand`] has no "none": a live
- * drive gets no stop command, and a byte of 0 says so).
- */
-#define USS_NO_STOP_COMMAND 0
-
-/**
  * Bytes of an [`OperatorRequest`] on the stop socket.
  */
 #define USS_OPERATOR_REQUEST_BYTES 8
@@ -334,6 +328,12 @@
 #define USS_MAX_REFRESH_NS 20000000
 
 /**
+ * The byte of a stop command field that carries none ([`StopCommand`] has no "none": a live
+ * drive gets no stop command, and a byte of 0 says so).
+ */
+#define USS_NO_STOP_COMMAND 0
+
+/**
  * Which way a captured telegram went; the `direction` byte of [`TelegramRecord`].
  */
 enum UssDirection
@@ -355,166 +355,6 @@ enum UssDirection
 typedef enum UssDirection UssDirection;
 #else
 typedef uint8_t UssDirection;
-#endif // __STDC_VERSION__ >= 202311L
-#endif // __cplusplus
-
-/**
- * Whether a drive gets its controller's words; the `control` byte of the input image and
- * the diagnostics.
- */
-enum UssControlState
-#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
-  : uint8_t
-#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
- {
-  /**
-   * The controller's samples go to the drive.
-   */
-  USS_CONTROL_STATE_LIVE = 0,
-  /**
-   * The drive gets a stop command until its controller re-arms it (OFF1, then ON).
-   */
-  USS_CONTROL_STATE_LATCHED = 1,
-};
-#ifndef __cplusplus
-#if __STDC_VERSION__ >= 202311L
-typedef enum UssControlState UssControlState;
-#else
-typedef uint8_t UssControlState;
-#endif // __STDC_VERSION__ >= 202311L
-#endif // __cplusplus
-
-/**
- * Why a drive is latched; the `latch_reason` byte.
- */
-enum UssLatchReason
-#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
-  : uint8_t
-#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
- {
-  /**
-   * Not latched.
-   */
-  USS_LATCH_REASON_NONE = 0,
-  /**
-   * ussd started: no controller has armed the drive since.
-   */
-  USS_LATCH_REASON_STARTUP = 1,
-  /**
-   * The controller stopped publishing within the drive's watchdog time: it froze, hung
-   * or died.
-   */
-  USS_LATCH_REASON_STALE = 2,
-  /**
-   * ussd refused a sample the drive would misread; the `rejection` byte says why.
-   */
-  USS_LATCH_REASON_REJECTED = 3,
-  /**
-   * The controller handed the drive back cleanly (dropped, exited, Ctrl-C).
-   */
-  USS_LATCH_REASON_RELEASED = 4,
-  /**
-   * An operator stopped the drive from another process (`ussctl stop/coast/quick-stop`).
-   */
-  USS_LATCH_REASON_OVERRIDE = 5,
-  /**
-   * The bus line came back after it was down.
-   */
-  USS_LATCH_REASON_LINE_RESTORED = 6,
-  /**
-   * An ON was refused: the drive's own telegram monitoring is off, too long or not
-   * verified, and its configuration requires it (`require_monitoring`).
-   */
-  USS_LATCH_REASON_MONITORING_OFF = 7,
-  /**
-   * ussd itself could not look for longer than the drive's watchdog time (paused by
-   * SIGSTOP, a suspended machine, a starved CPU): nothing it held from before is fresh.
-   */
-  USS_LATCH_REASON_PAUSED = 8,
-  /**
-   * Another controller's sample arrived while the drive was live under its controller,
-   * with no release in between (a controller killed and replaced within the watchdog
-   * time, a crash-restart loop): the new controller must re-arm.
-   */
-  USS_LATCH_REASON_REPLACED = 9,
-  /**
-   * The drive's reference frequency (P2000 / p2000) changed while a controller held it
-   * (a factory reset, a quick commissioning, a power cycle back to the EEPROM's value):
-   * the controller's setpoint was scaled with the old one, so the drive would run at a
-   * speed nobody commanded. The controller re-arms after it scaled again.
-   */
-  USS_LATCH_REASON_REFERENCE_CHANGED = 10,
-};
-#ifndef __cplusplus
-#if __STDC_VERSION__ >= 202311L
-typedef enum UssLatchReason UssLatchReason;
-#else
-typedef uint8_t UssLatchReason;
-#endif // __STDC_VERSION__ >= 202311L
-#endif // __cplusplus
-
-/**
- * Why ussd refused a controller's sample; the `rejection` byte.
- */
-enum UssRejection
-#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
-  : uint8_t
-#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
- {
-  USS_REJECTION_NONE = 0,
-  /**
-   * `version` is not the layout version ussd speaks.
-   */
-  USS_REJECTION_VERSION = 1,
-  /**
-   * `word_count` differs from the drive's PZD length (P2012).
-   */
-  USS_REJECTION_WORD_COUNT = 2,
-  /**
-   * STW1 bit 10 ("control by PLC") is clear: the drive would ignore the PZD, the safe
-   * command included (USS.md section 7).
-   */
-  USS_REJECTION_NO_PLC_CONTROL = 3,
-  /**
-   * `flags` has bits this layout does not define.
-   */
-  USS_REJECTION_FLAGS = 4,
-};
-#ifndef __cplusplus
-#if __STDC_VERSION__ >= 202311L
-typedef enum UssRejection UssRejection;
-#else
-typedef uint8_t UssRejection;
-#endif // __STDC_VERSION__ >= 202311L
-#endif // __cplusplus
-
-/**
- * A stop command: what a latched drive gets, and what an operator asks for. A byte that
- * carries one is [`NO_STOP_COMMAND`] where there is none (a live drive).
- */
-enum UssStopCommand
-#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
-  : uint8_t
-#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
- {
-  /**
-   * OFF1: ramp down along the ramp-down time (STW1 0x047E).
-   */
-  USS_STOP_COMMAND_OFF1 = 1,
-  /**
-   * OFF2: coast, the motor is switched off at once (STW1 0x047C).
-   */
-  USS_STOP_COMMAND_OFF2 = 2,
-  /**
-   * OFF3: quick stop along the OFF3 ramp (STW1 0x047A).
-   */
-  USS_STOP_COMMAND_OFF3 = 3,
-};
-#ifndef __cplusplus
-#if __STDC_VERSION__ >= 202311L
-typedef enum UssStopCommand UssStopCommand;
-#else
-typedef uint8_t UssStopCommand;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
@@ -661,45 +501,6 @@ typedef uint8_t UssLastFailure;
 #endif // __cplusplus
 
 /**
- * What kind of USS slave a drive is (its `family` in ussd's configuration); the `family`
- * byte of [`DriveInfo`]. It says which parameters exist: a client reads a `generic`
- * slave's parameters by value alone (typed by the reply), never asking for descriptions.
- */
-enum UssDriveFamily
-#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
-  : uint8_t
-#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
- {
-  /**
-   * MICROMASTER 4 (MM420/430/440): the built-in catalogue.
-   */
-  USS_DRIVE_FAMILY_MICROMASTER4 = 0,
-  /**
-   * SINAMICS G110.
-   */
-  USS_DRIVE_FAMILY_G110 = 1,
-  /**
-   * SINAMICS G120 with a CU240 on RS485.
-   */
-  USS_DRIVE_FAMILY_G120 = 2,
-  /**
-   * SIMOREG DC-Master 6RA70.
-   */
-  USS_DRIVE_FAMILY_SIMOREG = 3,
-  /**
-   * A USS slave of no known family: nothing read unasked, raw words and numbers.
-   */
-  USS_DRIVE_FAMILY_GENERIC = 4,
-};
-#ifndef __cplusplus
-#if __STDC_VERSION__ >= 202311L
-typedef enum UssDriveFamily UssDriveFamily;
-#else
-typedef uint8_t UssDriveFamily;
-#endif // __STDC_VERSION__ >= 202311L
-#endif // __cplusplus
-
-/**
  * Whether the bus line carries telegrams; the `line_state` byte of [`BusStatus`].
  */
 enum UssLineState
@@ -778,6 +579,45 @@ typedef uint8_t UssRtMode;
 #endif // __cplusplus
 
 /**
+ * What kind of USS slave a drive is (its `family` in ussd's configuration); the `family`
+ * byte of [`DriveInfo`]. It says which parameters exist: a client reads a `generic`
+ * slave's parameters by value alone (typed by the reply), never asking for descriptions.
+ */
+enum UssDriveFamily
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * MICROMASTER 4 (MM420/430/440): the built-in catalogue.
+   */
+  USS_DRIVE_FAMILY_MICROMASTER4 = 0,
+  /**
+   * SINAMICS G110.
+   */
+  USS_DRIVE_FAMILY_G110 = 1,
+  /**
+   * SINAMICS G120 with a CU240 on RS485.
+   */
+  USS_DRIVE_FAMILY_G120 = 2,
+  /**
+   * SIMOREG DC-Master 6RA70.
+   */
+  USS_DRIVE_FAMILY_SIMOREG = 3,
+  /**
+   * A USS slave of no known family: nothing read unasked, raw words and numbers.
+   */
+  USS_DRIVE_FAMILY_GENERIC = 4,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssDriveFamily UssDriveFamily;
+#else
+typedef uint8_t UssDriveFamily;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
  * What ussd says of its bus; the `state` byte of [`Heartbeat`].
  */
 enum UssBusState
@@ -803,6 +643,136 @@ enum UssBusState
 typedef enum UssBusState UssBusState;
 #else
 typedef uint8_t UssBusState;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Whether a drive gets its controller's words; the `control` byte of the input image and
+ * the diagnostics.
+ */
+enum UssControlState
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * The controller's samples go to the drive.
+   */
+  USS_CONTROL_STATE_LIVE = 0,
+  /**
+   * The drive gets a stop command until its controller re-arms it (OFF1, then ON).
+   */
+  USS_CONTROL_STATE_LATCHED = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssControlState UssControlState;
+#else
+typedef uint8_t UssControlState;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Why a drive is latched; the `latch_reason` byte.
+ */
+enum UssLatchReason
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * Not latched.
+   */
+  USS_LATCH_REASON_NONE = 0,
+  /**
+   * ussd started: no controller has armed the drive since.
+   */
+  USS_LATCH_REASON_STARTUP = 1,
+  /**
+   * The controller stopped publishing within the drive's watchdog time: it froze, hung
+   * or died.
+   */
+  USS_LATCH_REASON_STALE = 2,
+  /**
+   * ussd refused a sample the drive would misread; the `rejection` byte says why.
+   */
+  USS_LATCH_REASON_REJECTED = 3,
+  /**
+   * The controller handed the drive back cleanly (dropped, exited, Ctrl-C).
+   */
+  USS_LATCH_REASON_RELEASED = 4,
+  /**
+   * An operator stopped the drive from another process (`ussctl stop/coast/quick-stop`).
+   */
+  USS_LATCH_REASON_OVERRIDE = 5,
+  /**
+   * The bus line came back after it was down.
+   */
+  USS_LATCH_REASON_LINE_RESTORED = 6,
+  /**
+   * An ON was refused: the drive's own telegram monitoring is off, too long or not
+   * verified, and its configuration requires it (`require_monitoring`).
+   */
+  USS_LATCH_REASON_MONITORING_OFF = 7,
+  /**
+   * ussd itself could not look for longer than the drive's watchdog time (paused by
+   * SIGSTOP, a suspended machine, a starved CPU): nothing it held from before is fresh.
+   */
+  USS_LATCH_REASON_PAUSED = 8,
+  /**
+   * Another controller's sample arrived while the drive was live under its controller,
+   * with no release in between (a controller killed and replaced within the watchdog
+   * time, a crash-restart loop): the new controller must re-arm.
+   */
+  USS_LATCH_REASON_REPLACED = 9,
+  /**
+   * The drive's reference frequency (P2000 / p2000) changed while a controller held it
+   * (a factory reset, a quick commissioning, a power cycle back to the EEPROM's value):
+   * the controller's setpoint was scaled with the old one, so the drive would run at a
+   * speed nobody commanded. The controller re-arms after it scaled again.
+   */
+  USS_LATCH_REASON_REFERENCE_CHANGED = 10,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssLatchReason UssLatchReason;
+#else
+typedef uint8_t UssLatchReason;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Why ussd refused a controller's sample; the `rejection` byte.
+ */
+enum UssRejection
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  USS_REJECTION_NONE = 0,
+  /**
+   * `version` is not the layout version ussd speaks.
+   */
+  USS_REJECTION_VERSION = 1,
+  /**
+   * `word_count` differs from the drive's PZD length (P2012).
+   */
+  USS_REJECTION_WORD_COUNT = 2,
+  /**
+   * STW1 bit 10 ("control by PLC") is clear: the drive would ignore the PZD, the safe
+   * command included (USS.md section 7).
+   */
+  USS_REJECTION_NO_PLC_CONTROL = 3,
+  /**
+   * `flags` has bits this layout does not define.
+   */
+  USS_REJECTION_FLAGS = 4,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssRejection UssRejection;
+#else
+typedef uint8_t UssRejection;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
@@ -1035,6 +1005,36 @@ enum UssOutcome
 typedef enum UssOutcome UssOutcome;
 #else
 typedef uint8_t UssOutcome;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * A stop command: what a latched drive gets, and what an operator asks for. A byte that
+ * carries one is [`NO_STOP_COMMAND`] where there is none (a live drive).
+ */
+enum UssStopCommand
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint8_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+  /**
+   * OFF1: ramp down along the ramp-down time (STW1 0x047E).
+   */
+  USS_STOP_COMMAND_OFF1 = 1,
+  /**
+   * OFF2: coast, the motor is switched off at once (STW1 0x047C).
+   */
+  USS_STOP_COMMAND_OFF2 = 2,
+  /**
+   * OFF3: quick stop along the OFF3 ramp (STW1 0x047A).
+   */
+  USS_STOP_COMMAND_OFF3 = 3,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum UssStopCommand UssStopCommand;
+#else
+typedef uint8_t UssStopCommand;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 

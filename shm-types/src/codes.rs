@@ -1,15 +1,8 @@
-//! Code tables (`u8` fields with a fixed meaning) and the errors of checking a payload.
+//! Code tables (`u8` fields with a fixed meaning: their shape is `uss_control`'s) and the errors
+//! of checking a payload.
 
 use thiserror::Error;
-
-/// A `u8` field held a value its code table does not define.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Error)]
-#[error("{code} is not a valid {table} code")]
-pub struct UnknownCode {
-    /// The table's Rust name, e.g. `TaskCode`.
-    pub table: &'static str,
-    pub code: u8,
-}
+pub use uss_control::UnknownCode;
 
 /// A payload that breaks the contract.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Error)]
@@ -38,61 +31,4 @@ pub fn screaming_snake(camel: &str) -> String {
     out
 }
 
-/// Defines a `#[repr(u8)]` code table with `code()`, `name()`, `ALL` and `TryFrom<u8>`.
-macro_rules! code_table {
-    (
-        $(#[$meta:meta])*
-        pub enum $name:ident {
-            $( $(#[$vmeta:meta])* $variant:ident = $code:literal => $text:literal, )+
-        }
-    ) => {
-        $(#[$meta])*
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-        #[repr(u8)]
-        pub enum $name {
-            $( $(#[$vmeta])* $variant = $code, )+
-        }
-
-        impl $name {
-            /// Every code of the table, in code order.
-            pub const ALL: &[Self] = &[$(Self::$variant,)+];
-
-            /// The byte carried in the payload.
-            pub const fn code(self) -> u8 {
-                self as u8
-            }
-
-            /// A short human-readable name.
-            pub const fn name(self) -> &'static str {
-                match self {
-                    $(Self::$variant => $text,)+
-                }
-            }
-        }
-
-        impl TryFrom<u8> for $name {
-            type Error = $crate::codes::UnknownCode;
-
-            fn try_from(code: u8) -> Result<Self, Self::Error> {
-                match code {
-                    $($code => Ok(Self::$variant),)+
-                    _ => Err($crate::codes::UnknownCode { table: stringify!($name), code }),
-                }
-            }
-        }
-
-        impl From<$name> for u8 {
-            fn from(value: $name) -> u8 {
-                value.code()
-            }
-        }
-
-        impl core::fmt::Display for $name {
-            fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-                f.write_str(self.name())
-            }
-        }
-    };
-}
-
-pub(crate) use code_table;
+pub(crate) use uss_control::code_table;

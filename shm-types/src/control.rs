@@ -12,91 +12,13 @@
 //! of the bus, accepted from any process and overriding the drive's controller.
 
 use crate::codes::{UnknownCode, code_table};
+// The vocabulary is the domain's (`uss_control`); the contract carries it as bytes.
 use crate::{ContractError, LAYOUT_VERSION};
 use iceoryx2::prelude::ZeroCopySend;
+pub use uss_control::{ControlState, LatchReason, NO_STOP_COMMAND, Rejection, StopCommand};
 
 /// `address` of an [`OperatorRequest`] for every drive of the bus.
 pub const ALL_DRIVES: u8 = u8::MAX;
-
-code_table! {
-    /// Whether a drive gets its controller's words; the `control` byte of the input image and
-    /// the diagnostics.
-    pub enum ControlState {
-        /// The controller's samples go to the drive.
-        Live = 0 => "live",
-        /// The drive gets a stop command until its controller re-arms it (OFF1, then ON).
-        Latched = 1 => "latched",
-    }
-}
-
-code_table! {
-    /// Why a drive is latched; the `latch_reason` byte.
-    pub enum LatchReason {
-        /// Not latched.
-        None = 0 => "none",
-        /// ussd started: no controller has armed the drive since.
-        Startup = 1 => "ussd started",
-        /// The controller stopped publishing within the drive's watchdog time: it froze, hung
-        /// or died.
-        Stale = 2 => "controller stale",
-        /// ussd refused a sample the drive would misread; the `rejection` byte says why.
-        Rejected = 3 => "sample rejected",
-        /// The controller handed the drive back cleanly (dropped, exited, Ctrl-C).
-        Released = 4 => "released",
-        /// An operator stopped the drive from another process (`ussctl stop/coast/quick-stop`).
-        Override = 5 => "operator stop",
-        /// The bus line came back after it was down.
-        LineRestored = 6 => "line restored",
-        /// An ON was refused: the drive's own telegram monitoring is off, too long or not
-        /// verified, and its configuration requires it (`require_monitoring`).
-        MonitoringOff = 7 => "telegram monitoring off",
-        /// ussd itself could not look for longer than the drive's watchdog time (paused by
-        /// SIGSTOP, a suspended machine, a starved CPU): nothing it held from before is fresh.
-        Paused = 8 => "ussd paused",
-        /// Another controller's sample arrived while the drive was live under its controller,
-        /// with no release in between (a controller killed and replaced within the watchdog
-        /// time, a crash-restart loop): the new controller must re-arm.
-        Replaced = 9 => "controller replaced",
-        /// The drive's reference frequency (P2000 / p2000) changed while a controller held it
-        /// (a factory reset, a quick commissioning, a power cycle back to the EEPROM's value):
-        /// the controller's setpoint was scaled with the old one, so the drive would run at a
-        /// speed nobody commanded. The controller re-arms after it scaled again.
-        ReferenceChanged = 10 => "reference changed",
-    }
-}
-
-code_table! {
-    /// Why ussd refused a controller's sample; the `rejection` byte.
-    pub enum Rejection {
-        None = 0 => "none",
-        /// `version` is not the layout version ussd speaks.
-        Version = 1 => "unknown layout version",
-        /// `word_count` differs from the drive's PZD length (P2012).
-        WordCount = 2 => "word count differs from the drive's PZD length",
-        /// STW1 bit 10 ("control by PLC") is clear: the drive would ignore the PZD, the safe
-        /// command included (USS.md section 7).
-        NoPlcControl = 3 => "STW1 bit 10 (control by PLC) is clear",
-        /// `flags` has bits this layout does not define.
-        Flags = 4 => "unknown flags",
-    }
-}
-
-/// The byte of a stop command field that carries none ([`StopCommand`] has no "none": a live
-/// drive gets no stop command, and a byte of 0 says so).
-pub const NO_STOP_COMMAND: u8 = 0;
-
-code_table! {
-    /// A stop command: what a latched drive gets, and what an operator asks for. A byte that
-    /// carries one is [`NO_STOP_COMMAND`] where there is none (a live drive).
-    pub enum StopCommand {
-        /// OFF1: ramp down along the ramp-down time (STW1 0x047E).
-        Off1 = 1 => "OFF1",
-        /// OFF2: coast, the motor is switched off at once (STW1 0x047C).
-        Off2 = 2 => "OFF2",
-        /// OFF3: quick stop along the OFF3 ramp (STW1 0x047A).
-        Off3 = 3 => "OFF3",
-    }
-}
 
 code_table! {
     /// What ussd knows of the drive's own telegram monitoring (P2014 on MICROMASTER 4 / G110 /
@@ -136,53 +58,6 @@ code_table! {
         /// The requesting process holds more connections to the stop socket at once than ussd
         /// serves per process: this one was refused at once (the others are served).
         TooManyConnections = 5 => "too many connections from this process",
-    }
-}
-
-impl StopCommand {
-    /// The operator's commands, weakest first: a latched drive keeps the strongest it was given
-    /// (OFF2 switches the pulses off at once, OFF3 brakes hard, OFF1 ramps).
-    pub const fn strength(self) -> u8 {
-        match self {
-            Self::Off1 => 1,
-            Self::Off3 => 2,
-            Self::Off2 => 3,
-        }
-    }
-
-    /// The control word that carries the command out (USS.md section 7); bit 10 is set, so
-    /// the drive does not ignore it.
-    pub const fn stw1(self) -> u16 {
-        match self {
-            Self::Off1 => 0x047E,
-            Self::Off2 => 0x047C,
-            Self::Off3 => 0x047A,
-        }
-    }
-
-    /// The command stop word `stw1` carries out, the strongest of its bits (OFF2 over OFF3 over
-    /// OFF1, as [`crate::pzd::stop_strength`]); `None` for a word that runs the motor.
-    pub const fn of_stw1(stw1: u16) -> Option<Self> {
-        match crate::pzd::stop_strength(stw1) {
-            3 => Some(Self::Off2),
-            2 => Some(Self::Off3),
-            1 => Some(Self::Off1),
-            _ => None,
-        }
-    }
-
-    /// The command a byte carries, `None` for [`NO_STOP_COMMAND`] (or a byte no command has).
-    pub fn of_code(code: u8) -> Option<Self> {
-        Self::try_from(code).ok()
-    }
-
-    /// The byte that carries `command`: its code, [`NO_STOP_COMMAND`] for none (the inverse of
-    /// [`Self::of_code`]).
-    pub const fn code_of(command: Option<Self>) -> u8 {
-        match command {
-            Some(c) => c.code(),
-            None => NO_STOP_COMMAND,
-        }
     }
 }
 

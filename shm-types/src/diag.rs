@@ -5,6 +5,7 @@ use crate::LAYOUT_VERSION;
 use crate::codes::{UnknownCode, code_table};
 use crate::control::{ControlState, LatchReason, Monitoring, Rejection, StopCommand};
 use iceoryx2::prelude::ZeroCopySend;
+pub use uss_control::DriveFamily;
 use uss_protocol::{FrameError, LineError};
 
 /// `last_good_ns` of a drive that never replied.
@@ -35,24 +36,6 @@ code_table! {
         Overrun = 11 => "overrun",
         /// A 2-wire adapter's echo of the request did not match what was sent.
         Echo = 12 => "echo mismatch",
-    }
-}
-
-code_table! {
-    /// What kind of USS slave a drive is (its `family` in ussd's configuration); the `family`
-    /// byte of [`DriveInfo`]. It says which parameters exist: a client reads a `generic`
-    /// slave's parameters by value alone (typed by the reply), never asking for descriptions.
-    pub enum DriveFamily {
-        /// MICROMASTER 4 (MM420/430/440): the built-in catalogue.
-        Micromaster4 = 0 => "micromaster4",
-        /// SINAMICS G110.
-        G110 = 1 => "g110",
-        /// SINAMICS G120 with a CU240 on RS485.
-        G120 = 2 => "g120",
-        /// SIMOREG DC-Master 6RA70.
-        Simoreg = 3 => "simoreg",
-        /// A USS slave of no known family: nothing read unasked, raw words and numbers.
-        Generic = 4 => "generic",
     }
 }
 

@@ -34,7 +34,10 @@
 //!   iceoryx2 compares type name, size and alignment when a port is opened, so a client built
 //!   against another layout fails at open time instead of reading garbage.
 //! - Enumerated `u8` fields stay plain `u8` in the payload (a foreign writer may put any byte
-//!   there); the code tables are `#[repr(u8)]` enums with `TryFrom<u8>`.
+//!   there); the code tables are `#[repr(u8)]` enums with `TryFrom<u8>`. The control vocabulary
+//!   (latches, stops, rejections, families) and the rules that speak it ([`Session`], ussd's
+//!   `Gate`) are `uss_control`'s, below this contract; it carries them as bytes and
+//!   re-exports them.
 //! - Time stamps (`*_ns`) are `CLOCK_MONOTONIC` nanoseconds unless a field says otherwise.
 
 pub mod capture;
@@ -48,7 +51,6 @@ pub mod outcome;
 pub mod params;
 pub mod pzd;
 pub mod service;
-pub mod session;
 
 pub use capture::{CAPTURE_BYTES, CAPTURE_TASK, CAPTURE_TRUNCATED, Direction, Hex, TelegramRecord};
 pub use codes::{ContractError, UnknownCode, screaming_snake};
@@ -72,12 +74,18 @@ pub use pzd::{
     EXTRA_PZD_WORDS, MAX_PZD_WORDS, MIN_HANDSHAKE_NS, OUTPUT_RELEASE, OutputSample, PzdInput,
     PzdOutput,
 };
-pub use session::{
-    MAX_REFRESH_NS, Session, SessionError, SessionSetup, Step, Words, on_latch_clock, refresh_ns,
+// The rules a controller follows live below the contract (`uss_control::session`); they read
+// the contract's input image ([`PzdInput`] is a `DriveImage`) and make samples it carries.
+pub use uss_control::session;
+pub use uss_control::{
+    DriveImage, LatchView, MAX_REFRESH_NS, Sample, Session, SessionError, SessionSetup, Step,
+    Words, on_latch_clock, refresh_ns,
 };
 
 /// The layout version of every payload type in this crate. Bump it with any change to a type's
-/// fields, sizes or code tables, together with the type names' `V<n>` suffix.
+/// fields, sizes or code tables, together with the type names' `V<n>` suffix. The drive family
+/// is an open code (`uss_control::DriveFamily::of_code`: a reader takes a code it does not know
+/// as generic), so a new family is no such change.
 pub const LAYOUT_VERSION: u32 = 9;
 
 /// Checks a payload's `version` field.

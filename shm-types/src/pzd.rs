@@ -5,6 +5,7 @@
 use crate::control::{ControlState, LatchReason, Rejection, StopCommand};
 use crate::{ContractError, LAYOUT_VERSION, check_version};
 use iceoryx2::prelude::ZeroCopySend;
+use uss_control::{Body, DriveImage, Received, Sample, Words};
 
 /// Most PZD words a drive exchanges (USS.md section 3: 0..16, fixed per slave).
 pub const MAX_PZD_WORDS: usize = 16;
@@ -24,27 +25,14 @@ pub const STW1_ON: u16 = 0x0001;
 /// never re-arms a latched drive.
 pub const STW1_JOG: u16 = 0x0300;
 
-/// Whether control word `stw1` is a stop (OFF1, OFF2, OFF3): ON and both jog bits clear. Only a
-/// stop that names the drive's current latch ([`PzdOutput::latch_id`]) re-arms a latched drive;
-/// the one test of "is a stop" for ussd and the client rules ([`crate::session`]).
-pub const fn is_stop(stw1: u16) -> bool {
-    stw1 & (STW1_ON | STW1_JOG) == 0
-}
+// The one test of "is a stop" and "how hard", for ussd and the client rules: the domain's.
+pub use uss_control::{is_stop, stop_strength};
 
-/// How strongly control word `stw1` stops the drive, as [`crate::StopCommand::strength`]: 3 for
-/// OFF2 (bit 1 clear: coast, whatever else is set), 2 for OFF3 (bit 2 clear: quick stop), 1 for
-/// OFF1 (a stop by [`is_stop`]), 0 for a word that runs the motor (ON, a jog).
-pub const fn stop_strength(stw1: u16) -> u8 {
-    if stw1 & 0x0002 == 0 {
-        3
-    } else if stw1 & 0x0004 == 0 {
-        2
-    } else if is_stop(stw1) {
-        1
-    } else {
-        0
-    }
-}
+// The words written out for the C header (cbindgen does not evaluate calls), the codec's bits.
+const _: () = assert!(STW1_CONTROL_BY_PLC == uss_protocol::Stw1::CONTROL_BY_PLC.bits());
+const _: () = assert!(STW1_ON == uss_protocol::Stw1::ON.bits());
+const _: () =
+    assert!(STW1_JOG == uss_protocol::Stw1::JOG_RIGHT.bits() | uss_protocol::Stw1::JOG_LEFT.bits());
 
 /// The controller's output image of one drive, published on `uss/<bus>/drive/<addr>/out`.
 ///
@@ -271,30 +259,83 @@ impl PzdOutput {
         join(self.stw1, self.setpoint, &self.extra, self.word_count)
     }
 
+    /// What the contract can read of this sample, in the rules' terms: refused for another
+    /// layout version, undefined flags or more than 16 words; the rest (the drive's word count,
+    /// STW1 bit 10) is the rules' to judge ([`uss_control::Received::check`]).
+    pub fn received(&self) -> Received {
+        let body = if self.version != LAYOUT_VERSION {
+            Err(Rejection::Version)
+        } else if self.flags & !OUTPUT_FLAGS != 0 {
+            Err(Rejection::Flags)
+        } else if self.flags & OUTPUT_RELEASE != 0 {
+            Ok(Body::Release)
+        } else {
+            join(self.stw1, self.setpoint, &self.extra, self.word_count)
+                .map(|(words, count)| Body::Words(Words { words, count }))
+                .map_err(|_| Rejection::WordCount)
+        };
+        Received {
+            sequence: self.sequence,
+            timestamp_ns: self.timestamp_ns,
+            pid: self.controller_pid,
+            latch_id: self.latch_id,
+            body,
+        }
+    }
+
     /// Whether ussd would send this sample to a drive with `pzd_words` PZD words, and what it
     /// asks for. The one check both sides use: ussd on every sample it receives, the client API
     /// before it publishes. Refused: another layout version, undefined flags, a word count
     /// other than the drive's, and (with PZD) STW1 without bit 10, which the drive would ignore
     /// together with any stop command in it (USS.md section 7). A release needs no words.
     pub fn validate(&self, pzd_words: usize) -> Result<OutputSample, Rejection> {
-        if self.version != LAYOUT_VERSION {
-            return Err(Rejection::Version);
+        Ok(match self.received().check(pzd_words)? {
+            Body::Words(Words { words, count }) => OutputSample::Words { words, count },
+            Body::Release => OutputSample::Release,
+        })
+    }
+}
+
+impl From<Sample> for PzdOutput {
+    /// The sample as the contract carries it.
+    fn from(s: Sample) -> Self {
+        let (stw1, setpoint, extra, word_count, flags) = match s.body {
+            Body::Words(w) => {
+                let (stw1, setpoint, extra, count) = split_words(&w);
+                (stw1, setpoint, extra, count, 0)
+            }
+            Body::Release => (0, 0, [0; EXTRA_PZD_WORDS], 0, OUTPUT_RELEASE),
+        };
+        Self {
+            controller_pid: s.pid,
+            sequence: s.sequence,
+            timestamp_ns: s.timestamp_ns,
+            stw1,
+            setpoint,
+            extra,
+            word_count,
+            flags,
+            latch_id: s.latch_id,
+            ..Self::EMPTY
         }
-        if self.flags & !OUTPUT_FLAGS != 0 {
-            return Err(Rejection::Flags);
-        }
-        if self.flags & OUTPUT_RELEASE != 0 {
-            return Ok(OutputSample::Release);
-        }
-        if usize::from(self.word_count) != pzd_words {
-            return Err(Rejection::WordCount);
-        }
-        if pzd_words > 0 && self.stw1 & STW1_CONTROL_BY_PLC == 0 {
-            return Err(Rejection::NoPlcControl);
-        }
-        let (words, count) = join(self.stw1, self.setpoint, &self.extra, self.word_count)
-            .map_err(|_| Rejection::WordCount)?;
-        Ok(OutputSample::Words { words, count })
+    }
+}
+
+/// The named word fields of `w` (at most 16 words: a longer count is cut, which the rules refuse
+/// before a sample is made).
+fn split_words(w: &Words) -> (u16, u16, [u16; EXTRA_PZD_WORDS], u8) {
+    let mut extra = [0u16; EXTRA_PZD_WORDS];
+    extra.copy_from_slice(&w.words[2..]);
+    (w.words[0], w.words[1], extra, w.as_slice().len() as u8)
+}
+
+impl DriveImage for PzdInput {
+    fn latch(&self) -> Option<u64> {
+        PzdInput::latch(self)
+    }
+
+    fn latch_stop(&self) -> Option<StopCommand> {
+        StopCommand::of_code(self.latch_command)
     }
 }
 

@@ -349,13 +349,18 @@ fn config(code_tables: &[String]) -> cbindgen::Config {
 
 /// The header as cbindgen generates it now.
 fn generate_header() -> String {
-    let src = crate_dir().join("src");
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&src)
-        .unwrap()
+    // The contract's own sources, and the control vocabulary's (`uss-control`) whose codes the
+    // contract carries as bytes.
+    let mut files: Vec<PathBuf> = [crate_dir().join("src"), crate_dir().join("../control/src")]
+        .iter()
+        .flat_map(|dir| std::fs::read_dir(dir).unwrap())
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|e| e == "rs"))
+        // Of the rule machines, only what C names: the gate is ussd's own (and the crate root
+        // would bring it in).
+        .filter(|p| !p.ends_with("control/src/gate.rs") && !p.ends_with("control/src/lib.rs"))
         .collect();
-    files.sort();
+    files.sort_by_key(|p| p.file_name().map(std::ffi::OsStr::to_owned));
     let mut table_names = Vec::new();
     let mut tables: String = files
         .iter()

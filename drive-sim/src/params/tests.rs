@@ -4,7 +4,7 @@ use uss_protocol::ParamReply;
 
 /// The simulated MICROMASTER 4's parameter set.
 fn mm4() -> &'static ParamSet {
-    crate::family::param_set(uss_shm_types::DriveFamily::Micromaster4)
+    crate::family::param_set(uss_control::DriveFamily::Micromaster4)
 }
 
 const STOPPED: DriveContext = DriveContext { running: false };
@@ -1043,7 +1043,7 @@ fn the_motor_data_of_quick_commissioning_are_all_there() {
 /// power cycle then keeps them (issue 46: the simulator took what the drive refuses).
 #[test]
 fn a_g120_refuses_eeprom_tasks_and_saves_every_setting_by_p0971() {
-    let g120 = crate::family::param_set(uss_shm_types::DriveFamily::G120);
+    let g120 = crate::family::param_set(uss_control::DriveFamily::G120);
     let mut t = ParamTable::of(g120);
     let before = t.get(P1120, 0);
     assert_eq!(

@@ -2,7 +2,7 @@
 //! carry a byte span and, read through `serde_path_to_error`, the key's path; the bus and
 //! drive are named from the file's tables, parsed with spans ([`toml::de::DeTable`]).
 
-use super::rules::{BUS_NAMES, Broken, DEVICES};
+use super::allowed::{BUS_NAMES, DEVICES, valid_bus_name};
 use core::ops::Range;
 use serde_path_to_error::Segment;
 use toml::Spanned;
@@ -31,6 +31,17 @@ impl ConfigError {
         let message = format!("cannot read the configuration: {e}");
         Reporter::new("", origin).error(None, None, message)
     }
+}
+
+/// A broken rule: where (byte span; `None`: nowhere in the text), which key of which table, and
+/// what is wrong and allowed.
+#[derive(Debug)]
+pub struct Broken {
+    pub span: Option<Range<usize>>,
+    /// The table: `[("bus", 0), ("drive", 2)]`, or empty for the file.
+    pub at: Vec<(&'static str, usize)>,
+    pub key: &'static str,
+    pub text: String,
 }
 
 /// 1-based line and character column of a byte offset.
@@ -281,7 +292,7 @@ impl<'t> Reporter<'t> {
             let value = |k| Some(self.table(&at[..=n])?.0.get(k)?.get_ref());
             let own = match (key, value(if key == "bus" { "name" } else { "address" })) {
                 ("bus", Some(DeValue::String(name))) => Some(name.as_ref())
-                    .filter(|n| super::rules::valid_bus_name(n))
+                    .filter(|n| valid_bus_name(n))
                     .map(|n| format!("bus {n:?}")),
                 ("drive", Some(DeValue::Integer(i))) => i64::from_str_radix(i.as_str(), i.radix())
                     .ok()

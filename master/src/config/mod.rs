@@ -22,6 +22,7 @@
 //! error names the file, line and column, the bus and drive, the key, and what is allowed
 //! ([`errors`]); of several broken rules the one nearest the start of the file is reported.
 
+mod allowed;
 mod errors;
 mod keys;
 mod rules;

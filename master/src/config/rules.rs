@@ -3,41 +3,11 @@
 //! verified. Each broken rule is an error at the value it is about, found again in the file by
 //! the reporter.
 
-use super::errors::Reporter;
+use super::allowed::{BUS_NAMES, DEVICES, valid_bus_name};
+use super::errors::{Broken, Reporter};
 use super::{BusConfig, Config, Device, DriveEntry};
 use core::ops::Range;
 use uss_protocol::{Baud, PkwMode};
-use uss_shm_types::names::{BusName, MAX_BUS_NAME_LEN};
-
-/// What a bus name is: [`BusName`]'s rule (it becomes part of shared-memory service names).
-pub const BUS_NAMES: &str = "a bus name is 1..=32 characters from A-Z, a-z, 0-9, _ and - (it \
-                             becomes part of shared-memory service names)";
-
-/// What a device is.
-pub const DEVICES: &str = if cfg!(feature = "sim") {
-    "device is \"sim\" (the built-in simulated bus) or the path of a serial device"
-} else {
-    "device is the path of a serial device"
-};
-
-/// A broken rule: where (byte span; `None`: nowhere in the text), which key of which table, and
-/// what is wrong and allowed.
-#[derive(Debug)]
-pub struct Broken {
-    pub span: Option<Range<usize>>,
-    /// The table: `[("bus", 0), ("drive", 2)]`, or empty for the file.
-    pub at: Vec<(&'static str, usize)>,
-    pub key: &'static str,
-    pub text: String,
-}
-
-// The words of [`BUS_NAMES`] say 32.
-const _: () = assert!(MAX_BUS_NAME_LEN == 32);
-
-/// Whether `name` can name a bus ([`BusName`]).
-pub fn valid_bus_name(name: &str) -> bool {
-    BusName::new(name).is_ok()
-}
 
 /// Every rule `config` breaks, placed in the file `reporter` reads.
 pub fn check(config: &Config, reporter: &Reporter<'_>) -> Vec<Broken> {

@@ -1438,7 +1438,7 @@ fn a_device_that_is_no_tty_is_refused_naming_file_line_and_field() {
             format!(
                 "bus.toml:3:10: bus \"bus1\": device = \"{device}\" {what}, not a serial device \
                  (a serial adapter's tty such as /dev/ttyUSB0, or a pty): {}",
-                rules::DEVICES
+                allowed::DEVICES
             )
         );
         assert_eq!(path.as_deref(), Some("bus[0].device"));

@@ -1,7 +1,7 @@
 //! `uss-zenoh-client run`: a remote controller of one drive through a bridge that allows remote
 //! control. OFF1 until the drive is re-armed, ON every period, OFF1 and a release at the end.
 //! What it sends is decided by the client rules every controller runs on
-//! (`uss_shm_types::session`), fed with the drive's images as the bridge publishes them: every
+//! (`uss_control::session`), fed with the drive's images as the bridge publishes them: every
 //! sample names the latch this client acknowledged (`rearm`). It gives up, sending nothing more,
 //! when the drive latches, its own loop stalled past the drive's watchdog time, or the images
 //! stop coming: only a new run re-arms the drive.
@@ -10,9 +10,7 @@ use core::time::Duration;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-use uss_client::uss_shm_types::{
-    ControlState, PzdInput, PzdOutput, Session, SessionError, SessionSetup, Step,
-};
+use uss_client::uss_shm_types::{LatchView, Session, SessionError, SessionSetup, Step};
 use zenoh::Wait;
 use zenoh::bytes::Encoding;
 use zenoh::handlers::FifoChannelHandler;
@@ -75,33 +73,32 @@ struct Remote<'a> {
     bridge_clock: Option<(u64, u64)>,
 }
 
-/// The part of an image the client rules look at: live or latched, and which latch.
-fn input_of(image: &serde_json::Value) -> PzdInput {
-    let state = if image["control"] == "live" {
-        ControlState::Live
+/// The part of an image the client rules look at: live or latched, and which latch (the image
+/// names no latch's stop: this client's re-arm sends OFF1).
+fn input_of(image: &serde_json::Value) -> LatchView {
+    if image["control"] == "live" {
+        LatchView::LIVE
     } else {
-        ControlState::Latched
-    };
-    PzdInput {
-        control: state.code(),
-        latch_id: image["latch_id"].as_u64().unwrap_or(0),
-        ..PzdInput::EMPTY
+        LatchView {
+            latch: Some(image["latch_id"].as_u64().unwrap_or(0)),
+            stop: None,
+        }
     }
 }
 
 impl Remote<'_> {
     /// Sends a sample the session made: its STW1, the run's Hz (0 for a stop) and the latch it
     /// names.
-    fn send_sample(&mut self, sample: &PzdOutput) -> Result<(), Failure> {
-        let hz = if sample.stw1 == RUN { self.hz } else { 0.0 };
+    fn send_sample(&mut self, sample: &uss_client::uss_shm_types::Sample) -> Result<(), Failure> {
+        let stw1 = sample.stw1();
+        let hz = if stw1 == RUN { self.hz } else { 0.0 };
         // A sample naming a latch says when its re-arm was asked for; the session names one
         // only once the bridge's clock is known (`arm`).
         let body = match (sample.latch_id, self.asked_on_bridge()) {
-            (id, Some(asked)) if id != 0 => format!(
-                "\"stw1\":{},\"hz\":{hz:?},\"rearm\":{id},\"asked_ns\":{asked}",
-                sample.stw1
-            ),
-            _ => format!("\"stw1\":{},\"hz\":{hz:?}", sample.stw1),
+            (id, Some(asked)) if id != 0 => {
+                format!("\"stw1\":{stw1},\"hz\":{hz:?},\"rearm\":{id},\"asked_ns\":{asked}")
+            }
+            _ => format!("\"stw1\":{stw1},\"hz\":{hz:?}"),
         };
         self.send(&body)
     }
@@ -136,7 +133,7 @@ impl Remote<'_> {
     /// latest image shows it; a sample it makes is sent; then a period's wait and what arrived
     /// meanwhile. An ON while the re-arming stop is out sends the stop again.
     fn step(&mut self, stw1: u16) -> Result<(), SessionError> {
-        let image = self.image.as_ref().map(input_of).unwrap_or_default();
+        let image = self.image.as_ref().map_or(LatchView::LIVE, input_of);
         let now = uss_client::monotonic_ns();
         let Some(session) = self.session.as_mut() else {
             return Ok(());
@@ -336,7 +333,7 @@ impl Remote<'_> {
         self.not_faulted()?;
         self.start_session();
         deadline = deadline.max(start + self.handshake() * 2);
-        let image = self.image.as_ref().map(input_of).unwrap_or_default();
+        let image = self.image.as_ref().map_or(LatchView::LIVE, input_of);
         // The re-arm was asked for when this run started: a stop that came since (an operator's
         // coast while it connected) is news it does not clear.
         let asked = self.asked_on_bridge().ok_or_else(|| {
@@ -361,7 +358,7 @@ impl Remote<'_> {
         loop {
             std::thread::sleep(self.every());
             self.look();
-            let image = self.image.as_ref().map(input_of).unwrap_or_default();
+            let image = self.image.as_ref().map_or(LatchView::LIVE, input_of);
             // A new latch during the re-arm (an operator's stop) ends it: the drive latched.
             let rearmed = self.session.as_mut().map(|s| s.rearmed(&image));
             if let Some(Err(e)) = rearmed {

@@ -1,4 +1,4 @@
-//! The client's rules (`uss_shm_types::Session`) and ussd's (`Gate`) explored together over
+//! The client's rules ([`Session`]) and ussd's ([`Gate`]) explored together over
 //! every sequence of events, breadth first, repeated states merged (docs/SAFETY.md,
 //! "Exploration"). A plain breadth-first search rather than a model-checking crate
 //! (`stateright`): the model is two real types and ten events, the search is forty lines, and
@@ -20,10 +20,10 @@
 
 use std::collections::HashSet;
 use std::time::Duration;
-use uss_engine::control::{ControllerId, Gate, GateSetup, Operator, Poll};
-use uss_shm_types::control::ControlState;
-use uss_shm_types::pzd::{MAX_PZD_WORDS, is_stop};
-use uss_shm_types::{PzdInput, PzdOutput, Session, SessionSetup, Step, StopCommand};
+use uss_control::{
+    Control, ControllerId, DriveImage, Gate, GateSetup, LatchView, MAX_PZD_WORDS, Operator, Poll,
+    Received, Sample, Session, SessionSetup, Step, StopCommand, Words, is_stop,
+};
 
 const WATCHDOG_MS: u64 = 100;
 const RUN: u16 = 0x047F;
@@ -69,10 +69,10 @@ struct World {
     controllers: u128,
     now_ms: u64,
     /// The newest sample not yet taken by the bus thread (the service keeps the latest only).
-    pending: Option<(PzdOutput, u128)>,
+    pending: Option<(Sample, u128)>,
     operator: Option<StopCommand>,
     /// What the clients read: the image of the last poll.
-    image: PzdInput,
+    image: LatchView,
     /// When the last deliberate act asked for a re-arm, and the newest latch made by then.
     asked: Option<(u64, u64)>,
     /// The newest latch id ussd made so far (0: none).
@@ -86,18 +86,11 @@ struct World {
     ran: bool,
 }
 
-fn image_of(gate: &Gate) -> PzdInput {
-    use uss_engine::control::Control;
+/// The input image as the clients read it.
+fn image_of(gate: &Gate) -> LatchView {
     match gate.control() {
-        Control::Live => PzdInput {
-            control: ControlState::Live.code(),
-            ..PzdInput::EMPTY
-        },
-        Control::Latched(l) => PzdInput {
-            control: ControlState::Latched.code(),
-            latch_id: l.id,
-            ..PzdInput::EMPTY
-        },
+        Control::Live => LatchView::LIVE,
+        Control::Latched(l) => LatchView::latched(l.id, l.command),
     }
 }
 
@@ -120,7 +113,7 @@ impl World {
             operator: None,
             image,
             asked: None,
-            newest_latch: image.latch_id,
+            newest_latch: image.latch.unwrap_or(0),
             rearmed: Vec::new(),
             live_from: None,
             ran: false,
@@ -132,7 +125,7 @@ impl World {
     }
 
     /// A call of the controller that changes its words with `change`.
-    fn publish(&mut self, change: impl FnOnce(&mut uss_shm_types::Words)) {
+    fn publish(&mut self, change: impl FnOnce(&mut Words)) {
         let (now, image) = (self.now_ns(), self.image);
         if let Some((s, id)) = self.session.as_mut()
             && let Ok(Step::Publish(sample)) = s.publish(now, &image, change)
@@ -205,9 +198,9 @@ impl World {
 
     /// The bus thread's look and telegram, and the invariants on what went out.
     fn poll(&mut self) -> Result<(), String> {
-        use uss_engine::control::Control;
         let before = self.gate.control();
         let (sample, from) = self.pending.take().unzip();
+        let sample = sample.map(Received::from);
         let mut out = [0u16; MAX_PZD_WORDS];
         self.gate.decide(
             Poll {
@@ -229,7 +222,7 @@ impl World {
             _ => {}
         }
         self.image = image_of(&self.gate);
-        self.newest_latch = self.newest_latch.max(self.image.latch_id);
+        self.newest_latch = self.newest_latch.max(self.image.latch.unwrap_or(0));
         if out[0] & 0x0400 == 0 {
             return Err(format!("a telegram without STW1 bit 10: {:#06x}", out[0]));
         }

@@ -4,7 +4,7 @@
 //! controller is thin I/O around it: the Rust `uss_client::Controller` (and through it the C
 //! ABI, the Python module and the `LinuxCNC` component), the Zenoh bridge and the Zenoh client.
 //!
-//! The rules (docs/SAFETY.md; ussd's side is `uss_master`'s `Gate`):
+//! The rules (docs/SAFETY.md; ussd's side is [`crate::gate::Gate`]):
 //! - **Latch identity.** The input image names the drive's current latch (`latch_id`). Every
 //!   sample names the latch this controller acknowledged; ussd re-arms a latched drive only
 //!   with a stop that names its current latch. A latch the controller did not acknowledge is
@@ -40,13 +40,59 @@
 //! What ussd's heartbeat says (gone, stopped, line down, a new generation) is the I/O layer's:
 //! a restarted ussd latches every drive with a new id, which is news here.
 
-use crate::control::Rejection;
-use crate::pzd::{MAX_PZD_WORDS, PzdInput, PzdOutput, is_stop};
+use crate::latch::Rejection;
+use crate::sample::{Body, Sample, Words};
+use crate::stop::{StopCommand, is_stop};
 
 /// STW1 of the re-arming stop: OFF1 with everything else enabled (0x047E).
 pub const REARM_STW1: u16 = 0x047E;
 // Written out for the C header (cbindgen does not evaluate calls); the same word as OFF1's.
-const _: () = assert!(REARM_STW1 == crate::control::StopCommand::Off1.stw1());
+const _: () = assert!(REARM_STW1 == StopCommand::Off1.stw1());
+
+/// What a controller reads of its drive's input image: the latch it shows. The contract's
+/// input image (`uss_shm_types::PzdInput`) is one; a relay's copy of it another.
+pub trait DriveImage {
+    /// The current latch's id, `None` while the drive is live.
+    fn latch(&self) -> Option<u64>;
+    /// The stop a latched drive gets (`None` while live, or when the image names none).
+    fn latch_stop(&self) -> Option<StopCommand>;
+}
+
+/// What an image shows of the latch, and nothing else: an image of a relay's own (a remote
+/// controller's copy), or a table's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct LatchView {
+    /// The current latch's id, `None` while live.
+    pub latch: Option<u64>,
+    /// The stop the latch sends.
+    pub stop: Option<StopCommand>,
+}
+
+impl LatchView {
+    /// A live drive.
+    pub const LIVE: Self = Self {
+        latch: None,
+        stop: None,
+    };
+
+    /// A drive latched with `stop` since latch `id`.
+    pub const fn latched(id: u64, stop: StopCommand) -> Self {
+        Self {
+            latch: Some(id),
+            stop: Some(stop),
+        }
+    }
+}
+
+impl DriveImage for LatchView {
+    fn latch(&self) -> Option<u64> {
+        self.latch
+    }
+
+    fn latch_stop(&self) -> Option<StopCommand> {
+        self.stop
+    }
+}
 
 /// The longest a controller goes between two samples while its program waits inside its own
 /// call, or its refresher fills a gap: 20 ms, a fifth of ussd's default watchdog (100 ms).
@@ -81,30 +127,11 @@ pub struct SessionSetup {
     pub first_sequence: u64,
 }
 
-/// The words a controller sends: STW1 first, `count` of them in use.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct Words {
-    pub words: [u16; MAX_PZD_WORDS],
-    pub count: usize,
-}
-
-impl Words {
-    /// The words in use.
-    pub fn as_slice(&self) -> &[u16] {
-        &self.words[..self.count.min(MAX_PZD_WORDS)]
-    }
-
-    /// STW1.
-    pub const fn stw1(&self) -> u16 {
-        self.words[0]
-    }
-}
-
 /// What the I/O layer does after a call.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Step {
     /// Publish this sample.
-    Publish(PzdOutput),
+    Publish(Sample),
     /// An ON while the re-arming stop is out and ussd has not shown the drive live yet: wait
     /// for the next image and make the same call again (nothing was changed).
     AwaitRearm,
@@ -205,7 +232,7 @@ impl Session {
     /// Whether a call at `now_ns` may go on, and what `image` means for it: released, stalled
     /// (with ON), a latch not acknowledged. For programs that read more than they write; it is
     /// no call that keeps the drive refreshed.
-    pub fn check(&self, now_ns: u64, image: &PzdInput) -> Result<(), SessionError> {
+    pub fn check(&self, now_ns: u64, image: &impl DriveImage) -> Result<(), SessionError> {
         if self.released {
             return Err(SessionError::Released);
         }
@@ -221,7 +248,7 @@ impl Session {
     pub fn publish(
         &mut self,
         now_ns: u64,
-        image: &PzdInput,
+        image: &impl DriveImage,
         change: impl FnOnce(&mut Words),
     ) -> Result<Step, SessionError> {
         if self.released {
@@ -267,7 +294,7 @@ impl Session {
 
     /// What a background refresher publishes at `now_ns`: the current words again, only while
     /// the program called within the watchdog time and the drive shows no news; `None` else.
-    pub fn refresh(&mut self, now_ns: u64, image: &PzdInput) -> Option<PzdOutput> {
+    pub fn refresh(&mut self, now_ns: u64, image: &impl DriveImage) -> Option<Sample> {
         let fed = self.last_call_ns.is_some() && self.gap(now_ns).is_none();
         if self.released || self.stalled.is_some() || !fed || self.news(image).is_err() {
             return None;
@@ -296,9 +323,9 @@ impl Session {
     pub fn rearm(
         &mut self,
         now_ns: u64,
-        image: &PzdInput,
+        image: &impl DriveImage,
         asked_ns: u64,
-    ) -> Result<PzdOutput, SessionError> {
+    ) -> Result<Sample, SessionError> {
         self.rearm_with(now_ns, image, asked_ns, REARM_STW1)
     }
 
@@ -310,23 +337,23 @@ impl Session {
     pub fn rearm_keeping_stop(
         &mut self,
         now_ns: u64,
-        image: &PzdInput,
+        image: &impl DriveImage,
         asked_ns: u64,
-    ) -> Result<PzdOutput, SessionError> {
+    ) -> Result<Sample, SessionError> {
         let stw1 = image
             .latch()
-            .and_then(|_| crate::control::StopCommand::of_code(image.latch_command))
-            .map_or(REARM_STW1, crate::control::StopCommand::stw1);
+            .and_then(|_| image.latch_stop())
+            .map_or(REARM_STW1, StopCommand::stw1);
         self.rearm_with(now_ns, image, asked_ns, stw1)
     }
 
     fn rearm_with(
         &mut self,
         now_ns: u64,
-        image: &PzdInput,
+        image: &impl DriveImage,
         asked_ns: u64,
         stw1: u16,
-    ) -> Result<PzdOutput, SessionError> {
+    ) -> Result<Sample, SessionError> {
         if self.released {
             return Err(SessionError::Released);
         }
@@ -352,7 +379,7 @@ impl Session {
     pub fn acknowledge(
         &mut self,
         now_ns: u64,
-        image: &PzdInput,
+        image: &impl DriveImage,
         named: u64,
         asked_ns: u64,
     ) -> Result<(), SessionError> {
@@ -379,9 +406,9 @@ impl Session {
 
     /// Whether the re-arm is done: `Ok(true)` once `image` shows the drive live, `Ok(false)`
     /// while it still shows the acknowledged latch, [`SessionError::Tripped`] for a new latch.
-    pub fn rearmed(&mut self, image: &PzdInput) -> Result<bool, SessionError> {
+    pub fn rearmed(&mut self, image: &impl DriveImage) -> Result<bool, SessionError> {
         self.news(image)?;
-        let live = image.is_live();
+        let live = image.latch().is_none();
         if live {
             self.rearming = false;
         }
@@ -389,10 +416,16 @@ impl Session {
     }
 
     /// The release sample at `now_ns`; the session publishes nothing after it.
-    pub fn release(&mut self, now_ns: u64) -> PzdOutput {
+    pub fn release(&mut self, now_ns: u64) -> Sample {
         self.released = true;
         self.sequence = next(self.sequence);
-        PzdOutput::release(self.sequence, now_ns, self.setup.pid).naming(self.acknowledged)
+        Sample {
+            sequence: self.sequence,
+            timestamp_ns: now_ns,
+            pid: self.setup.pid,
+            latch_id: self.acknowledged,
+            body: Body::Release,
+        }
     }
 
     /// Whether this session has released the drive.
@@ -405,7 +438,7 @@ impl Session {
         self.setup.pzd > 0 && !is_stop(words.stw1())
     }
 
-    fn news(&self, image: &PzdInput) -> Result<(), SessionError> {
+    fn news(&self, image: &impl DriveImage) -> Result<(), SessionError> {
         match image.latch() {
             Some(latch_id) if latch_id != self.acknowledged => {
                 Err(SessionError::Tripped { latch_id })
@@ -428,22 +461,18 @@ impl Session {
     }
 
     /// The sample `words` make with the next sequence number, as ussd would check it.
-    fn sample(&self, now_ns: u64, words: &Words) -> Result<PzdOutput, SessionError> {
-        let sample = PzdOutput::from_words(
-            words.as_slice(),
-            next(self.sequence),
-            now_ns,
-            self.setup.pid,
-        )
-        .map_err(|_| SessionError::Invalid(Rejection::WordCount))?
-        .naming(self.acknowledged);
-        sample
-            .validate(self.setup.pzd)
-            .map_err(SessionError::Invalid)?;
-        Ok(sample)
+    fn sample(&self, now_ns: u64, words: &Words) -> Result<Sample, SessionError> {
+        words.check(self.setup.pzd).map_err(SessionError::Invalid)?;
+        Ok(Sample {
+            sequence: next(self.sequence),
+            timestamp_ns: now_ns,
+            pid: self.setup.pid,
+            latch_id: self.acknowledged,
+            body: Body::Words(*words),
+        })
     }
 
-    fn commit(&mut self, words: Words, sample: PzdOutput) -> PzdOutput {
+    fn commit(&mut self, words: Words, sample: Sample) -> Sample {
         self.words = words;
         self.sequence = sample.sequence;
         sample
@@ -470,7 +499,7 @@ pub const fn on_latch_clock(asked_ns: u64, seen_ns: u64, seen_at_ns: u64) -> u64
 
 /// Whether the latch `image` shows (if any) began before `asked_ns`, the moment the re-arm was
 /// asked for: a latch that began after it is news the re-arm must not clear.
-fn began_before(image: &PzdInput, asked_ns: u64) -> Result<(), SessionError> {
+fn began_before(image: &impl DriveImage, asked_ns: u64) -> Result<(), SessionError> {
     match image.latch() {
         Some(latch_id) if latch_id > asked_ns => Err(SessionError::Tripped { latch_id }),
         _ => Ok(()),
@@ -479,13 +508,8 @@ fn began_before(image: &PzdInput, asked_ns: u64) -> Result<(), SessionError> {
 
 /// The stop `stw1` and every other of `pzd` words 0: nothing of the words before a latch (a
 /// setpoint, STW2, a second setpoint) goes out again with a re-arm.
-fn stop_words(pzd: usize, stw1: u16) -> Words {
-    let mut words = [0; MAX_PZD_WORDS];
-    words[0] = stw1;
-    Words {
-        words,
-        count: pzd.min(MAX_PZD_WORDS),
-    }
+const fn stop_words(pzd: usize, stw1: u16) -> Words {
+    Words::stop(pzd, stw1)
 }
 
 const fn next(sequence: u64) -> u64 {

@@ -2,7 +2,6 @@
 #![allow(clippy::unwrap_used)]
 
 use super::*;
-use crate::control::{ControlState, LatchReason, StopCommand};
 
 const READY: u16 = 0x047E;
 const RUN: u16 = 0x047F;
@@ -14,28 +13,19 @@ const L1: u64 = 1_000;
 const L2: u64 = 2_000;
 const L3: u64 = 3_000;
 
-fn live() -> PzdInput {
-    PzdInput {
-        control: ControlState::Live.code(),
-        latch_reason: LatchReason::None.code(),
-        latch_id: 0,
-        ..PzdInput::EMPTY
-    }
+fn live() -> LatchView {
+    LatchView::LIVE
 }
 
-fn latched(id: u64) -> PzdInput {
-    PzdInput {
-        control: ControlState::Latched.code(),
-        latch_reason: LatchReason::Override.code(),
-        latch_id: id,
-        ..PzdInput::EMPTY
-    }
+/// Latched by an operator's OFF1.
+fn latched(id: u64) -> LatchView {
+    LatchView::latched(id, StopCommand::Off1)
 }
 
 /// A session and the image and time it sees.
 struct Play {
     s: Session,
-    image: PzdInput,
+    image: LatchView,
     now: u64,
 }
 
@@ -51,7 +41,7 @@ enum Out {
 
 fn out(r: Result<Step, SessionError>) -> Out {
     match r {
-        Ok(Step::Publish(s)) => Out::Sent(s.stw1, s.latch_id),
+        Ok(Step::Publish(s)) => Out::Sent(s.stw1(), s.latch_id),
         Ok(Step::AwaitRearm) => Out::Await,
         Err(e) => Out::Err(e),
     }
@@ -89,7 +79,7 @@ impl Play {
         self
     }
 
-    fn show(&mut self, image: PzdInput) -> &mut Self {
+    fn show(&mut self, image: LatchView) -> &mut Self {
         self.image = image;
         self
     }
@@ -112,14 +102,14 @@ impl Play {
     fn refresh(&mut self) -> Out {
         self.s
             .refresh(self.now, &self.image)
-            .map_or(Out::Nothing, |s| Out::Sent(s.stw1, s.latch_id))
+            .map_or(Out::Nothing, |s| Out::Sent(s.stw1(), s.latch_id))
     }
 
     /// The program's re-arm, asked for at the moment of the call.
     fn rearm(&mut self) -> Out {
         self.s
             .rearm(self.now, &self.image, self.now)
-            .map_or_else(Out::Err, |s| Out::Sent(s.stw1, s.latch_id))
+            .map_or_else(Out::Err, |s| Out::Sent(s.stw1(), s.latch_id))
     }
 }
 
@@ -299,14 +289,10 @@ fn every_sample_has_a_new_sequence_the_pid_and_the_time() {
         (501, 502, 503)
     );
     assert_eq!(
-        (
-            first.timestamp_ns,
-            refreshed.timestamp_ns,
-            first.controller_pid
-        ),
+        (first.timestamp_ns, refreshed.timestamp_ns, first.pid),
         (3, 4, 7)
     );
-    assert_eq!(release.flags, crate::OUTPUT_RELEASE);
+    assert!(release.is_release());
     assert_eq!(release.latch_id, L1);
     // A session that never re-armed acknowledged no latch.
     let mut p = Play::opened();
@@ -332,10 +318,8 @@ fn a_re_arm_sends_off1_with_every_other_word_zero() {
     p.at(20).call(|w| w.words[1] = 0x1234);
     p.show(latched(L2));
     let sample = p.s.rearm(p.now, &p.image, p.now).unwrap();
-    assert_eq!(
-        (sample.stw1, sample.setpoint, sample.word_count),
-        (READY, 0, 2)
-    );
+    let words = sample.words().unwrap();
+    assert_eq!((words.stw1(), words.words[1], words.count), (READY, 0, 2));
 }
 
 #[test]
@@ -369,13 +353,7 @@ fn a_rearm_asked_before_a_latch_does_not_acknowledge_it() {
         first_sequence: 500,
     });
     let latched_at = 5_000_000_000;
-    let image = PzdInput {
-        online: 1,
-        control: ControlState::Latched.code(),
-        latch_reason: LatchReason::Override.code(),
-        latch_id: latched_at,
-        ..PzdInput::EMPTY
-    };
+    let image = latched(latched_at);
     assert_eq!(
         s.rearm(latched_at + 10, &image, latched_at - 1),
         Err(SessionError::Tripped {
@@ -406,14 +384,7 @@ fn a_rearm_keeping_the_stop_sends_the_latchs_own_command() {
             watchdog_ns: WATCHDOG,
             first_sequence: 500,
         });
-        let image = PzdInput {
-            online: 1,
-            control: ControlState::Latched.code(),
-            latch_reason: LatchReason::Override.code(),
-            latch_command: command.code(),
-            latch_id: latched_at,
-            ..PzdInput::EMPTY
-        };
+        let image = LatchView::latched(latched_at, command);
         assert_eq!(
             s.rearm_keeping_stop(latched_at + 10, &image, latched_at - 1),
             Err(SessionError::Tripped {
@@ -424,9 +395,13 @@ fn a_rearm_keeping_the_stop_sends_the_latchs_own_command() {
         let out = s
             .rearm_keeping_stop(latched_at + 10, &image, latched_at)
             .unwrap();
-        assert_eq!((out.stw1, out.latch_id), (stw1, latched_at), "{command:?}");
+        assert_eq!(
+            (out.stw1(), out.latch_id),
+            (stw1, latched_at),
+            "{command:?}"
+        );
         let plain = s.rearm(latched_at + 20, &image, latched_at).unwrap();
-        assert_eq!(plain.stw1, 0x047E, "{command:?}");
+        assert_eq!(plain.stw1(), 0x047E, "{command:?}");
     }
 }
 
