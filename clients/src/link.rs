@@ -114,7 +114,7 @@ pub(crate) fn served_buses() -> Vec<String> {
 fn fault_text(fault: LineFault, errno: i32) -> String {
     match fault {
         LineFault::Io => format!(
-            "serial I/O failed: {}",
+            "the line's I/O failed: {}",
             std::io::Error::from_raw_os_error(errno)
         ),
         other => other.name().to_owned(),

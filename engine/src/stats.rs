@@ -35,10 +35,12 @@ impl LineFailure {
 impl core::fmt::Display for LineFailure {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            Self::Closed => f.write_str("the serial device was closed or unplugged"),
+            Self::Closed => f.write_str(
+                "the line was closed: a serial device unplugged, or its server's connection ended",
+            ),
             Self::Io(errno) => write!(
                 f,
-                "serial I/O failed: {}",
+                "the line's I/O failed: {}",
                 std::io::Error::from_raw_os_error(*errno)
             ),
             Self::Stalled => f.write_str(

@@ -20,9 +20,9 @@ pub struct Rx {
 /// A transport that can no longer carry telegrams.
 #[derive(Debug, Error)]
 pub enum TransportError {
-    #[error("serial I/O failed: {0}")]
+    #[error("the line's I/O failed: {0}")]
     Io(#[from] std::io::Error),
-    #[error("the serial device was closed or unplugged")]
+    #[error("the line was closed: a serial device unplugged, or its server's connection ended")]
     Closed,
     /// A write found no room for its whole allowance: the line's output stalled.
     #[error("the line's output stalled: no byte could be written for its write-stall allowance")]

@@ -1,5 +1,5 @@
-//! The serial line under the engine: a UART or USB adapter at 8E1, or a pseudo-terminal for
-//! end-to-end tests (USS.md sections 2, 4 and 9).
+//! The line under the engine: a UART or USB adapter at 8E1, a pseudo-terminal for end-to-end
+//! tests (USS.md sections 2, 4 and 9), or a serial device server's port over TCP ([`tcp`]).
 //!
 //! [`SerialTransport::open`] lets the `serialport` crate open the device (exclusive, raw, 8E1, no
 //! flow control), then tunes the fd itself: parity and framing errors marked in the byte stream
@@ -30,6 +30,9 @@ use uss_protocol::{Baud, LineError, Timing};
 
 pub mod latency;
 pub mod rate;
+pub mod tcp;
+
+pub use tcp::{ConnectReport, TcpError, TcpOptions, TcpTransport};
 
 /// Raw bytes one `read` takes: a whole 256-byte telegram fits even with every byte escaped.
 const READ_CHUNK: usize = 1024;
@@ -583,17 +586,6 @@ impl SerialTransport {
             self.overruns_seen = count;
         }
     }
-
-    /// Waits until the fd is ready for `events` (or hung up) or `timeout` passes; false on
-    /// timeout. A signal counts as ready: the caller retries and computes a fresh timeout.
-    fn wait_for(&self, events: PollFlags, timeout: Duration) -> Result<bool, TransportError> {
-        let mut fds = [PollFd::new(self.fd(), events)];
-        match ppoll(&mut fds, Some(TimeSpec::from(timeout)), None) {
-            Ok(0) => Ok(false),
-            Ok(_) | Err(Errno::EINTR) => Ok(true),
-            Err(errno) => Err(line_failure(errno)),
-        }
-    }
 }
 
 impl Drop for SerialTransport {
@@ -626,7 +618,7 @@ impl Transport for SerialTransport {
             match nix::unistd::write(self.fd(), rest) {
                 Ok(n) if n > 0 => rest = &rest[n..],
                 Ok(_) | Err(Errno::EAGAIN) => {
-                    if !self.wait_for(PollFlags::POLLOUT, self.write_stall)? {
+                    if !ready(self.fd(), PollFlags::POLLOUT, self.write_stall)? {
                         return Err(TransportError::Stalled);
                     }
                 }
@@ -656,18 +648,46 @@ impl Transport for SerialTransport {
             if self.fill(clock)? {
                 continue;
             }
-            let remaining = deadline.saturating_sub(clock.now());
-            if remaining.is_zero() {
-                return Ok(None);
-            }
-            let wait = remaining.min(MAX_WAIT);
-            if !self.wait_for(PollFlags::POLLIN, wait)? && wait == remaining {
-                // ppoll waited the whole timeout; a clock other than the wall clock (a virtual
-                // one) is moved to the deadline here.
-                clock.sleep_until(deadline);
+            if !input_by(self.fd(), deadline, clock)? {
                 return Ok(None);
             }
         }
+    }
+}
+
+/// Waits in `ppoll` until `fd` has input (or hung up) or `deadline` passes on `clock`: false
+/// once it passed. A signal counts as input: the caller reads (nothing) and asks again.
+pub(crate) fn input_by(
+    fd: BorrowedFd<'_>,
+    deadline: Duration,
+    clock: &mut impl Clock,
+) -> Result<bool, TransportError> {
+    let remaining = deadline.saturating_sub(clock.now());
+    if remaining.is_zero() {
+        return Ok(false);
+    }
+    let wait = remaining.min(MAX_WAIT);
+    if !ready(fd, PollFlags::POLLIN, wait)? && wait == remaining {
+        // ppoll waited the whole timeout; a clock other than the wall clock (a virtual one) is
+        // moved to the deadline here.
+        clock.sleep_until(deadline);
+        return Ok(false);
+    }
+    Ok(true)
+}
+
+/// Waits until `fd` is ready for `events` (or hung up) or `timeout` passes; false on timeout.
+/// A signal counts as ready: the caller retries and computes a fresh timeout.
+pub(crate) fn ready(
+    fd: BorrowedFd<'_>,
+    events: PollFlags,
+    timeout: Duration,
+) -> Result<bool, TransportError> {
+    let mut fds = [PollFd::new(fd, events)];
+    match ppoll(&mut fds, Some(TimeSpec::from(timeout)), None) {
+        Ok(0) => Ok(false),
+        Ok(_) | Err(Errno::EINTR) => Ok(true),
+        Err(errno) => Err(line_failure(errno)),
     }
 }
 

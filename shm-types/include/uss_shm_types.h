@@ -126,7 +126,9 @@
 
 /**
  * The layout version of every payload type in this crate. Bump it with any change to a type's
- * fields, sizes or code tables, together with the type names' `V<n>` suffix.
+ * fields, sizes or code tables, together with the type names' `V<n>` suffix. The drive family
+ * is an open code (`uss_control::DriveFamily::of_code`: a reader takes a code it does not know
+ * as generic), so a new family is no such change.
  */
 #define USS_LAYOUT_VERSION 9
 
@@ -532,7 +534,8 @@ enum UssLineFault
  {
   USS_LINE_FAULT_NONE = 0,
   /**
-   * The device was closed or unplugged (EOF, EIO, ENXIO, ENODEV).
+   * The line was closed: a device unplugged (EOF, EIO, ENXIO, ENODEV) or a server's
+   * connection ended.
    */
   USS_LINE_FAULT_CLOSED = 1,
   /**
@@ -1991,5 +1994,7 @@ typedef struct UssOperatorResponse {
  * exchange (about 2 ms) to a slow one at 1200 baud and the 20 ms response timeout.
  */
 #define USS_EXCHANGE_BUCKETS_NS { 500000, 1000000, 2000000, 3000000, 5000000, 7500000, 10000000, 20000000, 50000000, 100000000, 250000000, 1000000000, }
+
+
 
 #endif  /* USS_SHM_TYPES_H */

@@ -52,10 +52,11 @@ code_table! {
     /// Why the bus line went down; the `line_fault` byte of [`BusStatus`].
     pub enum LineFault {
         None = 0 => "none",
-        /// The device was closed or unplugged (EOF, EIO, ENXIO, ENODEV).
-        Closed = 1 => "the serial device was closed or unplugged",
+        /// The line was closed: a device unplugged (EOF, EIO, ENXIO, ENODEV) or a server's
+        /// connection ended.
+        Closed = 1 => "the line was closed: a serial device unplugged, or its server's connection ended",
         /// Another I/O error; `line_errno` says which.
-        Io = 2 => "serial I/O failed",
+        Io = 2 => "the line's I/O failed",
         /// The line took no bytes for longer than its write-stall allowance (an adapter whose
         /// writes stopped being taken, flow stopped).
         Stalled = 3 => "the line's output stalled: no byte could be written for its write-stall allowance",
@@ -634,7 +635,7 @@ impl BusStatus {
         }
         Some(match LineFault::try_from(self.line_fault) {
             Ok(LineFault::Io) => format!(
-                "serial I/O failed: {}",
+                "the line's I/O failed: {}",
                 std::io::Error::from_raw_os_error(self.line_errno)
             ),
             Ok(f) => f.name().to_owned(),

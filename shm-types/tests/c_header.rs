@@ -329,6 +329,8 @@ fn config(code_tables: &[String]) -> cbindgen::Config {
         .map(|t| t.name)
         .chain(code_tables.iter().map(String::as_str));
     c.export.include = types.clone().map(String::from).collect();
+    // The rules' own types (uss-control) are no part of the contract.
+    c.export.exclude = vec!["LatchView".into(), "Session".into(), "Sample".into()];
     c.export.rename = types.map(|t| (t.to_string(), c_type(t))).collect();
     // C++ gets the iceoryx2 type name as the member its bindings look for.
     c.export.body = LAYOUTS

@@ -109,7 +109,7 @@ fn a_failed_line_takes_only_its_bus_down_and_ussd_reopens_it_when_it_is_back() {
     );
     assert_eq!(
         down.line_fault_text().as_deref(),
-        Some("the serial device was closed or unplugged")
+        Some("the line was closed: a serial device unplugged, or its server's connection ended")
     );
     assert!(!exists(&pty_a), "the pty went with its uss-sim");
     for d in [1, 2] {
@@ -183,7 +183,7 @@ fn a_device_absent_at_start_is_opened_when_it_appears() {
     let down = status_when(&bus, uss_client::BusStatus::is_line_down);
     assert_eq!(
         down.line_fault_text().as_deref(),
-        Some("serial I/O failed: No such file or directory (os error 2)"),
+        Some("the line's I/O failed: No such file or directory (os error 2)"),
         "{down:?}"
     );
     for d in [1, 2] {
@@ -253,7 +253,7 @@ fn comes_back_latched(a: &Bus, link_a: &Link, ussd: &Ussd) {
     assert_eq!(a.status().unwrap().line_downs, 1);
     let log = ussd.log();
     assert!(
-        log.contains("line down (the serial device was closed or unplugged)"),
+        log.contains("line down (the line was closed: a serial device unplugged, or its server's connection ended)"),
         "{log}"
     );
     assert!(log.contains("line back after"), "{log}");

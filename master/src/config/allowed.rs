@@ -9,9 +9,11 @@ pub const BUS_NAMES: &str = "a bus name is 1..=32 characters from A-Z, a-z, 0-9,
 
 /// What a device is.
 pub const DEVICES: &str = if cfg!(feature = "sim") {
-    "device is \"sim\" (the built-in simulated bus) or the path of a serial device"
+    "device is \"sim\" (the built-in simulated bus), the path of a serial device, or \
+     tcp://host:port (a serial device server's port)"
 } else {
-    "device is the path of a serial device"
+    "device is the path of a serial device, or tcp://host:port (a serial device server's \
+     port)"
 };
 
 // The words of [`BUS_NAMES`] say 32.

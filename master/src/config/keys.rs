@@ -2,12 +2,10 @@
 //! else as it is read (in the words of [`ALLOWED`](Watchdog::ALLOWED)), has its default and
 //! writes back what it read. Rules that need more than one value are in [`super::rules`].
 
-use super::{Device, SIM_DEVICE};
 use core::fmt;
 use core::time::Duration;
 use serde::de::Visitor;
 use serde::{Deserialize, Deserializer, Serialize};
-use std::path::PathBuf;
 use uss_protocol::serde_impls::integer;
 use uss_protocol::{Baud, NotationError, ParamRef, PkwMode, PzdCount};
 
@@ -199,26 +197,6 @@ impl ParamName {
     /// parameter).
     pub fn param(&self) -> Option<ParamRef> {
         self.parsed.ok().flatten()
-    }
-}
-
-/// `"sim"` or a path; whether the path is usable is a rule ([`super::rules`]).
-impl From<String> for Device {
-    fn from(written: String) -> Self {
-        if written == SIM_DEVICE {
-            Device::Sim
-        } else {
-            Device::Serial(PathBuf::from(written))
-        }
-    }
-}
-
-impl From<Device> for String {
-    fn from(device: Device) -> Self {
-        match device {
-            Device::Sim => SIM_DEVICE.to_owned(),
-            Device::Serial(path) => path.display().to_string(),
-        }
     }
 }
 

@@ -23,18 +23,19 @@
 //! ([`errors`]); of several broken rules the one nearest the start of the file is reported.
 
 mod allowed;
+mod device;
 mod errors;
 mod keys;
 mod rules;
 
+pub use device::{Device, SerialPath};
 pub use errors::ConfigError;
 pub use keys::*;
-pub use rules::SerialPath;
 
 use core::fmt::Write as _;
 use errors::Reporter;
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use toml::de::DeTable;
 #[cfg(feature = "sim")]
 use uss_drive_sim::SimOptions;
@@ -60,19 +61,6 @@ pub struct Config {
     #[serde(rename = "bus", default)]
     pub buses: Vec<BusConfig>,
 }
-
-/// Where a bus lives.
-#[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
-#[serde(from = "String", into = "String")]
-pub enum Device {
-    /// The built-in simulated bus: `uss-drive-sim` drives on an in-process virtual wire.
-    Sim,
-    /// A serial device (RS485 adapter, embedded UART, or a pseudo-terminal).
-    Serial(PathBuf),
-}
-
-/// The device name of the built-in simulated bus.
-const SIM_DEVICE: &str = "sim";
 
 /// How the RS485 driver is switched between sending and receiving (USS.md section 9).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
@@ -426,15 +414,9 @@ impl Config {
         self.buses
             .iter()
             .filter_map(|bus| match &bus.device {
-                Device::Serial(path)
-                    if rules::SerialPath::of(path) == rules::SerialPath::Absent =>
-                {
-                    Some(format!(
-                        "bus {}: device {} {ABSENT}",
-                        bus.name,
-                        path.display()
-                    ))
-                }
+                Device::Serial(path) if SerialPath::of(path) == SerialPath::Absent => Some(
+                    format!("bus {}: device {} {ABSENT}", bus.name, path.display()),
+                ),
                 _ => None,
             })
             .collect()
@@ -448,8 +430,19 @@ impl Config {
         let mut text =
             "# ussd configuration: the effective settings, every default filled in\n".to_owned();
         for bus in &self.buses {
-            if let Device::Serial(path) = &bus.device {
-                let _ = writeln!(text, "# bus {}: {}", bus.name, device_note(path));
+            match &bus.device {
+                Device::Serial(path) => {
+                    let _ = writeln!(text, "# bus {}: {}", bus.name, device_note(path));
+                }
+                Device::Tcp(_) => {
+                    let _ = writeln!(
+                        text,
+                        "# bus {}: {} is a serial device server's port (set to 8E1 and the \
+                         bus's rate there); while it does not answer the bus is line down",
+                        bus.name, bus.device
+                    );
+                }
+                Device::Sim => {}
             }
         }
         text.push('\n');
@@ -467,13 +460,13 @@ const ABSENT: &str =
 /// What is at a serial device's path now.
 fn device_note(path: &Path) -> String {
     let shown = path.display();
-    match rules::SerialPath::of(path) {
-        rules::SerialPath::Tty => format!("{shown} is a serial device (a tty)"),
-        rules::SerialPath::Absent => format!("warning: {shown} {ABSENT}"),
-        rules::SerialPath::Unknown => {
+    match SerialPath::of(path) {
+        SerialPath::Tty => format!("{shown} is a serial device (a tty)"),
+        SerialPath::Absent => format!("warning: {shown} {ABSENT}"),
+        SerialPath::Unknown => {
             format!("{shown} exists; this machine does not say whether it is a tty")
         }
-        rules::SerialPath::NotATty(what) => format!("{shown} is {what}"),
+        SerialPath::NotATty(what) => format!("{shown} is {what}"),
     }
 }
 

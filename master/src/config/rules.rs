@@ -3,7 +3,7 @@
 //! verified. Each broken rule is an error at the value it is about, found again in the file by
 //! the reporter.
 
-use super::allowed::{BUS_NAMES, DEVICES, valid_bus_name};
+use super::allowed::{BUS_NAMES, valid_bus_name};
 use super::errors::{Broken, Reporter};
 use super::{BusConfig, Config, Device, DriveEntry};
 use core::ops::Range;
@@ -30,7 +30,7 @@ pub fn check(config: &Config, reporter: &Reporter<'_>) -> Vec<Broken> {
         }
         if let Some(first) = config.buses[..i]
             .iter()
-            .position(|b| same_serial_device(&b.device, &bus.device))
+            .position(|b| b.device.same_line(&bus.device))
         {
             let line = rules.line_of(&[("bus", first)], "device");
             let problem = format!(
@@ -43,77 +43,6 @@ pub fn check(config: &Config, reporter: &Reporter<'_>) -> Vec<Broken> {
         rules.bus(bus);
     }
     rules.broken
-}
-
-/// What is at a serial device's path now, told without opening it (opening a serial port can
-/// raise its modem lines).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum SerialPath {
-    /// Nothing: a USB adapter not plugged in yet; ussd starts the line down and opens it when
-    /// it appears.
-    Absent,
-    /// A terminal device: a serial port, a USB adapter's tty or a pseudo-terminal.
-    Tty,
-    /// Something no serial line runs over: a directory, a file, `/dev/null`.
-    NotATty(String),
-    /// It exists, but this machine does not say what it is (no access, no sysfs).
-    Unknown,
-}
-
-/// Unix98 pseudo-terminal slaves, `/dev/pts/N` (Linux devices.txt: char majors 136..143).
-const PTY_SLAVE_MAJORS: core::ops::RangeInclusive<u64> = 136..=143;
-
-impl SerialPath {
-    /// What `path` is: a character device of the kernel's `tty` class (sysfs
-    /// `/sys/dev/char/MAJOR:MINOR/subsystem`), a pty slave, or what else.
-    pub fn of(path: &std::path::Path) -> Self {
-        use std::os::unix::fs::{FileTypeExt as _, MetadataExt as _};
-        let meta = match std::fs::metadata(path) {
-            Ok(m) => m,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Self::Absent,
-            Err(_) => return Self::Unknown,
-        };
-        let kind = meta.file_type();
-        if kind.is_dir() {
-            return Self::NotATty("a directory".into());
-        }
-        if !kind.is_char_device() {
-            return Self::NotATty(if kind.is_file() {
-                "a regular file".into()
-            } else {
-                "not a character device".into()
-            });
-        }
-        let (major, minor) = (
-            nix::sys::stat::major(meta.rdev()),
-            nix::sys::stat::minor(meta.rdev()),
-        );
-        if PTY_SLAVE_MAJORS.contains(&major) {
-            return Self::Tty;
-        }
-        let class = std::fs::read_link(format!("/sys/dev/char/{major}:{minor}/subsystem"));
-        match class.as_deref().ok().and_then(std::path::Path::file_name) {
-            Some(c) if c == "tty" => Self::Tty,
-            Some(c) => Self::NotATty(format!(
-                "a character device of the kernel's {} class",
-                c.to_string_lossy()
-            )),
-            None => Self::Unknown,
-        }
-    }
-}
-
-/// Whether two devices are the same serial line: the same path, or two names (a by-id link and
-/// the tty) of one existing device.
-fn same_serial_device(a: &Device, b: &Device) -> bool {
-    let (Device::Serial(a), Device::Serial(b)) = (a, b) else {
-        return false;
-    };
-    a == b
-        || matches!(
-            (std::fs::canonicalize(a), std::fs::canonicalize(b)),
-            (Ok(x), Ok(y)) if x == y
-        )
 }
 
 struct Rules<'a> {
@@ -189,7 +118,7 @@ impl Rules<'_> {
                  while sending (set echo = false)",
             );
         }
-        if bus.seed.is_some() && matches!(device, Some(Device::Serial(_))) {
+        if bus.seed.is_some() && device.is_some_and(Device::is_line) {
             self.fail("seed", ONLY_ON_SIM);
         }
         if bus.drives.is_empty() {
@@ -216,36 +145,15 @@ impl Rules<'_> {
         }
     }
 
-    /// "sim", or a serial device: one that exists, or an absolute path that may appear later
-    /// (ussd starts that bus line down and opens the device when it appears). Whether it is
-    /// usable.
+    /// Whether the bus's device is usable (its kind says: [`Device::problem`]).
     fn device(&mut self, device: &Device) -> bool {
-        let problem = match device {
-            Device::Sim if cfg!(feature = "sim") => return true,
-            Device::Sim => {
-                "is not available: this ussd was built without the simulated bus (the `sim` \
-                 feature of uss-master)"
+        match device.problem() {
+            Some(problem) => {
+                self.fail("device", &problem);
+                false
             }
-            Device::Serial(path) if path.as_os_str().is_empty() => "is not allowed",
-            Device::Serial(path) => match SerialPath::of(path) {
-                SerialPath::Tty | SerialPath::Unknown => return true,
-                SerialPath::Absent if path.is_absolute() => return true,
-                SerialPath::Absent => {
-                    "does not exist (a device that may be absent when ussd starts needs its \
-                     absolute path)"
-                }
-                SerialPath::NotATty(what) => {
-                    let problem = format!(
-                        "is {what}, not a serial device (a serial adapter's tty such as \
-                         /dev/ttyUSB0, or a pty): {DEVICES}"
-                    );
-                    self.fail("device", &problem);
-                    return false;
-                }
-            },
-        };
-        self.fail("device", &format!("{problem}: {DEVICES}"));
-        false
+            None => true,
+        }
     }
 
     /// USS names 13 rates (USS.md section 2); another one only when the file says it is meant.
@@ -346,7 +254,7 @@ impl Rules<'_> {
             }
             _ => {}
         }
-        if drive.sim.is_some() && matches!(device, Some(Device::Serial(_))) {
+        if drive.sim.is_some() && device.is_some_and(Device::is_line) {
             let span = self.reporter.span(&self.at, Some("sim"));
             self.push(span, "sim", format!("sim {ONLY_ON_SIM}"));
         }

@@ -3,6 +3,7 @@
     reason = "a value parsed from the same decimal text is the same float, bit for bit"
 )]
 use super::*;
+use std::path::PathBuf;
 use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault};
 use uss_protocol::{PkwMode, PzdCount};
@@ -984,7 +985,8 @@ fn a_relative_serial_device_must_exist_an_absolute_one_may_come_later() {
         (
             "bus.toml:3:10: bus \"bus0\": device = \"ttyXYZ\" does not exist (a device that may \
              be absent when ussd starts needs its absolute path): device is \"sim\" (the \
-             built-in simulated bus) or the path of a serial device"
+             built-in simulated bus), the path of a serial device, or tcp://host:port (a \
+             serial device server's port)"
                 .to_owned(),
             Some("bus[0].device".to_owned())
         )
@@ -992,7 +994,8 @@ fn a_relative_serial_device_must_exist_an_absolute_one_may_come_later() {
     assert_eq!(
         error("[[bus]]\nname = \"bus0\"\n[[bus.drive]]\naddress = 1\n").to_string(),
         "bus.toml:1:1: bus \"bus0\": device is missing: device is \"sim\" (the built-in \
-         simulated bus) or the path of a serial device"
+         simulated bus), the path of a serial device, or tcp://host:port (a serial device \
+         server's port)"
     );
 }
 

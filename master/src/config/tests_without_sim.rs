@@ -2,6 +2,7 @@
 //! plain words, a serial bus is read as in every build.
 
 use super::*;
+use std::path::PathBuf;
 
 #[test]
 fn the_simulated_bus_is_refused_with_the_reason() {

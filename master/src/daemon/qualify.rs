@@ -259,13 +259,17 @@ fn modem_manager_ignores(device: &Path) -> bool {
 /// What usually breaks a deployment of `bus`, each with how to fix it.
 pub fn checks(bus: &BusConfig) -> Vec<Check> {
     let mut out = vec![rtprio(bus.priority.get()), memlock(), isolation(bus)];
-    if let Device::Serial(path) = &bus.device {
-        out.extend(adapter(path, bus.baud));
-    } else {
-        out.push(ok(format!(
+    match &bus.device {
+        Device::Serial(path) => out.extend(adapter(path, bus.baud)),
+        Device::Tcp(_) => out.push(ok(format!(
+            "bus {} runs over a serial device server ({}): no adapter here to check; its port's \
+             8E1 and rate are set on the server",
+            bus.name, bus.device
+        ))),
+        Device::Sim => out.push(ok(format!(
             "bus {} is the built-in simulated bus: no adapter to check",
             bus.name
-        )));
+        ))),
     }
     out
 }

@@ -9,14 +9,13 @@
 //! (memlock unlimited or `CAP_IPC_LOCK`, [`uss_engine::rt`]), so a later thread or mapping
 //! cannot fail on it.
 
-use crate::config::{BusConfig, Cpu, Device, Rs485Mode};
-use crate::config::{Rs485Delay, RxLatencyMs};
+use crate::config::RxLatencyMs;
+use crate::config::{BusConfig, Cpu, Device};
 use crate::daemon::ipc::StatusPublisher;
-use crate::daemon::line::Line;
+use crate::daemon::line::{Line, LineKind, NotOpened, SerialLine, TcpLine};
 use core::time::Duration;
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, bounded};
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
 use std::thread::JoinHandle;
 use thiserror::Error;
 #[cfg(feature = "sim")]
@@ -28,8 +27,6 @@ use uss_engine::{
     TransportError,
 };
 use uss_protocol::Timing;
-use uss_serial::latency::{self, RxLatency, Source};
-use uss_serial::{Rs485Wanted, SerialError, SerialOptions, SerialTransport};
 
 /// Parameter jobs each drive can hold.
 const MAILBOX_DEPTH: usize = 64;
@@ -48,8 +45,12 @@ pub struct RunOptions {
 /// A bus that could not start.
 #[derive(Debug, Error)]
 pub enum StartError {
+    /// The bus's line is there and cannot be used as configured (its kind says why).
     #[error("bus {bus}: {source}")]
-    Serial { bus: String, source: SerialError },
+    Line {
+        bus: String,
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     #[cfg(feature = "sim")]
     #[error("bus {bus}: simulated bus: {source}")]
     Sim { bus: String, source: BusError },
@@ -343,8 +344,8 @@ type Opener<T> = Box<dyn FnMut() -> Result<Reopened<T>, String> + Send>;
 
 /// How a failed line of a serial bus is given up and opened again.
 struct Reopening<T> {
-    /// The configured path, reopened by name (a replugged adapter).
-    device: PathBuf,
+    /// The line as configured (a device's path, reopened by name: a replugged adapter).
+    device: String,
     open: Opener<T>,
     /// Gives up the failed line's device ([`Line::release`]).
     release: fn(&mut T) -> Option<T>,
@@ -356,7 +357,7 @@ struct Reopening<T> {
 /// block.
 fn spawn_line<T: Send + 'static>(
     bus: &BusConfig,
-    device: PathBuf,
+    device: String,
     mut open: Opener<T>,
     handle: EngineHandle,
     asks: Receiver<Option<T>>,
@@ -372,7 +373,7 @@ fn spawn_line<T: Send + 'static>(
                 if closing.elapsed() > Duration::from_secs(1) {
                     tracing::warn!(
                         bus = %name,
-                        device = %device.display(),
+                        device = %device,
                         "closing the failed line took {:.1} s (its driver waited for output)",
                         closing.elapsed().as_secs_f64()
                     );
@@ -392,7 +393,7 @@ fn spawn_line<T: Send + 'static>(
 /// stops (`None`).
 fn reopen_with_backoff<T>(
     bus: &str,
-    device: &Path,
+    device: &str,
     open: &mut Opener<T>,
     handle: &EngineHandle,
 ) -> Option<(T, Duration)> {
@@ -413,7 +414,7 @@ fn reopen_with_backoff<T>(
             }) => {
                 tracing::info!(
                     bus,
-                    device = %device.display(),
+                    device,
                     attempts,
                     down_s = started.elapsed().as_secs_f64(),
                     "line reopened after {attempts} attempts: {report}"
@@ -425,7 +426,7 @@ fn reopen_with_backoff<T>(
                 if attempts == 1 || attempts.is_multiple_of(12) {
                     tracing::warn!(
                         bus,
-                        device = %device.display(),
+                        device,
                         attempts,
                         "cannot reopen the line yet ({e}); retrying, at most every {} s",
                         REOPEN_MAX.as_secs()
@@ -567,87 +568,59 @@ fn open_and_spawn(
         Device::Sim => Err(StartError::NoSim {
             bus: bus.name.clone(),
         }),
-        Device::Serial(path) => {
-            let serial = SerialOptions {
-                baud: bus.baud,
-                kernel_rs485: bus.rs485 == Rs485Mode::Kernel,
-                rs485_settings: Rs485Wanted {
-                    rts_high_while_sending: bus
-                        .rs485_rts
-                        .map(|r| r == crate::config::Rs485Rts::HighWhileSending),
-                    delay_before_ms: bus.rs485_delay_before_ms.map(Rs485Delay::get),
-                    delay_after_ms: bus.rs485_delay_after_ms.map(Rs485Delay::get),
-                },
-                low_latency: true,
-                rx_latency: bus.rx_latency_ms.map_or(Duration::ZERO, RxLatencyMs::get),
-            };
-            let t = match SerialTransport::open(path, &serial) {
-                Ok((t, report)) => {
-                    tracing::info!(bus = %bus.name, device = %path.display(), "opened: {report}");
-                    Line::Open(t)
-                }
-                // Not plugged in yet, or udev has not named it yet: the bus starts line down
-                // and its line thread opens the device when it appears.
-                Err(SerialError::NotFound { .. }) => {
-                    tracing::warn!(
-                        bus = %bus.name,
-                        device = %path.display(),
-                        "{} is not there: the bus starts line down and opens it when it appears",
-                        path.display()
-                    );
-                    Line::Absent
-                }
-                Err(source) => {
-                    return Err(StartError::Serial {
-                        bus: bus.name.clone(),
-                        source,
-                    });
-                }
-            };
-            // After the open: a granted ASYNC_LOW_LATENCY lowers an FTDI latency timer.
-            let rx_latency = rx_latency(bus, path);
-            let device = path.clone();
-            let reopened_bus = bus.clone();
-            let open: Opener<Line<SerialTransport>> = Box::new(move || {
-                let (t, report) =
-                    SerialTransport::open(&device, &serial).map_err(|e| e.to_string())?;
-                Ok(Reopened {
-                    transport: Line::Open(t),
-                    report: report.to_string(),
-                    // Read again: the device absent at start, or replugged into another
-                    // adapter, is not what it was.
-                    rx_latency: self::rx_latency(&reopened_bus, &device),
-                })
-            });
-            let line = Reopening {
-                device: path.clone(),
-                open,
-                release: Line::release,
-            };
-            spawn(bus, t, options, go, Some(line), rx_latency)
-        }
+        Device::Serial(path) => spawn_on_line(bus, options, go, SerialLine::new(bus, path)),
+        Device::Tcp(address) => spawn_on_line(bus, options, go, TcpLine::new(bus, address)),
     }
 }
 
-/// The receive latency the bus's timing allows for: as configured, else as sysfs describes the
-/// device (logged, with a warning for a slow FTDI latency timer).
-fn rx_latency(bus: &BusConfig, device: &Path) -> Duration {
-    let found = match bus.rx_latency_ms {
-        Some(ms) => RxLatency {
-            latency: ms.get(),
-            source: Source::Configured,
-        },
-        None => latency::detect(Path::new("/sys"), device, Timing::new(bus.baud)),
+/// Opens a bus's line of any kind and spawns its threads, with a line thread that opens it
+/// again when it fails. A line not there yet starts the bus line down (its line thread opens it
+/// when it appears); one that is there and refused stops ussd's start.
+fn spawn_on_line<K: LineKind>(
+    bus: &BusConfig,
+    options: RunOptions,
+    go: &Receiver<()>,
+    mut kind: K,
+) -> Result<Spawned, StartError> {
+    let name = kind.name();
+    let transport = match kind.open() {
+        Ok(opened) => {
+            tracing::info!(bus = %bus.name, device = %name, "opened: {}", opened.report);
+            Line::Open(opened.transport)
+        }
+        Err(NotOpened::NotThere(why)) => {
+            tracing::warn!(
+                bus = %bus.name,
+                device = %name,
+                "{why}: the bus starts line down and opens it when it appears"
+            );
+            Line::Absent
+        }
+        Err(NotOpened::Refused(source)) => {
+            return Err(StartError::Line {
+                bus: bus.name.clone(),
+                source,
+            });
+        }
     };
-    tracing::info!(
-        bus = %bus.name,
-        device = %device.display(),
-        "receive latency {found}: the residual-time and start-pause allowances and the response timeout widen by it"
-    );
-    if let Some(warning) = found.warning() {
-        tracing::warn!(bus = %bus.name, device = %device.display(), "{warning}");
-    }
-    found.latency
+    let rx_latency = kind.rx_latency(&bus.name);
+    let bus_name = bus.name.clone();
+    let open: Opener<Line<K::Transport>> = Box::new(move || {
+        let opened = kind.open().map_err(|e| e.to_string())?;
+        Ok(Reopened {
+            transport: Line::Open(opened.transport),
+            report: opened.report,
+            // Read again: the device absent at start, or replugged into another adapter, a
+            // connection over another route, is not what it was.
+            rx_latency: kind.rx_latency(&bus_name),
+        })
+    });
+    let line = Reopening {
+        device: name,
+        open,
+        release: K::release,
+    };
+    spawn(bus, transport, options, go, Some(line), rx_latency)
 }
 
 fn abandon(spawned: Vec<Spawned>, go: Sender<()>) {
@@ -741,10 +714,8 @@ pub fn start(buses: &[BusConfig], options: RunOptions) -> Result<Vec<RunningBus>
             handle: s.handle,
             rt_report,
             stall_bound: crate::daemon::supervise::stall_bound(&s.bus),
-            line_down_limit: match s.bus.device {
-                Device::Serial(_) => Some(s.bus.line_down_limit_ms.get()).filter(|d| !d.is_zero()),
-                Device::Sim => None,
-            },
+            line_down_limit: Some(s.bus.line_down_limit_ms.get())
+                .filter(|d| s.bus.device.is_line() && !d.is_zero()),
             engine_thread: s.thread,
             params_thread: s.params_thread,
             line_thread: s.line_thread,

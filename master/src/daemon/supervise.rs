@@ -10,7 +10,7 @@
 //! Without a service manager (no `NOTIFY_SOCKET`) nothing is sent, and a hung bus thread is
 //! still logged.
 
-use crate::config::{BusConfig, Device};
+use crate::config::BusConfig;
 use core::time::Duration;
 use sd_notify::NotifyState;
 use std::time::Instant;
@@ -25,10 +25,7 @@ use uss_protocol::telegram::MAX_NET_BYTES;
 /// near it.
 pub fn stall_bound(bus: &BusConfig) -> Duration {
     let timing = Timing::new(bus.baud);
-    let write_stall = match bus.device {
-        Device::Sim => Duration::ZERO,
-        Device::Serial(_) => uss_serial::write_stall(timing),
-    };
+    let write_stall = bus.device.write_stall(timing);
     let attempt = timing.telegram(MAX_NET_BYTES) * 2
         + timing.start_pause() * 2
         + bus.response_timeout_ms.get()
@@ -208,6 +205,7 @@ fn send(states: &[NotifyState<'_>]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::Device;
 
     const MS: Duration = Duration::from_millis(1);
 
