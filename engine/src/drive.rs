@@ -62,15 +62,25 @@ pub(super) struct Drive {
     pub timing: DriveTiming,
 }
 
+/// Whether a drive answers, as one state: what its polls decided so far.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum LinkState {
+    /// No poll has decided yet (`tried`: one failed, or the line went down, before any did).
+    Unknown { tried: bool },
+    /// It answers; `failing`: its latest polls failed, fewer than take it offline.
+    Online { failing: bool },
+    /// Its polls failed all their retries (USS.md section 4: "slave x does not respond"), or
+    /// the line went down under it.
+    Offline,
+}
+
 /// Whether a drive answers, since when, and when to try it again (USS.md section 4: "slave x
 /// does not respond" after a poll fails all its retries). Published as the [`DriveStatus`]
-/// fields of the same names, which say what each means.
+/// fields `online`, `known`, `no_reply`, `since`, ..., which say what each means.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct Link {
-    pub online: bool,
-    pub known: bool,
+    pub state: LinkState,
     pub since: Duration,
-    pub no_reply: bool,
     pub last_failure: LastFailure,
     pub consecutive_failed_polls: u32,
     pub last_good: Option<Duration>,
@@ -82,14 +92,31 @@ impl Link {
     /// Unknown until the first poll decides.
     fn new() -> Self {
         Self {
-            online: false,
-            known: false,
+            state: LinkState::Unknown { tried: false },
             since: Duration::ZERO,
-            no_reply: false,
             last_failure: LastFailure::None,
             consecutive_failed_polls: 0,
             last_good: None,
             next_probe: Duration::ZERO,
+        }
+    }
+
+    /// Whether it answers.
+    pub const fn online(&self) -> bool {
+        matches!(self.state, LinkState::Online { .. })
+    }
+
+    /// Whether a poll has decided `online` yet.
+    pub const fn known(&self) -> bool {
+        !matches!(self.state, LinkState::Unknown { .. })
+    }
+
+    /// Whether its latest poll failed (or the line went down).
+    pub const fn no_reply(&self) -> bool {
+        match self.state {
+            LinkState::Unknown { tried } => tried,
+            LinkState::Online { failing } => failing,
+            LinkState::Offline => true,
         }
     }
 
@@ -98,14 +125,12 @@ impl Link {
     pub fn good(&mut self, at: Duration) -> (Option<Duration>, bool) {
         let since_last = self.last_good.map(|previous| at.saturating_sub(previous));
         self.last_good = Some(at);
-        self.no_reply = false;
         self.consecutive_failed_polls = 0;
-        let came_back = !self.online;
+        let came_back = !self.online();
         if came_back {
-            self.online = true;
-            self.known = true;
             self.since = at;
         }
+        self.state = LinkState::Online { failing: false };
         (since_last, came_back)
     }
 
@@ -113,26 +138,34 @@ impl Link {
     /// drive of unknown state with its first failed poll, an online one after `offline_after`
     /// in a row. It is probed again after `probe`.
     pub fn failed(&mut self, now: Duration, offline_after: u32, probe: Duration) -> bool {
-        self.no_reply = true;
         self.consecutive_failed_polls += 1;
         self.next_probe = now + probe;
-        let decides =
-            !self.known || (self.online && self.consecutive_failed_polls >= offline_after);
-        if decides {
-            self.online = false;
-            self.known = true;
-            self.since = now;
-        }
+        let decides = match self.state {
+            LinkState::Unknown { .. } => true,
+            LinkState::Online { .. } => self.consecutive_failed_polls >= offline_after,
+            LinkState::Offline => false,
+        };
+        self.state = match self.state {
+            _ if decides => {
+                self.since = now;
+                LinkState::Offline
+            }
+            LinkState::Online { .. } => LinkState::Online { failing: true },
+            other => other,
+        };
         decides
     }
 
     /// The line went down at `now`: nothing answers.
     pub fn line_down(&mut self, now: Duration) {
-        if self.online {
-            self.online = false;
-            self.since = now;
-        }
-        self.no_reply = true;
+        self.state = match self.state {
+            LinkState::Online { .. } => {
+                self.since = now;
+                LinkState::Offline
+            }
+            LinkState::Unknown { .. } => LinkState::Unknown { tried: true },
+            LinkState::Offline => LinkState::Offline,
+        };
     }
 }
 
@@ -267,10 +300,10 @@ impl Drive {
         set_control(&mut counters, &self.gate.counters());
         DriveStatus {
             address: self.setup.address,
-            online: self.link.online,
-            known: self.link.known,
+            online: self.link.online(),
+            known: self.link.known(),
             since: self.link.since,
-            no_reply: self.link.no_reply,
+            no_reply: self.link.no_reply(),
             last_failure: self.link.last_failure,
             consecutive_failed_polls: self.link.consecutive_failed_polls,
             last_zsw1: self.last_zsw1,
@@ -306,7 +339,7 @@ mod tests {
         let mut link = Link::new();
         assert!(link.failed(ms(10), 3, ms(500)), "unknown: decided at once");
         assert_eq!(
-            (link.online, link.known, link.next_probe),
+            (link.online(), link.known(), link.next_probe),
             (false, true, ms(510))
         );
         assert_eq!(
@@ -317,9 +350,16 @@ mod tests {
         assert_eq!(link.good(ms(30)), (Some(ms(10)), false));
         assert!(!link.failed(ms(40), 3, ms(500)));
         assert!(!link.failed(ms(50), 3, ms(500)));
-        assert!(link.no_reply && link.online);
+        assert!(link.no_reply() && link.online());
+        assert_eq!(link.state, LinkState::Online { failing: true });
         assert!(link.failed(ms(60), 3, ms(500)), "the third in a row");
-        assert_eq!((link.online, link.since), (false, ms(60)));
+        assert_eq!((link.state, link.since), (LinkState::Offline, ms(60)));
+        link.line_down(ms(70));
+        assert_eq!(
+            link.since,
+            ms(60),
+            "offline since its last poll, not the line's fall"
+        );
     }
 
     #[test]

@@ -580,7 +580,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             };
             let outcome = if self.shared.stop.load(Ordering::Acquire) {
                 Some(PathError::Shutdown)
-            } else if self.drives[slot].link.known && !self.drives[slot].link.online {
+            } else if self.drives[slot].link.known() && !self.drives[slot].link.online() {
                 Some(PathError::DriveOffline)
             } else {
                 // Not expected: the handle took room for every client's job, and ussd's own
@@ -678,9 +678,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             return None;
         }
         let n = self.drives.len();
-        let found = (0..n)
-            .map(|k| (self.extra_cursor + k) % n)
-            .find(|&slot| self.drives[slot].link.online && !self.drives[slot].mailbox.is_empty())?;
+        let found = (0..n).map(|k| (self.extra_cursor + k) % n).find(|&slot| {
+            self.drives[slot].link.online() && !self.drives[slot].mailbox.is_empty()
+        })?;
         self.extra_cursor = (found + 1) % n;
         self.extra_was_last = true;
         Some(found)
@@ -702,7 +702,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             let slot = usize::from(self.poll_list[self.position]);
             self.position += 1;
             let link = &self.drives[slot].link;
-            if link.online || now >= link.next_probe {
+            if link.online() || now >= link.next_probe {
                 return Ok(Some(slot));
             }
         }
@@ -837,8 +837,8 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// as they are now, then its image to the clients.
     fn after_poll(&mut self, slot: usize) {
         let d = &mut self.drives[slot];
-        d.period = self.periods.period(slot, d.link.online);
-        d.stale_after = self.periods.stale_after(slot, d.link.online);
+        d.period = self.periods.period(slot, d.link.online());
+        d.stale_after = self.periods.stale_after(slot, d.link.online());
         self.bridge
             .after_poll(slot, &self.shared.drives[slot].images, &d.status());
     }
