@@ -321,6 +321,24 @@ struct Overrides {
     pid: AtomicU32,
 }
 
+impl Overrides {
+    /// The strongest command that arrived since the counts in `seen` (which it brings up to
+    /// date): the bus thread's one way of taking operator stops, a drive's or every drive's.
+    fn take(&self, seen: &mut [u32; 3]) -> Option<StopCommand> {
+        let mut strongest: Option<StopCommand> = None;
+        for (i, command) in STOPS.into_iter().enumerate() {
+            let count = self.counts[i].load(Ordering::Acquire);
+            if count != seen[i] {
+                seen[i] = count;
+                if strongest.is_none_or(|s| command.strength() > s.strength()) {
+                    strongest = Some(command);
+                }
+            }
+        }
+        strongest
+    }
+}
+
 const STOPS: [StopCommand; 3] = [StopCommand::Off1, StopCommand::Off2, StopCommand::Off3];
 
 /// Where `command` is in [`STOPS`] (and in the counters kept in that order).
@@ -846,21 +864,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// The strongest operator command that arrived for the drive since its last poll.
     fn take_override(&mut self, slot: usize) -> Option<Operator> {
         let o = &self.shared.drives[slot].overrides;
-        let seen = &mut self.drives[slot].overrides_seen;
-        let mut strongest: Option<StopCommand> = None;
-        for (i, command) in STOPS.into_iter().enumerate() {
-            let count = o.counts[i].load(Ordering::Acquire);
-            if count != seen[i] {
-                seen[i] = count;
-                if strongest.is_none_or(|s| command.strength() > s.strength()) {
-                    strongest = Some(command);
-                }
-            }
-        }
-        strongest.map(|command| Operator {
-            command,
-            pid: o.pid.load(Ordering::Relaxed),
-        })
+        o.take(&mut self.drives[slot].overrides_seen)
+            .map(|command| Operator {
+                command,
+                pid: o.pid.load(Ordering::Relaxed),
+            })
     }
 
     fn publish_if_due(&mut self) {

@@ -34,8 +34,8 @@
 //! carries the latch and the image of the exchange that straddled it says so.
 
 use super::{
-    Adr, Bridge, Clock, Duration, Engine, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, STOPS, Transport,
-    TransportError, encode,
+    Adr, Bridge, Clock, Duration, Engine, MAX_PKW_WORDS, MAX_PZD_WORDS, Transport, TransportError,
+    encode,
 };
 use crate::control::Transition;
 use uss_shm_types::StopCommand;
@@ -94,17 +94,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
 
     /// The strongest stop of every drive asked for since the last one sent, if any.
     fn take_stop_all(&mut self) -> Option<StopCommand> {
-        let mut strongest: Option<StopCommand> = None;
-        for (i, command) in STOPS.into_iter().enumerate() {
-            let count = self.shared.stop_all.counts[i].load(Ordering::Acquire);
-            if count != self.stop_all_seen[i] {
-                self.stop_all_seen[i] = count;
-                if strongest.is_none_or(|s| command.strength() > s.strength()) {
-                    strongest = Some(command);
-                }
-            }
-        }
-        strongest
+        self.shared.stop_all.take(&mut self.stop_all_seen)
     }
 
     /// Whether drive `slot` hears broadcasts that carry a stop word.
