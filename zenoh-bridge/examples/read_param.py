@@ -58,7 +58,14 @@ def main(endpoint: str, key: str, cert=None, private_key=None, ca=None, name=Non
     with zenoh.open(conf) as session:
         for reply in session.get(key, timeout=10.0):
             if reply.ok is None:
-                print(reply.err.payload.to_string(), file=sys.stderr)
+                # The bridge's words and the kind of failure (the error table's, as the C
+                # status and the Python exception name it).
+                said = reply.err.payload.to_string()
+                try:
+                    error = json.loads(said)
+                    print(f"{error['error']} [{error['kind']}]", file=sys.stderr)
+                except (ValueError, KeyError, TypeError):
+                    print(said, file=sys.stderr)
                 return 1
             p = json.loads(reply.ok.payload.to_string())
             print(f"{p['value']} {p['unit']} ({p['param']} {p['name']})")

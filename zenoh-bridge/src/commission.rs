@@ -26,6 +26,7 @@ use crate::keys::{Keys, has_wildcards};
 use crate::params::{Queued, WRITES_REFUSED, reply};
 use crate::payload::{DescribeReply, DiffReply, Differs, RestoreReply, SaveReply, VERSION};
 use crate::policy::Right;
+use crate::refusal::Refusal;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use uss_client::backup::{BackupFile, Diff, settings_catalogue};
@@ -56,20 +57,23 @@ impl Ask {
 }
 
 /// The drive and the ask a key names (after `<prefix>/<bus>[/as/<name>]`), or why none.
-fn ask_of(keys: &Keys, key: &str) -> Result<(Address, Ask), String> {
+fn ask_of(keys: &Keys, key: &str) -> Result<(Address, Ask), Refusal> {
     if has_wildcards(key) {
-        return Err(format!(
+        return Err(Refusal::invalid(format!(
             "{key}: a commissioning query names one drive exactly (no wildcards)"
-        ));
+        )));
     }
     let rest = keys
         .drive_rest(key)
-        .ok_or_else(|| format!("{key}: not a commissioning key of this bus"))?;
-    let (drive, what) = rest
-        .split_once('/')
-        .ok_or_else(|| format!("{key}: .../drive/<addr>/<backup|diff|restore|save|describe/P>"))?;
-    let address = crate::keys::address(drive)
-        .ok_or_else(|| format!("{key}: {drive:?} is not a drive address 0..=31"))?;
+        .ok_or_else(|| Refusal::invalid(format!("{key}: not a commissioning key of this bus")))?;
+    let (drive, what) = rest.split_once('/').ok_or_else(|| {
+        Refusal::invalid(format!(
+            "{key}: .../drive/<addr>/<backup|diff|restore|save|describe/P>"
+        ))
+    })?;
+    let address = crate::keys::address(drive).ok_or_else(|| {
+        Refusal::invalid(format!("{key}: {drive:?} is not a drive address 0..=31"))
+    })?;
     let ask = match what {
         "backup" => Ask::Backup,
         "diff" => Ask::Diff,
@@ -78,12 +82,12 @@ fn ask_of(keys: &Keys, key: &str) -> Result<(Address, Ask), String> {
         other => match other.strip_prefix("describe/") {
             Some(p) => Ask::Describe(
                 p.parse::<ParamRef>()
-                    .map_err(|e| format!("{key}: {p:?}: {e}"))?,
+                    .map_err(|e| Refusal::invalid(format!("{key}: {p:?}: {e}")))?,
             ),
             None => {
-                return Err(format!(
+                return Err(Refusal::invalid(format!(
                     "{key}: .../drive/<addr>/<backup|diff|restore|save|describe/P>"
-                ));
+                )));
             }
         },
     };
@@ -91,13 +95,13 @@ fn ask_of(keys: &Keys, key: &str) -> Result<(Address, Ask), String> {
 }
 
 /// The query's payload as text, `None` without one.
-fn text_of(query: &Query) -> Result<Option<String>, String> {
+fn text_of(query: &Query) -> Result<Option<String>, Refusal> {
     query
         .payload()
         .map(|p| {
             p.try_to_string()
                 .map(std::borrow::Cow::into_owned)
-                .map_err(|_| "the payload is not text (UTF-8)".to_owned())
+                .map_err(|_| Refusal::invalid("the payload is not text (UTF-8)"))
         })
         .transpose()
         .map(|t| t.filter(|t| !t.trim().is_empty()))
@@ -111,36 +115,37 @@ fn flag(query: &Query, name: &str) -> bool {
         .is_some_and(|v| v.is_empty() || v == "true")
 }
 
-/// The one answer to a commissioning query: the reply's payload and encoding, or the error
-/// text.
+/// The one answer to a commissioning query: the reply's payload and encoding, or why not.
 fn answer(
-    bus: Result<&Bus, &String>,
+    bus: Result<&Bus, &Refusal>,
     keys: &Keys,
     name: &str,
     query: &Query,
     rules: crate::params::Rules<'_>,
-) -> Result<(String, Encoding), String> {
+) -> Result<(String, Encoding), Refusal> {
     let key = query.key_expr().as_str();
-    let (sender, keys) = keys.sender(key).map_err(|e| e.to_string())?;
+    let (sender, keys) = keys
+        .sender(key)
+        .map_err(|e| Refusal::invalid(e.to_string()))?;
     let peer = rules.gate.peer(sender);
     let (drive, ask) = ask_of(&keys, key)?;
     let right = ask.right();
     if right == Right::Commission && !rules.allow_writes {
         rules.gate.count(&peer, right, WRITES_REFUSED);
-        return Err(WRITES_REFUSED.to_owned());
+        return Err(Refusal::refused(WRITES_REFUSED));
     }
     rules.gate.check(&peer, right, Some(drive))?;
     if right == Right::Commission {
         held_by_another(rules.held, &peer, drive)?;
     }
     let bus = bus.map_err(Clone::clone)?;
-    let failed = |e: ParamError| format!("drive {drive}: {e}");
+    let failed = |e: ParamError| Refusal::new(e.kind(), format!("drive {drive}: {e}"));
     let json = |v: &dyn erased::Json| v.json().map(|j| (j, Encoding::APPLICATION_JSON));
     match ask {
         Ask::Describe(param) => {
             let said = bus
                 .drive_description(drive, param.pnu)
-                .map_err(|e| format!("drive {drive} {param}: {e}"))?;
+                .map_err(|e| Refusal::new(e.kind(), format!("drive {drive} {param}: {e}")))?;
             let entry = bus.catalogue_entry(drive, param.pnu);
             json(&DescribeReply {
                 v: VERSION,
@@ -165,13 +170,13 @@ fn answer(
         }
         Ask::Diff => {
             let other = text_of(query)?.ok_or_else(|| {
-                format!(
+                Refusal::invalid(format!(
                     "{key}: send a backup file (its TOML) or another drive's address as the payload"
-                )
+                ))
             })?;
             let diff = match other.trim().parse::<u8>() {
                 Ok(a) => {
-                    let second = Address::new(a).map_err(|e| e.to_string())?;
+                    let second = Address::new(a).map_err(|e| Refusal::invalid(e.to_string()))?;
                     bus.diff_drives(drive, second, &mut |_, _| {})
                 }
                 Err(_) => bus.diff_file(drive, &other, "the query's payload", &mut |_, _| {}),
@@ -199,11 +204,14 @@ fn restore<'a>(
     name: &'a str,
     drive: Address,
     query: &Query,
-) -> Result<RestoreReply<'a>, String> {
+) -> Result<RestoreReply<'a>, Refusal> {
     let key = query.key_expr().as_str();
-    let failed = |e: ParamError| format!("drive {drive}: {e}");
-    let text = text_of(query)?
-        .ok_or_else(|| format!("{key}: send the backup file (its TOML) as the payload"))?;
+    let failed = |e: ParamError| Refusal::new(e.kind(), format!("drive {drive}: {e}"));
+    let text = text_of(query)?.ok_or_else(|| {
+        Refusal::invalid(format!(
+            "{key}: send the backup file (its TOML) as the payload"
+        ))
+    })?;
     let catalogue = settings_catalogue(drive, bus.family(drive)).map_err(failed)?;
     let loaded =
         BackupFile::parse(&text, "the query's payload", catalogue).map_err(|e| failed(e.into()))?;
@@ -225,11 +233,17 @@ fn restore<'a>(
             &mut |_| {},
         )
         .map_err(|e| match e {
-            ParamError::Guarded { params, why } => format!(
-                "drive {drive}: the backup changes {params}, which can take the drive \
-                 away from ussd ({why}); nothing was written: a guarded parameter is \
-                 written on the machine's own host, deliberately (ussctl param restore \
-                 --unsafe), never from across the network"
+            ParamError::Guarded {
+                ref params,
+                ref why,
+            } => Refusal::new(
+                e.kind(),
+                format!(
+                    "drive {drive}: the backup changes {params}, which can take the drive \
+                     away from ussd ({why}); nothing was written: a guarded parameter is \
+                     written on the machine's own host, deliberately (ussctl param restore \
+                     --unsafe), never from across the network"
+                ),
             ),
             e => failed(e),
         })?;
@@ -259,14 +273,14 @@ fn restore<'a>(
 
 /// A restore or copy of a drive this bridge holds for a remote controller, asked by another
 /// peer than that controller's verified name: refused.
-fn held_by_another(held: &Held, peer: &Peer, drive: Address) -> Result<(), String> {
+fn held_by_another(held: &Held, peer: &Peer, drive: Address) -> Result<(), Refusal> {
     match held.held_from(drive, peer) {
-        Some(holder) => Err(format!(
+        Some(holder) => Err(Refusal::refused(format!(
             "drive {drive}: the drive runs under remote control by {:?} through this bridge: \
              commissioning from the network is refused until it releases the drive, but from \
              that controller's own certificate; nothing was done",
             holder.from
-        )),
+        ))),
         None => Ok(()),
     }
 }
@@ -295,12 +309,14 @@ fn diff_reply<'a>(bus: &'a str, drive: Address, diff: &Diff) -> DiffReply<'a> {
 /// A payload as JSON, for any of the replies.
 mod erased {
     pub trait Json {
-        fn json(&self) -> Result<String, String>;
+        fn json(&self) -> Result<String, crate::refusal::Refusal>;
     }
 
     impl<T: serde::Serialize> Json for T {
-        fn json(&self) -> Result<String, String> {
-            serde_json::to_string(self).map_err(|e| e.to_string())
+        fn json(&self) -> Result<String, crate::refusal::Refusal> {
+            serde_json::to_string(self).map_err(|e| {
+                crate::refusal::Refusal::new(uss_client::ErrorKind::Internal, e.to_string())
+            })
         }
     }
 }
@@ -337,7 +353,7 @@ pub fn serve(
                     eprintln!("uss-zenoh: reply to {}: {e}", query.key_expr());
                 }
             }
-            Err(text) => reply(query, Err(text)),
+            Err(refusal) => reply(query, Err(refusal)),
         },
     );
 }

@@ -31,6 +31,7 @@ use crate::gate::{Gate, Peer};
 use crate::keys::{Keys, StopTarget};
 use crate::payload::{ControlReport, Out, SampleError, StopReply, unix_ns};
 use crate::policy::Right;
+use crate::refusal::Refusal;
 use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use std::collections::HashMap;
@@ -38,7 +39,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use uss_client::{
-    Address, Bus, ClientError, ControlOptions, Controller, DriveWatch, PzdInput, StopCommand,
+    Address, Bus, ClientError, ControlOptions, Controller, DriveWatch, ErrorKind, PzdInput,
+    StopCommand,
 };
 use zenoh::bytes::Encoding;
 use zenoh::handlers::FifoChannelHandler;
@@ -77,14 +79,14 @@ pub const CONTROL_REFUSED: &str =
     "remote control is refused: this uss-zenoh runs without --allow-control";
 
 /// What a stop query's payload asks for.
-fn stop_command(payload: Option<&str>) -> Result<StopCommand, String> {
+fn stop_command(payload: Option<&str>) -> Result<StopCommand, Refusal> {
     match payload.map(str::trim).unwrap_or_default() {
         "" | "off1" | "OFF1" => Ok(StopCommand::Off1),
         "off2" | "OFF2" => Ok(StopCommand::Off2),
         "off3" | "OFF3" => Ok(StopCommand::Off3),
-        other => Err(format!(
+        other => Err(Refusal::invalid(format!(
             "{other:?} is not a stop command: send off1 (ramp down, the default), off2 (coast) or off3 (quick stop)"
-        )),
+        ))),
     }
 }
 
@@ -94,16 +96,20 @@ fn stop_command(payload: Option<&str>) -> Result<StopCommand, String> {
 type Sent = (StopCommand, StopTarget, Vec<Address>, u64);
 
 /// Sends the stop a query asks for, or says why not.
-fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent, String> {
+fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent, Refusal> {
     let key = query.key_expr().as_str();
-    let (name, keys) = keys.sender(key).map_err(|e| e.to_string())?;
+    let (name, keys) = keys
+        .sender(key)
+        .map_err(|e| Refusal::invalid(e.to_string()))?;
     let peer = gate.peer(name);
     let drives = if crate::keys::has_wildcards(key) {
         bus.drives()
     } else {
         Vec::new()
     };
-    let target = keys.stops_named(key, &drives).map_err(|e| e.to_string())?;
+    let target = keys
+        .stops_named(key, &drives)
+        .map_err(|e| Refusal::invalid(e.to_string()))?;
     match &target {
         StopTarget::Bus(_) => gate.check(&peer, Right::Stop, None)?,
         StopTarget::Drives(named) => {
@@ -116,19 +122,19 @@ fn send_stop(bus: &Bus, keys: &Keys, gate: &Gate, query: &Query) -> Result<Sent,
         .payload()
         .map(|p| p.try_to_string().map(std::borrow::Cow::into_owned))
         .transpose()
-        .map_err(|_| "the stop command is not text: send off1, off2 or off3".to_owned())?;
+        .map_err(|_| Refusal::invalid("the stop command is not text: send off1, off2 or off3"))?;
     let command = stop_command(payload.as_deref())?;
     let sent_ns = uss_client::monotonic_ns();
     let drives = match &target {
         StopTarget::Drives(named) => {
             let mut sent = Vec::new();
             for (drive, _) in named {
-                bus.stop_drive(*drive, command).map_err(|e| e.to_string())?;
+                bus.stop_drive(*drive, command).map_err(Refusal::from)?;
                 sent.push(*drive);
             }
             sent
         }
-        StopTarget::Bus(_) => bus.stop_all(command).map_err(|e| e.to_string())?,
+        StopTarget::Bus(_) => bus.stop_all(command).map_err(Refusal::from)?,
     };
     Ok((command, target, drives, sent_ns))
 }
@@ -195,7 +201,10 @@ pub fn serve_stops(
     gate: &Gate,
     stop_flag: &Arc<AtomicBool>,
 ) {
-    let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
+    let mut bus: Result<Bus, Refusal> = Err(Refusal::new(
+        ErrorKind::NotRunning,
+        format!("ussd is not running on {name}"),
+    ));
     let confirming = Arc::new(std::sync::atomic::AtomicUsize::new(0));
     while !stop_flag.load(Ordering::Relaxed) {
         let query = match queryable.recv_timeout(Duration::from_millis(100)) {
@@ -204,7 +213,7 @@ pub fn serve_stops(
             Err(_) => break,
         };
         if bus.is_err() {
-            bus = Bus::open_as(name, "uss-zenoh-stops").map_err(|e| e.to_string());
+            bus = Bus::open_as(name, "uss-zenoh-stops").map_err(Refusal::from);
         }
         let sent = bus
             .as_ref()
@@ -240,7 +249,7 @@ pub fn serve_stops(
                     eprintln!("uss-zenoh: cannot start a thread for a stop's reply: {e}");
                 }
             }
-            Err(text) => crate::params::reply(&query, Err(text)),
+            Err(refusal) => crate::params::reply(&query, Err(refusal)),
         }
     }
 }
@@ -405,7 +414,10 @@ impl Dispatcher<'_> {
             self.gate.count(&peer, Right::Control, CONTROL_REFUSED);
             return Err(CONTROL_REFUSED.to_owned());
         }
-        self.gate.check(&peer, Right::Control, Some(drive))?;
+        // A control report carries the text (the remote controller's report says why).
+        self.gate
+            .check(&peer, Right::Control, Some(drive))
+            .map_err(|r| r.text)?;
         if self.bus.is_none() && Instant::now() >= self.next_open {
             self.next_open = Instant::now() + Duration::from_millis(250);
             self.bus = Bus::open_as(self.name, "uss-zenoh-control").ok();

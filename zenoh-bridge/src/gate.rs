@@ -88,7 +88,12 @@ impl Gate {
     /// Whether `peer` may do `right` on `drive` (`None`: the whole bus); without a policy, every
     /// authenticated peer may (the bridge's flags decide). A refusal is counted and logged,
     /// and its text names the right.
-    pub fn check(&self, peer: &Peer, right: Right, drive: Option<Address>) -> Result<(), String> {
+    pub fn check(
+        &self,
+        peer: &Peer,
+        right: Right,
+        drive: Option<Address>,
+    ) -> Result<(), crate::refusal::Refusal> {
         let Some((policy, _)) = &self.policy else {
             return Ok(());
         };
@@ -113,7 +118,7 @@ impl Gate {
             }
         );
         self.count(peer, right, &text);
-        Err(text)
+        Err(crate::refusal::Refusal::refused(text))
     }
 
     /// Counts a refusal of `right` to `peer` and logs it (at most every [`LOG_EVERY`] per peer
@@ -177,7 +182,8 @@ mod tests {
         );
         let no = gate
             .check(&ctl, Right::Control, Address::new(2).ok())
-            .unwrap_err();
+            .unwrap_err()
+            .text;
         assert!(
             no.contains("\"ctl\" (certificate) has not the right `control` on drive 2 of line1"),
             "{no}"
@@ -191,14 +197,16 @@ mod tests {
         );
         let no = gate
             .check(&viewer, Right::Write, Address::new(2).ok())
-            .unwrap_err();
+            .unwrap_err()
+            .text;
         assert!(
             no.contains("(a name nothing vouches for)") && no.contains("`write`"),
             "{no}"
         );
         let no = gate
             .check(&gate.peer(None), Right::Control, None)
-            .unwrap_err();
+            .unwrap_err()
+            .text;
         assert!(
             no.contains("a peer that did not name itself") && no.contains("every drive of line1"),
             "{no}"

@@ -13,6 +13,7 @@ mod params;
 mod payload;
 mod policy;
 mod publish;
+mod refusal;
 mod security;
 mod text;
 

@@ -12,6 +12,7 @@ use crate::gate::{Gate, Peer};
 use crate::keys::{Keys, ParamKey};
 use crate::payload::ParamReply;
 use crate::policy::Right;
+use crate::refusal::Refusal;
 use core::time::Duration;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -23,27 +24,29 @@ use zenoh::{Session, Wait};
 /// What a write query is refused with while the bridge does not allow writes.
 pub const WRITES_REFUSED: &str = "writes are refused: this uss-zenoh runs without --allow-writes";
 
-/// One reply: its concrete key, and the JSON of the value or the error text.
-type Answer = (String, Result<String, String>);
+/// One reply: its concrete key, and the JSON of the value or why not.
+type Answer = (String, Result<String, Refusal>);
 
 /// The answers to one query: for each parameter it names (one, or with wildcards every drive of
 /// the bus its key intersects), the concrete key and the JSON of the value or the error text;
 /// or why it names none.
 fn answers(
-    bus: Result<&Bus, &String>,
+    bus: Result<&Bus, &Refusal>,
     keys: &Keys,
     bus_name: &str,
     query: &Query,
     rules: Rules<'_>,
     which: ParamKey,
-) -> Result<Vec<Answer>, String> {
+) -> Result<Vec<Answer>, Refusal> {
     let key = query.key_expr().as_str();
     if which == ParamKey::Write && query.payload().is_none() {
-        return Err(format!(
+        return Err(Refusal::invalid(format!(
             "{key}: a query on .../set/<P> writes: send the value as its payload (e.g. 45.0)"
-        ));
+        )));
     }
-    let (name, keys) = keys.sender(key).map_err(|e| e.to_string())?;
+    let (name, keys) = keys
+        .sender(key)
+        .map_err(|e| Refusal::invalid(e.to_string()))?;
     let peer = rules.gate.peer(name);
     let drives = match (bus, crate::keys::has_wildcards(key)) {
         (Ok(b), true) => b.drives(),
@@ -51,12 +54,12 @@ fn answers(
     };
     let named = keys
         .params_named(key, which, &drives)
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| Refusal::invalid(e.to_string()))?;
     if named.len() > 1 && query.payload().is_some() {
-        return Err(format!(
+        return Err(Refusal::invalid(format!(
             "{key}: a write names one drive and one parameter exactly (this key names {})",
             named.len()
-        ));
+        )));
     }
     Ok(named
         .into_iter()
@@ -67,22 +70,22 @@ fn answers(
         .collect())
 }
 
-/// The answer for one drive and parameter: the JSON of the value, or the error text.
+/// The answer for one drive and parameter: the JSON of the value, or why not.
 fn answer(
-    bus: Result<&Bus, &String>,
+    bus: Result<&Bus, &Refusal>,
     name: &str,
     query: &Query,
     rules: Rules<'_>,
     peer: &Peer,
     drive: Address,
     param: uss_client::uss_protocol::ParamRef,
-) -> Result<String, String> {
+) -> Result<String, Refusal> {
     let payload = query
         .payload()
         .map(|p| {
             p.try_to_string()
                 .map(|s| s.trim().to_owned())
-                .map_err(|_| "the value to write is not text: send e.g. 45.0".to_owned())
+                .map_err(|_| Refusal::invalid("the value to write is not text: send e.g. 45.0"))
         })
         .transpose()?
         .filter(|s| !s.is_empty());
@@ -93,15 +96,18 @@ fn answer(
     };
     if right == Right::Write && !rules.allow_writes {
         rules.gate.count(peer, right, WRITES_REFUSED);
-        return Err(WRITES_REFUSED.to_owned());
+        return Err(Refusal::refused(WRITES_REFUSED));
     }
     rules.gate.check(peer, right, Some(drive))?;
     let bus = bus.map_err(Clone::clone)?;
     // The texts of `ussctl param read/write` for the same failures.
-    let failed = |e: ParamError| match (&e, bus.refusal_hint(drive, param, &e)) {
-        (ParamError::Value { .. }, _) => format!("drive {drive} {e}"),
-        (_, Some(hint)) => format!("drive {drive} {param}: {e}: {hint}"),
-        (_, None) => format!("drive {drive} {param}: {e}"),
+    let failed = |e: ParamError| {
+        let text = match (&e, bus.refusal_hint(drive, param, &e)) {
+            (ParamError::Value { .. }, _) => format!("drive {drive} {e}"),
+            (_, Some(hint)) => format!("drive {drive} {param}: {e}: {hint}"),
+            (_, None) => format!("drive {drive} {param}: {e}"),
+        };
+        Refusal::new(e.kind(), text)
     };
     let value = match payload {
         None => ParamReply::new(
@@ -111,13 +117,13 @@ fn answer(
             None,
         ),
         Some(_) if let Some(holder) = rules.held.held_from(drive, peer) => {
-            return Err(format!(
+            return Err(Refusal::refused(format!(
                 "drive {drive} {param}: the drive runs under remote control by {:?} through \
                  this bridge: parameter writes from the network are refused until it releases \
                  the drive, but from that controller's own certificate (named in the bridge's \
                  access policy, sending under .../as/<its name>/...); nothing was written",
                 holder.from
-            ));
+            )));
         }
         Some(text) => {
             let options = WriteOptions {
@@ -136,7 +142,8 @@ fn answer(
             ParamReply::new(name, drive.get(), &written, Some(options.eeprom))
         }
     };
-    serde_json::to_string(&value).map_err(|e| e.to_string())
+    serde_json::to_string(&value)
+        .map_err(|e| Refusal::new(uss_client::ErrorKind::Internal, e.to_string()))
 }
 
 /// What the parameter queries of a bus may do.
@@ -180,7 +187,7 @@ pub fn serve(session: &Session, name: &str, keys: &Keys, rules: Rules<'_>, stop:
                         reply_as(query, &key, answer);
                     }
                 }
-                Err(text) => reply(query, Err(text)),
+                Err(refusal) => reply(query, Err(refusal)),
             },
         );
     }
@@ -213,11 +220,16 @@ impl<T: Copy + Send + Sync + 'static> Queued<T> {
                     Ok(()) => {}
                     Err(crossbeam_channel::TrySendError::Full((q, _))) => reply(
                         &q,
-                        Err(format!("the bridge is {queue} {what} behind: ask again")),
+                        Err(Refusal::refused(format!(
+                            "the bridge is {queue} {what} behind: ask again"
+                        ))),
                     ),
                     Err(crossbeam_channel::TrySendError::Disconnected((q, _))) => reply(
                         &q,
-                        Err("the bridge is stopping: nothing was done".to_owned()),
+                        Err(Refusal::new(
+                            uss_client::ErrorKind::UssdStopped,
+                            "the bridge is stopping: nothing was done",
+                        )),
                     ),
                 })
                 .wait();
@@ -242,9 +254,12 @@ impl<T: Copy + Send + Sync + 'static> Queued<T> {
         name: &str,
         node: &str,
         stop: &Arc<AtomicBool>,
-        mut answer: impl FnMut(Result<&Bus, &String>, &Query, T),
+        mut answer: impl FnMut(Result<&Bus, &Refusal>, &Query, T),
     ) {
-        let mut bus: Result<Bus, String> = Err(format!("ussd is not running on {name}"));
+        let mut bus: Result<Bus, Refusal> = Err(Refusal::new(
+            uss_client::ErrorKind::NotRunning,
+            format!("ussd is not running on {name}"),
+        ));
         while !stop.load(Ordering::Relaxed) {
             let (query, tag) = match self.rx.recv_timeout(Duration::from_millis(100)) {
                 Ok(q) => q,
@@ -252,27 +267,31 @@ impl<T: Copy + Send + Sync + 'static> Queued<T> {
                 Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
             };
             if bus.is_err() {
-                bus = Bus::open_as(name, node).map_err(|e| e.to_string());
+                bus = Bus::open_as(name, node).map_err(Refusal::from);
             }
             answer(bus.as_ref(), &query, tag);
         }
     }
 }
 
-/// Ends `query` with its one answer: the JSON as a reply, or the text as an error reply; a reply
-/// that cannot be sent is reported on stderr.
-pub fn reply(query: &Query, answer: Result<String, String>) {
+/// Ends `query` with its one answer: the JSON as a reply, or the refusal as an error reply (its
+/// JSON: text, kind and code, [`Refusal::json`]); a reply that cannot be sent is reported on
+/// stderr.
+pub fn reply(query: &Query, answer: Result<String, Refusal>) {
     reply_as(query, query.key_expr().as_str(), answer);
 }
 
 /// One answer to `query` under the concrete `key` (the query's own when it has no wildcards).
-pub fn reply_as(query: &Query, key: &str, answer: Result<String, String>) {
+pub fn reply_as(query: &Query, key: &str, answer: Result<String, Refusal>) {
     let sent = match answer {
         Ok(json) => query
             .reply(key, json)
             .encoding(Encoding::APPLICATION_JSON)
             .wait(),
-        Err(text) => query.reply_err(text).wait(),
+        Err(refusal) => query
+            .reply_err(refusal.json())
+            .encoding(Encoding::APPLICATION_JSON)
+            .wait(),
     };
     if let Err(e) = sent {
         eprintln!("uss-zenoh: reply to {}: {e}", query.key_expr());

@@ -528,6 +528,19 @@ pub struct ControlReport<'a> {
     pub published_unix_ns: u64,
 }
 
+/// The error reply to a query the bridge could not carry out: its words (as `ussctl` says
+/// them) and the kind of failure from the error table every front-end speaks: the C status's
+/// snake-case name and number, which the Python exception of the same kind is raised for.
+#[derive(Debug, Serialize, schemars::JsonSchema)]
+pub struct ErrorReply<'a> {
+    pub v: u32,
+    pub error: &'a str,
+    /// `refused`, `invalid_argument`, `not_running`, `unknown_drive`, `drive_error`, `timeout`,
+    /// ... (`uss_client::kinds::Status`).
+    pub kind: &'static str,
+    pub code: u8,
+}
+
 /// The reply to a stop query, per drive: the command, and the image that shows it went out, or
 /// why that was not seen in time (the command was sent all the same).
 #[derive(Debug, Serialize, schemars::JsonSchema)]
@@ -708,6 +721,10 @@ mod tests {
                     "A reply on <prefix>/<bus>/drive/<addr>/stop (an array of them on <prefix>/<bus>/stop)",
                     true,
                 ),
+            ),
+            (
+                "error",
+                schema::<ErrorReply<'_>>("The error reply to any query of uss-zenoh", true),
             ),
             (
                 "out",

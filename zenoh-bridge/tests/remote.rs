@@ -288,7 +288,7 @@ fn a_remote_client_reads_inputs_and_parameters_and_sees_ussd_go() {
     let (ok, _, err) = ns.call(&["get", &key("drive/1/param/P1082"), "--value", "fast"]);
     assert!(!ok);
     assert!(
-        err.contains("drive 1 P1082: \"fast\" is not a number"),
+        err.contains("drive 1 P1082: \"fast\" is not a number") && err.contains("[value]"),
         "{err}"
     );
 
@@ -504,13 +504,16 @@ fn parameters_read_and_writes_refused(ns: &Netns, key: &dyn Fn(&str) -> String) 
     // A write is refused by default, with a reply that says why; a bad key says why too.
     let (ok, _, err) = ns.call(&["get", &key("drive/1/param/P1082"), "--value", "45"]);
     assert!(!ok);
+    // Each error reply says its kind from the error table (the C status, the Python
+    // exception): a refusal, an unknown drive.
     assert!(
-        err.contains("writes are refused: this uss-zenoh runs without --allow-writes"),
+        err.contains("writes are refused: this uss-zenoh runs without --allow-writes [refused]"),
         "{err}"
     );
     let (ok, _, err) = ns.call(&["get", &key("drive/7/param/P1082")]);
     assert!(!ok);
     assert!(err.contains("drive 7 P1082:"), "{err}");
+    assert!(err.contains("[unknown_drive]"), "{err}");
 }
 
 /// Waits until the drive's image satisfies `done`, at most `timeout`; the image and how long it

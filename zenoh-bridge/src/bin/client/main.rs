@@ -337,7 +337,7 @@ fn print_replies(
             ))?,
             Err(e) => {
                 let said = e.payload().try_to_string().unwrap_or_default();
-                return Err(Failure::Replied(said.into_owned()));
+                return Err(Failure::Replied(refusal_text(&said)));
             }
         }
     }
@@ -622,6 +622,20 @@ fn command(session: &zenoh::Session, cli: &Cli, name: Option<&str>) -> Result<()
         Command::Man => {}
     }
     Ok(())
+}
+
+/// An error reply in words: the bridge's text and its kind from the error table
+/// (`{"error": ..., "kind": ..., "code": ...}`: `drive 7 P1082: ... [unknown_drive]`); a reply
+/// of another form (an older bridge's plain text) as it is.
+fn refusal_text(said: &str) -> String {
+    match serde_json::from_str::<serde_json::Value>(said) {
+        Ok(v) if v["error"].is_string() => format!(
+            "{} [{}]",
+            v["error"].as_str().unwrap_or_default(),
+            v["kind"].as_str().unwrap_or("unknown")
+        ),
+        _ => said.to_owned(),
+    }
 }
 
 fn main() -> ExitCode {
