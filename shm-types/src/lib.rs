@@ -71,8 +71,7 @@ pub use params::{
     REQUEST_PUT_BACK, REQUEST_UNSAFE, Refusal, RequestError, Storage, TaskCode,
 };
 pub use pzd::{
-    EXTRA_PZD_WORDS, MAX_PZD_WORDS, MIN_HANDSHAKE_NS, OUTPUT_RELEASE, OutputSample, PzdInput,
-    PzdOutput,
+    EXTRA_PZD_WORDS, MAX_PZD_WORDS, MIN_HANDSHAKE_NS, OUTPUT_RELEASE, PzdInput, PzdOutput,
 };
 // The rules a controller follows live below the contract (`uss_control::session`); they read
 // the contract's input image ([`PzdInput`] is a `DriveImage`) and make samples it carries.

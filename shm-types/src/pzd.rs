@@ -75,18 +75,6 @@ pub struct PzdOutput {
     pub latch_id: u64,
 }
 
-/// What a valid [`PzdOutput`] asks for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum OutputSample {
-    /// Send these words (the first `count` of 16).
-    Words {
-        words: [u16; MAX_PZD_WORDS],
-        count: usize,
-    },
-    /// The controller hands the drive back.
-    Release,
-}
-
 /// The drive's input image, on `uss/<bus>/drive/<addr>/in`, written by ussd after every poll
 /// of the drive, good or failed.
 #[repr(C)]
@@ -288,11 +276,8 @@ impl PzdOutput {
     /// before it publishes. Refused: another layout version, undefined flags, a word count
     /// other than the drive's, and (with PZD) STW1 without bit 10, which the drive would ignore
     /// together with any stop command in it (USS.md section 7). A release needs no words.
-    pub fn validate(&self, pzd_words: usize) -> Result<OutputSample, Rejection> {
-        Ok(match self.received().check(pzd_words)? {
-            Body::Words(Words { words, count }) => OutputSample::Words { words, count },
-            Body::Release => OutputSample::Release,
-        })
+    pub fn validate(&self, pzd_words: usize) -> Result<Body, Rejection> {
+        self.received().check(pzd_words)
     }
 }
 
@@ -524,14 +509,11 @@ mod tests {
     #[test]
     fn a_sample_for_the_drive_passes_validation_with_its_words() {
         let s = sample(&[0x047F, 0x2000]).validate(2).unwrap();
-        let OutputSample::Words { words, count } = s else {
+        let Body::Words(words) = s else {
             panic!("{s:?}")
         };
-        assert_eq!(&words[..count], &[0x047F, 0x2000]);
-        assert_eq!(
-            PzdOutput::release(9, 0, 7).validate(2),
-            Ok(OutputSample::Release)
-        );
+        assert_eq!(words.as_slice(), &[0x047F, 0x2000]);
+        assert_eq!(PzdOutput::release(9, 0, 7).validate(2), Ok(Body::Release));
         assert!(sample(&[]).validate(0).is_ok(), "a drive without PZD");
     }
 

@@ -57,12 +57,6 @@ impl From<ClientError> for Refusal {
     }
 }
 
-impl From<&ClientError> for Refusal {
-    fn from(e: &ClientError) -> Self {
-        Self::new(e.kind(), e.to_string())
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
