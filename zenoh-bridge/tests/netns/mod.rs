@@ -265,7 +265,16 @@ impl Netns {
     }
 
     /// The command line of `uss-zenoh-client` in the namespace, connected to `endpoint`.
+    ///
+    /// A `run` is made two clock ticks after whatever came before it: its re-arm is asked at
+    /// its process's start, which the kernel keeps rounded down to its tick (10 ms,
+    /// `process_start_ns`), so a run started within a tick of a latch (the release of the run
+    /// before it, an operator's stop) cannot show that it came after it, and is refused as the
+    /// rules want (a re-arm clears no latch that may have begun after it was asked for).
     pub fn command_of(&self, endpoint: &str, args: &[&str]) -> Command {
+        if args.first() == Some(&"run") {
+            std::thread::sleep(std::time::Duration::from_millis(30));
+        }
         let mut command = Command::new("ip");
         command
             .args(["netns", "exec", &self.name])
