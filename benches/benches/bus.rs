@@ -32,11 +32,11 @@ use uss_benches::{Parts, engine_config, percentiles_us};
 use uss_drive_sim::{DriveConfig, SimBus, SimTransport, VirtualWire};
 use uss_engine::clock::SPIN_BEFORE_DEADLINE;
 use uss_engine::control::Control;
-use uss_engine::rt::{RtRequest, apply_to_current_thread};
 use uss_engine::stats::{FreshTiming, Published};
 use uss_engine::{DriveSetup, Engine, Job, MonotonicClock, Stats, VirtualClock};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, ParamTask, Pnu, Timing};
+use uss_realtime::{RtRequest, apply_to_current_thread};
 
 /// The S7-1200 library's documented minimum call interval per exchange at 19200 baud (USS.md
 /// section 8).

@@ -7,7 +7,7 @@ use super::{
     Drive, DriveCells, DriveSetup, Duration, Engine, EngineConfig, EngineHandle, Event, Framer,
     FramerConfig, Gate, GateSetup, LOOK_STEP, LineStatus, LocalBridge, MAX_TELEGRAM_BYTES, Mutex,
     OWN_READS, Overrides, PeriodSetup, Periods, Published, Receiver, Shared, Stats, Transport,
-    bounded, capture, requesters,
+    bounded, capture,
 };
 
 /// Builds the circulating list: each drive `weight` times, spread over the cycle (USS.md
@@ -149,7 +149,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             line_down: AtomicBool::new(false),
             reopen_attempts: AtomicU32::new(0),
             progress: AtomicU64::new(0),
-            requesters: requesters::Requesters::default(),
             mailbox_depth: cfg.mailbox_depth,
         });
         // Clients' jobs never exceed `capacity` (each drive's mailbox depth), so neither

@@ -189,19 +189,6 @@ impl EngineHandle {
         Ok(())
     }
 
-    /// Watches the process of `pidfd` ([`crate::requesters::pidfd_of`]) for the jobs
-    /// submitted with the returned requester; `None` when the table is full. Keep the fd open
-    /// until [`EngineHandle::forget_requester`], and call that only when none of its jobs is
-    /// left (every one has its result).
-    pub fn watch_requester(&self, pidfd: std::os::fd::BorrowedFd<'_>) -> Option<Requester> {
-        self.shared.requesters.watch(pidfd)
-    }
-
-    /// Frees a requester's slot (see [`EngineHandle::watch_requester`]).
-    pub fn forget_requester(&self, requester: Requester) {
-        self.shared.requesters.forget(requester);
-    }
-
     /// Cancels the jobs with ids in `ids` that have not reached the wire yet (their client
     /// died): each ends with [`uss_shm_types::PathError::Cancelled`] at the bus thread's next step. `false` when
     /// the bus thread's queue of cancellations is full (ask again later).

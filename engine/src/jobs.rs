@@ -16,19 +16,25 @@ pub struct Job {
     pub task: ParamTask,
 }
 
-/// Who asked for a job, as the bus thread can check it: a slot of the engine's table of
-/// requesters' liveness ([`crate::EngineHandle::watch_requester`]), or none (ussd's own jobs,
-/// in-process clients, a requester that could not be watched).
+/// Who asked for a job, as the bus thread asks its bridge about it
+/// ([`crate::Bridge::requester_ended`]): a number the bridge gave out (the daemon's slot of a
+/// watched process), or none (ussd's own jobs, in-process clients, a requester that could not
+/// be watched).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct Requester(pub(crate) u16);
+pub struct Requester(u16);
 
 impl Requester {
     /// Nobody the bus thread can check.
     pub const NONE: Self = Self(0);
 
-    /// The slot in the engine's table, if any.
-    pub(crate) fn slot(self) -> Option<usize> {
-        usize::from(self.0).checked_sub(1)
+    /// The requester the bridge knows by `number` (0 is [`Requester::NONE`]).
+    pub const fn new(number: u16) -> Self {
+        Self(number)
+    }
+
+    /// Its number: 0 for [`Requester::NONE`].
+    pub const fn number(self) -> u16 {
+        self.0
     }
 }
 

@@ -1,8 +1,9 @@
 //! The bus engine: the circulating list on one line (USS.md sections 4 to 6), with no I/O of its
 //! own. Its seams are two traits it owns: [`Transport`] (the bytes: `uss-serial`'s serial line,
 //! the simulator's virtual wire in `uss-drive-sim`) and [`Clock`] (monotonic, or virtual for
-//! tests and benchmarks). The daemon (`uss-master`) runs engines in real-time threads
-//! ([`rt`]) and serves their clients.
+//! tests and benchmarks), and the [`Bridge`] to other processes (their samples, their images,
+//! whether the process behind a parameter job still lives). The daemon (`uss-master`) runs
+//! engines in real-time threads (`uss-realtime`) and serves their clients.
 //!
 //! One [`Engine`] owns one [`Transport`] and runs in one thread. Each step polls the next drive of
 //! the circulating list: it waits out the start pause, flushes stale input, sends the drive's
@@ -26,8 +27,6 @@ pub mod monitoring;
 pub mod period;
 pub mod picture;
 pub mod reference;
-pub mod requesters;
-pub mod rt;
 pub mod stats;
 pub mod transport;
 
@@ -288,6 +287,14 @@ pub trait Bridge {
     fn cycle_completed(&mut self);
     /// After a parameter job's result was handed to the parameter bridge: wake it.
     fn job_done(&mut self);
+    /// Before a parameter job of `requester` leaves its drive's mailbox: whether the process
+    /// that asked for it has ended (its work dies with it). Called on the bus thread: it must
+    /// neither block nor allocate. A bridge that carries no other process's jobs (or cannot
+    /// tell) says no: such jobs run, and their results find nobody.
+    fn requester_ended(&self, requester: Requester) -> bool {
+        let _ = requester;
+        false
+    }
 }
 
 /// Process images in this process only: samples come from [`EngineHandle::set_output`] and
@@ -388,8 +395,6 @@ struct Shared {
     /// Clients' jobs each drive's mailbox takes ([`EngineConfig::mailbox_depth`]); it holds
     /// [`OWN_READS`] more for ussd's own reads.
     mailbox_depth: usize,
-    /// The processes behind parameter jobs, checked before each job leaves its mailbox.
-    requesters: requesters::Requesters,
 }
 
 impl Shared {
@@ -623,11 +628,14 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// Ends the jobs at the front of drive `slot`'s mailbox whose requester died, before one
     /// of them leaves it: a dead client's work dies with it, whenever it died.
     fn drop_jobs_of_the_dead(&mut self, slot: usize) {
-        let shared = Arc::clone(&self.shared);
-        while let Some(r) = self.drives[slot]
-            .mailbox
-            .drop_unsent_if(|who| shared.requesters.has_ended(who))
-        {
+        loop {
+            let bridge = &self.bridge;
+            let Some(r) = self.drives[slot]
+                .mailbox
+                .drop_unsent_if(|who| bridge.requester_ended(who))
+            else {
+                break;
+            };
             self.bus.jobs_cancelled += 1;
             self.deliver(r);
         }

@@ -38,7 +38,6 @@ use uss_client::{
 use uss_drive_sim::SimTransport;
 use uss_engine::control::ControllerId;
 use uss_engine::image::DriveImages;
-use uss_engine::rt::{RtRequest, apply_to_current_thread};
 use uss_engine::{
     Bridge, Clock, DriveStatus, Engine, EngineHandle, MonotonicClock, Rx, Stats, Transport,
     TransportError,
@@ -47,6 +46,7 @@ use uss_master::config::Config;
 use uss_master::daemon::ipc::{IpcNode, RtBridge};
 use uss_master::daemon::runtime;
 use uss_protocol::{Layout, Telegram};
+use uss_realtime::{RtRequest, apply_to_current_thread};
 use uss_shm_types::names::EVENT_ID_MAX;
 use uss_shm_types::service::Ipc;
 use uss_shm_types::{Address, BlackboardKey, PzdOutput};
@@ -388,7 +388,7 @@ fn failures(stats: &Stats) -> String {
     )
 }
 
-fn mode(report: &uss_engine::rt::RtReport) -> String {
+fn mode(report: &uss_realtime::RtReport) -> String {
     match (report.priority, report.cpu) {
         (Some(p), Some(cpu)) => format!("SCHED_FIFO {p} on CPU {cpu}"),
         _ => format!("best-effort: {}", report.summary()),

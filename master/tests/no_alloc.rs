@@ -10,17 +10,48 @@ mod common;
 use common::allocations;
 
 use crossbeam_channel::Receiver;
+use std::sync::Arc;
 use std::time::Duration;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, SimTransport, VirtualWire};
-use uss_engine::{DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, VirtualClock};
+use uss_engine::control::ControllerId;
+use uss_engine::image::DriveImages;
+use uss_engine::jobs::Requester;
+use uss_engine::stats::DriveStatus;
+use uss_engine::{
+    Bridge, DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, LocalBridge, VirtualClock,
+};
+use uss_master::daemon::ipc::requesters::{Requesters, pidfd_of};
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{Address, Baud, ParamTask, Pnu, Storage, Timing, Value};
 use uss_shm_types::{PzdOutput, StopCommand};
 
-type TestEngine = Engine<SimTransport, VirtualClock>;
+type TestEngine = Engine<SimTransport, VirtualClock, Watching>;
+
+/// The in-process bridge, asking the daemon's table of watched processes whether a job's
+/// requester has ended, as ussd's bus thread does.
+#[derive(Debug, Default)]
+struct Watching(Arc<Requesters>);
+
+impl Bridge for Watching {
+    fn take_sample(
+        &mut self,
+        slot: usize,
+        images: &DriveImages,
+    ) -> Option<(PzdOutput, ControllerId)> {
+        LocalBridge.take_sample(slot, images)
+    }
+    fn after_poll(&mut self, slot: usize, images: &DriveImages, status: &DriveStatus) {
+        LocalBridge.after_poll(slot, images, status);
+    }
+    fn cycle_completed(&mut self) {}
+    fn job_done(&mut self) {}
+    fn requester_ended(&self, requester: Requester) -> bool {
+        self.0.has_ended(requester)
+    }
+}
 
 /// Four drives with every PKW mode, echo, faults on every reply, and drive 4 unplugged for a while.
-fn faulty_bus() -> (TestEngine, EngineHandle, Receiver<Event>) {
+fn faulty_bus() -> (TestEngine, EngineHandle, Receiver<Event>, Arc<Requesters>) {
     let timing = Timing::new(Baud::new(115_200).unwrap());
     let mut bus = SimBus::new(3);
     let mut setups = Vec::new();
@@ -58,7 +89,11 @@ fn faulty_bus() -> (TestEngine, EngineHandle, Receiver<Event>) {
         ..common::engine_config(timing, setups)
     };
     let wire = VirtualWire::new(bus, timing).with_echo(true);
-    Engine::new(config, SimTransport::new(wire), VirtualClock::new())
+    let table = Arc::new(Requesters::default());
+    let bridge = Watching(Arc::clone(&table));
+    let (engine, handle, events) =
+        Engine::with_bridge(config, SimTransport::new(wire), VirtualClock::new(), bridge);
+    (engine, handle, events, table)
 }
 
 /// What the controllers and operators do at poll `i`: every path of the control gate.
@@ -100,7 +135,7 @@ fn control(handle: &EngineHandle, i: usize) {
 
 #[test]
 fn bus_loop_allocates_nothing_per_exchange() {
-    let (mut engine, handle, events) = faulty_bus();
+    let (mut engine, handle, events, requesters) = faulty_bus();
     let tasks = [
         ParamTask::Read {
             pnu: Pnu::from_u16(700),
@@ -123,10 +158,8 @@ fn bus_loop_allocates_nothing_per_exchange() {
     let captured = std::cell::Cell::new(0u64);
     // Every other job names a watched requester (this process, alive): the bus thread checks
     // it before the job leaves the mailbox.
-    let me = uss_engine::requesters::pidfd_of(std::process::id()).unwrap();
-    let requester = handle
-        .watch_requester(std::os::fd::AsFd::as_fd(&me))
-        .unwrap();
+    let me = pidfd_of(std::process::id()).unwrap();
+    let requester = requesters.watch(std::os::fd::AsFd::as_fd(&me)).unwrap();
     let mut step = |count: usize, results: &mut u64, id: &mut u64| {
         for i in 0..count {
             control(&handle, i);

@@ -1,6 +1,6 @@
 //! `ussd --qualify`: whether this machine holds USS's timing, measured as the bus threads would
 //! run. For each bus of the configuration a thread takes that bus's scheduling (its CPU, its
-//! `SCHED_FIFO` priority, memory locked: [`uss_engine::rt::apply_to_current_thread`], as the bus
+//! `SCHED_FIFO` priority, memory locked: [`uss_realtime::apply_to_current_thread`], as the bus
 //! thread does) and wakes every millisecond with an absolute `clock_nanosleep` on
 //! `CLOCK_MONOTONIC`, recording how late each wake-up came: the method of rt-tests'
 //! `cyclictest -m -p PRIO -a CPU -i 1000`, so the figures can be compared with it
@@ -27,8 +27,8 @@ use nix::sys::time::TimeSpec;
 use nix::time::{ClockId, ClockNanosleepFlags, clock_gettime, clock_nanosleep};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use uss_engine::rt::{RtReport, RtRequest, apply_to_current_thread, may_lock_memory};
 use uss_protocol::{Baud, Timing};
+use uss_realtime::{RtReport, RtRequest, apply_to_current_thread, may_lock_memory};
 
 /// How often the measuring thread wakes: cyclictest's default interval (`-i 1000`).
 pub const INTERVAL: Duration = Duration::from_millis(1);

@@ -6,7 +6,7 @@
 //! parameter and line threads spawned first; only then do the bus threads pin, raise their
 //! priority, prefault and lock memory. The housekeeping threads are spawned after that (they
 //! need each bus's real-time report): safe because memory is locked only where no limit applies
-//! (memlock unlimited or `CAP_IPC_LOCK`, [`uss_engine::rt`]), so a later thread or mapping
+//! (memlock unlimited or `CAP_IPC_LOCK`, [`uss_realtime`]), so a later thread or mapping
 //! cannot fail on it.
 
 use crate::config::RxLatencyMs;
@@ -21,12 +21,12 @@ use thiserror::Error;
 #[cfg(feature = "sim")]
 use uss_drive_sim::{BusError, SimBus, SimTransport, VirtualWire};
 use uss_engine::monitoring::{MonitoringSetup, WatchedParam};
-use uss_engine::rt::{RtReport, RtRequest, apply_to_current_thread};
 use uss_engine::{
     DriveSetup, Engine, EngineConfig, EngineHandle, Event, MonotonicClock, Transport,
     TransportError,
 };
 use uss_protocol::Timing;
+use uss_realtime::{RtReport, RtRequest, apply_to_current_thread};
 
 /// Parameter jobs each drive can hold.
 const MAILBOX_DEPTH: usize = 64;

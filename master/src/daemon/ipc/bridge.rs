@@ -4,6 +4,7 @@
 //! `update_with_copy`) and signals exchange and cycle events (`notify`). None of these
 //! allocates (shm-types' pattern tests count it).
 
+use super::requesters::Requesters;
 use super::status::ControlView;
 use super::{IpcError, IpcNode, MAX_CLIENTS, MAX_NODES, Svc, fail, text};
 use iceoryx2::port::notifier::Notifier;
@@ -11,9 +12,11 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::writer::{EntryHandleMut, Writer};
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
+use std::sync::Arc;
 use uss_engine::Bridge;
 use uss_engine::control::ControllerId;
 use uss_engine::image::DriveImages;
+use uss_engine::jobs::Requester;
 use uss_engine::stats::DriveStatus;
 use uss_protocol::Address;
 use uss_shm_types::names;
@@ -89,6 +92,8 @@ pub struct RtBridge {
     /// Wakes the parameter bridge when a job's result is ready ([`names::RESULT_READY`]).
     results: Notifier<Svc>,
     origin_ns: u64,
+    /// The processes behind parameter jobs, as the parameter server watches them.
+    requesters: Arc<Requesters>,
 }
 
 impl RtBridge {
@@ -96,12 +101,14 @@ impl RtBridge {
         drives: Vec<RtDrive>,
         (notifier, results): (Notifier<Svc>, Notifier<Svc>),
         origin_ns: u64,
+        requesters: Arc<Requesters>,
     ) -> Self {
         Self {
             drives,
             notifier,
             results,
             origin_ns,
+            requesters,
         }
     }
 }
@@ -194,5 +201,8 @@ impl Bridge for RtBridge {
 
     fn job_done(&mut self) {
         let _ = self.results.notify();
+    }
+    fn requester_ended(&self, requester: Requester) -> bool {
+        self.requesters.has_ended(requester)
     }
 }

@@ -18,6 +18,7 @@
 //! and moved into them; clients use plain `ipc` services, which interoperate.
 
 mod bridge;
+pub mod requesters;
 mod server;
 mod status;
 mod watches;
@@ -240,27 +241,16 @@ pub fn create(
         drives.push(drive);
         outs.push((address, out));
     }
-    // Clients and the bus thread wake the parameter bridge here.
-    let requests = node
-        .service_builder(&names::requests(&bus))
-        .event()
-        .max_listeners(1)
-        .max_notifiers(MAX_CLIENTS)
-        .max_nodes(MAX_NODES)
-        .create_with_attributes(&attributes)
-        .map_err(|e| fail(&bus, "the request event service")(text(e)))?;
-    // The listener first: a notifier connects to the listeners there are when it is created
-    // (a later listener is connected by the next notify, which allocates: not in the bus thread).
-    let woken = requests
-        .listener_builder()
-        .create()
-        .map_err(|e| fail(&bus, "the request listener")(text(e)))?;
-    let results = requests
-        .notifier_builder()
-        .default_event_id(EventId::new(names::RESULT_READY))
-        .create()
-        .map_err(|e| fail(&bus, "the result notifier")(text(e)))?;
-    let rt = RtBridge::new(drives, (notifier()?, results), as_ns(clock_origin));
+    let (woken, results) = request_events(&node, &bus, &attributes)?;
+    // The processes behind parameter jobs: watched by the parameter server, asked about by the
+    // bus thread before a job of theirs leaves its mailbox.
+    let requesters = std::sync::Arc::new(requesters::Requesters::default());
+    let rt = RtBridge::new(
+        drives,
+        (notifier()?, results),
+        as_ns(clock_origin),
+        std::sync::Arc::clone(&requesters),
+    );
 
     let status = status::create(
         &node,
@@ -270,7 +260,7 @@ pub fn create(
         (notifier()?, heartbeat),
         clock_origin,
     )?;
-    let params = server::create(&node, &bus, &attributes, (outs, woken), setups)?;
+    let params = server::create(&node, &bus, &attributes, (outs, woken), setups, requesters)?;
     Ok(BusIpc {
         instance: bus,
         node,
@@ -278,4 +268,39 @@ pub fn create(
         status,
         params,
     })
+}
+
+/// The event service by which clients and the bus thread wake the parameter bridge: its
+/// listener and the bus thread's result notifier.
+fn request_events(
+    node: &IpcNode,
+    bus: &Instance,
+    attributes: &AttributeSpecifier,
+) -> Result<
+    (
+        iceoryx2::port::listener::Listener<Svc>,
+        iceoryx2::port::notifier::Notifier<Svc>,
+    ),
+    IpcError,
+> {
+    let requests = node
+        .service_builder(&names::requests(bus))
+        .event()
+        .max_listeners(1)
+        .max_notifiers(MAX_CLIENTS)
+        .max_nodes(MAX_NODES)
+        .create_with_attributes(attributes)
+        .map_err(|e| fail(bus, "the request event service")(text(e)))?;
+    // The listener first: a notifier connects to the listeners there are when it is created
+    // (a later listener is connected by the next notify, which allocates: not in the bus thread).
+    let woken = requests
+        .listener_builder()
+        .create()
+        .map_err(|e| fail(bus, "the request listener")(text(e)))?;
+    let results = requests
+        .notifier_builder()
+        .default_event_id(EventId::new(names::RESULT_READY))
+        .create()
+        .map_err(|e| fail(bus, "the result notifier")(text(e)))?;
+    Ok((woken, results))
 }

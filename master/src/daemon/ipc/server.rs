@@ -34,6 +34,7 @@ pub(super) fn create(
     attributes: &AttributeSpecifier,
     (outs, requests): (Vec<(Address, OutService)>, Listener<Svc>),
     setups: &[uss_engine::DriveSetup],
+    requesters: std::sync::Arc<super::requesters::Requesters>,
 ) -> Result<ParamServer, IpcError> {
     let guards = setups
         .iter()
@@ -73,7 +74,7 @@ pub(super) fn create(
         bus: bus.bus.as_str().to_owned(),
         next_id: 1,
         next_dead_check: Instant::now(),
-        watches: super::watches::Watches::default(),
+        watches: super::watches::Watches::new(requesters),
         guards,
     })
 }
@@ -374,7 +375,7 @@ impl ParamServer {
     pub fn serve_once(&mut self, handle: &EngineHandle, wait: Duration) {
         // Results and new requests first: the rest can wait a moment.
         while let Some(r) = handle.recv_result(Duration::ZERO) {
-            self.route(&r, handle);
+            self.route(&r);
         }
         while let Ok(Some(active)) = self.server.receive() {
             self.accept(active, handle);
@@ -433,7 +434,7 @@ impl ParamServer {
         let client = self.identities.param_client_node(active.origin());
         let requester = client.map_or(Requester::NONE, |node| {
             let identities = &self.identities;
-            self.watches.request(node, || identities.pid(&node), handle)
+            self.watches.request(node, || identities.pid(&node))
         });
         // All or nothing: a request is never run in part (its drive's queue too full for all
         // of it, an item the drive cannot take).
@@ -453,7 +454,7 @@ impl ParamServer {
             ));
             self.answered = true;
             if let Some(node) = client {
-                self.watches.answered(node, handle);
+                self.watches.answered(node);
             }
             return;
         }
@@ -737,7 +738,7 @@ impl ParamServer {
         }
     }
 
-    fn route(&mut self, r: &JobResult, handle: &EngineHandle) {
+    fn route(&mut self, r: &JobResult) {
         let id = r.job.id;
         self.put_back_ended(r);
         let Some(at) = self
@@ -786,7 +787,7 @@ impl ParamServer {
             let _ = p.active.send_copy(p.response);
             self.answered = true;
             if let Some(node) = p.client {
-                self.watches.answered(node, handle);
+                self.watches.answered(node);
             }
         }
     }

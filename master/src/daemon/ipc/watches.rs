@@ -1,15 +1,15 @@
 //! The processes behind parameter requests, watched so the bus thread can end a dead client's
-//! jobs before they leave the mailbox (`uss_engine::requesters`): one pidfd per client node,
+//! jobs before they leave the mailbox ([`super::requesters`]): one pidfd per client node,
 //! opened at its first request and kept while it lives (a client that asks again costs no
 //! lookup), closed once it has no request pending and has ended, or when the table is needed
 //! for another client.
 
+use super::requesters::{Requesters, pidfd_of};
 use iceoryx2::identifiers::UniqueNodeId;
 use std::collections::HashMap;
 use std::os::fd::{AsFd, OwnedFd};
-use uss_engine::EngineHandle;
+use std::sync::Arc;
 use uss_engine::jobs::Requester;
-use uss_engine::requesters::pidfd_of;
 
 /// One watched client process.
 #[derive(Debug)]
@@ -22,19 +22,27 @@ struct Watch {
 }
 
 /// See the module documentation.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub(super) struct Watches {
     by_node: HashMap<UniqueNodeId, Watch>,
+    /// The table the bus thread checks.
+    table: Arc<Requesters>,
 }
 
 impl Watches {
+    pub(super) fn new(table: Arc<Requesters>) -> Self {
+        Self {
+            by_node: HashMap::new(),
+            table,
+        }
+    }
+
     /// The requester of a new request from `node`, whose process `pid()` looks up (only at
     /// the node's first request); [`Requester::NONE`] when it cannot be watched.
     pub(super) fn request(
         &mut self,
         node: UniqueNodeId,
         pid: impl FnOnce() -> Option<u32>,
-        handle: &EngineHandle,
     ) -> Requester {
         if let Some(w) = self.by_node.get_mut(&node) {
             w.pending += 1;
@@ -43,10 +51,10 @@ impl Watches {
         let Some((pid, pidfd)) = pid().and_then(|pid| Some((pid, pidfd_of(pid).ok()?))) else {
             return Requester::NONE;
         };
-        let watched = handle.watch_requester(pidfd.as_fd()).or_else(|| {
+        let watched = self.table.watch(pidfd.as_fd()).or_else(|| {
             // The table is full: make room from clients with nothing pending.
-            self.drop_idle(handle, |_| true);
-            handle.watch_requester(pidfd.as_fd())
+            self.drop_idle(|_| true);
+            self.table.watch(pidfd.as_fd())
         });
         let Some(requester) = watched else {
             return Requester::NONE;
@@ -69,20 +77,21 @@ impl Watches {
     }
 
     /// A request of `node` was answered; a client that has ended is let go of.
-    pub(super) fn answered(&mut self, node: UniqueNodeId, handle: &EngineHandle) {
+    pub(super) fn answered(&mut self, node: UniqueNodeId) {
         if let Some(w) = self.by_node.get_mut(&node) {
             w.pending = w.pending.saturating_sub(1);
         }
-        self.drop_idle(handle, |w| ended(&w.pidfd));
+        self.drop_idle(|w| ended(&w.pidfd));
     }
 
     /// Lets go of the clients with nothing pending that `drop` picks: their jobs are all
     /// answered, so no queued job names their requester any more.
-    fn drop_idle(&mut self, handle: &EngineHandle, drop: impl Fn(&Watch) -> bool) {
+    fn drop_idle(&mut self, drop: impl Fn(&Watch) -> bool) {
+        let table = &self.table;
         self.by_node.retain(|_, w| {
             let keep = w.pending > 0 || !drop(w);
             if !keep {
-                handle.forget_requester(w.requester);
+                table.forget(w.requester);
             }
             keep
         });

@@ -1,16 +1,17 @@
 //! Whether the process that asked for a parameter job still lives, as the bus thread checks it
-//! before the job leaves the mailbox: a dead client's work dies with it, at most the job
+//! before the job leaves the mailbox (the engine asks its bridge, [`RtBridge`](super::RtBridge),
+//! `uss_engine::Bridge::requester_ended`): a dead client's work dies with it, at most the job
 //! already on the wire finishes.
 //!
-//! The parameter bridge watches each requesting process through a pidfd (`pidfd_open`, Linux
+//! The parameter server watches each requesting process through a pidfd (`pidfd_open`, Linux
 //! 5.3+), which becomes readable when the process ends (a zombie included, and never confused
-//! with a later process of the same pid) and registers it in a fixed table here; a job carries
-//! its requester's slot ([`Requester`]). The bus thread's check is one `poll` with a zero
-//! timeout: no allocation, no blocking.
+//! with a later process of the same pid) and registers it in a fixed table here, shared with
+//! the bus thread's bridge; a job carries its requester's slot ([`Requester`]). The bus
+//! thread's check is one `poll` with a zero timeout: no allocation, no blocking.
 
-use crate::jobs::Requester;
 use core::sync::atomic::{AtomicI32, Ordering};
 use std::os::fd::{AsRawFd, BorrowedFd, RawFd};
+use uss_engine::jobs::Requester;
 
 /// Requesters watched at once (one per client process with requests pending).
 pub const REQUESTER_SLOTS: usize = 64;
@@ -40,13 +41,13 @@ impl Requesters {
         self.fds.iter().enumerate().find_map(|(i, slot)| {
             slot.compare_exchange(EMPTY, fd, Ordering::AcqRel, Ordering::Acquire)
                 .ok()
-                .map(|_| Requester(u16::try_from(i + 1).unwrap_or(0)))
+                .map(|_| Requester::new(u16::try_from(i + 1).unwrap_or(0)))
         })
     }
 
     /// Frees the slot of `requester`.
     pub fn forget(&self, requester: Requester) {
-        if let Some(slot) = requester.slot().and_then(|s| self.fds.get(s)) {
+        if let Some(slot) = slot(requester).and_then(|s| self.fds.get(s)) {
             slot.store(EMPTY, Ordering::Release);
         }
     }
@@ -54,8 +55,7 @@ impl Requesters {
     /// Whether `requester`'s process has ended. A requester nobody watches (or a slot freed
     /// already) is taken as alive: the bridge's periodic look covers it.
     pub fn has_ended(&self, requester: Requester) -> bool {
-        let Some(fd) = requester
-            .slot()
+        let Some(fd) = slot(requester)
             .and_then(|s| self.fds.get(s))
             .map(|s| s.load(Ordering::Acquire))
             .filter(|&fd| fd != EMPTY)
@@ -71,6 +71,11 @@ impl Requesters {
         let ready = unsafe { nix::libc::poll(&raw mut pfd, 1, 0) };
         ready > 0 && pfd.revents & nix::libc::POLLIN != 0
     }
+}
+
+/// The table's slot of `requester`, if it has one.
+fn slot(requester: Requester) -> Option<usize> {
+    usize::from(requester.number()).checked_sub(1)
 }
 
 /// A pidfd of process `pid`: readable once the process has ended.
