@@ -4,10 +4,10 @@
 
 use super::{
     Arc, AtomicBool, AtomicU32, AtomicU64, Bridge, BusStatus, BusTiming, CANCEL_QUEUE, Clock,
-    Drive, DriveCells, DriveSetup, Duration, Engine, EngineConfig, EngineHandle, Event, Framer,
-    FramerConfig, Gate, GateSetup, LOOK_STEP, LineStatus, LocalBridge, MAX_TELEGRAM_BYTES, Mutex,
-    OWN_READS, Overrides, PeriodSetup, Periods, Published, Receiver, Shared, Stats, Transport,
-    bounded, capture,
+    Continuity, Drive, DriveCells, DriveSetup, Duration, Engine, EngineConfig, EngineHandle, Event,
+    Framer, FramerConfig, Gate, GateSetup, LOOK_STEP, LineStatus, LocalBridge, MAX_TELEGRAM_BYTES,
+    Mutex, OWN_READS, Overrides, PeriodSetup, Periods, Published, Receiver, Shared, Stats,
+    Transport, Turns, bounded, capture,
 };
 
 /// Builds the circulating list: each drive `weight` times, spread over the cycle (USS.md
@@ -166,13 +166,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             drives,
             poll_list,
             periods,
-            out_of_turn: 0,
-            rearm_spent: 0,
-            serving_out_of_turn: false,
-            broadcast_heard: 0,
+            turns: Turns::NONE,
             stop_all_seen: [0; 3],
-            last_look: now,
-            look_lag: period_setup.attempt + LOOK_STEP * 2,
+            continuity: Continuity::new(now, period_setup.attempt + LOOK_STEP * 2),
             position: 0,
             extra_was_last: false,
             extra_cursor: 0,
@@ -181,7 +177,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             last_reply_done: None,
             last_reply_seen: None,
             cycle_start: now,
-            cycle_stall: Duration::ZERO,
             last_publish: now,
             control_changed: false,
             jobs: jobs_rx,

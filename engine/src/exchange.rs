@@ -30,7 +30,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     /// attempt carries the drive's words as they are then.
     pub(super) fn poll_drive(&mut self, slot: usize, regular: bool) -> Result<(), TransportError> {
         if regular {
-            self.rearm_spent &= !(1u32 << slot);
+            self.turns.regular_poll(slot);
         }
         let now = self.clock.now();
         if let Some(r) = self.drives[slot]
@@ -284,7 +284,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         } else {
             self.receive_reply(setup, n, request_end)?
         };
-        if pzd.is_none() && self.clock.now().saturating_sub(self.last_look) > self.look_lag {
+        if pzd.is_none() && self.continuity.overdue(self.clock.now()) {
             // ussd did not run while it waited for the reply (SIGSTOP, a suspended machine, a
             // starved CPU): the gap is judged now, so the image this exchange makes already
             // says what it means (rule 3), not one exchange later.

@@ -40,6 +40,8 @@ use exchange::Attempt;
 mod handle;
 pub use handle::SubmitError;
 mod line;
+pub mod schedule;
+use schedule::{Continuity, Turns};
 mod turns;
 pub use turns::LOOK_STEP;
 
@@ -428,22 +430,12 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     poll_list: Vec<u8>,
     /// Each drive's expected poll period and freshness limit, published with its image.
     periods: Periods,
-    /// Drives (a bit per slot) due a poll out of turn (`engine::turns`).
-    out_of_turn: u32,
-    /// Drives (a bit per slot) that had their out-of-turn re-arm since their last regular poll.
-    rearm_spent: u32,
-    /// Within an out-of-turn poll: none nests in it.
-    serving_out_of_turn: bool,
-    /// Drives (a bit per slot) that heard a stop in a broadcast and are due their own poll to
-    /// confirm it: after the drives that did not hear it.
-    broadcast_heard: u32,
+    /// The drives due a poll out of turn (`engine::schedule`, fed by `engine::turns`).
+    turns: Turns,
     /// Stops of every drive already sent (OFF1, OFF2, OFF3 counts).
     stop_all_seen: [u32; 3],
-    /// When the engine last looked at every drive (`engine::turns`).
-    last_look: Duration,
-    /// How far apart two looks may be for the work between them: one attempt at worst and one
-    /// idle step. Beyond, the engine was paused.
-    look_lag: Duration,
+    /// The engine's own continuity between two looks at every drive: a gap latches.
+    continuity: Continuity,
     position: usize,
     /// With `param_priority`: whether the last poll was an extra one for a parameter job, and
     /// where the search for the next such drive starts (round robin among them).
@@ -455,10 +447,6 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     /// When the engine saw the last good reply complete (on its clock, after waking).
     last_reply_seen: Option<Duration>,
     cycle_start: Duration,
-    /// The stall the looks of this cycle judged (time beyond `look_lag` between two looks: ussd
-    /// paused, the bus thread starved): left out of the cycle time the periods learn from, so a
-    /// pause does not stretch every drive's freshness limit.
-    cycle_stall: Duration,
     last_publish: Duration,
     /// A drive latched or was re-armed since the last publication: the next one comes at the
     /// end of this step, so what clients read shows it with the poll that carried it.
@@ -539,7 +527,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.take_cancels();
         // A drive due out of turn first (`engine::turns`), then the circulating list.
         self.look_and_broadcast()?;
-        let polled = if let Some(slot) = self.next_out_of_turn(None) {
+        let polled = if let Some(slot) = self.turns.next(None) {
             self.poll_out_of_turn(slot)?;
             Some(self.drives[slot].setup.address)
         } else {
@@ -763,7 +751,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let now = self.clock.now();
         let took = now.saturating_sub(self.cycle_start);
         self.periods
-            .cycle_done(took.saturating_sub(core::mem::take(&mut self.cycle_stall)));
+            .cycle_done(took.saturating_sub(self.continuity.take_stall()));
         self.bus.cycles += 1;
         self.timing.cycle.record(took);
         match self.cfg.cycle_time {
@@ -855,8 +843,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let d = &mut self.drives[slot];
         d.gate.words(out);
         d.sent = [out[0], out[1]];
-        self.out_of_turn &= !(1u32 << slot);
-        self.broadcast_heard &= !(1u32 << slot);
+        self.turns.sent(slot);
     }
 
     /// After every poll of the drive in `slot`, good or failed: its period and freshness limit

@@ -41,18 +41,19 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.snapshot.take();
         let now = self.clock.now();
         self.transport = transport;
+        let mut lag = self.continuity.lag();
         if rx_latency != self.cfg.rx_latency {
             self.cfg.rx_latency = rx_latency;
             self.framer = Framer::new(FramerConfig::with_latency(self.cfg.timing, rx_latency));
             let attempt = super::build::period_setup(&self.cfg).attempt;
             self.periods.set_attempt(attempt);
             // What one attempt explains of a gap between looks grows with it (build.rs).
-            self.look_lag = attempt + super::LOOK_STEP * 2;
+            lag = attempt + super::LOOK_STEP * 2;
         }
         self.framer.reset();
         self.line_free_at = now;
         // The line was down: no gap of the engine's, every drive latches below anyway.
-        self.last_look = now;
+        self.continuity.restart(now, lag);
         self.last_reply_done = None;
         self.last_reply_seen = None;
         for slot in 0..self.drives.len() {

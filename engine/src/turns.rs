@@ -52,27 +52,18 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             return;
         }
         let now = self.clock.now();
-        let gap = now
-            .saturating_sub(self.last_look)
-            .saturating_sub(self.look_lag);
-        self.last_look = now;
-        self.cycle_stall += gap;
+        let gap = self.continuity.look(now);
         for slot in 0..self.drives.len() {
             let change = self.observe(slot, now, gap);
             if self.drives[slot].setup.layout.pzd.get() == 0 {
                 // No words: nothing to send sooner.
                 continue;
             }
-            let bit = 1u32 << slot;
             let mut words = [0u16; MAX_PZD_WORDS];
             self.drives[slot].gate.words(&mut words);
-            if stop_strength(words[0]) > stop_strength(self.drives[slot].sent[0]) {
-                self.out_of_turn |= bit;
-            }
-            if matches!(change, Some(Transition::Rearmed { .. })) && self.rearm_spent & bit == 0 {
-                self.out_of_turn |= bit;
-                self.rearm_spent |= bit;
-            }
+            let stronger = stop_strength(words[0]) > stop_strength(self.drives[slot].sent[0]);
+            let rearmed = matches!(change, Some(Transition::Rearmed { .. }));
+            self.turns.looked(slot, stronger, rearmed);
         }
     }
 
@@ -80,16 +71,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     pub(super) fn look_and_broadcast(&mut self) -> Result<(), TransportError> {
         self.look();
         self.broadcast_stop_all()
-    }
-
-    /// The drive to poll out of turn now, if any: the drives that did not hear a broadcast stop
-    /// first, the lowest slot first.
-    pub(super) fn next_out_of_turn(&self, except: Option<usize>) -> Option<usize> {
-        let mask = except.map_or(u32::MAX, |slot| !(1u32 << slot));
-        let due = self.out_of_turn & mask;
-        let unheard = due & !self.broadcast_heard;
-        let pick = if unheard != 0 { unheard } else { due };
-        (pick != 0).then(|| pick.trailing_zeros() as usize)
     }
 
     /// The strongest stop of every drive asked for since the last one sent, if any.
@@ -144,7 +125,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             handled |= group;
             if !weakens {
                 self.send_broadcast(first, stw1)?;
-                self.broadcast_heard |= group;
+                self.turns.heard(group);
             }
         }
         Ok(())
@@ -195,11 +176,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         &mut self,
         except: Option<usize>,
     ) -> Result<(), TransportError> {
-        if self.serving_out_of_turn {
+        if self.turns.serving() {
             return Ok(());
         }
         self.look_and_broadcast()?;
-        while let Some(slot) = self.next_out_of_turn(except) {
+        while let Some(slot) = self.turns.next(except) {
             self.poll_out_of_turn(slot)?;
             self.look_and_broadcast()?;
         }
@@ -208,10 +189,13 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
 
     /// One poll of `slot` out of turn.
     pub(super) fn poll_out_of_turn(&mut self, slot: usize) -> Result<(), TransportError> {
-        self.serving_out_of_turn = true;
+        if !self.turns.begin_out_of_turn() {
+            // Within one already: none nests (`serve_out_of_turn` never asks for it).
+            return Ok(());
+        }
         self.bus.out_of_turn += 1;
         let polled = self.poll_drive(slot, false);
-        self.serving_out_of_turn = false;
+        self.turns.end_out_of_turn();
         polled
     }
 }
