@@ -24,12 +24,13 @@ use core::time::Duration;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use uss_engine::{Clock, MonotonicClock, Transport};
+use uss_protocol::exchange::{Exchange, Heard, Silence};
 use uss_protocol::telegram::{
     Layout, MAX_PKW_WORDS, MAX_TELEGRAM_BYTES, PkwMode, PzdCount, encode,
 };
 use uss_protocol::{
-    Address, Adr, Baud, Framer, FramerConfig, MAX_RESPONSE_DELAY, ParamReply, Pnu, ReplyKind,
-    Subindex, Timing,
+    Address, Adr, Baud, FramerConfig, MAX_RESPONSE_DELAY, ParamReply, Pnu, ReplyKind, Subindex,
+    Timing,
 };
 use uss_serial::{SerialError, SerialOptions, SerialTransport};
 
@@ -186,11 +187,17 @@ pub fn scan(
                 device.display()
             ));
         }
+        let timing = Timing::new(baud);
+        // The line's receive latency as ussd derives it (an FTDI latency timer, a UART's FIFO):
+        // the framer judges the timing rules on the wire, and a reply delivered that much later
+        // is still in time.
+        let latency = uss_serial::latency::detect(Path::new("/sys"), device, timing).latency;
         let mut probe = Probe {
             line,
             clock: MonotonicClock::new(),
-            timing: Timing::new(baud),
-            free_at: Duration::ZERO,
+            timing,
+            exchange: Exchange::new(FramerConfig::with_latency(timing, latency), Duration::ZERO),
+            reply_within: MAX_RESPONSE_DELAY + latency + ADAPTER_MARGIN,
             tries: options.tries,
             garbled: 0,
         };
@@ -294,6 +301,10 @@ fn lengths() -> Vec<usize> {
     out
 }
 
+/// What a probe's reply may take beyond the longest response delay and the receive latency
+/// sysfs tells of: an adapter sysfs does not describe (a device server, a converter of its own).
+const ADAPTER_MARGIN: Duration = Duration::from_millis(5);
+
 /// The PNU whose read the probes carry: P0003 (the access level, a word on every Siemens
 /// family), and P0010 to confirm with a task the drive has not answered yet.
 const PROBE_PNU: u16 = 3;
@@ -304,8 +315,11 @@ struct Probe {
     line: SerialTransport,
     clock: MonotonicClock,
     timing: Timing,
-    /// When the line last went quiet (our request's end, or a reply's last byte).
-    free_at: Duration,
+    /// The exchange's rules (start pause, reply deadline, framer): those ussd's engine keeps.
+    exchange: Exchange,
+    /// How long after a request its reply may start: the longest response delay, the line's
+    /// receive latency and [`ADAPTER_MARGIN`].
+    reply_within: Duration,
     /// How often a question is asked before silence counts as the answer.
     tries: u32,
     /// Exchanges since [`Probe::heard_garbled`] was last taken that brought bytes but no
@@ -314,7 +328,9 @@ struct Probe {
 }
 
 impl Probe {
-    /// Sends a telegram and returns the reply's bytes, if one came within the response delay.
+    /// Sends a telegram and returns the reply's bytes, if an intact one came within the
+    /// response delay (garbage before it, or a reply broken or cut short, is counted as
+    /// garbled).
     fn exchange(
         &mut self,
         adr: Adr,
@@ -325,34 +341,28 @@ impl Probe {
         let n = encode(&mut buf, adr, pkw, pzd).map_err(|e| ScanError::Telegram(e.to_string()))?;
         let io = ScanError::Line;
         // The start pause after whatever the line carried last (USS.md section 4).
-        self.clock
-            .sleep_until_precise(self.free_at + self.timing.start_pause());
+        self.clock.sleep_until_precise(self.exchange.send_at());
         let now = self.clock.now();
         self.line.flush_input(now).map_err(io)?;
         let end = self.line.send(&buf[..n], now).map_err(io)?;
-        self.free_at = end;
-        let mut framer = Framer::new(FramerConfig::strict(self.timing));
-        framer.line_busy_until(end);
-        // The reply starts within the longest response delay (with margin for the adapter);
-        // once it has started, its characters may take as long as the longest telegram.
-        let mut deadline = end + MAX_RESPONSE_DELAY + Duration::from_millis(5);
-        let longest = self.timing.telegram(MAX_TELEGRAM_BYTES.saturating_sub(4));
-        let mut heard = false;
-        while let Some(rx) = self.line.recv(deadline, &mut self.clock).map_err(io)? {
-            heard = true;
-            deadline = deadline.max(rx.at + longest);
-            self.free_at = rx.at;
-            if let Some(done) = framer.push(rx.byte, rx.at) {
-                if done.is_err() {
+        self.exchange.sent(end, self.reply_within);
+        loop {
+            let deadline = self.exchange.deadline();
+            let Some(rx) = self.line.recv(deadline, &mut self.clock).map_err(io)? else {
+                if self.exchange.silence() != Silence::NoReply(None) {
                     self.garbled += 1;
                 }
-                return Ok(done.ok().map(|t| t.as_bytes().to_vec()));
+                return Ok(None);
+            };
+            match self.exchange.heard(rx.byte, rx.error, rx.at) {
+                Heard::More => {}
+                Heard::Telegram { telegram, .. } => return Ok(Some(telegram.as_bytes().to_vec())),
+                Heard::Broken(_) => {
+                    self.garbled += 1;
+                    return Ok(None);
+                }
             }
         }
-        if heard {
-            self.garbled += 1;
-        }
-        Ok(None)
     }
 
     /// How many exchanges brought bytes but no intact telegram since the last call.

@@ -5,9 +5,9 @@
 use super::{
     Arc, AtomicBool, AtomicU32, AtomicU64, Bridge, BusStatus, BusTiming, CANCEL_QUEUE, Clock,
     Continuity, Drive, DriveCells, DriveSetup, Duration, Engine, EngineConfig, EngineHandle, Event,
-    Framer, FramerConfig, Gate, GateSetup, LOOK_STEP, LineStatus, LocalBridge, MAX_TELEGRAM_BYTES,
-    Mutex, OWN_READS, Overrides, PeriodSetup, Periods, Published, Receiver, Shared, Stats,
-    Transport, Turns, bounded, capture,
+    Exchange, FramerConfig, Gate, GateSetup, LOOK_STEP, LineStatus, LocalBridge,
+    MAX_TELEGRAM_BYTES, Mutex, OWN_READS, Overrides, PeriodSetup, Periods, Published, Receiver,
+    Shared, Stats, Transport, Turns, bounded, capture,
 };
 
 /// Builds the circulating list: each drive `weight` times, spread over the cycle (USS.md
@@ -159,7 +159,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let (events_tx, events_rx) = bounded(1024);
         let (capture, captures) = capture::Capture::new(cfg.capture);
         let engine = Self {
-            framer: Framer::new(FramerConfig::with_latency(cfg.timing, cfg.rx_latency)),
+            exchange: Exchange::new(FramerConfig::with_latency(cfg.timing, cfg.rx_latency), now),
             transport,
             clock,
             shared: Arc::clone(&shared),
@@ -173,7 +173,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             extra_was_last: false,
             extra_cursor: 0,
             tx: [0; MAX_TELEGRAM_BYTES],
-            line_free_at: now,
             last_reply_done: None,
             last_reply_seen: None,
             cycle_start: now,

@@ -3,9 +3,9 @@
 //! the echo of a 2-wire adapter, and what a good or failed poll changes.
 
 use super::{
-    Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, FrameError, LOOK_STEP,
+    Address, Adr, Bridge, Clock, DriveSetup, Duration, Engine, Event, Heard, LOOK_STEP,
     LastFailure, MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, Ordering, Outgoing, ParamReply,
-    PathError, ReplyKind, Transport, TransportError, Words, encode,
+    PathError, ReplyKind, Silence, Transport, TransportError, Words, encode,
 };
 
 /// How one attempt ended.
@@ -47,7 +47,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 self.drives[slot].counters.retries += 1;
                 self.serve_out_of_turn(Some(slot))?;
             }
-            let begin = self.line_free_at;
+            let begin = self.exchange.free_at();
             match self.attempt(slot, None, true)? {
                 Attempt::Reply { words, mut timing } => {
                     timing.first_attempt = attempt == 0;
@@ -248,7 +248,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             self.timing.work.record(ready.saturating_sub(seen));
         }
         // The start pause, then a clean input buffer, then our telegram (USS.md section 4).
-        let planned = self.line_free_at + self.cfg.timing.start_pause();
+        let planned = self.exchange.send_at();
         let wake = planned.max(self.clock.now());
         self.clock.sleep_until_precise(planned);
         let send_at = self.clock.now();
@@ -266,8 +266,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             self.timing.turnaround.record(send_at.saturating_sub(done));
         }
         self.transport.flush_input(send_at)?;
-        self.framer.reset();
         let request_end = self.transport.send(&self.tx[..n], send_at)?;
+        self.exchange
+            .sent(request_end, self.cfg.response_timeout + self.cfg.rx_latency);
         self.capture
             .request(&setup, &self.tx[..n], carries_task, (send_at, request_end));
         self.drives[slot]
@@ -275,8 +276,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             .on_sent(pkw_len, carries_task, send_at);
         self.drives[slot].counters.requests += 1;
         self.bus.exchanges += 1;
-        self.framer.line_busy_until(request_end);
-        self.line_free_at = request_end;
         let attempt = if self.cfg.echo
             && let Some(f) = self.discard_echo(n, request_end)?
         {
@@ -307,71 +306,66 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         encode(&mut self.tx, Adr::to(setup.address), pkw, pzd).ok()
     }
 
-    /// Receives until a valid reply from the right drive, or a failure.
+    /// Receives until a valid reply from the right drive, or a failure (the exchange's rules:
+    /// `uss_protocol::exchange`).
     pub(super) fn receive_reply(
         &mut self,
         setup: DriveSetup,
         request_len: usize,
         request_end: Duration,
     ) -> Result<Attempt, TransportError> {
-        let stx_deadline = request_end + self.cfg.response_timeout + self.cfg.rx_latency;
-        let mut stx_at = None;
-        let mut garbage = None;
         loop {
-            let deadline = self.framer.deadline().unwrap_or(stx_deadline);
+            let deadline = self.exchange.deadline();
             let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {
-                if self.framer.is_receiving() {
-                    // recv returns at the deadline: the telegram did not complete in time.
-                    self.framer.reset();
-                    self.drain()?;
-                    return Ok(Attempt::Failed(LastFailure::Residual));
-                }
-                // A reply that started too late on the wire may still be on its way through the
-                // adapter: the next telegram waits it out (and flushes it), so it is not taken
-                // for the answer to the retry.
-                self.line_free_at = self
-                    .line_free_at
-                    .max(self.clock.now() + self.cfg.rx_latency);
-                return Ok(Attempt::Failed(garbage.unwrap_or(LastFailure::NoResponse)));
+                // recv returns at the deadline.
+                return Ok(Attempt::Failed(match self.exchange.silence() {
+                    Silence::Incomplete => {
+                        // The telegram did not complete in time.
+                        self.drain()?;
+                        LastFailure::Residual
+                    }
+                    Silence::NoReply(garbage) => {
+                        // A reply that started too late on the wire may still be on its way
+                        // through the adapter: the next telegram waits it out (and flushes
+                        // it), so it is not taken for the answer to the retry.
+                        self.exchange
+                            .busy_until(self.clock.now() + self.cfg.rx_latency);
+                        garbage.map_or(LastFailure::NoResponse, |e| LastFailure::from(&e))
+                    }
+                }));
             };
-            self.line_free_at = self.line_free_at.max(rx.at);
             self.capture.byte(rx.byte, rx.at);
-            let was_receiving = self.framer.is_receiving();
-            let event = match rx.error {
-                Some(e) => Some(Err(self.framer.push_line_error(e, rx.at))),
-                None => self
-                    .framer
-                    .push(rx.byte, rx.at)
-                    .map(|r| r.map(|telegram| (telegram.adr(), telegram.words(setup.layout)))),
-            };
-            if !was_receiving && self.framer.is_receiving() {
-                stx_at = Some(rx.at);
-            }
-            let (adr, words) = match event {
-                None => continue,
-                Some(Ok(parts)) => parts,
-                Some(Err(e @ (FrameError::MissingStx(_) | FrameError::StartPauseNotObserved))) => {
-                    // Garbage before the reply: the reply may still follow after a pause.
-                    garbage.get_or_insert(LastFailure::from(&e));
-                    continue;
-                }
-                Some(Err(e)) => {
+            let (adr, words, stx_at, garbage) = match self.exchange.heard(rx.byte, rx.error, rx.at)
+            {
+                Heard::More => continue,
+                Heard::Broken(e) => {
                     self.drain()?;
                     return Ok(Attempt::Failed(LastFailure::from(&e)));
                 }
+                Heard::Telegram {
+                    telegram,
+                    stx_at,
+                    after_garbage,
+                    ..
+                } => (
+                    telegram.adr(),
+                    telegram.words(setup.layout),
+                    stx_at,
+                    after_garbage,
+                ),
             };
             let failure = if adr == Adr::to(setup.address) {
                 match words {
                     Ok(words) => {
                         if let Some(g) = garbage {
                             let slot = self.slot(setup.address);
-                            self.drives[slot].counters.count(g);
+                            self.drives[slot].counters.count(LastFailure::from(&g));
                         }
                         self.last_reply_seen = Some(self.clock.now());
                         let timing = ReplyTiming {
                             request_len,
                             request_end,
-                            stx_at: stx_at.unwrap_or(rx.at),
+                            stx_at,
                             done: rx.at,
                             first_attempt: true,
                         };
@@ -398,23 +392,27 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         request_end: Duration,
     ) -> Result<Option<LastFailure>, TransportError> {
         let deadline = request_end + self.cfg.response_timeout + self.cfg.rx_latency;
+        let mut last_echo = None;
         for i in 0..n {
             let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {
+                // Part of it came, at most: the next request waits after what came.
+                if let Some(last) = last_echo {
+                    self.exchange.busy_until(last);
+                }
                 return Ok(Some(LastFailure::Echo));
             };
-            self.line_free_at = self.line_free_at.max(rx.at);
+            last_echo = Some(rx.at);
             self.capture.byte(rx.byte, rx.at);
             if rx.byte != self.tx[i] || rx.error.is_some() {
+                self.exchange.busy_until(rx.at);
                 self.drain()?;
                 return Ok(Some(LastFailure::Echo));
             }
         }
-        // The echo is our own request: the line was busy until the request's computed end,
-        // not until the echo was delivered (an adapter hands the echo's tail and the reply's
-        // start over together; their spacing is the adapter's, not the wire's).
-        self.line_free_at = request_end;
-        self.framer.line_busy_until(request_end);
-        // Our own bytes: the reply starts after them.
+        // The echo is our own request: the line was busy until the request's computed end
+        // (`Exchange::sent`), not until the echo was delivered (an adapter hands the echo's
+        // tail and the reply's start over together; their spacing is the adapter's, not the
+        // wire's). Our own bytes: the reply starts after them.
         self.capture.reply_begin();
         Ok(None)
     }
@@ -425,16 +423,16 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let pause = self.cfg.timing.start_pause();
         let limit = self.clock.now() + self.cfg.timing.max_residual(MAX_NET_BYTES);
         loop {
-            let quiet = (self.line_free_at + pause).min(limit);
+            let quiet = (self.exchange.free_at() + pause).min(limit);
             match self.transport.recv(quiet, &mut self.clock)? {
                 Some(rx) if self.clock.now() < limit => {
-                    self.line_free_at = self.line_free_at.max(rx.at);
+                    self.exchange.busy_until(rx.at);
                     self.capture.byte(rx.byte, rx.at);
                 }
                 _ => break,
             }
         }
-        self.framer.reset();
+        self.exchange.quiet();
         Ok(())
     }
 }

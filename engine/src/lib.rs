@@ -63,10 +63,10 @@ use core::time::Duration;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
+use uss_protocol::exchange::{Exchange, Heard, Silence};
 use uss_protocol::telegram::{MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, MAX_TELEGRAM_BYTES};
 use uss_protocol::{
-    Address, Adr, FrameError, Framer, FramerConfig, Layout, ParamReply, ReplyKind, Timing, Words,
-    encode,
+    Address, Adr, FramerConfig, Layout, ParamReply, ReplyKind, Timing, Words, encode,
 };
 use uss_shm_types::{
     BusStatus, ItemOutcome, LatchReason, Monitoring, PathError, PzdOutput, Rejection, StopCommand,
@@ -423,7 +423,9 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     cfg: EngineConfig,
     transport: T,
     clock: C,
-    framer: Framer,
+    /// The line's exchange rules without I/O: start pause, reply deadline, framer, when the line
+    /// was last busy (`uss_protocol::exchange`).
+    exchange: Exchange,
     shared: Arc<Shared>,
     /// Everything the engine keeps of each drive, by slot (`engine::drive`).
     drives: Vec<Drive>,
@@ -442,7 +444,6 @@ pub struct Engine<T: Transport, C: Clock, B: Bridge = LocalBridge> {
     extra_was_last: bool,
     extra_cursor: usize,
     tx: [u8; MAX_TELEGRAM_BYTES],
-    line_free_at: Duration,
     last_reply_done: Option<Duration>,
     /// When the engine saw the last good reply complete (on its clock, after waking).
     last_reply_seen: Option<Duration>,
@@ -561,7 +562,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
             let mut output = [0u16; MAX_PZD_WORDS];
             output[0] = command.stw1();
             let len = setup.layout.pzd.get();
-            let begin = self.line_free_at;
+            let begin = self.exchange.free_at();
             match self.attempt(slot, Some(&output[..len]), false)? {
                 Attempt::Reply { words, timing } => self.on_reply(slot, &words, begin, timing),
                 Attempt::Failed(f) => self.drives[slot].attempt_failed(f),

@@ -2,8 +2,8 @@
 //! every drive latches ([`LatchReason::LineRestored`]) and is probed at once.
 
 use super::{
-    Bridge, Clock, Duration, Engine, Event, Framer, FramerConfig, LatchReason, LineFailure,
-    Ordering, PathError, Transport, TransportError,
+    Bridge, Clock, Duration, Engine, Event, FramerConfig, LatchReason, LineFailure, Ordering,
+    PathError, Transport, TransportError,
 };
 
 impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
@@ -44,14 +44,15 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         let mut lag = self.continuity.lag();
         if rx_latency != self.cfg.rx_latency {
             self.cfg.rx_latency = rx_latency;
-            self.framer = Framer::new(FramerConfig::with_latency(self.cfg.timing, rx_latency));
             let attempt = super::build::period_setup(&self.cfg).attempt;
             self.periods.set_attempt(attempt);
             // What one attempt explains of a gap between looks grows with it (build.rs).
             lag = attempt + super::LOOK_STEP * 2;
         }
-        self.framer.reset();
-        self.line_free_at = now;
+        self.exchange.restart(
+            FramerConfig::with_latency(self.cfg.timing, self.cfg.rx_latency),
+            now,
+        );
         // The line was down: no gap of the engine's, every drive latches below anyway.
         self.continuity.restart(now, lag);
         self.last_reply_done = None;

@@ -147,12 +147,13 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         ) else {
             return Ok(());
         };
-        self.clock
-            .sleep_until_precise(self.line_free_at + self.cfg.timing.start_pause());
+        self.clock.sleep_until_precise(self.exchange.send_at());
         let send_at = self.clock.now();
         self.transport.flush_input(send_at)?;
-        self.framer.reset();
         let end = self.transport.send(&self.tx[..n], send_at)?;
+        // Nobody answers: nothing to wait for but the echo, on two wires.
+        self.exchange
+            .sent(end, self.cfg.response_timeout + self.cfg.rx_latency);
         let shown = crate::DriveSetup {
             address: adr.address,
             ..setup
@@ -160,8 +161,6 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.capture
             .request(&shown, &self.tx[..n], false, (send_at, end));
         self.bus.broadcasts += 1;
-        self.framer.line_busy_until(end);
-        self.line_free_at = end;
         if self.cfg.echo {
             // Our own bytes back; a missing echo fails nothing here (no reply is due).
             let _ = self.discard_echo(n, end)?;

@@ -203,6 +203,14 @@ impl Framer {
         }
     }
 
+    /// The telegram the last [`Framer::push`] completed (it stays in the buffer until the next
+    /// character): for a caller that must look at the framer again before it takes the
+    /// telegram. Only after a push that returned `Some(Ok(_))`.
+    pub(crate) fn completed(&self) -> Telegram<'_> {
+        let total = (usize::from(self.buf[1]) + 2).min(MAX_TELEGRAM_BYTES);
+        Telegram::checked_by_framer(&self.buf[..total])
+    }
+
     fn start(&mut self, at: Duration) {
         self.buf[0] = STX;
         self.len = 1;

@@ -15,6 +15,7 @@
 
 pub mod adr;
 pub mod data_type;
+pub mod exchange;
 pub mod framer;
 pub mod notation;
 pub mod pkw;

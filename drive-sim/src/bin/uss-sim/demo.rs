@@ -10,11 +10,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use uss_drive_sim::spec::DriveSpec;
 use uss_drive_sim::{SimBus, VirtualWire};
+use uss_protocol::exchange::{Exchange, Heard, Silence};
 use uss_protocol::telegram::{MAX_PKW_WORDS, MAX_TELEGRAM_BYTES};
 use uss_protocol::{
-    Address, Adr, DriveState, FrameError, Framer, FramerConfig, Layout, MAX_RESPONSE_DELAY,
-    ParamReply, ParamTask, PkwMode, Pnu, ReplyKind, Setpoint, Storage, Stw1, Timing, Value, Words,
-    Zsw1, encode,
+    Address, Adr, DriveState, FramerConfig, Layout, MAX_RESPONSE_DELAY, ParamReply, ParamTask,
+    PkwMode, Pnu, ReplyKind, Setpoint, Storage, Stw1, Timing, Value, Words, Zsw1, encode,
 };
 
 /// Four drives: PKW 4, variable PKW, PKW 3 with 4 PZD words, and one on a noisy cable.
@@ -77,10 +77,8 @@ fn describe(reply: &ParamReply) -> String {
 /// The demo's master: the virtual wire, its own receive framer, and the line state.
 struct Master {
     wire: VirtualWire,
-    framer: Framer,
-    timing: Timing,
+    exchange: Exchange,
     start: Instant,
-    line_free_at: Duration,
     buf: [u8; MAX_TELEGRAM_BYTES],
 }
 
@@ -109,39 +107,35 @@ impl Master {
             &pzd[..st.layout.pzd.get()],
         )
         .map_err(|e| Failure::Demo(e.to_string()))?;
-        // Observe the start pause, flush what is left of earlier replies, then send.
-        let send_at = self
-            .start
-            .elapsed()
-            .max(self.line_free_at + self.timing.start_pause());
+        // Observe the start pause, flush what is left of earlier replies, then send: the
+        // exchange's rules are ussd's (`uss_protocol::exchange`), the I/O the virtual wire's.
+        let send_at = self.start.elapsed().max(self.exchange.send_at());
         std::thread::sleep(send_at.saturating_sub(self.start.elapsed()));
         self.wire.flush_input(send_at);
-        self.framer.reset();
         let end = self.wire.transmit(&self.buf[..len], send_at);
-        self.framer.line_busy_until(end);
-        let deadline = end + MAX_RESPONSE_DELAY + self.timing.max_residual(len - 4);
-        self.line_free_at = end;
+        self.exchange.sent(end, MAX_RESPONSE_DELAY);
         loop {
+            let deadline = self.exchange.deadline();
             let Some(at) = self.wire.next_arrival().filter(|at| *at <= deadline) else {
-                st.timeouts += 1;
-                self.line_free_at = self.line_free_at.max(deadline);
+                match self.exchange.silence() {
+                    Silence::NoReply(None) => st.timeouts += 1,
+                    Silence::NoReply(Some(_)) | Silence::Incomplete => st.errors += 1,
+                }
+                // A reply still on its way is not taken for the next one.
+                self.exchange.busy_until(deadline);
                 return Ok(None);
             };
             std::thread::sleep(at.saturating_sub(self.start.elapsed()));
             let Some(rx) = self.wire.receive(at) else {
                 continue;
             };
-            self.line_free_at = rx.at;
-            let event = match rx.error {
-                Some(e) => Some(Err(self.framer.push_line_error(e, rx.at))),
-                None => self.framer.push(rx.byte, rx.at),
-            };
-            match event {
-                Some(Ok(tel)) if tel.adr().address == st.address => {
-                    return Ok(tel.words(st.layout).ok());
+            match self.exchange.heard(rx.byte, rx.error, rx.at) {
+                Heard::More => {}
+                Heard::Telegram { telegram, .. } if telegram.adr().address == st.address => {
+                    return Ok(telegram.words(st.layout).ok());
                 }
-                Some(Ok(_) | Err(FrameError::Bcc { .. } | FrameError::Line(_))) => st.errors += 1,
-                _ => {}
+                // Another drive's reply, or a broken one: counted, and the line listened to on.
+                Heard::Telegram { .. } | Heard::Broken(_) => st.errors += 1,
             }
         }
     }
@@ -177,10 +171,8 @@ pub fn run(
         .collect();
     let mut master = Master {
         wire: VirtualWire::new(bus, timing),
-        framer: Framer::new(FramerConfig::strict(timing)),
-        timing,
+        exchange: Exchange::new(FramerConfig::strict(timing), Duration::ZERO),
         start: Instant::now(),
-        line_free_at: Duration::ZERO,
         buf: [0u8; MAX_TELEGRAM_BYTES],
     };
     let start = master.start;
