@@ -195,7 +195,6 @@ pub fn scan(
         let mut probe = Probe {
             line,
             clock: MonotonicClock::new(),
-            timing,
             exchange: Exchange::new(FramerConfig::with_latency(timing, latency), Duration::ZERO),
             reply_within: MAX_RESPONSE_DELAY + latency + ADAPTER_MARGIN,
             tries: options.tries,
@@ -271,7 +270,7 @@ fn ask_address(probe: &mut Probe, address: Address) -> Result<Option<Found>, Sca
                  baud rate)",
                 probe.tries
             )),
-            ..Found::unknown(probe.timing.baud(), address)
+            ..Found::unknown(probe.exchange.timing().baud(), address)
         }));
     }
     identify(probe, address).map(Some)
@@ -314,7 +313,6 @@ const CONFIRM_PNU: u16 = 10;
 struct Probe {
     line: SerialTransport,
     clock: MonotonicClock,
-    timing: Timing,
     /// The exchange's rules (start pause, reply deadline, framer): those ussd's engine keeps.
     exchange: Exchange,
     /// How long after a request its reply may start: the longest response delay, the line's
@@ -514,7 +512,7 @@ fn find_length(probe: &mut Probe, adr: Adr) -> Result<Option<(usize, Vec<u16>, S
 /// A slave that answered the mirror telegram: its layout and family, as sure as the answers
 /// make them.
 fn identify(probe: &mut Probe, address: Address) -> Result<Found, ScanError> {
-    let baud = probe.timing.baud();
+    let baud = probe.exchange.timing().baud();
     let adr = Adr::to(address);
     let mut drive = Found::unknown(baud, address);
     let Some((length, first, layout)) = find_length(probe, adr)? else {

@@ -277,7 +277,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.drives[slot].counters.requests += 1;
         self.bus.exchanges += 1;
         let attempt = if self.cfg.echo
-            && let Some(f) = self.discard_echo(n, request_end)?
+            && let Some(f) = self.discard_echo(n)?
         {
             Attempt::Failed(f)
         } else {
@@ -386,12 +386,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     }
 
     /// Reads our own request back from a 2-wire adapter and checks it byte for byte.
-    pub(super) fn discard_echo(
-        &mut self,
-        n: usize,
-        request_end: Duration,
-    ) -> Result<Option<LastFailure>, TransportError> {
-        let deadline = request_end + self.cfg.response_timeout + self.cfg.rx_latency;
+    pub(super) fn discard_echo(&mut self, n: usize) -> Result<Option<LastFailure>, TransportError> {
+        // The reply's start deadline (`Exchange::sent`): the echo comes before it.
+        let deadline = self.exchange.deadline();
         let mut last_echo = None;
         for i in 0..n {
             let Some(rx) = self.transport.recv(deadline, &mut self.clock)? else {

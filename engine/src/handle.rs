@@ -120,9 +120,11 @@ impl EngineHandle {
         self.submit_for(job, Requester::NONE)
     }
 
-    /// [`EngineHandle::submit`] for a job of `requester` ([`EngineHandle::watch_requester`]):
-    /// the bus thread ends it with [`uss_shm_types::PathError::Cancelled`] instead of sending
-    /// it when the requester has died by the time the job would leave the mailbox.
+    /// [`EngineHandle::submit`] for a job of `requester`, a number the engine's bridge knows
+    /// (ussd's: a watched client process): the bus thread ends it with
+    /// [`uss_shm_types::PathError::Cancelled`] instead of sending it when the bridge says the
+    /// requester has ended by the time the job would leave the mailbox
+    /// ([`crate::Bridge::requester_ended`]; [`crate::LocalBridge`] never says so).
     pub fn submit_for(&self, job: Job, requester: Requester) -> Result<(), SubmitError> {
         self.submit_all_for(job.address, job.id, &[job.task], requester)
             .map_err(|(_, e)| e)

@@ -163,7 +163,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         self.bus.broadcasts += 1;
         if self.cfg.echo {
             // Our own bytes back; a missing echo fails nothing here (no reply is due).
-            let _ = self.discard_echo(n, end)?;
+            let _ = self.discard_echo(n)?;
         }
         Ok(())
     }

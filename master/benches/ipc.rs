@@ -213,6 +213,10 @@ impl Bridge for Stamping {
     fn job_done(&mut self) {
         self.inner.job_done();
     }
+
+    fn requester_ended(&self, requester: uss_engine::jobs::Requester) -> bool {
+        self.inner.requester_ended(requester)
+    }
 }
 
 /// What the bus thread leaves when it stops.
