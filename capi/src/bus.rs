@@ -177,8 +177,8 @@ pub unsafe extern "C" fn ussrt_bus_status(
 
 /// Reads drive `address`'s diagnostics as ussd publishes them (`UssDriveDiag`: its counters,
 /// its configuration `info`, its link) into `*diag`. Diagnostics older than ussd's limit for
-/// them (`stale_after_ns` after `last_good_ns`: a paused ussd, a stalled bus thread) come with
-/// `online = 0`: they are not the drive as it is.
+/// them (`stale_after_ns` and `USS_DIAG_AGE_NS` after `last_good_ns`: a paused ussd, a stalled
+/// bus thread) come with `online = 0`: they are not the drive as it is.
 ///
 /// # Safety
 /// `bus` is a live handle; `diag` points to writable memory for one `UssDriveDiag`.

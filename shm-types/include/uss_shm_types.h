@@ -177,6 +177,14 @@
 #define USS_GONE_AFTER_NS (10 * USS_HEARTBEAT_PERIOD_NS)
 
 /**
+ * How old a drive's diagnostics may be when a client reads them while ussd runs well: the bus
+ * thread snapshots them every heartbeat period, ussd copies the snapshot for clients every
+ * period, and a wake-up may come late; 3 periods, 150 ms. A drive's diagnostics are overdue
+ * ([`crate::DriveDiag::is_overdue`]) only past its own limit and this.
+ */
+#define USS_DIAG_AGE_NS (3 * USS_HEARTBEAT_PERIOD_NS)
+
+/**
  * Highest event id on `uss/<bus>/<gen>/cycle`; ussd creates the service with it.
  */
 #define USS_EVENT_ID_MAX 63

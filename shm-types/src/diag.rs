@@ -524,8 +524,18 @@ impl DriveDiag {
 
     /// Whether the drive's last good reply is older at `now_ns` than ussd's limit for it while
     /// it counts as online: these diagnostics are not the drive as it is (a stalled bus thread).
+    /// The limit is the drive's (`stale_after_ns`, 0: not known yet, never overdue) and the age
+    /// diagnostics have by the way they are made ([`crate::names::DIAG_AGE_NS`]), so a drive
+    /// that answers every poll is never shown stale.
     pub const fn is_overdue(&self, now_ns: u64) -> bool {
-        crate::pzd::overdue(self.online, self.last_good_ns, self.stale_after_ns, now_ns)
+        self.stale_after_ns != 0
+            && crate::pzd::overdue(
+                self.online,
+                self.last_good_ns,
+                self.stale_after_ns
+                    .saturating_add(crate::names::DIAG_AGE_NS),
+                now_ns,
+            )
     }
 
     /// Whether the drive answers as these diagnostics say at `now_ns`: online, and not overdue
@@ -675,6 +685,30 @@ mod tests {
         let d = DriveDiag::new(5);
         assert_eq!(d.last_failure(), Ok(LastFailure::None));
         assert_eq!((d.address, d.last_good_ns), (5, NEVER));
+    }
+
+    #[test]
+    fn diagnostics_of_a_drive_that_answers_every_poll_are_never_stale_and_old_ones_are() {
+        // Polled every 20 ms, stale after 100 ms. Its last good reply came just before the
+        // engine's snapshot, the snapshot was copied for clients a period later, and read a
+        // period after that, by a reader woken late: as old as diagnostics get while the drive
+        // answers every poll (CI saw such a drive flicker "stale" in the exporter, 2026-12-03).
+        let mut d = DriveDiag::new(1);
+        (d.online, d.last_good_ns, d.period_ns, d.stale_after_ns) =
+            (1, 1_000_000_000, 20_000_000, 100_000_000);
+        let worst = d.last_good_ns
+            + d.period_ns
+            + 2 * crate::names::HEARTBEAT_PERIOD_NS
+            + crate::names::HEARTBEAT_PERIOD_NS / 5;
+        assert!(!d.is_overdue(worst) && d.is_online_at(worst));
+        // Older than the drive's limit and that age: a stalled bus thread, a paused ussd.
+        let old = d.last_good_ns + d.stale_after_ns + crate::names::DIAG_AGE_NS + 1;
+        assert!(d.is_overdue(old) && !d.is_online_at(old));
+        // Not online, or no limit known yet: nothing to be overdue for.
+        d.stale_after_ns = 0;
+        assert!(!d.is_overdue(old));
+        (d.stale_after_ns, d.online) = (100_000_000, 0);
+        assert!(!d.is_overdue(old));
     }
 
     #[test]

@@ -125,6 +125,11 @@ pub const MAX_ACTIVE_REQUESTS: usize = 4;
 pub const HEARTBEAT_PERIOD_NS: u64 = 50_000_000;
 /// A heartbeat older than this means ussd is gone (killed, hung): 10 periods, 500 ms.
 pub const GONE_AFTER_NS: u64 = 10 * HEARTBEAT_PERIOD_NS;
+/// How old a drive's diagnostics may be when a client reads them while ussd runs well: the bus
+/// thread snapshots them every heartbeat period, ussd copies the snapshot for clients every
+/// period, and a wake-up may come late; 3 periods, 150 ms. A drive's diagnostics are overdue
+/// ([`crate::DriveDiag::is_overdue`]) only past its own limit and this.
+pub const DIAG_AGE_NS: u64 = 3 * HEARTBEAT_PERIOD_NS;
 
 /// Highest event id on `uss/<bus>/<gen>/cycle`; ussd creates the service with it.
 pub const EVENT_ID_MAX: usize = 63;

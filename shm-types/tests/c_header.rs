@@ -514,6 +514,7 @@ fn numbers() -> Vec<(&'static str, u64)> {
         ("USSD_GONE", names::USSD_GONE as u64),
         ("HEARTBEAT_PERIOD_NS", names::HEARTBEAT_PERIOD_NS),
         ("GONE_AFTER_NS", names::GONE_AFTER_NS),
+        ("DIAG_AGE_NS", names::DIAG_AGE_NS),
         ("CAPTURE_BYTES", uss_shm_types::CAPTURE_BYTES as u64),
         (
             "CAPTURE_TRUNCATED",

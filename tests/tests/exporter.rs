@@ -101,7 +101,8 @@ fn exporter_serves_metrics_that_promtool_accepts_and_follows_a_restarted_ussd() 
     for drive in ["1", "2"] {
         assert_eq!(
             s[&format!("uss_drive_online{{bus=\"{bus}\",drive=\"{drive}\"}}")],
-            1.0
+            1.0,
+            "drive {drive}: {s:?}"
         );
         assert!(
             s[&format!("uss_telegrams_total{{bus=\"{bus}\",drive=\"{drive}\",result=\"good\"}}")]
