@@ -327,8 +327,8 @@ struct Probe {
 
 impl Probe {
     /// Sends a telegram and returns the reply's bytes, if an intact one came within the
-    /// response delay (garbage before it, or a reply broken or cut short, is counted as
-    /// garbled).
+    /// response delay. A reply broken or cut short, or garbage with no intact reply after it,
+    /// counts as garbled; garbage before an intact reply does not.
     fn exchange(
         &mut self,
         adr: Adr,

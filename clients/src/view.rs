@@ -1,12 +1,14 @@
 //! One serializable view of what ussd publishes (feature `view`): the bus ([`BusView`]) and each
-//! drive ([`DriveView`], [`ControlView`]) as every front-end that speaks JSON or a dynamic
+//! drive ([`DriveView`], [`ControlView`], [`InfoView`]) as every front-end that speaks JSON or a dynamic
 //! language shows them (`ussctl status --json` and `top`, the Zenoh bridge's `status` and `diag`
 //! payloads, Python's `Bus.status()`), with codes turned into words and nanoseconds into
 //! microseconds, built in one place from the contract's `#[repr(C)]` [`BusStatus`] and
 //! [`DriveDiag`]. A drive's view is judged at the time it is read: diagnostics older than
 //! ussd's limit for them say `stale` and never show the drive online (rule 3).
 
-use crate::{DriveDiag, LatchReason, Monitoring, PzdInput, Setpoint, StopCommand, zsw1_flags};
+use crate::{
+    DriveDiag, DriveInfo, LatchReason, Monitoring, PzdInput, Setpoint, StopCommand, zsw1_flags,
+};
 use serde::Serialize;
 use uss_shm_types::BusStatus;
 use uss_shm_types::diag::{LastFailure, RtMode};
@@ -277,6 +279,61 @@ impl DriveView {
             (self.online, self.stale, self.state) = (false, true, "stale");
         }
         self
+    }
+}
+
+/// What ussd knows of a drive from its configuration and the drive itself ([`DriveInfo`]), as
+/// `ussctl stats` (its `info`), `ussctl top` and the bridge's `info` payload show it.
+#[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
+pub struct InfoView {
+    /// P2000: the frequency of a setpoint or actual value of 0x4000 (100 %); 0 while ussd reads
+    /// it again (the drive came online, was reset or commissioned): no Hz are known then.
+    pub reference_hz: f32,
+    pub pzd_words: u8,
+    /// The PKW channel's words, P2013: 0, 3, 4, or 127 (variable).
+    pub pkw_words: u8,
+    pub watchdog_ms: u32,
+    /// What a latched drive gets: "OFF1", "OFF2", "OFF3".
+    pub safe_command: &'static str,
+    pub params_writable: bool,
+    /// How often the drive appears in each cycle of the circulating list.
+    pub weight: u8,
+}
+
+impl InfoView {
+    pub fn of(i: &DriveInfo) -> Self {
+        Self {
+            reference_hz: i.reference_hz,
+            pzd_words: i.pzd_words,
+            pkw_words: i.pkw_words,
+            watchdog_ms: i.watchdog_ms,
+            safe_command: i.safe_command().map_or("unknown", StopCommand::name),
+            params_writable: i.params_writable != 0,
+            weight: i.weight,
+        }
+    }
+
+    /// One line for a person: `reference 50 Hz, PZD 2, PKW 4, watchdog 100 ms, ...`.
+    pub fn human(&self) -> String {
+        format!(
+            "reference {}, PZD {}, PKW {}, watchdog {} ms, safe command {}, weight {}, \
+             parameters {}",
+            if self.reference_hz > 0.0 {
+                format!("{} Hz", self.reference_hz)
+            } else {
+                "not known (being read)".to_owned()
+            },
+            self.pzd_words,
+            self.pkw_words,
+            self.watchdog_ms,
+            self.safe_command,
+            self.weight,
+            if self.params_writable {
+                "writable"
+            } else {
+                "read-only"
+            }
+        )
     }
 }
 

@@ -30,18 +30,26 @@ pub mod reference;
 pub mod stats;
 pub mod transport;
 
+mod bridge;
+pub use bridge::{Bridge, LocalBridge};
 mod build;
 mod capture;
 mod drive;
 pub use capture::CAPTURE_QUEUE;
 use drive::Drive;
+mod event;
+pub use event::Event;
 mod exchange;
 use exchange::Attempt;
 mod handle;
 pub use handle::SubmitError;
 mod line;
+mod overrides;
+use overrides::{Overrides, stop_index};
 pub mod schedule;
+mod setup;
 use schedule::{Continuity, Turns};
+pub use setup::{DriveSetup, EngineConfig};
 mod turns;
 pub use turns::LOOK_STEP;
 
@@ -52,9 +60,7 @@ pub use reference::Reference;
 pub use stats::{DriveCounters, DriveStatus, LastFailure, Stats};
 pub use transport::{Rx, Transport, TransportError};
 
-use crate::control::{
-    ControllerId, Gate, GateSetup, Latch, Operator, Poll, Transition, latch_id_of,
-};
+use crate::control::{Gate, GateSetup, Operator, Poll, Transition, latch_id_of};
 use crate::image::DriveImages;
 use crate::jobs::{Encoded, Outgoing, Requester};
 use crate::period::{PeriodSetup, Periods};
@@ -65,11 +71,9 @@ use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering}
 use std::sync::{Arc, Mutex};
 use uss_protocol::exchange::{Exchange, Heard, Silence};
 use uss_protocol::telegram::{MAX_NET_BYTES, MAX_PKW_WORDS, MAX_PZD_WORDS, MAX_TELEGRAM_BYTES};
-use uss_protocol::{
-    Address, Adr, FramerConfig, Layout, ParamReply, ReplyKind, Timing, Words, encode,
-};
+use uss_protocol::{Address, Adr, FramerConfig, ParamReply, ReplyKind, Words, encode};
 use uss_shm_types::{
-    BusStatus, ItemOutcome, LatchReason, Monitoring, PathError, PzdOutput, Rejection, StopCommand,
+    BusStatus, ItemOutcome, LatchReason, Monitoring, PathError, PzdOutput, StopCommand,
 };
 
 /// Job ids with this bit are ussd's own (telegram monitoring, reference frequency); clients use
@@ -79,285 +83,12 @@ pub const INTERNAL_JOB: u64 = 1 << 63;
 /// monitoring and the reference (`monitoring::check_own_reads`).
 pub const OWN_READS: usize = 2;
 
-/// One drive as the engine polls it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DriveSetup {
-    pub address: Address,
-    pub layout: Layout,
-    /// How many times the drive appears in the circulating list (USS.md section 5).
-    pub weight: u8,
-    /// What a latched drive gets (OFF1 by default), with a zero setpoint.
-    pub safe: StopCommand,
-    /// A live controller that has published nothing new for this long is stale.
-    pub watchdog: Duration,
-    pub params_writable: bool,
-    /// The drive's own telegram monitoring, checked when it comes online.
-    pub monitoring: MonitoringSetup,
-    /// The reference frequency P2000 in Hz (0x4000 = 100 %, USS.md section 7) as configured:
-    /// the engine does not scale, it publishes it for the clients that do, unless the drive's
-    /// own value was read ([`reference::Reference`]).
-    pub reference_hz: f32,
-    /// The drive's reference parameter (P2000 on MICROMASTER 4 / G110, in Hz; p2000 on a G120
-    /// whose pole pairs are configured, in rpm), read when it comes online; `None`: not read.
-    pub reference_param: Option<WatchedParam>,
-    /// What unit `reference_param` is in, and how it becomes Hz.
-    pub reference_unit: reference::ReferenceUnit,
-    /// The parameters whose write may change every setting (commissioning, factory reset):
-    /// after one, the reference and the monitoring are unknown until read again
-    /// ([`picture`]).
-    pub rereads_after: picture::Rereads,
-    /// The drive takes broadcasts (ADR bit 5): a stop of every drive reaches it in one
-    /// broadcast telegram (`engine::turns`). S110 and G120 firmware 4 do not.
-    pub broadcast: bool,
-    /// What kind of slave it is, published for the clients (which read a generic slave's
-    /// parameters by value alone). The engine reads only `monitoring` and `reference_param`
-    /// of its own, which the family decides.
-    pub family: uss_shm_types::DriveFamily,
-}
-
-impl DriveSetup {
-    /// A drive with the defaults of ussd's configuration: weight 1, OFF1, 100 ms watchdog,
-    /// writable, MICROMASTER telegram monitoring (P2014.0, checked, not required).
-    pub fn new(address: Address, layout: Layout) -> Self {
-        Self {
-            address,
-            layout,
-            weight: 1,
-            safe: StopCommand::Off1,
-            watchdog: Duration::from_millis(100),
-            params_writable: true,
-            monitoring: MonitoringSetup::micromaster(),
-            reference_hz: 50.0,
-            reference_param: Some(reference::P2000),
-            reference_unit: reference::ReferenceUnit::Hz,
-            rereads_after: picture::Rereads::MICROMASTER,
-            broadcast: true,
-            family: uss_shm_types::DriveFamily::Micromaster4,
-        }
-    }
-
-    /// The reference-frequency parameter ussd reads: only over a PKW channel that carries its
-    /// float.
-    pub fn reference_read(&self) -> Option<WatchedParam> {
-        self.reference_param
-            .filter(|_| self.layout.pkw.carries_dword())
-    }
-}
-
-/// How the engine runs one bus.
-#[derive(Debug, Clone, PartialEq)]
-// Four independent switches of the configuration (echo, parameter priority, safety first,
-// capture), not the states of one machine.
-#[allow(clippy::struct_excessive_bools)]
-pub struct EngineConfig {
-    pub timing: Timing,
-    /// Limit for the reply's STX after our BCC (20 ms by USS.md section 4, plus any margin).
-    pub response_timeout: Duration,
-    pub retries: u8,
-    /// Consecutive failed polls before a drive is marked offline.
-    pub offline_after: u32,
-    /// How often an offline drive is probed.
-    pub offline_probe: Duration,
-    /// Fixed time per pass through the circulating list, if any.
-    pub cycle_time: Option<Duration>,
-    /// A parameter job without a matching reply this long after it first went out times out.
-    pub param_timeout: Duration,
-    /// Discard the echo of our own bytes (2-wire adapters, USS.md section 9).
-    pub echo: bool,
-    /// Clients' parameter jobs each drive can hold (its mailbox holds [`OWN_READS`] more for
-    /// ussd's own reads); a request is taken whole, so a larger one than this is refused. ussd:
-    /// 64, above a request's 39 items.
-    pub mailbox_depth: usize,
-    /// How often statistics are published to other threads.
-    pub publish_every: Duration,
-    /// A drive with a parameter job waiting gets an extra poll after every poll of the
-    /// circulating list, so the job does not wait a whole cycle for its drive's turn; at most one
-    /// extra poll follows each regular one, so no other drive's poll period more than doubles.
-    pub param_priority: bool,
-    /// Safety telegrams jump the queue (`engine::turns`): before every telegram every drive is
-    /// looked at, a stop, a trip or a re-arm goes out in the next telegram, a stop of every
-    /// drive as a broadcast. Always on in ussd; `false` only measures what it buys (the
-    /// `safety` benchmark): then a drive's words are decided at its turn alone.
-    pub safety_first: bool,
-    /// How late the line's adapter may deliver a received byte (USB latency timer, UART FIFO
-    /// trigger): the residual-time and start-pause allowances and the response timeout widen
-    /// by exactly this much, and a retry after a timeout first waits it out, so a reply on its
-    /// way is not taken for the retry's answer.
-    pub rx_latency: Duration,
-    /// Copy every telegram into the capture channel ([`EngineHandle::captures`]).
-    pub capture: bool,
-    pub drives: Vec<DriveSetup>,
-}
-
-/// Something the housekeeping thread should know (and log).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Event {
-    DriveOffline {
-        address: Address,
-        at: Duration,
-        failure: LastFailure,
-    },
-    DriveOnline {
-        address: Address,
-        at: Duration,
-    },
-    /// The drive latched (stale controller, refused sample, release, operator stop, ...), or
-    /// a latched drive got a new cause: it gets `latch.command` until its controller re-arms.
-    Latched {
-        address: Address,
-        latch: Latch,
-        rejection: Rejection,
-    },
-    /// The controller sent a stop naming the latch (OFF1, or the latch's own stop): its words
-    /// go to the drive again.
-    Rearmed {
-        address: Address,
-        at: Duration,
-        pid: u32,
-    },
-    /// What the drive's reference frequency was found to be.
-    Reference {
-        address: Address,
-        at: Duration,
-        reference: reference::Reference,
-        /// The configuration's `reference_hz`.
-        configured_hz: f32,
-    },
-    /// What the drive's own telegram monitoring was found to be.
-    Monitoring {
-        address: Address,
-        at: Duration,
-        state: Monitoring,
-        ms: u32,
-        /// The shortest time that does not trip the drive between two of its polls.
-        shortest_ms: u32,
-    },
-    CycleOverrun {
-        at: Duration,
-        took: Duration,
-    },
-    /// The bus line failed: every drive is offline, every pending job ended.
-    LineDown {
-        at: Duration,
-        fault: LineFailure,
-    },
-    /// The line is back: every drive is latched and probed.
-    LineUp {
-        at: Duration,
-        down_for: Duration,
-    },
-    /// An attempt failed and the poll tries again (`attempt` is the retry's number, from 1).
-    Retry {
-        address: Address,
-        at: Duration,
-        attempt: u8,
-        failure: LastFailure,
-    },
-    /// The drive's state from its ZSW1 (S1..S5, fault) changed; `from` is `None` for its first
-    /// reply.
-    /// The drive's ZSW1 bit 9 ("control requested") changed, or was clear at the first
-    /// reply: `taken` false means the drive does not take its commands from this link (its
-    /// command source is elsewhere): ussd's control words, stops included, are ignored.
-    Commands {
-        address: Address,
-        at: Duration,
-        taken: bool,
-    },
-    StateChanged {
-        address: Address,
-        at: Duration,
-        from: Option<uss_protocol::DriveState>,
-        to: uss_protocol::DriveState,
-    },
-}
-
-/// Where process images leave and enter the bus thread (iceoryx2 in `ussd`; in-process cells
-/// for [`EngineHandle::set_output`] otherwise). Called in the bus thread: implementations must
-/// not allocate, block or log.
-pub trait Bridge {
-    /// Before the drive in `slot` is polled: the controller's newest sample since the last
-    /// call, as it arrived, and who published it. The engine's [`Gate`] validates and decides;
-    /// the bridge only carries.
-    fn take_sample(
-        &mut self,
-        slot: usize,
-        images: &DriveImages,
-    ) -> Option<(PzdOutput, ControllerId)>;
-    /// After every poll of the drive, good or failed: publish its input image and state.
-    fn after_poll(&mut self, slot: usize, images: &DriveImages, status: &DriveStatus);
-    /// After a pass through the circulating list.
-    fn cycle_completed(&mut self);
-    /// After a parameter job's result was handed to the parameter bridge: wake it.
-    fn job_done(&mut self);
-    /// Before a parameter job of `requester` leaves its drive's mailbox: whether the process
-    /// that asked for it has ended (its work dies with it). Called on the bus thread: it must
-    /// neither block nor allocate. A bridge that carries no other process's jobs (or cannot
-    /// tell) says no: such jobs run, and their results find nobody.
-    fn requester_ended(&self, requester: Requester) -> bool {
-        let _ = requester;
-        false
-    }
-}
-
-/// Process images in this process only: samples come from [`EngineHandle::set_output`] and
-/// friends, inputs are read with [`EngineHandle::input`].
-#[derive(Debug, Clone, Copy, Default)]
-pub struct LocalBridge;
-
-impl Bridge for LocalBridge {
-    fn take_sample(&mut self, _: usize, images: &DriveImages) -> Option<(PzdOutput, ControllerId)> {
-        images.output.take().map(|s| (s, ControllerId::IN_PROCESS))
-    }
-    fn after_poll(&mut self, _: usize, _: &DriveImages, _: &DriveStatus) {}
-    fn cycle_completed(&mut self) {}
-    fn job_done(&mut self) {}
-}
-
 /// How many cancellations can wait for the bus thread.
 const CANCEL_QUEUE: usize = 64;
 
 /// The longest single sleep of an idle bus thread (every drive offline, or a fixed cycle time
 /// reached early): it wakes at least this often to count progress and to see a stop.
 pub const IDLE_STEP: Duration = Duration::from_millis(50);
-
-/// Operator stop commands for one drive, from any thread, taken by the bus thread without
-/// locks: a counter per command (so OFF2 and OFF1 arriving between two polls both count and
-/// the stronger wins) and the last requester's process id.
-#[derive(Debug, Default)]
-struct Overrides {
-    /// OFF1, OFF2, OFF3.
-    counts: [AtomicU32; 3],
-    pid: AtomicU32,
-}
-
-impl Overrides {
-    /// The strongest command that arrived since the counts in `seen` (which it brings up to
-    /// date): the bus thread's one way of taking operator stops, a drive's or every drive's.
-    fn take(&self, seen: &mut [u32; 3]) -> Option<StopCommand> {
-        let mut strongest: Option<StopCommand> = None;
-        for (i, command) in STOPS.into_iter().enumerate() {
-            let count = self.counts[i].load(Ordering::Acquire);
-            if count != seen[i] {
-                seen[i] = count;
-                if strongest.is_none_or(|s| command.strength() > s.strength()) {
-                    strongest = Some(command);
-                }
-            }
-        }
-        strongest
-    }
-}
-
-const STOPS: [StopCommand; 3] = [StopCommand::Off1, StopCommand::Off2, StopCommand::Off3];
-
-/// Where `command` is in [`STOPS`] (and in the counters kept in that order).
-const fn stop_index(command: StopCommand) -> usize {
-    match command {
-        StopCommand::Off1 => 0,
-        StopCommand::Off2 => 1,
-        StopCommand::Off3 => 2,
-    }
-}
 
 /// What other threads reach of one drive: its process images, the number of the last output
 /// sample handed in, its operator stops. The bus thread's own record of it is [`Drive`].

@@ -8,9 +8,12 @@ use std::time::Duration;
 use uss_drive_sim::SimTransport;
 use uss_drive_sim::{DriveConfig, Fault, SimBus, State, VirtualWire};
 use uss_engine::control::Control;
+use uss_engine::control::ControllerId;
+use uss_engine::image::DriveImages;
+use uss_engine::jobs::Requester;
 use uss_engine::{
-    DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, LastFailure, Reference,
-    SubmitError, VirtualClock,
+    Bridge, DriveSetup, Engine, EngineConfig, EngineHandle, Event, Job, LastFailure, LocalBridge,
+    Reference, SubmitError, VirtualClock,
 };
 use uss_protocol::telegram::{Layout, PkwMode, PzdCount};
 use uss_protocol::{
@@ -57,6 +60,23 @@ fn bench_with(
     cfg: impl FnOnce(&mut EngineConfig),
     echo: bool,
 ) -> Bench {
+    let (config, wire) = config_and_wire(drives, sim, cfg, echo);
+    let (engine, handle, events) =
+        Engine::new(config, SimTransport::new(wire), VirtualClock::new());
+    Bench {
+        engine,
+        handle,
+        events,
+    }
+}
+
+/// The engine's configuration for `drives` and the virtual wire with their simulated drives.
+fn config_and_wire(
+    drives: &[(u8, PkwMode)],
+    sim: impl Fn(&mut DriveConfig),
+    cfg: impl FnOnce(&mut EngineConfig),
+    echo: bool,
+) -> (EngineConfig, VirtualWire) {
     let mut bus = SimBus::new(11);
     let mut setups = Vec::new();
     for &(a, pkw) in drives {
@@ -83,14 +103,7 @@ fn bench_with(
         drives: setups,
     };
     cfg(&mut config);
-    let wire = VirtualWire::new(bus, timing()).with_echo(echo);
-    let (engine, handle, events) =
-        Engine::new(config, SimTransport::new(wire), VirtualClock::new());
-    Bench {
-        engine,
-        handle,
-        events,
-    }
+    (config, VirtualWire::new(bus, timing()).with_echo(echo))
 }
 
 fn read(id: u64, a: u8, pnu: u16) -> Job {
@@ -1895,4 +1908,64 @@ fn a_reference_that_changes_or_goes_unreadable_while_latched_latches_again() {
         Control::Live => unreachable!(),
     };
     assert!(again > changed.id, "latched again");
+}
+
+/// A bridge that says the process behind requester 7 has ended, as ussd's says of a client
+/// whose pidfd became readable.
+struct SevenEnded;
+
+impl Bridge for SevenEnded {
+    fn take_sample(
+        &mut self,
+        slot: usize,
+        images: &DriveImages,
+    ) -> Option<(PzdOutput, ControllerId)> {
+        LocalBridge.take_sample(slot, images)
+    }
+    fn after_poll(&mut self, _: usize, _: &DriveImages, _: &uss_engine::DriveStatus) {}
+    fn cycle_completed(&mut self) {}
+    fn job_done(&mut self) {}
+    fn requester_ended(&self, requester: Requester) -> bool {
+        requester == Requester::new(7)
+    }
+}
+
+#[test]
+fn a_job_of_a_requester_that_ended_never_reaches_the_wire_and_the_others_run() {
+    let (config, wire) = config_and_wire(&[(1, PkwMode::Four)], |_| {}, |_| {}, false);
+    let (mut engine, handle, _events) = Engine::with_bridge(
+        config,
+        SimTransport::new(wire),
+        VirtualClock::new(),
+        SevenEnded,
+    );
+    handle
+        .submit_for(read(1, 1, 700), Requester::new(7))
+        .unwrap();
+    handle
+        .submit_for(read(2, 1, 1082), Requester::new(8))
+        .unwrap();
+    handle.submit(read(3, 1, 2000)).unwrap();
+    let mut results = Vec::new();
+    for _ in 0..200 {
+        engine.poll_next().unwrap();
+        while let Some(r) = handle.recv_result(Duration::ZERO) {
+            results.push(r);
+        }
+        if results.len() == 3 {
+            break;
+        }
+    }
+    results.sort_by_key(|r| r.job.id);
+    let ended: Vec<_> = results
+        .iter()
+        .map(|r| (r.job.id, r.outcome.is_ok(), r.telegrams))
+        .collect();
+    assert_eq!(ended.len(), 3, "{results:?}");
+    assert_eq!(results[0].outcome, Err(PathError::Cancelled), "{results:?}");
+    assert_eq!(
+        (ended[0].2, ended[1].1, ended[2].1),
+        (0, true, true),
+        "{ended:?}"
+    );
 }

@@ -337,6 +337,72 @@ mod tests {
         );
     }
 
+    /// What comes down the line in a property test: garbage, or an intact reply.
+    #[derive(Debug, Clone)]
+    enum Chunk {
+        Garbage(std::vec::Vec<u8>),
+        Reply(u8, std::vec::Vec<u16>),
+    }
+
+    fn chunk() -> impl proptest::strategy::Strategy<Value = Chunk> {
+        use proptest::prelude::*;
+        prop_oneof![
+            proptest::collection::vec(any::<u8>(), 1..8).prop_map(Chunk::Garbage),
+            (0u8..32, proptest::collection::vec(any::<u16>(), 0..5))
+                .prop_map(|(a, w)| Chunk::Reply(a, w)),
+        ]
+    }
+
+    proptest::proptest! {
+        /// Garbage and intact replies in any order, after any pause: an intact reply after a
+        /// start pause of silence (and no telegram of the garbage's still being received) is
+        /// taken whole, as the very bytes sent, on its last character and not before.
+        #[test]
+        fn an_intact_reply_after_a_start_pause_is_taken_whatever_came_before(
+            chunks in proptest::collection::vec((chunk(), 0u64..6_000), 1..12),
+        ) {
+            let t = timing();
+            let c = t.char_time();
+            let mut ex = Exchange::new(FramerConfig::strict(t), Duration::ZERO);
+            let end = ex.send_at() + t.telegram(8);
+            ex.sent(end, Duration::from_millis(20));
+            let mut at = end;
+            for (chunk, gap_us) in chunks {
+                at += Duration::from_micros(gap_us);
+                let paused = at.saturating_sub(ex.free_at()) >= t.start_pause();
+                let expect = !ex.is_receiving() && paused;
+                match chunk {
+                    Chunk::Garbage(bytes) => {
+                        for b in bytes {
+                            let _ = ex.heard(b, None, at);
+                            at += c;
+                        }
+                    }
+                    Chunk::Reply(address, words) => {
+                        let mut buf = [0u8; 32];
+                        let n = encode(&mut buf, Adr::to(Address::new(address).unwrap()), &[], &words).unwrap();
+                        for (k, &b) in buf[..n].iter().enumerate() {
+                            let heard = ex.heard(b, None, at);
+                            if !expect {
+                                at += c;
+                                continue;
+                            }
+                            if k + 1 < n {
+                                proptest::prop_assert_eq!(&heard, &Heard::More, "byte {} of {:?}", k, &buf[..n]);
+                            } else if let Heard::Telegram { telegram, done, .. } = heard {
+                                proptest::prop_assert_eq!(telegram.as_bytes(), &buf[..n]);
+                                proptest::prop_assert_eq!(done, at);
+                            } else {
+                                proptest::prop_assert!(false, "{:?} not taken: {:?}", &buf[..n], heard);
+                            }
+                            at += c;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     proptest::proptest! {
         /// Whatever comes down the line, in whatever rhythm: no panic, the line's last activity
         /// never goes back, the deadline is the reply's start limit while no telegram is being

@@ -7,6 +7,7 @@
 //! - [`adr`]: slave addresses and the ADR byte (USS.md section 3).
 //! - [`telegram`]: encoding and validating whole telegrams, BCC, PKW/PZD layouts (section 3).
 //! - [`framer`]: the incremental receive framer with start-pause and residual-time rules (section 4).
+//! - [`exchange`]: one master exchange without I/O: start pause, reply deadline, framer (section 4).
 //! - [`notation`]: parameters as the manuals write them (`P1082`, `r0947[3]`).
 //! - [`pkw`]: parameter tasks and replies, PNU paging, error numbers, reply matching (section 6).
 //! - [`pzd`]: STW1/ZSW1 flag types, the PROFIdrive states, setpoint scaling (section 7).

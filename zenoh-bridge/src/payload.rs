@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 use uss_client::uss_shm_types::diag::RtMode;
-use uss_client::view::{BusView, DriveView};
+use uss_client::view::{BusView, DriveView, InfoView};
 use uss_client::{
     BusStatus, DriveDiag, DriveInfo, Health, ParamValue, PzdInput, Quantity, Setpoint, StopCommand,
     state_name,
@@ -225,35 +225,23 @@ impl<'a> Diag<'a> {
     }
 }
 
-/// `<prefix>/<bus>/drive/<addr>/info`.
+/// `<prefix>/<bus>/drive/<addr>/info`: the one view of what ussd knows of the drive.
 #[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct Info<'a> {
     pub v: u32,
     pub bus: &'a str,
     pub drive: u8,
-    /// P2000: the frequency of 100 % (0x4000).
-    pub reference_hz: f32,
-    pub pzd_words: u8,
-    pub pkw_words: u8,
-    pub watchdog_ms: u32,
-    /// What a latched drive gets: OFF1, OFF2, OFF3.
-    pub safe_command: &'static str,
-    pub params_writable: bool,
+    #[serde(flatten)]
+    pub view: InfoView,
 }
 
 impl<'a> Info<'a> {
     pub fn new(bus: &'a str, d: &DriveDiag) -> Self {
-        let i = &d.info;
         Self {
             v: VERSION,
             bus,
             drive: d.address,
-            reference_hz: i.reference_hz,
-            pzd_words: i.pzd_words,
-            pkw_words: i.pkw_words,
-            watchdog_ms: i.watchdog_ms,
-            safe_command: i.safe_command().map_or("unknown", StopCommand::name),
-            params_writable: i.params_writable != 0,
+            view: InfoView::of(&d.info),
         }
     }
 }

@@ -4,7 +4,8 @@
 use super::status::{BusLine, BusView, ControlView, last_failure};
 use serde::Serialize;
 use std::fmt::Write as _;
-use uss_client::{BusStatus, DriveDiag, StopCommand};
+use uss_client::view::InfoView;
+use uss_client::{BusStatus, DriveDiag};
 use uss_shm_types::diag::NEVER;
 use uss_shm_types::{DriveCounters, DriveInfo};
 
@@ -105,55 +106,27 @@ pub(super) fn counters(d: &DriveDiag) -> [(&'static str, u64); ORDERED] {
     all
 }
 
-/// What ussd knows of a drive from its configuration.
+/// What ussd knows of a drive from its configuration and the drive itself: the one view
+/// ([`InfoView`]), and `pkw`, the name v1 of the interface gave `pkw_words` (the same number).
 #[derive(Debug, Serialize, schemars::JsonSchema)]
 pub struct InfoReport {
-    /// P2000: the frequency of a setpoint or actual value of 0x4000 (100 %); 0 while ussd reads
-    /// it again (the drive came online, was reset or commissioned): no Hz are known then.
-    pub reference_hz: f32,
-    pub pzd_words: u8,
-    /// P2013: 0, 3, 4, or 127 (variable).
+    #[serde(flatten)]
+    pub view: InfoView,
+    /// P2013: 0, 3, 4, or 127 (variable); `pkw_words` under its name of v1.
     pub pkw: u8,
-    pub watchdog_ms: u32,
-    /// What a latched drive gets: "OFF1", "OFF2", "OFF3".
-    pub safe_command: &'static str,
-    pub params_writable: bool,
-    pub weight: u8,
 }
 
 impl InfoReport {
     pub fn of(i: &DriveInfo) -> Self {
+        let view = InfoView::of(i);
         Self {
-            reference_hz: i.reference_hz,
-            pzd_words: i.pzd_words,
-            pkw: i.pkw_words,
-            watchdog_ms: i.watchdog_ms,
-            safe_command: i.safe_command().map_or("unknown", StopCommand::name),
-            params_writable: i.params_writable != 0,
-            weight: i.weight,
+            pkw: view.pkw_words,
+            view,
         }
     }
 
     pub fn human(&self) -> String {
-        format!(
-            "reference {}, PZD {}, PKW {}, watchdog {} ms, safe command {}, weight {}, \
-             parameters {}",
-            if self.reference_hz > 0.0 {
-                format!("{} Hz", self.reference_hz)
-            } else {
-                "not known (being read)".to_owned()
-            },
-            self.pzd_words,
-            self.pkw,
-            self.watchdog_ms,
-            self.safe_command,
-            self.weight,
-            if self.params_writable {
-                "writable"
-            } else {
-                "read-only"
-            }
-        )
+        self.view.human()
     }
 }
 
