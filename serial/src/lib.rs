@@ -613,19 +613,14 @@ impl Transport for SerialTransport {
     /// Writes every byte and returns when the last character leaves the UART: `now` plus their
     /// wire time (USS.md section 4). No `tcdrain`: it is slow on USB adapters.
     fn send(&mut self, bytes: &[u8], now: Duration) -> Result<Duration, TransportError> {
-        let mut rest = bytes;
-        while !rest.is_empty() {
-            match nix::unistd::write(self.fd(), rest) {
-                Ok(n) if n > 0 => rest = &rest[n..],
-                Ok(_) | Err(Errno::EAGAIN) => {
-                    if !ready(self.fd(), PollFlags::POLLOUT, self.write_stall)? {
-                        return Err(TransportError::Stalled);
-                    }
-                }
-                Err(Errno::EINTR) => {}
-                Err(errno) => return Err(line_failure(errno)),
-            }
-        }
+        let fd = self.fd();
+        write_all(
+            fd,
+            bytes,
+            self.write_stall,
+            |rest| nix::unistd::write(fd, rest).map_err(std::io::Error::from),
+            |e| line_failure(Errno::from_raw(e.raw_os_error().unwrap_or(0))),
+        )?;
         Ok(if self.paced {
             now + self.timing.chars(bytes.len() as u64)
         } else {
@@ -653,6 +648,38 @@ impl Transport for SerialTransport {
             }
         }
     }
+}
+
+/// Writes every byte of `bytes` to the non-blocking `fd` with `write`, waiting in `ppoll` while
+/// the device takes nothing, at most `write_stall` each time ([`TransportError::Stalled`]): the
+/// one send loop of every line kind. `failure` says what an error of `write` means for its kind
+/// (a line gone, or an I/O error).
+pub(crate) fn write_all(
+    fd: BorrowedFd<'_>,
+    bytes: &[u8],
+    write_stall: Duration,
+    mut write: impl FnMut(&[u8]) -> std::io::Result<usize>,
+    failure: impl Fn(std::io::Error) -> TransportError,
+) -> Result<(), TransportError> {
+    let mut rest = bytes;
+    while !rest.is_empty() {
+        match write(rest) {
+            Ok(n) if n > 0 => rest = &rest[n..],
+            Ok(_) => {
+                if !ready(fd, PollFlags::POLLOUT, write_stall)? {
+                    return Err(TransportError::Stalled);
+                }
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                if !ready(fd, PollFlags::POLLOUT, write_stall)? {
+                    return Err(TransportError::Stalled);
+                }
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(failure(e)),
+        }
+    }
+    Ok(())
 }
 
 /// Waits in `ppoll` until `fd` has input (or hung up) or `deadline` passes on `clock`: false

@@ -14,7 +14,6 @@
 
 use core::fmt;
 use core::time::Duration;
-use nix::poll::PollFlags;
 use std::io::{ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
 use std::os::fd::AsFd;
@@ -223,20 +222,14 @@ impl Transport for TcpTransport {
     /// Writes every byte and returns when the last character leaves the server's port: `now`
     /// plus their wire time (USS.md section 4).
     fn send(&mut self, bytes: &[u8], now: Duration) -> Result<Duration, TransportError> {
-        let mut rest = bytes;
-        while !rest.is_empty() {
-            match self.stream.write(rest) {
-                Ok(n) if n > 0 => rest = &rest[n..],
-                Ok(_) => return Err(TransportError::Closed),
-                Err(e) if e.kind() == ErrorKind::WouldBlock => {
-                    if !crate::ready(self.stream.as_fd(), PollFlags::POLLOUT, self.write_stall)? {
-                        return Err(TransportError::Stalled);
-                    }
-                }
-                Err(e) if e.kind() == ErrorKind::Interrupted => {}
-                Err(e) => return Err(connection_failure(e)),
-            }
-        }
+        let stream = &self.stream;
+        crate::write_all(
+            stream.as_fd(),
+            bytes,
+            self.write_stall,
+            |rest| (&*stream).write(rest),
+            connection_failure,
+        )?;
         Ok(now + self.timing.chars(bytes.len() as u64))
     }
 
@@ -293,6 +286,36 @@ mod tests {
         assert_eq!(report.peer.to_string(), address);
         let (port, _) = server.accept().unwrap();
         (transport, port)
+    }
+
+    #[test]
+    fn a_server_that_takes_nothing_is_a_stalled_write_and_one_that_closed_is_the_line_closed() {
+        // The server never reads: once the socket's buffers are full, the shared send loop
+        // waits a write stall's time and says so, never blocks on.
+        let (mut t, port) = connected();
+        let clock = MonotonicClock::new();
+        let chunk = [0x55u8; 1024];
+        let outcome = (0..1_000_000)
+            .map(|_| t.send(&chunk, clock.now()))
+            .find(Result::is_err);
+        assert!(
+            matches!(outcome, Some(Err(TransportError::Stalled))),
+            "{outcome:?}"
+        );
+        // The server is gone: a write fails as the line closed (reset or broken pipe).
+        drop(port);
+        let (mut t, port) = connected();
+        drop(port);
+        let outcome = (0..1000)
+            .map(|_| {
+                std::thread::sleep(Duration::from_millis(1));
+                t.send(&chunk, clock.now())
+            })
+            .find(Result::is_err);
+        assert!(
+            matches!(outcome, Some(Err(TransportError::Closed))),
+            "{outcome:?}"
+        );
     }
 
     #[test]
