@@ -164,10 +164,15 @@ fn confirm_stop<'a>(
             let left = deadline.saturating_duration_since(Instant::now());
             let shown = bus
                 .as_ref()
-                .ok_or_else(|| format!("ussd is not running on {name}"))
+                .ok_or_else(|| {
+                    Refusal::new(
+                        ErrorKind::NotRunning,
+                        format!("ussd is not running on {name}"),
+                    )
+                })
                 .and_then(|b| {
                     b.wait_stopped_since(drive, command, sent_ns, Some(left))
-                        .map_err(|e| e.to_string())
+                        .map_err(Refusal::from)
                 });
             StopReply::new(name, drive.get(), command, shown)
         })
@@ -227,8 +232,12 @@ pub fn serve_stops(
                     let replies: Vec<_> = drives
                         .iter()
                         .map(|&d| {
-                            let why = format!(
-                                "sent; not confirmed: {MAX_CONFIRMING} stops are being confirmed"
+                            let why = Refusal::new(
+                                ErrorKind::WaitTimeout,
+                                format!(
+                                    "sent; not confirmed: {MAX_CONFIRMING} stops are being \
+                                     confirmed"
+                                ),
                             );
                             StopReply::new(name, d.get(), command, Err(why))
                         })
@@ -403,35 +412,33 @@ impl Dispatcher<'_> {
             report.state = "refused";
             report.sender = sender;
             report.peer = Some(who);
-            report.error = Some(why);
+            report.set_error(Some(&why));
             report.refused = *refused;
             put_report(self.session, &self.keys.control(drive), &report);
         }
     }
 
-    fn hand_on(&mut self, drive: Address, sample: Parsed, peer: Peer) -> Result<(), String> {
+    fn hand_on(&mut self, drive: Address, sample: Parsed, peer: Peer) -> Result<(), Refusal> {
         if !self.allowed {
             self.gate.count(&peer, Right::Control, CONTROL_REFUSED);
-            return Err(CONTROL_REFUSED.to_owned());
+            return Err(Refusal::refused(CONTROL_REFUSED));
         }
-        // A control report carries the text (the remote controller's report says why).
-        self.gate
-            .check(&peer, Right::Control, Some(drive))
-            .map_err(|r| r.text)?;
+        // A control report carries the refusal (the remote controller's report says why).
+        self.gate.check(&peer, Right::Control, Some(drive))?;
         if self.bus.is_none() && Instant::now() >= self.next_open {
             self.next_open = Instant::now() + Duration::from_millis(250);
             self.bus = Bus::open_as(self.name, "uss-zenoh-control").ok();
         }
-        let bus = self
-            .bus
-            .as_ref()
-            .ok_or_else(|| format!("ussd is not running on {}: nothing was sent", self.name))?;
+        let bus = self.bus.as_ref().ok_or_else(|| not_running(self.name))?;
         if !self.drives.contains_key(&drive) {
             let known = bus.drives();
             if !known.contains(&drive) {
-                return Err(format!(
-                    "drive {drive} is not on {} (ussd polls drives {known:?} there)",
-                    self.name
+                return Err(Refusal::new(
+                    ErrorKind::UnknownDrive,
+                    format!(
+                        "drive {drive} is not on {} (ussd polls drives {known:?} there)",
+                        self.name
+                    ),
                 ));
             }
             let (tx, rx) = crossbeam_channel::bounded(DRIVE_QUEUE);
@@ -446,24 +453,26 @@ impl Dispatcher<'_> {
                 .spawn(move || {
                     control_drive(&session, &name, &keys, drive, &rx, &held, &stop_flag);
                 })
-                .map_err(|e| format!("cannot start the control thread of drive {drive}: {e}"))?;
+                .map_err(|e| {
+                    Refusal::new(
+                        ErrorKind::Internal,
+                        format!("cannot start the control thread of drive {drive}: {e}"),
+                    )
+                })?;
             self.drives.insert(drive, (tx, thread));
         }
         let Some((tx, _)) = self.drives.get(&drive) else {
-            return Err("no control thread".to_owned());
+            return Err(Refusal::new(ErrorKind::Internal, "no control thread"));
         };
         match tx.try_send((sample, peer)) {
             Ok(()) => Ok(()),
-            Err(TrySendError::Full(_)) => Err(format!(
+            Err(TrySendError::Full(_)) => Err(Refusal::refused(format!(
                 "the bridge is {DRIVE_QUEUE} samples behind with drive {drive}: this one was dropped"
-            )),
+            ))),
             Err(TrySendError::Disconnected(_)) => {
                 // The thread could not reach ussd: the next sample starts another.
                 self.drives.remove(&drive);
-                Err(format!(
-                    "ussd is not running on {}: nothing was sent",
-                    self.name
-                ))
+                Err(not_running(self.name))
             }
         }
     }
@@ -511,32 +520,38 @@ struct Remote<'a> {
 
 impl Remote<'_> {
     /// Passes one sample on, or says why not.
-    fn take(&mut self, (sample, peer): FromPeer) -> Result<(), String> {
-        let out = sample.map_err(|e| e.to_string())?;
+    fn take(&mut self, (sample, peer): FromPeer) -> Result<(), Refusal> {
+        let out = sample.map_err(|e| Refusal::new(e.kind(), e.to_string()))?;
         self.report.sender = Some(out.from.clone());
         self.report.peer = Some(peer.to_string());
         // Only a verified name controls (the bridge starts with --allow-control only under a
         // policy that grants `control` by name, and its gate let this peer through for that).
         let Some(verified) = peer.verified_name().map(str::to_owned) else {
-            return Err(format!(
+            return Err(Refusal::refused(format!(
                 "refused: {peer} is no verified name: remote control rests on certificates (or users) the policy names"
-            ));
+            )));
         };
         // The holder is its certificate and its `from` (one process of it): another
         // certificate's sample, or another process of the same one, is another sender.
         let holds = self.report.holder.as_ref() == Some(&out.from)
             && self.holder_verified.as_deref() == Some(verified.as_str());
         if let Some(holder) = self.report.holder.as_ref().filter(|_| !holds) {
-            return Err(format!(
-                "drive {} is controlled remotely by {holder:?} until it releases it or falls \
-                 silent: nothing of {:?} was sent",
-                self.drive, out.from
+            return Err(Refusal::new(
+                ErrorKind::Controlled,
+                format!(
+                    "drive {} is controlled remotely by {holder:?} until it releases it or falls \
+                     silent: nothing of {:?} was sent",
+                    self.drive, out.from
+                ),
             ));
         }
         if let Some(last) = self.last_seq.filter(|&last| out.seq <= last) {
-            return Err(format!(
-                "old sample: seq {} is not above {last}, the last one taken",
-                out.seq
+            return Err(Refusal::new(
+                ErrorKind::InvalidSample,
+                format!(
+                    "old sample: seq {} is not above {last}, the last one taken",
+                    out.seq
+                ),
             ));
         }
         if out.release {
@@ -559,52 +574,40 @@ impl Remote<'_> {
         if self.controller.is_none() {
             // A session acknowledges no latch by opening the drive: only a remote controller's
             // stop that names the latch re-arms it.
-            let c = self
-                .bus
-                .control(self.drive, ControlOptions::default())
-                .map_err(|e| e.to_string())?;
+            let c = self.bus.control(self.drive, ControlOptions::default())?;
             self.controller = Some(c);
             self.active = Some(Instant::now());
         }
         let Some(c) = &self.controller else {
-            return Err("no controller".to_owned());
+            return Err(Refusal::new(ErrorKind::Internal, "no controller"));
         };
         let info = c.inputs().info();
         let words = out
             .pzd(usize::from(info.pzd_words), info.reference_hz)
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| Refusal::new(e.kind(), e.to_string()))?;
         let image = c.inputs().latest();
         if image.is_live() && !holds {
             // Live without this sender having re-armed it: its holder fell silent and ussd has
             // not shown the trip yet. Only a named re-arm of that latch takes it over.
-            return Err(format!(
-                "drive {} is live under an earlier remote controller's words: wait for its latch \
-                 and re-arm it by name",
-                self.drive
+            return Err(Refusal::new(
+                ErrorKind::Controlled,
+                format!(
+                    "drive {} is live under an earlier remote controller's words: wait for its \
+                     latch and re-arm it by name",
+                    self.drive
+                ),
             ));
         }
         // A latched drive takes from the network only a sample that names its latch: one sent
         // before the latch, or by a controller that never saw it, is reported and not passed on
         // (a remote stop that must reach the drive anyway is the `.../stop` query's).
         if image.latch().is_some_and(|id| out.rearm != Some(id)) {
-            return Err(latched(self.name, self.drive, &image));
+            return Err(latched(ErrorKind::Tripped, self.name, self.drive, &image));
         }
         // The remote controller acknowledges the latch it names (the session checks that the
         // drive shows it); then its stop re-arms the drive and its ON runs it, as the session
         // decides for every controller.
-        let named = out.rearm.filter(|&id| id != 0 && !image.is_live());
-        // A re-arm carries when it was asked for: a latch that began after it is not its to
-        // clear (an operator's stop that came while the remote started).
-        let named = match (named, out.asked_ns) {
-            (Some(_), None) => {
-                return Err(format!(
-                    "drive {} on {}: a re-arm (rearm) carries asked_ns, when it was asked for on \
-                     this bridge's clock (the images' monotonic_ns): nothing was re-armed",
-                    self.drive, self.name
-                ));
-            }
-            (named, asked) => named.zip(asked),
-        };
+        let named = self.named_rearm(&out, &image)?;
         let sent = named
             .map_or(Ok(()), |(id, asked)| c.acknowledge_latch(id, asked))
             .and_then(|()| c.set_words(&words));
@@ -620,11 +623,34 @@ impl Remote<'_> {
                 Ok(())
             }
             Err(
-                ClientError::Tripped { .. }
+                e @ (ClientError::Tripped { .. }
                 | ClientError::NotArmed { .. }
-                | ClientError::NotTheLatch { .. },
-            ) => Err(latched(self.name, self.drive, &c.inputs().latest())),
-            Err(e) => Err(e.to_string()),
+                | ClientError::NotTheLatch { .. }),
+            ) => Err(latched(
+                e.kind(),
+                self.name,
+                self.drive,
+                &c.inputs().latest(),
+            )),
+            Err(e) => Err(Refusal::from(e)),
+        }
+    }
+
+    /// The latch a sample names to re-arm and when that was asked for, if it names one of the
+    /// latched drive's. A re-arm carries when it was asked for: a latch that began after it is
+    /// not its to clear (an operator's stop that came while the remote started).
+    fn named_rearm(&self, out: &Out, image: &PzdInput) -> Result<Option<(u64, u64)>, Refusal> {
+        let named = out.rearm.filter(|&id| id != 0 && !image.is_live());
+        match (named, out.asked_ns) {
+            (Some(_), None) => Err(Refusal::new(
+                ErrorKind::InvalidSample,
+                format!(
+                    "drive {} on {}: a re-arm (rearm) carries asked_ns, when it was asked for on \
+                     this bridge's clock (the images' monotonic_ns): nothing was re-armed",
+                    self.drive, self.name
+                ),
+            )),
+            (named, asked) => Ok(named.zip(asked)),
         }
     }
 
@@ -640,7 +666,7 @@ impl Remote<'_> {
         if let Some(c) = self.controller.take() {
             let _ = c.release();
             self.report.state = "released";
-            self.report.error = None;
+            self.report.set_error(None);
         }
         self.forget_holder();
         self.last_seq = None;
@@ -669,15 +695,26 @@ impl Remote<'_> {
 }
 
 /// A latch in words a remote controller can act on.
-fn latched(bus: &str, drive: Address, image: &PzdInput) -> String {
+/// ussd is not running on `bus`: a sample was not passed on.
+fn not_running(bus: &str) -> Refusal {
+    Refusal::new(
+        ErrorKind::NotRunning,
+        format!("ussd is not running on {bus}: nothing was sent"),
+    )
+}
+
+/// A latched drive's refusal of a sample (of `kind`: tripped, not armed, ...), with how to
+/// re-arm it.
+fn latched(kind: ErrorKind, bus: &str, drive: Address, image: &PzdInput) -> Refusal {
     let latch = uss_client::Latch::of(image);
-    format!(
+    let text = format!(
         "drive {drive} on {bus} is latched ({latch}) and gets {}: nothing was sent; re-arm it \
          with a stop naming the latch and when it was asked for \
          ({{\"stw1\":1150,\"rearm\":{},\"asked_ns\":...}}), then ON",
         latch.command_name(),
         image.latch_id
-    )
+    );
+    Refusal::new(kind, text)
 }
 
 /// Serves the remote controller of one drive until `stop_flag` or the dispatcher goes; hands
@@ -699,7 +736,7 @@ fn control_drive(
             .filter_map(|(parsed, _)| parsed.ok())
             .last()
             .map(|o| o.from);
-        report.error = Some(format!("ussd is not running on {name}: nothing was sent"));
+        report.set_error(Some(&not_running(name)));
         put_report(session, &keys.control(drive), &report);
         return;
     };
@@ -742,7 +779,7 @@ fn control_drive(
             Ok(sample) => match remote.take(sample) {
                 Ok(()) => {
                     remote.report.taken += 1;
-                    remote.report.error = None;
+                    remote.report.set_error(None);
                     if remote.controller.is_some() {
                         remote.report.state = "controlling";
                     }
@@ -750,7 +787,7 @@ fn control_drive(
                 Err(e) => {
                     remote.report.refused += 1;
                     remote.report.state = "refused";
-                    remote.report.error = Some(e);
+                    remote.report.set_error(Some(&e));
                 }
             },
             Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}

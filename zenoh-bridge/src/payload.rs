@@ -1,6 +1,7 @@
 //! The payloads, JSON with a version field `v` (this is version 1): what any Zenoh client in any
 //! language reads, never ussd's `#[repr(C)]` bytes. A field is only ever added within a version.
 
+use crate::refusal::Refusal;
 use serde::{Deserialize, Serialize};
 use uss_client::uss_shm_types::diag::RtMode;
 use uss_client::view::{BusView, DriveView, InfoView};
@@ -482,6 +483,17 @@ pub enum SampleError {
     ReferenceUnknown,
 }
 
+impl SampleError {
+    /// Its kind in the error table every front-end speaks: a sample that cannot be right, or
+    /// hz while the reference is read again.
+    pub const fn kind(&self) -> uss_client::ErrorKind {
+        match self {
+            Self::ReferenceUnknown => uss_client::ErrorKind::ReferenceUnknown,
+            _ => uss_client::ErrorKind::InvalidSample,
+        }
+    }
+}
+
 /// `<prefix>/<bus>/drive/<addr>/control`: what the bridge does with a remote controller's
 /// samples of the drive; on every change, and every second while the bridge holds the drive.
 #[derive(Debug, Clone, PartialEq, Serialize, schemars::JsonSchema)]
@@ -510,6 +522,11 @@ pub struct ControlReport<'a> {
     pub seq: Option<u64>,
     /// Why the last sample was not passed on, in ussctl's words.
     pub error: Option<String>,
+    /// Its kind from the error table every front-end speaks (the C status's snake-case name,
+    /// as in an error reply: `refused`, `controlled`, `tripped`, `invalid_sample`, ...) and
+    /// that status's number; null while `error` is.
+    pub error_kind: Option<&'static str>,
+    pub error_code: Option<u8>,
     /// Samples passed on and refused since the bridge started.
     pub taken: u64,
     pub refused: u64,
@@ -546,6 +563,10 @@ pub struct StopReply<'a> {
     pub confirmed: bool,
     /// Why it was not confirmed.
     pub error: Option<String>,
+    /// Its kind and number from the error table (as a control report's `error_kind` and
+    /// `error_code`: `wait_timeout`, `not_running`, ...); null while `error` is.
+    pub error_kind: Option<&'static str>,
+    pub error_code: Option<u8>,
     /// The control word that went out.
     pub stw1: Option<u16>,
     pub control: Option<&'static str>,
@@ -558,9 +579,10 @@ impl<'a> StopReply<'a> {
         bus: &'a str,
         drive: u8,
         command: StopCommand,
-        shown: Result<PzdInput, String>,
+        shown: Result<PzdInput, Refusal>,
     ) -> Self {
         let i = shown.as_ref().ok();
+        let status = shown.as_ref().err().map(|r| r.kind.status());
         Self {
             v: VERSION,
             bus,
@@ -574,7 +596,9 @@ impl<'a> StopReply<'a> {
             control: i.map(PzdInput::control_name),
             latch_reason: i.map(PzdInput::latch_reason_name),
             state: i.map(|i| state_name(i.zsw1)),
-            error: shown.err(),
+            error: shown.err().map(|r| r.text),
+            error_kind: status.map(uss_client::kinds::Status::snake),
+            error_code: status.map(uss_client::kinds::Status::code),
         }
     }
 }
@@ -596,10 +620,20 @@ impl<'a> ControlReport<'a> {
             latch_id: 0,
             seq: None,
             error: None,
+            error_kind: None,
+            error_code: None,
             taken: 0,
             refused: 0,
             published_unix_ns: 0,
         }
+    }
+
+    /// Why the last sample was not passed on (its text, kind and code), or none.
+    pub fn set_error(&mut self, refusal: Option<&Refusal>) {
+        let status = refusal.map(|r| r.kind.status());
+        self.error = refusal.map(|r| r.text.clone());
+        self.error_kind = status.map(uss_client::kinds::Status::snake);
+        self.error_code = status.map(uss_client::kinds::Status::code);
     }
 }
 
@@ -747,6 +781,34 @@ mod tests {
     /// A stop's reply says the stop the drive gets, which is the stronger one it kept where it
     /// had one: OFF3 asked of a coasting drive leaves it coasting (OFF2), as `ussctl` says (the
     /// adversarial run saw the reply name only the OFF3 asked).
+    /// A remote controller tells a refusal of its sample by its kind, as a local program
+    /// tells a `ClientError`'s: a drive held by another controller, a latched drive, a sample
+    /// that cannot be right; and a stop not confirmed says why in the same table.
+    #[test]
+    fn a_refused_sample_and_an_unconfirmed_stop_carry_the_error_tables_kind_and_code() {
+        use uss_client::ErrorKind;
+        let mut report = ControlReport::new("b", 3);
+        let held = Refusal::new(ErrorKind::Controlled, "drive 3 is controlled remotely");
+        report.set_error(Some(&held));
+        let json = serde_json::to_value(&report).unwrap();
+        assert_eq!(json["error"], "drive 3 is controlled remotely");
+        assert_eq!(json["error_kind"], ErrorKind::Controlled.status().snake());
+        assert_eq!(json["error_code"], ErrorKind::Controlled.status().code());
+        report.set_error(None);
+        let json = serde_json::to_value(&report).unwrap();
+        assert!(json["error"].is_null() && json["error_kind"].is_null());
+        assert_eq!(
+            SampleError::ReferenceUnknown.kind(),
+            ErrorKind::ReferenceUnknown
+        );
+        assert_eq!(SampleError::HzNotFinite.kind(), ErrorKind::InvalidSample);
+        let why = Refusal::new(ErrorKind::WaitTimeout, "sent; not confirmed");
+        let reply = StopReply::new("b", 3, StopCommand::Off1, Err(why));
+        let json = serde_json::to_value(&reply).unwrap();
+        assert_eq!(json["error_kind"], ErrorKind::WaitTimeout.status().snake());
+        assert_eq!(json["confirmed"], false);
+    }
+
     #[test]
     fn a_stop_reply_says_the_stronger_stop_a_drive_kept() {
         let coasting = PzdInput {
@@ -767,7 +829,12 @@ mod tests {
         };
         let json = serde_json::to_value(StopReply::new("b", 1, StopCommand::Off3, Ok(stopping)));
         assert_eq!(json.unwrap()["sent"], "OFF3");
-        let unconfirmed = StopReply::new("b", 1, StopCommand::Off3, Err("gone".into()));
+        let unconfirmed = StopReply::new(
+            "b",
+            1,
+            StopCommand::Off3,
+            Err(Refusal::new(uss_client::ErrorKind::WaitTimeout, "gone")),
+        );
         assert_eq!(
             serde_json::to_value(unconfirmed).unwrap()["sent"],
             serde_json::Value::Null

@@ -665,6 +665,11 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
         report.contains("re-arm it with a stop naming the latch"),
         "{report}"
     );
+    // The kind of the refusal from the error table, as a local program gets it.
+    assert!(
+        report.contains(r#""error_kind":"tripped","error_code":8"#),
+        "{report}"
+    );
     std::thread::sleep(Duration::from_millis(300));
     let i = watch.latest();
     assert!(latched(&i) && reason(&i) == LatchReason::Stale, "{i:?}");
@@ -684,6 +689,10 @@ fn remote_control_is_refused_by_default_and_fail_safe_across_the_network() {
     // A sample the bridge cannot read is refused, reported, and not passed on.
     let report = put_sample(&ns, &drive, "controller", "run fast", "not a sample");
     assert!(report.contains("send e.g."), "{report}");
+    assert!(
+        report.contains(r#""error_kind":"invalid_sample""#),
+        "{report}"
+    );
 
     // A bridge that dies is a stale controller: latched within the watchdog time.
     let mut run = ns.client(&["run", &drive, "--hz", "10"]);
@@ -796,6 +805,7 @@ fn operator_stops_latch(ns: &Netns, ussd: &Ussd, drive: &str) {
         report.contains("nothing of \\\"intruder\\\" was sent"),
         "{report}"
     );
+    assert!(report.contains(r#""error_kind":"controlled""#), "{report}");
     let (ok, out, err) = ns.call(&["stop", drive, "--quick"]);
     assert!(ok, "{err}");
     let stop = json(&out);
