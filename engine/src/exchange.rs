@@ -335,26 +335,32 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                 }));
             };
             self.capture.byte(rx.byte, rx.at);
-            let (adr, words, stx_at, garbage) = match self.exchange.heard(rx.byte, rx.error, rx.at)
-            {
-                Heard::More => continue,
-                Heard::Broken(e) => {
-                    self.drain()?;
-                    return Ok(Attempt::Failed(LastFailure::from(&e)));
-                }
-                Heard::Telegram {
-                    telegram,
-                    stx_at,
-                    after_garbage,
-                    ..
-                } => (
-                    telegram.adr(),
-                    telegram.words(setup.layout),
-                    stx_at,
-                    after_garbage,
-                ),
-            };
-            let failure = if adr == Adr::to(setup.address) {
+            let (adr, words, stx_at, garbage, own) =
+                match self.exchange.heard(rx.byte, rx.error, rx.at) {
+                    Heard::More => continue,
+                    Heard::Broken(e) => {
+                        self.drain()?;
+                        return Ok(Attempt::Failed(LastFailure::from(&e)));
+                    }
+                    Heard::Telegram {
+                        telegram,
+                        stx_at,
+                        after_garbage,
+                        ..
+                    } => (
+                        telegram.adr(),
+                        telegram.words(setup.layout),
+                        stx_at,
+                        after_garbage,
+                        // Our own request, byte for byte: a line that sends it back (a 2-wire
+                        // adapter without `echo = true`, a device server that echoes). A
+                        // drive's reply differs (ZSW1 for STW1, a PKW reply for the task).
+                        telegram.as_bytes() == &self.tx[..request_len],
+                    ),
+                };
+            let failure = if own {
+                LastFailure::Echo
+            } else if adr == Adr::to(setup.address) {
                 match words {
                     Ok(words) => {
                         if let Some(g) = garbage {

@@ -173,3 +173,36 @@ fn a_reply_handed_over_in_two_halves_within_the_latency_is_whole() {
         strict.exchanges
     );
 }
+
+/// Found by issue 48's adversarial sweep: a line that sends back our own request (a 2-wire
+/// adapter with `echo = true` missing, a TCP peer that echoes) must not make a drive that is
+/// not there look online. Drive 5 is absent; its only "replies" are ussd's own requests.
+#[test]
+fn an_echo_of_our_own_request_is_no_reply_of_an_absent_drive() {
+    let sim = SimProcess::start(&["--baud", "115200", "--drive", "1", "--echo"]);
+    let drives: &[(u8, &str)] = &[(1, ""), (5, "")];
+    let mut ussd = Ussd::launch(
+        &[BusSpec {
+            suffix: "",
+            device: &sim.path,
+            keys: "baud = 115200",
+            drives,
+        }],
+        &[],
+    );
+    let bus = ussd.open_when_running("");
+    std::thread::sleep(Duration::from_secs(2));
+    let d = bus.diag(addr(5)).unwrap();
+    assert_eq!(
+        d.online, 0,
+        "absent drive 5 shown online from echoes: {:?}",
+        d.counters
+    );
+    // Counted as what it is, so the troubleshooting page's `echo = true` is found.
+    assert!(
+        d.counters.echo > 0 && d.counters.good == 0,
+        "{:?}",
+        d.counters
+    );
+    let _ = ussd.terminate();
+}
