@@ -788,6 +788,14 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
         .unwrap();
     assert_eq!(c.inputs().actual_hz(), 30.0);
     // The control loop goes on in a thread of its own while the tools look.
+    // The loop ends when the tools are done, and also when one of their checks fails (a
+    // failed check would otherwise leave the scope waiting for it forever).
+    struct Done<'a>(&'a AtomicBool);
+    impl Drop for Done<'_> {
+        fn drop(&mut self) {
+            self.0.store(false, Ordering::Relaxed);
+        }
+    }
     let looking = AtomicBool::new(true);
     std::thread::scope(|scope| {
         scope.spawn(|| {
@@ -796,8 +804,8 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
                 std::thread::sleep(Duration::from_millis(20));
             }
         });
+        let _done = Done(&looking);
         every_tool_shows_30_hz(&ussd, &bus);
-        looking.store(false, Ordering::Relaxed);
     });
 }
 
@@ -822,12 +830,15 @@ fn every_tool_shows_30_hz(ussd: &Ussd, bus: &Bus) {
     let watch = text(&out.stdout);
     assert!(watch.contains("\"actual_hz\":30.0"), "{watch}");
     let out = ussd.ussctl(&["--json", "stats"]);
-    let described = text(&out.stdout);
-    assert!(
-        described.contains(
-            "\"info\":{\"reference_hz\":60.0,\"pzd_words\":2,\"pkw\":4,\"watchdog_ms\":150,\
-             \"safe_command\":\"OFF3\",\"params_writable\":true,\"weight\":1}"
-        ),
+    let described: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let drive_1 = described["drives"]
+        .as_array()
+        .and_then(|d| d.iter().find(|d| d["address"] == 1))
+        .unwrap_or_else(|| panic!("no drive 1 in {described}"));
+    assert_eq!(
+        drive_1["info"],
+        serde_json::json!({"reference_hz": 60.0, "pzd_words": 2, "pkw_words": 4, "pkw": 4,
+            "watchdog_ms": 150, "safe_command": "OFF3", "params_writable": true, "weight": 1}),
         "{described}"
     );
     let out = ussd.ussctl(&["stats"]);
