@@ -790,12 +790,6 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
     // The control loop goes on in a thread of its own while the tools look.
     // The loop ends when the tools are done, and also when one of their checks fails (a
     // failed check would otherwise leave the scope waiting for it forever).
-    struct Done<'a>(&'a AtomicBool);
-    impl Drop for Done<'_> {
-        fn drop(&mut self) {
-            self.0.store(false, Ordering::Relaxed);
-        }
-    }
     let looking = AtomicBool::new(true);
     std::thread::scope(|scope| {
         scope.spawn(|| {
@@ -810,6 +804,15 @@ fn every_tool_scales_hz_with_the_reference_frequency_ussd_publishes() {
 }
 
 /// `status`, `watch` and `stats` of drive 1 running at 30 Hz of its 60 Hz reference.
+/// Ends a keepalive loop when dropped, so a failed check in the scope ends it too.
+struct Done<'a>(&'a AtomicBool);
+
+impl Drop for Done<'_> {
+    fn drop(&mut self) {
+        self.0.store(false, Ordering::Relaxed);
+    }
+}
+
 fn every_tool_shows_30_hz(ussd: &Ussd, bus: &Bus) {
     // Diagnostics (what `status` shows) lag the image by up to a few hundred ms.
     let deadline = Instant::now() + Duration::from_secs(5);
