@@ -994,6 +994,23 @@ enum UssrtStatus ussrt_param_backup(const struct UssrtBus *bus,
                                     uintptr_t *length);
 
 /**
+ * `ussrt_param_backup`, and the settable parameters numbered `first..=last` that the
+ * catalogue does not list, as the drive describes them (AK 4, one exchange per number; the
+ * file's `[described]`): the rest of a drive's list where uss-rt's is not whole. `first`
+ * above `last` is `INVALID_ARGUMENT`.
+ *
+ * # Safety
+ * As `ussrt_param_backup`.
+ */
+enum UssrtStatus ussrt_param_backup_discover(const struct UssrtBus *bus,
+                                             uint8_t address,
+                                             uint16_t first,
+                                             uint16_t last,
+                                             char *text,
+                                             uintptr_t capacity,
+                                             uintptr_t *length);
+
+/**
  * Compares drive `address` with the backup file `backup_text` (its TOML, NUL-terminated, as
  * `ussrt_param_backup` gives it): `*differ` gets the elements that differ, `*same` (may be
  * NULL) those that are the same. A file that fails its checks (another family, a value

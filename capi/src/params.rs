@@ -373,10 +373,57 @@ pub unsafe extern "C" fn ussrt_param_backup(
     capacity: usize,
     length: *mut usize,
 ) -> UssrtStatus {
+    // SAFETY: passed on as the caller gave them, as documented for both.
+    unsafe { backup_text(bus, address, None, text, capacity, length) }
+}
+
+/// `ussrt_param_backup`, and the settable parameters numbered `first..=last` that the
+/// catalogue does not list, as the drive describes them (AK 4, one exchange per number; the
+/// file's `[described]`): the rest of a drive's list where uss-rt's is not whole. `first`
+/// above `last` is `INVALID_ARGUMENT`.
+///
+/// # Safety
+/// As `ussrt_param_backup`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ussrt_param_backup_discover(
+    bus: *const UssrtBus,
+    address: u8,
+    first: u16,
+    last: u16,
+    text: *mut c_char,
+    capacity: usize,
+    length: *mut usize,
+) -> UssrtStatus {
+    if first > last {
+        return guard(|| {
+            Err(Failure::Argument(format!(
+                "discover {first}..={last}: the first number is above the last"
+            )))
+        });
+    }
+    // SAFETY: passed on as the caller gave them, as documented.
+    unsafe { backup_text(bus, address, Some(first..=last), text, capacity, length) }
+}
+
+/// The backup's text into the caller's buffer.
+///
+/// # Safety
+/// As `ussrt_param_backup`.
+unsafe fn backup_text(
+    bus: *const UssrtBus,
+    address: u8,
+    discover: Option<core::ops::RangeInclusive<u16>>,
+    text: *mut c_char,
+    capacity: usize,
+    length: *mut usize,
+) -> UssrtStatus {
     guard(|| {
         let bus = arg(bus, "bus")?;
         let length = out(length, "length")?;
-        let upload = bus.bus.upload(drive(address)?, &mut |_, _| {})?;
+        let options = uss_client::backup::UploadOptions { discover };
+        let upload = bus
+            .bus
+            .upload_with(drive(address)?, &options, &mut |_, _| {})?;
         let file = upload.file.to_text();
         *length = file.len();
         if capacity <= file.len() || text.is_null() {

@@ -342,6 +342,57 @@ pub struct Param {
     pub source: Option<String>,
 }
 
+/// The source of an entry a drive described itself ([`described`]).
+pub const DESCRIBED: &str = "the drive's own description (AK 4), not uss-rt's catalogue";
+
+/// A settable parameter that the family's catalogue does not list, as a drive described it
+/// (AK 4: its data type, descriptive element 1, and its elements, element 2): what a backup
+/// saves of it and a restore writes. Nothing else is known of it: no name, unit, limits (the
+/// drive checks its own) or change rule; its access level is taken as 3, the expert level at
+/// which STARTER sees and changes every user parameter (CU240S OI 07/2008 A5E00766042B AD,
+/// 5.9 p.111: "for STARTER, only access levels 0 and 3 are relevant"). Each kind is made once
+/// and kept for the process (a few per parameter a drive has).
+pub fn described(id: ParamRef, data_type: DataType, array: u16) -> &'static Param {
+    type Made = Vec<&'static Param>;
+    static MADE: std::sync::Mutex<Made> = std::sync::Mutex::new(Vec::new());
+    let id = ParamRef {
+        prefix: Prefix::P,
+        index: None,
+        ..id
+    };
+    let mut made = MADE
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some(p) = made
+        .iter()
+        .find(|p| p.id == id && p.data_type == data_type && p.array == array)
+    {
+        return p;
+    }
+    let p: &'static Param = Box::leak(Box::new(Param {
+        id,
+        name: "described by the drive".to_owned(),
+        data_type,
+        unit: String::new(),
+        scale: None,
+        array,
+        elements: Vec::new(),
+        level: 3,
+        change: Change::Always,
+        eeprom: true,
+        min: None,
+        max: None,
+        default: None,
+        values: Vec::new(),
+        bits: None,
+        action: false,
+        data_sets: 0,
+        source: Some(DESCRIBED.to_owned()),
+    }));
+    made.push(p);
+    p
+}
+
 const fn yes() -> bool {
     true
 }
@@ -405,6 +456,12 @@ impl Param {
     /// Whether it is an array: named with an element only.
     pub const fn is_array(&self) -> bool {
         self.array > 0
+    }
+
+    /// Whether this entry is not the catalogue's but a parameter a drive described itself
+    /// ([`described`]).
+    pub fn is_described(&self) -> bool {
+        self.source.as_deref() == Some(DESCRIBED)
     }
 
     /// Its elements as a user names them: `P2014[0] (COM link, RS485) or P2014[1] (BOP link,

@@ -59,6 +59,32 @@ pub struct BackupFile {
     pub not_on_drive: Vec<String>,
     /// Each settable parameter by its number in the manuals' notation; an array as a list.
     pub param: BTreeMap<String, Saved>,
+    /// Settable parameters the family's catalogue does not list, found on the drive and saved
+    /// as it described them (AK 4: type and elements; [`UploadOptions::discover`]). What is
+    /// under `param` is the catalogue's; what is here, the drive's own word.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub described: BTreeMap<String, DescribedSetting>,
+}
+
+/// A setting the drive described itself: its PROFIdrive data type as the drive gave it, and
+/// its value or (the drive said it has elements) its values.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DescribedSetting {
+    /// `U16`, `I16`, `U32`, `I32` or `Float`.
+    #[serde(rename = "type")]
+    pub data_type: String,
+    pub value: Saved,
+}
+
+/// How an upload goes ([`Bus::upload_with`]).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct UploadOptions {
+    /// Besides the catalogue's settings, ask the drive for every parameter number in this
+    /// range that the catalogue does not list (AK 4, one description each) and save the
+    /// settable ones it has, typed as it describes them: the rest of a drive's list where
+    /// uss-rt's is not whole. A number the drive does not have costs one exchange.
+    pub discover: Option<core::ops::RangeInclusive<u16>>,
 }
 
 /// One parameter's value, or an array's values.
@@ -190,16 +216,7 @@ impl BackupFile {
         let mut keys: BTreeMap<u16, &str> = BTreeMap::new();
         for (key, saved) in &file.param {
             let at = line_of(text, key);
-            let param: ParamRef = key.parse().map_err(|e| fail(at, format!("{key}: {e}")))?;
-            if let Some(first) = keys.insert(param.pnu.get(), key) {
-                return Err(fail(
-                    at,
-                    format!(
-                        "{key}: {first} names the same parameter: keep one of them (nothing was \
-                         restored or compared)"
-                    ),
-                ));
-            }
+            let param = named_once(&mut keys, key, at, &fail)?;
             let info = catalogue.param(param.pnu.get()).ok_or_else(|| {
                 fail(
                     at,
@@ -223,6 +240,7 @@ impl BackupFile {
             }
             entries.extend(elements(key, saved, info).map_err(|m| fail(at, m))?);
         }
+        entries.extend(described_entries(&file, text, catalogue, &mut keys, &fail)?);
         entries.sort_by_key(|e| (e.param.pnu, e.param.index));
         Ok(Loaded {
             file,
@@ -266,9 +284,16 @@ impl BackupFile {
         format!(
             "# uss-rt parameter backup (format {FORMAT}): the settings of drive {} on bus {}: each \
              setting of its family's catalogue, with every element the drive said it has (a \
-             list: its data sets or array).\n# Restore: ussctl param restore DRIVE FILE; compare: \
+             list: its data sets or array){}.\n# Restore: ussctl param restore DRIVE FILE; compare: \
              ussctl param diff DRIVE FILE.\n{body}",
-            self.drive, self.bus
+            self.drive,
+            self.bus,
+            if self.described.is_empty() {
+                ""
+            } else {
+                "; under [described], settings the catalogue does not list, typed as the drive \
+                 described them"
+            }
         )
     }
 }
@@ -342,6 +367,85 @@ fn elements(key: &str, saved: &Saved, info: &'static Param) -> Result<Vec<Entry>
     Ok(out)
 }
 
+/// The elements a file's `[described]` settings set, each checked: a number the catalogue
+/// lists belongs under `[param]`, a type is one uss-rt reads, a parameter is named once
+/// (`keys`, shared with `[param]`).
+fn described_entries<'f>(
+    file: &'f BackupFile,
+    text: &str,
+    catalogue: &'static Catalogue,
+    keys: &mut BTreeMap<u16, &'f str>,
+    fail: &dyn Fn(Option<usize>, String) -> FileError,
+) -> Result<Vec<Entry>, FileError> {
+    let mut entries = Vec::new();
+    for (key, d) in &file.described {
+        let at = line_of(text, key).or_else(|| line_of_table(text, key));
+        let param = named_once(keys, key, at, fail)?;
+        if catalogue.param(param.pnu.get()).is_some() || param.index.is_some() {
+            let why = if param.index.is_some() {
+                "write an array as a list, e.g. value = [1, 2, 3]".to_owned()
+            } else {
+                format!(
+                    "the catalogue of {} lists it: it belongs under [param]",
+                    catalogue.family
+                )
+            };
+            return Err(fail(at, format!("{key}: {why}")));
+        }
+        let data_type = DataType::ALL
+            .into_iter()
+            .find(|t| t.name() == d.data_type)
+            .ok_or_else(|| {
+                fail(
+                    at,
+                    format!(
+                        "{key}: type = \"{}\" is not a type uss-rt reads (U16, I16, U32, \
+                         I32, Float)",
+                        d.data_type
+                    ),
+                )
+            })?;
+        let array = match &d.value {
+            Saved::One(_) => 0,
+            Saved::Many(list) => u16::try_from(list.len()).unwrap_or(u16::MAX),
+        };
+        let info = uss_catalogue::described(param, data_type, array);
+        entries.extend(elements(key, &d.value, info).map_err(|m| fail(at, m))?);
+    }
+    Ok(entries)
+}
+
+/// Parameter `key` of a file, which names it first: of two keys of one parameter (P303,
+/// P0303, p303) the file would mean the one TOML read last, whichever that is.
+fn named_once<'f>(
+    keys: &mut BTreeMap<u16, &'f str>,
+    key: &'f str,
+    at: Option<usize>,
+    fail: &dyn Fn(Option<usize>, String) -> FileError,
+) -> Result<ParamRef, FileError> {
+    let param: ParamRef = key.parse().map_err(|e| fail(at, format!("{key}: {e}")))?;
+    if let Some(first) = keys.insert(param.pnu.get(), key) {
+        return Err(fail(
+            at,
+            format!(
+                "{key}: {first} names the same parameter: keep one of them (nothing was \
+                 restored or compared)"
+            ),
+        ));
+    }
+    Ok(param)
+}
+
+/// The line of a table `[described.key]` in `text`.
+fn line_of_table(text: &str, key: &str) -> Option<usize> {
+    text.lines()
+        .position(|l| {
+            let l = l.trim();
+            l == format!("[described.{key}]") || l == format!("[described.\"{key}\"]")
+        })
+        .map(|i| i + 1)
+}
+
 /// The line of the first `key = ` in `text`.
 fn line_of(text: &str, key: &str) -> Option<usize> {
     text.lines()
@@ -376,6 +480,15 @@ pub fn now_utc() -> String {
         rem % 3600 / 60,
         rem % 60
     )
+}
+
+/// A settable parameter's name as the family's manuals write it (`P0701`; `P303` on SIMOREG).
+fn name_of(pnu: u16, catalogue: &Catalogue) -> String {
+    catalogue.notation(ParamRef {
+        prefix: Prefix::P,
+        pnu: Pnu::from_u16(pnu),
+        index: None,
+    })
 }
 
 /// Reads per request (the PROFIdrive multi-parameter limit).
@@ -620,10 +733,28 @@ impl Bus {
         address: Address,
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<Upload, ParamError> {
+        self.upload_with(address, &UploadOptions::default(), progress)
+    }
+
+    /// [`Bus::upload`], and with [`UploadOptions::discover`] the settable parameters of the
+    /// range that the catalogue does not list, as the drive describes them (`described`).
+    ///
+    /// # Errors
+    /// [`ParamError::NotOnFamily`] for a generic slave; a failure of the path otherwise.
+    pub fn upload_with(
+        &self,
+        address: Address,
+        options: &UploadOptions,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Upload, ParamError> {
         let family = self.family(address);
         let catalogue = settings_catalogue(address, family)?;
         let firmware = self.firmware(address)?;
         let (values, missing) = self.settings(address, catalogue, progress)?;
+        let (described, described_values) = match &options.discover {
+            Some(range) => self.discover(address, catalogue, range.clone(), progress)?,
+            None => (BTreeMap::new(), 0),
+        };
         let mut param: BTreeMap<String, Saved> = BTreeMap::new();
         for (r, info, v) in &values {
             let n = Number::of_param(info, *v);
@@ -648,9 +779,147 @@ impl Bus {
                 taken: now_utc(),
                 not_on_drive: missing,
                 param,
+                described,
             },
-            values: values.len(),
+            values: values.len() + described_values,
         })
+    }
+
+    /// The parameters of `numbers` drive `address` has, with the data type each describes
+    /// (descriptive element `e1`); a number it refuses it does not have, a type uss-rt does
+    /// not read is left out.
+    ///
+    /// # Errors
+    /// A failure of the path.
+    fn described_types(
+        &self,
+        address: Address,
+        numbers: &[u16],
+        e1: Subindex,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Vec<(u16, DataType)>, ParamError> {
+        let tasks: Vec<ParamTask> = numbers
+            .iter()
+            .map(|&n| ParamTask::ReadDescription {
+                pnu: Pnu::from_u16(n),
+                element: e1,
+            })
+            .collect();
+        let mut found = Vec::new();
+        for (&n, r) in numbers
+            .iter()
+            .zip(self.batch_all(address, &tasks, progress))
+        {
+            match r {
+                Ok(code) => {
+                    if let Some(t) = u16::try_from(code.as_u32())
+                        .ok()
+                        .and_then(DataType::from_code)
+                    {
+                        found.push((n, t));
+                    }
+                }
+                // Not on the drive (error 0), or not described to this link.
+                Err(ParamError::Drive(_)) => {}
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(found)
+    }
+
+    /// The settable parameters of drive `address` numbered in `range` that `catalogue` does
+    /// not list, as the drive describes them: each number asked for its data type
+    /// (descriptive element 1; refused: the drive does not have it), those it has for their
+    /// elements (2) and whether they are read-only (4), and the settable ones read, every
+    /// element. A parameter whose type uss-rt does not read, or that the drive does not say is
+    /// writable, is left out. Returns them by name and how many values they hold.
+    ///
+    /// # Errors
+    /// A failure of the path.
+    fn discover(
+        &self,
+        address: Address,
+        catalogue: &'static Catalogue,
+        range: core::ops::RangeInclusive<u16>,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<(BTreeMap<String, DescribedSetting>, usize), ParamError> {
+        let element = |e: u8| Subindex::new(e).map_err(|e| ParamError::Unexpected(e.to_string()));
+        let (e1, e2, e4) = (element(1)?, element(2)?, element(4)?);
+        let numbers: Vec<u16> = range
+            .filter(|&n| catalogue.param(n).is_none() && Pnu::new(u32::from(n)).is_ok())
+            .collect();
+        let found = self.described_types(address, &numbers, e1, progress)?;
+        let tasks: Vec<ParamTask> = found
+            .iter()
+            .flat_map(|&(n, _)| {
+                [e2, e4].map(|element| ParamTask::ReadDescription {
+                    pnu: Pnu::from_u16(n),
+                    element,
+                })
+            })
+            .collect();
+        let answers = self.batch_all(address, &tasks, &mut |_, _| {});
+        let mut settable: Vec<(u16, DataType, u16)> = Vec::new();
+        for (&(n, t), pair) in found.iter().zip(answers.chunks(2)) {
+            let word = |r: &Result<Value, ParamError>| match r {
+                Ok(v) => Ok(Some(v.as_u32())),
+                Err(ParamError::Drive(_)) => Ok(None),
+                Err(e) => Err(e.clone()),
+            };
+            let (elements, read_only) = (word(&pair[0])?, word(&pair[1])?);
+            if read_only == Some(0) {
+                let elements = elements.map_or(0, |c| u16::try_from(c).unwrap_or(0).min(255));
+                settable.push((n, t, elements));
+            }
+        }
+        let mut refs: Vec<(usize, ParamRef)> = Vec::new();
+        for (i, &(n, _, elements)) in settable.iter().enumerate() {
+            let id = ParamRef {
+                prefix: Prefix::P,
+                pnu: Pnu::from_u16(n),
+                index: None,
+            };
+            if elements == 0 {
+                refs.push((i, id));
+            }
+            for k in 0..elements {
+                if let Some(k) = u8::try_from(k).ok().and_then(|k| Subindex::new(k).ok()) {
+                    refs.push((i, id.at(k)));
+                }
+            }
+        }
+        let plain: Vec<ParamRef> = refs.iter().map(|(_, r)| *r).collect();
+        let read = self.read_entries(address, &plain, &mut |_, _| {});
+        let mut out: BTreeMap<String, DescribedSetting> = BTreeMap::new();
+        let mut count = 0;
+        for ((i, r), v) in refs.iter().zip(read) {
+            let (n, t, _) = settable[*i];
+            let v = match v {
+                Ok(v) => v,
+                // Described but not read (an element it refuses): left out whole below.
+                Err(ParamError::Drive(_)) => {
+                    out.remove(&name_of(n, catalogue));
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
+            count += 1;
+            let number = Number::of(t, v);
+            let entry = out
+                .entry(name_of(n, catalogue))
+                .or_insert_with(|| DescribedSetting {
+                    data_type: t.name().to_owned(),
+                    value: if r.index.is_some() {
+                        Saved::Many(Vec::new())
+                    } else {
+                        Saved::One(number)
+                    },
+                });
+            if let Saved::Many(list) = &mut entry.value {
+                list.push(number);
+            }
+        }
+        Ok((out, count))
     }
 
     /// Compares drive `address` with a backup file's `text` (`origin` names it in errors):
@@ -767,11 +1036,76 @@ mod tests {
             taken: now_utc(),
             not_on_drive: vec!["P0004".into()],
             param,
+            described: BTreeMap::new(),
         }
     }
 
     /// The sweep of issue 46: `P303 = 5.0` beside `P0303 = 10.0` was taken (the key TOML read
     /// last won) and the report said both written.
+    #[test]
+    fn a_setting_the_drive_described_is_read_back_typed_as_it_said_and_checked() {
+        let mut f = file(BTreeMap::new());
+        let described = |t: &str, value| DescribedSetting {
+            data_type: t.to_owned(),
+            value,
+        };
+        f.described
+            .insert("P0701".into(), described("U16", Saved::One(Number::Int(9))));
+        f.described.insert(
+            "P1230".into(),
+            described(
+                "Float",
+                Saved::Many(vec![Number::Float(1.5), Number::Float(-2.5)]),
+            ),
+        );
+        let text = f.to_text();
+        assert!(text.contains("under [described]"), "{text}");
+        let loaded = BackupFile::parse(&text, "f", Catalogue::micromaster4()).unwrap();
+        let got: Vec<_> = loaded
+            .entries
+            .iter()
+            .map(|e| (e.param.to_string(), e.value, e.info.is_described()))
+            .collect();
+        assert_eq!(
+            got,
+            [
+                ("P0701".to_owned(), Value::Word(9), true),
+                ("P1230[0]".to_owned(), Value::from_f32(1.5), true),
+                ("P1230[1]".to_owned(), Value::from_f32(-2.5), true),
+            ]
+        );
+        assert_eq!(loaded.entries[1].info.data_type, DataType::Float);
+        // What the catalogue lists belongs under [param]; a type uss-rt does not read, a value
+        // the type cannot hold and a name given twice are refused with their line.
+        for (key, d, says) in [
+            (
+                "P1082",
+                described("Float", Saved::One(Number::Float(5.0))),
+                "under [param]",
+            ),
+            (
+                "P0702",
+                described("Octets", Saved::One(Number::Int(1))),
+                "not a type",
+            ),
+            (
+                "P0702",
+                described("U16", Saved::One(Number::Int(-1))),
+                "P0702",
+            ),
+            (
+                "P701",
+                described("U16", Saved::One(Number::Int(1))),
+                "same parameter",
+            ),
+        ] {
+            let mut bad = f.clone();
+            bad.described.insert(key.into(), d);
+            let e = BackupFile::parse(&bad.to_text(), "f", Catalogue::micromaster4()).unwrap_err();
+            assert!(e.message.contains(says) && e.line.is_some(), "{key}: {e}");
+        }
+    }
+
     #[test]
     fn a_parameter_named_twice_is_refused_naming_both() {
         let mut param = BTreeMap::new();

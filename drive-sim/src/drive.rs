@@ -7,7 +7,7 @@
 //! run inside the master's real-time thread in tests.
 
 use crate::family::Roles;
-use crate::params::{ParamSet, ParamTable};
+use crate::params::{Change, ParamDef, ParamSet, ParamTable};
 use core::time::Duration;
 use uss_control::DriveFamily;
 use uss_protocol::pkw::{ErrorNumber, Value};
@@ -48,6 +48,76 @@ pub struct DriveConfig {
     pub takes_broadcasts: bool,
     /// Which parameters the slave has ([`Personality`]).
     pub personality: Personality,
+    /// Parameters it has besides its family's profile.
+    pub extra: Extra,
+}
+
+/// Parameters a simulated drive has besides its family's profile, by ranges of PNUs
+/// (uss-sim's `extra=`, `extra-float=`, `extra-r=`): a drive whose own list is longer than
+/// uss-rt's catalogue, as a real drive's is, for the clients that let a drive describe itself
+/// (AK 4). They are the simulator's own test parameters, not any real drive's: `words` are
+/// settable U16 values (factory setting: their PNU), `floats` settable Float arrays of three
+/// elements (factory setting 1.5, limits -1000..=1000), `read_only` U16 actual values (their
+/// PNU). A range's PNUs that the profile has already are refused.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
+pub struct Extra {
+    pub words: Option<(u16, u16)>,
+    pub floats: Option<(u16, u16)>,
+    pub read_only: Option<(u16, u16)>,
+}
+
+impl Extra {
+    /// The definitions these ranges add.
+    fn definitions(self) -> Vec<ParamDef> {
+        let range = |r: Option<(u16, u16)>| r.into_iter().flat_map(|(a, b)| a..=b);
+        let word = |pnu: u16, change| ParamDef {
+            pnu,
+            name: "uncatalogued (uss-sim's extra)",
+            ty: crate::params::DataType::U16,
+            elements: 0,
+            min: 0.0,
+            max: 65535.0,
+            allowed: &[],
+            default: u32::from(pnu),
+            change,
+            level: 1,
+        };
+        let mut defs: Vec<ParamDef> = range(self.words)
+            .map(|pnu| word(pnu, Change::Always))
+            .collect();
+        defs.extend(range(self.read_only).map(|pnu| word(pnu, Change::ReadOnly)));
+        defs.extend(range(self.floats).map(|pnu| ParamDef {
+            ty: crate::params::DataType::Float,
+            elements: 3,
+            min: -1000.0,
+            max: 1000.0,
+            default: 1.5f32.to_bits(),
+            ..word(pnu, Change::Always)
+        }));
+        defs
+    }
+
+    /// The parameter set of a drive of `personality` with these extras (made once per kind).
+    ///
+    /// # Errors
+    /// An extra PNU its profile has, or more parameters than a simulated drive holds.
+    pub fn param_set(self, personality: Personality) -> Result<&'static ParamSet, String> {
+        type Made = Vec<((Personality, Extra), &'static ParamSet)>;
+        static MADE: std::sync::Mutex<Made> = std::sync::Mutex::new(Vec::new());
+        let base = personality.param_set();
+        if self == Self::default() {
+            return Ok(base);
+        }
+        let mut made = MADE
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some((_, set)) = made.iter().find(|(k, _)| *k == (personality, self)) {
+            return Ok(set);
+        }
+        let set = base.with_extra(&self.definitions())?;
+        made.push(((personality, self), set));
+        Ok(set)
+    }
 }
 
 /// What kind of USS slave is simulated: its parameters, and how it takes a task it does not
@@ -124,6 +194,7 @@ impl DriveConfig {
             reference_hz: 50.0,
             takes_broadcasts: true,
             personality: Personality::MICROMASTER4,
+            extra: Extra::default(),
         }
     }
 }
@@ -241,7 +312,12 @@ impl Drive {
     pub fn new(config: DriveConfig) -> Self {
         let personality = config.personality;
         let roles = personality.roles();
-        let mut params = ParamTable::of(personality.param_set());
+        // Extras are checked when the drive is configured (`SimOptions::apply`).
+        let set = config
+            .extra
+            .param_set(personality)
+            .unwrap_or_else(|e| panic!("drive {}: {e}", config.address));
+        let mut params = ParamTable::of(set);
         let layout = config.layout;
         let float = |v: f32| v.to_bits();
         let monitoring = match roles.monitoring.and_then(|(pnu, _)| params.definition(pnu)) {

@@ -12,7 +12,8 @@ use uss_protocol::ErrorNumber;
 /// The keys, for messages and `--help`.
 pub const KEYS: &str = "delay=MS, jitter=MS, eeprom-busy=N, busy=N, p2014=MS, p2000=HZ, dword-error=5|103, \
 drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, unplug=\"FROM_MS..[TO_MS]\", \
-hang=MS, broadcast=true|false, family=micromaster4|g110|g120|simoreg|generic, fragile=true|false";
+hang=MS, broadcast=true|false, family=micromaster4|g110|g120|simoreg|generic, fragile=true|false, \
+extra|extra-float|extra-r=FROM-TO";
 
 /// What a simulated drive does besides its address and layout; every key is optional (the
 /// simulator's default applies).
@@ -78,6 +79,46 @@ pub struct SimOptions {
     /// answering for good.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fragile: Option<bool>,
+    /// `FROM-TO` (or one PNU): settable U16 parameters the drive has besides its profile, for
+    /// the clients that let a drive describe itself ([`crate::drive::Extra`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub extra: Option<Pnus>,
+    /// `FROM-TO`: settable Float arrays of three elements besides its profile.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub extra_float: Option<Pnus>,
+    /// `FROM-TO`: read-only U16 parameters besides its profile.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub extra_r: Option<Pnus>,
+}
+
+/// Parameter numbers as `extra=` writes them: `701-706`, or one number.
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(untagged)]
+pub enum Pnus {
+    One(u16),
+    Range(String),
+}
+
+/// The range `extra=` names.
+fn pnus(key: &str, pnus: &Pnus) -> Result<(u16, u16), String> {
+    let text = match pnus {
+        Pnus::One(n) => &n.to_string(),
+        Pnus::Range(text) => text.as_str(),
+    };
+    let number = |t: &str| {
+        t.trim()
+            .parse::<u16>()
+            .ok()
+            .filter(|&n| n > 0 && uss_protocol::Pnu::new(u32::from(n)).is_ok())
+    };
+    let (a, b) = text.split_once('-').unwrap_or((text, text));
+    match (number(a), number(b)) {
+        (Some(a), Some(b)) if a <= b && b - a < 64 => Ok((a, b)),
+        _ => Err(format!(
+            "{key}={text}: parameter numbers FROM-TO (at most 64 of them, each one USS can \
+             address)"
+        )),
+    }
 }
 
 impl SimOptions {
@@ -162,6 +203,18 @@ impl SimOptions {
             config.takes_broadcasts = takes;
         }
         config.personality = self.personality()?;
+        let range = |key, v: &Option<Pnus>| v.as_ref().map(|p| pnus(key, p)).transpose();
+        config.extra = crate::drive::Extra {
+            words: range("extra", &self.extra)?,
+            floats: range("extra-float", &self.extra_float)?,
+            read_only: range("extra-r", &self.extra_r)?,
+        };
+        if config.extra != crate::drive::Extra::default() {
+            if matches!(config.personality, Personality::Generic { .. }) {
+                return Err("extra=...: a generic slave has its own three parameters".to_owned());
+            }
+            config.extra.param_set(config.personality)?;
+        }
         let (range, unit, default) = reference_of(config.personality, config.reference_hz);
         config.reference_hz = default as f32;
         if let Some(value) = self.p2000 {

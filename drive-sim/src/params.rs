@@ -375,6 +375,7 @@ pub struct ParamSet {
     quick_end: Option<usize>,
     link: &'static [(u16, u8)],
     eeprom_tasks: bool,
+    consulted: Consulted,
 }
 
 /// The slot of a plain parameter of `defs`. A PNU missing from the list panics when the set is
@@ -451,7 +452,42 @@ impl ParamSet {
             quick_end: slot_of_opt(defs, &offsets, consulted.quick_end),
             link: consulted.link,
             eeprom_tasks: consulted.eeprom_tasks,
+            consulted,
         }
+    }
+
+    /// This set with `extra` parameters besides its profile's: a drive whose own list is longer
+    /// than uss-rt's catalogue of its family, as a real drive's is (uss-sim's `extra=` keys).
+    /// Made once per drive kind and kept for the process.
+    ///
+    /// # Errors
+    /// A PNU the set has already, or more than [`MAX_DEFS`] parameters or [`MAX_SLOTS`]
+    /// values in all.
+    pub fn with_extra(&self, extra: &[ParamDef]) -> Result<&'static Self, String> {
+        let mut defs: Vec<ParamDef> = self.defs.to_vec();
+        for def in extra {
+            if defs.iter().any(|d| d.pnu == def.pnu) {
+                return Err(format!(
+                    "extra parameter {}: the {} profile has it already",
+                    def.pnu, self.family
+                ));
+            }
+            defs.push(*def);
+        }
+        defs.sort_by_key(|d| d.pnu);
+        let slots: usize = defs.iter().map(ParamDef::slots).sum();
+        if defs.len() > MAX_DEFS || slots > MAX_SLOTS {
+            return Err(format!(
+                "{} parameters with {slots} values in all: a simulated drive has at most \
+                 {MAX_DEFS} and {MAX_SLOTS}",
+                defs.len()
+            ));
+        }
+        Ok(Box::leak(Box::new(Self::new(
+            self.family,
+            Vec::leak(defs),
+            self.consulted,
+        ))))
     }
 
     /// The definitions, sorted by PNU.

@@ -11,7 +11,8 @@ use uss_protocol::{Address, Layout, PkwMode, PzdCount};
 /// The keys a drive specification understands, for error messages and `--help`.
 pub const KEYS: &str = "pkw=0|3|4|127, pzd=0..16, delay=MS, jitter=MS, eeprom-busy=N, busy=N, \
 p2014=MS, p2000=HZ, dword-error=5|103, drop|bcc|byte|truncate|late|wrong-addr|noise=PROBABILITY, late-by=MS, \
-unplug=FROM_MS..[TO_MS], hang=MS, broadcast=true|false, family=micromaster4|g110|g120|simoreg|generic, fragile=true|false";
+unplug=FROM_MS..[TO_MS], hang=MS, broadcast=true|false, family=micromaster4|g110|g120|simoreg|generic, fragile=true|false, \
+extra|extra-float|extra-r=FROM-TO";
 
 /// A drive and its fault plan, parsed from a specification.
 #[derive(Debug, Clone)]

@@ -327,11 +327,22 @@ fn quick_commission<'py>(
     Ok(d)
 }
 
-/// Every setting of the drive as the backup file's TOML (`Bus::upload`).
+/// Every setting of the drive as the backup file's TOML (`Bus::upload_with`); `discover`
+/// (first, last): also the settable parameters of that range the catalogue does not list, as
+/// the drive describes them.
 #[pyfunction]
-fn backup(py: Python<'_>, bus: &Bound<'_, NativeBus>, address: u8) -> PyResult<String> {
+#[pyo3(signature = (bus, address, discover=None))]
+fn backup(
+    py: Python<'_>,
+    bus: &Bound<'_, NativeBus>,
+    address: u8,
+    discover: Option<(u16, u16)>,
+) -> PyResult<String> {
+    let options = uss_client::backup::UploadOptions {
+        discover: discover.map(|(a, b)| a..=b),
+    };
     let upload = on_drive(py, bus, address, |bus, drive| {
-        bus.upload(drive, &mut |_, _| {})
+        bus.upload_with(drive, &options, &mut |_, _| {})
     })?;
     Ok(upload.file.to_text())
 }

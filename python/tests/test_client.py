@@ -714,3 +714,34 @@ def test_quick_commissioning_and_a_factory_reset_wait_for_the_drive_and_ussd(tmp
             assert [uss_rt.read_param(bus, 4, p) for p in (10, 3)] == [0, 1]
     finally:
         assert daemon.stop() == 0, daemon.output()
+
+
+def test_a_backup_asked_to_discover_saves_what_the_drive_describes_beyond_the_catalogue(
+    tmp_path,
+):
+    """A drive's list is longer than uss-rt's catalogue (issue 46, item 2): ``discover`` asks
+    the drive for every number of a range the catalogue does not list, and the settable ones
+    it has are saved under ``[described]``, typed as it describes them; restored and compared
+    like the catalogue's."""
+    bus_name = f"{BUS}-described"
+    daemon = Ussd(tmp_path, bus=bus_name, drives=[(4, 'sim = { extra = "701-702" }')])
+    try:
+        daemon.wait_for_services()
+        with uss_rt.open_bus(bus_name) as bus:
+            wait_for_input(bus, 4, lambda i: i["online"] == 1)
+            uss_rt.write(bus, 4, "P0701", 9)
+            assert "[described." not in uss_rt.backup(bus, 4)
+            with pytest.raises(ValueError, match="discover"):
+                uss_rt.backup(bus, 4, discover=(710, 700))
+            text = uss_rt.backup(bus, 4, discover=(700, 710))
+            assert "[described.P0701]" in text and "[described.P0702]" in text, text
+            assert "[described.P0700]" not in text, "the catalogue's P0700 is under [param]"
+            uss_rt.write(bus, 4, "P0701", 3)
+            differ = uss_rt.diff(bus, 4, text)["differ"]
+            assert [d["param"] for d in differ] == ["P0701"], differ
+            done = uss_rt.restore(bus, 4, text)
+            assert done["complete"] and done["written"] == 1, done
+            assert uss_rt.diff(bus, 4, text)["differ"] == []
+            assert uss_rt.read(bus, 4, "P0701").value == 9
+    finally:
+        assert daemon.stop() == 0, daemon.output()

@@ -367,13 +367,21 @@ def save_to_rom(bus: Bus, address: int) -> dict:
     return _native.save_to_rom(bus._open(), address)
 
 
-def backup(bus: Bus, address: int) -> str:
+def backup(bus: Bus, address: int, discover: "tuple[int, int] | None" = None) -> str:
     """Every setting of drive ``address`` as STARTER uploads it: each setting of its family's
     catalogue with every element the drive has (its data sets included) and its firmware, as
     the backup file's TOML text (what ``ussctl param backup`` writes and ``ussctl param
-    restore`` reads). The drive's state (P0010, P0004) and commands are left out. A generic
-    slave: :class:`Refused`."""
+    restore`` reads). The drive's state (P0010, P0004) and commands are left out. With
+    ``discover=(first, last)`` the drive is also asked for every parameter number of that range
+    the catalogue does not list (one exchange each), and the settable ones it has are saved
+    under ``[described]``, typed as it describes them (``ussctl param backup --discover``). A
+    generic slave: :class:`Refused`."""
     _check_address(address)
+    if discover is not None:
+        first, last = discover
+        if not (0 <= first <= last <= 65535):
+            raise ValueError(f"discover={discover!r}: (first, last) parameter numbers")
+        return _native.backup(bus._open(), address, (first, last))
     return _native.backup(bus._open(), address)
 
 

@@ -33,7 +33,9 @@ fn text(b: &[u8]) -> String {
 fn every_kind_of_call_of_the_c_abi_against_a_real_ussd() {
     let exe = compile("cc", "capi/tests/c/abi_check.c", &["-std=c11"]);
     let _serial = serial();
-    let ussd = Ussd::start("", &[(1, ""), (2, "")]);
+    // Drive 2 has a setting beyond uss-rt's catalogue (uss-sim's extra) for the backup that
+    // asks the drive for it.
+    let ussd = Ussd::start("", &[(1, ""), (2, "sim = { extra = \"701\" }")]);
     let out = run(&exe, &[&ussd.bus]);
     let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
     assert!(out.status.success(), "{stdout}{stderr}\n{}", ussd.log());

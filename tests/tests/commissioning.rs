@@ -422,3 +422,107 @@ fn a_refused_write_says_the_access_level_or_quick_commissioning_it_needs() {
     assert!(ok, "{said}");
     assert!(ussctl(&ussd, &["param", "write", "1", "P0003", "1"]).0);
 }
+
+/// A drive's list is longer than uss-rt's catalogue of its family (issue 46, item 2: "where the
+/// family's list is not stored whole, take the parameter set from the drive itself"). `param
+/// backup --discover` asks the drive for every number of a range that the catalogue does not
+/// list (AK 4) and saves the settable ones it has, typed as it describes them, under
+/// `[described]`; a restore onto the factory-reset drive leaves it equal, EEPROM included, and
+/// a restore onto a drive that describes them otherwise writes none of them.
+#[test]
+fn a_backup_saves_what_the_drive_describes_beyond_the_catalogue_and_restores_it() {
+    let sim = SimProcess::start(&[
+        "--baud",
+        "115200",
+        "--drive",
+        "3:extra=701-703,extra-float=1230-1231,extra-r=760",
+        "--drive",
+        "4:extra-float=701",
+        "--power-off-ms",
+        "300",
+    ]);
+    let ussd = Ussd::start_on(&sim.path, "baud = 115200", &[(3, ""), (4, "")]);
+    let dir = std::env::temp_dir().join(format!("uss-described-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("bk3.toml").to_str().unwrap().to_owned();
+    let ok = |args: &[&str]| {
+        let (ok, out) = ussctl(&ussd, args);
+        assert!(ok, "{args:?}: {out}");
+        out
+    };
+    ok(&["param", "write", "3", "P0701", "7"]);
+    ok(&["param", "write", "3", "P1230[1]", "-2.5"]);
+    ok(&["param", "write", "3", "P1120", "4"]);
+
+    // Without --discover a backup is the catalogue's settings only, as before.
+    ok(&["param", "backup", "3", "-o", &file]);
+    assert!(
+        !std::fs::read_to_string(&file)
+            .unwrap()
+            .contains("described.")
+    );
+    let out = ok(&[
+        "param",
+        "backup",
+        "3",
+        "-o",
+        &file,
+        "--discover",
+        "700-1240",
+    ]);
+    assert!(
+        out.contains(
+            "described by the drive, not in uss-rt's catalogue: P0701, P0702, P0703, P1230, P1231"
+        ),
+        "{out}"
+    );
+    let text = std::fs::read_to_string(&file).unwrap();
+    let saved: toml::Table = toml::from_str(&text).unwrap();
+    let described = saved["described"].as_table().unwrap();
+    assert_eq!(
+        described.keys().map(String::as_str).collect::<Vec<_>>(),
+        ["P0701", "P0702", "P0703", "P1230", "P1231"],
+        "settable and uncatalogued only: not r0760 (read-only), not P0700 or P0719 (the \
+         catalogue's, under [param]): {text}"
+    );
+    assert_eq!(described["P0701"]["type"].as_str(), Some("U16"));
+    assert_eq!(described["P0701"]["value"].as_integer(), Some(7));
+    assert_eq!(described["P1230"]["type"].as_str(), Some("Float"));
+    assert_eq!(
+        described["P1230"]["value"].as_array().unwrap().len(),
+        3,
+        "every element the drive said it has: {text}"
+    );
+    assert!(saved["param"].as_table().unwrap().contains_key("P0700"));
+
+    ok(&["param", "factory-reset", "3", "--unsafe"]);
+    assert_eq!(read(&ussd, 3, param(701)), Value::Word(701));
+    let (same, out) = ussctl(&ussd, &["param", "diff", "3", &file]);
+    assert!(
+        !same && out.contains("P0701") && out.contains("P1230[1]"),
+        "{out}"
+    );
+    ok(&["param", "restore", "3", &file, "--eeprom", "--unsafe"]);
+    let out = ok(&["param", "diff", "3", &file]);
+    assert!(out.contains("no differences"), "{out}");
+    power_cycle(&sim, &ussd, 3);
+    let out = ok(&["param", "diff", "3", &file]);
+    assert!(out.contains("no differences"), "after a power cycle: {out}");
+    assert_eq!(read(&ussd, 3, param(701)), Value::Word(7));
+
+    // Drive 4 has a Float at 701 and none of the others: none of them is written there.
+    let (restored, out) = ussctl(&ussd, &["param", "restore", "4", &file, "--unsafe"]);
+    assert!(!restored, "{out}");
+    assert!(
+        out.contains("described it as U16 and this drive as Float")
+            && out.contains("this drive does not describe it"),
+        "{out}"
+    );
+    assert_eq!(read(&ussd, 4, param(701)), Value::from_f32(1.5));
+    assert_eq!(
+        read(&ussd, 4, param(1120)),
+        Value::from_f32(4.0),
+        "the catalogue's settings were restored all the same"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -36,6 +36,7 @@ const CALLS: &[(&str, &str, &str)] = &[
     // Commissioning.
     ("save_to_rom", "ussrt_param_save", "save_to_rom"),
     ("upload", "ussrt_param_backup", "backup"),
+    ("upload_with", "ussrt_param_backup_discover", "backup"),
     ("diff_file", "ussrt_param_diff", "diff"),
     ("restore", "ussrt_param_restore", "restore"),
     (

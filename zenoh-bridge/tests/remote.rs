@@ -38,6 +38,9 @@ use uss_integration_tests::{BusSpec, ChildProc, Ussd, assert_report};
 /// end otherwise (an operator's stop, a hand-over). The trips these tests are about come from
 /// the watchdog all the same, at this time.
 const WATCHDOG: &str = "watchdog_ms = 500";
+/// A drive with two settings beyond uss-rt's catalogue (uss-sim's extras), for a backup that
+/// asks the drive for them.
+const WITH_EXTRAS: &str = "watchdog_ms = 500\nsim = { extra = \"701-702\" }";
 
 fn python_reads_p1082(ns: &Netns, key: &str, tls: Option<&netns::ClientTls>) {
     if !python_has_zenoh("the Python client") {
@@ -1563,7 +1566,7 @@ fn coasts_while_runs_start(
 #[test]
 fn commissioning_over_the_network_follows_the_policy_and_never_writes_a_guarded_value() {
     let Some(ns) = Netns::create() else { return };
-    let ussd = Ussd::start("", &[(1, WATCHDOG), (2, WATCHDOG)]);
+    let ussd = Ussd::start("", &[(1, WITH_EXTRAS), (2, WATCHDOG)]);
     let bus = ussd.bus.clone();
     let prefix = format!("uss/c{}", std::process::id());
     let drive = |d: u8| format!("{prefix}/{bus}/drive/{d}");
@@ -1688,6 +1691,24 @@ fn describe_and_back_up(
     // A backup, and its diff against the drive: nothing differs.
     let (ok, backup, err) = ns.call(&["get", &format!("{drive}/backup"), "--timeout", "60"]);
     assert!(ok && backup.contains("P1120"), "{err}{backup}");
+    assert!(!backup.contains("[described."), "{backup}");
+    // Asked to, the backup holds what the drive describes beyond the catalogue; a range that
+    // is none is refused as invalid, by the error table's kind.
+    let (ok, found, err) = ns.call(&[
+        "get",
+        &format!("{drive}/backup?discover=700-710"),
+        "--timeout",
+        "60",
+    ]);
+    assert!(
+        ok && found.contains("[described.P0701]") && found.contains("[described.P0702]"),
+        "{err}{found}"
+    );
+    let (ok, out, err) = ns.call(&["get", &format!("{drive}/backup?discover=710-700")]);
+    assert!(
+        !ok && format!("{out}{err}").contains("discover=710-700"),
+        "{out}{err}"
+    );
     let file = dir.join("drive1.toml");
     std::fs::write(&file, &backup).unwrap();
     (backup, file)

@@ -158,6 +158,17 @@ int main(int argc, char **argv) {
   OK(ussrt_param_backup(bus, 1, backup, length + 1, &length));
   EXPECT(strncmp(backup, "# uss-rt parameter backup", 25) == 0 && strlen(backup) == length,
          "%.40s", backup);
+  /* Asked to, a backup holds what the drive describes beyond the catalogue (drive 2 has a
+     P0701 that uss-rt's catalogue does not list); a range that is none is refused. */
+  size_t found_length = 0;
+  EXPECT(ussrt_param_backup_discover(bus, 2, 710, 700, NULL, 0, &found_length) ==
+             USSRT_STATUS_INVALID_ARGUMENT,
+         "discover 710..=700");
+  char *found = malloc(16384);
+  OK(ussrt_param_backup_discover(bus, 2, 700, 710, found, 16384, &found_length));
+  EXPECT(strstr(found, "[described.P0701]") != NULL && strstr(found, "[described.P0700]") == NULL,
+         "%s", found);
+  free(found);
   size_t differ = 99, same = 0;
   OK(ussrt_param_diff(bus, 1, backup, &differ, &same));
   EXPECT(differ == 0 && same > 40, "differ %zu same %zu", differ, same);

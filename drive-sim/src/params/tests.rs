@@ -1066,3 +1066,53 @@ fn a_g120_refuses_eeprom_tasks_and_saves_every_setting_by_p0971() {
         ReplyKind::Dword(3.0f32.to_bits())
     );
 }
+
+// --- Parameters besides the profile (uss-sim's extra=) ---
+
+#[test]
+fn a_drive_with_extra_parameters_describes_keeps_and_resets_them_as_its_own() {
+    use crate::drive::{Extra, Personality};
+    let extra = Extra {
+        words: Some((701, 702)),
+        floats: Some((1230, 1230)),
+        read_only: Some((760, 760)),
+    };
+    let set = extra.param_set(Personality::MICROMASTER4).unwrap();
+    assert!(std::ptr::eq(
+        set,
+        extra.param_set(Personality::MICROMASTER4).unwrap()
+    ));
+    let mut t = ParamTable::of(set);
+    let d = |t: &mut ParamTable, n, e| run(t, describe_task(n, e));
+    let word = |w| ReplyKind::Description(Value::Word(w));
+    assert_eq!((d(&mut t, 701, 1), d(&mut t, 701, 2)), (word(6), word(0)));
+    assert_eq!((d(&mut t, 701, 4), d(&mut t, 760, 4)), (word(0), word(1)));
+    assert_eq!((d(&mut t, 1230, 1), d(&mut t, 1230, 2)), (word(8), word(3)));
+    assert_eq!(d(&mut t, 703, 1), err(ErrorNumber::IllegalPnu));
+    assert_eq!(read(&mut t, 702), ReplyKind::Word(702));
+    assert_eq!(
+        write(&mut t, 760, Value::Word(1)),
+        err(ErrorNumber::ValueNotChangeable)
+    );
+    assert_eq!(
+        write_eeprom(&mut t, 701, Value::Word(9)),
+        ReplyKind::Word(9)
+    );
+    assert_eq!(
+        write_at(&mut t, 1230, 2, Value::from_f32(-4.0)),
+        ReplyKind::ArrayDword((-4.0f32).to_bits())
+    );
+    t.power_cycle();
+    assert_eq!((t.get(701, 0), t.get_f32(1230, 2)), (Some(9), Some(1.5)));
+    // A factory reset puts them back as every other setting.
+    assert_eq!(write(&mut t, P0010, Value::Word(30)), ReplyKind::Word(30));
+    assert_eq!(write(&mut t, P0970, Value::Word(1)), ReplyKind::Word(0));
+    assert_eq!(t.get(701, 0), Some(701));
+    // The profile's own numbers are not extras.
+    let clash = Extra {
+        words: Some((700, 701)),
+        ..Extra::default()
+    };
+    let e = clash.param_set(Personality::MICROMASTER4).unwrap_err();
+    assert!(e.contains("700"), "{e}");
+}

@@ -17,7 +17,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use uss_client::Address;
-use uss_client::backup::{self, BackupFile, Diff as Compared, Loaded};
+use uss_client::backup::{self, BackupFile, Diff as Compared, Loaded, UploadOptions};
 use uss_client::restore::RestoreOptions;
 use uss_client::uss_catalogue::Catalogue;
 use uss_client::{Bus, ParamError};
@@ -67,11 +67,30 @@ pub struct Backup {
     /// Write the backup to FILE instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
+    /// Also ask the drive for every parameter number FROM-TO (e.g. 0-3999) that uss-rt's
+    /// catalogue of its family does not list, and save the settable ones it has, typed as it
+    /// describes them (one exchange per number; under [described] in the file).
+    #[arg(long, value_name = "FROM-TO", value_parser = pnu_range)]
+    discover: Option<core::ops::RangeInclusive<u16>>,
 }
 
 impl Backup {
     pub(crate) fn run(&self, bus: &Bus, out: &Output) -> Result<(), Failure> {
-        backup(bus, out, self.drive, self.output.as_deref())
+        let options = UploadOptions {
+            discover: self.discover.clone(),
+        };
+        backup(bus, out, self.drive, self.output.as_deref(), &options)
+    }
+}
+
+/// `FROM-TO` (or one number) of parameter numbers.
+fn pnu_range(text: &str) -> Result<core::ops::RangeInclusive<u16>, String> {
+    let (a, b) = text.split_once('-').unwrap_or((text, text));
+    match (a.trim().parse::<u16>(), b.trim().parse::<u16>()) {
+        (Ok(a), Ok(b)) if a <= b => Ok(a..=b),
+        _ => Err(format!(
+            "'{text}' is not a range of parameter numbers FROM-TO (e.g. 0-3999)"
+        )),
     }
 }
 
@@ -92,11 +111,17 @@ impl Diff {
 }
 
 /// `param backup DRIVE [-o FILE]`.
-fn backup(bus: &Bus, out: &Output, drive: Address, output: Option<&Path>) -> Result<(), Failure> {
+fn backup(
+    bus: &Bus,
+    out: &Output,
+    drive: Address,
+    output: Option<&Path>,
+    options: &UploadOptions,
+) -> Result<(), Failure> {
     let start = Instant::now();
     let bar = progress(0, &format!("reading drive {drive}"));
     let upload = bus
-        .upload(drive, &mut bar_of(&bar))
+        .upload_with(drive, options, &mut bar_of(&bar))
         .map_err(failed(drive, "backup"));
     bar.finish_and_clear();
     let upload = upload?;
@@ -112,8 +137,8 @@ fn backup(bus: &Bus, out: &Output, drive: Address, output: Option<&Path>) -> Res
                 source,
             })?;
             out.note(&format!(
-                "drive {drive}: {} parameters ({} values) saved to {} in {:.2} s{}",
-                file.param.len(),
+                "drive {drive}: {} parameters ({} values) saved to {} in {:.2} s{}{}",
+                file.param.len() + file.described.len(),
                 upload.values,
                 path.display(),
                 start.elapsed().as_secs_f64(),
@@ -121,6 +146,18 @@ fn backup(bus: &Bus, out: &Output, drive: Address, output: Option<&Path>) -> Res
                     String::new()
                 } else {
                     format!("; not on this drive: {}", file.not_on_drive.join(", "))
+                },
+                if file.described.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        "; described by the drive, not in uss-rt's catalogue: {}",
+                        file.described
+                            .keys()
+                            .map(String::as_str)
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    )
                 }
             ));
         }
