@@ -64,6 +64,32 @@ pub struct BackupFile {
     /// under `param` is the catalogue's; what is here, the drive's own word.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub described: BTreeMap<String, DescribedSetting>,
+    /// Parameters the drive described as settable but refused to read (an element of them):
+    /// not saved, so a restore does not set them.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub not_read: Vec<String>,
+}
+
+/// What a discovery found ([`UploadOptions::discover`]).
+#[derive(Debug, Clone, Default)]
+struct Discovered {
+    settings: BTreeMap<String, DescribedSetting>,
+    unread: Vec<String>,
+}
+
+impl Saved {
+    /// How many values it holds.
+    pub fn len(&self) -> usize {
+        match self {
+            Self::One(_) => 1,
+            Self::Many(list) => list.len(),
+        }
+    }
+
+    /// Whether it holds none (an empty list).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
 }
 
 /// A setting the drive described itself: its PROFIdrive data type as the drive gave it, and
@@ -751,10 +777,11 @@ impl Bus {
         let catalogue = settings_catalogue(address, family)?;
         let firmware = self.firmware(address)?;
         let (values, missing) = self.settings(address, catalogue, progress)?;
-        let (described, described_values) = match &options.discover {
+        let found = match &options.discover {
             Some(range) => self.discover(address, catalogue, range.clone(), progress)?,
-            None => (BTreeMap::new(), 0),
+            None => Discovered::default(),
         };
+        let described_values: usize = found.settings.values().map(|d| d.value.len()).sum();
         let mut param: BTreeMap<String, Saved> = BTreeMap::new();
         for (r, info, v) in &values {
             let n = Number::of_param(info, *v);
@@ -779,7 +806,8 @@ impl Bus {
                 taken: now_utc(),
                 not_on_drive: missing,
                 param,
-                described,
+                described: found.settings,
+                not_read: found.unread,
             },
             values: values.len() + described_values,
         })
@@ -842,7 +870,7 @@ impl Bus {
         catalogue: &'static Catalogue,
         range: core::ops::RangeInclusive<u16>,
         progress: &mut dyn FnMut(usize, usize),
-    ) -> Result<(BTreeMap<String, DescribedSetting>, usize), ParamError> {
+    ) -> Result<Discovered, ParamError> {
         let element = |e: u8| Subindex::new(e).map_err(|e| ParamError::Unexpected(e.to_string()));
         let (e1, e2, e4) = (element(1)?, element(2)?, element(4)?);
         let numbers: Vec<u16> = range
@@ -891,19 +919,24 @@ impl Bus {
         let plain: Vec<ParamRef> = refs.iter().map(|(_, r)| *r).collect();
         let read = self.read_entries(address, &plain, &mut |_, _| {});
         let mut out: BTreeMap<String, DescribedSetting> = BTreeMap::new();
-        let mut count = 0;
+        let mut unread: Vec<String> = Vec::new();
         for ((i, r), v) in refs.iter().zip(read) {
             let (n, t, _) = settable[*i];
+            let name = name_of(n, catalogue);
+            if unread.contains(&name) {
+                continue;
+            }
             let v = match v {
                 Ok(v) => v,
-                // Described but not read (an element it refuses): left out whole below.
+                // Described, but an element of it is refused: not saved at all (a part would
+                // restore as the whole), and named so.
                 Err(ParamError::Drive(_)) => {
-                    out.remove(&name_of(n, catalogue));
+                    out.remove(&name);
+                    unread.push(name);
                     continue;
                 }
                 Err(e) => return Err(e),
             };
-            count += 1;
             let number = Number::of(t, v);
             let entry = out
                 .entry(name_of(n, catalogue))
@@ -919,7 +952,10 @@ impl Bus {
                 list.push(number);
             }
         }
-        Ok((out, count))
+        Ok(Discovered {
+            settings: out,
+            unread,
+        })
     }
 
     /// Compares drive `address` with a backup file's `text` (`origin` names it in errors):
@@ -1037,6 +1073,7 @@ mod tests {
             not_on_drive: vec!["P0004".into()],
             param,
             described: BTreeMap::new(),
+            not_read: Vec::new(),
         }
     }
 

@@ -137,7 +137,7 @@ fn backup(
                 source,
             })?;
             out.note(&format!(
-                "drive {drive}: {} parameters ({} values) saved to {} in {:.2} s{}{}",
+                "drive {drive}: {} parameters ({} values) saved to {} in {:.2} s{}{}{}",
                 file.param.len() + file.described.len(),
                 upload.values,
                 path.display(),
@@ -157,6 +157,14 @@ fn backup(
                             .map(String::as_str)
                             .collect::<Vec<_>>()
                             .join(", ")
+                    )
+                },
+                if file.not_read.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        "; described but refused to read (not saved): {}",
+                        file.not_read.join(", ")
                     )
                 }
             ));
