@@ -849,6 +849,78 @@ impl Catalogue {
         names.join(", ")
     }
 
+    /// Whether `pnu` is one of the catalogue's guarded parameters or roles (not only an entry).
+    fn guard_of(&self, pnu: u16) -> bool {
+        let entry = self.param(pnu).is_some();
+        self.guard.iter().any(|g| g.id.pnu.get() == pnu) || (entry && self.role_of(pnu))
+    }
+
+    /// Whether `pnu` is one of the profile's roles (the link, the reset, the monitoring, ...).
+    fn role_of(&self, pnu: u16) -> bool {
+        let roles = [
+            self.access_level,
+            self.commissioning,
+            self.save,
+            self.factory_reset,
+            self.quick_commissioning,
+            self.monitoring,
+            self.pzd_length,
+            self.command_source,
+            self.reference,
+            self.reference_speed,
+        ];
+        self.link
+            .iter()
+            .chain(&self.rereads_after)
+            .chain(roles.iter().flatten())
+            .any(|p| p.pnu.get() == pnu)
+    }
+
+    /// Whether this catalogue says anything of parameter number `pnu`: an entry, a guard, or
+    /// one of the profile's roles (the link, the commissioning and access-level parameters,
+    /// the reset, the copy to ROM, the end of quick commissioning, the reference, the
+    /// monitoring, the command source). A drive's own description of such a number is never
+    /// taken in its place.
+    pub fn knows(&self, pnu: u16) -> bool {
+        self.param(pnu).is_some()
+            || self.guard.iter().any(|g| g.id.pnu.get() == pnu)
+            || self.role_of(pnu)
+    }
+
+    /// Why parameter number `pnu`, where a drive describes it but its own family's catalogue
+    /// does not list it, is still not a setting to save and write from that description: under
+    /// the same number another family's catalogue of these Siemens lists has a command (a
+    /// factory reset, a motor identification: MM4 P1910 = 1 starts one, and a G120's p1910
+    /// is the same selection), a guarded parameter or a role. The numbers of MICROMASTER 4
+    /// and SINAMICS lists mean the same for these (P0010, P0970, P0971, P1910, P3900), so
+    /// such a number is left to the catalogue and to a deliberate write. `None`: no catalogue
+    /// says anything of it.
+    pub fn not_from_description(pnu: u16) -> Option<String> {
+        // A plain setting of another family is only that: the drive's description of it holds.
+        let objects = |c: &&Self| {
+            c.knows(pnu)
+                && c.param(pnu)
+                    .is_none_or(|p| p.action || !p.is_setting() || c.guard_of(pnu))
+        };
+        PROFILES.iter().find(objects).map(|c| {
+            let id = c.notation(ParamRef {
+                prefix: Prefix::P,
+                pnu: uss_protocol::Pnu::from_u16(pnu),
+                index: None,
+            });
+            let what = match c.param(pnu) {
+                Some(p) if p.action => "a command",
+                Some(p) if !p.is_setting() => "the drive's state, not a setting",
+                _ => "a guarded parameter or one of ussd's own",
+            };
+            format!(
+                "{id} is {what} in the catalogue of {}: never saved or restored from a drive's \
+                 description (write it deliberately)",
+                c.family
+            )
+        })
+    }
+
     /// Fault `number` as the family's manuals write it: F0072 (MM4), F01910 (SINAMICS).
     pub fn fault_name(&self, number: u16) -> String {
         let digits = self.faults.as_ref().map_or(4, |f| f.digits);

@@ -75,6 +75,8 @@ pub struct BackupFile {
 struct Discovered {
     settings: BTreeMap<String, DescribedSetting>,
     unread: Vec<String>,
+    /// Numbers asked (those of the range the catalogues say nothing of).
+    asked: usize,
 }
 
 impl Saved {
@@ -405,17 +407,23 @@ fn described_entries<'f>(
 ) -> Result<Vec<Entry>, FileError> {
     let mut entries = Vec::new();
     for (key, d) in &file.described {
-        let at = line_of(text, key).or_else(|| line_of_table(text, key));
+        let at = line_of(text, key)
+            .or_else(|| line_of_table(text, key))
+            .or_else(|| line_of(text, &format!("{key}.value")))
+            .or_else(|| line_of(text, &format!("{key}.type")));
         let param = named_once(keys, key, at, fail)?;
-        if catalogue.param(param.pnu.get()).is_some() || param.index.is_some() {
-            let why = if param.index.is_some() {
-                "write an array as a list, e.g. value = [1, 2, 3]".to_owned()
-            } else {
-                format!(
-                    "the catalogue of {} lists it: it belongs under [param]",
-                    catalogue.family
-                )
-            };
+        let pnu = param.pnu.get();
+        let why = if param.index.is_some() {
+            Some("write an array as a list, e.g. value = [1, 2, 3]".to_owned())
+        } else if catalogue.param(pnu).is_some() {
+            Some(format!(
+                "the catalogue of {} lists it: it belongs under [param]",
+                catalogue.family
+            ))
+        } else {
+            Catalogue::not_from_description(pnu)
+        };
+        if let Some(why) = why {
             return Err(fail(at, format!("{key}: {why}")));
         }
         let data_type = DataType::ALL
@@ -530,6 +538,9 @@ pub struct Upload {
     pub file: BackupFile,
     /// Elements read (an array's or data set's each).
     pub values: usize,
+    /// With [`UploadOptions::discover`]: how many numbers of the range the drive was asked
+    /// for (those no catalogue says anything of).
+    pub asked: usize,
 }
 
 /// One element that differs ([`Bus::diff_file`], [`Bus::diff_drives`]): the drive's value and
@@ -810,6 +821,7 @@ impl Bus {
                 not_read: found.unread,
             },
             values: values.len() + described_values,
+            asked: found.asked,
         })
     }
 
@@ -874,7 +886,11 @@ impl Bus {
         let element = |e: u8| Subindex::new(e).map_err(|e| ParamError::Unexpected(e.to_string()));
         let (e1, e2, e4) = (element(1)?, element(2)?, element(4)?);
         let numbers: Vec<u16> = range
-            .filter(|&n| catalogue.param(n).is_none() && Pnu::new(u32::from(n)).is_ok())
+            .filter(|&n| {
+                !catalogue.knows(n)
+                    && Catalogue::not_from_description(n).is_none()
+                    && Pnu::new(u32::from(n)).is_ok()
+            })
             .collect();
         let found = self.described_types(address, &numbers, e1, progress)?;
         let tasks: Vec<ParamTask> = found
@@ -955,7 +971,62 @@ impl Bus {
         Ok(Discovered {
             settings: out,
             unread,
+            asked: numbers.len(),
         })
+    }
+
+    /// The parameters of `entries` that the file took from a drive's own description (its
+    /// `[described]`) and that drive `address` describes otherwise now: another type, another
+    /// number of elements, read-only, or not at all. Each is refused by a restore, not written
+    /// (its value would mean something else), and differs in a comparison.
+    ///
+    /// # Errors
+    /// A failure of the path.
+    pub(crate) fn described_differently(
+        &self,
+        address: Address,
+        entries: &[Entry],
+    ) -> Result<Vec<(Pnu, ParamError)>, ParamError> {
+        let mut out = Vec::new();
+        let mut asked = Vec::new();
+        for e in entries.iter().filter(|e| e.info.is_described()) {
+            if asked.contains(&e.param.pnu) {
+                continue;
+            }
+            asked.push(e.param.pnu);
+            let held = |n: u16| match n {
+                0 => "one value".to_owned(),
+                n => format!("{n} elements"),
+            };
+            let problem = match self.drive_description(address, e.param.pnu) {
+                Ok(d) if d.data_type != e.info.data_type => format!(
+                    "the backup's drive described it as {} and this drive as {}: not written",
+                    e.info.data_type.name(),
+                    d.data_type.name()
+                ),
+                Ok(d) if d.read_only == Some(true) => {
+                    "this drive describes it as read-only: not written".to_owned()
+                }
+                Ok(d) if d.elements.unwrap_or(0) != e.info.array => format!(
+                    "the backup holds {} and this drive describes {}: not written",
+                    held(e.info.array),
+                    held(d.elements.unwrap_or(0))
+                ),
+                Ok(_) => continue,
+                Err(ParamError::Drive(d)) => {
+                    format!("this drive does not describe it ({d}): not written")
+                }
+                Err(e) => return Err(e),
+            };
+            out.push((
+                e.param.pnu,
+                ParamError::Value {
+                    param: e.info.id.to_string(),
+                    problem,
+                },
+            ));
+        }
+        Ok(out)
     }
 
     /// Compares drive `address` with a backup file's `text` (`origin` names it in errors):
@@ -999,6 +1070,9 @@ impl Bus {
             ignored: loaded.ignored.clone(),
             ..Diff::default()
         };
+        // What the file took from a drive's description and this drive describes otherwise
+        // (another type or number of elements) is no setting of this drive: it differs.
+        let otherwise = self.described_differently(address, &loaded.entries)?;
         for (e, current) in loaded.entries.iter().zip(now) {
             let differ = |drive| Difference {
                 param: e.param,
@@ -1006,6 +1080,10 @@ impl Bus {
                 drive,
                 other: Some(e.value),
             };
+            if otherwise.iter().any(|(pnu, _)| *pnu == e.param.pnu) {
+                diff.differ.push(differ(None));
+                continue;
+            }
             match current {
                 Ok(v) if v == e.value => diff.same += 1,
                 Ok(v) => diff.differ.push(differ(Some(v))),
@@ -1112,6 +1190,17 @@ mod tests {
             ]
         );
         assert_eq!(loaded.entries[1].info.data_type, DataType::Float);
+        let mut g120 = f.clone();
+        g120.family.clone_from(&Catalogue::g120().family);
+        g120.described.clear();
+        g120.described
+            .insert("p1910".into(), described("U16", Saved::One(Number::Int(1))));
+        let e = BackupFile::parse(&g120.to_text(), "f", Catalogue::g120()).unwrap_err();
+        assert!(
+            e.message
+                .contains("a command in the catalogue of MICROMASTER 4"),
+            "{e}"
+        );
         // What the catalogue lists belongs under [param]; a type uss-rt does not read, a value
         // the type cannot hold and a name given twice are refused with their line.
         for (key, d, says) in [
@@ -1119,6 +1208,14 @@ mod tests {
                 "P1082",
                 described("Float", Saved::One(Number::Float(5.0))),
                 "under [param]",
+            ),
+            // A guarded parameter the catalogue lists only as a guard (P0840, ON/OFF1's
+            // source), and a command of another family under the same number (MM4 P1910, a
+            // motor identification, is not in the G120 catalogue): never from a description.
+            (
+                "P0840",
+                described("U32", Saved::One(Number::Int(722))),
+                "guarded",
             ),
             (
                 "P0702",

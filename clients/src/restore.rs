@@ -386,50 +386,6 @@ impl Bus {
         Ok(report)
     }
 
-    /// The parameters of `entries` the drive described itself when the backup was taken
-    /// (its `described`) that it describes otherwise now: another type, read-only, or not
-    /// there. Each is refused, not written: its value would mean something else.
-    ///
-    /// # Errors
-    /// A failure of the path.
-    fn described_differently(
-        &self,
-        address: Address,
-        entries: &[Entry],
-    ) -> Result<Vec<(uss_protocol::Pnu, ParamError)>, ParamError> {
-        let mut out = Vec::new();
-        let mut asked = Vec::new();
-        for e in entries.iter().filter(|e| e.info.is_described()) {
-            if asked.contains(&e.param.pnu) {
-                continue;
-            }
-            asked.push(e.param.pnu);
-            let problem = match self.drive_description(address, e.param.pnu) {
-                Ok(d) if d.data_type != e.info.data_type => format!(
-                    "the backup's drive described it as {} and this drive as {}: not written",
-                    e.info.data_type.name(),
-                    d.data_type.name()
-                ),
-                Ok(d) if d.read_only == Some(true) => {
-                    "this drive describes it as read-only: not written".to_owned()
-                }
-                Ok(_) => continue,
-                Err(ParamError::Drive(d)) => {
-                    format!("this drive does not describe it ({d}): not written")
-                }
-                Err(e) => return Err(e),
-            };
-            out.push((
-                e.param.pnu,
-                ParamError::Value {
-                    param: e.info.id.to_string(),
-                    problem,
-                },
-            ));
-        }
-        Ok(out)
-    }
-
     /// Makes what RAM holds permanent after a restore: the copy of RAM to ROM, said in the
     /// report.
     fn store(&self, address: Address, report: &mut Restored) {

@@ -147,17 +147,23 @@ fn backup(
                 } else {
                     format!("; not on this drive: {}", file.not_on_drive.join(", "))
                 },
-                if file.described.is_empty() {
-                    String::new()
-                } else {
-                    format!(
-                        "; described by the drive, not in uss-rt's catalogue: {}",
+                match (&options.discover, file.described.is_empty()) {
+                    (None, _) => String::new(),
+                    (Some(_), true) => format!(
+                        "; of the {} numbers asked beyond the catalogue the drive described no \
+                         setting",
+                        upload.asked
+                    ),
+                    (Some(_), false) => format!(
+                        "; described by the drive, not in uss-rt's catalogue ({} numbers \
+                         asked): {}",
+                        upload.asked,
                         file.described
                             .keys()
                             .map(String::as_str)
                             .collect::<Vec<_>>()
                             .join(", ")
-                    )
+                    ),
                 },
                 if file.not_read.is_empty() {
                     String::new()
