@@ -60,6 +60,40 @@ pub(super) struct Drive {
     /// Operator commands already taken: OFF1, OFF2, OFF3.
     pub overrides_seen: [u32; 3],
     pub timing: DriveTiming,
+    /// The request sent to it before the one in flight.
+    pub sent_before: SentBefore,
+}
+
+/// The request last sent to a drive before the one in flight, byte for byte. A line that hands
+/// a request back one exchange late (a device server's buffer, an echo held over) gives the
+/// master this one, which parses as the drive's reply from the right address (found by issue
+/// 48's sweep: with a controller's setpoint changing every poll, an absent drive looked online,
+/// its own STW1 as ZSW1, and parameter reads answered 0). Kept in place: no allocation.
+#[derive(Debug, Clone)]
+pub(super) struct SentBefore {
+    bytes: [u8; uss_protocol::telegram::MAX_TELEGRAM_BYTES],
+    len: usize,
+}
+
+impl SentBefore {
+    pub const fn new() -> Self {
+        Self {
+            bytes: [0; uss_protocol::telegram::MAX_TELEGRAM_BYTES],
+            len: 0,
+        }
+    }
+
+    /// Whether `telegram` is that request.
+    pub fn is(&self, telegram: &[u8]) -> bool {
+        self.len > 0 && self.bytes[..self.len] == *telegram
+    }
+
+    /// Keeps `sent`, the request of the exchange that just ended.
+    pub fn keep(&mut self, sent: &[u8]) {
+        let len = sent.len().min(self.bytes.len());
+        self.bytes[..len].copy_from_slice(&sent[..len]);
+        self.len = len;
+    }
 }
 
 /// Whether a drive answers, as one state: what its polls decided so far.
@@ -259,6 +293,7 @@ impl Drive {
             period: Duration::ZERO,
             stale_after: Duration::ZERO,
             overrides_seen: [0; 3],
+            sent_before: SentBefore::new(),
             timing: DriveTiming::new(),
         }
     }

@@ -281,8 +281,9 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
         {
             Attempt::Failed(f)
         } else {
-            self.receive_reply(setup, n, request_end)?
+            self.receive_reply(setup, slot, n, request_end)?
         };
+        self.drives[slot].sent_before.keep(&self.tx[..n]);
         if pzd.is_none() && self.continuity.overdue(self.clock.now()) {
             // ussd did not run while it waited for the reply (SIGSTOP, a suspended machine, a
             // starved CPU): the gap is judged now, so the image this exchange makes already
@@ -311,6 +312,7 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
     pub(super) fn receive_reply(
         &mut self,
         setup: DriveSetup,
+        slot: usize,
         request_len: usize,
         request_end: Duration,
     ) -> Result<Attempt, TransportError> {
@@ -353,9 +355,11 @@ impl<T: Transport, C: Clock, B: Bridge> Engine<T, C, B> {
                         stx_at,
                         after_garbage,
                         // Our own request, byte for byte: a line that sends it back (a 2-wire
-                        // adapter without `echo = true`, a device server that echoes). A
-                        // drive's reply differs (ZSW1 for STW1, a PKW reply for the task).
-                        telegram.as_bytes() == &self.tx[..request_len],
+                        // adapter without `echo = true`, a device server that echoes), now or
+                        // one exchange late (the request before it). A drive's reply differs
+                        // (ZSW1 for STW1, a PKW reply for the task).
+                        telegram.as_bytes() == &self.tx[..request_len]
+                            || self.drives[slot].sent_before.is(telegram.as_bytes()),
                     ),
                 };
             let failure = if own {

@@ -1969,3 +1969,99 @@ fn a_job_of_a_requester_that_ended_never_reaches_the_wire_and_the_others_run() {
         "{ended:?}"
     );
 }
+
+/// A line that, once `late` is set, hands each request back one exchange late and no drive
+/// answers on it any more (a device server's buffer, an echo held over).
+struct LateEcho {
+    inner: SimTransport,
+    late: bool,
+    before: Vec<u8>,
+    pending: std::collections::VecDeque<uss_engine::Rx>,
+}
+
+impl uss_engine::Transport for LateEcho {
+    fn flush_input(&mut self, now: Duration) -> Result<(), uss_engine::TransportError> {
+        self.pending.clear();
+        self.inner.flush_input(now)
+    }
+
+    fn send(
+        &mut self,
+        bytes: &[u8],
+        now: Duration,
+    ) -> Result<Duration, uss_engine::TransportError> {
+        let end = if self.late {
+            let char_time = timing().char_time();
+            let end = now + char_time * u32::try_from(bytes.len()).unwrap();
+            let mut at = end + ms(1);
+            for &byte in &self.before {
+                at += char_time;
+                self.pending.push_back(uss_engine::Rx {
+                    byte,
+                    at,
+                    error: None,
+                });
+            }
+            end
+        } else {
+            self.inner.send(bytes, now)?
+        };
+        self.before = bytes.to_vec();
+        Ok(end)
+    }
+
+    fn recv(
+        &mut self,
+        deadline: Duration,
+        clock: &mut impl uss_engine::Clock,
+    ) -> Result<Option<uss_engine::Rx>, uss_engine::TransportError> {
+        if !self.late {
+            return self.inner.recv(deadline, clock);
+        }
+        match self.pending.front() {
+            Some(rx) if rx.at <= deadline => {
+                clock.sleep_until(rx.at);
+                Ok(self.pending.pop_front())
+            }
+            _ => {
+                clock.sleep_until(deadline);
+                Ok(None)
+            }
+        }
+    }
+}
+
+/// Found by issue 48's sweep: a line that hands back ussd's previous request to a drive made
+/// an absent drive look online while a controller's setpoint changed every poll (each request
+/// differed from the one before, so only an echo of the current one was known): its own STW1
+/// as ZSW1, good replies counted. The request before is an echo too: the drive goes offline.
+#[test]
+fn a_request_handed_back_one_exchange_late_is_no_reply() {
+    let (config, wire) = config_and_wire(&[(1, PkwMode::Four)], |_| {}, |_| {}, false);
+    let line = LateEcho {
+        inner: SimTransport::new(wire),
+        late: false,
+        before: Vec::new(),
+        pending: std::collections::VecDeque::new(),
+    };
+    let (mut engine, handle, _events) = Engine::new(config, line, VirtualClock::new());
+    // Re-armed (OFF1), then running with a setpoint that changes every poll.
+    for _ in 0..20 {
+        handle.set_output(addr(1), &[0x047E, 0]).unwrap();
+        engine.poll_next().unwrap();
+    }
+    assert_eq!(
+        engine.stats().drive(addr(1)).unwrap().control,
+        Control::Live
+    );
+    engine.transport_mut().late = true;
+    let good = engine.stats().drive(addr(1)).unwrap().counters.good;
+    for i in 0..40u16 {
+        handle.set_output(addr(1), &[0x047F, 0x1000 + i]).unwrap();
+        engine.poll_next().unwrap();
+    }
+    let s = *engine.stats().drive(addr(1)).unwrap();
+    assert_eq!(s.counters.good, good, "no reply was taken from an echo");
+    assert!(!s.online, "the drive answers nothing: offline");
+    assert!(s.counters.echo > 0, "{:?}", s.counters);
+}
