@@ -2065,3 +2065,93 @@ fn a_request_handed_back_one_exchange_late_is_no_reply() {
     assert!(!s.online, "the drive answers nothing: offline");
     assert!(s.counters.echo > 0, "{:?}", s.counters);
 }
+
+/// A line that records each request's address and STW1 and, once, asks for an operator's stop
+/// through `handle` while a request to `address` is on the wire.
+struct StopOnTheWay {
+    inner: SimTransport,
+    sent: Vec<(u8, u16)>,
+    ask: Option<(u8, u16, EngineHandle, StopCommand)>,
+}
+
+impl uss_engine::Transport for StopOnTheWay {
+    fn flush_input(&mut self, now: Duration) -> Result<(), uss_engine::TransportError> {
+        self.inner.flush_input(now)
+    }
+
+    fn send(
+        &mut self,
+        bytes: &[u8],
+        now: Duration,
+    ) -> Result<Duration, uss_engine::TransportError> {
+        // STX, LGE, ADR, four PKW words, then STW1 (USS.md section 3).
+        let (adr, stw1) = (bytes[2] & 0x1F, u16::from_be_bytes([bytes[11], bytes[12]]));
+        self.sent.push((adr, stw1));
+        if let Some((a, word, _, _)) = &self.ask
+            && (*a, *word) == (adr, stw1)
+            && let Some((_, _, handle, command)) = self.ask.take()
+        {
+            handle.stop_drive(Some(addr(adr)), command, 7).unwrap();
+        }
+        self.inner.send(bytes, now)
+    }
+
+    fn recv(
+        &mut self,
+        deadline: Duration,
+        clock: &mut impl uss_engine::Clock,
+    ) -> Result<Option<uss_engine::Rx>, uss_engine::TransportError> {
+        self.inner.recv(deadline, clock)
+    }
+}
+
+/// A stop asked while a drive that does not answer is polled out of turn (its OFF3 going out
+/// to it) is in the very next attempt to it, the retry: a retry carries the words as they are
+/// then (issue 48's second sweep saw 78 ms until OFF2 at 19200 baud: the attempt on the wire,
+/// a request and its reply timeout, is what the stop waits for, never the retries after it).
+#[test]
+fn a_stop_asked_during_an_out_of_turn_poll_goes_out_with_its_retry() {
+    let (config, mut wire) = config_and_wire(
+        &[(1, PkwMode::Four), (2, PkwMode::Four)],
+        |_| {},
+        |_| {},
+        false,
+    );
+    wire.bus_mut()
+        .faults_mut(addr(2))
+        .unwrap()
+        .set_probability(Fault::DropReply, 1.0);
+    let line = StopOnTheWay {
+        inner: SimTransport::new(wire),
+        sent: Vec::new(),
+        ask: None,
+    };
+    let (mut engine, handle, _events) = Engine::new(config, line, VirtualClock::new());
+    for _ in 0..10 {
+        engine.poll_next().unwrap();
+    }
+    // OFF3 for drive 2 (stronger than the safe OFF1 it has): polled out of turn; while that
+    // OFF3 is on the wire, an operator asks for OFF2.
+    let off3 = StopCommand::Off3.stw1();
+    let off2 = StopCommand::Off2.stw1();
+    engine.transport_mut().ask = Some((2, off3, handle.clone(), StopCommand::Off2));
+    handle
+        .stop_drive(Some(addr(2)), StopCommand::Off3, 7)
+        .unwrap();
+    for _ in 0..6 {
+        engine.poll_next().unwrap();
+    }
+    let to_2: Vec<u16> = engine
+        .transport()
+        .sent
+        .iter()
+        .filter(|(a, _)| *a == 2)
+        .map(|(_, w)| *w)
+        .collect();
+    let first_off3 = to_2.iter().position(|&w| w == off3).expect("OFF3 sent");
+    assert_eq!(
+        to_2.get(first_off3 + 1),
+        Some(&off2),
+        "the attempt after the one the stop was asked during carries it: {to_2:04X?}"
+    );
+}
