@@ -849,10 +849,9 @@ impl Catalogue {
         names.join(", ")
     }
 
-    /// Whether `pnu` is one of the catalogue's guarded parameters or roles (not only an entry).
-    fn guard_of(&self, pnu: u16) -> bool {
-        let entry = self.param(pnu).is_some();
-        self.guard.iter().any(|g| g.id.pnu.get() == pnu) || (entry && self.role_of(pnu))
+    /// Whether `pnu` is one of the catalogue's guarded parameters or roles.
+    fn guarded_or_role(&self, pnu: u16) -> bool {
+        self.guard.iter().any(|g| g.id.pnu.get() == pnu) || self.role_of(pnu)
     }
 
     /// Whether `pnu` is one of the profile's roles (the link, the reset, the monitoring, ...).
@@ -882,9 +881,7 @@ impl Catalogue {
     /// monitoring, the command source). A drive's own description of such a number is never
     /// taken in its place.
     pub fn knows(&self, pnu: u16) -> bool {
-        self.param(pnu).is_some()
-            || self.guard.iter().any(|g| g.id.pnu.get() == pnu)
-            || self.role_of(pnu)
+        self.param(pnu).is_some() || self.guarded_or_role(pnu)
     }
 
     /// Why parameter number `pnu`, where a drive describes it but its own family's catalogue
@@ -900,7 +897,7 @@ impl Catalogue {
         let objects = |c: &&Self| {
             c.knows(pnu)
                 && c.param(pnu)
-                    .is_none_or(|p| p.action || !p.is_setting() || c.guard_of(pnu))
+                    .is_none_or(|p| p.action || !p.is_setting() || c.guarded_or_role(pnu))
         };
         PROFILES.iter().find(objects).map(|c| {
             let id = c.notation(ParamRef {

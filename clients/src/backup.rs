@@ -105,6 +105,14 @@ pub struct DescribedSetting {
     pub value: Saved,
 }
 
+/// Parameter numbers as `--discover` and the bridge's `?discover=` write them: `FROM-TO`, or
+/// one number; `None` for anything else (a reversed range too).
+pub fn pnu_range(text: &str) -> Option<core::ops::RangeInclusive<u16>> {
+    let (a, b) = text.split_once('-').unwrap_or((text, text));
+    let (a, b) = (a.trim().parse::<u16>().ok()?, b.trim().parse::<u16>().ok()?);
+    (a <= b).then_some(a..=b)
+}
+
 /// How an upload goes ([`Bus::upload_with`]).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct UploadOptions {
@@ -426,19 +434,16 @@ fn described_entries<'f>(
         if let Some(why) = why {
             return Err(fail(at, format!("{key}: {why}")));
         }
-        let data_type = DataType::ALL
-            .into_iter()
-            .find(|t| t.name() == d.data_type)
-            .ok_or_else(|| {
-                fail(
-                    at,
-                    format!(
-                        "{key}: type = \"{}\" is not a type uss-rt reads (U16, I16, U32, \
+        let data_type = DataType::named(&d.data_type).ok_or_else(|| {
+            fail(
+                at,
+                format!(
+                    "{key}: type = \"{}\" is not a type uss-rt reads (U16, I16, U32, \
                          I32, Float)",
-                        d.data_type
-                    ),
-                )
-            })?;
+                    d.data_type
+                ),
+            )
+        })?;
         let array = match &d.value {
             Saved::One(_) => 0,
             Saved::Many(list) => u16::try_from(list.len()).unwrap_or(u16::MAX),
@@ -954,16 +959,14 @@ impl Bus {
                 Err(e) => return Err(e),
             };
             let number = Number::of(t, v);
-            let entry = out
-                .entry(name_of(n, catalogue))
-                .or_insert_with(|| DescribedSetting {
-                    data_type: t.name().to_owned(),
-                    value: if r.index.is_some() {
-                        Saved::Many(Vec::new())
-                    } else {
-                        Saved::One(number)
-                    },
-                });
+            let entry = out.entry(name).or_insert_with(|| DescribedSetting {
+                data_type: t.name().to_owned(),
+                value: if r.index.is_some() {
+                    Saved::Many(Vec::new())
+                } else {
+                    Saved::One(number)
+                },
+            });
             if let Saved::Many(list) = &mut entry.value {
                 list.push(number);
             }

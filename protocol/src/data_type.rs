@@ -42,6 +42,12 @@ impl DataType {
         }
     }
 
+    /// The type a parameter list (the catalogue's TOML) names `name`: `I16`, `I32`, `U16`,
+    /// `U32`, `Float`.
+    pub fn named(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|t| t.name() == name)
+    }
+
     /// Whether values of this type travel as a double word (AK 3/8/11/13, replies 2/5).
     pub const fn is_dword(self) -> bool {
         matches!(self, Self::I32 | Self::U32 | Self::Float)

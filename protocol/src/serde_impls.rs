@@ -53,9 +53,7 @@ impl<'de> Deserialize<'de> for DataType {
                 f.write_str("a data type: I16, I32, U16, U32 or Float")
             }
             fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<DataType, E> {
-                DataType::ALL
-                    .into_iter()
-                    .find(|t| t.name() == v)
+                DataType::named(v)
                     .ok_or_else(|| E::unknown_variant(v, &["I16", "I32", "U16", "U32", "Float"]))
             }
         }

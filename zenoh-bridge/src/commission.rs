@@ -107,13 +107,6 @@ fn text_of(query: &Query) -> Result<Option<String>, Refusal> {
         .map(|t| t.filter(|t| !t.trim().is_empty()))
 }
 
-/// `FROM-TO` (or one number) of parameter numbers.
-fn pnu_range(text: &str) -> Option<core::ops::RangeInclusive<u16>> {
-    let (a, b) = text.split_once('-').unwrap_or((text, text));
-    let (a, b) = (a.trim().parse::<u16>().ok()?, b.trim().parse::<u16>().ok()?);
-    (a <= b).then_some(a..=b)
-}
-
 /// Whether the query's parameters set `name` (`?eeprom`, `?eeprom=true`).
 fn flag(query: &Query, name: &str) -> bool {
     query
@@ -175,7 +168,7 @@ fn answer(
             // `?discover=FROM-TO`: also what the drive describes beyond the catalogue.
             let discover = match query.parameters().get("discover") {
                 None => None,
-                Some(range) => Some(pnu_range(range).ok_or_else(|| {
+                Some(range) => Some(uss_client::backup::pnu_range(range).ok_or_else(|| {
                     Refusal::invalid(format!(
                         "{key}: discover={range}: a range of parameter numbers FROM-TO (0-3999)"
                     ))

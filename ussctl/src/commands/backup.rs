@@ -85,13 +85,9 @@ impl Backup {
 
 /// `FROM-TO` (or one number) of parameter numbers.
 fn pnu_range(text: &str) -> Result<core::ops::RangeInclusive<u16>, String> {
-    let (a, b) = text.split_once('-').unwrap_or((text, text));
-    match (a.trim().parse::<u16>(), b.trim().parse::<u16>()) {
-        (Ok(a), Ok(b)) if a <= b => Ok(a..=b),
-        _ => Err(format!(
-            "'{text}' is not a range of parameter numbers FROM-TO (e.g. 0-3999)"
-        )),
-    }
+    backup::pnu_range(text).ok_or_else(|| {
+        format!("'{text}' is not a range of parameter numbers FROM-TO (e.g. 0-3999)")
+    })
 }
 
 /// `param diff`'s arguments.
