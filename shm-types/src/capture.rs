@@ -10,6 +10,7 @@
 use crate::codes::{UnknownCode, code_table};
 use crate::diag::LastFailure;
 use crate::{LAYOUT_VERSION, check_version};
+#[cfg(feature = "ipc")]
 use iceoryx2::prelude::ZeroCopySend;
 
 code_table! {
@@ -33,8 +34,12 @@ pub const CAPTURE_TASK: u8 = 1 << 1;
 
 /// One captured telegram.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssTelegramRecordV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(
+    feature = "ipc",
+    derive(ZeroCopySend),
+    type_name("UssTelegramRecordV9")
+)]
 pub struct TelegramRecord {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -14,6 +14,7 @@
 use crate::codes::{UnknownCode, code_table};
 // The vocabulary is the domain's (`uss_control`); the contract carries it as bytes.
 use crate::{ContractError, LAYOUT_VERSION};
+#[cfg(feature = "ipc")]
 use iceoryx2::prelude::ZeroCopySend;
 pub use uss_control::{ControlState, LatchReason, NO_STOP_COMMAND, Rejection, StopCommand};
 
@@ -63,8 +64,12 @@ code_table! {
 
 /// An operator's stop command for one drive or every drive of a bus, from any process.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorRequestV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(
+    feature = "ipc",
+    derive(ZeroCopySend),
+    type_name("UssOperatorRequestV9")
+)]
 pub struct OperatorRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -87,8 +92,12 @@ pub const OPERATOR_RESPONSE_BYTES: usize = 12;
 
 /// The one answer to an [`OperatorRequest`].
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssOperatorResponseV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(
+    feature = "ipc",
+    derive(ZeroCopySend),
+    type_name("UssOperatorResponseV9")
+)]
 pub struct OperatorResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -4,6 +4,7 @@
 use crate::LAYOUT_VERSION;
 use crate::codes::{UnknownCode, code_table};
 use crate::control::{ControlState, LatchReason, Monitoring, Rejection, StopCommand};
+#[cfg(feature = "ipc")]
 use iceoryx2::prelude::ZeroCopySend;
 pub use uss_control::DriveFamily;
 use uss_protocol::{FrameError, LineError};
@@ -76,8 +77,8 @@ code_table! {
 /// The master's view of one drive, mirroring what the drive keeps itself (r2024..r2031,
 /// USS.md section 7) plus timeouts and retries.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveDiagV9")]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssDriveDiagV9"))]
 pub struct DriveDiag {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -146,8 +147,8 @@ pub struct DriveDiag {
 /// What ussd knows of one drive from its configuration, published so that no client has to be
 /// told it again (a controller scales Hz with `reference_hz`, sends exactly `pzd_words`).
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("UssDriveInfoV9")]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssDriveInfoV9"))]
 pub struct DriveInfo {
     /// The reference frequency P2000, Hz: a setpoint or HIW of 0x4000 (100 %) is this
     /// frequency (USS.md section 7). The drive's own value once ussd has read it; the
@@ -218,8 +219,8 @@ impl DriveInfo {
 /// What ussd counts for one drive: the engine counts into this type and the same value is
 /// published (USS.md section 4, "Receive errors to detect and count").
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssDriveCountersV9")]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssDriveCountersV9"))]
 pub struct DriveCounters {
     /// Telegrams sent to the drive (retries included).
     pub requests: u64,
@@ -338,8 +339,8 @@ impl DriveCounters {
 
 /// The state of the bus as a whole.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssBusStatusV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssBusStatusV9"))]
 pub struct BusStatus {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -11,6 +11,7 @@ use crate::codes::{UnknownCode, code_table};
 use crate::diag::LineFault;
 use crate::names::{self, Generation};
 use crate::{LAYOUT_VERSION, check_version};
+#[cfg(feature = "ipc")]
 use iceoryx2::prelude::ZeroCopySend;
 
 code_table! {
@@ -27,8 +28,8 @@ code_table! {
 
 /// One heartbeat.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssHeartbeatV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssHeartbeatV9"))]
 pub struct Heartbeat {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -35,6 +35,7 @@
 //! sample (in the controller's process).
 
 use core::fmt;
+#[cfg(feature = "ipc")]
 use iceoryx2::prelude::{NodeName, ServiceName, ZeroCopySend};
 use thiserror::Error;
 
@@ -89,8 +90,8 @@ pub use uss_protocol::Address;
 /// The key type of every ussd blackboard. Keys are compared byte for byte; C, C++ and Python
 /// declare it as a struct with one `uint32_t value` and the type name `UssBlackboardKey`.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, ZeroCopySend)]
-#[type_name("UssBlackboardKey")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssBlackboardKey"))]
 pub struct BlackboardKey {
     pub value: u32,
 }
@@ -185,6 +186,7 @@ impl Instance {
         Self { bus, generation }
     }
 
+    #[cfg(feature = "ipc")]
     fn service(&self, rest: &str) -> ServiceName {
         service(&format!("uss/{}/{}/{rest}", self.bus, self.generation))
     }
@@ -199,36 +201,43 @@ impl fmt::Display for Instance {
 
 /// The heartbeat of the ussd serving `bus` (publish-subscribe, one publisher, history 1): the
 /// one service whose name stays when ussd restarts. It says which generation serves the bus.
+#[cfg(feature = "ipc")]
 pub fn heartbeat(bus: &BusName) -> ServiceName {
     service(&format!("uss/{bus}/ussd"))
 }
 
 /// The controller's output image of one drive.
+#[cfg(feature = "ipc")]
 pub fn drive_out(i: &Instance, address: Address) -> ServiceName {
     i.service(&format!("drive/{address}/out"))
 }
 
 /// The drive's input image, written by ussd after every poll.
+#[cfg(feature = "ipc")]
 pub fn drive_in(i: &Instance, address: Address) -> ServiceName {
     i.service(&format!("drive/{address}/in"))
 }
 
 /// Diagnostics of every drive of the bus, keyed by address.
+#[cfg(feature = "ipc")]
 pub fn diag(i: &Instance) -> ServiceName {
     i.service("diag")
 }
 
 /// The bus status.
+#[cfg(feature = "ipc")]
 pub fn status(i: &Instance) -> ServiceName {
     i.service("status")
 }
 
 /// Exchange and cycle events.
+#[cfg(feature = "ipc")]
 pub fn cycle(i: &Instance) -> ServiceName {
     i.service("cycle")
 }
 
 /// Parameter requests.
+#[cfg(feature = "ipc")]
 pub fn params(i: &Instance) -> ServiceName {
     i.service("params")
 }
@@ -249,6 +258,7 @@ pub fn stop_board(bus: &BusName) -> std::path::PathBuf {
 }
 
 /// Every telegram of the bus, as ussd's bus thread sent and received it.
+#[cfg(feature = "ipc")]
 pub fn capture(i: &Instance) -> ServiceName {
     i.service("capture")
 }
@@ -264,12 +274,14 @@ pub const CAPTURE_MAX_SUBSCRIBERS: usize = 4;
 /// Clients notify [`REQUEST_SENT`] here after sending a parameter request or an operator
 /// command, so ussd takes it at once; a request without it is still taken, within
 /// [`REQUEST_POLL_NS`].
+#[cfg(feature = "ipc")]
 pub fn requests(i: &Instance) -> ServiceName {
     i.service("requests")
 }
 
 /// ussd notifies [`ANSWER_SENT`] here after each answer on `params` and `command`, so a
 /// waiting client receives it at once instead of polling.
+#[cfg(feature = "ipc")]
 pub fn answers(i: &Instance) -> ServiceName {
     i.service("answers")
 }
@@ -285,9 +297,11 @@ pub const ANSWER_SENT: usize = 0;
 pub const REQUEST_POLL_NS: u64 = 2_000_000;
 
 /// What the name of ussd's node for a bus begins with ([`ussd_node`], [`live_ussds`]).
+#[cfg(feature = "ipc")]
 const USSD_NODE_PREFIX: &str = "ussd-";
 
 /// The name of ussd's node for a bus, as `Node::list` shows it.
+#[cfg(feature = "ipc")]
 pub fn ussd_node(bus: &BusName) -> NodeName {
     // At most 5 + 32 characters of [A-Za-z0-9_-]: within NodeName's 128-character limit.
     NodeName::new(&format!("{USSD_NODE_PREFIX}{bus}")).expect("bus names make valid node names")
@@ -305,6 +319,7 @@ pub struct LiveUssd {
 /// process that runs ussd), as far as this process may see them; empty without a root or one
 /// it cannot read. The one walk of the nodes that ussd (is a bus or the root in use?) and the
 /// clients (which buses are served?) share.
+#[cfg(feature = "ipc")]
 pub fn live_ussds() -> Vec<LiveUssd> {
     use iceoryx2::node::{NodeState, NodeView as _};
     use iceoryx2::prelude::{CallbackProgression, Node};
@@ -338,10 +353,12 @@ pub fn live_ussds() -> Vec<LiveUssd> {
 /// the program's name is not, unless the program renames itself (`prctl`), which no client
 /// library call does. A process not visible (another PID namespace sharing the root) is taken
 /// at its node's word.
+#[cfg(feature = "ipc")]
 fn names_another_program(pid: u32) -> bool {
     std::fs::read_to_string(format!("/proc/{pid}/comm")).is_ok_and(|comm| !comm.starts_with("ussd"))
 }
 
+#[cfg(feature = "ipc")]
 fn service(name: &str) -> ServiceName {
     // Built from a validated bus name (at most 32 of [A-Za-z0-9_-]) and an address of at most
     // two digits: never empty, never "iox2://"-prefixed, far below the 255-character limit.
@@ -357,6 +374,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "ipc")]
     fn service_names_follow_the_table() {
         let b = bus("line-1_A");
         let i = Instance::new(b.clone(), Generation(0x1234_abcd));

@@ -6,6 +6,7 @@
 use crate::codes::{UnknownCode, code_table};
 use crate::names::Address;
 use crate::{LAYOUT_VERSION, check_version};
+#[cfg(feature = "ipc")]
 use iceoryx2::prelude::ZeroCopySend;
 use uss_protocol::ParamTask;
 
@@ -168,8 +169,8 @@ impl TaskCode {
 
 /// One parameter access.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamItemV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssParamItemV9"))]
 pub struct ParamItem {
     /// A [`TaskCode`].
     pub task: u8,
@@ -186,8 +187,8 @@ pub struct ParamItem {
 
 /// A request for up to 39 parameter accesses on one drive.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamRequestV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssParamRequestV9"))]
 pub struct ParamRequest {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -203,8 +204,8 @@ pub struct ParamRequest {
 
 /// The result of one item.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResultV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssParamResultV9"))]
 pub struct ParamResult {
     /// An [`Outcome`] code.
     pub outcome: u8,
@@ -227,8 +228,8 @@ pub struct ParamResult {
 
 /// The one response to a [`ParamRequest`].
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssParamResponseV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssParamResponseV9"))]
 pub struct ParamResponse {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

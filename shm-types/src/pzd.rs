@@ -4,6 +4,7 @@
 
 use crate::control::{ControlState, LatchReason, Rejection, StopCommand};
 use crate::{ContractError, LAYOUT_VERSION, check_version};
+#[cfg(feature = "ipc")]
 use iceoryx2::prelude::ZeroCopySend;
 use uss_control::{Body, DriveImage, Received, Sample, Words};
 
@@ -46,8 +47,8 @@ const _: () =
 /// checks every sample with [`PzdOutput::validate`] before it reaches the wire: a sample the
 /// drive would misread is refused and latches the drive too.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdOutputV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssPzdOutputV9"))]
 pub struct PzdOutput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -78,8 +79,8 @@ pub struct PzdOutput {
 /// The drive's input image, on `uss/<bus>/drive/<addr>/in`, written by ussd after every poll
 /// of the drive, good or failed.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
-#[type_name("UssPzdInputV9")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("UssPzdInputV9"))]
 pub struct PzdInput {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

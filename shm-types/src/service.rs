@@ -10,17 +10,6 @@
 //! (`uss_master::daemon::access`). Every process of a bus must use this variant and root:
 //! [`config`] is the iceoryx2 configuration that names it.
 
-use core::fmt::Debug;
-use iceoryx2::config::Config;
-use iceoryx2::prelude::SemanticString as _;
-use iceoryx2_bb_elementary_traits::testing::abandonable::Abandonable;
-use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
-use iceoryx2_bb_lock_free::mpmc::counting_bit_set::RelocatableCountingBitSet;
-use iceoryx2_cal::shm_allocator::{bump_allocator::BumpAllocator, pool_allocator::PoolAllocator};
-use iceoryx2_cal::{
-    arc_sync_policy, bag, dynamic_storage, event, hash, monitoring, reactor,
-    resizable_shared_memory, serialize, shared_memory, static_storage, zero_copy_connection,
-};
 use std::path::PathBuf;
 
 /// The environment variable that moves the root (tests, or a second installation); every
@@ -36,66 +25,89 @@ pub fn root() -> PathBuf {
         .map_or_else(|| PathBuf::from(DEFAULT_ROOT), PathBuf::from)
 }
 
-/// The iceoryx2 configuration of every uss-rt node: its files below [`root`]. `None` for a
-/// root iceoryx2 cannot take as a path (not absolute, too long).
-pub fn config() -> Option<Config> {
-    let root = root();
-    let root = root.to_str()?;
-    let path = iceoryx2_bb_system_types::path::Path::new(root.as_bytes()).ok()?;
-    let mut c = Config::default();
-    c.global.set_root_path(&path);
-    Some(c)
-}
+#[cfg(feature = "ipc")]
+pub use variants::{Ipc, IpcThreadsafe, config};
 
-macro_rules! variant {
-    ($(#[$doc:meta])* $name:ident, $policy:ty) => {
-        $(#[$doc])*
-        #[derive(Debug, Clone)]
-        pub struct $name {}
-
-        impl iceoryx2::service::Service for $name {
-            type StaticStorage = static_storage::file::Storage;
-            type ConfigSerializer = serialize::recommended::Recommended;
-            type PersistentDynamicStorage<T: Debug + Send + Sync + ZeroCopySend + 'static> =
-                dynamic_storage::file::Storage<T>;
-            type Bag = bag::recommended::Recommended;
-            type DynamicStorage<T: Debug + Send + Sync + ZeroCopySend + 'static> =
-                dynamic_storage::file::Storage<T>;
-            type ServiceNameHasher = hash::recommended::Recommended;
-            type SharedMemory = shared_memory::file::Memory<PoolAllocator>;
-            type ResizableSharedMemory = resizable_shared_memory::dynamic::DynamicMemory<
-                PoolAllocator,
-                shared_memory::file::Memory<PoolAllocator>,
-            >;
-            type Connection = zero_copy_connection::file::Connection;
-            type Event = event::trigger::unix_datagram_socket::GenericUnixDatagramSocketTrigger<
-                RelocatableCountingBitSet,
-                dynamic_storage::file::Storage<
-                    event::trigger::State<RelocatableCountingBitSet, ()>,
-                >,
-            >;
-            type Monitoring = monitoring::recommended::Ipc;
-            type Reactor = reactor::recommended::Ipc;
-            type ArcThreadSafetyPolicy<T: Send + Debug + Abandonable> = $policy;
-            type BlackboardMgmt<KeyType: Send + Sync + Debug + ZeroCopySend + 'static> =
-                dynamic_storage::file::Storage<KeyType>;
-            type BlackboardPayload = shared_memory::file::Memory<BumpAllocator>;
-            type UniqueId = iceoryx2::unique_id_generator::unique_system_id::UniqueSystemId;
-        }
-
-        impl iceoryx2::service::internal::ServiceInternal<$name> for $name {}
+/// The iceoryx2 side: the configuration and the two variants (feature `ipc`).
+#[cfg(feature = "ipc")]
+mod variants {
+    use core::fmt::Debug;
+    use iceoryx2::config::Config;
+    use iceoryx2::prelude::SemanticString as _;
+    use iceoryx2_bb_elementary_traits::testing::abandonable::Abandonable;
+    use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
+    use iceoryx2_bb_lock_free::mpmc::counting_bit_set::RelocatableCountingBitSet;
+    use iceoryx2_cal::shm_allocator::{
+        bump_allocator::BumpAllocator, pool_allocator::PoolAllocator,
     };
+    use iceoryx2_cal::{
+        arc_sync_policy, bag, dynamic_storage, event, hash, monitoring, reactor,
+        resizable_shared_memory, serialize, shared_memory, static_storage, zero_copy_connection,
+    };
+
+    use super::root;
+
+    /// The iceoryx2 configuration of every uss-rt node: its files below [`root`]. `None` for a
+    /// root iceoryx2 cannot take as a path (not absolute, too long).
+    pub fn config() -> Option<Config> {
+        let root = root();
+        let root = root.to_str()?;
+        let path = iceoryx2_bb_system_types::path::Path::new(root.as_bytes()).ok()?;
+        let mut c = Config::default();
+        c.global.set_root_path(&path);
+        Some(c)
+    }
+
+    macro_rules! variant {
+        ($(#[$doc:meta])* $name:ident, $policy:ty) => {
+            $(#[$doc])*
+            #[derive(Debug, Clone)]
+            pub struct $name {}
+
+            impl iceoryx2::service::Service for $name {
+                type StaticStorage = static_storage::file::Storage;
+                type ConfigSerializer = serialize::recommended::Recommended;
+                type PersistentDynamicStorage<T: Debug + Send + Sync + ZeroCopySend + 'static> =
+                    dynamic_storage::file::Storage<T>;
+                type Bag = bag::recommended::Recommended;
+                type DynamicStorage<T: Debug + Send + Sync + ZeroCopySend + 'static> =
+                    dynamic_storage::file::Storage<T>;
+                type ServiceNameHasher = hash::recommended::Recommended;
+                type SharedMemory = shared_memory::file::Memory<PoolAllocator>;
+                type ResizableSharedMemory = resizable_shared_memory::dynamic::DynamicMemory<
+                    PoolAllocator,
+                    shared_memory::file::Memory<PoolAllocator>,
+                >;
+                type Connection = zero_copy_connection::file::Connection;
+                type Event = event::trigger::unix_datagram_socket::GenericUnixDatagramSocketTrigger<
+                    RelocatableCountingBitSet,
+                    dynamic_storage::file::Storage<
+                        event::trigger::State<RelocatableCountingBitSet, ()>,
+                    >,
+                >;
+                type Monitoring = monitoring::recommended::Ipc;
+                type Reactor = reactor::recommended::Ipc;
+                type ArcThreadSafetyPolicy<T: Send + Debug + Abandonable> = $policy;
+                type BlackboardMgmt<KeyType: Send + Sync + Debug + ZeroCopySend + 'static> =
+                    dynamic_storage::file::Storage<KeyType>;
+                type BlackboardPayload = shared_memory::file::Memory<BumpAllocator>;
+                type UniqueId = iceoryx2::unique_id_generator::unique_system_id::UniqueSystemId;
+            }
+
+            impl iceoryx2::service::internal::ServiceInternal<$name> for $name {}
+        };
+    }
+
+    variant!(
+        /// iceoryx2's `ipc` variant with every resource a file below [`root`]; ports of one thread.
+        Ipc,
+        arc_sync_policy::single_threaded::SingleThreaded<T>
+    );
+
+    variant!(
+        /// [`Ipc`] whose ports may be made in one thread and used in another (ussd, the client
+        /// library).
+        IpcThreadsafe,
+        arc_sync_policy::mutex_protected::MutexProtected<T>
+    );
 }
-
-variant!(
-    /// iceoryx2's `ipc` variant with every resource a file below [`root`]; ports of one thread.
-    Ipc,
-    arc_sync_policy::single_threaded::SingleThreaded<T>
-);
-
-variant!(
-    /// [`Ipc`] whose ports may be made in one thread and used in another (ussd, the client
-    /// library).
-    IpcThreadsafe,
-    arc_sync_policy::mutex_protected::MutexProtected<T>
-);
