@@ -997,7 +997,7 @@ enum UssrtStatus ussrt_param_backup(const struct UssrtBus *bus,
  * `ussrt_param_backup`, and the settable parameters numbered `first..=last` that the
  * catalogue does not list, as the drive describes them (AK 4, one exchange per number; the
  * file's `[described]`): the rest of a drive's list where uss-rt's is not whole. `first`
- * above `last` is `INVALID_ARGUMENT`.
+ * above `last` is `VALUE`, refused before the bus.
  *
  * # Safety
  * As `ussrt_param_backup`.

@@ -380,7 +380,7 @@ pub unsafe extern "C" fn ussrt_param_backup(
 /// `ussrt_param_backup`, and the settable parameters numbered `first..=last` that the
 /// catalogue does not list, as the drive describes them (AK 4, one exchange per number; the
 /// file's `[described]`): the rest of a drive's list where uss-rt's is not whole. `first`
-/// above `last` is `INVALID_ARGUMENT`.
+/// above `last` is `VALUE`, refused before the bus.
 ///
 /// # Safety
 /// As `ussrt_param_backup`.
@@ -394,13 +394,6 @@ pub unsafe extern "C" fn ussrt_param_backup_discover(
     capacity: usize,
     length: *mut usize,
 ) -> UssrtStatus {
-    if first > last {
-        return guard(|| {
-            Err(Failure::Argument(format!(
-                "discover {first}..={last}: the first number is above the last"
-            )))
-        });
-    }
     // SAFETY: passed on as the caller gave them, as documented.
     unsafe { backup_text(bus, address, Some(first..=last), text, capacity, length) }
 }

@@ -782,13 +782,23 @@ impl Bus {
     /// range that the catalogue does not list, as the drive describes them (`described`).
     ///
     /// # Errors
-    /// [`ParamError::NotOnFamily`] for a generic slave; a failure of the path otherwise.
+    /// [`ParamError::Value`] for a discovery range whose first number is above its last
+    /// (before the bus); [`ParamError::NotOnFamily`] for a generic slave; a failure of the
+    /// path otherwise.
     pub fn upload_with(
         &self,
         address: Address,
         options: &UploadOptions,
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<Upload, ParamError> {
+        if let Some(range) = &options.discover
+            && range.is_empty()
+        {
+            return Err(ParamError::Value {
+                param: format!("discover {}-{}", range.start(), range.end()),
+                problem: "the first parameter number is above the last".to_owned(),
+            });
+        }
         let family = self.family(address);
         let catalogue = settings_catalogue(address, family)?;
         let firmware = self.firmware(address)?;

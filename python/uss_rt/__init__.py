@@ -379,7 +379,7 @@ def backup(bus: Bus, address: int, discover: "tuple[int, int] | None" = None) ->
     _check_address(address)
     if discover is not None:
         first, last = discover
-        if not (0 <= first <= last <= 65535):
+        if not (0 <= first <= 65535 and 0 <= last <= 65535):
             raise ValueError(f"discover={discover!r}: (first, last) parameter numbers")
         return _native.backup(bus._open(), address, (first, last))
     return _native.backup(bus._open(), address)
